@@ -1,0 +1,374 @@
+"""The `hermsd` command: run the loop, simulate, check wiring and config, replay logs.
+
+Every failure a user can cause (no I2C bus, wrong address, a bad config, a bad scenario)
+ends in one line on stderr and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import signal
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from types import FrameType
+from typing import TextIO
+
+from hermsd import __version__
+from hermsd import config as config_module
+from hermsd.config import Config, ConfigError, ContactorConfig, OutputConfig
+from hermsd.durations import parse_duration
+from hermsd.lm92 import LM92, SensorError, open_bus
+from hermsd.ssr import Switch, open_hardware_switch
+
+DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
+EXIT_USAGE = 2
+
+log = logging.getLogger("hermsd")
+
+
+class UserError(Exception):
+    """A problem the user can fix; printed as one line, exit code 2."""
+
+
+class Shutdown(BaseException):
+    """SIGTERM or SIGINT: unwinds the loop from wherever it is, so the heater goes off now."""
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    raise Shutdown(signal.Signals(signum).name)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    _setup_logging(getattr(args, "verbose", False))
+    try:
+        result: int = args.func(args)
+        return result
+    except UserError as error:
+        print(f"hermsd: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    except ConfigError as error:
+        print(str(error), file=sys.stderr)
+        return EXIT_USAGE
+    except SensorError as error:
+        print(f"hermsd: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    except Shutdown:
+        return 0
+    except KeyboardInterrupt:
+        return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hermsd", description="Holds a HERMS Hot Liquid Tun at its setpoint."
+    )
+    parser.add_argument("--version", action="version", version=f"hermsd {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    sensor = sub.add_parser("sensor", help="identify the LM92 and print readings (wiring check)")
+    sensor.add_argument("--bus", type=int, default=1, help="I2C bus number (default 1)")
+    sensor.add_argument(
+        "--address", type=_address, default=0x48, help="LM92 address 0x48..0x4b (default 0x48)"
+    )
+    sensor.add_argument("--count", type=_positive_int, help="stop after N readings")
+    sensor.add_argument("--simulate", action="store_true", help="read the simulated tun")
+    sensor.set_defaults(func=cmd_sensor)
+
+    run = sub.add_parser("run", help="run the control loop")
+    run.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
+    run.add_argument("--simulate", action="store_true", help="simulated tun and heater")
+    run.add_argument(
+        "--speed", default="1", help="with --simulate: times real time, or 'max' (default 1)"
+    )
+    run.add_argument("--duration", help="stop after this long, e.g. 90s, 4h, 1h30m")
+    run.set_defaults(func=cmd_run)
+
+    simulate = sub.add_parser("simulate", help="run a scenario at full speed and measure it")
+    simulate.add_argument("--config", type=Path, help="config file (default: built-in)")
+    simulate.add_argument("--scenario", type=Path, help="scenario file (default: 20 → 66 °C)")
+    simulate.add_argument("--json", action="store_true", help="print one JSON object")
+    simulate.add_argument("--log", type=Path, help="write the MCAP log into this directory")
+    simulate.set_defaults(func=cmd_simulate)
+
+    safe_off = sub.add_parser("safe-off", help="drive every configured output off and exit")
+    safe_off.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
+    safe_off.set_defaults(func=cmd_safe_off)
+
+    check = sub.add_parser("check-config", help="validate a config file and print it")
+    check.add_argument("file", nargs="?", type=Path, default=DEFAULT_CONFIG)
+    check.set_defaults(func=cmd_check_config)
+    return parser
+
+
+def _address(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an address like 0x48, got {text!r}") from None
+    if not 0x48 <= value <= 0x4B:
+        raise argparse.ArgumentTypeError(f"the LM92 answers at 0x48..0x4b, not {value:#x}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected at least 1, got {value}")
+    return value
+
+
+def _setup_logging(verbose: bool) -> None:
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
+    root = logging.getLogger("hermsd")
+    root.handlers[:] = [handler]
+    root.setLevel(logging.DEBUG if verbose else logging.INFO)
+    root.propagate = False
+
+
+def load_config(path: Path | None, *, simulate: bool) -> Config:
+    """The config at `path`; the built-in defaults when simulating without one."""
+    if path is None:
+        if simulate and not DEFAULT_CONFIG.exists():
+            return config_module.DEFAULT
+        path = DEFAULT_CONFIG
+    if not path.exists():
+        raise UserError(f"no config file at {path} (copy config/hermsd.yaml there, or --config)")
+    return config_module.load(path)
+
+
+# -- sensor ---------------------------------------------------------------------------------
+
+
+def cmd_sensor(args: argparse.Namespace) -> int:
+    if args.simulate:
+        from hermsd.sim.world import simulated_sensor
+
+        sensor, wait = simulated_sensor(args.address)
+    else:
+        sensor = LM92(open_bus(args.bus), args.address, bus_name=f"/dev/i2c-{args.bus}")
+        wait = time.sleep
+    sensor.identify()
+    where = "simulated bus" if args.simulate else f"/dev/i2c-{args.bus}"
+    print(f"LM92 found at {args.address:#04x} on {where}")
+    count = 0
+    while args.count is None or count < args.count:
+        if count:
+            wait(1.0)
+        reading = sensor.read()
+        flags = [
+            name
+            for name, on in (("CRIT", reading.crit), ("HIGH", reading.high), ("LOW", reading.low))
+            if on
+        ]
+        print(f"{reading.celsius:8.4f} °C  raw 0x{reading.raw:04x}  {' '.join(flags)}".rstrip())
+        sys.stdout.flush()
+        count += 1
+    return 0
+
+
+# -- run ------------------------------------------------------------------------------------
+
+
+class StatusLine:
+    """A live one-line status on a terminal; plain lines every minute otherwise."""
+
+    def __init__(self, stream: TextIO, interval: float = 60.0) -> None:
+        self._stream = stream
+        self._tty = stream.isatty()
+        self._interval = interval
+        self._last = -math.inf
+        self.text = ""
+
+    def update(self, text: str) -> None:
+        self.text = text
+        if self._tty:
+            self._stream.write("\r\033[K" + text)
+            self._stream.flush()
+            return
+        now = time.monotonic()
+        if now - self._last >= self._interval:
+            self._last = now
+            self._stream.write(text + "\n")
+            self._stream.flush()
+
+    def clear(self) -> None:
+        if self._tty and self.text:
+            self._stream.write("\r\033[K")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from hermsd.clock import MonotonicClock
+    from hermsd.daemon import Daemon, guard_outputs
+    from hermsd.ssr import DeadManThread
+
+    config = load_config(args.config, simulate=args.simulate)
+    duration = _duration(args.duration)
+    status = StatusLine(sys.stdout)
+    _route_log_around(status)
+    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        if args.simulate:
+            from hermsd.sim.world import simulated_daemon
+
+            speed = _speed(args.speed)
+            daemon = simulated_daemon(config, speed, on_status=status.update)
+        else:
+            if args.speed != "1":
+                raise UserError("--speed goes with --simulate")
+            clock = MonotonicClock()
+            ssr = _open_output(config.output)
+            try:
+                contactor = (
+                    _open_output(config.contactor) if config.contactor.backend != "none" else None
+                )
+                bus = open_bus(config.sensor.bus)
+            except BaseException:
+                ssr.close()
+                raise
+            sensor = LM92(bus, config.sensor.address, bus_name=f"/dev/i2c-{config.sensor.bus}")
+            daemon = Daemon(
+                config,
+                clock,
+                sensor,
+                guard_outputs(ssr, contactor, clock, config),
+                on_status=status.update,
+            )
+        deadman = DeadManThread(daemon.outputs.all())
+        deadman.start()
+        try:
+            with daemon:
+                daemon.start()
+                daemon.run(until=daemon.clock.monotonic() + duration)
+        finally:
+            deadman.stop()
+    except Shutdown as why:
+        log.info("%s received", why)
+    finally:
+        status.clear()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0
+
+
+def _open_output(section: OutputConfig | ContactorConfig) -> Switch:
+    """The hardware a config section names, or a UserError that says why not."""
+    try:
+        return open_hardware_switch(
+            section.backend,
+            port=section.port,
+            chip=section.chip,
+            line=section.line,
+            active_low=section.active_low,
+            channel=getattr(section, "channel", 1),
+            baud=getattr(section, "baud", 9600),
+        )
+    except (OSError, ValueError, ImportError) as error:
+        raise UserError(f"cannot open {section.backend} at {section.port}: {error}") from None
+
+
+def _route_log_around(status: StatusLine) -> None:
+    """Log lines on a terminal first clear the live status line."""
+    handler = logging.getLogger("hermsd").handlers[0]
+    original = handler.emit
+
+    def emit(record: logging.LogRecord) -> None:
+        status.clear()
+        original(record)
+
+    handler.emit = emit  # type: ignore[method-assign]
+
+
+def _duration(text: str | None) -> float:
+    if text is None:
+        return math.inf
+    try:
+        return parse_duration(text)
+    except ValueError as error:
+        raise UserError(f"--duration: {error}") from None
+
+
+def _speed(text: str) -> float:
+    if text == "max":
+        return math.inf
+    try:
+        speed = float(text)
+    except ValueError:
+        raise UserError(f"--speed: expected a number or 'max', got {text!r}") from None
+    if not (speed > 0 and math.isfinite(speed)):
+        raise UserError(f"--speed: expected a positive number or 'max', got {text!r}")
+    return speed
+
+
+# -- simulate -------------------------------------------------------------------------------
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from hermsd.sim import scenario as scenario_module
+
+    config = config_module.load(args.config) if args.config else config_module.DEFAULT
+    try:
+        scenario = (
+            scenario_module.load_scenario(args.scenario)
+            if args.scenario
+            else scenario_module.DEFAULT
+        )
+        result = scenario_module.run(scenario, config)
+    except scenario_module.ScenarioError as error:
+        raise UserError(str(error)) from None
+    summary = result.summary
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        for key, value in summary.items():
+            if key != "alarms":
+                print(f"{key:20} {value}")
+        for alarm in summary["alarms"]:
+            print(
+                f"alarm {alarm['kind']} at {alarm['at_s']} s, heater off after "
+                f"{alarm['heater_off_after_s']} s: {alarm['message']}"
+            )
+    return 0
+
+
+# -- safe-off and check-config --------------------------------------------------------------
+
+
+def cmd_safe_off(args: argparse.Namespace) -> int:
+    """Every configured output off; exit 0 even when one cannot be reached (it is said)."""
+    try:
+        config = load_config(args.config, simulate=False)
+    except (UserError, ConfigError) as error:
+        print(f"hermsd safe-off: {error}", file=sys.stderr)
+        return 0
+    for section in (config.output, config.contactor):
+        if section.backend in ("none", "sim"):
+            continue
+        try:
+            switch = _open_output(section)
+            switch.set(False)
+            switch.close()
+            print(f"{section.backend} off")
+        except (UserError, OSError) as error:
+            print(f"hermsd safe-off: {section.backend}: {error}", file=sys.stderr)
+    return 0
+
+
+def cmd_check_config(args: argparse.Namespace) -> int:
+    config = config_module.load(args.file)
+    print(config_module.dump_yaml(config), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,944 @@
+"""The daemon's configuration: one YAML file read into frozen, validated dataclasses.
+
+Brewers edit this file on brew day, so reading it is strict and its complaints are meant for
+people: every problem at once, each with file, line and column, what is wrong and what would
+be right, never a traceback. A Config that comes out of `parse` or `load` is within every
+bound and consistent across sections, so the rest of the daemon never checks it again.
+
+Plain (unquoted) scalars are read by a small grammar of this module rather than by YAML 1.1's
+resolver, whose surprises would land on brew day: `066` is octal 54 there and `1:30` is 90.
+Here a number is decimal (or hexadecimal with 0x), a leading zero or a colon is refused with
+a hint, and anything quoted is text.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import os
+import re
+import typing
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple, TypeVar
+
+import yaml
+
+ALGORITHM_NAMES: tuple[str, ...] = (
+    "type_a",
+    "type_a_filtered",
+    "takahashi",
+    "back_calculation",
+    "velocity_pi",
+    "hybrid",
+)
+
+_SPEC = "hermsd.config.spec"
+_T = TypeVar("_T")
+
+
+@dataclass(frozen=True, slots=True)
+class _Spec:
+    """What values a key accepts beyond its type (read by the validator, shown in messages)."""
+
+    unit: str = ""
+    low: float | None = None
+    high: float | None = None
+    low_exclusive: bool = False
+    zero_means: str | None = None  # 0 is accepted below `low` and means this
+    null_means: str | None = None
+    choices: tuple[object, ...] = ()
+    max_length: int | None = None
+    as_hex: bool = False  # show the bounds in hexadecimal
+
+
+def _number(
+    default: _T,
+    low: float,
+    high: float,
+    unit: str = "",
+    *,
+    low_exclusive: bool = False,
+    zero_means: str | None = None,
+    null_means: str | None = None,
+) -> _T:
+    spec = _Spec(
+        unit=unit,
+        low=low,
+        high=high,
+        low_exclusive=low_exclusive,
+        zero_means=zero_means,
+        null_means=null_means,
+    )
+    return field(default=default, metadata={_SPEC: spec})
+
+
+def _integer(
+    default: _T,
+    low: int,
+    high: int | None = None,
+    *,
+    as_hex: bool = False,
+    null_means: str | None = None,
+) -> _T:
+    spec = _Spec(low=low, high=high, as_hex=as_hex, null_means=null_means)
+    return field(default=default, metadata={_SPEC: spec})
+
+
+def _choice(default: _T, choices: tuple[object, ...]) -> _T:
+    return field(default=default, metadata={_SPEC: _Spec(choices=choices)})
+
+
+def _text(default: _T, *, max_length: int | None = None, null_means: str | None = None) -> _T:
+    spec = _Spec(max_length=max_length, null_means=null_means)
+    return field(default=default, metadata={_SPEC: spec})
+
+
+_SERIAL_LINES = ("serial-rts", "serial-dtr")
+_BUILT_IN = "the built-in default"
+
+
+@dataclass(frozen=True, slots=True)
+class TunConfig:
+    """The vessel and its heater: the plant the loop and the heater watches reason about."""
+
+    name: str = _text("HLT", max_length=32)
+    litres: float = _number(90.0, 1, 1000, "L")
+    element_watts: float = _number(3000.0, 100, 20000, "W")
+
+
+@dataclass(frozen=True, slots=True)
+class ControlConfig:
+    """The setpoint and the PID controller that holds it."""
+
+    setpoint: float = _number(66.0, 0, 100, "°C")
+    mode: str = _choice("auto", ("auto", "manual"))
+    manual_output: float = _number(0.0, 0, 100, "%")
+    algorithm: str = _choice("type_a", ALGORITHM_NAMES)
+    kc: float = _number(80.8, 0, 10000, "%/°C", low_exclusive=True)
+    ti: float = _number(489.0, 1, 100000, "s", zero_means="no integral action")
+    td: float = _number(44.9, 0, 10000, "s")
+    tf: float | None = _number(None, 0, 10000, "s", null_means="the algorithm's default")
+    tt: float | None = _number(
+        None, 0, 100000, "s", low_exclusive=True, null_means="the algorithm's default"
+    )
+    period: float = _number(5.0, 1, 60, "s")
+    max_output: float = _number(100.0, 1, 100, "%")
+
+
+@dataclass(frozen=True, slots=True)
+class SensorConfig:
+    """Where the LM92 sits and how often it is read."""
+
+    bus: int = _integer(1, 0, 255)
+    address: int = _integer(0x48, 0x48, 0x4B, as_hex=True)
+    read_interval: float = _number(1.0, 0.5, 10, "s")
+
+
+@dataclass(frozen=True, slots=True)
+class OutputConfig:
+    """The solid-state relay that time-proportions the element."""
+
+    backend: str = _choice("serial-rts", ("sim", *_SERIAL_LINES, "gpio"))
+    port: str = _text("/dev/ttyUSB0")
+    chip: str = _text("/dev/gpiochip0")
+    line: int | None = _integer(None, 0, 511, null_means="none (only the gpio backend uses it)")
+    active_low: bool = False
+    # A 1 s minimum is far above the five mains half-cycles (50 ms at 50 Hz) a zero-cross
+    # SSR needs to resolve a duty, so that rule holds by these bounds alone.
+    window: float | None = _number(None, 1, 60, "s", null_means="the control period")
+    mains_hz: int = _choice(50, (50, 60))
+    min_on: float = _number(0.02, 0, 10, "s")
+    min_off: float = _number(0.02, 0, 10, "s")
+
+
+@dataclass(frozen=True, slots=True)
+class ContactorConfig:
+    """The series contactor software opens when the SSR may have failed shorted."""
+
+    backend: str = _choice("none", ("none", "gpio", *_SERIAL_LINES, "relay-board"))
+    port: str = _text("/dev/ttyUSB1")
+    chip: str = _text("/dev/gpiochip0")
+    line: int | None = _integer(None, 0, 511, null_means="none (only the gpio backend uses it)")
+    active_low: bool = False
+    channel: int = _integer(1, 1, 8)
+    baud: int = _choice(9600, (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200))
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyConfig:
+    """Limits and watches that force the heater off, independent of the controller."""
+
+    max_temp: float = _number(95.0, 30, 105, "°C")
+    hysteresis: float = _number(5.0, 0.5, 30, "°C")
+    plausible_min: float = _number(-10.0, -55, 150, "°C")
+    plausible_max: float = _number(110.0, -55, 150, "°C")
+    max_step: float | None = _number(None, 0, 50, "°C", low_exclusive=True, null_means=_BUILT_IN)
+    fault_reads: int = _integer(2, 1, 10)
+    resume_reads: int = _integer(5, 1, 100)
+    stale_after: float | None = _number(None, 1, 60, "s", null_means="3 read intervals")
+    heater_watch: float | None = _number(None, 30, 7200, "s", null_means=_BUILT_IN)
+    heater_min_rise: float | None = _number(
+        None, 0, 50, "°C", low_exclusive=True, null_means="a value derived from the tun"
+    )
+    ssr_watch: float | None = _number(None, 30, 7200, "s", null_means=_BUILT_IN)
+    ssr_max_rise: float | None = _number(
+        None, 0, 50, "°C", low_exclusive=True, null_means=_BUILT_IN
+    )
+    dry_fire_factor: float = _number(3.0, 1.5, 100)
+    stuck_time: float = _number(600.0, 60, 86400, "s")
+    stuck_output_change: float = _number(40.0, 1, 100, "%")
+    stall_periods: float = _number(2.0, 0.5, 100)
+    reset: int = _integer(0, 0)
+
+
+@dataclass(frozen=True, slots=True)
+class LogConfig:
+    """Where the MCAP log goes and how much of it a crash may cost."""
+
+    dir: str | None = _text("/var/log/hermsd", null_means="no log")
+    rotate_hours: float = _number(24.0, 0.1, 168, "h")
+    flush_interval: float = _number(2.0, 0.1, 2, "s")
+    sync_interval: float = _number(10.0, 0.1, 60, "s")
+    queue_size: int = _integer(10000, 100, 1000000)
+
+
+@dataclass(frozen=True, slots=True)
+class Config:
+    """Everything the daemon is told, one section per part of the HLT."""
+
+    tun: TunConfig = field(default_factory=TunConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    contactor: ContactorConfig = field(default_factory=ContactorConfig)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+
+
+DEFAULT = Config()
+
+# Keys the running daemon cannot change on reload: they open devices or fix the loop's period.
+RESTART_KEYS: tuple[str, ...] = (
+    "control.period",
+    "sensor.bus",
+    "sensor.address",
+    "output.backend",
+    "output.port",
+    "output.chip",
+    "output.line",
+    "output.active_low",
+    *(f"contactor.{f.name}" for f in dataclasses.fields(ContactorConfig)),
+    "log.dir",
+)
+
+
+class Problem(NamedTuple):
+    """One thing wrong with a configuration file.
+
+    `line` and `column` are 1-based; 0 means the file as a whole (it could not be read).
+    `message` reads "what is wrong (what would be right)".
+    """
+
+    file: str
+    line: int
+    column: int
+    key_path: str
+    message: str
+
+    def __str__(self) -> str:
+        where = f"{self.file}:{self.line}:{self.column}" if self.line else self.file
+        return (
+            f"{where}: {self.key_path}: {self.message}"
+            if self.key_path
+            else f"{where}: {self.message}"
+        )
+
+
+class ConfigError(Exception):
+    """A configuration file that cannot be used; `str()` lists every problem, one per line."""
+
+    def __init__(self, problems: list[Problem]) -> None:
+        self.problems = problems
+        super().__init__("\n".join(str(problem) for problem in problems))
+
+
+# -- the schema, read once from the dataclasses above -------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _Field:
+    path: str
+    kind: type  # float, int, str or bool
+    nullable: bool
+    default: object
+    spec: _Spec
+
+
+def _kind(hint: object) -> tuple[type, bool]:
+    """(base type, whether None is allowed) of an annotation such as `float | None`."""
+    args = typing.get_args(hint)
+    base = next(arg for arg in args if arg is not type(None)) if args else hint
+    assert isinstance(base, type)
+    return base, bool(args)
+
+
+def _section_fields(section: str, cls: type) -> dict[str, _Field]:
+    hints = typing.get_type_hints(cls)
+    table = {}
+    for f in dataclasses.fields(cls):
+        kind, nullable = _kind(hints[f.name])
+        table[f.name] = _Field(
+            f"{section}.{f.name}", kind, nullable, f.default, f.metadata.get(_SPEC, _Spec())
+        )
+    return table
+
+
+_SECTION_CLASSES: dict[str, type] = {
+    name: hint for name, hint in typing.get_type_hints(Config).items()
+}
+_SCHEMA: dict[str, dict[str, _Field]] = {
+    name: _section_fields(name, cls) for name, cls in _SECTION_CLASSES.items()
+}
+
+
+# -- reading scalars ------------------------------------------------------------------------------
+
+_NULLS = frozenset({"", "~", "null", "Null", "NULL"})
+_BOOLS = {"true": True, "True": True, "TRUE": True, "false": False, "False": False, "FALSE": False}
+_DECIMAL = re.compile(r"[-+]?(?:0|[1-9][0-9]*)")
+_HEX = re.compile(r"[-+]?0x[0-9a-fA-F]+")
+_FLOAT = re.compile(r"[-+]?(?:(?:0|[1-9][0-9]*)(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
+_LEADING_ZERO = re.compile(r"[-+]?0[0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?")
+_CLOCK_TIME = re.compile(r"[0-9]+(?::[0-5]?[0-9])+")
+_RESOLVER = yaml.resolver.Resolver()
+
+
+class _TooLong(Exception):
+    """A plain number with more digits than Python converts (int() refuses beyond ~4300)."""
+
+
+def _plain_value(text: str) -> object:
+    """What an unquoted scalar means in this file: None, a bool, an int, a float or text."""
+    if text in _NULLS:
+        return None
+    if text in _BOOLS:
+        return _BOOLS[text]
+    try:
+        if _DECIMAL.fullmatch(text):
+            return int(text)
+        if _HEX.fullmatch(text):
+            return int(text, 16)
+    except ValueError as exc:
+        raise _TooLong from exc
+    if _FLOAT.fullmatch(text):
+        return float(text)
+    return text
+
+
+def _scalar_value(node: yaml.ScalarNode) -> object:
+    """Quoted and block scalars are always text; plain ones go through `_plain_value`."""
+    return _plain_value(node.value) if node.style is None else node.value
+
+
+def _explicit_tag(node: yaml.Node) -> str | None:
+    """A tag the author wrote (`!!str 5`, `!x`), or None when the node carries its natural tag."""
+    if isinstance(node, yaml.ScalarNode):
+        implicit = (node.style is None, node.style is not None)  # as the parser sets it
+        natural = _RESOLVER.resolve(yaml.ScalarNode, node.value, implicit)  # type: ignore[no-untyped-call]
+    elif isinstance(node, yaml.SequenceNode):
+        natural = _RESOLVER.DEFAULT_SEQUENCE_TAG
+    else:
+        natural = _RESOLVER.DEFAULT_MAPPING_TAG
+    return None if node.tag == natural else str(node.tag).replace("tag:yaml.org,2002:", "!!")
+
+
+def _fmt(number: float) -> str:
+    """A bound or value as a brewer would write it: 100 rather than 100.0."""
+    if isinstance(number, float) and number.is_integer() and abs(number) < 1e15:
+        return str(int(number))
+    return str(number)
+
+
+def _show_default(value: object) -> str:
+    """A default as it is written in the file."""
+    if value is None or isinstance(value, bool):
+        return "null" if value is None else str(value).lower()
+    if isinstance(value, int | float):
+        return _fmt(value)
+    return repr(value)
+
+
+def _reads_as_number(text: str) -> bool:
+    """Whether `text`, written without quotes, would be read as a number."""
+    try:
+        value = _plain_value(text)
+    except _TooLong:
+        return True
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _quote(text: str, limit: int = 40) -> str:
+    shown = text if len(text) <= limit else text[: limit - 1] + "…"
+    return repr(shown)
+
+
+def _describe(node: yaml.Node) -> str:
+    """What the author wrote, in words: 'the string '66'', 'a list', 'nothing'."""
+    if not isinstance(node, yaml.ScalarNode):
+        return "a list" if isinstance(node, yaml.SequenceNode) else "a mapping of keys"
+    try:
+        value = _scalar_value(node)
+    except _TooLong:
+        return f"a number with {len(node.value)} characters"
+    if value is None:
+        return "nothing (null)"
+    if isinstance(value, bool):
+        return f"the boolean {str(value).lower()}"
+    if isinstance(value, int | float):
+        return f"the number {node.value}"
+    return f"the string {_quote(str(value))}"
+
+
+def _expected(info: _Field) -> str:
+    """What would be right for a key, e.g. 'a number from 0 to 100 °C, or null for ...'."""
+    spec = info.spec
+    unit = f" {spec.unit}" if spec.unit else ""
+    if info.kind is bool:
+        words = "true or false"
+    elif spec.choices:
+        names = [repr(c) if isinstance(c, str) else str(c) for c in spec.choices]
+        words = f"{', '.join(names[:-1])} or {names[-1]}"
+        words = words if len(names) < 3 else "one of " + words
+    elif info.kind is str:
+        if spec.max_length is not None:
+            words = f"text of 1 to {spec.max_length} printable characters"
+        else:
+            words = f"non-empty printable text, e.g. {info.default!r}"
+    else:
+        noun = "a number" if info.kind is float else "a whole number"
+        show = (lambda v: f"0x{int(v):02X}") if spec.as_hex else _fmt
+        assert spec.low is not None
+        if spec.high is None:
+            words = f"{noun} of at least {show(spec.low)}"
+        elif spec.low_exclusive:
+            words = f"{noun} above {show(spec.low)} and at most {show(spec.high)}{unit}"
+        else:
+            words = f"{noun} from {show(spec.low)} to {show(spec.high)}{unit}"
+        if spec.zero_means is not None:
+            words = f"0 for {spec.zero_means}, or {words}"
+    if spec.null_means is not None:
+        words += f", or null for {spec.null_means}"
+    return words
+
+
+class _Invalid(Exception):
+    """A value that is wrong; the message says what is wrong (what would be right)."""
+
+
+def _number_hint(info: _Field, value: object) -> str:
+    """Why a plain scalar that looks numeric is not read as a number, when that is the reason."""
+    if not isinstance(value, str):
+        return ""
+    if _LEADING_ZERO.fullmatch(value):
+        return "; drop the leading zeros, which YAML 1.1 reads as octal"
+    if info.spec.unit == "s" and _CLOCK_TIME.fullmatch(value):
+        seconds = 0
+        for part in value.split(":"):
+            seconds = seconds * 60 + int(part)
+        return f"; durations are plain seconds in this file: write {seconds}"
+    return ""
+
+
+def _convert(info: _Field, node: yaml.Node) -> object:
+    """The value of one key as its field holds it, or _Invalid."""
+    expected = _expected(info)
+    if not isinstance(node, yaml.ScalarNode):
+        raise _Invalid(f"expected a single value, got {_describe(node)} ({expected})")
+    tag = _explicit_tag(node)
+    if tag is not None:
+        raise _Invalid(f"the YAML tag {tag!r} is not used in this file (remove it; {expected})")
+    try:
+        value = _scalar_value(node)
+    except _TooLong:
+        raise _Invalid(f"{_describe(node)} is not a usable value ({expected})") from None
+    if value is None:
+        if info.nullable:
+            return None
+        default = _show_default(info.default)
+        raise _Invalid(f"has no value ({expected}; or leave the key out for the default {default})")
+
+    if info.kind is bool:
+        if isinstance(value, bool):
+            return value
+        raise _Invalid(f"expected true or false, got {_describe(node)} ({expected})")
+
+    if info.kind is str:
+        if not isinstance(value, str):
+            raise _Invalid(
+                f"expected text, got {_describe(node)} ({expected}; quote it to mean text: "
+                f"'{node.value}')"
+            )
+        return _checked_text(info, value, expected)
+
+    is_number = isinstance(value, int | float) and not isinstance(value, bool)
+    if info.kind is int and (not is_number or isinstance(value, float)):
+        got = _describe(node)
+        raise _Invalid(
+            f"expected a whole number, got {got} ({expected}{_number_hint(info, value)})"
+        )
+    if not is_number:
+        if node.style is not None and isinstance(value, str) and _reads_as_number(value):
+            raise _Invalid(
+                f"expected a number, got the string {_quote(str(value))} "
+                f"(write it without quotes: {value}; {expected})"
+            )
+        got = _describe(node)
+        raise _Invalid(f"expected a number, got {got} ({expected}{_number_hint(info, value)})")
+    assert isinstance(value, int | float)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise _Invalid(f"{node.value} is too large to be a number here ({expected})")
+    if not _within(info.spec, value):
+        unit = f" {info.spec.unit}" if info.spec.unit else ""
+        if info.spec.choices:
+            raise _Invalid(f"{node.value} is not one of the choices ({expected})")
+        raise _Invalid(f"{node.value}{unit} is out of range ({expected})")
+    return float(value) if info.kind is float else value
+
+
+def _within(spec: _Spec, number: float) -> bool:
+    if spec.choices:
+        return number in spec.choices
+    if spec.zero_means is not None and number == 0:
+        return True
+    assert spec.low is not None
+    if number < spec.low or (spec.low_exclusive and number == spec.low):
+        return False
+    return spec.high is None or number <= spec.high
+
+
+def _checked_text(info: _Field, text: str, expected: str) -> str:
+    spec = info.spec
+    if spec.choices:
+        if text in spec.choices:
+            return text
+        names = [str(c) for c in spec.choices]
+        close = difflib.get_close_matches(text, names, n=1) or difflib.get_close_matches(
+            text.lower(), names, n=1
+        )
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise _Invalid(f"{_quote(text)} is not one of the choices ({expected}{hint})")
+    if not text:
+        null = "; null for no log" if info.nullable else ""
+        raise _Invalid(f"is empty ({expected}{null})")
+    if not text.isprintable():
+        raise _Invalid(f"{_quote(text)} contains a control character such as a tab ({expected})")
+    if spec.max_length is not None and len(text) > spec.max_length:
+        raise _Invalid(f"{_quote(text)} is {len(text)} characters long ({expected})")
+    return text
+
+
+# -- rules that span keys -------------------------------------------------------------------------
+
+
+class _Violation(NamedTuple):
+    keys: tuple[str, ...]  # every key the rule reads; the first one present in the file is shown
+    message: str
+
+
+def _violations(config: Config) -> list[_Violation]:
+    """Every rule between keys that `config` breaks."""
+    found: list[_Violation] = []
+    control, output, contactor, safety = (
+        config.control,
+        config.output,
+        config.contactor,
+        config.safety,
+    )
+
+    if output.window is not None:
+        window_key, window, what = (
+            "output.window",
+            output.window,
+            f"the {_fmt(output.window)} s window",
+        )
+    else:
+        window_key, window = "control.period", control.period
+        what = f"the {_fmt(window)} s period (the SSR window while output.window is null)"
+    pulses = output.min_on + output.min_off
+    if window <= pulses:
+        found.append(
+            _Violation(
+                (window_key, "output.min_on", "output.min_off", "output.window"),
+                f"{what} is not longer than output.min_on + output.min_off = {_fmt(pulses)} s "
+                "(lengthen the window or shorten min_on/min_off)",
+            )
+        )
+
+    half_cycle = 1 / (2 * output.mains_hz)
+    at_least = math.ceil(half_cycle * 1e4) / 1e4
+    for name in ("min_on", "min_off"):
+        pulse = getattr(output, name)
+        if 0 < pulse < half_cycle:
+            found.append(
+                _Violation(
+                    (f"output.{name}", "output.mains_hz"),
+                    f"{_fmt(pulse)} s is shorter than one mains half-cycle "
+                    f"({_fmt(round(half_cycle * 1000, 2))} ms at {output.mains_hz} Hz), the "
+                    "shortest pulse a zero-cross SSR delivers "
+                    f"(use 0 or at least {_fmt(at_least)})",
+                )
+            )
+
+    if control.setpoint >= safety.max_temp:
+        found.append(
+            _Violation(
+                ("control.setpoint", "safety.max_temp"),
+                f"{_fmt(control.setpoint)} °C is not below safety.max_temp "
+                f"({_fmt(safety.max_temp)} °C), where the over-temperature cut-out switches the "
+                f"heater off (set it below {_fmt(safety.max_temp)} °C or raise safety.max_temp)",
+            )
+        )
+    if safety.plausible_min >= safety.plausible_max:
+        found.append(
+            _Violation(
+                ("safety.plausible_min", "safety.plausible_max"),
+                f"{_fmt(safety.plausible_min)} °C is not below safety.plausible_max "
+                f"({_fmt(safety.plausible_max)} °C) (plausible_min is the lower end of the "
+                "range of believable readings)",
+            )
+        )
+    if safety.max_temp >= safety.plausible_max:
+        found.append(
+            _Violation(
+                ("safety.max_temp", "safety.plausible_max"),
+                f"{_fmt(safety.max_temp)} °C is not below safety.plausible_max "
+                f"({_fmt(safety.plausible_max)} °C), so an overheat would read as a broken sensor "
+                "(lower max_temp or raise plausible_max)",
+            )
+        )
+    if safety.stale_after is not None and safety.stale_after <= config.sensor.read_interval:
+        found.append(
+            _Violation(
+                ("safety.stale_after", "sensor.read_interval"),
+                f"{_fmt(safety.stale_after)} s is not longer than sensor.read_interval "
+                f"({_fmt(config.sensor.read_interval)} s), so every reading would go stale "
+                f"before the next (make it a few read intervals, e.g. "
+                f"{_fmt(3 * config.sensor.read_interval)})",
+            )
+        )
+    if control.manual_output > control.max_output:
+        found.append(
+            _Violation(
+                ("control.manual_output", "control.max_output"),
+                f"{_fmt(control.manual_output)} % is above control.max_output "
+                f"({_fmt(control.max_output)} %) (lower it or raise max_output)",
+            )
+        )
+
+    for section, device in (("output", output), ("contactor", contactor)):
+        if device.backend == "gpio" and device.line is None:
+            found.append(
+                _Violation(
+                    (f"{section}.backend", f"{section}.line"),
+                    f"the gpio backend needs {section}.line, the line offset on {device.chip} "
+                    f"(add 'line: 17' under {section}: for GPIO17, with your line number)",
+                )
+            )
+    if output.backend in _SERIAL_LINES and output.port == contactor.port:
+        if contactor.backend == output.backend:
+            found.append(
+                _Violation(
+                    ("contactor.backend", "contactor.port", "output.backend", "output.port"),
+                    f"the contactor and the SSR output would both switch the "
+                    f"{output.backend[-3:].upper()} line of {output.port} (give the contactor "
+                    "its own port, or the other line of this one)",
+                )
+            )
+        elif contactor.backend == "relay-board":
+            found.append(
+                _Violation(
+                    ("contactor.backend", "contactor.port", "output.backend", "output.port"),
+                    f"the relay board needs {output.port} to itself, but the SSR output switches "
+                    f"a line of it (give the relay board its own port)",
+                )
+            )
+    if (
+        output.backend == contactor.backend == "gpio"
+        and output.line is not None
+        and (output.chip, output.line) == (contactor.chip, contactor.line)
+    ):
+        found.append(
+            _Violation(
+                (
+                    "contactor.line",
+                    "contactor.chip",
+                    "output.line",
+                    "output.chip",
+                    "output.backend",
+                ),
+                f"the contactor and the SSR output would both drive line {output.line} of "
+                f"{output.chip} (give the contactor its own line)",
+            )
+        )
+    return found
+
+
+# -- reading a document ---------------------------------------------------------------------------
+
+
+class _Reader:
+    """Walks a composed YAML document against the schema, collecting every problem."""
+
+    def __init__(self, filename: str) -> None:
+        self.filename = filename
+        self.problems: list[Problem] = []
+        self.marks: dict[str, yaml.Mark] = {}  # key path -> where its value starts
+        self.failed: set[str] = set()  # key paths and sections whose value was refused
+
+    def report(self, mark: yaml.Mark | None, key_path: str, message: str) -> None:
+        line, column = (mark.line + 1, mark.column + 1) if mark is not None else (1, 1)
+        self.problems.append(Problem(self.filename, line, column, key_path, message))
+
+    def items(
+        self, node: yaml.MappingNode, prefix: str, known: list[str]
+    ) -> list[tuple[str, yaml.Node]]:
+        """The (key, value) pairs of a mapping whose keys are known and not repeated."""
+        seen: dict[str, int] = {}
+        pairs = []
+        for key_node, value_node in node.value:
+            if not isinstance(key_node, yaml.ScalarNode):
+                where = f"{prefix}" if prefix else ""
+                self.report(
+                    key_node.start_mark,
+                    where,
+                    f"a key must be a plain name, got {_describe(key_node)} "
+                    f"(one of: {', '.join(known)})",
+                )
+                continue
+            key = key_node.value
+            path = f"{prefix}.{key}" if prefix else key
+            if key in seen:
+                self.report(
+                    key_node.start_mark,
+                    path,
+                    f"duplicate key (first given on line {seen[key]}; keep one of them)",
+                )
+                continue
+            seen[key] = key_node.start_mark.line + 1
+            if key not in known:
+                self.report(
+                    key_node.start_mark, path, f"unknown key ({self._suggest(key, prefix, known)})"
+                )
+                continue
+            pairs.append((key, value_node))
+        return pairs
+
+    @staticmethod
+    def _suggest(key: str, prefix: str, known: list[str]) -> str:
+        homes = [
+            section for section, table in _SCHEMA.items() if key in table and section != prefix
+        ]
+        if homes:
+            return f"it belongs in the {homes[0]!r} section"
+        close = difflib.get_close_matches(key, known, n=1)
+        if close:
+            return f"did you mean {close[0]!r}?"
+        return f"the keys here are: {', '.join(known)}"
+
+    def document(self, root: yaml.Node | None) -> dict[str, dict[str, object]]:
+        """The values the document sets, section by section (refused values left out)."""
+        values: dict[str, dict[str, object]] = {section: {} for section in _SCHEMA}
+        if root is None:
+            return values
+        sections = list(_SCHEMA)
+        if not isinstance(root, yaml.MappingNode) or _explicit_tag(root) is not None:
+            self.report(
+                root.start_mark,
+                "",
+                f"the file must be a mapping of sections, got {_describe(root)} "
+                f"(sections such as 'control:' at the start of a line: {', '.join(sections)})",
+            )
+            return values
+        for section, node in self.items(root, "", sections):
+            values[section] = self.section(section, node)
+        return values
+
+    def section(self, section: str, node: yaml.Node) -> dict[str, object]:
+        table = _SCHEMA[section]
+        if isinstance(node, yaml.ScalarNode) and node.style is None and node.value in _NULLS:
+            return {}  # a section whose keys are all commented out
+        if not isinstance(node, yaml.MappingNode) or _explicit_tag(node) is not None:
+            self.failed.add(section)
+            self.report(
+                node.start_mark,
+                section,
+                f"expected a section of keys, got {_describe(node)} (indented 'key: value' "
+                f"lines below '{section}:', keys: {', '.join(table)})",
+            )
+            return {}
+        values = {}
+        for name, value_node in self.items(node, section, list(table)):
+            info = table[name]
+            self.marks[info.path] = value_node.start_mark
+            try:
+                values[name] = _convert(info, value_node)
+            except _Invalid as problem:
+                self.failed.add(info.path)
+                self.report(value_node.start_mark, info.path, str(problem))
+        return values
+
+    def cross_check(self, config: Config) -> None:
+        """Report the rules between keys that are broken, unless a key they read was refused."""
+        for keys, message in _violations(config):
+            if any(key in self.failed or key.split(".")[0] in self.failed for key in keys):
+                continue
+            shown = next((key for key in keys if key in self.marks), keys[0])
+            self.report(self.marks.get(shown), shown, message)
+
+
+def _syntax_problem(filename: str, text: str, error: yaml.YAMLError) -> Problem:
+    """A parser error as one Problem at the parser's position."""
+    if isinstance(error, yaml.reader.ReaderError):
+        before = text[: error.position]
+        line = before.count("\n") + 1
+        column = error.position - (before.rfind("\n") + 1) + 1
+        code = ord(error.character) if isinstance(error.character, str) else error.character
+        return Problem(
+            filename,
+            line,
+            column,
+            "",
+            f"the control character #x{code:x} is not allowed in YAML (delete it; use spaces "
+            "for indentation)",
+        )
+    assert isinstance(error, yaml.MarkedYAMLError)
+    mark = error.problem_mark or error.context_mark
+    line, column = (mark.line + 1, mark.column + 1) if mark is not None else (1, 1)
+    what = error.problem or "invalid YAML"
+    if error.context and error.context_mark is not None and error.context_mark is not mark:
+        what = f"{error.context} on line {error.context_mark.line + 1}, {what}"
+    hint = (
+        "indent with spaces, not tabs"
+        if "'\\t'" in what
+        else "check the indentation, the ':' after each key and the quotes, here and on the "
+        "line above"
+    )
+    return Problem(filename, line, column, "", f"invalid YAML: {what} ({hint})")
+
+
+def _compose(text: str) -> yaml.Node | None:
+    loader = yaml.SafeLoader(text)
+    try:
+        return loader.get_single_node()
+    finally:
+        loader.dispose()
+
+
+def parse(text: str, filename: str = "<string>") -> Config:
+    """The Config a YAML text describes; ConfigError lists everything wrong with it."""
+    try:
+        root = _compose(text)
+    except yaml.YAMLError as error:
+        raise ConfigError([_syntax_problem(filename, text, error)]) from None
+    except RecursionError:
+        raise ConfigError(
+            [
+                Problem(
+                    filename,
+                    1,
+                    1,
+                    "",
+                    "the YAML is nested too deeply (this file needs only sections of "
+                    "'key: value' lines)",
+                )
+            ]
+        ) from None
+    reader = _Reader(filename)
+    values = reader.document(root)
+    config = Config(**{name: _SECTION_CLASSES[name](**values[name]) for name in _SCHEMA})
+    reader.cross_check(config)
+    if reader.problems:
+        raise ConfigError(sorted(reader.problems, key=lambda p: (p.line, p.column)))
+    return config
+
+
+def load(path: str | os.PathLike[str]) -> Config:
+    """The Config in a file; ConfigError (never OSError) when it cannot be read or used."""
+    filename = os.fspath(path)
+    try:
+        with open(filename, "rb") as file:
+            data = file.read()
+    except OSError as error:
+        raise ConfigError([Problem(filename, 0, 0, "", _unreadable(error))]) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line_start = data.rfind(b"\n", 0, error.start) + 1
+        line = data.count(b"\n", 0, error.start) + 1
+        column = len(data[line_start : error.start].decode("utf-8", "replace")) + 1
+        raise ConfigError(
+            [
+                Problem(
+                    filename,
+                    line,
+                    column,
+                    "",
+                    f"byte 0x{data[error.start]:02x} is not UTF-8 text (save the file as "
+                    "UTF-8; an editor set to Latin-1 writes '°' this way)",
+                )
+            ]
+        ) from None
+    return parse(text, filename)
+
+
+def _unreadable(error: OSError) -> str:
+    if isinstance(error, FileNotFoundError):
+        return "no such file (check the path, or copy config/hermsd.yaml there)"
+    if isinstance(error, IsADirectoryError):
+        return "is a directory (name the YAML file inside it)"
+    if isinstance(error, PermissionError):
+        return "permission denied (make the file readable by the user hermsd runs as)"
+    return f"cannot be read: {error.strerror or error} (check the file and its path)"
+
+
+# -- writing a config back out --------------------------------------------------------------------
+
+
+def to_dict(config: Config) -> dict[str, Any]:
+    """The effective configuration as plain JSON-able data, for the log."""
+    return dataclasses.asdict(config)
+
+
+class _Dumper(yaml.SafeDumper):
+    """Quotes text that this module's plain-scalar grammar would read as something else."""
+
+
+def _represent_text(dumper: yaml.SafeDumper, text: str) -> yaml.ScalarNode:
+    plain_is_text = not _reads_as_number(text) and isinstance(_plain_value(text), str)
+    style = None if plain_is_text else "'"
+    return dumper.represent_scalar("tag:yaml.org,2002:str", text, style=style)
+
+
+_Dumper.add_representer(str, _represent_text)
+
+
+def dump_yaml(config: Config) -> str:
+    """The effective configuration as YAML that `parse` reads back to the same Config."""
+    return yaml.dump(
+        to_dict(config),
+        Dumper=_Dumper,
+        sort_keys=False,
+        default_flow_style=False,
+        allow_unicode=True,
+    )
+
+
+def restart_keys_changed(old: Config, new: Config) -> list[str]:
+    """The keys in RESTART_KEYS whose values differ: a reload cannot apply them."""
+    changed = []
+    for path in RESTART_KEYS:
+        section, name = path.split(".")
+        if getattr(getattr(old, section), name) != getattr(getattr(new, section), name):
+            changed.append(path)
+    return changed

@@ -1,0 +1,548 @@
+"""The control loop: sensor → supervisor → controller → planner → outputs, on one scheduler.
+
+The same code runs on the Pi (real clock, LM92 on /dev/i2c-N, SSR on a serial line or GPIO),
+in real time against the simulated tun, and at full speed in `hermsd simulate`. Everything
+outside — hardware, clock, recorder, systemd notifier — is handed in.
+
+Per control period the controller sees one PV and the duty that really reached the element
+in the period before (`applied`), so it tracks the actuator. When the supervisor forbids
+heating, the SSR is cut at once (mid-window), the contactor opens, and the controller is
+held, not fed zeros; when heating is allowed again it resumes from the output it had.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+from hermsd import pid
+from hermsd.clock import Clock
+from hermsd.config import Config
+from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
+from hermsd.pv import period_value
+from hermsd.safety import Alarm, SafetyLimits, Supervisor
+from hermsd.scheduler import LatenessStats, Scheduler, Timer
+from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPlan, cut
+
+log = logging.getLogger("hermsd")
+
+TIMING_INTERVAL = 60.0  # s between timing records
+
+
+class Sensor(Protocol):
+    """What the loop needs of a temperature sensor (the LM92 driver, or a replayed one)."""
+
+    def read(self) -> Reading: ...
+
+    def identify(self) -> None: ...
+
+    def wake(self) -> None: ...
+
+    def set_limit(self, name: LimitName, celsius: float) -> None: ...
+
+
+class Recorder(Protocol):
+    """Where records go (the MCAP recorder); `write` never blocks."""
+
+    def write(self, topic: str, log_time_ns: int, message: dict[str, Any]) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class PeriodRecord:
+    """Everything the loop knew in one control period (logged, and what replay re-runs)."""
+
+    t: float
+    k: int
+    setpoint: float
+    pv: float | None
+    readings: list[float]
+    output: float
+    applied: float
+    p: float
+    i: float
+    d: float
+    mode: str
+    algorithm: str
+    state: str
+    alarms: list[str]
+    heater_allowed: bool
+
+
+class Listener(Protocol):
+    """Observers of the loop (the simulator's metrics, tests)."""
+
+    def period(self, record: PeriodRecord) -> None: ...
+
+    def alarm(self, alarm: Alarm) -> None: ...
+
+
+@dataclass(slots=True)
+class Outputs:
+    """The SSR and, optionally, a series contactor, both behind dead-men."""
+
+    ssr: GuardedSwitch
+    contactor: GuardedSwitch | None = None
+
+    def all(self) -> list[GuardedSwitch]:
+        return [self.ssr] + ([self.contactor] if self.contactor else [])
+
+
+def guard_outputs(ssr: Switch, contactor: Switch | None, clock: Clock, config: Config) -> Outputs:
+    """Wrap raw outputs in dead-men that trip after two windows without a refresh."""
+    timeout = 2.0 * window_length(config)
+    return Outputs(
+        GuardedSwitch(ssr, clock.monotonic, timeout, "ssr"),
+        GuardedSwitch(contactor, clock.monotonic, timeout, "contactor") if contactor else None,
+    )
+
+
+def window_length(config: Config) -> float:
+    return config.output.window if config.output.window is not None else config.control.period
+
+
+def safety_limits(config: Config) -> SafetyLimits:
+    s = config.safety
+    return SafetyLimits.derive(
+        litres=config.tun.litres,
+        element_watts=config.tun.element_watts,
+        period=config.control.period,
+        read_interval=config.sensor.read_interval,
+        max_temp=s.max_temp,
+        hysteresis=s.hysteresis,
+        plausible_min=s.plausible_min,
+        plausible_max=s.plausible_max,
+        max_step=s.max_step,
+        fault_reads=s.fault_reads,
+        resume_reads=s.resume_reads,
+        stale_after=s.stale_after,
+        heater_watch=s.heater_watch,
+        heater_min_rise=s.heater_min_rise,
+        ssr_watch=s.ssr_watch,
+        ssr_max_rise=s.ssr_max_rise,
+        dry_fire_factor=s.dry_fire_factor,
+        stuck_time=s.stuck_time,
+        stuck_output_change=s.stuck_output_change,
+        stall_periods=s.stall_periods,
+    )
+
+
+def make_controller(config: Config) -> pid.Controller:
+    c = config.control
+    return pid.create(
+        c.algorithm,
+        kc=c.kc,
+        ti=c.ti,
+        td=c.td,
+        ts=c.period,
+        tf=c.tf,
+        tt=c.tt,
+        out_min=0.0,
+        out_max=c.max_output,
+    )
+
+
+@dataclass(slots=True)
+class _Window:
+    """The window in progress and its pending edges."""
+
+    plan: WindowPlan | None = None
+    timers: list[Timer] = field(default_factory=list)
+
+    def cancel(self) -> None:
+        for timer in self.timers:
+            timer.cancel()
+        self.timers.clear()
+
+
+class Daemon:
+    """One tun's control loop."""
+
+    def __init__(
+        self,
+        config: Config,
+        clock: Clock,
+        sensor: Sensor,
+        outputs: Outputs,
+        *,
+        recorder: Recorder | None = None,
+        on_status: Callable[[str], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.clock = clock
+        self.sensor = sensor
+        self.outputs = outputs
+        self.recorder = recorder
+        self.on_status = on_status
+        self.listeners: list[Listener] = []
+        self.scheduler = Scheduler(clock)
+        self.supervisor = Supervisor(safety_limits(config))
+        self.controller = make_controller(config)
+        self.planner = self._make_planner(config)
+        self.setpoint = config.control.setpoint
+        self.mode = config.control.mode
+        self.manual_output = config.control.manual_output
+        self.output = 0.0
+        self.k = 0
+        self.edge_lateness = LatenessStats()
+        self._pv: float | None = None
+        self._last_celsius: float | None = None
+        self._readings: list[float] = []
+        self._held = True  # nothing to continue from until the first good period
+        self._resume_output = 0.0
+        self._window = _Window()
+        self._ssr_on_since: float | None = None
+        self._on_seconds = 0.0
+        self._last_control_t: float | None = None
+        self._reads = 0
+        self._pending: list[Callable[[float], None]] = []
+        self._started = False
+
+    # -- life cycle -----------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Outputs off, check and program the sensor, and lay out the schedule."""
+        for output in self.outputs.all():
+            output.set(False)
+        self.sensor.identify()
+        self.sensor.wake()
+        safety = self.config.safety
+        # The chip's T_CRIT_A output can gate the SSR in hardware at the same limit.
+        self.sensor.set_limit("hyst", safety.hysteresis)
+        self.sensor.set_limit("crit", safety.max_temp)
+        now = self.clock.monotonic()
+        self._last_control_t = now
+        read_interval = self.config.sensor.read_interval
+        self._read_now(now)
+        sched = self.scheduler
+        sched.every("read", read_interval, self._on_read, origin=now + read_interval / 2)
+        self._control_task = sched.every(
+            "control", self.config.control.period, self._on_control, origin=now, priority=1
+        )
+        sched.every("window", window_length(self.config), self._on_window, origin=now, priority=2)
+        sched.every("timing", TIMING_INTERVAL, self._on_timing, origin=now + TIMING_INTERVAL)
+        self._started = True
+        self._event(logging.INFO, "started", now)
+
+    def run(self, until: float = math.inf) -> None:
+        """Run the loop until `until` (monotonic s) or `stop()`; start() first if needed."""
+        if not self._started:
+            self.start()
+        self.scheduler.run(until)
+
+    def stop(self) -> None:
+        self.scheduler.stop()
+
+    def __enter__(self) -> Daemon:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown("stopped" if exc[0] is None else f"stopped by {exc[0]}")
+
+    @property
+    def overruns(self) -> int:
+        """Control periods skipped because the loop was late."""
+        return self._control_task.overruns if self._started else 0
+
+    def shutdown(self, reason: str = "stopped") -> bool:
+        """Heater off and contactor open, whatever else fails; False if an output refused."""
+        self._window.cancel()
+        ok = True
+        for output in self.outputs.all():
+            try:
+                output.close()
+            except Exception as error:  # every output must be tried, and the failure told
+                ok = False
+                log.critical("could not switch %s off: %s", output.name, error)
+        now = self.clock.monotonic()
+        self._set_ssr_accounting(False, now)
+        self._event(logging.INFO, f"heater off: {reason}", now)
+        return ok
+
+    # -- operator actions (applied at the next period boundary) ---------------------------
+
+    def set_setpoint(self, celsius: float) -> None:
+        if not (math.isfinite(celsius) and 0.0 <= celsius <= 100.0):
+            raise ValueError(f"setpoint must be within 0..100 °C, got {celsius}")
+        self._pending.append(lambda t: self._apply_setpoint(celsius, t))
+
+    def set_manual(self, output: float | None = None) -> None:
+        """Manual mode at `output` % (the current output when None)."""
+        if output is not None and not (math.isfinite(output) and 0.0 <= output <= 100.0):
+            raise ValueError(f"manual output must be within 0..100 %, got {output}")
+        self._pending.append(lambda t: self._apply_manual(output, t))
+
+    def set_auto(self) -> None:
+        self._pending.append(self._apply_auto)
+
+    def reset_alarms(self) -> None:
+        self._pending.append(self._apply_reset)
+
+    def _apply_setpoint(self, celsius: float, t: float) -> None:
+        self.setpoint = celsius
+        self._event(logging.INFO, f"setpoint {celsius:.2f} °C", t)
+
+    def _apply_manual(self, output: float | None, t: float) -> None:
+        self.mode = "manual"
+        self.manual_output = self.output if output is None else output
+        self._event(logging.INFO, f"manual mode at {self.manual_output:.1f} %", t)
+
+    def _apply_auto(self, t: float) -> None:
+        if self.mode != "auto":
+            self.mode = "auto"
+            self._held = True  # resume bumplessly from the manual output
+            self._resume_output = self.manual_output
+            self._event(logging.INFO, "auto mode", t)
+
+    def _apply_reset(self, t: float) -> None:
+        cleared = self.supervisor.reset_latched(t)
+        self._drain_alarms(t)
+        if cleared:
+            self._event(logging.WARNING, f"alarms reset: {', '.join(cleared)}", t)
+
+    # -- the periodic work ----------------------------------------------------------------
+
+    def _on_read(self, deadline: float, now: float) -> None:
+        self._read_now(now)
+        sup = self.supervisor
+        sup.tick(now)
+        if not sup.heater_allowed:
+            self._force_off(now)
+        self._drain_alarms(now)
+
+    def _read_now(self, now: float) -> None:
+        sup = self.supervisor
+        self._reads += 1
+        reading: Reading | None = None
+        error: SensorError | None = None
+        try:
+            reading = self.sensor.read()
+            if self._reads % self._reads_per_period() == 0:
+                self.sensor.identify()
+        except SensorError as exc:
+            error = exc
+        t = self.clock.monotonic()  # a slow bus moves time; judge the value when it arrived
+        accepted = False
+        if reading is not None and error is None:
+            accepted = sup.reading(t, reading.celsius, reading.raw, reading.crit)
+            if accepted:
+                self._readings.append(reading.celsius)
+                self._last_celsius = reading.celsius
+        elif error is not None:
+            kind = "wrong chip" if isinstance(error, WrongChipError) else "read failed"
+            sup.read_error(t, f"{kind}: {error}", error.errno)
+        if self.recorder is not None:
+            self.recorder.write(
+                "/hermsd/reading",
+                self.clock.wall_ns(),
+                {
+                    "t": t,
+                    "celsius": reading.celsius if reading else None,
+                    "raw": reading.raw if reading else None,
+                    "crit": reading.crit if reading else None,
+                    "high": reading.high if reading else None,
+                    "low": reading.low if reading else None,
+                    "error": str(error) if error else None,
+                    "errno": error.errno if error else None,
+                    "accepted": accepted,
+                },
+            )
+
+    def _reads_per_period(self) -> int:
+        return max(1, round(self.config.control.period / self.config.sensor.read_interval))
+
+    def _on_control(self, deadline: float, now: float) -> None:
+        sup = self.supervisor
+        sup.loop_lateness(now, now - deadline)
+        sup.tick(now)
+        for action in self._pending:
+            action(now)
+        self._pending.clear()
+        readings, self._readings = self._readings, []
+        pv = period_value(readings)
+        if pv is None:
+            pv = self._last_celsius  # a slow read interval: the latest accepted value
+        self._pv = pv
+        applied = self._applied(now)
+        sup.period(now, pv, self.output, applied)
+        self._drain_alarms(now)
+        state = "ok"
+        if sup.heater_allowed and pv is not None:
+            if self.mode == "manual":
+                self.output = self.manual_output
+            else:
+                if self._held:
+                    self.controller.reset(pv, self._resume_output)
+                    self._held = False
+                self.output = self.controller.step(self.setpoint, pv, applied)
+        else:
+            if not self._held:
+                self._held = True
+                self._resume_output = self.output
+            self.output = 0.0
+            self._force_off(now)
+            state = "alarm" if sup.active else "waiting"
+        if self.mode == "manual" and state == "ok":
+            state = "manual"
+        self.k += 1
+        terms = self.controller.terms
+        record = PeriodRecord(
+            t=now,
+            k=self.k,
+            setpoint=self.setpoint,
+            pv=pv,
+            readings=readings,
+            output=self.output,
+            applied=applied,
+            p=terms[0],
+            i=terms[1],
+            d=terms[2],
+            mode=self.mode,
+            algorithm=self.config.control.algorithm,
+            state=state,
+            alarms=sup.active,
+            heater_allowed=sup.heater_allowed,
+        )
+        for listener in self.listeners:
+            listener.period(record)
+        if self.recorder is not None:
+            self.recorder.write("/hermsd/period", self.clock.wall_ns(), asdict(record))
+        if self.on_status is not None:
+            self.on_status(self.status_text())
+
+    def _on_window(self, deadline: float, now: float) -> None:
+        window = self._window
+        window.cancel()
+        allowed = self.supervisor.heater_allowed
+        if self.outputs.contactor is not None:
+            self.outputs.contactor.set(allowed)
+        plan = self.planner.plan(deadline, self.output if allowed else 0.0)
+        window.plan = plan
+        self._switch(plan.is_on(now), now)
+        end = deadline + plan.length
+        for edge in (plan.on_at, plan.off_at):
+            if now < edge < end:
+                window.timers.append(self.scheduler.at(edge, self._on_edge))
+        if self.recorder is not None:
+            self.recorder.write(
+                "/hermsd/window",
+                self.clock.wall_ns(),
+                {
+                    "t": deadline,
+                    "window": plan.length,
+                    "requested": plan.requested,
+                    "on_time": plan.on_time,
+                    "applied": plan.applied,
+                },
+            )
+
+    def _on_edge(self, when: float, now: float) -> None:
+        plan = self._window.plan
+        if plan is None:
+            return
+        self.edge_lateness.add(now - when)
+        self._switch(plan.is_on(when), now)
+
+    def _on_timing(self, deadline: float, now: float) -> None:
+        if self.recorder is None:
+            return
+        p50, p99, worst = self._control_task.lateness.summary()
+        e50, e99, eworst = self.edge_lateness.summary()
+        self.recorder.write(
+            "/hermsd/timing",
+            self.clock.wall_ns(),
+            {
+                "t": now,
+                "period_lateness_p50": p50,
+                "period_lateness_p99": p99,
+                "period_lateness_max": worst,
+                "edge_error_p50": e50,
+                "edge_error_p99": e99,
+                "edge_error_max": eworst,
+                "overruns": self._control_task.overruns,
+                "dropped": getattr(self.recorder, "dropped", 0),
+            },
+        )
+
+    # -- outputs --------------------------------------------------------------------------
+
+    def _switch(self, on: bool, now: float) -> None:
+        on = on and self.supervisor.heater_allowed
+        self.outputs.ssr.set(on)
+        self._set_ssr_accounting(on, now)
+
+    def _force_off(self, now: float) -> None:
+        """Heater off at once: the window in progress is cut, the contactor opened."""
+        window = self._window
+        if window.plan is not None:
+            window.plan = cut(window.plan, now)
+        window.cancel()
+        self.planner.reset()
+        self.outputs.ssr.set(False)
+        self._set_ssr_accounting(False, now)
+        if self.outputs.contactor is not None:
+            self.outputs.contactor.set(False)
+
+    def _set_ssr_accounting(self, on: bool, now: float) -> None:
+        if on and self._ssr_on_since is None:
+            self._ssr_on_since = now
+        elif not on and self._ssr_on_since is not None:
+            self._on_seconds += now - self._ssr_on_since
+            self._ssr_on_since = None
+
+    def _applied(self, now: float) -> float:
+        """The duty that really reached the element since the last control period, in %."""
+        if self._ssr_on_since is not None:
+            self._on_seconds += now - self._ssr_on_since
+            self._ssr_on_since = now
+        last = self._last_control_t if self._last_control_t is not None else now
+        self._last_control_t = now
+        span = now - last
+        on, self._on_seconds = self._on_seconds, 0.0
+        return min(100.0, 100.0 * on / span) if span > 0 else 0.0
+
+    # -- reporting ------------------------------------------------------------------------
+
+    def status_text(self) -> str:
+        pv = "--.--" if self._pv is None else f"{self._pv:.2f}"
+        state = ", ".join(self.supervisor.active) or ("manual" if self.mode == "manual" else "ok")
+        return (
+            f"{self.config.tun.name} {pv} °C → {self.setpoint:.2f} °C, "
+            f"out {self.output:.0f} %, {state}"
+        )
+
+    def _drain_alarms(self, t: float) -> None:
+        for alarm in self.supervisor.drain_events():
+            if alarm.raised:
+                self._force_off(t)
+                level = logging.ERROR if alarm.latched else logging.WARNING
+                what = "ALARM" if alarm.latched else "fault"
+                self._event(level, f"{what} {alarm.kind}: {alarm.message}; heater off", t)
+            else:
+                self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
+            for listener in self.listeners:
+                listener.alarm(alarm)
+
+    def _event(self, level: int, message: str, t: float) -> None:
+        log.log(level, message)
+        if self.recorder is not None:
+            wall = self.clock.wall_ns()
+            self.recorder.write(
+                "/hermsd/log",
+                wall,
+                {
+                    "timestamp": {"sec": wall // 1_000_000_000, "nsec": wall % 1_000_000_000},
+                    "level": {logging.INFO: 2, logging.WARNING: 3, logging.ERROR: 4}.get(level, 2),
+                    "message": message,
+                    "name": "hermsd",
+                    "file": "",
+                    "line": 0,
+                },
+            )
+
+    @staticmethod
+    def _make_planner(config: Config) -> TimeProportionalPlanner:
+        out = config.output
+        return TimeProportionalPlanner(window_length(config), out.mains_hz, out.min_on, out.min_off)

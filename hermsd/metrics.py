@@ -1,0 +1,149 @@
+"""How well a run held its setpoint: one set of definitions for the simulator and for replay.
+
+Samples are one per control period: time, setpoint, temperature, output. `disturbances` are
+the times the tun was upset from outside (water added, setpoint changed, a fault injected):
+"settled" means in band for good before the first of them, "recovered" means back in band for
+good after the last of them.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+BAND = 0.5  # °C either side of the setpoint that counts as holding it
+
+
+@dataclass(frozen=True, slots=True)
+class Sample:
+    t: float
+    setpoint: float
+    temp: float
+    output: float
+
+
+@dataclass(frozen=True, slots=True)
+class Metrics:
+    overshoot_c: float
+    settle_s: float | None
+    recovery_s: float | None
+    in_band_fraction: float | None
+    iae: float
+    max_output_jump: float
+    hold_s: float
+    max_temp_c: float
+    mean_output: float
+    edges_per_hour: float | None
+
+
+def in_band_for_good(samples: list[Sample], start: float, end: float) -> float | None:
+    """The time from which every sample in [start, end) is within the band; None if never."""
+    entered: float | None = None
+    for s in samples:
+        if s.t < start:
+            continue
+        if s.t >= end:
+            break
+        if abs(s.temp - s.setpoint) <= BAND:
+            if entered is None:
+                entered = s.t
+        else:
+            entered = None
+    return entered
+
+
+def compute(
+    samples: list[Sample],
+    disturbances: list[float],
+    end: float,
+    edges: list[float] | None = None,
+) -> Metrics:
+    """Metrics of a run from t = samples[0].t to `end`; `edges` are the SSR's switching times."""
+    if not samples:
+        return Metrics(0.0, None, None, None, 0.0, 0.0, 0.0, float("nan"), 0.0, None)
+    t0 = samples[0].t
+    dts = [b.t - a.t for a, b in itertools.pairwise(samples)]
+    dts.append(dts[-1] if dts else 0.0)
+    first_disturbance = min(disturbances, default=end)
+    settled_at = in_band_for_good(samples, t0, first_disturbance)
+    last = max(disturbances, default=None)
+    recovered_at = in_band_for_good(samples, last, end) if last is not None else None
+
+    # Overshoot counts only once the temperature has been at or below the setpoint of its
+    # segment: cooling down after a setpoint step down is not overshoot.
+    overshoot = 0.0
+    iae = 0.0
+    reached = False
+    armed = False
+    segment_sp: float | None = None
+    for s, dt in zip(samples, dts, strict=True):
+        if s.setpoint != segment_sp:
+            segment_sp, armed = s.setpoint, False
+        error = s.temp - s.setpoint
+        armed = armed or error <= 0
+        if armed:
+            overshoot = max(overshoot, error)
+        reached = reached or error >= 0
+        if reached:
+            iae += abs(error) * dt
+
+    hold = _hold_intervals(samples, settled_at, disturbances, recovered_at, end)
+    in_hold = [i for i, s in enumerate(samples) if _inside(s.t, hold)]
+    hold_s = sum(b - a for a, b in hold)
+    in_band = (
+        sum(1 for i in in_hold if abs(samples[i].temp - samples[i].setpoint) <= BAND) / len(in_hold)
+        if in_hold
+        else None
+    )
+    jumps = [
+        abs(samples[i].output - samples[i - 1].output)
+        for i in in_hold
+        if i > 0 and _inside(samples[i - 1].t, hold)
+    ]
+    return Metrics(
+        overshoot_c=overshoot,
+        settle_s=None if settled_at is None else settled_at - t0,
+        recovery_s=None if recovered_at is None or last is None else recovered_at - last,
+        in_band_fraction=in_band,
+        iae=iae,
+        max_output_jump=max(jumps, default=0.0),
+        hold_s=hold_s,
+        max_temp_c=max(s.temp for s in samples),
+        mean_output=sum(s.output * dt for s, dt in zip(samples, dts, strict=True))
+        / max(sum(dts), 1e-9),
+        edges_per_hour=(
+            sum(1 for e in edges if _inside(e, hold)) * 3600.0 / hold_s
+            if edges is not None and hold_s > 0
+            else None
+        ),
+    )
+
+
+def _hold_intervals(
+    samples: list[Sample],
+    settled_at: float | None,
+    disturbances: list[float],
+    recovered_at: float | None,
+    end: float,
+) -> list[tuple[float, float]]:
+    """When the loop was holding: settled and not recovering from a disturbance."""
+    if settled_at is None:
+        return []
+    marks = sorted(d for d in disturbances if d > settled_at)
+    intervals: list[tuple[float, float]] = []
+    start = settled_at
+    for i, d in enumerate(marks):
+        intervals.append((start, d))
+        nxt = marks[i + 1] if i + 1 < len(marks) else end
+        back = in_band_for_good(samples, d, nxt)
+        if back is None:
+            start = nxt
+            continue
+        start = back
+    if start < end:
+        intervals.append((start, end))
+    return [(a, b) for a, b in intervals if b > a]
+
+
+def _inside(t: float, intervals: list[tuple[float, float]]) -> bool:
+    return any(a <= t < b for a, b in intervals)

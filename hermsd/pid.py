@@ -1,0 +1,524 @@
+"""PID controllers for the HLT, each one a direct transcription of its discrete-time equation.
+
+Units throughout: temperatures in °C, the output in % of element power, Kc in %/°C and every
+time constant in seconds. `create()` builds a controller by name; all of them share one
+interface (`Controller`): `step(sp, pv, applied=None)` once per period Ts, `reset(pv, output)`
+to (re)start bumplessly, and `terms` for logging. The code is pure and deterministic: the same
+inputs give bit-identical outputs, and nothing here reads a clock or touches hardware.
+
+Algorithms (equation numbers refer to the HERMS PID calculus document):
+
+- ``type_a``: eq. 08 with the coefficients of eq. 06 (bilinear transform, filtered D on the
+  error). γ = tf. With γ = 0 eq. 08 has a pole at z = −1 (p2 = 1) that rings undamped
+  whenever the clamp or `applied` acts, so tf = 0 ("no filter") is realised with γ = Ts/2:
+  there the bilinear D term Kc·2Td/(Ts + 2γ)·(1 − z⁻¹)/(1 + p2·z⁻¹) is exactly the plain
+  backward difference Kc·Td/Ts·(1 − z⁻¹), p2 = 0, and a PI (Td = 0) is the trapezoidal one.
+  For 0 < γ < Ts/2 the pole −p2 is negative: a decaying alternation, the user's choice.
+- ``type_a_filtered``: eq. 12 (velocity form) with its D acting on the eq. 11c low-pass
+  filter of the error; tf = 0 means no filter (lpf = e), since eq. 11c has a pole at z = −1
+  there.
+- ``takahashi``: eq. 14 (type C velocity form: P and D on PV, I on the error). With tf > 0 the
+  D term sees PV through the eq. 11b/11c filter; with tf = 0 it is exactly eq. 14.
+- ``back_calculation``: positional P + I + D, D on the (optionally eq. 11c-filtered) PV and
+  opposing its change, with back-calculation (tracking) anti-windup:
+  I_{k+1} = I_k + Kc·Ts/Ti·e_k + Ts/Tt·(u_actual − v_k), where v_k = P_k + I_k + D_k is the
+  unlimited output and u_actual the actuator's real output (`applied`; without it the
+  actuator model is the clamp). The sign makes the integral shrink while v_k exceeds what the
+  actuator delivers.
+- ``velocity_pi``: the bumpless PI of the windup/bumpless-transfer notes:
+  u_k = clamp(u_{k−1} − Kc·(PV_k − PV_{k−1}) + Kc·Ts/Ti·e_k). That is eq. 14 with Td = 0, so
+  it shares the Takahashi implementation.
+
+Defaults: tf=None gives γ = 10 % of Td (the document's suggestion) for type_a,
+type_a_filtered and back_calculation, and 0 for takahashi (exactly eq. 14). tt=None gives
+Tt = sqrt(Ti·Td) when Td > 0, else Ti (inside the rule of thumb Td ≤ Tt ≤ Ti), raised to Ts
+if smaller: with Tt < Ts the tracking term would over-correct the integral every period.
+ti = 0 means no integral. A parameter that the chosen algorithm has no use for (td, tf for
+velocity_pi; tt for anything but back_calculation with an integral) must be left at its
+default, so that a configuration never silently loses an action it asked for. takahashi and
+velocity_pi need ti > 0: their only path from the setpoint to the output is the integral.
+
+Tracking (`applied`): the value the actuator really delivered last period (after the SSR's
+quantisation and minimum on/off times, a manual value, or a safety override), clamped to the
+output range. Velocity forms and type_a use it as u_{k−1}; back_calculation uses it as
+u_actual. A velocity form restarts every period from `applied`, so if the output stage
+rounds the request down to a quantum without carrying the residue, increments smaller than
+the quantum are lost and the loop settles off the setpoint; the output stage should carry its
+rounding residue into the next period (the long-run average of `applied` then equals the
+request), or report `applied` only when it was overridden.
+
+Start and bumpless transfer: `reset(pv0, u0)` (or, on a new controller, pv0 = the pv of the
+first step and u0 = clamp(0)) makes the next step treat the past as if PV had stood at pv0,
+the setpoint at its present value and the output at u0; that step ignores `applied`, since
+u0 already says what the actuator holds. So there is no derivative kick and no setpoint kick.
+With e = sp − pv and Δe = pv0 − pv ("within one P-step"):
+|u − u0| ≤ Kc·|Δe| + Kc·Ts/Ti·|e| plus the derivative's response to a PV that moved since the
+reset. When PV has not moved (Δe = 0): the velocity forms and type_a give u0 + Kc·Ts/Ti·e
+(type_a's output history starts on the ramp eq. 08 follows at a constant error,
+u_{k−2} = u_{k−1} − Kc·Ts/Ti·e, so no transient of its p2 mode is set off), and
+back_calculation gives u0 (its integral advances after the output is formed).
+
+Numeric domain: sp and pv within ±1e6 °C; 0 < Kc ≤ 1e6; Ts, and Ti when not 0, at least
+1 ms; every time at most 1e7 s; output limits within ±1e12. Inside it no product can
+overflow, so finite inputs never give NaN; anything outside raises ValueError before any
+state changes.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Protocol
+
+ALGORITHMS = ("type_a", "type_a_filtered", "takahashi", "back_calculation", "velocity_pi")
+
+MAX_ABS_TEMPERATURE = 1e6
+MAX_TIME = 1e7
+MIN_TIME = 1e-3
+MAX_KC = 1e6
+MAX_ABS_OUTPUT_LIMIT = 1e12
+
+_INF = math.inf
+_TF_DEFAULT_FRACTION = 0.1
+
+
+@dataclass(frozen=True, slots=True)
+class Params:
+    """The parameters a controller runs with, defaults resolved (for logs and reloads)."""
+
+    algorithm: str
+    kc: float
+    ti: float
+    td: float
+    ts: float
+    tf: float
+    tt: float | None
+    out_min: float
+    out_max: float
+
+
+class Controller(Protocol):
+    """What the scheduler needs of a controller."""
+
+    @property
+    def params(self) -> Params: ...
+
+    @property
+    def output(self) -> float:
+        """The last output (before the first step: the output it will start from)."""
+        ...
+
+    @property
+    def terms(self) -> tuple[float, float, float]:
+        """(p, i, d) of the last step: increments for velocity forms, values for positional."""
+        ...
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        """One period: the new output in [out_min, out_max]."""
+        ...
+
+    def reset(self, pv: float, output: float) -> None:
+        """Continue from `output` (clamped to the limits) with PV history `pv`: no kick."""
+        ...
+
+
+def create(
+    name: str,
+    *,
+    kc: float,
+    ti: float,
+    td: float = 0.0,
+    ts: float = 5.0,
+    tf: float | None = None,
+    tt: float | None = None,
+    out_min: float = 0.0,
+    out_max: float = 100.0,
+) -> Controller:
+    """A new controller of algorithm `name`; ValueError names any parameter that is wrong."""
+    params = _resolve(name, kc=kc, ti=ti, td=td, ts=ts, tf=tf, tt=tt, lo=out_min, hi=out_max)
+    controller: Controller
+    if name == "type_a":
+        controller = _TypeA(params)
+    elif name == "type_a_filtered":
+        controller = _TypeAFiltered(params)
+    elif name == "back_calculation":
+        controller = _BackCalculation(params)
+    else:
+        controller = _Takahashi(params)
+    return controller
+
+
+def _number(label: str, value: object, low: float, high: float, rule: str) -> float:
+    """`value` as a float if it is a finite real number in [low, high]; else a ValueError."""
+    if not isinstance(value, bool) and isinstance(value, int | float):
+        try:
+            number = float(value)
+        except OverflowError:
+            number = math.nan
+        if math.isfinite(number) and low <= number <= high:
+            return number
+    raise ValueError(f"{label}={value!r} is invalid: must be {rule}")
+
+
+def _resolve(
+    name: str,
+    *,
+    kc: float,
+    ti: float,
+    td: float,
+    ts: float,
+    tf: float | None,
+    tt: float | None,
+    lo: float,
+    hi: float,
+) -> Params:
+    if name not in ALGORITHMS:
+        raise ValueError(f"algorithm {name!r} is unknown: must be one of {', '.join(ALGORITHMS)}")
+    kc = _number("kc", kc, math.ulp(0.0), MAX_KC, f"> 0 and ≤ {MAX_KC:g} %/°C")
+    ti_rule = f"0 (no integral) or ≥ {MIN_TIME:g} and ≤ {MAX_TIME:g} s"
+    ti = _number("ti", ti, 0.0, MAX_TIME, ti_rule)
+    if 0.0 < ti < MIN_TIME:
+        raise ValueError(f"ti={ti!r} is invalid: must be {ti_rule}")
+    td = _number("td", td, 0.0, MAX_TIME, f"≥ 0 and ≤ {MAX_TIME:g} s (0 = no derivative)")
+    ts = _number("ts", ts, MIN_TIME, MAX_TIME, f"≥ {MIN_TIME:g} and ≤ {MAX_TIME:g} s")
+    limit_rule = f"finite and within ±{MAX_ABS_OUTPUT_LIMIT:g} %"
+    lo = _number("out_min", lo, -MAX_ABS_OUTPUT_LIMIT, MAX_ABS_OUTPUT_LIMIT, limit_rule)
+    hi = _number("out_max", hi, -MAX_ABS_OUTPUT_LIMIT, MAX_ABS_OUTPUT_LIMIT, limit_rule)
+    if lo >= hi:
+        raise ValueError(f"out_min={lo!r} is invalid: must be < out_max={hi!r}")
+    if name in ("takahashi", "velocity_pi") and ti == 0.0:
+        raise ValueError(
+            f"ti=0 is invalid for {name}: P and D act on PV only, so the integral is the "
+            "only path from the setpoint; must be > 0 s"
+        )
+    if name == "velocity_pi":
+        if td != 0.0:
+            raise ValueError(f"td={td!r} is invalid for velocity_pi (a PI): must be 0")
+        if tf is not None:
+            raise ValueError(f"tf={tf!r} is invalid for velocity_pi (no D term): leave it unset")
+    if tf is None:
+        tf = 0.0 if name == "takahashi" else _TF_DEFAULT_FRACTION * td
+    tf = _number("tf", tf, 0.0, MAX_TIME, f"≥ 0 and ≤ {MAX_TIME:g} s (0 = no filter)")
+    tracking = name == "back_calculation" and ti > 0.0
+    if tt is not None and not tracking:
+        raise ValueError(
+            f"tt={tt!r} is invalid here: only back_calculation with ti > 0 tracks through Tt; "
+            "leave it unset"
+        )
+    if tracking:
+        if tt is None:
+            tt = max(ts, math.sqrt(ti * td) if td > 0.0 else ti)
+        tt = _number("tt", tt, ts, MAX_TIME, f"≥ ts={ts:g} and ≤ {MAX_TIME:g} s")
+    return Params(name, kc, ti, td, ts, tf, tt, lo, hi)
+
+
+def _lowpass(tf: float, ts: float) -> tuple[float, float]:
+    """(a, b) of the eq. 11c filter lpf_k = a·lpf_{k−1} + b·(x_k + x_{k−1}); unity DC gain."""
+    return (2.0 * tf - ts) / (2.0 * tf + ts), ts / (ts + 2.0 * tf)
+
+
+def _reject(sp: float, pv: float, applied: float | None) -> None:
+    """Raise the one-line error for whichever step input is out of the domain."""
+    for label, value in (("sp", sp), ("pv", pv)):
+        if not -MAX_ABS_TEMPERATURE <= value <= MAX_ABS_TEMPERATURE:
+            raise ValueError(
+                f"{label}={value!r} °C is invalid: must be finite and within "
+                f"±{MAX_ABS_TEMPERATURE:g} °C"
+            )
+    raise ValueError(f"applied={applied!r} % is invalid: must be finite")
+
+
+class _Base(ABC):
+    """What every algorithm shares: input checks, limits, tracking, start and reset.
+
+    A subclass sets its history in `_prime` and computes the unlimited output in `_advance`.
+    """
+
+    __slots__ = ("_hi", "_lo", "_output", "_params", "_primed", "_start_pv", "_terms")
+
+    def __init__(self, params: Params) -> None:
+        self._params = params
+        self._lo = params.out_min
+        self._hi = params.out_max
+        self._output = min(max(0.0, self._lo), self._hi)
+        self._primed = False
+        self._start_pv: float | None = None
+        self._terms = (0.0, 0.0, 0.0)
+
+    @property
+    def params(self) -> Params:
+        return self._params
+
+    @property
+    def output(self) -> float:
+        return self._output
+
+    @property
+    def terms(self) -> tuple[float, float, float]:
+        return self._terms
+
+    def reset(self, pv: float, output: float) -> None:
+        if not -MAX_ABS_TEMPERATURE <= pv <= MAX_ABS_TEMPERATURE:
+            _reject(0.0, pv, None)
+        if not -_INF < output < _INF:
+            raise ValueError(f"output={output!r} % is invalid: must be finite")
+        self._output = min(max(output, self._lo), self._hi)
+        self._start_pv = pv
+        self._primed = False
+        self._terms = (0.0, 0.0, 0.0)
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        if not (
+            -MAX_ABS_TEMPERATURE <= sp <= MAX_ABS_TEMPERATURE
+            and -MAX_ABS_TEMPERATURE <= pv <= MAX_ABS_TEMPERATURE
+        ) or (applied is not None and not -_INF < applied < _INF):
+            _reject(sp, pv, applied)
+        lo, hi = self._lo, self._hi
+        if self._primed:
+            previous = self._output if applied is None else min(max(applied, lo), hi)
+        else:
+            self._prime(sp, pv if self._start_pv is None else self._start_pv)
+            self._primed = True
+            previous = self._output
+        v = self._advance(sp, pv, previous)
+        u = lo if v < lo else (hi if v > hi else v)
+        self._output = u
+        return u
+
+    @abstractmethod
+    def _prime(self, sp: float, pv0: float) -> None:
+        """Set the history as if PV had stood at pv0 and the setpoint at sp."""
+
+    @abstractmethod
+    def _advance(self, sp: float, pv: float, previous: float) -> float:
+        """The unlimited output of this period; `previous` is the actuator's last output."""
+
+
+class _TypeA(_Base):
+    """Eq. 08: u_k = p1·u_{k−1} + p2·u_{k−2} + k0·e_k + k1·e_{k−1} + k2·e_{k−2}.
+
+    `terms` are the increments of the three branches of eq. 05-3 (P, trapezoidal I, filtered
+    D); in linear operation without `applied` they add up to u_k − u_{k−1}.
+    """
+
+    __slots__ = (
+        "_ci",
+        "_d1",
+        "_e1",
+        "_e2",
+        "_half_ci",
+        "_k0",
+        "_k1",
+        "_k2",
+        "_kc",
+        "_kdd",
+        "_p1",
+        "_p2",
+        "_u2",
+    )
+
+    def __init__(self, params: Params) -> None:
+        super().__init__(params)
+        kc, ti, td, ts = params.kc, params.ti, params.td, params.ts
+        gamma = params.tf if params.tf > 0.0 else 0.5 * ts
+        inv_ti = 1.0 / ti if ti > 0.0 else 0.0
+        alpha = ts + 2.0 * gamma
+        # eq. 06, with 1/Ti = 0 when there is no integral
+        self._k0 = kc * (1.0 + ts * inv_ti / 2.0 + 2.0 * td / alpha)
+        self._k1 = kc * (ts * ts * inv_ti - 4.0 * gamma - 4.0 * td) / alpha
+        self._k2 = (
+            kc
+            * (2.0 * gamma - ts + ts * ts * inv_ti / 2.0 - gamma * ts * inv_ti + 2.0 * td)
+            / alpha
+        )
+        self._p1 = 4.0 * gamma / alpha
+        self._p2 = (ts - 2.0 * gamma) / alpha
+        self._kc = kc
+        self._ci = kc * ts * inv_ti
+        self._half_ci = 0.5 * self._ci
+        self._kdd = 2.0 * kc * td / alpha
+        self._e1 = self._e2 = self._u2 = self._d1 = 0.0
+
+    def _prime(self, sp: float, pv0: float) -> None:
+        self._e1 = self._e2 = sp - pv0
+        self._u2 = self._output - self._ci * self._e1
+        self._d1 = 0.0
+
+    def _advance(self, sp: float, pv: float, previous: float) -> float:
+        e = sp - pv
+        e1 = self._e1
+        v = (
+            self._p1 * previous
+            + self._p2 * self._u2
+            + self._k0 * e
+            + self._k1 * e1
+            + self._k2 * self._e2
+        )
+        d = self._kdd * (e - e1) - self._p2 * self._d1
+        self._terms = (self._kc * (e - e1), self._half_ci * (e + e1), d - self._d1)
+        self._d1 = d
+        self._e2 = e1
+        self._e1 = e
+        self._u2 = previous
+        return v
+
+
+class _TypeAFiltered(_Base):
+    """Eq. 11c + 12: velocity form, D on the low-pass filtered error."""
+
+    __slots__ = ("_ci", "_e1", "_fa", "_fb", "_filtered", "_kc", "_kd", "_lpf1", "_lpf2")
+
+    def __init__(self, params: Params) -> None:
+        super().__init__(params)
+        self._kc = params.kc
+        self._ci = params.kc * params.ts / params.ti if params.ti > 0.0 else 0.0
+        self._kd = params.kc * params.td / params.ts
+        self._filtered = params.tf > 0.0
+        self._fa, self._fb = _lowpass(params.tf, params.ts)
+        self._e1 = self._lpf1 = self._lpf2 = 0.0
+
+    def _prime(self, sp: float, pv0: float) -> None:
+        self._e1 = self._lpf1 = self._lpf2 = sp - pv0
+
+    def _advance(self, sp: float, pv: float, previous: float) -> float:
+        e = sp - pv
+        e1 = self._e1
+        lpf1 = self._lpf1
+        lpf = self._fa * lpf1 + self._fb * (e + e1) if self._filtered else e
+        p = self._kc * (e - e1)
+        i = self._ci * e
+        d = self._kd * (lpf - 2.0 * lpf1 + self._lpf2)
+        self._terms = (p, i, d)
+        self._e1 = e
+        self._lpf2 = lpf1
+        self._lpf1 = lpf
+        return previous + p + i + d
+
+
+class _Takahashi(_Base):
+    """Eq. 14 (type C): P and D on PV, I on the error; D optionally on eq. 11c-filtered PV."""
+
+    __slots__ = ("_ci", "_f1", "_f2", "_fa", "_fb", "_filtered", "_kc", "_kd", "_pv1")
+
+    def __init__(self, params: Params) -> None:
+        super().__init__(params)
+        self._kc = params.kc
+        self._ci = params.kc * params.ts / params.ti
+        self._kd = params.kc * params.td / params.ts
+        self._filtered = params.tf > 0.0
+        self._fa, self._fb = _lowpass(params.tf, params.ts)
+        self._pv1 = self._f1 = self._f2 = 0.0
+
+    def _prime(self, sp: float, pv0: float) -> None:
+        self._pv1 = self._f1 = self._f2 = pv0
+
+    def _advance(self, sp: float, pv: float, previous: float) -> float:
+        pv1 = self._pv1
+        f1 = self._f1
+        f = self._fa * f1 + self._fb * (pv + pv1) if self._filtered else pv
+        p = self._kc * (pv1 - pv)
+        i = self._ci * (sp - pv)
+        d = self._kd * (2.0 * f1 - f - self._f2)
+        self._terms = (p, i, d)
+        self._pv1 = pv
+        self._f2 = f1
+        self._f1 = f
+        return previous + p + i + d
+
+
+class _BackCalculation(_Base):
+    """Positional PID with back-calculation anti-windup; `terms` are (P_k, I_k, D_k).
+
+    The integral update of period k needs that period's actual output, which arrives with
+    the next step: so each step first completes the previous period's update.
+    """
+
+    __slots__ = (
+        "_e",
+        "_f1",
+        "_fa",
+        "_fb",
+        "_filtered",
+        "_i",
+        "_kc",
+        "_kd",
+        "_ki",
+        "_kt",
+        "_pv1",
+        "_v",
+    )
+
+    def __init__(self, params: Params) -> None:
+        super().__init__(params)
+        self._kc = params.kc
+        self._ki = params.kc * params.ts / params.ti if params.ti > 0.0 else 0.0
+        self._kt = params.ts / params.tt if params.tt is not None else 0.0
+        self._kd = params.kc * params.td / params.ts
+        self._filtered = params.tf > 0.0
+        self._fa, self._fb = _lowpass(params.tf, params.ts)
+        self._e = self._v = self._i = self._f1 = self._pv1 = 0.0
+
+    def _prime(self, sp: float, pv0: float) -> None:
+        # the pending update becomes exactly zero: no error yet, and v equals the start output
+        self._pv1 = self._f1 = pv0
+        self._i = self._output - self._kc * (sp - pv0)
+        self._e = 0.0
+        self._v = self._output
+
+    def _advance(self, sp: float, pv: float, previous: float) -> float:
+        i = self._i + self._ki * self._e + self._kt * (previous - self._v)
+        f1 = self._f1
+        f = self._fa * f1 + self._fb * (pv + self._pv1) if self._filtered else pv
+        e = sp - pv
+        p = self._kc * e
+        d = -self._kd * (f - f1)
+        v = p + i + d
+        self._terms = (p, i, d)
+        self._i = i
+        self._e = e
+        self._v = v
+        self._pv1 = pv
+        self._f1 = f
+        return v
+
+
+# Tuning: Table 1 of the HERMS PID calculus document, from the identified FOPTD model.
+
+
+def table1(
+    K: float, tau: float, theta: float, a_star: float
+) -> dict[str, tuple[float, float, float]]:
+    """(kc, ti, td) of every Table 1 rule, by name; td = 0 for the PI rules.
+
+    K: process gain [°C/%], tau: time constant [s], theta: dead time [s], a_star: normalised
+    slope of the open-loop step response [°C/(%·s)]. Kc comes out in %/°C, Ti and Td in s.
+    """
+    gain = _number("K", K, math.ulp(0.0), _INF, "> 0 °C/% and finite")
+    tau = _number("tau", tau, math.ulp(0.0), _INF, "> 0 s and finite")
+    theta = _number("theta", theta, math.ulp(0.0), _INF, "> 0 s and finite")
+    slope = _number("a_star", a_star, math.ulp(0.0), _INF, "> 0 °C/(%·s) and finite")
+    ratio = theta / tau
+    process = tau / (gain * theta)
+    return {
+        "zn_open_pid": (1.2 / (theta * slope), 2.0 * theta, 0.5 * theta),
+        "zn_open_pi": (0.9 / (theta * slope), 3.33 * theta, 0.0),
+        "zn_closed_pid": (1.2 * process, 2.0 * theta, 0.5 * theta),
+        "zn_closed_pi": (0.9 * process, 3.33 * theta, 0.0),
+        "cohen_coon_pid": (
+            process * (theta / (4.0 * tau) + 4.0 / 3.0),
+            theta * (32.0 * tau + 6.0 * theta) / (13.0 * tau + 8.0 * theta),
+            theta * 4.0 * tau / (2.0 * theta + 11.0 * tau),
+        ),
+        "cohen_coon_pi": (
+            process * (theta / (12.0 * tau) + 9.0 / 10.0),
+            theta * (30.0 * tau + 3.0 * theta) / (9.0 * tau + 20.0 * theta),
+            0.0,
+        ),
+        "itae_load_pid": (
+            1.357 / gain * ratio**-0.947,
+            tau / 0.842 * ratio**0.738,
+            0.381 * tau * ratio**0.995,
+        ),
+        "itae_load_pi": (0.859 / gain * ratio**-0.977, tau / 0.674 * ratio**0.680, 0.0),
+    }

@@ -1,0 +1,860 @@
+"""Flight recorder: MCAP logs written beside the control loop that survive a crash or a bad disk.
+
+The control loop hands records over with `Recorder.write`, which is one queue put: it never
+blocks and never raises, because a log is worth less than a control period. A thread of its
+own encodes the records as JSON and writes them with the `mcap` library, which is not
+thread-safe and is touched by that thread only.
+
+What survives what:
+
+- A crash or power cut loses at most the records of the last `flush_interval` seconds: the
+  open chunk is closed and handed to the OS at that pace (`mcap.writer.Writer.flush`), and
+  `os.fdatasync` pushes it to the card at most every `sync_interval` seconds (SD cards wear).
+  The file being written is named `*.mcap.part`; `recover` turns a leftover one into a
+  finished `.mcap` that keeps every complete chunk.
+- A full, failing, read-only or vanished disk is counted (`errors`) and described
+  (`last_error`); the file in hand is abandoned as it stands (recoverable), and writing
+  resumes in a new file at the next record after `RETRY_INTERVAL_S`.
+- A full queue drops the new record (`dropped`), and a WARNING event on `/hermsd/log` says how
+  many were dropped as soon as there is room again.
+
+Files rotate when a record's log time is `rotate_s` past the first record of the file: log
+time, not the recorder's clock, so a simulated day gives the same files as a real one, and a
+wall clock that jumps forward (a Pi without RTC meeting NTP) starts a file with a true name.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import math
+import os
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from enum import IntEnum
+from pathlib import Path
+from typing import Any, BinaryIO, Final, NamedTuple
+
+from mcap.reader import make_reader
+from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from hermsd import __version__
+
+PERIOD_TOPIC: Final = "/hermsd/period"
+READING_TOPIC: Final = "/hermsd/reading"
+WINDOW_TOPIC: Final = "/hermsd/window"
+TIMING_TOPIC: Final = "/hermsd/timing"
+LOG_TOPIC: Final = "/hermsd/log"
+CONFIG_TOPIC: Final = "/hermsd/config"
+
+FILE_PREFIX: Final = "hermsd-"
+PART_SUFFIX: Final = ".part"
+METADATA_NAME: Final = "hermsd"
+RECOVERY_METADATA_NAME: Final = "hermsd.recovery"
+LIBRARY: Final = f"hermsd/{__version__}"
+
+# Chunks are closed by time (flush_interval), so this size is only an upper bound on memory.
+CHUNK_SIZE: Final = 256 * 1024
+RETRY_INTERVAL_S: Final = 5.0
+_MAGIC: Final = b"\x89MCAP0\r\n"
+
+
+class LogLevel(IntEnum):
+    """Levels of `foxglove.Log`, as Foxglove's log panel shows them."""
+
+    DEBUG = 1
+    INFO = 2
+    WARNING = 3
+    ERROR = 4
+    FATAL = 5
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """A fixed topic: the name of its schema and the JSON schema its messages follow."""
+
+    schema_name: str
+    schema: dict[str, Any]
+
+    def schema_bytes(self) -> bytes:
+        return json.dumps(self.schema, separators=(",", ":")).encode()
+
+
+def _field(kind: str | list[str], description: str, **extra: Any) -> dict[str, Any]:
+    return {"type": kind, "description": description, **extra}
+
+
+def _object(title: str, description: str, properties: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "title": title,
+        "description": description,
+        "type": "object",
+        "properties": properties,
+        "required": list(properties),
+    }
+
+
+_T = _field("number", "monotonic time of the daemon, s")
+
+TOPICS: Final[dict[str, TopicSpec]] = {
+    PERIOD_TOPIC: TopicSpec(
+        "hermsd.Period",
+        _object(
+            "hermsd.Period",
+            "One control period: what was measured, decided and applied.",
+            {
+                "t": _T,
+                "k": _field("integer", "period number since start"),
+                "setpoint": _field("number", "setpoint, °C"),
+                "pv": _field(["number", "null"], "process value for the period, °C"),
+                "readings": _field(
+                    "array", "sensor readings of the period, °C", items={"type": "number"}
+                ),
+                "output": _field("number", "controller output, %"),
+                "applied": _field("number", "duty that reached the element, %"),
+                "p": _field("number", "proportional part of the output, %"),
+                "i": _field("number", "integral part of the output, %"),
+                "d": _field("number", "derivative part of the output, %"),
+                "mode": _field("string", "who sets the output", enum=["auto", "manual"]),
+                "algorithm": _field("string", "controller in use"),
+                "state": _field("string", "safety state: ok, held, alarm, …"),
+                "alarms": _field("array", "active alarms", items={"type": "string"}),
+                "heater_allowed": _field("boolean", "whether safety lets the element heat"),
+            },
+        ),
+    ),
+    READING_TOPIC: TopicSpec(
+        "hermsd.Reading",
+        _object(
+            "hermsd.Reading",
+            "One attempt to read the temperature sensor.",
+            {
+                "t": _T,
+                "celsius": _field(["number", "null"], "temperature, °C"),
+                "raw": _field(["integer", "null"], "temperature register word"),
+                "crit": _field(["boolean", "null"], "T_CRIT flag of the register"),
+                "high": _field(["boolean", "null"], "T_HIGH flag of the register"),
+                "low": _field(["boolean", "null"], "T_LOW flag of the register"),
+                "error": _field(["string", "null"], "why the read failed"),
+                "errno": _field(["integer", "null"], "OS error number of a failed read"),
+                "accepted": _field("boolean", "whether the reading fed the process value"),
+            },
+        ),
+    ),
+    WINDOW_TOPIC: TopicSpec(
+        "hermsd.Window",
+        _object(
+            "hermsd.Window",
+            "One time-proportioning window of the solid-state relay.",
+            {
+                "t": _T,
+                "window": _field("number", "window length, s"),
+                "requested": _field("number", "duty asked for, %"),
+                "on_time": _field("number", "time the element was on, s"),
+                "applied": _field("number", "duty that reached the element, %"),
+            },
+        ),
+    ),
+    TIMING_TOPIC: TopicSpec(
+        "hermsd.Timing",
+        _object(
+            "hermsd.Timing",
+            "How well the loop kept time since the last timing record.",
+            {
+                "t": _T,
+                "period_lateness_p50": _field("number", "median lateness of a period start, s"),
+                "period_lateness_p99": _field("number", "99th percentile of that lateness, s"),
+                "period_lateness_max": _field("number", "worst lateness of a period start, s"),
+                "edge_error_p50": _field("number", "median error of a relay edge, s"),
+                "edge_error_p99": _field("number", "99th percentile of that error, s"),
+                "edge_error_max": _field("number", "worst error of a relay edge, s"),
+                "overruns": _field("integer", "periods that ran past their deadline"),
+                "dropped": _field("integer", "records the recorder dropped"),
+            },
+        ),
+    ),
+    LOG_TOPIC: TopicSpec(
+        "foxglove.Log",
+        _object(
+            "foxglove.Log",
+            "An event, shown in Foxglove's log panel.",
+            {
+                "timestamp": {
+                    "type": "object",
+                    "description": "wall-clock time of the event",
+                    "properties": {
+                        "sec": {"type": "integer", "minimum": 0},
+                        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+                    },
+                    "required": ["sec", "nsec"],
+                },
+                "level": _field(
+                    "integer",
+                    "1 DEBUG, 2 INFO, 3 WARNING, 4 ERROR, 5 FATAL",
+                    enum=[level.value for level in LogLevel],
+                ),
+                "message": _field("string", "what happened"),
+                "name": _field("string", "part of the daemon that speaks"),
+                "file": _field("string", "source file, if any"),
+                "line": _field("integer", "source line, if any", minimum=0),
+            },
+        ),
+    ),
+    CONFIG_TOPIC: TopicSpec(
+        "hermsd.Config",
+        _object(
+            "hermsd.Config",
+            "The configuration in force, repeated at the start of every file.",
+            {
+                "t": _T,
+                "config": _field("object", "the configuration as loaded"),
+                "reason": _field("string", "why it was recorded: start, reload, …"),
+            },
+        ),
+    ),
+}
+
+
+def log_message(
+    level: LogLevel, message: str, log_time_ns: int, *, name: str = "hermsd"
+) -> dict[str, Any]:
+    """A `foxglove.Log` message stamped with `log_time_ns` (ns since the Unix epoch)."""
+    sec, nsec = divmod(log_time_ns, 1_000_000_000)
+    return {
+        "timestamp": {"sec": sec, "nsec": nsec},
+        "level": int(level),
+        "message": message,
+        "name": name,
+        "file": "",
+        "line": 0,
+    }
+
+
+def _create_exclusive(path: Path) -> BinaryIO:
+    return open(path, "xb")
+
+
+class _Record(NamedTuple):
+    topic: str
+    log_time_ns: int
+    message: dict[str, Any]
+
+
+class _SyncRequest:
+    def __init__(self) -> None:
+        self.done = threading.Event()
+        self.ok = False
+
+
+_STOP: Final = None
+_QueueItem = _Record | _SyncRequest | None
+
+
+class Recorder:
+    """Writes records to rotating MCAP files from a thread of its own.
+
+    `wall_ns` names the files; `now` (monotonic seconds) paces flushes, syncs and retries.
+    `open_file` creates a new file for writing and must fail if it exists (tests inject
+    failing disks through it). A message handed to `write` belongs to the recorder from then
+    on: it is encoded later, on the writer thread.
+    """
+
+    def __init__(
+        self,
+        directory: Path | str,
+        *,
+        wall_ns: Callable[[], int],
+        rotate_s: float = 86400.0,
+        flush_interval: float = 2.0,
+        sync_interval: float = 10.0,
+        queue_size: int = 10000,
+        metadata: dict[str, str] | None = None,
+        now: Callable[[], float] = time.monotonic,
+        open_file: Callable[[Path], BinaryIO] = _create_exclusive,
+    ) -> None:
+        if rotate_s <= 0 or flush_interval < 0 or sync_interval < 0 or queue_size < 1:
+            raise ValueError(
+                "recorder: rotate_s and queue_size must be positive, "
+                "flush_interval and sync_interval not negative"
+            )
+        self._directory = Path(directory)
+        self._wall_ns = wall_ns
+        self._rotate_ns = round(rotate_s * 1e9)
+        self._flush_interval = flush_interval
+        self._sync_interval = sync_interval
+        self._metadata = dict(metadata or {})
+        self._now = now
+        self._open_file = open_file
+        self._queue: queue.Queue[_QueueItem] = queue.Queue(maxsize=queue_size)
+        self._closed = False
+        self._drop_lock = threading.Lock()
+        self._dropped = 0
+        self._drops_reported = 0
+        # Writer-thread state (read elsewhere only as plain values).
+        self._file: _OpenFile | None = None
+        self._retry_at: float | None = None
+        self._last_config: bytes | None = None
+        self._sequences: dict[str, Iterator[int]] = {topic: itertools.count(1) for topic in TOPICS}
+        self._errors = 0
+        self._lost = 0
+        self._last_error: str | None = None
+        self._thread = threading.Thread(target=self._run, name="hermsd-recorder", daemon=True)
+        self._thread.start()
+
+    # --- caller side -----------------------------------------------------------------------
+
+    def write(self, topic: str, log_time_ns: int, message: dict[str, Any]) -> None:
+        """Hand a record over (log time: ns since the Unix epoch); dropped if the queue is full."""
+        if self._dropped != self._drops_reported:
+            self._report_drops(log_time_ns)
+        if self._closed:
+            self._count_drop()
+            return
+        try:
+            self._queue.put_nowait(_Record(topic, log_time_ns, message))
+        except queue.Full:
+            self._count_drop()
+
+    def log(self, level: LogLevel, message: str, log_time_ns: int, *, name: str = "hermsd") -> None:
+        """Record an event for Foxglove's log panel; ERROR and FATAL reach the OS at once."""
+        self.write(LOG_TOPIC, log_time_ns, log_message(level, message, log_time_ns, name=name))
+
+    def sync(self, timeout: float | None = None) -> bool:
+        """Block until everything handed over so far is on stable storage.
+
+        Returns False when a disk error lost some of it or `timeout` expired. Not for the
+        control loop: it waits for the disk.
+        """
+        if self._closed:
+            return False
+        request = _SyncRequest()
+        try:
+            self._queue.put(request, timeout=timeout)
+        except queue.Full:
+            return False
+        return request.done.wait(timeout) and request.ok
+
+    def close(self, timeout: float | None = None) -> None:
+        """Write what is queued, finish the file (fsync, rename to `.mcap`) and stop the thread."""
+        if not self._closed:
+            self._closed = True
+            try:
+                self._queue.put(_STOP, timeout=timeout)
+            except queue.Full:
+                return
+        self._thread.join(timeout)
+
+    @property
+    def dropped(self) -> int:
+        """Records refused because the queue was full (or the recorder closed)."""
+        return self._dropped
+
+    @property
+    def lost(self) -> int:
+        """Records taken from the queue that a disk error kept out of the files."""
+        return self._lost
+
+    @property
+    def errors(self) -> int:
+        """Failures: disk errors, and records that could not be encoded."""
+        return self._errors
+
+    @property
+    def last_error(self) -> str | None:
+        """One line about the latest failure, for the status line."""
+        return self._last_error
+
+    @property
+    def current_file(self) -> Path | None:
+        """The `.mcap.part` being written, if any."""
+        file = self._file
+        return None if file is None else file.part
+
+    def _count_drop(self) -> None:
+        with self._drop_lock:
+            self._dropped += 1
+
+    def _report_drops(self, log_time_ns: int) -> None:
+        with self._drop_lock:
+            unreported = self._dropped - self._drops_reported
+            if unreported == 0 or self._closed:
+                return
+            notice = log_message(
+                LogLevel.WARNING,
+                f"recorder queue full: {unreported} records dropped ({self._dropped} since start)",
+                log_time_ns,
+                name="hermsd.recorder",
+            )
+            try:
+                self._queue.put_nowait(_Record(LOG_TOPIC, log_time_ns, notice))
+            except queue.Full:
+                return
+            self._drops_reported += unreported
+
+    # --- writer thread ---------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while True:
+            try:
+                item = self._queue.get(timeout=self._seconds_to_next_deadline())
+            except queue.Empty:
+                self._keep_time()
+                continue
+            if item is _STOP:
+                if self._file is not None:
+                    self._finish(self._file)
+                return
+            if isinstance(item, _SyncRequest):
+                item.ok = self._sync_now()
+                item.done.set()
+            else:
+                self._write_record(item)
+            self._keep_time()
+
+    def _seconds_to_next_deadline(self) -> float | None:
+        file = self._file
+        if file is None:
+            return None
+        deadlines = [d for d in (file.flush_due, file.sync_due) if d is not None]
+        if not deadlines:
+            return None
+        return max(0.0, min(deadlines) - self._now())
+
+    def _keep_time(self) -> None:
+        file = self._file
+        if file is None:
+            return
+        now = self._now()
+        if file.flush_due is not None and now >= file.flush_due:
+            self._flush(file, now)
+        elif file.sync_due is not None and now >= file.sync_due:
+            self._guarded(file, "syncing", lambda: file.datasync(now))
+
+    def _write_record(self, record: _Record) -> None:
+        spec = TOPICS.get(record.topic)
+        if spec is None:
+            self._report(f"record on unknown topic {record.topic!r} not written")
+            return
+        try:
+            data = _encode(record.message)
+        except (TypeError, ValueError, RecursionError) as exc:
+            self._report(f"record on {record.topic} not written, not JSON: {exc}")
+            return
+        if record.topic == CONFIG_TOPIC:
+            self._last_config = data
+        file = self._file_for(record)
+        if file is None:
+            self._lost += 1
+            return
+        sequence = next(self._sequences[record.topic])
+        now = self._now()
+        if not self._guarded(
+            file,
+            "writing",
+            lambda: file.add(record.topic, record.log_time_ns, data, sequence),
+        ):
+            return
+        if file.flush_due is None:
+            file.flush_due = now + self._flush_interval
+        if record.topic == LOG_TOPIC and record.message.get("level", 0) >= LogLevel.ERROR:
+            self._flush(file, now)
+
+    def _file_for(self, record: _Record) -> _OpenFile | None:
+        """The file to write `record` in: rotated, or reopened after a failure, as due."""
+        file = self._file
+        if file is not None and record.log_time_ns - file.first_log_time_ns >= self._rotate_ns:
+            self._finish(file)
+            file = self._file
+        if file is not None:
+            return file
+        if self._retry_at is not None and self._now() < self._retry_at:
+            return None
+        return self._start(record)
+
+    def _start(self, record: _Record) -> _OpenFile | None:
+        part = self._unused_part_path(_utc_stamp(self._wall_ns()))
+        metadata = {"version": __version__, "started_utc": _utc_iso(self._wall_ns())}
+        metadata.update(self._metadata)
+        try:
+            stream = self._open_file(part)
+        except Exception as exc:
+            self._report(f"creating {part}: {_describe(exc)}")
+            self._retry_at = self._now() + RETRY_INTERVAL_S
+            return None
+        file = _OpenFile(part, stream, record.log_time_ns, self._now())
+        self._file = file
+        if not self._guarded(file, "starting", lambda: file.start(metadata)):
+            return None
+        config = self._last_config
+        if config is not None and record.topic != CONFIG_TOPIC:
+            sequence = next(self._sequences[CONFIG_TOPIC])
+            if not self._guarded(
+                file,
+                "writing",
+                lambda: file.add(CONFIG_TOPIC, record.log_time_ns, config, sequence),
+            ):
+                return None
+        self._retry_at = None
+        return file
+
+    def _unused_part_path(self, stamp: str) -> Path:
+        for n in itertools.count():
+            stem = f"{FILE_PREFIX}{stamp}" + (f"-{n}" if n else "")
+            final = self._directory / f"{stem}.mcap"
+            part = final.with_name(final.name + PART_SUFFIX)
+            if not final.exists() and not part.exists():
+                return part
+        raise AssertionError("unreachable")
+
+    def _flush(self, file: _OpenFile, now: float) -> None:
+        if not self._guarded(file, "writing", file.flush):
+            return
+        if now - file.last_sync >= self._sync_interval:
+            self._guarded(file, "syncing", lambda: file.datasync(now))
+        else:
+            file.sync_due = file.last_sync + self._sync_interval
+
+    def _sync_now(self) -> bool:
+        file = self._file
+        if file is None:
+            return self._retry_at is None
+        now = self._now()
+        return self._guarded(file, "writing", file.flush) and self._guarded(
+            file, "syncing", lambda: file.datasync(now)
+        )
+
+    def _finish(self, file: _OpenFile) -> None:
+        final = file.part.with_name(file.part.name.removesuffix(PART_SUFFIX))
+        if not self._guarded(file, "finishing", file.finish):
+            return
+        self._file = None
+        try:
+            os.replace(file.part, final)
+            _fsync_directory(final.parent)
+        except OSError as exc:
+            self._report(f"renaming {file.part}: {_describe(exc)}")
+
+    def _guarded(self, file: _OpenFile, action: str, operation: Callable[[], None]) -> bool:
+        """Run a file operation; on any failure abandon the file, so the loop never sees it."""
+        try:
+            operation()
+        except Exception as exc:
+            self._report(f"{action} {file.part}: {_describe(exc)}")
+            self._lost += file.unflushed
+            file.discard()
+            self._file = None
+            self._retry_at = self._now() + RETRY_INTERVAL_S
+            return False
+        return True
+
+    def _report(self, message: str) -> None:
+        self._errors += 1
+        self._last_error = f"recorder: {message}"
+
+
+class _OpenFile:
+    """A `.mcap.part` being written by the writer thread, with its channels registered."""
+
+    def __init__(self, part: Path, stream: BinaryIO, first_log_time_ns: int, now: float) -> None:
+        self.part = part
+        self.stream = stream
+        self.first_log_time_ns = first_log_time_ns
+        self.writer = Writer(stream, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self.channels: dict[str, int] = {}
+        self.unflushed = 0
+        self.flush_due: float | None = None
+        self.sync_due: float | None = None
+        self.last_sync = now
+
+    def start(self, metadata: dict[str, str]) -> None:
+        self.writer.start(profile="", library=LIBRARY)
+        for topic, spec in TOPICS.items():
+            schema_id = self.writer.register_schema(
+                spec.schema_name, "jsonschema", spec.schema_bytes()
+            )
+            self.channels[topic] = self.writer.register_channel(topic, "json", schema_id)
+        self.writer.add_metadata(METADATA_NAME, metadata)
+
+    def add(self, topic: str, log_time_ns: int, data: bytes, sequence: int) -> None:
+        self.writer.add_message(
+            self.channels[topic], log_time_ns, data, publish_time=log_time_ns, sequence=sequence
+        )
+        self.unflushed += 1
+
+    def flush(self) -> None:
+        """Close the open chunk and hand everything to the OS."""
+        self.writer.flush()  # type: ignore[no-untyped-call]
+        self.unflushed = 0
+        self.flush_due = None
+
+    def datasync(self, now: float) -> None:
+        os.fdatasync(self.stream.fileno())
+        self.last_sync = now
+        self.sync_due = None
+
+    def finish(self) -> None:
+        self.writer.finish()  # type: ignore[no-untyped-call]
+        self.stream.flush()
+        self.unflushed = 0
+        os.fdatasync(self.stream.fileno())
+        self.stream.close()
+
+    def discard(self) -> None:
+        # The disk already failed; closing releases the descriptor even when it raises.
+        with contextlib.suppress(Exception):
+            self.stream.close()
+
+
+def _encode(message: dict[str, Any]) -> bytes:
+    """Compact JSON; NaN and infinities (not JSON) become null, i.e. no value."""
+    try:
+        text = json.dumps(message, separators=(",", ":"), allow_nan=False)
+    except ValueError:
+        text = json.dumps(_finite_or_null(message), separators=(",", ":"), allow_nan=False)
+    return text.encode()
+
+
+def _finite_or_null(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite_or_null(item) for item in value]
+    return value
+
+
+def _utc_stamp(wall_ns: int) -> str:
+    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(wall_ns // 1_000_000_000))
+
+
+def _utc_iso(wall_ns: int) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(wall_ns // 1_000_000_000))
+
+
+def _describe(exc: BaseException) -> str:
+    return str(exc) or type(exc).__name__
+
+
+def _fsync_directory(directory: Path) -> None:
+    """Make a rename or unlink in `directory` survive a power cut."""
+    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+# --- reading and recovery --------------------------------------------------------------------
+
+
+class RecordedMessage(NamedTuple):
+    topic: str
+    log_time_ns: int
+    message: dict[str, Any]
+
+
+class _Cut:
+    """Where a stream of records stopped being readable."""
+
+    def __init__(self) -> None:
+        self.at: int | None = None
+        self.reason: str | None = None
+
+
+def _complete_records(stream: BinaryIO, size: int, cut: _Cut) -> Iterator[McapRecord]:
+    """The records of an MCAP stream up to the first incomplete or damaged one.
+
+    A chunk is yielded only whole and with a valid CRC. Whatever the reader raises at the
+    cut (end of file inside a record, a torn length, a bad CRC) ends the stream there.
+    """
+    records = StreamReader(stream, validate_crcs=True, record_size_limit=size).records
+    end_of_complete = 0
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            return
+        except Exception as exc:  # any parse failure marks the cut
+            cut.at = end_of_complete
+            cut.reason = _describe(exc)
+            return
+        end_of_complete = stream.tell()
+        yield record
+
+
+def _is_finished(path: Path) -> bool:
+    """Whether `path` ends with a footer and a readable summary (it was closed properly)."""
+    try:
+        with path.open("rb") as f:
+            if f.seek(0, os.SEEK_END) < 2 * len(_MAGIC):
+                return False
+            f.seek(-len(_MAGIC), os.SEEK_END)
+            if f.read(len(_MAGIC)) != _MAGIC:
+                return False
+            f.seek(0)
+            return make_reader(f, validate_crcs=True).get_summary() is not None
+    except Exception:  # a tail that only looks like a footer: read it as a cut file
+        return False
+
+
+class LogFile:
+    """One hermsd MCAP file, finished or cut short, read in log-time order.
+
+    A finished file is read through its index; any other is read record by record up to the
+    cut. After `messages()` has run, `count` says how many messages it yielded and, for an
+    unfinished file, `cut_at` says up to which byte the file held complete records.
+    """
+
+    def __init__(self, path: Path | str) -> None:
+        self.path = Path(path)
+        self.finished = _is_finished(self.path)
+        self.count = 0
+        self.cut_at: int | None = None
+        self.size = self.path.stat().st_size
+
+    def messages(self) -> Iterator[RecordedMessage]:
+        self.count = 0
+        source = self._indexed() if self.finished else self._streamed()
+        for message in source:
+            self.count += 1
+            yield message
+
+    def metadata(self) -> dict[str, dict[str, str]]:
+        """Metadata records by name (a later record of the same name wins)."""
+        with self.path.open("rb") as f:
+            if self.finished:
+                records: Iterable[Metadata] = list(make_reader(f).iter_metadata())
+            else:
+                records = [
+                    r for r in _complete_records(f, self.size, _Cut()) if isinstance(r, Metadata)
+                ]
+        return {record.name: dict(record.metadata) for record in records}
+
+    def _indexed(self) -> Iterator[RecordedMessage]:
+        with self.path.open("rb") as f:
+            reader = make_reader(f, validate_crcs=True)
+            try:
+                for _, channel, message in reader.iter_messages(log_time_order=True):
+                    if channel.message_encoding == "json":
+                        yield RecordedMessage(
+                            channel.topic, message.log_time, json.loads(message.data)
+                        )
+            except (ValueError, OSError, EOFError) as exc:
+                raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
+
+    def _streamed(self) -> Iterator[RecordedMessage]:
+        topics: dict[int, str] = {}
+        pending: list[tuple[int, int, str, bytes]] = []
+        cut = _Cut()
+        with self.path.open("rb") as f:
+            for record in _complete_records(f, self.size, cut):
+                if isinstance(record, Channel) and record.message_encoding == "json":
+                    topics[record.id] = record.topic
+                elif isinstance(record, Message) and record.channel_id in topics:
+                    topic = topics[record.channel_id]
+                    pending.append((record.log_time, len(pending), topic, record.data))
+        self.cut_at = self.size if cut.at is None else cut.at
+        pending.sort()
+        for log_time, _, topic, data in pending:
+            yield RecordedMessage(topic, log_time, json.loads(data))
+
+
+def read_messages(paths: Iterable[Path | str]) -> Iterator[RecordedMessage]:
+    """Every message of `paths`, file after file, each file in log-time order."""
+    for path in paths:
+        yield from LogFile(path).messages()
+
+
+def recover(path: Path | str) -> Path:
+    """Turn a leftover `.mcap.part` into a finished `.mcap` holding every complete record.
+
+    The new file is written beside it, synced and renamed into place before the `.part` is
+    removed, so an interruption at any point leaves the data on disk (a rerun redoes it).
+    Call it before a Recorder starts writing in the same directory.
+    """
+    part = Path(path)
+    if not part.name.endswith(".mcap" + PART_SUFFIX):
+        raise ValueError(f"recover: {part} is not a .mcap.part file")
+    final = part.with_name(part.name.removesuffix(PART_SUFFIX))
+    temporary = part.with_name(final.name + ".recovering")
+    size = part.stat().st_size
+    cut = _Cut()
+    with part.open("rb") as source, temporary.open("wb") as target:
+        writer = Writer(target, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        kept = _copy_records(_complete_records(source, size, cut), writer)
+        writer.add_metadata(
+            RECOVERY_METADATA_NAME,
+            {
+                "source": part.name,
+                "messages": str(kept),
+                "source_bytes": str(size),
+                "complete_bytes": str(size if cut.at is None else cut.at),
+                "cut": "no" if cut.reason is None else cut.reason,
+            },
+        )
+        writer.finish()  # type: ignore[no-untyped-call]
+        target.flush()
+        os.fsync(target.fileno())
+    os.replace(temporary, final)
+    _fsync_directory(final.parent)
+    part.unlink()
+    _fsync_directory(final.parent)
+    return final
+
+
+def recover_directory(directory: Path | str) -> list[Path]:
+    """Recover every leftover `.mcap.part` of the recorder in `directory`, oldest first.
+
+    Disk errors propagate (the `.part` files stay for the next attempt).
+    """
+    parts = sorted(Path(directory).glob(f"{FILE_PREFIX}*.mcap{PART_SUFFIX}"))
+    return [recover(part) for part in parts]
+
+
+def _copy_records(records: Iterator[McapRecord], writer: Writer) -> int:
+    """Write the schemas, channels, messages and metadata of `records` again; count messages.
+
+    Schemas and channels repeated in a summary section are written once.
+    """
+    first = next(records, None)
+    if isinstance(first, Header):
+        writer.start(first.profile, first.library)
+    else:
+        writer.start("", LIBRARY)
+        if first is not None:
+            records = itertools.chain([first], records)
+    schema_ids: dict[int, int] = {0: 0}
+    channel_ids: dict[int, int] = {}
+    kept = 0
+    for record in records:
+        if isinstance(record, Schema) and record.id not in schema_ids:
+            schema_ids[record.id] = writer.register_schema(
+                record.name, record.encoding, record.data
+            )
+        elif (
+            isinstance(record, Channel)
+            and record.id not in channel_ids
+            and record.schema_id in schema_ids
+        ):
+            channel_ids[record.id] = writer.register_channel(
+                record.topic, record.message_encoding, schema_ids[record.schema_id], record.metadata
+            )
+        elif isinstance(record, Message) and record.channel_id in channel_ids:
+            writer.add_message(
+                channel_ids[record.channel_id],
+                record.log_time,
+                record.data,
+                record.publish_time,
+                record.sequence,
+            )
+            kept += 1
+        elif isinstance(record, Metadata):
+            writer.add_metadata(record.name, record.metadata)
+    return kept

@@ -1,0 +1,400 @@
+"""The safety supervisor: decides, from readings and outputs alone, whether the heater may be on.
+
+Pure and time-injected: the daemon feeds it every sensor read, every control period and the
+loop's lateness, and obeys `heater_allowed`. Two kinds of fault:
+
+- auto-recovering (sensor fault, stale reading, over-temperature, loop stall): the heater is
+  off while they last and control resumes by itself, bumplessly, once they clear;
+- latched (element not heating, SSR stuck on, dry fire, stuck sensor): the heater stays off
+  until someone resets the alarm, because each means the hardware is not what the loop
+  believes it is.
+
+Defaults scale with the tun: the fastest rise the element can cause is P / (m·c).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+WATER_HEAT_CAPACITY = 4186.0  # J/(kg·K); a litre of water is taken as 1 kg
+FULL_POWER = 80.0  # % at or above which the element is expected to heat visibly
+
+AUTO_KINDS = ("sensor_fault", "stale_reading", "over_temperature", "loop_stall")
+LATCHED_KINDS = ("heater_not_heating", "ssr_stuck_on", "dry_fire", "sensor_stuck")
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyLimits:
+    """Every threshold the supervisor uses, in SI units (°C, s, %)."""
+
+    max_temp: float = 95.0
+    hysteresis: float = 5.0
+    plausible_min: float = -10.0
+    plausible_max: float = 110.0
+    max_step: float = 2.0
+    fault_reads: int = 2
+    resume_reads: int = 5
+    stale_after: float = 3.0
+    heater_watch: float = 300.0
+    heater_min_rise: float = 0.5
+    ssr_watch: float = 300.0
+    ssr_max_rise: float = 0.5
+    dry_fire_rate: float = 0.024
+    dry_fire_window: float = 60.0
+    stuck_time: float = 600.0
+    stuck_output_change: float = 40.0
+    stall_after: float = 10.0
+
+    @classmethod
+    def derive(
+        cls,
+        *,
+        litres: float,
+        element_watts: float,
+        period: float,
+        read_interval: float,
+        max_temp: float = 95.0,
+        hysteresis: float = 5.0,
+        plausible_min: float = -10.0,
+        plausible_max: float = 110.0,
+        max_step: float | None = None,
+        fault_reads: int = 2,
+        resume_reads: int = 5,
+        stale_after: float | None = None,
+        heater_watch: float | None = None,
+        heater_min_rise: float | None = None,
+        ssr_watch: float | None = None,
+        ssr_max_rise: float | None = None,
+        dry_fire_factor: float = 3.0,
+        stuck_time: float = 600.0,
+        stuck_output_change: float = 40.0,
+        stall_periods: float = 2.0,
+    ) -> SafetyLimits:
+        """Limits for a tun of `litres` heated by `element_watts`; None means derive it."""
+        full_rate = element_watts / (litres * WATER_HEAT_CAPACITY)  # °C/s at 100 %
+        heater_watch = heater_watch if heater_watch is not None else 300.0
+        ssr_watch = ssr_watch if ssr_watch is not None else 300.0
+        return cls(
+            max_temp=max_temp,
+            hysteresis=hysteresis,
+            plausible_min=plausible_min,
+            plausible_max=plausible_max,
+            # Only a dump of cold water moves the sensor this far within one read.
+            max_step=max_step if max_step is not None else 2.0,
+            fault_reads=fault_reads,
+            resume_reads=resume_reads,
+            stale_after=stale_after if stale_after is not None else 3.0 * read_interval,
+            heater_watch=heater_watch,
+            # A quarter of what 80 % power would add with no losses: losses at mash
+            # temperatures take about a third of the element, dead time the first minutes.
+            heater_min_rise=(
+                heater_min_rise
+                if heater_min_rise is not None
+                else 0.25 * FULL_POWER / 100.0 * full_rate * heater_watch
+            ),
+            ssr_watch=ssr_watch,
+            # With the element off the water cools; eight LSBs of rise is not noise.
+            ssr_max_rise=ssr_max_rise if ssr_max_rise is not None else 0.5,
+            dry_fire_rate=dry_fire_factor * full_rate,
+            dry_fire_window=max(60.0, 4 * period),
+            stuck_time=stuck_time,
+            stuck_output_change=stuck_output_change,
+            stall_after=stall_periods * period,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class Alarm:
+    """A fault raised or cleared: what, when, and the values that showed it."""
+
+    kind: str
+    at: float
+    message: str
+    latched: bool
+    raised: bool = True
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+class _Watch:
+    """A rising-edge window: the lowest PV since it began, and when that low was seen."""
+
+    __slots__ = ("base", "base_t", "raw", "raw_constant", "start")
+
+    def __init__(self) -> None:
+        self.start: float | None = None
+        self.base = math.inf
+        self.base_t = 0.0
+        self.raw: int | None = None
+        self.raw_constant = True
+
+    def stop(self) -> None:
+        self.start = None
+
+    def restart(self, t: float, pv: float, raw: int | None) -> None:
+        self.start = t
+        self.base, self.base_t = pv, t
+        self.raw, self.raw_constant = raw, True
+
+    def note_raw(self, raw: int | None) -> None:
+        if raw != self.raw:
+            self.raw_constant = False
+
+
+class Supervisor:
+    """Tracks faults; the heater may be on only while none is active or latched."""
+
+    def __init__(self, limits: SafetyLimits) -> None:
+        self.limits = limits
+        self._active: dict[str, Alarm] = {}
+        self._events: list[Alarm] = []
+        self._bad_reads = 0
+        self._good_reads = 0
+        self._last_good_t: float | None = None
+        self._last_accepted: float | None = None
+        self._previous_value: float | None = None
+        self._last_raw: int | None = None
+        self._heater_watch = _Watch()
+        self._ssr_watch = _Watch()
+        self._zero_since: float | None = None
+        self._history: deque[tuple[float, float]] = deque()
+        self._raw_since: float | None = None
+        self._outputs: deque[tuple[float, float]] = deque()
+
+    # -- what the daemon asks -------------------------------------------------------------
+
+    @property
+    def heater_allowed(self) -> bool:
+        return not self._active
+
+    @property
+    def active(self) -> list[str]:
+        return sorted(self._active)
+
+    @property
+    def latched(self) -> list[str]:
+        return sorted(k for k, a in self._active.items() if a.latched)
+
+    def alarm(self, kind: str) -> Alarm | None:
+        return self._active.get(kind)
+
+    def drain_events(self) -> list[Alarm]:
+        """Alarms raised or cleared since the last call, oldest first."""
+        events, self._events = self._events, []
+        return events
+
+    def reset_latched(self, t: float) -> list[str]:
+        """Clear latched alarms (an explicit act of the brewer); returns what was cleared."""
+        cleared = self.latched
+        for kind in cleared:
+            self._clear(kind, t, "reset by the operator")
+        self._heater_watch.stop()
+        self._ssr_watch.stop()
+        self._zero_since = None
+        self._history.clear()
+        self._outputs.clear()
+        self._raw_since = None
+        return cleared
+
+    # -- inputs ---------------------------------------------------------------------------
+
+    def reading(self, t: float, celsius: float, raw: int | None = None, crit: bool = False) -> bool:
+        """A value the sensor returned; True when it is accepted as a measurement."""
+        lim = self.limits
+        previous, self._previous_value = self._previous_value, celsius
+        if not lim.plausible_min <= celsius <= lim.plausible_max:
+            self._bad(t, f"implausible reading {celsius:.4f} °C", {"celsius": celsius})
+            return False
+        last = self._last_accepted
+        # A jump is accepted only when the read before it agrees: a lone spike is dropped,
+        # a real step (cold water) is believed one read later.
+        if (
+            last is not None
+            and abs(celsius - last) > lim.max_step
+            and (previous is None or abs(celsius - previous) > lim.max_step)
+        ):
+            self._bad(t, f"jump {celsius - last:+.4f} °C in one read", {"celsius": celsius})
+            return False
+        self._last_accepted = celsius
+        self._last_good_t = t
+        self._bad_reads = 0
+        self._good_reads += 1
+        if raw != self._last_raw or self._raw_since is None:
+            self._last_raw, self._raw_since = raw, t
+        self._heater_watch.note_raw(raw)
+        if "sensor_fault" in self._active and self._good_reads >= lim.resume_reads:
+            self._clear("sensor_fault", t, f"{self._good_reads} good reads")
+        if "stale_reading" in self._active and self._good_reads >= lim.resume_reads:
+            self._clear("stale_reading", t, "readings are fresh again")
+        if crit or celsius >= lim.max_temp:
+            self._raise(
+                "over_temperature",
+                t,
+                f"{celsius:.2f} °C at or above the limit {lim.max_temp:.1f} °C"
+                + (" (LM92 T_CRIT flag)" if crit else ""),
+                {"celsius": celsius, "crit": crit},
+            )
+        elif "over_temperature" in self._active and celsius < lim.max_temp - lim.hysteresis:
+            self._clear("over_temperature", t, f"{celsius:.2f} °C")
+        return True
+
+    def read_error(self, t: float, message: str, errno: int | None = None) -> None:
+        """A read that failed (bus error, wrong chip)."""
+        self._bad(t, message, {"errno": errno})
+
+    def tick(self, t: float) -> None:
+        """Time passes: a reading that is too old is no reading."""
+        last = self._last_good_t
+        if last is not None and t - last > self.limits.stale_after:
+            self._good_reads = 0
+            self._raise(
+                "stale_reading",
+                t,
+                f"no good reading for {t - last:.1f} s (limit {self.limits.stale_after:.1f} s)",
+                {"age_s": t - last},
+            )
+
+    def loop_lateness(self, t: float, lateness: float) -> None:
+        """How late the control period started: a stalled loop cannot be trusted."""
+        if lateness > self.limits.stall_after:
+            self._raise(
+                "loop_stall",
+                t,
+                f"control period {lateness:.2f} s late (limit {self.limits.stall_after:.1f} s)",
+                {"lateness_s": lateness},
+            )
+        elif "loop_stall" in self._active:
+            self._clear("loop_stall", t, "the loop is on time again")
+
+    def period(self, t: float, pv: float | None, output: float, applied: float) -> None:
+        """Once per control period: the checks that need a history of PV and output."""
+        if pv is None:
+            return
+        self._check_dry_fire(t, pv)
+        self._check_heater(t, pv, applied)
+        self._check_ssr(t, pv, applied)
+        if self.heater_allowed:
+            self._check_stuck(t, output)
+        else:
+            self._outputs.clear()  # a forced 0 % is not the controller moving
+
+    # -- the period checks ----------------------------------------------------------------
+
+    def _check_dry_fire(self, t: float, pv: float) -> None:
+        lim = self.limits
+        history = self._history
+        history.append((t, pv))
+        while history and t - history[0][0] > lim.dry_fire_window:
+            history.popleft()
+        t0, pv0 = history[0]
+        span = t - t0
+        if span >= lim.dry_fire_window * 0.99 and (pv - pv0) / span > lim.dry_fire_rate:
+            self._raise(
+                "dry_fire",
+                t,
+                f"rising {(pv - pv0) / span * 60:.2f} °C/min, more than the water allows "
+                f"({lim.dry_fire_rate * 60:.2f} °C/min)",
+                {"rate_c_per_s": (pv - pv0) / span},
+            )
+
+    def _check_heater(self, t: float, pv: float, applied: float) -> None:
+        lim, watch = self.limits, self._heater_watch
+        if applied < FULL_POWER:
+            watch.stop()
+            return
+        if watch.start is None or pv < watch.base:
+            # A drop (cold water) starts the wait again from the new low.
+            if watch.start is None:
+                watch.restart(t, pv, self._last_raw)
+            else:
+                watch.base, watch.base_t = pv, t
+            return
+        if pv >= watch.base + lim.heater_min_rise:
+            watch.restart(t, pv, self._last_raw)
+            return
+        if t - watch.base_t >= lim.heater_watch:
+            kind = "sensor_stuck" if watch.raw_constant else "heater_not_heating"
+            what = (
+                "the reading has not changed at all"
+                if watch.raw_constant
+                else f"PV rose {pv - watch.base:.2f} °C"
+            )
+            self._raise(
+                kind,
+                t,
+                f"output at {applied:.0f} % for {t - watch.base_t:.0f} s but {what} "
+                f"(expected at least {lim.heater_min_rise:.2f} °C)",
+                {"rise_c": pv - watch.base, "applied": applied},
+            )
+
+    def _check_ssr(self, t: float, pv: float, applied: float) -> None:
+        lim, watch = self.limits, self._ssr_watch
+        if applied > 0.0:
+            self._zero_since = None
+            watch.stop()
+            return
+        if self._zero_since is None:
+            self._zero_since = t
+        # Heat already in the water reaches the sensor late: wait half the watch first.
+        if t - self._zero_since < lim.ssr_watch / 2:
+            return
+        if watch.start is None:
+            watch.restart(t, pv, None)
+            return
+        if pv < watch.base:
+            watch.base, watch.base_t = pv, t
+            return
+        if pv - watch.base > lim.ssr_max_rise:
+            self._raise(
+                "ssr_stuck_on",
+                t,
+                f"heater off for {t - self._zero_since:.0f} s but PV rose "
+                f"{pv - watch.base:.2f} °C (limit {lim.ssr_max_rise:.2f} °C)",
+                {"rise_c": pv - watch.base},
+            )
+
+    def _check_stuck(self, t: float, output: float) -> None:
+        lim, outputs = self.limits, self._outputs
+        outputs.append((t, output))
+        since = self._raw_since
+        if since is None:
+            return
+        while outputs and outputs[0][0] < since:
+            outputs.popleft()
+        if t - since < lim.stuck_time or not outputs:
+            return
+        values = [o for _, o in outputs]
+        swing = max(values) - min(values)
+        if swing >= lim.stuck_output_change:
+            self._raise(
+                "sensor_stuck",
+                t,
+                f"the reading has not changed for {t - since:.0f} s while the output "
+                f"moved {swing:.0f} %",
+                {"swing": swing, "raw": self._last_raw},
+            )
+
+    # -- bookkeeping ----------------------------------------------------------------------
+
+    def _bad(self, t: float, message: str, values: dict[str, Any]) -> None:
+        self._good_reads = 0
+        self._raw_since = None  # a failed read says nothing about a stuck one
+        self._bad_reads += 1
+        if self._bad_reads >= self.limits.fault_reads:
+            self._raise(
+                "sensor_fault", t, f"{self._bad_reads} bad reads in a row: {message}", values
+            )
+
+    def _raise(self, kind: str, t: float, message: str, values: dict[str, Any]) -> None:
+        if kind in self._active:
+            return
+        alarm = Alarm(kind, t, message, kind in LATCHED_KINDS, True, values)
+        self._active[kind] = alarm
+        self._events.append(alarm)
+
+    def _clear(self, kind: str, t: float, why: str) -> None:
+        alarm = self._active.pop(kind, None)
+        if alarm is not None:
+            self._events.append(Alarm(kind, t, f"cleared: {why}", alarm.latched, False))

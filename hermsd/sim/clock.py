@@ -1,0 +1,75 @@
+"""A virtual clock: hours of brewing in seconds, and callbacks at exact simulated times."""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import time
+from collections.abc import Callable
+
+# 2026-01-01T00:00:00Z: a fixed epoch keeps simulated logs reproducible.
+DEFAULT_EPOCH_NS = 1_767_225_600_000_000_000
+
+
+class VirtualClock:
+    """Monotonic time that advances only when someone sleeps.
+
+    `call_at` schedules a callback (a scenario event, a fault switched on) that runs with the
+    clock set to exactly its time, before any sleeper passes that time.
+    """
+
+    def __init__(self, start: float = 0.0, epoch_ns: int = DEFAULT_EPOCH_NS) -> None:
+        self._now = start
+        self._start = start
+        self._epoch_ns = epoch_ns
+        self._pending: list[tuple[float, int, Callable[[], None]]] = []
+        self._order = itertools.count()
+
+    def monotonic(self) -> float:
+        return self._now
+
+    def wall_ns(self) -> int:
+        return self._epoch_ns + round((self._now - self._start) * 1e9)
+
+    def call_at(self, when: float, callback: Callable[[], None]) -> None:
+        """Run `callback` when the clock reaches `when` (at once on the next sleep if past)."""
+        heapq.heappush(self._pending, (when, next(self._order), callback))
+
+    def sleep_until(self, deadline: float) -> None:
+        while self._pending and self._pending[0][0] <= deadline:
+            when, _, callback = heapq.heappop(self._pending)
+            self._now = max(self._now, when)
+            callback()
+        self._now = max(self._now, deadline)
+
+    def sleep(self, seconds: float) -> None:
+        self.sleep_until(self._now + seconds)
+
+    def advance(self, seconds: float) -> None:
+        """Time passes without anyone sleeping (a slow I2C read, a stalled loop)."""
+        self.sleep_until(self._now + seconds)
+
+
+class ScaledClock:
+    """Real time run `speed` times faster: the simulated tun in real time, or sixty times it.
+
+    Deadlines really are slept for (scaled), so the loop's timing is exercised for real.
+    """
+
+    def __init__(self, speed: float, epoch_ns: int = DEFAULT_EPOCH_NS) -> None:
+        if not speed > 0:
+            raise ValueError(f"speed must be positive, got {speed}")
+        self.speed = speed
+        self._epoch_ns = epoch_ns
+        self._real_start = time.monotonic()
+
+    def monotonic(self) -> float:
+        return (time.monotonic() - self._real_start) * self.speed
+
+    def sleep_until(self, deadline: float) -> None:
+        remaining = deadline / self.speed + self._real_start - time.monotonic()
+        if remaining > 0:
+            time.sleep(remaining)
+
+    def wall_ns(self) -> int:
+        return self._epoch_ns + round(self.monotonic() * 1e9)

@@ -1,0 +1,343 @@
+"""Scenarios: a brew day (or a fault) run at full speed through the very same daemon code.
+
+A scenario is YAML: `duration`, `plant` (model and parameters), initial `setpoint`, optional
+`config` (overrides of the daemon's config, validated like the file), and `events`, each with
+`at` and one action. The runner wires the fake bus, the tun model and the simulated heater
+circuit into `Daemon` on a virtual clock, and measures the run against physics: the earliest
+any controller could settle is full power from the start.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from hermsd import config as config_module
+from hermsd.config import Config
+from hermsd.daemon import Daemon, PeriodRecord, Recorder
+from hermsd.durations import parse_duration
+from hermsd.metrics import BAND, Sample, compute
+from hermsd.safety import Alarm
+from hermsd.sim.bus import FakeLM92
+from hermsd.sim.circuit import HeaterCircuit
+from hermsd.sim.clock import VirtualClock
+from hermsd.sim.hlt import Plant
+from hermsd.sim.world import build_world
+
+SENSOR_FAULTS = ("nack", "timeout", "stuck", "spike", "wrong_id", "gone", "slow", "ok")
+EVENT_KINDS = ("add_water", "setpoint", "mode", "output", "sensor", "heater", "ssr", "ambient")
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot be run; the message names the file and the key."""
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    at: float
+    kind: str
+    value: Any
+    lasts: float | None = None  # sensor faults: how long, else until the next sensor event
+
+
+@dataclass(frozen=True, slots=True)
+class Scenario:
+    name: str = "default"
+    duration: float = 6 * 3600.0
+    plant: dict[str, Any] = field(default_factory=lambda: {"model": "foptd"})
+    setpoint: float = 66.0
+    config: dict[str, Any] = field(default_factory=dict)
+    events: tuple[Event, ...] = (Event(4 * 3600.0, "add_water", {"litres": 10.0, "temp": 15.0}),)
+
+
+DEFAULT = Scenario()
+
+
+def load_scenario(path: Path) -> Scenario:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{path}: cannot read the scenario: {error}") from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
+        raise ScenarioError(f"{where}: not valid YAML: {error}") from None
+    return parse_scenario(doc if doc is not None else {}, str(path))
+
+
+def parse_scenario(doc: Any, source: str = "<scenario>") -> Scenario:
+    """A validated scenario from a parsed YAML document."""
+
+    def fail(key: str, what: str) -> ScenarioError:
+        return ScenarioError(f"{source}: {key}: {what}")
+
+    if not isinstance(doc, dict):
+        raise fail("(top level)", "expected a mapping with duration, plant, setpoint, events")
+    unknown = set(doc) - {"name", "duration", "plant", "setpoint", "config", "events"}
+    if unknown:
+        raise fail(", ".join(sorted(map(str, unknown))), "unknown key")
+    try:
+        duration = parse_duration(doc.get("duration", DEFAULT.duration))
+    except ValueError as error:
+        raise fail("duration", str(error)) from None
+    plant = doc.get("plant", DEFAULT.plant)
+    if not isinstance(plant, dict) or plant.get("model", "foptd") not in ("foptd", "physical"):
+        raise fail("plant", "expected a mapping with model: foptd or model: physical")
+    setpoint = _number(doc.get("setpoint", DEFAULT.setpoint), fail, "setpoint")
+    overrides = doc.get("config", {}) or {}
+    if not isinstance(overrides, dict):
+        raise fail("config", "expected a mapping of config sections")
+    raw_events = doc.get("events", []) or []
+    if not isinstance(raw_events, list):
+        raise fail("events", "expected a list of events")
+    events = [_event(e, i, fail) for i, e in enumerate(raw_events)]
+    events.sort(key=lambda e: e.at)
+    return Scenario(
+        name=str(doc.get("name", Path(source).stem)),
+        duration=duration,
+        plant={"model": "foptd", **plant},
+        setpoint=setpoint,
+        config=overrides,
+        events=tuple(events),
+    )
+
+
+def _number(value: Any, fail: Callable[[str, str], ScenarioError], key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise fail(key, f"expected a number, got {value!r}")
+    return float(value)
+
+
+def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> Event:
+    key = f"events[{index}]"
+    if not isinstance(raw, dict) or "at" not in raw:
+        raise fail(key, "expected a mapping with 'at' and one action")
+    actions = [k for k in raw if k in EVENT_KINDS]
+    extra = set(raw) - {"at", "for", "value", *EVENT_KINDS}
+    if len(actions) != 1 or extra:
+        raise fail(key, f"expected 'at' and exactly one of {', '.join(EVENT_KINDS)}")
+    try:
+        at = parse_duration(raw["at"])
+        lasts = parse_duration(raw["for"]) if "for" in raw else None
+    except ValueError as error:
+        raise fail(key, str(error)) from None
+    kind = actions[0]
+    value = raw[kind]
+    if kind == "add_water":
+        if not isinstance(value, dict) or set(value) != {"litres", "temp"}:
+            raise fail(f"{key}.add_water", "expected {litres: L, temp: °C}")
+        value = {k: _number(v, fail, f"{key}.add_water.{k}") for k, v in value.items()}
+    elif kind in ("setpoint", "output", "ambient"):
+        value = _number(value, fail, f"{key}.{kind}")
+    elif kind == "mode" and value not in ("manual", "auto"):
+        raise fail(f"{key}.mode", "expected manual or auto")
+    elif kind == "sensor":
+        if value not in SENSOR_FAULTS:
+            raise fail(f"{key}.sensor", f"expected one of {', '.join(SENSOR_FAULTS)}")
+        value = (value, _number(raw["value"], fail, f"{key}.value") if "value" in raw else None)
+    elif kind == "heater" and value not in ("open", "ok"):
+        raise fail(f"{key}.heater", "expected open or ok")
+    elif kind == "ssr" and value not in ("stuck_on", "ok"):
+        raise fail(f"{key}.ssr", "expected stuck_on or ok")
+    return Event(at, kind, value, lasts)
+
+
+def effective_config(base: Config, scenario: Scenario) -> Config:
+    """The daemon's config with the scenario's overrides, validated like the file."""
+    merged = _merge(config_module.to_dict(base), scenario.config)
+    merged.setdefault("control", {})["setpoint"] = scenario.setpoint
+    merged.setdefault("output", {})["backend"] = "sim"
+    try:
+        return config_module.parse(yaml.safe_dump(merged), f"<scenario {scenario.name}>")
+    except config_module.ConfigError as error:
+        raise ScenarioError(str(error)) from None
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+@dataclass(slots=True)
+class _Collector:
+    """Samples the tun's true sensor temperature at every control period."""
+
+    plant: Plant
+    samples: list[Sample] = field(default_factory=list)
+    records: list[PeriodRecord] = field(default_factory=list)
+    alarms: list[Alarm] = field(default_factory=list)
+    keep_records: bool = False
+
+    def period(self, record: PeriodRecord) -> None:
+        temp = self.plant.temperature(record.t)
+        self.samples.append(Sample(record.t, record.setpoint, temp, record.output))
+        if self.keep_records:
+            self.records.append(record)
+
+    def alarm(self, alarm: Alarm) -> None:
+        if alarm.raised:
+            self.alarms.append(alarm)
+
+
+@dataclass(slots=True)
+class Result:
+    """What `hermsd simulate` reports."""
+
+    summary: dict[str, Any]
+    samples: list[Sample]
+    records: list[PeriodRecord]
+
+
+def time_to_band(plant: Plant, start: float, setpoint: float, limit: float) -> float | None:
+    """Seconds of full power from `start` to the band (None: not within `limit` s)."""
+    target = setpoint - BAND
+    previous = plant.temperature(start)
+    if previous >= target:
+        return 0.0
+    plant.set_heater(True, start)
+    t = start
+    while t - start < limit:
+        t += 1.0
+        now = plant.temperature(t)
+        if now >= target:
+            return t - 1.0 - start + (target - previous) / (now - previous)
+        previous = now
+    return None
+
+
+def run(
+    scenario: Scenario,
+    base: Config | None = None,
+    *,
+    recorder: Recorder | None = None,
+    keep_records: bool = False,
+) -> Result:
+    """Run `scenario` through the daemon on a virtual clock; measure it."""
+    config = effective_config(base or config_module.DEFAULT, scenario)
+    started = time.perf_counter()
+    clock = VirtualClock()
+    try:
+        world = build_world(config, clock, scenario.plant)
+        reference = build_world(config, VirtualClock(), scenario.plant).plant
+    except (TypeError, ValueError) as error:
+        raise ScenarioError(f"plant: {error}") from None
+    plant, chip, circuit = world.plant, world.chip, world.circuit
+    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    collector = _Collector(plant, keep_records=keep_records)
+    daemon.listeners.append(collector)
+
+    recovery_min: dict[str, float | None] = {}
+    fault_times: list[float] = []
+
+    def schedule(event: Event) -> None:
+        def fire() -> None:
+            t = clock.monotonic()
+            _apply(event, t, plant, chip, circuit, daemon)
+            if event.kind in ("sensor", "heater", "ssr") and event.value not in (
+                ("ok", None),
+                "ok",
+            ):
+                fault_times.append(t)
+            snapshot = copy.deepcopy(plant)
+            sp = event.value if event.kind == "setpoint" else daemon.setpoint
+            recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration)
+
+        clock.call_at(event.at, fire)
+        if event.kind == "sensor" and event.lasts is not None:
+            clock.call_at(event.at + event.lasts, lambda: chip.set_fault("ok"))
+
+    for event in scenario.events:
+        schedule(event)
+    with daemon:
+        daemon.run(until=scenario.duration)
+    wall = time.perf_counter() - started
+
+    disturbances = [e.at for e in scenario.events]
+    metrics = compute(collector.samples, disturbances, scenario.duration, circuit.ssr_edges)
+    physical_min = time_to_band(reference, 0.0, config.control.setpoint, scenario.duration)
+    alarms = []
+    for alarm in collector.alarms:
+        off = circuit.off_at_or_after(alarm.at)
+        fault = max((f for f in fault_times if f <= alarm.at), default=None)
+        alarms.append(
+            {
+                "at_s": round(alarm.at, 3),
+                "kind": alarm.kind,
+                "heater_off_after_s": None if off is None else round(off - alarm.at, 3),
+                "detected_after_s": None if fault is None else round(alarm.at - fault, 3),
+                "message": alarm.message,
+            }
+        )
+    recovery_min_s = recovery_min.get("s")
+    summary: dict[str, Any] = {
+        "scenario": scenario.name,
+        "algorithm": config.control.algorithm,
+        "duration_s": scenario.duration,
+        "overshoot_c": round(metrics.overshoot_c, 4),
+        "settle_s": metrics.settle_s,
+        "physical_min_s": None if physical_min is None else round(physical_min, 1),
+        "settle_ratio": _ratio(metrics.settle_s, physical_min),
+        "recovery_s": metrics.recovery_s,
+        "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),
+        "recovery_ratio": _ratio(metrics.recovery_s, recovery_min_s),
+        "in_band_fraction": metrics.in_band_fraction,
+        "iae": round(metrics.iae, 2),
+        "max_output_jump": round(metrics.max_output_jump, 3),
+        "ssr_edges_per_hour": None
+        if metrics.edges_per_hour is None
+        else round(metrics.edges_per_hour, 1),
+        "max_temp_c": round(metrics.max_temp_c, 3),
+        "mean_output": round(metrics.mean_output, 2),
+        "alarms": alarms,
+        "overruns": daemon.overruns,
+        "wall_s": round(wall, 3),
+    }
+    return Result(summary, collector.samples, collector.records)
+
+
+def _ratio(value: float | None, minimum: float | None) -> float | None:
+    if value is None or minimum is None or minimum <= 0:
+        return None
+    return round(value / minimum, 4)
+
+
+def _apply(
+    event: Event,
+    t: float,
+    plant: Plant,
+    chip: FakeLM92,
+    circuit: HeaterCircuit,
+    daemon: Daemon,
+) -> None:
+    kind, value = event.kind, event.value
+    if kind == "add_water":
+        plant.add_water(value["litres"], value["temp"], t)
+    elif kind == "ambient":
+        plant.set_ambient(value, t)
+    elif kind == "setpoint":
+        daemon.set_setpoint(value)
+    elif kind == "mode":
+        daemon.set_auto() if value == "auto" else daemon.set_manual()
+    elif kind == "output":
+        daemon.set_manual(value)
+    elif kind == "sensor":
+        fault, amount = value
+        chip.set_fault(fault, amount)
+    elif kind == "heater":
+        plant.set_element_ok(value == "ok", t)
+    elif kind == "ssr":
+        circuit.set_stuck_on(value == "stuck_on")

@@ -1,0 +1,65 @@
+"""The simulated hardware wired together: tun model, fake LM92 on a fake bus, heater circuit.
+
+One place builds it, for `hermsd run --simulate`, `hermsd sensor --simulate` and the
+scenario runner alike.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from hermsd.clock import Clock
+from hermsd.config import Config
+from hermsd.daemon import Daemon, Outputs, guard_outputs
+from hermsd.lm92 import LM92
+from hermsd.sim.bus import FakeLM92, FakeSMBus
+from hermsd.sim.circuit import HeaterCircuit
+from hermsd.sim.clock import ScaledClock, VirtualClock
+from hermsd.sim.hlt import Plant, make_plant
+
+
+@dataclass(slots=True)
+class World:
+    clock: Clock
+    plant: Plant
+    chip: FakeLM92
+    sensor: LM92
+    circuit: HeaterCircuit
+    outputs: Outputs
+
+
+def build_world(config: Config, clock: Clock, plant: dict[str, Any] | None = None) -> World:
+    """Simulated hardware for `config`, on `clock`, around a plant (`{"model": ..., **params}`)."""
+    spec = dict(plant or {"model": "foptd"})
+    model = spec.pop("model", "foptd")
+    tun = make_plant(model, **spec)
+    advance = clock.advance if isinstance(clock, VirtualClock) else None
+    chip = FakeLM92(lambda: tun.temperature(clock.monotonic()), advance=advance)
+    bus = FakeSMBus()
+    bus.attach(config.sensor.address, chip)
+    sensor = LM92(bus, config.sensor.address, bus_name="sim")
+    circuit = HeaterCircuit(tun, clock.monotonic, contactor=config.contactor.backend != "none")
+    outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config)
+    return World(clock, tun, chip, sensor, circuit, outputs)
+
+
+def simulated_daemon(
+    config: Config, speed: float, on_status: Callable[[str], None] | None = None
+) -> Daemon:
+    """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
+    clock: Clock = VirtualClock() if math.isinf(speed) else ScaledClock(speed)
+    world = build_world(config, clock)
+    return Daemon(config, clock, world.sensor, world.outputs, on_status=on_status)
+
+
+def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:
+    """An LM92 on the fake bus in a tun of cold water with a little sensor noise."""
+    clock = VirtualClock()
+    tun = make_plant("physical", start_c=17.3, noise_c=0.04, seed=1)
+    chip = FakeLM92(lambda: tun.temperature(clock.monotonic()))
+    bus = FakeSMBus()
+    bus.attach(address, chip)
+    return LM92(bus, address, bus_name="sim"), clock.sleep

@@ -1,0 +1,304 @@
+"""Time-proportional output: a duty per window becomes SSR edges, and the outputs that carry them.
+
+A zero-cross SSR switches only at mains zero crossings, so on-times are whole half-cycles.
+The planner quantises each window's on-time to that grid and to the minimum on and off
+times, and carries what it could not deliver into the next window, so the energy delivered
+over many windows is exactly what the controller asked for. It reports the duty it really
+applied, which the controller tracks.
+
+On-times alternate between the end of one window and the start of the next, so at a steady
+duty two windows share one pulse: half the edges (and the flicker) of a pulse per window.
+
+The outputs start off, turn off on close, and sit behind a dead-man (`GuardedSwitch`) that
+switches them off when the control loop stops refreshing them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+
+@dataclass(frozen=True, slots=True)
+class WindowPlan:
+    """One window: when the SSR goes on and off, and the duty that really reaches the element."""
+
+    start: float
+    length: float
+    on_at: float
+    off_at: float
+    requested: float
+    applied: float
+
+    @property
+    def on_time(self) -> float:
+        return self.off_at - self.on_at
+
+    def is_on(self, t: float) -> bool:
+        return self.on_at <= t < self.off_at
+
+
+class TimeProportionalPlanner:
+    """Turns a duty (0–100 %) per window into an on interval, exact on average."""
+
+    def __init__(
+        self, window: float, mains_hz: int = 50, min_on: float = 0.0, min_off: float = 0.0
+    ) -> None:
+        if not window > 0:
+            raise ValueError(f"window must be positive, got {window}")
+        if mains_hz not in (50, 60):
+            raise ValueError(f"mains_hz must be 50 or 60, got {mains_hz}")
+        if min_on < 0 or min_off < 0 or min_on + min_off >= window:
+            raise ValueError("min_on and min_off must be >= 0 and together shorter than window")
+        self.window = window
+        self.half_cycle = 1.0 / (2 * mains_hz)
+        self.slots = round(window / self.half_cycle)
+        if self.slots < 2:
+            raise ValueError(f"window {window} s is shorter than two mains half-cycles")
+        # Minimum times in whole half-cycles; an on-time shorter than that is not delivered.
+        self.min_on_slots = math.ceil(min_on / self.half_cycle - 1e-9)
+        self.min_off_slots = math.ceil(min_off / self.half_cycle - 1e-9)
+        self._carry = 0.0  # half-cycles owed to (positive) or by (negative) the next window
+        self._index = 0
+
+    def reset(self) -> None:
+        """Forget any carried error (after a forced off the debt is not paid back)."""
+        self._carry = 0.0
+
+    def plan(self, start: float, duty: float) -> WindowPlan:
+        """The window that begins at `start` with `duty` % requested."""
+        if not 0.0 <= duty <= 100.0:
+            raise ValueError(f"duty must be within 0..100 %, got {duty}")
+        slots = self.slots
+        if duty <= 0.0 or duty >= 100.0:
+            # Fully off or fully on: no edges inside the window and nothing owed.
+            on = 0 if duty <= 0.0 else slots
+            self._carry = 0.0
+        else:
+            wanted = duty / 100.0 * slots + self._carry
+            on = self._deliverable(wanted)
+            # The debt stays bounded by what the minimum times can withhold.
+            limit = max(self.min_on_slots, self.min_off_slots, 1)
+            self._carry = max(-limit, min(limit, wanted - on))
+        on_time = on * self.half_cycle
+        at_end = self._index % 2 == 0
+        self._index += 1
+        if on == 0:
+            on_at = off_at = start + self.window
+        elif on == slots:
+            on_at, off_at = start, start + self.window
+        elif at_end:
+            on_at, off_at = start + self.window - on_time, start + self.window
+        else:
+            on_at, off_at = start, start + on_time
+        return WindowPlan(start, self.window, on_at, off_at, duty, 100.0 * on / slots)
+
+    def _deliverable(self, wanted: float) -> int:
+        """Whole half-cycles nearest to `wanted` that respect the minimum on and off times."""
+        slots = self.slots
+        on = max(0, min(slots, round(wanted)))
+        if 0 < on < self.min_on_slots:
+            on = self.min_on_slots if wanted >= self.min_on_slots / 2 else 0
+        off = slots - on
+        if 0 < off < self.min_off_slots:
+            on = slots - self.min_off_slots if slots - wanted >= self.min_off_slots / 2 else slots
+        return on
+
+
+def cut(plan: WindowPlan, at: float) -> WindowPlan:
+    """The plan with the heater forced off from `at` on; applied is what was really delivered."""
+    if at >= plan.off_at:
+        return plan
+    off_at = max(plan.on_at, at)
+    on_at = plan.on_at if off_at > plan.on_at else off_at
+    applied = 100.0 * (off_at - on_at) / plan.length
+    return WindowPlan(plan.start, plan.length, on_at, off_at, plan.requested, applied)
+
+
+class Switch(Protocol):
+    """A two-state output: the SSR's drive, or a contactor's coil."""
+
+    def set(self, on: bool) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class GuardedSwitch:
+    """A switch that starts off, counts its edges, and turns itself off when not refreshed.
+
+    The loop refreshes it at least once a window; `check()` (called from a watchdog thread
+    on the Pi, or by the scheduler in the simulator) forces it off when the loop has been
+    silent longer than `timeout`. Safe to call from two threads.
+    """
+
+    def __init__(self, inner: Switch, now: Any, timeout: float, name: str = "output") -> None:
+        self._inner = inner
+        self._now = now
+        self.timeout = timeout
+        self.name = name
+        self._lock = threading.Lock()
+        self._last_refresh = now()
+        self.state = False
+        self.edges = 0
+        self.tripped = 0
+        self._inner.set(False)
+
+    def set(self, on: bool) -> None:
+        with self._lock:
+            self._last_refresh = self._now()
+            if on != self.state:
+                self._inner.set(on)
+                self.state = on
+                self.edges += 1
+
+    def check(self) -> bool:
+        """Force off when the loop has not refreshed within `timeout`; True when it did so."""
+        with self._lock:
+            if self.state and self._now() - self._last_refresh > self.timeout:
+                self._inner.set(False)
+                self.state = False
+                self.edges += 1
+                self.tripped += 1
+                return True
+            return False
+
+    def close(self) -> None:
+        """Off, then release the hardware; the off is attempted even if releasing fails."""
+        with self._lock:
+            try:
+                self._inner.set(False)
+                self.state = False
+            finally:
+                self._inner.close()
+
+
+class DeadManThread:
+    """Calls `check()` on guarded outputs every `interval` seconds of real time."""
+
+    def __init__(self, outputs: list[GuardedSwitch], interval: float = 0.1) -> None:
+        self._outputs = outputs
+        self._interval = interval
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="hermsd-deadman", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self._interval):
+            for output in self._outputs:
+                with contextlib.suppress(Exception):
+                    output.check()
+
+
+class SerialLineSwitch:
+    """A USB-serial adapter's RTS or DTR line driving the SSR input.
+
+    The lines are set low before the port is opened, and HUPCL is set so that the kernel
+    drops them on the last close: a process that dies leaves the SSR off. For that reason a
+    serial line is active-high only: an inverted one would switch the SSR on at a crash.
+    """
+
+    def __init__(self, port: str, line: str) -> None:
+        import termios
+
+        import serial
+
+        if line not in ("rts", "dtr"):
+            raise ValueError(f"line must be 'rts' or 'dtr', got {line!r}")
+        self._line = line
+        self._serial = serial.Serial()
+        self._serial.port = port
+        self._serial.rts = False
+        self._serial.dtr = False
+        self._serial.open()
+        fd = self._serial.fileno()
+        attrs = termios.tcgetattr(fd)
+        attrs[2] |= termios.HUPCL
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+
+    def set(self, on: bool) -> None:
+        setattr(self._serial, self._line, on)
+
+    def close(self) -> None:
+        self._serial.close()
+
+
+class GpioSwitch:
+    """A GPIO line through the `gpiod` 2.x bindings (the `gpio` extra)."""
+
+    def __init__(self, chip: str, line: int, active_low: bool = False) -> None:
+        import gpiod
+        from gpiod.line import Bias, Direction, Value
+
+        self._line = line
+        self._on, self._off = Value.ACTIVE, Value.INACTIVE
+        settings = gpiod.LineSettings(
+            direction=Direction.OUTPUT,
+            output_value=Value.INACTIVE,
+            active_low=active_low,
+            bias=Bias.PULL_UP if active_low else Bias.PULL_DOWN,
+        )
+        self._request = gpiod.request_lines(chip, consumer="hermsd", config={line: settings})
+
+    def set(self, on: bool) -> None:
+        self._request.set_value(self._line, self._on if on else self._off)
+
+    def close(self) -> None:
+        self._request.release()
+
+
+def relay_board_frame(channel: int, on: bool) -> bytes:
+    """The common serial relay board's 4-byte command: A0, channel, state, checksum."""
+    if not 1 <= channel <= 8:
+        raise ValueError(f"relay channel must be 1..8, got {channel}")
+    state = 1 if on else 0
+    return bytes((0xA0, channel, state, (0xA0 + channel + state) & 0xFF))
+
+
+class RelayBoardSwitch:
+    """A serial relay board (fit for a contactor, never for time-proportioning)."""
+
+    def __init__(self, port: str, channel: int, baud: int = 9600) -> None:
+        import serial
+
+        self._channel = channel
+        self._serial = serial.Serial(port, baudrate=baud, timeout=1.0, write_timeout=1.0)
+
+    def set(self, on: bool) -> None:
+        self._serial.write(relay_board_frame(self._channel, on))
+        self._serial.flush()
+
+    def close(self) -> None:
+        self._serial.close()
+
+
+def open_hardware_switch(
+    backend: str,
+    *,
+    port: str,
+    chip: str,
+    line: int | None,
+    active_low: bool,
+    channel: int = 1,
+    baud: int = 9600,
+) -> Switch:
+    """The hardware output a config names (the simulated one is wired in from outside)."""
+    if backend in ("serial-rts", "serial-dtr"):
+        if active_low:
+            raise ValueError("a serial line must be active-high: HUPCL drops it when hermsd dies")
+        return SerialLineSwitch(port, backend.removeprefix("serial-"))
+    if backend == "gpio":
+        if line is None:
+            raise ValueError("a gpio output needs a line")
+        return GpioSwitch(chip, line, active_low)
+    if backend == "relay-board":
+        return RelayBoardSwitch(port, channel, baud)
+    raise ValueError(f"no hardware output named {backend!r}")

@@ -1,0 +1,988 @@
+"""The configuration file: defaults, bounds, rules between keys, and messages a brewer can act on.
+
+The schema is written out again below from the specification (not read from hermsd.config),
+so a bound that drifts in the module, in the shipped file or in its comments fails here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hermsd.config import (
+    ALGORITHM_NAMES,
+    DEFAULT,
+    Config,
+    ConfigError,
+    Problem,
+    TunConfig,
+    dump_yaml,
+    load,
+    parse,
+    restart_keys_changed,
+    to_dict,
+)
+
+CONFIG_FILE = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
+FAST_FUZZ = settings(max_examples=int(__import__("os").environ.get("FUZZ_EXAMPLES", "200")), deadline=None)
+
+
+# -- the specification, restated ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Bound:
+    """One numeric key: its type, range and whether null is allowed."""
+
+    key: str
+    kind: type
+    low: float
+    high: float | None
+    low_open: bool = False  # the low end itself is refused ("> 0")
+    nullable: bool = False
+    zero_ok: bool = False  # 0 is accepted below the range (ti: 0 = no integral)
+
+
+BOUNDS = [
+    Bound("tun.litres", float, 1, 1000),
+    Bound("tun.element_watts", float, 100, 20000),
+    Bound("control.setpoint", float, 0, 100),
+    Bound("control.manual_output", float, 0, 100),
+    Bound("control.kc", float, 0, 10000, low_open=True),
+    Bound("control.ti", float, 1, 100000, zero_ok=True),
+    Bound("control.td", float, 0, 10000),
+    Bound("control.tf", float, 0, 10000, nullable=True),
+    Bound("control.tt", float, 0, 100000, low_open=True, nullable=True),
+    Bound("control.period", float, 1, 60),
+    Bound("control.max_output", float, 1, 100),
+    Bound("sensor.bus", int, 0, 255),
+    Bound("sensor.address", int, 0x48, 0x4B),
+    Bound("sensor.read_interval", float, 0.5, 10),
+    Bound("output.line", int, 0, 511, nullable=True),
+    Bound("output.window", float, 1, 60, nullable=True),
+    Bound("output.min_on", float, 0, 10),
+    Bound("output.min_off", float, 0, 10),
+    Bound("contactor.line", int, 0, 511, nullable=True),
+    Bound("contactor.channel", int, 1, 8),
+    Bound("safety.max_temp", float, 30, 105),
+    Bound("safety.hysteresis", float, 0.5, 30),
+    Bound("safety.plausible_min", float, -55, 150),
+    Bound("safety.plausible_max", float, -55, 150),
+    Bound("safety.max_step", float, 0, 50, low_open=True, nullable=True),
+    Bound("safety.fault_reads", int, 1, 10),
+    Bound("safety.resume_reads", int, 1, 100),
+    Bound("safety.stale_after", float, 1, 60, nullable=True),
+    Bound("safety.heater_watch", float, 30, 7200, nullable=True),
+    Bound("safety.heater_min_rise", float, 0, 50, low_open=True, nullable=True),
+    Bound("safety.ssr_watch", float, 30, 7200, nullable=True),
+    Bound("safety.ssr_max_rise", float, 0, 50, low_open=True, nullable=True),
+    Bound("safety.dry_fire_factor", float, 1.5, 100),
+    Bound("safety.stuck_time", float, 60, 86400),
+    Bound("safety.stuck_output_change", float, 1, 100),
+    Bound("safety.stall_periods", float, 0.5, 100),
+    Bound("safety.reset", int, 0, None),
+    Bound("log.rotate_hours", float, 0.1, 168),
+    Bound("log.flush_interval", float, 0.1, 2),
+    Bound("log.sync_interval", float, 0.1, 60),
+    Bound("log.queue_size", int, 100, 1000000),
+]
+CHOICES: dict[str, tuple[object, ...]] = {
+    "control.mode": ("auto", "manual"),
+    "control.algorithm": (
+        "type_a",
+        "type_a_filtered",
+        "takahashi",
+        "back_calculation",
+        "velocity_pi",
+        "hybrid",
+    ),
+    "output.backend": ("sim", "serial-rts", "serial-dtr", "gpio"),
+    "output.mains_hz": (50, 60),
+    "contactor.backend": ("none", "gpio", "serial-rts", "serial-dtr", "relay-board"),
+    "contactor.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
+}
+TEXTS = {  # key: (longest, nullable)
+    "tun.name": (32, False),
+    "output.port": (None, False),
+    "output.chip": (None, False),
+    "contactor.port": (None, False),
+    "contactor.chip": (None, False),
+    "log.dir": (None, True),
+}
+FLAGS = ("output.active_low", "contactor.active_low")
+RESTART = [
+    "control.period",
+    "sensor.bus",
+    "sensor.address",
+    "output.backend",
+    "output.port",
+    "output.chip",
+    "output.line",
+    "output.active_low",
+    "contactor.backend",
+    "contactor.port",
+    "contactor.chip",
+    "contactor.line",
+    "contactor.active_low",
+    "contactor.channel",
+    "contactor.baud",
+    "log.dir",
+]
+ALL_KEYS = [b.key for b in BOUNDS] + list(CHOICES) + list(TEXTS) + list(FLAGS)
+SERIAL = ("serial-rts", "serial-dtr")
+
+
+def value_at(config: Config, key: str) -> Any:
+    section, name = key.split(".")
+    return getattr(getattr(config, section), name)
+
+
+def assert_within_spec(config: Config) -> None:
+    """Every bound and every rule between keys of the specification holds for `config`."""
+    for bound in BOUNDS:
+        value = value_at(config, bound.key)
+        if value is None:
+            assert bound.nullable, bound.key
+            continue
+        assert type(value) is bound.kind, bound.key
+        if bound.zero_ok and value == 0:
+            continue
+        assert value > bound.low if bound.low_open else value >= bound.low, bound.key
+        assert bound.high is None or value <= bound.high, bound.key
+    for key, choices in CHOICES.items():
+        assert value_at(config, key) in choices, key
+    for key, (longest, nullable) in TEXTS.items():
+        text = value_at(config, key)
+        if text is None:
+            assert nullable, key
+            continue
+        assert isinstance(text, str), key
+        assert text, key
+        assert text.isprintable(), key
+        assert longest is None or len(text) <= longest, key
+    for key in FLAGS:
+        assert type(value_at(config, key)) is bool, key
+
+    c, o, k, s = config.control, config.output, config.contactor, config.safety
+    half_cycle = 1 / (2 * o.mains_hz)
+    window = o.window if o.window is not None else c.period
+    assert window > o.min_on + o.min_off
+    assert window >= 5 * half_cycle
+    assert o.min_on == 0 or o.min_on >= half_cycle
+    assert o.min_off == 0 or o.min_off >= half_cycle
+    assert c.setpoint < s.max_temp
+    assert s.plausible_min < s.plausible_max
+    assert s.max_temp < s.plausible_max
+    assert c.manual_output <= c.max_output
+    assert o.backend != "gpio" or o.line is not None
+    assert k.backend != "gpio" or k.line is not None
+    if o.backend in SERIAL and o.port == k.port:
+        assert k.backend != o.backend
+        assert k.backend != "relay-board"
+    if o.backend == k.backend == "gpio":
+        assert (o.chip, o.line) != (k.chip, k.line)
+    assert s.stale_after is None or s.stale_after > config.sensor.read_interval
+
+
+def document(values: dict[str, str]) -> str:
+    """A config text setting `values` ({"control.setpoint": "70"}), one section per prefix."""
+    sections: dict[str, list[str]] = {}
+    for key, value in values.items():
+        section, name = key.split(".")
+        sections.setdefault(section, []).append(f"  {name}: {value}\n")
+    return "".join(f"{section}:\n" + "".join(lines) for section, lines in sections.items())
+
+
+def position(text: str, key: str, *, of_key: bool = False) -> tuple[int, int]:
+    """1-based line and column of the value (or the key) of the first `key` in `text`."""
+    section, name = key.split(".")
+    lines = text.splitlines()
+    start = lines.index(f"{section}:")
+    for number, line in enumerate(lines[start + 1 :], start + 2):
+        if line.startswith(f"  {name}:"):
+            if of_key:
+                return number, 3
+            return number, len(f"  {name}: ") + 1
+    raise AssertionError(f"{key} not in text")
+
+
+def problems_of(text: str) -> list[Problem]:
+    with pytest.raises(ConfigError) as caught:
+        parse(text, "hermsd.yaml")
+    return caught.value.problems
+
+
+def only_problem(text: str) -> Problem:
+    problems = problems_of(text)
+    assert len(problems) == 1, problems
+    return problems[0]
+
+
+def fmt(number: float) -> str:
+    return str(int(number)) if float(number).is_integer() else str(number)
+
+
+# -- defaults and the shipped file ------------------------------------------------------------
+
+
+def test_the_restated_schema_covers_every_field() -> None:
+    fields = [
+        f"{section.name}.{f.name}"
+        for section in dataclasses.fields(Config)
+        for f in dataclasses.fields(getattr(DEFAULT, section.name))
+    ]
+    assert sorted(fields) == sorted(ALL_KEYS)
+
+
+def test_defaults_are_the_specified_ones() -> None:
+    expected = {
+        "tun": {"name": "HLT", "litres": 90.0, "element_watts": 3000.0},
+        "control": {
+            "setpoint": 66.0,
+            "mode": "auto",
+            "manual_output": 0.0,
+            "algorithm": "type_a",
+            "kc": 80.8,
+            "ti": 489.0,
+            "td": 44.9,
+            "tf": None,
+            "tt": None,
+            "period": 5.0,
+            "max_output": 100.0,
+        },
+        "sensor": {"bus": 1, "address": 0x48, "read_interval": 1.0},
+        "output": {
+            "backend": "serial-rts",
+            "port": "/dev/ttyUSB0",
+            "chip": "/dev/gpiochip0",
+            "line": None,
+            "active_low": False,
+            "window": None,
+            "mains_hz": 50,
+            "min_on": 0.02,
+            "min_off": 0.02,
+        },
+        "contactor": {
+            "backend": "none",
+            "port": "/dev/ttyUSB1",
+            "chip": "/dev/gpiochip0",
+            "line": None,
+            "active_low": False,
+            "channel": 1,
+            "baud": 9600,
+        },
+        "safety": {
+            "max_temp": 95.0,
+            "hysteresis": 5.0,
+            "plausible_min": -10.0,
+            "plausible_max": 110.0,
+            "max_step": None,
+            "fault_reads": 2,
+            "resume_reads": 5,
+            "stale_after": None,
+            "heater_watch": None,
+            "heater_min_rise": None,
+            "ssr_watch": None,
+            "ssr_max_rise": None,
+            "dry_fire_factor": 3.0,
+            "stuck_time": 600.0,
+            "stuck_output_change": 40.0,
+            "stall_periods": 2.0,
+            "reset": 0,
+        },
+        "log": {
+            "dir": "/var/log/hermsd",
+            "rotate_hours": 24.0,
+            "flush_interval": 2.0,
+            "sync_interval": 10.0,
+            "queue_size": 10000,
+        },
+    }
+    assert to_dict(DEFAULT) == expected
+    assert_within_spec(DEFAULT)
+    assert CHOICES["control.algorithm"] == ALGORITHM_NAMES
+
+
+def test_config_is_frozen() -> None:
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        DEFAULT.control.setpoint = 70.0  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    "text", ["", "\n", "# only a comment\n", "tun:\n", "tun:\n  # name: HLT\nlog:\n"]
+)
+def test_empty_file_and_empty_sections_give_the_defaults(text: str) -> None:
+    assert parse(text) == DEFAULT
+
+
+def test_the_shipped_file_is_exactly_the_defaults() -> None:
+    assert load(CONFIG_FILE) == DEFAULT
+
+
+def _comment_blocks() -> dict[str, str]:
+    """For each key of the shipped file, the comment lines directly above it (and inline)."""
+    blocks: dict[str, str] = {}
+    section = ""
+    comment: list[str] = []
+    for line in CONFIG_FILE.read_text(encoding="utf-8").splitlines():
+        if re.fullmatch(r"[a-z_]+:", line):
+            section, comment = line[:-1], []
+        elif line.lstrip().startswith("#"):
+            comment.append(line.strip().lstrip("#").strip())
+        elif match := re.match(r"  ([a-z_]+):(.*)", line):
+            inline = match[2].split(" #", 1)[1] if " #" in match[2] else ""
+            blocks[f"{section}.{match[1]}"] = " ".join([*comment, inline]).strip()
+            comment = []
+        else:
+            comment = []
+    return blocks
+
+
+def test_every_key_in_the_shipped_file_has_a_comment_with_its_range() -> None:
+    blocks = _comment_blocks()
+    assert sorted(blocks) == sorted(ALL_KEYS)
+    for key, comment in blocks.items():
+        assert len(comment) > 20, key
+    for bound in BOUNDS:
+        comment = blocks[bound.key]
+        if bound.key == "sensor.address":
+            assert "0x48 to 0x4B" in comment
+            continue
+        assert fmt(bound.low) in comment, bound.key
+        if bound.high is not None:
+            assert fmt(bound.high) in comment, bound.key
+        if bound.nullable:
+            assert "null" in comment, bound.key
+    for key, choices in CHOICES.items():
+        for choice in choices:
+            assert str(choice) in blocks[key], (key, choice)
+
+
+def test_the_shipped_file_marks_exactly_the_restart_keys() -> None:
+    marked = sorted(key for key, comment in _comment_blocks().items() if "RESTART" in comment)
+    assert marked == sorted(RESTART)
+
+
+# -- bounds -----------------------------------------------------------------------------------
+
+# Settings that keep the rules between keys satisfied while one key sits on its bound.
+CONTEXT = {
+    ("control.setpoint", 100): {"safety.max_temp": "105"},
+    ("safety.max_temp", 30): {"control.setpoint": "20"},
+    ("output.min_on", 10): {"output.window": "60"},
+    ("output.min_off", 10): {"output.window": "60"},
+    ("safety.stale_after", 1): {"sensor.read_interval": "0.5"},
+}
+# On its own bound but necessarily against a rule between keys: plausible_min must stay
+# below plausible_max (at most 150), plausible_max above max_temp (at least 30).
+AGAINST_A_RULE = {("safety.plausible_min", 150), ("safety.plausible_max", -55)}
+
+
+def bound_cases() -> list[tuple[str, float, bool]]:
+    """(key, value, accepted) on both sides of every bound: the bound itself and one step out."""
+    cases = []
+    for b in BOUNDS:
+        step = 1 if b.kind is int else 0.001
+        if b.low_open:
+            cases += [(b.key, b.low, False), (b.key, b.low + step, True)]
+        else:
+            cases += [(b.key, b.low, True), (b.key, b.low - step, False)]
+        if b.zero_ok:
+            cases += [(b.key, 0, True), (b.key, -step, False)]
+        if b.high is not None:
+            cases += [(b.key, b.high, True), (b.key, b.high + step, False)]
+        else:
+            cases += [(b.key, 10**30, True)]
+    return cases
+
+
+@pytest.mark.parametrize(("key", "value", "accepted"), bound_cases())
+def test_every_bound_just_inside_and_just_outside(key: str, value: float, accepted: bool) -> None:
+    written = str(round(value, 6)) if isinstance(value, float) else str(value)
+    values = {**CONTEXT.get((key, value), {}), key: written}
+    text = document(values)
+    if (key, value) in AGAINST_A_RULE:
+        problems = problems_of(text)
+        assert {p.key_path for p in problems} == {key}
+        assert not any("out of range" in p.message for p in problems)
+    elif accepted:
+        assert value_at(parse(text), key) == value
+    else:
+        problem = only_problem(text)
+        assert (problem.line, problem.column) == position(text, key)
+        assert problem.key_path == key
+        assert "out of range" in problem.message
+
+
+def test_the_address_accepts_hex_and_decimal() -> None:
+    assert parse("sensor:\n  address: 0x4B\n").sensor.address == 0x4B
+    assert parse("sensor:\n  address: 73\n").sensor.address == 0x49
+    assert "0x48 to 0x4B" in only_problem("sensor:\n  address: 0x4C\n").message
+
+
+@pytest.mark.parametrize("bound", [b for b in BOUNDS if b.nullable], ids=lambda b: b.key)
+def test_null_only_where_the_type_allows_it(bound: Bound) -> None:
+    assert value_at(parse(document({bound.key: "null"})), bound.key) is None
+
+
+@pytest.mark.parametrize(
+    "key",
+    [b.key for b in BOUNDS if not b.nullable]
+    + [key for key, (_, nullable) in TEXTS.items() if not nullable]
+    + list(CHOICES)
+    + list(FLAGS),
+)
+def test_null_is_refused_elsewhere(key: str) -> None:
+    problem = only_problem(document({key: "null"}))
+    assert problem.key_path == key
+    assert "has no value" in problem.message
+
+
+@pytest.mark.parametrize(("key", "choices"), CHOICES.items())
+def test_every_choice_is_accepted(key: str, choices: tuple[object, ...]) -> None:
+    for choice in choices:
+        values = {key: str(choice)}
+        if choice == "gpio":
+            values[key.split(".", maxsplit=1)[0] + ".line"] = "17"
+        assert value_at(parse(document(values)), key) == choice
+
+
+@pytest.mark.parametrize(
+    ("key", "wrong", "suggestion"),
+    [
+        ("control.mode", "Manual", "did you mean 'manual'?"),
+        ("control.algorithm", "takahasi", "did you mean 'takahashi'?"),
+        ("output.backend", "serial_rts", "did you mean 'serial-rts'?"),
+        ("contactor.backend", "relay_board", "did you mean 'relay-board'?"),
+    ],
+)
+def test_a_wrong_choice_names_the_closest(key: str, wrong: str, suggestion: str) -> None:
+    problem = only_problem(document({key: wrong}))
+    assert problem.key_path == key
+    assert suggestion in problem.message
+
+
+@pytest.mark.parametrize(("key", "wrong"), [("output.mains_hz", "55"), ("contactor.baud", "9601")])
+def test_numeric_choices_refuse_other_numbers(key: str, wrong: str) -> None:
+    problem = only_problem(document({key: wrong}))
+    assert problem.key_path == key
+    assert "not one of" in problem.message
+
+
+def test_text_bounds() -> None:
+    assert parse(document({"tun.name": "A" * 32})).tun.name == "A" * 32
+    assert only_problem(document({"tun.name": "A" * 33})).key_path == "tun.name"
+    assert only_problem(document({"tun.name": "''"})).key_path == "tun.name"
+    assert "control character" in only_problem(document({"tun.name": '"HL\\tT"'})).message
+    assert only_problem(document({"output.port": "''"})).key_path == "output.port"
+    assert parse(document({"log.dir": "null"})).log.dir is None
+    assert parse(document({"log.dir": "run/logs"})).log.dir == "run/logs"
+    assert only_problem(document({"log.dir": "''"})).key_path == "log.dir"
+
+
+@pytest.mark.parametrize(("written", "value"), [("true", True), ("false", False), ("True", True)])
+def test_flags(written: str, value: bool) -> None:
+    assert parse(document({"output.active_low": written})).output.active_low is value
+
+
+# -- rules between keys ----------------------------------------------------------------------
+
+# (settings, the key the problem points at, words the message must contain); each rule also
+# has a neighbouring accepted case in CROSS_ACCEPTED.
+CROSS_REFUSED = [
+    # 1.0 s window, not longer than 0.5 + 0.5 s of minimum pulses.
+    (
+        {"output.window": "1", "output.min_on": "0.5", "output.min_off": "0.5"},
+        "output.window",
+        "output.min_on + output.min_off",
+    ),
+    # With window null the control period is the window.
+    (
+        {"control.period": "1", "output.min_on": "0.5", "output.min_off": "0.5"},
+        "control.period",
+        "output.min_on + output.min_off",
+    ),
+    # One half-cycle at 50 Hz is 1/(2·50) = 0.01 s.
+    ({"output.min_on": "0.005"}, "output.min_on", "half-cycle"),
+    ({"output.min_off": "0.0099"}, "output.min_off", "half-cycle"),
+    # At 60 Hz it is 1/120 = 0.00833 s.
+    ({"output.mains_hz": "60", "output.min_on": "0.008"}, "output.min_on", "half-cycle"),
+    ({"control.setpoint": "95"}, "control.setpoint", "safety.max_temp"),
+    ({"safety.max_temp": "60"}, "safety.max_temp", "safety.max_temp"),
+    ({"safety.plausible_min": "110"}, "safety.plausible_min", "plausible_max"),
+    ({"safety.plausible_max": "95"}, "safety.plausible_max", "plausible_max"),
+    ({"output.backend": "gpio"}, "output.backend", "output.line"),
+    ({"contactor.backend": "gpio"}, "contactor.backend", "contactor.line"),
+    (
+        {"contactor.backend": "serial-rts", "contactor.port": "/dev/ttyUSB0"},
+        "contactor.backend",
+        "/dev/ttyUSB0",
+    ),
+    (
+        {
+            "output.backend": "serial-dtr",
+            "contactor.backend": "serial-dtr",
+            "contactor.port": "/dev/ttyUSB0",
+        },
+        "contactor.backend",
+        "/dev/ttyUSB0",
+    ),
+    (
+        {"contactor.backend": "relay-board", "contactor.port": "/dev/ttyUSB0"},
+        "contactor.backend",
+        "relay board",
+    ),
+    (
+        {
+            "output.backend": "gpio",
+            "output.line": "17",
+            "contactor.backend": "gpio",
+            "contactor.line": "17",
+        },
+        "contactor.line",
+        "line 17",
+    ),
+    (
+        {"control.manual_output": "50", "control.max_output": "40"},
+        "control.manual_output",
+        "max_output",
+    ),
+    ({"safety.stale_after": "1"}, "safety.stale_after", "read_interval"),
+]
+CROSS_ACCEPTED = [
+    {"output.window": "1", "output.min_on": "0.5", "output.min_off": "0.49"},
+    {"control.period": "1", "output.min_on": "0.49", "output.min_off": "0.5"},
+    {"output.min_on": "0", "output.min_off": "0.01"},
+    {"output.mains_hz": "60", "output.min_on": "0.0084", "output.min_off": "0"},
+    {"control.setpoint": "94.9"},
+    {"safety.plausible_min": "109.9"},
+    {"safety.plausible_max": "95.1"},
+    {"output.backend": "gpio", "output.line": "0"},
+    {"contactor.backend": "gpio", "contactor.line": "5"},
+    # RTS to the SSR and DTR to the contactor on one adapter: two different lines.
+    {"contactor.backend": "serial-dtr", "contactor.port": "/dev/ttyUSB0"},
+    {"contactor.backend": "relay-board", "contactor.port": "/dev/ttyUSB1"},
+    {
+        "output.backend": "gpio",
+        "output.line": "17",
+        "contactor.backend": "gpio",
+        "contactor.line": "27",
+    },
+    {
+        "output.backend": "gpio",
+        "output.line": "17",
+        "contactor.backend": "gpio",
+        "contactor.line": "17",
+        "contactor.chip": "/dev/gpiochip4",
+    },
+    {"control.manual_output": "40", "control.max_output": "40"},
+    {"safety.stale_after": "1.5"},
+]
+
+
+@pytest.mark.parametrize(("values", "key", "words"), CROSS_REFUSED)
+def test_rules_between_keys_refuse(values: dict[str, str], key: str, words: str) -> None:
+    text = document(values)
+    problem = only_problem(text)
+    assert problem.key_path == key
+    assert (problem.line, problem.column) == position(text, key)
+    assert words in problem.message
+
+
+@pytest.mark.parametrize("values", CROSS_ACCEPTED)
+def test_rules_between_keys_accept_their_neighbours(values: dict[str, str]) -> None:
+    assert_within_spec(parse(document(values)))
+
+
+def test_a_rule_is_not_reported_when_one_of_its_keys_was_refused() -> None:
+    problem = only_problem(document({"control.setpoint": "hot", "safety.max_temp": "40"}))
+    assert problem.key_path == "control.setpoint"
+
+
+# -- keys, duplicates, syntax -----------------------------------------------------------------
+
+
+def test_unknown_key_with_suggestion() -> None:
+    text = "control:\n  setpont: 60\n"
+    problem = only_problem(text)
+    assert (problem.line, problem.column) == (2, 3)
+    assert problem.key_path == "control.setpont"
+    assert "did you mean 'setpoint'?" in problem.message
+    assert "did you mean 'control'?" in only_problem("contol:\n  setpoint: 60\n").message
+
+
+def test_a_key_in_the_wrong_section_is_sent_home() -> None:
+    assert "'safety' section" in only_problem("control:\n  max_temp: 90\n").message
+    assert "'control' section" in only_problem("setpoint: 60\n").message
+
+
+def test_unknown_key_without_a_close_match_lists_the_keys() -> None:
+    message = only_problem("sensor:\n  colour: blue\n").message
+    assert "bus, address, read_interval" in message
+
+
+def test_duplicate_keys_are_refused() -> None:
+    text = "control:\n  setpoint: 60\n  kc: 50\n  setpoint: 70\n"
+    problem = only_problem(text)
+    assert (problem.line, problem.column) == (4, 3)
+    assert "duplicate" in problem.message
+    assert "line 2" in problem.message
+    section = only_problem("tun:\n  litres: 50\ncontrol:\n  kc: 5\ntun:\n  litres: 60\n")
+    assert (section.line, section.key_path) == (5, "tun")
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "control:\n  setpoint: [66\n",
+        "control:\n  setpoint: 66\n kc: 5\n",
+        "control: {setpoint: 66\n",
+        "control:\n  name: 'HLT\n",
+        "tun:\n  name: a\n---\ntun:\n  name: b\n",
+        "control:\n  setpoint: *nowhere\n",
+    ],
+)
+def test_yaml_syntax_errors_point_where_the_parser_does(text: str) -> None:
+    problem = only_problem(text)
+    with pytest.raises(yaml.MarkedYAMLError) as caught:
+        yaml.safe_load(text)
+    mark = caught.value.problem_mark
+    assert mark is not None
+    assert (problem.line, problem.column) == (mark.line + 1, mark.column + 1)
+    assert problem.message.startswith("invalid YAML")
+
+
+def test_a_tab_is_named() -> None:
+    problem = only_problem("control:\n\tsetpoint: 66\n")
+    assert (problem.line, problem.column) == (2, 1)
+    assert "not tabs" in problem.message
+
+
+def test_a_control_character_is_located() -> None:
+    problem = only_problem("tun:\n  name: H\x07LT\n")
+    assert (problem.line, problem.column) == (2, 10)  # "  name: H" is 9 characters
+    assert "#x7" in problem.message
+
+
+@pytest.mark.parametrize("text", ["- tun\n", "just words\n", "~\n", "[tun]\n"])
+def test_the_top_level_must_be_a_mapping(text: str) -> None:
+    problem = only_problem(text)
+    assert problem.line == 1
+    assert "mapping of sections" in problem.message
+
+
+def test_a_section_must_be_a_mapping() -> None:
+    problem = only_problem("control: 66\n")
+    assert (problem.line, problem.column, problem.key_path) == (1, 10, "control")
+    assert "setpoint" in problem.message
+
+
+# -- types ------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("key", "written", "words"),
+    [
+        ("control.setpoint", "'66'", "expected a number, got the string '66'"),
+        ("control.setpoint", '"66"', "write it without quotes: 66"),
+        ("control.setpoint", "true", "expected a number, got the boolean true"),
+        ("control.setpoint", "hot", "expected a number, got the string 'hot'"),
+        ("control.setpoint", "[66]", "got a list"),
+        ("control.setpoint", "{a: 1}", "got a mapping"),
+        ("control.setpoint", "066", "leading zeros"),
+        ("control.setpoint", ".inf", "expected a number"),
+        ("control.setpoint", "1e999", "too large"),
+        ("control.setpoint", "!!str 66", "tag '!!str'"),
+        ("control.period", "1:30", "write 90"),  # 1 min 30 s
+        ("sensor.bus", "1.0", "expected a whole number, got the number 1.0"),
+        ("sensor.bus", "false", "expected a whole number"),
+        ("tun.name", "123", "expected text, got the number 123"),
+        ("tun.name", "{a: 1}", "mapping"),
+        ("output.port", "false", "expected text"),
+        ("output.active_low", "yes", "expected true or false, got the string 'yes'"),
+        ("output.active_low", "1", "expected true or false, got the number 1"),
+        ("output.active_low", "'true'", "expected true or false"),
+    ],
+)
+def test_wrong_types_are_named(key: str, written: str, words: str) -> None:
+    text = document({key: written})
+    problem = only_problem(text)
+    assert problem.key_path == key
+    assert (problem.line, problem.column) == position(text, key)
+    assert words in problem.message
+    assert problem.message.endswith(")")
+
+
+def test_an_int_is_accepted_for_a_float() -> None:
+    config = parse("control:\n  setpoint: 70\n  kc: 1e2\n  td: .5\n")
+    assert (config.control.setpoint, config.control.kc, config.control.td) == (70.0, 100.0, 0.5)
+    assert type(config.control.setpoint) is float
+
+
+def test_a_quoted_number_is_text_where_text_is_expected() -> None:
+    assert parse("tun:\n  name: '2024'\n").tun.name == "2024"
+
+
+# -- several problems at once -----------------------------------------------------------------
+
+
+def test_every_problem_is_reported_at_once_in_file_order() -> None:
+    text = (
+        "# brew day\n"
+        "tun:\n"
+        "  litres: 2000\n"
+        "control:\n"
+        "  setpoint: '66'\n"
+        "  algoritm: type_a\n"
+        "sensor:\n"
+        "  address: 0x49\n"
+        "  address: 0x4A\n"
+        "output:\n"
+        "  mains_hz: 55\n"
+    )
+    lines = text.splitlines()
+
+    def at(fragment: str, token: str) -> str:
+        number = next(i for i, line in enumerate(lines, 1) if fragment in line)
+        return f"cfg.yaml:{number}:{lines[number - 1].index(token) + 1}"
+
+    with pytest.raises(ConfigError) as caught:
+        parse(text, "cfg.yaml")
+    reported = str(caught.value).splitlines()
+    quoted = "'66'"
+    expected = [
+        f"{at('2000', '2000')}: tun.litres: 2000 L is out of range",
+        f"{at(quoted, quoted)}: control.setpoint: expected a number, got the string {quoted}",
+        f"{at('algoritm', 'algoritm')}: control.algoritm: unknown key (did you mean 'algorithm'?)",
+        f"{at('0x4A', 'address')}: sensor.address: duplicate key (first given on line 8",
+        f"{at('55', '55')}: output.mains_hz: 55 is not one of the choices",
+    ]
+    assert len(reported) == len(expected)
+    for line, start in zip(reported, expected, strict=True):
+        assert line.startswith(start), (line, start)
+    assert [p.line for p in caught.value.problems] == [3, 5, 6, 9, 11]
+
+
+# -- files ------------------------------------------------------------------------------------
+
+
+def test_load_a_missing_file(tmp_path: Path) -> None:
+    path = tmp_path / "nope.yaml"
+    with pytest.raises(ConfigError) as caught:
+        load(path)
+    (problem,) = caught.value.problems
+    assert problem.line == 0
+    assert (
+        str(caught.value)
+        == f"{path}: no such file (check the path, or copy config/hermsd.yaml there)"
+    )
+
+
+def test_load_a_directory(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as caught:
+        load(tmp_path)
+    assert "is a directory" in str(caught.value)
+
+
+def test_load_a_file_that_is_not_utf8(tmp_path: Path) -> None:
+    path = tmp_path / "latin1.yaml"
+    text = "control:\n  setpoint: 66  # °C\n"
+    path.write_bytes(text.encode("latin-1"))
+    with pytest.raises(ConfigError) as caught:
+        load(path)
+    (problem,) = caught.value.problems
+    assert (problem.line, problem.column) == (2, text.splitlines()[1].index("°") + 1)
+    assert "0xb0" in problem.message
+    assert "UTF-8" in problem.message
+
+
+def test_load_reads_utf8_with_a_byte_order_mark(tmp_path: Path) -> None:
+    path = tmp_path / "bom.yaml"
+    path.write_bytes(b"\xef\xbb\xbfcontrol:\n  setpoint: 67  # \xc2\xb0C\n")
+    assert load(path).control.setpoint == 67.0
+
+
+# -- writing back -----------------------------------------------------------------------------
+
+
+def test_to_dict_is_json() -> None:
+    config = parse("control:\n  tf: 3\nlog:\n  dir: null\n")
+    assert json.loads(json.dumps(to_dict(config))) == to_dict(config)
+    assert to_dict(config)["control"]["tf"] == 3.0
+
+
+def test_dump_yaml_reads_back_to_the_same_config() -> None:
+    assert parse(dump_yaml(DEFAULT)) == DEFAULT
+    tricky = dataclasses.replace(DEFAULT, tun=TunConfig(name="1e3"))
+    assert parse(dump_yaml(tricky)) == tricky
+    for name in ("066", "yes", "null", "0x48", "1:30", "~", "true"):
+        named = dataclasses.replace(DEFAULT, tun=TunConfig(name=name))
+        assert parse(dump_yaml(named)).tun.name == name
+
+
+def test_restart_keys_changed() -> None:
+    assert restart_keys_changed(DEFAULT, DEFAULT) == []
+    live = parse(
+        "control:\n  setpoint: 70\n  kc: 60\nsafety:\n  reset: 1\nlog:\n  sync_interval: 5\n"
+    )
+    assert restart_keys_changed(DEFAULT, live) == []
+    new = parse(
+        "control:\n  period: 10\nsensor:\n  address: 0x49\n"
+        "contactor:\n  baud: 19200\nlog:\n  dir: null\n"
+    )
+    assert restart_keys_changed(DEFAULT, new) == [
+        "control.period",
+        "sensor.address",
+        "contactor.baud",
+        "log.dir",
+    ]
+    for key in RESTART:
+        section, name = key.split(".")
+        old = value_at(DEFAULT, key)
+        changed = {bool: not old, int: 2, str: "/dev/other"}.get(type(old), 7)
+        part = dataclasses.replace(getattr(DEFAULT, section), **{name: changed})
+        assert restart_keys_changed(DEFAULT, dataclasses.replace(DEFAULT, **{section: part})) == [
+            key
+        ]
+
+
+# -- fuzz -------------------------------------------------------------------------------------
+
+
+def assert_sound_outcome(outcome: Config | ConfigError) -> None:
+    """An accepted config is within spec; a refusal places and explains each problem."""
+    if isinstance(outcome, Config):
+        assert_within_spec(outcome)
+        return
+    assert outcome.problems
+    for problem in outcome.problems:
+        assert problem.line >= 1, problem
+        assert problem.column >= 1, problem
+        assert problem.message.endswith(")"), problem
+    assert len(str(outcome).splitlines()) >= len(outcome.problems)
+
+
+def parse_outcome(text: str) -> Config | ConfigError:
+    try:
+        return parse(text)
+    except ConfigError as error:
+        return error
+
+
+SECTIONS = sorted({key.split(".")[0] for key in ALL_KEYS})
+NAMES = sorted({key.split(".")[1] for key in ALL_KEYS})
+scalars = (
+    st.none()
+    | st.booleans()
+    | st.integers()
+    | st.integers(-100, 2000)
+    | st.floats()
+    | st.floats(-100, 2000)
+    | st.text(max_size=12)
+    | st.sampled_from([str(c) for choices in CHOICES.values() for c in choices])
+)
+keys = st.sampled_from(NAMES) | st.text(max_size=8) | st.integers(0, 3)
+trees = st.recursive(
+    scalars,
+    lambda children: st.lists(children, max_size=3) | st.dictionaries(keys, children, max_size=4),
+    max_leaves=12,
+)
+documents = st.dictionaries(
+    st.sampled_from(SECTIONS) | st.text(max_size=6),
+    st.dictionaries(keys, trees, max_size=6) | trees,
+    max_size=5,
+)
+
+
+@FAST_FUZZ
+@given(documents)
+def test_fuzz_random_documents(doc: dict[Any, Any]) -> None:
+    assert_sound_outcome(parse_outcome(yaml.safe_dump(doc, sort_keys=False)))
+
+
+@FAST_FUZZ
+@given(st.text(max_size=80))
+def test_fuzz_random_text(text: str) -> None:
+    assert_sound_outcome(parse_outcome(text))
+
+
+SHIPPED = CONFIG_FILE.read_bytes()
+
+
+@st.composite
+def mutated_config(draw: st.DrawFn) -> bytes:
+    """The shipped file with one to three edits a hurried brewer (or a bad SD card) might make."""
+    lines = SHIPPED.split(b"\n")
+    for _ in range(draw(st.integers(1, 3))):
+        index = draw(st.integers(0, len(lines) - 1))
+        edit = draw(st.sampled_from(["delete", "duplicate", "value", "bytes"]))
+        if edit == "delete":
+            del lines[index]
+        elif edit == "duplicate":
+            lines.insert(index, lines[index])
+        elif edit == "value":
+            scalar = draw(scalars)
+            written = yaml.safe_dump(scalar).removesuffix("\n...\n").strip()
+            raw = draw(st.just(written) | st.text(max_size=10))
+            head = lines[index].split(b":", 1)[0]
+            lines[index] = head + b": " + raw.encode("utf-8", "surrogatepass")
+        else:
+            junk = draw(st.binary(min_size=1, max_size=6))
+            at = draw(st.integers(0, len(lines[index])))
+            lines[index] = lines[index][:at] + junk + lines[index][at:]
+        if not lines:
+            break
+    return b"\n".join(lines)
+
+
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("fuzz") / "hermsd.yaml"
+
+
+@FAST_FUZZ
+@given(data=mutated_config())
+def test_fuzz_mutations_of_the_shipped_file(scratch: Path, data: bytes) -> None:
+    scratch.write_bytes(data)
+    try:
+        outcome: Config | ConfigError = load(scratch)
+    except ConfigError as error:
+        outcome = error
+    assert_sound_outcome(outcome)
+
+
+valid_values = st.fixed_dictionaries(
+    {
+        "control.setpoint": st.floats(0, 94.9),
+        "control.kc": st.floats(0.01, 10000),
+        "output.window": st.none() | st.floats(1, 60),
+        "safety.hysteresis": st.floats(0.5, 30),
+        "tun.name": st.text(st.characters(codec="utf-8"), min_size=1, max_size=32).filter(
+            str.isprintable
+        ),
+        "log.queue_size": st.integers(100, 1000000),
+    }
+)
+
+
+@FAST_FUZZ
+@given(valid_values)
+def test_fuzz_dump_yaml_round_trips(values: dict[str, Any]) -> None:
+    sections: dict[str, dict[str, Any]] = {}
+    for key, value in values.items():
+        section, name = key.split(".")
+        sections.setdefault(section, {})[name] = value
+    config = dataclasses.replace(
+        DEFAULT,
+        **{s: dataclasses.replace(getattr(DEFAULT, s), **v) for s, v in sections.items()},
+    )
+    assert parse(dump_yaml(config)) == config

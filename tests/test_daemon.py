@@ -1,0 +1,188 @@
+"""The control loop on the simulated tun, on a virtual clock; and the real process's signals."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hermsd import config as config_module
+from hermsd.config import Config
+from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.safety import Alarm
+from hermsd.sim.clock import VirtualClock
+from hermsd.sim.world import World, build_world
+
+
+class Periods:
+    def __init__(self) -> None:
+        self.records: list[PeriodRecord] = []
+        self.alarms: list[Alarm] = []
+
+    def period(self, record: PeriodRecord) -> None:
+        self.records.append(record)
+
+    def alarm(self, alarm: Alarm) -> None:
+        self.alarms.append(alarm)
+
+
+def make(
+    config: Config | None = None, plant: dict[str, object] | None = None
+) -> tuple[Daemon, World, VirtualClock, Periods]:
+    config = config or dataclasses.replace(
+        config_module.DEFAULT,
+        output=dataclasses.replace(config_module.DEFAULT.output, backend="sim"),
+    )
+    clock = VirtualClock()
+    world = build_world(config, clock, plant)
+    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    periods = Periods()
+    daemon.listeners.append(periods)
+    return daemon, world, clock, periods
+
+
+def test_edges_fall_exactly_where_the_planner_put_them() -> None:
+    daemon, world, _clock, periods = make()
+    with daemon:
+        daemon.run(until=6000.0)
+    edges = world.circuit.ssr_edges
+    assert edges, "the heater never switched"
+    # Every edge lies on the 10 ms half-cycle grid measured from the window start.
+    for t in edges:
+        offset = t % 5.0
+        assert offset / 0.01 == pytest.approx(round(offset / 0.01), abs=1e-6)
+    # The applied duty each period is the on-time the element really got, recomputed here
+    # from the circuit's own record of its power.
+    changes = world.circuit.power_changes
+    for previous, record in zip(periods.records, periods.records[1:], strict=False):
+        on = 0.0
+        state, since = False, previous.t
+        for when, powered in changes:
+            if when <= previous.t:
+                state = powered
+                continue
+            if when >= record.t:
+                break
+            if state:
+                on += when - since
+            state, since = powered, when
+        if state:
+            on += record.t - since
+        assert record.applied == pytest.approx(100.0 * on / (record.t - previous.t), abs=1e-6)
+
+
+def test_an_exception_in_the_loop_leaves_the_heater_off() -> None:
+    daemon, world, clock, _ = make()
+
+    class Boom(Exception):
+        pass
+
+    def explode() -> None:
+        raise Boom
+
+    clock.call_at(1234.5, explode)
+    with pytest.raises(Boom), daemon:
+        daemon.run(until=5000.0)
+    assert world.circuit.ssr_on is False and world.circuit.powered is False
+
+
+def test_manual_to_auto_is_bumpless() -> None:
+    daemon, _world, _clock, periods = make()
+    with daemon:
+        daemon.run(until=6000.0)  # holding at the setpoint
+        daemon.set_manual(35.0)
+        daemon.run(until=6300.0)
+        assert periods.records[-1].output == 35.0
+        daemon.set_auto()
+        daemon.run(until=6310.0)
+    last_manual = next(r for r in reversed(periods.records) if r.mode == "manual")
+    first_auto = next(r for r in periods.records if r.t >= 6300.0 and r.mode == "auto")
+    c = daemon.config.control
+    assert last_manual.pv is not None and first_auto.pv is not None
+    error = c.setpoint - first_auto.pv
+    # One P-step: what the error's change and one period of integral can move the output.
+    p_step = c.kc * abs(first_auto.pv - last_manual.pv) + c.kc * c.period / c.ti * abs(error)
+    assert abs(first_auto.output - 35.0) <= p_step + 1e-9
+    assert abs(first_auto.output - 35.0) < 3.0
+
+
+def test_a_sensor_fault_holds_the_controller_and_resumes_from_its_output() -> None:
+    daemon, world, clock, periods = make()
+    clock.call_at(7000.0, lambda: world.chip.set_fault("nack"))
+    clock.call_at(7600.0, lambda: world.chip.set_fault("ok"))
+    with daemon:
+        daemon.run(until=8000.0)
+    before = [r for r in periods.records if r.t <= 7000.0][-1]  # the last output before the hold
+    held = [r for r in periods.records if 7002.0 <= r.t < 7600.0]
+    assert held and all(r.output == 0.0 and not r.heater_allowed for r in held)
+    resumed = next(r for r in periods.records if r.t > 7600.0 and r.heater_allowed)
+    c = daemon.config.control
+    assert resumed.pv is not None
+    # Within one P-step of it: one period of integral on the error the cooling left.
+    assert (
+        abs(resumed.output - before.output)
+        <= c.kc * c.period / c.ti * abs(c.setpoint - resumed.pv) + 1e-9
+    )
+    assert {a.kind for a in periods.alarms if a.raised} == {"sensor_fault", "stale_reading"}
+
+
+def test_status_line_names_the_tun_the_temperatures_and_the_output() -> None:
+    daemon, _world, _clock, _periods = make()
+    with daemon:
+        daemon.run(until=100.0)
+    text = daemon.status_text()
+    assert text.startswith("HLT ") and "°C → 66.00 °C" in text and text.endswith(", ok")
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "hermsd.cli", *args]
+
+
+def test_sigterm_turns_the_heater_off_and_exits_0(tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        _cli("run", "--simulate", "--speed", "60"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert proc.stderr is not None
+    line = proc.stderr.readline()  # blocks until the loop has started (or the process died)
+    assert "started" in line, line
+    time.sleep(0.3)  # a few simulated periods, so the heater is really on
+    proc.send_signal(signal.SIGTERM)
+    _out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert "SIGTERM received" in err and "heater off" in err
+
+
+def test_safe_off_exits_0_and_says_what_it_could_not_reach(tmp_path: Path) -> None:
+    cfg = tmp_path / "hermsd.yaml"
+    cfg.write_text("output:\n  backend: serial-rts\n  port: /dev/does-not-exist\n")
+    proc = subprocess.run(
+        _cli("safe-off", "--config", str(cfg)), capture_output=True, text=True, timeout=30
+    )
+    assert proc.returncode == 0
+    assert "serial-rts" in proc.stderr and "does-not-exist" in proc.stderr
+
+
+def test_safe_off_on_a_pseudo_terminal_drops_the_line(tmp_path: Path) -> None:
+    controller, terminal = os.openpty()
+    try:
+        cfg = tmp_path / "hermsd.yaml"
+        cfg.write_text(f"output:\n  backend: serial-dtr\n  port: {os.ttyname(terminal)}\n")
+        proc = subprocess.run(
+            _cli("safe-off", "--config", str(cfg)), capture_output=True, text=True, timeout=30
+        )
+    finally:
+        os.close(controller)
+        os.close(terminal)
+    assert proc.returncode == 0
+    # A pty has no modem lines: either it was switched off or the reason is said in one line.
+    assert "serial-dtr off" in proc.stdout or proc.stderr.count("\n") == 1

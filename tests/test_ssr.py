@@ -1,0 +1,165 @@
+"""The time-proportional planner and the output guards."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hermsd.sim.clock import VirtualClock
+from hermsd.ssr import GuardedSwitch, TimeProportionalPlanner, cut, relay_board_frame
+
+HALF_CYCLE_50HZ = 0.01  # s: one half-cycle of 50 Hz mains
+
+
+class RecordingSwitch:
+    def __init__(self) -> None:
+        self.calls: list[bool] = []
+        self.closed = False
+
+    def set(self, on: bool) -> None:
+        self.calls.append(on)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_on_times_are_whole_half_cycles() -> None:
+    planner = TimeProportionalPlanner(5.0, 50)
+    for k in range(200):
+        plan = planner.plan(5.0 * k, 27.3)
+        slots = plan.on_time / HALF_CYCLE_50HZ
+        assert slots == pytest.approx(round(slots), abs=1e-9)
+        # The window has 500 half-cycles; applied is exactly the on-time's share.
+        assert plan.applied == pytest.approx(round(slots) / 500 * 100)
+
+
+def test_sixty_hertz_grid() -> None:
+    planner = TimeProportionalPlanner(5.0, 60)
+    plan = planner.plan(0.0, 50.0)
+    # 5 s of 60 Hz mains is 600 half-cycles of 1/120 s; half of them is 2.5 s exactly.
+    assert plan.on_time == pytest.approx(2.5)
+
+
+def test_average_duty_is_exact_over_many_windows() -> None:
+    # 27.33 % of 500 half-cycles is 136.65: no single window can deliver it, the carry must.
+    planner = TimeProportionalPlanner(5.0, 50, min_on=0.05, min_off=0.05)
+    plans = [planner.plan(5.0 * k, 27.33) for k in range(1000)]
+    delivered = sum(p.on_time for p in plans)
+    assert delivered / (5.0 * 1000) * 100 == pytest.approx(27.33, abs=0.01 / 1000 * 100)
+
+
+def test_minimum_on_and_off_times_are_respected_and_carried() -> None:
+    planner = TimeProportionalPlanner(5.0, 50, min_on=0.5, min_off=0.5)
+    # 2 % of 5 s is 0.1 s, below the 0.5 s minimum: most windows deliver nothing, and every
+    # fifth delivers 0.5 s, so the average is still 2 %.
+    plans = [planner.plan(5.0 * k, 2.0) for k in range(100)]
+    for plan in plans:
+        assert plan.on_time == 0 or plan.on_time >= 0.5 - 1e-9
+    assert sum(p.on_time for p in plans) == pytest.approx(0.02 * 500, abs=0.5)
+    high = [planner.plan(5.0 * k, 98.0) for k in range(100)]
+    for plan in high:
+        off = plan.length - plan.on_time
+        assert off == 0 or off >= 0.5 - 1e-9
+    assert sum(p.on_time for p in high) == pytest.approx(0.98 * 500, abs=0.5)
+
+
+@pytest.mark.parametrize("duty", [0.0, 100.0])
+def test_full_and_zero_duty_have_no_edges_inside_the_window(duty: float) -> None:
+    planner = TimeProportionalPlanner(5.0, 50)
+    for k in range(10):
+        plan = planner.plan(5.0 * k, duty)
+        start, end = 5.0 * k, 5.0 * k + 5.0
+        if duty == 0.0:
+            assert plan.on_time == 0 and not plan.is_on(start)
+        else:
+            assert (plan.on_at, plan.off_at) == (start, end)
+        assert plan.applied == duty
+
+
+def test_pulses_of_neighbouring_windows_join() -> None:
+    planner = TimeProportionalPlanner(5.0, 50)
+    first, second = planner.plan(0.0, 30.0), planner.plan(5.0, 30.0)
+    # The first window's pulse ends at its end, the second's starts at its start: one pulse.
+    assert first.off_at == 5.0 and second.on_at == 5.0
+
+
+def test_cut_reports_what_was_delivered() -> None:
+    planner = TimeProportionalPlanner(5.0, 50)
+    planner.plan(0.0, 50.0)  # skip to an odd window: on-time at the start
+    plan = planner.plan(5.0, 50.0)
+    assert (plan.on_at, plan.off_at) == (5.0, 7.5)
+    half = cut(plan, 6.0)
+    assert half.off_at == 6.0 and half.applied == pytest.approx(20.0)
+    assert cut(plan, 9.0) == plan
+    before = cut(planner.plan(10.0, 50.0), 11.0)  # even window: pulse at the end, not begun
+    assert before.on_time == 0.0 and before.applied == 0.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(duty=st.floats(min_value=0, max_value=100), window=st.sampled_from([1.0, 5.0, 10.0]))
+def test_plan_stays_inside_its_window(duty: float, window: float) -> None:
+    planner = TimeProportionalPlanner(window, 50, min_on=0.02, min_off=0.02)
+    for k in range(5):
+        plan = planner.plan(window * k, duty)
+        assert window * k <= plan.on_at <= plan.off_at <= window * (k + 1) + 1e-9
+        assert 0.0 <= plan.applied <= 100.0
+
+
+def test_bad_planner_arguments_are_refused() -> None:
+    with pytest.raises(ValueError, match="mains_hz"):
+        TimeProportionalPlanner(5.0, 55)
+    with pytest.raises(ValueError, match="min_on"):
+        TimeProportionalPlanner(1.0, 50, min_on=0.6, min_off=0.6)
+    with pytest.raises(ValueError, match="duty"):
+        TimeProportionalPlanner(5.0).plan(0.0, 101.0)
+
+
+def test_guarded_switch_starts_off_and_counts_edges() -> None:
+    clock = VirtualClock()
+    inner = RecordingSwitch()
+    guard = GuardedSwitch(inner, clock.monotonic, timeout=10.0)
+    assert inner.calls == [False]
+    guard.set(True)
+    guard.set(True)
+    guard.set(False)
+    assert inner.calls == [False, True, False]
+    assert guard.edges == 2
+
+
+def test_dead_man_turns_the_output_off_after_two_windows_of_silence() -> None:
+    clock = VirtualClock()
+    inner = RecordingSwitch()
+    guard = GuardedSwitch(inner, clock.monotonic, timeout=10.0)
+    guard.set(True)
+    clock.advance(9.9)
+    assert not guard.check() and guard.state
+    guard.set(True)  # a refresh
+    clock.advance(10.0)
+    assert not guard.check()
+    clock.advance(0.1)
+    assert guard.check()
+    assert inner.calls[-1] is False and not guard.state and guard.tripped == 1
+
+
+def test_close_turns_off_even_when_releasing_fails() -> None:
+    class Failing(RecordingSwitch):
+        def close(self) -> None:
+            raise OSError(5, "gone")
+
+    clock = VirtualClock()
+    inner = Failing()
+    guard = GuardedSwitch(inner, clock.monotonic, timeout=10.0)
+    guard.set(True)
+    with pytest.raises(OSError, match="gone"):
+        guard.close()
+    assert inner.calls[-1] is False
+
+
+def test_relay_board_frames_match_the_board_protocol() -> None:
+    # The boards' documented frames for channel 1: A0 01 01 A2 (on) and A0 01 00 A1 (off).
+    assert relay_board_frame(1, True) == bytes.fromhex("A00101A2")
+    assert relay_board_frame(1, False) == bytes.fromhex("A00100A1")
+    assert relay_board_frame(2, True) == bytes.fromhex("A00201A3")
+    with pytest.raises(ValueError, match="channel"):
+        relay_board_frame(0, True)

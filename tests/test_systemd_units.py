@@ -1,0 +1,139 @@
+"""The systemd units: accepted by systemd-analyze, sandboxed to an exposure ≤ 1.0, and
+carrying the directives the daemon's safety relies on."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+SYSTEMD_DIR = Path(__file__).resolve().parent.parent / "systemd"
+INSTALLED_BINARY = "/usr/local/bin/hermsd"
+# The template is checked through one instance, so %i resolves as it will on the Pi.
+UNITS = {"hermsd.service": "hermsd.service", "hermsd@.service": "hermsd@hlt.service"}
+CONFIG = {"hermsd.service": "/etc/hermsd/hermsd.yaml", "hermsd@.service": "/etc/hermsd/%i.yaml"}
+
+SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
+needs_systemd_analyze = pytest.mark.skipif(
+    SYSTEMD_ANALYZE is None, reason="systemd-analyze is not installed"
+)
+
+
+def _directives(unit_file: str) -> dict[str, list[str]]:
+    """'Section.Key' → values in file order (systemd lets most keys repeat)."""
+    directives: dict[str, list[str]] = defaultdict(list)
+    section = ""
+    for raw_line in (SYSTEMD_DIR / unit_file).read_text().splitlines():
+        line = raw_line.strip()
+        if not line or line.startswith(("#", ";")):
+            continue
+        if line.startswith("["):
+            section = line.strip("[]")
+            continue
+        key, _, value = line.partition("=")
+        directives[f"{section}.{key}"].append(value)
+    return directives
+
+
+def _staged_unit(unit_file: str, directory: Path) -> Path:
+    """A copy whose ExecStart=/ExecStopPost= name an existing binary, because verify
+    refuses a unit whose command does not exist; returns the path to analyse."""
+    true_binary = shutil.which("true")
+    assert true_binary is not None
+    text = (SYSTEMD_DIR / unit_file).read_text()
+    assert INSTALLED_BINARY in text
+    (directory / unit_file).write_text(text.replace(INSTALLED_BINARY, true_binary))
+    return directory / UNITS[unit_file]
+
+
+def _analyze(*arguments: str) -> subprocess.CompletedProcess[str]:
+    assert SYSTEMD_ANALYZE is not None
+    return subprocess.run(
+        [SYSTEMD_ANALYZE, *arguments], capture_output=True, text=True, timeout=60, check=False
+    )
+
+
+@needs_systemd_analyze
+@pytest.mark.parametrize("unit_file", UNITS)
+def test_systemd_analyze_verify_reports_nothing(unit_file: str, tmp_path: Path) -> None:
+    unit = _staged_unit(unit_file, tmp_path)
+
+    result = _analyze("verify", "--man=no", str(unit))
+
+    assert (result.returncode, result.stderr, result.stdout) == (0, "", "")
+
+
+@needs_systemd_analyze
+@pytest.mark.parametrize("unit_file", UNITS)
+def test_sandbox_exposure_is_at_most_one(unit_file: str, tmp_path: Path) -> None:
+    unit = _staged_unit(unit_file, tmp_path)
+
+    # --threshold is on systemd's internal 0..100 scale: 10 is the displayed 1.0.
+    result = _analyze("security", "--offline=yes", "--threshold=10", str(unit))
+
+    match = re.search(r"Overall exposure level for \S+: (\d+\.\d)", result.stdout)
+    assert match is not None, result.stdout + result.stderr
+    assert float(match.group(1)) <= 1.0
+    assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.parametrize("unit_file", UNITS)
+def test_the_unit_has_what_the_daemon_relies_on(unit_file: str) -> None:
+    directives = _directives(unit_file)
+    config = CONFIG[unit_file]
+
+    expected = {
+        "Service.Type": ["notify"],
+        "Service.NotifyAccess": ["main"],
+        "Service.ExecStart": [f"{INSTALLED_BINARY} run --config {config}"],
+        # The same config for safe-off, so it switches off the output the daemon drove.
+        "Service.ExecStopPost": [f"{INSTALLED_BINARY} safe-off --config {config}"],
+        "Service.ExecReload": ["/bin/kill -HUP $MAINPID"],
+        # Three control periods of 5 s (Ts of the identified HLT).
+        "Service.WatchdogSec": ["15s"],
+        "Service.Restart": ["always"],
+        "Service.RestartSec": ["2"],
+        "Service.User": ["hermsd"],
+        "Service.Group": ["hermsd"],
+        "Service.SupplementaryGroups": ["i2c dialout gpio"],
+        "Service.ConfigurationDirectory": ["hermsd"],
+        "Service.DevicePolicy": ["closed"],
+        "Service.DeviceAllow": [
+            # Names as in /proc/devices: i2c-dev, usb-serial, cdc-acm, the GPIO character device.
+            "char-i2c rw",
+            "char-ttyUSB rw",
+            "char-ttyACM rw",
+            "char-gpiochip rw",
+        ],
+        "Service.PrivateNetwork": ["yes"],
+        "Service.RestrictAddressFamilies": ["AF_UNIX"],
+        "Service.ProtectSystem": ["strict"],
+        "Service.CapabilityBoundingSet": [""],
+        "Service.NoNewPrivileges": ["yes"],
+    }
+    assert {key: directives.get(key) for key in expected} == expected
+    assert directives["Service.TimeoutStopSec"]
+    assert directives["Service.StateDirectory"][0].startswith("hermsd")
+    assert directives["Service.LogsDirectory"][0].startswith("hermsd")
+
+
+def test_the_template_differs_from_the_plain_unit_only_per_vessel() -> None:
+    plain = _directives("hermsd.service")
+    template = _directives("hermsd@.service")
+    per_vessel = {
+        "Unit.Description",
+        "Service.ExecStart",
+        "Service.ExecStopPost",
+        "Service.StateDirectory",
+        "Service.LogsDirectory",
+    }
+
+    assert {key for key in plain.keys() | template.keys() if plain[key] != template[key]} == (
+        per_vessel
+    )
+    assert template["Service.StateDirectory"] == ["hermsd/%i"]
+    assert template["Service.LogsDirectory"] == ["hermsd/%i"]
