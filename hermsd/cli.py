@@ -13,7 +13,7 @@ import math
 import signal
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import TextIO
@@ -23,6 +23,8 @@ from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, ContactorConfig, OutputConfig
 from hermsd.durations import parse_duration
 from hermsd.lm92 import LM92, SensorError, open_bus
+from hermsd.notify import Notifier, NotifyEnvironmentError
+from hermsd.recorder import Recorder, recover, recover_directory
 from hermsd.ssr import Switch, open_hardware_switch
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
@@ -88,7 +90,12 @@ def _parser() -> argparse.ArgumentParser:
         "--speed", default="1", help="with --simulate: times real time, or 'max' (default 1)"
     )
     run.add_argument("--duration", help="stop after this long, e.g. 90s, 4h, 1h30m")
+    run.add_argument("--log", type=Path, help="MCAP log directory (default: the config's log.dir)")
     run.set_defaults(func=cmd_run)
+
+    recover = sub.add_parser("recover", help="turn .mcap.part files left by a crash into logs")
+    recover.add_argument("files", nargs="+", type=Path)
+    recover.set_defaults(func=cmd_recover)
 
     simulate = sub.add_parser("simulate", help="run a scenario at full speed and measure it")
     simulate.add_argument("--config", type=Path, help="config file (default: built-in)")
@@ -214,6 +221,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     config = load_config(args.config, simulate=args.simulate)
     duration = _duration(args.duration)
+    try:
+        notifier = Notifier.from_environment()
+    except NotifyEnvironmentError as error:
+        raise UserError(str(error)) from None
+    log_dir = args.log
+    if log_dir is None and not (args.simulate and args.config is None):
+        log_dir = Path(config.log.dir) if config.log.dir else None
     status = StatusLine(sys.stdout)
     _route_log_around(status)
     previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -222,7 +236,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             from hermsd.sim.world import simulated_daemon
 
             speed = _speed(args.speed)
-            daemon = simulated_daemon(config, speed, on_status=status.update)
+            daemon = simulated_daemon(config, speed, on_status=status.update, notifier=notifier)
         else:
             if args.speed != "1":
                 raise UserError("--speed goes with --simulate")
@@ -242,16 +256,21 @@ def cmd_run(args: argparse.Namespace) -> int:
                 clock,
                 sensor,
                 guard_outputs(ssr, contactor, clock, config),
+                notifier=notifier,
                 on_status=status.update,
             )
         deadman = DeadManThread(daemon.outputs.all())
         deadman.start()
+        recorder = _open_recorder(log_dir, config, daemon.clock.wall_ns) if log_dir else None
+        daemon.recorder = recorder
         try:
             with daemon:
                 daemon.start()
                 daemon.run(until=daemon.clock.monotonic() + duration)
         finally:
             deadman.stop()
+            if recorder is not None:
+                recorder.close()
     except Shutdown as why:
         log.info("%s received", why)
     finally:
@@ -259,6 +278,26 @@ def cmd_run(args: argparse.Namespace) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return 0
+
+
+def _open_recorder(directory: Path, config: Config, wall_ns: Callable[[], int]) -> Recorder:
+    """The flight recorder, after recovering whatever a crash left in `directory`."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        for path in recover_directory(directory):
+            log.warning("recovered %s from an unfinished log", path)
+    except OSError as error:
+        log.warning("log recovery in %s failed: %s", directory, error)
+    log_cfg = config.log
+    return Recorder(
+        directory,
+        wall_ns=wall_ns,
+        rotate_s=log_cfg.rotate_hours * 3600.0,
+        flush_interval=log_cfg.flush_interval,
+        sync_interval=log_cfg.sync_interval,
+        queue_size=log_cfg.queue_size,
+        metadata={"tun": config.tun.name},
+    )
 
 
 def _open_output(section: OutputConfig | ContactorConfig) -> Switch:
@@ -323,7 +362,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             if args.scenario
             else scenario_module.DEFAULT
         )
-        result = scenario_module.run(scenario, config)
+        result = scenario_module.run(scenario, config, log_dir=args.log)
     except scenario_module.ScenarioError as error:
         raise UserError(str(error)) from None
     summary = result.summary
@@ -362,6 +401,17 @@ def cmd_safe_off(args: argparse.Namespace) -> int:
         except (UserError, OSError) as error:
             print(f"hermsd safe-off: {section.backend}: {error}", file=sys.stderr)
     return 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    failed = 0
+    for path in args.files:
+        try:
+            print(recover(path))
+        except (OSError, ValueError) as error:
+            print(f"hermsd recover: {path}: {error}", file=sys.stderr)
+            failed += 1
+    return EXIT_USAGE if failed else 0
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:

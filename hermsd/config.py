@@ -24,14 +24,9 @@ from typing import Any, NamedTuple, TypeVar
 
 import yaml
 
-ALGORITHM_NAMES: tuple[str, ...] = (
-    "type_a",
-    "type_a_filtered",
-    "takahashi",
-    "back_calculation",
-    "velocity_pi",
-    "hybrid",
-)
+from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
+
+ALGORITHM_NAMES: tuple[str, ...] = ALGORITHMS
 
 _SPEC = "hermsd.config.spec"
 _T = TypeVar("_T")
@@ -114,16 +109,19 @@ class ControlConfig:
     setpoint: float = _number(66.0, 0, 100, "°C")
     mode: str = _choice("auto", ("auto", "manual"))
     manual_output: float = _number(0.0, 0, 100, "%")
-    algorithm: str = _choice("type_a", ALGORITHM_NAMES)
-    kc: float = _number(80.8, 0, 10000, "%/°C", low_exclusive=True)
-    ti: float = _number(489.0, 1, 100000, "s", zero_means="no integral action")
-    td: float = _number(44.9, 0, 10000, "s")
+    algorithm: str = _choice(DEFAULT_ALGORITHM, ALGORITHM_NAMES)
+    kc: float = _number(120.0, 0, 10000, "%/°C", low_exclusive=True)
+    ti: float = _number(800.0, 1, 100000, "s", zero_means="no integral action")
+    td: float = _number(0.0, 0, 10000, "s")
     tf: float | None = _number(None, 0, 10000, "s", null_means="the algorithm's default")
     tt: float | None = _number(
         None, 0, 100000, "s", low_exclusive=True, null_means="the algorithm's default"
     )
     period: float = _number(5.0, 1, 60, "s")
     max_output: float = _number(100.0, 1, 100, "%")
+    model_gain: float = _number(1.689, 0.01, 100, "°C/%")
+    model_tau: float = _number(14961.0, 10, 1000000, "s")
+    dead_time: float = _number(115.0, 0, 3600, "s")
 
 
 @dataclass(frozen=True, slots=True)
@@ -310,7 +308,7 @@ _DECIMAL = re.compile(r"[-+]?(?:0|[1-9][0-9]*)")
 _HEX = re.compile(r"[-+]?0x[0-9a-fA-F]+")
 _FLOAT = re.compile(r"[-+]?(?:(?:0|[1-9][0-9]*)(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
 _LEADING_ZERO = re.compile(r"[-+]?0[0-9]+(?:\.[0-9]*)?(?:[eE][-+]?[0-9]+)?")
-_CLOCK_TIME = re.compile(r"[0-9]+(?::[0-5]?[0-9])+")
+_CLOCK_TIME = re.compile(r"[0-9]{1,6}(?::[0-5]?[0-9]){1,2}")  # 1:30 or 1:30:00
 _RESOLVER = yaml.resolver.Resolver()
 
 
@@ -481,21 +479,14 @@ def _convert(info: _Field, node: yaml.Node) -> object:
             )
         return _checked_text(info, value, expected)
 
-    is_number = isinstance(value, int | float) and not isinstance(value, bool)
-    if info.kind is int and (not is_number or isinstance(value, float)):
-        got = _describe(node)
-        raise _Invalid(
-            f"expected a whole number, got {got} ({expected}{_number_hint(info, value)})"
-        )
-    if not is_number:
+    whole = not isinstance(value, float) or info.kind is float
+    if isinstance(value, bool) or not isinstance(value, int | float) or not whole:
+        noun = "a whole number" if info.kind is int else "a number"
         if node.style is not None and isinstance(value, str) and _reads_as_number(value):
-            raise _Invalid(
-                f"expected a number, got the string {_quote(str(value))} "
-                f"(write it without quotes: {value}; {expected})"
-            )
-        got = _describe(node)
-        raise _Invalid(f"expected a number, got {got} ({expected}{_number_hint(info, value)})")
-    assert isinstance(value, int | float)
+            right = f"write it without quotes: {value}; {expected}"
+        else:
+            right = expected + _number_hint(info, value)
+        raise _Invalid(f"expected {noun}, got {_describe(node)} ({right})")
     if isinstance(value, float) and not math.isfinite(value):
         raise _Invalid(f"{node.value} is too large to be a number here ({expected})")
     if not _within(info.spec, value):
@@ -529,8 +520,7 @@ def _checked_text(info: _Field, text: str, expected: str) -> str:
         hint = f"; did you mean {close[0]!r}?" if close else ""
         raise _Invalid(f"{_quote(text)} is not one of the choices ({expected}{hint})")
     if not text:
-        null = "; null for no log" if info.nullable else ""
-        raise _Invalid(f"is empty ({expected}{null})")
+        raise _Invalid(f"is empty ({expected})")
     if not text.isprintable():
         raise _Invalid(f"{_quote(text)} contains a control character such as a tab ({expected})")
     if spec.max_length is not None and len(text) > spec.max_length:
@@ -650,9 +640,9 @@ def _violations(config: Config) -> list[_Violation]:
             found.append(
                 _Violation(
                     ("contactor.backend", "contactor.port", "output.backend", "output.port"),
-                    f"the contactor and the SSR output would both switch the "
-                    f"{output.backend[-3:].upper()} line of {output.port} (give the contactor "
-                    "its own port, or the other line of this one)",
+                    "the contactor and the SSR output would both switch the "
+                    f"{output.backend.removeprefix('serial-').upper()} line of {output.port} "
+                    "(give the contactor its own port, or the other line of this one)",
                 )
             )
         elif contactor.backend == "relay-board":
@@ -708,10 +698,9 @@ class _Reader:
         pairs = []
         for key_node, value_node in node.value:
             if not isinstance(key_node, yaml.ScalarNode):
-                where = f"{prefix}" if prefix else ""
                 self.report(
                     key_node.start_mark,
-                    where,
+                    prefix,
                     f"a key must be a plain name, got {_describe(key_node)} "
                     f"(one of: {', '.join(known)})",
                 )
@@ -809,8 +798,7 @@ def _syntax_problem(filename: str, text: str, error: yaml.YAMLError) -> Problem:
             line,
             column,
             "",
-            f"the control character #x{code:x} is not allowed in YAML (delete it; use spaces "
-            "for indentation)",
+            f"the control character #x{code:x} is not allowed in YAML (delete it)",
         )
     assert isinstance(error, yaml.MarkedYAMLError)
     mark = error.problem_mark or error.context_mark

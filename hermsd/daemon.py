@@ -20,9 +20,11 @@ from typing import Any, Protocol
 
 from hermsd import pid
 from hermsd.clock import Clock
-from hermsd.config import Config
+from hermsd.config import Config, to_dict
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
+from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
+from hermsd.recorder import CONFIG_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, SafetyLimits, Supervisor
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPlan, cut
@@ -141,6 +143,7 @@ def make_controller(config: Config) -> pid.Controller:
         tt=c.tt,
         out_min=0.0,
         out_max=c.max_output,
+        model=pid.PlantModel(c.model_gain, c.model_tau, c.dead_time),
     )
 
 
@@ -168,6 +171,7 @@ class Daemon:
         outputs: Outputs,
         *,
         recorder: Recorder | None = None,
+        notifier: Notifier | None = None,
         on_status: Callable[[str], None] | None = None,
     ) -> None:
         self.config = config
@@ -175,6 +179,10 @@ class Daemon:
         self.sensor = sensor
         self.outputs = outputs
         self.recorder = recorder
+        self.notifier = notifier
+        interval = notifier.watchdog_interval() if notifier is not None else None
+        self._watchdog = WatchdogGate(interval) if interval else None
+        self._ready = False
         self.on_status = on_status
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
@@ -224,6 +232,7 @@ class Daemon:
         sched.every("window", window_length(self.config), self._on_window, origin=now, priority=2)
         sched.every("timing", TIMING_INTERVAL, self._on_timing, origin=now + TIMING_INTERVAL)
         self._started = True
+        self._record_config("start")
         self._event(logging.INFO, "started", now)
 
     def run(self, until: float = math.inf) -> None:
@@ -259,6 +268,8 @@ class Daemon:
         now = self.clock.monotonic()
         self._set_ssr_accounting(False, now)
         self._event(logging.INFO, f"heater off: {reason}", now)
+        if self.notifier is not None:
+            self.notifier.stopping()
         return ok
 
     # -- operator actions (applied at the next period boundary) ---------------------------
@@ -318,21 +329,25 @@ class Daemon:
         reading: Reading | None = None
         error: SensorError | None = None
         try:
-            reading = self.sensor.read()
             if self._reads % self._reads_per_period() == 0:
                 self.sensor.identify()
+                sup.chip_check(self.clock.monotonic(), True)
+            reading = self.sensor.read()
+        except WrongChipError as exc:
+            error = exc
         except SensorError as exc:
             error = exc
         t = self.clock.monotonic()  # a slow bus moves time; judge the value when it arrived
         accepted = False
-        if reading is not None and error is None:
+        if isinstance(error, WrongChipError):
+            sup.chip_check(t, False, f"wrong chip: {error}")
+        elif error is not None:
+            sup.read_error(t, f"read failed: {error}", error.errno)
+        elif reading is not None:
             accepted = sup.reading(t, reading.celsius, reading.raw, reading.crit)
             if accepted:
                 self._readings.append(reading.celsius)
                 self._last_celsius = reading.celsius
-        elif error is not None:
-            kind = "wrong chip" if isinstance(error, WrongChipError) else "read failed"
-            sup.read_error(t, f"{kind}: {error}", error.errno)
         if self.recorder is not None:
             self.recorder.write(
                 "/hermsd/reading",
@@ -377,6 +392,8 @@ class Daemon:
                     self.controller.reset(pv, self._resume_output)
                     self._held = False
                 self.output = self.controller.step(self.setpoint, pv, applied)
+            if readings and self._watchdog is not None:
+                self._watchdog.note_healthy_cycle()  # a fresh reading made a fresh output
         else:
             if not self._held:
                 self._held = True
@@ -409,8 +426,7 @@ class Daemon:
             listener.period(record)
         if self.recorder is not None:
             self.recorder.write("/hermsd/period", self.clock.wall_ns(), asdict(record))
-        if self.on_status is not None:
-            self.on_status(self.status_text())
+        self._report(now)
 
     def _on_window(self, deadline: float, now: float) -> None:
         window = self._window
@@ -506,12 +522,30 @@ class Daemon:
     # -- reporting ------------------------------------------------------------------------
 
     def status_text(self) -> str:
-        pv = "--.--" if self._pv is None else f"{self._pv:.2f}"
         state = ", ".join(self.supervisor.active) or ("manual" if self.mode == "manual" else "ok")
-        return (
-            f"{self.config.tun.name} {pv} °C → {self.setpoint:.2f} °C, "
-            f"out {self.output:.0f} %, {state}"
-        )
+        return status_line(self.config.tun.name, self._pv, self.setpoint, self.output, state)
+
+    def _report(self, now: float) -> None:
+        text = self.status_text()
+        if self.on_status is not None:
+            self.on_status(text)
+        notifier = self.notifier
+        if notifier is None:
+            return
+        if not self._ready and self._pv is not None:
+            self._ready = True  # outputs are set up and a good reading has arrived
+            notifier.ready()
+        notifier.status(text)
+        if self._watchdog is not None and self._watchdog.due(now):
+            notifier.watchdog()
+
+    def _record_config(self, reason: str) -> None:
+        if self.recorder is not None:
+            self.recorder.write(
+                CONFIG_TOPIC,
+                self.clock.wall_ns(),
+                {"t": self.clock.monotonic(), "config": to_dict(self.config), "reason": reason},
+            )
 
     def _drain_alarms(self, t: float) -> None:
         for alarm in self.supervisor.drain_events():
@@ -528,18 +562,11 @@ class Daemon:
     def _event(self, level: int, message: str, t: float) -> None:
         log.log(level, message)
         if self.recorder is not None:
-            wall = self.clock.wall_ns()
+            severity = {logging.WARNING: LogLevel.WARNING, logging.ERROR: LogLevel.ERROR}
             self.recorder.write(
                 "/hermsd/log",
-                wall,
-                {
-                    "timestamp": {"sec": wall // 1_000_000_000, "nsec": wall % 1_000_000_000},
-                    "level": {logging.INFO: 2, logging.WARNING: 3, logging.ERROR: 4}.get(level, 2),
-                    "message": message,
-                    "name": "hermsd",
-                    "file": "",
-                    "line": 0,
-                },
+                self.clock.wall_ns(),
+                log_message(severity.get(level, LogLevel.INFO), message, self.clock.wall_ns()),
             )
 
     @staticmethod

@@ -29,6 +29,20 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
   u_k = clamp(u_{k−1} − Kc·(PV_k − PV_{k−1}) + Kc·Ts/Ti·e_k). That is eq. 14 with Td = 0, so
   it shares the Takahashi implementation.
 
+- ``predictive``: the daemon's default, and not from the seeds: the seeds' loops all see the
+  tun through its dead time, so with gains strong enough to settle fast they overshoot, and
+  with gains gentle enough not to they brake early and settle late. This one feeds the
+  delivered duty (`applied`) to an FOPTD model of the tun (`model`) and adds to PV the rise
+  the model says is already on its way but not yet at the sensor (a Smith predictor:
+  x(t) − x(t − θ) of the undelayed model). The loop thus acts on where PV is going, and can
+  hold full power until the heat in the pipe will carry the water to the setpoint, then drop
+  to the holding duty. Positional P + I + D on that predicted PV; the integral is frozen
+  while the output is saturated in the direction of the error, and while the predicted PV is
+  closing on the setpoint fast enough to get there within 4·θ by itself (integrating that
+  transient error is what makes the others overshoot after cold water is added). D (td) is
+  optional, on the predicted PV, filtered by tf (first order). Its reset is bumpless within
+  the output range: the integral takes u0 − P − D, kept within [out_min, out_max].
+
 Defaults: tf=None gives γ = 10 % of Td (the document's suggestion) for type_a,
 type_a_filtered and back_calculation, and 0 for takahashi (exactly eq. 14). tt=None gives
 Tt = sqrt(Ti·Td) when Td > 0, else Ti (inside the rule of thumb Td ≤ Tt ≤ Ti), raised to Ts
@@ -68,10 +82,31 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections import deque
 from dataclasses import dataclass
 from typing import Protocol
 
-ALGORITHMS = ("type_a", "type_a_filtered", "takahashi", "back_calculation", "velocity_pi")
+ALGORITHMS = (
+    "predictive",
+    "type_a",
+    "type_a_filtered",
+    "takahashi",
+    "back_calculation",
+    "velocity_pi",
+)
+DEFAULT_ALGORITHM = "predictive"
+
+
+@dataclass(frozen=True, slots=True)
+class PlantModel:
+    """The tun as identified by a step test (FOPTD): gain °C/%, time constant and dead time s."""
+
+    gain: float = 1.689
+    tau: float = 14961.0
+    dead_time: float = 115.0
+
+
+SEED_HLT = PlantModel()
 
 MAX_ABS_TEMPERATURE = 1e6
 MAX_TIME = 1e7
@@ -134,11 +169,20 @@ def create(
     tt: float | None = None,
     out_min: float = 0.0,
     out_max: float = 100.0,
+    model: PlantModel = SEED_HLT,
 ) -> Controller:
-    """A new controller of algorithm `name`; ValueError names any parameter that is wrong."""
+    """A new controller of algorithm `name`; ValueError names any parameter that is wrong.
+
+    `model` is used by `predictive` only.
+    """
     params = _resolve(name, kc=kc, ti=ti, td=td, ts=ts, tf=tf, tt=tt, lo=out_min, hi=out_max)
     controller: Controller
-    if name == "type_a":
+    if name == "predictive":
+        _number("model.gain", model.gain, 1e-6, 1e6, "> 0 °C/%")
+        _number("model.tau", model.tau, MIN_TIME, MAX_TIME, f"≥ {MIN_TIME:g} s")
+        _number("model.dead_time", model.dead_time, 0.0, 1e5, "≥ 0 and ≤ 100000 s")
+        controller = _Predictive(params, model)
+    elif name == "type_a":
         controller = _TypeA(params)
     elif name == "type_a_filtered":
         controller = _TypeAFiltered(params)
@@ -198,7 +242,7 @@ def _resolve(
         if tf is not None:
             raise ValueError(f"tf={tf!r} is invalid for velocity_pi (no D term): leave it unset")
     if tf is None:
-        tf = 0.0 if name == "takahashi" else _TF_DEFAULT_FRACTION * td
+        tf = 0.0 if name in ("takahashi", "predictive") else _TF_DEFAULT_FRACTION * td
     tf = _number("tf", tf, 0.0, MAX_TIME, f"≥ 0 and ≤ {MAX_TIME:g} s (0 = no filter)")
     tracking = name == "back_calculation" and ti > 0.0
     if tt is not None and not tracking:
@@ -480,6 +524,83 @@ class _BackCalculation(_Base):
         self._v = v
         self._pv1 = pv
         self._f1 = f
+        return v
+
+
+class _Predictive(_Base):
+    """PID on PV plus the model's rise still in the dead time; see the module docstring."""
+
+    __slots__ = (
+        "_a",
+        "_fa",
+        "_filtered",
+        "_fpv",
+        "_gain",
+        "_history",
+        "_horizon",
+        "_i",
+        "_kc",
+        "_kd",
+        "_ki",
+        "_lag",
+        "_ppv1",
+        "_x",
+    )
+
+    def __init__(self, params: Params, model: PlantModel) -> None:
+        super().__init__(params)
+        ts = params.ts
+        self._kc = params.kc
+        self._ki = params.kc * ts / params.ti if params.ti > 0.0 else 0.0
+        self._kd = params.kc * params.td / ts
+        self._filtered = params.tf > 0.0
+        self._fa = params.tf / (params.tf + ts)
+        self._a = math.exp(-ts / model.tau)
+        self._gain = model.gain
+        self._lag = model.dead_time / ts  # periods, not necessarily whole
+        self._horizon = 4.0 * model.dead_time
+        self._history: deque[float] = deque(maxlen=math.floor(self._lag) + 2)
+        self._x = self._i = self._fpv = self._ppv1 = 0.0
+
+    def _in_flight(self) -> float:
+        """x(now) − x(now − θ): the model's rise that the sensor has not seen yet."""
+        history, lag = self._history, self._lag
+        whole = math.floor(lag)
+        fraction = lag - whole
+        newer = history[-1 - whole]
+        older = history[-2 - whole] if fraction else newer
+        return history[-1] - (newer + fraction * (older - newer))
+
+    def _prime(self, sp: float, pv0: float) -> None:
+        # The model starts in equilibrium with the output it continues from.
+        self._x = self._gain * self._output
+        self._history.clear()
+        self._history.extend([self._x] * (math.floor(self._lag) + 2))
+        self._fpv = self._ppv1 = pv0
+        self._i = min(max(self._output - self._kc * (sp - pv0), self._lo), self._hi)
+
+    def _advance(self, sp: float, pv: float, previous: float) -> float:
+        # After a reset `previous` is the output the model is in equilibrium with: no change.
+        self._x = self._a * self._x + self._gain * (1.0 - self._a) * previous
+        self._history.append(self._x)
+        ppv = pv + self._in_flight()
+        fpv1 = self._fpv
+        fpv = self._fa * fpv1 + (1.0 - self._fa) * ppv if self._filtered else ppv
+        e = sp - ppv
+        p = self._kc * e
+        d = -self._kd * (fpv - fpv1)
+        i = self._i
+        rate = (ppv - self._ppv1) / self._params.ts
+        closing = e * rate > 0.0 and abs(rate) * self._horizon >= abs(e)
+        v = p + i + d
+        saturated = (v >= self._hi and e > 0.0) or (v <= self._lo and e < 0.0)
+        if not closing and not saturated:
+            i = min(max(i + self._ki * e, self._lo), self._hi)
+            v = p + i + d
+        self._terms = (p, i, d)
+        self._i = i
+        self._fpv = fpv
+        self._ppv1 = ppv
         return v
 
 

@@ -328,8 +328,8 @@ class Recorder:
     def sync(self, timeout: float | None = None) -> bool:
         """Block until everything handed over so far is on stable storage.
 
-        Returns False when a disk error lost some of it or `timeout` expired. Not for the
-        control loop: it waits for the disk.
+        Returns False while a disk error keeps records out of the files, or when `timeout`
+        expired. Not for the control loop: it waits for the disk.
         """
         if self._closed:
             return False
@@ -410,12 +410,15 @@ class Recorder:
                 if self._file is not None:
                     self._finish(self._file)
                 return
-            if isinstance(item, _SyncRequest):
-                item.ok = self._sync_now()
-                item.done.set()
-            else:
-                self._write_record(item)
-            self._keep_time()
+            try:
+                if isinstance(item, _SyncRequest):
+                    item.ok = self._sync_now()
+                    item.done.set()
+                else:
+                    self._write_record(item)
+                self._keep_time()
+            except Exception as exc:  # a flaw may cost a record, never the recorder thread
+                self._report(f"internal error: {_describe(exc)}")
 
     def _seconds_to_next_deadline(self) -> float | None:
         file = self._file
@@ -462,7 +465,7 @@ class Recorder:
             return
         if file.flush_due is None:
             file.flush_due = now + self._flush_interval
-        if record.topic == LOG_TOPIC and record.message.get("level", 0) >= LogLevel.ERROR:
+        if record.topic == LOG_TOPIC and _is_alarming(record.message):
             self._flush(file, now)
 
     def _file_for(self, record: _Record) -> _OpenFile | None:
@@ -478,8 +481,9 @@ class Recorder:
         return self._start(record)
 
     def _start(self, record: _Record) -> _OpenFile | None:
-        part = self._unused_part_path(_utc_stamp(self._wall_ns()))
-        metadata = {"version": __version__, "started_utc": _utc_iso(self._wall_ns())}
+        wall_ns = self._wall_ns()
+        part = self._unused_part_path(_utc_stamp(wall_ns))
+        metadata = {"version": __version__, "started_utc": _utc_iso(wall_ns)}
         metadata.update(self._metadata)
         try:
             stream = self._open_file(part)
@@ -582,10 +586,10 @@ class _OpenFile:
         self.writer.add_metadata(METADATA_NAME, metadata)
 
     def add(self, topic: str, log_time_ns: int, data: bytes, sequence: int) -> None:
+        self.unflushed += 1
         self.writer.add_message(
             self.channels[topic], log_time_ns, data, publish_time=log_time_ns, sequence=sequence
         )
-        self.unflushed += 1
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS."""
@@ -609,6 +613,11 @@ class _OpenFile:
         # The disk already failed; closing releases the descriptor even when it raises.
         with contextlib.suppress(Exception):
             self.stream.close()
+
+
+def _is_alarming(event: dict[str, Any]) -> bool:
+    level = event.get("level")
+    return isinstance(level, int) and level >= LogLevel.ERROR
 
 
 def _encode(message: dict[str, Any]) -> bytes:
@@ -746,7 +755,7 @@ class LogFile:
                         yield RecordedMessage(
                             channel.topic, message.log_time, json.loads(message.data)
                         )
-            except (ValueError, OSError, EOFError) as exc:
+            except Exception as exc:  # whatever the reader raises on damaged data
                 raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
 
     def _streamed(self) -> Iterator[RecordedMessage]:

@@ -21,6 +21,7 @@ from typing import Any
 
 WATER_HEAT_CAPACITY = 4186.0  # J/(kg·K); a litre of water is taken as 1 kg
 FULL_POWER = 80.0  # % at or above which the element is expected to heat visibly
+SUDDEN_DROP = 0.25  # °C in one period: water was added, not lost to the room
 
 AUTO_KINDS = ("sensor_fault", "stale_reading", "over_temperature", "loop_stall")
 LATCHED_KINDS = ("heater_not_heating", "ssr_stuck_on", "dry_fire", "sensor_stuck")
@@ -42,6 +43,7 @@ class SafetyLimits:
     heater_min_rise: float = 0.5
     ssr_watch: float = 300.0
     ssr_max_rise: float = 0.5
+    full_rate: float = 0.008
     dry_fire_rate: float = 0.024
     dry_fire_window: float = 60.0
     stuck_time: float = 600.0
@@ -96,8 +98,9 @@ class SafetyLimits:
                 else 0.25 * FULL_POWER / 100.0 * full_rate * heater_watch
             ),
             ssr_watch=ssr_watch,
-            # With the element off the water cools; eight LSBs of rise is not noise.
+            # Margin over what the delivered heat can explain: eight LSBs are not noise.
             ssr_max_rise=ssr_max_rise if ssr_max_rise is not None else 0.5,
+            full_rate=full_rate,
             dry_fire_rate=dry_fire_factor * full_rate,
             dry_fire_window=max(60.0, 4 * period),
             stuck_time=stuck_time,
@@ -157,8 +160,9 @@ class Supervisor:
         self._previous_value: float | None = None
         self._last_raw: int | None = None
         self._heater_watch = _Watch()
-        self._ssr_watch = _Watch()
-        self._zero_since: float | None = None
+        self._energy: deque[tuple[float, float, float]] = deque()  # (t, pv, full-power s)
+        self._last_period_t: float | None = None
+        self._wrong_chip = False
         self._history: deque[tuple[float, float]] = deque()
         self._raw_since: float | None = None
         self._outputs: deque[tuple[float, float]] = deque()
@@ -191,8 +195,7 @@ class Supervisor:
         for kind in cleared:
             self._clear(kind, t, "reset by the operator")
         self._heater_watch.stop()
-        self._ssr_watch.stop()
-        self._zero_since = None
+        self._energy.clear()
         self._history.clear()
         self._outputs.clear()
         self._raw_since = None
@@ -203,6 +206,8 @@ class Supervisor:
     def reading(self, t: float, celsius: float, raw: int | None = None, crit: bool = False) -> bool:
         """A value the sensor returned; True when it is accepted as a measurement."""
         lim = self.limits
+        if self._wrong_chip:
+            return False
         previous, self._previous_value = self._previous_value, celsius
         if not lim.plausible_min <= celsius <= lim.plausible_max:
             self._bad(t, f"implausible reading {celsius:.4f} °C", {"celsius": celsius})
@@ -239,6 +244,16 @@ class Supervisor:
         elif "over_temperature" in self._active and celsius < lim.max_temp - lim.hysteresis:
             self._clear("over_temperature", t, f"{celsius:.2f} °C")
         return True
+
+    def chip_check(self, t: float, ok: bool, message: str = "") -> None:
+        """The chip's identity, checked once a period: another chip's values mean nothing."""
+        if ok:
+            self._wrong_chip = False
+            return
+        self._wrong_chip = True
+        self._good_reads = 0
+        self._raw_since = None
+        self._raise("sensor_fault", t, message, {})
 
     def read_error(self, t: float, message: str, errno: int | None = None) -> None:
         """A read that failed (bus error, wrong chip)."""
@@ -304,12 +319,15 @@ class Supervisor:
         if applied < FULL_POWER:
             watch.stop()
             return
-        if watch.start is None or pv < watch.base:
-            # A drop (cold water) starts the wait again from the new low.
-            if watch.start is None:
-                watch.restart(t, pv, self._last_raw)
-            else:
-                watch.base, watch.base_t = pv, t
+        if watch.start is None:
+            watch.restart(t, pv, self._last_raw)
+            return
+        if pv < watch.base:
+            # A sudden drop (cold water) starts the wait again from the new low; a slow fall
+            # (an element that does not heat, losing to the room) does not.
+            if watch.base - pv > SUDDEN_DROP:
+                watch.base_t = t
+            watch.base = pv
             return
         if pv >= watch.base + lim.heater_min_rise:
             watch.restart(t, pv, self._last_raw)
@@ -330,29 +348,31 @@ class Supervisor:
             )
 
     def _check_ssr(self, t: float, pv: float, applied: float) -> None:
-        lim, watch = self.limits, self._ssr_watch
-        if applied > 0.0:
-            self._zero_since = None
-            watch.stop()
+        """Heat the element did not deliver: the rise exceeds all the energy it was given.
+
+        Losses only ever take heat away, so over a watch window the water can rise at most by
+        the element's delivered energy over m·c. Energy from the window before is counted too,
+        because heat reaches the sensor late. More rise than that means something else is
+        heating: an SSR that failed shorted.
+        """
+        lim, history = self.limits, self._energy
+        previous, self._last_period_t = self._last_period_t, t
+        dt = 0.0 if previous is None else t - previous
+        history.append((t, pv, applied / 100.0 * dt))
+        while t - history[0][0] > 2 * lim.ssr_watch:
+            history.popleft()
+        if t - history[0][0] < 2 * lim.ssr_watch - dt:
             return
-        if self._zero_since is None:
-            self._zero_since = t
-        # Heat already in the water reaches the sensor late: wait half the watch first.
-        if t - self._zero_since < lim.ssr_watch / 2:
-            return
-        if watch.start is None:
-            watch.restart(t, pv, None)
-            return
-        if pv < watch.base:
-            watch.base, watch.base_t = pv, t
-            return
-        if pv - watch.base > lim.ssr_max_rise:
+        pv_then = next(p for when, p, _ in history if when >= t - lim.ssr_watch)
+        full_power_s = sum(e for _, _, e in history)
+        allowed = lim.full_rate * full_power_s + lim.ssr_max_rise
+        if pv - pv_then > allowed:
             self._raise(
                 "ssr_stuck_on",
                 t,
-                f"heater off for {t - self._zero_since:.0f} s but PV rose "
-                f"{pv - watch.base:.2f} °C (limit {lim.ssr_max_rise:.2f} °C)",
-                {"rise_c": pv - watch.base},
+                f"PV rose {pv - pv_then:.2f} °C in {lim.ssr_watch:.0f} s, more than the "
+                f"{full_power_s:.0f} s of full power delivered can explain ({allowed:.2f} °C)",
+                {"rise_c": pv - pv_then, "allowed_c": allowed},
             )
 
     def _check_stuck(self, t: float, output: float) -> None:

@@ -33,7 +33,7 @@ from hermsd.config import (
 )
 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
-FAST_FUZZ = settings(max_examples=int(__import__("os").environ.get("FUZZ_EXAMPLES", "200")), deadline=None)
+FAST_FUZZ = settings(max_examples=200, deadline=None)
 
 
 # -- the specification, restated ------------------------------------------------------------
@@ -64,6 +64,9 @@ BOUNDS = [
     Bound("control.tt", float, 0, 100000, low_open=True, nullable=True),
     Bound("control.period", float, 1, 60),
     Bound("control.max_output", float, 1, 100),
+    Bound("control.model_gain", float, 0.01, 100),
+    Bound("control.model_tau", float, 10, 1000000),
+    Bound("control.dead_time", float, 0, 3600),
     Bound("sensor.bus", int, 0, 255),
     Bound("sensor.address", int, 0x48, 0x4B),
     Bound("sensor.read_interval", float, 0.5, 10),
@@ -98,12 +101,12 @@ BOUNDS = [
 CHOICES: dict[str, tuple[object, ...]] = {
     "control.mode": ("auto", "manual"),
     "control.algorithm": (
+        "predictive",
         "type_a",
         "type_a_filtered",
         "takahashi",
         "back_calculation",
         "velocity_pi",
-        "hybrid",
     ),
     "output.backend": ("sim", "serial-rts", "serial-dtr", "gpio"),
     "output.mains_hz": (50, 60),
@@ -250,14 +253,17 @@ def test_defaults_are_the_specified_ones() -> None:
             "setpoint": 66.0,
             "mode": "auto",
             "manual_output": 0.0,
-            "algorithm": "type_a",
-            "kc": 80.8,
-            "ti": 489.0,
-            "td": 44.9,
+            "algorithm": "predictive",
+            "kc": 120.0,
+            "ti": 800.0,
+            "td": 0.0,
             "tf": None,
             "tt": None,
             "period": 5.0,
             "max_output": 100.0,
+            "model_gain": 1.689,
+            "model_tau": 14961.0,
+            "dead_time": 115.0,
         },
         "sensor": {"bus": 1, "address": 0x48, "read_interval": 1.0},
         "output": {
@@ -357,9 +363,13 @@ def test_every_key_in_the_shipped_file_has_a_comment_with_its_range() -> None:
         if bound.key == "sensor.address":
             assert "0x48 to 0x4B" in comment
             continue
-        assert fmt(bound.low) in comment, bound.key
-        if bound.high is not None:
-            assert fmt(bound.high) in comment, bound.key
+        if bound.high is None:
+            written = f"{fmt(bound.low)} or more"
+        elif bound.low_open:
+            written = f"above {fmt(bound.low)}, at most {fmt(bound.high)}"
+        else:
+            written = f"{fmt(bound.low)} to {fmt(bound.high)}"
+        assert written in comment, (bound.key, written)
         if bound.nullable:
             assert "null" in comment, bound.key
     for key, choices in CHOICES.items():
@@ -601,6 +611,12 @@ def test_rules_between_keys_refuse(values: dict[str, str], key: str, words: str)
 @pytest.mark.parametrize("values", CROSS_ACCEPTED)
 def test_rules_between_keys_accept_their_neighbours(values: dict[str, str]) -> None:
     assert_within_spec(parse(document(values)))
+
+
+def test_two_gpio_backends_without_lines_are_told_to_add_lines_not_to_share_one() -> None:
+    problems = problems_of(document({"output.backend": "gpio", "contactor.backend": "gpio"}))
+    assert [p.key_path for p in problems] == ["output.backend", "contactor.backend"]
+    assert all(".line, the line offset" in p.message for p in problems)
 
 
 def test_a_rule_is_not_reported_when_one_of_its_keys_was_refused() -> None:
@@ -878,8 +894,9 @@ def parse_outcome(text: str) -> Config | ConfigError:
         return error
 
 
-SECTIONS = sorted({key.split(".")[0] for key in ALL_KEYS})
-NAMES = sorted({key.split(".")[1] for key in ALL_KEYS})
+FIELDS_OF: dict[str, list[str]] = {}
+for _key in ALL_KEYS:
+    FIELDS_OF.setdefault(_key.split(".")[0], []).append(_key.split(".")[1])
 scalars = (
     st.none()
     | st.booleans()
@@ -890,17 +907,53 @@ scalars = (
     | st.text(max_size=12)
     | st.sampled_from([str(c) for choices in CHOICES.values() for c in choices])
 )
-keys = st.sampled_from(NAMES) | st.text(max_size=8) | st.integers(0, 3)
+keys = st.sampled_from(sorted({n for names in FIELDS_OF.values() for n in names}))
 trees = st.recursive(
     scalars,
-    lambda children: st.lists(children, max_size=3) | st.dictionaries(keys, children, max_size=4),
-    max_leaves=12,
+    lambda children: (
+        st.lists(children, max_size=3)
+        | st.dictionaries(keys | st.text(max_size=8) | st.integers(0, 3), children, max_size=4)
+    ),
+    max_leaves=10,
 )
-documents = st.dictionaries(
-    st.sampled_from(SECTIONS) | st.text(max_size=6),
-    st.dictionaries(keys, trees, max_size=6) | trees,
-    max_size=5,
+
+
+def in_range(key: str) -> st.SearchStrategy[Any]:
+    """Values the specification accepts for `key` on its own."""
+    if key in CHOICES:
+        return st.sampled_from(CHOICES[key])
+    if key in TEXTS:
+        longest, nullable = TEXTS[key]
+        text = st.text(st.characters(codec="utf-8"), min_size=1, max_size=longest or 40)
+        return text.filter(str.isprintable) | (st.none() if nullable else st.nothing())
+    if key in FLAGS:
+        return st.booleans()
+    bound = next(b for b in BOUNDS if b.key == key)
+    if bound.kind is int:
+        values: st.SearchStrategy[Any] = st.integers(int(bound.low), int(bound.high or 10**9))
+    else:
+        values = st.floats(bound.low, bound.high, exclude_min=bound.low_open)
+    return values | st.none() if bound.nullable else values
+
+
+def nest(pairs: list[tuple[str, Any]]) -> dict[str, dict[str, Any]]:
+    sections: dict[str, dict[str, Any]] = {}
+    for key, value in pairs:
+        section, name = key.split(".")
+        sections.setdefault(section, {})[name] = value
+    return sections
+
+
+# Mostly known keys with values in their ranges, so that many documents are accepted and
+# checked against the whole specification; the rest anything at all.
+setting = st.sampled_from(ALL_KEYS).flatmap(lambda key: st.tuples(st.just(key), in_range(key)))
+plausible = st.lists(setting | st.tuples(st.sampled_from(ALL_KEYS), scalars), max_size=5).map(nest)
+wild = st.dictionaries(
+    st.sampled_from(sorted(FIELDS_OF)) | st.text(max_size=6),
+    st.dictionaries(keys, trees, max_size=4) | trees,
+    max_size=4,
 )
+documents = plausible | wild
 
 
 @FAST_FUZZ
@@ -923,17 +976,24 @@ def mutated_config(draw: st.DrawFn) -> bytes:
     """The shipped file with one to three edits a hurried brewer (or a bad SD card) might make."""
     lines = SHIPPED.split(b"\n")
     for _ in range(draw(st.integers(1, 3))):
-        index = draw(st.integers(0, len(lines) - 1))
         edit = draw(st.sampled_from(["delete", "duplicate", "value", "bytes"]))
+        keyed = [i for i, line in enumerate(lines) if re.match(rb"  [a-z_]+:", line)]
+        pool = keyed if edit == "value" and keyed else range(len(lines))
+        index = draw(st.sampled_from(pool))
         if edit == "delete":
             del lines[index]
         elif edit == "duplicate":
             lines.insert(index, lines[index])
         elif edit == "value":
-            scalar = draw(scalars)
+            head = lines[index].split(b":", 1)[0]
+            section = next(
+                (line[:-1] for line in reversed(lines[:index]) if re.fullmatch(rb"[a-z_]+:", line)),
+                b"",
+            )
+            key = f"{section.decode(errors='replace')}.{head.strip().decode(errors='replace')}"
+            scalar = draw(in_range(key) | scalars if key in ALL_KEYS else scalars)
             written = yaml.safe_dump(scalar).removesuffix("\n...\n").strip()
             raw = draw(st.just(written) | st.text(max_size=10))
-            head = lines[index].split(b":", 1)[0]
             lines[index] = head + b": " + raw.encode("utf-8", "surrogatepass")
         else:
             junk = draw(st.binary(min_size=1, max_size=6))
@@ -974,15 +1034,14 @@ valid_values = st.fixed_dictionaries(
 )
 
 
-@FAST_FUZZ
+@settings(max_examples=100, deadline=None)
 @given(valid_values)
 def test_fuzz_dump_yaml_round_trips(values: dict[str, Any]) -> None:
-    sections: dict[str, dict[str, Any]] = {}
-    for key, value in values.items():
-        section, name = key.split(".")
-        sections.setdefault(section, {})[name] = value
     config = dataclasses.replace(
         DEFAULT,
-        **{s: dataclasses.replace(getattr(DEFAULT, s), **v) for s, v in sections.items()},
+        **{
+            s: dataclasses.replace(getattr(DEFAULT, s), **v)
+            for s, v in nest(list(values.items())).items()
+        },
     )
     assert parse(dump_yaml(config)) == config

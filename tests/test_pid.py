@@ -375,7 +375,10 @@ def test_terms_add_up_to_the_step_in_linear_operation() -> None:
         for sp, pv, _ in samples:
             u = controller.step(sp, pv)
             total = sum(controller.terms)
-            if name == "back_calculation":  # positional: P + I + D is the output itself
+            if name in (
+                "back_calculation",
+                "predictive",
+            ):  # positional: P + I + D is the output itself
                 assert total == pytest.approx(u, rel=1e-9, abs=1e-6)
             else:  # increments
                 assert total == pytest.approx(u - previous, rel=1e-9, abs=1e-6)
@@ -412,7 +415,10 @@ def test_infeasible_setpoint_does_not_wind_up(name: str, gentle: bool) -> None:
     assert min(after) < 100.0
 
 
-@pytest.mark.parametrize("name", pid.ALGORITHMS)
+SEED_ALGORITHMS = tuple(a for a in pid.ALGORITHMS if a != "predictive")
+
+
+@pytest.mark.parametrize("name", SEED_ALGORITHMS)
 def test_resume_after_a_hold_is_bumpless(name: str) -> None:
     """Ten minutes without step calls while PV sags 0.5 °C, then reset(pv, output_before)."""
     gains = tuning(name)
@@ -434,7 +440,7 @@ def test_resume_after_a_hold_is_bumpless(name: str) -> None:
     assert abs(unreset.step(66.0, 65.3) - before) > 5 * p_step
 
 
-@pytest.mark.parametrize("name", pid.ALGORITHMS)
+@pytest.mark.parametrize("name", SEED_ALGORITHMS)
 def test_manual_to_auto_starts_from_the_manual_output(name: str) -> None:
     gains = tuning(name)
     controller = pid.create(name, ts=TS, **gains)
@@ -649,6 +655,7 @@ def test_defaults_are_resolved_as_documented() -> None:
     assert pid.create("back_calculation", kc=1.0, ti=0.0).params.tt is None
     assert pid.create("type_a", kc=1.0, ti=1.0).params.ts == 5.0
     assert pid.ALGORITHMS == (
+        "predictive",
         "type_a",
         "type_a_filtered",
         "takahashi",
@@ -804,3 +811,43 @@ def test_rejected_inputs_leave_the_state_untouched(
     for operation in after:
         assert apply(tested, operation) == apply(twin, operation)
         assert tested.terms == twin.terms
+
+
+# The predictive algorithm (positional, P on the predicted error): bumpless within the output
+# range, and full power at once when the error is beyond the proportional band.
+
+
+def test_predictive_resume_near_the_setpoint_is_bumpless() -> None:
+    controller = pid.create("predictive", kc=120.0, ti=800.0)
+    controller.reset(65.98, 27.0)
+    # Δe = 0 after reset, so the first output is u0 plus one integral step at most:
+    # 27 + 120 * 5 / 800 * 0.02 = 27.015 (here the model adds nothing: it starts in equilibrium).
+    assert controller.step(66.0, 65.98) == pytest.approx(27.0 + 120.0 * 5.0 / 800.0 * 0.02)
+
+
+def test_predictive_cold_start_is_full_power_and_stops_early_enough() -> None:
+    model = pid.SEED_HLT
+    controller = pid.create("predictive", kc=120.0, ti=800.0, model=model)
+    assert controller.step(66.0, 20.0) == 100.0
+    # Drive the controller with the seed's FOPTD plant (exact discretisation written here) and
+    # check the predictor: at full power the model's rise still in the dead time is
+    # K·100·(1 − exp(−θ/τ)) from equilibrium with 0 % after a long heat: compare after 1 h.
+    a = math.exp(-TS / model.tau)
+    x = 0.0
+    for _ in range(720):
+        x = a * x + model.gain * (1 - a) * 100.0
+        controller.step(66.0, 20.0)
+    # After an hour at 100 % x(t) − x(t − θ) = K·100·e^{−t/τ}·(e^{θ/τ} − 1) (both on the ramp).
+    t = 720 * TS
+    flight = (
+        model.gain
+        * 100.0
+        * (math.exp(-(t - TS) / model.tau))
+        * (math.exp(model.dead_time / model.tau) - 1.0)
+    )
+    assert controller.terms[0] == pytest.approx(120.0 * (66.0 - 20.0 - flight), rel=1e-3)
+
+
+def test_predictive_needs_a_sane_model() -> None:
+    with pytest.raises(ValueError, match=r"model\.tau"):
+        pid.create("predictive", kc=1.0, ti=1.0, model=pid.PlantModel(tau=0.0))

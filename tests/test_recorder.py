@@ -298,6 +298,17 @@ def test_not_a_number_is_recorded_as_null_and_bad_records_are_counted(tmp_path: 
     assert "not JSON" in recorder.last_error
 
 
+def test_a_malformed_event_costs_an_error_not_the_writer_thread(tmp_path: Path) -> None:
+    clock = VirtualClock()
+    recorder = Recorder(tmp_path, wall_ns=clock.wall_ns, now=clock.monotonic)
+    recorder.write(LOG_TOPIC, EPOCH_NS, cast(dict[str, Any], ["not", "an", "event"]))
+    recorder.write(PERIOD_TOPIC, EPOCH_NS + S, period(1))
+    recorder.close()
+    [path] = finished_files(tmp_path)
+    assert (PERIOD_TOPIC, EPOCH_NS + S, period(1)) in decoded(path)
+    assert recorder.errors == 1
+
+
 def test_full_queue_drops_new_records_and_says_so_once_there_is_room(tmp_path: Path) -> None:
     entered, release = threading.Event(), threading.Event()
 

@@ -21,9 +21,10 @@ import yaml
 
 from hermsd import config as config_module
 from hermsd.config import Config
-from hermsd.daemon import Daemon, PeriodRecord, Recorder
+from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
 from hermsd.metrics import BAND, Sample, compute
+from hermsd.recorder import Recorder
 from hermsd.safety import Alarm
 from hermsd.sim.bus import FakeLM92
 from hermsd.sim.circuit import HeaterCircuit
@@ -223,13 +224,22 @@ def run(
     scenario: Scenario,
     base: Config | None = None,
     *,
-    recorder: Recorder | None = None,
+    log_dir: Path | None = None,
     keep_records: bool = False,
 ) -> Result:
-    """Run `scenario` through the daemon on a virtual clock; measure it."""
+    """Run `scenario` through the daemon on a virtual clock; measure it (and log it)."""
     config = effective_config(base or config_module.DEFAULT, scenario)
     started = time.perf_counter()
     clock = VirtualClock()
+    recorder = None
+    if log_dir is not None:
+        log_dir.mkdir(parents=True, exist_ok=True)
+        recorder = Recorder(
+            log_dir,
+            wall_ns=clock.wall_ns,
+            now=clock.monotonic,
+            metadata={"scenario": scenario.name},
+        )
     try:
         world = build_world(config, clock, scenario.plant)
         reference = build_world(config, VirtualClock(), scenario.plant).plant
@@ -262,8 +272,12 @@ def run(
 
     for event in scenario.events:
         schedule(event)
-    with daemon:
-        daemon.run(until=scenario.duration)
+    try:
+        with daemon:
+            daemon.run(until=scenario.duration)
+    finally:
+        if recorder is not None:
+            recorder.close()
     wall = time.perf_counter() - started
 
     disturbances = [e.at for e in scenario.events]

@@ -15,6 +15,7 @@ from hermsd.clock import Clock
 from hermsd.config import Config
 from hermsd.daemon import Daemon, Outputs, guard_outputs
 from hermsd.lm92 import LM92
+from hermsd.notify import Notifier
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import ScaledClock, VirtualClock
@@ -47,12 +48,17 @@ def build_world(config: Config, clock: Clock, plant: dict[str, Any] | None = Non
 
 
 def simulated_daemon(
-    config: Config, speed: float, on_status: Callable[[str], None] | None = None
+    config: Config,
+    speed: float,
+    on_status: Callable[[str], None] | None = None,
+    notifier: Notifier | None = None,
 ) -> Daemon:
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
     clock: Clock = VirtualClock() if math.isinf(speed) else ScaledClock(speed)
     world = build_world(config, clock)
-    return Daemon(config, clock, world.sensor, world.outputs, on_status=on_status)
+    return Daemon(
+        config, clock, world.sensor, world.outputs, notifier=notifier, on_status=on_status
+    )
 
 
 def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:

@@ -1,0 +1,144 @@
+"""Closed-loop comparison of every controller on the simulated HLT (a benchmark, not a test).
+
+The plant is seed 001's identified FOPTD tun (K 1.689 °C/%, τ 14961 s, θ 115 s), read once a
+second through the fake LM92 (0.0625 °C steps), 5 s control period and SSR window: heat
+20 → 66 °C, add 10 L of 15 °C water at 4 h, stop at 6 h. Each algorithm runs with Table 2's
+"ITAE-load" and "Ziegler-Nichols closed loop" PID sets, the default algorithm also with its
+own default gains, and simple-pid 2.0.1 (the `bench` dependency group) with the same gains
+through the same daemon. Prints a Markdown table; `--write` puts it into bench/RESULTS.md.
+
+    uv run --group bench python bench/control.py [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Any
+
+from hermsd import config as config_module
+from hermsd import daemon as daemon_module
+from hermsd import pid
+from hermsd.sim import scenario
+
+GAIN_SETS = {
+    "ITAE-load": {"kc": 80.8, "ti": 489.0, "td": 44.9},
+    "ZN closed loop": {"kc": 92.4, "ti": 230.0, "td": 57.5},
+}
+GOALS = {"overshoot_c": 0.1, "settle_ratio": 1.01, "recovery_ratio": 1.02, "max_output_jump": 10}
+
+
+class SimplePid:
+    """simple-pid 2.0.1 behind the controller interface (it keeps its own integral)."""
+
+    def __init__(self, kc: float, ti: float, td: float, ts: float) -> None:
+        from simple_pid import PID
+
+        self._pid = PID(kc, kc / ti, kc * td, setpoint=0.0, sample_time=None)
+        self._pid.output_limits = (0.0, 100.0)
+        self._ts = ts
+        self.terms = (0.0, 0.0, 0.0)
+
+    def reset(self, pv: float, output: float) -> None:
+        self._pid.set_auto_mode(True, last_output=output)
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        self._pid.setpoint = sp
+        out = float(self._pid(pv, dt=self._ts))
+        self.terms = tuple(float(c) for c in self._pid.components)  # type: ignore[assignment]
+        return out
+
+
+def run(algorithm: str, gains: dict[str, float]) -> dict[str, Any]:
+    base = config_module.DEFAULT
+    control = dataclasses.replace(
+        base.control,
+        algorithm="predictive" if algorithm == "simple-pid" else algorithm,
+        tf=None,
+        **gains,
+    )
+    config = dataclasses.replace(base, control=control)
+    original = daemon_module.make_controller
+    if algorithm == "simple-pid":
+        daemon_module.make_controller = lambda c: SimplePid(  # type: ignore[assignment,return-value]
+            gains["kc"], gains["ti"], gains["td"], c.control.period
+        )
+    try:
+        return scenario.run(scenario.DEFAULT, config).summary
+    finally:
+        daemon_module.make_controller = original
+
+
+def meets(row: dict[str, Any]) -> bool:
+    return all(row[k] is not None and row[k] <= limit for k, limit in GOALS.items()) and (
+        row["in_band_fraction"] == 1.0
+    )
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    args = parser.parse_args()
+    default = config_module.DEFAULT.control
+    cases: list[tuple[str, str, dict[str, float]]] = [
+        (
+            default.algorithm,
+            "default",
+            {"kc": default.kc, "ti": default.ti, "td": default.td},
+        )
+    ]
+    for set_name, gains in GAIN_SETS.items():
+        for name in (*pid.ALGORITHMS, "simple-pid"):
+            g = dict(gains)
+            if name == "velocity_pi":
+                g["td"] = 0.0  # a PI: the sets' Td has nowhere to go
+            cases.append((name, set_name, g))
+    lines = [
+        "| algorithm | gains | overshoot °C | settle s | ×min | IAE °C·s | recovery s | ×min "
+        "| jump/LSB % | edges/h | in band | goals |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    rows = []
+    for name, set_name, gains in cases:
+        row = run(name, gains)
+        rows.append(row)
+        lines.append(
+            f"| {name} | {set_name} (Kc {gains['kc']}, Ti {gains['ti']}, Td {gains['td']}) "
+            f"| {row['overshoot_c']:.3f} | {row['settle_s']} | {row['settle_ratio']} "
+            f"| {row['iae']:.0f} | {row['recovery_s']} | {row['recovery_ratio']} "
+            f"| {row['max_output_jump']:.1f} | {row['ssr_edges_per_hour']} "
+            f"| {row['in_band_fraction']} | {'yes' if meets(row) else 'no'} |"
+        )
+        print(lines[-1], flush=True)
+    first = rows[0]
+    table = "\n".join(lines)
+    text = (
+        "## Control: every algorithm on the seed-001 plant\n\n"
+        "`uv run --group bench python bench/control.py --write` — 20 → 66 °C, 10 L of 15 °C "
+        "water at 4 h, 6 h; physical minimum to settle "
+        f"{first['physical_min_s']} s, to recover {first['recovery_min_s']} s (full power "
+        "from the start, and from the water). Jump/LSB is the largest output change between "
+        "two periods while holding. Goals: overshoot ≤ 0.1 °C, settle ≤ ×1.01, recovery "
+        "≤ ×1.02, jump ≤ 10 %, 100 % in band.\n\n" + table + "\n"
+    )
+    if args.write:
+        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Control:", text)
+    return 0
+
+
+def _replace_section(path: Path, heading: str, text: str) -> None:
+    """Swap the section that starts with `heading` (up to the next `## `) for `text`."""
+    old = path.read_text(encoding="utf-8") if path.exists() else "# Benchmark results\n\n"
+    start = old.find(heading)
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + text
+    else:
+        end = old.find("\n## ", start + 1)
+        new = old[:start] + text + (old[end + 1 :] if end >= 0 else "")
+    path.write_text(new, encoding="utf-8")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
