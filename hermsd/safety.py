@@ -124,26 +124,19 @@ class Alarm:
 class _Watch:
     """A rising-edge window: the lowest PV since it began, and when that low was seen."""
 
-    __slots__ = ("base", "base_t", "raw", "raw_constant", "start")
+    __slots__ = ("base", "base_t", "start")
 
     def __init__(self) -> None:
         self.start: float | None = None
         self.base = math.inf
         self.base_t = 0.0
-        self.raw: int | None = None
-        self.raw_constant = True
 
     def stop(self) -> None:
         self.start = None
 
-    def restart(self, t: float, pv: float, raw: int | None) -> None:
+    def restart(self, t: float, pv: float) -> None:
         self.start = t
         self.base, self.base_t = pv, t
-        self.raw, self.raw_constant = raw, True
-
-    def note_raw(self, raw: int | None) -> None:
-        if raw != self.raw:
-            self.raw_constant = False
 
 
 class Supervisor:
@@ -228,11 +221,11 @@ class Supervisor:
         self._good_reads += 1
         if raw != self._last_raw or self._raw_since is None:
             self._last_raw, self._raw_since = raw, t
-        self._heater_watch.note_raw(raw)
         if "sensor_fault" in self._active and self._good_reads >= lim.resume_reads:
             self._clear("sensor_fault", t, f"{self._good_reads} good reads")
         if "stale_reading" in self._active and self._good_reads >= lim.resume_reads:
             self._clear("stale_reading", t, "readings are fresh again")
+        # The T_CRIT flag travels in the same word as the value: trusted when the value is.
         if crit or celsius >= lim.max_temp:
             self._raise(
                 "over_temperature",
@@ -241,7 +234,11 @@ class Supervisor:
                 + (" (LM92 T_CRIT flag)" if crit else ""),
                 {"celsius": celsius, "crit": crit},
             )
-        elif "over_temperature" in self._active and celsius < lim.max_temp - lim.hysteresis:
+        elif (
+            "over_temperature" in self._active
+            and not crit
+            and celsius < lim.max_temp - lim.hysteresis
+        ):
             self._clear("over_temperature", t, f"{celsius:.2f} °C")
         return True
 
@@ -320,7 +317,7 @@ class Supervisor:
             watch.stop()
             return
         if watch.start is None:
-            watch.restart(t, pv, self._last_raw)
+            watch.restart(t, pv)
             return
         if pv < watch.base:
             # A sudden drop (cold water) starts the wait again from the new low; a slow fall
@@ -330,13 +327,17 @@ class Supervisor:
             watch.base = pv
             return
         if pv >= watch.base + lim.heater_min_rise:
-            watch.restart(t, pv, self._last_raw)
+            watch.restart(t, pv)
             return
         if t - watch.base_t >= lim.heater_watch:
-            kind = "sensor_stuck" if watch.raw_constant else "heater_not_heating"
+            # A working sensor on a dead element still shows the water cooling, a step every
+            # minute or two; a stuck one has shown nothing for most of the watch.
+            since = self._raw_since
+            frozen = since is not None and t - since >= 0.75 * lim.heater_watch
+            kind = "sensor_stuck" if frozen else "heater_not_heating"
             what = (
                 "the reading has not changed at all"
-                if watch.raw_constant
+                if frozen
                 else f"PV rose {pv - watch.base:.2f} °C"
             )
             self._raise(
@@ -376,6 +377,11 @@ class Supervisor:
             )
 
     def _check_stuck(self, t: float, output: float) -> None:
+        """A reading that stays bit-identical although the output moved long enough ago.
+
+        Only outputs at least half the stuck time old count: a change of power needs the
+        tun's dead time and more before a working sensor shows it.
+        """
         lim, outputs = self.limits, self._outputs
         outputs.append((t, output))
         since = self._raw_since
@@ -383,10 +389,10 @@ class Supervisor:
             return
         while outputs and outputs[0][0] < since:
             outputs.popleft()
-        if t - since < lim.stuck_time or not outputs:
+        settled = [o for when, o in outputs if when <= t - lim.stuck_time / 2]
+        if t - since < lim.stuck_time or not settled:
             return
-        values = [o for _, o in outputs]
-        swing = max(values) - min(values)
+        swing = max(settled) - min(settled)
         if swing >= lim.stuck_output_change:
             self._raise(
                 "sensor_stuck",

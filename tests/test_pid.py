@@ -375,7 +375,7 @@ def test_terms_add_up_to_the_step_in_linear_operation() -> None:
         for sp, pv, _ in samples:
             u = controller.step(sp, pv)
             total = sum(controller.terms)
-            if name in (
+            if name in ("back_calculation", "predictive"):  # positional: P + I + D is u
                 "back_calculation",
                 "predictive",
             ):  # positional: P + I + D is the output itself

@@ -1,0 +1,136 @@
+"""The supervisor's checks one at a time, with time and values handed in."""
+
+from __future__ import annotations
+
+import pytest
+
+from hermsd.safety import SafetyLimits, Supervisor
+
+
+def limits(**overrides: float) -> SafetyLimits:
+    return SafetyLimits.derive(
+        litres=90.0, element_watts=3000.0, period=5.0, read_interval=1.0, **overrides
+    )  # type: ignore[arg-type]
+
+
+def test_defaults_scale_with_the_tun() -> None:
+    lim = limits()
+    full_rate = 3000.0 / (90.0 * 4186.0)  # °C/s: P / (m·c) for 90 L of water
+    assert lim.full_rate == pytest.approx(full_rate)
+    assert lim.dry_fire_rate == pytest.approx(3.0 * full_rate)
+    # A quarter of what 80 % would add in the 300 s watch without losses.
+    assert lim.heater_min_rise == pytest.approx(0.25 * 0.8 * full_rate * 300.0)
+    assert lim.stale_after == 3.0 and lim.stall_after == 10.0
+    small = SafetyLimits.derive(litres=20.0, element_watts=3000.0, period=5.0, read_interval=1.0)
+    assert small.dry_fire_rate == pytest.approx(lim.dry_fire_rate * 90.0 / 20.0)
+
+
+def test_one_bad_read_is_dropped_two_make_a_fault_and_good_reads_clear_it() -> None:
+    sup = Supervisor(limits())
+    assert sup.reading(0.0, 66.0)
+    sup.read_error(1.0, "NACK", 121)
+    assert sup.heater_allowed
+    sup.read_error(2.0, "NACK", 121)
+    assert not sup.heater_allowed and sup.active == ["sensor_fault"]
+    for k in range(4):
+        sup.reading(3.0 + k, 66.0)
+    assert not sup.heater_allowed  # four good reads are not yet five
+    sup.reading(7.0, 66.0)
+    assert sup.heater_allowed
+    kinds = [(a.kind, a.raised) for a in sup.drain_events()]
+    assert kinds == [("sensor_fault", True), ("sensor_fault", False)]
+
+
+def test_a_spike_is_dropped_and_a_real_step_is_believed_one_read_later() -> None:
+    sup = Supervisor(limits())
+    assert sup.reading(0.0, 66.0)
+    assert not sup.reading(1.0, 150.0 - 60)  # 90 °C in one second: no water does that
+    assert sup.reading(2.0, 66.0)  # and the next one agrees with the past: a lone spike
+    assert not sup.reading(3.0, 60.9)  # cold water: 5 °C down in one read
+    assert sup.reading(4.0, 60.9)  # the read after agrees with it: believed
+    assert sup.heater_allowed
+
+
+def test_implausible_values_are_refused() -> None:
+    sup = Supervisor(limits())
+    assert not sup.reading(0.0, -20.0)
+    assert not sup.reading(1.0, 120.0)
+    assert sup.active == ["sensor_fault"]
+
+
+def test_stale_readings_turn_the_heater_off() -> None:
+    sup = Supervisor(limits())
+    sup.reading(0.0, 66.0)
+    sup.tick(3.0)
+    assert sup.heater_allowed
+    sup.tick(3.01)
+    assert sup.active == ["stale_reading"]
+
+
+def test_over_temperature_has_hysteresis_and_honours_the_chip_flag() -> None:
+    sup = Supervisor(limits(max_temp=80.0, hysteresis=5.0))
+    sup.reading(0.0, 79.9)
+    assert sup.heater_allowed
+    sup.reading(1.0, 80.0)
+    assert sup.active == ["over_temperature"]
+    sup.reading(2.0, 75.0)  # not below 80 − 5
+    assert not sup.heater_allowed
+    sup.reading(3.0, 74.9)
+    assert sup.heater_allowed
+    sup.reading(4.0, 74.0, crit=True)  # the LM92's own comparator says so
+    assert sup.active == ["over_temperature"]
+
+
+def test_a_stalled_loop_turns_the_heater_off_until_it_is_on_time() -> None:
+    sup = Supervisor(limits())
+    sup.loop_lateness(100.0, 10.0)
+    assert sup.heater_allowed
+    sup.loop_lateness(200.0, 10.5)
+    assert sup.active == ["loop_stall"]
+    sup.loop_lateness(205.0, 0.001)
+    assert sup.heater_allowed
+
+
+def test_latched_alarms_need_a_reset() -> None:
+    sup = Supervisor(limits())
+    t, pv = 0.0, 30.0
+    # 2 °C a minute is more than three times what 3 kW can do to 90 L (0.48 °C/min).
+    while sup.heater_allowed and t < 600:
+        sup.reading(t, pv)
+        sup.period(t, pv, 100.0, 100.0)
+        t += 5.0
+        pv += 2 * 5.0 / 60.0
+    assert sup.latched == ["dry_fire"]
+    sup.reading(t, pv)
+    sup.period(t + 5.0, pv, 0.0, 0.0)
+    assert not sup.heater_allowed
+    assert sup.reset_latched(t + 5.0) == ["dry_fire"]
+    assert sup.heater_allowed
+
+
+def test_heat_the_element_did_not_deliver_means_a_stuck_ssr() -> None:
+    sup = Supervisor(limits())
+    t, pv = 0.0, 66.0
+    # Element off for ten minutes, yet the water rises 0.6 °C in the last five: more than
+    # the 0 s of full power delivered plus the 0.5 °C margin can explain.
+    while t <= 600.0:
+        sup.period(t, pv, 0.0, 0.0)
+        if t > 300.0:
+            pv += 0.6 / 60.0
+        t += 5.0
+    assert sup.latched == ["ssr_stuck_on"]
+
+
+def test_holding_at_a_steady_duty_is_not_a_stuck_ssr() -> None:
+    sup = Supervisor(limits())
+    for k in range(400):
+        sup.period(5.0 * k, 66.0 + (0.0625 if k % 7 == 0 else 0.0), 27.0, 27.0)
+    assert sup.heater_allowed
+
+
+def test_the_critical_flag_travels_with_its_value() -> None:
+    # The flag is in the same word as the temperature: a lone corrupted word is dropped whole.
+    sup = Supervisor(limits())
+    sup.reading(0.0, 66.0)
+    assert not sup.reading(1.0, 140.0, crit=True)
+    assert sup.heater_allowed
