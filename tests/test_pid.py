@@ -376,9 +376,6 @@ def test_terms_add_up_to_the_step_in_linear_operation() -> None:
             u = controller.step(sp, pv)
             total = sum(controller.terms)
             if name in ("back_calculation", "predictive"):  # positional: P + I + D is u
-                "back_calculation",
-                "predictive",
-            ):  # positional: P + I + D is the output itself
                 assert total == pytest.approx(u, rel=1e-9, abs=1e-6)
             else:  # increments
                 assert total == pytest.approx(u - previous, rel=1e-9, abs=1e-6)
