@@ -40,7 +40,7 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
   while the output is saturated in the direction of the error, and while the predicted PV is
   closing on the setpoint fast enough to get there within 4·θ by itself (integrating that
   transient error is what makes the others overshoot after cold water is added). D (td) is
-  optional, on the predicted PV, filtered by tf (first order). Its reset is bumpless within
+  optional, on the measured PV, filtered by tf (first order). Its reset is bumpless within
   the output range: the integral takes u0 − P − D, kept within [out_min, out_max].
 
 Defaults: tf=None gives γ = 10 % of Td (the document's suggestion) for type_a,
@@ -584,8 +584,10 @@ class _Predictive(_Base):
         self._x = self._a * self._x + self._gain * (1.0 - self._a) * previous
         self._history.append(self._x)
         ppv = pv + self._in_flight()
+        # D acts on the measured PV: on the predicted one it would feed the model's response
+        # to this very output back into the output, a loop inside the controller.
         fpv1 = self._fpv
-        fpv = self._fa * fpv1 + (1.0 - self._fa) * ppv if self._filtered else ppv
+        fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
         e = sp - ppv
         p = self._kc * e
         d = -self._kd * (fpv - fpv1)

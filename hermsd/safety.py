@@ -389,10 +389,16 @@ class Supervisor:
             return
         while outputs and outputs[0][0] < since:
             outputs.popleft()
-        settled = [o for when, o in outputs if when <= t - lim.stuck_time / 2]
-        if t - since < lim.stuck_time or not settled:
+        # Minute means of the outputs old enough to have shown: an output that chatters
+        # around a steady mean does not move the water.
+        minutes: dict[int, list[float]] = {}
+        for when, o in outputs:
+            if when <= t - lim.stuck_time / 2:
+                minutes.setdefault(int((when - since) // 60.0), []).append(o)
+        if t - since < lim.stuck_time or not minutes:
             return
-        swing = max(settled) - min(settled)
+        means = [sum(v) / len(v) for v in minutes.values()]
+        swing = max(means) - min(means)
         if swing >= lim.stuck_output_change:
             self._raise(
                 "sensor_stuck",
