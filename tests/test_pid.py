@@ -848,3 +848,17 @@ def test_predictive_cold_start_is_full_power_and_stops_early_enough() -> None:
 def test_predictive_needs_a_sane_model() -> None:
     with pytest.raises(ValueError, match=r"model\.tau"):
         pid.create("predictive", kc=1.0, ti=1.0, model=pid.PlantModel(tau=0.0))
+
+
+def test_predictive_resume_after_a_hold_moves_by_the_error_change_only() -> None:
+    # Positional P: after a ten-minute hold in which the water cooled by 0.2 °C, the first
+    # output may move by what P makes of that change (Kc·0.2 = 24 %) plus one integral step,
+    # nothing more; it may not jump to where a fresh start would put it.
+    kc, ti = 120.0, 800.0
+    controller = pid.create("predictive", kc=kc, ti=ti)
+    controller.reset(65.95, 27.0)
+    before = controller.step(66.0, 65.95)
+    controller.reset(65.75, before)  # held for ten minutes: no steps, then reset
+    after = controller.step(66.0, 65.75)
+    p_step = kc * abs(0.25 - 0.05) + kc * TS / ti * 0.25
+    assert abs(after - before) <= p_step + 1e-9
