@@ -7,6 +7,7 @@ ends in one line on stderr and exit code 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import math
@@ -259,18 +260,18 @@ def cmd_run(args: argparse.Namespace) -> int:
                 notifier=notifier,
                 on_status=status.update,
             )
-        deadman = DeadManThread(daemon.outputs.all())
-        deadman.start()
-        recorder = _open_recorder(log_dir, config, daemon.clock.wall_ns) if log_dir else None
-        daemon.recorder = recorder
-        try:
-            with daemon:
-                daemon.start()
-                daemon.run(until=daemon.clock.monotonic() + duration)
-        finally:
-            deadman.stop()
+        # Unwinds in reverse: heater off first, then the dead-man, then the log is finished.
+        with contextlib.ExitStack() as stack:
+            recorder = _open_recorder(log_dir, config, daemon.clock.wall_ns) if log_dir else None
             if recorder is not None:
-                recorder.close()
+                stack.callback(recorder.close)
+            daemon.recorder = recorder
+            deadman = DeadManThread(daemon.outputs.all())
+            deadman.start()
+            stack.callback(deadman.stop)
+            stack.enter_context(daemon)
+            daemon.start()
+            daemon.run(until=daemon.clock.monotonic() + duration)
     except Shutdown as why:
         log.info("%s received", why)
     finally:

@@ -248,7 +248,8 @@ class Daemon:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.shutdown("stopped" if exc[0] is None else f"stopped by {exc[0]}")
+        error = exc[1]
+        self.shutdown("stopped" if error is None else f"stopped ({error or type(error).__name__})")
 
     @property
     def overruns(self) -> int:
