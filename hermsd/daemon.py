@@ -215,11 +215,7 @@ class Daemon:
         for output in self.outputs.all():
             output.set(False)
         self.sensor.identify()
-        self.sensor.wake()
-        safety = self.config.safety
-        # The chip's T_CRIT_A output can gate the SSR in hardware at the same limit.
-        self.sensor.set_limit("hyst", safety.hysteresis)
-        self.sensor.set_limit("crit", safety.max_temp)
+        self._program_sensor()
         now = self.clock.monotonic()
         self._last_control_t = now
         read_interval = self.config.sensor.read_interval
@@ -234,6 +230,13 @@ class Daemon:
         self._started = True
         self._record_config("start")
         self._event(logging.INFO, "started", now)
+
+    def _program_sensor(self) -> None:
+        """Wake the chip and set its limits; its T_CRIT_A pin can then gate the SSR in hardware."""
+        safety = self.config.safety
+        self.sensor.wake()
+        self.sensor.set_limit("hyst", safety.hysteresis)
+        self.sensor.set_limit("crit", safety.max_temp)
 
     def run(self, until: float = math.inf) -> None:
         """Run the loop until `until` (monotonic s) or `stop()`; start() first if needed."""
@@ -557,8 +560,17 @@ class Daemon:
                 self._event(level, f"{what} {alarm.kind}: {alarm.message}; heater off", t)
             else:
                 self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
+                if alarm.kind == "sensor_fault":
+                    self._reprogram_sensor(t)
             for listener in self.listeners:
                 listener.alarm(alarm)
+
+    def _reprogram_sensor(self, t: float) -> None:
+        """A chip that was gone may have powered up again with T_CRIT at 80 °C: set it again."""
+        try:
+            self._program_sensor()
+        except SensorError as error:
+            self.supervisor.read_error(t, f"programming the limits failed: {error}", error.errno)
 
     def _event(self, level: int, message: str, t: float) -> None:
         log.log(level, message)

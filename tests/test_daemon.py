@@ -187,3 +187,12 @@ def test_safe_off_on_a_pseudo_terminal_drops_the_line(tmp_path: Path) -> None:
     assert proc.returncode == 0
     # A pty has no modem lines: either it was switched off or the reason is said in one line.
     assert "serial-dtr off" in proc.stdout or proc.stderr.count("\n") == 1
+
+
+def test_a_chip_that_comes_back_gets_its_critical_limit_again() -> None:
+    daemon, world, clock, _ = make()
+    clock.call_at(1000.0, lambda: world.chip.set_fault("gone"))
+    clock.call_at(1060.0, lambda: world.chip.set_fault("ok"))  # powers up with T_CRIT 80 °C
+    with daemon:
+        daemon.run(until=1200.0)
+        assert world.sensor.limit("crit") == daemon.config.safety.max_temp
