@@ -301,7 +301,8 @@ class Daemon:
 
     def _apply_manual(self, output: float | None, t: float) -> None:
         self.mode = "manual"
-        self.manual_output = self.output if output is None else output
+        wanted = self.output if output is None else output
+        self.manual_output = min(wanted, self.config.control.max_output)  # the power limit holds
         self._event(logging.INFO, f"manual mode at {self.manual_output:.1f} %", t)
 
     def _apply_auto(self, t: float) -> None:
