@@ -174,9 +174,6 @@ class Supervisor:
     def latched(self) -> list[str]:
         return sorted(k for k, a in self._active.items() if a.latched)
 
-    def alarm(self, kind: str) -> Alarm | None:
-        return self._active.get(kind)
-
     def drain_events(self) -> list[Alarm]:
         """Alarms raised or cleared since the last call, oldest first."""
         events, self._events = self._events, []
