@@ -71,6 +71,7 @@ class PeriodRecord:
     state: str
     alarms: list[str]
     heater_allowed: bool
+    reset_from: float | None = None  # the controller was reset to this output before its step
 
 
 class Listener(Protocol):
@@ -389,12 +390,14 @@ class Daemon:
         sup.period(now, pv, self.output, applied)
         self._drain_alarms(now)
         state = "ok"
+        reset_from: float | None = None
         if sup.heater_allowed and pv is not None:
             if self.mode == "manual":
                 self.output = self.manual_output
             else:
                 if self._held:
-                    self.controller.reset(pv, self._resume_output)
+                    reset_from = self._resume_output
+                    self.controller.reset(pv, reset_from)
                     self._held = False
                 self.output = self.controller.step(self.setpoint, pv, applied)
             if readings and self._watchdog is not None:
@@ -426,6 +429,7 @@ class Daemon:
             state=state,
             alarms=sup.active,
             heater_allowed=sup.heater_allowed,
+            reset_from=reset_from,
         )
         for listener in self.listeners:
             listener.period(record)

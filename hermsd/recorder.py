@@ -126,6 +126,10 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "state": _field("string", "safety state: ok, held, alarm, …"),
                 "alarms": _field("array", "active alarms", items={"type": "string"}),
                 "heater_allowed": _field("boolean", "whether safety lets the element heat"),
+                "reset_from": _field(
+                    ["number", "null"],
+                    "output the controller was reset to before this step (bumpless start), %",
+                ),
             },
         ),
     ),

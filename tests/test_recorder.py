@@ -59,6 +59,7 @@ PERIOD = {
     "state": "ok",
     "alarms": [],
     "heater_allowed": True,
+    "reset_from": None,
 }
 READING = {
     "t": 1234.0,
