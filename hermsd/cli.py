@@ -11,6 +11,7 @@ import contextlib
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import time
@@ -22,13 +23,16 @@ from typing import TextIO
 from hermsd import __version__
 from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, ContactorConfig, OutputConfig
+from hermsd.config_file import ConfigFile
 from hermsd.durations import parse_duration
+from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.lm92 import LM92, SensorError, open_bus
-from hermsd.notify import Notifier, NotifyEnvironmentError
+from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
 from hermsd.recorder import Recorder, recover, recover_directory
 from hermsd.ssr import Switch, open_hardware_switch
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
+DEFAULT_STATE = Path("/var/lib/hermsd")
 EXIT_USAGE = 2
 
 log = logging.getLogger("hermsd")
@@ -92,7 +96,23 @@ def _parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--duration", help="stop after this long, e.g. 90s, 4h, 1h30m")
     run.add_argument("--log", type=Path, help="MCAP log directory (default: the config's log.dir)")
+    run.add_argument(
+        "--state",
+        type=Path,
+        help="directory that keeps latched alarms across restarts (default: systemd's "
+        f"$STATE_DIRECTORY, else {DEFAULT_STATE} unless simulating)",
+    )
     run.set_defaults(func=cmd_run)
+
+    reset = sub.add_parser(
+        "reset-alarm", help="clear the latched alarms, once their cause is found"
+    )
+    reset.add_argument(
+        "--state",
+        type=Path,
+        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
+    )
+    reset.set_defaults(func=cmd_reset_alarm)
 
     recover = sub.add_parser("recover", help="turn .mcap.part files left by a crash into logs")
     recover.add_argument("files", nargs="+", type=Path)
@@ -144,15 +164,15 @@ def _setup_logging(verbose: bool) -> None:
     root.propagate = False
 
 
-def load_config(path: Path | None, *, simulate: bool) -> Config:
-    """The config at `path`; the built-in defaults when simulating without one."""
+def config_path(path: Path | None, *, simulate: bool) -> Path | None:
+    """The config file to use; None means the built-in defaults (simulating without one)."""
     if path is None:
         if simulate and not DEFAULT_CONFIG.exists():
-            return config_module.DEFAULT
+            return None
         path = DEFAULT_CONFIG
     if not path.exists():
         raise UserError(f"no config file at {path} (copy config/hermsd.yaml there, or --config)")
-    return config_module.load(path)
+    return path
 
 
 # -- sensor ---------------------------------------------------------------------------------
@@ -220,24 +240,31 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hermsd.daemon import Daemon, guard_outputs
     from hermsd.ssr import DeadManThread
 
-    config = load_config(args.config, simulate=args.simulate)
+    path = config_path(args.config, simulate=args.simulate)
+    config_file = ConfigFile(path) if path is not None else None
+    config = config_file.load() if config_file is not None else config_module.DEFAULT
     duration = _duration(args.duration)
     try:
         notifier = Notifier.from_environment()
+        check_watchdog(notifier, config.control.period)
     except NotifyEnvironmentError as error:
         raise UserError(str(error)) from None
+    latches = _latch_store(args.state, simulate=args.simulate)
     log_dir = args.log
     if log_dir is None and not (args.simulate and args.config is None):
         log_dir = Path(config.log.dir) if config.log.dir else None
     status = StatusLine(sys.stdout)
     _route_log_around(status)
     previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, signal.SIG_IGN)  # until the loop runs
     try:
         if args.simulate:
             from hermsd.sim.world import simulated_daemon
 
             speed = _speed(args.speed)
             daemon = simulated_daemon(config, speed, on_status=status.update, notifier=notifier)
+            daemon.config_file = config_file
+            daemon.latches = latches
         else:
             if args.speed != "1":
                 raise UserError("--speed goes with --simulate")
@@ -259,6 +286,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                 guard_outputs(ssr, contactor, clock, config),
                 notifier=notifier,
                 on_status=status.update,
+                config_file=config_file,
+                latches=latches,
             )
         # Unwinds in reverse: heater off first, then the dead-man, then the log is finished.
         with contextlib.ExitStack() as stack:
@@ -270,15 +299,38 @@ def cmd_run(args: argparse.Namespace) -> int:
             deadman.start()
             stack.callback(deadman.stop)
             stack.enter_context(daemon)
+            signal.signal(signal.SIGHUP, lambda signum, frame: daemon.request_reload())
             daemon.start()
             daemon.run(until=daemon.clock.monotonic() + duration)
     except Shutdown as why:
         log.info("%s received", why)
+    except StateError as error:
+        raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
     finally:
         status.clear()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return 0
+
+
+def _latch_store(directory: Path | None, *, simulate: bool) -> LatchStore | None:
+    """Where latched alarms are kept; None (said) when nowhere can keep them."""
+    if directory is None:
+        if simulate and not os.environ.get("STATE_DIRECTORY"):
+            return None  # a simulated tun's alarms need not outlive it
+        directory = _default_state_directory()
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        log.warning("latched alarms will not survive a restart: %s: %s", directory, error)
+        return None
+    return LatchStore(directory)
+
+
+def _default_state_directory() -> Path:
+    """systemd's StateDirectory= (the first of them), else /var/lib/hermsd."""
+    from_systemd = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return Path(from_systemd) if from_systemd else DEFAULT_STATE
 
 
 def _open_recorder(directory: Path, config: Config, wall_ns: Callable[[], int]) -> Recorder:
@@ -385,13 +437,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_safe_off(args: argparse.Namespace) -> int:
-    """Every configured output off; exit 0 even when one cannot be reached (it is said)."""
+    """Every configured output off; exit 0 even when one cannot be reached (it is said).
+
+    Only the output sections of the file are read, so a bad edit elsewhere (the likely
+    reason the daemon just stopped) cannot keep the element on.
+    """
     try:
-        config = load_config(args.config, simulate=False)
+        path = config_path(args.config, simulate=False)
+        assert path is not None
+        sections = config_module.load_outputs(path)
     except (UserError, ConfigError) as error:
         print(f"hermsd safe-off: {error}", file=sys.stderr)
         return 0
-    for section in (config.output, config.contactor):
+    for section in sections:
         if section.backend in ("none", "sim"):
             continue
         try:
@@ -401,6 +459,35 @@ def cmd_safe_off(args: argparse.Namespace) -> int:
             print(f"{section.backend} off")
         except (UserError, OSError) as error:
             print(f"hermsd safe-off: {section.backend}: {error}", file=sys.stderr)
+    return 0
+
+
+def cmd_reset_alarm(args: argparse.Namespace) -> int:
+    """Ask the daemon to clear the latched alarms it keeps in its state directory."""
+    directory: Path = args.state or _default_state_directory()
+    store = LatchStore(directory)
+    try:
+        try:
+            latches = store.load()
+        except StateError as error:
+            store.save(Latches())
+            print(f"{error}: replaced by an empty one; no alarm stays latched")
+            return 0
+        if not latches.alarms:
+            print(f"no latched alarm in {directory}")
+            return 0
+        store.request_reset([alarm.kind for alarm in latches.alarms])
+    except OSError as error:
+        raise UserError(
+            f"{directory}: {error.strerror or error} (run as root or as the user hermsd runs as)"
+        ) from None
+    for alarm in latches.alarms:
+        when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(alarm.wall_ns / 1e9))
+        print(f"{alarm.kind}, latched {when}: {alarm.message}")
+    print(
+        "reset asked: a running hermsd clears these within one control period, "
+        "a stopped one when it starts"
+    )
     return 0
 
 

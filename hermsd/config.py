@@ -216,18 +216,21 @@ class Config:
 
 DEFAULT = Config()
 
-# Keys the running daemon cannot change on reload: they open devices or fix the loop's period.
+# Keys the running daemon cannot change on reload: they open devices, fix the schedule's
+# grid (period, read interval, window) or configure the log writer already running.
 RESTART_KEYS: tuple[str, ...] = (
     "control.period",
     "sensor.bus",
     "sensor.address",
+    "sensor.read_interval",
     "output.backend",
     "output.port",
     "output.chip",
     "output.line",
     "output.active_low",
+    "output.window",
     *(f"contactor.{f.name}" for f in dataclasses.fields(ContactorConfig)),
-    "log.dir",
+    *(f"log.{f.name}" for f in dataclasses.fields(LogConfig)),
 )
 
 
@@ -823,10 +826,10 @@ def _compose(text: str) -> yaml.Node | None:
         loader.dispose()
 
 
-def parse(text: str, filename: str = "<string>") -> Config:
-    """The Config a YAML text describes; ConfigError lists everything wrong with it."""
+def _root(text: str, filename: str) -> yaml.Node | None:
+    """The YAML document's root node; ConfigError for text that is not YAML."""
     try:
-        root = _compose(text)
+        return _compose(text)
     except yaml.YAMLError as error:
         raise ConfigError([_syntax_problem(filename, text, error)]) from None
     except RecursionError:
@@ -842,8 +845,12 @@ def parse(text: str, filename: str = "<string>") -> Config:
                 )
             ]
         ) from None
+
+
+def parse(text: str, filename: str = "<string>") -> Config:
+    """The Config a YAML text describes; ConfigError lists everything wrong with it."""
     reader = _Reader(filename)
-    values = reader.document(root)
+    values = reader.document(_root(text, filename))
     config = Config(**{name: _SECTION_CLASSES[name](**values[name]) for name in _SCHEMA})
     reader.cross_check(config)
     if reader.problems:
@@ -854,6 +861,28 @@ def parse(text: str, filename: str = "<string>") -> Config:
 def load(path: str | os.PathLike[str]) -> Config:
     """The Config in a file; ConfigError (never OSError) when it cannot be read or used."""
     filename = os.fspath(path)
+    return parse(_read_text(filename), filename)
+
+
+def load_outputs(path: str | os.PathLike[str]) -> tuple[OutputConfig, ContactorConfig]:
+    """Only the `output` and `contactor` sections of a file, whatever is wrong elsewhere.
+
+    `hermsd safe-off` must find the heater's switches even after a bad edit elsewhere in
+    the file; ConfigError names only the problems of these two sections.
+    """
+    filename = os.fspath(path)
+    reader = _Reader(filename)
+    values = reader.document(_root(_read_text(filename), filename))
+    ours = [p for p in reader.problems if p.key_path.split(".")[0] in ("", "output", "contactor")]
+    if ours:
+        raise ConfigError(ours)
+    output: OutputConfig = _SECTION_CLASSES["output"](**values["output"])
+    contactor: ContactorConfig = _SECTION_CLASSES["contactor"](**values["contactor"])
+    return output, contactor
+
+
+def _read_text(filename: str) -> str:
+    """The file's text; ConfigError when it cannot be read or is not UTF-8."""
     try:
         with open(filename, "rb") as file:
             data = file.read()
@@ -877,7 +906,7 @@ def load(path: str | os.PathLike[str]) -> Config:
                 )
             ]
         ) from None
-    return parse(text, filename)
+    return text
 
 
 def _unreadable(error: OSError) -> str:
@@ -922,11 +951,42 @@ def dump_yaml(config: Config) -> str:
     )
 
 
+def value_at(config: Config, path: str) -> Any:
+    """The value of `section.key` in `config`."""
+    section, name = path.split(".")
+    return getattr(getattr(config, section), name)
+
+
+def differences(old: Config, new: Config) -> list[str]:
+    """Every `section.key` whose value differs between two configs, in file order."""
+    return [
+        f"{section}.{name}"
+        for section, fields in _SCHEMA.items()
+        for name in fields
+        if value_at(old, f"{section}.{name}") != value_at(new, f"{section}.{name}")
+    ]
+
+
 def restart_keys_changed(old: Config, new: Config) -> list[str]:
     """The keys in RESTART_KEYS whose values differ: a reload cannot apply them."""
-    changed = []
-    for path in RESTART_KEYS:
+    return [path for path in RESTART_KEYS if value_at(old, path) != value_at(new, path)]
+
+
+def keep_restart_keys(running: Config, edited: Config) -> Config:
+    """`edited` with the running values of every key a reload cannot apply."""
+    sections: dict[str, dict[str, Any]] = {}
+    for path in restart_keys_changed(running, edited):
         section, name = path.split(".")
-        if getattr(getattr(old, section), name) != getattr(getattr(new, section), name):
-            changed.append(path)
-    return changed
+        sections.setdefault(section, {})[name] = value_at(running, path)
+    return dataclasses.replace(
+        edited,
+        **{
+            section: dataclasses.replace(getattr(edited, section), **values)
+            for section, values in sections.items()
+        },
+    )
+
+
+def broken_rules(config: Config) -> list[str]:
+    """The rules between keys that `config` breaks, as 'key: what is wrong' lines."""
+    return [f"{violation.keys[0]}: {violation.message}" for violation in _violations(config)]

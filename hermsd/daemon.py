@@ -14,13 +14,17 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
+from hermsd import config as config_module
 from hermsd import pid
 from hermsd.clock import Clock
-from hermsd.config import Config, to_dict
+from hermsd.config import Config, ConfigError, to_dict
+from hermsd.config_file import ConfigFile
+from hermsd.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
@@ -174,15 +178,21 @@ class Daemon:
         recorder: Recorder | None = None,
         notifier: Notifier | None = None,
         on_status: Callable[[str], None] | None = None,
+        config_file: ConfigFile | None = None,
+        latches: LatchStore | None = None,
     ) -> None:
         self.config = config
+        self.config_file = config_file
+        self.latches = latches
         self.clock = clock
         self.sensor = sensor
         self.outputs = outputs
         self.recorder = recorder
         self.notifier = notifier
         interval = notifier.watchdog_interval() if notifier is not None else None
-        self._watchdog = WatchdogGate(interval) if interval else None
+        # Every healthy period may ping: one missed period must not use up the timeout.
+        period = config.control.period
+        self._watchdog = WatchdogGate(min(interval, period / 2)) if interval else None
         self._ready = False
         self.on_status = on_status
         self.listeners: list[Listener] = []
@@ -208,6 +218,10 @@ class Daemon:
         self._reads = 0
         self._pending: list[Callable[[float], None]] = []
         self._started = False
+        self._reload_requested = False
+        self._config_problem: str | None = None  # why the file's last edit was rejected
+        self._saved_latches: list[str] = []
+        self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -229,8 +243,9 @@ class Daemon:
         sched.every("window", window_length(self.config), self._on_window, origin=now, priority=2)
         sched.every("timing", TIMING_INTERVAL, self._on_timing, origin=now + TIMING_INTERVAL)
         self._started = True
-        self._record_config("start")
+        self._record_config("start", now)
         self._event(logging.INFO, "started", now)
+        self._restore_latches(now)
 
     def _program_sensor(self) -> None:
         """Wake the chip and set its limits; its T_CRIT_A pin can then gate the SSR in hardware."""
@@ -293,8 +308,17 @@ class Daemon:
     def set_auto(self) -> None:
         self._pending.append(self._apply_auto)
 
-    def reset_alarms(self) -> None:
-        self._pending.append(self._apply_reset)
+    def reset_alarms(self, kinds: list[str] | None = None) -> None:
+        """Clear latched alarms (`kinds`, or all) at the next period boundary."""
+        self._pending.append(lambda t: self._apply_reset(t, kinds))
+
+    def request_reload(self) -> None:
+        """Read the config file again at the next period boundary (SIGHUP; signal-safe)."""
+        self._reload_requested = True
+
+    def reload(self, config: Config) -> None:
+        """Apply `config` at the next period boundary, as a reload of the file would."""
+        self._pending.append(lambda t: self._apply_config(config, t))
 
     def _apply_setpoint(self, celsius: float, t: float) -> None:
         self.setpoint = celsius
@@ -313,11 +337,154 @@ class Daemon:
             self._resume_output = self.manual_output
             self._event(logging.INFO, "auto mode", t)
 
-    def _apply_reset(self, t: float) -> None:
-        cleared = self.supervisor.reset_latched(t)
+    def _apply_reset(self, t: float, kinds: list[str] | None = None) -> None:
+        cleared = self.supervisor.reset_latched(t, kinds)
         self._drain_alarms(t)
         if cleared:
             self._event(logging.WARNING, f"alarms reset: {', '.join(cleared)}", t)
+
+    # -- configuration changes ------------------------------------------------------------
+
+    def _poll_config(self, t: float) -> None:
+        """Apply the config file if it changed (or SIGHUP asked); reject it if it is invalid."""
+        if self.config_file is None:
+            if self._reload_requested:
+                self._reload_requested = False
+                self._event(logging.WARNING, "reload asked, but there is no config file", t)
+            return
+        result = self.config_file.poll(force=self._reload_requested)
+        if result is None:
+            return  # unchanged, or still being written: the next period reads it
+        self._reload_requested = False
+        if self.notifier is not None:
+            self.notifier.reloading()
+        if isinstance(result, ConfigError):
+            self._reject_config(str(result), t)
+        else:
+            self._apply_config(result, t)
+        if self.notifier is not None:
+            self.notifier.ready()
+
+    def _reject_config(self, why: str, t: float) -> None:
+        self._config_problem = why
+        self._event(logging.ERROR, f"config rejected, still running on the last good one: {why}", t)
+
+    def _apply_config(self, edited: Config, t: float) -> None:
+        """Take a valid edit: setpoint, mode and tuning without a bump; limits at once.
+
+        Keys that open devices or fix the schedule keep their running values (said in the
+        log); an edit that breaks a rule only together with those kept values is rejected.
+        """
+        old = self.config
+        refused = config_module.restart_keys_changed(old, edited)
+        new = config_module.keep_restart_keys(old, edited)
+        broken = config_module.broken_rules(new)
+        if broken:
+            kept = f" with the running {', '.join(refused)}" if refused else ""
+            self._reject_config(f"{'; '.join(broken)}{kept}", t)
+            return
+        self._config_problem = None
+        changed = config_module.differences(old, new)
+        if refused:
+            running = ", ".join(f"{key} {config_module.value_at(old, key)!r}" for key in refused)
+            self._event(
+                logging.WARNING,
+                f"config: {', '.join(refused)} need a restart (systemctl restart hermsd); "
+                f"still running with {running}",
+                t,
+            )
+        if not changed:
+            self._event(logging.INFO, "config reloaded: nothing to change", t)
+            return
+        self.config = new
+        self._record_config("reload", t)
+        self._event(logging.INFO, f"config reloaded: {', '.join(changed)} changed", t)
+        self._take_changes(old, new, set(changed), t)
+
+    def _take_changes(self, old: Config, new: Config, changed: set[str], t: float) -> None:
+        control = new.control
+        if "control.setpoint" in changed:
+            self._apply_setpoint(control.setpoint, t)
+        tuning = {key for key in changed if key.startswith("control.")} - {
+            "control.setpoint",
+            "control.mode",
+            "control.manual_output",
+        }
+        if tuning:
+            self.controller = make_controller(new)
+            if not self._held:  # bumpless: the new controller starts from the output in force
+                self._held = True
+                self._resume_output = self.output
+        if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
+            self._apply_manual(control.manual_output, t)
+        elif control.mode == "auto" and "control.mode" in changed:
+            self._apply_auto(t)
+        elif "control.max_output" in changed and self.mode == "manual":
+            self._apply_manual(self.manual_output, t)  # the new power limit holds at once
+        if any(key.startswith(("safety.", "tun.", "sensor.")) for key in changed):
+            self.supervisor.limits = safety_limits(new)
+        if changed & {"safety.max_temp", "safety.hysteresis"}:
+            self._reprogram_sensor(t)
+        if "safety.reset" in changed:
+            self._apply_reset(t)
+        if any(key.startswith("output.") for key in changed):
+            self.planner = self._make_planner(new)
+        if self.config.safety.reset != old.safety.reset:
+            self._save_latches(t)
+
+    # -- latched alarms across restarts ---------------------------------------------------
+
+    def _restore_latches(self, t: float) -> None:
+        """Raise again the alarms latched before a restart, unless `safety.reset` moved on.
+
+        A latch file that cannot be read raises StateError: the daemon must not guess.
+        """
+        if self.latches is None:
+            return
+        stored = self.latches.load()
+        if stored.alarms and stored.reset != self.config.safety.reset:
+            kinds = ", ".join(a.kind for a in stored.alarms)
+            self._event(logging.WARNING, f"alarms reset by safety.reset: {kinds}", t)
+            self._save_latches(t)
+            return
+        for alarm in stored.alarms:
+            when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(alarm.wall_ns / 1e9))
+            self._latched_wall_ns[alarm.kind] = alarm.wall_ns
+            message = f"{alarm.message} (latched {when}, before a restart)"
+            self.supervisor.restore_latched(t, alarm.kind, message, alarm.values)
+        self._drain_alarms(t)
+        self._poll_reset_request(t)
+
+    def _poll_reset_request(self, t: float) -> None:
+        if self.latches is None:
+            return
+        try:
+            kinds = self.latches.take_reset_request()
+        except OSError as error:
+            self._event(logging.ERROR, f"reading the reset request failed: {error}", t)
+            return
+        if kinds is not None:
+            self._event(logging.INFO, f"reset-alarm asked for: {', '.join(kinds) or 'nothing'}", t)
+            self._apply_reset(t, kinds)
+
+    def _save_latches(self, t: float) -> None:
+        """Store the latched alarms whenever they change; a disk error is said, not fatal."""
+        if self.latches is None:
+            return
+        alarms = self.supervisor.latched_alarms()
+        stored = Latches(
+            tuple(
+                LatchedAlarm(a.kind, self._latched_wall_ns.get(a.kind, 0), a.message, a.values)
+                for a in alarms
+            ),
+            self.config.safety.reset,
+        )
+        try:
+            self.latches.save(stored)
+        except OSError as error:
+            self._event(logging.ERROR, f"saving latched alarms failed: {error}", t)
+            return
+        self._saved_latches = [alarm.kind for alarm in alarms]
 
     # -- the periodic work ----------------------------------------------------------------
 
@@ -378,6 +545,8 @@ class Daemon:
         sup = self.supervisor
         sup.loop_lateness(now, now - deadline)
         sup.tick(now)
+        self._poll_config(now)
+        self._poll_reset_request(now)
         for action in self._pending:
             action(now)
         self._pending.clear()
@@ -532,6 +701,8 @@ class Daemon:
 
     def status_text(self) -> str:
         state = ", ".join(self.supervisor.active) or ("manual" if self.mode == "manual" else "ok")
+        if self._config_problem is not None:
+            state += ", config rejected (see journal)"
         return status_line(self.config.tun.name, self._pv, self.setpoint, self.output, state)
 
     def _report(self, now: float) -> None:
@@ -548,27 +719,32 @@ class Daemon:
         if self._watchdog is not None and self._watchdog.due(now):
             notifier.watchdog()
 
-    def _record_config(self, reason: str) -> None:
+    def _record_config(self, reason: str, t: float) -> None:
         if self.recorder is not None:
             self.recorder.write(
                 CONFIG_TOPIC,
                 self.clock.wall_ns(),
-                {"t": self.clock.monotonic(), "config": to_dict(self.config), "reason": reason},
+                {"t": t, "config": to_dict(self.config), "reason": reason},
             )
 
     def _drain_alarms(self, t: float) -> None:
         for alarm in self.supervisor.drain_events():
             if alarm.raised:
+                if alarm.latched:
+                    self._latched_wall_ns.setdefault(alarm.kind, self.clock.wall_ns())
                 self._force_off(t)
                 level = logging.ERROR if alarm.latched else logging.WARNING
                 what = "ALARM" if alarm.latched else "fault"
                 self._event(level, f"{what} {alarm.kind}: {alarm.message}; heater off", t)
             else:
+                self._latched_wall_ns.pop(alarm.kind, None)
                 self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
                 if alarm.kind == "sensor_fault":
                     self._reprogram_sensor(t)
             for listener in self.listeners:
                 listener.alarm(alarm)
+        if self.supervisor.latched != self._saved_latches:
+            self._save_latches(t)
 
     def _reprogram_sensor(self, t: float) -> None:
         """A chip that was gone may have powered up again with T_CRIT at 80 °C: set it again."""

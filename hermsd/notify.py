@@ -11,6 +11,7 @@ so a vanished or congested socket is counted and remembered, not propagated.
 
 from __future__ import annotations
 
+import math
 import os
 import socket
 import time
@@ -66,6 +67,11 @@ class Notifier:
     def last_error(self) -> OSError | None:
         """Why the most recent failed message failed (None if none has failed)."""
         return self._last_error
+
+    @property
+    def watchdog_timeout(self) -> float | None:
+        """WatchdogSec= in seconds; None when no watchdog is set for this process."""
+        return None if self._watchdog_usec is None else self._watchdog_usec / 1e6
 
     def watchdog_interval(self) -> float | None:
         """Seconds between WATCHDOG=1 pings: half of WATCHDOG_USEC, as sd_watchdog_enabled(3)
@@ -147,6 +153,21 @@ class WatchdogGate:
         self._last_ping = now
         self._unvouched_healthy_cycle = False
         return True
+
+
+def check_watchdog(notifier: Notifier, period: float) -> None:
+    """Refuse a watchdog that one late control period could trip.
+
+    WATCHDOG=1 goes out at most once per healthy period, so a timeout shorter than three
+    periods would have systemd kill a loop that merely missed one reading.
+    """
+    timeout = notifier.watchdog_timeout
+    if timeout is not None and timeout < 3 * period:
+        raise NotifyEnvironmentError(
+            f"WatchdogSec={timeout:g}s is shorter than three control periods "
+            f"(3 × {period:g} s): set WatchdogSec={math.ceil(3 * period)}s or more in the "
+            "unit, or shorten control.period"
+        )
 
 
 def status_line(name: str, pv: float | None, setpoint: float, output: float, state: str) -> str:

@@ -179,9 +179,24 @@ class Supervisor:
         events, self._events = self._events, []
         return events
 
-    def reset_latched(self, t: float) -> list[str]:
-        """Clear latched alarms (an explicit act of the brewer); returns what was cleared."""
-        cleared = self.latched
+    def latched_alarms(self) -> list[Alarm]:
+        """The latched alarms as they were raised (what a restart must not forget)."""
+        return [self._active[kind] for kind in self.latched]
+
+    def restore_latched(self, t: float, kind: str, message: str, values: dict[str, Any]) -> None:
+        """Raise again a latched alarm that was in force before a restart."""
+        if kind not in LATCHED_KINDS:
+            raise ValueError(f"{kind} is not a latched alarm")
+        self._raise(kind, t, message, values)
+
+    def reset_latched(self, t: float, kinds: list[str] | None = None) -> list[str]:
+        """Clear latched alarms (an explicit act of the brewer): those of `kinds`, or all.
+
+        Returns what was cleared.
+        """
+        cleared = [kind for kind in self.latched if kinds is None or kind in kinds]
+        if not cleared:
+            return []
         for kind in cleared:
             self._clear(kind, t, "reset by the operator")
         self._heater_watch.stop()

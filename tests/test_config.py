@@ -126,11 +126,13 @@ RESTART = [
     "control.period",
     "sensor.bus",
     "sensor.address",
+    "sensor.read_interval",
     "output.backend",
     "output.port",
     "output.chip",
     "output.line",
     "output.active_low",
+    "output.window",
     "contactor.backend",
     "contactor.port",
     "contactor.chip",
@@ -139,6 +141,10 @@ RESTART = [
     "contactor.channel",
     "contactor.baud",
     "log.dir",
+    "log.rotate_hours",
+    "log.flush_interval",
+    "log.sync_interval",
+    "log.queue_size",
 ]
 ALL_KEYS = [b.key for b in BOUNDS] + list(CHOICES) + list(TEXTS) + list(FLAGS)
 SERIAL = ("serial-rts", "serial-dtr")
@@ -848,7 +854,7 @@ def test_dump_yaml_reads_back_to_the_same_config() -> None:
 def test_restart_keys_changed() -> None:
     assert restart_keys_changed(DEFAULT, DEFAULT) == []
     live = parse(
-        "control:\n  setpoint: 70\n  kc: 60\nsafety:\n  reset: 1\nlog:\n  sync_interval: 5\n"
+        "control:\n  setpoint: 70\n  kc: 60\nsafety:\n  reset: 1\noutput:\n  min_on: 0.5\n"
     )
     assert restart_keys_changed(DEFAULT, live) == []
     new = parse(
