@@ -1,0 +1,302 @@
+"""Edits of the config file while the loop runs, on the virtual clock.
+
+The daemon polls the file once a control period; these tests edit a real file in a temporary
+directory between periods, as an editor would, and watch what the loop does next.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings
+from test_config import assert_within_spec, documents, mutated_config
+
+from hermsd import config as config_module
+from hermsd.config_file import ConfigFile
+from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.safety import Alarm
+from hermsd.sim.clock import VirtualClock
+from hermsd.sim.world import World, build_world
+
+SHIPPED = (Path(__file__).parent.parent / "config" / "hermsd.yaml").read_text(encoding="utf-8")
+PERIOD = 5.0
+
+
+def edited(text: str, **values: str) -> str:
+    """The shipped file with `key: value` lines replaced (first match of each key)."""
+    for key, value in values.items():
+        section, name = key.split("__") if "__" in key else ("", key)
+        lines = text.split("\n")
+        start = lines.index(f"{section}:") if section else 0
+        index = next(i for i in range(start, len(lines)) if lines[i].startswith(f"  {name}:"))
+        lines[index] = f"  {name}: {value}"
+        text = "\n".join(lines)
+    return text
+
+
+BASE = edited(SHIPPED, output__backend="sim", log__dir="null")
+
+
+class Events:
+    """What the loop reported: period records, alarms, recorder writes, notifications."""
+
+    def __init__(self) -> None:
+        self.periods: list[PeriodRecord] = []
+        self.alarms: list[Alarm] = []
+        self.written: list[tuple[str, dict[str, Any]]] = []
+        self.notified: list[str] = []
+
+    def period(self, record: PeriodRecord) -> None:
+        self.periods.append(record)
+
+    def alarm(self, alarm: Alarm) -> None:
+        self.alarms.append(alarm)
+
+    def write(self, topic: str, log_time_ns: int, message: dict[str, Any]) -> None:
+        self.written.append((topic, message))
+
+    def logged(self) -> list[str]:
+        return [m["message"] for topic, m in self.written if topic == "/hermsd/log"]
+
+    def configs(self) -> list[dict[str, Any]]:
+        return [m for topic, m in self.written if topic == "/hermsd/config"]
+
+
+class FakeNotifier:
+    """Stands in for sd_notify: records the protocol messages in order."""
+
+    def __init__(self, log: list[str]) -> None:
+        self._log = log
+
+    def watchdog_interval(self) -> float | None:
+        return None
+
+    def ready(self) -> None:
+        self._log.append("READY=1")
+
+    def reloading(self) -> None:
+        self._log.append("RELOADING=1")
+
+    def status(self, text: str) -> None:
+        self._log.append("STATUS=" + text)
+
+    def stopping(self) -> None:
+        self._log.append("STOPPING=1")
+
+    def watchdog(self) -> None:
+        self._log.append("WATCHDOG=1")
+
+
+def start(tmp_path: Path, text: str = BASE) -> tuple[Daemon, World, Path, Events]:
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    path = tmp_path / "hermsd.yaml"
+    path.write_text(text, encoding="utf-8")
+    source = ConfigFile(path)
+    config = source.load()
+    clock = VirtualClock()
+    world = build_world(config, clock)
+    events = Events()
+    daemon = Daemon(
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        recorder=events,
+        notifier=FakeNotifier(events.notified),  # type: ignore[arg-type]
+        config_file=source,
+    )
+    daemon.listeners.append(events)
+    daemon.start()
+    return daemon, world, path, events
+
+
+def write_in_place(path: Path, text: str) -> None:
+    """As vim (with backupcopy) or nano save: truncate and write the same inode."""
+    inode = path.stat().st_ino
+    with path.open("r+", encoding="utf-8") as file:
+        file.truncate(0)
+        file.write(text)
+    assert path.stat().st_ino == inode
+
+
+def rename_over(path: Path, text: str) -> None:
+    """As most editors save: write a new file beside it and rename it over the old one."""
+    inode = path.stat().st_ino
+    fresh = path.with_name(path.name + ".new")
+    fresh.write_text(text, encoding="utf-8")
+    os.replace(fresh, path)
+    assert path.stat().st_ino != inode
+
+
+def run_for(daemon: Daemon, seconds: float) -> None:
+    daemon.run(until=daemon.clock.monotonic() + seconds)
+
+
+@pytest.mark.parametrize("save", [write_in_place, rename_over])
+def test_a_valid_edit_is_applied_within_one_period_and_logged(tmp_path: Path, save: Any) -> None:
+    daemon, _world, path, events = start(tmp_path)
+    run_for(daemon, 600.0)
+    mark = len(events.periods)
+    save(path, edited(BASE, control__setpoint="71.5"))
+    run_for(daemon, PERIOD)
+    after = events.periods[mark:]
+    assert len(after) == 1 and after[0].setpoint == 71.5
+    assert daemon.config.control.setpoint == 71.5
+    reload = events.configs()[-1]
+    assert reload["reason"] == "reload" and reload["t"] == after[0].t
+    assert reload["config"]["control"]["setpoint"] == 71.5
+    assert "config reloaded: control.setpoint changed" in events.logged()
+    assert events.notified[-3:-1] == ["RELOADING=1", "READY=1"]
+
+
+def test_an_unchanged_file_is_not_read_again(tmp_path: Path) -> None:
+    daemon, _world, _path, events = start(tmp_path)
+    run_for(daemon, 3600.0)
+    assert [c["reason"] for c in events.configs()] == ["start"]
+    assert "RELOADING=1" not in events.notified
+
+
+def test_sighup_reads_the_file_even_when_it_looks_unchanged(tmp_path: Path) -> None:
+    daemon, _world, _path, events = start(tmp_path)
+    run_for(daemon, 60.0)
+    daemon.request_reload()
+    run_for(daemon, PERIOD)
+    assert events.logged()[-1] == "config reloaded: nothing to change"
+    assert events.notified.count("RELOADING=1") == 1
+
+
+def outputs_after(events: Events, mark: int) -> list[tuple[float, float]]:
+    return [(r.setpoint, r.output) for r in events.periods[mark:]]
+
+
+@pytest.mark.parametrize(
+    ("text", "where"),
+    [
+        (BASE.replace("control:\n", "control:\n  kc: [120\n", 1), ":"),
+        (BASE.replace("  setpoint: 66.0", "  setpont: 70", 1), "control.setpont"),
+        (edited(BASE, control__setpoint="500"), "control.setpoint"),
+        (edited(BASE, control__ti="-800"), "control.ti"),
+    ],
+    ids=["bad-yaml", "unknown-key", "setpoint-500", "negative-ti"],
+)
+def test_an_invalid_edit_is_rejected_and_control_goes_on_unchanged(
+    tmp_path: Path, text: str, where: str
+) -> None:
+    reference, _, _, reference_events = start(tmp_path / "reference")
+    daemon, _world, path, events = start(tmp_path / "edited")
+    for run in (reference, daemon):
+        run_for(run, 1800.0)
+    mark = len(events.periods)
+    rename_over(path, text)
+    for run in (reference, daemon):
+        run_for(run, 1800.0)
+    assert outputs_after(events, mark) == outputs_after(reference_events, mark)
+    assert daemon.config == reference.config
+    rejection = [m for m in events.logged() if m.startswith("config rejected")]
+    assert len(rejection) == 1, "an invalid file is said once, not every period"
+    assert f"{path}:" in rejection[0] and where in rejection[0]
+    assert daemon.status_text().endswith("ok, config rejected (see journal)")
+    # The next valid edit is taken, and the status clears.
+    write_in_place(path, edited(BASE, control__setpoint="67.25"))
+    run_for(daemon, PERIOD)
+    assert daemon.setpoint == 67.25
+    assert daemon.status_text().endswith(", ok")
+
+
+def test_a_deleted_file_is_reported_and_a_new_one_picked_up(tmp_path: Path) -> None:
+    daemon, _world, path, events = start(tmp_path)
+    run_for(daemon, 60.0)
+    path.unlink()
+    run_for(daemon, PERIOD)
+    assert "no such file" in events.logged()[-1]
+    assert daemon.supervisor.heater_allowed
+    path.write_text(edited(BASE, control__setpoint="64.0"), encoding="utf-8")
+    run_for(daemon, PERIOD)
+    assert daemon.setpoint == 64.0
+
+
+def test_a_hardware_key_edit_is_refused_and_the_rest_applied(tmp_path: Path) -> None:
+    daemon, _world, path, events = start(tmp_path)
+    run_for(daemon, 60.0)
+    rename_over(path, edited(BASE, sensor__address="0x49", control__setpoint="70.0"))
+    run_for(daemon, PERIOD)
+    assert daemon.config.sensor.address == 0x48
+    assert daemon.setpoint == 70.0
+    refusal = next(m for m in events.logged() if "need a restart" in m)
+    assert "sensor.address" in refusal and "72" in refusal  # the address still in use, 0x48
+    assert events.configs()[-1]["config"]["sensor"]["address"] == 0x48
+
+
+def test_a_tuning_change_is_bumpless(tmp_path: Path) -> None:
+    daemon, _world, path, events = start(tmp_path)
+    run_for(daemon, 4 * 3600.0)  # holding 66 °C
+    before = events.periods[-1]
+    rename_over(path, edited(BASE, control__kc="40.0", control__ti="1600.0"))
+    run_for(daemon, PERIOD)
+    switched = events.periods[-1]
+    assert switched.reset_from == before.output
+    assert daemon.controller.params.kc == 40.0
+    # The new controller starts from the output in force: what moves it in its first step
+    # is its proportional action on the error's change in one period, never a jump.
+    error_change = abs(switched.pv - before.pv) if switched.pv and before.pv else 0.0
+    assert abs(switched.output - before.output) <= 40.0 * error_change + 0.1
+
+
+def test_mode_and_manual_output_follow_the_file(tmp_path: Path) -> None:
+    daemon, _world, path, events = start(tmp_path)
+    run_for(daemon, 3600.0)
+    rename_over(path, edited(BASE, control__mode="manual", control__manual_output="30.0"))
+    run_for(daemon, PERIOD)
+    assert (events.periods[-1].mode, events.periods[-1].output) == ("manual", 30.0)
+    rename_over(path, edited(BASE, control__mode="auto", control__manual_output="30.0"))
+    run_for(daemon, PERIOD)
+    assert events.periods[-1].mode == "auto"
+    assert events.periods[-1].reset_from == 30.0
+
+
+def test_a_file_changing_while_it_is_read_is_read_again_later(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_text(BASE, encoding="utf-8")
+    source = ConfigFile(path)
+    source.load()
+    real_load = config_module.load
+
+    def load_while_an_editor_writes(where: Any) -> config_module.Config:
+        result = real_load(where)
+        with path.open("a", encoding="utf-8") as file:
+            file.write("\n")  # the editor's last write lands after our read
+        return result
+
+    path.write_text(edited(BASE, control__setpoint="60.0"), encoding="utf-8")
+    monkeypatch.setattr("hermsd.config_file.load", load_while_an_editor_writes)
+    assert source.poll() is None
+    monkeypatch.setattr("hermsd.config_file.load", real_load)
+    result = source.poll()
+    assert isinstance(result, config_module.Config) and result.control.setpoint == 60.0
+    assert source.poll() is None
+
+
+@settings(
+    max_examples=100,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+@given(edits=mutated_config() | documents.map(lambda doc: yaml.safe_dump(doc).encode()))
+def test_fuzz_a_running_daemon_survives_any_edit(tmp_path: Path, edits: bytes) -> None:
+    """Whatever lands in the file, the loop runs on a config within every bound."""
+    daemon, _world, path, events = start(tmp_path)
+    run_for(daemon, 300.0)
+    raw = edits.replace(b"backend: serial-rts", b"backend: sim").replace(
+        b"dir: /var/log/hermsd", b"dir: null"
+    )
+    path.write_bytes(raw)
+    run_for(daemon, 3 * PERIOD)
+    assert_within_spec(daemon.config)
+    assert events.periods[-1].t >= daemon.clock.monotonic() - PERIOD  # the loop goes on
+    daemon.shutdown()
