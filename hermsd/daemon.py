@@ -226,9 +226,13 @@ class Daemon:
     # -- life cycle -----------------------------------------------------------------------
 
     def start(self) -> None:
-        """Outputs off, check and program the sensor, and lay out the schedule."""
+        """Outputs off, check and program the sensor, and lay out the schedule.
+
+        A latch file that cannot be read raises StateError: the daemon must not guess.
+        """
         for output in self.outputs.all():
             output.set(False)
+        stored = self.latches.load() if self.latches is not None else Latches()
         self.sensor.identify()
         self._program_sensor()
         now = self.clock.monotonic()
@@ -245,7 +249,7 @@ class Daemon:
         self._started = True
         self._record_config("start", now)
         self._event(logging.INFO, "started", now)
-        self._restore_latches(now)
+        self._restore_latches(stored, now)
 
     def _program_sensor(self) -> None:
         """Wake the chip and set its limits; its T_CRIT_A pin can then gate the SSR in hardware."""
@@ -434,14 +438,8 @@ class Daemon:
 
     # -- latched alarms across restarts ---------------------------------------------------
 
-    def _restore_latches(self, t: float) -> None:
-        """Raise again the alarms latched before a restart, unless `safety.reset` moved on.
-
-        A latch file that cannot be read raises StateError: the daemon must not guess.
-        """
-        if self.latches is None:
-            return
-        stored = self.latches.load()
+    def _restore_latches(self, stored: Latches, t: float) -> None:
+        """Raise again the alarms latched before a restart, unless `safety.reset` moved on."""
         if stored.alarms and stored.reset != self.config.safety.reset:
             kinds = ", ".join(a.kind for a in stored.alarms)
             self._event(logging.WARNING, f"alarms reset by safety.reset: {kinds}", t)
@@ -479,12 +477,11 @@ class Daemon:
             ),
             self.config.safety.reset,
         )
+        self._saved_latches = [alarm.kind for alarm in alarms]  # tried again at the next change
         try:
             self.latches.save(stored)
         except OSError as error:
             self._event(logging.ERROR, f"saving latched alarms failed: {error}", t)
-            return
-        self._saved_latches = [alarm.kind for alarm in alarms]
 
     # -- the periodic work ----------------------------------------------------------------
 

@@ -1,0 +1,166 @@
+"""Latched alarms survive restarts and crashes, and clear only by an explicit act."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from test_reload import BASE, Events, edited, rename_over, run_for
+
+from hermsd import cli
+from hermsd.config import Config, parse
+from hermsd.config_file import ConfigFile
+from hermsd.daemon import Daemon
+from hermsd.latches import LATCHED_FILE, RESET_FILE, Latches, LatchStore, StateError
+from hermsd.sim.clock import VirtualClock
+from hermsd.sim.world import World, build_world
+
+KIND = "sensor_stuck"
+
+
+def boot(
+    state: Path, config_text: str = BASE, config_path: Path | None = None
+) -> tuple[Daemon, World, Events]:
+    """A daemon on the simulated tun keeping its latches in `state` (a start or a restart)."""
+    if config_path is not None:
+        config_path.write_text(config_text, encoding="utf-8")
+        source: ConfigFile | None = ConfigFile(config_path)
+        config: Config = source.load()  # type: ignore[union-attr]
+    else:
+        source, config = None, parse(config_text)
+    clock = VirtualClock()
+    world = build_world(config, clock)
+    events = Events()
+    daemon = Daemon(
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        recorder=events,
+        config_file=source,
+        latches=LatchStore(state),
+    )
+    daemon.listeners.append(events)
+    daemon.start()
+    return daemon, world, events
+
+
+def latch_a_dead_element(state: Path, config_text: str = BASE) -> None:
+    """Run until a watch latches an alarm over a dead element, then die without a word.
+
+    In this still, noiseless tun the sensor's word never moves while the output does, so
+    the stuck-sensor watch is the one that latches first.
+    """
+    daemon, world, _events = boot(state, config_text)
+    world.plant.set_element_ok(False, daemon.clock.monotonic())
+    run_for(daemon, 1200.0)
+    assert daemon.supervisor.latched == [KIND]
+
+
+def test_a_latched_alarm_is_stored_and_raised_again_after_a_restart(tmp_path: Path) -> None:
+    latch_a_dead_element(tmp_path)
+    stored = json.loads((tmp_path / LATCHED_FILE).read_text())
+    assert [a["kind"] for a in stored["alarms"]] == [KIND]
+    assert stored["reset"] == 0
+    daemon, world, events = boot(tmp_path)  # Restart=always after a crash
+    assert daemon.supervisor.latched == [KIND]
+    assert any("before a restart" in m for m in events.logged())
+    run_for(daemon, 600.0)
+    assert world.plant.energy_in(daemon.clock.monotonic()) == 0.0
+    assert {r.state for r in events.periods} == {"alarm"}
+
+
+def test_bumping_safety_reset_before_a_start_clears_them(tmp_path: Path) -> None:
+    latch_a_dead_element(tmp_path)
+    daemon, _world, events = boot(tmp_path, edited(BASE, safety__reset="1"))
+    assert daemon.supervisor.latched == []
+    assert f"alarms reset by safety.reset: {KIND}" in events.logged()
+    assert LatchStore(tmp_path).load() == Latches((), 1)
+
+
+def test_bumping_safety_reset_in_a_reload_clears_them(tmp_path: Path) -> None:
+    state, config_path = tmp_path / "state", tmp_path / "hermsd.yaml"
+    state.mkdir()
+    latch_a_dead_element(state)
+    daemon, _world, events = boot(state, BASE, config_path)
+    assert daemon.supervisor.latched == [KIND]
+    rename_over(config_path, edited(BASE, safety__reset="1"))
+    run_for(daemon, 5.0)
+    assert daemon.supervisor.latched == []
+    assert f"alarms reset: {KIND}" in events.logged()
+    assert LatchStore(state).load() == Latches((), 1)
+    run_for(daemon, 600.0)
+    assert events.periods[-1].state == "ok"
+
+
+def test_a_config_reload_alone_keeps_them(tmp_path: Path) -> None:
+    state, config_path = tmp_path / "state", tmp_path / "hermsd.yaml"
+    state.mkdir()
+    latch_a_dead_element(state)
+    daemon, _world, _events = boot(state, BASE, config_path)
+    rename_over(config_path, edited(BASE, control__setpoint="70.0"))
+    run_for(daemon, 60.0)
+    assert daemon.setpoint == 70.0
+    assert daemon.supervisor.latched == [KIND]
+
+
+def test_reset_alarm_clears_only_the_alarms_it_names(tmp_path: Path) -> None:
+    latch_a_dead_element(tmp_path)
+    daemon, _world, _events = boot(tmp_path)
+    LatchStore(tmp_path).request_reset(["dry_fire"])  # seen before this alarm was raised
+    run_for(daemon, 5.0)
+    assert daemon.supervisor.latched == [KIND]
+    assert not (tmp_path / RESET_FILE).exists()
+    LatchStore(tmp_path).request_reset([KIND])
+    run_for(daemon, 5.0)
+    assert daemon.supervisor.latched == []
+    assert LatchStore(tmp_path).load().alarms == ()
+
+
+def test_the_reset_alarm_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["reset-alarm", "--state", str(tmp_path)]) == 0
+    assert f"no latched alarm in {tmp_path}" in capsys.readouterr().out
+    assert not (tmp_path / RESET_FILE).exists()
+    latch_a_dead_element(tmp_path)
+    assert cli.main(["reset-alarm", "--state", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"{KIND}, latched ") and "UTC" in out
+    # A stopped daemon clears them when it starts.
+    daemon, _world, events = boot(tmp_path)
+    assert daemon.supervisor.latched == []
+    assert f"alarms reset: {KIND}" in events.logged()
+
+
+def test_a_damaged_latch_file_stops_the_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / LATCHED_FILE).write_text('{"alarms": [', encoding="utf-8")
+    with pytest.raises(StateError, match="not valid JSON"):
+        boot(tmp_path)
+    code = cli.main(
+        ["run", "--simulate", "--speed", "max", "--duration", "10s", "--state", str(tmp_path)]
+    )
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "Traceback" not in err and "started" not in err
+    assert err.splitlines()[-1].startswith(f"hermsd: {tmp_path / LATCHED_FILE}: not valid JSON")
+    assert "reset-alarm" in err.splitlines()[-1]
+    assert cli.main(["reset-alarm", "--state", str(tmp_path)]) == 0
+    assert LatchStore(tmp_path).load() == Latches()
+
+
+def test_a_disk_that_refuses_the_latch_file_is_said_and_control_goes_on(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def refuse(self: LatchStore, latches: Latches) -> None:
+        raise OSError(30, "Read-only file system")
+
+    monkeypatch.setattr(LatchStore, "save", refuse)
+    daemon, world, events = boot(tmp_path)
+    world.plant.set_element_ok(False, daemon.clock.monotonic())
+    run_for(daemon, 1200.0)
+    assert daemon.supervisor.latched == [KIND]
+    failures = [m for m in events.logged() if m.startswith("saving latched alarms failed")]
+    assert len(failures) == 1 and "Read-only" in failures[0]
+    assert events.periods[-1].t >= daemon.clock.monotonic() - 5.0
