@@ -196,3 +196,70 @@ def test_a_chip_that_comes_back_gets_its_critical_limit_again() -> None:
     with daemon:
         daemon.run(until=1200.0)
         assert world.sensor.limit("crit") == daemon.config.safety.max_temp
+
+
+def test_sighup_reloads_the_edited_file_in_the_running_process(tmp_path: Path) -> None:
+    cfg = tmp_path / "hermsd.yaml"
+    cfg.write_text("output:\n  backend: sim\nlog:\n  dir: null\n")
+    proc = subprocess.Popen(
+        _cli("run", "--simulate", "--speed", "20", "--config", str(cfg)),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stderr is not None
+    assert "started" in proc.stderr.readline()
+    cfg.write_text("output:\n  backend: sim\nlog:\n  dir: null\ncontrol:\n  setpoint: 70\n")
+    proc.send_signal(signal.SIGHUP)
+    reloaded = proc.stderr.readline()  # the next period reads it (or polling would, anyway)
+    proc.send_signal(signal.SIGTERM)
+    _out, err = proc.communicate(timeout=10)
+    assert "config reloaded: control.setpoint changed" in reloaded, reloaded + err
+    assert proc.returncode == 0, err
+
+
+def test_safe_off_finds_the_outputs_in_a_file_broken_elsewhere(tmp_path: Path) -> None:
+    controller, terminal = os.openpty()
+    try:
+        cfg = tmp_path / "hermsd.yaml"
+        cfg.write_text(
+            "control:\n  kc: -5\n  setpont: 70\n"
+            f"output:\n  backend: serial-dtr\n  port: {os.ttyname(terminal)}\n"
+        )
+        proc = subprocess.run(
+            _cli("safe-off", "--config", str(cfg)), capture_output=True, text=True, timeout=30
+        )
+    finally:
+        os.close(controller)
+        os.close(terminal)
+    assert proc.returncode == 0
+    assert "serial-dtr" in proc.stdout + proc.stderr  # it went for the line, not the errors
+    assert "kc" not in proc.stderr and "setpont" not in proc.stderr
+
+
+def test_safe_off_names_a_problem_in_the_output_section(tmp_path: Path) -> None:
+    cfg = tmp_path / "hermsd.yaml"
+    cfg.write_text("control:\n  kc: -5\noutput:\n  backend: serial-rst\n")
+    proc = subprocess.run(
+        _cli("safe-off", "--config", str(cfg)), capture_output=True, text=True, timeout=30
+    )
+    assert proc.returncode == 0
+    assert f"{cfg}:4:12: output.backend" in proc.stderr and "kc" not in proc.stderr
+
+
+def test_a_watchdog_shorter_than_three_periods_is_refused(tmp_path: Path) -> None:
+    env = dict(os.environ, WATCHDOG_USEC="10000000")  # WatchdogSec=10s
+    env.pop("WATCHDOG_PID", None)  # no pid: the watchdog is this process's
+    proc = subprocess.run(
+        _cli("run", "--simulate", "--speed", "max", "--duration", "10s"),
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (
+        "hermsd: WatchdogSec=10s is shorter than three control periods (3 × 5 s): "
+        "set WatchdogSec=15s or more in the unit, or shorten control.period"
+    )
