@@ -11,6 +11,7 @@ from pathlib import Path
 
 from control import _replace_section  # bench/control.py, beside this file
 
+from hermsd.safety import LATCHED_KINDS
 from hermsd.sim import scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -25,7 +26,7 @@ def main() -> int:
         "|---|---|---|---|---|---|",
     ]
     for path in sorted(SCENARIOS.glob("*.yaml")):
-        if path.stem == "default":
+        if path.stem in ("default", "brew-day"):  # brew days, not faults
             continue
         sc = scenario.load_scenario(path)
         summary = scenario.run(sc).summary
@@ -35,12 +36,7 @@ def main() -> int:
             if alarm is None:
                 lines.append(f"| {path.stem} | {fault_at} | none | – | – | no alarm, no bump |")
                 continue
-            recovery = (
-                "latched"
-                if alarm["kind"]
-                in ("heater_not_heating", "ssr_stuck_on", "dry_fire", "sensor_stuck")
-                else "auto"
-            )
+            recovery = "latched" if alarm["kind"] in LATCHED_KINDS else "auto"
             lines.append(
                 f"| {path.stem} | {fault_at} | {alarm['kind']} at {alarm['at_s']} s "
                 f"| {alarm['detected_after_s']} | {alarm['heater_off_after_s']} | {recovery} |"

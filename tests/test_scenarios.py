@@ -109,3 +109,24 @@ def test_scenario_errors_name_the_key() -> None:
 def test_every_shipped_scenario_parses() -> None:
     for path in sorted(SCENARIOS.glob("*.yaml")):
         assert scenario.load_scenario(path).duration > 0
+
+
+def test_config_events_reload_at_the_next_period_without_a_bump() -> None:
+    brew_day = scenario.load_scenario(SCENARIOS / "brew-day.yaml")
+    result = scenario.run(brew_day, keep_records=True)
+    by_t = {r.t: r for r in result.records}
+    # 1h15m: the rest's setpoint arrives with the period at that very instant.
+    assert by_t[4495.0].setpoint == 52.0 and by_t[4500.0].setpoint == 66.0
+    # 2h30m: the retune resets the new controller to the output in force.
+    retuned = by_t[9000.0]
+    assert retuned.reset_from == by_t[8995.0].output
+    assert abs(retuned.output - by_t[8995.0].output) < 1.0
+    assert by_t[13500.0].setpoint == 76.0
+    kinds = {a["kind"] for a in result.summary["alarms"]}
+    assert kinds == {"sensor_fault", "stale_reading"}
+
+
+def test_an_invalid_config_event_names_the_event() -> None:
+    bad = parse_scenario({"events": [{"at": "1h", "config": {"control": {"ti": -1}}}]})
+    with pytest.raises(ScenarioError, match=r"events\[0\]\.config.*control\.ti"):
+        scenario.run(bad)

@@ -33,7 +33,17 @@ from hermsd.sim.hlt import Plant
 from hermsd.sim.world import build_world
 
 SENSOR_FAULTS = ("nack", "timeout", "stuck", "spike", "wrong_id", "gone", "slow", "ok")
-EVENT_KINDS = ("add_water", "setpoint", "mode", "output", "sensor", "heater", "ssr", "ambient")
+EVENT_KINDS = (
+    "add_water",
+    "setpoint",
+    "mode",
+    "output",
+    "sensor",
+    "heater",
+    "ssr",
+    "ambient",
+    "config",
+)
 
 
 class ScenarioError(ValueError):
@@ -149,6 +159,8 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
         raise fail(f"{key}.heater", "expected open or ok")
     elif kind == "ssr" and value not in ("stuck_on", "ok"):
         raise fail(f"{key}.ssr", "expected stuck_on or ok")
+    elif kind == "config" and not isinstance(value, dict):
+        raise fail(f"{key}.config", "expected config sections to change, as in the file")
     return Event(at, kind, value, lasts)
 
 
@@ -156,11 +168,27 @@ def effective_config(base: Config, scenario: Scenario) -> Config:
     """The daemon's config with the scenario's overrides, validated like the file."""
     merged = _merge(config_module.to_dict(base), scenario.config)
     merged.setdefault("control", {})["setpoint"] = scenario.setpoint
-    merged.setdefault("output", {})["backend"] = "sim"
+    return _validated(merged, f"<scenario {scenario.name}>")
+
+
+def _validated(document: dict[str, Any], source: str) -> Config:
+    """A config document on the simulated heater, checked as a file would be."""
+    document.setdefault("output", {})["backend"] = "sim"
     try:
-        return config_module.parse(yaml.safe_dump(merged), f"<scenario {scenario.name}>")
+        return config_module.parse(yaml.safe_dump(document), source)
     except config_module.ConfigError as error:
         raise ScenarioError(str(error)) from None
+
+
+def _reloads(config: Config, scenario: Scenario) -> dict[int, Config]:
+    """The config each `config` event saves, by event index: edits accumulate like a file's."""
+    reloads = {}
+    for index, event in enumerate(scenario.events):
+        if event.kind == "config":
+            document = _merge(config_module.to_dict(config), event.value)
+            config = _validated(document, f"<scenario {scenario.name} events[{index}].config>")
+            reloads[index] = config
+    return reloads
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -229,6 +257,7 @@ def run(
 ) -> Result:
     """Run `scenario` through the daemon on a virtual clock; measure it (and log it)."""
     config = effective_config(base or config_module.DEFAULT, scenario)
+    reloads = _reloads(config, scenario)
     started = time.perf_counter()
     clock = VirtualClock()
     recorder = None
@@ -253,9 +282,11 @@ def run(
     recovery_min: dict[str, float | None] = {}
     fault_times: list[float] = []
 
-    def schedule(event: Event) -> None:
+    def schedule(index: int, event: Event) -> None:
         def fire() -> None:
             t = clock.monotonic()
+            if index in reloads:
+                daemon.reload(reloads[index])
             _apply(event, t, plant, chip, circuit, daemon)
             if event.kind in ("sensor", "heater", "ssr") and event.value not in (
                 ("ok", None),
@@ -264,14 +295,16 @@ def run(
                 fault_times.append(t)
             snapshot = copy.deepcopy(plant)
             sp = event.value if event.kind == "setpoint" else daemon.setpoint
+            if index in reloads:
+                sp = reloads[index].control.setpoint
             recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration)
 
         clock.call_at(event.at, fire)
         if event.kind == "sensor" and event.lasts is not None:
             clock.call_at(event.at + event.lasts, lambda: chip.set_fault("ok"))
 
-    for event in scenario.events:
-        schedule(event)
+    for index, event in enumerate(scenario.events):
+        schedule(index, event)
     try:
         with daemon:
             daemon.run(until=scenario.duration)
