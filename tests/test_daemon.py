@@ -173,17 +173,24 @@ def test_safe_off_exits_0_and_says_what_it_could_not_reach(tmp_path: Path) -> No
     assert "serial-rts" in proc.stderr and "does-not-exist" in proc.stderr
 
 
-def test_safe_off_on_a_pseudo_terminal_drops_the_line(tmp_path: Path) -> None:
+def _safe_off_on_a_pty(tmp_path: Path, before_output: str = "") -> subprocess.CompletedProcess[str]:
+    """`hermsd safe-off` with the SSR on the DTR line of a pseudo-terminal."""
     controller, terminal = os.openpty()
     try:
         cfg = tmp_path / "hermsd.yaml"
-        cfg.write_text(f"output:\n  backend: serial-dtr\n  port: {os.ttyname(terminal)}\n")
-        proc = subprocess.run(
+        cfg.write_text(
+            f"{before_output}output:\n  backend: serial-dtr\n  port: {os.ttyname(terminal)}\n"
+        )
+        return subprocess.run(
             _cli("safe-off", "--config", str(cfg)), capture_output=True, text=True, timeout=30
         )
     finally:
         os.close(controller)
         os.close(terminal)
+
+
+def test_safe_off_on_a_pseudo_terminal_drops_the_line(tmp_path: Path) -> None:
+    proc = _safe_off_on_a_pty(tmp_path)
     assert proc.returncode == 0
     # A pty has no modem lines: either it was switched off or the reason is said in one line.
     assert "serial-dtr off" in proc.stdout or proc.stderr.count("\n") == 1
@@ -219,19 +226,7 @@ def test_sighup_reloads_the_edited_file_in_the_running_process(tmp_path: Path) -
 
 
 def test_safe_off_finds_the_outputs_in_a_file_broken_elsewhere(tmp_path: Path) -> None:
-    controller, terminal = os.openpty()
-    try:
-        cfg = tmp_path / "hermsd.yaml"
-        cfg.write_text(
-            "control:\n  kc: -5\n  setpont: 70\n"
-            f"output:\n  backend: serial-dtr\n  port: {os.ttyname(terminal)}\n"
-        )
-        proc = subprocess.run(
-            _cli("safe-off", "--config", str(cfg)), capture_output=True, text=True, timeout=30
-        )
-    finally:
-        os.close(controller)
-        os.close(terminal)
+    proc = _safe_off_on_a_pty(tmp_path, before_output="control:\n  kc: -5\n  setpont: 70\n")
     assert proc.returncode == 0
     assert "serial-dtr" in proc.stdout + proc.stderr  # it went for the line, not the errors
     assert "kc" not in proc.stderr and "setpont" not in proc.stderr

@@ -6,43 +6,19 @@ import json
 from pathlib import Path
 
 import pytest
-from test_reload import BASE, Events, edited, rename_over, run_for
+from test_reload import BASE, Events, edited, rename_over, run_for, start
 
 from hermsd import cli
-from hermsd.config import Config, parse
-from hermsd.config_file import ConfigFile
 from hermsd.daemon import Daemon
 from hermsd.latches import LATCHED_FILE, RESET_FILE, Latches, LatchStore, StateError
-from hermsd.sim.clock import VirtualClock
-from hermsd.sim.world import World, build_world
+from hermsd.sim.world import World
 
 KIND = "sensor_stuck"
 
 
-def boot(
-    state: Path, config_text: str = BASE, config_path: Path | None = None
-) -> tuple[Daemon, World, Events]:
-    """A daemon on the simulated tun keeping its latches in `state` (a start or a restart)."""
-    if config_path is not None:
-        config_path.write_text(config_text, encoding="utf-8")
-        source: ConfigFile | None = ConfigFile(config_path)
-        config: Config = source.load()  # type: ignore[union-attr]
-    else:
-        source, config = None, parse(config_text)
-    clock = VirtualClock()
-    world = build_world(config, clock)
-    events = Events()
-    daemon = Daemon(
-        config,
-        clock,
-        world.sensor,
-        world.outputs,
-        recorder=events,
-        config_file=source,
-        latches=LatchStore(state),
-    )
-    daemon.listeners.append(events)
-    daemon.start()
+def boot(state: Path, text: str = BASE, *, watch: bool = False) -> tuple[Daemon, World, Events]:
+    """A daemon keeping its latches in `state` (a start, or a restart after a crash)."""
+    daemon, world, _path, events = start(state, text, latches=LatchStore(state), watch=watch)
     return daemon, world, events
 
 
@@ -80,26 +56,22 @@ def test_bumping_safety_reset_before_a_start_clears_them(tmp_path: Path) -> None
 
 
 def test_bumping_safety_reset_in_a_reload_clears_them(tmp_path: Path) -> None:
-    state, config_path = tmp_path / "state", tmp_path / "hermsd.yaml"
-    state.mkdir()
-    latch_a_dead_element(state)
-    daemon, _world, events = boot(state, BASE, config_path)
+    latch_a_dead_element(tmp_path)
+    daemon, _world, events = boot(tmp_path, watch=True)
     assert daemon.supervisor.latched == [KIND]
-    rename_over(config_path, edited(BASE, safety__reset="1"))
+    rename_over(tmp_path / "hermsd.yaml", edited(BASE, safety__reset="1"))
     run_for(daemon, 5.0)
     assert daemon.supervisor.latched == []
     assert f"alarms reset: {KIND}" in events.logged()
-    assert LatchStore(state).load() == Latches((), 1)
+    assert LatchStore(tmp_path).load() == Latches((), 1)
     run_for(daemon, 600.0)
     assert events.periods[-1].state == "ok"
 
 
 def test_a_config_reload_alone_keeps_them(tmp_path: Path) -> None:
-    state, config_path = tmp_path / "state", tmp_path / "hermsd.yaml"
-    state.mkdir()
-    latch_a_dead_element(state)
-    daemon, _world, _events = boot(state, BASE, config_path)
-    rename_over(config_path, edited(BASE, control__setpoint="70.0"))
+    latch_a_dead_element(tmp_path)
+    daemon, _world, _events = boot(tmp_path, watch=True)
+    rename_over(tmp_path / "hermsd.yaml", edited(BASE, control__setpoint="70.0"))
     run_for(daemon, 60.0)
     assert daemon.setpoint == 70.0
     assert daemon.supervisor.latched == [KIND]

@@ -18,6 +18,7 @@ from test_config import assert_within_spec, documents, mutated_config
 from hermsd import config as config_module
 from hermsd.config_file import ConfigFile
 from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.latches import LatchStore
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
@@ -91,7 +92,10 @@ class FakeNotifier:
         self._log.append("WATCHDOG=1")
 
 
-def start(tmp_path: Path, text: str = BASE) -> tuple[Daemon, World, Path, Events]:
+def start(
+    tmp_path: Path, text: str = BASE, *, latches: LatchStore | None = None, watch: bool = True
+) -> tuple[Daemon, World, Path, Events]:
+    """A started daemon on the simulated tun whose config is `text` in a file in `tmp_path`."""
     tmp_path.mkdir(parents=True, exist_ok=True)
     path = tmp_path / "hermsd.yaml"
     path.write_text(text, encoding="utf-8")
@@ -107,7 +111,8 @@ def start(tmp_path: Path, text: str = BASE) -> tuple[Daemon, World, Path, Events
         world.outputs,
         recorder=events,
         notifier=FakeNotifier(events.notified),  # type: ignore[arg-type]
-        config_file=source,
+        config_file=source if watch else None,
+        latches=latches,
     )
     daemon.listeners.append(events)
     daemon.start()
