@@ -485,9 +485,9 @@ class Recorder:
         return self._start(record)
 
     def _start(self, record: _Record) -> _OpenFile | None:
-        wall_ns = self._wall_ns()
-        part = self._unused_part_path(_utc_stamp(wall_ns))
-        metadata = {"version": __version__, "started_utc": _utc_iso(wall_ns)}
+        """A new file for `record`, named after its log time (the writer may run far behind)."""
+        part = self._unused_part_path(_utc_stamp(record.log_time_ns))
+        metadata = {"version": __version__, "started_utc": _utc_iso(record.log_time_ns)}
         metadata.update(self._metadata)
         try:
             stream = self._open_file(part)

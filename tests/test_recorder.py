@@ -376,9 +376,9 @@ def test_disk_full_never_reaches_the_caller_and_writing_resumes_in_a_new_file(
 
     assert recorder.errors == 1
     assert len(disk.opened) == 2
-    # The new file starts with the configuration again, stamped with its first record's time.
+    # The new file starts with the configuration again, named and stamped after its first record.
     [resumed] = finished_files(tmp_path)
-    assert resumed.name == "hermsd-20260101T000007Z.mcap"  # 2.5 s + 5 s after the start
+    assert resumed.name == "hermsd-20260101T000015Z.mcap"
     assert decoded(resumed) == [
         (CONFIG_TOPIC, EPOCH_NS + 15 * S, CONFIG),
         (PERIOD_TOPIC, EPOCH_NS + 15 * S, period(3)),
@@ -444,9 +444,9 @@ def test_files_rotate_on_log_time_and_each_starts_complete(tmp_path: Path) -> No
 
 
 def test_files_started_in_the_same_second_get_distinct_names(tmp_path: Path) -> None:
-    recorder = Recorder(tmp_path, wall_ns=lambda: EPOCH_NS, rotate_s=1)
+    recorder = Recorder(tmp_path, wall_ns=lambda: EPOCH_NS, rotate_s=0.25)
     for k in range(3):
-        recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S, period(k))
+        recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S // 4, period(k))  # 0, 0.25, 0.5 s
     recorder.close()
     assert [p.name for p in finished_files(tmp_path)] == [
         "hermsd-20260101T000000Z-1.mcap",
@@ -704,8 +704,29 @@ def test_an_unfinished_file_is_read_in_log_time_order(tmp_path: Path) -> None:
     recorder.write(PERIOD_TOPIC, EPOCH_NS + 2 * S, period(0))
     recorder.log(LogLevel.INFO, "stamped before the period, handed over after", EPOCH_NS + S)
     assert recorder.sync(timeout=5)
-    part = tmp_path / "hermsd-20260101T000000Z.mcap.part"
+    part = tmp_path / "hermsd-20260101T000002Z.mcap.part"  # named after the first handed over
     unfinished = [m.topic for m in LogFile(part).messages()]
     recorder.close()
     assert unfinished == [LOG_TOPIC, PERIOD_TOPIC]
     assert [m.topic for m in read_messages(finished_files(tmp_path))] == unfinished
+
+
+def test_a_file_is_named_after_its_first_record_whatever_the_recorder_clock_says(
+    tmp_path: Path,
+) -> None:
+    # A simulated day runs ahead of the writer thread: the clock it would read when it gets
+    # round to opening a file is minutes past the records. Here it is ten minutes ahead.
+    recorder = Recorder(tmp_path, wall_ns=lambda: EPOCH_NS + 600 * S, rotate_s=3600)
+    first = EPOCH_NS + (3600 + 2 * 60 + 3) * S + 999_999_999  # 01:02:03.999…, named 01:02:03
+    recorder.write(PERIOD_TOPIC, first, period(1))
+    recorder.write(PERIOD_TOPIC, first + 3600 * S, period(2))  # one hour on: a new file
+    recorder.close()
+    files = finished_files(tmp_path)
+    assert [p.name for p in files] == [
+        "hermsd-20260101T010203Z.mcap",
+        "hermsd-20260101T020203Z.mcap",
+    ]
+    assert [LogFile(p).metadata()["hermsd"]["started_utc"] for p in files] == [
+        "2026-01-01T01:02:03Z",
+        "2026-01-01T02:02:03Z",
+    ]
