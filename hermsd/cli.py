@@ -14,7 +14,7 @@ import math
 import signal
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
 from typing import TextIO
@@ -262,7 +262,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             )
         # Unwinds in reverse: heater off first, then the dead-man, then the log is finished.
         with contextlib.ExitStack() as stack:
-            recorder = _open_recorder(log_dir, config, daemon.clock.wall_ns) if log_dir else None
+            recorder = _open_recorder(log_dir, config) if log_dir else None
             if recorder is not None:
                 stack.callback(recorder.close)
             daemon.recorder = recorder
@@ -281,7 +281,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _open_recorder(directory: Path, config: Config, wall_ns: Callable[[], int]) -> Recorder:
+def _open_recorder(directory: Path, config: Config) -> Recorder:
     """The flight recorder, after recovering whatever a crash left in `directory`."""
     try:
         directory.mkdir(parents=True, exist_ok=True)
@@ -292,7 +292,6 @@ def _open_recorder(directory: Path, config: Config, wall_ns: Callable[[], int]) 
     log_cfg = config.log
     return Recorder(
         directory,
-        wall_ns=wall_ns,
         rotate_s=log_cfg.rotate_hours * 3600.0,
         flush_interval=log_cfg.flush_interval,
         sync_interval=log_cfg.sync_interval,
