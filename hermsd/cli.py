@@ -15,7 +15,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
 from typing import TextIO
@@ -291,7 +291,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             )
         # Unwinds in reverse: heater off first, then the dead-man, then the log is finished.
         with contextlib.ExitStack() as stack:
-            recorder = _open_recorder(log_dir, config, daemon.clock.wall_ns) if log_dir else None
+            recorder = _open_recorder(log_dir, config) if log_dir else None
             if recorder is not None:
                 stack.callback(recorder.close)
             daemon.recorder = recorder
@@ -333,7 +333,7 @@ def _default_state_directory() -> Path:
     return Path(from_systemd) if from_systemd else DEFAULT_STATE
 
 
-def _open_recorder(directory: Path, config: Config, wall_ns: Callable[[], int]) -> Recorder:
+def _open_recorder(directory: Path, config: Config) -> Recorder:
     """The flight recorder, after recovering whatever a crash left in `directory`."""
     try:
         directory.mkdir(parents=True, exist_ok=True)
@@ -344,7 +344,6 @@ def _open_recorder(directory: Path, config: Config, wall_ns: Callable[[], int]) 
     log_cfg = config.log
     return Recorder(
         directory,
-        wall_ns=wall_ns,
         rotate_s=log_cfg.rotate_hours * 3600.0,
         flush_interval=log_cfg.flush_interval,
         sync_interval=log_cfg.sync_interval,

@@ -18,9 +18,10 @@ What survives what:
 - A full queue drops the new record (`dropped`), and a WARNING event on `/hermsd/log` says how
   many were dropped as soon as there is room again.
 
-Files rotate when a record's log time is `rotate_s` past the first record of the file: log
-time, not the recorder's clock, so a simulated day gives the same files as a real one, and a
-wall clock that jumps forward (a Pi without RTC meeting NTP) starts a file with a true name.
+Files are named after the log time of their first record, and rotate when a record's log
+time is `rotate_s` past that: log time, not the recorder's clock, so a simulated day (whose
+clock runs far ahead of the writer thread) gives the same files as a real one, and a wall
+clock that jumps forward (a Pi without RTC meeting NTP) starts a file with a true name.
 """
 
 from __future__ import annotations
@@ -263,7 +264,8 @@ _QueueItem = _Record | _SyncRequest | None
 class Recorder:
     """Writes records to rotating MCAP files from a thread of its own.
 
-    `wall_ns` names the files; `now` (monotonic seconds) paces flushes, syncs and retries.
+    Files are named after the log time of their first record; `now` (monotonic seconds)
+    paces flushes, syncs and retries.
     `open_file` creates a new file for writing and must fail if it exists (tests inject
     failing disks through it). A message handed to `write` belongs to the recorder from then
     on: it is encoded later, on the writer thread.
@@ -273,7 +275,6 @@ class Recorder:
         self,
         directory: Path | str,
         *,
-        wall_ns: Callable[[], int],
         rotate_s: float = 86400.0,
         flush_interval: float = 2.0,
         sync_interval: float = 10.0,
@@ -288,7 +289,6 @@ class Recorder:
                 "flush_interval and sync_interval not negative"
             )
         self._directory = Path(directory)
-        self._wall_ns = wall_ns
         self._rotate_ns = round(rotate_s * 1e9)
         self._flush_interval = flush_interval
         self._sync_interval = sync_interval
@@ -485,9 +485,9 @@ class Recorder:
         return self._start(record)
 
     def _start(self, record: _Record) -> _OpenFile | None:
-        wall_ns = self._wall_ns()
-        part = self._unused_part_path(_utc_stamp(wall_ns))
-        metadata = {"version": __version__, "started_utc": _utc_iso(wall_ns)}
+        """A new file for `record`, named after its log time (the writer may run far behind)."""
+        part = self._unused_part_path(_utc_stamp(record.log_time_ns))
+        metadata = {"version": __version__, "started_utc": _utc_iso(record.log_time_ns)}
         metadata.update(self._metadata)
         try:
             stream = self._open_file(part)
@@ -643,12 +643,12 @@ def _finite_or_null(value: Any) -> Any:
     return value
 
 
-def _utc_stamp(wall_ns: int) -> str:
-    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(wall_ns // 1_000_000_000))
+def _utc_stamp(log_time_ns: int) -> str:
+    return time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(log_time_ns // 1_000_000_000))
 
 
-def _utc_iso(wall_ns: int) -> str:
-    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(wall_ns // 1_000_000_000))
+def _utc_iso(log_time_ns: int) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(log_time_ns // 1_000_000_000))
 
 
 def _describe(exc: BaseException) -> str:

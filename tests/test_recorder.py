@@ -210,9 +210,7 @@ def chunk_message_counts(path: Path) -> list[int]:
 
 def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) -> None:
     clock = VirtualClock()
-    recorder = Recorder(
-        tmp_path, wall_ns=clock.wall_ns, now=clock.monotonic, metadata={"site": "garage"}
-    )
+    recorder = Recorder(tmp_path, now=clock.monotonic, metadata={"site": "garage"})
     sent = [
         (CONFIG_TOPIC, EPOCH_NS, CONFIG),
         (READING_TOPIC, EPOCH_NS + 1 * S, READING),
@@ -287,7 +285,7 @@ def test_schemas_reject_what_their_topics_must_not_carry() -> None:
 
 def test_not_a_number_is_recorded_as_null_and_bad_records_are_counted(tmp_path: Path) -> None:
     clock = VirtualClock()
-    recorder = Recorder(tmp_path, wall_ns=clock.wall_ns, now=clock.monotonic)
+    recorder = Recorder(tmp_path, now=clock.monotonic)
     recorder.write(PERIOD_TOPIC, EPOCH_NS, {**PERIOD, "pv": float("nan"), "d": float("inf")})
     recorder.write("/hermsd/unknown", EPOCH_NS + 1, {"t": 0.0})
     recorder.write(WINDOW_TOPIC, EPOCH_NS + 2, {**WINDOW, "window": object()})
@@ -301,7 +299,7 @@ def test_not_a_number_is_recorded_as_null_and_bad_records_are_counted(tmp_path: 
 
 def test_a_malformed_event_costs_an_error_not_the_writer_thread(tmp_path: Path) -> None:
     clock = VirtualClock()
-    recorder = Recorder(tmp_path, wall_ns=clock.wall_ns, now=clock.monotonic)
+    recorder = Recorder(tmp_path, now=clock.monotonic)
     recorder.write(LOG_TOPIC, EPOCH_NS, cast(dict[str, Any], ["not", "an", "event"]))
     recorder.write(PERIOD_TOPIC, EPOCH_NS + S, period(1))
     recorder.close()
@@ -319,9 +317,7 @@ def test_full_queue_drops_new_records_and_says_so_once_there_is_room(tmp_path: P
         return open(path, "xb")
 
     clock = VirtualClock()
-    recorder = Recorder(
-        tmp_path, wall_ns=clock.wall_ns, now=clock.monotonic, queue_size=5, open_file=slow_open
-    )
+    recorder = Recorder(tmp_path, now=clock.monotonic, queue_size=5, open_file=slow_open)
     recorder.write(PERIOD_TOPIC, EPOCH_NS, period(0))
     assert entered.wait(5)  # the writer thread holds record 0 and waits on the disk
     for k in range(1, 9):  # 5 fill the queue, 3 are dropped
@@ -347,7 +343,7 @@ def test_disk_full_never_reaches_the_caller_and_writing_resumes_in_a_new_file(
 ) -> None:
     disk = FakeDisk()
     clock = VirtualClock()
-    recorder = Recorder(tmp_path, wall_ns=clock.wall_ns, now=clock.monotonic, open_file=disk.open)
+    recorder = Recorder(tmp_path, now=clock.monotonic, open_file=disk.open)
     recorder.write(CONFIG_TOPIC, EPOCH_NS, CONFIG)
     recorder.write(PERIOD_TOPIC, EPOCH_NS, period(0))
     assert recorder.sync(timeout=5)
@@ -376,9 +372,9 @@ def test_disk_full_never_reaches_the_caller_and_writing_resumes_in_a_new_file(
 
     assert recorder.errors == 1
     assert len(disk.opened) == 2
-    # The new file starts with the configuration again, stamped with its first record's time.
+    # The new file starts with the configuration again, named and stamped after its first record.
     [resumed] = finished_files(tmp_path)
-    assert resumed.name == "hermsd-20260101T000007Z.mcap"  # 2.5 s + 5 s after the start
+    assert resumed.name == "hermsd-20260101T000015Z.mcap"
     assert decoded(resumed) == [
         (CONFIG_TOPIC, EPOCH_NS + 15 * S, CONFIG),
         (PERIOD_TOPIC, EPOCH_NS + 15 * S, period(3)),
@@ -395,7 +391,7 @@ def test_a_vanished_directory_is_reported_and_writing_resumes_when_it_is_back(
 ) -> None:
     directory = tmp_path / "logs"
     clock = VirtualClock()
-    recorder = Recorder(directory, wall_ns=clock.wall_ns, now=clock.monotonic)
+    recorder = Recorder(directory, now=clock.monotonic)
     recorder.write(PERIOD_TOPIC, EPOCH_NS, period(0))
     assert not recorder.sync(timeout=5)
     assert recorder.errors == 1
@@ -416,16 +412,13 @@ def test_files_rotate_on_log_time_and_each_starts_complete(tmp_path: Path) -> No
     clock = VirtualClock()
     recorder = Recorder(
         tmp_path,
-        wall_ns=clock.wall_ns,
         now=clock.monotonic,
         rotate_s=10,
         metadata={"site": "garage"},
     )
     recorder.write(CONFIG_TOPIC, EPOCH_NS, CONFIG)
     for k, seconds in enumerate(range(0, 25, 4)):
-        clock.sleep_until(seconds)
         recorder.write(PERIOD_TOPIC, EPOCH_NS + seconds * S, period(k))
-        assert recorder.sync(timeout=5)  # the file names come from the clock at rotation
     recorder.close()
 
     # A file holds records less than 10 s after its first: 0 4 8 | 12 16 20 | 24.
@@ -444,9 +437,9 @@ def test_files_rotate_on_log_time_and_each_starts_complete(tmp_path: Path) -> No
 
 
 def test_files_started_in_the_same_second_get_distinct_names(tmp_path: Path) -> None:
-    recorder = Recorder(tmp_path, wall_ns=lambda: EPOCH_NS, rotate_s=1)
+    recorder = Recorder(tmp_path, rotate_s=0.25)
     for k in range(3):
-        recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S, period(k))
+        recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S // 4, period(k))  # 0, 0.25, 0.5 s
     recorder.close()
     assert [p.name for p in finished_files(tmp_path)] == [
         "hermsd-20260101T000000Z-1.mcap",
@@ -458,9 +451,7 @@ def test_files_started_in_the_same_second_get_distinct_names(tmp_path: Path) -> 
 def test_records_reach_the_os_within_the_flush_interval(tmp_path: Path) -> None:
     disk = FakeDisk()
     flush_interval = 0.05
-    recorder = Recorder(
-        tmp_path, wall_ns=lambda: EPOCH_NS, flush_interval=flush_interval, open_file=disk.open
-    )
+    recorder = Recorder(tmp_path, flush_interval=flush_interval, open_file=disk.open)
     handed_over = time.monotonic()
     recorder.write(PERIOD_TOPIC, EPOCH_NS, period(0))
     assert disk.flushed.acquire(timeout=5)
@@ -483,7 +474,6 @@ def test_fdatasync_at_most_every_sync_interval(
     clock = VirtualClock()
     recorder = Recorder(
         tmp_path,
-        wall_ns=clock.wall_ns,
         now=clock.monotonic,
         flush_interval=0.0,
         sync_interval=10.0,
@@ -502,7 +492,7 @@ def test_fdatasync_at_most_every_sync_interval(
 def test_an_error_event_reaches_the_os_at_once(tmp_path: Path) -> None:
     disk = FakeDisk()
     clock = VirtualClock()  # never advances: no flush is due by time
-    recorder = Recorder(tmp_path, wall_ns=clock.wall_ns, now=clock.monotonic, open_file=disk.open)
+    recorder = Recorder(tmp_path, now=clock.monotonic, open_file=disk.open)
     recorder.write(PERIOD_TOPIC, EPOCH_NS, period(0))
     recorder.log(LogLevel.INFO, "heating", EPOCH_NS + 1)
     recorder.log(LogLevel.ERROR, "sensor lost", EPOCH_NS + 2)
@@ -514,7 +504,7 @@ def test_an_error_event_reaches_the_os_at_once(tmp_path: Path) -> None:
 
 
 def test_writing_after_close_is_dropped_quietly(tmp_path: Path) -> None:
-    recorder = Recorder(tmp_path, wall_ns=lambda: EPOCH_NS)
+    recorder = Recorder(tmp_path)
     recorder.close()
     recorder.write(PERIOD_TOPIC, EPOCH_NS, period(0))
     recorder.close()
@@ -527,9 +517,7 @@ def test_recover_a_file_copied_while_the_recorder_was_writing(tmp_path: Path) ->
     live.mkdir()
     crashed.mkdir()
     clock = VirtualClock()
-    recorder = Recorder(
-        live, wall_ns=clock.wall_ns, now=clock.monotonic, metadata={"site": "garage"}
-    )
+    recorder = Recorder(live, now=clock.monotonic, metadata={"site": "garage"})
     recorder.write(CONFIG_TOPIC, EPOCH_NS, CONFIG)
     for k in range(10):
         recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S, period(k))
@@ -562,7 +550,7 @@ def finished_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished file of 31 messages in 6 chunks: config and 30 periods, a sync every 5."""
     directory = tmp_path_factory.mktemp("finished")
     clock = VirtualClock()
-    recorder = Recorder(directory, wall_ns=clock.wall_ns, now=clock.monotonic)
+    recorder = Recorder(directory, now=clock.monotonic)
     recorder.write(CONFIG_TOPIC, EPOCH_NS, CONFIG)
     for k in range(30):
         recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S, period(k))
@@ -700,12 +688,29 @@ def test_a_zero_filled_tail_after_a_power_cut_keeps_what_came_before(
 
 def test_an_unfinished_file_is_read_in_log_time_order(tmp_path: Path) -> None:
     clock = VirtualClock()
-    recorder = Recorder(tmp_path, wall_ns=clock.wall_ns, now=clock.monotonic)
+    recorder = Recorder(tmp_path, now=clock.monotonic)
     recorder.write(PERIOD_TOPIC, EPOCH_NS + 2 * S, period(0))
     recorder.log(LogLevel.INFO, "stamped before the period, handed over after", EPOCH_NS + S)
     assert recorder.sync(timeout=5)
-    part = tmp_path / "hermsd-20260101T000000Z.mcap.part"
+    part = tmp_path / "hermsd-20260101T000002Z.mcap.part"  # named after the first handed over
     unfinished = [m.topic for m in LogFile(part).messages()]
     recorder.close()
     assert unfinished == [LOG_TOPIC, PERIOD_TOPIC]
     assert [m.topic for m in read_messages(finished_files(tmp_path))] == unfinished
+
+
+def test_a_file_is_named_after_the_log_time_of_its_first_record(tmp_path: Path) -> None:
+    recorder = Recorder(tmp_path, rotate_s=3600)
+    first = EPOCH_NS + (3600 + 2 * 60 + 3) * S + 999_999_999  # 01:02:03.999…, named 01:02:03
+    recorder.write(PERIOD_TOPIC, first, period(1))
+    recorder.write(PERIOD_TOPIC, first + 3600 * S, period(2))  # one hour on: a new file
+    recorder.close()
+    files = finished_files(tmp_path)
+    assert [p.name for p in files] == [
+        "hermsd-20260101T010203Z.mcap",
+        "hermsd-20260101T020203Z.mcap",
+    ]
+    assert [LogFile(p).metadata()["hermsd"]["started_utc"] for p in files] == [
+        "2026-01-01T01:02:03Z",
+        "2026-01-01T02:02:03Z",
+    ]

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from hermsd.recorder import LogFile
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario, ScenarioError, parse_scenario
 
@@ -130,3 +131,12 @@ def test_an_invalid_config_event_names_the_event() -> None:
     bad = parse_scenario({"events": [{"at": "1h", "config": {"control": {"ti": -1}}}]})
     with pytest.raises(ScenarioError, match=r"events\[0\]\.config.*control\.ti"):
         scenario.run(bad)
+
+
+def test_a_simulated_log_is_named_after_its_first_record(tmp_path: Path) -> None:
+    # The virtual clock starts at 2026-01-01T00:00:00Z and the daemon records its config at
+    # once; the writer thread, meanwhile, falls minutes of simulated time behind.
+    scenario.run(Scenario(duration=1800.0, events=()), log_dir=tmp_path)
+    [log] = tmp_path.iterdir()
+    assert log.name == "hermsd-20260101T000000Z.mcap"
+    assert LogFile(log).metadata()["hermsd"]["started_utc"] == "2026-01-01T00:00:00Z"

@@ -265,7 +265,6 @@ def run(
         log_dir.mkdir(parents=True, exist_ok=True)
         recorder = Recorder(
             log_dir,
-            wall_ns=clock.wall_ns,
             now=clock.monotonic,
             metadata={"scenario": scenario.name},
         )
