@@ -139,6 +139,53 @@ class _Watch:
         self.base, self.base_t = pv, t
 
 
+class _OutputSwing:
+    """How far the minute means of the output have moved since the reading last changed.
+
+    Kept incrementally, one output per period, so that a reading that rightly stays put
+    for days costs the same each period as one that changes every read.
+    """
+
+    __slots__ = ("count", "high", "low", "minute", "since", "total", "young")
+
+    def __init__(self) -> None:
+        self.clear(None)
+
+    def clear(self, since: float | None) -> None:
+        """Forget every output; minutes are counted from `since`."""
+        self.since = since
+        self.young: deque[tuple[float, float]] = deque()  # outputs not yet old enough
+        self.minute: int | None = None
+        self.total, self.count = 0.0, 0
+        self.low, self.high = math.inf, -math.inf
+
+    def add(self, t: float, output: float) -> None:
+        self.young.append((t, output))
+
+    def swing(self, old_before: float) -> float | None:
+        """Max − min of the minute means of outputs given at or before `old_before`."""
+        since = self.since if self.since is not None else 0.0
+        while self.young and self.young[0][0] <= old_before:
+            when, output = self.young.popleft()
+            minute = int((when - since) // 60.0)
+            if minute != self.minute:
+                self._close_minute()
+                self.minute = minute
+            self.total += output
+            self.count += 1
+        low, high = self.low, self.high
+        if self.count:
+            mean = self.total / self.count
+            low, high = min(low, mean), max(high, mean)
+        return high - low if high >= low else None
+
+    def _close_minute(self) -> None:
+        if self.count:
+            mean = self.total / self.count
+            self.low, self.high = min(self.low, mean), max(self.high, mean)
+        self.total, self.count = 0.0, 0
+
+
 class Supervisor:
     """Tracks faults; the heater may be on only while none is active or latched."""
 
@@ -158,7 +205,7 @@ class Supervisor:
         self._wrong_chip = False
         self._history: deque[tuple[float, float]] = deque()
         self._raw_since: float | None = None
-        self._outputs: deque[tuple[float, float]] = deque()
+        self._output_swing = _OutputSwing()
 
     # -- what the daemon asks -------------------------------------------------------------
 
@@ -202,8 +249,8 @@ class Supervisor:
         self._heater_watch.stop()
         self._energy.clear()
         self._history.clear()
-        self._outputs.clear()
         self._raw_since = None
+        self._output_swing.clear(None)
         return cleared
 
     # -- inputs ---------------------------------------------------------------------------
@@ -302,7 +349,7 @@ class Supervisor:
         if self.heater_allowed:
             self._check_stuck(t, output)
         else:
-            self._outputs.clear()  # a forced 0 % is not the controller moving
+            self._output_swing.clear(self._raw_since)  # a forced 0 % is not the controller
 
     # -- the period checks ----------------------------------------------------------------
 
@@ -394,23 +441,18 @@ class Supervisor:
         Only outputs at least half the stuck time old count: a change of power needs the
         tun's dead time and more before a working sensor shows it.
         """
-        lim, outputs = self.limits, self._outputs
-        outputs.append((t, output))
+        lim, watch = self.limits, self._output_swing
         since = self._raw_since
+        if since != watch.since:
+            watch.clear(since)
         if since is None:
             return
-        while outputs and outputs[0][0] < since:
-            outputs.popleft()
+        watch.add(t, output)
         # Minute means of the outputs old enough to have shown: an output that chatters
         # around a steady mean does not move the water.
-        minutes: dict[int, list[float]] = {}
-        for when, o in outputs:
-            if when <= t - lim.stuck_time / 2:
-                minutes.setdefault(int((when - since) // 60.0), []).append(o)
-        if t - since < lim.stuck_time or not minutes:
+        swing = watch.swing(t - lim.stuck_time / 2)
+        if t - since < lim.stuck_time or swing is None:
             return
-        means = [sum(v) / len(v) for v in minutes.values()]
-        swing = max(means) - min(means)
         if swing >= lim.stuck_output_change:
             self._raise(
                 "sensor_stuck",

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from hermsd.safety import SafetyLimits, Supervisor
+from hermsd.safety import SafetyLimits, Supervisor, _OutputSwing
 
 
 def limits(**overrides: float) -> SafetyLimits:
@@ -134,3 +136,27 @@ def test_the_critical_flag_travels_with_its_value() -> None:
     sup.reading(0.0, 66.0)
     assert not sup.reading(1.0, 140.0, crit=True)
     assert sup.heater_allowed
+
+
+def _minute_means(times: list[float], outputs: list[float], since: float) -> list[float]:
+    minutes: dict[int, list[float]] = {}
+    for t, o in zip(times, outputs, strict=True):
+        minutes.setdefault(int((t - since) // 60.0), []).append(o)
+    return [sum(v) / len(v) for v in minutes.values()]
+
+
+@given(st.lists(st.floats(0.0, 100.0), min_size=1, max_size=400), st.floats(0.0, 200.0))
+def test_the_output_swing_is_the_spread_of_minute_means(outputs: list[float], since: float) -> None:
+    """Kept incrementally; checked against the definition, recomputed from scratch."""
+    swing = _OutputSwing()
+    swing.clear(since)
+    times = [since + 5.0 * (k + 1) for k in range(len(outputs))]
+    for t, o in zip(times, outputs, strict=True):
+        swing.add(t, o)
+    half = len(times) // 2
+    for seen in (half, len(times)):  # later outputs join what was already counted
+        if seen == 0:
+            assert swing.swing(since) is None
+            continue
+        means = _minute_means(times[:seen], outputs[:seen], since)
+        assert swing.swing(times[seen - 1]) == pytest.approx(max(means) - min(means), abs=1e-9)
