@@ -46,6 +46,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from hermsd import __version__
+from hermsd.files import fsync_directory
 
 PERIOD_TOPIC: Final = "/hermsd/period"
 READING_TOPIC: Final = "/hermsd/reading"
@@ -58,6 +59,7 @@ FILE_PREFIX: Final = "hermsd-"
 PART_SUFFIX: Final = ".part"
 METADATA_NAME: Final = "hermsd"
 RECOVERY_METADATA_NAME: Final = "hermsd.recovery"
+CONFIG_METADATA_NAME: Final = "hermsd.config"  # the config record again, for metadata readers
 LIBRARY: Final = f"hermsd/{__version__}"
 
 # Chunks are closed by time (flush_interval), so this size is only an upper bound on memory.
@@ -544,7 +546,7 @@ class Recorder:
         self._file = None
         try:
             os.replace(file.part, final)
-            _fsync_directory(final.parent)
+            fsync_directory(final.parent)
         except OSError as exc:
             self._report(f"renaming {file.part}: {_describe(exc)}")
 
@@ -594,6 +596,9 @@ class _OpenFile:
         self.writer.add_message(
             self.channels[topic], log_time_ns, data, publish_time=log_time_ns, sequence=sequence
         )
+        if topic == CONFIG_TOPIC:
+            metadata = {"version": __version__, "record": data.decode("utf-8")}
+            self.writer.add_metadata(CONFIG_METADATA_NAME, metadata)
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS."""
@@ -653,15 +658,6 @@ def _utc_iso(log_time_ns: int) -> str:
 
 def _describe(exc: BaseException) -> str:
     return str(exc) or type(exc).__name__
-
-
-def _fsync_directory(directory: Path) -> None:
-    """Make a rename or unlink in `directory` survive a power cut."""
-    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 # --- reading and recovery --------------------------------------------------------------------
@@ -816,9 +812,9 @@ def recover(path: Path | str) -> Path:
         target.flush()
         os.fsync(target.fileno())
     os.replace(temporary, final)
-    _fsync_directory(final.parent)
+    fsync_directory(final.parent)
     part.unlink()
-    _fsync_directory(final.parent)
+    fsync_directory(final.parent)
     return final
 
 

@@ -262,12 +262,15 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
     }
     for topic, _, message in expected:
         assert conforms(message, schemas[topic_schema[topic]]), topic
+    config_record = json.loads(metadata["hermsd.config"].pop("record"))
+    assert config_record == CONFIG  # the effective config, for readers of metadata only
     assert metadata == {
         "hermsd": {
             "version": hermsd.__version__,
             "started_utc": "2026-01-01T00:00:00Z",
             "site": "garage",
-        }
+        },
+        "hermsd.config": {"version": hermsd.__version__},
     }
 
 
