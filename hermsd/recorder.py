@@ -26,22 +26,24 @@ wall clock that jumps forward (a Pi without RTC meeting NTP) starts a file with 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import itertools
 import json
 import math
 import os
 import queue
+import struct
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
 from typing import Any, BinaryIO, Final, NamedTuple
 
 from mcap.reader import make_reader
-from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Header, McapRecord, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
 from hermsd import __version__
@@ -266,7 +268,9 @@ class Recorder:
     `wall_ns` names the files; `now` (monotonic seconds) paces flushes, syncs and retries.
     `open_file` creates a new file for writing and must fail if it exists (tests inject
     failing disks through it). A message handed to `write` belongs to the recorder from then
-    on: it is encoded later, on the writer thread.
+    on: it is encoded later, on the writer thread. `lossless` makes `write` wait for room
+    instead of dropping: for a simulation on a virtual clock, which has no deadline to keep
+    and would otherwise outrun the writer thread and lose records.
     """
 
     def __init__(
@@ -281,6 +285,7 @@ class Recorder:
         metadata: dict[str, str] | None = None,
         now: Callable[[], float] = time.monotonic,
         open_file: Callable[[Path], BinaryIO] = _create_exclusive,
+        lossless: bool = False,
     ) -> None:
         if rotate_s <= 0 or flush_interval < 0 or sync_interval < 0 or queue_size < 1:
             raise ValueError(
@@ -295,6 +300,7 @@ class Recorder:
         self._metadata = dict(metadata or {})
         self._now = now
         self._open_file = open_file
+        self._lossless = lossless
         self._queue: queue.Queue[_QueueItem] = queue.Queue(maxsize=queue_size)
         self._closed = False
         self._drop_lock = threading.Lock()
@@ -319,6 +325,9 @@ class Recorder:
             self._report_drops(log_time_ns)
         if self._closed:
             self._count_drop()
+            return
+        if self._lossless:
+            self._queue.put(_Record(topic, log_time_ns, message))
             return
         try:
             self._queue.put_nowait(_Record(topic, log_time_ns, message))
@@ -681,17 +690,25 @@ class _Cut:
         self.reason: str | None = None
 
 
-def _complete_records(stream: BinaryIO, size: int, cut: _Cut) -> Iterator[McapRecord]:
+def _complete_records(
+    stream: BinaryIO, size: int, cut: _Cut, *, whole_chunks: bool = False
+) -> Iterator[McapRecord]:
     """The records of an MCAP stream up to the first incomplete or damaged one.
 
-    A chunk is yielded only whole and with a valid CRC. Whatever the reader raises at the
-    cut (end of file inside a record, a torn length, a bad CRC) ends the stream there.
+    A chunk is yielded only whole and with a valid CRC: broken up into its records, or with
+    `whole_chunks` as one Chunk holding its records decompressed (cheaper to sift through
+    for a few topics). Whatever the reader raises at the cut (end of file inside a record,
+    a torn length, a bad CRC) ends the stream there.
     """
-    records = StreamReader(stream, validate_crcs=True, record_size_limit=size).records
+    records = StreamReader(
+        stream, validate_crcs=True, emit_chunks=whole_chunks, record_size_limit=size
+    ).records
     end_of_complete = 0
     while True:
         try:
             record = next(records)
+            if isinstance(record, Chunk):
+                record = _decompressed(record)
         except StopIteration:
             return
         except Exception as exc:  # any parse failure marks the cut
@@ -700,6 +717,49 @@ def _complete_records(stream: BinaryIO, size: int, cut: _Cut) -> Iterator[McapRe
             return
         end_of_complete = stream.tell()
         yield record
+
+
+def _decompressed(chunk: Chunk) -> Chunk:
+    """The chunk with its records uncompressed; raises if they do not match its CRC."""
+    data, length = get_chunk_data_stream(chunk, validate_crc=True)
+    return dataclasses.replace(chunk, compression="", data=data.read(length))
+
+
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, length of the body
+_CHANNEL_HEAD = struct.Struct("<HHI")  # id, schema id, length of the topic
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_OP_CHANNEL: Final = 0x04
+_OP_MESSAGE: Final = 0x05
+
+
+def _chunk_messages(
+    data: bytes, channels: dict[int, str], topics: Collection[str] | None
+) -> Iterator[tuple[int, str, bytes]]:
+    """(log time, topic, data) of the JSON messages in a chunk's records on wanted topics.
+
+    Channels defined in the chunk are added to `channels` (only those on wanted topics, so
+    the rest are skipped unread). Parsing by hand costs a fraction of building every record.
+    """
+    position, end = 0, len(data)
+    while position < end:
+        opcode, length = _RECORD_HEAD.unpack_from(data, position)
+        body = position + _RECORD_HEAD.size
+        position = body + length
+        if position > end:
+            raise ValueError("a record runs past the end of its chunk")
+        if opcode == _OP_MESSAGE:
+            channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(data, body)
+            topic = channels.get(channel_id)
+            if topic is not None:
+                yield log_time, topic, data[body + _MESSAGE_HEAD.size : position]
+        elif opcode == _OP_CHANNEL:
+            channel_id, _, topic_length = _CHANNEL_HEAD.unpack_from(data, body)
+            start = body + _CHANNEL_HEAD.size
+            topic = data[start : start + topic_length].decode()
+            (encoding_length,) = struct.unpack_from("<I", data, start + topic_length)
+            encoding = data[start + topic_length + 4 : start + topic_length + 4 + encoding_length]
+            if encoding == b"json" and (topics is None or topic in topics):
+                channels[channel_id] = topic
 
 
 def _is_finished(path: Path) -> bool:
@@ -720,9 +780,11 @@ def _is_finished(path: Path) -> bool:
 class LogFile:
     """One hermsd MCAP file, finished or cut short, read in log-time order.
 
-    A finished file is read through its index; any other is read record by record up to the
-    cut. After `messages()` has run, `count` says how many messages it yielded and, for an
-    unfinished file, `cut_at` says up to which byte the file held complete records.
+    Every file is read record by record up to its end or its cut, a finished one too (its
+    index would only say where the same chunks are). After `messages()` has run, `count`
+    says how many messages it yielded and, unless the file was finished and read whole,
+    `cut_at` says up to which byte it held complete records and `cut_reason` why the next
+    one could not be read (None: the file simply ended there).
     """
 
     def __init__(self, path: Path | str) -> None:
@@ -730,14 +792,46 @@ class LogFile:
         self.finished = _is_finished(self.path)
         self.count = 0
         self.cut_at: int | None = None
+        self.cut_reason: str | None = None
         self.size = self.path.stat().st_size
 
-    def messages(self) -> Iterator[RecordedMessage]:
+    def messages(self, topics: Collection[str] | None = None) -> Iterator[RecordedMessage]:
+        """The messages in log-time order; only those on `topics`, when given, are decoded.
+
+        ValueError: the file holds records that pass their CRC but cannot be decoded.
+        """
         self.count = 0
-        source = self._indexed() if self.finished else self._streamed()
-        for message in source:
+        channels: dict[int, str] = {}
+        pending: list[tuple[int, int, str, bytes]] = []
+        cut = _Cut()
+        with self.path.open("rb") as f:
+            try:
+                for record in _complete_records(f, self.size, cut, whole_chunks=True):
+                    if isinstance(record, Chunk):
+                        for log_time, topic, data in _chunk_messages(record.data, channels, topics):
+                            pending.append((log_time, len(pending), topic, data))
+                    elif (
+                        isinstance(record, Channel)
+                        and record.message_encoding == "json"
+                        and (topics is None or record.topic in topics)
+                    ):
+                        channels[record.id] = record.topic
+                    elif isinstance(record, Message) and record.channel_id in channels:
+                        topic = channels[record.channel_id]
+                        pending.append((record.log_time, len(pending), topic, record.data))
+            except (struct.error, UnicodeDecodeError, ValueError) as exc:
+                raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
+        if not (self.finished and cut.at is None):
+            self.cut_at = self.size if cut.at is None else cut.at
+            self.cut_reason = cut.reason
+        pending.sort()
+        for log_time, _, topic, data in pending:
+            try:
+                message = json.loads(data)
+            except ValueError as exc:
+                raise ValueError(f"{self.path}: a message is not JSON: {exc}") from exc
             self.count += 1
-            yield message
+            yield RecordedMessage(topic, log_time, message)
 
     def metadata(self) -> dict[str, dict[str, str]]:
         """Metadata records by name (a later record of the same name wins)."""
@@ -749,34 +843,6 @@ class LogFile:
                     r for r in _complete_records(f, self.size, _Cut()) if isinstance(r, Metadata)
                 ]
         return {record.name: dict(record.metadata) for record in records}
-
-    def _indexed(self) -> Iterator[RecordedMessage]:
-        with self.path.open("rb") as f:
-            reader = make_reader(f, validate_crcs=True)
-            try:
-                for _, channel, message in reader.iter_messages(log_time_order=True):
-                    if channel.message_encoding == "json":
-                        yield RecordedMessage(
-                            channel.topic, message.log_time, json.loads(message.data)
-                        )
-            except Exception as exc:  # whatever the reader raises on damaged data
-                raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
-
-    def _streamed(self) -> Iterator[RecordedMessage]:
-        topics: dict[int, str] = {}
-        pending: list[tuple[int, int, str, bytes]] = []
-        cut = _Cut()
-        with self.path.open("rb") as f:
-            for record in _complete_records(f, self.size, cut):
-                if isinstance(record, Channel) and record.message_encoding == "json":
-                    topics[record.id] = record.topic
-                elif isinstance(record, Message) and record.channel_id in topics:
-                    topic = topics[record.channel_id]
-                    pending.append((record.log_time, len(pending), topic, record.data))
-        self.cut_at = self.size if cut.at is None else cut.at
-        pending.sort()
-        for log_time, _, topic, data in pending:
-            yield RecordedMessage(topic, log_time, json.loads(data))
 
 
 def read_messages(paths: Iterable[Path | str]) -> Iterator[RecordedMessage]:

@@ -239,6 +239,7 @@ def run(
             wall_ns=clock.wall_ns,
             now=clock.monotonic,
             metadata={"scenario": scenario.name},
+            lossless=True,
         )
     try:
         world = build_world(config, clock, scenario.plant)
