@@ -20,7 +20,7 @@ from typing import Any, Protocol
 
 from hermsd import pid
 from hermsd.clock import Clock
-from hermsd.config import Config, to_dict
+from hermsd.config import Config, ControlConfig, to_dict
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
@@ -132,8 +132,8 @@ def safety_limits(config: Config) -> SafetyLimits:
     )
 
 
-def make_controller(config: Config) -> pid.Controller:
-    c = config.control
+def make_controller(c: ControlConfig) -> pid.Controller:
+    """The controller a config's control section describes (the daemon's, and replay's)."""
     return pid.create(
         c.algorithm,
         kc=c.kc,
@@ -188,7 +188,7 @@ class Daemon:
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
         self.supervisor = Supervisor(safety_limits(config))
-        self.controller = make_controller(config)
+        self.controller = make_controller(config.control)
         self.planner = self._make_planner(config)
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
