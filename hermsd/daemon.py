@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
@@ -50,6 +51,16 @@ class Recorder(Protocol):
     """Where records go (the MCAP recorder); `write` never blocks."""
 
     def write(self, topic: str, log_time_ns: int, message: dict[str, Any]) -> None: ...
+
+
+RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heater off")
+"""The event text of a raised alarm, as replay reads it back from the log."""
+
+
+def raised_alarm_text(alarm: Alarm) -> str:
+    """The event logged when `alarm` is raised; RAISED_ALARM matches it."""
+    what = "ALARM" if alarm.latched else "fault"
+    return f"{what} {alarm.kind}: {alarm.message}; heater off"
 
 
 @dataclass(frozen=True, slots=True)
@@ -561,8 +572,7 @@ class Daemon:
             if alarm.raised:
                 self._force_off(t)
                 level = logging.ERROR if alarm.latched else logging.WARNING
-                what = "ALARM" if alarm.latched else "fault"
-                self._event(level, f"{what} {alarm.kind}: {alarm.message}; heater off", t)
+                self._event(level, raised_alarm_text(alarm), t)
             else:
                 self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
                 if alarm.kind == "sensor_fault":

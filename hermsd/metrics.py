@@ -11,6 +11,7 @@ band: the heat-up before it is no failure to hold.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -150,7 +151,7 @@ def report(metrics: Metrics) -> dict[str, Any]:
         "iae": round(m.iae, 2),
         "max_output_jump": round(m.max_output_jump, 3),
         "ssr_edges_per_hour": None if m.edges_per_hour is None else round(m.edges_per_hour, 1),
-        "max_temp_c": round(m.max_temp_c, 3),
+        "max_temp_c": None if math.isnan(m.max_temp_c) else round(m.max_temp_c, 3),
         "mean_output": round(m.mean_output, 2),
     }
 

@@ -64,7 +64,7 @@ LIBRARY: Final = f"hermsd/{__version__}"
 # Chunks are closed by time (flush_interval), so this size is only an upper bound on memory.
 CHUNK_SIZE: Final = 256 * 1024
 RETRY_INTERVAL_S: Final = 5.0
-_MAGIC: Final = b"\x89MCAP0\r\n"
+MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 
 
 class LogLevel(IntEnum):
@@ -732,15 +732,19 @@ _OP_CHANNEL: Final = 0x04
 _OP_MESSAGE: Final = 0x05
 
 
-def _chunk_messages(
-    data: bytes, channels: dict[int, str], topics: Collection[str] | None
-) -> Iterator[tuple[int, str, bytes]]:
-    """(log time, topic, data) of the JSON messages in a chunk's records on wanted topics.
+def _sift_chunk(
+    data: bytes,
+    channels: dict[int, str],
+    topics: Collection[str] | None,
+    into: list[tuple[int, int, str, bytes]],
+) -> int:
+    """Add (log time, order, topic, data) of a chunk's messages on wanted topics to `into`.
 
-    Channels defined in the chunk are added to `channels` (only those on wanted topics, so
-    the rest are skipped unread). Parsing by hand costs a fraction of building every record.
+    Channels defined in the chunk are added to `channels`, only those on wanted topics, so
+    the other messages are skipped unread (parsing by hand costs a fraction of building
+    every record). Returns how many messages the chunk holds on any topic.
     """
-    position, end = 0, len(data)
+    position, end, messages = 0, len(data), 0
     while position < end:
         opcode, length = _RECORD_HEAD.unpack_from(data, position)
         body = position + _RECORD_HEAD.size
@@ -748,10 +752,13 @@ def _chunk_messages(
         if position > end:
             raise ValueError("a record runs past the end of its chunk")
         if opcode == _OP_MESSAGE:
+            messages += 1
             channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(data, body)
             topic = channels.get(channel_id)
             if topic is not None:
-                yield log_time, topic, data[body + _MESSAGE_HEAD.size : position]
+                into.append(
+                    (log_time, len(into), topic, data[body + _MESSAGE_HEAD.size : position])
+                )
         elif opcode == _OP_CHANNEL:
             channel_id, _, topic_length = _CHANNEL_HEAD.unpack_from(data, body)
             start = body + _CHANNEL_HEAD.size
@@ -760,16 +767,17 @@ def _chunk_messages(
             encoding = data[start + topic_length + 4 : start + topic_length + 4 + encoding_length]
             if encoding == b"json" and (topics is None or topic in topics):
                 channels[channel_id] = topic
+    return messages
 
 
 def _is_finished(path: Path) -> bool:
     """Whether `path` ends with a footer and a readable summary (it was closed properly)."""
     try:
         with path.open("rb") as f:
-            if f.seek(0, os.SEEK_END) < 2 * len(_MAGIC):
+            if f.seek(0, os.SEEK_END) < 2 * len(MCAP_MAGIC):
                 return False
-            f.seek(-len(_MAGIC), os.SEEK_END)
-            if f.read(len(_MAGIC)) != _MAGIC:
+            f.seek(-len(MCAP_MAGIC), os.SEEK_END)
+            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
                 return False
             f.seek(0)
             return make_reader(f, validate_crcs=True).get_summary() is not None
@@ -782,15 +790,17 @@ class LogFile:
 
     Every file is read record by record up to its end or its cut, a finished one too (its
     index would only say where the same chunks are). After `messages()` has run, `count`
-    says how many messages it yielded and, unless the file was finished and read whole,
-    `cut_at` says up to which byte it held complete records and `cut_reason` why the next
-    one could not be read (None: the file simply ended there).
+    says how many messages it yielded, `recovered` how many its complete records hold on
+    any topic and, unless the file was finished and read whole, `cut_at` up to which byte
+    it held complete records and `cut_reason` why the next one could not be read (None: the
+    file simply ended there).
     """
 
     def __init__(self, path: Path | str) -> None:
         self.path = Path(path)
         self.finished = _is_finished(self.path)
         self.count = 0
+        self.recovered = 0
         self.cut_at: int | None = None
         self.cut_reason: str | None = None
         self.size = self.path.stat().st_size
@@ -800,7 +810,7 @@ class LogFile:
 
         ValueError: the file holds records that pass their CRC but cannot be decoded.
         """
-        self.count = 0
+        self.count = self.recovered = 0
         channels: dict[int, str] = {}
         pending: list[tuple[int, int, str, bytes]] = []
         cut = _Cut()
@@ -808,17 +818,18 @@ class LogFile:
             try:
                 for record in _complete_records(f, self.size, cut, whole_chunks=True):
                     if isinstance(record, Chunk):
-                        for log_time, topic, data in _chunk_messages(record.data, channels, topics):
-                            pending.append((log_time, len(pending), topic, data))
+                        self.recovered += _sift_chunk(record.data, channels, topics, pending)
+                    elif isinstance(record, Message):
+                        self.recovered += 1
+                        if record.channel_id in channels:
+                            topic = channels[record.channel_id]
+                            pending.append((record.log_time, len(pending), topic, record.data))
                     elif (
                         isinstance(record, Channel)
                         and record.message_encoding == "json"
                         and (topics is None or record.topic in topics)
                     ):
                         channels[record.id] = record.topic
-                    elif isinstance(record, Message) and record.channel_id in channels:
-                        topic = channels[record.channel_id]
-                        pending.append((record.log_time, len(pending), topic, record.data))
             except (struct.error, UnicodeDecodeError, ValueError) as exc:
                 raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
         if not (self.finished and cut.at is None):
