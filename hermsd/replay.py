@@ -27,7 +27,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple, TypeGuard
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 
 from hermsd import config as config_module
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, make_controller
@@ -41,8 +41,9 @@ from hermsd.recorder import (
     LogFile,
     LogLevel,
 )
-from hermsd.sim.scenario import Event, Scenario, ScenarioError, effective_config
-from hermsd.sim.scenario import run as run_scenario
+
+if TYPE_CHECKING:
+    from hermsd.sim.scenario import Event
 
 TOPICS_READ = (PERIOD_TOPIC, CONFIG_TOPIC, LOG_TOPIC, TIMING_TOPIC)  # readings and windows unused
 
@@ -794,6 +795,9 @@ def what_if(log: Log, overrides: dict[str, Any]) -> WhatIf:
     drop is poured in again as water at the fitted ambient temperature, in the amount that
     gives the drop logged. Faults are not repeated.
     """
+    from hermsd.sim.scenario import Scenario, ScenarioError, effective_config
+    from hermsd.sim.scenario import run as run_scenario  # the simulator only when asked for
+
     configs = log.configs
     if not configs:
         raise ReplayError("--what-if: no config record recovered, so no settings to start from")
@@ -850,6 +854,8 @@ def _replayed_events(
     log: Log, base: config_module.Config, model: TunModel, drops: list[Drop]
 ) -> list[Event]:
     """The scenario events that repeat the log's operator actions and its cold water."""
+    from hermsd.sim.scenario import Event
+
     period_s = base.control.period
     events: list[Event] = []
     setpoint = log.periods[0].setpoint
