@@ -56,8 +56,16 @@ def simulated_log(directory: Path, scene: Scenario) -> list[Path]:
 
 
 @pytest.fixture(scope="module")
-def default_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
-    return simulated_log(tmp_path_factory.mktemp("default"), scenario.DEFAULT)
+def default_day(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[Path], dict[str, Any]]:
+    """The reference brew day's log, and what `hermsd simulate` said of it."""
+    directory = tmp_path_factory.mktemp("default")
+    summary = scenario.run(scenario.DEFAULT, log_dir=directory).summary
+    return sorted(directory.glob("*.mcap")), summary
+
+
+@pytest.fixture(scope="module")
+def default_log(default_day: tuple[list[Path], dict[str, Any]]) -> list[Path]:
+    return default_day[0]
 
 
 @pytest.fixture(scope="module")
@@ -107,9 +115,11 @@ def test_a_simulated_brew_day_is_logged_whole(default_log: list[Path]) -> None:
     assert replay.timing(log)["dropped"] == 0
 
 
-def test_the_summary_measures_the_day_the_simulator_measured(default_log: list[Path]) -> None:
-    simulated = scenario.run(scenario.DEFAULT).summary
-    summary = replay.summarise(replay.load(default_log))
+def test_the_summary_measures_the_day_the_simulator_measured(
+    default_day: tuple[list[Path], dict[str, Any]],
+) -> None:
+    paths, simulated = default_day
+    summary = replay.summarise(replay.load(paths))
     [file] = summary["files"]
     assert file["finished"] and file["cut_at"] is None
     assert file["periods"] == summary["periods"] == 4320
