@@ -585,8 +585,8 @@ def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: flo
     ambient temperature, the initial offset from equilibrium and K:
     T_k = T_amb + x0·a^k + K·z_{k−d}, with a = e^(−Ts/τ) and z the duty through the
     discrete first-order lag z_k = a·z_{k−1} + (1 − a)·u_k; those three come from the
-    normal equations. θ is searched over every whole period up to MAX_DEAD_TIME_S, τ by
-    golden section on log τ, in turn until θ stays put.
+    normal equations. θ is searched over whole periods up to MAX_DEAD_TIME_S (every fourth,
+    then around the best), τ by golden section on log τ, in turn until θ stays put.
     """
     n = len(pvs)
     valid = [pv is not None for pv in pvs]
@@ -812,7 +812,7 @@ def what_if(log: Log, overrides: dict[str, Any]) -> WhatIf:
     scenario = Scenario(
         name="what-if", setpoint=log.periods[0].setpoint, config={"control": overrides}
     )
-    try:  # the settings are checked before the minutes of fitting and running
+    try:  # the settings are checked before the fit and the run
         settings = effective_config(base, scenario).control
     except ScenarioError as error:
         raise ReplayError(f"--what-if: {error}".replace("\n", "; ")) from None
@@ -868,7 +868,8 @@ def _replayed_events(
         if record.setpoint != setpoint:
             setpoint = record.setpoint
             events.append(Event(at, "setpoint", setpoint))
-        if record.mode == "manual" and (mode != "manual" or record.output != manual):
+        manual_now = record.state == "manual"  # in manual mode and heating: output is the user's
+        if manual_now and (mode != "manual" or record.output != manual):
             mode, manual = "manual", record.output
             events.append(Event(at, "output", manual))
         elif record.mode == "auto" and mode != "auto":

@@ -401,6 +401,21 @@ def test_what_if_runs_other_settings_and_says_so(
     assert float(settle[2]) > float(settle[1])  # a gentler loop settles later
 
 
+def test_what_if_repeats_the_operator_actions_of_the_day(eventful_log: list[Path]) -> None:
+    log = replay.load(eventful_log)
+    model = replay.TunModel(TRUE_GAIN, TRUE_TAU, TRUE_DEAD_TIME, 20.0, 20.0, 0.0, 0.0)
+    events = replay._replayed_events(log, config_module.DEFAULT, model, [])
+    # Manual at 3600 s holds the output of the moment (full power), 30 % from 3605 s, auto
+    # again at 4500 s, 70 °C at 6300 s: each half a period before the period it took effect
+    # in. The sensor fault is no operator action.
+    assert events == [
+        Event(3597.5, "output", 100.0),
+        Event(3602.5, "output", 30.0),
+        Event(4497.5, "mode", "auto"),
+        Event(6297.5, "setpoint", 70.0),
+    ]
+
+
 @pytest.mark.parametrize(
     ("setting", "complaint"),
     [("gain=2", "not key=value"), ("kc=-5", "control.kc"), ("algorithm=fuzzy", "algorithm")],
