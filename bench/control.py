@@ -63,7 +63,7 @@ def run(algorithm: str, gains: dict[str, float]) -> dict[str, Any]:
     original = daemon_module.make_controller
     if algorithm == "simple-pid":
         daemon_module.make_controller = lambda c: SimplePid(  # type: ignore[assignment,return-value]
-            gains["kc"], gains["ti"], gains["td"], c.control.period
+            gains["kc"], gains["ti"], gains["td"], c.period
         )
     try:
         return scenario.run(scenario.DEFAULT, config).summary

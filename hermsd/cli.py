@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import logging
 import math
@@ -18,7 +19,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
-from typing import TextIO
+from typing import Any, TextIO
 
 from hermsd import __version__
 from hermsd import config as config_module
@@ -29,6 +30,7 @@ from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
 from hermsd.recorder import Recorder, recover, recover_directory
+from hermsd.replay import WHAT_IF_KEYS
 from hermsd.ssr import Switch, open_hardware_switch
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
@@ -124,6 +126,35 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--json", action="store_true", help="print one JSON object")
     simulate.add_argument("--log", type=Path, help="write the MCAP log into this directory")
     simulate.set_defaults(func=cmd_simulate)
+
+    replay = sub.add_parser(
+        "replay", help="summarise a brew day's logs, re-run its controller, try other settings"
+    )
+    replay.add_argument(
+        "files", nargs="+", type=Path, help=".mcap or .mcap.part files of one day, in order"
+    )
+    replay.add_argument("--json", action="store_true", help="print one JSON object")
+    replay.add_argument(
+        "--verify",
+        action="store_true",
+        help="re-run the logged controller on the logged inputs; exit 1 at the first difference",
+    )
+    replay.add_argument(
+        "--what-if",
+        metavar="KEY=VALUE,...",
+        nargs="?",
+        const="",
+        help="run the day again on a model of the tun fitted to the log, with these control "
+        f"settings ({', '.join(WHAT_IF_KEYS)}; none: the logged ones)",
+    )
+    replay.add_argument("--csv", type=Path, metavar="FILE", help="write the period records as CSV")
+    replay.add_argument(
+        "--plot",
+        type=Path,
+        metavar="FILE.png",
+        help="plot PV, setpoint, output and applied duty with the alarms (needs matplotlib)",
+    )
+    replay.set_defaults(func=cmd_replay)
 
     safe_off = sub.add_parser("safe-off", help="drive every configured output off and exit")
     safe_off.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
@@ -421,15 +452,120 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        for key, value in summary.items():
-            if key != "alarms":
-                print(f"{key:20} {value}")
-        for alarm in summary["alarms"]:
-            print(
-                f"alarm {alarm['kind']} at {alarm['at_s']} s, heater off after "
-                f"{alarm['heater_off_after_s']} s: {alarm['message']}"
-            )
+        _print_summary(summary)
     return 0
+
+
+def _print_summary(summary: dict[str, Any]) -> None:
+    """Key and value a line (a table's keys prefixed with its name); files and alarms in words."""
+    lines: list[tuple[str, Any]] = []
+    for key, value in summary.items():
+        if isinstance(value, dict):
+            lines.extend((f"{key}.{name}", item) for name, item in value.items())
+        elif key not in ("files", "alarms"):
+            lines.append((key, value))
+    width = max((len(key) for key, _ in lines), default=0)
+    for report in summary.get("files", []):
+        print(_file_line(report))
+    for key, value in lines:
+        print(f"{key:{width}} {value}")
+    for alarm in summary.get("alarms", []):
+        print(_alarm_line(alarm))
+
+
+def _file_line(report: dict[str, Any]) -> str:
+    if report["finished"]:
+        state = "finished"
+    else:
+        state = f"not finished, complete up to byte {report['cut_at']} of {report['size']}"
+        if report["cut_reason"]:
+            state += f" ({report['cut_reason']})"
+    return (
+        f"file {report['path']}: {state}; {report['messages']} messages recovered, "
+        f"{report['periods']} control periods"
+    )
+
+
+def _alarm_line(alarm: dict[str, Any]) -> str:
+    line = f"alarm {alarm['kind']} at {alarm['at_s']} s"
+    if "heater_off_after_s" in alarm:
+        line += f", heater off after {alarm['heater_off_after_s']} s"
+    message = alarm["message"]
+    return line + (f": {message}" if message is not None else " (its event was not recovered)")
+
+
+# -- replay ---------------------------------------------------------------------------------
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from hermsd import replay
+
+    status = 0
+    try:
+        overrides = None if args.what_if is None else replay.parse_what_if(args.what_if)
+        log = replay.load(args.files)
+        result: dict[str, Any] = {}
+        if args.verify:
+            verification = replay.verify(log.entries)
+            if verification.verified == 0 and verification.mismatch is None:
+                raise replay.ReplayError(
+                    "nothing to verify: the controller never stepped from a known state "
+                    "(no auto period with a PV, or the records of its start are missing)"
+                )
+            status = 0 if verification.mismatch is None else 1
+            result["verify"] = dataclasses.asdict(verification)
+        if overrides is not None:
+            logging.getLogger("hermsd").setLevel(logging.WARNING)  # not the simulated daemon's
+            result["what_if"] = dataclasses.asdict(replay.what_if(log, overrides))
+        if not result:
+            result = replay.summarise(log)
+        if args.csv is not None:
+            replay.write_csv(log, args.csv)
+        if args.plot is not None:
+            replay.plot(log, args.plot)
+    except replay.ReplayError as error:
+        raise UserError(str(error)) from None
+    if args.json:
+        print(json.dumps(result, indent=2))
+    elif "verify" in result or "what_if" in result:
+        if "verify" in result:
+            _print_verification(result["verify"])
+        if "what_if" in result:
+            _print_what_if(result["what_if"])
+    else:
+        _print_summary(result)
+    return status
+
+
+def _print_verification(verification: dict[str, Any]) -> None:
+    verified, unknown = verification["verified"], verification["unknown_state"]
+    skipped = f" ({unknown} steps after missing records not re-run)" if unknown else ""
+    mismatch = verification["mismatch"]
+    if mismatch is None:
+        print(f"{verified} periods verified{skipped}")
+        return
+    print(
+        f"period k={mismatch['k']} (t {mismatch['t']!r} s) differs: {mismatch['name']} logged "
+        f"{mismatch['logged']!r}, recomputed {mismatch['recomputed']!r}"
+    )
+    print(f"{verified} periods verified before it{skipped}")
+
+
+def _print_what_if(what_if: dict[str, Any]) -> None:
+    m = what_if["model"]
+    print(
+        f"tun model: K {m['gain']:.4g} °C/%, τ {m['tau']:.0f} s, θ {m['dead_time']:g} s, "
+        f"ambient {m['ambient']:.2f} °C, start {m['start']:.2f} °C; fit RMS {m['rms']:.4f} °C "
+        f"over the first {m['fit_s']:g} s"
+    )
+    rows = [("", "logged", "what-if")]
+    settings = what_if["settings"]
+    rows += [(k, settings["logged"][k], settings["what_if"][k]) for k in settings["logged"]]
+    rows += [(k, what_if["logged"][k], what_if["what_if"][k]) for k in what_if["logged"]]
+    width = max(len(str(row[0])) for row in rows)
+    column = max(len(str(row[1])) for row in rows)
+    for key, logged, new in rows:
+        print(f"{key:{width}} {logged!s:{column}} {new}")
 
 
 # -- safe-off and check-config --------------------------------------------------------------

@@ -942,12 +942,12 @@ _Dumper.add_representer(str, _represent_text)
 
 def dump_yaml(config: Config) -> str:
     """The effective configuration as YAML that `parse` reads back to the same Config."""
+    return _yaml_text(to_dict(config))
+
+
+def _yaml_text(data: Any) -> str:
     return yaml.dump(
-        to_dict(config),
-        Dumper=_Dumper,
-        sort_keys=False,
-        default_flow_style=False,
-        allow_unicode=True,
+        data, Dumper=_Dumper, sort_keys=False, default_flow_style=False, allow_unicode=True
     )
 
 
@@ -965,6 +965,15 @@ def differences(old: Config, new: Config) -> list[str]:
         for name in fields
         if value_at(old, f"{section}.{name}") != value_at(new, f"{section}.{name}")
     ]
+
+
+def from_dict(data: Any, source: str = "<logged config>") -> Config:
+    """The Config whose `to_dict` a log holds, checked like a file (ConfigError if it is not).
+
+    A log from another version may hold keys this one does not know, or values it refuses:
+    they are reported, not guessed at, since replay must run the controller that ran.
+    """
+    return parse(_yaml_text(data), source)
 
 
 def restart_keys_changed(old: Config, new: Config) -> list[str]:

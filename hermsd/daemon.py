@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -22,7 +23,7 @@ from typing import Any, Protocol
 from hermsd import config as config_module
 from hermsd import pid
 from hermsd.clock import Clock
-from hermsd.config import Config, ConfigError, to_dict
+from hermsd.config import Config, ConfigError, ControlConfig, to_dict
 from hermsd.config_file import ConfigFile
 from hermsd.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
@@ -54,6 +55,16 @@ class Recorder(Protocol):
     """Where records go (the MCAP recorder); `write` never blocks."""
 
     def write(self, topic: str, log_time_ns: int, message: dict[str, Any]) -> None: ...
+
+
+RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heater off")
+"""The event text of a raised alarm, as replay reads it back from the log."""
+
+
+def raised_alarm_text(alarm: Alarm) -> str:
+    """The event logged when `alarm` is raised; RAISED_ALARM matches it."""
+    what = "ALARM" if alarm.latched else "fault"
+    return f"{what} {alarm.kind}: {alarm.message}; heater off"
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,8 +147,8 @@ def safety_limits(config: Config) -> SafetyLimits:
     )
 
 
-def make_controller(config: Config) -> pid.Controller:
-    c = config.control
+def make_controller(c: ControlConfig) -> pid.Controller:
+    """The controller a config's control section describes (the daemon's, and replay's)."""
     return pid.create(
         c.algorithm,
         kc=c.kc,
@@ -198,7 +209,7 @@ class Daemon:
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
         self.supervisor = Supervisor(safety_limits(config))
-        self.controller = make_controller(config)
+        self.controller = make_controller(config.control)
         self.planner = self._make_planner(config)
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
@@ -415,7 +426,7 @@ class Daemon:
             "control.manual_output",
         }
         if tuning:
-            self.controller = make_controller(new)
+            self.controller = make_controller(new.control)
             if not self._held:  # bumpless: the new controller starts from the output in force
                 self._held = True
                 self._resume_output = self.output
@@ -731,8 +742,7 @@ class Daemon:
                     self._latched_wall_ns.setdefault(alarm.kind, self.clock.wall_ns())
                 self._force_off(t)
                 level = logging.ERROR if alarm.latched else logging.WARNING
-                what = "ALARM" if alarm.latched else "fault"
-                self._event(level, f"{what} {alarm.kind}: {alarm.message}; heater off", t)
+                self._event(level, raised_alarm_text(alarm), t)
             else:
                 self._latched_wall_ns.pop(alarm.kind, None)
                 self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)

@@ -1,15 +1,19 @@
 """How well a run held its setpoint: one set of definitions for the simulator and for replay.
 
-Samples are one per control period: time, setpoint, temperature, output. `disturbances` are
-the times the tun was upset from outside (water added, setpoint changed, a fault injected):
-"settled" means in band for good before the first of them, "recovered" means back in band for
-good after the last of them.
+Samples are one per control period: time, setpoint, temperature, output. Each sample stands
+for the time up to the next one (the last for as long as the one before it). `disturbances`
+are the times the tun was upset from outside (water added, setpoint changed, a fault
+injected): "settled" means in band for good before the first of them, "recovered" means back
+in band for good after the last of them. Time in band counts from the first sample in the
+band: the heat-up before it is no failure to hold.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
+from typing import Any
 
 BAND = 0.5  # °C either side of the setpoint that counts as holding it
 
@@ -25,9 +29,12 @@ class Sample:
 @dataclass(frozen=True, slots=True)
 class Metrics:
     overshoot_c: float
+    overshoots: int  # rises above the band after reaching the setpoint from below
     settle_s: float | None
     recovery_s: float | None
-    in_band_fraction: float | None
+    in_band_fraction: float | None  # of the samples while holding (see _hold_intervals)
+    in_band_s: float  # time in the band, from the first sample in it
+    since_band_s: float  # time from the first sample in the band to the end
     iae: float
     max_output_jump: float
     hold_s: float
@@ -60,7 +67,7 @@ def compute(
 ) -> Metrics:
     """Metrics of a run from t = samples[0].t to `end`; `edges` are the SSR's switching times."""
     if not samples:
-        return Metrics(0.0, None, None, None, 0.0, 0.0, 0.0, float("nan"), 0.0, None)
+        return Metrics(0.0, 0, None, None, None, 0.0, 0.0, 0.0, 0.0, 0.0, float("nan"), 0.0, None)
     t0 = samples[0].t
     dts = [b.t - a.t for a, b in itertools.pairwise(samples)]
     dts.append(dts[-1] if dts else 0.0)
@@ -72,9 +79,10 @@ def compute(
     # Overshoot counts only once the temperature has been at or below the setpoint of its
     # segment: cooling down after a setpoint step down is not overshoot.
     overshoot = 0.0
+    overshoots = 0
     iae = 0.0
-    reached = False
-    armed = False
+    in_band_s = since_band_s = 0.0
+    reached = band_reached = above = armed = False
     segment_sp: float | None = None
     for s, dt in zip(samples, dts, strict=True):
         if s.setpoint != segment_sp:
@@ -83,9 +91,16 @@ def compute(
         armed = armed or error <= 0
         if armed:
             overshoot = max(overshoot, error)
+            overshoots += error > BAND and not above
+        above = error > BAND
         reached = reached or error >= 0
         if reached:
             iae += abs(error) * dt
+        inside = abs(error) <= BAND
+        band_reached = band_reached or inside
+        if band_reached:
+            since_band_s += dt
+            in_band_s += dt if inside else 0.0
 
     hold = _hold_intervals(samples, settled_at, disturbances, recovered_at, end)
     in_hold = [i for i, s in enumerate(samples) if _inside(s.t, hold)]
@@ -102,9 +117,12 @@ def compute(
     ]
     return Metrics(
         overshoot_c=overshoot,
+        overshoots=overshoots,
         settle_s=None if settled_at is None else settled_at - t0,
         recovery_s=None if recovered_at is None or last is None else recovered_at - last,
         in_band_fraction=in_band,
+        in_band_s=in_band_s,
+        since_band_s=since_band_s,
         iae=iae,
         max_output_jump=max(jumps, default=0.0),
         hold_s=hold_s,
@@ -117,6 +135,25 @@ def compute(
             else None
         ),
     )
+
+
+def report(metrics: Metrics) -> dict[str, Any]:
+    """The metrics as `hermsd simulate` and `hermsd replay` print them, rounded for reading."""
+    m = metrics
+    return {
+        "overshoot_c": round(m.overshoot_c, 4),
+        "overshoots": m.overshoots,
+        "settle_s": m.settle_s,
+        "recovery_s": m.recovery_s,
+        "in_band_fraction": m.in_band_fraction,
+        "in_band_s": round(m.in_band_s, 1),
+        "in_band_pct": round(100.0 * m.in_band_s / m.since_band_s, 2) if m.since_band_s else None,
+        "iae": round(m.iae, 2),
+        "max_output_jump": round(m.max_output_jump, 3),
+        "ssr_edges_per_hour": None if m.edges_per_hour is None else round(m.edges_per_hour, 1),
+        "max_temp_c": None if math.isnan(m.max_temp_c) else round(m.max_temp_c, 3),
+        "mean_output": round(m.mean_output, 2),
+    }
 
 
 def _hold_intervals(

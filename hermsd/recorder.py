@@ -27,22 +27,24 @@ clock that jumps forward (a Pi without RTC meeting NTP) starts a file with a tru
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import itertools
 import json
 import math
 import os
 import queue
+import struct
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
 from typing import Any, BinaryIO, Final, NamedTuple
 
 from mcap.reader import make_reader
-from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Header, McapRecord, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
 from hermsd import __version__
@@ -65,7 +67,7 @@ LIBRARY: Final = f"hermsd/{__version__}"
 # Chunks are closed by time (flush_interval), so this size is only an upper bound on memory.
 CHUNK_SIZE: Final = 256 * 1024
 RETRY_INTERVAL_S: Final = 5.0
-_MAGIC: Final = b"\x89MCAP0\r\n"
+MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 
 
 class LogLevel(IntEnum):
@@ -270,7 +272,9 @@ class Recorder:
     paces flushes, syncs and retries.
     `open_file` creates a new file for writing and must fail if it exists (tests inject
     failing disks through it). A message handed to `write` belongs to the recorder from then
-    on: it is encoded later, on the writer thread.
+    on: it is encoded later, on the writer thread. `lossless` makes `write` wait for room
+    instead of dropping: for a simulation on a virtual clock, which has no deadline to keep
+    and would otherwise outrun the writer thread and lose records.
     """
 
     def __init__(
@@ -284,6 +288,7 @@ class Recorder:
         metadata: dict[str, str] | None = None,
         now: Callable[[], float] = time.monotonic,
         open_file: Callable[[Path], BinaryIO] = _create_exclusive,
+        lossless: bool = False,
     ) -> None:
         if rotate_s <= 0 or flush_interval < 0 or sync_interval < 0 or queue_size < 1:
             raise ValueError(
@@ -297,6 +302,7 @@ class Recorder:
         self._metadata = dict(metadata or {})
         self._now = now
         self._open_file = open_file
+        self._lossless = lossless
         self._queue: queue.Queue[_QueueItem] = queue.Queue(maxsize=queue_size)
         self._closed = False
         self._drop_lock = threading.Lock()
@@ -321,6 +327,9 @@ class Recorder:
             self._report_drops(log_time_ns)
         if self._closed:
             self._count_drop()
+            return
+        if self._lossless:
+            self._queue.put(_Record(topic, log_time_ns, message))
             return
         try:
             self._queue.put_nowait(_Record(topic, log_time_ns, message))
@@ -677,17 +686,25 @@ class _Cut:
         self.reason: str | None = None
 
 
-def _complete_records(stream: BinaryIO, size: int, cut: _Cut) -> Iterator[McapRecord]:
+def _complete_records(
+    stream: BinaryIO, size: int, cut: _Cut, *, whole_chunks: bool = False
+) -> Iterator[McapRecord]:
     """The records of an MCAP stream up to the first incomplete or damaged one.
 
-    A chunk is yielded only whole and with a valid CRC. Whatever the reader raises at the
-    cut (end of file inside a record, a torn length, a bad CRC) ends the stream there.
+    A chunk is yielded only whole and with a valid CRC: broken up into its records, or with
+    `whole_chunks` as one Chunk holding its records decompressed (cheaper to sift through
+    for a few topics). Whatever the reader raises at the cut (end of file inside a record,
+    a torn length, a bad CRC) ends the stream there.
     """
-    records = StreamReader(stream, validate_crcs=True, record_size_limit=size).records
+    records = StreamReader(
+        stream, validate_crcs=True, emit_chunks=whole_chunks, record_size_limit=size
+    ).records
     end_of_complete = 0
     while True:
         try:
             record = next(records)
+            if isinstance(record, Chunk):
+                record = _decompressed(record)
         except StopIteration:
             return
         except Exception as exc:  # any parse failure marks the cut
@@ -698,14 +715,65 @@ def _complete_records(stream: BinaryIO, size: int, cut: _Cut) -> Iterator[McapRe
         yield record
 
 
+def _decompressed(chunk: Chunk) -> Chunk:
+    """The chunk with its records uncompressed; raises if they do not match its CRC."""
+    data, length = get_chunk_data_stream(chunk, validate_crc=True)
+    return dataclasses.replace(chunk, compression="", data=data.read(length))
+
+
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, length of the body
+_CHANNEL_HEAD = struct.Struct("<HHI")  # id, schema id, length of the topic
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_OP_CHANNEL: Final = 0x04
+_OP_MESSAGE: Final = 0x05
+
+
+def _sift_chunk(
+    data: bytes,
+    channels: dict[int, str],
+    topics: Collection[str] | None,
+    into: list[tuple[int, int, str, bytes]],
+) -> int:
+    """Add (log time, order, topic, data) of a chunk's messages on wanted topics to `into`.
+
+    Channels defined in the chunk are added to `channels`, only those on wanted topics, so
+    the other messages are skipped unread (parsing by hand costs a fraction of building
+    every record). Returns how many messages the chunk holds on any topic.
+    """
+    position, end, messages = 0, len(data), 0
+    while position < end:
+        opcode, length = _RECORD_HEAD.unpack_from(data, position)
+        body = position + _RECORD_HEAD.size
+        position = body + length
+        if position > end:
+            raise ValueError("a record runs past the end of its chunk")
+        if opcode == _OP_MESSAGE:
+            messages += 1
+            channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(data, body)
+            topic = channels.get(channel_id)
+            if topic is not None:
+                into.append(
+                    (log_time, len(into), topic, data[body + _MESSAGE_HEAD.size : position])
+                )
+        elif opcode == _OP_CHANNEL:
+            channel_id, _, topic_length = _CHANNEL_HEAD.unpack_from(data, body)
+            start = body + _CHANNEL_HEAD.size
+            topic = data[start : start + topic_length].decode()
+            (encoding_length,) = struct.unpack_from("<I", data, start + topic_length)
+            encoding = data[start + topic_length + 4 : start + topic_length + 4 + encoding_length]
+            if encoding == b"json" and (topics is None or topic in topics):
+                channels[channel_id] = topic
+    return messages
+
+
 def _is_finished(path: Path) -> bool:
     """Whether `path` ends with a footer and a readable summary (it was closed properly)."""
     try:
         with path.open("rb") as f:
-            if f.seek(0, os.SEEK_END) < 2 * len(_MAGIC):
+            if f.seek(0, os.SEEK_END) < 2 * len(MCAP_MAGIC):
                 return False
-            f.seek(-len(_MAGIC), os.SEEK_END)
-            if f.read(len(_MAGIC)) != _MAGIC:
+            f.seek(-len(MCAP_MAGIC), os.SEEK_END)
+            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
                 return False
             f.seek(0)
             return make_reader(f, validate_crcs=True).get_summary() is not None
@@ -716,24 +784,61 @@ def _is_finished(path: Path) -> bool:
 class LogFile:
     """One hermsd MCAP file, finished or cut short, read in log-time order.
 
-    A finished file is read through its index; any other is read record by record up to the
-    cut. After `messages()` has run, `count` says how many messages it yielded and, for an
-    unfinished file, `cut_at` says up to which byte the file held complete records.
+    Every file is read record by record up to its end or its cut, a finished one too (its
+    index would only say where the same chunks are). After `messages()` has run, `count`
+    says how many messages it yielded, `recovered` how many its complete records hold on
+    any topic and, unless the file was finished and read whole, `cut_at` up to which byte
+    it held complete records and `cut_reason` why the next one could not be read (None: the
+    file simply ended there).
     """
 
     def __init__(self, path: Path | str) -> None:
         self.path = Path(path)
         self.finished = _is_finished(self.path)
         self.count = 0
+        self.recovered = 0
         self.cut_at: int | None = None
+        self.cut_reason: str | None = None
         self.size = self.path.stat().st_size
 
-    def messages(self) -> Iterator[RecordedMessage]:
-        self.count = 0
-        source = self._indexed() if self.finished else self._streamed()
-        for message in source:
+    def messages(self, topics: Collection[str] | None = None) -> Iterator[RecordedMessage]:
+        """The messages in log-time order; only those on `topics`, when given, are decoded.
+
+        ValueError: the file holds records that pass their CRC but cannot be decoded.
+        """
+        self.count = self.recovered = 0
+        channels: dict[int, str] = {}
+        pending: list[tuple[int, int, str, bytes]] = []
+        cut = _Cut()
+        with self.path.open("rb") as f:
+            try:
+                for record in _complete_records(f, self.size, cut, whole_chunks=True):
+                    if isinstance(record, Chunk):
+                        self.recovered += _sift_chunk(record.data, channels, topics, pending)
+                    elif isinstance(record, Message):
+                        self.recovered += 1
+                        if record.channel_id in channels:
+                            topic = channels[record.channel_id]
+                            pending.append((record.log_time, len(pending), topic, record.data))
+                    elif (
+                        isinstance(record, Channel)
+                        and record.message_encoding == "json"
+                        and (topics is None or record.topic in topics)
+                    ):
+                        channels[record.id] = record.topic
+            except (struct.error, UnicodeDecodeError, ValueError) as exc:
+                raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
+        if not (self.finished and cut.at is None):
+            self.cut_at = self.size if cut.at is None else cut.at
+            self.cut_reason = cut.reason
+        pending.sort()
+        for log_time, _, topic, data in pending:
+            try:
+                message = json.loads(data)
+            except ValueError as exc:
+                raise ValueError(f"{self.path}: a message is not JSON: {exc}") from exc
             self.count += 1
-            yield message
+            yield RecordedMessage(topic, log_time, message)
 
     def metadata(self) -> dict[str, dict[str, str]]:
         """Metadata records by name (a later record of the same name wins)."""
@@ -745,34 +850,6 @@ class LogFile:
                     r for r in _complete_records(f, self.size, _Cut()) if isinstance(r, Metadata)
                 ]
         return {record.name: dict(record.metadata) for record in records}
-
-    def _indexed(self) -> Iterator[RecordedMessage]:
-        with self.path.open("rb") as f:
-            reader = make_reader(f, validate_crcs=True)
-            try:
-                for _, channel, message in reader.iter_messages(log_time_order=True):
-                    if channel.message_encoding == "json":
-                        yield RecordedMessage(
-                            channel.topic, message.log_time, json.loads(message.data)
-                        )
-            except Exception as exc:  # whatever the reader raises on damaged data
-                raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
-
-    def _streamed(self) -> Iterator[RecordedMessage]:
-        topics: dict[int, str] = {}
-        pending: list[tuple[int, int, str, bytes]] = []
-        cut = _Cut()
-        with self.path.open("rb") as f:
-            for record in _complete_records(f, self.size, cut):
-                if isinstance(record, Channel) and record.message_encoding == "json":
-                    topics[record.id] = record.topic
-                elif isinstance(record, Message) and record.channel_id in topics:
-                    topic = topics[record.channel_id]
-                    pending.append((record.log_time, len(pending), topic, record.data))
-        self.cut_at = self.size if cut.at is None else cut.at
-        pending.sort()
-        for log_time, _, topic, data in pending:
-            yield RecordedMessage(topic, log_time, json.loads(data))
 
 
 def read_messages(paths: Iterable[Path | str]) -> Iterator[RecordedMessage]:

@@ -26,6 +26,7 @@ from hermsd.config import (
     Problem,
     TunConfig,
     dump_yaml,
+    from_dict,
     load,
     parse,
     restart_keys_changed,
@@ -849,6 +850,26 @@ def test_dump_yaml_reads_back_to_the_same_config() -> None:
     for name in ("066", "yes", "null", "0x48", "1:30", "~", "true"):
         named = dataclasses.replace(DEFAULT, tun=TunConfig(name=name))
         assert parse(dump_yaml(named)).tun.name == name
+
+
+def test_from_dict_reads_a_logged_config_back() -> None:
+    tuned = parse(
+        "tun:\n  name: '066'\ncontrol:\n  algorithm: back_calculation\n  kc: 80.8\n"
+        "  ti: 489\n  td: 44.9\n  tt: 0.00001\n  max_output: 1e2\nlog:\n  dir: null\n"
+    )
+    for config in (DEFAULT, tuned):
+        assert from_dict(json.loads(json.dumps(to_dict(config)))) == config
+    assert tuned.control.tt == 1e-05  # written 1.0e-05 on the way: the exponent survives
+
+
+def test_from_dict_refuses_what_a_file_would_refuse() -> None:
+    logged = to_dict(DEFAULT)
+    bad = {**logged, "control": {**logged["control"], "kc": -1.0, "gain": 2.0}}
+    with pytest.raises(ConfigError) as caught:
+        from_dict(bad)
+    assert {p.key_path for p in caught.value.problems} == {"control.kc", "control.gain"}
+    with pytest.raises(ConfigError, match="mapping of sections"):
+        from_dict(["not", "a", "config"])
 
 
 def test_restart_keys_changed() -> None:

@@ -341,6 +341,42 @@ def test_full_queue_drops_new_records_and_says_so_once_there_is_room(tmp_path: P
     assert recorder.dropped == 3
 
 
+def test_a_lossless_recorder_waits_for_room_instead_of_dropping(tmp_path: Path) -> None:
+    entered, release, full = threading.Event(), threading.Event(), threading.Event()
+
+    def slow_open(path: Path) -> BinaryIO:
+        entered.set()
+        assert release.wait(5)
+        return open(path, "xb")
+
+    clock = VirtualClock()
+    recorder = Recorder(
+        tmp_path,
+        now=clock.monotonic,
+        queue_size=5,
+        open_file=slow_open,
+        lossless=True,
+    )
+    recorder.write(PERIOD_TOPIC, EPOCH_NS, period(0))
+    assert entered.wait(5)  # the writer thread holds record 0 and waits on the disk
+
+    def produce() -> None:
+        for k in range(1, 9):  # 5 fill the queue; the 6th must wait for room
+            if k == 6:
+                full.set()
+            recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S, period(k))
+
+    producer = threading.Thread(target=produce)
+    producer.start()
+    assert full.wait(5)
+    release.set()
+    producer.join(5)
+    recorder.close()
+    [path] = finished_files(tmp_path)
+    assert [m["k"] for topic, _, m in decoded(path) if topic == PERIOD_TOPIC] == list(range(9))
+    assert recorder.dropped == 0
+
+
 def test_disk_full_never_reaches_the_caller_and_writing_resumes_in_a_new_file(
     tmp_path: Path,
 ) -> None:
@@ -666,6 +702,22 @@ def test_recover_directory_finishes_every_leftover_part(finished_log: Path, tmp_
     assert decoded(recovered[1]) == [m for _, _, ms in chunks[:3] for m in ms]
     assert untouched.read_bytes() == data
     assert not list(tmp_path.glob("*.part"))
+
+
+def test_only_the_topics_asked_for_are_read(finished_log: Path, tmp_path: Path) -> None:
+    data = finished_log.read_bytes()
+    chunks = chunks_of(finished_log)
+    cut = tmp_path / "cut.mcap.part"
+    cut.write_bytes(data[: chunks[3][1] + 10])
+    for path in (finished_log, cut):
+        everything = list(LogFile(path).messages())
+        log = LogFile(path)
+        periods = list(log.messages({PERIOD_TOPIC}))
+        assert periods == [m for m in everything if m.topic == PERIOD_TOPIC]
+        assert log.count == len(periods) < len(everything) == log.recovered
+    whole = LogFile(finished_log)
+    assert len(list(whole.messages())) == 31
+    assert (whole.finished, whole.cut_at, whole.cut_reason) == (True, None, None)
 
 
 def test_a_damaged_chunk_ends_what_a_cut_file_yields(finished_log: Path, tmp_path: Path) -> None:

@@ -23,7 +23,7 @@ from hermsd import config as config_module
 from hermsd.config import Config
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
-from hermsd.metrics import BAND, Sample, compute
+from hermsd.metrics import BAND, Sample, compute, report
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm
 from hermsd.sim.bus import FakeLM92
@@ -267,6 +267,7 @@ def run(
             log_dir,
             now=clock.monotonic,
             metadata={"scenario": scenario.name},
+            lossless=True,
         )
     try:
         world = build_world(config, clock, scenario.plant)
@@ -333,21 +334,11 @@ def run(
         "scenario": scenario.name,
         "algorithm": config.control.algorithm,
         "duration_s": scenario.duration,
-        "overshoot_c": round(metrics.overshoot_c, 4),
-        "settle_s": metrics.settle_s,
+        **report(metrics),
         "physical_min_s": None if physical_min is None else round(physical_min, 1),
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
-        "recovery_s": metrics.recovery_s,
         "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),
         "recovery_ratio": _ratio(metrics.recovery_s, recovery_min_s),
-        "in_band_fraction": metrics.in_band_fraction,
-        "iae": round(metrics.iae, 2),
-        "max_output_jump": round(metrics.max_output_jump, 3),
-        "ssr_edges_per_hour": None
-        if metrics.edges_per_hour is None
-        else round(metrics.edges_per_hour, 1),
-        "max_temp_c": round(metrics.max_temp_c, 3),
-        "mean_output": round(metrics.mean_output, 2),
         "alarms": alarms,
         "overruns": daemon.overruns,
         "wall_s": round(wall, 3),

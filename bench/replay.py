@@ -1,0 +1,109 @@
+"""How long `hermsd replay` takes on a 24-hour log, whole command and stage by stage.
+
+Simulates a 24-hour day (the reference brew day's plant and cold water, then holding) with
+its MCAP log, then times `hermsd replay` as a user runs it (a new Python process, best of
+three) for the summary, --verify and --what-if, and the stages inside one process. Goal: the
+summary of a day in under 1 s.
+
+    uv run python bench/replay.py [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from control import _replace_section  # bench/control.py, beside this file
+
+from hermsd import replay
+from hermsd.recorder import LogFile
+from hermsd.sim import scenario
+
+DAY = dataclasses.replace(scenario.DEFAULT, name="day", duration=24 * 3600.0)
+
+
+def best_of(runs: int, action: Callable[[], Any]) -> float:
+    times = []
+    for _ in range(runs):
+        started = time.perf_counter()
+        action()
+        times.append(time.perf_counter() - started)
+    return min(times)
+
+
+def command(*args: str) -> Callable[[], None]:
+    def run() -> None:
+        subprocess.run(
+            [sys.executable, "-m", "hermsd.cli", "replay", *args],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
+
+    return run
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as directory:
+        scenario.run(DAY, log_dir=Path(directory))
+        files = sorted(Path(directory).glob("*.mcap"))
+        names = [str(p) for p in files]
+        messages = sum(_recovered(p) for p in files)
+        megabytes = sum(p.stat().st_size for p in files) / 1e6
+        log = replay.load(names)
+        rows = [
+            ("`hermsd replay FILES`", best_of(3, command(*names))),
+            ("`hermsd replay FILES --verify`", best_of(3, command(*names, "--verify"))),
+            (
+                "`hermsd replay FILES --what-if kc=80`",
+                best_of(3, command(*names, "--what-if", "kc=80")),
+            ),
+            ("in process: read the files (`replay.load`)", best_of(3, lambda: replay.load(names))),
+            ("in process: `replay.summarise`", best_of(3, lambda: replay.summarise(log))),
+            ("in process: `replay.verify`", best_of(3, lambda: replay.verify(log.entries))),
+            ("in process: fit the tun (`replay.identify`)", best_of(3, lambda: _identify(log))),
+        ]
+        periods = len(log.periods)
+    lines = ["| what | seconds |", "|---|---|"]
+    lines += [f"| {what} | {seconds:.3f} |" for what, seconds in rows]
+    table = "\n".join(lines)
+    print(table)
+    text = (
+        "## Replay: a 24-hour log\n\n"
+        "`uv run python bench/replay.py --write` — a simulated 24-hour day (20 → 66 °C, 10 L "
+        f"of 15 °C water at 4 h, then holding): {len(files)} files, {megabytes:.1f} MB, "
+        f"{messages} messages of which {periods} control periods. Commands are a new Python "
+        "process each, best of three. Goal: the summary in under 1 s.\n\n" + table + "\n"
+    )
+    if args.write:
+        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Replay:", text)
+    return 0
+
+
+def _recovered(path: Path) -> int:
+    file = LogFile(path)
+    for _ in file.messages(()):
+        pass
+    return file.recovered
+
+
+def _identify(log: replay.Log) -> replay.TunModel:
+    period_s = log.period_s()
+    drops = replay.sudden_drops(log.elapsed, [p.pv for p in log.periods])
+    n = replay.fit_span(log, drops, period_s)
+    return replay.identify(
+        [p.pv for p in log.periods[:n]], [p.applied for p in log.periods[:n]], period_s
+    )
+
+
+if __name__ == "__main__":
+    sys.exit(main())

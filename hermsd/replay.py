@@ -1,0 +1,954 @@
+"""Replay: read a brew day's MCAP logs back, measure them, re-run the controller, ask what if.
+
+The files of one day (finished `.mcap` or cut `.mcap.part`) are read in the order given;
+within a file, config and period records are put in the order of the daemon's monotonic
+time `t` (a config before a period of the same `t`: the daemon records a reload before the
+period it takes effect in). Times in the summary are seconds since the first period, on one
+clock across files: when `t` starts again (a reboot between files) the wall-clock gap of the
+log times joins the two.
+
+- `summarise`: what `hermsd replay FILE...` prints. The metrics are those of `hermsd
+  simulate` (hermsd.metrics), measured on the logged PV rather than the simulated water.
+- `verify`: the logged controller re-run on the logged inputs, every step bit for bit.
+- `what_if`: a first-order-plus-dead-time model of the tun fitted to the logged duty and PV,
+  and the day run again through the daemon on that model with other settings.
+"""
+
+from __future__ import annotations
+
+import bisect
+import csv
+import dataclasses
+import itertools
+import math
+import operator
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
+
+from hermsd import config as config_module
+from hermsd.daemon import RAISED_ALARM, PeriodRecord, make_controller
+from hermsd.metrics import Metrics, Sample, compute, report
+from hermsd.recorder import (
+    CONFIG_TOPIC,
+    LOG_TOPIC,
+    MCAP_MAGIC,
+    PERIOD_TOPIC,
+    TIMING_TOPIC,
+    LogFile,
+    LogLevel,
+)
+
+if TYPE_CHECKING:
+    from hermsd.sim.scenario import Event
+
+TOPICS_READ = (PERIOD_TOPIC, CONFIG_TOPIC, LOG_TOPIC, TIMING_TOPIC)  # readings and windows unused
+
+# A sudden drop: PV falls this much within this time. Heat loss alone cools a hot tun by
+# (T − T_amb)/τ ≈ 0.2 °C a minute at most; cold water poured in drops it by degrees at once.
+DROP_C = 1.0
+DROP_WINDOW_S = 60.0
+
+WHAT_IF_KEYS = (
+    "algorithm",
+    "kc",
+    "ti",
+    "td",
+    "tf",
+    "tt",
+    "max_output",
+    "model_gain",
+    "model_tau",
+    "dead_time",
+)
+
+_PERIOD_FIELDS = tuple(f.name for f in dataclasses.fields(PeriodRecord))
+
+
+class ReplayError(ValueError):
+    """Logs that cannot be replayed as asked; the message is one line that says why."""
+
+
+# -- reading ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class FileReport:
+    """What was recovered from one file."""
+
+    path: str
+    size: int
+    messages: int  # in its complete records, on any topic
+    periods: int
+    finished: bool
+    cut_at: int | None  # bytes of complete records, for a file that was not finished
+    cut_reason: str | None
+
+
+@dataclass(frozen=True, slots=True)
+class LoggedConfig:
+    """A /hermsd/config record: the configuration (as `config.to_dict` wrote it) from `t` on."""
+
+    t: float
+    reason: str
+    config: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class LogEvent:
+    """A /hermsd/log event, placed on the replay's clock."""
+
+    at: float
+    level: int
+    message: str
+
+
+@dataclass(slots=True)
+class Log:
+    """The records of a day's files that replay uses, in replay order."""
+
+    files: list[FileReport] = field(default_factory=list)
+    entries: list[LoggedConfig | PeriodRecord] = field(default_factory=list)
+    configs: list[LoggedConfig] = field(default_factory=list)
+    periods: list[PeriodRecord] = field(default_factory=list)
+    elapsed: list[float] = field(default_factory=list)  # of each period, s since the first
+    log_time_ns: list[int] = field(default_factory=list)  # of each period (wall clock)
+    events: list[LogEvent] = field(default_factory=list)
+    timings: list[dict[str, Any]] = field(default_factory=list)
+
+    def period_s(self) -> float:
+        """The control period: the logged config's, else the typical spacing of the records."""
+        for entry in self.configs:
+            value = _lookup(entry.config, "control", "period")
+            if value is not None and value > 0:
+                return value
+        gaps = sorted(b - a for a, b in itertools.pairwise(self.elapsed) if b > a)
+        return gaps[len(gaps) // 2] if gaps else 1.0
+
+
+def load(paths: Sequence[Path | str]) -> Log:
+    """The records of `paths`, file after file; ReplayError when nothing usable is in them."""
+    log = Log()
+    origin: float | None = None  # t of the first period
+    offset = 0.0  # added to a file's t to continue the clock of the files before it
+    for path in map(Path, paths):
+        file = _open(path)
+        configs: list[LoggedConfig] = []
+        periods: list[tuple[PeriodRecord, int]] = []
+        anchors: list[tuple[int, float]] = []  # (log time, t) of records that carry t
+        raw_events: list[tuple[int, int, str]] = []
+        timings: list[dict[str, Any]] = []
+        try:
+            for topic, log_time_ns, message in file.messages(TOPICS_READ):
+                if topic == PERIOD_TOPIC:
+                    record = _period(message, path)
+                    periods.append((record, log_time_ns))
+                    anchors.append((log_time_ns, record.t))
+                elif topic == CONFIG_TOPIC:
+                    entry = _config(message, path)
+                    configs.append(entry)
+                    anchors.append((log_time_ns, entry.t))
+                elif topic == TIMING_TOPIC and _is_number(message.get("t")):
+                    timings.append(message)
+                    anchors.append((log_time_ns, float(message["t"])))
+                elif topic == LOG_TOPIC:
+                    level = message.get("level")
+                    level = level if isinstance(level, int) else 0
+                    raw_events.append((log_time_ns, level, str(message.get("message"))))
+        except ValueError as error:
+            raise ReplayError(str(error)) from None
+        log.files.append(
+            FileReport(
+                str(path),
+                file.size,
+                file.recovered,
+                len(periods),
+                file.finished,
+                file.cut_at,
+                file.cut_reason,
+            )
+        )
+        periods.sort(key=lambda p: p[0].t)
+        if periods:
+            first_t, first_ns = periods[0][0].t, periods[0][1]
+            if origin is None:
+                origin = first_t
+            elif first_t + offset <= log.elapsed[-1] + origin:
+                # t started again: join the clocks by the wall-clock gap (at least one period)
+                gap = max((first_ns - log.log_time_ns[-1]) / 1e9, log.period_s())
+                offset = log.elapsed[-1] + origin + gap - first_t
+            for record, log_time_ns in periods:
+                log.periods.append(record)
+                log.elapsed.append(record.t + offset - origin)
+                log.log_time_ns.append(log_time_ns)
+        entries: list[LoggedConfig | PeriodRecord] = [*configs, *(p for p, _ in periods)]
+        entries.sort(key=lambda e: (e.t, isinstance(e, PeriodRecord)))
+        log.entries.extend(entries)
+        log.configs.extend(e for e in entries if isinstance(e, LoggedConfig))
+        if origin is not None:
+            shift = offset - origin
+            anchors.sort()
+            log.events.extend(
+                LogEvent(_t_at(anchors, ns) + shift, level, text)
+                for ns, level, text in raw_events
+                if anchors
+            )
+            log.timings.extend(timings)
+    if not log.periods:
+        names = ", ".join(str(p) for p in paths)
+        raise ReplayError(f"{names}: no control periods recovered, nothing to replay")
+    log.events.sort(key=lambda e: e.at)
+    return log
+
+
+def _open(path: Path) -> LogFile:
+    """The file as a LogFile, or ReplayError saying in one line why it cannot be one."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+        file = LogFile(path)
+    except FileNotFoundError:
+        raise ReplayError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ReplayError(f"{path}: is a directory (name the .mcap files in it)") from None
+    except OSError as error:
+        raise ReplayError(f"{path}: cannot be read: {error.strerror or error}") from None
+    if not head:
+        raise ReplayError(f"{path}: the file is empty")
+    if not MCAP_MAGIC.startswith(head):
+        raise ReplayError(f"{path}: not an MCAP file (it does not start with the MCAP magic)")
+    return file
+
+
+def _period(message: dict[str, Any], path: Path) -> PeriodRecord:
+    try:
+        record = PeriodRecord(**message)
+    except TypeError:
+        try:  # another version's record: keep the fields this one knows
+            record = PeriodRecord(**{k: message[k] for k in _PERIOD_FIELDS if k in message})
+        except TypeError as error:
+            raise ReplayError(f"{path}: a period record is incomplete: {error}") from None
+    if not (
+        _is_number(record.t)
+        and _is_number(record.setpoint)
+        and _is_number(record.output)
+        and _is_number(record.applied)
+        and (record.pv is None or _is_number(record.pv))
+        and (record.reset_from is None or _is_number(record.reset_from))
+        and isinstance(record.k, int)
+        and isinstance(record.alarms, list)
+        and all(isinstance(kind, str) for kind in record.alarms)
+    ):
+        raise ReplayError(f"{path}: period record k={record.k!r} holds a value of the wrong type")
+    return record
+
+
+def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
+    t, config = message.get("t"), message.get("config")
+    if not _is_number(t) or not isinstance(config, dict):
+        raise ReplayError(f"{path}: a config record lacks its time or its configuration")
+    return LoggedConfig(float(t), str(message.get("reason", "")), config)
+
+
+def _is_number(value: object) -> TypeGuard[int | float]:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _lookup(config: dict[str, Any], section: str, key: str) -> float | None:
+    value = config.get(section, {}).get(key) if isinstance(config.get(section), dict) else None
+    return float(value) if _is_number(value) else None
+
+
+def _t_at(anchors: list[tuple[int, float]], log_time_ns: int) -> float:
+    """The daemon's t at a log time, from the nearest earlier record that carries t."""
+    i = max(0, bisect.bisect_right(anchors, (log_time_ns, math.inf)) - 1)
+    anchor_ns, anchor_t = anchors[i]
+    return anchor_t + (log_time_ns - anchor_ns) / 1e9
+
+
+# -- the summary --------------------------------------------------------------------------------
+
+
+class Drop(NamedTuple):
+    """PV fell fast (cold water poured in): at `at` it was still `before`, then `after`."""
+
+    at: float
+    before: float
+    after: float
+
+
+def sudden_drops(times: Sequence[float], pvs: Sequence[float | None]) -> list[Drop]:
+    """Falls of at least DROP_C within DROP_WINDOW_S, each at its last sample near the top."""
+    drops: list[Drop] = []
+    window: deque[tuple[float, float]] = deque()  # (t, pv), pv decreasing: window[0] is the max
+    recent: deque[tuple[float, float]] = deque()  # every (t, pv) of the window
+    falling_until = -math.inf
+    for t, pv in zip(times, pvs, strict=True):
+        if pv is None:
+            continue
+        if t <= falling_until and drops:
+            drops[-1] = drops[-1]._replace(after=min(drops[-1].after, pv))
+            continue
+        while window and window[0][0] < t - DROP_WINDOW_S:
+            window.popleft()
+        while recent and recent[0][0] < t - DROP_WINDOW_S:
+            recent.popleft()
+        if window and window[0][1] - pv >= DROP_C:
+            top = window[0][1]
+            at = max(s for s, v in recent if v >= top - DROP_C / 4)
+            drops.append(Drop(at, top, pv))
+            falling_until = t + DROP_WINDOW_S
+            window.clear()
+            recent.clear()
+            continue
+        while window and window[-1][1] <= pv:
+            window.pop()
+        window.append((t, pv))
+        recent.append((t, pv))
+    return drops
+
+
+def _report(metrics: Metrics) -> dict[str, Any]:
+    """hermsd.metrics' report without the SSR's edges, which period records do not hold."""
+    reported = report(metrics)
+    del reported["ssr_edges_per_hour"]
+    return reported
+
+
+def disturbances(log: Log, drops: list[Drop]) -> list[float]:
+    """When the tun was upset from outside: setpoint or mode changed, cold water poured in."""
+    times = [drop.at for drop in drops]
+    for (a, _), (b, t) in itertools.pairwise(zip(log.periods, log.elapsed, strict=True)):
+        if b.setpoint != a.setpoint or b.mode != a.mode:
+            times.append(t)
+    return sorted(times)
+
+
+def measure(
+    periods: Sequence[PeriodRecord],
+    elapsed: Sequence[float],
+    upsets: list[float],
+    period_s: float,
+) -> Metrics:
+    """hermsd.metrics on the PV of period records (periods without a PV are left out)."""
+    samples = [
+        Sample(t, r.setpoint, r.pv, r.output)
+        for r, t in zip(periods, elapsed, strict=True)
+        if r.pv is not None
+    ]
+    end = elapsed[-1] + period_s if elapsed else 0.0
+    return compute(samples, upsets, end)
+
+
+def delivered(log: Log) -> tuple[float | None, float | None]:
+    """(mean applied duty %, energy kWh) over the periods recovered.
+
+    A period's `applied` is the duty of the span since the period before it, so it is
+    weighed by that span; after missing records, by one control period. The element's
+    watts come from the config in force; without one the energy is unknown (None).
+    """
+    watts: float | None = None
+    watts_known = True
+    duty_s = span_s = joules = 0.0
+    period_s = log.period_s()
+    previous: PeriodRecord | None = None
+    for entry in log.entries:
+        if isinstance(entry, LoggedConfig):
+            watts = _lookup(entry.config, "tun", "element_watts")
+            continue
+        if previous is not None and entry.k == previous.k + 1 and entry.t >= previous.t:
+            span = entry.t - previous.t
+        else:
+            span = period_s if entry.k > 1 else 0.0  # the first period of a run follows nothing
+        previous = entry
+        duty_s += entry.applied * span
+        span_s += span
+        if watts is None:
+            watts_known = False
+        else:
+            joules += watts * entry.applied / 100.0 * span
+    if span_s == 0:
+        return None, None
+    return duty_s / span_s, joules / 3.6e6 if watts_known else None
+
+
+def alarms(log: Log) -> list[dict[str, Any]]:
+    """Alarms raised: from the log's events, and from the period records for any event lost."""
+    found = []
+    for event in log.events:
+        match = RAISED_ALARM.fullmatch(event.message)
+        if match and event.level >= LogLevel.WARNING:
+            found.append((event.at, match["kind"], match["message"]))
+    period_s = log.period_s()
+    active: set[str] = set()
+    previous_at = -math.inf
+    for record, at in zip(log.periods, log.elapsed, strict=True):
+        now = set(record.alarms)
+        for kind in sorted(now - active):
+            told = any(
+                k == kind and previous_at - period_s <= a <= at + period_s for a, k, _ in found
+            )
+            if not told:
+                found.append((at, kind, None))
+        active, previous_at = now, at
+    found.sort(key=lambda a: a[0])
+    return [{"kind": kind, "at_s": round(at, 3), "message": text} for at, kind, text in found]
+
+
+def timing(log: Log) -> dict[str, Any]:
+    """How well the loop kept time: the worst of the timing records, and what was lost."""
+    records = log.timings
+
+    def worst(key: str) -> float | None:
+        values = [r[key] for r in records if _is_number(r.get(key))]
+        return round(max(values) * 1000.0, 3) if values else None
+
+    return {
+        "records": len(records),
+        "period_lateness_p99_ms": worst("period_lateness_p99"),
+        "period_lateness_max_ms": worst("period_lateness_max"),
+        "edge_error_p99_ms": worst("edge_error_p99"),
+        "edge_error_max_ms": worst("edge_error_max"),
+        "overruns": _total(r.get("overruns") for r in records),
+        "dropped": _total(r.get("dropped") for r in records),
+    }
+
+
+def _total(counts: Iterable[object]) -> int:
+    """The sum of counters that each run of the daemon starts again from zero."""
+    total = previous = 0
+    for count in counts:
+        if not isinstance(count, int):
+            continue
+        total += count - previous if count >= previous else count
+        previous = count
+    return total
+
+
+def summarise(log: Log) -> dict[str, Any]:
+    """What `hermsd replay` prints: what was recovered, how the day went, what it cost."""
+    period_s = log.period_s()
+    drops = sudden_drops(log.elapsed, [p.pv for p in log.periods])
+    metrics = measure(log.periods, log.elapsed, disturbances(log, drops), period_s)
+    mean_applied, energy = delivered(log)
+    algorithms = list(dict.fromkeys(p.algorithm for p in log.periods))
+    return {
+        "files": [dataclasses.asdict(f) for f in log.files],
+        "start_utc": time.strftime(
+            "%Y-%m-%dT%H:%M:%SZ", time.gmtime(log.log_time_ns[0] // 1_000_000_000)
+        ),
+        "periods": len(log.periods),
+        "duration_s": round(log.elapsed[-1], 3),
+        "algorithm": ", ".join(algorithms),
+        "cold_water_at_s": [round(d.at, 1) for d in drops],
+        **_report(metrics),
+        "mean_applied_pct": None if mean_applied is None else round(mean_applied, 2),
+        "energy_kwh": None if energy is None else round(energy, 3),
+        "alarms": alarms(log),
+        "timing": timing(log),
+    }
+
+
+# -- verify -------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Mismatch:
+    """The first value the re-run controller did not reproduce."""
+
+    k: int
+    t: float
+    name: str
+    logged: float
+    recomputed: float
+
+
+@dataclass(frozen=True, slots=True)
+class Verification:
+    """What `verify` found: how many steps it reproduced, and the first it did not."""
+
+    verified: int  # controller steps reproduced bit for bit
+    unknown_state: int  # steps after missing records and before the next reset: not re-run
+    mismatch: Mismatch | None
+
+
+def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
+    """Re-run the logged controller on the logged inputs, by the daemon's rules.
+
+    A config record makes a new controller (a repeat of the one in force, which opens every
+    rotated file, does not). The controller steps in auto mode when heating is allowed and
+    there is a PV, after `reset(pv, reset_from)` if `reset_from` is set; its output and its
+    p, i, d terms must equal the logged ones exactly. The daemon resets the controller on its
+    first step and after every hold, reload or return to auto, so where records are missing
+    the check resumes at the next reset.
+    """
+    controller = None
+    in_force: LoggedConfig | None = None
+    known = False  # whether the controller's state is that of the daemon's
+    previous_k: int | None = None
+    verified = unknown = 0
+    for entry in entries:
+        if isinstance(entry, LoggedConfig):
+            if entry == in_force:
+                continue
+            in_force = entry
+            try:
+                control = config_module.from_dict(entry.config).control
+                controller = make_controller(control)
+            except (config_module.ConfigError, ValueError) as error:
+                detail = str(error).replace("\n", "; ")
+                raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None
+            known = False
+            if entry.reason == "start":
+                previous_k = None
+            continue
+        record = entry
+        if previous_k is not None and record.k != previous_k + 1:
+            known = False
+        previous_k = record.k
+        if not (record.mode == "auto" and record.heater_allowed and record.pv is not None):
+            continue
+        if controller is None:
+            unknown += 1
+            continue
+        try:
+            if record.reset_from is not None:
+                controller.reset(record.pv, record.reset_from)
+                known = True
+            if not known:
+                unknown += 1
+                continue
+            output = controller.step(record.setpoint, record.pv, record.applied)
+        except ValueError as error:
+            raise ReplayError(f"period k={record.k}: the controller refused it: {error}") from None
+        p, i, d = controller.terms
+        for name, logged, recomputed in (
+            ("output", record.output, output),
+            ("p", record.p, p),
+            ("i", record.i, i),
+            ("d", record.d, d),
+        ):
+            if logged != recomputed:
+                return Verification(
+                    verified, unknown, Mismatch(record.k, record.t, name, logged, recomputed)
+                )
+        verified += 1
+    return Verification(verified, unknown, None)
+
+
+# -- what if ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class TunModel:
+    """τ·dT/dt = −(T − ambient) + K·u(t − θ), T = `start` at the first period."""
+
+    gain: float  # K, °C/%
+    tau: float  # s
+    dead_time: float  # θ, s
+    ambient: float  # °C
+    start: float  # °C
+    rms: float  # °C, of the fit
+    fit_s: float  # s of log the fit used
+
+
+MAX_DEAD_TIME_S = 900.0
+TAU_RANGE_S = (10.0, 1e6)
+MIN_FIT_PERIODS = 60
+MIN_DUTY_SPAN = 20.0  # %: the fit needs the duty to move for K and τ to show
+
+
+def fit_span(log: Log, drops: list[Drop], period_s: float) -> int:
+    """How many periods from the first the fit may use: up to a drop, a gap or a restart."""
+    end = drops[0].at if drops else math.inf
+    periods, elapsed = log.periods, log.elapsed
+    n = 1
+    while n < len(periods):
+        record, previous = periods[n], periods[n - 1]
+        if elapsed[n] > end or record.k != previous.k + 1:
+            break
+        if abs(elapsed[n] - elapsed[n - 1] - period_s) > 0.25 * period_s:
+            break
+        n += 1
+    return n
+
+
+def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: float) -> TunModel:
+    """The FOPTD model whose response to `duties` fits `pvs` best (least squares).
+
+    One sample per control period; `duties[k]` is the duty of the span ending at sample k
+    (a period record's `applied`), and before the first one the duty is taken to have stood
+    at it. For a given τ and θ (a whole number of periods) the model is linear in the
+    ambient temperature, the initial offset from equilibrium and K:
+    T_k = T_amb + x0·a^k + K·z_{k−d}, with a = e^(−Ts/τ) and z the duty through the
+    discrete first-order lag z_k = a·z_{k−1} + (1 − a)·u_k; those three come from the
+    normal equations. θ is searched over whole periods up to MAX_DEAD_TIME_S (every fourth,
+    then around the best), τ by golden section on log τ, in turn until θ stays put.
+    """
+    n = len(pvs)
+    valid = [pv is not None for pv in pvs]
+    count = sum(valid)
+    if count < MIN_FIT_PERIODS:
+        raise ReplayError(
+            f"cannot fit a model of the tun: {count} periods with a PV before the first "
+            f"disturbance, at least {MIN_FIT_PERIODS} needed"
+        )
+    if max(duties) - min(duties) < MIN_DUTY_SPAN:
+        raise ReplayError(
+            "cannot fit a model of the tun: the duty hardly moved before the first "
+            f"disturbance (less than {MIN_DUTY_SPAN:g} %), so gain and time constant do not show"
+        )
+    mean = sum(pv for pv in pvs if pv is not None) / count
+    weights = [1.0 if ok else 0.0 for ok in valid]
+    temps = [pv - mean if pv is not None else 0.0 for pv in pvs]
+    max_lag = max(0, min(round(MAX_DEAD_TIME_S / period_s), n // 4))
+    fit = _Fit(temps, weights, duties, max_lag, period_s)
+
+    log_tau = math.log(max(TAU_RANGE_S[0], min(n * period_s, TAU_RANGE_S[1])))
+    lag = fit.best_lag(log_tau)
+    for _ in range(6):
+        log_tau = fit.best_log_tau(lag)
+        previous, lag = lag, fit.best_lag(log_tau)
+        if lag == previous:
+            break
+    sse, (offset, x0, gain) = fit.solve(log_tau, lag)
+    if not gain > 0:
+        raise ReplayError("cannot fit a model of the tun: the PV does not rise with the duty")
+    ambient = offset + mean
+    return TunModel(
+        gain=gain,
+        tau=math.exp(log_tau),
+        dead_time=lag * period_s,
+        ambient=ambient,
+        start=ambient + x0 + gain * duties[0],
+        rms=math.sqrt(max(sse, 0.0) / count),
+        fit_s=n * period_s,
+    )
+
+
+class _Series(NamedTuple):
+    """What the fit needs of one τ: w·a^k, a^k, and z (extended back by max_lag) and z²."""
+
+    w_powers: list[float]
+    powers: list[float]
+    lagged: list[float]
+    squares: list[float]
+
+
+class _Fit:
+    """Sums for the least-squares fit of one θ and τ, each in O(n) at C speed."""
+
+    def __init__(
+        self,
+        temps: list[float],
+        weights: list[float],
+        duties: Sequence[float],
+        max_lag: int,
+        period_s: float,
+    ) -> None:
+        self.temps, self.weights, self.duties = temps, weights, list(duties)
+        self.max_lag, self.period_s = max_lag, period_s
+        self.n = len(temps)
+        self.total_w = sum(weights)
+        self.sum_t = _dot(weights, temps)
+        self.sum_tt = _dot(temps, temps)
+        self._cached: tuple[float, _Series] | None = None
+
+    def _series(self, log_tau: float) -> _Series:
+        if self._cached is not None and self._cached[0] == log_tau:
+            return self._cached[1]
+        a = math.exp(-self.period_s / math.exp(log_tau))
+        b = 1.0 - a
+        powers = list(
+            itertools.accumulate(itertools.repeat(a, self.n - 1), operator.mul, initial=1.0)
+        )
+        first = self.duties[0]
+        lagged = [first] * self.max_lag  # before the log: the duty stood at its first value
+        lagged.extend(itertools.accumulate(self.duties, lambda z, u: a * z + b * u, initial=first))
+        del lagged[self.max_lag]  # the initial value itself (z_{−1}) is not a sample
+        series = _Series(
+            list(map(operator.mul, self.weights, powers)),
+            powers,
+            lagged,
+            [z * z for z in lagged],
+        )
+        self._cached = (log_tau, series)
+        return series
+
+    def solve(self, log_tau: float, lag: int) -> tuple[float, tuple[float, float, float]]:
+        """(sum of squared errors, (offset, x0, K)) of the best fit for τ and θ = lag periods."""
+        series = self._series(log_tau)
+        start, stop = self.max_lag - lag, self.max_lag - lag + self.n
+        z = series.lagged[start:stop]
+        w, w_powers = self.weights, series.w_powers
+        s_p = sum(w_powers)
+        s_z = _dot(w, z)
+        gram = (
+            (self.total_w, s_p, s_z),
+            (s_p, _dot(w_powers, series.powers), _dot(w_powers, z)),
+            (s_z, _dot(w_powers, z), _dot(w, series.squares[start:stop])),
+        )
+        rhs = (self.sum_t, _dot(w_powers, self.temps), _dot(self.temps, z))
+        solution = _solve3(gram, rhs)
+        if solution is None:
+            return math.inf, (0.0, 0.0, 0.0)
+        return self.sum_tt - _dot(solution, rhs), solution
+
+    def error(self, log_tau: float, lag: int) -> float:
+        return self.solve(log_tau, lag)[0]
+
+    def best_lag(self, log_tau: float) -> int:
+        """Every fourth lag, then the neighbours of the best: the error is smooth in θ."""
+        coarse = min(range(0, self.max_lag + 1, 4), key=lambda lag: self.error(log_tau, lag))
+        near = range(max(0, coarse - 3), min(self.max_lag, coarse + 3) + 1)
+        return min(near, key=lambda lag: self.error(log_tau, lag))
+
+    def best_log_tau(self, lag: int) -> float:
+        low, high = map(math.log, TAU_RANGE_S)
+        return _golden(lambda log_tau: self.error(log_tau, lag), low, high)
+
+
+def _dot(x: Sequence[float], y: Sequence[float]) -> float:
+    total: float = sum(map(operator.mul, x, y))
+    return total
+
+
+def _solve3(
+    m: tuple[tuple[float, float, float], ...], v: tuple[float, float, float]
+) -> tuple[float, float, float] | None:
+    """Cramer's rule; None when the system is (numerically) singular."""
+
+    def det(a: Sequence[Sequence[float]]) -> float:
+        return (
+            a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+        )
+
+    d = det(m)
+    scale = math.prod(max(abs(x) for x in row) for row in m)
+    if scale == 0 or abs(d) <= 1e-12 * scale:
+        return None
+    columns = []
+    for j in range(3):
+        replaced = [[v[i] if c == j else m[i][c] for c in range(3)] for i in range(3)]
+        columns.append(det(replaced) / d)
+    return columns[0], columns[1], columns[2]
+
+
+def _golden(f: Callable[[float], float], low: float, high: float, tolerance: float = 1e-5) -> float:
+    """The minimum of a unimodal f on [low, high] by golden-section search."""
+    ratio = (math.sqrt(5.0) - 1.0) / 2.0
+    c, d = high - ratio * (high - low), low + ratio * (high - low)
+    fc, fd = f(c), f(d)
+    while high - low > tolerance:
+        if fc <= fd:
+            high, d, fd = d, c, fc
+            c = high - ratio * (high - low)
+            fc = f(c)
+        else:
+            low, c, fc = c, d, fd
+            d = low + ratio * (high - low)
+            fd = f(d)
+    return (low + high) / 2.0
+
+
+def parse_what_if(text: str) -> dict[str, Any]:
+    """`kc=100,ti=900,algorithm=type_a` as control settings (checked later, like the file)."""
+    settings: dict[str, Any] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        key, sep, value = (s.strip() for s in item.partition("="))
+        if not sep or key not in WHAT_IF_KEYS:
+            raise ReplayError(
+                f"--what-if: {item!r} is not key=value with a key of {', '.join(WHAT_IF_KEYS)} "
+                "(name the files before --what-if)"
+            )
+        settings[key] = _scalar(value)
+    return settings
+
+
+def _scalar(text: str) -> Any:
+    if text.lower() in ("null", "none", ""):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+@dataclass(frozen=True, slots=True)
+class WhatIf:
+    """The fitted tun, and the day as logged beside the day with the new settings."""
+
+    model: TunModel
+    settings: dict[str, dict[str, Any]]  # "logged" and "what_if": the control settings
+    logged: dict[str, Any]  # metrics of the log
+    what_if: dict[str, Any]  # metrics of the run with the new settings
+
+
+def what_if(log: Log, overrides: dict[str, Any]) -> WhatIf:
+    """The day again on the fitted tun, with `overrides` of the logged control settings.
+
+    The fit uses the log up to the first sudden drop (cold water: a disturbance the model
+    has no input for) or the first gap. The run starts from the fitted initial temperature
+    with the config logged first, and repeats the log's setpoint and mode changes; each
+    drop is poured in again as water at the fitted ambient temperature, in the amount that
+    gives the drop logged. Faults are not repeated.
+    """
+    from hermsd.sim.scenario import Scenario, ScenarioError, effective_config
+    from hermsd.sim.scenario import run as run_scenario  # the simulator only when asked for
+
+    configs = log.configs
+    if not configs:
+        raise ReplayError("--what-if: no config record recovered, so no settings to start from")
+    try:
+        base = config_module.from_dict(configs[0].config)
+    except config_module.ConfigError as error:
+        detail = str(error).replace("\n", "; ")
+        raise ReplayError(f"the config logged at t {configs[0].t!r} s: {detail}") from None
+    scenario = Scenario(
+        name="what-if", setpoint=log.periods[0].setpoint, config={"control": overrides}
+    )
+    try:  # the settings are checked before the fit and the run
+        settings = effective_config(base, scenario).control
+    except ScenarioError as error:
+        raise ReplayError(f"--what-if: {error}".replace("\n", "; ")) from None
+    period_s = base.control.period
+    pvs = [p.pv for p in log.periods]
+    drops = sudden_drops(log.elapsed, pvs)
+    upsets = disturbances(log, drops)
+    n = fit_span(log, drops, period_s)
+    model = identify(pvs[:n], [p.applied for p in log.periods[:n]], period_s)
+    plant = {
+        "model": "foptd",
+        "gain_c_per_pct": model.gain,
+        "tau_s": model.tau,
+        "dead_time_s": model.dead_time,
+        "ambient_c": model.ambient,
+        "start_c": model.start,
+        "litres": base.tun.litres,
+        "element_watts": base.tun.element_watts,
+    }
+    scenario = dataclasses.replace(
+        scenario,
+        duration=log.elapsed[-1] + period_s,
+        plant=plant,
+        events=tuple(_replayed_events(log, base, model, drops)),
+    )
+    try:
+        runs = run_scenario(scenario, base, keep_records=True).records
+    except ScenarioError as error:
+        raise ReplayError(f"--what-if: {error}".replace("\n", "; ")) from None
+    return WhatIf(
+        model=model,
+        settings={
+            "logged": {key: getattr(base.control, key) for key in WHAT_IF_KEYS},
+            "what_if": {key: getattr(settings, key) for key in WHAT_IF_KEYS},
+        },
+        logged=_report(measure(log.periods, log.elapsed, upsets, period_s)),
+        what_if=_report(measure(runs, [r.t for r in runs], upsets, period_s)),
+    )
+
+
+def _replayed_events(
+    log: Log, base: config_module.Config, model: TunModel, drops: list[Drop]
+) -> list[Event]:
+    """The scenario events that repeat the log's operator actions and its cold water."""
+    from hermsd.sim.scenario import Event
+
+    period_s = base.control.period
+    events: list[Event] = []
+    setpoint = log.periods[0].setpoint
+    mode, manual = base.control.mode, base.control.manual_output
+    for record, t in zip(log.periods, log.elapsed, strict=True):
+        at = max(0.0, t - period_s / 2)  # between periods: applied at this one
+        if record.setpoint != setpoint:
+            setpoint = record.setpoint
+            events.append(Event(at, "setpoint", setpoint))
+        manual_now = record.state == "manual"  # in manual mode and heating: output is the user's
+        if manual_now and (mode != "manual" or record.output != manual):
+            mode, manual = "manual", record.output
+            events.append(Event(at, "output", manual))
+        elif record.mode == "auto" and mode != "auto":
+            mode = "auto"
+            events.append(Event(at, "mode", "auto"))
+    litres = base.tun.litres
+    for drop in drops:
+        if drop.after - model.ambient <= 0.1 or not 0.0 <= model.ambient <= 100.0:
+            continue  # the drop cannot be water at the ambient temperature
+        added = litres * (drop.before - drop.after) / (drop.after - model.ambient)
+        events.append(Event(drop.at, "add_water", {"litres": added, "temp": model.ambient}))
+        litres += added
+    events.sort(key=lambda e: e.at)
+    return events
+
+
+# -- CSV and plot -------------------------------------------------------------------------------
+
+
+def write_csv(log: Log, path: Path) -> None:
+    """One row per period with every field of its record; lists joined by spaces."""
+    try:
+        with path.open("w", newline="", encoding="utf-8") as f:
+            writer = csv.writer(f)
+            writer.writerow(_PERIOD_FIELDS)
+            for record in log.periods:
+                writer.writerow(_cell(getattr(record, name)) for name in _PERIOD_FIELDS)
+    except OSError as error:
+        raise ReplayError(f"{path}: cannot write: {error.strerror or error}") from None
+
+
+def _cell(value: object) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list):
+        return " ".join(map(str, value))
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def plot(log: Log, path: Path) -> None:
+    """PV and setpoint above, output and applied duty below, alarms marked on both."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        from matplotlib import pyplot
+    except ImportError:
+        raise ReplayError(
+            "--plot needs matplotlib: uv sync --extra plot (or pip install 'hermsd[plot]')"
+        ) from None
+    hours = [t / 3600.0 for t in log.elapsed]
+    figure, (temps, duty) = pyplot.subplots(2, 1, sharex=True, figsize=(12, 7))
+    temps.plot(hours, [p.pv for p in log.periods], label="PV", linewidth=0.8)
+    temps.plot(hours, [p.setpoint for p in log.periods], label="setpoint", linewidth=0.8)
+    temps.set_ylabel("°C")
+    duty.plot(hours, [p.output for p in log.periods], label="output", linewidth=0.6)
+    duty.plot(hours, [p.applied for p in log.periods], label="applied", linewidth=0.6)
+    duty.set_ylabel("%")
+    duty.set_xlabel("hours since the first period")
+    for alarm in alarms(log):
+        for axes in (temps, duty):
+            axes.axvline(alarm["at_s"] / 3600.0, color="red", linewidth=0.8, alpha=0.6)
+        temps.annotate(
+            alarm["kind"],
+            (alarm["at_s"] / 3600.0, 1.0),
+            xycoords=("data", "axes fraction"),
+            rotation=90,
+            va="top",
+            fontsize=7,
+            color="red",
+        )
+    temps.legend(loc="lower right")
+    duty.legend(loc="upper right")
+    figure.tight_layout()
+    try:
+        figure.savefig(path, dpi=100)
+    except OSError as error:
+        raise ReplayError(f"{path}: cannot write: {error.strerror or error}") from None
+    finally:
+        pyplot.close(figure)

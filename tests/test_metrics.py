@@ -1,0 +1,36 @@
+"""The run metrics on hand-made samples, each figure worked out by hand."""
+
+from __future__ import annotations
+
+import pytest
+
+from hermsd.metrics import Sample, compute, report
+
+
+def samples(setpoints: list[float], temps: list[float], step: float = 10.0) -> list[Sample]:
+    pairs = zip(setpoints, temps, strict=True)
+    return [Sample(i * step, sp, t, 0.0) for i, (sp, t) in enumerate(pairs)]
+
+
+def test_time_in_band_overshoots_and_iae_from_the_first_sample_in_band() -> None:
+    temps = [64.0, 65.6, 66.2, 66.7, 66.3, 65.4, 66.0, 66.8, 66.1]
+    m = compute(samples([66.0] * len(temps), temps), [], 90.0)
+    # In band from 65.6 (t = 10) on: 8 samples of 10 s, of which 66.7, 65.4 and 66.8 are out.
+    assert m.since_band_s == 80.0
+    assert m.in_band_s == 50.0
+    assert report(m)["in_band_pct"] == 62.5
+    # Above the band twice (66.7, then 66.8 after coming back); the larger is 0.8 °C.
+    assert m.overshoots == 2
+    assert m.overshoot_c == pytest.approx(0.8)
+    # IAE from the first sample at or above the setpoint (66.2):
+    # (0.2 + 0.7 + 0.3 + 0.6 + 0.0 + 0.8 + 0.1)·10 s.
+    assert m.iae == pytest.approx(27.0)
+
+
+def test_cooling_to_a_lower_setpoint_is_no_overshoot() -> None:
+    setpoints = [66.0, 66.0, 60.0, 60.0, 60.0, 60.0, 60.0]
+    temps = [66.0, 66.1, 65.0, 62.0, 59.9, 60.9, 60.2]
+    m = compute(samples(setpoints, temps), [20.0], 70.0)
+    # 65 and 62 are above the new setpoint on the way down; only 60.9, after 59.9, counts.
+    assert m.overshoots == 1
+    assert m.overshoot_c == pytest.approx(0.9)
