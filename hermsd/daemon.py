@@ -12,6 +12,7 @@ held, not fed zeros; when heating is allowed again it resumes from the output it
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import re
@@ -145,6 +146,16 @@ def safety_limits(config: Config) -> SafetyLimits:
         stuck_output_change=s.stuck_output_change,
         stall_periods=s.stall_periods,
     )
+
+
+# Control keys an operator changes while brewing; they leave the controller's state alone.
+OPERATING_KEYS = ("setpoint", "mode", "manual_output")
+
+
+def retunes(old: ControlConfig, new: ControlConfig) -> bool:
+    """Whether a reload from `old` to `new` needs a new controller (bumplessly reset)."""
+    operated = dataclasses.replace(old, **{key: getattr(new, key) for key in OPERATING_KEYS})
+    return operated != new
 
 
 def make_controller(c: ControlConfig) -> pid.Controller:
@@ -420,12 +431,7 @@ class Daemon:
         control = new.control
         if "control.setpoint" in changed:
             self._apply_setpoint(control.setpoint, t)
-        tuning = {key for key in changed if key.startswith("control.")} - {
-            "control.setpoint",
-            "control.mode",
-            "control.manual_output",
-        }
-        if tuning:
+        if retunes(old.control, new.control):
             self.controller = make_controller(new.control)
             if not self._held:  # bumpless: the new controller starts from the output in force
                 self._held = True

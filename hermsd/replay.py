@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 
 from hermsd import config as config_module
-from hermsd.daemon import RAISED_ALARM, PeriodRecord, make_controller
+from hermsd.daemon import RAISED_ALARM, PeriodRecord, make_controller, retunes
 from hermsd.metrics import Metrics, Sample, compute, report
 from hermsd.recorder import (
     CONFIG_TOPIC,
@@ -487,6 +487,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     """
     controller = None
     in_force: LoggedConfig | None = None
+    control: config_module.ControlConfig | None = None
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
     verified = unknown = 0
@@ -496,7 +497,11 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 continue
             in_force = entry
             try:
-                control = config_module.from_dict(entry.config).control
+                reloaded = config_module.from_dict(entry.config).control
+                if entry.reason == "reload" and control and not retunes(control, reloaded):
+                    control = reloaded  # a new setpoint or mode: the same controller goes on
+                    continue
+                control = reloaded
                 controller = make_controller(control)
             except (config_module.ConfigError, ValueError) as error:
                 detail = str(error).replace("\n", "; ")

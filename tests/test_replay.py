@@ -262,6 +262,27 @@ def test_verify_reproduces_a_day_with_manual_spells_and_a_sensor_fault(
     assert result == replay.Verification(len(stepped(log)), 0, None)
 
 
+def test_verify_passes_on_the_step_mash_brew_day_with_its_reloads(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Rests and a retune as config reloads, a manual spell and a sensor fault, re-run exactly."""
+    brew_day = scenario.load_scenario(Path(__file__).parent.parent / "scenarios" / "brew-day.yaml")
+    paths = simulated_log(tmp_path, brew_day)
+    log = replay.load(paths)
+    reasons = [m["reason"] for topic, _, m in _messages(paths) if topic == "/hermsd/config"]
+    assert reasons.count("reload") == 3
+    assert any(p.mode == "manual" for p in log.periods)
+    assert any(not p.heater_allowed for p in log.periods)
+    code, out, err = run_cli(capsys, *paths, "--verify")
+    assert code == 0, err
+    assert f"{len(stepped(log))} periods verified" in out
+
+
+def _messages(paths: list[Path]) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    for path in paths:
+        yield from LogFile(path).messages()
+
+
 def test_verify_names_the_first_period_that_differs(eventful_log: list[Path]) -> None:
     log = replay.load(eventful_log)
     target = stepped(log)[1000]
