@@ -24,6 +24,7 @@ from typing import Any, NamedTuple, TypeVar
 
 import yaml
 
+from hermsd import pid
 from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
 
 ALGORITHM_NAMES: tuple[str, ...] = ALGORITHMS
@@ -114,14 +115,13 @@ class ControlConfig:
     ti: float = _number(800.0, 1, 100000, "s", zero_means="no integral action")
     td: float = _number(0.0, 0, 10000, "s")
     tf: float | None = _number(None, 0, 10000, "s", null_means="the algorithm's default")
-    tt: float | None = _number(
-        None, 0, 100000, "s", low_exclusive=True, null_means="the algorithm's default"
-    )
+    tt: float | None = _number(None, 1, 100000, "s", null_means="the algorithm's default")
     period: float = _number(5.0, 1, 60, "s")
     max_output: float = _number(100.0, 1, 100, "%")
     model_gain: float = _number(1.689, 0.01, 100, "°C/%")
     model_tau: float = _number(14961.0, 10, 1000000, "s")
     dead_time: float = _number(115.0, 0, 3600, "s")
+    model_ambient: float = _number(20.0, -20, 50, "°C")
 
 
 @dataclass(frozen=True, slots=True)
@@ -674,7 +674,39 @@ def _violations(config: Config) -> list[_Violation]:
                 f"{output.chip} (give the contactor its own line)",
             )
         )
+    found.extend(_controller_violations(control))
     return found
+
+
+def make_controller(control: ControlConfig) -> pid.Controller:
+    """The controller a control section describes (ValueError if the algorithm refuses it)."""
+    c = control
+    return pid.create(
+        c.algorithm,
+        kc=c.kc,
+        ti=c.ti,
+        td=c.td,
+        ts=c.period,
+        tf=c.tf,
+        tt=c.tt,
+        out_min=0.0,
+        out_max=c.max_output,
+        model=pid.PlantModel(c.model_gain, c.model_tau, c.dead_time, c.model_ambient),
+    )
+
+
+def _controller_violations(control: ControlConfig) -> list[_Violation]:
+    """The algorithm's own rules on its parameters (tt only for back_calculation, …)."""
+    try:
+        make_controller(control)
+    except ValueError as error:
+        named = str(error).split("=", 1)[0]
+        key = f"control.{named}" if named in _CONTROL_PARAMETERS else "control.algorithm"
+        return [_Violation((key, "control.algorithm"), f"{error} (algorithm {control.algorithm})")]
+    return []
+
+
+_CONTROL_PARAMETERS = ("kc", "ti", "td", "tf", "tt")
 
 
 # -- reading a document ---------------------------------------------------------------------------

@@ -22,9 +22,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 from hermsd import config as config_module
-from hermsd import pid
 from hermsd.clock import Clock
-from hermsd.config import Config, ConfigError, ControlConfig, to_dict
+from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
 from hermsd.config_file import ConfigFile
 from hermsd.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
@@ -156,22 +155,6 @@ def retunes(old: ControlConfig, new: ControlConfig) -> bool:
     """Whether a reload from `old` to `new` needs a new controller (bumplessly reset)."""
     operated = dataclasses.replace(old, **{key: getattr(new, key) for key in OPERATING_KEYS})
     return operated != new
-
-
-def make_controller(c: ControlConfig) -> pid.Controller:
-    """The controller a config's control section describes (the daemon's, and replay's)."""
-    return pid.create(
-        c.algorithm,
-        kc=c.kc,
-        ti=c.ti,
-        td=c.td,
-        ts=c.period,
-        tf=c.tf,
-        tt=c.tt,
-        out_min=0.0,
-        out_max=c.max_output,
-        model=pid.PlantModel(c.model_gain, c.model_tau, c.dead_time),
-    )
 
 
 @dataclass(slots=True)

@@ -99,11 +99,13 @@ DEFAULT_ALGORITHM = "predictive"
 
 @dataclass(frozen=True, slots=True)
 class PlantModel:
-    """The tun as identified by a step test (FOPTD): gain °C/%, time constant and dead time s."""
+    """The tun as identified by a step test (FOPTD): gain °C/%, time constant and dead time s,
+    and the room temperature °C it loses heat to."""
 
     gain: float = 1.689
     tau: float = 14961.0
     dead_time: float = 115.0
+    ambient: float = 20.0
 
 
 SEED_HLT = PlantModel()
@@ -181,6 +183,7 @@ def create(
         _number("model.gain", model.gain, 1e-6, 1e6, "> 0 °C/%")
         _number("model.tau", model.tau, MIN_TIME, MAX_TIME, f"≥ {MIN_TIME:g} s")
         _number("model.dead_time", model.dead_time, 0.0, 1e5, "≥ 0 and ≤ 100000 s")
+        _number("model.ambient", model.ambient, -100.0, 100.0, "within −100…100 °C")
         controller = _Predictive(params, model)
     elif name == "type_a":
         controller = _TypeA(params)
@@ -532,6 +535,7 @@ class _Predictive(_Base):
 
     __slots__ = (
         "_a",
+        "_ambient",
         "_fa",
         "_filtered",
         "_fpv",
@@ -557,6 +561,7 @@ class _Predictive(_Base):
         self._fa = params.tf / (params.tf + ts)
         self._a = math.exp(-ts / model.tau)
         self._gain = model.gain
+        self._ambient = model.ambient
         self._lag = model.dead_time / ts  # periods, not necessarily whole
         self._horizon = 4.0 * model.dead_time
         self._history: deque[float] = deque(maxlen=math.floor(self._lag) + 2)
@@ -572,12 +577,21 @@ class _Predictive(_Base):
         return history[-1] - (newer + fraction * (older - newer))
 
     def _prime(self, sp: float, pv0: float) -> None:
-        # The model starts in equilibrium with the output it continues from.
-        self._x = self._gain * self._output
+        # The model starts where the tun is, as if it had been there a while: its rise above
+        # the room. Not in equilibrium with the output it continues from, which after a
+        # fault at full power would be a phantom cooling of about 1 °C, fading over τ.
+        x0 = pv0 - self._ambient
+        self._x = x0
         self._history.clear()
-        self._history.extend([self._x] * (math.floor(self._lag) + 2))
+        self._history.extend([x0] * (math.floor(self._lag) + 2))
         self._fpv = self._ppv1 = pv0
-        self._i = min(max(self._output - self._kc * (sp - pv0), self._lo), self._hi)
+        # Bumpless: the integral takes what P leaves of the output, P including the rise the
+        # model shows at the first step (x1 − x0 enters the dead-time window whole once the
+        # lag is a period or more, a fraction of it before).
+        x1 = self._a * x0 + self._gain * (1.0 - self._a) * self._output
+        first_rise = (x1 - x0) * min(self._lag, 1.0)
+        p = self._kc * (sp - pv0 - first_rise)
+        self._i = min(max(self._output - p, self._lo), self._hi)
 
     def _advance(self, sp: float, pv: float, previous: float) -> float:
         # After a reset `previous` is the output the model is in equilibrium with: no change.

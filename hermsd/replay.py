@@ -30,7 +30,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 
 from hermsd import config as config_module
-from hermsd.daemon import RAISED_ALARM, PeriodRecord, make_controller, retunes
+from hermsd.config import make_controller
+from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.metrics import Metrics, Sample, compute, report
 from hermsd.recorder import (
     CONFIG_TOPIC,
@@ -63,6 +64,7 @@ WHAT_IF_KEYS = (
     "model_gain",
     "model_tau",
     "dead_time",
+    "model_ambient",
 )
 
 _PERIOD_FIELDS = tuple(f.name for f in dataclasses.fields(PeriodRecord))

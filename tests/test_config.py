@@ -62,12 +62,13 @@ BOUNDS = [
     Bound("control.ti", float, 1, 100000, zero_ok=True),
     Bound("control.td", float, 0, 10000),
     Bound("control.tf", float, 0, 10000, nullable=True),
-    Bound("control.tt", float, 0, 100000, low_open=True, nullable=True),
+    Bound("control.tt", float, 1, 100000, nullable=True),
     Bound("control.period", float, 1, 60),
     Bound("control.max_output", float, 1, 100),
     Bound("control.model_gain", float, 0.01, 100),
     Bound("control.model_tau", float, 10, 1000000),
     Bound("control.dead_time", float, 0, 3600),
+    Bound("control.model_ambient", float, -20, 50),
     Bound("sensor.bus", int, 0, 255),
     Bound("sensor.address", int, 0x48, 0x4B),
     Bound("sensor.read_interval", float, 0.5, 10),
@@ -271,6 +272,7 @@ def test_defaults_are_the_specified_ones() -> None:
             "model_gain": 1.689,
             "model_tau": 14961.0,
             "dead_time": 115.0,
+            "model_ambient": 20.0,
         },
         "sensor": {"bus": 1, "address": 0x48, "read_interval": 1.0},
         "output": {
@@ -398,6 +400,9 @@ CONTEXT = {
     ("output.min_on", 10): {"output.window": "60"},
     ("output.min_off", 10): {"output.window": "60"},
     ("safety.stale_after", 1): {"sensor.read_interval": "0.5"},
+    # Only back_calculation takes tt, and at least one period.
+    ("control.tt", 1): {"control.algorithm": "back_calculation", "control.period": "1"},
+    ("control.tt", 100000): {"control.algorithm": "back_calculation"},
 }
 # On its own bound but necessarily against a rule between keys: plausible_min must stay
 # below plausible_max (at most 150), plausible_max above max_temp (at least 30).
@@ -855,11 +860,12 @@ def test_dump_yaml_reads_back_to_the_same_config() -> None:
 def test_from_dict_reads_a_logged_config_back() -> None:
     tuned = parse(
         "tun:\n  name: '066'\ncontrol:\n  algorithm: back_calculation\n  kc: 80.8\n"
-        "  ti: 489\n  td: 44.9\n  tt: 0.00001\n  max_output: 1e2\nlog:\n  dir: null\n"
+        "  ti: 489\n  td: 44.9\n  tt: 1.5e1\n  max_output: 1e2\nlog:\n  dir: null\n"
+        "safety:\n  max_step: 0.00001\n"
     )
     for config in (DEFAULT, tuned):
         assert from_dict(json.loads(json.dumps(to_dict(config)))) == config
-    assert tuned.control.tt == 1e-05  # written 1.0e-05 on the way: the exponent survives
+    assert tuned.safety.max_step == 1e-05  # written 1.0e-05 on the way: the exponent survives
 
 
 def test_from_dict_refuses_what_a_file_would_refuse() -> None:
@@ -1072,3 +1078,18 @@ def test_fuzz_dump_yaml_round_trips(values: dict[str, Any]) -> None:
         },
     )
     assert parse(dump_yaml(config)) == config
+
+
+@pytest.mark.parametrize(
+    ("text", "where"),
+    [
+        ("control:\n  tt: 1.0\n", "2:7: control.tt: tt=1.0 is invalid here"),
+        ("control:\n  algorithm: velocity_pi\n  td: 5\n", "3:7: control.td: td=5.0 is invalid"),
+    ],
+)
+def test_the_algorithms_own_rules_are_checked_with_the_file(text: str, where: str) -> None:
+    """What the controller would refuse at start or reload is refused with its line."""
+    with pytest.raises(ConfigError) as caught:
+        parse(text, "f.yaml")
+    assert str(caught.value).startswith(f"f.yaml:{where}")
+    assert str(caught.value).endswith(")")

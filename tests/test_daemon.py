@@ -105,7 +105,7 @@ def test_manual_to_auto_is_bumpless() -> None:
     first_auto = next(r for r in periods.records if r.t >= 6300.0 and r.mode == "auto")
     c = daemon.config.control
     assert last_manual.pv is not None and first_auto.pv is not None
-    error = c.setpoint - first_auto.pv
+    error = first_auto.p / c.kc  # the error it acts on: predictive's is on the predicted PV
     # One P-step: what the error's change and one period of integral can move the output.
     p_step = c.kc * abs(first_auto.pv - last_manual.pv) + c.kc * c.period / c.ti * abs(error)
     assert abs(first_auto.output - 35.0) <= p_step + 1e-9
@@ -126,9 +126,8 @@ def test_a_sensor_fault_holds_the_controller_and_resumes_from_its_output() -> No
     assert resumed.pv is not None and before.pv is not None
     # Within one P-step of it: what the water's change over the hold and one period of
     # integral can move the output.
-    p_step = c.kc * abs(resumed.pv - before.pv) + c.kc * c.period / c.ti * abs(
-        c.setpoint - resumed.pv
-    )
+    error = resumed.p / c.kc  # the error it acts on: predictive's is on the predicted PV
+    p_step = c.kc * abs(resumed.pv - before.pv) + c.kc * c.period / c.ti * abs(error)
     assert abs(resumed.output - before.output) <= p_step + 1e-9
     assert {a.kind for a in periods.alarms if a.raised} == {"sensor_fault", "stale_reading"}
 

@@ -474,8 +474,12 @@ def test_first_step_has_no_derivative_kick(name: str) -> None:
 
 
 def test_first_step_starts_from_the_clamped_zero() -> None:
+    # For predictive, a room at which 20 % holds 66 °C: its model then predicts no change.
+    model = pid.PlantModel(ambient=66.0 - pid.SEED_HLT.gain * 20.0)
     for name in pid.ALGORITHMS:
-        controller = pid.create(name, ts=TS, **tuning(name), out_min=20.0, out_max=80.0)
+        controller = pid.create(
+            name, ts=TS, **tuning(name), out_min=20.0, out_max=80.0, model=model
+        )
         assert controller.output == 20.0
         assert controller.step(66.0, 66.0) == pytest.approx(20.0, abs=1e-9)
 
@@ -815,11 +819,17 @@ def test_rejected_inputs_leave_the_state_untouched(
 
 
 def test_predictive_resume_near_the_setpoint_is_bumpless() -> None:
-    controller = pid.create("predictive", kc=120.0, ti=800.0)
+    model = pid.SEED_HLT
+    controller = pid.create("predictive", kc=120.0, ti=800.0, model=model)
     controller.reset(65.98, 27.0)
-    # Δe = 0 after reset, so the first output is u0 plus one integral step at most:
-    # 27 + 120 * 5 / 800 * 0.02 = 27.015 (here the model adds nothing: it starts in equilibrium).
-    assert controller.step(66.0, 65.98) == pytest.approx(27.0 + 120.0 * 5.0 / 800.0 * 0.02)
+    # The model starts at the tun's rise above the room, 45.98 °C; at 27 % it heads for
+    # K·27 = 45.603 °C, so in the first period it falls by (45.98 − 45.603)·(1 − e^(−Ts/τ)),
+    # which the dead time hides from the sensor: the predicted error is 0.02 plus that fall.
+    fall = (45.98 - model.gain * 27.0) * (1.0 - math.exp(-5.0 / model.tau))
+    # P on the predicted error is unchanged by the reset; the output moves by one integral
+    # step on that error: 27 + 120·5/800·(0.02 + fall).
+    expected = 27.0 + 120.0 * 5.0 / 800.0 * (0.02 + fall)
+    assert controller.step(66.0, 65.98) == pytest.approx(expected, rel=1e-12)
 
 
 def test_predictive_cold_start_is_full_power_and_stops_early_enough() -> None:
