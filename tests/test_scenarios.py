@@ -140,3 +140,15 @@ def test_a_simulated_log_is_named_after_its_first_record(tmp_path: Path) -> None
     [log] = tmp_path.iterdir()
     assert log.name == "hermsd-20260101T000000Z.mcap"
     assert LogFile(log).metadata()["hermsd"]["started_utc"] == "2026-01-01T00:00:00Z"
+
+
+def test_a_sensor_fault_at_full_power_leaves_no_offset_in_the_hold() -> None:
+    """Control resumes at 100 % with the water at 50 °C: the model must start from the water,
+    not from an equilibrium with 100 % (which would predict a cooling of about 1 °C that
+    fades only over τ, and hold the tun 0.3 to 0.65 °C high for hours)."""
+    fault = Event(1800.0, "sensor", ("nack", None), 30.0)
+    result = scenario.run(Scenario(name="fault-in-heat-up", events=(fault,)), keep_records=True)
+    resumed = next(r for r in result.records if r.t > 1830.0 and r.reset_from is not None)
+    assert resumed.reset_from == 100.0
+    hold = [r.pv for r in result.records if r.t >= 3 * 3600.0 and r.pv is not None]
+    assert max(abs(pv - 66.0) for pv in hold) <= 0.0625  # one LSB of the LM92
