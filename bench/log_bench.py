@@ -11,8 +11,8 @@ outruns the writer, the queue overflows and chunks grow. Measures:
 - the recorder's CPU per simulated hour: the writer thread's own CPU time, and the whole
   process with the recorder against the same run without it; and the caller's CPU per
   `Recorder.write` (what the control loop pays);
-- reading the whole log back with `hermsd.recorder.read_messages` (and the replay summary,
-  once `hermsd.replay` has one), as a multiple of real time (goal for replay ≥ 100,000×).
+- reading the whole log back with `hermsd.recorder.read_messages`, as a multiple of real
+  time (`bench/replay.py` times `hermsd replay` on such a log).
 
     uv run python bench/log_bench.py [--hours 24] [--write]
 """
@@ -20,8 +20,6 @@ outruns the writer, the queue overflows and chunks grow. Measures:
 from __future__ import annotations
 
 import argparse
-import importlib
-import importlib.util
 import os
 import platform
 import sys
@@ -44,7 +42,6 @@ from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world
 
 GOAL_BYTES_PER_HOUR = 2e6
-GOAL_REPLAY_SPEED = 100_000.0
 WRITE_CALLS = 100_000
 READ_REPEATS = 3
 
@@ -128,18 +125,6 @@ def chunk_count(paths: list[Path]) -> int:
     return total
 
 
-def readers() -> dict[str, Callable[[list[Path]], object]]:
-    """What is timed reading the log: every message decoded, and the replay summary if any."""
-    timed: dict[str, Callable[[list[Path]], object]] = {
-        "read_messages, every message": lambda paths: sum(1 for _ in read_messages(paths))
-    }
-    if importlib.util.find_spec("hermsd.replay") is not None:
-        summary = getattr(importlib.import_module("hermsd.replay"), "summary", None)
-        if summary is not None:
-            timed["replay summary"] = summary
-    return timed
-
-
 def _yes(met: bool) -> str:
     return "yes" if met else "no"
 
@@ -199,17 +184,12 @@ def main() -> int:
         )
         per_write = write_cost(last_period, WRITE_CALLS)
         row("caller CPU per Recorder.write (a period record)", f"{per_write * 1e6:.2f} µs")
-        for name, read in readers().items():
-            took = best_time(read, paths)
-            speed = seconds / took
-            goal = ""
-            if name == "replay summary":
-                goal = f"≥ {GOAL_REPLAY_SPEED:,.0f}×: {_yes(speed >= GOAL_REPLAY_SPEED)}"
-            row(
-                f"{name} of the {hours:g} h log",
-                f"{took:.3f} s = {speed:,.0f}× real time ({len(messages) / took:,.0f} messages/s)",
-                goal,
-            )
+        took = best_time(lambda paths: sum(1 for _ in read_messages(paths)), paths)
+        row(
+            f"read_messages, every message of the {hours:g} h log",
+            f"{took:.3f} s = {seconds / took:,.0f}× real time "
+            f"({len(messages) / took:,.0f} messages/s)",
+        )
 
     table = "\n".join(["| measure | figure | goal |", "|---|---|---|", *lines])
     machine = f"{os.cpu_count()} cores ({platform.machine()}), Python {platform.python_version()}"
@@ -222,12 +202,10 @@ def main() -> int:
         "every flush_interval (2 s), so every record is kept in chunks of real-time size. "
         "CPU is `pthread_getcpuclockid` of the writer thread (an upper bound: keeping pace "
         "costs an fdatasync every 2 s, the daemon does one every sync_interval, 10 s), and "
-        "`process_time` of the same run with and without the recorder (without it, most of a "
-        "long run's CPU is the supervisor's stuck-sensor check, which grows with the time "
-        "the noiseless simulated reading has not changed); the write cost is the calling "
-        f"thread's CPU over {WRITE_CALLS:,} calls. Reads are the best of {READ_REPEATS} over "
-        "the same log; the replay summary is timed here once `hermsd.replay.summary` "
-        "exists.\n\n" + table + "\n"
+        "`process_time` of the same run with and without the recorder; the write cost is the "
+        f"calling thread's CPU over {WRITE_CALLS:,} calls. Reads are the best of "
+        f"{READ_REPEATS} over the same log (`bench/replay.py` times `hermsd replay` on "
+        "one).\n\n" + table + "\n"
     )
     if args.write:
         _replace_section(Path(__file__).with_name("RESULTS.md"), "## Log:", text)
