@@ -431,10 +431,9 @@ class Daemon:
             self._reprogram_sensor(t)
         if "safety.reset" in changed:
             self._apply_reset(t)
+            self._save_latches(t)  # later latches are stored under the new counter
         if any(key.startswith("output.") for key in changed):
             self.planner = self._make_planner(new)
-        if self.config.safety.reset != old.safety.reset:
-            self._save_latches(t)
 
     # -- latched alarms across restarts ---------------------------------------------------
 
