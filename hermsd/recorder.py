@@ -36,6 +36,7 @@ import queue
 import struct
 import threading
 import time
+import zlib
 from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass
 from enum import IntEnum
@@ -766,18 +767,42 @@ def _sift_chunk(
     return messages
 
 
+_FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary start, summary offset start, CRC
+_FOOTER_LENGTH: Final = _FOOTER.size - _RECORD_HEAD.size
+_FOOTER_CRC_SIZE: Final = 4  # the CRC covers the footer up to, not including, itself
+_OP_FOOTER: Final = 0x02
+
+
 def _is_finished(path: Path) -> bool:
-    """Whether `path` ends with a footer and a readable summary (it was closed properly)."""
+    """Whether `path` ends with a footer and a whole summary (it was closed properly).
+
+    The summary is checked against the CRC in the footer, not parsed: it indexes every chunk,
+    tens of thousands of records for a day logged a chunk per flush.
+    """
+    tail_size = _FOOTER.size + len(MCAP_MAGIC)
     try:
         with path.open("rb") as f:
-            if f.seek(0, os.SEEK_END) < 2 * len(MCAP_MAGIC):
-                return False
-            f.seek(-len(MCAP_MAGIC), os.SEEK_END)
-            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            size = f.seek(0, os.SEEK_END)
+            if size < len(MCAP_MAGIC) + tail_size:
                 return False
             f.seek(0)
-            return make_reader(f, validate_crcs=True).get_summary() is not None
-    except Exception:  # a tail that only looks like a footer: read it as a cut file
+            head = f.read(len(MCAP_MAGIC))
+            footer_at = f.seek(size - tail_size)
+            tail = f.read(tail_size)
+            opcode, length, summary_start, _, summary_crc = _FOOTER.unpack_from(tail)
+            if (
+                head != MCAP_MAGIC
+                or tail[_FOOTER.size :] != MCAP_MAGIC
+                or (opcode, length) != (_OP_FOOTER, _FOOTER_LENGTH)
+                or not len(MCAP_MAGIC) <= summary_start < footer_at  # 0: no summary
+            ):
+                return False
+            if summary_crc == 0:  # written without CRCs
+                return True
+            f.seek(summary_start)
+            covered = f.read(footer_at - summary_start + _FOOTER.size - _FOOTER_CRC_SIZE)
+            return zlib.crc32(covered) == int(summary_crc)
+    except OSError:
         return False
 
 

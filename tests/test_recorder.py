@@ -732,6 +732,38 @@ def test_a_damaged_chunk_ends_what_a_cut_file_yields(finished_log: Path, tmp_pat
     assert log.cut_at == third_start
 
 
+# The footer, by the MCAP spec: opcode, length (8 bytes), summary start (8), summary offset
+# start (8), summary CRC (4), then the 8 bytes of magic that end the file.
+FOOTER_FROM_END = 1 + 8 + 8 + 8 + 4 + 8
+
+
+def test_a_footer_that_does_not_match_its_summary_is_not_finished(
+    finished_log: Path, tmp_path: Path
+) -> None:
+    data = bytearray(finished_log.read_bytes())
+    offset_start = len(data) - FOOTER_FROM_END + 1 + 8 + 8  # covered by the summary CRC
+    data[offset_start] ^= 0x01
+    path = tmp_path / "torn.mcap"
+    path.write_bytes(data)
+    log = LogFile(path)
+    assert [tuple(m) for m in log.messages()] == decoded(finished_log)
+    assert (log.finished, log.cut_at, log.cut_reason) == (False, len(data), None)
+
+
+def test_a_footer_without_a_summary_crc_is_taken_as_it_is(
+    finished_log: Path, tmp_path: Path
+) -> None:
+    data = bytearray(finished_log.read_bytes())
+    crc_at = len(data) - FOOTER_FROM_END + 1 + 8 + 8 + 8
+    data[crc_at : crc_at + 4] = bytes(4)  # a CRC of 0 means none was computed
+    data[crc_at - 1] ^= 0x01  # so this change cannot be seen
+    path = tmp_path / "no-crc.mcap"
+    path.write_bytes(data)
+    log = LogFile(path)
+    assert len(list(log.messages())) == 31
+    assert (log.finished, log.cut_at) == (True, None)
+
+
 def test_a_zero_filled_tail_after_a_power_cut_keeps_what_came_before(
     finished_log: Path, tmp_path: Path
 ) -> None:
