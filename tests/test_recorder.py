@@ -17,6 +17,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.writer import CompressionType, Writer
 
 import hermsd
 from hermsd import recorder as recorder_module
@@ -730,6 +731,170 @@ def test_a_damaged_chunk_ends_what_a_cut_file_yields(finished_log: Path, tmp_pat
     log = LogFile(path)
     assert [tuple(m) for m in log.messages()] == [m for _, _, ms in chunks[:2] for m in ms]
     assert log.cut_at == third_start
+
+
+# A chunk record, by the MCAP spec: opcode (1 byte) and length (8), then message start and end
+# times (8 each), uncompressed size (8) and uncompressed CRC (4).
+CHUNK_SIZE_AT = 1 + 8 + 8 + 8
+CHUNK_CRC_AT = CHUNK_SIZE_AT + 8
+
+
+@pytest.mark.parametrize(
+    ("field", "reason"), [(CHUNK_CRC_AT, "CRC"), (CHUNK_SIZE_AT, "bytes, not the")]
+)
+def test_a_chunk_that_does_not_match_its_size_or_crc_ends_what_a_file_yields(
+    finished_log: Path, tmp_path: Path, field: int, reason: str
+) -> None:
+    data = bytearray(finished_log.read_bytes())
+    chunks = chunks_of(finished_log)
+    third_start = chunks[2][0]
+    data[third_start + field] ^= 0x01  # the records themselves are intact
+    path = tmp_path / "damaged.mcap.part"
+    path.write_bytes(data[: chunks[4][1]])
+    log = LogFile(path)
+    assert [tuple(m) for m in log.messages()] == [m for _, _, ms in chunks[:2] for m in ms]
+    assert log.cut_at == third_start
+    assert log.cut_reason is not None
+    assert reason in log.cut_reason
+
+
+def test_a_chunk_crc_of_zero_is_not_checked(finished_log: Path, tmp_path: Path) -> None:
+    data = bytearray(finished_log.read_bytes())
+    chunks = chunks_of(finished_log)
+    third_start = chunks[2][0]
+    data[third_start + CHUNK_CRC_AT : third_start + CHUNK_CRC_AT + 4] = bytes(4)  # "none"
+    path = tmp_path / "no-crc.mcap.part"
+    path.write_bytes(data[: chunks[4][1]])  # five whole chunks
+    log = LogFile(path)
+    assert [tuple(m) for m in log.messages()] == [m for _, _, ms in chunks[:5] for m in ms]
+    assert (log.cut_at, log.cut_reason) == (chunks[4][1], None)
+
+
+def test_a_file_cut_between_records_ended_there_one_cut_inside_a_record_says_so(
+    finished_log: Path, tmp_path: Path
+) -> None:
+    data = finished_log.read_bytes()
+    chunks = chunks_of(finished_log)
+    path = tmp_path / "cut.mcap.part"
+    path.write_bytes(data[: chunks[1][1]])
+    log = LogFile(path)
+    assert len(list(log.messages())) == 6 + 5
+    assert (log.cut_at, log.cut_reason) == (chunks[1][1], None)
+    # One byte less: the second chunk is torn; the first one's message indexes are whole.
+    path.write_bytes(data[: chunks[1][1] - 1])
+    log = LogFile(path)
+    assert len(list(log.messages())) == 6
+    assert (log.cut_at, log.cut_reason) == (chunks[1][0], "the file ends inside a record")
+
+
+# The footer, by the MCAP spec: opcode, length (8 bytes), summary start (8), summary offset
+# start (8), summary CRC (4), then the 8 bytes of magic that end the file.
+FOOTER_FROM_END = 1 + 8 + 8 + 8 + 4 + 8
+
+
+def test_a_footer_that_does_not_match_its_summary_is_not_finished(
+    finished_log: Path, tmp_path: Path
+) -> None:
+    data = bytearray(finished_log.read_bytes())
+    offset_start = len(data) - FOOTER_FROM_END + 1 + 8 + 8  # covered by the summary CRC
+    data[offset_start] ^= 0x01
+    path = tmp_path / "torn.mcap"
+    path.write_bytes(data)
+    log = LogFile(path)
+    assert [tuple(m) for m in log.messages()] == decoded(finished_log)
+    assert (log.finished, log.cut_at, log.cut_reason) == (False, len(data), None)
+
+
+def test_a_footer_without_a_summary_crc_is_taken_as_it_is(
+    finished_log: Path, tmp_path: Path
+) -> None:
+    data = bytearray(finished_log.read_bytes())
+    crc_at = len(data) - FOOTER_FROM_END + 1 + 8 + 8 + 8
+    data[crc_at : crc_at + 4] = bytes(4)  # a CRC of 0 means none was computed
+    data[crc_at - 1] ^= 0x01  # so this change cannot be seen
+    path = tmp_path / "no-crc.mcap"
+    path.write_bytes(data)
+    log = LogFile(path)
+    assert len(list(log.messages())) == 31
+    assert (log.finished, log.cut_at) == (True, None)
+
+
+def test_a_footer_without_its_closing_magic_is_not_finished(
+    finished_log: Path, tmp_path: Path
+) -> None:
+    data = finished_log.read_bytes()
+    path = tmp_path / "torn.mcap.part"
+    path.write_bytes(data[:-1])
+    log = LogFile(path)
+    assert [tuple(m) for m in log.messages()] == decoded(finished_log)
+    assert not log.finished
+    assert log.cut_at == len(data) - 8  # the footer was whole
+    assert log.cut_reason is not None
+    assert "magic" in log.cut_reason
+
+
+def written_by_mcap(path: Path, log_times: list[int], **options: Any) -> None:
+    """Periods logged at `log_times` (in that order) by the mcap library with its `options`."""
+    with path.open("wb") as f:
+        writer = Writer(f, **options)
+        writer.start(profile="", library="another recorder")
+        schema = writer.register_schema("hermsd.Period", "jsonschema", b"{}")
+        channel = writer.register_channel(PERIOD_TOPIC, "json", schema)
+        for k, log_time in enumerate(log_times):
+            writer.add_message(channel, log_time, json.dumps(period(k)).encode(), log_time)
+        writer.add_metadata("hermsd", {"site": "garage"})
+        writer.finish()  # type: ignore[no-untyped-call]
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"compression": CompressionType.NONE, "enable_crcs": False},
+        {"use_chunking": False},
+    ],
+    ids=["uncompressed-no-crcs", "unchunked"],
+)
+def test_files_of_other_writers_are_read_in_log_time_order(
+    tmp_path: Path, options: dict[str, Any]
+) -> None:
+    path = tmp_path / "other.mcap"
+    written_by_mcap(path, [EPOCH_NS + 2 * S, EPOCH_NS, EPOCH_NS + S], **options)
+    log = LogFile(path)
+    assert list(log.messages()) == [
+        (PERIOD_TOPIC, EPOCH_NS, period(1)),
+        (PERIOD_TOPIC, EPOCH_NS + S, period(2)),
+        (PERIOD_TOPIC, EPOCH_NS + 2 * S, period(0)),
+    ]
+    assert (log.finished, log.recovered, log.cut_at) == (True, 3, None)
+
+
+def test_a_data_section_crc_is_checked(tmp_path: Path) -> None:
+    path = tmp_path / "data-crc.mcap"
+    written_by_mcap(path, [EPOCH_NS, EPOCH_NS + S], enable_data_crcs=True)
+    log = LogFile(path)
+    assert len(list(log.messages())) == 2
+    assert (log.finished, log.cut_at) == (True, None)
+
+    data = bytearray(path.read_bytes())
+    at = data.index(b"garage")  # in the metadata record: no CRC of its own
+    data[at : at + 6] = b"garbge"
+    path.write_bytes(data)
+    summary_start = int.from_bytes(data[-FOOTER_FROM_END + 9 : -FOOTER_FROM_END + 17], "little")
+    log = LogFile(path)
+    assert len(list(log.messages())) == 2  # the chunk is whole
+    assert log.finished  # the summary is too
+    assert log.cut_at == summary_start - (1 + 8 + 4)  # the data end record: opcode, length, CRC
+    assert log.cut_reason is not None
+    assert "CRC" in log.cut_reason
+
+
+def test_chunks_compressed_other_than_with_zstd_are_a_cut(tmp_path: Path) -> None:
+    path = tmp_path / "lz4.mcap"
+    written_by_mcap(path, [EPOCH_NS], compression=CompressionType.LZ4)
+    log = LogFile(path)
+    assert list(log.messages()) == []
+    assert log.cut_reason is not None
+    assert "lz4" in log.cut_reason
 
 
 def test_a_zero_filled_tail_after_a_power_cut_keeps_what_came_before(
