@@ -11,8 +11,9 @@ outruns the writer, the queue overflows and chunks grow. Measures:
 - the recorder's CPU per simulated hour: the writer thread's own CPU time, and the whole
   process with the recorder against the same run without it; and the caller's CPU per
   `Recorder.write` (what the control loop pays);
-- reading the whole log back with `hermsd.recorder.read_messages`, as a multiple of real
-  time (`bench/replay.py` times `hermsd replay` on such a log).
+- reading the whole log back with `hermsd.recorder.read_messages`, and the replay summary,
+  as multiples of real time (goal for replay ≥ 100,000×; `bench/replay.py` times the
+  `hermsd replay` command and its stages on such a log).
 
     uv run python bench/log_bench.py [--hours 24] [--write]
 """
@@ -35,6 +36,7 @@ from control import _replace_section  # bench/control.py, beside this file
 from mcap.reader import make_reader
 
 from hermsd import config as config_module
+from hermsd import replay
 from hermsd.config import Config
 from hermsd.daemon import Daemon
 from hermsd.recorder import PERIOD_TOPIC, Recorder, read_messages
@@ -42,6 +44,7 @@ from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world
 
 GOAL_BYTES_PER_HOUR = 2e6
+GOAL_REPLAY_SPEED = 100_000.0
 WRITE_CALLS = 100_000
 READ_REPEATS = 3
 
@@ -189,6 +192,12 @@ def main() -> int:
             f"read_messages, every message of the {hours:g} h log",
             f"{took:.3f} s = {seconds / took:,.0f}× real time "
             f"({len(messages) / took:,.0f} messages/s)",
+        )
+        took = best_time(lambda paths: replay.summarise(replay.load(paths)), paths)
+        row(
+            f"replay summary of the {hours:g} h log, in process",
+            f"{took:.3f} s = {seconds / took:,.0f}× real time",
+            f"≥ {GOAL_REPLAY_SPEED:,.0f}×: {_yes(seconds / took >= GOAL_REPLAY_SPEED)}",
         )
 
     table = "\n".join(["| measure | figure | goal |", "|---|---|---|", *lines])
