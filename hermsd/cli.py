@@ -30,7 +30,6 @@ from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
 from hermsd.recorder import Recorder, recover, recover_directory
-from hermsd.replay import WHAT_IF_KEYS
 from hermsd.ssr import Switch, open_hardware_switch
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
@@ -145,7 +144,7 @@ def _parser() -> argparse.ArgumentParser:
         nargs="?",
         const="",
         help="run the day again on a model of the tun fitted to the log, with these control "
-        f"settings ({', '.join(WHAT_IF_KEYS)}; none: the logged ones)",
+        f"settings ({', '.join(config_module.TUNING_KEYS)}; none: the logged ones)",
     )
     replay.add_argument("--csv", type=Path, metavar="FILE", help="write the period records as CSV")
     replay.add_argument(
@@ -293,9 +292,14 @@ def cmd_run(args: argparse.Namespace) -> int:
             from hermsd.sim.world import simulated_daemon
 
             speed = _speed(args.speed)
-            daemon = simulated_daemon(config, speed, on_status=status.update, notifier=notifier)
-            daemon.config_file = config_file
-            daemon.latches = latches
+            daemon = simulated_daemon(
+                config,
+                speed,
+                on_status=status.update,
+                notifier=notifier,
+                config_file=config_file,
+                latches=latches,
+            )
         else:
             if args.speed != "1":
                 raise UserError("--speed goes with --simulate")

@@ -216,6 +216,13 @@ class Config:
 
 DEFAULT = Config()
 
+# Control keys an operator changes while brewing: they leave the controller's state alone.
+OPERATING_KEYS: tuple[str, ...] = ("setpoint", "mode", "manual_output")
+# Control keys that make a different controller (the period is fixed until a restart).
+TUNING_KEYS: tuple[str, ...] = tuple(
+    f.name for f in dataclasses.fields(ControlConfig) if f.name not in (*OPERATING_KEYS, "period")
+)
+
 # Keys the running daemon cannot change on reload: they open devices, fix the schedule's
 # grid (period, read interval, window) or configure the log writer already running.
 RESTART_KEYS: tuple[str, ...] = (

@@ -12,7 +12,6 @@ held, not fed zeros; when heating is allowed again it resumes from the output it
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import re
@@ -147,14 +146,9 @@ def safety_limits(config: Config) -> SafetyLimits:
     )
 
 
-# Control keys an operator changes while brewing; they leave the controller's state alone.
-OPERATING_KEYS = ("setpoint", "mode", "manual_output")
-
-
 def retunes(old: ControlConfig, new: ControlConfig) -> bool:
     """Whether a reload from `old` to `new` needs a new controller (bumplessly reset)."""
-    operated = dataclasses.replace(old, **{key: getattr(new, key) for key in OPERATING_KEYS})
-    return operated != new
+    return any(getattr(old, key) != getattr(new, key) for key in config_module.TUNING_KEYS)
 
 
 @dataclass(slots=True)
@@ -425,7 +419,7 @@ class Daemon:
             self._apply_auto(t)
         elif "control.max_output" in changed and self.mode == "manual":
             self._apply_manual(self.manual_output, t)  # the new power limit holds at once
-        if any(key.startswith(("safety.", "tun.", "sensor.")) for key in changed):
+        if any(key.startswith(("safety.", "tun.")) for key in changed):
             self.supervisor.limits = safety_limits(new)
         if changed & {"safety.max_temp", "safety.hysteresis"}:
             self._reprogram_sensor(t)

@@ -53,19 +53,7 @@ TOPICS_READ = (PERIOD_TOPIC, CONFIG_TOPIC, LOG_TOPIC, TIMING_TOPIC)  # readings 
 DROP_C = 1.0
 DROP_WINDOW_S = 60.0
 
-WHAT_IF_KEYS = (
-    "algorithm",
-    "kc",
-    "ti",
-    "td",
-    "tf",
-    "tt",
-    "max_output",
-    "model_gain",
-    "model_tau",
-    "dead_time",
-    "model_ambient",
-)
+WHAT_IF_KEYS = config_module.TUNING_KEYS  # what a new tune may change
 
 _PERIOD_FIELDS = tuple(f.name for f in dataclasses.fields(PeriodRecord))
 

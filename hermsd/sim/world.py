@@ -13,7 +13,9 @@ from typing import Any
 
 from hermsd.clock import Clock
 from hermsd.config import Config
+from hermsd.config_file import ConfigFile
 from hermsd.daemon import Daemon, Outputs, guard_outputs
+from hermsd.latches import LatchStore
 from hermsd.lm92 import LM92
 from hermsd.notify import Notifier
 from hermsd.sim.bus import FakeLM92, FakeSMBus
@@ -52,12 +54,21 @@ def simulated_daemon(
     speed: float,
     on_status: Callable[[str], None] | None = None,
     notifier: Notifier | None = None,
+    config_file: ConfigFile | None = None,
+    latches: LatchStore | None = None,
 ) -> Daemon:
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
     clock: Clock = VirtualClock() if math.isinf(speed) else ScaledClock(speed)
     world = build_world(config, clock)
     return Daemon(
-        config, clock, world.sensor, world.outputs, notifier=notifier, on_status=on_status
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        notifier=notifier,
+        on_status=on_status,
+        config_file=config_file,
+        latches=latches,
     )
 
 
