@@ -39,7 +39,8 @@ class TunSpec:
 
     @property
     def ua_w_per_k(self) -> float:
-        return SEED_UA_W_PER_K * self.ua_factor * (self.litres / SEED_LITRES) ** (2.0 / 3.0)
+        scale: float = (self.litres / SEED_LITRES) ** (2.0 / 3.0)
+        return SEED_UA_W_PER_K * self.ua_factor * scale
 
     def plant(self, *, noise_c: float = NOISE_C, seed: int = 1) -> dict[str, Any]:
         """The scenario's `plant:` mapping for this tun."""
