@@ -1,10 +1,11 @@
 """Scenarios: a brew day (or a fault) run at full speed through the very same daemon code.
 
-A scenario is YAML: `duration`, `plant` (model and parameters), initial `setpoint`, optional
-`config` (overrides of the daemon's config, validated like the file), and `events`, each with
-`at` and one action. The runner wires the fake bus, the tun model and the simulated heater
-circuit into `Daemon` on a virtual clock, and measures the run against physics: the earliest
-any controller could settle is full power from the start.
+A scenario is YAML: `duration`, `plant` (model and parameters: `hermsd.sim.hlt.PLANT_KINDS`
+and their keyword parameters, plus the sensor's `noise_c` and `seed`; README.md, Simulate),
+initial `setpoint`, optional `config` (overrides of the daemon's config, validated like the
+file), and `events`, each with `at` and one action. The runner wires the fake bus, the tun
+model and the simulated heater circuit into `Daemon` on a virtual clock, and measures the run
+against physics: the earliest any controller could settle is full power from the start.
 """
 
 from __future__ import annotations
