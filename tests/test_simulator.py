@@ -262,6 +262,16 @@ def test_an_outside_plant_runs_through_the_daemon(
     assert summary["recovery_min_s"] is not None
 
 
+def test_an_outside_plant_can_come_from_an_importable_module(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "brewery_tun.py").write_text(OUTSIDE_TUN, encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    code, out, err = simulate(capsys, "--plant", "brewery_tun:make_tun", "--json")
+    assert code == 0, err
+    assert json.loads(out)["alarms"] == []
+
+
 @pytest.mark.parametrize(
     ("reference", "message"),
     [
@@ -307,3 +317,35 @@ def test_simulate_keeps_the_state_directory_from_one_day_to_the_next(
     assert day2["max_temp_c"] == pytest.approx(20.0, abs=0.1)  # never heated
     code, out, err = simulate(capsys, "--json")
     assert json.loads(out)["alarms"] == []
+
+
+def test_the_recovery_minimum_is_measured_on_a_lagging_noisy_sensor() -> None:
+    """Once the sensor lagged the water, the copy read 66 °C at the instant the water went
+    in and the minimum came out 0 (no ratio). Full power from the mixed water Tm heads for
+    H = 20 + 3000/17.76 °C with τ = 100·4186/17.76 s: the water reaches 65.5 °C after
+    τ·ln((H − Tm)/(H − 65.5)); with 90 L held within ±0.5 °C of 66 and 10 L of 15 °C,
+    Tm = 0.9·T + 1.5 lies in 60.45..61.35 °C, and the sensor follows within 2 lags."""
+    ua, lag = 17.76, 10.0
+    day = scenario.parse_scenario(
+        {
+            "plant": {
+                "model": "physical",
+                "ua_w_per_k": ua,
+                "transport_delay_s": 0.0,
+                "sensor_lag_s": lag,
+                "noise_c": 0.03,
+                "seed": 1,
+            },
+            "events": [{"at": "4h", "add_water": {"litres": 10, "temp": 15}}],
+        }
+    )
+    summary = scenario.run(day).summary
+    heading = 20.0 + 3000.0 / ua
+    tau = 100.0 * WATER_J_PER_LITRE_K / ua
+
+    def water_reaches_band(mixed: float) -> float:
+        return tau * math.log((heading - mixed) / (heading - 65.5))
+
+    earliest, latest = water_reaches_band(0.9 * 66.5 + 1.5), water_reaches_band(0.9 * 65.5 + 1.5)
+    assert earliest <= summary["recovery_min_s"] <= latest + 2 * lag
+    assert summary["recovery_ratio"] is not None
