@@ -165,7 +165,7 @@ def test_the_open_pot_books_close_at_the_boil() -> None:
         ({"model": "physical", "litres": "lots"}, "plant.litres: expected a number"),
         ({"model": "physical", "lid": "maybe"}, "plant.lid: expected on or off"),
         ({"model": "physical", "litres": -3}, "plant.litres: litres = -3 is invalid"),
-        ({"model": "physical", "noise_c": -0.1}, "plant.noise_c: expected a standard deviation"),
+        ({"model": "physical", "noise_c": -0.1}, "plant.noise_c: noise_c = -0.1 is invalid"),
         ({"model": "physical", "seed": 1.5}, "plant.seed: expected a whole number"),
         ([1, 2], "plant: expected a mapping"),
     ],

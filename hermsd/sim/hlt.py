@@ -35,8 +35,12 @@ about 2e-5 °C over half an hour of heating at 50 K/h, less while holding
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
+import inspect
 import math
 from collections import deque
+from pathlib import Path
 from typing import Any, Protocol
 
 WATER_J_PER_LITRE_K = 4186.0
@@ -53,9 +57,10 @@ EVAPORATION_W_PER_M2_KPA = 89.0
 pressure difference: w = A·(p_w − p_a)·(0.089 + 0.0782·V)/Y kg/s (A m², p kPa, V air speed
 m/s, Y latent heat kJ/kg), the Carrier correlation of the ASHRAE Handbook (HVAC
 Applications, natatoriums); the heat flux w·Y is then (89 + 78.2·V) W per m² and kPa, and
-V = 0 in a still room. Over a hot pot the moist air rises by itself: the natural-convection
-estimate for a heated surface facing up (Sh = 0.14·(Gr·Sc)^⅓) gives some 15–30 % more at
-60–70 °C, so this is a low estimate, not a high one."""
+V = 0 in a still room. Over a hot pot the moist air rises by itself, which a correlation
+made for pools leaves out: the usual engineering table for open tanks in still 15.6 °C air
+(Engineering ToolBox, "Heat loss from open water tanks": 860 Btu/(ft²·h) = 2.7 kW/m² at
+150 °F) lies some 20 % above it at 66 °C, so this is a low estimate, not a high one."""
 
 ROOM_RELATIVE_HUMIDITY = 0.5
 """The room air's relative humidity φ: p_a = φ·p_sat(T_amb)."""
@@ -552,8 +557,7 @@ def make_plant(kind: str, **params: Any) -> Plant:
 
 def plant_parameters(kind: str) -> tuple[str, ...]:
     """The keyword parameters a plant kind takes (what a scenario's `plant:` may set)."""
-    code = PLANT_KINDS[kind].__init__.__code__
-    return code.co_varnames[code.co_argcount : code.co_argcount + code.co_kwonlyargcount]
+    return tuple(inspect.signature(PLANT_KINDS[kind]).parameters)
 
 
 class PlantLoadError(ValueError):
@@ -563,10 +567,6 @@ class PlantLoadError(ValueError):
 def load_plant(reference: str) -> Plant:
     """The plant that `FILE.py:FACTORY` or `package.module:FACTORY` makes, called with no
     arguments, checked against the protocol (`Plant`)."""
-    import importlib
-    import importlib.util
-    from pathlib import Path
-
     where, _, factory_name = reference.rpartition(":")
     if not where or not factory_name:
         raise PlantLoadError(

@@ -32,7 +32,7 @@ from hermsd.sim.bus import FakeLM92
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PLANT_KINDS, Plant, make_plant, plant_parameters
-from hermsd.sim.world import SENSOR_KEYS, build_world
+from hermsd.sim.world import SENSOR_KEYS, build_world, sensor_reading
 
 SENSOR_FAULTS = ("nack", "timeout", "stuck", "spike", "wrong_id", "gone", "slow", "ok")
 EVENT_KINDS = (
@@ -144,10 +144,9 @@ def _plant(raw: Any, fail: Callable[[str, str], ScenarioError]) -> dict[str, Any
                 raise fail(where, f"expected a whole number, got {value!r}")
         else:
             _number(value, fail, where)
-    if spec.get("noise_c", 0.0) < 0.0:
-        raise fail("plant.noise_c", f"expected a standard deviation ≥ 0 °C, got {spec['noise_c']}")
     try:
-        make_plant(model, **{k: v for k, v in spec.items() if k not in SENSOR_KEYS})
+        tun = make_plant(model, **{k: v for k, v in spec.items() if k not in SENSOR_KEYS})
+        sensor_reading(tun, VirtualClock(), spec.get("noise_c", 0.0), 0)
     except ValueError as error:
         name = str(error).partition(" = ")[0]
         raise fail(f"plant.{name}", str(error)) from None
