@@ -92,6 +92,13 @@ def behind(summary: dict[str, Any], cbpi: dict[str, Any]) -> list[str]:
     ]
 
 
+def _same_day(day_1: dict[str, Any], day_2: dict[str, Any]) -> bool:
+    """Whether day 2 held the tun exactly as day 1 did (its wall time aside)."""
+    return {k: v for k, v in day_1.items() if k != "wall_s"} == {
+        k: v for k, v in day_2.items() if k != "wall_s"
+    }
+
+
 def _cell(value: Any, digits: int) -> str:
     return "–" if value is None else f"{value:.{digits}f}"
 
@@ -142,7 +149,7 @@ def main() -> int:
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     minimums: dict[str, float | None] = {}
-    counts = {DAY_1: 0, DAY_2: 0, "ahead": 0}
+    counts = {DAY_1: 0, DAY_2: 0, "ahead": 0, "same": 0}
     with multiprocessing.get_context("fork").Pool(args.jobs) as pool:
         for spec, days in zip(FAMILY, pool.imap(brew_days, range(len(FAMILY))), strict=True):
             by_label = dict(days)
@@ -154,12 +161,15 @@ def main() -> int:
             for label in (DAY_1, DAY_2):
                 counts[label] += not missed(by_label[label], label)
             counts["ahead"] += not behind(by_label[DAY_2], cbpi)
+            counts["same"] += _same_day(by_label[DAY_1], by_label[DAY_2])
     wall = time.perf_counter() - started
     family = family_table(minimums)
     n = len(FAMILY)
     tally = (
         f"Day 1 meets its goals on {counts[DAY_1]} of {n} tuns, day 2 on {counts[DAY_2]} of "
-        f"{n}; day 2 is ahead of PIDHerms on every measure on {counts['ahead']} of {n}. "
+        f"{n}; day 2 is ahead of PIDHerms on every measure on {counts['ahead']} of {n}; "
+        f"day 2 repeats day 1 exactly on {counts['same']} of {n} (nothing carried over "
+        "but latched alarms, if any). "
         f"{4 * n} brew days in {wall:.0f} s on {args.jobs} processes."
     )
     print(tally)
