@@ -274,6 +274,15 @@ def test_an_outside_plant_can_come_from_an_importable_module(
     assert "max_temp_c" in out
 
 
+def test_the_simulators_own_tun_is_one_such_plant(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    reference = "hermsd.sim.hlt:PhysicalPlant"  # a class is a factory too
+    code, out, err = simulate(capsys, "--plant", reference, "--scenario", short_day(tmp_path))
+    assert code == 0, err
+    assert "max_temp_c" in out
+
+
 def short_day(directory: Path) -> str:
     """Twenty minutes of the default brew day, in a scenario file."""
     path = directory / "short.yaml"
