@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from test_config import assert_within_spec, documents, mutated_config
 
 from hermsd import config as config_module
-from hermsd.config_file import ConfigFile
+from hermsd.config_file import ConfigFile, at_once
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.latches import LatchStore
 from hermsd.safety import Alarm
@@ -99,7 +99,7 @@ def start(
     tmp_path.mkdir(parents=True, exist_ok=True)
     path = tmp_path / "hermsd.yaml"
     path.write_text(text, encoding="utf-8")
-    source = ConfigFile(path)
+    source = ConfigFile(path, at_once)
     config = source.load()
     clock = VirtualClock()
     world = build_world(config, clock)
@@ -268,20 +268,20 @@ def test_a_file_changing_while_it_is_read_is_read_again_later(
 ) -> None:
     path = tmp_path / "hermsd.yaml"
     path.write_text(BASE, encoding="utf-8")
-    source = ConfigFile(path)
+    source = ConfigFile(path, at_once)
     source.load()
-    real_load = config_module.load
+    real_load = config_module.load_document
 
-    def load_while_an_editor_writes(where: Any) -> config_module.Config:
+    def load_while_an_editor_writes(where: Any) -> config_module.Document:
         result = real_load(where)
         with path.open("a", encoding="utf-8") as file:
             file.write("\n")  # the editor's last write lands after our read
         return result
 
     path.write_text(edited(BASE, control__setpoint="60.0"), encoding="utf-8")
-    monkeypatch.setattr("hermsd.config_file.load", load_while_an_editor_writes)
+    monkeypatch.setattr("hermsd.config_file.load_document", load_while_an_editor_writes)
     assert source.poll() is None
-    monkeypatch.setattr("hermsd.config_file.load", real_load)
+    monkeypatch.setattr("hermsd.config_file.load_document", real_load)
     result = source.poll()
     assert isinstance(result, config_module.Config) and result.control.setpoint == 60.0
     assert source.poll() is None
