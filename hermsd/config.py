@@ -1051,12 +1051,11 @@ def load_outputs(path: str | os.PathLike[str]) -> FoundOutputs:
         if isinstance(error, yaml.YAMLError):
             notes.append(_syntax_problem(filename, printable, error))
         return _found_outputs(reader, _scan_lines(reader, printable), notes, doubts)
-    if root is None:
-        doubts.append(Problem(filename, 0, 0, "", "names no section (an emptied file?)"))
-        return _found_outputs(reader, {}, notes, doubts)
-    if not isinstance(root, yaml.MappingNode):
+    if root is not None and not isinstance(root, yaml.MappingNode):
         return _found_outputs(reader, _scan_lines(reader, printable), notes, doubts)
-    nodes = dict(reader.items(root, "", list(_SCHEMA)))
+    nodes = dict(reader.items(root, "", list(_SCHEMA))) if root is not None else {}
+    if not nodes:
+        doubts.append(Problem(filename, 0, 0, "", "names no section (an emptied file?)"))
     ours = {section: nodes[section] for section in _OUTPUT_SECTIONS if section in nodes}
     return _found_outputs(reader, ours, notes, doubts)
 
@@ -1085,7 +1084,7 @@ def _found_outputs(
     return FoundOutputs(found[0], found[1], notes, doubts)
 
 
-_HEADER = re.compile(r"(?P<indent>[ \t]*)(?P<name>[A-Za-z_][A-Za-z0-9_]*)[ \t]*:(?:[ \t]|$)")
+_HEADER = re.compile(r"[ \t]*(?P<name>[A-Za-z_][A-Za-z0-9_]*)[ \t]*:(?:[ \t]|$)")
 
 
 def _scan_lines(reader: _Reader, text: str) -> dict[str, yaml.Node]:
@@ -1220,7 +1219,7 @@ def _not_utf8(filename: str, data: bytes, error: UnicodeDecodeError) -> Problem:
 
 
 MAX_FILE_BYTES = 1 << 20
-"""The largest config file read: the shipped one, every key commented, is about 11 kB."""
+"""The largest config file read: the shipped one, every key commented, is under 12 kB."""
 
 
 def read_bytes(filename: str) -> bytes:
@@ -1248,7 +1247,7 @@ def read_bytes(filename: str) -> bytes:
     if size > MAX_FILE_BYTES:
         message = (
             f"is {size} bytes long, more than the {MAX_FILE_BYTES // 1024} KiB a config file "
-            "may be (the shipped one is about 11 kB: is this the right file?)"
+            "may be (the shipped one is under 12 kB: is this the right file?)"
         )
         raise ConfigError([Problem(filename, 0, 0, "", message)])
     return data

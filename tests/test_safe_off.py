@@ -165,10 +165,11 @@ def test_exit_0_when_every_output_found_is_off(
         (None, "no such file"),
         (b"", "names no section (an emptied file?)"),
         (b"# all commented out\n", "names no section (an emptied file?)"),
+        (b"{}\n", "names no section (an emptied file?)"),
         (b"outptu:\n  backend: serial-dtr\n", "outptu: unknown key (did you mean 'output'?)"),
         (b"output\n  backend: serial-dtr\n", "cannot tell which section this line is"),
     ],
-    ids=["missing", "empty", "comments", "misspelt-section", "section-without-colon"],
+    ids=["missing", "empty", "comments", "empty-mapping", "misspelt-section", "no-colon"],
 )
 def test_without_the_outputs_the_defaults_are_tried_and_the_exit_code_says_so(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], data: bytes | None, why: str
