@@ -35,7 +35,7 @@ def test_files_that_are_not_regular_files_are_refused_without_reading(tmp_path: 
         "itself)",
         str(tmp_path): f"{tmp_path}: is a directory, not a regular file (name the YAML file "
         "itself)",
-        str(huge): f"{huge}: is 50000000 bytes long, more than the 1024 KiB a config file may "
+        str(huge): f"{huge}: is 50000000 bytes long, more than the 64 KiB a config file may "
         "be (the shipped one is under 12 kB: is this the right file?)",
     }
     for path, message in cases.items():
@@ -51,8 +51,8 @@ def test_the_shipped_file_is_far_below_the_cap_its_message_compares_with() -> No
 def test_a_file_of_the_largest_size_is_read(tmp_path: Path) -> None:
     cfg = tmp_path / "hermsd.yaml"
     text = "control:\n  setpoint: 64.0\n"
-    cfg.write_text(text + "#" * (1024 * 1024 - len(text) - 1) + "\n")
-    assert os.path.getsize(cfg) == 1024 * 1024
+    cfg.write_text(text + "#" * (MAX_FILE_BYTES - len(text) - 1) + "\n")
+    assert os.path.getsize(cfg) == MAX_FILE_BYTES
     proc = check_config(str(cfg))
     assert proc.returncode == 0 and "setpoint: 64.0" in proc.stdout
 
