@@ -1147,9 +1147,11 @@ def _section_node(
     elif header is None or not _is_null(header[0][1]):
         reader.report(_mark(first), section, "this line cannot be read")
     for number in range(first + 1, last + 1):
-        if not lines[number].strip() or lines[number].strip().startswith("#"):
+        content = lines[number].strip()
+        if not content or content.startswith("#"):
             continue
-        pairs = _mapping_pairs("\n" * number + lines[number], None)
+        indent = " " * (len(lines[number]) - len(lines[number].lstrip()))  # tabs too
+        pairs = _mapping_pairs("\n" * number + indent + content, None)
         if pairs is None:
             reader.report(_mark(number), section, "this line cannot be read")
         else:

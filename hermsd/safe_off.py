@@ -90,7 +90,7 @@ def _switch_section_off(found: FoundOutput, open_switch: OpenSwitch, report: Rep
                 switch.set(False)
             finally:
                 switch.close()
-        except (OSError, ValueError, ImportError) as error:
+        except Exception as error:  # whatever one device raises, the next is still tried
             errors.append(f"{_where(label, attempt)}: not switched off: {error}")
     if errors:
         report.failures.extend(errors)

@@ -8,6 +8,7 @@ its off command, and the exit code must be 0 only when every output found is off
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import select
 import subprocess
@@ -17,6 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_config import mutated_config
 
 from hermsd import config as config_module
 from hermsd.cli import main
@@ -106,6 +110,16 @@ def test_damage_elsewhere_is_read_around(
     assert bench.relay_bytes() == OFF_CHANNEL_1
     assert f"contactor: relay-board channel 1 on {bench.relay} at 9600 baud: off" in outcome.out
     assert note in outcome.err[0] and outcome.err[0].endswith("; read around it")
+    assert_only_the_pty_failed(bench, outcome, notes=1)
+
+
+def test_an_output_section_indented_with_tabs_is_read_line_by_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], bench: Bench
+) -> None:
+    tabbed = outputs(bench).replace(b"\n  ", b"\n\t")
+    outcome = safe_off(tmp_path, capsys, tabbed)
+    assert bench.relay_bytes() == OFF_CHANNEL_1
+    assert "tabs" in outcome.err[0] and outcome.err[0].endswith("; read around it")
     assert_only_the_pty_failed(bench, outcome, notes=1)
 
 
@@ -248,3 +262,30 @@ def test_an_unusable_setting_that_does_not_name_the_device_is_ignored(tmp_path: 
     assert log[1] == ("set", False)
     assert report.switched == ["output: serial-dtr on /dev/ttyUSB3: off"]
     assert report.failures == []
+
+
+@settings(
+    max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(data=mutated_config() | st.binary(max_size=300))
+def test_fuzz_whatever_the_file_holds_the_ssr_output_is_tried_unless_it_is_unknown(
+    tmp_path: Path, data: bytes
+) -> None:
+    cfg = tmp_path / "hermsd.yaml"
+    cfg.write_bytes(data)
+    found = config_module.load_outputs(cfg)
+    log: list[tuple[str, object]] = []
+    switch_off(found, lambda **arguments: Recorded(log, arguments))
+    output = found.output
+    assert set(output.values) | set(output.refused) <= {
+        f.name for f in dataclasses.fields(config_module.OutputConfig)
+    }
+    backend = output.values.get("backend", "serial-rts")
+    names_the_device = {"backend", "port", "chip", "line", "active_low"}
+    if backend != "sim" and not names_the_device & set(output.refused):
+        action, arguments = log[0]
+        assert action == "open"
+        assert isinstance(arguments, dict) and arguments["backend"] == backend
+    # Every switch opened was told off, then closed.
+    opened = [entry for entry in log if entry[0] == "open"]
+    assert log == [e for o in opened for e in (o, ("set", False), ("close", None))]
