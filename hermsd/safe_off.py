@@ -81,8 +81,13 @@ def _switch_section_off(found: FoundOutput, open_switch: OpenSwitch, report: Rep
         return
     tried = [key for key in _TRIED_IN_TURN if key in found.refused and key in settings]
     label = name if found.values else f"{name} (the built-in default)"
-    errors = []
-    for values in itertools.product(*(every_valid_value(f"{name}.{key}") for key in tried)):
+    each = ""
+    if tried:
+        keys = " and ".join(f"{name}.{key}" for key in tried)
+        each = f" with each valid value of {keys}, which could not be used"
+    attempts = list(itertools.product(*(every_valid_value(f"{name}.{k}") for k in tried)))
+    errors: list[tuple[dict[str, Any], Exception]] = []
+    for values in attempts:
         attempt = dict(settings, **dict(zip(tried, values, strict=True)))
         try:
             switch = open_switch(**attempt)
@@ -91,15 +96,16 @@ def _switch_section_off(found: FoundOutput, open_switch: OpenSwitch, report: Rep
             finally:
                 switch.close()
         except Exception as error:  # whatever one device raises, the next is still tried
-            errors.append(f"{_where(label, attempt)}: not switched off: {error}")
-    if errors:
-        report.failures.extend(errors)
-        return
-    each = ""
-    if tried:
-        keys = " and ".join(f"{name}.{key}" for key in tried)
-        each = f" (sent with each valid value of {keys}, which could not be used)"
-    report.switched.append(f"{_where(label, settings, omit=tried)}: off{each}")
+            errors.append((attempt, error))
+    where = _where(label, settings, omit=tried)
+    if tried and len(errors) == len(attempts):  # one line, not one per value tried
+        report.failures.append(f"{where}: not switched off{each}: {errors[0][1]}")
+    elif errors:
+        report.failures.extend(
+            f"{_where(label, attempt)}: not switched off: {error}" for attempt, error in errors
+        )
+    else:
+        report.switched.append(f"{where}: off (sent{each})" if tried else f"{where}: off")
 
 
 def _settings(found: FoundOutput) -> dict[str, Any]:

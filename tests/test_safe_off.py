@@ -289,3 +289,23 @@ def test_fuzz_whatever_the_file_holds_the_ssr_output_is_tried_unless_it_is_unkno
     # Every switch opened was told off, then closed.
     opened = [entry for entry in log if entry[0] == "open"]
     assert log == [e for o in opened for e in (o, ("set", False), ("close", None))]
+
+
+def test_a_relay_board_out_of_reach_is_said_once_for_all_the_rates_tried(tmp_path: Path) -> None:
+    cfg = tmp_path / "hermsd.yaml"
+    cfg.write_text(
+        "output: {backend: sim}\n"
+        "contactor: {backend: relay-board, port: /dev/ttyUSB7, baud: 1234}\n"
+    )
+    tried: list[object] = []
+
+    def unplugged(**arguments: object) -> Recorded:
+        tried.append(arguments["baud"])
+        raise OSError(2, "No such file or directory")
+
+    report = switch_off(config_module.load_outputs(cfg), unplugged)
+    assert tried == [9600, 1200, 2400, 4800, 19200, 38400, 57600, 115200]  # the default first
+    assert report.failures == [
+        "contactor: relay-board channel 1 on /dev/ttyUSB7: not switched off with each valid "
+        "value of contactor.baud, which could not be used: [Errno 2] No such file or directory"
+    ]
