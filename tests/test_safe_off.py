@@ -13,7 +13,7 @@ import os
 import select
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,33 +93,33 @@ def assert_only_the_pty_failed(bench: Bench, outcome: Outcome, notes: int = 0) -
     assert summary == SUMMARY
 
 
+def before(damage: bytes) -> Callable[[bytes], bytes]:
+    """Damage in a section ahead of the output sections."""
+    return lambda sections: damage + sections
+
+
 @pytest.mark.parametrize(
     ("damage", "note"),
     [
-        (b"control:\n  setpoint: 66\n bad indent\n", ":3:2: invalid YAML"),
-        (b"tun:\n  name: Caf\xe9\n", ":2:12: byte 0xe9 is not UTF-8"),
-        (b"tun:\n  name: a\x07b\n", ":2:10: the control character #x7"),
-        (b'tun:\n  name: "HLT\ncontrol:\n  kc: 5\n', "invalid YAML"),
+        (before(b"control:\n  setpoint: 66\n bad indent\n"), ":3:2: invalid YAML"),
+        (before(b"tun:\n  name: Caf\xe9\n"), ":2:12: byte 0xe9 is not UTF-8"),
+        (before(b"tun:\n  name: a\x07b\n"), ":2:10: the control character #x7"),
+        (before(b'tun:\n  name: "HLT\ncontrol:\n  kc: 5\n'), "invalid YAML"),
+        (lambda sections: sections.replace(b"\n  ", b"\n\t"), "indent with spaces, not tabs"),
     ],
-    ids=["syntax-error", "not-utf8", "control-character", "unclosed-quote"],
+    ids=["syntax-error", "not-utf8", "control-character", "unclosed-quote", "tabs-in-outputs"],
 )
-def test_damage_elsewhere_is_read_around(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], bench: Bench, damage: bytes, note: str
+def test_damage_is_read_around(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    bench: Bench,
+    damage: Callable[[bytes], bytes],
+    note: str,
 ) -> None:
-    outcome = safe_off(tmp_path, capsys, damage + outputs(bench))
+    outcome = safe_off(tmp_path, capsys, damage(outputs(bench)))
     assert bench.relay_bytes() == OFF_CHANNEL_1
     assert f"contactor: relay-board channel 1 on {bench.relay} at 9600 baud: off" in outcome.out
     assert note in outcome.err[0] and outcome.err[0].endswith("; read around it")
-    assert_only_the_pty_failed(bench, outcome, notes=1)
-
-
-def test_an_output_section_indented_with_tabs_is_read_line_by_line(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], bench: Bench
-) -> None:
-    tabbed = outputs(bench).replace(b"\n  ", b"\n\t")
-    outcome = safe_off(tmp_path, capsys, tabbed)
-    assert bench.relay_bytes() == OFF_CHANNEL_1
-    assert "tabs" in outcome.err[0] and outcome.err[0].endswith("; read around it")
     assert_only_the_pty_failed(bench, outcome, notes=1)
 
 
