@@ -23,8 +23,8 @@ outputs held over [t_k, t_k + h) (zero-order hold):
 a_k being what the actuator really delivered in period k (`applied`, external tracking;
 without it the limiter model sat(v_k)). Each step first completes the previous period's
 update, because a_k arrives with the next step. As h → 0 the discrete loop converges to the
-continuous one with an error O(h). Tt ≥ h is required: with Tt < h the tracking term would
-overshoot the limit every period (|1 − h/Tt| > 1 diverges for Tt < h/2).
+continuous one with an error O(h). Tt ≥ h is required: in saturation v − a shrinks by the
+factor 1 − h/Tt each period, which alternates in sign for Tt < h and grows for Tt < h/2.
 
 Start and bumpless transfer: `reset(pv0, u1, u2)` (or, on a new controller, pv0 = the pv of
 the first step and outputs (u1_ref, 0) clamped) makes the next step act as if PV had stood at

@@ -7,9 +7,12 @@ continuous closed loop, and a continuous simulation by RK4 of the seed's equatio
 
 from __future__ import annotations
 
-import cmath
+import importlib.util
 import math
+import sys
 from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -40,11 +43,18 @@ CASES = {
 }
 
 
-def _unlimited(name: str, h: float) -> midrange.MidRange:
-    _, settings, limits = CASES[name]
-    return midrange.create(
-        **settings, h=h, u1_ref=limits["u1_ref"], u1_min=-math.inf, u1_max=math.inf
-    )
+def _bench() -> ModuleType:
+    """bench/midrange.py, whose linearisation of the implementation's loop is tested here."""
+    path = Path(__file__).parents[1] / "bench" / "midrange.py"
+    spec = importlib.util.spec_from_file_location("bench_midrange", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while being built
+    spec.loader.exec_module(module)
+    return module
+
+
+BENCH = _bench()
 
 
 def _continuous_closed_loop(name: str) -> list[list[float]]:
@@ -61,39 +71,6 @@ def _continuous_closed_loop(name: str) -> list[list[float]]:
     rows.append([-s["k1"] / s["ti1"] * ci for ci in c] + [0.0, 0.0])
     rows.append([-s["k2"] / s["ti2"] * v for v in u1])
     return rows
-
-
-def _implementation_poles(name: str, h: float) -> list[complex]:
-    """Poles of the discrete loop (the controller under test + the exactly sampled process).
-
-    The loop is linear while nothing saturates: column j of its transition matrix is where
-    it takes state e_j in one period. A state's integrals are put in through `reset` (the
-    outputs they give at that PV) and read back from `terms` of the following step.
-    """
-    (a, b, c), s, limits = CASES[name]
-    n = len(a)
-    ref = limits["u1_ref"]
-    ad, bd = linsys.zoh(a, b, h)
-    controller = _unlimited(name, h)
-    phi = [[0.0] * (n + 2) for _ in range(n + 2)]
-    for j in range(n + 2):
-        x = [1.0 if i == j else 0.0 for i in range(n)]
-        i1, i2 = (1.0 if j == n else 0.0), (1.0 if j == n + 1 else 0.0)
-        y = sum(ci * xi for ci, xi in zip(c, x, strict=True))
-        u1 = ref + i1 - s["k1"] * y
-        controller.reset(y, u1, i2 - s["k2"] * (u1 - ref))
-        out1, out2 = controller.step(0.0, y)
-        x = [
-            sum(ad[i][k] * x[k] for k in range(n)) + bd[i][0] * (out1 - ref) + bd[i][1] * out2
-            for i in range(n)
-        ]
-        controller.step(0.0, sum(ci * xi for ci, xi in zip(c, x, strict=True)))
-        _, i1_next, _, i2_next = controller.terms
-        for i, value in enumerate([*x, i1_next - ref, i2_next]):
-            phi[i][j] = value
-    # (Φ − I)/h is well scaled where Φ's eigenvalues all crowd near 1
-    scaled = [[(phi[i][j] - (i == j)) / h for j in range(n + 2)] for i in range(n + 2)]
-    return [cmath.log(1.0 + h * mu) / h for mu in linsys.eigenvalues(scaled)]
 
 
 # ------------------------------------------------------------------ the numeric helpers
@@ -124,8 +101,13 @@ def test_roots_and_characteristic_polynomial() -> None:
 
 @pytest.mark.parametrize(("name", "h"), [("bio", 1e-6), ("cooling", 1e-3)])
 def test_closed_loop_poles_match_the_state_space(name: str, h: float) -> None:
+    """The poles of the implementation's discrete loop (the controller under test and the
+    exactly sampled process, linearised column by column through reset/step/terms; the
+    bench's function, so its table is checked too) against the state space built here."""
+    process = BENCH.BIO if name == "bio" else BENCH.COOLING
     continuous = linsys.eigenvalues(_continuous_closed_loop(name))
-    coarse, fine = _implementation_poles(name, 4.0 * h), _implementation_poles(name, h)
+    coarse = BENCH.implementation_poles(process, 4.0 * h)
+    fine = BENCH.implementation_poles(process, h)
     for p in continuous:
         error_coarse = min(abs(z - p) for z in coarse) / abs(p)
         error_fine = min(abs(z - p) for z in fine) / abs(p)
