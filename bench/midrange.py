@@ -246,23 +246,12 @@ def simulate(
 def _frequency_response(p: Process, s: complex) -> tuple[complex, complex]:
     """(G3, G3·G2) at s: the transfer functions from u1 and u2 to y, C·(sI − A)⁻¹·B."""
     n = len(p.a)
-    m = [
-        [(s if i == j else 0) - p.a[i][j] for j in range(n)] + [p.b[i][0], p.b[i][1]]
-        for i in range(n)
-    ]
-    for col in range(n):  # Gauss–Jordan with partial pivoting on the complex system
-        pivot = max(range(col, n), key=lambda row: abs(m[row][col]))
-        m[col], m[pivot] = m[pivot], m[col]
-        for row in range(n):
-            if row != col:
-                f = m[row][col] / m[col][col]
-                m[row] = [a - f * b for a, b in zip(m[row], m[col], strict=True)]
-    x1 = [m[i][n] / m[i][i] for i in range(n)]
-    x2 = [m[i][n + 1] / m[i][i] for i in range(n)]
-    return (
-        sum(ci * xi for ci, xi in zip(p.c, x1, strict=True)),
-        sum(ci * xi for ci, xi in zip(p.c, x2, strict=True)),
-    )
+    shifted = [[(s if i == j else 0) - p.a[i][j] for j in range(n)] for i in range(n)]
+    responses = []
+    for column in (0, 1):
+        x = linsys.solve(shifted, [p.b[i][column] for i in range(n)])
+        responses.append(sum(ci * xi for ci, xi in zip(p.c, x, strict=True)))
+    return responses[0], responses[1]
 
 
 def _pi(k: float, ti: float, s: complex) -> complex:

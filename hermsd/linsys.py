@@ -29,6 +29,24 @@ def mat_vec(a: Sequence[Sequence[float]], x: Sequence[float]) -> Vector:
     return [math.fsum(v * w for v, w in zip(row, x, strict=True)) for row in a]
 
 
+def solve(a: Sequence[Sequence[complex]], b: Sequence[complex]) -> list[complex]:
+    """x with A·x = b (Gaussian elimination, partial pivoting; complex, for s = jω)."""
+    n = len(a)
+    m = [[*row, rhs] for row, rhs in zip(a, b, strict=True)]
+    for col in range(n):
+        pivot = max(range(col, n), key=lambda row: abs(m[row][col]))
+        if m[pivot][col] == 0:
+            raise ValueError("the matrix is singular")
+        m[col], m[pivot] = m[pivot], m[col]
+        for row in range(col + 1, n):
+            f = m[row][col] / m[col][col]
+            m[row] = [x - f * y for x, y in zip(m[row], m[col], strict=True)]
+    x = [0j] * n
+    for row in reversed(range(n)):
+        x[row] = (m[row][n] - sum(m[row][k] * x[k] for k in range(row + 1, n))) / m[row][row]
+    return x
+
+
 def expm(a: Sequence[Sequence[float]]) -> Matrix:
     """e^A by scaling and squaring: a Taylor series to round-off on A/2^s, |A/2^s|_1 ≤ 1/2."""
     n = len(a)

@@ -134,6 +134,55 @@ def test_bio_poles_are_the_roots_of_the_transfer_function_loop() -> None:
         assert min(abs(z - p) for z in expected) < 1e-8 * abs(p)
 
 
+def _r_to_u2(name: str, s: complex, tt: float | None, ks: float = 0.0) -> complex:
+    """r → u2 of the linear loop built here: nominal (tt None) or u1 held at a limit.
+
+    States (x, I1, I2) in deviations; v1 = K1·(r − C·x) + I1. Nominal: u1 = v1, u2 = −K2·v1 +
+    I2. Held: the constant limit drops out, İ1 gains −v1/Tt, C2 sees (1 + Ks)·v1 (eq. 15).
+    """
+    (a, b, c), p, _ = CASES[name]
+    n = len(a)
+    k1, k2 = p["k1"], p["k2"]
+    # v1 = row·z + k1·r
+    v1 = [-k1 * ci for ci in c] + [1.0, 0.0]
+    gain = 1.0 if tt is None else 1.0 + ks
+    u2 = [-k2 * gain * v for v in v1]
+    u2[n + 1] += 1.0
+    u2_r = -k2 * gain * k1
+    u1_on = 1.0 if tt is None else 0.0
+    leak = 0.0 if tt is None or math.isinf(tt) else 1.0 / tt
+    rows = [
+        [
+            (a[i][j] if j < n else 0.0) + b[i][0] * u1_on * v1[j] + b[i][1] * u2[j]
+            for j in range(n + 2)
+        ]
+        for i in range(n)
+    ]
+    rows.append([-k1 / p["ti1"] * ci for ci in c] + [0.0, 0.0])
+    rows[n] = [x - leak * v for x, v in zip(rows[n], v1, strict=True)]
+    rows.append([-k2 / p["ti2"] * gain * v for v in v1])
+    column = [b[i][0] * u1_on * k1 + b[i][1] * u2_r for i in range(n)]
+    column += [k1 / p["ti1"] - leak * k1, -k2 / p["ti2"] * gain * k1]
+    shifted = [[(s if i == j else 0.0) - rows[i][j] for j in range(n + 2)] for i in range(n + 2)]
+    z = linsys.solve(shifted, column)
+    return sum(u * zi for u, zi in zip(u2, z, strict=True)) + u2_r
+
+
+@pytest.mark.parametrize("name", ["bio", "cooling"])
+def test_the_bode_comparison_uses_the_loops_own_transfer_functions(name: str) -> None:
+    """The bench's eq. 5, eq. 14 and eq. 17 (with G3·G2, as derived) against the state
+    spaces built here, over four decades about each fast loop's crossover."""
+    process = BENCH.BIO if name == "bio" else BENCH.COOLING
+    crossover = 213.3 if name == "bio" else 0.2472
+    ti1 = CASES[name][1]["ti1"]
+    for w in (crossover * 10.0**k for k in (-2, -1, 0, 1, 2)):
+        s = 1j * w
+        assert BENCH.g_nom(process, s) == pytest.approx(_r_to_u2(name, s, None), rel=1e-9)
+        for tt, ks in ((ti1 / 3, 0.0), (4 * ti1, 0.0), (math.inf, 0.0), (ti1, 3.0), (ti1, 60.0)):
+            expected = _r_to_u2(name, s, tt, ks)
+            assert BENCH.g_sat(process, s, tt, ks) == pytest.approx(expected, rel=1e-9)
+
+
 # ------------------------------------------------------------------ continuous reference
 
 
