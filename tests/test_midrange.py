@@ -87,6 +87,15 @@ def test_expm_and_zoh_match_closed_forms() -> None:
         assert bd[0][0] == pytest.approx(5.0 * (1.0 - math.exp(-a * h)) / a, rel=1e-12)
 
 
+def test_solve_complex_system() -> None:
+    # right-hand sides built from x = 1, y = 1 − j
+    x, y = linsys.solve([[1 + 1j, 2.0], [1.0, -1j]], [1 + 1j + 2 * (1 - 1j), 1 - 1j * (1 - 1j)])
+    assert x == pytest.approx(1.0, abs=1e-15)
+    assert y == pytest.approx(1 - 1j, abs=1e-15)
+    with pytest.raises(ValueError, match="singular"):
+        linsys.solve([[1.0, 2.0], [2.0, 4.0]], [1.0, 2.0])
+
+
 def test_roots_and_characteristic_polynomial() -> None:
     # (s + 1)(s + 2)(s² + 2s + 5): roots −1, −2, −1 ± 2j
     p = linsys.poly_mul(linsys.poly_mul([1.0, 1.0], [1.0, 2.0]), [1.0, 2.0, 5.0])
