@@ -21,15 +21,19 @@ outputs held over [t_k, t_k + h) (zero-order hold):
     I_{k+1} = I_k + (K·h/Ti)·e_k + (h/Tt)·(a_k − v_k)
 
 a_k being what the actuator really delivered in period k (`applied`, external tracking;
-without it the limiter model sat(v_k)). Each step first completes the previous period's
-update, because a_k arrives with the next step. As h → 0 the discrete loop converges to the
-continuous one with an error O(h). Tt ≥ h is required: in saturation v − a shrinks by the
-factor 1 − h/Tt each period, which alternates in sign for Tt < h and grows for Tt < h/2.
+without it the limiter model sat(v_k); ũ1 always uses the limiter model, since the
+actuator's output of the period being computed is not known yet). Each step first
+completes the previous period's update, because a_k arrives with the next step. As h → 0
+the discrete loop converges to the continuous one with an error O(h). Tt ≥ h is required:
+in saturation v − a shrinks by the factor 1 − h/Tt each period, which alternates in sign for
+Tt < h and grows for Tt < h/2.
 
 Start and bumpless transfer: `reset(pv0, u1, u2)` (or, on a new controller, pv0 = the pv of
 the first step and outputs (u1_ref, 0) clamped) makes the next step act as if PV had stood at
 pv0, the setpoint at its present value and the outputs at (u1, u2): with PV unchanged the
-next outputs are (u1, u2) to rounding. Gains may be negative (a process with negative gain,
+next outputs are (u1, u2) to rounding. So a setpoint that changes together with that first
+step gives no proportional kick (as in hermsd.pid); a step response from rest needs one step
+at the old setpoint first. Gains may be negative (a process with negative gain,
 as the cooling system of the seed); units are whatever the process uses. Pure code: nothing
 here reads a clock or touches hardware.
 """
