@@ -166,6 +166,18 @@ def _parser() -> argparse.ArgumentParser:
     )
     replay.set_defaults(func=cmd_replay)
 
+    tune = sub.add_parser(
+        "tune", help="the tun's model and the settings that follow from it (seed 001's Table 1)"
+    )
+    tune.add_argument(
+        "--table",
+        metavar="K=..,tau=..,theta=..[,a_star=..]",
+        help="print Table 1's settings for this model (K °C/%%, tau s, theta s, "
+        "a_star °C/(%%·s); a_star = K/tau when left out)",
+    )
+    tune.add_argument("--json", action="store_true", help="print one JSON object")
+    tune.set_defaults(func=cmd_tune)
+
     safe_off = sub.add_parser(
         "safe-off",
         help="drive every output the config names off, whatever else is wrong with it; "
@@ -613,6 +625,22 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
     column = max(len(str(row[1])) for row in rows)
     for key, logged, new in rows:
         print(f"{key:{width}} {logged!s:{column}} {new}")
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from hermsd import tune
+
+    try:
+        if args.table is None:
+            raise tune.TuneError("give --table K=..,tau=..,theta=..[,a_star=..]")
+        model = tune.parse_table(args.table)
+    except tune.TuneError as error:
+        raise UserError(str(error)) from None
+    if args.json:
+        print(json.dumps(tune.table_json(model), indent=2))
+    else:
+        print("\n".join(tune.table_lines(model)))
+    return 0
 
 
 # -- safe-off and check-config --------------------------------------------------------------
