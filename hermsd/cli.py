@@ -170,6 +170,12 @@ def _parser() -> argparse.ArgumentParser:
         "tune", help="the tun's model and the settings that follow from it (seed 001's Table 1)"
     )
     tune.add_argument(
+        "files",
+        nargs="*",
+        type=Path,
+        help="the .mcap or .mcap.part files of an ordinary brew day (a heat-up and a hold)",
+    )
+    tune.add_argument(
         "--table",
         metavar="K=..,tau=..,theta=..[,a_star=..]",
         help="print Table 1's settings for this model (K °C/%%, tau s, theta s, "
@@ -628,18 +634,22 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
-    from hermsd import tune
+    from hermsd import replay, tune
 
     try:
-        if args.table is None:
-            raise tune.TuneError("give --table K=..,tau=..,theta=..[,a_star=..]")
-        model = tune.parse_table(args.table)
-    except tune.TuneError as error:
+        if (args.table is None) == (not args.files):
+            raise tune.TuneError(
+                "give either the log files of a brew day or --table K=..,tau=..,theta=.."
+            )
+        if args.table is not None:
+            model = tune.parse_table(args.table)
+            result, lines = tune.table_json(model), tune.table_lines(model)
+        else:
+            tuned = tune.from_log(replay.load(args.files))
+            result, lines = tune.tuned_json(tuned), tune.tuned_lines(tuned)
+    except (tune.TuneError, replay.ReplayError) as error:
         raise UserError(str(error)) from None
-    if args.json:
-        print(json.dumps(tune.table_json(model), indent=2))
-    else:
-        print("\n".join(tune.table_lines(model)))
+    print(json.dumps(result, indent=2) if args.json else "\n".join(lines))
     return 0
 
 

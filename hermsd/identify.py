@@ -13,6 +13,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
+from hermsd import linsys
+
 
 class IdentifyError(ValueError):
     """A log that does not show the tun well enough to fit; the message says what is missing."""
@@ -99,12 +101,7 @@ def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: flo
             "cannot fit a model of the tun: the duty hardly moved before the first "
             f"disturbance (less than {MIN_DUTY_SPAN:g} %), so gain and time constant do not show"
         )
-    mean = sum(pv for pv in pvs if pv is not None) / count
-    weights = [1.0 if ok else 0.0 for ok in valid]
-    temps = [pv - mean if pv is not None else 0.0 for pv in pvs]
-    max_lag = max(0, min(round(MAX_DEAD_TIME_S / period_s), n // 4))
-    fit = _Fit(temps, weights, duties, max_lag, period_s)
-
+    fit, mean = _prepared(pvs, duties, period_s)
     log_tau = math.log(max(TAU_RANGE_S[0], min(n * period_s, TAU_RANGE_S[1])))
     lag = fit.best_lag(log_tau)
     for _ in range(6):
@@ -124,6 +121,103 @@ def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: flo
         start=ambient + x0 + gain * duties[0],
         rms=math.sqrt(max(sse, 0.0) / count),
         fit_s=n * period_s,
+    )
+
+
+def _prepared(
+    pvs: Sequence[float | None], duties: Sequence[float], period_s: float
+) -> tuple[_Fit, float]:
+    """The fit's sums for PV less its mean (which keeps the normal equations well scaled)."""
+    values = [pv for pv in pvs if pv is not None]
+    mean = sum(values) / len(values)
+    weights = [0.0 if pv is None else 1.0 for pv in pvs]
+    temps = [0.0 if pv is None else pv - mean for pv in pvs]
+    max_lag = max(0, min(round(MAX_DEAD_TIME_S / period_s), len(pvs) // 4))
+    return _Fit(temps, weights, duties, max_lag, period_s), mean
+
+
+@dataclass(frozen=True, slots=True)
+class Uncertainty:
+    """One standard deviation of each fitted parameter, and what the residuals were worth."""
+
+    gain: float  # °C/%
+    tau: float  # s
+    dead_time: float  # s
+    ambient: float  # °C
+    effective_samples: float  # periods, after the residuals' correlation
+
+
+UNCERTAINTY_METHOD = (
+    "linearised least squares: covariance s²·(JᵀJ)⁻¹ of (ambient, x0, K, ln τ) at the fit, "
+    "s² scaled by (1+ρ)/(1−ρ) for the residuals' lag-1 autocorrelation ρ; θ: the whole "
+    "periods of dead time whose error stays within that s² of the best, at least ±half a period"
+)
+
+
+def uncertainty(
+    pvs: Sequence[float | None], duties: Sequence[float], period_s: float, model: TunModel
+) -> Uncertainty:
+    """How well `pvs` pin down `model` (as `identify` fitted it to them); see UNCERTAINTY_METHOD.
+
+    A brew day's residuals are not white (the sensor's 0.0625 °C steps, slow drifts of the
+    losses), so the plain formula would claim too much: the AR(1) factor counts the samples
+    that are worth one independent one each. θ is held at its fit for the others.
+    """
+    fit, _ = _prepared(pvs, duties, period_s)
+    log_tau, lag = math.log(model.tau), round(model.dead_time / period_s)
+    sse, (offset, x0, gain) = fit.solve(log_tau, lag)
+
+    def parts(log_tau: float) -> tuple[list[float], list[float]]:
+        """a^k and z_{k−d}: the model's response is offset + x0·a^k + K·z_{k−d}."""
+        series = fit._series(log_tau)
+        return series.powers, series.lagged[fit.max_lag - lag : fit.max_lag - lag + fit.n]
+
+    def response(log_tau: float) -> list[float]:
+        powers, z = parts(log_tau)
+        return [x0 * p + gain * zk for p, zk in zip(powers, z, strict=True)]
+
+    step = 1e-4  # in ln τ: a central difference for the one parameter the fit is not linear in
+    below, above = response(log_tau - step), response(log_tau + step)
+    slope = [(b - a) / (2 * step) for a, b in zip(below, above, strict=True)]
+    powers, z = parts(log_tau)
+    fitted = response(log_tau)
+    rows = [
+        (w, w * p, w * zk, w * d)
+        for w, p, zk, d in zip(fit.weights, powers, z, slope, strict=True)
+        if w > 0
+    ]
+    residuals = [
+        t - offset - f for t, f, w in zip(fit.temps, fitted, fit.weights, strict=True) if w > 0
+    ]
+    count = len(residuals)
+    squares = _dot(residuals, residuals)
+    rho = _dot(residuals[:-1], residuals[1:]) / squares if squares > 0 else 0.0
+    rho = min(max(rho, 0.0), 0.999)
+    inflation = (1.0 + rho) / (1.0 - rho)
+    s2 = max(sse, 0.0) / max(count - 5, 1) * inflation
+    normal = [
+        [_dot([r[i] for r in rows], [r[j] for r in rows]) for j in range(4)] for i in range(4)
+    ]
+    variances = []
+    for i in range(4):
+        unit = [1.0 if j == i else 0.0 for j in range(4)]
+        try:
+            column = linsys.solve(normal, unit)
+        except ValueError:
+            return Uncertainty(math.inf, math.inf, math.inf, math.inf, count / inflation)
+        variances.append(max(column[i].real, 0.0) * s2)
+    threshold = sse + s2
+    low = high = lag
+    while low > 0 and fit.error(log_tau, low - 1) <= threshold:
+        low -= 1
+    while high < fit.max_lag and fit.error(log_tau, high + 1) <= threshold:
+        high += 1
+    return Uncertainty(
+        gain=math.sqrt(variances[2]),
+        tau=model.tau * math.sqrt(variances[3]),
+        dead_time=max((high - low) / 2.0, 0.5) * period_s,
+        ambient=math.sqrt(variances[0]),
+        effective_samples=count / inflation,
     )
 
 

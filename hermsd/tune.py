@@ -8,12 +8,24 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from decimal import ROUND_HALF_UP, Decimal
 from typing import Any
 
 from hermsd import pid
+from hermsd.identify import (
+    MIN_DUTY_SPAN,
+    UNCERTAINTY_METHOD,
+    IdentifyError,
+    TunModel,
+    Uncertainty,
+    fit_span,
+    identify,
+    uncertainty,
+)
+from hermsd.replay import Log, sudden_drops
 
 # (title, rule prefix in pid.table1, the numbers the rule uses): Table 1's open-loop
 # Ziegler–Nichols rows take the normalised slope a* and θ, all the others K, τ and θ.
@@ -143,3 +155,143 @@ def _asdict(model: Model) -> dict[str, Any]:
         "a_star": model.a_star,
         "a_star_given": model.a_star_given,
     }
+
+
+# -- from a brew day's logs ---------------------------------------------------------------------
+
+# The accuracy that commissioning aims at (and bench/tuning.py measures): within it at 2σ, the
+# fit is called good.
+GOAL_RELATIVE = 0.10  # of K and of τ
+GOAL_DEAD_TIME_S = 20.0
+WATER_J_PER_L_K = 4186.0
+
+
+@dataclass(frozen=True, slots=True)
+class Tuned:
+    """The model of a logged day, how sure it is, and what it means for the settings."""
+
+    model: TunModel
+    uncertainty: Uncertainty
+    a_star: float  # K/τ, °C/(%·s)
+    confidence: str  # "good", or "poor: " and what is not pinned down
+    recommended: dict[str, float]  # "section.key" → value
+    implied_litres: float | None  # the water the fit implies at the logged element power
+    logged_litres: float | None
+
+    def table(self) -> Model:
+        m = self.model
+        return Model(m.gain, m.tau, m.dead_time, self.a_star, a_star_given=False)
+
+
+def from_log(log: Log) -> Tuned:
+    """Identify the tun from a day's log up to its first cold water or gap (hermsd.identify)."""
+    period_s = log.period_s()
+    pvs = [p.pv for p in log.periods]
+    n = fit_span(log, sudden_drops(log.elapsed, pvs), period_s)
+    periods = log.periods[:n]
+    duties = [p.applied for p in periods]
+    if max(duties) - min(duties) < MIN_DUTY_SPAN:
+        if all(p.mode == "manual" for p in periods):
+            raise TuneError(
+                f"the log is a manual-only day ({n} periods at {min(duties):g} to "
+                f"{max(duties):g} %): the duty never stepped by {MIN_DUTY_SPAN:g} % or more, so "
+                "the tun's gain and time constant do not show; log a day in auto with a "
+                "heat-up and a hold, or step the manual output"
+            )
+        raise TuneError(
+            f"no heat-up in the log: the duty stayed between {min(duties):g} and "
+            f"{max(duties):g} % over the {n * period_s:g} s before the first cold water or gap; "
+            "the fit needs a heat-up (full power, then the hold) to see gain and time constant"
+        )
+    try:
+        model = identify(pvs[:n], duties, period_s)
+    except IdentifyError as error:
+        raise TuneError(str(error)) from None
+    spread = uncertainty(pvs[:n], duties, period_s, model)
+    poor = []
+    if 2 * spread.gain > GOAL_RELATIVE * model.gain:
+        poor.append(f"K ±{100 * 2 * spread.gain / model.gain:.0f} %")
+    if 2 * spread.tau > GOAL_RELATIVE * model.tau:
+        poor.append(f"τ ±{100 * 2 * spread.tau / model.tau:.0f} %")
+    if 2 * spread.dead_time > GOAL_DEAD_TIME_S:
+        poor.append(f"θ ±{2 * spread.dead_time:.0f} s")
+    watts, litres = _logged(log, "tun", "element_watts"), _logged(log, "tun", "litres")
+    implied = None
+    if watts is not None:
+        implied = model.tau * watts / (100.0 * model.gain) / WATER_J_PER_L_K
+    return Tuned(
+        model=model,
+        uncertainty=spread,
+        a_star=model.gain / model.tau,
+        confidence="good" if not poor else "poor at 2σ: " + ", ".join(poor),
+        recommended=recommend(model),
+        implied_litres=implied,
+        logged_litres=litres,
+    )
+
+
+def recommend(model: TunModel) -> dict[str, float]:
+    """The predictive controller's model, rounded to what a fit can tell."""
+    return {
+        "control.model_gain": float(f"{model.gain:.4g}"),
+        "control.model_tau": float(round(model.tau)),
+        "control.dead_time": float(round(model.dead_time)),
+        "control.model_ambient": round(model.ambient, 1),
+    }
+
+
+def _logged(log: Log, section: str, key: str) -> float | None:
+    """The value of the last config record that has it, as a number."""
+    for entry in reversed(log.configs):
+        value = entry.config.get(section, {}).get(key)
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+    return None
+
+
+KEPT = {
+    "control.kc, control.ti, control.td": "kept: the predictive controller's documentation "
+    "gives no rule that derives them from the model (its model keys carry the tun)",
+    "safety": "no key to change: the heater and dry-fire watches derive from tun.litres and "
+    "tun.element_watts, which are the brewer's to set",
+}
+
+
+def tuned_json(tuned: Tuned) -> dict[str, Any]:
+    return {
+        "model": dataclasses.asdict(tuned.model),
+        "uncertainty": dataclasses.asdict(tuned.uncertainty),
+        "uncertainty_method": UNCERTAINTY_METHOD,
+        "a_star": tuned.a_star,
+        "confidence": tuned.confidence,
+        "rules": table_rows(tuned.table()),
+        "recommended": tuned.recommended,
+        "kept": KEPT,
+        "implied_litres": tuned.implied_litres,
+        "logged_litres": tuned.logged_litres,
+    }
+
+
+def tuned_lines(tuned: Tuned) -> list[str]:
+    m, u = tuned.model, tuned.uncertainty
+    lines = [
+        f"tun model (fitted to the first {m.fit_s:g} s, RMS {m.rms:.3f} °C):",
+        f"  K {m.gain:.4g} ± {u.gain:.2g} °C/%",
+        f"  τ {m.tau:.0f} ± {u.tau:.0f} s",
+        f"  θ {m.dead_time:g} ± {u.dead_time:.0f} s",
+        f"  a* {tuned.a_star:.3g} °C/(%·s) (= K/τ)",
+        f"  ambient {m.ambient:.1f} ± {u.ambient:.1f} °C",
+        f"  confidence: {tuned.confidence} (± is one standard deviation of the fit to the "
+        "log's noise; --json says how; it does not cover a tun that is not first order)",
+    ]
+    if tuned.implied_litres is not None:
+        logged = "" if tuned.logged_litres is None else f"; tun.litres is {tuned.logged_litres:g}"
+        lines.append(
+            f"  the fit implies {tuned.implied_litres:.0f} L of water at the logged element "
+            f"power{logged} (the heater watches rely on tun.litres)"
+        )
+    lines += ["", "Table 1 for this model:", *table_lines(tuned.table())[1:], ""]
+    lines.append("recommended settings:")
+    lines += [f"  {key}: {value:g}" for key, value in tuned.recommended.items()]
+    lines += [f"  {key}: {why}" for key, why in KEPT.items()]
+    return lines

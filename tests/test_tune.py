@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from typing import Any
 
 import pytest
 
 from hermsd import tune
 from hermsd.cli import main
+from hermsd.sim import scenario
+from hermsd.sim.scenario import Scenario
 
 SEED_MODEL = "K=1.689,tau=14961,theta=115,a_star=6.68e-5"
 
@@ -114,3 +118,109 @@ def test_bad_table_input_is_one_line_and_exit_2(
     assert (code, out) == (2, "")
     assert err.count("\n") == 1
     assert says in err
+
+
+# -- tune FILE ----------------------------------------------------------------------------------
+
+# The default scenario's tun (hermsd.sim.hlt.FoptdPlant's defaults): seed 001's numbers.
+TRUE_GAIN, TRUE_TAU, TRUE_DEAD_TIME = 1.689, 14961.0, 115.0
+PERIOD = 5.0
+
+
+def logged_day(directory: Path, scene: Scenario) -> list[str]:
+    scenario.run(scene, log_dir=directory)
+    return [str(path) for path in sorted(directory.glob("*.mcap"))]
+
+
+@pytest.fixture(scope="module")
+def brew_day(tmp_path_factory: pytest.TempPathFactory) -> list[str]:
+    return logged_day(tmp_path_factory.mktemp("day"), scenario.DEFAULT)
+
+
+def tune_json(capsys: pytest.CaptureFixture[str], files: list[str]) -> dict[str, Any]:
+    code, out, err = run_cli(capsys, *files, "--json")
+    assert (code, err) == (0, "")
+    result: dict[str, Any] = json.loads(out)
+    return result
+
+
+def test_tune_finds_the_simulated_tun_in_an_ordinary_brew_day(
+    capsys: pytest.CaptureFixture[str], brew_day: list[str]
+) -> None:
+    result = tune_json(capsys, brew_day)
+    model = result["model"]
+    assert model["gain"] == pytest.approx(TRUE_GAIN, rel=0.02)
+    assert model["tau"] == pytest.approx(TRUE_TAU, rel=0.03)
+    # PV is the mean of a period's readings, half a period behind its end.
+    assert abs(model["dead_time"] - TRUE_DEAD_TIME) <= PERIOD
+    assert model["ambient"] == pytest.approx(20.0, abs=0.5)
+    assert result["a_star"] == pytest.approx(model["gain"] / model["tau"])
+    assert result["confidence"] == "good"
+    assert result["recommended"] == {
+        "control.model_gain": pytest.approx(model["gain"], rel=1e-3),
+        "control.model_tau": round(model["tau"]),
+        "control.dead_time": model["dead_time"],
+        "control.model_ambient": pytest.approx(model["ambient"], abs=0.05),
+    }
+    # Table 1 for the fitted model: ZN open loop from a* = K/τ equals ZN closed loop.
+    rules = result["rules"]
+    assert rules[0]["kc"] == pytest.approx(rules[2]["kc"])
+    assert rules[6]["kc"] == pytest.approx(
+        1.357 / model["gain"] * (model["dead_time"] / model["tau"]) ** -0.947
+    )
+    # 3 kW into the seed's K and τ is C = τ·P/(100·K) = 265.7 kJ/K, 63.5 L of water.
+    assert result["implied_litres"] == pytest.approx(63.5, rel=0.03)
+
+
+def test_tune_prints_the_model_table_and_settings(
+    capsys: pytest.CaptureFixture[str], brew_day: list[str]
+) -> None:
+    code, out, err = run_cli(capsys, *brew_day)
+    assert (code, err) == (0, "")
+    assert out.startswith("tun model (fitted to the first 14")
+    for line in ("Table 1 for this model:", "recommended settings:", "  control.model_gain: 1.6"):
+        assert any(printed.startswith(line) for printed in out.splitlines()), line
+
+
+def test_noise_widens_the_stated_uncertainty(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, brew_day: list[str]
+) -> None:
+    quiet = tune_json(capsys, brew_day)["uncertainty"]
+    noisy_plant = {"model": "foptd", "noise_c": 0.2, "seed": 3}
+    noisy_day = logged_day(tmp_path, Scenario(plant=noisy_plant))
+    capsys.readouterr()  # the simulated daemon's own log lines
+    noisy = tune_json(capsys, noisy_day)["uncertainty"]
+    assert noisy["gain"] > 3 * quiet["gain"]
+    assert noisy["tau"] > 3 * quiet["tau"]
+
+
+@pytest.mark.parametrize(
+    ("scene", "says"),
+    [
+        (
+            Scenario(duration=200.0, events=()),
+            "40 periods with a PV before the first disturbance, at least 60 needed",
+        ),
+        (
+            Scenario(duration=1800.0, events=(), config={"control": {"mode": "manual"}}),
+            "the log is a manual-only day (360 periods at 0 to 0 %)",
+        ),
+        (
+            Scenario(duration=1800.0, events=(), setpoint=15.0),
+            "no heat-up in the log: the duty stayed between 0 and 0 %",
+        ),
+    ],
+)
+def test_a_day_that_cannot_be_tuned_says_what_is_missing(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, scene: Scenario, says: str
+) -> None:
+    code, out, err = run_cli(capsys, *logged_day(tmp_path, scene))
+    assert (code, out) == (2, "")
+    assert err.count("\n") == 1
+    assert says in err
+
+
+def test_tune_wants_files_or_a_table(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run_cli(capsys)
+    assert code == 2
+    assert "give either the log files of a brew day or --table" in err
