@@ -182,6 +182,15 @@ def _parser() -> argparse.ArgumentParser:
         "a_star °C/(%%·s); a_star = K/tau when left out)",
     )
     tune.add_argument("--json", action="store_true", help="print one JSON object")
+    tune.add_argument(
+        "--write",
+        metavar="FILE",
+        nargs="?",
+        type=Path,
+        const=DEFAULT_CONFIG,
+        help=f"write the recommended settings into the config file (default {DEFAULT_CONFIG}), "
+        "keeping everything else in it, and show the diff",
+    )
     tune.set_defaults(func=cmd_tune)
 
     safe_off = sub.add_parser(
@@ -642,11 +651,17 @@ def cmd_tune(args: argparse.Namespace) -> int:
                 "give either the log files of a brew day or --table K=..,tau=..,theta=.."
             )
         if args.table is not None:
+            if args.write is not None:
+                raise tune.TuneError("--write takes its settings from log files, not --table")
             model = tune.parse_table(args.table)
             result, lines = tune.table_json(model), tune.table_lines(model)
         else:
             tuned = tune.from_log(replay.load(args.files))
             result, lines = tune.tuned_json(tuned), tune.tuned_lines(tuned)
+            if args.write is not None:
+                diff = tune.write_config(args.write, tuned.recommended)
+                result["written"] = {"file": os.fspath(args.write), "diff": diff}
+                lines += ["", diff.rstrip("\n") if diff else f"{args.write}: already so"]
     except (tune.TuneError, replay.ReplayError) as error:
         raise UserError(str(error)) from None
     print(json.dumps(result, indent=2) if args.json else "\n".join(lines))

@@ -9,12 +9,23 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import io
 import math
+import stat
 from dataclasses import dataclass
 from decimal import ROUND_HALF_UP, Decimal
+from pathlib import Path
 from typing import Any
 
+from ruamel.yaml import YAML
+from ruamel.yaml.error import YAMLError
+from ruamel.yaml.nodes import ScalarNode
+from ruamel.yaml.representer import RoundTripRepresenter
+
+from hermsd import config as config_module
 from hermsd import pid
+from hermsd.files import write_atomically
 from hermsd.identify import (
     MIN_DUTY_SPAN,
     UNCERTAINTY_METHOD,
@@ -295,3 +306,76 @@ def tuned_lines(tuned: Tuned) -> list[str]:
     lines += [f"  {key}: {value:g}" for key, value in tuned.recommended.items()]
     lines += [f"  {key}: {why}" for key, why in KEPT.items()]
     return lines
+
+
+# -- writing the config file --------------------------------------------------------------------
+
+
+def updated_config(text: str, filename: str, changes: dict[str, float]) -> str:
+    """`text` with the values of `changes` ("section.key") replaced and nothing else.
+
+    ruamel.yaml's round trip keeps the comments, the order, blank lines and the way every
+    other value is written (0x48 stays 0x48; null stays null). The file must be a valid
+    config before, and the result is checked as the daemon will check it.
+    """
+    _checked(text, filename, "is not a valid config now; fix it first")
+    yaml = _round_trip()
+    try:
+        document = yaml.load(text)
+    except YAMLError as error:  # what the config's own reader took, but this one does not
+        raise TuneError(f"{filename}: cannot edit it keeping its layout: {error}") from None
+    for path, value in changes.items():
+        section, key = path.split(".")
+        if document.get(section) is None:
+            document[section] = {}
+        document[section][key] = value
+    out = io.StringIO()
+    yaml.dump(document, out)
+    written = out.getvalue()
+    _checked(written, filename, "would not be a valid config with the new values; left as it is")
+    return written
+
+
+def write_config(path: Path, changes: dict[str, float]) -> str:
+    """Write `changes` into the config file at `path` atomically; the unified diff ("" if none).
+
+    The file keeps its permission bits; a running daemon sees a new file, as after any edit.
+    """
+    path = path.resolve()
+    try:
+        text = path.read_text(encoding="utf-8")
+        mode = stat.S_IMODE(path.stat().st_mode)
+    except (OSError, UnicodeDecodeError) as error:
+        raise TuneError(f"{path}: cannot read the config file: {error}") from None
+    written = updated_config(text, str(path), changes)
+    diff = "".join(
+        difflib.unified_diff(
+            text.splitlines(keepends=True), written.splitlines(keepends=True), str(path), str(path)
+        )
+    )
+    if diff:
+        try:
+            write_atomically(path, written, mode)
+        except OSError as error:
+            raise TuneError(f"{path}: cannot write the config file: {error}") from None
+    return diff
+
+
+def _round_trip() -> YAML:
+    yaml = YAML()  # the round-trip loader and dumper
+    yaml.preserve_quotes = True
+    yaml.representer.add_representer(type(None), _null)
+    return yaml
+
+
+def _null(representer: RoundTripRepresenter, _: None) -> ScalarNode:
+    """null as the shipped file writes it (ruamel's round trip would leave the value empty)."""
+    return representer.represent_scalar("tag:yaml.org,2002:null", "null")
+
+
+def _checked(text: str, filename: str, what: str) -> None:
+    try:
+        config_module.parse_document(text, filename)
+    except config_module.ConfigError as error:
+        problems = str(error).replace("\n", "; ")
+        raise TuneError(f"{filename} {what}: {problems}") from None

@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import json
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from hermsd import config as config_module
 from hermsd import tune
 from hermsd.cli import main
+from hermsd.config_file import ConfigFile, at_once
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario
 
@@ -224,3 +228,85 @@ def test_tune_wants_files_or_a_table(capsys: pytest.CaptureFixture[str]) -> None
     code, _, err = run_cli(capsys)
     assert code == 2
     assert "give either the log files of a brew day or --table" in err
+
+
+# -- --write ------------------------------------------------------------------------------------
+
+SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
+MODEL_KEYS = ("model_gain", "model_tau", "dead_time", "model_ambient")
+
+
+@pytest.fixture
+def config_copy(tmp_path: Path) -> Path:
+    path = tmp_path / "hermsd.yaml"
+    path.write_bytes(SHIPPED.read_bytes())
+    path.chmod(0o640)
+    return path
+
+
+def test_write_changes_only_the_recommended_values(
+    capsys: pytest.CaptureFixture[str], brew_day: list[str], config_copy: Path
+) -> None:
+    running = ConfigFile(config_copy, start=at_once)
+    running.load()
+    code, out, err = run_cli(capsys, *brew_day, "--write", str(config_copy), "--json")
+    assert (code, err) == (0, "")
+    result = json.loads(out)
+    before = SHIPPED.read_bytes().splitlines(keepends=True)
+    after = config_copy.read_bytes().splitlines(keepends=True)
+    assert len(after) == len(before)
+    changed = [(old, new) for old, new in zip(before, after, strict=True) if old != new]
+    # Every other line (comments, blank lines, 0x48, null, the section order) byte for byte.
+    assert sorted(old.split(b":")[0].strip().decode() for old, _ in changed) == sorted(MODEL_KEYS)
+    for old, new in changed:
+        assert new.split(b":")[0] == old.split(b":")[0]  # same key, same indentation
+    config = config_module.load(config_copy)  # passes the config check
+    for key in MODEL_KEYS:
+        assert getattr(config.control, key) == result["recommended"][f"control.{key}"]
+    assert stat.S_IMODE(config_copy.stat().st_mode) == 0o640
+    assert result["written"]["diff"].count("\n-  ") == 4
+    # A running daemon sees the new file as it sees any edit.
+    reloaded = running.poll()
+    assert isinstance(reloaded, config_module.Config)
+    assert reloaded.control.model_tau == result["recommended"]["control.model_tau"]
+
+
+def test_write_shows_the_diff_and_says_when_nothing_changes(
+    capsys: pytest.CaptureFixture[str], brew_day: list[str], config_copy: Path
+) -> None:
+    code, out, _ = run_cli(capsys, *brew_day, "--write", str(config_copy))
+    assert code == 0
+    assert f"--- {config_copy}" in out and "+  model_tau: " in out
+    code, out, _ = run_cli(capsys, *brew_day, "--write", str(config_copy))
+    assert code == 0
+    assert out.rstrip().endswith(f"{config_copy}: already so")
+
+
+def test_a_tune_that_fails_leaves_the_file_unchanged(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, config_copy: Path
+) -> None:
+    manual = Scenario(duration=1800.0, events=(), config={"control": {"mode": "manual"}})
+    files = logged_day(tmp_path / "logs", manual)
+    capsys.readouterr()
+    before = config_copy.stat()
+    code, out, err = run_cli(capsys, *files, "--write", str(config_copy))
+    assert (code, out) == (2, "")
+    assert "manual-only day" in err
+    after = config_copy.stat()
+    assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)
+    assert config_copy.read_bytes() == SHIPPED.read_bytes()
+    assert sorted(os.listdir(config_copy.parent)) == ["hermsd.yaml", "logs"]  # no .tmp left
+
+
+def test_values_the_config_refuses_are_not_written(config_copy: Path) -> None:
+    # An ambient of 80 °C is outside control.model_ambient's -20 to 50.
+    with pytest.raises(tune.TuneError, match=r"would not be a valid config.*model_ambient"):
+        tune.write_config(config_copy, {"control.model_ambient": 80.0})
+    assert config_copy.read_bytes() == SHIPPED.read_bytes()
+
+
+def test_a_broken_config_is_not_edited(config_copy: Path) -> None:
+    config_copy.write_text("control:\n  kc: fast\n", encoding="utf-8")
+    with pytest.raises(tune.TuneError, match=r"is not a valid config now; fix it first"):
+        tune.write_config(config_copy, {"control.model_gain": 1.0})
+    assert config_copy.read_text(encoding="utf-8") == "control:\n  kc: fast\n"
