@@ -183,6 +183,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     tune.add_argument("--json", action="store_true", help="print one JSON object")
     tune.add_argument(
+        "--ambient",
+        metavar="°C",
+        type=float,
+        help="the room's temperature during the day, if measured: it pins K and τ when the "
+        "heat-up is short compared with τ",
+    )
+    tune.add_argument(
         "--write",
         metavar="FILE",
         nargs="?",
@@ -656,7 +663,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
             model = tune.parse_table(args.table)
             result, lines = tune.table_json(model), tune.table_lines(model)
         else:
-            tuned = tune.from_log(replay.load(args.files))
+            tuned = tune.from_log(replay.load(args.files), args.ambient)
             result, lines = tune.tuned_json(tuned), tune.tuned_lines(tuned)
             if args.write is not None:
                 diff = tune.write_config(args.write, tuned.recommended)

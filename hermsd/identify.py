@@ -58,6 +58,9 @@ class TunModel:
 MAX_DEAD_TIME_S = 900.0
 TAU_RANGE_S = (10.0, 1e6)
 MIN_FIT_PERIODS = 60
+START_TAU_FACTORS = (0.25, 1.0, 4.0)
+"""× the log's length: where the search for τ and θ starts. The error has more than one
+valley in (τ, θ) (sharper with a known ambient), so it starts from several τ."""
 MIN_DUTY_SPAN = 20.0  # %: the fit needs the duty to move for K and τ to show
 
 
@@ -76,7 +79,12 @@ def fit_span(log: LoggedDay, drops: Sequence[Upset], period_s: float) -> int:
     return n
 
 
-def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: float) -> TunModel:
+def identify(
+    pvs: Sequence[float | None],
+    duties: Sequence[float],
+    period_s: float,
+    ambient: float | None = None,
+) -> TunModel:
     """The FOPTD model whose response to `duties` fits `pvs` best (least squares).
 
     One sample per control period; `duties[k]` is the duty of the span ending at sample k
@@ -86,7 +94,12 @@ def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: flo
     T_k = T_amb + x0·a^k + K·z_{k−d}, with a = e^(−Ts/τ) and z the duty through the
     discrete first-order lag z_k = a·z_{k−1} + (1 − a)·u_k; those three come from the
     normal equations. θ is searched over whole periods up to MAX_DEAD_TIME_S (every fourth,
-    then around the best), τ by golden section on log τ, in turn until θ stays put.
+    then around the best), τ by golden section on log τ, in turn until θ stays put, from
+    each of START_TAU_FACTORS; the least error wins.
+
+    `ambient`: the room's temperature when it is known (a thermometer): then only x0 and K
+    are fitted. A heat-up much shorter than τ hardly bends, and a free ambient then trades
+    off against K and τ together (K/τ stays right); a known one pins K through the hold.
     """
     n = len(pvs)
     valid = [pv is not None for pv in pvs]
@@ -101,14 +114,17 @@ def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: flo
             "cannot fit a model of the tun: the duty hardly moved before the first "
             f"disturbance (less than {MIN_DUTY_SPAN:g} %), so gain and time constant do not show"
         )
-    fit, mean = _prepared(pvs, duties, period_s)
-    log_tau = math.log(max(TAU_RANGE_S[0], min(n * period_s, TAU_RANGE_S[1])))
-    lag = fit.best_lag(log_tau)
-    for _ in range(6):
-        log_tau = fit.best_log_tau(lag)
-        previous, lag = lag, fit.best_lag(log_tau)
-        if lag == previous:
-            break
+    fit, mean = _prepared(pvs, duties, period_s, ambient)
+    log_tau, lag = min(
+        (fit.descend(math.log(n * period_s * factor)) for factor in START_TAU_FACTORS),
+        key=lambda point: fit.error(*point),
+    )
+    # The valley runs across τ and θ together, where turns of one at a time crawl: τ is
+    # fitted again for each θ near the best.
+    near = range(max(0, lag - 3), min(fit.max_lag, lag + 3) + 1)
+    log_tau, lag = min(
+        ((fit.best_log_tau(lag), lag) for lag in near), key=lambda point: fit.error(*point)
+    )
     sse, (offset, x0, gain) = fit.solve(log_tau, lag)
     if not gain > 0:
         raise IdentifyError("cannot fit a model of the tun: the PV does not rise with the duty")
@@ -125,15 +141,20 @@ def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: flo
 
 
 def _prepared(
-    pvs: Sequence[float | None], duties: Sequence[float], period_s: float
+    pvs: Sequence[float | None],
+    duties: Sequence[float],
+    period_s: float,
+    ambient: float | None,
 ) -> tuple[_Fit, float]:
-    """The fit's sums for PV less its mean (which keeps the normal equations well scaled)."""
+    """The fit's sums for PV less its mean (which keeps the normal equations well scaled),
+    or less the known ambient temperature (the offset is then held at 0)."""
     values = [pv for pv in pvs if pv is not None]
-    mean = sum(values) / len(values)
+    mean = sum(values) / len(values) if ambient is None else ambient
     weights = [0.0 if pv is None else 1.0 for pv in pvs]
     temps = [0.0 if pv is None else pv - mean for pv in pvs]
     max_lag = max(0, min(round(MAX_DEAD_TIME_S / period_s), len(pvs) // 4))
-    return _Fit(temps, weights, duties, max_lag, period_s), mean
+    fit = _Fit(temps, weights, duties, max_lag, period_s, fixed_offset=ambient is not None)
+    return fit, mean
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,14 +169,21 @@ class Uncertainty:
 
 
 UNCERTAINTY_METHOD = (
-    "linearised least squares: covariance s²·(JᵀJ)⁻¹ of (ambient, x0, K, ln τ) at the fit, "
-    "s² scaled by (1+ρ)/(1−ρ) for the residuals' lag-1 autocorrelation ρ; θ: the whole "
-    "periods of dead time whose error stays within that s² of the best, at least ±half a period"
+    "noise: linearised least squares, covariance s²·(JᵀJ)⁻¹ of (ambient, x0, K, ln τ) at the "
+    "fit, s² scaled by (1+ρ)/(1−ρ) for the residuals' lag-1 autocorrelation ρ; model: half "
+    "the mean change of K and τ when θ is moved one period either way and τ refitted (θ is "
+    "fitted in whole periods, and a sensor's own lag or the PV's averaging is no pure delay), "
+    "added in quadrature; θ: the whole periods whose error stays within that s² of the best, "
+    "at least ±half a period"
 )
 
 
 def uncertainty(
-    pvs: Sequence[float | None], duties: Sequence[float], period_s: float, model: TunModel
+    pvs: Sequence[float | None],
+    duties: Sequence[float],
+    period_s: float,
+    model: TunModel,
+    ambient: float | None = None,
 ) -> Uncertainty:
     """How well `pvs` pin down `model` (as `identify` fitted it to them); see UNCERTAINTY_METHOD.
 
@@ -163,7 +191,7 @@ def uncertainty(
     losses), so the plain formula would claim too much: the AR(1) factor counts the samples
     that are worth one independent one each. θ is held at its fit for the others.
     """
-    fit, _ = _prepared(pvs, duties, period_s)
+    fit, _ = _prepared(pvs, duties, period_s, ambient)
     log_tau, lag = math.log(model.tau), round(model.dead_time / period_s)
     sse, (offset, x0, gain) = fit.solve(log_tau, lag)
 
@@ -194,18 +222,25 @@ def uncertainty(
     rho = _dot(residuals[:-1], residuals[1:]) / squares if squares > 0 else 0.0
     rho = min(max(rho, 0.0), 0.999)
     inflation = (1.0 + rho) / (1.0 - rho)
-    s2 = max(sse, 0.0) / max(count - 5, 1) * inflation
-    normal = [
-        [_dot([r[i] for r in rows], [r[j] for r in rows]) for j in range(4)] for i in range(4)
-    ]
-    variances = []
-    for i in range(4):
-        unit = [1.0 if j == i else 0.0 for j in range(4)]
+    fitted_params = (1, 2, 3) if fit.fixed_offset else (0, 1, 2, 3)  # of (offset, x0, K, ln τ)
+    s2 = max(sse, 0.0) / max(count - len(fitted_params) - 1, 1) * inflation
+    columns = [[r[i] for r in rows] for i in fitted_params]
+    normal = [[_dot(a, b) for b in columns] for a in columns]
+    variances = [0.0] * 4
+    for i, param in enumerate(fitted_params):
+        unit = [1.0 if j == i else 0.0 for j in range(len(fitted_params))]
         try:
             column = linsys.solve(normal, unit)
         except ValueError:
             return Uncertainty(math.inf, math.inf, math.inf, math.inf, count / inflation)
-        variances.append(max(column[i].real, 0.0) * s2)
+        variances[param] = max(column[i].real, 0.0) * s2
+    moved = []  # (K, τ) refitted with θ one period shorter and longer
+    for other in (lag - 1, lag + 1):
+        if 0 <= other <= fit.max_lag:
+            other_log_tau = fit.best_log_tau(other)
+            moved.append((fit.solve(other_log_tau, other)[1][2], math.exp(other_log_tau)))
+    model_gain = sum(abs(k - gain) for k, _ in moved) / (2 * len(moved)) if moved else 0.0
+    model_tau = sum(abs(t - model.tau) for _, t in moved) / (2 * len(moved)) if moved else 0.0
     threshold = sse + s2
     low = high = lag
     while low > 0 and fit.error(log_tau, low - 1) <= threshold:
@@ -213,8 +248,8 @@ def uncertainty(
     while high < fit.max_lag and fit.error(log_tau, high + 1) <= threshold:
         high += 1
     return Uncertainty(
-        gain=math.sqrt(variances[2]),
-        tau=model.tau * math.sqrt(variances[3]),
+        gain=math.hypot(math.sqrt(variances[2]), model_gain),
+        tau=math.hypot(model.tau * math.sqrt(variances[3]), model_tau),
         dead_time=max((high - low) / 2.0, 0.5) * period_s,
         ambient=math.sqrt(variances[0]),
         effective_samples=count / inflation,
@@ -240,9 +275,12 @@ class _Fit:
         duties: Sequence[float],
         max_lag: int,
         period_s: float,
+        *,
+        fixed_offset: bool = False,
     ) -> None:
         self.temps, self.weights, self.duties = temps, weights, list(duties)
         self.max_lag, self.period_s = max_lag, period_s
+        self.fixed_offset = fixed_offset
         self.n = len(temps)
         self.total_w = sum(weights)
         self.sum_t = _dot(weights, temps)
@@ -284,10 +322,24 @@ class _Fit:
             (s_z, _dot(w_powers, z), _dot(w, series.squares[start:stop])),
         )
         rhs = (self.sum_t, _dot(w_powers, self.temps), _dot(self.temps, z))
+        if self.fixed_offset:  # the offset's equation becomes offset = 0
+            gram = ((1.0, 0.0, 0.0), (0.0, *gram[1][1:]), (0.0, *gram[2][1:]))
+            rhs = (0.0, rhs[1], rhs[2])
         solution = _solve3(gram, rhs)
         if solution is None:
             return math.inf, (0.0, 0.0, 0.0)
         return self.sum_tt - _dot(solution, rhs), solution
+
+    def descend(self, log_tau: float) -> tuple[float, int]:
+        """From τ = e^log_tau, the best θ and τ in turn, until θ stays put: a local minimum."""
+        log_tau = min(max(log_tau, math.log(TAU_RANGE_S[0])), math.log(TAU_RANGE_S[1]))
+        lag = self.best_lag(log_tau)
+        for _ in range(6):
+            log_tau = self.best_log_tau(lag)
+            previous, lag = lag, self.best_lag(log_tau)
+            if lag == previous:
+                break
+        return log_tau, lag
 
     def error(self, log_tau: float, lag: int) -> float:
         return self.solve(log_tau, lag)[0]

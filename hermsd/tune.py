@@ -175,6 +175,9 @@ def _asdict(model: Model) -> dict[str, Any]:
 GOAL_RELATIVE = 0.10  # of K and of τ
 GOAL_DEAD_TIME_S = 20.0
 WATER_J_PER_L_K = 4186.0
+MAX_RMS_C = 0.04
+"""°C: a first-order tun read by an LM92 (0.0625 °C steps, a period's mean of ~5 readings)
+leaves a few hundredths; more is a tun the model does not describe."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,8 +197,11 @@ class Tuned:
         return Model(m.gain, m.tau, m.dead_time, self.a_star, a_star_given=False)
 
 
-def from_log(log: Log) -> Tuned:
-    """Identify the tun from a day's log up to its first cold water or gap (hermsd.identify)."""
+def from_log(log: Log, ambient: float | None = None) -> Tuned:
+    """Identify the tun from a day's log up to its first cold water or gap (hermsd.identify).
+
+    `ambient`: the room's temperature, when the brewer has measured it; else it is fitted.
+    """
     period_s = log.period_s()
     pvs = [p.pv for p in log.periods]
     n = fit_span(log, sudden_drops(log.elapsed, pvs), period_s)
@@ -215,10 +221,10 @@ def from_log(log: Log) -> Tuned:
             "the fit needs a heat-up (full power, then the hold) to see gain and time constant"
         )
     try:
-        model = identify(pvs[:n], duties, period_s)
+        model = identify(pvs[:n], duties, period_s, ambient)
     except IdentifyError as error:
         raise TuneError(str(error)) from None
-    spread = uncertainty(pvs[:n], duties, period_s, model)
+    spread = uncertainty(pvs[:n], duties, period_s, model, ambient)
     poor = []
     if 2 * spread.gain > GOAL_RELATIVE * model.gain:
         poor.append(f"K ±{100 * 2 * spread.gain / model.gain:.0f} %")
@@ -226,6 +232,12 @@ def from_log(log: Log) -> Tuned:
         poor.append(f"τ ±{100 * 2 * spread.tau / model.tau:.0f} %")
     if 2 * spread.dead_time > GOAL_DEAD_TIME_S:
         poor.append(f"θ ±{2 * spread.dead_time:.0f} s")
+    if model.rms > MAX_RMS_C:
+        poor.append(
+            f"RMS {model.rms:.3f} °C: the tun is not first order over this log (an open "
+            "lid's evaporation grows steeply with the temperature)"
+        )
+    poor_hint = "; the room's temperature (--ambient) pins K and τ" if ambient is None else ""
     watts, litres = _logged(log, "tun", "element_watts"), _logged(log, "tun", "litres")
     implied = None
     if watts is not None:
@@ -234,7 +246,7 @@ def from_log(log: Log) -> Tuned:
         model=model,
         uncertainty=spread,
         a_star=model.gain / model.tau,
-        confidence="good" if not poor else "poor at 2σ: " + ", ".join(poor),
+        confidence="good" if not poor else "poor at 2σ: " + ", ".join(poor) + poor_hint,
         recommended=recommend(model),
         implied_litres=implied,
         logged_litres=litres,

@@ -186,6 +186,16 @@ def test_tune_prints_the_model_table_and_settings(
         assert any(printed.startswith(line) for printed in out.splitlines()), line
 
 
+def test_a_measured_room_temperature_is_held(
+    capsys: pytest.CaptureFixture[str], brew_day: list[str]
+) -> None:
+    code, out, err = run_cli(capsys, *brew_day, "--ambient", "20", "--json")
+    assert (code, err) == (0, "")
+    model = json.loads(out)["model"]
+    assert model["ambient"] == 20.0
+    assert model["gain"] == pytest.approx(TRUE_GAIN, rel=0.02)
+
+
 def test_noise_widens_the_stated_uncertainty(
     capsys: pytest.CaptureFixture[str], tmp_path: Path, brew_day: list[str]
 ) -> None:
@@ -194,8 +204,10 @@ def test_noise_widens_the_stated_uncertainty(
     noisy_day = logged_day(tmp_path, Scenario(plant=noisy_plant))
     capsys.readouterr()  # the simulated daemon's own log lines
     noisy = tune_json(capsys, noisy_day)["uncertainty"]
-    assert noisy["gain"] > 3 * quiet["gain"]
-    assert noisy["tau"] > 3 * quiet["tau"]
+    # The ambient's spread is the noise part alone (the model part moves only K and τ).
+    assert noisy["ambient"] > 3 * quiet["ambient"]
+    assert noisy["gain"] > quiet["gain"]
+    assert noisy["tau"] > quiet["tau"]
 
 
 @pytest.mark.parametrize(
