@@ -58,9 +58,6 @@ class TunModel:
 MAX_DEAD_TIME_S = 900.0
 TAU_RANGE_S = (10.0, 1e6)
 MIN_FIT_PERIODS = 60
-START_TAU_FACTORS = (0.25, 1.0, 4.0)
-"""× the log's length: where the search for τ and θ starts. The error has more than one
-valley in (τ, θ) (sharper with a known ambient), so it starts from several τ."""
 MIN_DUTY_SPAN = 20.0  # %: the fit needs the duty to move for K and τ to show
 
 
@@ -94,8 +91,8 @@ def identify(
     T_k = T_amb + x0·a^k + K·z_{k−d}, with a = e^(−Ts/τ) and z the duty through the
     discrete first-order lag z_k = a·z_{k−1} + (1 − a)·u_k; those three come from the
     normal equations. θ is searched over whole periods up to MAX_DEAD_TIME_S (every fourth,
-    then around the best), τ by golden section on log τ, in turn until θ stays put, from
-    each of START_TAU_FACTORS; the least error wins.
+    then around the best), τ by golden section on log τ, in turn until θ stays put; then θ
+    a period at a time with τ refitted, while the error falls.
 
     `ambient`: the room's temperature when it is known (a thermometer): then only x0 and K
     are fitted. A heat-up much shorter than τ hardly bends, and a free ambient then trades
@@ -115,16 +112,7 @@ def identify(
             f"disturbance (less than {MIN_DUTY_SPAN:g} %), so gain and time constant do not show"
         )
     fit, mean = _prepared(pvs, duties, period_s, ambient)
-    log_tau, lag = min(
-        (fit.descend(math.log(n * period_s * factor)) for factor in START_TAU_FACTORS),
-        key=lambda point: fit.error(*point),
-    )
-    # The valley runs across τ and θ together, where turns of one at a time crawl: τ is
-    # fitted again for each θ near the best.
-    near = range(max(0, lag - 3), min(fit.max_lag, lag + 3) + 1)
-    log_tau, lag = min(
-        ((fit.best_log_tau(lag), lag) for lag in near), key=lambda point: fit.error(*point)
-    )
+    log_tau, lag = fit.along_the_valley(*fit.descend(math.log(n * period_s)))
     sse, (offset, x0, gain) = fit.solve(log_tau, lag)
     if not gain > 0:
         raise IdentifyError("cannot fit a model of the tun: the PV does not rise with the duty")
@@ -340,6 +328,20 @@ class _Fit:
             if lag == previous:
                 break
         return log_tau, lag
+
+    def along_the_valley(self, log_tau: float, lag: int) -> tuple[float, int]:
+        """The valley runs across τ and θ together, where turns of one at a time stall: walk
+        θ a period at a time either way, τ refitted at each, while the error falls."""
+        best, least = (log_tau, lag), self.error(log_tau, lag)
+        for step in (-1, 1):
+            while 0 <= best[1] + step <= self.max_lag:
+                other = best[1] + step
+                candidate = (self.best_log_tau(other), other)
+                error = self.error(*candidate)
+                if error >= least:
+                    break
+                best, least = candidate, error
+        return best
 
     def error(self, log_tau: float, lag: int) -> float:
         return self.solve(log_tau, lag)[0]
