@@ -175,6 +175,7 @@ def _asdict(model: Model) -> dict[str, Any]:
 GOAL_RELATIVE = 0.10  # of K and of τ
 GOAL_DEAD_TIME_S = 20.0
 WATER_J_PER_L_K = 4186.0
+AMBIENT_RANGE_C = (-20.0, 50.0)  # control.model_ambient's range
 MAX_RMS_C = 0.04
 """°C: a first-order tun read by an LM92 (0.0625 °C steps, a period's mean of ~5 readings)
 leaves a few hundredths; more is a tun the model does not describe."""
@@ -191,6 +192,7 @@ class Tuned:
     recommended: dict[str, float]  # "section.key" → value
     implied_litres: float | None  # the water the fit implies at the logged element power
     logged_litres: float | None
+    ambient_given: bool = False  # measured by the brewer (--ambient), not fitted
 
     def table(self) -> Model:
         m = self.model
@@ -202,6 +204,9 @@ def from_log(log: Log, ambient: float | None = None) -> Tuned:
 
     `ambient`: the room's temperature, when the brewer has measured it; else it is fitted.
     """
+    if ambient is not None and not AMBIENT_RANGE_C[0] <= ambient <= AMBIENT_RANGE_C[1]:
+        low, high = AMBIENT_RANGE_C
+        raise TuneError(f"--ambient {ambient:g}: the room's temperature in °C, {low:g} to {high:g}")
     period_s = log.period_s()
     pvs = [p.pv for p in log.periods]
     n = fit_span(log, sudden_drops(log.elapsed, pvs), period_s)
@@ -250,6 +255,7 @@ def from_log(log: Log, ambient: float | None = None) -> Tuned:
         recommended=recommend(model),
         implied_litres=implied,
         logged_litres=litres,
+        ambient_given=ambient is not None,
     )
 
 
@@ -292,6 +298,7 @@ def tuned_json(tuned: Tuned) -> dict[str, Any]:
         "kept": KEPT,
         "implied_litres": tuned.implied_litres,
         "logged_litres": tuned.logged_litres,
+        "ambient_given": tuned.ambient_given,
     }
 
 
@@ -301,11 +308,13 @@ def tuned_lines(tuned: Tuned) -> list[str]:
         f"tun model (fitted to the first {m.fit_s:g} s, RMS {m.rms:.3f} °C):",
         f"  K {m.gain:.4g} ± {u.gain:.2g} °C/%",
         f"  τ {m.tau:.0f} ± {u.tau:.0f} s",
-        f"  θ {m.dead_time:g} ± {u.dead_time:.0f} s",
+        f"  θ {m.dead_time:g} ± {u.dead_time:.3g} s",
         f"  a* {tuned.a_star:.3g} °C/(%·s) (= K/τ)",
-        f"  ambient {m.ambient:.1f} ± {u.ambient:.1f} °C",
-        f"  confidence: {tuned.confidence} (± is one standard deviation of the fit to the "
-        "log's noise; --json says how; it does not cover a tun that is not first order)",
+        f"  ambient {m.ambient:.1f} °C (given)"
+        if tuned.ambient_given
+        else f"  ambient {m.ambient:.1f} ± {u.ambient:.2g} °C",
+        f"  confidence: {tuned.confidence} (± is one standard deviation, from the log's "
+        "noise and from θ's whole periods; --json says how)",
     ]
     if tuned.implied_litres is not None:
         logged = "" if tuned.logged_litres is None else f"; tun.litres is {tuned.logged_litres:g}"

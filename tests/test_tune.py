@@ -236,6 +236,15 @@ def test_a_day_that_cannot_be_tuned_says_what_is_missing(
     assert says in err
 
 
+@pytest.mark.parametrize("value", ["nan", "inf", "51", "-21"])
+def test_a_room_temperature_out_of_range_is_refused(
+    capsys: pytest.CaptureFixture[str], brew_day: list[str], value: str
+) -> None:
+    code, out, err = run_cli(capsys, *brew_day, "--ambient", value)
+    assert (code, out) == (2, "")
+    assert "the room's temperature in °C, -20 to 50" in err
+
+
 def test_tune_wants_files_or_a_table(capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run_cli(capsys)
     assert code == 2
