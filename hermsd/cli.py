@@ -666,7 +666,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
             tuned = tune.from_log(replay.load(args.files), args.ambient)
             result, lines = tune.tuned_json(tuned), tune.tuned_lines(tuned)
             if args.write is not None:
-                diff = tune.write_config(args.write, tuned.recommended)
+                diff = tune.write_tuned(args.write, tuned)
                 result["written"] = {"file": os.fspath(args.write), "diff": diff}
                 lines += ["", diff.rstrip("\n") if diff else f"{args.write}: already so"]
     except (tune.TuneError, replay.ReplayError) as error:

@@ -242,7 +242,8 @@ def from_log(log: Log, ambient: float | None = None) -> Tuned:
             f"RMS {model.rms:.3f} °C: the tun is not first order over this log (an open "
             "lid's evaporation grows steeply with the temperature)"
         )
-    poor_hint = "; the room's temperature (--ambient) pins K and τ" if ambient is None else ""
+    if ambient is None and any(item.startswith(("K ", "τ ")) for item in poor):
+        poor.append("the room's temperature (--ambient) pins K and τ")
     watts, litres = _logged(log, "tun", "element_watts"), _logged(log, "tun", "litres")
     implied = None
     if watts is not None:
@@ -251,7 +252,7 @@ def from_log(log: Log, ambient: float | None = None) -> Tuned:
         model=model,
         uncertainty=spread,
         a_star=model.gain / model.tau,
-        confidence="good" if not poor else "poor at 2σ: " + ", ".join(poor) + poor_hint,
+        confidence="good" if not poor else "poor at 2σ: " + "; ".join(poor),
         recommended=recommend(model),
         implied_litres=implied,
         logged_litres=litres,
@@ -272,7 +273,8 @@ def recommend(model: TunModel) -> dict[str, float]:
 def _logged(log: Log, section: str, key: str) -> float | None:
     """The value of the last config record that has it, as a number."""
     for entry in reversed(log.configs):
-        value = entry.config.get(section, {}).get(key)
+        values = entry.config.get(section)
+        value = values.get(key) if isinstance(values, dict) else None
         if isinstance(value, int | float) and not isinstance(value, bool):
             return float(value)
     return None
@@ -355,6 +357,13 @@ def updated_config(text: str, filename: str, changes: dict[str, float]) -> str:
     written = out.getvalue()
     _checked(written, filename, "would not be a valid config with the new values; left as it is")
     return written
+
+
+def write_tuned(path: Path, tuned: Tuned) -> str:
+    """Write `tuned`'s recommended settings into the config file; a poor fit is not written."""
+    if tuned.confidence != "good":
+        raise TuneError(f"{path} left as it is: the fit is {tuned.confidence}")
+    return write_config(path, tuned.recommended)
 
 
 def write_config(path: Path, changes: dict[str, float]) -> str:

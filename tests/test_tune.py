@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import stat
@@ -11,7 +12,7 @@ from typing import Any
 import pytest
 
 from hermsd import config as config_module
-from hermsd import tune
+from hermsd import replay, tune
 from hermsd.cli import main
 from hermsd.config_file import ConfigFile, at_once
 from hermsd.sim import scenario
@@ -317,6 +318,15 @@ def test_a_tune_that_fails_leaves_the_file_unchanged(
     assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)
     assert config_copy.read_bytes() == SHIPPED.read_bytes()
     assert sorted(os.listdir(config_copy.parent)) == ["hermsd.yaml", "logs"]  # no .tmp left
+
+
+def test_a_poor_fit_is_not_written(brew_day: list[str], config_copy: Path) -> None:
+    tuned = tune.from_log(replay.load(brew_day))
+    assert tuned.confidence == "good"
+    poor = dataclasses.replace(tuned, confidence="poor at 2σ: K ±30 %")
+    with pytest.raises(tune.TuneError, match=r"left as it is: the fit is poor at 2σ: K ±30 %"):
+        tune.write_tuned(config_copy, poor)
+    assert config_copy.read_bytes() == SHIPPED.read_bytes()
 
 
 def test_values_the_config_refuses_are_not_written(config_copy: Path) -> None:
