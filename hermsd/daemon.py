@@ -29,7 +29,7 @@ from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
 from hermsd.recorder import CONFIG_TOPIC, LogLevel, log_message
-from hermsd.safety import Alarm, SafetyLimits, Supervisor
+from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPlan, cut
 
@@ -120,13 +120,16 @@ def window_length(config: Config) -> float:
     return config.output.window if config.output.window is not None else config.control.period
 
 
-def safety_limits(config: Config) -> SafetyLimits:
+def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLimits:
+    """The supervisor's limits: from `model` (the tun as measured) where given, else safe for
+    any tun the config could be describing (see `SafetyLimits.derive`)."""
     s = config.safety
     return SafetyLimits.derive(
         litres=config.tun.litres,
         element_watts=config.tun.element_watts,
         period=config.control.period,
         read_interval=config.sensor.read_interval,
+        model=model,
         max_temp=s.max_temp,
         hysteresis=s.hysteresis,
         plausible_min=s.plausible_min,
@@ -179,8 +182,10 @@ class Daemon:
         on_status: Callable[[str], None] | None = None,
         config_file: ConfigFile | None = None,
         latches: LatchStore | None = None,
+        tun_model: MeasuredTun | None = None,
     ) -> None:
         self.config = config
+        self.tun_model = tun_model
         self.config_file = config_file
         self.latches = latches
         self.clock = clock
@@ -196,7 +201,7 @@ class Daemon:
         self.on_status = on_status
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
-        self.supervisor = Supervisor(safety_limits(config))
+        self.supervisor = Supervisor(safety_limits(config, tun_model))
         self.controller = make_controller(config.control)
         self.planner = self._make_planner(config)
         self.setpoint = config.control.setpoint
@@ -420,7 +425,7 @@ class Daemon:
         elif "control.max_output" in changed and self.mode == "manual":
             self._apply_manual(self.manual_output, t)  # the new power limit holds at once
         if any(key.startswith(("safety.", "tun.")) for key in changed):
-            self.supervisor.limits = safety_limits(new)
+            self.supervisor.limits = safety_limits(new, self.tun_model)
         if changed & {"safety.max_temp", "safety.hysteresis"}:
             self._reprogram_sensor(t)
         if "safety.reset" in changed:

@@ -25,7 +25,7 @@ from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
 from hermsd.metrics import BAND, Sample, compute, report
 from hermsd.recorder import Recorder
-from hermsd.safety import Alarm
+from hermsd.safety import Alarm, MeasuredTun
 from hermsd.sim.bus import FakeLM92
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
@@ -254,8 +254,12 @@ def run(
     *,
     log_dir: Path | None = None,
     keep_records: bool = False,
+    tun_model: MeasuredTun | None = None,
 ) -> Result:
-    """Run `scenario` through the daemon on a virtual clock; measure it (and log it)."""
+    """Run `scenario` through the daemon on a virtual clock; measure it (and log it).
+
+    `tun_model` is the tun as measured, for the supervisor's limits (None: not measured).
+    """
     config = effective_config(base or config_module.DEFAULT, scenario)
     reloads = _reloads(config, scenario)
     started = time.perf_counter()
@@ -275,7 +279,9 @@ def run(
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
-    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    daemon = Daemon(
+        config, clock, world.sensor, world.outputs, recorder=recorder, tun_model=tun_model
+    )
     collector = _Collector(plant, keep_records=keep_records)
     daemon.listeners.append(collector)
 
