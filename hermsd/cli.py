@@ -642,8 +642,15 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:
+    from hermsd.daemon import safety_limits
+    from hermsd.safety import format_limits
+
     config = config_module.load(args.file)
     print(config_module.dump_yaml(config), end="")
+    # As YAML comments, so that the output still reads back as the config it is.
+    print("\n# safety limits in force (nothing measured yet):")
+    for line in format_limits(safety_limits(config), config.control.setpoint):
+        print(f"#   {line}")
     return 0
 
 

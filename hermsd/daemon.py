@@ -138,6 +138,7 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
         fault_reads=s.fault_reads,
         resume_reads=s.resume_reads,
         stale_after=s.stale_after,
+        dead_time=s.dead_time,
         heater_watch=s.heater_watch,
         heater_min_rise=s.heater_min_rise,
         ssr_watch=s.ssr_watch,

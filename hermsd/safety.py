@@ -190,6 +190,7 @@ class SafetyLimits:
             return given if given is not None else value
 
         tun = "derived from litres and watts"
+        envelope = "built in: any tun to 300 s"
         measured = "measured"
         full_rate = element_watts / (litres * WATER_HEAT_CAPACITY)  # °C/s at 100 %, rated
         least_water = litres / FILL_RANGE
@@ -205,7 +206,7 @@ class SafetyLimits:
         heat_memory = DEAD_TIME_MAX + SENSOR_LAG_MAX
         loss_per_k, loss_room = ua_bound / least_capacity, COLDEST_ROOM
         heating_output_per_k: float | None = None
-        origin = tun
+        origin, timing = tun, envelope
         if model is not None:
             # The tun as measured: its rate 100·K/τ, loss 1/τ and dead time θ, each trusted
             # to within ×1.5, and a room up to 10 °C colder than on the day it was measured.
@@ -217,7 +218,7 @@ class SafetyLimits:
             heat_memory = MODEL_MARGIN * model.dead_time + 60.0
             # u·0.81·K/1.5 heating against 1.5·(T − T_room) of loss, K the °C per %.
             heating_output_per_k = MODEL_MARGIN * MODEL_MARGIN / (MAINS_LOW * model.gain)
-            origin = measured
+            origin = timing = measured
         dead = max(60.0, MODEL_MARGIN * model.dead_time) if model is not None else DEAD_TIME_MAX
         limits = cls(
             max_temp=max_temp,
@@ -231,7 +232,7 @@ class SafetyLimits:
             stale_after=stale_after if stale_after is not None else 3.0 * read_interval,
             # The element's heat shows at the sensor only after the transport delay and the
             # well's lag: nothing is judged before that.
-            dead_time=pick("dead_time", dead_time, dead, origin),
+            dead_time=pick("dead_time", dead_time, dead, timing),
             heater_watch=pick("heater_watch", heater_watch, 300.0, "built in"),
             # A working element at 80 % cannot let the water fall once its heat shows, unless
             # the tun loses more than the element gives (then it cannot be held at all). The
@@ -264,9 +265,9 @@ class SafetyLimits:
             "heater_max_fall": "built in",
             "heater_min_rise": "configured" if heater_min_rise is not None else origin,
             "heater_rise_rate": origin,
-            "heating_output": origin,
+            "heating_output": timing,
             "loss_rate": origin,
-            "heat_memory": origin,
+            "heat_memory": timing,
             "heat_rate": origin,
             "dry_fire_rate": tun,
         }
@@ -687,3 +688,75 @@ class Supervisor:
         alarm = self._active.pop(kind, None)
         if alarm is not None:
             self._events.append(Alarm(kind, t, f"cleared: {why}", alarm.latched, False))
+
+
+def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
+    """The limits in force, one line each: value, and where it comes from.
+
+    Temperature-dependent limits are given at `setpoint`. For `check-config` and the
+    status command.
+    """
+    lim, origin = limits, dict(limits.origins)
+    configured = "configured"
+
+    def source(key: str) -> str:
+        return origin.get(key, configured)
+
+    cool = 20.0  # °C: where the least rise is shown; it shrinks as losses grow with heat
+    least = lim.least_rise(3 * lim.heater_watch, cool)
+    rows = [
+        (
+            "over-temperature cut-out",
+            f"{lim.max_temp:g} °C, back below {lim.max_temp - lim.hysteresis:g} °C",
+            configured,
+        ),
+        (
+            "plausible readings",
+            f"{lim.plausible_min:g} to {lim.plausible_max:g} °C, jumps up to {lim.max_step:g} °C",
+            configured,
+        ),
+        ("stale reading after", f"{lim.stale_after:g} s", configured),
+        ("loop stall after", f"{lim.stall_after:g} s", configured),
+        ("heat shows at the sensor within", f"{lim.dead_time:.0f} s", source("dead_time")),
+        (
+            "element judged from output",
+            f"{lim.heating_output(setpoint):.0f} % (at {setpoint:g} °C)",
+            source("heating_output"),
+        ),
+        (
+            "element not heating: steady fall",
+            f"{lim.heater_max_fall:g} °C in {lim.heater_watch:.0f} s",
+            source("heater_max_fall"),
+        ),
+        (
+            "element not heating: least rise",
+            "none judged"
+            if least is None
+            else (f"{least:.2f} °C in {3 * lim.heater_watch:.0f} s at {cool:g} °C"),
+            source("heater_min_rise"),
+        ),
+        (
+            "weakest heating at 80 %",
+            f"{lim.heater_rise_rate * 60:.3f} °C/min",
+            source("heater_rise_rate"),
+        ),
+        (
+            f"largest loss at {setpoint:g} °C",
+            f"{lim.loss_rate(setpoint) * 60:.3f} °C/min (room {lim.loss_room:g} °C)",
+            source("loss_rate"),
+        ),
+        (
+            "SSR stuck on: rise beyond heat given",
+            f"{lim.ssr_max_rise:g} °C in {lim.ssr_watch:.0f} s, heat counted "
+            f"{lim.heat_memory:.0f} s back, {lim.heat_rate * 60:.2f} °C per full-power minute",
+            source("heat_rate"),
+        ),
+        ("dry fire above", f"{lim.dry_fire_rate * 60:.2f} °C/min", source("dry_fire_rate")),
+        (
+            "stuck sensor",
+            f"unchanged {lim.stuck_time:g} s while the output moves {lim.stuck_output_change:g} %",
+            configured,
+        ),
+    ]
+    width = max(len(label) for label, _, _ in rows)
+    return [f"{label:<{width}}  {value}  [{where}]" for label, value, where in rows]
