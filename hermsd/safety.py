@@ -9,7 +9,9 @@ loop's lateness, and obeys `heater_allowed`. Two kinds of fault:
   until someone resets the alarm, because each means the hardware is not what the loop
   believes it is.
 
-Defaults scale with the tun: the fastest rise the element can cause is P / (m·c).
+Limits come from the tun as measured, or, before it is, hold for any tun the config could
+be describing: half to twice its litres, a dead time up to 300 s, an open pot in a cold
+room (`SafetyLimits.derive` states each derivation).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from typing import Any, Protocol
 
 WATER_HEAT_CAPACITY = 4186.0  # J/(kg·K); a litre of water is taken as 1 kg
 FULL_POWER = 80.0  # % at or above which the element is expected to heat visibly
-SUDDEN_DROP = 0.25  # °C: a fall that, faster than losses allow, means water was added
+SUDDEN_DROP = 0.25  # °C: least fall in a window, faster than losses allow, that is water added
 
 AUTO_KINDS = ("sensor_fault", "stale_reading", "over_temperature", "loop_stall")
 LATCHED_KINDS = ("heater_not_heating", "ssr_stuck_on", "dry_fire", "sensor_stuck")
@@ -65,7 +67,8 @@ class MeasuredTun(Protocol):
 
 
 def vapour_pressure_ratio(celsius: float) -> float:
-    """Saturation pressure of water at `celsius` over that at 66 °C (Magnus, ±0.4 %).
+    """Saturation pressure of water at `celsius` over that at 66 °C (Magnus; within 1.5 %
+    of the steam tables from 20 to 90 °C).
 
     Evaporation from an open surface grows with it: ×0.09 at 20 °C, ×1 at 66, ×2.9 at 90.
     """
@@ -94,13 +97,13 @@ class SafetyLimits:
     stale_after: float = 3.0
     dead_time: float = DEAD_TIME_MAX
     heater_watch: float = 300.0
-    heater_max_fall: float = 0.3
-    heater_rise_rate: float = 0.0026
+    heater_max_fall: float = 0.25
+    heater_rise_rate: float = 0.00258
     heater_min_rise: float | None = None
     heating_output_per_k: float | None = None
-    loss_per_k: float = 1.19e-4
+    loss_per_k: float = 1.188e-4
     loss_room: float = COLDEST_ROOM
-    evaporation_rate: float = 0.0053
+    evaporation_rate: float = 0.00531
     ssr_watch: float = 300.0
     ssr_max_rise: float = 0.5
     heat_memory: float = DEAD_TIME_MAX + SENSOR_LAG_MAX
@@ -128,7 +131,9 @@ class SafetyLimits:
         Before the tun is measured, 80 %: its losses may be anything up to the element's.
         Measured, the output that beats the largest losses the model allows at `celsius`
         (never below 20 %, where a slow fall is lost in the noise): a dead element is then
-        seen as soon as the output climbs past what holding needs, not only at 80 %.
+        seen as soon as the output climbs past what holding needs, not only at 80 %. The
+        model's losses are those of the day it was measured (×1.5, a room 10 °C colder): a
+        lid taken off since, on a tun that then needs more than this, is not covered.
         """
         if self.heating_output_per_k is None:
             return FULL_POWER
@@ -203,7 +208,7 @@ class SafetyLimits:
         weakest_rise = FULL_POWER / 100.0 * MAINS_LOW * full_rate / FILL_RANGE
         # Full power at +10 % mains into half the water.
         fastest_rise = FILL_RANGE * MAINS_POWER_MARGIN * full_rate
-        heat_memory = DEAD_TIME_MAX + SENSOR_LAG_MAX
+        dead, heat_memory = DEAD_TIME_MAX, DEAD_TIME_MAX + SENSOR_LAG_MAX
         loss_per_k, loss_room = ua_bound / least_capacity, COLDEST_ROOM
         heating_output_per_k: float | None = None
         origin, timing = tun, envelope
@@ -215,11 +220,16 @@ class SafetyLimits:
             fastest_rise = MAINS_POWER_MARGIN * model_rate * MODEL_MARGIN
             loss_per_k = MODEL_MARGIN / model.tau
             loss_room = model.ambient - 10.0
-            heat_memory = MODEL_MARGIN * model.dead_time + 60.0
+            # θ·1.5 (and a minute of lag's tail), but never longer than the envelope the
+            # unmeasured limits already trust unless θ itself lies beyond it.
+            theta = model.dead_time
+            dead = max(60.0, min(MODEL_MARGIN * theta, max(DEAD_TIME_MAX, theta)))
+            heat_memory = min(
+                MODEL_MARGIN * theta + 60.0, max(DEAD_TIME_MAX, theta) + SENSOR_LAG_MAX
+            )
             # u·0.81·K/1.5 heating against 1.5·(T − T_room) of loss, K the °C per %.
             heating_output_per_k = MODEL_MARGIN * MODEL_MARGIN / (MAINS_LOW * model.gain)
             origin = timing = measured
-        dead = max(60.0, MODEL_MARGIN * model.dead_time) if model is not None else DEAD_TIME_MAX
         limits = cls(
             max_temp=max_temp,
             hysteresis=hysteresis,
@@ -246,6 +256,7 @@ class SafetyLimits:
             heating_output_per_k=heating_output_per_k,
             loss_per_k=loss_per_k,
             loss_room=loss_room,
+            # An open pot's, measured or not: the lid may be off today.
             evaporation_rate=evaporation_w / least_capacity,
             ssr_watch=pick("ssr_watch", ssr_watch, 300.0, "built in"),
             # Margin over what the delivered heat can explain: eight LSBs are not noise.
@@ -254,7 +265,8 @@ class SafetyLimits:
             heat_rate=fastest_rise,
             full_rate=full_rate,
             # Half the water at +10 % mains rises 2·1.21 = 2.42× faster than the config
-            # says; 3× leaves a quarter for noise over the 60 s window (±0.001 °C/s).
+            # says; 3× leaves 24 % for noise over the 60 s window (±0.001 °C/s). Kept on the
+            # configured litres when measured too: the fill is the config's to state.
             dry_fire_rate=dry_fire_factor * full_rate,
             dry_fire_window=max(60.0, 4 * period),
             stuck_time=stuck_time,

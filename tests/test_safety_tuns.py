@@ -84,6 +84,12 @@ def test_a_measured_tun_tightens_the_limits() -> None:
     assert lim.heating_output(66.0) == 80.0  # never above the unmeasured 80 %
     assert lim.heating_output(12.0) == 20.0  # never where a fall is lost in the noise
     assert lim.dry_fire_rate == derive().dry_fire_rate  # the fill is still the config's
+    # A far sensor measured at 240 s gets no longer a wait than the unmeasured 300 s; one
+    # measured beyond that envelope, its own dead time.
+    far = derive(PlantModel(gain=1.689, tau=14961.0, dead_time=240.0, ambient=20.0))
+    assert (far.dead_time, far.heat_memory) == (300.0, 420.0)
+    further = derive(PlantModel(gain=1.689, tau=14961.0, dead_time=400.0, ambient=20.0))
+    assert (further.dead_time, further.heat_memory) == (400.0, 520.0)
     unmeasured = dict(derive().origins)
     assert unmeasured["dead_time"].startswith("built in")
     assert dict(lim.origins)["dead_time"] == "measured"
