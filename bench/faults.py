@@ -158,8 +158,9 @@ def main() -> int:
         + "\n\nFaults in the hold at 5 h (configured fill; `heater: open`; `ssr: stuck_on` "
         "with a contactor). Detected after: from the fault to the alarm; heater off: from "
         "the alarm to the element losing power (the contactor opens for a shorted SSR). "
-        "A dead element is judged once the output has reached 80 % (unmeasured) and the "
-        "heat could have shown (300 s), so its time includes the controller's climb. "
+        "A dead element is judged once the output has reached 80 % (measured: the output "
+        "that beats the tun's losses) and over the 300 s up to 150 s past the time heat "
+        "takes to show (300 s unmeasured), so its time includes the controller's climb. "
         "PV at the alarm (lowest since the fault) and highest PV after the fault (the heat "
         "on its way when the contactor opened included): the sensor, unmeasured.\n\n"
         + "\n".join(faults)

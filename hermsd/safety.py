@@ -558,10 +558,10 @@ class Supervisor:
         makes the PV rise by `least_rise` (the cool side, where losses are small), and it
         cannot let the PV fall steadily (the hot side: a dead element in the hold shows as a
         fall at the tun's loss rate while the output climbs to 100 %). Steadily: over each of
-        the last two half-watches by at least half of `heater_max_fall`, the later by at
-        least half the earlier. Water poured in shows through the sensor's lag (≤ 120 s) as
-        a decaying fall, e^(−150/120) = 0.29 of it in the second half-watch, and the
-        element's heat adds to that: not steady.
+        the last two half-watches (the later one past the dead time) by at least half of
+        `heater_max_fall`, the later by at least half the earlier. Water poured in shows
+        through the sensor's lag (≤ 120 s) as a decaying fall, e^(−150/120) = 0.29 of it in
+        the second half-watch, and the element's heat adds to that: not steady.
         """
         lim, watch = self.limits, self._heater_watch
         if applied < lim.heating_output(pv):
@@ -572,18 +572,20 @@ class Supervisor:
             watch.restart(t, full)
             return
         watch.full = watch.full and full
-        if t - watch.start < lim.dead_time:
-            return
-        if watch.ref is None:
-            watch.ref, watch.ref_t = pv, t
         half = lim.heater_watch / 2.0
         recent = watch.recent
         recent.append((t, pv))
         while t - recent[0][0] > 2.0 * half:
             recent.popleft()
+        if t - watch.start < lim.dead_time:
+            return
+        if watch.ref is None:
+            watch.ref, watch.ref_t = pv, t
         held = t - watch.ref_t
         fall = 0.0
-        if held >= 2.0 * half:
+        # Only the later half need lie past the dead time: the element's heat shows in it,
+        # whatever the water did before.
+        if held >= half and t - recent[0][0] >= 1.9 * half:
             pv_mid = next(p for when, p in recent if when >= t - half)
             first, second = recent[0][1] - pv_mid, pv_mid - pv
             step = lim.heater_max_fall / 2.0
