@@ -1,7 +1,7 @@
 """Every fault scenario through the daemon: when it was detected, how fast the heater went off.
 
 Then the family of tuns (`hermsd.sim.tuns.FAMILY`): a normal day with half and twice the
-configured water (and twice with 1 kW more loss at 66 °C, evaporation's stand-in) must raise
+configured water (and with 1 kW more loss at 66 °C on top of any evaporation) must raise
 no alarm; an element that dies and an SSR that shorts (contactor fitted) in the hold must be
 caught, with the supervisor's limits unmeasured and from the tun as measured.
 
@@ -144,13 +144,14 @@ def main() -> int:
         "(noise sd 0.03 °C) with its true litres and watts in the shipped config, through "
         "the daemon on the virtual clock. The brew day: ambient → 66 °C, a tenth of the water "
         "at 15 °C at 4 h, 6 h. Normal days with half and twice the configured water (UA "
-        'scaled by the wetted area, volume^⅔); "+1 kW" raises UA so that 1 kW more is '
-        "lost at 66 °C (the simulator here has no evaporation: this stands in for an open "
-        'pot). "Measured": the supervisor is given the tun\'s true model at its configured '
+        "scaled by the wetted area, volume^⅔; lid-off tuns also evaporate, as the simulator "
+        'has it); "+1 kW" raises UA so that 1 kW more is lost at 66 °C, on top. '
+        '"Measured": the supervisor is given the tun\'s true model at its configured '
         "fill (K = P/(100·UA), τ = m·c/UA, θ = delay + lag), as `hermsd tune` or the "
         "controller's learning would give it.\n\n"
         "Alarms on normal days (none is right). For comparison, the supervisor before "
-        "these limits (commit 1ea9d7e's `hermsd/safety.py` swapped in, measured once) "
+        "these limits (commit 1ea9d7e's `hermsd/safety.py` swapped in, measured once on "
+        "that commit's simulator, without evaporation) "
         "raised 22 false latched alarms on the 36 ×½, ×2 and ×2 +1 kW days, and "
         "`heater_not_heating` 305 s into the 120 L thermowell's first heat-up at its "
         "configured fill.\n\n"

@@ -2,8 +2,9 @@
 
 The config states each tun's litres and watts, but the water in it is anywhere from half to
 twice that on a brew day; the supervisor must stay quiet through such a day and still catch
-an element that dies and an SSR that shorts. Evaporation from an open pot (0.5–1 kW at
-66 °C) is stood in for by a larger UA: `extra_loss_w` more at 66 °C.
+an element that dies and an SSR that shorts. Lid-off tuns evaporate in the simulator;
+`extra_loss_w` adds a loss on top (a larger UA, so much more at 66 °C), as a draught, a
+colder room or a wider pot would.
 """
 
 from __future__ import annotations
