@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import signal
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -36,6 +37,7 @@ from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPla
 log = logging.getLogger("hermsd")
 
 TIMING_INTERVAL = 60.0  # s between timing records
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 class Sensor(Protocol):
@@ -279,20 +281,34 @@ class Daemon:
         return self._control_task.overruns if self._started else 0
 
     def shutdown(self, reason: str = "stopped") -> bool:
-        """Heater off and contactor open, whatever else fails; False if an output refused."""
-        self._window.cancel()
-        ok = True
-        for output in self.outputs.all():
-            try:
-                output.close()
-            except Exception as error:  # every output must be tried, and the failure told
-                ok = False
-                log.critical("could not switch %s off: %s", output.name, error)
-        now = self.clock.monotonic()
-        self._set_ssr_accounting(False, now)
-        self._event(logging.INFO, f"heater off: {reason}", now)
-        if self.notifier is not None:
-            self.notifier.stopping()
+        """Heater off and contactor open, whatever else fails; False if an output refused.
+
+        SIGINT and SIGTERM wait (blocked) until every output has been tried: a second Ctrl-C,
+        or systemd's stop during a SIGINT, must not cut the switching-off short. A signal
+        already on its way when they were blocked is raised after the last output.
+        """
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        interrupted: BaseException | None = None
+        try:
+            self._window.cancel()
+            ok = True
+            for output in self.outputs.all():
+                try:
+                    output.close()
+                except Exception as error:  # every output must be tried, and the failure told
+                    ok = False
+                    log.critical("could not switch %s off: %s", output.name, error)
+                except BaseException as error:  # a stop signal's exception: the rest first
+                    interrupted = interrupted or error
+            now = self.clock.monotonic()
+            self._set_ssr_accounting(False, now)
+            self._event(logging.INFO, f"heater off: {reason}", now)
+            if self.notifier is not None:
+                self.notifier.stopping()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+        if interrupted is not None:
+            raise interrupted
         return ok
 
     # -- operator actions (applied at the next period boundary) ---------------------------

@@ -8,13 +8,14 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from hermsd import config as config_module
 from hermsd.config import Config
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.daemon import Daemon, PeriodRecord, guard_outputs
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
@@ -257,3 +258,43 @@ def test_a_watchdog_shorter_than_three_periods_is_refused(tmp_path: Path) -> Non
         "hermsd: WatchdogSec=10s is shorter than three control periods (3 × 5 s): "
         "set WatchdogSec=15s or more in the unit, or shorten control.period"
     )
+
+
+class _Line:
+    """An output that records what was done to it; `on_close` runs inside its close()."""
+
+    def __init__(self, on_close: Callable[[], None] | None = None) -> None:
+        self.on_close = on_close
+        self.state = False
+        self.closed = False
+
+    def set(self, on: bool) -> None:
+        self.state = on
+
+    def close(self) -> None:
+        if self.on_close is not None:
+            self.on_close()
+        self.closed = True
+
+
+def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off() -> None:
+    from hermsd.cli import Shutdown, _on_signal
+
+    config = dataclasses.replace(
+        config_module.DEFAULT,
+        output=dataclasses.replace(config_module.DEFAULT.output, backend="sim"),
+    )
+    clock = VirtualClock()
+    world = build_world(config, clock)
+    ssr = _Line(on_close=lambda: os.kill(os.getpid(), signal.SIGTERM))  # systemd's stop, now
+    contactor = _Line()
+    daemon = Daemon(config, clock, world.sensor, guard_outputs(ssr, contactor, clock, config))
+    previous = signal.signal(signal.SIGTERM, _on_signal)  # as `hermsd run` installs it
+    try:
+        with pytest.raises(Shutdown):
+            daemon.shutdown("SIGINT")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+    assert (ssr.closed, contactor.closed) == (True, True)
+    assert (ssr.state, contactor.state) == (False, False)
