@@ -25,7 +25,7 @@ from hermsd import config as config_module
 from hermsd.clock import Clock
 from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
 from hermsd.config_file import ConfigFile
-from hermsd.latches import LatchedAlarm, Latches, LatchStore
+from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
@@ -223,6 +223,7 @@ class Daemon:
         self._config_problem: str | None = None  # why the file's last edit was rejected
         self._saved_latches: list[str] = []
         self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
+        self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -457,6 +458,7 @@ class Daemon:
         for alarm in stored.alarms:
             when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(alarm.wall_ns / 1e9))
             self._latched_wall_ns[alarm.kind] = alarm.wall_ns
+            self._latched_messages[alarm.kind] = alarm.message  # stored again without the note
             message = f"{alarm.message} (latched {when}, before a restart)"
             self.supervisor.restore_latched(t, alarm.kind, message, alarm.values)
         self._drain_alarms(t)
@@ -467,7 +469,7 @@ class Daemon:
             return
         try:
             kinds = self.latches.take_reset_request()
-        except OSError as error:
+        except (OSError, StateError) as error:
             self._event(logging.ERROR, f"reading the reset request failed: {error}", t)
             return
         if kinds is not None:
@@ -481,7 +483,12 @@ class Daemon:
         alarms = self.supervisor.latched_alarms()
         stored = Latches(
             tuple(
-                LatchedAlarm(a.kind, self._latched_wall_ns.get(a.kind, 0), a.message, a.values)
+                LatchedAlarm(
+                    a.kind,
+                    self._latched_wall_ns.get(a.kind, 0),
+                    self._latched_messages.get(a.kind, a.message),
+                    a.values,
+                )
                 for a in alarms
             ),
             self.config.safety.reset,
@@ -743,6 +750,7 @@ class Daemon:
                 self._event(level, raised_alarm_text(alarm), t)
             else:
                 self._latched_wall_ns.pop(alarm.kind, None)
+                self._latched_messages.pop(alarm.kind, None)
                 self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
                 if alarm.kind == "sensor_fault":
                     self._reprogram_sensor(t)
