@@ -34,14 +34,14 @@ class Periods:
 
 
 def make(
-    config: Config | None = None, plant: dict[str, object] | None = None
+    config: Config | None = None, plant: dict[str, object] | None = None, *, history: bool = True
 ) -> tuple[Daemon, World, VirtualClock, Periods]:
     config = config or dataclasses.replace(
         config_module.DEFAULT,
         output=dataclasses.replace(config_module.DEFAULT.output, backend="sim"),
     )
     clock = VirtualClock()
-    world = build_world(config, clock, plant)
+    world = build_world(config, clock, plant, history=history)
     daemon = Daemon(config, clock, world.sensor, world.outputs)
     periods = Periods()
     daemon.listeners.append(periods)
@@ -298,3 +298,12 @@ def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off() 
 
     assert (ssr.closed, contactor.closed) == (True, True)
     assert (ssr.state, contactor.state) == (False, False)
+
+
+def test_the_long_running_simulator_keeps_no_history_of_its_edges() -> None:
+    daemon, world, _clock, _periods = make(history=False)  # as `hermsd run --simulate` builds it
+    with daemon:
+        daemon.run(until=6 * 3600.0)
+
+    assert world.outputs.ssr.edges > 1000  # it did time-proportion
+    assert (world.circuit.ssr_edges, world.circuit.power_changes) == ([], [])

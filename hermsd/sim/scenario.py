@@ -331,7 +331,7 @@ def run(
             lossless=True,
         )
     try:
-        world = build_world(config, clock, scenario.plant)
+        world = build_world(config, clock, scenario.plant, history=True)
         reference = build_world(config, VirtualClock(), scenario.plant).plant
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None

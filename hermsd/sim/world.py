@@ -34,8 +34,13 @@ class World:
     outputs: Outputs
 
 
-def build_world(config: Config, clock: Clock, plant: dict[str, Any] | None = None) -> World:
-    """Simulated hardware for `config`, on `clock`, around a plant (`{"model": ..., **params}`)."""
+def build_world(
+    config: Config, clock: Clock, plant: dict[str, Any] | None = None, *, history: bool = False
+) -> World:
+    """Simulated hardware for `config`, on `clock`, around a plant (`{"model": ..., **params}`).
+
+    `history`: the circuit keeps every edge and power change (a scenario's measurements).
+    """
     spec = dict(plant or {"model": "foptd"})
     model = spec.pop("model", "foptd")
     tun = make_plant(model, **spec)
@@ -44,7 +49,8 @@ def build_world(config: Config, clock: Clock, plant: dict[str, Any] | None = Non
     bus = FakeSMBus()
     bus.attach(config.sensor.address, chip)
     sensor = LM92(bus, config.sensor.address, bus_name="sim")
-    circuit = HeaterCircuit(tun, clock.monotonic, contactor=config.contactor.backend != "none")
+    contactor = config.contactor.backend != "none"
+    circuit = HeaterCircuit(tun, clock.monotonic, contactor, history=history)
     outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config)
     return World(clock, tun, chip, sensor, circuit, outputs)
 
