@@ -307,3 +307,38 @@ def test_the_long_running_simulator_keeps_no_history_of_its_edges() -> None:
 
     assert world.outputs.ssr.edges > 1000  # it did time-proportion
     assert (world.circuit.ssr_edges, world.circuit.power_changes) == ([], [])
+
+
+class _RealTime:
+    """The real clock under a paced simulation: sleeps pass at once, and every tenth wakes
+    30 ms late, as a busy machine wakes a process."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+        self.sleeps = 0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps += 1
+        self.now += seconds + (0.030 if self.sleeps % 10 == 0 else 0.0)
+
+
+def test_a_machine_that_wakes_late_is_no_fault_of_a_fast_simulation(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from hermsd.sim import clock as sim_clock
+    from hermsd.sim.world import simulated_daemon
+
+    real = _RealTime()
+    monkeypatch.setattr(sim_clock, "time", real)
+    daemon = simulated_daemon(config_module.DEFAULT, 500.0)
+    periods = Periods()
+    daemon.listeners.append(periods)
+    with daemon:
+        daemon.run(until=3600.0)
+
+    assert [alarm.kind for alarm in periods.alarms] == []
+    assert daemon.overruns == 0 and len(periods.records) == 720
+    assert real.now - 1000.0 >= 3600.0 / 500.0  # paced: never faster than asked

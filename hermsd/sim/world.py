@@ -20,7 +20,7 @@ from hermsd.lm92 import LM92
 from hermsd.notify import Notifier
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
-from hermsd.sim.clock import ScaledClock, VirtualClock
+from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, make_plant
 
 
@@ -64,7 +64,7 @@ def simulated_daemon(
     latches: LatchStore | None = None,
 ) -> Daemon:
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
-    clock: Clock = VirtualClock() if math.isinf(speed) else ScaledClock(speed)
+    clock: Clock = VirtualClock() if math.isinf(speed) else PacedClock(speed)
     world = build_world(config, clock)
     return Daemon(
         config,
