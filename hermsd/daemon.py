@@ -4,8 +4,11 @@ The same code runs on the Pi (real clock, LM92 on /dev/i2c-N, SSR on a serial li
 in real time against the simulated tun, and at full speed in `hermsd simulate`. Everything
 outside — hardware, clock, recorder, systemd notifier — is handed in.
 
-Per control period the controller sees one PV and the duty that really reached the element
-in the period before (`applied`), so it tracks the actuator. When the supervisor forbids
+Per control period the controller sees one PV and the duty the SSR was driven at in the
+period before (`applied`: the time its input was on, as switched, edge lateness and forced
+offs included), so it tracks the actuator. It is not a measurement of the element's power:
+a shorted SSR, an open contactor or a dead element show only in the temperature, which is
+what the supervisor's watches are for. When the supervisor forbids
 heating, the SSR is cut at once (mid-window), the contactor opens, and the controller is
 held, not fed zeros; when heating is allowed again it resumes from the output it had.
 """
@@ -700,7 +703,7 @@ class Daemon:
             self._ssr_on_since = None
 
     def _applied(self, now: float) -> float:
-        """The duty that really reached the element since the last control period, in %."""
+        """The duty the SSR was driven at since the last control period, as switched, in %."""
         if self._ssr_on_since is not None:
             self._on_seconds += now - self._ssr_on_since
             self._ssr_on_since = now
