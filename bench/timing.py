@@ -177,9 +177,10 @@ def main() -> int:
 
         text = (
             "## Timing: the real loop on simulated hardware\n\n"
-            f"`sudo uv run python bench/timing.py --seconds {args.seconds:.0f} --write` "
+            f"`uv run python bench/timing.py --seconds {args.seconds:.0f} --write`, as root "
             f"({args.seconds:.0f} s per row, {cores} cores, logs and fsync load on "
-            f"{args.dir}). Periods of 0.5 s and SSR windows of 0.1 s (manual 50 %: one timed "
+            f"{args.dir}; other processes ran meanwhile, so idle means without the bench's "
+            "load). Periods of 0.5 s and SSR windows of 0.1 s (manual 50 %: one timed "
             "edge per window), so that p99 is not the worst sample; the MCAP recorder writes "
             "beside the loop. The real-time row is the loop thread at SCHED_FIFO "
             f"{LOOP_PRIORITY} (`hermsd.realtime.loop_priority`, what `hermsd run` does when "
