@@ -3,11 +3,11 @@
 On a busy Pi (CPU and disk load together) an ordinary thread, even at nice −5, wakes tens of
 milliseconds late, and the SSR edges with it (bench/timing.py). SCHED_FIFO at a low
 real-time priority wakes it within a fraction of a millisecond. Linux applies the policy to
-the calling thread only, so the loop thread raises itself after the recorder and the
-dead-man have started, and those stay ordinary; a thread started later by the loop thread
-would inherit the policy. The loop never spins (it sleeps to each deadline), and the
-kernel's real-time throttling (`kernel.sched_rt_runtime_us`, 95 % by default) leaves every
-core some time even if it did.
+the calling thread only, so threads started before (the recorder, the dead-man) stay
+ordinary; with SCHED_RESET_ON_FORK, so do threads and processes the loop thread starts
+later. The loop never spins (it sleeps to each deadline), and the kernel's real-time
+throttling (`kernel.sched_rt_runtime_us`, 95 % by default) leaves every core some time even
+if it did.
 
 Raising the priority needs CAP_SYS_NICE or an RLIMIT_RTPRIO of at least LOOP_PRIORITY
 (systemd's `LimitRTPRIO=`); without either the loop runs at ordinary priority, and says so.
@@ -37,7 +37,8 @@ def loop_priority(priority: int = LOOP_PRIORITY) -> Iterator[bool]:
     """
     before = os.sched_getscheduler(0), os.sched_getparam(0)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
+        os.sched_setscheduler(0, policy, os.sched_param(priority))
     except OSError as error:
         log.warning(
             "real-time scheduling not permitted (%s): the loop runs at ordinary priority, and "

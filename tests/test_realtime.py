@@ -11,6 +11,8 @@ import pytest
 
 from hermsd.realtime import loop_priority
 
+RESET_ON_FORK = os.SCHED_RESET_ON_FORK  # sched_getscheduler reports it with the policy
+
 
 def test_only_the_calling_thread_becomes_real_time_and_gets_its_policy_back() -> None:
     with loop_priority(1) as permitted:
@@ -25,11 +27,17 @@ def test_only_the_calling_thread_becomes_real_time_and_gets_its_policy_back() ->
         seen["other"] = os.sched_getscheduler(0)
         looked.set()
 
+    def started_by_the_loop() -> None:  # a reader or helper the loop starts later
+        seen["later"] = os.sched_getscheduler(0)
+
     def loop() -> None:
         with loop_priority(1) as took:
-            seen["took"], seen["inside"] = took, os.sched_getscheduler(0)
+            seen["took"], seen["inside"] = took, os.sched_getscheduler(0) & ~RESET_ON_FORK
             raised.set()
             looked.wait(5)
+            later = threading.Thread(target=started_by_the_loop)
+            later.start()
+            later.join(5)
         seen["after"] = os.sched_getscheduler(0)
 
     threads = [threading.Thread(target=recorder_like), threading.Thread(target=loop)]
@@ -42,6 +50,7 @@ def test_only_the_calling_thread_becomes_real_time_and_gets_its_policy_back() ->
         "took": True,
         "inside": os.SCHED_FIFO,
         "other": os.SCHED_OTHER,
+        "later": os.SCHED_OTHER,
         "after": os.SCHED_OTHER,
     }
     assert os.sched_getscheduler(0) == os.SCHED_OTHER
