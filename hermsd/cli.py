@@ -125,6 +125,17 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--scenario", type=Path, help="scenario file (default: 20 → 66 °C)")
     simulate.add_argument("--json", action="store_true", help="print one JSON object")
     simulate.add_argument("--log", type=Path, help="write the MCAP log into this directory")
+    simulate.add_argument(
+        "--plant",
+        metavar="MODULE:FACTORY",
+        help="simulate the tun that FACTORY() makes (path/to/tun.py:make_tun or "
+        "package.module:make_tun; the protocol is hermsd.sim.hlt.Plant)",
+    )
+    simulate.add_argument(
+        "--state",
+        type=Path,
+        help="state directory kept from one simulated day to the next (default: none)",
+    )
     simulate.set_defaults(func=cmd_simulate)
 
     replay = sub.add_parser(
@@ -444,6 +455,7 @@ def _speed(text: str) -> float:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim import scenario as scenario_module
+    from hermsd.sim.hlt import PlantLoadError, load_plant
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
     try:
@@ -452,9 +464,20 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             if args.scenario
             else scenario_module.DEFAULT
         )
-        result = scenario_module.run(scenario, config, log_dir=args.log)
-    except scenario_module.ScenarioError as error:
+        outside_plant = load_plant(args.plant) if args.plant else None
+        if args.state is not None:
+            args.state.mkdir(parents=True, exist_ok=True)
+        result = scenario_module.run(
+            scenario, config, log_dir=args.log, outside_plant=outside_plant, state_dir=args.state
+        )
+    except (scenario_module.ScenarioError, PlantLoadError) as error:
         raise UserError(str(error)) from None
+    except OSError as error:
+        raise UserError(f"cannot use the state directory {args.state}: {error}") from None
+    except StateError as error:
+        raise UserError(
+            f"{error} (inspect it; `hermsd reset-alarm --state DIR` replaces it)"
+        ) from None
     summary = result.summary
     if args.json:
         print(json.dumps(summary, indent=2))
