@@ -288,29 +288,31 @@ class Daemon:
         """Heater off and contactor open, whatever else fails; False if an output refused.
 
         SIGINT and SIGTERM wait (blocked) until every output has been tried: a second Ctrl-C,
-        or systemd's stop during a SIGINT, must not cut the switching-off short. A signal
-        already on its way when they were blocked is raised after the last output.
+        or systemd's stop during a SIGINT, must not cut the switching-off short.
         """
         blocked = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
-        interrupted: BaseException | None = None
         try:
-            self._window.cancel()
-            ok = True
-            for output in self.outputs.all():
-                try:
-                    output.close()
-                except Exception as error:  # every output must be tried, and the failure told
-                    ok = False
-                    log.critical("could not switch %s off: %s", output.name, error)
-                except BaseException as error:  # a stop signal's exception: the rest first
-                    interrupted = interrupted or error
-            now = self.clock.monotonic()
-            self._set_ssr_accounting(False, now)
-            self._event(logging.INFO, f"heater off: {reason}", now)
-            if self.notifier is not None:
-                self.notifier.stopping()
+            return self._all_off(reason)
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+    def _all_off(self, reason: str) -> bool:
+        self._window.cancel()
+        ok = True
+        interrupted: BaseException | None = None
+        for output in self.outputs.all():
+            try:
+                output.close()
+            except Exception as error:  # every output must be tried, and the failure told
+                ok = False
+                log.critical("could not switch %s off: %s", output.name, error)
+            except BaseException as error:  # a stop signal already on its way: the rest first
+                interrupted = interrupted or error
+        now = self.clock.monotonic()
+        self._set_ssr_accounting(False, now)
+        self._event(logging.INFO, f"heater off: {reason}", now)
+        if self.notifier is not None:
+            self.notifier.stopping()
         if interrupted is not None:
             raise interrupted
         return ok

@@ -272,12 +272,25 @@ class _Line:
         self.state = on
 
     def close(self) -> None:
+        self.closed = True
         if self.on_close is not None:
             self.on_close()
-        self.closed = True
 
 
-def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off() -> None:
+def _raise_shutdown() -> None:
+    from hermsd.cli import Shutdown
+
+    raise Shutdown("SIGTERM")  # a handler that was already due when shutdown began
+
+
+@pytest.mark.parametrize(
+    "stop",
+    [lambda: os.kill(os.getpid(), signal.SIGTERM), _raise_shutdown],
+    ids=["signal-during-close", "handler-already-due"],
+)
+def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off(
+    stop: Callable[[], None],
+) -> None:
     from hermsd.cli import Shutdown, _on_signal
 
     config = dataclasses.replace(
@@ -286,7 +299,7 @@ def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off() 
     )
     clock = VirtualClock()
     world = build_world(config, clock)
-    ssr = _Line(on_close=lambda: os.kill(os.getpid(), signal.SIGTERM))  # systemd's stop, now
+    ssr = _Line(on_close=stop)  # systemd's stop, while the SSR is being switched off
     contactor = _Line()
     daemon = Daemon(config, clock, world.sensor, guard_outputs(ssr, contactor, clock, config))
     previous = signal.signal(signal.SIGTERM, _on_signal)  # as `hermsd run` installs it
