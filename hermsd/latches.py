@@ -141,7 +141,7 @@ def _alarm(item: Any) -> LatchedAlarm:
     values = item.get("values", {})
     if kind not in LATCHED_KINDS:
         raise _Malformed(f"unknown alarm kind {kind!r} (latched kinds: {', '.join(LATCHED_KINDS)})")
-    if not (_is_int(wall_ns) and wall_ns >= 0):
+    if not (_is_int(wall_ns) and 0 <= wall_ns < 2**63):  # what the wall clock gives
         raise _Malformed(f"{kind}: 'wall_ns' must be a whole number of ns since 1970")
     if not isinstance(message, str):
         raise _Malformed(f"{kind}: 'message' must be text")

@@ -137,6 +137,7 @@ CRAFTED_LATCH_FILES = {
     ),
     "NaN": json.dumps(_latch_document()).replace("1767225600000000000", "NaN"),
     "wall_ns as text": json.dumps(_latch_document(wall_ns="1767225600000000000")),
+    "wall_ns past any clock": json.dumps(_latch_document(wall_ns=10**30)),
     "wall_ns as a boolean": json.dumps(_latch_document(wall_ns=True)),
     "a message that is not text": json.dumps(_latch_document(message=5)),
     "values as a list": json.dumps(_latch_document(values=[])),
