@@ -72,3 +72,14 @@ def test_not_permitted_says_so_in_one_line_and_changes_nothing(
     assert inside == before
     assert [r.levelno for r in caplog.records] == [logging.WARNING]
     assert "not permitted" in caplog.text and "LimitRTPRIO=10" in caplog.text
+
+
+def test_the_config_reader_the_loop_starts_runs_at_ordinary_priority() -> None:
+    from hermsd.config_file import in_thread
+
+    with loop_priority(1) as took:
+        if not took:
+            pytest.skip("real-time scheduling is not permitted here")
+        reader_policy = in_thread(lambda: os.sched_getscheduler(0)).result(5)
+
+    assert reader_policy == os.SCHED_OTHER
