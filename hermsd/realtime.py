@@ -31,14 +31,14 @@ watchdog and migration threads (99), so the loop cannot delay the I2C or USB dri
 def loop_priority(priority: int = LOOP_PRIORITY) -> Iterator[bool]:
     """SCHED_FIFO at `priority` for the calling thread while inside; yields whether it took.
 
-    One log line says which. The thread's own policy comes back on leaving. Not permitted
-    (an unprivileged user without RLIMIT_RTPRIO, a seccomp filter, a kernel without
-    real-time scheduling): the thread stays as it was.
+    One log line says which. The thread's own policy comes back on leaving (with the
+    reset-on-fork flag, which only a privileged thread may clear). Not permitted (an
+    unprivileged user without RLIMIT_RTPRIO, a seccomp filter, a kernel without real-time
+    scheduling): the thread stays as it was.
     """
-    before = os.sched_getscheduler(0), os.sched_getparam(0)
+    before = os.sched_getscheduler(0) | os.SCHED_RESET_ON_FORK, os.sched_getparam(0)
     try:
-        policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
-        os.sched_setscheduler(0, policy, os.sched_param(priority))
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
     except OSError as error:
         log.warning(
             "real-time scheduling not permitted (%s): the loop runs at ordinary priority, and "

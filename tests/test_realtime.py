@@ -14,11 +14,23 @@ from hermsd.realtime import loop_priority
 RESET_ON_FORK = os.SCHED_RESET_ON_FORK  # sched_getscheduler reports it with the policy
 
 
-def test_only_the_calling_thread_becomes_real_time_and_gets_its_policy_back() -> None:
-    with loop_priority(1) as permitted:
-        pass
-    if not permitted:
+def _skip_unless_permitted() -> None:
+    """Try in a thread of its own, so that the test's thread is left as it was."""
+    permitted: list[bool] = []
+
+    def probe() -> None:
+        with loop_priority(1) as took:
+            permitted.append(took)
+
+    thread = threading.Thread(target=probe)
+    thread.start()
+    thread.join(5)
+    if permitted != [True]:
         pytest.skip("real-time scheduling is not permitted here")
+
+
+def test_only_the_calling_thread_becomes_real_time_and_gets_its_policy_back() -> None:
+    _skip_unless_permitted()
     seen: dict[str, object] = {}
     raised, looked = threading.Event(), threading.Event()
 
@@ -38,7 +50,7 @@ def test_only_the_calling_thread_becomes_real_time_and_gets_its_policy_back() ->
             later = threading.Thread(target=started_by_the_loop)
             later.start()
             later.join(5)
-        seen["after"] = os.sched_getscheduler(0)
+        seen["after"] = os.sched_getscheduler(0) & ~RESET_ON_FORK
 
     threads = [threading.Thread(target=recorder_like), threading.Thread(target=loop)]
     for thread in threads:
@@ -77,9 +89,16 @@ def test_not_permitted_says_so_in_one_line_and_changes_nothing(
 def test_the_config_reader_the_loop_starts_runs_at_ordinary_priority() -> None:
     from hermsd.config_file import in_thread
 
-    with loop_priority(1) as took:
-        if not took:
-            pytest.skip("real-time scheduling is not permitted here")
-        reader_policy = in_thread(lambda: os.sched_getscheduler(0)).result(5)
+    _skip_unless_permitted()
+    policies: dict[str, int] = {}
 
-    assert reader_policy == os.SCHED_OTHER
+    def loop() -> None:
+        with loop_priority(1):
+            policies["loop"] = os.sched_getscheduler(0) & ~RESET_ON_FORK
+            policies["reader"] = in_thread(lambda: os.sched_getscheduler(0)).result(5)
+
+    thread = threading.Thread(target=loop)
+    thread.start()
+    thread.join(10)
+
+    assert policies == {"loop": os.SCHED_FIFO, "reader": os.SCHED_OTHER}
