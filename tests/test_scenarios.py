@@ -209,3 +209,11 @@ def test_a_setpoint_given_twice_is_refused(tmp_path: Path) -> None:
         f"{path}:3:23: config.control.setpoint: the setpoint is given twice "
         "(keep the top-level setpoint, or this one)"
     )
+
+
+def test_a_scenario_nested_too_deeply_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "deep.yaml"
+    path.write_text("events: " + "[" * 100_000 + "]" * 100_000 + "\n", encoding="utf-8")
+
+    with pytest.raises(ScenarioError, match=f"^{path}: nested too deeply to be a scenario$"):
+        scenario.load_scenario(path)

@@ -94,13 +94,15 @@ def load_scenario(path: Path) -> Scenario:
     try:
         node = loader.get_single_node()
         doc = loader.construct_document(node) if node is not None else None
+        positions = _positions(node, "") if node is not None else {}
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
         raise ScenarioError(f"{where}: not valid YAML: {error}") from None
+    except RecursionError:
+        raise ScenarioError(f"{path}: nested too deeply to be a scenario") from None
     finally:
         loader.dispose()
-    positions = _positions(node, "") if node is not None else {}
     return parse_scenario(doc if doc is not None else {}, str(path), positions)
 
 
