@@ -29,6 +29,7 @@ from hermsd.durations import parse_duration
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
+from hermsd.realtime import loop_priority
 from hermsd.recorder import Recorder, recover, recover_directory
 from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
@@ -356,6 +357,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             deadman = DeadManThread(daemon.outputs.all())
             deadman.start()
             stack.callback(deadman.stop)
+            if not args.simulate:  # after the recorder and dead-man threads: they stay ordinary
+                stack.enter_context(loop_priority())
             stack.enter_context(daemon)
             signal.signal(signal.SIGHUP, lambda signum, frame: daemon.request_reload())
             daemon.start()

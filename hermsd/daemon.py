@@ -4,8 +4,11 @@ The same code runs on the Pi (real clock, LM92 on /dev/i2c-N, SSR on a serial li
 in real time against the simulated tun, and at full speed in `hermsd simulate`. Everything
 outside — hardware, clock, recorder, systemd notifier — is handed in.
 
-Per control period the controller sees one PV and the duty that really reached the element
-in the period before (`applied`), so it tracks the actuator. When the supervisor forbids
+Per control period the controller sees one PV and the duty the SSR was driven at in the
+period before (`applied`: the time its input was on, as switched, edge lateness and forced
+offs included), so it tracks the actuator. It is not a measurement of the element's power:
+a shorted SSR, an open contactor or a dead element show only in the temperature, which is
+what the supervisor's watches are for. When the supervisor forbids
 heating, the SSR is cut at once (mid-window), the contactor opens, and the controller is
 held, not fed zeros; when heating is allowed again it resumes from the output it had.
 """
@@ -15,6 +18,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import signal
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -24,7 +28,7 @@ from hermsd import config as config_module
 from hermsd.clock import Clock
 from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
 from hermsd.config_file import ConfigFile
-from hermsd.latches import LatchedAlarm, Latches, LatchStore
+from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
@@ -36,6 +40,7 @@ from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPla
 log = logging.getLogger("hermsd")
 
 TIMING_INTERVAL = 60.0  # s between timing records
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 
 
 class Sensor(Protocol):
@@ -227,6 +232,7 @@ class Daemon:
         self._config_problem: str | None = None  # why the file's last edit was rejected
         self._saved_latches: list[str] = []
         self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
+        self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -285,20 +291,36 @@ class Daemon:
         return self._control_task.overruns if self._started else 0
 
     def shutdown(self, reason: str = "stopped") -> bool:
-        """Heater off and contactor open, whatever else fails; False if an output refused."""
+        """Heater off and contactor open, whatever else fails; False if an output refused.
+
+        SIGINT and SIGTERM wait (blocked) until every output has been tried: a second Ctrl-C,
+        or systemd's stop during a SIGINT, must not cut the switching-off short.
+        """
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            return self._all_off(reason)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+    def _all_off(self, reason: str) -> bool:
         self._window.cancel()
         ok = True
+        interrupted: BaseException | None = None
         for output in self.outputs.all():
             try:
                 output.close()
             except Exception as error:  # every output must be tried, and the failure told
                 ok = False
                 log.critical("could not switch %s off: %s", output.name, error)
+            except BaseException as error:  # a stop signal already on its way: the rest first
+                interrupted = interrupted or error
         now = self.clock.monotonic()
         self._set_ssr_accounting(False, now)
         self._event(logging.INFO, f"heater off: {reason}", now)
         if self.notifier is not None:
             self.notifier.stopping()
+        if interrupted is not None:
+            raise interrupted
         return ok
 
     # -- operator actions (applied at the next period boundary) ---------------------------
@@ -447,6 +469,7 @@ class Daemon:
         for alarm in stored.alarms:
             when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(alarm.wall_ns / 1e9))
             self._latched_wall_ns[alarm.kind] = alarm.wall_ns
+            self._latched_messages[alarm.kind] = alarm.message  # stored again without the note
             message = f"{alarm.message} (latched {when}, before a restart)"
             self.supervisor.restore_latched(t, alarm.kind, message, alarm.values)
         self._drain_alarms(t)
@@ -457,7 +480,7 @@ class Daemon:
             return
         try:
             kinds = self.latches.take_reset_request()
-        except OSError as error:
+        except (OSError, StateError) as error:
             self._event(logging.ERROR, f"reading the reset request failed: {error}", t)
             return
         if kinds is not None:
@@ -471,7 +494,12 @@ class Daemon:
         alarms = self.supervisor.latched_alarms()
         stored = Latches(
             tuple(
-                LatchedAlarm(a.kind, self._latched_wall_ns.get(a.kind, 0), a.message, a.values)
+                LatchedAlarm(
+                    a.kind,
+                    self._latched_wall_ns.get(a.kind, 0),
+                    self._latched_messages.get(a.kind, a.message),
+                    a.values,
+                )
                 for a in alarms
             ),
             self.config.safety.reset,
@@ -683,7 +711,7 @@ class Daemon:
             self._ssr_on_since = None
 
     def _applied(self, now: float) -> float:
-        """The duty that really reached the element since the last control period, in %."""
+        """The duty the SSR was driven at since the last control period, as switched, in %."""
         if self._ssr_on_since is not None:
             self._on_seconds += now - self._ssr_on_since
             self._ssr_on_since = now
@@ -733,6 +761,7 @@ class Daemon:
                 self._event(level, raised_alarm_text(alarm), t)
             else:
                 self._latched_wall_ns.pop(alarm.kind, None)
+                self._latched_messages.pop(alarm.kind, None)
                 self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
                 if alarm.kind == "sensor_fault":
                     self._reprogram_sensor(t)

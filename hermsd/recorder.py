@@ -123,7 +123,9 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "array", "sensor readings of the period, °C", items={"type": "number"}
                 ),
                 "output": _field("number", "controller output, %"),
-                "applied": _field("number", "duty that reached the element, %"),
+                "applied": _field(
+                    "number", "duty the SSR was driven at in the period before, as switched, %"
+                ),
                 "p": _field("number", "proportional part of the output, %"),
                 "i": _field("number", "integral part of the output, %"),
                 "d": _field("number", "derivative part of the output, %"),
@@ -166,8 +168,8 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "t": _T,
                 "window": _field("number", "window length, s"),
                 "requested": _field("number", "duty asked for, %"),
-                "on_time": _field("number", "time the element was on, s"),
-                "applied": _field("number", "duty that reached the element, %"),
+                "on_time": _field("number", "time the SSR is to be driven on, s"),
+                "applied": _field("number", "duty planned for the SSR (on_time / window), %"),
             },
         ),
     ),
