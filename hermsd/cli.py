@@ -185,9 +185,36 @@ def _positive_int(text: str) -> int:
     return value
 
 
+_SYSLOG_PRIORITIES = (
+    (2, logging.CRITICAL),
+    (3, logging.ERROR),
+    (4, logging.WARNING),
+    (6, logging.INFO),
+)
+
+
+class JournalFormatter(logging.Formatter):
+    """Each line prefixed with its syslog priority, `<4>` for a warning: the journal files a
+    line written to stderr under that priority (systemd.exec(5), SyslogLevelPrefix=)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        priority = next((p for p, level in _SYSLOG_PRIORITIES if record.levelno >= level), 7)
+        return f"<{priority}>" + super().format(record)
+
+
+def stderr_is_journal() -> bool:
+    """Whether stderr is systemd's journal stream: JOURNAL_STREAM names its device and inode."""
+    try:
+        status = os.fstat(sys.stderr.fileno())
+    except (OSError, ValueError, AttributeError):
+        return False
+    return os.environ.get("JOURNAL_STREAM") == f"{status.st_dev}:{status.st_ino}"
+
+
 def _setup_logging(verbose: bool) -> None:
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
+    formatter = JournalFormatter if stderr_is_journal() else logging.Formatter
+    handler.setFormatter(formatter("%(levelname)s %(message)s"))
     root = logging.getLogger("hermsd")
     root.handlers[:] = [handler]
     root.setLevel(logging.DEBUG if verbose else logging.INFO)
@@ -369,13 +396,23 @@ def _default_state_directory() -> Path:
 
 
 def _open_recorder(directory: Path, config: Config) -> Recorder:
-    """The flight recorder, after recovering whatever a crash left in `directory`."""
+    """The flight recorder, after recovering whatever a crash left in `directory`.
+
+    A directory that cannot be made is said here; the recorder says the rest (the daemon
+    repeats it while it lasts). A file size limit (`ulimit -f`) must fail a write with
+    EFBIG, which the recorder reports, not kill the daemon with SIGXFSZ.
+    """
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        for path in recover_directory(directory):
-            log.warning("recovered %s from an unfinished log", path)
     except OSError as error:
-        log.warning("log recovery in %s failed: %s", directory, error)
+        log.warning("log failing: cannot create %s: %s", directory, error.strerror or error)
+    else:
+        try:
+            for path in recover_directory(directory):
+                log.warning("recovered %s from an unfinished log", path)
+        except OSError as error:
+            log.warning("log recovery in %s failed: %s", directory, error)
     log_cfg = config.log
     return Recorder(
         directory,

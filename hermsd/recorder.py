@@ -13,8 +13,11 @@ What survives what:
   The file being written is named `*.mcap.part`; `recover` turns a leftover one into a
   finished `.mcap` that keeps every complete chunk.
 - A full, failing, read-only or vanished disk is counted (`errors`) and described
-  (`last_error`); the file in hand is abandoned as it stands (recoverable), and writing
-  resumes in a new file at the next record after `RETRY_INTERVAL_S`.
+  (`last_error`, and `failing` until a later write reaches the OS again); the file in hand
+  is abandoned as it stands (recoverable; removed if no chunk of it ever reached the OS),
+  and writing resumes in a new file at the next record after `RETRY_INTERVAL_S`, then after
+  twice as long at each failure in a row, up to `RETRY_MAX_S`: a full disk gets no new
+  empty file every few seconds.
 - A full queue drops the new record (`dropped`), and a WARNING event on `/hermsd/log` says how
   many were dropped as soon as there is room again.
 
@@ -27,6 +30,7 @@ clock that jumps forward (a Pi without RTC meeting NTP) starts a file with a tru
 from __future__ import annotations
 
 import contextlib
+import errno
 import itertools
 import json
 import math
@@ -68,6 +72,7 @@ LIBRARY: Final = f"hermsd/{__version__}"
 # Chunks are closed by time (flush_interval), so this size is only an upper bound on memory.
 CHUNK_SIZE: Final = 256 * 1024
 RETRY_INTERVAL_S: Final = 5.0
+RETRY_MAX_S: Final = 300.0
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 
 
@@ -317,6 +322,8 @@ class Recorder:
         self._errors = 0
         self._lost = 0
         self._last_error: str | None = None
+        self._failing: str | None = _unwritable(self._directory)
+        self._retry_delay = RETRY_INTERVAL_S
         self._thread = threading.Thread(target=self._run, name="hermsd-recorder", daemon=True)
         self._thread.start()
 
@@ -385,6 +392,15 @@ class Recorder:
     def last_error(self) -> str | None:
         """One line about the latest failure, for the status line."""
         return self._last_error
+
+    @property
+    def failing(self) -> str | None:
+        """Why records are not reaching the disk now, from the failure until a write succeeds.
+
+        Set at construction already when the directory is plainly unusable (missing, not
+        writable), so the very first status line can say so.
+        """
+        return self._failing
 
     @property
     def current_file(self) -> Path | None:
@@ -504,8 +520,7 @@ class Recorder:
         try:
             stream = self._open_file(part)
         except Exception as exc:
-            self._report(f"creating {part}: {_describe(exc)}")
-            self._retry_at = self._now() + RETRY_INTERVAL_S
+            self._fail(f"creating {part}: {_describe(exc)}")
             return None
         file = _OpenFile(part, stream, record.log_time_ns, self._now())
         self._file = file
@@ -535,6 +550,7 @@ class Recorder:
     def _flush(self, file: _OpenFile, now: float) -> None:
         if not self._guarded(file, "writing", file.flush):
             return
+        self._healthy()
         if now - file.last_sync >= self._sync_interval:
             self._guarded(file, "syncing", lambda: file.datasync(now))
         else:
@@ -545,9 +561,10 @@ class Recorder:
         if file is None:
             return self._retry_at is None
         now = self._now()
-        return self._guarded(file, "writing", file.flush) and self._guarded(
-            file, "syncing", lambda: file.datasync(now)
-        )
+        if not self._guarded(file, "writing", file.flush):
+            return False
+        self._healthy()
+        return self._guarded(file, "syncing", lambda: file.datasync(now))
 
     def _finish(self, file: _OpenFile) -> None:
         final = file.part.with_name(file.part.name.removesuffix(PART_SUFFIX))
@@ -565,17 +582,28 @@ class Recorder:
         try:
             operation()
         except Exception as exc:
-            self._report(f"{action} {file.part}: {_describe(exc)}")
+            self._fail(f"{action} {file.part}: {_describe(exc)}")
             self._lost += file.unflushed
             file.discard()
             self._file = None
-            self._retry_at = self._now() + RETRY_INTERVAL_S
             return False
         return True
 
     def _report(self, message: str) -> None:
         self._errors += 1
         self._last_error = f"recorder: {message}"
+
+    def _fail(self, message: str) -> None:
+        """A disk failure: said, and the next file tried later each time it happens again."""
+        self._report(message)
+        self._failing = message
+        self._retry_at = self._now() + self._retry_delay
+        self._retry_delay = min(2.0 * self._retry_delay, RETRY_MAX_S)
+
+    def _healthy(self) -> None:
+        """Records reached the OS: whatever failed before is over."""
+        self._failing = None
+        self._retry_delay = RETRY_INTERVAL_S
 
 
 class _OpenFile:
@@ -591,6 +619,7 @@ class _OpenFile:
         self.flush_due: float | None = None
         self.sync_due: float | None = None
         self.last_sync = now
+        self.flushed = 0  # messages handed to the OS
 
     def start(self, metadata: dict[str, str]) -> None:
         self.writer.start(profile="", library=LIBRARY)
@@ -613,6 +642,7 @@ class _OpenFile:
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS."""
         self.writer.flush()  # type: ignore[no-untyped-call]
+        self.flushed += self.unflushed
         self.unflushed = 0
         self.flush_due = None
 
@@ -629,9 +659,34 @@ class _OpenFile:
         self.stream.close()
 
     def discard(self) -> None:
+        """Let the file go; remove it if no message of it reached the OS (nothing to recover)."""
         # The disk already failed; closing releases the descriptor even when it raises.
         with contextlib.suppress(Exception):
             self.stream.close()
+        if self.flushed == 0 and not _holds_messages(self.part):
+            with contextlib.suppress(OSError):
+                self.part.unlink()
+
+
+def _holds_messages(path: Path) -> bool:
+    """Whether a whole chunk or message of `path` is on disk (True when that cannot be told)."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return True
+    return any(True for _ in _message_runs(data, _Cut()))
+
+
+def _unwritable(directory: Path) -> str | None:
+    """Why no file can be made in `directory`, when that shows without making one."""
+    if not directory.is_dir():
+        reason = os.strerror(errno.ENOTDIR if directory.exists() else errno.ENOENT)
+        return f"{directory}: {reason}"
+    if not os.access(directory, os.W_OK | os.X_OK):
+        return f"{directory}: {os.strerror(errno.EACCES)}"
+    return None
 
 
 def _is_alarming(event: dict[str, Any]) -> bool:
@@ -667,6 +722,8 @@ def _utc_iso(log_time_ns: int) -> str:
 
 
 def _describe(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror  # the file is named by the caller, once
     return str(exc) or type(exc).__name__
 
 
