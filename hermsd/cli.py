@@ -26,6 +26,7 @@ from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, ContactorConfig, OutputConfig
 from hermsd.config_file import ConfigFile
 from hermsd.durations import parse_duration
+from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
@@ -308,8 +309,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UserError(str(error)) from None
     latches = _latch_store(args.state, simulate=args.simulate)
     log_dir = args.log
-    if log_dir is None and not (args.simulate and args.config is None):
+    if log_dir is None and not args.simulate:  # a simulated day never goes into log.dir
         log_dir = Path(config.log.dir) if config.log.dir else None
+    locks = _lock_directories(log_dir, latches.directory if latches is not None else None)
     status = StatusLine(sys.stdout)
     _route_log_around(status)
     previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -372,7 +374,41 @@ def cmd_run(args: argparse.Namespace) -> int:
         status.clear()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        for lock in locks:
+            lock.release()
     return 0
+
+
+def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[DirectoryLock]:
+    """Lock the log and state directories, before any output is touched.
+
+    UserError (naming the other daemon's pid) when one is held: the outputs, the log and the
+    latches belong to that daemon. A directory that cannot be made is said by the recorder
+    or the latch store; one that cannot hold a lock file is said here, and run without it.
+    """
+    locks: list[DirectoryLock] = []
+    wanted = [(log_dir, "log directory"), (state_dir, "state directory")]
+    seen: set[Path] = set()
+    for directory, role in wanted:
+        if directory is None or directory.resolve() in seen:
+            continue
+        seen.add(directory.resolve())
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            continue
+        lock = DirectoryLock(directory)
+        try:
+            lock.acquire(role)
+        except InstanceError as error:
+            for held in locks:
+                held.release()
+            raise UserError(str(error)) from None
+        except OSError as error:
+            log.warning("cannot lock the %s %s: %s", role, directory, error.strerror or error)
+            continue
+        locks.append(lock)
+    return locks
 
 
 def _latch_store(directory: Path | None, *, simulate: bool) -> LatchStore | None:
@@ -480,6 +516,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim import scenario as scenario_module
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
+    locks = _lock_directories(args.log, None)
     try:
         scenario = (
             scenario_module.load_scenario(args.scenario)
@@ -489,6 +526,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         result = scenario_module.run(scenario, config, log_dir=args.log)
     except scenario_module.ScenarioError as error:
         raise UserError(str(error)) from None
+    finally:
+        for lock in locks:
+            lock.release()
     summary = result.summary
     if args.json:
         print(json.dumps(summary, indent=2))
