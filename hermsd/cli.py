@@ -561,9 +561,10 @@ def _file_line(report: dict[str, Any]) -> str:
         state = f"not finished, complete up to byte {report['cut_at']} of {report['size']}"
         if report["cut_reason"]:
             state += f" ({report['cut_reason']})"
+    damaged = "".join(f"; {damage}" for damage in report.get("damaged", []))
     return (
         f"file {report['path']}: {state}; {report['messages']} messages recovered, "
-        f"{report['periods']} control periods"
+        f"{report['periods']} control periods{damaged}"
     )
 
 

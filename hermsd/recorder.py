@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import io
 import itertools
 import json
 import math
@@ -47,9 +48,8 @@ from pathlib import Path
 from typing import Any, BinaryIO, Final, NamedTuple
 
 import zstandard
-from mcap.reader import make_reader
+from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from hermsd import __version__
@@ -67,6 +67,8 @@ PART_SUFFIX: Final = ".part"
 METADATA_NAME: Final = "hermsd"
 RECOVERY_METADATA_NAME: Final = "hermsd.recovery"
 CONFIG_METADATA_NAME: Final = "hermsd.config"  # the config record again, for metadata readers
+# Channel id → topic, outside chunks: read when the chunk defining a channel is damaged.
+CHANNELS_METADATA_NAME: Final = "hermsd.channels"
 LIBRARY: Final = f"hermsd/{__version__}"
 
 # Chunks are closed by time (flush_interval), so this size is only an upper bound on memory.
@@ -629,6 +631,8 @@ class _OpenFile:
             )
             self.channels[topic] = self.writer.register_channel(topic, "json", schema_id)
         self.writer.add_metadata(METADATA_NAME, metadata)
+        channel_topics = {str(channel): topic for topic, channel in self.channels.items()}
+        self.writer.add_metadata(CHANNELS_METADATA_NAME, channel_topics)
 
     def add(self, topic: str, log_time_ns: int, data: bytes, sequence: int) -> None:
         self.unflushed += 1
@@ -676,7 +680,10 @@ def _holds_messages(path: Path) -> bool:
         return False
     except OSError:
         return True
-    return any(True for _ in _message_runs(data, _Cut()))
+    walk = _Walk(data)
+    for _ in walk.runs():
+        pass
+    return walk.messages_found
 
 
 def _unwritable(directory: Path) -> str | None:
@@ -736,54 +743,59 @@ class RecordedMessage(NamedTuple):
     message: dict[str, Any]
 
 
-class _Cut:
-    """Where a stream of records stopped being readable."""
+class Damage(NamedTuple):
+    """Part of a file that could not be read and was skipped; the records after it were read.
 
-    def __init__(self) -> None:
-        self.at: int | None = None
-        self.reason: str | None = None
-
-
-def _complete_records(stream: BinaryIO, size: int, cut: _Cut) -> Iterator[McapRecord]:
-    """The records of an MCAP stream up to the first incomplete or damaged one, as objects.
-
-    A chunk is yielded only whole and with a valid CRC, broken up into its records. Whatever
-    the reader raises at the cut (end of file inside a record, a torn length, a bad CRC) ends
-    the stream there. For recovery and metadata; `LogFile.messages` reads faster by hand.
+    `messages` is how many messages were lost with it, when that is known (a damaged chunk's
+    message indexes say how many it held).
     """
-    records = StreamReader(stream, validate_crcs=True, record_size_limit=size).records
-    end_of_complete = 0
-    while True:
-        try:
-            record = next(records)
-        except StopIteration:
-            return
-        except Exception as exc:  # any parse failure marks the cut
-            cut.at = end_of_complete
-            cut.reason = _describe(exc)
-            return
-        end_of_complete = stream.tell()
-        yield record
+
+    what: str  # "chunk at byte 1234", "bytes 1234 to 5678", "the summary"
+    reason: str
+    messages: int | None = None
+
+    def describe(self) -> str:
+        if self.messages is None:
+            lost = ""
+        else:
+            lost = f" ({self.messages or 'no'} message{'' if self.messages == 1 else 's'} lost)"
+        return f"{self.what} damaged ({self.reason}), skipped{lost}"
 
 
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, length of the body
 _CHANNEL_HEAD = struct.Struct("<HHI")  # id, schema id, length of the topic
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_MESSAGE_INDEX_HEAD = struct.Struct("<HI")  # channel id, length of its (time, offset) pairs
+_MESSAGE_INDEX_ENTRY_SIZE: Final = 16
+_UINT32 = struct.Struct("<I")
+_OP_HEADER: Final = 0x01
+_OP_FOOTER: Final = 0x02
+_OP_SCHEMA: Final = 0x03
 _OP_CHANNEL: Final = 0x04
 _OP_MESSAGE: Final = 0x05
+_OP_CHUNK: Final = 0x06
+_OP_MESSAGE_INDEX: Final = 0x07
+_OP_METADATA: Final = 0x0C
+_OP_DATA_END: Final = 0x0F
+_OP_LAST_DEFINED: Final = 0x0F  # opcodes 0x10 to 0x7f are reserved; 0x80 and up are private
+_OP_PRIVATE: Final = 0x80
+_COPIED_OUTSIDE_CHUNKS: Final = (_OP_HEADER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_METADATA)
 
 
 def _sift_chunk(
     data: bytes,
-    channels: dict[int, str],
+    channels: dict[int, str | None],
     topics: Collection[str] | None,
     into: list[tuple[int, int, str, bytes]],
+    orphans: list[tuple[int, int, bytes]],
 ) -> int:
-    """Add (log time, order, topic, data) of a chunk's messages on wanted topics to `into`.
+    """Add (log time, order, topic, data) of a run's messages on wanted topics to `into`.
 
-    Channels defined in the chunk are added to `channels`, only those on wanted topics, so
+    Channels defined in the run are added to `channels` (None for a topic not wanted), so
     the other messages are skipped unread (parsing by hand costs a fraction of building
-    every record). Returns how many messages the chunk holds on any topic.
+    every record). A message on a channel not defined yet (its definition was in a damaged
+    chunk) goes to `orphans` as (channel id, log time, data). Returns how many messages the
+    run holds on any topic.
     """
     position, end, messages = 0, len(data), 0
     while position < end:
@@ -800,21 +812,22 @@ def _sift_chunk(
                 into.append(
                     (log_time, len(into), topic, data[body + _MESSAGE_HEAD.size : position])
                 )
+            elif channel_id not in channels:
+                orphans.append((channel_id, log_time, data[body + _MESSAGE_HEAD.size : position]))
         elif opcode == _OP_CHANNEL:
             channel_id, _, topic_length = _CHANNEL_HEAD.unpack_from(data, body)
             start = body + _CHANNEL_HEAD.size
             topic = data[start : start + topic_length].decode()
-            (encoding_length,) = struct.unpack_from("<I", data, start + topic_length)
+            (encoding_length,) = _UINT32.unpack_from(data, start + topic_length)
             encoding = data[start + topic_length + 4 : start + topic_length + 4 + encoding_length]
-            if encoding == b"json" and (topics is None or topic in topics):
-                channels[channel_id] = topic
+            wanted = encoding == b"json" and (topics is None or topic in topics)
+            channels.setdefault(channel_id, topic if wanted else None)
     return messages
 
 
 _FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary start, summary offset start, CRC
 _FOOTER_LENGTH: Final = _FOOTER.size - _RECORD_HEAD.size
 _FOOTER_CRC_SIZE: Final = 4  # the CRC covers the footer up to, not including, itself
-_OP_FOOTER: Final = 0x02
 
 
 def _is_finished(path: Path) -> bool:
@@ -853,55 +866,176 @@ def _is_finished(path: Path) -> bool:
 _CHUNK_HEAD = struct.Struct("<16xQII")  # (times,) uncompressed size and CRC, name length
 _LENGTH = struct.Struct("<Q")
 _DATA_END = struct.Struct("<I")  # CRC of the data section
-_OP_CHUNK: Final = 0x06
-_OP_DATA_END: Final = 0x0F
+# A zstd chunk, as hermsd writes them, has its compression's name this far into the record:
+# opcode and length (9 bytes), start and end time (16), size (8) and CRC (4) of its records.
+_ZSTD_NAME: Final = _UINT32.pack(4) + b"zstd"
+_ZSTD_NAME_AT: Final = _RECORD_HEAD.size + _CHUNK_HEAD.size - _UINT32.size
 
 
 class _Damaged(Exception):
-    """A record that cannot be read whole: the readable part of a file ends before it."""
+    """A record that cannot be read whole."""
 
 
-def _message_runs(data: bytes, cut: _Cut) -> Iterator[bytes]:
-    """The channels and messages of an MCAP file as runs of records for `_sift_chunk`.
+class _Walk:
+    """The readable records of an MCAP file, as runs of records for `_sift_chunk`.
 
     A chunk's run is its records, decompressed, yielded only if they match the chunk's size
-    and CRC; a channel or message outside chunks is a run of its own; other records are
-    skipped by their length, unread. The file is read up to its footer or up to the first
-    record that is incomplete or damaged: `cut` says where that one starts and why.
+    and CRC; a header, schema, channel, message or metadata record outside chunks is a run of
+    its own; other records are skipped by their length, unread. A damaged chunk is skipped
+    (`damaged` says where and why) and reading goes on after it: at its end, when a record
+    plausibly starts there, else at the next zstd chunk further on. Where no readable record
+    follows, the file is cut: `cut_at` says where, `cut_reason` why (None: the file simply
+    ended there). After the data section only channel and schema records are yielded (the
+    summary repeats them: the definitions a damaged first chunk took with it).
     Reading by hand costs a fraction of what mcap's StreamReader does (an object for each of
     the chunks, message indexes and chunk indexes of a day, a decompressor per chunk).
     """
-    if not data.startswith(MCAP_MAGIC):
-        cut.at, cut.reason = 0, "the file does not start with the MCAP magic"
-        return
-    view = memoryview(data)
-    decompressor = zstandard.ZstdDecompressor()
-    position, size = len(MCAP_MAGIC), len(data)
-    try:
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+        self.cut_at: int | None = None
+        self.cut_reason: str | None = None
+        self.damaged: list[Damage] = []
+        self.footer_read = False
+        self.channel_topics: dict[int, str] = {}  # from the hermsd.channels metadata
+        self.messages_found = False  # a whole chunk, or a message outside chunks, was read
+
+    def runs(self) -> Iterator[bytes]:
+        data = self.data
+        if not data.startswith(MCAP_MAGIC):
+            self.cut_at, self.cut_reason = 0, "the file does not start with the MCAP magic"
+            return
+        view = memoryview(data)
+        decompressor = zstandard.ZstdDecompressor()
+        position, size = len(MCAP_MAGIC), len(data)
+        in_summary = False
+        skipped_chunk: int | None = None  # index in `damaged` of a chunk just skipped
         while position < size:
-            if position + _RECORD_HEAD.size > size:
-                raise _Damaged("the file ends inside a record")
-            opcode, length = _RECORD_HEAD.unpack_from(data, position)
-            body = position + _RECORD_HEAD.size
-            end = body + length
-            if end > size:
-                raise _Damaged("the file ends inside a record")
+            try:
+                opcode, body, end = self._record_at(position)
+            except _Damaged as exc:
+                if not self._resume_after(position, str(exc), in_summary):
+                    return
+                position = self._resume_at
+                continue
             if opcode == _OP_CHUNK:
-                yield _chunk_records(view[body:end], decompressor)
-            elif opcode in (_OP_MESSAGE, _OP_CHANNEL):
-                yield data[position:end]
+                skipped_chunk = None
+                try:
+                    records = _chunk_records(view[body:end], decompressor)
+                except (_Damaged, zstandard.ZstdError, struct.error) as exc:
+                    reason = _describe(exc)
+                    if not self._follows_a_record(end):
+                        if not self._resume_after(position, reason, in_summary):
+                            return
+                        position = self._resume_at
+                        continue
+                    skipped_chunk = len(self.damaged)
+                    self.damaged.append(Damage(f"chunk at byte {position}", reason, 0))
+                else:
+                    self.messages_found = True
+                    yield records
+            elif opcode == _OP_MESSAGE_INDEX:
+                if skipped_chunk is not None:
+                    damage = self.damaged[skipped_chunk]
+                    lost = (end - body - _MESSAGE_INDEX_HEAD.size) // _MESSAGE_INDEX_ENTRY_SIZE
+                    counted = (damage.messages or 0) + lost
+                    self.damaged[skipped_chunk] = damage._replace(messages=counted)
+            elif opcode in _COPIED_OUTSIDE_CHUNKS:
+                if not in_summary or opcode in (_OP_SCHEMA, _OP_CHANNEL):
+                    if opcode == _OP_METADATA:
+                        self._note_channels(view[body:end])
+                    self.messages_found |= opcode == _OP_MESSAGE
+                    yield data[position:end]
             elif opcode == _OP_DATA_END:
                 (crc,) = _DATA_END.unpack_from(view[body:end])
                 if crc != 0 and zlib.crc32(view[:position]) != crc:
-                    raise _Damaged("the data section does not match its CRC")
+                    self.cut_at, self.cut_reason = (
+                        position,
+                        "the data section does not match its CRC",
+                    )
+                    return
+                in_summary = True
             elif opcode == _OP_FOOTER:
-                position = end
                 if data[end : end + len(MCAP_MAGIC)] != MCAP_MAGIC:
-                    raise _Damaged("the footer is not followed by the MCAP magic")
+                    self.cut_at = end  # the footer was whole
+                    self.cut_reason = "the footer is not followed by the MCAP magic"
+                    return
+                self.footer_read = True
                 return
+            if opcode not in (_OP_MESSAGE_INDEX, _OP_CHUNK):
+                skipped_chunk = None
             position = end
-    except (_Damaged, zstandard.ZstdError, struct.error) as exc:
-        cut.at, cut.reason = position, _describe(exc)
+
+    def _record_at(self, position: int) -> tuple[int, int, int]:
+        """(opcode, start of body, end) of the record at `position`; _Damaged if none is."""
+        size = len(self.data)
+        if position + _RECORD_HEAD.size > size:
+            raise _Damaged("the file ends inside a record")
+        opcode, length = _RECORD_HEAD.unpack_from(self.data, position)
+        if opcode == 0 or _OP_LAST_DEFINED < opcode < _OP_PRIVATE:
+            raise _Damaged(f"no record starts there (opcode {opcode:#04x})")
+        body = position + _RECORD_HEAD.size
+        if body + length > size:
+            raise _Damaged("the file ends inside a record")
+        return opcode, body, body + length
+
+    def _follows_a_record(self, position: int) -> bool:
+        """Whether the end of a damaged chunk is plausibly the start of the next record."""
+        if position == len(self.data):
+            return True
+        try:
+            opcode, body, end = self._record_at(position)
+        except _Damaged:
+            return False
+        if opcode == _OP_MESSAGE_INDEX:
+            if end - body < _MESSAGE_INDEX_HEAD.size:
+                return False
+            _, pairs = _MESSAGE_INDEX_HEAD.unpack_from(self.data, body)
+            return bool(end - body == _MESSAGE_INDEX_HEAD.size + pairs)
+        if opcode == _OP_DATA_END:
+            return end - body == _DATA_END.size
+        return bool(opcode in (_OP_CHUNK, _OP_METADATA))
+
+    def _resume_after(self, position: int, reason: str, in_summary: bool) -> bool:
+        """Find where to read on after unreadable bytes at `position`; False: nowhere (a cut).
+
+        In the summary nothing more is needed: its damage is noted and reading stops.
+        """
+        if in_summary:
+            self.damaged.append(Damage(f"the summary at byte {position}", reason, 0))
+            return False
+        found = self.data.find(_ZSTD_NAME, position + 1 + _ZSTD_NAME_AT)
+        while found != -1:
+            start = found - _ZSTD_NAME_AT
+            try:
+                opcode, _, _ = self._record_at(start)
+            except _Damaged:
+                opcode = 0
+            if opcode == _OP_CHUNK:
+                self.damaged.append(Damage(f"bytes {position} to {start}", reason))
+                self._resume_at = start
+                return True
+            found = self.data.find(_ZSTD_NAME, found + 1)
+        self.cut_at, self.cut_reason = position, reason
+        return False
+
+    def _note_channels(self, body: memoryview) -> None:
+        """Keep the channel topics of a hermsd.channels metadata record, if this is one."""
+        try:
+            name, values = _metadata(bytes(body))
+        except (struct.error, UnicodeDecodeError, ValueError):
+            return
+        if name == CHANNELS_METADATA_NAME:
+            self.channel_topics.update(
+                (int(key), topic) for key, topic in values.items() if key.isdigit()
+            )
+
+
+def _metadata(body: bytes) -> tuple[str, dict[str, str]]:
+    """The name and the key-value pairs of a metadata record's body."""
+    stream = ReadDataStream(io.BytesIO(body))
+    record = Metadata.read(stream)
+    return record.name, dict(record.metadata)
 
 
 def _chunk_records(chunk: memoryview, decompressor: zstandard.ZstdDecompressor) -> bytes:
@@ -911,8 +1045,8 @@ def _chunk_records(chunk: memoryview, decompressor: zstandard.ZstdDecompressor) 
     compression = bytes(chunk[_CHUNK_HEAD.size : name_end])
     (length,) = _LENGTH.unpack_from(chunk, name_end)
     start = name_end + _LENGTH.size
-    if start + length > len(chunk):
-        raise _Damaged("a chunk's records run past its end")
+    if start + length != len(chunk):
+        raise _Damaged("a chunk's records do not fill it")
     compressed = chunk[start : start + length]
     if compression == b"zstd":
         records = decompressor.decompress(compressed, max_output_size=size)
@@ -932,10 +1066,11 @@ class LogFile:
 
     Every file is read record by record up to its end or its cut, a finished one too (its
     index would only say where the same chunks are). After `messages()` has run, `count`
-    says how many messages it yielded, `recovered` how many its complete records hold on
-    any topic and, unless the file was finished and read whole, `cut_at` up to which byte
-    it held complete records and `cut_reason` why the next one could not be read (None: the
-    file simply ended there).
+    says how many messages it yielded, `recovered` how many its readable records hold on
+    any topic, `damaged` which parts were skipped and why (reading went on after them) and,
+    unless the file was finished and read whole, `cut_at` up to which byte it held readable
+    records and `cut_reason` why the next one could not be read (None: the file simply
+    ended there).
     """
 
     def __init__(self, path: Path | str) -> None:
@@ -945,6 +1080,7 @@ class LogFile:
         self.recovered = 0
         self.cut_at: int | None = None
         self.cut_reason: str | None = None
+        self.damaged: list[Damage] = []
         self.size = self.path.stat().st_size
 
     def messages(self, topics: Collection[str] | None = None) -> Iterator[RecordedMessage]:
@@ -953,19 +1089,33 @@ class LogFile:
         ValueError: the file holds records that pass their CRC but cannot be decoded.
         """
         self.count = self.recovered = 0
-        channels: dict[int, str] = {}
+        channels: dict[int, str | None] = {}
         pending: list[tuple[int, int, str, bytes]] = []
-        cut = _Cut()
+        orphans: list[tuple[int, int, bytes]] = []
         content = self.path.read_bytes()  # tens of MB for a day: read at once, walked by hand
         self.size = len(content)  # a file being written may have grown since it was opened
+        walk = _Walk(content)
         try:
-            for run in _message_runs(content, cut):
-                self.recovered += _sift_chunk(run, channels, topics, pending)
+            for run in walk.runs():
+                self.recovered += _sift_chunk(run, channels, topics, pending, orphans)
         except (struct.error, UnicodeDecodeError, ValueError) as exc:
             raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
-        if not (self.finished and cut.at is None):
-            self.cut_at = self.size if cut.at is None else cut.at
-            self.cut_reason = cut.reason
+        self.damaged = walk.damaged
+        unknown = 0
+        for channel_id, log_time, data in orphans:  # their channel was in a damaged chunk
+            topic = channels.get(channel_id) or walk.channel_topics.get(channel_id)
+            if topic is None and channel_id not in channels:
+                unknown += 1
+            elif topic is not None and (topics is None or topic in topics):
+                pending.append((log_time, len(pending), topic, data))
+        if unknown:
+            reason = "their channel was defined in a damaged chunk"
+            self.damaged.append(Damage(f"{unknown} messages", reason))
+        if walk.footer_read and not self.finished:
+            self.damaged.append(Damage("the summary", "it does not match its CRC", 0))
+        if not (self.finished and walk.cut_at is None):
+            self.cut_at = self.size if walk.cut_at is None else walk.cut_at
+            self.cut_reason = walk.cut_reason
         pending.sort()
         for log_time, _, topic, data in pending:
             try:
@@ -977,14 +1127,11 @@ class LogFile:
 
     def metadata(self) -> dict[str, dict[str, str]]:
         """Metadata records by name (a later record of the same name wins)."""
-        with self.path.open("rb") as f:
-            if self.finished:
-                records: Iterable[Metadata] = list(make_reader(f).iter_metadata())
-            else:
-                records = [
-                    r for r in _complete_records(f, self.size, _Cut()) if isinstance(r, Metadata)
-                ]
-        return {record.name: dict(record.metadata) for record in records}
+        return {
+            record.name: dict(record.metadata)
+            for record in _records(_Walk(self.path.read_bytes()).runs())
+            if isinstance(record, Metadata)
+        }
 
 
 def read_messages(paths: Iterable[Path | str]) -> Iterator[RecordedMessage]:
@@ -993,9 +1140,30 @@ def read_messages(paths: Iterable[Path | str]) -> Iterator[RecordedMessage]:
         yield from LogFile(path).messages()
 
 
-def recover(path: Path | str) -> Path:
-    """Turn a leftover `.mcap.part` into a finished `.mcap` holding every complete record.
+def _records(runs: Iterable[bytes]) -> Iterator[McapRecord]:
+    """The header, schema, channel, message and metadata records of runs, as mcap's objects."""
+    readers: dict[int, Callable[[ReadDataStream, int], McapRecord]] = {
+        _OP_HEADER: lambda stream, _: Header.read(stream),
+        _OP_SCHEMA: lambda stream, _: Schema.read(stream),
+        _OP_CHANNEL: lambda stream, _: Channel.read(stream),
+        _OP_MESSAGE: Message.read,
+        _OP_METADATA: lambda stream, _: Metadata.read(stream),
+    }
+    for run in runs:
+        position = 0
+        while position < len(run):
+            opcode, length = _RECORD_HEAD.unpack_from(run, position)
+            body = position + _RECORD_HEAD.size
+            position = body + length
+            reader = readers.get(opcode)
+            if reader is not None:
+                yield reader(ReadDataStream(io.BytesIO(run[body:position])), length)
 
+
+def recover(path: Path | str) -> Path:
+    """Turn a leftover `.mcap.part` into a finished `.mcap` holding every readable record.
+
+    Damaged chunks are skipped (said in the recovery metadata), not the rest of the file.
     The new file is written beside it, synced and renamed into place before the `.part` is
     removed, so an interruption at any point leaves the data on disk (a rerun redoes it).
     Call it before a Recorder starts writing in the same directory.
@@ -1005,19 +1173,23 @@ def recover(path: Path | str) -> Path:
         raise ValueError(f"recover: {part} is not a .mcap.part file")
     final = part.with_name(part.name.removesuffix(PART_SUFFIX))
     temporary = part.with_name(final.name + ".recovering")
-    size = part.stat().st_size
-    cut = _Cut()
-    with part.open("rb") as source, temporary.open("wb") as target:
+    data = part.read_bytes()
+    walk = _Walk(data)
+    with temporary.open("wb") as target:
         writer = Writer(target, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-        kept = _copy_records(_complete_records(source, size, cut), writer)
+        try:
+            kept = _copy_records(_records(walk.runs()), writer, walk.channel_topics)
+        except (struct.error, UnicodeDecodeError, ValueError, EOFError) as exc:
+            raise ValueError(f"{part}: damaged MCAP data: {_describe(exc)}") from exc
         writer.add_metadata(
             RECOVERY_METADATA_NAME,
             {
                 "source": part.name,
                 "messages": str(kept),
-                "source_bytes": str(size),
-                "complete_bytes": str(size if cut.at is None else cut.at),
-                "cut": "no" if cut.reason is None else cut.reason,
+                "source_bytes": str(len(data)),
+                "complete_bytes": str(len(data) if walk.cut_at is None else walk.cut_at),
+                "cut": "no" if walk.cut_reason is None else walk.cut_reason,
+                "damaged": "; ".join(d.describe() for d in walk.damaged) or "no",
             },
         )
         writer.finish()  # type: ignore[no-untyped-call]
@@ -1039,10 +1211,14 @@ def recover_directory(directory: Path | str) -> list[Path]:
     return [recover(part) for part in parts]
 
 
-def _copy_records(records: Iterator[McapRecord], writer: Writer) -> int:
+def _copy_records(
+    records: Iterator[McapRecord], writer: Writer, channel_topics: dict[int, str]
+) -> int:
     """Write the schemas, channels, messages and metadata of `records` again; count messages.
 
-    Schemas and channels repeated in a summary section are written once.
+    Schemas and channels repeated in a summary section are written once. A message whose
+    channel was defined in a damaged chunk is kept when the summary defines it again, or
+    when `channel_topics` (hermsd's own metadata) names one of hermsd's topics for it.
     """
     first = next(records, None)
     if isinstance(first, Header):
@@ -1053,6 +1229,7 @@ def _copy_records(records: Iterator[McapRecord], writer: Writer) -> int:
             records = itertools.chain([first], records)
     schema_ids: dict[int, int] = {0: 0}
     channel_ids: dict[int, int] = {}
+    orphans: list[Message] = []
     kept = 0
     for record in records:
         if isinstance(record, Schema) and record.id not in schema_ids:
@@ -1067,15 +1244,28 @@ def _copy_records(records: Iterator[McapRecord], writer: Writer) -> int:
             channel_ids[record.id] = writer.register_channel(
                 record.topic, record.message_encoding, schema_ids[record.schema_id], record.metadata
             )
-        elif isinstance(record, Message) and record.channel_id in channel_ids:
-            writer.add_message(
-                channel_ids[record.channel_id],
-                record.log_time,
-                record.data,
-                record.publish_time,
-                record.sequence,
-            )
-            kept += 1
+        elif isinstance(record, Message):
+            if record.channel_id in channel_ids:
+                _copy_message(writer, channel_ids[record.channel_id], record)
+                kept += 1
+            else:
+                orphans.append(record)
         elif isinstance(record, Metadata):
             writer.add_metadata(record.name, record.metadata)
+    for record in orphans:
+        if record.channel_id not in channel_ids:
+            spec = TOPICS.get(channel_topics.get(record.channel_id, ""))
+            if spec is None:
+                continue
+            schema = writer.register_schema(spec.schema_name, "jsonschema", spec.schema_bytes())
+            topic = channel_topics[record.channel_id]
+            channel_ids[record.channel_id] = writer.register_channel(topic, "json", schema)
+        _copy_message(writer, channel_ids[record.channel_id], record)
+        kept += 1
     return kept
+
+
+def _copy_message(writer: Writer, channel_id: int, record: Message) -> None:
+    writer.add_message(
+        channel_id, record.log_time, record.data, record.publish_time, record.sequence
+    )

@@ -76,6 +76,7 @@ class FileReport:
     finished: bool
     cut_at: int | None  # bytes of complete records, for a file that was not finished
     cut_reason: str | None
+    damaged: list[str] = field(default_factory=list)  # parts skipped, and what they cost
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,6 +160,7 @@ def load(paths: Sequence[Path | str]) -> Log:
                 file.finished,
                 file.cut_at,
                 file.cut_reason,
+                [damage.describe() for damage in file.damaged],
             )
         )
         periods.sort(key=lambda p: p[0].t)

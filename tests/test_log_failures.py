@@ -229,7 +229,8 @@ def test_run_with_a_log_dir_that_cannot_be_made_says_so_everywhere(
     monkeypatch.setenv("NOTIFY_SOCKET", str(tmp_path / "notify"))
     monkeypatch.delenv("WATCHDOG_USEC", raising=False)
     monkeypatch.delenv("STATE_DIRECTORY", raising=False)
-    argv = ["run", "--simulate", "--speed", "max", "--duration", "1m"]
+    # In real time (a second): the receiver keeps up, so no datagram is dropped.
+    argv = ["run", "--simulate", "--speed", "30", "--duration", "30s"]
     assert cli.main([*argv, "--log", str(blocker / "logs")]) == 0
     err = capfd.readouterr().err
     not_a_directory = os.strerror(errno.ENOTDIR)
@@ -242,7 +243,7 @@ def test_run_with_a_log_dir_that_cannot_be_made_says_so_everywhere(
     receiver.join()
     notify.close()
     statuses = [m for m in messages if m.startswith("STATUS=")]
-    assert len(statuses) == 12  # a period every 5 s for a minute: control went on
+    assert 6 <= len(statuses) <= 7  # a period every 5 s for 30 s (and at 30 s): control went on
     assert all("log failing" in s for s in statuses)
 
 

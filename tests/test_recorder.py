@@ -272,6 +272,8 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
             "site": "garage",
         },
         "hermsd.config": {"version": hermsd.__version__},
+        # Outside chunks: the channels again, for a reader whose first chunk is damaged.
+        "hermsd.channels": {str(n): topic for n, topic in enumerate(TOPICS, start=1)},
     }
 
 
@@ -721,16 +723,22 @@ def test_only_the_topics_asked_for_are_read(finished_log: Path, tmp_path: Path) 
     assert (whole.finished, whole.cut_at, whole.cut_reason) == (True, None, None)
 
 
-def test_a_damaged_chunk_ends_what_a_cut_file_yields(finished_log: Path, tmp_path: Path) -> None:
+def test_a_damaged_chunk_is_skipped_and_said(finished_log: Path, tmp_path: Path) -> None:
     data = bytearray(finished_log.read_bytes())
     chunks = chunks_of(finished_log)
-    third_start, third_end, _ = chunks[2]
+    third_start, third_end, third = chunks[2]
     data[(third_start + third_end) // 2] ^= 0x55  # a bit flip inside the third chunk
     path = tmp_path / "damaged.mcap.part"
     path.write_bytes(data[: chunks[4][1]])
     log = LogFile(path)
-    assert [tuple(m) for m in log.messages()] == [m for _, _, ms in chunks[:2] for m in ms]
-    assert log.cut_at == third_start
+    assert [tuple(m) for m in log.messages()] == [
+        m for i, (_, _, ms) in enumerate(chunks[:5]) if i != 2 for m in ms
+    ]
+    [damage] = log.damaged
+    assert (damage.what, damage.messages) == (f"chunk at byte {third_start}", len(third))
+    assert damage.describe().startswith(f"chunk at byte {third_start} damaged (")
+    assert damage.describe().endswith(f"skipped ({len(third)} messages lost)")
+    assert (log.cut_at, log.cut_reason) == (chunks[4][1], None)
 
 
 # A chunk record, by the MCAP spec: opcode (1 byte) and length (8), then message start and end
@@ -742,7 +750,7 @@ CHUNK_CRC_AT = CHUNK_SIZE_AT + 8
 @pytest.mark.parametrize(
     ("field", "reason"), [(CHUNK_CRC_AT, "CRC"), (CHUNK_SIZE_AT, "bytes, not the")]
 )
-def test_a_chunk_that_does_not_match_its_size_or_crc_ends_what_a_file_yields(
+def test_a_chunk_that_does_not_match_its_size_or_crc_is_skipped(
     finished_log: Path, tmp_path: Path, field: int, reason: str
 ) -> None:
     data = bytearray(finished_log.read_bytes())
@@ -752,10 +760,13 @@ def test_a_chunk_that_does_not_match_its_size_or_crc_ends_what_a_file_yields(
     path = tmp_path / "damaged.mcap.part"
     path.write_bytes(data[: chunks[4][1]])
     log = LogFile(path)
-    assert [tuple(m) for m in log.messages()] == [m for _, _, ms in chunks[:2] for m in ms]
-    assert log.cut_at == third_start
-    assert log.cut_reason is not None
-    assert reason in log.cut_reason
+    assert [tuple(m) for m in log.messages()] == [
+        m for i, (_, _, ms) in enumerate(chunks[:5]) if i != 2 for m in ms
+    ]
+    [damage] = log.damaged
+    assert damage.what == f"chunk at byte {third_start}"
+    assert reason in damage.reason
+    assert (log.cut_at, log.cut_reason) == (chunks[4][1], None)
 
 
 def test_a_chunk_crc_of_zero_is_not_checked(finished_log: Path, tmp_path: Path) -> None:
@@ -888,13 +899,13 @@ def test_a_data_section_crc_is_checked(tmp_path: Path) -> None:
     assert "CRC" in log.cut_reason
 
 
-def test_chunks_compressed_other_than_with_zstd_are_a_cut(tmp_path: Path) -> None:
+def test_chunks_compressed_other_than_with_zstd_are_skipped(tmp_path: Path) -> None:
     path = tmp_path / "lz4.mcap"
     written_by_mcap(path, [EPOCH_NS], compression=CompressionType.LZ4)
     log = LogFile(path)
     assert list(log.messages()) == []
-    assert log.cut_reason is not None
-    assert "lz4" in log.cut_reason
+    [damage] = log.damaged
+    assert "lz4" in damage.reason
 
 
 def test_a_zero_filled_tail_after_a_power_cut_keeps_what_came_before(
