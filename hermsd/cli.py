@@ -543,11 +543,17 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for key, value in summary.items():
         if isinstance(value, dict):
             lines.extend((f"{key}.{name}", item) for name, item in value.items())
-        elif key not in ("files", "alarms"):
+        elif key not in ("files", "alarms", "runs"):
             lines.append((key, value))
     width = max((len(key) for key, _ in lines), default=0)
     for report in summary.get("files", []):
         print(_file_line(report))
+    runs = summary.get("runs", [])
+    for number, run in enumerate(runs if len(runs) > 1 else [], start=1):
+        print(
+            f"run {number} of {len(runs)} (id {run['run'] or 'not logged'}), from "
+            f"{run['start_utc']}: {', '.join(run['files'])}"
+        )
     for key, value in lines:
         print(f"{key:{width}} {value}")
     for alarm in summary.get("alarms", []):

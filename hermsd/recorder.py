@@ -40,6 +40,7 @@ import queue
 import struct
 import threading
 import time
+import uuid
 import zlib
 from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass
@@ -307,7 +308,7 @@ class Recorder:
         self._rotate_ns = round(rotate_s * 1e9)
         self._flush_interval = flush_interval
         self._sync_interval = sync_interval
-        self._metadata = dict(metadata or {})
+        self._metadata = {"run": uuid.uuid4().hex[:16], **(metadata or {})}
         self._now = now
         self._open_file = open_file
         self._lossless = lossless
@@ -394,6 +395,12 @@ class Recorder:
     def last_error(self) -> str | None:
         """One line about the latest failure, for the status line."""
         return self._last_error
+
+    @property
+    def run_id(self) -> str:
+        """Names this recorder's files as one run (metadata "run"): replay joins runs only
+        one after the other, never two that overlap in time."""
+        return self._metadata["run"]
 
     @property
     def failing(self) -> str | None:
@@ -897,7 +904,7 @@ class _Walk:
         self.cut_reason: str | None = None
         self.damaged: list[Damage] = []
         self.footer_read = False
-        self.channel_topics: dict[int, str] = {}  # from the hermsd.channels metadata
+        self.metadata: dict[str, dict[str, str]] = {}  # by name, a later record winning
         self.messages_found = False  # a whole chunk, or a message outside chunks, was read
 
     def runs(self) -> Iterator[bytes]:
@@ -943,7 +950,7 @@ class _Walk:
             elif opcode in _COPIED_OUTSIDE_CHUNKS:
                 if not in_summary or opcode in (_OP_SCHEMA, _OP_CHANNEL):
                     if opcode == _OP_METADATA:
-                        self._note_channels(view[body:end])
+                        self._note_metadata(view[body:end])
                     self.messages_found |= opcode == _OP_MESSAGE
                     yield data[position:end]
             elif opcode == _OP_DATA_END:
@@ -1019,16 +1026,18 @@ class _Walk:
         self.cut_at, self.cut_reason = position, reason
         return False
 
-    def _note_channels(self, body: memoryview) -> None:
-        """Keep the channel topics of a hermsd.channels metadata record, if this is one."""
+    def _note_metadata(self, body: memoryview) -> None:
         try:
             name, values = _metadata(bytes(body))
-        except (struct.error, UnicodeDecodeError, ValueError):
+        except (struct.error, UnicodeDecodeError, ValueError, EOFError):
             return
-        if name == CHANNELS_METADATA_NAME:
-            self.channel_topics.update(
-                (int(key), topic) for key, topic in values.items() if key.isdigit()
-            )
+        self.metadata[name] = values
+
+    @property
+    def channel_topics(self) -> dict[int, str]:
+        """Channel id → topic, from the hermsd.channels metadata (none in older files)."""
+        named = self.metadata.get(CHANNELS_METADATA_NAME, {})
+        return {int(key): topic for key, topic in named.items() if key.isdigit()}
 
 
 def _metadata(body: bytes) -> tuple[str, dict[str, str]]:
@@ -1081,6 +1090,7 @@ class LogFile:
         self.cut_at: int | None = None
         self.cut_reason: str | None = None
         self.damaged: list[Damage] = []
+        self.metadata_read: dict[str, dict[str, str]] = {}  # by `messages()`, as `metadata()`
         self.size = self.path.stat().st_size
 
     def messages(self, topics: Collection[str] | None = None) -> Iterator[RecordedMessage]:
@@ -1101,9 +1111,11 @@ class LogFile:
         except (struct.error, UnicodeDecodeError, ValueError) as exc:
             raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
         self.damaged = walk.damaged
+        self.metadata_read = walk.metadata
         unknown = 0
+        channel_topics = walk.channel_topics
         for channel_id, log_time, data in orphans:  # their channel was in a damaged chunk
-            topic = channels.get(channel_id) or walk.channel_topics.get(channel_id)
+            topic = channels.get(channel_id) or channel_topics.get(channel_id)
             if topic is None and channel_id not in channels:
                 unknown += 1
             elif topic is not None and (topics is None or topic in topics):
@@ -1127,11 +1139,10 @@ class LogFile:
 
     def metadata(self) -> dict[str, dict[str, str]]:
         """Metadata records by name (a later record of the same name wins)."""
-        return {
-            record.name: dict(record.metadata)
-            for record in _records(_Walk(self.path.read_bytes()).runs())
-            if isinstance(record, Metadata)
-        }
+        walk = _Walk(self.path.read_bytes())
+        for _ in walk.runs():
+            pass
+        return walk.metadata
 
 
 def read_messages(paths: Iterable[Path | str]) -> Iterator[RecordedMessage]:
@@ -1178,7 +1189,7 @@ def recover(path: Path | str) -> Path:
     with temporary.open("wb") as target:
         writer = Writer(target, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
         try:
-            kept = _copy_records(_records(walk.runs()), writer, walk.channel_topics)
+            kept = _copy_records(_records(walk.runs()), writer, lambda: walk.channel_topics)
         except (struct.error, UnicodeDecodeError, ValueError, EOFError) as exc:
             raise ValueError(f"{part}: damaged MCAP data: {_describe(exc)}") from exc
         writer.add_metadata(
@@ -1212,13 +1223,14 @@ def recover_directory(directory: Path | str) -> list[Path]:
 
 
 def _copy_records(
-    records: Iterator[McapRecord], writer: Writer, channel_topics: dict[int, str]
+    records: Iterator[McapRecord], writer: Writer, channel_topics: Callable[[], dict[int, str]]
 ) -> int:
     """Write the schemas, channels, messages and metadata of `records` again; count messages.
 
     Schemas and channels repeated in a summary section are written once. A message whose
     channel was defined in a damaged chunk is kept when the summary defines it again, or
-    when `channel_topics` (hermsd's own metadata) names one of hermsd's topics for it.
+    when `channel_topics()` (hermsd's own metadata, once all is read) names one of
+    hermsd's topics for it.
     """
     first = next(records, None)
     if isinstance(first, Header):
@@ -1252,13 +1264,14 @@ def _copy_records(
                 orphans.append(record)
         elif isinstance(record, Metadata):
             writer.add_metadata(record.name, record.metadata)
+    topics = channel_topics()
     for record in orphans:
         if record.channel_id not in channel_ids:
-            spec = TOPICS.get(channel_topics.get(record.channel_id, ""))
+            spec = TOPICS.get(topics.get(record.channel_id, ""))
             if spec is None:
                 continue
             schema = writer.register_schema(spec.schema_name, "jsonschema", spec.schema_bytes())
-            topic = channel_topics[record.channel_id]
+            topic = topics[record.channel_id]
             channel_ids[record.channel_id] = writer.register_channel(topic, "json", schema)
         _copy_message(writer, channel_ids[record.channel_id], record)
         kept += 1

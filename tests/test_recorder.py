@@ -264,6 +264,8 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
     for topic, _, message in expected:
         assert conforms(message, schemas[topic_schema[topic]]), topic
     config_record = json.loads(metadata["hermsd.config"].pop("record"))
+    assert metadata["hermsd"].pop("run") == recorder.run_id  # one id for all files of a run
+    assert len(recorder.run_id) == 16
     assert config_record == CONFIG  # the effective config, for readers of metadata only
     assert metadata == {
         "hermsd": {

@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import math
 import random
+import re
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -534,3 +535,69 @@ def test_wrong_files_are_refused_in_one_line(
     assert (code, out) == (2, "")
     assert err == f"hermsd: {path}: " + err.split(": ", 2)[2]
     assert err.count("\n") == 1 and complaint in err
+
+
+# -- the files of one day -----------------------------------------------------------------------
+
+
+def test_a_file_named_twice_is_refused(
+    short_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run_cli(capsys, short_log, short_log)
+    assert (code, out) == (2, "")
+    assert err == f"hermsd: {short_log} is given twice: name each file once\n"
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes(short_log.read_bytes())
+    code, out, err = run_cli(capsys, short_log, copy)
+    assert (code, out) == (2, "")
+    assert err.startswith(f"hermsd: {copy} and {short_log} hold the same control periods (k=1 ")
+
+
+def test_files_named_out_of_order_are_read_in_the_order_of_their_records(
+    eventful_log: list[Path], tmp_path: Path
+) -> None:
+    hourly = rewritten(eventful_log, tmp_path, rotate_s=3600.0)
+    in_order, reversed_order = replay.load(hourly), replay.load(hourly[::-1])
+    assert [f.path for f in reversed_order.files] == [str(p) for p in hourly]
+    assert reversed_order.periods == in_order.periods
+    assert reversed_order.elapsed == in_order.elapsed
+    assert replay.summarise(reversed_order) == replay.summarise(in_order)
+    assert [run["files"] for run in in_order.runs] == [[str(p) for p in hourly]]
+
+
+def test_two_simulated_runs_in_one_folder_are_not_one_day(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene = Scenario(name="short", duration=600.0, events=())
+    scenario.run(scene, log_dir=tmp_path)
+    scenario.run(dataclasses.replace(scene, setpoint=70.0), log_dir=tmp_path)
+    files = sorted(tmp_path.glob("*.mcap"))
+    assert len(files) == 2  # both start at the simulator's epoch: -1 names the second
+    runs = [LogFile(p).metadata()["hermsd"]["run"] for p in files]
+    assert runs[0] != runs[1]
+    code, out, err = run_cli(capsys, *files)
+    assert (code, out) == (2, "")
+    assert err.count("\n") == 1
+    assert "overlaps" in err and "replay each run on its own" in err
+    for run, path in zip(runs, files, strict=True):
+        assert f"run {run} from 2026-01-01T00:00:00Z: {path}" in err
+
+
+def test_a_restart_is_one_day_in_two_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    first = write_log(
+        tmp_path / "a",
+        [(PERIOD_TOPIC, 10.0 * k, period(k, 500.0 + 10.0 * k, 60.0, 0.0)) for k in (1, 2)],
+    )
+    second = write_log(
+        tmp_path / "b",
+        [(PERIOD_TOPIC, 120.0 + 10.0 * k, period(k, 3.0 + 10.0 * k, 60.0, 0.0)) for k in (0, 1)],
+    )
+    code, out, err = run_cli(capsys, second, first)
+    assert (code, err) == (0, "")
+    runs = [LogFile(p).metadata()["hermsd"]["run"] for p in (first, second)]
+    assert f"run 1 of 2 (id {runs[0]}), from 2026-01-01T00:00:10Z: {first}\n" in out
+    assert f"run 2 of 2 (id {runs[1]}), from 2026-01-01T00:02:00Z: {second}\n" in out
+    assert re.search(r"^periods +4$", out, re.MULTILINE)
+    assert re.search(r"^duration_s +120.0$", out, re.MULTILINE)  # joined by the 100 s gap
