@@ -58,7 +58,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     _setup_logging(getattr(args, "verbose", False))
     try:
         result: int = args.func(args)
+        sys.stdout.flush()  # here, so that a closed pipe is met inside the handler below
         return result
+    except BrokenPipeError:
+        return _reader_gone()
     except UserError as error:
         print(f"hermsd: {error}", file=sys.stderr)
         return EXIT_USAGE
@@ -72,6 +75,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     except KeyboardInterrupt:
         return 0
+
+
+def _reader_gone() -> int:
+    """The reader of stdout went away (`hermsd replay ... | head`): stop quietly, with the
+    status of a command that SIGPIPE ended, as `cat` would."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())  # the interpreter's last flush must not fail again
+    os.close(devnull)
+    return 128 + signal.SIGPIPE
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -131,7 +143,7 @@ def _parser() -> argparse.ArgumentParser:
         "replay", help="summarise a brew day's logs, re-run its controller, try other settings"
     )
     replay.add_argument(
-        "files", nargs="+", type=Path, help=".mcap or .mcap.part files of one day, in order"
+        "files", nargs="*", type=Path, help=".mcap or .mcap.part files of one day, in any order"
     )
     replay.add_argument("--json", action="store_true", help="print one JSON object")
     replay.add_argument(
@@ -142,10 +154,8 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument(
         "--what-if",
         metavar="KEY=VALUE,...",
-        nargs="?",
-        const="",
         help="run the day again on a model of the tun fitted to the log, with these control "
-        f"settings ({', '.join(config_module.TUNING_KEYS)}; none: the logged ones)",
+        f"settings ({', '.join(config_module.TUNING_KEYS)}; 'logged': the logged ones)",
     )
     replay.add_argument("--csv", type=Path, metavar="FILE", help="write the period records as CSV")
     replay.add_argument(
@@ -591,6 +601,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     status = 0
     try:
         overrides = None if args.what_if is None else replay.parse_what_if(args.what_if)
+        if not args.files:
+            raise UserError("replay: name the .mcap (or .mcap.part) files of one day")
         log = replay.load(args.files)
         result: dict[str, Any] = {}
         if args.verify:

@@ -35,12 +35,13 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 from hermsd import config as config_module
 from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
-from hermsd.metrics import Metrics, Sample, compute, report
+from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     MCAP_MAGIC,
     METADATA_NAME,
+    PART_SUFFIX,
     PERIOD_TOPIC,
     TIMING_TOPIC,
     LogFile,
@@ -541,6 +542,7 @@ def summarise(log: Log) -> dict[str, Any]:
         "duration_s": round(log.elapsed[-1], 3),
         "algorithm": ", ".join(algorithms),
         "cold_water_at_s": [round(d.at, 1) for d in drops],
+        "temperature": LOGGED_TEMPERATURE,
         **_report(metrics),
         "mean_applied_pct": None if mean_applied is None else round(mean_applied, 2),
         "energy_kwh": None if energy is None else round(energy, 3),
@@ -858,8 +860,21 @@ def _golden(f: Callable[[float], float], low: float, high: float, tolerance: flo
     return (low + high) / 2.0
 
 
+WHAT_IF_LOGGED = "logged"  # --what-if logged: the day again with the settings it had
+
+
 def parse_what_if(text: str) -> dict[str, Any]:
-    """`kc=100,ti=900,algorithm=type_a` as control settings (checked later, like the file)."""
+    """`kc=100,ti=900,algorithm=type_a` as control settings (checked later, like the file).
+
+    A log file's name in their place (`--what-if day.mcap`) is said as such.
+    """
+    if text.strip() == WHAT_IF_LOGGED:
+        return {}
+    if "=" not in text and (text.endswith((".mcap", PART_SUFFIX)) or Path(text).exists()):
+        raise ReplayError(
+            f"--what-if takes settings, not the log file {text!r}: write --what-if "
+            f"kc=80,ti=600 (or --what-if {WHAT_IF_LOGGED} for the logged ones) after the files"
+        )
     settings: dict[str, Any] = {}
     for item in filter(None, (part.strip() for part in text.split(","))):
         key, sep, value = (s.strip() for s in item.partition("="))

@@ -5,8 +5,11 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+import os
 import random
 import re
+import signal
+import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -124,7 +127,11 @@ def test_the_summary_measures_the_day_the_simulator_measured(
     assert file["periods"] == summary["periods"] == 4320
     assert summary["duration_s"] == 21595.0
     assert summary["cold_water_at_s"] == [14400.0]  # the default scenario's 10 L at 4 h
-    # The simulator measures the water, replay the logged PV (mean of 0.0625 °C readings).
+    # The simulator measures the sensor's exact temperature, replay the logged PV (mean of
+    # 0.0625 °C readings); each says so, and the simulator gives the PV's overshoot too.
+    assert summary["temperature"] == "the logged PV (the mean of each period's LM92 readings)"
+    assert simulated["temperature"].startswith("the simulated sensor's exact temperature")
+    assert summary["overshoot_c"] == simulated["pv_overshoot_c"]
     assert summary["overshoot_c"] == pytest.approx(simulated["overshoot_c"], abs=0.0625)
     assert summary["settle_s"] == pytest.approx(simulated["settle_s"], abs=2 * PERIOD)
     assert summary["recovery_s"] == pytest.approx(simulated["recovery_s"], abs=2 * PERIOD)
@@ -601,3 +608,51 @@ def test_a_restart_is_one_day_in_two_runs(
     assert f"run 2 of 2 (id {runs[1]}), from 2026-01-01T00:02:00Z: {second}\n" in out
     assert re.search(r"^periods +4$", out, re.MULTILINE)
     assert re.search(r"^duration_s +120.0$", out, re.MULTILINE)  # joined by the 100 s gap
+
+
+# -- the command line ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [("replay", "{log}"), ("replay", "{log}", "--json"), ("check-config", "{config}")],
+    ids=["replay", "replay-json", "check-config"],
+)
+def test_a_reader_that_goes_away_ends_the_command_quietly(
+    short_log: Path, tmp_path: Path, argv: tuple[str, ...]
+) -> None:
+    """As `hermsd replay … | head`: the pipe is closed before the first line is written."""
+    config = tmp_path / "hermsd.yaml"
+    config.write_text("control:\n  setpoint: 66\n")
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hermsd.cli"]
+            + [a.format(log=short_log, config=config) for a in argv],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        os.close(write_end)
+    assert done.stderr == ""
+    assert done.returncode == 128 + signal.SIGPIPE
+
+
+def test_what_if_needs_its_settings_and_says_so_when_given_a_file(
+    short_log: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for argv in (("--what-if", short_log), ("--what-if", short_log, short_log)):
+        code, out, err = run_cli(capsys, *argv)
+        assert (code, out) == (2, ""), argv
+        assert err == (
+            f"hermsd: --what-if takes settings, not the log file '{short_log}': write "
+            "--what-if kc=80,ti=600 (or --what-if logged for the logged ones) after the files\n"
+        )
+    with pytest.raises(SystemExit) as exit_:
+        run_cli(capsys, short_log, "--what-if")
+    assert exit_.value.code == 2
+    assert "argument --what-if: expected one argument" in capsys.readouterr().err
+    assert replay.parse_what_if("logged") == {}
