@@ -9,11 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from test_recorder import CONFIG, EPOCH_NS, Messages, S, chunks_of, decoded, period
+from test_recorder import Messages, chunked_log, chunks_of, decoded
 
 from hermsd import cli
-from hermsd.recorder import CONFIG_TOPIC, PERIOD_TOPIC, LogFile, Recorder, recover
-from hermsd.sim.clock import VirtualClock
+from hermsd.recorder import LogFile, recover
 
 CHUNKS = 8
 PER_CHUNK = 10
@@ -28,17 +27,7 @@ DATA_AT = 1 + 8 + 8 + 8 + 8 + 4 + 4 + len("zstd") + 8
 @pytest.fixture(scope="module")
 def day(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A finished file of the config and 80 periods, in 8 chunks of 10 (the first 11)."""
-    directory = tmp_path_factory.mktemp("day")
-    clock = VirtualClock()
-    recorder = Recorder(directory, now=clock.monotonic)
-    recorder.write(CONFIG_TOPIC, EPOCH_NS, CONFIG)
-    for k in range(CHUNKS * PER_CHUNK):
-        recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S, period(k))
-        if k % PER_CHUNK == PER_CHUNK - 1:
-            assert recorder.sync(timeout=5)
-    recorder.close()
-    [path] = directory.glob("*.mcap")
-    return path
+    return chunked_log(tmp_path_factory.mktemp("day"), CHUNKS * PER_CHUNK, PER_CHUNK)
 
 
 def all_but(chunks: list[tuple[int, int, Messages]], lost: int) -> Messages:

@@ -32,6 +32,12 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "hermsd.cli", *args]
 
 
+def _run(directory: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        _cli(*args), capture_output=True, text=True, timeout=TIMEOUT_S, cwd=directory
+    )
+
+
 def _wait_for_part(proc: subprocess.Popen[bytes], directory: Path) -> Path:
     deadline = time.monotonic() + TIMEOUT_S
     while time.monotonic() < deadline:
@@ -56,13 +62,7 @@ def test_a_second_daemon_on_the_same_directories_touches_nothing_and_says_who(
     try:
         part = _wait_for_part(first, logs)
         # On the same log directory: refused before recovering the live .part.
-        second = subprocess.run(
-            _cli("run", "--simulate", "--duration", "5s", "--log", str(logs)),
-            capture_output=True,
-            text=True,
-            timeout=TIMEOUT_S,
-            cwd=tmp_path,
-        )
+        second = _run(tmp_path, "run", "--simulate", "--duration", "5s", "--log", str(logs))
         assert second.returncode == 2
         assert second.stderr.splitlines() == [
             f"hermsd: {logs} is the log directory of another hermsd (pid {first.pid}): one "
@@ -76,13 +76,7 @@ def test_a_second_daemon_on_the_same_directories_touches_nothing_and_says_who(
             "output:\n  backend: serial-rts\n  port: /dev/ttyUSB-absent\n"
             f"log:\n  dir: {tmp_path / 'other-logs'}\n"
         )
-        third = subprocess.run(
-            _cli("run", "--config", str(config), "--state", str(state)),
-            capture_output=True,
-            text=True,
-            timeout=TIMEOUT_S,
-            cwd=tmp_path,
-        )
+        third = _run(tmp_path, "run", "--config", str(config), "--state", str(state))
         assert third.returncode == 2
         assert third.stderr.splitlines() == [
             f"hermsd: {state} is the state directory of another hermsd (pid {first.pid}): one "

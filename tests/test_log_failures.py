@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import io
 import logging
 import os
 import resource
@@ -19,9 +18,10 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
-from typing import BinaryIO, cast
+from typing import BinaryIO
 
 import pytest
+from test_recorder import FakeDisk
 from test_reload import Events, FakeNotifier
 
 from hermsd import cli
@@ -36,46 +36,22 @@ ENOSPC = os.strerror(errno.ENOSPC)
 EROFS = os.strerror(errno.EROFS)
 
 
-class Disk:
-    """Real files behind a switch: `error` set, every write and open fails with it."""
+class Disk(FakeDisk):
+    """A FakeDisk failing with `error` from the start, that notes when each file is opened
+    and, as a read-only directory does, can refuse the file itself."""
 
-    def __init__(self, clock: VirtualClock, error: int | None, *, fail_open: bool = False) -> None:
+    def __init__(self, clock: VirtualClock, error: int, *, fail_open: bool = False) -> None:
+        super().__init__(error)
+        self.full = True
         self.clock = clock
-        self.error = error
-        self.fail_open = fail_open  # a read-only directory refuses the file itself
+        self.fail_open = fail_open
         self.opened_at: list[float] = []
-
-    def _check(self) -> None:
-        if self.error is not None:
-            raise OSError(self.error, os.strerror(self.error))
 
     def open(self, path: Path) -> BinaryIO:
         self.opened_at.append(self.clock.monotonic())
-        if self.fail_open:
-            self._check()
-        return cast(BinaryIO, _File(open(path, "xb"), self))
-
-
-class _File:
-    def __init__(self, file: io.BufferedWriter, disk: Disk) -> None:
-        self._file, self._disk = file, disk
-
-    def write(self, data: bytes) -> int:
-        self._disk._check()
-        return self._file.write(data)
-
-    def flush(self) -> None:
-        self._disk._check()
-        self._file.flush()
-
-    def tell(self) -> int:
-        return self._file.tell()
-
-    def fileno(self) -> int:
-        return self._file.fileno()
-
-    def close(self) -> None:
-        self._file.close()
+        if self.fail_open and self.full:
+            raise OSError(self.error, os.strerror(self.error))
+        return super().open(path)
 
 
 def period(k: int) -> dict[str, object]:
@@ -101,7 +77,7 @@ def test_a_full_disk_is_retried_ever_less_often_and_leaves_no_empty_file(tmp_pat
     assert recorder.failing is not None and ENOSPC in recorder.failing
     assert list(tmp_path.iterdir()) == [], "a file that never held a record is removed"
 
-    disk.error = None  # room again: the next retry (at 915 s) writes, and the failure is over
+    disk.full = False  # room again: the next retry (at 915 s) writes, and the failure is over
     clock.sleep_until(915.0)
     recorder.write(PERIOD_TOPIC, DEFAULT_EPOCH_NS + 915 * S, period(915))
     assert recorder.sync(timeout=5)
@@ -113,11 +89,12 @@ def test_a_full_disk_is_retried_ever_less_often_and_leaves_no_empty_file(tmp_pat
 
 def test_a_file_with_records_on_disk_stays_for_recovery(tmp_path: Path) -> None:
     clock = VirtualClock()
-    disk = Disk(clock, None)
+    disk = Disk(clock, errno.ENOSPC)
+    disk.full = False
     recorder = Recorder(tmp_path, now=clock.monotonic, flush_interval=0.0, open_file=disk.open)
     recorder.write(PERIOD_TOPIC, DEFAULT_EPOCH_NS, period(0))
     assert recorder.sync(timeout=5)
-    disk.error = errno.ENOSPC
+    disk.full = True
     recorder.write(PERIOD_TOPIC, DEFAULT_EPOCH_NS + S, period(1))
     assert not recorder.sync(timeout=5)
     recorder.close()
@@ -179,7 +156,7 @@ def test_a_read_only_log_is_said_at_start_every_minute_and_when_it_is_over(
         assert len(events.periods) == 60, "control went on: a period every 5 s"
         assert events.periods[-1].pv is not None
 
-        disk.error = None
+        disk.full = False
         daemon.run(until=330.0)  # the retry due at 315 s finds the directory writable
         assert recorder.sync(timeout=5)
         daemon.run(until=340.0)

@@ -110,8 +110,9 @@ def period(k: int) -> dict[str, Any]:
 class FakeDisk:
     """Creates real files behind a wrapper that fails like a full disk and signals flushes."""
 
-    def __init__(self) -> None:
+    def __init__(self, error: int = errno.ENOSPC) -> None:
         self.full = False
+        self.error = error  # what a write fails with while `full`
         self.flushes = 0
         self.flushed = threading.Semaphore(0)
         self.opened: list[Path] = []
@@ -128,7 +129,7 @@ class _DiskFile:
 
     def _check_space(self) -> None:
         if self._disk.full:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            raise OSError(self._disk.error, os.strerror(self._disk.error))
 
     def write(self, data: bytes) -> int:
         self._check_space()
@@ -589,20 +590,25 @@ def test_recover_a_file_copied_while_the_recorder_was_writing(tmp_path: Path) ->
     assert list(crashed.iterdir()) == [recovered]
 
 
-@pytest.fixture(scope="module")
-def finished_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A finished file of 31 messages in 6 chunks: config and 30 periods, a sync every 5."""
-    directory = tmp_path_factory.mktemp("finished")
+def chunked_log(directory: Path, periods: int, per_chunk: int) -> Path:
+    """A finished file of the config and `periods` periods, a chunk per `per_chunk` of them
+    (the first chunk holds the config too)."""
     clock = VirtualClock()
     recorder = Recorder(directory, now=clock.monotonic)
     recorder.write(CONFIG_TOPIC, EPOCH_NS, CONFIG)
-    for k in range(30):
+    for k in range(periods):
         recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S, period(k))
-        if k % 5 == 4:
+        if k % per_chunk == per_chunk - 1:
             assert recorder.sync(timeout=5)
     recorder.close()
     [path] = finished_files(directory)
     return path
+
+
+@pytest.fixture(scope="module")
+def finished_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished file of 31 messages in 6 chunks: config and 30 periods, a sync every 5."""
+    return chunked_log(tmp_path_factory.mktemp("finished"), 30, 5)
 
 
 Messages = list[tuple[str, int, dict[str, Any]]]

@@ -239,16 +239,22 @@ def test_golden_summary_of_a_hand_made_day(tmp_path: Path) -> None:
     assert summary["timing"]["period_lateness_p99_ms"] == 6.0
 
 
-def test_a_file_whose_clock_starts_again_continues_the_day(tmp_path: Path) -> None:
+def rebooted_day(directory: Path) -> tuple[Path, Path]:
+    """Two runs' files, two periods each: 10 s and 20 s after the epoch, then a reboot
+    (monotonic time starts again at 3 s) and 100 s of wall clock later two more."""
     first = write_log(
-        tmp_path / "a",
+        directory / "a",
         [(PERIOD_TOPIC, 10.0 * k, period(k, 500.0 + 10.0 * k, 60.0, 0.0)) for k in (1, 2)],
     )
-    # A reboot: monotonic time starts again at 3 s, 100 s of wall clock after the last period.
     second = write_log(
-        tmp_path / "b",
+        directory / "b",
         [(PERIOD_TOPIC, 120.0 + 10.0 * k, period(k, 3.0 + 10.0 * k, 60.0, 0.0)) for k in (0, 1)],
     )
+    return first, second
+
+
+def test_a_file_whose_clock_starts_again_continues_the_day(tmp_path: Path) -> None:
+    first, second = rebooted_day(tmp_path)
     assert replay.load([first, second]).elapsed == [0.0, 10.0, 110.0, 120.0]
 
 
@@ -593,14 +599,7 @@ def test_two_simulated_runs_in_one_folder_are_not_one_day(
 def test_a_restart_is_one_day_in_two_runs(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    first = write_log(
-        tmp_path / "a",
-        [(PERIOD_TOPIC, 10.0 * k, period(k, 500.0 + 10.0 * k, 60.0, 0.0)) for k in (1, 2)],
-    )
-    second = write_log(
-        tmp_path / "b",
-        [(PERIOD_TOPIC, 120.0 + 10.0 * k, period(k, 3.0 + 10.0 * k, 60.0, 0.0)) for k in (0, 1)],
-    )
+    first, second = rebooted_day(tmp_path)
     code, out, err = run_cli(capsys, second, first)
     assert (code, err) == (0, "")
     runs = [LogFile(p).metadata()["hermsd"]["run"] for p in (first, second)]
