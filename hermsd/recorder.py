@@ -906,6 +906,7 @@ class _Walk:
         self.footer_read = False
         self.metadata: dict[str, dict[str, str]] = {}  # by name, a later record winning
         self.messages_found = False  # a whole chunk, or a message outside chunks, was read
+        self._resume_at = 0  # where `_resume_after` found readable records again
 
     def runs(self) -> Iterator[bytes]:
         data = self.data
@@ -917,16 +918,29 @@ class _Walk:
         position, size = len(MCAP_MAGIC), len(data)
         in_summary = False
         skipped_chunk: int | None = None  # index in `damaged` of a chunk just skipped
+        head = _RECORD_HEAD
         while position < size:
-            try:
-                opcode, body, end = self._record_at(position)
-            except _Damaged as exc:
-                if not self._resume_after(position, str(exc), in_summary):
-                    return
+            body = position + head.size
+            opcode, end = head.unpack_from(data, position) if body <= size else (0, 0)
+            end += body
+            if end > size or opcode == 0 or _OP_LAST_DEFINED < opcode < _OP_PRIVATE:
+                try:
+                    self._record_at(position)  # for the reason
+                except _Damaged as exc:
+                    if not self._resume_after(position, str(exc), in_summary):
+                        return
                 position = self._resume_at
                 continue
+            if opcode == _OP_MESSAGE_INDEX:  # the commonest record: several after each chunk
+                if skipped_chunk is not None:
+                    damage = self.damaged[skipped_chunk]
+                    lost = (end - body - _MESSAGE_INDEX_HEAD.size) // _MESSAGE_INDEX_ENTRY_SIZE
+                    counted = (damage.messages or 0) + lost
+                    self.damaged[skipped_chunk] = damage._replace(messages=counted)
+                position = end
+                continue
+            skipped_chunk = None
             if opcode == _OP_CHUNK:
-                skipped_chunk = None
                 try:
                     records = _chunk_records(view[body:end], decompressor)
                 except (_Damaged, zstandard.ZstdError, struct.error) as exc:
@@ -941,12 +955,6 @@ class _Walk:
                 else:
                     self.messages_found = True
                     yield records
-            elif opcode == _OP_MESSAGE_INDEX:
-                if skipped_chunk is not None:
-                    damage = self.damaged[skipped_chunk]
-                    lost = (end - body - _MESSAGE_INDEX_HEAD.size) // _MESSAGE_INDEX_ENTRY_SIZE
-                    counted = (damage.messages or 0) + lost
-                    self.damaged[skipped_chunk] = damage._replace(messages=counted)
             elif opcode in _COPIED_OUTSIDE_CHUNKS:
                 if not in_summary or opcode in (_OP_SCHEMA, _OP_CHANNEL):
                     if opcode == _OP_METADATA:
@@ -969,8 +977,6 @@ class _Walk:
                     return
                 self.footer_read = True
                 return
-            if opcode not in (_OP_MESSAGE_INDEX, _OP_CHUNK):
-                skipped_chunk = None
             position = end
 
     def _record_at(self, position: int) -> tuple[int, int, int]:
