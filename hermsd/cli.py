@@ -31,7 +31,7 @@ from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
 from hermsd.recorder import Recorder, recover, recover_directory
-from hermsd.ssr import Switch, open_hardware_switch
+from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
 DEFAULT_STATE = Path("/var/lib/hermsd")
@@ -137,6 +137,17 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--scenario", type=Path, help="scenario file (default: 20 → 66 °C)")
     simulate.add_argument("--json", action="store_true", help="print one JSON object")
     simulate.add_argument("--log", type=Path, help="write the MCAP log into this directory")
+    simulate.add_argument(
+        "--plant",
+        metavar="MODULE:FACTORY",
+        help="simulate the tun that FACTORY() makes (path/to/tun.py:make_tun or "
+        "package.module:make_tun; the protocol is hermsd.sim.hlt.Plant)",
+    )
+    simulate.add_argument(
+        "--state",
+        type=Path,
+        help="state directory kept from one simulated day to the next (default: none)",
+    )
     simulate.set_defaults(func=cmd_simulate)
 
     replay = sub.add_parser(
@@ -166,12 +177,19 @@ def _parser() -> argparse.ArgumentParser:
     )
     replay.set_defaults(func=cmd_replay)
 
-    safe_off = sub.add_parser("safe-off", help="drive every configured output off and exit")
+    safe_off = sub.add_parser(
+        "safe-off",
+        help="drive every output the config names off, whatever else is wrong with it; "
+        "exit 1 unless every one is known to be off",
+    )
     safe_off.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
     safe_off.set_defaults(func=cmd_safe_off)
 
     check = sub.add_parser("check-config", help="validate a config file and print it")
     check.add_argument("file", nargs="?", type=Path, default=DEFAULT_CONFIG)
+    check.add_argument(
+        "--simulate", action="store_true", help="check a file for `run --simulate` (backend sim)"
+    )
     check.set_defaults(func=cmd_check_config)
     return parser
 
@@ -342,6 +360,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         else:
             if args.speed != "1":
                 raise UserError("--speed goes with --simulate")
+            if config.output.backend == "sim":
+                raise UserError(
+                    f"{path}: output.backend is 'sim', the simulated tun's output: run with "
+                    "--simulate, or choose serial-rts, serial-dtr or gpio for the tun"
+                )
             clock = MonotonicClock()
             ssr = _open_output(config.output)
             try:
@@ -472,6 +495,7 @@ def _open_recorder(directory: Path, config: Config) -> Recorder:
 
 def _open_output(section: OutputConfig | ContactorConfig) -> Switch:
     """The hardware a config section names, or a UserError that says why not."""
+    channel = getattr(section, "channel", None)
     try:
         return open_hardware_switch(
             section.backend,
@@ -479,11 +503,18 @@ def _open_output(section: OutputConfig | ContactorConfig) -> Switch:
             chip=section.chip,
             line=section.line,
             active_low=section.active_low,
-            channel=getattr(section, "channel", 1),
+            channel=channel or 1,
             baud=getattr(section, "baud", 9600),
         )
     except (OSError, ValueError, ImportError) as error:
-        raise UserError(f"cannot open {section.backend} at {section.port}: {error}") from None
+        where = describe_output(
+            section.backend,
+            port=section.port,
+            chip=section.chip,
+            line=section.line,
+            channel=channel,
+        )
+        raise UserError(f"cannot open {where}: {error}") from None
 
 
 def _route_log_around(status: StatusLine) -> None:
@@ -524,18 +555,30 @@ def _speed(text: str) -> float:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim import scenario as scenario_module
+    from hermsd.sim.hlt import PlantLoadError, load_plant
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
-    locks = _lock_directories(args.log, None)
+    locks = _lock_directories(args.log, args.state)
     try:
         scenario = (
             scenario_module.load_scenario(args.scenario)
             if args.scenario
             else scenario_module.DEFAULT
         )
-        result = scenario_module.run(scenario, config, log_dir=args.log)
-    except scenario_module.ScenarioError as error:
+        outside_plant = load_plant(args.plant) if args.plant else None
+        if args.state is not None:
+            args.state.mkdir(parents=True, exist_ok=True)
+        result = scenario_module.run(
+            scenario, config, log_dir=args.log, outside_plant=outside_plant, state_dir=args.state
+        )
+    except (scenario_module.ScenarioError, PlantLoadError) as error:
         raise UserError(str(error)) from None
+    except OSError as error:
+        raise UserError(f"cannot use the state directory {args.state}: {error}") from None
+    except StateError as error:
+        raise UserError(
+            f"{error} (inspect it; `hermsd reset-alarm --state DIR` replaces it)"
+        ) from None
     finally:
         for lock in locks:
             lock.release()
@@ -672,28 +715,22 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
 
 
 def cmd_safe_off(args: argparse.Namespace) -> int:
-    """Every configured output off; exit 0 even when one cannot be reached (it is said).
+    """Every output the config file names, off; exit 1 unless all of them are known to be off.
 
-    Only the output sections of the file are read, so a bad edit elsewhere (the likely
-    reason the daemon just stopped) cannot keep the element on.
+    The file is read as far as it can be (`config.load_outputs`), so a bad edit, the likely
+    reason the daemon just stopped, cannot keep the element on.
     """
-    try:
-        path = config_path(args.config, simulate=False)
-        assert path is not None
-        sections = config_module.load_outputs(path)
-    except (UserError, ConfigError) as error:
-        print(f"hermsd safe-off: {error}", file=sys.stderr)
-        return 0
-    for section in sections:
-        if section.backend in ("none", "sim"):
-            continue
-        try:
-            switch = _open_output(section)
-            switch.set(False)
-            switch.close()
-            print(f"{section.backend} off")
-        except (UserError, OSError) as error:
-            print(f"hermsd safe-off: {section.backend}: {error}", file=sys.stderr)
+    from hermsd.safe_off import switch_off
+
+    found = config_module.load_outputs(args.config or DEFAULT_CONFIG)
+    report = switch_off(found, open_hardware_switch)
+    for line in report.switched:
+        print(line)
+    for line in report.notes + report.failures:
+        print(f"hermsd safe-off: {line}", file=sys.stderr)
+    if report.failures:
+        print("hermsd safe-off: not every output is known to be off", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -738,8 +775,28 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:
-    config = config_module.load(args.file)
-    print(config_module.dump_yaml(config), end="")
+    """The file as hermsd will use it; for `run` on hardware unless --simulate is given.
+
+    `output.backend: sim` is valid only in a simulated run, so it is refused here by
+    default: a file checked for the service must not fail when the service starts.
+    """
+    document = config_module.load_document(args.file)
+    if document.config.output.backend == "sim" and not args.simulate:
+        line, column = document.written["output.backend"]
+        raise ConfigError(
+            [
+                config_module.Problem(
+                    os.fspath(args.file),
+                    line,
+                    column,
+                    "output.backend",
+                    "'sim' is the simulated tun's output, which `hermsd run` uses only with "
+                    "--simulate (choose serial-rts, serial-dtr or gpio for the tun, or check "
+                    "a file for simulation with check-config --simulate)",
+                )
+            ]
+        )
+    print(config_module.dump_yaml(document.config), end="")
     return 0
 
 

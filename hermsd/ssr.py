@@ -235,8 +235,14 @@ class GpioSwitch:
     """A GPIO line through the `gpiod` 2.x bindings (the `gpio` extra)."""
 
     def __init__(self, chip: str, line: int, active_low: bool = False) -> None:
-        import gpiod
-        from gpiod.line import Bias, Direction, Value
+        try:
+            import gpiod
+            from gpiod.line import Bias, Direction, Value
+        except ImportError:
+            raise ImportError(
+                "the gpio backend needs the gpiod package, which is not installed (install "
+                "the gpio extra: `uv sync --extra gpio`, or `pip install 'hermsd[gpio]'`)"
+            ) from None
 
         self._line = line
         self._on, self._off = Value.ACTIVE, Value.INACTIVE
@@ -278,6 +284,18 @@ class RelayBoardSwitch:
 
     def close(self) -> None:
         self._serial.close()
+
+
+def describe_output(
+    backend: str, *, port: str, chip: str, line: int | None, channel: int | None = None
+) -> str:
+    """The device an output's keys name, in words: its port, its chip and line, or its relay."""
+    if backend == "gpio":
+        return f"gpio line {line} of {chip}"
+    if backend == "relay-board":
+        relay = f" channel {channel}" if channel is not None else ""
+        return f"relay-board{relay} on {port}"
+    return f"{backend} on {port}"
 
 
 def open_hardware_switch(

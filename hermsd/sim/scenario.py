@@ -1,10 +1,11 @@
 """Scenarios: a brew day (or a fault) run at full speed through the very same daemon code.
 
-A scenario is YAML: `duration`, `plant` (model and parameters), initial `setpoint`, optional
-`config` (overrides of the daemon's config, validated like the file), and `events`, each with
-`at` and one action. The runner wires the fake bus, the tun model and the simulated heater
-circuit into `Daemon` on a virtual clock, and measures the run against physics: the earliest
-any controller could settle is full power from the start.
+A scenario is YAML: `duration`, `plant` (model and parameters: `hermsd.sim.hlt.PLANT_KINDS`
+and their keyword parameters, plus the sensor's `noise_c` and `seed`; README.md, Simulate),
+initial `setpoint`, optional `config` (overrides of the daemon's config, validated like the
+file), and `events`, each with `at` and one action. The runner wires the fake bus, the tun
+model and the simulated heater circuit into `Daemon` on a virtual clock, and measures the run
+against physics: the earliest any controller could settle is full power from the start.
 """
 
 from __future__ import annotations
@@ -23,14 +24,15 @@ from hermsd import config as config_module
 from hermsd.config import Config
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
+from hermsd.latches import LatchStore
 from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm
 from hermsd.sim.bus import FakeLM92
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
-from hermsd.sim.hlt import Plant
-from hermsd.sim.world import build_world
+from hermsd.sim.hlt import PLANT_KINDS, Plant, make_plant, plant_parameters
+from hermsd.sim.world import SENSOR_KEYS, build_world, sensor_reading
 
 SENSOR_FAULTS = ("nack", "timeout", "stuck", "spike", "wrong_id", "gone", "slow", "ok")
 EVENT_KINDS = (
@@ -100,9 +102,7 @@ def parse_scenario(doc: Any, source: str = "<scenario>") -> Scenario:
         duration = parse_duration(doc.get("duration", DEFAULT.duration))
     except ValueError as error:
         raise fail("duration", str(error)) from None
-    plant = doc.get("plant", DEFAULT.plant)
-    if not isinstance(plant, dict) or plant.get("model", "foptd") not in ("foptd", "physical"):
-        raise fail("plant", "expected a mapping with model: foptd or model: physical")
+    plant = _plant(doc.get("plant", DEFAULT.plant), fail)
     setpoint = _number(doc.get("setpoint", DEFAULT.setpoint), fail, "setpoint")
     overrides = doc.get("config", {}) or {}
     if not isinstance(overrides, dict):
@@ -115,11 +115,42 @@ def parse_scenario(doc: Any, source: str = "<scenario>") -> Scenario:
     return Scenario(
         name=str(doc.get("name", Path(source).stem)),
         duration=duration,
-        plant={"model": "foptd", **plant},
+        plant=plant,
         setpoint=setpoint,
         config=overrides,
         events=tuple(events),
     )
+
+
+def _plant(raw: Any, fail: Callable[[str, str], ScenarioError]) -> dict[str, Any]:
+    """The `plant:` mapping, checked key by key: the tun's parameters, and the sensor's."""
+    kinds = ", ".join(sorted(PLANT_KINDS))
+    if not isinstance(raw, dict):
+        raise fail("plant", f"expected a mapping with model ({kinds}) and its parameters")
+    spec = {"model": "foptd", **raw}
+    model = spec.pop("model")
+    if model not in PLANT_KINDS:
+        raise fail("plant.model", f"expected one of {kinds}, got {model!r}")
+    known = (*plant_parameters(model), *SENSOR_KEYS)
+    for key, value in spec.items():
+        where = f"plant.{key}"
+        if key not in known:
+            raise fail(where, f"unknown key for model {model}: expected one of {', '.join(known)}")
+        if key == "lid":
+            if not isinstance(value, bool):
+                raise fail(where, f"expected on or off, got {value!r}")
+        elif key == "seed":
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise fail(where, f"expected a whole number, got {value!r}")
+        else:
+            _number(value, fail, where)
+    try:
+        tun = make_plant(model, **{k: v for k, v in spec.items() if k not in SENSOR_KEYS})
+        sensor_reading(tun, VirtualClock(), spec.get("noise_c", 0.0), 0)
+    except ValueError as error:
+        name = str(error).partition(" = ")[0]
+        raise fail(f"plant.{name}", str(error)) from None
+    return {"model": model, **spec}
 
 
 def _number(value: Any, fail: Callable[[str, str], ScenarioError], key: str) -> float:
@@ -235,19 +266,25 @@ class Result:
 
 
 def time_to_band(plant: Plant, start: float, setpoint: float, limit: float) -> float | None:
-    """Seconds of full power from `start` to the band (None: not within `limit` s)."""
+    """Seconds of full power from `start` until the sensor is in the band for good: when it
+    last rises through setpoint − BAND (0 if it never falls below it); None if that takes
+    more than `limit` s. On the plant's `temperature()`, the sensor without its noise. At
+    full power, once the water rises and both it and the sensor are at or above the band's
+    lower edge, neither falls below it again."""
     target = setpoint - BAND
-    previous = plant.temperature(start)
-    if previous >= target:
-        return 0.0
     plant.set_heater(True, start)
+    crossed = 0.0
     t = start
+    sensor = plant.temperature(t)
+    water = plant.water_temperature(t)
     while t - start < limit:
         t += 1.0
-        now = plant.temperature(t)
-        if now >= target:
-            return t - 1.0 - start + (target - previous) / (now - previous)
-        previous = now
+        now, water_now = plant.temperature(t), plant.water_temperature(t)
+        if sensor < target <= now:
+            crossed = t - 1.0 - start + (target - sensor) / (now - sensor)
+        if now >= target and target <= water < water_now:
+            return crossed
+        sensor, water = now, water_now
     return None
 
 
@@ -257,8 +294,14 @@ def run(
     *,
     log_dir: Path | None = None,
     keep_records: bool = False,
+    outside_plant: Plant | None = None,
+    state_dir: Path | None = None,
 ) -> Result:
-    """Run `scenario` through the daemon on a virtual clock; measure it (and log it)."""
+    """Run `scenario` through the daemon on a virtual clock; measure it (and log it).
+
+    `outside_plant` replaces the scenario's tun (its `plant:` mapping then only gives the sensor's
+    noise); it is used up by the run. `state_dir` is the daemon's state directory, kept from
+    one run to the next as the service keeps it from one brew day to the next."""
     config = effective_config(base or config_module.DEFAULT, scenario)
     reloads = _reloads(config, scenario)
     started = time.perf_counter()
@@ -273,12 +316,16 @@ def run(
             lossless=True,
         )
     try:
-        world = build_world(config, clock, scenario.plant)
-        reference = build_world(config, VirtualClock(), scenario.plant).plant
+        world = build_world(config, clock, scenario.plant, tun=outside_plant)
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
-    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    reference = copy.deepcopy(plant)
+    latches = None
+    if state_dir is not None:
+        state_dir.mkdir(parents=True, exist_ok=True)
+        latches = LatchStore(state_dir)
+    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder, latches=latches)
     collector = _Collector(plant, keep_records=keep_records)
     daemon.listeners.append(collector)
 
