@@ -103,3 +103,16 @@ def test_a_simulated_run_writes_no_log_into_the_configs_log_dir(
     assert not production.exists()
     assert cli.main([*run, "--log", str(production)]) == 0  # named explicitly: written
     assert len(list(production.glob("*.mcap"))) == 1
+
+
+def test_a_simulated_day_is_not_logged_into_a_held_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    held = DirectoryLock(tmp_path)
+    held.acquire("log directory")
+    try:
+        assert cli.main(["simulate", "--log", str(tmp_path)]) == 2
+    finally:
+        held.release()
+    assert f"(pid {os.getpid()})" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.mcap*"))
