@@ -176,6 +176,9 @@ class SafetyConfig:
     fault_reads: int = _integer(2, 1, 10)
     resume_reads: int = _integer(5, 1, 100)
     stale_after: float | None = _number(None, 1, 60, "s", null_means="3 read intervals")
+    dead_time: float | None = _number(
+        None, 10, 3600, "s", null_means="300 s, or the tun's measured dead time"
+    )
     heater_watch: float | None = _number(None, 30, 7200, "s", null_means=_BUILT_IN)
     heater_min_rise: float | None = _number(
         None, 0, 50, "°C", low_exclusive=True, null_means="a value derived from the tun"

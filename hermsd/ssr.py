@@ -3,8 +3,8 @@
 A zero-cross SSR switches only at mains zero crossings, so on-times are whole half-cycles.
 The planner quantises each window's on-time to that grid and to the minimum on and off
 times, and carries what it could not deliver into the next window, so the energy delivered
-over many windows is exactly what the controller asked for. It reports the duty it really
-applied, which the controller tracks.
+over many windows is exactly what the controller asked for. It reports the duty its edges
+give (`applied`); the daemon feeds back the duty the SSR was then driven at, as switched.
 
 On-times alternate between the end of one window and the start of the next, so at a steady
 duty two windows share one pulse: half the edges (and the flicker) of a pulse per window.
@@ -24,7 +24,7 @@ from typing import Any, Protocol
 
 @dataclass(frozen=True, slots=True)
 class WindowPlan:
-    """One window: when the SSR goes on and off, and the duty that really reaches the element."""
+    """One window: when the SSR goes on and off, and the duty that timing gives (`applied`)."""
 
     start: float
     length: float

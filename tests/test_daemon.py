@@ -8,13 +8,14 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from hermsd import config as config_module
 from hermsd.config import Config
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.daemon import Daemon, PeriodRecord, guard_outputs
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
@@ -33,14 +34,14 @@ class Periods:
 
 
 def make(
-    config: Config | None = None, plant: dict[str, object] | None = None
+    config: Config | None = None, plant: dict[str, object] | None = None, *, history: bool = True
 ) -> tuple[Daemon, World, VirtualClock, Periods]:
     config = config or dataclasses.replace(
         config_module.DEFAULT,
         output=dataclasses.replace(config_module.DEFAULT.output, backend="sim"),
     )
     clock = VirtualClock()
-    world = build_world(config, clock, plant)
+    world = build_world(config, clock, plant, history=history)
     daemon = Daemon(config, clock, world.sensor, world.outputs)
     periods = Periods()
     daemon.listeners.append(periods)
@@ -262,3 +263,100 @@ def test_a_watchdog_shorter_than_three_periods_is_refused(tmp_path: Path) -> Non
         "hermsd: WatchdogSec=10s is shorter than three control periods (3 × 5 s): "
         "set WatchdogSec=15s or more in the unit, or shorten control.period"
     )
+
+
+class _Line:
+    """An output that records what was done to it; `on_close` runs inside its close()."""
+
+    def __init__(self, on_close: Callable[[], None] | None = None) -> None:
+        self.on_close = on_close
+        self.state = False
+        self.closed = False
+
+    def set(self, on: bool) -> None:
+        self.state = on
+
+    def close(self) -> None:
+        self.closed = True
+        if self.on_close is not None:
+            self.on_close()
+
+
+def _raise_shutdown() -> None:
+    from hermsd.cli import Shutdown
+
+    raise Shutdown("SIGTERM")  # a handler that was already due when shutdown began
+
+
+@pytest.mark.parametrize(
+    "stop",
+    [lambda: os.kill(os.getpid(), signal.SIGTERM), _raise_shutdown],
+    ids=["signal-during-close", "handler-already-due"],
+)
+def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off(
+    stop: Callable[[], None],
+) -> None:
+    from hermsd.cli import Shutdown, _on_signal
+
+    config = dataclasses.replace(
+        config_module.DEFAULT,
+        output=dataclasses.replace(config_module.DEFAULT.output, backend="sim"),
+    )
+    clock = VirtualClock()
+    world = build_world(config, clock)
+    ssr = _Line(on_close=stop)  # systemd's stop, while the SSR is being switched off
+    contactor = _Line()
+    daemon = Daemon(config, clock, world.sensor, guard_outputs(ssr, contactor, clock, config))
+    previous = signal.signal(signal.SIGTERM, _on_signal)  # as `hermsd run` installs it
+    try:
+        with pytest.raises(Shutdown):
+            daemon.shutdown("SIGINT")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+    assert (ssr.closed, contactor.closed) == (True, True)
+    assert (ssr.state, contactor.state) == (False, False)
+
+
+def test_the_long_running_simulator_keeps_no_history_of_its_edges() -> None:
+    daemon, world, _clock, _periods = make(history=False)  # as `hermsd run --simulate` builds it
+    with daemon:
+        daemon.run(until=6 * 3600.0)
+
+    assert world.outputs.ssr.edges > 1000  # it did time-proportion
+    assert (world.circuit.ssr_edges, world.circuit.power_changes) == ([], [])
+
+
+class _RealTime:
+    """The real clock under a paced simulation: sleeps pass at once, and every tenth wakes
+    30 ms late, as a busy machine wakes a process."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+        self.sleeps = 0
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps += 1
+        self.now += seconds + (0.030 if self.sleeps % 10 == 0 else 0.0)
+
+
+def test_a_machine_that_wakes_late_is_no_fault_of_a_fast_simulation(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from hermsd.sim import clock as sim_clock
+    from hermsd.sim.world import simulated_daemon
+
+    real = _RealTime()
+    monkeypatch.setattr(sim_clock, "time", real)
+    daemon = simulated_daemon(config_module.DEFAULT, 500.0)
+    periods = Periods()
+    daemon.listeners.append(periods)
+    with daemon:
+        daemon.run(until=3600.0)
+
+    assert [alarm.kind for alarm in periods.alarms] == []
+    assert daemon.overruns == 0 and len(periods.records) == 720
+    assert real.now - 1000.0 >= 3600.0 / 500.0  # paced: never faster than asked

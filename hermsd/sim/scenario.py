@@ -2,10 +2,11 @@
 
 A scenario is YAML: `duration`, `plant` (model and parameters: `hermsd.sim.hlt.PLANT_KINDS`
 and their keyword parameters, plus the sensor's `noise_c` and `seed`; README.md, Simulate),
-initial `setpoint`, optional `config` (overrides of the daemon's config, validated like the
-file), and `events`, each with `at` and one action. The runner wires the fake bus, the tun
-model and the simulated heater circuit into `Daemon` on a virtual clock, and measures the run
-against physics: the earliest any controller could settle is full power from the start.
+initial `setpoint` (else the config's), optional `config` (overrides of the daemon's config,
+validated like the file), and `events`, each with `at` and one action; errors name the file,
+line and column. The runner wires the fake bus, the tun model and the simulated heater
+circuit into `Daemon` on a virtual clock, and measures the run against physics: the earliest
+any controller could settle is full power from the start.
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ from hermsd.config import Config
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
 from hermsd.latches import LatchStore
-from hermsd.metrics import BAND, Sample, compute, report
+from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.recorder import Recorder
-from hermsd.safety import Alarm
+from hermsd.safety import Alarm, MeasuredTun
 from hermsd.sim.bus import FakeLM92
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
@@ -48,6 +49,17 @@ EVENT_KINDS = (
 )
 
 
+# What the daemon and the tun model accept (the daemon's setpoint and manual output, the
+# config's tun size and ambient); a scenario is refused before its run, not half-way in.
+SETPOINT_RANGE = (0.0, 100.0, "°C")
+EVENT_RANGES = {
+    "setpoint": SETPOINT_RANGE,
+    "output": (0.0, 100.0, "%"),
+    "ambient": (-20.0, 50.0, "°C"),
+}
+WATER = {"litres": (0.1, 1000.0, "L"), "temp": (0.0, 100.0, "°C (liquid water)")}
+
+
 class ScenarioError(ValueError):
     """A scenario file that cannot be run; the message names the file and the key."""
 
@@ -65,7 +77,7 @@ class Scenario:
     name: str = "default"
     duration: float = 6 * 3600.0
     plant: dict[str, Any] = field(default_factory=lambda: {"model": "foptd"})
-    setpoint: float = 66.0
+    setpoint: float | None = None  # None: the config's (control.setpoint)
     config: dict[str, Any] = field(default_factory=dict)
     events: tuple[Event, ...] = (Event(4 * 3600.0, "add_water", {"litres": 10.0, "temp": 15.0}),)
 
@@ -78,20 +90,53 @@ def load_scenario(path: Path) -> Scenario:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as error:
         raise ScenarioError(f"{path}: cannot read the scenario: {error}") from None
+    loader = yaml.SafeLoader(text)
     try:
-        doc = yaml.safe_load(text)
+        node = loader.get_single_node()
+        doc = loader.construct_document(node) if node is not None else None
+        positions = _positions(node, "") if node is not None else {}
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
         raise ScenarioError(f"{where}: not valid YAML: {error}") from None
-    return parse_scenario(doc if doc is not None else {}, str(path))
+    except RecursionError:
+        raise ScenarioError(f"{path}: nested too deeply to be a scenario") from None
+    finally:
+        loader.dispose()
+    return parse_scenario(doc if doc is not None else {}, str(path), positions)
 
 
-def parse_scenario(doc: Any, source: str = "<scenario>") -> Scenario:
-    """A validated scenario from a parsed YAML document."""
+def _positions(node: yaml.Node, key: str) -> dict[str, tuple[int, int]]:
+    """Line and column (1-based) of every value in the document, by its key path."""
+    found = {key: (node.start_mark.line + 1, node.start_mark.column + 1)}
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            name = f"{key}.{key_node.value}" if key else str(key_node.value)
+            found.update(_positions(value_node, name))
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            found.update(_positions(item, f"{key}[{index}]"))
+    return found
+
+
+def parse_scenario(
+    doc: Any, source: str = "<scenario>", positions: dict[str, tuple[int, int]] | None = None
+) -> Scenario:
+    """A validated scenario from a parsed YAML document (`positions`: where each key is)."""
 
     def fail(key: str, what: str) -> ScenarioError:
-        return ScenarioError(f"{source}: {key}: {what}")
+        where = source
+        path = key
+        while positions:  # the key's own position, else its nearest enclosing one
+            if path in positions:
+                line, column = positions[path]
+                where = f"{source}:{line}:{column}"
+                break
+            cut = max(path.rfind("."), path.rfind("["))
+            if cut <= 0:
+                break
+            path = path[:cut]
+        return ScenarioError(f"{where}: {key}: {what}")
 
     if not isinstance(doc, dict):
         raise fail("(top level)", "expected a mapping with duration, plant, setpoint, events")
@@ -103,10 +148,18 @@ def parse_scenario(doc: Any, source: str = "<scenario>") -> Scenario:
     except ValueError as error:
         raise fail("duration", str(error)) from None
     plant = _plant(doc.get("plant", DEFAULT.plant), fail)
-    setpoint = _number(doc.get("setpoint", DEFAULT.setpoint), fail, "setpoint")
     overrides = doc.get("config", {}) or {}
     if not isinstance(overrides, dict):
         raise fail("config", "expected a mapping of config sections")
+    setpoint = None
+    if "setpoint" in doc:
+        setpoint = _number(doc["setpoint"], fail, "setpoint", SETPOINT_RANGE)
+        control = overrides.get("control")
+        if isinstance(control, dict) and "setpoint" in control:
+            raise fail(
+                "config.control.setpoint",
+                "the setpoint is given twice (keep the top-level setpoint, or this one)",
+            )
     raw_events = doc.get("events", []) or []
     if not isinstance(raw_events, list):
         raise fail("events", "expected a list of events")
@@ -153,9 +206,18 @@ def _plant(raw: Any, fail: Callable[[str, str], ScenarioError]) -> dict[str, Any
     return {"model": model, **spec}
 
 
-def _number(value: Any, fail: Callable[[str, str], ScenarioError], key: str) -> float:
+def _number(
+    value: Any,
+    fail: Callable[[str, str], ScenarioError],
+    key: str,
+    within: tuple[float, float, str] | None = None,
+) -> float:
+    """A finite number, within (low, high, unit) when given: else the error that says so."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise fail(key, f"expected a number, got {value!r}")
+    if within is not None and not within[0] <= value <= within[1]:
+        low, high, unit = within
+        raise fail(key, f"{value:g} is out of range (expected {low:g} to {high:g} {unit})")
     return float(value)
 
 
@@ -177,9 +239,9 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
     if kind == "add_water":
         if not isinstance(value, dict) or set(value) != {"litres", "temp"}:
             raise fail(f"{key}.add_water", "expected {litres: L, temp: °C}")
-        value = {k: _number(v, fail, f"{key}.add_water.{k}") for k, v in value.items()}
+        value = {k: _number(v, fail, f"{key}.add_water.{k}", WATER[k]) for k, v in value.items()}
     elif kind in ("setpoint", "output", "ambient"):
-        value = _number(value, fail, f"{key}.{kind}")
+        value = _number(value, fail, f"{key}.{kind}", EVENT_RANGES[kind])
     elif kind == "mode" and value not in ("manual", "auto"):
         raise fail(f"{key}.mode", "expected manual or auto")
     elif kind == "sensor":
@@ -198,7 +260,8 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
 def effective_config(base: Config, scenario: Scenario) -> Config:
     """The daemon's config with the scenario's overrides, validated like the file."""
     merged = _merge(config_module.to_dict(base), scenario.config)
-    merged.setdefault("control", {})["setpoint"] = scenario.setpoint
+    if scenario.setpoint is not None:
+        merged.setdefault("control", {})["setpoint"] = scenario.setpoint
     return _validated(merged, f"<scenario {scenario.name}>")
 
 
@@ -238,6 +301,7 @@ class _Collector:
 
     plant: Plant
     samples: list[Sample] = field(default_factory=list)
+    pv_samples: list[Sample] = field(default_factory=list)  # of the daemon's PV, as logged
     records: list[PeriodRecord] = field(default_factory=list)
     alarms: list[Alarm] = field(default_factory=list)
     keep_records: bool = False
@@ -245,6 +309,8 @@ class _Collector:
     def period(self, record: PeriodRecord) -> None:
         temp = self.plant.temperature(record.t)
         self.samples.append(Sample(record.t, record.setpoint, temp, record.output))
+        if record.pv is not None:
+            self.pv_samples.append(Sample(record.t, record.setpoint, record.pv, record.output))
         if self.keep_records:
             self.records.append(record)
 
@@ -293,12 +359,14 @@ def run(
     keep_records: bool = False,
     outside_plant: Plant | None = None,
     state_dir: Path | None = None,
+    tun_model: MeasuredTun | None = None,
 ) -> Result:
     """Run `scenario` through the daemon on a virtual clock; measure it (and log it).
 
     `outside_plant` replaces the scenario's tun (its `plant:` mapping then only gives the sensor's
     noise); it is used up by the run. `state_dir` is the daemon's state directory, kept from
-    one run to the next as the service keeps it from one brew day to the next."""
+    one run to the next as the service keeps it from one brew day to the next. `tun_model` is
+    the tun as measured, for the supervisor's limits (None: not measured)."""
     config = effective_config(base or config_module.DEFAULT, scenario)
     reloads = _reloads(config, scenario)
     started = time.perf_counter()
@@ -313,7 +381,7 @@ def run(
             lossless=True,
         )
     try:
-        world = build_world(config, clock, scenario.plant, tun=outside_plant)
+        world = build_world(config, clock, scenario.plant, tun=outside_plant, history=True)
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
@@ -322,7 +390,15 @@ def run(
     if state_dir is not None:
         state_dir.mkdir(parents=True, exist_ok=True)
         latches = LatchStore(state_dir)
-    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder, latches=latches)
+    daemon = Daemon(
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        recorder=recorder,
+        latches=latches,
+        tun_model=tun_model,
+    )
     collector = _Collector(plant, keep_records=keep_records)
     daemon.listeners.append(collector)
 
@@ -381,7 +457,11 @@ def run(
         "scenario": scenario.name,
         "algorithm": config.control.algorithm,
         "duration_s": scenario.duration,
+        "temperature": SIMULATED_TEMPERATURE,
         **report(metrics),
+        "pv_overshoot_c": round(
+            compute(collector.pv_samples, disturbances, scenario.duration).overshoot_c, 4
+        ),
         "physical_min_s": None if physical_min is None else round(physical_min, 1),
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
         "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),

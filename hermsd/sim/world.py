@@ -21,7 +21,7 @@ from hermsd.lm92 import LM92
 from hermsd.notify import Notifier
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
-from hermsd.sim.clock import ScaledClock, VirtualClock
+from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, make_plant
 
 
@@ -45,9 +45,13 @@ def build_world(
     plant: dict[str, Any] | None = None,
     *,
     tun: Plant | None = None,
+    history: bool = False,
 ) -> World:
     """Simulated hardware for `config`, on `clock`, around a plant (`{"model": ..., **params}`)
-    or around `tun`, a plant built elsewhere (then only the mapping's sensor keys count)."""
+    or around `tun`, a plant built elsewhere (then only the mapping's sensor keys count).
+
+    `history`: the circuit keeps every edge and power change (a scenario's measurements).
+    """
     spec = dict(plant or {"model": "foptd"})
     noise_c = spec.pop("noise_c", 0.0)
     seed = spec.pop("seed", 0)
@@ -59,7 +63,8 @@ def build_world(
     bus = FakeSMBus()
     bus.attach(config.sensor.address, chip)
     sensor = LM92(bus, config.sensor.address, bus_name="sim")
-    circuit = HeaterCircuit(tun, clock.monotonic, contactor=config.contactor.backend != "none")
+    contactor = config.contactor.backend != "none"
+    circuit = HeaterCircuit(tun, clock.monotonic, contactor, history=history)
     outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config)
     return World(clock, tun, chip, sensor, circuit, outputs)
 
@@ -73,7 +78,7 @@ def simulated_daemon(
     latches: LatchStore | None = None,
 ) -> Daemon:
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
-    clock: Clock = VirtualClock() if math.isinf(speed) else ScaledClock(speed)
+    clock: Clock = VirtualClock() if math.isinf(speed) else PacedClock(speed)
     world = build_world(config, clock)
     return Daemon(
         config,
