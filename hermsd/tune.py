@@ -284,7 +284,9 @@ KEPT = {
     "control.kc, control.ti, control.td": "kept: the predictive controller's documentation "
     "gives no rule that derives them from the model (its model keys carry the tun)",
     "safety": "no key to change: the heater and dry-fire watches derive from tun.litres and "
-    "tun.element_watts, which are the brewer's to set",
+    "tun.element_watts, which are the brewer's to set; safety.dead_time is best left null, "
+    "for the supervisor derives it from a measured model of the tun (this one fits its "
+    "MeasuredTun) within its own margins",
 }
 
 
