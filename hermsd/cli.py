@@ -27,6 +27,7 @@ from hermsd.config import Config, ConfigError, ContactorConfig, OutputConfig
 from hermsd.config_file import ConfigFile
 from hermsd.durations import parse_duration
 from hermsd.latches import Latches, LatchStore, StateError
+from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
 from hermsd.recorder import Recorder, recover, recover_directory
@@ -114,6 +115,16 @@ def _parser() -> argparse.ArgumentParser:
         help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
     )
     reset.set_defaults(func=cmd_reset_alarm)
+
+    forget = sub.add_parser(
+        "forget-model", help="delete what hermsd learned of the tun (it starts from the config)"
+    )
+    forget.add_argument(
+        "--state",
+        type=Path,
+        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
+    )
+    forget.set_defaults(func=cmd_forget_model)
 
     recover = sub.add_parser("recover", help="turn .mcap.part files left by a crash into logs")
     recover.add_argument("files", nargs="+", type=Path)
@@ -280,6 +291,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except NotifyEnvironmentError as error:
         raise UserError(str(error)) from None
     latches = _latch_store(args.state, simulate=args.simulate)
+    models = ModelStore(latches.directory) if latches is not None else None
     log_dir = args.log
     if log_dir is None and not (args.simulate and args.config is None):
         log_dir = Path(config.log.dir) if config.log.dir else None
@@ -299,6 +311,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 notifier=notifier,
                 config_file=config_file,
                 latches=latches,
+                models=models,
             )
         else:
             if args.speed != "1":
@@ -323,6 +336,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 on_status=status.update,
                 config_file=config_file,
                 latches=latches,
+                models=models,
             )
         # Unwinds in reverse: heater off first, then the dead-man, then the log is finished.
         with contextlib.ExitStack() as stack:
@@ -627,6 +641,23 @@ def cmd_reset_alarm(args: argparse.Namespace) -> int:
         "reset asked: a running hermsd clears these within one control period, "
         "a stopped one when it starts"
     )
+    return 0
+
+
+def cmd_forget_model(args: argparse.Namespace) -> int:
+    """Delete the learned model; the daemon uses the config's prior from its next start."""
+    directory: Path = args.state or _default_state_directory()
+    store = ModelStore(directory)
+    try:
+        forgotten = store.forget()
+    except OSError as error:
+        raise UserError(
+            f"{store.path}: {error.strerror or error} (run as root or as the user hermsd runs as)"
+        ) from None
+    if forgotten:
+        print(f"forgot {store.path}: hermsd starts from the config's model at its next start")
+    else:
+        print(f"nothing learned in {directory}")
     return 0
 
 

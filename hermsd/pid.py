@@ -107,8 +107,37 @@ class PlantModel:
     dead_time: float = 115.0
     ambient: float = 20.0
 
+    @property
+    def rate(self) -> float:
+        """The full-power heating rate, °C/s (K·100 %/τ)."""
+        return 100.0 * self.gain / self.tau
+
 
 SEED_HLT = PlantModel()
+
+OBSERVER_TRACK_S = 30.0
+"""How fast predictive's PV estimate follows the sensor (s): cold water is seen within a
+minute, and one LSB of noise moves the estimate by a fifth of itself."""
+PREDICTED_LOOP_FACTOR = 2.0
+"""The predicted loop's time constant near the setpoint, in dead times."""
+LINEAR_BAND = 0.25
+"""°C around the setpoint where predictive uses its gentle, dead-time-bound gain."""
+FAR_BAND = 0.5
+"""°C below the setpoint (the hold band) beyond which predictive heats time-optimally."""
+OBSERVER_BIAS_S = 800.0
+MAX_DEAD_TIME = 1800.0
+"""s: the longest dead time a heat-up may show (a sensor far down a long pipe)."""
+FIT_FROM = 1.0
+FIT_TO = 3.0
+"""°C of rise between which a heat-up's ramp is fitted: past the first bend of the sensor's
+lag, and over enough rise that LSB and noise matter little."""
+STEADY_SPAN_S = 60.0
+STEADY_BAND = 0.25
+"""A step from a PV that moved at most STEADY_BAND °C over the last STEADY_SPAN_S s."""
+"""The bias's time constant when ti = 0."""
+BIAS_INNOVATION_CLIP = 0.125
+"""°C (two LSB): the bias learns from innovations up to this size only. A step (cold water)
+is a change of state, not of heat flow: the PV estimate follows it whole, the bias barely."""
 
 MAX_ABS_TEMPERATURE = 1e6
 MAX_TIME = 1e7
@@ -530,94 +559,263 @@ class _BackCalculation(_Base):
         return v
 
 
+@dataclass(frozen=True, slots=True)
+class HeatUpFit:
+    """What one full-power heat-up showed: the rate (°C/s at 100 %) and the dead time (s),
+    or why it was refused."""
+
+    rate: float
+    dead_time: float
+    refused: str | None = None
+
+
+class _HeatUpWatch:
+    """Measures the rate and the dead time on a full-power step from a steady PV.
+
+    The PV's rise above pv0 is fitted by a line between FIT_FROM and FIT_TO °C of rise (least
+    squares over the periods there): its slope is the rate, and where it crosses pv0 is the
+    dead time (for a delay D plus a sensor lag τs the ramp's asymptote crosses at D + τs,
+    which is the dead time a predictor wants for a ramp).
+    """
+
+    __slots__ = ("_count", "_du", "_n", "_pv0", "_st", "_stt", "_stx", "_sx", "active")
+
+    def __init__(self) -> None:
+        self.active = False
+        self._pv0 = self._du = 0.0
+        self._n = self._count = 0
+        self._st = self._sx = self._stt = self._stx = 0.0
+
+    def arm(self, pv0: float, step: float) -> None:
+        self.active = True
+        self._pv0, self._du = pv0, step
+        self._n = self._count = 0
+        self._st = self._sx = self._stt = self._stx = 0.0
+
+    def add(self, pv: float, ts: float, loss: float, model_rate: float) -> HeatUpFit | None:
+        """One more full-power period; the fit once the PV has risen FIT_TO °C."""
+        self._n += 1
+        rise = pv - self._pv0
+        if rise < FIT_FROM:
+            return None
+        if rise <= FIT_TO:
+            t = (self._n - 0.5) * ts  # the PV is the mean over the period just ended
+            self._count += 1
+            self._st += t
+            self._sx += rise
+            self._stt += t * t
+            self._stx += t * rise
+            return None
+        self.active = False
+        n = self._count
+        spread = n * self._stt - self._st * self._st
+        if n < 4 or spread <= 0.0:
+            return HeatUpFit(model_rate, 0.0, f"too few periods ({n}) between the rises")
+        slope = (n * self._stx - self._st * self._sx) / spread
+        if slope <= 0.0:
+            return HeatUpFit(model_rate, 0.0, "the PV did not rise")
+        crossing = (self._st - self._sx / slope) / n  # mean t − mean rise / slope
+        mid_rise = self._sx / n
+        rate = (slope + loss * mid_rise) * 100.0 / self._du
+        if not 0.25 * model_rate <= rate <= 4.0 * model_rate:
+            why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
+            return HeatUpFit(rate, crossing, why)
+        if not 0.0 <= crossing <= MAX_DEAD_TIME:
+            why = f"dead time {crossing:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
+            return HeatUpFit(rate, crossing, why)
+        return HeatUpFit(rate, crossing)
+
+
 class _Predictive(_Base):
-    """PID on PV plus the model's rise still in the dead time; see the module docstring."""
+    """P on the PV the observer predicts one dead time ahead, plus the holding duty."""
 
     __slots__ = (
-        "_a",
         "_ambient",
+        "_bias",
+        "_estimate",
         "_fa",
         "_filtered",
+        "_fit",
         "_fpv",
-        "_gain",
-        "_history",
-        "_horizon",
-        "_i",
+        "_inputs",
         "_kc",
+        "_kc_far",
+        "_kc_near",
         "_kd",
-        "_ki",
+        "_l1",
+        "_l2",
         "_lag",
-        "_ppv1",
-        "_x",
+        "_loss",
+        "_rate",
+        "_recent",
+        "_ts",
+        "_watch",
     )
 
     def __init__(self, params: Params, model: PlantModel) -> None:
         super().__init__(params)
         ts = params.ts
+        self._ts = ts
         self._kc = params.kc
-        self._ki = params.kc * ts / params.ti if params.ti > 0.0 else 0.0
+        # Near the setpoint the predicted loop is no faster than the dead time: its time
+        # constant 100/(rate·Kc) at least θ (and 2·Ts), so a dead time up to twice the
+        # model's leaves it damped. Beyond LINEAR_BAND the full kc: time-optimal transients.
         self._kd = params.kc * params.td / ts
         self._filtered = params.tf > 0.0
         self._fa = params.tf / (params.tf + ts)
-        self._a = math.exp(-ts / model.tau)
-        self._gain = model.gain
+        self._loss = 1.0 / model.tau  # 1/s
         self._ambient = model.ambient
-        self._lag = model.dead_time / ts  # periods, not necessarily whole
-        self._horizon = 4.0 * model.dead_time
-        self._history: deque[float] = deque(maxlen=math.floor(self._lag) + 2)
-        self._x = self._i = self._fpv = self._ppv1 = 0.0
+        self._rate = self._kc_near = self._kc_far = 0.0
+        self._lag = 0
+        self._use(model.rate, model.dead_time)
+        # Observer poles: the PV estimate follows the sensor within OBSERVER_TRACK_S, the bias
+        # (what the model gets wrong) within ti; see `observer_gains`.
+        self._l1, self._l2 = observer_gains(ts, OBSERVER_TRACK_S, params.ti or OBSERVER_BIAS_S)
+        # u_{k-1-lag} … u_{k-1} at the right end; room for any dead time a heat-up may show
+        self._inputs: deque[float] = deque(maxlen=math.ceil(MAX_DEAD_TIME / ts) + 2)
+        self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
+        self._watch = _HeatUpWatch()
+        self._fit: HeatUpFit | None = None
+        self._estimate = self._bias = self._fpv = 0.0
 
-    def _in_flight(self) -> float:
-        """x(now) − x(now − θ): the model's rise that the sensor has not seen yet."""
-        history, lag = self._history, self._lag
-        whole = math.floor(lag)
-        fraction = lag - whole
-        newer = history[-1 - whole]
-        older = history[-2 - whole] if fraction else newer
-        return history[-1] - (newer + fraction * (older - newer))
+    @property
+    def fit(self) -> HeatUpFit | None:
+        """The last heat-up's measurement (taken into the model unless refused)."""
+        return self._fit
+
+    @property
+    def model(self) -> tuple[float, float]:
+        """(rate °C/s at 100 %, dead time s) in use."""
+        return self._rate, self._lag * self._ts
+
+    def _use(self, rate: float, dead_time: float) -> None:
+        """Take a rate and a dead time: near the setpoint the predicted loop is no faster than
+        the dead time (time constant 100/(rate·Kc) ≥ θ and ≥ 2·Ts), so a real dead time up to
+        twice the model's leaves it damped; beyond LINEAR_BAND the full kc keeps transients
+        time-optimal."""
+        ts = self._ts
+        self._rate = rate
+        self._lag = max(0, round(dead_time / ts))
+        settle = PREDICTED_LOOP_FACTOR * max(dead_time, 2.0 * ts)
+        self._kc_near = min(self._kc, 100.0 / (rate * settle))
+        self._kc_far = max(self._kc, 100.0 / (rate * ts))
+
+    def _drift(self, x: float, u: float) -> float:
+        """The model's change of PV over one period at duty u from x (Euler; λ·Ts ≪ 1)."""
+        return self._ts * (self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias)
+
+    def _predicted(self) -> float:
+        """Where the PV will be once the inputs already sent (still in the dead time) arrive."""
+        x = self._estimate
+        inputs = self._inputs
+        for j in range(len(inputs) - self._lag, len(inputs)):
+            x += self._drift(x, inputs[j])
+        return x
+
+    def _holding(self, sp: float) -> float:
+        """The duty that holds `sp` by the model and its bias (may lie outside the limits)."""
+        return 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+
+    def _law(self, sp: float) -> float:
+        """P on the predicted error plus the holding duty (D apart)."""
+        return self._proportional(sp - self._predicted()) + self._holding(sp)
+
+    def _proportional(self, e: float) -> float:
+        """kc_near up to LINEAR_BAND below the setpoint and anywhere above it (above, nothing
+        is gained by cutting harder: the water only cools); kc up to FAR_BAND below it; and
+        beyond that the gain that closes the predicted error in one period, i.e. full power
+        until the heat in flight will carry the water there: time-optimal."""
+        if e <= LINEAR_BAND:
+            return self._kc_near * e
+        p = self._kc_near * LINEAR_BAND + self._kc * (min(e, FAR_BAND) - LINEAR_BAND)
+        return p + self._kc_far * max(0.0, e - FAR_BAND)
 
     def _prime(self, sp: float, pv0: float) -> None:
-        # The model starts where the tun is, as if it had been there a while: its rise above
-        # the room. Not in equilibrium with the output it continues from, which after a
-        # fault at full power would be a phantom cooling of about 1 °C, fading over τ.
-        x0 = pv0 - self._ambient
-        self._x = x0
-        self._history.clear()
-        self._history.extend([x0] * (math.floor(self._lag) + 2))
-        self._fpv = self._ppv1 = pv0
-        # Bumpless: the integral takes what P leaves of the output, P including the rise the
-        # model shows at the first step (x1 − x0 enters the dead-time window whole once the
-        # lag is a period or more, a fraction of it before).
-        x1 = self._a * x0 + self._gain * (1.0 - self._a) * self._output
-        first_rise = (x1 - x0) * min(self._lag, 1.0)
-        p = self._kc * (sp - pv0 - first_rise)
-        self._i = min(max(self._output - p, self._lo), self._hi)
+        # As if PV had stood at pv0 with the output at u0 for a dead time. The output is
+        # affine in the bias: the bias that makes the first step give u0 (bumpless) is taken
+        # when it is physical (no more than the element's whole rate); a cold start far below
+        # the setpoint would need far more, and there the model is trusted (no bias).
+        u0 = self._output
+        inputs = self._inputs
+        inputs.clear()
+        inputs.extend([u0] * (inputs.maxlen or 1))
+        self._recent.clear()
+        self._recent.extend([pv0] * (self._recent.maxlen or 1))
+        self._watch.active = False
+        self._estimate = self._fpv = pv0
+        # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
+        # so a few steps land on the bias that gives u0 exactly when one exists.
+        bias = 0.0
+        for _ in range(4):
+            self._bias = bias
+            miss = u0 - self._law(sp)
+            if miss == 0.0:
+                break
+            probe = 1e-3 * self._rate
+            self._bias = bias + probe
+            slope = (u0 - self._law(sp) - miss) / -probe
+            bias += miss / slope
+        self._bias = bias if abs(bias) <= self._rate else 0.0
+        # The first step's model prediction lands on pv0: no innovation from the start itself.
+        self._estimate = pv0 - self._drift(pv0, u0)
 
     def _advance(self, sp: float, pv: float, previous: float) -> float:
-        # After a reset `previous` is the output the model is in equilibrium with: no change.
-        self._x = self._a * self._x + self._gain * (1.0 - self._a) * previous
-        self._history.append(self._x)
-        ppv = pv + self._in_flight()
-        # D acts on the measured PV: on the predicted one it would feed the model's response
-        # to this very output back into the output, a loop inside the controller.
+        inputs = self._inputs
+        inputs.append(previous)
+        self._watch_heat_up(pv, previous, inputs[-2])
+        before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag])
+        innovation = pv - before
+        self._estimate = before + self._l1 * innovation
+        if abs(innovation) <= BIAS_INNOVATION_CLIP and self._lo < previous < self._hi:
+            self._bias += self._l2 * innovation
+        # D acts on the measured PV, filtered by tf (first order).
         fpv1 = self._fpv
         fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
-        e = sp - ppv
-        p = self._kc * e
-        d = -self._kd * (fpv - fpv1)
-        i = self._i
-        rate = (ppv - self._ppv1) / self._params.ts
-        closing = e * rate > 0.0 and abs(rate) * self._horizon >= abs(e)
-        v = p + i + d
-        saturated = (v >= self._hi and e > 0.0) or (v <= self._lo and e < 0.0)
-        if not closing and not saturated:
-            i = min(max(i + self._ki * e, self._lo), self._hi)
-            v = p + i + d
-        self._terms = (p, i, d)
-        self._i = i
         self._fpv = fpv
-        self._ppv1 = ppv
-        return v
+        p = self._proportional(sp - self._predicted())
+        i = self._holding(sp)
+        d = -self._kd * (fpv - fpv1)
+        self._terms = (p, i, d)
+        return p + i + d
+
+    def _watch_heat_up(self, pv: float, applied: float, before: float) -> None:
+        """Arm on a step to full power from a steady PV; take the fit when it comes."""
+        recent = self._recent
+        watch = self._watch
+        full = applied >= self._hi
+        if watch.active and not full:
+            watch.active = False  # the step ended before the PV had risen enough
+        steady = max(recent) - min(recent) <= STEADY_BAND
+        if full and not watch.active and before < self._hi and steady:
+            watch.arm(recent[-1], applied - before)
+        recent.append(pv)
+        if not (full and watch.active):
+            return
+        fit = watch.add(pv, self._ts, self._loss, self._rate)
+        if fit is None:
+            return
+        self._fit = fit
+        if fit.refused is None:
+            # A rate other than the model's is most likely a fill other than the config's:
+            # heat capacity scales rate and loss rate alike, so the gain (°C/%) stays.
+            self._loss *= fit.rate / self._rate
+            self._use(fit.rate, fit.dead_time)
+
+
+def heat_up_fit(controller: Controller) -> HeatUpFit | None:
+    """The last heat-up a predictive controller measured (None for the other forms)."""
+    return controller.fit if isinstance(controller, _Predictive) else None
+
+
+def observer_gains(ts: float, track: float, bias: float) -> tuple[float, float]:
+    """(L1, L2) of the PV/bias observer with poles e^(−Ts/track) and e^(−Ts/bias).
+
+    Error dynamics of predict-then-correct on x = (PV, bias), A = [[1, Ts], [0, 1]]:
+    z² − (2 − L1 − Ts·L2)·z + (1 − L1), so L1 = 1 − p1·p2 and Ts·L2 = (1 − p1)·(1 − p2).
+    """
+    p1 = math.exp(-ts / track)
+    p2 = math.exp(-ts / bias)
+    return 1.0 - p1 * p2, (1.0 - p1) * (1.0 - p2) / ts
 
 
 # Tuning: Table 1 of the HERMS PID calculus document, from the identified FOPTD model.

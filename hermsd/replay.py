@@ -33,6 +33,7 @@ from hermsd import config as config_module
 from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.metrics import Metrics, Sample, compute, report
+from hermsd.pid import PlantModel
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -85,6 +86,7 @@ class LoggedConfig:
     t: float
     reason: str
     config: dict[str, Any]
+    model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
 
 
 @dataclass(frozen=True, slots=True)
@@ -240,7 +242,10 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     t, config = message.get("t"), message.get("config")
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
-    return LoggedConfig(float(t), str(message.get("reason", "")), config)
+    model = message.get("model")
+    return LoggedConfig(
+        float(t), str(message.get("reason", "")), config, model if isinstance(model, dict) else None
+    )
 
 
 def _is_number(value: object) -> TypeGuard[int | float]:
@@ -445,6 +450,18 @@ def summarise(log: Log) -> dict[str, Any]:
 # -- verify -------------------------------------------------------------------------------------
 
 
+def logged_model(entry: LoggedConfig) -> PlantModel | None:
+    """The tun's model a config record says was in force (None in older logs: the keys')."""
+    if entry.model is None:
+        return None
+    try:
+        return PlantModel(
+            **{k: float(entry.model[k]) for k in ("gain", "tau", "dead_time", "ambient")}
+        )
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"the model logged with it is not one: {error}") from None
+
+
 @dataclass(frozen=True, slots=True)
 class Mismatch:
     """The first value the re-run controller did not reproduce."""
@@ -477,6 +494,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     """
     controller = None
     in_force: LoggedConfig | None = None
+    in_force_model: dict[str, Any] | None = None
     control: config_module.ControlConfig | None = None
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
@@ -488,11 +506,18 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             in_force = entry
             try:
                 reloaded = config_module.from_dict(entry.config).control
-                if entry.reason == "reload" and control and not retunes(control, reloaded):
+                same_model = in_force_model == entry.model
+                if (
+                    entry.reason == "reload"
+                    and control
+                    and not retunes(control, reloaded)
+                    and same_model
+                ):
                     control = reloaded  # a new setpoint or mode: the same controller goes on
                     continue
                 control = reloaded
-                controller = make_controller(control)
+                in_force_model = entry.model
+                controller = make_controller(control, logged_model(entry))
             except (config_module.ConfigError, ValueError) as error:
                 detail = str(error).replace("\n", "; ")
                 raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None

@@ -23,6 +23,8 @@ from hermsd import config as config_module
 from hermsd.config import Config
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
+from hermsd.latches import LatchStore
+from hermsd.learning import ModelStore
 from hermsd.metrics import BAND, Sample, compute, report
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm
@@ -254,6 +256,7 @@ def run(
     *,
     log_dir: Path | None = None,
     keep_records: bool = False,
+    state_dir: Path | None = None,
 ) -> Result:
     """Run `scenario` through the daemon on a virtual clock; measure it (and log it)."""
     config = effective_config(base or config_module.DEFAULT, scenario)
@@ -275,7 +278,19 @@ def run(
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
-    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    latches = models = None
+    if state_dir is not None:
+        state_dir.mkdir(parents=True, exist_ok=True)
+        latches, models = LatchStore(state_dir), ModelStore(state_dir)
+    daemon = Daemon(
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        recorder=recorder,
+        latches=latches,
+        models=models,
+    )
     collector = _Collector(plant, keep_records=keep_records)
     daemon.listeners.append(collector)
 

@@ -16,6 +16,7 @@ from hermsd.config import Config
 from hermsd.config_file import ConfigFile
 from hermsd.daemon import Daemon, Outputs, guard_outputs
 from hermsd.latches import LatchStore
+from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92
 from hermsd.notify import Notifier
 from hermsd.sim.bus import FakeLM92, FakeSMBus
@@ -56,6 +57,7 @@ def simulated_daemon(
     notifier: Notifier | None = None,
     config_file: ConfigFile | None = None,
     latches: LatchStore | None = None,
+    models: ModelStore | None = None,
 ) -> Daemon:
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
     clock: Clock = VirtualClock() if math.isinf(speed) else ScaledClock(speed)
@@ -69,6 +71,7 @@ def simulated_daemon(
         on_status=on_status,
         config_file=config_file,
         latches=latches,
+        models=models,
     )
 
 
