@@ -31,20 +31,37 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
 
 - ``predictive``: the daemon's default, and not from the seeds: the seeds' loops all see the
   tun through its dead time, so with gains strong enough to settle fast they overshoot, and
-  with gains gentle enough not to they brake early and settle late. This one feeds the
-  delivered duty (`applied`) to an FOPTD model of the tun (`model`) and adds to PV the rise
-  the model says is already on its way but not yet at the sensor (a Smith predictor:
-  x(t) − x(t − θ) of the undelayed model). The loop thus acts on where PV is going, and can
-  hold full power until the heat in the pipe will carry the water to the setpoint, then drop
-  to the holding duty. Positional P + I + D on that predicted PV; the integral is frozen
-  while the output is saturated in the direction of the error, and while the predicted PV is
-  closing on the setpoint fast enough to get there within 4·θ by itself (integrating that
-  transient error is what makes the others overshoot after cold water is added). D (td) is
-  optional, on the measured PV, filtered by tf (first order). Its reset is bumpless within
-  the output range: the integral takes u0 − P − D, kept within [out_min, out_max].
+  with gains gentle enough not to they brake early and settle late. This one keeps a model
+  of the tun (`model`: full-power rate r, loss rate 1/τ to the room, dead time θ) and an
+  observer of it: a PV estimate driven by the duty delivered θ ago (`applied`) plus a bias
+  (the heat flow the model gets wrong), both corrected every period by the innovation PV −
+  estimate (gains from two poles: the estimate follows the sensor within 30 s, the bias
+  within ti). From the estimate it runs the model forward over the duty already sent and
+  still in the dead time: the PV that will be. Output = the holding duty at the setpoint
+  (model and bias) + P on the setpoint minus that predicted PV: within 0.25 °C below the
+  setpoint and anywhere above it with a gain that makes the predicted loop no faster than
+  2·θ (damped for a real dead time, gain or τ off by 2×); further below, kc and beyond
+  0.5 °C a gain that closes the gap in one period: full power until the heat in flight
+  will carry the water to the setpoint, then the holding duty (time-optimal).
+  The bias learns only from periods with the output inside its limits and innovations
+  within 2 LSB: cold water is a step of the state (the estimate follows it whole), not a
+  change of heat flow, and at full power a rate error would pose as one.
+  A step to full power from a steady PV is a measurement: the rise between 1 and 3 °C,
+  fitted by a line, gives the rate (its slope, losses added back) and the dead time (where
+  it crosses the start); plausible values replace the model's (`fit`), so a fill or a
+  sensor position other than the config's is known long before the setpoint. D (td) is
+  optional, on the measured PV, filtered by tf (first order). Its reset is bumpless when it
+  can be: the bias takes what makes the first step continue from u0, unless that would be
+  more than the element's whole rate (a cold start), where the model is trusted.
 
-Defaults: tf=None gives γ = 10 % of Td (the document's suggestion) for type_a,
-type_a_filtered and back_calculation, and 0 for takahashi (exactly eq. 14). tt=None gives
+Defaults: tf=None gives γ = 10 % of Td (the document's suggestion), raised so that one
+sensor LSB (0.0625 °C) moves the output by at most 10 % (`default_tf`), for type_a,
+type_a_filtered, takahashi and back_calculation. On that default the velocity forms (type_a,
+type_a_filtered, takahashi) also owe back what the output limits cut from a P or D kick
+(`_owed`): in the plain form a one-LSB step's kick is clipped at 0 % on the way down and
+kept in full on the way back, a ratchet. In the linear range nothing is owed and the
+equation is exact. An explicit tf asks for the seed's equation exactly as written, limits
+included (tf = 0: no filter at all). tt=None gives
 Tt = sqrt(Ti·Td) when Td > 0, else Ti (inside the rule of thumb Td ≤ Tt ≤ Ti), raised to Ts
 if smaller: with Tt < Ts the tracking term would over-correct the integral every period.
 ti = 0 means no integral. A parameter that the chosen algorithm has no use for (td, tf for
@@ -147,6 +164,10 @@ MAX_ABS_OUTPUT_LIMIT = 1e12
 
 _INF = math.inf
 _TF_DEFAULT_FRACTION = 0.1
+SENSOR_LSB = 0.0625
+"""°C: the LM92's resolution, the smallest step the PV takes."""
+MAX_LSB_KICK = 10.0
+"""% of output at most from one LSB through the default-filtered derivative."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,6 +183,7 @@ class Params:
     tt: float | None
     out_min: float
     out_max: float
+    owes_kicks: bool = False  # a velocity form on its default filter: see `_owed`
 
 
 class Controller(Protocol):
@@ -273,8 +295,9 @@ def _resolve(
             raise ValueError(f"td={td!r} is invalid for velocity_pi (a PI): must be 0")
         if tf is not None:
             raise ValueError(f"tf={tf!r} is invalid for velocity_pi (no D term): leave it unset")
+    owes_kicks = tf is None and td > 0.0 and name in ("type_a", "type_a_filtered", "takahashi")
     if tf is None:
-        tf = 0.0 if name in ("takahashi", "predictive") else _TF_DEFAULT_FRACTION * td
+        tf = 0.0 if name == "predictive" else default_tf(kc, td)
     tf = _number("tf", tf, 0.0, MAX_TIME, f"≥ 0 and ≤ {MAX_TIME:g} s (0 = no filter)")
     tracking = name == "back_calculation" and ti > 0.0
     if tt is not None and not tracking:
@@ -286,12 +309,33 @@ def _resolve(
         if tt is None:
             tt = max(ts, math.sqrt(ti * td) if td > 0.0 else ti)
         tt = _number("tt", tt, ts, MAX_TIME, f"≥ ts={ts:g} and ≤ {MAX_TIME:g} s")
-    return Params(name, kc, ti, td, ts, tf, tt, lo, hi)
+    return Params(name, kc, ti, td, ts, tf, tt, lo, hi, owes_kicks)
+
+
+def default_tf(kc: float, td: float) -> float:
+    """The derivative filter when tf is not given: the document's γ = Td/10, raised so that one
+    sensor LSB moves the output by at most MAX_LSB_KICK (eq. 08's first D increment on a step
+    δ is 2·Kc·Td·δ/(Ts + 2γ) ≤ Kc·Td·δ/γ; eq. 11c-filtered D moves by half that at most),
+    within the longest time a parameter may have."""
+    return min(max(_TF_DEFAULT_FRACTION * td, kc * td * SENSOR_LSB / MAX_LSB_KICK), MAX_TIME)
 
 
 def _lowpass(tf: float, ts: float) -> tuple[float, float]:
     """(a, b) of the eq. 11c filter lpf_k = a·lpf_{k−1} + b·(x_k + x_{k−1}); unity DC gain."""
     return (2.0 * tf - ts) / (2.0 * tf + ts), ts / (ts + 2.0 * tf)
+
+
+def _owed(v: float, lo: float, hi: float, kicks: float) -> float:
+    """The part of what the limits cut from `v` that P and D moved it by (`kicks`, with what
+    they were owed before): owed back next period, so a kick the limit took and its return
+    a period later cancel as in the linear range. What the integral pushed past a limit is
+    cut, as in the plain velocity form; in the linear range nothing is owed."""
+    cut = v - (lo if v < lo else (hi if v > hi else v))
+    if cut < 0.0 and kicks < 0.0:
+        return max(cut, kicks)
+    if cut > 0.0 and kicks > 0.0:
+        return min(cut, kicks)
+    return 0.0
 
 
 def _reject(sp: float, pv: float, applied: float | None) -> None:
@@ -311,7 +355,16 @@ class _Base(ABC):
     A subclass sets its history in `_prime` and computes the unlimited output in `_advance`.
     """
 
-    __slots__ = ("_hi", "_lo", "_output", "_params", "_primed", "_start_pv", "_terms")
+    __slots__ = (
+        "_carry",
+        "_hi",
+        "_lo",
+        "_output",
+        "_params",
+        "_primed",
+        "_start_pv",
+        "_terms",
+    )
 
     def __init__(self, params: Params) -> None:
         self._params = params
@@ -321,6 +374,7 @@ class _Base(ABC):
         self._primed = False
         self._start_pv: float | None = None
         self._terms = (0.0, 0.0, 0.0)
+        self._carry = 0.0
 
     @property
     def params(self) -> Params:
@@ -343,6 +397,7 @@ class _Base(ABC):
         self._start_pv = pv
         self._primed = False
         self._terms = (0.0, 0.0, 0.0)
+        self._carry = 0.0
 
     def step(self, sp: float, pv: float, applied: float | None = None) -> float:
         if not (
@@ -358,6 +413,9 @@ class _Base(ABC):
             self._primed = True
             previous = self._output
         v = self._advance(sp, pv, previous)
+        if self._params.owes_kicks:
+            v += self._carry
+            self._carry = _owed(v, lo, hi, self._terms[0] + self._terms[2] + self._carry)
         u = lo if v < lo else (hi if v > hi else v)
         self._output = u
         return u
