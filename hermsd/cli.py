@@ -480,7 +480,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for key, value in summary.items():
         if isinstance(value, dict):
             lines.extend((f"{key}.{name}", item) for name, item in value.items())
-        elif key not in ("files", "alarms"):
+        elif key not in ("files", "alarms", "learning"):
             lines.append((key, value))
     width = max((len(key) for key, _ in lines), default=0)
     for report in summary.get("files", []):
@@ -489,6 +489,8 @@ def _print_summary(summary: dict[str, Any]) -> None:
         print(f"{key:{width}} {value}")
     for alarm in summary.get("alarms", []):
         print(_alarm_line(alarm))
+    for item in summary.get("learning", []):
+        print(f"at {item['at_s']} s: {item['message']}")
 
 
 def _file_line(report: dict[str, Any]) -> str:

@@ -70,7 +70,8 @@ def implausible(model: LearnedModel) -> str | None:
     if not 0.0 < model.rate <= 1.0:
         return f"full-power rate {model.rate:.3g} °C/s is not within 0–1 °C/s"
     if not 1.0 / MAX_TAU <= model.loss <= 1.0 / MIN_TAU:
-        return f"time constant {1.0 / model.loss:.3g} s is not within {MIN_TAU:g}–{MAX_TAU:g} s"
+        tau = f"{1.0 / model.loss:.3g} s" if model.loss > 0.0 else "endless (no loss)"
+        return f"time constant {tau} is not within {MIN_TAU:g}–{MAX_TAU:g} s"
     if not 0.0 <= model.dead_time <= MAX_DEAD_TIME:
         return f"dead time {model.dead_time:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
     return None

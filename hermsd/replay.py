@@ -444,7 +444,22 @@ def summarise(log: Log) -> dict[str, Any]:
         "energy_kwh": None if energy is None else round(energy, 3),
         "alarms": alarms(log),
         "timing": timing(log),
+        "tun_model": next((c.model for c in reversed(log.configs) if c.model), None),
+        "learning": learning(log),
     }
+
+
+LEARNING_EVENTS = ("heat-up measure", "learned ")
+"""How the daemon's events about measuring and learning the tun begin."""
+
+
+def learning(log: Log) -> list[dict[str, Any]]:
+    """What the controller measured and the daemon learned (or refused), in order."""
+    return [
+        {"at_s": round(e.at, 3), "message": e.message}
+        for e in log.events
+        if e.message.startswith(LEARNING_EVENTS)
+    ]
 
 
 # -- verify -------------------------------------------------------------------------------------
