@@ -62,7 +62,7 @@ def run(algorithm: str, gains: dict[str, float]) -> dict[str, Any]:
     config = dataclasses.replace(base, control=control)
     original = daemon_module.make_controller
     if algorithm == "simple-pid":
-        daemon_module.make_controller = lambda c: SimplePid(  # type: ignore[assignment,return-value]
+        daemon_module.make_controller = lambda c, model=None: SimplePid(  # type: ignore[assignment,return-value]
             gains["kc"], gains["ti"], gains["td"], c.period
         )
     try:
