@@ -31,7 +31,7 @@ from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
-from hermsd.recorder import CONFIG_TOPIC, LogLevel, log_message
+from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, SafetyLimits, Supervisor
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPlan, cut
@@ -39,7 +39,6 @@ from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPla
 log = logging.getLogger("hermsd")
 
 TIMING_INTERVAL = 60.0  # s between timing records
-MODEL_TOPIC = "/hermsd/model"
 
 
 class Sensor(Protocol):

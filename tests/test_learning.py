@@ -8,8 +8,10 @@ real daemon on the virtual clock; the config's prior (a 90 L, 3 kW physical tun)
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+import shutil
 from pathlib import Path
 
 import pytest
@@ -18,6 +20,7 @@ from hermsd import config as config_module
 from hermsd import learning, replay
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.pid import HeatUpFit
+from hermsd.recorder import MODEL_TOPIC, LogFile
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario
 from hermsd.sim.world import simulated_daemon
@@ -58,8 +61,11 @@ def test_a_clean_day_learns_the_tun(learned_day: tuple[Path, Path]) -> None:
     assert model.litres == config_module.DEFAULT.tun.litres
 
 
-def test_the_next_start_uses_what_was_learned(learned_day: tuple[Path, Path]) -> None:
-    state = learned_day[0]
+def test_the_next_start_uses_what_was_learned(
+    learned_day: tuple[Path, Path], tmp_path: Path
+) -> None:
+    state = tmp_path / "state"
+    shutil.copytree(learned_day[0], state)  # the learned day stays as it was for the others
     model = learned(state)
     assert model is not None
     restarted = simulated_daemon(config_module.DEFAULT, math.inf, models=ModelStore(state))
@@ -75,6 +81,13 @@ def test_replay_verifies_and_shows_a_day_that_learned(learned_day: tuple[Path, P
     verification = replay.verify(log.entries)
     assert verification.mismatch is None and verification.verified > 1000
     messages = [item["message"] for item in replay.summarise(log)["learning"]]
+    stored = [
+        message["learned"]
+        for path in sorted(learned_day[1].glob("*.mcap"))
+        for topic, _, message in LogFile(path).messages([MODEL_TOPIC])
+        if topic == MODEL_TOPIC
+    ]
+    assert stored == [dataclasses.asdict(learned(learned_day[0]))]
     assert any(m.startswith("heat-up measured: ") for m in messages)
     assert any(m.startswith("learned the tun: ") for m in messages)
 
@@ -82,8 +95,10 @@ def test_replay_verifies_and_shows_a_day_that_learned(learned_day: tuple[Path, P
 def test_replay_verifies_a_day_on_a_learned_model(
     learned_day: tuple[Path, Path], tmp_path: Path
 ) -> None:
-    scenario.run(day(), state_dir=learned_day[0], log_dir=tmp_path)
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    state = tmp_path / "state"
+    shutil.copytree(learned_day[0], state)
+    scenario.run(day(), state_dir=state, log_dir=tmp_path / "logs")
+    log = replay.load(sorted((tmp_path / "logs").glob("*.mcap")))
     assert replay.verify(log.entries).mismatch is None
     summary = replay.summarise(log)
     model = learned(learned_day[0])
