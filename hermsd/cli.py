@@ -109,21 +109,13 @@ def _parser() -> argparse.ArgumentParser:
     reset = sub.add_parser(
         "reset-alarm", help="clear the latched alarms, once their cause is found"
     )
-    reset.add_argument(
-        "--state",
-        type=Path,
-        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
-    )
+    _state_argument(reset)
     reset.set_defaults(func=cmd_reset_alarm)
 
     forget = sub.add_parser(
         "forget-model", help="delete what hermsd learned of the tun (it starts from the config)"
     )
-    forget.add_argument(
-        "--state",
-        type=Path,
-        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
-    )
+    _state_argument(forget)
     forget.set_defaults(func=cmd_forget_model)
 
     recover = sub.add_parser("recover", help="turn .mcap.part files left by a crash into logs")
@@ -644,6 +636,14 @@ def cmd_reset_alarm(args: argparse.Namespace) -> int:
         "a stopped one when it starts"
     )
     return 0
+
+
+def _state_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--state",
+        type=Path,
+        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
+    )
 
 
 def cmd_forget_model(args: argparse.Namespace) -> int:

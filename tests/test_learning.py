@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from hermsd import cli, learning, replay
 from hermsd import config as config_module
-from hermsd import learning, replay
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.pid import HeatUpFit
 from hermsd.recorder import MODEL_TOPIC, LogFile
@@ -196,3 +196,14 @@ def test_the_model_is_rescaled_to_the_configured_litres() -> None:
     assert doubled.rate == pytest.approx(RATE / 2.0, rel=1e-12)
     assert doubled.tau == pytest.approx(TAU * 2.0 ** (1.0 / 3.0), rel=1e-12)
     assert math.isclose(doubled.dead_time, THETA)
+
+
+def test_the_forget_model_command(
+    learned_day: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    shutil.copy(learned_day[0] / learning.LEARNED_FILE, tmp_path)
+    assert cli.main(["forget-model", "--state", str(tmp_path)]) == 0
+    assert "forgot" in capsys.readouterr().out
+    assert not (tmp_path / learning.LEARNED_FILE).exists()
+    assert cli.main(["forget-model", "--state", str(tmp_path)]) == 0
+    assert "nothing learned" in capsys.readouterr().out
