@@ -44,8 +44,9 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
   0.5 °C a gain that closes the gap in one period: full power until the heat in flight
   will carry the water to the setpoint, then the holding duty (time-optimal).
   The bias learns only from periods with the output inside its limits and innovations
-  within 2 LSB: cold water is a step of the state (the estimate follows it whole), not a
-  change of heat flow, and at full power a rate error would pose as one.
+  within 2 LSB: cold water is a step of the state, not a change of heat flow, and at full
+  power a rate error would pose as one. An innovation beyond 4 LSB in one period (cold
+  water) is taken into the estimate whole, so the step is acted on at once.
   A step to full power from a steady PV is a measurement: the rise between 1 and 3 °C,
   fitted by a line, gives the rate (its slope, losses added back) and the dead time (where
   it crosses the start); plausible values replace the model's (`fit`), so a fill or a
@@ -142,6 +143,9 @@ LINEAR_BAND = 0.25
 FAR_BAND = 0.5
 """°C below the setpoint (the hold band) beyond which predictive heats time-optimally."""
 OBSERVER_BIAS_S = 800.0
+STEP_INNOVATION = 0.25
+"""°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
+the mean of its readings, so noise of 0.03 °C never moves it that far."""
 MAX_DEAD_TIME = 1800.0
 """s: the longest dead time a heat-up may show (a sensor far down a long pipe)."""
 FIT_FROM = 1.0
@@ -823,7 +827,9 @@ class _Predictive(_Base):
         self._watch_heat_up(pv, previous, inputs[-2])
         before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag])
         innovation = pv - before
-        self._estimate = before + self._l1 * innovation
+        # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
+        step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
+        self._estimate = before + step
         if abs(innovation) <= BIAS_INNOVATION_CLIP and self._lo < previous < self._hi:
             self._bias += self._l2 * innovation
         # D acts on the measured PV, filtered by tf (first order).

@@ -192,3 +192,15 @@ def test_an_implausible_heat_up_is_refused_and_says_why() -> None:
     fit = pid.heat_up_fit(controller)
     assert fit is not None and fit.refused is not None
     assert "rate" in fit.refused and "¼–4×" in fit.refused
+
+
+def test_cold_water_is_acted_on_in_the_period_the_sensor_shows_it() -> None:
+    tun = Tun(SEED.gain, SEED.tau, SEED.dead_time, SP)
+    controller = predictive()
+    controller.reset(SP, tun.holding(SP))
+    trace = run(controller, tun, 3600.0 + TS, water_at=3600.0)
+    # 10 % of 15 °C water takes the tun from 66 to 61.4 °C at once: the very step that reads
+    # it acts on the whole drop (P at least kc on it), not on a filtered fraction of it.
+    t, pv, output = trace[-1]
+    assert t == 3600.0 and pv < 62.0 and output == 100.0
+    assert controller.terms[0] >= 120.0 * (SP - pv)
