@@ -42,7 +42,9 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
   setpoint and anywhere above it with a gain that makes the predicted loop no faster than
   2·θ (damped for a real dead time, gain or τ off by 2×); further below, kc and beyond
   0.5 °C a gain that closes the gap in one period: full power until the heat in flight
-  will carry the water to the setpoint, then the holding duty (time-optimal).
+  will carry the water to the setpoint, then the holding duty (time-optimal). Coming from
+  full power with the PV still well below the band, that gain holds down to 0.25 °C (dual
+  mode: no slow approach through the kc zone after a heat-up or cold water).
   The bias learns only from periods with the output inside its limits and innovations
   within 2 LSB: cold water is a step of the state, not a change of heat flow, and at full
   power a rate error would pose as one. An innovation beyond 4 LSB in one period (cold
@@ -142,6 +144,10 @@ LINEAR_BAND = 0.25
 """°C around the setpoint where predictive uses its gentle, dead-time-bound gain."""
 FAR_BAND = 0.5
 """°C below the setpoint (the hold band) beyond which predictive heats time-optimally."""
+FULL_MARGIN = 0.15
+"""°C (5 noise sd): a PV this far below the band is surely out of it. Full power may run on
+into the gentle zone only while the PV is there; the step down from it must not fall in the
+hold, where the output moves by a few % a period at most."""
 OBSERVER_BIAS_S = 800.0
 STEP_INNOVATION = 0.25
 """°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
@@ -778,19 +784,22 @@ class _Predictive(_Base):
         """The duty that holds `sp` by the model and its bias (may lie outside the limits)."""
         return 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
 
-    def _law(self, sp: float) -> float:
+    def _law(self, sp: float, full: bool = False) -> float:
         """P on the predicted error plus the holding duty (D apart)."""
-        return self._proportional(sp - self._predicted()) + self._holding(sp)
+        return self._proportional(sp - self._predicted(), full) + self._holding(sp)
 
-    def _proportional(self, e: float) -> float:
+    def _proportional(self, e: float, full: bool) -> float:
         """kc_near up to LINEAR_BAND below the setpoint and anywhere above it (above, nothing
         is gained by cutting harder: the water only cools); kc up to FAR_BAND below it; and
         beyond that the gain that closes the predicted error in one period, i.e. full power
-        until the heat in flight will carry the water there: time-optimal."""
+        until the heat in flight will carry the water there: time-optimal. Coming from full
+        power (`full`), that gain holds down to LINEAR_BAND: the heat-up or recovery runs at
+        full power until the gentle zone, and only a hold ever sees the kc zone."""
         if e <= LINEAR_BAND:
             return self._kc_near * e
-        p = self._kc_near * LINEAR_BAND + self._kc * (min(e, FAR_BAND) - LINEAR_BAND)
-        return p + self._kc_far * max(0.0, e - FAR_BAND)
+        far = LINEAR_BAND if full else FAR_BAND
+        p = self._kc_near * LINEAR_BAND + self._kc * (min(e, far) - LINEAR_BAND)
+        return p + self._kc_far * max(0.0, e - far)
 
     def _prime(self, sp: float, pv0: float) -> None:
         # As if PV had stood at pv0 with the output at u0 for a dead time. The output is
@@ -836,7 +845,8 @@ class _Predictive(_Base):
         fpv1 = self._fpv
         fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
         self._fpv = fpv
-        p = self._proportional(sp - self._predicted())
+        full = previous >= self._hi and pv < sp - FAR_BAND - FULL_MARGIN
+        p = self._proportional(sp - self._predicted(), full)
         i = self._holding(sp)
         d = -self._kd * (fpv - fpv1)
         self._terms = (p, i, d)

@@ -31,7 +31,7 @@ class Tun:
     def __init__(
         self, gain: float, tau: float, dead_time: float, start: float, noise: float = 0.0
     ) -> None:
-        self.gain, self.a = gain, math.exp(-TS / tau)
+        self.gain, self.tau, self.a = gain, tau, math.exp(-TS / tau)
         self.rise = start - ROOM
         lag = round(dead_time / TS)
         self.pipe: deque[float] = deque([self.holding(start)] * lag)
@@ -53,8 +53,11 @@ class Tun:
         self.rise = self.a * self.rise + self.gain * (1.0 - self.a) * arriving
 
     def add_water(self, fraction: float, temp: float) -> None:
-        """Mix in `fraction` of the volume at `temp`: the rise drops at once."""
+        """Mix in `fraction` of the volume at `temp`: the rise drops at once, and the larger
+        heat capacity C makes τ = C/UA longer (K = P/(100·UA) stays)."""
         self.rise = (self.rise + fraction * (temp - ROOM)) / (1.0 + fraction)
+        self.tau *= 1.0 + fraction
+        self.a = math.exp(-TS / self.tau)
 
 
 def run(
@@ -204,3 +207,21 @@ def test_cold_water_is_acted_on_in_the_period_the_sensor_shows_it() -> None:
     t, pv, output = trace[-1]
     assert t == 3600.0 and pv < 62.0 and output == 100.0
     assert controller.terms[0] >= 120.0 * (SP - pv)
+
+
+def test_recovery_from_cold_water_is_within_two_percent_of_full_power() -> None:
+    tun = Tun(SEED.gain, SEED.tau, SEED.dead_time, SP)
+    controller = predictive()
+    controller.reset(SP, tun.holding(SP))
+    trace = run(controller, tun, 3 * 3600.0, water_at=3600.0)
+    back = next(t for t, pv, _ in trace if t > 3600.0 and pv >= SP - 0.5) - 3600.0
+    # The least it can take: the same tun, the same water, full power from that period on
+    # (the duty already in the dead time still arrives first).
+    fastest = Tun(SEED.gain, SEED.tau, SEED.dead_time, SP)
+    fastest.add_water(0.1, 15.0)
+    steps = 0
+    while fastest.pv() < SP - 0.5:
+        fastest.heat(100.0)
+        steps += 1
+    assert back <= 1.02 * steps * TS
+    assert max(pv for t, pv, _ in trace if t > 3600.0) <= SP + 0.1
