@@ -210,6 +210,7 @@ class Daemon:
         self.controller = make_controller(config.control, self.model)
         self._learner = self._make_learner(config)
         self._heat_up_seen = pid.heat_up_fit(self.controller)
+        self._reloaded_at = -math.inf  # when a reload last changed the config
         self.planner = self._make_planner(config)
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
@@ -418,6 +419,7 @@ class Daemon:
             return
         self.config = new
         self._learner.interrupt()
+        self._reloaded_at = t
         self._record_config("reload", t)
         self._event(logging.INFO, f"config reloaded: {', '.join(changed)} changed", t)
         self._take_changes(old, new, set(changed), t)
@@ -466,7 +468,8 @@ class Daemon:
 
     def _learn(self, record: PeriodRecord) -> None:
         """Feed the learner one period; store and log what it learned (or why not)."""
-        if self.config.control.learn != "on" or self.models is None:
+        models = self.models
+        if self.config.control.learn != "on" or models is None:
             return
         learner = self._learner
         fit = pid.heat_up_fit(self.controller)
@@ -475,6 +478,10 @@ class Daemon:
         elif record.reset_from is not None and record.k > 1:
             learner.interrupt()  # resumed after a hold: the spell before it does not count
         elif fit is not self._heat_up_seen and fit is not None:
+            if record.t - fit.span <= self._reloaded_at:
+                learner.interrupt()  # the heat-up it measured had a reload in it
+                self._heat_up_seen = fit
+                return
             learner.heat_up(fit)
             what = f"rate {fit.rate * 60.0:.3f} °C/min, dead time {fit.dead_time:.0f} s"
             if fit.refused is None:
@@ -484,10 +491,12 @@ class Daemon:
         else:
             estimate = learner.period(record.setpoint, record.pv, record.applied)
             if estimate is not None:
-                self._store_model(estimate.model, estimate.refused, record.t)
+                self._store_model(models, estimate.model, estimate.refused, record.t)
         self._heat_up_seen = fit
 
-    def _store_model(self, model: LearnedModel | None, refused: str | None, t: float) -> None:
+    def _store_model(
+        self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
+    ) -> None:
         if model is None:
             self._event(logging.WARNING, f"learned model refused: {refused}", t)
             return
@@ -497,8 +506,7 @@ class Daemon:
                 MODEL_TOPIC, self.clock.wall_ns(), {"t": t, "learned": asdict(model)}
             )
         try:
-            assert self.models is not None
-            self.models.save(model)
+            models.save(model)
         except OSError as error:
             self._event(logging.ERROR, f"saving the learned model failed: {error}", t)
             return

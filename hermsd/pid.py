@@ -635,6 +635,7 @@ class HeatUpFit:
     rate: float
     dead_time: float
     refused: str | None = None
+    span: float = 0.0  # s from the step to full power until the fit: the data it rests on
 
 
 class _HeatUpWatch:
@@ -675,23 +676,24 @@ class _HeatUpWatch:
             self._stx += t * rise
             return None
         self.active = False
+        span = self._n * ts
         n = self._count
         spread = n * self._stt - self._st * self._st
         if n < 4 or spread <= 0.0:
-            return HeatUpFit(model_rate, 0.0, f"too few periods ({n}) between the rises")
+            return HeatUpFit(model_rate, 0.0, f"too few periods ({n}) between the rises", span)
         slope = (n * self._stx - self._st * self._sx) / spread
         if slope <= 0.0:
-            return HeatUpFit(model_rate, 0.0, "the PV did not rise")
+            return HeatUpFit(model_rate, 0.0, "the PV did not rise", span)
         crossing = (self._st - self._sx / slope) / n  # mean t − mean rise / slope
         mid_rise = self._sx / n
         rate = (slope + loss * mid_rise) * 100.0 / self._du
         if not 0.25 * model_rate <= rate <= 4.0 * model_rate:
             why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
-            return HeatUpFit(rate, crossing, why)
+            return HeatUpFit(rate, crossing, why, span)
         if not 0.0 <= crossing <= MAX_DEAD_TIME:
             why = f"dead time {crossing:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
-            return HeatUpFit(rate, crossing, why)
-        return HeatUpFit(rate, crossing)
+            return HeatUpFit(rate, crossing, why, span)
+        return HeatUpFit(rate, crossing, None, span)
 
 
 class _Predictive(_Base):
@@ -725,9 +727,6 @@ class _Predictive(_Base):
         ts = params.ts
         self._ts = ts
         self._kc = params.kc
-        # Near the setpoint the predicted loop is no faster than the dead time: its time
-        # constant 100/(rate·Kc) at least θ (and 2·Ts), so a dead time up to twice the
-        # model's leaves it damped. Beyond LINEAR_BAND the full kc: time-optimal transients.
         self._kd = params.kc * params.td / ts
         self._filtered = params.tf > 0.0
         self._fa = params.tf / (params.tf + ts)
@@ -751,16 +750,11 @@ class _Predictive(_Base):
         """The last heat-up's measurement (taken into the model unless refused)."""
         return self._fit
 
-    @property
-    def model(self) -> tuple[float, float]:
-        """(rate °C/s at 100 %, dead time s) in use."""
-        return self._rate, self._lag * self._ts
-
     def _use(self, rate: float, dead_time: float) -> None:
-        """Take a rate and a dead time: near the setpoint the predicted loop is no faster than
-        the dead time (time constant 100/(rate·Kc) ≥ θ and ≥ 2·Ts), so a real dead time up to
-        twice the model's leaves it damped; beyond LINEAR_BAND the full kc keeps transients
-        time-optimal."""
+        """Take a rate and a dead time, and the gains that follow from them: near the setpoint
+        the predicted loop's time constant 100/(rate·Kc) is at least PREDICTED_LOOP_FACTOR·θ
+        (and 2·Ts), so a real dead time, gain or τ twice the model's leaves it damped; far
+        below it the gain that closes the predicted error in one period (time-optimal)."""
         ts = self._ts
         self._rate = rate
         self._lag = max(0, round(dead_time / ts))

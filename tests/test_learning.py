@@ -112,8 +112,11 @@ def test_replay_verifies_a_day_on_a_learned_model(
         Event(5400.0, "mode", "manual"),
         Event(5400.0, "sensor", ("nack", None), lasts=10.0),
         Event(5400.0, "config", {"control": {"kc": 100.0}}),
+        # During the heat-up's fit (the PV rises 1 → 3 °C from 200 to 380 s), a reload
+        # that leaves the controller running: its measurement spans the reload.
+        Event(250.0, "config", {"safety": {"stuck_time": 4000.0}}),
     ],
-    ids=["manual", "sensor fault", "reload"],
+    ids=["manual", "sensor fault", "reload", "reload during the heat-up"],
 )
 def test_nothing_is_learned_across_a_manual_faulty_or_reloaded_spell(
     interruption: Event, tmp_path: Path
