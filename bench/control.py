@@ -4,8 +4,9 @@ The plant is seed 001's identified FOPTD tun (K 1.689 °C/%, τ 14961 s, θ 115 
 second through the fake LM92 (0.0625 °C steps), 5 s control period and SSR window: heat
 20 → 66 °C, add 10 L of 15 °C water at 4 h, stop at 6 h. Each algorithm runs with Table 2's
 "ITAE-load" and "Ziegler-Nichols closed loop" PID sets, the default algorithm also with its
-own default gains, and simple-pid 2.0.1 (the `bench` dependency group) with the same gains
-through the same daemon. Prints a Markdown table; `--write` puts it into bench/RESULTS.md.
+own default gains, and the peers of bench/peers.py (simple-pid 2.0.1, CraftBeerPi's
+PIDHerms) with the same gains through the same daemon. Prints a Markdown table; `--write`
+puts it into bench/RESULTS.md.
 
     uv run --group bench python bench/control.py [--write]
 """
@@ -18,57 +19,32 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from peers import ITAE_LOAD, PEERS, controlled_by  # bench/peers.py, beside this file
+
 from hermsd import config as config_module
-from hermsd import daemon as daemon_module
 from hermsd import pid
 from hermsd.sim import scenario
 
 GAIN_SETS = {
-    "ITAE-load": {"kc": 80.8, "ti": 489.0, "td": 44.9},
+    "ITAE-load": ITAE_LOAD,
     "ZN closed loop": {"kc": 92.4, "ti": 230.0, "td": 57.5},
 }
 GOALS = {"overshoot_c": 0.1, "settle_ratio": 1.01, "recovery_ratio": 1.02, "max_output_jump": 10}
-
-
-class SimplePid:
-    """simple-pid 2.0.1 behind the controller interface (it keeps its own integral)."""
-
-    def __init__(self, kc: float, ti: float, td: float, ts: float) -> None:
-        from simple_pid import PID
-
-        self._pid = PID(kc, kc / ti, kc * td, setpoint=0.0, sample_time=None)
-        self._pid.output_limits = (0.0, 100.0)
-        self._ts = ts
-        self.terms = (0.0, 0.0, 0.0)
-
-    def reset(self, pv: float, output: float) -> None:
-        self._pid.set_auto_mode(True, last_output=output)
-
-    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
-        self._pid.setpoint = sp
-        out = float(self._pid(pv, dt=self._ts))
-        self.terms = tuple(float(c) for c in self._pid.components)  # type: ignore[assignment]
-        return out
 
 
 def run(algorithm: str, gains: dict[str, float]) -> dict[str, Any]:
     base = config_module.DEFAULT
     control = dataclasses.replace(
         base.control,
-        algorithm="predictive" if algorithm == "simple-pid" else algorithm,
+        algorithm="predictive" if algorithm in PEERS else algorithm,
         tf=None,
         **gains,
     )
     config = dataclasses.replace(base, control=control)
-    original = daemon_module.make_controller
-    if algorithm == "simple-pid":
-        daemon_module.make_controller = lambda c, model=None: SimplePid(  # type: ignore[assignment,return-value]
-            gains["kc"], gains["ti"], gains["td"], c.period
-        )
-    try:
-        return scenario.run(scenario.DEFAULT, config).summary
-    finally:
-        daemon_module.make_controller = original
+    if algorithm in PEERS:
+        with controlled_by(algorithm, gains):
+            return scenario.run(scenario.DEFAULT, config).summary
+    return scenario.run(scenario.DEFAULT, config).summary
 
 
 def meets(row: dict[str, Any]) -> bool:
@@ -90,7 +66,7 @@ def main() -> int:
         )
     ]
     for set_name, gains in GAIN_SETS.items():
-        for name in (*pid.ALGORITHMS, "simple-pid"):
+        for name in (*pid.ALGORITHMS, *PEERS):
             g = dict(gains)
             if name == "velocity_pi":
                 g["td"] = 0.0  # a PI: the sets' Td has nowhere to go

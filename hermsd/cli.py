@@ -26,12 +26,14 @@ from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, ContactorConfig, OutputConfig
 from hermsd.config_file import ConfigFile
 from hermsd.durations import parse_duration
+from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
+from hermsd.realtime import loop_priority
 from hermsd.recorder import Recorder, recover, recover_directory
-from hermsd.ssr import Switch, open_hardware_switch
+from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
 DEFAULT_STATE = Path("/var/lib/hermsd")
@@ -58,7 +60,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     _setup_logging(getattr(args, "verbose", False))
     try:
         result: int = args.func(args)
+        sys.stdout.flush()  # here, so that a closed pipe is met inside the handler below
         return result
+    except BrokenPipeError:
+        return _reader_gone()
     except UserError as error:
         print(f"hermsd: {error}", file=sys.stderr)
         return EXIT_USAGE
@@ -72,6 +77,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     except KeyboardInterrupt:
         return 0
+
+
+def _reader_gone() -> int:
+    """The reader of stdout went away (`hermsd replay ... | head`): stop quietly, with the
+    status of a command that SIGPIPE ended, as `cat` would."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())  # the interpreter's last flush must not fail again
+    os.close(devnull)
+    return 128 + signal.SIGPIPE
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -127,13 +141,24 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--scenario", type=Path, help="scenario file (default: 20 → 66 °C)")
     simulate.add_argument("--json", action="store_true", help="print one JSON object")
     simulate.add_argument("--log", type=Path, help="write the MCAP log into this directory")
+    simulate.add_argument(
+        "--plant",
+        metavar="MODULE:FACTORY",
+        help="simulate the tun that FACTORY() makes (path/to/tun.py:make_tun or "
+        "package.module:make_tun; the protocol is hermsd.sim.hlt.Plant)",
+    )
+    simulate.add_argument(
+        "--state",
+        type=Path,
+        help="state directory kept from one simulated day to the next (default: none)",
+    )
     simulate.set_defaults(func=cmd_simulate)
 
     replay = sub.add_parser(
         "replay", help="summarise a brew day's logs, re-run its controller, try other settings"
     )
     replay.add_argument(
-        "files", nargs="+", type=Path, help=".mcap or .mcap.part files of one day, in order"
+        "files", nargs="*", type=Path, help=".mcap or .mcap.part files of one day, in any order"
     )
     replay.add_argument("--json", action="store_true", help="print one JSON object")
     replay.add_argument(
@@ -144,10 +169,8 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument(
         "--what-if",
         metavar="KEY=VALUE,...",
-        nargs="?",
-        const="",
         help="run the day again on a model of the tun fitted to the log, with these control "
-        f"settings ({', '.join(config_module.TUNING_KEYS)}; none: the logged ones)",
+        f"settings ({', '.join(config_module.TUNING_KEYS)}; 'logged': the logged ones)",
     )
     replay.add_argument("--csv", type=Path, metavar="FILE", help="write the period records as CSV")
     replay.add_argument(
@@ -158,12 +181,19 @@ def _parser() -> argparse.ArgumentParser:
     )
     replay.set_defaults(func=cmd_replay)
 
-    safe_off = sub.add_parser("safe-off", help="drive every configured output off and exit")
+    safe_off = sub.add_parser(
+        "safe-off",
+        help="drive every output the config names off, whatever else is wrong with it; "
+        "exit 1 unless every one is known to be off",
+    )
     safe_off.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
     safe_off.set_defaults(func=cmd_safe_off)
 
     check = sub.add_parser("check-config", help="validate a config file and print it")
     check.add_argument("file", nargs="?", type=Path, default=DEFAULT_CONFIG)
+    check.add_argument(
+        "--simulate", action="store_true", help="check a file for `run --simulate` (backend sim)"
+    )
     check.set_defaults(func=cmd_check_config)
     return parser
 
@@ -188,9 +218,36 @@ def _positive_int(text: str) -> int:
     return value
 
 
+_SYSLOG_PRIORITIES = (
+    (2, logging.CRITICAL),
+    (3, logging.ERROR),
+    (4, logging.WARNING),
+    (6, logging.INFO),
+)
+
+
+class JournalFormatter(logging.Formatter):
+    """Each line prefixed with its syslog priority, `<4>` for a warning: the journal files a
+    line written to stderr under that priority (systemd.exec(5), SyslogLevelPrefix=)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        priority = next((p for p, level in _SYSLOG_PRIORITIES if record.levelno >= level), 7)
+        return f"<{priority}>" + super().format(record)
+
+
+def stderr_is_journal() -> bool:
+    """Whether stderr is systemd's journal stream: JOURNAL_STREAM names its device and inode."""
+    try:
+        status = os.fstat(sys.stderr.fileno())
+    except (OSError, ValueError, AttributeError):
+        return False
+    return os.environ.get("JOURNAL_STREAM") == f"{status.st_dev}:{status.st_ino}"
+
+
 def _setup_logging(verbose: bool) -> None:
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
+    formatter = JournalFormatter if stderr_is_journal() else logging.Formatter
+    handler.setFormatter(formatter("%(levelname)s %(message)s"))
     root = logging.getLogger("hermsd")
     root.handlers[:] = [handler]
     root.setLevel(logging.DEBUG if verbose else logging.INFO)
@@ -285,8 +342,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     latches = _latch_store(args.state, simulate=args.simulate)
     models = ModelStore(latches.directory) if latches is not None else None
     log_dir = args.log
-    if log_dir is None and not (args.simulate and args.config is None):
+    if log_dir is None and not args.simulate:  # a simulated day never goes into log.dir
         log_dir = Path(config.log.dir) if config.log.dir else None
+    locks = _lock_directories(log_dir, latches.directory if latches is not None else None)
     status = StatusLine(sys.stdout)
     _route_log_around(status)
     previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -308,6 +366,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         else:
             if args.speed != "1":
                 raise UserError("--speed goes with --simulate")
+            if config.output.backend == "sim":
+                raise UserError(
+                    f"{path}: output.backend is 'sim', the simulated tun's output: run with "
+                    "--simulate, or choose serial-rts, serial-dtr or gpio for the tun"
+                )
             clock = MonotonicClock()
             ssr = _open_output(config.output)
             try:
@@ -339,6 +402,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             deadman = DeadManThread(daemon.outputs.all())
             deadman.start()
             stack.callback(deadman.stop)
+            if not args.simulate:  # after the recorder and dead-man threads: they stay ordinary
+                stack.enter_context(loop_priority())
             stack.enter_context(daemon)
             signal.signal(signal.SIGHUP, lambda signum, frame: daemon.request_reload())
             daemon.start()
@@ -351,7 +416,41 @@ def cmd_run(args: argparse.Namespace) -> int:
         status.clear()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        for lock in locks:
+            lock.release()
     return 0
+
+
+def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[DirectoryLock]:
+    """Lock the log and state directories, before any output is touched.
+
+    UserError (naming the other daemon's pid) when one is held: the outputs, the log and the
+    latches belong to that daemon. A directory that cannot be made is said by the recorder
+    or the latch store; one that cannot hold a lock file is said here, and run without it.
+    """
+    locks: list[DirectoryLock] = []
+    wanted = [(log_dir, "log directory"), (state_dir, "state directory")]
+    seen: set[Path] = set()
+    for directory, role in wanted:
+        if directory is None or directory.resolve() in seen:
+            continue
+        seen.add(directory.resolve())
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            continue
+        lock = DirectoryLock(directory)
+        try:
+            lock.acquire(role)
+        except InstanceError as error:
+            for held in locks:
+                held.release()
+            raise UserError(str(error)) from None
+        except OSError as error:
+            log.warning("cannot lock the %s %s: %s", role, directory, error.strerror or error)
+            continue
+        locks.append(lock)
+    return locks
 
 
 def _latch_store(directory: Path | None, *, simulate: bool) -> LatchStore | None:
@@ -375,13 +474,23 @@ def _default_state_directory() -> Path:
 
 
 def _open_recorder(directory: Path, config: Config) -> Recorder:
-    """The flight recorder, after recovering whatever a crash left in `directory`."""
+    """The flight recorder, after recovering whatever a crash left in `directory`.
+
+    A directory that cannot be made is said here; the recorder says the rest (the daemon
+    repeats it while it lasts). A file size limit (`ulimit -f`) must fail a write with
+    EFBIG, which the recorder reports, not kill the daemon with SIGXFSZ.
+    """
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        for path in recover_directory(directory):
-            log.warning("recovered %s from an unfinished log", path)
     except OSError as error:
-        log.warning("log recovery in %s failed: %s", directory, error)
+        log.warning("log failing: cannot create %s: %s", directory, error.strerror or error)
+    else:
+        try:
+            for path in recover_directory(directory):
+                log.warning("recovered %s from an unfinished log", path)
+        except OSError as error:
+            log.warning("log recovery in %s failed: %s", directory, error)
     log_cfg = config.log
     return Recorder(
         directory,
@@ -395,6 +504,7 @@ def _open_recorder(directory: Path, config: Config) -> Recorder:
 
 def _open_output(section: OutputConfig | ContactorConfig) -> Switch:
     """The hardware a config section names, or a UserError that says why not."""
+    channel = getattr(section, "channel", None)
     try:
         return open_hardware_switch(
             section.backend,
@@ -402,11 +512,18 @@ def _open_output(section: OutputConfig | ContactorConfig) -> Switch:
             chip=section.chip,
             line=section.line,
             active_low=section.active_low,
-            channel=getattr(section, "channel", 1),
+            channel=channel or 1,
             baud=getattr(section, "baud", 9600),
         )
     except (OSError, ValueError, ImportError) as error:
-        raise UserError(f"cannot open {section.backend} at {section.port}: {error}") from None
+        where = describe_output(
+            section.backend,
+            port=section.port,
+            chip=section.chip,
+            line=section.line,
+            channel=channel,
+        )
+        raise UserError(f"cannot open {where}: {error}") from None
 
 
 def _route_log_around(status: StatusLine) -> None:
@@ -447,17 +564,33 @@ def _speed(text: str) -> float:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim import scenario as scenario_module
+    from hermsd.sim.hlt import PlantLoadError, load_plant
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
+    locks = _lock_directories(args.log, args.state)
     try:
         scenario = (
             scenario_module.load_scenario(args.scenario)
             if args.scenario
             else scenario_module.DEFAULT
         )
-        result = scenario_module.run(scenario, config, log_dir=args.log)
-    except scenario_module.ScenarioError as error:
+        outside_plant = load_plant(args.plant) if args.plant else None
+        if args.state is not None:
+            args.state.mkdir(parents=True, exist_ok=True)
+        result = scenario_module.run(
+            scenario, config, log_dir=args.log, outside_plant=outside_plant, state_dir=args.state
+        )
+    except (scenario_module.ScenarioError, PlantLoadError) as error:
         raise UserError(str(error)) from None
+    except OSError as error:
+        raise UserError(f"cannot use the state directory {args.state}: {error}") from None
+    except StateError as error:
+        raise UserError(
+            f"{error} (inspect it; `hermsd reset-alarm --state DIR` replaces it)"
+        ) from None
+    finally:
+        for lock in locks:
+            lock.release()
     summary = result.summary
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -472,11 +605,17 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for key, value in summary.items():
         if isinstance(value, dict):
             lines.extend((f"{key}.{name}", item) for name, item in value.items())
-        elif key not in ("files", "alarms", "learning"):
+        elif key not in ("files", "alarms", "runs", "learning"):
             lines.append((key, value))
     width = max((len(key) for key, _ in lines), default=0)
     for report in summary.get("files", []):
         print(_file_line(report))
+    runs = summary.get("runs", [])
+    for number, run in enumerate(runs if len(runs) > 1 else [], start=1):
+        print(
+            f"run {number} of {len(runs)} (id {run['run'] or 'not logged'}), from "
+            f"{run['start_utc']}: {', '.join(run['files'])}"
+        )
     for key, value in lines:
         print(f"{key:{width}} {value}")
     for alarm in summary.get("alarms", []):
@@ -492,9 +631,10 @@ def _file_line(report: dict[str, Any]) -> str:
         state = f"not finished, complete up to byte {report['cut_at']} of {report['size']}"
         if report["cut_reason"]:
             state += f" ({report['cut_reason']})"
+    damaged = "".join(f"; {damage}" for damage in report.get("damaged", []))
     return (
         f"file {report['path']}: {state}; {report['messages']} messages recovered, "
-        f"{report['periods']} control periods"
+        f"{report['periods']} control periods{damaged}"
     )
 
 
@@ -515,6 +655,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     status = 0
     try:
         overrides = None if args.what_if is None else replay.parse_what_if(args.what_if)
+        if not args.files:
+            raise UserError("replay: name the .mcap (or .mcap.part) files of one day")
         log = replay.load(args.files)
         result: dict[str, Any] = {}
         if args.verify:
@@ -584,28 +726,22 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
 
 
 def cmd_safe_off(args: argparse.Namespace) -> int:
-    """Every configured output off; exit 0 even when one cannot be reached (it is said).
+    """Every output the config file names, off; exit 1 unless all of them are known to be off.
 
-    Only the output sections of the file are read, so a bad edit elsewhere (the likely
-    reason the daemon just stopped) cannot keep the element on.
+    The file is read as far as it can be (`config.load_outputs`), so a bad edit, the likely
+    reason the daemon just stopped, cannot keep the element on.
     """
-    try:
-        path = config_path(args.config, simulate=False)
-        assert path is not None
-        sections = config_module.load_outputs(path)
-    except (UserError, ConfigError) as error:
-        print(f"hermsd safe-off: {error}", file=sys.stderr)
-        return 0
-    for section in sections:
-        if section.backend in ("none", "sim"):
-            continue
-        try:
-            switch = _open_output(section)
-            switch.set(False)
-            switch.close()
-            print(f"{section.backend} off")
-        except (UserError, OSError) as error:
-            print(f"hermsd safe-off: {section.backend}: {error}", file=sys.stderr)
+    from hermsd.safe_off import switch_off
+
+    found = config_module.load_outputs(args.config or DEFAULT_CONFIG)
+    report = switch_off(found, open_hardware_switch)
+    for line in report.switched:
+        print(line)
+    for line in report.notes + report.failures:
+        print(f"hermsd safe-off: {line}", file=sys.stderr)
+    if report.failures:
+        print("hermsd safe-off: not every output is known to be off", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -675,8 +811,37 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:
-    config = config_module.load(args.file)
-    print(config_module.dump_yaml(config), end="")
+    """The file as hermsd will use it, and the safety limits it puts in force; for `run` on
+    hardware unless --simulate is given.
+
+    `output.backend: sim` is valid only in a simulated run, so it is refused here by
+    default: a file checked for the service must not fail when the service starts.
+    """
+    from hermsd.daemon import safety_limits
+    from hermsd.safety import format_limits
+
+    document = config_module.load_document(args.file)
+    if document.config.output.backend == "sim" and not args.simulate:
+        line, column = document.written["output.backend"]
+        raise ConfigError(
+            [
+                config_module.Problem(
+                    os.fspath(args.file),
+                    line,
+                    column,
+                    "output.backend",
+                    "'sim' is the simulated tun's output, which `hermsd run` uses only with "
+                    "--simulate (choose serial-rts, serial-dtr or gpio for the tun, or check "
+                    "a file for simulation with check-config --simulate)",
+                )
+            ]
+        )
+    print(config_module.dump_yaml(document.config), end="")
+    # As YAML comments, so that the output still reads back as the config it is.
+    print("\n# safety limits in force (nothing measured yet):")
+    limits = safety_limits(document.config)
+    for row in format_limits(limits, document.config.control.setpoint):
+        print(f"#   {row}")
     return 0
 
 

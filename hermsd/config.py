@@ -18,6 +18,7 @@ import difflib
 import math
 import os
 import re
+import stat
 import typing
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple, TypeVar
@@ -176,6 +177,9 @@ class SafetyConfig:
     fault_reads: int = _integer(2, 1, 10)
     resume_reads: int = _integer(5, 1, 100)
     stale_after: float | None = _number(None, 1, 60, "s", null_means="3 read intervals")
+    dead_time: float | None = _number(
+        None, 10, 3600, "s", null_means="300 s, or the tun's measured dead time"
+    )
     heater_watch: float | None = _number(None, 30, 7200, "s", null_means=_BUILT_IN)
     heater_min_rise: float | None = _number(
         None, 0, 50, "°C", low_exclusive=True, null_means="a value derived from the tun"
@@ -756,6 +760,7 @@ class _Reader:
         self.problems: list[Problem] = []
         self.marks: dict[str, yaml.Mark] = {}  # key path -> where its value starts
         self.failed: set[str] = set()  # key paths and sections whose value was refused
+        self.written: dict[str, tuple[int, int]] = {}  # each section and key -> (line, column)
 
     def report(self, mark: yaml.Mark | None, key_path: str, message: str) -> None:
         line, column = (mark.line + 1, mark.column + 1) if mark is not None else (1, 1)
@@ -791,6 +796,7 @@ class _Reader:
                     key_node.start_mark, path, f"unknown key ({self._suggest(key, prefix, known)})"
                 )
                 continue
+            self.written[path] = (key_node.start_mark.line + 1, key_node.start_mark.column + 1)
             pairs.append((key, value_node))
         return pairs
 
@@ -915,73 +921,395 @@ def _root(text: str, filename: str) -> yaml.Node | None:
         ) from None
 
 
+@dataclass(frozen=True, slots=True)
+class Document:
+    """A valid file: its Config, and what it writes down, which a reload must keep."""
+
+    filename: str
+    config: Config
+    written: dict[str, tuple[int, int]]  # each section and `section.key` -> (line, column)
+    cut_line: int  # the last line when it holds a value but no line break, else 0
+
+
 def parse(text: str, filename: str = "<string>") -> Config:
     """The Config a YAML text describes; ConfigError lists everything wrong with it."""
+    return parse_document(text, filename).config
+
+
+def parse_document(text: str, filename: str = "<string>") -> Document:
+    """`parse`, keeping what the text writes down (for `reload_problems`)."""
     reader = _Reader(filename)
     values = reader.document(_root(text, filename))
     config = Config(**{name: _SECTION_CLASSES[name](**values[name]) for name in _SCHEMA})
     reader.cross_check(config)
     if reader.problems:
         raise ConfigError(sorted(reader.problems, key=lambda p: (p.line, p.column)))
-    return config
+    return Document(filename, config, reader.written, _unfinished_last_line(text))
 
 
 def load(path: str | os.PathLike[str]) -> Config:
     """The Config in a file; ConfigError (never OSError) when it cannot be read or used."""
+    return load_document(path).config
+
+
+def load_document(path: str | os.PathLike[str]) -> Document:
+    """`load`, keeping what the file writes down (for `reload_problems`)."""
     filename = os.fspath(path)
-    return parse(_read_text(filename), filename)
+    return parse_document(_read_text(filename), filename)
 
 
-def load_outputs(path: str | os.PathLike[str]) -> tuple[OutputConfig, ContactorConfig]:
-    """Only the `output` and `contactor` sections of a file, whatever is wrong elsewhere.
+_LINE_BREAKS = ("\n", "\r", "\x85", "\u2028", "\u2029")  # YAML's, and Unicode's
 
-    `hermsd safe-off` must find the heater's switches even after a bad edit elsewhere in
-    the file; ConfigError names only the problems of these two sections.
+
+def _unfinished_last_line(text: str) -> int:
+    """The last line's number when it holds a value but ends without a line break, else 0.
+
+    Editors end a file with a line break; a save cut short by a full disk or a crash stops
+    anywhere, and a number cut short (`kc: 12` of `kc: 120`) may still be a valid number.
+    """
+    lines = text.splitlines(keepends=True)
+    if not lines or lines[-1].endswith(_LINE_BREAKS):
+        return 0
+    content = lines[-1].strip()
+    return len(lines) if content and not content.startswith("#") else 0
+
+
+def reload_problems(running: Document, edited: Document) -> list[Problem]:
+    """Why `edited`, valid on its own, must not replace the running file's config.
+
+    An emptied file is valid YAML, and so is most of a file cut short: taken as they are,
+    every key they lost would fall back to its default (auto mode, full power, the default
+    temperature limit) in the middle of a brew. So a reload must name every section and
+    key the running file named, and its last line must be finished.
+    """
+    where = edited.filename
+    if running.written and not edited.written:
+        return [
+            Problem(
+                where,
+                0,
+                0,
+                "",
+                "names no section: an emptied file, or a save cut short (a reload never "
+                "falls back to the built-in defaults; put the file back, or restart hermsd "
+                "to run on the defaults)",
+            )
+        ]
+    problems = []
+    lost = [key for key in running.written if key not in edited.written]
+    gone = [key for key in lost if "." not in key or key.split(".")[0] not in lost]
+    if gone:
+        names = ", ".join(gone)
+        problems.append(
+            Problem(
+                where,
+                0,
+                0,
+                "",
+                f"{names} {'is' if len(gone) == 1 else 'are'} no longer in the file, as in a "
+                "save cut short (a reload keeps every key of the running file: to return one "
+                "to its default, write the default value; a restart takes the file as it is)",
+            )
+        )
+    if edited.cut_line:
+        problems.append(
+            Problem(
+                where,
+                edited.cut_line,
+                1,
+                "",
+                "the last line has no line break at its end, as a save cut short leaves it "
+                "(end the file with a newline)",
+            )
+        )
+    return problems
+
+
+@dataclass(frozen=True, slots=True)
+class FoundOutput:
+    """One output section as far as a damaged file lets it be read, key by key."""
+
+    section: str  # "output" or "contactor"
+    values: dict[str, object]  # the keys written with a usable value
+    refused: dict[str, Problem]  # the keys written with a value that cannot be used
+    doubts: list[Problem]  # what may name this device otherwise: unknown keys, unread lines
+
+
+@dataclass(frozen=True, slots=True)
+class FoundOutputs:
+    """What `hermsd safe-off` finds in a config file, however damaged."""
+
+    output: FoundOutput
+    contactor: FoundOutput
+    notes: list[Problem]  # damage outside the output sections, read around
+    doubts: list[Problem]  # damage that may hide an output section: nothing is sure then
+
+
+_OUTPUT_SECTIONS = ("output", "contactor")
+
+
+def load_outputs(path: str | os.PathLike[str]) -> FoundOutputs:
+    """The `output` and `contactor` sections of a file, whatever is wrong with it.
+
+    `hermsd safe-off` must find the heater's switches after any bad edit, so this reads
+    in steps, each more tolerant than the last: the whole document; if it is not YAML,
+    each output section alone, then each of its lines alone; a file that cannot be read
+    at all leaves the built-in defaults. Bytes that are not UTF-8 and control characters
+    are read as U+FFFD. Every problem on the way is kept, so the caller can tell a file
+    read around its damage from one where an output may have been missed.
     """
     filename = os.fspath(path)
+    notes: list[Problem] = []
+    doubts: list[Problem] = []
+    try:
+        data = read_bytes(filename)
+    except ConfigError as error:
+        return _found_outputs(_Reader(filename), {}, notes, error.problems)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        notes.append(_not_utf8(filename, data, error))
+        text = data.decode("utf-8", "replace")
+    printable = yaml.reader.Reader.NON_PRINTABLE.sub("\ufffd", text)
+    if printable != text:
+        try:
+            yaml.reader.Reader(text)
+        except yaml.reader.ReaderError as error:
+            notes.append(_syntax_problem(filename, text, error))
     reader = _Reader(filename)
-    values = reader.document(_root(_read_text(filename), filename))
-    ours = [p for p in reader.problems if p.key_path.split(".")[0] in ("", "output", "contactor")]
-    if ours:
-        raise ConfigError(ours)
-    output: OutputConfig = _SECTION_CLASSES["output"](**values["output"])
-    contactor: ContactorConfig = _SECTION_CLASSES["contactor"](**values["contactor"])
-    return output, contactor
+    try:
+        root = _compose(printable)
+    except (yaml.YAMLError, RecursionError) as error:
+        if isinstance(error, yaml.YAMLError):
+            notes.append(_syntax_problem(filename, printable, error))
+        return _found_outputs(reader, _scan_lines(reader, printable), notes, doubts)
+    if root is not None and not isinstance(root, yaml.MappingNode):
+        return _found_outputs(reader, _scan_lines(reader, printable), notes, doubts)
+    nodes = dict(reader.items(root, "", list(_SCHEMA))) if root is not None else {}
+    if not nodes:
+        doubts.append(Problem(filename, 0, 0, "", "names no section (an emptied file?)"))
+    ours = {section: nodes[section] for section in _OUTPUT_SECTIONS if section in nodes}
+    return _found_outputs(reader, ours, notes, doubts)
+
+
+def _found_outputs(
+    reader: _Reader,
+    nodes: dict[str, yaml.Node],
+    notes: list[Problem],
+    doubts: list[Problem],
+) -> FoundOutputs:
+    """The sections' usable values and problems, once their nodes are found."""
+    values = {section: reader.section(section, node) for section, node in nodes.items()}
+    found = []
+    for section in _OUTPUT_SECTIONS:
+        refused = {}
+        section_doubts = []
+        for problem in reader.problems:
+            if problem.key_path.split(".")[0] != section:
+                continue
+            if problem.key_path in reader.failed and problem.key_path != section:
+                refused[problem.key_path.split(".")[1]] = problem
+            else:
+                section_doubts.append(problem)
+        found.append(FoundOutput(section, values.get(section, {}), refused, section_doubts))
+    doubts = doubts + [p for p in reader.problems if p.key_path.split(".")[0] not in _SCHEMA]
+    return FoundOutputs(found[0], found[1], notes, doubts)
+
+
+_HEADER = re.compile(r"[ \t]*(?P<name>[A-Za-z_][A-Za-z0-9_]*)[ \t]*:(?:[ \t]|$)")
+
+
+def _scan_lines(reader: _Reader, text: str) -> dict[str, yaml.Node]:
+    """The output sections of a text that is not YAML as a whole, found line by line.
+
+    A section runs from its `name:` line (at any indentation) to the next line that is
+    indented no deeper. Each is read as YAML on its own; failing that, line by line,
+    and a line that cannot be read is a doubt about its section. A top-level line that
+    is not a known section may hide an output section: a doubt about the whole file.
+    """
+    lines = text.splitlines()
+    blocks: dict[str, list[int]] = {}
+    current: tuple[str, int] | None = None  # the output section being read, its indentation
+    for number, line in enumerate(lines):
+        content = line.strip()
+        if not content or content.startswith("#"):
+            continue
+        indent = len(line) - len(line.lstrip(" \t"))
+        header = _HEADER.match(line)
+        name = header["name"] if header else ""
+        if name in _OUTPUT_SECTIONS:
+            if name in blocks:
+                reader.report(_mark(number), name, "the section is given twice (keep one)")
+                current = None
+            else:
+                blocks[name] = [number]
+                current = (name, indent)
+        elif current is not None and indent > current[1]:
+            blocks[current[0]].append(number)
+        else:
+            current = None
+            if indent == 0 and name not in _SCHEMA and content not in ("---", "..."):
+                reader.report(
+                    _mark(number),
+                    "",
+                    "cannot tell which section this line is, so it may hold an output "
+                    f"(the sections: {', '.join(_SCHEMA)})",
+                )
+    return {
+        name: _section_node(reader, name, lines, numbers[0], numbers[-1])
+        for name, numbers in blocks.items()
+    }
+
+
+def _mark(line_index: int) -> yaml.Mark:
+    return yaml.Mark("", 0, line_index, 0, "", 0)
+
+
+def _section_node(
+    reader: _Reader, section: str, lines: list[str], first: int, last: int
+) -> yaml.Node:
+    """Lines `first` to `last` (a section) as a mapping node: as YAML, else line by line."""
+    block = _mapping_pairs("\n" * first + "\n".join(lines[first : last + 1]), section)
+    if block is not None:
+        return block[0][1]
+    readable: list[tuple[yaml.Node, yaml.Node]] = []
+    header = _mapping_pairs("\n" * first + lines[first], section)
+    if header is not None and isinstance(header[0][1], yaml.MappingNode):
+        readable.extend(header[0][1].value)
+    elif header is None or not _is_null(header[0][1]):
+        reader.report(_mark(first), section, "this line cannot be read")
+    for number in range(first + 1, last + 1):
+        content = lines[number].strip()
+        if not content or content.startswith("#"):
+            continue
+        indent = " " * (len(lines[number]) - len(lines[number].lstrip()))  # tabs too
+        pairs = _mapping_pairs("\n" * number + indent + content, None)
+        if pairs is None:
+            reader.report(_mark(number), section, "this line cannot be read")
+        else:
+            readable.extend(pairs)
+    return yaml.MappingNode(_RESOLVER.DEFAULT_MAPPING_TAG, readable)
+
+
+def _mapping_pairs(text: str, key: str | None) -> list[tuple[yaml.Node, yaml.Node]] | None:
+    """The pairs of a text that is one YAML mapping (of just `key`, if given), else None."""
+    try:
+        root = _compose(text)
+    except (yaml.YAMLError, RecursionError):
+        return None
+    if not isinstance(root, yaml.MappingNode):
+        return None
+    pairs: list[tuple[yaml.Node, yaml.Node]] = root.value
+    if key is not None:
+        if len(pairs) != 1 or not isinstance(pairs[0][0], yaml.ScalarNode):
+            return None
+        if pairs[0][0].value != key:
+            return None
+    return pairs
+
+
+def _is_null(node: yaml.Node) -> bool:
+    return isinstance(node, yaml.ScalarNode) and node.style is None and node.value in _NULLS
+
+
+def every_valid_value(key_path: str) -> list[object]:
+    """Every value of a key that has few (choices, or a short range of whole numbers).
+
+    The default comes first.
+    """
+    section, name = key_path.split(".")
+    info = _SCHEMA[section][name]
+    spec = info.spec
+    if spec.choices:
+        values = list(spec.choices)
+    else:
+        assert spec.low is not None
+        assert spec.high is not None
+        values = list(range(int(spec.low), int(spec.high) + 1))
+    return [info.default, *(value for value in values if value != info.default)]
 
 
 def _read_text(filename: str) -> str:
     """The file's text; ConfigError when it cannot be read or is not UTF-8."""
+    data = read_bytes(filename)
     try:
-        with open(filename, "rb") as file:
-            data = file.read()
+        return data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise ConfigError([_not_utf8(filename, data, error)]) from None
+
+
+def _not_utf8(filename: str, data: bytes, error: UnicodeDecodeError) -> Problem:
+    line_start = data.rfind(b"\n", 0, error.start) + 1
+    line = data.count(b"\n", 0, error.start) + 1
+    column = len(data[line_start : error.start].decode("utf-8", "replace")) + 1
+    return Problem(
+        filename,
+        line,
+        column,
+        "",
+        f"byte 0x{data[error.start]:02x} is not UTF-8 text (save the file as "
+        "UTF-8; an editor set to Latin-1 writes '°' this way)",
+    )
+
+
+MAX_FILE_BYTES = 1 << 16
+"""The largest config file read: over five times the shipped one (every key, commented).
+
+Reading and parsing happen beside the control loop, in its process: the cap bounds how
+long a reload can take CPU (and Python's one interpreter lock) from the loop.
+"""
+
+
+def read_bytes(filename: str) -> bytes:
+    """A regular file's bytes, at most MAX_FILE_BYTES of them; ConfigError otherwise.
+
+    The kind of file is checked before it is opened: opening a FIFO waits for a writer, and
+    opening a serial device raises its modem lines, which may drive an SSR. The size is
+    checked before reading, and again by what was read, so neither a huge file nor one that
+    grows while it is read costs more than the cap in memory and time.
+    """
+    try:
+        status = os.stat(filename)
+        kind, size = _file_kind(status.st_mode), status.st_size
+        if kind is None and size <= MAX_FILE_BYTES:
+            flags = os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
+            with open(os.open(filename, flags), "rb") as file:
+                kind = _file_kind(os.fstat(file.fileno()).st_mode)  # replaced meanwhile?
+                data = b"" if kind else file.read(MAX_FILE_BYTES + 1)
+                size = max(size, len(data))
     except OSError as error:
         raise ConfigError([Problem(filename, 0, 0, "", _unreadable(error))]) from None
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as error:
-        line_start = data.rfind(b"\n", 0, error.start) + 1
-        line = data.count(b"\n", 0, error.start) + 1
-        column = len(data[line_start : error.start].decode("utf-8", "replace")) + 1
-        raise ConfigError(
-            [
-                Problem(
-                    filename,
-                    line,
-                    column,
-                    "",
-                    f"byte 0x{data[error.start]:02x} is not UTF-8 text (save the file as "
-                    "UTF-8; an editor set to Latin-1 writes '°' this way)",
-                )
-            ]
-        ) from None
-    return text
+    if kind is not None:
+        message = f"is {kind}, not a regular file (name the YAML file itself)"
+        raise ConfigError([Problem(filename, 0, 0, "", message)])
+    if size > MAX_FILE_BYTES:
+        message = (
+            f"is {size} bytes long, more than the {MAX_FILE_BYTES // 1024} KiB a config file "
+            "may be (the shipped one is under 12 kB: is this the right file?)"
+        )
+        raise ConfigError([Problem(filename, 0, 0, "", message)])
+    return data
+
+
+def _file_kind(mode: int) -> str | None:
+    """What a file that is not a regular file is, in words; None for a regular file."""
+    if stat.S_ISREG(mode):
+        return None
+    for test, kind in (
+        (stat.S_ISDIR, "a directory"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return kind
+    return "some other kind of file"
 
 
 def _unreadable(error: OSError) -> str:
     if isinstance(error, FileNotFoundError):
         return "no such file (check the path, or copy config/hermsd.yaml there)"
-    if isinstance(error, IsADirectoryError):
-        return "is a directory (name the YAML file inside it)"
     if isinstance(error, PermissionError):
         return "permission denied (make the file readable by the user hermsd runs as)"
     return f"cannot be read: {error.strerror or error} (check the file and its path)"

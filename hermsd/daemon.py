@@ -4,8 +4,11 @@ The same code runs on the Pi (real clock, LM92 on /dev/i2c-N, SSR on a serial li
 in real time against the simulated tun, and at full speed in `hermsd simulate`. Everything
 outside — hardware, clock, recorder, systemd notifier — is handed in.
 
-Per control period the controller sees one PV and the duty that really reached the element
-in the period before (`applied`), so it tracks the actuator. When the supervisor forbids
+Per control period the controller sees one PV and the duty the SSR was driven at in the
+period before (`applied`: the time its input was on, as switched, edge lateness and forced
+offs included), so it tracks the actuator. It is not a measurement of the element's power:
+a shorted SSR, an open contactor or a dead element show only in the temperature, which is
+what the supervisor's watches are for. When the supervisor forbids
 heating, the SSR is cut at once (mid-window), the contactor opens, and the controller is
 held, not fed zeros; when heating is allowed again it resumes from the output it had.
 """
@@ -16,6 +19,7 @@ import dataclasses
 import logging
 import math
 import re
+import signal
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -26,19 +30,21 @@ from hermsd import pid
 from hermsd.clock import Clock
 from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
 from hermsd.config_file import ConfigFile
-from hermsd.latches import LatchedAlarm, Latches, LatchStore
+from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, LogLevel, log_message
-from hermsd.safety import Alarm, SafetyLimits, Supervisor
+from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPlan, cut
 
 log = logging.getLogger("hermsd")
 
 TIMING_INTERVAL = 60.0  # s between timing records
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+LOG_FAILING_REPEAT_S = 60.0  # a failing log is said again this often while it lasts
 
 
 class Sensor(Protocol):
@@ -123,13 +129,16 @@ def window_length(config: Config) -> float:
     return config.output.window if config.output.window is not None else config.control.period
 
 
-def safety_limits(config: Config) -> SafetyLimits:
+def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLimits:
+    """The supervisor's limits: from `model` (the tun as measured) where given, else safe for
+    any tun the config could be describing (see `SafetyLimits.derive`)."""
     s = config.safety
     return SafetyLimits.derive(
         litres=config.tun.litres,
         element_watts=config.tun.element_watts,
         period=config.control.period,
         read_interval=config.sensor.read_interval,
+        model=model,
         max_temp=s.max_temp,
         hysteresis=s.hysteresis,
         plausible_min=s.plausible_min,
@@ -138,6 +147,7 @@ def safety_limits(config: Config) -> SafetyLimits:
         fault_reads=s.fault_reads,
         resume_reads=s.resume_reads,
         stale_after=s.stale_after,
+        dead_time=s.dead_time,
         heater_watch=s.heater_watch,
         heater_min_rise=s.heater_min_rise,
         ssr_watch=s.ssr_watch,
@@ -183,8 +193,10 @@ class Daemon:
         config_file: ConfigFile | None = None,
         latches: LatchStore | None = None,
         models: ModelStore | None = None,
+        tun_model: MeasuredTun | None = None,
     ) -> None:
         self.config = config
+        self.tun_model = tun_model
         self.config_file = config_file
         self.latches = latches
         self.clock = clock
@@ -200,7 +212,7 @@ class Daemon:
         self.on_status = on_status
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
-        self.supervisor = Supervisor(safety_limits(config))
+        self.supervisor = Supervisor(safety_limits(config, tun_model))
         self.models = models
         self._stored_model: LearnedModel | None = None
         self._model_problem: str | None = None  # said in the log at start
@@ -234,6 +246,10 @@ class Daemon:
         self._config_problem: str | None = None  # why the file's last edit was rejected
         self._saved_latches: list[str] = []
         self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
+        self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
+        self._log_failing: str | None = None  # why the recorder cannot write, as last said
+        self._log_failing_since = 0.0
+        self._log_failing_said = 0.0
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -261,6 +277,7 @@ class Daemon:
         self._started = True
         self._record_config("start", now)
         self._event(logging.INFO, "started", now)
+        self._check_log(now)
         if self._model_problem is not None:
             self._event(logging.WARNING, f"learned model ignored: {self._model_problem}", now)
         if self._stored_model is not None:
@@ -297,20 +314,36 @@ class Daemon:
         return self._control_task.overruns if self._started else 0
 
     def shutdown(self, reason: str = "stopped") -> bool:
-        """Heater off and contactor open, whatever else fails; False if an output refused."""
+        """Heater off and contactor open, whatever else fails; False if an output refused.
+
+        SIGINT and SIGTERM wait (blocked) until every output has been tried: a second Ctrl-C,
+        or systemd's stop during a SIGINT, must not cut the switching-off short.
+        """
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        try:
+            return self._all_off(reason)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+    def _all_off(self, reason: str) -> bool:
         self._window.cancel()
         ok = True
+        interrupted: BaseException | None = None
         for output in self.outputs.all():
             try:
                 output.close()
             except Exception as error:  # every output must be tried, and the failure told
                 ok = False
                 log.critical("could not switch %s off: %s", output.name, error)
+            except BaseException as error:  # a stop signal already on its way: the rest first
+                interrupted = interrupted or error
         now = self.clock.monotonic()
         self._set_ssr_accounting(False, now)
         self._event(logging.INFO, f"heater off: {reason}", now)
         if self.notifier is not None:
             self.notifier.stopping()
+        if interrupted is not None:
+            raise interrupted
         return ok
 
     # -- operator actions (applied at the next period boundary) ---------------------------
@@ -443,7 +476,7 @@ class Daemon:
         elif "control.max_output" in changed and self.mode == "manual":
             self._apply_manual(self.manual_output, t)  # the new power limit holds at once
         if any(key.startswith(("safety.", "tun.")) for key in changed):
-            self.supervisor.limits = safety_limits(new)
+            self.supervisor.limits = safety_limits(new, self.tun_model)
         if changed & {"safety.max_temp", "safety.hysteresis"}:
             self._reprogram_sensor(t)
         if "safety.reset" in changed:
@@ -526,6 +559,7 @@ class Daemon:
         for alarm in stored.alarms:
             when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(alarm.wall_ns / 1e9))
             self._latched_wall_ns[alarm.kind] = alarm.wall_ns
+            self._latched_messages[alarm.kind] = alarm.message  # stored again without the note
             message = f"{alarm.message} (latched {when}, before a restart)"
             self.supervisor.restore_latched(t, alarm.kind, message, alarm.values)
         self._drain_alarms(t)
@@ -536,7 +570,7 @@ class Daemon:
             return
         try:
             kinds = self.latches.take_reset_request()
-        except OSError as error:
+        except (OSError, StateError) as error:
             self._event(logging.ERROR, f"reading the reset request failed: {error}", t)
             return
         if kinds is not None:
@@ -550,7 +584,12 @@ class Daemon:
         alarms = self.supervisor.latched_alarms()
         stored = Latches(
             tuple(
-                LatchedAlarm(a.kind, self._latched_wall_ns.get(a.kind, 0), a.message, a.values)
+                LatchedAlarm(
+                    a.kind,
+                    self._latched_wall_ns.get(a.kind, 0),
+                    self._latched_messages.get(a.kind, a.message),
+                    a.values,
+                )
                 for a in alarms
             ),
             self.config.safety.reset,
@@ -763,7 +802,7 @@ class Daemon:
             self._ssr_on_since = None
 
     def _applied(self, now: float) -> float:
-        """The duty that really reached the element since the last control period, in %."""
+        """The duty the SSR was driven at since the last control period, as switched, in %."""
         if self._ssr_on_since is not None:
             self._on_seconds += now - self._ssr_on_since
             self._ssr_on_since = now
@@ -779,9 +818,37 @@ class Daemon:
         state = ", ".join(self.supervisor.active) or ("manual" if self.mode == "manual" else "ok")
         if self._config_problem is not None:
             state += ", config rejected (see journal)"
+        if self._log_failing is not None:
+            state += f", log failing: {self._log_failing}"
         return status_line(self.config.tun.name, self._pv, self.setpoint, self.output, state)
 
+    def _check_log(self, t: float) -> None:
+        """Say that the log cannot be written at once, every minute while it lasts, and when
+        it can again: control goes on without it, but nobody should learn it from a lost day."""
+        failing: str | None = getattr(self.recorder, "failing", None)
+        if failing is None:
+            if self._log_failing is not None:
+                self._log_failing = None
+                lost = getattr(self.recorder, "lost", 0)
+                self._event(
+                    logging.WARNING,
+                    f"log writing again after {t - self._log_failing_since:.0f} s failing "
+                    f"({lost} records lost since start)",
+                    t,
+                )
+            return
+        if self._log_failing is None:
+            self._log_failing_since = t
+        elif t - self._log_failing_said < LOG_FAILING_REPEAT_S:
+            self._log_failing = failing
+            return
+        self._log_failing, self._log_failing_said = failing, t
+        lasting = t - self._log_failing_since
+        since = f" for {lasting:.0f} s" if lasting > 0 else ""
+        self._event(logging.WARNING, f"log failing{since}: {failing}; control goes on", t)
+
     def _report(self, now: float) -> None:
+        self._check_log(now)
         text = self.status_text()
         if self.on_status is not None:
             self.on_status(text)
@@ -818,6 +885,7 @@ class Daemon:
                 self._event(level, raised_alarm_text(alarm), t)
             else:
                 self._latched_wall_ns.pop(alarm.kind, None)
+                self._latched_messages.pop(alarm.kind, None)
                 self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
                 if alarm.kind == "sensor_fault":
                     self._reprogram_sensor(t)

@@ -18,15 +18,19 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 from hermsd.files import write_atomically
 from hermsd.safety import LATCHED_KINDS
 
 LATCHED_FILE = "latched.json"
 RESET_FILE = "reset-alarm.json"
+MAX_STATE_BYTES = 1 << 20  # a latch file holds a few alarms: far less than this
 
 
 class StateError(Exception):
@@ -67,26 +71,14 @@ class LatchStore:
 
     def load(self) -> Latches:
         """The stored latches; none when there is no file. StateError for a damaged one."""
-        document = self._read_json(self.latched_path)
+        path = self.latched_path
+        document = _read_json(path)
         if document is None:
             return Latches()
         try:
-            alarms = tuple(
-                LatchedAlarm(
-                    str(item["kind"]),
-                    int(item["wall_ns"]),
-                    str(item["message"]),
-                    dict(item.get("values", {})),
-                )
-                for item in document["alarms"]
-            )
-            reset = int(document["reset"])
-        except (KeyError, TypeError, ValueError) as error:
-            raise StateError(f"{self.latched_path}: not a hermsd latch file ({error})") from None
-        unknown = [a.kind for a in alarms if a.kind not in LATCHED_KINDS]
-        if unknown:
-            raise StateError(f"{self.latched_path}: unknown alarm kinds {unknown}")
-        return Latches(alarms, reset)
+            return _latches(document)
+        except _Malformed as error:
+            raise StateError(f"{path}: not a hermsd latch file: {error}") from None
 
     def save(self, latches: Latches) -> None:
         """Replace the stored latches atomically (OSError when the disk refuses)."""
@@ -104,33 +96,103 @@ class LatchStore:
         write_atomically(self.reset_path, json.dumps({"kinds": sorted(kinds)}))
 
     def take_reset_request(self) -> list[str] | None:
-        """The kinds a pending `reset-alarm` names, removing the request; None when none.
+        """The latched kinds a pending `reset-alarm` names, removing the request; None when none.
 
-        A request that cannot be read is removed too and names nothing, so it cannot make
-        the daemon clear alarms nobody saw.
+        A request that cannot be read is removed too, and raises StateError: it cannot make
+        the daemon clear alarms nobody saw, nor stop it.
         """
+        path = self.reset_path
         try:
-            document = self._read_json(self.reset_path)
-        except StateError:
-            document = {"kinds": []}
-        if document is None:
-            return None
+            document = _read_json(path)
+            if document is None:
+                return None
+            kinds = document.get("kinds") if isinstance(document, dict) else None
+            if not (isinstance(kinds, list) and all(isinstance(k, str) for k in kinds)):
+                raise StateError(f'{path}: not a reset request (expected {{"kinds": [names]}})')
+        except StateError as error:
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+            raise StateError(f"{error}; discarded") from None
         with contextlib.suppress(FileNotFoundError):
-            self.reset_path.unlink()
-        kinds = document.get("kinds") if isinstance(document, dict) else None
-        if not isinstance(kinds, list):
-            return []
+            path.unlink()
         return [kind for kind in kinds if kind in LATCHED_KINDS]
 
-    @staticmethod
-    def _read_json(path: Path) -> Any:
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            return None
-        except (OSError, UnicodeDecodeError) as error:
-            raise StateError(f"{path}: cannot be read: {error}") from None
-        try:
-            return json.loads(text)
-        except json.JSONDecodeError as error:
-            raise StateError(f"{path}: not valid JSON: {error}") from None
+
+class _Malformed(Exception):
+    """What is wrong with a latch document, for StateError's message."""
+
+
+def _latches(document: Any) -> Latches:
+    """A latch document checked key by key and type by type: nothing is coerced or guessed."""
+    if not isinstance(document, dict):
+        raise _Malformed("expected an object with 'alarms' and 'reset'")
+    alarms, reset = document.get("alarms"), document.get("reset")
+    if not isinstance(alarms, list):
+        raise _Malformed("'alarms' must be a list")
+    if not _is_int(reset):
+        raise _Malformed("'reset' must be a whole number")
+    return Latches(tuple(_alarm(item) for item in alarms), reset)
+
+
+def _alarm(item: Any) -> LatchedAlarm:
+    if not isinstance(item, dict):
+        raise _Malformed("each alarm must be an object")
+    kind, wall_ns, message = item.get("kind"), item.get("wall_ns"), item.get("message")
+    values = item.get("values", {})
+    if kind not in LATCHED_KINDS:
+        raise _Malformed(f"unknown alarm kind {kind!r} (latched kinds: {', '.join(LATCHED_KINDS)})")
+    if not (_is_int(wall_ns) and 0 <= wall_ns < 2**63):  # what the wall clock gives
+        raise _Malformed(f"{kind}: 'wall_ns' must be a whole number of ns since 1970")
+    if not isinstance(message, str):
+        raise _Malformed(f"{kind}: 'message' must be text")
+    scalars = (str, int, float, bool, type(None))
+    if not (isinstance(values, dict) and all(isinstance(v, scalars) for v in values.values())):
+        raise _Malformed(f"{kind}: 'values' must be an object of numbers, text or null")
+    return LatchedAlarm(kind, wall_ns, message, values)
+
+
+def _is_int(value: Any) -> TypeGuard[int]:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"number {text} is out of range")
+    return value
+
+
+def _no_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def _read_json(path: Path) -> Any:
+    """The JSON document at `path`, None when there is none; StateError for anything else.
+
+    Opened without blocking (a FIFO put there cannot hang the start), read only up to
+    MAX_STATE_BYTES, parsed strictly: no NaN or Infinity, no number beyond a float's range,
+    no nesting deep enough to exhaust the parser.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None
+    except OSError as error:
+        raise StateError(f"{path}: cannot be read: {error.strerror or error}") from None
+    try:
+        with os.fdopen(fd, "rb") as file:
+            if not stat.S_ISREG(os.fstat(file.fileno()).st_mode):
+                raise StateError(f"{path}: not a regular file")
+            data = file.read(MAX_STATE_BYTES + 1)
+    except OSError as error:
+        raise StateError(f"{path}: cannot be read: {error.strerror or error}") from None
+    if len(data) > MAX_STATE_BYTES:
+        raise StateError(f"{path}: larger than {MAX_STATE_BYTES} bytes, not hermsd's state")
+    try:
+        return json.loads(data.decode("utf-8"), parse_float=_finite, parse_constant=_no_constant)
+    except UnicodeDecodeError as error:
+        raise StateError(f"{path}: not UTF-8 text: {error}") from None
+    except ValueError as error:  # json.JSONDecodeError is one; so are the hooks' refusals
+        raise StateError(f"{path}: not valid JSON: {error}") from None
+    except RecursionError:
+        raise StateError(f"{path}: not valid JSON: nested too deeply") from None

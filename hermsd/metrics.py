@@ -17,6 +17,14 @@ from typing import Any
 
 BAND = 0.5  # °C either side of the setpoint that counts as holding it
 
+# What each report measures on, said in it: the two differ by the LM92's 0.0625 °C steps and
+# by the period's averaging, so the same day gives `simulate` and `replay` other overshoots.
+SIMULATED_TEMPERATURE = (
+    "the simulated sensor's exact temperature at each period (no noise, no LM92 steps; "
+    "pv_overshoot_c: on the daemon's PV, as replay measures it)"
+)
+LOGGED_TEMPERATURE = "the logged PV (the mean of each period's LM92 readings)"
+
 
 @dataclass(frozen=True, slots=True)
 class Sample:
@@ -41,6 +49,10 @@ class Metrics:
     max_temp_c: float
     mean_output: float
     edges_per_hour: float | None
+    heatup_overshoot_c: float = 0.0  # above the setpoint before the first disturbance
+    upset_overshoot_c: float | None = None  # after the last disturbance's trough
+    last_hour_p2p_c: float | None = None  # peak to peak over the last hour, if all of it held
+    held_in_band_pct: float | None = None  # from first in band, recoveries from upsets aside
 
 
 def in_band_for_good(samples: list[Sample], start: float, end: float) -> float | None:
@@ -115,6 +127,13 @@ def compute(
         for i in in_hold
         if i > 0 and _inside(samples[i - 1].t, hold)
     ]
+    last_hour = [samples[i].temp for i in in_hold if samples[i].t >= end - 3600.0]
+    first_in = next((s.t for s in samples if abs(s.temp - s.setpoint) <= BAND), None)
+    holding = _hold_intervals(samples, first_in, disturbances, None, end)
+    held = [(s, dt) for s, dt in zip(samples, dts, strict=True) if _inside(s.t, holding)]
+    held_s = sum(dt for _, dt in held)
+    held_in_s = sum(dt for s, dt in held if abs(s.temp - s.setpoint) <= BAND)
+    held_last_hour = bool(hold) and hold[-1][0] <= end - 3600.0 and hold[-1][1] >= end
     return Metrics(
         overshoot_c=overshoot,
         overshoots=overshoots,
@@ -134,7 +153,34 @@ def compute(
             if edges is not None and hold_s > 0
             else None
         ),
+        heatup_overshoot_c=_overshoot([s for s in samples if s.t < first_disturbance]),
+        upset_overshoot_c=_upset_overshoot(samples, last),
+        last_hour_p2p_c=max(last_hour) - min(last_hour) if held_last_hour else None,
+        held_in_band_pct=100.0 * held_in_s / held_s if held_s > 0 else None,
     )
+
+
+def _overshoot(samples: list[Sample]) -> float:
+    """How far above its setpoint the temperature rose, once it had been at or below it."""
+    overshoot = 0.0
+    armed = False
+    for s in samples:
+        armed = armed or s.temp <= s.setpoint
+        if armed:
+            overshoot = max(overshoot, s.temp - s.setpoint)
+    return overshoot
+
+
+def _upset_overshoot(samples: list[Sample], disturbance: float | None) -> float | None:
+    """Overshoot on the way back from a disturbance: above the setpoint after the lowest
+    point that followed it (before the trough the sensor may still show the old water)."""
+    if disturbance is None:
+        return None
+    after = [s for s in samples if s.t >= disturbance]
+    if not after:
+        return None
+    trough = min(range(len(after)), key=lambda i: after[i].temp - after[i].setpoint)
+    return _overshoot(after[trough:])
 
 
 def report(metrics: Metrics) -> dict[str, Any]:
@@ -153,6 +199,10 @@ def report(metrics: Metrics) -> dict[str, Any]:
         "ssr_edges_per_hour": None if m.edges_per_hour is None else round(m.edges_per_hour, 1),
         "max_temp_c": None if math.isnan(m.max_temp_c) else round(m.max_temp_c, 3),
         "mean_output": round(m.mean_output, 2),
+        "heatup_overshoot_c": round(m.heatup_overshoot_c, 4),
+        "upset_overshoot_c": None if m.upset_overshoot_c is None else round(m.upset_overshoot_c, 4),
+        "last_hour_p2p_c": None if m.last_hour_p2p_c is None else round(m.last_hour_p2p_c, 4),
+        "held_in_band_pct": None if m.held_in_band_pct is None else round(m.held_in_band_pct, 2),
     }
 
 

@@ -9,27 +9,83 @@ loop's lateness, and obeys `heater_allowed`. Two kinds of fault:
   until someone resets the alarm, because each means the hardware is not what the loop
   believes it is.
 
-Defaults scale with the tun: the fastest rise the element can cause is P / (m·c).
+Limits come from the tun as measured, or, before it is, hold for any tun the config could
+be describing: half to twice its litres, a dead time up to 300 s, an open pot in a cold
+room (`SafetyLimits.derive` states each derivation).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 WATER_HEAT_CAPACITY = 4186.0  # J/(kg·K); a litre of water is taken as 1 kg
 FULL_POWER = 80.0  # % at or above which the element is expected to heat visibly
-SUDDEN_DROP = 0.25  # °C in one period: water was added, not lost to the room
+SUDDEN_DROP = 0.25  # °C: least fall in a window, faster than losses allow, that is water added
 
 AUTO_KINDS = ("sensor_fault", "stale_reading", "over_temperature", "loop_stall")
 LATCHED_KINDS = ("heater_not_heating", "ssr_stuck_on", "dry_fire", "sensor_stuck")
 
+# The envelope every limit holds for before the tun is measured (see `SafetyLimits.derive`).
+FILL_RANGE = 2.0
+"""The water in the tun is anywhere from half to twice the configured litres."""
+MAINS_POWER_MARGIN = 1.21
+"""An element draws (1.1)² = 1.21× its rating at +10 % mains (253 V on a 230 V element)."""
+MAINS_LOW = 0.81
+"""… and (0.9)² = 0.81× at −10 % mains."""
+DEAD_TIME_MAX = 300.0
+"""s: transport from element to sensor plus a thermowell's lag, the far end of real tuns."""
+SENSOR_LAG_MAX = 120.0
+"""s: a thermowell's own first-order lag, the far end; heat keeps showing this much longer."""
+COLDEST_ROOM = 5.0
+"""°C: a garage in winter; losses are bounded as if the room were this cold."""
+OPEN_POT_UA_PER_L23 = 2.0 * (3000.0 / 168.9) / 90.0 ** (2.0 / 3.0)
+"""W/(K·L^⅔): twice the identified 90 L tun's UA per wetted area (an open, uninsulated pot)."""
+OPEN_POT_EVAPORATION_W = 1000.0
+"""W from an open 90 L pot at 66 °C in still air (0.5–1 kW measured); scaled by area."""
+EVAPORATION_REFERENCE_C = 66.0
+NOISE_FLOOR = 0.1
+"""°C: a rise smaller than this (1.6 LSB of the LM92) is not told from noise and LSB flips."""
+MODEL_MARGIN = 1.5
+"""A measured gain, time constant or dead time is trusted to within this factor."""
+
+
+class MeasuredTun(Protocol):
+    """The tun as measured (a FOPTD model, e.g. `pid.PlantModel`): °C/%, s, s, °C."""
+
+    @property
+    def gain(self) -> float: ...
+    @property
+    def tau(self) -> float: ...
+    @property
+    def dead_time(self) -> float: ...
+    @property
+    def ambient(self) -> float: ...
+
+
+def vapour_pressure_ratio(celsius: float) -> float:
+    """Saturation pressure of water at `celsius` over that at 66 °C (Magnus; within 1.5 %
+    of the steam tables from 20 to 90 °C).
+
+    Evaporation from an open surface grows with it: ×0.09 at 20 °C, ×1 at 66, ×2.9 at 90.
+    """
+
+    def magnus(c: float) -> float:
+        return math.exp(17.625 * c / (c + 243.04))
+
+    return magnus(celsius) / magnus(EVAPORATION_REFERENCE_C)
+
 
 @dataclass(frozen=True, slots=True)
 class SafetyLimits:
-    """Every threshold the supervisor uses, in SI units (°C, s, %)."""
+    """Every threshold the supervisor uses, in SI units (°C, s, %).
+
+    `origins` says where each derived value came from (configured, derived from the
+    configured litres and watts, or measured), for `format_limits`.
+    """
 
     max_temp: float = 95.0
     hysteresis: float = 5.0
@@ -39,16 +95,62 @@ class SafetyLimits:
     fault_reads: int = 2
     resume_reads: int = 5
     stale_after: float = 3.0
+    dead_time: float = DEAD_TIME_MAX
     heater_watch: float = 300.0
-    heater_min_rise: float = 0.5
+    heater_max_fall: float = 0.25
+    heater_rise_rate: float = 0.00258
+    heater_min_rise: float | None = None
+    heating_output_per_k: float | None = None
+    loss_per_k: float = 1.188e-4
+    loss_room: float = COLDEST_ROOM
+    evaporation_rate: float = 0.00531
     ssr_watch: float = 300.0
     ssr_max_rise: float = 0.5
+    heat_memory: float = DEAD_TIME_MAX + SENSOR_LAG_MAX
+    heat_rate: float = 0.0193
     full_rate: float = 0.008
     dry_fire_rate: float = 0.024
     dry_fire_window: float = 60.0
     stuck_time: float = 600.0
     stuck_output_change: float = 40.0
     stall_after: float = 10.0
+    origins: tuple[tuple[str, str], ...] = ()
+
+    def loss_rate(self, celsius: float) -> float:
+        """°C/s: the fastest the water at `celsius` can cool with the element off.
+
+        Conduction and convection to the coldest room, plus evaporation from an open surface,
+        which grows with the vapour pressure (steeply: ×0.09 at 20 °C, ×2.9 at 90 °C).
+        """
+        conduction = self.loss_per_k * max(0.0, celsius - self.loss_room)
+        return conduction + self.evaporation_rate * vapour_pressure_ratio(celsius)
+
+    def heating_output(self, celsius: float) -> float:
+        """% of output at or above which a working element cannot let the water fall.
+
+        Before the tun is measured, 80 %: its losses may be anything up to the element's.
+        Measured, the output that beats the largest losses the model allows at `celsius`
+        (never below 20 %, where a slow fall is lost in the noise): a dead element is then
+        seen as soon as the output climbs past what holding needs, not only at 80 %. The
+        model's losses are those of the day it was measured (×1.5, a room 10 °C colder): a
+        lid taken off since, on a tun that then needs more than this, is not covered.
+        """
+        if self.heating_output_per_k is None:
+            return FULL_POWER
+        needed = self.heating_output_per_k * (celsius - self.loss_room)
+        return min(FULL_POWER, max(20.0, needed))
+
+    def least_rise(self, held_for: float, peak: float) -> float | None:
+        """°C the PV must have risen after `held_for` s at 80 % or more (past the dead time).
+
+        Half of what the weakest working element makes against the largest losses at the
+        highest temperature reached (losses only grow with it). None when that is lost in
+        the noise: the hot side is judged by the fall instead (`heater_max_fall`).
+        """
+        if self.heater_min_rise is not None:
+            return self.heater_min_rise
+        rise = 0.5 * held_for * (self.heater_rise_rate - self.loss_rate(peak))
+        return rise if rise >= NOISE_FLOOR else None
 
     @classmethod
     def derive(
@@ -58,6 +160,7 @@ class SafetyLimits:
         element_watts: float,
         period: float,
         read_interval: float,
+        model: MeasuredTun | None = None,
         max_temp: float = 95.0,
         hysteresis: float = 5.0,
         plausible_min: float = -10.0,
@@ -66,6 +169,7 @@ class SafetyLimits:
         fault_reads: int = 2,
         resume_reads: int = 5,
         stale_after: float | None = None,
+        dead_time: float | None = None,
         heater_watch: float | None = None,
         heater_min_rise: float | None = None,
         ssr_watch: float | None = None,
@@ -75,11 +179,58 @@ class SafetyLimits:
         stuck_output_change: float = 40.0,
         stall_periods: float = 2.0,
     ) -> SafetyLimits:
-        """Limits for a tun of `litres` heated by `element_watts`; None means derive it."""
-        full_rate = element_watts / (litres * WATER_HEAT_CAPACITY)  # °C/s at 100 %
-        heater_watch = heater_watch if heater_watch is not None else 300.0
-        ssr_watch = ssr_watch if ssr_watch is not None else 300.0
-        return cls(
+        """Limits for the tun: from `model` where measured, else safe for any fill from half
+        to twice `litres`, any dead time up to 300 s, an open pot in a 5 °C room; an explicit
+        (not None) argument wins over both.
+
+        Worked for the shipped 90 L, 3 kW tun (r = P/(m·c) = 3000/(90·4186) = 7.96e-3 °C/s):
+        rise rate 0.8·0.81·r/2 = 2.58e-3 °C/s; loss per K 2·17.76 W/K·(45/90)^⅔ / (45·4186)
+        = 1.19e-4 /s; evaporation 1 kW / (45·4186) = 5.31e-3 °C/s at 66 °C; heat rate
+        2·1.21·r = 1.93e-2 °C per full-power second; dry fire 3·r = 2.39e-2 °C/s (1.43 °C/min).
+        """
+        origins: dict[str, str] = {}
+
+        def pick(name: str, given: float | None, value: float, origin: str) -> float:
+            origins[name] = "configured" if given is not None else origin
+            return given if given is not None else value
+
+        tun = "derived from litres and watts"
+        envelope = "built in: any tun to 300 s"
+        measured = "measured"
+        full_rate = element_watts / (litres * WATER_HEAT_CAPACITY)  # °C/s at 100 %, rated
+        least_water = litres / FILL_RANGE
+        # An open pot loses through its wetted area (∝ fill^⅔) and evaporates through its
+        # mouth (∝ the configured size^⅔); the least water cools fastest from both.
+        ua_bound = OPEN_POT_UA_PER_L23 * least_water ** (2.0 / 3.0)
+        evaporation_w = OPEN_POT_EVAPORATION_W * (litres / 90.0) ** (2.0 / 3.0)
+        least_capacity = least_water * WATER_HEAT_CAPACITY
+        # 80 % output at −10 % mains (0.81 P) into twice the water.
+        weakest_rise = FULL_POWER / 100.0 * MAINS_LOW * full_rate / FILL_RANGE
+        # Full power at +10 % mains into half the water.
+        fastest_rise = FILL_RANGE * MAINS_POWER_MARGIN * full_rate
+        dead, heat_memory = DEAD_TIME_MAX, DEAD_TIME_MAX + SENSOR_LAG_MAX
+        loss_per_k, loss_room = ua_bound / least_capacity, COLDEST_ROOM
+        heating_output_per_k: float | None = None
+        origin, timing = tun, envelope
+        if model is not None:
+            # The tun as measured: its rate 100·K/τ, loss 1/τ and dead time θ, each trusted
+            # to within ×1.5, and a room up to 10 °C colder than on the day it was measured.
+            model_rate = 100.0 * model.gain / model.tau
+            weakest_rise = FULL_POWER / 100.0 * MAINS_LOW * model_rate / MODEL_MARGIN
+            fastest_rise = MAINS_POWER_MARGIN * model_rate * MODEL_MARGIN
+            loss_per_k = MODEL_MARGIN / model.tau
+            loss_room = model.ambient - 10.0
+            # θ·1.5 (and a minute of lag's tail), but never longer than the envelope the
+            # unmeasured limits already trust unless θ itself lies beyond it.
+            theta = model.dead_time
+            dead = max(60.0, min(MODEL_MARGIN * theta, max(DEAD_TIME_MAX, theta)))
+            heat_memory = min(
+                MODEL_MARGIN * theta + 60.0, max(DEAD_TIME_MAX, theta) + SENSOR_LAG_MAX
+            )
+            # u·0.81·K/1.5 heating against 1.5·(T − T_room) of loss, K the °C per %.
+            heating_output_per_k = MODEL_MARGIN * MODEL_MARGIN / (MAINS_LOW * model.gain)
+            origin = timing = measured
+        limits = cls(
             max_temp=max_temp,
             hysteresis=hysteresis,
             plausible_min=plausible_min,
@@ -89,24 +240,50 @@ class SafetyLimits:
             fault_reads=fault_reads,
             resume_reads=resume_reads,
             stale_after=stale_after if stale_after is not None else 3.0 * read_interval,
-            heater_watch=heater_watch,
-            # A quarter of what 80 % power would add with no losses: losses at mash
-            # temperatures take about a third of the element, dead time the first minutes.
-            heater_min_rise=(
-                heater_min_rise
-                if heater_min_rise is not None
-                else 0.25 * FULL_POWER / 100.0 * full_rate * heater_watch
-            ),
-            ssr_watch=ssr_watch,
+            # The element's heat shows at the sensor only after the transport delay and the
+            # well's lag: nothing is judged before that.
+            dead_time=pick("dead_time", dead_time, dead, timing),
+            heater_watch=pick("heater_watch", heater_watch, 300.0, "built in"),
+            # A working element at 80 % cannot let the water fall once its heat shows, unless
+            # the tun loses more than the element gives (then it cannot be held at all). The
+            # PV's period means scatter by ~0.016 °C (0.03 °C noise and 1 LSB over 5 reads),
+            # a difference of two by 0.023: 0.125 °C in each half-watch is over 5 of those.
+            # The slowest-cooling tun in the family (a lidded 50 L keggle, UA 6 W/K, at 66 °C
+            # in a 25 °C room) falls 41 K / 34800 s = 0.18 °C per 150 s when its element dies.
+            heater_max_fall=0.25,
+            heater_rise_rate=weakest_rise,
+            heater_min_rise=heater_min_rise,
+            heating_output_per_k=heating_output_per_k,
+            loss_per_k=loss_per_k,
+            loss_room=loss_room,
+            # An open pot's, measured or not: the lid may be off today.
+            evaporation_rate=evaporation_w / least_capacity,
+            ssr_watch=pick("ssr_watch", ssr_watch, 300.0, "built in"),
             # Margin over what the delivered heat can explain: eight LSBs are not noise.
-            ssr_max_rise=ssr_max_rise if ssr_max_rise is not None else 0.5,
+            ssr_max_rise=pick("ssr_max_rise", ssr_max_rise, 0.5, "built in"),
+            heat_memory=heat_memory,
+            heat_rate=fastest_rise,
             full_rate=full_rate,
+            # Half the water at +10 % mains rises 2·1.21 = 2.42× faster than the config
+            # says; 3× leaves 24 % for noise over the 60 s window (±0.001 °C/s). Kept on the
+            # configured litres when measured too: the fill is the config's to state.
             dry_fire_rate=dry_fire_factor * full_rate,
             dry_fire_window=max(60.0, 4 * period),
             stuck_time=stuck_time,
             stuck_output_change=stuck_output_change,
             stall_after=stall_periods * period,
         )
+        origins |= {
+            "heater_max_fall": "built in",
+            "heater_min_rise": "configured" if heater_min_rise is not None else origin,
+            "heater_rise_rate": origin,
+            "heating_output": timing,
+            "loss_rate": origin,
+            "heat_memory": timing,
+            "heat_rate": origin,
+            "dry_fire_rate": tun,
+        }
+        return dataclasses.replace(limits, origins=tuple(sorted(origins.items())))
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,22 +298,25 @@ class Alarm:
     values: dict[str, Any] = field(default_factory=dict)
 
 
-class _Watch:
-    """A rising-edge window: the lowest PV since it began, and when that low was seen."""
+class _HeaterWatch:
+    """A stretch at 80 % or more: when it began, the PV once its heat could show, and the PV
+    over the last two half-watches (to tell a steady fall from a step)."""
 
-    __slots__ = ("base", "base_t", "start")
+    __slots__ = ("full", "recent", "ref", "ref_t", "start")
 
     def __init__(self) -> None:
         self.start: float | None = None
-        self.base = math.inf
-        self.base_t = 0.0
+        self.full = True  # the output has stayed at 80 % or more all along
+        self.ref_t = 0.0
+        self.ref: float | None = None
+        self.recent: deque[tuple[float, float]] = deque()
 
     def stop(self) -> None:
         self.start = None
 
-    def restart(self, t: float, pv: float) -> None:
-        self.start = t
-        self.base, self.base_t = pv, t
+    def restart(self, t: float, full: bool) -> None:
+        self.start, self.ref, self.full = t, None, full
+        self.recent.clear()
 
 
 class _OutputSwing:
@@ -199,7 +379,7 @@ class Supervisor:
         self._last_accepted: float | None = None
         self._previous_value: float | None = None
         self._last_raw: int | None = None
-        self._heater_watch = _Watch()
+        self._heater_watch = _HeaterWatch()
         self._energy: deque[tuple[float, float, float]] = deque()  # (t, pv, full-power s)
         self._last_period_t: float | None = None
         self._wrong_chip = False
@@ -371,61 +551,99 @@ class Supervisor:
             )
 
     def _check_heater(self, t: float, pv: float, applied: float) -> None:
+        """An element that does not heat: judged only once its heat could show at the sensor.
+
+        From `dead_time` after the output reached 80 % (`heating_output`: less on a measured
+        tun; or after the last fall too fast for losses: water was added), a working element
+        makes the PV rise by `least_rise` (the cool side, where losses are small), and it
+        cannot let the PV fall steadily (the hot side: a dead element in the hold shows as a
+        fall at the tun's loss rate while the output climbs to 100 %). Steadily: over each of
+        the last two half-watches (the later one past the dead time) by at least half of
+        `heater_max_fall`, the later by at least half the earlier. Water poured in shows
+        through the sensor's lag (≤ 120 s) as a decaying fall, e^(−150/120) = 0.29 of it in
+        the second half-watch, and the element's heat adds to that: not steady.
+        """
         lim, watch = self.limits, self._heater_watch
-        if applied < FULL_POWER:
+        if applied < lim.heating_output(pv):
             watch.stop()
             return
-        if watch.start is None:
-            watch.restart(t, pv)
+        full = applied >= FULL_POWER
+        if watch.start is None or self._water_added(pv):
+            watch.restart(t, full)
             return
-        if pv < watch.base:
-            # A sudden drop (cold water) starts the wait again from the new low; a slow fall
-            # (an element that does not heat, losing to the room) does not.
-            if watch.base - pv > SUDDEN_DROP:
-                watch.base_t = t
-            watch.base = pv
+        watch.full = watch.full and full
+        half = lim.heater_watch / 2.0
+        recent = watch.recent
+        recent.append((t, pv))
+        while t - recent[0][0] > 2.0 * half:
+            recent.popleft()
+        if t - watch.start < lim.dead_time:
             return
-        if pv >= watch.base + lim.heater_min_rise:
-            watch.restart(t, pv)
+        if watch.ref is None:
+            watch.ref, watch.ref_t = pv, t
+        held = t - watch.ref_t
+        fall = 0.0
+        # Only the later half need lie past the dead time: the element's heat shows in it,
+        # whatever the water did before.
+        if held >= half and t - recent[0][0] >= 1.9 * half:
+            pv_mid = next(p for when, p in recent if when >= t - half)
+            first, second = recent[0][1] - pv_mid, pv_mid - pv
+            step = lim.heater_max_fall / 2.0
+            if first >= step and second >= max(step, first / 2.0):
+                fall = first + second
+        peak = max(p for _, p in recent)
+        judged = watch.full and held >= lim.heater_watch
+        least = lim.least_rise(held, max(peak, watch.ref)) if judged else None
+        # Heat on, or its lack, moves the water a step or more every few minutes, and noise
+        # flips the last bit: a reading that has not changed at all for the watch is stuck.
+        since = self._raw_since
+        frozen = since is not None and t - max(since, watch.ref_t) >= lim.heater_watch
+        if not frozen and not fall and (least is None or pv - watch.ref >= least):
             return
-        if t - watch.base_t >= lim.heater_watch:
-            # A working sensor on a dead element still shows the water cooling, a step every
-            # minute or two; a stuck one has shown nothing for most of the watch.
-            since = self._raw_since
-            frozen = since is not None and t - since >= 0.75 * lim.heater_watch
-            kind = "sensor_stuck" if frozen else "heater_not_heating"
-            what = (
-                "the reading has not changed at all"
-                if frozen
-                else f"PV rose {pv - watch.base:.2f} °C"
-            )
-            self._raise(
-                kind,
-                t,
-                f"output at {applied:.0f} % for {t - watch.base_t:.0f} s but {what} "
-                f"(expected at least {lim.heater_min_rise:.2f} °C)",
-                {"rise_c": pv - watch.base, "applied": applied},
-            )
+        what = (
+            "the reading has not changed at all"
+            if frozen
+            else f"PV fell steadily, {fall:.2f} °C in {2 * half:.0f} s"
+            if fall
+            else f"PV rose {pv - watch.ref:.2f} °C in {held:.0f} s (expected at least {least:.2f})"
+        )
+        self._raise(
+            "sensor_stuck" if frozen else "heater_not_heating",
+            t,
+            f"output at {applied:.0f} % for {t - watch.start:.0f} s, {lim.dead_time:.0f} s of "
+            f"it the heat's way to the sensor, but {what}",
+            {"rise_c": pv - watch.ref, "fall_c": fall, "applied": applied},
+        )
+
+    def _water_added(self, pv: float) -> bool:
+        """The PV fell over the last window faster than any loss can make it: water came in."""
+        t0, pv0 = self._history[0]
+        span = self._history[-1][0] - t0
+        fall = pv0 - pv
+        return fall > max(SUDDEN_DROP, self.limits.loss_rate(pv0) * span)
 
     def _check_ssr(self, t: float, pv: float, applied: float) -> None:
-        """Heat the element did not deliver: the rise exceeds all the energy it was given.
+        """Heat the element was not given: the rise exceeds all the energy it was given.
 
         Losses only ever take heat away, so over a watch window the water can rise at most by
-        the element's delivered energy over m·c. Energy from the window before is counted too,
-        because heat reaches the sensor late. More rise than that means something else is
-        heating: an SSR that failed shorted.
+        the delivered energy times the fastest rate per full-power second (`heat_rate`: half
+        the water, +10 % mains). Energy from `heat_memory` before the window counts too, as
+        heat reaches the sensor only after the dead time and the well's lag (300 + 120 s
+        before anything is measured: a lag's tail beyond that is e^−2 of it). More rise than
+        that means something else is heating: an SSR that failed shorted.
         """
         lim, history = self.limits, self._energy
         previous, self._last_period_t = self._last_period_t, t
         dt = 0.0 if previous is None else t - previous
         history.append((t, pv, applied / 100.0 * dt))
-        while t - history[0][0] > 2 * lim.ssr_watch:
+        span = lim.ssr_watch + lim.heat_memory
+        while t - history[0][0] > span:
             history.popleft()
-        if t - history[0][0] < 2 * lim.ssr_watch - dt:
+        if t - history[0][0] < span - dt:
             return
         pv_then = next(p for when, p, _ in history if when >= t - lim.ssr_watch)
         full_power_s = sum(e for _, _, e in history)
-        allowed = lim.full_rate * full_power_s + lim.ssr_max_rise
+        allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise
         if pv - pv_then > allowed:
             self._raise(
                 "ssr_stuck_on",
@@ -484,3 +702,75 @@ class Supervisor:
         alarm = self._active.pop(kind, None)
         if alarm is not None:
             self._events.append(Alarm(kind, t, f"cleared: {why}", alarm.latched, False))
+
+
+def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
+    """The limits in force, one line each: value, and where it comes from.
+
+    Temperature-dependent limits are given at `setpoint`. For `check-config` and the
+    status command.
+    """
+    lim, origin = limits, dict(limits.origins)
+    configured = "configured"
+
+    def source(key: str) -> str:
+        return origin.get(key, configured)
+
+    cool = 20.0  # °C: where the least rise is shown; it shrinks as losses grow with heat
+    least = lim.least_rise(3 * lim.heater_watch, cool)
+    rows = [
+        (
+            "over-temperature cut-out",
+            f"{lim.max_temp:g} °C, back below {lim.max_temp - lim.hysteresis:g} °C",
+            configured,
+        ),
+        (
+            "plausible readings",
+            f"{lim.plausible_min:g} to {lim.plausible_max:g} °C, jumps up to {lim.max_step:g} °C",
+            configured,
+        ),
+        ("stale reading after", f"{lim.stale_after:g} s", configured),
+        ("loop stall after", f"{lim.stall_after:g} s", configured),
+        ("heat shows at the sensor within", f"{lim.dead_time:.0f} s", source("dead_time")),
+        (
+            "element judged from output",
+            f"{lim.heating_output(setpoint):.0f} % (at {setpoint:g} °C)",
+            source("heating_output"),
+        ),
+        (
+            "element not heating: steady fall",
+            f"{lim.heater_max_fall:g} °C in {lim.heater_watch:.0f} s",
+            source("heater_max_fall"),
+        ),
+        (
+            "element not heating: least rise",
+            "none judged"
+            if least is None
+            else (f"{least:.2f} °C in {3 * lim.heater_watch:.0f} s at {cool:g} °C"),
+            source("heater_min_rise"),
+        ),
+        (
+            "weakest heating at 80 %",
+            f"{lim.heater_rise_rate * 60:.3f} °C/min",
+            source("heater_rise_rate"),
+        ),
+        (
+            f"largest loss at {setpoint:g} °C",
+            f"{lim.loss_rate(setpoint) * 60:.3f} °C/min (room {lim.loss_room:g} °C)",
+            source("loss_rate"),
+        ),
+        (
+            "SSR stuck on: rise beyond heat given",
+            f"{lim.ssr_max_rise:g} °C in {lim.ssr_watch:.0f} s, heat counted "
+            f"{lim.heat_memory:.0f} s back, {lim.heat_rate * 60:.2f} °C per full-power minute",
+            source("heat_rate"),
+        ),
+        ("dry fire above", f"{lim.dry_fire_rate * 60:.2f} °C/min", source("dry_fire_rate")),
+        (
+            "stuck sensor",
+            f"unchanged {lim.stuck_time:g} s while the output moves {lim.stuck_output_change:g} %",
+            configured,
+        ),
+    ]
+    width = max(len(label) for label, _, _ in rows)
+    return [f"{label:<{width}}  {value}  [{where}]" for label, value, where in rows]

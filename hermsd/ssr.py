@@ -3,8 +3,8 @@
 A zero-cross SSR switches only at mains zero crossings, so on-times are whole half-cycles.
 The planner quantises each window's on-time to that grid and to the minimum on and off
 times, and carries what it could not deliver into the next window, so the energy delivered
-over many windows is exactly what the controller asked for. It reports the duty it really
-applied, which the controller tracks.
+over many windows is exactly what the controller asked for. It reports the duty its edges
+give (`applied`); the daemon feeds back the duty the SSR was then driven at, as switched.
 
 On-times alternate between the end of one window and the start of the next, so at a steady
 duty two windows share one pulse: half the edges (and the flicker) of a pulse per window.
@@ -24,7 +24,7 @@ from typing import Any, Protocol
 
 @dataclass(frozen=True, slots=True)
 class WindowPlan:
-    """One window: when the SSR goes on and off, and the duty that really reaches the element."""
+    """One window: when the SSR goes on and off, and the duty that timing gives (`applied`)."""
 
     start: float
     length: float
@@ -235,8 +235,14 @@ class GpioSwitch:
     """A GPIO line through the `gpiod` 2.x bindings (the `gpio` extra)."""
 
     def __init__(self, chip: str, line: int, active_low: bool = False) -> None:
-        import gpiod
-        from gpiod.line import Bias, Direction, Value
+        try:
+            import gpiod
+            from gpiod.line import Bias, Direction, Value
+        except ImportError:
+            raise ImportError(
+                "the gpio backend needs the gpiod package, which is not installed (install "
+                "the gpio extra: `uv sync --extra gpio`, or `pip install 'hermsd[gpio]'`)"
+            ) from None
 
         self._line = line
         self._on, self._off = Value.ACTIVE, Value.INACTIVE
@@ -278,6 +284,18 @@ class RelayBoardSwitch:
 
     def close(self) -> None:
         self._serial.close()
+
+
+def describe_output(
+    backend: str, *, port: str, chip: str, line: int | None, channel: int | None = None
+) -> str:
+    """The device an output's keys name, in words: its port, its chip and line, or its relay."""
+    if backend == "gpio":
+        return f"gpio line {line} of {chip}"
+    if backend == "relay-board":
+        relay = f" channel {channel}" if channel is not None else ""
+        return f"relay-board{relay} on {port}"
+    return f"{backend} on {port}"
 
 
 def open_hardware_switch(

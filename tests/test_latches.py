@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -104,24 +107,6 @@ def test_the_reset_alarm_command(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert f"alarms reset: {KIND}" in events.logged()
 
 
-def test_a_damaged_latch_file_stops_the_start(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    (tmp_path / LATCHED_FILE).write_text('{"alarms": [', encoding="utf-8")
-    with pytest.raises(StateError, match="not valid JSON"):
-        boot(tmp_path)
-    code = cli.main(
-        ["run", "--simulate", "--speed", "max", "--duration", "10s", "--state", str(tmp_path)]
-    )
-    err = capsys.readouterr().err
-    assert code == 2
-    assert "Traceback" not in err and "started" not in err
-    assert err.splitlines()[-1].startswith(f"hermsd: {tmp_path / LATCHED_FILE}: not valid JSON")
-    assert "reset-alarm" in err.splitlines()[-1]
-    assert cli.main(["reset-alarm", "--state", str(tmp_path)]) == 0
-    assert LatchStore(tmp_path).load() == Latches()
-
-
 def test_a_disk_that_refuses_the_latch_file_is_said_and_control_goes_on(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -136,3 +121,108 @@ def test_a_disk_that_refuses_the_latch_file_is_said_and_control_goes_on(
     failures = [m for m in events.logged() if m.startswith("saving latched alarms failed")]
     assert len(failures) == 1 and "Read-only" in failures[0]
     assert events.periods[-1].t >= daemon.clock.monotonic() - 5.0
+
+
+def _latch_document(**alarm: object) -> dict[str, object]:
+    entry = {"kind": KIND, "wall_ns": 1_767_225_600_000_000_000, "message": "stuck", "values": {}}
+    return {"alarms": [{**entry, **alarm}], "reset": 0}
+
+
+DEEP = "[" * 100_000 + "]" * 100_000
+CRAFTED_LATCH_FILES = {
+    "cut short": '{"alarms": [',
+    "nested 100,000 deep": '{"alarms": ' + DEEP + ', "reset": 0}',
+    "a number beyond a float": json.dumps(_latch_document()).replace(
+        "1767225600000000000", "1e400"
+    ),
+    "NaN": json.dumps(_latch_document()).replace("1767225600000000000", "NaN"),
+    "wall_ns as text": json.dumps(_latch_document(wall_ns="1767225600000000000")),
+    "wall_ns past any clock": json.dumps(_latch_document(wall_ns=10**30)),
+    "wall_ns as a boolean": json.dumps(_latch_document(wall_ns=True)),
+    "a message that is not text": json.dumps(_latch_document(message=5)),
+    "values as a list": json.dumps(_latch_document(values=[])),
+    "nested values": json.dumps(_latch_document(values={"a": {"b": 1}})),
+    "reset as text": json.dumps({**_latch_document(), "reset": "0"}),
+    "alarms as an object": json.dumps({"alarms": {KIND: 1}, "reset": 0}),
+    "a list": "[]",
+    "over 1 MiB": json.dumps(_latch_document(message="x" * (1 << 20))),
+}
+
+
+@pytest.mark.parametrize("text", CRAFTED_LATCH_FILES.values(), ids=CRAFTED_LATCH_FILES)
+def test_a_crafted_latch_file_stops_the_start_in_one_line_and_reset_alarm_replaces_it(
+    tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / LATCHED_FILE).write_text(text, encoding="utf-8")
+
+    with pytest.raises(StateError, match=str(tmp_path / LATCHED_FILE)):
+        LatchStore(tmp_path).load()
+    code = cli.main(
+        ["run", "--simulate", "--speed", "max", "--duration", "10s", "--state", str(tmp_path)]
+    )
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "Traceback" not in err and "started" not in err
+    assert err.splitlines()[-1].startswith(f"hermsd: {tmp_path / LATCHED_FILE}: ")
+    assert "reset-alarm" in err.splitlines()[-1]
+    assert cli.main(["reset-alarm", "--state", str(tmp_path)]) == 0
+    assert LatchStore(tmp_path).load() == Latches()
+
+
+def test_a_fifo_in_place_of_the_latch_file_cannot_hang_the_start(tmp_path: Path) -> None:
+    os.mkfifo(tmp_path / LATCHED_FILE)
+    args = ["run", "--simulate", "--speed", "max", "--duration", "10s", "--state", str(tmp_path)]
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "hermsd.cli", *args], capture_output=True, text=True, timeout=30
+    )
+
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    assert proc.stderr.splitlines()[-1] == (
+        f"hermsd: {tmp_path / LATCHED_FILE}: not a regular file "
+        "(inspect it; `hermsd reset-alarm` replaces it)"
+    )
+
+
+CRAFTED_RESET_REQUESTS = {
+    "nested 100,000 deep": '{"kinds": ' + DEEP + "}",
+    "a number beyond a float": '{"kinds": [1e400]}',
+    "kinds as text": '{"kinds": "all"}',
+    "kinds that are not names": '{"kinds": [1, null]}',
+    "a list": f'["{KIND}"]',
+    "over 1 MiB": json.dumps({"kinds": [KIND] * 200_000}),
+    "not UTF-8": b'{"kinds": ["\xff"]}'.decode("latin-1"),
+}
+
+
+@pytest.mark.parametrize("text", CRAFTED_RESET_REQUESTS.values(), ids=CRAFTED_RESET_REQUESTS)
+def test_a_crafted_reset_request_is_discarded_with_an_error_and_the_alarm_stays(
+    tmp_path: Path, text: str
+) -> None:
+    (tmp_path / LATCHED_FILE).write_text(json.dumps(_latch_document()), encoding="utf-8")
+    (tmp_path / RESET_FILE).write_bytes(text.encode("latin-1"))
+
+    daemon, _world, events = boot(tmp_path)
+    run_for(daemon, 10.0)
+
+    assert daemon.supervisor.latched == [KIND]
+    assert not (tmp_path / RESET_FILE).exists()
+    errors = [m for m in events.logged() if m.startswith("reading the reset request failed")]
+    assert len(errors) == 1 and errors[0].endswith("; discarded")
+
+
+def test_a_restored_alarm_is_stored_with_its_first_message_however_often_it_restarts(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / LATCHED_FILE).write_text(json.dumps(_latch_document()), encoding="utf-8")
+
+    for _start in range(3):
+        daemon, _world, events = boot(tmp_path)
+        run_for(daemon, 10.0)
+
+    assert [a.message for a in LatchStore(tmp_path).load().alarms] == ["stuck"]
+    shown = [m for m in events.logged() if m.startswith(f"ALARM {KIND}")]
+    assert shown == [
+        f"ALARM {KIND}: stuck (latched 2026-01-01 00:00:00 UTC, before a restart); heater off"
+    ]

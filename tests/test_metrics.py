@@ -34,3 +34,34 @@ def test_cooling_to_a_lower_setpoint_is_no_overshoot() -> None:
     # 65 and 62 are above the new setpoint on the way down; only 60.9, after 59.9, counts.
     assert m.overshoots == 1
     assert m.overshoot_c == pytest.approx(0.9)
+
+
+def test_heatup_and_upset_overshoots_are_told_apart() -> None:
+    # Heat-up to 66.2 (0.2 over), water at t = 40 s: the sensor still shows 66.1 (the old
+    # water), dips to 63.0, comes back 0.3 over (66.3), then holds.
+    temps = [60.0, 65.8, 66.2, 66.0, 66.1, 64.0, 63.0, 65.0, 66.3, 66.1, 66.0]
+    m = compute(samples([66.0] * len(temps), temps), [40.0], 110.0)
+    assert m.heatup_overshoot_c == pytest.approx(0.2)
+    assert m.upset_overshoot_c == pytest.approx(0.3)
+    assert m.overshoot_c == pytest.approx(0.3)
+    assert compute(samples([66.0] * 3, [60.0, 66.4, 66.0]), [], 30.0).upset_overshoot_c is None
+
+
+def test_last_hour_peak_to_peak_needs_the_whole_last_hour_held() -> None:
+    # One sample a minute for 2 h, in band from the start: the last hour swings 65.9 .. 66.15.
+    temps = [66.0] * 60 + [65.9, 66.15] * 30
+    m = compute(samples([66.0] * 120, temps, step=60.0), [], 7200.0)
+    assert m.last_hour_p2p_c == pytest.approx(0.25)
+    # Out of the band 40 min before the end: the hold does not cover the last hour.
+    temps[-40] = 67.0
+    m = compute(samples([66.0] * 120, temps, step=60.0), [], 7200.0)
+    assert m.last_hour_p2p_c is None
+
+
+def test_held_in_band_counts_from_first_entering_and_leaves_out_the_recovery() -> None:
+    # 10 s samples: in band at t = 10, out above at t = 30 (66.6), water at t = 50 takes it
+    # out until t = 80; then in. Counted: t = 10..40 and 80..100, 60 s of which 10 s out.
+    temps = [64.0, 65.6, 66.3, 66.6, 66.2, 66.0, 64.0, 65.0, 65.7, 66.0]
+    m = compute(samples([66.0] * len(temps), temps), [50.0], 100.0)
+    assert m.held_in_band_pct == pytest.approx(100.0 * 50.0 / 60.0)
+    assert report(m)["held_in_band_pct"] == pytest.approx(83.33)

@@ -6,7 +6,11 @@ directory between periods, as an editor would, and watch what the loop does next
 
 from __future__ import annotations
 
+import itertools
 import os
+import re
+import threading
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from test_config import assert_within_spec, documents, mutated_config
 
 from hermsd import config as config_module
-from hermsd.config_file import ConfigFile
+from hermsd.config_file import Check, ConfigFile, Start, at_once, in_thread
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.latches import LatchStore
 from hermsd.safety import Alarm
@@ -93,13 +97,18 @@ class FakeNotifier:
 
 
 def start(
-    tmp_path: Path, text: str = BASE, *, latches: LatchStore | None = None, watch: bool = True
+    tmp_path: Path,
+    text: str = BASE,
+    *,
+    latches: LatchStore | None = None,
+    watch: bool = True,
+    reads: Start = at_once,
 ) -> tuple[Daemon, World, Path, Events]:
     """A started daemon on the simulated tun whose config is `text` in a file in `tmp_path`."""
     tmp_path.mkdir(parents=True, exist_ok=True)
     path = tmp_path / "hermsd.yaml"
     path.write_text(text, encoding="utf-8")
-    source = ConfigFile(path)
+    source = ConfigFile(path, reads)
     config = source.load()
     clock = VirtualClock()
     world = build_world(config, clock)
@@ -268,20 +277,20 @@ def test_a_file_changing_while_it_is_read_is_read_again_later(
 ) -> None:
     path = tmp_path / "hermsd.yaml"
     path.write_text(BASE, encoding="utf-8")
-    source = ConfigFile(path)
+    source = ConfigFile(path, at_once)
     source.load()
-    real_load = config_module.load
+    real_load = config_module.load_document
 
-    def load_while_an_editor_writes(where: Any) -> config_module.Config:
+    def load_while_an_editor_writes(where: Any) -> config_module.Document:
         result = real_load(where)
         with path.open("a", encoding="utf-8") as file:
             file.write("\n")  # the editor's last write lands after our read
         return result
 
     path.write_text(edited(BASE, control__setpoint="60.0"), encoding="utf-8")
-    monkeypatch.setattr("hermsd.config_file.load", load_while_an_editor_writes)
+    monkeypatch.setattr("hermsd.config_file.load_document", load_while_an_editor_writes)
     assert source.poll() is None
-    monkeypatch.setattr("hermsd.config_file.load", real_load)
+    monkeypatch.setattr("hermsd.config_file.load_document", real_load)
     result = source.poll()
     assert isinstance(result, config_module.Config) and result.control.setpoint == 60.0
     assert source.poll() is None
@@ -305,3 +314,189 @@ def test_fuzz_a_running_daemon_survives_any_edit(tmp_path: Path, edits: bytes) -
     assert_within_spec(daemon.config)
     assert events.periods[-1].t >= daemon.clock.monotonic() - PERIOD  # the loop goes on
     daemon.shutdown()
+
+
+# -- a reload never applies an emptied or cut file ---------------------------------------------
+
+# The issue's brew: manual at 0 % under a low temperature limit. An emptied file taken as it
+# is would put the tun in auto at 66 °C, full power, with the limit back at 95 °C.
+CAREFUL = edited(BASE, control__mode="manual", control__setpoint="45.0", safety__max_temp="50.0")
+
+
+@pytest.mark.parametrize(
+    ("emptied", "why"),
+    [
+        ("", "names no section"),
+        ("\n  \n", "names no section"),
+        ("# hermsd\n# nothing here\n", "names no section"),
+        ("{}\n", "names no section"),
+        ("---\n", "the file must be a mapping of sections, got nothing"),
+    ],
+)
+def test_an_emptied_file_is_rejected_and_nothing_changes(
+    tmp_path: Path, emptied: str, why: str
+) -> None:
+    daemon, _world, path, events = start(tmp_path, CAREFUL)
+    run_for(daemon, 600.0)
+    running = daemon.config
+    write_in_place(path, emptied)  # as `: > hermsd.yaml` does
+    run_for(daemon, 600.0)
+    assert daemon.config == running
+    assert (daemon.mode, daemon.setpoint, daemon.config.safety.max_temp) == ("manual", 45.0, 50.0)
+    assert all(record.output == 0.0 for record in events.periods)
+    rejection = [m for m in events.logged() if m.startswith("config rejected")]
+    assert len(rejection) == 1
+    assert rejection[0].startswith(f"config rejected, still running on the last good one: {path}:")
+    assert why in rejection[0]
+
+
+def _cuts(text: str) -> list[str]:
+    """The text cut after each line that sets a key, and inside each such line's value."""
+    cuts = []
+    end = 0
+    for line in text.splitlines(keepends=True):
+        end += len(line)
+        if re.match(r"  [a-z_]+: \S", line):
+            cuts += [text[:end], text[: end - 2]]  # whole lines kept; the value lost a character
+    return cuts
+
+
+# Values away from their defaults in every section, so a key a cut file lost would show.
+RUNNING = edited(
+    SHIPPED,
+    tun__name="Kettle",
+    tun__litres="60.0",
+    control__setpoint="64.5",
+    control__mode="manual",
+    control__manual_output="20.0",
+    control__kc="100.0",
+    sensor__read_interval="2.0",
+    output__min_on="0.1",
+    contactor__channel="2",
+    safety__max_temp="80.0",
+    safety__reset="3",
+    log__queue_size="5000",
+)
+
+
+def test_a_file_cut_short_anywhere_changes_no_running_value(tmp_path: Path) -> None:
+    """A save cut short by a full disk is often valid YAML; it is never taken for an edit."""
+    path = tmp_path / "hermsd.yaml"
+    path.write_text(RUNNING, encoding="utf-8")
+    source = ConfigFile(path, at_once)
+    running = source.load()
+    taken = 0
+    cuts = _cuts(RUNNING)
+    assert len(cuts) > 100
+    for cut in cuts:
+        path.write_text(cut, encoding="utf-8")
+        result = source.poll(force=True)
+        if isinstance(result, config_module.Config):
+            assert result == running, f"a file cut after {cut[-40:]!r} was taken"
+            taken += 1
+        else:
+            assert isinstance(result, config_module.ConfigError)
+    assert taken == 1  # only the cut after the last line, which is the whole file
+
+
+def test_a_key_taken_out_is_refused_until_it_is_written_with_its_default(tmp_path: Path) -> None:
+    daemon, _world, path, events = start(tmp_path, CAREFUL)
+    run_for(daemon, 60.0)
+    rename_over(path, CAREFUL.replace("  mode: manual\n", ""))
+    run_for(daemon, PERIOD)
+    assert daemon.mode == "manual"
+    assert events.logged()[-1] == (
+        f"config rejected, still running on the last good one: {path}: control.mode is no "
+        "longer in the file, as in a save cut short (a reload keeps every key of the running "
+        "file: to return one to its default, write the default value; a restart takes the "
+        "file as it is)"
+    )
+    rename_over(path, CAREFUL.replace("  mode: manual\n", "  mode: auto\n"))
+    run_for(daemon, PERIOD)
+    assert daemon.mode == "auto"
+
+
+def test_a_section_taken_out_is_named_once(tmp_path: Path) -> None:
+    daemon, _world, path, events = start(tmp_path)
+    run_for(daemon, 60.0)
+    log_section = BASE.index("\nlog:\n")
+    rename_over(path, BASE[: log_section + 1])
+    run_for(daemon, PERIOD)
+    assert f"{path}: log is no longer in the file" in events.logged()[-1]
+
+
+def test_a_last_line_without_its_line_break_is_refused(tmp_path: Path) -> None:
+    text = "output:\n  backend: sim\nlog:\n  dir: null\ncontrol:\n  setpoint: 60.0\n"
+    daemon, _world, path, events = start(tmp_path, text)
+    run_for(daemon, 60.0)
+    rename_over(path, text[: text.index("0.0")])  # `setpoint: 6`, the rest not yet saved
+    run_for(daemon, PERIOD)
+    assert daemon.setpoint == 60.0
+    assert f"{path}:6:1: the last line has no line break" in events.logged()[-1]
+
+
+# -- the disk is read off the loop, and bounded ------------------------------------------------
+
+
+class SlowDisk:
+    """A reader that finishes its checks only when the test says so."""
+
+    def __init__(self) -> None:
+        self.reads: list[
+            tuple[Check, Future[config_module.Config | config_module.ConfigError | None]]
+        ] = []
+
+    def __call__(
+        self, check: Check
+    ) -> Future[config_module.Config | config_module.ConfigError | None]:
+        future: Future[config_module.Config | config_module.ConfigError | None] = Future()
+        self.reads.append((check, future))
+        return future
+
+    def finish(self) -> None:
+        for check, future in self.reads:
+            if not future.done():
+                future.set_result(check())
+
+
+def test_the_loop_never_waits_for_the_disk(tmp_path: Path) -> None:
+    disk = SlowDisk()
+    daemon, _world, path, events = start(tmp_path, reads=disk)
+    run_for(daemon, 60.0)
+    rename_over(path, edited(BASE, control__setpoint="70.0"))
+    mark = len(events.periods)
+    run_for(daemon, 20 * PERIOD)  # the read hangs all along
+    times = [record.t for record in events.periods[mark:]]
+    assert len(times) == 20 and all(b - a == PERIOD for a, b in itertools.pairwise(times))
+    assert daemon.setpoint == 66.0
+    assert len(disk.reads) == 1, "one read at a time, however long it takes"
+    disk.finish()
+    run_for(daemon, PERIOD)  # taken at the next period boundary
+    assert daemon.setpoint == 70.0
+
+
+def test_the_reader_thread_is_not_the_callers() -> None:
+    release = threading.Event()
+    ran_on: list[str] = []
+
+    def check() -> None:
+        ran_on.append(threading.current_thread().name)
+        release.wait(timeout=30)
+
+    future = in_thread(check)
+    assert not future.done()  # it cannot finish before it is released
+    release.set()
+    assert future.result(timeout=30) is None
+    assert ran_on == ["hermsd-config"]
+
+
+def test_a_huge_file_is_refused_without_reading_it(tmp_path: Path) -> None:
+    daemon, _world, path, events = start(tmp_path)
+    run_for(daemon, 60.0)
+    os.truncate(path, 50_000_000)  # sparse: 50 MB that cost no disk
+    run_for(daemon, PERIOD)
+    assert events.logged()[-1] == (
+        f"config rejected, still running on the last good one: {path}: is 50000000 bytes "
+        "long, more than the 64 KiB a config file may be (the shipped one is under 12 kB: "
+        "is this the right file?)"
+    )

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from hermsd import cli
+from hermsd import config as config_module
 from hermsd.recorder import LogFile
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario, ScenarioError, parse_scenario
@@ -152,3 +154,66 @@ def test_a_sensor_fault_at_full_power_leaves_no_offset_in_the_hold() -> None:
     assert resumed.reset_from == 100.0
     hold = [r.pv for r in result.records if r.t >= 3 * 3600.0 and r.pv is not None]
     assert max(abs(pv - 66.0) for pv in hold) <= 0.0625  # one LSB of the LM92
+
+
+@pytest.mark.parametrize(
+    ("event", "value", "key", "expected"),
+    [
+        ("setpoint: 150", "150", "events[0].setpoint", "0 to 100 °C"),
+        ("output: -1", "-1", "events[0].output", "0 to 100 %"),
+        ("ambient: 400", "400", "events[0].ambient", "-20 to 50 °C"),
+        ("add_water: {litres: -5, temp: 15}", "-5", "events[0].add_water.litres", "0.1 to 1000 L"),
+        (
+            "add_water: {litres: 5, temp: 120}",
+            "120",
+            "events[0].add_water.temp",
+            "0 to 100 °C (liquid water)",
+        ),
+    ],
+)
+def test_an_event_out_of_range_is_refused_with_file_line_and_column(
+    tmp_path: Path,
+    event: str,
+    value: str,
+    key: str,
+    expected: str,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    path = tmp_path / "bad.yaml"
+    line = f"    {event}"
+    path.write_text(f"duration: 1h\nevents:\n  - at: 10m\n{line}\n", encoding="utf-8")
+
+    assert cli.main(["simulate", "--scenario", str(path)]) == 2
+
+    where = f"{path}:4:{line.index(value) + 1}"
+    message = f"{value} is out of range (expected {expected})"
+    assert capsys.readouterr().err == f"hermsd: {where}: {key}: {message}\n"
+
+
+def test_the_config_sections_setpoint_is_used_when_the_scenario_gives_none() -> None:
+    doc = {"duration": "1h", "config": {"control": {"setpoint": 70}}}
+
+    config = scenario.effective_config(config_module.DEFAULT, parse_scenario(doc))
+
+    assert config.control.setpoint == 70.0
+
+
+def test_a_setpoint_given_twice_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "twice.yaml"
+    path.write_text("setpoint: 66\nconfig:\n  control: {setpoint: 70}\n", encoding="utf-8")
+
+    with pytest.raises(ScenarioError) as error:
+        scenario.load_scenario(path)
+
+    assert str(error.value) == (
+        f"{path}:3:23: config.control.setpoint: the setpoint is given twice "
+        "(keep the top-level setpoint, or this one)"
+    )
+
+
+def test_a_scenario_nested_too_deeply_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "deep.yaml"
+    path.write_text("events: " + "[" * 100_000 + "]" * 100_000 + "\n", encoding="utf-8")
+
+    with pytest.raises(ScenarioError, match=f"^{path}: nested too deeply to be a scenario$"):
+        scenario.load_scenario(path)

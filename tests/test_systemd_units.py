@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from hermsd.realtime import LOOP_PRIORITY
+
 SYSTEMD_DIR = Path(__file__).resolve().parent.parent / "systemd"
 INSTALLED_BINARY = "/usr/local/bin/hermsd"
 # The template is checked through one instance, so %i resolves as it will on the Pi.
@@ -117,6 +119,10 @@ def test_the_unit_has_what_the_daemon_relies_on(unit_file: str) -> None:
     }
     assert {key: directives.get(key) for key in expected} == expected
     assert directives["Service.TimeoutStopSec"]
+    # The loop thread may raise itself to real-time priority (and nothing higher).
+    assert directives["Service.LimitRTPRIO"] == [str(LOOP_PRIORITY)]
+    assert "sched_setscheduler" in directives["Service.SystemCallFilter"]
+    assert directives.get("Service.RestrictRealtime", ["no"]) == ["no"]
     assert directives["Service.StateDirectory"][0].startswith("hermsd")
     assert directives["Service.LogsDirectory"][0].startswith("hermsd")
 

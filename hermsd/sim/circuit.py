@@ -1,8 +1,9 @@
 """The simulated heater circuit: SSR and contactor in series feeding the tun model's element.
 
-Faults a scenario can inject live here: an SSR that fails shorted (stuck on). Every change of
-the element's power is kept with its time, so the simulator can tell exactly when the heater
-really went off after an alarm.
+Faults a scenario can inject live here: an SSR that fails shorted (stuck on). A scenario's
+circuit keeps every SSR edge and every change of the element's power with its time, so the
+simulator can count edges and tell exactly when the heater really went off after an alarm;
+the circuit of `hermsd run --simulate`, which may run for weeks, keeps none (`history`).
 """
 
 from __future__ import annotations
@@ -15,9 +16,17 @@ from hermsd.sim.hlt import Plant
 class HeaterCircuit:
     """SSR in series with an optional contactor; the element is powered when both conduct."""
 
-    def __init__(self, plant: Plant, now: Callable[[], float], contactor: bool = False) -> None:
+    def __init__(
+        self,
+        plant: Plant,
+        now: Callable[[], float],
+        contactor: bool = False,
+        *,
+        history: bool = False,
+    ) -> None:
         self._plant = plant
         self._now = now
+        self._history = history
         self.ssr_on = False
         self.ssr_stuck_on = False
         self.contactor_closed = not contactor  # no contactor: the line is always made
@@ -34,7 +43,8 @@ class HeaterCircuit:
     def _set_ssr(self, on: bool) -> None:
         if on != self.ssr_on:
             self.ssr_on = on
-            self.ssr_edges.append(self._now())
+            if self._history:
+                self.ssr_edges.append(self._now())
         self._update()
 
     def _set_contactor(self, closed: bool) -> None:
@@ -46,11 +56,17 @@ class HeaterCircuit:
         if powered != self.powered:
             t = self._now()
             self.powered = powered
-            self.power_changes.append((t, powered))
+            if self._history:
+                self.power_changes.append((t, powered))
             self._plant.set_heater(powered, t)
 
     def off_at_or_after(self, t: float) -> float | None:
-        """The first time at or after `t` when the element had no power (None: never)."""
+        """The first time at or after `t` when the element had no power (None: never).
+
+        Needs the history; without it, ValueError.
+        """
+        if not self._history:
+            raise ValueError("this circuit keeps no history of its power")
         state = False
         for when, powered in self.power_changes:
             if when > t:

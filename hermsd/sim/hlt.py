@@ -17,35 +17,99 @@ and the sensor follows the water with its own time constant τ_s:
 
 `FoptdPlant` is the first-order-plus-dead-time model identified on a real 90 L tun
 (τ·dT/dt = −(T − T_amb) + K·u(t − θ), u in %): it is the same equation with UA = P/(100·K),
-C = τ·UA, delay θ, no sensor lag and no boiling. `PhysicalPlant` starts from litres, watts and
-UA instead, and adds the sensor lag, the boiling cap and optional sensor noise.
+C = τ·UA, delay θ and no sensor lag. `PhysicalPlant` starts from litres, watts and UA
+instead, and adds the sensor lag and, with the lid off, evaporation from the open surface
+(see `evaporation_w`). Neither lets the water rise above its boiling point: heat beyond it
+boils water off. The sensor's noise is not the tun's: the simulated LM92 adds it
+(`hermsd.sim.world`), so `temperature()` is what a perfect sensor at the sensor's place reads.
+
+Evaporation is not linear in the water's temperature, so it breaks the closed form. The
+model replaces it by its tangent, taken afresh on a fixed grid of simulation time
+(`RELINEARIZE_S`) and at every change of water or room; between two such instants the
+equation is linear again and integrated exactly. The tangent is an input of the model like
+the heater's power, so the answer still does not depend on how often anyone looks, and the
+energy books still close to rounding. Against the nonlinear equation the tangent costs
+about 2e-5 °C over half an hour of heating at 50 K/h, less while holding
+(tests/test_simulator.py checks it against a fine Runge-Kutta run).
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
+import inspect
 import math
-import random
 from collections import deque
+from pathlib import Path
 from typing import Any, Protocol
 
 WATER_J_PER_LITRE_K = 4186.0
 """Specific heat of water at 1 kg/L."""
 
 BOILING_C = 100.0
-"""The water boils here: it gets no hotter, and any surplus power leaves as steam."""
+"""The water boils here (sea level): it gets no hotter, and any surplus power leaves as steam."""
+
+RELINEARIZE_S = 10.0
+"""How often (simulation seconds) the evaporation's tangent is taken afresh."""
+
+EVAPORATION_W_PER_M2_KPA = 89.0
+"""Evaporative heat flux from an open water surface into still room air, per kPa of vapour
+pressure difference: w = A·(p_w − p_a)·(0.089 + 0.0782·V)/Y kg/s (A m², p kPa, V air speed
+m/s, Y latent heat kJ/kg), the Carrier correlation of the ASHRAE Handbook (HVAC
+Applications, natatoriums); the heat flux w·Y is then (89 + 78.2·V) W per m² and kPa, and
+V = 0 in a still room. Over a hot pot the moist air rises by itself, which a correlation
+made for pools leaves out: the usual engineering table for open tanks in still 15.6 °C air
+(Engineering ToolBox, "Heat loss from open water tanks": 860 Btu/(ft²·h) = 2.7 kW/m² at
+150 °F) lies some 20 % above it at 66 °C, so this is a low estimate, not a high one."""
+
+ROOM_RELATIVE_HUMIDITY = 0.5
+"""The room air's relative humidity φ: p_a = φ·p_sat(T_amb)."""
+
+_MMHG_KPA = 0.133322
+_ANTOINE_A, _ANTOINE_B, _ANTOINE_C = 8.07131, 1730.63, 233.426
+"""Antoine's constants for water, 1–100 °C, p in mmHg: log10 p = A − B/(C + T)."""
+
+
+def saturation_kpa(temp_c: float) -> float:
+    """Water's saturation vapour pressure (Antoine): 2.34 kPa at 20 °C, 101.3 kPa at 100 °C."""
+    return _MMHG_KPA * math.pow(10.0, _ANTOINE_A - _ANTOINE_B / (_ANTOINE_C + temp_c))
+
+
+def saturation_slope_kpa_per_k(temp_c: float) -> float:
+    """d p_sat / dT, from the same Antoine equation."""
+    return saturation_kpa(temp_c) * math.log(10.0) * _ANTOINE_B / (_ANTOINE_C + temp_c) ** 2
+
+
+def pot_surface_m2(litres: float) -> float:
+    """The open surface of `litres` in the usual brewing pot, as tall as it is wide:
+    V = π·r²·2r, so r = (V/2π)^⅓ (50 L: a 40 cm pot, 0.126 m²)."""
+    radius = math.pow(litres / 1000.0 / (2.0 * math.pi), 1.0 / 3.0)
+    return math.pi * radius * radius
+
+
+def evaporation_w(water_c: float, ambient_c: float, surface_m2: float) -> float:
+    """Heat carried off by evaporation from an open surface: 89 W/(m²·kPa) ×
+    (p_sat(T_w) − φ·p_sat(T_amb)) (see `EVAPORATION_W_PER_M2_KPA`). A 40 cm pot at 66 °C in a
+    20 °C room loses about 0.28 kW this way; at 80 °C about 0.51 kW; at the boil 1.1 kW."""
+    room_kpa = ROOM_RELATIVE_HUMIDITY * saturation_kpa(ambient_c)
+    return EVAPORATION_W_PER_M2_KPA * surface_m2 * (saturation_kpa(water_c) - room_kpa)
 
 
 class Plant(Protocol):
-    """What a simulation needs of the tun. Times are seconds on the simulation's monotonic
-    scale and must never decrease from one call to the next."""
+    """What the simulator needs of a tun: any object with these methods can be simulated
+    (`hermsd simulate --plant FILE.py:FACTORY`, a factory called with no arguments).
 
-    @property
-    def litres(self) -> float:
-        """Water in the tun now."""
-        ...
+    Times are seconds on the simulation's monotonic clock, starting at 0 and never
+    decreasing from one call to the next. The heater's power and everything else are inputs
+    that hold from the time given until they change; temperatures are in °C. The simulator
+    adds the sensor's noise and the LM92's 0.0625 °C steps itself, so `temperature` is what
+    a perfect sensor reads. To find the physical minimums (full power from the start, and
+    from each event) the simulator runs full power on copies made with `copy.deepcopy`: a
+    plant must survive it (plain attributes do; open files, locks or threads do not).
+    """
 
     def set_heater(self, on: bool, t: float) -> None:
-        """The SSR's state from `t` on."""
+        """The element is switched on (full power) or off from `t` on."""
         ...
 
     def set_element_ok(self, ok: bool, t: float) -> None:
@@ -61,24 +125,23 @@ class Plant(Protocol):
         ...
 
     def temperature(self, t: float) -> float:
-        """What the sensor reads at `t`."""
+        """What the sensor reads at `t`, without noise."""
         ...
 
     def water_temperature(self, t: float) -> float:
         """The bulk water's temperature at `t`."""
         ...
 
-    def energy_in(self, t: float) -> float:
-        """Joules of the element's heat that have reached the water up to `t`."""
-        ...
 
-    def energy_lost(self, t: float) -> float:
-        """Joules lost to the room up to `t`."""
-        ...
-
-    def energy_boiled(self, t: float) -> float:
-        """Joules that went into boiling up to `t`."""
-        ...
+PLANT_METHODS = (
+    "set_heater",
+    "set_element_ok",
+    "set_ambient",
+    "add_water",
+    "temperature",
+    "water_temperature",
+)
+"""The protocol's methods, for checking an object from outside before it is run."""
 
 
 def _require(name: str, value: float, valid: bool, rule: str) -> None:
@@ -101,7 +164,9 @@ class _LumpedTun:
 
     The start state (water and sensor at `start_c`, heater off, element ok) belongs to time
     `start_s`. Heat counts as in once it reaches the water, the delay after the element made
-    it, so that heat in = stored + lost + boiled holds at every instant.
+    it, so that heat in = stored + lost + boiled holds at every instant. Losses are linear in
+    the water's temperature between two changes: G·(T_w − T_rest), with G = UA and
+    T_rest = T_amb when the lid is on, and the evaporation's tangent folded in when it is off.
     """
 
     __slots__ = (
@@ -118,11 +183,13 @@ class _LumpedTun:
         "_last_scheduled_w",
         "_litres",
         "_loss_rate",
-        "_noise_c",
+        "_loss_w_per_k",
+        "_next_tangent_s",
+        "_open_surface_m2",
         "_pending",
         "_power_w",
         "_rate_gap",
-        "_rng",
+        "_rest_c",
         "_sensor_c",
         "_sensor_rate",
         "_slower_rate",
@@ -140,26 +207,24 @@ class _LumpedTun:
         ua_w_per_k: float,
         delay_s: float,
         sensor_lag_s: float,
-        boiling_c: float,
+        open_surface_m2: float,
         ambient_c: float,
         start_c: float,
         start_s: float,
-        noise_c: float,
-        seed: int,
     ) -> None:
         self._litres = litres
         self._capacity_per_litre = capacity_per_litre
         self._element_watts = element_watts
         self._ua = ua_w_per_k
+        self._open_surface_m2 = open_surface_m2
         self._delay_s = delay_s
         self._sensor_rate = 1.0 / sensor_lag_s if sensor_lag_s > 0.0 else math.inf
-        self._boiling_c = boiling_c
+        self._boiling_c = BOILING_C
         self._ambient_c = ambient_c
         self._water_c = start_c
         self._sensor_c = start_c
-        self._noise_c = noise_c
-        self._rng = random.Random(seed)
         self._t = start_s
+        self._next_tangent_s = start_s + RELINEARIZE_S if open_surface_m2 > 0.0 else math.inf
         self._heater_on = False
         self._element_ok = True
         self._power_w = 0.0
@@ -169,10 +234,12 @@ class _LumpedTun:
         self._energy_in = 0.0
         self._energy_lost = 0.0
         self._energy_boiled = 0.0
+        self._loss_w_per_k = ua_w_per_k
+        self._rest_c = ambient_c
         self._loss_rate = 0.0
         self._slower_rate = 0.0
         self._rate_gap = 0.0
-        self._update_rates()
+        self._update_losses()
 
     # ----------------------------------------------------------------- inputs
 
@@ -190,6 +257,7 @@ class _LumpedTun:
         _require("temp_c", temp_c, math.isfinite(temp_c), "a finite temperature in °C")
         self._advance(t)
         self._ambient_c = temp_c
+        self._update_losses()
 
     def add_water(self, litres: float, temp_c: float, t: float) -> None:
         _require("litres", litres, 0.0 < litres < math.inf, "a finite number > 0")
@@ -203,7 +271,7 @@ class _LumpedTun:
         total = self._litres + litres
         self._water_c = (self._litres * self._water_c + litres * temp_c) / total
         self._litres = total
-        self._update_rates()
+        self._update_losses()
         if self._sensor_rate == math.inf:
             self._sensor_c = self._water_c
 
@@ -211,22 +279,22 @@ class _LumpedTun:
 
     @property
     def litres(self) -> float:
+        """Water in the tun now."""
         return self._litres
 
     @property
     def gain_c_per_pct(self) -> float:
-        """Steady-state rise per % of heater duty: P/(100·UA); adding water leaves it."""
+        """Steady-state rise per % of heater duty with the lid on: P/(100·UA); adding water
+        leaves it."""
         return self._element_watts / (100.0 * self._ua)
 
     @property
     def time_constant_s(self) -> float:
-        """The water's time constant C/UA now; it grows with the water's mass."""
+        """The water's time constant C/G now; it grows with the water's mass."""
         return 1.0 / self._loss_rate
 
     def temperature(self, t: float) -> float:
         self._advance(t)
-        if self._noise_c > 0.0:
-            return self._sensor_c + self._rng.gauss(0.0, self._noise_c)
         return self._sensor_c
 
     def water_temperature(self, t: float) -> float:
@@ -234,21 +302,37 @@ class _LumpedTun:
         return self._water_c
 
     def energy_in(self, t: float) -> float:
+        """Joules of the element's heat that have reached the water up to `t`."""
         self._advance(t)
         return self._energy_in
 
     def energy_lost(self, t: float) -> float:
+        """Joules lost to the room (through the walls, and by evaporation) up to `t`."""
         self._advance(t)
         return self._energy_lost
 
     def energy_boiled(self, t: float) -> float:
+        """Joules that went into boiling up to `t`."""
         self._advance(t)
         return self._energy_boiled
 
     # ------------------------------------------------------------ integration
 
-    def _update_rates(self) -> None:
-        self._loss_rate = self._ua / (self._capacity_per_litre * self._litres)
+    def _update_losses(self) -> None:
+        """G and T_rest for the water and room now: with an open surface, the evaporation's
+        tangent at the water's temperature, E(T) ≈ E0 + E1·(T − T0)."""
+        if self._open_surface_m2 > 0.0:
+            water = self._water_c
+            e0 = evaporation_w(water, self._ambient_c, self._open_surface_m2)
+            e1 = (
+                EVAPORATION_W_PER_M2_KPA * self._open_surface_m2 * saturation_slope_kpa_per_k(water)
+            )
+            self._loss_w_per_k = self._ua + e1
+            self._rest_c = (self._ua * self._ambient_c - e0 + e1 * water) / self._loss_w_per_k
+        else:
+            self._loss_w_per_k = self._ua
+            self._rest_c = self._ambient_c
+        self._loss_rate = self._loss_w_per_k / (self._capacity_per_litre * self._litres)
         self._slower_rate = min(self._loss_rate, self._sensor_rate)
         self._rate_gap = abs(self._sensor_rate - self._loss_rate)
 
@@ -262,12 +346,19 @@ class _LumpedTun:
     def _advance(self, t: float) -> None:
         _validated_time(t, self._t)
         pending = self._pending
-        while pending and pending[0][0] <= t:
-            when, power = pending.popleft()
+        while True:
+            arrives = pending[0][0] if pending else math.inf
+            when = min(arrives, self._next_tangent_s)
+            if when > t:
+                break
             if when > self._t:
                 self._integrate(when - self._t)
                 self._t = when
-            self._power_w = power
+            if arrives == when:
+                self._power_w = pending.popleft()[1]
+            else:
+                self._next_tangent_s += RELINEARIZE_S
+                self._update_losses()
         if t > self._t:
             self._integrate(t - self._t)
             self._t = t
@@ -275,7 +366,7 @@ class _LumpedTun:
     def _integrate(self, duration: float) -> None:
         """Move the state `duration` seconds on under constant inputs."""
         boiling = self._boiling_c
-        heading_for = self._ambient_c + self._power_w / self._ua
+        heading_for = self._rest_c + self._power_w / self._loss_w_per_k
         if heading_for <= boiling:
             self._free_piece(duration, heading_for)
             return
@@ -297,8 +388,8 @@ class _LumpedTun:
         offset = self._water_c - heading_for
         water_decay_m1 = math.expm1(-rate * duration)  # e^(−t/τ_w) − 1, exact for small t
         self._energy_in += power * duration
-        self._energy_lost += self._ua * (
-            (heading_for - self._ambient_c) * duration - offset * water_decay_m1 / rate
+        self._energy_lost += self._loss_w_per_k * (
+            (heading_for - self._rest_c) * duration - offset * water_decay_m1 / rate
         )
         self._water_c += offset * water_decay_m1
         sensor_rate = self._sensor_rate
@@ -319,7 +410,7 @@ class _LumpedTun:
     def _boiling_piece(self, duration: float) -> None:
         """Water held at the boil: losses at the boiling point, the rest goes to steam."""
         boiling = self._boiling_c
-        loss_w = self._ua * (boiling - self._ambient_c)
+        loss_w = self._loss_w_per_k * (boiling - self._rest_c)
         self._energy_in += self._power_w * duration
         self._energy_lost += loss_w * duration
         self._energy_boiled += (self._power_w - loss_w) * duration
@@ -331,12 +422,23 @@ class _LumpedTun:
             )
 
 
+def _validated_start(start_c: float) -> float:
+    _require(
+        "start_c",
+        start_c,
+        0.0 <= start_c <= BOILING_C,
+        f"the temperature of liquid water, 0 to {BOILING_C:g} °C",
+    )
+    return start_c
+
+
 class FoptdPlant(_LumpedTun):
     """First order plus dead time: τ·dT/dt = −(T − T_amb) + K·u(t − θ), u = 100 % when on.
 
     Defaults are the tun identified by step tests (90 L, 3 kW): K = 1.689 °C/%,
-    τ = 14961 s, θ = 115 s. The model is linear: it does not boil. Water added scales τ with
-    the mass and leaves K. The element's watts only set the energy books (UA = P/(100·K)).
+    τ = 14961 s, θ = 115 s. The model is linear up to the boil, where the water stops and
+    the surplus boils off. Water added scales τ with the mass and leaves K. The element's
+    watts only set the energy books (UA = P/(100·K)).
     """
 
     __slots__ = ()
@@ -352,19 +454,15 @@ class FoptdPlant(_LumpedTun):
         start_s: float = 0.0,
         litres: float = 90.0,
         element_watts: float = 3000.0,
-        noise_c: float = 0.0,
-        seed: int = 0,
     ) -> None:
         _require("gain_c_per_pct", gain_c_per_pct, 0.0 < gain_c_per_pct < math.inf, "a number > 0")
         _require("tau_s", tau_s, 0.0 < tau_s < math.inf, "a finite number > 0")
         _require("dead_time_s", dead_time_s, 0.0 <= dead_time_s < math.inf, "a number ≥ 0")
         _require("ambient_c", ambient_c, math.isfinite(ambient_c), "a finite temperature")
-        start = ambient_c if start_c is None else start_c
-        _require("start_c", start, math.isfinite(start), "a finite temperature")
+        start = _validated_start(ambient_c if start_c is None else start_c)
         _require("litres", litres, 0.0 < litres < math.inf, "a finite number > 0")
         _require("element_watts", element_watts, 0.0 < element_watts < math.inf, "a number > 0")
         _require("start_s", start_s, math.isfinite(start_s), "a finite time in seconds")
-        _require("noise_c", noise_c, 0.0 <= noise_c < math.inf, "a number ≥ 0")
         ua = element_watts / (100.0 * gain_c_per_pct)
         super().__init__(
             litres=litres,
@@ -373,23 +471,26 @@ class FoptdPlant(_LumpedTun):
             ua_w_per_k=ua,
             delay_s=dead_time_s,
             sensor_lag_s=0.0,
-            boiling_c=math.inf,
+            open_surface_m2=0.0,
             ambient_c=ambient_c,
             start_c=start,
             start_s=start_s,
-            noise_c=noise_c,
-            seed=seed,
         )
 
 
 class PhysicalPlant(_LumpedTun):
-    """Water, element, losses, a transport delay, a lagging sensor, and the boil.
+    """Water, element, losses, a transport delay, a lagging sensor, an open lid, the boil.
 
-    The default UA puts the steady-state gain at the identified 1.689 °C/%. The transport
-    delay is the time the element's heat takes to reach the water around the sensor. At the
-    boil the water is held at 100 °C and the surplus power is booked as boiled; the
-    evaporated mass is not removed. Noise (standard deviation `noise_c`) is added to
-    `temperature()` only, from a generator seeded with `seed`.
+    `ua_w_per_k` is the loss through walls, bottom and lid (W per K above the room); a
+    cooling measurement gives it as UA = C·(dT/dt)/(T − T_amb) with C = 4186 J/(L·K) × litres,
+    taken with the lid on. The default puts the steady-state gain at the identified
+    1.689 °C/%. The transport delay is the time the element's heat takes to reach the water
+    around the sensor; `sensor_lag_s` is the sensor's (or its well's) own first-order lag.
+    With `lid` False the open surface (`surface_m2`, by default that of a pot as tall as it
+    is wide holding the starting litres) also loses heat by evaporation (`evaporation_w`).
+    At the boil the water is held at 100 °C and the surplus power is booked as boiled. The
+    water that evaporates or boils is not taken out of the tun (0.4 L/h from a 40 cm pot at
+    66 °C: a brew day changes the mass by a few %).
     """
 
     __slots__ = ()
@@ -402,11 +503,11 @@ class PhysicalPlant(_LumpedTun):
         ua_w_per_k: float = 3000.0 / 168.9,
         transport_delay_s: float = 60.0,
         sensor_lag_s: float = 10.0,
+        lid: bool = True,
+        surface_m2: float | None = None,
         ambient_c: float = 20.0,
         start_c: float | None = None,
         start_s: float = 0.0,
-        noise_c: float = 0.0,
-        seed: int = 0,
     ) -> None:
         _require("litres", litres, 0.0 < litres < math.inf, "a finite number > 0")
         _require("element_watts", element_watts, 0.0 < element_watts < math.inf, "a number > 0")
@@ -418,16 +519,12 @@ class PhysicalPlant(_LumpedTun):
             "a number ≥ 0",
         )
         _require("sensor_lag_s", sensor_lag_s, 0.0 <= sensor_lag_s < math.inf, "a number ≥ 0")
+        _require("lid", lid, isinstance(lid, bool), "on (True) or off (False)")
+        surface = pot_surface_m2(litres) if surface_m2 is None else surface_m2
+        _require("surface_m2", surface, 0.0 < surface < math.inf, "a number of m² > 0")
         _require("ambient_c", ambient_c, math.isfinite(ambient_c), "a finite temperature")
-        start = ambient_c if start_c is None else start_c
-        _require(
-            "start_c",
-            start,
-            0.0 <= start <= BOILING_C,
-            f"the temperature of liquid water, 0 to {BOILING_C:g} °C",
-        )
+        start = _validated_start(ambient_c if start_c is None else start_c)
         _require("start_s", start_s, math.isfinite(start_s), "a finite time in seconds")
-        _require("noise_c", noise_c, 0.0 <= noise_c < math.inf, "a number ≥ 0")
         super().__init__(
             litres=litres,
             capacity_per_litre=WATER_J_PER_LITRE_K,
@@ -435,12 +532,10 @@ class PhysicalPlant(_LumpedTun):
             ua_w_per_k=ua_w_per_k,
             delay_s=transport_delay_s,
             sensor_lag_s=sensor_lag_s,
-            boiling_c=BOILING_C,
+            open_surface_m2=0.0 if lid else surface,
             ambient_c=ambient_c,
             start_c=start,
             start_s=start_s,
-            noise_c=noise_c,
-            seed=seed,
         )
 
 
@@ -458,3 +553,57 @@ def make_plant(kind: str, **params: Any) -> Plant:
         known = ", ".join(sorted(PLANT_KINDS))
         raise ValueError(f"plant kind {kind!r} is unknown: it must be one of {known}") from None
     return plant_class(**params)
+
+
+def plant_parameters(kind: str) -> tuple[str, ...]:
+    """The keyword parameters a plant kind takes (what a scenario's `plant:` may set)."""
+    return tuple(inspect.signature(PLANT_KINDS[kind]).parameters)
+
+
+class PlantLoadError(ValueError):
+    """An outside plant that cannot be loaded or lacks the protocol; the message says which."""
+
+
+def load_plant(reference: str) -> Plant:
+    """The plant that `FILE.py:FACTORY` or `package.module:FACTORY` makes, called with no
+    arguments, checked against the protocol (`Plant`)."""
+    where, _, factory_name = reference.rpartition(":")
+    if not where or not factory_name:
+        raise PlantLoadError(
+            f"plant {reference!r}: expected FILE.py:FACTORY or package.module:FACTORY"
+        )
+    try:
+        if where.endswith(".py") or "/" in where:
+            path = Path(where)
+            if not path.is_file():
+                raise PlantLoadError(f"plant {reference!r}: no file {where}")
+            spec = importlib.util.spec_from_file_location(f"hermsd_plant_{path.stem}", path)
+            if spec is None or spec.loader is None:
+                raise PlantLoadError(f"plant {reference!r}: {where} is not a Python file")
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        else:
+            module = importlib.import_module(where)
+    except PlantLoadError:
+        raise
+    except Exception as error:  # the user's module failed to import: say how, in one line
+        raise PlantLoadError(
+            f"plant {reference!r}: cannot load {where}: {type(error).__name__}: {error}"
+        ) from None
+    factory = getattr(module, factory_name, None)
+    if not callable(factory):
+        raise PlantLoadError(f"plant {reference!r}: {where} has no function {factory_name}")
+    try:
+        plant = factory()
+    except Exception as error:
+        raise PlantLoadError(
+            f"plant {reference!r}: {factory_name}() failed: {type(error).__name__}: {error}"
+        ) from None
+    missing = [name for name in PLANT_METHODS if not callable(getattr(plant, name, None))]
+    if missing:
+        raise PlantLoadError(
+            f"plant {reference!r}: the {type(plant).__name__} that {factory_name}() made lacks "
+            f"{', '.join(missing)} (the plant protocol: hermsd.sim.hlt.Plant)"
+        )
+    result: Plant = plant
+    return result

@@ -1,8 +1,10 @@
 """Scenarios: a brew day (or a fault) run at full speed through the very same daemon code.
 
-A scenario is YAML: `duration`, `plant` (model and parameters), initial `setpoint`, optional
-`config` (overrides of the daemon's config, validated like the file), and `events`, each with
-`at` and one action. The runner wires the fake bus, the tun model and the simulated heater
+A scenario is YAML: `duration`, `plant` (model and parameters: `hermsd.sim.hlt.PLANT_KINDS`
+and their keyword parameters, plus the sensor's `noise_c` and `seed`; README.md, Simulate),
+initial `setpoint` (else the config's), optional `config` (overrides of the daemon's config,
+validated like the file), and `events`, each with `at` and one action; errors name the file,
+line and column. The runner wires the fake bus, the tun model and the simulated heater
 circuit into `Daemon` on a virtual clock, and measures the run against physics: the earliest
 any controller could settle is full power from the start.
 """
@@ -25,14 +27,14 @@ from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
 from hermsd.latches import LatchStore
 from hermsd.learning import ModelStore
-from hermsd.metrics import BAND, Sample, compute, report
+from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.recorder import Recorder
-from hermsd.safety import Alarm
+from hermsd.safety import Alarm, MeasuredTun
 from hermsd.sim.bus import FakeLM92
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
-from hermsd.sim.hlt import Plant
-from hermsd.sim.world import build_world
+from hermsd.sim.hlt import PLANT_KINDS, Plant, make_plant, plant_parameters
+from hermsd.sim.world import SENSOR_KEYS, build_world, sensor_reading
 
 SENSOR_FAULTS = ("nack", "timeout", "stuck", "spike", "wrong_id", "gone", "slow", "ok")
 EVENT_KINDS = (
@@ -46,6 +48,17 @@ EVENT_KINDS = (
     "ambient",
     "config",
 )
+
+
+# What the daemon and the tun model accept (the daemon's setpoint and manual output, the
+# config's tun size and ambient); a scenario is refused before its run, not half-way in.
+SETPOINT_RANGE = (0.0, 100.0, "°C")
+EVENT_RANGES = {
+    "setpoint": SETPOINT_RANGE,
+    "output": (0.0, 100.0, "%"),
+    "ambient": (-20.0, 50.0, "°C"),
+}
+WATER = {"litres": (0.1, 1000.0, "L"), "temp": (0.0, 100.0, "°C (liquid water)")}
 
 
 class ScenarioError(ValueError):
@@ -65,7 +78,7 @@ class Scenario:
     name: str = "default"
     duration: float = 6 * 3600.0
     plant: dict[str, Any] = field(default_factory=lambda: {"model": "foptd"})
-    setpoint: float = 66.0
+    setpoint: float | None = None  # None: the config's (control.setpoint)
     config: dict[str, Any] = field(default_factory=dict)
     events: tuple[Event, ...] = (Event(4 * 3600.0, "add_water", {"litres": 10.0, "temp": 15.0}),)
 
@@ -78,20 +91,53 @@ def load_scenario(path: Path) -> Scenario:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as error:
         raise ScenarioError(f"{path}: cannot read the scenario: {error}") from None
+    loader = yaml.SafeLoader(text)
     try:
-        doc = yaml.safe_load(text)
+        node = loader.get_single_node()
+        doc = loader.construct_document(node) if node is not None else None
+        positions = _positions(node, "") if node is not None else {}
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else str(path)
         raise ScenarioError(f"{where}: not valid YAML: {error}") from None
-    return parse_scenario(doc if doc is not None else {}, str(path))
+    except RecursionError:
+        raise ScenarioError(f"{path}: nested too deeply to be a scenario") from None
+    finally:
+        loader.dispose()
+    return parse_scenario(doc if doc is not None else {}, str(path), positions)
 
 
-def parse_scenario(doc: Any, source: str = "<scenario>") -> Scenario:
-    """A validated scenario from a parsed YAML document."""
+def _positions(node: yaml.Node, key: str) -> dict[str, tuple[int, int]]:
+    """Line and column (1-based) of every value in the document, by its key path."""
+    found = {key: (node.start_mark.line + 1, node.start_mark.column + 1)}
+    if isinstance(node, yaml.MappingNode):
+        for key_node, value_node in node.value:
+            name = f"{key}.{key_node.value}" if key else str(key_node.value)
+            found.update(_positions(value_node, name))
+    elif isinstance(node, yaml.SequenceNode):
+        for index, item in enumerate(node.value):
+            found.update(_positions(item, f"{key}[{index}]"))
+    return found
+
+
+def parse_scenario(
+    doc: Any, source: str = "<scenario>", positions: dict[str, tuple[int, int]] | None = None
+) -> Scenario:
+    """A validated scenario from a parsed YAML document (`positions`: where each key is)."""
 
     def fail(key: str, what: str) -> ScenarioError:
-        return ScenarioError(f"{source}: {key}: {what}")
+        where = source
+        path = key
+        while positions:  # the key's own position, else its nearest enclosing one
+            if path in positions:
+                line, column = positions[path]
+                where = f"{source}:{line}:{column}"
+                break
+            cut = max(path.rfind("."), path.rfind("["))
+            if cut <= 0:
+                break
+            path = path[:cut]
+        return ScenarioError(f"{where}: {key}: {what}")
 
     if not isinstance(doc, dict):
         raise fail("(top level)", "expected a mapping with duration, plant, setpoint, events")
@@ -102,13 +148,19 @@ def parse_scenario(doc: Any, source: str = "<scenario>") -> Scenario:
         duration = parse_duration(doc.get("duration", DEFAULT.duration))
     except ValueError as error:
         raise fail("duration", str(error)) from None
-    plant = doc.get("plant", DEFAULT.plant)
-    if not isinstance(plant, dict) or plant.get("model", "foptd") not in ("foptd", "physical"):
-        raise fail("plant", "expected a mapping with model: foptd or model: physical")
-    setpoint = _number(doc.get("setpoint", DEFAULT.setpoint), fail, "setpoint")
+    plant = _plant(doc.get("plant", DEFAULT.plant), fail)
     overrides = doc.get("config", {}) or {}
     if not isinstance(overrides, dict):
         raise fail("config", "expected a mapping of config sections")
+    setpoint = None
+    if "setpoint" in doc:
+        setpoint = _number(doc["setpoint"], fail, "setpoint", SETPOINT_RANGE)
+        control = overrides.get("control")
+        if isinstance(control, dict) and "setpoint" in control:
+            raise fail(
+                "config.control.setpoint",
+                "the setpoint is given twice (keep the top-level setpoint, or this one)",
+            )
     raw_events = doc.get("events", []) or []
     if not isinstance(raw_events, list):
         raise fail("events", "expected a list of events")
@@ -117,16 +169,56 @@ def parse_scenario(doc: Any, source: str = "<scenario>") -> Scenario:
     return Scenario(
         name=str(doc.get("name", Path(source).stem)),
         duration=duration,
-        plant={"model": "foptd", **plant},
+        plant=plant,
         setpoint=setpoint,
         config=overrides,
         events=tuple(events),
     )
 
 
-def _number(value: Any, fail: Callable[[str, str], ScenarioError], key: str) -> float:
+def _plant(raw: Any, fail: Callable[[str, str], ScenarioError]) -> dict[str, Any]:
+    """The `plant:` mapping, checked key by key: the tun's parameters, and the sensor's."""
+    kinds = ", ".join(sorted(PLANT_KINDS))
+    if not isinstance(raw, dict):
+        raise fail("plant", f"expected a mapping with model ({kinds}) and its parameters")
+    spec = {"model": "foptd", **raw}
+    model = spec.pop("model")
+    if model not in PLANT_KINDS:
+        raise fail("plant.model", f"expected one of {kinds}, got {model!r}")
+    known = (*plant_parameters(model), *SENSOR_KEYS)
+    for key, value in spec.items():
+        where = f"plant.{key}"
+        if key not in known:
+            raise fail(where, f"unknown key for model {model}: expected one of {', '.join(known)}")
+        if key == "lid":
+            if not isinstance(value, bool):
+                raise fail(where, f"expected on or off, got {value!r}")
+        elif key == "seed":
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise fail(where, f"expected a whole number, got {value!r}")
+        else:
+            _number(value, fail, where)
+    try:
+        tun = make_plant(model, **{k: v for k, v in spec.items() if k not in SENSOR_KEYS})
+        sensor_reading(tun, VirtualClock(), spec.get("noise_c", 0.0), 0)
+    except ValueError as error:
+        name = str(error).partition(" = ")[0]
+        raise fail(f"plant.{name}", str(error)) from None
+    return {"model": model, **spec}
+
+
+def _number(
+    value: Any,
+    fail: Callable[[str, str], ScenarioError],
+    key: str,
+    within: tuple[float, float, str] | None = None,
+) -> float:
+    """A finite number, within (low, high, unit) when given: else the error that says so."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise fail(key, f"expected a number, got {value!r}")
+    if within is not None and not within[0] <= value <= within[1]:
+        low, high, unit = within
+        raise fail(key, f"{value:g} is out of range (expected {low:g} to {high:g} {unit})")
     return float(value)
 
 
@@ -148,9 +240,9 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
     if kind == "add_water":
         if not isinstance(value, dict) or set(value) != {"litres", "temp"}:
             raise fail(f"{key}.add_water", "expected {litres: L, temp: °C}")
-        value = {k: _number(v, fail, f"{key}.add_water.{k}") for k, v in value.items()}
+        value = {k: _number(v, fail, f"{key}.add_water.{k}", WATER[k]) for k, v in value.items()}
     elif kind in ("setpoint", "output", "ambient"):
-        value = _number(value, fail, f"{key}.{kind}")
+        value = _number(value, fail, f"{key}.{kind}", EVENT_RANGES[kind])
     elif kind == "mode" and value not in ("manual", "auto"):
         raise fail(f"{key}.mode", "expected manual or auto")
     elif kind == "sensor":
@@ -169,7 +261,8 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
 def effective_config(base: Config, scenario: Scenario) -> Config:
     """The daemon's config with the scenario's overrides, validated like the file."""
     merged = _merge(config_module.to_dict(base), scenario.config)
-    merged.setdefault("control", {})["setpoint"] = scenario.setpoint
+    if scenario.setpoint is not None:
+        merged.setdefault("control", {})["setpoint"] = scenario.setpoint
     return _validated(merged, f"<scenario {scenario.name}>")
 
 
@@ -209,6 +302,7 @@ class _Collector:
 
     plant: Plant
     samples: list[Sample] = field(default_factory=list)
+    pv_samples: list[Sample] = field(default_factory=list)  # of the daemon's PV, as logged
     records: list[PeriodRecord] = field(default_factory=list)
     alarms: list[Alarm] = field(default_factory=list)
     keep_records: bool = False
@@ -216,6 +310,8 @@ class _Collector:
     def period(self, record: PeriodRecord) -> None:
         temp = self.plant.temperature(record.t)
         self.samples.append(Sample(record.t, record.setpoint, temp, record.output))
+        if record.pv is not None:
+            self.pv_samples.append(Sample(record.t, record.setpoint, record.pv, record.output))
         if self.keep_records:
             self.records.append(record)
 
@@ -234,19 +330,25 @@ class Result:
 
 
 def time_to_band(plant: Plant, start: float, setpoint: float, limit: float) -> float | None:
-    """Seconds of full power from `start` to the band (None: not within `limit` s)."""
+    """Seconds of full power from `start` until the sensor is in the band for good: when it
+    last rises through setpoint − BAND (0 if it never falls below it); None if that takes
+    more than `limit` s. On the plant's `temperature()`, the sensor without its noise. At
+    full power, once the water rises and both it and the sensor are at or above the band's
+    lower edge, neither falls below it again."""
     target = setpoint - BAND
-    previous = plant.temperature(start)
-    if previous >= target:
-        return 0.0
     plant.set_heater(True, start)
+    crossed = 0.0
     t = start
+    sensor = plant.temperature(t)
+    water = plant.water_temperature(t)
     while t - start < limit:
         t += 1.0
-        now = plant.temperature(t)
-        if now >= target:
-            return t - 1.0 - start + (target - previous) / (now - previous)
-        previous = now
+        now, water_now = plant.temperature(t), plant.water_temperature(t)
+        if sensor < target <= now:
+            crossed = t - 1.0 - start + (target - sensor) / (now - sensor)
+        if now >= target and target <= water < water_now:
+            return crossed
+        sensor, water = now, water_now
     return None
 
 
@@ -256,9 +358,16 @@ def run(
     *,
     log_dir: Path | None = None,
     keep_records: bool = False,
+    outside_plant: Plant | None = None,
     state_dir: Path | None = None,
+    tun_model: MeasuredTun | None = None,
 ) -> Result:
-    """Run `scenario` through the daemon on a virtual clock; measure it (and log it)."""
+    """Run `scenario` through the daemon on a virtual clock; measure it (and log it).
+
+    `outside_plant` replaces the scenario's tun (its `plant:` mapping then only gives the sensor's
+    noise); it is used up by the run. `state_dir` is the daemon's state directory, kept from
+    one run to the next as the service keeps it from one brew day to the next. `tun_model` is
+    the tun as measured, for the supervisor's limits (None: not measured)."""
     config = effective_config(base or config_module.DEFAULT, scenario)
     reloads = _reloads(config, scenario)
     started = time.perf_counter()
@@ -273,11 +382,11 @@ def run(
             lossless=True,
         )
     try:
-        world = build_world(config, clock, scenario.plant)
-        reference = build_world(config, VirtualClock(), scenario.plant).plant
+        world = build_world(config, clock, scenario.plant, tun=outside_plant, history=True)
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
+    reference = copy.deepcopy(plant)
     latches = models = None
     if state_dir is not None:
         state_dir.mkdir(parents=True, exist_ok=True)
@@ -290,6 +399,7 @@ def run(
         recorder=recorder,
         latches=latches,
         models=models,
+        tun_model=tun_model,
     )
     collector = _Collector(plant, keep_records=keep_records)
     daemon.listeners.append(collector)
@@ -349,7 +459,11 @@ def run(
         "scenario": scenario.name,
         "algorithm": config.control.algorithm,
         "duration_s": scenario.duration,
+        "temperature": SIMULATED_TEMPERATURE,
         **report(metrics),
+        "pv_overshoot_c": round(
+            compute(collector.pv_samples, disturbances, scenario.duration).overshoot_c, 4
+        ),
         "physical_min_s": None if physical_min is None else round(physical_min, 1),
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
         "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),

@@ -7,6 +7,7 @@ scenario runner alike.
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -21,7 +22,7 @@ from hermsd.lm92 import LM92
 from hermsd.notify import Notifier
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
-from hermsd.sim.clock import ScaledClock, VirtualClock
+from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, make_plant
 
 
@@ -35,17 +36,36 @@ class World:
     outputs: Outputs
 
 
-def build_world(config: Config, clock: Clock, plant: dict[str, Any] | None = None) -> World:
-    """Simulated hardware for `config`, on `clock`, around a plant (`{"model": ..., **params}`)."""
+SENSOR_KEYS = ("noise_c", "seed")
+"""Keys of a `plant:` mapping that describe the sensor, not the tun."""
+
+
+def build_world(
+    config: Config,
+    clock: Clock,
+    plant: dict[str, Any] | None = None,
+    *,
+    tun: Plant | None = None,
+    history: bool = False,
+) -> World:
+    """Simulated hardware for `config`, on `clock`, around a plant (`{"model": ..., **params}`)
+    or around `tun`, a plant built elsewhere (then only the mapping's sensor keys count).
+
+    `history`: the circuit keeps every edge and power change (a scenario's measurements).
+    """
     spec = dict(plant or {"model": "foptd"})
+    noise_c = spec.pop("noise_c", 0.0)
+    seed = spec.pop("seed", 0)
     model = spec.pop("model", "foptd")
-    tun = make_plant(model, **spec)
+    if tun is None:
+        tun = make_plant(model, **spec)
     advance = clock.advance if isinstance(clock, VirtualClock) else None
-    chip = FakeLM92(lambda: tun.temperature(clock.monotonic()), advance=advance)
+    chip = FakeLM92(sensor_reading(tun, clock, noise_c, seed), advance=advance)
     bus = FakeSMBus()
     bus.attach(config.sensor.address, chip)
     sensor = LM92(bus, config.sensor.address, bus_name="sim")
-    circuit = HeaterCircuit(tun, clock.monotonic, contactor=config.contactor.backend != "none")
+    contactor = config.contactor.backend != "none"
+    circuit = HeaterCircuit(tun, clock.monotonic, contactor, history=history)
     outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config)
     return World(clock, tun, chip, sensor, circuit, outputs)
 
@@ -60,7 +80,7 @@ def simulated_daemon(
     models: ModelStore | None = None,
 ) -> Daemon:
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
-    clock: Clock = VirtualClock() if math.isinf(speed) else ScaledClock(speed)
+    clock: Clock = VirtualClock() if math.isinf(speed) else PacedClock(speed)
     world = build_world(config, clock)
     return Daemon(
         config,
@@ -78,8 +98,20 @@ def simulated_daemon(
 def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:
     """An LM92 on the fake bus in a tun of cold water with a little sensor noise."""
     clock = VirtualClock()
-    tun = make_plant("physical", start_c=17.3, noise_c=0.04, seed=1)
-    chip = FakeLM92(lambda: tun.temperature(clock.monotonic()))
+    tun = make_plant("physical", start_c=17.3)
+    chip = FakeLM92(sensor_reading(tun, clock, noise_c=0.04, seed=1))
     bus = FakeSMBus()
     bus.attach(address, chip)
     return LM92(bus, address, bus_name="sim"), clock.sleep
+
+
+def sensor_reading(tun: Plant, clock: Clock, noise_c: float, seed: int) -> Callable[[], float]:
+    """What the LM92 converts: the tun's sensor temperature now, plus Gaussian noise of
+    standard deviation `noise_c` from a generator seeded with `seed` (the chip then
+    truncates it to its 0.0625 °C steps)."""
+    if not 0.0 <= noise_c < math.inf:
+        raise ValueError(f"noise_c = {noise_c!r} is invalid: it must be a number ≥ 0")
+    if noise_c == 0.0:
+        return lambda: tun.temperature(clock.monotonic())
+    rng = random.Random(seed)
+    return lambda: tun.temperature(clock.monotonic()) + rng.gauss(0.0, noise_c)

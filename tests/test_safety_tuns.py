@@ -1,0 +1,244 @@
+"""The supervisor on tuns that are not the config's: derivations by hand, and whole days.
+
+Golden values are worked from the physics stated beside each limit (water 4186 J/(kg·K),
+the seed tun's UA 3000/168.9 W/K, steam tables for evaporation), not read off the code.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from hermsd import cli
+from hermsd import config as config_module
+from hermsd.pid import PlantModel
+from hermsd.safety import SafetyLimits, Supervisor, format_limits
+from hermsd.sim import scenario
+from hermsd.sim import tun_faults as tf
+from hermsd.sim.tuns import FAMILY, TunSpec
+
+SEED = PlantModel(gain=1.689, tau=14961.0, dead_time=115.0, ambient=20.0)
+
+
+def tun(name: str) -> TunSpec:
+    return next(spec for spec in FAMILY if spec.name.startswith(name))
+
+
+def derive(model: PlantModel | None = None) -> SafetyLimits:
+    return SafetyLimits.derive(
+        litres=90.0, element_watts=3000.0, period=5.0, read_interval=1.0, model=model
+    )
+
+
+# -- derivations -----------------------------------------------------------------------------
+
+
+def test_unmeasured_limits_hold_for_half_to_twice_the_water_and_an_open_pot() -> None:
+    lim = derive()
+    rate = 3000.0 / (90 * 4186.0)  # 7.964e-3 °C/s: 3 kW into 90 L
+    assert lim.full_rate == pytest.approx(7.964e-3, rel=1e-3)
+    # 80 % at −10 % mains (0.81 P) into 180 L.
+    assert lim.heater_rise_rate == pytest.approx(0.8 * 0.81 * rate / 2, rel=1e-9)
+    # An open pot's UA, twice the seed's per wetted area, on 45 L: 2·17.762·0.5^⅔ = 22.38 W/K
+    # into 45·4186 J/K.
+    assert lim.loss_per_k == pytest.approx(22.38 / (45 * 4186.0), rel=1e-3)
+    assert lim.loss_room == 5.0
+    # 1 kW of evaporation from the 90 L pot's mouth, into 45 L.
+    assert lim.evaporation_rate == pytest.approx(1000.0 / (45 * 4186.0), rel=1e-9)
+    # Full power at +10 % mains into 45 L; 3× the configured rate for dry fire (1.43 °C/min).
+    assert lim.heat_rate == pytest.approx(2 * 1.21 * rate, rel=1e-9)
+    assert lim.dry_fire_rate * 60 == pytest.approx(1.433, abs=1e-3)
+    assert (lim.dead_time, lim.heat_memory, lim.heating_output(66.0)) == (300.0, 420.0, 80.0)
+
+
+def test_the_loss_bound_grows_with_the_vapour_pressure() -> None:
+    lim = derive()
+    # Steam tables: 2.339 kPa at 20 °C, 26.16 kPa at 66 °C, 70.14 kPa at 90 °C.
+    conduction_66 = 61 * 22.38 / (45 * 4186.0)
+    assert lim.loss_rate(66.0) == pytest.approx(conduction_66 + 1000.0 / (45 * 4186.0), rel=2e-3)
+    # (The Magnus formula used is within 1.5 % of the tables up to 90 °C.)
+    evaporation_90 = 1000.0 / (45 * 4186.0) * 70.14 / 26.16
+    assert lim.loss_rate(90.0) == pytest.approx(85 * 22.38 / (45 * 4186.0) + evaporation_90, 1e-2)
+    # The cool side: after 900 s at 20 °C the weakest element beats the largest loss by
+    # 2.580e-3 − 15·1.188e-4 − 5.309e-3·(2.339/26.16) = 3.24e-4 °C/s; half of 900 s of it.
+    assert lim.least_rise(900.0, 20.0) == pytest.approx(0.5 * 900 * 3.24e-4, abs=3e-3)
+    assert lim.least_rise(300.0, 20.0) is None  # 0.05 °C: lost in the noise
+    assert lim.least_rise(3600.0, 40.0) is None  # losses at 40 °C could eat it all
+
+
+def test_a_measured_tun_tightens_the_limits() -> None:
+    lim = derive(SEED)
+    rate = 100 * 1.689 / 14961.0  # 1.129e-2 °C/s at 100 %
+    assert lim.dead_time == pytest.approx(1.5 * 115.0)
+    assert lim.heat_memory == pytest.approx(1.5 * 115.0 + 60.0)
+    assert lim.heater_rise_rate == pytest.approx(0.8 * 0.81 * rate / 1.5, rel=1e-9)
+    assert lim.heat_rate == pytest.approx(1.21 * 1.5 * rate, rel=1e-9)
+    assert lim.loss_per_k == pytest.approx(1.5 / 14961.0) and lim.loss_room == 10.0
+    # u·0.81·K/1.5 must beat 1.5·(T − 10 °C): 2.25·(50 − 10)/(0.81·1.689) = 65.8 % at 50 °C.
+    assert lim.heating_output(50.0) == pytest.approx(2.25 * 40 / (0.81 * 1.689), rel=1e-9)
+    assert lim.heating_output(66.0) == 80.0  # never above the unmeasured 80 %
+    assert lim.heating_output(12.0) == 20.0  # never where a fall is lost in the noise
+    assert lim.dry_fire_rate == derive().dry_fire_rate  # the fill is still the config's
+    # A far sensor measured at 240 s gets no longer a wait than the unmeasured 300 s; one
+    # measured beyond that envelope, its own dead time.
+    far = derive(PlantModel(gain=1.689, tau=14961.0, dead_time=240.0, ambient=20.0))
+    assert (far.dead_time, far.heat_memory) == (300.0, 420.0)
+    further = derive(PlantModel(gain=1.689, tau=14961.0, dead_time=400.0, ambient=20.0))
+    assert (further.dead_time, further.heat_memory) == (400.0, 520.0)
+    unmeasured = dict(derive().origins)
+    assert unmeasured["dead_time"].startswith("built in")
+    assert dict(lim.origins)["dead_time"] == "measured"
+
+
+def test_check_config_shows_the_limits_in_force_and_stays_yaml() -> None:
+    lines = format_limits(derive(), 66.0)
+    text = "\n".join(lines)
+    assert "300 s  [built in: any tun to 300 s]" in text
+    assert "1.43 °C/min  [derived from litres and watts]" in text
+    assert "95 °C, back below 90 °C  [configured]" in text
+    measured = "\n".join(format_limits(derive(SEED), 66.0))
+    assert "172 s  [measured]" in measured
+
+
+# -- the watches, one at a time ---------------------------------------------------------------
+
+
+def heat(
+    sup: Supervisor, pv_of: Callable[[float], float], until: float, applied: float = 100.0
+) -> float | None:
+    """Feed one period every 5 s; return when the supervisor stopped the heater.
+
+    The raw word flips its last bit every period, as noise makes a live LM92's do.
+    """
+    t = 0.0
+    while t <= until:
+        pv = pv_of(t)
+        sup.reading(t, pv, raw=round(pv / 0.0625) * 2 + int(t / 5.0) % 2)
+        sup.period(t, pv, applied, applied)
+        if not sup.heater_allowed:
+            return t
+        t += 5.0
+    return None
+
+
+def test_a_steady_fall_at_full_power_is_a_dead_element() -> None:
+    # 0.05 °C/min, the slowest loss in the family (a lidded keggle at 66 °C): 0.13 °C in each
+    # 150 s half-watch, the later one past the 300 s dead time: at 300 + 150 s.
+    sup = Supervisor(derive())
+    stopped = heat(sup, lambda t: 66.0 - 0.13 / 150 * t, 1200.0)
+    assert stopped == 450.0
+    assert sup.latched == ["heater_not_heating"]
+
+
+def test_cold_water_through_a_slow_thermowell_is_not_a_dead_element() -> None:
+    # 1.2 °C (too little to fall faster than any loss) through a 120 s lag, at full power
+    # with the heat arriving slowly: the fall decays, e^(−150/120) of it per half-watch.
+    sup = Supervisor(derive())
+    stopped = heat(sup, lambda t: 66.0 - 1.2 * (1 - math.exp(-t / 120)) + 2e-4 * t, 3600.0)
+    assert stopped is None
+
+
+def test_no_rise_while_cool_is_a_dead_element_and_a_weak_rise_is_not() -> None:
+    sup = Supervisor(derive())
+    flat = heat(sup, lambda t: 20.0, 3600.0)
+    # The least rise, ½·h·3.24e-4 °C after h s at 20 °C, first clears the 0.1 °C noise
+    # floor at h = 617 s: 300 s of dead time and 617 s.
+    assert flat is not None and 915.0 <= flat <= 925.0
+    assert sup.latched == ["heater_not_heating"]
+    # The weakest element against the largest losses, its heat showing after 300 s: just
+    # above the least rise everywhere (losses grow as it warms; the least rise allows that).
+    lim, weakest = derive(), {0.0: 20.0}
+    for k in range(1, 721):
+        t, before = 5.0 * k, weakest[5.0 * (k - 1)]
+        net = lim.heater_rise_rate - lim.loss_rate(before) if t > 300.0 else 0.0
+        weakest[t] = before + 5.0 * net
+    assert heat(Supervisor(lim), weakest.__getitem__, 3600.0) is None
+
+
+def test_a_measured_tun_judges_the_element_below_80_percent() -> None:
+    # Measured: 40 % beats the losses at 30 °C (2.25·20/(0.81·1.689) = 32.9 %), so a fall at
+    # 40 % is the element's; unmeasured, 40 % might be too little and nothing is judged.
+    def fall(t: float) -> float:
+        return 30.0 - 0.2 / 150 * t
+
+    assert heat(Supervisor(derive()), fall, 1800.0, applied=40.0) is None
+    stopped = heat(Supervisor(derive(SEED)), fall, 1800.0, applied=40.0)
+    assert stopped is not None and stopped <= 172.5 + 300 + 10
+
+
+# -- whole days on the family's worst cases ---------------------------------------------------
+
+
+def day(
+    spec: TunSpec, sc: scenario.Scenario, model: PlantModel | None = None
+) -> list[dict[str, Any]]:
+    base = spec.config(config_module.DEFAULT)
+    alarms: list[dict[str, Any]] = scenario.run(sc, base, tun_model=model).summary["alarms"]
+    return alarms
+
+
+@pytest.mark.parametrize(
+    ("name", "fill", "extra_loss_w"),
+    [
+        # What the supervisor before these limits did on each, same day:
+        ("thermowell 120", 1.0, 0.0),  # heater_not_heating at 305 s: heat shows late
+        ("big 150 L 5.5 kW lid off", 2.0, 1000.0),  # heater_not_heating after cold water
+        ("garage", 2.0, 1000.0),  # 140 L that cannot reach 66 °C: heater_not_heating
+        ("small 30 L 5.5 kW", 0.5, 0.0),  # 15 L under 5.5 kW, not dry: ssr_stuck_on
+    ],
+)
+def test_no_false_alarm_on_the_worst_tuns(name: str, fill: float, extra_loss_w: float) -> None:
+    spec = tun(name)
+    assert day(spec, tf.normal_day(spec, fill, extra_loss_w)) == []
+
+
+def test_a_measured_tun_stays_quiet_with_twice_the_water() -> None:
+    spec = tun("thermowell 120")
+    assert day(spec, tf.normal_day(spec, 2.0), tf.measured(spec)) == []
+
+
+@pytest.mark.parametrize(
+    ("name", "within_s", "measured_within_s"),
+    [
+        ("warm room", 2500.0, 1000.0),  # loses 0.05 °C/min: the output takes 30 min to 80 %
+        ("keggle", 2000.0, 800.0),
+    ],
+)
+def test_an_element_that_dies_in_the_hold_is_caught(
+    name: str, within_s: float, measured_within_s: float
+) -> None:
+    spec = tun(name)
+    detected = []
+    for model, limit in ((None, within_s), (tf.measured(spec), measured_within_s)):
+        alarms = day(spec, tf.element_dies(spec), model)
+        assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+        assert alarms[0]["detected_after_s"] <= limit
+        assert alarms[0]["heater_off_after_s"] == 0.0
+        detected.append(alarms[0]["detected_after_s"])
+    assert detected[1] < detected[0] / 2  # measured, it is judged below 80 %
+
+
+def test_a_shorted_ssr_is_caught_on_the_slowest_tun_and_the_contactor_opens() -> None:
+    spec = tun("thermowell 120")
+    alarms = day(spec, tf.ssr_shorts(spec))
+    assert [a["kind"] for a in alarms] == ["ssr_stuck_on"]
+    assert alarms[0]["detected_after_s"] <= 1100.0
+    assert alarms[0]["heater_off_after_s"] == 0.0
+
+
+def test_check_config_prints_the_limits_as_comments_after_the_config(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_text("tun: {litres: 30, element_watts: 5500}\n", encoding="utf-8")
+    assert cli.main(["check-config", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "# safety limits in force" in out
+    # 3 × 5500 W / (30 L · 4186 J/(L·K)) = 0.1314 °C/s = 7.88 °C/min
+    assert "dry fire above                        7.88 °C/min" in out
+    assert yaml.safe_load(out)["tun"]["litres"] == 30
