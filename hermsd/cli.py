@@ -28,6 +28,7 @@ from hermsd.config_file import ConfigFile
 from hermsd.durations import parse_duration
 from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
+from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
 from hermsd.realtime import loop_priority
@@ -122,12 +123,14 @@ def _parser() -> argparse.ArgumentParser:
     reset = sub.add_parser(
         "reset-alarm", help="clear the latched alarms, once their cause is found"
     )
-    reset.add_argument(
-        "--state",
-        type=Path,
-        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
-    )
+    _state_argument(reset)
     reset.set_defaults(func=cmd_reset_alarm)
+
+    forget = sub.add_parser(
+        "forget-model", help="delete what hermsd learned of the tun (it starts from the config)"
+    )
+    _state_argument(forget)
+    forget.set_defaults(func=cmd_forget_model)
 
     recover = sub.add_parser("recover", help="turn .mcap.part files left by a crash into logs")
     recover.add_argument("files", nargs="+", type=Path)
@@ -371,6 +374,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except NotifyEnvironmentError as error:
         raise UserError(str(error)) from None
     latches = _latch_store(args.state, simulate=args.simulate)
+    models = ModelStore(latches.directory) if latches is not None else None
     log_dir = args.log
     if log_dir is None and not args.simulate:  # a simulated day never goes into log.dir
         log_dir = Path(config.log.dir) if config.log.dir else None
@@ -391,6 +395,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 notifier=notifier,
                 config_file=config_file,
                 latches=latches,
+                models=models,
             )
         else:
             if args.speed != "1":
@@ -420,6 +425,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 on_status=status.update,
                 config_file=config_file,
                 latches=latches,
+                models=models,
             )
         # Unwinds in reverse: heater off first, then the dead-man, then the log is finished.
         with contextlib.ExitStack() as stack:
@@ -633,7 +639,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for key, value in summary.items():
         if isinstance(value, dict):
             lines.extend((f"{key}.{name}", item) for name, item in value.items())
-        elif key not in ("files", "alarms", "runs"):
+        elif key not in ("files", "alarms", "runs", "learning"):
             lines.append((key, value))
     width = max((len(key) for key, _ in lines), default=0)
     for report in summary.get("files", []):
@@ -648,6 +654,8 @@ def _print_summary(summary: dict[str, Any]) -> None:
         print(f"{key:{width}} {value}")
     for alarm in summary.get("alarms", []):
         print(_alarm_line(alarm))
+    for item in summary.get("learning", []):
+        print(f"at {item['at_s']} s: {item['message']}")
 
 
 def _file_line(report: dict[str, Any]) -> str:
@@ -823,6 +831,31 @@ def cmd_reset_alarm(args: argparse.Namespace) -> int:
         "reset asked: a running hermsd clears these within one control period, "
         "a stopped one when it starts"
     )
+    return 0
+
+
+def _state_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--state",
+        type=Path,
+        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
+    )
+
+
+def cmd_forget_model(args: argparse.Namespace) -> int:
+    """Delete the learned model; the daemon uses the config's prior from its next start."""
+    directory: Path = args.state or _default_state_directory()
+    store = ModelStore(directory)
+    try:
+        forgotten = store.forget()
+    except OSError as error:
+        raise UserError(
+            f"{store.path}: {error.strerror or error} (run as root or as the user hermsd runs as)"
+        ) from None
+    if forgotten:
+        print(f"forgot {store.path}: hermsd starts from the config's model at its next start")
+    else:
+        print(f"nothing learned in {directory}")
     return 0
 
 

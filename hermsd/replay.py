@@ -36,6 +36,7 @@ from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
+from hermsd.pid import PlantModel
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -91,6 +92,7 @@ class LoggedConfig:
     t: float
     reason: str
     config: dict[str, Any]
+    model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
 
 
 @dataclass(frozen=True, slots=True)
@@ -347,7 +349,10 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     t, config = message.get("t"), message.get("config")
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
-    return LoggedConfig(float(t), str(message.get("reason", "")), config)
+    model = message.get("model")
+    return LoggedConfig(
+        float(t), str(message.get("reason", "")), config, model if isinstance(model, dict) else None
+    )
 
 
 def _is_number(value: object) -> TypeGuard[int | float]:
@@ -548,10 +553,37 @@ def summarise(log: Log) -> dict[str, Any]:
         "energy_kwh": None if energy is None else round(energy, 3),
         "alarms": alarms(log),
         "timing": timing(log),
+        "tun_model": next((c.model for c in reversed(log.configs) if c.model), None),
+        "learning": learning(log),
     }
 
 
+LEARNING_EVENTS = ("heat-up measure", "learned ")
+"""How the daemon's events about measuring and learning the tun begin."""
+
+
+def learning(log: Log) -> list[dict[str, Any]]:
+    """What the controller measured and the daemon learned (or refused), in order."""
+    return [
+        {"at_s": round(e.at, 3), "message": e.message}
+        for e in log.events
+        if e.message.startswith(LEARNING_EVENTS)
+    ]
+
+
 # -- verify -------------------------------------------------------------------------------------
+
+
+def logged_model(entry: LoggedConfig) -> PlantModel | None:
+    """The tun's model a config record says was in force (None in older logs: the keys')."""
+    if entry.model is None:
+        return None
+    try:
+        return PlantModel(
+            **{k: float(entry.model[k]) for k in ("gain", "tau", "dead_time", "ambient")}
+        )
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"the model logged with it is not one: {error}") from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -586,6 +618,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     """
     controller = None
     in_force: LoggedConfig | None = None
+    in_force_model: dict[str, Any] | None = None
     control: config_module.ControlConfig | None = None
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
@@ -597,11 +630,18 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             in_force = entry
             try:
                 reloaded = config_module.from_dict(entry.config).control
-                if entry.reason == "reload" and control and not retunes(control, reloaded):
+                same_model = in_force_model == entry.model
+                if (
+                    entry.reason == "reload"
+                    and control
+                    and not retunes(control, reloaded)
+                    and same_model
+                ):
                     control = reloaded  # a new setpoint or mode: the same controller goes on
                     continue
                 control = reloaded
-                controller = make_controller(control)
+                in_force_model = entry.model
+                controller = make_controller(control, logged_model(entry))
             except (config_module.ConfigError, ValueError) as error:
                 detail = str(error).replace("\n", "; ")
                 raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None
