@@ -164,7 +164,7 @@ def main() -> int:
         "whose model part comes from moving θ by a period, says so ('poor'). Given the room's "
         "temperature, the hold pins K. With the lid off the loss is not linear: the fitted K "
         "is the gain at the hold (evaporation included), τ comes out about 20 % short, the "
-        "RMS is 2 to 4 times that of a lidded tun, and θ is lost on two of the three; the "
+        "RMS is 2 to 4 times that of a lidded tun, and θ can collapse to 0 (the garage); the "
         "verdict is 'poor' on all three (RMS > 0.04 °C).",
         "",
         f"Run time {time.perf_counter() - started:.0f} s.",
