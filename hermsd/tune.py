@@ -281,8 +281,10 @@ def _logged(log: Log, section: str, key: str) -> float | None:
 
 
 KEPT = {
-    "control.kc, control.ti, control.td": "kept: the predictive controller's documentation "
-    "gives no rule that derives them from the model (its model keys carry the tun)",
+    "control.kc, control.ti, control.td": "kept: the config's notes give them as suiting "
+    "predictive on any tun, and no rule derives them from the model (its model keys and "
+    "what it learns carry the tun); predictive's prior derives τ from tun.litres and the "
+    "losses (model_gain), so model_tau is written for the record",
     "safety": "no key to change: the heater and dry-fire watches derive from tun.litres and "
     "tun.element_watts, which are the brewer's to set; safety.dead_time is best left null, "
     "for the supervisor derives it from a measured model of the tun (this one fits its "
