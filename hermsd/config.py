@@ -91,6 +91,11 @@ def _text(default: _T, *, max_length: int | None = None, null_means: str | None 
     return field(default=default, metadata={_SPEC: spec})
 
 
+def _words(default: _T, *, choices: tuple[object, ...] = (), null_means: str | None = None) -> _T:
+    """A list of text items (an argv, a set of names): each item checked as a text key is."""
+    return field(default=default, metadata={_SPEC: _Spec(choices=choices, null_means=null_means)})
+
+
 _SERIAL_LINES = ("serial-rts", "serial-dtr")
 _BUILT_IN = "the built-in default"
 
@@ -206,6 +211,19 @@ class LogConfig:
     queue_size: int = _integer(10000, 100, 1000000)
 
 
+ALERT_EVENTS: tuple[str, ...] = ("alarm_raised", "alarm_cleared", "started", "stopped")
+
+
+@dataclass(frozen=True, slots=True)
+class AlertsConfig:
+    """A command run for the events the brewer should hear of (see hermsd/alerts.py)."""
+
+    command: tuple[str, ...] | None = _words(None, null_means="no alerts")
+    events: tuple[str, ...] = _words(ALERT_EVENTS, choices=ALERT_EVENTS)
+    timeout: float = _number(10.0, 1, 300, "s")
+    min_interval: float = _number(60.0, 0, 86400, "s")
+
+
 @dataclass(frozen=True, slots=True)
 class Config:
     """Everything the daemon is told, one section per part of the HLT."""
@@ -217,6 +235,7 @@ class Config:
     contactor: ContactorConfig = field(default_factory=ContactorConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     log: LogConfig = field(default_factory=LogConfig)
+    alerts: AlertsConfig = field(default_factory=AlertsConfig)
 
 
 DEFAULT = Config()
@@ -282,7 +301,7 @@ class ConfigError(Exception):
 @dataclass(frozen=True, slots=True)
 class _Field:
     path: str
-    kind: type  # float, int, str or bool
+    kind: type  # float, int, str, bool, or tuple (a list of text items)
     nullable: bool
     default: object
     spec: _Spec
@@ -290,8 +309,12 @@ class _Field:
 
 def _kind(hint: object) -> tuple[type, bool]:
     """(base type, whether None is allowed) of an annotation such as `float | None`."""
+    if typing.get_origin(hint) is tuple:
+        return tuple, False
     args = typing.get_args(hint)
     base = next(arg for arg in args if arg is not type(None)) if args else hint
+    if typing.get_origin(base) is tuple:
+        return tuple, True
     assert isinstance(base, type)
     return base, bool(args)
 
@@ -417,7 +440,10 @@ def _expected(info: _Field) -> str:
     """What would be right for a key, e.g. 'a number from 0 to 100 °C, or null for ...'."""
     spec = info.spec
     unit = f" {spec.unit}" if spec.unit else ""
-    if info.kind is bool:
+    if info.kind is tuple:
+        item = _expected(_item_field(info))
+        words = f"a list of one or more items, each {item.removeprefix('non-empty ')}"
+    elif info.kind is bool:
         words = "true or false"
     elif spec.choices:
         names = [repr(c) if isinstance(c, str) else str(c) for c in spec.choices]
@@ -448,6 +474,34 @@ def _expected(info: _Field) -> str:
 class _Invalid(Exception):
     """A value that is wrong; the message says what is wrong (what would be right)."""
 
+    def __init__(self, message: str, mark: yaml.Mark | None = None) -> None:
+        super().__init__(message)
+        self.mark = mark  # where the wrong part starts, when not at the value itself
+
+
+def _item_field(info: _Field) -> _Field:
+    """How each item of a list key is read: as a text key with the list's choices."""
+    example = info.spec.choices[0] if info.spec.choices else "/usr/local/bin/alert"
+    return _Field(f"{info.path}[]", str, False, example, _Spec(choices=info.spec.choices))
+
+
+def _convert_list(info: _Field, node: yaml.Node) -> tuple[str, ...]:
+    """A list key's items, each checked as text; an empty list or a repeated choice is refused."""
+    expected = _expected(info)
+    if not isinstance(node, yaml.SequenceNode) or _explicit_tag(node) is not None:
+        raise _Invalid(f"expected a list such as [a, b], got {_describe(node)} ({expected})")
+    if not node.value:
+        raise _Invalid(f"is an empty list ({expected})")
+    items = []
+    for number, item in enumerate(node.value, 1):
+        try:
+            items.append(str(_convert(_item_field(info), item)))
+        except _Invalid as problem:
+            raise _Invalid(f"item {number}: {problem}", item.start_mark) from None
+    if info.spec.choices and len(set(items)) < len(items):
+        raise _Invalid(f"names a choice twice ({expected})")
+    return tuple(items)
+
 
 def _number_hint(info: _Field, value: object) -> str:
     """Why a plain scalar that looks numeric is not read as a number, when that is the reason."""
@@ -466,6 +520,8 @@ def _number_hint(info: _Field, value: object) -> str:
 def _convert(info: _Field, node: yaml.Node) -> object:
     """The value of one key as its field holds it, or _Invalid."""
     expected = _expected(info)
+    if info.kind is tuple and not _is_null(node):
+        return _convert_list(info, node)
     if not isinstance(node, yaml.ScalarNode):
         raise _Invalid(f"expected a single value, got {_describe(node)} ({expected})")
     tag = _explicit_tag(node)
@@ -851,7 +907,7 @@ class _Reader:
                 values[name] = _convert(info, value_node)
             except _Invalid as problem:
                 self.failed.add(info.path)
-                self.report(value_node.start_mark, info.path, str(problem))
+                self.report(problem.mark or value_node.start_mark, info.path, str(problem))
         return values
 
     def cross_check(self, config: Config) -> None:
@@ -1285,7 +1341,7 @@ def read_bytes(filename: str) -> bytes:
     if size > MAX_FILE_BYTES:
         message = (
             f"is {size} bytes long, more than the {MAX_FILE_BYTES // 1024} KiB a config file "
-            "may be (the shipped one is under 12 kB: is this the right file?)"
+            "may be (the shipped one is under 13 kB: is this the right file?)"
         )
         raise ConfigError([Problem(filename, 0, 0, "", message)])
     return data
@@ -1319,8 +1375,11 @@ def _unreadable(error: OSError) -> str:
 
 
 def to_dict(config: Config) -> dict[str, Any]:
-    """The effective configuration as plain JSON-able data, for the log."""
-    return dataclasses.asdict(config)
+    """The effective configuration as plain JSON-able data, for the log (lists as lists)."""
+    return {
+        section: {key: list(v) if isinstance(v, tuple) else v for key, v in values.items()}
+        for section, values in dataclasses.asdict(config).items()
+    }
 
 
 class _Dumper(yaml.SafeDumper):

@@ -27,6 +27,7 @@ from typing import Any, Protocol
 
 from hermsd import config as config_module
 from hermsd import pid
+from hermsd.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.clock import Clock
 from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
 from hermsd.config_file import ConfigFile
@@ -250,6 +251,9 @@ class Daemon:
         self._log_failing: str | None = None  # why the recorder cannot write, as last said
         self._log_failing_since = 0.0
         self._log_failing_said = 0.0
+        self.alerts = Alerts(
+            config.alerts, lambda message: self._event(logging.WARNING, message, clock.monotonic())
+        )
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -277,6 +281,8 @@ class Daemon:
         self._started = True
         self._record_config("start", now)
         self._event(logging.INFO, "started", now)
+        self.alerts.start()
+        self._alert("started", "hermsd started", now)
         self._check_log(now)
         if self._model_problem is not None:
             self._event(logging.WARNING, f"learned model ignored: {self._model_problem}", now)
@@ -340,6 +346,8 @@ class Daemon:
         now = self.clock.monotonic()
         self._set_ssr_accounting(False, now)
         self._event(logging.INFO, f"heater off: {reason}", now)
+        self._alert("stopped", f"heater off: {reason}", now)
+        self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT))  # outputs are off
         if self.notifier is not None:
             self.notifier.stopping()
         if interrupted is not None:
@@ -459,6 +467,7 @@ class Daemon:
 
     def _take_changes(self, old: Config, new: Config, changed: set[str], t: float) -> None:
         control = new.control
+        self.alerts.config = new.alerts
         if "control.setpoint" in changed:
             self._apply_setpoint(control.setpoint, t)
         if retunes(old.control, new.control) or old.tun != new.tun:
@@ -883,16 +892,26 @@ class Daemon:
                 self._force_off(t)
                 level = logging.ERROR if alarm.latched else logging.WARNING
                 self._event(level, raised_alarm_text(alarm), t)
+                self._alert("alarm_raised", raised_alarm_text(alarm), t, alarm.kind)
             else:
                 self._latched_wall_ns.pop(alarm.kind, None)
                 self._latched_messages.pop(alarm.kind, None)
                 self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
+                self._alert("alarm_cleared", f"{alarm.kind} {alarm.message}", t, alarm.kind)
                 if alarm.kind == "sensor_fault":
                     self._reprogram_sensor(t)
             for listener in self.listeners:
                 listener.alarm(alarm)
         if self.supervisor.latched != self._saved_latches:
             self._save_latches(t)
+
+    def _alert(self, event: str, message: str, t: float, kind: str = "") -> None:
+        """Hand an event to the alerts worker, with what the loop knows now."""
+        name, wall_ns = self.config.tun.name, self.clock.wall_ns()
+        output = self.output if self.supervisor.heater_allowed else 0.0  # the output in force
+        self.alerts.send(
+            Event(event, message, name, wall_ns, kind, self._pv, self.setpoint, output), t
+        )
 
     def _reprogram_sensor(self, t: float) -> None:
         """A chip that was gone may have powered up again with T_CRIT at 80 °C: set it again."""

@@ -100,6 +100,8 @@ BOUNDS = [
     Bound("log.flush_interval", float, 0.1, 2),
     Bound("log.sync_interval", float, 0.1, 60),
     Bound("log.queue_size", int, 100, 1000000),
+    Bound("alerts.timeout", float, 1, 300),
+    Bound("alerts.min_interval", float, 0, 86400),
 ]
 CHOICES: dict[str, tuple[object, ...]] = {
     "control.mode": ("auto", "manual"),
@@ -126,6 +128,11 @@ TEXTS = {  # key: (longest, nullable)
     "log.dir": (None, True),
 }
 FLAGS = ("output.active_low", "contactor.active_low")
+ALERT_EVENTS = ("alarm_raised", "alarm_cleared", "started", "stopped")
+LISTS = {  # key: (the items it may hold, or () for any printable text; nullable)
+    "alerts.command": ((), True),
+    "alerts.events": (ALERT_EVENTS, False),
+}
 RESTART = [
     "control.period",
     "sensor.bus",
@@ -150,7 +157,7 @@ RESTART = [
     "log.sync_interval",
     "log.queue_size",
 ]
-ALL_KEYS = [b.key for b in BOUNDS] + list(CHOICES) + list(TEXTS) + list(FLAGS)
+ALL_KEYS = [b.key for b in BOUNDS] + list(CHOICES) + list(TEXTS) + list(FLAGS) + list(LISTS)
 SERIAL = ("serial-rts", "serial-dtr")
 
 
@@ -184,6 +191,14 @@ def assert_within_spec(config: Config) -> None:
         assert longest is None or len(text) <= longest, key
     for key in FLAGS:
         assert type(value_at(config, key)) is bool, key
+    for key, (items, nullable) in LISTS.items():
+        words = value_at(config, key)
+        if words is None:
+            assert nullable, key
+            continue
+        assert type(words) is tuple and words, key
+        assert all(isinstance(w, str) and w and w.isprintable() for w in words), key
+        assert not items or (set(words) <= set(items) and len(set(words)) == len(words)), key
 
     c, o, k, s = config.control, config.output, config.contactor, config.safety
     half_cycle = 1 / (2 * o.mains_hz)
@@ -324,6 +339,12 @@ def test_defaults_are_the_specified_ones() -> None:
             "flush_interval": 2.0,
             "sync_interval": 10.0,
             "queue_size": 10000,
+        },
+        "alerts": {
+            "command": None,
+            "events": list(ALERT_EVENTS),
+            "timeout": 10.0,
+            "min_interval": 60.0,
         },
     }
     assert to_dict(DEFAULT) == expected
@@ -965,6 +986,12 @@ def in_range(key: str) -> st.SearchStrategy[Any]:
         return text.filter(str.isprintable) | (st.none() if nullable else st.nothing())
     if key in FLAGS:
         return st.booleans()
+    if key in LISTS:
+        items, nullable = LISTS[key]
+        if items:
+            return st.lists(st.sampled_from(items), min_size=1, unique=True)
+        word = st.text(st.characters(codec="utf-8"), min_size=1, max_size=20)
+        return st.lists(word.filter(str.isprintable), min_size=1, max_size=4) | st.none()
     bound = next(b for b in BOUNDS if b.key == key)
     if bound.kind is int:
         values: st.SearchStrategy[Any] = st.integers(int(bound.low), int(bound.high or 10**9))
