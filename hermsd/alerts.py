@@ -97,8 +97,8 @@ class Alerts:
         self.failed = 0  # commands that failed, timed out or could not be started
 
     def start(self) -> None:
-        """Start the worker (nothing to run without a command)."""
-        if self._thread is None:
+        """Start the worker if there is a command to run (called again after a reload)."""
+        if self._thread is None and self.config.command is not None:
             self._thread = threading.Thread(target=self._work, name="hermsd-alerts", daemon=True)
             self._thread.start()
 

@@ -468,6 +468,7 @@ class Daemon:
     def _take_changes(self, old: Config, new: Config, changed: set[str], t: float) -> None:
         control = new.control
         self.alerts.config = new.alerts
+        self.alerts.start()  # if the reload gave the first command
         if "control.setpoint" in changed:
             self._apply_setpoint(control.setpoint, t)
         if retunes(old.control, new.control) or old.tun != new.tun:

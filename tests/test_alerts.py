@@ -160,6 +160,19 @@ def test_events_not_chosen_and_no_command_run_nothing(tmp_path: Path) -> None:
     assert not out.exists()
 
 
+def test_a_reload_applies_the_alerts_section_to_the_events_that_follow(tmp_path: Path) -> None:
+    out = tmp_path / "got"
+    daemon, clock, world = alerting_daemon(AlertsConfig())  # no command: no worker
+    clock.call_at(1000.0, lambda: world.chip.set_fault("nack"))
+    new = dataclasses.replace(daemon.config, alerts=AlertsConfig(command=recording(out)))
+    with daemon:
+        daemon.run(until=100.0)
+        daemon.reload(new)
+        daemon.run(until=1100.0)
+    seen = [json.loads(got["stdin"])["event"] for got in received(out)]
+    assert seen == ["alarm_raised", "alarm_raised", "stopped"]  # sensor_fault, stale_reading
+
+
 def test_a_full_queue_drops_the_event_and_says_so() -> None:
     said = Said()
     alerts = Alerts(AlertsConfig(command=("true",), min_interval=0.0), said, queue_size=2)
