@@ -117,7 +117,9 @@ class Alerts:
             self._held_back[key] = self._held_back.get(key, 0) + 1
             return
         self._last_sent[key] = t
-        event = dataclasses.replace(event, suppressed=self._held_back.pop(key, 0))
+        held_back = self._held_back.pop(key, 0)
+        if held_back:
+            event = dataclasses.replace(event, suppressed=held_back)
         try:
             self._queue.put_nowait((event, config))
         except queue.Full:
