@@ -149,7 +149,7 @@ class Alerts:
         self._queue.put_nowait(None)
         with self._child_lock:
             if self._child is not None:
-                _kill(self._child)
+                _signal_group(self._child)  # the worker reaps it: no wait here
         thread.join(REAP_WAIT)  # the worker says what the kill did to the command
         self._warn(
             f"alerts not finished {timeout:g} s after shutdown: the command running was "
@@ -161,7 +161,10 @@ class Alerts:
         leave_real_time()
         while (item := self._queue.get()) is not None:
             event, config = item
-            problem = self._run(event, config)
+            try:
+                problem = self._run(event, config)
+            except Exception as error:  # the worker must outlive one bad run
+                problem = f"could not be run: {error!r}"
             if problem is not None:
                 self.failed += 1
                 self._warn(f"alert command for {event.event} {problem}")
@@ -194,7 +197,7 @@ class Alerts:
             with self._child_lock:
                 self._child = None
         if child.returncode < 0:
-            return f"killed by {signal.Signals(-child.returncode).name}"
+            return f"killed by {_signal_name(-child.returncode)}"
         if child.returncode != 0:
             said = stderr.decode(errors="replace").strip().splitlines()
             why = f": {said[-1][:200]}" if said else ""
@@ -205,9 +208,20 @@ class Alerts:
 def _kill(child: subprocess.Popen[bytes]) -> None:
     """SIGKILL the child's process group (it leads one), so that whatever it started dies with
     it and no grandchild keeps the pipes open; then reap it."""
+    _signal_group(child)
+    child.wait()
+
+
+def _signal_group(child: subprocess.Popen[bytes]) -> None:
     with contextlib.suppress(ProcessLookupError):  # already gone
         os.killpg(child.pid, signal.SIGKILL)
-    child.wait()
+
+
+def _signal_name(number: int) -> str:
+    try:
+        return signal.Signals(number).name
+    except ValueError:  # a real-time signal has no name of its own
+        return f"signal {number}"
 
 
 def leave_real_time() -> None:

@@ -117,6 +117,10 @@ def test_an_unknown_pv_is_null_in_json_and_empty_in_the_environment(tmp_path: Pa
         ),
         (("/nonexistent/hermsd-alert",), "could not start '/nonexistent/hermsd-alert'"),
         (("sleep", "60"), "alert command for alarm_raised killed after 0.2 s (alerts.timeout)"),
+        (
+            (sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGTERM)"),
+            "alert command for alarm_raised killed by SIGTERM",
+        ),
     ],
 )
 def test_a_failing_command_is_reported(command: tuple[str, ...], words: str) -> None:
