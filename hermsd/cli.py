@@ -181,6 +181,40 @@ def _parser() -> argparse.ArgumentParser:
     )
     replay.set_defaults(func=cmd_replay)
 
+    tune = sub.add_parser(
+        "tune", help="the tun's model and the settings that follow from it (seed 001's Table 1)"
+    )
+    tune.add_argument(
+        "files",
+        nargs="*",
+        type=Path,
+        help="the .mcap or .mcap.part files of an ordinary brew day (a heat-up and a hold)",
+    )
+    tune.add_argument(
+        "--table",
+        metavar="K=..,tau=..,theta=..[,a_star=..]",
+        help="print Table 1's settings for this model (K °C/%%, tau s, theta s, "
+        "a_star °C/(%%·s); a_star = K/tau when left out)",
+    )
+    tune.add_argument("--json", action="store_true", help="print one JSON object")
+    tune.add_argument(
+        "--ambient",
+        metavar="°C",
+        type=float,
+        help="the room's temperature during the day, if measured: it pins K and τ when the "
+        "heat-up is short compared with τ",
+    )
+    tune.add_argument(
+        "--write",
+        metavar="FILE",
+        nargs="?",
+        type=Path,
+        const=DEFAULT_CONFIG,
+        help=f"write the recommended settings into the config file (default {DEFAULT_CONFIG}), "
+        "keeping everything else in it, and show the diff",
+    )
+    tune.set_defaults(func=cmd_tune)
+
     safe_off = sub.add_parser(
         "safe-off",
         help="drive every output the config names off, whatever else is wrong with it; "
@@ -720,6 +754,32 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
     column = max(len(str(row[1])) for row in rows)
     for key, logged, new in rows:
         print(f"{key:{width}} {logged!s:{column}} {new}")
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from hermsd import replay, tune
+
+    try:
+        if (args.table is None) == (not args.files):
+            raise tune.TuneError(
+                "give either the log files of a brew day or --table K=..,tau=..,theta=.."
+            )
+        if args.table is not None:
+            if args.write is not None:
+                raise tune.TuneError("--write takes its settings from log files, not --table")
+            model = tune.parse_table(args.table)
+            result, lines = tune.table_json(model), tune.table_lines(model)
+        else:
+            tuned = tune.from_log(replay.load(args.files), args.ambient)
+            result, lines = tune.tuned_json(tuned), tune.tuned_lines(tuned)
+            if args.write is not None:
+                diff = tune.write_tuned(args.write, tuned)
+                result["written"] = {"file": os.fspath(args.write), "diff": diff}
+                lines += ["", diff.rstrip("\n") if diff else f"{args.write}: already so"]
+    except (tune.TuneError, replay.ReplayError) as error:
+        raise UserError(str(error)) from None
+    print(json.dumps(result, indent=2) if args.json else "\n".join(lines))
+    return 0
 
 
 # -- safe-off and check-config --------------------------------------------------------------
