@@ -668,7 +668,23 @@ class _LineFit:
         return (self.n * self.stx - self.st * self.sx) / spread
 
 
-class _HeatUpWatch:
+class _RampWatch:
+    """A line fit over one full-power run, armed when the run starts."""
+
+    __slots__ = ("_line", "_n", "active")
+
+    def __init__(self) -> None:
+        self.active = False
+        self._n = 0
+        self._line = _LineFit()
+
+    def _start(self) -> None:
+        self.active = True
+        self._n = 0
+        self._line = _LineFit()
+
+
+class _HeatUpWatch(_RampWatch):
     """Measures the rate and the dead time on a full-power step from a steady PV.
 
     The PV's rise above pv0 is fitted by a line between FIT_FROM and FIT_TO °C of rise (least
@@ -677,19 +693,15 @@ class _HeatUpWatch:
     which is the dead time a predictor wants for a ramp).
     """
 
-    __slots__ = ("_du", "_line", "_n", "_pv0", "active")
+    __slots__ = ("_du", "_pv0")
 
     def __init__(self) -> None:
-        self.active = False
+        super().__init__()
         self._pv0 = self._du = 0.0
-        self._n = 0
-        self._line = _LineFit()
 
     def arm(self, pv0: float, step: float) -> None:
-        self.active = True
+        self._start()
         self._pv0, self._du = pv0, step
-        self._n = 0
-        self._line = _LineFit()
 
     def add(self, pv: float, ts: float, loss: float, model_rate: float) -> HeatUpFit | None:
         """One more full-power period; the fit once the PV has risen FIT_TO °C."""
@@ -721,7 +733,7 @@ class _HeatUpWatch:
         return HeatUpFit(rate, crossing, None, span)
 
 
-class _RecoveryWatch:
+class _RecoveryWatch(_RampWatch):
     """Re-measures the rate on a full-power run that did not start from a steady PV (cold
     water in the hold): added water lowers the rate in proportion to the heat capacity, and
     a predictor that keeps the old rate leaves full power too early and creeps up the rest.
@@ -735,19 +747,15 @@ class _RecoveryWatch:
     the dip hides where the ramp starts.
     """
 
-    __slots__ = ("_hold", "_line", "_low", "_n", "active")
+    __slots__ = ("_hold", "_low")
 
     def __init__(self) -> None:
-        self.active = False
+        super().__init__()
         self._hold = self._low = 0.0
-        self._n = 0
-        self._line = _LineFit()
 
     def arm(self, pv: float, hold: float) -> None:
-        self.active = True
+        self._start()
         self._hold, self._low = hold, pv
-        self._n = 0
-        self._line = _LineFit()
 
     def add(self, pv: float, ts: float, sp: float, loss: float) -> tuple[float, float] | None:
         """One more full-power period; once the PV has risen FIT_FROM + RECOVERY_FIT_SPAN °C
