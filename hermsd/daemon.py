@@ -159,6 +159,13 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
     )
 
 
+def learned_tun(stored: LearnedModel | None, config: Config) -> pid.PlantModel | None:
+    """What was learned, at the configured litres, if `control.learn` lets it be used."""
+    if stored is None or config.control.learn == "off":
+        return None
+    return stored.plant_model(config.tun.litres)
+
+
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
     """A measured tun as the log keeps it (None: the limits hold for any tun)."""
     if model is None:
@@ -502,26 +509,21 @@ class Daemon:
 
     def _model_in_force(self, config: Config) -> pid.PlantModel:
         """The stored model (rescaled to the configured litres) unless `control.learn` is off."""
-        stored = self._stored_model
-        if stored is not None and config.control.learn != "off":
-            return stored.plant_model(config.tun.litres)
-        return config_module.prior_model(config)
+        return learned_tun(self._stored_model, config) or config_module.prior_model(config)
 
     def _measured_tun(self, config: Config) -> MeasuredTun | None:
         """The tun as measured for the supervisor's limits: the one given (`hermsd tune`),
         else what the controller learned and uses; None before anything is measured (the
         config's prior is a guess, and the limits then hold for any tun it may describe).
 
-        The learned losses are referred to `control.model_ambient`, not the real room: they
-        reproduce the hold's measured power at the setpoint, so the supervisor's bound (×1.5,
-        a room 10 °C colder than that ambient) exceeds the true losses there by ≥ 1.5× in any
-        room, and in a room colder than that ambient by more the further from it.
+        The learned losses are referred to `control.model_ambient` a, not the real room:
+        they reproduce the hold's measured power at the setpoint s, so the supervisor's bound
+        there (×1.5, a room 10 °C colder than a) is 1.5·(s − a + 10)/(s − a) times the true
+        losses whatever the room is (×1.83 at 66 °C and a = 20 °C).
         """
         if self.tun_model is not None:
             return self.tun_model
-        if self._stored_model is not None and config.control.learn != "off":
-            return self._stored_model.plant_model(config.tun.litres)
-        return None
+        return learned_tun(self._stored_model, config)
 
     def _make_learner(self, config: Config) -> Learner:
         return Learner(

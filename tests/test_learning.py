@@ -240,3 +240,19 @@ def test_the_learned_model_sets_the_supervisors_limits(
     summary = replay.summarise(replay.load(sorted((tmp_path / "logs").glob("*.mcap"))))
     stored = model.plant_model(config_module.DEFAULT.tun.litres)
     assert summary["safety_tun_model"] == dataclasses.asdict(stored)
+
+
+def test_check_config_shows_the_limits_from_what_was_learned(
+    learned_day: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_text("tun: {litres: 90}\n", encoding="utf-8")
+    assert cli.main(["check-config", str(path), "--state", str(learned_day[0])]) == 0
+    out = capsys.readouterr().out
+    assert "# safety limits in force (the tun as learned: full-power rate" in out
+    assert "[measured]" in out
+    path.write_text("control: {learn: 'off'}\n", encoding="utf-8")
+    assert cli.main(["check-config", str(path), "--state", str(learned_day[0])]) == 0
+    out = capsys.readouterr().out
+    assert "# safety limits in force (nothing measured yet):" in out
+    assert "[measured]" not in out
