@@ -201,8 +201,10 @@ def main() -> int:
             "and ahead of PIDHerms on overshoot, settle, recovery and jump. Recovery floor:",
             "the least recovery a controller that acts once a control period (5 s) can show,",
             "read as the recovery is: the sensor shows the water in the period after it, so",
-            "the element is off for that period (the hold's few % aside) and at full power",
-            "from then on. Where the floor is above ×1.02, so is every controller's recovery.",
+            "the element runs that period at the duty day 2 decided before the water (its",
+            "on-time first) and at full power from then on (a peer that happened to be at a",
+            "higher duty then can come in under it). Where day 2's floor is above ×1.02, no",
+            "controller holding at that duty can meet the goal.",
             tally,
         ]
     )

@@ -417,9 +417,10 @@ class _Ramp:
 
 
 def test_the_recovery_floor_waits_a_period_and_reads_on_the_period_samples() -> None:
-    # From 60 °C to the band's edge 65.5 °C: 5.5 / 0.012 = 458.3 s of full power, begun one
-    # 5 s period late: 463.3 s, first read at the sample of 465 s.
+    # From 60 °C to the band's edge 65.5 °C: 5.5 / 0.012 = 458.3 s of full power. Off for
+    # the first 5 s period: 463.3 s, read at the sample of 465 s; at 40 % in it (2 s on):
+    # 461.3 s, also 465 s; at 100 %: 458.3 s, read at 460 s.
     plant = _Ramp(60.0)
-    floor = scenario.reactive_floor(plant, 100.0, 66.0, 3600.0, 5.0)
-    assert floor == 465.0
+    floors = [scenario.reactive_floor(plant, 100.0, 66.0, 3600.0, 5.0, u) for u in (0, 40, 100)]
+    assert floors == [465.0, 465.0, 460.0]
     assert plant.water_temperature(1000.0) == 60.0  # on a copy: the plant is untouched

@@ -353,14 +353,16 @@ def time_to_band(plant: Plant, start: float, setpoint: float, limit: float) -> f
 
 
 def reactive_floor(
-    plant: Plant, start: float, setpoint: float, limit: float, period: float
+    plant: Plant, start: float, setpoint: float, limit: float, period: float, duty: float
 ) -> float | None:
     """The least recovery a controller that acts once a period can show: the sensor shows
-    the water in the period after it, so the element is off for one period (the hold's few %
-    aside), then at full power; read, as the metrics read it, at the first period's sample
-    at or past `time_to_band`. On a copy of `plant`."""
+    the water in the period after it, so for that period the element runs at `duty` % as
+    decided before the water (its on-time first, the soonest it can come), then at full
+    power; read, as the metrics read it, at the first period's sample at or past
+    `time_to_band`. On a copy of `plant`."""
     late = copy.deepcopy(plant)
-    late.set_heater(False, start)
+    late.set_heater(True, start)
+    late.set_heater(False, start + period * duty / 100.0)
     rest = time_to_band(late, start + period, setpoint, limit - period)
     return None if rest is None else period * math.ceil((period + rest) / period)
 
@@ -436,7 +438,9 @@ def run(
             sp = event.value if event.kind == "setpoint" else daemon.setpoint
             if index in reloads:
                 sp = reloads[index].control.setpoint
-            recovery_min["floor"] = reactive_floor(snapshot, t, sp, scenario.duration, period)
+            recovery_min["floor"] = reactive_floor(
+                snapshot, t, sp, scenario.duration, period, daemon.output
+            )
             recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration)
 
         clock.call_at(event.at, fire)
