@@ -1,0 +1,177 @@
+"""hermsd tune step: the open-loop step test through the daemon, on simulated tuns."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from hermsd import config as config_module
+from hermsd import step_response, tune
+from hermsd.cli import main
+from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.safety import Alarm
+from hermsd.sim.clock import VirtualClock
+from hermsd.sim.world import World, build_world
+
+SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
+NOISE = {"noise_c": 0.03, "seed": 3}
+
+
+def experiment_on(
+    plant: dict[str, Any], output: float | None = None, limit: float = 66.0
+) -> tuple[step_response.StepExperiment, World, VirtualClock]:
+    config = config_module.DEFAULT
+    clock = VirtualClock()
+    world = build_world(config, clock, {**plant, **NOISE}, history=True)
+    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    return step_response.StepExperiment(daemon, output, limit), world, clock
+
+
+def powered_after(world: World, t: float) -> bool:
+    """Whether the element was on at any moment from `t` on."""
+    on = False
+    for when, powered in world.circuit.power_changes:
+        if when <= t:
+            on = powered
+        elif powered:
+            return True
+    return on
+
+
+@pytest.mark.parametrize(
+    ("gain", "tau", "dead_time"),
+    [(1.689, 14961.0, 115.0), (0.8, 6000.0, 45.0), (2.5, 20000.0, 200.0)],
+)
+def test_the_step_finds_a_foptd_tun_within_the_goals(
+    gain: float, tau: float, dead_time: float
+) -> None:
+    plant = {"model": "foptd", "gain_c_per_pct": gain, "tau_s": tau, "dead_time_s": dead_time}
+    experiment, world, _ = experiment_on(plant)
+    step_response.run(experiment, (KeyboardInterrupt,))
+    last = experiment.last
+    assert last is not None and last.tuned is not None
+    model = last.tuned.model
+    assert experiment.stopped == "the fit is good"
+    assert abs(model.gain / gain - 1) <= 0.10
+    assert abs(model.tau / tau - 1) <= 0.10
+    assert abs(model.dead_time - dead_time) <= 20.0
+    assert last.elapsed <= 90 * 60
+    assert not world.circuit.powered
+
+
+def test_the_open_loop_numbers_follow_the_document_on_a_pure_delay() -> None:
+    """A tun with τ ≫ the test is a ramp after its delay: the regression line meets T1 at θ,
+    its slope is K·P/τ, and the 10 % rule's time is θ plus a tenth of the rise's duration."""
+    gain, tau, dead_time = 50.0, 1e6, 150.0
+    plant = {"model": "foptd", "gain_c_per_pct": gain, "tau_s": tau, "dead_time_s": dead_time}
+    experiment, _, _ = experiment_on(plant, output=100.0, limit=30.0)
+    step_response.run(experiment, (KeyboardInterrupt,))
+    assert experiment.stopped is not None and experiment.stopped.startswith("PV reached")
+    assert experiment.last is not None
+    ol = experiment.last.open_loop
+    slope = gain * 100.0 / tau  # °C/s: 5e-3 (the tun's own rate: e^(−t/τ) ≈ 1)
+    assert ol.slope is not None and ol.a_star is not None and ol.dead_time_line is not None
+    assert ol.slope == pytest.approx(slope, rel=0.02)
+    assert ol.a_star == pytest.approx(slope / 100.0, rel=0.02)
+    assert ol.dead_time_line == pytest.approx(dead_time, abs=10.0)
+    rise_s = ol.rise / slope
+    assert ol.dead_time_10 == pytest.approx(dead_time + 0.1 * rise_s, abs=10.0)
+
+
+def test_the_default_output_reaches_the_limit_in_about_90_minutes() -> None:
+    # 30 L, 5.5 kW, 20 → 66 °C: 46 K × 125580 J/K / (5500 W × 5400 s) = 19.4 % → at least 20 %.
+    assert step_response.default_output(30, 5500, 20, 66) == 20.0
+    # 90 L, 3 kW: 46 × 376740 / (3000 × 5400) = 107 % → full power.
+    assert step_response.default_output(90, 3000, 20, 66) == 100.0
+    # 150 L, 11 kW: 46 × 627900 / (11000 × 5400) = 48.6 % → 49 %.
+    assert step_response.default_output(150, 11000, 20, 66) == 49.0
+    assert step_response.default_output(90, 3000, 20, 66, max_output=80.0) == 80.0
+
+
+def test_an_alarm_mid_test_leaves_the_heater_off_and_the_config_unchanged(tmp_path: Path) -> None:
+    experiment, world, clock = experiment_on({"model": "foptd"})
+    clock.call_at(900.0, lambda: world.chip.set_fault("gone"))
+    step_response.run(experiment, (KeyboardInterrupt,))
+    assert experiment.stopped is not None and experiment.stopped.startswith("alarm sensor")
+    assert not powered_after(world, 900.0 + 2 * config_module.DEFAULT.sensor.read_interval)
+    assert not world.circuit.powered
+    assert experiment.last is not None  # what was measured is kept
+    assert experiment.last.open_loop.slope is not None
+    path = tmp_path / "hermsd.yaml"
+    path.write_bytes(SHIPPED.read_bytes())
+    with pytest.raises(tune.TuneError, match="left as it is: the step test was stopped by alarm"):
+        step_response.write(experiment, path)
+    assert path.read_bytes() == SHIPPED.read_bytes()
+
+
+class _CtrlC:
+    """Raises KeyboardInterrupt in the loop at `at` s, as SIGINT's handler would."""
+
+    def __init__(self, at: float) -> None:
+        self.at = at
+
+    def period(self, record: PeriodRecord) -> None:
+        if record.t >= self.at:
+            raise KeyboardInterrupt
+
+    def alarm(self, alarm: Alarm) -> None:
+        pass
+
+
+def test_ctrl_c_leaves_the_heater_off_and_keeps_what_was_measured(tmp_path: Path) -> None:
+    experiment, world, _ = experiment_on({"model": "foptd"})
+    experiment.daemon.listeners.append(_CtrlC(1200.0))
+    step_response.run(experiment, (KeyboardInterrupt,))
+    assert experiment.stopped == "interrupted (KeyboardInterrupt)"
+    assert world.circuit.power_changes[-1][1] is False
+    assert not world.circuit.powered
+    last = experiment.last
+    assert last is not None and last.tuned is not None
+    assert math.isclose(last.elapsed, 1200.0 - step_response.BASELINE_S, abs_tol=10.0)
+    lines = step_response.result_lines(experiment)
+    assert lines[0] == "step test stopped: interrupted (KeyboardInterrupt); the heater is off"
+    assert any(line.startswith("  K ") for line in lines)
+    path = tmp_path / "hermsd.yaml"
+    path.write_bytes(SHIPPED.read_bytes())
+    with pytest.raises(tune.TuneError, match="stopped by interrupted"):
+        step_response.write(experiment, path)
+    assert path.read_bytes() == SHIPPED.read_bytes()
+
+
+def test_tune_step_simulated_writes_the_model_with_write(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_bytes(SHIPPED.read_bytes())
+    code = main(
+        ["tune", "step", "--simulate", "--config", str(path), "--write", str(path), "--json"]
+    )
+    out, err = capsys.readouterr()
+    assert code == 0
+    result = json.loads(out)
+    assert result["stopped"] == "the fit is good"
+    assert abs(result["model"]["gain"] / 1.689 - 1) <= 0.10
+    assert "+  model_gain:" in result["written"]["diff"]
+    assert "step +0:10:00" in err  # progress lines
+    written = config_module.load(path)
+    assert written.control.model_gain == result["recommended"]["control.model_gain"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--limit", "70"], "--limit 70: the step stops at most at the setpoint, 66 °C"),
+        (["--output", "10"], "--output 10: the step must be 20 to 100 %"),
+        (["--plant", "x.py:f"], "--plant goes with --simulate"),
+    ],
+)
+def test_bad_step_options_are_one_line(
+    capsys: pytest.CaptureFixture[str], argv: list[str], message: str
+) -> None:
+    simulate = [] if "--plant" in argv else ["--simulate"]
+    assert main(["tune", "step", *simulate, *argv]) == 2
+    assert message in capsys.readouterr().err
