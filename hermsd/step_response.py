@@ -43,9 +43,15 @@ TARGET_STEP_S = 90 * 60.0
 """The default output reaches the limit in about this long at the water's linear rate."""
 ABORTED = ("alarm", "interrupted")
 """How `stopped` begins when the run was cut short: nothing is written then."""
+SETTLE_S = 600.0
+SETTLED_RELATIVE = 0.03
+"""K and τ moved less than this over the last SETTLE_S: a tun that is not quite first order
+(a sensor in a thermowell lags the water) drifts its fit as the step goes on, faster than
+the stated uncertainty shrinks, and would be stopped on a biased τ."""
 STOP_RULE = (
-    "the fit is good (every 2σ within the goals: K and τ ±10 %, θ ±20 s; RMS ≤ 0.04 °C) at two "
-    f"fits in a row, {EVALUATE_S:g} s apart, at least {MIN_STEP_S:g} s after the step"
+    "the fit is good (every 2σ within the goals: K and τ ±10 %, θ ±20 s; RMS ≤ 0.04 °C) and "
+    f"settled (K and τ within {100 * SETTLED_RELATIVE:g} % of the fit {SETTLE_S:g} s before) "
+    f"at two fits in a row, {EVALUATE_S:g} s apart, at least {MIN_STEP_S:g} s after the step"
 )
 
 
@@ -69,6 +75,7 @@ class Progress:
     tuned: tune.Tuned | None
     problem: str | None  # why there is no fit yet
     left_s: float | None  # expected time to a good fit or the limit; None: unknown
+    settled: bool = False  # K and τ have stopped moving (SETTLED_RELATIVE)
 
 
 @dataclass(slots=True)
@@ -90,6 +97,7 @@ class StepExperiment:
     _next_fit: float = math.inf
     _good_fits: int = 0
     _step_asked: bool = False
+    _fits: list[tuple[float, float, float]] = field(default_factory=list)  # (elapsed, K, τ)
     _history: list[tuple[float, float]] = field(default_factory=list)  # (elapsed, worst ratio)
 
     def period(self, record: PeriodRecord) -> None:
@@ -144,7 +152,13 @@ class StepExperiment:
     def _evaluate(self, t: float) -> None:
         progress = self.progress(t)
         self.last = progress
-        if progress.tuned is not None and progress.tuned.confidence == "good":
+        tuned = progress.tuned
+        if tuned is not None:
+            self._fits.append((progress.elapsed, tuned.model.gain, tuned.model.tau))
+        if tuned is not None and self.settled():
+            progress = dataclasses.replace(progress, settled=True)
+            self.last = progress
+        if tuned is not None and tuned.confidence == "good" and progress.settled:
             self._good_fits += 1
         else:
             self._good_fits = 0
@@ -152,6 +166,17 @@ class StepExperiment:
             self.on_progress(progress)
         if self._good_fits >= 2:
             self._finish("the fit is good", t)
+
+    def settled(self) -> bool:
+        """Whether K and τ now are within SETTLED_RELATIVE of the fit SETTLE_S before."""
+        if not self._fits:
+            return False
+        now, gain, tau = self._fits[-1]
+        before = [fit for fit in self._fits if fit[0] <= now - SETTLE_S + 1e-6]
+        if not before:
+            return False
+        _, old_gain, old_tau = before[-1]
+        return max(abs(gain / old_gain - 1), abs(tau / old_tau - 1)) <= SETTLED_RELATIVE
 
     def _finish(self, why: str, t: float) -> None:
         self.stopped = why
@@ -302,7 +327,7 @@ def progress_line(progress: Progress) -> str:
         return f"{head}  no fit yet: {progress.problem}"
     m, u = tuned.model, tuned.uncertainty
     left = "unknown" if progress.left_s is None else f"~{_clock(progress.left_s)}"
-    verdict = "good" if tuned.confidence == "good" else "poor"
+    verdict = "poor" if tuned.confidence != "good" else "good" if progress.settled else "settling"
     return (
         f"{head}  K {m.gain:.3f}±{u.gain:.3f} °C/%  τ {m.tau:.0f}±{u.tau:.0f} s  "
         f"θ {m.dead_time:.0f}±{u.dead_time:.0f} s  ({verdict})  left {left}"

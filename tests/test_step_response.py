@@ -15,6 +15,7 @@ from hermsd.cli import main
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock
+from hermsd.sim.tuns import FAMILY
 from hermsd.sim.world import World, build_world
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
@@ -175,3 +176,22 @@ def test_bad_step_options_are_one_line(
     simulate = [] if "--plant" in argv else ["--simulate"]
     assert main(["tune", "step", *simulate, *argv]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_lagging_sensor_is_not_stopped_on_a_drifting_fit() -> None:
+    """A thermowell's 60 s lag makes the tun second order: the fit's τ drifts down as the step
+    goes on while its stated 2σ is already within the goal (stopped there, τ was 12 % long).
+    The truth, independent of the fit: K = P/(100·UA), τ = 4186·litres/UA (bench/tuning.py)."""
+    spec = next(s for s in FAMILY if s.name == "thermowell 40 L 2 kW")
+    config = spec.config(config_module.DEFAULT)
+    clock = VirtualClock()
+    world = build_world(config, clock, spec.plant())
+    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    experiment = step_response.StepExperiment(daemon, None, config.control.setpoint)
+    step_response.run(experiment, (KeyboardInterrupt,))
+    assert experiment.last is not None and experiment.last.tuned is not None
+    model = experiment.last.tuned.model
+    ua = spec.ua_w_per_k
+    assert experiment.stopped == "the fit is good"
+    assert abs(model.gain / (spec.element_watts / (100 * ua)) - 1) <= 0.10
+    assert abs(model.tau / (4186 * spec.litres / ua) - 1) <= 0.10
