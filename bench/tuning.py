@@ -38,12 +38,10 @@ import time
 from pathlib import Path
 
 from hermsd import config, replay, step_response, tune
-from hermsd.daemon import Daemon
 from hermsd.sim import scenario
-from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2
 from hermsd.sim.tuns import FAMILY, TunSpec
-from hermsd.sim.world import build_world
+from hermsd.sim.world import simulated_step_test
 
 HOLD_S = 1800.0
 BAND_C = 0.5
@@ -129,11 +127,7 @@ def row(spec: TunSpec, tuned: tune.Tuned) -> tuple[str, bool]:
 
 def step_test(spec: TunSpec) -> step_response.StepExperiment:
     """`hermsd tune step --simulate` with its defaults on the tun, from the room's temperature."""
-    base = spec.config(config.DEFAULT)
-    clock = VirtualClock()
-    world = build_world(base, clock, spec.plant())
-    daemon = Daemon(base, clock, world.sensor, world.outputs)
-    experiment = step_response.StepExperiment(daemon, None, base.control.setpoint)
+    experiment, _, _ = simulated_step_test(spec.config(config.DEFAULT), spec.plant())
     step_response.run(experiment, (KeyboardInterrupt,))
     return experiment
 

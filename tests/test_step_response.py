@@ -12,11 +12,11 @@ import pytest
 from hermsd import config as config_module
 from hermsd import step_response, tune
 from hermsd.cli import main
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.daemon import PeriodRecord
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.tuns import FAMILY
-from hermsd.sim.world import World, build_world
+from hermsd.sim.world import World, simulated_step_test
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
 NOISE = {"noise_c": 0.03, "seed": 3}
@@ -25,11 +25,9 @@ NOISE = {"noise_c": 0.03, "seed": 3}
 def experiment_on(
     plant: dict[str, Any], output: float | None = None, limit: float = 66.0
 ) -> tuple[step_response.StepExperiment, World, VirtualClock]:
-    config = config_module.DEFAULT
-    clock = VirtualClock()
-    world = build_world(config, clock, {**plant, **NOISE}, history=True)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
-    return step_response.StepExperiment(daemon, output, limit), world, clock
+    return simulated_step_test(
+        config_module.DEFAULT, {**plant, **NOISE}, output, limit, history=True
+    )
 
 
 def powered_after(world: World, t: float) -> bool:
@@ -183,11 +181,7 @@ def test_a_lagging_sensor_is_not_stopped_on_a_drifting_fit() -> None:
     goes on while its stated 2σ is already within the goal (stopped there, τ was 12 % long).
     The truth, independent of the fit: K = P/(100·UA), τ = 4186·litres/UA (bench/tuning.py)."""
     spec = next(s for s in FAMILY if s.name == "thermowell 40 L 2 kW")
-    config = spec.config(config_module.DEFAULT)
-    clock = VirtualClock()
-    world = build_world(config, clock, spec.plant())
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
-    experiment = step_response.StepExperiment(daemon, None, config.control.setpoint)
+    experiment, _, _ = simulated_step_test(spec.config(config_module.DEFAULT), spec.plant())
     step_response.run(experiment, (KeyboardInterrupt,))
     assert experiment.last is not None and experiment.last.tuned is not None
     model = experiment.last.tuned.model
