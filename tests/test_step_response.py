@@ -141,14 +141,14 @@ def test_ctrl_c_leaves_the_heater_off_and_keeps_what_was_measured(tmp_path: Path
     assert path.read_bytes() == SHIPPED.read_bytes()
 
 
-def test_tune_step_simulated_writes_the_model_with_write(
+def test_tune_step_simulated_writes_the_model_and_logs_the_run(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     path = tmp_path / "hermsd.yaml"
     path.write_bytes(SHIPPED.read_bytes())
-    code = main(
-        ["tune", "step", "--simulate", "--config", str(path), "--write", str(path), "--json"]
-    )
+    log = tmp_path / "log"
+    argv = ["--simulate", "--config", str(path), "--write", str(path), "--log", str(log)]
+    code = main(["tune", "step", *argv, "--json"])
     out, err = capsys.readouterr()
     assert code == 0
     result = json.loads(out)
@@ -158,6 +158,12 @@ def test_tune_step_simulated_writes_the_model_with_write(
     assert "step +0:10:00" in err  # progress lines
     written = config_module.load(path)
     assert written.control.model_gain == result["recommended"]["control.model_gain"]
+    # logged like any run: `tune FILE` fits the same model to the step's log
+    assert main(["tune", *map(str, sorted(log.glob("*.mcap"))), "--json"]) == 0
+    from_log = json.loads(capsys.readouterr().out)["model"]
+    assert from_log["gain"] == pytest.approx(result["model"]["gain"], rel=0.01)
+    assert from_log["tau"] == pytest.approx(result["model"]["tau"], rel=0.01)
+    assert from_log["dead_time"] == result["model"]["dead_time"]
 
 
 @pytest.mark.parametrize(
