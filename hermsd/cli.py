@@ -829,7 +829,10 @@ def _tune_step(args: argparse.Namespace) -> int:
     log_dir = args.log
     if log_dir is None and not args.simulate:
         log_dir = Path(config.log.dir) if config.log.dir else None
-    locks = _lock_directories(log_dir, None)
+    # The service's state directory too: the test must not run beside it, and its latched
+    # alarms (an over-temperature, a stuck SSR) keep the heater off during the test as well.
+    latches = None if args.simulate else _latch_store(None, simulate=False)
+    locks = _lock_directories(log_dir, latches.directory if latches is not None else None)
     previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         with contextlib.ExitStack() as stack:
@@ -855,7 +858,11 @@ def _tune_step(args: argparse.Namespace) -> int:
                 hardware_clock = MonotonicClock()
                 sensor, outputs = _hardware(config)
                 daemon = Daemon(
-                    config, hardware_clock, sensor, guard_outputs(*outputs, hardware_clock, config)
+                    config,
+                    hardware_clock,
+                    sensor,
+                    guard_outputs(*outputs, hardware_clock, config),
+                    latches=latches,
                 )
                 recorder = _open_recorder(log_dir, config) if log_dir else None
             if recorder is not None:
@@ -873,12 +880,15 @@ def _tune_step(args: argparse.Namespace) -> int:
                 lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
             )
             step_response.run(experiment, (Shutdown, KeyboardInterrupt))
+    except StateError as error:
+        raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         for lock in locks:
             lock.release()
     result, lines = step_response.result_json(experiment), step_response.result_lines(experiment)
+    failed = (experiment.stopped or "").startswith(step_response.ABORTED[0])
     try:
         if args.write is not None:
             diff = step_response.write(experiment, args.write)
@@ -887,8 +897,9 @@ def _tune_step(args: argparse.Namespace) -> int:
     except tune.TuneError as error:
         result["written"] = {"file": os.fspath(args.write), "refused": str(error)}
         lines += ["", str(error)]
+        failed = True
     print(json.dumps(result, indent=2) if args.json else "\n".join(lines))
-    return 0
+    return 1 if failed else 0  # an alarm, or settings asked for and not written
 
 
 SIMULATED_STEP_TUN = {"model": "foptd", "noise_c": 0.03, "seed": 1}

@@ -195,3 +195,17 @@ def test_a_lagging_sensor_is_not_stopped_on_a_drifting_fit() -> None:
     assert experiment.stopped == "the fit is good"
     assert abs(model.gain / (spec.element_watts / (100 * ua)) - 1) <= 0.10
     assert abs(model.tau / (4186 * spec.litres / ua) - 1) <= 0.10
+
+
+def test_a_step_stopped_at_the_limit_before_a_good_fit_writes_nothing(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_bytes(SHIPPED.read_bytes())
+    argv = ["--simulate", "--config", str(path), "--output", "100", "--limit", "25"]
+    argv += ["--write", str(path)]
+    assert main(["tune", "step", *argv]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith("step test stopped: PV reached the limit 25 °C; the heater is off")
+    assert f"{path} left as it is: the fit is poor" in out
+    assert path.read_bytes() == SHIPPED.read_bytes()
