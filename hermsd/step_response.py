@@ -105,7 +105,6 @@ class StepExperiment:
             return
         if self._started_at is None:
             self._started_at = record.t
-            self.daemon.set_manual(0.0)
         self.times.append(record.t)
         self.pvs.append(record.pv)
         self.duties.append(record.applied)
@@ -305,6 +304,7 @@ def run(experiment: StepExperiment, interrupts: tuple[type[BaseException], ...])
     off afterwards whatever happened (the daemon's shutdown on leaving its context)."""
     daemon = experiment.daemon
     daemon.listeners.append(experiment)
+    daemon.set_manual(0.0)  # applied before the first period: the baseline is all heater-off
     try:
         with daemon:
             daemon.run()

@@ -60,6 +60,9 @@ def test_the_step_finds_a_foptd_tun_within_the_goals(
     assert abs(model.dead_time - dead_time) <= 20.0
     assert last.elapsed <= 90 * 60
     assert not world.circuit.powered
+    first_on = world.circuit.power_changes[0]
+    assert first_on == (experiment.step_at, True)  # nothing before the baseline's end
+    assert experiment.step_at == pytest.approx(step_response.BASELINE_S, abs=10.0)
 
 
 def test_the_open_loop_numbers_follow_the_document_on_a_pure_delay() -> None:
