@@ -188,7 +188,8 @@ def _parser() -> argparse.ArgumentParser:
         "files",
         nargs="*",
         type=Path,
-        help="the .mcap or .mcap.part files of an ordinary brew day (a heat-up and a hold)",
+        help="the .mcap or .mcap.part files of an ordinary brew day (a heat-up and a hold), "
+        "or `step` for the step test",
     )
     tune.add_argument(
         "--table",
@@ -783,6 +784,10 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
     if args.files[:1] == [Path("step")]:
         return _tune_step(args)
+    step_only = ("output", "limit", "config", "simulate", "plant", "log")
+    given = [f"--{name}" for name in step_only if getattr(args, name) not in (None, False)]
+    if given:
+        raise UserError(f"{', '.join(given)}: for `hermsd tune step` only")
     try:
         if (args.table is None) == (not args.files):
             raise tune.TuneError(

@@ -212,3 +212,8 @@ def test_a_step_stopped_at_the_limit_before_a_good_fit_writes_nothing(
     assert out.startswith("step test stopped: PV reached the limit 25 °C; the heater is off")
     assert f"{path} left as it is: the fit is poor" in out
     assert path.read_bytes() == SHIPPED.read_bytes()
+
+
+def test_step_options_are_refused_without_step(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["tune", "--table", "K=1,tau=100,theta=10", "--simulate", "--limit", "50"]) == 2
+    assert "--limit, --simulate: for `hermsd tune step` only" in capsys.readouterr().err
