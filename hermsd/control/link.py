@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from hermsd import config as config_module
 from hermsd.config import Config
@@ -32,12 +32,20 @@ from hermsd.control.protocol import (
     encode,
     error_reply,
 )
-from hermsd.control.server import ControlServer, Pending
+from hermsd.control.server import Pending
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.safety import MeasuredTun, SafetyLimits, format_limits
 
 SOURCE = "control socket"
 RUNTIME_KEYS = ("control.setpoint", "control.mode", "control.manual_output")
+
+
+class CommandSource(Protocol):
+    """Where the commands come from: the `ControlServer`."""
+
+    def take(self) -> list[Pending]: ...
+
+    def wake(self) -> None: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,7 +66,7 @@ class LoopLink:
 
     def __init__(self, daemon: Daemon) -> None:
         self.daemon = daemon
-        self.server: ControlServer | None = None
+        self.server: CommandSource | None = None
         self._snapshot: Snapshot | None = None
         self._encoded: tuple[Snapshot, bytes] | None = None
         self._encode_lock = threading.Lock()
@@ -66,7 +74,7 @@ class LoopLink:
         self._runtime: set[str] = set()  # keys set at runtime since the file last changed them
         self._config = daemon.config
 
-    def attach(self, server: ControlServer) -> None:
+    def attach(self, server: CommandSource) -> None:
         self.server = server
         self.daemon.control = self
         self.daemon.listeners.append(self)

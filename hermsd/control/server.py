@@ -77,7 +77,8 @@ class _Client:
     inbox: bytearray = field(default_factory=bytearray)
     outbox: bytearray = field(default_factory=bytearray)
     waiting: Pending | None = None  # a command the loop has not answered yet
-    closing: bool = False  # close once the outbox is sent
+    closing: bool = False  # end the connection once the outbox is sent
+    draining: bool = False  # our side ended: what the client still sends is discarded
     send_since: float | None = None
 
 
@@ -190,6 +191,8 @@ class ControlServer:
         if not data:
             self._drop(client)
             return
+        if client.draining:
+            return
         client.last_active = time.monotonic()
         client.inbox += data
         self._next_request(client)
@@ -199,19 +202,14 @@ class ControlServer:
         if client.waiting is not None or client.closing:
             return
         end = client.inbox.find(b"\n")
+        if (end < 0 and len(client.inbox) >= MAX_LINE) or end + 1 > MAX_LINE:
+            client.closing = True  # the rest of the line cannot be told from the next request
+            self._send(client, error_reply(f"request longer than {MAX_LINE} bytes"))
+            return
         if end < 0:
-            if len(client.inbox) >= MAX_LINE:
-                self._send(client, error_reply(f"request longer than {MAX_LINE} bytes"))
-                client.closing = True
-                self._flush(client)
             return
         line = bytes(client.inbox[:end])
         del client.inbox[: end + 1]
-        if end + 1 > MAX_LINE:
-            self._send(client, error_reply(f"request longer than {MAX_LINE} bytes"))
-            client.closing = True
-            self._flush(client)
-            return
         try:
             request = parse_request(line)
         except ProtocolError as error:
@@ -257,13 +255,18 @@ class ControlServer:
         if client.send_since is not None:
             client.send_since = None
             self._selector.modify(client.sock, selectors.EVENT_READ)
-        if client.closing:
-            self._drop(client)
+        if client.closing and not client.draining:
+            # Closing with the rest of an over-long line unread would reset the connection
+            # and lose the reply: end our side, and discard what still comes until EOF.
+            client.draining = True
+            with contextlib.suppress(OSError):
+                client.sock.shutdown(socket.SHUT_WR)
 
     def _expire(self, now: float) -> None:
         for client in list(self._clients.values()):
             stuck = client.send_since is not None and now - client.send_since > SEND_TIMEOUT
-            idle = client.waiting is None and now - client.last_active > IDLE_TIMEOUT
+            limit = SEND_TIMEOUT if client.draining else IDLE_TIMEOUT
+            idle = client.waiting is None and now - client.last_active > limit
             if stuck or idle:
                 self._drop(client)
 
