@@ -29,7 +29,7 @@ import resource
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from hermsd import config as config_module
@@ -75,7 +75,14 @@ def bench_config() -> config_module.Config:
     )
 
 
-def measure(seconds: float, log_dir: Path, realtime: bool) -> dict[str, float]:
+def measure(
+    seconds: float,
+    log_dir: Path,
+    realtime: bool,
+    beside: Callable[[Daemon], contextlib.AbstractContextManager[object]] | None = None,
+) -> dict[str, float]:
+    """The loop's timing over `seconds`; `beside(daemon)` is entered before the loop takes
+    its priority and left after it stops (bench/socket_load.py serves the socket in it)."""
     config = bench_config()
     clock = MonotonicClock()
     plant = {"model": "foptd", "start_s": clock.monotonic(), "start_c": 66.0}
@@ -95,7 +102,11 @@ def measure(seconds: float, log_dir: Path, realtime: bool) -> dict[str, float]:
     usage0 = resource.getrusage(resource.RUSAGE_SELF)
     wall0 = time.monotonic()
     # As in `hermsd run`: the recorder and dead-man threads started first stay ordinary.
-    with loop_priority() if realtime else contextlib.nullcontext(False) as raised, daemon:
+    with (
+        beside(daemon) if beside is not None else contextlib.nullcontext(),
+        loop_priority() if realtime else contextlib.nullcontext(False) as raised,
+        daemon,
+    ):
         if realtime and not raised:
             raise SystemExit("the real-time row needs root or an RLIMIT_RTPRIO of 10")
         daemon.start()
