@@ -6,12 +6,18 @@ are what makes a real log slow to read), then times `hermsd replay` as a user ru
 Python process, best of three) for the summary, --verify and --what-if, and the stages
 inside one process. Goal: the summary of a day in under 1 s.
 
-    uv run python bench/replay.py [--write]
+    uv run python bench/replay.py [--write] [--against CHECKOUT [--label NAME]]
+
+`--against` also times the summary command with the hermsd of another checkout (its
+source directory; e.g. `git archive main | tar -x -C /tmp/main`) on the same log, turn
+about with this one, for a ratio.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import subprocess
 import sys
 import tempfile
@@ -36,12 +42,16 @@ def best_of(runs: int, action: Callable[[], Any]) -> float:
     return min(times)
 
 
-def command(*args: str) -> Callable[[], None]:
+def command(*args: str, source: Path | None = None) -> Callable[[], None]:
+    """`hermsd replay ARGS` in a new process; with `source`, that checkout's hermsd."""
+    env = None if source is None else {**os.environ, "PYTHONPATH": str(source)}
+
     def run() -> None:
         subprocess.run(
             [sys.executable, "-m", "hermsd.cli", "replay", *args],
             check=True,
             stdout=subprocess.DEVNULL,
+            env=env,
         )
 
     return run
@@ -50,6 +60,10 @@ def command(*args: str) -> Callable[[], None]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument(
+        "--against", type=Path, help="another checkout whose summary command to time too"
+    )
+    parser.add_argument("--label", help="what to call that checkout (default: its path)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as directory:
         simulate(24.0, Path(directory))
@@ -71,6 +85,14 @@ def main() -> int:
             ("in process: fit the tun (`replay.identify`)", best_of(3, lambda: _identify(log))),
         ]
         periods = len(log.periods)
+        if args.against is not None:
+            ours, theirs = command(*names), command(*names, source=args.against.resolve())
+            mine = other = math.inf
+            for _ in range(3):  # turn about, so a busy moment costs both alike
+                mine, other = min(mine, best_of(2, ours)), min(other, best_of(2, theirs))
+            rows.append((f"`hermsd replay FILES`, {args.label or args.against}", other))
+            rows.append(("`hermsd replay FILES`, this checkout, in the same turns", mine))
+            rows.append((f"ratio: this checkout / {args.label or args.against}", mine / other))
     lines = ["| what | seconds |", "|---|---|"]
     lines += [f"| {what} | {seconds:.3f} |" for what, seconds in rows]
     table = "\n".join(lines)
@@ -81,7 +103,16 @@ def main() -> int:
         "simulated tun (20 → 66 °C, then holding), logged as the daemon logs it (a chunk "
         f"per 2 s flush): {len(files)} files, {megabytes:.1f} MB, {messages} messages of "
         f"which {periods} control periods. Commands are a new Python process each, best of "
-        "three. Goal: the summary in under 1 s (100,000× real time).\n\n" + table + "\n"
+        "three. Goal: the summary in under 1 s (100,000× real time)."
+        + (
+            " The last rows take turns with another checkout on the same log (best of six "
+            "each), so the load of a shared machine costs both alike."
+            if args.against is not None
+            else ""
+        )
+        + "\n\n"
+        + table
+        + "\n"
     )
     if args.write:
         _replace_section(Path(__file__).with_name("RESULTS.md"), "## Replay:", text)

@@ -36,6 +36,7 @@ from hermsd.control.client import (
 from hermsd.control.protocol import Request, ResetAlarms, SetMode, SetSetpoint, Status
 from hermsd.control.server import ControlServer
 from hermsd.durations import parse_duration
+from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
@@ -75,7 +76,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     _setup_logging(getattr(args, "verbose", False))
     try:
         result: int = args.func(args)
+        sys.stdout.flush()  # here, so that a closed pipe is met inside the handler below
         return result
+    except BrokenPipeError:
+        return _reader_gone()
     except UserError as error:
         print(f"hermsd: {error}", file=sys.stderr)
         return EXIT_USAGE
@@ -92,6 +96,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     except KeyboardInterrupt:
         return 0
+
+
+def _reader_gone() -> int:
+    """The reader of stdout went away (`hermsd replay ... | head`): stop quietly, with the
+    status of a command that SIGPIPE ended, as `cat` would."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())  # the interpreter's last flush must not fail again
+    os.close(devnull)
+    return 128 + signal.SIGPIPE
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -183,7 +196,7 @@ def _parser() -> argparse.ArgumentParser:
         "replay", help="summarise a brew day's logs, re-run its controller, try other settings"
     )
     replay.add_argument(
-        "files", nargs="+", type=Path, help=".mcap or .mcap.part files of one day, in order"
+        "files", nargs="*", type=Path, help=".mcap or .mcap.part files of one day, in any order"
     )
     replay.add_argument("--json", action="store_true", help="print one JSON object")
     replay.add_argument(
@@ -194,10 +207,8 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument(
         "--what-if",
         metavar="KEY=VALUE,...",
-        nargs="?",
-        const="",
         help="run the day again on a model of the tun fitted to the log, with these control "
-        f"settings ({', '.join(config_module.TUNING_KEYS)}; none: the logged ones)",
+        f"settings ({', '.join(config_module.TUNING_KEYS)}; 'logged': the logged ones)",
     )
     replay.add_argument("--csv", type=Path, metavar="FILE", help="write the period records as CSV")
     replay.add_argument(
@@ -254,9 +265,36 @@ def _positive_int(text: str) -> int:
     return value
 
 
+_SYSLOG_PRIORITIES = (
+    (2, logging.CRITICAL),
+    (3, logging.ERROR),
+    (4, logging.WARNING),
+    (6, logging.INFO),
+)
+
+
+class JournalFormatter(logging.Formatter):
+    """Each line prefixed with its syslog priority, `<4>` for a warning: the journal files a
+    line written to stderr under that priority (systemd.exec(5), SyslogLevelPrefix=)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        priority = next((p for p, level in _SYSLOG_PRIORITIES if record.levelno >= level), 7)
+        return f"<{priority}>" + super().format(record)
+
+
+def stderr_is_journal() -> bool:
+    """Whether stderr is systemd's journal stream: JOURNAL_STREAM names its device and inode."""
+    try:
+        status = os.fstat(sys.stderr.fileno())
+    except (OSError, ValueError, AttributeError):
+        return False
+    return os.environ.get("JOURNAL_STREAM") == f"{status.st_dev}:{status.st_ino}"
+
+
 def _setup_logging(verbose: bool) -> None:
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
+    formatter = JournalFormatter if stderr_is_journal() else logging.Formatter
+    handler.setFormatter(formatter("%(levelname)s %(message)s"))
     root = logging.getLogger("hermsd")
     root.handlers[:] = [handler]
     root.setLevel(logging.DEBUG if verbose else logging.INFO)
@@ -350,8 +388,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise UserError(str(error)) from None
     latches = _latch_store(args.state, simulate=args.simulate)
     log_dir = args.log
-    if log_dir is None and not (args.simulate and args.config is None):
+    if log_dir is None and not args.simulate:  # a simulated day never goes into log.dir
         log_dir = Path(config.log.dir) if config.log.dir else None
+    locks = _lock_directories(log_dir, latches.directory if latches is not None else None)
     status = StatusLine(sys.stdout)
     _route_log_around(status)
     previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -422,6 +461,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         status.clear()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+        for lock in locks:
+            lock.release()
     return 0
 
 
@@ -454,6 +495,38 @@ def _serve_control(daemon: Daemon, path: Path) -> ControlServer:
     return server
 
 
+def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[DirectoryLock]:
+    """Lock the log and state directories, before any output is touched.
+
+    UserError (naming the other daemon's pid) when one is held: the outputs, the log and the
+    latches belong to that daemon. A directory that cannot be made is said by the recorder
+    or the latch store; one that cannot hold a lock file is said here, and run without it.
+    """
+    locks: list[DirectoryLock] = []
+    wanted = [(log_dir, "log directory"), (state_dir, "state directory")]
+    seen: set[Path] = set()
+    for directory, role in wanted:
+        if directory is None or directory.resolve() in seen:
+            continue
+        seen.add(directory.resolve())
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            continue
+        lock = DirectoryLock(directory)
+        try:
+            lock.acquire(role)
+        except InstanceError as error:
+            for held in locks:
+                held.release()
+            raise UserError(str(error)) from None
+        except OSError as error:
+            log.warning("cannot lock the %s %s: %s", role, directory, error.strerror or error)
+            continue
+        locks.append(lock)
+    return locks
+
+
 def _latch_store(directory: Path | None, *, simulate: bool) -> LatchStore | None:
     """Where latched alarms are kept; None (said) when nowhere can keep them."""
     if directory is None:
@@ -475,13 +548,23 @@ def _default_state_directory() -> Path:
 
 
 def _open_recorder(directory: Path, config: Config) -> Recorder:
-    """The flight recorder, after recovering whatever a crash left in `directory`."""
+    """The flight recorder, after recovering whatever a crash left in `directory`.
+
+    A directory that cannot be made is said here; the recorder says the rest (the daemon
+    repeats it while it lasts). A file size limit (`ulimit -f`) must fail a write with
+    EFBIG, which the recorder reports, not kill the daemon with SIGXFSZ.
+    """
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        for path in recover_directory(directory):
-            log.warning("recovered %s from an unfinished log", path)
     except OSError as error:
-        log.warning("log recovery in %s failed: %s", directory, error)
+        log.warning("log failing: cannot create %s: %s", directory, error.strerror or error)
+    else:
+        try:
+            for path in recover_directory(directory):
+                log.warning("recovered %s from an unfinished log", path)
+        except OSError as error:
+            log.warning("log recovery in %s failed: %s", directory, error)
     log_cfg = config.log
     return Recorder(
         directory,
@@ -558,6 +641,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim.hlt import PlantLoadError, load_plant
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
+    locks = _lock_directories(args.log, args.state)
     try:
         scenario = (
             scenario_module.load_scenario(args.scenario)
@@ -578,6 +662,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         raise UserError(
             f"{error} (inspect it; `hermsd reset-alarm --state DIR` replaces it)"
         ) from None
+    finally:
+        for lock in locks:
+            lock.release()
     summary = result.summary
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -592,11 +679,17 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for key, value in summary.items():
         if isinstance(value, dict):
             lines.extend((f"{key}.{name}", item) for name, item in value.items())
-        elif key not in ("files", "alarms"):
+        elif key not in ("files", "alarms", "runs"):
             lines.append((key, value))
     width = max((len(key) for key, _ in lines), default=0)
     for report in summary.get("files", []):
         print(_file_line(report))
+    runs = summary.get("runs", [])
+    for number, run in enumerate(runs if len(runs) > 1 else [], start=1):
+        print(
+            f"run {number} of {len(runs)} (id {run['run'] or 'not logged'}), from "
+            f"{run['start_utc']}: {', '.join(run['files'])}"
+        )
     for key, value in lines:
         print(f"{key:{width}} {value}")
     for alarm in summary.get("alarms", []):
@@ -610,9 +703,10 @@ def _file_line(report: dict[str, Any]) -> str:
         state = f"not finished, complete up to byte {report['cut_at']} of {report['size']}"
         if report["cut_reason"]:
             state += f" ({report['cut_reason']})"
+    damaged = "".join(f"; {damage}" for damage in report.get("damaged", []))
     return (
         f"file {report['path']}: {state}; {report['messages']} messages recovered, "
-        f"{report['periods']} control periods"
+        f"{report['periods']} control periods{damaged}"
     )
 
 
@@ -633,6 +727,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     status = 0
     try:
         overrides = None if args.what_if is None else replay.parse_what_if(args.what_if)
+        if not args.files:
+            raise UserError("replay: name the .mcap (or .mcap.part) files of one day")
         log = replay.load(args.files)
         result: dict[str, Any] = {}
         if args.verify:

@@ -41,6 +41,7 @@ log = logging.getLogger("hermsd")
 
 TIMING_INTERVAL = 60.0  # s between timing records
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+LOG_FAILING_REPEAT_S = 60.0  # a failing log is said again this often while it lasts
 
 
 class Sensor(Protocol):
@@ -243,6 +244,9 @@ class Daemon:
         self._saved_latches: list[str] = []
         self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
         self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
+        self._log_failing: str | None = None  # why the recorder cannot write, as last said
+        self._log_failing_since = 0.0
+        self._log_failing_said = 0.0
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -270,6 +274,7 @@ class Daemon:
         self._started = True
         self._record_config("start", now)
         self._event(logging.INFO, "started", now)
+        self._check_log(now)
         self._restore_latches(stored, now)
 
     def _program_sensor(self) -> None:
@@ -743,9 +748,37 @@ class Daemon:
         state = ", ".join(self.supervisor.active) or ("manual" if self.mode == "manual" else "ok")
         if self._config_problem is not None:
             state += ", config rejected (see journal)"
+        if self._log_failing is not None:
+            state += f", log failing: {self._log_failing}"
         return status_line(self.config.tun.name, self._pv, self.setpoint, self.output, state)
 
+    def _check_log(self, t: float) -> None:
+        """Say that the log cannot be written at once, every minute while it lasts, and when
+        it can again: control goes on without it, but nobody should learn it from a lost day."""
+        failing: str | None = getattr(self.recorder, "failing", None)
+        if failing is None:
+            if self._log_failing is not None:
+                self._log_failing = None
+                lost = getattr(self.recorder, "lost", 0)
+                self._event(
+                    logging.WARNING,
+                    f"log writing again after {t - self._log_failing_since:.0f} s failing "
+                    f"({lost} records lost since start)",
+                    t,
+                )
+            return
+        if self._log_failing is None:
+            self._log_failing_since = t
+        elif t - self._log_failing_said < LOG_FAILING_REPEAT_S:
+            self._log_failing = failing
+            return
+        self._log_failing, self._log_failing_said = failing, t
+        lasting = t - self._log_failing_since
+        since = f" for {lasting:.0f} s" if lasting > 0 else ""
+        self._event(logging.WARNING, f"log failing{since}: {failing}; control goes on", t)
+
     def _report(self, now: float) -> None:
+        self._check_log(now)
         text = self.status_text()
         if self.on_status is not None:
             self.on_status(text)

@@ -17,6 +17,14 @@ from typing import Any
 
 BAND = 0.5  # °C either side of the setpoint that counts as holding it
 
+# What each report measures on, said in it: the two differ by the LM92's 0.0625 °C steps and
+# by the period's averaging, so the same day gives `simulate` and `replay` other overshoots.
+SIMULATED_TEMPERATURE = (
+    "the simulated sensor's exact temperature at each period (no noise, no LM92 steps; "
+    "pv_overshoot_c: on the daemon's PV, as replay measures it)"
+)
+LOGGED_TEMPERATURE = "the logged PV (the mean of each period's LM92 readings)"
+
 
 @dataclass(frozen=True, slots=True)
 class Sample:

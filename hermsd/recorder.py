@@ -13,8 +13,11 @@ What survives what:
   The file being written is named `*.mcap.part`; `recover` turns a leftover one into a
   finished `.mcap` that keeps every complete chunk.
 - A full, failing, read-only or vanished disk is counted (`errors`) and described
-  (`last_error`); the file in hand is abandoned as it stands (recoverable), and writing
-  resumes in a new file at the next record after `RETRY_INTERVAL_S`.
+  (`last_error`, and `failing` until a later write reaches the OS again); the file in hand
+  is abandoned as it stands (recoverable; removed if no chunk of it ever reached the OS),
+  and writing resumes in a new file at the next record after `RETRY_INTERVAL_S`, then after
+  twice as long at each failure in a row, up to `RETRY_MAX_S`: a full disk gets no new
+  empty file every few seconds.
 - A full queue drops the new record (`dropped`), and a WARNING event on `/hermsd/log` says how
   many were dropped as soon as there is room again.
 
@@ -27,6 +30,8 @@ clock that jumps forward (a Pi without RTC meeting NTP) starts a file with a tru
 from __future__ import annotations
 
 import contextlib
+import errno
+import io
 import itertools
 import json
 import math
@@ -35,6 +40,7 @@ import queue
 import struct
 import threading
 import time
+import uuid
 import zlib
 from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import dataclass
@@ -43,9 +49,8 @@ from pathlib import Path
 from typing import Any, BinaryIO, Final, NamedTuple
 
 import zstandard
-from mcap.reader import make_reader
+from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from hermsd import __version__
@@ -63,11 +68,14 @@ PART_SUFFIX: Final = ".part"
 METADATA_NAME: Final = "hermsd"
 RECOVERY_METADATA_NAME: Final = "hermsd.recovery"
 CONFIG_METADATA_NAME: Final = "hermsd.config"  # the config record again, for metadata readers
+# Channel id → topic, outside chunks: read when the chunk defining a channel is damaged.
+CHANNELS_METADATA_NAME: Final = "hermsd.channels"
 LIBRARY: Final = f"hermsd/{__version__}"
 
 # Chunks are closed by time (flush_interval), so this size is only an upper bound on memory.
 CHUNK_SIZE: Final = 256 * 1024
 RETRY_INTERVAL_S: Final = 5.0
+RETRY_MAX_S: Final = 300.0
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 
 
@@ -302,7 +310,7 @@ class Recorder:
         self._rotate_ns = round(rotate_s * 1e9)
         self._flush_interval = flush_interval
         self._sync_interval = sync_interval
-        self._metadata = dict(metadata or {})
+        self._metadata = {"run": uuid.uuid4().hex[:16], **(metadata or {})}
         self._now = now
         self._open_file = open_file
         self._lossless = lossless
@@ -319,6 +327,8 @@ class Recorder:
         self._errors = 0
         self._lost = 0
         self._last_error: str | None = None
+        self._failing: str | None = _unwritable(self._directory)
+        self._retry_delay = RETRY_INTERVAL_S
         self._thread = threading.Thread(target=self._run, name="hermsd-recorder", daemon=True)
         self._thread.start()
 
@@ -387,6 +397,21 @@ class Recorder:
     def last_error(self) -> str | None:
         """One line about the latest failure, for the status line."""
         return self._last_error
+
+    @property
+    def run_id(self) -> str:
+        """Names this recorder's files as one run (metadata "run"): replay joins runs only
+        one after the other, never two that overlap in time."""
+        return self._metadata["run"]
+
+    @property
+    def failing(self) -> str | None:
+        """Why records are not reaching the disk now, from the failure until a write succeeds.
+
+        Set at construction already when the directory is plainly unusable (missing, not
+        writable), so the very first status line can say so.
+        """
+        return self._failing
 
     @property
     def current_file(self) -> Path | None:
@@ -506,8 +531,7 @@ class Recorder:
         try:
             stream = self._open_file(part)
         except Exception as exc:
-            self._report(f"creating {part}: {_describe(exc)}")
-            self._retry_at = self._now() + RETRY_INTERVAL_S
+            self._fail(f"creating {part}: {_describe(exc)}")
             return None
         file = _OpenFile(part, stream, record.log_time_ns, self._now())
         self._file = file
@@ -537,6 +561,7 @@ class Recorder:
     def _flush(self, file: _OpenFile, now: float) -> None:
         if not self._guarded(file, "writing", file.flush):
             return
+        self._healthy()
         if now - file.last_sync >= self._sync_interval:
             self._guarded(file, "syncing", lambda: file.datasync(now))
         else:
@@ -547,9 +572,10 @@ class Recorder:
         if file is None:
             return self._retry_at is None
         now = self._now()
-        return self._guarded(file, "writing", file.flush) and self._guarded(
-            file, "syncing", lambda: file.datasync(now)
-        )
+        if not self._guarded(file, "writing", file.flush):
+            return False
+        self._healthy()
+        return self._guarded(file, "syncing", lambda: file.datasync(now))
 
     def _finish(self, file: _OpenFile) -> None:
         final = file.part.with_name(file.part.name.removesuffix(PART_SUFFIX))
@@ -567,17 +593,28 @@ class Recorder:
         try:
             operation()
         except Exception as exc:
-            self._report(f"{action} {file.part}: {_describe(exc)}")
+            self._fail(f"{action} {file.part}: {_describe(exc)}")
             self._lost += file.unflushed
             file.discard()
             self._file = None
-            self._retry_at = self._now() + RETRY_INTERVAL_S
             return False
         return True
 
     def _report(self, message: str) -> None:
         self._errors += 1
         self._last_error = f"recorder: {message}"
+
+    def _fail(self, message: str) -> None:
+        """A disk failure: said, and the next file tried later each time it happens again."""
+        self._report(message)
+        self._failing = message
+        self._retry_at = self._now() + self._retry_delay
+        self._retry_delay = min(2.0 * self._retry_delay, RETRY_MAX_S)
+
+    def _healthy(self) -> None:
+        """Records reached the OS: whatever failed before is over."""
+        self._failing = None
+        self._retry_delay = RETRY_INTERVAL_S
 
 
 class _OpenFile:
@@ -593,6 +630,7 @@ class _OpenFile:
         self.flush_due: float | None = None
         self.sync_due: float | None = None
         self.last_sync = now
+        self.flushed = 0  # messages handed to the OS
 
     def start(self, metadata: dict[str, str]) -> None:
         self.writer.start(profile="", library=LIBRARY)
@@ -602,6 +640,8 @@ class _OpenFile:
             )
             self.channels[topic] = self.writer.register_channel(topic, "json", schema_id)
         self.writer.add_metadata(METADATA_NAME, metadata)
+        channel_topics = {str(channel): topic for topic, channel in self.channels.items()}
+        self.writer.add_metadata(CHANNELS_METADATA_NAME, channel_topics)
 
     def add(self, topic: str, log_time_ns: int, data: bytes, sequence: int) -> None:
         self.unflushed += 1
@@ -615,6 +655,7 @@ class _OpenFile:
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS."""
         self.writer.flush()  # type: ignore[no-untyped-call]
+        self.flushed += self.unflushed
         self.unflushed = 0
         self.flush_due = None
 
@@ -631,9 +672,37 @@ class _OpenFile:
         self.stream.close()
 
     def discard(self) -> None:
+        """Let the file go; remove it if no message of it reached the OS (nothing to recover)."""
         # The disk already failed; closing releases the descriptor even when it raises.
         with contextlib.suppress(Exception):
             self.stream.close()
+        if self.flushed == 0 and not _holds_messages(self.part):
+            with contextlib.suppress(OSError):
+                self.part.unlink()
+
+
+def _holds_messages(path: Path) -> bool:
+    """Whether a whole chunk or message of `path` is on disk (True when that cannot be told)."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return True
+    walk = _Walk(data)
+    for _ in walk.runs():
+        pass
+    return walk.messages_found
+
+
+def _unwritable(directory: Path) -> str | None:
+    """Why no file can be made in `directory`, when that shows without making one."""
+    if not directory.is_dir():
+        reason = os.strerror(errno.ENOTDIR if directory.exists() else errno.ENOENT)
+        return f"{directory}: {reason}"
+    if not os.access(directory, os.W_OK | os.X_OK):
+        return f"{directory}: {os.strerror(errno.EACCES)}"
+    return None
 
 
 def _is_alarming(event: dict[str, Any]) -> bool:
@@ -669,6 +738,8 @@ def _utc_iso(log_time_ns: int) -> str:
 
 
 def _describe(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror  # the file is named by the caller, once
     return str(exc) or type(exc).__name__
 
 
@@ -681,54 +752,59 @@ class RecordedMessage(NamedTuple):
     message: dict[str, Any]
 
 
-class _Cut:
-    """Where a stream of records stopped being readable."""
+class Damage(NamedTuple):
+    """Part of a file that could not be read and was skipped; the records after it were read.
 
-    def __init__(self) -> None:
-        self.at: int | None = None
-        self.reason: str | None = None
-
-
-def _complete_records(stream: BinaryIO, size: int, cut: _Cut) -> Iterator[McapRecord]:
-    """The records of an MCAP stream up to the first incomplete or damaged one, as objects.
-
-    A chunk is yielded only whole and with a valid CRC, broken up into its records. Whatever
-    the reader raises at the cut (end of file inside a record, a torn length, a bad CRC) ends
-    the stream there. For recovery and metadata; `LogFile.messages` reads faster by hand.
+    `messages` is how many messages were lost with it, when that is known (a damaged chunk's
+    message indexes say how many it held).
     """
-    records = StreamReader(stream, validate_crcs=True, record_size_limit=size).records
-    end_of_complete = 0
-    while True:
-        try:
-            record = next(records)
-        except StopIteration:
-            return
-        except Exception as exc:  # any parse failure marks the cut
-            cut.at = end_of_complete
-            cut.reason = _describe(exc)
-            return
-        end_of_complete = stream.tell()
-        yield record
+
+    what: str  # "chunk at byte 1234", "bytes 1234 to 5678", "the summary"
+    reason: str
+    messages: int | None = None
+
+    def describe(self) -> str:
+        if self.messages is None:
+            lost = ""
+        else:
+            lost = f" ({self.messages or 'no'} message{'' if self.messages == 1 else 's'} lost)"
+        return f"{self.what} damaged ({self.reason}), skipped{lost}"
 
 
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, length of the body
 _CHANNEL_HEAD = struct.Struct("<HHI")  # id, schema id, length of the topic
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_MESSAGE_INDEX_HEAD = struct.Struct("<HI")  # channel id, length of its (time, offset) pairs
+_MESSAGE_INDEX_ENTRY_SIZE: Final = 16
+_UINT32 = struct.Struct("<I")
+_OP_HEADER: Final = 0x01
+_OP_FOOTER: Final = 0x02
+_OP_SCHEMA: Final = 0x03
 _OP_CHANNEL: Final = 0x04
 _OP_MESSAGE: Final = 0x05
+_OP_CHUNK: Final = 0x06
+_OP_MESSAGE_INDEX: Final = 0x07
+_OP_METADATA: Final = 0x0C
+_OP_DATA_END: Final = 0x0F
+_OP_LAST_DEFINED: Final = 0x0F  # opcodes 0x10 to 0x7f are reserved; 0x80 and up are private
+_OP_PRIVATE: Final = 0x80
+_COPIED_OUTSIDE_CHUNKS: Final = (_OP_HEADER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_METADATA)
 
 
 def _sift_chunk(
     data: bytes,
-    channels: dict[int, str],
+    channels: dict[int, str | None],
     topics: Collection[str] | None,
     into: list[tuple[int, int, str, bytes]],
+    orphans: list[tuple[int, int, bytes]],
 ) -> int:
-    """Add (log time, order, topic, data) of a chunk's messages on wanted topics to `into`.
+    """Add (log time, order, topic, data) of a run's messages on wanted topics to `into`.
 
-    Channels defined in the chunk are added to `channels`, only those on wanted topics, so
+    Channels defined in the run are added to `channels` (None for a topic not wanted), so
     the other messages are skipped unread (parsing by hand costs a fraction of building
-    every record). Returns how many messages the chunk holds on any topic.
+    every record). A message on a channel not defined yet (its definition was in a damaged
+    chunk) goes to `orphans` as (channel id, log time, data). Returns how many messages the
+    run holds on any topic.
     """
     position, end, messages = 0, len(data), 0
     while position < end:
@@ -745,21 +821,22 @@ def _sift_chunk(
                 into.append(
                     (log_time, len(into), topic, data[body + _MESSAGE_HEAD.size : position])
                 )
+            elif channel_id not in channels:
+                orphans.append((channel_id, log_time, data[body + _MESSAGE_HEAD.size : position]))
         elif opcode == _OP_CHANNEL:
             channel_id, _, topic_length = _CHANNEL_HEAD.unpack_from(data, body)
             start = body + _CHANNEL_HEAD.size
             topic = data[start : start + topic_length].decode()
-            (encoding_length,) = struct.unpack_from("<I", data, start + topic_length)
+            (encoding_length,) = _UINT32.unpack_from(data, start + topic_length)
             encoding = data[start + topic_length + 4 : start + topic_length + 4 + encoding_length]
-            if encoding == b"json" and (topics is None or topic in topics):
-                channels[channel_id] = topic
+            wanted = encoding == b"json" and (topics is None or topic in topics)
+            channels.setdefault(channel_id, topic if wanted else None)
     return messages
 
 
 _FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary start, summary offset start, CRC
 _FOOTER_LENGTH: Final = _FOOTER.size - _RECORD_HEAD.size
 _FOOTER_CRC_SIZE: Final = 4  # the CRC covers the footer up to, not including, itself
-_OP_FOOTER: Final = 0x02
 
 
 def _is_finished(path: Path) -> bool:
@@ -798,55 +875,184 @@ def _is_finished(path: Path) -> bool:
 _CHUNK_HEAD = struct.Struct("<16xQII")  # (times,) uncompressed size and CRC, name length
 _LENGTH = struct.Struct("<Q")
 _DATA_END = struct.Struct("<I")  # CRC of the data section
-_OP_CHUNK: Final = 0x06
-_OP_DATA_END: Final = 0x0F
+# A zstd chunk, as hermsd writes them, has its compression's name this far into the record:
+# opcode and length (9 bytes), start and end time (16), size (8) and CRC (4) of its records.
+_ZSTD_NAME: Final = _UINT32.pack(4) + b"zstd"
+_ZSTD_NAME_AT: Final = _RECORD_HEAD.size + _CHUNK_HEAD.size - _UINT32.size
 
 
 class _Damaged(Exception):
-    """A record that cannot be read whole: the readable part of a file ends before it."""
+    """A record that cannot be read whole."""
 
 
-def _message_runs(data: bytes, cut: _Cut) -> Iterator[bytes]:
-    """The channels and messages of an MCAP file as runs of records for `_sift_chunk`.
+class _Walk:
+    """The readable records of an MCAP file, as runs of records for `_sift_chunk`.
 
     A chunk's run is its records, decompressed, yielded only if they match the chunk's size
-    and CRC; a channel or message outside chunks is a run of its own; other records are
-    skipped by their length, unread. The file is read up to its footer or up to the first
-    record that is incomplete or damaged: `cut` says where that one starts and why.
+    and CRC; a header, schema, channel, message or metadata record outside chunks is a run of
+    its own; other records are skipped by their length, unread. A damaged chunk is skipped
+    (`damaged` says where and why) and reading goes on after it: at its end, when a record
+    plausibly starts there, else at the next zstd chunk further on. Where no readable record
+    follows, the file is cut: `cut_at` says where, `cut_reason` why (None: the file simply
+    ended there). After the data section only channel and schema records are yielded (the
+    summary repeats them: the definitions a damaged first chunk took with it).
     Reading by hand costs a fraction of what mcap's StreamReader does (an object for each of
     the chunks, message indexes and chunk indexes of a day, a decompressor per chunk).
     """
-    if not data.startswith(MCAP_MAGIC):
-        cut.at, cut.reason = 0, "the file does not start with the MCAP magic"
-        return
-    view = memoryview(data)
-    decompressor = zstandard.ZstdDecompressor()
-    position, size = len(MCAP_MAGIC), len(data)
-    try:
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+        self.cut_at: int | None = None
+        self.cut_reason: str | None = None
+        self.damaged: list[Damage] = []
+        self.footer_read = False
+        self.metadata: dict[str, dict[str, str]] = {}  # by name, a later record winning
+        self.messages_found = False  # a whole chunk, or a message outside chunks, was read
+        self._resume_at = 0  # where `_resume_after` found readable records again
+
+    def runs(self) -> Iterator[bytes]:
+        data = self.data
+        if not data.startswith(MCAP_MAGIC):
+            self.cut_at, self.cut_reason = 0, "the file does not start with the MCAP magic"
+            return
+        view = memoryview(data)
+        decompressor = zstandard.ZstdDecompressor()
+        position, size = len(MCAP_MAGIC), len(data)
+        in_summary = False
+        skipped_chunk: int | None = None  # index in `damaged` of a chunk just skipped
+        head = _RECORD_HEAD
         while position < size:
-            if position + _RECORD_HEAD.size > size:
-                raise _Damaged("the file ends inside a record")
-            opcode, length = _RECORD_HEAD.unpack_from(data, position)
-            body = position + _RECORD_HEAD.size
-            end = body + length
-            if end > size:
-                raise _Damaged("the file ends inside a record")
+            body = position + head.size
+            opcode, end = head.unpack_from(data, position) if body <= size else (0, 0)
+            end += body
+            if end > size or opcode == 0 or _OP_LAST_DEFINED < opcode < _OP_PRIVATE:
+                try:
+                    self._record_at(position)  # for the reason
+                except _Damaged as exc:
+                    if not self._resume_after(position, str(exc), in_summary):
+                        return
+                position = self._resume_at
+                continue
+            if opcode == _OP_MESSAGE_INDEX:  # the commonest record: several after each chunk
+                if skipped_chunk is not None:
+                    damage = self.damaged[skipped_chunk]
+                    lost = (end - body - _MESSAGE_INDEX_HEAD.size) // _MESSAGE_INDEX_ENTRY_SIZE
+                    counted = (damage.messages or 0) + lost
+                    self.damaged[skipped_chunk] = damage._replace(messages=counted)
+                position = end
+                continue
+            skipped_chunk = None
             if opcode == _OP_CHUNK:
-                yield _chunk_records(view[body:end], decompressor)
-            elif opcode in (_OP_MESSAGE, _OP_CHANNEL):
-                yield data[position:end]
+                try:
+                    records = _chunk_records(view[body:end], decompressor)
+                except (_Damaged, zstandard.ZstdError, struct.error) as exc:
+                    reason = _describe(exc)
+                    if not self._follows_a_record(end):
+                        if not self._resume_after(position, reason, in_summary):
+                            return
+                        position = self._resume_at
+                        continue
+                    skipped_chunk = len(self.damaged)
+                    self.damaged.append(Damage(f"chunk at byte {position}", reason, 0))
+                else:
+                    self.messages_found = True
+                    yield records
+            elif opcode in _COPIED_OUTSIDE_CHUNKS:
+                if not in_summary or opcode in (_OP_SCHEMA, _OP_CHANNEL):
+                    if opcode == _OP_METADATA:
+                        self._note_metadata(view[body:end])
+                    self.messages_found |= opcode == _OP_MESSAGE
+                    yield data[position:end]
             elif opcode == _OP_DATA_END:
                 (crc,) = _DATA_END.unpack_from(view[body:end])
                 if crc != 0 and zlib.crc32(view[:position]) != crc:
-                    raise _Damaged("the data section does not match its CRC")
+                    self.cut_at, self.cut_reason = (
+                        position,
+                        "the data section does not match its CRC",
+                    )
+                    return
+                in_summary = True
             elif opcode == _OP_FOOTER:
-                position = end
                 if data[end : end + len(MCAP_MAGIC)] != MCAP_MAGIC:
-                    raise _Damaged("the footer is not followed by the MCAP magic")
+                    self.cut_at = end  # the footer was whole
+                    self.cut_reason = "the footer is not followed by the MCAP magic"
+                    return
+                self.footer_read = True
                 return
             position = end
-    except (_Damaged, zstandard.ZstdError, struct.error) as exc:
-        cut.at, cut.reason = position, _describe(exc)
+
+    def _record_at(self, position: int) -> tuple[int, int, int]:
+        """(opcode, start of body, end) of the record at `position`; _Damaged if none is."""
+        size = len(self.data)
+        if position + _RECORD_HEAD.size > size:
+            raise _Damaged("the file ends inside a record")
+        opcode, length = _RECORD_HEAD.unpack_from(self.data, position)
+        if opcode == 0 or _OP_LAST_DEFINED < opcode < _OP_PRIVATE:
+            raise _Damaged(f"no record starts there (opcode {opcode:#04x})")
+        body = position + _RECORD_HEAD.size
+        if body + length > size:
+            raise _Damaged("the file ends inside a record")
+        return opcode, body, body + length
+
+    def _follows_a_record(self, position: int) -> bool:
+        """Whether the end of a damaged chunk is plausibly the start of the next record."""
+        if position == len(self.data):
+            return True
+        try:
+            opcode, body, end = self._record_at(position)
+        except _Damaged:
+            return False
+        if opcode == _OP_MESSAGE_INDEX:
+            if end - body < _MESSAGE_INDEX_HEAD.size:
+                return False
+            _, pairs = _MESSAGE_INDEX_HEAD.unpack_from(self.data, body)
+            return bool(end - body == _MESSAGE_INDEX_HEAD.size + pairs)
+        if opcode == _OP_DATA_END:
+            return end - body == _DATA_END.size
+        return bool(opcode in (_OP_CHUNK, _OP_METADATA))
+
+    def _resume_after(self, position: int, reason: str, in_summary: bool) -> bool:
+        """Find where to read on after unreadable bytes at `position`; False: nowhere (a cut).
+
+        In the summary nothing more is needed: its damage is noted and reading stops.
+        """
+        if in_summary:
+            self.damaged.append(Damage(f"the summary at byte {position}", reason, 0))
+            return False
+        found = self.data.find(_ZSTD_NAME, position + 1 + _ZSTD_NAME_AT)
+        while found != -1:
+            start = found - _ZSTD_NAME_AT
+            try:
+                opcode, _, _ = self._record_at(start)
+            except _Damaged:
+                opcode = 0
+            if opcode == _OP_CHUNK:
+                self.damaged.append(Damage(f"bytes {position} to {start}", reason))
+                self._resume_at = start
+                return True
+            found = self.data.find(_ZSTD_NAME, found + 1)
+        self.cut_at, self.cut_reason = position, reason
+        return False
+
+    def _note_metadata(self, body: memoryview) -> None:
+        try:
+            name, values = _metadata(bytes(body))
+        except (struct.error, UnicodeDecodeError, ValueError, EOFError):
+            return
+        self.metadata[name] = values
+
+    @property
+    def channel_topics(self) -> dict[int, str]:
+        """Channel id → topic, from the hermsd.channels metadata (none in older files)."""
+        named = self.metadata.get(CHANNELS_METADATA_NAME, {})
+        return {int(key): topic for key, topic in named.items() if key.isdigit()}
+
+
+def _metadata(body: bytes) -> tuple[str, dict[str, str]]:
+    """The name and the key-value pairs of a metadata record's body."""
+    stream = ReadDataStream(io.BytesIO(body))
+    record = Metadata.read(stream)
+    return record.name, dict(record.metadata)
 
 
 def _chunk_records(chunk: memoryview, decompressor: zstandard.ZstdDecompressor) -> bytes:
@@ -856,8 +1062,8 @@ def _chunk_records(chunk: memoryview, decompressor: zstandard.ZstdDecompressor) 
     compression = bytes(chunk[_CHUNK_HEAD.size : name_end])
     (length,) = _LENGTH.unpack_from(chunk, name_end)
     start = name_end + _LENGTH.size
-    if start + length > len(chunk):
-        raise _Damaged("a chunk's records run past its end")
+    if start + length != len(chunk):
+        raise _Damaged("a chunk's records do not fill it")
     compressed = chunk[start : start + length]
     if compression == b"zstd":
         records = decompressor.decompress(compressed, max_output_size=size)
@@ -877,10 +1083,11 @@ class LogFile:
 
     Every file is read record by record up to its end or its cut, a finished one too (its
     index would only say where the same chunks are). After `messages()` has run, `count`
-    says how many messages it yielded, `recovered` how many its complete records hold on
-    any topic and, unless the file was finished and read whole, `cut_at` up to which byte
-    it held complete records and `cut_reason` why the next one could not be read (None: the
-    file simply ended there).
+    says how many messages it yielded, `recovered` how many its readable records hold on
+    any topic, `damaged` which parts were skipped and why (reading went on after them) and,
+    unless the file was finished and read whole, `cut_at` up to which byte it held readable
+    records and `cut_reason` why the next one could not be read (None: the file simply
+    ended there).
     """
 
     def __init__(self, path: Path | str) -> None:
@@ -890,6 +1097,8 @@ class LogFile:
         self.recovered = 0
         self.cut_at: int | None = None
         self.cut_reason: str | None = None
+        self.damaged: list[Damage] = []
+        self.metadata_read: dict[str, dict[str, str]] = {}  # by `messages()`, as `metadata()`
         self.size = self.path.stat().st_size
 
     def messages(self, topics: Collection[str] | None = None) -> Iterator[RecordedMessage]:
@@ -898,19 +1107,35 @@ class LogFile:
         ValueError: the file holds records that pass their CRC but cannot be decoded.
         """
         self.count = self.recovered = 0
-        channels: dict[int, str] = {}
+        channels: dict[int, str | None] = {}
         pending: list[tuple[int, int, str, bytes]] = []
-        cut = _Cut()
+        orphans: list[tuple[int, int, bytes]] = []
         content = self.path.read_bytes()  # tens of MB for a day: read at once, walked by hand
         self.size = len(content)  # a file being written may have grown since it was opened
+        walk = _Walk(content)
         try:
-            for run in _message_runs(content, cut):
-                self.recovered += _sift_chunk(run, channels, topics, pending)
+            for run in walk.runs():
+                self.recovered += _sift_chunk(run, channels, topics, pending, orphans)
         except (struct.error, UnicodeDecodeError, ValueError) as exc:
             raise ValueError(f"{self.path}: damaged MCAP data: {_describe(exc)}") from exc
-        if not (self.finished and cut.at is None):
-            self.cut_at = self.size if cut.at is None else cut.at
-            self.cut_reason = cut.reason
+        self.damaged = walk.damaged
+        self.metadata_read = walk.metadata
+        unknown = 0
+        channel_topics = walk.channel_topics
+        for channel_id, log_time, data in orphans:  # their channel was in a damaged chunk
+            topic = channels.get(channel_id) or channel_topics.get(channel_id)
+            if topic is None and channel_id not in channels:
+                unknown += 1
+            elif topic is not None and (topics is None or topic in topics):
+                pending.append((log_time, len(pending), topic, data))
+        if unknown:
+            reason = "their channel was defined in a damaged chunk"
+            self.damaged.append(Damage(f"{unknown} messages", reason))
+        if walk.footer_read and not self.finished:
+            self.damaged.append(Damage("the summary", "it does not match its CRC", 0))
+        if not (self.finished and walk.cut_at is None):
+            self.cut_at = self.size if walk.cut_at is None else walk.cut_at
+            self.cut_reason = walk.cut_reason
         pending.sort()
         for log_time, _, topic, data in pending:
             try:
@@ -922,14 +1147,10 @@ class LogFile:
 
     def metadata(self) -> dict[str, dict[str, str]]:
         """Metadata records by name (a later record of the same name wins)."""
-        with self.path.open("rb") as f:
-            if self.finished:
-                records: Iterable[Metadata] = list(make_reader(f).iter_metadata())
-            else:
-                records = [
-                    r for r in _complete_records(f, self.size, _Cut()) if isinstance(r, Metadata)
-                ]
-        return {record.name: dict(record.metadata) for record in records}
+        walk = _Walk(self.path.read_bytes())
+        for _ in walk.runs():
+            pass
+        return walk.metadata
 
 
 def read_messages(paths: Iterable[Path | str]) -> Iterator[RecordedMessage]:
@@ -938,9 +1159,30 @@ def read_messages(paths: Iterable[Path | str]) -> Iterator[RecordedMessage]:
         yield from LogFile(path).messages()
 
 
-def recover(path: Path | str) -> Path:
-    """Turn a leftover `.mcap.part` into a finished `.mcap` holding every complete record.
+def _records(runs: Iterable[bytes]) -> Iterator[McapRecord]:
+    """The header, schema, channel, message and metadata records of runs, as mcap's objects."""
+    readers: dict[int, Callable[[ReadDataStream, int], McapRecord]] = {
+        _OP_HEADER: lambda stream, _: Header.read(stream),
+        _OP_SCHEMA: lambda stream, _: Schema.read(stream),
+        _OP_CHANNEL: lambda stream, _: Channel.read(stream),
+        _OP_MESSAGE: Message.read,
+        _OP_METADATA: lambda stream, _: Metadata.read(stream),
+    }
+    for run in runs:
+        position = 0
+        while position < len(run):
+            opcode, length = _RECORD_HEAD.unpack_from(run, position)
+            body = position + _RECORD_HEAD.size
+            position = body + length
+            reader = readers.get(opcode)
+            if reader is not None:
+                yield reader(ReadDataStream(io.BytesIO(run[body:position])), length)
 
+
+def recover(path: Path | str) -> Path:
+    """Turn a leftover `.mcap.part` into a finished `.mcap` holding every readable record.
+
+    Damaged chunks are skipped (said in the recovery metadata), not the rest of the file.
     The new file is written beside it, synced and renamed into place before the `.part` is
     removed, so an interruption at any point leaves the data on disk (a rerun redoes it).
     Call it before a Recorder starts writing in the same directory.
@@ -950,19 +1192,23 @@ def recover(path: Path | str) -> Path:
         raise ValueError(f"recover: {part} is not a .mcap.part file")
     final = part.with_name(part.name.removesuffix(PART_SUFFIX))
     temporary = part.with_name(final.name + ".recovering")
-    size = part.stat().st_size
-    cut = _Cut()
-    with part.open("rb") as source, temporary.open("wb") as target:
+    data = part.read_bytes()
+    walk = _Walk(data)
+    with temporary.open("wb") as target:
         writer = Writer(target, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-        kept = _copy_records(_complete_records(source, size, cut), writer)
+        try:
+            kept = _copy_records(_records(walk.runs()), writer, lambda: walk.channel_topics)
+        except (struct.error, UnicodeDecodeError, ValueError, EOFError) as exc:
+            raise ValueError(f"{part}: damaged MCAP data: {_describe(exc)}") from exc
         writer.add_metadata(
             RECOVERY_METADATA_NAME,
             {
                 "source": part.name,
                 "messages": str(kept),
-                "source_bytes": str(size),
-                "complete_bytes": str(size if cut.at is None else cut.at),
-                "cut": "no" if cut.reason is None else cut.reason,
+                "source_bytes": str(len(data)),
+                "complete_bytes": str(len(data) if walk.cut_at is None else walk.cut_at),
+                "cut": "no" if walk.cut_reason is None else walk.cut_reason,
+                "damaged": "; ".join(d.describe() for d in walk.damaged) or "no",
             },
         )
         writer.finish()  # type: ignore[no-untyped-call]
@@ -984,10 +1230,15 @@ def recover_directory(directory: Path | str) -> list[Path]:
     return [recover(part) for part in parts]
 
 
-def _copy_records(records: Iterator[McapRecord], writer: Writer) -> int:
+def _copy_records(
+    records: Iterator[McapRecord], writer: Writer, channel_topics: Callable[[], dict[int, str]]
+) -> int:
     """Write the schemas, channels, messages and metadata of `records` again; count messages.
 
-    Schemas and channels repeated in a summary section are written once.
+    Schemas and channels repeated in a summary section are written once. A message whose
+    channel was defined in a damaged chunk is kept when the summary defines it again, or
+    when `channel_topics()` (hermsd's own metadata, once all is read) names one of
+    hermsd's topics for it.
     """
     first = next(records, None)
     if isinstance(first, Header):
@@ -998,6 +1249,7 @@ def _copy_records(records: Iterator[McapRecord], writer: Writer) -> int:
             records = itertools.chain([first], records)
     schema_ids: dict[int, int] = {0: 0}
     channel_ids: dict[int, int] = {}
+    orphans: list[Message] = []
     kept = 0
     for record in records:
         if isinstance(record, Schema) and record.id not in schema_ids:
@@ -1012,15 +1264,29 @@ def _copy_records(records: Iterator[McapRecord], writer: Writer) -> int:
             channel_ids[record.id] = writer.register_channel(
                 record.topic, record.message_encoding, schema_ids[record.schema_id], record.metadata
             )
-        elif isinstance(record, Message) and record.channel_id in channel_ids:
-            writer.add_message(
-                channel_ids[record.channel_id],
-                record.log_time,
-                record.data,
-                record.publish_time,
-                record.sequence,
-            )
-            kept += 1
+        elif isinstance(record, Message):
+            if record.channel_id in channel_ids:
+                _copy_message(writer, channel_ids[record.channel_id], record)
+                kept += 1
+            else:
+                orphans.append(record)
         elif isinstance(record, Metadata):
             writer.add_metadata(record.name, record.metadata)
+    topics = channel_topics()
+    for record in orphans:
+        if record.channel_id not in channel_ids:
+            spec = TOPICS.get(topics.get(record.channel_id, ""))
+            if spec is None:
+                continue
+            schema = writer.register_schema(spec.schema_name, "jsonschema", spec.schema_bytes())
+            topic = topics[record.channel_id]
+            channel_ids[record.channel_id] = writer.register_channel(topic, "json", schema)
+        _copy_message(writer, channel_ids[record.channel_id], record)
+        kept += 1
     return kept
+
+
+def _copy_message(writer: Writer, channel_id: int, record: Message) -> None:
+    writer.add_message(
+        channel_id, record.log_time, record.data, record.publish_time, record.sequence
+    )

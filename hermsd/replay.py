@@ -1,11 +1,14 @@
 """Replay: read a brew day's MCAP logs back, measure them, re-run the controller, ask what if.
 
-The files of one day (finished `.mcap` or cut `.mcap.part`) are read in the order given;
-within a file, config and period records are put in the order of the daemon's monotonic
-time `t` (a config before a period of the same `t`: the daemon records a reload before the
-period it takes effect in). Times in the summary are seconds since the first period, on one
-clock across files: when `t` starts again (a reboot between files) the wall-clock gap of the
-log times joins the two.
+The files of one day (finished `.mcap` or cut `.mcap.part`) are read in the order of their
+first record, whatever order they are named in; a file named twice, and files of different
+runs of the daemon that overlap in time (two simulated days logged into one folder), are
+refused, while runs that follow each other are one day with a restart. Within a file,
+config and period records are put in the order of the daemon's monotonic time `t` (a config
+before a period of the same `t`: the daemon records a reload before the period it takes
+effect in). Times in the summary are seconds since the first period, on one clock across
+files: when `t` starts again (a reboot between files) the wall-clock gap of the log times
+joins the two.
 
 - `summarise`: what `hermsd replay FILE...` prints. The metrics are those of `hermsd
   simulate` (hermsd.metrics), measured on the logged PV rather than the simulated water.
@@ -32,11 +35,13 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 from hermsd import config as config_module
 from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
-from hermsd.metrics import Metrics, Sample, compute, report
+from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     MCAP_MAGIC,
+    METADATA_NAME,
+    PART_SUFFIX,
     PERIOD_TOPIC,
     TIMING_TOPIC,
     LogFile,
@@ -76,6 +81,7 @@ class FileReport:
     finished: bool
     cut_at: int | None  # bytes of complete records, for a file that was not finished
     cut_reason: str | None
+    damaged: list[str] = field(default_factory=list)  # parts skipped, and what they cost
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,6 +114,7 @@ class Log:
     log_time_ns: list[int] = field(default_factory=list)  # of each period (wall clock)
     events: list[LogEvent] = field(default_factory=list)
     timings: list[dict[str, Any]] = field(default_factory=list)
+    runs: list[dict[str, Any]] = field(default_factory=list)  # of the daemon, one after another
 
     def period_s(self) -> float:
         """The control period: the logged config's, else the typical spacing of the records."""
@@ -119,49 +126,32 @@ class Log:
         return gaps[len(gaps) // 2] if gaps else 1.0
 
 
+@dataclass(slots=True)
+class _FileRecords:
+    """What one file holds for replay, before the files are put in order and joined."""
+
+    path: Path
+    report: FileReport
+    run: str | None  # the recorder's run id (older files have none)
+    configs: list[LoggedConfig] = field(default_factory=list)
+    periods: list[tuple[PeriodRecord, int]] = field(default_factory=list)  # with log time
+    anchors: list[tuple[int, float]] = field(default_factory=list)  # (log time, t)
+    raw_events: list[tuple[int, int, str]] = field(default_factory=list)
+    timings: list[dict[str, Any]] = field(default_factory=list)
+    first_ns: int | None = None  # log time of its first and last record read
+    last_ns: int | None = None
+
+
 def load(paths: Sequence[Path | str]) -> Log:
-    """The records of `paths`, file after file; ReplayError when nothing usable is in them."""
+    """The records of `paths` in the order of their first record; ReplayError when nothing
+    usable is in them, or when they are not the files of one day (see `_in_order`)."""
+    files = _in_order([_read(path) for path in _distinct(paths)])
     log = Log()
     origin: float | None = None  # t of the first period
     offset = 0.0  # added to a file's t to continue the clock of the files before it
-    for path in map(Path, paths):
-        file = _open(path)
-        configs: list[LoggedConfig] = []
-        periods: list[tuple[PeriodRecord, int]] = []
-        anchors: list[tuple[int, float]] = []  # (log time, t) of records that carry t
-        raw_events: list[tuple[int, int, str]] = []
-        timings: list[dict[str, Any]] = []
-        try:
-            for topic, log_time_ns, message in file.messages(TOPICS_READ):
-                if topic == PERIOD_TOPIC:
-                    record = _period(message, path)
-                    periods.append((record, log_time_ns))
-                    anchors.append((log_time_ns, record.t))
-                elif topic == CONFIG_TOPIC:
-                    entry = _config(message, path)
-                    configs.append(entry)
-                    anchors.append((log_time_ns, entry.t))
-                elif topic == TIMING_TOPIC and _is_number(message.get("t")):
-                    timings.append(message)
-                    anchors.append((log_time_ns, float(message["t"])))
-                elif topic == LOG_TOPIC:
-                    level = message.get("level")
-                    level = level if isinstance(level, int) else 0
-                    raw_events.append((log_time_ns, level, str(message.get("message"))))
-        except ValueError as error:
-            raise ReplayError(str(error)) from None
-        log.files.append(
-            FileReport(
-                str(path),
-                file.size,
-                file.recovered,
-                len(periods),
-                file.finished,
-                file.cut_at,
-                file.cut_reason,
-            )
-        )
-        periods.sort(key=lambda p: p[0].t)
+    for file in files:
+        log.files.append(file.report)
+        periods = sorted(file.periods, key=lambda p: p[0].t)
         if periods:
             first_t, first_ns = periods[0][0].t, periods[0][1]
             if origin is None:
@@ -174,24 +164,141 @@ def load(paths: Sequence[Path | str]) -> Log:
                 log.periods.append(record)
                 log.elapsed.append(record.t + offset - origin)
                 log.log_time_ns.append(log_time_ns)
-        entries: list[LoggedConfig | PeriodRecord] = [*configs, *(p for p, _ in periods)]
+        entries: list[LoggedConfig | PeriodRecord] = [*file.configs, *(p for p, _ in periods)]
         entries.sort(key=lambda e: (e.t, isinstance(e, PeriodRecord)))
         log.entries.extend(entries)
         log.configs.extend(e for e in entries if isinstance(e, LoggedConfig))
         if origin is not None:
             shift = offset - origin
-            anchors.sort()
+            anchors = sorted(file.anchors)
             log.events.extend(
                 LogEvent(_t_at(anchors, ns) + shift, level, text)
-                for ns, level, text in raw_events
+                for ns, level, text in file.raw_events
                 if anchors
             )
-            log.timings.extend(timings)
+            log.timings.extend(file.timings)
+    log.runs = _runs(files)
     if not log.periods:
         names = ", ".join(str(p) for p in paths)
         raise ReplayError(f"{names}: no control periods recovered, nothing to replay")
     log.events.sort(key=lambda e: e.at)
     return log
+
+
+def _distinct(paths: Sequence[Path | str]) -> list[Path]:
+    """`paths`, or ReplayError when one file is named twice (its records would count twice)."""
+    seen: dict[tuple[int, int], Path] = {}
+    for path in map(Path, paths):
+        try:
+            status = path.stat()
+        except OSError:
+            continue  # _open says why
+        first = seen.setdefault((status.st_dev, status.st_ino), path)
+        if first is not path:
+            same = "is given twice" if first == path else f"and {first} are the same file"
+            raise ReplayError(f"{path} {same}: name each file once")
+    return list(map(Path, paths))
+
+
+def _read(path: Path) -> _FileRecords:
+    """The records replay uses of one file."""
+    log_file = _open(path)
+    file = _FileRecords(path, FileReport(str(path), 0, 0, 0, False, None, None), None)
+    try:
+        for topic, log_time_ns, message in log_file.messages(TOPICS_READ):
+            if file.first_ns is None:
+                file.first_ns = log_time_ns
+            file.last_ns = log_time_ns
+            if topic == PERIOD_TOPIC:
+                record = _period(message, path)
+                file.periods.append((record, log_time_ns))
+                file.anchors.append((log_time_ns, record.t))
+            elif topic == CONFIG_TOPIC:
+                entry = _config(message, path)
+                file.configs.append(entry)
+                file.anchors.append((log_time_ns, entry.t))
+            elif topic == TIMING_TOPIC and _is_number(message.get("t")):
+                file.timings.append(message)
+                file.anchors.append((log_time_ns, float(message["t"])))
+            elif topic == LOG_TOPIC:
+                level = message.get("level")
+                level = level if isinstance(level, int) else 0
+                file.raw_events.append((log_time_ns, level, str(message.get("message"))))
+    except ValueError as error:
+        raise ReplayError(str(error)) from None
+    file.run = log_file.metadata_read.get(METADATA_NAME, {}).get("run")
+    file.report = FileReport(
+        str(path),
+        log_file.size,
+        log_file.recovered,
+        len(file.periods),
+        log_file.finished,
+        log_file.cut_at,
+        log_file.cut_reason,
+        [damage.describe() for damage in log_file.damaged],
+    )
+    return file
+
+
+def _in_order(files: list[_FileRecords]) -> list[_FileRecords]:
+    """The files by the log time of their first record, checked to be one day's.
+
+    Files of one run (the recorder's run id) follow each other; runs that follow each other
+    (a restart) are one day with a gap. Refused: files of different runs (or without a run
+    id) that overlap in time, such as two simulated days logged into one folder, and files
+    of one run that hold the same control periods (a copy).
+    """
+    order = sorted(files, key=lambda f: (f.first_ns is None, f.first_ns or 0))
+    latest: _FileRecords | None = None  # the file read so far that ends last
+    periods_seen: dict[tuple[str, int], Path] = {}
+    for file in order:
+        if file.first_ns is None or file.last_ns is None:
+            continue
+        for record, _ in file.periods:
+            if file.run is None:
+                continue
+            other = periods_seen.setdefault((file.run, record.k), file.path)
+            if other != file.path:
+                raise ReplayError(
+                    f"{file.path} and {other} hold the same control periods (k={record.k} "
+                    "and more): one is a copy of the other; name each once"
+                )
+        overlaps = latest is not None and file.first_ns < (latest.last_ns or 0)
+        if overlaps and latest is not None and (file.run is None or file.run != latest.run):
+            raise ReplayError(
+                f"{file.path} ({_span(file)}) overlaps {latest.path} ({_span(latest)}): "
+                f"not one day's logs; replay each run on its own: {_listing(order)}"
+            )
+        if latest is None or (latest.last_ns or 0) < file.last_ns:
+            latest = file
+    return order
+
+
+def _runs(files: list[_FileRecords]) -> list[dict[str, Any]]:
+    """The runs of the daemon in `files`, in order: each with its id, files and start."""
+    runs: list[dict[str, Any]] = []
+    for file in files:
+        if runs and file.run is not None and runs[-1]["run"] == file.run:
+            runs[-1]["files"].append(str(file.path))
+            continue
+        start = None if file.first_ns is None else _utc(file.first_ns)
+        runs.append({"run": file.run, "start_utc": start, "files": [str(file.path)]})
+    return runs
+
+
+def _listing(files: list[_FileRecords]) -> str:
+    return "; ".join(
+        f"run {run['run'] or '(no id)'} from {run['start_utc']}: {', '.join(run['files'])}"
+        for run in _runs([f for f in files if f.first_ns is not None])
+    )
+
+
+def _span(file: _FileRecords) -> str:
+    return f"{_utc(file.first_ns or 0)} to {_utc(file.last_ns or 0)}"
+
+
+def _utc(log_time_ns: int) -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(log_time_ns // 1_000_000_000))
 
 
 def _open(path: Path) -> LogFile:
@@ -427,6 +534,7 @@ def summarise(log: Log) -> dict[str, Any]:
     algorithms = list(dict.fromkeys(p.algorithm for p in log.periods))
     return {
         "files": [dataclasses.asdict(f) for f in log.files],
+        "runs": log.runs,  # more than one: the daemon restarted during the day
         "start_utc": time.strftime(
             "%Y-%m-%dT%H:%M:%SZ", time.gmtime(log.log_time_ns[0] // 1_000_000_000)
         ),
@@ -434,6 +542,7 @@ def summarise(log: Log) -> dict[str, Any]:
         "duration_s": round(log.elapsed[-1], 3),
         "algorithm": ", ".join(algorithms),
         "cold_water_at_s": [round(d.at, 1) for d in drops],
+        "temperature": LOGGED_TEMPERATURE,
         **_report(metrics),
         "mean_applied_pct": None if mean_applied is None else round(mean_applied, 2),
         "energy_kwh": None if energy is None else round(energy, 3),
@@ -751,8 +860,21 @@ def _golden(f: Callable[[float], float], low: float, high: float, tolerance: flo
     return (low + high) / 2.0
 
 
+WHAT_IF_LOGGED = "logged"  # --what-if logged: the day again with the settings it had
+
+
 def parse_what_if(text: str) -> dict[str, Any]:
-    """`kc=100,ti=900,algorithm=type_a` as control settings (checked later, like the file)."""
+    """`kc=100,ti=900,algorithm=type_a` as control settings (checked later, like the file).
+
+    A log file's name in their place (`--what-if day.mcap`) is said as such.
+    """
+    if text.strip() == WHAT_IF_LOGGED:
+        return {}
+    if "=" not in text and (text.endswith((".mcap", PART_SUFFIX)) or Path(text).exists()):
+        raise ReplayError(
+            f"--what-if takes settings, not the log file {text!r}: write --what-if "
+            f"kc=80,ti=600 (or --what-if {WHAT_IF_LOGGED} for the logged ones) after the files"
+        )
     settings: dict[str, Any] = {}
     for item in filter(None, (part.strip() for part in text.split(","))):
         key, sep, value = (s.strip() for s in item.partition("="))

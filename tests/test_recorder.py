@@ -110,8 +110,9 @@ def period(k: int) -> dict[str, Any]:
 class FakeDisk:
     """Creates real files behind a wrapper that fails like a full disk and signals flushes."""
 
-    def __init__(self) -> None:
+    def __init__(self, error: int = errno.ENOSPC) -> None:
         self.full = False
+        self.error = error  # what a write fails with while `full`
         self.flushes = 0
         self.flushed = threading.Semaphore(0)
         self.opened: list[Path] = []
@@ -128,7 +129,7 @@ class _DiskFile:
 
     def _check_space(self) -> None:
         if self._disk.full:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            raise OSError(self._disk.error, os.strerror(self._disk.error))
 
     def write(self, data: bytes) -> int:
         self._check_space()
@@ -264,6 +265,8 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
     for topic, _, message in expected:
         assert conforms(message, schemas[topic_schema[topic]]), topic
     config_record = json.loads(metadata["hermsd.config"].pop("record"))
+    assert metadata["hermsd"].pop("run") == recorder.run_id  # one id for all files of a run
+    assert len(recorder.run_id) == 16
     assert config_record == CONFIG  # the effective config, for readers of metadata only
     assert metadata == {
         "hermsd": {
@@ -272,6 +275,8 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
             "site": "garage",
         },
         "hermsd.config": {"version": hermsd.__version__},
+        # Outside chunks: the channels again, for a reader whose first chunk is damaged.
+        "hermsd.channels": {str(n): topic for n, topic in enumerate(TOPICS, start=1)},
     }
 
 
@@ -585,20 +590,25 @@ def test_recover_a_file_copied_while_the_recorder_was_writing(tmp_path: Path) ->
     assert list(crashed.iterdir()) == [recovered]
 
 
-@pytest.fixture(scope="module")
-def finished_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A finished file of 31 messages in 6 chunks: config and 30 periods, a sync every 5."""
-    directory = tmp_path_factory.mktemp("finished")
+def chunked_log(directory: Path, periods: int, per_chunk: int) -> Path:
+    """A finished file of the config and `periods` periods, a chunk per `per_chunk` of them
+    (the first chunk holds the config too)."""
     clock = VirtualClock()
     recorder = Recorder(directory, now=clock.monotonic)
     recorder.write(CONFIG_TOPIC, EPOCH_NS, CONFIG)
-    for k in range(30):
+    for k in range(periods):
         recorder.write(PERIOD_TOPIC, EPOCH_NS + k * S, period(k))
-        if k % 5 == 4:
+        if k % per_chunk == per_chunk - 1:
             assert recorder.sync(timeout=5)
     recorder.close()
     [path] = finished_files(directory)
     return path
+
+
+@pytest.fixture(scope="module")
+def finished_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished file of 31 messages in 6 chunks: config and 30 periods, a sync every 5."""
+    return chunked_log(tmp_path_factory.mktemp("finished"), 30, 5)
 
 
 Messages = list[tuple[str, int, dict[str, Any]]]
@@ -721,16 +731,22 @@ def test_only_the_topics_asked_for_are_read(finished_log: Path, tmp_path: Path) 
     assert (whole.finished, whole.cut_at, whole.cut_reason) == (True, None, None)
 
 
-def test_a_damaged_chunk_ends_what_a_cut_file_yields(finished_log: Path, tmp_path: Path) -> None:
+def test_a_damaged_chunk_is_skipped_and_said(finished_log: Path, tmp_path: Path) -> None:
     data = bytearray(finished_log.read_bytes())
     chunks = chunks_of(finished_log)
-    third_start, third_end, _ = chunks[2]
+    third_start, third_end, third = chunks[2]
     data[(third_start + third_end) // 2] ^= 0x55  # a bit flip inside the third chunk
     path = tmp_path / "damaged.mcap.part"
     path.write_bytes(data[: chunks[4][1]])
     log = LogFile(path)
-    assert [tuple(m) for m in log.messages()] == [m for _, _, ms in chunks[:2] for m in ms]
-    assert log.cut_at == third_start
+    assert [tuple(m) for m in log.messages()] == [
+        m for i, (_, _, ms) in enumerate(chunks[:5]) if i != 2 for m in ms
+    ]
+    [damage] = log.damaged
+    assert (damage.what, damage.messages) == (f"chunk at byte {third_start}", len(third))
+    assert damage.describe().startswith(f"chunk at byte {third_start} damaged (")
+    assert damage.describe().endswith(f"skipped ({len(third)} messages lost)")
+    assert (log.cut_at, log.cut_reason) == (chunks[4][1], None)
 
 
 # A chunk record, by the MCAP spec: opcode (1 byte) and length (8), then message start and end
@@ -742,7 +758,7 @@ CHUNK_CRC_AT = CHUNK_SIZE_AT + 8
 @pytest.mark.parametrize(
     ("field", "reason"), [(CHUNK_CRC_AT, "CRC"), (CHUNK_SIZE_AT, "bytes, not the")]
 )
-def test_a_chunk_that_does_not_match_its_size_or_crc_ends_what_a_file_yields(
+def test_a_chunk_that_does_not_match_its_size_or_crc_is_skipped(
     finished_log: Path, tmp_path: Path, field: int, reason: str
 ) -> None:
     data = bytearray(finished_log.read_bytes())
@@ -752,10 +768,13 @@ def test_a_chunk_that_does_not_match_its_size_or_crc_ends_what_a_file_yields(
     path = tmp_path / "damaged.mcap.part"
     path.write_bytes(data[: chunks[4][1]])
     log = LogFile(path)
-    assert [tuple(m) for m in log.messages()] == [m for _, _, ms in chunks[:2] for m in ms]
-    assert log.cut_at == third_start
-    assert log.cut_reason is not None
-    assert reason in log.cut_reason
+    assert [tuple(m) for m in log.messages()] == [
+        m for i, (_, _, ms) in enumerate(chunks[:5]) if i != 2 for m in ms
+    ]
+    [damage] = log.damaged
+    assert damage.what == f"chunk at byte {third_start}"
+    assert reason in damage.reason
+    assert (log.cut_at, log.cut_reason) == (chunks[4][1], None)
 
 
 def test_a_chunk_crc_of_zero_is_not_checked(finished_log: Path, tmp_path: Path) -> None:
@@ -888,13 +907,13 @@ def test_a_data_section_crc_is_checked(tmp_path: Path) -> None:
     assert "CRC" in log.cut_reason
 
 
-def test_chunks_compressed_other_than_with_zstd_are_a_cut(tmp_path: Path) -> None:
+def test_chunks_compressed_other_than_with_zstd_are_skipped(tmp_path: Path) -> None:
     path = tmp_path / "lz4.mcap"
     written_by_mcap(path, [EPOCH_NS], compression=CompressionType.LZ4)
     log = LogFile(path)
     assert list(log.messages()) == []
-    assert log.cut_reason is not None
-    assert "lz4" in log.cut_reason
+    [damage] = log.damaged
+    assert "lz4" in damage.reason
 
 
 def test_a_zero_filled_tail_after_a_power_cut_keeps_what_came_before(

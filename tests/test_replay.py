@@ -5,7 +5,11 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+import os
 import random
+import re
+import signal
+import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -123,7 +127,11 @@ def test_the_summary_measures_the_day_the_simulator_measured(
     assert file["periods"] == summary["periods"] == 4320
     assert summary["duration_s"] == 21595.0
     assert summary["cold_water_at_s"] == [14400.0]  # the default scenario's 10 L at 4 h
-    # The simulator measures the water, replay the logged PV (mean of 0.0625 °C readings).
+    # The simulator measures the sensor's exact temperature, replay the logged PV (mean of
+    # 0.0625 °C readings); each says so, and the simulator gives the PV's overshoot too.
+    assert summary["temperature"] == "the logged PV (the mean of each period's LM92 readings)"
+    assert simulated["temperature"].startswith("the simulated sensor's exact temperature")
+    assert summary["overshoot_c"] == simulated["pv_overshoot_c"]
     assert summary["overshoot_c"] == pytest.approx(simulated["overshoot_c"], abs=0.0625)
     assert summary["settle_s"] == pytest.approx(simulated["settle_s"], abs=2 * PERIOD)
     assert summary["recovery_s"] == pytest.approx(simulated["recovery_s"], abs=2 * PERIOD)
@@ -231,16 +239,22 @@ def test_golden_summary_of_a_hand_made_day(tmp_path: Path) -> None:
     assert summary["timing"]["period_lateness_p99_ms"] == 6.0
 
 
-def test_a_file_whose_clock_starts_again_continues_the_day(tmp_path: Path) -> None:
+def rebooted_day(directory: Path) -> tuple[Path, Path]:
+    """Two runs' files, two periods each: 10 s and 20 s after the epoch, then a reboot
+    (monotonic time starts again at 3 s) and 100 s of wall clock later two more."""
     first = write_log(
-        tmp_path / "a",
+        directory / "a",
         [(PERIOD_TOPIC, 10.0 * k, period(k, 500.0 + 10.0 * k, 60.0, 0.0)) for k in (1, 2)],
     )
-    # A reboot: monotonic time starts again at 3 s, 100 s of wall clock after the last period.
     second = write_log(
-        tmp_path / "b",
+        directory / "b",
         [(PERIOD_TOPIC, 120.0 + 10.0 * k, period(k, 3.0 + 10.0 * k, 60.0, 0.0)) for k in (0, 1)],
     )
+    return first, second
+
+
+def test_a_file_whose_clock_starts_again_continues_the_day(tmp_path: Path) -> None:
+    first, second = rebooted_day(tmp_path)
     assert replay.load([first, second]).elapsed == [0.0, 10.0, 110.0, 120.0]
 
 
@@ -534,3 +548,110 @@ def test_wrong_files_are_refused_in_one_line(
     assert (code, out) == (2, "")
     assert err == f"hermsd: {path}: " + err.split(": ", 2)[2]
     assert err.count("\n") == 1 and complaint in err
+
+
+# -- the files of one day -----------------------------------------------------------------------
+
+
+def test_a_file_named_twice_is_refused(
+    short_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run_cli(capsys, short_log, short_log)
+    assert (code, out) == (2, "")
+    assert err == f"hermsd: {short_log} is given twice: name each file once\n"
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes(short_log.read_bytes())
+    code, out, err = run_cli(capsys, short_log, copy)
+    assert (code, out) == (2, "")
+    assert err.startswith(f"hermsd: {copy} and {short_log} hold the same control periods (k=1 ")
+
+
+def test_files_named_out_of_order_are_read_in_the_order_of_their_records(
+    eventful_log: list[Path], tmp_path: Path
+) -> None:
+    hourly = rewritten(eventful_log, tmp_path, rotate_s=3600.0)
+    in_order, reversed_order = replay.load(hourly), replay.load(hourly[::-1])
+    assert [f.path for f in reversed_order.files] == [str(p) for p in hourly]
+    assert reversed_order.periods == in_order.periods
+    assert reversed_order.elapsed == in_order.elapsed
+    assert replay.summarise(reversed_order) == replay.summarise(in_order)
+    assert [run["files"] for run in in_order.runs] == [[str(p) for p in hourly]]
+
+
+def test_two_simulated_runs_in_one_folder_are_not_one_day(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene = Scenario(name="short", duration=600.0, events=())
+    scenario.run(scene, log_dir=tmp_path)
+    scenario.run(dataclasses.replace(scene, setpoint=70.0), log_dir=tmp_path)
+    files = sorted(tmp_path.glob("*.mcap"))
+    assert len(files) == 2  # both start at the simulator's epoch: -1 names the second
+    runs = [LogFile(p).metadata()["hermsd"]["run"] for p in files]
+    assert runs[0] != runs[1]
+    code, out, err = run_cli(capsys, *files)
+    assert (code, out) == (2, "")
+    assert err.count("\n") == 1
+    assert "overlaps" in err and "replay each run on its own" in err
+    for run, path in zip(runs, files, strict=True):
+        assert f"run {run} from 2026-01-01T00:00:00Z: {path}" in err
+
+
+def test_a_restart_is_one_day_in_two_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    first, second = rebooted_day(tmp_path)
+    code, out, err = run_cli(capsys, second, first)
+    assert (code, err) == (0, "")
+    runs = [LogFile(p).metadata()["hermsd"]["run"] for p in (first, second)]
+    assert f"run 1 of 2 (id {runs[0]}), from 2026-01-01T00:00:10Z: {first}\n" in out
+    assert f"run 2 of 2 (id {runs[1]}), from 2026-01-01T00:02:00Z: {second}\n" in out
+    assert re.search(r"^periods +4$", out, re.MULTILINE)
+    assert re.search(r"^duration_s +120.0$", out, re.MULTILINE)  # joined by the 100 s gap
+
+
+# -- the command line ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [("replay", "{log}"), ("replay", "{log}", "--json"), ("check-config", "{config}")],
+    ids=["replay", "replay-json", "check-config"],
+)
+def test_a_reader_that_goes_away_ends_the_command_quietly(
+    short_log: Path, tmp_path: Path, argv: tuple[str, ...]
+) -> None:
+    """As `hermsd replay … | head`: the pipe is closed before the first line is written."""
+    config = tmp_path / "hermsd.yaml"
+    config.write_text("control:\n  setpoint: 66\n")
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hermsd.cli"]
+            + [a.format(log=short_log, config=config) for a in argv],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        os.close(write_end)
+    assert done.stderr == ""
+    assert done.returncode == 128 + signal.SIGPIPE
+
+
+def test_what_if_needs_its_settings_and_says_so_when_given_a_file(
+    short_log: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for argv in (("--what-if", short_log), ("--what-if", short_log, short_log)):
+        code, out, err = run_cli(capsys, *argv)
+        assert (code, out) == (2, ""), argv
+        assert err == (
+            f"hermsd: --what-if takes settings, not the log file '{short_log}': write "
+            "--what-if kc=80,ti=600 (or --what-if logged for the logged ones) after the files\n"
+        )
+    with pytest.raises(SystemExit) as exit_:
+        run_cli(capsys, short_log, "--what-if")
+    assert exit_.value.code == 2
+    assert "argument --what-if: expected one argument" in capsys.readouterr().err
+    assert replay.parse_what_if("logged") == {}

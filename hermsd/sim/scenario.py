@@ -26,7 +26,7 @@ from hermsd.config import Config
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
 from hermsd.latches import LatchStore
-from hermsd.metrics import BAND, Sample, compute, report
+from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm, MeasuredTun
 from hermsd.sim.bus import FakeLM92
@@ -301,6 +301,7 @@ class _Collector:
 
     plant: Plant
     samples: list[Sample] = field(default_factory=list)
+    pv_samples: list[Sample] = field(default_factory=list)  # of the daemon's PV, as logged
     records: list[PeriodRecord] = field(default_factory=list)
     alarms: list[Alarm] = field(default_factory=list)
     keep_records: bool = False
@@ -308,6 +309,8 @@ class _Collector:
     def period(self, record: PeriodRecord) -> None:
         temp = self.plant.temperature(record.t)
         self.samples.append(Sample(record.t, record.setpoint, temp, record.output))
+        if record.pv is not None:
+            self.pv_samples.append(Sample(record.t, record.setpoint, record.pv, record.output))
         if self.keep_records:
             self.records.append(record)
 
@@ -454,7 +457,11 @@ def run(
         "scenario": scenario.name,
         "algorithm": config.control.algorithm,
         "duration_s": scenario.duration,
+        "temperature": SIMULATED_TEMPERATURE,
         **report(metrics),
+        "pv_overshoot_c": round(
+            compute(collector.pv_samples, disturbances, scenario.duration).overshoot_c, 4
+        ),
         "physical_min_s": None if physical_min is None else round(physical_min, 1),
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
         "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),

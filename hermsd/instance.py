@@ -1,0 +1,70 @@
+"""One daemon per log directory and per state directory.
+
+A second daemon on the same log directory would recover the first one's live `.part` at its
+start (the first then writes on into a deleted file), and two on one state directory would
+overwrite each other's latched alarms. Each directory therefore holds a lock file that a
+daemon locks (`flock`, exclusive) for its whole life and writes its pid into; the kernel
+drops the lock when the process ends however it ends, so a crash never leaves a stale one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import os
+from pathlib import Path
+from typing import Final
+
+LOCK_FILE: Final = ".hermsd.lock"  # hidden: `replay logs/*` must not take it for a log
+
+
+class InstanceError(Exception):
+    """Another process holds a directory this one needs; the message names its pid."""
+
+
+class DirectoryLock:
+    """An exclusive lock on `directory`, held from `acquire` until `release` or exit."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.path = directory / LOCK_FILE
+        self._fd: int | None = None
+
+    def acquire(self, role: str) -> None:
+        """Lock the directory (its `role`, e.g. "log directory", is for the message).
+
+        InstanceError when another process holds it; OSError when the lock file cannot be
+        made (the caller decides whether to go on without it).
+        """
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            holder = _read_pid(fd)
+            os.close(fd)
+            if error.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+                raise
+            who = f"pid {holder}" if holder is not None else "a process that gave no pid"
+            raise InstanceError(
+                f"{self.directory} is the {role} of another hermsd ({who}): one daemon per "
+                f"{role}; stop that one first, or give this one another"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._fd = fd
+
+    def release(self) -> None:
+        """Give the directory up (the file stays: unlinking a lock file races a new locker)."""
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+            self._fd = None
+
+
+def _read_pid(fd: int) -> int | None:
+    try:
+        text = os.pread(fd, 32, 0).decode("ascii").strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return int(text) if text.isdigit() else None
