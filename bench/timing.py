@@ -87,6 +87,7 @@ def measure(
     clock = MonotonicClock()
     plant = {"model": "foptd", "start_s": clock.monotonic(), "start_c": 66.0}
     world = build_world(config, clock, plant)
+    log_dir.mkdir(parents=True, exist_ok=True)  # the recorder writes into it, never makes it
     recorder = Recorder(log_dir)
     daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
     edges: list[float] = []

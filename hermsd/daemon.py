@@ -466,6 +466,14 @@ class Daemon:
             self._apply_auto(t)
         elif "control.max_output" in changed and self.mode == "manual":
             self._apply_manual(self.manual_output, t)  # the new power limit holds at once
+        if self.setpoint >= new.safety.max_temp:  # set at runtime, and above the new cut-out
+            self._event(
+                logging.WARNING,
+                f"setpoint {self.setpoint:g} °C is not below the new safety.max_temp: "
+                "back to the file's",
+                t,
+            )
+            self._apply_setpoint(control.setpoint, t)
         if any(key.startswith(("safety.", "tun.")) for key in changed):
             self.supervisor.limits = safety_limits(new, self.tun_model)
         if changed & {"safety.max_temp", "safety.hysteresis"}:

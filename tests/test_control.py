@@ -299,6 +299,22 @@ def test_a_runtime_mode_holds_until_the_files_mode_or_manual_output_is_edited(
     assert status_of(daemon)["runtime"] == {}
 
 
+def test_an_edit_that_puts_the_cut_out_below_a_runtime_setpoint_brings_back_the_files(
+    tmp_path: Path,
+) -> None:
+    daemon, path, events, inbox = linked(tmp_path)
+    inbox.send(SetSetpoint(90.0))
+    run_for(daemon, PERIOD)
+
+    rename_over(path, edited(BASE, safety__max_temp="85.0"))
+    run_for(daemon, 2 * PERIOD)
+
+    assert events.periods[-1].setpoint == 66.0
+    assert "setpoint 90 °C is not below the new safety.max_temp: back to the file's" in (
+        events.logged()
+    )
+
+
 # -- the socket itself ----------------------------------------------------------------------
 
 
