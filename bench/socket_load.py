@@ -139,7 +139,7 @@ def main() -> int:
             rows[name] = measure(args.seconds, Path(scratch, f"log{index}"), realtime, beside)
             rows[name].update(LOAD)
             print(name, rows[name], flush=True)
-    table = _table(rows)
+    table = _table(rows) + "\n\n" + _ratios(rows, args.rate)
     print(table)
     if args.write:
         from control import _replace_section  # bench/control.py, beside this file
@@ -157,6 +157,23 @@ def main() -> int:
         )
         _replace_section(Path(__file__).with_name("RESULTS.md"), "## Control socket:", text)
     return 0
+
+
+def _ratios(rows: dict[str, dict[str, float]], rate: float) -> str:
+    """The loaded rows' p99s over the unloaded ones' of the same priority."""
+    lines = []
+    for suffix in ("", ", real-time loop"):
+        quiet, loaded = rows.get(f"no clients{suffix}"), rows.get(f"{rate:.0f} status/s{suffix}")
+        if quiet is None or loaded is None:
+            continue
+        period = loaded["period_p99_ms"] / max(quiet["period_p99_ms"], 1e-9)
+        edge = loaded["edge_p99_ms"] / max(quiet["edge_p99_ms"], 1e-9)
+        loop = "real-time" if suffix else "ordinary"
+        lines.append(
+            f"{loop.capitalize()} loop, with the clients over without: period p99 ×{period:.2f}, "
+            f"edge p99 ×{edge:.2f}."
+        )
+    return " ".join(lines)
 
 
 def _table(rows: dict[str, dict[str, float]]) -> str:

@@ -434,6 +434,23 @@ def test_an_over_long_line_is_refused_and_the_connection_closed(tmp_path: Path) 
     assert rest == b""
 
 
+def test_requests_piled_up_behind_an_unanswered_command_end_the_connection(
+    tmp_path: Path,
+) -> None:
+    # No loop takes the command, so its reply never comes while the client sends on.
+    server = ControlServer(tmp_path / "control.sock", lambda: b'{"v": 1, "ok": true}\n')
+    server.start()
+    try:
+        with connect(server.path) as sock:
+            sock.sendall(b'{"v": 1, "cmd": "set", "setpoint": 70}\n')
+            reply = exchange(sock, b'{"v": 1, "cmd": "status"}\n' * (3 * MAX_LINE // 26))
+            rest = sock.recv(100)
+    finally:
+        server.close()
+    assert reply == {"v": 1, "ok": False, "error": "one request at a time: read each reply first"}
+    assert rest == b""
+
+
 def test_clients_beyond_the_limit_are_told_so(tmp_path: Path) -> None:
     with served(tmp_path) as (_daemon, where), contextlib.ExitStack() as stack:
         clients = [stack.enter_context(connect(where)) for _ in range(server_module.MAX_CLIENTS)]

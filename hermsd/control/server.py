@@ -53,7 +53,6 @@ log = logging.getLogger("hermsd")
 MAX_CLIENTS = 16
 IDLE_TIMEOUT = 60.0  # s without a request: the connection is closed
 SEND_TIMEOUT = 5.0  # s a reply may wait for a client to read
-QUEUE_LIMIT = 32  # commands waiting for the loop; more are refused as busy
 COMMANDS_PER_PERIOD = 8  # commands the loop applies at one boundary; the rest wait for the next
 SOCKET_MODE = 0o660
 
@@ -195,6 +194,11 @@ class ControlServer:
             return
         client.last_active = time.monotonic()
         client.inbox += data
+        if len(client.inbox) > 2 * MAX_LINE:  # requests piling up unanswered: not the protocol
+            client.inbox.clear()
+            client.closing = True
+            self._send(client, error_reply("one request at a time: read each reply first"))
+            return
         self._next_request(client)
 
     def _next_request(self, client: _Client) -> None:
@@ -218,9 +222,7 @@ class ControlServer:
         if isinstance(request, Status):
             client.outbox += self._status()
             self._flush(client)
-        elif len(self._commands) >= QUEUE_LIMIT:
-            self._send(client, error_reply("busy: too many commands waiting; try again"))
-        else:
+        else:  # one command a client at a time: the queue is never longer than MAX_CLIENTS
             client.waiting = Pending(request)
             self._commands.append(client.waiting)
 
