@@ -31,7 +31,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from timing import measure  # bench/timing.py, beside this file
+from timing import measure, timing_table  # bench/timing.py, beside this file
 
 from hermsd.control.link import LoopLink
 from hermsd.control.server import ControlServer
@@ -177,25 +177,18 @@ def _ratios(rows: dict[str, dict[str, float]], rate: float) -> str:
 
 
 def _table(rows: dict[str, dict[str, float]]) -> str:
-    lines = [
-        "| clients | period p50/p99/max ms | edge p50/p99/max ms | periods | edges | overruns "
-        "| answered | failed | rate /s | round trip p50/p99/max ms |",
-        "|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for name, r in rows.items():
-        load = (
+    more = ["overruns", "answered", "failed", "rate /s", "round trip p50/p99/max ms"]
+    cells = {
+        name: f"{r['overruns']:.0f} | "
+        + (
             f"{r['answered']:.0f} | {r['failed']:.0f} | {r['rate']:.0f} | "
             f"{r['rtt_p50_ms']:.2f} / {r['rtt_p99_ms']:.2f} / {r['rtt_max_ms']:.2f}"
             if "answered" in r
             else "– | – | – | –"
         )
-        lines.append(
-            f"| {name} | {r['period_p50_ms']:.2f} / {r['period_p99_ms']:.2f} / "
-            f"{r['period_max_ms']:.2f} | {r['edge_p50_ms']:.2f} / {r['edge_p99_ms']:.2f} / "
-            f"{r['edge_max_ms']:.2f} | {r['periods']:.0f} | {r['edges']:.0f} "
-            f"| {r['overruns']:.0f} | {load} |"
-        )
-    return "\n".join(lines)
+        for name, r in rows.items()
+    }
+    return timing_table("clients", more, rows, cells)
 
 
 if __name__ == "__main__":

@@ -206,20 +206,32 @@ def main() -> int:
 
 
 def _table(rows: dict[str, dict[str, float]]) -> str:
-    lines = [
-        "| load | period p50/p99/max ms | edge p50/p99/max ms | periods | edges | CPU % "
-        "| peak RSS MB | overruns | log records dropped |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for name, r in rows.items():
-        lines.append(
-            f"| {name} | {r['period_p50_ms']:.2f} / {r['period_p99_ms']:.2f} / "
-            f"{r['period_max_ms']:.2f} | {r['edge_p50_ms']:.2f} / {r['edge_p99_ms']:.2f} / "
-            f"{r['edge_max_ms']:.2f} | {r['periods']:.0f} | {r['edges']:.0f} "
-            f"| {r['cpu_percent']:.2f} | {r['rss_mb']:.1f} | {r['overruns']:.0f} "
-            f"| {r['dropped']:.0f} |"
-        )
+    more = ["CPU %", "peak RSS MB", "overruns", "log records dropped"]
+    cells = {
+        name: f"{r['cpu_percent']:.2f} | {r['rss_mb']:.1f} | {r['overruns']:.0f} "
+        f"| {r['dropped']:.0f}"
+        for name, r in rows.items()
+    }
+    return timing_table("load", more, rows, cells)
+
+
+def timing_table(
+    first: str, more: list[str], rows: dict[str, dict[str, float]], cells: dict[str, str]
+) -> str:
+    """A Markdown table: `first` (the row names), the timing columns, then `more` (`cells`)."""
+    header = [first, "period p50/p99/max ms", "edge p50/p99/max ms", "periods", "edges", *more]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += [f"| {name} | {timing_cells(r)} | {cells[name]} |" for name, r in rows.items()]
     return "\n".join(lines)
+
+
+def timing_cells(r: dict[str, float]) -> str:
+    """Period and edge p50/p99/max, and their counts, as table cells."""
+    return (
+        f"{r['period_p50_ms']:.2f} / {r['period_p99_ms']:.2f} / {r['period_max_ms']:.2f} | "
+        f"{r['edge_p50_ms']:.2f} / {r['edge_p99_ms']:.2f} / {r['edge_max_ms']:.2f} | "
+        f"{r['periods']:.0f} | {r['edges']:.0f}"
+    )
 
 
 def _ratios(ordinary: dict[str, float], realtime: dict[str, float]) -> str:

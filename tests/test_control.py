@@ -251,15 +251,20 @@ def test_status_names_the_model_the_limits_came_from(tmp_path: Path) -> None:
 # -- the rule: a runtime set holds until the file's same key is edited ----------------------
 
 
+def set_then_edit(tmp_path: Path, command: Command, **edit: str) -> tuple[Daemon, Path, Events]:
+    """A runtime `command`, then an edit of the config file (`edited` keys), each applied."""
+    daemon, path, events, inbox = linked(tmp_path)
+    inbox.send(command)
+    run_for(daemon, PERIOD)
+    rename_over(path, edited(BASE, **edit))
+    run_for(daemon, 2 * PERIOD)
+    return daemon, path, events
+
+
 def test_a_runtime_setpoint_outlives_edits_of_other_keys_and_shows_in_status(
     tmp_path: Path,
 ) -> None:
-    daemon, path, events, inbox = linked(tmp_path)
-    inbox.send(SetSetpoint(72.0))
-    run_for(daemon, PERIOD)
-
-    rename_over(path, edited(BASE, control__kc="100.0"))
-    run_for(daemon, 2 * PERIOD)
+    daemon, _path, events = set_then_edit(tmp_path, SetSetpoint(72.0), control__kc="100.0")
 
     assert daemon.config.control.kc == 100.0  # the edit was taken
     assert events.periods[-1].setpoint == 72.0  # and the runtime setpoint held
@@ -267,12 +272,7 @@ def test_a_runtime_setpoint_outlives_edits_of_other_keys_and_shows_in_status(
 
 
 def test_an_edit_of_the_setpoint_in_the_file_wins_over_the_runtime_one(tmp_path: Path) -> None:
-    daemon, path, events, inbox = linked(tmp_path)
-    inbox.send(SetSetpoint(72.0))
-    run_for(daemon, PERIOD)
-
-    rename_over(path, edited(BASE, control__setpoint="70.0"))
-    run_for(daemon, 2 * PERIOD)
+    daemon, _path, events = set_then_edit(tmp_path, SetSetpoint(72.0), control__setpoint="70.0")
 
     assert events.periods[-1].setpoint == 70.0
     assert status_of(daemon)["runtime"] == {}
@@ -281,12 +281,9 @@ def test_an_edit_of_the_setpoint_in_the_file_wins_over_the_runtime_one(tmp_path:
 def test_a_runtime_mode_holds_until_the_files_mode_or_manual_output_is_edited(
     tmp_path: Path,
 ) -> None:
-    daemon, path, events, inbox = linked(tmp_path)
-    inbox.send(SetMode("manual", 40.0))
-    run_for(daemon, PERIOD)
-
-    rename_over(path, edited(BASE, control__setpoint="67.0"))
-    run_for(daemon, 2 * PERIOD)
+    daemon, path, events = set_then_edit(
+        tmp_path, SetMode("manual", 40.0), control__setpoint="67.0"
+    )
     assert (events.periods[-1].mode, events.periods[-1].output) == ("manual", 40.0)
     assert status_of(daemon)["runtime"] == {
         "control.mode": {"running": "manual", "file": "auto"},
@@ -302,12 +299,7 @@ def test_a_runtime_mode_holds_until_the_files_mode_or_manual_output_is_edited(
 def test_an_edit_that_puts_the_cut_out_below_a_runtime_setpoint_brings_back_the_files(
     tmp_path: Path,
 ) -> None:
-    daemon, path, events, inbox = linked(tmp_path)
-    inbox.send(SetSetpoint(90.0))
-    run_for(daemon, PERIOD)
-
-    rename_over(path, edited(BASE, safety__max_temp="85.0"))
-    run_for(daemon, 2 * PERIOD)
+    _daemon, _path, events = set_then_edit(tmp_path, SetSetpoint(90.0), safety__max_temp="85.0")
 
     assert events.periods[-1].setpoint == 66.0
     assert "setpoint 90 °C is not below the new safety.max_temp: back to the file's" in (
