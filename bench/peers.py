@@ -88,7 +88,7 @@ def controlled_by(peer: str, gains: dict[str, float]) -> Iterator[None]:
     peer_class = PEERS[peer]
     original: Callable[..., Any] = daemon_module.make_controller
 
-    def make(control: Any) -> Any:
+    def make(control: Any, model: Any = None) -> Any:  # a peer has no use for the tun model
         return peer_class(gains["kc"], gains["ti"], gains["td"], control.period)
 
     daemon_module.make_controller = make

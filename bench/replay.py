@@ -29,7 +29,7 @@ from typing import Any
 from control import _replace_section  # bench/control.py, beside this file
 from log_bench import simulate  # bench/log_bench.py: a day logged as the daemon logs it
 
-from hermsd import replay
+from hermsd import identify, replay
 from hermsd.recorder import LogFile
 
 
@@ -126,11 +126,11 @@ def _recovered(path: Path) -> int:
     return file.recovered
 
 
-def _identify(log: replay.Log) -> replay.TunModel:
+def _identify(log: replay.Log) -> identify.TunModel:
     period_s = log.period_s()
     drops = replay.sudden_drops(log.elapsed, [p.pv for p in log.periods])
-    n = replay.fit_span(log, drops, period_s)
-    return replay.identify(
+    n = identify.fit_span(log, drops, period_s)
+    return identify.identify(
         [p.pv for p in log.periods[:n]], [p.applied for p in log.periods[:n]], period_s
     )
 

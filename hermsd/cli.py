@@ -38,6 +38,7 @@ from hermsd.control.server import ControlServer
 from hermsd.durations import parse_duration
 from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
+from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
 from hermsd.realtime import loop_priority
@@ -162,13 +163,15 @@ def _parser() -> argparse.ArgumentParser:
     reset = sub.add_parser(
         "reset-alarm", help="clear the latched alarms, once their cause is found"
     )
-    reset.add_argument(
-        "--state",
-        type=Path,
-        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
-    )
+    _state_argument(reset)
     _socket_argument(reset)
     reset.set_defaults(func=cmd_reset_alarm)
+
+    forget = sub.add_parser(
+        "forget-model", help="delete what hermsd learned of the tun (it starts from the config)"
+    )
+    _state_argument(forget)
+    forget.set_defaults(func=cmd_forget_model)
 
     recover = sub.add_parser("recover", help="turn .mcap.part files left by a crash into logs")
     recover.add_argument("files", nargs="+", type=Path)
@@ -218,6 +221,40 @@ def _parser() -> argparse.ArgumentParser:
         help="plot PV, setpoint, output and applied duty with the alarms (needs matplotlib)",
     )
     replay.set_defaults(func=cmd_replay)
+
+    tune = sub.add_parser(
+        "tune", help="the tun's model and the settings that follow from it (seed 001's Table 1)"
+    )
+    tune.add_argument(
+        "files",
+        nargs="*",
+        type=Path,
+        help="the .mcap or .mcap.part files of an ordinary brew day (a heat-up and a hold)",
+    )
+    tune.add_argument(
+        "--table",
+        metavar="K=..,tau=..,theta=..[,a_star=..]",
+        help="print Table 1's settings for this model (K °C/%%, tau s, theta s, "
+        "a_star °C/(%%·s); a_star = K/tau when left out)",
+    )
+    tune.add_argument("--json", action="store_true", help="print one JSON object")
+    tune.add_argument(
+        "--ambient",
+        metavar="°C",
+        type=float,
+        help="the room's temperature during the day, if measured: it pins K and τ when the "
+        "heat-up is short compared with τ",
+    )
+    tune.add_argument(
+        "--write",
+        metavar="FILE",
+        nargs="?",
+        type=Path,
+        const=DEFAULT_CONFIG,
+        help=f"write the recommended settings into the config file (default {DEFAULT_CONFIG}), "
+        "keeping everything else in it, and show the diff",
+    )
+    tune.set_defaults(func=cmd_tune)
 
     safe_off = sub.add_parser(
         "safe-off",
@@ -387,6 +424,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except NotifyEnvironmentError as error:
         raise UserError(str(error)) from None
     latches = _latch_store(args.state, simulate=args.simulate)
+    models = ModelStore(latches.directory) if latches is not None else None
     log_dir = args.log
     if log_dir is None and not args.simulate:  # a simulated day never goes into log.dir
         log_dir = Path(config.log.dir) if config.log.dir else None
@@ -407,6 +445,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 notifier=notifier,
                 config_file=config_file,
                 latches=latches,
+                models=models,
             )
         else:
             if args.speed != "1":
@@ -436,6 +475,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 on_status=status.update,
                 config_file=config_file,
                 latches=latches,
+                models=models,
             )
         # Unwinds in reverse: heater off first, then the dead-man, then the log is finished.
         with contextlib.ExitStack() as stack:
@@ -679,7 +719,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for key, value in summary.items():
         if isinstance(value, dict):
             lines.extend((f"{key}.{name}", item) for name, item in value.items())
-        elif key not in ("files", "alarms", "runs"):
+        elif key not in ("files", "alarms", "runs", "learning"):
             lines.append((key, value))
     width = max((len(key) for key, _ in lines), default=0)
     for report in summary.get("files", []):
@@ -694,6 +734,8 @@ def _print_summary(summary: dict[str, Any]) -> None:
         print(f"{key:{width}} {value}")
     for alarm in summary.get("alarms", []):
         print(_alarm_line(alarm))
+    for item in summary.get("learning", []):
+        print(f"at {item['at_s']} s: {item['message']}")
 
 
 def _file_line(report: dict[str, Any]) -> str:
@@ -792,6 +834,32 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
     column = max(len(str(row[1])) for row in rows)
     for key, logged, new in rows:
         print(f"{key:{width}} {logged!s:{column}} {new}")
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from hermsd import replay, tune
+
+    try:
+        if (args.table is None) == (not args.files):
+            raise tune.TuneError(
+                "give either the log files of a brew day or --table K=..,tau=..,theta=.."
+            )
+        if args.table is not None:
+            if args.write is not None:
+                raise tune.TuneError("--write takes its settings from log files, not --table")
+            model = tune.parse_table(args.table)
+            result, lines = tune.table_json(model), tune.table_lines(model)
+        else:
+            tuned = tune.from_log(replay.load(args.files), args.ambient)
+            result, lines = tune.tuned_json(tuned), tune.tuned_lines(tuned)
+            if args.write is not None:
+                diff = tune.write_tuned(args.write, tuned)
+                result["written"] = {"file": os.fspath(args.write), "diff": diff}
+                lines += ["", diff.rstrip("\n") if diff else f"{args.write}: already so"]
+    except (tune.TuneError, replay.ReplayError) as error:
+        raise UserError(str(error)) from None
+    print(json.dumps(result, indent=2) if args.json else "\n".join(lines))
+    return 0
 
 
 # -- safe-off and check-config --------------------------------------------------------------
@@ -934,6 +1002,31 @@ def _finite(text: str, name: str, unit: str) -> float:
     if not math.isfinite(value):
         raise UserError(f"{name}: expected a number in {unit}, got {text!r}")
     return value
+
+
+def _state_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--state",
+        type=Path,
+        help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
+    )
+
+
+def cmd_forget_model(args: argparse.Namespace) -> int:
+    """Delete the learned model; the daemon uses the config's prior from its next start."""
+    directory: Path = args.state or _default_state_directory()
+    store = ModelStore(directory)
+    try:
+        forgotten = store.forget()
+    except OSError as error:
+        raise UserError(
+            f"{store.path}: {error.strerror or error} (run as root or as the user hermsd runs as)"
+        ) from None
+    if forgotten:
+        print(f"forgot {store.path}: hermsd starts from the config's model at its next start")
+    else:
+        print(f"nothing learned in {directory}")
+    return 0
 
 
 def cmd_recover(args: argparse.Namespace) -> int:

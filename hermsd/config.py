@@ -123,6 +123,7 @@ class ControlConfig:
     model_tau: float = _number(14961.0, 10, 1000000, "s")
     dead_time: float = _number(115.0, 0, 3600, "s")
     model_ambient: float = _number(20.0, -20, 50, "°C")
+    learn: str = _choice("on", ("on", "pinned", "off"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -689,8 +690,36 @@ def _violations(config: Config) -> list[_Violation]:
     return found
 
 
-def make_controller(control: ControlConfig) -> pid.Controller:
-    """The controller a control section describes (ValueError if the algorithm refuses it)."""
+WATER_J_PER_LITRE_K = 4186.0
+LIDDED_UA_W_PER_K = 3000.0 / (100.0 * 1.689)
+"""Heat loss of a lidded 90 L tun (the seed's step test: 3 kW for 1.689 °C/%), W/K; it
+scales with the wetted surface, (V/90 L)^⅔."""
+LIDDED_LITRES = 90.0
+
+
+def prior_model(config: Config) -> pid.PlantModel:
+    """The tun's model before anything is learned: physics where it can, the keys elsewhere.
+
+    The full-power rate P/(ρ·c·V) follows from `tun.element_watts` and `tun.litres`. The
+    losses UA: the smaller of what `control.model_gain` says (UA = P/(100·K)) and a lidded
+    tun of this size, since a model that overstates the losses holds too much power and
+    overshoots, while one that understates them approaches from below and learns. The
+    FOPTD follows (τ = ρ·c·V/UA, K = P/(100·UA)); dead time and room from their keys.
+    """
+    c, tun = config.control, config.tun
+    capacity = WATER_J_PER_LITRE_K * tun.litres
+    lidded = LIDDED_UA_W_PER_K * (tun.litres / LIDDED_LITRES) ** (2.0 / 3.0)
+    ua = min(tun.element_watts / (100.0 * c.model_gain), lidded)
+    return pid.PlantModel(
+        tun.element_watts / (100.0 * ua), capacity / ua, c.dead_time, c.model_ambient
+    )
+
+
+def make_controller(control: ControlConfig, model: pid.PlantModel | None = None) -> pid.Controller:
+    """The controller a control section describes (ValueError if the algorithm refuses it).
+
+    `model` is the tun's model for predictive; without it, the one the control keys give.
+    """
     c = control
     return pid.create(
         c.algorithm,
@@ -702,7 +731,7 @@ def make_controller(control: ControlConfig) -> pid.Controller:
         tt=c.tt,
         out_min=0.0,
         out_max=c.max_output,
-        model=pid.PlantModel(c.model_gain, c.model_tau, c.dead_time, c.model_ambient),
+        model=model or pid.PlantModel(c.model_gain, c.model_tau, c.dead_time, c.model_ambient),
     )
 
 

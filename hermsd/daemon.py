@@ -15,6 +15,7 @@ held, not fed zeros; when heating is allowed again it resumes from the output it
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import re
@@ -25,14 +26,16 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 from hermsd import config as config_module
+from hermsd import pid
 from hermsd.clock import Clock
 from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
 from hermsd.config_file import ConfigFile
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
+from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.pv import period_value
-from hermsd.recorder import CONFIG_TOPIC, LogLevel, log_message
+from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPlan, cut
@@ -198,6 +201,7 @@ class Daemon:
         on_status: Callable[[str], None] | None = None,
         config_file: ConfigFile | None = None,
         latches: LatchStore | None = None,
+        models: ModelStore | None = None,
         tun_model: MeasuredTun | None = None,
     ) -> None:
         self.config = config
@@ -218,7 +222,16 @@ class Daemon:
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
         self.supervisor = Supervisor(safety_limits(config, tun_model))
-        self.controller = make_controller(config.control)
+        self.models = models
+        self._stored_model: LearnedModel | None = None
+        self._model_problem: str | None = None  # said in the log at start
+        if models is not None:
+            self._stored_model, self._model_problem = models.load()
+        self.model = self._model_in_force(config)
+        self.controller = make_controller(config.control, self.model)
+        self._learner = self._make_learner(config)
+        self._heat_up_seen = pid.heat_up_fit(self.controller)
+        self._reloaded_at = -math.inf  # when a reload last changed the config
         self.planner = self._make_planner(config)
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
@@ -275,6 +288,11 @@ class Daemon:
         self._record_config("start", now)
         self._event(logging.INFO, "started", now)
         self._check_log(now)
+        if self._model_problem is not None:
+            self._event(logging.WARNING, f"learned model ignored: {self._model_problem}", now)
+        if self._stored_model is not None:
+            use = "in use" if self.config.control.learn != "off" else "not used (control.learn off)"
+            self._event(logging.INFO, f"learned model {use}: {self._stored_model.describe()}", now)
         self._restore_latches(stored, now)
 
     def _program_sensor(self) -> None:
@@ -447,6 +465,8 @@ class Daemon:
             self._event(logging.INFO, "config reloaded: nothing to change", t)
             return
         self.config = new
+        self._learner.interrupt()
+        self._reloaded_at = t
         self._record_config("reload", t)
         self._event(logging.INFO, f"config reloaded: {', '.join(changed)} changed", t)
         self._take_changes(old, new, set(changed), t)
@@ -455,8 +475,11 @@ class Daemon:
         control = new.control
         if "control.setpoint" in changed:
             self._apply_setpoint(control.setpoint, t)
-        if retunes(old.control, new.control):
-            self.controller = make_controller(new.control)
+        if retunes(old.control, new.control) or old.tun != new.tun:
+            self.model = self._model_in_force(new)
+            self.controller = make_controller(new.control, self.model)
+            self._heat_up_seen = pid.heat_up_fit(self.controller)
+            self._learner = self._make_learner(new)
             if not self._held:  # bumpless: the new controller starts from the output in force
                 self._held = True
                 self._resume_output = self.output
@@ -483,6 +506,68 @@ class Daemon:
             self._save_latches(t)  # later latches are stored under the new counter
         if any(key.startswith("output.") for key in changed):
             self.planner = self._make_planner(new)
+
+    # -- the tun's model: prior, learned, learning ----------------------------------------
+
+    def _model_in_force(self, config: Config) -> pid.PlantModel:
+        """The stored model (rescaled to the configured litres) unless `control.learn` is off."""
+        stored = self._stored_model
+        if stored is not None and config.control.learn != "off":
+            return stored.plant_model(config.tun.litres)
+        return config_module.prior_model(config)
+
+    def _make_learner(self, config: Config) -> Learner:
+        return Learner(
+            litres=config.tun.litres, ambient=self.model.ambient, period=config.control.period
+        )
+
+    def _learn(self, record: PeriodRecord) -> None:
+        """Feed the learner one period; store and log what it learned (or why not)."""
+        models = self.models
+        if self.config.control.learn != "on" or models is None:
+            return
+        learner = self._learner
+        fit = pid.heat_up_fit(self.controller)
+        if record.state != "ok" or record.mode != "auto" or record.pv is None:
+            learner.interrupt()
+        elif record.reset_from is not None and record.k > 1:
+            learner.interrupt()  # resumed after a hold: the spell before it does not count
+        elif fit is not self._heat_up_seen and fit is not None:
+            if record.t - fit.span <= self._reloaded_at:
+                learner.interrupt()  # the heat-up it measured had a reload in it
+                self._heat_up_seen = fit
+                return
+            learner.heat_up(fit)
+            what = f"rate {fit.rate * 60.0:.3f} °C/min, dead time {fit.dead_time:.0f} s"
+            if fit.refused is None:
+                self._event(logging.INFO, f"heat-up measured: {what}", record.t)
+            else:
+                self._event(logging.WARNING, f"heat-up measure refused: {fit.refused}", record.t)
+        else:
+            estimate = learner.period(record.setpoint, record.pv, record.applied)
+            if estimate is not None:
+                self._store_model(models, estimate.model, estimate.refused, record.t)
+        self._heat_up_seen = fit
+
+    def _store_model(
+        self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
+    ) -> None:
+        if model is None:
+            self._event(logging.WARNING, f"learned model refused: {refused}", t)
+            return
+        model = dataclasses.replace(model, wall_ns=self.clock.wall_ns())
+        if self.recorder is not None:
+            self.recorder.write(
+                MODEL_TOPIC, self.clock.wall_ns(), {"t": t, "learned": asdict(model)}
+            )
+        try:
+            models.save(model)
+        except OSError as error:
+            self._event(logging.ERROR, f"saving the learned model failed: {error}", t)
+            return
+        self._event(
+            logging.INFO, f"learned the tun: {model.describe()}; used from the next start", t
+        )
 
     # -- latched alarms across restarts ---------------------------------------------------
 
@@ -657,6 +742,7 @@ class Daemon:
             listener.period(record)
         if self.recorder is not None:
             self.recorder.write("/hermsd/period", self.clock.wall_ns(), asdict(record))
+        self._learn(record)
         self._report(now)
 
     def _on_window(self, deadline: float, now: float) -> None:
@@ -805,7 +891,12 @@ class Daemon:
             self.recorder.write(
                 CONFIG_TOPIC,
                 self.clock.wall_ns(),
-                {"t": t, "config": to_dict(self.config), "reason": reason},
+                {
+                    "t": t,
+                    "config": to_dict(self.config),
+                    "reason": reason,
+                    "model": asdict(self.model),
+                },
             )
 
     def _drain_alarms(self, t: float) -> None:

@@ -15,10 +15,16 @@ def fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
-def write_atomically(path: Path, text: str) -> None:
-    """Replace `path` with `text`: a temporary file, fsync, rename, fsync of the directory."""
+def write_atomically(path: Path, text: str, mode: int | None = None) -> None:
+    """Replace `path` with `text`: a temporary file, fsync, rename, fsync of the directory.
+
+    `mode`: the permission bits the new file has from its first moment (a config file the
+    daemon's group reads must not turn unreadable to it, even briefly).
+    """
     temporary = path.with_name(path.name + ".tmp")
     with temporary.open("w", encoding="utf-8") as file:
+        if mode is not None:
+            os.fchmod(file.fileno(), mode)
         file.write(text)
         file.flush()
         os.fsync(file.fileno())

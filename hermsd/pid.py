@@ -31,20 +31,40 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
 
 - ``predictive``: the daemon's default, and not from the seeds: the seeds' loops all see the
   tun through its dead time, so with gains strong enough to settle fast they overshoot, and
-  with gains gentle enough not to they brake early and settle late. This one feeds the
-  delivered duty (`applied`) to an FOPTD model of the tun (`model`) and adds to PV the rise
-  the model says is already on its way but not yet at the sensor (a Smith predictor:
-  x(t) − x(t − θ) of the undelayed model). The loop thus acts on where PV is going, and can
-  hold full power until the heat in the pipe will carry the water to the setpoint, then drop
-  to the holding duty. Positional P + I + D on that predicted PV; the integral is frozen
-  while the output is saturated in the direction of the error, and while the predicted PV is
-  closing on the setpoint fast enough to get there within 4·θ by itself (integrating that
-  transient error is what makes the others overshoot after cold water is added). D (td) is
-  optional, on the measured PV, filtered by tf (first order). Its reset is bumpless within
-  the output range: the integral takes u0 − P − D, kept within [out_min, out_max].
+  with gains gentle enough not to they brake early and settle late. This one keeps a model
+  of the tun (`model`: full-power rate r, loss rate 1/τ to the room, dead time θ) and an
+  observer of it: a PV estimate driven by the duty delivered θ ago (`applied`) plus a bias
+  (the heat flow the model gets wrong), both corrected every period by the innovation PV −
+  estimate (gains from two poles: the estimate follows the sensor within 30 s, the bias
+  within ti). From the estimate it runs the model forward over the duty already sent and
+  still in the dead time: the PV that will be. Output = the holding duty at the setpoint
+  (model and bias) + P on the setpoint minus that predicted PV: within 0.25 °C below the
+  setpoint and anywhere above it with a gain that makes the predicted loop no faster than
+  2·θ (damped for a real dead time, gain or τ off by 2×); further below, kc and beyond
+  0.5 °C a gain that closes the gap in one period: full power until the heat in flight
+  will carry the water to the setpoint, then the holding duty (time-optimal). Coming from
+  full power with the PV still well below the band, that gain holds down to 0.25 °C (dual
+  mode: no slow approach through the kc zone after a heat-up or cold water).
+  The bias learns only from periods with the output inside its limits and innovations
+  within 2 LSB: cold water is a step of the state, not a change of heat flow, and at full
+  power a rate error would pose as one. An innovation beyond 4 LSB in one period (cold
+  water) is taken into the estimate whole, so the step is acted on at once.
+  A step to full power from a steady PV is a measurement: the rise between 1 and 3 °C,
+  fitted by a line, gives the rate (its slope, losses added back) and the dead time (where
+  it crosses the start); plausible values replace the model's (`fit`), so a fill or a
+  sensor position other than the config's is known long before the setpoint. D (td) is
+  optional, on the measured PV, filtered by tf (first order). Its reset is bumpless when it
+  can be: the bias takes what makes the first step continue from u0, unless that would be
+  more than the element's whole rate (a cold start), where the model is trusted.
 
-Defaults: tf=None gives γ = 10 % of Td (the document's suggestion) for type_a,
-type_a_filtered and back_calculation, and 0 for takahashi (exactly eq. 14). tt=None gives
+Defaults: tf=None gives γ = 10 % of Td (the document's suggestion), raised so that one
+sensor LSB (0.0625 °C) moves the output by at most 10 % (`default_tf`), for type_a,
+type_a_filtered, takahashi and back_calculation. On that default the velocity forms (type_a,
+type_a_filtered, takahashi) also owe back what the output limits cut from a P or D kick
+(`_owed`): in the plain form a one-LSB step's kick is clipped at 0 % on the way down and
+kept in full on the way back, a ratchet. In the linear range nothing is owed and the
+equation is exact. An explicit tf asks for the seed's equation exactly as written, limits
+included (tf = 0: no filter at all). tt=None gives
 Tt = sqrt(Ti·Td) when Td > 0, else Ti (inside the rule of thumb Td ≤ Tt ≤ Ti), raised to Ts
 if smaller: with Tt < Ts the tracking term would over-correct the integral every period.
 ti = 0 means no integral. A parameter that the chosen algorithm has no use for (td, tf for
@@ -107,8 +127,44 @@ class PlantModel:
     dead_time: float = 115.0
     ambient: float = 20.0
 
+    @property
+    def rate(self) -> float:
+        """The full-power heating rate, °C/s (K·100 %/τ)."""
+        return 100.0 * self.gain / self.tau
+
 
 SEED_HLT = PlantModel()
+
+OBSERVER_TRACK_S = 30.0
+"""How fast predictive's PV estimate follows the sensor (s): cold water is seen within a
+minute, and one LSB of noise moves the estimate by a fifth of itself."""
+PREDICTED_LOOP_FACTOR = 2.0
+"""The predicted loop's time constant near the setpoint, in dead times."""
+LINEAR_BAND = 0.25
+"""°C around the setpoint where predictive uses its gentle, dead-time-bound gain."""
+FAR_BAND = 0.5
+"""°C below the setpoint (the hold band) beyond which predictive heats time-optimally."""
+FULL_MARGIN = 0.15
+"""°C (5 noise sd): a PV this far below the band is surely out of it. Full power may run on
+into the gentle zone only while the PV is there; the step down from it must not fall in the
+hold, where the output moves by a few % a period at most."""
+OBSERVER_BIAS_S = 800.0
+STEP_INNOVATION = 0.25
+"""°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
+the mean of its readings, so noise of 0.03 °C never moves it that far."""
+MAX_DEAD_TIME = 1800.0
+"""s: the longest dead time a heat-up may show (a sensor far down a long pipe)."""
+FIT_FROM = 1.0
+FIT_TO = 3.0
+"""°C of rise between which a heat-up's ramp is fitted: past the first bend of the sensor's
+lag, and over enough rise that LSB and noise matter little."""
+STEADY_SPAN_S = 60.0
+STEADY_BAND = 0.25
+"""A step from a PV that moved at most STEADY_BAND °C over the last STEADY_SPAN_S s."""
+"""The bias's time constant when ti = 0."""
+BIAS_INNOVATION_CLIP = 0.125
+"""°C (two LSB): the bias learns from innovations up to this size only. A step (cold water)
+is a change of state, not of heat flow: the PV estimate follows it whole, the bias barely."""
 
 MAX_ABS_TEMPERATURE = 1e6
 MAX_TIME = 1e7
@@ -118,6 +174,10 @@ MAX_ABS_OUTPUT_LIMIT = 1e12
 
 _INF = math.inf
 _TF_DEFAULT_FRACTION = 0.1
+SENSOR_LSB = 0.0625
+"""°C: the LM92's resolution, the smallest step the PV takes."""
+MAX_LSB_KICK = 10.0
+"""% of output at most from one LSB through the default-filtered derivative."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,6 +193,7 @@ class Params:
     tt: float | None
     out_min: float
     out_max: float
+    owes_kicks: bool = False  # a velocity form on its default filter: see `_owed`
 
 
 class Controller(Protocol):
@@ -244,8 +305,9 @@ def _resolve(
             raise ValueError(f"td={td!r} is invalid for velocity_pi (a PI): must be 0")
         if tf is not None:
             raise ValueError(f"tf={tf!r} is invalid for velocity_pi (no D term): leave it unset")
+    owes_kicks = tf is None and td > 0.0 and name in ("type_a", "type_a_filtered", "takahashi")
     if tf is None:
-        tf = 0.0 if name in ("takahashi", "predictive") else _TF_DEFAULT_FRACTION * td
+        tf = 0.0 if name == "predictive" else default_tf(kc, td)
     tf = _number("tf", tf, 0.0, MAX_TIME, f"≥ 0 and ≤ {MAX_TIME:g} s (0 = no filter)")
     tracking = name == "back_calculation" and ti > 0.0
     if tt is not None and not tracking:
@@ -257,12 +319,33 @@ def _resolve(
         if tt is None:
             tt = max(ts, math.sqrt(ti * td) if td > 0.0 else ti)
         tt = _number("tt", tt, ts, MAX_TIME, f"≥ ts={ts:g} and ≤ {MAX_TIME:g} s")
-    return Params(name, kc, ti, td, ts, tf, tt, lo, hi)
+    return Params(name, kc, ti, td, ts, tf, tt, lo, hi, owes_kicks)
+
+
+def default_tf(kc: float, td: float) -> float:
+    """The derivative filter when tf is not given: the document's γ = Td/10, raised so that one
+    sensor LSB moves the output by at most MAX_LSB_KICK (eq. 08's first D increment on a step
+    δ is 2·Kc·Td·δ/(Ts + 2γ) ≤ Kc·Td·δ/γ; eq. 11c-filtered D moves by half that at most),
+    within the longest time a parameter may have."""
+    return min(max(_TF_DEFAULT_FRACTION * td, kc * td * SENSOR_LSB / MAX_LSB_KICK), MAX_TIME)
 
 
 def _lowpass(tf: float, ts: float) -> tuple[float, float]:
     """(a, b) of the eq. 11c filter lpf_k = a·lpf_{k−1} + b·(x_k + x_{k−1}); unity DC gain."""
     return (2.0 * tf - ts) / (2.0 * tf + ts), ts / (ts + 2.0 * tf)
+
+
+def _owed(v: float, lo: float, hi: float, kicks: float) -> float:
+    """The part of what the limits cut from `v` that P and D moved it by (`kicks`, with what
+    they were owed before): owed back next period, so a kick the limit took and its return
+    a period later cancel as in the linear range. What the integral pushed past a limit is
+    cut, as in the plain velocity form; in the linear range nothing is owed."""
+    cut = v - (lo if v < lo else (hi if v > hi else v))
+    if cut < 0.0 and kicks < 0.0:
+        return max(cut, kicks)
+    if cut > 0.0 and kicks > 0.0:
+        return min(cut, kicks)
+    return 0.0
 
 
 def _reject(sp: float, pv: float, applied: float | None) -> None:
@@ -282,7 +365,16 @@ class _Base(ABC):
     A subclass sets its history in `_prime` and computes the unlimited output in `_advance`.
     """
 
-    __slots__ = ("_hi", "_lo", "_output", "_params", "_primed", "_start_pv", "_terms")
+    __slots__ = (
+        "_carry",
+        "_hi",
+        "_lo",
+        "_output",
+        "_params",
+        "_primed",
+        "_start_pv",
+        "_terms",
+    )
 
     def __init__(self, params: Params) -> None:
         self._params = params
@@ -292,6 +384,7 @@ class _Base(ABC):
         self._primed = False
         self._start_pv: float | None = None
         self._terms = (0.0, 0.0, 0.0)
+        self._carry = 0.0
 
     @property
     def params(self) -> Params:
@@ -314,6 +407,7 @@ class _Base(ABC):
         self._start_pv = pv
         self._primed = False
         self._terms = (0.0, 0.0, 0.0)
+        self._carry = 0.0
 
     def step(self, sp: float, pv: float, applied: float | None = None) -> float:
         if not (
@@ -329,6 +423,9 @@ class _Base(ABC):
             self._primed = True
             previous = self._output
         v = self._advance(sp, pv, previous)
+        if self._params.owes_kicks:
+            v += self._carry
+            self._carry = _owed(v, lo, hi, self._terms[0] + self._terms[2] + self._carry)
         u = lo if v < lo else (hi if v > hi else v)
         self._output = u
         return u
@@ -530,94 +627,263 @@ class _BackCalculation(_Base):
         return v
 
 
+@dataclass(frozen=True, slots=True)
+class HeatUpFit:
+    """What one full-power heat-up showed: the rate (°C/s at 100 %) and the dead time (s),
+    or why it was refused."""
+
+    rate: float
+    dead_time: float
+    refused: str | None = None
+    span: float = 0.0  # s from the step to full power until the fit: the data it rests on
+
+
+class _HeatUpWatch:
+    """Measures the rate and the dead time on a full-power step from a steady PV.
+
+    The PV's rise above pv0 is fitted by a line between FIT_FROM and FIT_TO °C of rise (least
+    squares over the periods there): its slope is the rate, and where it crosses pv0 is the
+    dead time (for a delay D plus a sensor lag τs the ramp's asymptote crosses at D + τs,
+    which is the dead time a predictor wants for a ramp).
+    """
+
+    __slots__ = ("_count", "_du", "_n", "_pv0", "_st", "_stt", "_stx", "_sx", "active")
+
+    def __init__(self) -> None:
+        self.active = False
+        self._pv0 = self._du = 0.0
+        self._n = self._count = 0
+        self._st = self._sx = self._stt = self._stx = 0.0
+
+    def arm(self, pv0: float, step: float) -> None:
+        self.active = True
+        self._pv0, self._du = pv0, step
+        self._n = self._count = 0
+        self._st = self._sx = self._stt = self._stx = 0.0
+
+    def add(self, pv: float, ts: float, loss: float, model_rate: float) -> HeatUpFit | None:
+        """One more full-power period; the fit once the PV has risen FIT_TO °C."""
+        self._n += 1
+        rise = pv - self._pv0
+        if rise < FIT_FROM:
+            return None
+        if rise <= FIT_TO:
+            t = (self._n - 0.5) * ts  # the PV is the mean over the period just ended
+            self._count += 1
+            self._st += t
+            self._sx += rise
+            self._stt += t * t
+            self._stx += t * rise
+            return None
+        self.active = False
+        span = self._n * ts
+        n = self._count
+        spread = n * self._stt - self._st * self._st
+        if n < 4 or spread <= 0.0:
+            return HeatUpFit(model_rate, 0.0, f"too few periods ({n}) between the rises", span)
+        slope = (n * self._stx - self._st * self._sx) / spread
+        if slope <= 0.0:
+            return HeatUpFit(model_rate, 0.0, "the PV did not rise", span)
+        crossing = (self._st - self._sx / slope) / n  # mean t − mean rise / slope
+        mid_rise = self._sx / n
+        rate = (slope + loss * mid_rise) * 100.0 / self._du
+        if not 0.25 * model_rate <= rate <= 4.0 * model_rate:
+            why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
+            return HeatUpFit(rate, crossing, why, span)
+        if not 0.0 <= crossing <= MAX_DEAD_TIME:
+            why = f"dead time {crossing:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
+            return HeatUpFit(rate, crossing, why, span)
+        return HeatUpFit(rate, crossing, None, span)
+
+
 class _Predictive(_Base):
-    """PID on PV plus the model's rise still in the dead time; see the module docstring."""
+    """P on the PV the observer predicts one dead time ahead, plus the holding duty."""
 
     __slots__ = (
-        "_a",
         "_ambient",
+        "_bias",
+        "_estimate",
         "_fa",
         "_filtered",
+        "_fit",
         "_fpv",
-        "_gain",
-        "_history",
-        "_horizon",
-        "_i",
+        "_inputs",
         "_kc",
+        "_kc_far",
+        "_kc_near",
         "_kd",
-        "_ki",
+        "_l1",
+        "_l2",
         "_lag",
-        "_ppv1",
-        "_x",
+        "_loss",
+        "_rate",
+        "_recent",
+        "_ts",
+        "_watch",
     )
 
     def __init__(self, params: Params, model: PlantModel) -> None:
         super().__init__(params)
         ts = params.ts
+        self._ts = ts
         self._kc = params.kc
-        self._ki = params.kc * ts / params.ti if params.ti > 0.0 else 0.0
         self._kd = params.kc * params.td / ts
         self._filtered = params.tf > 0.0
         self._fa = params.tf / (params.tf + ts)
-        self._a = math.exp(-ts / model.tau)
-        self._gain = model.gain
+        self._loss = 1.0 / model.tau  # 1/s
         self._ambient = model.ambient
-        self._lag = model.dead_time / ts  # periods, not necessarily whole
-        self._horizon = 4.0 * model.dead_time
-        self._history: deque[float] = deque(maxlen=math.floor(self._lag) + 2)
-        self._x = self._i = self._fpv = self._ppv1 = 0.0
+        self._rate = self._kc_near = self._kc_far = 0.0
+        self._lag = 0
+        self._use(model.rate, model.dead_time)
+        # Observer poles: the PV estimate follows the sensor within OBSERVER_TRACK_S, the bias
+        # (what the model gets wrong) within ti; see `observer_gains`.
+        self._l1, self._l2 = observer_gains(ts, OBSERVER_TRACK_S, params.ti or OBSERVER_BIAS_S)
+        # u_{k-1-lag} … u_{k-1} at the right end; room for any dead time a heat-up may show
+        self._inputs: deque[float] = deque(maxlen=math.ceil(MAX_DEAD_TIME / ts) + 2)
+        self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
+        self._watch = _HeatUpWatch()
+        self._fit: HeatUpFit | None = None
+        self._estimate = self._bias = self._fpv = 0.0
 
-    def _in_flight(self) -> float:
-        """x(now) − x(now − θ): the model's rise that the sensor has not seen yet."""
-        history, lag = self._history, self._lag
-        whole = math.floor(lag)
-        fraction = lag - whole
-        newer = history[-1 - whole]
-        older = history[-2 - whole] if fraction else newer
-        return history[-1] - (newer + fraction * (older - newer))
+    @property
+    def fit(self) -> HeatUpFit | None:
+        """The last heat-up's measurement (taken into the model unless refused)."""
+        return self._fit
+
+    def _use(self, rate: float, dead_time: float) -> None:
+        """Take a rate and a dead time, and the gains that follow from them: near the setpoint
+        the predicted loop's time constant 100/(rate·Kc) is at least PREDICTED_LOOP_FACTOR·θ
+        (and 2·Ts), so a real dead time, gain or τ twice the model's leaves it damped; far
+        below it the gain that closes the predicted error in one period (time-optimal)."""
+        ts = self._ts
+        self._rate = rate
+        self._lag = max(0, round(dead_time / ts))
+        settle = PREDICTED_LOOP_FACTOR * max(dead_time, 2.0 * ts)
+        self._kc_near = min(self._kc, 100.0 / (rate * settle))
+        self._kc_far = max(self._kc, 100.0 / (rate * ts))
+
+    def _drift(self, x: float, u: float) -> float:
+        """The model's change of PV over one period at duty u from x (Euler; λ·Ts ≪ 1)."""
+        return self._ts * (self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias)
+
+    def _predicted(self) -> float:
+        """Where the PV will be once the inputs already sent (still in the dead time) arrive."""
+        x = self._estimate
+        inputs = self._inputs
+        for j in range(len(inputs) - self._lag, len(inputs)):
+            x += self._drift(x, inputs[j])
+        return x
+
+    def _holding(self, sp: float) -> float:
+        """The duty that holds `sp` by the model and its bias (may lie outside the limits)."""
+        return 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+
+    def _law(self, sp: float, full: bool = False) -> float:
+        """P on the predicted error plus the holding duty (D apart)."""
+        return self._proportional(sp - self._predicted(), full) + self._holding(sp)
+
+    def _proportional(self, e: float, full: bool) -> float:
+        """kc_near up to LINEAR_BAND below the setpoint and anywhere above it (above, nothing
+        is gained by cutting harder: the water only cools); kc up to FAR_BAND below it; and
+        beyond that the gain that closes the predicted error in one period, i.e. full power
+        until the heat in flight will carry the water there: time-optimal. Coming from full
+        power (`full`), that gain holds down to LINEAR_BAND: the heat-up or recovery runs at
+        full power until the gentle zone, and only a hold ever sees the kc zone."""
+        if e <= LINEAR_BAND:
+            return self._kc_near * e
+        far = LINEAR_BAND if full else FAR_BAND
+        p = self._kc_near * LINEAR_BAND + self._kc * (min(e, far) - LINEAR_BAND)
+        return p + self._kc_far * max(0.0, e - far)
 
     def _prime(self, sp: float, pv0: float) -> None:
-        # The model starts where the tun is, as if it had been there a while: its rise above
-        # the room. Not in equilibrium with the output it continues from, which after a
-        # fault at full power would be a phantom cooling of about 1 °C, fading over τ.
-        x0 = pv0 - self._ambient
-        self._x = x0
-        self._history.clear()
-        self._history.extend([x0] * (math.floor(self._lag) + 2))
-        self._fpv = self._ppv1 = pv0
-        # Bumpless: the integral takes what P leaves of the output, P including the rise the
-        # model shows at the first step (x1 − x0 enters the dead-time window whole once the
-        # lag is a period or more, a fraction of it before).
-        x1 = self._a * x0 + self._gain * (1.0 - self._a) * self._output
-        first_rise = (x1 - x0) * min(self._lag, 1.0)
-        p = self._kc * (sp - pv0 - first_rise)
-        self._i = min(max(self._output - p, self._lo), self._hi)
+        # As if PV had stood at pv0 with the output at u0 for a dead time. The output is
+        # affine in the bias: the bias that makes the first step give u0 (bumpless) is taken
+        # when it is physical (no more than the element's whole rate); a cold start far below
+        # the setpoint would need far more, and there the model is trusted (no bias).
+        u0 = self._output
+        inputs = self._inputs
+        inputs.clear()
+        inputs.extend([u0] * (inputs.maxlen or 1))
+        self._recent.clear()
+        self._recent.extend([pv0] * (self._recent.maxlen or 1))
+        self._watch.active = False
+        self._estimate = self._fpv = pv0
+        # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
+        # so a few steps land on the bias that gives u0 exactly when one exists.
+        bias = 0.0
+        for _ in range(4):
+            self._bias = bias
+            miss = u0 - self._law(sp)
+            if miss == 0.0:
+                break
+            probe = 1e-3 * self._rate
+            self._bias = bias + probe
+            slope = (u0 - self._law(sp) - miss) / -probe
+            bias += miss / slope
+        self._bias = bias if abs(bias) <= self._rate else 0.0
+        # The first step's model prediction lands on pv0: no innovation from the start itself.
+        self._estimate = pv0 - self._drift(pv0, u0)
 
     def _advance(self, sp: float, pv: float, previous: float) -> float:
-        # After a reset `previous` is the output the model is in equilibrium with: no change.
-        self._x = self._a * self._x + self._gain * (1.0 - self._a) * previous
-        self._history.append(self._x)
-        ppv = pv + self._in_flight()
-        # D acts on the measured PV: on the predicted one it would feed the model's response
-        # to this very output back into the output, a loop inside the controller.
+        inputs = self._inputs
+        inputs.append(previous)
+        self._watch_heat_up(pv, previous, inputs[-2])
+        before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag])
+        innovation = pv - before
+        # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
+        step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
+        self._estimate = before + step
+        if abs(innovation) <= BIAS_INNOVATION_CLIP and self._lo < previous < self._hi:
+            self._bias += self._l2 * innovation
+        # D acts on the measured PV, filtered by tf (first order).
         fpv1 = self._fpv
         fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
-        e = sp - ppv
-        p = self._kc * e
-        d = -self._kd * (fpv - fpv1)
-        i = self._i
-        rate = (ppv - self._ppv1) / self._params.ts
-        closing = e * rate > 0.0 and abs(rate) * self._horizon >= abs(e)
-        v = p + i + d
-        saturated = (v >= self._hi and e > 0.0) or (v <= self._lo and e < 0.0)
-        if not closing and not saturated:
-            i = min(max(i + self._ki * e, self._lo), self._hi)
-            v = p + i + d
-        self._terms = (p, i, d)
-        self._i = i
         self._fpv = fpv
-        self._ppv1 = ppv
-        return v
+        full = previous >= self._hi and pv < sp - FAR_BAND - FULL_MARGIN
+        p = self._proportional(sp - self._predicted(), full)
+        i = self._holding(sp)
+        d = -self._kd * (fpv - fpv1)
+        self._terms = (p, i, d)
+        return p + i + d
+
+    def _watch_heat_up(self, pv: float, applied: float, before: float) -> None:
+        """Arm on a step to full power from a steady PV; take the fit when it comes."""
+        recent = self._recent
+        watch = self._watch
+        full = applied >= self._hi
+        if watch.active and not full:
+            watch.active = False  # the step ended before the PV had risen enough
+        steady = max(recent) - min(recent) <= STEADY_BAND
+        if full and not watch.active and before < self._hi and steady:
+            watch.arm(recent[-1], applied - before)
+        recent.append(pv)
+        if not (full and watch.active):
+            return
+        fit = watch.add(pv, self._ts, self._loss, self._rate)
+        if fit is None:
+            return
+        self._fit = fit
+        if fit.refused is None:
+            # A rate other than the model's is most likely a fill other than the config's:
+            # heat capacity scales rate and loss rate alike, so the gain (°C/%) stays.
+            self._loss *= fit.rate / self._rate
+            self._use(fit.rate, fit.dead_time)
+
+
+def heat_up_fit(controller: Controller) -> HeatUpFit | None:
+    """The last heat-up a predictive controller measured (None for the other forms)."""
+    return controller.fit if isinstance(controller, _Predictive) else None
+
+
+def observer_gains(ts: float, track: float, bias: float) -> tuple[float, float]:
+    """(L1, L2) of the PV/bias observer with poles e^(−Ts/track) and e^(−Ts/bias).
+
+    Error dynamics of predict-then-correct on x = (PV, bias), A = [[1, Ts], [0, 1]]:
+    z² − (2 − L1 − Ts·L2)·z + (1 − L1), so L1 = 1 − p1·p2 and Ts·L2 = (1 − p1)·(1 − p2).
+    """
+    p1 = math.exp(-ts / track)
+    p2 = math.exp(-ts / bias)
+    return 1.0 - p1 * p2, (1.0 - p1) * (1.0 - p2) / ts
 
 
 # Tuning: Table 1 of the HERMS PID calculus document, from the identified FOPTD model.

@@ -14,11 +14,15 @@ GLITCH_BAND = 0.25  # °C from the period's median: four LSBs, far above the chi
 
 
 def period_value(readings: list[float]) -> float | None:
-    """Mean of the readings that agree with the median; None for no readings."""
+    """Mean of the readings that agree with the median; None for no readings.
+
+    With an even count the median lies between two readings, and when those two are more
+    than twice GLITCH_BAND apart no reading agrees with it: then the median itself.
+    """
     if not readings:
         return None
     if len(readings) < 3:
         return sum(readings) / len(readings)
     middle = statistics.median(readings)
     kept = [r for r in readings if abs(r - middle) <= GLITCH_BAND]
-    return sum(kept) / len(kept)
+    return sum(kept) / len(kept) if kept else middle

@@ -62,6 +62,7 @@ WINDOW_TOPIC: Final = "/hermsd/window"
 TIMING_TOPIC: Final = "/hermsd/timing"
 LOG_TOPIC: Final = "/hermsd/log"
 CONFIG_TOPIC: Final = "/hermsd/config"
+MODEL_TOPIC: Final = "/hermsd/model"
 
 FILE_PREFIX: Final = "hermsd-"
 PART_SUFFIX: Final = ".part"
@@ -235,6 +236,22 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "t": _T,
                 "config": _field("object", "the configuration as loaded"),
                 "reason": _field("string", "why it was recorded: start, reload, …"),
+                "model": _field(
+                    "object", "the tun's model the controller uses: gain, tau, dead_time, ambient"
+                ),
+            },
+        ),
+    ),
+    MODEL_TOPIC: TopicSpec(
+        "hermsd.LearnedModel",
+        _object(
+            "hermsd.LearnedModel",
+            "What was learned of the tun, as stored for the next start.",
+            {
+                "t": _T,
+                "learned": _field(
+                    "object", "rate °C/s at full power, loss 1/s, dead_time s, ambient °C, litres"
+                ),
             },
         ),
     ),

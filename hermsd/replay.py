@@ -24,10 +24,9 @@ import csv
 import dataclasses
 import itertools
 import math
-import operator
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
@@ -35,7 +34,9 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 from hermsd import config as config_module
 from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
+from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
+from hermsd.pid import PlantModel
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -91,6 +92,7 @@ class LoggedConfig:
     t: float
     reason: str
     config: dict[str, Any]
+    model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
 
 
 @dataclass(frozen=True, slots=True)
@@ -347,7 +349,10 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     t, config = message.get("t"), message.get("config")
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
-    return LoggedConfig(float(t), str(message.get("reason", "")), config)
+    model = message.get("model")
+    return LoggedConfig(
+        float(t), str(message.get("reason", "")), config, model if isinstance(model, dict) else None
+    )
 
 
 def _is_number(value: object) -> TypeGuard[int | float]:
@@ -548,10 +553,37 @@ def summarise(log: Log) -> dict[str, Any]:
         "energy_kwh": None if energy is None else round(energy, 3),
         "alarms": alarms(log),
         "timing": timing(log),
+        "tun_model": next((c.model for c in reversed(log.configs) if c.model), None),
+        "learning": learning(log),
     }
 
 
+LEARNING_EVENTS = ("heat-up measure", "learned ")
+"""How the daemon's events about measuring and learning the tun begin."""
+
+
+def learning(log: Log) -> list[dict[str, Any]]:
+    """What the controller measured and the daemon learned (or refused), in order."""
+    return [
+        {"at_s": round(e.at, 3), "message": e.message}
+        for e in log.events
+        if e.message.startswith(LEARNING_EVENTS)
+    ]
+
+
 # -- verify -------------------------------------------------------------------------------------
+
+
+def logged_model(entry: LoggedConfig) -> PlantModel | None:
+    """The tun's model a config record says was in force (None in older logs: the keys')."""
+    if entry.model is None:
+        return None
+    try:
+        return PlantModel(
+            **{k: float(entry.model[k]) for k in ("gain", "tau", "dead_time", "ambient")}
+        )
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"the model logged with it is not one: {error}") from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -586,6 +618,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     """
     controller = None
     in_force: LoggedConfig | None = None
+    in_force_model: dict[str, Any] | None = None
     control: config_module.ControlConfig | None = None
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
@@ -597,11 +630,18 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             in_force = entry
             try:
                 reloaded = config_module.from_dict(entry.config).control
-                if entry.reason == "reload" and control and not retunes(control, reloaded):
+                same_model = in_force_model == entry.model
+                if (
+                    entry.reason == "reload"
+                    and control
+                    and not retunes(control, reloaded)
+                    and same_model
+                ):
                     control = reloaded  # a new setpoint or mode: the same controller goes on
                     continue
                 control = reloaded
-                controller = make_controller(control)
+                in_force_model = entry.model
+                controller = make_controller(control, logged_model(entry))
             except (config_module.ConfigError, ValueError) as error:
                 detail = str(error).replace("\n", "; ")
                 raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None
@@ -644,220 +684,6 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
 
 
 # -- what if ------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class TunModel:
-    """τ·dT/dt = −(T − ambient) + K·u(t − θ), T = `start` at the first period."""
-
-    gain: float  # K, °C/%
-    tau: float  # s
-    dead_time: float  # θ, s
-    ambient: float  # °C
-    start: float  # °C
-    rms: float  # °C, of the fit
-    fit_s: float  # s of log the fit used
-
-
-MAX_DEAD_TIME_S = 900.0
-TAU_RANGE_S = (10.0, 1e6)
-MIN_FIT_PERIODS = 60
-MIN_DUTY_SPAN = 20.0  # %: the fit needs the duty to move for K and τ to show
-
-
-def fit_span(log: Log, drops: list[Drop], period_s: float) -> int:
-    """How many periods from the first the fit may use: up to a drop, a gap or a restart."""
-    end = drops[0].at if drops else math.inf
-    periods, elapsed = log.periods, log.elapsed
-    n = 1
-    while n < len(periods):
-        record, previous = periods[n], periods[n - 1]
-        if elapsed[n] > end or record.k != previous.k + 1:
-            break
-        if abs(elapsed[n] - elapsed[n - 1] - period_s) > 0.25 * period_s:
-            break
-        n += 1
-    return n
-
-
-def identify(pvs: Sequence[float | None], duties: Sequence[float], period_s: float) -> TunModel:
-    """The FOPTD model whose response to `duties` fits `pvs` best (least squares).
-
-    One sample per control period; `duties[k]` is the duty of the span ending at sample k
-    (a period record's `applied`), and before the first one the duty is taken to have stood
-    at it. For a given τ and θ (a whole number of periods) the model is linear in the
-    ambient temperature, the initial offset from equilibrium and K:
-    T_k = T_amb + x0·a^k + K·z_{k−d}, with a = e^(−Ts/τ) and z the duty through the
-    discrete first-order lag z_k = a·z_{k−1} + (1 − a)·u_k; those three come from the
-    normal equations. θ is searched over whole periods up to MAX_DEAD_TIME_S (every fourth,
-    then around the best), τ by golden section on log τ, in turn until θ stays put.
-    """
-    n = len(pvs)
-    valid = [pv is not None for pv in pvs]
-    count = sum(valid)
-    if count < MIN_FIT_PERIODS:
-        raise ReplayError(
-            f"cannot fit a model of the tun: {count} periods with a PV before the first "
-            f"disturbance, at least {MIN_FIT_PERIODS} needed"
-        )
-    if max(duties) - min(duties) < MIN_DUTY_SPAN:
-        raise ReplayError(
-            "cannot fit a model of the tun: the duty hardly moved before the first "
-            f"disturbance (less than {MIN_DUTY_SPAN:g} %), so gain and time constant do not show"
-        )
-    mean = sum(pv for pv in pvs if pv is not None) / count
-    weights = [1.0 if ok else 0.0 for ok in valid]
-    temps = [pv - mean if pv is not None else 0.0 for pv in pvs]
-    max_lag = max(0, min(round(MAX_DEAD_TIME_S / period_s), n // 4))
-    fit = _Fit(temps, weights, duties, max_lag, period_s)
-
-    log_tau = math.log(max(TAU_RANGE_S[0], min(n * period_s, TAU_RANGE_S[1])))
-    lag = fit.best_lag(log_tau)
-    for _ in range(6):
-        log_tau = fit.best_log_tau(lag)
-        previous, lag = lag, fit.best_lag(log_tau)
-        if lag == previous:
-            break
-    sse, (offset, x0, gain) = fit.solve(log_tau, lag)
-    if not gain > 0:
-        raise ReplayError("cannot fit a model of the tun: the PV does not rise with the duty")
-    ambient = offset + mean
-    return TunModel(
-        gain=gain,
-        tau=math.exp(log_tau),
-        dead_time=lag * period_s,
-        ambient=ambient,
-        start=ambient + x0 + gain * duties[0],
-        rms=math.sqrt(max(sse, 0.0) / count),
-        fit_s=n * period_s,
-    )
-
-
-class _Series(NamedTuple):
-    """What the fit needs of one τ: w·a^k, a^k, and z (extended back by max_lag) and z²."""
-
-    w_powers: list[float]
-    powers: list[float]
-    lagged: list[float]
-    squares: list[float]
-
-
-class _Fit:
-    """Sums for the least-squares fit of one θ and τ, each in O(n) at C speed."""
-
-    def __init__(
-        self,
-        temps: list[float],
-        weights: list[float],
-        duties: Sequence[float],
-        max_lag: int,
-        period_s: float,
-    ) -> None:
-        self.temps, self.weights, self.duties = temps, weights, list(duties)
-        self.max_lag, self.period_s = max_lag, period_s
-        self.n = len(temps)
-        self.total_w = sum(weights)
-        self.sum_t = _dot(weights, temps)
-        self.sum_tt = _dot(temps, temps)
-        self._cached: tuple[float, _Series] | None = None
-
-    def _series(self, log_tau: float) -> _Series:
-        if self._cached is not None and self._cached[0] == log_tau:
-            return self._cached[1]
-        a = math.exp(-self.period_s / math.exp(log_tau))
-        b = 1.0 - a
-        powers = list(
-            itertools.accumulate(itertools.repeat(a, self.n - 1), operator.mul, initial=1.0)
-        )
-        first = self.duties[0]
-        lagged = [first] * self.max_lag  # before the log: the duty stood at its first value
-        lagged.extend(itertools.accumulate(self.duties, lambda z, u: a * z + b * u, initial=first))
-        del lagged[self.max_lag]  # the initial value itself (z_{−1}) is not a sample
-        series = _Series(
-            list(map(operator.mul, self.weights, powers)),
-            powers,
-            lagged,
-            [z * z for z in lagged],
-        )
-        self._cached = (log_tau, series)
-        return series
-
-    def solve(self, log_tau: float, lag: int) -> tuple[float, tuple[float, float, float]]:
-        """(sum of squared errors, (offset, x0, K)) of the best fit for τ and θ = lag periods."""
-        series = self._series(log_tau)
-        start, stop = self.max_lag - lag, self.max_lag - lag + self.n
-        z = series.lagged[start:stop]
-        w, w_powers = self.weights, series.w_powers
-        s_p = sum(w_powers)
-        s_z = _dot(w, z)
-        gram = (
-            (self.total_w, s_p, s_z),
-            (s_p, _dot(w_powers, series.powers), _dot(w_powers, z)),
-            (s_z, _dot(w_powers, z), _dot(w, series.squares[start:stop])),
-        )
-        rhs = (self.sum_t, _dot(w_powers, self.temps), _dot(self.temps, z))
-        solution = _solve3(gram, rhs)
-        if solution is None:
-            return math.inf, (0.0, 0.0, 0.0)
-        return self.sum_tt - _dot(solution, rhs), solution
-
-    def error(self, log_tau: float, lag: int) -> float:
-        return self.solve(log_tau, lag)[0]
-
-    def best_lag(self, log_tau: float) -> int:
-        """Every fourth lag, then the neighbours of the best: the error is smooth in θ."""
-        coarse = min(range(0, self.max_lag + 1, 4), key=lambda lag: self.error(log_tau, lag))
-        near = range(max(0, coarse - 3), min(self.max_lag, coarse + 3) + 1)
-        return min(near, key=lambda lag: self.error(log_tau, lag))
-
-    def best_log_tau(self, lag: int) -> float:
-        low, high = map(math.log, TAU_RANGE_S)
-        return _golden(lambda log_tau: self.error(log_tau, lag), low, high)
-
-
-def _dot(x: Sequence[float], y: Sequence[float]) -> float:
-    total: float = sum(map(operator.mul, x, y))
-    return total
-
-
-def _solve3(
-    m: tuple[tuple[float, float, float], ...], v: tuple[float, float, float]
-) -> tuple[float, float, float] | None:
-    """Cramer's rule; None when the system is (numerically) singular."""
-
-    def det(a: Sequence[Sequence[float]]) -> float:
-        return (
-            a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
-            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
-        )
-
-    d = det(m)
-    scale = math.prod(max(abs(x) for x in row) for row in m)
-    if scale == 0 or abs(d) <= 1e-12 * scale:
-        return None
-    columns = []
-    for j in range(3):
-        replaced = [[v[i] if c == j else m[i][c] for c in range(3)] for i in range(3)]
-        columns.append(det(replaced) / d)
-    return columns[0], columns[1], columns[2]
-
-
-def _golden(f: Callable[[float], float], low: float, high: float, tolerance: float = 1e-5) -> float:
-    """The minimum of a unimodal f on [low, high] by golden-section search."""
-    ratio = (math.sqrt(5.0) - 1.0) / 2.0
-    c, d = high - ratio * (high - low), low + ratio * (high - low)
-    fc, fd = f(c), f(d)
-    while high - low > tolerance:
-        if fc <= fd:
-            high, d, fd = d, c, fc
-            c = high - ratio * (high - low)
-            fc = f(c)
-        else:
-            low, c, fc = c, d, fd
-            d = low + ratio * (high - low)
-            fd = f(d)
-    return (low + high) / 2.0
 
 
 WHAT_IF_LOGGED = "logged"  # --what-if logged: the day again with the settings it had
@@ -938,7 +764,10 @@ def what_if(log: Log, overrides: dict[str, Any]) -> WhatIf:
     drops = sudden_drops(log.elapsed, pvs)
     upsets = disturbances(log, drops)
     n = fit_span(log, drops, period_s)
-    model = identify(pvs[:n], [p.applied for p in log.periods[:n]], period_s)
+    try:
+        model = identify(pvs[:n], [p.applied for p in log.periods[:n]], period_s)
+    except IdentifyError as error:
+        raise ReplayError(str(error)) from None
     plant = {
         "model": "foptd",
         "gain_c_per_pct": model.gain,

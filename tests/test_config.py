@@ -103,6 +103,7 @@ BOUNDS = [
 ]
 CHOICES: dict[str, tuple[object, ...]] = {
     "control.mode": ("auto", "manual"),
+    "control.learn": ("on", "pinned", "off"),
     "control.algorithm": (
         "predictive",
         "type_a",
@@ -274,6 +275,7 @@ def test_defaults_are_the_specified_ones() -> None:
             "model_tau": 14961.0,
             "dead_time": 115.0,
             "model_ambient": 20.0,
+            "learn": "on",
         },
         "sensor": {"bus": 1, "address": 0x48, "read_interval": 1.0},
         "output": {

@@ -24,6 +24,7 @@ from hermsd import recorder as recorder_module
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
+    MODEL_TOPIC,
     PERIOD_TOPIC,
     READING_TOPIC,
     RETRY_INTERVAL_S,
@@ -100,6 +101,11 @@ CONFIG = {
     "t": 0.0,
     "config": {"setpoint": 66.0, "pid": {"kc": 80.8, "ti": 489.0, "td": 44.9}},
     "reason": "start",
+    "model": {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0},
+}
+MODEL = {
+    "t": 6600.0,
+    "learned": {"rate": 0.0113, "loss": 6.7e-5, "dead_time": 117.5, "ambient": 20.0, "litres": 90},
 }
 
 
@@ -220,6 +226,7 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
         (PERIOD_TOPIC, EPOCH_NS + 3 * S, PERIOD),
         (WINDOW_TOPIC, EPOCH_NS + 4 * S, WINDOW),
         (TIMING_TOPIC, EPOCH_NS + 5 * S, TIMING),
+        (MODEL_TOPIC, EPOCH_NS + 6 * S, MODEL),
     ]
     for topic, log_time, message in sent:
         recorder.write(topic, log_time, message)
@@ -261,6 +268,7 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
         TIMING_TOPIC: "hermsd.Timing",
         LOG_TOPIC: "foxglove.Log",
         CONFIG_TOPIC: "hermsd.Config",
+        MODEL_TOPIC: "hermsd.LearnedModel",
     }
     for topic, _, message in expected:
         assert conforms(message, schemas[topic_schema[topic]]), topic

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 from hermsd import config as config_module
-from hermsd import pid, replay
+from hermsd import identify, pid, replay
 from hermsd.cli import main
 from hermsd.daemon import PeriodRecord
 from hermsd.recorder import (
@@ -436,7 +436,7 @@ def test_what_if_runs_other_settings_and_says_so(
 
 def test_what_if_repeats_the_operator_actions_of_the_day(eventful_log: list[Path]) -> None:
     log = replay.load(eventful_log)
-    model = replay.TunModel(TRUE_GAIN, TRUE_TAU, TRUE_DEAD_TIME, 20.0, 20.0, 0.0, 0.0)
+    model = identify.TunModel(TRUE_GAIN, TRUE_TAU, TRUE_DEAD_TIME, 20.0, 20.0, 0.0, 0.0)
     events = replay._replayed_events(log, config_module.DEFAULT, model, [])
     # Manual at 3600 s holds the output of the moment (full power), 30 % from 3605 s, auto
     # again at 4500 s, 70 °C at 6300 s: each half a period before the period it took effect

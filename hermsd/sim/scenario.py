@@ -26,6 +26,7 @@ from hermsd.config import Config
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
 from hermsd.latches import LatchStore
+from hermsd.learning import ModelStore
 from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm, MeasuredTun
@@ -386,10 +387,10 @@ def run(
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
     reference = copy.deepcopy(plant)
-    latches = None
+    latches = models = None
     if state_dir is not None:
         state_dir.mkdir(parents=True, exist_ok=True)
-        latches = LatchStore(state_dir)
+        latches, models = LatchStore(state_dir), ModelStore(state_dir)
     daemon = Daemon(
         config,
         clock,
@@ -397,6 +398,7 @@ def run(
         world.outputs,
         recorder=recorder,
         latches=latches,
+        models=models,
         tun_model=tun_model,
     )
     collector = _Collector(plant, keep_records=keep_records)

@@ -17,6 +17,7 @@ from hermsd.config import Config
 from hermsd.config_file import ConfigFile
 from hermsd.daemon import Daemon, Outputs, guard_outputs
 from hermsd.latches import LatchStore
+from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92
 from hermsd.notify import Notifier
 from hermsd.sim.bus import FakeLM92, FakeSMBus
@@ -76,6 +77,7 @@ def simulated_daemon(
     notifier: Notifier | None = None,
     config_file: ConfigFile | None = None,
     latches: LatchStore | None = None,
+    models: ModelStore | None = None,
 ) -> Daemon:
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
     clock: Clock = VirtualClock() if math.isinf(speed) else PacedClock(speed)
@@ -89,6 +91,7 @@ def simulated_daemon(
         on_status=on_status,
         config_file=config_file,
         latches=latches,
+        models=models,
     )
 
 

@@ -1,0 +1,182 @@
+"""`hermsd tune FILE` on the tun family: the model from a brew day against each tun's physics.
+
+Each tun of hermsd.sim.tuns.FAMILY runs its brew day through the daemon with the default
+config (its litres and watts set, as a brewer would), logged to MCAP; the identification
+(hermsd.tune.from_log, as `hermsd tune FILE` runs it) gets the log of the heat-up plus a
+30 min hold: the periods up to 30 min after PV first reaches setpoint − 0.5 °C.
+
+The true model of a physical tun, independent of the fitting code:
+- K = P/(100·UA) °C/%, τ = C/UA with C = 4186·litres J/K (the linear losses only);
+- Θ: the physical tun is a transport delay L, the water's lag τ and the sensor's own lag
+  T_s in series. Its step response after the delay is K·(1 − (τ·e^(−t/τ) − T_s·e^(−t/T_s))
+  /(τ − T_s)); once e^(−t/T_s) has died out it is exactly the FOPTD response with the same
+  K and τ and the dead time Θ = L + τ·ln(τ/(τ − T_s)) (≈ L + T_s). That FOPTD is the one the
+  heat-up's long tail pins down, so it is the truth the fit is held to. PV is the mean of a
+  control period's readings, which adds about half a period (2.5 s) to what a log shows.
+- With the lid off, evaporation adds a loss that grows steeply with the temperature (0.28 kW
+  from a 40 cm pot at 66 °C): no single K and τ describe the tun. The table gives the linear
+  truth, and beside it the effective K at the hold, P/(100·(UA + evap(66 °C)/(66 − ambient))).
+
+Goals (issue 13): K and τ within ±10 %, Θ within ±20 s.
+
+    uv run python bench/tuning.py [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from hermsd import config, replay, tune
+from hermsd.sim import scenario
+from hermsd.sim.hlt import evaporation_w, pot_surface_m2
+from hermsd.sim.tuns import FAMILY, TunSpec
+
+HOLD_S = 1800.0
+BAND_C = 0.5
+SETPOINT_C = 66.0
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class Truth:
+    gain: float  # °C/%
+    tau: float  # s
+    dead_time: float  # s
+    gain_at_hold: float  # °C/%, with the evaporation at the setpoint (= gain with the lid on)
+
+
+def truth(spec: TunSpec) -> Truth:
+    ua = spec.ua_w_per_k
+    tau = tune.WATER_J_PER_L_K * spec.litres / ua
+    lag = spec.sensor_lag_s
+    dead_time = spec.transport_delay_s + tau * math.log(tau / (tau - lag))
+    evaporation = (
+        evaporation_w(SETPOINT_C, spec.ambient_c, pot_surface_m2(spec.litres))
+        if spec.lid_off
+        else 0.0
+    )
+    ua_at_hold = ua + evaporation / (SETPOINT_C - spec.ambient_c)
+    return Truth(
+        gain=spec.element_watts / (100.0 * ua),
+        tau=tau,
+        dead_time=dead_time,
+        gain_at_hold=spec.element_watts / (100.0 * ua_at_hold),
+    )
+
+
+def heat_up_and_hold(log: replay.Log) -> replay.Log | None:
+    """The log up to HOLD_S after PV first reached the band below the setpoint (None: never)."""
+    reached = next(
+        (
+            t
+            for p, t in zip(log.periods, log.elapsed, strict=True)
+            if p.pv is not None and p.pv >= p.setpoint - BAND_C
+        ),
+        None,
+    )
+    if reached is None:
+        return None
+    n = sum(1 for t in log.elapsed if t <= reached + HOLD_S)
+    return dataclasses.replace(log, periods=log.periods[:n], elapsed=log.elapsed[:n])
+
+
+def brew_day_log(spec: TunSpec, directory: Path) -> replay.Log:
+    """The heat-up and hold of the tun's brew day with the default config."""
+    scenario.run(spec.brew_day(), spec.config(config.DEFAULT), log_dir=directory)
+    trimmed = heat_up_and_hold(replay.load(sorted(directory.glob("*.mcap"))))
+    if trimmed is None:
+        raise SystemExit(f"{spec.name}: the brew day never reached the band (an alarm?)")
+    return trimmed
+
+
+HEADER = (
+    "| tun | log used (s) | K true (hold) | K fit ±2σ | K err | τ true (s) | τ fit ±2σ | τ err "
+    "| Θ true (s) | Θ fit ±2σ | Θ err (s) | RMS (°C) | stated | goals |",
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+)
+
+
+def row(spec: TunSpec, tuned: tune.Tuned) -> tuple[str, bool]:
+    """The table row of one tun, and whether it met the goals."""
+    true, m, u = truth(spec), tuned.model, tuned.uncertainty
+    k_err, tau_err = m.gain / true.gain - 1.0, m.tau / true.tau - 1.0
+    theta_err = m.dead_time - true.dead_time
+    ok = abs(k_err) <= 0.10 and abs(tau_err) <= 0.10 and abs(theta_err) <= 20.0
+    hold = f" ({true.gain_at_hold:.3f})" if spec.lid_off else ""
+    return (
+        f"| {spec.name} | {m.fit_s:.0f} | {true.gain:.3f}{hold} "
+        f"| {m.gain:.3f} ±{2 * u.gain:.3f} | {100 * k_err:+.1f} % "
+        f"| {true.tau:.0f} | {m.tau:.0f} ±{2 * u.tau:.0f} | {100 * tau_err:+.1f} % "
+        f"| {true.dead_time:.1f} | {m.dead_time:.0f} ±{2 * u.dead_time:.0f} "
+        f"| {theta_err:+.1f} | {m.rms:.3f} | {tuned.confidence.split(':')[0]} "
+        f"| {'met' if ok else 'missed'} |",
+        ok,
+    )
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    args = parser.parse_args()
+    started = time.perf_counter()
+    tables: dict[bool, list[str]] = {False: [*HEADER], True: [*HEADER]}
+    met = {False: 0, True: 0}
+    with tempfile.TemporaryDirectory() as directory:
+        for index, spec in enumerate(FAMILY):
+            print(f"{spec.name}…", file=sys.stderr, flush=True)
+            log = brew_day_log(spec, Path(directory) / str(index))
+            for given in (False, True):
+                tuned = tune.from_log(log, spec.ambient_c if given else None)
+                line, ok = row(spec, tuned)
+                tables[given].append(line)
+                met[given] += ok
+    out = [
+        "## Tuning from a brew day's log (`hermsd tune FILE`)",
+        "",
+        "`uv run python bench/tuning.py --write`: each tun of the family logs its brew day "
+        "(default config, its litres and watts) and `hermsd tune` identifies it from the "
+        "heat-up plus a 30 min hold (up to 30 min after PV first reached 65.5 °C). True "
+        "K = P/(100·UA), τ = 4186·litres/UA, Θ = L + τ·ln(τ/(τ − T_s)) (the FOPTD that matches "
+        "the lagged step response's tail; see the script); a log shows about half a period "
+        "(2.5 s) more, from the PV's averaging, and the fit gives θ in whole periods. Goals: "
+        "K and τ ±10 %, Θ ±20 s. '±' is the fit's stated 2σ, 'stated' its verdict (good: "
+        "every 2σ within the goals and the RMS ≤ 0.04 °C). Lid off: K true counts the linear "
+        "losses only, (hold) the evaporation at 66 °C as well.",
+        "",
+        f"### The room's temperature fitted (`hermsd tune FILE`): goals met on {met[False]} of "
+        f"{len(FAMILY)}",
+        "",
+        *tables[False],
+        "",
+        "### The room's temperature given (`hermsd tune FILE --ambient C`): goals met on "
+        f"{met[True]} of {len(FAMILY)}",
+        "",
+        *tables[True],
+        "",
+        "A heat-up much shorter than τ (the strong elements: 2920 s against τ = 14707 s on "
+        "the 30 L 5.5 kW tun) hardly bends; with the room's temperature free the fit then "
+        "trades it against K and τ together (K/τ stays within a few %), and the stated 2σ, "
+        "whose model part comes from moving θ by a period, says so ('poor'). Given the room's "
+        "temperature, the hold pins K. With the lid off the loss is not linear: the fitted K "
+        "is the gain at the hold (evaporation included), τ comes out about 20 % short, the "
+        "RMS is 2 to 4 times that of a lidded tun, and θ can collapse to 0 (the garage); the "
+        "verdict is 'poor' on all three (RMS > 0.04 °C).",
+        "",
+        f"Run time {time.perf_counter() - started:.0f} s.",
+    ]
+    text = "\n".join(out) + "\n"
+    print(text)
+    if args.write:
+        from control import _replace_section  # bench/control.py, beside this file
+
+        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Tuning from a brew", text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

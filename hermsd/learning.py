@@ -1,0 +1,179 @@
+"""What the daemon learns of its tun from ordinary brew days, and where it keeps it.
+
+The predictive controller measures the full-power heating rate and the dead time on every
+heat-up by itself (`pid.HeatUpFit`). What it cannot measure there is the loss: that shows
+in the hold, as the mean duty that keeps the setpoint. A `Learner` watches the periods of
+one clean spell (auto mode, no alarm, no sensor fault, no reload, no reset after a hold):
+an accepted heat-up fit followed by HOLD_S of steady hold gives one estimate of the tun,
+which is checked for physical sense and then stored (`ModelStore`, atomically) for the next
+start, where it replaces the prior the config describes.
+
+The fill differs from one brew day to the next and nobody edits `tun.litres` for it, so
+what is stored is referred to the litres configured when it was learned and rescaled by the
+configured litres at the next start: the rate by V₀/V (element power over ρ·c·V), the loss
+rate UA/(ρ·c·V) by (V₀/V)^⅓ (the wetted surface grows as V^⅔). A fill that differs from the
+config without the config saying so is caught by the controller itself, which re-measures
+the rate and dead time early in every heat-up.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from hermsd.files import write_atomically
+from hermsd.pid import MAX_DEAD_TIME, HeatUpFit, PlantModel
+
+LEARNED_FILE = "learned-model.json"
+HOLD_S = 1800.0
+"""s of steady hold after an accepted heat-up before the loss is estimated."""
+HOLD_BAND = 0.25
+"""°C around the setpoint that counts as a steady hold."""
+MIN_TAU = 600.0
+MAX_TAU = 1e6
+"""s: a water tun loses heat slower than a cup of tea and faster than a vacuum flask."""
+
+
+@dataclass(frozen=True, slots=True)
+class LearnedModel:
+    """The tun as measured: referred to `litres` (the configured fill when learned)."""
+
+    rate: float  # °C/s at full power
+    loss: float  # 1/s: UA/(ρ·c·V), losses referred to `ambient`
+    dead_time: float  # s
+    ambient: float  # °C
+    litres: float
+    wall_ns: int = 0  # when it was learned (UTC ns)
+
+    def plant_model(self, litres: float) -> PlantModel:
+        """The FOPTD model at a configured fill of `litres`."""
+        rate = self.rate * self.litres / litres
+        loss = self.loss * (self.litres / litres) ** (1.0 / 3.0)
+        return PlantModel(rate / (100.0 * loss), 1.0 / loss, self.dead_time, self.ambient)
+
+    def describe(self) -> str:
+        return (
+            f"full-power rate {self.rate * 60.0:.3f} °C/min, dead time {self.dead_time:.0f} s, "
+            f"time constant {1.0 / self.loss:.0f} s (room {self.ambient:g} °C) at "
+            f"{self.litres:g} L"
+        )
+
+
+def implausible(model: LearnedModel) -> str | None:
+    """Why `model` cannot be a water tun's, or None when it can."""
+    values = (model.rate, model.loss, model.dead_time, model.ambient, model.litres)
+    if not all(math.isfinite(v) for v in values):
+        return "a value is not finite"
+    if not 0.0 < model.rate <= 1.0:
+        return f"full-power rate {model.rate:.3g} °C/s is not within 0–1 °C/s"
+    if not 1.0 / MAX_TAU <= model.loss <= 1.0 / MIN_TAU:
+        tau = f"{1.0 / model.loss:.3g} s" if model.loss > 0.0 else "endless (no loss)"
+        return f"time constant {tau} is not within {MIN_TAU:g}–{MAX_TAU:g} s"
+    if not 0.0 <= model.dead_time <= MAX_DEAD_TIME:
+        return f"dead time {model.dead_time:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
+    return None
+
+
+class ModelStore:
+    """`learned-model.json` in the state directory, next to the latches."""
+
+    def __init__(self, directory: Path | str) -> None:
+        self.path = Path(directory) / LEARNED_FILE
+
+    def load(self) -> tuple[LearnedModel | None, str | None]:
+        """(the stored model, None), (None, None) when none, (None, why) for a bad file.
+
+        A bad file is not fatal: the prior is safe, so the daemon says why and goes on.
+        """
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return None, None
+        except (OSError, UnicodeDecodeError) as error:
+            return None, f"{self.path}: cannot be read: {error}"
+        try:
+            document = json.loads(text)
+            model = LearnedModel(
+                float(document["rate"]),
+                float(document["loss"]),
+                float(document["dead_time"]),
+                float(document["ambient"]),
+                float(document["litres"]),
+                int(document.get("wall_ns", 0)),
+            )
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
+            return None, f"{self.path}: not a learned model ({error})"
+        why = implausible(model)
+        if why is not None:
+            return None, f"{self.path}: {why}"
+        return model, None
+
+    def save(self, model: LearnedModel) -> None:
+        """Replace the stored model atomically (OSError when the disk refuses)."""
+        write_atomically(self.path, json.dumps(asdict(model), indent=1))
+
+    def forget(self) -> bool:
+        """Delete the stored model; False when there was none."""
+        with contextlib.suppress(FileNotFoundError):
+            self.path.unlink()
+            return True
+        return False
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """One spell's outcome: a model to store, or why it was refused."""
+
+    model: LearnedModel | None
+    refused: str | None
+
+
+class Learner:
+    """Turns one clean spell (an accepted heat-up, then a steady hold) into an estimate."""
+
+    __slots__ = ("_ambient", "_duty", "_fit", "_hold_s", "_litres", "_period", "done")
+
+    def __init__(self, *, litres: float, ambient: float, period: float) -> None:
+        self._litres = litres
+        self._ambient = ambient
+        self._period = period
+        self._fit: HeatUpFit | None = None
+        self._duty = self._hold_s = 0.0
+        self.done = False  # one estimate per run: later spells would only repeat it
+
+    def interrupt(self) -> None:
+        """A fault, an alarm, manual mode, a reload or a reset: nothing before it counts."""
+        self._fit = None
+        self._duty = self._hold_s = 0.0
+
+    def heat_up(self, fit: HeatUpFit) -> None:
+        """The controller measured a heat-up; a refused one starts nothing."""
+        self.interrupt()
+        if fit.refused is None:
+            self._fit = fit
+
+    def period(self, setpoint: float, pv: float, applied: float) -> Estimate | None:
+        """One clean period in auto; the estimate once the hold after a heat-up is long enough."""
+        fit = self._fit
+        if fit is None or self.done:
+            return None
+        if abs(pv - setpoint) > HOLD_BAND:
+            self._duty = self._hold_s = 0.0  # not (or no longer) holding: start the hold anew
+            return None
+        self._duty += applied * self._period
+        self._hold_s += self._period
+        if self._hold_s < HOLD_S:
+            return None
+        self.done = True
+        duty = self._duty / self._hold_s
+        rise = setpoint - self._ambient
+        if rise <= 0.0:
+            return Estimate(None, f"the setpoint {setpoint:g} °C is not above the room")
+        model = LearnedModel(
+            fit.rate, fit.rate * duty / 100.0 / rise, fit.dead_time, self._ambient, self._litres
+        )
+        why = implausible(model)
+        return Estimate(None, why) if why else Estimate(model, None)

@@ -1,0 +1,415 @@
+"""Commissioning: the tun's model and the settings that follow from it.
+
+- `table`: Table 1 of the PID calculus document (seed 001) for a model given by hand, printed
+  as its Table 2 prints it.
+- `from_log`: the model fitted to an ordinary brew day's logs (hermsd.identify), how sure the
+  fit is, Table 1 for it, and the settings it recommends for the config file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import io
+import math
+import stat
+from dataclasses import dataclass
+from decimal import ROUND_HALF_UP, Decimal
+from pathlib import Path
+from typing import Any
+
+from ruamel.yaml import YAML
+from ruamel.yaml.error import YAMLError
+from ruamel.yaml.nodes import ScalarNode
+from ruamel.yaml.representer import RoundTripRepresenter
+
+from hermsd import config as config_module
+from hermsd import pid
+from hermsd.files import write_atomically
+from hermsd.identify import (
+    MIN_DUTY_SPAN,
+    UNCERTAINTY_METHOD,
+    IdentifyError,
+    TunModel,
+    Uncertainty,
+    fit_span,
+    identify,
+    uncertainty,
+)
+from hermsd.replay import Log, sudden_drops
+
+# (title, rule prefix in pid.table1, the numbers the rule uses): Table 1's open-loop
+# Ziegler–Nichols rows take the normalised slope a* and θ, all the others K, τ and θ.
+RULES = (
+    ("Ziegler-Nichols Open Loop", "zn_open", "θ, a*"),
+    ("Ziegler-Nichols Closed Loop", "zn_closed", "K, τ, θ"),
+    ("Cohen-Coon", "cohen_coon", "K, τ, θ"),
+    ("ITAE-Load", "itae_load", "K, τ, θ"),
+)
+TABLE_KEYS = ("K", "tau", "theta", "a_star")
+_UNITS = {"K": "°C/%", "tau": "s", "theta": "s", "a_star": "°C/(%·s)"}
+A_STAR_MISMATCH = 0.1  # relative: a* and K/τ that differ more describe two different tuns
+
+
+class TuneError(ValueError):
+    """Input or logs that cannot be tuned from; the message is one line that says why."""
+
+
+@dataclass(frozen=True, slots=True)
+class Model:
+    """The four numbers of Table 1: gain, time constant, dead time, normalised slope."""
+
+    K: float  # °C/%
+    tau: float  # s
+    theta: float  # s
+    a_star: float  # °C/(%·s)
+    a_star_given: bool  # False: a* = K/τ, the FOPTD's own slope after its dead time
+
+    def rules(self) -> dict[str, tuple[float, float, float]]:
+        return pid.table1(K=self.K, tau=self.tau, theta=self.theta, a_star=self.a_star)
+
+
+def parse_table(text: str) -> Model:
+    """`K=1.689,tau=14961,theta=115,a_star=6.68e-5` (a_star optional: K/τ when left out)."""
+    values: dict[str, float] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        key, sep, value = (s.strip() for s in item.partition("="))
+        if not sep or key not in TABLE_KEYS:
+            raise TuneError(
+                f"--table: {item!r} is not key=value with a key of {', '.join(TABLE_KEYS)} "
+                "(e.g. K=1.689,tau=14961,theta=115,a_star=6.68e-5)"
+            )
+        if key in values:
+            raise TuneError(f"--table: {key} is given twice")
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if not (math.isfinite(number) and number > 0):
+            raise TuneError(
+                f"--table: {key}={value!r}: {key} must be a number > 0 {_UNITS[key]}, finite"
+            )
+        values[key] = number
+    missing = [key for key in TABLE_KEYS[:3] if key not in values]
+    if missing:
+        raise TuneError(f"--table: {', '.join(missing)} missing (K, tau and theta are needed)")
+    given = "a_star" in values
+    a_star = values["a_star"] if given else values["K"] / values["tau"]
+    return Model(values["K"], values["tau"], values["theta"], a_star, given)
+
+
+def printed(value: float) -> str:
+    """`value` to one decimal as a spreadsheet rounds it: the decimal value, half away from 0.
+
+    The document's Table 2 does so: Ti = 3.33·115 = 382.95 is printed 383.0, where rounding
+    the binary double (382.94999…) would give 382.9.
+    """
+    return str(Decimal(repr(value)).quantize(Decimal("0.1"), rounding=ROUND_HALF_UP))
+
+
+def table_rows(model: Model) -> list[dict[str, Any]]:
+    """Table 1 for `model`, one row per rule and form, in the document's order."""
+    rules = model.rules()
+    rows = []
+    for title, prefix, uses in RULES:
+        for form in ("pid", "pi"):
+            kc, ti, td = rules[f"{prefix}_{form}"]
+            rows.append(
+                {
+                    "method": title,
+                    "form": form.upper(),
+                    "kc": kc,
+                    "ti": ti,
+                    "td": td if form == "pid" else None,
+                    "uses": uses,
+                }
+            )
+    return rows
+
+
+def table_lines(model: Model) -> list[str]:
+    """The table as the document's Table 2 lays it out, with the numbers each rule uses."""
+    slope = "given" if model.a_star_given else "= K/τ, none given"
+    lines = [
+        f"K {model.K:g} °C/%, τ {model.tau:g} s, θ {model.theta:g} s, "
+        f"a* {model.a_star:.3g} °C/(%·s) ({slope})",
+    ]
+    ratio = model.a_star * model.tau / model.K
+    if abs(ratio - 1.0) > A_STAR_MISMATCH:
+        lines.append(
+            f"note: a* is {ratio:.2f} × K/τ = {model.K / model.tau:.3g}: the open-loop rows "
+            "(from a*) and the others (from K, τ) are for two different tuns"
+        )
+    width = max(len(title) for title, _, _ in RULES)
+    lines.append(f"{'':{width}}  {'Kc [%/°C]':>9}  {'Ti [s]':>7}  {'Td [s]':>7}        uses")
+    for row in table_rows(model):
+        first = row["form"] == "PID"
+        title = row["method"] if first else ""
+        td = "--" if row["td"] is None else printed(row["td"])
+        uses = row["uses"] if first else ""
+        lines.append(
+            f"{title:{width}}  {printed(row['kc']):>9}  {printed(row['ti']):>7}  {td:>7}  "
+            f"{row['form']:<4}  {uses}".rstrip()
+        )
+    return lines
+
+
+def table_json(model: Model) -> dict[str, Any]:
+    return {"model": _asdict(model), "rules": table_rows(model)}
+
+
+def _asdict(model: Model) -> dict[str, Any]:
+    return {
+        "K": model.K,
+        "tau": model.tau,
+        "theta": model.theta,
+        "a_star": model.a_star,
+        "a_star_given": model.a_star_given,
+    }
+
+
+# -- from a brew day's logs ---------------------------------------------------------------------
+
+# The accuracy that commissioning aims at (and bench/tuning.py measures): within it at 2σ, the
+# fit is called good.
+GOAL_RELATIVE = 0.10  # of K and of τ
+GOAL_DEAD_TIME_S = 20.0
+WATER_J_PER_L_K = 4186.0
+AMBIENT_RANGE_C = (-20.0, 50.0)  # control.model_ambient's range
+MAX_RMS_C = 0.04
+"""°C: a first-order tun read by an LM92 (0.0625 °C steps, a period's mean of ~5 readings)
+leaves a few hundredths; more is a tun the model does not describe."""
+
+
+@dataclass(frozen=True, slots=True)
+class Tuned:
+    """The model of a logged day, how sure it is, and what it means for the settings."""
+
+    model: TunModel
+    uncertainty: Uncertainty
+    a_star: float  # K/τ, °C/(%·s)
+    confidence: str  # "good", or "poor: " and what is not pinned down
+    recommended: dict[str, float]  # "section.key" → value
+    implied_litres: float | None  # the water the fit implies at the logged element power
+    logged_litres: float | None
+    ambient_given: bool = False  # measured by the brewer (--ambient), not fitted
+
+    def table(self) -> Model:
+        m = self.model
+        return Model(m.gain, m.tau, m.dead_time, self.a_star, a_star_given=False)
+
+
+def from_log(log: Log, ambient: float | None = None) -> Tuned:
+    """Identify the tun from a day's log up to its first cold water or gap (hermsd.identify).
+
+    `ambient`: the room's temperature, when the brewer has measured it; else it is fitted.
+    """
+    if ambient is not None and not AMBIENT_RANGE_C[0] <= ambient <= AMBIENT_RANGE_C[1]:
+        low, high = AMBIENT_RANGE_C
+        raise TuneError(f"--ambient {ambient:g}: the room's temperature in °C, {low:g} to {high:g}")
+    period_s = log.period_s()
+    pvs = [p.pv for p in log.periods]
+    n = fit_span(log, sudden_drops(log.elapsed, pvs), period_s)
+    periods = log.periods[:n]
+    duties = [p.applied for p in periods]
+    if max(duties) - min(duties) < MIN_DUTY_SPAN:
+        if all(p.mode == "manual" for p in periods):
+            raise TuneError(
+                f"the log is a manual-only day ({n} periods at {min(duties):g} to "
+                f"{max(duties):g} %): the duty never stepped by {MIN_DUTY_SPAN:g} % or more, so "
+                "the tun's gain and time constant do not show; log a day in auto with a "
+                "heat-up and a hold, or step the manual output"
+            )
+        raise TuneError(
+            f"no heat-up in the log: the duty stayed between {min(duties):g} and "
+            f"{max(duties):g} % over the {n * period_s:g} s before the first cold water or gap; "
+            "the fit needs a heat-up (full power, then the hold) to see gain and time constant"
+        )
+    try:
+        model = identify(pvs[:n], duties, period_s, ambient)
+    except IdentifyError as error:
+        raise TuneError(str(error)) from None
+    spread = uncertainty(pvs[:n], duties, period_s, model, ambient)
+    poor = []
+    if 2 * spread.gain > GOAL_RELATIVE * model.gain:
+        poor.append(f"K ±{100 * 2 * spread.gain / model.gain:.0f} %")
+    if 2 * spread.tau > GOAL_RELATIVE * model.tau:
+        poor.append(f"τ ±{100 * 2 * spread.tau / model.tau:.0f} %")
+    if 2 * spread.dead_time > GOAL_DEAD_TIME_S:
+        poor.append(f"θ ±{2 * spread.dead_time:.0f} s")
+    if model.rms > MAX_RMS_C:
+        poor.append(
+            f"RMS {model.rms:.3f} °C: the tun is not first order over this log (an open "
+            "lid's evaporation grows steeply with the temperature)"
+        )
+    if ambient is None and any(item.startswith(("K ", "τ ")) for item in poor):
+        poor.append("the room's temperature (--ambient) pins K and τ")
+    watts, litres = _logged(log, "tun", "element_watts"), _logged(log, "tun", "litres")
+    implied = None
+    if watts is not None:
+        implied = model.tau * watts / (100.0 * model.gain) / WATER_J_PER_L_K
+    return Tuned(
+        model=model,
+        uncertainty=spread,
+        a_star=model.gain / model.tau,
+        confidence="good" if not poor else "poor at 2σ: " + "; ".join(poor),
+        recommended=recommend(model),
+        implied_litres=implied,
+        logged_litres=litres,
+        ambient_given=ambient is not None,
+    )
+
+
+def recommend(model: TunModel) -> dict[str, float]:
+    """The predictive controller's model, rounded to what a fit can tell."""
+    return {
+        "control.model_gain": float(f"{model.gain:.4g}"),
+        "control.model_tau": float(round(model.tau)),
+        "control.dead_time": float(round(model.dead_time)),
+        "control.model_ambient": round(model.ambient, 1),
+    }
+
+
+def _logged(log: Log, section: str, key: str) -> float | None:
+    """The value of the last config record that has it, as a number."""
+    for entry in reversed(log.configs):
+        values = entry.config.get(section)
+        value = values.get(key) if isinstance(values, dict) else None
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+    return None
+
+
+KEPT = {
+    "control.kc, control.ti, control.td": "kept: the config's notes give them as suiting "
+    "predictive on any tun, and no rule derives them from the model (its model keys and "
+    "what it learns carry the tun); predictive's prior derives τ from tun.litres and the "
+    "losses (model_gain), so model_tau is written for the record",
+    "safety": "no key to change: the heater and dry-fire watches derive from tun.litres and "
+    "tun.element_watts, which are the brewer's to set; safety.dead_time is best left null, "
+    "for the supervisor derives it from a measured model of the tun (this one fits its "
+    "MeasuredTun) within its own margins",
+}
+
+
+def tuned_json(tuned: Tuned) -> dict[str, Any]:
+    return {
+        "model": dataclasses.asdict(tuned.model),
+        "uncertainty": dataclasses.asdict(tuned.uncertainty),
+        "uncertainty_method": UNCERTAINTY_METHOD,
+        "a_star": tuned.a_star,
+        "confidence": tuned.confidence,
+        "rules": table_rows(tuned.table()),
+        "recommended": tuned.recommended,
+        "kept": KEPT,
+        "implied_litres": tuned.implied_litres,
+        "logged_litres": tuned.logged_litres,
+        "ambient_given": tuned.ambient_given,
+    }
+
+
+def tuned_lines(tuned: Tuned) -> list[str]:
+    m, u = tuned.model, tuned.uncertainty
+    lines = [
+        f"tun model (fitted to the first {m.fit_s:g} s, RMS {m.rms:.3f} °C):",
+        f"  K {m.gain:.4g} ± {u.gain:.2g} °C/%",
+        f"  τ {m.tau:.0f} ± {u.tau:.0f} s",
+        f"  θ {m.dead_time:g} ± {u.dead_time:.3g} s",
+        f"  a* {tuned.a_star:.3g} °C/(%·s) (= K/τ)",
+        f"  ambient {m.ambient:.1f} °C (given)"
+        if tuned.ambient_given
+        else f"  ambient {m.ambient:.1f} ± {u.ambient:.2g} °C",
+        f"  confidence: {tuned.confidence} (± is one standard deviation, from the log's "
+        "noise and from θ's whole periods; --json says how)",
+    ]
+    if tuned.implied_litres is not None:
+        logged = "" if tuned.logged_litres is None else f"; tun.litres is {tuned.logged_litres:g}"
+        lines.append(
+            f"  the fit implies {tuned.implied_litres:.0f} L of water at the logged element "
+            f"power{logged} (the heater watches rely on tun.litres)"
+        )
+    lines += ["", "Table 1 for this model:", *table_lines(tuned.table())[1:], ""]
+    lines.append("recommended settings:")
+    lines += [f"  {key}: {value:g}" for key, value in tuned.recommended.items()]
+    lines += [f"  {key}: {why}" for key, why in KEPT.items()]
+    return lines
+
+
+# -- writing the config file --------------------------------------------------------------------
+
+
+def updated_config(text: str, filename: str, changes: dict[str, float]) -> str:
+    """`text` with the values of `changes` ("section.key") replaced and nothing else.
+
+    ruamel.yaml's round trip keeps the comments, the order, blank lines and the way every
+    other value is written (0x48 stays 0x48; null stays null). The file must be a valid
+    config before, and the result is checked as the daemon will check it.
+    """
+    _checked(text, filename, "is not a valid config now; fix it first")
+    yaml = _round_trip()
+    try:
+        document = yaml.load(text)
+    except YAMLError as error:  # what the config's own reader took, but this one does not
+        raise TuneError(f"{filename}: cannot edit it keeping its layout: {error}") from None
+    for path, value in changes.items():
+        section, key = path.split(".")
+        if document.get(section) is None:
+            document[section] = {}
+        document[section][key] = value
+    out = io.StringIO()
+    yaml.dump(document, out)
+    written = out.getvalue()
+    _checked(written, filename, "would not be a valid config with the new values; left as it is")
+    return written
+
+
+def write_tuned(path: Path, tuned: Tuned) -> str:
+    """Write `tuned`'s recommended settings into the config file; a poor fit is not written."""
+    if tuned.confidence != "good":
+        raise TuneError(f"{path} left as it is: the fit is {tuned.confidence}")
+    return write_config(path, tuned.recommended)
+
+
+def write_config(path: Path, changes: dict[str, float]) -> str:
+    """Write `changes` into the config file at `path` atomically; the unified diff ("" if none).
+
+    The file keeps its permission bits; a running daemon sees a new file, as after any edit.
+    """
+    path = path.resolve()
+    try:
+        text = path.read_text(encoding="utf-8")
+        mode = stat.S_IMODE(path.stat().st_mode)
+    except (OSError, UnicodeDecodeError) as error:
+        raise TuneError(f"{path}: cannot read the config file: {error}") from None
+    written = updated_config(text, str(path), changes)
+    diff = "".join(
+        difflib.unified_diff(
+            text.splitlines(keepends=True), written.splitlines(keepends=True), str(path), str(path)
+        )
+    )
+    if diff:
+        try:
+            write_atomically(path, written, mode)
+        except OSError as error:
+            raise TuneError(f"{path}: cannot write the config file: {error}") from None
+    return diff
+
+
+def _round_trip() -> YAML:
+    yaml = YAML()  # the round-trip loader and dumper
+    yaml.preserve_quotes = True
+    yaml.representer.add_representer(type(None), _null)
+    return yaml
+
+
+def _null(representer: RoundTripRepresenter, _: None) -> ScalarNode:
+    """null as the shipped file writes it (ruamel's round trip would leave the value empty)."""
+    return representer.represent_scalar("tag:yaml.org,2002:null", "null")
+
+
+def _checked(text: str, filename: str, what: str) -> None:
+    try:
+        config_module.parse_document(text, filename)
+    except config_module.ConfigError as error:
+        problems = str(error).replace("\n", "; ")
+        raise TuneError(f"{filename} {what}: {problems}") from None

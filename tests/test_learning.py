@@ -1,0 +1,212 @@
+"""What the daemon learns of its tun: from clean spells only, kept across restarts and crashes,
+refused when it cannot be a tun, and replayable bit for bit.
+
+The tun is the seed's FOPTD (K 1.689 °C/%, τ 14961 s, θ 115 s, room 20 °C) run through the
+real daemon on the virtual clock; the config's prior (a 90 L, 3 kW physical tun) heats
+30 % slower than that, so a heat-up measures something other than the prior.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from hermsd import cli, learning, replay
+from hermsd import config as config_module
+from hermsd.learning import LearnedModel, Learner, ModelStore
+from hermsd.pid import HeatUpFit
+from hermsd.recorder import MODEL_TOPIC, LogFile
+from hermsd.sim import scenario
+from hermsd.sim.scenario import Event, Scenario
+from hermsd.sim.world import simulated_daemon
+
+K, TAU, THETA = 1.689, 14961.0, 115.0
+RATE = 100.0 * K / TAU  # °C/s at full power
+# Heat-up (~4800 s) and the 30 min of hold the learner waits for, with room to spare.
+DAY = 8000.0
+
+
+def day(*events: Event) -> Scenario:
+    return Scenario(name="learn", duration=DAY, events=events)
+
+
+def learned(state: Path) -> LearnedModel | None:
+    model, problem = ModelStore(state).load()
+    assert problem is None
+    return model
+
+
+@pytest.fixture(scope="module")
+def learned_day(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """(state directory, log directory) of a clean day that learned."""
+    state = tmp_path_factory.mktemp("state")
+    logs = tmp_path_factory.mktemp("logs")
+    scenario.run(day(), state_dir=state, log_dir=logs)
+    return state, logs
+
+
+def test_a_clean_day_learns_the_tun(learned_day: tuple[Path, Path]) -> None:
+    model = learned(learned_day[0])
+    assert model is not None
+    assert model.rate == pytest.approx(RATE, rel=0.03)
+    # A period's PV is its mean, half a period old: the fitted dead time is θ + Ts/2.
+    assert model.dead_time == pytest.approx(THETA + 2.5, abs=5.0)
+    # The holding duty 46/K % at 66 °C against the room of 20 °C: loss = rate·duty/100/46.
+    assert 1.0 / model.loss == pytest.approx(TAU, rel=0.05)
+    assert model.litres == config_module.DEFAULT.tun.litres
+
+
+def test_the_next_start_uses_what_was_learned(
+    learned_day: tuple[Path, Path], tmp_path: Path
+) -> None:
+    state = tmp_path / "state"
+    shutil.copytree(learned_day[0], state)  # the learned day stays as it was for the others
+    model = learned(state)
+    assert model is not None
+    restarted = simulated_daemon(config_module.DEFAULT, math.inf, models=ModelStore(state))
+    assert restarted.model == model.plant_model(config_module.DEFAULT.tun.litres)
+    result = scenario.run(day(), state_dir=state, keep_records=True)
+    # The heat-up now starts on the learned rate: no overshoot, full power to the band.
+    assert result.summary["overshoot_c"] <= 0.1
+    assert result.summary["settle_ratio"] <= 1.01
+
+
+def test_replay_verifies_and_shows_a_day_that_learned(learned_day: tuple[Path, Path]) -> None:
+    log = replay.load(sorted(learned_day[1].glob("*.mcap")))
+    verification = replay.verify(log.entries)
+    assert verification.mismatch is None and verification.verified > 1000
+    messages = [item["message"] for item in replay.summarise(log)["learning"]]
+    stored = [
+        message["learned"]
+        for path in sorted(learned_day[1].glob("*.mcap"))
+        for topic, _, message in LogFile(path).messages([MODEL_TOPIC])
+        if topic == MODEL_TOPIC
+    ]
+    assert stored == [dataclasses.asdict(learned(learned_day[0]))]
+    assert any(m.startswith("heat-up measured: ") for m in messages)
+    assert any(m.startswith("learned the tun: ") for m in messages)
+
+
+def test_replay_verifies_a_day_on_a_learned_model(
+    learned_day: tuple[Path, Path], tmp_path: Path
+) -> None:
+    state = tmp_path / "state"
+    shutil.copytree(learned_day[0], state)
+    scenario.run(day(), state_dir=state, log_dir=tmp_path / "logs")
+    log = replay.load(sorted((tmp_path / "logs").glob("*.mcap")))
+    assert replay.verify(log.entries).mismatch is None
+    summary = replay.summarise(log)
+    model = learned(learned_day[0])
+    assert model is not None
+    assert summary["tun_model"]["dead_time"] == model.dead_time
+
+
+@pytest.mark.parametrize(
+    "interruption",
+    [
+        Event(5400.0, "mode", "manual"),
+        Event(5400.0, "sensor", ("nack", None), lasts=10.0),
+        Event(5400.0, "config", {"control": {"kc": 100.0}}),
+        # During the heat-up's fit (the PV rises 1 → 3 °C from 200 to 380 s), a reload
+        # that leaves the controller running: its measurement spans the reload.
+        Event(250.0, "config", {"safety": {"stuck_time": 4000.0}}),
+    ],
+    ids=["manual", "sensor fault", "reload", "reload during the heat-up"],
+)
+def test_nothing_is_learned_across_a_manual_faulty_or_reloaded_spell(
+    interruption: Event, tmp_path: Path
+) -> None:
+    # In the hold, before its 30 min are up: the heat-up before it no longer counts.
+    events = [interruption]
+    if interruption.kind == "mode":
+        events.append(Event(5500.0, "mode", "auto"))
+    scenario.run(day(*events), state_dir=tmp_path)
+    assert learned(tmp_path) is None
+
+
+def test_pinned_or_off_learns_nothing(tmp_path: Path) -> None:
+    for setting in ("pinned", "off"):
+        scenario.run(
+            Scenario(duration=DAY, config={"control": {"learn": setting}}), state_dir=tmp_path
+        )
+        assert learned(tmp_path) is None
+
+
+def test_off_ignores_what_was_learned(learned_day: tuple[Path, Path]) -> None:
+    off = config_module.from_dict(
+        config_module.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}}
+    )
+    model = learned(learned_day[0])
+    assert model is not None
+    prior = config_module.prior_model(off)
+    assert prior.dead_time == THETA and model.dead_time != THETA
+
+
+def test_learned_values_survive_a_crash_mid_write(
+    learned_day: tuple[Path, Path], tmp_path: Path
+) -> None:
+    model = learned(learned_day[0])
+    assert model is not None
+    store = ModelStore(tmp_path)
+    store.save(model)
+    # A crash between writing the temporary file and renaming it leaves a torn temporary.
+    (tmp_path / (learning.LEARNED_FILE + ".tmp")).write_text('{"rate": 0.0', encoding="utf-8")
+    assert ModelStore(tmp_path).load() == (model, None)
+
+
+def test_a_damaged_store_is_said_and_the_prior_used(tmp_path: Path) -> None:
+    (tmp_path / learning.LEARNED_FILE).write_text("{not json", encoding="utf-8")
+    model, problem = ModelStore(tmp_path).load()
+    assert model is None and problem is not None and "not a learned model" in problem
+
+
+def test_forget_deletes_the_store(learned_day: tuple[Path, Path], tmp_path: Path) -> None:
+    model = learned(learned_day[0])
+    assert model is not None
+    store = ModelStore(tmp_path)
+    store.save(model)
+    assert store.forget() is True
+    assert store.load() == (None, None)
+    assert store.forget() is False
+
+
+def test_an_implausible_hold_is_refused_and_said() -> None:
+    # A hold at 66 °C with the element off throughout: no losses at all, not a tun of water.
+    learner = Learner(litres=90.0, ambient=20.0, period=5.0)
+    learner.heat_up(HeatUpFit(RATE, THETA))
+    estimates = [learner.period(66.0, 66.0, 0.0) for _ in range(int(learning.HOLD_S / 5.0))]
+    estimate = estimates[-1]
+    assert estimate is not None and estimate.model is None
+    assert estimate.refused is not None and "time constant" in estimate.refused
+
+
+def test_an_implausible_store_is_refused(tmp_path: Path) -> None:
+    bad = {"rate": 5.0, "loss": 1e-4, "dead_time": 100.0, "ambient": 20.0, "litres": 90.0}
+    (tmp_path / learning.LEARNED_FILE).write_text(json.dumps(bad), encoding="utf-8")
+    model, problem = ModelStore(tmp_path).load()
+    assert model is None and problem is not None and "rate" in problem
+
+
+def test_the_model_is_rescaled_to_the_configured_litres() -> None:
+    # Twice the water: half the rate (same element), the loss rate by (½)^⅓ (surface ∝ V^⅔).
+    model = LearnedModel(RATE, 1.0 / TAU, THETA, 20.0, 90.0)
+    doubled = model.plant_model(180.0)
+    assert doubled.rate == pytest.approx(RATE / 2.0, rel=1e-12)
+    assert doubled.tau == pytest.approx(TAU * 2.0 ** (1.0 / 3.0), rel=1e-12)
+    assert math.isclose(doubled.dead_time, THETA)
+
+
+def test_the_forget_model_command(
+    learned_day: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    shutil.copy(learned_day[0] / learning.LEARNED_FILE, tmp_path)
+    assert cli.main(["forget-model", "--state", str(tmp_path)]) == 0
+    assert "forgot" in capsys.readouterr().out
+    assert not (tmp_path / learning.LEARNED_FILE).exists()
+    assert cli.main(["forget-model", "--state", str(tmp_path)]) == 0
+    assert "nothing learned" in capsys.readouterr().out
