@@ -955,11 +955,12 @@ def cmd_status(args: argparse.Namespace) -> int:
     for key, values in reply["runtime"].items():
         print(f"{key} {values['running']} set at runtime (config file: {values['file']})")
     model = reply["model"]
-    if model is not None:
-        print(
-            f"tun model: K {model['gain']:.4g} °C/%, τ {model['tau']:.0f} s, "
-            f"θ {model['dead_time']:.0f} s, ambient {model['ambient']:.1f} °C"
-        )
+    print(
+        f"tun model ({model['from']}): K {model['gain']:.4g} °C/%, "
+        f"τ {model['tau']:.0f} s, θ {model['dead_time']:.0f} s, room {model['ambient']:.1f} °C"
+    )
+    learned = reply["learned"]
+    print(f"learned: {learned['text'] if learned is not None else 'nothing yet'}")
     print("safety limits in force:")
     for row in reply["limits"]:
         print(f"  {row}")

@@ -509,6 +509,11 @@ class Daemon:
 
     # -- the tun's model: prior, learned, learning ----------------------------------------
 
+    @property
+    def learned_model(self) -> LearnedModel | None:
+        """What was learned of the tun and stored, as read at start (None: nothing usable)."""
+        return self._stored_model
+
     def _model_in_force(self, config: Config) -> pid.PlantModel:
         """The stored model (rescaled to the configured litres) unless `control.learn` is off."""
         stored = self._stored_model

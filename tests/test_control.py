@@ -23,6 +23,7 @@ from typing import Any
 import pytest
 from test_reload import BASE, PERIOD, Events, edited, rename_over, run_for, start
 
+from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.control import server as server_module
 from hermsd.control.link import LoopLink
@@ -39,6 +40,9 @@ from hermsd.control.protocol import (
 from hermsd.control.server import ControlServer, Pending, SocketInUseError
 from hermsd.daemon import Daemon
 from hermsd.latches import LatchedAlarm, Latches, LatchStore
+from hermsd.learning import LearnedModel, ModelStore
+from hermsd.sim.clock import VirtualClock
+from hermsd.sim.world import build_world
 
 NOBODY = 65534
 # An interpreter any user may run (the test's own may live under /root).
@@ -230,22 +234,37 @@ def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Pat
         status["limits"][0]
         == "over-temperature cut-out              95 °C, back below 90 °C  [configured]"
     )
-    assert status["model"] is None
+    prior = config_module.prior_model(daemon.config)  # nothing learned: the config's model
+    assert status["model"] == {
+        "gain": prior.gain,
+        "tau": prior.tau,
+        "dead_time": prior.dead_time,
+        "ambient": prior.ambient,
+        "from": "config",
+    }
+    assert status["learned"] is None
 
 
-def test_status_names_the_model_the_limits_came_from(tmp_path: Path) -> None:
-    from hermsd.pid import PlantModel
-
-    daemon, _path, _events, _inbox = linked(tmp_path)
-    daemon.tun_model = PlantModel(gain=1.5, tau=12000.0, dead_time=90.0, ambient=18.0)
+def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
+    config = config_module.parse(BASE)
+    litres = config.tun.litres
+    store = ModelStore(tmp_path)
+    # 0.5 °C/min at full power, a 12000 s time constant: K = 0.5/60·12000/100 = 1 °C/%.
+    store.save(LearnedModel(0.5 / 60.0, 1.0 / 12000.0, 90.0, 18.0, litres, wall_ns=7))
+    clock = VirtualClock()
+    world = build_world(config, clock)
+    daemon = Daemon(config, clock, world.sensor, world.outputs, models=store)
+    LoopLink(daemon).attach(Inbox())
+    daemon.start()
     run_for(daemon, PERIOD)
 
-    assert status_of(daemon)["model"] == {
-        "gain": 1.5,
-        "tau": 12000.0,
-        "dead_time": 90.0,
-        "ambient": 18.0,
-    }
+    status = status_of(daemon)
+
+    assert status["model"] == pytest.approx(
+        {"gain": 1.0, "tau": 12000.0, "dead_time": 90.0, "ambient": 18.0, "from": "learned"}
+    )
+    assert status["learned"]["rate_c_per_min"] == pytest.approx(0.5)
+    assert (status["learned"]["litres"], status["learned"]["learned_at_ns"]) == (litres, 7)
 
 
 # -- the rule: a runtime set holds until the file's same key is edited ----------------------

@@ -34,7 +34,9 @@ from hermsd.control.protocol import (
 )
 from hermsd.control.server import Pending
 from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.safety import MeasuredTun, SafetyLimits, format_limits
+from hermsd.learning import LearnedModel
+from hermsd.pid import PlantModel
+from hermsd.safety import SafetyLimits, format_limits
 
 SOURCE = "control socket"
 RUNTIME_KEYS = ("control.setpoint", "control.mode", "control.manual_output")
@@ -56,7 +58,8 @@ class Snapshot:
     tun: str
     manual_output: float
     limits: SafetyLimits
-    model: MeasuredTun | None
+    model: PlantModel  # the controller's model of the tun, in force
+    learned: LearnedModel | None
     config: Config
     runtime: frozenset[str]
 
@@ -104,7 +107,8 @@ class LoopLink:
             daemon.config.tun.name,
             daemon.manual_output,
             daemon.supervisor.limits,
-            daemon.tun_model,
+            daemon.model,
+            daemon.learned_model,
             daemon.config,
             frozenset(self._runtime),
         )
@@ -176,7 +180,8 @@ class LoopLink:
             "control.mode": record.mode,
             "control.manual_output": snapshot.manual_output,
         }
-        model = snapshot.model
+        model, learned = snapshot.model, snapshot.learned
+        learned_in_force = learned is not None and snapshot.config.control.learn != "off"
         return {
             "v": VERSION,
             "ok": True,
@@ -192,13 +197,23 @@ class LoopLink:
             "alarms": list(record.alarms),
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
-            "model": None
-            if model is None
-            else {
+            "model": {
                 "gain": model.gain,
                 "tau": model.tau,
                 "dead_time": model.dead_time,
                 "ambient": model.ambient,
+                "from": "learned" if learned_in_force else "config",
+            },
+            "learned": None
+            if learned is None
+            else {
+                "rate_c_per_min": learned.rate * 60.0,
+                "loss_per_s": learned.loss,
+                "dead_time": learned.dead_time,
+                "ambient": learned.ambient,
+                "litres": learned.litres,
+                "learned_at_ns": learned.wall_ns,
+                "text": learned.describe(),
             },
             "runtime": {
                 key: {"running": running[key], "file": config_module.value_at(snapshot.config, key)}

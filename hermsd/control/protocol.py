@@ -17,7 +17,9 @@ Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": 
 answered at once from the last control period: `tun`, `pv` (°C, null when unknown),
 `setpoint` (°C), `output` (%), `applied` (% the SSR was driven at in the period before),
 `mode`, `manual_output`, `state`, `alarms`, `heater_allowed`, `limits` (the safety limits in
-force, one line each), `model` (the tun's model the limits were derived from, or null) and
+force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,
+dead_time s, ambient °C, and `from`: "learned" or "config"), `learned` (what was learned of
+the tun and stored, with `text` in words, or null) and
 `runtime` (each operating key set at runtime whose value differs from the config file's:
 `{"control.setpoint": {"running": 72.0, "file": 66.0}}`). A `set` or `reset-alarm` is checked
 against the running config as strictly as the config file is, applied at the next control
