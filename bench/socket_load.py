@@ -45,7 +45,7 @@ STATUS = b'{"v": 1, "cmd": "status"}\n'
 def hammer(path: str, rate: float, stop_at: float, results: Connection) -> None:
     """`rate` status requests a second on fresh connections, on an absolute schedule."""
     latencies: list[float] = []
-    failures = 0
+    failures: dict[str, int] = {}
     start = time.monotonic()
     k = 0
     while True:
@@ -69,10 +69,12 @@ def hammer(path: str, rate: float, stop_at: float, results: Connection) -> None:
                         break
                     reply += chunk
             if b'"ok": true' not in reply:
-                failures += 1
+                why = reply.decode(errors="replace").strip() or "closed without a reply"
+                failures[why] = failures.get(why, 0) + 1
                 continue
-        except OSError:
-            failures += 1
+        except OSError as error:
+            why = type(error).__name__
+            failures[why] = failures.get(why, 0) + 1
             continue
         latencies.append(time.monotonic() - sent)
     results.send((latencies, failures, time.monotonic() - start))
@@ -105,10 +107,14 @@ def served(daemon: Daemon, path: Path, rate: float | None, seconds: float) -> It
 LOAD: dict[str, float] = {}
 
 
-def _load_figures(latencies: list[float], failures: int, elapsed: float) -> dict[str, float]:
+def _load_figures(
+    latencies: list[float], failures: dict[str, int], elapsed: float
+) -> dict[str, float]:
+    for why, count in failures.items():
+        print(f"failed {count}×: {why}", flush=True)
     return {
         "answered": len(latencies),
-        "failed": failures,
+        "failed": sum(failures.values()),
         "rate": len(latencies) / elapsed,
         "rtt_p50_ms": percentile(latencies, 50) * 1e3,
         "rtt_p99_ms": percentile(latencies, 99) * 1e3,

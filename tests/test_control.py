@@ -326,6 +326,16 @@ def test_an_edit_that_puts_the_cut_out_below_a_runtime_setpoint_brings_back_the_
     )
 
 
+def test_an_edit_that_lowers_the_power_limit_lowers_a_runtime_manual_output_to_it(
+    tmp_path: Path,
+) -> None:
+    _daemon, _path, events = set_then_edit(
+        tmp_path, SetMode("manual", 60.0), control__max_output="50.0"
+    )
+
+    assert (events.periods[-1].mode, events.periods[-1].output) == ("manual", 50.0)
+
+
 # -- the socket itself ----------------------------------------------------------------------
 
 
@@ -470,6 +480,27 @@ def test_clients_beyond_the_limit_are_told_so(tmp_path: Path) -> None:
         extra = stack.enter_context(connect(where))
         reply = json.loads(extra.recv(1000))
     assert reply["error"] == f"busy: {server_module.MAX_CLIENTS} clients connected already"
+
+
+def test_clients_that_hung_up_unseen_hold_no_place(tmp_path: Path) -> None:
+    server = ControlServer(tmp_path / "control.sock", lambda: b'{"v": 1, "ok": true}\n')
+    server.start()
+    try:
+        gone = [connect(server.path) for _ in range(server_module.MAX_CLIENTS)]
+        for client in gone:
+            assert exchange(client, b'{"v": 1, "cmd": "status"}\n')["ok"]
+        # The serving thread stops before it sees them hang up, as when it is not scheduled.
+        server._stop = True
+        server.wake()
+        assert server._thread is not None
+        server._thread.join(TIMEOUT)
+        for client in gone:
+            client.close()
+        with connect(server.path):
+            server._accept()
+            assert len(server._clients) == 1  # taken in, not told "busy"
+    finally:
+        server.close()
 
 
 def test_a_socket_left_by_a_crash_is_replaced_and_a_live_one_is_not(tmp_path: Path) -> None:

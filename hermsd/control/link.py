@@ -10,7 +10,10 @@ the commands of this boundary.
 Runtime changes and the config file (one rule): a `set` overrides the running value until
 the config file's same key is next edited; an edit of that key wins, being the newer intent.
 `set mode` covers `control.mode` and `control.manual_output` together. Until then `status`
-shows each value set at runtime that differs from the file's (`runtime`).
+shows each value set at runtime that differs from the file's (`runtime`). The one exception
+is the config's own rule: an edit that puts `safety.max_temp` at or below a runtime setpoint
+brings back the file's setpoint (logged), and one that lowers `control.max_output` below a
+runtime manual output lowers it to the limit, as for the file's own values.
 """
 
 from __future__ import annotations

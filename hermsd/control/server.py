@@ -165,6 +165,8 @@ class ControlServer:
             return
         sock.setblocking(False)
         if len(self._clients) >= MAX_CLIENTS:
+            self._reap_hung_up()
+        if len(self._clients) >= MAX_CLIENTS:
             with contextlib.suppress(OSError):
                 sock.send(encode(error_reply(f"busy: {MAX_CLIENTS} clients connected already")))
             sock.close()
@@ -172,6 +174,19 @@ class ControlServer:
         client = _Client(sock, time.monotonic())
         self._clients[sock.fileno()] = client
         self._selector.register(sock, selectors.EVENT_READ)
+
+    def _reap_hung_up(self) -> None:
+        """Drop clients that have hung up but whose end-of-file is not read yet (a burst of
+        short connections while this thread was not running), so they hold no place."""
+        for client in list(self._clients.values()):
+            try:
+                hung_up = client.sock.recv(1, socket.MSG_PEEK) == b""
+            except (BlockingIOError, InterruptedError):
+                continue
+            except OSError:
+                hung_up = True
+            if hung_up:
+                self._drop(client)
 
     def _service(self, client: _Client, events: int) -> None:
         if events & selectors.EVENT_WRITE:
