@@ -11,7 +11,9 @@ uv run python bench/faults.py [--write] [--family-only]
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -53,19 +55,34 @@ def scenario_rows() -> list[str]:
     return lines
 
 
-def _day(spec: TunSpec, sc: scenario.Scenario, measured: bool) -> scenario.Result:
-    model = tf.measured(spec) if measured else None
-    return scenario.run(sc, spec.config(config_module.DEFAULT), tun_model=model)
+Limits = bool | Path
+"""Where the supervisor's limits come from: False unmeasured, True the tun's true model,
+a state directory what the daemon learned there (a copy is used: the day may latch)."""
 
 
-def _quiet(spec: TunSpec, sc: scenario.Scenario, measured: bool = False) -> str:
-    alarms = _day(spec, sc, measured).summary["alarms"]
+def _day(spec: TunSpec, sc: scenario.Scenario, limits: Limits) -> scenario.Result:
+    config = spec.config(config_module.DEFAULT)
+    if isinstance(limits, Path):
+        with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:
+            shutil.copytree(limits, state, dirs_exist_ok=True)
+            return scenario.run(sc, config, state_dir=Path(state))
+    return scenario.run(sc, config, tun_model=tf.measured(spec) if limits else None)
+
+
+def _learned(spec: TunSpec, state: Path) -> Path:
+    """`state` after the tun's brew day at its configured fill: what the daemon learned."""
+    scenario.run(spec.brew_day(), spec.config(config_module.DEFAULT), state_dir=state)
+    return state
+
+
+def _quiet(spec: TunSpec, sc: scenario.Scenario, limits: Limits = False) -> str:
+    alarms = _day(spec, sc, limits).summary["alarms"]
     return "none" if not alarms else ", ".join(f"{a['kind']} at {a['at_s']:.0f} s" for a in alarms)
 
 
-def _caught(spec: TunSpec, sc: scenario.Scenario, kind: str, measured: bool) -> dict[str, Any]:
+def _caught(spec: TunSpec, sc: scenario.Scenario, kind: str, limits: Limits) -> dict[str, Any]:
     """Detection and heater-off latency of the first alarm, and how far the water went."""
-    result = _day(spec, sc, measured)
+    result = _day(spec, sc, limits)
     alarms = result.summary["alarms"]
     end = alarms[0]["at_s"] if alarms else sc.duration
     # A dead element: how far the water had cooled by the alarm. A shorted SSR: how hot it
@@ -84,32 +101,40 @@ def _caught(spec: TunSpec, sc: scenario.Scenario, kind: str, measured: bool) -> 
 
 def family_rows() -> tuple[list[str], list[str]]:
     quiet = [
-        "| tun | ×½ | ×2 | ×½, +1 kW | ×2, +1 kW | measured: ×½ | measured: ×2 |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    faults = [
-        "| tun | element dies: detected after s | measured | PV at the alarm °C | heater off s "
-        "| SSR shorts: detected after s | measured | highest PV °C | heater off s |",
+        "| tun | ×½ | ×2 | ×½, +1 kW | ×2, +1 kW | measured: ×½ | measured: ×2 "
+        "| learned: ×½ | learned: ×2 |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
+    faults = [
+        "| tun | element dies: detected after s | measured | learned | PV at the alarm °C "
+        "| heater off s | SSR shorts: detected after s | measured | learned | highest PV °C "
+        "| heater off s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for spec in FAMILY:
-        half, double = tf.normal_day(spec, 0.5), tf.normal_day(spec, 2.0)
-        cells = [
-            _quiet(spec, half),
-            _quiet(spec, double),
-            _quiet(spec, tf.normal_day(spec, 0.5, 1000.0)),
-            _quiet(spec, tf.normal_day(spec, 2.0, 1000.0)),
-            _quiet(spec, half, measured=True),
-            _quiet(spec, double, measured=True),
-        ]
-        quiet.append(f"| {spec.name} | " + " | ".join(cells) + " |")
-        print(quiet[-1], flush=True)
-        dead = [_caught(spec, tf.element_dies(spec), "heater_not_heating", m) for m in (0, 1)]
-        short = [_caught(spec, tf.ssr_shorts(spec), "ssr_stuck_on", m) for m in (0, 1)]
+        with tempfile.TemporaryDirectory(prefix="hermsd-learned-") as state:
+            learned = _learned(spec, Path(state))
+            half, double = tf.normal_day(spec, 0.5), tf.normal_day(spec, 2.0)
+            cells = [
+                _quiet(spec, half),
+                _quiet(spec, double),
+                _quiet(spec, tf.normal_day(spec, 0.5, 1000.0)),
+                _quiet(spec, tf.normal_day(spec, 2.0, 1000.0)),
+                _quiet(spec, half, True),
+                _quiet(spec, double, True),
+                _quiet(spec, half, learned),
+                _quiet(spec, double, learned),
+            ]
+            quiet.append(f"| {spec.name} | " + " | ".join(cells) + " |")
+            print(quiet[-1], flush=True)
+            sources: tuple[Limits, ...] = (False, True, learned)
+            dead = [_caught(spec, tf.element_dies(spec), "heater_not_heating", m) for m in sources]
+            short = [_caught(spec, tf.ssr_shorts(spec), "ssr_stuck_on", m) for m in sources]
         faults.append(
-            f"| {spec.name} | {dead[0]['text']} | {dead[1]['text']} | {dead[0]['extreme']:.2f} "
-            f"| {dead[0].get('off')} | {short[0]['text']} | {short[1]['text']} "
-            f"| {short[0]['extreme']:.2f} | {short[0].get('off')} |"
+            f"| {spec.name} | {dead[0]['text']} | {dead[1]['text']} | {dead[2]['text']} "
+            f"| {dead[0]['extreme']:.2f} | {dead[0].get('off')} | {short[0]['text']} "
+            f"| {short[1]['text']} | {short[2]['text']} | {short[0]['extreme']:.2f} "
+            f"| {short[0].get('off')} |"
         )
         print(faults[-1], flush=True)
     return quiet, faults
@@ -148,7 +173,10 @@ def main() -> int:
         'has it); "+1 kW" raises UA so that 1 kW more is lost at 66 °C, on top. '
         '"Measured": the supervisor is given the tun\'s true model at its configured '
         "fill (K = P/(100·UA), τ = m·c/UA, θ = delay + lag), as `hermsd tune` or the "
-        "controller's learning would give it.\n\n"
+        'controller\'s learning would give it. "Learned": the daemon starts from the state '
+        "directory its own brew day at the configured fill left (what the controller learned "
+        "there, referred to `control.model_ambient`, not the real room), as day 2 of "
+        "bench/robustness.py does.\n\n"
         "Alarms on normal days (none is right). For comparison, the supervisor before "
         "these limits (commit 1ea9d7e's `hermsd/safety.py` swapped in, measured once on "
         "that commit's simulator, without evaporation) "
@@ -165,7 +193,7 @@ def main() -> int:
         "PV at the alarm (lowest since the fault) and highest PV after the fault (the heat "
         "on its way when the contactor opened included): the sensor, unmeasured.\n\n"
         + "\n".join(faults)
-        + f"\n\n{len(FAMILY) * 10} simulated days in {wall:.0f} s.\n"
+        + f"\n\n{len(FAMILY) * 15} simulated days in {wall:.0f} s.\n"
     )
     print(text)
     if args.write:

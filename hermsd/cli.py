@@ -269,6 +269,11 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument(
         "--simulate", action="store_true", help="check a file for `run --simulate` (backend sim)"
     )
+    check.add_argument(
+        "--state",
+        type=Path,
+        help="the daemon's state directory: the limits from what it learned of the tun",
+    )
     check.set_defaults(func=cmd_check_config)
     return parser
 
@@ -1048,7 +1053,7 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     `output.backend: sim` is valid only in a simulated run, so it is refused here by
     default: a file checked for the service must not fail when the service starts.
     """
-    from hermsd.daemon import safety_limits
+    from hermsd.daemon import learned_tun, safety_limits
     from hermsd.safety import format_limits
 
     document = config_module.load_document(args.file)
@@ -1069,8 +1074,15 @@ def cmd_check_config(args: argparse.Namespace) -> int:
         )
     print(config_module.dump_yaml(document.config), end="")
     # As YAML comments, so that the output still reads back as the config it is.
-    print("\n# safety limits in force (nothing measured yet):")
-    limits = safety_limits(document.config)
+    stored, problem = ModelStore(args.state).load() if args.state else (None, None)
+    if problem is not None:
+        print(f"\n# learned model ignored: {problem}")
+    model = learned_tun(stored, document.config)
+    source = "nothing measured yet"
+    if stored is not None and model is not None:
+        source = f"the tun as learned: {stored.describe()}"
+    print(f"\n# safety limits in force ({source}):")
+    limits = safety_limits(document.config, model)
     for row in format_limits(limits, document.config.control.setpoint):
         print(f"#   {row}")
     return 0

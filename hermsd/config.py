@@ -1258,6 +1258,9 @@ MAX_FILE_BYTES = 1 << 16
 Reading and parsing happen beside the control loop, in its process: the cap bounds how
 long a reload can take CPU (and Python's one interpreter lock) from the loop.
 """
+SHIPPED_FILE_MAX_BYTES = MAX_FILE_BYTES // 4
+"""The shipped, fully commented file stays under a quarter of the cap: room for every key's
+notes to grow, and a file past the cap is then far from any config (its message says so)."""
 
 
 def read_bytes(filename: str) -> bytes:
@@ -1285,7 +1288,8 @@ def read_bytes(filename: str) -> bytes:
     if size > MAX_FILE_BYTES:
         message = (
             f"is {size} bytes long, more than the {MAX_FILE_BYTES // 1024} KiB a config file "
-            "may be (the shipped one is under 12 kB: is this the right file?)"
+            f"may be (the shipped one is under {SHIPPED_FILE_MAX_BYTES // 1024} KiB: is this the "
+            "right file?)"
         )
         raise ConfigError([Problem(filename, 0, 0, "", message)])
     return data

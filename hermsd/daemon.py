@@ -168,6 +168,20 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
     )
 
 
+def learned_tun(stored: LearnedModel | None, config: Config) -> pid.PlantModel | None:
+    """What was learned, at the configured litres, if `control.learn` lets it be used."""
+    if stored is None or config.control.learn == "off":
+        return None
+    return stored.plant_model(config.tun.litres)
+
+
+def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
+    """A measured tun as the log keeps it (None: the limits hold for any tun)."""
+    if model is None:
+        return None
+    return {k: getattr(model, k) for k in ("gain", "tau", "dead_time", "ambient")}
+
+
 def retunes(old: ControlConfig, new: ControlConfig) -> bool:
     """Whether a reload from `old` to `new` needs a new controller (bumplessly reset)."""
     return any(getattr(old, key) != getattr(new, key) for key in config_module.TUNING_KEYS)
@@ -221,13 +235,13 @@ class Daemon:
         self.on_status = on_status
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
-        self.supervisor = Supervisor(safety_limits(config, tun_model))
         self.models = models
         self._stored_model: LearnedModel | None = None
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
             self._stored_model, self._model_problem = models.load()
         self.model = self._model_in_force(config)
+        self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
         self.controller = make_controller(config.control, self.model)
         self._learner = self._make_learner(config)
         self._heat_up_seen = pid.heat_up_fit(self.controller)
@@ -291,7 +305,11 @@ class Daemon:
         if self._model_problem is not None:
             self._event(logging.WARNING, f"learned model ignored: {self._model_problem}", now)
         if self._stored_model is not None:
-            use = "in use" if self.config.control.learn != "off" else "not used (control.learn off)"
+            use = (
+                "in use (control and safety limits)"
+                if self.config.control.learn != "off"
+                else "not used (control.learn off)"
+            )
             self._event(logging.INFO, f"learned model {use}: {self._stored_model.describe()}", now)
         self._restore_latches(stored, now)
 
@@ -497,8 +515,10 @@ class Daemon:
                 t,
             )
             self._apply_setpoint(control.setpoint, t)
-        if any(key.startswith(("safety.", "tun.")) for key in changed):
-            self.supervisor.limits = safety_limits(new, self.tun_model)
+        if any(key.startswith(("safety.", "tun.")) for key in changed) or (
+            "control.learn" in changed
+        ):
+            self.supervisor.limits = safety_limits(new, self._measured_tun(new))
         if changed & {"safety.max_temp", "safety.hysteresis"}:
             self._reprogram_sensor(t)
         if "safety.reset" in changed:
@@ -516,10 +536,21 @@ class Daemon:
 
     def _model_in_force(self, config: Config) -> pid.PlantModel:
         """The stored model (rescaled to the configured litres) unless `control.learn` is off."""
-        stored = self._stored_model
-        if stored is not None and config.control.learn != "off":
-            return stored.plant_model(config.tun.litres)
-        return config_module.prior_model(config)
+        return learned_tun(self._stored_model, config) or config_module.prior_model(config)
+
+    def _measured_tun(self, config: Config) -> MeasuredTun | None:
+        """The tun as measured for the supervisor's limits: the one given (`hermsd tune`),
+        else what the controller learned and uses; None before anything is measured (the
+        config's prior is a guess, and the limits then hold for any tun it may describe).
+
+        The learned losses are referred to `control.model_ambient` a, not the real room:
+        they reproduce the hold's measured power at the setpoint s, so the supervisor's bound
+        there (×1.5, a room 10 °C colder than a) is 1.5·(s − a + 10)/(s − a) times the true
+        losses whatever the room is (×1.83 at 66 °C and a = 20 °C).
+        """
+        if self.tun_model is not None:
+            return self.tun_model
+        return learned_tun(self._stored_model, config)
 
     def _make_learner(self, config: Config) -> Learner:
         return Learner(
@@ -901,6 +932,7 @@ class Daemon:
                     "config": to_dict(self.config),
                     "reason": reason,
                     "model": asdict(self.model),
+                    "safety_model": _tun_fields(self._measured_tun(self.config)),
                 },
             )
 

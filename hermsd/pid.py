@@ -149,6 +149,7 @@ FULL_MARGIN = 0.15
 into the gentle zone only while the PV is there; the step down from it must not fall in the
 hold, where the output moves by a few % a period at most."""
 OBSERVER_BIAS_S = 800.0
+"""The bias's time constant when ti = 0."""
 STEP_INNOVATION = 0.25
 """°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
 the mean of its readings, so noise of 0.03 °C never moves it that far."""
@@ -158,10 +159,15 @@ FIT_FROM = 1.0
 FIT_TO = 3.0
 """°C of rise between which a heat-up's ramp is fitted: past the first bend of the sensor's
 lag, and over enough rise that LSB and noise matter little."""
+RECOVERY_FIT_SPAN = 1.0
+"""°C of rise a recovery's ramp is fitted over: a tenth of the volume of cold water drops the
+PV some 4.5 °C, and the heat in flight on a slow sensor takes up to 2 °C of what is left."""
+MAX_RECOVERY_HOLD = 90.0
+"""% of holding duty above which a recovery's rate is not measured: the step to full power is
+too small for its slope to tell the rate."""
 STEADY_SPAN_S = 60.0
 STEADY_BAND = 0.25
 """A step from a PV that moved at most STEADY_BAND °C over the last STEADY_SPAN_S s."""
-"""The bias's time constant when ti = 0."""
 BIAS_INNOVATION_CLIP = 0.125
 """°C (two LSB): the bias learns from innovations up to this size only. A step (cold water)
 is a change of state, not of heat flow: the PV estimate follows it whole, the bias barely."""
@@ -638,7 +644,47 @@ class HeatUpFit:
     span: float = 0.0  # s from the step to full power until the fit: the data it rests on
 
 
-class _HeatUpWatch:
+class _LineFit:
+    """Least squares of a line through (t, x) points, kept as running sums."""
+
+    __slots__ = ("n", "st", "stt", "stx", "sx")
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.st = self.sx = self.stt = self.stx = 0.0
+
+    def add(self, t: float, x: float) -> None:
+        self.n += 1
+        self.st += t
+        self.sx += x
+        self.stt += t * t
+        self.stx += t * x
+
+    def slope(self) -> float | None:
+        """dx/dt, or None on fewer than 4 points (too few to tell noise from slope)."""
+        spread = self.n * self.stt - self.st * self.st
+        if self.n < 4 or spread <= 0.0:
+            return None
+        return (self.n * self.stx - self.st * self.sx) / spread
+
+
+class _RampWatch:
+    """A line fit over one full-power run, armed when the run starts."""
+
+    __slots__ = ("_line", "_n", "active")
+
+    def __init__(self) -> None:
+        self.active = False
+        self._n = 0
+        self._line = _LineFit()
+
+    def _start(self) -> None:
+        self.active = True
+        self._n = 0
+        self._line = _LineFit()
+
+
+class _HeatUpWatch(_RampWatch):
     """Measures the rate and the dead time on a full-power step from a steady PV.
 
     The PV's rise above pv0 is fitted by a line between FIT_FROM and FIT_TO °C of rise (least
@@ -647,19 +693,15 @@ class _HeatUpWatch:
     which is the dead time a predictor wants for a ramp).
     """
 
-    __slots__ = ("_count", "_du", "_n", "_pv0", "_st", "_stt", "_stx", "_sx", "active")
+    __slots__ = ("_du", "_pv0")
 
     def __init__(self) -> None:
-        self.active = False
+        super().__init__()
         self._pv0 = self._du = 0.0
-        self._n = self._count = 0
-        self._st = self._sx = self._stt = self._stx = 0.0
 
     def arm(self, pv0: float, step: float) -> None:
-        self.active = True
+        self._start()
         self._pv0, self._du = pv0, step
-        self._n = self._count = 0
-        self._st = self._sx = self._stt = self._stx = 0.0
 
     def add(self, pv: float, ts: float, loss: float, model_rate: float) -> HeatUpFit | None:
         """One more full-power period; the fit once the PV has risen FIT_TO °C."""
@@ -667,25 +709,20 @@ class _HeatUpWatch:
         rise = pv - self._pv0
         if rise < FIT_FROM:
             return None
+        line = self._line
         if rise <= FIT_TO:
-            t = (self._n - 0.5) * ts  # the PV is the mean over the period just ended
-            self._count += 1
-            self._st += t
-            self._sx += rise
-            self._stt += t * t
-            self._stx += t * rise
+            line.add((self._n - 0.5) * ts, rise)  # the PV is the mean over the period just ended
             return None
         self.active = False
         span = self._n * ts
-        n = self._count
-        spread = n * self._stt - self._st * self._st
-        if n < 4 or spread <= 0.0:
-            return HeatUpFit(model_rate, 0.0, f"too few periods ({n}) between the rises", span)
-        slope = (n * self._stx - self._st * self._sx) / spread
+        slope = line.slope()
+        if slope is None:
+            why = f"too few periods ({line.n}) between the rises"
+            return HeatUpFit(model_rate, 0.0, why, span)
         if slope <= 0.0:
             return HeatUpFit(model_rate, 0.0, "the PV did not rise", span)
-        crossing = (self._st - self._sx / slope) / n  # mean t − mean rise / slope
-        mid_rise = self._sx / n
+        crossing = (line.st - line.sx / slope) / line.n  # mean t − mean rise / slope
+        mid_rise = line.sx / line.n
         rate = (slope + loss * mid_rise) * 100.0 / self._du
         if not 0.25 * model_rate <= rate <= 4.0 * model_rate:
             why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
@@ -696,12 +733,58 @@ class _HeatUpWatch:
         return HeatUpFit(rate, crossing, None, span)
 
 
+class _RecoveryWatch(_RampWatch):
+    """Re-measures the rate on a full-power run that did not start from a steady PV (cold
+    water in the hold): added water lowers the rate in proportion to the heat capacity, and
+    a predictor that keeps the old rate leaves full power too early and creeps up the rest.
+
+    The PV's rise above its lowest point in the run is fitted by a line between FIT_FROM and
+    FIT_FROM + RECOVERY_FIT_SPAN °C of rise (past the dip's bend, and early enough that full
+    power still runs when the new rate is taken). Relative to the hold at the setpoint sp
+    with duty u_h, dx/dt = rate·(100 − u_h)/100 − loss·(x − sp): a fill other than the
+    model's scales rate and heat flows alike, so u_h, which the bias made exact in the hold,
+    stays, and the model's ambient (a guess) does not enter. The dead time is not measured:
+    the dip hides where the ramp starts.
+    """
+
+    __slots__ = ("_hold", "_low")
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._hold = self._low = 0.0
+
+    def arm(self, pv: float, hold: float) -> None:
+        self._start()
+        self._hold, self._low = hold, pv
+
+    def add(self, pv: float, ts: float, sp: float, loss: float) -> tuple[float, float] | None:
+        """One more full-power period; once the PV has risen FIT_FROM + RECOVERY_FIT_SPAN °C
+        from its lowest, the rate (°C/s at 100 %) and the line's PV a period ago (where the
+        estimate stands before this period's step), or None."""
+        self._n += 1
+        line = self._line
+        if line.n == 0 and pv < self._low + FIT_FROM:
+            self._low = min(self._low, pv)
+            return None
+        if pv <= self._low + FIT_FROM + RECOVERY_FIT_SPAN:
+            line.add((self._n - 0.5) * ts, pv)
+            return None
+        self.active = False
+        slope = line.slope()
+        if slope is None or slope <= 0.0:
+            return None
+        mean = line.sx / line.n
+        before = mean + slope * ((self._n - 1.5) * ts - line.st / line.n)
+        return (slope + loss * (mean - sp)) * 100.0 / (100.0 - self._hold), before
+
+
 class _Predictive(_Base):
     """P on the PV the observer predicts one dead time ahead, plus the holding duty."""
 
     __slots__ = (
         "_ambient",
         "_bias",
+        "_dead_time",
         "_estimate",
         "_fa",
         "_filtered",
@@ -718,6 +801,7 @@ class _Predictive(_Base):
         "_loss",
         "_rate",
         "_recent",
+        "_recovery",
         "_ts",
         "_watch",
     )
@@ -732,7 +816,7 @@ class _Predictive(_Base):
         self._fa = params.tf / (params.tf + ts)
         self._loss = 1.0 / model.tau  # 1/s
         self._ambient = model.ambient
-        self._rate = self._kc_near = self._kc_far = 0.0
+        self._rate = self._kc_near = self._kc_far = self._dead_time = 0.0
         self._lag = 0
         self._use(model.rate, model.dead_time)
         # Observer poles: the PV estimate follows the sensor within OBSERVER_TRACK_S, the bias
@@ -742,6 +826,7 @@ class _Predictive(_Base):
         self._inputs: deque[float] = deque(maxlen=math.ceil(MAX_DEAD_TIME / ts) + 2)
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
         self._watch = _HeatUpWatch()
+        self._recovery = _RecoveryWatch()
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
 
@@ -757,6 +842,7 @@ class _Predictive(_Base):
         below it the gain that closes the predicted error in one period (time-optimal)."""
         ts = self._ts
         self._rate = rate
+        self._dead_time = dead_time
         self._lag = max(0, round(dead_time / ts))
         settle = PREDICTED_LOOP_FACTOR * max(dead_time, 2.0 * ts)
         self._kc_near = min(self._kc, 100.0 / (rate * settle))
@@ -806,7 +892,7 @@ class _Predictive(_Base):
         inputs.extend([u0] * (inputs.maxlen or 1))
         self._recent.clear()
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
-        self._watch.active = False
+        self._watch.active = self._recovery.active = False
         self._estimate = self._fpv = pv0
         # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
         # so a few steps land on the bias that gives u0 exactly when one exists.
@@ -827,7 +913,7 @@ class _Predictive(_Base):
     def _advance(self, sp: float, pv: float, previous: float) -> float:
         inputs = self._inputs
         inputs.append(previous)
-        self._watch_heat_up(pv, previous, inputs[-2])
+        self._watch_heat_up(sp, pv, previous, inputs[-2])
         before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag])
         innovation = pv - before
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
@@ -841,22 +927,36 @@ class _Predictive(_Base):
         self._fpv = fpv
         full = previous >= self._hi and pv < sp - FAR_BAND - FULL_MARGIN
         p = self._proportional(sp - self._predicted(), full)
+
         i = self._holding(sp)
         d = -self._kd * (fpv - fpv1)
         self._terms = (p, i, d)
         return p + i + d
 
-    def _watch_heat_up(self, pv: float, applied: float, before: float) -> None:
-        """Arm on a step to full power from a steady PV; take the fit when it comes."""
+    def _watch_heat_up(self, sp: float, pv: float, applied: float, before: float) -> None:
+        """Arm on a step to full power: from a steady PV the heat-up watch, else (cold water)
+        the recovery's; take the fit when it comes."""
         recent = self._recent
         watch = self._watch
+        recovery = self._recovery
         full = applied >= self._hi
-        if watch.active and not full:
-            watch.active = False  # the step ended before the PV had risen enough
+        if not full:
+            watch.active = recovery.active = False  # the step ended before the PV rose enough
         steady = max(recent) - min(recent) <= STEADY_BAND
-        if full and not watch.active and before < self._hi and steady:
-            watch.arm(recent[-1], applied - before)
+        if full and not (watch.active or recovery.active) and before < self._hi:
+            if steady:
+                watch.arm(recent[-1], applied - before)
+            else:
+                hold = self._holding(sp)
+                if self._lo <= hold <= MAX_RECOVERY_HOLD:
+                    recovery.arm(pv, hold)
         recent.append(pv)
+        if full and recovery.active:
+            measured = recovery.add(pv, self._ts, sp, self._loss)
+            if measured is not None and 0.5 * self._rate <= measured[0] <= 2.0 * self._rate:
+                rate, self._estimate = measured
+                self._loss *= rate / self._rate  # as for a heat-up: the fill changed
+                self._use(rate, self._dead_time)
         if not (full and watch.active):
             return
         fit = watch.add(pv, self._ts, self._loss, self._rate)

@@ -93,6 +93,7 @@ class LoggedConfig:
     reason: str
     config: dict[str, Any]
     model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
+    safety_model: dict[str, Any] | None = None  # the measured tun the safety limits came from
 
 
 @dataclass(frozen=True, slots=True)
@@ -349,9 +350,13 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     t, config = message.get("t"), message.get("config")
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
-    model = message.get("model")
+    model, safety_model = message.get("model"), message.get("safety_model")
     return LoggedConfig(
-        float(t), str(message.get("reason", "")), config, model if isinstance(model, dict) else None
+        float(t),
+        str(message.get("reason", "")),
+        config,
+        model if isinstance(model, dict) else None,
+        safety_model if isinstance(safety_model, dict) else None,
     )
 
 
@@ -554,6 +559,8 @@ def summarise(log: Log) -> dict[str, Any]:
         "alarms": alarms(log),
         "timing": timing(log),
         "tun_model": next((c.model for c in reversed(log.configs) if c.model), None),
+        # None: the safety limits held for any tun the config may describe (nothing measured)
+        "safety_tun_model": log.configs[-1].safety_model if log.configs else None,
         "learning": learning(log),
     }
 

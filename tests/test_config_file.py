@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from hermsd import cli
-from hermsd.config import MAX_FILE_BYTES, OutputConfig
+from hermsd.config import MAX_FILE_BYTES, SHIPPED_FILE_MAX_BYTES, OutputConfig
 
 
 def check_config(*args: str) -> subprocess.CompletedProcess[str]:
@@ -36,7 +36,7 @@ def test_files_that_are_not_regular_files_are_refused_without_reading(tmp_path: 
         str(tmp_path): f"{tmp_path}: is a directory, not a regular file (name the YAML file "
         "itself)",
         str(huge): f"{huge}: is 50000000 bytes long, more than the 64 KiB a config file may "
-        "be (the shipped one is under 12 kB: is this the right file?)",
+        "be (the shipped one is under 16 KiB: is this the right file?)",
     }
     for path, message in cases.items():
         proc = check_config(path)
@@ -44,8 +44,10 @@ def test_files_that_are_not_regular_files_are_refused_without_reading(tmp_path: 
 
 
 def test_the_shipped_file_is_far_below_the_cap_its_message_compares_with() -> None:
+    # The refusal tells a user the shipped file is under a quarter of the cap: it must be.
     shipped = Path(__file__).parent.parent / "config" / "hermsd.yaml"
-    assert os.path.getsize(shipped) < 12_000 < MAX_FILE_BYTES
+    assert SHIPPED_FILE_MAX_BYTES == MAX_FILE_BYTES // 4 == 16 * 1024
+    assert os.path.getsize(shipped) < SHIPPED_FILE_MAX_BYTES
 
 
 def test_a_file_of_the_largest_size_is_read(tmp_path: Path) -> None:

@@ -210,3 +210,49 @@ def test_the_forget_model_command(
     assert not (tmp_path / learning.LEARNED_FILE).exists()
     assert cli.main(["forget-model", "--state", str(tmp_path)]) == 0
     assert "nothing learned" in capsys.readouterr().out
+
+
+def test_the_learned_model_sets_the_supervisors_limits(
+    learned_day: tuple[Path, Path], tmp_path: Path
+) -> None:
+    state = tmp_path / "state"
+    shutil.copytree(learned_day[0], state)
+    model = learned(state)
+    assert model is not None
+    restarted = simulated_daemon(config_module.DEFAULT, math.inf, models=ModelStore(state))
+    unmeasured = simulated_daemon(config_module.DEFAULT, math.inf).supervisor.limits
+    limits = restarted.supervisor.limits
+    # Judged after 1.5 θ (θ ≈ 117.5 s measured) instead of the 300 s any tun may need; the
+    # weakest rise 0.8·0.81·r/1.5 of the measured rate, not 0.8·0.81·r/2 of the configured.
+    assert unmeasured.dead_time == 300.0
+    assert limits.dead_time == pytest.approx(1.5 * (THETA + 2.5), abs=8.0)
+    assert limits.heater_rise_rate == pytest.approx(0.8 * 0.81 * RATE / 1.5, rel=0.03)
+    assert unmeasured.heater_rise_rate == pytest.approx(0.8 * 0.81 * 3000 / (90 * 4186) / 2)
+    assert dict(limits.origins)["heater_rise_rate"] == "measured"
+    # control.learn off: neither the controller nor the supervisor uses it.
+    off = config_module.from_dict(
+        config_module.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}}
+    )
+    ignored = simulated_daemon(off, math.inf, models=ModelStore(state)).supervisor.limits
+    assert ignored.dead_time == 300.0
+    # A day on it logs the model its limits came from, and replay says so.
+    scenario.run(day(), state_dir=state, log_dir=tmp_path / "logs")
+    summary = replay.summarise(replay.load(sorted((tmp_path / "logs").glob("*.mcap"))))
+    stored = model.plant_model(config_module.DEFAULT.tun.litres)
+    assert summary["safety_tun_model"] == dataclasses.asdict(stored)
+
+
+def test_check_config_shows_the_limits_from_what_was_learned(
+    learned_day: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_text("tun: {litres: 90}\n", encoding="utf-8")
+    assert cli.main(["check-config", str(path), "--state", str(learned_day[0])]) == 0
+    out = capsys.readouterr().out
+    assert "# safety limits in force (the tun as learned: full-power rate" in out
+    assert "[measured]" in out
+    path.write_text("control: {learn: 'off'}\n", encoding="utf-8")
+    assert cli.main(["check-config", str(path), "--state", str(learned_day[0])]) == 0
+    out = capsys.readouterr().out
+    assert "# safety limits in force (nothing measured yet):" in out
+    assert "[measured]" not in out

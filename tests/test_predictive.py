@@ -209,19 +209,37 @@ def test_cold_water_is_acted_on_in_the_period_the_sensor_shows_it() -> None:
     assert controller.terms[0] >= 120.0 * (SP - pv)
 
 
-def test_recovery_from_cold_water_is_within_two_percent_of_full_power() -> None:
-    tun = Tun(SEED.gain, SEED.tau, SEED.dead_time, SP)
-    controller = predictive()
+def recover(model: pid.PlantModel) -> tuple[float, float, float]:
+    """(s back in the band, the least s full power from that period on takes, peak °C
+    after) of the predictive controller on `model`'s own tun after a tenth of cold water."""
+    tun = Tun(model.gain, model.tau, model.dead_time, SP)
+    controller = predictive(model)
     controller.reset(SP, tun.holding(SP))
-    trace = run(controller, tun, 3 * 3600.0, water_at=3600.0)
+    trace = run(controller, tun, 2 * 3600.0, water_at=3600.0)
     back = next(t for t, pv, _ in trace if t > 3600.0 and pv >= SP - 0.5) - 3600.0
     # The least it can take: the same tun, the same water, full power from that period on
     # (the duty already in the dead time still arrives first).
-    fastest = Tun(SEED.gain, SEED.tau, SEED.dead_time, SP)
+    fastest = Tun(model.gain, model.tau, model.dead_time, SP)
     fastest.add_water(0.1, 15.0)
     steps = 0
     while fastest.pv() < SP - 0.5:
         fastest.heat(100.0)
         steps += 1
-    assert back <= 1.02 * steps * TS
-    assert max(pv for t, pv, _ in trace if t > 3600.0) <= SP + 0.1
+    return back, steps * TS, max(pv for t, pv, _ in trace if t > 3600.0)
+
+
+def test_recovery_from_cold_water_is_within_two_percent_of_full_power() -> None:
+    back, fastest, peak = recover(SEED)
+    assert back <= 1.02 * fastest
+    assert peak <= SP + 0.1
+
+
+@pytest.mark.parametrize(("tau", "dead_time"), [(SEED.tau, 150.0), (SEED.tau / 2.0, 100.0)])
+def test_recovery_re_measures_the_rate_the_water_lowered(tau: float, dead_time: float) -> None:
+    # The model is exact until the water: a tenth more water heats 9 % slower. Heard only at
+    # the next heat-up, the heat in flight is misjudged and the recovery ends 0.03 °C off
+    # the setpoint; measured on the recovery's own ramp, full power ends where the heat in
+    # flight lands the PV on it.
+    back, fastest, peak = recover(pid.PlantModel(SEED.gain, tau, dead_time, ROOM))
+    assert back <= 1.02 * fastest
+    assert peak <= SP + 0.01

@@ -497,6 +497,6 @@ def test_a_huge_file_is_refused_without_reading_it(tmp_path: Path) -> None:
     run_for(daemon, PERIOD)
     assert events.logged()[-1] == (
         f"config rejected, still running on the last good one: {path}: is 50000000 bytes "
-        "long, more than the 64 KiB a config file may be (the shipped one is under 12 kB: "
+        "long, more than the 64 KiB a config file may be (the shipped one is under 16 KiB: "
         "is this the right file?)"
     )

@@ -7,6 +7,7 @@ the seed tun's UA 3000/168.9 W/K, steam tables for evaporation), not read off th
 from __future__ import annotations
 
 import math
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ import yaml
 
 from hermsd import cli
 from hermsd import config as config_module
+from hermsd.learning import ModelStore
 from hermsd.pid import PlantModel
 from hermsd.safety import SafetyLimits, Supervisor, format_limits
 from hermsd.sim import scenario
@@ -242,3 +244,34 @@ def test_check_config_prints_the_limits_as_comments_after_the_config(
     # 3 × 5500 W / (30 L · 4186 J/(L·K)) = 0.1314 °C/s = 7.88 °C/min
     assert "dry fire above                        7.88 °C/min" in out
     assert yaml.safe_load(out)["tun"]["litres"] == 30
+
+
+# -- day 2: the supervisor on what day 1 learned -----------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        # The room 10 °C warmer than control.model_ambient and the smallest losses: a dead
+        # element is judged from 20 % of output, the hold needs 5 %.
+        "warm room",
+        # 15 °C colder than it, lid off, held at 69 %: the learned losses are referred to a
+        # room that is not the real one.
+        "garage",
+    ],
+)
+def test_day_two_on_what_day_one_learned_raises_no_alarm_and_catches_sooner(
+    name: str, tmp_path: Path
+) -> None:
+    spec = tun(name)
+    base = spec.config(config_module.DEFAULT)
+    scenario.run(spec.brew_day(), base, state_dir=tmp_path / "day")
+    assert ModelStore(tmp_path / "day").load()[0] is not None  # day 1 learned the tun
+    shutil.copytree(tmp_path / "day", tmp_path / "fault")
+    assert scenario.run(spec.brew_day(), base, state_dir=tmp_path / "day").summary["alarms"] == []
+    # The same learned state on a day the element dies: caught sooner than unmeasured.
+    died = tf.element_dies(spec)
+    learned = scenario.run(died, base, state_dir=tmp_path / "fault").summary["alarms"]
+    unmeasured = day(spec, died)
+    assert [a["kind"] for a in learned + unmeasured] == ["heater_not_heating"] * 2
+    assert learned[0]["detected_after_s"] < unmeasured[0]["detected_after_s"]

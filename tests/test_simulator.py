@@ -398,3 +398,29 @@ def test_the_family_spans_the_brewers_range_and_every_tun_can_hold_66_c() -> Non
         params = {k: v for k, v in spec.plant().items() if k not in ("model", "noise_c", "seed")}
         to_band = scenario.time_to_band(PhysicalPlant(**params), 0.0, 66.0, 3.5 * 3600.0)
         assert to_band is not None, spec.name
+
+
+class _Ramp:
+    """Water that rises 0.012 °C/s while heated and holds otherwise; the sensor is exact."""
+
+    def __init__(self, temp: float) -> None:
+        self.temp, self.since, self.on = temp, 0.0, False
+
+    def set_heater(self, on: bool, t: float) -> None:
+        self.temp, self.since, self.on = self.water_temperature(t), t, on
+
+    def temperature(self, t: float) -> float:
+        return self.water_temperature(t)
+
+    def water_temperature(self, t: float) -> float:
+        return self.temp + (0.012 * (t - self.since) if self.on else 0.0)
+
+
+def test_the_recovery_floor_waits_a_period_and_reads_on_the_period_samples() -> None:
+    # From 60 °C to the band's edge 65.5 °C: 5.5 / 0.012 = 458.3 s of full power. Off for
+    # the first 5 s period: 463.3 s, read at the sample of 465 s; at 40 % in it (2 s on):
+    # 461.3 s, also 465 s; at 100 %: 458.3 s, read at 460 s.
+    plant = _Ramp(60.0)
+    floors = [scenario.reactive_floor(plant, 100.0, 66.0, 3600.0, 5.0, u) for u in (0, 40, 100)]
+    assert floors == [465.0, 465.0, 460.0]
+    assert plant.water_temperature(1000.0) == 60.0  # on a copy: the plant is untouched

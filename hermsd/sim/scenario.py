@@ -352,6 +352,21 @@ def time_to_band(plant: Plant, start: float, setpoint: float, limit: float) -> f
     return None
 
 
+def reactive_floor(
+    plant: Plant, start: float, setpoint: float, limit: float, period: float, duty: float
+) -> float | None:
+    """The least recovery a controller that acts once a period can show: the sensor shows
+    the water in the period after it, so for that period the element runs at `duty` % as
+    decided before the water (its on-time first, the soonest it can come), then at full
+    power; read, as the metrics read it, at the first period's sample at or past
+    `time_to_band`. On a copy of `plant`."""
+    late = copy.deepcopy(plant)
+    late.set_heater(True, start)
+    late.set_heater(False, start + period * duty / 100.0)
+    rest = time_to_band(late, start + period, setpoint, limit - period)
+    return None if rest is None else period * math.ceil((period + rest) / period)
+
+
 def run(
     scenario: Scenario,
     base: Config | None = None,
@@ -405,6 +420,7 @@ def run(
     daemon.listeners.append(collector)
 
     recovery_min: dict[str, float | None] = {}
+    period = config.control.period
     fault_times: list[float] = []
 
     def schedule(index: int, event: Event) -> None:
@@ -422,6 +438,9 @@ def run(
             sp = event.value if event.kind == "setpoint" else daemon.setpoint
             if index in reloads:
                 sp = reloads[index].control.setpoint
+            recovery_min["floor"] = reactive_floor(
+                snapshot, t, sp, scenario.duration, period, daemon.output
+            )
             recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration)
 
         clock.call_at(event.at, fire)
@@ -468,6 +487,8 @@ def run(
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
         "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),
         "recovery_ratio": _ratio(metrics.recovery_s, recovery_min_s),
+        "recovery_floor_s": recovery_min.get("floor"),
+        "recovery_floor_ratio": _ratio(recovery_min.get("floor"), recovery_min_s),
         "alarms": alarms,
         "overruns": daemon.overruns,
         "wall_s": round(wall, 3),
