@@ -19,6 +19,11 @@ The true model of a physical tun, independent of the fitting code:
 
 Goals (issue 13): K and τ within ±10 %, Θ within ±20 s.
 
+`hermsd tune step` on the same family, from a cold start (the water at the room's
+temperature), with its defaults (step output from tun.litres and tun.element_watts, limit
+the setpoint): the experiment's duration (baseline included) and its errors against the same
+truth, beside the brew-day log the FILE method needed for the same tun.
+
     uv run python bench/tuning.py [--write]
 """
 
@@ -32,10 +37,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from hermsd import config, replay, tune
+from hermsd import config, replay, step_response, tune
 from hermsd.sim import scenario
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2
 from hermsd.sim.tuns import FAMILY, TunSpec
+from hermsd.sim.world import simulated_step_test
 
 HOLD_S = 1800.0
 BAND_C = 0.5
@@ -119,6 +125,53 @@ def row(spec: TunSpec, tuned: tune.Tuned) -> tuple[str, bool]:
     )
 
 
+def step_test(spec: TunSpec) -> step_response.StepExperiment:
+    """`hermsd tune step --simulate` with its defaults on the tun, from the room's temperature."""
+    experiment, _, _ = simulated_step_test(spec.config(config.DEFAULT), spec.plant())
+    step_response.run(experiment, (KeyboardInterrupt,))
+    return experiment
+
+
+STEP_HEADER = (
+    "| tun | output (%) | stopped | experiment (min) | brew-day log (min) | ratio | K err "
+    "| K err (hold) | τ err | Θ err (s) | Θ 10 % rule (s) | Θ line (s) | goals |",
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+)
+GOAL_MINUTES = 90.0
+
+
+def step_row(
+    spec: TunSpec, experiment: step_response.StepExperiment, log_s: float
+) -> tuple[str, bool]:
+    """The row of one tun's step test, and whether it met the goals (errors and ≤ 90 min)."""
+    true, last = truth(spec), experiment.last
+    if last is None or last.tuned is None or experiment.stopped is None:
+        return f"| {spec.name} | {experiment.output} | {experiment.stopped} | no fit |", False
+    m = last.tuned.model
+    minutes = (last.elapsed + step_response.BASELINE_S) / 60.0
+    k_err, tau_err = m.gain / true.gain - 1.0, m.tau / true.tau - 1.0
+    theta_err = m.dead_time - true.dead_time
+    ok = (
+        abs(k_err) <= 0.10
+        and abs(tau_err) <= 0.10
+        and abs(theta_err) <= 20.0
+        and minutes <= GOAL_MINUTES
+    )
+    hold = f"{100 * (m.gain / true.gain_at_hold - 1):+.1f} %" if spec.lid_off else "="
+    ol = last.open_loop
+
+    def seconds(value: float | None) -> str:
+        return "–" if value is None else f"{value - true.dead_time:+.0f}"
+
+    return (
+        f"| {spec.name} | {experiment.output:g} | {experiment.stopped} | {minutes:.0f} "
+        f"| {log_s / 60:.0f} | {minutes * 60 / log_s:.2f} | {100 * k_err:+.1f} % | {hold} "
+        f"| {100 * tau_err:+.1f} % | {theta_err:+.1f} | {seconds(ol.dead_time_10)} "
+        f"| {seconds(ol.dead_time_line)} | {'met' if ok else 'missed'} |",
+        ok,
+    )
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
@@ -126,10 +179,17 @@ def main() -> int:
     started = time.perf_counter()
     tables: dict[bool, list[str]] = {False: [*HEADER], True: [*HEADER]}
     met = {False: 0, True: 0}
+    step_table, step_met, step_minutes = [*STEP_HEADER], 0, []
     with tempfile.TemporaryDirectory() as directory:
         for index, spec in enumerate(FAMILY):
             print(f"{spec.name}…", file=sys.stderr, flush=True)
             log = brew_day_log(spec, Path(directory) / str(index))
+            experiment = step_test(spec)
+            line, ok = step_row(spec, experiment, log.elapsed[-1] - log.elapsed[0])
+            step_table.append(line)
+            step_met += ok
+            if experiment.last is not None:
+                step_minutes.append((experiment.last.elapsed + step_response.BASELINE_S) / 60)
             for given in (False, True):
                 tuned = tune.from_log(log, spec.ambient_c if given else None)
                 line, ok = row(spec, tuned)
@@ -170,11 +230,47 @@ def main() -> int:
         f"Run time {time.perf_counter() - started:.0f} s.",
     ]
     text = "\n".join(out) + "\n"
+    step_text = "\n".join(
+        [
+            "## Tuning by a step test (`hermsd tune step`)",
+            "",
+            "`uv run python bench/tuning.py --write`: each tun of the family, from the room's "
+            "temperature, runs `hermsd tune step` with its defaults through the daemon on the "
+            "simulator (2 min baseline, then the output that reaches 66 °C in about 90 min at "
+            "the water's linear rate, at least 20 %; stop: "
+            f"{step_response.STOP_RULE}). Errors against the same truth as the table above "
+            "(lid off: K err against the linear losses, (hold) against the gain at 66 °C with "
+            "the evaporation). Experiment: baseline plus step; brew-day log: what the FILE "
+            "method above needed for the same tun (heat-up plus a 30 min hold); ratio = "
+            "experiment / log. Θ 10 % rule and Θ line: seed 001 §4.1's two dead times on the "
+            "rise so far, as errors against the truth. Goals: K and τ ±10 %, Θ ±20 s, ≤ 90 min.",
+            "",
+            f"Goals met on {step_met} of {len(FAMILY)}; experiment "
+            f"{min(step_minutes):.0f} to {max(step_minutes):.0f} min.",
+            "",
+            *step_table,
+            "",
+            "The stated 2σ says 'good' on every tun, and the settling rule keeps the lagging "
+            "sensors running until τ stops drifting (the thermowells: 88 and 58 min). The open "
+            "tuns lose heat by evaporation, which grows steeply with the temperature: a step "
+            "that stops at 30 to 40 °C sees less of it than the hold will, so its K lies "
+            "between the linear truth and the hold's, 7 to 14 % below the one and 15 to 17 % "
+            "above the other (the two misses are both open tuns); no single FOPTD is right "
+            "there. Seed 001's own "
+            "dead times bracket the truth: the 10 % rule (of the rise so far) comes late by "
+            "minutes, the 10–90 % regression line, on a rise that already bends, meets T1 "
+            "early; the fit's θ is what is reported and written.",
+            "",
+        ]
+    )
     print(text)
+    print(step_text)
     if args.write:
         from control import _replace_section  # bench/control.py, beside this file
 
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Tuning from a brew", text)
+        results = Path(__file__).with_name("RESULTS.md")
+        _replace_section(results, "## Tuning from a brew", text)
+        _replace_section(results, "## Tuning by a step test", step_text)
     return 0
 
 

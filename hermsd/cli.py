@@ -229,7 +229,8 @@ def _parser() -> argparse.ArgumentParser:
         "files",
         nargs="*",
         type=Path,
-        help="the .mcap or .mcap.part files of an ordinary brew day (a heat-up and a hold)",
+        help="the .mcap or .mcap.part files of an ordinary brew day (a heat-up and a hold), "
+        "or `step` for the step test",
     )
     tune.add_argument(
         "--table",
@@ -254,6 +255,19 @@ def _parser() -> argparse.ArgumentParser:
         help=f"write the recommended settings into the config file (default {DEFAULT_CONFIG}), "
         "keeping everything else in it, and show the diff",
     )
+    step = tune.add_argument_group(
+        "tune step", "`hermsd tune step`: a manual output step through the loop (seed 001 §4.1-4.2)"
+    )
+    step.add_argument(
+        "--output", type=float, metavar="%", help="the step (default: reaches the limit in ~90 min)"
+    )
+    step.add_argument(
+        "--limit", type=float, metavar="°C", help="stop at this PV (default and most: the setpoint)"
+    )
+    step.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
+    step.add_argument("--simulate", action="store_true", help="on the simulated tun, at full speed")
+    step.add_argument("--plant", metavar="MODULE:FACTORY", help="with --simulate: this tun")
+    step.add_argument("--log", type=Path, help="MCAP log directory (default: the config's log.dir)")
     tune.set_defaults(func=cmd_tune)
 
     safe_off = sub.add_parser(
@@ -461,16 +475,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                     "--simulate, or choose serial-rts, serial-dtr or gpio for the tun"
                 )
             clock = MonotonicClock()
-            ssr = _open_output(config.output)
-            try:
-                contactor = (
-                    _open_output(config.contactor) if config.contactor.backend != "none" else None
-                )
-                bus = open_bus(config.sensor.bus)
-            except BaseException:
-                ssr.close()
-                raise
-            sensor = LM92(bus, config.sensor.address, bus_name=f"/dev/i2c-{config.sensor.bus}")
+            sensor, (ssr, contactor) = _hardware(config)
             daemon = Daemon(
                 config,
                 clock,
@@ -538,6 +543,19 @@ def _serve_control(daemon: Daemon, path: Path) -> ControlServer:
     link.attach(server)
     print(f"control socket {path}", flush=True)
     return server
+
+
+def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None]]:
+    """The tun's sensor, SSR and contactor as the config names them (outputs closed on failure)."""
+    ssr = _open_output(config.output)
+    try:
+        contactor = _open_output(config.contactor) if config.contactor.backend != "none" else None
+        bus = open_bus(config.sensor.bus)
+    except BaseException:
+        ssr.close()
+        raise
+    sensor = LM92(bus, config.sensor.address, bus_name=f"/dev/i2c-{config.sensor.bus}")
+    return sensor, (ssr, contactor)
 
 
 def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[DirectoryLock]:
@@ -844,6 +862,12 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
 def cmd_tune(args: argparse.Namespace) -> int:
     from hermsd import replay, tune
 
+    if args.files[:1] == [Path("step")]:
+        return _tune_step(args)
+    step_only = ("output", "limit", "config", "simulate", "plant", "log")
+    given = [f"--{name}" for name in step_only if getattr(args, name) not in (None, False)]
+    if given:
+        raise UserError(f"{', '.join(given)}: for `hermsd tune step` only")
     try:
         if (args.table is None) == (not args.files):
             raise tune.TuneError(
@@ -865,6 +889,111 @@ def cmd_tune(args: argparse.Namespace) -> int:
         raise UserError(str(error)) from None
     print(json.dumps(result, indent=2) if args.json else "\n".join(lines))
     return 0
+
+
+def _tune_step(args: argparse.Namespace) -> int:
+    """`hermsd tune step`: the experiment on the tun (or the simulated one), then the fit."""
+    from hermsd import step_response, tune
+    from hermsd.daemon import Daemon, guard_outputs
+
+    if len(args.files) > 1:
+        raise UserError(f"tune step takes no files (got {', '.join(map(str, args.files[1:]))})")
+    if args.plant and not args.simulate:
+        raise UserError("--plant goes with --simulate")
+    path = config_path(args.config, simulate=args.simulate)
+    config = ConfigFile(path).load() if path is not None else config_module.DEFAULT
+    control = config.control
+    limit = control.setpoint if args.limit is None else args.limit
+    if not (math.isfinite(limit) and limit <= control.setpoint < config.safety.max_temp):
+        raise UserError(
+            f"--limit {limit:g}: the step stops at most at the setpoint, {control.setpoint:g} °C "
+            f"(below safety.max_temp, {config.safety.max_temp:g} °C)"
+        )
+    if args.output is not None and not (
+        step_response.MIN_OUTPUT <= args.output <= control.max_output
+    ):
+        raise UserError(
+            f"--output {args.output:g}: the step must be {step_response.MIN_OUTPUT:g} to "
+            f"{control.max_output:g} % (control.max_output) for K and τ to show"
+        )
+    log_dir = args.log
+    if log_dir is None and not args.simulate:
+        log_dir = Path(config.log.dir) if config.log.dir else None
+    # The service's state directory too: the test must not run beside it, and its latched
+    # alarms (an over-temperature, a stuck SSR) keep the heater off during the test as well.
+    latches = None if args.simulate else _latch_store(None, simulate=False)
+    locks = _lock_directories(log_dir, latches.directory if latches is not None else None)
+    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        with contextlib.ExitStack() as stack:
+            if args.simulate:
+                from hermsd.sim.clock import VirtualClock
+                from hermsd.sim.hlt import PlantLoadError, load_plant
+                from hermsd.sim.world import build_world
+
+                clock = VirtualClock()
+                try:
+                    tun = load_plant(args.plant) if args.plant else None
+                    world = build_world(config, clock, SIMULATED_STEP_TUN, tun=tun)
+                except (PlantLoadError, TypeError, ValueError) as error:
+                    raise UserError(str(error)) from None
+                daemon = Daemon(config, clock, world.sensor, world.outputs)
+                recorder = (
+                    Recorder(log_dir, now=clock.monotonic, lossless=True) if log_dir else None
+                )
+            else:
+                from hermsd.clock import MonotonicClock
+                from hermsd.ssr import DeadManThread
+
+                hardware_clock = MonotonicClock()
+                sensor, outputs = _hardware(config)
+                daemon = Daemon(
+                    config,
+                    hardware_clock,
+                    sensor,
+                    guard_outputs(*outputs, hardware_clock, config),
+                    latches=latches,
+                )
+                recorder = _open_recorder(log_dir, config) if log_dir else None
+            if recorder is not None:
+                stack.callback(recorder.close)
+            daemon.recorder = recorder
+            if not args.simulate:
+                deadman = DeadManThread(daemon.outputs.all())
+                deadman.start()
+                stack.callback(deadman.stop)
+            experiment = step_response.StepExperiment(
+                daemon,
+                args.output,
+                limit,
+                args.ambient,
+                lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
+            )
+            step_response.run(experiment, (Shutdown, KeyboardInterrupt))
+    except StateError as error:
+        raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for lock in locks:
+            lock.release()
+    result, lines = step_response.result_json(experiment), step_response.result_lines(experiment)
+    failed = (experiment.stopped or "").startswith(step_response.ABORTED[0])
+    try:
+        if args.write is not None:
+            diff = step_response.write(experiment, args.write)
+            result["written"] = {"file": os.fspath(args.write), "diff": diff}
+            lines += ["", diff.rstrip("\n") if diff else f"{args.write}: already so"]
+    except tune.TuneError as error:
+        result["written"] = {"file": os.fspath(args.write), "refused": str(error)}
+        lines += ["", str(error)]
+        failed = True
+    print(json.dumps(result, indent=2) if args.json else "\n".join(lines))
+    return 1 if failed else 0  # an alarm, or settings asked for and not written
+
+
+SIMULATED_STEP_TUN = {"model": "foptd", "noise_c": 0.03, "seed": 1}
+"""`tune step --simulate`: the seed's identified tun, read with the family's sensor noise."""
 
 
 # -- safe-off and check-config --------------------------------------------------------------

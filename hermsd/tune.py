@@ -13,6 +13,7 @@ import difflib
 import io
 import math
 import stat
+from collections.abc import Sequence
 from dataclasses import dataclass
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
@@ -225,11 +226,27 @@ def from_log(log: Log, ambient: float | None = None) -> Tuned:
             f"{max(duties):g} % over the {n * period_s:g} s before the first cold water or gap; "
             "the fit needs a heat-up (full power, then the hold) to see gain and time constant"
         )
+    watts, litres = _logged(log, "tun", "element_watts"), _logged(log, "tun", "litres")
+    return from_series(pvs[:n], duties, period_s, ambient, watts, litres)
+
+
+def from_series(
+    pvs: Sequence[float | None],
+    duties: Sequence[float],
+    period_s: float,
+    ambient: float | None = None,
+    watts: float | None = None,
+    litres: float | None = None,
+) -> Tuned:
+    """The model of one PV per control period and the duty applied over it, and its verdict.
+
+    `watts` and `litres`: the config's element and water, to compare with what the fit implies.
+    """
     try:
-        model = identify(pvs[:n], duties, period_s, ambient)
+        model = identify(pvs, duties, period_s, ambient)
     except IdentifyError as error:
         raise TuneError(str(error)) from None
-    spread = uncertainty(pvs[:n], duties, period_s, model, ambient)
+    spread = uncertainty(pvs, duties, period_s, model, ambient)
     poor = []
     if 2 * spread.gain > GOAL_RELATIVE * model.gain:
         poor.append(f"K ±{100 * 2 * spread.gain / model.gain:.0f} %")
@@ -244,7 +261,6 @@ def from_log(log: Log, ambient: float | None = None) -> Tuned:
         )
     if ambient is None and any(item.startswith(("K ", "τ ")) for item in poor):
         poor.append("the room's temperature (--ambient) pins K and τ")
-    watts, litres = _logged(log, "tun", "element_watts"), _logged(log, "tun", "litres")
     implied = None
     if watts is not None:
         implied = model.tau * watts / (100.0 * model.gain) / WATER_J_PER_L_K

@@ -24,6 +24,7 @@ from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, make_plant
+from hermsd.step_response import StepExperiment
 
 
 @dataclass(slots=True)
@@ -93,6 +94,23 @@ def simulated_daemon(
         latches=latches,
         models=models,
     )
+
+
+def simulated_step_test(
+    config: Config,
+    plant: dict[str, Any],
+    output: float | None = None,
+    limit: float | None = None,
+    *,
+    history: bool = False,
+) -> tuple[StepExperiment, World, VirtualClock]:
+    """`hermsd tune step` on the simulated tun `plant`, ready to run (step_response.run), on a
+    virtual clock: output None is the default step, limit None the setpoint."""
+    clock = VirtualClock()
+    world = build_world(config, clock, plant, history=history)
+    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    stop_at = config.control.setpoint if limit is None else limit
+    return StepExperiment(daemon, output, stop_at), world, clock
 
 
 def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:

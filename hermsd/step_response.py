@@ -1,0 +1,378 @@
+"""`hermsd tune step`: seed 001's two open-loop experiments as one run of the daemon's own loop.
+
+The loop holds the heater off for a baseline (the starting temperature, and the room's when
+the water has stood in it), then steps the manual output to P through `Daemon.set_manual`,
+so the supervisor watches the run as any other and the recorder logs it (replayable, and
+`hermsd tune FILE` fits the same log). From the records it measures:
+
+- §4.1: the 10 % rule's dead time (the step to PV ≥ T1 + 10 %·ΔT, ΔT the rise so far), the
+  slope a of the regression line between 10 % and 90 % of the rise, where that line meets T1
+  (the document's dead time), and a* = a/P;
+- §4.2: K and τ (and the FOPTD's own θ) from hermsd.identify's least-squares fit, the one
+  every other user of a model shares, instead of the document's 28.3 %/63.2 % points, which
+  need the final temperature (hours at a 4 h time constant).
+
+It stops as soon as the fit is good (STOP_RULE), or when PV reaches the limit, or after
+MAX_STEP_S; an alarm or an interrupt stops it at once. Whatever stops it, the daemon's
+shutdown switches the heater off, and what was measured up to then is kept.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hermsd import tune
+from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.identify import MIN_DUTY_SPAN
+from hermsd.safety import Alarm
+
+BASELINE_S = 120.0
+"""Heater off at the start: T1, and the sensor's noise, before anything moves."""
+EVALUATE_S = 120.0
+"""How often (experiment time) the model is fitted again: each fit costs up to ~0.1 s."""
+MIN_STEP_S = 600.0
+"""No verdict on less of the step than this: the fit needs the response well under way."""
+MAX_STEP_S = 3 * 3600.0
+MIN_OUTPUT = MIN_DUTY_SPAN
+TARGET_STEP_S = 90 * 60.0
+"""The default output reaches the limit in about this long at the water's linear rate."""
+ABORTED = ("alarm", "interrupted")
+"""How `stopped` begins when the run was cut short: nothing is written then."""
+SETTLE_S = 600.0
+SETTLED_RELATIVE = 0.03
+"""K and τ moved less than this over the last SETTLE_S: a tun that is not quite first order
+(a sensor in a thermowell lags the water) drifts its fit as the step goes on, faster than
+the stated uncertainty shrinks, and would be stopped on a biased τ."""
+STOP_RULE = (
+    "the fit is good (every 2σ within the goals: K and τ ±10 %, θ ±20 s; RMS ≤ 0.04 °C) and "
+    f"settled (K and τ within {100 * SETTLED_RELATIVE:g} % of the fit {SETTLE_S:g} s before) "
+    f"at two fits in a row, {EVALUATE_S:g} s apart, at least {MIN_STEP_S:g} s after the step"
+)
+
+
+@dataclass(frozen=True, slots=True)
+class OpenLoop:
+    """Seed 001's §4.1 numbers, as the document computes them."""
+
+    t1: float  # °C, mean PV of the baseline
+    rise: float  # ΔT so far, °C
+    dead_time_10: float | None  # s, step to PV ≥ T1 + 10 % of the rise
+    dead_time_line: float | None  # s, step to where the 10–90 % regression line meets T1
+    slope: float | None  # a, °C/s
+    a_star: float | None  # a/P, °C/(%·s)
+
+
+@dataclass(frozen=True, slots=True)
+class Progress:
+    elapsed: float  # s since the step
+    pv: float | None
+    open_loop: OpenLoop
+    tuned: tune.Tuned | None
+    problem: str | None  # why there is no fit yet
+    left_s: float | None  # expected time to a good fit or the limit; None: unknown
+    settled: bool = False  # K and τ have stopped moving (SETTLED_RELATIVE)
+
+
+@dataclass(slots=True)
+class StepExperiment:
+    """Listens to the daemon's periods, steps the output, and stops the loop when done."""
+
+    daemon: Daemon
+    output: float | None  # %; None: default_output from the baseline's temperature
+    limit: float  # °C
+    ambient: float | None = None  # the room's, if measured
+    on_progress: Callable[[Progress], None] | None = None
+    times: list[float] = field(default_factory=list)
+    pvs: list[float | None] = field(default_factory=list)
+    duties: list[float] = field(default_factory=list)
+    step_at: float | None = None  # when the stepped output first ran
+    stopped: str | None = None  # why it stopped
+    last: Progress | None = None
+    _started_at: float | None = None
+    _next_fit: float = math.inf
+    _good_fits: int = 0
+    _step_asked: bool = False
+    _fits: list[tuple[float, float, float]] = field(default_factory=list)  # (elapsed, K, τ)
+    _history: list[tuple[float, float]] = field(default_factory=list)  # (elapsed, worst ratio)
+
+    def period(self, record: PeriodRecord) -> None:
+        if self.stopped is not None:
+            return
+        if self._started_at is None:
+            self._started_at = record.t
+        self.times.append(record.t)
+        self.pvs.append(record.pv)
+        self.duties.append(record.applied)
+        if self.step_at is None:
+            stepped = self.output is not None and record.output >= self.output - 1e-9
+            if record.mode == "manual" and stepped:
+                self.step_at = record.t
+                self._next_fit = record.t + MIN_STEP_S
+            elif record.t - self._started_at >= BASELINE_S and self.output is None:
+                self.output = self._default_output(record.pv)
+            if record.t - self._started_at >= BASELINE_S and not self._step_asked:
+                self._step_asked = True
+                self.daemon.set_manual(self.output)
+            return
+        if record.pv is not None and record.pv >= self.limit:
+            self._finish(f"PV reached the limit {self.limit:g} °C", record.t)
+        elif record.t >= self._next_fit:
+            self._next_fit = record.t + EVALUATE_S
+            self._evaluate(record.t)
+        elif record.t - self.step_at >= MAX_STEP_S:
+            self._finish(f"no good fit in {MAX_STEP_S:g} s", record.t)
+
+    def _default_output(self, pv: float | None) -> float:
+        config = self.daemon.config
+        start = pv if pv is not None else self.limit
+        return default_output(
+            config.tun.litres,
+            config.tun.element_watts,
+            start,
+            self.limit,
+            config.control.max_output,
+        )
+
+    def alarm(self, alarm: Alarm) -> None:
+        if alarm.raised and self.stopped is None:
+            self._finish(f"{ABORTED[0]} {alarm.kind}: {alarm.message}", alarm.at)
+
+    def interrupted(self, why: str) -> None:
+        """The run was stopped from outside (Ctrl-C): keep what was measured."""
+        if self.stopped is None:
+            self.stopped = f"{ABORTED[1]} ({why})"
+            self.last = self.progress(self.times[-1] if self.times else 0.0)
+
+    def _evaluate(self, t: float) -> None:
+        progress = self.progress(t)
+        self.last = progress
+        tuned = progress.tuned
+        if tuned is not None:
+            self._fits.append((progress.elapsed, tuned.model.gain, tuned.model.tau))
+        if tuned is not None and self.settled():
+            progress = dataclasses.replace(progress, settled=True)
+            self.last = progress
+        if tuned is not None and tuned.confidence == "good" and progress.settled:
+            self._good_fits += 1
+        else:
+            self._good_fits = 0
+        if self.on_progress is not None:
+            self.on_progress(progress)
+        if self._good_fits >= 2:
+            self._finish("the fit is good", t)
+
+    def settled(self) -> bool:
+        """Whether K and τ now are within SETTLED_RELATIVE of the fit SETTLE_S before."""
+        if not self._fits:
+            return False
+        now, gain, tau = self._fits[-1]
+        before = [fit for fit in self._fits if fit[0] <= now - SETTLE_S + 1e-6]
+        if not before:
+            return False
+        _, old_gain, old_tau = before[-1]
+        return max(abs(gain / old_gain - 1), abs(tau / old_tau - 1)) <= SETTLED_RELATIVE
+
+    def _finish(self, why: str, t: float) -> None:
+        self.stopped = why
+        self.last = self.progress(t)
+        self.daemon.set_manual(0.0)
+        self.daemon.stop()  # the caller's shutdown switches every output off
+
+    def progress(self, t: float) -> Progress:
+        """The estimates now, from every period so far."""
+        elapsed = t - self.step_at if self.step_at is not None else 0.0
+        open_loop = self.open_loop()
+        tuned, problem = None, None
+        config = self.daemon.config
+        try:
+            tuned = tune.from_series(
+                self.pvs,
+                self.duties,
+                config.control.period,
+                self.ambient,
+                config.tun.element_watts,
+                config.tun.litres,
+            )
+        except tune.TuneError as error:
+            problem = str(error)
+        left = None
+        if tuned is not None:
+            self._history.append((elapsed, _worst_ratio(tuned)))
+            left = self._time_left(open_loop)
+        pv = next((pv for pv in reversed(self.pvs) if pv is not None), None)
+        return Progress(elapsed, pv, open_loop, tuned, problem, left)
+
+    def _time_left(self, open_loop: OpenLoop) -> float | None:
+        """To a good fit, if the worst 2σ/goal ratio falls as a power of time as it has between
+        the last two fits; or to the limit at the present slope, if that is sooner."""
+        candidates = []
+        if len(self._history) >= 2:
+            (t0, r0), (t1, r1) = self._history[-2:]
+            if r1 <= 1.0:
+                candidates.append(0.0)
+            elif t0 > 0 and r0 > r1 > 0 and t1 > t0:
+                power = math.log(r0 / r1) / math.log(t1 / t0)
+                candidates.append(t1 * r1 ** (1.0 / power) - t1)
+        last_pv = next((pv for pv in reversed(self.pvs) if pv is not None), None)
+        if open_loop.slope is not None and open_loop.slope > 0 and last_pv is not None:
+            candidates.append(max(self.limit - last_pv, 0.0) / open_loop.slope)
+        return min(candidates) if candidates else None
+
+    def open_loop(self) -> OpenLoop:
+        """§4.1 on the records so far (None where the rise is too small to tell)."""
+        base = [
+            pv
+            for t, pv in zip(self.times, self.pvs, strict=True)
+            if pv is not None and (self.step_at is None or t <= self.step_at)
+        ]
+        t1 = sum(base) / len(base) if base else math.nan
+        after = [
+            (t, pv)
+            for t, pv in zip(self.times, self.pvs, strict=True)
+            if pv is not None and self.step_at is not None and t > self.step_at
+        ]
+        if not after or not base or self.step_at is None:
+            return OpenLoop(t1, 0.0, None, None, None, None)
+        rise = after[-1][1] - t1
+        if rise <= 0:
+            return OpenLoop(t1, rise, None, None, None, None)
+        t10 = next(t for t, pv in after if pv >= t1 + 0.1 * rise)
+        t90 = next(t for t, pv in after if pv >= t1 + 0.9 * rise)
+        points = [(t, pv) for t, pv in after if t10 <= t <= t90]
+        if len(points) < 3:
+            return OpenLoop(t1, rise, t10 - self.step_at, None, None, None)
+        slope, intercept = _line(points)
+        if slope <= 0:
+            return OpenLoop(t1, rise, t10 - self.step_at, None, None, None)
+        meets = (t1 - intercept) / slope
+        output = self.output or math.nan
+        return OpenLoop(t1, rise, t10 - self.step_at, meets - self.step_at, slope, slope / output)
+
+
+def _worst_ratio(tuned: tune.Tuned) -> float:
+    """The largest 2σ as a fraction of its goal (≤ 1: within every goal)."""
+    m, u = tuned.model, tuned.uncertainty
+    return max(
+        2 * u.gain / (tune.GOAL_RELATIVE * m.gain),
+        2 * u.tau / (tune.GOAL_RELATIVE * m.tau),
+        2 * u.dead_time / tune.GOAL_DEAD_TIME_S,
+    )
+
+
+def _line(points: list[tuple[float, float]]) -> tuple[float, float]:
+    """Least-squares slope and intercept of y on x."""
+    n = len(points)
+    mx = sum(x for x, _ in points) / n
+    my = sum(y for _, y in points) / n
+    sxx = sum((x - mx) ** 2 for x, _ in points)
+    sxy = sum((x - mx) * (y - my) for x, y in points)
+    slope = sxy / sxx
+    return slope, my - slope * mx
+
+
+def default_output(
+    litres: float, element_watts: float, start: float, limit: float, max_output: float = 100.0
+) -> float:
+    """The output that would take the water from `start` to `limit` in TARGET_STEP_S at the
+    element's linear rate (no losses), within MIN_OUTPUT..100 %: a strong element at a low
+    output bends the curve enough to show τ before the limit (the seed steps to 20 %); never
+    above the config's control.max_output."""
+    capacity = tune.WATER_J_PER_L_K * litres
+    wanted = 100.0 * (limit - start) * capacity / (element_watts * TARGET_STEP_S)
+    return float(min(max(math.ceil(wanted), MIN_OUTPUT), max_output))
+
+
+def write(experiment: StepExperiment, path: Path) -> str:
+    """Write the fit's settings into the config file (tune's writer): never after an alarm or
+    an interrupt, nor from a fit that is not good."""
+    why = experiment.stopped or "not run"
+    if why.startswith(ABORTED):
+        raise tune.TuneError(f"{path} left as it is: the step test was stopped by {why}")
+    last = experiment.last
+    if last is None or last.tuned is None:
+        raise tune.TuneError(f"{path} left as it is: no model was fitted")
+    return tune.write_tuned(path, last.tuned)
+
+
+def run(experiment: StepExperiment, interrupts: tuple[type[BaseException], ...]) -> None:
+    """Run the daemon until the experiment stops it, an interrupt, or a failure; the heater is
+    off afterwards whatever happened (the daemon's shutdown on leaving its context)."""
+    daemon = experiment.daemon
+    daemon.listeners.append(experiment)
+    daemon.set_manual(0.0)  # applied before the first period: the baseline is all heater-off
+    try:
+        with daemon:
+            daemon.run()
+    except interrupts as why:
+        experiment.interrupted(type(why).__name__)
+
+
+def _clock(seconds: float) -> str:
+    minutes, secs = divmod(round(seconds), 60)
+    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
+
+
+def progress_line(progress: Progress) -> str:
+    """One line a fit: elapsed, PV, the estimates with one standard deviation, time left."""
+    head = f"step +{_clock(progress.elapsed)}"
+    if progress.pv is not None:
+        head += f"  PV {progress.pv:.2f} °C"
+    tuned = progress.tuned
+    if tuned is None:
+        return f"{head}  no fit yet: {progress.problem}"
+    m, u = tuned.model, tuned.uncertainty
+    left = "unknown" if progress.left_s is None else f"~{_clock(progress.left_s)}"
+    verdict = "poor" if tuned.confidence != "good" else "good" if progress.settled else "settling"
+    return (
+        f"{head}  K {m.gain:.3f}±{u.gain:.3f} °C/%  τ {m.tau:.0f}±{u.tau:.0f} s  "
+        f"θ {m.dead_time:.0f}±{u.dead_time:.0f} s  ({verdict})  left {left}"
+    )
+
+
+def result_json(experiment: StepExperiment) -> dict[str, Any]:
+    last = experiment.last
+    result: dict[str, Any] = {
+        "stopped": experiment.stopped,
+        "stop_rule": STOP_RULE,
+        "output": experiment.output,
+        "limit": experiment.limit,
+        "step_s": None if last is None else last.elapsed,
+        "open_loop": None if last is None else dataclasses.asdict(last.open_loop),
+        "problem": None if last is None else last.problem,
+    }
+    if last is not None and last.tuned is not None:
+        result.update(tune.tuned_json(last.tuned))
+    return result
+
+
+def result_lines(experiment: StepExperiment) -> list[str]:
+    last = experiment.last
+    lines = [f"step test stopped: {experiment.stopped}; the heater is off"]
+    if last is None or experiment.step_at is None:
+        return [*lines, "nothing measured: the output was never stepped"]
+    ol = last.open_loop
+    lines.append(
+        f"step to {experiment.output:g} % for {_clock(last.elapsed)}, T1 {ol.t1:.2f} °C, "
+        f"rise {ol.rise:.2f} °C (limit {experiment.limit:g} °C)"
+    )
+    lines.append("open loop (seed 001 §4.1, on the rise so far):")
+    lines.append(f"  dead time, 10 % rule: {_maybe(ol.dead_time_10, '.0f', 's')}")
+    lines.append(
+        f"  dead time, 10–90 % regression line at T1: {_maybe(ol.dead_time_line, '.0f', 's')}"
+    )
+    lines.append(
+        f"  slope a {_maybe(ol.slope, '.3g', '°C/s')}, a* {_maybe(ol.a_star, '.3g', '°C/(%·s)')}"
+    )
+    if last.tuned is None:
+        return [*lines, f"no model: {last.problem}"]
+    lines += ["", *tune.tuned_lines(last.tuned)]
+    return lines
+
+
+def _maybe(value: float | None, spec: str, unit: str) -> str:
+    return "not yet measurable" if value is None else f"{value:{spec}} {unit}"
