@@ -29,7 +29,7 @@ import resource
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from hermsd import config as config_module
@@ -75,11 +75,19 @@ def bench_config() -> config_module.Config:
     )
 
 
-def measure(seconds: float, log_dir: Path, realtime: bool) -> dict[str, float]:
+def measure(
+    seconds: float,
+    log_dir: Path,
+    realtime: bool,
+    beside: Callable[[Daemon], contextlib.AbstractContextManager[object]] | None = None,
+) -> dict[str, float]:
+    """The loop's timing over `seconds`; `beside(daemon)` is entered before the loop takes
+    its priority and left after it stops (bench/socket_load.py serves the socket in it)."""
     config = bench_config()
     clock = MonotonicClock()
     plant = {"model": "foptd", "start_s": clock.monotonic(), "start_c": 66.0}
     world = build_world(config, clock, plant)
+    log_dir.mkdir(parents=True, exist_ok=True)  # the recorder writes into it, never makes it
     recorder = Recorder(log_dir)
     daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
     edges: list[float] = []
@@ -95,7 +103,11 @@ def measure(seconds: float, log_dir: Path, realtime: bool) -> dict[str, float]:
     usage0 = resource.getrusage(resource.RUSAGE_SELF)
     wall0 = time.monotonic()
     # As in `hermsd run`: the recorder and dead-man threads started first stay ordinary.
-    with loop_priority() if realtime else contextlib.nullcontext(False) as raised, daemon:
+    with (
+        beside(daemon) if beside is not None else contextlib.nullcontext(),
+        loop_priority() if realtime else contextlib.nullcontext(False) as raised,
+        daemon,
+    ):
         if realtime and not raised:
             raise SystemExit("the real-time row needs root or an RLIMIT_RTPRIO of 10")
         daemon.start()
@@ -194,20 +206,32 @@ def main() -> int:
 
 
 def _table(rows: dict[str, dict[str, float]]) -> str:
-    lines = [
-        "| load | period p50/p99/max ms | edge p50/p99/max ms | periods | edges | CPU % "
-        "| peak RSS MB | overruns | log records dropped |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for name, r in rows.items():
-        lines.append(
-            f"| {name} | {r['period_p50_ms']:.2f} / {r['period_p99_ms']:.2f} / "
-            f"{r['period_max_ms']:.2f} | {r['edge_p50_ms']:.2f} / {r['edge_p99_ms']:.2f} / "
-            f"{r['edge_max_ms']:.2f} | {r['periods']:.0f} | {r['edges']:.0f} "
-            f"| {r['cpu_percent']:.2f} | {r['rss_mb']:.1f} | {r['overruns']:.0f} "
-            f"| {r['dropped']:.0f} |"
-        )
+    more = ["CPU %", "peak RSS MB", "overruns", "log records dropped"]
+    cells = {
+        name: f"{r['cpu_percent']:.2f} | {r['rss_mb']:.1f} | {r['overruns']:.0f} "
+        f"| {r['dropped']:.0f}"
+        for name, r in rows.items()
+    }
+    return timing_table("load", more, rows, cells)
+
+
+def timing_table(
+    first: str, more: list[str], rows: dict[str, dict[str, float]], cells: dict[str, str]
+) -> str:
+    """A Markdown table: `first` (the row names), the timing columns, then `more` (`cells`)."""
+    header = [first, "period p50/p99/max ms", "edge p50/p99/max ms", "periods", "edges", *more]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += [f"| {name} | {timing_cells(r)} | {cells[name]} |" for name, r in rows.items()]
     return "\n".join(lines)
+
+
+def timing_cells(r: dict[str, float]) -> str:
+    """Period and edge p50/p99/max, and their counts, as table cells."""
+    return (
+        f"{r['period_p50_ms']:.2f} / {r['period_p99_ms']:.2f} / {r['period_max_ms']:.2f} | "
+        f"{r['edge_p50_ms']:.2f} / {r['edge_p99_ms']:.2f} / {r['edge_max_ms']:.2f} | "
+        f"{r['periods']:.0f} | {r['edges']:.0f}"
+    )
 
 
 def _ratios(ordinary: dict[str, float], realtime: dict[str, float]) -> str:

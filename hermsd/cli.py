@@ -15,25 +15,38 @@ import math
 import os
 import signal
 import sys
+import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from hermsd import __version__
 from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, ContactorConfig, OutputConfig
 from hermsd.config_file import ConfigFile
+from hermsd.control.client import (
+    SOCKET_NAME,
+    NoDaemonError,
+    ReplyError,
+    ask,
+    default_socket_path,
+)
+from hermsd.control.protocol import Request, ResetAlarms, SetMode, SetSetpoint, Status
+from hermsd.control.server import ControlServer
 from hermsd.durations import parse_duration
 from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92, SensorError, open_bus
-from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog
+from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
 from hermsd.realtime import loop_priority
 from hermsd.recorder import Recorder, recover, recover_directory
 from hermsd.ssr import Switch, describe_output, open_hardware_switch
+
+if TYPE_CHECKING:
+    from hermsd.daemon import Daemon
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
 DEFAULT_STATE = Path("/var/lib/hermsd")
@@ -44,6 +57,10 @@ log = logging.getLogger("hermsd")
 
 class UserError(Exception):
     """A problem the user can fix; printed as one line, exit code 2."""
+
+
+class Unreachable(Exception):
+    """No daemon answers on the control socket; printed as one line, exit code 1."""
 
 
 class Shutdown(BaseException):
@@ -67,6 +84,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UserError as error:
         print(f"hermsd: {error}", file=sys.stderr)
         return EXIT_USAGE
+    except Unreachable as error:
+        print(f"hermsd: {error}", file=sys.stderr)
+        return 1
     except ConfigError as error:
         print(str(error), file=sys.stderr)
         return EXIT_USAGE
@@ -118,12 +138,33 @@ def _parser() -> argparse.ArgumentParser:
         help="directory that keeps latched alarms across restarts (default: systemd's "
         f"$STATE_DIRECTORY, else {DEFAULT_STATE} unless simulating)",
     )
+    run.add_argument(
+        "--socket",
+        type=Path,
+        help="control socket (default: $RUNTIME_DIRECTORY/control.sock, else "
+        "/run/hermsd/control.sock; simulating: in --state or a temporary directory)",
+    )
     run.set_defaults(func=cmd_run)
+
+    status = sub.add_parser("status", help="what the running daemon is doing")
+    status.add_argument("--json", action="store_true", help="print the daemon's reply as JSON")
+    _socket_argument(status)
+    status.set_defaults(func=cmd_status)
+
+    set_ = sub.add_parser(
+        "set", help="change the running daemon's setpoint or mode (until the file's key is edited)"
+    )
+    set_.add_argument("what", metavar="setpoint|mode", help="what to set")
+    set_.add_argument("value", help="°C for setpoint; auto or manual for mode")
+    set_.add_argument("--output", help="with `mode manual`: the output in % (default: hold it)")
+    _socket_argument(set_)
+    set_.set_defaults(func=cmd_set)
 
     reset = sub.add_parser(
         "reset-alarm", help="clear the latched alarms, once their cause is found"
     )
     _state_argument(reset)
+    _socket_argument(reset)
     reset.set_defaults(func=cmd_reset_alarm)
 
     forget = sub.add_parser(
@@ -249,6 +290,15 @@ def _parser() -> argparse.ArgumentParser:
     )
     check.set_defaults(func=cmd_check_config)
     return parser
+
+
+def _socket_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--socket",
+        type=Path,
+        help="the daemon's control socket (default: $RUNTIME_DIRECTORY/control.sock, else "
+        "/run/hermsd/control.sock)",
+    )
 
 
 def _address(text: str) -> int:
@@ -446,6 +496,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             deadman = DeadManThread(daemon.outputs.all())
             deadman.start()
             stack.callback(deadman.stop)
+            stack.callback(_serve_control(daemon, _run_socket_path(args, stack)).close)
             if not args.simulate:  # after the recorder and dead-man threads: they stay ordinary
                 stack.enter_context(loop_priority())
             stack.enter_context(daemon)
@@ -463,6 +514,35 @@ def cmd_run(args: argparse.Namespace) -> int:
         for lock in locks:
             lock.release()
     return 0
+
+
+def _run_socket_path(args: argparse.Namespace, stack: contextlib.ExitStack) -> Path:
+    """Where `run` listens: --socket, $RUNTIME_DIRECTORY, or for a simulated tun a place of
+    its own (the state directory, else a temporary one), so it never takes the service's."""
+    if args.socket is not None or not args.simulate or os.environ.get("RUNTIME_DIRECTORY"):
+        return default_socket_path(args.socket)
+    if args.state is not None:
+        return Path(args.state, SOCKET_NAME)
+    return Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="hermsd-")), SOCKET_NAME)
+
+
+def _serve_control(daemon: Daemon, path: Path) -> ControlServer:
+    """The control socket, served beside the loop (started before it takes real-time priority,
+    so its thread stays ordinary); said on the first line of output."""
+    from hermsd.control.link import LoopLink
+
+    link = LoopLink(daemon)
+    server = ControlServer(path, link.status_line)
+    try:
+        server.start()
+    except OSError as error:
+        raise UserError(
+            f"cannot open the control socket {path}: {error.strerror or error} "
+            "(another hermsd on this tun? else choose a place with --socket PATH)"
+        ) from None
+    link.attach(server)
+    print(f"control socket {path}", flush=True)
+    return server
 
 
 def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None]]:
@@ -940,6 +1020,17 @@ def cmd_safe_off(args: argparse.Namespace) -> int:
 
 
 def cmd_reset_alarm(args: argparse.Namespace) -> int:
+    """Clear the latched alarms: through the socket when a daemon runs, else by a request
+    in the state directory that the daemon takes when it starts."""
+    try:
+        reply = _ask(args.socket, ResetAlarms())
+    except NoDaemonError:
+        return _request_reset_in_state(args)
+    print(f"alarms reset; now: {', '.join(reply['alarms']) or 'no alarm'}")
+    return 0
+
+
+def _request_reset_in_state(args: argparse.Namespace) -> int:
     """Ask the daemon to clear the latched alarms it keeps in its state directory."""
     directory: Path = args.state or _default_state_directory()
     store = LatchStore(directory)
@@ -966,6 +1057,86 @@ def cmd_reset_alarm(args: argparse.Namespace) -> int:
         "a stopped one when it starts"
     )
     return 0
+
+
+# -- status and set, through the control socket ---------------------------------------------
+
+
+def _ask(socket_path: Path | None, request: Request) -> dict[str, Any]:
+    """The daemon's reply; a refusal is a UserError (exit 2) with the daemon's one line."""
+    try:
+        reply = ask(default_socket_path(socket_path), request)
+    except ReplyError as error:
+        raise Unreachable(str(error)) from None
+    if not reply["ok"]:
+        raise UserError(str(reply.get("error", "refused")))
+    return reply
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    try:
+        reply = _ask(args.socket, Status())
+    except NoDaemonError as error:
+        raise Unreachable(str(error)) from None
+    if args.json:
+        print(json.dumps(reply, indent=2, ensure_ascii=False))
+        return 0
+    line = status_line(
+        reply["tun"], reply["pv"], reply["setpoint"], reply["output"], reply["state"]
+    )
+    print(f"{line} (applied {reply['applied']:.0f} %), {_mode_text(reply)}")
+    print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
+    for key, values in reply["runtime"].items():
+        print(f"{key} {values['running']} set at runtime (config file: {values['file']})")
+    model = reply["model"]
+    print(
+        f"tun model ({model['from']}): K {model['gain']:.4g} °C/%, "
+        f"τ {model['tau']:.0f} s, θ {model['dead_time']:.0f} s, room {model['ambient']:.1f} °C"
+    )
+    learned = reply["learned"]
+    print(f"learned: {learned['text'] if learned is not None else 'nothing yet'}")
+    print("safety limits in force:")
+    for row in reply["limits"]:
+        print(f"  {row}")
+    return 0
+
+
+def cmd_set(args: argparse.Namespace) -> int:
+    request: Request
+    if args.what == "setpoint":
+        if args.output is not None:
+            raise UserError("--output goes with `set mode manual`")
+        request = SetSetpoint(_finite(args.value, "setpoint", "°C"))
+    elif args.what == "mode":
+        if args.value not in ("auto", "manual"):
+            raise UserError(f"mode: expected auto or manual, got {args.value!r}")
+        if args.output is not None and args.value != "manual":
+            raise UserError("--output goes with `set mode manual`")
+        output = None if args.output is None else _finite(args.output, "--output", "%")
+        request = SetMode(args.value, output)
+    else:
+        raise UserError(f"set: expected setpoint or mode, got {args.what!r}")
+    try:
+        reply = _ask(args.socket, request)
+    except NoDaemonError as error:
+        raise Unreachable(str(error)) from None
+    print(f"now: setpoint {reply['setpoint']:g} °C, {_mode_text(reply)}")
+    return 0
+
+
+def _mode_text(reply: dict[str, Any]) -> str:
+    mode = str(reply["mode"])
+    return mode + (f" at {reply['manual_output']:g} %" if mode == "manual" else "")
+
+
+def _finite(text: str, name: str, unit: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise UserError(f"{name}: expected a number in {unit}, got {text!r}") from None
+    if not math.isfinite(value):
+        raise UserError(f"{name}: expected a number in {unit}, got {text!r}")
+    return value
 
 
 def _state_argument(parser: argparse.ArgumentParser) -> None:

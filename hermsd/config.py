@@ -1458,3 +1458,43 @@ def keep_restart_keys(running: Config, edited: Config) -> Config:
 def broken_rules(config: Config) -> list[str]:
     """The rules between keys that `config` breaks, as 'key: what is wrong' lines."""
     return [f"{violation.keys[0]}: {violation.message}" for violation in _violations(config)]
+
+
+def runtime_problems(running: Config, changes: dict[str, object]) -> list[str]:
+    """Why an operator's runtime change of keys cannot apply to `running`; [] when it can.
+
+    Each value is checked as the file's would be (the same bounds, choices and messages),
+    then the rules across keys with every other value as in `running` (the config with the
+    values in force). 'key: what is wrong (what would be right)' lines.
+    """
+    problems: list[str] = []
+    values: dict[str, dict[str, object]] = {}
+    for path, value in changes.items():
+        section, name = path.split(".")
+        try:
+            checked = _convert(_SCHEMA[section][name], _runtime_node(value))
+        except _Invalid as error:
+            problems.append(f"{path}: {error}")
+            continue
+        values.setdefault(section, {})[name] = checked
+    if problems:
+        return problems
+    candidate = dataclasses.replace(
+        running,
+        **{
+            section: dataclasses.replace(getattr(running, section), **fields)
+            for section, fields in values.items()
+        },
+    )
+    return broken_rules(candidate)
+
+
+def _runtime_node(value: object) -> yaml.ScalarNode:
+    """A value given at runtime as the file would hold it: a number plain, text quoted."""
+    style = "'" if isinstance(value, str) else None
+    text = (
+        value if isinstance(value, str) else _fmt(value) if isinstance(value, float) else str(value)
+    )
+    implicit = (style is None, style is not None)
+    tag = _RESOLVER.resolve(yaml.ScalarNode, text, implicit)  # type: ignore[no-untyped-call]
+    return yaml.ScalarNode(tag, text, style=style)

@@ -98,6 +98,15 @@ class PeriodRecord:
     reset_from: float | None = None  # the controller was reset to this output before its step
 
 
+class ControlHook(Protocol):
+    """Operator commands from outside the loop (the control socket, `hermsd.control`)."""
+
+    def at_boundary(self, t: float) -> None:
+        """Check and queue the commands that arrived (at a period boundary, before the queue
+        of operator actions is applied)."""
+        ...
+
+
 class Listener(Protocol):
     """Observers of the loop (the simulator's metrics, tests)."""
 
@@ -256,6 +265,7 @@ class Daemon:
         self._last_control_t: float | None = None
         self._reads = 0
         self._pending: list[Callable[[float], None]] = []
+        self.control: ControlHook | None = None
         self._started = False
         self._reload_requested = False
         self._config_problem: str | None = None  # why the file's last edit was rejected
@@ -392,6 +402,10 @@ class Daemon:
         """Clear latched alarms (`kinds`, or all) at the next period boundary."""
         self._pending.append(lambda t: self._apply_reset(t, kinds))
 
+    def operator_action(self, what: str, t: float) -> None:
+        """Log an operator's action (`what` names it and where it came from)."""
+        self._event(logging.INFO, f"operator: {what}", t)
+
     def request_reload(self) -> None:
         """Read the config file again at the next period boundary (SIGHUP; signal-safe)."""
         self._reload_requested = True
@@ -499,10 +513,18 @@ class Daemon:
                 self._resume_output = self.output
         if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
             self._apply_manual(control.manual_output, t)
-        elif control.mode == "auto" and "control.mode" in changed:
+        elif control.mode == "auto" and changed & {"control.mode", "control.manual_output"}:
             self._apply_auto(t)
         elif "control.max_output" in changed and self.mode == "manual":
             self._apply_manual(self.manual_output, t)  # the new power limit holds at once
+        if self.setpoint >= new.safety.max_temp:  # set at runtime, and above the new cut-out
+            self._event(
+                logging.WARNING,
+                f"setpoint {self.setpoint:g} °C is not below the new safety.max_temp: "
+                "back to the file's",
+                t,
+            )
+            self._apply_setpoint(control.setpoint, t)
         if any(key.startswith(("safety.", "tun.")) for key in changed) or (
             "control.learn" in changed
         ):
@@ -516,6 +538,11 @@ class Daemon:
             self.planner = self._make_planner(new)
 
     # -- the tun's model: prior, learned, learning ----------------------------------------
+
+    @property
+    def learned_model(self) -> LearnedModel | None:
+        """What was learned of the tun and stored, as read at start (None: nothing usable)."""
+        return self._stored_model
 
     def _model_in_force(self, config: Config) -> pid.PlantModel:
         """The stored model (rescaled to the configured litres) unless `control.learn` is off."""
@@ -702,6 +729,8 @@ class Daemon:
         sup.tick(now)
         self._poll_config(now)
         self._poll_reset_request(now)
+        if self.control is not None:
+            self.control.at_boundary(now)
         for action in self._pending:
             action(now)
         self._pending.clear()

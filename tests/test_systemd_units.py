@@ -125,6 +125,9 @@ def test_the_unit_has_what_the_daemon_relies_on(unit_file: str) -> None:
     assert directives.get("Service.RestrictRealtime", ["no"]) == ["no"]
     assert directives["Service.StateDirectory"][0].startswith("hermsd")
     assert directives["Service.LogsDirectory"][0].startswith("hermsd")
+    # The control socket's directory: the service's group may enter it, no one else.
+    assert directives["Service.RuntimeDirectory"][0].startswith("hermsd")
+    assert directives["Service.RuntimeDirectoryMode"] == ["0750"]
 
 
 def test_the_template_differs_from_the_plain_unit_only_per_vessel() -> None:
@@ -136,6 +139,7 @@ def test_the_template_differs_from_the_plain_unit_only_per_vessel() -> None:
         "Service.ExecStopPost",
         "Service.StateDirectory",
         "Service.LogsDirectory",
+        "Service.RuntimeDirectory",
     }
 
     assert {key for key in plain.keys() | template.keys() if plain[key] != template[key]} == (
@@ -143,3 +147,4 @@ def test_the_template_differs_from_the_plain_unit_only_per_vessel() -> None:
     )
     assert template["Service.StateDirectory"] == ["hermsd/%i"]
     assert template["Service.LogsDirectory"] == ["hermsd/%i"]
+    assert template["Service.RuntimeDirectory"] == ["hermsd/%i"]

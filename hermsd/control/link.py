@@ -1,0 +1,227 @@
+"""What the control loop does with the control socket, at each period boundary.
+
+`at_boundary` runs before the period's queued operator actions: it takes the commands the
+server thread has parsed, checks each against the running config as strictly as the file is
+checked (`config.runtime_problems`: a clear error, nothing applied), and hands the valid ones
+to the daemon's own operator actions, logged as coming from the socket. `period` runs after
+the period's record is made: it publishes the snapshot `status` is served from and answers
+the commands of this boundary.
+
+Runtime changes and the config file (one rule): a `set` overrides the running value until
+the config file's same key is next edited; an edit of that key wins, being the newer intent.
+`set mode` covers `control.mode` and `control.manual_output` together. Until then `status`
+shows each value set at runtime that differs from the file's (`runtime`). The one exception
+is the config's own rule: an edit that puts `safety.max_temp` at or below a runtime setpoint
+brings back the file's setpoint (logged), and one that lowers `control.max_output` below a
+runtime manual output lowers it to the limit, as for the file's own values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from hermsd import config as config_module
+from hermsd.config import Config
+from hermsd.control.protocol import (
+    VERSION,
+    Command,
+    ResetAlarms,
+    SetMode,
+    SetSetpoint,
+    describe,
+    encode,
+    error_reply,
+)
+from hermsd.control.server import Pending
+from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.learning import LearnedModel
+from hermsd.pid import PlantModel
+from hermsd.safety import SafetyLimits, format_limits
+
+SOURCE = "control socket"
+RUNTIME_KEYS = ("control.setpoint", "control.mode", "control.manual_output")
+
+
+class CommandSource(Protocol):
+    """Where the commands come from: the `ControlServer`."""
+
+    def take(self) -> list[Pending]: ...
+
+    def wake(self) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    """References to what one period left (all immutable): cheap for the loop to make."""
+
+    record: PeriodRecord
+    tun: str
+    manual_output: float
+    limits: SafetyLimits
+    model: PlantModel  # the controller's model of the tun, in force
+    learned: LearnedModel | None
+    config: Config
+    runtime: frozenset[str]
+
+
+class LoopLink:
+    """Connects a daemon to a control server (`attach` it, then start the server)."""
+
+    def __init__(self, daemon: Daemon) -> None:
+        self.daemon = daemon
+        self.server: CommandSource | None = None
+        self._snapshot: Snapshot | None = None
+        self._encoded: tuple[Snapshot, bytes] | None = None
+        self._encode_lock = threading.Lock()
+        self._answering: list[Pending] = []
+        self._runtime: set[str] = set()  # keys set at runtime since the file last changed them
+        self._config = daemon.config
+
+    def attach(self, server: CommandSource) -> None:
+        self.server = server
+        self.daemon.control = self
+        self.daemon.listeners.append(self)
+
+    # -- on the loop ----------------------------------------------------------------------
+
+    def at_boundary(self, t: float) -> None:
+        """Check and queue this boundary's commands (before the daemon applies its queue)."""
+        if self.server is None:
+            return
+        for pending in self.server.take():
+            problems = self._problems(pending.command)
+            if problems:
+                pending.reply = error_reply(f"refused, nothing changed: {'; '.join(problems)}")
+            else:
+                self._apply(pending.command, t)
+            self._answering.append(pending)
+
+    def period(self, record: PeriodRecord) -> None:
+        """Publish what this period left, and answer the commands it applied."""
+        daemon = self.daemon
+        if daemon.config is not self._config:  # a file edit: its changed keys win
+            self._runtime -= set(config_module.differences(self._config, daemon.config))
+            self._config = daemon.config
+        self._snapshot = Snapshot(
+            record,
+            daemon.config.tun.name,
+            daemon.manual_output,
+            daemon.supervisor.limits,
+            daemon.model,
+            daemon.learned_model,
+            daemon.config,
+            frozenset(self._runtime),
+        )
+        if self._answering:
+            reply = None
+            for pending in self._answering:
+                if pending.reply is None:
+                    reply = reply or self._status_message(self._snapshot)
+                    pending.reply = reply
+            self._answering = []
+            if self.server is not None:
+                self.server.wake()
+
+    def alarm(self, alarm: object) -> None:
+        """Alarms show in the next snapshot's record."""
+
+    def _problems(self, command: Command) -> list[str]:
+        daemon = self.daemon
+        changes: dict[str, object]
+        if isinstance(command, SetSetpoint):
+            changes = {"control.setpoint": command.celsius}
+        elif isinstance(command, SetMode):
+            changes = {"control.mode": command.mode}
+            if command.output is not None:
+                changes["control.manual_output"] = command.output
+        else:
+            return []
+        control = dataclasses.replace(
+            daemon.config.control,
+            setpoint=daemon.setpoint,
+            mode=daemon.mode,
+            manual_output=daemon.manual_output,
+        )
+        running = dataclasses.replace(daemon.config, control=control)
+        return config_module.runtime_problems(running, changes)
+
+    def _apply(self, command: Command, t: float) -> None:
+        daemon = self.daemon
+        daemon.operator_action(f"{describe(command)} (from the {SOURCE})", t)
+        if isinstance(command, SetSetpoint):
+            daemon.set_setpoint(command.celsius)
+            self._runtime.add("control.setpoint")
+        elif isinstance(command, ResetAlarms):
+            daemon.reset_alarms()
+        elif command.mode == "manual":
+            daemon.set_manual(command.output)
+            self._runtime.update(("control.mode", "control.manual_output"))
+        else:
+            daemon.set_auto()
+            self._runtime.add("control.mode")
+
+    # -- on the server thread -------------------------------------------------------------
+
+    def status_line(self) -> bytes:
+        """The encoded status reply, made once per snapshot however often it is asked for."""
+        with self._encode_lock:
+            snapshot = self._snapshot
+            if snapshot is None:
+                return encode(error_reply("hermsd is starting: no control period has run yet"))
+            if self._encoded is None or self._encoded[0] is not snapshot:
+                self._encoded = (snapshot, encode(self._status_message(snapshot)))
+            return self._encoded[1]
+
+    @staticmethod
+    def _status_message(snapshot: Snapshot) -> dict[str, Any]:
+        record = snapshot.record
+        running = {
+            "control.setpoint": record.setpoint,
+            "control.mode": record.mode,
+            "control.manual_output": snapshot.manual_output,
+        }
+        model, learned = snapshot.model, snapshot.learned
+        learned_in_force = learned is not None and snapshot.config.control.learn != "off"
+        return {
+            "v": VERSION,
+            "ok": True,
+            "tun": snapshot.tun,
+            "t": record.t,
+            "pv": record.pv,
+            "setpoint": record.setpoint,
+            "output": record.output,
+            "applied": record.applied,
+            "mode": record.mode,
+            "manual_output": snapshot.manual_output,
+            "state": record.state,
+            "alarms": list(record.alarms),
+            "heater_allowed": record.heater_allowed,
+            "limits": format_limits(snapshot.limits, record.setpoint),
+            "model": {
+                "gain": model.gain,
+                "tau": model.tau,
+                "dead_time": model.dead_time,
+                "ambient": model.ambient,
+                "from": "learned" if learned_in_force else "config",
+            },
+            "learned": None
+            if learned is None
+            else {
+                "rate_c_per_min": learned.rate * 60.0,
+                "loss_per_s": learned.loss,
+                "dead_time": learned.dead_time,
+                "ambient": learned.ambient,
+                "litres": learned.litres,
+                "learned_at_ns": learned.wall_ns,
+                "text": learned.describe(),
+            },
+            "runtime": {
+                key: {"running": running[key], "file": config_module.value_at(snapshot.config, key)}
+                for key in RUNTIME_KEYS
+                if key in snapshot.runtime
+                and running[key] != config_module.value_at(snapshot.config, key)
+            },
+        }

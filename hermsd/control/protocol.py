@@ -1,0 +1,166 @@
+"""The control socket's protocol, version 1: one JSON object a line, a request then its reply.
+
+The socket is a Unix stream socket (mode 0660, the service's group). A client writes one
+request, a JSON object on one line of UTF-8 ended by a newline, at most MAX_LINE bytes with
+the newline, and reads one reply line before it sends the next request. Every request names
+the protocol version it speaks and a command:
+
+    {"v": 1, "cmd": "status"}
+    {"v": 1, "cmd": "set", "setpoint": 72}
+    {"v": 1, "cmd": "set", "mode": "manual", "output": 40}    (output optional: hold the
+                                                               output in force)
+    {"v": 1, "cmd": "set", "mode": "auto"}
+    {"v": 1, "cmd": "reset-alarm"}
+
+Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": false,
+"error": "one line: what is wrong (what would be right)"}` and changes nothing. `status` is
+answered at once from the last control period: `tun`, `pv` (°C, null when unknown),
+`setpoint` (°C), `output` (%), `applied` (% the SSR was driven at in the period before),
+`mode`, `manual_output`, `state`, `alarms`, `heater_allowed`, `limits` (the safety limits in
+force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,
+dead_time s, ambient °C, and `from`: "learned" or "config"), `learned` (what was learned of
+the tun and stored, with `text` in words, or null) and
+`runtime` (each operating key set at runtime whose value differs from the config file's:
+`{"control.setpoint": {"running": 72.0, "file": 66.0}}`). A `set` or `reset-alarm` is checked
+against the running config as strictly as the config file is, applied at the next control
+period boundary, logged as an operator action, and answered after that boundary with the
+same fields as `status` (so the reply shows the change in force).
+
+A line longer than MAX_LINE, or one that is not a JSON object, is refused; an over-long line
+also ends the connection (its rest cannot be told from the next request).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+VERSION = 1
+MAX_LINE = 4096
+"""Bytes in a request line, newline included: a request is well under 200."""
+
+
+class ProtocolError(ValueError):
+    """A request that cannot be understood; the message is the reply's one-line error."""
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    pass
+
+
+@dataclass(frozen=True, slots=True)
+class SetSetpoint:
+    celsius: float
+
+
+@dataclass(frozen=True, slots=True)
+class SetMode:
+    mode: str
+    output: float | None = None  # manual: this output in %; None holds the output in force
+
+
+@dataclass(frozen=True, slots=True)
+class ResetAlarms:
+    pass
+
+
+Request = Status | SetSetpoint | SetMode | ResetAlarms
+Command = SetSetpoint | SetMode | ResetAlarms
+"""The requests that change something: applied by the loop at a period boundary."""
+
+
+def _reject_constant(name: str) -> float:
+    raise ProtocolError(f"{name} is not a number here (send a finite number)")
+
+
+def parse_request(line: bytes) -> Request:
+    """The request a line holds, or ProtocolError saying what is wrong with it."""
+    try:
+        data = json.loads(line.decode("utf-8"), parse_constant=_reject_constant)
+    except UnicodeDecodeError:
+        raise ProtocolError("the request is not UTF-8 text") from None
+    except json.JSONDecodeError as error:
+        raise ProtocolError(
+            f"the request is not JSON: {error.msg} at column {error.colno}"
+        ) from None
+    if not isinstance(data, dict):
+        raise ProtocolError('a request is a JSON object, e.g. {"v": 1, "cmd": "status"}')
+    version = data.get("v")
+    if version != VERSION:
+        raise ProtocolError(
+            f'protocol version {version!r} is not spoken here (send "v": {VERSION})'
+        )
+    command = data.get("cmd")
+    fields = set(data) - {"v", "cmd"}
+    if command in ("status", "reset-alarm"):
+        _no_other_fields(command, fields, set())
+        return Status() if command == "status" else ResetAlarms()
+    if command == "set":
+        if fields == {"setpoint"}:
+            return SetSetpoint(_number(data, "setpoint"))
+        if "mode" in fields:
+            _no_other_fields("set mode", fields, {"mode", "output"})
+            mode = data["mode"]
+            if not isinstance(mode, str):
+                raise ProtocolError(f"mode: expected 'auto' or 'manual', got {mode!r}")
+            output = data.get("output")
+            if output is not None and mode != "manual":
+                raise ProtocolError("output goes with mode 'manual' only")
+            return SetMode(mode, None if output is None else _number(data, "output"))
+        raise ProtocolError("set takes either setpoint, or mode (with output for manual)")
+    raise ProtocolError(f"unknown command {command!r} (one of 'status', 'set', 'reset-alarm')")
+
+
+def _no_other_fields(command: str, fields: set[str], allowed: set[str]) -> None:
+    extra = sorted(fields - allowed)
+    if extra:
+        raise ProtocolError(f"{command} does not take {', '.join(extra)}")
+
+
+def _number(data: dict[str, Any], key: str) -> float:
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ProtocolError(f"{key}: expected a number, got {json.dumps(value)}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise ProtocolError(f"{key}: {value} is not a usable number")
+    return number
+
+
+def request_message(request: Request) -> dict[str, Any]:
+    """The JSON object of a request (the client's side of `parse_request`)."""
+    message: dict[str, Any] = {"v": VERSION}
+    if isinstance(request, Status):
+        message["cmd"] = "status"
+    elif isinstance(request, ResetAlarms):
+        message["cmd"] = "reset-alarm"
+    elif isinstance(request, SetSetpoint):
+        message.update(cmd="set", setpoint=request.celsius)
+    else:
+        message.update(cmd="set", mode=request.mode)
+        if request.output is not None:
+            message["output"] = request.output
+    return message
+
+
+def encode(message: dict[str, Any]) -> bytes:
+    """One line of the protocol; NaN and infinities are refused, never sent."""
+    return json.dumps(message, allow_nan=False, ensure_ascii=False).encode("utf-8") + b"\n"
+
+
+def error_reply(message: str) -> dict[str, Any]:
+    return {"v": VERSION, "ok": False, "error": message}
+
+
+def describe(command: Command) -> str:
+    """The operator action in words, for the log."""
+    if isinstance(command, SetSetpoint):
+        return f"set setpoint {command.celsius:g} °C"
+    if isinstance(command, ResetAlarms):
+        return "reset-alarm"
+    if command.output is not None:
+        return f"set mode {command.mode} at {command.output:g} %"
+    return f"set mode {command.mode}"
