@@ -72,7 +72,7 @@ class LatchStore:
     def load(self) -> Latches:
         """The stored latches; none when there is no file. StateError for a damaged one."""
         path = self.latched_path
-        document = _read_json(path)
+        document = read_state_json(path)
         if document is None:
             return Latches()
         try:
@@ -103,7 +103,7 @@ class LatchStore:
         """
         path = self.reset_path
         try:
-            document = _read_json(path)
+            document = read_state_json(path)
             if document is None:
                 return None
             kinds = document.get("kinds") if isinstance(document, dict) else None
@@ -166,7 +166,7 @@ def _no_constant(name: str) -> float:
     raise ValueError(f"{name} is not a number JSON allows")
 
 
-def _read_json(path: Path) -> Any:
+def read_state_json(path: Path) -> Any:
     """The JSON document at `path`, None when there is none; StateError for anything else.
 
     Opened without blocking (a FIFO put there cannot hang the start), read only up to

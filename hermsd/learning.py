@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from hermsd.files import write_atomically
+from hermsd.latches import StateError, read_state_json
 from hermsd.pid import MAX_DEAD_TIME, HeatUpFit, PlantModel
 
 LEARNED_FILE = "learned-model.json"
@@ -89,13 +90,12 @@ class ModelStore:
         A bad file is not fatal: the prior is safe, so the daemon says why and goes on.
         """
         try:
-            text = self.path.read_text(encoding="utf-8")
-        except FileNotFoundError:
+            document = read_state_json(self.path)
+        except StateError as error:
+            return None, str(error)
+        if document is None:
             return None, None
-        except (OSError, UnicodeDecodeError) as error:
-            return None, f"{self.path}: cannot be read: {error}"
         try:
-            document = json.loads(text)
             model = LearnedModel(
                 float(document["rate"]),
                 float(document["loss"]),
@@ -104,7 +104,7 @@ class ModelStore:
                 float(document["litres"]),
                 int(document.get("wall_ns", 0)),
             )
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
+        except (KeyError, TypeError, ValueError, OverflowError) as error:
             return None, f"{self.path}: not a learned model ({error})"
         why = implausible(model)
         if why is not None:

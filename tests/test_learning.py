@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import shutil
 from pathlib import Path
 
@@ -159,10 +160,27 @@ def test_learned_values_survive_a_crash_mid_write(
     assert ModelStore(tmp_path).load() == (model, None)
 
 
-def test_a_damaged_store_is_said_and_the_prior_used(tmp_path: Path) -> None:
-    (tmp_path / learning.LEARNED_FILE).write_text("{not json", encoding="utf-8")
+@pytest.mark.parametrize(
+    ("text", "said"),
+    [
+        ("{not json", "not valid JSON"),
+        ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+        ('{"rate": 1e400}', "out of range"),
+        ('{"rate": NaN}', "not a number JSON allows"),
+        ("[1, 2]", "not a learned model"),
+        ('{"rate": "fast"}', "not a learned model"),
+    ],
+)
+def test_a_damaged_store_is_said_and_the_prior_used(tmp_path: Path, text: str, said: str) -> None:
+    (tmp_path / learning.LEARNED_FILE).write_text(text, encoding="utf-8")
     model, problem = ModelStore(tmp_path).load()
-    assert model is None and problem is not None and "not a learned model" in problem
+    assert model is None and problem is not None and said in problem
+
+
+def test_a_store_that_is_not_a_regular_file_is_said(tmp_path: Path) -> None:
+    os.mkfifo(tmp_path / learning.LEARNED_FILE)  # would hang a plain open()
+    model, problem = ModelStore(tmp_path).load()
+    assert model is None and problem is not None and "not a regular file" in problem
 
 
 def test_forget_deletes_the_store(learned_day: tuple[Path, Path], tmp_path: Path) -> None:
