@@ -20,6 +20,7 @@ import logging
 import math
 import re
 import signal
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -181,6 +182,33 @@ def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
     if model is None:
         return None
     return {k: getattr(model, k) for k in ("gain", "tau", "dead_time", "ambient")}
+
+
+def _hold_stop_signals(held: list[int]) -> tuple[dict[int, Any], BaseException | None]:
+    """Make SIGINT and SIGTERM append to `held` instead of running their handlers.
+
+    Returns the handlers to put back, and a stop that was already due and ran meanwhile.
+    Handlers can only be changed on the main thread; elsewhere nothing is held.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return {}, None
+
+    def hold(signum: int, frame: object) -> None:
+        held.append(signum)
+
+    previous: dict[int, Any] = {}
+    interrupted: BaseException | None = None
+    for sig in STOP_SIGNALS:
+        while True:
+            try:
+                current = signal.getsignal(sig)
+                if current is not hold:
+                    previous.setdefault(sig, current)
+                signal.signal(sig, hold)
+                break
+            except BaseException as error:  # a handler already due ran here: try again
+                interrupted = interrupted or error
+    return previous, interrupted
 
 
 def retunes(old: ControlConfig, new: ControlConfig) -> bool:
@@ -350,26 +378,37 @@ class Daemon:
     def shutdown(self, reason: str = "stopped") -> bool:
         """Heater off and contactor open, whatever else fails; False if an output refused.
 
-        SIGINT and SIGTERM wait (blocked) until every output has been tried: a second Ctrl-C,
-        or systemd's stop during a SIGINT, must not cut the switching-off short.
+        A stop signal that arrives meanwhile (a second Ctrl-C, systemd's stop during a SIGINT)
+        is held until every output has been tried, then delivered: masking it would not do,
+        as any other thread may take it and Python runs its handler on this one all the same.
+        A stop that was already due when holding began is caught and raised at the end.
         """
-        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+        held: list[int] = []
+        previous, interrupted = _hold_stop_signals(held)
         try:
-            return self._all_off(reason)
+            ok, failed_by = self._all_off(reason)
         finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        interrupted = interrupted or failed_by
+        if interrupted is not None:
+            raise interrupted
+        for signum in held[:1]:
+            signal.raise_signal(signum)  # to the handler that was held back
+        return ok
 
-    def _all_off(self, reason: str) -> bool:
-        self._window.cancel()
+    def _all_off(self, reason: str) -> tuple[bool, BaseException | None]:
         ok = True
         interrupted: BaseException | None = None
-        for output in self.outputs.all():
+        steps = [("the window's edges", self._window.cancel)]
+        steps += [(output.name, output.close) for output in self.outputs.all()]
+        for name, step in steps:
             try:
-                output.close()
+                step()
             except Exception as error:  # every output must be tried, and the failure told
                 ok = False
-                log.critical("could not switch %s off: %s", output.name, error)
-            except BaseException as error:  # a stop signal already on its way: the rest first
+                log.critical("could not switch %s off: %s", name, error)
+            except BaseException as error:  # a stop that was already due: the rest first
                 interrupted = interrupted or error
         now = self.clock.monotonic()
         self._set_ssr_accounting(False, now)
@@ -378,9 +417,7 @@ class Daemon:
         self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT))  # outputs are off
         if self.notifier is not None:
             self.notifier.stopping()
-        if interrupted is not None:
-            raise interrupted
-        return ok
+        return ok, interrupted
 
     # -- operator actions (applied at the next period boundary) ---------------------------
 
