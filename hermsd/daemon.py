@@ -174,7 +174,9 @@ def learned_tun(stored: LearnedModel | None, config: Config) -> pid.PlantModel |
     """What was learned, at the configured litres, if `control.learn` lets it be used."""
     if stored is None or config.control.learn == "off":
         return None
-    return stored.plant_model(config.tun.litres)
+    model = stored.plant_model(config.tun.litres)
+    low, high = pid.MODEL_GAIN_RANGE  # a fill far from the learned one can leave it
+    return model if low <= model.gain <= high else None
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:

@@ -35,6 +35,7 @@ HOLD_BAND = 0.25
 """°C around the setpoint that counts as a steady hold."""
 MIN_TAU = 600.0
 MAX_TAU = 1e6
+MIN_LITRES, MAX_LITRES = 1.0, 1000.0  # the range tun.litres may be configured in
 """s: a water tun loses heat slower than a cup of tea and faster than a vacuum flask."""
 
 
@@ -73,6 +74,8 @@ def implausible(model: LearnedModel) -> str | None:
     if not 1.0 / MAX_TAU <= model.loss <= 1.0 / MIN_TAU:
         tau = f"{1.0 / model.loss:.3g} s" if model.loss > 0.0 else "endless (no loss)"
         return f"time constant {tau} is not within {MIN_TAU:g}–{MAX_TAU:g} s"
+    if not MIN_LITRES <= model.litres <= MAX_LITRES:
+        return f"fill {model.litres:g} L is not within {MIN_LITRES:g}–{MAX_LITRES:g} L"
     if not 0.0 <= model.dead_time <= MAX_DEAD_TIME:
         return f"dead time {model.dead_time:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
     return None

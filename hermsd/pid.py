@@ -176,6 +176,7 @@ MAX_ABS_TEMPERATURE = 1e6
 MAX_TIME = 1e7
 MIN_TIME = 1e-3
 MAX_KC = 1e6
+MODEL_GAIN_RANGE = (1e-6, 1e6)  # °C/%: any tun's, and away from float's ends
 MAX_ABS_OUTPUT_LIMIT = 1e12
 
 _INF = math.inf
@@ -247,7 +248,7 @@ def create(
     params = _resolve(name, kc=kc, ti=ti, td=td, ts=ts, tf=tf, tt=tt, lo=out_min, hi=out_max)
     controller: Controller
     if name == "predictive":
-        _number("model.gain", model.gain, 1e-6, 1e6, "> 0 °C/%")
+        _number("model.gain", model.gain, *MODEL_GAIN_RANGE, "> 0 °C/%")
         _number("model.tau", model.tau, MIN_TIME, MAX_TIME, f"≥ {MIN_TIME:g} s")
         _number("model.dead_time", model.dead_time, 0.0, 1e5, "≥ 0 and ≤ 100000 s")
         _number("model.ambient", model.ambient, -100.0, 100.0, "within −100…100 °C")

@@ -217,12 +217,15 @@ class SafetyLimits:
             # to within ×1.5, and a room up to 10 °C colder than on the day it was measured.
             model_rate = 100.0 * model.gain / model.tau
             weakest_rise = FULL_POWER / 100.0 * MAINS_LOW * model_rate / MODEL_MARGIN
-            fastest_rise = MAINS_POWER_MARGIN * model_rate * MODEL_MARGIN
+            # A measurement only tightens: never faster than the envelope's half fill.
+            fastest_rise = min(fastest_rise, MAINS_POWER_MARGIN * model_rate * MODEL_MARGIN)
             loss_per_k = MODEL_MARGIN / model.tau
             loss_room = model.ambient - 10.0
             # θ·1.5 (and a minute of lag's tail), but never longer than the envelope the
-            # unmeasured limits already trust unless θ itself lies beyond it.
-            theta = model.dead_time
+            # unmeasured limits already trust unless θ itself lies beyond it, and never past
+            # twice that envelope: a wild (or damaged) θ of half an hour would let a shorted
+            # SSR heat the water for as long before it is judged.
+            theta = min(model.dead_time, 2.0 * DEAD_TIME_MAX)
             dead = max(60.0, min(MODEL_MARGIN * theta, max(DEAD_TIME_MAX, theta)))
             heat_memory = min(
                 MODEL_MARGIN * theta + 60.0, max(DEAD_TIME_MAX, theta) + SENSOR_LAG_MAX

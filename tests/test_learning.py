@@ -274,3 +274,13 @@ def test_check_config_shows_the_limits_from_what_was_learned(
     out = capsys.readouterr().out
     assert "# safety limits in force (nothing measured yet):" in out
     assert "[measured]" not in out
+
+
+@pytest.mark.parametrize(("litres", "said"), [(0.0, "fill"), (-90.0, "fill"), (1e4, "fill")])
+def test_a_store_with_an_impossible_fill_is_refused(
+    tmp_path: Path, litres: float, said: str
+) -> None:
+    bad = {"rate": 0.008, "loss": 1 / 15000, "dead_time": 100.0, "ambient": 20.0, "litres": litres}
+    (tmp_path / learning.LEARNED_FILE).write_text(json.dumps(bad), encoding="utf-8")
+    model, problem = ModelStore(tmp_path).load()
+    assert model is None and problem is not None and said in problem

@@ -79,7 +79,10 @@ def test_a_measured_tun_tightens_the_limits() -> None:
     assert lim.dead_time == pytest.approx(1.5 * 115.0)
     assert lim.heat_memory == pytest.approx(1.5 * 115.0 + 60.0)
     assert lim.heater_rise_rate == pytest.approx(0.8 * 0.81 * rate / 1.5, rel=1e-9)
-    assert lim.heat_rate == pytest.approx(1.21 * 1.5 * rate, rel=1e-9)
+    # The seed's K/τ is faster than its 90 L can heat (it implies 63.5 L): the measurement
+    # only tightens, so the envelope's half fill at +10 % mains holds the rate.
+    envelope = 2 * 1.21 * 3000.0 / (90.0 * 4186.0)
+    assert lim.heat_rate == pytest.approx(min(envelope, 1.21 * 1.5 * rate), rel=1e-9)
     assert lim.loss_per_k == pytest.approx(1.5 / 14961.0) and lim.loss_room == 10.0
     # u·0.81·K/1.5 must beat 1.5·(T − 10 °C): 2.25·(50 − 10)/(0.81·1.689) = 65.8 % at 50 °C.
     assert lim.heating_output(50.0) == pytest.approx(2.25 * 40 / (0.81 * 1.689), rel=1e-9)
@@ -275,3 +278,17 @@ def test_day_two_on_what_day_one_learned_raises_no_alarm_and_catches_sooner(
     unmeasured = day(spec, died)
     assert [a["kind"] for a in learned + unmeasured] == ["heater_not_heating"] * 2
     assert learned[0]["detected_after_s"] < unmeasured[0]["detected_after_s"]
+
+
+def test_a_wild_measurement_cannot_make_the_watches_lax() -> None:
+    # A damaged or wild measurement: a rate 125× the tun's, a dead time of half an hour.
+    wild = PlantModel(gain=1.689 * 125, tau=14961.0, dead_time=1800.0, ambient=20.0)
+    unmeasured = SafetyLimits.derive(
+        litres=90.0, element_watts=3000.0, period=5.0, read_interval=1.0
+    )
+    measured = SafetyLimits.derive(
+        litres=90.0, element_watts=3000.0, period=5.0, read_interval=1.0, model=wild
+    )
+    assert measured.heat_rate <= unmeasured.heat_rate
+    assert measured.dead_time <= 2 * unmeasured.dead_time == 600.0
+    assert measured.heat_memory <= 600.0 + 120.0
