@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 
 
@@ -15,16 +16,18 @@ def fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
-def write_atomically(path: Path, text: str, mode: int | None = None) -> None:
+def write_atomically(path: Path, text: str, like: os.stat_result | None = None) -> None:
     """Replace `path` with `text`: a temporary file, fsync, rename, fsync of the directory.
 
-    `mode`: the permission bits the new file has from its first moment (a config file the
-    daemon's group reads must not turn unreadable to it, even briefly).
+    `like`: the file being replaced, whose permission bits, owner and group the new one has
+    from its first moment (a config file root edits for the daemon's group must not turn
+    unreadable to the daemon, even briefly). OSError when they cannot be kept.
     """
     temporary = path.with_name(path.name + ".tmp")
     with temporary.open("w", encoding="utf-8") as file:
-        if mode is not None:
-            os.fchmod(file.fileno(), mode)
+        if like is not None:
+            os.fchown(file.fileno(), like.st_uid, like.st_gid)
+            os.fchmod(file.fileno(), stat.S_IMODE(like.st_mode))
         file.write(text)
         file.flush()
         os.fsync(file.fileno())

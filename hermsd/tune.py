@@ -12,7 +12,6 @@ import dataclasses
 import difflib
 import io
 import math
-import stat
 from collections.abc import Sequence
 from dataclasses import dataclass
 from decimal import ROUND_HALF_UP, Decimal
@@ -394,7 +393,7 @@ def write_config(path: Path, changes: dict[str, float]) -> str:
     path = path.resolve()
     try:
         text = path.read_text(encoding="utf-8")
-        mode = stat.S_IMODE(path.stat().st_mode)
+        original = path.stat()
     except (OSError, UnicodeDecodeError) as error:
         raise TuneError(f"{path}: cannot read the config file: {error}") from None
     written = updated_config(text, str(path), changes)
@@ -405,7 +404,7 @@ def write_config(path: Path, changes: dict[str, float]) -> str:
     )
     if diff:
         try:
-            write_atomically(path, written, mode)
+            write_atomically(path, written, like=original)
         except OSError as error:
             raise TuneError(f"{path}: cannot write the config file: {error}") from None
     return diff
