@@ -18,7 +18,6 @@ import difflib
 import math
 import os
 import re
-import stat
 import typing
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple, TypeVar
@@ -26,6 +25,7 @@ from typing import Any, NamedTuple, TypeVar
 import yaml
 
 from hermsd import pid
+from hermsd.files import NotRegularFile, read_regular
 from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
 
 ALGORITHM_NAMES: tuple[str, ...] = ALGORITHMS
@@ -1320,51 +1320,22 @@ notes to grow, and a file past the cap is then far from any config (its message 
 
 
 def read_bytes(filename: str) -> bytes:
-    """A regular file's bytes, at most MAX_FILE_BYTES of them; ConfigError otherwise.
-
-    The kind of file is checked before it is opened: opening a FIFO waits for a writer, and
-    opening a serial device raises its modem lines, which may drive an SSR. The size is
-    checked before reading, and again by what was read, so neither a huge file nor one that
-    grows while it is read costs more than the cap in memory and time.
-    """
+    """A regular file's bytes, at most MAX_FILE_BYTES of them; ConfigError otherwise (see
+    `files.read_regular`: a FIFO or a serial device is never opened)."""
     try:
-        status = os.stat(filename)
-        kind, size = _file_kind(status.st_mode), status.st_size
-        if kind is None and size <= MAX_FILE_BYTES:
-            flags = os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
-            with open(os.open(filename, flags), "rb") as file:
-                kind = _file_kind(os.fstat(file.fileno()).st_mode)  # replaced meanwhile?
-                data = b"" if kind else file.read(MAX_FILE_BYTES + 1)
-                size = max(size, len(data))
+        return read_regular(filename, MAX_FILE_BYTES)
     except OSError as error:
         raise ConfigError([Problem(filename, 0, 0, "", _unreadable(error))]) from None
-    if kind is not None:
-        message = f"is {kind}, not a regular file (name the YAML file itself)"
-        raise ConfigError([Problem(filename, 0, 0, "", message)])
-    if size > MAX_FILE_BYTES:
-        message = (
-            f"is {size} bytes long, more than the {MAX_FILE_BYTES // 1024} KiB a config file "
-            f"may be (the shipped one is under {SHIPPED_FILE_MAX_BYTES // 1024} KiB: is this the "
-            "right file?)"
-        )
-        raise ConfigError([Problem(filename, 0, 0, "", message)])
-    return data
-
-
-def _file_kind(mode: int) -> str | None:
-    """What a file that is not a regular file is, in words; None for a regular file."""
-    if stat.S_ISREG(mode):
-        return None
-    for test, kind in (
-        (stat.S_ISDIR, "a directory"),
-        (stat.S_ISFIFO, "a FIFO (named pipe)"),
-        (stat.S_ISCHR, "a character device"),
-        (stat.S_ISBLK, "a block device"),
-        (stat.S_ISSOCK, "a socket"),
-    ):
-        if test(mode):
-            return kind
-    return "some other kind of file"
+    except NotRegularFile as error:
+        if error.kind is not None:
+            message = f"{error} (name the YAML file itself)"
+        else:
+            message = (
+                f"is {error.size} bytes long, more than the {MAX_FILE_BYTES // 1024} KiB a "
+                f"config file may be (the shipped one is under {SHIPPED_FILE_MAX_BYTES // 1024} "
+                "KiB: is this the right file?)"
+            )
+        raise ConfigError([Problem(filename, 0, 0, "", message)]) from None
 
 
 def _unreadable(error: OSError) -> str:

@@ -33,3 +33,51 @@ def write_atomically(path: Path, text: str, like: os.stat_result | None = None) 
         os.fsync(file.fileno())
     os.replace(temporary, path)
     fsync_directory(path.parent)
+
+
+class NotRegularFile(ValueError):
+    """A path that names something other than a regular file (`kind` says what), or a
+    regular file over the size limit (`kind` None, `size` its length)."""
+
+    def __init__(self, kind: str | None, size: int, limit: int) -> None:
+        self.kind, self.size = kind, size
+        what = f"is {kind}, not a regular file" if kind else f"is {size} bytes long"
+        super().__init__(what if kind else f"{what}, more than the {limit} bytes allowed")
+
+
+def read_regular(path: str | os.PathLike[str], limit: int) -> bytes:
+    """A regular file's bytes, at most `limit` of them; NotRegularFile or OSError otherwise.
+
+    The kind of file is checked before it is opened: opening a FIFO waits for a writer, and
+    opening a serial device raises its modem lines, which may drive an SSR. The size is
+    checked before reading, and again by what was read, so neither a huge file nor one that
+    grows while it is read costs more than the limit in memory and time.
+    """
+    status = os.stat(path)
+    kind, size = _file_kind(status.st_mode), status.st_size
+    data = b""
+    if kind is None and size <= limit:
+        flags = os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC
+        with open(os.open(path, flags), "rb") as file:
+            kind = _file_kind(os.fstat(file.fileno()).st_mode)  # replaced meanwhile?
+            data = b"" if kind else file.read(limit + 1)
+            size = max(size, len(data))
+    if kind is not None or size > limit:
+        raise NotRegularFile(kind, size, limit)
+    return data
+
+
+def _file_kind(mode: int) -> str | None:
+    """What a file that is not a regular file is, in words; None for a regular file."""
+    if stat.S_ISREG(mode):
+        return None
+    for test, kind in (
+        (stat.S_ISDIR, "a directory"),
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return kind
+    return "some other kind of file"

@@ -19,13 +19,11 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeGuard
 
-from hermsd.files import write_atomically
+from hermsd.files import NotRegularFile, read_regular, write_atomically
 from hermsd.safety import LATCHED_KINDS
 
 LATCHED_FILE = "latched.json"
@@ -169,25 +167,22 @@ def _no_constant(name: str) -> float:
 def read_state_json(path: Path) -> Any:
     """The JSON document at `path`, None when there is none; StateError for anything else.
 
-    Opened without blocking (a FIFO put there cannot hang the start), read only up to
+    Read as `files.read_regular` reads (a FIFO or a tty put there is never opened), up to
     MAX_STATE_BYTES, parsed strictly: no NaN or Infinity, no number beyond a float's range,
     no nesting deep enough to exhaust the parser.
     """
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        data = read_regular(path, MAX_STATE_BYTES)
     except FileNotFoundError:
         return None
     except OSError as error:
         raise StateError(f"{path}: cannot be read: {error.strerror or error}") from None
-    try:
-        with os.fdopen(fd, "rb") as file:
-            if not stat.S_ISREG(os.fstat(file.fileno()).st_mode):
-                raise StateError(f"{path}: not a regular file")
-            data = file.read(MAX_STATE_BYTES + 1)
-    except OSError as error:
-        raise StateError(f"{path}: cannot be read: {error.strerror or error}") from None
-    if len(data) > MAX_STATE_BYTES:
-        raise StateError(f"{path}: larger than {MAX_STATE_BYTES} bytes, not hermsd's state")
+    except NotRegularFile as error:
+        if error.kind is not None:
+            raise StateError(f"{path}: {error}") from None
+        raise StateError(
+            f"{path}: larger than {MAX_STATE_BYTES} bytes, not hermsd's state"
+        ) from None
     try:
         return json.loads(data.decode("utf-8"), parse_float=_finite, parse_constant=_no_constant)
     except UnicodeDecodeError as error:

@@ -180,7 +180,7 @@ def test_a_fifo_in_place_of_the_latch_file_cannot_hang_the_start(tmp_path: Path)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert proc.stderr.splitlines()[-1] == (
-        f"hermsd: {tmp_path / LATCHED_FILE}: not a regular file "
+        f"hermsd: {tmp_path / LATCHED_FILE}: is a FIFO (named pipe), not a regular file "
         "(inspect it; `hermsd reset-alarm` replaces it)"
     )
 
