@@ -20,7 +20,14 @@ from concurrent.futures import Future
 from functools import partial
 from pathlib import Path
 
-from hermsd.config import Config, ConfigError, Document, load_document, reload_problems
+from hermsd.config import (
+    Config,
+    ConfigError,
+    Document,
+    Problem,
+    load_document,
+    reload_problems,
+)
 
 _Signature = tuple[int, int, int, int, int] | None
 _Result = Config | ConfigError | None
@@ -103,10 +110,13 @@ class ConfigFile:
             return None
         try:
             document = load_document(self.path)
+            problems = reload_problems(self._running, document) if self._running else []
         except ConfigError as error:
             result: Config | ConfigError = error
+        except Exception as error:  # a fault in the checking itself: refuse, don't stop the loop
+            why = f"could not be checked ({type(error).__name__}: {error})"
+            result = ConfigError([Problem(str(self.path), 0, 0, "", why)])
         else:
-            problems = reload_problems(self._running, document) if self._running else []
             result = ConfigError(problems) if problems else document.config
         if _signature(self.path) != before:
             return None  # changed while being read: an editor is still at work

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
-from hermsd.config import MAX_FILE_BYTES, SHIPPED_FILE_MAX_BYTES, OutputConfig
+from hermsd import cli, config_file
+from hermsd.config import MAX_FILE_BYTES, SHIPPED_FILE_MAX_BYTES, ConfigError, OutputConfig
 
 
 def check_config(*args: str) -> subprocess.CompletedProcess[str]:
@@ -105,3 +105,22 @@ def test_a_gpio_output_without_gpiod_names_its_line_and_the_extra(
         "package, which is not installed (install the gpio extra: `uv sync --extra gpio`, "
         "or `pip install 'hermsd[gpio]'`)"
     )
+
+
+def test_a_fault_in_checking_an_edit_refuses_it_and_keeps_the_loop(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_text("control:\n  setpoint: 60\n")
+    watched = config_file.ConfigFile(path, start=config_file.at_once)
+    watched.load()
+
+    def broken(*args: object) -> list[object]:
+        raise RuntimeError("a checker bug")
+
+    monkeypatch.setattr(config_file, "reload_problems", broken)
+    path.write_text("control:\n  setpoint: 61\n")
+    os.utime(path, ns=(1, 1))  # a new signature even within the file system's clock tick
+    result = watched.poll()
+    assert isinstance(result, ConfigError)
+    assert "could not be checked (RuntimeError: a checker bug)" in str(result)
