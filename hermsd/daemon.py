@@ -271,7 +271,7 @@ class Daemon:
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
             self._stored_model, self._model_problem = models.load()
-        self.model = self._model_in_force(config)
+        self.model, self.model_learned = self._model_in_force(config)
         self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
         self.controller = make_controller(config.control, self.model)
         self._learner = self._make_learner(config)
@@ -343,8 +343,9 @@ class Daemon:
         if self._stored_model is not None:
             use = (
                 "in use (control and safety limits)"
-                if self.config.control.learn != "off"
-                else "not used (control.learn off)"
+                if self.model_learned
+                else f"not used (control.learn {self.config.control.learn}, "
+                f"{self.config.tun.litres:g} L)"
             )
             self._event(logging.INFO, f"learned model {use}: {self._stored_model.describe()}", now)
         self._restore_latches(stored, now)
@@ -543,7 +544,7 @@ class Daemon:
         if "control.setpoint" in changed:
             self._apply_setpoint(control.setpoint, t)
         if retunes(old.control, new.control) or old.tun != new.tun:
-            self.model = self._model_in_force(new)
+            self.model, self.model_learned = self._model_in_force(new)
             self.controller = make_controller(new.control, self.model)
             self._heat_up_seen = pid.heat_up_fit(self.controller)
             self._learner = self._make_learner(new)
@@ -583,9 +584,13 @@ class Daemon:
         """What was learned of the tun and stored, as read at start (None: nothing usable)."""
         return self._stored_model
 
-    def _model_in_force(self, config: Config) -> pid.PlantModel:
-        """The stored model (rescaled to the configured litres) unless `control.learn` is off."""
-        return learned_tun(self._stored_model, config) or config_module.prior_model(config)
+    def _model_in_force(self, config: Config) -> tuple[pid.PlantModel, bool]:
+        """The stored model (rescaled to the configured litres) unless `control.learn` is off
+        or it does not fit this fill, else the config's prior; and whether it was learned."""
+        learned = learned_tun(self._stored_model, config)
+        if learned is not None:
+            return learned, True
+        return config_module.prior_model(config), False
 
     def _measured_tun(self, config: Config) -> MeasuredTun | None:
         """The tun as measured for the supervisor's limits: the one given (`hermsd tune`),

@@ -62,6 +62,7 @@ class Snapshot:
     manual_output: float
     limits: SafetyLimits
     model: PlantModel  # the controller's model of the tun, in force
+    model_learned: bool  # whether that model is what was learned
     learned: LearnedModel | None
     config: Config
     runtime: frozenset[str]
@@ -111,6 +112,7 @@ class LoopLink:
             daemon.manual_output,
             daemon.supervisor.limits,
             daemon.model,
+            daemon.model_learned,
             daemon.learned_model,
             daemon.config,
             frozenset(self._runtime),
@@ -184,7 +186,6 @@ class LoopLink:
             "control.manual_output": snapshot.manual_output,
         }
         model, learned = snapshot.model, snapshot.learned
-        learned_in_force = learned is not None and snapshot.config.control.learn != "off"
         return {
             "v": VERSION,
             "ok": True,
@@ -205,7 +206,7 @@ class LoopLink:
                 "tau": model.tau,
                 "dead_time": model.dead_time,
                 "ambient": model.ambient,
-                "from": "learned" if learned_in_force else "config",
+                "from": "learned" if snapshot.model_learned else "config",
             },
             "learned": None
             if learned is None
