@@ -55,6 +55,9 @@ STOP_RULE = (
 )
 
 
+FIT_GOOD = "the fit is good"  # why a test stops when its fit may be written
+
+
 @dataclass(frozen=True, slots=True)
 class OpenLoop:
     """Seed 001's §4.1 numbers, as the document computes them."""
@@ -164,7 +167,7 @@ class StepExperiment:
         if self.on_progress is not None:
             self.on_progress(progress)
         if self._good_fits >= 2:
-            self._finish("the fit is good", t)
+            self._finish(FIT_GOOD, t)
 
     def settled(self) -> bool:
         """Whether K and τ now are within SETTLED_RELATIVE of the fit SETTLE_S before."""
@@ -179,9 +182,9 @@ class StepExperiment:
 
     def _finish(self, why: str, t: float) -> None:
         self.stopped = why
-        self.last = self.progress(t)
         self.daemon.set_manual(0.0)
         self.daemon.stop()  # the caller's shutdown switches every output off
+        self.last = self.progress(t)  # after: a fault in the fit cannot keep the heat on
 
     def progress(self, t: float) -> Progress:
         """The estimates now, from every period so far."""
@@ -296,6 +299,10 @@ def write(experiment: StepExperiment, path: Path) -> str:
     last = experiment.last
     if last is None or last.tuned is None:
         raise tune.TuneError(f"{path} left as it is: no model was fitted")
+    if why != FIT_GOOD and last.tuned.confidence == "good" and not last.settled:
+        raise tune.TuneError(
+            f"{path} left as it is: the test stopped ({why}) before K and τ had settled"
+        )
     return tune.write_tuned(path, last.tuned)
 
 

@@ -217,3 +217,18 @@ def test_a_step_stopped_at_the_limit_before_a_good_fit_writes_nothing(
 def test_step_options_are_refused_without_step(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["tune", "--table", "K=1,tau=100,theta=10", "--simulate", "--limit", "50"]) == 2
     assert "--limit, --simulate: for `hermsd tune step` only" in capsys.readouterr().err
+
+
+def test_a_good_looking_fit_that_had_not_settled_is_not_written(tmp_path: Path) -> None:
+    # Stopped at the limit while the fit's τ was still moving (a thermowell's lag): its 2σ
+    # may already look good, but the value is biased; the file must stay as it is.
+    from types import SimpleNamespace
+
+    path = tmp_path / "hermsd.yaml"
+    path.write_text("control:\n  setpoint: 66\n")
+    before = path.read_bytes()
+    last = SimpleNamespace(tuned=SimpleNamespace(confidence="good"), settled=False)
+    experiment = SimpleNamespace(stopped="PV reached the limit 60 °C", last=last)
+    with pytest.raises(tune.TuneError, match="before K and τ had settled"):
+        step_response.write(experiment, path)  # type: ignore[arg-type]
+    assert path.read_bytes() == before
