@@ -218,7 +218,8 @@ def _parser() -> argparse.ArgumentParser:
         "--plot",
         type=Path,
         metavar="FILE.png",
-        help="plot PV, setpoint, output and applied duty with the alarms (needs matplotlib)",
+        help="draw the day: temperature, error against the ±0.5 °C band, output and applied "
+        "duty, alarms and labelled events (needs matplotlib)",
     )
     replay.set_defaults(func=cmd_replay)
 
