@@ -220,9 +220,9 @@ def zone(log: Log) -> str:
     local = datetime.fromtimestamp(log.log_time_ns[0] / 1e9).astimezone()
     offset = local.utcoffset() or timedelta()
     minutes = round(offset.total_seconds() / 60)
-    sign = "+" if minutes >= 0 else "−"
     if local.tzname() == "UTC":
         return "UTC"
+    sign = "+" if minutes >= 0 else "−"
     return f"{local.tzname()}, UTC{sign}{abs(minutes) // 60:02d}:{abs(minutes) % 60:02d}"
 
 
@@ -270,24 +270,20 @@ def save(log: Log, path: Path) -> None:
         figure.savefig(path, dpi=DPI)
     except OSError as error:
         raise ReplayError(f"{path}: cannot write: {error.strerror or error}") from None
-    finally:
-        from matplotlib import pyplot
-
-        pyplot.close(figure)
 
 
 def draw(log: Log) -> Figure:
     """The figure of the day; ReplayError when matplotlib is missing."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        from matplotlib import dates, pyplot
+    try:  # a figure of its own on the Agg canvas: no GUI, no pyplot state to close
+        from matplotlib import dates
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
     except ImportError:
         raise ReplayError(
             "--plot needs matplotlib: uv sync --extra plot (or pip install 'hermsd[plot]')"
         ) from None
-    figure = pyplot.figure(figsize=(WIDTH_IN, 8.0), dpi=DPI)
+    figure = Figure(figsize=(WIDTH_IN, 8.0), dpi=DPI)
+    FigureCanvasAgg(figure)
     strip = figure.add_axes((0.0, 0.0, 1.0, 1.0))
     temps, error, power = (figure.add_axes((0.0, 0.0, 1.0, 1.0), sharex=strip) for _ in "abc")
     panels = (temps, error, power)
@@ -372,8 +368,9 @@ def _label(
         )  # fmt: skip
         width = text.get_window_extent(renderer).width + 2.0 * pad_px  # the box around it
         anchor = strip.transData.transform((at, 0.0))[0]
-        # a little right of the line; at the strip's right end, kept inside it
-        left = max(box_left, min(anchor + 2.0, box_right - width - 2.0))
+        # right of its line; where the strip ends first, left of it; inside the strip
+        left = anchor + 2.0 if anchor + 2.0 + width <= box_right else anchor - 2.0 - width
+        left = min(max(left, box_left), box_right - width)
         texts.append((text, left))
         extents.append((left, left + width))
     placed_rows = rows(extents, LABEL_GAP_PX)
