@@ -387,6 +387,8 @@ def _label(
         text.set_y((row + 0.5) / count)
     if unlabelled:
         strip.set_ylabel(f"events\n({unlabelled} lines\nnot labelled)")
+    elif not placed:
+        strip.set_ylabel("events\n(none)")
 
 
 def _position(figure: Figure, strip: Axes, panels: Sequence[Axes], label_rows: int) -> None:

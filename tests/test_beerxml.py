@@ -227,3 +227,28 @@ def test_cli_error_is_one_line_without_traceback(capsys: pytest.CaptureFixture[s
 def test_cli_prints_to_stdout_by_default(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["program", "import", str(TWO), "--recipe", "Weizen Step Mash"]) == 0
     assert capsys.readouterr().out == to_yaml(read(TWO, "Weizen Step Mash"))
+
+
+def test_a_recipe_step_named_strike_is_renamed_not_merged(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        "<MASH><NAME>Only a mash</NAME><MASH_STEPS><MASH_STEP><NAME>Strike</NAME>"
+        "<TYPE>Infusion</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>"
+        "</MASH_STEP></MASH_STEPS></MASH>",
+    )
+    program = program_of(path)  # a <MASH> alone, as some programs export a mash profile
+    assert program["name"] == "Only a mash"
+    assert [s["name"] for s in program["steps"]] == ["Strike", "Strike 2"]
+    assert program["steps"][1]["setpoint"] == 66
+
+
+def test_more_steps_than_a_program_holds_are_refused(tmp_path: Path) -> None:
+    step = (
+        "<MASH_STEP><NAME>Rest</NAME><TYPE>Temperature</TYPE><STEP_TEMP>60</STEP_TEMP>"
+        "<STEP_TIME>1</STEP_TIME></MASH_STEP>"
+    )
+    path = write(tmp_path, f"<MASH><NAME>M</NAME><MASH_STEPS>{step * 51}</MASH_STEPS></MASH>")
+    with pytest.raises(BeerXMLError, match=r":1: the mash gives 51 steps, more than the 50"):
+        read(path)
+    path = write(tmp_path, f"<MASH><NAME>M</NAME><MASH_STEPS>{step * 50}</MASH_STEPS></MASH>")
+    assert len(read(path).steps) == 50
