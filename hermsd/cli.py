@@ -228,7 +228,9 @@ def _parser() -> argparse.ArgumentParser:
     program_import = program_actions.add_parser(
         "import", help="a program file from a BeerXML 1.0 recipe's mash steps"
     )
-    program_import.add_argument("file", type=Path, metavar="FILE.xml")
+    program_import.add_argument(
+        "file", type=Path, metavar="FILE.xml", help="a BeerXML 1.0 file of recipes or mash profiles"
+    )
     program_import.add_argument(
         "-o", "--output", type=Path, metavar="OUT.yaml", help="write it here (default: stdout)"
     )
@@ -813,11 +815,16 @@ def cmd_program_import(args: argparse.Namespace) -> int:
         sys.stdout.write(text)
         return 0
     try:
-        with args.output.open("x", encoding="utf-8") as file:
-            file.write(text)
+        file = args.output.open("x", encoding="utf-8")
     except FileExistsError:
         raise UserError(f"{args.output}: exists; name another file or remove it first") from None
     except OSError as error:
+        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
+    try:
+        with file:
+            file.write(text)
+    except OSError as error:
+        args.output.unlink(missing_ok=True)  # a cut program would run with steps missing
         raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
     return 0
 

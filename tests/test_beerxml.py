@@ -6,6 +6,7 @@ standard's example recipe. Expected values are worked by hand from the samples' 
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 from typing import Any
 
@@ -252,3 +253,32 @@ def test_more_steps_than_a_program_holds_are_refused(tmp_path: Path) -> None:
         read(path)
     path = write(tmp_path, f"<MASH><NAME>M</NAME><MASH_STEPS>{step * 50}</MASH_STEPS></MASH>")
     assert len(read(path).steps) == 50
+
+
+class _FillsUp:
+    """A file that takes ten characters, then finds the disk full."""
+
+    def __init__(self, file: Any) -> None:
+        self.file = file
+
+    def __enter__(self) -> _FillsUp:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.file.close()
+
+    def write(self, text: str) -> int:
+        self.file.write(text[:10])
+        self.file.flush()
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_a_program_cut_by_a_full_disk_is_not_left_behind(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    real_open = Path.open
+    monkeypatch.setattr(Path, "open", lambda self, *a, **k: _FillsUp(real_open(self, *a, **k)))
+    out = tmp_path / "pale.yaml"
+    assert main(["program", "import", str(SINGLE), "-o", str(out)]) == 2
+    assert capsys.readouterr().err == f"hermsd: {out}: cannot write: No space left on device\n"
+    assert not out.exists()  # a cut program would run with steps missing
