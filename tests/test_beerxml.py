@@ -282,3 +282,29 @@ def test_a_program_cut_by_a_full_disk_is_not_left_behind(
     assert main(["program", "import", str(SINGLE), "-o", str(out)]) == 2
     assert capsys.readouterr().err == f"hermsd: {out}: cannot write: No space left on device\n"
     assert not out.exists()  # a cut program would run with steps missing
+
+
+@pytest.mark.parametrize(
+    ("encoding", "detail"),
+    [("klingon", "unknown encoding: klingon"), ("shift_jis", "multi-byte encodings")],
+)
+def test_an_encoding_that_cannot_be_read_is_said(
+    tmp_path: Path, encoding: str, detail: str
+) -> None:
+    path = tmp_path / "recipe.xml"
+    path.write_bytes(f'<?xml version="1.0" encoding="{encoding}"?>\n<RECIPES/>\n'.encode())
+    with pytest.raises(BeerXMLError, match=rf"^{path}:1: the declared encoding cannot be read: "):
+        read(path)
+    with pytest.raises(BeerXMLError, match=detail):
+        read(path)
+
+
+def test_a_windows_encoded_file_is_read(tmp_path: Path) -> None:
+    path = tmp_path / "recipe.xml"
+    path.write_bytes(
+        one_step("<TYPE>Temperature</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>")
+        .replace('<?xml version="1.0"?>', '<?xml version="1.0" encoding="windows-1252"?>')
+        .replace("<NAME>Rest</NAME>", "<NAME>Rast \u20ac</NAME>")
+        .encode("windows-1252")
+    )
+    assert [s.name for s in read(path).steps] == ["Rast \u20ac"]

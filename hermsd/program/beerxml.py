@@ -122,9 +122,15 @@ def parse(data: bytes, source: str) -> Node:
     parser.StartDoctypeDeclHandler = refuse_doctype
     try:
         parser.Parse(data, True)
+    except BeerXMLError:
+        raise  # a document type declaration, refused
     except expat.ExpatError as error:
         where = f"{source}:{error.lineno}:{error.offset + 1}"
         raise BeerXMLError(f"{where}: not XML: {expat.ErrorString(error.code)}") from None
+    except (LookupError, ValueError) as error:  # an encoding Python lacks, or expat cannot use
+        raise BeerXMLError(
+            f"{source}:1: the declared encoding cannot be read: {error} (save it as UTF-8)"
+        ) from None
     return root.children[0]
 
 
