@@ -240,7 +240,7 @@ def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Pat
         "tau": prior.tau,
         "dead_time": prior.dead_time,
         "ambient": prior.ambient,
-        "from": "config",
+        "from": "prior",
     }
     assert status["learned"] is None
 
