@@ -377,10 +377,15 @@ class Daemon:
         if self._model_problem is not None:
             self._event(logging.WARNING, f"learned model ignored: {self._model_problem}", now)
         if self._stored_model is not None and self.model_choice.source != "learned":
+            learn, litres = self.config.control.learn, self.config.tun.litres
+            why = f"out of the controller's range at {litres:g} L"
+            if learn == "off":
+                why = "control.learn off"
+            elif learn == "pinned" and self.model_choice.source == "measured":
+                why = "control.learn pinned: the model from hermsd tune comes first"
             self._event(
                 logging.INFO,
-                f"learned model not used (control.learn {self.config.control.learn}, "
-                f"{self.config.tun.litres:g} L): {self._stored_model.describe()}",
+                f"learned model not used ({why}): {self._stored_model.describe()}",
                 now,
             )
         if self.model_choice.measured is not None:  # else the prior, as status says

@@ -305,8 +305,9 @@ KEPT = {
     "control.kc, control.ti, control.td": "kept: the config's notes give them as suiting "
     "predictive on any tun, and no rule derives them from the model (the model keys carry "
     "the tun)",
-    "control.learn": "kept: on, what the daemon learns later comes before this model; "
-    "pinned or off, this model is used as written",
+    "control.learn": "kept: on, what the daemon learns on a later brew day comes before "
+    "this model (it sees the losses at the hold, which a step that stops below the setpoint "
+    "cannot: an open lid's evaporation); pinned or off, this model is used as written",
     "safety": "no key to change: with control.model_litres set, the supervisor tightens "
     "its limits from this model (its MeasuredTun) within its own margins; safety.dead_time "
     "is best left null for that",
