@@ -32,6 +32,7 @@ from control import _replace_section  # bench/control.py, beside this file
 from tuning import SETPOINT_C, step_test, truth  # bench/tuning.py, beside this file
 
 from hermsd import linsys
+from hermsd.identify import _golden
 from hermsd.safety import vapour_pressure_ratio
 from hermsd.sim.hlt import EVAPORATION_W_PER_M2_KPA, pot_surface_m2, saturation_kpa
 from hermsd.sim.tuns import FAMILY, TunSpec
@@ -67,24 +68,11 @@ def best(
     pvs: Sequence[float], duties: Sequence[float], lag: int, evaporation: bool
 ) -> tuple[float, list[float], float]:
     """(τ, parameters, RMS) of the best τ by golden section on ln τ."""
-    low, high = LOG_TAU_RANGE
-    ratio = (math.sqrt(5.0) - 1.0) / 2.0
 
     def sse(log_tau: float) -> float:
         return fit(pvs, duties, math.exp(log_tau), lag, evaporation)[1]
 
-    c, d = high - ratio * (high - low), low + ratio * (high - low)
-    fc, fd = sse(c), sse(d)
-    while high - low > 1e-4:
-        if fc <= fd:
-            high, d, fd = d, c, fc
-            c = high - ratio * (high - low)
-            fc = sse(c)
-        else:
-            low, c, fc = c, d, fd
-            d = low + ratio * (high - low)
-            fd = sse(d)
-    tau = math.exp((low + high) / 2.0)
+    tau = math.exp(_golden(sse, *LOG_TAU_RANGE, tolerance=1e-4))
     solution, error = fit(pvs, duties, tau, lag, evaporation)
     return tau, solution, math.sqrt(error / len(pvs))
 
