@@ -1228,7 +1228,7 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     `output.backend: sim` is valid only in a simulated run, so it is refused here by
     default: a file checked for the service must not fail when the service starts.
     """
-    from hermsd.daemon import learned_tun, safety_limits
+    from hermsd.daemon import model_in_force, safety_limits
     from hermsd.safety import format_limits
 
     document = config_module.load_document(args.file)
@@ -1252,12 +1252,12 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     stored, problem = ModelStore(args.state).load() if args.state else (None, None)
     if problem is not None:
         print(f"\n# learned model ignored: {problem}")
-    model = learned_tun(stored, document.config)
-    source = "nothing measured yet"
-    if stored is not None and model is not None:
-        source = f"the tun as learned: {stored.describe()}"
+    choice = model_in_force(stored, document.config)
+    source = (
+        "nothing measured yet" if choice.measured is None else f"the tun as {choice.describe()}"
+    )
     print(f"\n# safety limits in force ({source}):")
-    limits = safety_limits(document.config, model)
+    limits = safety_limits(document.config, choice.measured)
     for row in format_limits(limits, document.config.control.setpoint):
         print(f"#   {row}")
     return 0

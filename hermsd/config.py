@@ -26,6 +26,7 @@ import yaml
 
 from hermsd import pid
 from hermsd.files import NotRegularFile, read_regular
+from hermsd.learning import LearnedModel, implausible
 from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
 
 ALGORITHM_NAMES: tuple[str, ...] = ALGORITHMS
@@ -128,6 +129,9 @@ class ControlConfig:
     model_tau: float = _number(14961.0, 10, 1000000, "s")
     dead_time: float = _number(115.0, 0, 3600, "s")
     model_ambient: float = _number(20.0, -20, 50, "°C")
+    model_litres: float | None = _number(
+        None, 1, 1000, "L", null_means="not measured: predictive's prior from tun.litres"
+    )
     learn: str = _choice("on", ("on", "pinned", "off"))
 
 
@@ -743,7 +747,20 @@ def _violations(config: Config) -> list[_Violation]:
             )
         )
     found.extend(_controller_violations(control))
+    measured = measured_model(config)
+    why = implausible(measured) if measured is not None else None
+    if why is not None:
+        found.append(
+            _Violation(
+                ("control.model_litres", *(f"control.{key}" for key in _MODEL_KEYS)),
+                f"the measured tun (model_litres set) cannot be a water tun: {why} (set "
+                "model_litres to null, or write the model again with `hermsd tune --write`)",
+            )
+        )
     return found
+
+
+_MODEL_KEYS = ("model_gain", "model_tau", "dead_time", "model_ambient")
 
 
 WATER_J_PER_LITRE_K = 4186.0
@@ -769,6 +786,16 @@ def prior_model(config: Config) -> pid.PlantModel:
     return pid.PlantModel(
         tun.element_watts / (100.0 * ua), capacity / ua, c.dead_time, c.model_ambient
     )
+
+
+def measured_model(config: Config) -> LearnedModel | None:
+    """The tun as `hermsd tune` measured it: the control.model_* keys once model_litres says
+    with how much water (None before: the keys are the seed's tun, a guess)."""
+    c = config.control
+    if c.model_litres is None:
+        return None
+    foptd = pid.PlantModel(c.model_gain, c.model_tau, c.dead_time, c.model_ambient)
+    return LearnedModel.from_plant(foptd, c.model_litres)
 
 
 def make_controller(control: ControlConfig, model: pid.PlantModel | None = None) -> pid.Controller:
