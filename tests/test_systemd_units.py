@@ -49,7 +49,7 @@ def _staged_unit(unit_file: str, directory: Path) -> Path:
     text = (SYSTEMD_DIR / unit_file).read_text()
     assert INSTALLED_BINARY in text
     (directory / unit_file).write_text(text.replace(INSTALLED_BINARY, true_binary))
-    return directory / UNITS[unit_file]
+    return directory / UNITS.get(unit_file, unit_file)
 
 
 def _analyze(*arguments: str) -> subprocess.CompletedProcess[str]:
@@ -148,3 +148,46 @@ def test_the_template_differs_from_the_plain_unit_only_per_vessel() -> None:
     assert template["Service.StateDirectory"] == ["hermsd/%i"]
     assert template["Service.LogsDirectory"] == ["hermsd/%i"]
     assert template["Service.RuntimeDirectory"] == ["hermsd/%i"]
+
+
+# -- the MQTT bridge's unit -----------------------------------------------------------------
+
+MQTT_UNIT = "hermsd-mqtt.service"
+
+
+@needs_systemd_analyze
+def test_the_mqtt_unit_verifies_and_its_exposure_is_at_most_two(tmp_path: Path) -> None:
+    unit = _staged_unit(MQTT_UNIT, tmp_path)
+    verified = _analyze("verify", "--man=no", str(unit))
+    assert (verified.returncode, verified.stderr, verified.stdout) == (0, "", "")
+
+    result = _analyze("security", "--offline=yes", "--threshold=20", str(unit))
+
+    match = re.search(r"Overall exposure level for \S+: (\d+\.\d)", result.stdout)
+    assert match is not None, result.stdout + result.stderr
+    assert float(match.group(1)) <= 2.0
+    assert result.returncode == 0, result.stderr
+
+
+def test_the_mqtt_bridge_runs_as_its_own_user_without_hardware() -> None:
+    directives = _directives(MQTT_UNIT)
+    expected = {
+        "Service.ExecStart": [
+            f"{INSTALLED_BINARY} mqtt --config /etc/hermsd/hermsd.yaml "
+            "--socket /run/hermsd/control.sock"
+        ],
+        "Service.Restart": ["always"],
+        "Service.User": ["hermsd-mqtt"],
+        "Service.Group": ["hermsd-mqtt"],
+        # the control socket and the config file are the hermsd group's
+        "Service.SupplementaryGroups": ["hermsd"],
+        "Service.PrivateDevices": ["yes"],
+        "Service.DevicePolicy": ["closed"],
+        "Service.RestrictAddressFamilies": ["AF_UNIX AF_INET AF_INET6"],
+        "Service.ProtectSystem": ["strict"],
+        "Service.CapabilityBoundingSet": [""],
+        "Service.NoNewPrivileges": ["yes"],
+    }
+    assert {key: directives.get(key) for key in expected} == expected
+    assert "Service.DeviceAllow" not in directives
+    assert "Service.PrivateNetwork" not in directives

@@ -88,7 +88,7 @@ class Bridge:
         self._lock = threading.Lock()  # orders what the two threads publish
         self._state: bytes | None = None  # the last state published, for reconnections
         self._last_t: float | None = None
-        self._available = False
+        self._available: bool | None = None  # None: not known yet (the first poll says)
         self._stop = threading.Event()
         client_id = settings.client_id or f"hermsd-{self.topics.node_id}"
         client = mqtt.Client(
@@ -105,7 +105,14 @@ class Bridge:
                 cert_reqs=ssl.CERT_REQUIRED,
             )
         client.reconnect_delay_set(*broker_retry)
+        # A fault in a callback is logged and the network thread goes on (paho's default
+        # would end the thread, and with it every reconnection).
+        paho_log = logging.getLogger("hermsd.paho")
+        paho_log.addFilter(_between_attempts)
+        client.enable_logger(paho_log)
+        client.suppress_exceptions = True
         client.on_connect = self._on_connect
+        client.on_connect_fail = self._on_connect_fail
         client.on_disconnect = self._on_disconnect
         client.on_message = self._on_message
         self.client = client
@@ -221,6 +228,10 @@ class Bridge:
         )
         self._announce()
 
+    def _on_connect_fail(self, client: mqtt.Client, userdata: Any) -> None:
+        settings = self.config.mqtt
+        log.warning("cannot reach the broker at %s:%d: trying again", settings.host, settings.port)
+
     def _announce(self) -> None:
         """Discovery, availability and the last state, all retained."""
         with self._lock:
@@ -279,6 +290,12 @@ class Bridge:
         """A retained message, if connected: what is missed is republished on connection."""
         if self.client.is_connected():
             self.client.publish(topic, payload, QOS, retain=True)
+
+
+def _between_attempts(record: logging.LogRecord) -> bool:
+    """Drop the error paho logs on every turn of its loop between two failed connection
+    attempts (its own state, not news; `_on_connect_fail` says the broker is unreachable)."""
+    return not record.getMessage().startswith("Client is not connected.")
 
 
 def _password(path: str | None) -> str | None:

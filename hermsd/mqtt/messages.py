@@ -156,7 +156,6 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         return {
             "name": name,
             "unique_id": f"hermsd_{node}_{object_id}",
-            "object_id": f"hermsd_{node}_{object_id}",
             "device": device,
             "origin": {"name": "hermsd", "sw_version": __version__},
             "availability_topic": topics.availability,
