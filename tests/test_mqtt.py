@@ -28,12 +28,14 @@ from paho.mqtt.enums import CallbackAPIVersion
 from test_reload import BASE, PERIOD, Events, edited, run_for, start
 
 from hermsd import config as config_module
+from hermsd.cli import main
 from hermsd.control.link import LoopLink
 from hermsd.control.server import ControlServer
 from hermsd.mqtt.bridge import Bridge
-from hermsd.mqtt.messages import Topics, state_message
+from hermsd.mqtt.messages import Topics, setpoint_range, state_message
 
 MOSQUITTO = Path("/usr/sbin/mosquitto")
+MOSQUITTO_PASSWD = Path("/usr/bin/mosquitto_passwd")
 TIMEOUT = 5.0
 PREFIX = "brewery/hlt"
 # What Home Assistant accepts (its MQTT climate, sensor and binary_sensor schemas).
@@ -53,16 +55,25 @@ class Broker:
     """A mosquitto of the test's own on a loopback port, without persistence (a restart
     forgets every retained message)."""
 
-    def __init__(self, directory: Path) -> None:
+    def __init__(self, directory: Path, users: dict[str, str] | None = None) -> None:
         if not MOSQUITTO.exists():
             pytest.fail(f"{MOSQUITTO} is missing: apt-get install mosquitto (.ci/run does)")
         self.port = free_port()
         self.conf = directory / "mosquitto.conf"
-        self.conf.write_text(
-            f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
-            "log_dest stderr\n",
-            encoding="utf-8",
-        )
+        # `user root`: started by root it would read its files as the mosquitto user, who
+        # may not enter the test's directory
+        lines = [f"listener {self.port} 127.0.0.1", "persistence false", "user root"]
+        if users:
+            passwords = directory / "mosquitto.passwd"
+            passwords.touch(0o600)
+            for name, password in users.items():
+                subprocess.run(
+                    [MOSQUITTO_PASSWD, "-b", passwords, name, password], check=True, timeout=TIMEOUT
+                )
+            lines += ["allow_anonymous false", f"password_file {passwords}"]
+        else:
+            lines += ["allow_anonymous true"]
+        self.conf.write_text("\n".join(lines) + "\n", encoding="utf-8")
         self.log = directory / "mosquitto.log"
         self.process: subprocess.Popen[bytes] | None = None
 
@@ -99,7 +110,7 @@ class Message:
 class Watcher:
     """A client of the test's own that records every message on the broker."""
 
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, login: tuple[str, str] | None = None) -> None:
         self.messages: list[Message] = []
         self._changed = threading.Condition()
         self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=f"watcher-{id(self)}")
@@ -107,6 +118,8 @@ class Watcher:
         subscribed = threading.Event()
         self.client.on_subscribe = lambda *_: subscribed.set()
         self.client.on_connect = lambda client, *_: client.subscribe("#", 1)
+        if login is not None:
+            self.client.username_pw_set(*login)
         self.client.connect("127.0.0.1", port)
         self.client.loop_start()
         assert subscribed.wait(TIMEOUT)
@@ -149,7 +162,7 @@ class Rig:
         self.socket = tmp_path / "control.sock"
         self.server = self._serve()
         run_for(self.daemon, 60.0)
-        self.topics = Topics(PREFIX, "homeassistant")
+        self.topics = Topics.of(PREFIX, "homeassistant")
         self.watcher = Watcher(self.broker.port)
         self.start_bridge()
 
@@ -495,3 +508,56 @@ def test_the_state_names_the_program_step_when_the_daemon_reports_one() -> None:
     )
     # an alarm holds the heater off: never "heating", whatever the output asked
     assert (state["alarm"], state["alarm_text"], state["action"]) == (True, "stale", "off")
+
+
+# -- logging in -----------------------------------------------------------------------------
+
+
+def test_the_bridge_logs_in_with_the_password_from_its_file(tmp_path: Path) -> None:
+    broker = Broker(tmp_path, users={"hermsd": "s3cret 0f the tun", "watcher": "w"})
+    broker.start()
+    try:
+        password = tmp_path / "mqtt-password"
+        password.write_text("s3cret 0f the tun\n", encoding="utf-8")
+        text = edited(
+            BASE,
+            mqtt__port=str(broker.port),
+            mqtt__username="hermsd",
+            mqtt__password_file=str(password),
+        )
+        config = config_module.parse(text)
+        watcher = Watcher(broker.port, login=("watcher", "w"))
+        bridge = Bridge(config, tmp_path / "no.sock", poll=0.02)
+        thread = threading.Thread(target=bridge.run)
+        thread.start()
+        try:
+            # let in: it announces itself (offline: no daemon answers on no.sock)
+            watcher.wait_for(lambda m: m.topic == "hermsd/availability")
+        finally:
+            bridge.stop()
+            thread.join(TIMEOUT)
+            watcher.close()
+    finally:
+        broker.stop()
+
+
+def test_an_unreadable_password_file_is_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    config = tmp_path / "hermsd.yaml"
+    missing = tmp_path / "missing"
+    config.write_text(
+        edited(BASE, mqtt__username="hermsd", mqtt__password_file=str(missing)), encoding="utf-8"
+    )
+    assert main(["mqtt", "--config", str(config), "--socket", str(tmp_path / "s")]) == 2
+    assert capsys.readouterr().err == (
+        f"hermsd: mqtt.password_file {missing}: No such file or directory\n"
+    )
+
+
+@pytest.mark.parametrize(("max_temp", "highest"), [("95", 94.5), ("80.2", 80.0), ("80", 79.5)])
+def test_the_thermostat_offers_setpoints_only_below_the_cut_out(
+    max_temp: str, highest: float
+) -> None:
+    config = config_module.parse(edited(BASE, control__setpoint="60", safety__max_temp=max_temp))
+    assert setpoint_range(config) == (0.0, highest)

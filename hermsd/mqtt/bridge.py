@@ -77,7 +77,7 @@ class Bridge:
         self.config = config
         self.socket_path = socket_path
         self.poll = poll
-        self.topics = Topics(settings.topic_prefix, settings.discovery_prefix)
+        self.topics = Topics.of(settings.topic_prefix, settings.discovery_prefix)
         self._discovery = [
             (topic, encode(payload)) for topic, payload in discovery_messages(self.topics, config)
         ]

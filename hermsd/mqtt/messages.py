@@ -46,40 +46,31 @@ class Refused(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class Topics:
-    """Every topic of one tun, from the config's two prefixes."""
+    """Every topic of one tun, from the config's two prefixes (`Topics.of`)."""
 
     prefix: str
     discovery_prefix: str
+    node_id: str  # the prefix as Home Assistant spells node ids: [a-zA-Z0-9_-]
+    state: str
+    availability: str
+    set_setpoint: str
+    set_mode: str
+    error: str
+    home_assistant_status: str  # its birth and last will: "online" when it (re)starts
 
-    @property
-    def state(self) -> str:
-        return f"{self.prefix}/state"
-
-    @property
-    def availability(self) -> str:
-        return f"{self.prefix}/availability"
-
-    @property
-    def set_setpoint(self) -> str:
-        return f"{self.prefix}/set/setpoint"
-
-    @property
-    def set_mode(self) -> str:
-        return f"{self.prefix}/set/mode"
-
-    @property
-    def error(self) -> str:
-        return f"{self.prefix}/error"
-
-    @property
-    def home_assistant_status(self) -> str:
-        """Home Assistant's birth and last will: "online" when it (re)starts."""
-        return f"{self.discovery_prefix}/status"
-
-    @property
-    def node_id(self) -> str:
-        """The prefix as Home Assistant's node ids are spelled ([a-zA-Z0-9_-])."""
-        return re.sub(r"[^a-zA-Z0-9_-]", "_", self.prefix)
+    @classmethod
+    def of(cls, prefix: str, discovery_prefix: str) -> Topics:
+        return cls(
+            prefix=prefix,
+            discovery_prefix=discovery_prefix,
+            node_id=re.sub(r"[^a-zA-Z0-9_-]", "_", prefix),
+            state=f"{prefix}/state",
+            availability=f"{prefix}/availability",
+            set_setpoint=f"{prefix}/set/setpoint",
+            set_mode=f"{prefix}/set/mode",
+            error=f"{prefix}/error",
+            home_assistant_status=f"{discovery_prefix}/status",
+        )
 
     def discovery(self, component: str, object_id: str) -> str:
         return f"{self.discovery_prefix}/{component}/{self.node_id}/{object_id}/config"
