@@ -156,8 +156,8 @@ class Rig:
     def __init__(self, tmp_path: Path) -> None:
         self.broker = Broker(tmp_path)
         self.broker.start()
-        text = edited(BASE, mqtt__port=str(self.broker.port), mqtt__topic_prefix=PREFIX)
-        self.daemon, _world, path, self.events = start(tmp_path, text)
+        self.text = edited(BASE, mqtt__port=str(self.broker.port), mqtt__topic_prefix=PREFIX)
+        self.daemon, _world, path, self.events = start(tmp_path, self.text)
         self.config = config_module.load(path)
         self.socket = tmp_path / "control.sock"
         self.server = self._serve()
@@ -167,9 +167,12 @@ class Rig:
         self.start_bridge()
 
     def start_bridge(self) -> None:
+        """A bridge, once it hears commands: it announces itself after it subscribed."""
+        mark = len(self.watcher.messages)
         self.bridge = Bridge(self.config, self.socket, poll=0.02, broker_retry=(1, 2))
         self.thread = threading.Thread(target=self.bridge.run)
         self.thread.start()
+        discovered(self.watcher, mark)
 
     def _serve(self) -> ControlServer:
         link = LoopLink(self.daemon)
@@ -292,6 +295,14 @@ def test_discovery_gives_home_assistant_a_climate_entity_sensors_and_an_alarm(ri
         late.close()
 
 
+def test_home_assistant_back_online_is_told_everything_again(rig: Rig) -> None:
+    discovered(rig.watcher)
+    mark = len(rig.watcher.messages)
+    rig.command(rig.topics.home_assistant_status, b"online")  # Home Assistant's birth message
+    assert len(discovered(rig.watcher, mark)) == 10
+    rig.watcher.wait_for(lambda m: m.topic == rig.topics.availability, mark)
+
+
 def test_the_state_is_published_retained_once_per_control_period(rig: Rig) -> None:
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
     mark = len(rig.watcher.messages)
@@ -393,6 +404,24 @@ def test_a_bad_command_is_refused_nothing_reaches_the_daemon_and_the_bridge_serv
     assert operator_lines(rig.events) == []
 
 
+def test_a_command_the_daemon_refuses_is_published_in_its_words(rig: Rig) -> None:
+    """The bridge read its config before the file was edited: it lets 97 °C through, the
+    daemon, with its cut-out at 95 °C, refuses it."""
+    rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
+    rig.bridge.stop()
+    rig.thread.join(TIMEOUT)
+    rig.config = config_module.parse(edited(rig.text, safety__max_temp="100"))
+    rig.start_bridge()
+    rig.command(rig.topics.set_setpoint, b"97")
+    for _ in range(20):  # the daemon answers after the next period boundary
+        rig.step()
+        if rig.watcher.on(rig.topics.error):
+            break
+    error = rig.watcher.on(rig.topics.error)[0].json()
+    assert error["error"].startswith("refused, nothing changed: control.setpoint: 97 °C")
+    assert rig.status()["setpoint"] == 66.0
+
+
 def test_a_retained_command_is_not_applied_when_the_bridge_connects(rig: Rig) -> None:
     """A retained command would be applied again at every connection: MQTT 3.1.1 marks it
     retained when the bridge subscribes, and the bridge refuses it then."""
@@ -437,7 +466,7 @@ def test_the_daemon_gone_is_offline_and_back_online_when_it_returns(rig: Rig) ->
     assert gone.payload == b"offline"
     rig.command(rig.topics.set_setpoint, b"70")
     error = rig.watcher.wait_for(lambda m: m.topic == rig.topics.error).json()
-    assert "not applied: no hermsd is running" in error["error"]
+    assert error["error"].startswith("not applied, nothing changed: no hermsd is running")
     rig.server = rig._serve()  # as a daemon started again: it answers after its first period
     run_for(rig.daemon, PERIOD)
     rig.watcher.wait_for(
@@ -541,18 +570,28 @@ def test_the_bridge_logs_in_with_the_password_from_its_file(tmp_path: Path) -> N
         broker.stop()
 
 
-def test_an_unreadable_password_file_is_one_line_and_exit_2(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    ("keys", "says"),
+    [
+        (
+            {"mqtt__username": "hermsd", "mqtt__password_file": "{missing}"},
+            "mqtt.password_file {missing}: No such file or directory",
+        ),
+        (
+            {"mqtt__tls": "true", "mqtt__ca_file": "{missing}"},
+            "mqtt TLS files {missing}: No such file or directory",
+        ),
+    ],
+)
+def test_a_password_or_tls_file_it_cannot_read_is_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], keys: dict[str, str], says: str
 ) -> None:
+    missing = str(tmp_path / "missing")
     config = tmp_path / "hermsd.yaml"
-    missing = tmp_path / "missing"
-    config.write_text(
-        edited(BASE, mqtt__username="hermsd", mqtt__password_file=str(missing)), encoding="utf-8"
-    )
+    values = {key: value.format(missing=missing) for key, value in keys.items()}
+    config.write_text(edited(BASE, **values), encoding="utf-8")
     assert main(["mqtt", "--config", str(config), "--socket", str(tmp_path / "s")]) == 2
-    assert capsys.readouterr().err == (
-        f"hermsd: mqtt.password_file {missing}: No such file or directory\n"
-    )
+    assert capsys.readouterr().err == f"hermsd: {says.format(missing=missing)}\n"
 
 
 @pytest.mark.parametrize(("max_temp", "highest"), [("95", 94.5), ("80.2", 80.0), ("80", 79.5)])

@@ -56,10 +56,11 @@ STATUS_TIMEOUT = 2.0  # s: `status` is answered at once from the last period
 QUEUED_COMMANDS = 8  # commands waiting for the daemon; more are refused as busy
 QOS = 1
 PASSWORD_LIMIT = 4096  # bytes in a password file
+REFUSED = "refused, nothing changed: "  # as the daemon words its own refusals
 
 
 class BridgeError(Exception):
-    """The bridge cannot start as configured (a password file it cannot read)."""
+    """The bridge cannot start as configured (a password or TLS file it cannot read)."""
 
 
 class Bridge:
@@ -85,7 +86,7 @@ class Bridge:
         self._commands: queue.Queue[tuple[str, bytes, Command] | None] = queue.Queue(
             QUEUED_COMMANDS
         )
-        self._lock = threading.Lock()  # orders what the two threads publish
+        self._lock = threading.Lock()  # orders what the threads publish
         self._state: bytes | None = None  # the last state published, for reconnections
         self._last_t: float | None = None
         self._available: bool | None = None  # None: not known yet (the first poll says)
@@ -98,12 +99,17 @@ class Bridge:
         if settings.username is not None:
             client.username_pw_set(settings.username, _password(settings.password_file))
         if settings.tls:
-            client.tls_set(
-                ca_certs=settings.ca_file,
-                certfile=settings.cert_file,
-                keyfile=settings.key_file,
-                cert_reqs=ssl.CERT_REQUIRED,
-            )
+            try:
+                client.tls_set(
+                    ca_certs=settings.ca_file,
+                    certfile=settings.cert_file,
+                    keyfile=settings.key_file,
+                    cert_reqs=ssl.CERT_REQUIRED,
+                )
+            except (OSError, ssl.SSLError) as error:  # a file missing, unreadable or not PEM
+                reason = getattr(error, "strerror", None) or str(error)
+                files = [f for f in (settings.ca_file, settings.cert_file, settings.key_file) if f]
+                raise BridgeError(f"mqtt TLS files {', '.join(files)}: {reason}") from None
         client.reconnect_delay_set(*broker_retry)
         # A fault in a callback is logged and the network thread goes on (paho's default
         # would end the thread, and with it every reconnection).
@@ -177,9 +183,10 @@ class Bridge:
         try:
             reply = ask(self.socket_path, command)
         except (NoDaemonError, ReplyError) as error:
-            self._refuse(topic, payload, f"not applied: {error}")
+            self._refuse(topic, payload, f"not applied, nothing changed: {error}")
             return
         if not reply["ok"]:
+            # the daemon's own words ("refused, nothing changed: control.setpoint: ...")
             self._refuse(topic, payload, str(reply.get("error", "refused by hermsd")))
             return
         log.info("applied %s (from mqtt)", describe(command))
@@ -262,7 +269,7 @@ class Bridge:
             self._refuse(
                 topic,
                 payload,
-                "a retained command is not applied: it would be applied again at every "
+                f"{REFUSED}a retained command is not applied: it would be applied again at every "
                 "connection (publish it without retain, and clear it with an empty retained "
                 "message)",
             )
@@ -270,20 +277,20 @@ class Bridge:
         try:
             command = parse_command(self.topics, topic, payload, self.config)
         except Refused as error:
-            self._refuse(topic, payload, str(error))
+            self._refuse(topic, payload, f"{REFUSED}{error}")
             return
         try:
             self._commands.put_nowait((topic, payload, command))
         except queue.Full:
-            self._refuse(topic, payload, f"busy: {QUEUED_COMMANDS} commands wait already")
+            self._refuse(topic, payload, f"{REFUSED}busy: {QUEUED_COMMANDS} commands wait already")
 
     # -- either thread --------------------------------------------------------------------
 
-    def _refuse(self, topic: str, payload: bytes, why: str) -> None:
+    def _refuse(self, topic: str, payload: bytes, error: str) -> None:
         """Say in the log and on the error topic why a command changed nothing."""
         shown = payload[:64].decode("utf-8", "replace")
-        log.warning("mqtt command on %s refused, nothing changed: %s", topic, why)
-        message = {"topic": topic, "payload": shown, "error": f"refused, nothing changed: {why}"}
+        log.warning("mqtt command on %s: %s", topic, error)
+        message = {"topic": topic, "payload": shown, "error": error}
         self.client.publish(self.topics.error, encode(message), QOS, retain=False)
 
     def _publish(self, topic: str, payload: str | bytes) -> None:
