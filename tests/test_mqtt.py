@@ -437,6 +437,7 @@ def test_a_retained_command_is_not_applied_when_the_bridge_connects(rig: Rig) ->
     rig.step()
     assert rig.status()["setpoint"] == 66.0
     assert operator_lines(rig.events) == []
+    assert len(rig.watcher.on(rig.topics.error, mark)) == 1  # clearing it is not a command
 
 
 # -- losing the broker and the daemon -------------------------------------------------------
@@ -592,6 +593,19 @@ def test_a_password_or_tls_file_it_cannot_read_is_one_line_and_exit_2(
     config.write_text(edited(BASE, **values), encoding="utf-8")
     assert main(["mqtt", "--config", str(config), "--socket", str(tmp_path / "s")]) == 2
     assert capsys.readouterr().err == f"hermsd: {says.format(missing=missing)}\n"
+
+
+def test_without_paho_the_command_says_how_to_install_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delitem(sys.modules, "hermsd.mqtt.bridge")
+    monkeypatch.setitem(sys.modules, "paho.mqtt.client", None)  # as if not installed
+    config = tmp_path / "hermsd.yaml"
+    config.write_text(BASE, encoding="utf-8")
+    assert main(["mqtt", "--config", str(config)]) == 2
+    assert "the MQTT bridge needs paho-mqtt: install hermsd with its mqtt extra" in (
+        capsys.readouterr().err
+    )
 
 
 @pytest.mark.parametrize(("max_temp", "highest"), [("95", 94.5), ("80.2", 80.0), ("80", 79.5)])

@@ -180,10 +180,13 @@ class Bridge:
             self._send(*item)
 
     def _send(self, topic: str, payload: bytes, command: Command) -> None:
-        try:
-            reply = ask(self.socket_path, command)
-        except (NoDaemonError, ReplyError) as error:
+        try:  # answered after the next period boundary: allow two periods
+            reply = ask(self.socket_path, command, timeout=2 * self.config.control.period + 5)
+        except NoDaemonError as error:
             self._refuse(topic, payload, f"not applied, nothing changed: {error}")
+            return
+        except ReplyError as error:  # it was sent: the daemon may have applied it
+            self._refuse(topic, payload, f"{error}; the next state shows whether it was applied")
             return
         if not reply["ok"]:
             # the daemon's own words ("refused, nothing changed: control.setpoint: ...")
@@ -265,6 +268,8 @@ class Bridge:
             if payload == ONLINE.encode():  # Home Assistant restarted: tell it again
                 self._announce()
             return
+        if not payload:  # how a retained message is cleared: not a command
+            return
         if message.retain:
             self._refuse(
                 topic,
@@ -287,7 +292,8 @@ class Bridge:
     # -- either thread --------------------------------------------------------------------
 
     def _refuse(self, topic: str, payload: bytes, error: str) -> None:
-        """Say in the log and on the error topic why a command changed nothing."""
+        """Say in the log and on the error topic why a command was not applied (or may not
+        have been)."""
         shown = payload[:64].decode("utf-8", "replace")
         log.warning("mqtt command on %s: %s", topic, error)
         message = {"topic": topic, "payload": shown, "error": error}
