@@ -49,7 +49,7 @@ def _staged_unit(unit_file: str, directory: Path) -> Path:
     text = (SYSTEMD_DIR / unit_file).read_text()
     assert INSTALLED_BINARY in text
     (directory / unit_file).write_text(text.replace(INSTALLED_BINARY, true_binary))
-    return directory / UNITS.get(unit_file, unit_file)
+    return directory / {**UNITS, **MQTT_UNITS}[unit_file]
 
 
 def _analyze(*arguments: str) -> subprocess.CompletedProcess[str]:
@@ -152,12 +152,22 @@ def test_the_template_differs_from_the_plain_unit_only_per_vessel() -> None:
 
 # -- the MQTT bridge's unit -----------------------------------------------------------------
 
-MQTT_UNIT = "hermsd-mqtt.service"
+MQTT_UNITS = {
+    "hermsd-mqtt.service": "hermsd-mqtt.service",
+    "hermsd-mqtt@.service": "hermsd-mqtt@hlt.service",
+}
+MQTT_PLACES = {  # the config and the socket of the vessel each bridges
+    "hermsd-mqtt.service": ("/etc/hermsd/hermsd.yaml", "/run/hermsd/control.sock"),
+    "hermsd-mqtt@.service": ("/etc/hermsd/%i.yaml", "/run/hermsd/%i/control.sock"),
+}
 
 
 @needs_systemd_analyze
-def test_the_mqtt_unit_verifies_and_its_exposure_is_at_most_two(tmp_path: Path) -> None:
-    unit = _staged_unit(MQTT_UNIT, tmp_path)
+@pytest.mark.parametrize("unit_file", MQTT_UNITS)
+def test_the_mqtt_unit_verifies_and_its_exposure_is_at_most_two(
+    unit_file: str, tmp_path: Path
+) -> None:
+    unit = _staged_unit(unit_file, tmp_path)
     verified = _analyze("verify", "--man=no", str(unit))
     assert (verified.returncode, verified.stderr, verified.stdout) == (0, "", "")
 
@@ -169,12 +179,13 @@ def test_the_mqtt_unit_verifies_and_its_exposure_is_at_most_two(tmp_path: Path) 
     assert result.returncode == 0, result.stderr
 
 
-def test_the_mqtt_bridge_runs_as_its_own_user_without_hardware() -> None:
-    directives = _directives(MQTT_UNIT)
+@pytest.mark.parametrize("unit_file", MQTT_UNITS)
+def test_the_mqtt_bridge_runs_as_its_own_user_without_hardware(unit_file: str) -> None:
+    directives = _directives(unit_file)
+    config, control_socket = MQTT_PLACES[unit_file]
     expected = {
         "Service.ExecStart": [
-            f"{INSTALLED_BINARY} mqtt --config /etc/hermsd/hermsd.yaml "
-            "--socket /run/hermsd/control.sock"
+            f"{INSTALLED_BINARY} mqtt --config {config} --socket {control_socket}"
         ],
         "Service.Restart": ["always"],
         "Service.User": ["hermsd-mqtt"],
@@ -191,3 +202,13 @@ def test_the_mqtt_bridge_runs_as_its_own_user_without_hardware() -> None:
     assert {key: directives.get(key) for key in expected} == expected
     assert "Service.DeviceAllow" not in directives
     assert "Service.PrivateNetwork" not in directives
+
+
+def test_the_mqtt_template_differs_from_the_plain_unit_only_per_vessel() -> None:
+    plain = _directives("hermsd-mqtt.service")
+    template = _directives("hermsd-mqtt@.service")
+    per_vessel = {"Unit.Description", "Unit.After", "Service.ExecStart"}
+    assert {k: v for k, v in plain.items() if k not in per_vessel} == {
+        k: v for k, v in template.items() if k not in per_vessel
+    }
+    assert template["Unit.After"] == ["network-online.target hermsd@%i.service mosquitto.service"]
