@@ -218,9 +218,26 @@ def _parser() -> argparse.ArgumentParser:
         "--plot",
         type=Path,
         metavar="FILE.png",
-        help="plot PV, setpoint, output and applied duty with the alarms (needs matplotlib)",
+        help="draw the day: temperature, error against the ±0.5 °C band, output and applied "
+        "duty, alarms and labelled events (needs matplotlib)",
     )
     replay.set_defaults(func=cmd_replay)
+
+    program = sub.add_parser("program", help="mash programs: import one from brewing software")
+    program_actions = program.add_subparsers(dest="action", required=True)
+    program_import = program_actions.add_parser(
+        "import", help="a program file from a BeerXML 1.0 recipe's mash steps"
+    )
+    program_import.add_argument(
+        "file", type=Path, metavar="FILE.xml", help="a BeerXML 1.0 file of recipes or mash profiles"
+    )
+    program_import.add_argument(
+        "-o", "--output", type=Path, metavar="OUT.yaml", help="write it here (default: stdout)"
+    )
+    program_import.add_argument(
+        "--recipe", metavar="NAME", help="the recipe to import, when the file holds several"
+    )
+    program_import.set_defaults(func=cmd_program_import)
 
     tune = sub.add_parser(
         "tune", help="the tun's model and the settings that follow from it (seed 001's Table 1)"
@@ -788,6 +805,35 @@ def _alarm_line(alarm: dict[str, Any]) -> str:
         line += f", heater off after {alarm['heater_off_after_s']} s"
     message = alarm["message"]
     return line + (f": {message}" if message is not None else " (its event was not recovered)")
+
+
+# -- program --------------------------------------------------------------------------------
+
+
+def cmd_program_import(args: argparse.Namespace) -> int:
+    """Write the program of a BeerXML recipe's mash; an existing file is never replaced."""
+    from hermsd.program import beerxml
+
+    try:
+        text = beerxml.to_yaml(beerxml.read(args.file, args.recipe))
+    except beerxml.BeerXMLError as error:
+        raise UserError(str(error)) from None
+    if args.output is None:
+        sys.stdout.write(text)
+        return 0
+    try:
+        file = args.output.open("x", encoding="utf-8")
+    except FileExistsError:
+        raise UserError(f"{args.output}: exists; name another file or remove it first") from None
+    except OSError as error:
+        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
+    try:
+        with file:
+            file.write(text)
+    except OSError as error:
+        args.output.unlink(missing_ok=True)  # a cut program would run with steps missing
+        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
+    return 0
 
 
 # -- replay ---------------------------------------------------------------------------------
