@@ -306,6 +306,13 @@ def _parser() -> argparse.ArgumentParser:
         help="the daemon's state directory: the limits from what it learned of the tun",
     )
     check.set_defaults(func=cmd_check_config)
+
+    mqtt = sub.add_parser(
+        "mqtt", help="bridge the daemon to an MQTT broker and Home Assistant (docs/mqtt.md)"
+    )
+    mqtt.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
+    _socket_argument(mqtt)
+    mqtt.set_defaults(func=cmd_mqtt)
     return parser
 
 
@@ -1260,6 +1267,33 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     limits = safety_limits(document.config, choice.measured)
     for row in format_limits(limits, document.config.control.setpoint):
         print(f"#   {row}")
+    return 0
+
+
+# -- the MQTT bridge ------------------------------------------------------------------------
+
+
+def cmd_mqtt(args: argparse.Namespace) -> int:
+    """Serve the bridge until SIGTERM or Ctrl-C; it leaves "offline" on the broker."""
+    try:
+        from hermsd.mqtt.bridge import Bridge, BridgeError
+    except ModuleNotFoundError as error:
+        if not (error.name or "").startswith("paho"):
+            raise
+        raise UserError(
+            "the MQTT bridge needs paho-mqtt: install hermsd with its mqtt extra "
+            "(uv sync --extra mqtt; uv tool install --with paho-mqtt)"
+        ) from None
+    path = config_path(args.config, simulate=False)
+    assert path is not None
+    config = config_module.load(path)
+    try:
+        bridge = Bridge(config, default_socket_path(args.socket))
+    except BridgeError as error:
+        raise UserError(str(error)) from None
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda _signum, _frame: bridge.stop())
+    bridge.run()
     return 0
 
 

@@ -229,6 +229,24 @@ class AlertsConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class MqttConfig:
+    """The bridge to an MQTT broker and Home Assistant (`hermsd mqtt`, docs/mqtt.md); a
+    process of its own reads it, the control loop never does."""
+
+    host: str = _text("localhost", max_length=253)
+    port: int = _integer(1883, 1, 65535)
+    username: str | None = _text(None, max_length=256, null_means="no login")
+    password_file: str | None = _text(None, null_means="no password")
+    tls: bool = False
+    ca_file: str | None = _text(None, null_means="the system's certificate authorities")
+    cert_file: str | None = _text(None, null_means="no client certificate")
+    key_file: str | None = _text(None, null_means="the key inside cert_file")
+    topic_prefix: str = _text("hermsd", max_length=100)
+    discovery_prefix: str = _text("homeassistant", max_length=100)
+    client_id: str | None = _text(None, max_length=64, null_means="'hermsd-' and topic_prefix")
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     """Everything the daemon is told, one section per part of the HLT."""
 
@@ -240,6 +258,7 @@ class Config:
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     log: LogConfig = field(default_factory=LogConfig)
     alerts: AlertsConfig = field(default_factory=AlertsConfig)
+    mqtt: MqttConfig = field(default_factory=MqttConfig)
 
 
 DEFAULT = Config()
@@ -757,10 +776,56 @@ def _violations(config: Config) -> list[_Violation]:
                 "model_litres to null, or write the model again with `hermsd tune --write`)",
             )
         )
+    found.extend(_mqtt_violations(config.mqtt))
     return found
 
 
 _MODEL_KEYS = ("model_gain", "model_tau", "dead_time", "model_ambient")
+
+
+def _mqtt_violations(mqtt: MqttConfig) -> list[_Violation]:
+    """A topic prefix MQTT would refuse or misread, and TLS or login keys left without the
+    key they go with."""
+    found = []
+    for name in ("topic_prefix", "discovery_prefix"):
+        prefix: str = getattr(mqtt, name)
+        wrong = topic_prefix_problem(prefix)
+        if wrong:
+            found.append(_Violation((f"mqtt.{name}",), f"{_quote(prefix)} {wrong}"))
+    if mqtt.password_file is not None and mqtt.username is None:
+        found.append(
+            _Violation(
+                ("mqtt.password_file", "mqtt.username"),
+                "a password goes with a user name (add mqtt.username, or remove the password)",
+            )
+        )
+    for name in ("ca_file", "cert_file", "key_file"):
+        if getattr(mqtt, name) is not None and not mqtt.tls:
+            found.append(
+                _Violation(
+                    (f"mqtt.{name}", "mqtt.tls"),
+                    "is used only over TLS (set mqtt.tls: true, or remove it)",
+                )
+            )
+    if mqtt.key_file is not None and mqtt.cert_file is None:
+        found.append(
+            _Violation(
+                ("mqtt.key_file", "mqtt.cert_file"),
+                "a client key goes with its certificate (add mqtt.cert_file)",
+            )
+        )
+    return found
+
+
+def topic_prefix_problem(prefix: str) -> str | None:
+    """What makes `prefix` unfit to start MQTT topic names, or None when it is fit."""
+    if "+" in prefix or "#" in prefix:
+        return "holds a wildcard, + or # (use letters, digits, - and _, levels split by /)"
+    if prefix.startswith("$"):
+        return "starts with $, which brokers keep for themselves (e.g. 'hermsd')"
+    if "" in prefix.split("/"):
+        return "has an empty level: a / at either end or two together (e.g. 'brewery/hlt')"
+    return None
 
 
 WATER_J_PER_LITRE_K = 4186.0
@@ -1310,6 +1375,15 @@ def every_valid_value(key_path: str) -> list[object]:
         assert spec.high is not None
         values = list(range(int(spec.low), int(spec.high) + 1))
     return [info.default, *(value for value in values if value != info.default)]
+
+
+def key_range(key_path: str) -> tuple[float, float]:
+    """The lowest and highest value a bounded numeric key accepts, as the file's check does."""
+    section, name = key_path.split(".")
+    spec = _SCHEMA[section][name].spec
+    assert spec.low is not None
+    assert spec.high is not None
+    return spec.low, spec.high
 
 
 def _read_text(filename: str) -> str:
