@@ -24,7 +24,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from hermsd import tune
 from hermsd.daemon import Daemon, PeriodRecord
@@ -306,12 +306,34 @@ def write(experiment: StepExperiment, path: Path) -> str:
     return tune.write_tuned(path, last.tuned)
 
 
-def run(experiment: StepExperiment, interrupts: tuple[type[BaseException], ...]) -> None:
+class Experiment(Protocol):
+    """A test that listens to the daemon's periods and can be told it was interrupted."""
+
+    @property
+    def daemon(self) -> Daemon: ...
+
+    def period(self, record: PeriodRecord) -> None: ...
+
+    def alarm(self, alarm: Alarm) -> None: ...
+
+    def interrupted(self, why: str) -> None: ...
+
+
+def run(
+    experiment: Experiment,
+    interrupts: tuple[type[BaseException], ...],
+    *,
+    heater_off: bool = True,
+) -> None:
     """Run the daemon until the experiment stops it, an interrupt, or a failure; the heater is
-    off afterwards whatever happened (the daemon's shutdown on leaving its context)."""
+    off afterwards whatever happened (the daemon's shutdown on leaving its context).
+
+    `heater_off`: manual 0 % from the first period (the step's baseline); else the daemon
+    starts as it was asked to (the relay test's heat-up in auto)."""
     daemon = experiment.daemon
     daemon.listeners.append(experiment)
-    daemon.set_manual(0.0)  # applied before the first period: the baseline is all heater-off
+    if heater_off:
+        daemon.set_manual(0.0)  # applied before the first period: the baseline is heater-off
     try:
         with daemon:
             daemon.run()
