@@ -36,8 +36,7 @@ from typing import Any
 from hermsd import tune
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.identify import MIN_DUTY_SPAN
-from hermsd.safety import Alarm
-from hermsd.step_response import ABORTED, run
+from hermsd.step_response import ABORTED, Stopping, clock_text, estimates, run
 
 LSB_C = 0.0625
 HYSTERESIS_C = LSB_C
@@ -194,7 +193,7 @@ def fit_good(tuned: tune.Tuned, period_s: float) -> bool:
 
 
 @dataclass(slots=True)
-class RelayExperiment:
+class RelayExperiment(Stopping[Progress]):
     """Listens to the daemon's periods: heat-up, hold, relay; stops the loop when done."""
 
     daemon: Daemon
@@ -296,22 +295,6 @@ class RelayExperiment:
         if found and consistent(found) and tuned is not None and fit_good(tuned, period_s):
             self._finish(CYCLES_GOOD, t)
 
-    def alarm(self, alarm: Alarm) -> None:
-        if alarm.raised and self.stopped is None:
-            self._finish(f"{ABORTED[0]} {alarm.kind}: {alarm.message}", alarm.at)
-
-    def interrupted(self, why: str) -> None:
-        """The run was stopped from outside (Ctrl-C): keep what was measured."""
-        if self.stopped is None:
-            self.stopped = f"{ABORTED[1]} ({why})"
-            self.last = self.progress(self.times[-1] if self.times else 0.0)
-
-    def _finish(self, why: str, t: float) -> None:
-        self.stopped = why
-        self.daemon.set_manual(0.0)
-        self.daemon.stop()  # the caller's shutdown switches every output off
-        self.last = self.progress(t)  # after: a fault in the fit cannot keep the heat on
-
     def progress(self, t: float) -> Progress:
         """The cycles and the fit now, from every period since the heat-up ended."""
         at = 0.0 if self.reached_at is None else t - self.reached_at
@@ -362,14 +345,9 @@ def write(experiment: RelayExperiment, path: Path) -> str:
     return tune.write_config(path, last.tuned.recommended)
 
 
-def _clock(seconds: float) -> str:
-    minutes, secs = divmod(round(seconds), 60)
-    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
-
-
 def progress_line(progress: Progress) -> str:
     """One line a cycle: time at the setpoint, PV, Ku and Pu, the model with one σ."""
-    head = f"relay +{_clock(progress.at_setpoint)}"
+    head = f"relay +{clock_text(progress.at_setpoint)}"
     if progress.pv is not None:
         head += f"  PV {progress.pv:.2f} °C"
     found = progress.ultimate
@@ -383,11 +361,7 @@ def progress_line(progress: Progress) -> str:
     tuned = progress.tuned
     if tuned is None:
         return f"{head}  no fit yet: {progress.problem}"
-    m, u = tuned.model, tuned.uncertainty
-    return (
-        f"{head}  K {m.gain:.3f}±{u.gain:.3f} °C/%  τ {m.tau:.0f}±{u.tau:.0f} s  "
-        f"θ {m.dead_time:.0f}±{u.dead_time:.0f} s"
-    )
+    return f"{head}  {estimates(tuned)}"
 
 
 def result_json(experiment: RelayExperiment) -> dict[str, Any]:
@@ -435,7 +409,7 @@ def result_lines(experiment: RelayExperiment) -> list[str]:
     lines.append(
         f"relay {experiment.low:.1f} ↔ {experiment.high:.1f} % (bias {experiment.bias:.1f} %), "
         f"hysteresis ±{experiment.hysteresis:g} °C around {experiment.setpoint:g} °C, "
-        f"{_clock(last.at_setpoint)} at the setpoint; room {experiment.ambient:.1f} °C"
+        f"{clock_text(last.at_setpoint)} at the setpoint; room {experiment.ambient:.1f} °C"
     )
     found = last.ultimate
     if found is None:

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_step_response import powered_after
 
 from hermsd import config as config_module
 from hermsd import relay, tune
@@ -95,16 +96,6 @@ def experiment_on(plant: dict[str, Any]) -> tuple[relay.RelayExperiment, World, 
     world = build_world(cfg, clock, {**plant, **NOISE}, history=True)
     daemon = Daemon(cfg, clock, world.sensor, world.outputs)
     return relay.RelayExperiment(daemon, 66.0), world, clock
-
-
-def powered_after(world: World, t: float) -> bool:
-    on = False
-    for when, powered in world.circuit.power_changes:
-        if when <= t:
-            on = powered
-        elif powered:
-            return True
-    return on
 
 
 def test_the_relay_finds_the_seed_tun_within_the_goals() -> None:
