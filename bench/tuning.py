@@ -259,9 +259,10 @@ def craftbeerpi_test(spec: TunSpec) -> CraftBeerPiRun:
 
 RELAY_HEADER = (
     "| tun | P (%) | stopped | heat-up (min) | at SP (min) | swing (°C) | K err | K err (hold) "
-    "| τ err | θ true (s) | θ err | Ku true | Pu true (s) | Ku relay (err) | Ku model (err) "
-    "| Pu relay (err) | goals | CBPi Ku (err) | CBPi Pu (err) | CBPi (h) |",
-    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    "| τ err | θ true (s) | θ err | goals | Ku true | Pu true (s) | Ku relay (err) "
+    "| Ku DF (err) | Pu relay (err) | τ, θ from Ku, Pu (err) | Ku model (err) "
+    "| CBPi Ku (err) | CBPi Pu (err) | CBPi (h) |",
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
 )
 RELAY_GOAL_RELATIVE = 0.15
 RELAY_GOAL_MINUTES = 45.0
@@ -294,12 +295,22 @@ def relay_row(
     ku_model, _ = relay.ultimate_point(m.gain, m.tau, m.dead_time)
     errors["Ku model"] = ku_model / ku_true - 1.0
     found = last.ultimate
-    ku_relay = pu_relay = "–"
+    ku_relay = ku_df = pu_relay = implied = "–"
     if found is not None:
         errors["Ku relay"] = found.ku / ku_true - 1.0
+        errors["Ku DF"] = found.ku_df / ku_true - 1.0
         errors["Pu relay"] = found.pu / pu_true - 1.0
         ku_relay = f"{found.ku:.0f} ({100 * errors['Ku relay']:+.0f} %)"
+        ku_df = f"{found.ku_df:.0f} ({100 * errors['Ku DF']:+.0f} %)"
         pu_relay = f"{found.pu:.0f} ({100 * errors['Pu relay']:+.0f} %)"
+        foptd = relay.implied_foptd(m.gain, found)
+        if foptd is not None:
+            errors["τ from Ku, Pu"] = foptd[0] / tau - 1.0
+            errors["θ from Ku, Pu"] = foptd[1] / true.dead_time - 1.0
+            implied = (
+                f"{foptd[0]:.0f} ({100 * errors['τ from Ku, Pu']:+.0f} %), "
+                f"{foptd[1]:.0f} ({100 * errors['θ from Ku, Pu']:+.0f} %)"
+            )
     tuner = peer.tuner
     cbpi_hours = (peer.finished_at or math.nan) / 3600.0
     if tuner.state == "succeeded":
@@ -314,9 +325,9 @@ def relay_row(
     return (
         f"| {spec.name} | {experiment.amplitude:g} | {experiment.stopped} | {heat_up:.0f} "
         f"| {at_sp:.0f} | {swing:.2f} | {lin} | {hold} | {100 * errors['tau']:+.1f} % "
-        f"| {true.dead_time:.0f} | {100 * errors['theta']:+.1f} % | {ku_true:.0f} "
-        f"| {pu_true:.0f} | {ku_relay} | {ku_model:.0f} ({100 * errors['Ku model']:+.0f} %) "
-        f"| {pu_relay} | {'met' if ok else 'missed'} | {cbpi_ku} | {cbpi_pu} "
+        f"| {true.dead_time:.0f} | {100 * errors['theta']:+.1f} % | {'met' if ok else 'missed'} "
+        f"| {ku_true:.0f} | {pu_true:.0f} | {ku_relay} | {ku_df} | {pu_relay} | {implied} "
+        f"| {ku_model:.0f} ({100 * errors['Ku model']:+.0f} %) | {cbpi_ku} | {cbpi_pu} "
         f"| {cbpi_hours:.1f} |",
         errors,
         ok,

@@ -7,24 +7,27 @@ bias ± P, shifted up when the bias is below P), whenever the period's PV leaves
 hysteresis band SP ± ε: to `low` above SP + ε, to `high` below SP − ε. The supervisor
 watches the run as any other and the recorder logs it.
 
-From the settled cycles (those after the last change of P, the first one left out):
-- the ultimate period Pu, the mean time between switches to `high`;
-- the ultimate gain by the describing function of a relay with hysteresis,
-  Ku = 4d/(π·√(a² − ε²)), d = P, a half the cycle's peak-to-peak PV: the real part of the
-  relay's −1/N(a) (its plain 4d/(πa) is given as well). On a lag-dominant tun (τ ≫ θ) the
-  PV is a triangle, not a sine, and the describing function's Ku is low by up to 8/π² (19 %).
+From the settled cycles (those after the last change of P, the first one left out), each
+taken as the exact limit cycle of a lag-dominant tun (τ ≫ the period: an integrator with
+dead time) under a relay with hysteresis (`ultimate`): the dead time θ from the times at
+high and low and the amplitude a, the ultimate period Pu = 4θ and the ultimate gain
+Ku = πd/(2(a − ε)), with the loop's own delay (one control period: the PV is a period's
+mean, a new output acts over the next period) taken off θ. The describing function's
+Ku = 4d/(π·√(a² − ε²)) (the real part of the hysteretic relay's −1/N(a)) is given beside
+it: for a triangular PV it is low by up to 8/π² (19 %), and the relay's own period, which
+includes the hysteresis's 4ε/s, is not Pu.
 
 The model is the least-squares FOPTD of hermsd.identify over the hold and the relay (the one
 fitting code every user shares), with the room's temperature known: over a test much
 shorter than τ the cycles show θ and K/τ, and only the hold's duty against the water's rise
-above the room (K = (T − T_amb)/u) separates K from τ. The model's own Ku and Pu (phase
-−π) are given beside the measured ones, and the FOPTD that the measured Ku and Pu imply with
-the fit's K (magnitude and phase conditions at ωu, `foptd_from_ultimate`) shows what the
-describing function alone would have said.
+above the room (K = (T − T_amb)/u) separates K from τ. Beside it: the fitted model's own Ku
+and Pu (phase −π), and the FOPTD with the fit's K whose ultimate point is the measured one
+(magnitude and phase conditions at ωu, `foptd_from_ultimate`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import statistics
@@ -49,6 +52,7 @@ SETTLE_S = 300.0
 MAX_AT_SETPOINT_S = 45 * 60.0
 MIN_AMPLITUDE = MIN_DUTY_SPAN / 2.0
 """%: the relay's span 2·P is at least the duty span the fit needs for K and τ to show."""
+MAX_AMPLITUDE = 50.0  # %: bias ± 50 spans the whole output
 TARGET_SWING_C = 0.3
 """The aimed peak distance of PV from the setpoint: well inside ±0.5 °C, and 5× ε."""
 RESCALE_ABOVE_C = 0.45
@@ -64,6 +68,13 @@ STOP_RULE = (
     f"for K, τ and θ (θ: or one period); at most {MAX_AT_SETPOINT_S / 60:g} min at the setpoint"
 )
 CYCLES_GOOD = "the cycles are consistent and the fit is good"
+ULTIMATE_METHOD = (
+    "each settled cycle as a lag-dominant tun's (an integrator with dead time) under a relay "
+    "with hysteresis ε: θ = (T_H·T_L/(T_H + T_L))·(1 − ε/a) less one control period (the "
+    "PV's averaging and the output's next period), Pu = 4θ, Ku = ωu/a* with "
+    "a* = (a − ε)/(d·(θ + period)); "
+    "ku_df the describing function's 4d/(π·√(a² − ε²)); a half the peak-to-peak PV"
+)
 
 
 class RelayError(ValueError):
@@ -71,17 +82,28 @@ class RelayError(ValueError):
 
 
 @dataclass(frozen=True, slots=True)
+class Cycle:
+    """One full relay cycle: from a switch to the high output to the next one."""
+
+    period: float  # s
+    high_s: float  # s at the high output
+    amplitude: float  # a, half the peak-to-peak PV, °C
+
+
+@dataclass(frozen=True, slots=True)
 class Ultimate:
-    """Ku and Pu from the settled cycles (mean and sample standard deviation)."""
+    """Ku and Pu from the settled cycles (means, and sample standard deviations)."""
 
     cycles: int
-    pu: float  # s
-    pu_sd: float
-    ku: float  # %/°C, hysteresis corrected
-    ku_sd: float
-    ku_plain: float  # 4d/(πa), no correction
+    period: float  # s, the relay's own oscillation
     amplitude: float  # a, °C
-    d: float  # %
+    d: float  # %, half the relay's span
+    dead_time: float  # θ, s, of the lag-dominant cycle
+    pu: float  # s, 4θ
+    pu_sd: float
+    ku: float  # %/°C, πd/(2(a − ε))
+    ku_sd: float
+    ku_df: float  # %/°C, the describing function's 4d/(π·√(a² − ε²))
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,10 +118,10 @@ class Progress:
 
 def amplitude_for(element_watts: float, litres: float, dead_time: float) -> float:
     """P (%) for a swing of TARGET_SWING_C: past a switch, PV runs on for θ at the water's
-    rate a*·P (a* = watts/(100·C)), so the peak is ε + a*·P·θ; at least MIN_AMPLITUDE."""
+    rate a*·P (a* = watts/(100·C)), so the peak is ε + a*·P·θ; MIN_ to MAX_AMPLITUDE."""
     a_star = element_watts / (100.0 * tune.WATER_J_PER_L_K * litres)
     wanted = (TARGET_SWING_C - HYSTERESIS_C) / (a_star * max(dead_time, 1.0))
-    return max(MIN_AMPLITUDE, float(round(wanted)))
+    return min(max(MIN_AMPLITUDE, float(round(wanted))), MAX_AMPLITUDE)
 
 
 def levels(bias: float, amplitude: float, max_output: float) -> tuple[float, float]:
@@ -141,35 +163,63 @@ def cycles(
     pvs: list[float | None],
     high: float,
     since: float,
-) -> list[tuple[float, float]]:
-    """(period, half peak-to-peak of PV) of each full cycle: from a switch to `high` at or
-    after `since` to the next one; the first of them is left out (the transient)."""
-    ups = [t for t, level in switches if level == high and t >= since]
+) -> list[Cycle]:
+    """Each full cycle from a switch to `high` at or after `since` to the next one; the first
+    of them is left out (the transient)."""
+    after = [(t, level) for t, level in switches if t >= since]
+    ups = [t for t, level in after if level == high]
     out = []
     for start, end in itertools.pairwise(ups[1:]):
+        down = next((t for t, level in after if start < t < end and level != high), None)
         span = [pv for t, pv in zip(times, pvs, strict=True) if start <= t < end and pv is not None]
-        if span:
-            out.append((end - start, 0.5 * (max(span) - min(span))))
+        if span and down is not None:
+            out.append(Cycle(end - start, down - start, 0.5 * (max(span) - min(span))))
     return out
 
 
-def ultimate(measured: list[tuple[float, float]], d: float, hysteresis: float) -> Ultimate | None:
-    """Ku and Pu from the cycles' periods and amplitudes (None: fewer than two cycles, or an
-    amplitude within the hysteresis)."""
-    if len(measured) < 2 or any(a <= hysteresis for _, a in measured):
+def ultimate(
+    measured: list[Cycle], d: float, hysteresis: float, loop_delay: float = 0.0
+) -> Ultimate | None:
+    """Ku and Pu from the cycles (None: fewer than two, or an amplitude within the hysteresis).
+
+    Over a cycle a lag-dominant tun (τ ≫ the period) is an integrator with dead time: PV
+    moves at s₁ = a*·(high − hold) while the high output acts, at s₂ = a*·(hold − low) while
+    the low one does, each for θ past a switch at SP ± ε. So the peak-to-peak is
+    2a = 2ε + (s₁ + s₂)·θ, the times at high and low are T_H = θ + (2ε + s₂θ)/s₁ and
+    T_L = θ + (2ε + s₁θ)/s₂, and s₁·T_H = s₂·T_L (PV ends where it began). Solved:
+    θ = (T_H·T_L/(T_H + T_L))·(1 − ε/a) and a*·θ = (a − ε)/d, whose ultimate point
+    (ωu = π/(2θ), Ku = ωu/a*) is Pu = 4θ and Ku = π·d/(2(a − ε)): exact for the integrator,
+    where the describing function's 4d/(π·√(a² − ε²)) is low by up to 8/π² (19 %) from the
+    triangular PV alone, and its period includes the hysteresis's 4ε/s.
+
+    `loop_delay`: what the loop adds to the tun's own θ in the cycle (the daemon's: one
+    control period, `RelayExperiment`), taken off θ; a*·θ comes from the cycle as measured.
+    """
+    if len(measured) < 2 or any(c.amplitude <= hysteresis for c in measured):
         return None
-    periods = [p for p, _ in measured]
-    gains = [4.0 * d / (math.pi * math.sqrt(a * a - hysteresis**2)) for _, a in measured]
-    amplitude = statistics.fmean(a for _, a in measured)
+    loop_dead_times = [
+        c.high_s * (c.period - c.high_s) / c.period * (1.0 - hysteresis / c.amplitude)
+        for c in measured
+    ]
+    if any(theta <= loop_delay for theta in loop_dead_times):
+        return None
+    dead_times = [theta - loop_delay for theta in loop_dead_times]
+    gains = [
+        math.pi * d * loop / (2.0 * (c.amplitude - hysteresis) * theta)
+        for c, loop, theta in zip(measured, loop_dead_times, dead_times, strict=True)
+    ]
+    amplitude = statistics.fmean(c.amplitude for c in measured)
     return Ultimate(
         cycles=len(measured),
-        pu=statistics.fmean(periods),
-        pu_sd=statistics.stdev(periods),
-        ku=statistics.fmean(gains),
-        ku_sd=statistics.stdev(gains),
-        ku_plain=4.0 * d / (math.pi * amplitude),
+        period=statistics.fmean(c.period for c in measured),
         amplitude=amplitude,
         d=d,
+        dead_time=statistics.fmean(dead_times),
+        pu=4.0 * statistics.fmean(dead_times),
+        pu_sd=4.0 * statistics.stdev(dead_times),
+        ku=statistics.fmean(gains),
+        ku_sd=statistics.stdev(gains),
+        ku_df=4.0 * d / (math.pi * math.sqrt(amplitude**2 - hysteresis**2)),
     )
 
 
@@ -179,6 +229,13 @@ def consistent(found: Ultimate) -> bool:
         and found.pu_sd <= CONSISTENT * found.pu
         and found.ku_sd <= CONSISTENT * found.ku
     )
+
+
+def implied_foptd(gain: float, found: Ultimate | None) -> tuple[float, float] | None:
+    """τ and θ of the FOPTD with gain K at the measured ultimate point (None: none such)."""
+    if found is None or gain * found.ku <= 1.0:
+        return None
+    return foptd_from_ultimate(gain, found.ku, found.pu)
 
 
 def fit_good(tuned: tune.Tuned, period_s: float) -> bool:
@@ -305,6 +362,7 @@ class RelayExperiment(Stopping[Progress]):
             cycles(self.switches, self.times, self.pvs, self.high, self.settled_since),
             0.5 * (self.high - self.low),
             self.hysteresis,
+            self.daemon.config.control.period,
         )
         tuned, problem = None, None
         config = self.daemon.config
@@ -380,24 +438,15 @@ def result_json(experiment: RelayExperiment) -> dict[str, Any]:
         "ultimate": None,
     }
     if last is not None and last.ultimate is not None:
-        found = last.ultimate
-        result["ultimate"] = {
-            "cycles": found.cycles,
-            "pu": found.pu,
-            "pu_sd": found.pu_sd,
-            "ku": found.ku,
-            "ku_sd": found.ku_sd,
-            "ku_plain": found.ku_plain,
-            "amplitude": found.amplitude,
-            "d": found.d,
-            "method": "Ku = 4d/(π·√(a² − ε²)), a half the peak-to-peak PV of each settled "
-            "cycle; ku_plain = 4d/(π·a)",
-        }
+        result["ultimate"] = {**dataclasses.asdict(last.ultimate), "method": ULTIMATE_METHOD}
     if last is not None and last.tuned is not None:
         result.update(tune.tuned_json(last.tuned))
         m = last.tuned.model
         ku, pu = ultimate_point(m.gain, m.tau, m.dead_time)
         result["model_ultimate"] = {"ku": ku, "pu": pu}
+        implied = implied_foptd(m.gain, last.ultimate)
+        if implied is not None:
+            result["from_ultimate"] = {"K": m.gain, "tau": implied[0], "theta": implied[1]}
     return result
 
 
@@ -416,22 +465,22 @@ def result_lines(experiment: RelayExperiment) -> list[str]:
         lines.append("too few settled cycles for Ku and Pu")
     else:
         lines += [
-            f"{found.cycles} settled cycles, amplitude a {found.amplitude:.3f} °C, "
-            f"d {found.d:g} %:",
-            f"  Pu {found.pu:.0f} ± {found.pu_sd:.0f} s",
-            f"  Ku {found.ku:.4g} ± {found.ku_sd:.2g} %/°C (4d/(π·√(a² − ε²)); 4d/(π·a) "
-            f"{found.ku_plain:.4g})",
+            f"{found.cycles} settled cycles: period {found.period:.0f} s, amplitude a "
+            f"{found.amplitude:.3f} °C, d {found.d:g} %",
+            f"  Pu {found.pu:.0f} ± {found.pu_sd:.0f} s (4θ, θ {found.dead_time:.0f} s)",
+            f"  Ku {found.ku:.4g} ± {found.ku_sd:.2g} %/°C (πd/(2(a − ε)); the describing "
+            f"function's 4d/(π·√(a² − ε²)): {found.ku_df:.4g})",
         ]
     if last.tuned is None:
         return [*lines, f"no model: {last.problem}"]
     m = last.tuned.model
     ku, pu = ultimate_point(m.gain, m.tau, m.dead_time)
-    lines.append(f"  the model's own: Ku {ku:.4g} %/°C, Pu {pu:.0f} s (phase −180°)")
-    if found is not None and m.gain * found.ku > 1.0:
-        tau, theta = foptd_from_ultimate(m.gain, found.ku, found.pu)
+    lines.append(f"  the fitted model's own: Ku {ku:.4g} %/°C, Pu {pu:.0f} s (phase −180°)")
+    implied = implied_foptd(m.gain, found)
+    if implied is not None:
         lines.append(
-            f"  from the measured Ku, Pu and K alone: τ {tau:.0f} s, θ {theta:.0f} s "
-            "(the describing function's estimate; the fit below uses every period)"
+            f"  the FOPTD with the fit's K and the measured Ku, Pu: τ {implied[0]:.0f} s, "
+            f"θ {implied[1]:.0f} s"
         )
     lines += ["", *tune.tuned_lines(last.tuned)]
     return lines

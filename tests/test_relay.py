@@ -52,38 +52,57 @@ def test_a_gain_too_small_for_the_ultimate_point_is_refused() -> None:
         relay.foptd_from_ultimate(1.0, 0.5, 300.0)
 
 
-def test_the_cycles_of_a_synthetic_limit_cycle() -> None:
-    """A triangle wave of period 300 s and amplitude 0.25 °C around 66 °C, the relay switching
-    up at its troughs: every cycle after the first counts; Ku = 4d/(π·√(a² − ε²))."""
-    period, amplitude, step = 300.0, 0.25, 5.0
-    times = [k * step for k in range(int(6 * period / step))]
+def test_the_cycles_of_an_integrator_with_dead_time_under_the_relay() -> None:
+    """The exact limit cycle of PV' = a*·(u(t − θ) − hold), written out by hand: θ = 60 s,
+    a*·d = s = 0.002 °C/s either way, ε = 0.0625 °C. Past a switch PV runs on for θ, so
+    a = ε + s·θ = 0.1825 °C and each half lasts θ + (2ε + s·θ)/s = 182.5 s. Its true
+    ultimate point (a*·e^(−θs)/s at −180°: ωu = π/(2θ)) is Pu = 240 s, Ku = ωu/a* = 130.9
+    %/°C with d = 10 % (a* = 2e-4); the describing function says 4d/(π·√(a² − ε²)) = 74.2."""
+    theta, slope, band, d, setpoint = 60.0, 0.002, 0.0625, 10.0, 66.0
+    half = theta + (2 * band + slope * theta) / slope
+    period = 2 * half
 
-    def wave(t: float) -> float:
-        phase = (t % period) / period  # 0 at a trough
-        return 66.0 - amplitude + 4 * amplitude * (phase if phase < 0.5 else 1.0 - phase)
+    def pv_at(t: float) -> float:
+        phase = t % period  # 0: the switch up, at SP − ε while falling
+        if phase < theta:
+            return setpoint - band - slope * phase
+        if phase < half + theta:
+            return setpoint - band - slope * theta + slope * (phase - theta)
+        return setpoint + band + slope * theta - slope * (phase - half - theta)
 
-    pvs: list[float | None] = [wave(t) for t in times]
-    switches = [(k * period, 20.0) for k in range(6)] + [
-        (k * period + 150.0, 0.0) for k in range(6)
-    ]
-    switches.sort()
+    times = [float(t) for t in range(int(6 * period))]
+    pvs: list[float | None] = [pv_at(t) for t in times]
+    switches = sorted(
+        [(k * period, 20.0) for k in range(6)] + [(k * period + half, 0.0) for k in range(6)]
+    )
     found = relay.cycles(switches, times, pvs, 20.0, 0.0)
-    assert found == [pytest.approx((300.0, 0.25))] * 4  # ups at 300…1500 s; the first left out
-    result = relay.ultimate(found, 10.0, 0.0625)
+    assert len(found) == 4  # ups at 365 … 1825 s: the first cycle is left out
+    for cycle in found:
+        assert cycle.period == pytest.approx(365.0)
+        assert cycle.high_s == pytest.approx(182.5)
+        assert cycle.amplitude == pytest.approx(0.1825, abs=0.001)  # 1 s samples
+    result = relay.ultimate(found, d, band)
     assert result is not None
-    # √(0.25² − 0.0625²) = 0.2420615; 40/(π·0.2420615) = 52.600
-    assert result.ku == pytest.approx(52.600, abs=0.001)
-    assert result.ku_plain == pytest.approx(40 / (math.pi * 0.25), rel=1e-12)  # 50.93
-    assert result.pu == pytest.approx(300.0) and result.pu_sd == pytest.approx(0.0)
+    assert result.dead_time == pytest.approx(60.0, rel=0.01)
+    assert result.pu == pytest.approx(240.0, rel=0.01)
+    assert result.ku == pytest.approx(130.9, rel=0.01)
+    assert result.ku_df == pytest.approx(74.2, rel=0.01)
+    assert result.period == pytest.approx(365.0)
     assert relay.consistent(result)
+    # 5 s of the cycle's 60 s dead time the loop's own: the tun's θ is 55 s, Pu 220 s, and
+    # with the same a* = 2e-4, Ku = (π/110)/2e-4 = 142.8 %/°C.
+    tun = relay.ultimate(found, d, band, loop_delay=5.0)
+    assert tun is not None
+    assert tun.pu == pytest.approx(220.0, rel=0.01)
+    assert tun.ku == pytest.approx(142.8, rel=0.01)
 
 
 def test_the_default_amplitude_and_the_levels() -> None:
     # 90 L, 3 kW: a* = 3000/(100·4186·90) = 7.963e-5 °C/(%·s); θ 115 s:
     # (0.3 − 0.0625)/(7.963e-5·115) = 25.9 → 26 %.
     assert relay.amplitude_for(3000, 90, 115) == 26.0
-    # 30 L, 1.5 kW, θ 30 s: a* = 1.194e-4; 0.2375/(1.194e-4·30) = 66.3 → 66 %.
-    assert relay.amplitude_for(1500, 30, 30) == 66.0
+    # 30 L, 1.5 kW, θ 30 s: a* = 1.194e-4; 0.2375/(1.194e-4·30) = 66.3 → at most 50 %.
+    assert relay.amplitude_for(1500, 30, 30) == 50.0
     assert relay.amplitude_for(11000, 150, 600) == relay.MIN_AMPLITUDE  # 2.3 % → 10 %
     assert relay.levels(30.0, 10.0, 100.0) == (20.0, 40.0)
     assert relay.levels(7.0, 10.0, 100.0) == (0.0, 20.0)  # shifted up: the span stays 2·P
