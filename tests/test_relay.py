@@ -129,6 +129,10 @@ def test_the_relay_finds_the_seed_tun_within_the_goals() -> None:
     assert abs(m.dead_time / 115 - 1) <= 0.15
     assert last.at_setpoint <= 45 * 60
     assert not world.circuit.powered
+    # θ/τ = 0.008: the ultimate point is an integrator's with delay within 1 %,
+    # Pu = 4θ = 460 s, Ku = τ·π/(2θ·K) = 121.0 %/°C.
+    assert last.ultimate.pu == pytest.approx(460.0, rel=0.15)
+    assert last.ultimate.ku == pytest.approx(121.0, rel=0.15)
     swing = max(
         abs(pv - 66.0)
         for t, pv in zip(experiment.times, experiment.pvs, strict=True)
