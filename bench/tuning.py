@@ -381,14 +381,14 @@ def relay_section() -> str:
             "thermowells' τ comes out 12–13 % long (a sensor lag is not a dead time; the step "
             "test sees the same). The lid-off tuns' K is the hold's (evaporation included), "
             "20–25 % below the linear losses': the gain that matters at the setpoint. Ku and "
-            "Pu from the cycles (exact for a lag-dominant tun) land within about ±13 % and "
-            "±10 % of the tun's own; the describing function on the same cycles says 36–57 % "
-            "too little, for the PV is a triangle and the hysteresis's 4ε/s stretches the "
-            "period. With θ ≥ 240 s (far sensor, thermowell 120 L) a cycle lasts ~20 min: the "
-            "first one swings past ±0.5 °C from the config's dead-time guess (115 s), P is "
-            "rescaled once, and 45 min leave no two settled cycles for Ku and Pu, though the "
-            "fit is within the goals; a brewer who sets control.dead_time near the truth "
-            "gets the right P from the start.",
+            "Pu from the cycles (exact for a lag-dominant tun) land within −10..+9 % and "
+            "−12..+7 % of the tun's own; the describing function on the same cycles says "
+            "36–55 % too little, for the PV is a triangle and the hysteresis's 4ε/s stretches "
+            "the period. With θ ≥ 240 s (far sensor, thermowell 120 L) a cycle lasts ~20 min "
+            "(4θ plus the hysteresis's 4ε/s): 40 min of relay after the 5 min hold give fewer "
+            "than the two cycles Ku and Pu need, and the first one, from the config's "
+            "dead-time guess (115 s), swings past ±0.5 °C (0.55 °C) before P is rescaled; "
+            "the fit is within the goals there all the same.",
             "",
             "CraftBeerPi's autotune switches 0 ↔ 100 % (its output step 100 % around an "
             "initial 0), yet divides by the output step in Ku = 4·100/(π·a): twice the "

@@ -7,7 +7,8 @@ bias ± P, shifted up when the bias is below P), whenever the period's PV leaves
 hysteresis band SP ± ε: to `low` above SP + ε, to `high` below SP − ε. The supervisor
 watches the run as any other and the recorder logs it.
 
-From the settled cycles (those after the last change of P, the first one left out), each
+From the settled cycles (from the first switch down after the start or the last change of
+P: `cycles`), each
 taken as the exact limit cycle of a lag-dominant tun (τ ≫ the period: an integrator with
 dead time) under a relay with hysteresis (`ultimate`): the dead time θ from the times at
 high and low and the amplitude a, the ultimate period Pu = 4θ and the ultimate gain
@@ -83,7 +84,7 @@ class RelayError(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class Cycle:
-    """One full relay cycle: from a switch to the high output to the next one."""
+    """One full relay cycle: from a switch to the low output to the next one."""
 
     period: float  # s
     high_s: float  # s at the high output
@@ -164,16 +165,18 @@ def cycles(
     high: float,
     since: float,
 ) -> list[Cycle]:
-    """Each full cycle from a switch to `high` at or after `since` to the next one; the first
-    of them is left out (the transient)."""
-    after = [(t, level) for t, level in switches if t >= since]
-    ups = [t for t, level in after if level == high]
+    """Each full cycle from a switch down after `since` to the next one. At a switch down PV
+    is at SP + ε and the high output has acted for longer than θ (it is switched only once
+    its heat has shown), which is all an integrator with dead time remembers: so the first
+    such cycle after the relay's start or a change of P is already the limit cycle."""
+    after = [(t, level) for t, level in switches if t > since]
+    downs = [t for t, level in after if level != high]
     out = []
-    for start, end in itertools.pairwise(ups[1:]):
-        down = next((t for t, level in after if start < t < end and level != high), None)
+    for start, end in itertools.pairwise(downs):
+        up = next((t for t, level in after if start < t < end and level == high), None)
         span = [pv for t, pv in zip(times, pvs, strict=True) if start <= t < end and pv is not None]
-        if span and down is not None:
-            out.append(Cycle(end - start, down - start, 0.5 * (max(span) - min(span))))
+        if span and up is not None:
+            out.append(Cycle(end - start, end - up, 0.5 * (max(span) - min(span))))
     return out
 
 
@@ -266,7 +269,7 @@ class RelayExperiment(Stopping[Progress]):
     phase: str = "heat-up"
     reached_at: float | None = None  # when the heat-up ended
     relay_at: float | None = None
-    settled_since: float = math.inf  # cycles count from the first switch up after this
+    settled_since: float = math.inf  # cycles count from the first switch down after this
     bias: float | None = None
     low: float = 0.0
     high: float = 0.0
@@ -300,9 +303,10 @@ class RelayExperiment(Stopping[Progress]):
                 self._start_relay(record.t, pv)
         elif self._level == self.high and pv >= self.setpoint + self.hysteresis:
             self._switch(self.low, record.t)
+            self._evaluate(record.t)
         elif self._level == self.low and pv <= self.setpoint - self.hysteresis:
             self._switch(self.high, record.t)
-            self._cycle_done(record.t)
+            self._rescale_once(record.t)
 
     def _start_relay(self, t: float, pv: float) -> None:
         self.bias = statistics.fmean(self.duties[self._settle_from :])
@@ -323,26 +327,28 @@ class RelayExperiment(Stopping[Progress]):
         self.switches.append((t, level))
         self.daemon.set_manual(level)
 
-    def _cycle_done(self, t: float) -> None:
-        """At each switch up: rescale P once if the first cycle swung too far (or too
-        little), then measure, fit, and stop when the cycles and the fit say so."""
+    def _rescale_once(self, t: float) -> None:
+        """At the first switch up after a full cycle: a swing too far from the target
+        (past RESCALE_ABOVE_C, or under half the target) rescales P, once."""
         ups = [s for s, level in self.switches if level == self.high]
-        if not self._rescaled and len(ups) >= 2 and self.amplitude is not None:
-            self._rescaled = True
-            start = ups[-2]
-            swing = max(
-                abs(pv - self.setpoint)
-                for s, pv in zip(self.times, self.pvs, strict=True)
-                if s >= start and pv is not None
-            )
-            if swing > RESCALE_ABOVE_C or swing < TARGET_SWING_C / 2:
-                scale = (TARGET_SWING_C - self.hysteresis) / max(swing - self.hysteresis, 1e-3)
-                self.amplitude = max(MIN_AMPLITUDE, round(self.amplitude * scale))
-                assert self.bias is not None
-                self.low, self.high = levels(self.bias, self.amplitude, self._max_output())
-                self.settled_since = t
-                self._switch(self.high, t)
-                return
+        if self._rescaled or len(ups) < 2 or self.amplitude is None or self.bias is None:
+            return
+        self._rescaled = True
+        swing = max(
+            abs(pv - self.setpoint)
+            for s, pv in zip(self.times, self.pvs, strict=True)
+            if s >= ups[-2] and pv is not None
+        )
+        if swing > RESCALE_ABOVE_C or swing < TARGET_SWING_C / 2:
+            scale = (TARGET_SWING_C - self.hysteresis) / max(swing - self.hysteresis, 1e-3)
+            self.amplitude = min(max(MIN_AMPLITUDE, round(self.amplitude * scale)), MAX_AMPLITUDE)
+            self.low, self.high = levels(self.bias, self.amplitude, self._max_output())
+            self.settled_since = t
+            self._switch(self.high, t)
+
+    def _evaluate(self, t: float) -> None:
+        """At each switch down (a cycle's end): measure, fit, and stop when the cycles and
+        the fit say so."""
         progress = self.progress(t)
         self.last = progress
         if self.on_progress is not None:
@@ -390,15 +396,17 @@ def start(experiment: RelayExperiment, interrupts: tuple[type[BaseException], ..
 
 def write(experiment: RelayExperiment, path: Path) -> str:
     """Write the fit's settings into the config file: never after an alarm or an interrupt,
-    nor from cycles and a fit short of the stop rule."""
+    nor from a fit short of the goals (`fit_good`). The settings are the fit's alone, so a
+    test that ran out of time before two cycles settled (θ of minutes) may still write."""
     why = experiment.stopped or "not run"
     if why.startswith(ABORTED):
         raise tune.TuneError(f"{path} left as it is: the relay test was stopped by {why}")
     last = experiment.last
-    if why != CYCLES_GOOD or last is None or last.tuned is None:
+    period_s = experiment.daemon.config.control.period
+    if last is None or last.tuned is None or not fit_good(last.tuned, period_s):
         raise tune.TuneError(
-            f"{path} left as it is: the relay test stopped ({why}) short of "
-            "consistent cycles and a good fit"
+            f"{path} left as it is: the relay test stopped ({why}) without a fit within "
+            f"±{100 * GOAL_RELATIVE:g} % at 2σ"
         )
     return tune.write_config(path, last.tuned.recommended)
 

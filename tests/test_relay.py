@@ -76,7 +76,7 @@ def test_the_cycles_of_an_integrator_with_dead_time_under_the_relay() -> None:
         [(k * period, 20.0) for k in range(6)] + [(k * period + half, 0.0) for k in range(6)]
     )
     found = relay.cycles(switches, times, pvs, 20.0, 0.0)
-    assert len(found) == 4  # ups at 365 … 1825 s: the first cycle is left out
+    assert len(found) == 5  # from each switch down, at 182.5 … 2007.5 s, to the next
     for cycle in found:
         assert cycle.period == pytest.approx(365.0)
         assert cycle.high_s == pytest.approx(182.5)
@@ -240,3 +240,14 @@ def test_bad_relay_options_are_one_line(
 def test_relay_options_are_refused_without_relay(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["tune", "step", "--simulate", "--hysteresis", "0.1"]) == 2
     assert "--hysteresis: for `hermsd tune relay` only" in capsys.readouterr().err
+
+
+def test_a_relay_stopped_before_a_good_fit_writes_nothing(tmp_path: Path) -> None:
+    """Stopped (here: by the time limit) with no fit: the file stays as it is."""
+    path = tmp_path / "hermsd.yaml"
+    path.write_bytes(SHIPPED.read_bytes())
+    experiment, _, _ = experiment_on(SEED_TUN)
+    experiment.stopped = "45 min at the setpoint"
+    with pytest.raises(tune.TuneError, match="without a fit within ±15 % at 2σ"):
+        relay.write(experiment, path)
+    assert path.read_bytes() == SHIPPED.read_bytes()
