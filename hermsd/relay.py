@@ -51,6 +51,8 @@ REACHED_C = 0.25  # the heat-up is over when PV is this close below the setpoint
 SETTLE_S = 300.0
 """In auto at the setpoint before the relay: its mean duty is the relay's bias."""
 MAX_AT_SETPOINT_S = 45 * 60.0
+RUNAWAY_C = 1.0
+"""PV this far above the setpoint during the relay stops the test: the swing aims at 0.3 °C."""
 MIN_AMPLITUDE = MIN_DUTY_SPAN / 2.0
 """%: the relay's span 2·P is at least the duty span the fit needs for K and τ to show."""
 MAX_AMPLITUDE = 50.0  # %: bias ± 50 spans the whole output
@@ -298,6 +300,12 @@ class RelayExperiment(Stopping[Progress]):
         assert self.reached_at is not None
         if record.t - self.reached_at >= MAX_AT_SETPOINT_S:
             self._finish(f"{MAX_AT_SETPOINT_S / 60:g} min at the setpoint", record.t)
+        elif self.phase == "relay" and pv > self.setpoint + RUNAWAY_C:
+            self._finish(
+                f"PV {pv:.2f} °C, {RUNAWAY_C:g} °C above the setpoint: the relay's low output "
+                f"({self.low:g} %) still heats the tun (the hold's duty was not its bias)",
+                record.t,
+            )
         elif self.phase == "settle":
             if record.t - self.reached_at >= SETTLE_S:
                 self._start_relay(record.t, pv)

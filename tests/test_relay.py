@@ -251,3 +251,19 @@ def test_a_relay_stopped_before_a_good_fit_writes_nothing(tmp_path: Path) -> Non
     with pytest.raises(tune.TuneError, match="without a fit within ±15 % at 2σ"):
         relay.write(experiment, path)
     assert path.read_bytes() == SHIPPED.read_bytes()
+
+
+def test_a_low_output_that_still_heats_stops_the_relay() -> None:
+    """Both relay outputs above the hold's duty (a bias taken from a hold that was still
+    climbing): PV runs away upwards; the test stops 1 °C above the setpoint, heater off."""
+    experiment, world, _ = experiment_on(SEED_TUN)
+
+    def both_high() -> None:
+        experiment.low = experiment.high
+
+    experiment.daemon.listeners.insert(0, _MidRelay(experiment, both_high))
+    relay.start(experiment, (KeyboardInterrupt,))
+    assert experiment.stopped is not None
+    assert experiment.stopped.startswith("PV 67.0")
+    assert "above the setpoint: the relay's low output" in experiment.stopped
+    assert not world.circuit.powered
