@@ -51,6 +51,9 @@ REACHED_C = 0.25  # the heat-up is over when PV is this close below the setpoint
 SETTLE_S = 300.0
 """In auto at the setpoint before the relay: its mean duty is the relay's bias."""
 MAX_AT_SETPOINT_S = 45 * 60.0
+ROOM_BELOW_C = 10.0
+"""Without --ambient the first PV is the room's (the water stood in it): not when it starts
+this close to the setpoint (hot water from the tap, a tun still warm)."""
 RUNAWAY_C = 1.0
 """PV this far above the setpoint during the relay stops the test: the swing aims at 0.3 °C."""
 MIN_AMPLITUDE = MIN_DUTY_SPAN / 2.0
@@ -262,7 +265,7 @@ class RelayExperiment(Stopping[Progress]):
     setpoint: float  # °C
     hysteresis: float = HYSTERESIS_C
     amplitude: float | None = None  # P, %; None: amplitude_for the config's tun
-    ambient: float | None = None  # the room's; None: the first PV (the water stood in it)
+    ambient: float | None = None  # the room's; None: the first PV (ROOM_BELOW_C)
     on_progress: Callable[[Progress], None] | None = None
     times: list[float] = field(default_factory=list)
     pvs: list[float | None] = field(default_factory=list)
@@ -289,6 +292,14 @@ class RelayExperiment(Stopping[Progress]):
         self.duties.append(record.applied)
         pv = record.pv
         if self.ambient is None and pv is not None:
+            if pv > self.setpoint - ROOM_BELOW_C:
+                self._finish(
+                    f"the water starts at {pv:.1f} °C, within {ROOM_BELOW_C:g} °C of the "
+                    "setpoint: it cannot stand for the room's temperature, which K needs; "
+                    "give --ambient",
+                    record.t,
+                )
+                return
             self.ambient = pv
         if pv is None:
             return

@@ -267,3 +267,14 @@ def test_a_low_output_that_still_heats_stops_the_relay() -> None:
     assert experiment.stopped.startswith("PV 67.0")
     assert "above the setpoint: the relay's low output" in experiment.stopped
     assert not world.circuit.powered
+
+
+def test_warm_water_without_the_rooms_temperature_is_refused() -> None:
+    """K rests on the room's temperature; water 60 °C at the start cannot stand for it."""
+    experiment, world, _ = experiment_on({**SEED_TUN, "start_c": 60.0})
+    relay.start(experiment, (KeyboardInterrupt,))
+    assert experiment.stopped is not None
+    assert experiment.stopped.startswith("the water starts at 60.0 °C, within 10 °C of the")
+    assert experiment.stopped.endswith("give --ambient")
+    assert not world.circuit.powered
+    assert experiment.relay_at is None
