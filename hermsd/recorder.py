@@ -147,6 +147,11 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     ["number", "null"],
                     "output the controller was reset to before this step (bumpless start), %",
                 ),
+                "full_from": _field(
+                    ["integer", "null"],
+                    "after this many of the readings the controller asked for full power at once "
+                    "(a sudden drop: cold water)",
+                ),
             },
         ),
     ),

@@ -62,6 +62,7 @@ PERIOD = {
     "alarms": [],
     "heater_allowed": True,
     "reset_from": None,
+    "full_from": None,
 }
 READING = {
     "t": 1234.0,
