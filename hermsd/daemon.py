@@ -11,6 +11,8 @@ a shorted SSR, an open contactor or a dead element show only in the temperature,
 what the supervisor's watches are for. When the supervisor forbids
 heating, the SSR is cut at once (mid-window), the contactor opens, and the controller is
 held, not fed zeros; when heating is allowed again it resumes from the output it had.
+Inside a period the loop acts on one thing only: cold water that the controller answers
+with full power runs the element at full power from that reading on (`_act_on_drop`).
 """
 
 from __future__ import annotations
@@ -741,7 +743,7 @@ class Daemon:
         self._full_from = len(self._readings)
         if not self.supervisor.heater_allowed:
             return
-        self.output = self.controller.params.out_max  # in force until the next step
+        self.output = 100.0  # in force until the next step
         drop = self._pv - self._readings[-1]
         self._event(logging.INFO, f"PV fell {drop:.2f} °C within the period: full power", now)
         window = self._window

@@ -989,20 +989,22 @@ def full_power_now(
     its last output as applied, gives its upper limit. The element's heat reaches the sensor
     a dead time later whatever is done, so every second of the old duty after the water is a
     second of recovery lost; a period is 5 of them. Only predictive acts inside a period (the
-    textbook forms are their seeds' equations, once a period), and not when its output is
-    already at the limit. The controller is not changed (its next step is taken on a copy),
-    so the answer follows from what a period record logs: its readings, and the controller
-    as the period before left it."""
+    textbook forms are their seeds' equations, once a period), only when it may ask for
+    full power (an upper limit below 100 % is a power limit the window must keep), and not
+    when its output is already there. The controller is not changed (its next step is taken
+    on a copy), so the answer follows from what a period record logs: its readings, and the
+    controller as the period before left it."""
     if not (isinstance(controller, _Predictive) and controller._primed):
         return False
     if len(readings) < DROP_READINGS:
         return False
     recent = readings[-DROP_READINGS:]
-    limit = controller.params.out_max
-    if controller.output >= limit or max(recent) >= last_pv - STEP_INNOVATION:
+    if controller.params.out_max < 100.0 or controller.output >= 100.0:
+        return False
+    if max(recent) >= last_pv - STEP_INNOVATION:
         return False
     trial = copy.deepcopy(controller)
-    return trial.step(sp, sum(recent) / len(recent), controller.output) >= limit
+    return trial.step(sp, sum(recent) / len(recent), controller.output) >= 100.0
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

@@ -71,12 +71,20 @@ def test_full_power_forgets_what_was_carried() -> None:
 # -- the controller's answer: two readings, and full power by its own law --------------------
 
 
-def holding_controller(algorithm: str = "predictive") -> pid.Controller:
-    """A controller that has held 66 °C for an hour on the seed model's tun."""
-    controller = pid.create(algorithm, kc=120.0, ti=800.0, td=0.0, ts=5.0)
-    applied = 0.0
+def holding_controller(algorithm: str = "predictive", out_max: float = 100.0) -> pid.Controller:
+    """A controller that has held 66 °C for an hour on seed 001's tun (its model: 1.689 °C/%,
+    τ 14961 s, dead time 115 s, a 20 °C room), started at the holding duty 46/1.689 %."""
+    model = pid.SEED_HLT
+    controller = pid.create(algorithm, kc=120.0, ti=800.0, ts=5.0, out_max=out_max, model=model)
+    holding = (SP - model.ambient) / model.gain
+    controller.reset(SP, holding)
+    in_flight = [holding] * round(model.dead_time / 5.0)
+    pv = SP
     for _ in range(720):
-        applied = controller.step(SP, SP, applied)
+        u = in_flight.pop(0)
+        pv += 5.0 * (model.rate * u / 100.0 - (pv - model.ambient) / model.tau)
+        in_flight.append(controller.step(SP, pv, in_flight[-1]))
+    assert 20.0 < controller.output < 35.0  # holding
     return controller
 
 
@@ -110,6 +118,13 @@ def test_only_predictive_acts_inside_the_period_and_not_when_already_full() -> N
     heating = pid.create("predictive", kc=120.0, ti=800.0, ts=5.0)
     assert heating.step(SP, 20.0) == 100.0
     assert not pid.full_power_now(heating, SP, 20.0, [19.0, 18.875])
+
+
+def test_a_power_limit_below_full_is_kept_inside_the_period() -> None:
+    # control.max_output 80 %: the window must not run at 100 % for any part of it.
+    readings = [66.0, 65.0, 64.875]
+    assert pid.full_power_now(holding_controller(), SP, SP, readings)  # at 100 % it would
+    assert not pid.full_power_now(holding_controller(out_max=80.0), SP, SP, readings)
 
 
 def test_sensor_noise_never_asks_for_full_power() -> None:
