@@ -874,23 +874,11 @@ class Daemon:
         allowed = self.supervisor.heater_allowed
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(allowed)
-        plan = self.planner.plan(deadline, self.output if allowed else 0.0)
-        self._arm(plan, now)
-        if self.recorder is not None:
-            self.recorder.write(
-                "/hermsd/window",
-                self.clock.wall_ns(),
-                {
-                    "t": deadline,
-                    "window": plan.length,
-                    "requested": plan.requested,
-                    "on_time": plan.on_time,
-                    "applied": plan.applied,
-                },
-            )
+        self._arm(self.planner.plan(deadline, self.output if allowed else 0.0), now)
 
     def _arm(self, plan: WindowPlan, now: float) -> None:
-        """Make `plan` the window in progress: the SSR as it says now, its edges to come."""
+        """Make `plan` the window in progress (logged; a later one for the same start replaces
+        it): the SSR as it says now, and its edges to come."""
         window = self._window
         window.plan = plan
         self._switch(plan.is_on(now), now)
@@ -898,6 +886,18 @@ class Daemon:
         for edge in (plan.on_at, plan.off_at):
             if now < edge < end:
                 window.timers.append(self.scheduler.at(edge, self._on_edge))
+        if self.recorder is not None:
+            self.recorder.write(
+                "/hermsd/window",
+                self.clock.wall_ns(),
+                {
+                    "t": plan.start,
+                    "window": plan.length,
+                    "requested": plan.requested,
+                    "on_time": plan.on_time,
+                    "applied": plan.applied,
+                },
+            )
 
     def _on_edge(self, when: float, now: float) -> None:
         plan = self._window.plan

@@ -177,13 +177,16 @@ TOPICS: Final[dict[str, TopicSpec]] = {
         "hermsd.Window",
         _object(
             "hermsd.Window",
-            "One time-proportioning window of the solid-state relay.",
+            "One time-proportioning window of the solid-state relay (a later record with "
+            "the same t: the window was re-planned at full power inside it, cold water).",
             {
                 "t": _T,
                 "window": _field("number", "window length, s"),
                 "requested": _field("number", "duty asked for, %"),
-                "on_time": _field("number", "time the SSR is to be driven on, s"),
-                "applied": _field("number", "duty planned for the SSR (on_time / window), %"),
+                "on_time": _field(
+                    "number", "time the SSR is to be driven on, s (re-planned: from then on)"
+                ),
+                "applied": _field("number", "duty planned for the SSR in the whole window, %"),
             },
         ),
     ),

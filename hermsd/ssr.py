@@ -111,10 +111,9 @@ class TimeProportionalPlanner:
             ended = plan.on_at < plan.off_at <= at
             before = plan.on_time if ended else 0.0
             off_since = plan.off_at if ended else plan.start
-            slot = max(
-                at - plan.start, off_since - plan.start + self.min_off_slots * self.half_cycle
-            )
-            on_at = plan.start + math.ceil(slot / self.half_cycle - 1e-9) * self.half_cycle
+            earliest = max(at, off_since + self.min_off_slots * self.half_cycle)
+            slots = math.ceil((earliest - plan.start) / self.half_cycle - 1e-9)
+            on_at = plan.start + slots * self.half_cycle
             if end - on_at < max(self.min_on_slots, 1) * self.half_cycle - 1e-9:
                 return plan
         self._carry = 0.0

@@ -12,6 +12,7 @@ import pytest
 from hermsd import config as config_module
 from hermsd import pid, replay
 from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.recorder import WINDOW_TOPIC, LogFile
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event
@@ -236,6 +237,23 @@ def test_replay_verifies_a_day_with_full_power_inside_a_period(
     assert len(acted) == 1 and acted[0].t == WATER_AT + 5.0
     result = replay.verify(log.entries)
     assert result.mismatch is None and result.verified > 600
+
+
+def test_the_window_planned_again_is_logged(cold_water_log: list[Path]) -> None:
+    windows = [
+        message
+        for path in cold_water_log
+        for topic, _, message in LogFile(path).messages()
+        if topic == WINDOW_TOPIC and message["t"] == WATER_AT
+    ]
+    assert [w["requested"] for w in windows][1:] == [100.0]
+    first, again = windows
+    assert again["applied"] > first["applied"]
+    # On from the reading that decided it (within a half-cycle) to the window's end.
+    acted = next(p for p in replay.load(cold_water_log).periods if p.full_from is not None)
+    assert acted.full_from is not None
+    left = WATER_AT + 5.0 - (WATER_AT + acted.full_from - 0.5)
+    assert left - 0.01 - 1e-9 <= again["on_time"] <= left
 
 
 @pytest.mark.parametrize("shift", [None, 1, 4])

@@ -377,8 +377,9 @@ def reactive_floor(
 
 
 def first_read_after(t: float, read_interval: float) -> float:
-    """When the daemon's first reading at or after `t` comes (it reads half an interval
-    after its start, 0 here, then every interval; an event at a reading's time comes first)."""
+    """When the daemon's first reading at or after `t` comes: it reads half an interval after
+    it starts (at 0 in a scenario), then once an interval; an event at a reading's own time
+    runs before it."""
     half = read_interval / 2.0
     return half + max(0, math.ceil((t - half) / read_interval)) * read_interval
 
