@@ -1025,6 +1025,7 @@ class Daemon:
                     "reason": reason,
                     "model": asdict(self.model),
                     "safety_model": _tun_fields(self._measured_tun(self.config)),
+                    "drop_readings": pid.DROP_READINGS,
                 },
             )
 

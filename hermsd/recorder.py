@@ -247,6 +247,9 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "model": _field(
                     "object", "the tun's model the controller uses: gain, tau, dead_time, ambient"
                 ),
+                "drop_readings": _field(
+                    "integer", "readings in a row that show cold water inside a period (full_from)"
+                ),
             },
         ),
     ),

@@ -36,7 +36,7 @@ from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
-from hermsd.pid import Controller, PlantModel, full_power_now
+from hermsd.pid import DROP_READINGS, Controller, PlantModel, full_power_now
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -94,6 +94,7 @@ class LoggedConfig:
     config: dict[str, Any]
     model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
     safety_model: dict[str, Any] | None = None  # the measured tun the safety limits came from
+    drop_readings: int | None = None  # the rule of `full_from` (None: not acted on in periods)
 
 
 @dataclass(frozen=True, slots=True)
@@ -352,12 +353,14 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
     model, safety_model = message.get("model"), message.get("safety_model")
+    drop_readings = message.get("drop_readings")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
         config,
         model if isinstance(model, dict) else None,
         safety_model if isinstance(safety_model, dict) else None,
+        drop_readings if isinstance(drop_readings, int) else None,
     )
 
 
@@ -626,7 +629,9 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
 
     A period's `full_from` (the reading after which the controller asked for full power at
     once) must be what `pid.full_power_now` gives on its readings, with the controller as the
-    step of the record before it left it; None where no step came before it.
+    step of the record before it left it; None where no step came before it. It is checked
+    where the config record in force says the daemon used today's rule (`drop_readings`):
+    an older daemon never acted inside a period and logged no such thing.
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -635,12 +640,14 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
     stepped: tuple[Controller, PeriodRecord] | None = None  # the last step, if fresh and known
+    drops_checked = False  # whether the daemon that logged these periods acted on drops so
     verified = unknown = 0
     for entry in entries:
         if isinstance(entry, LoggedConfig):
             if entry == in_force:
                 continue
             in_force = entry
+            drops_checked = entry.drop_readings == DROP_READINGS
             try:
                 reloaded = config_module.from_dict(entry.config).control
                 same_model = in_force_model == entry.model
@@ -666,7 +673,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         if previous_k is not None and record.k != previous_k + 1:
             known = False
             stepped = None
-        if stepped is not None or known:
+        if drops_checked and (stepped is not None or known):
             full_from = _full_from(stepped, record.readings)
             if record.full_from != full_from:
                 mismatch = Mismatch(record.k, record.t, "full_from", record.full_from, full_from)

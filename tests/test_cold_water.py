@@ -272,3 +272,19 @@ def test_verify_finds_a_full_power_decision_the_readings_do_not_give(
         mismatch = replay.verify(tampered).mismatch
         assert mismatch is not None
         assert (mismatch.k, mismatch.name, mismatch.logged) == (target.k, "full_from", value)
+
+
+def test_verify_leaves_full_from_alone_in_a_log_of_a_daemon_that_never_acted_so(
+    cold_water_log: list[Path],
+) -> None:
+    # An older daemon logged no rule with its config and no full_from with its periods; its
+    # periods with the same readings verify as they always did.
+    log = replay.load(cold_water_log)
+    older = [
+        dataclasses.replace(e, drop_readings=None)
+        if isinstance(e, replay.LoggedConfig)
+        else dataclasses.replace(e, full_from=None)
+        for e in log.entries
+    ]
+    assert any(isinstance(e, replay.LoggedConfig) and e.drop_readings == 2 for e in log.entries)
+    assert replay.verify(older).mismatch is None
