@@ -37,6 +37,7 @@ from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import PlantModel
+from hermsd.program.quality import step_quality
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -562,6 +563,7 @@ def summarise(log: Log) -> dict[str, Any]:
         # None: the safety limits held for any tun the config may describe (nothing measured)
         "safety_tun_model": log.configs[-1].safety_model if log.configs else None,
         "learning": learning(log),
+        "steps": step_quality(zip(log.elapsed, log.periods, strict=True)),
     }
 
 
@@ -661,6 +663,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             known = False
         previous_k = record.k
         if not (record.mode == "auto" and record.heater_allowed and record.pv is not None):
+            continue
+        if record.state == "scheduled":  # a program waits for its time: the heater held off
             continue
         if controller is None:
             unknown += 1
