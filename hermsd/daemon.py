@@ -38,7 +38,7 @@ from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program
-from hermsd.program.runner import ProgramEvent, heat_up_s
+from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
@@ -497,13 +497,14 @@ class Daemon:
 
     def start_program(self, program: Program, ready_by: str | None, t: float) -> None:
         """Start `program` (program_problems first: this raises runner.Refused)."""
-        lead = None
-        if self._pv is not None:
-            lead = heat_up_s(
-                self.model, self.config.control.max_output, self._pv, program.steps[0].setpoint
-            )
         self.program.start(
-            program, ready_by, setpoint=self.setpoint, wall_ns=self.clock.wall_ns(), lead_s=lead
+            program,
+            ready_by,
+            setpoint=self.setpoint,
+            wall_ns=self.clock.wall_ns(),
+            lead_s=self.program.lead_s(
+                program, self._pv, self.model, self.config.control.max_output
+            ),
         )
 
     def program_command(self, action: str, t: float) -> None:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hermsd.latches import StateError
+from hermsd.metrics import BAND
 from hermsd.pid import PlantModel
 from hermsd.program.model import READY_BY, Program
 from hermsd.program.runner import ProgramEvent, Refused, Runner, heat_up_s
@@ -172,9 +173,8 @@ class ProgramDriver:
         if runner is None:
             events, self._events = self._events, []
             return None, events
-        lead = None
-        if runner.state == "scheduled" and pv is not None:
-            lead = heat_up_s(model, max_output, pv, runner.program.steps[0].setpoint)
+        scheduled = runner.state == "scheduled"
+        lead = self.lead_s(runner.program, pv, model, max_output) if scheduled else None
         runner.period(t, pv, wall_ns, lead)
         if runner.state == "scheduled":
             self._schedule(wall_ns, lead)
@@ -184,6 +184,16 @@ class ProgramDriver:
         events, self._events = self._events, []
         self._save(runner, t)
         return runner.setpoint, events
+
+    @staticmethod
+    def lead_s(
+        program: Program, pv: float | None, model: PlantModel, max_output: float
+    ) -> float | None:
+        """How long full power takes from `pv` until the first step is reached (its band's
+        lower edge), by the tun's model; None when unknown (no PV) or never."""
+        if pv is None:
+            return None
+        return heat_up_s(model, max_output, pv, program.steps[0].setpoint - BAND)
 
     def _schedule(self, wall_ns: int, lead_s: float | None) -> None:
         runner = self.runner
