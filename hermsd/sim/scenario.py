@@ -471,11 +471,14 @@ def run(
     daemon.listeners.append(collector)
     brewer = _Brewer(daemon)
     if program is not None:
-        problems = daemon.program_problems(program)
-        if problems:
-            raise ScenarioError(f"program: {'; '.join(problems)}")
-        start = config.control.period / 2  # a brewer starts it with the daemon running
-        clock.call_at(start, lambda: daemon.start_program(program, None, clock.monotonic()))
+
+        def start_program() -> None:  # as a brewer would, with the daemon running
+            problems = daemon.program_problems(program)  # a program resumed from the state too
+            if problems:
+                raise ScenarioError(f"program: {'; '.join(problems)}")
+            daemon.start_program(program, None, clock.monotonic())
+
+        clock.call_at(config.control.period / 2, start_program)
         daemon.listeners.append(brewer)
 
     recovery_min: dict[str, float | None] = {}
