@@ -243,14 +243,21 @@ def test_until_told_holds_until_next_and_the_program_then_holds_its_last_setpoin
 def test_a_scheduled_program_keeps_the_heater_off_until_its_heat_up_is_due() -> None:
     ready = 10_000 * NS
     runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=ready)
-    runner.period(0.0, 20.0, 1_000 * NS, lead_s=8_000.0)  # 9000 s to go, 8000 needed
+    # The model's heat-up, 20 % longer (READY_MARGIN): 6000 s → 7200 s.
+    runner.period(0.0, 20.0, 1_000 * NS, lead_s=6_000.0)  # 9000 s to go
     assert (runner.state, runner.setpoint) == ("scheduled", None)
     with pytest.raises(Refused, match="has not started heating yet"):
         runner.command("next", 20.0)
-    runner.period(5.0, 19.9, 1_999 * NS, lead_s=8_000.5)  # 8001 s to go: not yet
+    runner.period(5.0, 19.9, 2_799 * NS, lead_s=6_000.0)  # 7201 s to go: not yet
     assert runner.state == "scheduled"
-    runner.period(10.0, 19.9, 2_000 * NS, lead_s=8_000.5)  # 8000 s to go: now
+    runner.period(10.0, 19.9, 2_800 * NS, lead_s=6_000.0)  # 7200 s to go: now
     assert (runner.state, runner.setpoint) == ("heating", 66.0)
+    # Ahead of the model (it says 5000 s from here, 6000 with the margin, 7190 s to go):
+    # the water is held where it is; back at full power once due again.
+    runner.period(15.0, 25.0, 2_810 * NS, lead_s=5_000.0)
+    assert (runner.state, runner.setpoint) == ("heating", 25.0)
+    runner.period(20.0, 25.1, 4_000 * NS, lead_s=5_000.0)  # 6000 s to go
+    assert runner.setpoint == 66.0
 
 
 def test_heat_up_time_is_the_dead_time_and_the_first_order_rise() -> None:

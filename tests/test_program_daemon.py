@@ -226,12 +226,15 @@ def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: 
     assert summary["alarms"] == []
     steps = summary["steps"]
     assert [s["name"] for s in steps] == ["Strike", "Beta rest", "Alpha rest", "Mash out"]
-    ready_by = 2.5 * 3600.0  # 06:30, the scenario's clock starting at 04:00
+    ready_by = 3 * 3600.0  # 06:30, the scenario's clock starting at 03:30
     assert abs(steps[0]["reached_s"] - ready_by) <= 120.0
     for step, hold in zip(steps[1:], (1800.0, 1200.0, 600.0), strict=True):
         assert step["reached_s"] is not None
         assert step["in_band_s"] >= hold  # each rest held its full time in the band
-        assert step["max_deviation_c"] < 0.6
+    # Beta rest is reached as the water falls through its band, just before the cold water
+    # poured in at mash-in takes it 2.4 °C below: said, and not counted as rest.
+    assert 2.0 < steps[1]["max_deviation_c"] < 3.0
+    assert steps[2]["max_deviation_c"] <= 0.5 and steps[3]["max_deviation_c"] <= 0.5
     logged = replay.summarise(replay.load(sorted(tmp_path.glob("*.mcap"))))
     assert [(s["name"], s["reached_s"] is not None) for s in logged["steps"]] == [
         (s["name"], True) for s in steps

@@ -24,7 +24,7 @@ from hermsd.latches import StateError
 from hermsd.metrics import BAND
 from hermsd.pid import PlantModel
 from hermsd.program.model import READY_BY, Program
-from hermsd.program.runner import ProgramEvent, Refused, Runner, heat_up_s
+from hermsd.program.runner import READY_MARGIN, ProgramEvent, Refused, Runner, heat_up_s
 from hermsd.program.store import ProgressStore
 
 log = logging.getLogger("hermsd")
@@ -62,6 +62,8 @@ class ProgramDriver:
     starts_at_ns: int | None = None  # while scheduled: when the heat-up is due to start
     _events: list[ProgramEvent] = field(default_factory=list)
     _store_failing: bool = False
+    _transit_s: float = 0.0
+    _transit_t: float | None = None
 
     @property
     def active(self) -> bool:
@@ -173,8 +175,12 @@ class ProgramDriver:
         if runner is None:
             events, self._events = self._events, []
             return None, events
-        scheduled = runner.state == "scheduled"
-        lead = self.lead_s(runner.program, pv, model, max_output) if scheduled else None
+        lead = None
+        if runner.progress.ready_at_ns is not None:  # a ready_by heat-up: how long from here
+            lead = self.lead_s(runner.program, pv, model, max_output)
+            self._count_transit(t, runner.riding_full, model.dead_time)
+            if lead is not None:  # the heat on its way shortens it
+                lead = max(0.0, lead - self._transit_s)
         runner.period(t, pv, wall_ns, lead)
         if runner.state == "scheduled":
             self._schedule(wall_ns, lead)
@@ -184,6 +190,14 @@ class ProgramDriver:
         events, self._events = self._events, []
         self._save(runner, t)
         return runner.setpoint, events
+
+    def _count_transit(self, t: float, full: bool, dead_time: float) -> None:
+        """The heat on its way to the sensor, in seconds of full power (at most the dead
+        time): it grows while a ready_by heat-up is at full power, and drains while not."""
+        dt_s = 0.0 if self._transit_t is None else max(0.0, t - self._transit_t)
+        self._transit_t = t
+        change = dt_s if full else -dt_s
+        self._transit_s = min(dead_time, max(0.0, self._transit_s + change))
 
     @staticmethod
     def lead_s(
@@ -202,7 +216,7 @@ class ProgramDriver:
         if ready is None or lead_s is None:
             self.starts_at_ns = ready
             return
-        self.starts_at_ns = max(wall_ns, ready - round(lead_s * 1e9))
+        self.starts_at_ns = max(wall_ns, ready - round(lead_s * (1.0 + READY_MARGIN) * 1e9))
 
     def _save(self, runner: Runner, t: float) -> None:
         if self.store is None:

@@ -17,8 +17,12 @@ tun's model gives from that PV; operator commands are methods. The rules:
   goes on holding the last setpoint until it is stopped.
 - Pause: the setpoint stays where it is (a ramp stops), the hold time stops; resume goes on.
 - `ready_by`: the program is *scheduled* (no setpoint: the daemon keeps the heater off) until
-  the heat-up time from the current PV reaches the time left to `ready_by`; it is judged
-  again every period, so water that cools while it waits starts the heat-up earlier.
+  the heat-up time from the current PV, by the tun's model and READY_MARGIN longer, reaches
+  the time left to `ready_by`. Then, until the first step is reached, it is judged again
+  every period with the heat already on its way counted: while the water is ahead of that
+  (the tun heats faster than its model), the setpoint holds the water where it is, else it
+  is the step's. So the water rides the latest full-power approach down to the moment asked
+  for: a model that is wrong by up to READY_MARGIN in its heating time still arrives on time.
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ from hermsd.metrics import BAND
 from hermsd.pid import PlantModel
 from hermsd.program.model import Program, Step
 
+READY_MARGIN = 0.2
+"""A `ready_by` heat-up starts this much (of its length by the model) earlier than the model
+says it needs: a tun up to 20 % slower than its model is still on time."""
 PHASES = ("pending", "scheduled", "heating", "ramping", "holding", "waiting", "done")
 """`pending`: started, its first step begins at the next period (with that period's PV)."""
 ACTIONS = ("next", "pause", "resume", "stop")
@@ -88,6 +95,7 @@ class Runner:
         self.progress = progress
         self._max_step_s = max_step_s  # the most one period may count (a stalled loop: less)
         self._last_t: float | None = None  # nothing counts from before a restart
+        self._full_since: float | None = None  # a ready_by heat-up at the step's setpoint since
 
     @classmethod
     def start(
@@ -135,6 +143,11 @@ class Runner:
         done = self.progress.phase == "done"
         return None if done or index >= len(self.program.steps) else self.program.steps[index].name
 
+    @property
+    def riding_full(self) -> bool:
+        """Whether a `ready_by` heat-up asks for the step's setpoint (full power) now."""
+        return self._full_since is not None
+
     def take_events(self) -> list[ProgramEvent]:
         events, self.progress.events = self.progress.events, []
         return events
@@ -143,7 +156,8 @@ class Runner:
 
     def period(self, t: float, pv: float | None, wall_ns: int, lead_s: float | None = None) -> None:
         """Advance by one period at `t` with its PV; `lead_s`: the heat-up time from this PV
-        to the first step (only read while scheduled)."""
+        to the first step, the heat already on its way counted (read until it is reached,
+        when the program has a `ready_by`)."""
         dt = 0.0 if self._last_t is None else min(max(0.0, t - self._last_t), self._max_step_s)
         self._last_t = t
         p = self.progress
@@ -151,11 +165,7 @@ class Runner:
             return
         if p.phase == "scheduled":
             assert p.ready_at_ns is not None
-            if pv is None or lead_s is None:
-                due = wall_ns >= p.ready_at_ns
-            else:
-                due = wall_ns + lead_s * 1e9 >= p.ready_at_ns
-            if not due:
+            if not self._due(wall_ns, pv, lead_s):
                 return
             self._begin(0, pv)
         elif p.phase == "pending":
@@ -171,8 +181,11 @@ class Runner:
             else:
                 p.setpoint += math.copysign(move, gap)
         in_band = pv is not None and abs(pv - step.setpoint) <= BAND
+        if p.phase == "heating" and p.ready_at_ns is not None and not in_band:
+            self._ride(t, wall_ns, pv, lead_s)
         if p.phase == "heating" and in_band:
-            p.phase, p.reached = "holding", True
+            p.phase, p.reached, p.ready_at_ns = "holding", True, None
+            p.setpoint, self._full_since = step.setpoint, None
             hold = "until told" if step.hold is None else _duration(step.hold)
             self._emit(
                 "step_reached", f"step {step.name!r} reached {step.setpoint:g} °C; holding {hold}"
@@ -192,10 +205,29 @@ class Runner:
             else:
                 self._advance(pv)
 
+    def _due(self, wall_ns: int, pv: float | None, lead_s: float | None) -> bool:
+        """Whether a `ready_by` heat-up must be at full power now to be on time."""
+        ready = self.progress.ready_at_ns
+        assert ready is not None
+        if pv is None or lead_s is None:
+            return wall_ns >= ready  # no PV, or a model that never gets there: heat
+        return wall_ns + lead_s * (1.0 + READY_MARGIN) * 1e9 >= ready
+
+    def _ride(self, t: float, wall_ns: int, pv: float | None, lead_s: float | None) -> None:
+        """A `ready_by` heat-up: the step's setpoint when due, else hold the water there."""
+        p, target = self.progress, self.step.setpoint
+        if self._due(wall_ns, pv, lead_s):
+            if self._full_since is None:
+                p.setpoint, self._full_since = target, t
+        elif pv is not None and (self._full_since is not None or p.setpoint is None):
+            p.setpoint, self._full_since = min(pv, target - BAND), None
+
     def _begin(self, index: int, pv: float | None) -> None:
         """Start step `index`: its setpoint at once, or a ramp from where the setpoint is."""
         p = self.progress
-        p.index, p.reached, p.held_s, p.ready_at_ns = index, False, 0.0, None
+        if index > 0 or self.step.ramp is not None:
+            p.ready_at_ns = None  # only the first step is timed, and only without a ramp
+        p.index, p.reached, p.held_s = index, False, 0.0
         step = self.step
         origin = p.setpoint if p.setpoint is not None else pv
         if step.ramp is not None and origin is not None and origin != step.setpoint:
