@@ -34,6 +34,7 @@ from hermsd.sim.tuns import FAMILY
 SHIPPED = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
 READY_S = 5 * 3600.0  # 05:00, from a start at 00:00
 GOAL_S = 120.0
+HEADING = "## Mash program:"
 STRIKE = Program("Strike", (Step("Strike", 72.0, 600.0),), "05:00")
 CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: ValueError(what))
 
@@ -105,18 +106,14 @@ def main() -> int:
         "processes."
     )
     print(tally)
+    about = __doc__.split("\n\n")[1].replace("\n", " ")
+    table = "\n".join(lines)
     text = (
-        "## Mash program: strike water ready by the time asked for\n\n"
-        "`uv run python bench/program.py --write` — "
-        + __doc__.split("\n\n")[1].replace("\n", " ")
-        + " "
-        + tally
-        + "\n\n"
-        + "\n".join(lines)
-        + "\n"
+        f"{HEADING} strike water ready by the time asked for\n\n"
+        f"`uv run python bench/program.py --write` — {about} {tally}\n\n{table}\n"
     )
     if args.write:
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Mash program:", text)
+        _replace_section(Path(__file__).with_name("RESULTS.md"), HEADING, text)
     return 0
 
 

@@ -260,6 +260,19 @@ def test_a_scheduled_program_keeps_the_heater_off_until_its_heat_up_is_due() -> 
     assert runner.setpoint == 66.0
 
 
+def test_near_the_end_a_ready_by_heat_up_no_longer_holds_back() -> None:
+    runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=10_000 * NS)
+    runner.period(0.0, 20.0, 0, lead_s=9_000.0)  # due: full power
+    # 100 s from the band by the model, 5000 s to go: ahead, but within the commitment
+    # (the heat on its way would carry water held here into the band early).
+    runner.period(5.0, 63.0, 5_000 * NS, lead_s=100.0, commit_s=138.0)
+    assert runner.setpoint == 66.0
+    runner.period(10.0, 65.2, 5_005 * NS, lead_s=150.0, commit_s=138.0)  # beyond it: held,
+    assert runner.setpoint == 65.0  # never closer to the band than a band's width,
+    runner.period(15.0, 64.8, 5_010 * NS, lead_s=400.0, commit_s=138.0)
+    assert runner.setpoint == 65.0  # and where it was when holding began
+
+
 def test_heat_up_time_is_the_dead_time_and_the_first_order_rise() -> None:
     # From the room: y = Ta + K·u·(1 − e^(−(t−θ)/τ)); halfway to K·u is θ + τ·ln 2.
     tun = PlantModel(gain=1.0, tau=1000.0, dead_time=100.0, ambient=20.0)

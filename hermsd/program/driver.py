@@ -181,7 +181,7 @@ class ProgramDriver:
             self._count_transit(t, runner.riding_full, model.dead_time)
             if lead is not None:  # the heat on its way shortens it
                 lead = max(0.0, lead - self._transit_s)
-        runner.period(t, pv, wall_ns, lead)
+        runner.period(t, pv, wall_ns, lead, commit_s=(1.0 + READY_MARGIN) * model.dead_time)
         if runner.state == "scheduled":
             self._schedule(wall_ns, lead)
         else:

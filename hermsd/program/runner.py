@@ -154,10 +154,18 @@ class Runner:
 
     # -- one control period -------------------------------------------------------------
 
-    def period(self, t: float, pv: float | None, wall_ns: int, lead_s: float | None = None) -> None:
+    def period(
+        self,
+        t: float,
+        pv: float | None,
+        wall_ns: int,
+        lead_s: float | None = None,
+        commit_s: float = 0.0,
+    ) -> None:
         """Advance by one period at `t` with its PV; `lead_s`: the heat-up time from this PV
         to the first step, the heat already on its way counted (read until it is reached,
-        when the program has a `ready_by`)."""
+        when the program has a `ready_by`); within `commit_s` of it the heat-up no longer
+        holds back (heat on its way would carry a held water into the band early)."""
         dt = 0.0 if self._last_t is None else min(max(0.0, t - self._last_t), self._max_step_s)
         self._last_t = t
         p = self.progress
@@ -182,7 +190,7 @@ class Runner:
                 p.setpoint += math.copysign(move, gap)
         in_band = pv is not None and abs(pv - step.setpoint) <= BAND
         if p.phase == "heating" and p.ready_at_ns is not None and not in_band:
-            self._ride(t, wall_ns, pv, lead_s)
+            self._ride(t, wall_ns, pv, lead_s, commit_s)
         if p.phase == "heating" and in_band:
             p.phase, p.reached, p.ready_at_ns = "holding", True, None
             p.setpoint, self._full_since = step.setpoint, None
@@ -213,14 +221,18 @@ class Runner:
             return wall_ns >= ready  # no PV, or a model that never gets there: heat
         return wall_ns + lead_s * (1.0 + READY_MARGIN) * 1e9 >= ready
 
-    def _ride(self, t: float, wall_ns: int, pv: float | None, lead_s: float | None) -> None:
-        """A `ready_by` heat-up: the step's setpoint when due, else hold the water there."""
+    def _ride(
+        self, t: float, wall_ns: int, pv: float | None, lead_s: float | None, commit_s: float
+    ) -> None:
+        """A `ready_by` heat-up: the step's setpoint when due, else hold the water there
+        (a band's width below the band at most, so that holding it never reaches it)."""
         p, target = self.progress, self.step.setpoint
-        if self._due(wall_ns, pv, lead_s):
+        committed = lead_s is not None and lead_s <= commit_s
+        if committed or self._due(wall_ns, pv, lead_s):
             if self._full_since is None:
                 p.setpoint, self._full_since = target, t
         elif pv is not None and (self._full_since is not None or p.setpoint is None):
-            p.setpoint, self._full_since = min(pv, target - BAND), None
+            p.setpoint, self._full_since = min(pv, target - 2.0 * BAND), None
 
     def _begin(self, index: int, pv: float | None) -> None:
         """Start step `index`: its setpoint at once, or a ramp from where the setpoint is."""
