@@ -524,6 +524,17 @@ class Daemon:
             self._program_event(event, t)
         if not self.program.active:
             return False
+        if self.program.target >= self.config.safety.max_temp:  # an edit lowered the cut-out
+            self._event(
+                logging.WARNING,
+                f"program stopped: its step's setpoint {self.program.target:g} °C is not below "
+                f"safety.max_temp ({self.config.safety.max_temp:g} °C)",
+                t,
+            )
+            self.program_command("stop", t)
+            for event in self.program.period(t, pv, wall_ns, self.model, 0.0)[1]:
+                self._program_event(event, t)
+            return False
         if setpoint is None:
             self.setpoint = self.program.target  # shown, not heated to: the heater stays off
             return True

@@ -186,6 +186,20 @@ def test_a_program_owns_the_setpoint_and_an_edit_of_the_files_applies_when_it_st
     assert (reply["ok"], reply["program"], reply["setpoint"]) == (True, None, 70.0)
 
 
+def test_an_edit_that_puts_the_cut_out_at_a_programs_setpoint_stops_the_program(
+    tmp_path: Path,
+) -> None:
+    daemon, path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    rename_over(path, edited(BASE, control__setpoint="25.0", safety__max_temp="30.0"))
+    run_for(daemon, 2 * PERIOD)
+    assert status_of(daemon)["program"] is None
+    assert events.periods[-1].setpoint == 25.0
+    assert "program stopped: its step's setpoint 30 °C is not below safety.max_temp (30 °C)" in (
+        events.logged()
+    )
+
+
 def test_without_an_edit_a_stopped_program_gives_back_the_setpoint_it_found(
     tmp_path: Path,
 ) -> None:
@@ -235,7 +249,9 @@ def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: 
     # poured in at mash-in takes it 2.4 °C below: said, and not counted as rest.
     assert 2.0 < steps[1]["max_deviation_c"] < 3.0
     assert steps[2]["max_deviation_c"] <= 0.5 and steps[3]["max_deviation_c"] <= 0.5
-    logged = replay.summarise(replay.load(sorted(tmp_path.glob("*.mcap"))))
+    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    assert replay.verify(log.entries).mismatch is None  # the scheduled hours are skipped
+    logged = replay.summarise(log)
     assert [(s["name"], s["reached_s"] is not None) for s in logged["steps"]] == [
         (s["name"], True) for s in steps
     ]
