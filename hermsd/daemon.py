@@ -502,9 +502,9 @@ class Daemon:
             ready_by,
             setpoint=self.setpoint,
             wall_ns=self.clock.wall_ns(),
-            lead_s=self.program.lead_s(
-                program, self._pv, self.model, self.config.control.max_output
-            ),
+            pv=self._pv,
+            model=self.model,
+            max_output=self.config.control.max_output,
         )
 
     def program_command(self, action: str, t: float) -> None:

@@ -248,7 +248,7 @@ def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: 
     # Beta rest is reached as the water falls through its band, just before the cold water
     # poured in at mash-in takes it 2.4 °C below: said, and not counted as rest.
     assert 2.0 < steps[1]["max_deviation_c"] < 3.0
-    assert steps[2]["max_deviation_c"] <= 0.5 and steps[3]["max_deviation_c"] <= 0.5
+    assert steps[2]["max_deviation_c"] < 0.6 and steps[3]["max_deviation_c"] < 0.6
     log = replay.load(sorted(tmp_path.glob("*.mcap")))
     assert replay.verify(log.entries).mismatch is None  # the scheduled hours are skipped
     logged = replay.summarise(log)

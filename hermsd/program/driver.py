@@ -24,7 +24,14 @@ from hermsd.latches import StateError
 from hermsd.metrics import BAND
 from hermsd.pid import PlantModel
 from hermsd.program.model import READY_BY, Program
-from hermsd.program.runner import READY_MARGIN, ProgramEvent, Refused, Runner, heat_up_s
+from hermsd.program.runner import (
+    READY_MARGIN,
+    ProgramEvent,
+    Refused,
+    Runner,
+    heat_up_s,
+    with_margin,
+)
 from hermsd.program.store import ProgressStore
 
 log = logging.getLogger("hermsd")
@@ -42,6 +49,12 @@ def next_local_time(wall_ns: int, hh_mm: str, zone: dt.tzinfo | None) -> int:
     if due <= now:
         due = (due.replace(tzinfo=None) + dt.timedelta(days=1)).replace(tzinfo=due.tzinfo)
     return round(due.timestamp() * 1e9)
+
+
+def commit_s(model: PlantModel) -> float:
+    """How close to the band a `ready_by` heat-up no longer holds back: 1.2 dead times
+    (what is on its way then would carry water held there into the band early)."""
+    return (1.0 + READY_MARGIN) * model.dead_time
 
 
 def local_iso(wall_ns: int, zone: dt.tzinfo | None) -> str:
@@ -111,9 +124,11 @@ class ProgramDriver:
         *,
         setpoint: float,
         wall_ns: int,
-        lead_s: float | None,
+        pv: float | None,
+        model: PlantModel,
+        max_output: float,
     ) -> None:
-        """Start `program` (ready by `ready_by`, else at once); `lead_s` from the current PV."""
+        """Start `program` (ready by `ready_by`, else at once), from the current PV."""
         if self.runner is not None:
             raise Refused(self.problems(program)[0])
         when = ready_by or program.ready_by
@@ -122,7 +137,8 @@ class ProgramDriver:
         self.runner, self.after = runner, setpoint
         events = runner.take_events()
         if ready_at is not None:
-            self._schedule(wall_ns, lead_s)
+            lead_s = self.lead_s(program, pv, model, max_output)
+            self._schedule(wall_ns, lead_s, commit_s(model))
             first = program.steps[0]
             start = (
                 f"heating starts at {local_iso(self.starts_at_ns, self.zone)}"
@@ -181,9 +197,9 @@ class ProgramDriver:
             self._count_transit(t, runner.riding_full, model.dead_time)
             if lead is not None:  # the heat on its way shortens it
                 lead = max(0.0, lead - self._transit_s)
-        runner.period(t, pv, wall_ns, lead, commit_s=(1.0 + READY_MARGIN) * model.dead_time)
+        runner.period(t, pv, wall_ns, lead, commit_s(model))
         if runner.state == "scheduled":
-            self._schedule(wall_ns, lead)
+            self._schedule(wall_ns, lead, commit_s(model))
         else:
             self.starts_at_ns = None
         self._events.extend(runner.take_events())
@@ -209,14 +225,14 @@ class ProgramDriver:
             return None
         return heat_up_s(model, max_output, pv, program.steps[0].setpoint - BAND)
 
-    def _schedule(self, wall_ns: int, lead_s: float | None) -> None:
+    def _schedule(self, wall_ns: int, lead_s: float | None, commit: float) -> None:
         runner = self.runner
         assert runner is not None
         ready = runner.progress.ready_at_ns
         if ready is None or lead_s is None:
             self.starts_at_ns = ready
             return
-        self.starts_at_ns = max(wall_ns, ready - round(lead_s * (1.0 + READY_MARGIN) * 1e9))
+        self.starts_at_ns = max(wall_ns, ready - round(with_margin(lead_s, commit) * 1e9))
 
     def _save(self, runner: Runner, t: float) -> None:
         if self.store is None:

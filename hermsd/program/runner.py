@@ -17,12 +17,13 @@ tun's model gives from that PV; operator commands are methods. The rules:
   goes on holding the last setpoint until it is stopped.
 - Pause: the setpoint stays where it is (a ramp stops), the hold time stops; resume goes on.
 - `ready_by`: the program is *scheduled* (no setpoint: the daemon keeps the heater off) until
-  the heat-up time from the current PV, by the tun's model and READY_MARGIN longer, reaches
-  the time left to `ready_by`. Then, until the first step is reached, it is judged again
-  every period with the heat already on its way counted: while the water is ahead of that
-  (the tun heats faster than its model), the setpoint holds the water where it is, else it
-  is the step's. So the water rides the latest full-power approach down to the moment asked
-  for: a model that is wrong by up to READY_MARGIN in its heating time still arrives on time.
+  the heat-up time from the current PV, by the tun's model, reaches the time left to
+  `ready_by` (READY_MARGIN longer, but for its last `commit_s`, 1.2 dead times). Then, until
+  the first step is reached, it is judged again every period with the heat already on its
+  way counted: while the water is ahead (the tun heats faster than its model), the setpoint
+  holds the water where it is, else it is the step's; within `commit_s` of the band it no
+  longer holds back. So the water rides the latest full-power approach down to the moment
+  asked for: a tun up to READY_MARGIN slower than its model still arrives on time.
 """
 
 from __future__ import annotations
@@ -35,8 +36,9 @@ from hermsd.pid import PlantModel
 from hermsd.program.model import Program, Step
 
 READY_MARGIN = 0.2
-"""A `ready_by` heat-up starts this much (of its length by the model) earlier than the model
-says it needs: a tun up to 20 % slower than its model is still on time."""
+"""A `ready_by` heat-up starts this much (of its length by the model, but for the last
+stretch at full power anyway) earlier than the model says it needs: a tun up to 20 % slower
+than its model is still on time."""
 PHASES = ("pending", "scheduled", "heating", "ramping", "holding", "waiting", "done")
 """`pending`: started, its first step begins at the next period (with that period's PV)."""
 ACTIONS = ("next", "pause", "resume", "stop")
@@ -71,6 +73,11 @@ class Progress:
     setpoint: float | None = None  # the program's setpoint in force (a ramp's position)
     ready_at_ns: int | None = None  # scheduled: wall-clock time the first step is due (ns)
     events: list[ProgramEvent] = field(default_factory=list)  # since last taken
+
+
+def with_margin(lead_s: float, commit_s: float) -> float:
+    """A `ready_by` heat-up's time by the model, READY_MARGIN longer beyond `commit_s`."""
+    return lead_s + READY_MARGIN * max(0.0, lead_s - commit_s)
 
 
 def heat_up_s(model: PlantModel, output: float, pv: float, target: float) -> float | None:
@@ -173,7 +180,7 @@ class Runner:
             return
         if p.phase == "scheduled":
             assert p.ready_at_ns is not None
-            if not self._due(wall_ns, pv, lead_s):
+            if not self._due(wall_ns, pv, lead_s, commit_s):
                 return
             self._begin(0, pv)
         elif p.phase == "pending":
@@ -213,13 +220,15 @@ class Runner:
             else:
                 self._advance(pv)
 
-    def _due(self, wall_ns: int, pv: float | None, lead_s: float | None) -> bool:
-        """Whether a `ready_by` heat-up must be at full power now to be on time."""
+    def _due(self, wall_ns: int, pv: float | None, lead_s: float | None, commit_s: float) -> bool:
+        """Whether a `ready_by` heat-up must be at full power now to be on time: the model's
+        time, and READY_MARGIN of the part of it beyond `commit_s` (the last stretch is at
+        full power anyway, so a margin there would only make it early)."""
         ready = self.progress.ready_at_ns
         assert ready is not None
         if pv is None or lead_s is None:
             return wall_ns >= ready  # no PV, or a model that never gets there: heat
-        return wall_ns + lead_s * (1.0 + READY_MARGIN) * 1e9 >= ready
+        return wall_ns + with_margin(lead_s, commit_s) * 1e9 >= ready
 
     def _ride(
         self, t: float, wall_ns: int, pv: float | None, lead_s: float | None, commit_s: float
@@ -228,7 +237,7 @@ class Runner:
         (a band's width below the band at most, so that holding it never reaches it)."""
         p, target = self.progress, self.step.setpoint
         committed = lead_s is not None and lead_s <= commit_s
-        if committed or self._due(wall_ns, pv, lead_s):
+        if committed or self._due(wall_ns, pv, lead_s, commit_s):
             if self._full_since is None:
                 p.setpoint, self._full_since = target, t
         elif pv is not None and (self._full_since is not None or p.setpoint is None):
