@@ -532,7 +532,7 @@ class Daemon:
                 t,
             )
             self.program_command("stop", t)
-            for event in self.program.period(t, pv, wall_ns, self.model, 0.0)[1]:
+            for event in self.program.take_events():
                 self._program_event(event, t)
             return False
         if setpoint is None:

@@ -171,6 +171,11 @@ class ProgramDriver:
             self._clear()
         return self.after
 
+    def take_events(self) -> list[ProgramEvent]:
+        """The events not yet handed over (a program stopped between periods)."""
+        events, self._events = self._events, []
+        return events
+
     def check(self, action: str) -> str | None:
         if self.runner is None:
             return f"no program runs ({action} has nothing to act on)"
@@ -189,8 +194,7 @@ class ProgramDriver:
         """The program's setpoint for this period (None: keep the heater off), and events."""
         runner = self.runner
         if runner is None:
-            events, self._events = self._events, []
-            return None, events
+            return None, self.take_events()
         lead = None
         if runner.progress.ready_at_ns is not None:  # a ready_by heat-up: how long from here
             lead = self.lead_s(runner.program, pv, model, max_output)
@@ -203,9 +207,8 @@ class ProgramDriver:
         else:
             self.starts_at_ns = None
         self._events.extend(runner.take_events())
-        events, self._events = self._events, []
         self._save(runner, t)
-        return runner.setpoint, events
+        return runner.setpoint, self.take_events()
 
     def _count_transit(self, t: float, full: bool, dead_time: float) -> None:
         """The heat on its way to the sensor, in seconds of full power (at most the dead
