@@ -86,6 +86,25 @@ def test_the_programs_setpoint_drives_control_and_every_period_names_the_step(
     assert "Warm" in daemon.status_text() or "Hot" in daemon.status_text()
 
 
+def test_the_brewer_hears_of_steps_reached_done_waiting_and_the_finish(tmp_path: Path) -> None:
+    daemon, _path, _events, inbox = linked(tmp_path)
+    sent: list[tuple[str, str]] = []
+    daemon.alerts.send = lambda event, t: sent.append((event.event, event.kind))  # type: ignore[method-assign]
+    program = Program("Short", (Step("Warm", 25.0, 60.0, confirm="Stir"), Step("Hot", 28.0, 0.0)))
+    apply(daemon, inbox, ProgramStart(program))
+    run_for(daemon, 1800.0)
+    apply(daemon, inbox, ProgramAction("confirm"))
+    run_for(daemon, 1800.0)
+    assert sent == [
+        ("step_reached", "Warm"),
+        ("step_done", "Warm"),
+        ("waiting", "Warm"),
+        ("step_reached", "Hot"),
+        ("step_done", "Hot"),
+        ("finished", ""),
+    ]
+
+
 @pytest.mark.parametrize(
     ("command", "says"),
     [
