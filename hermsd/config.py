@@ -215,7 +215,15 @@ class LogConfig:
     queue_size: int = _integer(10000, 100, 1000000)
 
 
-ALERT_EVENTS: tuple[str, ...] = ("alarm_raised", "alarm_cleared", "started", "stopped")
+PROGRAM_ALERT_EVENTS: tuple[str, ...] = ("step_reached", "step_done", "waiting", "finished")
+"""The mash program's events a brewer hears of (hermsd.program)."""
+ALERT_EVENTS: tuple[str, ...] = (
+    "alarm_raised",
+    "alarm_cleared",
+    "started",
+    "stopped",
+    *PROGRAM_ALERT_EVENTS,
+)
 
 
 @dataclass(frozen=True, slots=True)

@@ -139,7 +139,16 @@ TEXTS = {  # key: (longest, nullable)
     "mqtt.client_id": (64, True),
 }
 FLAGS = ("output.active_low", "contactor.active_low", "mqtt.tls")
-ALERT_EVENTS = ("alarm_raised", "alarm_cleared", "started", "stopped")
+ALERT_EVENTS = (
+    "alarm_raised",
+    "alarm_cleared",
+    "started",
+    "stopped",
+    "step_reached",
+    "step_done",
+    "waiting",
+    "finished",
+)
 LISTS = {  # key: (the items it may hold, or () for any printable text; nullable)
     "alerts.command": ((), True),
     "alerts.events": (ALERT_EVENTS, False),

@@ -14,6 +14,9 @@ shows each value set at runtime that differs from the file's (`runtime`). The on
 is the config's own rule: an edit that puts `safety.max_temp` at or below a runtime setpoint
 brings back the file's setpoint (logged), and one that lowers `control.max_output` below a
 runtime manual output lowers it to the limit, as for the file's own values.
+
+A mash program owns the setpoint while it runs (hermsd/program/driver.py): `set setpoint` is
+refused until it is stopped, and an edit of `control.setpoint` then is what it returns to.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ from hermsd.config import Config
 from hermsd.control.protocol import (
     VERSION,
     Command,
+    ProgramAction,
+    ProgramStart,
     ResetAlarms,
     SetMode,
     SetSetpoint,
@@ -39,6 +44,7 @@ from hermsd.control.server import Pending
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.learning import LearnedModel
 from hermsd.pid import PlantModel
+from hermsd.program.runner import Refused
 from hermsd.safety import SafetyLimits, format_limits
 
 SOURCE = "control socket"
@@ -66,6 +72,7 @@ class Snapshot:
     learned: LearnedModel | None
     config: Config
     runtime: frozenset[str]
+    program: dict[str, Any] | None  # the status reply's `program`
 
 
 class LoopLink:
@@ -94,10 +101,13 @@ class LoopLink:
             return
         for pending in self.server.take():
             problems = self._problems(pending.command)
+            if not problems:
+                try:
+                    self._apply(pending.command, t)
+                except Refused as error:  # checked above; a program's state said it again
+                    problems = [str(error)]
             if problems:
                 pending.reply = error_reply(f"refused, nothing changed: {'; '.join(problems)}")
-            else:
-                self._apply(pending.command, t)
             self._answering.append(pending)
 
     def period(self, record: PeriodRecord) -> None:
@@ -116,6 +126,7 @@ class LoopLink:
             daemon.learned_model,
             daemon.config,
             frozenset(self._runtime),
+            daemon.program.status(daemon.clock.wall_ns()),
         )
         if self._answering:
             reply = None
@@ -133,6 +144,16 @@ class LoopLink:
     def _problems(self, command: Command) -> list[str]:
         daemon = self.daemon
         changes: dict[str, object]
+        if isinstance(command, ProgramStart):
+            return daemon.program_problems(command.program)
+        if isinstance(command, ProgramAction):
+            why = daemon.program.check(command.action)
+            return [] if why is None else [why]
+        if isinstance(command, SetSetpoint) and daemon.program.active:
+            return [
+                "control.setpoint: a mash program sets the setpoint while it runs "
+                "(`hermsd program stop` ends it; `hermsd program pause` holds its setpoint)"
+            ]
         if isinstance(command, SetSetpoint):
             changes = {"control.setpoint": command.celsius}
         elif isinstance(command, SetMode):
@@ -152,7 +173,13 @@ class LoopLink:
 
     def _apply(self, command: Command, t: float) -> None:
         daemon = self.daemon
+        if isinstance(command, ProgramStart):
+            daemon.start_program(command.program, command.ready_by, t)
+        elif isinstance(command, ProgramAction):
+            daemon.program_command(command.action, t)
         daemon.operator_action(f"{describe(command)} (from the {SOURCE})", t)
+        if isinstance(command, ProgramStart | ProgramAction):
+            return
         if isinstance(command, SetSetpoint):
             daemon.set_setpoint(command.celsius)
             self._runtime.add("control.setpoint")
@@ -225,4 +252,5 @@ class LoopLink:
                 if key in snapshot.runtime
                 and running[key] != config_module.value_at(snapshot.config, key)
             },
+            "program": snapshot.program,
         }
