@@ -532,7 +532,7 @@ def _serve_control(daemon: Daemon, path: Path) -> ControlServer:
     from hermsd.control.link import LoopLink
 
     link = LoopLink(daemon)
-    server = ControlServer(path, link.status_line)
+    server = ControlServer(path, link.status_line, link.history_line)
     try:
         server.start()
     except OSError as error:

@@ -102,6 +102,7 @@ BOUNDS = [
     Bound("log.queue_size", int, 100, 1000000),
     Bound("alerts.timeout", float, 1, 300),
     Bound("alerts.min_interval", float, 0, 86400),
+    Bound("web.session_lifetime", float, 0.1, 720),
 ]
 CHOICES: dict[str, tuple[object, ...]] = {
     "control.mode": ("auto", "manual"),
@@ -118,6 +119,7 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "output.mains_hz": (50, 60),
     "contactor.backend": ("none", "gpio", "serial-rts", "serial-dtr", "relay-board"),
     "contactor.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
+    "web.read_only_view": ("on", "off"),
 }
 TEXTS = {  # key: (longest, nullable)
     "tun.name": (32, False),
@@ -126,6 +128,8 @@ TEXTS = {  # key: (longest, nullable)
     "contactor.port": (None, False),
     "contactor.chip": (None, False),
     "log.dir": (None, True),
+    "web.listen": (300, False),
+    "web.password_hash": (None, True),
 }
 FLAGS = ("output.active_low", "contactor.active_low")
 ALERT_EVENTS = ("alarm_raised", "alarm_cleared", "started", "stopped")
@@ -345,6 +349,12 @@ def test_defaults_are_the_specified_ones() -> None:
             "events": list(ALERT_EVENTS),
             "timeout": 10.0,
             "min_interval": 60.0,
+        },
+        "web": {
+            "listen": "127.0.0.1:8080",
+            "password_hash": None,
+            "session_lifetime": 12.0,
+            "read_only_view": "off",
         },
     }
     assert to_dict(DEFAULT) == expected

@@ -347,7 +347,7 @@ def served(
     daemon, _world, _path, _events = start(tmp_path, text)
     link = LoopLink(daemon)
     where = (directory or tmp_path) / "control.sock"
-    server = ControlServer(where, link.status_line)
+    server = ControlServer(where, link.status_line, link.history_line)
     server.start()
     link.attach(server)
     stop = threading.Event()

@@ -11,6 +11,7 @@ the protocol version it speaks and a command:
                                                                output in force)
     {"v": 1, "cmd": "set", "mode": "auto"}
     {"v": 1, "cmd": "reset-alarm"}
+    {"v": 1, "cmd": "history", "since": 1234.5, "limit": 500}   (both optional)
 
 Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": false,
 "error": "one line: what is wrong (what would be right)"}` and changes nothing. `status` is
@@ -26,6 +27,16 @@ against the running config as strictly as the config file is, applied at the nex
 period boundary, logged as an operator action, and answered after that boundary with the
 same fields as `status` (so the reply shows the change in force).
 
+`history` pages through the periods of the last 24 hours, kept in memory by the daemon for
+the web page's chart (`hermsd/control/history.py`), and is answered at once like `status`:
+the rows with `t` after `since` (from the oldest kept when `since` is null or absent), at
+most `limit` of them (1 to 2000, default 2000), oldest first:
+`{"v": 1, "ok": true, "period": 5.0, "fields": ["t", "pv", "setpoint", "output",
+"applied"], "more": false, "rows": [[1230.0, 66.062, 66.0, 12.5, 12.5], ...]}`. Each row
+holds the fields in that order (`t` in the daemon's seconds as `status`'s `t`, `pv` null
+when unknown, numbers rounded to 0.001); `more` is true when later rows remain: ask again
+with `since` set to the last row's `t`. The daemon keeps no history across a restart.
+
 A line longer than MAX_LINE, or one that is not a JSON object, is refused; an over-long line
 also ends the connection (its rest cannot be told from the next request).
 """
@@ -40,6 +51,8 @@ from typing import Any
 VERSION = 1
 MAX_LINE = 4096
 """Bytes in a request line, newline included: a request is well under 200."""
+MAX_PAGE = 2000
+"""Rows in one `history` reply: about 90 kB, well under a client's 1 MiB reply limit."""
 
 
 class ProtocolError(ValueError):
@@ -67,7 +80,13 @@ class ResetAlarms:
     pass
 
 
-Request = Status | SetSetpoint | SetMode | ResetAlarms
+@dataclass(frozen=True, slots=True)
+class History:
+    since: float | None = None  # rows after this t; None: from the oldest kept
+    limit: int = MAX_PAGE
+
+
+Request = Status | SetSetpoint | SetMode | ResetAlarms | History
 Command = SetSetpoint | SetMode | ResetAlarms
 """The requests that change something: applied by the loop at a period boundary."""
 
@@ -98,6 +117,9 @@ def parse_request(line: bytes) -> Request:
     if command in ("status", "reset-alarm"):
         _no_other_fields(command, fields, set())
         return Status() if command == "status" else ResetAlarms()
+    if command == "history":
+        _no_other_fields(command, fields, {"since", "limit"})
+        return _history(data)
     if command == "set":
         if fields == {"setpoint"}:
             return SetSetpoint(_number(data, "setpoint"))
@@ -111,7 +133,17 @@ def parse_request(line: bytes) -> Request:
                 raise ProtocolError("output goes with mode 'manual' only")
             return SetMode(mode, None if output is None else _number(data, "output"))
         raise ProtocolError("set takes either setpoint, or mode (with output for manual)")
-    raise ProtocolError(f"unknown command {command!r} (one of 'status', 'set', 'reset-alarm')")
+    raise ProtocolError(
+        f"unknown command {command!r} (one of 'status', 'set', 'reset-alarm', 'history')"
+    )
+
+
+def _history(data: dict[str, Any]) -> History:
+    since = None if data.get("since") is None else _number(data, "since")
+    limit = data.get("limit", MAX_PAGE)
+    if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_PAGE:
+        raise ProtocolError(f"limit: expected a whole number 1 to {MAX_PAGE}, got {limit!r}")
+    return History(since, limit)
 
 
 def _no_other_fields(command: str, fields: set[str], allowed: set[str]) -> None:
@@ -139,6 +171,8 @@ def request_message(request: Request) -> dict[str, Any]:
         message["cmd"] = "reset-alarm"
     elif isinstance(request, SetSetpoint):
         message.update(cmd="set", setpoint=request.celsius)
+    elif isinstance(request, History):
+        message.update(cmd="history", since=request.since, limit=request.limit)
     else:
         message.update(cmd="set", mode=request.mode)
         if request.output is not None:

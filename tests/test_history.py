@@ -1,0 +1,119 @@
+"""The daemon's history ring and the `history` command that pages through it."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import time
+from pathlib import Path
+
+import pytest
+from test_control import TIMEOUT, connect, exchange, served
+
+from hermsd.control.history import HistoryRing, capacity_for
+from hermsd.control.protocol import MAX_PAGE, History, ProtocolError, parse_request
+
+
+def _ring(times: list[float], capacity: int) -> HistoryRing:
+    ring = HistoryRing(capacity)
+    for t in times:
+        ring.append(t, str(t).encode())
+    return ring
+
+
+def _times(rows: list[bytes]) -> list[float]:
+    return [float(row) for row in rows]
+
+
+def test_a_day_at_five_seconds_is_17280_rows() -> None:
+    assert capacity_for(5.0) == 24 * 3600 // 5 == 17280
+    assert capacity_for(7.0) == 12343  # 86400 / 7 = 12342.9: the last part-period kept too
+
+
+def test_the_ring_keeps_the_newest_rows_in_order_once_full() -> None:
+    ring = _ring([5.0 * k for k in range(1, 11)], capacity=4)  # 5 .. 50, room for four
+    rows, more = ring.page(None, 100)
+    assert _times(rows) == [35.0, 40.0, 45.0, 50.0]
+    assert not more
+
+
+@pytest.mark.parametrize(
+    ("since", "limit", "expected", "more"),
+    [
+        (None, 2, [35.0, 40.0], True),
+        (40.0, 100, [45.0, 50.0], False),  # strictly after `since`
+        (41.0, 1, [45.0], True),
+        (50.0, 100, [], False),
+        (0.0, 100, [35.0, 40.0, 45.0, 50.0], False),  # older than the oldest kept: all
+    ],
+)
+def test_a_page_is_the_rows_after_since(
+    since: float | None, limit: int, expected: list[float], more: bool
+) -> None:
+    ring = _ring([5.0 * k for k in range(1, 11)], capacity=4)
+    rows, more_ = ring.page(since, limit)
+    assert (_times(rows), more_) == (expected, more)
+
+
+def test_paging_with_the_last_t_reads_every_row_once_across_the_wrap() -> None:
+    ring = _ring([float(k) for k in range(1, 1001)], capacity=300)
+    seen: list[float] = []
+    since: float | None = None
+    more = True
+    while more:
+        rows, more = ring.page(since, 7)
+        seen += _times(rows)
+        since = seen[-1]
+    assert seen == [float(k) for k in range(701, 1001)]
+
+
+@pytest.mark.parametrize(
+    ("line", "request_"),
+    [
+        (b'{"v": 1, "cmd": "history"}', History(None, MAX_PAGE)),
+        (b'{"v": 1, "cmd": "history", "since": null, "limit": 5}', History(None, 5)),
+        (b'{"v": 1, "cmd": "history", "since": 120.5}', History(120.5, MAX_PAGE)),
+    ],
+)
+def test_history_requests_are_read_as_documented(line: bytes, request_: History) -> None:
+    assert parse_request(line) == request_
+
+
+@pytest.mark.parametrize(
+    ("line", "says"),
+    [
+        (b'{"v": 1, "cmd": "history", "limit": 0}', "limit: expected a whole number 1 to 2000"),
+        (b'{"v": 1, "cmd": "history", "limit": 2001}', "got 2001"),
+        (b'{"v": 1, "cmd": "history", "limit": 5.5}', "got 5.5"),
+        (b'{"v": 1, "cmd": "history", "since": "x"}', 'since: expected a number, got "x"'),
+        (b'{"v": 1, "cmd": "history", "until": 3}', "history does not take until"),
+    ],
+)
+def test_a_bad_history_request_is_refused(line: bytes, says: str) -> None:
+    with pytest.raises(ProtocolError, match=says):
+        parse_request(line)
+
+
+def test_the_socket_pages_through_the_periods_the_loop_ran(tmp_path: Path) -> None:
+    with served(tmp_path) as (daemon, where):
+        deadline = time.monotonic() + TIMEOUT
+        while daemon.clock.monotonic() < 200.0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        with connect(where) as sock:
+            first = exchange(sock, b'{"v": 1, "cmd": "history", "limit": 10}\n')
+            rest = exchange(
+                sock,
+                json.dumps({"v": 1, "cmd": "history", "since": first["rows"][-1][0]}).encode()
+                + b"\n",
+            )
+            status = exchange(sock, b'{"v": 1, "cmd": "status"}\n')
+    assert first["ok"] and first["more"] and first["period"] == 5.0
+    assert first["fields"] == ["t", "pv", "setpoint", "output", "applied"]
+    rows = first["rows"] + rest["rows"]
+    times = [row[0] for row in rows]
+    # One row a period, 5 s apart, none lost or repeated between the pages.
+    assert len(rows) >= 40
+    assert all(b - a == pytest.approx(5.0) for a, b in itertools.pairwise(times))
+    assert rows[0][2] == 66.0  # the shipped setpoint
+    # The newest row is the period status was served from, or one just before it.
+    assert status["t"] - times[-1] in (0.0, pytest.approx(5.0))
