@@ -1,5 +1,5 @@
-"""The systemd units: accepted by systemd-analyze, sandboxed to an exposure ≤ 1.0, and
-carrying the directives the daemon's safety relies on."""
+"""The systemd units: accepted by systemd-analyze, sandboxed to an exposure ≤ 1.0 (the web
+page's unit ≤ 2.0), and carrying the directives the daemon's safety relies on."""
 
 from __future__ import annotations
 
@@ -148,3 +148,51 @@ def test_the_template_differs_from_the_plain_unit_only_per_vessel() -> None:
     assert template["Service.StateDirectory"] == ["hermsd/%i"]
     assert template["Service.LogsDirectory"] == ["hermsd/%i"]
     assert template["Service.RuntimeDirectory"] == ["hermsd/%i"]
+
+
+# -- the web page's unit --------------------------------------------------------------------
+
+WEB_UNIT = "hermsd-web.service"
+
+
+@needs_systemd_analyze
+def test_the_web_unit_verifies_and_is_sandboxed_to_at_most_two(tmp_path: Path) -> None:
+    true_binary = shutil.which("true")
+    assert true_binary is not None
+    text = (SYSTEMD_DIR / WEB_UNIT).read_text()
+    assert INSTALLED_BINARY in text
+    unit = tmp_path / WEB_UNIT
+    unit.write_text(text.replace(INSTALLED_BINARY, true_binary))
+
+    verify = _analyze("verify", "--man=no", str(unit))
+    security = _analyze("security", "--offline=yes", "--threshold=20", str(unit))
+
+    assert (verify.returncode, verify.stderr, verify.stdout) == (0, "", "")
+    match = re.search(r"Overall exposure level for \S+: (\d+\.\d)", security.stdout)
+    assert match is not None, security.stdout + security.stderr
+    assert float(match.group(1)) <= 2.0
+    assert security.returncode == 0, security.stderr
+
+
+def test_the_web_unit_runs_as_its_own_user_without_the_hardware() -> None:
+    directives = _directives(WEB_UNIT)
+    expected = {
+        "Service.ExecStart": [
+            f"{INSTALLED_BINARY} web --config /etc/hermsd/hermsd.yaml "
+            "--socket /run/hermsd/control.sock"
+        ],
+        "Service.User": ["hermsd-web"],
+        # The daemon's group reaches the control socket and reads the config; no i2c,
+        # dialout or gpio group, and no device node at all.
+        "Service.SupplementaryGroups": ["hermsd"],
+        "Service.PrivateDevices": ["yes"],
+        "Service.DevicePolicy": ["closed"],
+        "Service.DeviceAllow": None,
+        "Service.ProtectSystem": ["strict"],
+        "Service.CapabilityBoundingSet": [""],
+        "Service.NoNewPrivileges": ["yes"],
+        "Service.IPAddressDeny": ["any"],
+        "Service.IPAddressAllow": ["localhost"],
+    }
+    assert {key: directives.get(key) for key in expected} == expected
+    assert "hermsd" not in directives.get("Service.StateDirectory", [])

@@ -4,6 +4,7 @@ limits, bad input, the read-only view; and the password hash and the `web` confi
 from __future__ import annotations
 
 import json
+import socket
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from hermsd.web.auth import (
     LoginLimiter,
     Sessions,
 )
-from hermsd.web.main import WebSetupError, settings_from
+from hermsd.web.main import WebSetupError, listening_socket, settings_from
 from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
 
 
@@ -254,6 +255,17 @@ def test_the_web_section_is_checked_like_the_rest_of_the_file() -> None:
     message = str(caught.value)
     assert "web.listen: 'everywhere' is not HOST:PORT" in message
     assert "web.password_hash: not a password hash (expected scrypt$16384$8$1$" in message
+
+
+def test_responses_are_not_held_back_by_nagles_algorithm() -> None:
+    # Headers and body go in two sends; with Nagle's algorithm the body waited for the
+    # client's delayed ACK, 40 ms a request.
+    with listening_socket("127.0.0.1", 0) as listener:
+        assert listener.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) == 1
+        with socket.create_connection(listener.getsockname()):
+            accepted, _ = listener.accept()
+            with accepted:
+                assert accepted.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) == 1
 
 
 def test_a_page_that_would_show_nothing_to_anyone_does_not_start(tmp_path: Path) -> None:

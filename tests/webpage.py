@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -20,7 +19,7 @@ from hermsd.control.link import LoopLink
 from hermsd.control.server import ControlServer
 from hermsd.daemon import Daemon
 from hermsd.web.app import WebSettings, create_app
-from hermsd.web.main import make_server
+from hermsd.web.main import listening_socket, make_server
 from hermsd.web.passwords import hash_password, parse_hash
 
 PASSWORD = "mash-in-at-72"
@@ -71,9 +70,7 @@ def site(tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05) -> 
         tmp_path / "control.sock", STORED, 3600.0, read_only_view, poll=min(0.05, pace)
     )
     http = make_server(create_app(settings))
-    listener = socket.socket()
-    listener.bind(("127.0.0.1", 0))
-    listener.listen(16)
+    listener = listening_socket("127.0.0.1", 0)
     port = listener.getsockname()[1]
     serving = threading.Thread(target=lambda: asyncio.run(http.serve(sockets=[listener])))
     stepper = threading.Thread(target=stepping)

@@ -196,7 +196,13 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
     async def history(request: Request) -> Response:
         if not may_view(request):
             return _error(401, "log in to see the tun")
-        return Response(hub.history_body(), media_type="application/json")
+        plain, gzipped = hub.history_body()
+        if "gzip" not in request.headers.get("accept-encoding", ""):
+            return Response(plain, media_type="application/json")
+        response = Response(gzipped, media_type="application/json")
+        response.headers["content-encoding"] = "gzip"  # the middleware leaves it be
+        response.headers["vary"] = "Accept-Encoding"
+        return response
 
     async def events(request: Request) -> Response:
         if not may_view(request):
