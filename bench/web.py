@@ -11,6 +11,11 @@ history as the peer, in the same run. Also: the history reply's size with and wi
 gzip, and the server's time to answer it over 20 requests (the body is made once per
 period, so the slowest includes a rebuild: the daemon runs on at one period a second).
 
+And the daemon's part: what the loop pays per period for the ring (`encode_row` and
+`append`), and what the socket's server thread holds the interpreter lock for to make one
+page of 2,000 rows, each beside encoding the status reply, which that thread does once a
+period already.
+
     uv run python bench/web.py [--hours 24] [--runs 5]
 """
 
@@ -23,7 +28,7 @@ import statistics
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -31,9 +36,11 @@ import httpx
 from playwright.sync_api import Browser, sync_playwright
 
 from hermsd import config as config_module
+from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
 from hermsd.control.link import LoopLink
+from hermsd.control.protocol import MAX_PAGE, encode
 from hermsd.control.server import ControlServer
-from hermsd.daemon import Daemon
+from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 from hermsd.web.app import WebSettings, create_app
@@ -133,6 +140,58 @@ def measure(browser: Browser, url: str, runs: int) -> dict[str, float]:
     }
 
 
+class _Keep:
+    """Keeps the loop's period records."""
+
+    def __init__(self) -> None:
+        self.records: list[PeriodRecord] = []
+
+    def period(self, record: PeriodRecord) -> None:
+        self.records.append(record)
+
+    def alarm(self, alarm: object) -> None:
+        pass
+
+
+def _per_call(call: Callable[[], object], repeat: int) -> float:
+    """The median of `repeat` timings of `call`, in seconds."""
+    times = []
+    for _ in range(repeat):
+        started = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - started)
+    return statistics.median(times)
+
+
+def daemon_costs() -> None:
+    """Per-call µs of the ring on the loop and of a page on the server thread."""
+    config = config_module.DEFAULT
+    clock = VirtualClock()
+    world = build_world(config, clock)
+    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    kept = _Keep()
+    daemon.listeners.append(kept)
+    link = LoopLink(daemon)
+    with daemon:
+        daemon.run(until=24 * 3600.0)
+        link.period(kept.records[-1])  # a snapshot to encode, as at a boundary
+    ring = HistoryRing(capacity_for(config.control.period))
+    started = time.perf_counter()
+    for record in kept.records:
+        ring.append(*encode_row(record))
+    per_row = (time.perf_counter() - started) / len(kept.records)
+    page = _per_call(lambda: page_line(*ring.page(None, MAX_PAGE), config.control.period), 200)
+    snapshot = link._snapshot
+    assert snapshot is not None
+    status = _per_call(lambda: encode(LoopLink._status_message(snapshot)), 200)
+    print(
+        f"\nloop, per period: encode_row + append {per_row * 1e6:.1f} µs "
+        f"({len(kept.records)} periods); server thread: a page of {MAX_PAGE} rows "
+        f"{page * 1e6:.0f} µs, the status reply encoded {status * 1e6:.0f} µs "
+        f"(page ×{page / status:.2f})"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--hours", type=float, default=24.0)
@@ -167,6 +226,7 @@ def main() -> None:
             f"{figures['bytes']:.0f} | {gzipped} / {plain} | {median * 1e3:.1f} / "
             f"{slowest * 1e3:.1f} |"
         )
+    daemon_costs()
     day, hour = rows[-1][6], rows[0][6]
     print(
         f"\n{args.hours:g} h against 1 h: first paint ×{day['fcp'] / hour['fcp']:.2f}, chart "

@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 from test_control import TIMEOUT, connect, exchange, served
 
-from hermsd.control.history import HistoryRing, capacity_for
+from hermsd.control.history import HistoryRing, capacity_for, encode_row
 from hermsd.control.protocol import MAX_PAGE, History, ProtocolError, parse_request
+from hermsd.daemon import PeriodRecord
 
 
 def _ring(times: list[float], capacity: int) -> HistoryRing:
@@ -28,6 +29,41 @@ def _times(rows: list[bytes]) -> list[float]:
 def test_a_day_at_five_seconds_is_17280_rows() -> None:
     assert capacity_for(5.0) == 24 * 3600 // 5 == 17280
     assert capacity_for(7.0) == 12343  # 86400 / 7 = 12342.9: the last part-period kept too
+
+
+def _record(**values: object) -> PeriodRecord:
+    fields: dict[str, object] = dict(
+        t=12345.0,
+        k=1,
+        setpoint=66.0,
+        pv=65.9375,
+        readings=[],
+        output=12.3456789,
+        applied=12.3,
+        p=0.0,
+        i=0.0,
+        d=0.0,
+        mode="auto",
+        algorithm="predictive",
+        state="ok",
+        alarms=[],
+        heater_allowed=True,
+    )
+    return PeriodRecord(**{**fields, **values})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("values", "row"),
+    [
+        ({}, b"[12345.0,65.938,66.0,12.346,12.3]"),  # 65.9375 is rounded half to even
+        ({"pv": None, "t": 0.0004}, b"[0.0,null,66.0,12.346,12.3]"),
+        ({"output": float("nan"), "applied": 100}, b"[12345.0,65.938,66.0,null,100]"),
+    ],
+)
+def test_a_row_is_the_periods_numbers_rounded_to_a_thousandth(
+    values: dict[str, object], row: bytes
+) -> None:
+    assert encode_row(_record(**values))[1] == row
 
 
 def test_the_ring_keeps_the_newest_rows_in_order_once_full() -> None:

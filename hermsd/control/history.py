@@ -30,11 +30,15 @@ def capacity_for(period: float) -> int:
 
 
 def encode_row(record: PeriodRecord) -> tuple[float, bytes]:
-    """The period's time and its row as JSON text, in FIELDS' order."""
+    """The period's time and its row as JSON text, in FIELDS' order. Formatted by hand, so
+    that nothing here can raise on the loop: a number that is not finite becomes null."""
     t = round(record.t, 3)
-    pv = None if record.pv is None else round(record.pv, 3)
-    row = [t, pv, round(record.setpoint, 3), round(record.output, 3), round(record.applied, 3)]
-    return t, json.dumps(row, allow_nan=False, separators=(",", ":")).encode()
+    values = (record.pv, record.setpoint, record.output, record.applied)
+    text = ",".join(
+        repr(round(value, 3)) if value is not None and math.isfinite(value) else "null"
+        for value in (t, *values)
+    )
+    return t, f"[{text}]".encode()
 
 
 class HistoryRing:
