@@ -25,6 +25,7 @@ import argparse
 import asyncio
 import contextlib
 import statistics
+import sys
 import tempfile
 import threading
 import time
@@ -46,16 +47,9 @@ from hermsd.sim.world import build_world
 from hermsd.web.app import WebSettings, create_app
 from hermsd.web.main import listening_socket, make_server
 
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-PHONE = {"width": 390, "height": 844}
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from webpage import CHROMIUM, CHROMIUM_ARGS, PHONE
+
 MEASURE = """() => {
   const paint = performance.getEntriesByName('first-contentful-paint')[0];
   const chart = performance.getEntriesByName('hermsd-chart')[0];
@@ -199,9 +193,7 @@ def main() -> None:
     args = parser.parse_args()
     rows = []
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(
-            executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS
-        )
+        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         for hours in (1.0, args.hours):
             with (
                 tempfile.TemporaryDirectory() as directory,

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 from test_control import TIMEOUT, connect, exchange, served
+from test_replay import period
 
 from hermsd.control.history import HistoryRing, capacity_for, encode_row
-from hermsd.control.protocol import MAX_PAGE, History, ProtocolError, parse_request
 from hermsd.daemon import PeriodRecord
 
 
@@ -32,24 +32,10 @@ def test_a_day_at_five_seconds_is_17280_rows() -> None:
 
 
 def _record(**values: object) -> PeriodRecord:
-    fields: dict[str, object] = dict(
-        t=12345.0,
-        k=1,
-        setpoint=66.0,
-        pv=65.9375,
-        readings=[],
-        output=12.3456789,
-        applied=12.3,
-        p=0.0,
-        i=0.0,
-        d=0.0,
-        mode="auto",
-        algorithm="predictive",
-        state="ok",
-        alarms=[],
-        heater_allowed=True,
-    )
-    return PeriodRecord(**{**fields, **values})  # type: ignore[arg-type]
+    """A period of t 12345 s, PV 65.9375 °C, setpoint 66, output 12.3456789 %, applied 12.3 %."""
+    fields = {"t": 12345.0, "pv": 65.9375, "applied": 12.3, **values}
+    record = period(1, fields.pop("t"), fields.pop("pv"), fields.pop("applied"))  # type: ignore[arg-type]
+    return PeriodRecord(**{**record, "setpoint": 66.0, "output": 12.3456789, **fields})
 
 
 @pytest.mark.parametrize(
@@ -101,33 +87,6 @@ def test_paging_with_the_last_t_reads_every_row_once_across_the_wrap() -> None:
         seen += _times(rows)
         since = seen[-1]
     assert seen == [float(k) for k in range(701, 1001)]
-
-
-@pytest.mark.parametrize(
-    ("line", "request_"),
-    [
-        (b'{"v": 1, "cmd": "history"}', History(None, MAX_PAGE)),
-        (b'{"v": 1, "cmd": "history", "since": null, "limit": 5}', History(None, 5)),
-        (b'{"v": 1, "cmd": "history", "since": 120.5}', History(120.5, MAX_PAGE)),
-    ],
-)
-def test_history_requests_are_read_as_documented(line: bytes, request_: History) -> None:
-    assert parse_request(line) == request_
-
-
-@pytest.mark.parametrize(
-    ("line", "says"),
-    [
-        (b'{"v": 1, "cmd": "history", "limit": 0}', "limit: expected a whole number 1 to 2000"),
-        (b'{"v": 1, "cmd": "history", "limit": 2001}', "got 2001"),
-        (b'{"v": 1, "cmd": "history", "limit": 5.5}', "got 5.5"),
-        (b'{"v": 1, "cmd": "history", "since": "x"}', 'since: expected a number, got "x"'),
-        (b'{"v": 1, "cmd": "history", "until": 3}', "history does not take until"),
-    ],
-)
-def test_a_bad_history_request_is_refused(line: bytes, says: str) -> None:
-    with pytest.raises(ProtocolError, match=says):
-        parse_request(line)
 
 
 def test_the_socket_pages_through_the_periods_the_loop_ran(tmp_path: Path) -> None:

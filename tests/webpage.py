@@ -1,7 +1,7 @@
 """A simulated daemon behind a real control socket, and the web page in front of it, for the
 web tests: the daemon runs on the virtual clock, one period per `pace` s of wall time on a
 thread (or held, for a test to step it), and the page is served by uvicorn on a loopback
-port of its own."""
+port of its own. Also bench/web.py's Chromium settings."""
 
 from __future__ import annotations
 
@@ -22,6 +22,17 @@ from hermsd.web.app import WebSettings, create_app
 from hermsd.web.main import listening_socket, make_server
 from hermsd.web.passwords import hash_password, parse_hash
 
+CHROMIUM = Path("/usr/bin/chromium")  # Debian's, never a downloaded build
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+PHONE = {"width": 390, "height": 844}
 PASSWORD = "mash-in-at-72"
 STORED = parse_hash(hash_password(PASSWORD))
 TIMEOUT = 10.0
