@@ -25,6 +25,7 @@ from hermsd.web.auth import (
     LoginLimiter,
     Sessions,
 )
+from hermsd.web.hub import PAGE_FIELDS
 from hermsd.web.main import WebSetupError, listening_socket, settings_from
 from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
 
@@ -94,6 +95,23 @@ def test_a_change_without_the_pages_token_changes_nothing(
     )
     assert reply.status_code == status and says in reply.json()["error"]
     assert live.daemon.setpoint == before
+
+
+def test_each_period_is_pushed_with_what_the_page_shows_only(live: Site) -> None:
+    events: list[dict[str, object]] = []
+    with _client(live) as client, client.stream("GET", "/api/events") as stream:
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        for line in stream.iter_lines():
+            if line.startswith("data: "):
+                events.append(json.loads(line[len("data: ") :]))
+            if len(events) == 3:
+                break
+    first, *pushed = events
+    for event in pushed:  # the limits, model and learned texts were sent too: 2 kB a period
+        status = event["status"]
+        assert isinstance(status, dict) and set(status) == set(PAGE_FIELDS) - {"program"}
+        assert event["rows"] and event["rows"][-1][0] == status["t"]  # type: ignore[index]
+    assert pushed[1]["status"]["t"] > first["status"]["t"]  # type: ignore[index]
 
 
 def test_a_form_post_from_another_site_is_refused(logged_in: LoggedIn) -> None:

@@ -89,18 +89,14 @@ def _log_in(page: Page) -> None:
 
 def test_a_setpoint_change_with_login_is_applied_at_the_next_period(page: Page, live: Site) -> None:
     _log_in(page)
-    live.running.clear()  # hold the loop: the command must wait for one boundary only
-    with live.lock:
+    with live.held():  # the command must wait for one boundary only
         mark = len(live.events.periods)
-    try:
         page.fill("#setpoint-input", "72.5")
         page.click("#setpoint-button")
         live.wait_for_command()
         live.step()  # one period
         page.wait_for_selector("#message.ok", timeout=WAIT_MS)
         stepped = live.events.periods[mark - 1 :]
-    finally:
-        live.running.set()
     assert len(stepped) == 2 and stepped[0].setpoint != 72.5 == stepped[1].setpoint
     assert page.text_content("#message") == "setpoint 72.5 °C: done"
     assert page.text_content("#setpoint") == "72.5 °C"
@@ -210,3 +206,52 @@ def _decode_png(data: bytes) -> tuple[int, int, bytes]:
             for x in range(width):
                 rgb += row[4 * x : 4 * x + 3]
     return width, height, bytes(rgb)
+
+
+PROGRAM = {
+    "name": "Step mash",
+    "state": "holding",
+    "step": {"index": 1, "name": "Saccharification", "setpoint": 66.0},
+    "steps": 3,
+    "time_left_s": 1234.0,
+    "next": "Mash out",
+    "message": None,
+    "starts_at": None,
+}
+
+
+def test_a_running_program_is_shown_and_its_buttons_send_the_sockets_commands(
+    page: Page, live: Site
+) -> None:
+    _log_in(page)
+    assert not page.is_visible("#program-box")  # this daemon's status has no program
+    with live.held() as last:  # no new period may redraw the page meanwhile
+        _until(page, f"window.lastStatus.t === {last}")
+        status = page.evaluate("window.lastStatus")
+        waiting = {**PROGRAM, "state": "waiting", "message": "Mash in", "time_left_s": None}
+        page.evaluate(
+            "(status) => onEvent({status, rows: [], offset: 0})", {**status, "program": PROGRAM}
+        )
+        shown = {
+            name: page.text_content(f"#program-{name}")
+            for name in ("name", "state", "step", "left", "next")
+        }
+        assert shown == {
+            "name": "Step mash",
+            "state": "holding",
+            "step": "2 of 3: Saccharification, 66 °C",
+            "left": "20 min 34 s",
+            "next": "Mash out",
+        }
+        assert not page.is_visible("#program-confirm")
+        with page.expect_request("**/api/command") as sent:
+            page.click("#program-pause")
+        assert sent.value.post_data_json == {"cmd": "program", "action": "pause"}
+
+        page.evaluate(
+            "(status) => onEvent({status, rows: [], offset: 0})", {**status, "program": waiting}
+        )
+        assert page.text_content("#program-message") == "Waiting: Mash in"
+        with page.expect_request("**/api/command") as sent:
+            page.click("#program-confirm")
+        assert sent.value.post_data_json == {"cmd": "confirm"}

@@ -44,8 +44,20 @@ class Site:
     events: Events
     server: ControlServer
     url: str
-    running: threading.Event  # clear it to hold the daemon between periods
+    running: threading.Event  # cleared: the daemon is held between periods
     lock: threading.Lock  # held while a period runs
+
+    @contextlib.contextmanager
+    def held(self) -> Iterator[float]:
+        """The loop held between periods (no new status can reach a page); yields the t of
+        the last period run."""
+        self.running.clear()
+        try:
+            with self.lock:
+                last = self.events.periods[-1].t
+            yield last
+        finally:
+            self.running.set()
 
     def step(self, periods: int = 1) -> None:
         """Run `periods` periods now (with `running` cleared, nothing else steps)."""

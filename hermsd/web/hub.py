@@ -101,7 +101,7 @@ class Hub:
         self.error = None
         self.status = page_status(status)
         self.offset = time.time() - float(status["t"])
-        self._push({"status": status, "rows": rows, "offset": self.offset})
+        self._push({"status": self.status, "rows": rows, "offset": self.offset})
 
     async def _catch_up(self, latest: float) -> list[list[Any]]:
         """Add the rows since the mirror's last to it (all kept ones after a restart)."""

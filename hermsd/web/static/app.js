@@ -50,6 +50,7 @@ function duration(seconds) {
 }
 
 function render(status) {
+  window.lastStatus = status;
   document.body.dataset.t = String(status.t);
   $("tun").textContent = status.tun;
   $("pv").textContent = fixed(status.pv, 2, "°C");
