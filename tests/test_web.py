@@ -3,6 +3,7 @@ limits, bad input, the read-only view; and the password hash and the `web` confi
 
 from __future__ import annotations
 
+import asyncio
 import json
 import socket
 from collections.abc import Iterator
@@ -25,7 +26,7 @@ from hermsd.web.auth import (
     LoginLimiter,
     Sessions,
 )
-from hermsd.web.hub import PAGE_FIELDS
+from hermsd.web.hub import PAGE_FIELDS, Hub
 from hermsd.web.main import WebSetupError, listening_socket, settings_from
 from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
 
@@ -112,6 +113,33 @@ def test_each_period_is_pushed_with_what_the_page_shows_only(live: Site) -> None
         assert isinstance(status, dict) and set(status) == set(PAGE_FIELDS) - {"program"}
         assert event["rows"] and event["rows"][-1][0] == status["t"]  # type: ignore[index]
     assert pushed[1]["status"]["t"] > first["status"]["t"]  # type: ignore[index]
+
+
+def test_a_period_reaches_the_page_before_the_next_one_runs(live: Site) -> None:
+    with (
+        _client(live) as client,
+        client.stream("GET", "/api/events") as stream,
+        live.held() as last,
+    ):
+        lines = stream.iter_lines()
+        times = (json.loads(line[6:])["status"]["t"] for line in lines if line[:6] == "data: ")
+        while next(times) < last:  # the events of the periods before the hold
+            pass
+        live.step()  # one period, then the loop is held again: no later one runs
+        assert next(times) == last + 5.0
+
+
+def test_manual_mode_with_an_output_and_back_to_auto(live: Site, logged_in: LoggedIn) -> None:
+    client, token = logged_in
+    headers = {"x-csrf-token": token}
+    manual = client.post(
+        "/api/command", json={"cmd": "set", "mode": "manual", "output": 40}, headers=headers
+    )
+    assert manual.status_code == 200
+    assert (live.daemon.mode, live.daemon.manual_output) == ("manual", 40.0)
+    assert manual.json()["status"]["manual_output"] == 40.0
+    auto = client.post("/api/command", json={"cmd": "set", "mode": "auto"}, headers=headers)
+    assert auto.status_code == 200 and live.daemon.mode == "auto"
 
 
 def test_a_form_post_from_another_site_is_refused(logged_in: LoggedIn) -> None:
@@ -286,9 +314,30 @@ def test_responses_are_not_held_back_by_nagles_algorithm() -> None:
                 assert accepted.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) == 1
 
 
-def test_a_page_that_would_show_nothing_to_anyone_does_not_start(tmp_path: Path) -> None:
+def test_a_page_that_would_show_nothing_to_anyone_does_not_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     with pytest.raises(WebSetupError, match="would show nothing to anyone"):
         settings_from(config_module.parse(BASE), tmp_path / "control.sock")
+    path = tmp_path / "hermsd.yaml"
+    path.write_text(BASE, encoding="utf-8")
+    assert main(["web", "--config", str(path)]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("hermsd: the page would show nothing") and "Traceback" not in error
+
+
+def test_without_a_daemon_the_page_is_told_why(tmp_path: Path) -> None:
+    hub = Hub(tmp_path / "control.sock", poll=0.01)
+
+    async def events() -> list[object]:
+        queue = hub.open_page(None)
+        await hub.refresh()
+        return [json.loads((await queue.get() or b"")[len(b"data: ") :]) for _ in range(2)]
+
+    assert asyncio.run(events()) == [
+        {"error": "connecting to hermsd"},
+        {"error": f"no hermsd is running: nothing answers on {hub.socket}"},
+    ]
 
 
 def test_hash_password_prints_a_hash_the_config_takes(

@@ -129,6 +129,7 @@ def test_the_same_change_without_login_is_refused(page: Page, live: Site) -> Non
 def test_at_phone_size_the_page_shows_the_essentials(page: Page, live: Site) -> None:
     _until(page, "window.hermsd.points() > 10")
     assert page.evaluate("document.documentElement.scrollWidth") <= PHONE["width"]
+    assert page.locator("#chart canvas").count() == 1  # one chart, however the page loaded
     for selector in ("#pv", "#setpoint", "#output", "#mode", "#chart canvas"):
         box = page.locator(selector).bounding_box()
         assert box is not None and box["y"] + box["height"] <= PHONE["height"], selector
@@ -255,3 +256,21 @@ def test_a_running_program_is_shown_and_its_buttons_send_the_sockets_commands(
         with page.expect_request("**/api/command") as sent:
             page.click("#program-confirm")
         assert sent.value.post_data_json == {"cmd": "confirm"}
+
+
+def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
+    _log_in(page)
+    assert not page.is_visible("#alarm-box")
+    with live.held() as last:
+        _until(page, f"window.lastStatus.t === {last}")
+        status = page.evaluate("window.lastStatus")
+        alarm = {**status, "alarms": ["dry fire"], "state": "alarm", "heater_allowed": False}
+        page.evaluate("(status) => onEvent({status, rows: [], offset: 0})", alarm)
+        assert page.text_content("#alarms") == "dry fire"
+        assert page.text_content("#state") == "alarm"
+        with page.expect_response("**/api/command") as answered:
+            page.click("#reset-alarm")
+            live.wait_for_command()
+            live.step()  # applied at the boundary
+        assert answered.value.request.post_data_json == {"cmd": "reset-alarm"}
+        assert answered.value.status == 200  # the daemon took it (it had nothing latched)

@@ -91,25 +91,26 @@ class Hub:
                 raise DaemonUnavailable(str(status.get("error", "hermsd refused status")))
             if self.status is not None and status["t"] == self.status["t"]:
                 return
-            rows = await self._catch_up(status["t"])
+            restarted, rows = await self._rows_since_mirror(status["t"])
         except DaemonUnavailable as error:
             if self.error != str(error):
                 self.error = str(error)
                 log.warning("web: %s", error)
                 self._push({"error": self.error})
             return
+        self._add(restarted, rows, status["t"])
         self.error = None
         self.status = page_status(status)
         self.offset = time.time() - float(status["t"])
         self._push({"status": self.status, "rows": rows, "offset": self.offset})
 
-    async def _catch_up(self, latest: float) -> list[list[Any]]:
-        """Add the rows since the mirror's last to it (all kept ones after a restart)."""
+    async def _rows_since_mirror(self, latest: float) -> tuple[bool, list[list[Any]]]:
+        """Whether the daemon restarted (its history is new), and the rows the mirror lacks
+        (all kept ones after a restart). The mirror itself is not touched here: it changes
+        with the status, between two awaits, so a page never sees one without the other."""
         times = self._columns[0]
-        if times and latest < times[-1]:  # the daemon restarted: its history is new
-            for column in self._columns:
-                column.clear()
-        since = times[-1] if times else None
+        restarted = bool(times) and latest < times[-1]
+        since = None if restarted or not times else times[-1]
         new: list[list[Any]] = []
         more = True
         while more:
@@ -119,13 +120,20 @@ class Hub:
             self.period = float(page["period"])
             more = bool(page["more"]) and bool(page["rows"])
             for t, pv, setpoint, output, _applied in page["rows"]:
-                row = [t, pv, setpoint, output]
-                for column, value in zip(self._columns, row, strict=True):
-                    column.append(value)
-                new.append(row)
+                if t > latest:  # a period that ran after the status: it comes with its own
+                    return restarted, new
+                new.append([t, pv, setpoint, output])
                 since = t
+        return restarted, new
+
+    def _add(self, restarted: bool, rows: list[list[Any]], latest: float) -> None:
+        if restarted:
+            for column in self._columns:
+                column.clear()
+        for row in rows:
+            for column, value in zip(self._columns, row, strict=True):
+                column.append(value)
         self._trim(latest)
-        return new
 
     def _trim(self, latest: float) -> None:
         times = self._columns[0]

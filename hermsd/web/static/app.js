@@ -12,6 +12,7 @@ let rangeHours = 3;
 let chart = null;
 let source = null;
 let viewing = false;
+let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
 
 async function api(path, body) {
   const options = { credentials: "same-origin" };
@@ -150,6 +151,7 @@ async function loadView() {
   OUT.push(...history.output);
   offset = history.offset;
   $("view").hidden = false;
+  if (chart) chart.destroy();
   makeChart();
   connect();
 }
@@ -171,12 +173,14 @@ function onEvent(message) {
     return;
   }
   const status = message.status;
-  if (T.length && status.t < T[T.length - 1]) { // the daemon restarted: a new history
+  if (status.t < lastPushedT) { // the daemon restarted: its history is new
     source.close();
     viewing = false;
+    lastPushedT = -Infinity;
     loadView();
     return;
   }
+  lastPushedT = status.t;
   setConnection("live", true);
   offset = message.offset;
   addRows(message.rows);
