@@ -61,6 +61,8 @@ def test_a_login_gives_a_strict_http_only_session_cookie_and_a_csrf_token(live: 
     attributes = {part.strip().split("=")[0].lower() for part in cookie.split(";")}
     assert cookie.startswith("hermsd_session=")
     assert {"httponly", "samesite", "path"} <= attributes and "samesite=strict" in cookie.lower()
+    # No fixed expiry: the server ends a session after web.session_lifetime without use.
+    assert "max-age" not in attributes and "expires" not in attributes
     session = cookie.split(";")[0].split("=", 1)[1]
     assert len(session) >= 43  # 32 random bytes, base64
     body = reply.json()

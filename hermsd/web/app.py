@@ -172,10 +172,9 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
         sessions.end(old)
         sid, session = sessions.create(clock())
         response = _json(_session_body(session))
-        response.set_cookie(
+        response.set_cookie(  # no max-age: the server ends it after the lifetime without use
             COOKIE,
             sid,
-            max_age=int(settings.session_lifetime),
             httponly=True,
             samesite="strict",
             secure=request.url.scheme == "https",
