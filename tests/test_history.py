@@ -110,5 +110,5 @@ def test_the_socket_pages_through_the_periods_the_loop_ran(tmp_path: Path) -> No
     assert len(rows) >= 40
     assert all(b - a == pytest.approx(5.0) for a, b in itertools.pairwise(times))
     assert rows[0][2] == 66.0  # the shipped setpoint
-    # The newest row is the period status was served from, or one just before it.
-    assert status["t"] - times[-1] in (0.0, pytest.approx(5.0))
+    # Rows come no later than the status the loop published (the loop runs on meanwhile).
+    assert status["t"] >= times[-1]
