@@ -170,13 +170,48 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
     )
 
 
-def learned_tun(stored: LearnedModel | None, config: Config) -> pid.PlantModel | None:
-    """What was learned, at the configured litres, if `control.learn` lets it be used."""
-    if stored is None or config.control.learn == "off":
-        return None
-    model = stored.plant_model(config.tun.litres)
-    low, high = pid.MODEL_GAIN_RANGE  # a fill far from the learned one can leave it
-    return model if low <= model.gain <= high else None
+@dataclass(frozen=True, slots=True)
+class ModelChoice:
+    """The tun's model in force and where it came from: "learned" (the state directory),
+    "measured" (the control.model_* keys `hermsd tune --write` wrote) or "prior" (a guess
+    from tun.litres and tun.element_watts)."""
+
+    model: pid.PlantModel
+    source: str
+    basis: LearnedModel | None = None  # the measurement, at the fill it was made with
+
+    @property
+    def measured(self) -> pid.PlantModel | None:
+        """The model, if it was measured: what the supervisor's limits may be tightened by."""
+        return None if self.basis is None else self.model
+
+    def describe(self) -> str:
+        if self.basis is None:
+            return "the prior from tun.litres and tun.element_watts (nothing measured)"
+        what = "learned" if self.source == "learned" else "measured by hermsd tune (control keys)"
+        return f"{what}: {self.basis.describe()}"
+
+
+def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
+    """The model the controller and the supervisor use. `control.learn` on: what was learned
+    (kept up to date by the daemon itself), else what `hermsd tune` measured; pinned: the
+    measured one, else what was learned; off: the measured one only. A measurement is
+    rescaled to the configured litres; one the fill takes out of the controller's range is
+    passed over. Neither: the config's prior."""
+    learn = config.control.learn
+    candidates = [
+        ("learned", stored if learn != "off" else None),
+        ("measured", config_module.measured_model(config)),
+    ]
+    if learn != "on":
+        candidates.reverse()
+    low, high = pid.MODEL_GAIN_RANGE  # a fill far from the measured one can leave it
+    for source, basis in candidates:
+        if basis is not None:
+            model = basis.plant_model(config.tun.litres)
+            if low <= model.gain <= high:
+                return ModelChoice(model, source, basis)
+    return ModelChoice(config_module.prior_model(config), "prior")
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
@@ -271,7 +306,8 @@ class Daemon:
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
             self._stored_model, self._model_problem = models.load()
-        self.model, self.model_learned = self._model_in_force(config)
+        self.model_choice = model_in_force(self._stored_model, config)
+        self.model = self.model_choice.model
         self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
         self.controller = make_controller(config.control, self.model)
         self._learner = self._make_learner(config)
@@ -340,14 +376,21 @@ class Daemon:
         self._check_log(now)
         if self._model_problem is not None:
             self._event(logging.WARNING, f"learned model ignored: {self._model_problem}", now)
-        if self._stored_model is not None:
-            use = (
-                "in use (control and safety limits)"
-                if self.model_learned
-                else f"not used (control.learn {self.config.control.learn}, "
-                f"{self.config.tun.litres:g} L)"
+        if self._stored_model is not None and self.model_choice.source != "learned":
+            learn, litres = self.config.control.learn, self.config.tun.litres
+            why = f"out of the controller's range at {litres:g} L"
+            if learn == "off":
+                why = "control.learn off"
+            elif learn == "pinned" and self.model_choice.source == "measured":
+                why = "control.learn pinned: the model from hermsd tune comes first"
+            self._event(
+                logging.INFO,
+                f"learned model not used ({why}): {self._stored_model.describe()}",
+                now,
             )
-            self._event(logging.INFO, f"learned model {use}: {self._stored_model.describe()}", now)
+        if self.model_choice.measured is not None:  # else the prior, as status says
+            what = self.model_choice.describe()
+            self._event(logging.INFO, f"tun model in use (control and safety limits): {what}", now)
         self._restore_latches(stored, now)
 
     def _program_sensor(self) -> None:
@@ -544,7 +587,8 @@ class Daemon:
         if "control.setpoint" in changed:
             self._apply_setpoint(control.setpoint, t)
         if retunes(old.control, new.control) or old.tun != new.tun:
-            self.model, self.model_learned = self._model_in_force(new)
+            self.model_choice = model_in_force(self._stored_model, new)
+            self.model = self.model_choice.model
             self.controller = make_controller(new.control, self.model)
             self._heat_up_seen = pid.heat_up_fit(self.controller)
             self._learner = self._make_learner(new)
@@ -565,8 +609,8 @@ class Daemon:
                 t,
             )
             self._apply_setpoint(control.setpoint, t)
-        if any(key.startswith(("safety.", "tun.")) for key in changed) or (
-            "control.learn" in changed
+        if any(key.startswith(("safety.", "tun.")) for key in changed) or retunes(
+            old.control, new.control
         ):
             self.supervisor.limits = safety_limits(new, self._measured_tun(new))
         if changed & {"safety.max_temp", "safety.hysteresis"}:
@@ -584,18 +628,11 @@ class Daemon:
         """What was learned of the tun and stored, as read at start (None: nothing usable)."""
         return self._stored_model
 
-    def _model_in_force(self, config: Config) -> tuple[pid.PlantModel, bool]:
-        """The stored model (rescaled to the configured litres) unless `control.learn` is off
-        or it does not fit this fill, else the config's prior; and whether it was learned."""
-        learned = learned_tun(self._stored_model, config)
-        if learned is not None:
-            return learned, True
-        return config_module.prior_model(config), False
-
     def _measured_tun(self, config: Config) -> MeasuredTun | None:
-        """The tun as measured for the supervisor's limits: the one given (`hermsd tune`),
-        else what the controller learned and uses; None before anything is measured (the
-        config's prior is a guess, and the limits then hold for any tun it may describe).
+        """The tun as measured for the supervisor's limits: the one given, else the model in
+        force if it was measured (learned, or by `hermsd tune`); None before anything is
+        measured (the config's prior is a guess, and the limits then hold for any tun it may
+        describe).
 
         The learned losses are referred to `control.model_ambient` a, not the real room:
         they reproduce the hold's measured power at the setpoint s, so the supervisor's bound
@@ -604,7 +641,7 @@ class Daemon:
         """
         if self.tun_model is not None:
             return self.tun_model
-        return learned_tun(self._stored_model, config)
+        return model_in_force(self._stored_model, config).measured
 
     def _make_learner(self, config: Config) -> Learner:
         return Learner(

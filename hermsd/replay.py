@@ -52,7 +52,8 @@ from hermsd.recorder import (
 if TYPE_CHECKING:
     from hermsd.sim.scenario import Event
 
-TOPICS_READ = (PERIOD_TOPIC, CONFIG_TOPIC, LOG_TOPIC, TIMING_TOPIC)  # readings and windows unused
+PROGRAM_TOPIC = "/hermsd/program"  # the mash program's events, written while a program runs
+TOPICS_READ = (PERIOD_TOPIC, CONFIG_TOPIC, LOG_TOPIC, TIMING_TOPIC, PROGRAM_TOPIC)
 
 # A sudden drop: PV falls this much within this time. Heat loss alone cools a hot tun by
 # (T − T_amb)/τ ≈ 0.2 °C a minute at most; cold water poured in drops it by degrees at once.
@@ -105,6 +106,20 @@ class LogEvent:
     message: str
 
 
+@dataclass(frozen=True, slots=True)
+class ProgramEvent:
+    """A /hermsd/program record (a step started, reached, done; waiting; …) on the replay's
+    clock; the fields a record lacks, or holds with the wrong type, are None."""
+
+    at: float
+    event: str
+    program: str | None
+    step: int | None
+    name: str | None
+    setpoint: float | None
+    message: str | None
+
+
 @dataclass(slots=True)
 class Log:
     """The records of a day's files that replay uses, in replay order."""
@@ -116,6 +131,7 @@ class Log:
     elapsed: list[float] = field(default_factory=list)  # of each period, s since the first
     log_time_ns: list[int] = field(default_factory=list)  # of each period (wall clock)
     events: list[LogEvent] = field(default_factory=list)
+    program: list[ProgramEvent] = field(default_factory=list)
     timings: list[dict[str, Any]] = field(default_factory=list)
     runs: list[dict[str, Any]] = field(default_factory=list)  # of the daemon, one after another
 
@@ -140,6 +156,7 @@ class _FileRecords:
     periods: list[tuple[PeriodRecord, int]] = field(default_factory=list)  # with log time
     anchors: list[tuple[int, float]] = field(default_factory=list)  # (log time, t)
     raw_events: list[tuple[int, int, str]] = field(default_factory=list)
+    program: list[dict[str, Any]] = field(default_factory=list)  # each with a number `t`
     timings: list[dict[str, Any]] = field(default_factory=list)
     first_ns: int | None = None  # log time of its first and last record read
     last_ns: int | None = None
@@ -180,11 +197,13 @@ def load(paths: Sequence[Path | str]) -> Log:
                 if anchors
             )
             log.timings.extend(file.timings)
+            log.program.extend(_program_event(m, m["t"] + shift) for m in file.program)
     log.runs = _runs(files)
     if not log.periods:
         names = ", ".join(str(p) for p in paths)
         raise ReplayError(f"{names}: no control periods recovered, nothing to replay")
     log.events.sort(key=lambda e: e.at)
+    log.program.sort(key=lambda e: e.at)
     return log
 
 
@@ -222,6 +241,9 @@ def _read(path: Path) -> _FileRecords:
                 file.anchors.append((log_time_ns, entry.t))
             elif topic == TIMING_TOPIC and _is_number(message.get("t")):
                 file.timings.append(message)
+                file.anchors.append((log_time_ns, float(message["t"])))
+            elif topic == PROGRAM_TOPIC and _is_number(message.get("t")):
+                file.program.append(message)
                 file.anchors.append((log_time_ns, float(message["t"])))
             elif topic == LOG_TOPIC:
                 level = message.get("level")
@@ -357,6 +379,23 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         config,
         model if isinstance(model, dict) else None,
         safety_model if isinstance(safety_model, dict) else None,
+    )
+
+
+def _program_event(message: dict[str, Any], at: float) -> ProgramEvent:
+    def text(key: str) -> str | None:
+        value = message.get(key)
+        return value if isinstance(value, str) else None
+
+    step, setpoint = message.get("step"), message.get("setpoint")
+    return ProgramEvent(
+        at,
+        text("event") or "",
+        text("program"),
+        step if isinstance(step, int) and not isinstance(step, bool) else None,
+        text("name"),
+        float(setpoint) if _is_number(setpoint) else None,
+        text("message"),
     )
 
 
@@ -865,43 +904,7 @@ def _cell(value: object) -> str:
 
 
 def plot(log: Log, path: Path) -> None:
-    """PV and setpoint above, output and applied duty below, alarms marked on both."""
-    try:
-        import matplotlib
+    """The day drawn for a brewer to read at a glance (hermsd.dayplot; needs matplotlib)."""
+    from hermsd import dayplot
 
-        matplotlib.use("Agg")
-        from matplotlib import pyplot
-    except ImportError:
-        raise ReplayError(
-            "--plot needs matplotlib: uv sync --extra plot (or pip install 'hermsd[plot]')"
-        ) from None
-    hours = [t / 3600.0 for t in log.elapsed]
-    figure, (temps, duty) = pyplot.subplots(2, 1, sharex=True, figsize=(12, 7))
-    temps.plot(hours, [p.pv for p in log.periods], label="PV", linewidth=0.8)
-    temps.plot(hours, [p.setpoint for p in log.periods], label="setpoint", linewidth=0.8)
-    temps.set_ylabel("°C")
-    duty.plot(hours, [p.output for p in log.periods], label="output", linewidth=0.6)
-    duty.plot(hours, [p.applied for p in log.periods], label="applied", linewidth=0.6)
-    duty.set_ylabel("%")
-    duty.set_xlabel("hours since the first period")
-    for alarm in alarms(log):
-        for axes in (temps, duty):
-            axes.axvline(alarm["at_s"] / 3600.0, color="red", linewidth=0.8, alpha=0.6)
-        temps.annotate(
-            alarm["kind"],
-            (alarm["at_s"] / 3600.0, 1.0),
-            xycoords=("data", "axes fraction"),
-            rotation=90,
-            va="top",
-            fontsize=7,
-            color="red",
-        )
-    temps.legend(loc="lower right")
-    duty.legend(loc="upper right")
-    figure.tight_layout()
-    try:
-        figure.savefig(path, dpi=100)
-    except OSError as error:
-        raise ReplayError(f"{path}: cannot write: {error.strerror or error}") from None
-    finally:
-        pyplot.close(figure)
+    dayplot.save(log, path)

@@ -69,6 +69,7 @@ BOUNDS = [
     Bound("control.model_tau", float, 10, 1000000),
     Bound("control.dead_time", float, 0, 3600),
     Bound("control.model_ambient", float, -20, 50),
+    Bound("control.model_litres", float, 1, 1000, nullable=True),
     Bound("sensor.bus", int, 0, 255),
     Bound("sensor.address", int, 0x48, 0x4B),
     Bound("sensor.read_interval", float, 0.5, 10),
@@ -103,6 +104,7 @@ BOUNDS = [
     Bound("alerts.timeout", float, 1, 300),
     Bound("alerts.min_interval", float, 0, 86400),
     Bound("web.session_lifetime", float, 0.1, 720),
+    Bound("mqtt.port", int, 1, 65535),
 ]
 CHOICES: dict[str, tuple[object, ...]] = {
     "control.mode": ("auto", "manual"),
@@ -130,8 +132,17 @@ TEXTS = {  # key: (longest, nullable)
     "log.dir": (None, True),
     "web.listen": (300, False),
     "web.password_hash": (None, True),
+    "mqtt.host": (253, False),
+    "mqtt.username": (256, True),
+    "mqtt.password_file": (None, True),
+    "mqtt.ca_file": (None, True),
+    "mqtt.cert_file": (None, True),
+    "mqtt.key_file": (None, True),
+    "mqtt.topic_prefix": (100, False),
+    "mqtt.discovery_prefix": (100, False),
+    "mqtt.client_id": (64, True),
 }
-FLAGS = ("output.active_low", "contactor.active_low")
+FLAGS = ("output.active_low", "contactor.active_low", "mqtt.tls")
 ALERT_EVENTS = ("alarm_raised", "alarm_cleared", "started", "stopped")
 LISTS = {  # key: (the items it may hold, or () for any printable text; nullable)
     "alerts.command": ((), True),
@@ -294,6 +305,7 @@ def test_defaults_are_the_specified_ones() -> None:
             "model_tau": 14961.0,
             "dead_time": 115.0,
             "model_ambient": 20.0,
+            "model_litres": None,
             "learn": "on",
         },
         "sensor": {"bus": 1, "address": 0x48, "read_interval": 1.0},
@@ -355,6 +367,19 @@ def test_defaults_are_the_specified_ones() -> None:
             "password_hash": None,
             "session_lifetime": 12.0,
             "read_only_view": "off",
+        },
+        "mqtt": {
+            "host": "localhost",
+            "port": 1883,
+            "username": None,
+            "password_file": None,
+            "tls": False,
+            "ca_file": None,
+            "cert_file": None,
+            "key_file": None,
+            "topic_prefix": "hermsd",
+            "discovery_prefix": "homeassistant",
+            "client_id": None,
         },
     }
     assert to_dict(DEFAULT) == expected
@@ -614,6 +639,18 @@ CROSS_REFUSED = [
         "max_output",
     ),
     ({"safety.stale_after": "1"}, "safety.stale_after", "read_interval"),
+    ({"mqtt.topic_prefix": "brewery/+"}, "mqtt.topic_prefix", "wildcard"),
+    ({"mqtt.discovery_prefix": "ha/#"}, "mqtt.discovery_prefix", "wildcard"),
+    ({"mqtt.topic_prefix": "$SYS"}, "mqtt.topic_prefix", "starts with $"),
+    ({"mqtt.topic_prefix": "brewery/"}, "mqtt.topic_prefix", "empty level"),
+    ({"mqtt.topic_prefix": "brewery//hlt"}, "mqtt.topic_prefix", "empty level"),
+    ({"mqtt.password_file": "/etc/hermsd/mqtt-password"}, "mqtt.password_file", "user name"),
+    ({"mqtt.ca_file": "/etc/ssl/ca.pem"}, "mqtt.ca_file", "mqtt.tls: true"),
+    (
+        {"mqtt.tls": "true", "mqtt.key_file": "/etc/hermsd/key.pem"},
+        "mqtt.key_file",
+        "mqtt.cert_file",
+    ),
 ]
 CROSS_ACCEPTED = [
     {"output.window": "1", "output.min_on": "0.5", "output.min_off": "0.49"},
@@ -643,6 +680,9 @@ CROSS_ACCEPTED = [
     },
     {"control.manual_output": "40", "control.max_output": "40"},
     {"safety.stale_after": "1.5"},
+    {"mqtt.topic_prefix": "brewery/hlt-1", "mqtt.discovery_prefix": "home_assistant"},
+    {"mqtt.username": "hermsd", "mqtt.password_file": "/etc/hermsd/mqtt-password"},
+    {"mqtt.tls": "true", "mqtt.cert_file": "/etc/hermsd/c.pem", "mqtt.key_file": "/etc/k.pem"},
 ]
 
 
