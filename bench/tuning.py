@@ -371,8 +371,9 @@ def relay_section() -> str:
         [
             "## Tuning by a relay test (`hermsd tune relay`) and CraftBeerPi's autotune",
             "",
-            "`uv run --group bench python bench/tuning.py --relay --write`: each tun of the family, from the "
-            "room's temperature, runs `hermsd tune relay` with its defaults through the daemon "
+            "`uv run --group bench python bench/tuning.py --relay --write`: each tun of the "
+            "family, from the room's temperature, runs `hermsd tune relay` with its defaults "
+            "through the daemon "
             "on the simulator: heat-up in auto, 5 min hold (its mean duty is the bias), then "
             f"the relay ±P around the bias with hysteresis ±{relay.HYSTERESIS_C:g} °C (P for a "
             f"~{relay.TARGET_SWING_C:g} °C swing from the config's litres, watts and dead time, "

@@ -11,6 +11,8 @@ a shorted SSR, an open contactor or a dead element show only in the temperature,
 what the supervisor's watches are for. When the supervisor forbids
 heating, the SSR is cut at once (mid-window), the contactor opens, and the controller is
 held, not fed zeros; when heating is allowed again it resumes from the output it had.
+Inside a period the loop acts on one thing only: cold water that the controller answers
+with full power runs the element at full power from that reading on (`_act_on_drop`).
 """
 
 from __future__ import annotations
@@ -97,6 +99,7 @@ class PeriodRecord:
     alarms: list[str]
     heater_allowed: bool
     reset_from: float | None = None  # the controller was reset to this output before its step
+    full_from: int | None = None  # after this many of `readings` it asked for full power at once
 
 
 class ControlHook(Protocol):
@@ -323,6 +326,8 @@ class Daemon:
         self._pv: float | None = None
         self._last_celsius: float | None = None
         self._readings: list[float] = []
+        self._stepped = False  # the controller stepped at the last boundary (its state is fresh)
+        self._full_from: int | None = None  # see PeriodRecord.full_from
         self._held = True  # nothing to continue from until the first good period
         self._resume_output = 0.0
         self._window = _Window()
@@ -758,6 +763,30 @@ class Daemon:
         if not sup.heater_allowed:
             self._force_off(now)
         self._drain_alarms(now)
+        self._act_on_drop(now)
+
+    def _act_on_drop(self, now: float) -> None:
+        """Full power from this reading on, not from the next period, when the readings so
+        far show cold water that the controller answers with it (`pid.full_power_now`).
+
+        The decision depends only on what the period record logs (its readings, and the
+        controller as the last step left it), so replay checks it; it is made whether or not
+        heating is allowed, and acted on only when it is (every edge is gated all the same).
+        """
+        if self._full_from is not None or not self._stepped or self._pv is None:
+            return
+        if not pid.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
+            return
+        self._full_from = len(self._readings)
+        if not self.supervisor.heater_allowed:
+            return
+        self.output = 100.0  # in force until the next step
+        drop = self._pv - self._readings[-1]
+        self._event(logging.INFO, f"PV fell {drop:.2f} °C within the period: full power", now)
+        window = self._window
+        if window.plan is not None:
+            window.cancel()
+            self._arm(self.planner.full_from(window.plan, now), now)
 
     def _read_now(self, now: float) -> None:
         sup = self.supervisor
@@ -816,6 +845,8 @@ class Daemon:
             action(now)
         self._pending.clear()
         readings, self._readings = self._readings, []
+        full_from, self._full_from = self._full_from, None
+        self._stepped = False
         pv = period_value(readings)
         if pv is None:
             pv = self._last_celsius  # a slow read interval: the latest accepted value
@@ -834,6 +865,7 @@ class Daemon:
                     self.controller.reset(pv, reset_from)
                     self._held = False
                 self.output = self.controller.step(self.setpoint, pv, applied)
+                self._stepped = True
             if readings and self._watchdog is not None:
                 self._watchdog.note_healthy_cycle()  # a fresh reading made a fresh output
         else:
@@ -864,6 +896,7 @@ class Daemon:
             alarms=sup.active,
             heater_allowed=sup.heater_allowed,
             reset_from=reset_from,
+            full_from=full_from,
         )
         for listener in self.listeners:
             listener.period(record)
@@ -878,10 +911,15 @@ class Daemon:
         allowed = self.supervisor.heater_allowed
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(allowed)
-        plan = self.planner.plan(deadline, self.output if allowed else 0.0)
+        self._arm(self.planner.plan(deadline, self.output if allowed else 0.0), now)
+
+    def _arm(self, plan: WindowPlan, now: float) -> None:
+        """Make `plan` the window in progress (logged; a later one for the same start replaces
+        it): the SSR as it says now, and its edges to come."""
+        window = self._window
         window.plan = plan
         self._switch(plan.is_on(now), now)
-        end = deadline + plan.length
+        end = plan.start + plan.length
         for edge in (plan.on_at, plan.off_at):
             if now < edge < end:
                 window.timers.append(self.scheduler.at(edge, self._on_edge))
@@ -890,7 +928,7 @@ class Daemon:
                 "/hermsd/window",
                 self.clock.wall_ns(),
                 {
-                    "t": deadline,
+                    "t": plan.start,
                     "window": plan.length,
                     "requested": plan.requested,
                     "on_time": plan.on_time,
@@ -1024,6 +1062,7 @@ class Daemon:
                     "reason": reason,
                     "model": asdict(self.model),
                     "safety_model": _tun_fields(self._measured_tun(self.config)),
+                    "drop_readings": pid.DROP_READINGS,
                 },
             )
 

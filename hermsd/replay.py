@@ -36,7 +36,7 @@ from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
-from hermsd.pid import PlantModel
+from hermsd.pid import DROP_READINGS, Controller, PlantModel, full_power_now
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -95,6 +95,7 @@ class LoggedConfig:
     config: dict[str, Any]
     model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
     safety_model: dict[str, Any] | None = None  # the measured tun the safety limits came from
+    drop_readings: int | None = None  # the rule of `full_from` (None: not acted on in periods)
 
 
 @dataclass(frozen=True, slots=True)
@@ -360,6 +361,7 @@ def _period(message: dict[str, Any], path: Path) -> PeriodRecord:
         and _is_number(record.applied)
         and (record.pv is None or _is_number(record.pv))
         and (record.reset_from is None or _is_number(record.reset_from))
+        and (record.full_from is None or isinstance(record.full_from, int))
         and isinstance(record.k, int)
         and isinstance(record.alarms, list)
         and all(isinstance(kind, str) for kind in record.alarms)
@@ -373,12 +375,14 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
     model, safety_model = message.get("model"), message.get("safety_model")
+    drop_readings = message.get("drop_readings")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
         config,
         model if isinstance(model, dict) else None,
         safety_model if isinstance(safety_model, dict) else None,
+        drop_readings if isinstance(drop_readings, int) else None,
     )
 
 
@@ -639,8 +643,8 @@ class Mismatch:
     k: int
     t: float
     name: str
-    logged: float
-    recomputed: float
+    logged: float | None
+    recomputed: float | None
 
 
 @dataclass(frozen=True, slots=True)
@@ -661,6 +665,12 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     p, i, d terms must equal the logged ones exactly. The daemon resets the controller on its
     first step and after every hold, reload or return to auto, so where records are missing
     the check resumes at the next reset.
+
+    A period's `full_from` (the reading after which the controller asked for full power at
+    once) must be what `pid.full_power_now` gives on its readings, with the controller as the
+    step of the record before it left it; None where no step came before it. It is checked
+    where the config record in force says the daemon used today's rule (`drop_readings`):
+    an older daemon never acted inside a period and logged no such thing.
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -668,12 +678,15 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     control: config_module.ControlConfig | None = None
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
+    stepped: tuple[Controller, PeriodRecord] | None = None  # the last step, if fresh and known
+    drops_checked = False  # whether the daemon that logged these periods acted on drops so
     verified = unknown = 0
     for entry in entries:
         if isinstance(entry, LoggedConfig):
             if entry == in_force:
                 continue
             in_force = entry
+            drops_checked = entry.drop_readings == DROP_READINGS
             try:
                 reloaded = config_module.from_dict(entry.config).control
                 same_model = in_force_model == entry.model
@@ -693,11 +706,18 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None
             known = False
             if entry.reason == "start":
-                previous_k = None
+                previous_k, stepped = None, None
             continue
         record = entry
         if previous_k is not None and record.k != previous_k + 1:
             known = False
+            stepped = None
+        if drops_checked and (stepped is not None or known):
+            full_from = _full_from(stepped, record.readings)
+            if record.full_from != full_from:
+                mismatch = Mismatch(record.k, record.t, "full_from", record.full_from, full_from)
+                return Verification(verified, unknown, mismatch)
+        stepped = None
         previous_k = record.k
         if not (record.mode == "auto" and record.heater_allowed and record.pv is not None):
             continue
@@ -725,8 +745,25 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 return Verification(
                     verified, unknown, Mismatch(record.k, record.t, name, logged, recomputed)
                 )
+        stepped = (controller, record)
         verified += 1
     return Verification(verified, unknown, None)
+
+
+def _full_from(
+    stepped: tuple[Controller, PeriodRecord] | None, readings: list[float]
+) -> int | None:
+    """After how many of a period's `readings` the daemon asks for full power (see
+    `Daemon._act_on_drop`), given the controller and the record of the step before them."""
+    if stepped is None:
+        return None
+    controller, before = stepped
+    if before.pv is None:
+        return None
+    for n in range(1, len(readings) + 1):
+        if full_power_now(controller, before.setpoint, before.pv, readings[:n]):
+            return n
+    return None
 
 
 # -- what if ------------------------------------------------------------------------------------

@@ -96,6 +96,30 @@ class TimeProportionalPlanner:
             on_at, off_at = start, start + on_time
         return WindowPlan(start, self.window, on_at, off_at, duty, 100.0 * on / slots)
 
+    def full_from(self, plan: WindowPlan, at: float) -> WindowPlan:
+        """`plan` with the element on from `at` to the window's end (cold water seen inside
+        the window): from the next half-cycle of the window's grid, or on as it already is,
+        and not before the SSR has been off for the minimum off time (counted from the
+        window's start when it was off all along: it may have been on until then). When less
+        than the minimum on time is left, the plan stays as it was (the next window comes
+        at once). What was carried is forgotten: this window delivers more than was asked.
+        `applied` counts a pulse that already ended in this window as well."""
+        end = plan.start + plan.length
+        if plan.is_on(at):
+            on_at, before = plan.on_at, 0.0
+        else:
+            ended = plan.on_at < plan.off_at <= at
+            before = plan.on_time if ended else 0.0
+            off_since = plan.off_at if ended else plan.start
+            earliest = max(at, off_since + self.min_off_slots * self.half_cycle)
+            slots = math.ceil((earliest - plan.start) / self.half_cycle - 1e-9)
+            on_at = plan.start + slots * self.half_cycle
+            if end - on_at < max(self.min_on_slots, 1) * self.half_cycle - 1e-9:
+                return plan
+        self._carry = 0.0
+        applied = 100.0 * (before + end - on_at) / plan.length
+        return WindowPlan(plan.start, plan.length, on_at, end, 100.0, applied)
+
     def _deliverable(self, wanted: float) -> int:
         """Whole half-cycles nearest to `wanted` that respect the minimum on and off times."""
         slots = self.slots
