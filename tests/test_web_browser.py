@@ -209,13 +209,13 @@ def _decode_png(data: bytes) -> tuple[int, int, bytes]:
     return width, height, bytes(rgb)
 
 
-PROGRAM = {
-    "name": "Step mash",
+PROGRAM = {  # the last step of a three-step mash, as INTERFACES.md's status field has it
+    "name": "Hochkurz",
     "state": "holding",
-    "step": {"index": 1, "name": "Saccharification", "setpoint": 66.0},
+    "step": {"index": 2, "name": "Mash out", "setpoint": 76.0},
     "steps": 3,
-    "time_left_s": 1234.0,
-    "next": "Mash out",
+    "time_left_s": 600.0,
+    "next": None,
     "message": None,
     "starts_at": None,
 }
@@ -238,11 +238,11 @@ def test_a_running_program_is_shown_and_its_buttons_send_the_sockets_commands(
             for name in ("name", "state", "step", "left", "next")
         }
         assert shown == {
-            "name": "Step mash",
+            "name": "Hochkurz",
             "state": "holding",
-            "step": "2 of 3: Saccharification, 66 °C",
-            "left": "20 min 34 s",
-            "next": "Mash out",
+            "step": "3 of 3: Mash out, 76 °C",
+            "left": "10 min 0 s",
+            "next": "last step",
         }
         assert not page.is_visible("#program-confirm")
         with page.expect_request("**/api/command") as sent:
