@@ -345,6 +345,17 @@ def _parser() -> argparse.ArgumentParser:
     safe_off.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
     safe_off.set_defaults(func=cmd_safe_off)
 
+    web = sub.add_parser("web", help="serve the brewer's web page (talks to the daemon's socket)")
+    web.add_argument("--config", type=Path, help=f"config file (default: {DEFAULT_CONFIG})")
+    web.add_argument("--listen", help="HOST:PORT to listen on (default: the config's web.listen)")
+    web.add_argument(
+        "--hash-password",
+        action="store_true",
+        help="print the hash of a new password for web.password_hash, and exit",
+    )
+    _socket_argument(web)
+    web.set_defaults(func=cmd_web)
+
     check = sub.add_parser("check-config", help="validate a config file and print it")
     check.add_argument("file", nargs="?", type=Path, default=DEFAULT_CONFIG)
     check.add_argument(
@@ -606,7 +617,7 @@ def _serve_control(daemon: Daemon, path: Path) -> ControlServer:
     from hermsd.control.link import LoopLink
 
     link = LoopLink(daemon)
-    server = ControlServer(path, link.status_line)
+    server = ControlServer(path, link.status_line, link.history_line)
     try:
         server.start()
     except OSError as error:
@@ -1410,6 +1421,24 @@ def _state_argument(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
     )
+
+
+def cmd_web(args: argparse.Namespace) -> int:
+    try:
+        from hermsd.web import main as web
+    except ImportError as error:
+        raise UserError(
+            f"hermsd web needs the web extra ({error.name} is not installed): "
+            "install hermsd with `--extra web` (uv) or as `hermsd[web]` (pip)"
+        ) from None
+    try:
+        if args.hash_password:
+            return web.print_hash()
+        path = config_path(args.config, simulate=False)
+        assert path is not None
+        return web.run(config_module.load(path), default_socket_path(args.socket), args.listen)
+    except web.WebSetupError as error:
+        raise UserError(str(error)) from None
 
 
 def cmd_forget_model(args: argparse.Namespace) -> int:

@@ -237,6 +237,16 @@ class AlertsConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class WebConfig:
+    """The brewer's web page (`hermsd web`, a process of its own; the daemon ignores this)."""
+
+    listen: str = _text("127.0.0.1:8080", max_length=300)
+    password_hash: str | None = _text(None, null_means="no password: the page cannot change")
+    session_lifetime: float = _number(12.0, 0.1, 720, "h")
+    read_only_view: str = _choice("off", ("on", "off"))
+
+
+@dataclass(frozen=True, slots=True)
 class MqttConfig:
     """The bridge to an MQTT broker and Home Assistant (`hermsd mqtt`, docs/mqtt.md); a
     process of its own reads it, the control loop never does."""
@@ -267,6 +277,7 @@ class Config:
     log: LogConfig = field(default_factory=LogConfig)
     alerts: AlertsConfig = field(default_factory=AlertsConfig)
     mqtt: MqttConfig = field(default_factory=MqttConfig)
+    web: WebConfig = field(default_factory=WebConfig)
 
 
 DEFAULT = Config()
@@ -785,6 +796,36 @@ def _violations(config: Config) -> list[_Violation]:
             )
         )
     found.extend(_mqtt_violations(config.mqtt))
+    found.extend(_web_violations(config.web))
+    return found
+
+
+def split_listen(text: str) -> tuple[str, int] | None:
+    """`web.listen`'s host and port (`127.0.0.1:8080`, `[::1]:8080`), or None if malformed."""
+    host, colon, port = text.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not colon or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        return None
+    return host, int(port)
+
+
+def _web_violations(web: WebConfig) -> list[_Violation]:
+    from hermsd.web.passwords import EXAMPLE, parse_hash
+
+    found: list[_Violation] = []
+    if split_listen(web.listen) is None:
+        found.append(
+            _Violation(
+                ("web.listen",),
+                f"{_quote(web.listen)} is not HOST:PORT (e.g. 127.0.0.1:8080, or 0.0.0.0:8080 "
+                "for every interface; a port 1 to 65535)",
+            )
+        )
+    if web.password_hash is not None and parse_hash(web.password_hash) is None:
+        found.append(
+            _Violation(("web.password_hash",), f"not a password hash (expected {EXAMPLE})")
+        )
     return found
 
 

@@ -4,8 +4,9 @@
 server thread has parsed, checks each against the running config as strictly as the file is
 checked (`config.runtime_problems`: a clear error, nothing applied), and hands the valid ones
 to the daemon's own operator actions, logged as coming from the socket. `period` runs after
-the period's record is made: it publishes the snapshot `status` is served from and answers
-the commands of this boundary.
+the period's record is made: it publishes the snapshot `status` is served from, adds the
+period to the history ring (`history.py`, for `history`) and answers the commands of this
+boundary.
 
 Runtime changes and the config file (one rule): a `set` overrides the running value until
 the config file's same key is next edited; an edit of that key wins, being the newer intent.
@@ -28,9 +29,11 @@ from typing import Any, Protocol
 
 from hermsd import config as config_module
 from hermsd.config import Config
+from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
 from hermsd.control.protocol import (
     VERSION,
     Command,
+    History,
     ProgramAction,
     ProgramStart,
     ResetAlarms,
@@ -87,6 +90,8 @@ class LoopLink:
         self._answering: list[Pending] = []
         self._runtime: set[str] = set()  # keys set at runtime since the file last changed them
         self._config = daemon.config
+        self._period = daemon.config.control.period  # fixed until a restart
+        self.history = HistoryRing(capacity_for(self._period))
 
     def attach(self, server: CommandSource) -> None:
         self.server = server
@@ -128,6 +133,7 @@ class LoopLink:
             frozenset(self._runtime),
             daemon.program.status(daemon.clock.wall_ns()),
         )
+        self.history.append(*encode_row(record))
         if self._answering:
             reply = None
             for pending in self._answering:
@@ -203,6 +209,11 @@ class LoopLink:
             if self._encoded is None or self._encoded[0] is not snapshot:
                 self._encoded = (snapshot, encode(self._status_message(snapshot)))
             return self._encoded[1]
+
+    def history_line(self, request: History) -> bytes:
+        """A page of the history (rows after `request.since`), encoded."""
+        rows, more = self.history.page(request.since, request.limit)
+        return page_line(rows, more, self._period)
 
     @staticmethod
     def _status_message(snapshot: Snapshot) -> dict[str, Any]:

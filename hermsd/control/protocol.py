@@ -17,6 +17,7 @@ the protocol version it speaks and a command:
                                      local HH:MM, null or absent: the program's own)
     {"v": 1, "cmd": "program", "action": "next" | "pause" | "resume" | "stop"}
     {"v": 1, "cmd": "confirm"}                (answers the step that waits for the brewer)
+    {"v": 1, "cmd": "history", "since": 1234.5, "limit": 500}   (both optional)
 
 Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": false,
 "error": "one line: what is wrong (what would be right)"}` and changes nothing. `status` is
@@ -37,6 +38,16 @@ against the running config as strictly as the config file is, applied at the nex
 period boundary, logged as an operator action, and answered after that boundary with the
 same fields as `status` (so the reply shows the change in force).
 
+`history` pages through the periods of the last 24 hours, kept in memory by the daemon for
+the web page's chart (`hermsd/control/history.py`), and is answered at once like `status`:
+the rows with `t` after `since` (from the oldest kept when `since` is null or absent), at
+most `limit` of them (1 to 2000, default 2000), oldest first:
+`{"v": 1, "ok": true, "period": 5.0, "fields": ["t", "pv", "setpoint", "output",
+"applied"], "more": false, "rows": [[1230.0, 66.062, 66.0, 12.5, 12.5], ...]}`. Each row
+holds the fields in that order (`t` in the daemon's seconds as `status`'s `t`, `pv` null
+when unknown, numbers rounded to 0.001); `more` is true when later rows remain: ask again
+with `since` set to the last row's `t`. The daemon keeps no history across a restart.
+
 A line longer than MAX_LINE, or one that is not a JSON object, is refused; an over-long line
 also ends the connection (its rest cannot be told from the next request).
 """
@@ -55,6 +66,8 @@ MAX_LINE = 1 << 16
 """Bytes in a request line, newline included: a request is well under 200, a program's
 `start` at most about 40 kB (50 steps, each name and message at their longest in 4-byte
 UTF-8 characters)."""
+MAX_PAGE = 2000
+"""Rows in one `history` reply: about 90 kB, well under a client's 1 MiB reply limit."""
 
 
 class ProtocolError(ValueError):
@@ -93,7 +106,13 @@ class ProgramAction:
     action: str  # next, pause, resume, stop; or confirm (the `confirm` command)
 
 
-Request = Status | SetSetpoint | SetMode | ResetAlarms | ProgramStart | ProgramAction
+@dataclass(frozen=True, slots=True)
+class History:
+    since: float | None = None  # rows after this t; None: from the oldest kept
+    limit: int = MAX_PAGE
+
+
+Request = Status | SetSetpoint | SetMode | ResetAlarms | ProgramStart | ProgramAction | History
 Command = SetSetpoint | SetMode | ResetAlarms | ProgramStart | ProgramAction
 """The requests that change something: applied by the loop at a period boundary."""
 
@@ -124,6 +143,9 @@ def parse_request(line: bytes) -> Request:
     if command in ("status", "reset-alarm"):
         _no_other_fields(command, fields, set())
         return Status() if command == "status" else ResetAlarms()
+    if command == "history":
+        _no_other_fields(command, fields, {"since", "limit"})
+        return _history(data)
     if command == "set":
         if fields == {"setpoint"}:
             return SetSetpoint(_number(data, "setpoint"))
@@ -143,7 +165,8 @@ def parse_request(line: bytes) -> Request:
     if command == "program":
         return _program_request(data, fields)
     raise ProtocolError(
-        f"unknown command {command!r} (one of 'status', 'set', 'reset-alarm', 'program', 'confirm')"
+        f"unknown command {command!r} (one of 'status', 'set', 'reset-alarm', 'program', "
+        "'confirm', 'history')"
     )
 
 
@@ -173,6 +196,14 @@ def _program_request(data: dict[str, Any], fields: set[str]) -> Request:
     except ProgramError as error:
         raise ProtocolError(f"program: {one_line(error)}") from None
     return ProgramStart(program, ready_by)
+
+
+def _history(data: dict[str, Any]) -> History:
+    since = None if data.get("since") is None else _number(data, "since")
+    limit = data.get("limit", MAX_PAGE)
+    if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_PAGE:
+        raise ProtocolError(f"limit: expected a whole number 1 to {MAX_PAGE}, got {limit!r}")
+    return History(since, limit)
 
 
 def _no_other_fields(command: str, fields: set[str], allowed: set[str]) -> None:
@@ -212,6 +243,8 @@ def request_message(request: Request) -> dict[str, Any]:
             message["cmd"] = "confirm"
         else:
             message.update(cmd="program", action=request.action)
+    elif isinstance(request, History):
+        message.update(cmd="history", since=request.since, limit=request.limit)
     else:
         message.update(cmd="set", mode=request.mode)
         if request.output is not None:
