@@ -336,6 +336,10 @@ class Daemon:
         self._readings: list[float] = []
         self._stepped = False  # the controller stepped at the last boundary (its state is fresh)
         self._full_from: int | None = None  # see PeriodRecord.full_from
+        # The element went to full power within this period (acted on `_full_from`): what the
+        # supervisor and the status are told was asked. The controller's output stays its own,
+        # so a manual switch or a bumpless restart never takes the 100 % for the brewer's.
+        self._full_power = False
         self._held = True  # nothing to continue from until the first good period
         self._resume_output = 0.0
         self._window = _Window()
@@ -859,6 +863,11 @@ class Daemon:
         self._drain_alarms(now)
         self._act_on_drop(now)
 
+    def _asked(self) -> float:
+        """The output the element is driven at now: the controller's, or full power since a
+        reading in this period showed cold water."""
+        return 100.0 if self._full_power else self.output
+
     def _act_on_drop(self, now: float) -> None:
         """Full power from this reading on, not from the next period, when the readings so
         far show cold water that the controller answers with it (`pid.full_power_now`).
@@ -874,7 +883,7 @@ class Daemon:
         self._full_from = len(self._readings)
         if not self.supervisor.heater_allowed:
             return
-        self.output = 100.0  # in force until the next step
+        self._full_power = True  # in force until the next step
         drop = self._pv - self._readings[-1]
         self._event(logging.INFO, f"PV fell {drop:.2f} °C within the period: full power", now)
         window = self._window
@@ -940,13 +949,14 @@ class Daemon:
         self._pending.clear()
         readings, self._readings = self._readings, []
         full_from, self._full_from = self._full_from, None
+        asked, self._full_power = self._asked(), False
         self._stepped = False
         pv = period_value(readings)
         if pv is None:
             pv = self._last_celsius  # a slow read interval: the latest accepted value
         self._pv = pv
         applied = self._applied(now)
-        sup.period(now, pv, self.output, applied)
+        sup.period(now, pv, asked, applied)
         self._drain_alarms(now)
         standby = self._program_period(now, pv) and self.mode == "auto"
         state = "ok"
@@ -1112,7 +1122,7 @@ class Daemon:
             state += f", log failing: {self._log_failing}"
         if self.program.active:
             state += f", {self.program.status_words(self.clock.wall_ns())}"
-        return status_line(self.config.tun.name, self._pv, self.setpoint, self.output, state)
+        return status_line(self.config.tun.name, self._pv, self.setpoint, self._asked(), state)
 
     def _check_log(self, t: float) -> None:
         """Say that the log cannot be written at once, every minute while it lasts, and when
@@ -1193,7 +1203,7 @@ class Daemon:
     def _alert(self, event: str, message: str, t: float, kind: str = "") -> None:
         """Hand an event to the alerts worker, with what the loop knows now."""
         name, wall_ns = self.config.tun.name, self.clock.wall_ns()
-        output = self.output if self.supervisor.heater_allowed else 0.0  # the output in force
+        output = self._asked() if self.supervisor.heater_allowed else 0.0  # the output in force
         self.alerts.send(
             Event(event, message, name, wall_ns, kind, self._pv, self.setpoint, output), t
         )
