@@ -270,6 +270,7 @@ class _Window:
 
     plan: WindowPlan | None = None
     timers: list[Timer] = field(default_factory=list)
+    cut: bool = False  # the heater was forced off in it: nothing heats again before the next
 
     def cancel(self) -> None:
         for timer in self.timers:
@@ -881,15 +882,15 @@ class Daemon:
         if not pid.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
             return
         self._full_from = len(self._readings)
-        if not self.supervisor.heater_allowed:
+        window = self._window
+        # A window cut by a forced off left the contactor open: nothing heats before the next.
+        if not self.supervisor.heater_allowed or window.plan is None or window.cut:
             return
         self._full_power = True  # in force until the next step
         drop = self._pv - self._readings[-1]
         self._event(logging.INFO, f"PV fell {drop:.2f} °C within the period: full power", now)
-        window = self._window
-        if window.plan is not None:
-            window.cancel()
-            self._arm(self.planner.full_from(window.plan, now), now)
+        window.cancel()
+        self._arm(self.planner.full_from(window.plan, now), now)
 
     def _read_now(self, now: float) -> None:
         sup = self.supervisor
@@ -1019,6 +1020,7 @@ class Daemon:
     def _on_window(self, deadline: float, now: float) -> None:
         window = self._window
         window.cancel()
+        window.cut = False
         allowed = self.supervisor.heater_allowed
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(allowed)
@@ -1088,6 +1090,7 @@ class Daemon:
         if window.plan is not None:
             window.plan = cut(window.plan, now)
         window.cancel()
+        window.cut = True
         self.planner.reset()
         self.outputs.ssr.set(False)
         self._set_ssr_accounting(False, now)
