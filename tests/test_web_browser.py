@@ -1,7 +1,8 @@
 """The real page in headless Chromium (Debian's `chromium`, driven by Playwright) against a
 simulated daemon behind a real control socket: the chart and temperature follow the loop, a
-change with a login is applied at the first period boundary, without one it is refused, and
-the page at phone size shows what matters.
+change with a login is applied at the first period boundary, without one it is refused, the
+page at phone size shows what matters, and a mash program started from the page (a file or
+pasted YAML, checked before anything is sent) is shown and steered by its buttons.
 
 Outside CI a machine without /usr/bin/chromium skips these tests (`apt-get install
 chromium`); in CI (CI set) it fails them, as `.ci/run` installs it."""
@@ -210,55 +211,6 @@ def _decode_png(data: bytes) -> tuple[int, int, bytes]:
     return width, height, bytes(rgb)
 
 
-PROGRAM = {  # the last step of a three-step mash, as INTERFACES.md's status field has it
-    "name": "Hochkurz",
-    "state": "holding",
-    "step": {"index": 2, "name": "Mash out", "setpoint": 76.0},
-    "steps": 3,
-    "time_left_s": 600.0,
-    "next": None,
-    "message": None,
-    "starts_at": None,
-}
-
-
-def test_a_running_program_is_shown_and_its_buttons_send_the_sockets_commands(
-    page: Page, live: Site
-) -> None:
-    _log_in(page)
-    assert not page.is_visible("#program-box")  # this daemon's status has no program
-    with live.held() as last:  # no new period may redraw the page meanwhile
-        _until(page, f"window.lastStatus.t === {last}")
-        status = page.evaluate("window.lastStatus")
-        waiting = {**PROGRAM, "state": "waiting", "message": "Mash in", "time_left_s": None}
-        page.evaluate(
-            "(status) => onEvent({status, rows: [], offset: 0})", {**status, "program": PROGRAM}
-        )
-        shown = {
-            name: page.text_content(f"#program-{name}")
-            for name in ("name", "state", "step", "left", "next")
-        }
-        assert shown == {
-            "name": "Hochkurz",
-            "state": "holding",
-            "step": "3 of 3: Mash out, 76 °C",
-            "left": "10 min 0 s",
-            "next": "last step",
-        }
-        assert not page.is_visible("#program-confirm")
-        with page.expect_request("**/api/command") as sent:
-            page.click("#program-pause")
-        assert sent.value.post_data_json == {"cmd": "program", "action": "pause"}
-
-        page.evaluate(
-            "(status) => onEvent({status, rows: [], offset: 0})", {**status, "program": waiting}
-        )
-        assert page.text_content("#program-message") == "Waiting: Mash in"
-        with page.expect_request("**/api/command") as sent:
-            page.click("#program-confirm")
-        assert sent.value.post_data_json == {"cmd": "confirm"}
-
-
 def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
     _log_in(page)
     assert not page.is_visible("#alarm-box")
@@ -328,9 +280,28 @@ def test_a_program_started_from_the_page_runs_and_its_buttons_steer_it(
             assert pv is not None
             # In band at once (BAND 0.5 °C), and the tun, slowly warming, stays in it.
             setpoint = round(pv + 0.45, 1)
-            page.fill("#program-yaml", _program_yaml(setpoint))
-            page.fill("#program-ready-by", "")
+            # Pasted with a mistake: where it is, on the page; nothing reaches the daemon.
+            mistaken = _program_yaml(setpoint).replace("hold: 10m", "hold: ten")
+            page.fill("#program-yaml", mistaken)
+            page.click("#program-start")
+            page.wait_for_selector("#program-problems", state="visible", timeout=WAIT_MS)
+            problems = page.text_content("#program-problems") or ""
+            column = mistaken.splitlines()[3].index("ten") + 1  # the Rest step, line 4
+            assert problems.startswith(f"pasted.yaml:4:{column}: steps[1].hold: 'ten' is not")
+            assert "60m" in problems  # what would be right
+            assert page.text_content("#message") == "the program has errors: nothing was sent"
+            assert not live.server._commands and not live.daemon.program.active
+            # The program file picked on the phone.
+            page.set_input_files(
+                "#program-file",
+                {
+                    "name": "web-mash.yaml",
+                    "mimeType": "text/yaml",
+                    "buffer": _program_yaml(setpoint).encode(),
+                },
+            )
             assert _click_at_boundary(page, live, "#program-start") == "Strike"
+            assert not page.is_visible("#program-problems")
             assert page.text_content("#message") == "program start: done"
             assert page.is_visible("#program-box")
             assert page.text_content("#program-name") == "Web mash"
