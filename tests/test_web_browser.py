@@ -315,17 +315,20 @@ def test_a_program_started_from_the_page_runs_and_its_buttons_steer_it(
             # Without a login the same commands are refused and change nothing.
             stranger = browser.new_context().new_page()
             stranger.goto(live.url)
-            for body in (
-                {"cmd": "confirm"},
-                {"cmd": "program", "action": "stop"},
-            ):
+            actions = ("next", "pause", "resume", "stop")
+            for path, body in [
+                ("/api/command", {"cmd": "confirm"}),
+                *(("/api/command", {"cmd": "program", "action": a}) for a in actions),
+                ("/api/program", {"yaml": _program_yaml(setpoint)}),
+            ]:
                 reply = stranger.evaluate(
-                    """(body) => fetch('/api/command', {method: 'POST', headers:
+                    """([path, body]) => fetch(path, {method: 'POST', headers:
                     {'Content-Type': 'application/json'}, body: JSON.stringify(body)})
                     .then(async (r) => [r.status, (await r.json()).error])""",
-                    body,
+                    [path, body],
                 )
-                assert reply == [401, "log in to change anything"]
+                assert reply == [401, "log in to change anything"], body
+            assert not live.server._commands  # nothing reached the daemon
             stranger.context.close()
 
             assert _click_at_boundary(page, live, "#program-confirm") == "Rest"
