@@ -1,5 +1,6 @@
 """`hermsd web` over HTTP against a simulated daemon: logins, sessions, CSRF, the login rate
-limits, bad input, the read-only view; and the password hash and the `web` config section."""
+limits, bad input, the read-only view, a program's start; and the password hash and the `web`
+config section."""
 
 from __future__ import annotations
 
