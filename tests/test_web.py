@@ -12,11 +12,13 @@ from pathlib import Path
 import httpx
 import pytest
 from test_reload import BASE, edited
-from webpage import PASSWORD, TIMEOUT, Site, site
+from webpage import PASSWORD, PERIOD, TIMEOUT, Site, site
 
 from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.config import ConfigError, split_listen
+from hermsd.control.client import TIMEOUT as TIMEOUT_LONGEST
+from hermsd.control.client import unanswered
 from hermsd.web.app import command_message
 from hermsd.web.auth import (
     GLOBAL_BURST,
@@ -29,6 +31,7 @@ from hermsd.web.auth import (
 from hermsd.web.hub import PAGE_FIELDS, Hub
 from hermsd.web.main import WebSetupError, listening_socket, settings_from
 from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
+from hermsd.web.socket_client import OutcomeUnknown, ask
 
 
 @pytest.fixture(scope="module")
@@ -353,3 +356,47 @@ def test_hash_password_prints_a_hash_the_config_takes(
     stored = parse_hash(printed)
     assert stored is not None and verify_password("a long enough password", stored)
     config_module.parse(edited(BASE, web__password_hash=f'"{printed}"'))
+
+
+# -- a command the daemon does not answer in time --------------------------------------------
+
+
+def test_a_command_sent_and_not_answered_in_time_is_said_unknown_not_failed(
+    tmp_path: Path,
+) -> None:
+    async def unanswered() -> str:
+        async def take(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            await reader.readline()  # taken, and never answered (a period boundary far off)
+            await asyncio.sleep(TIMEOUT)
+            writer.close()
+
+        server = await asyncio.start_unix_server(take, path=tmp_path / "control.sock")
+        async with server:
+            with pytest.raises(OutcomeUnknown) as caught:
+                await ask(tmp_path / "control.sock", {"cmd": "confirm"}, timeout=0.05)
+        return str(caught.value)
+
+    said = asyncio.run(unanswered())
+    assert "outcome is unknown, see the status" in said
+
+
+def test_the_page_waits_two_periods_for_a_command_and_says_504_when_unsure(
+    live: Site, logged_in: LoggedIn, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    waited: list[float] = []
+
+    async def no_answer(path: Path, message: dict[str, object], timeout: float) -> None:
+        waited.append(timeout)
+        raise OutcomeUnknown(unanswered(timeout))
+
+    monkeypatch.setattr("hermsd.web.app.ask", no_answer)
+    client, token = logged_in
+    reply = client.post(
+        "/api/command", json={"cmd": "program", "action": "next"}, headers={"x-csrf-token": token}
+    )
+    assert waited == [2 * PERIOD + 5]  # the next boundary, after the one under way, and slack
+    assert reply.status_code == 504 and "outcome is unknown" in reply.json()["error"]
+
+
+def test_without_a_known_period_a_command_waits_for_the_longest_one() -> None:
+    assert TIMEOUT_LONGEST == 2 * 60 + 5  # control.period is at most 60 s

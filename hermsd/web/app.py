@@ -41,6 +41,7 @@ from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from hermsd.control.client import LONGEST_PERIOD, command_timeout
 from hermsd.control.protocol import (
     History,
     ProtocolError,
@@ -51,7 +52,7 @@ from hermsd.control.protocol import (
 from hermsd.web.auth import LoginLimiter, Session, Sessions, csrf_matches
 from hermsd.web.hub import Hub, TooManyPages, page_status
 from hermsd.web.passwords import PasswordHash, verify_password
-from hermsd.web.socket_client import DaemonUnavailable, ask
+from hermsd.web.socket_client import DaemonUnavailable, OutcomeUnknown, ask
 
 COOKIE = "hermsd_session"
 MAX_BODY = 4096  # bytes of a POST body: a command is under 100
@@ -229,8 +230,11 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
         if not csrf_matches(session, request.headers.get("x-csrf-token")):
             return _error(403, "the page's security token is missing or old: reload the page")
         message = command_message(data)
+        period = LONGEST_PERIOD if hub.period is None else hub.period
         try:
-            reply = await ask(settings.socket, message)
+            reply = await ask(settings.socket, message, command_timeout(period))
+        except OutcomeUnknown as error:
+            return _error(504, str(error))
         except DaemonUnavailable as error:
             return _error(503, str(error))
         if not reply["ok"]:
