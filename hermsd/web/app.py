@@ -216,8 +216,13 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
             queue = hub.open_page(since)
         except TooManyPages as error:
             return _error(503, str(error))
+        sid = request.cookies.get(COOKIE)
+
+        def still_allowed() -> bool:
+            return settings.read_only_view or sessions.alive(sid, clock())
+
         return StreamingResponse(
-            _stream(hub, queue),
+            _stream(hub, queue, still_allowed),
             media_type="text/event-stream",
             headers={"x-accel-buffering": "no"},
         )
@@ -322,15 +327,18 @@ async def _json_body(request: Request) -> dict[str, Any]:
     return data
 
 
-async def _stream(hub: Hub, queue: asyncio.Queue[bytes | None]) -> AsyncIterator[bytes]:
+async def _stream(
+    hub: Hub, queue: asyncio.Queue[bytes | None], allowed: Callable[[], bool]
+) -> AsyncIterator[bytes]:
+    """The page's events, ended (nothing more sent) once its login is over: checked before
+    each event and keepalive, so within KEEPALIVE_S of a logout or expiry."""
     try:
         while True:
             try:
                 event = await asyncio.wait_for(queue.get(), KEEPALIVE_S)
             except TimeoutError:
-                yield b": keepalive\n\n"
-                continue
-            if event is None:
+                event = b": keepalive\n\n"
+            if event is None or not allowed():
                 return
             yield event
     finally:
