@@ -12,6 +12,11 @@ edge p99 ≤ 10 ms.
 
     uv run python bench/socket_load.py [--seconds 60] [--rate 1000] [--write]
 
+With --program the client sends, instead of `status`, the costliest `program start` a line
+can hold (bench/program_parse.py's 64 KiB refused program), as fast as it is answered up to
+the rate; the server thread checks each while the loop runs. (Its rows are printed, not
+written: bench/RESULTS.md compares them between two builds.)
+
 (Not `bench/socket.py`: a script's directory comes first on sys.path, and a file named
 socket.py there would stand in for the standard library's socket module.)
 """
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import multiprocessing
 import os
 import socket
@@ -31,6 +37,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from program_parse import longest_refused  # bench/program_parse.py, beside this file
 from timing import measure, timing_table  # bench/timing.py, beside this file
 
 from hermsd.control.link import LoopLink
@@ -40,17 +47,20 @@ from hermsd.realtime import LOOP_PRIORITY
 from hermsd.scheduler import percentile
 
 STATUS = b'{"v": 1, "cmd": "status"}\n'
+PROGRAM = {"v": 1, "cmd": "program", "action": "start", "program": longest_refused()}
+PROGRAM_START = json.dumps(PROGRAM).encode() + b"\n"
 
 
-def hammer(path: str, rate: float, stop_at: float, results: Connection) -> None:
-    """`rate` status requests a second on fresh connections, on an absolute schedule."""
+def hammer(path: str, rate: float, stop_at: float, request: bytes, results: Connection) -> None:
+    """`rate` requests a second on fresh connections, on an absolute schedule."""
+    answer = b'"ok": true' if request == STATUS else b'"error": "program: '
     latencies: list[float] = []
     failures: dict[str, int] = {}
     start = time.monotonic()
     k = 0
     while True:
         due = start + k / rate
-        if due >= stop_at:
+        if due >= stop_at or time.monotonic() >= stop_at:  # behind the rate: stop on time
             break
         delay = due - time.monotonic()
         if delay > 0:
@@ -61,14 +71,14 @@ def hammer(path: str, rate: float, stop_at: float, results: Connection) -> None:
             with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
                 sock.settimeout(2.0)
                 sock.connect(path)
-                sock.sendall(STATUS)
+                sock.sendall(request)
                 reply = b""
                 while not reply.endswith(b"\n"):
                     chunk = sock.recv(65536)
                     if not chunk:
                         break
                     reply += chunk
-            if b'"ok": true' not in reply:
+            if answer not in reply:
                 why = reply.decode(errors="replace").strip() or "closed without a reply"
                 failures[why] = failures.get(why, 0) + 1
                 continue
@@ -82,7 +92,9 @@ def hammer(path: str, rate: float, stop_at: float, results: Connection) -> None:
 
 
 @contextlib.contextmanager
-def served(daemon: Daemon, path: Path, rate: float | None, seconds: float) -> Iterator[None]:
+def served(
+    daemon: Daemon, path: Path, rate: float | None, seconds: float, request: bytes
+) -> Iterator[None]:
     """The control socket beside the loop, and (with a rate) a client process hammering it."""
     link = LoopLink(daemon)
     server = ControlServer(path, link.status_line, link.history_line)
@@ -92,7 +104,9 @@ def served(daemon: Daemon, path: Path, rate: float | None, seconds: float) -> It
     receiver, sender = multiprocessing.Pipe(duplex=False)
     if rate is not None:
         stop_at = time.monotonic() + seconds
-        client = multiprocessing.Process(target=hammer, args=(str(path), rate, stop_at, sender))
+        client = multiprocessing.Process(
+            target=hammer, args=(str(path), rate, stop_at, request, sender)
+        )
         client.start()
     try:
         yield
@@ -127,10 +141,16 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--rate", type=float, default=1000.0, help="status requests a second")
     parser.add_argument("--dir", type=Path, default=Path("/var/tmp"), help="disk for the logs")
-    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md (status)")
+    parser.add_argument("--program", action="store_true", help="send 64 KiB program starts")
     args = parser.parse_args()
     realtime_allowed = os.geteuid() == 0
-    runs = [("no clients", None, False), (f"{args.rate:.0f} status/s", args.rate, False)]
+    request, loaded = (
+        (PROGRAM_START, f"≤ {args.rate:.0f} program starts/s")
+        if args.program
+        else (STATUS, f"{args.rate:.0f} status/s")
+    )
+    runs = [("no clients", None, False), (loaded, args.rate, False)]
     if realtime_allowed:
         runs += [(f"{name}, real-time loop", rate, True) for name, rate, _ in runs]
     rows: dict[str, dict[str, float]] = {}
@@ -140,14 +160,14 @@ def main() -> int:
             path = Path(scratch, f"control{index}.sock")
 
             def beside(daemon: Daemon, path: Path = path, rate: float | None = rate) -> Any:
-                return served(daemon, path, rate, args.seconds)
+                return served(daemon, path, rate, args.seconds, request)
 
             rows[name] = measure(args.seconds, Path(scratch, f"log{index}"), realtime, beside)
             rows[name].update(LOAD)
             print(name, rows[name], flush=True)
-    table = _table(rows) + "\n\n" + _ratios(rows, args.rate)
+    table = _table(rows) + "\n\n" + _ratios(rows, runs[1][0])
     print(table)
-    if args.write:
+    if args.write and not args.program:
         _write_results(args.seconds, args.rate, args.dir, table)
     return 0
 
@@ -172,11 +192,11 @@ def _write_results(seconds: float, rate: float, directory: Path, table: str) -> 
     _replace_section(Path(__file__).with_name("RESULTS.md"), "## Control socket:", text)
 
 
-def _ratios(rows: dict[str, dict[str, float]], rate: float) -> str:
+def _ratios(rows: dict[str, dict[str, float]], loaded_name: str) -> str:
     """The loaded rows' p99s over the unloaded ones' of the same priority."""
     lines = []
     for suffix in ("", ", real-time loop"):
-        quiet, loaded = rows.get(f"no clients{suffix}"), rows.get(f"{rate:.0f} status/s{suffix}")
+        quiet, loaded = rows.get(f"no clients{suffix}"), rows.get(f"{loaded_name}{suffix}")
         if quiet is None or loaded is None:
             continue
         period = loaded["period_p99_ms"] / max(quiet["period_p99_ms"], 1e-9)

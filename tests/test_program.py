@@ -132,6 +132,56 @@ def test_what_a_program_is_not(text: str, says: str) -> None:
     assert str(caught.value).startswith(says)
 
 
+def _said(data: object) -> str:
+    with pytest.raises(ProgramError) as caught:
+        model.from_data(data)
+    return model.one_line(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("file_text", "data"),
+    [
+        (
+            "steps:\n  - {name: '66', setpoint: '66', hold: 1m, ramp: 0, confirm: 5}\n",
+            {"steps": [{"name": "66", "setpoint": "66", "hold": 60, "ramp": 0, "confirm": 5}]},
+        ),
+        (
+            "name: [1]\nsteps:\n  - {name: A, setpoint: 101, hold: true, colour: red}\n",
+            {"name": [1], "steps": [{"name": "A", "setpoint": 101, "hold": True, "colour": "red"}]},
+        ),
+        ("steps: 3\nready_by: '7:00'\n", {"steps": 3, "ready_by": "7:00"}),
+    ],
+)
+def test_a_program_sent_as_data_is_refused_in_the_files_words(
+    file_text: str, data: dict[str, object]
+) -> None:
+    with pytest.raises(ProgramError) as from_file:
+        model.parse(file_text, "program")
+    with pytest.raises(ProgramError) as from_data:
+        model.from_data(data)
+    said = [
+        sorted((p.key_path, p.message) for p in e.value.problems) for e in (from_data, from_file)
+    ]
+    assert said[0] == said[1]
+
+
+def test_a_repeated_step_name_sent_as_data_points_at_the_step_not_a_line() -> None:
+    step = {"name": "A", "setpoint": 60, "hold": 60}
+    assert _said({"steps": [step, step]}) == (
+        "steps[1].name: 'A' names an earlier step too (steps[0]; give each step its own name)"
+    )
+
+
+def test_deeply_nested_data_is_refused_without_walking_it() -> None:
+    nested: object = "x"
+    for _ in range(5000):  # deeper than the interpreter's recursion limit
+        nested = [nested]
+    said = _said({"steps": [{"name": nested, "setpoint": 60, "hold": 60}]})
+    assert said == (
+        "steps[0].name: expected a single value, got a list (text of 1 to 40 printable characters)"
+    )
+
+
 def test_fifty_steps_at_most() -> None:
     steps = "".join(f"  - {{name: s{i}, setpoint: 60, hold: 1m}}\n" for i in range(51))
     with pytest.raises(ProgramError, match="expected a list of 1 to 50 steps"):

@@ -13,11 +13,13 @@ from pathlib import Path
 import httpx
 import pytest
 from test_reload import BASE, edited
-from webpage import PASSWORD, TIMEOUT, Site, site
+from webpage import PASSWORD, PERIOD, TIMEOUT, Site, site
 
 from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.config import ConfigError, split_listen
+from hermsd.control.client import TIMEOUT as TIMEOUT_LONGEST
+from hermsd.control.client import unanswered
 from hermsd.web.app import command_message
 from hermsd.web.auth import (
     GLOBAL_BURST,
@@ -30,6 +32,7 @@ from hermsd.web.auth import (
 from hermsd.web.hub import PAGE_FIELDS, Hub
 from hermsd.web.main import WebSetupError, listening_socket, settings_from
 from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
+from hermsd.web.socket_client import OutcomeUnknown, ask
 
 
 @pytest.fixture(scope="module")
@@ -419,3 +422,106 @@ def test_a_program_starts_only_with_login_and_token_and_can_be_stopped(
         stop = {"cmd": "program", "action": "stop"}
         assert client.post("/api/command", json=stop, headers=headers).status_code == 200
     assert not live.daemon.program.active
+
+
+# -- a command the daemon does not answer in time --------------------------------------------
+
+
+def test_a_command_sent_and_not_answered_in_time_is_said_unknown_not_failed(
+    tmp_path: Path,
+) -> None:
+    async def unanswered() -> str:
+        async def take(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            await reader.readline()  # taken, and never answered (a period boundary far off)
+            await asyncio.sleep(TIMEOUT)
+            writer.close()
+
+        server = await asyncio.start_unix_server(take, path=tmp_path / "control.sock")
+        async with server:
+            with pytest.raises(OutcomeUnknown) as caught:
+                await ask(tmp_path / "control.sock", {"cmd": "confirm"}, timeout=0.05)
+        return str(caught.value)
+
+    said = asyncio.run(unanswered())
+    assert "outcome is unknown, see the status" in said
+
+
+def test_the_page_waits_two_periods_for_a_command_and_says_504_when_unsure(
+    live: Site, logged_in: LoggedIn, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    waited: list[float] = []
+
+    async def no_answer(path: Path, message: dict[str, object], timeout: float) -> None:
+        waited.append(timeout)
+        raise OutcomeUnknown(unanswered(timeout))
+
+    monkeypatch.setattr("hermsd.web.app.ask", no_answer)
+    client, token = logged_in
+    reply = client.post(
+        "/api/command", json={"cmd": "program", "action": "next"}, headers={"x-csrf-token": token}
+    )
+    assert waited == [2 * PERIOD + 5]  # the next boundary, after the one under way, and slack
+    assert reply.status_code == 504 and "outcome is unknown" in reply.json()["error"]
+
+
+def test_without_a_known_period_a_command_waits_for_the_longest_one() -> None:
+    assert TIMEOUT_LONGEST == 2 * 60 + 5  # control.period is at most 60 s
+
+
+# -- the event stream and the poll, past the unexpected ---------------------------------------
+
+
+def test_a_logout_ends_the_pages_event_stream(tmp_path: Path) -> None:
+    with site(tmp_path, read_only_view=False) as closed, _client(closed) as client:
+        token = client.post("/api/login", json={"password": PASSWORD}).json()["csrf"]
+        with client.stream("GET", "/api/events") as stream:
+            lines = stream.iter_lines()
+            while not next(lines).startswith("data: "):
+                pass
+            with closed.held() as last_before, _client(closed) as other:
+                other.cookies = client.cookies
+                assert other.post(
+                    "/api/logout", json={}, headers={"x-csrf-token": token}
+                ).is_success
+            seen_after = []
+            for line in lines:  # a period every 0.05 s: never ends if the stream goes on
+                if line.startswith("data: "):
+                    seen_after.append(json.loads(line[len("data: ") :])["status"]["t"])
+                    assert len(seen_after) < 100
+    # the stream ended, and no period run after the logout reached the page
+    assert all(t <= last_before for t in seen_after)
+
+
+def test_an_expired_login_is_not_alive_and_watching_does_not_renew_it() -> None:
+    sessions = Sessions(lifetime=60.0)
+    sid, _session = sessions.create(now=0.0)
+    assert sessions.alive(sid, 60.0) and sessions.alive(sid, 60.0)
+    assert not sessions.alive(sid, 60.5)  # alive() counted no use at 60 s
+    assert not sessions.alive("forged", 1.0) and not sessions.alive(None, 1.0)
+
+
+def test_a_reply_the_hub_cannot_read_is_logged_and_the_polling_goes_on(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    async def polled_on() -> int:
+        asked: list[dict[str, object]] = []
+        third = asyncio.Event()
+
+        async def strange(path: Path, message: dict[str, object]) -> dict[str, object]:
+            asked.append(message)
+            if len(asked) == 3:
+                third.set()
+            return {"ok": True}  # a status without its fields
+
+        monkeypatch.setattr("hermsd.web.hub.ask", strange)
+        hub = Hub(Path("unused.sock"), poll=0.0)
+        polling = asyncio.create_task(hub.run())
+        await asyncio.wait_for(third.wait(), TIMEOUT)
+        polling.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await polling
+        return len(asked)
+
+    assert asyncio.run(polled_on()) >= 3
+    said = [r for r in caplog.records if "polling on" in r.getMessage()]
+    assert len(said) == 1 and "KeyError" in said[0].getMessage()  # once, not at every poll

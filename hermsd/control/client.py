@@ -8,11 +8,21 @@ import socket
 from pathlib import Path
 from typing import Any
 
+from hermsd.config import key_range
 from hermsd.control.protocol import MAX_LINE, Request, encode, request_message
 
 DEFAULT_SOCKET = Path("/run/hermsd/control.sock")
 SOCKET_NAME = "control.sock"
-TIMEOUT = 10.0  # s: a command waits for the next period boundary, periods are ≤ 60 s
+LONGEST_PERIOD = key_range("control.period")[1]  # s: the most control.period may be
+
+
+def command_timeout(period: float) -> float:
+    """How long to wait for a command's reply: it comes after the next period boundary, so
+    up to two periods (one under way, one to apply it), and 5 s for a loaded machine."""
+    return 2.0 * period + 5.0
+
+
+TIMEOUT = command_timeout(LONGEST_PERIOD)  # s: long enough whatever the daemon's period
 REPLY_LIMIT = 1 << 20  # bytes: a status reply is a few kB
 
 
@@ -48,13 +58,18 @@ def ask(path: Path, request: Request, timeout: float = TIMEOUT) -> dict[str, Any
             ) from None
         except OSError as error:
             raise NoDaemonError(f"cannot reach hermsd on {path}: {error.strerror}") from None
+        line = encode(request_message(request))
+        assert len(line) <= MAX_LINE
         try:
-            line = encode(request_message(request))
-            assert len(line) <= MAX_LINE
             sock.sendall(line)
+        except TimeoutError:
+            raise ReplyError(
+                f"hermsd on {path} did not take the request within {timeout:g} s"
+            ) from None
+        try:
             reply = _read_line(sock)
         except TimeoutError:
-            raise ReplyError(f"hermsd on {path} did not answer within {timeout:g} s") from None
+            raise ReplyError(unanswered(timeout)) from None
         except OSError as error:
             raise ReplyError(f"the connection to {path} failed: {error.strerror}") from None
     try:
@@ -64,6 +79,14 @@ def ask(path: Path, request: Request, timeout: float = TIMEOUT) -> dict[str, Any
     if not isinstance(message, dict) or "ok" not in message:
         raise ReplyError(f"hermsd on {path} answered something that is not a reply")
     return message
+
+
+def unanswered(timeout: float) -> str:
+    """Why a request sent but not answered is not reported as failed: it may have been applied."""
+    return (
+        f"hermsd did not answer within {timeout:g} s: the outcome is unknown, see the status "
+        "(a command may have been applied: send it again only if the status says it was not)"
+    )
 
 
 def _read_line(sock: socket.socket) -> bytes:

@@ -25,8 +25,9 @@ answered at once from the last control period: `tun`, `pv` (°C, null when unkno
 `setpoint` (°C), `output` (%), `applied` (% the SSR was driven at in the period before),
 `mode`, `manual_output`, `state`, `alarms`, `heater_allowed`, `limits` (the safety limits in
 force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,
-dead_time s, ambient °C, and `from`: "learned" or "config"), `learned` (what was learned of
-the tun and stored, with `text` in words, or null) and
+dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured" (by
+`hermsd tune`, kept in the config) or "prior" (the config's tun, before either)),
+`learned` (what was learned of the tun and stored, with `text` in words, or null) and
 `runtime` (each operating key set at runtime whose value differs from the config file's:
 `{"control.setpoint": {"running": 72.0, "file": 66.0}}`) and `program` (the mash program that
 runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,

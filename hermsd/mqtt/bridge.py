@@ -31,7 +31,7 @@ from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 
 from hermsd.config import Config
-from hermsd.control.client import NoDaemonError, ReplyError, ask
+from hermsd.control.client import NoDaemonError, ReplyError, ask, command_timeout
 from hermsd.control.protocol import Status, describe
 from hermsd.files import NotRegularFile, read_regular
 from hermsd.mqtt.messages import (
@@ -180,8 +180,8 @@ class Bridge:
             self._send(*item)
 
     def _send(self, topic: str, payload: bytes, command: Command) -> None:
-        try:  # answered after the next period boundary: allow two periods
-            reply = ask(self.socket_path, command, timeout=2 * self.config.control.period + 5)
+        try:
+            reply = ask(self.socket_path, command, command_timeout(self.config.control.period))
         except NoDaemonError as error:
             self._refuse(topic, payload, f"not applied, nothing changed: {error}")
             return

@@ -128,21 +128,25 @@ class _Reader(config_module._Reader):
             )
             return None
         steps: list[Step] = []
-        first_line: dict[str, int] = {}
+        first_place: dict[str, str] = {}
         for index, item in enumerate(node.value):
             step = self.step(f"steps[{index}]", item)
             if step is None:
                 continue
-            if step.name in first_line:
+            if step.name in first_place:
                 self.report(
                     item.start_mark,
                     f"steps[{index}].name",
-                    f"{step.name!r} names an earlier step too (line {first_line[step.name]}; "
+                    f"{step.name!r} names an earlier step too ({first_place[step.name]}; "
                     "give each step its own name)",
                 )
-            first_line.setdefault(step.name, item.start_mark.line + 1)
+            first_place.setdefault(step.name, self.place(index, item))
             steps.append(step)
         return tuple(steps)
+
+    def place(self, index: int, node: yaml.Node) -> str:
+        """Where the brewer finds step `index` of the file: its line."""
+        return f"line {node.start_mark.line + 1}"
 
     def step(self, path: str, node: yaml.Node) -> Step | None:
         if not isinstance(node, yaml.MappingNode):
@@ -232,18 +236,68 @@ _REQUIRED = {
 }
 
 
-def parse(text: str, filename: str = "<program>") -> Program:
-    """The program a YAML text describes; ProgramError lists everything wrong with it."""
-    reader = _Reader(filename)
-    try:
-        root = config_module._root(text, filename)
-    except ConfigError as error:
-        raise ProgramError(error.problems) from None
+class _DataReader(_Reader):
+    """Reads a program sent as data (`to_data`'s form), which has no lines to point at."""
+
+    def place(self, index: int, node: yaml.Node) -> str:
+        return f"steps[{index}]"
+
+
+_NOWHERE = yaml.Mark("<data>", 0, 0, 0, "", 0)
+_DATA_DEPTH = 3  # program, steps, step: deeper lists and objects are only ever described
+
+
+def _data_node(value: object, depth: int = 0) -> yaml.Node:
+    """`value` (JSON data) as the node the file's text for it would compose to.
+
+    Strings are quoted scalars (always text, as the file's quoted strings are); numbers,
+    booleans and null are plain ones that `config._plain_value` reads back as they were.
+    Building the nodes directly spares the dump to YAML and the parse back, which for a
+    64 KiB request cost a tenth of a second of the interpreter's lock.
+    """
+    if isinstance(value, dict | list):
+        deeper = depth + 1
+        if isinstance(value, list):
+            items = [_data_node(item, deeper) for item in value] if depth < _DATA_DEPTH else []
+            tag = config_module._RESOLVER.DEFAULT_SEQUENCE_TAG
+            return yaml.SequenceNode(tag, items, _NOWHERE, _NOWHERE)
+        pairs = (
+            [(_data_node(str(key)), _data_node(item, deeper)) for key, item in value.items()]
+            if depth < _DATA_DEPTH
+            else []
+        )
+        tag = config_module._RESOLVER.DEFAULT_MAPPING_TAG
+        return yaml.MappingNode(tag, pairs, _NOWHERE, _NOWHERE)
+    style: str | None = None
+    if value is None:
+        text = "null"
+    elif isinstance(value, bool):
+        text = "true" if value else "false"
+    elif isinstance(value, int | float):
+        text = repr(value)
+    else:
+        text, style = str(value), '"'
+    implicit = (style is None, style is not None)
+    tag = config_module._RESOLVER.resolve(yaml.ScalarNode, text, implicit)  # type: ignore[no-untyped-call]
+    return yaml.ScalarNode(tag, text, _NOWHERE, _NOWHERE, style)
+
+
+def _checked(reader: _Reader, root: yaml.Node | None, filename: str) -> Program:
+    """The program `root` holds, read by `reader`; ProgramError lists everything wrong."""
     program = reader.program(root, Path(filename).stem[:NAME_LENGTH] or "program")
     if reader.problems or program is None:
         problems = reader.problems or [Problem(filename, 1, 1, "", "not a program")]
         raise ProgramError(sorted(problems, key=lambda p: (p.line, p.column)))
     return program
+
+
+def parse(text: str, filename: str = "<program>") -> Program:
+    """The program a YAML text describes; ProgramError lists everything wrong with it."""
+    try:
+        root = config_module._root(text, filename)
+    except ConfigError as error:
+        raise ProgramError(error.problems) from None
+    return _checked(_Reader(filename), root, filename)
 
 
 def load(path: str | os.PathLike[str]) -> Program:
@@ -286,7 +340,7 @@ def from_data(data: Any, source: str = "<program>") -> Program:
             {k: v for k, v in step.items() if v is not None} if isinstance(step, dict) else step
             for step in cleaned["steps"]
         ]
-    return parse(config_module._yaml_text(cleaned), source)
+    return _checked(_DataReader(source), _data_node(cleaned), source)
 
 
 def describe_step(step: Step) -> str:

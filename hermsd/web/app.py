@@ -45,6 +45,7 @@ from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from hermsd.control.client import LONGEST_PERIOD, command_timeout
 from hermsd.control.protocol import (
     History,
     ProgramStart,
@@ -57,7 +58,7 @@ from hermsd.program.model import READY_BY, ProgramError, parse
 from hermsd.web.auth import LoginLimiter, Session, Sessions, csrf_matches
 from hermsd.web.hub import Hub, TooManyPages, page_status
 from hermsd.web.passwords import PasswordHash, verify_password
-from hermsd.web.socket_client import DaemonUnavailable, ask
+from hermsd.web.socket_client import DaemonUnavailable, OutcomeUnknown, ask
 
 COOKIE = "hermsd_session"
 MAX_BODY = 4096  # bytes of a POST body: a command is under 100
@@ -224,8 +225,13 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
             queue = hub.open_page(since)
         except TooManyPages as error:
             return _error(503, str(error))
+        sid = request.cookies.get(COOKIE)
+
+        def still_allowed() -> bool:
+            return settings.read_only_view or sessions.alive(sid, clock())
+
         return StreamingResponse(
-            _stream(hub, queue),
+            _stream(hub, queue, still_allowed),
             media_type="text/event-stream",
             headers={"x-accel-buffering": "no"},
         )
@@ -256,8 +262,11 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
 
     async def forward(message: dict[str, Any]) -> Response:
         """The daemon's answer to one change: its status, or its reason for refusing."""
+        period = LONGEST_PERIOD if hub.period is None else hub.period
         try:
-            reply = await ask(settings.socket, message)
+            reply = await ask(settings.socket, message, command_timeout(period))
+        except OutcomeUnknown as error:
+            return _error(504, str(error))
         except DaemonUnavailable as error:
             return _error(503, str(error))
         if not reply["ok"]:
@@ -365,15 +374,18 @@ async def _json_body(request: Request, limit: int = MAX_BODY) -> dict[str, Any]:
     return data
 
 
-async def _stream(hub: Hub, queue: asyncio.Queue[bytes | None]) -> AsyncIterator[bytes]:
+async def _stream(
+    hub: Hub, queue: asyncio.Queue[bytes | None], allowed: Callable[[], bool]
+) -> AsyncIterator[bytes]:
+    """The page's events, ended (nothing more sent) once its login is over: checked before
+    each event and keepalive, so within KEEPALIVE_S of a logout or expiry."""
     try:
         while True:
             try:
                 event = await asyncio.wait_for(queue.get(), KEEPALIVE_S)
             except TimeoutError:
-                yield b": keepalive\n\n"
-                continue
-            if event is None:
+                event = b": keepalive\n\n"
+            if event is None or not allowed():
                 return
             yield event
     finally:

@@ -126,6 +126,12 @@ class Sessions:
         session.last_used = now
         return session
 
+    def alive(self, sid: str | None, now: float) -> bool:
+        """Whether `sid` is still logged in, without counting this as a use: an open event
+        stream must not keep its login alive."""
+        session = self._sessions.get(sid) if sid else None
+        return session is not None and now - session.last_used <= self.lifetime
+
     def end(self, sid: str | None) -> None:
         if sid:
             self._sessions.pop(sid, None)

@@ -69,7 +69,14 @@ class Hub:
     async def run(self) -> None:
         """Poll the daemon until cancelled."""
         while True:
-            await self.refresh()
+            try:
+                await self.refresh()
+            except Exception as error:  # a reply it cannot read must not end the polling
+                why = f"hermsd's reply could not be read ({error!r})"
+                if self.error != why:  # said once, not at every poll
+                    self.error = why
+                    log.exception("web: %s; polling on", why)
+                    self._push({"error": why})
             self._poke.clear()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._poke.wait(), self._interval())

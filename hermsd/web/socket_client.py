@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from hermsd.control.client import REPLY_LIMIT, TIMEOUT
+from hermsd.control.client import REPLY_LIMIT, TIMEOUT, unanswered
 from hermsd.control.protocol import MAX_LINE, VERSION, encode
 
 
@@ -23,22 +23,30 @@ class DaemonUnavailable(Exception):
     which, for the page."""
 
 
+class OutcomeUnknown(DaemonUnavailable):
+    """The request was sent and not answered in time: the daemon may have applied it."""
+
+
 async def ask(path: Path, message: dict[str, Any], timeout: float = TIMEOUT) -> dict[str, Any]:
     """Send one request (`v` added) and return the daemon's reply, ok or not."""
     line = encode({"v": VERSION, **message})
     if len(line) > MAX_LINE:
         raise DaemonUnavailable(f"the request is longer than {MAX_LINE} bytes")
+    sent = False
     try:
         async with asyncio.timeout(timeout):
             reader, writer = await asyncio.open_unix_connection(os.fspath(path), limit=REPLY_LIMIT)
             try:
                 writer.write(line)
                 await writer.drain()
+                sent = True
                 reply = await reader.readline()
             finally:
                 writer.close()
     except TimeoutError:
-        raise DaemonUnavailable(f"hermsd did not answer within {timeout:g} s") from None
+        if sent:
+            raise OutcomeUnknown(unanswered(timeout)) from None
+        raise DaemonUnavailable(f"hermsd did not take the request within {timeout:g} s") from None
     except (FileNotFoundError, ConnectionRefusedError):
         raise DaemonUnavailable(f"no hermsd is running: nothing answers on {path}") from None
     except PermissionError:
