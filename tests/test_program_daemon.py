@@ -219,6 +219,47 @@ def test_an_edit_that_puts_the_cut_out_at_a_programs_setpoint_stops_the_program(
     )
 
 
+def test_a_setpoint_to_return_to_at_or_above_a_lowered_cut_out_becomes_the_files(
+    tmp_path: Path,
+) -> None:
+    daemon, path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, SetSetpoint(90.0))
+    apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    rename_over(path, edited(BASE, safety__max_temp="80.0"))  # the file's setpoint stays 66
+    run_for(daemon, 2 * PERIOD)
+    assert status_of(daemon)["program"]["step"]["name"] == "Warm"  # its 30 °C is allowed
+    assert (
+        "setpoint 90 °C for when the program stops is not below safety.max_temp (80 °C): "
+        "the file's 66 °C instead"
+    ) in events.logged()
+    reply = apply(daemon, inbox, ProgramAction("stop"))
+    assert reply["setpoint"] == 66.0
+    assert events.periods[-1].setpoint == 66.0
+
+
+def test_a_ramp_in_force_at_or_above_a_lowered_cut_out_stops_the_program(
+    tmp_path: Path,
+) -> None:
+    down = Program("Down", (Step("Hot", 40.0, None), Step("Cool", 30.0, 60.0, 1.0)))
+    daemon, path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, ProgramStart(down))
+    apply(daemon, inbox, ProgramAction("next"))  # Cool ramps down from 40 °C at 1 °C/min
+    run_for(daemon, PERIOD)
+    in_force = events.periods[-1].setpoint
+    assert 39.0 < in_force < 40.0
+    rename_over(path, edited(BASE, control__setpoint="25.0", safety__max_temp="35.0"))
+    run_for(daemon, PERIOD)
+    assert status_of(daemon)["program"] is None
+    assert events.periods[-1].setpoint == 25.0
+    logged = events.logged()
+    assert any(
+        line.startswith("program stopped: its setpoint in force 39.")
+        and line.endswith("°C is not below safety.max_temp (35 °C)")
+        for line in logged
+    ), logged
+    assert not any("back to the file's" in line for line in logged)
+
+
 def test_without_an_edit_a_stopped_program_gives_back_the_setpoint_it_found(
     tmp_path: Path,
 ) -> None:
