@@ -410,7 +410,7 @@ class Daemon:
             what = self.model_choice.describe()
             self._event(logging.INFO, f"tun model in use (control and safety limits): {what}", now)
         self._restore_latches(stored, now)
-        resumed = self.program.restore(self.setpoint)
+        resumed = self.program.restore(self.setpoint, self.clock.wall_ns())
         if resumed is not None:
             self._event(logging.WARNING if "not resumed" in resumed else logging.INFO, resumed, now)
 

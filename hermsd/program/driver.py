@@ -32,7 +32,7 @@ from hermsd.program.runner import (
     heat_up_s,
     with_margin,
 )
-from hermsd.program.store import ProgressStore
+from hermsd.program.store import ProgressStore, stale_reason
 
 log = logging.getLogger("hermsd")
 
@@ -90,18 +90,33 @@ class ProgramDriver:
 
     # -- start, restore, commands -------------------------------------------------------
 
-    def restore(self, setpoint: float) -> str | None:
-        """Take up the stored program, if any; what to say in the log (or None)."""
+    def restore(self, setpoint: float, wall_ns: int) -> str | None:
+        """Take up the stored program, if any and recent; what to say in the log (or None).
+
+        One that had finished, whose ready-by time has passed or that was saved too long
+        ago is set aside (`program.json.stale`): the daemon runs on `setpoint` instead."""
         if self.store is None:
             return None
         try:
             stored = self.store.load()
         except StateError as error:
-            self.store.clear()
+            self._clear()
             return f"program progress not resumed: {error}; discarded"
         if stored is None:
             return None
-        program, progress = stored
+        program, progress, _saved = stored
+        ready = progress.ready_at_ns
+        ready_text = "" if ready is None else local_iso(ready, self.zone)
+        stale = stale_reason(stored, wall_ns, ready_text)
+        if stale is not None:
+            try:
+                kept = f"kept as {self.store.set_aside()}"
+            except OSError as error:
+                kept = f"setting it aside failed: {error}"
+            return (
+                f"program {program.name!r} not resumed: {stale}; {kept}; "
+                f"the setpoint is {setpoint:g} °C"
+            )
         self.runner = Runner(program, progress, max_step_s=2.0 * self.period_s)
         self.after = setpoint
         runner = self.runner
@@ -207,7 +222,7 @@ class ProgramDriver:
         else:
             self.starts_at_ns = None
         self._events.extend(runner.take_events())
-        self._save(runner, t)
+        self._save(runner, t, wall_ns)
         return runner.setpoint, self.take_events()
 
     def _count_transit(self, t: float, full: bool, dead_time: float) -> None:
@@ -237,11 +252,11 @@ class ProgramDriver:
             return
         self.starts_at_ns = max(wall_ns, ready - round(with_margin(lead_s, commit) * 1e9))
 
-    def _save(self, runner: Runner, t: float) -> None:
+    def _save(self, runner: Runner, t: float, wall_ns: int) -> None:
         if self.store is None:
             return
         try:
-            self.store.save(runner.program, runner.progress, t)
+            self.store.save(runner.program, runner.progress, t, wall_ns)
         except OSError as error:
             if not self._store_failing:
                 log.error("saving the program's progress failed: %s", error)

@@ -9,19 +9,30 @@ hold's counted time (the rest is then that much longer, never shorter).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
+import os
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
-from hermsd.files import write_atomically
+from hermsd.files import fsync_directory, write_atomically
 from hermsd.latches import StateError, read_state_json
 from hermsd.program.model import Program, ProgramError, from_data, to_data
 from hermsd.program.runner import PHASES, Progress
 
 PROGRAM_FILE = "program.json"
+STALE_SUFFIX = ".stale"  # a stored program not resumed, kept beside for the brewer to read
 DURABLE_EVERY_S = 60.0
+# How old (wall time) a save may be and still resume: a crash, systemd's restart or a
+# brewer's `systemctl restart` is back within a minute or two; longer (a power cut, a boot
+# days later) the water has cooled or was drained, and heating it unattended is not safe.
+RESUME_WITHIN_S = 15 * 60.0
+
+
+class Stored(NamedTuple):
+    program: Program
+    progress: Progress
+    saved_at_ns: int  # the wall time of the save
 
 
 class ProgressStore:
@@ -32,8 +43,8 @@ class ProgressStore:
         self._durable: tuple[int, str] | None = None  # step and phase last made durable
         self._durable_at = -math.inf
 
-    def load(self) -> tuple[Program, Progress] | None:
-        """The stored program and its progress; None when none. StateError for a bad file."""
+    def load(self) -> Stored | None:
+        """The stored program, its progress and when; None when none. StateError if bad."""
         document = read_state_json(self.path)
         if document is None:
             return None
@@ -42,15 +53,19 @@ class ProgressStore:
                 document.get("program") if isinstance(document, dict) else None, str(self.path)
             )
             progress = _progress(document["progress"], program)
+            saved_at = document["saved_at_ns"]
+            if not isinstance(saved_at, int) or isinstance(saved_at, bool):
+                raise ValueError(f"saved_at_ns {saved_at!r} is not a time")
         except ProgramError as error:
             raise StateError(f"{self.path}: its program is not valid: {error}") from None
         except (KeyError, TypeError, ValueError) as error:
             raise StateError(f"{self.path}: not a program's progress ({error})") from None
-        return program, progress
+        return Stored(program, progress, saved_at)
 
-    def save(self, program: Program, progress: Progress, t: float) -> None:
-        """Replace the stored progress (OSError when the disk refuses)."""
+    def save(self, program: Program, progress: Progress, t: float, wall_ns: int) -> None:
+        """Replace the stored progress, saved at `wall_ns` (OSError when the disk refuses)."""
         document = {
+            "saved_at_ns": wall_ns,
             "program": to_data(program),
             "progress": {
                 "index": progress.index,
@@ -69,10 +84,39 @@ class ProgressStore:
             self._durable, self._durable_at = mark, t
 
     def clear(self) -> None:
-        """No program runs: nothing to resume."""
-        with contextlib.suppress(FileNotFoundError):
-            self.path.unlink()
+        """No program runs: nothing to resume, after a power cut too (OSError if refused)."""
         self._durable = None
+        try:
+            self.path.unlink()
+        except FileNotFoundError:
+            return
+        fsync_directory(self.path.parent)
+
+    def set_aside(self) -> Path:
+        """Rename the stored program to `program.json.stale`, durably; where it went."""
+        self._durable = None
+        aside = self.path.with_name(self.path.name + STALE_SUFFIX)
+        os.replace(self.path, aside)
+        fsync_directory(self.path.parent)
+        return aside
+
+
+def stale_reason(stored: Stored, wall_ns: int, zone_text: str) -> str | None:
+    """Why `stored` must not resume at `wall_ns` (None: it may). `zone_text` is its
+    ready-by time in local words, for a scheduled program."""
+    progress, age_s = stored.progress, (wall_ns - stored.saved_at_ns) / 1e9
+    if progress.phase == "done":
+        return "it had finished"
+    if abs(age_s) > RESUME_WITHIN_S:
+        when = "ago" if age_s > 0 else "ahead of this clock"
+        return (
+            f"it was saved {abs(age_s) / 60.0:.0f} min {when}, "
+            f"more than the {RESUME_WITHIN_S / 60.0:.0f} min a restart may take"
+        )
+    ready = progress.ready_at_ns
+    if progress.phase == "scheduled" and ready is not None and ready <= wall_ns:
+        return f"its ready-by time {zone_text} has passed"
+    return None
 
 
 def _progress(data: Any, program: Program) -> Progress:
