@@ -482,6 +482,7 @@ class Daemon:
         self._event(logging.INFO, f"heater off: {reason}", now)
         self._alert("stopped", f"heater off: {reason}", now)
         self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT))  # outputs are off
+        self.program.close(SHUTDOWN_WAIT)  # the progress handed over, for the next start
         if self.notifier is not None:
             self.notifier.stopping()
         return ok, interrupted
@@ -572,6 +573,9 @@ class Daemon:
         )
         for event in events:
             self._program_event(event, t)
+        news = self.program.store_news()
+        if news is not None:
+            self._event(logging.ERROR if news[0] else logging.INFO, news[1], t)
         if not self.program.active:
             return False
         if self._stop_program_over_cut_out(setpoint, t):  # an edit lowered the cut-out
