@@ -495,8 +495,9 @@ def test_a_failed_save_is_told_in_the_status_and_once_in_the_log(tmp_path: Path)
     assert status is not None and status["save_failed"] == "[Errno 28] No space left on device"
     assert driver.status_words(AT_4).endswith(", progress NOT SAVED")
     store.refuse = False
-    driver.command("next", 66.0)  # a new step: saved at once
+    driver.command("next", 66.0)  # a new step: saved at once, the program first
     drive(driver, PERIOD, 66.0, t0=PERIOD)
     assert driver.flush(5.0)
     assert driver.store_news() == (False, "the program's progress is saved again")
+    assert store.programs == 1 and store.load() is not None
     assert "NOT SAVED" not in driver.status_words(AT_4)

@@ -129,6 +129,7 @@ class ProgressWriter:
         self.store = store
         self.failure: str | None = None
         self._jobs: list[tuple[str, Callable[[], None]]] = []
+        self._unsaved_program: Callable[[], None] | None = None  # a program write that failed
         self._busy = False
         self._closed = False
         self._wake = threading.Condition()
@@ -176,10 +177,18 @@ class ProgressWriter:
                 self._wake.wait_for(lambda: self._jobs or self._closed)
                 if not self._jobs:
                     return
-                _kind, job = self._jobs.pop(0)
+                kind, job = self._jobs.pop(0)
                 self._busy = True
+            if kind == "clear":
+                self._unsaved_program = None
+            elif kind == "program":
+                self._unsaved_program = job
             try:
-                job()
+                if self._unsaved_program is not None:  # its progress is nothing without it
+                    self._unsaved_program()
+                    self._unsaved_program = None
+                if kind != "program":
+                    job()
             except OSError as error:
                 self.failure = str(error)
             else:
