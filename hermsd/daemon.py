@@ -415,7 +415,7 @@ class Daemon:
             what = self.model_choice.describe()
             self._event(logging.INFO, f"tun model in use (control and safety limits): {what}", now)
         self._restore_latches(stored, now)
-        resumed = self.program.restore(self.setpoint)
+        resumed = self.program.restore(self.setpoint, self.clock.wall_ns())
         if resumed is not None:
             self._event(logging.WARNING if "not resumed" in resumed else logging.INFO, resumed, now)
 
@@ -487,6 +487,7 @@ class Daemon:
         self._event(logging.INFO, f"heater off: {reason}", now)
         self._alert("stopped", f"heater off: {reason}", now)
         self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT))  # outputs are off
+        self.program.close(SHUTDOWN_WAIT)  # the progress handed over, for the next start
         if self.notifier is not None:
             self.notifier.stopping()
         return ok, interrupted
@@ -562,6 +563,8 @@ class Daemon:
 
     def program_command(self, action: str, t: float) -> None:
         """next, pause, resume, stop or confirm (runner.Refused when it does not apply)."""
+        if action == "stop":
+            self._keep_after_below_cut_out(t)
         after = self.program.command(action, self._pv)
         if after is not None:
             self.setpoint = after
@@ -575,24 +578,52 @@ class Daemon:
         )
         for event in events:
             self._program_event(event, t)
+        news = self.program.store_news()
+        if news is not None:
+            self._event(logging.ERROR if news[0] else logging.INFO, news[1], t)
         if not self.program.active:
             return False
-        if self.program.target >= self.config.safety.max_temp:  # an edit lowered the cut-out
-            self._event(
-                logging.WARNING,
-                f"program stopped: its step's setpoint {self.program.target:g} °C is not below "
-                f"safety.max_temp ({self.config.safety.max_temp:g} °C)",
-                t,
-            )
-            self.program_command("stop", t)
-            for event in self.program.take_events():
-                self._program_event(event, t)
+        if self._stop_program_over_cut_out(setpoint, t):  # an edit lowered the cut-out
             return False
         if setpoint is None:
             self.setpoint = self.program.target  # shown, not heated to: the heater stays off
             return True
         self.setpoint = setpoint
         return False
+
+    def _stop_program_over_cut_out(self, in_force: float | None, t: float) -> bool:
+        """Stop the program (as `program stop`) when its step's setpoint or the setpoint in
+        force (`in_force`, a ramp's; None: the step's) is not below safety.max_temp."""
+        max_temp = self.config.safety.max_temp
+        target = self.program.target
+        if target >= max_temp:
+            why = f"its step's setpoint {target:g} °C"
+        elif in_force is not None and in_force >= max_temp:
+            why = f"its setpoint in force {in_force:g} °C"
+        else:
+            return False
+        self._event(
+            logging.WARNING,
+            f"program stopped: {why} is not below safety.max_temp ({max_temp:g} °C)",
+            t,
+        )
+        self.program_command("stop", t)
+        for event in self.program.take_events():
+            self._program_event(event, t)
+        return True
+
+    def _keep_after_below_cut_out(self, t: float) -> None:
+        """The setpoint a program returns to must be below safety.max_temp: else the file's."""
+        after, max_temp = self.program.after, self.config.safety.max_temp
+        if after is None or after < max_temp:
+            return
+        self.program.after = self.config.control.setpoint
+        self._event(
+            logging.WARNING,
+            f"setpoint {after:g} °C for when the program stops is not below safety.max_temp "
+            f"({max_temp:g} °C): the file's {self.config.control.setpoint:g} °C instead",
+            t,
+        )
 
     def _program_event(self, event: ProgramEvent, t: float) -> None:
         if self.recorder is not None:
@@ -705,7 +736,10 @@ class Daemon:
             self._apply_auto(t)
         elif "control.max_output" in changed and self.mode == "manual":
             self._apply_manual(self.manual_output, t)  # the new power limit holds at once
-        if self.setpoint >= new.safety.max_temp:  # set at runtime, and above the new cut-out
+        if self.program.active:  # the setpoint it returns to, and the one it holds now
+            self._keep_after_below_cut_out(t)
+            self._stop_program_over_cut_out(self.setpoint, t)
+        elif self.setpoint >= new.safety.max_temp:  # set at runtime, and above the new cut-out
             self._event(
                 logging.WARNING,
                 f"setpoint {self.setpoint:g} °C is not below the new safety.max_temp: "

@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import threading
 from pathlib import Path
 
 import pytest
@@ -17,10 +18,11 @@ from hermsd.cli import main
 from hermsd.latches import StateError
 from hermsd.pid import PlantModel
 from hermsd.program import model
+from hermsd.program import store as store_module
 from hermsd.program.driver import ProgramDriver, local_iso, next_local_time
 from hermsd.program.model import Program, ProgramError, Step
-from hermsd.program.runner import Refused, Runner, heat_up_s
-from hermsd.program.store import PROGRAM_FILE, ProgressStore
+from hermsd.program.runner import Progress, Refused, Runner, heat_up_s
+from hermsd.program.store import PROGRAM_FILE, PROGRESS_FILE, ProgressStore
 
 STEP_MASH = """\
 # a step mash
@@ -351,8 +353,10 @@ def test_progress_survives_a_restart_and_nothing_counts_from_before_it(tmp_path:
     store = ProgressStore(tmp_path)
     runner = started(REST)
     run(runner, [66.0, 66.0, 66.0])  # 10 s held
-    store.save(runner.program, runner.progress, 10.0)
-    program, progress = store.load() or (None, None)
+    store.save_program(REST, AT_4 - 60 * NS)
+    store.save_progress(runner.progress, AT_4 - 60 * NS, AT_4)
+    program, progress, saved_at, _started = store.load() or (None, None, None, None)
+    assert saved_at == AT_4
     assert program == REST and progress is not None
     again = Runner(REST, progress, max_step_s=2 * PERIOD)
     again.period(5000.0, 66.0, 0)  # the first period after a restart counts nothing
@@ -372,6 +376,178 @@ def test_damaged_progress_is_said_discarded_and_not_resumed(tmp_path: Path, dama
     with pytest.raises(StateError):
         ProgressStore(tmp_path).load()
     driver = ProgramDriver(ProgressStore(tmp_path), dt.UTC, PERIOD)
-    said = driver.restore(66.0)
+    said = driver.restore(66.0, AT_4)
     assert said is not None and said.startswith("program progress not resumed")
     assert not driver.active and not (tmp_path / PROGRAM_FILE).exists()
+
+
+def saved_then_restored(
+    tmp_path: Path, runner: Runner, later_s: float
+) -> tuple[ProgramDriver, str]:
+    """`runner`'s progress saved at AT_4, then a driver started `later_s` after that."""
+    store = ProgressStore(tmp_path)
+    store.save_program(runner.program, AT_4)
+    store.save_progress(runner.progress, AT_4, AT_4)
+    driver = ProgramDriver(ProgressStore(tmp_path), CET, PERIOD)
+    said = driver.restore(66.0, AT_4 + round(later_s * NS))
+    return driver, said or ""
+
+
+@pytest.mark.parametrize("later_s", [-899.0, 0.0, 899.0])
+def test_a_rest_saved_within_15_minutes_resumes(tmp_path: Path, later_s: float) -> None:
+    runner = started(REST)
+    run(runner, [66.0, 66.0, 66.0])
+    driver, _said = saved_then_restored(tmp_path, runner, later_s)
+    assert driver.active and driver.runner is not None
+    assert driver.runner.progress.held_s == 10.0
+
+
+@pytest.mark.parametrize(
+    ("later_s", "why"),
+    [
+        (901.0, "it was saved 15 min ago, more than the 15 min a restart may take"),
+        (3 * 86400.0, "it was saved 4320 min ago, more than the 15 min a restart may take"),
+        (-3600.0, "it was saved 60 min ahead of this clock, more than the 15 min"),
+    ],
+)
+def test_a_rest_saved_long_ago_is_set_aside_and_not_resumed(
+    tmp_path: Path, later_s: float, why: str
+) -> None:
+    runner = started(REST)
+    run(runner, [66.0, 66.0, 66.0])
+    driver, said = saved_then_restored(tmp_path, runner, later_s)
+    assert not driver.active and driver.after is None
+    assert said.startswith(f"program 'Rest' not resumed: {why}")
+    assert said.endswith(f"kept as {tmp_path / PROGRAM_FILE}.stale; the setpoint is 66 °C")
+    assert not (tmp_path / PROGRAM_FILE).exists()
+    stale = json.loads((tmp_path / f"{PROGRESS_FILE}.stale").read_text())
+    assert stale["progress"]["held_s"] == 10.0
+
+
+def test_a_finished_program_is_not_resumed(tmp_path: Path) -> None:
+    runner = started(Program("One", (Step("Out", 78.0, 10.0),)))
+    run(runner, [78.0, 78.0, 78.0, 78.0])
+    assert runner.progress.phase == "done"
+    _driver, said = saved_then_restored(tmp_path, runner, 10.0)
+    assert said.startswith("program 'One' not resumed: it had finished; kept as ")
+
+
+def test_a_scheduled_program_past_its_ready_by_time_is_not_resumed(tmp_path: Path) -> None:
+    runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=AT_4 + 60 * NS)
+    runner.period(0.0, 20.0, AT_4, 1.0, 0.0)  # a second of heat-up needed: it waits
+    assert runner.progress.phase == "scheduled"
+    assert saved_then_restored(tmp_path, runner, 30.0)[0].active  # before 04:01 CET: resumes
+    driver, said = saved_then_restored(tmp_path, runner, 61.0)
+    assert not driver.active
+    assert said.startswith(
+        "program 'Rest' not resumed: its ready-by time 2026-11-28T04:01:00+01:00 has passed"
+    )
+
+
+def test_a_removed_program_stays_removed_after_a_power_cut(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    synced: list[Path] = []
+    monkeypatch.setattr(store_module, "fsync_directory", synced.append)
+    store = ProgressStore(tmp_path)
+    store.save_program(REST, AT_4)
+    store.save_progress(started(REST).progress, AT_4, AT_4)
+    synced.clear()
+    store.clear()
+    assert synced == [tmp_path] and not store.path.exists()
+    assert not store.progress_path.exists()
+
+
+def test_progress_that_cannot_be_removed_does_not_stop_the_start(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / PROGRAM_FILE).write_text("{", encoding="utf-8")
+
+    def refuse(_self: ProgressStore) -> None:
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(ProgressStore, "clear", refuse)
+    driver = ProgramDriver(ProgressStore(tmp_path), dt.UTC, PERIOD)
+    said = driver.restore(66.0, AT_4)
+    assert said is not None and said.startswith("program progress not resumed")
+    assert not driver.active
+
+
+class CountingStore(ProgressStore):
+    """Counts the writes and the threads they ran on; `refuse` makes them fail."""
+
+    def __init__(self, directory: Path) -> None:
+        super().__init__(directory)
+        self.programs = 0
+        self.records: list[tuple[float, str]] = []  # (held_s, phase) of each progress write
+        self.threads: set[str] = set()
+        self.refuse = False
+
+    def save_program(self, program: Program, started_at_ns: int) -> None:
+        self._check()
+        self.programs += 1
+        super().save_program(program, started_at_ns)
+
+    def save_progress(self, progress: Progress, started_at_ns: int, wall_ns: int) -> None:
+        self._check()
+        self.records.append((progress.held_s, progress.phase))
+        super().save_progress(progress, started_at_ns, wall_ns)
+
+    def _check(self) -> None:
+        self.threads.add(threading.current_thread().name)
+        if self.refuse:
+            raise OSError(28, "No space left on device")
+
+
+LONG_REST = Program("Long", (Step("Rest", 66.0, 3600.0), Step("Out", 78.0, 600.0)))
+
+
+def drive(driver: ProgramDriver, seconds: float, pv: float, t0: float = 0.0) -> None:
+    for k in range(round(seconds / PERIOD)):
+        t = t0 + k * PERIOD
+        driver.period(t, pv, AT_4 + round(t * NS), PRIOR, 100.0)
+
+
+PRIOR = PlantModel()
+
+
+def test_a_rest_writes_the_program_once_and_its_progress_once_a_minute_off_the_loop(
+    tmp_path: Path,
+) -> None:
+    store = CountingStore(tmp_path)
+    driver = ProgramDriver(store, dt.UTC, PERIOD)
+    driver.start(
+        LONG_REST, None, setpoint=66.0, wall_ns=AT_4, pv=66.0, model=PRIOR, max_output=100.0
+    )
+    for minute in range(10):  # ten minutes of rest, the writer keeping up each minute
+        drive(driver, 60.0, 66.0, t0=60.0 * minute)
+        assert driver.flush(5.0)
+    assert store.programs == 1
+    # reached in the first period (held 0 s): saved then; then once a minute, 10 in all
+    assert store.records == [(60.0 * minute, "holding") for minute in range(10)]
+    assert store.threads == {"hermsd-program"}  # never the loop's thread
+    assert 595.0 - store.records[-1][0] == 55.0  # a crash now would cost 55 s of the rest
+
+
+def test_a_failed_save_is_told_in_the_status_and_once_in_the_log(tmp_path: Path) -> None:
+    store = CountingStore(tmp_path)
+    driver = ProgramDriver(store, dt.UTC, PERIOD)
+    store.refuse = True
+    driver.start(
+        LONG_REST, None, setpoint=66.0, wall_ns=AT_4, pv=66.0, model=PRIOR, max_output=100.0
+    )
+    drive(driver, PERIOD, 66.0)
+    assert driver.flush(5.0)
+    failing, said = driver.store_news() or (False, "")
+    assert failing and said.endswith("No space left on device")
+    assert driver.store_news() is None  # said once
+    status = driver.status(AT_4)
+    assert status is not None and status["save_failed"] == "[Errno 28] No space left on device"
+    assert driver.status_words(AT_4).endswith(", progress NOT SAVED")
+    store.refuse = False
+    driver.command("next", 66.0)  # a new step: saved at once, the program first
+    drive(driver, PERIOD, 66.0, t0=PERIOD)
+    assert driver.flush(5.0)
+    assert driver.store_news() == (False, "the program's progress is saved again")
+    assert store.programs == 1 and store.load() is not None
+    assert "NOT SAVED" not in driver.status_words(AT_4)

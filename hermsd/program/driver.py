@@ -32,7 +32,7 @@ from hermsd.program.runner import (
     heat_up_s,
     with_margin,
 )
-from hermsd.program.store import ProgressStore
+from hermsd.program.store import SAVE_EVERY_S, ProgressStore, ProgressWriter, stale_reason
 
 log = logging.getLogger("hermsd")
 
@@ -74,9 +74,17 @@ class ProgramDriver:
     after: float | None = None  # the setpoint to return to when the program stops
     starts_at_ns: int | None = None  # while scheduled: when the heat-up is due to start
     _events: list[ProgramEvent] = field(default_factory=list)
-    _store_failing: bool = False
+    _writer: ProgressWriter | None = None
+    _started_at_ns: int = 0  # names the stored program its progress records belong to
+    _saved: tuple[int, str, bool, bool] | None = None  # what the last record handed over said
+    _saved_t: float = 0.0
+    _failure_said: str | None = None
     _transit_s: float = 0.0
     _transit_t: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.store is not None:
+            self._writer = ProgressWriter(self.store)
 
     @property
     def active(self) -> bool:
@@ -90,20 +98,35 @@ class ProgramDriver:
 
     # -- start, restore, commands -------------------------------------------------------
 
-    def restore(self, setpoint: float) -> str | None:
-        """Take up the stored program, if any; what to say in the log (or None)."""
+    def restore(self, setpoint: float, wall_ns: int) -> str | None:
+        """Take up the stored program, if any and recent; what to say in the log (or None).
+
+        One that had finished, whose ready-by time has passed or that was saved too long
+        ago is set aside (`program.json.stale`): the daemon runs on `setpoint` instead."""
         if self.store is None:
             return None
         try:
             stored = self.store.load()
         except StateError as error:
-            self.store.clear()
+            self._clear()
             return f"program progress not resumed: {error}; discarded"
         if stored is None:
             return None
-        program, progress = stored
+        program, progress, _saved_at, started_at = stored
+        ready = progress.ready_at_ns
+        ready_text = "" if ready is None else local_iso(ready, self.zone)
+        stale = stale_reason(stored, wall_ns, ready_text)
+        if stale is not None:
+            try:
+                kept = f"kept as {self.store.set_aside()}"
+            except OSError as error:
+                kept = f"setting it aside failed: {error}"
+            return (
+                f"program {program.name!r} not resumed: {stale}; {kept}; "
+                f"the setpoint is {setpoint:g} °C"
+            )
         self.runner = Runner(program, progress, max_step_s=2.0 * self.period_s)
-        self.after = setpoint
+        self.after, self._started_at_ns, self._saved = setpoint, started_at, None
         runner = self.runner
         left = runner.time_left_s()
         where = f"step {progress.index + 1}/{len(program.steps)} {runner.step.name!r}, " + (
@@ -135,6 +158,9 @@ class ProgramDriver:
         ready_at = None if when is None else next_local_time(wall_ns, when, self.zone)
         runner = Runner.start(program, max_step_s=2.0 * self.period_s, ready_at_ns=ready_at)
         self.runner, self.after = runner, setpoint
+        self._started_at_ns, self._saved = wall_ns, None
+        if self._writer is not None:
+            self._writer.program(program, wall_ns)
         events = runner.take_events()
         if ready_at is not None:
             lead_s = self.lead_s(program, pv, model, max_output)
@@ -167,8 +193,8 @@ class ProgramDriver:
         if action != "stop":
             return None
         self.runner, self.starts_at_ns = None, None
-        if self.store is not None:
-            self._clear()
+        if self._writer is not None:
+            self._writer.clear()
         return self.after
 
     def take_events(self) -> list[ProgramEvent]:
@@ -207,7 +233,7 @@ class ProgramDriver:
         else:
             self.starts_at_ns = None
         self._events.extend(runner.take_events())
-        self._save(runner, t)
+        self._save(runner, t, wall_ns)
         return runner.setpoint, self.take_events()
 
     def _count_transit(self, t: float, full: bool, dead_time: float) -> None:
@@ -237,17 +263,17 @@ class ProgramDriver:
             return
         self.starts_at_ns = max(wall_ns, ready - round(with_margin(lead_s, commit) * 1e9))
 
-    def _save(self, runner: Runner, t: float) -> None:
-        if self.store is None:
+    def _save(self, runner: Runner, t: float, wall_ns: int) -> None:
+        """Hand the progress to the writer when it matters: a new step, phase, pause or
+        reached at once; the hold's time (and a ramp's position) at most once a minute."""
+        if self._writer is None:
             return
-        try:
-            self.store.save(runner.program, runner.progress, t)
-        except OSError as error:
-            if not self._store_failing:
-                log.error("saving the program's progress failed: %s", error)
-            self._store_failing = True
-        else:
-            self._store_failing = False
+        p = runner.progress
+        mark = (p.index, p.phase, p.paused, p.reached)
+        if mark == self._saved and t - self._saved_t < SAVE_EVERY_S:
+            return
+        self._writer.progress(dataclasses.replace(p), self._started_at_ns, wall_ns)
+        self._saved, self._saved_t = mark, t
 
     def _clear(self) -> None:
         assert self.store is not None
@@ -255,6 +281,27 @@ class ProgramDriver:
             self.store.clear()
         except OSError as error:
             log.error("removing the program's progress failed: %s", error)
+
+    def store_news(self) -> tuple[bool, str] | None:
+        """A change in whether the progress can be saved: (failing, what to log), or None."""
+        failure = None if self._writer is None else self._writer.failure
+        if failure == self._failure_said:
+            return None
+        self._failure_said = failure
+        if failure is None:
+            return False, "the program's progress is saved again"
+        return (
+            True,
+            f"saving the program's progress failed (a restart may not resume it): {failure}",
+        )
+
+    def flush(self, timeout: float | None = None) -> bool:
+        """Wait for the writes handed over (False: `timeout` passed first)."""
+        return self._writer is None or self._writer.flush(timeout)
+
+    def close(self, timeout: float) -> bool:
+        """Finish the writes handed over (at most `timeout` s): the daemon stops."""
+        return self._writer is None or self._writer.close(timeout)
 
     # -- what it says -----------------------------------------------------------------
 
@@ -275,6 +322,7 @@ class ProgramDriver:
             "starts_at": None
             if self.starts_at_ns is None
             else local_iso(self.starts_at_ns, self.zone),
+            "save_failed": self._failure_said,
         }
 
     def record_fields(self) -> dict[str, Any]:
@@ -294,6 +342,14 @@ class ProgramDriver:
         runner = self.runner
         if runner is None:
             return ""
+        words = self._progress_words()
+        if self._failure_said is not None:
+            words += ", progress NOT SAVED"
+        return words
+
+    def _progress_words(self) -> str:
+        runner = self.runner
+        assert runner is not None
         step, state = runner.step.name, runner.state
         left = runner.time_left_s()
         if state == "scheduled" and self.starts_at_ns is not None:

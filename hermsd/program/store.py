@@ -1,57 +1,90 @@
-"""A running program's progress in the state directory, so a restart or a crash resumes it.
+"""A running program and its progress in the state directory, so a restart or a crash
+resumes it.
 
-`program.json` holds the program and its `Progress`. It is replaced every control period
-while a program runs (a temporary file renamed over it: a crash, SIGKILL included, leaves the
-last period's or the one before), and made durable (fsync) whenever the step or the phase
-changes and at least once a minute otherwise, so a power cut costs at most a minute of a
-hold's counted time (the rest is then that much longer, never shorter).
+`program.json` holds the program, written once when it starts; `program-progress.json` a
+small record of where it is (`Progress`, and the wall time of the save). The driver hands a
+record over only when it matters: at each change of step, phase, pause or reached, and at
+most once a minute otherwise (the hold's counted time, the ramp's position). `ProgressWriter`
+writes them on a thread of its own, each durably (temporary file, fsync, rename, fsync of the
+directory), so the control loop never waits on the disk. A crash or a power cut therefore
+costs at most a minute of a hold's counted time and of a ramp (the rest is then that much
+longer, never shorter).
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
-import math
+import os
+import threading
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
-from hermsd.files import write_atomically
+from hermsd.files import fsync_directory, write_atomically
 from hermsd.latches import StateError, read_state_json
 from hermsd.program.model import Program, ProgramError, from_data, to_data
 from hermsd.program.runner import PHASES, Progress
 
 PROGRAM_FILE = "program.json"
-DURABLE_EVERY_S = 60.0
+PROGRESS_FILE = "program-progress.json"
+STALE_SUFFIX = ".stale"  # a stored program not resumed, kept beside for the brewer to read
+SAVE_EVERY_S = 60.0  # the most a crash may take off a hold's counted time (or a ramp)
+# How old (wall time) a save may be and still resume: a crash, systemd's restart or a
+# brewer's `systemctl restart` is back within a minute or two; longer (a power cut, a boot
+# days later) the water has cooled or was drained, and heating it unattended is not safe.
+RESUME_WITHIN_S = 15 * 60.0
+
+
+class Stored(NamedTuple):
+    program: Program
+    progress: Progress
+    saved_at_ns: int  # the wall time of the progress's save
+    started_at_ns: int  # the wall time the program started: it names the program stored
 
 
 class ProgressStore:
-    """`program.json` in the state directory, next to the latches and the learned model."""
+    """`program.json` and `program-progress.json` in the state directory, next to the
+    latches and the learned model. Every method writes at once (OSError when refused)."""
 
     def __init__(self, directory: Path | str) -> None:
         self.path = Path(directory) / PROGRAM_FILE
-        self._durable: tuple[int, str] | None = None  # step and phase last made durable
-        self._durable_at = -math.inf
+        self.progress_path = Path(directory) / PROGRESS_FILE
 
-    def load(self) -> tuple[Program, Progress] | None:
-        """The stored program and its progress; None when none. StateError for a bad file."""
+    def load(self) -> Stored | None:
+        """The stored program, its progress and when; None when none. StateError if bad."""
         document = read_state_json(self.path)
-        if document is None:
+        record = read_state_json(self.progress_path)
+        if document is None and record is None:
             return None
         try:
+            if document is None or record is None:
+                missing = self.path if document is None else self.progress_path
+                raise ValueError(f"{missing.name} is missing")
             program = from_data(
                 document.get("program") if isinstance(document, dict) else None, str(self.path)
             )
-            progress = _progress(document["progress"], program)
+            if record["program_at_ns"] != document["started_at_ns"]:
+                raise ValueError("the progress is another program's")
+            progress = _progress(record["progress"], program)
+            saved_at = record["saved_at_ns"]
+            if not isinstance(saved_at, int) or isinstance(saved_at, bool):
+                raise ValueError(f"saved_at_ns {saved_at!r} is not a time")
         except ProgramError as error:
             raise StateError(f"{self.path}: its program is not valid: {error}") from None
         except (KeyError, TypeError, ValueError) as error:
             raise StateError(f"{self.path}: not a program's progress ({error})") from None
-        return program, progress
+        return Stored(program, progress, saved_at, record["program_at_ns"])
 
-    def save(self, program: Program, progress: Progress, t: float) -> None:
-        """Replace the stored progress (OSError when the disk refuses)."""
-        document = {
-            "program": to_data(program),
+    def save_program(self, program: Program, started_at_ns: int) -> None:
+        """Store a program that starts (its progress follows)."""
+        document = {"started_at_ns": started_at_ns, "program": to_data(program)}
+        write_atomically(self.path, json.dumps(document, indent=1))
+
+    def save_progress(self, progress: Progress, started_at_ns: int, wall_ns: int) -> None:
+        """Replace the stored progress of the program started at `started_at_ns`."""
+        record = {
+            "program_at_ns": started_at_ns,
+            "saved_at_ns": wall_ns,
             "progress": {
                 "index": progress.index,
                 "phase": progress.phase,
@@ -62,17 +95,125 @@ class ProgressStore:
                 "ready_at_ns": progress.ready_at_ns,
             },
         }
-        mark = (progress.index, progress.phase)
-        durable = mark != self._durable or t - self._durable_at >= DURABLE_EVERY_S
-        write_atomically(self.path, json.dumps(document, indent=1), durable=durable)
-        if durable:
-            self._durable, self._durable_at = mark, t
+        write_atomically(self.progress_path, json.dumps(record))
 
     def clear(self) -> None:
-        """No program runs: nothing to resume."""
-        with contextlib.suppress(FileNotFoundError):
-            self.path.unlink()
-        self._durable = None
+        """No program runs: nothing to resume, after a power cut too."""
+        removed = False
+        for path in (self.progress_path, self.path):
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                continue
+            removed = True
+        if removed:
+            fsync_directory(self.path.parent)
+
+    def set_aside(self) -> Path:
+        """Rename the stored program's files to `….stale`, durably; where the program went."""
+        for path in (self.progress_path, self.path):
+            try:
+                os.replace(path, path.with_name(path.name + STALE_SUFFIX))
+            except FileNotFoundError:
+                continue
+        fsync_directory(self.path.parent)
+        return self.path.with_name(self.path.name + STALE_SUFFIX)
+
+
+class ProgressWriter:
+    """Does the store's writes on a thread of its own, in order; of several progress
+    records waiting, only the newest is written. `failure` says why the last write failed
+    (None once one succeeds)."""
+
+    def __init__(self, store: ProgressStore) -> None:
+        self.store = store
+        self.failure: str | None = None
+        self._jobs: list[tuple[str, Callable[[], None]]] = []
+        self._unsaved_program: Callable[[], None] | None = None  # a program write that failed
+        self._busy = False
+        self._closed = False
+        self._wake = threading.Condition()
+        self._thread: threading.Thread | None = None
+
+    def program(self, program: Program, started_at_ns: int) -> None:
+        self._put("program", lambda: self.store.save_program(program, started_at_ns))
+
+    def progress(self, progress: Progress, started_at_ns: int, wall_ns: int) -> None:
+        self._put("progress", lambda: self.store.save_progress(progress, started_at_ns, wall_ns))
+
+    def clear(self) -> None:
+        self._put("clear", self.store.clear)
+
+    def flush(self, timeout: float | None = None) -> bool:
+        """Wait until every write handed over is done; False when `timeout` passed first."""
+        with self._wake:
+            return self._wake.wait_for(lambda: not self._jobs and not self._busy, timeout)
+
+    def close(self, timeout: float) -> bool:
+        """Finish what is waiting (at most `timeout` s), then stop the thread."""
+        done = self.flush(timeout)
+        with self._wake:
+            self._closed = True
+            self._wake.notify_all()
+        return done
+
+    def _put(self, kind: str, job: Callable[[], None]) -> None:
+        with self._wake:
+            if kind == "clear":  # nothing before it matters any more
+                self._jobs.clear()
+            elif kind == "progress" and self._jobs and self._jobs[-1][0] == "progress":
+                self._jobs.pop()  # the newest wins
+            self._jobs.append((kind, job))
+            if self._thread is None:
+                self._thread = threading.Thread(
+                    target=self._run, name="hermsd-program", daemon=True
+                )
+                self._thread.start()
+            self._wake.notify_all()
+
+    def _run(self) -> None:
+        while True:
+            with self._wake:
+                self._wake.wait_for(lambda: self._jobs or self._closed)
+                if not self._jobs:
+                    return
+                kind, job = self._jobs.pop(0)
+                self._busy = True
+            if kind == "clear":
+                self._unsaved_program = None
+            elif kind == "program":
+                self._unsaved_program = job
+            try:
+                if self._unsaved_program is not None:  # its progress is nothing without it
+                    self._unsaved_program()
+                    self._unsaved_program = None
+                if kind != "program":
+                    job()
+            except OSError as error:
+                self.failure = str(error)
+            else:
+                self.failure = None
+            with self._wake:
+                self._busy = False
+                self._wake.notify_all()
+
+
+def stale_reason(stored: Stored, wall_ns: int, zone_text: str) -> str | None:
+    """Why `stored` must not resume at `wall_ns` (None: it may). `zone_text` is its
+    ready-by time in local words, for a scheduled program."""
+    progress, age_s = stored.progress, (wall_ns - stored.saved_at_ns) / 1e9
+    if progress.phase == "done":
+        return "it had finished"
+    if abs(age_s) > RESUME_WITHIN_S:
+        when = "ago" if age_s > 0 else "ahead of this clock"
+        return (
+            f"it was saved {abs(age_s) / 60.0:.0f} min {when}, "
+            f"more than the {RESUME_WITHIN_S / 60.0:.0f} min a restart may take"
+        )
+    ready = progress.ready_at_ns
+    if progress.phase == "scheduled" and ready is not None and ready <= wall_ns:
+        return f"its ready-by time {zone_text} has passed"
+    return None
 
 
 def _progress(data: Any, program: Program) -> Progress:
