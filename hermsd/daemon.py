@@ -32,6 +32,7 @@ from hermsd.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.clock import Clock
 from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
 from hermsd.config_file import ConfigFile
+from hermsd.element2 import MidRangeController, SlowElement, total_share
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
@@ -97,6 +98,9 @@ class PeriodRecord:
     alarms: list[str]
     heater_allowed: bool
     reset_from: float | None = None  # the controller was reset to this output before its step
+    u2: float | None = None  # the second element's duty (two elements only), %
+    applied2: float | None = None  # its duty in the period before, on account (C2 tracks it)
+    switched2: float | None = None  # … and as switched (the heat the supervisor counts)
 
 
 class ControlHook(Protocol):
@@ -118,21 +122,31 @@ class Listener(Protocol):
 
 @dataclass(slots=True)
 class Outputs:
-    """The SSR and, optionally, a series contactor, both behind dead-men."""
+    """The SSR and, optionally, a series contactor and a second element, behind dead-men."""
 
     ssr: GuardedSwitch
     contactor: GuardedSwitch | None = None
+    element2: GuardedSwitch | None = None
 
     def all(self) -> list[GuardedSwitch]:
-        return [self.ssr] + ([self.contactor] if self.contactor else [])
+        return [s for s in (self.ssr, self.contactor, self.element2) if s is not None]
 
 
-def guard_outputs(ssr: Switch, contactor: Switch | None, clock: Clock, config: Config) -> Outputs:
-    """Wrap raw outputs in dead-men that trip after two windows without a refresh."""
+def guard_outputs(
+    ssr: Switch,
+    contactor: Switch | None,
+    clock: Clock,
+    config: Config,
+    element2: Switch | None = None,
+) -> Outputs:
+    """Wrap raw outputs in dead-men that trip after two windows without a refresh (the
+    second element, refreshed once a period: two periods)."""
     timeout = 2.0 * window_length(config)
+    slow = 2.0 * max(window_length(config), config.control.period)
     return Outputs(
         GuardedSwitch(ssr, clock.monotonic, timeout, "ssr"),
         GuardedSwitch(contactor, clock.monotonic, timeout, "contactor") if contactor else None,
+        GuardedSwitch(element2, clock.monotonic, slow, "element2") if element2 else None,
     )
 
 
@@ -146,7 +160,7 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
     s = config.safety
     return SafetyLimits.derive(
         litres=config.tun.litres,
-        element_watts=config.tun.element_watts,
+        element_watts=config.tun.element_watts + element2_watts(config),
         period=config.control.period,
         read_interval=config.sensor.read_interval,
         model=model,
@@ -170,10 +184,15 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
     )
 
 
+def element2_watts(config: Config) -> float:
+    """The second element's power (0 when none is fitted): the supervisor judges the total."""
+    return config.element2.watts if config.element2.backend != "none" else 0.0
+
+
 def learned_tun(stored: LearnedModel | None, config: Config) -> pid.PlantModel | None:
     """What was learned, at the configured litres, if `control.learn` lets it be used."""
-    if stored is None or config.control.learn == "off":
-        return None
+    if stored is None or config.control.learn == "off" or element2_watts(config):
+        return None  # learned of one element: it says nothing of two
     model = stored.plant_model(config.tun.litres)
     low, high = pid.MODEL_GAIN_RANGE  # a fill far from the learned one can leave it
     return model if low <= model.gain <= high else None
@@ -278,6 +297,10 @@ class Daemon:
         self._heat_up_seen = pid.heat_up_fit(self.controller)
         self._reloaded_at = -math.inf  # when a reload last changed the config
         self.planner = self._make_planner(config)
+        e2 = config.element2
+        self.element2 = (
+            SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
+        )
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
         self.manual_output = config.control.manual_output
@@ -614,8 +637,8 @@ class Daemon:
     def _learn(self, record: PeriodRecord) -> None:
         """Feed the learner one period; store and log what it learned (or why not)."""
         models = self.models
-        if self.config.control.learn != "on" or models is None:
-            return
+        if self.config.control.learn != "on" or models is None or self.element2 is not None:
+            return  # the learner models one element
         learner = self._learner
         fit = pid.heat_up_fit(self.controller)
         if record.state != "ok" or record.mode != "auto" or record.pv is None:
@@ -784,7 +807,12 @@ class Daemon:
             pv = self._last_celsius  # a slow read interval: the latest accepted value
         self._pv = pv
         applied = self._applied(now)
-        sup.period(now, pv, self.output, applied)
+        switched2 = applied2 = None
+        if self.element2 is not None:
+            switched2, applied2 = self.element2.applied(now)
+        if isinstance(self.controller, MidRangeController):
+            self.controller.applied2 = applied2 or 0.0
+        sup.period(now, pv, *self._total_power(self.output, applied, switched2))
         self._drain_alarms(now)
         state = "ok"
         reset_from: float | None = None
@@ -808,6 +836,7 @@ class Daemon:
             state = "alarm" if sup.active else "waiting"
         if self.mode == "manual" and state == "ok":
             state = "manual"
+        u2 = self._drive_element2(now, state)
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -827,6 +856,9 @@ class Daemon:
             alarms=sup.active,
             heater_allowed=sup.heater_allowed,
             reset_from=reset_from,
+            u2=u2,
+            applied2=applied2,
+            switched2=switched2,
         )
         for listener in self.listeners:
             listener.period(record)
@@ -907,6 +939,31 @@ class Daemon:
         self._set_ssr_accounting(False, now)
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(False)
+        if self.element2 is not None:
+            self.element2.force_off(now)
+
+    def _drive_element2(self, now: float, state: str) -> float | None:
+        """The second element for the period: the controller's u2 in auto, off otherwise
+        (manual drives the SSR alone; an alarm has already forced it off)."""
+        if self.element2 is None:
+            return None
+        u2 = 0.0
+        if state == "ok" and isinstance(self.controller, MidRangeController):
+            u2 = self.controller.u2
+        if state in ("ok", "manual"):
+            self.element2.drive(now, u2)
+        return u2
+
+    def _total_power(
+        self, output: float, applied: float, applied2: float | None
+    ) -> tuple[float, float]:
+        """(output, applied) as % of all the elements' power, for the supervisor."""
+        if applied2 is None or not isinstance(self.controller, MidRangeController):
+            return output, applied
+        w1, w2 = self.config.tun.element_watts, element2_watts(self.config)
+        return total_share(w1, w2, output, self.controller.u2), total_share(
+            w1, w2, applied, applied2
+        )
 
     def _set_ssr_accounting(self, on: bool, now: float) -> None:
         if on and self._ssr_on_since is None:

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 from hermsd import config as config_module
 from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
+from hermsd.element2 import MidRangeController
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import PlantModel
@@ -619,7 +620,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     A config record makes a new controller (a repeat of the one in force, which opens every
     rotated file, does not). The controller steps in auto mode when heating is allowed and
     there is a PV, after `reset(pv, reset_from)` if `reset_from` is set; its output and its
-    p, i, d terms must equal the logged ones exactly. The daemon resets the controller on its
+    p, i, d terms must equal the logged ones exactly (midrange: u2 too, the second element's
+    logged applied2 handed in first, as the daemon does). The daemon resets the controller on its
     first step and after every hold, reload or return to auto, so where records are missing
     the check resumes at the next reset.
     """
@@ -665,6 +667,10 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         if controller is None:
             unknown += 1
             continue
+        if isinstance(controller, MidRangeController):
+            if not (_is_number(record.applied2) and _is_number(record.u2)):
+                raise ReplayError(f"period k={record.k}: a midrange period without u2, applied2")
+            controller.applied2 = record.applied2  # what the daemon handed in, as logged
         try:
             if record.reset_from is not None:
                 controller.reset(record.pv, record.reset_from)
@@ -676,12 +682,15 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         except ValueError as error:
             raise ReplayError(f"period k={record.k}: the controller refused it: {error}") from None
         p, i, d = controller.terms
-        for name, logged, recomputed in (
+        compared = [
             ("output", record.output, output),
             ("p", record.p, p),
             ("i", record.i, i),
             ("d", record.d, d),
-        ):
+        ]
+        if isinstance(controller, MidRangeController) and record.u2 is not None:
+            compared.append(("u2", record.u2, controller.u2))
+        for name, logged, recomputed in compared:
             if logged != recomputed:
                 return Verification(
                     verified, unknown, Mismatch(record.k, record.t, name, logged, recomputed)

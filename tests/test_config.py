@@ -69,6 +69,16 @@ BOUNDS = [
     Bound("control.model_tau", float, 10, 1000000),
     Bound("control.dead_time", float, 0, 3600),
     Bound("control.model_ambient", float, -20, 50),
+    Bound("control.k1", float, 0, 10000, low_open=True),
+    Bound("control.ti1", float, 1, 100000),
+    Bound("control.tt1", float, 1, 100000, nullable=True),
+    Bound("control.k2", float, 0, 100, low_open=True),
+    Bound("control.ti2", float, 1, 100000),
+    Bound("control.tt2", float, 1, 100000, nullable=True),
+    Bound("control.ks", float, 0, 1000),
+    Bound("control.u1_ref", float, 1, 99),
+    Bound("control.u2_min", float, 0, 100),
+    Bound("control.u2_max", float, 0, 100, low_open=True),
     Bound("sensor.bus", int, 0, 255),
     Bound("sensor.address", int, 0x48, 0x4B),
     Bound("sensor.read_interval", float, 0.5, 10),
@@ -78,6 +88,11 @@ BOUNDS = [
     Bound("output.min_off", float, 0, 10),
     Bound("contactor.line", int, 0, 511, nullable=True),
     Bound("contactor.channel", int, 1, 8),
+    Bound("element2.line", int, 0, 511, nullable=True),
+    Bound("element2.channel", int, 1, 8),
+    Bound("element2.watts", float, 100, 20000),
+    Bound("element2.min_on", float, 5, 3600),
+    Bound("element2.min_off", float, 5, 3600),
     Bound("safety.max_temp", float, 30, 105),
     Bound("safety.hysteresis", float, 0.5, 30),
     Bound("safety.plausible_min", float, -55, 150),
@@ -113,11 +128,14 @@ CHOICES: dict[str, tuple[object, ...]] = {
         "takahashi",
         "back_calculation",
         "velocity_pi",
+        "midrange",
     ),
     "output.backend": ("sim", "serial-rts", "serial-dtr", "gpio"),
     "output.mains_hz": (50, 60),
     "contactor.backend": ("none", "gpio", "serial-rts", "serial-dtr", "relay-board"),
     "contactor.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
+    "element2.backend": ("none", "sim", "gpio", "serial-rts", "serial-dtr", "relay-board"),
+    "element2.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
 }
 TEXTS = {  # key: (longest, nullable)
     "tun.name": (32, False),
@@ -125,9 +143,11 @@ TEXTS = {  # key: (longest, nullable)
     "output.chip": (None, False),
     "contactor.port": (None, False),
     "contactor.chip": (None, False),
+    "element2.port": (None, False),
+    "element2.chip": (None, False),
     "log.dir": (None, True),
 }
-FLAGS = ("output.active_low", "contactor.active_low")
+FLAGS = ("output.active_low", "contactor.active_low", "element2.active_low")
 ALERT_EVENTS = ("alarm_raised", "alarm_cleared", "started", "stopped")
 LISTS = {  # key: (the items it may hold, or () for any printable text; nullable)
     "alerts.command": ((), True),
@@ -151,6 +171,21 @@ RESTART = [
     "contactor.active_low",
     "contactor.channel",
     "contactor.baud",
+    *(
+        f"element2.{key}"
+        for key in (
+            "backend",
+            "port",
+            "chip",
+            "line",
+            "active_low",
+            "channel",
+            "baud",
+            "watts",
+            "min_on",
+            "min_off",
+        )
+    ),
     "log.dir",
     "log.rotate_hours",
     "log.flush_interval",
@@ -291,6 +326,16 @@ def test_defaults_are_the_specified_ones() -> None:
             "dead_time": 115.0,
             "model_ambient": 20.0,
             "learn": "on",
+            "k1": 120.0,
+            "ti1": 800.0,
+            "tt1": None,
+            "k2": 1.0,
+            "ti2": 600.0,
+            "tt2": None,
+            "ks": 10.0,
+            "u1_ref": 50.0,
+            "u2_min": 0.0,
+            "u2_max": 100.0,
         },
         "sensor": {"bus": 1, "address": 0x48, "read_interval": 1.0},
         "output": {
@@ -312,6 +357,18 @@ def test_defaults_are_the_specified_ones() -> None:
             "active_low": False,
             "channel": 1,
             "baud": 9600,
+        },
+        "element2": {
+            "backend": "none",
+            "port": "/dev/ttyUSB2",
+            "chip": "/dev/gpiochip0",
+            "line": None,
+            "active_low": False,
+            "channel": 2,
+            "baud": 9600,
+            "watts": 3500.0,
+            "min_on": 120.0,
+            "min_off": 120.0,
         },
         "safety": {
             "max_temp": 95.0,
@@ -374,11 +431,11 @@ def _comment_blocks() -> dict[str, str]:
     section = ""
     comment: list[str] = []
     for line in CONFIG_FILE.read_text(encoding="utf-8").splitlines():
-        if re.fullmatch(r"[a-z_]+:", line):
+        if re.fullmatch(r"[a-z0-9_]+:", line):
             section, comment = line[:-1], []
         elif line.lstrip().startswith("#"):
             comment.append(line.strip().lstrip("#").strip())
-        elif match := re.match(r"  ([a-z_]+):(.*)", line):
+        elif match := re.match(r"  ([a-z0-9_]+):(.*)", line):
             inline = match[2].split(" #", 1)[1] if " #" in match[2] else ""
             blocks[f"{section}.{match[1]}"] = " ".join([*comment, inline]).strip()
             comment = []
@@ -500,6 +557,11 @@ def test_every_choice_is_accepted(key: str, choices: tuple[object, ...]) -> None
         values = {key: str(choice)}
         if choice == "gpio":
             values[key.split(".", maxsplit=1)[0] + ".line"] = "17"
+        if key.startswith("element2.") and choice != "none":
+            values["control.algorithm"] = "midrange"  # the second element needs midrange
+            values.setdefault("element2.backend", "sim")
+        if choice == "midrange":
+            values["element2.backend"] = "sim"
         assert value_at(parse(document(values)), key) == choice
 
 
@@ -922,7 +984,7 @@ def test_restart_keys_changed() -> None:
     for key in RESTART:
         section, name = key.split(".")
         old = value_at(DEFAULT, key)
-        changed = {bool: not old, int: 2, str: "/dev/other"}.get(type(old), 7)
+        changed = {bool: not old, int: 3 if old == 2 else 2, str: "/dev/other"}.get(type(old), 7)
         part = dataclasses.replace(getattr(DEFAULT, section), **{name: changed})
         assert restart_keys_changed(DEFAULT, dataclasses.replace(DEFAULT, **{section: part})) == [
             key
