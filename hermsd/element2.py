@@ -44,7 +44,8 @@ class OnOffModulator:
     """u2 (0–100 %) into on/off decisions, one per control period, within min on/off times.
 
     Each period first `account`s for the one before (the debt it left, and what was on
-    account delivered), then `decide`s the next from the new u2.
+    account delivered; `decide` does it when the caller has not), then `decide`s the next
+    from the new u2.
     """
 
     def __init__(self, min_on: float, min_off: float) -> None:
@@ -83,6 +84,8 @@ class OnOffModulator:
         """Whether the element is on for the period that starts at `t` with `duty` % asked."""
         if not 0.0 <= duty <= 100.0:
             raise ValueError(f"duty must be within 0..100 %, got {duty}")
+        if self._last_t != t:
+            self.account(t)  # the period before, if the caller has not accounted for it
         self._duty = duty / 100.0
         if duty <= 0.0 or duty >= 100.0:
             self._forgive(self._owed)  # fully off or on: nothing is carried
