@@ -134,12 +134,12 @@ class ControlConfig:
     # algorithm midrange: C1 drives the SSR's element (u1), C2 the second element (u2).
     k1: float = _number(120.0, 0, 10000, "%/°C", low_exclusive=True)
     ti1: float = _number(800.0, 1, 100000, "s")
-    tt1: float | None = _number(None, 1, 100000, "s", null_means="ti1")
-    k2: float = _number(1.0, 0, 100, "%/%", low_exclusive=True)
-    ti2: float = _number(600.0, 1, 100000, "s")
+    tt1: float | None = _number(100.0, 1, 100000, "s", null_means="ti1")
+    k2: float = _number(4.0, 0, 100, "%/%", low_exclusive=True)
+    ti2: float = _number(300.0, 1, 100000, "s")
     tt2: float | None = _number(None, 1, 100000, "s", null_means="ti2")
     ks: float = _number(10.0, 0, 1000)
-    u1_ref: float = _number(50.0, 1, 99, "%")
+    u1_ref: float = _number(70.0, 1, 99, "%")
     u2_min: float = _number(0.0, 0, 100, "%")
     u2_max: float = _number(100.0, 0, 100, "%", low_exclusive=True)
 
