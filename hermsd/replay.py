@@ -456,9 +456,12 @@ def delivered(log: Log) -> tuple[float | None, float | None]:
 
     A period's `applied` is the duty of the span since the period before it, so it is
     weighed by that span; after missing records, by one control period. The element's
-    watts come from the config in force; without one the energy is unknown (None).
+    watts come from the config in force; without one the energy is unknown (None). A second
+    element's energy (its duty as switched, `switched2`) is added; the mean duty is the
+    SSR's.
     """
     watts: float | None = None
+    watts2 = 0.0
     watts_known = True
     duty_s = span_s = joules = 0.0
     period_s = log.period_s()
@@ -466,6 +469,7 @@ def delivered(log: Log) -> tuple[float | None, float | None]:
     for entry in log.entries:
         if isinstance(entry, LoggedConfig):
             watts = _lookup(entry.config, "tun", "element_watts")
+            watts2 = _lookup(entry.config, "element2", "watts") or 0.0
             continue
         if previous is not None and entry.k == previous.k + 1 and entry.t >= previous.t:
             span = entry.t - previous.t
@@ -478,6 +482,8 @@ def delivered(log: Log) -> tuple[float | None, float | None]:
             watts_known = False
         else:
             joules += watts * entry.applied / 100.0 * span
+            if _is_number(entry.switched2):
+                joules += watts2 * entry.switched2 / 100.0 * span
     if span_s == 0:
         return None, None
     return duty_s / span_s, joules / 3.6e6 if watts_known else None

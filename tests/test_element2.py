@@ -3,22 +3,24 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_daemon import make
 
 from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, parse
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.element2 import OnOffModulator
 from hermsd.recorder import Recorder
-from hermsd.replay import load, verify
-from hermsd.safety import Alarm
+from hermsd.replay import delivered, load, verify
 from hermsd.sim.clock import VirtualClock
+from hermsd.sim.hlt import PhysicalPlant
 from hermsd.sim.scenario import Event, Scenario, ScenarioError, run
-from hermsd.sim.world import World, build_world
+from hermsd.sim.world import build_world
 
 H = 5.0  # s, the control period
 
@@ -156,27 +158,6 @@ def two_element_config(**control: object) -> Config:
     )
 
 
-class Listener:
-    def __init__(self) -> None:
-        self.records: list[PeriodRecord] = []
-        self.alarms: list[Alarm] = []
-
-    def period(self, record: PeriodRecord) -> None:
-        self.records.append(record)
-
-    def alarm(self, alarm: Alarm) -> None:
-        self.alarms.append(alarm)
-
-
-def make(config: Config, plant: dict[str, object]) -> tuple[Daemon, World, VirtualClock, Listener]:
-    clock = VirtualClock()
-    world = build_world(config, clock, plant, history=True)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
-    listener = Listener()
-    daemon.listeners.append(listener)
-    return daemon, world, clock, listener
-
-
 PLANT = {"model": "physical", "litres": 90.0, "element_watts": 2000.0, "element2_watts": 3500.0}
 
 
@@ -215,6 +196,18 @@ def test_the_loop_hands_applied2_to_the_slow_controller_and_replay_reproduces_it
     assert {p.algorithm for p in periods} == {"midrange"}
     cycled = [p for p in periods if p.switched2 not in (0.0, 100.0, None)]
     assert not cycled  # the second element switches only at period boundaries
+    edges = world.circuit.relay2_edges
+    assert len(edges) >= 3
+    assert min(b - a for a, b in itertools.pairwise(edges)) >= 120.0  # min on and off
+    # The energy replay reports is both elements' up to the last period: the water's books
+    # at the end, less what was still on its way (60 s of transport, 5.5 kW at most) and
+    # plus what was switched after the last period.
+    _, kwh = delivered(log)
+    end = clock.monotonic()
+    assert isinstance(world.plant, PhysicalPlant)
+    reached = world.plant.energy_in(end) / 3.6e6
+    after = (end - periods[-1].t) * 5500.0 / 3.6e6
+    assert kwh is not None and -after <= kwh - reached <= 60.0 * 5500.0 / 3.6e6
     entries = log.entries
     result = verify(entries)
     assert result.mismatch is None and result.verified > 2000
