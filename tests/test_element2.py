@@ -219,7 +219,7 @@ def test_the_loop_hands_applied2_to_the_slow_controller_and_replay_reproduces_it
     mismatch = verify(entries).mismatch
     # In the very step that is handed it: C2's integral moves by h/Tt2 per % (Tt2 = ti2).
     assert mismatch is not None and (mismatch.k, mismatch.name) == (900, "d")
-    assert mismatch.recomputed - mismatch.logged == pytest.approx(H / 300.0, rel=1e-9)
+    assert mismatch.recomputed - mismatch.logged == pytest.approx(H / 600.0, rel=1e-9)
 
 
 def test_a_dead_second_element_is_caught_and_a_shorted_relay_too() -> None:
