@@ -19,7 +19,7 @@ from hermsd.recorder import Recorder
 from hermsd.replay import delivered, load, verify
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PhysicalPlant
-from hermsd.sim.scenario import Event, Scenario, ScenarioError, run
+from hermsd.sim.scenario import Event, Scenario, ScenarioError, effective_config, run
 from hermsd.sim.world import build_world
 
 H = 5.0  # s, the control period
@@ -247,6 +247,13 @@ def test_a_dead_second_element_is_caught_and_a_shorted_relay_too() -> None:
     alarms = run(shorted).summary["alarms"]
     assert alarms and alarms[0]["kind"] in ("ssr_stuck_on", "dry_fire")
     assert alarms[0]["heater_off_after_s"] == 0.0  # the series contactor feeds both
+
+
+def test_a_scenario_runs_the_second_element_on_the_simulated_tun_whatever_the_file_says() -> None:
+    base = parse(TWO + "  watts: 3500\n")  # a relay board on /dev/ttyUSB3
+    scenario = Scenario(duration=1200.0, plant=PLANT, events=())
+    assert effective_config(base, scenario).element2.backend == "sim"  # as logged
+    assert run(scenario, base).summary["algorithm"] == "midrange"
 
 
 def test_second_element_events_need_a_second_element() -> None:

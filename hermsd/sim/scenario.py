@@ -274,6 +274,9 @@ def effective_config(base: Config, scenario: Scenario) -> Config:
 def _validated(document: dict[str, Any], source: str) -> Config:
     """A config document on the simulated heater, checked as a file would be."""
     document.setdefault("output", {})["backend"] = "sim"
+    element2 = document.get("element2")
+    if isinstance(element2, dict) and element2.get("backend", "none") != "none":
+        element2["backend"] = "sim"  # the simulated tun's second element, whatever the file's
     try:
         return config_module.parse(yaml.safe_dump(document), source)
     except config_module.ConfigError as error:
