@@ -1,6 +1,7 @@
 """The peers the benchmarks compare hermsd with, behind the daemon's controller interface.
 
 - simple-pid 2.0.1 (the `bench` dependency group), with its own integral and output limits;
+- CraftBeerPi 4's PIDAutotune kettle logic (its relay autotune; `CraftBeerPiAutotune`);
 - CraftBeerPi 4's PIDHerms kettle logic, its control law rewritten here from its behaviour:
   a positional PID in parallel form, P and I on the error, D on the measurement without a
   filter, the integral frozen while the last output sat at a limit, the output clamped to
@@ -14,6 +15,8 @@ so that a peer runs through the very same daemon, sensor and heater as hermsd.
 from __future__ import annotations
 
 import contextlib
+import math
+from collections import deque
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -96,3 +99,90 @@ def controlled_by(peer: str, gains: dict[str, float]) -> Iterator[None]:
         yield
     finally:
         daemon_module.make_controller = original
+
+
+class CraftBeerPiAutotune:
+    """CraftBeerPi 4's PIDAutotune kettle logic (after the Arduino PID AutoTune library),
+    rewritten here from its published algorithm, one call a sample (its 5 s):
+
+    - a relay from an initial output of 0: `outputstep` above it (clipped to 0..`maxout`)
+      until the input exceeds setpoint + noiseband, then `outputstep` below it (so 0 %)
+      until it falls under setpoint − noiseband; the setpoint is the kettle's, truncated to
+      a whole degree; noiseband 0.5 °C;
+    - a sample is a peak when it is above (below) every sample of the lookback window
+      (60 s by default); a change between maximum and minimum counts a peak (its value and
+      time kept, the last five);
+    - after more than four peaks, at each new one: the induced amplitude is the sum of the
+      three absolute differences between the oldest four of the last five peaks, over 6;
+      it has converged when half the spread of those peaks exceeds it by less than 5 %;
+      then Ku = 4·outputstep/(π·amplitude) and Pu the mean of the two spans between peaks
+      two apart; it gives up at 20 peaks.
+    """
+
+    def __init__(
+        self,
+        setpoint: float,
+        outputstep: float = 100.0,
+        maxout: float = 100.0,
+        lookback_s: float = 60.0,
+        sample_s: float = 5.0,
+        noiseband: float = 0.5,
+    ) -> None:
+        self.setpoint = float(int(setpoint))
+        self.outputstep = outputstep
+        self.maxout = maxout
+        self.noiseband = noiseband
+        self.window: deque[float] = deque(maxlen=round(lookback_s / sample_s))
+        self.peaks: deque[float] = deque(maxlen=5)
+        self.peak_times: deque[float] = deque(maxlen=5)
+        self.peak_type = 0
+        self.peak_count = 0
+        self.stepping_up = True
+        self.output = min(outputstep, maxout)
+        self.state = "running"
+        self.ku = math.nan
+        self.pu = math.nan
+
+    def start(self, t: float) -> None:
+        self.peak_times.append(t)  # as the original: the start counts as the first time
+
+    def sample(self, value: float, t: float) -> bool:
+        """One sample at `t` s; True when done (state 'succeeded' or 'failed')."""
+        if self.stepping_up and value > self.setpoint + self.noiseband:
+            self.stepping_up = False
+        elif not self.stepping_up and value < self.setpoint - self.noiseband:
+            self.stepping_up = True
+        step = self.outputstep if self.stepping_up else -self.outputstep
+        self.output = min(max(step, 0.0), self.maxout)
+        is_max = all(value > old for old in self.window)
+        is_min = all(value < old for old in self.window)
+        self.window.append(value)
+        if len(self.window) < (self.window.maxlen or 0):
+            return False
+        turned = False
+        if is_max:
+            turned, self.peak_type = self.peak_type == -1, 1
+        elif is_min:
+            turned, self.peak_type = self.peak_type == 1, -1
+        if turned:
+            self.peak_count += 1
+            self.peaks.append(value)
+            self.peak_times.append(t)
+        if turned and self.peak_count > 4:
+            peaks = list(self.peaks)
+            highest = lowest = peaks[-2]
+            amplitude = 0.0
+            for i in range(len(peaks) - 2):
+                amplitude += abs(peaks[i] - peaks[i + 1])
+                highest, lowest = max(peaks[i], highest), min(peaks[i], lowest)
+            amplitude /= 6.0
+            if (0.5 * (highest - lowest) - amplitude) / amplitude < 0.05:
+                times = list(self.peak_times)
+                self.ku = 4.0 * self.outputstep / (amplitude * math.pi)
+                self.pu = 0.5 * ((times[3] - times[1]) + (times[4] - times[2]))
+                self.state, self.output = "succeeded", 0.0
+                return True
+        if self.peak_count >= 20:
+            self.state, self.output = "failed", 0.0
+            return True
+        return False

@@ -121,7 +121,7 @@ def row(spec: TunSpec, label: str, s: dict[str, Any], cbpi: dict[str, Any]) -> s
 
 def family_table(minimums: dict[str, float | None], floors: dict[str, float | None]) -> str:
     """The tuns' parameters, how long full power takes each to the band, and the least
-    recovery a controller acting once a period can show."""
+    recovery a controller acting on every reading can show."""
     lines = [
         "| tun | litres | element kW | UA W/K | transport delay s | sensor lag s | room °C "
         "| lid | full power to the band h | recovery floor ×min |",
@@ -199,12 +199,16 @@ def main() -> int:
             "in band, p-p ≤ 0.1 °C, no alarm; day 2: overshoot ≤ 0.1 °C both times, settle",
             "≤ ×1.01, recovery ≤ ×1.02, jump ≤ 10 %, 100 % in band, ≤ 720 edges/h, no alarm;",
             "and ahead of PIDHerms on overshoot, settle, recovery and jump. Recovery floor:",
-            "the least recovery a controller that acts once a control period (5 s) can show,",
-            "read as the recovery is: the sensor shows the water in the period after it, so",
-            "the element runs that period at the duty day 2 decided before the water (its",
+            "the least recovery a controller that acts on every reading (1 s) can show, read",
+            "as the recovery is (at the first 5 s period sample in the band for good): nothing",
+            "knows of the water before the first reading after it (0.5 s after it here), so",
+            "until then the element runs at the duty day 2 decided before the water (its",
             "on-time first) and at full power from then on (a peer that happened to be at a",
-            "higher duty then can come in under it). Where day 2's floor is above ×1.02, no",
-            "controller holding at that duty can meet the goal.",
+            "higher duty then can come in under it). hermsd acts within the period once two",
+            "readings in a row show the drop and its controller answers it with full power,",
+            "so it recovers a reading or more behind this floor. Where day 2's floor is above",
+            "×1.02, no controller holding at that duty can meet the goal as it is measured:",
+            "the recovery is read on the period's samples, the minimum is not.",
             tally,
         ]
     )

@@ -24,24 +24,46 @@ temperature), with its defaults (step output from tun.litres and tun.element_wat
 the setpoint): the experiment's duration (baseline included) and its errors against the same
 truth, beside the brew-day log the FILE method needed for the same tun.
 
-    uv run python bench/tuning.py [--write]
+The brew day after `--write`: each tun's step test, and separately its ordinary day 1's
+whole log read by `hermsd tune FILE`, written (`--write`) into a copy of the shipped config
+(the tun's litres and watts set, as a brewer would), then the robustness bench's brew day on
+that file with `control.learn: off` and an empty state directory, so that the written model
+is what runs; judged by the robustness bench's day-2 goals (bench/robustness.py).
+
+    uv run --group bench python bench/tuning.py [--write] [--jobs 2]
+
+`hermsd tune relay` on the same family, from a cold start, with its defaults, beside
+CraftBeerPi 4's PIDAutotune (bench/peers.py) through the same daemon: durations, K, τ, θ
+errors, and Ku, Pu against the tun's own ultimate point (`--relay`: this table only).
+
+    uv run --group bench python bench/tuning.py --relay [--write]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
+import multiprocessing
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
-from hermsd import config, replay, step_response, tune
+from control import _replace_section  # bench/control.py, beside this file
+from peers import CraftBeerPiAutotune  # bench/peers.py, beside this file
+from robustness import DAY_2, SHIPPED, _cell, missed  # bench/robustness.py, beside this file
+
+from hermsd import config, relay, replay, step_response, tune
+from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.safety import Alarm
 from hermsd.sim import scenario
+from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2
 from hermsd.sim.tuns import FAMILY, TunSpec
-from hermsd.sim.world import simulated_step_test
+from hermsd.sim.world import build_world, simulated_step_test
 
 HOLD_S = 1800.0
 BAND_C = 0.5
@@ -92,12 +114,17 @@ def heat_up_and_hold(log: replay.Log) -> replay.Log | None:
 
 
 def brew_day_log(spec: TunSpec, directory: Path) -> replay.Log:
-    """The heat-up and hold of the tun's brew day with the default config."""
+    """The whole log of the tun's brew day with the default config (an ordinary day 1)."""
     scenario.run(spec.brew_day(), spec.config(config.DEFAULT), log_dir=directory)
-    trimmed = heat_up_and_hold(replay.load(sorted(directory.glob("*.mcap"))))
-    if trimmed is None:
+    return replay.load(sorted(directory.glob("*.mcap")))
+
+
+def trimmed(spec: TunSpec, log: replay.Log) -> replay.Log:
+    """The heat-up and hold of the day's log."""
+    cut = heat_up_and_hold(log)
+    if cut is None:
         raise SystemExit(f"{spec.name}: the brew day never reached the band (an alarm?)")
-    return trimmed
+    return cut
 
 
 HEADER = (
@@ -172,33 +199,389 @@ def step_row(
     )
 
 
+def true_ultimate(spec: TunSpec) -> tuple[float, float]:
+    """Ku (%/°C) and Pu (s) of the tun's own transfer function, K·e^(−Ls)/((τs + 1)(T_s·s + 1))
+    (lid off: K and τ of the hold, the evaporation linearised as its mean loss): the
+    frequency where L·ω + atan(τω) + atan(T_s·ω) = π, found by halving an interval on ω
+    (not the code under test), and 1/|G| there."""
+    true = truth(spec)
+    gain, tau = true.gain_at_hold, true.tau * true.gain_at_hold / true.gain
+    delay, lag = spec.transport_delay_s, spec.sensor_lag_s
+
+    def phase(w: float) -> float:
+        return delay * w + math.atan(tau * w) + math.atan(lag * w)
+
+    low, high = 1e-9, math.pi / delay
+    while high - low > 1e-12 * high:
+        low, high = (
+            (low, 0.5 * (low + high))
+            if phase(0.5 * (low + high)) > math.pi
+            else (0.5 * (low + high), high)
+        )
+    w = 0.5 * (low + high)
+    return math.sqrt((1 + (tau * w) ** 2) * (1 + (lag * w) ** 2)) / gain, 2 * math.pi / w
+
+
+def relay_test(spec: TunSpec) -> relay.RelayExperiment:
+    """`hermsd tune relay --simulate` with its defaults, from the room's temperature."""
+    cfg = spec.config(config.DEFAULT)
+    clock = VirtualClock()
+    world = build_world(cfg, clock, spec.plant())
+    experiment = relay.RelayExperiment(Daemon(cfg, clock, world.sensor, world.outputs), SETPOINT_C)
+    relay.start(experiment, (KeyboardInterrupt,))
+    return experiment
+
+
+@dataclasses.dataclass
+class CraftBeerPiRun:
+    """CraftBeerPi's autotune (bench/peers.py) driving the daemon's manual output each period
+    on the reading it would have read last (its 5 s sample = the daemon's period)."""
+
+    daemon: Daemon
+    tuner: CraftBeerPiAutotune
+    limit_s: float
+    finished_at: float | None = None
+
+    def period(self, record: PeriodRecord) -> None:
+        if self.finished_at is not None or not record.readings:
+            return
+        if self.tuner.sample(record.readings[-1], record.t) or record.t >= self.limit_s:
+            self.finished_at = record.t
+            self.daemon.set_manual(0.0)
+            self.daemon.stop()
+        else:
+            self.daemon.set_manual(self.tuner.output)
+
+    def alarm(self, alarm: Alarm) -> None:
+        if alarm.raised and self.finished_at is None:
+            self.finished_at = alarm.at
+            self.tuner.state = f"alarm {alarm.kind}"
+            self.daemon.stop()
+
+
+CBPI_LIMIT_S = 8 * 3600.0
+
+
+def craftbeerpi_test(spec: TunSpec) -> CraftBeerPiRun:
+    """CraftBeerPi's PIDAutotune with its defaults (output step 100 %, lookback 60 s) from the
+    room's temperature to 66 °C, through the same daemon, sensor and heater."""
+    cfg = spec.config(config.DEFAULT)
+    clock = VirtualClock()
+    world = build_world(cfg, clock, spec.plant())
+    daemon = Daemon(cfg, clock, world.sensor, world.outputs)
+    tuner = CraftBeerPiAutotune(SETPOINT_C)
+    tuner.start(0.0)
+    peer = CraftBeerPiRun(daemon, tuner, CBPI_LIMIT_S)
+    daemon.listeners.append(peer)
+    daemon.set_manual(tuner.output)
+    with daemon:
+        daemon.run()
+    return peer
+
+
+RELAY_HEADER = (
+    "| tun | P (%) | stopped | heat-up (min) | at SP (min) | swing (°C) | K err | K err (hold) "
+    "| τ err | θ true (s) | θ err | goals | Ku true | Pu true (s) | Ku relay (err) "
+    "| Ku DF (err) | Pu relay (err) | τ, θ from Ku, Pu (err) | Ku model (err) "
+    "| CBPi Ku (err) | CBPi Pu (err) | CBPi (h) |",
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+)
+RELAY_GOAL_RELATIVE = 0.15
+RELAY_GOAL_MINUTES = 45.0
+
+
+def relay_row(
+    spec: TunSpec, experiment: relay.RelayExperiment, peer: CraftBeerPiRun
+) -> tuple[str, dict[str, float], bool]:
+    """The row of one tun's relay test and CraftBeerPi's, the errors, whether goals were met."""
+    true, last = truth(spec), experiment.last
+    ku_true, pu_true = true_ultimate(spec)
+    if last is None or last.tuned is None or experiment.reached_at is None:
+        return f"| {spec.name} | no fit: {experiment.stopped} |", {}, False
+    m = last.tuned.model
+    heat_up = (experiment.reached_at - experiment.times[0]) / 60.0
+    at_sp = last.at_setpoint / 60.0
+    swing = max(
+        abs(pv - SETPOINT_C)
+        for t, pv in zip(experiment.times, experiment.pvs, strict=True)
+        if pv is not None and experiment.relay_at is not None and t >= experiment.relay_at
+    )
+    gain = true.gain_at_hold  # = the linear gain with the lid on
+    tau = true.tau * true.gain_at_hold / true.gain
+    errors = {
+        "K": m.gain / gain - 1.0,
+        "tau": m.tau / tau - 1.0,
+        "theta": m.dead_time / true.dead_time - 1.0,
+    }
+    ok = all(abs(e) <= RELAY_GOAL_RELATIVE for e in errors.values()) and at_sp <= RELAY_GOAL_MINUTES
+    ku_model, _ = relay.ultimate_point(m.gain, m.tau, m.dead_time)
+    errors["Ku model"] = ku_model / ku_true - 1.0
+    found = last.ultimate
+    ku_relay = ku_df = pu_relay = implied = "–"
+    if found is not None:
+        errors["Ku relay"] = found.ku / ku_true - 1.0
+        errors["Ku DF"] = found.ku_df / ku_true - 1.0
+        errors["Pu relay"] = found.pu / pu_true - 1.0
+        ku_relay = f"{found.ku:.0f} ({100 * errors['Ku relay']:+.0f} %)"
+        ku_df = f"{found.ku_df:.0f} ({100 * errors['Ku DF']:+.0f} %)"
+        pu_relay = f"{found.pu:.0f} ({100 * errors['Pu relay']:+.0f} %)"
+        foptd = relay.implied_foptd(m.gain, found)
+        if foptd is not None:
+            errors["τ from Ku, Pu"] = foptd[0] / tau - 1.0
+            errors["θ from Ku, Pu"] = foptd[1] / true.dead_time - 1.0
+            implied = (
+                f"{foptd[0]:.0f} ({100 * errors['τ from Ku, Pu']:+.0f} %), "
+                f"{foptd[1]:.0f} ({100 * errors['θ from Ku, Pu']:+.0f} %)"
+            )
+    tuner = peer.tuner
+    cbpi_hours = (peer.finished_at or math.nan) / 3600.0
+    if tuner.state == "succeeded":
+        errors["CBPi Ku"] = tuner.ku / ku_true - 1.0
+        errors["CBPi Pu"] = tuner.pu / pu_true - 1.0
+        cbpi_ku = f"{tuner.ku:.0f} ({100 * errors['CBPi Ku']:+.0f} %)"
+        cbpi_pu = f"{tuner.pu:.0f} ({100 * errors['CBPi Pu']:+.0f} %)"
+    else:
+        cbpi_ku = cbpi_pu = tuner.state
+    lin = f"{100 * (m.gain / true.gain - 1):+.1f} %"
+    hold = f"{100 * errors['K']:+.1f} %" if spec.lid_off else "="
+    return (
+        f"| {spec.name} | {experiment.amplitude:g} | {experiment.stopped} | {heat_up:.0f} "
+        f"| {at_sp:.0f} | {swing:.2f} | {lin} | {hold} | {100 * errors['tau']:+.1f} % "
+        f"| {true.dead_time:.0f} | {100 * errors['theta']:+.1f} % | {'met' if ok else 'missed'} "
+        f"| {ku_true:.0f} | {pu_true:.0f} | {ku_relay} | {ku_df} | {pu_relay} | {implied} "
+        f"| {ku_model:.0f} ({100 * errors['Ku model']:+.0f} %) | {cbpi_ku} | {cbpi_pu} "
+        f"| {cbpi_hours:.1f} |",
+        errors,
+        ok,
+    )
+
+
+def relay_section() -> str:
+    started = time.perf_counter()
+    table, met, worst = [*RELAY_HEADER], 0, {}
+    for spec in FAMILY:
+        print(f"{spec.name} (relay)…", file=sys.stderr, flush=True)
+        line, errors, ok = relay_row(spec, relay_test(spec), craftbeerpi_test(spec))
+        table.append(line)
+        met += ok
+        for key, value in errors.items():
+            worst[key] = max(worst.get(key, 0.0), abs(value))
+    summary = ", ".join(f"{key} {100 * value:.0f} %" for key, value in worst.items())
+    return "\n".join(
+        [
+            "## Tuning by a relay test (`hermsd tune relay`) and CraftBeerPi's autotune",
+            "",
+            "`uv run --group bench python bench/tuning.py --relay --write`: each tun of the "
+            "family, from the room's temperature, runs `hermsd tune relay` with its defaults "
+            "through the daemon "
+            "on the simulator: heat-up in auto, 5 min hold (its mean duty is the bias), then "
+            f"the relay ±P around the bias with hysteresis ±{relay.HYSTERESIS_C:g} °C (P for a "
+            f"~{relay.TARGET_SWING_C:g} °C swing from the config's litres, watts and dead time, "
+            "rescaled once after the first cycle; stop: "
+            f"{relay.STOP_RULE}). The room's temperature is the first PV (the water stood in "
+            "it). K, τ, θ errors against the truth of the tables above (K, τ: with the lid "
+            "off the hold's, evaporation included; K err the linear one beside it); at SP: "
+            "from PV first within 0.25 °C of the setpoint to the stop; swing: the largest "
+            "|PV − SP| during the relay. Ku true, Pu true: the tun's own transfer function "
+            "K·e^(−Ls)/((τs+1)(T_s·s+1)) at phase −180°, solved in this script. Ku relay: "
+            "the describing function 4d/(π·√(a² − ε²)) on the settled cycles; Ku model: the "
+            "fitted FOPTD's own ultimate point. CBPi: CraftBeerPi 4's PIDAutotune "
+            "(bench/peers.py) with its defaults (output step 100 %, lookback 60 s, noise "
+            "band 0.5 °C), from the same cold start through the same daemon; (h) its whole run. "
+            f"Goals: K, τ, θ within ±{100 * RELAY_GOAL_RELATIVE:g} % in ≤ "
+            f"{RELAY_GOAL_MINUTES:g} min at the setpoint.",
+            "",
+            f"Goals met on {met} of {len(FAMILY)}. Worst |error|: {summary}.",
+            "",
+            *table,
+            "",
+            "Every tun meets the goals through the fit (K, τ, θ from the hold and the cycles "
+            "with the room's temperature): the hold pins K, the cycles θ and K/τ. The "
+            "thermowells' τ comes out 12–13 % long (a sensor lag is not a dead time; the step "
+            "test sees the same). The lid-off tuns' K is the hold's (evaporation included), "
+            "20–25 % below the linear losses': the gain that matters at the setpoint. Ku and "
+            "Pu from the cycles (exact for a lag-dominant tun) land within −10..+9 % and "
+            "−12..+7 % of the tun's own; the describing function on the same cycles says "
+            "36–55 % too little, for the PV is a triangle and the hysteresis's 4ε/s stretches "
+            "the period. With θ ≥ 240 s (far sensor, thermowell 120 L) a cycle lasts ~20 min "
+            "(4θ plus the hysteresis's 4ε/s): 40 min of relay after the 5 min hold give fewer "
+            "than the two cycles Ku and Pu need, and the first one, from the config's "
+            "dead-time guess (115 s), swings past ±0.5 °C (0.55 °C) before P is rescaled; "
+            "the fit is within the goals there all the same.",
+            "",
+            "CraftBeerPi's autotune switches 0 ↔ 100 % (its output step 100 % around an "
+            "initial 0), yet divides by the output step in Ku = 4·100/(π·a): twice the "
+            "relay's real half-span of 50 %. Its ±0.5 °C band, uncorrected, and the triangular "
+            "PV pull the describing function's Ku down by about as much, so its Ku lands "
+            "between −39 % and +18 % of the truth by two errors cancelling, not by a sound "
+            "measurement. Its Pu is the relay's own, asymmetric period (full power up, the "
+            "hold's loss down, the 1 °C band in between): 1.8 to 12 times the ultimate "
+            "period, so every rule that uses Pu (Ti, Td) is off by as much. It stops at the "
+            "fifth peak, 0.8 to 4.3 h after a cold start.",
+            "",
+            f"Run time {time.perf_counter() - started:.0f} s.",
+            "",
+        ]
+    )
+
+
+# -- the brew day after `--write` ----------------------------------------------------------------
+
+AFTER_HEADER = (
+    "| tun | day 1 | written (K °C/%, τ s, θ s, room °C) | K err (hold) | overshoot °C "
+    "| after water °C | settle ×min | recovery ×min (floor) | jump % | in band % | edges/h "
+    "| alarms | day-2 goals |",
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+)
+STEP, FILE, FILE_ROOM = "tune step", "tune FILE (day 1's log)", "tune FILE --ambient"
+METHODS = (STEP, FILE, FILE_ROOM)
+
+
+def brewers_copy(spec: TunSpec, directory: Path) -> Path:
+    """The shipped config file with the tun's litres and watts, as a brewer edits it."""
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "hermsd.yaml"
+    path.write_bytes(SHIPPED.read_bytes())
+    tune.write_config(path, {"tun.litres": spec.litres, "tun.element_watts": spec.element_watts})
+    return path
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class DayAfter:
+    """One tun's brew day after one method's `--write`: its table row and verdict."""
+
+    row: str
+    verdict: str  # "not written", "met", "floor" (missed only the recovery, at its floor), "missed"
+
+
+def day_after(
+    spec: TunSpec, method: str, write: Callable[[Path], str], directory: Path
+) -> DayAfter:
+    """`write` the tune's result into a copy of the config, run the brew day on it with
+    nothing learned, and give its row and verdict on the day-2 goals."""
+    path = brewers_copy(spec, directory)
+    try:
+        write(path)
+    except tune.TuneError as error:
+        why = str(error).split(": ", 1)[1]
+        return DayAfter(
+            f"| {spec.name} | {method} | not written ({why}) |" + " – |" * 10, "not written"
+        )
+    written = config.load(path)
+    c = written.control
+    off = dataclasses.replace(written, control=dataclasses.replace(c, learn="off"))
+    with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:
+        s = scenario.run(spec.brew_day(), off, state_dir=Path(state)).summary
+    misses = missed(s, DAY_2)
+    verdict = "met" if not misses else "missed"
+    if misses == ["recovery"] and s["recovery_ratio"] <= s["recovery_floor_ratio"]:
+        verdict = "floor"
+    alarms = ", ".join(f"{a['kind']} at {a['at_s']:.0f} s" for a in s["alarms"]) or "0"
+    hold = truth(spec).gain_at_hold
+    return DayAfter(
+        f"| {spec.name} | {method} | {c.model_gain:g}, {c.model_tau:g}, {c.dead_time:g}, "
+        f"{c.model_ambient:g} | {100 * (c.model_gain / hold - 1):+.1f} % "
+        f"| {_cell(s['heatup_overshoot_c'], 3)} | {_cell(s['upset_overshoot_c'], 3)} "
+        f"| {_cell(s['settle_ratio'], 3)} "
+        f"| {_cell(s['recovery_ratio'], 3)} ({_cell(s['recovery_floor_ratio'], 3)}) "
+        f"| {_cell(s['max_output_jump'], 1)} | {_cell(s['held_in_band_pct'], 2)} "
+        f"| {_cell(s['ssr_edges_per_hour'], 0)} | {alarms} "
+        f"| {'met' if not misses else 'missed: ' + ', '.join(misses)} |",
+        verdict,
+    )
+
+
+def write_from_log(day: replay.Log, room: float | None, path: Path) -> str:
+    """`hermsd tune FILE... [--ambient room] --write path` on the day's log."""
+    return tune.write_tuned(path, tune.from_log(day, room))
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class TunRows:
+    """One tun's rows of every table, and what they count towards."""
+
+    from_log: dict[bool, tuple[str, bool]]  # by whether the room's temperature was given
+    step: tuple[str, bool]
+    step_minutes: float | None
+    after: list[DayAfter]
+
+
+def measure(index: int) -> TunRows:
+    """Every method on tun `index`, and the brew day after each one's `--write`."""
+    spec = FAMILY[index]
+    print(f"{spec.name}…", file=sys.stderr, flush=True)
+    with tempfile.TemporaryDirectory() as name:
+        directory = Path(name)
+        day = brew_day_log(spec, directory / "day 1")
+        log = trimmed(spec, day)
+        experiment = step_test(spec)
+        minutes = None
+        if experiment.last is not None:
+            minutes = (experiment.last.elapsed + step_response.BASELINE_S) / 60
+        from_log = {
+            given: row(spec, tune.from_log(log, spec.ambient_c if given else None))
+            for given in (False, True)
+        }
+        after = [
+            day_after(
+                spec, STEP, lambda path: step_response.write(experiment, path), directory / "s"
+            ),
+            *(
+                day_after(
+                    spec,
+                    method,
+                    functools.partial(write_from_log, day, room),
+                    directory / method,
+                )
+                for method, room in ((FILE, None), (FILE_ROOM, spec.ambient_c))
+            ),
+        ]
+        return TunRows(
+            from_log,
+            step_row(spec, experiment, log.elapsed[-1] - log.elapsed[0]),
+            minutes,
+            after,
+        )
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    parser.add_argument("--relay", action="store_true", help="the relay test's table only")
     args = parser.parse_args()
+    if args.relay:
+        relay_text = relay_section()
+        print(relay_text)
+        if args.write:
+            _replace_section(
+                Path(__file__).with_name("RESULTS.md"), "## Tuning by a relay test", relay_text
+            )
+        return 0
     started = time.perf_counter()
     tables: dict[bool, list[str]] = {False: [*HEADER], True: [*HEADER]}
     met = {False: 0, True: 0}
     step_table, step_met, step_minutes = [*STEP_HEADER], 0, []
-    with tempfile.TemporaryDirectory() as directory:
-        for index, spec in enumerate(FAMILY):
-            print(f"{spec.name}…", file=sys.stderr, flush=True)
-            log = brew_day_log(spec, Path(directory) / str(index))
-            experiment = step_test(spec)
-            line, ok = step_row(spec, experiment, log.elapsed[-1] - log.elapsed[0])
-            step_table.append(line)
-            step_met += ok
-            if experiment.last is not None:
-                step_minutes.append((experiment.last.elapsed + step_response.BASELINE_S) / 60)
-            for given in (False, True):
-                tuned = tune.from_log(log, spec.ambient_c if given else None)
-                line, ok = row(spec, tuned)
+    after_table = [*AFTER_HEADER]
+    verdicts: dict[str, list[str]] = {method: [] for method in METHODS}
+    with multiprocessing.get_context("fork").Pool(args.jobs) as pool:
+        for rows in pool.imap(measure, range(len(FAMILY))):
+            step_table.append(rows.step[0])
+            step_met += rows.step[1]
+            if rows.step_minutes is not None:
+                step_minutes.append(rows.step_minutes)
+            for given, (line, ok) in rows.from_log.items():
                 tables[given].append(line)
                 met[given] += ok
+            for method, after in zip(METHODS, rows.after, strict=True):
+                after_table.append(after.row)
+                verdicts[method].append(after.verdict)
+                print(after.row, flush=True)
     out = [
         "## Tuning from a brew day's log (`hermsd tune FILE`)",
         "",
-        "`uv run python bench/tuning.py --write`: each tun of the family logs its brew day "
+        "`uv run --group bench python bench/tuning.py --write`: each tun of the family logs its "
+        "brew day "
         "(default config, its litres and watts) and `hermsd tune` identifies it from the "
         "heat-up plus a 30 min hold (up to 30 min after PV first reached 65.5 °C). True "
         "K = P/(100·UA), τ = 4186·litres/UA, Θ = L + τ·ln(τ/(τ − T_s)) (the FOPTD that matches "
@@ -227,14 +610,16 @@ def main() -> int:
         "RMS is 2 to 4 times that of a lidded tun, and θ can collapse to 0 (the garage); the "
         "verdict is 'poor' on all three (RMS > 0.04 °C).",
         "",
-        f"Run time {time.perf_counter() - started:.0f} s.",
+        f"Run time {time.perf_counter() - started:.0f} s on {args.jobs} processes (the three "
+        "tuning sections).",
     ]
     text = "\n".join(out) + "\n"
     step_text = "\n".join(
         [
             "## Tuning by a step test (`hermsd tune step`)",
             "",
-            "`uv run python bench/tuning.py --write`: each tun of the family, from the room's "
+            "`uv run --group bench python bench/tuning.py --write`: each tun of the family, from "
+            "the room's "
             "temperature, runs `hermsd tune step` with its defaults through the daemon on the "
             "simulator (2 min baseline, then the output that reaches 66 °C in about 90 min at "
             "the water's linear rate, at least 20 %; stop: "
@@ -256,21 +641,79 @@ def main() -> int:
             "that stops at 30 to 40 °C sees less of it than the hold will, so its K lies "
             "between the linear truth and the hold's, 7 to 14 % below the one and 15 to 17 % "
             "above the other (the two misses are both open tuns); no single FOPTD is right "
-            "there. Seed 001's own "
+            "there, and a fit with an evaporation term does not find it either (the section "
+            "'an evaporation term in the step's fit': on the step's records the term lowers "
+            "the RMS by 1 % at most on the open tuns, and finds −1 to 95 °C of it on the "
+            "lidded ones, which have none): where these steps end (24 to 40 °C) the evaporation "
+            "is a tenth to a quarter of what it is at 66 °C, and a step that reached the "
+            "setpoint would take 2.3 to 3.2 h at full "
+            "power on these tuns. What the controller needs is the loss at the hold: the day "
+            "after `tune step --write` meets the day-2 goals on all three open tuns all the "
+            "same (its observer takes the rest of the hold's loss as a bias; see 'the brew day "
+            "after'), and with control.learn on the first brew day measures it. Seed 001's own "
             "dead times bracket the truth: the 10 % rule (of the rise so far) comes late by "
             "minutes, the 10–90 % regression line, on a rise that already bends, meets T1 "
             "early; the fit's θ is what is reported and written.",
             "",
         ]
     )
+    after_text = "\n".join(
+        [
+            "## Tuning: the brew day after `tune --write`",
+            "",
+            "`uv run --group bench python bench/tuning.py --write`: each tun's step test above "
+            "(tune step), "
+            "and separately its ordinary day 1 (the default config, learning on, an empty "
+            "state directory: the robustness bench's day 1) whose whole log `hermsd tune FILE` "
+            "reads (the fit stops at the cold water; without and with `--ambient`, the room's "
+            "temperature), written with `--write` into a copy of "
+            "config/hermsd.yaml with the tun's litres and watts; then the robustness bench's "
+            "brew day (bench/robustness.py: ambient → 66 °C, a tenth of the volume of 15 °C "
+            "water at 4 h) on that file with `control.learn: off` and an empty state "
+            "directory, so that the written model (control.model_*, model_litres) is the one "
+            "the controller and the supervisor start from; the controller still measures the "
+            "heat-up's rate and dead time within the day, as it always does. Day-2 goals (the "
+            "robustness bench's): overshoot ≤ 0.1 °C on the heat-up and after the water, "
+            "settle ≤ ×1.01, recovery ≤ ×1.02, jump ≤ 10 %, 100 % in band, ≤ 720 edges/h, no "
+            "alarm. K err (hold): the written K against the tun's gain at 66 °C (evaporation "
+            "included; the linear gain with the lid on). Recovery (floor): the least recovery "
+            "a controller acting once a 5 s period can show (see the robustness section).",
+            "",
+            " ".join(
+                f"After `{name} --write`: written on {len(v) - v.count('not written')} of "
+                f"{len(v)} tuns, every day-2 goal met on {v.count('met')}, all but the recovery "
+                f"on {v.count('floor')} (at its floor), missed otherwise on {v.count('missed')}."
+                for name, v in (
+                    ("tune step", verdicts[STEP]),
+                    ("tune FILE", verdicts[FILE]),
+                    ("tune FILE --ambient C", verdicts[FILE_ROOM]),
+                )
+            ),
+            "",
+            "A recovery floor above ×1.02 (the small 30 L 5.5 kW tun, ×1.067, and the big 150 L "
+            "11 kW, ×1.027) is the loop's period, not its model: no controller that acts once "
+            "a period meets the goal there. `tune FILE` writes nothing from a fit it calls "
+            "poor: the open tuns (not first order, RMS > 0.04 °C) and, with the room's "
+            "temperature left free, the heat-ups too short against τ to pin K (`--ambient` "
+            "pins it). The step test's K on the open tuns is 15 to 17 % above the gain at the "
+            "hold; the day's observer takes the difference as a bias in the hold, and the "
+            "goals hold.",
+            "",
+            f"Run time {time.perf_counter() - started:.0f} s on {args.jobs} processes (the "
+            "three tuning sections).",
+            "",
+            *after_table,
+            "",
+        ]
+    )
     print(text)
     print(step_text)
+    print(after_text)
     if args.write:
-        from control import _replace_section  # bench/control.py, beside this file
-
         results = Path(__file__).with_name("RESULTS.md")
         _replace_section(results, "## Tuning from a brew", text)
         _replace_section(results, "## Tuning by a step test", step_text)
+        _replace_section(results, "## Tuning: the brew day after", after_text)
     return 0
 
 

@@ -17,10 +17,10 @@ import signal
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO, TypeVar
 
 from hermsd import __version__
 from hermsd import config as config_module
@@ -46,6 +46,7 @@ from hermsd.recorder import Recorder, recover, recover_directory
 from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
 if TYPE_CHECKING:
+    from hermsd import step_response
     from hermsd.daemon import Daemon
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
@@ -218,9 +219,26 @@ def _parser() -> argparse.ArgumentParser:
         "--plot",
         type=Path,
         metavar="FILE.png",
-        help="plot PV, setpoint, output and applied duty with the alarms (needs matplotlib)",
+        help="draw the day: temperature, error against the ±0.5 °C band, output and applied "
+        "duty, alarms and labelled events (needs matplotlib)",
     )
     replay.set_defaults(func=cmd_replay)
+
+    program = sub.add_parser("program", help="mash programs: import one from brewing software")
+    program_actions = program.add_subparsers(dest="action", required=True)
+    program_import = program_actions.add_parser(
+        "import", help="a program file from a BeerXML 1.0 recipe's mash steps"
+    )
+    program_import.add_argument(
+        "file", type=Path, metavar="FILE.xml", help="a BeerXML 1.0 file of recipes or mash profiles"
+    )
+    program_import.add_argument(
+        "-o", "--output", type=Path, metavar="OUT.yaml", help="write it here (default: stdout)"
+    )
+    program_import.add_argument(
+        "--recipe", metavar="NAME", help="the recipe to import, when the file holds several"
+    )
+    program_import.set_defaults(func=cmd_program_import)
 
     tune = sub.add_parser(
         "tune", help="the tun's model and the settings that follow from it (seed 001's Table 1)"
@@ -268,6 +286,24 @@ def _parser() -> argparse.ArgumentParser:
     step.add_argument("--simulate", action="store_true", help="on the simulated tun, at full speed")
     step.add_argument("--plant", metavar="MODULE:FACTORY", help="with --simulate: this tun")
     step.add_argument("--log", type=Path, help="MCAP log directory (default: the config's log.dir)")
+    relay = tune.add_argument_group(
+        "tune relay",
+        "`hermsd tune relay`: a relay test around the setpoint after the heat-up (with "
+        "--config, --simulate, --plant, --log, --ambient as above)",
+    )
+    relay.add_argument("--setpoint", type=float, metavar="°C", help="default: the config's")
+    relay.add_argument(
+        "--hysteresis",
+        type=float,
+        metavar="°C",
+        help="the relay's band ± around the setpoint (default one LM92 step, 0.0625)",
+    )
+    relay.add_argument(
+        "--amplitude",
+        type=float,
+        metavar="%",
+        help="the relay's ± output around the hold's duty (default: a ~0.3 °C swing)",
+    )
     tune.set_defaults(func=cmd_tune)
 
     safe_off = sub.add_parser(
@@ -289,6 +325,13 @@ def _parser() -> argparse.ArgumentParser:
         help="the daemon's state directory: the limits from what it learned of the tun",
     )
     check.set_defaults(func=cmd_check_config)
+
+    mqtt = sub.add_parser(
+        "mqtt", help="bridge the daemon to an MQTT broker and Home Assistant (docs/mqtt.md)"
+    )
+    mqtt.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
+    _socket_argument(mqtt)
+    mqtt.set_defaults(func=cmd_mqtt)
     return parser
 
 
@@ -794,6 +837,35 @@ def _alarm_line(alarm: dict[str, Any]) -> str:
     return line + (f": {message}" if message is not None else " (its event was not recovered)")
 
 
+# -- program --------------------------------------------------------------------------------
+
+
+def cmd_program_import(args: argparse.Namespace) -> int:
+    """Write the program of a BeerXML recipe's mash; an existing file is never replaced."""
+    from hermsd.program import beerxml
+
+    try:
+        text = beerxml.to_yaml(beerxml.read(args.file, args.recipe))
+    except beerxml.BeerXMLError as error:
+        raise UserError(str(error)) from None
+    if args.output is None:
+        sys.stdout.write(text)
+        return 0
+    try:
+        file = args.output.open("x", encoding="utf-8")
+    except FileExistsError:
+        raise UserError(f"{args.output}: exists; name another file or remove it first") from None
+    except OSError as error:
+        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
+    try:
+        with file:
+            file.write(text)
+    except OSError as error:
+        args.output.unlink(missing_ok=True)  # a cut program would run with steps missing
+        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
+    return 0
+
+
 # -- replay ---------------------------------------------------------------------------------
 
 
@@ -873,12 +945,19 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
 def cmd_tune(args: argparse.Namespace) -> int:
     from hermsd import replay, tune
 
+    relay_only = ("setpoint", "hysteresis", "amplitude")
+    given_relay = [f"--{name}" for name in relay_only if getattr(args, name) is not None]
+    if args.files[:1] == [Path("relay")]:
+        return _tune_relay(args)
+    if given_relay:
+        raise UserError(f"{', '.join(given_relay)}: for `hermsd tune relay` only")
     if args.files[:1] == [Path("step")]:
         return _tune_step(args)
     step_only = ("output", "limit", "config", "simulate", "plant", "log")
     given = [f"--{name}" for name in step_only if getattr(args, name) not in (None, False)]
     if given:
-        raise UserError(f"{', '.join(given)}: for `hermsd tune step` only")
+        experiments = "" if set(given) <= {"--output", "--limit"} else " or `tune relay`"
+        raise UserError(f"{', '.join(given)}: for `hermsd tune step`{experiments} only")
     try:
         if (args.table is None) == (not args.files):
             raise tune.TuneError(
@@ -904,15 +983,11 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def _tune_step(args: argparse.Namespace) -> int:
     """`hermsd tune step`: the experiment on the tun (or the simulated one), then the fit."""
-    from hermsd import step_response, tune
-    from hermsd.daemon import Daemon, guard_outputs
+    from hermsd import step_response
 
     if len(args.files) > 1:
         raise UserError(f"tune step takes no files (got {', '.join(map(str, args.files[1:]))})")
-    if args.plant and not args.simulate:
-        raise UserError("--plant goes with --simulate")
-    path = config_path(args.config, simulate=args.simulate)
-    config = ConfigFile(path).load() if path is not None else config_module.DEFAULT
+    config = _tune_config(args)
     control = config.control
     limit = control.setpoint if args.limit is None else args.limit
     if not (math.isfinite(limit) and limit <= control.setpoint < config.safety.max_temp):
@@ -927,6 +1002,87 @@ def _tune_step(args: argparse.Namespace) -> int:
             f"--output {args.output:g}: the step must be {step_response.MIN_OUTPUT:g} to "
             f"{control.max_output:g} % (control.max_output) for K and τ to show"
         )
+
+    def build(daemon: Daemon) -> step_response.StepExperiment:
+        return step_response.StepExperiment(
+            daemon,
+            args.output,
+            limit,
+            args.ambient,
+            lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
+        )
+
+    experiment = _run_tune(args, config, build, step_response.run)
+    result, lines = step_response.result_json(experiment), step_response.result_lines(experiment)
+    return _tune_written(args, result, lines, experiment.stopped, step_response.write, experiment)
+
+
+def _tune_relay(args: argparse.Namespace) -> int:
+    """`hermsd tune relay`: heat-up, hold, relay cycles on the tun (or the simulated one)."""
+    from hermsd import relay
+
+    if len(args.files) > 1:
+        raise UserError(f"tune relay takes no files (got {', '.join(map(str, args.files[1:]))})")
+    given = [f"--{name}" for name in ("output", "limit") if getattr(args, name) is not None]
+    if given:
+        raise UserError(f"{', '.join(given)}: for `hermsd tune step` only")
+    config = _tune_config(args)
+    setpoint = config.control.setpoint if args.setpoint is None else args.setpoint
+    if not (math.isfinite(setpoint) and 0.0 < setpoint < config.safety.max_temp - 1.0):
+        raise UserError(
+            f"--setpoint {setpoint:g}: the relay holds above 0 °C and at least 1 °C below "
+            f"safety.max_temp ({config.safety.max_temp:g} °C)"
+        )
+    hysteresis = relay.HYSTERESIS_C if args.hysteresis is None else args.hysteresis
+    if not (math.isfinite(hysteresis) and relay.LSB_C <= hysteresis <= 0.25):
+        raise UserError(
+            f"--hysteresis {hysteresis:g}: the band must be {relay.LSB_C:g} (one LM92 step) to "
+            "0.25 °C: narrower, the sensor's noise switches the relay; wider, the swing leaves "
+            "±0.5 °C"
+        )
+    max_output = config.control.max_output
+    if args.amplitude is not None and not (relay.MIN_AMPLITUDE <= args.amplitude <= max_output / 2):
+        raise UserError(
+            f"--amplitude {args.amplitude:g}: the relay's ± output must be "
+            f"{relay.MIN_AMPLITUDE:g} to {max_output / 2:g} % (half control.max_output) for "
+            "K and τ to show"
+        )
+
+    def build(daemon: Daemon) -> relay.RelayExperiment:
+        return relay.RelayExperiment(
+            daemon,
+            setpoint,
+            hysteresis,
+            args.amplitude,
+            args.ambient,
+            lambda progress: print(relay.progress_line(progress), file=sys.stderr),
+        )
+
+    experiment = _run_tune(args, config, build, relay.start)
+    result, lines = relay.result_json(experiment), relay.result_lines(experiment)
+    return _tune_written(args, result, lines, experiment.stopped, relay.write, experiment)
+
+
+def _tune_config(args: argparse.Namespace) -> config_module.Config:
+    if args.plant and not args.simulate:
+        raise UserError("--plant goes with --simulate")
+    path = config_path(args.config, simulate=args.simulate)
+    return ConfigFile(path).load() if path is not None else config_module.DEFAULT
+
+
+_Experiment = TypeVar("_Experiment", bound="step_response.Experiment")
+
+
+def _run_tune(
+    args: argparse.Namespace,
+    config: config_module.Config,
+    build: Callable[[Daemon], _Experiment],
+    start: Callable[[_Experiment, tuple[type[BaseException], ...]], None],
+) -> _Experiment:
+    """A tune experiment through the daemon on the tun (or the simulated one), with the
+    service's directories locked; the heater is off when this returns, whatever happened."""
+    from hermsd.daemon import Daemon, guard_outputs
+
     log_dir = args.log
     if log_dir is None and not args.simulate:
         log_dir = Path(config.log.dir) if config.log.dir else None
@@ -973,14 +1129,8 @@ def _tune_step(args: argparse.Namespace) -> int:
                 deadman = DeadManThread(daemon.outputs.all())
                 deadman.start()
                 stack.callback(deadman.stop)
-            experiment = step_response.StepExperiment(
-                daemon,
-                args.output,
-                limit,
-                args.ambient,
-                lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
-            )
-            step_response.run(experiment, (Shutdown, KeyboardInterrupt))
+            experiment = build(daemon)
+            start(experiment, (Shutdown, KeyboardInterrupt))
     except StateError as error:
         raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
     finally:
@@ -988,11 +1138,24 @@ def _tune_step(args: argparse.Namespace) -> int:
             signal.signal(sig, handler)
         for lock in locks:
             lock.release()
-    result, lines = step_response.result_json(experiment), step_response.result_lines(experiment)
-    failed = (experiment.stopped or "").startswith(step_response.ABORTED[0])
+    return experiment
+
+
+def _tune_written(
+    args: argparse.Namespace,
+    result: dict[str, Any],
+    lines: list[str],
+    stopped: str | None,
+    write: Callable[[Any, Path], str],
+    experiment: object,
+) -> int:
+    """Write the settings if asked, print the result; exit 1 after an alarm or a refusal."""
+    from hermsd import step_response, tune
+
+    failed = (stopped or "").startswith(step_response.ABORTED[0])
     try:
         if args.write is not None:
-            diff = step_response.write(experiment, args.write)
+            diff = write(experiment, args.write)
             result["written"] = {"file": os.fspath(args.write), "diff": diff}
             lines += ["", diff.rstrip("\n") if diff else f"{args.write}: already so"]
     except tune.TuneError as error:
@@ -1193,7 +1356,7 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     `output.backend: sim` is valid only in a simulated run, so it is refused here by
     default: a file checked for the service must not fail when the service starts.
     """
-    from hermsd.daemon import learned_tun, safety_limits
+    from hermsd.daemon import model_in_force, safety_limits
     from hermsd.safety import format_limits
 
     document = config_module.load_document(args.file)
@@ -1217,14 +1380,41 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     stored, problem = ModelStore(args.state).load() if args.state else (None, None)
     if problem is not None:
         print(f"\n# learned model ignored: {problem}")
-    model = learned_tun(stored, document.config)
-    source = "nothing measured yet"
-    if stored is not None and model is not None:
-        source = f"the tun as learned: {stored.describe()}"
+    choice = model_in_force(stored, document.config)
+    source = (
+        "nothing measured yet" if choice.measured is None else f"the tun as {choice.describe()}"
+    )
     print(f"\n# safety limits in force ({source}):")
-    limits = safety_limits(document.config, model)
+    limits = safety_limits(document.config, choice.measured)
     for row in format_limits(limits, document.config.control.setpoint):
         print(f"#   {row}")
+    return 0
+
+
+# -- the MQTT bridge ------------------------------------------------------------------------
+
+
+def cmd_mqtt(args: argparse.Namespace) -> int:
+    """Serve the bridge until SIGTERM or Ctrl-C; it leaves "offline" on the broker."""
+    try:
+        from hermsd.mqtt.bridge import Bridge, BridgeError
+    except ModuleNotFoundError as error:
+        if not (error.name or "").startswith("paho"):
+            raise
+        raise UserError(
+            "the MQTT bridge needs paho-mqtt: install hermsd with its mqtt extra "
+            "(uv sync --extra mqtt; uv tool install --with paho-mqtt)"
+        ) from None
+    path = config_path(args.config, simulate=False)
+    assert path is not None
+    config = config_module.load(path)
+    try:
+        bridge = Bridge(config, default_socket_path(args.socket))
+    except BridgeError as error:
+        raise UserError(str(error)) from None
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda _signum, _frame: bridge.stop())
+    bridge.run()
     return 0
 
 

@@ -27,6 +27,7 @@ import yaml
 from hermsd import midrange, pid
 from hermsd.element2 import MidRangeController
 from hermsd.files import NotRegularFile, read_regular
+from hermsd.learning import LearnedModel, implausible
 from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
 
 MIDRANGE = "midrange"
@@ -130,6 +131,9 @@ class ControlConfig:
     model_tau: float = _number(14961.0, 10, 1000000, "s")
     dead_time: float = _number(115.0, 0, 3600, "s")
     model_ambient: float = _number(20.0, -20, 50, "°C")
+    model_litres: float | None = _number(
+        None, 1, 1000, "L", null_means="not measured: predictive's prior from tun.litres"
+    )
     learn: str = _choice("on", ("on", "pinned", "off"))
     # algorithm midrange: C1 drives the SSR's element (u1), C2 the second element (u2).
     k1: float = _number(120.0, 0, 10000, "%/°C", low_exclusive=True)
@@ -256,6 +260,24 @@ class AlertsConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class MqttConfig:
+    """The bridge to an MQTT broker and Home Assistant (`hermsd mqtt`, docs/mqtt.md); a
+    process of its own reads it, the control loop never does."""
+
+    host: str = _text("localhost", max_length=253)
+    port: int = _integer(1883, 1, 65535)
+    username: str | None = _text(None, max_length=256, null_means="no login")
+    password_file: str | None = _text(None, null_means="no password")
+    tls: bool = False
+    ca_file: str | None = _text(None, null_means="the system's certificate authorities")
+    cert_file: str | None = _text(None, null_means="no client certificate")
+    key_file: str | None = _text(None, null_means="the key inside cert_file")
+    topic_prefix: str = _text("hermsd", max_length=100)
+    discovery_prefix: str = _text("homeassistant", max_length=100)
+    client_id: str | None = _text(None, max_length=64, null_means="'hermsd-' and topic_prefix")
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     """Everything the daemon is told, one section per part of the HLT."""
 
@@ -268,6 +290,7 @@ class Config:
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     log: LogConfig = field(default_factory=LogConfig)
     alerts: AlertsConfig = field(default_factory=AlertsConfig)
+    mqtt: MqttConfig = field(default_factory=MqttConfig)
 
 
 DEFAULT = Config()
@@ -781,6 +804,17 @@ def _violations(config: Config) -> list[_Violation]:
         )
     found.extend(_element2_violations(config))
     found.extend(_controller_violations(control))
+    measured = measured_model(config)
+    why = implausible(measured) if measured is not None else None
+    if why is not None:
+        found.append(
+            _Violation(
+                ("control.model_litres", *(f"control.{key}" for key in _MODEL_KEYS)),
+                f"the measured tun (model_litres set) cannot be a water tun: {why} (set "
+                "model_litres to null, or write the model again with `hermsd tune --write`)",
+            )
+        )
+    found.extend(_mqtt_violations(config.mqtt))
     return found
 
 
@@ -843,6 +877,54 @@ def _element2_violations(config: Config) -> list[_Violation]:
     return found
 
 
+_MODEL_KEYS = ("model_gain", "model_tau", "dead_time", "model_ambient")
+
+
+def _mqtt_violations(mqtt: MqttConfig) -> list[_Violation]:
+    """A topic prefix MQTT would refuse or misread, and TLS or login keys left without the
+    key they go with."""
+    found = []
+    for name in ("topic_prefix", "discovery_prefix"):
+        prefix: str = getattr(mqtt, name)
+        wrong = topic_prefix_problem(prefix)
+        if wrong:
+            found.append(_Violation((f"mqtt.{name}",), f"{_quote(prefix)} {wrong}"))
+    if mqtt.password_file is not None and mqtt.username is None:
+        found.append(
+            _Violation(
+                ("mqtt.password_file", "mqtt.username"),
+                "a password goes with a user name (add mqtt.username, or remove the password)",
+            )
+        )
+    for name in ("ca_file", "cert_file", "key_file"):
+        if getattr(mqtt, name) is not None and not mqtt.tls:
+            found.append(
+                _Violation(
+                    (f"mqtt.{name}", "mqtt.tls"),
+                    "is used only over TLS (set mqtt.tls: true, or remove it)",
+                )
+            )
+    if mqtt.key_file is not None and mqtt.cert_file is None:
+        found.append(
+            _Violation(
+                ("mqtt.key_file", "mqtt.cert_file"),
+                "a client key goes with its certificate (add mqtt.cert_file)",
+            )
+        )
+    return found
+
+
+def topic_prefix_problem(prefix: str) -> str | None:
+    """What makes `prefix` unfit to start MQTT topic names, or None when it is fit."""
+    if "+" in prefix or "#" in prefix:
+        return "holds a wildcard, + or # (use letters, digits, - and _, levels split by /)"
+    if prefix.startswith("$"):
+        return "starts with $, which brokers keep for themselves (e.g. 'hermsd')"
+    if "" in prefix.split("/"):
+        return "has an empty level: a / at either end or two together (e.g. 'brewery/hlt')"
+    return None
+
+
 WATER_J_PER_LITRE_K = 4186.0
 LIDDED_UA_W_PER_K = 3000.0 / (100.0 * 1.689)
 """Heat loss of a lidded 90 L tun (the seed's step test: 3 kW for 1.689 °C/%), W/K; it
@@ -866,6 +948,16 @@ def prior_model(config: Config) -> pid.PlantModel:
     return pid.PlantModel(
         tun.element_watts / (100.0 * ua), capacity / ua, c.dead_time, c.model_ambient
     )
+
+
+def measured_model(config: Config) -> LearnedModel | None:
+    """The tun as `hermsd tune` measured it: the control.model_* keys once model_litres says
+    with how much water (None before: the keys are the seed's tun, a guess)."""
+    c = config.control
+    if c.model_litres is None:
+        return None
+    foptd = pid.PlantModel(c.model_gain, c.model_tau, c.dead_time, c.model_ambient)
+    return LearnedModel.from_plant(foptd, c.model_litres)
 
 
 def make_controller(control: ControlConfig, model: pid.PlantModel | None = None) -> pid.Controller:
@@ -1413,6 +1505,15 @@ def every_valid_value(key_path: str) -> list[object]:
         assert spec.high is not None
         values = list(range(int(spec.low), int(spec.high) + 1))
     return [info.default, *(value for value in values if value != info.default)]
+
+
+def key_range(key_path: str) -> tuple[float, float]:
+    """The lowest and highest value a bounded numeric key accepts, as the file's check does."""
+    section, name = key_path.split(".")
+    spec = _SCHEMA[section][name].spec
+    assert spec.low is not None
+    assert spec.high is not None
+    return spec.low, spec.high
 
 
 def _read_text(filename: str) -> str:

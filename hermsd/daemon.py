@@ -11,6 +11,8 @@ a shorted SSR, an open contactor or a dead element show only in the temperature,
 what the supervisor's watches are for. When the supervisor forbids
 heating, the SSR is cut at once (mid-window), the contactor opens, and the controller is
 held, not fed zeros; when heating is allowed again it resumes from the output it had.
+Inside a period the loop acts on one thing only: cold water that the controller answers
+with full power runs the element at full power from that reading on (`_act_on_drop`).
 """
 
 from __future__ import annotations
@@ -41,7 +43,14 @@ from hermsd.pv import period_value
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
-from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPlan, cut
+from hermsd.ssr import (
+    GuardedSwitch,
+    Switch,
+    SwitchedDuty,
+    TimeProportionalPlanner,
+    WindowPlan,
+    cut,
+)
 
 log = logging.getLogger("hermsd")
 
@@ -101,6 +110,7 @@ class PeriodRecord:
     u2: float | None = None  # the second element's duty (two elements only), %
     applied2: float | None = None  # its duty in the period before, on account (C2 tracks it)
     switched2: float | None = None  # … and as switched (the heat the supervisor counts)
+    full_from: int | None = None  # after this many of `readings` it asked for full power at once
 
 
 class ControlHook(Protocol):
@@ -189,13 +199,51 @@ def element2_watts(config: Config) -> float:
     return config.element2.watts if config.element2.backend != "none" else 0.0
 
 
-def learned_tun(stored: LearnedModel | None, config: Config) -> pid.PlantModel | None:
-    """What was learned, at the configured litres, if `control.learn` lets it be used."""
-    if stored is None or config.control.learn == "off" or element2_watts(config):
-        return None  # learned of one element: it says nothing of two
-    model = stored.plant_model(config.tun.litres)
-    low, high = pid.MODEL_GAIN_RANGE  # a fill far from the learned one can leave it
-    return model if low <= model.gain <= high else None
+@dataclass(frozen=True, slots=True)
+class ModelChoice:
+    """The tun's model in force and where it came from: "learned" (the state directory),
+    "measured" (the control.model_* keys `hermsd tune --write` wrote) or "prior" (a guess
+    from tun.litres and tun.element_watts)."""
+
+    model: pid.PlantModel
+    source: str
+    basis: LearnedModel | None = None  # the measurement, at the fill it was made with
+
+    @property
+    def measured(self) -> pid.PlantModel | None:
+        """The model, if it was measured: what the supervisor's limits may be tightened by."""
+        return None if self.basis is None else self.model
+
+    def describe(self) -> str:
+        if self.basis is None:
+            return "the prior from tun.litres and tun.element_watts (nothing measured)"
+        what = "learned" if self.source == "learned" else "measured by hermsd tune (control keys)"
+        return f"{what}: {self.basis.describe()}"
+
+
+def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
+    """The model the controller and the supervisor use. `control.learn` on: what was learned
+    (kept up to date by the daemon itself), else what `hermsd tune` measured; pinned: the
+    measured one, else what was learned; off: the measured one only. A measurement is
+    rescaled to the configured litres; one the fill takes out of the controller's range is
+    passed over. Neither: the config's prior. With a second element fitted, the prior
+    always: what was learned or measured is the response to one element."""
+    learn = config.control.learn
+    if element2_watts(config):
+        return ModelChoice(config_module.prior_model(config), "prior")
+    candidates = [
+        ("learned", stored if learn != "off" else None),
+        ("measured", config_module.measured_model(config)),
+    ]
+    if learn != "on":
+        candidates.reverse()
+    low, high = pid.MODEL_GAIN_RANGE  # a fill far from the measured one can leave it
+    for source, basis in candidates:
+        if basis is not None:
+            model = basis.plant_model(config.tun.litres)
+            if low <= model.gain <= high:
+                return ModelChoice(model, source, basis)
+    return ModelChoice(config_module.prior_model(config), "prior")
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
@@ -290,7 +338,8 @@ class Daemon:
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
             self._stored_model, self._model_problem = models.load()
-        self.model, self.model_learned = self._model_in_force(config)
+        self.model_choice = model_in_force(self._stored_model, config)
+        self.model = self.model_choice.model
         self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
         self.controller = make_controller(config.control, self.model)
         self._learner = self._make_learner(config)
@@ -310,12 +359,12 @@ class Daemon:
         self._pv: float | None = None
         self._last_celsius: float | None = None
         self._readings: list[float] = []
+        self._stepped = False  # the controller stepped at the last boundary (its state is fresh)
+        self._full_from: int | None = None  # see PeriodRecord.full_from
         self._held = True  # nothing to continue from until the first good period
         self._resume_output = 0.0
         self._window = _Window()
-        self._ssr_on_since: float | None = None
-        self._on_seconds = 0.0
-        self._last_control_t: float | None = None
+        self._ssr_duty = SwitchedDuty()  # the SSR as switched since the last period
         self._reads = 0
         self._pending: list[Callable[[float], None]] = []
         self.control: ControlHook | None = None
@@ -345,7 +394,7 @@ class Daemon:
         self.sensor.identify()
         self._program_sensor()
         now = self.clock.monotonic()
-        self._last_control_t = now
+        self._ssr_duty.begin(now)
         read_interval = self.config.sensor.read_interval
         self._read_now(now)
         sched = self.scheduler
@@ -363,14 +412,23 @@ class Daemon:
         self._check_log(now)
         if self._model_problem is not None:
             self._event(logging.WARNING, f"learned model ignored: {self._model_problem}", now)
-        if self._stored_model is not None:
-            use = (
-                "in use (control and safety limits)"
-                if self.model_learned
-                else f"not used (control.learn {self.config.control.learn}, "
-                f"{self.config.tun.litres:g} L)"
+        if self._stored_model is not None and self.model_choice.source != "learned":
+            learn, litres = self.config.control.learn, self.config.tun.litres
+            why = f"out of the controller's range at {litres:g} L"
+            if element2_watts(self.config):
+                why = "a second element is fitted: it models one"
+            elif learn == "off":
+                why = "control.learn off"
+            elif learn == "pinned" and self.model_choice.source == "measured":
+                why = "control.learn pinned: the model from hermsd tune comes first"
+            self._event(
+                logging.INFO,
+                f"learned model not used ({why}): {self._stored_model.describe()}",
+                now,
             )
-            self._event(logging.INFO, f"learned model {use}: {self._stored_model.describe()}", now)
+        if self.model_choice.measured is not None:  # else the prior, as status says
+            what = self.model_choice.describe()
+            self._event(logging.INFO, f"tun model in use (control and safety limits): {what}", now)
         self._restore_latches(stored, now)
 
     def _program_sensor(self) -> None:
@@ -437,7 +495,7 @@ class Daemon:
             except BaseException as error:  # a stop that was already due: the rest first
                 interrupted = interrupted or error
         now = self.clock.monotonic()
-        self._set_ssr_accounting(False, now)
+        self._ssr_duty.switched(False, now)
         self._event(logging.INFO, f"heater off: {reason}", now)
         self._alert("stopped", f"heater off: {reason}", now)
         self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT))  # outputs are off
@@ -567,7 +625,8 @@ class Daemon:
         if "control.setpoint" in changed:
             self._apply_setpoint(control.setpoint, t)
         if retunes(old.control, new.control) or old.tun != new.tun:
-            self.model, self.model_learned = self._model_in_force(new)
+            self.model_choice = model_in_force(self._stored_model, new)
+            self.model = self.model_choice.model
             self.controller = make_controller(new.control, self.model)
             self._heat_up_seen = pid.heat_up_fit(self.controller)
             self._learner = self._make_learner(new)
@@ -588,8 +647,8 @@ class Daemon:
                 t,
             )
             self._apply_setpoint(control.setpoint, t)
-        if any(key.startswith(("safety.", "tun.")) for key in changed) or (
-            "control.learn" in changed
+        if any(key.startswith(("safety.", "tun.")) for key in changed) or retunes(
+            old.control, new.control
         ):
             self.supervisor.limits = safety_limits(new, self._measured_tun(new))
         if changed & {"safety.max_temp", "safety.hysteresis"}:
@@ -607,18 +666,11 @@ class Daemon:
         """What was learned of the tun and stored, as read at start (None: nothing usable)."""
         return self._stored_model
 
-    def _model_in_force(self, config: Config) -> tuple[pid.PlantModel, bool]:
-        """The stored model (rescaled to the configured litres) unless `control.learn` is off
-        or it does not fit this fill, else the config's prior; and whether it was learned."""
-        learned = learned_tun(self._stored_model, config)
-        if learned is not None:
-            return learned, True
-        return config_module.prior_model(config), False
-
     def _measured_tun(self, config: Config) -> MeasuredTun | None:
-        """The tun as measured for the supervisor's limits: the one given (`hermsd tune`),
-        else what the controller learned and uses; None before anything is measured (the
-        config's prior is a guess, and the limits then hold for any tun it may describe).
+        """The tun as measured for the supervisor's limits: the one given, else the model in
+        force if it was measured (learned, or by `hermsd tune`); None before anything is
+        measured (the config's prior is a guess, and the limits then hold for any tun it may
+        describe).
 
         The learned losses are referred to `control.model_ambient` a, not the real room:
         they reproduce the hold's measured power at the setpoint s, so the supervisor's bound
@@ -627,7 +679,7 @@ class Daemon:
         """
         if self.tun_model is not None:
             return self.tun_model
-        return learned_tun(self._stored_model, config)
+        return model_in_force(self._stored_model, config).measured
 
     def _make_learner(self, config: Config) -> Learner:
         return Learner(
@@ -744,6 +796,30 @@ class Daemon:
         if not sup.heater_allowed:
             self._force_off(now)
         self._drain_alarms(now)
+        self._act_on_drop(now)
+
+    def _act_on_drop(self, now: float) -> None:
+        """Full power from this reading on, not from the next period, when the readings so
+        far show cold water that the controller answers with it (`pid.full_power_now`).
+
+        The decision depends only on what the period record logs (its readings, and the
+        controller as the last step left it), so replay checks it; it is made whether or not
+        heating is allowed, and acted on only when it is (every edge is gated all the same).
+        """
+        if self._full_from is not None or not self._stepped or self._pv is None:
+            return
+        if not pid.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
+            return
+        self._full_from = len(self._readings)
+        if not self.supervisor.heater_allowed:
+            return
+        self.output = 100.0  # in force until the next step
+        drop = self._pv - self._readings[-1]
+        self._event(logging.INFO, f"PV fell {drop:.2f} °C within the period: full power", now)
+        window = self._window
+        if window.plan is not None:
+            window.cancel()
+            self._arm(self.planner.full_from(window.plan, now), now)
 
     def _read_now(self, now: float) -> None:
         sup = self.supervisor
@@ -802,11 +878,13 @@ class Daemon:
             action(now)
         self._pending.clear()
         readings, self._readings = self._readings, []
+        full_from, self._full_from = self._full_from, None
+        self._stepped = False
         pv = period_value(readings)
         if pv is None:
             pv = self._last_celsius  # a slow read interval: the latest accepted value
         self._pv = pv
-        applied = self._applied(now)
+        applied = self._ssr_duty.read(now)
         switched2 = applied2 = None
         if self.element2 is not None:
             switched2, applied2 = self.element2.applied(now)
@@ -825,6 +903,7 @@ class Daemon:
                     self.controller.reset(pv, reset_from)
                     self._held = False
                 self.output = self.controller.step(self.setpoint, pv, applied)
+                self._stepped = True
             if readings and self._watchdog is not None:
                 self._watchdog.note_healthy_cycle()  # a fresh reading made a fresh output
         else:
@@ -859,6 +938,7 @@ class Daemon:
             u2=u2,
             applied2=applied2,
             switched2=switched2,
+            full_from=full_from,
         )
         for listener in self.listeners:
             listener.period(record)
@@ -873,10 +953,15 @@ class Daemon:
         allowed = self.supervisor.heater_allowed
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(allowed)
-        plan = self.planner.plan(deadline, self.output if allowed else 0.0)
+        self._arm(self.planner.plan(deadline, self.output if allowed else 0.0), now)
+
+    def _arm(self, plan: WindowPlan, now: float) -> None:
+        """Make `plan` the window in progress (logged; a later one for the same start replaces
+        it): the SSR as it says now, and its edges to come."""
+        window = self._window
         window.plan = plan
         self._switch(plan.is_on(now), now)
-        end = deadline + plan.length
+        end = plan.start + plan.length
         for edge in (plan.on_at, plan.off_at):
             if now < edge < end:
                 window.timers.append(self.scheduler.at(edge, self._on_edge))
@@ -885,7 +970,7 @@ class Daemon:
                 "/hermsd/window",
                 self.clock.wall_ns(),
                 {
-                    "t": deadline,
+                    "t": plan.start,
                     "window": plan.length,
                     "requested": plan.requested,
                     "on_time": plan.on_time,
@@ -926,7 +1011,7 @@ class Daemon:
     def _switch(self, on: bool, now: float) -> None:
         on = on and self.supervisor.heater_allowed
         self.outputs.ssr.set(on)
-        self._set_ssr_accounting(on, now)
+        self._ssr_duty.switched(on, now)
 
     def _force_off(self, now: float) -> None:
         """Heater off at once: the window in progress is cut, the contactor opened."""
@@ -936,7 +1021,7 @@ class Daemon:
         window.cancel()
         self.planner.reset()
         self.outputs.ssr.set(False)
-        self._set_ssr_accounting(False, now)
+        self._ssr_duty.switched(False, now)
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(False)
         if self.element2 is not None:
@@ -964,24 +1049,6 @@ class Daemon:
         return total_share(w1, w2, output, self.controller.u2), total_share(
             w1, w2, applied, applied2
         )
-
-    def _set_ssr_accounting(self, on: bool, now: float) -> None:
-        if on and self._ssr_on_since is None:
-            self._ssr_on_since = now
-        elif not on and self._ssr_on_since is not None:
-            self._on_seconds += now - self._ssr_on_since
-            self._ssr_on_since = None
-
-    def _applied(self, now: float) -> float:
-        """The duty the SSR was driven at since the last control period, as switched, in %."""
-        if self._ssr_on_since is not None:
-            self._on_seconds += now - self._ssr_on_since
-            self._ssr_on_since = now
-        last = self._last_control_t if self._last_control_t is not None else now
-        self._last_control_t = now
-        span = now - last
-        on, self._on_seconds = self._on_seconds, 0.0
-        return min(100.0, 100.0 * on / span) if span > 0 else 0.0
 
     # -- reporting ------------------------------------------------------------------------
 
@@ -1044,6 +1111,7 @@ class Daemon:
                     "reason": reason,
                     "model": asdict(self.model),
                     "safety_model": _tun_fields(self._measured_tun(self.config)),
+                    "drop_readings": pid.DROP_READINGS,
                 },
             )
 

@@ -35,7 +35,7 @@ import math
 
 from hermsd import pid
 from hermsd.midrange import MidRange
-from hermsd.ssr import GuardedSwitch
+from hermsd.ssr import GuardedSwitch, SwitchedDuty
 
 _EPS = 1e-9  # s: times that differ by rounding are equal
 
@@ -120,22 +120,12 @@ class SlowElement:
     def __init__(self, switch: GuardedSwitch, min_on: float, min_off: float) -> None:
         self.switch = switch
         self.modulator = OnOffModulator(min_on, min_off)
-        self._on_since: float | None = None
-        self._on_seconds = 0.0
-        self._last_t: float | None = None
+        self._duty = SwitchedDuty()
 
     def applied(self, now: float) -> tuple[float, float]:
         """(% switched on, % on account) since the last call; after a forced off, on account
         since then (the loop holds the controller through any period with one)."""
-        if self._on_since is not None:
-            self._on_seconds += now - self._on_since
-            self._on_since = now
-        last = self._last_t if self._last_t is not None else now
-        self._last_t = now
-        span = now - last
-        on, self._on_seconds = self._on_seconds, 0.0
-        accounted = self.modulator.account(now)
-        return (min(100.0, 100.0 * on / span) if span > 0 else 0.0), accounted
+        return self._duty.read(now), self.modulator.account(now)
 
     def drive(self, now: float, duty: float) -> None:
         """The period starting now: on or off as the modulator decides for `duty` %."""
@@ -147,11 +137,7 @@ class SlowElement:
 
     def _set(self, on: bool, now: float) -> None:
         self.switch.set(on)
-        if on and self._on_since is None:
-            self._on_since = now
-        elif not on and self._on_since is not None:
-            self._on_seconds += now - self._on_since
-            self._on_since = None
+        self._duty.switched(on, now)
 
 
 class MidRangeController:

@@ -50,6 +50,12 @@ class LearnedModel:
     litres: float
     wall_ns: int = 0  # when it was learned (UTC ns)
 
+    @classmethod
+    def from_plant(cls, model: PlantModel, litres: float) -> LearnedModel:
+        """The tun as a FOPTD (K °C/%, τ, θ, room) measured with `litres` in it, as the
+        learned quantities: rate 100·K/τ at full power, loss 1/τ; `plant_model` inverts it."""
+        return cls(model.rate, 1.0 / model.tau, model.dead_time, model.ambient, litres)
+
     def plant_model(self, litres: float) -> PlantModel:
         """The FOPTD model at a configured fill of `litres`."""
         rate = self.rate * self.litres / litres

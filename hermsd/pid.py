@@ -100,9 +100,11 @@ state changes.
 
 from __future__ import annotations
 
+import copy
 import math
 from abc import ABC, abstractmethod
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -153,6 +155,12 @@ OBSERVER_BIAS_S = 800.0
 STEP_INNOVATION = 0.25
 """°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
 the mean of its readings, so noise of 0.03 °C never moves it that far."""
+DROP_READINGS = 2
+"""Readings in a row that must each lie more than STEP_INNOVATION below the last period's PV
+before predictive acts inside a period (`full_power_now`). One reading differs from the
+period's mean by 0.04 °C sd (noise and the LSB's truncation), so 0.25 °C is 6 sd: noise does
+not do it twice in a row, and a one-reading glitch (the supervisor drops only jumps beyond
+safety.max_step) never does it at all."""
 MAX_DEAD_TIME = 1800.0
 """s: the longest dead time a heat-up may show (a sensor far down a long pipe)."""
 FIT_FROM = 1.0
@@ -969,6 +977,34 @@ class _Predictive(_Base):
             # heat capacity scales rate and loss rate alike, so the gain (°C/%) stays.
             self._loss *= fit.rate / self._rate
             self._use(fit.rate, fit.dead_time)
+
+
+def full_power_now(
+    controller: Controller, sp: float, last_pv: float, readings: Sequence[float]
+) -> bool:
+    """Whether the readings so far in a period show a sudden drop (cold water) that the
+    controller would answer with full power, so that the loop need not wait for the period's
+    end: the last DROP_READINGS of them each more than STEP_INNOVATION below the last
+    period's PV (`last_pv`), and the step the controller would take now, on their mean with
+    its last output as applied, gives its upper limit. The element's heat reaches the sensor
+    a dead time later whatever is done, so every second of the old duty after the water is a
+    second of recovery lost; a period is 5 of them. Only predictive acts inside a period (the
+    textbook forms are their seeds' equations, once a period), only when it may ask for
+    full power (an upper limit below 100 % is a power limit the window must keep), and not
+    when its output is already there. The controller is not changed (its next step is taken
+    on a copy), so the answer follows from what a period record logs: its readings, and the
+    controller as the period before left it."""
+    if not (isinstance(controller, _Predictive) and controller._primed):
+        return False
+    if len(readings) < DROP_READINGS:
+        return False
+    recent = readings[-DROP_READINGS:]
+    if controller.params.out_max < 100.0 or controller.output >= 100.0:
+        return False
+    if max(recent) >= last_pv - STEP_INNOVATION:
+        return False
+    trial = copy.deepcopy(controller)
+    return trial.step(sp, sum(recent) / len(recent), controller.output) >= 100.0
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

@@ -160,6 +160,11 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     ["number", "null"],
                     "second element's duty in the period before, as switched, %",
                 ),
+                "full_from": _field(
+                    ["integer", "null"],
+                    "after this many of the readings the controller asked for full power at once "
+                    "(a sudden drop: cold water)",
+                ),
             },
             optional=("u2", "applied2", "switched2"),
         ),
@@ -186,13 +191,16 @@ TOPICS: Final[dict[str, TopicSpec]] = {
         "hermsd.Window",
         _object(
             "hermsd.Window",
-            "One time-proportioning window of the solid-state relay.",
+            "One time-proportioning window of the solid-state relay (a later record with "
+            "the same t: the window was re-planned at full power inside it, cold water).",
             {
                 "t": _T,
                 "window": _field("number", "window length, s"),
                 "requested": _field("number", "duty asked for, %"),
-                "on_time": _field("number", "time the SSR is to be driven on, s"),
-                "applied": _field("number", "duty planned for the SSR (on_time / window), %"),
+                "on_time": _field(
+                    "number", "time the SSR is to be driven on, s (re-planned: from then on)"
+                ),
+                "applied": _field("number", "duty planned for the SSR in the whole window, %"),
             },
         ),
     ),
@@ -252,6 +260,9 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "reason": _field("string", "why it was recorded: start, reload, …"),
                 "model": _field(
                     "object", "the tun's model the controller uses: gain, tau, dead_time, ambient"
+                ),
+                "drop_readings": _field(
+                    "integer", "readings in a row that show cold water inside a period (full_from)"
                 ),
             },
         ),

@@ -37,7 +37,7 @@ from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.element2 import MidRangeController
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
-from hermsd.pid import PlantModel
+from hermsd.pid import DROP_READINGS, Controller, PlantModel, full_power_now
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -53,7 +53,8 @@ from hermsd.recorder import (
 if TYPE_CHECKING:
     from hermsd.sim.scenario import Event
 
-TOPICS_READ = (PERIOD_TOPIC, CONFIG_TOPIC, LOG_TOPIC, TIMING_TOPIC)  # readings and windows unused
+PROGRAM_TOPIC = "/hermsd/program"  # the mash program's events, written while a program runs
+TOPICS_READ = (PERIOD_TOPIC, CONFIG_TOPIC, LOG_TOPIC, TIMING_TOPIC, PROGRAM_TOPIC)
 
 # A sudden drop: PV falls this much within this time. Heat loss alone cools a hot tun by
 # (T − T_amb)/τ ≈ 0.2 °C a minute at most; cold water poured in drops it by degrees at once.
@@ -95,6 +96,7 @@ class LoggedConfig:
     config: dict[str, Any]
     model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
     safety_model: dict[str, Any] | None = None  # the measured tun the safety limits came from
+    drop_readings: int | None = None  # the rule of `full_from` (None: not acted on in periods)
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,6 +106,20 @@ class LogEvent:
     at: float
     level: int
     message: str
+
+
+@dataclass(frozen=True, slots=True)
+class ProgramEvent:
+    """A /hermsd/program record (a step started, reached, done; waiting; …) on the replay's
+    clock; the fields a record lacks, or holds with the wrong type, are None."""
+
+    at: float
+    event: str
+    program: str | None
+    step: int | None
+    name: str | None
+    setpoint: float | None
+    message: str | None
 
 
 @dataclass(slots=True)
@@ -117,6 +133,7 @@ class Log:
     elapsed: list[float] = field(default_factory=list)  # of each period, s since the first
     log_time_ns: list[int] = field(default_factory=list)  # of each period (wall clock)
     events: list[LogEvent] = field(default_factory=list)
+    program: list[ProgramEvent] = field(default_factory=list)
     timings: list[dict[str, Any]] = field(default_factory=list)
     runs: list[dict[str, Any]] = field(default_factory=list)  # of the daemon, one after another
 
@@ -141,6 +158,7 @@ class _FileRecords:
     periods: list[tuple[PeriodRecord, int]] = field(default_factory=list)  # with log time
     anchors: list[tuple[int, float]] = field(default_factory=list)  # (log time, t)
     raw_events: list[tuple[int, int, str]] = field(default_factory=list)
+    program: list[dict[str, Any]] = field(default_factory=list)  # each with a number `t`
     timings: list[dict[str, Any]] = field(default_factory=list)
     first_ns: int | None = None  # log time of its first and last record read
     last_ns: int | None = None
@@ -181,11 +199,13 @@ def load(paths: Sequence[Path | str]) -> Log:
                 if anchors
             )
             log.timings.extend(file.timings)
+            log.program.extend(_program_event(m, m["t"] + shift) for m in file.program)
     log.runs = _runs(files)
     if not log.periods:
         names = ", ".join(str(p) for p in paths)
         raise ReplayError(f"{names}: no control periods recovered, nothing to replay")
     log.events.sort(key=lambda e: e.at)
+    log.program.sort(key=lambda e: e.at)
     return log
 
 
@@ -223,6 +243,9 @@ def _read(path: Path) -> _FileRecords:
                 file.anchors.append((log_time_ns, entry.t))
             elif topic == TIMING_TOPIC and _is_number(message.get("t")):
                 file.timings.append(message)
+                file.anchors.append((log_time_ns, float(message["t"])))
+            elif topic == PROGRAM_TOPIC and _is_number(message.get("t")):
+                file.program.append(message)
                 file.anchors.append((log_time_ns, float(message["t"])))
             elif topic == LOG_TOPIC:
                 level = message.get("level")
@@ -339,6 +362,7 @@ def _period(message: dict[str, Any], path: Path) -> PeriodRecord:
         and _is_number(record.applied)
         and (record.pv is None or _is_number(record.pv))
         and (record.reset_from is None or _is_number(record.reset_from))
+        and (record.full_from is None or isinstance(record.full_from, int))
         and isinstance(record.k, int)
         and isinstance(record.alarms, list)
         and all(isinstance(kind, str) for kind in record.alarms)
@@ -352,12 +376,31 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
     model, safety_model = message.get("model"), message.get("safety_model")
+    drop_readings = message.get("drop_readings")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
         config,
         model if isinstance(model, dict) else None,
         safety_model if isinstance(safety_model, dict) else None,
+        drop_readings if isinstance(drop_readings, int) else None,
+    )
+
+
+def _program_event(message: dict[str, Any], at: float) -> ProgramEvent:
+    def text(key: str) -> str | None:
+        value = message.get(key)
+        return value if isinstance(value, str) else None
+
+    step, setpoint = message.get("step"), message.get("setpoint")
+    return ProgramEvent(
+        at,
+        text("event") or "",
+        text("program"),
+        step if isinstance(step, int) and not isinstance(step, bool) else None,
+        text("name"),
+        float(setpoint) if _is_number(setpoint) else None,
+        text("message"),
     )
 
 
@@ -607,8 +650,8 @@ class Mismatch:
     k: int
     t: float
     name: str
-    logged: float
-    recomputed: float
+    logged: float | None
+    recomputed: float | None
 
 
 @dataclass(frozen=True, slots=True)
@@ -630,6 +673,12 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     logged applied2 handed in first, as the daemon does). The daemon resets the controller on its
     first step and after every hold, reload or return to auto, so where records are missing
     the check resumes at the next reset.
+
+    A period's `full_from` (the reading after which the controller asked for full power at
+    once) must be what `pid.full_power_now` gives on its readings, with the controller as the
+    step of the record before it left it; None where no step came before it. It is checked
+    where the config record in force says the daemon used today's rule (`drop_readings`):
+    an older daemon never acted inside a period and logged no such thing.
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -637,12 +686,15 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     control: config_module.ControlConfig | None = None
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
+    stepped: tuple[Controller, PeriodRecord] | None = None  # the last step, if fresh and known
+    drops_checked = False  # whether the daemon that logged these periods acted on drops so
     verified = unknown = 0
     for entry in entries:
         if isinstance(entry, LoggedConfig):
             if entry == in_force:
                 continue
             in_force = entry
+            drops_checked = entry.drop_readings == DROP_READINGS
             try:
                 reloaded = config_module.from_dict(entry.config).control
                 same_model = in_force_model == entry.model
@@ -662,11 +714,18 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None
             known = False
             if entry.reason == "start":
-                previous_k = None
+                previous_k, stepped = None, None
             continue
         record = entry
         if previous_k is not None and record.k != previous_k + 1:
             known = False
+            stepped = None
+        if drops_checked and (stepped is not None or known):
+            full_from = _full_from(stepped, record.readings)
+            if record.full_from != full_from:
+                mismatch = Mismatch(record.k, record.t, "full_from", record.full_from, full_from)
+                return Verification(verified, unknown, mismatch)
+        stepped = None
         previous_k = record.k
         if not (record.mode == "auto" and record.heater_allowed and record.pv is not None):
             continue
@@ -701,8 +760,25 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 return Verification(
                     verified, unknown, Mismatch(record.k, record.t, name, logged, recomputed)
                 )
+        stepped = (controller, record)
         verified += 1
     return Verification(verified, unknown, None)
+
+
+def _full_from(
+    stepped: tuple[Controller, PeriodRecord] | None, readings: list[float]
+) -> int | None:
+    """After how many of a period's `readings` the daemon asks for full power (see
+    `Daemon._act_on_drop`), given the controller and the record of the step before them."""
+    if stepped is None:
+        return None
+    controller, before = stepped
+    if before.pv is None:
+        return None
+    for n in range(1, len(readings) + 1):
+        if full_power_now(controller, before.setpoint, before.pv, readings[:n]):
+            return n
+    return None
 
 
 # -- what if ------------------------------------------------------------------------------------
@@ -880,43 +956,7 @@ def _cell(value: object) -> str:
 
 
 def plot(log: Log, path: Path) -> None:
-    """PV and setpoint above, output and applied duty below, alarms marked on both."""
-    try:
-        import matplotlib
+    """The day drawn for a brewer to read at a glance (hermsd.dayplot; needs matplotlib)."""
+    from hermsd import dayplot
 
-        matplotlib.use("Agg")
-        from matplotlib import pyplot
-    except ImportError:
-        raise ReplayError(
-            "--plot needs matplotlib: uv sync --extra plot (or pip install 'hermsd[plot]')"
-        ) from None
-    hours = [t / 3600.0 for t in log.elapsed]
-    figure, (temps, duty) = pyplot.subplots(2, 1, sharex=True, figsize=(12, 7))
-    temps.plot(hours, [p.pv for p in log.periods], label="PV", linewidth=0.8)
-    temps.plot(hours, [p.setpoint for p in log.periods], label="setpoint", linewidth=0.8)
-    temps.set_ylabel("°C")
-    duty.plot(hours, [p.output for p in log.periods], label="output", linewidth=0.6)
-    duty.plot(hours, [p.applied for p in log.periods], label="applied", linewidth=0.6)
-    duty.set_ylabel("%")
-    duty.set_xlabel("hours since the first period")
-    for alarm in alarms(log):
-        for axes in (temps, duty):
-            axes.axvline(alarm["at_s"] / 3600.0, color="red", linewidth=0.8, alpha=0.6)
-        temps.annotate(
-            alarm["kind"],
-            (alarm["at_s"] / 3600.0, 1.0),
-            xycoords=("data", "axes fraction"),
-            rotation=90,
-            va="top",
-            fontsize=7,
-            color="red",
-        )
-    temps.legend(loc="lower right")
-    duty.legend(loc="upper right")
-    figure.tight_layout()
-    try:
-        figure.savefig(path, dpi=100)
-    except OSError as error:
-        raise ReplayError(f"{path}: cannot write: {error.strerror or error}") from None
-    finally:
-        pyplot.close(figure)
+    dayplot.save(log, path)

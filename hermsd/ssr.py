@@ -96,6 +96,30 @@ class TimeProportionalPlanner:
             on_at, off_at = start, start + on_time
         return WindowPlan(start, self.window, on_at, off_at, duty, 100.0 * on / slots)
 
+    def full_from(self, plan: WindowPlan, at: float) -> WindowPlan:
+        """`plan` with the element on from `at` to the window's end (cold water seen inside
+        the window): from the next half-cycle of the window's grid, or on as it already is,
+        and not before the SSR has been off for the minimum off time (counted from the
+        window's start when it was off all along: it may have been on until then). When less
+        than the minimum on time is left, the plan stays as it was (the next window comes
+        at once). What was carried is forgotten: this window delivers more than was asked.
+        `applied` counts a pulse that already ended in this window as well."""
+        end = plan.start + plan.length
+        if plan.is_on(at):
+            on_at, before = plan.on_at, 0.0
+        else:
+            ended = plan.on_at < plan.off_at <= at
+            before = plan.on_time if ended else 0.0
+            off_since = plan.off_at if ended else plan.start
+            earliest = max(at, off_since + self.min_off_slots * self.half_cycle)
+            slots = math.ceil((earliest - plan.start) / self.half_cycle - 1e-9)
+            on_at = plan.start + slots * self.half_cycle
+            if end - on_at < max(self.min_on_slots, 1) * self.half_cycle - 1e-9:
+                return plan
+        self._carry = 0.0
+        applied = 100.0 * (before + end - on_at) / plan.length
+        return WindowPlan(plan.start, plan.length, on_at, end, 100.0, applied)
+
     def _deliverable(self, wanted: float) -> int:
         """Whole half-cycles nearest to `wanted` that respect the minimum on and off times."""
         slots = self.slots
@@ -116,6 +140,39 @@ def cut(plan: WindowPlan, at: float) -> WindowPlan:
     on_at = plan.on_at if off_at > plan.on_at else off_at
     applied = 100.0 * (off_at - on_at) / plan.length
     return WindowPlan(plan.start, plan.length, on_at, off_at, plan.requested, applied)
+
+
+class SwitchedDuty:
+    """The share of time an output was switched on between one reading and the next, %:
+    the heat it let through, which its controller tracks and the supervisor counts."""
+
+    def __init__(self) -> None:
+        self._on_since: float | None = None
+        self._on_seconds = 0.0
+        self._last: float | None = None  # the reading before; None: nothing to measure from
+
+    def begin(self, now: float) -> None:
+        """Measure from `now` (the first reading then covers the time since)."""
+        self._last = now
+
+    def switched(self, on: bool, now: float) -> None:
+        """The output was switched on or off (as it was already: nothing changes)."""
+        if on and self._on_since is None:
+            self._on_since = now
+        elif not on and self._on_since is not None:
+            self._on_seconds += now - self._on_since
+            self._on_since = None
+
+    def read(self, now: float) -> float:
+        """% of the time since the reading before (0 for none) that the output was on."""
+        if self._on_since is not None:
+            self._on_seconds += now - self._on_since
+            self._on_since = now
+        last = self._last if self._last is not None else now
+        self._last = now
+        span = now - last
+        on, self._on_seconds = self._on_seconds, 0.0
+        return min(100.0, 100.0 * on / span) if span > 0 else 0.0
 
 
 class Switch(Protocol):

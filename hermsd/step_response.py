@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, Protocol, TypeVar
 
 from hermsd import tune
 from hermsd.daemon import Daemon, PeriodRecord
@@ -81,8 +82,41 @@ class Progress:
     settled: bool = False  # K and τ have stopped moving (SETTLED_RELATIVE)
 
 
+_Progress = TypeVar("_Progress")
+
+
+class Stopping(ABC, Generic[_Progress]):
+    """How a test stops: an alarm or Ctrl-C cuts it short, keeping what was measured; a stop
+    of its own asks the heater off first and then makes its last estimate."""
+
+    daemon: Daemon
+    stopped: str | None
+    last: _Progress | None
+    times: list[float]
+
+    @abstractmethod
+    def progress(self, t: float) -> _Progress:
+        """The estimates at `t`, from every period so far."""
+
+    def alarm(self, alarm: Alarm) -> None:
+        if alarm.raised and self.stopped is None:
+            self._finish(f"{ABORTED[0]} {alarm.kind}: {alarm.message}", alarm.at)
+
+    def interrupted(self, why: str) -> None:
+        """The run was stopped from outside (Ctrl-C): keep what was measured."""
+        if self.stopped is None:
+            self.stopped = f"{ABORTED[1]} ({why})"
+            self.last = self.progress(self.times[-1] if self.times else 0.0)
+
+    def _finish(self, why: str, t: float) -> None:
+        self.stopped = why
+        self.daemon.set_manual(0.0)
+        self.daemon.stop()  # the caller's shutdown switches every output off
+        self.last = self.progress(t)  # after: a fault in the fit cannot keep the heat on
+
+
 @dataclass(slots=True)
-class StepExperiment:
+class StepExperiment(Stopping[Progress]):
     """Listens to the daemon's periods, steps the output, and stops the loop when done."""
 
     daemon: Daemon
@@ -141,16 +175,6 @@ class StepExperiment:
             config.control.max_output,
         )
 
-    def alarm(self, alarm: Alarm) -> None:
-        if alarm.raised and self.stopped is None:
-            self._finish(f"{ABORTED[0]} {alarm.kind}: {alarm.message}", alarm.at)
-
-    def interrupted(self, why: str) -> None:
-        """The run was stopped from outside (Ctrl-C): keep what was measured."""
-        if self.stopped is None:
-            self.stopped = f"{ABORTED[1]} ({why})"
-            self.last = self.progress(self.times[-1] if self.times else 0.0)
-
     def _evaluate(self, t: float) -> None:
         progress = self.progress(t)
         self.last = progress
@@ -179,12 +203,6 @@ class StepExperiment:
             return False
         _, old_gain, old_tau = before[-1]
         return max(abs(gain / old_gain - 1), abs(tau / old_tau - 1)) <= SETTLED_RELATIVE
-
-    def _finish(self, why: str, t: float) -> None:
-        self.stopped = why
-        self.daemon.set_manual(0.0)
-        self.daemon.stop()  # the caller's shutdown switches every output off
-        self.last = self.progress(t)  # after: a fault in the fit cannot keep the heat on
 
     def progress(self, t: float) -> Progress:
         """The estimates now, from every period so far."""
@@ -306,12 +324,34 @@ def write(experiment: StepExperiment, path: Path) -> str:
     return tune.write_tuned(path, last.tuned)
 
 
-def run(experiment: StepExperiment, interrupts: tuple[type[BaseException], ...]) -> None:
+class Experiment(Protocol):
+    """A test that listens to the daemon's periods and can be told it was interrupted."""
+
+    @property
+    def daemon(self) -> Daemon: ...
+
+    def period(self, record: PeriodRecord) -> None: ...
+
+    def alarm(self, alarm: Alarm) -> None: ...
+
+    def interrupted(self, why: str) -> None: ...
+
+
+def run(
+    experiment: Experiment,
+    interrupts: tuple[type[BaseException], ...],
+    *,
+    heater_off: bool = True,
+) -> None:
     """Run the daemon until the experiment stops it, an interrupt, or a failure; the heater is
-    off afterwards whatever happened (the daemon's shutdown on leaving its context)."""
+    off afterwards whatever happened (the daemon's shutdown on leaving its context).
+
+    `heater_off`: manual 0 % from the first period (the step's baseline); else the daemon
+    starts as it was asked to (the relay test's heat-up in auto)."""
     daemon = experiment.daemon
     daemon.listeners.append(experiment)
-    daemon.set_manual(0.0)  # applied before the first period: the baseline is all heater-off
+    if heater_off:
+        daemon.set_manual(0.0)  # applied before the first period: the baseline is heater-off
     try:
         with daemon:
             daemon.run()
@@ -319,25 +359,31 @@ def run(experiment: StepExperiment, interrupts: tuple[type[BaseException], ...])
         experiment.interrupted(type(why).__name__)
 
 
-def _clock(seconds: float) -> str:
+def clock_text(seconds: float) -> str:
+    """h:mm:ss, as the progress lines give times."""
     minutes, secs = divmod(round(seconds), 60)
     return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"
 
 
 def progress_line(progress: Progress) -> str:
     """One line a fit: elapsed, PV, the estimates with one standard deviation, time left."""
-    head = f"step +{_clock(progress.elapsed)}"
+    head = f"step +{clock_text(progress.elapsed)}"
     if progress.pv is not None:
         head += f"  PV {progress.pv:.2f} °C"
     tuned = progress.tuned
     if tuned is None:
         return f"{head}  no fit yet: {progress.problem}"
-    m, u = tuned.model, tuned.uncertainty
-    left = "unknown" if progress.left_s is None else f"~{_clock(progress.left_s)}"
+    left = "unknown" if progress.left_s is None else f"~{clock_text(progress.left_s)}"
     verdict = "poor" if tuned.confidence != "good" else "good" if progress.settled else "settling"
+    return f"{head}  {estimates(tuned)}  ({verdict})  left {left}"
+
+
+def estimates(tuned: tune.Tuned) -> str:
+    """K, τ and θ with one standard deviation, on one line."""
+    m, u = tuned.model, tuned.uncertainty
     return (
-        f"{head}  K {m.gain:.3f}±{u.gain:.3f} °C/%  τ {m.tau:.0f}±{u.tau:.0f} s  "
-        f"θ {m.dead_time:.0f}±{u.dead_time:.0f} s  ({verdict})  left {left}"
+        f"K {m.gain:.3f}±{u.gain:.3f} °C/%  τ {m.tau:.0f}±{u.tau:.0f} s  "
+        f"θ {m.dead_time:.0f}±{u.dead_time:.0f} s"
     )
 
 
@@ -364,7 +410,7 @@ def result_lines(experiment: StepExperiment) -> list[str]:
         return [*lines, "nothing measured: the output was never stepped"]
     ol = last.open_loop
     lines.append(
-        f"step to {experiment.output:g} % for {_clock(last.elapsed)}, T1 {ol.t1:.2f} °C, "
+        f"step to {experiment.output:g} % for {clock_text(last.elapsed)}, T1 {ol.t1:.2f} °C, "
         f"rise {ol.rise:.2f} °C (limit {experiment.limit:g} °C)"
     )
     lines.append("open loop (seed 001 §4.1, on the rise so far):")

@@ -268,21 +268,27 @@ def from_series(
         uncertainty=spread,
         a_star=model.gain / model.tau,
         confidence="good" if not poor else "poor at 2σ: " + "; ".join(poor),
-        recommended=recommend(model),
+        recommended=recommend(model, litres),
         implied_litres=implied,
         logged_litres=litres,
         ambient_given=ambient is not None,
     )
 
 
-def recommend(model: TunModel) -> dict[str, float]:
-    """The predictive controller's model, rounded to what a fit can tell."""
-    return {
+def recommend(model: TunModel, litres: float | None) -> dict[str, float]:
+    """The predictive controller's model, rounded to what a fit can tell, and the water it
+    was measured with (`litres`, the config's when the log was made: unknown, write_tuned
+    takes the target file's): control.model_litres set is what makes the controller and the
+    supervisor use the model instead of their prior."""
+    settings = {
         "control.model_gain": float(f"{model.gain:.4g}"),
         "control.model_tau": float(round(model.tau)),
         "control.dead_time": float(round(model.dead_time)),
         "control.model_ambient": round(model.ambient, 1),
     }
+    if litres is not None:
+        settings["control.model_litres"] = litres
+    return settings
 
 
 def _logged(log: Log, section: str, key: str) -> float | None:
@@ -297,13 +303,14 @@ def _logged(log: Log, section: str, key: str) -> float | None:
 
 KEPT = {
     "control.kc, control.ti, control.td": "kept: the config's notes give them as suiting "
-    "predictive on any tun, and no rule derives them from the model (its model keys and "
-    "what it learns carry the tun); predictive's prior derives τ from tun.litres and the "
-    "losses (model_gain), so model_tau is written for the record",
-    "safety": "no key to change: the heater and dry-fire watches derive from tun.litres and "
-    "tun.element_watts, which are the brewer's to set; safety.dead_time is best left null, "
-    "for the supervisor derives it from a measured model of the tun (this one fits its "
-    "MeasuredTun) within its own margins",
+    "predictive on any tun, and no rule derives them from the model (the model keys carry "
+    "the tun)",
+    "control.learn": "kept: on, what the daemon learns on a later brew day comes before "
+    "this model (it sees the losses at the hold, which a step that stops below the setpoint "
+    "cannot: an open lid's evaporation); pinned or off, this model is used as written",
+    "safety": "no key to change: with control.model_litres set, the supervisor tightens "
+    "its limits from this model (its MeasuredTun) within its own margins; safety.dead_time "
+    "is best left null for that",
 }
 
 
@@ -382,7 +389,13 @@ def write_tuned(path: Path, tuned: Tuned) -> str:
     """Write `tuned`'s recommended settings into the config file; a poor fit is not written."""
     if tuned.confidence != "good":
         raise TuneError(f"{path} left as it is: the fit is {tuned.confidence}")
-    return write_config(path, tuned.recommended)
+    changes = dict(tuned.recommended)
+    if "control.model_litres" not in changes:  # a log without the config's litres
+        try:
+            changes["control.model_litres"] = config_module.load(path).tun.litres
+        except config_module.ConfigError as error:
+            raise TuneError(f"{path} left as it is: {error}") from None
+    return write_config(path, changes)
 
 
 def write_config(path: Path, changes: dict[str, float]) -> str:

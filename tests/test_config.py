@@ -79,6 +79,7 @@ BOUNDS = [
     Bound("control.u1_ref", float, 1, 99),
     Bound("control.u2_min", float, 0, 100),
     Bound("control.u2_max", float, 0, 100, low_open=True),
+    Bound("control.model_litres", float, 1, 1000, nullable=True),
     Bound("sensor.bus", int, 0, 255),
     Bound("sensor.address", int, 0x48, 0x4B),
     Bound("sensor.read_interval", float, 0.5, 10),
@@ -117,6 +118,7 @@ BOUNDS = [
     Bound("log.queue_size", int, 100, 1000000),
     Bound("alerts.timeout", float, 1, 300),
     Bound("alerts.min_interval", float, 0, 86400),
+    Bound("mqtt.port", int, 1, 65535),
 ]
 CHOICES: dict[str, tuple[object, ...]] = {
     "control.mode": ("auto", "manual"),
@@ -146,8 +148,17 @@ TEXTS = {  # key: (longest, nullable)
     "element2.port": (None, False),
     "element2.chip": (None, False),
     "log.dir": (None, True),
+    "mqtt.host": (253, False),
+    "mqtt.username": (256, True),
+    "mqtt.password_file": (None, True),
+    "mqtt.ca_file": (None, True),
+    "mqtt.cert_file": (None, True),
+    "mqtt.key_file": (None, True),
+    "mqtt.topic_prefix": (100, False),
+    "mqtt.discovery_prefix": (100, False),
+    "mqtt.client_id": (64, True),
 }
-FLAGS = ("output.active_low", "contactor.active_low", "element2.active_low")
+FLAGS = ("output.active_low", "contactor.active_low", "element2.active_low", "mqtt.tls")
 ALERT_EVENTS = ("alarm_raised", "alarm_cleared", "started", "stopped")
 LISTS = {  # key: (the items it may hold, or () for any printable text; nullable)
     "alerts.command": ((), True),
@@ -325,6 +336,7 @@ def test_defaults_are_the_specified_ones() -> None:
             "model_tau": 14961.0,
             "dead_time": 115.0,
             "model_ambient": 20.0,
+            "model_litres": None,
             "learn": "on",
             "k1": 120.0,
             "ti1": 800.0,
@@ -402,6 +414,19 @@ def test_defaults_are_the_specified_ones() -> None:
             "events": list(ALERT_EVENTS),
             "timeout": 10.0,
             "min_interval": 60.0,
+        },
+        "mqtt": {
+            "host": "localhost",
+            "port": 1883,
+            "username": None,
+            "password_file": None,
+            "tls": False,
+            "ca_file": None,
+            "cert_file": None,
+            "key_file": None,
+            "topic_prefix": "hermsd",
+            "discovery_prefix": "homeassistant",
+            "client_id": None,
         },
     }
     assert to_dict(DEFAULT) == expected
@@ -666,6 +691,18 @@ CROSS_REFUSED = [
         "max_output",
     ),
     ({"safety.stale_after": "1"}, "safety.stale_after", "read_interval"),
+    ({"mqtt.topic_prefix": "brewery/+"}, "mqtt.topic_prefix", "wildcard"),
+    ({"mqtt.discovery_prefix": "ha/#"}, "mqtt.discovery_prefix", "wildcard"),
+    ({"mqtt.topic_prefix": "$SYS"}, "mqtt.topic_prefix", "starts with $"),
+    ({"mqtt.topic_prefix": "brewery/"}, "mqtt.topic_prefix", "empty level"),
+    ({"mqtt.topic_prefix": "brewery//hlt"}, "mqtt.topic_prefix", "empty level"),
+    ({"mqtt.password_file": "/etc/hermsd/mqtt-password"}, "mqtt.password_file", "user name"),
+    ({"mqtt.ca_file": "/etc/ssl/ca.pem"}, "mqtt.ca_file", "mqtt.tls: true"),
+    (
+        {"mqtt.tls": "true", "mqtt.key_file": "/etc/hermsd/key.pem"},
+        "mqtt.key_file",
+        "mqtt.cert_file",
+    ),
 ]
 CROSS_ACCEPTED = [
     {"output.window": "1", "output.min_on": "0.5", "output.min_off": "0.49"},
@@ -695,6 +732,9 @@ CROSS_ACCEPTED = [
     },
     {"control.manual_output": "40", "control.max_output": "40"},
     {"safety.stale_after": "1.5"},
+    {"mqtt.topic_prefix": "brewery/hlt-1", "mqtt.discovery_prefix": "home_assistant"},
+    {"mqtt.username": "hermsd", "mqtt.password_file": "/etc/hermsd/mqtt-password"},
+    {"mqtt.tls": "true", "mqtt.cert_file": "/etc/hermsd/c.pem", "mqtt.key_file": "/etc/k.pem"},
 ]
 
 

@@ -240,7 +240,7 @@ def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Pat
         "tau": prior.tau,
         "dead_time": prior.dead_time,
         "ambient": prior.ambient,
-        "from": "config",
+        "from": "prior",
     }
     assert status["learned"] is None
 
@@ -586,3 +586,28 @@ def test_reset_alarm_without_a_daemon_asks_through_the_state_directory(
 
     assert store.take_reset_request() == ["ssr_stuck_on"]
     assert "reset asked" in capsys.readouterr().out
+
+
+def test_a_model_written_by_tune_is_in_force_after_the_edit(tmp_path: Path) -> None:
+    daemon, path, _events, _inbox = linked(tmp_path)
+    tuned = edited(
+        BASE,
+        control__model_gain="2.0",
+        control__model_tau="12000.0",
+        control__dead_time="90.0",
+        control__model_ambient="18.0",
+        control__model_litres="90.0",
+    )
+    rename_over(path, tuned)  # as `hermsd tune --write` replaces the file
+    run_for(daemon, 2 * PERIOD)
+
+    status = status_of(daemon)
+
+    assert status["model"] == pytest.approx(
+        {"gain": 2.0, "tau": 12000.0, "dead_time": 90.0, "ambient": 18.0, "from": "measured"}
+    )
+    # The supervisor's limits from it: heat shows within 1.5·θ = 135 s, not the 300 s any tun
+    # may need.
+    shown = [row for row in status["limits"] if row.startswith("heat shows at the sensor")]
+    assert len(shown) == 1
+    assert shown[0].endswith(" 135 s  [measured]")

@@ -13,8 +13,9 @@ from test_daemon import make
 
 from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, parse
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.daemon import Daemon, PeriodRecord, model_in_force
 from hermsd.element2 import OnOffModulator
+from hermsd.learning import LearnedModel
 from hermsd.recorder import Recorder
 from hermsd.replay import delivered, load, verify
 from hermsd.sim.clock import VirtualClock
@@ -156,6 +157,24 @@ def two_element_config(**control: object) -> Config:
         element2=dataclasses.replace(d.element2, backend="sim", watts=3500.0),
         control=dataclasses.replace(d.control, algorithm="midrange", **control),  # type: ignore[arg-type]
     )
+
+
+@pytest.mark.parametrize("learn", ["on", "pinned", "off"])
+def test_with_a_second_element_the_model_is_the_prior_not_what_one_element_showed(
+    learn: str,
+) -> None:
+    # Learned (3 kW into 90 L: 0.5 °C/min at full power) and measured (`hermsd tune --write`)
+    # models are each the answer of the SSR's element alone: with the second fitted, neither.
+    learned = LearnedModel(0.5 / 60.0, 1.0 / 12000.0, 90.0, 18.0, 90.0)
+    one = dataclasses.replace(
+        config_module.DEFAULT,
+        control=dataclasses.replace(config_module.DEFAULT.control, learn=learn, model_litres=90.0),
+    )
+    two = two_element_config(learn=learn, model_litres=90.0)
+    assert model_in_force(learned, one).source != "prior"  # either would be used with one
+    choice = model_in_force(learned, two)
+    assert (choice.source, choice.measured) == ("prior", None)
+    assert choice.model == config_module.prior_model(two)
 
 
 PLANT = {"model": "physical", "litres": 90.0, "element_watts": 2000.0, "element2_watts": 3500.0}

@@ -20,7 +20,7 @@ import pytest
 from hermsd import cli, learning, replay
 from hermsd import config as config_module
 from hermsd.learning import LearnedModel, Learner, ModelStore
-from hermsd.pid import HeatUpFit
+from hermsd.pid import HeatUpFit, PlantModel
 from hermsd.recorder import MODEL_TOPIC, LogFile
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario
@@ -284,3 +284,92 @@ def test_a_store_with_an_impossible_fill_is_refused(
     (tmp_path / learning.LEARNED_FILE).write_text(json.dumps(bad), encoding="utf-8")
     model, problem = ModelStore(tmp_path).load()
     assert model is None and problem is not None and said in problem
+
+
+# -- a model measured by `hermsd tune` (the control.model_* keys) ------------------------------
+
+
+def test_a_foptd_maps_to_the_learned_quantities_and_back() -> None:
+    # Seed 001's tun, measured at 90 L: rate 100·1.689/14961 = 0.0112893 °C/s at full power,
+    # loss 1/14961 = 6.68404e-5 /s.
+    measured = LearnedModel.from_plant(PlantModel(1.689, 14961.0, 115.0, 20.0), 90.0)
+    assert measured.rate == pytest.approx(0.0112893, rel=1e-5)
+    assert measured.loss == pytest.approx(6.68404e-5, rel=1e-5)
+    assert (measured.dead_time, measured.ambient, measured.litres) == (115.0, 20.0, 90.0)
+    back = dataclasses.astuple(measured.plant_model(90.0))
+    assert back == pytest.approx((1.689, 14961.0, 115.0, 20.0))
+    # With 45 L configured: rate ×2, loss ×2^⅓ (the wetted surface), so K = 1.689·2^⅔ =
+    # 2.68112 °C/% and τ = 14961/2^⅓ = 11874.5 s; θ and the room unchanged.
+    half = measured.plant_model(45.0)
+    assert (half.gain, half.tau) == (
+        pytest.approx(2.68112, rel=1e-5),
+        pytest.approx(11874.5, rel=1e-5),
+    )
+    assert (half.dead_time, half.ambient) == (115.0, 20.0)
+
+
+def with_control(**control: object) -> config_module.Config:
+    return config_module.from_dict(
+        config_module.to_dict(config_module.DEFAULT)
+        | {"control": config_module.to_dict(config_module.DEFAULT)["control"] | control}
+    )
+
+
+TUNED = {"model_gain": 2.0, "model_tau": 12000.0, "dead_time": 90.0, "model_ambient": 18.0}
+
+
+@pytest.mark.parametrize(
+    ("learn", "litres", "source"),
+    [
+        ("on", None, "learned"),  # nothing measured by tune: what was learned
+        ("on", 90.0, "learned"),  # on: the daemon's own, later measurement first
+        ("pinned", 90.0, "measured"),  # pinned: what tune measured, as written
+        ("pinned", None, "learned"),
+        ("off", 90.0, "measured"),
+        ("off", None, "prior"),
+    ],
+)
+def test_learn_decides_between_the_learned_and_the_tuned_model(
+    learned_day: tuple[Path, Path], learn: str, litres: float | None, source: str
+) -> None:
+    config = with_control(learn=learn, model_litres=litres, **TUNED)
+    daemon = simulated_daemon(config, math.inf, models=ModelStore(learned_day[0]))
+    assert daemon.model_choice.source == source
+    if source == "measured":
+        assert dataclasses.astuple(daemon.model) == pytest.approx((2.0, 12000.0, 90.0, 18.0))
+    measured = source != "prior"
+    assert (dict(daemon.supervisor.limits.origins)["loss_rate"] == "measured") == measured
+
+
+def test_a_tuned_model_is_rescaled_to_the_configured_litres() -> None:
+    config = with_control(learn="off", model_litres=45.0, **TUNED)  # DEFAULT's tun: 90 L
+    daemon = simulated_daemon(config, math.inf)
+    # Twice the water: rate ÷2 and loss ÷2^⅓, so K = 2·2^-⅔ = 1.25992 °C/%, τ = 12000·2^⅓.
+    assert daemon.model.gain == pytest.approx(1.25992, rel=1e-5)
+    assert daemon.model.tau == pytest.approx(15119.1, rel=1e-5)
+    assert daemon.supervisor.limits.loss_per_k == pytest.approx(1.5 / 15119.1, rel=1e-5)
+
+
+def test_check_config_shows_the_limits_from_a_tuned_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_text(
+        "control: {model_gain: 2, model_tau: 12000, dead_time: 90, model_litres: 90}\n",
+        encoding="utf-8",
+    )
+    assert cli.main(["check-config", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "# safety limits in force (the tun as measured by hermsd tune" in out
+    rows = {line[4:].split("  ")[0]: line for line in out.splitlines() if line.startswith("#   ")}
+    # θ·1.5 = 135 s; 0.8·0.81·(100·2/12000 °C/s)/1.5 = 0.432 °C/min.
+    assert rows["heat shows at the sensor within"].endswith(" 135 s  [measured]")
+    assert rows["weakest heating at 80 %"].endswith(" 0.432 °C/min  [measured]")
+
+
+def test_a_tuned_model_that_cannot_be_a_tun_is_a_config_error(tmp_path: Path) -> None:
+    path = tmp_path / "hermsd.yaml"
+    path.write_text("control:\n  model_tau: 100\n  model_litres: 90\n", encoding="utf-8")
+    # 100·1.689/100 = 1.69 °C/s at full power: no element boils water that fast.
+    with pytest.raises(config_module.ConfigError, match=r"yaml:3:.*model_litres: .*rate 1.69 °C/s"):
+        config_module.load(path)

@@ -65,6 +65,7 @@ PERIOD = {
     "u2": 12.5,
     "applied2": 10.0,
     "switched2": 0.0,
+    "full_from": None,
 }
 READING = {
     "t": 1234.0,
@@ -105,6 +106,7 @@ CONFIG = {
     "config": {"setpoint": 66.0, "pid": {"kc": 80.8, "ti": 489.0, "td": 44.9}},
     "reason": "start",
     "model": {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0},
+    "drop_readings": 2,
 }
 MODEL = {
     "t": 6600.0,

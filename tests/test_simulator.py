@@ -416,11 +416,34 @@ class _Ramp:
         return self.temp + (0.012 * (t - self.since) if self.on else 0.0)
 
 
-def test_the_recovery_floor_waits_a_period_and_reads_on_the_period_samples() -> None:
-    # From 60 °C to the band's edge 65.5 °C: 5.5 / 0.012 = 458.3 s of full power. Off for
-    # the first 5 s period: 463.3 s, read at the sample of 465 s; at 40 % in it (2 s on):
-    # 461.3 s, also 465 s; at 100 %: 458.3 s, read at 460 s.
+@pytest.mark.parametrize(
+    ("seen", "expected"),
+    [
+        # From 60 °C to the band's edge 65.5 °C: 5.5 / 0.012 = 458.3 s of full power. Seen a
+        # whole 5 s period late (a loop that acts once a period): off for it, 463.3 s, read
+        # at the sample of 465 s; at 40 % (2 s on, 3 s off): 461.3 s, also 465 s; at 100 %:
+        # 458.3 s, read at 460 s.
+        (5.0, [465.0, 465.0, 460.0]),
+        # Seen at a reading 3 s after the water: off for 3 s, 461.3 s → 465 s; at 40 % the
+        # 2 s on-time comes first and 1 s is lost: 459.3 s → 460 s; at 100 %, 460 s.
+        (3.0, [465.0, 460.0, 460.0]),
+    ],
+)
+def test_the_recovery_floor_waits_for_the_reading_and_reads_on_the_period_samples(
+    seen: float, expected: list[float]
+) -> None:
     plant = _Ramp(60.0)
-    floors = [scenario.reactive_floor(plant, 100.0, 66.0, 3600.0, 5.0, u) for u in (0, 40, 100)]
-    assert floors == [465.0, 465.0, 460.0]
+    floors = [
+        scenario.reactive_floor(plant, 100.0, 66.0, 3600.0, 5.0, u, seen) for u in (0, 40, 100)
+    ]
+    assert floors == expected
     assert plant.water_temperature(1000.0) == 60.0  # on a copy: the plant is untouched
+
+
+def test_the_first_reading_after_an_event_follows_the_daemons_read_schedule() -> None:
+    # Reads at 0.5, 1.5, 2.5 … s: water at 14400 s is seen at 14400.5 s; an event at a
+    # reading's own time is seen by it (the scenario's events run first).
+    assert scenario.first_read_after(14400.0, 1.0) == 14400.5
+    assert scenario.first_read_after(14400.5, 1.0) == 14400.5
+    assert scenario.first_read_after(0.0, 2.0) == 1.0
+    assert scenario.first_read_after(3.2, 2.0) == 5.0

@@ -216,7 +216,8 @@ def test_a_step_stopped_at_the_limit_before_a_good_fit_writes_nothing(
 
 def test_step_options_are_refused_without_step(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["tune", "--table", "K=1,tau=100,theta=10", "--simulate", "--limit", "50"]) == 2
-    assert "--limit, --simulate: for `hermsd tune step` only" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--limit, --simulate: for `hermsd tune step` or `tune relay` only" in err
 
 
 def test_a_good_looking_fit_that_had_not_settled_is_not_written(tmp_path: Path) -> None:

@@ -18,6 +18,12 @@ INSTALLED_BINARY = "/usr/local/bin/hermsd"
 # The template is checked through one instance, so %i resolves as it will on the Pi.
 UNITS = {"hermsd.service": "hermsd.service", "hermsd@.service": "hermsd@hlt.service"}
 CONFIG = {"hermsd.service": "/etc/hermsd/hermsd.yaml", "hermsd@.service": "/etc/hermsd/%i.yaml"}
+# The MQTT bridge's units: no hardware, but the network (the daemon's stay at 1.0 or less).
+MQTT_UNITS = {
+    "hermsd-mqtt.service": "hermsd-mqtt.service",
+    "hermsd-mqtt@.service": "hermsd-mqtt@hlt.service",
+}
+EXPOSURE_LIMITS = {**dict.fromkeys(UNITS, 1.0), **dict.fromkeys(MQTT_UNITS, 2.0)}
 
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
 needs_systemd_analyze = pytest.mark.skipif(
@@ -49,7 +55,7 @@ def _staged_unit(unit_file: str, directory: Path) -> Path:
     text = (SYSTEMD_DIR / unit_file).read_text()
     assert INSTALLED_BINARY in text
     (directory / unit_file).write_text(text.replace(INSTALLED_BINARY, true_binary))
-    return directory / UNITS[unit_file]
+    return directory / {**UNITS, **MQTT_UNITS}[unit_file]
 
 
 def _analyze(*arguments: str) -> subprocess.CompletedProcess[str]:
@@ -60,7 +66,7 @@ def _analyze(*arguments: str) -> subprocess.CompletedProcess[str]:
 
 
 @needs_systemd_analyze
-@pytest.mark.parametrize("unit_file", UNITS)
+@pytest.mark.parametrize("unit_file", EXPOSURE_LIMITS)
 def test_systemd_analyze_verify_reports_nothing(unit_file: str, tmp_path: Path) -> None:
     unit = _staged_unit(unit_file, tmp_path)
 
@@ -70,16 +76,17 @@ def test_systemd_analyze_verify_reports_nothing(unit_file: str, tmp_path: Path) 
 
 
 @needs_systemd_analyze
-@pytest.mark.parametrize("unit_file", UNITS)
-def test_sandbox_exposure_is_at_most_one(unit_file: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("unit_file", EXPOSURE_LIMITS)
+def test_sandbox_exposure_is_within_its_limit(unit_file: str, tmp_path: Path) -> None:
     unit = _staged_unit(unit_file, tmp_path)
+    limit = EXPOSURE_LIMITS[unit_file]
 
     # --threshold is on systemd's internal 0..100 scale: 10 is the displayed 1.0.
-    result = _analyze("security", "--offline=yes", "--threshold=10", str(unit))
+    result = _analyze("security", "--offline=yes", f"--threshold={round(10 * limit)}", str(unit))
 
     match = re.search(r"Overall exposure level for \S+: (\d+\.\d)", result.stdout)
     assert match is not None, result.stdout + result.stderr
-    assert float(match.group(1)) <= 1.0
+    assert float(match.group(1)) <= limit
     assert result.returncode == 0, result.stderr
 
 
@@ -148,3 +155,46 @@ def test_the_template_differs_from_the_plain_unit_only_per_vessel() -> None:
     assert template["Service.StateDirectory"] == ["hermsd/%i"]
     assert template["Service.LogsDirectory"] == ["hermsd/%i"]
     assert template["Service.RuntimeDirectory"] == ["hermsd/%i"]
+
+
+# -- the MQTT bridge's unit -----------------------------------------------------------------
+
+MQTT_PLACES = {  # the config and the socket of the vessel each bridges
+    "hermsd-mqtt.service": ("/etc/hermsd/hermsd.yaml", "/run/hermsd/control.sock"),
+    "hermsd-mqtt@.service": ("/etc/hermsd/%i.yaml", "/run/hermsd/%i/control.sock"),
+}
+
+
+@pytest.mark.parametrize("unit_file", MQTT_UNITS)
+def test_the_mqtt_bridge_runs_as_its_own_user_without_hardware(unit_file: str) -> None:
+    directives = _directives(unit_file)
+    config, control_socket = MQTT_PLACES[unit_file]
+    expected = {
+        "Service.ExecStart": [
+            f"{INSTALLED_BINARY} mqtt --config {config} --socket {control_socket}"
+        ],
+        "Service.Restart": ["always"],
+        "Service.User": ["hermsd-mqtt"],
+        "Service.Group": ["hermsd-mqtt"],
+        # the control socket and the config file are the hermsd group's
+        "Service.SupplementaryGroups": ["hermsd"],
+        "Service.PrivateDevices": ["yes"],
+        "Service.DevicePolicy": ["closed"],
+        "Service.RestrictAddressFamilies": ["AF_UNIX AF_INET AF_INET6"],
+        "Service.ProtectSystem": ["strict"],
+        "Service.CapabilityBoundingSet": [""],
+        "Service.NoNewPrivileges": ["yes"],
+    }
+    assert {key: directives.get(key) for key in expected} == expected
+    assert "Service.DeviceAllow" not in directives
+    assert "Service.PrivateNetwork" not in directives
+
+
+def test_the_mqtt_template_differs_from_the_plain_unit_only_per_vessel() -> None:
+    plain = _directives("hermsd-mqtt.service")
+    template = _directives("hermsd-mqtt@.service")
+    per_vessel = {"Unit.Description", "Unit.After", "Service.ExecStart"}
+    assert {k: v for k, v in plain.items() if k not in per_vessel} == {
+        k: v for k, v in template.items() if k not in per_vessel
+    }
+    assert template["Unit.After"] == ["network-online.target hermsd@%i.service mosquitto.service"]

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
+import math
 import os
 import stat
 from pathlib import Path
@@ -17,6 +19,7 @@ from hermsd.cli import main
 from hermsd.config_file import ConfigFile, at_once
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario
+from hermsd.sim.world import simulated_daemon
 
 SEED_MODEL = "K=1.689,tau=14961,theta=115,a_star=6.68e-5"
 
@@ -166,7 +169,9 @@ def test_tune_finds_the_simulated_tun_in_an_ordinary_brew_day(
         "control.model_tau": round(model["tau"]),
         "control.dead_time": model["dead_time"],
         "control.model_ambient": pytest.approx(model["ambient"], abs=0.05),
+        "control.model_litres": result["logged_litres"],  # with what water it was measured
     }
+    assert result["logged_litres"] == 90.0
     # Table 1 for the fitted model: ZN open loop from a* = K/τ equals ZN closed loop.
     rules = result["rules"]
     assert rules[0]["kc"] == pytest.approx(rules[2]["kc"])
@@ -255,7 +260,7 @@ def test_tune_wants_files_or_a_table(capsys: pytest.CaptureFixture[str]) -> None
 # -- --write ------------------------------------------------------------------------------------
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
-MODEL_KEYS = ("model_gain", "model_tau", "dead_time", "model_ambient")
+MODEL_KEYS = ("model_gain", "model_tau", "dead_time", "model_ambient", "model_litres")
 
 
 @pytest.fixture
@@ -290,7 +295,7 @@ def test_write_changes_only_the_recommended_values(
     assert stat.S_IMODE(config_copy.stat().st_mode) == 0o640
     if os.geteuid() == 0:  # the group that reads it is kept, not root's own
         assert (config_copy.stat().st_uid, config_copy.stat().st_gid) == (0, 65534)
-    assert result["written"]["diff"].count("\n-  ") == 4
+    assert result["written"]["diff"].count("\n-  ") == 5
     # A running daemon sees the new file as it sees any edit.
     reloaded = running.poll()
     assert isinstance(reloaded, config_module.Config)
@@ -345,3 +350,56 @@ def test_a_broken_config_is_not_edited(config_copy: Path) -> None:
     with pytest.raises(tune.TuneError, match=r"is not a valid config now; fix it first"):
         tune.write_config(config_copy, {"control.model_gain": 1.0})
     assert config_copy.read_text(encoding="utf-8") == "control:\n  kc: fast\n"
+
+
+def test_after_write_the_next_start_uses_the_written_model(
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+    brew_day: list[str],
+    config_copy: Path,
+) -> None:
+    before = simulated_daemon(config_module.load(config_copy), math.inf)
+    assert before.model_choice.source == "prior" and before.supervisor.limits.dead_time == 300.0
+    code, out, _ = run_cli(capsys, *brew_day, "--write", str(config_copy), "--json")
+    assert code == 0
+    written = json.loads(out)["recommended"]
+    caplog.set_level(logging.INFO, logger="hermsd")
+    hermsd_log = logging.getLogger("hermsd")  # the CLI run above may have stopped propagation
+    hermsd_log.addHandler(caplog.handler)
+    try:
+        daemon = simulated_daemon(config_module.load(config_copy), math.inf)
+        daemon.start()
+    finally:
+        hermsd_log.removeHandler(caplog.handler)
+    gain, tau, theta = (
+        written[f"control.{key}"] for key in ("model_gain", "model_tau", "dead_time")
+    )
+    # Measured at the configured 90 L: the controller's model is the written one as it stands.
+    assert daemon.model_choice.source == "measured"
+    assert (daemon.model.gain, daemon.model.tau) == (pytest.approx(gain), pytest.approx(tau))
+    assert (daemon.model.dead_time, daemon.model.ambient) == (
+        theta,
+        written["control.model_ambient"],
+    )
+    said = [r.getMessage() for r in caplog.records]
+    assert any(
+        m.startswith("tun model in use (control and safety limits): measured by hermsd tune")
+        for m in said
+    ), said
+    # The supervisor's limits from it, as from a learned model: judged after 1.5·θ (not the
+    # 300 s any tun may need), losses bounded by 1.5/τ, the weakest rise 0.8·0.81·(100·K/τ)/1.5.
+    limits = daemon.supervisor.limits
+    assert limits.dead_time == pytest.approx(max(60.0, 1.5 * theta))
+    assert limits.loss_per_k == pytest.approx(1.5 / tau)
+    assert limits.heater_rise_rate == pytest.approx(0.8 * 0.81 * 100.0 * gain / tau / 1.5)
+    assert dict(limits.origins)["heater_rise_rate"] == "measured"
+
+
+def test_a_log_without_the_litres_is_written_with_the_files(
+    brew_day: list[str], config_copy: Path
+) -> None:
+    tuned = tune.from_log(replay.load(brew_day))
+    unknown = {k: v for k, v in tuned.recommended.items() if k != "control.model_litres"}
+    config_copy.write_text("tun:\n  litres: 45\n", encoding="utf-8")
+    tune.write_tuned(config_copy, dataclasses.replace(tuned, recommended=unknown))
+    assert config_module.load(config_copy).control.model_litres == 45.0

@@ -62,7 +62,7 @@ class Snapshot:
     manual_output: float
     limits: SafetyLimits
     model: PlantModel  # the controller's model of the tun, in force
-    model_learned: bool  # whether that model is what was learned
+    model_from: str  # where that model came from: learned, measured (hermsd tune) or prior
     learned: LearnedModel | None
     config: Config
     runtime: frozenset[str]
@@ -112,7 +112,7 @@ class LoopLink:
             daemon.manual_output,
             daemon.supervisor.limits,
             daemon.model,
-            daemon.model_learned,
+            daemon.model_choice.source,
             daemon.learned_model,
             daemon.config,
             frozenset(self._runtime),
@@ -206,7 +206,7 @@ class LoopLink:
                 "tau": model.tau,
                 "dead_time": model.dead_time,
                 "ambient": model.ambient,
-                "from": "learned" if snapshot.model_learned else "config",
+                "from": snapshot.model_from,
             },
             "learned": None
             if learned is None

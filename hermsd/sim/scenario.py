@@ -361,18 +361,35 @@ def time_to_band(plant: Plant, start: float, setpoint: float, limit: float) -> f
 
 
 def reactive_floor(
-    plant: Plant, start: float, setpoint: float, limit: float, period: float, duty: float
+    plant: Plant,
+    start: float,
+    setpoint: float,
+    limit: float,
+    period: float,
+    duty: float,
+    seen: float,
 ) -> float | None:
-    """The least recovery a controller that acts once a period can show: the sensor shows
-    the water in the period after it, so for that period the element runs at `duty` % as
-    decided before the water (its on-time first, the soonest it can come), then at full
-    power; read, as the metrics read it, at the first period's sample at or past
-    `time_to_band`. On a copy of `plant`."""
+    """The least recovery a controller that acts on every reading can show: nothing can
+    know of the water before the first reading after it, `seen` s after it, so until then
+    the element runs at `duty` % as decided before the water (the period's on-time first,
+    the soonest it can come), then at full power; read, as the metrics read it, at the first
+    period's sample at or past `time_to_band`. (A controller that acts once a period has
+    `seen` = `period`.) On a copy of `plant`."""
     late = copy.deepcopy(plant)
     late.set_heater(True, start)
-    late.set_heater(False, start + period * duty / 100.0)
-    rest = time_to_band(late, start + period, setpoint, limit - period)
-    return None if rest is None else period * math.ceil((period + rest) / period)
+    on_time = period * duty / 100.0
+    if on_time < seen:
+        late.set_heater(False, start + on_time)
+    rest = time_to_band(late, start + seen, setpoint, limit - seen)
+    return None if rest is None else period * math.ceil((seen + rest) / period)
+
+
+def first_read_after(t: float, read_interval: float) -> float:
+    """When the daemon's first reading at or after `t` comes: it reads half an interval after
+    it starts (at 0 in a scenario), then once an interval; an event at a reading's own time
+    runs before it."""
+    half = read_interval / 2.0
+    return half + max(0, math.ceil((t - half) / read_interval)) * read_interval
 
 
 def run(
@@ -448,8 +465,9 @@ def run(
             sp = event.value if event.kind == "setpoint" else daemon.setpoint
             if index in reloads:
                 sp = reloads[index].control.setpoint
+            seen = first_read_after(t, config.sensor.read_interval) - t
             recovery_min["floor"] = reactive_floor(
-                snapshot, t, sp, scenario.duration, period, daemon.output
+                snapshot, t, sp, scenario.duration, period, daemon.output, seen
             )
             recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration)
 

@@ -1,0 +1,325 @@
+"""The MQTT bridge: the daemon's state to a broker, and Home Assistant's commands back.
+
+It is a process of its own and reaches the daemon only through the control socket, as
+`hermsd status` and `hermsd set` do, so nothing it does (a slow broker, a flood of messages,
+a crash) can delay the control loop.
+
+Three threads. paho-mqtt's network thread keeps the broker connection: it reconnects with
+doubling waits, and at each connection publishes the discovery messages, the availability
+and the last state again (retained; a restarted broker without persistence has lost them).
+It checks each command as it arrives and queues the valid ones. The main thread asks the
+daemon for its status every `poll` seconds and publishes the state when a new control
+period has run. The command thread sends the queued commands: a `set` is answered only after
+the next period boundary, and neither the broker nor the polls may wait for it. When the
+daemon does not answer, the availability turns "offline" and the polls back off to
+`DAEMON_RETRY_MAX`; a bridge that dies leaves "offline" behind as its last will.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import ssl
+import threading
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+from paho.mqtt.properties import Properties
+from paho.mqtt.reasoncodes import ReasonCode
+
+from hermsd.config import Config
+from hermsd.control.client import NoDaemonError, ReplyError, ask
+from hermsd.control.protocol import Status, describe
+from hermsd.files import NotRegularFile, read_regular
+from hermsd.mqtt.messages import (
+    OFFLINE,
+    ONLINE,
+    Command,
+    Refused,
+    Topics,
+    discovery_messages,
+    encode,
+    parse_command,
+    state_message,
+)
+
+log = logging.getLogger("hermsd")
+
+POLL = 0.5  # s between status requests: a state within half a second of its period's end
+DAEMON_RETRY_MAX = 10.0  # s: the longest wait between tries while the daemon is gone
+BROKER_RETRY = (1, 60)  # s: paho's first and longest wait between connection attempts
+KEEPALIVE = 30  # s: the broker fires the last will this long (×1.5) after a silent death
+STATUS_TIMEOUT = 2.0  # s: `status` is answered at once from the last period
+QUEUED_COMMANDS = 8  # commands waiting for the daemon; more are refused as busy
+QOS = 1
+PASSWORD_LIMIT = 4096  # bytes in a password file
+REFUSED = "refused, nothing changed: "  # as the daemon words its own refusals
+
+
+class BridgeError(Exception):
+    """The bridge cannot start as configured (a password or TLS file it cannot read)."""
+
+
+class Bridge:
+    """Connects the daemon at `socket_path` to the broker `config.mqtt` names."""
+
+    def __init__(
+        self,
+        config: Config,
+        socket_path: Path,
+        *,
+        poll: float = POLL,
+        broker_retry: tuple[int, int] = BROKER_RETRY,
+    ) -> None:
+        settings = config.mqtt
+        self.config = config
+        self.socket_path = socket_path
+        self.poll = poll
+        self.topics = Topics.of(settings.topic_prefix, settings.discovery_prefix)
+        self._discovery = [
+            (topic, encode(payload)) for topic, payload in discovery_messages(self.topics, config)
+        ]
+        # (topic, payload, command) to send; None ends the command thread
+        self._commands: queue.Queue[tuple[str, bytes, Command] | None] = queue.Queue(
+            QUEUED_COMMANDS
+        )
+        self._lock = threading.Lock()  # orders what the threads publish
+        self._state: bytes | None = None  # the last state published, for reconnections
+        self._last_t: float | None = None
+        self._available: bool | None = None  # None: not known yet (the first poll says)
+        self._stop = threading.Event()
+        client_id = settings.client_id or f"hermsd-{self.topics.node_id}"
+        client = mqtt.Client(
+            CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv311
+        )
+        client.will_set(self.topics.availability, OFFLINE, qos=QOS, retain=True)
+        if settings.username is not None:
+            client.username_pw_set(settings.username, _password(settings.password_file))
+        if settings.tls:
+            try:
+                client.tls_set(
+                    ca_certs=settings.ca_file,
+                    certfile=settings.cert_file,
+                    keyfile=settings.key_file,
+                    cert_reqs=ssl.CERT_REQUIRED,
+                )
+            except (OSError, ssl.SSLError) as error:  # a file missing, unreadable or not PEM
+                reason = getattr(error, "strerror", None) or str(error)
+                files = [f for f in (settings.ca_file, settings.cert_file, settings.key_file) if f]
+                raise BridgeError(f"mqtt TLS files {', '.join(files)}: {reason}") from None
+        client.reconnect_delay_set(*broker_retry)
+        # A fault in a callback is logged and the network thread goes on (paho's default
+        # would end the thread, and with it every reconnection).
+        paho_log = logging.getLogger("hermsd.paho")
+        paho_log.addFilter(_between_attempts)
+        client.enable_logger(paho_log)
+        client.suppress_exceptions = True
+        client.on_connect = self._on_connect
+        client.on_connect_fail = self._on_connect_fail
+        client.on_disconnect = self._on_disconnect
+        client.on_message = self._on_message
+        self.client = client
+
+    # -- the main thread ------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Serve until `stop`; then say "offline" and leave the broker cleanly."""
+        settings = self.config.mqtt
+        log.info(
+            "bridging %s to mqtt://%s:%d as %s",
+            self.socket_path,
+            settings.host,
+            settings.port,
+            self.topics.prefix,
+        )
+        self.client.connect_async(settings.host, settings.port, keepalive=KEEPALIVE)
+        self.client.loop_start()
+        # A daemon thread: a `set` still waiting for its boundary does not hold up the exit.
+        threading.Thread(
+            target=self._send_commands, name="hermsd-mqtt-commands", daemon=True
+        ).start()
+        try:
+            wait = self.poll
+            while not self._stop.is_set():
+                wait = self.poll if self._poll() else min(2 * wait, DAEMON_RETRY_MAX)
+                self._stop.wait(wait)
+        finally:
+            with self._lock:
+                self._available = False
+                info = self.client.publish(self.topics.availability, OFFLINE, QOS, retain=True)
+            if self.client.is_connected():
+                info.wait_for_publish(timeout=2.0)
+            self.client.disconnect()
+            self.client.loop_stop()
+
+    def stop(self) -> None:
+        """From any thread or a signal handler: `run` returns at once."""
+        self._stop.set()
+        with contextlib.suppress(queue.Full):  # full: the command thread sees the flag next
+            self._commands.put_nowait(None)
+
+    def _poll(self) -> bool:
+        """Publish a new period's state; False when the daemon does not answer."""
+        try:
+            reply = ask(self.socket_path, Status(), timeout=STATUS_TIMEOUT)
+        except (NoDaemonError, ReplyError) as error:
+            self._set_available(False, str(error))
+            return False
+        if not reply["ok"]:  # starting: no period has run yet
+            self._set_available(False, str(reply.get("error")))
+            return False
+        self._set_available(True, "")
+        self._publish_state(reply)
+        return True
+
+    def _send_commands(self) -> None:
+        while (item := self._commands.get()) is not None and not self._stop.is_set():
+            self._send(*item)
+
+    def _send(self, topic: str, payload: bytes, command: Command) -> None:
+        try:  # answered after the next period boundary: allow two periods
+            reply = ask(self.socket_path, command, timeout=2 * self.config.control.period + 5)
+        except NoDaemonError as error:
+            self._refuse(topic, payload, f"not applied, nothing changed: {error}")
+            return
+        except ReplyError as error:  # it was sent: the daemon may have applied it
+            self._refuse(topic, payload, f"{error}; the next state shows whether it was applied")
+            return
+        if not reply["ok"]:
+            # the daemon's own words ("refused, nothing changed: control.setpoint: ...")
+            self._refuse(topic, payload, str(reply.get("error", "refused by hermsd")))
+            return
+        log.info("applied %s (from mqtt)", describe(command))
+        self._publish_state(reply)
+
+    def _set_available(self, available: bool, why: str) -> None:
+        with self._lock:
+            if available == self._available:
+                return
+            self._available = available
+            self._last_t = None  # a daemon started again counts its periods afresh
+            self._publish(self.topics.availability, ONLINE if available else OFFLINE)
+        if available:
+            log.info("hermsd answers on %s: online", self.socket_path)
+        else:
+            log.warning("%s: offline until it answers", why)
+
+    def _publish_state(self, status: dict[str, Any]) -> None:
+        with self._lock:
+            if self._last_t is not None and status["t"] <= self._last_t:
+                return  # this period's state is out already (a `set` reply after a poll)
+            self._last_t = status["t"]
+            self._state = encode(state_message(status))
+            self._publish(self.topics.state, self._state)
+
+    # -- paho's network thread ------------------------------------------------------------
+
+    def _on_connect(
+        self,
+        client: mqtt.Client,
+        userdata: Any,
+        flags: mqtt.ConnectFlags,
+        reason_code: ReasonCode,
+        properties: Properties | None,
+    ) -> None:
+        if reason_code.is_failure:
+            log.warning("the broker refused the connection: %s", reason_code)
+            return
+        log.info("connected to the broker")
+        client.subscribe(
+            [
+                (self.topics.set_setpoint, QOS),
+                (self.topics.set_mode, QOS),
+                (self.topics.home_assistant_status, QOS),
+            ]
+        )
+        self._announce()
+
+    def _on_connect_fail(self, client: mqtt.Client, userdata: Any) -> None:
+        settings = self.config.mqtt
+        log.warning("cannot reach the broker at %s:%d: trying again", settings.host, settings.port)
+
+    def _announce(self) -> None:
+        """Discovery, availability and the last state, all retained."""
+        with self._lock:
+            for topic, payload in self._discovery:
+                self._publish(topic, payload)
+            self._publish(self.topics.availability, ONLINE if self._available else OFFLINE)
+            if self._state is not None:
+                self._publish(self.topics.state, self._state)
+
+    def _on_disconnect(
+        self,
+        client: mqtt.Client,
+        userdata: Any,
+        flags: mqtt.DisconnectFlags,
+        reason_code: ReasonCode,
+        properties: Properties | None,
+    ) -> None:
+        if not self._stop.is_set():
+            log.warning("lost the broker (%s): reconnecting", reason_code)
+
+    def _on_message(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
+        topic, payload = message.topic, bytes(message.payload)
+        if topic == self.topics.home_assistant_status:
+            if payload == ONLINE.encode():  # Home Assistant restarted: tell it again
+                self._announce()
+            return
+        if not payload:  # how a retained message is cleared: not a command
+            return
+        if message.retain:
+            self._refuse(
+                topic,
+                payload,
+                f"{REFUSED}a retained command is not applied: it would be applied again at every "
+                "connection (publish it without retain, and clear it with an empty retained "
+                "message)",
+            )
+            return
+        try:
+            command = parse_command(self.topics, topic, payload, self.config)
+        except Refused as error:
+            self._refuse(topic, payload, f"{REFUSED}{error}")
+            return
+        try:
+            self._commands.put_nowait((topic, payload, command))
+        except queue.Full:
+            self._refuse(topic, payload, f"{REFUSED}busy: {QUEUED_COMMANDS} commands wait already")
+
+    # -- either thread --------------------------------------------------------------------
+
+    def _refuse(self, topic: str, payload: bytes, error: str) -> None:
+        """Say in the log and on the error topic why a command was not applied (or may not
+        have been)."""
+        shown = payload[:64].decode("utf-8", "replace")
+        log.warning("mqtt command on %s: %s", topic, error)
+        message = {"topic": topic, "payload": shown, "error": error}
+        self.client.publish(self.topics.error, encode(message), QOS, retain=False)
+
+    def _publish(self, topic: str, payload: str | bytes) -> None:
+        """A retained message, if connected: what is missed is republished on connection."""
+        if self.client.is_connected():
+            self.client.publish(topic, payload, QOS, retain=True)
+
+
+def _between_attempts(record: logging.LogRecord) -> bool:
+    """Drop the error paho logs on every turn of its loop between two failed connection
+    attempts (its own state, not news; `_on_connect_fail` says the broker is unreachable)."""
+    return not record.getMessage().startswith("Client is not connected.")
+
+
+def _password(path: str | None) -> str | None:
+    if path is None:
+        return None
+    try:
+        text = read_regular(path, PASSWORD_LIMIT).decode("utf-8")
+    except (OSError, NotRegularFile, UnicodeDecodeError) as error:
+        reason = getattr(error, "strerror", None) or str(error)
+        raise BridgeError(f"mqtt.password_file {path}: {reason}") from None
+    lines = text.splitlines()
+    if not lines or not lines[0]:
+        raise BridgeError(f"mqtt.password_file {path}: the first line (the password) is empty")
+    return lines[0]

@@ -1,0 +1,259 @@
+"""What the MQTT bridge says and hears: its topics, Home Assistant's discovery messages, the
+state it publishes, and the commands it takes. Pure: no network, no clock.
+
+Modes, and why they are mapped so. hermsd has two modes: auto (the loop holds the setpoint)
+and manual (a fixed output). Home Assistant's climate entity has HVAC modes. The honest fit:
+
+- auto is "heat": the tun is heated to the target, and has nothing to cool it;
+- manual at 0 % is "off": the element stays off;
+- manual above 0 % is "heat" too: the element is heating, and Home Assistant must never show
+  "off" while it is. The state's `mode_text` ("manual at 40 %") and the mode sensor say which.
+
+Commands can only make the tun safer or put it back under the loop: "heat" asks for auto
+(the loop takes over bumplessly and holds the running setpoint, within the supervisor's
+limits), "off" asks for manual at 0 %. A manual output above 0 % is not offered over MQTT:
+a fixed duty nobody watches heats until the supervisor's cut-out, which is the last line,
+not the plan. A setpoint is checked by the config's own rules here, before it is sent, and
+again by the daemon.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from typing import Any
+
+from hermsd import __version__
+from hermsd import config as config_module
+from hermsd.config import Config
+from hermsd.control.protocol import SetMode, SetSetpoint
+
+ONLINE = "online"
+OFFLINE = "offline"
+TEMP_STEP = 0.5  # °C: the climate card's step; brewers set 66, 67.5, 72
+MAX_PAYLOAD = 64  # bytes: a setpoint or a mode is a few; more is not a command
+TEXT_STATE_LIMIT = 255  # characters Home Assistant keeps in a sensor's state
+_NUMBER = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
+HA_MODES = {"heat": SetMode("auto"), "off": SetMode("manual", 0.0)}
+
+Command = SetSetpoint | SetMode
+
+
+class Refused(ValueError):
+    """A command that is not applied; the message says what is wrong (what would be right)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Topics:
+    """Every topic of one tun, from the config's two prefixes (`Topics.of`)."""
+
+    prefix: str
+    discovery_prefix: str
+    node_id: str  # the prefix as Home Assistant spells node ids: [a-zA-Z0-9_-]
+    state: str
+    availability: str
+    set_setpoint: str
+    set_mode: str
+    error: str
+    home_assistant_status: str  # its birth and last will: "online" when it (re)starts
+
+    @classmethod
+    def of(cls, prefix: str, discovery_prefix: str) -> Topics:
+        return cls(
+            prefix=prefix,
+            discovery_prefix=discovery_prefix,
+            node_id=re.sub(r"[^a-zA-Z0-9_-]", "_", prefix),
+            state=f"{prefix}/state",
+            availability=f"{prefix}/availability",
+            set_setpoint=f"{prefix}/set/setpoint",
+            set_mode=f"{prefix}/set/mode",
+            error=f"{prefix}/error",
+            home_assistant_status=f"{discovery_prefix}/status",
+        )
+
+    def discovery(self, component: str, object_id: str) -> str:
+        return f"{self.discovery_prefix}/{component}/{self.node_id}/{object_id}/config"
+
+
+def state_message(status: dict[str, Any]) -> dict[str, Any]:
+    """The retained state, from a `status` reply: the daemon's fields, the program's (null
+    when none runs, or when the daemon has no programs), and the words Home Assistant shows,
+    made here so that its templates only pick a field."""
+    mode, manual = status["mode"], status["manual_output"]
+    climate_mode = "off" if mode == "manual" and manual == 0 else "heat"
+    if climate_mode == "off" or not status["heater_allowed"]:
+        action = "off"
+    else:
+        action = "heating" if status["output"] > 0 else "idle"
+    alarms = [str(alarm) for alarm in status["alarms"]]
+    program = status.get("program")
+    program = program if isinstance(program, dict) else {}
+    step = program.get("step")
+    step = step if isinstance(step, dict) else {}
+    return {
+        "t": status["t"],
+        "tun": status["tun"],
+        "pv": status["pv"],
+        "setpoint": status["setpoint"],
+        "output": status["output"],
+        "applied": status["applied"],
+        "mode": mode,
+        "manual_output": manual,
+        "mode_text": "auto" if mode == "auto" else f"manual at {manual:g} %",
+        "state": status["state"],
+        "heater_allowed": status["heater_allowed"],
+        "alarms": alarms,
+        "alarm": bool(alarms),
+        "alarm_text": (", ".join(alarms) or "none")[:TEXT_STATE_LIMIT],
+        "climate_mode": climate_mode,
+        "action": action,
+        "program": program.get("name"),
+        "program_state": program.get("state", "none"),
+        "step": step.get("name"),
+        "step_text": str(step.get("name", "none"))[:TEXT_STATE_LIMIT],
+        "time_left_s": program.get("time_left_s"),
+        "next_step": program.get("next"),
+        "message": program.get("message"),
+    }
+
+
+def encode(message: dict[str, Any]) -> bytes:
+    return json.dumps(message, allow_nan=False, ensure_ascii=False, sort_keys=True).encode()
+
+
+def setpoint_range(config: Config) -> tuple[float, float]:
+    """The climate card's range: the config's bounds for a setpoint, up to the last step
+    below the over-temperature cut-out (the setpoint must stay under it)."""
+    low, high = config_module.key_range("control.setpoint")
+    below_cut_out = (config.safety.max_temp - 1e-9) // TEMP_STEP * TEMP_STEP
+    return low, min(high, below_cut_out)
+
+
+def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[str, Any]]]:
+    """(topic, payload) of each entity Home Assistant should make for this tun: a climate
+    entity, sensors, and a binary sensor that is on while an alarm stands."""
+    node = topics.node_id
+    device = {
+        "identifiers": [f"hermsd_{node}"],
+        "name": f"hermsd {config.tun.name}",
+        "manufacturer": "hermsd",
+        "model": "HERMS Hot Liquid Tun controller",
+        "sw_version": __version__,
+    }
+    low, high = setpoint_range(config)
+
+    def entity(object_id: str, name: str | None, **fields: Any) -> dict[str, Any]:
+        return {
+            "name": name,
+            "unique_id": f"hermsd_{node}_{object_id}",
+            "device": device,
+            "origin": {"name": "hermsd", "sw_version": __version__},
+            "availability_topic": topics.availability,
+            "payload_available": ONLINE,
+            "payload_not_available": OFFLINE,
+            **fields,
+        }
+
+    def sensor(object_id: str, name: str, field: str, **fields: Any) -> tuple[str, Any]:
+        return topics.discovery("sensor", object_id), entity(
+            object_id,
+            name,
+            state_topic=topics.state,
+            value_template=f"{{{{ value_json.{field} }}}}",
+            **fields,
+        )
+
+    percent = {"unit_of_measurement": "%", "state_class": "measurement"}
+    return [
+        (
+            topics.discovery("climate", "tun"),
+            entity(
+                "tun",
+                None,  # the device's own name
+                current_temperature_topic=topics.state,
+                current_temperature_template="{{ value_json.pv }}",
+                temperature_state_topic=topics.state,
+                temperature_state_template="{{ value_json.setpoint }}",
+                temperature_command_topic=topics.set_setpoint,
+                mode_state_topic=topics.state,
+                mode_state_template="{{ value_json.climate_mode }}",
+                mode_command_topic=topics.set_mode,
+                modes=list(HA_MODES),
+                action_topic=topics.state,
+                action_template="{{ value_json.action }}",
+                min_temp=low,
+                max_temp=high,
+                temp_step=TEMP_STEP,
+                precision=0.1,
+                temperature_unit="C",
+                qos=1,
+            ),
+        ),
+        sensor(
+            "temperature",
+            "Temperature",
+            "pv",
+            device_class="temperature",
+            unit_of_measurement="°C",
+            state_class="measurement",
+            suggested_display_precision=2,
+        ),
+        sensor("output", "Output", "output", **percent),
+        sensor("applied", "Applied", "applied", **percent),
+        sensor("mode", "Mode", "mode_text"),
+        sensor("state", "State", "state"),
+        sensor("step", "Program step", "step_text"),
+        sensor(
+            "time_left",
+            "Step time left",
+            "time_left_s",
+            device_class="duration",
+            unit_of_measurement="s",
+        ),
+        sensor("alarms", "Alarms", "alarm_text"),
+        (
+            topics.discovery("binary_sensor", "alarm"),
+            entity(
+                "alarm",
+                "Alarm",
+                state_topic=topics.state,
+                value_template="{{ 'ON' if value_json.alarm else 'OFF' }}",
+                payload_on="ON",
+                payload_off="OFF",
+                device_class="problem",
+            ),
+        ),
+    ]
+
+
+def parse_command(topics: Topics, topic: str, payload: bytes, config: Config) -> Command:
+    """The command a message on a command topic holds, checked as strictly as the config
+    file checks the key it sets; Refused says what is wrong and what would be right."""
+    if len(payload) > MAX_PAYLOAD:
+        raise Refused(f"{len(payload)} bytes is not a command (a number or a mode: a few bytes)")
+    try:
+        text = payload.decode("utf-8").strip()
+    except UnicodeDecodeError:
+        raise Refused("the payload is not UTF-8 text") from None
+    if topic == topics.set_setpoint:
+        if not _NUMBER.fullmatch(text):
+            raise Refused(f"setpoint: expected a number in °C such as 66.5, got {text!r}")
+        celsius = float(text)
+        command: Command = SetSetpoint(celsius)
+        problems = config_module.runtime_problems(config, {"control.setpoint": celsius})
+    elif topic == topics.set_mode:
+        if text not in HA_MODES:
+            raise Refused(f"mode: expected heat (auto) or off (manual at 0 %), got {text!r}")
+        command = HA_MODES[text]
+        changes: dict[str, object] = {"control.mode": command.mode}
+        if command.output is not None:
+            changes["control.manual_output"] = command.output
+        problems = config_module.runtime_problems(config, changes)
+    else:
+        raise Refused(
+            f"{topic} is not a command topic ({topics.set_setpoint} or {topics.set_mode})"
+        )
+    if problems:
+        raise Refused("; ".join(problems))
+    return command

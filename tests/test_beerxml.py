@@ -1,0 +1,310 @@
+"""`hermsd program import`: BeerXML 1.0 mash steps as a program file.
+
+The samples in tests/data/beerxml are written for these tests, laid out as the BeerXML 1.0
+standard's example recipe. Expected values are worked by hand from the samples' numbers.
+"""
+
+from __future__ import annotations
+
+import errno
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from hermsd.cli import main
+from hermsd.durations import parse_duration
+from hermsd.program.beerxml import BeerXMLError, read, to_yaml
+
+DATA = Path(__file__).parent / "data" / "beerxml"
+SINGLE = DATA / "single-infusion.xml"
+TWO = DATA / "two-recipes.xml"
+PROFILE = DATA / "mash-profile.xml"
+
+
+def program_of(path: Path, recipe: str | None = None) -> dict[str, Any]:
+    """The imported program as the YAML loader sees it, holds in seconds."""
+    loaded: dict[str, Any] = yaml.safe_load(to_yaml(read(path, recipe)))
+    for step in loaded["steps"]:
+        step["hold"] = parse_duration(step["hold"])
+    return loaded
+
+
+def write(tmp_path: Path, text: str, name: str = "recipe.xml") -> Path:
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def one_step(step: str) -> str:
+    """A file with one recipe whose mash has `step` as its only MASH_STEP's fields."""
+    return (
+        '<?xml version="1.0"?>\n<RECIPES>\n<RECIPE><NAME>R</NAME><VERSION>1</VERSION>\n'
+        "<MASH><NAME>M</NAME><VERSION>1</VERSION><GRAIN_TEMP>20</GRAIN_TEMP><MASH_STEPS>\n"
+        f"<MASH_STEP><NAME>Rest</NAME><VERSION>1</VERSION>\n{step}\n</MASH_STEP>\n"
+        "</MASH_STEPS></MASH></RECIPE>\n</RECIPES>\n"
+    )
+
+
+def test_single_infusion_gets_a_strike_step_at_the_infusion_temperature() -> None:
+    program = program_of(SINGLE)
+    assert program["name"] == "Garage Pale Ale"
+    assert program["steps"] == [
+        {"name": "Strike", "setpoint": 74.2, "hold": 0.0, "confirm": "Mash in"},
+        {"name": "Saccharification", "setpoint": 67, "hold": 3600.0},
+    ]
+
+
+def test_header_says_where_the_program_came_from() -> None:
+    text = to_yaml(read(SINGLE))
+    header = [line for line in text.splitlines() if line.startswith("#")]
+    assert header[0] == "# A mash program for hermsd"
+    assert any(str(SINGLE) in line for line in header)
+    assert any("Garage Pale Ale" in line for line in header)
+    assert any("Single Infusion, Medium Body" in line for line in header)
+
+
+def test_step_mash_ramps_from_the_step_before_and_names_each_step_once() -> None:
+    program = program_of(TWO, "weizen step mash")  # the name is matched regardless of case
+    # INFUSE_TEMP 165.2 F = (165.2 − 32)·5/9 = 74.0 °C; ramps (66 − 52)/14 = 1.0 and
+    # (76 − 66)/5 = 2.0 °C/min; 10.5 min = 630 s. The first rest has no step to ramp from.
+    assert program["steps"] == [
+        {"name": "Strike", "setpoint": 74, "hold": 0.0, "confirm": "Mash in"},
+        {"name": "Rest", "setpoint": 52, "hold": 900.0},
+        {"name": "Rest 2", "setpoint": 66, "hold": 3600.0, "ramp": 1.0},
+        {"name": "Mash Out", "setpoint": 76, "hold": 630.0, "ramp": 2.0},
+    ]
+    assert "# RAMP_TIME 2 min not used" in to_yaml(read(TWO, "Weizen Step Mash"))
+
+
+def test_a_temperature_mash_has_no_strike_step() -> None:
+    program = program_of(PROFILE)  # a <MASHS> export: the mash profile's name is the program's
+    assert program["name"] == "Temperature Mash, Two Rests"
+    assert [s["name"] for s in program["steps"]] == ["Beta Rest", "Alpha Rest"]
+    assert program["steps"][1]["ramp"] == 1.5  # (72 − 63)/6
+
+
+def test_without_infuse_temp_the_strike_is_the_first_rest_temperature(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        one_step("<TYPE>Infusion</TYPE><STEP_TEMP>65.5</STEP_TEMP><STEP_TIME>75</STEP_TIME>"),
+    )
+    program = program_of(path)
+    assert program["steps"][0] == {
+        "name": "Strike",
+        "setpoint": 65.5,
+        "hold": 0.0,
+        "confirm": "Mash in",
+    }
+    assert "INFUSE_TEMP not given" in to_yaml(read(path))
+
+
+def test_several_recipes_need_a_choice() -> None:
+    with pytest.raises(BeerXMLError) as caught:
+        read(TWO)
+    message = str(caught.value)
+    assert "'Weizen Step Mash'" in message and "'Dunkel Decoction'" in message
+    assert "--recipe" in message
+    with pytest.raises(BeerXMLError, match="no recipe is named 'Stout'"):
+        read(TWO, "Stout")
+
+
+def test_a_decoction_is_refused_with_its_line() -> None:
+    with pytest.raises(BeerXMLError) as caught:
+        read(TWO, "Dunkel Decoction")
+    text = TWO.read_text().splitlines()
+    line = int(str(caught.value).split(":")[1])
+    assert text[line - 1].strip() == "<MASH_STEP>"
+    assert "Decoction to Saccharification" in text[line]
+    assert "decoction" in str(caught.value) and "cannot" in str(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("fields", "expected"),
+    [
+        (
+            "<TYPE>Infusion</TYPE><STEP_TEMP>152 F</STEP_TEMP><STEP_TIME>60</STEP_TIME>",
+            "STEP_TEMP is '152 F', not a number",
+        ),
+        (
+            "<TYPE>Infusion</TYPE><STEP_TEMP>152</STEP_TEMP><STEP_TIME>60</STEP_TIME>",
+            "outside 0..100 °C (BeerXML gives °C: was it written in °F?)",
+        ),
+        ("<TYPE>Infusion</TYPE><STEP_TEMP>66</STEP_TEMP>", "STEP_TIME is missing"),
+        (
+            "<TYPE>Infusion</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>-5</STEP_TIME>",
+            "expected a finite number >= 0",
+        ),
+        (
+            "<TYPE>Sparge</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>",
+            "TYPE 'Sparge' is not Infusion, Temperature or Decoction",
+        ),
+        (
+            "<TYPE>Infusion</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>"
+            "<INFUSE_TEMP>hot</INFUSE_TEMP>",
+            "expected a temperature such as 74.5 C",
+        ),
+        (
+            "<TYPE>Infusion</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>"
+            "<INFUSE_TEMP>240 F</INFUSE_TEMP>",
+            "outside 0..100 °C",
+        ),
+    ],
+)
+def test_bad_values_name_the_file_line_and_what_is_right(
+    tmp_path: Path, fields: str, expected: str
+) -> None:
+    path = write(tmp_path, one_step(fields))
+    with pytest.raises(BeerXMLError) as caught:
+        read(path)
+    message = str(caught.value)
+    line = 5 if "missing" in expected else 6  # the field's line; the step's when it is absent
+    assert message.startswith(f"{path}:{line}: MASH_STEP 'Rest': ")
+    assert expected in message
+    assert "\n" not in message
+
+
+def test_bad_xml_names_line_and_column(tmp_path: Path) -> None:
+    path = write(tmp_path, "<RECIPES>\n  <RECIPE><NAME>R</NAME>\n  </RECIPES>\n")
+    with pytest.raises(BeerXMLError, match=rf"^{path}:3:5: not XML: mismatched tag$"):
+        read(path)
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (
+            "<RECIPES><RECIPE><NAME>Extract IPA</NAME></RECIPE></RECIPES>",
+            "1: recipe 'Extract IPA' has no MASH",
+        ),
+        (
+            "<RECIPES><RECIPE><NAME>R</NAME><MASH><NAME>M</NAME></MASH></RECIPE></RECIPES>",
+            "1: the MASH has no MASH_STEP",
+        ),
+        ("<RECIPES></RECIPES>", "1: <RECIPES> holds no recipe"),
+        ("<html><body/></html>", "1: the document is <HTML>, not BeerXML"),
+    ],
+)
+def test_nothing_to_import_is_said(tmp_path: Path, text: str, expected: str) -> None:
+    path = write(tmp_path, text)
+    with pytest.raises(BeerXMLError, match=f"^{path}:{expected}"):
+        read(path)
+
+
+def test_an_entity_bomb_is_refused_before_it_expands(tmp_path: Path) -> None:
+    entities = "".join(f'<!ENTITY e{n} "{f"&e{n - 1};" * 10 if n else "boom"}">' for n in range(10))
+    path = write(
+        tmp_path,
+        f"<?xml version='1.0'?>\n<!DOCTYPE RECIPES [{entities}]>\n"
+        "<RECIPES><RECIPE><NAME>&e9;</NAME></RECIPE></RECIPES>",
+    )
+    with pytest.raises(BeerXMLError, match=rf"^{path}:2: a document type declaration"):
+        read(path)
+
+
+def test_cli_writes_the_file_and_never_replaces_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "pale.yaml"
+    assert main(["program", "import", str(SINGLE), "-o", str(out)]) == 0
+    assert out.read_text(encoding="utf-8") == to_yaml(read(SINGLE))
+    out.write_text("# edited by hand\n")
+    assert main(["program", "import", str(SINGLE), "-o", str(out)]) == 2
+    assert out.read_text() == "# edited by hand\n"
+    assert "exists" in capsys.readouterr().err
+
+
+def test_cli_error_is_one_line_without_traceback(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["program", "import", str(TWO)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.count("\n") == 1
+    assert captured.err.startswith(f"hermsd: {TWO}: holds 2 recipes")
+    assert main(["program", "import", str(DATA / "missing.xml")]) == 2
+    assert capsys.readouterr().err == f"hermsd: {DATA / 'missing.xml'}: no such file\n"
+
+
+def test_cli_prints_to_stdout_by_default(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["program", "import", str(TWO), "--recipe", "Weizen Step Mash"]) == 0
+    assert capsys.readouterr().out == to_yaml(read(TWO, "Weizen Step Mash"))
+
+
+def test_a_recipe_step_named_strike_is_renamed_not_merged(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        "<MASH><NAME>Only a mash</NAME><MASH_STEPS><MASH_STEP><NAME>Strike</NAME>"
+        "<TYPE>Infusion</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>"
+        "</MASH_STEP></MASH_STEPS></MASH>",
+    )
+    program = program_of(path)  # a <MASH> alone, as some programs export a mash profile
+    assert program["name"] == "Only a mash"
+    assert [s["name"] for s in program["steps"]] == ["Strike", "Strike 2"]
+    assert program["steps"][1]["setpoint"] == 66
+
+
+def test_more_steps_than_a_program_holds_are_refused(tmp_path: Path) -> None:
+    step = (
+        "<MASH_STEP><NAME>Rest</NAME><TYPE>Temperature</TYPE><STEP_TEMP>60</STEP_TEMP>"
+        "<STEP_TIME>1</STEP_TIME></MASH_STEP>"
+    )
+    path = write(tmp_path, f"<MASH><NAME>M</NAME><MASH_STEPS>{step * 51}</MASH_STEPS></MASH>")
+    with pytest.raises(BeerXMLError, match=r":1: the mash gives 51 steps, more than the 50"):
+        read(path)
+    path = write(tmp_path, f"<MASH><NAME>M</NAME><MASH_STEPS>{step * 50}</MASH_STEPS></MASH>")
+    assert len(read(path).steps) == 50
+
+
+class _FillsUp:
+    """A file that takes ten characters, then finds the disk full."""
+
+    def __init__(self, file: Any) -> None:
+        self.file = file
+
+    def __enter__(self) -> _FillsUp:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.file.close()
+
+    def write(self, text: str) -> int:
+        self.file.write(text[:10])
+        self.file.flush()
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_a_program_cut_by_a_full_disk_is_not_left_behind(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    real_open = Path.open
+    monkeypatch.setattr(Path, "open", lambda self, *a, **k: _FillsUp(real_open(self, *a, **k)))
+    out = tmp_path / "pale.yaml"
+    assert main(["program", "import", str(SINGLE), "-o", str(out)]) == 2
+    assert capsys.readouterr().err == f"hermsd: {out}: cannot write: No space left on device\n"
+    assert not out.exists()  # a cut program would run with steps missing
+
+
+@pytest.mark.parametrize(
+    ("encoding", "detail"),
+    [("klingon", "unknown encoding: klingon"), ("shift_jis", "multi-byte encodings")],
+)
+def test_an_encoding_that_cannot_be_read_is_said(
+    tmp_path: Path, encoding: str, detail: str
+) -> None:
+    path = tmp_path / "recipe.xml"
+    path.write_bytes(f'<?xml version="1.0" encoding="{encoding}"?>\n<RECIPES/>\n'.encode())
+    with pytest.raises(BeerXMLError, match=rf"^{path}:1: the declared encoding cannot be read: "):
+        read(path)
+    with pytest.raises(BeerXMLError, match=detail):
+        read(path)
+
+
+def test_a_windows_encoded_file_is_read(tmp_path: Path) -> None:
+    path = tmp_path / "recipe.xml"
+    path.write_bytes(
+        one_step("<TYPE>Temperature</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>")
+        .replace('<?xml version="1.0"?>', '<?xml version="1.0" encoding="windows-1252"?>')
+        .replace("<NAME>Rest</NAME>", "<NAME>Rast \u20ac</NAME>")
+        .encode("windows-1252")
+    )
+    assert [s.name for s in read(path).steps] == ["Rast \u20ac"]

@@ -1,0 +1,290 @@
+"""Cold water answered within the control period: at the sensor's read rate, never on noise."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import random
+from pathlib import Path
+
+import pytest
+
+from hermsd import config as config_module
+from hermsd import pid, replay
+from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.recorder import WINDOW_TOPIC, LogFile
+from hermsd.sim import scenario
+from hermsd.sim.clock import VirtualClock
+from hermsd.sim.scenario import Event
+from hermsd.sim.tuns import FAMILY
+from hermsd.sim.world import World, build_world
+from hermsd.ssr import TimeProportionalPlanner, WindowPlan
+
+SMALL = next(spec for spec in FAMILY if spec.name == "small 30 L 5.5 kW")
+WATER_AT = 3000.0  # s: held since about 1500 s; on a period boundary, as the bench's water is
+SP = 66.0
+
+
+# -- the planner: the rest of the window at full power ---------------------------------------
+
+
+def test_full_power_starts_on_the_next_half_cycle_and_counts_what_was_on() -> None:
+    planner = TimeProportionalPlanner(5.0, 50, 0.02, 0.02)
+    # A pulse at the window's end (0.5 s from 104.5 s): on from 101.51 s, the next half-cycle
+    # after 101.503 s, to the end: 3.49 s of 5, 69.8 %.
+    at_end = WindowPlan(100.0, 5.0, 104.5, 105.0, 10.0, 10.0)
+    plan = planner.full_from(at_end, 101.503)
+    assert (plan.on_at, plan.off_at) == (pytest.approx(101.51), 105.0)
+    assert plan.applied == pytest.approx(69.8)
+    assert plan.requested == 100.0
+    # A pulse at the start that ended at 101 s: on again from 102 s; 1 + 3 s of 5 is 80 %.
+    at_start = WindowPlan(100.0, 5.0, 100.0, 101.0, 20.0, 20.0)
+    plan = planner.full_from(at_start, 102.0)
+    assert (plan.on_at, plan.off_at, plan.applied) == (102.0, 105.0, pytest.approx(80.0))
+    # On already: it stays on to the end, without an edge.
+    plan = planner.full_from(WindowPlan(100.0, 5.0, 100.0, 102.0, 40.0, 40.0), 101.0)
+    assert (plan.on_at, plan.off_at, plan.applied) == (100.0, 105.0, 100.0)
+
+
+def test_full_power_keeps_the_minimum_off_and_on_times() -> None:
+    planner = TimeProportionalPlanner(5.0, 50, 0.5, 0.1)
+    # Off since 101.5 s: not on again before 101.6 s.
+    plan = planner.full_from(WindowPlan(100.0, 5.0, 100.0, 101.5, 30.0, 30.0), 101.505)
+    assert plan.on_at == pytest.approx(101.6)
+    assert plan.applied == pytest.approx(100.0 * (1.5 + 3.4) / 5.0)
+    # 0.3 s left, less than min_on: the window stays as planned.
+    short = WindowPlan(100.0, 5.0, 105.0, 105.0, 0.0, 0.0)
+    assert planner.full_from(short, 104.7) is short
+
+
+def test_full_power_forgets_what_was_carried() -> None:
+    # 0.1 % of 500 half-cycles is half of one: rounded to none and carried, so the next
+    # window at 0.1 % gets one. A window at full power in between pays any debt and more.
+    carried, forgot = TimeProportionalPlanner(5.0), TimeProportionalPlanner(5.0)
+    first = carried.plan(0.0, 0.1)
+    forgot.plan(0.0, 0.1)
+    assert first.on_time == 0.0
+    forgot.full_from(first, 2.0)
+    assert carried.plan(5.0, 0.1).on_time == pytest.approx(0.01)
+    assert forgot.plan(5.0, 0.1).on_time == 0.0
+
+
+# -- the controller's answer: two readings, and full power by its own law --------------------
+
+
+def holding_controller(algorithm: str = "predictive", out_max: float = 100.0) -> pid.Controller:
+    """A controller that has held 66 °C for an hour on seed 001's tun (its model: 1.689 °C/%,
+    τ 14961 s, dead time 115 s, a 20 °C room), started at the holding duty 46/1.689 %."""
+    model = pid.SEED_HLT
+    controller = pid.create(algorithm, kc=120.0, ti=800.0, ts=5.0, out_max=out_max, model=model)
+    holding = (SP - model.ambient) / model.gain
+    controller.reset(SP, holding)
+    in_flight = [holding] * round(model.dead_time / 5.0)
+    pv = SP
+    for _ in range(720):
+        u = in_flight.pop(0)
+        pv += 5.0 * (model.rate * u / 100.0 - (pv - model.ambient) / model.tau)
+        in_flight.append(controller.step(SP, pv, in_flight[-1]))
+    assert 20.0 < controller.output < 35.0  # holding
+    return controller
+
+
+@pytest.mark.parametrize(
+    "readings",
+    [
+        [66.0, 65.0],  # one reading below: a glitch as far as anyone knows
+        [65.0, 66.0],
+        [66.0, 65.0, 66.0, 65.0, 66.0],  # glitches that do not agree with each other
+        [65.8125, 65.8125],  # 0.1875 °C: not more than 0.25 below
+        [65.75, 65.0],  # 65.75 is exactly 0.25 below, not more
+        [65.6875, 65.6875],  # 0.3125 °C below, but the law's answer is a few %, not full
+    ],
+)
+def test_no_full_power_without_two_readings_the_law_answers_with_it(
+    readings: list[float],
+) -> None:
+    assert not pid.full_power_now(holding_controller(), SP, SP, readings)
+
+
+def test_two_readings_a_degree_down_ask_for_full_power_and_change_nothing() -> None:
+    controller, twin = holding_controller(), holding_controller()
+    assert pid.full_power_now(controller, SP, SP, [66.0, 65.0, 64.875])
+    # The question was asked of a copy: the next step is bit for bit the untouched twin's.
+    assert controller.step(SP, 65.0, controller.output) == twin.step(SP, 65.0, twin.output)
+    assert controller.terms == twin.terms
+
+
+def test_only_predictive_acts_inside_the_period_and_not_when_already_full() -> None:
+    assert not pid.full_power_now(holding_controller("type_a"), SP, SP, [65.0, 64.875])
+    heating = pid.create("predictive", kc=120.0, ti=800.0, ts=5.0)
+    assert heating.step(SP, 20.0) == 100.0
+    assert not pid.full_power_now(heating, SP, 20.0, [19.0, 18.875])
+
+
+def test_a_power_limit_below_full_is_kept_inside_the_period() -> None:
+    # control.max_output 80 %: the window must not run at 100 % for any part of it.
+    readings = [66.0, 65.0, 64.875]
+    assert pid.full_power_now(holding_controller(), SP, SP, readings)  # at 100 % it would
+    assert not pid.full_power_now(holding_controller(out_max=80.0), SP, SP, readings)
+
+
+def test_sensor_noise_never_asks_for_full_power() -> None:
+    # Twelve hours of hold readings with the bench's noise (sd 0.03 °C before the LM92's
+    # 0.0625 °C truncation), each prefix of each period asked as the daemon asks it.
+    rng = random.Random(12)
+    controller = holding_controller()
+    pv = SP
+    for _ in range(12 * 720):
+        readings: list[float] = []
+        for _ in range(5):
+            readings.append(math.floor((SP + rng.gauss(0.0, 0.03)) / 0.0625) * 0.0625)
+            assert not pid.full_power_now(controller, SP, pv, readings)
+        pv = sum(readings) / len(readings)
+        controller.step(SP, pv, controller.output)
+
+
+# -- the daemon: on the simulated small tun with a large element -----------------------------
+
+
+def small_tun_daemon() -> tuple[Daemon, World, VirtualClock, list[PeriodRecord]]:
+    config = SMALL.config(
+        dataclasses.replace(
+            config_module.DEFAULT,
+            output=dataclasses.replace(config_module.DEFAULT.output, backend="sim"),
+        )
+    )
+    clock = VirtualClock()
+    world = build_world(config, clock, SMALL.plant(noise_c=0.0), history=True)
+    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    records: list[PeriodRecord] = []
+
+    class Keep:
+        def period(self, record: PeriodRecord) -> None:
+            records.append(record)
+
+        def alarm(self, alarm: object) -> None:
+            pass
+
+    daemon.listeners.append(Keep())
+    return daemon, world, clock, records
+
+
+def powered(world: World, t: float) -> bool:
+    state = False
+    for when, on in world.circuit.power_changes:
+        if when > t:
+            break
+        state = on
+    return state
+
+
+def test_cold_water_gets_full_power_at_the_second_reading_that_shows_it() -> None:
+    daemon, world, clock, records = small_tun_daemon()
+    clock.call_at(WATER_AT, lambda: world.plant.add_water(3.0, 15.0, WATER_AT))
+    with daemon:
+        daemon.run(until=WATER_AT + 5.1)
+    before, after = records[-2], records[-1]
+    assert before.t == WATER_AT and before.output < 20.0  # holding at a low duty
+    assert before.pv is not None
+    # Readings at 0.5, 1.5, … s after the water; the first more than 0.25 °C down is n1.
+    n1 = next(n for n, r in enumerate(after.readings, 1) if r < before.pv - 0.25)
+    assert after.full_from is not None and after.full_from <= n1 + 1 < 5
+    # The element is on from that reading (within a half-cycle) to the period's end.
+    seen = WATER_AT + after.full_from - 0.5
+    edges = [t for t, _ in world.circuit.power_changes if seen <= t < WATER_AT + 5.0]
+    assert len(edges) <= 1 and all(t <= seen + 0.01 + 1e-9 for t in edges)
+    assert all(powered(world, seen + 0.01 + dt) for dt in (0.0, 1.0, 2.0, 2.4))
+    assert after.applied > 100.0 * (WATER_AT + 5.0 - seen - 0.01) / 5.0 - 1e-6
+
+
+def test_a_one_reading_spike_changes_nothing_in_the_window() -> None:
+    spiked, spiked_world, spiked_clock, spiked_records = small_tun_daemon()
+    calm, calm_world, _, calm_records = small_tun_daemon()
+    for at in (WATER_AT + 0.2, WATER_AT + 2.2):  # two glitches, a good reading between them
+        spiked_clock.call_at(at, lambda: spiked_world.chip.set_fault("spike", SP - 1.0))
+    for daemon in (spiked, calm):
+        with daemon:
+            daemon.run(until=WATER_AT + 5.1)
+    assert spiked_records[-1].readings[0] == SP - 1.0  # accepted: within safety.max_step
+    assert spiked_records[-1].readings[2] == SP - 1.0
+    assert [r.full_from for r in spiked_records] == [None] * len(spiked_records)
+    window = [(t, on) for t, on in spiked_world.circuit.power_changes if t >= WATER_AT]
+    assert window == [(t, on) for t, on in calm_world.circuit.power_changes if t >= WATER_AT]
+    assert spiked_records[-1].applied == calm_records[-1].applied
+
+
+# -- replay: the decision is derived from the log, bit for bit -------------------------------
+
+
+@pytest.fixture(scope="module")
+def cold_water_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    directory = tmp_path_factory.mktemp("cold-water")
+    day = dataclasses.replace(
+        SMALL.brew_day(),
+        duration=WATER_AT + 600.0,
+        events=(Event(WATER_AT, "add_water", {"litres": 3.0, "temp": 15.0}),),
+    )
+    config = SMALL.config(config_module.DEFAULT)
+    scenario.run(day, config, log_dir=directory)
+    return sorted(directory.glob("*.mcap"))
+
+
+def test_replay_verifies_a_day_with_full_power_inside_a_period(
+    cold_water_log: list[Path],
+) -> None:
+    log = replay.load(cold_water_log)
+    acted = [p for p in log.periods if p.full_from is not None]
+    assert len(acted) == 1 and acted[0].t == WATER_AT + 5.0
+    result = replay.verify(log.entries)
+    assert result.mismatch is None and result.verified > 600
+
+
+def test_the_window_planned_again_is_logged(cold_water_log: list[Path]) -> None:
+    windows = [
+        message
+        for path in cold_water_log
+        for topic, _, message in LogFile(path).messages()
+        if topic == WINDOW_TOPIC and message["t"] == WATER_AT
+    ]
+    assert [w["requested"] for w in windows][1:] == [100.0]
+    first, again = windows
+    assert again["applied"] > first["applied"]
+    # On from the reading that decided it (within a half-cycle) to the window's end.
+    acted = next(p for p in replay.load(cold_water_log).periods if p.full_from is not None)
+    assert acted.full_from is not None
+    left = WATER_AT + 5.0 - (WATER_AT + acted.full_from - 0.5)
+    assert left - 0.01 - 1e-9 <= again["on_time"] <= left
+
+
+@pytest.mark.parametrize("shift", [None, 1, 4])
+def test_verify_finds_a_full_power_decision_the_readings_do_not_give(
+    cold_water_log: list[Path], shift: int | None
+) -> None:
+    log = replay.load(cold_water_log)
+    acted = next(p for p in log.periods if p.full_from is not None)
+    assert acted.full_from is not None
+    wrong = None if shift is None else acted.full_from + shift
+    calm = next(p for p in log.periods if p.t == WATER_AT - 100.0)
+    for target, value in ((acted, wrong), (calm, 2)):
+        tampered = [
+            dataclasses.replace(e, full_from=value) if e is target else e for e in log.entries
+        ]
+        mismatch = replay.verify(tampered).mismatch
+        assert mismatch is not None
+        assert (mismatch.k, mismatch.name, mismatch.logged) == (target.k, "full_from", value)
+
+
+def test_verify_leaves_full_from_alone_in_a_log_of_a_daemon_that_never_acted_so(
+    cold_water_log: list[Path],
+) -> None:
+    # An older daemon logged no rule with its config and no full_from with its periods; its
+    # periods with the same readings verify as they always did.
+    log = replay.load(cold_water_log)
+    older = [
+        dataclasses.replace(e, drop_readings=None)
+        if isinstance(e, replay.LoggedConfig)
+        else dataclasses.replace(e, full_from=None)
+        for e in log.entries
+    ]
+    assert any(isinstance(e, replay.LoggedConfig) and e.drop_readings == 2 for e in log.entries)
+    assert replay.verify(older).mismatch is None
