@@ -85,7 +85,7 @@ def hammer(path: str, rate: float, stop_at: float, results: Connection) -> None:
 def served(daemon: Daemon, path: Path, rate: float | None, seconds: float) -> Iterator[None]:
     """The control socket beside the loop, and (with a rate) a client process hammering it."""
     link = LoopLink(daemon)
-    server = ControlServer(path, link.status_line)
+    server = ControlServer(path, link.status_line, link.history_line)
     server.start()
     link.attach(server)
     client = None

@@ -33,7 +33,15 @@ from hermsd.control.client import (
     ask,
     default_socket_path,
 )
-from hermsd.control.protocol import Request, ResetAlarms, SetMode, SetSetpoint, Status
+from hermsd.control.protocol import (
+    ProgramAction,
+    ProgramStart,
+    Request,
+    ResetAlarms,
+    SetMode,
+    SetSetpoint,
+    Status,
+)
 from hermsd.control.server import ControlServer
 from hermsd.durations import parse_duration
 from hermsd.instance import DirectoryLock, InstanceError
@@ -161,6 +169,45 @@ def _parser() -> argparse.ArgumentParser:
     _socket_argument(set_)
     set_.set_defaults(func=cmd_set)
 
+    program = sub.add_parser(
+        "program",
+        help="the mash program: check a file, start it, move it on, pause, stop; import one "
+        "from a BeerXML recipe",
+    )
+    program.add_argument(
+        "action",
+        choices=("check", "start", "next", "pause", "resume", "stop", "import"),
+        help="what to do",
+    )
+    program.add_argument(
+        "file",
+        nargs="?",
+        type=Path,
+        help="the program file (check, start), or a BeerXML 1.0 file of recipes or mash "
+        "profiles (import)",
+    )
+    program.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        metavar="OUT.yaml",
+        help="with import: write the program here (default: stdout)",
+    )
+    program.add_argument(
+        "--recipe", metavar="NAME", help="with import: the recipe, when the file holds several"
+    )
+    program.add_argument(
+        "--ready-by",
+        metavar="HH:MM",
+        help="with start: have the first step's setpoint reached at this local time",
+    )
+    _socket_argument(program)
+    program.set_defaults(func=cmd_program)
+
+    confirm = sub.add_parser("confirm", help="answer the program's step that waits for you")
+    _socket_argument(confirm)
+    confirm.set_defaults(func=cmd_confirm)
+
     reset = sub.add_parser(
         "reset-alarm", help="clear the latched alarms, once their cause is found"
     )
@@ -223,22 +270,6 @@ def _parser() -> argparse.ArgumentParser:
         "duty, alarms and labelled events (needs matplotlib)",
     )
     replay.set_defaults(func=cmd_replay)
-
-    program = sub.add_parser("program", help="mash programs: import one from brewing software")
-    program_actions = program.add_subparsers(dest="action", required=True)
-    program_import = program_actions.add_parser(
-        "import", help="a program file from a BeerXML 1.0 recipe's mash steps"
-    )
-    program_import.add_argument(
-        "file", type=Path, metavar="FILE.xml", help="a BeerXML 1.0 file of recipes or mash profiles"
-    )
-    program_import.add_argument(
-        "-o", "--output", type=Path, metavar="OUT.yaml", help="write it here (default: stdout)"
-    )
-    program_import.add_argument(
-        "--recipe", metavar="NAME", help="the recipe to import, when the file holds several"
-    )
-    program_import.set_defaults(func=cmd_program_import)
 
     tune = sub.add_parser(
         "tune", help="the tun's model and the settings that follow from it (seed 001's Table 1)"
@@ -313,6 +344,17 @@ def _parser() -> argparse.ArgumentParser:
     )
     safe_off.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
     safe_off.set_defaults(func=cmd_safe_off)
+
+    web = sub.add_parser("web", help="serve the brewer's web page (talks to the daemon's socket)")
+    web.add_argument("--config", type=Path, help=f"config file (default: {DEFAULT_CONFIG})")
+    web.add_argument("--listen", help="HOST:PORT to listen on (default: the config's web.listen)")
+    web.add_argument(
+        "--hash-password",
+        action="store_true",
+        help="print the hash of a new password for web.password_hash, and exit",
+    )
+    _socket_argument(web)
+    web.set_defaults(func=cmd_web)
 
     check = sub.add_parser("check-config", help="validate a config file and print it")
     check.add_argument("file", nargs="?", type=Path, default=DEFAULT_CONFIG)
@@ -575,7 +617,7 @@ def _serve_control(daemon: Daemon, path: Path) -> ControlServer:
     from hermsd.control.link import LoopLink
 
     link = LoopLink(daemon)
-    server = ControlServer(path, link.status_line)
+    server = ControlServer(path, link.status_line, link.history_line)
     try:
         server.start()
     except OSError as error:
@@ -796,7 +838,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for key, value in summary.items():
         if isinstance(value, dict):
             lines.extend((f"{key}.{name}", item) for name, item in value.items())
-        elif key not in ("files", "alarms", "runs", "learning"):
+        elif key not in ("files", "alarms", "runs", "learning", "steps"):
             lines.append((key, value))
     width = max((len(key) for key, _ in lines), default=0)
     for report in summary.get("files", []):
@@ -813,6 +855,10 @@ def _print_summary(summary: dict[str, Any]) -> None:
         print(_alarm_line(alarm))
     for item in summary.get("learning", []):
         print(f"at {item['at_s']} s: {item['message']}")
+    from hermsd.program.quality import step_lines
+
+    for line in step_lines(summary.get("steps", [])):
+        print(line)
 
 
 def _file_line(report: dict[str, Any]) -> str:
@@ -1269,6 +1315,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     )
     learned = reply["learned"]
     print(f"learned: {learned['text'] if learned is not None else 'nothing yet'}")
+    if reply.get("program") is not None:
+        print(program_line(reply["program"]))
     print("safety limits in force:")
     for row in reply["limits"]:
         print(f"  {row}")
@@ -1298,6 +1346,71 @@ def cmd_set(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_program(args: argparse.Namespace) -> int:
+    from hermsd.program import model
+
+    needs_file = args.action in ("check", "start", "import")
+    if needs_file != (args.file is not None):
+        raise UserError(
+            f"program {args.action}: "
+            + ("name the program file" if needs_file else "takes no file")
+        )
+    if args.action != "import" and (args.output is not None or args.recipe is not None):
+        raise UserError("-o/--output and --recipe go with `program import`")
+    if args.action == "import":
+        return cmd_program_import(args)
+    if args.ready_by is not None and args.action != "start":
+        raise UserError("--ready-by goes with `program start`")
+    if args.ready_by is not None and model.READY_BY.fullmatch(args.ready_by) is None:
+        raise UserError(f"--ready-by: {args.ready_by!r} is not a local time (HH:MM, e.g. 06:30)")
+    request: Request
+    if needs_file:
+        program = model.load(args.file)  # a ConfigError: every problem, exit 2
+        if args.action == "check":
+            print(f"{args.file}: program {program.name!r}, {len(program.steps)} steps, valid")
+            for number, step in enumerate(program.steps, 1):
+                print(f"  {number}. {model.describe_step(step)}")
+            return 0
+        request = ProgramStart(program, args.ready_by)
+    else:
+        request = ProgramAction(args.action)
+    try:
+        reply = _ask(args.socket, request)
+    except NoDaemonError as error:
+        raise Unreachable(str(error)) from None
+    state = reply.get("program")
+    print(program_line(state) if state is not None else "no program runs")
+    return 0
+
+
+def cmd_confirm(args: argparse.Namespace) -> int:
+    try:
+        reply = _ask(args.socket, ProgramAction("confirm"))
+    except NoDaemonError as error:
+        raise Unreachable(str(error)) from None
+    state = reply.get("program")
+    print(program_line(state) if state is not None else "no program runs")
+    return 0
+
+
+def program_line(state: dict[str, Any]) -> str:
+    """The status reply's `program` in one line."""
+    step = state["step"]
+    line = (
+        f"program {state['name']!r}: {state['state']}, step {step['index'] + 1}/{state['steps']} "
+        f"{step['name']!r} at {step['setpoint']:g} °C"
+    )
+    if state["time_left_s"] is not None:
+        line += f", {state['time_left_s'] / 60.0:.1f} min of its hold left"
+    if state["message"] is not None:
+        line += f", waits for: {state['message']} (`hermsd confirm`)"
+    if state["starts_at"] is not None:
+        line += f", heating starts at {state['starts_at']}"
+    if state["next"] is not None:
+        line += f"; next {state['next']!r}"
+    return line
+
+
 def _mode_text(reply: dict[str, Any]) -> str:
     mode = str(reply["mode"])
     return mode + (f" at {reply['manual_output']:g} %" if mode == "manual" else "")
@@ -1319,6 +1432,24 @@ def _state_argument(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help=f"the daemon's state directory (default: $STATE_DIRECTORY, else {DEFAULT_STATE})",
     )
+
+
+def cmd_web(args: argparse.Namespace) -> int:
+    try:
+        from hermsd.web import main as web
+    except ImportError as error:
+        raise UserError(
+            f"hermsd web needs the web extra ({error.name} is not installed): "
+            "install hermsd with `--extra web` (uv) or as `hermsd[web]` (pip)"
+        ) from None
+    try:
+        if args.hash_password:
+            return web.print_hash()
+        path = config_path(args.config, simulate=False)
+        assert path is not None
+        return web.run(config_module.load(path), default_socket_path(args.socket), args.listen)
+    except web.WebSetupError as error:
+        raise UserError(str(error)) from None
 
 
 def cmd_forget_model(args: argparse.Namespace) -> int:

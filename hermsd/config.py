@@ -246,7 +246,15 @@ class LogConfig:
     queue_size: int = _integer(10000, 100, 1000000)
 
 
-ALERT_EVENTS: tuple[str, ...] = ("alarm_raised", "alarm_cleared", "started", "stopped")
+PROGRAM_ALERT_EVENTS: tuple[str, ...] = ("step_reached", "step_done", "waiting", "finished")
+"""The mash program's events a brewer hears of (hermsd.program)."""
+ALERT_EVENTS: tuple[str, ...] = (
+    "alarm_raised",
+    "alarm_cleared",
+    "started",
+    "stopped",
+    *PROGRAM_ALERT_EVENTS,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -257,6 +265,16 @@ class AlertsConfig:
     events: tuple[str, ...] = _words(ALERT_EVENTS, choices=ALERT_EVENTS)
     timeout: float = _number(10.0, 1, 300, "s")
     min_interval: float = _number(60.0, 0, 86400, "s")
+
+
+@dataclass(frozen=True, slots=True)
+class WebConfig:
+    """The brewer's web page (`hermsd web`, a process of its own; the daemon ignores this)."""
+
+    listen: str = _text("127.0.0.1:8080", max_length=300)
+    password_hash: str | None = _text(None, null_means="no password: the page cannot change")
+    session_lifetime: float = _number(12.0, 0.1, 720, "h")
+    read_only_view: str = _choice("off", ("on", "off"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -291,6 +309,7 @@ class Config:
     log: LogConfig = field(default_factory=LogConfig)
     alerts: AlertsConfig = field(default_factory=AlertsConfig)
     mqtt: MqttConfig = field(default_factory=MqttConfig)
+    web: WebConfig = field(default_factory=WebConfig)
 
 
 DEFAULT = Config()
@@ -815,6 +834,36 @@ def _violations(config: Config) -> list[_Violation]:
             )
         )
     found.extend(_mqtt_violations(config.mqtt))
+    found.extend(_web_violations(config.web))
+    return found
+
+
+def split_listen(text: str) -> tuple[str, int] | None:
+    """`web.listen`'s host and port (`127.0.0.1:8080`, `[::1]:8080`), or None if malformed."""
+    host, colon, port = text.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not colon or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        return None
+    return host, int(port)
+
+
+def _web_violations(web: WebConfig) -> list[_Violation]:
+    from hermsd.web.passwords import EXAMPLE, parse_hash
+
+    found: list[_Violation] = []
+    if split_listen(web.listen) is None:
+        found.append(
+            _Violation(
+                ("web.listen",),
+                f"{_quote(web.listen)} is not HOST:PORT (e.g. 127.0.0.1:8080, or 0.0.0.0:8080 "
+                "for every interface; a port 1 to 65535)",
+            )
+        )
+    if web.password_hash is not None and parse_hash(web.password_hash) is None:
+        found.append(
+            _Violation(("web.password_hash",), f"not a password hash (expected {EXAMPLE})")
+        )
     return found
 
 

@@ -39,8 +39,12 @@ from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
 from hermsd.notify import Notifier, WatchdogGate, status_line
+from hermsd.program.driver import ProgramDriver
+from hermsd.program.model import Program
+from hermsd.program.runner import ProgramEvent
+from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
-from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, LogLevel, log_message
+from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.ssr import (
@@ -111,6 +115,10 @@ class PeriodRecord:
     applied2: float | None = None  # its duty in the period before, on account (C2 tracks it)
     switched2: float | None = None  # … and as switched (the heat the supervisor counts)
     full_from: int | None = None  # after this many of `readings` it asked for full power at once
+    step: str | None = None  # the mash program's step (hermsd.program), its index from 0,
+    step_index: int | None = None  # the time left of its hold (None: not reached, or held
+    step_left_s: float | None = None  # until told), and the next step's name
+    next_step: str | None = None
 
 
 class ControlHook(Protocol):
@@ -380,6 +388,11 @@ class Daemon:
         self.alerts = Alerts(
             config.alerts, lambda message: self._event(logging.WARNING, message, clock.monotonic())
         )
+        self.program = ProgramDriver(
+            ProgressStore(latches.directory) if latches is not None else None,
+            getattr(clock, "zone", None),  # a simulated clock's local time; else the system's
+            config.control.period,
+        )
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -430,6 +443,9 @@ class Daemon:
             what = self.model_choice.describe()
             self._event(logging.INFO, f"tun model in use (control and safety limits): {what}", now)
         self._restore_latches(stored, now)
+        resumed = self.program.restore(self.setpoint)
+        if resumed is not None:
+            self._event(logging.WARNING if "not resumed" in resumed else logging.INFO, resumed, now)
 
     def _program_sensor(self) -> None:
         """Wake the chip and set its limits; its T_CRIT_A pin can then gate the SSR in hardware."""
@@ -536,8 +552,86 @@ class Daemon:
         self._pending.append(lambda t: self._apply_config(config, t))
 
     def _apply_setpoint(self, celsius: float, t: float) -> None:
+        if self.program.active:  # the program owns the setpoint until it stops
+            self.program.after = celsius
+            self._event(logging.INFO, f"setpoint {celsius:.2f} °C when the program stops", t)
+            return
         self.setpoint = celsius
         self._event(logging.INFO, f"setpoint {celsius:.2f} °C", t)
+
+    # -- the mash program (hermsd.program; applied at once: called at a period boundary) --
+
+    def program_problems(self, program: Program) -> list[str]:
+        """Why `program` cannot start now ('key: what is wrong' lines); [] when it can."""
+        problems = self.program.problems(program)
+        if self.mode != "auto":
+            problems.append("control.mode: a program runs in auto mode (`hermsd set mode auto`)")
+        running = dataclasses.replace(
+            self.config, control=dataclasses.replace(self.config.control, setpoint=self.setpoint)
+        )
+        for index, step in enumerate(program.steps):
+            for problem in config_module.runtime_problems(
+                running, {"control.setpoint": step.setpoint}
+            ):
+                problems.append(f"steps[{index}].setpoint: {problem.split(': ', 1)[-1]}")
+        return problems
+
+    def start_program(self, program: Program, ready_by: str | None, t: float) -> None:
+        """Start `program` (program_problems first: this raises runner.Refused)."""
+        self.program.start(
+            program,
+            ready_by,
+            setpoint=self.setpoint,
+            wall_ns=self.clock.wall_ns(),
+            pv=self._pv,
+            model=self.model,
+            max_output=self.config.control.max_output,
+        )
+
+    def program_command(self, action: str, t: float) -> None:
+        """next, pause, resume, stop or confirm (runner.Refused when it does not apply)."""
+        after = self.program.command(action, self._pv)
+        if after is not None:
+            self.setpoint = after
+            self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)
+
+    def _program_period(self, t: float, pv: float | None) -> bool:
+        """Take the program's setpoint for this period; True: it keeps the heater off."""
+        wall_ns = self.clock.wall_ns()
+        setpoint, events = self.program.period(
+            t, pv, wall_ns, self.model, self.config.control.max_output
+        )
+        for event in events:
+            self._program_event(event, t)
+        if not self.program.active:
+            return False
+        if self.program.target >= self.config.safety.max_temp:  # an edit lowered the cut-out
+            self._event(
+                logging.WARNING,
+                f"program stopped: its step's setpoint {self.program.target:g} °C is not below "
+                f"safety.max_temp ({self.config.safety.max_temp:g} °C)",
+                t,
+            )
+            self.program_command("stop", t)
+            for event in self.program.take_events():
+                self._program_event(event, t)
+            return False
+        if setpoint is None:
+            self.setpoint = self.program.target  # shown, not heated to: the heater stays off
+            return True
+        self.setpoint = setpoint
+        return False
+
+    def _program_event(self, event: ProgramEvent, t: float) -> None:
+        if self.recorder is not None:
+            fields = dataclasses.asdict(event)
+            fields.pop("text")
+            self.recorder.write(
+                PROGRAM_TOPIC, self.clock.wall_ns(), {"t": t, **fields, "program": event.program}
+            )
+        self._event(logging.INFO, event.text, t)
+        if event.event in config_module.PROGRAM_ALERT_EVENTS:
+            self._alert(event.event, event.text, t, event.name or "")
 
     def _apply_manual(self, output: float | None, t: float) -> None:
         self.mode = "manual"
@@ -892,9 +986,15 @@ class Daemon:
             self.controller.applied2 = applied2 or 0.0
         sup.period(now, pv, *self._total_power(self.output, applied, switched2))
         self._drain_alarms(now)
+        standby = self._program_period(now, pv) and self.mode == "auto"
         state = "ok"
         reset_from: float | None = None
-        if sup.heater_allowed and pv is not None:
+        if standby and sup.heater_allowed and pv is not None:
+            if not self._held:  # heating starts from nothing when the program's time comes
+                self._held, self._resume_output = True, 0.0
+            self.output = 0.0
+            state = "scheduled"
+        elif sup.heater_allowed and pv is not None:
             if self.mode == "manual":
                 self.output = self.manual_output
             else:
@@ -939,6 +1039,7 @@ class Daemon:
             applied2=applied2,
             switched2=switched2,
             full_from=full_from,
+            **self.program.record_fields(),
         )
         for listener in self.listeners:
             listener.period(record)
@@ -1058,6 +1159,8 @@ class Daemon:
             state += ", config rejected (see journal)"
         if self._log_failing is not None:
             state += f", log failing: {self._log_failing}"
+        if self.program.active:
+            state += f", {self.program.status_words(self.clock.wall_ns())}"
         return status_line(self.config.tun.name, self._pv, self.setpoint, self.output, state)
 
     def _check_log(self, t: float) -> None:

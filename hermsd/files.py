@@ -16,8 +16,13 @@ def fsync_directory(directory: Path) -> None:
         os.close(fd)
 
 
-def write_atomically(path: Path, text: str, like: os.stat_result | None = None) -> None:
+def write_atomically(
+    path: Path, text: str, like: os.stat_result | None = None, *, durable: bool = True
+) -> None:
     """Replace `path` with `text`: a temporary file, fsync, rename, fsync of the directory.
+
+    `durable` False leaves out both fsyncs: the rename still leaves the old text or the new
+    one to any reader and after a crash of the process, only not after a power cut.
 
     `like`: the file being replaced, whose permission bits, owner and group the new one has
     from its first moment (a config file root edits for the daemon's group must not turn
@@ -30,9 +35,11 @@ def write_atomically(path: Path, text: str, like: os.stat_result | None = None) 
             os.fchmod(file.fileno(), stat.S_IMODE(like.st_mode))
         file.write(text)
         file.flush()
-        os.fsync(file.fileno())
+        if durable:
+            os.fsync(file.fileno())
     os.replace(temporary, path)
-    fsync_directory(path.parent)
+    if durable:
+        fsync_directory(path.parent)
 
 
 class NotRegularFile(ValueError):

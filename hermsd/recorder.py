@@ -63,6 +63,7 @@ TIMING_TOPIC: Final = "/hermsd/timing"
 LOG_TOPIC: Final = "/hermsd/log"
 CONFIG_TOPIC: Final = "/hermsd/config"
 MODEL_TOPIC: Final = "/hermsd/model"
+PROGRAM_TOPIC: Final = "/hermsd/program"
 
 FILE_PREFIX: Final = "hermsd-"
 PART_SUFFIX: Final = ".part"
@@ -165,6 +166,12 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "after this many of the readings the controller asked for full power at once "
                     "(a sudden drop: cold water)",
                 ),
+                "step": _field(["string", "null"], "the mash program's step, if one runs"),
+                "step_index": _field(["integer", "null"], "that step's index, from 0"),
+                "step_left_s": _field(
+                    ["number", "null"], "time left of its hold, s (null: not reached, or held)"
+                ),
+                "next_step": _field(["string", "null"], "the next step's name"),
             },
             optional=("u2", "applied2", "switched2"),
         ),
@@ -264,6 +271,38 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "drop_readings": _field(
                     "integer", "readings in a row that show cold water inside a period (full_from)"
                 ),
+            },
+        ),
+    ),
+    PROGRAM_TOPIC: TopicSpec(
+        "hermsd.ProgramEvent",
+        _object(
+            "hermsd.ProgramEvent",
+            "One event of the mash program.",
+            {
+                "t": _T,
+                "event": _field(
+                    "string",
+                    "what happened",
+                    enum=[
+                        "started",
+                        "step_started",
+                        "step_reached",
+                        "step_done",
+                        "waiting",
+                        "confirmed",
+                        "paused",
+                        "resumed",
+                        "skipped",
+                        "finished",
+                        "stopped",
+                    ],
+                ),
+                "program": _field("string", "the program's name"),
+                "step": _field(["integer", "null"], "the step's index, from 0"),
+                "name": _field(["string", "null"], "the step's name"),
+                "setpoint": _field(["number", "null"], "the step's setpoint, °C"),
+                "message": _field(["string", "null"], "the confirmation asked for or given"),
             },
         ),
     ),

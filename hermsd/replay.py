@@ -38,6 +38,7 @@ from hermsd.element2 import MidRangeController
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import DROP_READINGS, Controller, PlantModel, full_power_now
+from hermsd.program.quality import step_quality
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -45,6 +46,7 @@ from hermsd.recorder import (
     METADATA_NAME,
     PART_SUFFIX,
     PERIOD_TOPIC,
+    PROGRAM_TOPIC,
     TIMING_TOPIC,
     LogFile,
     LogLevel,
@@ -53,7 +55,6 @@ from hermsd.recorder import (
 if TYPE_CHECKING:
     from hermsd.sim.scenario import Event
 
-PROGRAM_TOPIC = "/hermsd/program"  # the mash program's events, written while a program runs
 TOPICS_READ = (PERIOD_TOPIC, CONFIG_TOPIC, LOG_TOPIC, TIMING_TOPIC, PROGRAM_TOPIC)
 
 # A sudden drop: PV falls this much within this time. Heat loss alone cools a hot tun by
@@ -612,6 +613,7 @@ def summarise(log: Log) -> dict[str, Any]:
         # None: the safety limits held for any tun the config may describe (nothing measured)
         "safety_tun_model": log.configs[-1].safety_model if log.configs else None,
         "learning": learning(log),
+        "steps": step_quality(zip(log.elapsed, log.periods, strict=True)),
     }
 
 
@@ -728,6 +730,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         stepped = None
         previous_k = record.k
         if not (record.mode == "auto" and record.heater_allowed and record.pv is not None):
+            continue
+        if record.state == "scheduled":  # a program waits for its time: the heater held off
             continue
         if controller is None:
             unknown += 1

@@ -15,6 +15,7 @@ import yaml
 
 from hermsd.cli import main
 from hermsd.durations import parse_duration
+from hermsd.program import model
 from hermsd.program.beerxml import BeerXMLError, read, to_yaml
 
 DATA = Path(__file__).parent / "data" / "beerxml"
@@ -308,3 +309,16 @@ def test_a_windows_encoded_file_is_read(tmp_path: Path) -> None:
         .encode("windows-1252")
     )
     assert [s.name for s in read(path).steps] == ["Rast \u20ac"]
+
+
+@pytest.mark.parametrize(
+    ("path", "recipe"), [(SINGLE, None), (PROFILE, None), (TWO, "Weizen Step Mash")]
+)
+def test_an_imported_program_is_one_the_daemon_runs(path: Path, recipe: str | None) -> None:
+    """The written file passes the program file's own checks, step for step as imported."""
+    imported = read(path, recipe)
+    program = model.parse(to_yaml(imported), str(path))
+    assert [s.name for s in program.steps] == [s.name for s in imported.steps]
+    assert [s.setpoint for s in program.steps] == [s.setpoint for s in imported.steps]
+    assert [s.hold for s in program.steps] == [60.0 * s.hold_min for s in imported.steps]
+    assert [s.confirm for s in program.steps] == [s.confirm for s in imported.steps]

@@ -118,6 +118,7 @@ BOUNDS = [
     Bound("log.queue_size", int, 100, 1000000),
     Bound("alerts.timeout", float, 1, 300),
     Bound("alerts.min_interval", float, 0, 86400),
+    Bound("web.session_lifetime", float, 0.1, 720),
     Bound("mqtt.port", int, 1, 65535),
 ]
 CHOICES: dict[str, tuple[object, ...]] = {
@@ -138,6 +139,7 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "contactor.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
     "element2.backend": ("none", "sim", "gpio", "serial-rts", "serial-dtr", "relay-board"),
     "element2.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
+    "web.read_only_view": ("on", "off"),
 }
 TEXTS = {  # key: (longest, nullable)
     "tun.name": (32, False),
@@ -148,6 +150,8 @@ TEXTS = {  # key: (longest, nullable)
     "element2.port": (None, False),
     "element2.chip": (None, False),
     "log.dir": (None, True),
+    "web.listen": (300, False),
+    "web.password_hash": (None, True),
     "mqtt.host": (253, False),
     "mqtt.username": (256, True),
     "mqtt.password_file": (None, True),
@@ -159,7 +163,16 @@ TEXTS = {  # key: (longest, nullable)
     "mqtt.client_id": (64, True),
 }
 FLAGS = ("output.active_low", "contactor.active_low", "element2.active_low", "mqtt.tls")
-ALERT_EVENTS = ("alarm_raised", "alarm_cleared", "started", "stopped")
+ALERT_EVENTS = (
+    "alarm_raised",
+    "alarm_cleared",
+    "started",
+    "stopped",
+    "step_reached",
+    "step_done",
+    "waiting",
+    "finished",
+)
 LISTS = {  # key: (the items it may hold, or () for any printable text; nullable)
     "alerts.command": ((), True),
     "alerts.events": (ALERT_EVENTS, False),
@@ -414,6 +427,12 @@ def test_defaults_are_the_specified_ones() -> None:
             "events": list(ALERT_EVENTS),
             "timeout": 10.0,
             "min_interval": 60.0,
+        },
+        "web": {
+            "listen": "127.0.0.1:8080",
+            "password_hash": None,
+            "session_lifetime": 12.0,
+            "read_only_view": "off",
         },
         "mqtt": {
             "host": "localhost",

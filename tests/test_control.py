@@ -29,7 +29,9 @@ from hermsd.control import server as server_module
 from hermsd.control.link import LoopLink
 from hermsd.control.protocol import (
     MAX_LINE,
+    MAX_PAGE,
     Command,
+    History,
     ProtocolError,
     ResetAlarms,
     SetMode,
@@ -62,6 +64,9 @@ TIMEOUT = 5.0
         (b'{"v": 1, "cmd": "set", "mode": "manual", "output": 40.5}', SetMode("manual", 40.5)),
         (b'{"v": 1, "cmd": "set", "mode": "manual"}', SetMode("manual", None)),
         (b'{"v": 1, "cmd": "set", "mode": "auto"}', SetMode("auto", None)),
+        (b'{"v": 1, "cmd": "history"}', History(None, MAX_PAGE)),
+        (b'{"v": 1, "cmd": "history", "since": null, "limit": 5}', History(None, 5)),
+        (b'{"v": 1, "cmd": "history", "since": 120.5}', History(120.5, MAX_PAGE)),
     ],
 )
 def test_requests_are_read_as_documented(line: bytes, request_: object) -> None:
@@ -86,6 +91,11 @@ def test_requests_are_read_as_documented(line: bytes, request_: object) -> None:
         (b'{"v": 1, "cmd": "set", "mode": 1}', "mode: expected 'auto' or 'manual'"),
         (b'{"v": 1, "cmd": "set"}', "set takes either setpoint, or mode"),
         (b'{"v": 1, "cmd": "set", "setpoint": 70, "mode": "auto"}', "set mode does not take"),
+        (b'{"v": 1, "cmd": "history", "limit": 0}', "limit: expected a whole number 1 to 2000"),
+        (b'{"v": 1, "cmd": "history", "limit": 2001}', "got 2001"),
+        (b'{"v": 1, "cmd": "history", "limit": 5.5}', "got 5.5"),
+        (b'{"v": 1, "cmd": "history", "since": "x"}', 'since: expected a number, got "x"'),
+        (b'{"v": 1, "cmd": "history", "until": 3}', "history does not take until"),
     ],
 )
 def test_a_bad_request_is_refused_with_what_is_wrong(line: bytes, says: str) -> None:
@@ -347,7 +357,7 @@ def served(
     daemon, _world, _path, _events = start(tmp_path, text)
     link = LoopLink(daemon)
     where = (directory or tmp_path) / "control.sock"
-    server = ControlServer(where, link.status_line)
+    server = ControlServer(where, link.status_line, link.history_line)
     server.start()
     link.attach(server)
     stop = threading.Event()

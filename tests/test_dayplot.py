@@ -31,7 +31,6 @@ from hermsd.recorder import (
     PERIOD_TOPIC,
     LogLevel,
     Recorder,
-    TopicSpec,
     log_message,
 )
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
@@ -61,9 +60,6 @@ def brew_hour(directory: Path, monkeypatch: pytest.MonkeyPatch) -> list[Path]:
     reached at 900 s, waiting for "Mash in" 1000..1300 s, then Saccharification at 66 °C);
     manual 40 % 2000..2100 s; sensor_fault in the records of 2500..2525 s (told at 2498 s);
     the setpoint edited to 70 °C at 3300 s; PV falls 3 °C at 3400 s (water)."""
-    monkeypatch.setitem(  # the program branch's topic: written here as its runner writes it
-        recorder.TOPICS, replay.PROGRAM_TOPIC, TopicSpec("hermsd.ProgramEvent", {})
-    )
     config = config_module.to_dict(config_module.DEFAULT)
     config["tun"]["name"] = "Kettle 2"
     messages: list[tuple[str, float, dict[str, Any]]] = [
@@ -96,7 +92,7 @@ def brew_hour(directory: Path, monkeypatch: pytest.MonkeyPatch) -> list[Path]:
         (3000, "finished", {}),
     ]
     for at, event, fields in program:
-        messages.append((replay.PROGRAM_TOPIC, at, program_event(T0 + at, event, **fields)))
+        messages.append((recorder.PROGRAM_TOPIC, at, program_event(T0 + at, event, **fields)))
     directory.mkdir(exist_ok=True)
     writer = Recorder(directory, now=VirtualClock().monotonic, lossless=True)
     for topic, wall_s, message in sorted(messages, key=lambda m: m[1]):

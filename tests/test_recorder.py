@@ -26,6 +26,7 @@ from hermsd.recorder import (
     LOG_TOPIC,
     MODEL_TOPIC,
     PERIOD_TOPIC,
+    PROGRAM_TOPIC,
     READING_TOPIC,
     RETRY_INTERVAL_S,
     TIMING_TOPIC,
@@ -66,6 +67,19 @@ PERIOD = {
     "applied2": 10.0,
     "switched2": 0.0,
     "full_from": None,
+    "step": "Saccharification",
+    "step_index": 1,
+    "step_left_s": 1795.0,
+    "next_step": "Mash out",
+}
+PROGRAM = {
+    "t": 1240.0,
+    "event": "waiting",
+    "program": "Step mash",
+    "step": 0,
+    "name": "Strike",
+    "setpoint": 72.0,
+    "message": "Mash in",
 }
 READING = {
     "t": 1234.0,
@@ -233,6 +247,7 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
         (WINDOW_TOPIC, EPOCH_NS + 4 * S, WINDOW),
         (TIMING_TOPIC, EPOCH_NS + 5 * S, TIMING),
         (MODEL_TOPIC, EPOCH_NS + 6 * S, MODEL),
+        (PROGRAM_TOPIC, EPOCH_NS + 6 * S + 1, PROGRAM),
     ]
     for topic, log_time, message in sent:
         recorder.write(topic, log_time, message)
@@ -275,6 +290,7 @@ def test_round_trip_of_every_topic_through_the_indexed_reader(tmp_path: Path) ->
         LOG_TOPIC: "foxglove.Log",
         CONFIG_TOPIC: "hermsd.Config",
         MODEL_TOPIC: "hermsd.LearnedModel",
+        PROGRAM_TOPIC: "hermsd.ProgramEvent",
     }
     for topic, _, message in expected:
         assert conforms(message, schemas[topic_schema[topic]]), topic
@@ -300,6 +316,10 @@ def test_schemas_reject_what_their_topics_must_not_carry() -> None:
     assert not conforms({**PERIOD, "pv": "65.9"}, period_schema)  # Foxglove plots numbers only
     assert not conforms({**PERIOD, "mode": "cruise"}, period_schema)
     assert not conforms({k: v for k, v in PERIOD.items() if k != "applied"}, period_schema)
+    program_schema = TOPICS[PROGRAM_TOPIC].schema
+    assert conforms(PROGRAM, program_schema)
+    assert not conforms({**PROGRAM, "event": "exploded"}, program_schema)
+    assert not conforms({**PROGRAM, "step": "0"}, program_schema)
     log_schema = TOPICS[LOG_TOPIC].schema
     assert not conforms(
         {**recorder_module.log_message(LogLevel.INFO, "x", 0), "level": 6}, log_schema

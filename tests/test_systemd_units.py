@@ -1,5 +1,6 @@
-"""The systemd units: accepted by systemd-analyze, sandboxed to an exposure ≤ 1.0, and
-carrying the directives the daemon's safety relies on."""
+"""The systemd units: accepted by systemd-analyze, sandboxed to an exposure ≤ 1.0 (the MQTT
+bridge's and the web page's ≤ 2.0), and carrying the directives the daemon's safety relies
+on."""
 
 from __future__ import annotations
 
@@ -23,7 +24,13 @@ MQTT_UNITS = {
     "hermsd-mqtt.service": "hermsd-mqtt.service",
     "hermsd-mqtt@.service": "hermsd-mqtt@hlt.service",
 }
-EXPOSURE_LIMITS = {**dict.fromkeys(UNITS, 1.0), **dict.fromkeys(MQTT_UNITS, 2.0)}
+# The web page's unit: no hardware, TCP from the Pi itself.
+WEB_UNITS = {"hermsd-web.service": "hermsd-web.service"}
+EXPOSURE_LIMITS = {
+    **dict.fromkeys(UNITS, 1.0),
+    **dict.fromkeys(MQTT_UNITS, 2.0),
+    **dict.fromkeys(WEB_UNITS, 2.0),
+}
 
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
 needs_systemd_analyze = pytest.mark.skipif(
@@ -55,7 +62,7 @@ def _staged_unit(unit_file: str, directory: Path) -> Path:
     text = (SYSTEMD_DIR / unit_file).read_text()
     assert INSTALLED_BINARY in text
     (directory / unit_file).write_text(text.replace(INSTALLED_BINARY, true_binary))
-    return directory / {**UNITS, **MQTT_UNITS}[unit_file]
+    return directory / {**UNITS, **MQTT_UNITS, **WEB_UNITS}[unit_file]
 
 
 def _analyze(*arguments: str) -> subprocess.CompletedProcess[str]:
@@ -198,3 +205,30 @@ def test_the_mqtt_template_differs_from_the_plain_unit_only_per_vessel() -> None
         k: v for k, v in template.items() if k not in per_vessel
     }
     assert template["Unit.After"] == ["network-online.target hermsd@%i.service mosquitto.service"]
+
+
+# -- the web page's unit --------------------------------------------------------------------
+
+
+def test_the_web_unit_runs_as_its_own_user_without_the_hardware() -> None:
+    directives = _directives("hermsd-web.service")
+    expected = {
+        "Service.ExecStart": [
+            f"{INSTALLED_BINARY} web --config /etc/hermsd/hermsd.yaml "
+            "--socket /run/hermsd/control.sock"
+        ],
+        "Service.User": ["hermsd-web"],
+        # The daemon's group reaches the control socket and reads the config; no i2c,
+        # dialout or gpio group, and no device node at all.
+        "Service.SupplementaryGroups": ["hermsd"],
+        "Service.PrivateDevices": ["yes"],
+        "Service.DevicePolicy": ["closed"],
+        "Service.DeviceAllow": None,
+        "Service.ProtectSystem": ["strict"],
+        "Service.CapabilityBoundingSet": [""],
+        "Service.NoNewPrivileges": ["yes"],
+        "Service.IPAddressDeny": ["any"],
+        "Service.IPAddressAllow": ["localhost"],
+    }
+    assert {key: directives.get(key) for key in expected} == expected
+    assert "hermsd" not in directives.get("Service.StateDirectory", [])

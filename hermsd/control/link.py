@@ -4,8 +4,9 @@
 server thread has parsed, checks each against the running config as strictly as the file is
 checked (`config.runtime_problems`: a clear error, nothing applied), and hands the valid ones
 to the daemon's own operator actions, logged as coming from the socket. `period` runs after
-the period's record is made: it publishes the snapshot `status` is served from and answers
-the commands of this boundary.
+the period's record is made: it publishes the snapshot `status` is served from, adds the
+period to the history ring (`history.py`, for `history`) and answers the commands of this
+boundary.
 
 Runtime changes and the config file (one rule): a `set` overrides the running value until
 the config file's same key is next edited; an edit of that key wins, being the newer intent.
@@ -14,6 +15,9 @@ shows each value set at runtime that differs from the file's (`runtime`). The on
 is the config's own rule: an edit that puts `safety.max_temp` at or below a runtime setpoint
 brings back the file's setpoint (logged), and one that lowers `control.max_output` below a
 runtime manual output lowers it to the limit, as for the file's own values.
+
+A mash program owns the setpoint while it runs (hermsd/program/driver.py): `set setpoint` is
+refused until it is stopped, and an edit of `control.setpoint` then is what it returns to.
 """
 
 from __future__ import annotations
@@ -25,9 +29,13 @@ from typing import Any, Protocol
 
 from hermsd import config as config_module
 from hermsd.config import Config
+from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
 from hermsd.control.protocol import (
     VERSION,
     Command,
+    History,
+    ProgramAction,
+    ProgramStart,
     ResetAlarms,
     SetMode,
     SetSetpoint,
@@ -39,6 +47,7 @@ from hermsd.control.server import Pending
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.learning import LearnedModel
 from hermsd.pid import PlantModel
+from hermsd.program.runner import Refused
 from hermsd.safety import SafetyLimits, format_limits
 
 SOURCE = "control socket"
@@ -66,6 +75,7 @@ class Snapshot:
     learned: LearnedModel | None
     config: Config
     runtime: frozenset[str]
+    program: dict[str, Any] | None  # the status reply's `program`
 
 
 class LoopLink:
@@ -80,6 +90,8 @@ class LoopLink:
         self._answering: list[Pending] = []
         self._runtime: set[str] = set()  # keys set at runtime since the file last changed them
         self._config = daemon.config
+        self._period = daemon.config.control.period  # fixed until a restart
+        self.history = HistoryRing(capacity_for(self._period))
 
     def attach(self, server: CommandSource) -> None:
         self.server = server
@@ -94,10 +106,13 @@ class LoopLink:
             return
         for pending in self.server.take():
             problems = self._problems(pending.command)
+            if not problems:
+                try:
+                    self._apply(pending.command, t)
+                except Refused as error:  # checked above; a program's state said it again
+                    problems = [str(error)]
             if problems:
                 pending.reply = error_reply(f"refused, nothing changed: {'; '.join(problems)}")
-            else:
-                self._apply(pending.command, t)
             self._answering.append(pending)
 
     def period(self, record: PeriodRecord) -> None:
@@ -116,7 +131,9 @@ class LoopLink:
             daemon.learned_model,
             daemon.config,
             frozenset(self._runtime),
+            daemon.program.status(daemon.clock.wall_ns()),
         )
+        self.history.append(*encode_row(record))
         if self._answering:
             reply = None
             for pending in self._answering:
@@ -133,6 +150,16 @@ class LoopLink:
     def _problems(self, command: Command) -> list[str]:
         daemon = self.daemon
         changes: dict[str, object]
+        if isinstance(command, ProgramStart):
+            return daemon.program_problems(command.program)
+        if isinstance(command, ProgramAction):
+            why = daemon.program.check(command.action)
+            return [] if why is None else [why]
+        if isinstance(command, SetSetpoint) and daemon.program.active:
+            return [
+                "control.setpoint: a mash program sets the setpoint while it runs "
+                "(`hermsd program stop` ends it; `hermsd program pause` holds its setpoint)"
+            ]
         if isinstance(command, SetSetpoint):
             changes = {"control.setpoint": command.celsius}
         elif isinstance(command, SetMode):
@@ -152,7 +179,13 @@ class LoopLink:
 
     def _apply(self, command: Command, t: float) -> None:
         daemon = self.daemon
+        if isinstance(command, ProgramStart):
+            daemon.start_program(command.program, command.ready_by, t)
+        elif isinstance(command, ProgramAction):
+            daemon.program_command(command.action, t)
         daemon.operator_action(f"{describe(command)} (from the {SOURCE})", t)
+        if isinstance(command, ProgramStart | ProgramAction):
+            return
         if isinstance(command, SetSetpoint):
             daemon.set_setpoint(command.celsius)
             self._runtime.add("control.setpoint")
@@ -176,6 +209,11 @@ class LoopLink:
             if self._encoded is None or self._encoded[0] is not snapshot:
                 self._encoded = (snapshot, encode(self._status_message(snapshot)))
             return self._encoded[1]
+
+    def history_line(self, request: History) -> bytes:
+        """A page of the history (rows after `request.since`), encoded."""
+        rows, more = self.history.page(request.since, request.limit)
+        return page_line(rows, more, self._period)
 
     @staticmethod
     def _status_message(snapshot: Snapshot) -> dict[str, Any]:
@@ -225,4 +263,5 @@ class LoopLink:
                 if key in snapshot.runtime
                 and running[key] != config_module.value_at(snapshot.config, key)
             },
+            "program": snapshot.program,
         }

@@ -11,6 +11,13 @@ the protocol version it speaks and a command:
                                                                output in force)
     {"v": 1, "cmd": "set", "mode": "auto"}
     {"v": 1, "cmd": "reset-alarm"}
+    {"v": 1, "cmd": "program", "action": "start", "program": {...}, "ready_by": "06:30"}
+                                    (program: a mash program file's content as JSON, as
+                                     hermsd.program.model.to_data gives it; ready_by optional,
+                                     local HH:MM, null or absent: the program's own)
+    {"v": 1, "cmd": "program", "action": "next" | "pause" | "resume" | "stop"}
+    {"v": 1, "cmd": "confirm"}                (answers the step that waits for the brewer)
+    {"v": 1, "cmd": "history", "since": 1234.5, "limit": 500}   (both optional)
 
 Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": false,
 "error": "one line: what is wrong (what would be right)"}` and changes nothing. `status` is
@@ -21,10 +28,25 @@ force, one line each), `model` (the controller's model of the tun: gain °C/%, t
 dead_time s, ambient °C, and `from`: "learned" or "config"), `learned` (what was learned of
 the tun and stored, with `text` in words, or null) and
 `runtime` (each operating key set at runtime whose value differs from the config file's:
-`{"control.setpoint": {"running": 72.0, "file": 66.0}}`). A `set` or `reset-alarm` is checked
+`{"control.setpoint": {"running": 72.0, "file": 66.0}}`) and `program` (the mash program that
+runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
+`time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py). A program
+sent with `start` is checked on the server's thread exactly as a program file is (and its
+setpoints against the running config at the boundary); `program` and `confirm` commands
+are answered like `set`. A `set` or `reset-alarm` is checked
 against the running config as strictly as the config file is, applied at the next control
 period boundary, logged as an operator action, and answered after that boundary with the
 same fields as `status` (so the reply shows the change in force).
+
+`history` pages through the periods of the last 24 hours, kept in memory by the daemon for
+the web page's chart (`hermsd/control/history.py`), and is answered at once like `status`:
+the rows with `t` after `since` (from the oldest kept when `since` is null or absent), at
+most `limit` of them (1 to 2000, default 2000), oldest first:
+`{"v": 1, "ok": true, "period": 5.0, "fields": ["t", "pv", "setpoint", "output",
+"applied"], "more": false, "rows": [[1230.0, 66.062, 66.0, 12.5, 12.5], ...]}`. Each row
+holds the fields in that order (`t` in the daemon's seconds as `status`'s `t`, `pv` null
+when unknown, numbers rounded to 0.001); `more` is true when later rows remain: ask again
+with `since` set to the last row's `t`. The daemon keeps no history across a restart.
 
 A line longer than MAX_LINE, or one that is not a JSON object, is refused; an over-long line
 also ends the connection (its rest cannot be told from the next request).
@@ -37,9 +59,15 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from hermsd.program.model import READY_BY, Program, ProgramError, from_data, one_line, to_data
+
 VERSION = 1
-MAX_LINE = 4096
-"""Bytes in a request line, newline included: a request is well under 200."""
+MAX_LINE = 1 << 16
+"""Bytes in a request line, newline included: a request is well under 200, a program's
+`start` at most about 40 kB (50 steps, each name and message at their longest in 4-byte
+UTF-8 characters)."""
+MAX_PAGE = 2000
+"""Rows in one `history` reply: about 90 kB, well under a client's 1 MiB reply limit."""
 
 
 class ProtocolError(ValueError):
@@ -67,8 +95,25 @@ class ResetAlarms:
     pass
 
 
-Request = Status | SetSetpoint | SetMode | ResetAlarms
-Command = SetSetpoint | SetMode | ResetAlarms
+@dataclass(frozen=True, slots=True)
+class ProgramStart:
+    program: Program
+    ready_by: str | None = None  # local HH:MM; None: the program's own
+
+
+@dataclass(frozen=True, slots=True)
+class ProgramAction:
+    action: str  # next, pause, resume, stop; or confirm (the `confirm` command)
+
+
+@dataclass(frozen=True, slots=True)
+class History:
+    since: float | None = None  # rows after this t; None: from the oldest kept
+    limit: int = MAX_PAGE
+
+
+Request = Status | SetSetpoint | SetMode | ResetAlarms | ProgramStart | ProgramAction | History
+Command = SetSetpoint | SetMode | ResetAlarms | ProgramStart | ProgramAction
 """The requests that change something: applied by the loop at a period boundary."""
 
 
@@ -98,6 +143,9 @@ def parse_request(line: bytes) -> Request:
     if command in ("status", "reset-alarm"):
         _no_other_fields(command, fields, set())
         return Status() if command == "status" else ResetAlarms()
+    if command == "history":
+        _no_other_fields(command, fields, {"since", "limit"})
+        return _history(data)
     if command == "set":
         if fields == {"setpoint"}:
             return SetSetpoint(_number(data, "setpoint"))
@@ -111,7 +159,51 @@ def parse_request(line: bytes) -> Request:
                 raise ProtocolError("output goes with mode 'manual' only")
             return SetMode(mode, None if output is None else _number(data, "output"))
         raise ProtocolError("set takes either setpoint, or mode (with output for manual)")
-    raise ProtocolError(f"unknown command {command!r} (one of 'status', 'set', 'reset-alarm')")
+    if command == "confirm":
+        _no_other_fields(command, fields, set())
+        return ProgramAction("confirm")
+    if command == "program":
+        return _program_request(data, fields)
+    raise ProtocolError(
+        f"unknown command {command!r} (one of 'status', 'set', 'reset-alarm', 'program', "
+        "'confirm', 'history')"
+    )
+
+
+PROGRAM_ACTIONS = ("start", "next", "pause", "resume", "stop")
+
+
+def _program_request(data: dict[str, Any], fields: set[str]) -> Request:
+    action = data.get("action")
+    if action not in PROGRAM_ACTIONS:
+        raise ProtocolError(
+            f"program: action {action!r} is not one of {', '.join(map(repr, PROGRAM_ACTIONS))}"
+        )
+    if action != "start":
+        _no_other_fields(f"program {action}", fields, {"action"})
+        return ProgramAction(action)
+    _no_other_fields("program start", fields, {"action", "program", "ready_by"})
+    if "program" not in data:
+        raise ProtocolError("program start: the program is missing (send the file's content)")
+    ready_by = data.get("ready_by")
+    if ready_by is not None and not (isinstance(ready_by, str) and READY_BY.fullmatch(ready_by)):
+        raise ProtocolError(
+            f"ready_by: {json.dumps(ready_by)} is not a local time (HH:MM on a 24 h clock, "
+            "e.g. '06:30')"
+        )
+    try:
+        program = from_data(data["program"], "program")
+    except ProgramError as error:
+        raise ProtocolError(f"program: {one_line(error)}") from None
+    return ProgramStart(program, ready_by)
+
+
+def _history(data: dict[str, Any]) -> History:
+    since = None if data.get("since") is None else _number(data, "since")
+    limit = data.get("limit", MAX_PAGE)
+    if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_PAGE:
+        raise ProtocolError(f"limit: expected a whole number 1 to {MAX_PAGE}, got {limit!r}")
+    return History(since, limit)
 
 
 def _no_other_fields(command: str, fields: set[str], allowed: set[str]) -> None:
@@ -139,6 +231,20 @@ def request_message(request: Request) -> dict[str, Any]:
         message["cmd"] = "reset-alarm"
     elif isinstance(request, SetSetpoint):
         message.update(cmd="set", setpoint=request.celsius)
+    elif isinstance(request, ProgramStart):
+        message.update(
+            cmd="program",
+            action="start",
+            program=to_data(request.program),
+            ready_by=request.ready_by,
+        )
+    elif isinstance(request, ProgramAction):
+        if request.action == "confirm":
+            message["cmd"] = "confirm"
+        else:
+            message.update(cmd="program", action=request.action)
+    elif isinstance(request, History):
+        message.update(cmd="history", since=request.since, limit=request.limit)
     else:
         message.update(cmd="set", mode=request.mode)
         if request.output is not None:
@@ -161,6 +267,11 @@ def describe(command: Command) -> str:
         return f"set setpoint {command.celsius:g} °C"
     if isinstance(command, ResetAlarms):
         return "reset-alarm"
+    if isinstance(command, ProgramStart):
+        ready = f", ready by {command.ready_by}" if command.ready_by else ""
+        return f"program start {command.program.name!r} ({len(command.program.steps)} steps{ready})"
+    if isinstance(command, ProgramAction):
+        return command.action if command.action == "confirm" else f"program {command.action}"
     if command.output is not None:
         return f"set mode {command.mode} at {command.output:g} %"
     return f"set mode {command.mode}"

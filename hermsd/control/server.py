@@ -41,6 +41,7 @@ from typing import Any
 from hermsd.control.protocol import (
     MAX_LINE,
     Command,
+    History,
     ProtocolError,
     Status,
     encode,
@@ -84,13 +85,24 @@ class _Client:
 StatusReply = Callable[[], bytes]
 """The status reply line, encoded (once per control period, by `LoopLink.status_line`)."""
 
+HistoryReply = Callable[[History], bytes]
+"""A page of the history, encoded (`LoopLink.history_line`: joins rows encoded by the loop)."""
+
+
+def _no_history(request: History) -> bytes:
+    return encode(error_reply("this daemon keeps no history"))
+
 
 class ControlServer:
-    """Serves the socket at `path` on its own thread; `status` builds the status reply."""
+    """Serves the socket at `path` on its own thread; `status` builds the status reply,
+    `history` a page of the history."""
 
-    def __init__(self, path: Path, status: StatusReply) -> None:
+    def __init__(
+        self, path: Path, status: StatusReply, history: HistoryReply = _no_history
+    ) -> None:
         self.path = path
         self._status = status
+        self._history = history
         self._commands: deque[Pending] = deque()
         self._selector = selectors.DefaultSelector()
         self._listener: socket.socket | None = None
@@ -236,6 +248,9 @@ class ControlServer:
             return
         if isinstance(request, Status):
             client.outbox += self._status()
+            self._flush(client)
+        elif isinstance(request, History):
+            client.outbox += self._history(request)
             self._flush(client)
         else:  # one command a client at a time: the queue is never longer than MAX_CLIENTS
             client.waiting = Pending(request)

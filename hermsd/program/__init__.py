@@ -1,1 +1,3 @@
-"""Mash programs: named steps of setpoints and holds that the daemon runs through a brew day."""
+"""The mash program: a file of steps (`model`), a pure runner that turns it into the setpoint
+(`runner`), its progress kept across restarts (`store`), the daemon's side (`driver`), and a
+BeerXML recipe's mash steps read as a program (`beerxml`)."""

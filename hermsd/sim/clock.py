@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import heapq
 import itertools
 import math
@@ -19,7 +20,13 @@ class VirtualClock:
     clock set to exactly its time, before any sleeper passes that time.
     """
 
-    def __init__(self, start: float = 0.0, epoch_ns: int = DEFAULT_EPOCH_NS) -> None:
+    def __init__(
+        self,
+        start: float = 0.0,
+        epoch_ns: int = DEFAULT_EPOCH_NS,
+        zone: dt.tzinfo = dt.UTC,
+    ) -> None:
+        self.zone = zone  # the simulated local time (a mash program's ready_by), not the host's
         self._now = start
         self._start = start
         self._epoch_ns = epoch_ns

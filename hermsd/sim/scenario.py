@@ -4,14 +4,19 @@ A scenario is YAML: `duration`, `plant` (model and parameters: `hermsd.sim.hlt.P
 and their keyword parameters, plus the sensor's `noise_c` and `seed`; README.md, Simulate),
 initial `setpoint` (else the config's), optional `config` (overrides of the daemon's config,
 validated like the file), and `events`, each with `at` and one action; errors name the file,
-line and column. The runner wires the fake bus, the tun model and the simulated heater
-circuit into `Daemon` on a virtual clock, and measures the run against physics: the earliest
-any controller could settle is full power from the start.
+line and column. A scenario may run a mash program (`program:` a file, relative to the
+scenario's, or the program inline; started half a period in) on a simulated local time
+(`clock:` its start, ISO 8601 with the offset, e.g. "2026-11-28T04:00:00+01:00"; default
+2026-01-01T00:00Z), and answer the program's confirmations (`confirm:` events: from `at` on,
+the next wait for that message is confirmed). The runner wires the fake bus, the tun model
+and the simulated heater circuit into `Daemon` on a virtual clock, and measures the run
+against physics: the earliest any controller could settle is full power from the start.
 """
 
 from __future__ import annotations
 
 import copy
+import datetime as dt
 import math
 import time
 from collections.abc import Callable
@@ -28,6 +33,9 @@ from hermsd.durations import parse_duration
 from hermsd.latches import LatchStore
 from hermsd.learning import ModelStore
 from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
+from hermsd.program import model as program_model
+from hermsd.program.model import Program, ProgramError
+from hermsd.program.quality import step_quality
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm, MeasuredTun
 from hermsd.sim.bus import FakeLM92
@@ -39,6 +47,7 @@ from hermsd.sim.world import SENSOR_KEYS, build_world, sensor_reading
 SENSOR_FAULTS = ("nack", "timeout", "stuck", "spike", "wrong_id", "gone", "slow", "ok")
 FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2")
 EVENT_KINDS = (
+    "confirm",
     "add_water",
     "setpoint",
     "mode",
@@ -84,6 +93,8 @@ class Scenario:
     setpoint: float | None = None  # None: the config's (control.setpoint)
     config: dict[str, Any] = field(default_factory=dict)
     events: tuple[Event, ...] = (Event(4 * 3600.0, "add_water", {"litres": 10.0, "temp": 15.0}),)
+    program: Program | None = None
+    clock: tuple[int, dt.tzinfo] | None = None  # wall-clock start (ns) and local zone
 
 
 DEFAULT = Scenario()
@@ -144,7 +155,8 @@ def parse_scenario(
 
     if not isinstance(doc, dict):
         raise fail("(top level)", "expected a mapping with duration, plant, setpoint, events")
-    unknown = set(doc) - {"name", "duration", "plant", "setpoint", "config", "events"}
+    known = {"name", "duration", "plant", "setpoint", "config", "events", "program", "clock"}
+    unknown = set(doc) - known
     if unknown:
         raise fail(", ".join(sorted(map(str, unknown))), "unknown key")
     try:
@@ -176,7 +188,43 @@ def parse_scenario(
         setpoint=setpoint,
         config=overrides,
         events=tuple(events),
+        program=_program(doc["program"], source, fail) if "program" in doc else None,
+        clock=_clock(doc["clock"], fail) if "clock" in doc else None,
     )
+
+
+def _program(raw: Any, source: str, fail: Callable[[str, str], ScenarioError]) -> Program:
+    """The scenario's mash program: a file (beside the scenario) or the program inline."""
+    try:
+        if isinstance(raw, str):
+            return program_model.load(Path(source).parent / raw)
+        return program_model.from_data(raw, "program")
+    except ProgramError as error:
+        if isinstance(raw, str):
+            raise ScenarioError(str(error)) from None  # the file's own FILE:LINE:COL
+        raise fail("program", program_model.one_line(error)) from None
+
+
+CLOCK_EXAMPLE = "2026-11-28T04:00:00+01:00"
+
+
+def _clock(raw: Any, fail: Callable[[str, str], ScenarioError]) -> tuple[int, dt.tzinfo]:
+    """The simulated wall clock's start and local zone, from an ISO 8601 time with offset."""
+    moment = None
+    if isinstance(raw, str):
+        try:
+            moment = dt.datetime.fromisoformat(raw)
+        except ValueError:
+            moment = None
+    if isinstance(raw, dt.datetime):
+        moment = raw
+    if moment is None or moment.tzinfo is None:
+        raise fail(
+            "clock", f"expected a local time with its offset, e.g. {CLOCK_EXAMPLE!r}, got {raw!r}"
+        )
+    offset = moment.utcoffset()
+    assert offset is not None
+    return round(moment.timestamp() * 1e9), dt.timezone(offset)
 
 
 def _plant(raw: Any, fail: Callable[[str, str], ScenarioError]) -> dict[str, Any]:
@@ -260,6 +308,8 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
         raise fail(f"{key}.heater2", "expected open or ok")
     elif kind == "config" and not isinstance(value, dict):
         raise fail(f"{key}.config", "expected config sections to change, as in the file")
+    elif kind == "confirm" and not isinstance(value, str):
+        raise fail(f"{key}.confirm", "expected the message of the step that waits, as text")
     return Event(at, kind, value, lasts)
 
 
@@ -411,7 +461,7 @@ def run(
     config = effective_config(base or config_module.DEFAULT, scenario)
     reloads = _reloads(config, scenario)
     started = time.perf_counter()
-    clock = VirtualClock()
+    clock = VirtualClock() if scenario.clock is None else VirtualClock(0.0, *scenario.clock)
     recorder = None
     if log_dir is not None:
         log_dir.mkdir(parents=True, exist_ok=True)
@@ -443,8 +493,20 @@ def run(
         models=models,
         tun_model=tun_model,
     )
-    collector = _Collector(plant, keep_records=keep_records)
+    program = scenario.program
+    collector = _Collector(plant, keep_records=keep_records or program is not None)
     daemon.listeners.append(collector)
+    brewer = _Brewer(daemon)
+    if program is not None:
+
+        def start_program() -> None:  # as a brewer would, with the daemon running
+            problems = daemon.program_problems(program)  # a program resumed from the state too
+            if problems:
+                raise ScenarioError(f"program: {'; '.join(problems)}")
+            daemon.start_program(program, None, clock.monotonic())
+
+        clock.call_at(config.control.period / 2, start_program)
+        daemon.listeners.append(brewer)
 
     recovery_min: dict[str, float | None] = {}
     period = config.control.period
@@ -455,6 +517,9 @@ def run(
             t = clock.monotonic()
             if index in reloads:
                 daemon.reload(reloads[index])
+            if event.kind == "confirm":
+                brewer.answers.append(event.value)
+                return  # an answer, not a disturbance of the tun
             _apply(event, t, plant, chip, circuit, daemon)
             if event.kind in FAULT_KINDS and event.value not in (
                 ("ok", None),
@@ -485,7 +550,7 @@ def run(
             recorder.close()
     wall = time.perf_counter() - started
 
-    disturbances = [e.at for e in scenario.events]
+    disturbances = [e.at for e in scenario.events if e.kind != "confirm"]
     metrics = compute(collector.samples, disturbances, scenario.duration, circuit.ssr_edges)
     physical_min = time_to_band(reference, 0.0, config.control.setpoint, scenario.duration)
     alarms = []
@@ -521,7 +586,35 @@ def run(
         "overruns": daemon.overruns,
         "wall_s": round(wall, 3),
     }
-    return Result(summary, collector.samples, collector.records)
+    if program is not None:
+        steps = step_quality((r.t, r) for r in collector.records)
+        summary["program"] = {
+            "name": program.name,
+            "state": daemon.program.runner.state if daemon.program.runner else "stopped",
+            "steps_run": len({step["index"] for step in steps}),
+            "steps": len(program.steps),
+        }
+        summary["steps"] = steps
+    records = collector.records if keep_records else []
+    return Result(summary, collector.samples, records)
+
+
+@dataclass(slots=True)
+class _Brewer:
+    """Answers the program's confirmations the scenario's `confirm` events allow."""
+
+    daemon: Daemon
+    answers: list[str] = field(default_factory=list)
+
+    def period(self, record: PeriodRecord) -> None:
+        status = self.daemon.program.status(0)
+        if status is None or status["state"] != "waiting" or status["message"] not in self.answers:
+            return
+        self.answers.remove(status["message"])
+        self.daemon.program_command("confirm", record.t)
+
+    def alarm(self, alarm: Alarm) -> None:
+        """Alarms are the supervisor's; the brewer answers only the program."""
 
 
 def _ratio(value: float | None, minimum: float | None) -> float | None:

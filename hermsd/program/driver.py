@@ -1,0 +1,307 @@
+"""The daemon's side of a mash program: the runner, its stored progress, local time.
+
+The loop calls `period` once a control period, before the controller steps; it answers with
+the setpoint the program asks for (None: a `ready_by` program waits, the heater stays off).
+Commands are applied at once (the loop calls them at a period boundary). Everything that
+happened comes back as events for the log, the program topic and the alerts.
+
+The setpoint rule: a program owns the setpoint from its start until it is stopped (when done,
+it holds the last step's setpoint). Meanwhile `hermsd set setpoint` is refused, and an edit
+of `control.setpoint` in the config file does not move the setpoint: it is kept, and the
+setpoint returns to it when the program stops. Without such an edit the setpoint returns to
+the one in force before the program started.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+from hermsd.latches import StateError
+from hermsd.metrics import BAND
+from hermsd.pid import PlantModel
+from hermsd.program.model import READY_BY, Program
+from hermsd.program.runner import (
+    READY_MARGIN,
+    ProgramEvent,
+    Refused,
+    Runner,
+    heat_up_s,
+    with_margin,
+)
+from hermsd.program.store import ProgressStore
+
+log = logging.getLogger("hermsd")
+
+
+def next_local_time(wall_ns: int, hh_mm: str, zone: dt.tzinfo | None) -> int:
+    """The next wall-clock time (ns) after `wall_ns` whose local time is `hh_mm`.
+
+    `zone` None: the system's local time (with its daylight saving rules)."""
+    match = READY_BY.fullmatch(hh_mm)
+    if match is None:
+        raise ValueError(f"ready_by {hh_mm!r} is not a local time (HH:MM, e.g. 06:30)")
+    now = dt.datetime.fromtimestamp(wall_ns / 1e9, zone)
+    due = now.replace(hour=int(match["hour"]), minute=int(match["minute"]), second=0, microsecond=0)
+    if due <= now:
+        due = (due.replace(tzinfo=None) + dt.timedelta(days=1)).replace(tzinfo=due.tzinfo)
+    return round(due.timestamp() * 1e9)
+
+
+def commit_s(model: PlantModel) -> float:
+    """How close to the band a `ready_by` heat-up no longer holds back: 1.2 dead times
+    (what is on its way then would carry water held there into the band early)."""
+    return (1.0 + READY_MARGIN) * model.dead_time
+
+
+def local_iso(wall_ns: int, zone: dt.tzinfo | None) -> str:
+    """`wall_ns` as local time, ISO 8601 with its offset, to the second."""
+    moment = dt.datetime.fromtimestamp(wall_ns / 1e9, zone)
+    return (moment if zone is not None else moment.astimezone()).isoformat(timespec="seconds")
+
+
+@dataclass(slots=True)
+class ProgramDriver:
+    """The program the daemon runs (if any), kept in `store` (None: nowhere)."""
+
+    store: ProgressStore | None
+    zone: dt.tzinfo | None  # local time's zone; None: the system's
+    period_s: float
+    runner: Runner | None = None
+    after: float | None = None  # the setpoint to return to when the program stops
+    starts_at_ns: int | None = None  # while scheduled: when the heat-up is due to start
+    _events: list[ProgramEvent] = field(default_factory=list)
+    _store_failing: bool = False
+    _transit_s: float = 0.0
+    _transit_t: float | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.runner is not None
+
+    @property
+    def target(self) -> float:
+        """The current step's setpoint (a scheduled program's first step)."""
+        assert self.runner is not None
+        return self.runner.step.setpoint
+
+    # -- start, restore, commands -------------------------------------------------------
+
+    def restore(self, setpoint: float) -> str | None:
+        """Take up the stored program, if any; what to say in the log (or None)."""
+        if self.store is None:
+            return None
+        try:
+            stored = self.store.load()
+        except StateError as error:
+            self.store.clear()
+            return f"program progress not resumed: {error}; discarded"
+        if stored is None:
+            return None
+        program, progress = stored
+        self.runner = Runner(program, progress, max_step_s=2.0 * self.period_s)
+        self.after = setpoint
+        runner = self.runner
+        left = runner.time_left_s()
+        where = f"step {progress.index + 1}/{len(program.steps)} {runner.step.name!r}, " + (
+            f"{left:.0f} s of its hold left" if left is not None else runner.state
+        )
+        return f"program {program.name!r} resumed after a restart at {where}"
+
+    def problems(self, program: Program) -> list[str]:
+        """Why `program` cannot start now, beyond its own checks; [] when it can."""
+        if self.runner is not None:
+            return [f"program {self.runner.program.name!r} runs (`hermsd program stop` first)"]
+        return []
+
+    def start(
+        self,
+        program: Program,
+        ready_by: str | None,
+        *,
+        setpoint: float,
+        wall_ns: int,
+        pv: float | None,
+        model: PlantModel,
+        max_output: float,
+    ) -> None:
+        """Start `program` (ready by `ready_by`, else at once), from the current PV."""
+        if self.runner is not None:
+            raise Refused(self.problems(program)[0])
+        when = ready_by or program.ready_by
+        ready_at = None if when is None else next_local_time(wall_ns, when, self.zone)
+        runner = Runner.start(program, max_step_s=2.0 * self.period_s, ready_at_ns=ready_at)
+        self.runner, self.after = runner, setpoint
+        events = runner.take_events()
+        if ready_at is not None:
+            lead_s = self.lead_s(program, pv, model, max_output)
+            self._schedule(wall_ns, lead_s, commit_s(model))
+            first = program.steps[0]
+            start = (
+                f"heating starts at {local_iso(self.starts_at_ns, self.zone)}"
+                if self.starts_at_ns is not None and lead_s is not None
+                else "heating starts when the tun's model says (no PV yet)"
+            )
+            events = [
+                dataclasses.replace(
+                    event,
+                    text=f"{event.text}; {start} to be at {first.setpoint:g} °C by "
+                    f"{local_iso(ready_at, self.zone)}",
+                )
+                for event in events
+            ]
+        self._events.extend(events)
+
+    def command(self, action: str, pv: float | None) -> float | None:
+        """Apply next, pause, resume, stop or confirm (Refused when it does not apply).
+
+        Returns the setpoint to go back to when the program stopped, else None."""
+        runner = self.runner
+        if runner is None:
+            raise Refused(f"no program runs ({action} has nothing to act on)")
+        runner.command(action, pv)
+        self._events.extend(runner.take_events())
+        if action != "stop":
+            return None
+        self.runner, self.starts_at_ns = None, None
+        if self.store is not None:
+            self._clear()
+        return self.after
+
+    def take_events(self) -> list[ProgramEvent]:
+        """The events not yet handed over (a program stopped between periods)."""
+        events, self._events = self._events, []
+        return events
+
+    def check(self, action: str) -> str | None:
+        if self.runner is None:
+            return f"no program runs ({action} has nothing to act on)"
+        return self.runner.check(action)
+
+    # -- each period ------------------------------------------------------------------
+
+    def period(
+        self,
+        t: float,
+        pv: float | None,
+        wall_ns: int,
+        model: PlantModel,
+        max_output: float,
+    ) -> tuple[float | None, list[ProgramEvent]]:
+        """The program's setpoint for this period (None: keep the heater off), and events."""
+        runner = self.runner
+        if runner is None:
+            return None, self.take_events()
+        lead = None
+        if runner.progress.ready_at_ns is not None:  # a ready_by heat-up: how long from here
+            lead = self.lead_s(runner.program, pv, model, max_output)
+            self._count_transit(t, runner.riding_full, model.dead_time)
+            if lead is not None:  # the heat on its way shortens it
+                lead = max(0.0, lead - self._transit_s)
+        runner.period(t, pv, wall_ns, lead, commit_s(model))
+        if runner.state == "scheduled":
+            self._schedule(wall_ns, lead, commit_s(model))
+        else:
+            self.starts_at_ns = None
+        self._events.extend(runner.take_events())
+        self._save(runner, t)
+        return runner.setpoint, self.take_events()
+
+    def _count_transit(self, t: float, full: bool, dead_time: float) -> None:
+        """The heat on its way to the sensor, in seconds of full power (at most the dead
+        time): it grows while a ready_by heat-up is at full power, and drains while not."""
+        dt_s = 0.0 if self._transit_t is None else max(0.0, t - self._transit_t)
+        self._transit_t = t
+        change = dt_s if full else -dt_s
+        self._transit_s = min(dead_time, max(0.0, self._transit_s + change))
+
+    @staticmethod
+    def lead_s(
+        program: Program, pv: float | None, model: PlantModel, max_output: float
+    ) -> float | None:
+        """How long full power takes from `pv` until the first step is reached (its band's
+        lower edge), by the tun's model; None when unknown (no PV) or never."""
+        if pv is None:
+            return None
+        return heat_up_s(model, max_output, pv, program.steps[0].setpoint - BAND)
+
+    def _schedule(self, wall_ns: int, lead_s: float | None, commit: float) -> None:
+        runner = self.runner
+        assert runner is not None
+        ready = runner.progress.ready_at_ns
+        if ready is None or lead_s is None:
+            self.starts_at_ns = ready
+            return
+        self.starts_at_ns = max(wall_ns, ready - round(with_margin(lead_s, commit) * 1e9))
+
+    def _save(self, runner: Runner, t: float) -> None:
+        if self.store is None:
+            return
+        try:
+            self.store.save(runner.program, runner.progress, t)
+        except OSError as error:
+            if not self._store_failing:
+                log.error("saving the program's progress failed: %s", error)
+            self._store_failing = True
+        else:
+            self._store_failing = False
+
+    def _clear(self) -> None:
+        assert self.store is not None
+        try:
+            self.store.clear()
+        except OSError as error:
+            log.error("removing the program's progress failed: %s", error)
+
+    # -- what it says -----------------------------------------------------------------
+
+    def status(self, wall_ns: int) -> dict[str, Any] | None:
+        """The `program` field of the status reply (None: no program runs)."""
+        runner = self.runner
+        if runner is None:
+            return None
+        step, progress = runner.step, runner.progress
+        return {
+            "name": runner.program.name,
+            "state": runner.state,
+            "step": {"index": progress.index, "name": step.name, "setpoint": step.setpoint},
+            "steps": len(runner.program.steps),
+            "time_left_s": runner.time_left_s(),
+            "next": runner.next_name(),
+            "message": step.confirm if progress.phase == "waiting" else None,
+            "starts_at": None
+            if self.starts_at_ns is None
+            else local_iso(self.starts_at_ns, self.zone),
+        }
+
+    def record_fields(self) -> dict[str, Any]:
+        """The period record's step fields."""
+        runner = self.runner
+        if runner is None:
+            return {"step": None, "step_index": None, "step_left_s": None, "next_step": None}
+        return {
+            "step": runner.step.name,
+            "step_index": runner.progress.index,
+            "step_left_s": runner.time_left_s(),
+            "next_step": runner.next_name(),
+        }
+
+    def status_words(self, wall_ns: int) -> str:
+        """For the status line: 'Saccharification 42m left', '… waits: Mash in'."""
+        runner = self.runner
+        if runner is None:
+            return ""
+        step, state = runner.step.name, runner.state
+        left = runner.time_left_s()
+        if state == "scheduled" and self.starts_at_ns is not None:
+            return (
+                f"program scheduled, heating from {local_iso(self.starts_at_ns, self.zone)[11:16]}"
+            )
+        if state == "waiting":
+            return f"{step} waits: {runner.step.confirm}"
+        if state == "holding" and left is not None:
+            return f"{step} {left / 60.0:.0f} min left"
+        return f"{step} {state}"

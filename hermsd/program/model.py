@@ -1,0 +1,308 @@
+"""The mash program file: named steps, each a setpoint held for a time, read strictly.
+
+The file is YAML, read by the config's own reader (`hermsd.config`): the same plain-scalar
+grammar (no octal, no sexagesimal surprises), the same checks of each value and the same
+`FILE:LINE:COL: key: what is wrong (what would be right)` messages, every problem at once.
+A program sent over the control socket is its `to_data` form, checked again the same way.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from hermsd import config as config_module
+from hermsd.config import ConfigError, Problem
+from hermsd.durations import parse_duration
+
+MAX_STEPS = 50
+NAME_LENGTH = 40
+MESSAGE_LENGTH = 120
+MAX_HOLD_S = 24 * 3600.0
+MAX_RAMP = 10.0  # °C per minute: faster than any element heats a tun
+UNTIL_TOLD = "until told"
+READY_BY = re.compile(r"(?P<hour>[01][0-9]|2[0-3]):(?P<minute>[0-5][0-9])")
+
+_TOP_KEYS = ["name", "ready_by", "steps"]
+_STEP_KEYS = ["name", "setpoint", "hold", "ramp", "confirm"]
+
+
+@dataclass(frozen=True, slots=True)
+class Step:
+    """One rest: reach `setpoint`, hold it `hold` s (None: until told), then maybe wait."""
+
+    name: str
+    setpoint: float
+    hold: float | None
+    ramp: float | None = None  # °C per minute; None: the setpoint moves at once
+    confirm: str | None = None  # asked of the brewer at the end of the hold
+
+
+@dataclass(frozen=True, slots=True)
+class Program:
+    name: str
+    steps: tuple[Step, ...]
+    ready_by: str | None = None  # local "HH:MM"
+
+
+class ProgramError(ConfigError):
+    """A program that cannot be used; `str()` lists every problem, one per line."""
+
+
+def _field(path: str, kind: type, example: object, **spec: Any) -> config_module._Field:
+    nullable = spec.pop("nullable", False)
+    return config_module._Field(path, kind, nullable, example, config_module._Spec(**spec))
+
+
+def _name_field(path: str) -> config_module._Field:
+    return _field(path, str, "Saccharification", max_length=NAME_LENGTH)
+
+
+class _Reader(config_module._Reader):
+    @staticmethod
+    def _suggest(key: str, prefix: str, known: list[str]) -> str:
+        import difflib
+
+        close = difflib.get_close_matches(key, known, n=1)
+        if close:
+            return f"did you mean {close[0]!r}?"
+        return f"the keys here are: {', '.join(known)}"
+
+    def value(self, info: config_module._Field, node: yaml.Node) -> Any:
+        """The checked value of one key, or None (reported) when it is wrong."""
+        try:
+            return config_module._convert(info, node)
+        except config_module._Invalid as problem:
+            self.report(problem.mark or node.start_mark, info.path, str(problem))
+            return None
+
+    def program(self, root: yaml.Node | None, default_name: str) -> Program | None:
+        if root is None or not isinstance(root, yaml.MappingNode):
+            mark = root.start_mark if root is not None else None
+            got = "nothing" if root is None else config_module._describe(root)
+            self.report(mark, "", f"a program is a mapping with steps, got {got} (see README)")
+            return None
+        values = dict(self.items(root, "", _TOP_KEYS))
+        name = default_name
+        if "name" in values:
+            name = self.value(_name_field("name"), values["name"]) or name
+        ready_by = None
+        if "ready_by" in values:
+            ready_by = self.ready_by(values["ready_by"])
+        steps = self.steps(values.get("steps"), root)
+        if self.problems or steps is None:
+            return None
+        return Program(name[:NAME_LENGTH], steps, ready_by)
+
+    def ready_by(self, node: yaml.Node) -> str | None:
+        info = _field("ready_by", str, "06:30", max_length=5, nullable=True)
+        text = self.value(info, node)
+        if text is not None and READY_BY.fullmatch(text) is None:
+            self.report(
+                node.start_mark,
+                "ready_by",
+                f"{text!r} is not a local time (HH:MM on a 24 h clock, e.g. '06:30')",
+            )
+            return None
+        return str(text) if text is not None else None
+
+    def steps(self, node: yaml.Node | None, root: yaml.Node) -> tuple[Step, ...] | None:
+        if node is None:
+            self.report(root.start_mark, "steps", f"missing (a list of 1 to {MAX_STEPS} steps)")
+            return None
+        if not isinstance(node, yaml.SequenceNode) or not 1 <= len(node.value) <= MAX_STEPS:
+            got = (
+                f"{len(node.value)} steps"
+                if isinstance(node, yaml.SequenceNode)
+                else config_module._describe(node)
+            )
+            self.report(
+                node.start_mark,
+                "steps",
+                f"expected a list of 1 to {MAX_STEPS} steps ('- name: ...' lines), got {got}",
+            )
+            return None
+        steps: list[Step] = []
+        first_line: dict[str, int] = {}
+        for index, item in enumerate(node.value):
+            step = self.step(f"steps[{index}]", item)
+            if step is None:
+                continue
+            if step.name in first_line:
+                self.report(
+                    item.start_mark,
+                    f"steps[{index}].name",
+                    f"{step.name!r} names an earlier step too (line {first_line[step.name]}; "
+                    "give each step its own name)",
+                )
+            first_line.setdefault(step.name, item.start_mark.line + 1)
+            steps.append(step)
+        return tuple(steps)
+
+    def step(self, path: str, node: yaml.Node) -> Step | None:
+        if not isinstance(node, yaml.MappingNode):
+            self.report(
+                node.start_mark,
+                path,
+                f"expected a step (name, setpoint, hold), got {config_module._describe(node)}",
+            )
+            return None
+        before = len(self.problems)
+        values = dict(self.items(node, path, _STEP_KEYS))
+        for key in ("name", "setpoint", "hold"):
+            if key not in values:
+                self.report(node.start_mark, f"{path}.{key}", f"missing ({_REQUIRED[key]})")
+        name = setpoint = None
+        hold: float | None = None
+        if "name" in values:
+            name = self.value(_name_field(f"{path}.name"), values["name"])
+        if "setpoint" in values:
+            info = _field(f"{path}.setpoint", float, 66.0, unit="°C", low=0, high=100)
+            setpoint = self.value(info, values["setpoint"])
+        if "hold" in values:
+            hold = self.hold(f"{path}.hold", values["hold"])
+        ramp = confirm = None
+        if "ramp" in values:
+            info = _field(
+                f"{path}.ramp",
+                float,
+                1.0,
+                unit="°C/min",
+                low=0,
+                high=MAX_RAMP,
+                low_exclusive=True,
+                nullable=True,
+                null_means="at once",
+            )
+            ramp = self.value(info, values["ramp"])
+        if "confirm" in values:
+            info = _field(f"{path}.confirm", str, "Mash in", max_length=MESSAGE_LENGTH)
+            confirm = self.value(info, values["confirm"])
+            if confirm is not None and hold is None and "hold" in values:
+                self.report(
+                    values["confirm"].start_mark,
+                    f"{path}.confirm",
+                    f"a step held {UNTIL_TOLD!r} ends with `hermsd program next`, never "
+                    "waits (give the hold a time, or leave confirm out)",
+                )
+        if len(self.problems) > before or name is None or setpoint is None:
+            return None
+        return Step(str(name), float(setpoint), hold, ramp, confirm)
+
+    def hold(self, path: str, node: yaml.Node) -> float | None:
+        """Seconds, or None for 'until told' (a wrong value is reported, and None)."""
+        expected = (
+            f"a duration such as 90s, 60m or 1h30m (at most {MAX_HOLD_S / 3600:g} h), "
+            f"or {UNTIL_TOLD!r}"
+        )
+        info = _field(path, str, "60m", nullable=False)
+        if isinstance(node, yaml.ScalarNode) and node.style is None:
+            try:
+                plain = config_module._plain_value(node.value)
+            except config_module._TooLong:
+                plain = None
+            if isinstance(plain, int | float) and not isinstance(plain, bool):
+                text: object = plain
+            else:
+                text = self.value(info, node)
+        else:
+            text = self.value(info, node)
+        if text is None:
+            return None
+        if text == UNTIL_TOLD:
+            return None
+        try:
+            seconds = parse_duration(text)  # type: ignore[arg-type]
+        except ValueError:
+            seconds = -1.0
+        if not 0.0 <= seconds <= MAX_HOLD_S:
+            self.report(node.start_mark, path, f"{text!r} is not a hold ({expected})")
+        return seconds
+
+
+_REQUIRED = {
+    "name": f"text of 1 to {NAME_LENGTH} characters, unique in the program",
+    "setpoint": "°C, e.g. 66",
+    "hold": f"a duration such as 60m, or {UNTIL_TOLD!r}",
+}
+
+
+def parse(text: str, filename: str = "<program>") -> Program:
+    """The program a YAML text describes; ProgramError lists everything wrong with it."""
+    reader = _Reader(filename)
+    try:
+        root = config_module._root(text, filename)
+    except ConfigError as error:
+        raise ProgramError(error.problems) from None
+    program = reader.program(root, Path(filename).stem[:NAME_LENGTH] or "program")
+    if reader.problems or program is None:
+        problems = reader.problems or [Problem(filename, 1, 1, "", "not a program")]
+        raise ProgramError(sorted(problems, key=lambda p: (p.line, p.column)))
+    return program
+
+
+def load(path: str | os.PathLike[str]) -> Program:
+    """The program in a file; ProgramError (never OSError) when it cannot be read or used."""
+    filename = os.fspath(path)
+    try:
+        text = config_module._read_text(filename)
+    except ConfigError as error:
+        hint = ", or copy config/hermsd.yaml there"  # the config's advice, not a program's
+        problems = [p._replace(message=p.message.replace(hint, "")) for p in error.problems]
+        raise ProgramError(problems) from None
+    return parse(text, filename)
+
+
+def to_data(program: Program) -> dict[str, Any]:
+    """The program as plain JSON-able data (what the socket carries and the state keeps)."""
+    return {
+        "name": program.name,
+        "ready_by": program.ready_by,
+        "steps": [
+            {
+                "name": step.name,
+                "setpoint": step.setpoint,
+                "hold": UNTIL_TOLD if step.hold is None else step.hold,
+                "ramp": step.ramp,
+                "confirm": step.confirm,
+            }
+            for step in program.steps
+        ],
+    }
+
+
+def from_data(data: Any, source: str = "<program>") -> Program:
+    """The program `to_data` made, checked exactly as a file is (ProgramError if it is not)."""
+    if not isinstance(data, dict):
+        raise ProgramError([Problem(source, 0, 0, "", "a program is an object with steps")])
+    cleaned = {key: value for key, value in data.items() if value is not None}
+    if isinstance(cleaned.get("steps"), list):
+        cleaned["steps"] = [
+            {k: v for k, v in step.items() if v is not None} if isinstance(step, dict) else step
+            for step in cleaned["steps"]
+        ]
+    return parse(config_module._yaml_text(cleaned), source)
+
+
+def describe_step(step: Step) -> str:
+    """'Saccharification: 66 °C, hold 60 min, ramp 1 °C/min, then waits for: Mash in'."""
+    hold = UNTIL_TOLD if step.hold is None else f"hold {step.hold / 60.0:g} min"
+    words = f"{step.name}: {step.setpoint:g} °C, {hold}"
+    if step.ramp is not None:
+        words += f", ramp {step.ramp:g} °C/min"
+    if step.confirm is not None:
+        words += f", then waits for: {step.confirm}"
+    return words
+
+
+def one_line(error: ConfigError) -> str:
+    """Every problem of `error` on one line (for the socket's reply)."""
+    return "; ".join(
+        f"{problem.key_path}: {problem.message}" if problem.key_path else problem.message
+        for problem in error.problems
+    )

@@ -1,0 +1,354 @@
+"""The mash program as a pure state machine: time and temperature in, setpoint and events out.
+
+Nothing here reads a clock. The daemon calls `Runner.period` once a control period with the
+period's monotonic time, its PV and (while a `ready_by` program waits) the heat-up time the
+tun's model gives from that PV; operator commands are methods. The rules:
+
+- A step starts by moving the setpoint to its own: at once, or by its `ramp` (°C/min, from
+  the previous step's setpoint, or from the PV for the first step). It is *reached* at the
+  first period whose PV is within ±BAND of the step's setpoint (after the ramp).
+- The hold counts, from then on, the time of every period whose PV is within ±BAND of the
+  setpoint, while the program is not paused: time out of the band, paused, with no PV (a
+  sensor fault), or while the daemon was not running (a crash, a restart) does not count.
+  So a rest is always its full length at temperature, and a restart resumes it with the time
+  left it had at the last period before (the progress is stored every period).
+- At the end of the hold a step with `confirm` waits, holding its setpoint, for `confirm()`;
+  a step held "until told" holds until `next()`. After the last step the program is done and
+  goes on holding the last setpoint until it is stopped.
+- Pause: the setpoint stays where it is (a ramp stops), the hold time stops; resume goes on.
+- `ready_by`: the program is *scheduled* (no setpoint: the daemon keeps the heater off) until
+  the heat-up time from the current PV, by the tun's model, reaches the time left to
+  `ready_by` (READY_MARGIN longer, but for its last `commit_s`, 1.2 dead times). Then, until
+  the first step is reached, it is judged again every period with the heat already on its
+  way counted: while the water is ahead (the tun heats faster than its model), the setpoint
+  holds the water where it is, else it is the step's; within `commit_s` of the band it no
+  longer holds back. So the water rides the latest full-power approach down to the moment
+  asked for: a tun up to READY_MARGIN slower than its model still arrives on time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from hermsd.metrics import BAND
+from hermsd.pid import PlantModel
+from hermsd.program.model import Program, Step
+
+READY_MARGIN = 0.2
+"""A `ready_by` heat-up starts this much (of its length by the model, but for the last
+stretch at full power anyway) earlier than the model says it needs: a tun up to 20 % slower
+than its model is still on time."""
+PHASES = ("pending", "scheduled", "heating", "ramping", "holding", "waiting", "done")
+"""`pending`: started, its first step begins at the next period (with that period's PV)."""
+ACTIONS = ("next", "pause", "resume", "stop")
+
+
+class Refused(ValueError):
+    """A command that does not apply in the program's state; the message says why."""
+
+
+@dataclass(frozen=True, slots=True)
+class ProgramEvent:
+    """One program event, as the log's /hermsd/program topic keeps it (plus its words)."""
+
+    event: str
+    program: str
+    step: int | None
+    name: str | None
+    setpoint: float | None
+    message: str | None
+    text: str
+
+
+@dataclass(slots=True)
+class Progress:
+    """Where a program is: all a restart needs to go on (kept in the state directory)."""
+
+    index: int = 0
+    phase: str = "heating"
+    paused: bool = False
+    reached: bool = False
+    held_s: float = 0.0
+    setpoint: float | None = None  # the program's setpoint in force (a ramp's position)
+    ready_at_ns: int | None = None  # scheduled: wall-clock time the first step is due (ns)
+    events: list[ProgramEvent] = field(default_factory=list)  # since last taken
+
+
+def with_margin(lead_s: float, commit_s: float) -> float:
+    """A `ready_by` heat-up's time by the model, READY_MARGIN longer beyond `commit_s`."""
+    return lead_s + READY_MARGIN * max(0.0, lead_s - commit_s)
+
+
+def heat_up_s(model: PlantModel, output: float, pv: float, target: float) -> float | None:
+    """Seconds of `output` % from now until the sensor reads `target`, by the FOPTD model
+    (None: the model never gets there). The sensor follows y(t) = Ta + K·u + e^(−t/τ)·
+    (y0 − Ta − K·u·e^(θ/τ)) once the dead time θ has passed."""
+    if pv >= target:
+        return 0.0
+    gain_u = model.gain * output
+    reach = model.ambient + gain_u - target
+    start = gain_u * math.exp(model.dead_time / model.tau) - (pv - model.ambient)
+    if reach <= 0.0 or start <= 0.0:
+        return None
+    return max(model.dead_time, model.tau * math.log(start / reach))
+
+
+class Runner:
+    """One program's progress, driven period by period."""
+
+    def __init__(self, program: Program, progress: Progress, *, max_step_s: float) -> None:
+        self.program = program
+        self.progress = progress
+        self._max_step_s = max_step_s  # the most one period may count (a stalled loop: less)
+        self._last_t: float | None = None  # nothing counts from before a restart
+        self._full_since: float | None = None  # a ready_by heat-up at the step's setpoint since
+
+    @classmethod
+    def start(
+        cls, program: Program, *, max_step_s: float, ready_at_ns: int | None = None
+    ) -> Runner:
+        """A new run: scheduled until `ready_at_ns` is near, else heating from the next period."""
+        runner = cls(program, Progress(), max_step_s=max_step_s)
+        p = runner.progress
+        what = f"program {program.name!r} started ({len(program.steps)} steps)"
+        runner._emit("started", what, step=None)
+        if ready_at_ns is not None:
+            p.phase, p.ready_at_ns = "scheduled", ready_at_ns
+        else:
+            p.phase = "pending"
+        return runner
+
+    # -- what it says -------------------------------------------------------------------
+
+    @property
+    def step(self) -> Step:
+        return self.program.steps[min(self.progress.index, len(self.program.steps) - 1)]
+
+    @property
+    def state(self) -> str:
+        """One of scheduled, heating, ramping, holding, waiting, paused, done."""
+        p = self.progress
+        return "paused" if p.paused else ("heating" if p.phase == "pending" else p.phase)
+
+    @property
+    def setpoint(self) -> float | None:
+        """The setpoint the program asks for now; None while scheduled (heater off)."""
+        return self.progress.setpoint
+
+    def time_left_s(self) -> float | None:
+        """Of this step's hold; None until reached, or when held until told."""
+        p = self.progress
+        if p.phase == "waiting":
+            return 0.0
+        if p.phase != "holding" or not p.reached or self.step.hold is None:
+            return None
+        return max(0.0, self.step.hold - p.held_s)
+
+    def next_name(self) -> str | None:
+        index = self.progress.index + 1
+        done = self.progress.phase == "done"
+        return None if done or index >= len(self.program.steps) else self.program.steps[index].name
+
+    @property
+    def riding_full(self) -> bool:
+        """Whether a `ready_by` heat-up asks for the step's setpoint (full power) now."""
+        return self._full_since is not None
+
+    def take_events(self) -> list[ProgramEvent]:
+        events, self.progress.events = self.progress.events, []
+        return events
+
+    # -- one control period -------------------------------------------------------------
+
+    def period(
+        self,
+        t: float,
+        pv: float | None,
+        wall_ns: int,
+        lead_s: float | None = None,
+        commit_s: float = 0.0,
+    ) -> None:
+        """Advance by one period at `t` with its PV; `lead_s`: the heat-up time from this PV
+        to the first step, the heat already on its way counted (read until it is reached,
+        when the program has a `ready_by`); within `commit_s` of it the heat-up no longer
+        holds back (heat on its way would carry a held water into the band early)."""
+        dt = 0.0 if self._last_t is None else min(max(0.0, t - self._last_t), self._max_step_s)
+        self._last_t = t
+        p = self.progress
+        if p.paused or p.phase == "done":
+            return
+        if p.phase == "scheduled":
+            assert p.ready_at_ns is not None
+            if not self._due(wall_ns, pv, lead_s, commit_s):
+                return
+            self._begin(0, pv)
+        elif p.phase == "pending":
+            self._begin(0, pv)
+        step = self.step
+        if p.phase == "ramping":
+            assert p.setpoint is not None
+            assert step.ramp is not None
+            move = step.ramp / 60.0 * dt
+            gap = step.setpoint - p.setpoint
+            if abs(gap) <= move:
+                p.setpoint, p.phase = step.setpoint, "heating"
+            else:
+                p.setpoint += math.copysign(move, gap)
+        in_band = pv is not None and abs(pv - step.setpoint) <= BAND
+        if p.phase == "heating" and p.ready_at_ns is not None and not in_band:
+            self._ride(t, wall_ns, pv, lead_s, commit_s)
+        if p.phase == "heating" and in_band:
+            p.phase, p.reached, p.ready_at_ns = "holding", True, None
+            p.setpoint, self._full_since = step.setpoint, None
+            hold = "until told" if step.hold is None else _duration(step.hold)
+            self._emit(
+                "step_reached", f"step {step.name!r} reached {step.setpoint:g} °C; holding {hold}"
+            )
+        elif p.phase == "holding" and in_band:
+            p.held_s += dt
+        if p.phase == "holding" and step.hold is not None and p.held_s >= step.hold:
+            self._emit("step_done", f"step {step.name!r} done: held {_duration(p.held_s)}")
+            if step.confirm is not None:
+                p.phase = "waiting"
+                self._emit(
+                    "waiting",
+                    f"step {step.name!r} waits for the brewer: {step.confirm} "
+                    "(`hermsd confirm` when done)",
+                    message=step.confirm,
+                )
+            else:
+                self._advance(pv)
+
+    def _due(self, wall_ns: int, pv: float | None, lead_s: float | None, commit_s: float) -> bool:
+        """Whether a `ready_by` heat-up must be at full power now to be on time: the model's
+        time, and READY_MARGIN of the part of it beyond `commit_s` (the last stretch is at
+        full power anyway, so a margin there would only make it early)."""
+        ready = self.progress.ready_at_ns
+        assert ready is not None
+        if pv is None or lead_s is None:
+            return wall_ns >= ready  # no PV, or a model that never gets there: heat
+        return wall_ns + with_margin(lead_s, commit_s) * 1e9 >= ready
+
+    def _ride(
+        self, t: float, wall_ns: int, pv: float | None, lead_s: float | None, commit_s: float
+    ) -> None:
+        """A `ready_by` heat-up: the step's setpoint when due, else hold the water there
+        (a band's width below the band at most, so that holding it never reaches it)."""
+        p, target = self.progress, self.step.setpoint
+        committed = lead_s is not None and lead_s <= commit_s
+        if committed or self._due(wall_ns, pv, lead_s, commit_s):
+            if self._full_since is None:
+                p.setpoint, self._full_since = target, t
+        elif pv is not None and (self._full_since is not None or p.setpoint is None):
+            p.setpoint, self._full_since = min(pv, target - 2.0 * BAND), None
+
+    def _begin(self, index: int, pv: float | None) -> None:
+        """Start step `index`: its setpoint at once, or a ramp from where the setpoint is."""
+        p = self.progress
+        if index > 0 or self.step.ramp is not None:
+            p.ready_at_ns = None  # only the first step is timed, and only without a ramp
+        p.index, p.reached, p.held_s = index, False, 0.0
+        step = self.step
+        origin = p.setpoint if p.setpoint is not None else pv
+        if step.ramp is not None and origin is not None and origin != step.setpoint:
+            p.phase, p.setpoint = "ramping", origin
+            how = f"ramping at {step.ramp:g} °C/min from {origin:.1f} °C"
+        else:
+            p.phase, p.setpoint = "heating", step.setpoint
+            how = "at once"
+        hold = "until told" if step.hold is None else _duration(step.hold)
+        self._emit(
+            "step_started",
+            f"step {index + 1}/{len(self.program.steps)} {step.name!r}: {step.setpoint:g} °C "
+            f"({how}), hold {hold}",
+        )
+
+    def _advance(self, pv: float | None) -> None:
+        p = self.progress
+        if p.index + 1 >= len(self.program.steps):
+            p.phase = "done"
+            self._emit(
+                "finished",
+                f"program {self.program.name!r} finished; holding {p.setpoint:g} °C "
+                "until `hermsd program stop`",
+                step=None,
+            )
+            return
+        self._begin(p.index + 1, pv)
+
+    # -- commands -----------------------------------------------------------------------
+
+    def check(self, action: str) -> str | None:
+        """Why `action` (next, pause, resume, stop, confirm) does not apply now; None if it does."""
+        p = self.progress
+        if action == "stop":
+            return None
+        if p.phase == "done":
+            return (
+                f"the program is done (`hermsd program stop` ends it; {action} has nothing to do)"
+            )
+        if action == "resume":
+            return None if p.paused else f"the program is not paused (it is {self.state})"
+        if p.paused:
+            return f"the program is paused (`hermsd program resume` first; {action} waits)"
+        if p.phase in ("scheduled", "pending") and action in ("next", "pause"):
+            return (
+                "the program has not started heating yet (`hermsd program stop` cancels it; "
+                "start it again without --ready-by to heat now)"
+            )
+        if action == "confirm" and p.phase != "waiting":
+            return f"nothing waits for a confirmation (the step is {self.state})"
+        return None
+
+    def command(self, action: str, pv: float | None) -> None:
+        """Apply `action`; Refused (changing nothing) when it does not apply now."""
+        why = self.check(action)
+        if why is not None:
+            raise Refused(why)
+        p = self.progress
+        step = self.step
+        if action == "pause":
+            p.paused = True
+            self._emit(
+                "paused", f"program paused at step {step.name!r}: setpoint held, hold time stopped"
+            )
+        elif action == "resume":
+            p.paused = False
+            self._emit("resumed", f"program resumed at step {step.name!r}")
+        elif action == "confirm":
+            self._emit(
+                "confirmed", f"step {step.name!r} confirmed: {step.confirm}", message=step.confirm
+            )
+            self._advance(pv)
+        elif action == "next":
+            self._emit("skipped", f"step {step.name!r} ended by `program next`")
+            self._advance(pv)
+        else:
+            self._emit("stopped", f"program {self.program.name!r} stopped", step=None)
+
+    def _emit(
+        self, event: str, text: str, *, step: bool | int | None = True, message: str | None = None
+    ) -> None:
+        p = self.progress
+        index = p.index if step is True else None
+        self.progress.events.append(
+            ProgramEvent(
+                event,
+                self.program.name,
+                index,
+                None if index is None else self.program.steps[index].name,
+                None if index is None else self.program.steps[index].setpoint,
+                message,
+                text,
+            )
+        )
+
+
+def _duration(seconds: float) -> str:
+    """90 s → '1m30s', 3600 → '1h'."""
+    whole = round(seconds)
+    hours, rest = divmod(whole, 3600)
+    minutes, secs = divmod(rest, 60)
+    parts = [f"{v}{u}" for v, u in ((hours, "h"), (minutes, "m"), (secs, "s")) if v]
+    return "".join(parts) or "0s"

@@ -1,0 +1,341 @@
+"""The web page's HTTP side (Starlette): the page, its data, logins, and changes.
+
+Routes:
+    GET  /                 the page (static files under /static/, shipped in the package)
+    GET  /api/session      whether this browser is logged in, its CSRF token, what it may do
+    POST /api/login        {"password": "..."}: a session cookie (rate-limited, see auth.py)
+    POST /api/logout
+    GET  /api/history      the last 24 h as columns (t, pv, setpoint, output) and the clock
+    GET  /api/events       server-sent events: the status of each new period
+    POST /api/command      one change, forwarded to the daemon's control socket:
+                           {"cmd": "set", "setpoint": 72}, {"cmd": "set", "mode": "manual",
+                           "output": 40}, {"cmd": "set", "mode": "auto"},
+                           {"cmd": "reset-alarm"}, {"cmd": "confirm"},
+                           {"cmd": "program", "action": "next"|"pause"|"resume"|"stop"}
+
+Every POST needs a JSON body (a form from another site cannot send one without the
+browser asking this server first, which it refuses), an Origin, if sent, naming this host,
+and, but for the login, the session's CSRF token in X-CSRF-Token. Seeing the tun needs a
+login unless `web.read_only_view` is on. A change the daemon refuses is answered 422 with
+its one-line reason; the daemon changed nothing.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.middleware import Middleware
+from starlette.middleware.gzip import GZipMiddleware
+from starlette.requests import Request
+from starlette.responses import JSONResponse, Response, StreamingResponse
+from starlette.routing import Route
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from hermsd.control.protocol import (
+    History,
+    ProtocolError,
+    Status,
+    parse_request,
+    request_message,
+)
+from hermsd.web.auth import LoginLimiter, Session, Sessions, csrf_matches
+from hermsd.web.hub import Hub, TooManyPages, page_status
+from hermsd.web.passwords import PasswordHash, verify_password
+from hermsd.web.socket_client import DaemonUnavailable, ask
+
+COOKIE = "hermsd_session"
+MAX_BODY = 4096  # bytes of a POST body: a command is under 100
+KEEPALIVE_S = 15.0  # a comment line on an idle event stream, so proxies keep it open
+PROGRAM_ACTIONS = ("next", "pause", "resume", "stop")
+STATIC = {
+    "app.js": "text/javascript; charset=utf-8",
+    "app.css": "text/css; charset=utf-8",
+    "uPlot.iife.min.js": "text/javascript; charset=utf-8",
+    "uPlot.min.css": "text/css; charset=utf-8",
+    "uPlot.LICENSE": "text/plain; charset=utf-8",
+}
+SECURITY_HEADERS = [
+    (
+        b"content-security-policy",
+        b"default-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; "
+        b"frame-ancestors 'none'; form-action 'self'; base-uri 'none'",
+    ),
+    (b"x-content-type-options", b"nosniff"),
+    (b"referrer-policy", b"no-referrer"),
+    (b"x-frame-options", b"DENY"),
+    (b"cache-control", b"no-store"),
+]
+
+
+@dataclass(frozen=True, slots=True)
+class WebSettings:
+    socket: Path
+    password: PasswordHash | None  # None: nobody can log in, nothing can be changed
+    session_lifetime: float  # s without use
+    read_only_view: bool  # whether seeing the tun needs no login
+    poll: float | None = None  # s between status polls; None: from the control period
+
+
+class BadInput(ValueError):
+    """A request the page should not have sent; the message says what is wrong."""
+
+
+class _SecurityHeaders:
+    """Adds SECURITY_HEADERS to every response (plain ASGI: streams stay streams)."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+
+        async def send_with_headers(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                message["headers"] = [*message.get("headers", []), *SECURITY_HEADERS]
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)
+
+
+def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotonic) -> Starlette:
+    """The web application, polling the daemon at `settings.socket` while it runs."""
+    hub = Hub(settings.socket, settings.poll)
+    sessions = Sessions(settings.session_lifetime)
+    limiter = LoginLimiter()
+    static = {
+        name: (resources.files("hermsd.web").joinpath("static", name).read_bytes(), kind)
+        for name, kind in STATIC.items()
+    }
+    page = resources.files("hermsd.web").joinpath("static", "index.html").read_bytes()
+
+    def session_of(request: Request) -> tuple[str | None, Session | None]:
+        sid = request.cookies.get(COOKIE)
+        return sid, sessions.find(sid, clock())
+
+    def may_view(request: Request) -> bool:
+        return settings.read_only_view or session_of(request)[1] is not None
+
+    async def index(request: Request) -> Response:
+        return Response(page, media_type="text/html; charset=utf-8")
+
+    async def static_file(request: Request) -> Response:
+        name = request.path_params["name"]
+        if name not in static:
+            return Response("not found", status_code=404, media_type="text/plain")
+        body, kind = static[name]
+        response = Response(body, media_type=kind)
+        response.headers["cache-control"] = "public, max-age=3600"
+        return response
+
+    async def session_info(request: Request) -> Response:
+        _sid, session = session_of(request)
+        return _json(_session_body(session))
+
+    def _session_body(session: Session | None) -> dict[str, Any]:
+        return {
+            "logged_in": session is not None,
+            "csrf": None if session is None else session.csrf,
+            "can_log_in": settings.password is not None,
+            "view_open": settings.read_only_view,
+        }
+
+    async def login(request: Request) -> Response:
+        data = await _json_body(request)
+        if settings.password is None:
+            return _error(403, "no password is set: the page only shows (web.password_hash)")
+        password = data.get("password")
+        if not isinstance(password, str) or not 0 < len(password) <= 1024:
+            return _error(400, "password: expected text of 1 to 1024 characters")
+        client = request.client.host if request.client else "unknown"
+        wait = limiter.attempt(client, clock())
+        if wait > 0:
+            response = _error(429, f"too many login attempts: try again in {wait:.0f} s")
+            response.headers["retry-after"] = str(max(1, round(wait)))
+            return response
+        stored = settings.password
+        if not await run_in_threadpool(verify_password, password, stored):
+            return _error(401, "wrong password")
+        limiter.succeeded(client, clock())
+        old, _ = session_of(request)
+        sessions.end(old)
+        sid, session = sessions.create(clock())
+        response = _json(_session_body(session))
+        response.set_cookie(  # no max-age: the server ends it after the lifetime without use
+            COOKIE,
+            sid,
+            httponly=True,
+            samesite="strict",
+            secure=request.url.scheme == "https",
+            path="/",
+        )
+        return response
+
+    async def logout(request: Request) -> Response:
+        await _json_body(request)
+        sid, session = session_of(request)
+        if session is None or not csrf_matches(session, request.headers.get("x-csrf-token")):
+            return _error(403, "not logged in")
+        sessions.end(sid)
+        response = _json(_session_body(None))
+        response.delete_cookie(COOKIE, path="/", httponly=True, samesite="strict")
+        return response
+
+    async def history(request: Request) -> Response:
+        if not may_view(request):
+            return _error(401, "log in to see the tun")
+        plain, gzipped = hub.history_body()
+        if "gzip" not in request.headers.get("accept-encoding", ""):
+            return Response(plain, media_type="application/json")
+        response = Response(gzipped, media_type="application/json")
+        response.headers["content-encoding"] = "gzip"  # the middleware leaves it be
+        response.headers["vary"] = "Accept-Encoding"
+        return response
+
+    async def events(request: Request) -> Response:
+        if not may_view(request):
+            return _error(401, "log in to see the tun")
+        since_text = request.query_params.get("since")
+        try:
+            since = None if since_text is None else float(since_text)
+        except ValueError:
+            return _error(400, f"since: expected a number, got {since_text!r}")
+        try:
+            queue = hub.open_page(since)
+        except TooManyPages as error:
+            return _error(503, str(error))
+        return StreamingResponse(
+            _stream(hub, queue),
+            media_type="text/event-stream",
+            headers={"x-accel-buffering": "no"},
+        )
+
+    async def command(request: Request) -> Response:
+        data = await _json_body(request)
+        _sid, session = session_of(request)
+        if session is None:
+            return _error(401, "log in to change anything")
+        if not csrf_matches(session, request.headers.get("x-csrf-token")):
+            return _error(403, "the page's security token is missing or old: reload the page")
+        message = command_message(data)
+        try:
+            reply = await ask(settings.socket, message)
+        except DaemonUnavailable as error:
+            return _error(503, str(error))
+        if not reply["ok"]:
+            return _error(422, str(reply.get("error", "refused")))
+        hub.poke()
+        return _json({"ok": True, "status": page_status(reply)})
+
+    async def bad_input(request: Request, error: Exception) -> Response:
+        return _error(400, str(error))
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: Starlette) -> AsyncIterator[None]:
+        task = asyncio.create_task(hub.run())
+        try:
+            yield
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+    app = Starlette(
+        routes=[
+            Route("/", index),
+            Route("/static/{name}", static_file),
+            Route("/favicon.ico", lambda request: Response(status_code=204)),
+            Route("/api/session", session_info),
+            Route("/api/login", login, methods=["POST"]),
+            Route("/api/logout", logout, methods=["POST"]),
+            Route("/api/history", history),
+            Route("/api/events", events),
+            Route("/api/command", command, methods=["POST"]),
+        ],
+        middleware=[Middleware(_SecurityHeaders), Middleware(GZipMiddleware, minimum_size=1000)],
+        exception_handlers={BadInput: bad_input},
+        lifespan=lifespan,
+    )
+    app.state.hub = hub
+    return app
+
+
+def command_message(data: dict[str, Any]) -> dict[str, Any]:
+    """The socket request for one change from the page; BadInput for anything else.
+
+    `set` and `reset-alarm` are read by the protocol's own parser (so the same rules, and
+    messages, as for `hermsd set`); the program's commands pass to the daemon, which checks
+    them, once their shape is one the page sends."""
+    command = data.get("cmd")
+    if command == "confirm" and set(data) == {"cmd"}:
+        return {"cmd": "confirm"}
+    if command == "program":
+        action = data.get("action")
+        if set(data) != {"cmd", "action"} or action not in PROGRAM_ACTIONS:
+            raise BadInput(f"program: action must be one of {', '.join(PROGRAM_ACTIONS)}")
+        return {"cmd": "program", "action": action}
+    try:
+        request = parse_request(json.dumps({**data, "v": 1}).encode())
+    except ProtocolError as error:
+        raise BadInput(str(error)) from None
+    if isinstance(request, Status | History):
+        raise BadInput(f"{command} changes nothing: not a command for this address")
+    message = request_message(request)
+    del message["v"]
+    return message
+
+
+async def _json_body(request: Request) -> dict[str, Any]:
+    """The POST body as a JSON object; BadInput if it is not one, or is from another site."""
+    kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if kind != "application/json":
+        raise BadInput("expected a JSON body (Content-Type: application/json)")
+    origin = request.headers.get("origin")
+    if origin is not None and origin.split("://", 1)[-1] != request.headers.get("host"):
+        raise BadInput("a change must come from this page (the Origin is another site)")
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > MAX_BODY:
+            raise BadInput(f"the request is longer than {MAX_BODY} bytes")
+    try:
+        data = json.loads(body)
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        raise BadInput("the request is not JSON") from None
+    if not isinstance(data, dict):
+        raise BadInput("expected a JSON object")
+    return data
+
+
+async def _stream(hub: Hub, queue: asyncio.Queue[bytes | None]) -> AsyncIterator[bytes]:
+    try:
+        while True:
+            try:
+                event = await asyncio.wait_for(queue.get(), KEEPALIVE_S)
+            except TimeoutError:
+                yield b": keepalive\n\n"
+                continue
+            if event is None:
+                return
+            yield event
+    finally:
+        hub.close_page(queue)
+
+
+def _json(body: dict[str, Any], status: int = 200) -> JSONResponse:
+    return JSONResponse(body, status_code=status)
+
+
+def _error(status: int, message: str) -> JSONResponse:
+    return _json({"ok": False, "error": message}, status)

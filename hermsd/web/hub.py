@@ -1,0 +1,209 @@
+"""What the web server knows of the daemon: its last status and a mirror of its history.
+
+One task asks the daemon for `status` every `poll` seconds (a fifth of the control period,
+0.2 to 1 s, so a new period reaches the pages well within one period) and, when a new
+period has run, for the history rows since the last it has (`history`, paged), so the
+mirror has no gap however a poll was late. Each new period is pushed to every open page as
+one server-sent event. The pages' chart loads the mirror once (`history_body`, encoded once
+per period however many pages ask); the daemon is asked for no more than one page of
+history a period after the first load.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import gzip
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+from hermsd.control.history import KEPT_SECONDS
+from hermsd.web.socket_client import DaemonUnavailable, ask
+
+log = logging.getLogger("hermsd")
+
+PAGE_FIELDS = (
+    "tun",
+    "t",
+    "pv",
+    "setpoint",
+    "output",
+    "applied",
+    "mode",
+    "manual_output",
+    "state",
+    "alarms",
+    "heater_allowed",
+    "program",
+)
+"""What the page shows of a status (not the limits, model and learned texts: 2 kB a period)."""
+QUEUE_EVENTS = 32  # events a page may fall behind by before it is dropped (it reconnects)
+MAX_PAGES = 32  # open event streams at once
+
+
+class TooManyPages(Exception):
+    """MAX_PAGES event streams are open already."""
+
+
+class Hub:
+    """The daemon's state as the pages see it, and the event streams to them."""
+
+    def __init__(self, socket: Path, poll: float | None = None) -> None:
+        self.socket = socket
+        self.poll = poll
+        self.status: dict[str, Any] | None = None
+        self.error: str | None = "connecting to hermsd"
+        self.offset = 0.0  # wall-clock s minus the daemon's t, at the last new period
+        self.period: float | None = None
+        # t, pv (None: unknown), setpoint, output: the chart's columns
+        self._columns: tuple[list[Any], ...] = ([], [], [], [])
+        self._body: tuple[float | None, bytes, bytes] | None = None  # last t, JSON, gzipped
+        self._pages: set[asyncio.Queue[bytes | None]] = set()
+        self._poke = asyncio.Event()
+
+    # -- polling ------------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Poll the daemon until cancelled."""
+        while True:
+            await self.refresh()
+            self._poke.clear()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._poke.wait(), self._interval())
+
+    def poke(self) -> None:
+        """Poll now (a command was just applied)."""
+        self._poke.set()
+
+    def _interval(self) -> float:
+        if self.poll is not None:
+            return self.poll
+        return 1.0 if self.period is None else min(1.0, max(0.2, self.period / 5.0))
+
+    async def refresh(self) -> None:
+        """Ask for the status; on a new period, catch the mirror up and push the period."""
+        try:
+            status = await ask(self.socket, {"cmd": "status"})
+            if not status["ok"]:
+                raise DaemonUnavailable(str(status.get("error", "hermsd refused status")))
+            if self.status is not None and status["t"] == self.status["t"]:
+                return
+            restarted, rows = await self._rows_since_mirror(status["t"])
+        except DaemonUnavailable as error:
+            if self.error != str(error):
+                self.error = str(error)
+                log.warning("web: %s", error)
+                self._push({"error": self.error})
+            return
+        self._add(restarted, rows, status["t"])
+        self.error = None
+        self.status = page_status(status)
+        self.offset = time.time() - float(status["t"])
+        self._push({"status": self.status, "rows": rows, "offset": self.offset})
+
+    async def _rows_since_mirror(self, latest: float) -> tuple[bool, list[list[Any]]]:
+        """Whether the daemon restarted (its history is new), and the rows the mirror lacks
+        (all kept ones after a restart). The mirror itself is not touched here: it changes
+        with the status, between two awaits, so a page never sees one without the other."""
+        times = self._columns[0]
+        restarted = bool(times) and latest < times[-1]
+        since = None if restarted or not times else times[-1]
+        new: list[list[Any]] = []
+        more = True
+        while more:
+            page = await ask(self.socket, {"cmd": "history", "since": since, "limit": 2000})
+            if not page["ok"]:
+                raise DaemonUnavailable(str(page.get("error", "hermsd refused history")))
+            self.period = float(page["period"])
+            more = bool(page["more"]) and bool(page["rows"])
+            for t, pv, setpoint, output, _applied in page["rows"]:
+                if t > latest:  # a period that ran after the status: it comes with its own
+                    return restarted, new
+                new.append([t, pv, setpoint, output])
+                since = t
+        return restarted, new
+
+    def _add(self, restarted: bool, rows: list[list[Any]], latest: float) -> None:
+        if restarted:
+            for column in self._columns:
+                column.clear()
+        for row in rows:
+            for column, value in zip(self._columns, row, strict=True):
+                column.append(value)
+        self._trim(latest)
+
+    def _trim(self, latest: float) -> None:
+        times = self._columns[0]
+        cut = 0
+        while cut < len(times) and times[cut] <= latest - KEPT_SECONDS:
+            cut += 1
+        if cut:
+            for column in self._columns:
+                del column[:cut]
+
+    # -- the pages ------------------------------------------------------------------------------
+
+    def history_body(self) -> tuple[bytes, bytes]:
+        """The mirror as JSON columns (t, pv, setpoint, output), plain and gzipped, made
+        once per period however many pages load it (a day is 430 kB, 10× less gzipped)."""
+        times = self._columns[0]
+        last = times[-1] if times else None
+        if self._body is None or self._body[0] != last:
+            t, pv, setpoint, output = self._columns
+            body = {
+                "period": self.period,
+                "offset": self.offset,
+                "t": t,
+                "pv": pv,
+                "setpoint": setpoint,
+                "output": output,
+            }
+            encoded = json.dumps(body, separators=(",", ":")).encode()
+            self._body = (last, encoded, gzip.compress(encoded, compresslevel=6))
+        return self._body[1], self._body[2]
+
+    def rows_after(self, since: float) -> list[list[Any]]:
+        """The mirrored rows after `since` (a page that reconnects)."""
+        t, pv, setpoint, output = self._columns
+        start = next((i for i in range(len(t) - 1, -1, -1) if t[i] <= since), -1) + 1
+        return [[t[i], pv[i], setpoint[i], output[i]] for i in range(start, len(t))]
+
+    def open_page(self, since: float | None) -> asyncio.Queue[bytes | None]:
+        """A queue of this page's events, starting with the state now."""
+        if len(self._pages) >= MAX_PAGES:
+            raise TooManyPages(f"{MAX_PAGES} pages are open already")
+        queue: asyncio.Queue[bytes | None] = asyncio.Queue(QUEUE_EVENTS)
+        first: dict[str, Any]
+        if self.status is None:
+            first = {"error": self.error}
+        else:
+            rows = [] if since is None else self.rows_after(since)
+            first = {"status": self.status, "rows": rows, "offset": self.offset}
+        queue.put_nowait(_event(first))
+        self._pages.add(queue)
+        return queue
+
+    def close_page(self, queue: asyncio.Queue[bytes | None]) -> None:
+        self._pages.discard(queue)
+
+    def _push(self, message: dict[str, Any]) -> None:
+        event = _event(message)
+        for queue in list(self._pages):
+            try:
+                queue.put_nowait(event)
+            except asyncio.QueueFull:  # a page that stopped reading: end its stream
+                self._pages.discard(queue)
+                queue.get_nowait()
+                queue.put_nowait(None)
+
+
+def page_status(status: dict[str, Any]) -> dict[str, Any]:
+    """The fields of a status reply the page shows (`program` only when the daemon has it)."""
+    return {key: status[key] for key in PAGE_FIELDS if key in status}
+
+
+def _event(message: dict[str, Any]) -> bytes:
+    return b"data: " + json.dumps(message, separators=(",", ":")).encode() + b"\n\n"

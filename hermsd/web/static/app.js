@@ -1,0 +1,297 @@
+// hermsd's page: the tun now, its last hours, and the changes a logged-in brewer may make.
+// The server pushes each control period as a server-sent event; a change goes to
+// /api/command with the session's CSRF token, and the daemon's own checks decide.
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+let session = { logged_in: false, csrf: null, can_log_in: false, view_open: false };
+// The chart's columns, in the daemon's seconds (t); x = t + offset (the wall clock).
+const T = [], PV = [], SP = [], OUT = [];
+let offset = 0;
+let rangeHours = 3;
+let chart = null;
+let source = null;
+let viewing = false;
+let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
+
+async function api(path, body) {
+  const options = { credentials: "same-origin" };
+  if (body !== undefined) {
+    options.method = "POST";
+    options.headers = { "Content-Type": "application/json" };
+    if (session.csrf) options.headers["X-CSRF-Token"] = session.csrf;
+    options.body = JSON.stringify(body);
+  }
+  let response;
+  try {
+    response = await fetch(path, options);
+  } catch (error) {
+    return { status: 0, body: { error: "the page's server cannot be reached" } };
+  }
+  let json = {};
+  try { json = await response.json(); } catch (error) { /* not JSON: status says enough */ }
+  return { status: response.status, body: json };
+}
+
+function say(text, kind) {
+  const message = $("message");
+  message.textContent = text;
+  message.className = kind || "";
+}
+
+function fixed(value, digits, unit) {
+  return value === null || value === undefined ? "—" : `${value.toFixed(digits)} ${unit}`;
+}
+
+function duration(seconds) {
+  if (seconds === null || seconds === undefined) return "—";
+  const s = Math.max(0, Math.round(seconds));
+  const h = Math.floor(s / 3600), m = Math.floor((s % 3600) / 60), r = s % 60;
+  return h ? `${h} h ${m} min` : m ? `${m} min ${r} s` : `${r} s`;
+}
+
+function render(status) {
+  window.lastStatus = status;
+  document.body.dataset.t = String(status.t);
+  $("tun").textContent = status.tun;
+  $("pv").textContent = fixed(status.pv, 2, "°C");
+  $("setpoint").textContent = fixed(status.setpoint, 1, "°C");
+  $("output").textContent = fixed(status.output, 0, "%");
+  $("mode").textContent = status.mode === "manual"
+    ? `manual at ${status.manual_output} %` : status.mode;
+  $("state").textContent = status.state;
+  const alarms = status.alarms || [];
+  $("alarm-box").hidden = alarms.length === 0;
+  $("alarms").textContent = alarms.join(", ");
+  renderProgram(status.program);
+  if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
+    $("setpoint-input").placeholder = String(status.setpoint);
+  }
+}
+
+function renderProgram(program) {
+  $("program-box").hidden = !program;
+  if (!program) return;
+  $("program-name").textContent = program.name;
+  $("program-state").textContent = program.state;
+  const step = program.step;
+  $("program-step").textContent = step
+    ? `${step.index + 1} of ${program.steps}: ${step.name}, ${step.setpoint} °C` : "—";
+  $("program-left").textContent = program.state === "scheduled" && program.starts_at
+    ? `starts ${new Date(program.starts_at).toLocaleTimeString()}`
+    : program.time_left_s === null ? "until in band, or told" : duration(program.time_left_s);
+  $("program-next").textContent = program.next || "last step";
+  const waiting = program.state === "waiting";
+  $("program-message").hidden = !waiting;
+  $("program-message").textContent = waiting ? `Waiting: ${program.message || "confirm"}` : "";
+  $("program-confirm").hidden = !waiting;
+  $("program-pause").hidden = program.state === "paused" || program.state === "done";
+  $("program-resume").hidden = program.state !== "paused";
+}
+
+function setConnection(text, live) {
+  $("conn").textContent = text;
+  $("conn").className = live ? "conn live" : "conn";
+}
+
+function columns() {
+  return [T.map((t) => t + offset), PV, SP, OUT];
+}
+
+function makeChart() {
+  const box = $("chart");
+  const options = {
+    width: Math.max(280, box.clientWidth),
+    height: 240,
+    cursor: { drag: { x: false, y: false } },
+    legend: { live: false },
+    scales: {
+      x: { time: true, range: (u, min, max) => [Math.max(min, max - rangeHours * 3600), max] },
+      "%": { range: [0, 100] },
+    },
+    series: [
+      {},
+      { label: "Temperature °C", stroke: "#c62828", width: 2, scale: "°C" },
+      { label: "Setpoint °C", stroke: "#1f5fbf", width: 1.5, dash: [6, 4], scale: "°C" },
+      { label: "Output %", stroke: "#888", width: 1, scale: "%", fill: "rgba(120,120,120,0.12)" },
+    ],
+    axes: [
+      {},
+      { scale: "°C", size: 44 },
+      { scale: "%", side: 1, size: 36, grid: { show: false } },
+    ],
+  };
+  chart = new uPlot(options, columns(), box);
+  performance.mark("hermsd-chart");
+  window.addEventListener("resize", () => chart.setSize({ width: box.clientWidth, height: 240 }));
+}
+
+function addRows(rows) {
+  for (const [t, pv, setpoint, output] of rows) {
+    if (T.length && t <= T[T.length - 1]) continue;
+    T.push(t); PV.push(pv); SP.push(setpoint); OUT.push(output);
+  }
+  const oldest = T.length ? T[T.length - 1] - 24 * 3600 : 0;
+  let cut = 0;
+  while (cut < T.length && T[cut] <= oldest) cut++;
+  if (cut) { T.splice(0, cut); PV.splice(0, cut); SP.splice(0, cut); OUT.splice(0, cut); }
+}
+
+async function loadView() {
+  if (viewing) return;
+  const response = await api("/api/history");
+  if (response.status !== 200) {
+    say(response.body.error || `cannot load the history (HTTP ${response.status})`, "error");
+    return;
+  }
+  viewing = true;
+  const history = response.body;
+  T.length = PV.length = SP.length = OUT.length = 0;
+  T.push(...history.t); PV.push(...history.pv); SP.push(...history.setpoint);
+  OUT.push(...history.output);
+  offset = history.offset;
+  $("view").hidden = false;
+  if (chart) chart.destroy();
+  makeChart();
+  connect();
+}
+
+function connect() {
+  const since = T.length ? `?since=${T[T.length - 1]}` : "";
+  source = new EventSource(`/api/events${since}`);
+  source.onmessage = (event) => onEvent(JSON.parse(event.data));
+  source.onerror = () => {
+    source.close();
+    setConnection("reconnecting…", false);
+    setTimeout(connect, 2000);
+  };
+}
+
+function onEvent(message) {
+  if (message.error) {
+    setConnection(message.error, false);
+    return;
+  }
+  const status = message.status;
+  if (status.t < lastPushedT) { // the daemon restarted: its history is new
+    source.close();
+    viewing = false;
+    lastPushedT = -Infinity;
+    loadView();
+    return;
+  }
+  lastPushedT = status.t;
+  setConnection("live", true);
+  offset = message.offset;
+  addRows(message.rows);
+  render(status);
+  chart.setData(columns());
+}
+
+function updateSessionView() {
+  $("login-form").hidden = session.logged_in || !session.can_log_in;
+  $("changes").hidden = !session.logged_in;
+  for (const button of document.querySelectorAll(".needs-login")) {
+    button.disabled = !session.logged_in;
+  }
+  if (!session.can_log_in && !session.logged_in) {
+    say("Viewing only: no password is set for changes (web.password_hash).");
+  }
+}
+
+async function send(command, what) {
+  say(`${what}…`);
+  const response = await api("/api/command", command);
+  if (response.status === 200) {
+    render(response.body.status);
+    say(`${what}: done`, "ok");
+    return;
+  }
+  if (response.status === 401) {
+    session = { ...session, logged_in: false, csrf: null };
+    updateSessionView();
+  }
+  say(response.body.error || `${what}: failed (HTTP ${response.status})`, "error");
+}
+
+function number(input, name, unit) {
+  const text = input.value.trim();
+  const value = Number(text);
+  if (text === "" || !Number.isFinite(value)) {
+    say(`${name}: enter a number in ${unit}`, "error");
+    return null;
+  }
+  return value;
+}
+
+function wire() {
+  $("login-form").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const response = await api("/api/login", { password: $("password").value });
+    $("password").value = "";
+    if (response.status !== 200) {
+      say(response.body.error || `login failed (HTTP ${response.status})`, "error");
+      return;
+    }
+    session = response.body;
+    updateSessionView();
+    say("Logged in.", "ok");
+    loadView();
+  });
+  $("logout").addEventListener("click", async () => {
+    await api("/api/logout", {});
+    session = { ...session, logged_in: false, csrf: null };
+    updateSessionView();
+    say("Logged out.");
+    if (!session.view_open) window.location.reload();
+  });
+  $("setpoint-form").addEventListener("submit", (event) => {
+    event.preventDefault();
+    const value = number($("setpoint-input"), "setpoint", "°C");
+    if (value !== null) send({ cmd: "set", setpoint: value }, `setpoint ${value} °C`);
+  });
+  $("mode-form").addEventListener("submit", (event) => {
+    event.preventDefault();
+    const mode = $("mode-select").value;
+    const command = { cmd: "set", mode };
+    if (mode === "manual" && $("output-input").value.trim() !== "") {
+      const output = number($("output-input"), "output", "%");
+      if (output === null) return;
+      command.output = output;
+    }
+    send(command, `mode ${mode}`);
+  });
+  $("reset-alarm").addEventListener("click", () => send({ cmd: "reset-alarm" }, "reset alarm"));
+  $("program-confirm").addEventListener("click", () => send({ cmd: "confirm" }, "confirm"));
+  for (const [id, action] of [["program-next-button", "next"], ["program-pause", "pause"],
+                              ["program-resume", "resume"], ["program-stop", "stop"]]) {
+    $(id).addEventListener("click", () => {
+      if (action === "stop" && !window.confirm("Stop the program?")) return;
+      send({ cmd: "program", action }, `program ${action}`);
+    });
+  }
+  for (const button of document.querySelectorAll(".ranges button")) {
+    button.addEventListener("click", () => {
+      rangeHours = Number(button.dataset.hours);
+      for (const other of document.querySelectorAll(".ranges button")) {
+        other.classList.toggle("active", other === button);
+      }
+      if (chart) chart.setData(columns());
+    });
+  }
+}
+
+async function start() {
+  wire();
+  const response = await api("/api/session");
+  session = response.body;
+  updateSessionView();
+  if (session.view_open || session.logged_in) {
+    await loadView();
+  } else {
+    say("Log in to see the tun.");
+  }
+}
+
+window.hermsd = { points: () => T.length, chart: () => chart };
+start();

@@ -1,0 +1,327 @@
+"""The mash program: its file, the pure runner's rules, its stored progress, local time.
+
+Golden values are worked out by hand from the rules in hermsd/program/runner.py: 5 s
+periods, the hold counting only periods whose PV is within ±0.5 °C of the setpoint.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from hermsd.cli import main
+from hermsd.latches import StateError
+from hermsd.pid import PlantModel
+from hermsd.program import model
+from hermsd.program.driver import ProgramDriver, local_iso, next_local_time
+from hermsd.program.model import Program, ProgramError, Step
+from hermsd.program.runner import Refused, Runner, heat_up_s
+from hermsd.program.store import PROGRAM_FILE, ProgressStore
+
+STEP_MASH = """\
+# a step mash
+name: Step mash
+ready_by: "06:30"
+steps:
+  - name: Strike
+    setpoint: 72
+    hold: 0s
+    confirm: Mash in
+  - name: Beta rest
+    setpoint: 64
+    hold: 30m
+  - name: Alpha rest
+    setpoint: 72
+    hold: 1h5m
+    ramp: 0.5
+  - name: Mash out
+    setpoint: 78
+    hold: until told
+"""
+EXPECTED = Program(
+    "Step mash",
+    (
+        Step("Strike", 72.0, 0.0, None, "Mash in"),
+        Step("Beta rest", 64.0, 1800.0),
+        Step("Alpha rest", 72.0, 3900.0, 0.5),
+        Step("Mash out", 78.0, None),
+    ),
+    "06:30",
+)
+PERIOD = 5.0
+NS = 1_000_000_000
+
+
+# -- the file -------------------------------------------------------------------------------
+
+
+def test_a_program_file_is_read_as_written() -> None:
+    assert model.parse(STEP_MASH, "mash.yaml") == EXPECTED
+    assert model.from_data(model.to_data(EXPECTED)) == EXPECTED  # what the socket carries
+
+
+def test_the_name_defaults_to_the_files_stem(tmp_path: Path) -> None:
+    path = tmp_path / "hefeweizen.yaml"
+    path.write_text("steps:\n  - {name: Rest, setpoint: 66, hold: 60}\n", encoding="utf-8")
+    assert model.load(path) == Program("hefeweizen", (Step("Rest", 66.0, 60.0),))
+
+
+BAD = """\
+name: Bad
+ready_by: 6:30
+steps:
+  - name: Strike
+    setpoint: 172
+    hold: 1:30
+  - name: Rest
+    setpont: 66
+    hold: until told
+    confirm: Go
+  - name: Rest
+    setpoint: 066
+    hold: 10m
+    ramp: 0
+"""
+
+
+def test_every_problem_is_said_with_file_line_and_column() -> None:
+    with pytest.raises(ProgramError) as caught:
+        model.parse(BAD, "bad.yaml")
+    lines = str(caught.value).splitlines()
+    assert lines == [
+        "bad.yaml:2:11: ready_by: '6:30' is not a local time (HH:MM on a 24 h clock, e.g. '06:30')",
+        "bad.yaml:5:15: steps[0].setpoint: 172 °C is out of range (a number from 0 to 100 °C)",
+        "bad.yaml:6:11: steps[0].hold: '1:30' is not a hold (a duration such as 90s, 60m or "
+        "1h30m (at most 24 h), or 'until told')",
+        "bad.yaml:7:5: steps[1].setpoint: missing (°C, e.g. 66)",
+        "bad.yaml:8:5: steps[1].setpont: unknown key (did you mean 'setpoint'?)",
+        "bad.yaml:10:14: steps[1].confirm: a step held 'until told' ends with `hermsd program "
+        "next`, never waits (give the hold a time, or leave confirm out)",
+        "bad.yaml:12:15: steps[2].setpoint: expected a number, got the string '066' (a number "
+        "from 0 to 100 °C; drop the leading zeros, which YAML 1.1 reads as octal)",
+        "bad.yaml:14:11: steps[2].ramp: 0 °C/min is out of range (a number above 0 and at most "
+        "10 °C/min, or null for at once)",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("name: x\n", "bad.yaml:1:1: steps: missing (a list of 1 to 50 steps)"),
+        ("steps: []\n", "bad.yaml:1:8: steps: expected a list of 1 to 50 steps"),
+        ("- 1\n", "bad.yaml:1:1: a program is a mapping with steps, got a list"),
+        (
+            "steps:\n  - {name: A, setpoint: 60, hold: 1m}\n"
+            "  - {name: A, setpoint: 61, hold: 1m}\n",
+            "bad.yaml:3:5: steps[1].name: 'A' names an earlier step too (line 2;",
+        ),
+        (
+            "steps:\n  - {name: A, setpoint: 60, hold: 25h}\n",
+            "bad.yaml:2:35: steps[0].hold: '25h' is not a hold",
+        ),
+        ("steps: [\n", "bad.yaml:2:1: invalid YAML"),
+    ],
+)
+def test_what_a_program_is_not(text: str, says: str) -> None:
+    with pytest.raises(ProgramError) as caught:
+        model.parse(text, "bad.yaml")
+    assert str(caught.value).startswith(says)
+
+
+def test_fifty_steps_at_most() -> None:
+    steps = "".join(f"  - {{name: s{i}, setpoint: 60, hold: 1m}}\n" for i in range(51))
+    with pytest.raises(ProgramError, match="expected a list of 1 to 50 steps"):
+        model.parse("steps:\n" + steps)
+    model.parse("steps:\n" + steps.split("\n", 1)[1])  # 50 are fine
+
+
+def test_program_check_prints_the_steps_or_every_problem(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good, bad = tmp_path / "good.yaml", tmp_path / "bad.yaml"
+    good.write_text(STEP_MASH, encoding="utf-8")
+    bad.write_text(BAD, encoding="utf-8")
+    assert main(["program", "check", str(good)]) == 0
+    out = capsys.readouterr().out
+    assert "program 'Step mash', 4 steps, valid" in out
+    assert "3. Alpha rest: 72 °C, hold 65 min, ramp 0.5 °C/min" in out
+    assert main(["program", "check", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 8 and err.startswith(f"{bad}:2:11: ready_by")
+
+
+# -- the runner ------------------------------------------------------------------------------
+
+
+def run(runner: Runner, pvs: list[float | None], t0: float = 0.0) -> float:
+    """One period per PV, from t0; the time of the last."""
+    t = t0
+    for index, pv in enumerate(pvs):
+        t = t0 + index * PERIOD
+        runner.period(t, pv, 0)
+    return t
+
+
+def started(program: Program) -> Runner:
+    runner = Runner.start(program, max_step_s=2 * PERIOD)
+    runner.take_events()
+    return runner
+
+
+REST = Program("Rest", (Step("Rest", 66.0, 20.0), Step("Out", 78.0, 60.0)))
+
+
+def test_the_hold_counts_only_periods_in_the_band_from_the_first_one() -> None:
+    runner = started(REST)
+    # t=0 64.0 (out), 5 65.5 (in: reached), 10 66.4 (+5), 15 66.6 (out), 20 None (no PV),
+    # 25 65.6 (+5), 30 66.0 (+5): 15 s held, 5 s left.
+    run(runner, [64.0, 65.5, 66.4, 66.6, None, 65.6, 66.0])
+    assert (runner.state, runner.progress.held_s, runner.time_left_s()) == ("holding", 15.0, 5.0)
+    assert [e.event for e in runner.take_events()] == ["step_started", "step_reached"]
+    runner.period(35.0, 66.1, 0)  # 20 s: done, and the next step starts at once
+    assert [e.event for e in runner.take_events()] == ["step_done", "step_started"]
+    assert (runner.step.name, runner.setpoint, runner.state) == ("Out", 78.0, "heating")
+
+
+def test_pause_holds_the_setpoint_and_stops_the_hold_time() -> None:
+    runner = started(REST)
+    run(runner, [66.0, 66.0])  # reached at 0, 5 s held
+    runner.command("pause", 66.0)
+    run(runner, [66.0] * 10, t0=10.0)
+    assert (runner.state, runner.progress.held_s, runner.setpoint) == ("paused", 5.0, 66.0)
+    runner.command("resume", 66.0)
+    run(runner, [66.0, 66.0], t0=60.0)  # the first period after resuming counts its 5 s
+    assert runner.progress.held_s == 15.0
+    assert [e.event for e in runner.take_events()][-2:] == ["paused", "resumed"]
+
+
+def test_a_ramp_moves_the_setpoint_at_its_rate_then_the_step_is_reached() -> None:
+    program = Program("Ramp", (Step("Beta", 64.0, 0.0), Step("Alpha", 72.0, 60.0, ramp=1.0)))
+    runner = started(program)
+    runner.period(0.0, 64.0, 0)  # Beta reached and done: Alpha ramps from 64 °C
+    assert (runner.state, runner.setpoint) == ("ramping", 64.0)
+    t = run(runner, [64.0] * 12, t0=5.0)  # 60 s later: 1 °C/min → 65 °C
+    assert t == 60.0
+    assert runner.setpoint == pytest.approx(65.0)
+    t = run(runner, [70.0] * 85, t0=65.0)  # 8 °C take 480 s; then heating until in the band
+    assert t == 485.0
+    assert (runner.state, runner.setpoint) == ("heating", 72.0)
+    runner.period(490.0, 71.6, 0)
+    assert runner.state == "holding"
+
+
+def test_a_confirmation_waits_holding_the_setpoint_and_moves_on_when_given() -> None:
+    runner = started(EXPECTED)
+    with pytest.raises(Refused, match="nothing waits for a confirmation"):
+        runner.command("confirm", 20.0)
+    runner.period(0.0, 72.0, 0)
+    assert (runner.state, runner.setpoint, runner.time_left_s()) == ("waiting", 72.0, 0.0)
+    run(runner, [72.0] * 100, t0=5.0)
+    assert runner.state == "waiting"
+    runner.command("confirm", 72.0)
+    assert (runner.step.name, runner.setpoint) == ("Beta rest", 64.0)
+    events = [(e.event, e.message) for e in runner.take_events()]
+    assert ("waiting", "Mash in") in events and ("confirmed", "Mash in") in events
+
+
+def test_until_told_holds_until_next_and_the_program_then_holds_its_last_setpoint() -> None:
+    program = Program("Told", (Step("Out", 78.0, None),))
+    runner = started(program)
+    run(runner, [78.0] * 1000)
+    assert (runner.state, runner.time_left_s()) == ("holding", None)
+    runner.command("next", 78.0)
+    assert (runner.state, runner.setpoint) == ("done", 78.0)
+    assert [e.event for e in runner.take_events()][-2:] == ["skipped", "finished"]
+    with pytest.raises(Refused, match="the program is done"):
+        runner.command("next", 78.0)
+
+
+def test_a_scheduled_program_keeps_the_heater_off_until_its_heat_up_is_due() -> None:
+    ready = 10_000 * NS
+    runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=ready)
+    # The model's heat-up, 20 % longer (READY_MARGIN): 6000 s → 7200 s.
+    runner.period(0.0, 20.0, 1_000 * NS, lead_s=6_000.0)  # 9000 s to go
+    assert (runner.state, runner.setpoint) == ("scheduled", None)
+    with pytest.raises(Refused, match="has not started heating yet"):
+        runner.command("next", 20.0)
+    runner.period(5.0, 19.9, 2_799 * NS, lead_s=6_000.0)  # 7201 s to go: not yet
+    assert runner.state == "scheduled"
+    runner.period(10.0, 19.9, 2_800 * NS, lead_s=6_000.0)  # 7200 s to go: now
+    assert (runner.state, runner.setpoint) == ("heating", 66.0)
+    # Ahead of the model (it says 5000 s from here, 6000 with the margin, 7190 s to go):
+    # the water is held where it is; back at full power once due again.
+    runner.period(15.0, 25.0, 2_810 * NS, lead_s=5_000.0)
+    assert (runner.state, runner.setpoint) == ("heating", 25.0)
+    runner.period(20.0, 25.1, 4_000 * NS, lead_s=5_000.0)  # 6000 s to go
+    assert runner.setpoint == 66.0
+
+
+def test_near_the_end_a_ready_by_heat_up_no_longer_holds_back() -> None:
+    runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=10_000 * NS)
+    runner.period(0.0, 20.0, 0, lead_s=9_000.0)  # due: full power
+    # 100 s from the band by the model, 5000 s to go: ahead, but within the commitment
+    # (the heat on its way would carry water held here into the band early).
+    runner.period(5.0, 63.0, 5_000 * NS, lead_s=100.0, commit_s=138.0)
+    assert runner.setpoint == 66.0
+    runner.period(10.0, 65.2, 5_005 * NS, lead_s=150.0, commit_s=138.0)  # beyond it: held,
+    assert runner.setpoint == 65.0  # never closer to the band than a band's width,
+    runner.period(15.0, 64.8, 5_010 * NS, lead_s=400.0, commit_s=138.0)
+    assert runner.setpoint == 65.0  # and where it was when holding began
+
+
+def test_heat_up_time_is_the_dead_time_and_the_first_order_rise() -> None:
+    # From the room: y = Ta + K·u·(1 − e^(−(t−θ)/τ)); halfway to K·u is θ + τ·ln 2.
+    tun = PlantModel(gain=1.0, tau=1000.0, dead_time=100.0, ambient=20.0)
+    assert heat_up_s(tun, 100.0, 20.0, 70.0) == pytest.approx(100.0 + 1000.0 * math.log(2))
+    assert heat_up_s(tun, 100.0, 71.0, 70.0) == 0.0
+    assert heat_up_s(tun, 40.0, 20.0, 70.0) is None  # 40 % holds 60 °C at most
+
+
+# -- local time ------------------------------------------------------------------------------
+
+CET = dt.timezone(dt.timedelta(hours=1))
+AT_4 = 1_795_834_800 * NS  # 2026-11-28T03:00:00Z = 04:00 CET
+
+
+def test_ready_by_is_the_next_such_local_time() -> None:
+    assert local_iso(AT_4, CET) == "2026-11-28T04:00:00+01:00"
+    assert next_local_time(AT_4, "06:30", CET) == AT_4 + 9_000 * NS
+    assert next_local_time(AT_4, "04:00", CET) == AT_4 + 86_400 * NS  # now is past: tomorrow
+    assert next_local_time(AT_4, "03:59", dt.UTC) == AT_4 + 3_540 * NS
+
+
+# -- the stored progress ---------------------------------------------------------------------
+
+
+def test_progress_survives_a_restart_and_nothing_counts_from_before_it(tmp_path: Path) -> None:
+    store = ProgressStore(tmp_path)
+    runner = started(REST)
+    run(runner, [66.0, 66.0, 66.0])  # 10 s held
+    store.save(runner.program, runner.progress, 10.0)
+    program, progress = store.load() or (None, None)
+    assert program == REST and progress is not None
+    again = Runner(REST, progress, max_step_s=2 * PERIOD)
+    again.period(5000.0, 66.0, 0)  # the first period after a restart counts nothing
+    assert (again.state, again.progress.held_s, again.time_left_s()) == ("holding", 10.0, 10.0)
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        "{",
+        '{"program": {"steps": []}, "progress": {}}',
+        json.dumps({"program": model.to_data(REST), "progress": {"index": 7}}),
+    ],
+)
+def test_damaged_progress_is_said_discarded_and_not_resumed(tmp_path: Path, damage: str) -> None:
+    (tmp_path / PROGRAM_FILE).write_text(damage, encoding="utf-8")
+    with pytest.raises(StateError):
+        ProgressStore(tmp_path).load()
+    driver = ProgramDriver(ProgressStore(tmp_path), dt.UTC, PERIOD)
+    said = driver.restore(66.0)
+    assert said is not None and said.startswith("program progress not resumed")
+    assert not driver.active and not (tmp_path / PROGRAM_FILE).exists()

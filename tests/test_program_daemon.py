@@ -1,0 +1,357 @@
+"""The mash program in the daemon: its setpoint drives control, the socket's commands, the
+setpoint rule, the step-mash scenario, replay's step listing, and a SIGKILL in a rest.
+
+The daemon runs on the virtual clock except in the SIGKILL test, which kills a real
+`hermsd run --simulate` (a real process cannot be killed on a virtual clock).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from test_control import Inbox, linked, operator_lines, served, status_of
+from test_reload import BASE, PERIOD, edited, rename_over, run_for
+
+from hermsd import replay
+from hermsd.cli import main
+from hermsd.control.protocol import (
+    ProgramAction,
+    ProgramStart,
+    ProtocolError,
+    SetSetpoint,
+    parse_request,
+)
+from hermsd.daemon import Daemon
+from hermsd.program import model
+from hermsd.program.model import Program, Step
+from hermsd.program.store import PROGRAM_FILE
+from hermsd.recorder import PROGRAM_TOPIC
+from hermsd.sim import scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+TWO_STEPS = Program("Two", (Step("Warm", 30.0, 60.0), Step("Hot", 40.0, None)))
+
+
+def apply(daemon: Daemon, inbox: Inbox, command: Any) -> dict[str, Any]:
+    pending = inbox.send(command)
+    run_for(daemon, PERIOD)
+    assert pending.reply is not None
+    return pending.reply
+
+
+def test_the_programs_setpoint_drives_control_and_every_period_names_the_step(
+    tmp_path: Path,
+) -> None:
+    daemon, _path, events, inbox = linked(tmp_path)
+    reply = apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    assert reply["ok"] is True
+    assert reply["program"]["state"] == "heating"
+    assert reply["program"]["step"] == {"index": 0, "name": "Warm", "setpoint": 30.0}
+    record = events.periods[-1]
+    assert (record.setpoint, record.step, record.step_index, record.next_step) == (
+        30.0,
+        "Warm",
+        0,
+        "Hot",
+    )
+    run_for(daemon, 3600.0)  # the simulated tun starts at 20 °C: Warm is reached and held
+    status = status_of(daemon)["program"]
+    assert (status["state"], status["step"]["name"], status["time_left_s"]) == (
+        "holding",
+        "Hot",
+        None,
+    )
+    assert events.periods[-1].setpoint == 40.0
+    kinds = [m["event"] for topic, m in events.written if topic == PROGRAM_TOPIC]
+    assert kinds == [
+        "started",
+        "step_started",
+        "step_reached",
+        "step_done",
+        "step_started",
+        "step_reached",
+    ]
+    assert "operator: program start 'Two' (2 steps) (from the control socket)" in (
+        operator_lines(events)
+    )
+    assert "Warm" in daemon.status_text() or "Hot" in daemon.status_text()
+
+
+def test_the_brewer_hears_of_steps_reached_done_waiting_and_the_finish(tmp_path: Path) -> None:
+    daemon, _path, _events, inbox = linked(tmp_path)
+    sent: list[tuple[str, str]] = []
+    daemon.alerts.send = lambda event, t: sent.append((event.event, event.kind))  # type: ignore[method-assign]
+    program = Program("Short", (Step("Warm", 25.0, 60.0, confirm="Stir"), Step("Hot", 28.0, 0.0)))
+    apply(daemon, inbox, ProgramStart(program))
+    run_for(daemon, 1800.0)
+    apply(daemon, inbox, ProgramAction("confirm"))
+    run_for(daemon, 1800.0)
+    assert sent == [
+        ("step_reached", "Warm"),
+        ("step_done", "Warm"),
+        ("waiting", "Warm"),
+        ("step_reached", "Hot"),
+        ("step_done", "Hot"),
+        ("finished", ""),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("command", "says"),
+    [
+        (
+            ProgramStart(Program("Boil", (Step("Boil", 95.0, 60.0),))),
+            "steps[0].setpoint: 95 °C is not below safety.max_temp (95 °C)",
+        ),
+        (ProgramAction("next"), "no program runs (next has nothing to act on)"),
+        (ProgramAction("confirm"), "no program runs (confirm has nothing to act on)"),
+        (ProgramAction("resume"), "no program runs"),
+    ],
+)
+def test_a_bad_program_command_is_refused_in_one_line_and_changes_nothing(
+    tmp_path: Path, command: Any, says: str
+) -> None:
+    daemon, _path, events, inbox = linked(tmp_path)
+    before = events.periods[-1]
+    reply = apply(daemon, inbox, command)
+    assert reply["ok"] is False
+    assert reply["error"].startswith("refused, nothing changed: ")
+    assert says in reply["error"] and "\n" not in reply["error"]
+    assert events.periods[-1].setpoint == before.setpoint
+    assert events.periods[-1].step is None
+    assert status_of(daemon)["program"] is None
+    assert operator_lines(events) == []
+
+
+def test_while_a_program_runs_commands_that_do_not_apply_change_nothing(tmp_path: Path) -> None:
+    daemon, _path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    for command, says in [
+        (SetSetpoint(50.0), "control.setpoint: a mash program sets the setpoint while it runs"),
+        (ProgramStart(TWO_STEPS), "program 'Two' runs (`hermsd program stop` first)"),
+        (ProgramAction("confirm"), "nothing waits for a confirmation"),
+        (ProgramAction("resume"), "the program is not paused"),
+    ]:
+        reply = apply(daemon, inbox, command)
+        assert reply["ok"] is False and says in reply["error"]
+    assert events.periods[-1].setpoint == 30.0
+    assert status_of(daemon)["program"]["step"]["index"] == 0
+
+
+@pytest.mark.parametrize(
+    ("line", "says"),
+    [
+        (b'{"v":1,"cmd":"program","action":"begin"}', "program: action 'begin' is not one of"),
+        (b'{"v":1,"cmd":"program","action":"start"}', "program start: the program is missing"),
+        (
+            b'{"v":1,"cmd":"program","action":"start","program":{"steps":[{"name":"A",'
+            b'"setpoint":60}]}}',
+            "program: steps[0].hold: missing",
+        ),
+        (
+            b'{"v":1,"cmd":"program","action":"start","program":{"steps":[{"name":"A",'
+            b'"setpoint":60,"hold":60}]},"ready_by":"6:30"}',
+            'ready_by: "6:30" is not a local time',
+        ),
+        (b'{"v":1,"cmd":"program","action":"next","x":1}', "program next does not take x"),
+        (b'{"v":1,"cmd":"confirm","message":"Mash in"}', "confirm does not take message"),
+    ],
+)
+def test_a_bad_program_request_is_refused_before_it_reaches_the_loop(
+    line: bytes, says: str
+) -> None:
+    with pytest.raises(ProtocolError) as caught:
+        parse_request(line)
+    assert str(caught.value).startswith(says)
+    assert "\n" not in str(caught.value)
+
+
+def test_the_longest_program_fits_one_request_line() -> None:
+    from hermsd.control.protocol import MAX_LINE, encode, request_message
+
+    name = "°" * model.NAME_LENGTH
+    steps = tuple(
+        Step(f"{i:02d}" + name[2:], 99.9, 86400.0, 9.99, "\U0001f37a" * model.MESSAGE_LENGTH)
+        for i in range(model.MAX_STEPS)
+    )
+    longest = Program(name, steps, "23:59")
+    line = encode(request_message(ProgramStart(longest, "23:59")))
+    assert len(line) <= MAX_LINE
+    assert parse_request(line.rstrip(b"\n")) == ProgramStart(longest, "23:59")
+
+
+# -- the setpoint rule -----------------------------------------------------------------------
+
+
+def test_a_program_owns_the_setpoint_and_an_edit_of_the_files_applies_when_it_stops(
+    tmp_path: Path,
+) -> None:
+    daemon, path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    rename_over(path, edited(BASE, control__setpoint="70.0"))
+    run_for(daemon, 2 * PERIOD)
+    assert daemon.config.control.setpoint == 70.0  # the edit was taken
+    assert events.periods[-1].setpoint == 30.0  # the program's step holds the setpoint
+    reply = apply(daemon, inbox, ProgramAction("stop"))
+    assert (reply["ok"], reply["program"], reply["setpoint"]) == (True, None, 70.0)
+
+
+def test_an_edit_that_puts_the_cut_out_at_a_programs_setpoint_stops_the_program(
+    tmp_path: Path,
+) -> None:
+    daemon, path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    rename_over(path, edited(BASE, control__setpoint="25.0", safety__max_temp="30.0"))
+    run_for(daemon, 2 * PERIOD)
+    assert status_of(daemon)["program"] is None
+    assert events.periods[-1].setpoint == 25.0
+    assert "program stopped: its step's setpoint 30 °C is not below safety.max_temp (30 °C)" in (
+        events.logged()
+    )
+
+
+def test_without_an_edit_a_stopped_program_gives_back_the_setpoint_it_found(
+    tmp_path: Path,
+) -> None:
+    daemon, _path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, SetSetpoint(55.0))
+    apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    assert events.periods[-1].setpoint == 30.0
+    reply = apply(daemon, inbox, ProgramAction("stop"))
+    assert reply["setpoint"] == 55.0
+    assert reply["runtime"] == {"control.setpoint": {"running": 55.0, "file": 66.0}}
+
+
+def test_the_commands_start_pause_and_stop_a_program(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    program = tmp_path / "mash.yaml"
+    program.write_text("steps:\n  - {name: Rest, setpoint: 25, hold: 60m}\n", encoding="utf-8")
+    with served(tmp_path) as (_daemon, where):
+        sock = ["--socket", os.fspath(where)]
+        assert main(["program", "start", str(program), *sock]) == 0
+        assert "program 'mash': heating, step 1/1 'Rest' at 25 °C" in capsys.readouterr().out
+        assert main(["program", "pause", *sock]) == 0
+        assert "paused" in capsys.readouterr().out
+        assert main(["confirm", *sock]) == 2
+        assert "the program is paused" in capsys.readouterr().err
+        assert main(["program", "stop", *sock]) == 0
+        assert capsys.readouterr().out == "no program runs\n"
+
+
+# -- a whole day: the step-mash scenario, its log and replay --------------------------------
+
+
+def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: Path) -> None:
+    day = scenario.load_scenario(ROOT / "scenarios" / "step-mash.yaml")
+    result = scenario.run(day, log_dir=tmp_path)
+    summary = result.summary
+    assert summary["program"] == {"name": "Step mash", "state": "done", "steps_run": 4, "steps": 4}
+    assert summary["alarms"] == []
+    steps = summary["steps"]
+    assert [s["name"] for s in steps] == ["Strike", "Beta rest", "Alpha rest", "Mash out"]
+    ready_by = 3 * 3600.0  # 06:30, the scenario's clock starting at 03:30
+    assert abs(steps[0]["reached_s"] - ready_by) <= 120.0
+    for step, hold in zip(steps[1:], (1800.0, 1200.0, 600.0), strict=True):
+        assert step["reached_s"] is not None
+        assert step["in_band_s"] >= hold  # each rest held its full time in the band
+    # Beta rest is reached as the water falls through its band, just before the cold water
+    # poured in at mash-in takes it 2.4 °C below: said, and not counted as rest.
+    assert 2.0 < steps[1]["max_deviation_c"] < 3.0
+    assert steps[2]["max_deviation_c"] < 0.6 and steps[3]["max_deviation_c"] < 0.6
+    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    assert replay.verify(log.entries).mismatch is None  # the scheduled hours are skipped
+    logged = replay.summarise(log)
+    assert [(s["name"], s["reached_s"] is not None) for s in logged["steps"]] == [
+        (s["name"], True) for s in steps
+    ]
+
+
+# -- a SIGKILL in the middle of a rest -------------------------------------------------------
+
+SPEED = 50.0
+HOLD_S = 600.0
+TIMEOUT_S = 30.0
+
+
+def _hermsd(state: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "hermsd.cli",
+            "run",
+            "--simulate",
+            "--speed",
+            str(SPEED),
+            "--state",
+            str(state),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _status(sock: Path, capsys: pytest.CaptureFixture[str]) -> dict[str, Any] | None:
+    if main(["status", "--json", "--socket", str(sock)]) != 0:
+        capsys.readouterr()
+        return None
+    reply: dict[str, Any] = json.loads(capsys.readouterr().out)
+    return reply
+
+
+def _wait_for(sock: Path, capsys: pytest.CaptureFixture[str], done: Any) -> dict[str, Any]:
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline:
+        status = _status(sock, capsys) if sock.exists() else None
+        if status is not None and done(status):
+            return status
+        time.sleep(0.02)
+    raise AssertionError("the daemon did not get there in time")
+
+
+def test_a_sigkill_in_a_rest_resumes_that_rest_with_its_time_left(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    state, sock = tmp_path / "state", tmp_path / "state" / "control.sock"
+    program = tmp_path / "rest.yaml"  # the simulated tun starts at 20 °C: in the band at once
+    program.write_text(f"steps:\n  - {{name: Rest, setpoint: 20.25, hold: {HOLD_S:g}}}\n")
+    first = _hermsd(state)
+    try:
+        _wait_for(sock, capsys, lambda s: s["pv"] is not None)
+        assert main(["program", "start", str(program), "--socket", str(sock)]) == 0
+        capsys.readouterr()
+        before = _wait_for(
+            sock, capsys, lambda s: (s["program"]["time_left_s"] or HOLD_S) <= HOLD_S - 60.0
+        )
+        first.send_signal(signal.SIGKILL)
+        first.wait(TIMEOUT_S)
+    finally:
+        first.kill()
+        first.communicate()
+    stored = json.loads((state / PROGRAM_FILE).read_text())["progress"]
+    left_at_kill = HOLD_S - stored["held_s"]
+    assert 0.0 <= before["program"]["time_left_s"] - left_at_kill <= 2 * PERIOD
+
+    second = _hermsd(state)
+    try:
+        after = _wait_for(sock, capsys, lambda s: s["program"] is not None)
+        second.send_signal(signal.SIGTERM)
+        _out, err = second.communicate(timeout=TIMEOUT_S)
+    finally:
+        second.kill()
+    said = re.search(r"resumed after a restart at step 1/1 'Rest', (\d+) s of its hold left", err)
+    assert said is not None, err
+    assert int(said[1]) == round(left_at_kill)  # the rest resumed with the time left it had
+    assert after["program"]["step"]["name"] == "Rest"
+    assert 0.0 <= left_at_kill - after["program"]["time_left_s"] <= after["t"] - 0.0 + PERIOD

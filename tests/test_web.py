@@ -1,0 +1,355 @@
+"""`hermsd web` over HTTP against a simulated daemon: logins, sessions, CSRF, the login rate
+limits, bad input, the read-only view; and the password hash and the `web` config section."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+from test_reload import BASE, edited
+from webpage import PASSWORD, TIMEOUT, Site, site
+
+from hermsd import config as config_module
+from hermsd.cli import main
+from hermsd.config import ConfigError, split_listen
+from hermsd.web.app import command_message
+from hermsd.web.auth import (
+    GLOBAL_BURST,
+    GLOBAL_REFILL_S,
+    LOGIN_BURST,
+    LOGIN_REFILL_S,
+    LoginLimiter,
+    Sessions,
+)
+from hermsd.web.hub import PAGE_FIELDS, Hub
+from hermsd.web.main import WebSetupError, listening_socket, settings_from
+from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
+    with site(tmp_path_factory.mktemp("web")) as served:
+        yield served
+
+
+def _client(live: Site) -> httpx.Client:
+    return httpx.Client(base_url=live.url, timeout=TIMEOUT)
+
+
+LoggedIn = tuple[httpx.Client, str]
+
+
+@pytest.fixture
+def logged_in(live: Site) -> Iterator[LoggedIn]:
+    """A client with a session, and the session's CSRF token."""
+    with _client(live) as client:
+        reply = client.post("/api/login", json={"password": PASSWORD})
+        assert reply.status_code == 200
+        yield client, reply.json()["csrf"]
+
+
+def test_a_login_gives_a_strict_http_only_session_cookie_and_a_csrf_token(live: Site) -> None:
+    with _client(live) as client:
+        reply = client.post("/api/login", json={"password": PASSWORD})
+    assert reply.status_code == 200
+    cookie = reply.headers["set-cookie"]
+    attributes = {part.strip().split("=")[0].lower() for part in cookie.split(";")}
+    assert cookie.startswith("hermsd_session=")
+    assert {"httponly", "samesite", "path"} <= attributes and "samesite=strict" in cookie.lower()
+    # No fixed expiry: the server ends a session after web.session_lifetime without use.
+    assert "max-age" not in attributes and "expires" not in attributes
+    session = cookie.split(";")[0].split("=", 1)[1]
+    assert len(session) >= 43  # 32 random bytes, base64
+    body = reply.json()
+    assert body["logged_in"] and len(body["csrf"]) >= 43 and body["csrf"] != session
+
+
+def test_a_change_is_applied_with_login_and_token(live: Site, logged_in: LoggedIn) -> None:
+    client, token = logged_in
+    reply = client.post(
+        "/api/command", json={"cmd": "set", "setpoint": 70.5}, headers={"x-csrf-token": token}
+    )
+    assert reply.status_code == 200
+    assert reply.json()["status"]["setpoint"] == 70.5 == live.daemon.setpoint
+
+
+@pytest.mark.parametrize(
+    ("headers", "status", "says"),
+    [
+        ({}, 403, "security token is missing or old"),
+        ({"x-csrf-token": "forged"}, 403, "security token is missing or old"),
+        ({"origin": "http://evil.example"}, 400, "the Origin is another site"),
+    ],
+)
+def test_a_change_without_the_pages_token_changes_nothing(
+    live: Site, logged_in: LoggedIn, headers: dict[str, str], status: int, says: str
+) -> None:
+    client, token = logged_in
+    before = live.daemon.setpoint
+    if "origin" in headers:
+        headers = {**headers, "x-csrf-token": token}
+    reply = client.post(
+        "/api/command", json={"cmd": "set", "setpoint": before + 1}, headers=headers
+    )
+    assert reply.status_code == status and says in reply.json()["error"]
+    assert live.daemon.setpoint == before
+
+
+def test_each_period_is_pushed_with_what_the_page_shows_only(live: Site) -> None:
+    events: list[dict[str, object]] = []
+    with _client(live) as client, client.stream("GET", "/api/events") as stream:
+        assert stream.headers["content-type"].startswith("text/event-stream")
+        for line in stream.iter_lines():
+            if line.startswith("data: "):
+                events.append(json.loads(line[len("data: ") :]))
+            if len(events) == 3:
+                break
+    first, *pushed = events
+    for event in pushed:  # the limits, model and learned texts were sent too: 2 kB a period
+        status = event["status"]
+        assert isinstance(status, dict) and set(status) == set(PAGE_FIELDS) - {"program"}
+        assert event["rows"] and event["rows"][-1][0] == status["t"]  # type: ignore[index]
+    assert pushed[1]["status"]["t"] > first["status"]["t"]  # type: ignore[index]
+
+
+def test_a_period_reaches_the_page_before_the_next_one_runs(live: Site) -> None:
+    with (
+        _client(live) as client,
+        client.stream("GET", "/api/events") as stream,
+        live.held() as last,
+    ):
+        lines = stream.iter_lines()
+        times = (json.loads(line[6:])["status"]["t"] for line in lines if line[:6] == "data: ")
+        while next(times) < last:  # the events of the periods before the hold
+            pass
+        live.step()  # one period, then the loop is held again: no later one runs
+        assert next(times) == last + 5.0
+
+
+def test_manual_mode_with_an_output_and_back_to_auto(live: Site, logged_in: LoggedIn) -> None:
+    client, token = logged_in
+    headers = {"x-csrf-token": token}
+    manual = client.post(
+        "/api/command", json={"cmd": "set", "mode": "manual", "output": 40}, headers=headers
+    )
+    assert manual.status_code == 200
+    assert (live.daemon.mode, live.daemon.manual_output) == ("manual", 40.0)
+    assert manual.json()["status"]["manual_output"] == 40.0
+    auto = client.post("/api/command", json={"cmd": "set", "mode": "auto"}, headers=headers)
+    assert auto.status_code == 200 and live.daemon.mode == "auto"
+
+
+def test_a_form_post_from_another_site_is_refused(logged_in: LoggedIn) -> None:
+    client, token = logged_in
+    reply = client.post(
+        "/api/command",
+        content=b"cmd=set&setpoint=90",
+        headers={"content-type": "application/x-www-form-urlencoded", "x-csrf-token": token},
+    )
+    assert reply.status_code == 400 and "expected a JSON body" in reply.json()["error"]
+
+
+@pytest.mark.parametrize(
+    ("command", "status", "says"),
+    [
+        ({"cmd": "set", "setpoint": "hot"}, 400, 'setpoint: expected a number, got "hot"'),
+        ({"cmd": "set", "mode": "boil"}, 422, "control.mode"),
+        ({"cmd": "set", "setpoint": 99.5}, 422, "refused, nothing changed"),
+        ({"cmd": "status"}, 400, "changes nothing"),
+        ({"cmd": "program", "action": "explode"}, 400, "action must be one of next, pause"),
+        ({"cmd": "rm -rf"}, 400, "unknown command"),
+    ],
+)
+def test_bad_input_gets_a_clear_message_and_changes_nothing(
+    live: Site, logged_in: LoggedIn, command: dict[str, object], status: int, says: str
+) -> None:
+    client, token = logged_in
+    before = (live.daemon.setpoint, live.daemon.mode)
+    reply = client.post("/api/command", json=command, headers={"x-csrf-token": token})
+    assert reply.status_code == status, reply.text
+    assert says in reply.json()["error"] and "\n" not in reply.json()["error"]
+    assert (live.daemon.setpoint, live.daemon.mode) == before
+
+
+def test_an_over_long_request_is_refused(logged_in: LoggedIn) -> None:
+    client, token = logged_in
+    reply = client.post(
+        "/api/command",
+        content=json.dumps({"cmd": "set", "pad": "x" * 5000}).encode(),
+        headers={"content-type": "application/json", "x-csrf-token": token},
+    )
+    assert reply.status_code == 400 and "longer than 4096 bytes" in reply.json()["error"]
+
+
+def test_after_five_wrong_passwords_a_client_waits_even_with_the_right_one(
+    tmp_path: Path,
+) -> None:
+    with site(tmp_path) as fresh, _client(fresh) as client:
+        wrong = [client.post("/api/login", json={"password": f"guess{i}"}) for i in range(5)]
+        blocked = client.post("/api/login", json={"password": PASSWORD})
+    assert [reply.status_code for reply in wrong] == [401] * 5
+    # The five took a few seconds of the 60 s it takes to earn one attempt back.
+    assert blocked.status_code == 429 and 50 <= int(blocked.headers["retry-after"]) <= 60
+    assert "too many login attempts" in blocked.json()["error"]
+
+
+def test_logins_are_limited_for_all_clients_together() -> None:
+    limiter = LoginLimiter()
+    waits = [limiter.attempt(f"10.0.0.{i}", 100.0) for i in range(GLOBAL_BURST + 1)]
+    assert waits[:GLOBAL_BURST] == [0.0] * GLOBAL_BURST
+    assert waits[-1] == pytest.approx(GLOBAL_REFILL_S)  # one attempt back per refill
+    assert limiter.attempt("10.0.1.1", 100.0 + GLOBAL_REFILL_S) == 0.0
+
+
+def test_right_passwords_do_not_count_against_a_client() -> None:
+    limiter = LoginLimiter()
+    for _ in range(LOGIN_BURST * 3):
+        assert limiter.attempt("10.0.0.1", 100.0) == 0.0
+        limiter.succeeded("10.0.0.1", 100.0)
+    for _ in range(LOGIN_BURST):
+        assert limiter.attempt("10.0.0.1", 100.0) == 0.0  # wrong ones
+    assert limiter.attempt("10.0.0.1", 100.0) == pytest.approx(LOGIN_REFILL_S)
+
+
+def test_a_session_ends_after_its_lifetime_without_use() -> None:
+    sessions = Sessions(lifetime=600.0)
+    sid, session = sessions.create(0.0)
+    assert sessions.find(sid, 599.0) is session  # used: the lifetime starts again
+    assert sessions.find(sid, 1198.0) is session
+    assert sessions.find(sid, 1798.5) is None
+    assert sessions.find(sid, 1799.0) is None  # gone for good
+
+
+def test_without_the_read_only_view_seeing_needs_a_login(tmp_path: Path) -> None:
+    with site(tmp_path, read_only_view=False) as closed, _client(closed) as client:
+        refused = [client.get(path) for path in ("/api/history", "/api/events")]
+        page = client.get("/")
+        client.post("/api/login", json={"password": PASSWORD})
+        history = client.get("/api/history")
+    assert [reply.status_code for reply in refused] == [401, 401]
+    assert page.status_code == 200  # the page itself, with its login form
+    assert "default-src 'self'" in page.headers["content-security-policy"]
+    assert history.status_code == 200 and len(history.json()["t"]) >= 1
+
+
+def test_the_program_commands_go_to_the_daemon_as_the_socket_protocol_says() -> None:
+    assert command_message({"cmd": "program", "action": "pause"}) == {
+        "cmd": "program",
+        "action": "pause",
+    }
+    assert command_message({"cmd": "confirm"}) == {"cmd": "confirm"}
+    assert command_message({"cmd": "set", "mode": "manual", "output": 40}) == {
+        "cmd": "set",
+        "mode": "manual",
+        "output": 40.0,
+    }
+
+
+# -- the password and the config ------------------------------------------------------------
+
+
+def test_the_hash_is_scrypt_as_rfc_7914_defines_it() -> None:
+    # RFC 7914 §12, second vector: scrypt("password", "NaCl", N=1024, r=8, p=16, 64 bytes).
+    digest = bytes.fromhex(
+        "fdbabe1c9d3472007856e7190d01e9fe7c6ad7cbc8237830e77376634b373162"
+        "2eaf30d92e22a3886ff109279d9830dac727afb94a83ee6d8360cbdfa2cc0640"
+    )
+    stored = PasswordHash(1024, 8, 16, b"NaCl", digest)
+    assert verify_password("password", stored)
+    assert not verify_password("Password", stored)
+
+
+def test_a_made_hash_verifies_only_its_password() -> None:
+    stored = parse_hash(hash_password("correct horse"))
+    assert stored is not None and len(stored.salt) == 16
+    assert verify_password("correct horse", stored) and not verify_password("correct hors", stored)
+    assert hash_password("x" * 8) != hash_password("x" * 8)  # a fresh salt each time
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["brewing", "scrypt$1000$8$1$AAAAAAAAAAAAAAAAAAAAAA$" + "A" * 43, "scrypt$16384$8$1$short$x"],
+)
+def test_what_is_not_a_hash_is_refused(text: str) -> None:
+    assert parse_hash(text) is None  # 1000 is not a power of two
+
+
+@pytest.mark.parametrize(
+    ("text", "address"),
+    [
+        ("127.0.0.1:8080", ("127.0.0.1", 8080)),
+        ("0.0.0.0:80", ("0.0.0.0", 80)),
+        ("[::1]:8443", ("::1", 8443)),
+        ("pi.local:8080", ("pi.local", 8080)),
+        ("127.0.0.1", None),
+        ("127.0.0.1:0", None),
+        ("127.0.0.1:65536", None),
+        (":8080", None),
+    ],
+)
+def test_listen_is_host_and_port(text: str, address: tuple[str, int] | None) -> None:
+    assert split_listen(text) == address
+
+
+def test_the_web_section_is_checked_like_the_rest_of_the_file() -> None:
+    text = edited(BASE, web__listen='"everywhere"', web__password_hash='"hunter2"')
+    with pytest.raises(ConfigError) as caught:
+        config_module.parse(text, "hermsd.yaml")
+    message = str(caught.value)
+    assert "web.listen: 'everywhere' is not HOST:PORT" in message
+    assert "web.password_hash: not a password hash (expected scrypt$16384$8$1$" in message
+
+
+def test_responses_are_not_held_back_by_nagles_algorithm() -> None:
+    # Headers and body go in two sends; with Nagle's algorithm the body waited for the
+    # client's delayed ACK, 40 ms a request.
+    with listening_socket("127.0.0.1", 0) as listener:
+        assert listener.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) == 1
+        with socket.create_connection(listener.getsockname()):
+            accepted, _ = listener.accept()
+            with accepted:
+                assert accepted.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY) == 1
+
+
+def test_a_page_that_would_show_nothing_to_anyone_does_not_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(WebSetupError, match="would show nothing to anyone"):
+        settings_from(config_module.parse(BASE), tmp_path / "control.sock")
+    path = tmp_path / "hermsd.yaml"
+    path.write_text(BASE, encoding="utf-8")
+    assert main(["web", "--config", str(path)]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("hermsd: the page would show nothing") and "Traceback" not in error
+
+
+def test_without_a_daemon_the_page_is_told_why(tmp_path: Path) -> None:
+    hub = Hub(tmp_path / "control.sock", poll=0.01)
+
+    async def events() -> list[object]:
+        queue = hub.open_page(None)
+        await hub.refresh()
+        return [json.loads((await queue.get() or b"")[len(b"data: ") :]) for _ in range(2)]
+
+    assert asyncio.run(events()) == [
+        {"error": "connecting to hermsd"},
+        {"error": f"no hermsd is running: nothing answers on {hub.socket}"},
+    ]
+
+
+def test_hash_password_prints_a_hash_the_config_takes(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import io
+
+    monkeypatch.setattr("sys.stdin", io.StringIO("a long enough password\n"))
+    assert main(["web", "--hash-password"]) == 0
+    printed = capsys.readouterr().out.strip()
+    stored = parse_hash(printed)
+    assert stored is not None and verify_password("a long enough password", stored)
+    config_module.parse(edited(BASE, web__password_hash=f'"{printed}"'))

@@ -1,0 +1,114 @@
+"""A simulated daemon behind a real control socket, and the web page in front of it, for the
+web tests: the daemon runs on the virtual clock, one period per `pace` s of wall time on a
+thread (or held, for a test to step it), and the page is served by uvicorn on a loopback
+port of its own. Also bench/web.py's Chromium settings."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from test_reload import BASE, PERIOD, Events, run_for, start
+
+from hermsd.control.link import LoopLink
+from hermsd.control.server import ControlServer
+from hermsd.daemon import Daemon
+from hermsd.web.app import WebSettings, create_app
+from hermsd.web.main import listening_socket, make_server
+from hermsd.web.passwords import hash_password, parse_hash
+
+CHROMIUM = Path("/usr/bin/chromium")  # Debian's, never a downloaded build
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+PHONE = {"width": 390, "height": 844}
+PASSWORD = "mash-in-at-72"
+STORED = parse_hash(hash_password(PASSWORD))
+TIMEOUT = 10.0
+
+
+@dataclass
+class Site:
+    daemon: Daemon
+    events: Events
+    server: ControlServer
+    url: str
+    running: threading.Event  # cleared: the daemon is held between periods
+    lock: threading.Lock  # held while a period runs
+
+    @contextlib.contextmanager
+    def held(self) -> Iterator[float]:
+        """The loop held between periods (no new status can reach a page); yields the t of
+        the last period run."""
+        self.running.clear()
+        try:
+            with self.lock:
+                last = self.events.periods[-1].t
+            yield last
+        finally:
+            self.running.set()
+
+    def step(self, periods: int = 1) -> None:
+        """Run `periods` periods now (with `running` cleared, nothing else steps)."""
+        with self.lock:
+            run_for(self.daemon, periods * PERIOD)
+
+    def wait_for_command(self) -> None:
+        """Until a command from a client waits for the next period boundary."""
+        deadline = time.monotonic() + TIMEOUT
+        while not self.server._commands:
+            assert time.monotonic() < deadline, "no command reached the daemon"
+            time.sleep(0.005)
+
+
+@contextlib.contextmanager
+def site(tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05) -> Iterator[Site]:
+    daemon, _world, _path, events = start(tmp_path, BASE)
+    link = LoopLink(daemon)
+    control = ControlServer(tmp_path / "control.sock", link.status_line, link.history_line)
+    control.start()
+    link.attach(control)
+    running, stop, lock = threading.Event(), threading.Event(), threading.Lock()
+    running.set()
+
+    def stepping() -> None:
+        while not stop.is_set():
+            with lock:
+                if running.is_set():
+                    run_for(daemon, PERIOD)
+            stop.wait(pace)  # paces virtual time; nothing is measured on this clock
+
+    settings = WebSettings(
+        tmp_path / "control.sock", STORED, 3600.0, read_only_view, poll=min(0.05, pace)
+    )
+    http = make_server(create_app(settings))
+    listener = listening_socket("127.0.0.1", 0)
+    port = listener.getsockname()[1]
+    serving = threading.Thread(target=lambda: asyncio.run(http.serve(sockets=[listener])))
+    stepper = threading.Thread(target=stepping)
+    stepper.start()
+    serving.start()
+    deadline = time.monotonic() + TIMEOUT
+    while not http.started:
+        assert time.monotonic() < deadline, "the web server did not start"
+        time.sleep(0.01)
+    try:
+        yield Site(daemon, events, control, f"http://127.0.0.1:{port}", running, lock)
+    finally:
+        http.should_exit = True
+        stop.set()
+        serving.join(TIMEOUT)
+        stepper.join(TIMEOUT)
+        listener.close()
+        control.close()
