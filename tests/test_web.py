@@ -112,7 +112,7 @@ def test_each_period_is_pushed_with_what_the_page_shows_only(live: Site) -> None
     first, *pushed = events
     for event in pushed:  # the limits, model and learned texts were sent too: 2 kB a period
         status = event["status"]
-        assert isinstance(status, dict) and set(status) == set(PAGE_FIELDS) - {"program"}
+        assert isinstance(status, dict) and set(status) == set(PAGE_FIELDS)
         assert event["rows"] and event["rows"][-1][0] == status["t"]  # type: ignore[index]
     assert pushed[1]["status"]["t"] > first["status"]["t"]  # type: ignore[index]
 
