@@ -34,6 +34,7 @@ from hermsd.config import (
 )
 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
+TWO_ELEMENTS_DOC = Path(__file__).resolve().parents[1] / "docs" / "two-elements.md"
 FAST_FUZZ = settings(max_examples=200, deadline=None)
 
 
@@ -488,8 +489,36 @@ def _comment_blocks() -> dict[str, str]:
     return blocks
 
 
+def _two_element_rows() -> dict[str, tuple[str, str]]:
+    """The keys docs/two-elements.md documents in its tables (the mid-ranging controller's
+    and section element2: kept out of the shipped file), each with its default and text."""
+    rows: dict[str, tuple[str, str]] = {}
+    section = ""
+    for line in TWO_ELEMENTS_DOC.read_text(encoding="utf-8").splitlines():
+        if heading := re.match(r"## `([a-z0-9]+)`", line):
+            section = heading[1]
+        elif row := re.fullmatch(r"\| `([a-z0-9_]+)` \| ([^|]*) \| (.*) \|", line):
+            rows[f"{section}.{row[1]}"] = (row[2], row[3])
+    return rows
+
+
+def _documented() -> dict[str, str]:
+    """Every key's documentation: its comment in the shipped file, else its table row."""
+    rows = {key: f"{text} |" for key, (_default, text) in _two_element_rows().items()}
+    return _comment_blocks() | rows
+
+
+def test_the_two_element_keys_are_documented_with_their_defaults_outside_the_file() -> None:
+    rows = _two_element_rows()
+    assert not set(rows) & set(_comment_blocks())
+    assert {key.split(".")[0] for key in rows} == {"control", "element2"}
+    for key, (default, _text) in rows.items():
+        section, name = key.split(".")
+        assert yaml.safe_load(default) == getattr(getattr(DEFAULT, section), name), key
+
+
 def test_every_key_in_the_shipped_file_has_a_comment_with_its_range() -> None:
-    blocks = _comment_blocks()
+    blocks = _documented()
     assert sorted(blocks) == sorted(ALL_KEYS)
     for key, comment in blocks.items():
         assert len(comment) > 20, key
@@ -513,7 +542,7 @@ def test_every_key_in_the_shipped_file_has_a_comment_with_its_range() -> None:
 
 
 def test_the_shipped_file_marks_exactly_the_restart_keys() -> None:
-    marked = sorted(key for key, comment in _comment_blocks().items() if "RESTART" in comment)
+    marked = sorted(key for key, comment in _documented().items() if "RESTART" in comment)
     assert marked == sorted(RESTART)
 
 
