@@ -786,7 +786,9 @@ def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
         ),
         (
             "SSR stuck on: rise beyond heat given",
-            f"{lim.ssr_max_rise:g} °C in {lim.ssr_watch:.0f} s, heat counted "
+            f"{lim.ssr_max_rise:g} °C in "
+            + ", ".join(f"{w:.0f}" for w in (lim.ssr_watch, *lim.creep_watches))
+            + f" s, heat counted "
             f"{lim.heat_memory:.0f} s back, {lim.heat_rate * 60:.2f} °C per full-power minute",
             source("heat_rate"),
         ),
