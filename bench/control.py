@@ -95,7 +95,10 @@ def main() -> int:
         "`uv run --group bench python bench/control.py --write` — 20 → 66 °C, 10 L of 15 °C "
         "water at 4 h, 6 h; physical minimum to settle "
         f"{first['physical_min_s']} s, to recover {first['recovery_min_s']} s (full power "
-        "from the start, and from the water). Jump/LSB is the largest output change between "
+        "from the start, and from the water). Settle and recovery: when the sensor entered "
+        "the band for good, interpolated between the two 5 s period samples around it, as "
+        "the minimums are crossing times (hermsd/metrics.py). "
+        "Jump/LSB is the largest output change between "
         "two periods while holding. Goals: overshoot ≤ 0.1 °C, settle ≤ ×1.01, recovery "
         "≤ ×1.02, jump ≤ 10 %, 100 % in band.\n\n" + table + "\n"
     )

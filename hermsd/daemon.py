@@ -299,6 +299,7 @@ class _Window:
 
     plan: WindowPlan | None = None
     timers: list[Timer] = field(default_factory=list)
+    cut: bool = False  # the heater was forced off in it: nothing heats again before the next
 
     def cancel(self) -> None:
         for timer in self.timers:
@@ -369,6 +370,10 @@ class Daemon:
         self._readings: list[float] = []
         self._stepped = False  # the controller stepped at the last boundary (its state is fresh)
         self._full_from: int | None = None  # see PeriodRecord.full_from
+        # The element went to full power within this period (acted on `_full_from`): what the
+        # supervisor and the status are told was asked. The controller's output stays its own,
+        # so a manual switch or a bumpless restart never takes the 100 % for the brewer's.
+        self._full_power = False
         self._held = True  # nothing to continue from until the first good period
         self._resume_output = 0.0
         self._window = _Window()
@@ -892,6 +897,11 @@ class Daemon:
         self._drain_alarms(now)
         self._act_on_drop(now)
 
+    def _asked(self) -> float:
+        """The output the element is driven at now: the controller's, or full power since a
+        reading in this period showed cold water."""
+        return 100.0 if self._full_power else self.output
+
     def _act_on_drop(self, now: float) -> None:
         """Full power from this reading on, not from the next period, when the readings so
         far show cold water that the controller answers with it (`pid.full_power_now`).
@@ -905,15 +915,15 @@ class Daemon:
         if not pid.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
             return
         self._full_from = len(self._readings)
-        if not self.supervisor.heater_allowed:
+        window = self._window
+        # A window cut by a forced off left the contactor open: nothing heats before the next.
+        if not self.supervisor.heater_allowed or window.plan is None or window.cut:
             return
-        self.output = 100.0  # in force until the next step
+        self._full_power = True  # in force until the next step
         drop = self._pv - self._readings[-1]
         self._event(logging.INFO, f"PV fell {drop:.2f} °C within the period: full power", now)
-        window = self._window
-        if window.plan is not None:
-            window.cancel()
-            self._arm(self.planner.full_from(window.plan, now), now)
+        window.cancel()
+        self._arm(self.planner.full_from(window.plan, now), now)
 
     def _read_now(self, now: float) -> None:
         sup = self.supervisor
@@ -973,6 +983,7 @@ class Daemon:
         self._pending.clear()
         readings, self._readings = self._readings, []
         full_from, self._full_from = self._full_from, None
+        asked, self._full_power = self._asked(), False
         self._stepped = False
         pv = period_value(readings)
         if pv is None:
@@ -984,7 +995,7 @@ class Daemon:
             switched2, applied2 = self.element2.applied(now)
         if isinstance(self.controller, MidRangeController):
             self.controller.applied2 = applied2 or 0.0
-        sup.period(now, pv, *self._total_power(self.output, applied, switched2))
+        sup.period(now, pv, *self._total_power(asked, applied, switched2))
         self._drain_alarms(now)
         standby = self._program_period(now, pv) and self.mode == "auto"
         state = "ok"
@@ -1051,6 +1062,7 @@ class Daemon:
     def _on_window(self, deadline: float, now: float) -> None:
         window = self._window
         window.cancel()
+        window.cut = False
         allowed = self.supervisor.heater_allowed
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(allowed)
@@ -1120,6 +1132,7 @@ class Daemon:
         if window.plan is not None:
             window.plan = cut(window.plan, now)
         window.cancel()
+        window.cut = True
         self.planner.reset()
         self.outputs.ssr.set(False)
         self._ssr_duty.switched(False, now)
@@ -1161,7 +1174,7 @@ class Daemon:
             state += f", log failing: {self._log_failing}"
         if self.program.active:
             state += f", {self.program.status_words(self.clock.wall_ns())}"
-        return status_line(self.config.tun.name, self._pv, self.setpoint, self.output, state)
+        return status_line(self.config.tun.name, self._pv, self.setpoint, self._asked(), state)
 
     def _check_log(self, t: float) -> None:
         """Say that the log cannot be written at once, every minute while it lasts, and when
@@ -1242,7 +1255,7 @@ class Daemon:
     def _alert(self, event: str, message: str, t: float, kind: str = "") -> None:
         """Hand an event to the alerts worker, with what the loop knows now."""
         name, wall_ns = self.config.tun.name, self.clock.wall_ns()
-        output = self.output if self.supervisor.heater_allowed else 0.0  # the output in force
+        output = self._asked() if self.supervisor.heater_allowed else 0.0  # the output in force
         self.alerts.send(
             Event(event, message, name, wall_ns, kind, self._pv, self.setpoint, output), t
         )

@@ -6,10 +6,18 @@ are the times the tun was upset from outside (water added, setpoint changed, a f
 injected): "settled" means in band for good before the first of them, "recovered" means back
 in band for good after the last of them. Time in band counts from the first sample in the
 band: the heat-up before it is no failure to hold.
+
+When the temperature entered the band for good (settle, recovery) is interpolated linearly
+between the last sample outside the band and the first inside it: the physical minimums
+these times are compared with are crossing times too (`hermsd.sim.scenario.time_to_band`
+interpolates on a 1 s grid), and the temperature is continuous, so the interpolation errs
+only by the curve's bend within one period, where the first sample inside reads the entry
+up to a whole period late. The hold, which counts samples, starts at that first sample.
 """
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from dataclasses import dataclass
@@ -71,6 +79,31 @@ def in_band_for_good(samples: list[Sample], start: float, end: float) -> float |
     return entered
 
 
+def entered_band(samples: list[Sample], start: float, end: float) -> float | None:
+    """When the temperature entered the band for good in [start, end): between the sample
+    before `in_band_for_good`'s and it, interpolated (see the module's note)."""
+    first = in_band_for_good(samples, start, end)
+    if first is None:
+        return None
+    index = bisect.bisect_left(samples, first, key=lambda s: s.t)
+    return _band_entry(samples[index - 1] if index else None, samples[index], start)
+
+
+def _band_entry(outside: Sample | None, inside: Sample, start: float) -> float:
+    """When the temperature crossed into the band between `outside` (the sample before
+    `inside`, if any) and `inside`: where the straight line between them meets the band's
+    edge it came in by. In the band already before `start` (or nothing before): `start`,
+    or the first sample if it is later."""
+    if outside is None:
+        return inside.t
+    before = outside.temp - outside.setpoint
+    if abs(before) <= BAND:
+        return start
+    after = inside.temp - inside.setpoint
+    edge = -BAND if before < 0 else BAND
+    return max(start, outside.t + (inside.t - outside.t) * (edge - before) / (after - before))
+
+
 def compute(
     samples: list[Sample],
     disturbances: list[float],
@@ -87,6 +120,8 @@ def compute(
     settled_at = in_band_for_good(samples, t0, first_disturbance)
     last = max(disturbances, default=None)
     recovered_at = in_band_for_good(samples, last, end) if last is not None else None
+    settle_s = _since(entered_band(samples, t0, first_disturbance), t0)
+    recovery_s = None if last is None else _since(entered_band(samples, last, end), last)
 
     # Overshoot counts only once the temperature has been at or below the setpoint of its
     # segment: cooling down after a setpoint step down is not overshoot.
@@ -137,8 +172,8 @@ def compute(
     return Metrics(
         overshoot_c=overshoot,
         overshoots=overshoots,
-        settle_s=None if settled_at is None else settled_at - t0,
-        recovery_s=None if recovered_at is None or last is None else recovered_at - last,
+        settle_s=settle_s,
+        recovery_s=recovery_s,
         in_band_fraction=in_band,
         in_band_s=in_band_s,
         since_band_s=since_band_s,
@@ -158,6 +193,10 @@ def compute(
         last_hour_p2p_c=max(last_hour) - min(last_hour) if held_last_hour else None,
         held_in_band_pct=100.0 * held_in_s / held_s if held_s > 0 else None,
     )
+
+
+def _since(t: float | None, start: float) -> float | None:
+    return None if t is None else t - start
 
 
 def _overshoot(samples: list[Sample]) -> float:
@@ -189,8 +228,8 @@ def report(metrics: Metrics) -> dict[str, Any]:
     return {
         "overshoot_c": round(m.overshoot_c, 4),
         "overshoots": m.overshoots,
-        "settle_s": m.settle_s,
-        "recovery_s": m.recovery_s,
+        "settle_s": None if m.settle_s is None else round(m.settle_s, 1),
+        "recovery_s": None if m.recovery_s is None else round(m.recovery_s, 1),
         "in_band_fraction": m.in_band_fraction,
         "in_band_s": round(m.in_band_s, 1),
         "in_band_pct": round(100.0 * m.in_band_s / m.since_band_s, 2) if m.since_band_s else None,

@@ -197,6 +197,35 @@ def test_cold_water_gets_full_power_at_the_second_reading_that_shows_it() -> Non
     assert after.applied > 100.0 * (WATER_AT + 5.0 - seen - 0.01) / 5.0 - 1e-6
 
 
+def test_manual_without_an_output_holds_the_controllers_not_the_full_power_of_cold_water() -> None:
+    """Switching to manual while the element runs at full power for cold water keeps the
+    output the controller asked for: the in-period 100 % is the loop's, never the brewer's."""
+    daemon, world, clock, records = small_tun_daemon()
+    clock.call_at(WATER_AT, lambda: world.plant.add_water(3.0, 15.0, WATER_AT))
+    with daemon:
+        daemon.run(until=WATER_AT + 4.0)  # full power since the second reading of the water
+        assert "out 100 %" in daemon.status_text()
+        stepped = records[-1].output
+        assert stepped < 20.0
+        daemon.set_manual()
+        daemon.run(until=WATER_AT + 5.1)
+    assert daemon.mode == "manual" and daemon.manual_output == stepped
+
+
+def test_a_window_cut_by_a_forced_off_is_not_planned_again_at_full_power() -> None:
+    """After a forced off the contactor stays open to the window's end: the cold water is
+    logged as seen, and the element stays off until the next window closes the contactor."""
+    daemon, world, clock, records = small_tun_daemon()
+    clock.call_at(WATER_AT, lambda: world.plant.add_water(3.0, 15.0, WATER_AT))
+    clock.call_at(WATER_AT + 0.2, lambda: daemon._force_off(clock.monotonic()))
+    with daemon:
+        daemon.run(until=WATER_AT + 4.9)
+        assert "out 100 %" not in daemon.status_text()
+        daemon.run(until=WATER_AT + 5.1)
+    assert records[-1].full_from is not None  # the decision is made, and logged
+    assert not any(powered(world, WATER_AT + 0.3 + 0.5 * k) for k in range(9))
+
+
 def test_a_one_reading_spike_changes_nothing_in_the_window() -> None:
     spiked, spiked_world, spiked_clock, spiked_records = small_tun_daemon()
     calm, calm_world, _, calm_records = small_tun_daemon()

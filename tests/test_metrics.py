@@ -65,3 +65,35 @@ def test_held_in_band_counts_from_first_entering_and_leaves_out_the_recovery() -
     m = compute(samples([66.0] * len(temps), temps), [50.0], 100.0)
     assert m.held_in_band_pct == pytest.approx(100.0 * 50.0 / 60.0)
     assert report(m)["held_in_band_pct"] == pytest.approx(83.33)
+
+
+def test_settle_is_the_band_entry_interpolated_between_the_samples_that_straddle_it() -> None:
+    # A ramp of 0.012 °C/s from 60 °C to 66 °C, sampled every 5 s, crosses 65.5 °C at
+    # 5.5 / 0.012 = 458.33 s, as the physical minimum finds it; the first sample in the band
+    # (460 s) would read it 1.67 s late.
+    ramp = [Sample(5.0 * i, 66.0, min(66.0, 60.0 + 0.06 * i), 100.0) for i in range(120)]
+    assert compute(ramp, [], 600.0).settle_s == pytest.approx(458.33, abs=0.01)
+    # In band at t = 10 (65.6), out above at t = 20 (66.7), back in at t = 30 (66.3): in for
+    # good from where the line 66.7 → 66.3 meets 66.5, halfway, at t = 25.
+    temps = [64.0, 65.6, 66.7, 66.3, 66.0, 66.1]
+    assert compute(samples([66.0] * len(temps), temps), [], 60.0).settle_s == pytest.approx(25.0)
+    # Cooling to a lower setpoint enters by the upper edge: 60.9 → 60.3 meets 60.5 two thirds
+    # of the way, at t = 26.67.
+    m = compute(samples([60.0] * 5, [66.0, 62.0, 60.9, 60.3, 60.1]), [], 50.0)
+    assert m.settle_s == pytest.approx(26.667, abs=0.001)
+
+
+def test_recovery_is_the_band_entry_interpolated_and_never_before_the_water() -> None:
+    # Water at t = 40: the sensor still shows 66.0, dips to 65.0, comes back through 65.4
+    # (t = 70) and 65.9 (t = 80); the line meets 65.5 a fifth of the way, at t = 72: 32 s.
+    temps = [66.0, 66.0, 66.0, 66.0, 66.0, 65.2, 65.0, 65.4, 65.9, 66.0, 66.0]
+    m = compute(samples([66.0] * len(temps), temps), [40.0], 110.0)
+    assert m.recovery_s == pytest.approx(32.0)
+    assert report(m)["recovery_s"] == 32.0
+    # The hold, which counts samples, resumes at the first sample back in: 0..40, 80..110 s.
+    assert m.hold_s == pytest.approx(40.0 + 30.0)
+    # An upset at t = 45 between 65.4 (t = 40) and 65.9 (t = 50): the line meets 65.5 at
+    # t = 42, before the upset, so it is back at once: recovery 0 s.
+    temps = [64.0, 64.5, 65.0, 65.2, 65.4, 65.9, 66.0]
+    m = compute(samples([66.0] * len(temps), temps), [45.0], 70.0)
+    assert m.recovery_s == 0.0

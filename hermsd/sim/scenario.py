@@ -422,8 +422,7 @@ def reactive_floor(
     """The least recovery a controller that acts on every reading can show: nothing can
     know of the water before the first reading after it, `seen` s after it, so until then
     the element runs at `duty` % as decided before the water (the period's on-time first,
-    the soonest it can come), then at full power; read, as the metrics read it, at the first
-    period's sample at or past `time_to_band`. (A controller that acts once a period has
+    the soonest it can come), then at full power. (A controller that acts once a period has
     `seen` = `period`.) On a copy of `plant`."""
     late = copy.deepcopy(plant)
     late.set_heater(True, start)
@@ -431,7 +430,7 @@ def reactive_floor(
     if on_time < seen:
         late.set_heater(False, start + on_time)
     rest = time_to_band(late, start + seen, setpoint, limit - seen)
-    return None if rest is None else period * math.ceil((seen + rest) / period)
+    return None if rest is None else seen + rest
 
 
 def first_read_after(t: float, read_interval: float) -> float:
@@ -567,6 +566,7 @@ def run(
             }
         )
     recovery_min_s = recovery_min.get("s")
+    recovery_floor_s = recovery_min.get("floor")
     summary: dict[str, Any] = {
         "scenario": scenario.name,
         "algorithm": config.control.algorithm,
@@ -580,8 +580,8 @@ def run(
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
         "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),
         "recovery_ratio": _ratio(metrics.recovery_s, recovery_min_s),
-        "recovery_floor_s": recovery_min.get("floor"),
-        "recovery_floor_ratio": _ratio(recovery_min.get("floor"), recovery_min_s),
+        "recovery_floor_s": None if recovery_floor_s is None else round(recovery_floor_s, 1),
+        "recovery_floor_ratio": _ratio(recovery_floor_s, recovery_min_s),
         "alarms": alarms,
         "overruns": daemon.overruns,
         "wall_s": round(wall, 3),
