@@ -367,6 +367,7 @@ def served(
             run_for(daemon, PERIOD)
             stop.wait(0.002)  # paces virtual time; nothing here is measured on this clock
 
+    run_for(daemon, PERIOD)  # a period has run before any client asks: status has its answer
     stepping = threading.Thread(target=step)
     stepping.start()
     try:

@@ -29,10 +29,13 @@ from test_reload import BASE, PERIOD, Events, edited, run_for, start
 
 from hermsd import config as config_module
 from hermsd.cli import main
+from hermsd.control.client import ask
 from hermsd.control.link import LoopLink
+from hermsd.control.protocol import ProgramAction, ProgramStart, Request
 from hermsd.control.server import ControlServer
 from hermsd.mqtt.bridge import Bridge
 from hermsd.mqtt.messages import Topics, setpoint_range, state_message
+from hermsd.program.model import Program, Step
 
 MOSQUITTO = Path("/usr/sbin/mosquitto")
 MOSQUITTO_PASSWD = Path("/usr/bin/mosquitto_passwd")
@@ -539,6 +542,49 @@ def test_the_state_names_the_program_step_when_the_daemon_reports_one() -> None:
     )
     # an alarm holds the heater off: never "heating", whatever the output asked
     assert (state["alarm"], state["alarm_text"], state["action"]) == (True, "stale", "off")
+
+
+def test_a_running_programs_step_time_left_and_next_step_are_published(rig: Rig) -> None:
+    """A program started on the daemon through its socket: the step sensor's field names
+    its step, the time left counts down one period a period, the next step follows."""
+    pv = rig.status()["pv"]
+    setpoint = round(pv + 0.45, 1)  # in band (0.5 °C) at once, and the slow tun stays there
+    program = Program(
+        "MQTT mash", (Step("Dough-in", setpoint, 600.0), Step("Mash out", setpoint, None))
+    )
+
+    def at_boundary(request: Request) -> dict[str, Any]:
+        """The daemon's reply to `request`, sent while the test runs the next period."""
+        replies: list[dict[str, Any]] = []
+        asking = threading.Thread(target=lambda: replies.append(ask(rig.socket, request)))
+        asking.start()
+        deadline = time.monotonic() + TIMEOUT
+        while not rig.server._commands:  # the command waits for the boundary
+            assert time.monotonic() < deadline, "no command reached the daemon"
+            threading.Event().wait(0.005)
+        state = rig.step().json()
+        asking.join(TIMEOUT)
+        assert replies and replies[0]["ok"], replies
+        return state
+
+    state = at_boundary(ProgramStart(program))
+    assert (state["program"], state["step_text"], state["next_step"]) == (
+        "MQTT mash",
+        "Dough-in",
+        "Mash out",
+    )
+    assert state["time_left_s"] == 600.0  # reached in its first period: the whole hold
+    later = [rig.step().json()["time_left_s"] for _ in range(2)]
+    assert later == [595.0, 590.0]
+
+    state = at_boundary(ProgramAction("next"))
+    assert (state["step_text"], state["time_left_s"], state["next_step"]) == (
+        "Mash out",
+        None,  # held until told
+        None,
+    )
+    state = at_boundary(ProgramAction("stop"))
+    assert (state["program"], state["step_text"]) == (None, "none")
 
 
 # -- logging in -----------------------------------------------------------------------------

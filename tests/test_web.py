@@ -1,5 +1,6 @@
 """`hermsd web` over HTTP against a simulated daemon: logins, sessions, CSRF, the login rate
-limits, bad input, the read-only view; and the password hash and the `web` config section."""
+limits, bad input, the read-only view, a program's start; and the password hash and the `web`
+config section."""
 
 from __future__ import annotations
 
@@ -353,3 +354,68 @@ def test_hash_password_prints_a_hash_the_config_takes(
     stored = parse_hash(printed)
     assert stored is not None and verify_password("a long enough password", stored)
     config_module.parse(edited(BASE, web__password_hash=f'"{printed}"'))
+
+
+PROGRAM_FILE = "name: Step mash\nsteps:\n  - {name: Rest, setpoint: 66, hold: 60m}\n"
+
+
+@pytest.mark.parametrize(
+    ("body", "says", "problems"),
+    [
+        (  # a step's hold misspelt (so missing), a setpoint above 100 °C: all, where they are
+            {
+                "yaml": "steps:\n  - name: Rest\n    setpoint: 166\n    hodl: 60m\n",
+                "filename": "mash.yaml",
+            },
+            "the program has errors: nothing was sent",
+            [
+                "mash.yaml:2:5: steps[0].hold: missing",
+                "mash.yaml:3:15: steps[0].setpoint: 166 °C is out of range",
+                "mash.yaml:4:5: steps[0].hodl: unknown key (did you mean 'hold'?)",
+            ],
+        ),
+        ({"yaml": "steps: [\n", "filename": "cut.yaml"}, "nothing was sent", ["cut.yaml:"]),
+        ({"yaml": "  "}, "choose a program file or paste its YAML", None),
+        ({"yaml": PROGRAM_FILE, "ready_by": "25:00"}, "'25:00' is not a local time", None),
+        ({"yaml": PROGRAM_FILE, "filename": "../x.yaml"}, "filename: expected a file", None),
+        ({"yaml": PROGRAM_FILE, "run": True}, "unknown field(s) run", None),
+        ({"yaml": "x" * 70000}, "longer than 65536 bytes", None),
+    ],
+)
+def test_a_bad_program_is_shown_where_it_is_wrong_and_nothing_is_sent(
+    live: Site,
+    logged_in: LoggedIn,
+    body: dict[str, object],
+    says: str,
+    problems: list[str] | None,
+) -> None:
+    client, token = logged_in
+    reply = client.post("/api/program", json=body, headers={"x-csrf-token": token})
+    assert reply.status_code == 400 and says in reply.json()["error"]
+    if problems is not None:
+        shown = reply.json()["problems"]
+        assert len(shown) == len(problems)
+        assert all(line.startswith(start) for line, start in zip(shown, problems, strict=True))
+    assert not live.daemon.program.active
+
+
+def test_a_program_starts_only_with_login_and_token_and_can_be_stopped(
+    live: Site, logged_in: LoggedIn
+) -> None:
+    client, token = logged_in
+    body = {"yaml": PROGRAM_FILE, "filename": "step.yaml", "ready_by": "06:30"}
+    with _client(live) as stranger:
+        assert stranger.post("/api/program", json=body).status_code == 401
+    assert client.post("/api/program", json=body).status_code == 403  # no CSRF token
+    assert not live.daemon.program.active
+    headers = {"x-csrf-token": token}
+    try:
+        reply = client.post("/api/program", json=body, headers=headers)
+        assert reply.status_code == 200, reply.text
+        program = reply.json()["status"]["program"]
+        assert (program["name"], program["steps"]) == ("Step mash", 1)
+        assert program["state"] == "scheduled" and program["starts_at"] is not None
+    finally:
+        stop = {"cmd": "program", "action": "stop"}
+        assert client.post("/api/command", json=stop, headers=headers).status_code == 200
+    assert not live.daemon.program.active

@@ -1,7 +1,8 @@
 """The real page in headless Chromium (Debian's `chromium`, driven by Playwright) against a
 simulated daemon behind a real control socket: the chart and temperature follow the loop, a
-change with a login is applied at the first period boundary, without one it is refused, and
-the page at phone size shows what matters.
+change with a login is applied at the first period boundary, without one it is refused, the
+page at phone size shows what matters, and a mash program started from the page (a file or
+pasted YAML, checked before anything is sent) is shown and steered by its buttons.
 
 Outside CI a machine without /usr/bin/chromium skips these tests (`apt-get install
 chromium`); in CI (CI set) it fails them, as `.ci/run` installs it."""
@@ -12,6 +13,7 @@ import os
 import struct
 import zlib
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from webpage import CHROMIUM, CHROMIUM_ARGS, PASSWORD, PHONE, TIMEOUT, Site, site
@@ -209,55 +211,6 @@ def _decode_png(data: bytes) -> tuple[int, int, bytes]:
     return width, height, bytes(rgb)
 
 
-PROGRAM = {  # the last step of a three-step mash, as INTERFACES.md's status field has it
-    "name": "Hochkurz",
-    "state": "holding",
-    "step": {"index": 2, "name": "Mash out", "setpoint": 76.0},
-    "steps": 3,
-    "time_left_s": 600.0,
-    "next": None,
-    "message": None,
-    "starts_at": None,
-}
-
-
-def test_a_running_program_is_shown_and_its_buttons_send_the_sockets_commands(
-    page: Page, live: Site
-) -> None:
-    _log_in(page)
-    assert not page.is_visible("#program-box")  # this daemon's status has no program
-    with live.held() as last:  # no new period may redraw the page meanwhile
-        _until(page, f"window.lastStatus.t === {last}")
-        status = page.evaluate("window.lastStatus")
-        waiting = {**PROGRAM, "state": "waiting", "message": "Mash in", "time_left_s": None}
-        page.evaluate(
-            "(status) => onEvent({status, rows: [], offset: 0})", {**status, "program": PROGRAM}
-        )
-        shown = {
-            name: page.text_content(f"#program-{name}")
-            for name in ("name", "state", "step", "left", "next")
-        }
-        assert shown == {
-            "name": "Hochkurz",
-            "state": "holding",
-            "step": "3 of 3: Mash out, 76 °C",
-            "left": "10 min 0 s",
-            "next": "last step",
-        }
-        assert not page.is_visible("#program-confirm")
-        with page.expect_request("**/api/command") as sent:
-            page.click("#program-pause")
-        assert sent.value.post_data_json == {"cmd": "program", "action": "pause"}
-
-        page.evaluate(
-            "(status) => onEvent({status, rows: [], offset: 0})", {**status, "program": waiting}
-        )
-        assert page.text_content("#program-message") == "Waiting: Mash in"
-        with page.expect_request("**/api/command") as sent:
-            page.click("#program-confirm")
-        assert sent.value.post_data_json == {"cmd": "confirm"}
-
-
 def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
     _log_in(page)
     assert not page.is_visible("#alarm-box")
@@ -274,3 +227,133 @@ def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
             live.step()  # applied at the boundary
         assert answered.value.request.post_data_json == {"cmd": "reset-alarm"}
         assert answered.value.status == 200  # the daemon took it (it had nothing latched)
+
+
+def _program_yaml(setpoint: float) -> str:
+    """Three steps the simulated tun, held near `setpoint`, reaches at once: a wait for the
+    brewer, a 10-minute rest and a rest until told."""
+    return (
+        "name: Web mash\n"
+        "steps:\n"
+        f"  - {{name: Strike, setpoint: {setpoint}, hold: 0s, confirm: Mash in}}\n"
+        f"  - {{name: Rest, setpoint: {setpoint}, hold: 10m}}\n"
+        f"  - {{name: Mash out, setpoint: {setpoint}, hold: until told}}\n"
+    )
+
+
+def _click_at_boundary(page: Page, live: Site, selector: str) -> str | None:
+    """Click, see the command wait for the period boundary (nothing changed yet), run that
+    period; the step the period ran."""
+    mark = len(live.events.periods)
+    page.click(selector)
+    live.wait_for_command()
+    assert len(live.events.periods) == mark  # held: no period ran meanwhile
+    live.step()
+    page.wait_for_selector("#message.ok", timeout=WAIT_MS)
+    _until(page, f"window.lastStatus.t === {live.events.periods[-1].t}")
+    return live.events.periods[-1].step
+
+
+def _step(page: Page, live: Site, periods: int = 1) -> None:
+    """Run `periods` periods and wait until the page shows the last."""
+    live.step(periods)
+    _until(page, f"window.lastStatus.t === {live.events.periods[-1].t}")
+
+
+def _shown(page: Page) -> dict[str, str | None]:
+    names = ("state", "step", "left", "next")
+    return {name: page.text_content(f"#program-{name}") for name in names}
+
+
+def test_a_program_started_from_the_page_runs_and_its_buttons_steer_it(
+    browser: Browser, tmp_path: Path
+) -> None:
+    with site(tmp_path) as live:
+        context = browser.new_context(viewport=PHONE)
+        page = context.new_page()
+        page.on("dialog", lambda dialog: dialog.accept())  # Stop asks first
+        page.goto(live.url)
+        _log_in(page)
+        with live.held() as last:
+            _until(page, f"window.lastStatus && window.lastStatus.t === {last}")
+            pv = live.events.periods[-1].pv
+            assert pv is not None
+            # In band at once (BAND 0.5 °C), and the tun, slowly warming, stays in it.
+            setpoint = round(pv + 0.45, 1)
+            # Pasted with a mistake: where it is, on the page; nothing reaches the daemon.
+            mistaken = _program_yaml(setpoint).replace("hold: 10m", "hold: ten")
+            page.fill("#program-yaml", mistaken)
+            page.click("#program-start")
+            page.wait_for_selector("#program-problems", state="visible", timeout=WAIT_MS)
+            problems = page.text_content("#program-problems") or ""
+            column = mistaken.splitlines()[3].index("ten") + 1  # the Rest step, line 4
+            assert problems.startswith(f"pasted.yaml:4:{column}: steps[1].hold: 'ten' is not")
+            assert "60m" in problems  # what would be right
+            assert page.text_content("#message") == "the program has errors: nothing was sent"
+            assert not live.server._commands and not live.daemon.program.active
+            # The program file picked on the phone.
+            page.set_input_files(
+                "#program-file",
+                {
+                    "name": "web-mash.yaml",
+                    "mimeType": "text/yaml",
+                    "buffer": _program_yaml(setpoint).encode(),
+                },
+            )
+            assert _click_at_boundary(page, live, "#program-start") == "Strike"
+            assert not page.is_visible("#program-problems")
+            assert page.text_content("#message") == "program start: done"
+            assert page.is_visible("#program-box")
+            assert page.text_content("#program-name") == "Web mash"
+
+            _step(page, live, 2)  # reached, its hold of 0 s done: it waits for the brewer
+            assert page.evaluate("window.lastStatus.program.state") == "waiting"
+            assert page.text_content("#program-message") == "Waiting: Mash in"
+            assert page.is_visible("#program-confirm")
+            assert _shown(page)["next"] == "Rest"
+
+            # Without a login the same commands are refused and change nothing.
+            stranger = browser.new_context().new_page()
+            stranger.goto(live.url)
+            actions = ("next", "pause", "resume", "stop")
+            for path, body in [
+                ("/api/command", {"cmd": "confirm"}),
+                *(("/api/command", {"cmd": "program", "action": a}) for a in actions),
+                ("/api/program", {"yaml": _program_yaml(setpoint)}),
+            ]:
+                reply = stranger.evaluate(
+                    """([path, body]) => fetch(path, {method: 'POST', headers:
+                    {'Content-Type': 'application/json'}, body: JSON.stringify(body)})
+                    .then(async (r) => [r.status, (await r.json()).error])""",
+                    [path, body],
+                )
+                assert reply == [401, "log in to change anything"], body
+            assert not live.server._commands  # nothing reached the daemon
+            stranger.context.close()
+
+            assert _click_at_boundary(page, live, "#program-confirm") == "Rest"
+            left = page.evaluate("window.lastStatus.program.time_left_s")
+            assert left is not None  # reached in the period that began it
+            assert not page.is_visible("#program-confirm")
+            _step(page, live, 2)  # two periods of 5 s off the hold
+            assert page.evaluate("window.lastStatus.program.time_left_s") == left - 10.0
+            minutes, seconds = divmod(round(left - 10.0), 60)
+            assert _shown(page) == {
+                "state": "holding",
+                "step": f"2 of 3: Rest, {setpoint:g} °C",
+                "left": f"{minutes} min {seconds} s",
+                "next": "Mash out",
+            }
+
+            assert _click_at_boundary(page, live, "#program-next-button") == "Mash out"
+            assert _shown(page)["next"] == "last step"
+
+            _click_at_boundary(page, live, "#program-pause")
+            assert _shown(page)["state"] == "paused" and page.is_visible("#program-resume")
+            assert not page.is_visible("#program-pause")
+            _click_at_boundary(page, live, "#program-resume")
+            assert _shown(page)["state"] != "paused" and page.is_visible("#program-pause")
+
+            assert _click_at_boundary(page, live, "#program-stop") is None
+            assert not page.is_visible("#program-box")
+        context.close()

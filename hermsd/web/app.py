@@ -12,6 +12,10 @@ Routes:
                            "output": 40}, {"cmd": "set", "mode": "auto"},
                            {"cmd": "reset-alarm"}, {"cmd": "confirm"},
                            {"cmd": "program", "action": "next"|"pause"|"resume"|"stop"}
+    POST /api/program      {"yaml": "<a program file>", "filename": "mash.yaml",
+                           "ready_by": "06:30" | null}: the file read and checked here
+                           (hermsd.program.model, every problem as FILE:LINE:COL in
+                           "problems", nothing sent), then started through the socket
 
 Every POST needs a JSON body (a form from another site cannot send one without the
 browser asking this server first, which it refuses), an Origin, if sent, naming this host,
@@ -43,11 +47,13 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from hermsd.control.protocol import (
     History,
+    ProgramStart,
     ProtocolError,
     Status,
     parse_request,
     request_message,
 )
+from hermsd.program.model import READY_BY, ProgramError, parse
 from hermsd.web.auth import LoginLimiter, Session, Sessions, csrf_matches
 from hermsd.web.hub import Hub, TooManyPages, page_status
 from hermsd.web.passwords import PasswordHash, verify_password
@@ -55,6 +61,9 @@ from hermsd.web.socket_client import DaemonUnavailable, ask
 
 COOKIE = "hermsd_session"
 MAX_BODY = 4096  # bytes of a POST body: a command is under 100
+MAX_PROGRAM_BODY = 1 << 16  # of a program's POST: a program file with comments; the socket's
+# start request (hermsd.control.protocol.MAX_LINE) holds the longest program
+MAX_FILENAME = 100
 KEEPALIVE_S = 15.0  # a comment line on an idle event stream, so proxies keep it open
 PROGRAM_ACTIONS = ("next", "pause", "resume", "stop")
 STATIC = {
@@ -221,14 +230,32 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
             headers={"x-accel-buffering": "no"},
         )
 
-    async def command(request: Request) -> Response:
-        data = await _json_body(request)
+    def refused(request: Request) -> Response | None:
+        """Why this browser may not change anything now; None: it may."""
         _sid, session = session_of(request)
         if session is None:
             return _error(401, "log in to change anything")
         if not csrf_matches(session, request.headers.get("x-csrf-token")):
             return _error(403, "the page's security token is missing or old: reload the page")
-        message = command_message(data)
+        return None
+
+    async def command(request: Request) -> Response:
+        data = await _json_body(request)
+        return refused(request) or await forward(command_message(data))
+
+    async def program_start(request: Request) -> Response:
+        data = await _json_body(request, MAX_PROGRAM_BODY)
+        if (answer := refused(request)) is not None:
+            return answer
+        try:
+            message = await run_in_threadpool(program_message, data)  # up to 64 kB of YAML
+        except ProgramError as error:
+            body = {"ok": False, "error": "the program has errors: nothing was sent"}
+            return _json({**body, "problems": str(error).splitlines()}, 400)
+        return await forward(message)
+
+    async def forward(message: dict[str, Any]) -> Response:
+        """The daemon's answer to one change: its status, or its reason for refusing."""
         try:
             reply = await ask(settings.socket, message)
         except DaemonUnavailable as error:
@@ -262,6 +289,7 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
             Route("/api/history", history),
             Route("/api/events", events),
             Route("/api/command", command, methods=["POST"]),
+            Route("/api/program", program_start, methods=["POST"]),
         ],
         middleware=[Middleware(_SecurityHeaders), Middleware(GZipMiddleware, minimum_size=1000)],
         exception_handlers={BadInput: bad_input},
@@ -296,7 +324,26 @@ def command_message(data: dict[str, Any]) -> dict[str, Any]:
     return message
 
 
-async def _json_body(request: Request) -> dict[str, Any]:
+def program_message(data: dict[str, Any]) -> dict[str, Any]:
+    """The socket's `program start` request for a program file sent by the page: BadInput
+    for a malformed request, ProgramError (every problem, FILE:LINE:COL) for a bad file."""
+    unknown = set(data) - {"yaml", "filename", "ready_by"}
+    if unknown:
+        raise BadInput(f"program: unknown field(s) {', '.join(sorted(unknown))}")
+    text, filename = data.get("yaml"), data.get("filename") or "program.yaml"
+    if not isinstance(text, str) or not text.strip():
+        raise BadInput("program: choose a program file or paste its YAML")
+    if not isinstance(filename, str) or len(filename) > MAX_FILENAME or "/" in filename:
+        raise BadInput(f"filename: expected a file name of at most {MAX_FILENAME} characters")
+    ready_by = data.get("ready_by") or None
+    if ready_by is not None and not (isinstance(ready_by, str) and READY_BY.fullmatch(ready_by)):
+        raise BadInput(f"ready by: {ready_by!r} is not a local time (HH:MM, e.g. 06:30)")
+    message = request_message(ProgramStart(parse(text, filename), ready_by))
+    del message["v"]
+    return message
+
+
+async def _json_body(request: Request, limit: int = MAX_BODY) -> dict[str, Any]:
     """The POST body as a JSON object; BadInput if it is not one, or is from another site."""
     kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if kind != "application/json":
@@ -307,8 +354,8 @@ async def _json_body(request: Request) -> dict[str, Any]:
     body = bytearray()
     async for chunk in request.stream():
         body += chunk
-        if len(body) > MAX_BODY:
-            raise BadInput(f"the request is longer than {MAX_BODY} bytes")
+        if len(body) > limit:
+            raise BadInput(f"the request is longer than {limit} bytes")
     try:
         data = json.loads(body)
     except (UnicodeDecodeError, json.JSONDecodeError):

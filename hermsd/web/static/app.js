@@ -199,19 +199,43 @@ function updateSessionView() {
   }
 }
 
-async function send(command, what) {
+async function send(command, what, path = "/api/command") {
   say(`${what}…`);
-  const response = await api("/api/command", command);
+  const response = await api(path, command);
   if (response.status === 200) {
     render(response.body.status);
     say(`${what}: done`, "ok");
-    return;
+    return response;
   }
   if (response.status === 401) {
     session = { ...session, logged_in: false, csrf: null };
     updateSessionView();
   }
   say(response.body.error || `${what}: failed (HTTP ${response.status})`, "error");
+  return response;
+}
+
+const MAX_PROGRAM_BYTES = 60000; // the server takes 64 KiB of request, the file's JSON with it
+
+async function startProgram() {
+  const file = $("program-file").files[0];
+  const problems = $("program-problems");
+  problems.hidden = true;
+  if (file && file.size > MAX_PROGRAM_BYTES) {
+    say(`${file.name} is ${file.size} bytes: a program file is at most ${MAX_PROGRAM_BYTES}`,
+        "error");
+    return;
+  }
+  const yaml = file ? await file.text() : $("program-yaml").value;
+  const command = { yaml, filename: file ? file.name : "pasted.yaml",
+                    ready_by: $("program-ready-by").value || null };
+  const response = await send(command, "program start", "/api/program");
+  if (response.status === 200) {
+    $("program-file").value = "";
+  } else if (response.body.problems) {
+    problems.textContent = response.body.problems.join("\n");
+    problems.hidden = false;
+  }
 }
 
 function number(input, name, unit) {
@@ -260,6 +284,10 @@ function wire() {
       command.output = output;
     }
     send(command, `mode ${mode}`);
+  });
+  $("program-form").addEventListener("submit", (event) => {
+    event.preventDefault();
+    startProgram();
   });
   $("reset-alarm").addEventListener("click", () => send({ cmd: "reset-alarm" }, "reset alarm"));
   $("program-confirm").addEventListener("click", () => send({ cmd: "confirm" }, "confirm"));
