@@ -20,6 +20,7 @@ supremum, checked by widening it), and the RMS dB difference over ±2 decades ab
 nominal loop's crossover; Tt is chosen by minimising each.
 
     uv run python bench/midrange.py [--write]
+    uv run python bench/midrange.py --tun [--write]   (the two-element tun: bench/two_element.py)
 """
 
 from __future__ import annotations
@@ -812,7 +813,14 @@ def _claims(
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument(
+        "--tun", action="store_true", help="the two-element tun instead (bench/two_element.py)"
+    )
     args = parser.parse_args()
+    if args.tun:
+        import two_element  # beside this file
+
+        return two_element.main(args.write)
     started = time.perf_counter()
     out = [
         "## Mid-ranging: the anti-windup seed reproduced",

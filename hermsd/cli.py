@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, TextIO, TypeVar
 
 from hermsd import __version__
 from hermsd import config as config_module
-from hermsd.config import Config, ConfigError, ContactorConfig, OutputConfig
+from hermsd.config import Config, ConfigError, ContactorConfig, Element2Config, OutputConfig
 from hermsd.config_file import ConfigFile
 from hermsd.control.client import (
     SOCKET_NAME,
@@ -560,12 +560,12 @@ def cmd_run(args: argparse.Namespace) -> int:
                     "--simulate, or choose serial-rts, serial-dtr or gpio for the tun"
                 )
             clock = MonotonicClock()
-            sensor, (ssr, contactor) = _hardware(config)
+            sensor, (ssr, contactor, element2) = _hardware(config)
             daemon = Daemon(
                 config,
                 clock,
                 sensor,
-                guard_outputs(ssr, contactor, clock, config),
+                guard_outputs(ssr, contactor, clock, config, element2),
                 notifier=notifier,
                 on_status=status.update,
                 config_file=config_file,
@@ -630,17 +630,28 @@ def _serve_control(daemon: Daemon, path: Path) -> ControlServer:
     return server
 
 
-def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None]]:
-    """The tun's sensor, SSR and contactor as the config names them (outputs closed on failure)."""
-    ssr = _open_output(config.output)
+def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None, Switch | None]]:
+    """The tun's sensor, SSR, contactor and second element as the config names them (outputs
+    closed on failure)."""
+    opened: list[Switch] = []
     try:
+        ssr = _open_output(config.output)
+        opened.append(ssr)
         contactor = _open_output(config.contactor) if config.contactor.backend != "none" else None
+        if contactor is not None:
+            opened.append(contactor)
+        if config.element2.backend == "sim":
+            raise UserError("element2.backend is 'sim', the simulated tun's: run with --simulate")
+        element2 = _open_output(config.element2) if config.element2.backend != "none" else None
+        if element2 is not None:
+            opened.append(element2)
         bus = open_bus(config.sensor.bus)
     except BaseException:
-        ssr.close()
+        for switch in opened:
+            switch.close()
         raise
     sensor = LM92(bus, config.sensor.address, bus_name=f"/dev/i2c-{config.sensor.bus}")
-    return sensor, (ssr, contactor)
+    return sensor, (ssr, contactor, element2)
 
 
 def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[DirectoryLock]:
@@ -724,7 +735,7 @@ def _open_recorder(directory: Path, config: Config) -> Recorder:
     )
 
 
-def _open_output(section: OutputConfig | ContactorConfig) -> Switch:
+def _open_output(section: OutputConfig | ContactorConfig | Element2Config) -> Switch:
     """The hardware a config section names, or a UserError that says why not."""
     channel = getattr(section, "channel", None)
     try:
@@ -1153,7 +1164,7 @@ def _run_tune(
                     config,
                     hardware_clock,
                     sensor,
-                    guard_outputs(*outputs, hardware_clock, config),
+                    guard_outputs(outputs[0], outputs[1], hardware_clock, config, outputs[2]),
                     latches=latches,
                 )
                 recorder = _open_recorder(log_dir, config) if log_dir else None

@@ -24,12 +24,14 @@ from typing import Any, NamedTuple, TypeVar
 
 import yaml
 
-from hermsd import pid
+from hermsd import midrange, pid
+from hermsd.element2 import MidRangeController
 from hermsd.files import NotRegularFile, read_regular
 from hermsd.learning import LearnedModel, implausible
 from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
 
-ALGORITHM_NAMES: tuple[str, ...] = ALGORITHMS
+MIDRANGE = "midrange"
+ALGORITHM_NAMES: tuple[str, ...] = (*ALGORITHMS, MIDRANGE)
 
 _SPEC = "hermsd.config.spec"
 _T = TypeVar("_T")
@@ -133,6 +135,17 @@ class ControlConfig:
         None, 1, 1000, "L", null_means="not measured: predictive's prior from tun.litres"
     )
     learn: str = _choice("on", ("on", "pinned", "off"))
+    # algorithm midrange: C1 drives the SSR's element (u1), C2 the second element (u2).
+    k1: float = _number(120.0, 0, 10000, "%/°C", low_exclusive=True)
+    ti1: float = _number(800.0, 1, 100000, "s")
+    tt1: float | None = _number(100.0, 1, 100000, "s", null_means="ti1")
+    k2: float = _number(2.0, 0, 100, "%/%", low_exclusive=True)
+    ti2: float = _number(600.0, 1, 100000, "s")
+    tt2: float | None = _number(None, 1, 100000, "s", null_means="ti2")
+    ks: float = _number(10.0, 0, 1000)
+    u1_ref: float = _number(70.0, 1, 99, "%")
+    u2_min: float = _number(0.0, 0, 100, "%")
+    u2_max: float = _number(100.0, 0, 100, "%", low_exclusive=True)
 
 
 @dataclass(frozen=True, slots=True)
@@ -172,6 +185,24 @@ class ContactorConfig:
     active_low: bool = False
     channel: int = _integer(1, 1, 8)
     baud: int = _choice(9600, (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200))
+
+
+@dataclass(frozen=True, slots=True)
+class Element2Config:
+    """A second element on its own relay, contactor or SSR: slow, switched whole periods on or
+    off no faster than its minimum on and off times allow (hermsd/element2.py)."""
+
+    backend: str = _choice("none", ("none", "sim", "gpio", *_SERIAL_LINES, "relay-board"))
+    port: str = _text("/dev/ttyUSB2")
+    chip: str = _text("/dev/gpiochip0")
+    line: int | None = _integer(None, 0, 511, null_means="none (only the gpio backend uses it)")
+    active_low: bool = False
+    channel: int = _integer(2, 1, 8)
+    baud: int = _choice(9600, (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200))
+    watts: float = _number(3500.0, 100, 20000, "W")
+    # A contactor is rated for about 100k operations: 2 min on and off is at most 30 a hour.
+    min_on: float = _number(120.0, 5, 3600, "s")
+    min_off: float = _number(120.0, 5, 3600, "s")
 
 
 @dataclass(frozen=True, slots=True)
@@ -273,6 +304,7 @@ class Config:
     sensor: SensorConfig = field(default_factory=SensorConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     contactor: ContactorConfig = field(default_factory=ContactorConfig)
+    element2: Element2Config = field(default_factory=Element2Config)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     log: LogConfig = field(default_factory=LogConfig)
     alerts: AlertsConfig = field(default_factory=AlertsConfig)
@@ -303,6 +335,7 @@ RESTART_KEYS: tuple[str, ...] = (
     "output.active_low",
     "output.window",
     *(f"contactor.{f.name}" for f in dataclasses.fields(ContactorConfig)),
+    *(f"element2.{f.name}" for f in dataclasses.fields(Element2Config)),
     *(f"log.{f.name}" for f in dataclasses.fields(LogConfig)),
 )
 
@@ -739,7 +772,11 @@ def _violations(config: Config) -> list[_Violation]:
             )
         )
 
-    for section, device in (("output", output), ("contactor", contactor)):
+    for section, device in (
+        ("output", output),
+        ("contactor", contactor),
+        ("element2", config.element2),
+    ):
         if device.backend == "gpio" and device.line is None:
             found.append(
                 _Violation(
@@ -784,6 +821,7 @@ def _violations(config: Config) -> list[_Violation]:
                 f"{output.chip} (give the contactor its own line)",
             )
         )
+    found.extend(_element2_violations(config))
     found.extend(_controller_violations(control))
     measured = measured_model(config)
     why = implausible(measured) if measured is not None else None
@@ -826,6 +864,65 @@ def _web_violations(web: WebConfig) -> list[_Violation]:
         found.append(
             _Violation(("web.password_hash",), f"not a password hash (expected {EXAMPLE})")
         )
+    return found
+
+
+def _device(section: OutputConfig | ContactorConfig | Element2Config) -> tuple[object, ...]:
+    """What a section's switch occupies: a serial port (a relay board or a line of it), or a
+    gpio line; two sections that occupy the same thing would drive one device."""
+    if section.backend == "gpio":
+        return ("gpio", section.chip, section.line)
+    if section.backend == "relay-board":
+        return ("serial", section.port, "relay", getattr(section, "channel", None))
+    return ("serial", section.port, section.backend)
+
+
+def _element2_violations(config: Config) -> list[_Violation]:
+    """The second element: only with the mid-ranging controller (and it only with one), on a
+    device of its own, its minimum times whole periods at least (it switches at periods)."""
+    element2, control = config.element2, config.control
+    found = []
+    fitted = element2.backend != "none"
+    if fitted != (control.algorithm == MIDRANGE):
+        found.append(
+            _Violation(
+                ("control.algorithm", "element2.backend"),
+                f"control.algorithm {control.algorithm} with element2.backend "
+                f"{element2.backend}: the mid-ranging controller drives two elements and no "
+                "other controller drives the second (use algorithm midrange with an element2 "
+                "backend, or neither)",
+            )
+        )
+    if not fitted:
+        return found
+    for name in ("min_on", "min_off"):
+        value = getattr(element2, name)
+        if value < control.period:
+            found.append(
+                _Violation(
+                    (f"element2.{name}", "control.period"),
+                    f"{_fmt(value)} s is shorter than control.period ({_fmt(control.period)} s);"
+                    " the second element switches only at periods (make it at least "
+                    f"{_fmt(control.period)})",
+                )
+            )
+    mine = _device(element2)
+    for other_name, other in (("output", config.output), ("contactor", config.contactor)):
+        if other.backend in ("none", "sim") or element2.backend == "sim":
+            continue
+        theirs = _device(other)
+        if mine[:2] != theirs[:2]:
+            continue
+        relays = ("relay" in mine, "relay" in theirs)
+        if mine[2:] == theirs[2:] or relays[0] != relays[1]:
+            where = f"line {element2.line} of {element2.chip}" if mine[0] == "gpio" else mine[1]
+            found.append(
+                _Violation(
+                    ("element2.backend", "element2.port", "element2.line", "element2.channel"),
+                    f"element2 and {other_name} would both drive {where} (give element2 its "
+                    "own port, line or relay channel; a relay board needs its port to itself)",
+                )
+            )
     return found
 
 
@@ -918,6 +1015,8 @@ def make_controller(control: ControlConfig, model: pid.PlantModel | None = None)
     `model` is the tun's model for predictive; without it, the one the control keys give.
     """
     c = control
+    if c.algorithm == MIDRANGE:
+        return _midrange_controller(c)
     return pid.create(
         c.algorithm,
         kc=c.kc,
@@ -932,6 +1031,29 @@ def make_controller(control: ControlConfig, model: pid.PlantModel | None = None)
     )
 
 
+def _midrange_controller(c: ControlConfig) -> MidRangeController:
+    """C1 on the SSR's element within 0..max_output; C2 on the second element. A heater's u2
+    must rise when u1 sits above u1_ref, so C2's gain is −k2 (k2 is written positive)."""
+    inner = midrange.create(
+        k1=c.k1,
+        ti1=c.ti1,
+        tt1=c.tt1,
+        k2=-c.k2,
+        ti2=c.ti2,
+        tt2=c.tt2,
+        ks=c.ks,
+        h=c.period,
+        u1_ref=c.u1_ref,
+        u1_min=0.0,
+        u1_max=c.max_output,
+        u2_min=c.u2_min,
+        u2_max=c.u2_max,
+    )
+    p = inner.params
+    params = pid.Params(MIDRANGE, c.k1, c.ti1, 0.0, c.period, 0.0, p.tt1, 0.0, c.max_output)
+    return MidRangeController(inner, params)
+
+
 def _controller_violations(control: ControlConfig) -> list[_Violation]:
     """The algorithm's own rules on its parameters (tt only for back_calculation, …)."""
     try:
@@ -943,7 +1065,14 @@ def _controller_violations(control: ControlConfig) -> list[_Violation]:
     return []
 
 
-_CONTROL_PARAMETERS = ("kc", "ti", "td", "tf", "tt")
+_CONTROL_PARAMETERS = (
+    "kc",
+    "ti",
+    "td",
+    "tf",
+    "tt",
+    *("k1", "ti1", "tt1", "k2", "ti2", "tt2", "ks", "u1_ref", "u2_min", "u2_max"),
+)
 
 
 # -- reading a document ---------------------------------------------------------------------------
@@ -1226,7 +1355,7 @@ def reload_problems(running: Document, edited: Document) -> list[Problem]:
 class FoundOutput:
     """One output section as far as a damaged file lets it be read, key by key."""
 
-    section: str  # "output" or "contactor"
+    section: str  # "output", "contactor" or "element2"
     values: dict[str, object]  # the keys written with a usable value
     refused: dict[str, Problem]  # the keys written with a value that cannot be used
     doubts: list[Problem]  # what may name this device otherwise: unknown keys, unread lines
@@ -1240,13 +1369,14 @@ class FoundOutputs:
     contactor: FoundOutput
     notes: list[Problem]  # damage outside the output sections, read around
     doubts: list[Problem]  # damage that may hide an output section: nothing is sure then
+    element2: FoundOutput = field(default_factory=lambda: FoundOutput("element2", {}, {}, []))
 
 
-_OUTPUT_SECTIONS = ("output", "contactor")
+_OUTPUT_SECTIONS = ("output", "contactor", "element2")
 
 
 def load_outputs(path: str | os.PathLike[str]) -> FoundOutputs:
-    """The `output` and `contactor` sections of a file, whatever is wrong with it.
+    """The `output`, `contactor` and `element2` sections of a file, whatever is wrong with it.
 
     `hermsd safe-off` must find the heater's switches after any bad edit, so this reads
     in steps, each more tolerant than the last: the whole document; if it is not YAML,
@@ -1310,7 +1440,7 @@ def _found_outputs(
                 section_doubts.append(problem)
         found.append(FoundOutput(section, values.get(section, {}), refused, section_doubts))
     doubts = doubts + [p for p in reader.problems if p.key_path.split(".")[0] not in _SCHEMA]
-    return FoundOutputs(found[0], found[1], notes, doubts)
+    return FoundOutputs(found[0], found[1], notes, doubts, found[2])
 
 
 _HEADER = re.compile(r"[ \t]*(?P<name>[A-Za-z_][A-Za-z0-9_]*)[ \t]*:(?:[ \t]|$)")

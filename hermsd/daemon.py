@@ -34,6 +34,7 @@ from hermsd.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.clock import Clock
 from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
 from hermsd.config_file import ConfigFile
+from hermsd.element2 import MidRangeController, SlowElement, total_share
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
@@ -46,7 +47,14 @@ from hermsd.pv import period_value
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
-from hermsd.ssr import GuardedSwitch, Switch, TimeProportionalPlanner, WindowPlan, cut
+from hermsd.ssr import (
+    GuardedSwitch,
+    Switch,
+    SwitchedDuty,
+    TimeProportionalPlanner,
+    WindowPlan,
+    cut,
+)
 
 log = logging.getLogger("hermsd")
 
@@ -103,6 +111,9 @@ class PeriodRecord:
     alarms: list[str]
     heater_allowed: bool
     reset_from: float | None = None  # the controller was reset to this output before its step
+    u2: float | None = None  # the second element's duty (two elements only), %
+    applied2: float | None = None  # its duty in the period before, on account (C2 tracks it)
+    switched2: float | None = None  # … and as switched (the heat the supervisor counts)
     full_from: int | None = None  # after this many of `readings` it asked for full power at once
     step: str | None = None  # the mash program's step (hermsd.program), its index from 0,
     step_index: int | None = None  # the time left of its hold (None: not reached, or held
@@ -129,21 +140,31 @@ class Listener(Protocol):
 
 @dataclass(slots=True)
 class Outputs:
-    """The SSR and, optionally, a series contactor, both behind dead-men."""
+    """The SSR and, optionally, a series contactor and a second element, behind dead-men."""
 
     ssr: GuardedSwitch
     contactor: GuardedSwitch | None = None
+    element2: GuardedSwitch | None = None
 
     def all(self) -> list[GuardedSwitch]:
-        return [self.ssr] + ([self.contactor] if self.contactor else [])
+        return [s for s in (self.ssr, self.contactor, self.element2) if s is not None]
 
 
-def guard_outputs(ssr: Switch, contactor: Switch | None, clock: Clock, config: Config) -> Outputs:
-    """Wrap raw outputs in dead-men that trip after two windows without a refresh."""
+def guard_outputs(
+    ssr: Switch,
+    contactor: Switch | None,
+    clock: Clock,
+    config: Config,
+    element2: Switch | None = None,
+) -> Outputs:
+    """Wrap raw outputs in dead-men that trip after two windows without a refresh (the
+    second element, refreshed once a period: two periods)."""
     timeout = 2.0 * window_length(config)
+    slow = 2.0 * max(window_length(config), config.control.period)
     return Outputs(
         GuardedSwitch(ssr, clock.monotonic, timeout, "ssr"),
         GuardedSwitch(contactor, clock.monotonic, timeout, "contactor") if contactor else None,
+        GuardedSwitch(element2, clock.monotonic, slow, "element2") if element2 else None,
     )
 
 
@@ -157,7 +178,7 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
     s = config.safety
     return SafetyLimits.derive(
         litres=config.tun.litres,
-        element_watts=config.tun.element_watts,
+        element_watts=config.tun.element_watts + element2_watts(config),
         period=config.control.period,
         read_interval=config.sensor.read_interval,
         model=model,
@@ -179,6 +200,11 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
         stuck_output_change=s.stuck_output_change,
         stall_periods=s.stall_periods,
     )
+
+
+def element2_watts(config: Config) -> float:
+    """The second element's power (0 when none is fitted): the supervisor judges the total."""
+    return config.element2.watts if config.element2.backend != "none" else 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -208,8 +234,11 @@ def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
     (kept up to date by the daemon itself), else what `hermsd tune` measured; pinned: the
     measured one, else what was learned; off: the measured one only. A measurement is
     rescaled to the configured litres; one the fill takes out of the controller's range is
-    passed over. Neither: the config's prior."""
+    passed over. Neither: the config's prior. With a second element fitted, the prior
+    always: what was learned or measured is the response to one element."""
     learn = config.control.learn
+    if element2_watts(config):
+        return ModelChoice(config_module.prior_model(config), "prior")
     candidates = [
         ("learned", stored if learn != "off" else None),
         ("measured", config_module.measured_model(config)),
@@ -326,6 +355,10 @@ class Daemon:
         self._heat_up_seen = pid.heat_up_fit(self.controller)
         self._reloaded_at = -math.inf  # when a reload last changed the config
         self.planner = self._make_planner(config)
+        e2 = config.element2
+        self.element2 = (
+            SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
+        )
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
         self.manual_output = config.control.manual_output
@@ -344,9 +377,7 @@ class Daemon:
         self._held = True  # nothing to continue from until the first good period
         self._resume_output = 0.0
         self._window = _Window()
-        self._ssr_on_since: float | None = None
-        self._on_seconds = 0.0
-        self._last_control_t: float | None = None
+        self._ssr_duty = SwitchedDuty()  # the SSR as switched since the last period
         self._reads = 0
         self._pending: list[Callable[[float], None]] = []
         self.control: ControlHook | None = None
@@ -381,7 +412,7 @@ class Daemon:
         self.sensor.identify()
         self._program_sensor()
         now = self.clock.monotonic()
-        self._last_control_t = now
+        self._ssr_duty.begin(now)
         read_interval = self.config.sensor.read_interval
         self._read_now(now)
         sched = self.scheduler
@@ -402,7 +433,9 @@ class Daemon:
         if self._stored_model is not None and self.model_choice.source != "learned":
             learn, litres = self.config.control.learn, self.config.tun.litres
             why = f"out of the controller's range at {litres:g} L"
-            if learn == "off":
+            if element2_watts(self.config):
+                why = "a second element is fitted: it models one"
+            elif learn == "off":
                 why = "control.learn off"
             elif learn == "pinned" and self.model_choice.source == "measured":
                 why = "control.learn pinned: the model from hermsd tune comes first"
@@ -483,7 +516,7 @@ class Daemon:
             except BaseException as error:  # a stop that was already due: the rest first
                 interrupted = interrupted or error
         now = self.clock.monotonic()
-        self._set_ssr_accounting(False, now)
+        self._ssr_duty.switched(False, now)
         self._event(logging.INFO, f"heater off: {reason}", now)
         self._alert("stopped", f"heater off: {reason}", now)
         self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT))  # outputs are off
@@ -789,8 +822,8 @@ class Daemon:
     def _learn(self, record: PeriodRecord) -> None:
         """Feed the learner one period; store and log what it learned (or why not)."""
         models = self.models
-        if self.config.control.learn != "on" or models is None:
-            return
+        if self.config.control.learn != "on" or models is None or self.element2 is not None:
+            return  # the learner models one element
         learner = self._learner
         fit = pid.heat_up_fit(self.controller)
         if record.state != "ok" or record.mode != "auto" or record.pv is None:
@@ -990,8 +1023,13 @@ class Daemon:
         if pv is None:
             pv = self._last_celsius  # a slow read interval: the latest accepted value
         self._pv = pv
-        applied = self._applied(now)
-        sup.period(now, pv, asked, applied)
+        applied = self._ssr_duty.read(now)
+        switched2 = applied2 = None
+        if self.element2 is not None:
+            switched2, applied2 = self.element2.applied(now)
+        if isinstance(self.controller, MidRangeController):
+            self.controller.applied2 = applied2 or 0.0
+        sup.period(now, pv, *self._total_power(asked, applied, switched2))
         self._drain_alarms(now)
         standby = self._program_period(now, pv) and self.mode == "auto"
         state = "ok"
@@ -1022,6 +1060,7 @@ class Daemon:
             state = "alarm" if sup.active else "waiting"
         if self.mode == "manual" and state == "ok":
             state = "manual"
+        u2 = self._drive_element2(now, state)
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -1041,6 +1080,9 @@ class Daemon:
             alarms=sup.active,
             heater_allowed=sup.heater_allowed,
             reset_from=reset_from,
+            u2=u2,
+            applied2=applied2,
+            switched2=switched2,
             full_from=full_from,
             **self.program.record_fields(),
         )
@@ -1116,7 +1158,7 @@ class Daemon:
     def _switch(self, on: bool, now: float) -> None:
         on = on and self.supervisor.heater_allowed
         self.outputs.ssr.set(on)
-        self._set_ssr_accounting(on, now)
+        self._ssr_duty.switched(on, now)
 
     def _force_off(self, now: float) -> None:
         """Heater off at once: the window in progress is cut, the contactor opened."""
@@ -1127,27 +1169,34 @@ class Daemon:
         window.cut = True
         self.planner.reset()
         self.outputs.ssr.set(False)
-        self._set_ssr_accounting(False, now)
+        self._ssr_duty.switched(False, now)
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(False)
+        if self.element2 is not None:
+            self.element2.force_off(now)
 
-    def _set_ssr_accounting(self, on: bool, now: float) -> None:
-        if on and self._ssr_on_since is None:
-            self._ssr_on_since = now
-        elif not on and self._ssr_on_since is not None:
-            self._on_seconds += now - self._ssr_on_since
-            self._ssr_on_since = None
+    def _drive_element2(self, now: float, state: str) -> float | None:
+        """The second element for the period: the controller's u2 in auto, off otherwise
+        (manual drives the SSR alone; an alarm has already forced it off)."""
+        if self.element2 is None:
+            return None
+        u2 = 0.0
+        if state == "ok" and isinstance(self.controller, MidRangeController):
+            u2 = self.controller.u2
+        if state in ("ok", "manual"):
+            self.element2.drive(now, u2)
+        return u2
 
-    def _applied(self, now: float) -> float:
-        """The duty the SSR was driven at since the last control period, as switched, in %."""
-        if self._ssr_on_since is not None:
-            self._on_seconds += now - self._ssr_on_since
-            self._ssr_on_since = now
-        last = self._last_control_t if self._last_control_t is not None else now
-        self._last_control_t = now
-        span = now - last
-        on, self._on_seconds = self._on_seconds, 0.0
-        return min(100.0, 100.0 * on / span) if span > 0 else 0.0
+    def _total_power(
+        self, output: float, applied: float, applied2: float | None
+    ) -> tuple[float, float]:
+        """(output, applied) as % of all the elements' power, for the supervisor."""
+        if applied2 is None or not isinstance(self.controller, MidRangeController):
+            return output, applied
+        w1, w2 = self.config.tun.element_watts, element2_watts(self.config)
+        return total_share(w1, w2, output, self.controller.u2), total_share(
+            w1, w2, applied, applied2
+        )
 
     # -- reporting ------------------------------------------------------------------------
 

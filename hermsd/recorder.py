@@ -106,13 +106,17 @@ def _field(kind: str | list[str], description: str, **extra: Any) -> dict[str, A
     return {"type": kind, "description": description, **extra}
 
 
-def _object(title: str, description: str, properties: dict[str, Any]) -> dict[str, Any]:
+def _object(
+    title: str, description: str, properties: dict[str, Any], optional: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """A record's schema; every property is required but the `optional` ones (fields added
+    later, so the logs written before them still read)."""
     return {
         "title": title,
         "description": description,
         "type": "object",
         "properties": properties,
-        "required": list(properties),
+        "required": [name for name in properties if name not in optional],
     }
 
 
@@ -136,9 +140,9 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "applied": _field(
                     "number", "duty the SSR was driven at in the period before, as switched, %"
                 ),
-                "p": _field("number", "proportional part of the output, %"),
-                "i": _field("number", "integral part of the output, %"),
-                "d": _field("number", "derivative part of the output, %"),
+                "p": _field("number", "proportional part of the output (midrange: C1's), %"),
+                "i": _field("number", "integral part of the output (midrange: C1's), %"),
+                "d": _field("number", "derivative part of the output (midrange: C2's integral), %"),
                 "mode": _field("string", "who sets the output", enum=["auto", "manual"]),
                 "algorithm": _field("string", "controller in use"),
                 "state": _field("string", "safety state: ok, held, alarm, …"),
@@ -147,6 +151,15 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "reset_from": _field(
                     ["number", "null"],
                     "output the controller was reset to before this step (bumpless start), %",
+                ),
+                "u2": _field(["number", "null"], "second element's duty (midrange only), %"),
+                "applied2": _field(
+                    ["number", "null"],
+                    "second element's duty in the period before, on account (C2 tracks it), %",
+                ),
+                "switched2": _field(
+                    ["number", "null"],
+                    "second element's duty in the period before, as switched, %",
                 ),
                 "full_from": _field(
                     ["integer", "null"],
@@ -160,6 +173,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 ),
                 "next_step": _field(["string", "null"], "the next step's name"),
             },
+            optional=("u2", "applied2", "switched2"),
         ),
     ),
     READING_TOPIC: TopicSpec(

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 from hermsd import config as config_module
 from hermsd.config import make_controller
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
+from hermsd.element2 import MidRangeController
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import DROP_READINGS, Controller, PlantModel, full_power_now
@@ -499,9 +500,12 @@ def delivered(log: Log) -> tuple[float | None, float | None]:
 
     A period's `applied` is the duty of the span since the period before it, so it is
     weighed by that span; after missing records, by one control period. The element's
-    watts come from the config in force; without one the energy is unknown (None).
+    watts come from the config in force; without one the energy is unknown (None). A second
+    element's energy (its duty as switched, `switched2`) is added; the mean duty is the
+    SSR's.
     """
     watts: float | None = None
+    watts2 = 0.0
     watts_known = True
     duty_s = span_s = joules = 0.0
     period_s = log.period_s()
@@ -509,6 +513,7 @@ def delivered(log: Log) -> tuple[float | None, float | None]:
     for entry in log.entries:
         if isinstance(entry, LoggedConfig):
             watts = _lookup(entry.config, "tun", "element_watts")
+            watts2 = _lookup(entry.config, "element2", "watts") or 0.0
             continue
         if previous is not None and entry.k == previous.k + 1 and entry.t >= previous.t:
             span = entry.t - previous.t
@@ -521,6 +526,8 @@ def delivered(log: Log) -> tuple[float | None, float | None]:
             watts_known = False
         else:
             joules += watts * entry.applied / 100.0 * span
+            if _is_number(entry.switched2):
+                joules += watts2 * entry.switched2 / 100.0 * span
     if span_s == 0:
         return None, None
     return duty_s / span_s, joules / 3.6e6 if watts_known else None
@@ -664,7 +671,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     A config record makes a new controller (a repeat of the one in force, which opens every
     rotated file, does not). The controller steps in auto mode when heating is allowed and
     there is a PV, after `reset(pv, reset_from)` if `reset_from` is set; its output and its
-    p, i, d terms must equal the logged ones exactly. The daemon resets the controller on its
+    p, i, d terms must equal the logged ones exactly (midrange: u2 too, the second element's
+    logged applied2 handed in first, as the daemon does). The daemon resets the controller on its
     first step and after every hold, reload or return to auto, so where records are missing
     the check resumes at the next reset.
 
@@ -728,6 +736,10 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         if controller is None:
             unknown += 1
             continue
+        if isinstance(controller, MidRangeController):
+            if not (_is_number(record.applied2) and _is_number(record.u2)):
+                raise ReplayError(f"period k={record.k}: a midrange period without u2, applied2")
+            controller.applied2 = record.applied2  # what the daemon handed in, as logged
         try:
             if record.reset_from is not None:
                 controller.reset(record.pv, record.reset_from)
@@ -739,12 +751,15 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         except ValueError as error:
             raise ReplayError(f"period k={record.k}: the controller refused it: {error}") from None
         p, i, d = controller.terms
-        for name, logged, recomputed in (
+        compared = [
             ("output", record.output, output),
             ("p", record.p, p),
             ("i", record.i, i),
             ("d", record.d, d),
-        ):
+        ]
+        if isinstance(controller, MidRangeController) and record.u2 is not None:
+            compared.append(("u2", record.u2, controller.u2))
+        for name, logged, recomputed in compared:
             if logged != recomputed:
                 return Verification(
                     verified, unknown, Mismatch(record.k, record.t, name, logged, recomputed)

@@ -16,6 +16,7 @@ from typing import Any
 
 from hermsd.config import (
     ContactorConfig,
+    Element2Config,
     FoundOutput,
     FoundOutputs,
     OutputConfig,
@@ -35,9 +36,10 @@ _IDENTITY: dict[str, tuple[str, ...]] = {
 # an off command at a wrong baud rate is noise to the board, and every relay of the
 # contactor's board off is a safe state.
 _TRIED_IN_TURN = ("baud", "channel")
-_DEFAULTS: dict[str, OutputConfig | ContactorConfig] = {
+_DEFAULTS: dict[str, OutputConfig | ContactorConfig | Element2Config] = {
     "output": OutputConfig(),
     "contactor": ContactorConfig(),
+    "element2": Element2Config(),
 }
 _ARGUMENTS = ("backend", "port", "chip", "line", "active_low", *_TRIED_IN_TURN)
 
@@ -54,11 +56,12 @@ class Report:
 
 
 def switch_off(found: FoundOutputs, open_switch: OpenSwitch) -> Report:
-    """Drive the SSR output, then the contactor, off; every doubt about them is a failure."""
+    """Drive the SSR output, the contactor and the second element off; every doubt about
+    them is a failure."""
     report = Report()
     report.notes.extend(f"{problem}; read around it" for problem in found.notes)
     report.failures.extend(f"{problem}; so an output may be missed" for problem in found.doubts)
-    for section in (found.output, found.contactor):
+    for section in (found.output, found.contactor, found.element2):
         _switch_section_off(section, open_switch, report)
     return report
 

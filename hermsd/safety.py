@@ -42,6 +42,19 @@ SENSOR_LAG_MAX = 120.0
 """s: a thermowell's own first-order lag, the far end; heat keeps showing this much longer."""
 COLDEST_ROOM = 5.0
 """°C: a garage in winter; losses are bounded as if the room were this cold."""
+WARMEST_ROOM = 40.0
+"""°C: a brewery in summer sun; water colder than this may warm from the room unheated."""
+CREEP_WATCHES = (900.0, 3600.0)
+"""s: the longer watches for heat nothing switched on. With nothing delivered, a rise of
+`ssr_max_rise` (0.5 °C) in W is a heater left on that outpaces the losses by 0.5/W: 2 °C/h
+in 900 s, 0.5 °C/h in an hour. One that outpaces them by less at the setpoint (net rate r)
+settles where the losses catch up, r·τ above it, τ the time constant of the losses there:
+the 150 L open pot's shorted 3.5 kW contactor settled 4 °C over with ~1 kW net at the
+setpoint, so its losses grow ~250 W/K there, τ = 150·4186/250 ≈ 2500 s; at the hour's 0.5 °C/h
+that pot ends at most 0.35 °C over, a lidded 90 L tun (τ = 14961 s) 2.1 °C. The 900 s watch
+catches a faster creep sooner (the 300 s one alone, 6 °C/h, missed that contactor: 0.3 °C
+per 5 min with every output off, 4 °C over the setpoint in an hour). Water colder than the
+warmest room may warm from it unheated: that rise is allowed on top."""
 OPEN_POT_UA_PER_L23 = 2.0 * (3000.0 / 168.9) / 90.0 ** (2.0 / 3.0)
 """W/(K·L^⅔): twice the identified 90 L tun's UA per wetted area (an open, uninsulated pot)."""
 OPEN_POT_EVAPORATION_W = 1000.0
@@ -106,6 +119,7 @@ class SafetyLimits:
     evaporation_rate: float = 0.00531
     ssr_watch: float = 300.0
     ssr_max_rise: float = 0.5
+    creep_watches: tuple[float, ...] = CREEP_WATCHES
     heat_memory: float = DEAD_TIME_MAX + SENSOR_LAG_MAX
     heat_rate: float = 0.0193
     full_rate: float = 0.008
@@ -633,28 +647,36 @@ class Supervisor:
         the water, +10 % mains). Energy from `heat_memory` before the window counts too, as
         heat reaches the sensor only after the dead time and the well's lag (300 + 120 s
         before anything is measured: a lag's tail beyond that is e^−2 of it). More rise than
-        that means something else is heating: an SSR that failed shorted.
+        that means something else is heating: an SSR that failed shorted. The longer
+        watches (`CREEP_WATCHES`) see a heater that outpaces the losses only slowly.
         """
         lim, history = self.limits, self._energy
         previous, self._last_period_t = self._last_period_t, t
         dt = 0.0 if previous is None else t - previous
         history.append((t, pv, applied / 100.0 * dt))
-        span = lim.ssr_watch + lim.heat_memory
-        while t - history[0][0] > span:
+        longest = max(lim.ssr_watch, *lim.creep_watches)
+        while t - history[0][0] > longest + lim.heat_memory:
             history.popleft()
-        if t - history[0][0] < span - dt:
-            return
-        pv_then = next(p for when, p, _ in history if when >= t - lim.ssr_watch)
-        full_power_s = sum(e for _, _, e in history)
-        allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise
-        if pv - pv_then > allowed:
-            self._raise(
-                "ssr_stuck_on",
-                t,
-                f"PV rose {pv - pv_then:.2f} °C in {lim.ssr_watch:.0f} s, more than the "
-                f"{full_power_s:.0f} s of full power delivered can explain ({allowed:.2f} °C)",
-                {"rise_c": pv - pv_then, "allowed_c": allowed},
-            )
+        watches = [(lim.ssr_watch, 0.0)]
+        watches += [(w, lim.loss_per_k * w) for w in lim.creep_watches]
+        for watch, room_per_k in watches:
+            span = watch + lim.heat_memory
+            if t - history[0][0] < span - dt:
+                continue
+            pv_then = next(p for when, p, _ in history if when >= t - watch)
+            full_power_s = sum(e for when, _, e in history if when >= t - span)
+            from_room = room_per_k * max(0.0, WARMEST_ROOM - min(pv, pv_then))
+            allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise + from_room
+            if pv - pv_then > allowed:
+                self._raise(
+                    "ssr_stuck_on",
+                    t,
+                    f"PV rose {pv - pv_then:.2f} °C in {watch:.0f} s, more than the "
+                    f"{full_power_s:.0f} s of full power delivered can explain "
+                    f"({allowed:.2f} °C)",
+                    {"rise_c": pv - pv_then, "allowed_c": allowed},
+                )
+                return
 
     def _check_stuck(self, t: float, output: float) -> None:
         """A reading that stays bit-identical although the output moved long enough ago.
@@ -764,7 +786,9 @@ def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
         ),
         (
             "SSR stuck on: rise beyond heat given",
-            f"{lim.ssr_max_rise:g} °C in {lim.ssr_watch:.0f} s, heat counted "
+            f"{lim.ssr_max_rise:g} °C in "
+            + ", ".join(f"{w:.0f}" for w in (lim.ssr_watch, *lim.creep_watches))
+            + f" s, heat counted "
             f"{lim.heat_memory:.0f} s back, {lim.heat_rate * 60:.2f} °C per full-power minute",
             source("heat_rate"),
         ),

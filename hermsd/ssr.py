@@ -142,6 +142,39 @@ def cut(plan: WindowPlan, at: float) -> WindowPlan:
     return WindowPlan(plan.start, plan.length, on_at, off_at, plan.requested, applied)
 
 
+class SwitchedDuty:
+    """The share of time an output was switched on between one reading and the next, %:
+    the heat it let through, which its controller tracks and the supervisor counts."""
+
+    def __init__(self) -> None:
+        self._on_since: float | None = None
+        self._on_seconds = 0.0
+        self._last: float | None = None  # the reading before; None: nothing to measure from
+
+    def begin(self, now: float) -> None:
+        """Measure from `now` (the first reading then covers the time since)."""
+        self._last = now
+
+    def switched(self, on: bool, now: float) -> None:
+        """The output was switched on or off (as it was already: nothing changes)."""
+        if on and self._on_since is None:
+            self._on_since = now
+        elif not on and self._on_since is not None:
+            self._on_seconds += now - self._on_since
+            self._on_since = None
+
+    def read(self, now: float) -> float:
+        """% of the time since the reading before (0 for none) that the output was on."""
+        if self._on_since is not None:
+            self._on_seconds += now - self._on_since
+            self._on_since = now
+        last = self._last if self._last is not None else now
+        self._last = now
+        span = now - last
+        on, self._on_seconds = self._on_seconds, 0.0
+        return min(100.0, 100.0 * on / span) if span > 0 else 0.0
+
+
 class Switch(Protocol):
     """A two-state output: the SSR's drive, or a contactor's coil."""
 

@@ -34,6 +34,7 @@ from hermsd.config import (
 )
 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
+TWO_ELEMENTS_DOC = Path(__file__).resolve().parents[1] / "docs" / "two-elements.md"
 FAST_FUZZ = settings(max_examples=200, deadline=None)
 
 
@@ -69,6 +70,16 @@ BOUNDS = [
     Bound("control.model_tau", float, 10, 1000000),
     Bound("control.dead_time", float, 0, 3600),
     Bound("control.model_ambient", float, -20, 50),
+    Bound("control.k1", float, 0, 10000, low_open=True),
+    Bound("control.ti1", float, 1, 100000),
+    Bound("control.tt1", float, 1, 100000, nullable=True),
+    Bound("control.k2", float, 0, 100, low_open=True),
+    Bound("control.ti2", float, 1, 100000),
+    Bound("control.tt2", float, 1, 100000, nullable=True),
+    Bound("control.ks", float, 0, 1000),
+    Bound("control.u1_ref", float, 1, 99),
+    Bound("control.u2_min", float, 0, 100),
+    Bound("control.u2_max", float, 0, 100, low_open=True),
     Bound("control.model_litres", float, 1, 1000, nullable=True),
     Bound("sensor.bus", int, 0, 255),
     Bound("sensor.address", int, 0x48, 0x4B),
@@ -79,6 +90,11 @@ BOUNDS = [
     Bound("output.min_off", float, 0, 10),
     Bound("contactor.line", int, 0, 511, nullable=True),
     Bound("contactor.channel", int, 1, 8),
+    Bound("element2.line", int, 0, 511, nullable=True),
+    Bound("element2.channel", int, 1, 8),
+    Bound("element2.watts", float, 100, 20000),
+    Bound("element2.min_on", float, 5, 3600),
+    Bound("element2.min_off", float, 5, 3600),
     Bound("safety.max_temp", float, 30, 105),
     Bound("safety.hysteresis", float, 0.5, 30),
     Bound("safety.plausible_min", float, -55, 150),
@@ -116,11 +132,14 @@ CHOICES: dict[str, tuple[object, ...]] = {
         "takahashi",
         "back_calculation",
         "velocity_pi",
+        "midrange",
     ),
     "output.backend": ("sim", "serial-rts", "serial-dtr", "gpio"),
     "output.mains_hz": (50, 60),
     "contactor.backend": ("none", "gpio", "serial-rts", "serial-dtr", "relay-board"),
     "contactor.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
+    "element2.backend": ("none", "sim", "gpio", "serial-rts", "serial-dtr", "relay-board"),
+    "element2.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
     "web.read_only_view": ("on", "off"),
 }
 TEXTS = {  # key: (longest, nullable)
@@ -129,6 +148,8 @@ TEXTS = {  # key: (longest, nullable)
     "output.chip": (None, False),
     "contactor.port": (None, False),
     "contactor.chip": (None, False),
+    "element2.port": (None, False),
+    "element2.chip": (None, False),
     "log.dir": (None, True),
     "web.listen": (300, False),
     "web.password_hash": (None, True),
@@ -142,7 +163,7 @@ TEXTS = {  # key: (longest, nullable)
     "mqtt.discovery_prefix": (100, False),
     "mqtt.client_id": (64, True),
 }
-FLAGS = ("output.active_low", "contactor.active_low", "mqtt.tls")
+FLAGS = ("output.active_low", "contactor.active_low", "element2.active_low", "mqtt.tls")
 ALERT_EVENTS = (
     "alarm_raised",
     "alarm_cleared",
@@ -175,6 +196,21 @@ RESTART = [
     "contactor.active_low",
     "contactor.channel",
     "contactor.baud",
+    *(
+        f"element2.{key}"
+        for key in (
+            "backend",
+            "port",
+            "chip",
+            "line",
+            "active_low",
+            "channel",
+            "baud",
+            "watts",
+            "min_on",
+            "min_off",
+        )
+    ),
     "log.dir",
     "log.rotate_hours",
     "log.flush_interval",
@@ -316,6 +352,16 @@ def test_defaults_are_the_specified_ones() -> None:
             "model_ambient": 20.0,
             "model_litres": None,
             "learn": "on",
+            "k1": 120.0,
+            "ti1": 800.0,
+            "tt1": 100.0,
+            "k2": 2.0,
+            "ti2": 600.0,
+            "tt2": None,
+            "ks": 10.0,
+            "u1_ref": 70.0,
+            "u2_min": 0.0,
+            "u2_max": 100.0,
         },
         "sensor": {"bus": 1, "address": 0x48, "read_interval": 1.0},
         "output": {
@@ -337,6 +383,18 @@ def test_defaults_are_the_specified_ones() -> None:
             "active_low": False,
             "channel": 1,
             "baud": 9600,
+        },
+        "element2": {
+            "backend": "none",
+            "port": "/dev/ttyUSB2",
+            "chip": "/dev/gpiochip0",
+            "line": None,
+            "active_low": False,
+            "channel": 2,
+            "baud": 9600,
+            "watts": 3500.0,
+            "min_on": 120.0,
+            "min_off": 120.0,
         },
         "safety": {
             "max_temp": 95.0,
@@ -418,11 +476,11 @@ def _comment_blocks() -> dict[str, str]:
     section = ""
     comment: list[str] = []
     for line in CONFIG_FILE.read_text(encoding="utf-8").splitlines():
-        if re.fullmatch(r"[a-z_]+:", line):
+        if re.fullmatch(r"[a-z0-9_]+:", line):
             section, comment = line[:-1], []
         elif line.lstrip().startswith("#"):
             comment.append(line.strip().lstrip("#").strip())
-        elif match := re.match(r"  ([a-z_]+):(.*)", line):
+        elif match := re.match(r"  ([a-z0-9_]+):(.*)", line):
             inline = match[2].split(" #", 1)[1] if " #" in match[2] else ""
             blocks[f"{section}.{match[1]}"] = " ".join([*comment, inline]).strip()
             comment = []
@@ -431,8 +489,36 @@ def _comment_blocks() -> dict[str, str]:
     return blocks
 
 
+def _two_element_rows() -> dict[str, tuple[str, str]]:
+    """The keys docs/two-elements.md documents in its tables (the mid-ranging controller's
+    and section element2: kept out of the shipped file), each with its default and text."""
+    rows: dict[str, tuple[str, str]] = {}
+    section = ""
+    for line in TWO_ELEMENTS_DOC.read_text(encoding="utf-8").splitlines():
+        if heading := re.match(r"## `([a-z0-9]+)`", line):
+            section = heading[1]
+        elif row := re.fullmatch(r"\| `([a-z0-9_]+)` \| ([^|]*) \| (.*) \|", line):
+            rows[f"{section}.{row[1]}"] = (row[2], row[3])
+    return rows
+
+
+def _documented() -> dict[str, str]:
+    """Every key's documentation: its comment in the shipped file, else its table row."""
+    rows = {key: f"{text} |" for key, (_default, text) in _two_element_rows().items()}
+    return _comment_blocks() | rows
+
+
+def test_the_two_element_keys_are_documented_with_their_defaults_outside_the_file() -> None:
+    rows = _two_element_rows()
+    assert not set(rows) & set(_comment_blocks())
+    assert {key.split(".")[0] for key in rows} == {"control", "element2"}
+    for key, (default, _text) in rows.items():
+        section, name = key.split(".")
+        assert yaml.safe_load(default) == getattr(getattr(DEFAULT, section), name), key
+
+
 def test_every_key_in_the_shipped_file_has_a_comment_with_its_range() -> None:
-    blocks = _comment_blocks()
+    blocks = _documented()
     assert sorted(blocks) == sorted(ALL_KEYS)
     for key, comment in blocks.items():
         assert len(comment) > 20, key
@@ -456,7 +542,7 @@ def test_every_key_in_the_shipped_file_has_a_comment_with_its_range() -> None:
 
 
 def test_the_shipped_file_marks_exactly_the_restart_keys() -> None:
-    marked = sorted(key for key, comment in _comment_blocks().items() if "RESTART" in comment)
+    marked = sorted(key for key, comment in _documented().items() if "RESTART" in comment)
     assert marked == sorted(RESTART)
 
 
@@ -544,6 +630,11 @@ def test_every_choice_is_accepted(key: str, choices: tuple[object, ...]) -> None
         values = {key: str(choice)}
         if choice == "gpio":
             values[key.split(".", maxsplit=1)[0] + ".line"] = "17"
+        if key.startswith("element2.") and choice != "none":
+            values["control.algorithm"] = "midrange"  # the second element needs midrange
+            values.setdefault("element2.backend", "sim")
+        if choice == "midrange":
+            values["element2.backend"] = "sim"
         assert value_at(parse(document(values)), key) == choice
 
 
@@ -981,7 +1072,7 @@ def test_restart_keys_changed() -> None:
     for key in RESTART:
         section, name = key.split(".")
         old = value_at(DEFAULT, key)
-        changed = {bool: not old, int: 2, str: "/dev/other"}.get(type(old), 7)
+        changed = {bool: not old, int: 3 if old == 2 else 2, str: "/dev/other"}.get(type(old), 7)
         part = dataclasses.replace(getattr(DEFAULT, section), **{name: changed})
         assert restart_keys_changed(DEFAULT, dataclasses.replace(DEFAULT, **{section: part})) == [
             key

@@ -63,6 +63,9 @@ PERIOD = {
     "alarms": [],
     "heater_allowed": True,
     "reset_from": None,
+    "u2": 12.5,
+    "applied2": 10.0,
+    "switched2": 0.0,
     "full_from": None,
     "step": "Saccharification",
     "step_index": 1,
@@ -176,7 +179,8 @@ class _DiskFile:
 def conforms(value: Any, schema: dict[str, Any]) -> bool:
     """The part of JSON Schema the recorder's schemas use: type, enum, bounds, properties, items.
 
-    An object must carry exactly the declared properties, so the schema documents every field.
+    An object must carry every required property and no undeclared one, so the schema
+    documents every field (optional ones: added later, absent from older logs).
     """
     kinds = schema.get("type")
     if kinds is not None:
@@ -200,7 +204,7 @@ def conforms(value: Any, schema: dict[str, Any]) -> bool:
         return False
     if isinstance(value, dict) and "properties" in schema:
         properties = schema["properties"]
-        if set(value) != set(properties) or set(schema.get("required", [])) - set(value):
+        if set(value) - set(properties) or set(schema.get("required", [])) - set(value):
             return False
         return all(conforms(value[key], properties[key]) for key in value)
     if isinstance(value, list) and "items" in schema:

@@ -173,6 +173,18 @@ def test_exit_0_when_every_output_found_is_off(
     assert len(outcome.err) == 1 and "invalid YAML" in outcome.err[0]
 
 
+def test_the_second_element_is_switched_off_too_even_in_a_damaged_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], bench: Bench
+) -> None:
+    # The board's "channel 2 off": A0 02 00, checksum A0 + 02 + 00 = A2.
+    damaged = b"control:\n  algorithm: midrange\n bad indent\noutput:\n  backend: sim\n"
+    element2 = f"element2:\n  backend: relay-board\n  port: {bench.relay}\n".encode()
+    outcome = safe_off(tmp_path, capsys, damaged + element2)
+    assert bench.relay_bytes() == bytes.fromhex("a00200a2")
+    assert f"element2: relay-board channel 2 on {bench.relay} at 9600 baud: off" in outcome.out
+    assert outcome.code == 0
+
+
 @pytest.mark.parametrize(
     ("data", "why"),
     [

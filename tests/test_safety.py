@@ -122,6 +122,31 @@ def test_heat_the_element_did_not_deliver_means_a_stuck_ssr() -> None:
     assert sup.latched == ["ssr_stuck_on"]
 
 
+def test_a_heater_that_outpaces_the_losses_slowly_is_caught_with_every_output_off() -> None:
+    # A shorted contactor on a 150 L open pot: 0.3 °C per 5 min with nothing switched on,
+    # under the 0.5 °C the 300 s watch allows. The 900 s watch, first judged once its history
+    # reaches back the 420 s heat can take to show, within a period (t = 1320 − 5 s), sees
+    # 900 · 0.001 = 0.9 °C > 0.5 °C.
+    sup = Supervisor(limits())
+    t, pv = 0.0, 66.0
+    while t <= 1320.0 and sup.heater_allowed:
+        sup.period(t, pv, 0.0, 0.0)
+        pv += 0.3 / 300.0 * 5.0
+        t += 5.0
+    assert sup.latched == ["ssr_stuck_on"]
+    assert t - 5.0 == 1315.0
+
+
+def test_cold_water_warming_from_the_room_unheated_is_not_a_stuck_ssr() -> None:
+    # 15 °C water in a 25 °C room, the heater off for two hours: it warms at the lidded 90 L
+    # tun's (25 − 15)/14961 s = 6.7e-4 °C/s, 0.6 °C in 900 s, 2.4 °C in an hour.
+    sup = Supervisor(limits())
+    for k in range(1440):
+        pv = 25.0 - 10.0 * 2.718281828 ** (-5.0 * k / 14961.0)
+        sup.period(5.0 * k, pv, 0.0, 0.0)
+    assert sup.heater_allowed and not sup.latched
+
+
 def test_holding_at_a_steady_duty_is_not_a_stuck_ssr() -> None:
     sup = Supervisor(limits())
     for k in range(400):

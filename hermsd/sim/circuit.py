@@ -1,6 +1,8 @@
 """The simulated heater circuit: SSR and contactor in series feeding the tun model's element.
 
-Faults a scenario can inject live here: an SSR that fails shorted (stuck on). A scenario's
+A second element, on its own relay or contactor, hangs behind the same series contactor.
+Faults a scenario can inject live here: an SSR or the second element's relay that fails
+shorted (stuck on). A scenario's
 circuit keeps every SSR edge and every change of the element's power with its time, so the
 simulator can count edges and tell exactly when the heater really went off after an alarm;
 the circuit of `hermsd run --simulate`, which may run for weeks, keeps none (`history`).
@@ -10,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from hermsd.sim.hlt import Plant
+from hermsd.sim.hlt import Plant, TwoElementPlant
 
 
 class HeaterCircuit:
@@ -23,7 +25,9 @@ class HeaterCircuit:
         contactor: bool = False,
         *,
         history: bool = False,
+        element2: TwoElementPlant | None = None,
     ) -> None:
+        """`element2`: the plant again, as a tun with a second element, when one is fitted."""
         self._plant = plant
         self._now = now
         self._history = history
@@ -31,13 +35,33 @@ class HeaterCircuit:
         self.ssr_stuck_on = False
         self.contactor_closed = not contactor  # no contactor: the line is always made
         self.powered = False
+        self._heating = False  # either element powered
         self.ssr_edges: list[float] = []
         self.power_changes: list[tuple[float, bool]] = []
         self.ssr = _Side(self._set_ssr)
         self.contactor = _Side(self._set_contactor) if contactor else None
+        self._plant2 = element2
+        self.relay2_on = False
+        self.relay2_stuck_on = False
+        self.powered2 = False
+        self.relay2_edges: list[float] = []
+        self.relay2 = _Side(self._set_relay2) if element2 is not None else None
 
     def set_stuck_on(self, stuck: bool) -> None:
         self.ssr_stuck_on = stuck
+        self._update()
+
+    def set_relay2_stuck_on(self, stuck: bool) -> None:
+        if self.relay2 is None:
+            raise ValueError("no second element is fitted (element2.backend is none)")
+        self.relay2_stuck_on = stuck
+        self._update()
+
+    def _set_relay2(self, on: bool) -> None:
+        if on != self.relay2_on:
+            self.relay2_on = on
+            if self._history:
+                self.relay2_edges.append(self._now())
         self._update()
 
     def _set_ssr(self, on: bool) -> None:
@@ -52,16 +76,24 @@ class HeaterCircuit:
         self._update()
 
     def _update(self) -> None:
+        t = self._now()
         powered = (self.ssr_on or self.ssr_stuck_on) and self.contactor_closed
         if powered != self.powered:
-            t = self._now()
             self.powered = powered
-            if self._history:
-                self.power_changes.append((t, powered))
             self._plant.set_heater(powered, t)
+        if self._plant2 is not None:
+            powered2 = (self.relay2_on or self.relay2_stuck_on) and self.contactor_closed
+            if powered2 != self.powered2:
+                self.powered2 = powered2
+                self._plant2.set_heater2(powered2, t)
+        heating = self.powered or self.powered2
+        if heating != self._heating:
+            self._heating = heating
+            if self._history:
+                self.power_changes.append((t, heating))
 
     def off_at_or_after(self, t: float) -> float | None:
-        """The first time at or after `t` when the element had no power (None: never).
+        """The first time at or after `t` when no element had power (None: never).
 
         Needs the history; without it, ValueError.
         """

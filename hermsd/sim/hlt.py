@@ -7,7 +7,8 @@ change to change with a few exponentials. The answer therefore does not depend o
 anyone looks, and a six-hour brew day costs milliseconds.
 
 One lumped model serves both views. The water (heat capacity C in J/K) receives the element's
-power P after a delay and loses heat to the room through UA (W/K):
+power P (with a second element, `element2_watts`, the sum of those switched on) after a
+delay and loses heat to the room through UA (W/K):
 
     C·dT_w/dt = P(t − delay) − UA·(T_w − T_amb)
 
@@ -41,7 +42,7 @@ import inspect
 import math
 from collections import deque
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 WATER_J_PER_LITRE_K = 4186.0
 """Specific heat of water at 1 kg/L."""
@@ -133,6 +134,16 @@ class Plant(Protocol):
         ...
 
 
+@runtime_checkable
+class TwoElementPlant(Plant, Protocol):
+    """A tun with a second element on its own switch (a relay or contactor); the power that
+    reaches the water is the sum of the elements switched on and whole."""
+
+    def set_heater2(self, on: bool, t: float) -> None: ...
+
+    def set_element2_ok(self, ok: bool, t: float) -> None: ...
+
+
 PLANT_METHODS = (
     "set_heater",
     "set_element_ok",
@@ -174,11 +185,14 @@ class _LumpedTun:
         "_boiling_c",
         "_capacity_per_litre",
         "_delay_s",
+        "_element2_ok",
+        "_element2_watts",
         "_element_ok",
         "_element_watts",
         "_energy_boiled",
         "_energy_in",
         "_energy_lost",
+        "_heater2_on",
         "_heater_on",
         "_last_scheduled_w",
         "_litres",
@@ -211,10 +225,12 @@ class _LumpedTun:
         ambient_c: float,
         start_c: float,
         start_s: float,
+        element2_watts: float = 0.0,
     ) -> None:
         self._litres = litres
         self._capacity_per_litre = capacity_per_litre
         self._element_watts = element_watts
+        self._element2_watts = element2_watts
         self._ua = ua_w_per_k
         self._open_surface_m2 = open_surface_m2
         self._delay_s = delay_s
@@ -227,6 +243,8 @@ class _LumpedTun:
         self._next_tangent_s = start_s + RELINEARIZE_S if open_surface_m2 > 0.0 else math.inf
         self._heater_on = False
         self._element_ok = True
+        self._heater2_on = False
+        self._element2_ok = True
         self._power_w = 0.0
         self._last_scheduled_w = 0.0
         # (time the power reaches the water, power in W); times never decrease.
@@ -251,6 +269,18 @@ class _LumpedTun:
     def set_element_ok(self, ok: bool, t: float) -> None:
         self._advance(t)
         self._element_ok = ok
+        self._schedule_power(t)
+
+    def set_heater2(self, on: bool, t: float) -> None:
+        """The second element (on its relay or contactor) is switched on or off from `t` on."""
+        self._advance(t)
+        self._heater2_on = on
+        self._schedule_power(t)
+
+    def set_element2_ok(self, ok: bool, t: float) -> None:
+        """The second element open circuit (`ok` False) or whole again."""
+        self._advance(t)
+        self._element2_ok = ok
         self._schedule_power(t)
 
     def set_ambient(self, temp_c: float, t: float) -> None:
@@ -339,6 +369,8 @@ class _LumpedTun:
     def _schedule_power(self, t: float) -> None:
         """Queue the element's new power for the moment it reaches the water."""
         power = self._element_watts if self._heater_on and self._element_ok else 0.0
+        if self._heater2_on and self._element2_ok:
+            power += self._element2_watts
         if power != self._last_scheduled_w:
             self._last_scheduled_w = power
             self._pending.append((t + self._delay_s, power))
@@ -422,6 +454,11 @@ class _LumpedTun:
             )
 
 
+def _require_element2(watts: float) -> None:
+    rule = "a number ≥ 0 (0: no second element)"
+    _require("element2_watts", watts, 0.0 <= watts < math.inf, rule)
+
+
 def _validated_start(start_c: float) -> float:
     _require(
         "start_c",
@@ -454,6 +491,7 @@ class FoptdPlant(_LumpedTun):
         start_s: float = 0.0,
         litres: float = 90.0,
         element_watts: float = 3000.0,
+        element2_watts: float = 0.0,
     ) -> None:
         _require("gain_c_per_pct", gain_c_per_pct, 0.0 < gain_c_per_pct < math.inf, "a number > 0")
         _require("tau_s", tau_s, 0.0 < tau_s < math.inf, "a finite number > 0")
@@ -463,6 +501,7 @@ class FoptdPlant(_LumpedTun):
         _require("litres", litres, 0.0 < litres < math.inf, "a finite number > 0")
         _require("element_watts", element_watts, 0.0 < element_watts < math.inf, "a number > 0")
         _require("start_s", start_s, math.isfinite(start_s), "a finite time in seconds")
+        _require_element2(element2_watts)
         ua = element_watts / (100.0 * gain_c_per_pct)
         super().__init__(
             litres=litres,
@@ -475,6 +514,7 @@ class FoptdPlant(_LumpedTun):
             ambient_c=ambient_c,
             start_c=start,
             start_s=start_s,
+            element2_watts=element2_watts,
         )
 
 
@@ -508,9 +548,11 @@ class PhysicalPlant(_LumpedTun):
         ambient_c: float = 20.0,
         start_c: float | None = None,
         start_s: float = 0.0,
+        element2_watts: float = 0.0,
     ) -> None:
         _require("litres", litres, 0.0 < litres < math.inf, "a finite number > 0")
         _require("element_watts", element_watts, 0.0 < element_watts < math.inf, "a number > 0")
+        _require_element2(element2_watts)
         _require("ua_w_per_k", ua_w_per_k, 0.0 < ua_w_per_k < math.inf, "a number > 0")
         _require(
             "transport_delay_s",
@@ -536,6 +578,7 @@ class PhysicalPlant(_LumpedTun):
             ambient_c=ambient_c,
             start_c=start,
             start_s=start_s,
+            element2_watts=element2_watts,
         )
 
 

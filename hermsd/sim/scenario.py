@@ -41,10 +41,11 @@ from hermsd.safety import Alarm, MeasuredTun
 from hermsd.sim.bus import FakeLM92
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
-from hermsd.sim.hlt import PLANT_KINDS, Plant, make_plant, plant_parameters
+from hermsd.sim.hlt import PLANT_KINDS, Plant, TwoElementPlant, make_plant, plant_parameters
 from hermsd.sim.world import SENSOR_KEYS, build_world, sensor_reading
 
 SENSOR_FAULTS = ("nack", "timeout", "stuck", "spike", "wrong_id", "gone", "slow", "ok")
+FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2")
 EVENT_KINDS = (
     "confirm",
     "add_water",
@@ -54,6 +55,8 @@ EVENT_KINDS = (
     "sensor",
     "heater",
     "ssr",
+    "heater2",
+    "relay2",
     "ambient",
     "config",
 )
@@ -299,8 +302,10 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
         value = (value, _number(raw["value"], fail, f"{key}.value") if "value" in raw else None)
     elif kind == "heater" and value not in ("open", "ok"):
         raise fail(f"{key}.heater", "expected open or ok")
-    elif kind == "ssr" and value not in ("stuck_on", "ok"):
-        raise fail(f"{key}.ssr", "expected stuck_on or ok")
+    elif kind in ("ssr", "relay2") and value not in ("stuck_on", "ok"):
+        raise fail(f"{key}.{kind}", "expected stuck_on or ok")
+    elif kind == "heater2" and value not in ("open", "ok"):
+        raise fail(f"{key}.heater2", "expected open or ok")
     elif kind == "config" and not isinstance(value, dict):
         raise fail(f"{key}.config", "expected config sections to change, as in the file")
     elif kind == "confirm" and not isinstance(value, str):
@@ -319,6 +324,9 @@ def effective_config(base: Config, scenario: Scenario) -> Config:
 def _validated(document: dict[str, Any], source: str) -> Config:
     """A config document on the simulated heater, checked as a file would be."""
     document.setdefault("output", {})["backend"] = "sim"
+    element2 = document.get("element2")
+    if isinstance(element2, dict) and element2.get("backend", "none") != "none":
+        element2["backend"] = "sim"  # the simulated tun's second element, whatever the file's
     try:
         return config_module.parse(yaml.safe_dump(document), source)
     except config_module.ConfigError as error:
@@ -467,6 +475,8 @@ def run(
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
+    if circuit.relay2 is None and any(e.kind in ("heater2", "relay2") for e in scenario.events):
+        raise ScenarioError("events: heater2 and relay2 need a second element (element2.backend)")
     reference = copy.deepcopy(plant)
     latches = models = None
     if state_dir is not None:
@@ -510,7 +520,7 @@ def run(
                 brewer.answers.append(event.value)
                 return  # an answer, not a disturbance of the tun
             _apply(event, t, plant, chip, circuit, daemon)
-            if event.kind in ("sensor", "heater", "ssr") and event.value not in (
+            if event.kind in FAULT_KINDS and event.value not in (
                 ("ok", None),
                 "ok",
             ):
@@ -639,3 +649,9 @@ def _apply(
         plant.set_element_ok(value == "ok", t)
     elif kind == "ssr":
         circuit.set_stuck_on(value == "stuck_on")
+    elif kind == "relay2":
+        circuit.set_relay2_stuck_on(value == "stuck_on")
+    elif kind == "heater2":
+        if not isinstance(plant, TwoElementPlant):
+            raise ScenarioError("heater2: the plant has no second element")
+        plant.set_element2_ok(value == "ok", t)

@@ -23,7 +23,7 @@ from hermsd.notify import Notifier
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
-from hermsd.sim.hlt import Plant, make_plant
+from hermsd.sim.hlt import Plant, TwoElementPlant, make_plant
 from hermsd.step_response import StepExperiment
 
 
@@ -59,6 +59,8 @@ def build_world(
     seed = spec.pop("seed", 0)
     model = spec.pop("model", "foptd")
     if tun is None:
+        if config.element2.backend != "none":
+            spec.setdefault("element2_watts", config.element2.watts)
         tun = make_plant(model, **spec)
     advance = clock.advance if isinstance(clock, VirtualClock) else None
     chip = FakeLM92(sensor_reading(tun, clock, noise_c, seed), advance=advance)
@@ -66,8 +68,13 @@ def build_world(
     bus.attach(config.sensor.address, chip)
     sensor = LM92(bus, config.sensor.address, bus_name="sim")
     contactor = config.contactor.backend != "none"
-    circuit = HeaterCircuit(tun, clock.monotonic, contactor, history=history)
-    outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config)
+    two = None
+    if config.element2.backend != "none":
+        if not isinstance(tun, TwoElementPlant):
+            raise ValueError("element2 is configured, but the plant has no second element")
+        two = tun
+    circuit = HeaterCircuit(tun, clock.monotonic, contactor, history=history, element2=two)
+    outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config, circuit.relay2)
     return World(clock, tun, chip, sensor, circuit, outputs)
 
 

@@ -1,0 +1,183 @@
+"""The second element: a slow, wide-range heater on a relay or contactor, and the mid-ranging
+controller that shares the load between it and the SSR's element.
+
+A contactor wears out by the operation (about 100k) and must not switch more than a few times
+a minute, so the second element cannot be time-proportioned inside a window as the SSR is.
+Its duty u2 (from the slow controller C2 of hermsd/midrange.py) is turned into whole control
+periods on or off by a first-order sigma-delta modulator with minimum on and off times
+(`OnOffModulator`): the energy owed (u2 requested minus delivered, in seconds of full power)
+is accumulated, and each period the element is on when that brings the debt nearer zero,
+unless it has not yet been on (or off) for its minimum. Why this rather than a fixed slow
+PWM window or a hysteresis on u2:
+
+- the mean delivered duty equals u2 (the debt stays within ±max(min_on, min_off) s), so C2
+  sees a linear actuator on average and the fast loop only has the ripple to absorb;
+- the shorter phase of each cycle lasts exactly its minimum, so the element switches as
+  fast as allowed and no faster: every cycle is at least min_on + min_off long, which bounds
+  the operations to 7200/(min_on + min_off) an hour whatever u2 does (30 at 2 min each);
+- at u2 = 0 or 100 % it stays off or on with no edges at all (nothing is carried, as the
+  SSR's planner does), where a fixed-period PWM would still have to decide per window.
+
+C2 tracks what the element delivered on account (`applied2`): the u2 it asked for, less the
+debt the modulator forgave (at 0 or 100 %, beyond its bound, at a forced off). The fraction
+of each period the element was really on (`switched2`) would not do: it is 0 or 100 % by
+design, and tracking it swings C2's integral by up to max(min_on, min_off)/Tt2 within every
+cycle, which drives a limit cycle (seen on the simulated tun: ±1 °C every hour). The debt
+still carried is bounded, so the two agree on average. The supervisor counts the heat
+switched on (`switched2`), which is what warms the water.
+
+Pure code with time as an argument, except `SlowElement`, which drives a `Switch`.
+"""
+
+from __future__ import annotations
+
+import math
+
+from hermsd import pid
+from hermsd.midrange import MidRange
+from hermsd.ssr import GuardedSwitch, SwitchedDuty
+
+_EPS = 1e-9  # s: times that differ by rounding are equal
+
+
+class OnOffModulator:
+    """u2 (0–100 %) into on/off decisions, one per control period, within min on/off times.
+
+    Each period first `account`s for the one before (the debt it left, and what was on
+    account delivered; `decide` does it when the caller has not), then `decide`s the next
+    from the new u2.
+    """
+
+    def __init__(self, min_on: float, min_off: float) -> None:
+        if not (min_on > 0 and min_off > 0 and math.isfinite(min_on + min_off)):
+            raise ValueError(f"min_on and min_off must be finite and > 0, got {min_on}, {min_off}")
+        self.min_on = min_on
+        self.min_off = min_off
+        self.on = False
+        self._since = -math.inf  # when the element last switched (or was forced off)
+        self._owed = 0.0  # s of full power requested and not yet delivered
+        self._dropped = 0.0  # s of full power owed and forgiven since the last account
+        self._duty = 0.0  # the fraction requested for the period in progress
+        self._last_t: float | None = None
+
+    @property
+    def owed(self) -> float:
+        """Seconds of full power requested and not (yet) delivered; negative: delivered ahead."""
+        return self._owed
+
+    def account(self, t: float) -> float:
+        """The duty (%) delivered on account since the last call: what was asked, less the
+        debt forgiven (at 0 or 100 %, beyond the bound, at a forced off). The debt still
+        carried is delivered later, so the mean of this is the mean delivered."""
+        last, self._last_t = self._last_t, t
+        if last is None or t <= last:
+            self._dropped = 0.0
+            return 0.0
+        span = t - last
+        self._owed += (self._duty - (1.0 if self.on else 0.0)) * span
+        limit = max(self.min_on, self.min_off)
+        self._forgive(self._owed - max(-limit, min(limit, self._owed)))
+        dropped, self._dropped = self._dropped, 0.0
+        return min(100.0, max(0.0, 100.0 * (self._duty - dropped / span)))
+
+    def decide(self, t: float, duty: float) -> bool:
+        """Whether the element is on for the period that starts at `t` with `duty` % asked."""
+        if not 0.0 <= duty <= 100.0:
+            raise ValueError(f"duty must be within 0..100 %, got {duty}")
+        if self._last_t != t:
+            self.account(t)  # the period before, if the caller has not accounted for it
+        self._duty = duty / 100.0
+        if duty <= 0.0 or duty >= 100.0:
+            self._forgive(self._owed)  # fully off or on: nothing is carried
+            want = duty >= 100.0
+        else:
+            want = self._owed > 0.0  # on if that brings the debt nearer zero than off would
+        if want != self.on and t - self._since + _EPS >= (self.min_on if self.on else self.min_off):
+            self.on = want
+            self._since = t
+        return self.on
+
+    def force_off(self, t: float) -> None:
+        """Off now, whatever the minimum on time (an alarm): the debt is forgiven, nothing is
+        asked until the next `decide`, and the minimum off time counts from now."""
+        self.account(t)
+        if self.on:
+            self.on = False
+            self._since = t
+        self._forgive(self._owed)
+        self._duty = 0.0
+
+    def _forgive(self, seconds: float) -> None:
+        self._owed -= seconds
+        self._dropped += seconds
+
+
+class SlowElement:
+    """The second element's switch, driven once a control period by the modulator, with the
+    duty it was switched on since the period before (as switched, forced offs included) and
+    the duty it delivered on account (the modulator's)."""
+
+    def __init__(self, switch: GuardedSwitch, min_on: float, min_off: float) -> None:
+        self.switch = switch
+        self.modulator = OnOffModulator(min_on, min_off)
+        self._duty = SwitchedDuty()
+
+    def applied(self, now: float) -> tuple[float, float]:
+        """(% switched on, % on account) since the last call; after a forced off, on account
+        since then (the loop holds the controller through any period with one)."""
+        return self._duty.read(now), self.modulator.account(now)
+
+    def drive(self, now: float, duty: float) -> None:
+        """The period starting now: on or off as the modulator decides for `duty` %."""
+        self._set(self.modulator.decide(now, duty), now)
+
+    def force_off(self, now: float) -> None:
+        self.modulator.force_off(now)
+        self._set(False, now)
+
+    def _set(self, on: bool, now: float) -> None:
+        self.switch.set(on)
+        self._duty.switched(on, now)
+
+
+class MidRangeController:
+    """The mid-ranging controller seen as the loop's controller of the SSR (`pid.Controller`):
+    `step` returns u1; u2 is read after it. The duty the second element delivered in the
+    period before is handed in first (`applied2`): C2 tracks it, and a reset resumes u2 from
+    it, so the loop and `hermsd replay --verify` both restart from what the element did."""
+
+    def __init__(self, inner: MidRange, params: pid.Params) -> None:
+        self._inner = inner
+        self._params = params
+        self.applied2 = 0.0
+
+    @property
+    def params(self) -> pid.Params:
+        return self._params
+
+    @property
+    def output(self) -> float:
+        return self._inner.outputs[0]
+
+    @property
+    def u2(self) -> float:
+        """The second element's duty of the last step, %."""
+        return self._inner.outputs[1]
+
+    @property
+    def terms(self) -> tuple[float, float, float]:
+        """(P1, I1, I2): C1's terms, and the slow controller's integral."""
+        p1, i1, _, i2 = self._inner.terms
+        return p1, i1, i2
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        tracked = None if applied is None else (applied, self.applied2)
+        return self._inner.step(sp, pv, tracked)[0]
+
+    def reset(self, pv: float, output: float) -> None:
+        self._inner.reset(pv, output, self.applied2)
+
+
+def total_share(watts1: float, watts2: float, duty1: float, duty2: float) -> float:
+    """Two elements' duties as one % of their total power (what the supervisor watches)."""
+    return (watts1 * duty1 + watts2 * duty2) / (watts1 + watts2)
