@@ -1177,7 +1177,8 @@ class Daemon:
 
     def _drive_element2(self, now: float, state: str) -> float | None:
         """The second element for the period: the controller's u2 in auto, off otherwise
-        (manual drives the SSR alone; an alarm has already forced it off)."""
+        (manual drives the SSR alone). Any other state (an alarm, a program waiting for its
+        ready_by time) forces it off every period, so its switch and its duty say off."""
         if self.element2 is None:
             return None
         u2 = 0.0
@@ -1185,6 +1186,8 @@ class Daemon:
             u2 = self.controller.u2
         if state in ("ok", "manual"):
             self.element2.drive(now, u2)
+        else:
+            self.element2.force_off(now)
         return u2
 
     def _total_power(

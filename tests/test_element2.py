@@ -16,6 +16,7 @@ from hermsd.config import Config, ConfigError, parse
 from hermsd.daemon import Daemon, PeriodRecord, model_in_force
 from hermsd.element2 import OnOffModulator
 from hermsd.learning import LearnedModel
+from hermsd.program.model import Program, Step
 from hermsd.recorder import Recorder
 from hermsd.replay import delivered, load, verify
 from hermsd.sim.clock import VirtualClock
@@ -197,6 +198,23 @@ def test_any_alarm_cuts_both_elements_at_once_and_shutdown_leaves_both_off() -> 
         daemon.run(until=900.0)
         assert circuit.relay2_on  # heating resumed, the second element with it
     assert not (circuit.ssr_on or circuit.relay2_on or circuit.powered2)
+
+
+def test_a_program_waiting_for_its_ready_by_time_keeps_both_elements_off() -> None:
+    """A scheduled start holds the heater off: the second element too, and its duty counts as
+    off (the supervisor judges a rise against it: a shorted SSR must still show)."""
+    daemon, world, clock, periods = make(two_element_config(), PLANT)
+    circuit = world.circuit
+    with daemon:
+        daemon.run(until=600.0)  # heating from cold: both on
+        assert circuit.relay2_on
+        late = Program("Late", (Step("Strike", 72.0, 0.0),))
+        daemon.start_program(late, "23:00", clock.monotonic())
+        daemon.run(until=1800.0)
+        assert daemon.program.status(clock.wall_ns())["state"] == "scheduled"
+        assert not (circuit.ssr_on or circuit.relay2_on or circuit.powered2)
+    waiting = [r for r in periods.records if r.t > 700.0]
+    assert waiting and all(r.state == "scheduled" and r.switched2 == 0.0 for r in waiting)
 
 
 def test_the_loop_hands_applied2_to_the_slow_controller_and_replay_reproduces_it(
