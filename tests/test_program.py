@@ -349,13 +349,28 @@ def test_ready_by_is_the_next_such_local_time() -> None:
 # -- the stored progress ---------------------------------------------------------------------
 
 
+def test_progress_saved_in_another_boot_is_not_resumed_however_recent(tmp_path: Path) -> None:
+    """A Pi without a clock chip boots at the time it last saved: the boot, not the age,
+    tells a power cut (set aside) from a crash or a restart of the service (resumed)."""
+    runner = started(REST)
+    run(runner, [66.0, 66.0, 66.0])
+    before = ProgressStore(tmp_path, boot="boot-1")
+    before.save_program(REST, AT_4 - 60 * NS)
+    before.save_progress(runner.progress, AT_4 - 60 * NS, AT_4)
+    for boot, resumed in (("boot-1", True), ("boot-2", False)):
+        driver = ProgramDriver(ProgressStore(tmp_path, boot=boot), dt.UTC, PERIOD)
+        said = driver.restore(20.0, AT_4 + NS) or ""
+        assert (driver.runner is not None) == resumed, said
+        assert ("before the machine last started" in said) == (not resumed)
+
+
 def test_progress_survives_a_restart_and_nothing_counts_from_before_it(tmp_path: Path) -> None:
     store = ProgressStore(tmp_path)
     runner = started(REST)
     run(runner, [66.0, 66.0, 66.0])  # 10 s held
     store.save_program(REST, AT_4 - 60 * NS)
     store.save_progress(runner.progress, AT_4 - 60 * NS, AT_4)
-    program, progress, saved_at, _started = store.load() or (None, None, None, None)
+    program, progress, saved_at, _started, _boot = store.load() or (None, None, None, None, None)
     assert saved_at == AT_4
     assert program == REST and progress is not None
     again = Runner(REST, progress, max_step_s=2 * PERIOD)

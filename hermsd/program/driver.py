@@ -112,10 +112,10 @@ class ProgramDriver:
             return f"program progress not resumed: {error}; discarded"
         if stored is None:
             return None
-        program, progress, _saved_at, started_at = stored
+        program, progress, _saved_at, started_at, _boot = stored
         ready = progress.ready_at_ns
         ready_text = "" if ready is None else local_iso(ready, self.zone)
-        stale = stale_reason(stored, wall_ns, ready_text)
+        stale = stale_reason(stored, wall_ns, ready_text, self.store.boot)
         if stale is not None:
             try:
                 kept = f"kept as {self.store.set_aside()}"

@@ -40,15 +40,29 @@ class Stored(NamedTuple):
     progress: Progress
     saved_at_ns: int  # the wall time of the progress's save
     started_at_ns: int  # the wall time the program started: it names the program stored
+    boot_id: str | None = None  # the machine's boot it was saved in (None: unknown)
+
+
+BOOT_ID_FILE = Path("/proc/sys/kernel/random/boot_id")
+
+
+def this_boot() -> str | None:
+    """The kernel's id of the running boot, or None where there is none. A Pi without a clock
+    chip starts from the time it last saved, so only the boot tells a crash from a power cut."""
+    try:
+        return BOOT_ID_FILE.read_text(encoding="ascii").strip() or None
+    except OSError:
+        return None
 
 
 class ProgressStore:
     """`program.json` and `program-progress.json` in the state directory, next to the
     latches and the learned model. Every method writes at once (OSError when refused)."""
 
-    def __init__(self, directory: Path | str) -> None:
+    def __init__(self, directory: Path | str, boot: str | None = None) -> None:
         self.path = Path(directory) / PROGRAM_FILE
         self.progress_path = Path(directory) / PROGRESS_FILE
+        self.boot = boot if boot is not None else this_boot()
 
     def load(self) -> Stored | None:
         """The stored program, its progress and when; None when none. StateError if bad."""
@@ -69,11 +83,14 @@ class ProgressStore:
             saved_at = record["saved_at_ns"]
             if not isinstance(saved_at, int) or isinstance(saved_at, bool):
                 raise ValueError(f"saved_at_ns {saved_at!r} is not a time")
+            boot = record.get("boot_id")
+            if boot is not None and not isinstance(boot, str):
+                raise ValueError(f"boot_id {boot!r} is not a boot's id")
         except ProgramError as error:
             raise StateError(f"{self.path}: its program is not valid: {error}") from None
         except (KeyError, TypeError, ValueError) as error:
             raise StateError(f"{self.path}: not a program's progress ({error})") from None
-        return Stored(program, progress, saved_at, record["program_at_ns"])
+        return Stored(program, progress, saved_at, record["program_at_ns"], boot)
 
     def save_program(self, program: Program, started_at_ns: int) -> None:
         """Store a program that starts (its progress follows)."""
@@ -85,6 +102,7 @@ class ProgressStore:
         record = {
             "program_at_ns": started_at_ns,
             "saved_at_ns": wall_ns,
+            "boot_id": self.boot,
             "progress": {
                 "index": progress.index,
                 "phase": progress.phase,
@@ -198,12 +216,19 @@ class ProgressWriter:
                 self._wake.notify_all()
 
 
-def stale_reason(stored: Stored, wall_ns: int, zone_text: str) -> str | None:
-    """Why `stored` must not resume at `wall_ns` (None: it may). `zone_text` is its
-    ready-by time in local words, for a scheduled program."""
+def stale_reason(
+    stored: Stored, wall_ns: int, zone_text: str, boot: str | None = None
+) -> str | None:
+    """Why `stored` must not resume at `wall_ns` in the boot `boot` (None: it may).
+    `zone_text` is its ready-by time in local words, for a scheduled program."""
     progress, age_s = stored.progress, (wall_ns - stored.saved_at_ns) / 1e9
     if progress.phase == "done":
         return "it had finished"
+    if stored.boot_id is not None and boot is not None and stored.boot_id != boot:
+        return (
+            "it was saved before the machine last started (a power cut or a reboot: the "
+            "water may have cooled or been drained)"
+        )
     if abs(age_s) > RESUME_WITHIN_S:
         when = "ago" if age_s > 0 else "ahead of this clock"
         return (
