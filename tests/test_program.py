@@ -22,7 +22,7 @@ from hermsd.program import store as store_module
 from hermsd.program.driver import ProgramDriver, local_iso, next_local_time
 from hermsd.program.model import Program, ProgramError, Step
 from hermsd.program.runner import Progress, Refused, Runner, heat_up_s
-from hermsd.program.store import PROGRAM_FILE, PROGRESS_FILE, ProgressStore
+from hermsd.program.store import PROGRAM_FILE, PROGRESS_FILE, ProgressStore, ProgressWriter
 
 STEP_MASH = """\
 # a step mash
@@ -566,3 +566,22 @@ def test_a_failed_save_is_told_in_the_status_and_once_in_the_log(tmp_path: Path)
     assert driver.store_news() == (False, "the program's progress is saved again")
     assert store.programs == 1 and store.load() is not None
     assert "NOT SAVED" not in driver.status_words(AT_4)
+
+
+def test_the_writer_outlives_a_fault_that_is_not_an_os_error(tmp_path: Path) -> None:
+    """Any fault in a write is said, and the thread goes on to write the next record."""
+    store = ProgressStore(tmp_path)
+    writer = ProgressWriter(store)
+    calls: list[str] = []
+
+    def broken() -> None:
+        calls.append("broken")
+        raise TypeError("not serialisable")
+
+    writer._put("progress", broken)
+    assert writer.flush(5.0)
+    assert writer.failure == "TypeError: not serialisable"
+    writer.program(REST, AT_4)
+    assert writer.flush(5.0) and writer.failure is None
+    assert store.path.exists() and calls == ["broken"]
+    writer.close(5.0)

@@ -209,6 +209,8 @@ class ProgressWriter:
                     job()
             except OSError as error:
                 self.failure = str(error)
+            except Exception as error:  # any fault: the thread must live to write the next
+                self.failure = f"{type(error).__name__}: {error}"
             else:
                 self.failure = None
             with self._wake:
