@@ -25,7 +25,7 @@ from typing import Any, NamedTuple, TypeVar
 import yaml
 
 from hermsd import midrange, pid
-from hermsd.element2 import MidRangeController
+from hermsd.element2 import MidRangeController, PowerSplit, SplitController
 from hermsd.files import NotRegularFile, read_regular
 from hermsd.learning import LearnedModel, implausible
 from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
@@ -878,19 +878,19 @@ def _device(section: OutputConfig | ContactorConfig | Element2Config) -> tuple[o
 
 
 def _element2_violations(config: Config) -> list[_Violation]:
-    """The second element: only with the mid-ranging controller (and it only with one), on a
-    device of its own, its minimum times whole periods at least (it switches at periods)."""
+    """The second element: the mid-ranging controller only with one (any other controller
+    drives the total of both), on a device of its own, its minimum times whole periods at
+    least (it switches at periods)."""
     element2, control = config.element2, config.control
     found = []
     fitted = element2.backend != "none"
-    if fitted != (control.algorithm == MIDRANGE):
+    if not fitted and control.algorithm == MIDRANGE:
         found.append(
             _Violation(
                 ("control.algorithm", "element2.backend"),
                 f"control.algorithm {control.algorithm} with element2.backend "
-                f"{element2.backend}: the mid-ranging controller drives two elements and no "
-                "other controller drives the second (use algorithm midrange with an element2 "
-                "backend, or neither)",
+                f"{element2.backend}: the mid-ranging controller drives two elements (give "
+                "element2 a backend, or choose another algorithm)",
             )
         )
     if not fitted:
@@ -991,12 +991,17 @@ def prior_model(config: Config) -> pid.PlantModel:
     FOPTD follows (τ = ρ·c·V/UA, K = P/(100·UA)); dead time and room from their keys.
     """
     c, tun = config.control, config.tun
+    watts = total_watts(config)
     capacity = WATER_J_PER_LITRE_K * tun.litres
     lidded = LIDDED_UA_W_PER_K * (tun.litres / LIDDED_LITRES) ** (2.0 / 3.0)
-    ua = min(tun.element_watts / (100.0 * c.model_gain), lidded)
-    return pid.PlantModel(
-        tun.element_watts / (100.0 * ua), capacity / ua, c.dead_time, c.model_ambient
-    )
+    ua = min(watts / (100.0 * c.model_gain), lidded)
+    return pid.PlantModel(watts / (100.0 * ua), capacity / ua, c.dead_time, c.model_ambient)
+
+
+def total_watts(config: Config) -> float:
+    """Both elements' power: what 100 % of the controller's output means with two fitted."""
+    e2 = config.element2
+    return config.tun.element_watts + (e2.watts if e2.backend != "none" else 0.0)
 
 
 def measured_model(config: Config) -> LearnedModel | None:
@@ -1029,6 +1034,19 @@ def make_controller(control: ControlConfig, model: pid.PlantModel | None = None)
         out_max=c.max_output,
         model=model or pid.PlantModel(c.model_gain, c.model_tau, c.dead_time, c.model_ambient),
     )
+
+
+def shared_out(config: Config, controller: pid.Controller) -> pid.Controller:
+    """The controller the loop runs, given `make_controller`'s: with a second element fitted
+    and any algorithm but midrange, that controller on the total power of both elements,
+    shared out each period by a `PowerSplit`; else the controller itself."""
+    e2 = config.element2
+    if e2.backend == "none" or config.control.algorithm == MIDRANGE:
+        return controller
+    split = PowerSplit(
+        config.tun.element_watts, e2.watts, config.control.period, e2.min_on, e2.min_off
+    )
+    return SplitController(controller, split)
 
 
 def _midrange_controller(c: ControlConfig) -> MidRangeController:

@@ -32,9 +32,16 @@ from hermsd import config as config_module
 from hermsd import pid
 from hermsd.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.clock import Clock
-from hermsd.config import Config, ConfigError, ControlConfig, make_controller, to_dict
+from hermsd.config import (
+    Config,
+    ConfigError,
+    ControlConfig,
+    make_controller,
+    shared_out,
+    to_dict,
+)
 from hermsd.config_file import ConfigFile
-from hermsd.element2 import MidRangeController, SlowElement, total_share
+from hermsd.element2 import MidRangeController, SlowElement, SplitController, total_share
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
@@ -119,6 +126,8 @@ class PeriodRecord:
     step_index: int | None = None  # the time left of its hold (None: not reached, or held
     step_left_s: float | None = None  # until told), and the next step's name
     next_step: str | None = None
+    on2: bool | None = None  # the second element was on as the period began
+    free2: bool | None = None  # … and its minimum on or off time let it switch
 
 
 class ControlHook(Protocol):
@@ -350,7 +359,7 @@ class Daemon:
         self.model_choice = model_in_force(self._stored_model, config)
         self.model = self.model_choice.model
         self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
-        self.controller = make_controller(config.control, self.model)
+        self.controller = shared_out(config, make_controller(config.control, self.model))
         self._learner = self._make_learner(config)
         self._heat_up_seen = pid.heat_up_fit(self.controller)
         self._reloaded_at = -math.inf  # when a reload last changed the config
@@ -757,7 +766,7 @@ class Daemon:
         if retunes(old.control, new.control) or old.tun != new.tun:
             self.model_choice = model_in_force(self._stored_model, new)
             self.model = self.model_choice.model
-            self.controller = make_controller(new.control, self.model)
+            self.controller = shared_out(new, make_controller(new.control, self.model))
             self._heat_up_seen = pid.heat_up_fit(self.controller)
             self._learner = self._make_learner(new)
             if not self._held:  # bumpless: the new controller starts from the output in force
@@ -1025,9 +1034,14 @@ class Daemon:
         self._pv = pv
         applied = self._ssr_duty.read(now)
         switched2 = applied2 = None
+        on2 = free2 = None
         if self.element2 is not None:
             switched2, applied2 = self.element2.applied(now)
-        if isinstance(self.controller, MidRangeController):
+            on2, free2 = self.element2.state(now)
+        if isinstance(self.controller, SplitController) and on2 is not None:
+            applied2 = switched2  # the heat, as switched: the total's model stays exact
+            self.controller.on2, self.controller.free2 = on2, bool(free2)
+        if isinstance(self.controller, MidRangeController | SplitController):
             self.controller.applied2 = applied2 or 0.0
         sup.period(now, pv, *self._total_power(asked, applied, switched2))
         self._drain_alarms(now)
@@ -1083,6 +1097,8 @@ class Daemon:
             u2=u2,
             applied2=applied2,
             switched2=switched2,
+            on2=on2,
+            free2=free2,
             full_from=full_from,
             **self.program.record_fields(),
         )
@@ -1182,7 +1198,7 @@ class Daemon:
         if self.element2 is None:
             return None
         u2 = 0.0
-        if state == "ok" and isinstance(self.controller, MidRangeController):
+        if state == "ok" and isinstance(self.controller, MidRangeController | SplitController):
             u2 = self.controller.u2
         if state in ("ok", "manual"):
             self.element2.drive(now, u2)
@@ -1194,7 +1210,9 @@ class Daemon:
         self, output: float, applied: float, applied2: float | None
     ) -> tuple[float, float]:
         """(output, applied) as % of all the elements' power, for the supervisor."""
-        if applied2 is None or not isinstance(self.controller, MidRangeController):
+        if applied2 is None or not isinstance(
+            self.controller, MidRangeController | SplitController
+        ):
             return output, applied
         w1, w2 = self.config.tun.element_watts, element2_watts(self.config)
         return total_share(w1, w2, output, self.controller.u2), total_share(

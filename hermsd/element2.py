@@ -1,5 +1,8 @@
-"""The second element: a slow, wide-range heater on a relay or contactor, and the mid-ranging
-controller that shares the load between it and the SSR's element.
+"""The second element: a slow, wide-range heater on a relay or contactor, and the two ways the
+load is shared between it and the SSR's element: the one-element controller on the total
+power with the SSR making up what the second element's state leaves (`PowerSplit`,
+`SplitController`: the default), or the mid-ranging controller (`control.algorithm:
+midrange`, the rest of this docstring).
 
 A contactor wears out by the operation (about 100k) and must not switch more than a few times
 a minute, so the second element cannot be time-proportioned inside a window as the SSR is.
@@ -92,10 +95,14 @@ class OnOffModulator:
             want = duty >= 100.0
         else:
             want = self._owed > 0.0  # on if that brings the debt nearer zero than off would
-        if want != self.on and t - self._since + _EPS >= (self.min_on if self.on else self.min_off):
+        if want != self.on and self.may_switch(t):
             self.on = want
             self._since = t
         return self.on
+
+    def may_switch(self, t: float) -> bool:
+        """Whether the element has been on (or off) for its minimum by `t`."""
+        return t - self._since + _EPS >= (self.min_on if self.on else self.min_off)
 
     def force_off(self, t: float) -> None:
         """Off now, whatever the minimum on time (an alarm): the debt is forgiven, nothing is
@@ -134,6 +141,10 @@ class SlowElement:
     def force_off(self, now: float) -> None:
         self.modulator.force_off(now)
         self._set(False, now)
+
+    def state(self, now: float) -> tuple[bool, bool]:
+        """(on, free): whether it is on now, and whether its minimum time lets it switch."""
+        return self.modulator.on, self.modulator.may_switch(now)
 
     def _set(self, on: bool, now: float) -> None:
         self.switch.set(on)
@@ -181,3 +192,115 @@ class MidRangeController:
 def total_share(watts1: float, watts2: float, duty1: float, duty2: float) -> float:
     """Two elements' duties as one % of their total power (what the supervisor watches)."""
     return (watts1 * duty1 + watts2 * duty2) / (watts1 + watts2)
+
+
+class PowerSplit:
+    """One total power u (% of both elements) shared between the second element (whole
+    periods on or off, within its minimum times) and the SSR's element (any duty), decided
+    once a period, the second element first; the SSR makes up the difference.
+
+    Each state of the second element allows a range of totals: [0, w1] off, [w2, w1 + w2] on
+    (as % of the total). When the present state gives u exactly, it stays and nothing is
+    carried: the controller is told the power it got and answers for any heat that came
+    before. Otherwise the shortfall (u − given) is carried, and the element switches only
+    when that brings the carried total nearer zero, counting that a switch holds the new
+    state for its whole minimum time: switch when |owed + (u − given_new)·min_time| <
+    |owed + (u − given_now)·h|. So for a u between the two ranges the mean given equals the
+    mean asked (the controller's P needs no offset to hold), the debt swings about zero, the
+    shorter phase is the minimum time (the least ripple the element allows), and a u that
+    only dips into the other range for a period or two (noise, the end of a heat-up's
+    approach) does not lock the element in the wrong state for a minimum time.
+    """
+
+    def __init__(
+        self, watts1: float, watts2: float, period: float, min_on: float, min_off: float
+    ) -> None:
+        if not (watts1 > 0.0 and watts2 > 0.0 and period > 0.0 and min(min_on, min_off) > 0.0):
+            raise ValueError(
+                f"watts, period and minimum times must be > 0, got {watts1}, {watts2}, "
+                f"{period}, {min_on}, {min_off}"
+            )
+        total = watts1 + watts2
+        self.watts1, self.watts2, self.period = watts1, watts2, period
+        self.min_on, self.min_off = min_on, min_off
+        self.share2 = 100.0 * watts2 / total  # % of the total the second element gives
+        self.share1 = 100.0 * watts1 / total
+        self.owed = 0.0  # %·s of the total asked and not given (negative: given ahead)
+
+    def total(self, duty1: float, duty2: float) -> float:
+        """Two duties as one % of the total; both full is exactly 100 (full-power checks)."""
+        if duty1 >= 100.0 and duty2 >= 100.0:
+            return 100.0
+        return total_share(self.watts1, self.watts2, duty1, duty2)
+
+    def decide(self, u: float, on: bool, free: bool) -> tuple[bool, float]:
+        """(second element on, SSR duty %) for total `u` %, the element `on` now and `free`
+        to switch (its minimum time passed)."""
+
+        def carried(state: bool) -> float:
+            span = self.period if state == on else (self.min_on if state else self.min_off)
+            return self.owed + (u - self._given(u, state)) * span
+
+        state = on
+        if self._given(u, on) != u and free and abs(carried(not on)) < abs(carried(on)):
+            state = not on
+        given = self._given(u, state)
+        self.owed = 0.0 if given == u else self.owed + (u - given) * self.period
+        return state, self._duty1(given, state)
+
+    def _range(self, on: bool) -> tuple[float, float]:
+        """The totals the SSR can make with the second element on or off, %."""
+        return (self.share2, 100.0) if on else (0.0, self.share1)
+
+    def _given(self, u: float, on: bool) -> float:
+        low, high = self._range(on)
+        return min(max(u, low), high)
+
+    def _duty1(self, given: float, on: bool) -> float:
+        low, high = self._range(on)
+        if given >= high:
+            return 100.0
+        return min(100.0, max(0.0, (given - low) * 100.0 / self.share1))
+
+
+class SplitController:
+    """A controller of the total power of both elements (any `pid.Controller`, its % of
+    w1 + w2), seen by the loop as the controller of the SSR: `step` returns the SSR's duty,
+    and the second element's state (`u2`, 0 or 100 %) is read after it. Before each step (and
+    reset) the loop hands in the second element's duty as switched in the period before
+    (`applied2`) and its state now (`on2`, `free2`): the controller is told the total power
+    that really reached the water, so its model's prediction stays exact, and replay hands
+    in the same from the period's record."""
+
+    def __init__(self, inner: pid.Controller, split: PowerSplit) -> None:
+        self.inner = inner
+        self.split = split
+        self.applied2 = 0.0
+        self.on2 = False
+        self.free2 = True
+        self.u2 = 0.0
+        self._output = 0.0
+
+    @property
+    def params(self) -> pid.Params:
+        return self.inner.params
+
+    @property
+    def output(self) -> float:
+        return self._output
+
+    @property
+    def terms(self) -> tuple[float, float, float]:
+        return self.inner.terms
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        total = None if applied is None else self.split.total(applied, self.applied2)
+        u = self.inner.step(sp, pv, total)
+        on, self._output = self.split.decide(u, self.on2, self.free2)
+        self.u2 = 100.0 if on else 0.0
+        return self._output
+
+    def reset(self, pv: float, output: float) -> None:
+        """Continue from the SSR at `output` % with the second element as it is now."""
+        self.split.owed = 0.0
+        self.inner.reset(pv, self.split.total(output, 100.0 if self.on2 else 0.0))

@@ -172,8 +172,15 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     ["number", "null"], "time left of its hold, s (null: not reached, or held)"
                 ),
                 "next_step": _field(["string", "null"], "the next step's name"),
+                "on2": _field(
+                    ["boolean", "null"], "second element on as the period began (two elements)"
+                ),
+                "free2": _field(
+                    ["boolean", "null"],
+                    "its minimum on or off time let it switch this period (two elements)",
+                ),
             },
-            optional=("u2", "applied2", "switched2"),
+            optional=("u2", "applied2", "switched2", "on2", "free2"),
         ),
     ),
     READING_TOPIC: TopicSpec(

@@ -32,9 +32,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 
 from hermsd import config as config_module
-from hermsd.config import make_controller
+from hermsd.config import make_controller, shared_out
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
-from hermsd.element2 import MidRangeController
+from hermsd.element2 import MidRangeController, SplitController
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import DROP_READINGS, Controller, PlantModel, full_power_now
@@ -698,7 +698,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             in_force = entry
             drops_checked = entry.drop_readings == DROP_READINGS
             try:
-                reloaded = config_module.from_dict(entry.config).control
+                whole = config_module.from_dict(entry.config)
+                reloaded = whole.control
                 same_model = in_force_model == entry.model
                 if (
                     entry.reason == "reload"
@@ -710,7 +711,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                     continue
                 control = reloaded
                 in_force_model = entry.model
-                controller = make_controller(control, logged_model(entry))
+                controller = shared_out(whole, make_controller(control, logged_model(entry)))
             except (config_module.ConfigError, ValueError) as error:
                 detail = str(error).replace("\n", "; ")
                 raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None
@@ -740,6 +741,15 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             if not (_is_number(record.applied2) and _is_number(record.u2)):
                 raise ReplayError(f"period k={record.k}: a midrange period without u2, applied2")
             controller.applied2 = record.applied2  # what the daemon handed in, as logged
+        if isinstance(controller, SplitController):
+            if not (
+                _is_number(record.applied2)
+                and isinstance(record.on2, bool)
+                and isinstance(record.free2, bool)
+            ):
+                raise ReplayError(f"period k={record.k}: a two-element period without its state")
+            controller.applied2 = record.applied2
+            controller.on2, controller.free2 = record.on2, record.free2
         try:
             if record.reset_from is not None:
                 controller.reset(record.pv, record.reset_from)
@@ -757,7 +767,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             ("i", record.i, i),
             ("d", record.d, d),
         ]
-        if isinstance(controller, MidRangeController) and record.u2 is not None:
+        if isinstance(controller, MidRangeController | SplitController) and record.u2 is not None:
             compared.append(("u2", record.u2, controller.u2))
         for name, logged, recomputed in compared:
             if logged != recomputed:
