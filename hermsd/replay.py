@@ -672,9 +672,10 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     rotated file, does not). The controller steps in auto mode when heating is allowed and
     there is a PV, after `reset(pv, reset_from)` if `reset_from` is set; its output and its
     p, i, d terms must equal the logged ones exactly (midrange: u2 too, the second element's
-    logged applied2 handed in first, as the daemon does). The daemon resets the controller on its
-    first step and after every hold, reload or return to auto, so where records are missing
-    the check resumes at the next reset.
+    logged applied2 handed in first, as the daemon does; two elements under any other
+    controller: u2 too, its logged applied2, on2 and free2 handed in first). The daemon
+    resets the controller on its first step and after every hold, reload or return to auto,
+    so where records are missing the check resumes at the next reset.
 
     A period's `full_from` (the reading after which the controller asked for full power at
     once) must be what `pid.full_power_now` gives on its readings, with the controller as the

@@ -15,6 +15,7 @@ from hermsd.element2 import PowerSplit, SplitController
 from hermsd.recorder import Recorder
 from hermsd.replay import load, verify
 from hermsd.sim.clock import VirtualClock
+from hermsd.sim.scenario import Event, Scenario, run
 from hermsd.sim.world import build_world
 
 H = 5.0
@@ -137,3 +138,36 @@ def test_the_loop_runs_predictive_on_the_total_and_replay_reproduces_every_decis
     entries[index] = dataclasses.replace(record, free2=False)
     mismatch = verify(entries).mismatch
     assert mismatch is not None and mismatch.k == record.k
+
+
+# A tun that loses 4.2 kW at 66 °C (UA 91 W/K, a 20 °C room): neither element holds it alone
+# (2 and 3.5 kW), both together do (5.5 kW).
+NEEDS_BOTH = {**PLANT, "ua_w_per_k": 91.0, "start_c": 64.0, "noise_c": 0.03}
+SHARED = {
+    "tun": {"element_watts": 2000},
+    "element2": {"backend": "sim", "watts": 3500},
+}
+
+
+@pytest.mark.parametrize("element", ["heater", "heater2"])
+def test_a_dead_element_of_either_kind_is_caught_where_the_other_cannot_hold_alone(
+    element: str,
+) -> None:
+    scenario = Scenario(
+        name="needs both",
+        duration=2.5 * 3600.0,
+        plant=NEEDS_BOTH,
+        config=SHARED,
+        events=(Event(3600.0, element, "open"),),
+    )
+    result = run(scenario)
+    assert result.summary["algorithm"] == "predictive"
+    alarms = result.summary["alarms"]
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    # Both run at 100 % once the water falls; the watch needs its dead time and 300 s.
+    assert alarms[0]["detected_after_s"] < 1800.0 and alarms[0]["heater_off_after_s"] == 0.0
+
+
+def test_no_alarm_on_the_same_tun_with_both_elements_working() -> None:
+    scenario = Scenario(name="needs both", duration=2.5 * 3600.0, plant=NEEDS_BOTH, config=SHARED)
+    assert run(scenario).summary["alarms"] == []
