@@ -1043,8 +1043,9 @@ def shared_out(config: Config, controller: pid.Controller) -> pid.Controller:
     e2 = config.element2
     if e2.backend == "none" or config.control.algorithm == MIDRANGE:
         return controller
+    c = config.control
     split = PowerSplit(
-        config.tun.element_watts, e2.watts, config.control.period, e2.min_on, e2.min_off
+        config.tun.element_watts, e2.watts, c.period, e2.min_on, e2.min_off, c.max_output
     )
     return SplitController(controller, split)
 

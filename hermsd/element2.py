@@ -208,12 +208,20 @@ class PowerSplit:
     |owed + (u − given_now)·h|. So for a u between the two ranges the mean given equals the
     mean asked (the controller's P needs no offset to hold), the debt swings about zero, the
     shorter phase is the minimum time (the least ripple the element allows), and a u that
-    only dips into the other range for a period or two (noise, the end of a heat-up's
-    approach) does not lock the element in the wrong state for a minimum time.
+    passes through the gap (the end of a heat-up's approach) does not switch the element at
+    its first period there, to be held in the wrong state for a minimum time. A second
+    element whose share alone exceeds `max_total` (control.max_output: a power limit) is
+    never switched on.
     """
 
     def __init__(
-        self, watts1: float, watts2: float, period: float, min_on: float, min_off: float
+        self,
+        watts1: float,
+        watts2: float,
+        period: float,
+        min_on: float,
+        min_off: float,
+        max_total: float = 100.0,
     ) -> None:
         if not (watts1 > 0.0 and watts2 > 0.0 and period > 0.0 and min(min_on, min_off) > 0.0):
             raise ValueError(
@@ -226,6 +234,7 @@ class PowerSplit:
         self.share2 = 100.0 * watts2 / total  # % of the total the second element gives
         self.share1 = 100.0 * watts1 / total
         self.owed = 0.0  # %·s of the total asked and not given (negative: given ahead)
+        self.may_close = self.share2 <= max_total
 
     def total(self, duty1: float, duty2: float) -> float:
         """Two duties as one % of the total; both full is exactly 100 (full-power checks)."""
@@ -242,7 +251,8 @@ class PowerSplit:
             return self.owed + (u - self._given(u, state)) * span
 
         state = on
-        if self._given(u, on) != u and free and abs(carried(not on)) < abs(carried(on)):
+        allowed = free and (on or self.may_close)
+        if self._given(u, on) != u and allowed and abs(carried(not on)) < abs(carried(on)):
             state = not on
         given = self._given(u, state)
         self.owed = 0.0 if given == u else self.owed + (u - given) * self.period

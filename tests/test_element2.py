@@ -22,7 +22,7 @@ from hermsd.replay import delivered, load, verify
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PhysicalPlant
 from hermsd.sim.scenario import Event, Scenario, ScenarioError, effective_config, run
-from hermsd.sim.world import build_world
+from hermsd.sim.world import World, build_world
 
 H = 5.0  # s, the control period
 
@@ -221,14 +221,22 @@ def test_a_program_waiting_for_its_ready_by_time_keeps_both_elements_off() -> No
     assert waiting and all(r.state == "scheduled" and r.switched2 == 0.0 for r in waiting)
 
 
+def logged_daemon(
+    config: Config, directory: Path, seed: int
+) -> tuple[Daemon, World, VirtualClock, Recorder]:
+    """A daemon on the simulated two-element tun (noise sd 0.03 °C) logging to `directory`."""
+    config = dataclasses.replace(config, log=config_module.DEFAULT.log)
+    clock = VirtualClock()
+    world = build_world(config, clock, {**PLANT, "noise_c": 0.03, "seed": seed}, history=True)
+    recorder = Recorder(directory, now=clock.monotonic, lossless=True)
+    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    return daemon, world, clock, recorder
+
+
 def test_the_loop_hands_applied2_to_the_slow_controller_and_replay_reproduces_it(
     tmp_path: Path,
 ) -> None:
-    config = dataclasses.replace(two_element_config(), log=config_module.DEFAULT.log)
-    clock = VirtualClock()
-    world = build_world(config, clock, {**PLANT, "noise_c": 0.03, "seed": 3}, history=True)
-    recorder = Recorder(tmp_path, now=clock.monotonic, lossless=True)
-    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    daemon, world, clock, recorder = logged_daemon(two_element_config(), tmp_path, 3)
     with daemon:
         daemon.run(until=3 * 3600.0)
     recorder.close()

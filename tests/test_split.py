@@ -7,16 +7,13 @@ import itertools
 from pathlib import Path
 
 import pytest
-from test_element2 import PLANT, phases, two_element_config
+from test_element2 import PLANT, logged_daemon, phases, two_element_config
 
 from hermsd import config as config_module
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.daemon import PeriodRecord
 from hermsd.element2 import PowerSplit, SplitController
-from hermsd.recorder import Recorder
 from hermsd.replay import load, verify
-from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event, Scenario, run
-from hermsd.sim.world import build_world
 
 H = 5.0
 W1, W2 = 2000.0, 3500.0  # the SSR's element and the contactor's, W; 5.5 kW in all
@@ -96,6 +93,16 @@ def test_near_the_top_of_the_gap_the_contactor_stays_on_until_a_minimum_off_pays
     assert opened == 112
 
 
+def test_a_power_limit_below_the_second_elements_share_keeps_it_open() -> None:
+    # control.max_output 50 %: the contactor's 3500 W alone is 63.6 % of 5.5 kW, over it.
+    # The SSR gives what it can (100 %, 36.4 %) and the rest is never made up by closing.
+    s = PowerSplit(W1, W2, H, 120.0, 120.0, max_total=50.0)
+    assert all(s.decide(50.0, False, True) == (False, 100.0) for _ in range(500))
+    # 63.6 % allowed: it closes as soon as that brings the debt nearer zero.
+    s = PowerSplit(W1, W2, H, 120.0, 120.0, max_total=70.0)
+    assert any(s.decide(70.0, False, True)[0] for _ in range(100))
+
+
 def two_element_predictive(**control: object) -> config_module.Config:
     return two_element_config(algorithm="predictive", **control)
 
@@ -103,11 +110,7 @@ def two_element_predictive(**control: object) -> config_module.Config:
 def test_the_loop_runs_predictive_on_the_total_and_replay_reproduces_every_decision(
     tmp_path: Path,
 ) -> None:
-    config = dataclasses.replace(two_element_predictive(), log=config_module.DEFAULT.log)
-    clock = VirtualClock()
-    world = build_world(config, clock, {**PLANT, "noise_c": 0.03, "seed": 5}, history=True)
-    recorder = Recorder(tmp_path, now=clock.monotonic, lossless=True)
-    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    daemon, world, clock, recorder = logged_daemon(two_element_predictive(), tmp_path, 5)
     assert isinstance(daemon.controller, SplitController)
     with daemon:
         daemon.run(until=2 * 3600.0)
