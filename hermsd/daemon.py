@@ -37,7 +37,14 @@ from hermsd.config_file import ConfigFile
 from hermsd.element2 import MidRangeController, SlowElement, total_share
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
-from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
+from hermsd.lm92 import (
+    LimitName,
+    Reading,
+    SensorError,
+    WrongChipError,
+    decode_temperature,
+    encode_temperature,
+)
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program
@@ -74,6 +81,8 @@ class Sensor(Protocol):
     def wake(self) -> None: ...
 
     def set_limit(self, name: LimitName, celsius: float) -> None: ...
+
+    def limit(self, name: LimitName) -> float: ...
 
 
 class Recorder(Protocol):
@@ -979,16 +988,21 @@ class Daemon:
         self._reads += 1
         reading: Reading | None = None
         error: SensorError | None = None
+        lost: str | None = None
         try:
             if self._reads % self._reads_per_period() == 0:
                 self.sensor.identify()
                 sup.chip_check(self.clock.monotonic(), True)
+                lost = self._sensor_limits_lost()
             reading = self.sensor.read()
         except WrongChipError as exc:
             error = exc
         except SensorError as exc:
             error = exc
         t = self.clock.monotonic()  # a slow bus moves time; judge the value when it arrived
+        if lost is not None:
+            self._event(logging.WARNING, f"the sensor lost its limits ({lost}): set again", t)
+            self._reprogram_sensor(t)
         accepted = False
         if isinstance(error, WrongChipError):
             sup.chip_check(t, False, f"wrong chip: {error}")
@@ -1316,6 +1330,21 @@ class Daemon:
         self.alerts.send(
             Event(event, message, name, wall_ns, kind, self._pv, self.setpoint, output), t
         )
+
+    def _sensor_limits_lost(self) -> str | None:
+        """What of the chip's limits differs from what was set, or None. A chip reset by a
+        dip in its supply reads on without a failed read, but with T_CRIT back at 80 °C."""
+        safety = self.config.safety
+        limits: tuple[tuple[LimitName, float], ...] = (
+            ("crit", safety.max_temp),
+            ("hyst", safety.hysteresis),
+        )
+        for name, celsius in limits:
+            meant = decode_temperature(encode_temperature(celsius))
+            found = self.sensor.limit(name)
+            if found != meant:
+                return f"{name} reads {found:g} °C, not {meant:g} °C: was the chip reset?"
+        return None
 
     def _reprogram_sensor(self, t: float) -> None:
         """A chip that was gone may have powered up again with T_CRIT at 80 °C: set it again."""
