@@ -161,11 +161,11 @@ inside a period (`full_power_now`, by `DROP_RULE`)."""
 DROP_ONSET = 0.125
 """°C (2 LSB) below the last period's PV the reading before the latest must lie, while the
 latest lies more than STEP_INNOVATION below it. One reading differs from the period's mean by
-0.04 °C sd (noise and the LSB's truncation): 0.125 °C is 3 sd and 0.25 °C 6 sd, so noise
-does neither in a row. Behind the sensor's lag cold water shows as readings that fall
-further each time, the first of them often by less than 0.25 °C; a one-reading glitch (the
-supervisor drops only jumps beyond safety.max_step) has a steady reading before it, so it
-never does it, however deep."""
+0.04 °C sd (noise and the LSB's truncation): 0.125 °C is 3 sd and 0.25 °C 6 sd (about once
+in 10⁹ readings alone), so noise does not give both in a row. Behind the sensor's lag cold
+water shows as readings that fall further each time, the first of them often by less than
+0.25 °C; a one-reading glitch (the supervisor drops only jumps beyond safety.max_step) has a
+steady reading before it, so it never does it, however deep."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -1013,15 +1013,15 @@ def full_power_now(
     """Whether the readings so far in a period show a sudden drop (cold water) that the
     controller would answer with full power, so that the loop need not wait for the period's
     end: the last DROP_READINGS of them below the last period's PV (`last_pv`) as `rule`
-    asks, and the step the controller would take now, on them with its last output as
-    applied, gives its upper limit. The element's heat reaches the sensor a dead time later
-    whatever is done, so every second of the old duty after the water is a second of
-    recovery lost; a period is 5 of them. Only predictive acts inside a period (the
-    textbook forms are their seeds' equations, once a period), only when it may ask for
-    full power (an upper limit below 100 % is a power limit the window must keep), and not
-    when its output is already there. The controller is not changed (its next step is taken
-    on a copy), so the answer follows from what a period record logs: its readings, and the
-    controller as the period before left it."""
+    asks, and the step the controller would take now, on the latest of them (or their mean,
+    as `rule` asks) with its last output as applied, gives its upper limit. The element's
+    heat reaches the sensor a dead time later whatever is done, so every second of the old
+    duty after the water is a second of recovery lost; a period is 5 of them. Only
+    predictive acts inside a period (the textbook forms are their seeds' equations, once a
+    period), only when it may ask for full power (an upper limit below 100 % is a power
+    limit the window must keep), and not when its output is already there. The controller
+    is not changed (its next step is taken on a copy), so the answer follows from what a
+    period record logs: its readings, and the controller as the period before left it."""
     if not (isinstance(controller, _Predictive) and controller._primed):
         return False
     if len(readings) < DROP_READINGS:
