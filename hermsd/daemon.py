@@ -1296,6 +1296,7 @@ class Daemon:
                     "model": asdict(self.model),
                     "safety_model": _tun_fields(self._measured_tun(self.config)),
                     "drop_readings": pid.DROP_READINGS,
+                    "drop_onset_c": pid.DROP_RULE.onset,
                 },
             )
 
