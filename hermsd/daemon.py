@@ -1049,6 +1049,10 @@ class Daemon:
                     self._held = False
                 self.output = self.controller.step(self.setpoint, pv, applied)
                 self._stepped = True
+                if not sup.controller_output(now, self.output):
+                    self._drain_alarms(now)  # the heater off at once, said, latched
+                    self._held, self._resume_output = True, 0.0
+                    self.output, self._stepped, state = 0.0, False, "alarm"
             if readings and self._watchdog is not None:
                 self._watchdog.note_healthy_cycle()  # a fresh reading made a fresh output
         else:

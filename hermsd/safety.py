@@ -5,9 +5,9 @@ loop's lateness, and obeys `heater_allowed`. Two kinds of fault:
 
 - auto-recovering (sensor fault, stale reading, over-temperature, loop stall): the heater is
   off while they last and control resumes by itself, bumplessly, once they clear;
-- latched (element not heating, SSR stuck on, dry fire, stuck sensor): the heater stays off
-  until someone resets the alarm, because each means the hardware is not what the loop
-  believes it is.
+- latched (element not heating, SSR stuck on, dry fire, stuck sensor, controller fault): the
+  heater stays off until someone resets the alarm, because each means the hardware (or the
+  controller's model of it) is not what the loop believes it is.
 
 Limits come from the tun as measured, or, before it is, hold for any tun the config could
 be describing: half to twice its litres, a dead time up to 300 s, an open pot in a cold
@@ -27,7 +27,13 @@ FULL_POWER = 80.0  # % at or above which the element is expected to heat visibly
 SUDDEN_DROP = 0.25  # °C: least fall in a window, faster than losses allow, that is water added
 
 AUTO_KINDS = ("sensor_fault", "stale_reading", "over_temperature", "loop_stall")
-LATCHED_KINDS = ("heater_not_heating", "ssr_stuck_on", "dry_fire", "sensor_stuck")
+LATCHED_KINDS = (
+    "heater_not_heating",
+    "ssr_stuck_on",
+    "dry_fire",
+    "sensor_stuck",
+    "controller_fault",
+)
 
 # The envelope every limit holds for before the tun is measured (see `SafetyLimits.derive`).
 FILL_RANGE = 2.0
@@ -535,6 +541,24 @@ class Supervisor:
             )
         elif "loop_stall" in self._active:
             self._clear("loop_stall", t, "the loop is on time again")
+
+    def controller_output(self, t: float, output: float) -> bool:
+        """The controller's output for the period: True when it is a duty (0..100 %).
+
+        NaN or infinity (a learned model or control settings the controller cannot work
+        with) is no duty: the heater must not be driven from it, and the next step of the
+        same controller is no more to be trusted, so the alarm latches.
+        """
+        if math.isfinite(output) and 0.0 <= output <= 100.0:
+            return True
+        self._raise(
+            "controller_fault",
+            t,
+            f"controller output {output} % is not a duty within 0..100 % (check the control "
+            "settings, or `hermsd forget-model` for a learned model it cannot work with)",
+            {"output": str(output)},  # as text: the latch file holds JSON, which has no NaN
+        )
+        return False
 
     def period(self, t: float, pv: float | None, output: float, applied: float) -> None:
         """Once per control period: the checks that need a history of PV and output."""
