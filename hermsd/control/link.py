@@ -31,6 +31,7 @@ from hermsd import config as config_module
 from hermsd.config import Config
 from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
 from hermsd.control.protocol import (
+    STARTING,
     VERSION,
     Command,
     History,
@@ -205,7 +206,7 @@ class LoopLink:
         with self._encode_lock:
             snapshot = self._snapshot
             if snapshot is None:
-                return encode(error_reply("hermsd is starting: no control period has run yet"))
+                return encode(error_reply(STARTING))
             if self._encoded is None or self._encoded[0] is not snapshot:
                 self._encoded = (snapshot, encode(self._status_message(snapshot)))
             return self._encoded[1]

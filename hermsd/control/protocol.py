@@ -262,6 +262,10 @@ def error_reply(message: str) -> dict[str, Any]:
     return {"v": VERSION, "ok": False, "error": message}
 
 
+STARTING = "hermsd is starting: no control period has run yet"
+"""The error `status` is answered with before the loop has published a period."""
+
+
 def describe(command: Command) -> str:
     """The operator action in words, for the log."""
     if isinstance(command, SetSetpoint):

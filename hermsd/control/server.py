@@ -40,6 +40,7 @@ from typing import Any
 
 from hermsd.control.protocol import (
     MAX_LINE,
+    STARTING,
     Command,
     History,
     ProtocolError,
@@ -93,12 +94,16 @@ def _no_history(request: History) -> bytes:
     return encode(error_reply("this daemon keeps no history"))
 
 
+def _starting() -> bytes:
+    return encode(error_reply(STARTING))
+
+
 class ControlServer:
     """Serves the socket at `path` on its own thread; `status` builds the status reply,
     `history` a page of the history."""
 
     def __init__(
-        self, path: Path, status: StatusReply, history: HistoryReply = _no_history
+        self, path: Path, status: StatusReply = _starting, history: HistoryReply = _no_history
     ) -> None:
         self.path = path
         self._status = status
@@ -113,10 +118,21 @@ class ControlServer:
 
     # -- the daemon's side ----------------------------------------------------------------
 
+    def bind(self) -> socket.socket:
+        """Take the socket path (mode 0660) without serving yet; SocketInUseError if another
+        daemon answers there. `hermsd run` binds before it opens any output, so that a second
+        daemon on the tun is refused before it can touch the heater's lines."""
+        if self._listener is None:
+            self._listener = _bind(self.path)
+        return self._listener
+
+    def answer_with(self, status: StatusReply, history: HistoryReply) -> None:
+        """What `status` and `history` are answered from (before `start`)."""
+        self._status, self._history = status, history
+
     def start(self) -> None:
-        """Bind the socket (mode 0660) and start serving; SocketInUseError if another runs."""
-        self._listener = _bind(self.path)
-        self._selector.register(self._listener, selectors.EVENT_READ)
+        """Bind the socket if `bind` has not, and start serving."""
+        self._selector.register(self.bind(), selectors.EVENT_READ)
         self._selector.register(self._wake_read, selectors.EVENT_READ)
         self._thread = threading.Thread(target=self._serve, name="hermsd-control", daemon=True)
         self._thread.start()
