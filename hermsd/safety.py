@@ -542,23 +542,27 @@ class Supervisor:
         elif "loop_stall" in self._active:
             self._clear("loop_stall", t, "the loop is on time again")
 
-    def controller_output(self, t: float, output: float) -> bool:
-        """The controller's output for the period: True when it is a duty (0..100 %).
+    def controller_output(self, t: float, output: float, output2: float | None = None) -> bool:
+        """The controller's outputs for the period (the second element's too, when fitted):
+        True when each is a duty (0..100 %).
 
         NaN or infinity (a learned model or control settings the controller cannot work
         with) is no duty: the heater must not be driven from it, and the next step of the
         same controller is no more to be trusted, so the alarm latches.
         """
-        if math.isfinite(output) and 0.0 <= output <= 100.0:
-            return True
-        self._raise(
-            "controller_fault",
-            t,
-            f"controller output {output} % is not a duty within 0..100 % (check the control "
-            "settings, or `hermsd forget-model` for a learned model it cannot work with)",
-            {"output": str(output)},  # as text: the latch file holds JSON, which has no NaN
-        )
-        return False
+        for key, what, duty in (("output", "", output), ("output2", " for element2", output2)):
+            if duty is None or (math.isfinite(duty) and 0.0 <= duty <= 100.0):
+                continue
+            self._raise(
+                "controller_fault",
+                t,
+                f"controller output{what} {duty} % is not a duty within 0..100 % (check the "
+                "control settings, or `hermsd forget-model` for a learned model it cannot "
+                "work with)",
+                {key: str(duty)},  # as text: the latch file holds JSON, which has no NaN
+            )
+            return False
+        return True
 
     def period(self, t: float, pv: float | None, output: float, applied: float) -> None:
         """Once per control period: the checks that need a history of PV and output."""
