@@ -1256,10 +1256,15 @@ def cmd_reset_alarm(args: argparse.Namespace) -> int:
     """Clear the latched alarms: through the socket when a daemon runs, else by a request
     in the state directory that the daemon takes when it starts."""
     try:
-        reply = _ask(args.socket, ResetAlarms())
+        seen = _ask(args.socket, Status())["alarms"]
     except NoDaemonError:
         return _request_reset_in_state(args)
-    print(f"alarms reset; now: {', '.join(reply['alarms']) or 'no alarm'}")
+    if not seen:
+        print("no alarm to reset")
+        return 0
+    # Only what was seen here: an alarm raised in between stays, to be read first.
+    reply = _ask(args.socket, ResetAlarms(tuple(seen)))
+    print(f"reset: {', '.join(seen)}; now: {', '.join(reply['alarms']) or 'no alarm'}")
     return 0
 
 

@@ -37,7 +37,14 @@ from hermsd.config_file import ConfigFile
 from hermsd.element2 import MidRangeController, SlowElement, total_share
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
-from hermsd.lm92 import LimitName, Reading, SensorError, WrongChipError
+from hermsd.lm92 import (
+    LimitName,
+    Reading,
+    SensorError,
+    WrongChipError,
+    decode_temperature,
+    encode_temperature,
+)
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program
@@ -61,6 +68,7 @@ log = logging.getLogger("hermsd")
 TIMING_INTERVAL = 60.0  # s between timing records
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 LOG_FAILING_REPEAT_S = 60.0  # a failing log is said again this often while it lasts
+LATCH_SAVE_RETRY_S = 30.0  # a failed save of the latched alarms is tried again this often
 
 
 class Sensor(Protocol):
@@ -73,6 +81,8 @@ class Sensor(Protocol):
     def wake(self) -> None: ...
 
     def set_limit(self, name: LimitName, celsius: float) -> None: ...
+
+    def limit(self, name: LimitName) -> float: ...
 
 
 class Recorder(Protocol):
@@ -384,7 +394,10 @@ class Daemon:
         self._started = False
         self._reload_requested = False
         self._config_problem: str | None = None  # why the file's last edit was rejected
-        self._saved_latches: list[str] = []
+        self._saved_latches: list[str] = []  # the kinds on disk, as last saved
+        self._tried_latches: list[str] = []  # the kinds of the last save tried
+        self._latch_retry_at = 0.0  # a failed save is tried again from then, or at a change
+        self._latch_save_failing = False  # said once; said again when it lands
         self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
         self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
         self._log_failing: str | None = None  # why the recorder cannot write, as last said
@@ -914,11 +927,22 @@ class Daemon:
             ),
             self.config.safety.reset,
         )
-        self._saved_latches = [alarm.kind for alarm in alarms]  # tried again at the next change
+        kinds = [alarm.kind for alarm in alarms]
+        self._tried_latches = kinds
         try:
             self.latches.save(stored)
         except OSError as error:
-            self._event(logging.ERROR, f"saving latched alarms failed: {error}", t)
+            # Tried again, quietly, until it lands: a latch missing from disk is cleared by
+            # any restart, and the heater would come back on over the fault.
+            self._latch_retry_at = t + LATCH_SAVE_RETRY_S
+            if not self._latch_save_failing:
+                self._event(logging.ERROR, f"saving latched alarms failed: {error}", t)
+            self._latch_save_failing = True
+        else:
+            self._saved_latches = kinds
+            if self._latch_save_failing:
+                self._event(logging.INFO, "latched alarms saved after a failed save", t)
+            self._latch_save_failing = False
 
     # -- the periodic work ----------------------------------------------------------------
 
@@ -964,16 +988,21 @@ class Daemon:
         self._reads += 1
         reading: Reading | None = None
         error: SensorError | None = None
+        lost: str | None = None
         try:
             if self._reads % self._reads_per_period() == 0:
                 self.sensor.identify()
                 sup.chip_check(self.clock.monotonic(), True)
+                lost = self._sensor_limits_lost()
             reading = self.sensor.read()
         except WrongChipError as exc:
             error = exc
         except SensorError as exc:
             error = exc
         t = self.clock.monotonic()  # a slow bus moves time; judge the value when it arrived
+        if lost is not None:
+            self._event(logging.WARNING, f"the sensor lost its limits ({lost}): set again", t)
+            self._reprogram_sensor(t)
         accepted = False
         if isinstance(error, WrongChipError):
             sup.chip_check(t, False, f"wrong chip: {error}")
@@ -1056,8 +1085,6 @@ class Daemon:
                     self._drain_alarms(now)  # the heater off at once, said, latched
                     self._held, self._resume_output = True, 0.0
                     self.output, self._stepped, state = 0.0, False, "alarm"
-            if readings and self._watchdog is not None:
-                self._watchdog.note_healthy_cycle()  # a fresh reading made a fresh output
         else:
             if not self._held:
                 self._held = True
@@ -1067,6 +1094,11 @@ class Daemon:
             state = "alarm" if sup.active else "waiting"
         if self.mode == "manual" and state == "ok":
             state = "manual"
+        if readings and self._watchdog is not None:
+            # A fresh reading made a fresh decision, heating or held off (an alarm, a program
+            # waiting for its time): the loop is alive. Only a loop without readings stops
+            # earning pings; a kill in a healthy hold would restart, and re-alert, for hours.
+            self._watchdog.note_healthy_cycle()
         u2 = self._drive_element2(now, state)
         self.k += 1
         terms = self.controller.terms
@@ -1183,18 +1215,17 @@ class Daemon:
             self.element2.force_off(now)
 
     def _drive_element2(self, now: float, state: str) -> float | None:
-        """The second element for the period: the controller's u2 in auto, off otherwise
-        (manual drives the SSR alone). Any other state (an alarm, a program waiting for its
-        ready_by time) forces it off every period, so its switch and its duty say off."""
+        """The second element for the period: the controller's u2 in auto. Any other state
+        (manual, which drives the SSR alone; an alarm; a program waiting for its ready_by
+        time) forces it off every period, its minimum on time aside, so its switch and its
+        duty say off: manual 0 % must not leave 3.5 kW on for minutes."""
         if self.element2 is None:
             return None
-        u2 = 0.0
-        if state == "ok" and isinstance(self.controller, MidRangeController):
-            u2 = self.controller.u2
-        if state in ("ok", "manual"):
-            self.element2.drive(now, u2)
-        else:
+        if state != "ok":
             self.element2.force_off(now)
+            return 0.0
+        u2 = self.controller.u2 if isinstance(self.controller, MidRangeController) else 0.0
+        self.element2.drive(now, u2)
         return u2
 
     def _total_power(
@@ -1272,6 +1303,7 @@ class Daemon:
                     "model": asdict(self.model),
                     "safety_model": _tun_fields(self._measured_tun(self.config)),
                     "drop_readings": pid.DROP_READINGS,
+                    "drop_onset_c": pid.DROP_RULE.onset,
                 },
             )
 
@@ -1293,7 +1325,10 @@ class Daemon:
                     self._reprogram_sensor(t)
             for listener in self.listeners:
                 listener.alarm(alarm)
-        if self.supervisor.latched != self._saved_latches:
+        latched = self.supervisor.latched
+        if latched != self._saved_latches and (
+            latched != self._tried_latches or t >= self._latch_retry_at
+        ):
             self._save_latches(t)
 
     def _alert(self, event: str, message: str, t: float, kind: str = "") -> None:
@@ -1303,6 +1338,21 @@ class Daemon:
         self.alerts.send(
             Event(event, message, name, wall_ns, kind, self._pv, self.setpoint, output), t
         )
+
+    def _sensor_limits_lost(self) -> str | None:
+        """What of the chip's limits differs from what was set, or None. A chip reset by a
+        dip in its supply reads on without a failed read, but with T_CRIT back at 80 °C."""
+        safety = self.config.safety
+        limits: tuple[tuple[LimitName, float], ...] = (
+            ("crit", safety.max_temp),
+            ("hyst", safety.hysteresis),
+        )
+        for name, celsius in limits:
+            meant = decode_temperature(encode_temperature(celsius))
+            found = self.sensor.limit(name)
+            if found != meant:
+                return f"{name} reads {found:g} °C, not {meant:g} °C: was the chip reset?"
+        return None
 
     def _reprogram_sensor(self, t: float) -> None:
         """A chip that was gone may have powered up again with T_CRIT at 80 °C: set it again."""

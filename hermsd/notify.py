@@ -127,10 +127,11 @@ class Notifier:
 class WatchdogGate:
     """Decides when the loop has earned a WATCHDOG=1 ping.
 
-    A ping vouches for a healthy cycle (a fresh sensor reading that led to a fresh output)
-    that no earlier ping vouched for, and pings are at least `interval` seconds apart. A
-    loop that keeps running but stops producing healthy cycles therefore stops pinging,
-    and systemd kills and restarts it; `ExecStopPost=` then forces the element off.
+    A ping vouches for a healthy cycle (a fresh sensor reading that led to a fresh decision,
+    heating or held off by an alarm or a waiting program) that no earlier ping vouched for,
+    and pings are at least `interval` seconds apart. A loop that keeps running but stops
+    producing healthy cycles (no readings) therefore stops pinging, and systemd kills and
+    restarts it; `ExecStopPost=` then forces the element off.
     """
 
     def __init__(self, interval: float) -> None:
@@ -141,7 +142,7 @@ class WatchdogGate:
         self._unvouched_healthy_cycle = False
 
     def note_healthy_cycle(self) -> None:
-        """A fresh sensor reading has just produced a fresh output."""
+        """A fresh sensor reading has just produced a fresh decision of the outputs."""
         self._unvouched_healthy_cycle = True
 
     def due(self, now: float) -> bool:

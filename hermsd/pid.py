@@ -156,11 +156,35 @@ STEP_INNOVATION = 0.25
 """°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
 the mean of its readings, so noise of 0.03 °C never moves it that far."""
 DROP_READINGS = 2
-"""Readings in a row that must each lie more than STEP_INNOVATION below the last period's PV
-before predictive acts inside a period (`full_power_now`). One reading differs from the
-period's mean by 0.04 °C sd (noise and the LSB's truncation), so 0.25 °C is 6 sd: noise does
-not do it twice in a row, and a one-reading glitch (the supervisor drops only jumps beyond
-safety.max_step) never does it at all."""
+"""Readings in a row that must show a drop below the last period's PV before predictive acts
+inside a period (`full_power_now`, by `DROP_RULE`)."""
+DROP_ONSET = 0.125
+"""°C (2 LSB) below the last period's PV the reading before the latest must lie, while the
+latest lies more than STEP_INNOVATION below it. One reading differs from the period's mean by
+0.04 °C sd (noise and the LSB's truncation): 0.125 °C is 3 sd and 0.25 °C 6 sd (about once
+in 10⁹ readings alone), so noise does not give both in a row. Behind the sensor's lag cold
+water shows as readings that fall further each time, the first of them often by less than
+0.25 °C; a one-reading glitch (the supervisor drops only jumps beyond safety.max_step) has a
+steady reading before it, so it never does it, however deep."""
+
+
+@dataclass(frozen=True, slots=True)
+class DropRule:
+    """What a period's readings must show before predictive acts on them (`full_power_now`):
+    the latest more than STEP_INNOVATION below the last period's PV and the one before it
+    more than `onset` below; then the controller's trial step on the latest reading
+    (`on_latest`) or on the mean of the two must give full power."""
+
+    onset: float
+    on_latest: bool
+
+
+DROP_RULE = DropRule(DROP_ONSET, on_latest=True)
+"""The rule in force; its `onset` is logged with every config record (`drop_onset_c`)."""
+FIRST_DROP_RULE = DropRule(STEP_INNOVATION, on_latest=False)
+"""The first rule (both readings beyond STEP_INNOVATION, the trial on their mean): logs with
+`drop_readings` and no `drop_onset_c` were written under it. It lost a reading, a second of
+full power, to a first reading that the sensor's lag kept within 0.25 °C."""
 MAX_DEAD_TIME = 1800.0
 """s: the longest dead time a heat-up may show (a sensor far down a long pipe)."""
 FIT_FROM = 1.0
@@ -980,31 +1004,36 @@ class _Predictive(_Base):
 
 
 def full_power_now(
-    controller: Controller, sp: float, last_pv: float, readings: Sequence[float]
+    controller: Controller,
+    sp: float,
+    last_pv: float,
+    readings: Sequence[float],
+    rule: DropRule = DROP_RULE,
 ) -> bool:
     """Whether the readings so far in a period show a sudden drop (cold water) that the
     controller would answer with full power, so that the loop need not wait for the period's
-    end: the last DROP_READINGS of them each more than STEP_INNOVATION below the last
-    period's PV (`last_pv`), and the step the controller would take now, on their mean with
-    its last output as applied, gives its upper limit. The element's heat reaches the sensor
-    a dead time later whatever is done, so every second of the old duty after the water is a
-    second of recovery lost; a period is 5 of them. Only predictive acts inside a period (the
-    textbook forms are their seeds' equations, once a period), only when it may ask for
-    full power (an upper limit below 100 % is a power limit the window must keep), and not
-    when its output is already there. The controller is not changed (its next step is taken
-    on a copy), so the answer follows from what a period record logs: its readings, and the
-    controller as the period before left it."""
+    end: the last DROP_READINGS of them below the last period's PV (`last_pv`) as `rule`
+    asks, and the step the controller would take now, on the latest of them (or their mean,
+    as `rule` asks) with its last output as applied, gives its upper limit. The element's
+    heat reaches the sensor a dead time later whatever is done, so every second of the old
+    duty after the water is a second of recovery lost; a period is 5 of them. Only
+    predictive acts inside a period (the textbook forms are their seeds' equations, once a
+    period), only when it may ask for full power (an upper limit below 100 % is a power
+    limit the window must keep), and not when its output is already there. The controller
+    is not changed (its next step is taken on a copy), so the answer follows from what a
+    period record logs: its readings, and the controller as the period before left it."""
     if not (isinstance(controller, _Predictive) and controller._primed):
         return False
     if len(readings) < DROP_READINGS:
         return False
-    recent = readings[-DROP_READINGS:]
+    before, latest = readings[-DROP_READINGS], readings[-1]
     if controller.params.out_max < 100.0 or controller.output >= 100.0:
         return False
-    if max(recent) >= last_pv - STEP_INNOVATION:
+    if latest >= last_pv - STEP_INNOVATION or before >= last_pv - rule.onset:
         return False
+    pv = latest if rule.on_latest else (before + latest) / 2.0
     trial = copy.deepcopy(controller)
-    return trial.step(sp, sum(recent) / len(recent), controller.output) >= 100.0
+    return trial.step(sp, pv, controller.output) >= 100.0
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

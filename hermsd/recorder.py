@@ -271,6 +271,9 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "drop_readings": _field(
                     "integer", "readings in a row that show cold water inside a period (full_from)"
                 ),
+                "drop_onset_c": _field(
+                    "number", "°C below the last PV the first of those readings must lie"
+                ),
             },
         ),
     ),

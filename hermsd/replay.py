@@ -37,7 +37,15 @@ from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.element2 import MidRangeController
 from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
-from hermsd.pid import DROP_READINGS, Controller, PlantModel, full_power_now
+from hermsd.pid import (
+    DROP_READINGS,
+    DROP_RULE,
+    FIRST_DROP_RULE,
+    Controller,
+    DropRule,
+    PlantModel,
+    full_power_now,
+)
 from hermsd.program.quality import step_quality
 from hermsd.recorder import (
     CONFIG_TOPIC,
@@ -98,6 +106,7 @@ class LoggedConfig:
     model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
     safety_model: dict[str, Any] | None = None  # the measured tun the safety limits came from
     drop_readings: int | None = None  # the rule of `full_from` (None: not acted on in periods)
+    drop_onset_c: float | None = None  # and its onset (None: the first rule, if drop_readings)
 
 
 @dataclass(frozen=True, slots=True)
@@ -377,7 +386,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
     model, safety_model = message.get("model"), message.get("safety_model")
-    drop_readings = message.get("drop_readings")
+    drop_readings, drop_onset = message.get("drop_readings"), message.get("drop_onset_c")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
@@ -385,6 +394,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         model if isinstance(model, dict) else None,
         safety_model if isinstance(safety_model, dict) else None,
         drop_readings if isinstance(drop_readings, int) else None,
+        float(drop_onset) if _is_number(drop_onset) else None,
     )
 
 
@@ -679,8 +689,9 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     A period's `full_from` (the reading after which the controller asked for full power at
     once) must be what `pid.full_power_now` gives on its readings, with the controller as the
     step of the record before it left it; None where no step came before it. It is checked
-    where the config record in force says the daemon used today's rule (`drop_readings`):
-    an older daemon never acted inside a period and logged no such thing.
+    by the rule the config record in force names (`drop_readings`, and `drop_onset_c` since
+    the onset was lowered; without it, `pid.FIRST_DROP_RULE`): an older daemon never acted
+    inside a period and logged no such thing.
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -689,14 +700,14 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
     stepped: tuple[Controller, PeriodRecord] | None = None  # the last step, if fresh and known
-    drops_checked = False  # whether the daemon that logged these periods acted on drops so
+    drop_rule: DropRule | None = None  # how the daemon that logged these periods acted on drops
     verified = unknown = 0
     for entry in entries:
         if isinstance(entry, LoggedConfig):
             if entry == in_force:
                 continue
             in_force = entry
-            drops_checked = entry.drop_readings == DROP_READINGS
+            drop_rule = _drop_rule(entry)
             try:
                 reloaded = config_module.from_dict(entry.config).control
                 same_model = in_force_model == entry.model
@@ -722,8 +733,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         if previous_k is not None and record.k != previous_k + 1:
             known = False
             stepped = None
-        if drops_checked and (stepped is not None or known):
-            full_from = _full_from(stepped, record.readings)
+        if drop_rule is not None and (stepped is not None or known):
+            full_from = _full_from(stepped, record.readings, drop_rule)
             if record.full_from != full_from:
                 mismatch = Mismatch(record.k, record.t, "full_from", record.full_from, full_from)
                 return Verification(verified, unknown, mismatch)
@@ -769,18 +780,29 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     return Verification(verified, unknown, None)
 
 
+def _drop_rule(entry: LoggedConfig) -> DropRule | None:
+    """The rule by which the daemon that wrote `entry` acted on drops inside a period (None:
+    it did not, or by a rule this version does not know, so `full_from` is not checked)."""
+    if entry.drop_readings != DROP_READINGS:
+        return None
+    if entry.drop_onset_c is None:
+        return FIRST_DROP_RULE
+    return DROP_RULE if entry.drop_onset_c == DROP_RULE.onset else None
+
+
 def _full_from(
-    stepped: tuple[Controller, PeriodRecord] | None, readings: list[float]
+    stepped: tuple[Controller, PeriodRecord] | None, readings: list[float], rule: DropRule
 ) -> int | None:
     """After how many of a period's `readings` the daemon asks for full power (see
-    `Daemon._act_on_drop`), given the controller and the record of the step before them."""
+    `Daemon._act_on_drop`), given the controller and the record of the step before them,
+    by `rule`."""
     if stepped is None:
         return None
     controller, before = stepped
     if before.pv is None:
         return None
     for n in range(1, len(readings) + 1):
-        if full_power_now(controller, before.setpoint, before.pv, readings[:n]):
+        if full_power_now(controller, before.setpoint, before.pv, readings[:n], rule):
             return n
     return None
 

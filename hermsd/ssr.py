@@ -188,7 +188,10 @@ class GuardedSwitch:
 
     The loop refreshes it at least once a window; `check()` (called from a watchdog thread
     on the Pi, or by the scheduler in the simulator) forces it off when the loop has been
-    silent longer than `timeout`. Safe to call from two threads.
+    silent longer than `timeout`. Safe to call from two threads. An inner switch whose
+    commands can be lost on the way (a relay board's serial frame) says so with
+    `repeat_off_s`: while off, a refresh says off again that often, so one lost frame
+    cannot leave a contactor closed that the loop believes open.
     """
 
     def __init__(self, inner: Switch, now: Any, timeout: float, name: str = "output") -> None:
@@ -201,15 +204,25 @@ class GuardedSwitch:
         self.state = False
         self.edges = 0
         self.tripped = 0
+        self._repeat_off: float | None = getattr(inner, "repeat_off_s", None)
         self._inner.set(False)
+        self._last_sent = self._last_refresh
 
     def set(self, on: bool) -> None:
         with self._lock:
-            self._last_refresh = self._now()
+            now = self._last_refresh = self._now()
             if on != self.state:
                 self._inner.set(on)
+                self._last_sent = now
                 self.state = on
                 self.edges += 1
+            elif (
+                not on
+                and self._repeat_off is not None
+                and now - self._last_sent >= self._repeat_off
+            ):
+                self._inner.set(False)
+                self._last_sent = now
 
     def check(self) -> bool:
         """Force off when the loop has not refreshed within `timeout`; True when it did so."""
@@ -328,6 +341,10 @@ def relay_board_frame(channel: int, on: bool) -> bytes:
 
 class RelayBoardSwitch:
     """A serial relay board (fit for a contactor, never for time-proportioning)."""
+
+    repeat_off_s = 10.0
+    """The board acknowledges nothing, so off is said again this often (4 bytes, ~4 ms at
+    9600 baud): a frame lost to noise or a board's reset leaves the relay closed no longer."""
 
     def __init__(self, port: str, channel: int, baud: int = 9600) -> None:
         import serial

@@ -61,6 +61,8 @@ TIMEOUT = 5.0
     [
         (b'{"v": 1, "cmd": "status"}', Status()),
         (b'{"v": 1, "cmd": "reset-alarm"}', ResetAlarms()),
+        (b'{"v": 1, "cmd": "reset-alarm", "kinds": ["dry_fire"]}', ResetAlarms(("dry_fire",))),
+        (b'{"v": 1, "cmd": "reset-alarm", "kinds": []}', ResetAlarms(())),
         (b'{"v": 1, "cmd": "set", "setpoint": 72}', SetSetpoint(72.0)),
         (b'{"v": 1, "cmd": "set", "mode": "manual", "output": 40.5}', SetMode("manual", 40.5)),
         (b'{"v": 1, "cmd": "set", "mode": "manual"}', SetMode("manual", None)),
@@ -97,6 +99,9 @@ def test_requests_are_read_as_documented(line: bytes, request_: object) -> None:
         (b'{"v": 1, "cmd": "history", "limit": 5.5}', "got 5.5"),
         (b'{"v": 1, "cmd": "history", "since": "x"}', 'since: expected a number, got "x"'),
         (b'{"v": 1, "cmd": "history", "until": 3}', "history does not take until"),
+        (b'{"v": 1, "cmd": "reset-alarm", "kinds": "dry_fire"}', 'got "dry_fire"'),
+        (b'{"v": 1, "cmd": "reset-alarm", "kinds": ["boil"]}', "kinds: expected a list of alarms"),
+        (b'{"v": 1, "cmd": "reset-alarm", "all": true}', "reset-alarm does not take all"),
     ],
 )
 def test_a_bad_request_is_refused_with_what_is_wrong(line: bytes, says: str) -> None:
@@ -228,6 +233,24 @@ def test_reset_alarm_clears_a_latched_alarm_and_says_what_remains(tmp_path: Path
     assert events.periods[-1].heater_allowed
     assert "operator: reset-alarm (from the control socket)" in events.logged()
     assert store.load().alarms == ()
+
+
+def test_reset_alarm_clears_only_the_alarms_the_brewer_saw(tmp_path: Path) -> None:
+    store = LatchStore(tmp_path / "state")
+    store.directory.mkdir()
+    seen = LatchedAlarm("ssr_stuck_on", 0, "rose 2 °C beyond the heat given")
+    since = LatchedAlarm("dry_fire", 0, "rose 1.6 °C/min")  # raised after the page was drawn
+    store.save(Latches((seen, since), 0))
+    daemon, _path, events, inbox = linked(tmp_path, latches=store)
+
+    pending = inbox.send(ResetAlarms(("ssr_stuck_on",)))
+    run_for(daemon, PERIOD)
+
+    assert pending.reply is not None
+    assert pending.reply["alarms"] == ["dry_fire"]
+    assert not events.periods[-1].heater_allowed
+    assert "operator: reset-alarm ssr_stuck_on (from the control socket)" in events.logged()
+    assert [alarm.kind for alarm in store.load().alarms] == ["dry_fire"]
 
 
 def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Path) -> None:
@@ -623,6 +646,14 @@ def test_a_model_written_by_tune_is_in_force_after_the_edit(tmp_path: Path) -> N
     shown = [row for row in status["limits"] if row.startswith("heat shows at the sensor")]
     assert len(shown) == 1
     assert shown[0].endswith(" 135 s  [measured]")
+
+
+def test_reset_alarm_with_nothing_latched_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with served(tmp_path) as (_daemon, where):
+        assert main(["reset-alarm", "--socket", os.fspath(where)]) == 0
+    assert capsys.readouterr().out == "no alarm to reset\n"
 
 
 def _ask_once(where: Path, line: bytes) -> tuple[dict[str, Any], bytes]:

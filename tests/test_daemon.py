@@ -213,6 +213,15 @@ def test_a_chip_that_comes_back_gets_its_critical_limit_again() -> None:
         assert world.sensor.limit("crit") == daemon.config.safety.max_temp
 
 
+def test_a_chip_reset_between_two_reads_gets_its_limits_again() -> None:
+    daemon, world, clock, _ = make()
+    clock.call_at(1000.0, world.chip.power_dip)  # T_CRIT 80 °C, T_HYST 2 °C, no failed read
+    with daemon:
+        daemon.run(until=1000.0 + 2 * daemon.config.control.period)
+        assert world.sensor.limit("crit") == daemon.config.safety.max_temp
+        assert world.sensor.limit("hyst") == daemon.config.safety.hysteresis
+
+
 def test_sighup_reloads_the_edited_file_in_the_running_process(tmp_path: Path) -> None:
     cfg = tmp_path / "hermsd.yaml"
     cfg.write_text("output:\n  backend: sim\nlog:\n  dir: null\n")

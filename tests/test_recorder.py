@@ -121,6 +121,7 @@ CONFIG = {
     "reason": "start",
     "model": {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0},
     "drop_readings": 2,
+    "drop_onset_c": 0.125,
 }
 MODEL = {
     "t": 6600.0,

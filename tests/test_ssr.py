@@ -127,6 +127,28 @@ def test_guarded_switch_starts_off_and_counts_edges() -> None:
     assert guard.edges == 2
 
 
+def test_a_switch_that_can_lose_a_command_is_told_off_again_while_off() -> None:
+    class LossyLine(RecordingSwitch):
+        repeat_off_s = 10.0  # as a relay board says of its frames
+
+    clock = VirtualClock()
+    inner = LossyLine()
+    guard = GuardedSwitch(inner, clock.monotonic, timeout=30.0)
+    guard.set(True)
+    clock.advance(5.0)
+    guard.set(False)  # this frame is lost on the way: the relay stays closed
+    for _ in range(4):  # the loop refreshes its off every 5 s
+        clock.advance(5.0)
+        guard.set(False)
+    assert inner.calls == [False, True, False, False, False]  # off again at 15 s and 25 s
+    assert guard.edges == 2  # said again is no edge
+    plain = RecordingSwitch()  # a GPIO or RTS level holds itself: nothing repeated
+    held = GuardedSwitch(plain, clock.monotonic, timeout=30.0)
+    clock.advance(60.0)
+    held.set(False)
+    assert plain.calls == [False]
+
+
 def test_dead_man_turns_the_output_off_after_two_windows_of_silence() -> None:
     clock = VirtualClock()
     inner = RecordingSwitch()

@@ -191,7 +191,7 @@ class LoopLink:
             daemon.set_setpoint(command.celsius)
             self._runtime.add("control.setpoint")
         elif isinstance(command, ResetAlarms):
-            daemon.reset_alarms()
+            daemon.reset_alarms(None if command.kinds is None else list(command.kinds))
         elif command.mode == "manual":
             daemon.set_manual(command.output)
             self._runtime.update(("control.mode", "control.manual_output"))

@@ -10,7 +10,9 @@ the protocol version it speaks and a command:
     {"v": 1, "cmd": "set", "mode": "manual", "output": 40}    (output optional: hold the
                                                                output in force)
     {"v": 1, "cmd": "set", "mode": "auto"}
-    {"v": 1, "cmd": "reset-alarm"}
+    {"v": 1, "cmd": "reset-alarm", "kinds": ["dry_fire"]}    (kinds optional: the latched
+                                    alarms the brewer saw; absent, all of them. One raised
+                                    since stays latched, for the brewer to see first)
     {"v": 1, "cmd": "program", "action": "start", "program": {...}, "ready_by": "06:30"}
                                     (program: a mash program file's content as JSON, as
                                      hermsd.program.model.to_data gives it; ready_by optional,
@@ -61,6 +63,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd.program.model import READY_BY, Program, ProgramError, from_data, one_line, to_data
+from hermsd.safety import AUTO_KINDS, LATCHED_KINDS
 
 VERSION = 1
 MAX_LINE = 1 << 16
@@ -93,7 +96,7 @@ class SetMode:
 
 @dataclass(frozen=True, slots=True)
 class ResetAlarms:
-    pass
+    kinds: tuple[str, ...] | None = None  # the latched alarms to clear; None: all
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,9 +144,12 @@ def parse_request(line: bytes) -> Request:
         )
     command = data.get("cmd")
     fields = set(data) - {"v", "cmd"}
-    if command in ("status", "reset-alarm"):
+    if command == "status":
         _no_other_fields(command, fields, set())
-        return Status() if command == "status" else ResetAlarms()
+        return Status()
+    if command == "reset-alarm":
+        _no_other_fields(command, fields, {"kinds"})
+        return ResetAlarms(_alarm_kinds(data["kinds"]) if "kinds" in fields else None)
     if command == "history":
         _no_other_fields(command, fields, {"since", "limit"})
         return _history(data)
@@ -207,6 +213,17 @@ def _history(data: dict[str, Any]) -> History:
     return History(since, limit)
 
 
+def _alarm_kinds(value: Any) -> tuple[str, ...]:
+    """The alarms as `status` lists them; only the latched ones among them are cleared."""
+    known = (*AUTO_KINDS, *LATCHED_KINDS)
+    if not isinstance(value, list) or not all(kind in known for kind in value):
+        raise ProtocolError(
+            f"kinds: expected a list of alarms as status names them ({', '.join(known)}), "
+            f"got {json.dumps(value)}"
+        )
+    return tuple(value)
+
+
 def _no_other_fields(command: str, fields: set[str], allowed: set[str]) -> None:
     extra = sorted(fields - allowed)
     if extra:
@@ -230,6 +247,8 @@ def request_message(request: Request) -> dict[str, Any]:
         message["cmd"] = "status"
     elif isinstance(request, ResetAlarms):
         message["cmd"] = "reset-alarm"
+        if request.kinds is not None:
+            message["kinds"] = list(request.kinds)
     elif isinstance(request, SetSetpoint):
         message.update(cmd="set", setpoint=request.celsius)
     elif isinstance(request, ProgramStart):
@@ -271,7 +290,7 @@ def describe(command: Command) -> str:
     if isinstance(command, SetSetpoint):
         return f"set setpoint {command.celsius:g} °C"
     if isinstance(command, ResetAlarms):
-        return "reset-alarm"
+        return "reset-alarm" + ("" if command.kinds is None else f" {', '.join(command.kinds)}")
     if isinstance(command, ProgramStart):
         ready = f", ready by {command.ready_by}" if command.ready_by else ""
         return f"program start {command.program.name!r} ({len(command.program.steps)} steps{ready})"

@@ -197,6 +197,11 @@ class FakeLM92:
         """The fault in force (a spent spike shows as OK)."""
         return self._fault
 
+    def power_dip(self) -> None:
+        """A dip in the supply resets the chip between two reads: every register is back at
+        its power-up value, and no read fails to say so."""
+        self._power_up()
+
     def set_fault(self, kind: str, value: float | None = None) -> None:
         """Start misbehaving as `kind` (a Fault or its name), or stop with "ok"."""
         try:

@@ -10,7 +10,8 @@ Routes:
     POST /api/command      one change, forwarded to the daemon's control socket:
                            {"cmd": "set", "setpoint": 72}, {"cmd": "set", "mode": "manual",
                            "output": 40}, {"cmd": "set", "mode": "auto"},
-                           {"cmd": "reset-alarm"}, {"cmd": "confirm"},
+                           {"cmd": "reset-alarm", "kinds": [the alarms shown]},
+                           {"cmd": "confirm"},
                            {"cmd": "program", "action": "next"|"pause"|"resume"|"stop"}
     POST /api/program      {"yaml": "<a program file>", "filename": "mash.yaml",
                            "ready_by": "06:30" | null}: the file read and checked here

@@ -13,6 +13,7 @@ let chart = null;
 let source = null;
 let viewing = false;
 let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
+let shownAlarms = []; // the alarms the page shows: what its reset button clears
 
 async function api(path, body) {
   const options = { credentials: "same-origin" };
@@ -61,6 +62,7 @@ function render(status) {
     ? `manual at ${status.manual_output} %` : status.mode;
   $("state").textContent = status.state;
   const alarms = status.alarms || [];
+  shownAlarms = alarms;
   $("alarm-box").hidden = alarms.length === 0;
   $("alarms").textContent = alarms.join(", ");
   renderProgram(status.program);
@@ -290,7 +292,9 @@ function wire() {
     event.preventDefault();
     startProgram();
   });
-  $("reset-alarm").addEventListener("click", () => send({ cmd: "reset-alarm" }, "reset alarm"));
+  // Only the alarms on the page: one raised since stays, for the brewer to read first.
+  $("reset-alarm").addEventListener("click", () =>
+    send({ cmd: "reset-alarm", kinds: shownAlarms }, "reset alarm"));
   $("program-confirm").addEventListener("click", () => send({ cmd: "confirm" }, "confirm"));
   for (const [id, action] of [["program-next-button", "next"], ["program-pause", "pause"],
                               ["program-resume", "resume"], ["program-stop", "stop"]]) {
