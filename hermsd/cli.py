@@ -1324,6 +1324,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     )
     print(f"{line} (applied {reply['applied']:.0f} %), {_mode_text(reply)}")
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
+    for kind, reason in reply.get("alarm_reasons", {}).items():
+        print(f"  {kind}: {reason}")
     for key, values in reply["runtime"].items():
         print(f"{key} {values['running']} set at runtime (config file: {values['file']})")
     model = reply["model"]

@@ -424,6 +424,10 @@ class Supervisor:
     def latched(self) -> list[str]:
         return sorted(k for k, a in self._active.items() if a.latched)
 
+    def reasons(self) -> dict[str, str]:
+        """Each active alarm's message: why the heater is off, in words."""
+        return {kind: alarm.message for kind, alarm in sorted(self._active.items())}
+
     def drain_events(self) -> list[Alarm]:
         """Alarms raised or cleared since the last call, oldest first."""
         events, self._events = self._events, []

@@ -24,6 +24,7 @@ from typing import Any
 import pytest
 from test_reload import BASE, PERIOD, Events, edited, rename_over, run_for, start
 
+from hermsd import cli
 from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.control import server as server_module
@@ -717,3 +718,22 @@ sock.connect(sys.argv[1])
 sock.sendall(sys.argv[2].encode())
 print(sock.makefile().readline())
 """
+
+
+def test_status_says_why_each_alarm_stands(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    store = LatchStore(tmp_path / "state")
+    store.directory.mkdir()
+    why = "controller output nan % is not a duty within 0..100 % (check the control settings)"
+    store.save(Latches((LatchedAlarm("controller_fault", 0, why, {"output": "nan"}),), 0))
+    daemon, _path, _events, _inbox = linked(tmp_path, latches=store)
+    status = status_of(daemon)
+    monkeypatch.setattr(cli, "_ask", lambda path, request: status)
+    assert main(["status"]) == 0
+    text = capsys.readouterr().out
+    assert status["alarms"] == ["controller_fault"]
+    [(kind, reason)] = status["alarm_reasons"].items()
+    assert kind == "controller_fault"
+    assert reason.startswith(f"{why} (latched ") and reason.endswith(", before a restart)")
+    assert f"alarms: controller_fault\n  controller_fault: {reason}\n" in text

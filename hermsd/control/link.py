@@ -77,6 +77,7 @@ class Snapshot:
     config: Config
     runtime: frozenset[str]
     program: dict[str, Any] | None  # the status reply's `program`
+    reasons: dict[str, str]  # each active alarm's message (made for this snapshot alone)
 
 
 class LoopLink:
@@ -133,6 +134,7 @@ class LoopLink:
             daemon.config,
             frozenset(self._runtime),
             daemon.program.status(daemon.clock.wall_ns()),
+            daemon.supervisor.reasons(),
         )
         self.history.append(*encode_row(record))
         if self._answering:
@@ -238,6 +240,7 @@ class LoopLink:
             "manual_output": snapshot.manual_output,
             "state": record.state,
             "alarms": list(record.alarms),
+            "alarm_reasons": snapshot.reasons,
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {
