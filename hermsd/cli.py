@@ -538,42 +538,47 @@ def cmd_run(args: argparse.Namespace) -> int:
     previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, signal.SIG_IGN)  # until the loop runs
     try:
-        if args.simulate:
-            from hermsd.sim.world import simulated_daemon
-
-            speed = _speed(args.speed)
-            daemon = simulated_daemon(
-                config,
-                speed,
-                on_status=status.update,
-                notifier=notifier,
-                config_file=config_file,
-                latches=latches,
-                models=models,
+        if not args.simulate and args.speed != "1":
+            raise UserError("--speed goes with --simulate")
+        if not args.simulate and config.output.backend == "sim":
+            raise UserError(
+                f"{path}: output.backend is 'sim', the simulated tun's output: run with "
+                "--simulate, or choose serial-rts, serial-dtr or gpio for the tun"
             )
-        else:
-            if args.speed != "1":
-                raise UserError("--speed goes with --simulate")
-            if config.output.backend == "sim":
-                raise UserError(
-                    f"{path}: output.backend is 'sim', the simulated tun's output: run with "
-                    "--simulate, or choose serial-rts, serial-dtr or gpio for the tun"
-                )
-            clock = MonotonicClock()
-            sensor, (ssr, contactor, element2) = _hardware(config)
-            daemon = Daemon(
-                config,
-                clock,
-                sensor,
-                guard_outputs(ssr, contactor, clock, config, element2),
-                notifier=notifier,
-                on_status=status.update,
-                config_file=config_file,
-                latches=latches,
-                models=models,
-            )
-        # Unwinds in reverse: heater off first, then the dead-man, then the log is finished.
+        # Unwinds in reverse: heater off first, then the dead-man, then the log is finished,
+        # then the socket is given up.
         with contextlib.ExitStack() as stack:
+            # The tun's socket is taken before any output is opened: a second daemon on the
+            # tun is refused here, before it can touch the heater's lines.
+            server = _claim_control_socket(_run_socket_path(args, stack))
+            stack.callback(server.close)
+            if args.simulate:
+                from hermsd.sim.world import simulated_daemon
+
+                speed = _speed(args.speed)
+                daemon = simulated_daemon(
+                    config,
+                    speed,
+                    on_status=status.update,
+                    notifier=notifier,
+                    config_file=config_file,
+                    latches=latches,
+                    models=models,
+                )
+            else:
+                clock = MonotonicClock()
+                sensor, (ssr, contactor, element2) = _hardware(config)
+                daemon = Daemon(
+                    config,
+                    clock,
+                    sensor,
+                    guard_outputs(ssr, contactor, clock, config, element2),
+                    notifier=notifier,
+                    on_status=status.update,
+                    config_file=config_file,
+                    latches=latches,
+                    models=models,
+                )
             recorder = _open_recorder(log_dir, config) if log_dir else None
             if recorder is not None:
                 stack.callback(recorder.close)
@@ -581,7 +586,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             deadman = DeadManThread(daemon.outputs.all())
             deadman.start()
             stack.callback(deadman.stop)
-            stack.callback(_serve_control(daemon, _run_socket_path(args, stack)).close)
+            _serve_control(daemon, server)
             if not args.simulate:  # after the recorder and dead-man threads: they stay ordinary
                 stack.enter_context(loop_priority())
             stack.enter_context(daemon)
@@ -611,23 +616,31 @@ def _run_socket_path(args: argparse.Namespace, stack: contextlib.ExitStack) -> P
     return Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="hermsd-")), SOCKET_NAME)
 
 
-def _serve_control(daemon: Daemon, path: Path) -> ControlServer:
-    """The control socket, served beside the loop (started before it takes real-time priority,
-    so its thread stays ordinary); said on the first line of output."""
-    from hermsd.control.link import LoopLink
-
-    link = LoopLink(daemon)
-    server = ControlServer(path, link.status_line, link.history_line)
+def _claim_control_socket(path: Path) -> ControlServer:
+    """The control socket at `path`, bound but not served yet; UserError if another daemon
+    answers there (or it cannot be made)."""
+    server = ControlServer(path)
     try:
-        server.start()
+        server.bind()
     except OSError as error:
+        server.close()
         raise UserError(
             f"cannot open the control socket {path}: {error.strerror or error} "
             "(another hermsd on this tun? else choose a place with --socket PATH)"
         ) from None
-    link.attach(server)
-    print(f"control socket {path}", flush=True)
     return server
+
+
+def _serve_control(daemon: Daemon, server: ControlServer) -> None:
+    """Serve the control socket beside the loop (started before it takes real-time priority,
+    so its thread stays ordinary); said on the first line of output."""
+    from hermsd.control.link import LoopLink
+
+    link = LoopLink(daemon)
+    server.answer_with(link.status_line, link.history_line)
+    server.start()
+    link.attach(server)
+    print(f"control socket {server.path}", flush=True)
 
 
 def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None, Switch | None]]:
@@ -1311,6 +1324,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     )
     print(f"{line} (applied {reply['applied']:.0f} %), {_mode_text(reply)}")
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
+    for kind, reason in reply.get("alarm_reasons", {}).items():
+        print(f"  {kind}: {reason}")
     for key, values in reply["runtime"].items():
         print(f"{key} {values['running']} set at runtime (config file: {values['file']})")
     model = reply["model"]

@@ -275,6 +275,9 @@ class WebConfig:
     password_hash: str | None = _text(None, null_means="no password: the page cannot change")
     session_lifetime: float = _number(12.0, 0.1, 720, "h")
     read_only_view: str = _choice("off", ("on", "off"))
+    allowed_hosts: tuple[str, ...] | None = _words(
+        None, null_means="localhost, this machine's hostname and any .local name"
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -864,7 +867,20 @@ def _web_violations(web: WebConfig) -> list[_Violation]:
         found.append(
             _Violation(("web.password_hash",), f"not a password hash (expected {EXAMPLE})")
         )
+    for name in web.allowed_hosts or ():
+        if not _HOST_NAME.fullmatch(name):
+            found.append(
+                _Violation(
+                    ("web.allowed_hosts",),
+                    f"{_quote(name)} is not a host name (a name alone, no scheme or port: "
+                    "e.g. brew.example.org, or *.example.org for every name under it; IP "
+                    "addresses need no entry)",
+                )
+            )
     return found
+
+
+_HOST_NAME = re.compile(r"(\*\.)?[A-Za-z0-9_-]+(\.[A-Za-z0-9_-]+)*\.?")
 
 
 def _device(section: OutputConfig | ContactorConfig | Element2Config) -> tuple[object, ...]:

@@ -1092,6 +1092,13 @@ class Daemon:
                     self._held = False
                 self.output = self.controller.step(self.setpoint, pv, applied)
                 self._stepped = True
+                output2 = (
+                    self.controller.u2 if isinstance(self.controller, MidRangeController) else None
+                )
+                if not sup.controller_output(now, self.output, output2):
+                    self._drain_alarms(now)  # the heater off at once, said, latched
+                    self._held, self._resume_output = True, 0.0
+                    self.output, self._stepped, state = 0.0, False, "alarm"
         else:
             if not self._held:
                 self._held = True

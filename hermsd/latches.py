@@ -1,10 +1,10 @@
 """Latched alarms on disk, so that neither a restart nor a crash clears them.
 
-A latched alarm (element not heating, SSR stuck on, dry fire, stuck sensor) says the
-hardware is not what the loop believes; only the brewer may clear it. `Restart=always`
-would otherwise clear it within seconds of a crash. The daemon writes the latched alarms
-to `latched.json` in its state directory whenever they change (atomically: a temporary
-file, fsync, rename), and raises them again at start.
+A latched alarm (element not heating, SSR stuck on, dry fire, stuck sensor, controller
+fault) says the hardware is not what the loop believes; only the brewer may clear it.
+`Restart=always` would otherwise clear it within seconds of a crash. The daemon writes the
+latched alarms to `latched.json` in its state directory whenever they change (atomically: a
+temporary file, fsync, rename), and raises them again at start.
 
 Two ways to clear them, both deliberate acts:
 - bump `safety.reset` in the config: a reload, or a start with a value other than the one

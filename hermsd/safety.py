@@ -5,9 +5,9 @@ loop's lateness, and obeys `heater_allowed`. Two kinds of fault:
 
 - auto-recovering (sensor fault, stale reading, over-temperature, loop stall): the heater is
   off while they last and control resumes by itself, bumplessly, once they clear;
-- latched (element not heating, SSR stuck on, dry fire, stuck sensor): the heater stays off
-  until someone resets the alarm, because each means the hardware is not what the loop
-  believes it is.
+- latched (element not heating, SSR stuck on, dry fire, stuck sensor, controller fault): the
+  heater stays off until someone resets the alarm, because each means the hardware (or the
+  controller's model of it) is not what the loop believes it is.
 
 Limits come from the tun as measured, or, before it is, hold for any tun the config could
 be describing: half to twice its litres, a dead time up to 300 s, an open pot in a cold
@@ -27,7 +27,13 @@ FULL_POWER = 80.0  # % at or above which the element is expected to heat visibly
 SUDDEN_DROP = 0.25  # °C: least fall in a window, faster than losses allow, that is water added
 
 AUTO_KINDS = ("sensor_fault", "stale_reading", "over_temperature", "loop_stall")
-LATCHED_KINDS = ("heater_not_heating", "ssr_stuck_on", "dry_fire", "sensor_stuck")
+LATCHED_KINDS = (
+    "heater_not_heating",
+    "ssr_stuck_on",
+    "dry_fire",
+    "sensor_stuck",
+    "controller_fault",
+)
 
 # The envelope every limit holds for before the tun is measured (see `SafetyLimits.derive`).
 FILL_RANGE = 2.0
@@ -418,6 +424,10 @@ class Supervisor:
     def latched(self) -> list[str]:
         return sorted(k for k, a in self._active.items() if a.latched)
 
+    def reasons(self) -> dict[str, str]:
+        """Each active alarm's message: why the heater is off, in words."""
+        return {kind: alarm.message for kind, alarm in sorted(self._active.items())}
+
     def drain_events(self) -> list[Alarm]:
         """Alarms raised or cleared since the last call, oldest first."""
         events, self._events = self._events, []
@@ -535,6 +545,28 @@ class Supervisor:
             )
         elif "loop_stall" in self._active:
             self._clear("loop_stall", t, "the loop is on time again")
+
+    def controller_output(self, t: float, output: float, output2: float | None = None) -> bool:
+        """The controller's outputs for the period (the second element's too, when fitted):
+        True when each is a duty (0..100 %).
+
+        NaN or infinity (a learned model or control settings the controller cannot work
+        with) is no duty: the heater must not be driven from it, and the next step of the
+        same controller is no more to be trusted, so the alarm latches.
+        """
+        for key, what, duty in (("output", "", output), ("output2", " for element2", output2)):
+            if duty is None or (math.isfinite(duty) and 0.0 <= duty <= 100.0):
+                continue
+            self._raise(
+                "controller_fault",
+                t,
+                f"controller output{what} {duty} % is not a duty within 0..100 % (check the "
+                "control settings, or `hermsd forget-model` for a learned model it cannot "
+                "work with)",
+                {key: str(duty)},  # as text: the latch file holds JSON, which has no NaN
+            )
+            return False
+        return True
 
     def period(self, t: float, pv: float | None, output: float, applied: float) -> None:
         """Once per control period: the checks that need a history of PV and output."""

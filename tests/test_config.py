@@ -177,6 +177,7 @@ ALERT_EVENTS = (
 LISTS = {  # key: (the items it may hold, or () for any printable text; nullable)
     "alerts.command": ((), True),
     "alerts.events": (ALERT_EVENTS, False),
+    "web.allowed_hosts": ((), True),
 }
 RESTART = [
     "control.period",
@@ -434,6 +435,7 @@ def test_defaults_are_the_specified_ones() -> None:
             "password_hash": None,
             "session_lifetime": 12.0,
             "read_only_view": "off",
+            "allowed_hosts": None,
         },
         "mqtt": {
             "host": "localhost",

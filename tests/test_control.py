@@ -14,6 +14,7 @@ import shutil
 import socket
 import stat
 import subprocess
+import sys
 import tempfile
 import threading
 from collections.abc import Iterator
@@ -23,6 +24,7 @@ from typing import Any
 import pytest
 from test_reload import BASE, PERIOD, Events, edited, rename_over, run_for, start
 
+from hermsd import cli
 from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.control import server as server_module
@@ -653,3 +655,85 @@ def test_reset_alarm_with_nothing_latched_says_so(
     with served(tmp_path) as (_daemon, where):
         assert main(["reset-alarm", "--socket", os.fspath(where)]) == 0
     assert capsys.readouterr().out == "no alarm to reset\n"
+
+
+def _ask_once(where: Path, line: bytes) -> tuple[dict[str, Any], bytes]:
+    """A request on a connection of its own, as `hermsd status` sends one: the reply, and
+    what came after it before the server closed (b"" once it has)."""
+    with connect(where) as sock:
+        reply = exchange(sock, line)
+        sock.shutdown(socket.SHUT_WR)
+        return reply, sock.recv(100)
+
+
+def test_a_client_flooding_costly_requests_is_refused_until_its_rate_allows(
+    tmp_path: Path,
+) -> None:
+    now = 0.0
+    server = ControlServer(
+        tmp_path / "control.sock", lambda: b'{"v": 1, "ok": true}\n', clock=lambda: now
+    )
+    server.start()
+    status = b'{"v": 1, "cmd": "status"}\n'
+    start = b'{"v": 1, "cmd": "program", "action": "start", "program": {"steps": []}}\n'
+    checked = "program: steps: expected a list of 1 to 50 steps"  # parsed and checked
+    try:
+        for _ in range(3 * server_module.REQUEST_BURST):  # status costs next to nothing
+            assert _ask_once(server.path, status)[0]["ok"] is True
+        for _ in range(server_module.REQUEST_BURST):
+            assert _ask_once(server.path, start)[0]["error"].startswith(checked)
+        refused, after = _ask_once(server.path, start)
+        asked_status = _ask_once(server.path, status)[0]
+        big = start.replace(b"[]", b"[" + b" " * 60000 + b"]")  # never read whole
+        refused_big, after_big = _ask_once(server.path, big)
+        other = subprocess.run(  # another process: its own allowance
+            [sys.executable, "-c", _ONE_REQUEST, os.fspath(server.path), start.decode()],
+            capture_output=True,
+            text=True,
+            timeout=TIMEOUT,
+        )
+        now += 1.0 / server_module.REQUEST_RATE  # one request's worth later
+        again = _ask_once(server.path, start)[0]
+        still = _ask_once(server.path, start)[0]
+    finally:
+        server.close()
+    words = (
+        f"refused: this client (pid {os.getpid()}) sent more than "
+        f"{server_module.REQUEST_BURST} requests at once or {server_module.REQUEST_RATE:g} a "
+        "second (status and history aside); try again in "
+    )
+    assert refused == {"v": 1, "ok": False, "error": words + "0.5 s"}
+    assert after == b""  # one line, and the connection is closed
+    assert asked_status["error"] == words + "0.5 s"  # the flooding process is refused all
+    assert (refused_big["error"], after_big) == (words + "0.5 s", b"")
+    assert json.loads(other.stdout)["error"].startswith(checked)
+    assert again["error"].startswith(checked)
+    assert still["error"] == words + "0.5 s"
+
+
+_ONE_REQUEST = """
+import socket, sys
+sock = socket.socket(socket.AF_UNIX)
+sock.connect(sys.argv[1])
+sock.sendall(sys.argv[2].encode())
+print(sock.makefile().readline())
+"""
+
+
+def test_status_says_why_each_alarm_stands(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    store = LatchStore(tmp_path / "state")
+    store.directory.mkdir()
+    why = "controller output nan % is not a duty within 0..100 % (check the control settings)"
+    store.save(Latches((LatchedAlarm("controller_fault", 0, why, {"output": "nan"}),), 0))
+    daemon, _path, _events, _inbox = linked(tmp_path, latches=store)
+    status = status_of(daemon)
+    monkeypatch.setattr(cli, "_ask", lambda path, request: status)
+    assert main(["status"]) == 0
+    text = capsys.readouterr().out
+    assert status["alarms"] == ["controller_fault"]
+    [(kind, reason)] = status["alarm_reasons"].items()
+    assert kind == "controller_fault"
+    assert reason.startswith(f"{why} (latched ") and reason.endswith(", before a restart)")
+    assert f"alarms: controller_fault\n  controller_fault: {reason}\n" in text

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import signal
 import subprocess
@@ -14,8 +15,10 @@ from pathlib import Path
 import pytest
 
 from hermsd import config as config_module
+from hermsd import pid
 from hermsd.config import Config
 from hermsd.daemon import Daemon, PeriodRecord, guard_outputs
+from hermsd.latches import LatchStore
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
@@ -369,3 +372,68 @@ def test_a_machine_that_wakes_late_is_no_fault_of_a_fast_simulation(
     assert [alarm.kind for alarm in periods.alarms] == []
     assert daemon.overruns == 0 and len(periods.records) == 720
     assert real.now - 1000.0 >= 3600.0 / 500.0  # paced: never faster than asked
+
+
+class _GoesNaN:
+    """A controller that answers NaN while `broken` (a model or settings it cannot work with),
+    else as the real one."""
+
+    def __init__(self, inner: pid.Controller, output: float) -> None:
+        self.inner = inner
+        self.bad_output = output
+        self.broken = False
+
+    @property
+    def params(self) -> pid.Params:
+        return self.inner.params
+
+    @property
+    def output(self) -> float:
+        return self.inner.output
+
+    @property
+    def terms(self) -> tuple[float, float, float]:
+        return self.inner.terms
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        good = self.inner.step(sp, pv, applied)
+        return self.bad_output if self.broken else good
+
+    def reset(self, pv: float, output: float) -> None:
+        self.inner.reset(pv, output)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_a_controller_output_that_is_no_duty_latches_an_alarm_and_the_loop_runs_on(
+    tmp_path: Path, bad: float
+) -> None:
+    daemon, world, clock, periods = make()
+    daemon.latches = LatchStore(tmp_path)
+    controller = _GoesNaN(daemon.controller, bad)
+    daemon.controller = controller
+    clock.call_at(1002.5, lambda: setattr(controller, "broken", True))
+    clock.call_at(1502.5, lambda: setattr(controller, "broken", False))  # the cause is gone
+    with daemon:
+        daemon.run(until=2000.0)  # no exception: the loop runs on
+        assert world.circuit.powered is False
+        status = daemon.status_text()
+        stored = LatchStore(tmp_path).load()  # what a restart raises again
+        daemon.reset_alarms()  # the brewer, having read why
+        daemon.run(until=2100.0)
+
+    raised = [a for a in periods.alarms if a.raised]
+    assert [(a.kind, a.at, a.latched) for a in raised] == [("controller_fault", 1005.0, True)]
+    assert f"controller output {bad} %" in raised[0].message
+    assert "controller_fault" in status
+    heating = [on for t, on in world.circuit.power_changes if t < 1005.0]
+    assert heating[-1] is True  # it was heating up when the controller failed …
+    assert [on for t, on in world.circuit.power_changes if 1005.0 <= t < 2000.0] == [False]
+    held = [r for r in periods.records if 1005.0 <= r.t < 2000.0]
+    assert held[-1].t == 1995.0  # … and went on period by period, logging
+    assert all((r.state, r.output, r.heater_allowed) == ("alarm", 0.0, False) for r in held)
+    assert [(a.kind, a.values) for a in stored.alarms] == [
+        ("controller_fault", {"output": str(bad)})
+    ]
+    resumed = [r for r in periods.records if r.t >= 2000.0]
+    assert all(r.state == "ok" and 0.0 < r.output <= 100.0 for r in resumed)
+    assert any(on for t, on in world.circuit.power_changes if t >= 2000.0)  # heating again

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,7 @@ from test_daemon import make
 from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, parse
 from hermsd.daemon import Daemon, PeriodRecord, model_in_force
-from hermsd.element2 import OnOffModulator
+from hermsd.element2 import MidRangeController, OnOffModulator
 from hermsd.learning import LearnedModel
 from hermsd.program.model import Program, Step
 from hermsd.recorder import Recorder
@@ -202,6 +203,36 @@ def test_any_alarm_cuts_both_elements_at_once_and_shutdown_leaves_both_off() -> 
         daemon.run(until=900.0)
         assert circuit.relay2_on  # heating resumed, the second element with it
     assert not (circuit.ssr_on or circuit.relay2_on or circuit.powered2)
+
+
+class _U2GoesNaN(MidRangeController):
+    """The mid-ranging controller, its second element's duty NaN once `broken`."""
+
+    broken = False
+
+    @property
+    def u2(self) -> float:
+        return math.nan if self.broken else super().u2
+
+
+def test_a_second_element_duty_that_is_no_duty_latches_an_alarm_with_both_elements_off() -> None:
+    daemon, world, _clock, listener = make(two_element_config(), PLANT)
+    assert isinstance(daemon.controller, MidRangeController)
+    controller = _U2GoesNaN(daemon.controller._inner, daemon.controller.params)
+    daemon.controller = controller
+    circuit = world.circuit
+    with daemon:
+        daemon.run(until=600.0)  # heating from cold: both on
+        assert circuit.powered and circuit.powered2
+        controller.broken = True
+        daemon.run(until=700.0)  # no exception: the loop runs on
+    [alarm] = listener.alarms
+    assert (alarm.kind, alarm.at, alarm.latched) == ("controller_fault", 600.0, True)
+    assert alarm.message.startswith("controller output for element2 nan % is not a duty")
+    assert circuit.off_at_or_after(alarm.at) == alarm.at  # both without power at once
+    assert not (circuit.ssr_on or circuit.relay2_on)
+    held = [r for r in listener.records if r.t >= 600.0]
+    assert all((r.state, r.output, r.u2) == ("alarm", 0.0, 0.0) for r in held)
 
 
 def test_a_program_waiting_for_its_ready_by_time_keeps_both_elements_off() -> None:

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from hermsd import cli
+from hermsd.control.server import ControlServer
 from hermsd.instance import LOCK_FILE, DirectoryLock, InstanceError
 from hermsd.recorder import PART_SUFFIX
 
@@ -116,3 +117,48 @@ def test_a_simulated_day_is_not_logged_into_a_held_directory(
         held.release()
     assert f"(pid {os.getpid()})" in capsys.readouterr().err
     assert not list(tmp_path.glob("*.mcap*"))
+
+
+class _Output:
+    """A hardware output that records being opened and driven."""
+
+    def __init__(self, touched: list[str], name: str) -> None:
+        self.touched, self.name = touched, name
+        touched.append(f"open {name}")
+
+    def set(self, on: bool) -> None:
+        self.touched.append(f"set {self.name} {on}")
+
+    def close(self) -> None:
+        self.touched.append(f"close {self.name}")
+
+
+def test_a_second_daemon_on_the_tuns_socket_opens_no_output_before_it_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    socket_path = tmp_path / "hermsd.sock"
+    first = ControlServer(socket_path, lambda: b"")  # the daemon that owns the tun
+    first.start()
+    touched: list[str] = []
+    monkeypatch.setattr(
+        cli, "open_hardware_switch", lambda backend, **where: _Output(touched, backend)
+    )
+    monkeypatch.setattr(cli, "open_bus", lambda bus: touched.append(f"open i2c-{bus}"))
+    monkeypatch.delenv("NOTIFY_SOCKET", raising=False)
+    config = tmp_path / "hermsd.yaml"
+    config.write_text(
+        "output:\n  backend: gpio\n  line: 17\ncontactor:\n  backend: gpio\n  line: 27\n"
+    )
+    # Other log and state directories: only the socket tells the tun is taken.
+    second = ["run", "--config", str(config), "--socket", str(socket_path)]
+    second += ["--state", str(tmp_path / "state"), "--log", str(tmp_path / "logs")]
+    try:
+        assert cli.main(second) == 2
+        assert socket_path.exists()  # still the first one's
+    finally:
+        first.close()
+    assert capsys.readouterr().err.splitlines() == [
+        f"hermsd: cannot open the control socket {socket_path}: another hermsd answers on "
+        f"{socket_path} (another hermsd on this tun? else choose a place with --socket PATH)"
+    ]
+    assert touched == []

@@ -20,7 +20,7 @@ from hermsd.cli import main
 from hermsd.config import ConfigError, split_listen
 from hermsd.control.client import TIMEOUT as TIMEOUT_LONGEST
 from hermsd.control.client import unanswered
-from hermsd.web.app import command_message
+from hermsd.web.app import command_message, host_allowed
 from hermsd.web.auth import (
     GLOBAL_BURST,
     GLOBAL_REFILL_S,
@@ -301,12 +301,22 @@ def test_listen_is_host_and_port(text: str, address: tuple[str, int] | None) -> 
 
 
 def test_the_web_section_is_checked_like_the_rest_of_the_file() -> None:
-    text = edited(BASE, web__listen='"everywhere"', web__password_hash='"hunter2"')
+    text = edited(
+        BASE,
+        web__listen='"everywhere"',
+        web__password_hash='"hunter2"',
+        web__allowed_hosts='["raspberrypi.local:8080"]',
+    )
     with pytest.raises(ConfigError) as caught:
         config_module.parse(text, "hermsd.yaml")
     message = str(caught.value)
     assert "web.listen: 'everywhere' is not HOST:PORT" in message
     assert "web.password_hash: not a password hash (expected scrypt$16384$8$1$" in message
+    assert (
+        "web.allowed_hosts: 'raspberrypi.local:8080' is not a host name (a name alone, no "
+        "scheme or port: e.g. brew.example.org, or *.example.org for every name under it; IP "
+        "addresses need no entry)"
+    ) in message
 
 
 def test_responses_are_not_held_back_by_nagles_algorithm() -> None:
@@ -525,3 +535,50 @@ def test_a_reply_the_hub_cannot_read_is_logged_and_the_polling_goes_on(
     assert asyncio.run(polled_on()) >= 3
     said = [r for r in caplog.records if "polling on" in r.getMessage()]
     assert len(said) == 1 and "KeyError" in said[0].getMessage()  # once, not at every poll
+
+
+@pytest.mark.parametrize(
+    ("host", "answered"),
+    [
+        ("rebind.attacker.example", False),  # a page whose own name now resolves to the Pi
+        ("localhost.attacker.example:8080", False),
+        ("localhost:80x", False),
+        ("", False),
+        ("localhost:8080", True),
+        ("LOCALHOST.", True),
+        ("127.0.0.1:8080", True),
+        ("192.168.1.50", True),  # the Pi's address on the LAN, as a phone opens it
+        ("[::1]:8080", True),
+    ],
+)
+def test_the_page_answers_only_to_this_machines_names_and_addresses(
+    live: Site, host: str, answered: bool
+) -> None:
+    with _client(live) as client:
+        page = client.get("/", headers={"host": host})
+        history = client.get("/api/history", headers={"host": host})
+    if answered:
+        assert (page.status_code, history.status_code) == (200, 200)
+        return
+    assert (page.status_code, history.status_code) == (400, 400)
+    assert history.text == (
+        f"this page does not answer to the host name {host!r}: open it by the Pi's address, "
+        "or add the name to web.allowed_hosts\n"
+    )
+
+
+def test_the_allowed_host_names_are_this_machines_unless_the_config_lists_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(socket, "gethostname", lambda: "brewpi")
+    where = tmp_path / "control.sock"
+    default = settings_from(config_module.parse(edited(BASE, web__read_only_view="on")), where)
+    assert default.hosts == ("localhost", "brewpi", "*.local")
+    for host in ("brewpi:8080", "brewpi.local", "brewpi-2.local:8080"):  # mDNS renames
+        assert host_allowed(host, default.hosts), host
+    assert not host_allowed("brewpi.local.attacker.example", default.hosts)
+    listed = edited(BASE, web__read_only_view="on", web__allowed_hosts="[brew.example.org]")
+    behind_a_proxy = settings_from(config_module.parse(listed), where)
+    assert behind_a_proxy.hosts == ("brew.example.org",)
+    assert not host_allowed("brewpi.local", behind_a_proxy.hosts)
+    assert host_allowed("10.0.0.7:8080", behind_a_proxy.hosts)

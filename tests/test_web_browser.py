@@ -302,7 +302,9 @@ def test_a_program_started_from_the_page_runs_and_its_buttons_steer_it(
                     "buffer": _program_yaml(setpoint).encode(),
                 },
             )
+            assert page.is_visible("#program-form")
             assert _click_at_boundary(page, live, "#program-start") == "Strike"
+            assert not page.is_visible("#program-form")  # one program at a time
             assert not page.is_visible("#program-problems")
             assert page.text_content("#message") == "program start: done"
             assert page.is_visible("#program-box")
@@ -358,4 +360,5 @@ def test_a_program_started_from_the_page_runs_and_its_buttons_steer_it(
 
             assert _click_at_boundary(page, live, "#program-stop") is None
             assert not page.is_visible("#program-box")
+            assert page.is_visible("#program-form")  # another may start
         context.close()

@@ -31,6 +31,7 @@ from hermsd import config as config_module
 from hermsd.config import Config
 from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
 from hermsd.control.protocol import (
+    STARTING,
     VERSION,
     Command,
     History,
@@ -76,6 +77,7 @@ class Snapshot:
     config: Config
     runtime: frozenset[str]
     program: dict[str, Any] | None  # the status reply's `program`
+    reasons: dict[str, str]  # each active alarm's message (made for this snapshot alone)
 
 
 class LoopLink:
@@ -132,6 +134,7 @@ class LoopLink:
             daemon.config,
             frozenset(self._runtime),
             daemon.program.status(daemon.clock.wall_ns()),
+            daemon.supervisor.reasons(),
         )
         self.history.append(*encode_row(record))
         if self._answering:
@@ -205,7 +208,7 @@ class LoopLink:
         with self._encode_lock:
             snapshot = self._snapshot
             if snapshot is None:
-                return encode(error_reply("hermsd is starting: no control period has run yet"))
+                return encode(error_reply(STARTING))
             if self._encoded is None or self._encoded[0] is not snapshot:
                 self._encoded = (snapshot, encode(self._status_message(snapshot)))
             return self._encoded[1]
@@ -237,6 +240,7 @@ class LoopLink:
             "manual_output": snapshot.manual_output,
             "state": record.state,
             "alarms": list(record.alarms),
+            "alarm_reasons": snapshot.reasons,
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {

@@ -25,7 +25,8 @@ Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": 
 "error": "one line: what is wrong (what would be right)"}` and changes nothing. `status` is
 answered at once from the last control period: `tun`, `pv` (°C, null when unknown),
 `setpoint` (°C), `output` (%), `applied` (% the SSR was driven at in the period before),
-`mode`, `manual_output`, `state`, `alarms`, `heater_allowed`, `limits` (the safety limits in
+`mode`, `manual_output`, `state`, `alarms`, `alarm_reasons` (each alarm's message, by its
+kind), `heater_allowed`, `limits` (the safety limits in
 force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,
 dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured" (by
 `hermsd tune`, kept in the config) or "prior" (the config's tun, before either)),
@@ -279,6 +280,10 @@ def encode(message: dict[str, Any]) -> bytes:
 
 def error_reply(message: str) -> dict[str, Any]:
     return {"v": VERSION, "ok": False, "error": message}
+
+
+STARTING = "hermsd is starting: no control period has run yet"
+"""The error `status` is answered with before the loop has published a period."""
 
 
 def describe(command: Command) -> str:

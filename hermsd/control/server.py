@@ -18,7 +18,12 @@ switch interval. bench/socket_load.py measures the loop's lateness under 1,000 r
 
 Clients are bounded too: at most MAX_CLIENTS connections (more are told so and closed), a
 client idle for IDLE_TIMEOUT s is closed, and a reply that cannot be sent within
-SEND_TIMEOUT s (a client that stopped reading) ends its connection.
+SEND_TIMEOUT s (a client that stopped reading) ends its connection. A client process (told
+by its pid, whatever connections it opens) may send REQUEST_BURST requests other than
+`status` and `history` at once, then REQUEST_RATE a second (`RequestLimit`): each is parsed
+here, a program start checked (up to 64 KiB, milliseconds of Python), and one after another
+they would keep the loop waiting for the interpreter lock at its wake-ups. Beyond that its
+requests are refused, unread, with one line saying when to try again.
 """
 
 from __future__ import annotations
@@ -26,10 +31,12 @@ from __future__ import annotations
 import contextlib
 import errno
 import logging
+import math
 import os
 import selectors
 import socket
 import stat
+import struct
 import threading
 import time
 from collections import deque
@@ -40,6 +47,7 @@ from typing import Any
 
 from hermsd.control.protocol import (
     MAX_LINE,
+    STARTING,
     Command,
     History,
     ProtocolError,
@@ -56,6 +64,8 @@ IDLE_TIMEOUT = 60.0  # s without a request: the connection is closed
 SEND_TIMEOUT = 5.0  # s a reply may wait for a client to read
 COMMANDS_PER_PERIOD = 8  # commands the loop applies at one boundary; the rest wait for the next
 SOCKET_MODE = 0o660
+REQUEST_RATE = 2.0  # requests a second a client process may send beyond status and history
+REQUEST_BURST = 10  # … and at once: a brewer's taps, a bridge's command and its retry
 
 
 class SocketInUseError(OSError):
@@ -70,9 +80,37 @@ class Pending:
     reply: dict[str, Any] | None = None
 
 
+class RequestLimit:
+    """A token bucket per client process for the requests that cost the server thread work
+    (all but `status` and `history`): `burst` at once, then `rate` a second. Time is given."""
+
+    def __init__(self, rate: float = REQUEST_RATE, burst: int = REQUEST_BURST) -> None:
+        self.rate, self.burst = rate, burst
+        self._buckets: dict[int, tuple[float, float]] = {}  # pid: (tokens, when counted)
+
+    def wait(self, pid: int, now: float) -> float:
+        """Seconds until `pid` may send a request that costs (0: it may now)."""
+        return max(0.0, (1.0 - self._tokens(pid, now)) / self.rate)
+
+    def charge(self, pid: int, now: float) -> None:
+        """`pid` sent a request that costs."""
+        self._buckets[pid] = (self._tokens(pid, now) - 1.0, now)
+
+    def forget_full(self, now: float) -> None:
+        """Drop the buckets that have filled up again: they are as if never used."""
+        full = [pid for pid in self._buckets if self._tokens(pid, now) >= self.burst]
+        for pid in full:
+            del self._buckets[pid]
+
+    def _tokens(self, pid: int, now: float) -> float:
+        tokens, then = self._buckets.get(pid, (float(self.burst), now))
+        return min(float(self.burst), tokens + (now - then) * self.rate)
+
+
 @dataclass(slots=True)
 class _Client:
     sock: socket.socket
+    pid: int  # the client's process: what the request limit counts by
     last_active: float
     inbox: bytearray = field(default_factory=bytearray)
     outbox: bytearray = field(default_factory=bytearray)
@@ -93,14 +131,26 @@ def _no_history(request: History) -> bytes:
     return encode(error_reply("this daemon keeps no history"))
 
 
+def _starting() -> bytes:
+    return encode(error_reply(STARTING))
+
+
 class ControlServer:
     """Serves the socket at `path` on its own thread; `status` builds the status reply,
     `history` a page of the history."""
 
     def __init__(
-        self, path: Path, status: StatusReply, history: HistoryReply = _no_history
+        self,
+        path: Path,
+        status: StatusReply = _starting,
+        history: HistoryReply = _no_history,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        limit: RequestLimit | None = None,
     ) -> None:
         self.path = path
+        self._clock = clock
+        self._limit = limit or RequestLimit()
         self._status = status
         self._history = history
         self._commands: deque[Pending] = deque()
@@ -113,10 +163,21 @@ class ControlServer:
 
     # -- the daemon's side ----------------------------------------------------------------
 
+    def bind(self) -> socket.socket:
+        """Take the socket path (mode 0660) without serving yet; SocketInUseError if another
+        daemon answers there. `hermsd run` binds before it opens any output, so that a second
+        daemon on the tun is refused before it can touch the heater's lines."""
+        if self._listener is None:
+            self._listener = _bind(self.path)
+        return self._listener
+
+    def answer_with(self, status: StatusReply, history: HistoryReply) -> None:
+        """What `status` and `history` are answered from (before `start`)."""
+        self._status, self._history = status, history
+
     def start(self) -> None:
-        """Bind the socket (mode 0660) and start serving; SocketInUseError if another runs."""
-        self._listener = _bind(self.path)
-        self._selector.register(self._listener, selectors.EVENT_READ)
+        """Bind the socket if `bind` has not, and start serving."""
+        self._selector.register(self.bind(), selectors.EVENT_READ)
         self._selector.register(self._wake_read, selectors.EVENT_READ)
         self._thread = threading.Thread(target=self._serve, name="hermsd-control", daemon=True)
         self._thread.start()
@@ -165,7 +226,7 @@ class ControlServer:
                         if client is not None:
                             self._service(client, events)
                 self._collect_replies()
-                self._expire(time.monotonic())
+                self._expire(self._clock())
         except Exception:  # the loop runs on without the socket; say why it is gone
             log.exception("control socket stopped")
 
@@ -183,7 +244,7 @@ class ControlServer:
                 sock.send(encode(error_reply(f"busy: {MAX_CLIENTS} clients connected already")))
             sock.close()
             return
-        client = _Client(sock, time.monotonic())
+        client = _Client(sock, _peer_pid(sock), self._clock())
         self._clients[sock.fileno()] = client
         self._selector.register(sock, selectors.EVENT_READ)
 
@@ -219,7 +280,7 @@ class ControlServer:
             return
         if client.draining:
             return
-        client.last_active = time.monotonic()
+        client.last_active = self._clock()
         client.inbox += data
         if len(client.inbox) > 2 * MAX_LINE:  # requests piling up unanswered: not the protocol
             client.inbox.clear()
@@ -231,6 +292,21 @@ class ControlServer:
     def _next_request(self, client: _Client) -> None:
         """Answer the next complete line, if the client is not waiting for the loop."""
         if client.waiting is not None or client.closing:
+            return
+        now = self._clock()
+        wait = self._limit.wait(client.pid, now)
+        if wait > 0.0:
+            client.inbox.clear()
+            client.closing = True  # the rest of its request is discarded unread
+            limit = self._limit
+            self._send(
+                client,
+                error_reply(
+                    f"refused: this client (pid {client.pid}) sent more than {limit.burst} "
+                    f"requests at once or {limit.rate:g} a second (status and history aside); "
+                    f"try again in {math.ceil(wait * 10.0) / 10.0:.1f} s"
+                ),
+            )
             return
         end = client.inbox.find(b"\n")
         if (end < 0 and len(client.inbox) >= MAX_LINE) or end + 1 > MAX_LINE:
@@ -244,8 +320,11 @@ class ControlServer:
         try:
             request = parse_request(line)
         except ProtocolError as error:
+            self._limit.charge(client.pid, now)
             self._send(client, error_reply(str(error)))
             return
+        if not isinstance(request, Status | History):
+            self._limit.charge(client.pid, now)
         if isinstance(request, Status):
             client.outbox += self._status()
             self._flush(client)
@@ -281,7 +360,7 @@ class ControlServer:
             del client.outbox[:sent]
         if client.outbox:
             if client.send_since is None:
-                client.send_since = time.monotonic()
+                client.send_since = self._clock()
                 self._selector.modify(client.sock, selectors.EVENT_READ | selectors.EVENT_WRITE)
             return
         if client.send_since is not None:
@@ -301,6 +380,7 @@ class ControlServer:
             idle = client.waiting is None and now - client.last_active > limit
             if stuck or idle:
                 self._drop(client)
+        self._limit.forget_full(now)
 
     def _drop(self, client: _Client) -> None:
         fd = client.sock.fileno()
@@ -310,6 +390,18 @@ class ControlServer:
         with contextlib.suppress(KeyError, ValueError):
             self._selector.unregister(client.sock)
         client.sock.close()
+
+
+def _peer_pid(sock: socket.socket) -> int:
+    """The pid of the process at the other end (0 when the kernel cannot say)."""
+    size = struct.calcsize("3i")
+    try:
+        pid, _uid, _gid = struct.unpack(
+            "3i", sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, size)
+        )
+    except OSError:
+        return 0
+    return int(pid)
 
 
 def _bind(path: Path) -> socket.socket:

@@ -18,8 +18,11 @@ Routes:
                            (hermsd.program.model, every problem as FILE:LINE:COL in
                            "problems", nothing sent), then started through the socket
 
-Every POST needs a JSON body (a form from another site cannot send one without the
-browser asking this server first, which it refuses), an Origin, if sent, naming this host,
+Every request must name this machine in its Host header (`host_allowed`): a page elsewhere
+that makes its own name resolve to the Pi (DNS rebinding) is refused, so it cannot read the
+tun through a visitor's browser even with `web.read_only_view` on. Every POST needs a JSON
+body (a form from another site cannot send one without the browser asking this server
+first, which it refuses), an Origin, if sent, naming this host,
 and, but for the login, the session's CSRF token in X-CSRF-Token. Seeing the tun needs a
 login unless `web.read_only_view` is on. A change the daemon refuses is answered 422 with
 its one-line reason; the daemon changed nothing.
@@ -29,7 +32,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import json
+import socket
 import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
@@ -42,7 +47,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.middleware import Middleware
 from starlette.middleware.gzip import GZipMiddleware
 from starlette.requests import Request
-from starlette.responses import JSONResponse, Response, StreamingResponse
+from starlette.responses import JSONResponse, PlainTextResponse, Response, StreamingResponse
 from starlette.routing import Route
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -95,6 +100,7 @@ class WebSettings:
     session_lifetime: float  # s without use
     read_only_view: bool  # whether seeing the tun needs no login
     poll: float | None = None  # s between status polls; None: from the control period
+    hosts: tuple[str, ...] = ("localhost",)  # names the page answers to (`allowed_hosts`)
 
 
 class BadInput(ValueError):
@@ -118,6 +124,67 @@ class _SecurityHeaders:
             await send(message)
 
         await self.app(scope, receive, send_with_headers)
+
+
+def allowed_hosts(listed: tuple[str, ...] | None) -> tuple[str, ...]:
+    """The host names the page answers to: `web.allowed_hosts`, else this machine's own
+    (localhost, its hostname, any mDNS name: a phone opens http://raspberrypi.local:8080)."""
+    if listed is not None:
+        return listed
+    return ("localhost", socket.gethostname(), "*.local")
+
+
+def host_allowed(header: str | None, names: tuple[str, ...]) -> bool:
+    """Whether a Host header names this machine: an IP address (never a rebinding page's own
+    name), or one of `names` ("*.example.org": any name under it); any port."""
+    host = (header or "").strip().lower()
+    if host.startswith("["):  # an IPv6 address: [::1]:8080
+        address, _, rest = host[1:].partition("]")
+        return _is_port(rest) and _is_address(address)
+    name, colon, port = host.partition(":")
+    name = name.rstrip(".")
+    if not name or not _is_port(colon + port):
+        return False
+    if _is_address(name):
+        return True
+    for allowed in (n.lower().rstrip(".") for n in names):
+        if name == allowed or (allowed.startswith("*.") and name.endswith(allowed[1:])):
+            return True
+    return False
+
+
+def _is_port(text: str) -> bool:
+    """Whether `text` is what may follow a host: nothing, or ':' and a port number."""
+    return not text or (text[0] == ":" and text[1:].isdigit())
+
+
+def _is_address(text: str) -> bool:
+    try:
+        ipaddress.ip_address(text)
+    except ValueError:
+        return False
+    return True
+
+
+class _KnownHosts:
+    """Refuses (400, one line) a request whose Host header is not `host_allowed`."""
+
+    def __init__(self, app: ASGIApp, names: tuple[str, ...]) -> None:
+        self.app = app
+        self.names = names
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] in ("http", "websocket"):
+            host = dict(scope["headers"]).get(b"host", b"").decode("latin-1")
+            if not host_allowed(host, self.names):
+                refusal = PlainTextResponse(
+                    f"this page does not answer to the host name {host!r}: open it by the "
+                    "Pi's address, or add the name to web.allowed_hosts\n",
+                    status_code=400,
+                )
+                await refusal(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
 
 
 def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotonic) -> Starlette:
@@ -301,7 +368,11 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
             Route("/api/command", command, methods=["POST"]),
             Route("/api/program", program_start, methods=["POST"]),
         ],
-        middleware=[Middleware(_SecurityHeaders), Middleware(GZipMiddleware, minimum_size=1000)],
+        middleware=[
+            Middleware(_SecurityHeaders),
+            Middleware(_KnownHosts, names=settings.hosts),
+            Middleware(GZipMiddleware, minimum_size=1000),
+        ],
         exception_handlers={BadInput: bad_input},
         lifespan=lifespan,
     )

@@ -13,7 +13,7 @@ import uvicorn
 from starlette.applications import Starlette
 
 from hermsd.config import Config, split_listen
-from hermsd.web.app import WebSettings, create_app
+from hermsd.web.app import WebSettings, allowed_hosts, create_app
 from hermsd.web.passwords import hash_password, parse_hash
 
 log = logging.getLogger("hermsd")
@@ -32,7 +32,8 @@ def settings_from(config: Config, socket_path: Path) -> WebSettings:
             "the page would show nothing to anyone: set web.password_hash (make one with "
             "`hermsd web --hash-password`), or web.read_only_view: on"
         )
-    return WebSettings(socket_path, password, web.session_lifetime * 3600.0, view)
+    hosts = allowed_hosts(web.allowed_hosts)
+    return WebSettings(socket_path, password, web.session_lifetime * 3600.0, view, hosts=hosts)
 
 
 def bind(listen: str) -> socket.socket:

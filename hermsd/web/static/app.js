@@ -73,6 +73,7 @@ function render(status) {
 
 function renderProgram(program) {
   $("program-box").hidden = !program;
+  $("program-form").hidden = Boolean(program); // one program at a time: stop it to start another
   if (!program) return;
   $("program-name").textContent = program.name;
   $("program-state").textContent = program.state;
