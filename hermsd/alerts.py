@@ -90,6 +90,8 @@ class Alerts:
         self._queue: queue.Queue[tuple[Event, AlertsConfig] | None] = queue.Queue(queue_size)
         self._last_sent: dict[tuple[str, str], float] = {}
         self._held_back: dict[tuple[str, str], int] = {}
+        self._latest_held: dict[tuple[str, str], tuple[Event, float]] = {}
+        self._latest_of_kind: dict[str, float] = {}  # when each kind's last event came
         self._child: subprocess.Popen[bytes] | None = None
         self._child_lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -106,22 +108,44 @@ class Alerts:
         """Hand `event` to the worker unless it is not wanted or too soon; never blocks.
 
         `t` is the loop's monotonic time. An event within `min_interval` of the last one sent
-        of the same event and kind is held back and counted in the next one sent.
+        of the same event and kind is held back and counted in the next one sent; `flush`
+        sends it once that interval has passed if it is still its kind's latest news.
         """
         config = self.config
         if config.command is None or event.event not in config.events:
             return
         key = (event.event, event.kind)
+        self._latest_of_kind[event.kind] = t
         last = self._last_sent.get(key)
         if last is not None and t - last < config.min_interval:
             self._held_back[key] = self._held_back.get(key, 0) + 1
+            self._latest_held[key] = (event, t)
             return
+        self._dispatch(key, event, t)
+
+    def flush(self, t: float) -> None:
+        """Send each held-back event whose interval has passed and that nothing of its kind
+        followed: an alarm raised again soon after it cleared must not leave "cleared" as
+        the brewer's last word while the heater is off. Called by the loop each period."""
+        if self.config.command is None:  # a reload took the command away
+            self._latest_held.clear()
+            return
+        for key, (event, when) in list(self._latest_held.items()):
+            if t - self._last_sent[key] < self.config.min_interval:
+                continue
+            del self._latest_held[key]
+            if self._latest_of_kind[event.kind] == when:  # else moot: counted in the next
+                self._held_back[key] -= 1  # sent itself, not counted in itself
+                self._dispatch(key, event, t)
+
+    def _dispatch(self, key: tuple[str, str], event: Event, t: float) -> None:
         self._last_sent[key] = t
+        self._latest_held.pop(key, None)
         held_back = self._held_back.pop(key, 0)
         if held_back:
             event = dataclasses.replace(event, suppressed=held_back)
         try:
-            self._queue.put_nowait((event, config))
+            self._queue.put_nowait((event, self.config))
         except queue.Full:
             self.dropped += 1
             self._warn(

@@ -1046,6 +1046,7 @@ class Daemon:
         sup = self.supervisor
         sup.loop_lateness(now, now - deadline)
         sup.tick(now)
+        self.alerts.flush(now)
         self._poll_config(now)
         self._poll_reset_request(now)
         if self.control is not None:

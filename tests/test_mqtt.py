@@ -661,3 +661,25 @@ def test_the_thermostat_offers_setpoints_only_below_the_cut_out(
 ) -> None:
     config = config_module.parse(edited(BASE, control__setpoint="60", safety__max_temp=max_temp))
     assert setpoint_range(config) == (0.0, highest)
+
+
+def test_a_second_stop_signal_inside_the_first_handler_does_not_hang(tmp_path: Path) -> None:
+    bridge = Bridge(config_module.parse(BASE), tmp_path / "no.sock", poll=0.02)
+    commands = bridge._commands
+    put = commands.put_nowait
+
+    def signal_while_locked(item: Any) -> None:  # the second SIGTERM lands mid-put
+        with commands.mutex:
+            pass
+        commands.mutex.acquire()
+        try:
+            bridge.stop()  # the nested handler
+        finally:
+            commands.mutex.release()
+        put(item)
+
+    commands.put_nowait = signal_while_locked  # type: ignore[method-assign]
+    stopping = threading.Thread(target=bridge.stop, daemon=True)
+    stopping.start()
+    stopping.join(TIMEOUT)
+    assert not stopping.is_alive()

@@ -91,6 +91,7 @@ class Bridge:
         self._last_t: float | None = None
         self._available: bool | None = None  # None: not known yet (the first poll says)
         self._stop = threading.Event()
+        self._stopping = False  # set first thing in `stop`, before any lock is taken
         client_id = settings.client_id or f"hermsd-{self.topics.node_id}"
         client = mqtt.Client(
             CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv311
@@ -156,7 +157,12 @@ class Bridge:
             self.client.loop_stop()
 
     def stop(self) -> None:
-        """From any thread or a signal handler: `run` returns at once."""
+        """From any thread or a signal handler: `run` returns at once. Only the first call
+        acts: a second signal, landing in the handler of the first while it holds the
+        queue's lock, would otherwise wait on that lock for ever."""
+        if self._stopping:
+            return
+        self._stopping = True
         self._stop.set()
         with contextlib.suppress(queue.Full):  # full: the command thread sees the flag next
             self._commands.put_nowait(None)
