@@ -95,14 +95,18 @@ def row(spec: TunSpec) -> str:
     lag = round(experiment.last.tuned.model.dead_time / TS)
     true = truth(spec)
     rise = SETPOINT_C - spec.ambient_c
-    duty_true = rise / true.gain_at_hold
+    duty_true = rise / true.gain
+    linear_tau = true.tau * true.linear_gain / true.gain
     cells = [spec.name, f"{pvs[-1]:.1f}", f"{true_evaporation_c(spec):.1f}"]
     for evaporation in (False, True):
         tau, solution, rms = best(pvs, duties, lag, evaporation)
         room, gain = solution[0], solution[2]
         e = solution[3] if evaporation else 0.0
         duty = (SETPOINT_C - room + e) / gain
-        cells += [f"{100 * (gain / true.gain - 1):+.1f} %", f"{100 * (tau / true.tau - 1):+.1f} %"]
+        cells += [
+            f"{100 * (gain / true.linear_gain - 1):+.1f} %",
+            f"{100 * (tau / linear_tau - 1):+.1f} %",
+        ]
         if evaporation:
             cells.append(f"{e:.1f}")
         cells += [f"{duty:.1f} / {duty_true:.1f}", f"{rms:.4f}"]

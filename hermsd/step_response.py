@@ -218,6 +218,7 @@ class StepExperiment(Stopping[Progress]):
                 self.ambient,
                 config.tun.element_watts,
                 config.tun.litres,
+                config.control.setpoint if config.tun.lid == "off" else None,
             )
         except tune.TuneError as error:
             problem = str(error)
