@@ -333,7 +333,8 @@ KEPT = {
     "the tun)",
     "control.learn": "kept: on, what the daemon learns on a later brew day comes before "
     "this model (it sees the losses at the hold, which a step that stops below the setpoint "
-    "cannot: an open lid's evaporation); pinned or off, this model is used as written",
+    "can only extrapolate to: an open pot's evaporation); pinned or off, this model is used "
+    "as written",
     "safety": "no key to change: with control.model_litres set, the supervisor tightens "
     "its limits from this model (its MeasuredTun) within its own margins; safety.dead_time "
     "is best left null for that",
