@@ -176,6 +176,8 @@ GOAL_RELATIVE = 0.10  # of K and of τ
 GOAL_DEAD_TIME_S = 20.0
 WATER_J_PER_L_K = 4186.0
 AMBIENT_RANGE_C = (-20.0, 50.0)  # control.model_ambient's range
+MIN_HOLD_DRIVE_C = 5.0
+"""°C: an open pot's hold at least this far above the room (below, its losses hardly show)."""
 MAX_RMS_C = 0.04
 """°C: a first-order tun read by an LM92 (0.0625 °C steps, a period's mean of ~5 readings)
 leaves a few hundredths; more is a tun the model does not describe."""
@@ -258,6 +260,12 @@ def from_series(
         fitted = identify(pvs, duties, period_s, ambient, evaporation=open_pot)
     except IdentifyError as error:
         raise TuneError(str(error)) from None
+    if open_pot_hold is not None and not open_pot_hold > fitted.ambient + MIN_HOLD_DRIVE_C:
+        raise TuneError(
+            f"the setpoint {open_pot_hold:g} °C is not above the room's temperature "
+            f"({fitted.ambient:.1f} °C) by {MIN_HOLD_DRIVE_C:g} °C or more: an open pot's model "
+            "at the hold needs a hold that loses heat to the room"
+        )
     spread = uncertainty(pvs, duties, period_s, fitted, ambient, open_pot_hold)
     model = fitted if open_pot_hold is None else fitted.at_hold(open_pot_hold)
     poor = []

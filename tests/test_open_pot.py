@@ -121,3 +121,11 @@ def test_tune_file_reads_the_lid_from_the_logs_config(
     assert "an open pot (tun.lid off): K and τ are those at the hold, 66 °C" in (
         capsys.readouterr().out
     )
+
+
+def test_an_open_pot_held_near_the_rooms_temperature_is_refused() -> None:
+    # At 22 °C in a 20 °C room the hold's loss is 2 + 16·g(22) °C of drive: nothing to
+    # measure a gain by, and below the room the "gain" would change sign.
+    pvs, duties = open_pot_day()
+    with pytest.raises(tune.TuneError, match=r"the setpoint 22 °C is not above the room's"):
+        tune.from_series(pvs, duties, PERIOD, AMBIENT, open_pot_hold=22.0)
