@@ -326,7 +326,8 @@ def uncertainty(
 
 class _Series(NamedTuple):
     """What the fit needs of one τ: w·a^k, a^k, and z (extended back by max_lag) and z²;
-    with an evaporation term, −g(PV) through the same lag (e) and w·e."""
+    with an evaporation term, −g(PV) through the same lag (e), w·e, and the sums of w·e,
+    w·e·a^k, w·e² and (T − mean)·e, which do not depend on θ."""
 
     w_powers: list[float]
     powers: list[float]
@@ -334,6 +335,7 @@ class _Series(NamedTuple):
     squares: list[float]
     shaped: list[float] | None = None
     w_shaped: list[float] | None = None
+    shaped_sums: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 class _Fit:
@@ -374,12 +376,19 @@ class _Fit:
         lagged.extend(itertools.accumulate(self.duties, lambda z, u: a * z + b * u, initial=first))
         del lagged[self.max_lag]  # the initial value itself (z_{−1}) is not a sample
         shaped = w_shaped = None
+        sums = (0.0, 0.0, 0.0, 0.0)
         if self.shape is not None:
             filtered = itertools.accumulate(
                 self.shape, lambda e, g: a * e + b * g, initial=self.shape[0]
             )
             shaped = [-e for e in itertools.islice(filtered, 1, None)]
             w_shaped = list(map(operator.mul, self.weights, shaped))
+            sums = (
+                sum(w_shaped),
+                _dot(w_shaped, powers),
+                _dot(w_shaped, shaped),
+                _dot(self.temps, shaped),
+            )
         series = _Series(
             list(map(operator.mul, self.weights, powers)),
             powers,
@@ -387,6 +396,7 @@ class _Fit:
             [z * z for z in lagged],
             shaped,
             w_shaped,
+            sums,
         )
         self._cached = (log_tau, series)
         return series
@@ -406,10 +416,8 @@ class _Fit:
             (s_z, _dot(w_powers, z), _dot(w, series.squares[start:stop])),
         )
         rhs = (self.sum_t, _dot(w_powers, self.temps), _dot(self.temps, z))
-        if series.shaped is not None and series.w_shaped is not None:
-            return self._solve_with_evaporation(
-                series, series.shaped, series.w_shaped, z, gram, rhs
-            )
+        if series.w_shaped is not None:
+            return self._solve_with_evaporation(series, _dot(series.w_shaped, z), gram, rhs)
         if self.fixed_offset:  # the offset's equation becomes offset = 0
             gram = ((1.0, 0.0, 0.0), (0.0, *gram[1][1:]), (0.0, *gram[2][1:]))
             rhs = (0.0, rhs[1], rhs[2])
@@ -421,18 +429,18 @@ class _Fit:
     def _solve_with_evaporation(
         self,
         series: _Series,
-        e: list[float],
-        w_e: list[float],
-        z: list[float],
+        s_ez: float,
         gram: tuple[tuple[float, float, float], ...],
         rhs: tuple[float, float, float],
     ) -> tuple[float, tuple[float, ...]]:
         """The normal equations bordered by the evaporation's column e (solve's fourth
-        parameter); with a known ambient the offset's row and column are left out."""
-        border = (sum(w_e), _dot(w_e, series.powers), _dot(w_e, z))
+        parameter, `s_ez` = Σw·e·z at this θ); with a known ambient the offset's row and
+        column are left out."""
+        s_e, s_ep, s_ee, s_te = series.shaped_sums
+        border = (s_e, s_ep, s_ez)
         rows = [[*gram[i], border[i]] for i in range(3)]
-        rows.append([*border, _dot(w_e, e)])
-        vector = [*rhs, _dot(self.temps, e)]
+        rows.append([*border, s_ee])
+        vector = [*rhs, s_te]
         kept = range(1, 4) if self.fixed_offset else range(4)
         try:
             solved = linsys.solve(
