@@ -20,7 +20,8 @@ The true model of a physical tun, independent of the fitting code:
   K = P/(100·(UA + evap(66 °C)/(66 − ambient))) and τ = C over the same loss per kelvin
   (K/τ = P/(100·C), the element's rate, whatever the loss). The linear K of the walls alone,
   P/(100·UA), is given beside it. (The incremental gain, P/(100·(UA + d evap/dT)), is another
-  ~25 % lower; the predictive controller's observer takes the small-signal rest as a bias.)
+  22 % lower on the open 120 L pot; the predictive controller's observer takes that
+  small-signal rest as a bias.)
 
 Goals (issue 13): K and τ within ±10 %, Θ within ±20 s.
 
@@ -607,7 +608,10 @@ def main() -> int:
         "(the duty that holds 66 °C), = P/(100·UA) with the lid on, and τ = 4186·litres over "
         "the same loss per kelvin (so K/τ = P/(100·C) whatever the loss); with the lid off "
         "the evaporation at 66 °C counts in it, and 'K true (linear)' beside it is the walls' "
-        "alone. Θ = L + τ·ln(τ/(τ − T_s)) (the FOPTD that matches "
+        "alone (the incremental gain there, P/(100·(UA + d evap/dT)), is another 22 % "
+        "lower on the open 120 L pot: the predictive controller's observer takes that "
+        "small-signal rest as a bias, and K/τ, the rate it acts on, is exact either way). "
+        "Θ = L + τ·ln(τ/(τ − T_s)) (the FOPTD that matches "
         "the lagged step response's tail; see the script); a log shows about half a period "
         "(2.5 s) more, from the PV's averaging, and the fit gives θ in whole periods. Goals: "
         "K and τ ±10 %, Θ ±20 s. '±' is the fit's stated 2σ, 'stated' its verdict (good: "
