@@ -12,7 +12,7 @@ import dataclasses
 import difflib
 import io
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
@@ -233,7 +233,9 @@ def from_log(log: Log, ambient: float | None = None) -> Tuned:
     hold = None
     if _logged_text(log, "tun", "lid") == "off":
         setpoints = (p.setpoint for p in reversed(periods) if p.setpoint is not None)
-        hold = next(setpoints, None) or _logged(log, "control", "setpoint")
+        hold = next(setpoints, None)
+        if hold is None:
+            hold = _logged(log, "control", "setpoint")
         if hold is None:
             raise TuneError("the log's tun is an open pot, but no setpoint to hold is logged")
     return from_series(pvs[:n], duties, period_s, ambient, watts, litres, hold)
@@ -315,21 +317,21 @@ def recommend(model: TunModel, litres: float | None) -> dict[str, float]:
     return settings
 
 
-def _logged_text(log: Log, section: str, key: str) -> str | None:
-    """The value of the last config record that has it, as text (None: no record has it)."""
+def _logged_values(log: Log, section: str, key: str) -> Iterator[object]:
+    """The key's value in each config record of the log, the last first."""
     for entry in reversed(log.configs):
         values = entry.config.get(section)
-        value = values.get(key) if isinstance(values, dict) else None
-        if isinstance(value, str):
-            return value
-    return None
+        yield values.get(key) if isinstance(values, dict) else None
+
+
+def _logged_text(log: Log, section: str, key: str) -> str | None:
+    """The value of the last config record that has it, as text (None: no record has it)."""
+    return next((v for v in _logged_values(log, section, key) if isinstance(v, str)), None)
 
 
 def _logged(log: Log, section: str, key: str) -> float | None:
     """The value of the last config record that has it, as a number."""
-    for entry in reversed(log.configs):
-        values = entry.config.get(section)
-        value = values.get(key) if isinstance(values, dict) else None
+    for value in _logged_values(log, section, key):
         if isinstance(value, int | float) and not isinstance(value, bool):
             return float(value)
     return None
