@@ -207,7 +207,8 @@ UNCERTAINTY_METHOD = (
     "the mean change of K and τ when θ is moved one period either way and τ refitted (θ is "
     "fitted in whole periods, and a sensor's own lag or the PV's averaging is no pure delay), "
     "added in quadrature; θ: the whole periods whose error stays within that s² of the best, "
-    "at least ±half a period"
+    "at least ±half a period; an open pot: E joins the parameters, and the covariance is "
+    "carried to K and τ at the hold by their first derivatives"
 )
 
 
