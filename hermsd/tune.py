@@ -278,7 +278,7 @@ def from_series(
     if 2 * spread.dead_time > GOAL_DEAD_TIME_S:
         poor.append(f"θ ±{2 * spread.dead_time:.0f} s")
     if model.rms > MAX_RMS_C:
-        why = "" if open_pot else " (an open pot? say so with tun.lid: off)"
+        why = "" if open_pot else " (an open pot? with tun.lid: off its evaporation is fitted)"
         poor.append(
             f"RMS {model.rms:.3f} °C: the model does not describe the tun over this log{why}"
         )

@@ -129,3 +129,13 @@ def test_an_open_pot_held_near_the_rooms_temperature_is_refused() -> None:
     pvs, duties = open_pot_day()
     with pytest.raises(tune.TuneError, match=r"the setpoint 22 °C is not above the room's"):
         tune.from_series(pvs, duties, PERIOD, AMBIENT, open_pot_hold=22.0)
+
+
+def test_a_lidded_fit_that_misses_the_shape_says_what_the_lid_key_would_do() -> None:
+    pvs, duties = open_pot_day()
+    tuned = tune.from_series(pvs, duties, PERIOD, AMBIENT)
+    assert tuned.confidence.startswith("poor at 2σ: ")
+    assert (
+        "RMS 0.061 °C: the model does not describe the tun over this log (an open pot? with "
+        "tun.lid: off its evaporation is fitted)"
+    ) in tuned.confidence
