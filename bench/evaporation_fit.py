@@ -1,12 +1,12 @@
-"""Can `hermsd tune step` see an open lid's evaporation? A fit with an evaporation term.
+"""Why the evaporation term is only for a pot the config calls open (tun.lid: off).
 
 A lidless tun loses heat by evaporation, which grows with the water's vapour pressure (×4.4
-from 36 to 66 °C). `hermsd tune step` stops at 24 to 40 °C on the open tuns of the family, so
-its first-order fit (losses ∝ T − room) finds a gain between the linear one and the one at
-the hold (bench/tuning.py). This bench asks whether the step's data can tell the evaporation
-apart: on each tun's default step test (the records `tune step` fitted), the same FOPTD with
-one more regressor, the evaporation's shape g(T) = p_sat(PV)/p_sat(66 °C) (Magnus,
-hermsd.safety.vapour_pressure_ratio) through the same first-order lag:
+from 36 to 66 °C). A first-order fit (losses ∝ T − room) of a step that ends at 30 to 45 °C
+finds a gain between the linear one and the one at the hold (bench/tuning.py). This bench
+fits each tun's default step test (the records `tune step` fitted) with and without one more
+regressor, the evaporation's shape g(T) = p_sat(PV)/p_sat(66 °C) (Magnus,
+hermsd.safety.vapour_pressure_ratio) through the same first-order lag, on every tun, the
+lidded ones included:
 
     τ·dT/dt = −(T − room) + K·u(t − θ) − E·g(T)
 
@@ -95,14 +95,18 @@ def row(spec: TunSpec) -> str:
     lag = round(experiment.last.tuned.model.dead_time / TS)
     true = truth(spec)
     rise = SETPOINT_C - spec.ambient_c
-    duty_true = rise / true.gain_at_hold
+    duty_true = rise / true.gain
+    linear_tau = true.tau * true.linear_gain / true.gain
     cells = [spec.name, f"{pvs[-1]:.1f}", f"{true_evaporation_c(spec):.1f}"]
     for evaporation in (False, True):
         tau, solution, rms = best(pvs, duties, lag, evaporation)
         room, gain = solution[0], solution[2]
         e = solution[3] if evaporation else 0.0
         duty = (SETPOINT_C - room + e) / gain
-        cells += [f"{100 * (gain / true.gain - 1):+.1f} %", f"{100 * (tau / true.tau - 1):+.1f} %"]
+        cells += [
+            f"{100 * (gain / true.linear_gain - 1):+.1f} %",
+            f"{100 * (tau / linear_tau - 1):+.1f} %",
+        ]
         if evaporation:
             cells.append(f"{e:.1f}")
         cells += [f"{duty:.1f} / {duty_true:.1f}", f"{rms:.4f}"]
@@ -129,7 +133,8 @@ def main() -> int:
         [
             "## Tuning: an evaporation term in the step's fit",
             "",
-            "`uv run --group bench python bench/evaporation_fit.py --write`: on each tun's "
+            "`uv run --group bench python bench/evaporation_fit.py --write`: why `hermsd tune` "
+            "fits the evaporation only when the config says `tun.lid: off`. On each tun's "
             "default `tune step` records, the FOPTD fit (θ held at the step fit's, τ by golden "
             "section, room, x0 and K by least squares) and the same with an evaporation term "
             "E·g(PV), g the vapour pressure over that at 66 °C (see the script). K and τ errors "
@@ -137,6 +142,12 @@ def main() -> int:
             "the simulated tun's (evaporation included).",
             "",
             *rows,
+            "",
+            "On the open tuns the term brings the duty that holds 66 °C to within 0.4 to "
+            "4.2 % of the truth (the first-order fit: 8 to 15 % short), though it lowers the "
+            "RMS by 5 % at most: the step's data alone hardly tell it. On the lidded tuns it "
+            "finds −1 to 95 °C of evaporation where there is none (K up to +75 %): so the "
+            "brewer's config decides, and a lidded tun is never given it.",
             "",
             f"Run time {time.perf_counter() - started:.0f} s.",
             "",

@@ -110,6 +110,7 @@ class TunConfig:
     name: str = _text("HLT", max_length=32)
     litres: float = _number(90.0, 1, 1000, "L")
     element_watts: float = _number(3000.0, 100, 20000, "W")
+    lid: str = _choice("on", ("on", "off"))
 
 
 @dataclass(frozen=True, slots=True)

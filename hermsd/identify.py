@@ -6,6 +6,7 @@ One fitting code for every user: `hermsd replay --what-if` runs the day again on
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import operator
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 from hermsd import linsys
+from hermsd.safety import vapour_pressure_ratio
 
 
 class IdentifyError(ValueError):
@@ -44,7 +46,12 @@ class Upset(Protocol):
 
 @dataclass(frozen=True, slots=True)
 class TunModel:
-    """τ·dT/dt = −(T − ambient) + K·u(t − θ), T = `start` at the first period."""
+    """τ·dT/dt = −(T − ambient) + K·u(t − θ) − E·g(T), T = `start` at the first period.
+
+    E (`evaporation`) is an open pot's evaporation at 66 °C over its linear losses, in °C
+    (0: lidded), and g(T) its physical shape, the vapour pressure of water at T over that at
+    66 °C (hermsd.safety.vapour_pressure_ratio): only its scale is fitted.
+    """
 
     gain: float  # K, °C/%
     tau: float  # s
@@ -53,6 +60,24 @@ class TunModel:
     start: float  # °C
     rms: float  # °C, of the fit
     fit_s: float  # s of log the fit used
+    evaporation: float = 0.0  # E, °C
+
+    def at_hold(self, hold: float) -> TunModel:
+        """The first-order model that holds `hold` °C at the same duty as this one, with the
+        same K/τ (the element's heating rate): K_h = K·D/(D + E·g(hold)), D = hold − ambient,
+        and τ_h likewise. Its K is the static gain at the hold (the duty that holds it), which
+        the controller's feed-forward and the supervisor's loss watch need; lidded, itself."""
+        if self.evaporation == 0.0:
+            return self
+        ratio = _hold_ratio(hold - self.ambient, self.evaporation, hold)
+        return dataclasses.replace(
+            self, gain=self.gain * ratio, tau=self.tau * ratio, evaporation=0.0
+        )
+
+
+def _hold_ratio(drive: float, evaporation: float, hold: float) -> float:
+    """D/(D + E·g(hold)): the linear losses' share of the loss at the hold."""
+    return drive / (drive + evaporation * vapour_pressure_ratio(hold))
 
 
 MAX_DEAD_TIME_S = 900.0
@@ -81,6 +106,7 @@ def identify(
     duties: Sequence[float],
     period_s: float,
     ambient: float | None = None,
+    evaporation: bool = False,
 ) -> TunModel:
     """The FOPTD model whose response to `duties` fits `pvs` best (least squares).
 
@@ -97,6 +123,12 @@ def identify(
     `ambient`: the room's temperature when it is known (a thermometer): then only x0 and K
     are fitted. A heat-up much shorter than τ hardly bends, and a free ambient then trades
     off against K and τ together (K/τ stays right); a known one pins K through the hold.
+
+    `evaporation`: the tun is an open pot (tun.lid off), so E is fitted too, as a fourth
+    linear parameter with the regressor g(PV) through the same lag (not delayed: the
+    evaporation acts on the water the sensor reads). A lidded tun is never given one: on a
+    heat-up that stops well below the hold, E trades off against K and τ and would be found
+    where there is none.
     """
     n = len(pvs)
     valid = [pv is not None for pv in pvs]
@@ -111,20 +143,23 @@ def identify(
             "cannot fit a model of the tun: the duty hardly moved before the first "
             f"disturbance (less than {MIN_DUTY_SPAN:g} %), so gain and time constant do not show"
         )
-    fit, mean = _prepared(pvs, duties, period_s, ambient)
+    fit, mean = _prepared(pvs, duties, period_s, ambient, evaporation)
     log_tau, lag = fit.along_the_valley(*fit.descend(math.log(n * period_s)))
-    sse, (offset, x0, gain) = fit.solve(log_tau, lag)
+    sse, solution = fit.solve(log_tau, lag)
+    offset, x0, gain = solution[:3]
     if not gain > 0:
         raise IdentifyError("cannot fit a model of the tun: the PV does not rise with the duty")
+    evaporated = solution[3] if evaporation else 0.0
     ambient = offset + mean
     return TunModel(
         gain=gain,
         tau=math.exp(log_tau),
         dead_time=lag * period_s,
         ambient=ambient,
-        start=ambient + x0 + gain * duties[0],
+        start=ambient + x0 + gain * duties[0] - evaporated * fit.shape_first,
         rms=math.sqrt(max(sse, 0.0) / count),
         fit_s=n * period_s,
+        evaporation=evaporated,
     )
 
 
@@ -133,6 +168,7 @@ def _prepared(
     duties: Sequence[float],
     period_s: float,
     ambient: float | None,
+    evaporation: bool = False,
 ) -> tuple[_Fit, float]:
     """The fit's sums for PV less its mean (which keeps the normal equations well scaled),
     or less the known ambient temperature (the offset is then held at 0)."""
@@ -141,7 +177,16 @@ def _prepared(
     weights = [0.0 if pv is None else 1.0 for pv in pvs]
     temps = [0.0 if pv is None else pv - mean for pv in pvs]
     max_lag = max(0, min(round(MAX_DEAD_TIME_S / period_s), len(pvs) // 4))
-    fit = _Fit(temps, weights, duties, max_lag, period_s, fixed_offset=ambient is not None)
+    shape = None
+    if evaporation:  # g(PV), a missing PV taken as the last one read
+        last = values[0]
+        shape = []
+        for pv in pvs:
+            last = last if pv is None else pv
+            shape.append(vapour_pressure_ratio(last))
+    fit = _Fit(
+        temps, weights, duties, max_lag, period_s, fixed_offset=ambient is not None, shape=shape
+    )
     return fit, mean
 
 
@@ -162,7 +207,8 @@ UNCERTAINTY_METHOD = (
     "the mean change of K and τ when θ is moved one period either way and τ refitted (θ is "
     "fitted in whole periods, and a sensor's own lag or the PV's averaging is no pure delay), "
     "added in quadrature; θ: the whole periods whose error stays within that s² of the best, "
-    "at least ±half a period"
+    "at least ±half a period; an open pot: E joins the parameters, and the covariance is "
+    "carried to K and τ at the hold by their first derivatives"
 )
 
 
@@ -172,34 +218,45 @@ def uncertainty(
     period_s: float,
     model: TunModel,
     ambient: float | None = None,
+    hold: float | None = None,
 ) -> Uncertainty:
     """How well `pvs` pin down `model` (as `identify` fitted it to them); see UNCERTAINTY_METHOD.
 
     A brew day's residuals are not white (the sensor's 0.0625 °C steps, slow drifts of the
     losses), so the plain formula would claim too much: the AR(1) factor counts the samples
     that are worth one independent one each. θ is held at its fit for the others.
-    """
-    fit, _ = _prepared(pvs, duties, period_s, ambient)
-    log_tau, lag = math.log(model.tau), round(model.dead_time / period_s)
-    sse, (offset, x0, gain) = fit.solve(log_tau, lag)
 
-    def parts(log_tau: float) -> tuple[list[float], list[float]]:
-        """a^k and z_{k−d}: the model's response is offset + x0·a^k + K·z_{k−d}."""
+    `hold`: for a model fitted with an evaporation term, the K and τ whose spread is given
+    are those of `model.at_hold(hold)` (the linearised covariance carried through it).
+    """
+    evaporation = hold is not None and model.evaporation != 0.0
+    fit, mean = _prepared(pvs, duties, period_s, ambient, evaporation)
+    log_tau, lag = math.log(model.tau), round(model.dead_time / period_s)
+    sse, solution = fit.solve(log_tau, lag)
+    offset, x0, gain = solution[:3]
+    evaporated = solution[3] if evaporation else 0.0
+
+    def parts(log_tau: float) -> tuple[list[float], list[float], list[float]]:
+        """a^k, z_{k−d} and e: the response is offset + x0·a^k + K·z_{k−d} + E·e."""
         series = fit._series(log_tau)
-        return series.powers, series.lagged[fit.max_lag - lag : fit.max_lag - lag + fit.n]
+        z = series.lagged[fit.max_lag - lag : fit.max_lag - lag + fit.n]
+        return series.powers, z, series.shaped or [0.0] * fit.n
 
     def response(log_tau: float) -> list[float]:
-        powers, z = parts(log_tau)
-        return [x0 * p + gain * zk for p, zk in zip(powers, z, strict=True)]
+        powers, z, e = parts(log_tau)
+        return [
+            x0 * p + gain * zk + evaporated * ek for p, zk, ek in zip(powers, z, e, strict=True)
+        ]
 
     step = 1e-4  # in ln τ: a central difference for the one parameter the fit is not linear in
     below, above = response(log_tau - step), response(log_tau + step)
     slope = [(b - a) / (2 * step) for a, b in zip(below, above, strict=True)]
-    powers, z = parts(log_tau)
+    powers, z, e = parts(log_tau)
     fitted = response(log_tau)
+    # the columns of (offset, x0, K, ln τ, E), the rows where a PV was read
     rows = [
-        (w, w * p, w * zk, w * d)
-        for w, p, zk, d in zip(fit.weights, powers, z, slope, strict=True)
+        (w, w * p, w * zk, w * d, w * ek)
+        for w, p, zk, d, ek in zip(fit.weights, powers, z, slope, e, strict=True)
         if w > 0
     ]
     residuals = [
@@ -210,25 +267,49 @@ def uncertainty(
     rho = _dot(residuals[:-1], residuals[1:]) / squares if squares > 0 else 0.0
     rho = min(max(rho, 0.0), 0.999)
     inflation = (1.0 + rho) / (1.0 - rho)
-    fitted_params = (1, 2, 3) if fit.fixed_offset else (0, 1, 2, 3)  # of (offset, x0, K, ln τ)
+    fitted_params = [1, 2, 3] if fit.fixed_offset else [0, 1, 2, 3]
+    if evaporation:
+        fitted_params.append(4)
     s2 = max(sse, 0.0) / max(count - len(fitted_params) - 1, 1) * inflation
     columns = [[r[i] for r in rows] for i in fitted_params]
     normal = [[_dot(a, b) for b in columns] for a in columns]
-    variances = [0.0] * 4
+    covariance = [[0.0] * 5 for _ in range(5)]
     for i, param in enumerate(fitted_params):
         unit = [1.0 if j == i else 0.0 for j in range(len(fitted_params))]
         try:
             column = linsys.solve(normal, unit)
         except ValueError:
             return Uncertainty(math.inf, math.inf, math.inf, math.inf, count / inflation)
-        variances[param] = max(column[i].real, 0.0) * s2
-    moved = []  # (K, τ) refitted with θ one period shorter and longer
-    for other in (lag - 1, lag + 1):
-        if 0 <= other <= fit.max_lag:
-            other_log_tau = fit.best_log_tau(other)
-            moved.append((fit.solve(other_log_tau, other)[1][2], math.exp(other_log_tau)))
-    model_gain = sum(abs(k - gain) for k, _ in moved) / (2 * len(moved)) if moved else 0.0
-    model_tau = sum(abs(t - model.tau) for _, t in moved) / (2 * len(moved)) if moved else 0.0
+        for j, other in enumerate(fitted_params):
+            covariance[other][param] = column[j].real * s2
+    # the sensitivities of the reported K and τ to (offset, x0, K, ln τ, E)
+    gain_grad, tau_grad = [0.0, 0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, model.tau, 0.0]
+    if evaporation and hold is not None:
+        drive, shape = hold - (offset + mean), vapour_pressure_ratio(hold)
+        ratio = _hold_ratio(drive, evaporated, hold)
+        per_e = -drive * shape / (drive + evaporated * shape) ** 2  # ∂ratio/∂E
+        per_offset = -evaporated * shape / (drive + evaporated * shape) ** 2  # ∂ratio/∂offset
+        gain_grad = [gain * per_offset, 0.0, ratio, 0.0, gain * per_e]
+        tau_grad = [model.tau * per_offset, 0.0, 0.0, model.tau * ratio, model.tau * per_e]
+
+    def variance(grad: list[float]) -> float:
+        total = math.fsum(grad[i] * covariance[i][j] * grad[j] for i in range(5) for j in range(5))
+        return max(total, 0.0)
+
+    def reported(other_lag: int) -> tuple[float, float]:
+        """K and τ refitted with θ at `other_lag` periods (at the hold, with evaporation)."""
+        other_log_tau = fit.best_log_tau(other_lag)
+        other = fit.solve(other_log_tau, other_lag)[1]
+        k, tau = other[2], math.exp(other_log_tau)
+        if evaporation and hold is not None:
+            ratio = _hold_ratio(hold - (other[0] + mean), other[3], hold)
+            k, tau = k * ratio, tau * ratio
+        return k, tau
+
+    centre = reported(lag) if evaporation else (gain, model.tau)
+    moved = [reported(other) for other in (lag - 1, lag + 1) if 0 <= other <= fit.max_lag]
+    model_gain = sum(abs(k - centre[0]) for k, _ in moved) / (2 * len(moved)) if moved else 0.0
+    model_tau = sum(abs(t - centre[1]) for _, t in moved) / (2 * len(moved)) if moved else 0.0
     threshold = sse + s2
     low = high = lag
     while low > 0 and fit.error(log_tau, low - 1) <= threshold:
@@ -236,21 +317,26 @@ def uncertainty(
     while high < fit.max_lag and fit.error(log_tau, high + 1) <= threshold:
         high += 1
     return Uncertainty(
-        gain=math.hypot(math.sqrt(variances[2]), model_gain),
-        tau=math.hypot(model.tau * math.sqrt(variances[3]), model_tau),
+        gain=math.hypot(math.sqrt(variance(gain_grad)), model_gain),
+        tau=math.hypot(math.sqrt(variance(tau_grad)), model_tau),
         dead_time=max((high - low) / 2.0, 0.5) * period_s,
-        ambient=math.sqrt(variances[0]),
+        ambient=math.sqrt(max(covariance[0][0], 0.0)),
         effective_samples=count / inflation,
     )
 
 
 class _Series(NamedTuple):
-    """What the fit needs of one τ: w·a^k, a^k, and z (extended back by max_lag) and z²."""
+    """What the fit needs of one τ: w·a^k, a^k, and z (extended back by max_lag) and z²;
+    with an evaporation term, −g(PV) through the same lag (e), w·e, and the sums of w·e,
+    w·e·a^k, w·e² and (T − mean)·e, which do not depend on θ."""
 
     w_powers: list[float]
     powers: list[float]
     lagged: list[float]
     squares: list[float]
+    shaped: list[float] | None = None
+    w_shaped: list[float] | None = None
+    shaped_sums: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 class _Fit:
@@ -265,10 +351,13 @@ class _Fit:
         period_s: float,
         *,
         fixed_offset: bool = False,
+        shape: list[float] | None = None,
     ) -> None:
         self.temps, self.weights, self.duties = temps, weights, list(duties)
         self.max_lag, self.period_s = max_lag, period_s
         self.fixed_offset = fixed_offset
+        self.shape = shape
+        self.shape_first = shape[0] if shape else 0.0
         self.n = len(temps)
         self.total_w = sum(weights)
         self.sum_t = _dot(weights, temps)
@@ -287,17 +376,35 @@ class _Fit:
         lagged = [first] * self.max_lag  # before the log: the duty stood at its first value
         lagged.extend(itertools.accumulate(self.duties, lambda z, u: a * z + b * u, initial=first))
         del lagged[self.max_lag]  # the initial value itself (z_{−1}) is not a sample
+        shaped = w_shaped = None
+        sums = (0.0, 0.0, 0.0, 0.0)
+        if self.shape is not None:
+            filtered = itertools.accumulate(
+                self.shape, lambda e, g: a * e + b * g, initial=self.shape[0]
+            )
+            shaped = [-e for e in itertools.islice(filtered, 1, None)]
+            w_shaped = list(map(operator.mul, self.weights, shaped))
+            sums = (
+                sum(w_shaped),
+                _dot(w_shaped, powers),
+                _dot(w_shaped, shaped),
+                _dot(self.temps, shaped),
+            )
         series = _Series(
             list(map(operator.mul, self.weights, powers)),
             powers,
             lagged,
             [z * z for z in lagged],
+            shaped,
+            w_shaped,
+            sums,
         )
         self._cached = (log_tau, series)
         return series
 
-    def solve(self, log_tau: float, lag: int) -> tuple[float, tuple[float, float, float]]:
-        """(sum of squared errors, (offset, x0, K)) of the best fit for τ and θ = lag periods."""
+    def solve(self, log_tau: float, lag: int) -> tuple[float, tuple[float, ...]]:
+        """(sum of squared errors, (offset, x0, K[, E])) of the best fit for τ and θ = lag
+        periods."""
         series = self._series(log_tau)
         start, stop = self.max_lag - lag, self.max_lag - lag + self.n
         z = series.lagged[start:stop]
@@ -310,6 +417,8 @@ class _Fit:
             (s_z, _dot(w_powers, z), _dot(w, series.squares[start:stop])),
         )
         rhs = (self.sum_t, _dot(w_powers, self.temps), _dot(self.temps, z))
+        if series.w_shaped is not None:
+            return self._solve_with_evaporation(series, _dot(series.w_shaped, z), gram, rhs)
         if self.fixed_offset:  # the offset's equation becomes offset = 0
             gram = ((1.0, 0.0, 0.0), (0.0, *gram[1][1:]), (0.0, *gram[2][1:]))
             rhs = (0.0, rhs[1], rhs[2])
@@ -317,6 +426,32 @@ class _Fit:
         if solution is None:
             return math.inf, (0.0, 0.0, 0.0)
         return self.sum_tt - _dot(solution, rhs), solution
+
+    def _solve_with_evaporation(
+        self,
+        series: _Series,
+        s_ez: float,
+        gram: tuple[tuple[float, float, float], ...],
+        rhs: tuple[float, float, float],
+    ) -> tuple[float, tuple[float, ...]]:
+        """The normal equations bordered by the evaporation's column e (solve's fourth
+        parameter, `s_ez` = Σw·e·z at this θ); with a known ambient the offset's row and
+        column are left out."""
+        s_e, s_ep, s_ee, s_te = series.shaped_sums
+        border = (s_e, s_ep, s_ez)
+        rows = [[*gram[i], border[i]] for i in range(3)]
+        rows.append([*border, s_ee])
+        vector = [*rhs, s_te]
+        kept = range(1, 4) if self.fixed_offset else range(4)
+        try:
+            solved = linsys.solve(
+                [[rows[i][j] for j in kept] for i in kept], [vector[i] for i in kept]
+            )
+        except ValueError:
+            return math.inf, (0.0, 0.0, 0.0, 0.0)
+        values = [x.real for x in solved]
+        solution = (0.0, *values) if self.fixed_offset else tuple(values)
+        return self.sum_tt - _dot(solution, vector), solution
 
     def descend(self, log_tau: float) -> tuple[float, int]:
         """From τ = e^log_tau, the best θ and τ in turn, until θ stays put: a local minimum."""

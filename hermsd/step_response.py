@@ -10,7 +10,8 @@ so the supervisor watches the run as any other and the recorder logs it (replaya
   (the document's dead time), and a* = a/P;
 - §4.2: K and τ (and the FOPTD's own θ) from hermsd.identify's least-squares fit, the one
   every other user of a model shares, instead of the document's 28.3 %/63.2 % points, which
-  need the final temperature (hours at a 4 h time constant).
+  need the final temperature (hours at a 4 h time constant). An open pot (tun.lid off) is
+  fitted with its evaporation, and K and τ are given at the setpoint (tune.from_series).
 
 It stops as soon as the fit is good (STOP_RULE), or when PV reaches the limit, or after
 MAX_STEP_S; an alarm or an interrupt stops it at once. Whatever stops it, the daemon's
@@ -218,6 +219,7 @@ class StepExperiment(Stopping[Progress]):
                 self.ambient,
                 config.tun.element_watts,
                 config.tun.litres,
+                config.control.setpoint if config.tun.lid == "off" else None,
             )
         except tune.TuneError as error:
             problem = str(error)

@@ -12,7 +12,7 @@ import dataclasses
 import difflib
 import io
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
@@ -176,6 +176,8 @@ GOAL_RELATIVE = 0.10  # of K and of τ
 GOAL_DEAD_TIME_S = 20.0
 WATER_J_PER_L_K = 4186.0
 AMBIENT_RANGE_C = (-20.0, 50.0)  # control.model_ambient's range
+MIN_HOLD_DRIVE_C = 5.0
+"""°C: an open pot's hold at least this far above the room (below, its losses hardly show)."""
 MAX_RMS_C = 0.04
 """°C: a first-order tun read by an LM92 (0.0625 °C steps, a period's mean of ~5 readings)
 leaves a few hundredths; more is a tun the model does not describe."""
@@ -193,6 +195,8 @@ class Tuned:
     implied_litres: float | None  # the water the fit implies at the logged element power
     logged_litres: float | None
     ambient_given: bool = False  # measured by the brewer (--ambient), not fitted
+    evaporation: float | None = None  # E °C of an open pot's fit (tun.lid off); None: lidded
+    hold: float | None = None  # °C: the setpoint whose static gain `model` gives (lid off)
 
     def table(self) -> Model:
         m = self.model
@@ -226,7 +230,15 @@ def from_log(log: Log, ambient: float | None = None) -> Tuned:
             "the fit needs a heat-up (full power, then the hold) to see gain and time constant"
         )
     watts, litres = _logged(log, "tun", "element_watts"), _logged(log, "tun", "litres")
-    return from_series(pvs[:n], duties, period_s, ambient, watts, litres)
+    hold = None
+    if _logged_text(log, "tun", "lid") == "off":
+        setpoints = (p.setpoint for p in reversed(periods) if p.setpoint is not None)
+        hold = next(setpoints, None)
+        if hold is None:
+            hold = _logged(log, "control", "setpoint")
+        if hold is None:
+            raise TuneError("the log's tun is an open pot, but no setpoint to hold is logged")
+    return from_series(pvs[:n], duties, period_s, ambient, watts, litres, hold)
 
 
 def from_series(
@@ -236,16 +248,28 @@ def from_series(
     ambient: float | None = None,
     watts: float | None = None,
     litres: float | None = None,
+    open_pot_hold: float | None = None,
 ) -> Tuned:
     """The model of one PV per control period and the duty applied over it, and its verdict.
 
     `watts` and `litres`: the config's element and water, to compare with what the fit implies.
+    `open_pot_hold`: the tun is an open pot (tun.lid off) held at this setpoint: its
+    evaporation is fitted (hermsd.identify), and the model given is the static one at the
+    hold (TunModel.at_hold): the duty that holds the setpoint, and the element's rate K/τ.
     """
+    open_pot = open_pot_hold is not None
     try:
-        model = identify(pvs, duties, period_s, ambient)
+        fitted = identify(pvs, duties, period_s, ambient, evaporation=open_pot)
     except IdentifyError as error:
         raise TuneError(str(error)) from None
-    spread = uncertainty(pvs, duties, period_s, model, ambient)
+    if open_pot_hold is not None and not open_pot_hold > fitted.ambient + MIN_HOLD_DRIVE_C:
+        raise TuneError(
+            f"the setpoint {open_pot_hold:g} °C is not above the room's temperature "
+            f"({fitted.ambient:.1f} °C) by {MIN_HOLD_DRIVE_C:g} °C or more: an open pot's model "
+            "at the hold needs a hold that loses heat to the room"
+        )
+    spread = uncertainty(pvs, duties, period_s, fitted, ambient, open_pot_hold)
+    model = fitted if open_pot_hold is None else fitted.at_hold(open_pot_hold)
     poor = []
     if 2 * spread.gain > GOAL_RELATIVE * model.gain:
         poor.append(f"K ±{100 * 2 * spread.gain / model.gain:.0f} %")
@@ -254,9 +278,9 @@ def from_series(
     if 2 * spread.dead_time > GOAL_DEAD_TIME_S:
         poor.append(f"θ ±{2 * spread.dead_time:.0f} s")
     if model.rms > MAX_RMS_C:
+        why = "" if open_pot else " (an open pot? with tun.lid: off its evaporation is fitted)"
         poor.append(
-            f"RMS {model.rms:.3f} °C: the tun is not first order over this log (an open "
-            "lid's evaporation grows steeply with the temperature)"
+            f"RMS {model.rms:.3f} °C: the model does not describe the tun over this log{why}"
         )
     if ambient is None and any(item.startswith(("K ", "τ ")) for item in poor):
         poor.append("the room's temperature (--ambient) pins K and τ")
@@ -272,6 +296,8 @@ def from_series(
         implied_litres=implied,
         logged_litres=litres,
         ambient_given=ambient is not None,
+        evaporation=fitted.evaporation if open_pot else None,
+        hold=open_pot_hold,
     )
 
 
@@ -291,11 +317,21 @@ def recommend(model: TunModel, litres: float | None) -> dict[str, float]:
     return settings
 
 
-def _logged(log: Log, section: str, key: str) -> float | None:
-    """The value of the last config record that has it, as a number."""
+def _logged_values(log: Log, section: str, key: str) -> Iterator[object]:
+    """The key's value in each config record of the log, the last first."""
     for entry in reversed(log.configs):
         values = entry.config.get(section)
-        value = values.get(key) if isinstance(values, dict) else None
+        yield values.get(key) if isinstance(values, dict) else None
+
+
+def _logged_text(log: Log, section: str, key: str) -> str | None:
+    """The value of the last config record that has it, as text (None: no record has it)."""
+    return next((v for v in _logged_values(log, section, key) if isinstance(v, str)), None)
+
+
+def _logged(log: Log, section: str, key: str) -> float | None:
+    """The value of the last config record that has it, as a number."""
+    for value in _logged_values(log, section, key):
         if isinstance(value, int | float) and not isinstance(value, bool):
             return float(value)
     return None
@@ -307,7 +343,8 @@ KEPT = {
     "the tun)",
     "control.learn": "kept: on, what the daemon learns on a later brew day comes before "
     "this model (it sees the losses at the hold, which a step that stops below the setpoint "
-    "cannot: an open lid's evaporation); pinned or off, this model is used as written",
+    "can only extrapolate to: an open pot's evaporation); pinned or off, this model is used "
+    "as written",
     "safety": "no key to change: with control.model_litres set, the supervisor tightens "
     "its limits from this model (its MeasuredTun) within its own margins; safety.dead_time "
     "is best left null for that",
@@ -327,6 +364,8 @@ def tuned_json(tuned: Tuned) -> dict[str, Any]:
         "implied_litres": tuned.implied_litres,
         "logged_litres": tuned.logged_litres,
         "ambient_given": tuned.ambient_given,
+        "evaporation": tuned.evaporation,
+        "hold": tuned.hold,
     }
 
 
@@ -344,6 +383,12 @@ def tuned_lines(tuned: Tuned) -> list[str]:
         f"  confidence: {tuned.confidence} (± is one standard deviation, from the log's "
         "noise and from θ's whole periods; --json says how)",
     ]
+    if tuned.evaporation is not None and tuned.hold is not None:
+        lines[1:1] = [
+            f"  an open pot (tun.lid off): K and τ are those at the hold, {tuned.hold:g} °C, "
+            f"its evaporation ({tuned.evaporation:.1f} °C over the walls' losses there) "
+            "included"
+        ]
     if tuned.implied_litres is not None:
         logged = "" if tuned.logged_litres is None else f"; tun.litres is {tuned.logged_litres:g}"
         lines.append(
@@ -360,7 +405,7 @@ def tuned_lines(tuned: Tuned) -> list[str]:
 # -- writing the config file --------------------------------------------------------------------
 
 
-def updated_config(text: str, filename: str, changes: dict[str, float]) -> str:
+def updated_config(text: str, filename: str, changes: Mapping[str, float | str]) -> str:
     """`text` with the values of `changes` ("section.key") replaced and nothing else.
 
     ruamel.yaml's round trip keeps the comments, the order, blank lines and the way every
@@ -389,7 +434,7 @@ def write_tuned(path: Path, tuned: Tuned) -> str:
     """Write `tuned`'s recommended settings into the config file; a poor fit is not written."""
     if tuned.confidence != "good":
         raise TuneError(f"{path} left as it is: the fit is {tuned.confidence}")
-    changes = dict(tuned.recommended)
+    changes: dict[str, float | str] = dict(tuned.recommended)
     if "control.model_litres" not in changes:  # a log without the config's litres
         try:
             changes["control.model_litres"] = config_module.load(path).tun.litres
@@ -398,7 +443,7 @@ def write_tuned(path: Path, tuned: Tuned) -> str:
     return write_config(path, changes)
 
 
-def write_config(path: Path, changes: dict[str, float]) -> str:
+def write_config(path: Path, changes: Mapping[str, float | str]) -> str:
     """Write `changes` into the config file at `path` atomically; the unified diff ("" if none).
 
     The file keeps its permission bits; a running daemon sees a new file, as after any edit.

@@ -124,6 +124,7 @@ BOUNDS = [
 ]
 CHOICES: dict[str, tuple[object, ...]] = {
     "control.mode": ("auto", "manual"),
+    "tun.lid": ("on", "off"),
     "control.learn": ("on", "pinned", "off"),
     "control.algorithm": (
         "predictive",
@@ -334,7 +335,7 @@ def test_the_restated_schema_covers_every_field() -> None:
 
 def test_defaults_are_the_specified_ones() -> None:
     expected = {
-        "tun": {"name": "HLT", "litres": 90.0, "element_watts": 3000.0},
+        "tun": {"name": "HLT", "litres": 90.0, "element_watts": 3000.0, "lid": "on"},
         "control": {
             "setpoint": 66.0,
             "mode": "auto",

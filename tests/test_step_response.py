@@ -233,3 +233,23 @@ def test_a_good_looking_fit_that_had_not_settled_is_not_written(tmp_path: Path) 
     with pytest.raises(tune.TuneError, match="before K and τ had settled"):
         step_response.write(experiment, path)  # type: ignore[arg-type]
     assert path.read_bytes() == before
+
+
+def test_an_open_pots_step_gives_its_gain_at_the_setpoint() -> None:
+    """With tun.lid off the fit has the evaporation's shape and gives K and τ at the setpoint
+    (a first-order fit of the same step was 14 % off the linear K, 15 % above the hold's).
+    The truth, by hand from the simulator's physics: UA = 17.762·1.5·(120/90)^⅔ = 32.28 W/K;
+    a 120 L pot as tall as wide, r = (0.12/2π)^⅓ = 0.2673 m, 0.2245 m² of water surface,
+    evaporates 89·0.2245·(26.16 − 0.5·2.339) = 499 W at 66 °C in a 20 °C room (p_sat from the
+    steam tables); so the loss per kelvin at the hold is 32.28 + 499/46 = 43.13 W/K, and
+    K = 3500/(100·43.13) = 0.8115 °C/%, τ = 4186·120/43.13 = 11647 s."""
+    spec = next(s for s in FAMILY if s.name == "open 120 L 3.5 kW")
+    experiment, _, _ = simulated_step_test(spec.config(config_module.DEFAULT), spec.plant())
+    step_response.run(experiment, (KeyboardInterrupt,))
+    assert experiment.last is not None and experiment.last.tuned is not None
+    model = experiment.last.tuned.model
+    assert experiment.stopped == "the fit is good"
+    assert experiment.last.elapsed + step_response.BASELINE_S <= 90 * 60
+    assert abs(model.gain / 0.8115 - 1) <= 0.10
+    assert abs(model.tau / 11647 - 1) <= 0.10
+    assert experiment.last.tuned.hold == 66.0

@@ -71,8 +71,13 @@ class TunSpec:
         )
 
     def config(self, base: Config) -> Config:
-        """`base` with the tun's true litres and watts, as a brewer would set them."""
-        tun = dataclasses.replace(base.tun, litres=self.litres, element_watts=self.element_watts)
+        """`base` with the tun's true litres, watts and lid, as a brewer would set them."""
+        tun = dataclasses.replace(
+            base.tun,
+            litres=self.litres,
+            element_watts=self.element_watts,
+            lid="off" if self.lid_off else "on",
+        )
         return dataclasses.replace(base, tun=tun)
 
 
