@@ -403,6 +403,7 @@ class Daemon:
         self._started = False
         self._reload_requested = False
         self._config_problem: str | None = None  # why the file's last edit was rejected
+        self._output2: float | None = None  # the second element's duty, when one is fitted
         self._saved_latches: list[str] = []  # the kinds on disk, as last saved
         self._tried_latches: list[str] = []  # the kinds of the last save tried
         self._latch_retry_at = 0.0  # a failed save is tried again from then, or at a change
@@ -1114,7 +1115,7 @@ class Daemon:
             # waiting for its time): the loop is alive. Only a loop without readings stops
             # earning pings; a kill in a healthy hold would restart, and re-alert, for hours.
             self._watchdog.note_healthy_cycle()
-        u2 = self._drive_element2(now, state)
+        u2 = self._output2 = self._drive_element2(now, state)
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -1269,7 +1270,9 @@ class Daemon:
             state += f", log failing: {self._log_failing}"
         if self.program.active:
             state += f", {self.program.status_words(self.clock.wall_ns())}"
-        return status_line(self.config.tun.name, self._pv, self.setpoint, self._asked(), state)
+        return status_line(
+            self.config.tun.name, self._pv, self.setpoint, self._asked(), state, self._output2
+        )
 
     def _check_log(self, t: float) -> None:
         """Say that the log cannot be written at once, every minute while it lasts, and when

@@ -171,13 +171,22 @@ def check_watchdog(notifier: Notifier, period: float) -> None:
         )
 
 
-def status_line(name: str, pv: float | None, setpoint: float, output: float, state: str) -> str:
-    """The STATUS text: 'HLT 65.94 °C → 66.00 °C, out 27 %, ok'; '--' when PV is unknown.
+def status_line(
+    name: str,
+    pv: float | None,
+    setpoint: float,
+    output: float,
+    state: str,
+    output2: float | None = None,
+) -> str:
+    """The STATUS text: 'HLT 65.94 °C → 66.00 °C, out 27 %, ok'; '--' when PV is unknown;
+    'out 27 % + element 2 100 %' with a second element (it may be on at 0 % on the SSR).
 
     Two decimals show the LM92's 0.0625 °C steps; the output is a whole percent.
     """
     measured = "--" if pv is None else f"{pv:.2f}"
-    return f"{name} {measured} °C → {setpoint:.2f} °C, out {output:.0f} %, {state}"
+    second = "" if output2 is None else f" + element 2 {output2:.0f} %"
+    return f"{name} {measured} °C → {setpoint:.2f} °C, out {output:.0f} %{second}, {state}"
 
 
 def _socket_address(value: str) -> str | None:

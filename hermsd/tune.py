@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import io
+import json
 import math
+import re
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from decimal import ROUND_HALF_UP, Decimal
@@ -19,9 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from ruamel.yaml import YAML
+from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
-from ruamel.yaml.nodes import ScalarNode
-from ruamel.yaml.representer import RoundTripRepresenter
 
 from hermsd import config as config_module
 from hermsd import pid
@@ -408,26 +408,108 @@ def tuned_lines(tuned: Tuned) -> list[str]:
 def updated_config(text: str, filename: str, changes: Mapping[str, float | str]) -> str:
     """`text` with the values of `changes` ("section.key") replaced and nothing else.
 
-    ruamel.yaml's round trip keeps the comments, the order, blank lines and the way every
-    other value is written (0x48 stays 0x48; null stays null). The file must be a valid
-    config before, and the result is checked as the daemon will check it.
+    Every other byte stays as it was: each value is replaced where it is written (found by
+    ruamel.yaml's round-trip positions), a key the file lacks gets a line of its own at the
+    end of its section, indented as the section's keys are, with the file's own line ends.
+    A dump of the document would re-indent lists and re-wrap long lines. The file must be a
+    valid config before, and the result is checked as the daemon will check it.
     """
     _checked(text, filename, "is not a valid config now; fix it first")
-    yaml = _round_trip()
-    try:
-        document = yaml.load(text)
-    except YAMLError as error:  # what the config's own reader took, but this one does not
-        raise TuneError(f"{filename}: cannot edit it keeping its layout: {error}") from None
+    document = _positions(text, filename)
+    lines = text.splitlines(keepends=True)
+    newline = "\r\n" if text.endswith("\r\n") or "\r\n" in text[:4096] else "\n"
+    if lines and not lines[-1].endswith(("\n", "\r")):
+        lines[-1] += newline
+    added: dict[int, list[str]] = {}  # after which line (-1: at the end), the lines added
     for path, value in changes.items():
         section, key = path.split(".")
-        if document.get(section) is None:
-            document[section] = {}
-        document[section][key] = value
-    out = io.StringIO()
-    yaml.dump(document, out)
-    written = out.getvalue()
-    _checked(written, filename, "would not be a valid config with the new values; left as it is")
-    return written
+        written = _scalar(value)
+        block = document.get(section)
+        if isinstance(block, CommentedMap) and block.fa.flow_style():
+            raise TuneError(
+                f"{filename}:{document.lc.key(section)[0] + 1}: {section} is written in flow "
+                "style ({...}); write it as a block of key: value lines to let tune edit it"
+            )
+        if isinstance(block, CommentedMap) and key in block:
+            row, column = block.lc.value(key)
+            lines[row] = _with_scalar(lines[row], column, written)
+        elif isinstance(block, CommentedMap) and block:
+            indent = block.lc.key(next(iter(block)))[1]
+            added.setdefault(_last_line(lines, document, section), []).append(
+                f"{' ' * indent}{key}: {written}{newline}"
+            )
+        elif section in document:  # `section:` with nothing under it
+            added.setdefault(document.lc.key(section)[0], []).append(f"  {key}: {written}{newline}")
+        else:
+            tail = added.setdefault(len(lines) - 1, [])
+            if not any(line == f"{section}:{newline}" for line in tail):
+                tail.append(f"{section}:{newline}")
+            tail.append(f"  {key}: {written}{newline}")
+    out = []
+    for row, line in enumerate(lines):
+        out.append(line)
+        out += added.get(row, [])
+    written_text = "".join(out)
+    _checked(
+        written_text, filename, "would not be a valid config with the new values; left as it is"
+    )
+    edited = _positions(written_text, filename)
+    for path, value in changes.items():
+        section, key = path.split(".")
+        if edited[section][key] != value:  # a value written where it was not meant to be
+            raise TuneError(f"{filename}: cannot edit {path} keeping the layout; left as it is")
+    return written_text
+
+
+def _positions(text: str, filename: str) -> CommentedMap:
+    """The document as ruamel.yaml's round trip reads it: values with their line and column."""
+    try:
+        document = YAML().load(text)
+    except YAMLError as error:  # what the config's own reader took, but this one does not
+        raise TuneError(f"{filename}: cannot edit it keeping its layout: {error}") from None
+    return document if isinstance(document, CommentedMap) else CommentedMap()
+
+
+def _scalar(value: float | str) -> str:
+    """A value as YAML writes it: a number's shortest exact form, a text double-quoted."""
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def _with_scalar(line: str, column: int, written: str) -> str:
+    """`line` with the scalar that starts at `column` replaced by `written`; a comment after
+    it, and the spaces before that comment, stay."""
+    rest = line[column:]
+    if rest[:1] in ('"', "'"):
+        quote, at = rest[0], 1
+        while at < len(rest):
+            if rest[at] == "\\" and quote == '"':
+                at += 2
+                continue
+            if rest[at] == quote:
+                if quote == "'" and rest[at + 1 : at + 2] == "'":
+                    at += 2
+                    continue
+                break
+            at += 1
+        end = at + 1
+    else:
+        comment = re.search(r"\s#", rest)
+        body = rest[: comment.start()] if comment else rest
+        end = len(body.rstrip(" \t\r\n"))
+    return line[:column] + written + rest[end:]
+
+
+def _last_line(lines: list[str], document: CommentedMap, section: str) -> int:
+    """The last line that belongs to `section`: before the next section, its comments and
+    blank lines aside (they introduce that section)."""
+    sections = list(document)
+    following = sections[sections.index(section) + 1 :]
+    row = document.lc.key(following[0])[0] - 1 if following else len(lines) - 1
+    while row > 0 and (not lines[row].strip() or lines[row].lstrip().startswith("#")):
+        row -= 1
+    return row
 
 
 def write_tuned(path: Path, tuned: Tuned) -> str:
@@ -450,7 +532,8 @@ def write_config(path: Path, changes: Mapping[str, float | str]) -> str:
     """
     path = path.resolve()
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open(encoding="utf-8", newline="") as file:  # its own line ends, kept
+            text = file.read()
         original = path.stat()
     except (OSError, UnicodeDecodeError) as error:
         raise TuneError(f"{path}: cannot read the config file: {error}") from None
@@ -466,18 +549,6 @@ def write_config(path: Path, changes: Mapping[str, float | str]) -> str:
         except OSError as error:
             raise TuneError(f"{path}: cannot write the config file: {error}") from None
     return diff
-
-
-def _round_trip() -> YAML:
-    yaml = YAML()  # the round-trip loader and dumper
-    yaml.preserve_quotes = True
-    yaml.representer.add_representer(type(None), _null)
-    return yaml
-
-
-def _null(representer: RoundTripRepresenter, _: None) -> ScalarNode:
-    """null as the shipped file writes it (ruamel's round trip would leave the value empty)."""
-    return representer.represent_scalar("tag:yaml.org,2002:null", "null")
 
 
 def _checked(text: str, filename: str, what: str) -> None:

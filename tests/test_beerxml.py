@@ -322,3 +322,47 @@ def test_an_imported_program_is_one_the_daemon_runs(path: Path, recipe: str | No
     assert [s.setpoint for s in program.steps] == [s.setpoint for s in imported.steps]
     assert [s.hold for s in program.steps] == [60.0 * s.hold_min for s in imported.steps]
     assert [s.confirm for s in program.steps] == [s.confirm for s in imported.steps]
+
+
+LONG_RECIPE = "Weihenstephaner Hefeweissbier Clone (All Grain)"  # 47 characters
+LONG_STEP = "Protein rest with a long decoction-free hold"  # 44 characters
+
+
+def test_long_names_and_fast_ramps_are_fitted_to_what_a_program_takes(tmp_path: Path) -> None:
+    def step(name: str, celsius: int, ramp_min: float) -> str:
+        return (
+            f"<MASH_STEP><NAME>{name}</NAME><TYPE>Temperature</TYPE><STEP_TEMP>{celsius}"
+            f"</STEP_TEMP><STEP_TIME>10</STEP_TIME><RAMP_TIME>{ramp_min}</RAMP_TIME></MASH_STEP>"
+        )
+
+    path = write(
+        tmp_path,
+        f"<RECIPES><RECIPE><NAME>{LONG_RECIPE}</NAME><MASH><NAME>M</NAME><MASH_STEPS>"
+        + step(LONG_STEP, 50, 0)
+        + step(LONG_STEP, 62, 1)  # 12 °C in 1 min: faster than the 10 °C/min a program ramps
+        + step("Mash out", 78, 4)  # 16 °C in 4 min: 4 °C/min, kept
+        + "</MASH_STEPS></MASH></RECIPE></RECIPES>",
+    )
+    text = to_yaml(read(path))
+    program = program_of(path)
+    assert program["name"] == LONG_RECIPE[:39] + "…"  # 40 characters; in full in the header
+    assert f"#   recipe: {LONG_RECIPE}" in text
+    names = [s["name"] for s in program["steps"]]
+    assert names == [LONG_STEP[:39] + "…", LONG_STEP[:37] + "… 2", "Mash out"]
+    assert all(len(name) <= 40 for name in names)
+    assert f"# name in the recipe: {LONG_STEP}" in text
+    assert "ramp" not in program["steps"][1]
+    assert "12 °C/min is faster than a program ramps" in text
+    assert program["steps"][2]["ramp"] == 4.0
+
+
+def test_a_rest_longer_than_a_program_holds_is_refused_at_its_line(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        one_step("<TYPE>Temperature</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>1500</STEP_TIME>"),
+    )
+    with pytest.raises(BeerXMLError) as caught:
+        read(path)
+    assert str(caught.value) == (
+        f"{path}:6: MASH_STEP 'Rest': STEP_TIME 1500 min is more than the 24 h a rest may hold"
+    )

@@ -124,6 +124,8 @@ def test_manual_zero_switches_the_second_element_off_within_a_period() -> None:
     daemon.start()
     daemon.run(until=60.0)
     assert world.circuit.relay2_on  # heating up from cold: both elements on
+    assert "out 100 % + element 2 100 %" in daemon.status_text()  # 5.5 kW, not 2 kW
     daemon.set_manual(0.0)
     daemon.run(until=60.0 + 2 * config.control.period)
     assert not world.circuit.relay2_on  # not after its 1800 s minimum on time
+    assert "out 0 % + element 2 0 %" in daemon.status_text()

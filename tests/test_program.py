@@ -585,3 +585,27 @@ def test_the_writer_outlives_a_fault_that_is_not_an_os_error(tmp_path: Path) -> 
     assert writer.flush(5.0) and writer.failure is None
     assert store.path.exists() and calls == ["broken"]
     writer.close(5.0)
+
+
+def test_a_clear_that_failed_is_tried_again_until_the_stopped_program_is_gone(
+    tmp_path: Path,
+) -> None:
+    """A stopped program left on disk would resume after a crash and heat unattended."""
+    store = ProgressStore(tmp_path)
+    writer = ProgressWriter(store, clear_retry_s=0.0)
+    writer.program(REST, AT_4)
+    assert writer.flush(5.0) and store.path.exists()
+    failures = iter([OSError(5, "Input/output error")] * 3)
+    clear = store.clear
+
+    def flaky() -> None:
+        error = next(failures, None)
+        if error is not None:
+            raise error
+        clear()
+
+    store.clear = flaky  # type: ignore[method-assign]
+    writer.clear()  # the brewer's `program stop`
+    assert writer.flush(5.0)  # three failures, then it lands
+    assert not store.path.exists() and writer.failure is None
+    writer.close(5.0)

@@ -403,3 +403,56 @@ def test_a_log_without_the_litres_is_written_with_the_files(
     config_copy.write_text("tun:\n  litres: 45\n", encoding="utf-8")
     tune.write_tuned(config_copy, dataclasses.replace(tuned, recommended=unknown))
     assert config_module.load(config_copy).control.model_litres == 45.0
+
+
+def _changed_lines(before: str, after: str) -> list[tuple[str, str]]:
+    old, new = before.splitlines(keepends=True), after.splitlines(keepends=True)
+    assert len(new) == len(old)
+    return [(a, b) for a, b in zip(old, new, strict=True) if a != b]
+
+
+def test_write_keeps_the_brewers_own_layout_byte_for_byte() -> None:
+    events = "\n".join(f"  - {e}" for e in config_module.ALERT_EVENTS)
+    long_command = (
+        '  command: ["/usr/local/bin/notify-brewer-with-a-long-name", "--channel", '
+        '"brewery-alerts", "--verbose"]'
+    )
+    text = (
+        SHIPPED.read_text(encoding="utf-8")
+        .replace(events, events.replace("  - ", "    - "))  # a list indented further
+        .replace("  command: null", long_command)  # a line longer than 80 characters
+        .replace("  dead_time: 115.0", "  dead_time: 115.0   # measured in October")
+        .replace("\ntun:\n", "\ntun:   \n")  # trailing spaces
+    )
+    assert text.count("    - ") == len(config_module.ALERT_EVENTS)
+    written = tune.updated_config(text, "hermsd.yaml", {"control.dead_time": 42.5})
+    assert _changed_lines(text, written) == [
+        (
+            "  dead_time: 115.0   # measured in October\n",
+            "  dead_time: 42.5   # measured in October\n",
+        )
+    ]
+
+
+def test_write_keeps_windows_line_ends() -> None:
+    text = SHIPPED.read_text(encoding="utf-8").replace("\n", "\r\n")
+    written = tune.updated_config(text, "hermsd.yaml", {"control.model_litres": 45.0})
+    assert _changed_lines(text, written) == [
+        ("  model_litres: null\r\n", "  model_litres: 45.0\r\n")
+    ]
+
+
+def test_a_key_the_file_lacks_gets_a_line_at_the_end_of_its_section() -> None:
+    text = (
+        "tun:\n    litres: 90\n    # the element\n    element_watts: 3000\n"
+        "\n# sensor\nsensor:\n  address: 0x48\n"
+    )
+    written = tune.updated_config(
+        text, "hermsd.yaml", {"tun.name": "HLT", "control.model_litres": 90.0}
+    )
+    assert written == (
+        "tun:\n    litres: 90\n    # the element\n    element_watts: 3000\n"
+        '    name: "HLT"\n'
+        "\n# sensor\nsensor:\n  address: 0x48\n"
+        "control:\n  model_litres: 90.0\n"
+    )

@@ -235,6 +235,7 @@ class LoopLink:
             "pv": record.pv,
             "setpoint": record.setpoint,
             "output": record.output,
+            "output2": record.u2,
             "applied": record.applied,
             "mode": record.mode,
             "manual_output": snapshot.manual_output,

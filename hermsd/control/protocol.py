@@ -24,7 +24,8 @@ the protocol version it speaks and a command:
 Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": false,
 "error": "one line: what is wrong (what would be right)"}` and changes nothing. `status` is
 answered at once from the last control period: `tun`, `pv` (°C, null when unknown),
-`setpoint` (°C), `output` (%), `applied` (% the SSR was driven at in the period before),
+`setpoint` (°C), `output` (% of the SSR's element), `output2` (% of the second element, null
+when none is fitted), `applied` (% the SSR was driven at in the period before),
 `mode`, `manual_output`, `state`, `alarms`, `alarm_reasons` (each alarm's message, by its
 kind), `heater_allowed`, `limits` (the safety limits in
 force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,

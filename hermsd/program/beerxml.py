@@ -25,9 +25,11 @@ from pathlib import Path
 from xml.parsers import expat
 
 from hermsd.files import NotRegularFile, read_regular
+from hermsd.program import model
 
 MAX_BYTES = 16 * 1024 * 1024  # a whole recipe database export is a few MB
 MAX_STEPS = 50  # as the program file allows
+MAX_NAME = model.NAME_LENGTH
 STRIKE_NAME = "Strike"
 MASH_IN = "Mash in"
 MASH_TYPES = ("infusion", "temperature", "decoction")
@@ -173,8 +175,13 @@ def convert(root: Node, source: str, wanted: str | None) -> Program:
         )
     steps = _steps(mash, source)
     mash_name = _text(mash, "NAME")
-    title = name or mash_name or Path(source).stem
+    title = _shortened(name or mash_name or Path(source).stem)  # in full in the header
     return Program(title, source, name if kind == "recipe" else None, mash_name, steps)
+
+
+def _shortened(name: str, room: int = MAX_NAME) -> str:
+    """`name` cut to `room` characters (a program's names are short), an ellipsis at the cut."""
+    return name if len(name) <= room else name[: room - 1].rstrip() + "…"
 
 
 def _names(found: list[tuple[str | None, Node | None, Node]]) -> str:
@@ -210,6 +217,11 @@ def _steps(mash: Node, source: str) -> tuple[Step, ...]:
             )
         setpoint = _temperature(element, "STEP_TEMP", source, name)
         hold = _number(element, "STEP_TIME", source, name, required=True)
+        if hold is not None and hold * 60.0 > model.MAX_HOLD_S:
+            raise BeerXMLError(
+                f"{source}:{_line(element, 'STEP_TIME')}: MASH_STEP {name!r}: STEP_TIME "
+                f"{hold:g} min is more than the {model.MAX_HOLD_S / 3600:g} h a rest may hold"
+            )
         ramp_time = _number(element, "RAMP_TIME", source, name, required=False)
         if index == 0 and kind == "infusion":
             strike = _infuse_temperature(element, source, name)
@@ -227,6 +239,12 @@ def _steps(mash: Node, source: str) -> tuple[Step, ...]:
         if ramp_time:
             if previous is not None and setpoint > previous:
                 ramp = max(0.01, round((setpoint - previous) / ramp_time, 2))
+                if ramp > model.MAX_RAMP:
+                    note = (
+                        f"RAMP_TIME {ramp_time:g} min not used: {ramp:g} °C/min is faster than "
+                        f"a program ramps ({model.MAX_RAMP:g} °C/min at most): heated at once"
+                    )
+                    ramp = None
             else:
                 note = f"RAMP_TIME {ramp_time:g} min not used: no rise from a step before"
         steps.append(Step(name, setpoint, hold or 0.0, ramp, note=note))
@@ -240,21 +258,26 @@ def _steps(mash: Node, source: str) -> tuple[Step, ...]:
 
 
 def _unique(steps: list[Step]) -> list[Step]:
-    """The steps with names made unique (a program names each step once): "Rest", "Rest 2"."""
+    """The steps with names short enough and unique (a program names each step once):
+    "Rest", "Rest 2"; a name shortened says its full text in the step's comment."""
     seen: set[str] = set()
     unique = []
     for step in steps:
-        name, n = step.name, 1
+        name, n = _shortened(step.name), 1
         while name.casefold() in seen:
             n += 1
-            name = f"{step.name} {n}"
+            name = f"{_shortened(step.name, MAX_NAME - len(str(n)) - 1)} {n}"
         seen.add(name.casefold())
         unique.append(step if name == step.name else _renamed(step, name))
     return unique
 
 
 def _renamed(step: Step, name: str) -> Step:
-    return Step(name, step.setpoint, step.hold_min, step.ramp, step.confirm, step.note)
+    note = step.note
+    if len(step.name) > MAX_NAME:
+        shortened = f"name in the recipe: {step.name}"
+        note = shortened if note is None else f"{note}; {shortened}"
+    return Step(name, step.setpoint, step.hold_min, step.ramp, step.confirm, note)
 
 
 def _text(element: Node, tag: str) -> str | None:
@@ -325,7 +348,20 @@ def _infuse_temperature(element: Node, source: str, step: str) -> float | None:
 
 
 def to_yaml(program: Program) -> str:
-    """The program file's text: a header saying where it came from, then the steps."""
+    """The program file's text: a header saying where it came from, then the steps; checked
+    by the program file's own rules, so that `program start` never refuses what was written."""
+    text = _yaml(program)
+    try:
+        model.parse(text, program.source)
+    except model.ProgramError as error:
+        raise BeerXMLError(
+            f"{program.source}: its program breaks the program file's rules: "
+            f"{model.one_line(error)}"
+        ) from None
+    return text
+
+
+def _yaml(program: Program) -> str:
     lines = [
         "# A mash program for hermsd",
         _comment(f"Imported by `hermsd program import` from the BeerXML file {program.source}"),

@@ -29,6 +29,7 @@ PROGRAM_FILE = "program.json"
 PROGRESS_FILE = "program-progress.json"
 STALE_SUFFIX = ".stale"  # a stored program not resumed, kept beside for the brewer to read
 SAVE_EVERY_S = 60.0  # the most a crash may take off a hold's counted time (or a ramp)
+CLEAR_RETRY_S = 30.0  # a failed clear is tried again this often until it lands
 # How old (wall time) a save may be and still resume: a crash, systemd's restart or a
 # brewer's `systemctl restart` is back within a minute or two; longer (a power cut, a boot
 # days later) the water has cooled or was drained, and heating it unattended is not safe.
@@ -143,8 +144,9 @@ class ProgressWriter:
     records waiting, only the newest is written. `failure` says why the last write failed
     (None once one succeeds)."""
 
-    def __init__(self, store: ProgressStore) -> None:
+    def __init__(self, store: ProgressStore, clear_retry_s: float = CLEAR_RETRY_S) -> None:
         self.store = store
+        self._clear_retry_s = clear_retry_s
         self.failure: str | None = None
         self._jobs: list[tuple[str, Callable[[], None]]] = []
         self._unsaved_program: Callable[[], None] | None = None  # a program write that failed
@@ -215,6 +217,15 @@ class ProgressWriter:
                 self.failure = None
             with self._wake:
                 self._busy = False
+                if kind == "clear" and self.failure is not None and not self._jobs:
+                    # A stopped program left on disk would resume after a crash and heat:
+                    # tried again until it lands, or until a new program replaces it.
+                    self._jobs.append((kind, job))
+                    self._wake.notify_all()
+                    self._wake.wait_for(
+                        lambda: self._closed or len(self._jobs) > 1, self._clear_retry_s
+                    )
+                    continue
                 self._wake.notify_all()
 
 

@@ -58,6 +58,8 @@ function render(status) {
   $("pv").textContent = fixed(status.pv, 2, "°C");
   $("setpoint").textContent = fixed(status.setpoint, 1, "°C");
   $("output").textContent = fixed(status.output, 0, "%");
+  $("output2-box").hidden = status.output2 === null || status.output2 === undefined;
+  $("output2").textContent = fixed(status.output2, 0, "%");
   $("mode").textContent = status.mode === "manual"
     ? `manual at ${status.manual_output} %` : status.mode;
   $("state").textContent = status.state;
