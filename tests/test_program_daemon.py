@@ -320,10 +320,9 @@ def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: 
     for step, hold in zip(steps[1:], (1800.0, 1200.0, 600.0), strict=True):
         assert step["reached_s"] is not None
         assert step["in_band_s"] >= hold  # each rest held its full time in the band
-    # Beta rest is reached as the water falls through its band, just before the cold water
-    # poured in at mash-in takes it 2.4 °C below: said, and not counted as rest.
-    assert 2.0 < steps[1]["max_deviation_c"] < 3.0
-    assert steps[2]["max_deviation_c"] < 0.6 and steps[3]["max_deviation_c"] < 0.6
+    # Beta rest is reached once the water is back from the cold water poured in at mash-in
+    # (2.4 °C below it): each rest then holds its band.
+    assert all(step["max_deviation_c"] < 0.6 for step in steps[1:])
     log = replay.load(sorted(tmp_path.glob("*.mcap")))
     assert replay.verify(log.entries).mismatch is None  # the scheduled hours are skipped
     logged = replay.summarise(log)
