@@ -296,6 +296,8 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                         "skipped",
                         "finished",
                         "stopped",
+                        "release",
+                        "late",
                     ],
                 ),
                 "program": _field("string", "the program's name"),

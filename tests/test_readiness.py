@@ -140,4 +140,5 @@ def test_a_late_start_warns_at_once_and_shows_in_the_status() -> None:
     assert status is not None
     until = dt.datetime.fromisoformat(status["late_until"]).timestamp()
     assert until == pytest.approx(wall / NS + 4811.0, abs=1.0)
+    assert status["late"] == late.text
     assert "LATE: ready at 04:20" in driver.status_words(wall)

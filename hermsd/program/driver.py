@@ -294,6 +294,7 @@ class ProgramDriver:
             if self.starts_at_ns is None
             else local_iso(self.starts_at_ns, self.zone),
             "late_until": None if late is None else local_iso(late, self.zone),
+            "late": None if self.readiness is None else self.readiness.late,
             "save_failed": self._failure_said,
         }
 
@@ -315,9 +316,12 @@ class ProgramDriver:
         if runner is None:
             return ""
         words = self._progress_words()
-        late = None if self.readiness is None else self.readiness.late_until_ns
-        if late is not None:
-            words += f", LATE: ready at {self._clock_text(late)[:5]}"
+        readiness = self.readiness
+        if readiness is not None and readiness.late is not None:
+            late = readiness.late_until_ns
+            words += ", LATE: " + (
+                "cannot reach it" if late is None else f"ready at {self._clock_text(late)[:5]}"
+            )
         if self._failure_said is not None:
             words += ", progress NOT SAVED"
         return words

@@ -44,7 +44,7 @@ WAIT_S = 900.0
 MARGIN_PRIOR = 0.45
 """How much longer than the config's prior the climb is planned: the prior knows nothing of an
 open pot's evaporation, which makes a heat-up up to 1.4× its time on the bench's tuns."""
-MARGIN_MEASURED = 0.2
+MARGIN_MEASURED = 0.1
 """The same for a model measured on this tun (learned, or `hermsd tune`)."""
 MEASURE_S = 600.0
 """The span of PV that a rate or a holding duty is measured over."""
@@ -150,6 +150,7 @@ class Readiness:
         self.phase = phase  # scheduled, climbing, waiting (at wait_at), released
         self.starts_at_ns: int | None = None  # while scheduled: when the climb is due
         self.late_until_ns: int | None = None  # the latest estimate, while it is late
+        self.late: str | None = None  # why it is late, while it is (the latest estimate)
         self._clock_text = clock_text
         self._events: list[tuple[str, str]] = []
         self._late_said = False
@@ -297,10 +298,11 @@ class Readiness:
         else:
             until = wall_ns + round(need * 1e9)
             if until <= self.ready_at_ns + round(LATE_S * 1e9):
-                self.late_until_ns = None
+                self.late_until_ns = self.late = None
                 return
             self.late_until_ns = until
             why = f"{goal}: needs until {self._clock_text(until)} ({rise.basis})"
+        self.late = why
         if not self._late_said:
             self._late_said = True
             self._events.append(("late", why))
