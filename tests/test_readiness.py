@@ -124,6 +124,17 @@ def test_a_tun_that_cannot_make_it_is_released_at_once_and_says_until_when() -> 
     assert kinds == ["late", "release"]  # said on the way up already
 
 
+def test_after_a_restart_at_the_waiting_temperature_the_losses_grow_from_the_room() -> None:
+    # No climb seen: the 0.004 °C/s lost at 68.5 °C grew from the model's 20 °C room, so
+    # 0.004/48.5 per °C (not from the 68.5 °C the water had at the restart).
+    ready = Readiness(70.5, 9_000 * NS, clock, phase="climbing")
+    asked = [(t, ready.period(t, round(t * NS), 68.5, 40.0, TUN)) for t in range(7000, 8700, 5)]
+    slope = 0.004 / 48.5
+    need = 100.0 + math.log(0.006 / (0.006 - slope * 1.5)) / slope
+    first = min(t for t, setpoint in asked if setpoint == 70.5)
+    assert first == math.ceil((9000.0 - need) / PERIOD) * PERIOD
+
+
 def test_a_late_start_warns_at_once_and_shows_in_the_status() -> None:
     # The seed's tun (K 1.689, τ 14961 s, θ 115 s) from 20 °C to 65.5 °C at full power:
     # 4811 s by the design's table; asked for in 30 min.

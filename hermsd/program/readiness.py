@@ -254,6 +254,7 @@ class Readiness:
         temperature's losses, else the climb's rate, else the model (at `pv`)."""
         gross, dead = tun.gross_rate(), tun.dead_time()
         start = self._start_pv if self._start_pv is not None else pv
+        room = min(tun.model.ambient, start)  # where the losses start from, at the highest
         climb = self._climb
         held = _line([(t, x) for t, x, _ in self._hold])
         if held is not None and self._hold[-1][0] - self._hold[0][0] >= MEASURE_S - 1.0:
@@ -262,16 +263,15 @@ class Readiness:
             loss = gross * duty / tun.max_output - stored  # °C/s the tun loses at `at`
             if climb is not None and at - climb[0] >= 1.0:  # how fast it grows: a secant
                 slope = (loss - (gross - climb[1])) / (at - climb[0])
-            else:  # a loss that grows from the water's start (its room, at best)
-                slope = loss / max(1.0, at - start)
+            else:  # a loss that grows from the room's temperature (a restart: no climb)
+                slope = loss / max(1.0, at - room)
             return Rise(at, gross - loss, max(0.0, slope), dead, HELD)
         if climb is not None and climb[0] - start >= CLIMB_SHARE * (self.wait_at - start):
             at, rate = climb
-            slope = max(0.0, gross - rate) / max(1.0, at - start)
+            slope = max(0.0, gross - rate) / max(1.0, at - room)
             return Rise(at, rate, slope, dead, CLIMBED)
-        model = tun.model
-        slope = 1.0 / model.tau
-        rate = gross - slope * (pv - min(model.ambient, start))
+        slope = 1.0 / tun.model.tau
+        rate = gross - slope * (pv - room)
         return Rise(pv, rate, slope, dead, MODEL)
 
     def _release(self, pv: float, rise: Rise, need: float | None, wall_ns: int) -> None:
