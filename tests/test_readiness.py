@@ -9,6 +9,7 @@ full-power rate times the duty that holds it; the model's heat-up is the FOPTD's
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import math
 
 import pytest
@@ -146,10 +147,26 @@ def test_a_late_start_warns_at_once_and_shows_in_the_status() -> None:
     setpoint, events = driver.period(0.0, 20.0, wall, prior, 0.0)
     assert setpoint == 64.0
     [late] = [e for e in events if e.event == "late"]
-    assert late.text.startswith("cannot reach 66 °C by 03:30:00: needs until 04:20:1")
+    assert late.text.startswith("cannot reach 66 °C by 03:30:00: needs until about 04:20:1")
     status = driver.status(wall)
     assert status is not None
     until = dt.datetime.fromisoformat(status["late_until"]).timestamp()
     assert until == pytest.approx(wall / NS + 4811.0, abs=1.0)
     assert status["late"] == late.text
     assert "LATE: ready at 04:20" in driver.status_words(wall)
+
+
+def test_a_late_estimate_that_slips_is_said_again() -> None:
+    # 0.007 °C/s from 20 °C, then from 4500 s only 0.002 °C/s: the estimate from the climb
+    # slips as its line bends; each slip of 10 min or more is said again, later each time.
+    ready = Readiness(70.5, 5_000 * NS, clock, phase="climbing")
+    for t in range(0, 7000, 5):
+        pv = 20.0 + 0.007 * min(t, 4500) + 0.002 * max(0, t - 4500)
+        ready.period(float(t), t * NS, pv, 100.0, TUN)
+    untils = [
+        int(text.rsplit("needs until about ", 1)[1].split("s ")[0])
+        for kind, text in ready.take_events()
+        if kind == "late" and "needs until" in text
+    ]
+    assert len(untils) >= 2
+    assert all(later - earlier >= 600 for earlier, later in itertools.pairwise(untils))

@@ -18,8 +18,9 @@ where it runs:
    it reaches the time left, the setpoint becomes the step's.
 
 When the approach would end more than LATE_S after the time asked for (a tun too weak, or a
-program started too late), a `late` event says until when it needs, once; the estimate stays
-in the status meanwhile. Nothing here reads a clock: time comes in with every period.
+program started too late), a `late` event says until when it needs, and again whenever that
+slips RESAY_S further; the latest estimate stays in the status meanwhile. Nothing here reads
+a clock: time comes in with every period.
 """
 
 from __future__ import annotations
@@ -59,6 +60,10 @@ CLIMB_SHARE = 0.5
 measured beyond before it is taken for the top: lower down, the losses it rests on (the
 element's rate less the measured one) are small against the error of either, and a line
 through them from the start says little of the top."""
+RESAY_S = 600.0
+"""A `late` estimate that slipped this much further than the last one said is said again."""
+NEVER = 2**63 - 1
+"""A `late` that said the step is never reached (a time no estimate comes to)."""
 FULL = 0.995
 """A period's applied duty this close to the output limit counts as full power."""
 
@@ -153,7 +158,7 @@ class Readiness:
         self.late: str | None = None  # why it is late, while it is (the latest estimate)
         self._clock_text = clock_text
         self._events: list[tuple[str, str]] = []
-        self._late_said = False
+        self._said_until: int | None = None  # what the last `late` said (NEVER: never)
         self._start_pv: float | None = None
         self._run: deque[tuple[float, float]] = deque()  # this full-power run's PV
         self._run_since: float | None = None
@@ -290,10 +295,12 @@ class Readiness:
         self._judge_late(wall_ns, need, rise)
 
     def _judge_late(self, wall_ns: int, need: float | None, rise: Rise) -> None:
-        """Say once when the step cannot be reached by the time asked for; keep the estimate."""
+        """Say when the step cannot be reached by the time asked for, and again whenever
+        the estimate slips RESAY_S further (one below the top is a guess that may); keep the
+        latest estimate meanwhile."""
         goal = f"cannot reach {self.target:g} °C by {self._clock_text(self.ready_at_ns)}"
         if need is None:
-            self.late_until_ns = None
+            self.late_until_ns, until = None, NEVER
             why = f"{goal}: full power holds about {rise.ceiling():.1f} °C at most ({rise.basis})"
         else:
             until = wall_ns + round(need * 1e9)
@@ -301,8 +308,10 @@ class Readiness:
                 self.late_until_ns = self.late = None
                 return
             self.late_until_ns = until
-            why = f"{goal}: needs until {self._clock_text(until)} ({rise.basis})"
+            about = "" if rise.basis == HELD else "about "
+            why = f"{goal}: needs until {about}{self._clock_text(until)} ({rise.basis})"
         self.late = why
-        if not self._late_said:
-            self._late_said = True
+        said = self._said_until
+        if said is None or (said != NEVER and until >= said + round(RESAY_S * 1e9)):
+            self._said_until = until
             self._events.append(("late", why))
