@@ -298,6 +298,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                         "stopped",
                         "release",
                         "late",
+                        "climb",
                     ],
                 ),
                 "program": _field("string", "the program's name"),

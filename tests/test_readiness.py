@@ -8,6 +8,7 @@ full-power rate times the duty that holds it; the model's heat-up is the FOPTD's
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import itertools
 import math
@@ -17,7 +18,16 @@ import pytest
 from hermsd.pid import HeatUpFit, PlantModel
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program, Step
-from hermsd.program.readiness import MARGIN_MEASURED, MARGIN_PRIOR, WAIT_S, Readiness, Tun, rise_s
+from hermsd.program.quality import step_quality
+from hermsd.program.readiness import (
+    FILL_MARGIN,
+    MARGIN_MEASURED,
+    MARGIN_PRIOR,
+    WAIT_S,
+    Readiness,
+    Tun,
+    rise_s,
+)
 
 NS = 1_000_000_000
 PERIOD = 5.0
@@ -46,14 +56,20 @@ def test_the_climb_starts_by_the_model_with_its_margin_and_the_wait() -> None:
     # 1000·ln(100·e^0.1 / 50) = 1000·(0.1 + ln 2) s.
     ready = Readiness(70.5, 10_000 * NS, clock)
     heat = 1000.0 * (0.1 + math.log(2.0))
-    assert ready.lead_s(20.0, TUN) == pytest.approx((1.0 + MARGIN_MEASURED) * heat + WAIT_S)
+    assert ready.lead_s(20.0, TUN) == pytest.approx(
+        (1.0 + MARGIN_MEASURED + FILL_MARGIN) * heat + WAIT_S
+    )
     prior = Tun(TUN.model, 100.0, measured=False, fit=None)
-    assert ready.lead_s(20.0, prior) == pytest.approx((1.0 + MARGIN_PRIOR) * heat + WAIT_S)
+    assert ready.lead_s(20.0, prior) == pytest.approx(
+        (1.0 + MARGIN_PRIOR + FILL_MARGIN) * heat + WAIT_S
+    )
     # Water at 10 °C stood in a 10 °C room: 1000·ln(100·e^0.1 / 40) s.
     colder = 1000.0 * (0.1 + math.log(2.5))
-    assert ready.lead_s(10.0, prior) == pytest.approx((1.0 + MARGIN_PRIOR) * colder + WAIT_S)
+    assert ready.lead_s(10.0, prior) == pytest.approx(
+        (1.0 + MARGIN_PRIOR + FILL_MARGIN) * colder + WAIT_S
+    )
     # Heater off until then; due: the waiting temperature, 2 °C under the step.
-    lead = (1.0 + MARGIN_MEASURED) * heat + WAIT_S
+    lead = (1.0 + MARGIN_MEASURED + FILL_MARGIN) * heat + WAIT_S
     due = 10_000 * NS - round(lead * NS)
     assert ready.period(0.0, due - NS, 20.0, 0.0, TUN) is None
     assert ready.starts_at_ns == due
@@ -67,7 +83,7 @@ def test_a_model_that_never_reaches_the_band_plans_the_wait_and_more() -> None:
     ready = Readiness(70.5, 10_000 * NS, clock)
     climb = 1000.0 * (0.1 + math.log(50.0 / 1.5))
     assert ready.lead_s(20.0, weak) == pytest.approx(
-        (1.0 + MARGIN_MEASURED) * (climb + WAIT_S) + WAIT_S
+        (1.0 + MARGIN_MEASURED + FILL_MARGIN) * (climb + WAIT_S) + WAIT_S
     )
     assert Readiness(80.0, 0, clock).lead_s(20.0, weak) is None  # not even 78 °C
 
@@ -170,3 +186,51 @@ def test_a_late_estimate_that_slips_is_said_again() -> None:
     ]
     assert len(untils) >= 2
     assert all(later - earlier >= 600 for earlier, later in itertools.pairwise(untils))
+
+
+def test_a_climb_that_started_early_for_the_measured_rate_stops_until_it_is_due() -> None:
+    # Before the climb, the fill is not known: it starts FILL_MARGIN earlier. At 22 °C the
+    # controller has measured the element: 0.1 °C/s at full power (the model's), so the
+    # model holds, and with MARGIN_MEASURED alone the climb from 22 °C needs
+    # 1.1·1000·ln((100·e^0.1 − 2) / 50) + WAIT_S s: it stops (heater off) until then.
+    tun = Tun(TUN.model, 100.0, measured=True, fit=None)
+    ready = Readiness(70.5, 10_000 * NS, clock)
+    lead = (1.0 + MARGIN_MEASURED + FILL_MARGIN) * 1000.0 * (0.1 + math.log(2.0)) + WAIT_S
+    start = math.ceil(10_000.0 - lead)
+    assert ready.period(0.0, start * NS, 20.0, 0.0, tun) == 68.5
+    measured = Tun(TUN.model, 100.0, measured=True, fit=HeatUpFit(rate=0.1, dead_time=100.0))
+    resume = 10_000.0 - (1.1 * 1000.0 * math.log((100.0 * math.exp(0.1) - 2.0) / 50.0) + WAIT_S)
+    assert ready.period(60.0, (start + 60) * NS, 22.0, 100.0, measured) is None
+    assert ready.starts_at_ns == pytest.approx(resume * NS, abs=1)
+    assert ready.period(120.0, math.floor(resume) * NS, 22.0, 0.0, measured) is None
+    assert ready.period(180.0, math.ceil(resume) * NS, 22.0, 0.0, measured) == 68.5
+    assert ready.starts_at_ns is None
+    texts = [text for kind, text in ready.take_events() if kind == "climb"]
+    assert texts[0].startswith("climb stopped at 22.00 °C, heater off until ")
+    assert texts[1] == "climbing on from 22.00 °C"
+    # Once on its way again, it does not stop a second time.
+    assert ready.period(240.0, (math.ceil(resume) - 500) * NS, 22.0, 100.0, measured) == 68.5
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    setpoint: float
+    pv: float | None
+    step: str | None
+    step_index: int | None
+    state: str
+
+
+def test_a_climb_that_stops_for_a_while_stays_one_step_in_the_quality() -> None:
+    strike = ("Strike", 0)
+    rows = [
+        Row(72.0, 20.0, *strike, "scheduled"),  # not started: in no step
+        Row(70.0, 21.0, *strike, "ok"),  # climbing from 5 s
+        Row(72.0, 22.0, *strike, "scheduled"),  # stopped: still the step
+        Row(70.0, 22.0, *strike, "ok"),
+        Row(72.0, 71.6, *strike, "ok"),  # reached at 20 s
+        Row(72.0, 72.0, *strike, "ok"),
+    ]
+    [step] = step_quality((5.0 * k, row) for k, row in enumerate(rows))
+    assert (step["start_s"], step["reached_s"], step["end_s"]) == (5.0, 20.0, 25.0)
+    assert step["in_band_s"] == 5.0  # 20–25 s, the last row ends the run

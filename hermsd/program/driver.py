@@ -331,7 +331,7 @@ class ProgramDriver:
         assert runner is not None
         step, state = runner.step.name, runner.state
         left = runner.time_left_s()
-        if state == "scheduled" and self.starts_at_ns is not None:
+        if self.starts_at_ns is not None:  # scheduled, or a climb waiting
             return (
                 f"program scheduled, heating from {local_iso(self.starts_at_ns, self.zone)[11:16]}"
             )

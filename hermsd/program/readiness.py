@@ -47,6 +47,12 @@ MARGIN_PRIOR = 0.45
 open pot's evaporation, which makes a heat-up up to 1.4× its time on the bench's tuns."""
 MARGIN_MEASURED = 0.1
 """The same for a model measured on this tun (learned, or `hermsd tune`)."""
+FILL_MARGIN = 0.25
+"""Further margin of the climb's start, until the controller has measured the element's rate
+on it: the model knows the config's (or the learned) fill, which changes every brew day.
+Once the rate is measured, a climb that started early for it stops, the heater off (while
+the water is still low, where it loses little), until the model, taken at the measured
+rate, says to go on."""
 MEASURE_S = 600.0
 """The span of PV that a rate or a holding duty is measured over."""
 MIN_SPAN_S = 120.0
@@ -165,26 +171,36 @@ class Readiness:
         self._climb: tuple[float, float] | None = None  # (mean PV, rate) of the last run
         self._arrived: float | None = None  # t the waiting temperature was first reached
         self._hold: deque[tuple[float, float, float]] = deque()  # (t, pv, applied) there
+        self._fit_before: HeatUpFit | None = None  # the controller's fit before the climb
+        self._fit: HeatUpFit | None = None  # its first on the climb (from the water at rest)
+        self._paused = False  # the climb waits, heater off (it started early)
+        self._paused_once = phase != "scheduled"  # a climb taken up after a restart goes on
 
     def take_events(self) -> list[tuple[str, str]]:
         """(kind, text) of what happened since last taken: `release`, `late`."""
         events, self._events = self._events, []
         return events
 
-    def lead_s(self, pv: float, tun: Tun) -> float | None:
+    def lead_s(self, pv: float, tun: Tun, fitted: bool = False) -> float | None:
         """How long before the time asked for the climb starts: the model's full-power time
-        to the band, MARGIN longer, plus WAIT_S; when the model never gets to the band, its
-        time to the waiting temperature and WAIT_S more for the rest (None: it never gets
-        there either). A water below the model's room stood in a colder one: that room is
-        taken (more losses, an earlier start)."""
+        to the band, MARGIN (and FILL_MARGIN) longer, plus WAIT_S; when the model never gets
+        to the band, its time to the waiting temperature and WAIT_S more for the rest (None:
+        it never gets there either). A water below the model's room stood in a colder one:
+        that room is taken (more losses, an earlier start). `fitted`: the controller's fit
+        (`tun.fit`) was taken on this climb: the model at its rate (another fill scales the
+        heat capacity, so τ, not K) and dead time, without FILL_MARGIN."""
         model = dataclasses.replace(tun.model, ambient=min(tun.model.ambient, pv))
+        fill = FILL_MARGIN
+        if fitted and tun.fit is not None:
+            tau = 100.0 * model.gain / tun.fit.rate
+            model, fill = dataclasses.replace(model, tau=tau, dead_time=tun.fit.dead_time), 0.0
         climb = heat_up_s(model, tun.max_output, pv, self.wait_at)
         if climb is None:
             return None
         full = heat_up_s(model, tun.max_output, pv, self.target - BAND)
         heat = climb + WAIT_S if full is None else full
         margin = MARGIN_MEASURED if tun.measured else MARGIN_PRIOR
-        return (1.0 + margin) * heat + WAIT_S
+        return (1.0 + margin + fill) * heat + WAIT_S
 
     def period(
         self, t: float, wall_ns: int, pv: float | None, applied: float, tun: Tun
@@ -199,12 +215,20 @@ class Readiness:
             if wall_ns < due:
                 return None
             self.phase, self.starts_at_ns = "climbing", None
+            self._fit_before = tun.fit
             rise = self.rise(pv, tun)  # too late already by the model: said at once
             need = rise.need_s(pv, self.target - BAND, heating=False)
             if need is not None:
                 self._judge_late(wall_ns, need, rise)
         if self._start_pv is None:
             self._start_pv = pv
+        fit = tun.fit
+        if self._fit is None and fit is not None and fit is not self._fit_before:
+            self._fit = fit if fit.refused is None else None
+        if self._fit is not None:  # a later one (after a pause) starts from a cooling water
+            tun = dataclasses.replace(tun, fit=self._fit)
+        if self.phase == "climbing":
+            self._hold_back(wall_ns, pv, tun)
         if self.phase != "released":
             self._measure(t, pv, applied, tun)
             rise = self.rise(pv, tun)
@@ -215,6 +239,36 @@ class Readiness:
             elif rise.basis == HELD or (rise.basis == CLIMBED and need is not None):
                 self._judge_late(wall_ns, need, rise)  # "never" by the climb: too far a guess
         return self._setpoint()
+
+    def _hold_back(self, wall_ns: int, pv: float, tun: Tun) -> None:
+        """Once the controller measured the element's rate on this climb, stop it (heater
+        off) while, at that rate, it started early: only in its lower half, once, and not
+        after a restart (the climb's start is not known then)."""
+        fit = self._fit
+        if fit is None:
+            return  # not measured on this climb (yet)
+        start = self._start_pv if self._start_pv is not None else pv
+        low = pv <= start + 0.5 * (self.wait_at - start)
+        if self._paused_once or not (self._paused or low):
+            return
+        lead = self.lead_s(pv, tun, fitted=True)
+        due = self.ready_at_ns if lead is None else self.ready_at_ns - round(lead * 1e9)
+        if wall_ns >= due:
+            if self._paused:
+                self._paused, self._paused_once, self.starts_at_ns = False, True, None
+                self._events.append(("climb", f"climbing on from {pv:.2f} °C"))
+            return
+        self.starts_at_ns = due
+        if not self._paused:
+            self._paused = True
+            self._events.append(
+                (
+                    "climb",
+                    f"climb stopped at {pv:.2f} °C, heater off until {self._clock_text(due)}: "
+                    f"at the rate the element showed ({fit.rate * 60.0:.3f} °C/min at full "
+                    "power) it started early",
+                )
+            )
 
     def _due(self, wall_ns: int, pv: float, need: float | None, rise: Rise) -> bool:
         """Whether the approach must start now: on the last stretch under the waiting
@@ -228,7 +282,7 @@ class Readiness:
         return near and wall_ns + round(need * 1e9) >= self.ready_at_ns
 
     def _setpoint(self) -> float | None:
-        if self.phase == "scheduled":
+        if self.phase == "scheduled" or self._paused:
             return None
         return self.target if self.phase == "released" else self.wait_at
 
@@ -287,7 +341,7 @@ class Readiness:
             (
                 "release",
                 f"full power for {self.target:g} °C from {pv:.2f} °C: a rise of "
-                f"{rate * 60.0:.3f} °C/min here, {rise.slope * 3600.0:.2f} °C/min slower per "
+                f"{rate * 60.0:.3f} °C/min here, {rise.slope * 60.0:.4f} °C/min slower per "
                 f"°C higher, {rise.dead_time:.0f} s dead time ({rise.basis}); expected "
                 + ("never" if at is None else self._clock_text(at)),
             )

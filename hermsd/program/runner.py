@@ -119,7 +119,8 @@ class Runner:
 
     @property
     def setpoint(self) -> float | None:
-        """The setpoint the program asks for now; None while scheduled (heater off)."""
+        """The setpoint the program asks for now; None while scheduled or while a `ready_by`
+        heat-up waits (heater off)."""
         return self.progress.setpoint
 
     def time_left_s(self) -> float | None:
@@ -174,8 +175,8 @@ class Runner:
             else:
                 p.setpoint += math.copysign(move, gap)
         in_band = pv is not None and abs(pv - step.setpoint) <= BAND
-        if p.phase == "heating" and p.ready_at_ns is not None and ready_setpoint is not None:
-            p.setpoint = ready_setpoint
+        if p.phase == "heating" and p.ready_at_ns is not None:
+            p.setpoint = ready_setpoint  # None: the heat-up waits, heater off
         if p.phase == "heating" and in_band:
             p.phase, p.reached, p.ready_at_ns = "holding", True, None
             p.setpoint = step.setpoint
