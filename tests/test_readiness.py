@@ -23,6 +23,7 @@ from hermsd.program.readiness import (
     FILL_MARGIN,
     MARGIN_MEASURED,
     MARGIN_PRIOR,
+    MIN_STOP_S,
     WAIT_S,
     Readiness,
     Tun,
@@ -190,16 +191,18 @@ def test_a_late_estimate_that_slips_is_said_again() -> None:
 
 def test_a_climb_that_started_early_for_the_measured_rate_stops_until_it_is_due() -> None:
     # Before the climb, the fill is not known: it starts FILL_MARGIN earlier. At 22 °C the
-    # controller has measured the element: 0.1 °C/s at full power (the model's), so the
-    # model holds, and with MARGIN_MEASURED alone the climb from 22 °C needs
-    # 1.1·1000·ln((100·e^0.1 − 2) / 50) + WAIT_S s: it stops (heater off) until then.
+    # controller has measured the element: 0.4 °C/s at full power, 4× the model's (a quarter
+    # of the water: τ 250 s, K the same), and with MARGIN_MEASURED alone the climb from 22 °C
+    # needs 1.1·250·ln((100·e^(100/250) − 2) / 50) + WAIT_S s: it stops (heater off) until
+    # then, more than MIN_STOP_S later.
     tun = Tun(TUN.model, 100.0, measured=True, fit=None)
     ready = Readiness(70.5, 10_000 * NS, clock)
     lead = (1.0 + MARGIN_MEASURED + FILL_MARGIN) * 1000.0 * (0.1 + math.log(2.0)) + WAIT_S
     start = math.ceil(10_000.0 - lead)
     assert ready.period(0.0, start * NS, 20.0, 0.0, tun) == 68.5
-    measured = Tun(TUN.model, 100.0, measured=True, fit=HeatUpFit(rate=0.1, dead_time=100.0))
-    resume = 10_000.0 - (1.1 * 1000.0 * math.log((100.0 * math.exp(0.1) - 2.0) / 50.0) + WAIT_S)
+    measured = Tun(TUN.model, 100.0, measured=True, fit=HeatUpFit(rate=0.4, dead_time=100.0))
+    resume = 10_000.0 - (1.1 * 250.0 * math.log((100.0 * math.exp(0.4) - 2.0) / 50.0) + WAIT_S)
+    assert resume - (start + 60) > MIN_STOP_S
     assert ready.period(60.0, (start + 60) * NS, 22.0, 100.0, measured) is None
     assert ready.starts_at_ns == pytest.approx(resume * NS, abs=1)
     assert ready.period(120.0, math.floor(resume) * NS, 22.0, 0.0, measured) is None
@@ -234,3 +237,17 @@ def test_a_climb_that_stops_for_a_while_stays_one_step_in_the_quality() -> None:
     [step] = step_quality((5.0 * k, row) for k, row in enumerate(rows))
     assert (step["start_s"], step["reached_s"], step["end_s"]) == (5.0, 20.0, 25.0)
     assert step["in_band_s"] == 5.0  # 20–25 s, the last row ends the run
+
+
+def test_a_climb_early_by_less_than_the_least_stop_goes_on() -> None:
+    # The element's rate is the model's: early by FILL_MARGIN of the climb from 20 °C less
+    # what 2 °C gained saves, (1.35 − 1.1)·793 s or so: under MIN_STOP_S, no stop.
+    tun = Tun(TUN.model, 100.0, measured=True, fit=None)
+    ready = Readiness(70.5, 10_000 * NS, clock)
+    lead = ready.lead_s(20.0, tun)
+    assert lead is not None
+    start = math.ceil(10_000.0 - lead)
+    assert ready.period(0.0, start * NS, 20.0, 0.0, tun) == 68.5
+    measured = Tun(TUN.model, 100.0, measured=True, fit=HeatUpFit(rate=0.1, dead_time=100.0))
+    assert ready.period(60.0, (start + 60) * NS, 22.0, 100.0, measured) == 68.5
+    assert ready.starts_at_ns is None and ready.take_events() == []

@@ -53,6 +53,9 @@ on it: the model knows the config's (or the learned) fill, which changes every b
 Once the rate is measured, a climb that started early for it stops, the heater off (while
 the water is still low, where it loses little), until the model, taken at the measured
 rate, says to go on."""
+MIN_STOP_S = 600.0
+"""A climb that started early by less than this goes on: a stop would save nothing worth a
+restart of the heat-up (and of its measurements)."""
 MEASURE_S = 600.0
 """The span of PV that a rate or a holding duty is measured over."""
 MIN_SPAN_S = 120.0
@@ -242,8 +245,8 @@ class Readiness:
 
     def _hold_back(self, wall_ns: int, pv: float, tun: Tun) -> None:
         """Once the controller measured the element's rate on this climb, stop it (heater
-        off) while, at that rate, it started early: only in its lower half, once, and not
-        after a restart (the climb's start is not known then)."""
+        off) while, at that rate, it started early (by MIN_STOP_S at least): only in its
+        lower half, once, and not after a restart (the climb's start is not known then)."""
         fit = self._fit
         if fit is None:
             return  # not measured on this climb (yet)
@@ -257,6 +260,8 @@ class Readiness:
             if self._paused:
                 self._paused, self._paused_once, self.starts_at_ns = False, True, None
                 self._events.append(("climb", f"climbing on from {pv:.2f} °C"))
+            return
+        if not self._paused and due - wall_ns < round(MIN_STOP_S * 1e9):
             return
         self.starts_at_ns = due
         if not self._paused:
