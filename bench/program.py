@@ -7,10 +7,11 @@ the truth). Day 1 starts from an empty state directory, so the heat-up is timed 
 config's model; day 2 from the state an ordinary brew day left (the family's reference day,
 ambient → 66 °C: bench/robustness.py), so by what the daemon learned of the tun. The error is
 when the step was reached (the PV first within ±0.5 °C of 72 °C) less 05:00; the goal: within
-2 minutes either way (not reached by 05:30: a miss). The energy side: how long the water
-waited at the waiting temperature (from first within 0.5 °C of it to the release of the last
-approach) and what the element spent there. Prints a Markdown table; `--write` puts it into
-bench/RESULTS.md.
+2 minutes either way (not reached by 05:30: a miss). "Heating from" is when the climb first
+started (it may stop for a while once the element's rate is measured). The energy side: how
+long the water waited at the waiting temperature (from first within 0.5 °C of it to the
+release of the last approach) and what the element spent there. Prints a Markdown table;
+`--write` puts it into bench/RESULTS.md.
 
     uv run python bench/program.py [--write] [--jobs 2]
 """
