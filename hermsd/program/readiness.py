@@ -7,8 +7,10 @@ time. So the heat-up is done in two parts, the second timed by measurements take
 where it runs:
 
 1. *Climb*: from `starts_at` (the model's full-power time from the water's temperature,
-   MARGIN longer, plus WAIT_S) the setpoint is the waiting temperature, WAIT_BELOW under the
-   step's, and the controller holds the water there. On the way up, the full-power rise rate
+   MARGIN and FILL_MARGIN longer, plus WAIT_S) the setpoint is the waiting temperature,
+   WAIT_BELOW under the step's, and the controller holds the water there. Once the
+   controller has measured the element's rate on the climb, a climb that started early for
+   that rate stops for a while, heater off (FILL_MARGIN). On the way up, the full-power rise rate
    is measured (a line through the PV over the last MEASURE_S of one full-power run); while
    waiting, the losses there (the element's full-power rate times the mean duty that holds
    the water, less what the water stored meanwhile).
@@ -180,7 +182,7 @@ class Readiness:
         self._paused_once = phase != "scheduled"  # a climb taken up after a restart goes on
 
     def take_events(self) -> list[tuple[str, str]]:
-        """(kind, text) of what happened since last taken: `release`, `late`."""
+        """(kind, text) of what happened since last taken: `climb`, `release`, `late`."""
         events, self._events = self._events, []
         return events
 
