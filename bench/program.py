@@ -7,8 +7,11 @@ the truth). Day 1 starts from an empty state directory, so the heat-up is timed 
 config's model; day 2 from the state an ordinary brew day left (the family's reference day,
 ambient → 66 °C: bench/robustness.py), so by what the daemon learned of the tun. The error is
 when the step was reached (the PV first within ±0.5 °C of 72 °C) less 05:00; the goal: within
-2 minutes either way (not reached by 05:30: a miss). Prints a Markdown table; `--write`
-puts it into bench/RESULTS.md.
+2 minutes either way (not reached by 05:30: a miss). "Heating from" is when the climb first
+started (it may stop for a while once the element's rate is measured). The energy side: how
+long the water waited at the waiting temperature (from first within 0.5 °C of it to the
+release of the last approach) and what the element spent there. Prints a Markdown table;
+`--write` puts it into bench/RESULTS.md.
 
     uv run python bench/program.py [--write] [--jobs 2]
 """
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import multiprocessing
 import sys
 import tempfile
@@ -27,7 +31,10 @@ from typing import Any
 from control import _replace_section  # bench/control.py, beside this file
 
 from hermsd import config as config_module
+from hermsd.daemon import PeriodRecord
+from hermsd.metrics import BAND
 from hermsd.program.model import Program, Step
+from hermsd.program.readiness import WAIT_BELOW
 from hermsd.program.store import PROGRAM_FILE
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY
@@ -37,6 +44,7 @@ READY_S = 5 * 3600.0  # 05:00, from a start at 00:00
 GOAL_S = 120.0
 HEADING = "## Mash program:"
 STRIKE = Program("Strike", (Step("Strike", 72.0, 600.0),), "05:00")
+WAIT_AT = 72.0 - WAIT_BELOW
 CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: ValueError(what))
 
 
@@ -49,11 +57,29 @@ def ready_days(index: int) -> list[dict[str, Any]]:
     )
     rows = []
     with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:
-        rows.append(_row(scenario.run(day, config, state_dir=Path(state)).summary))
+        result = scenario.run(day, config, state_dir=Path(state), keep_records=True)
+        rows.append(_row(result.summary) | _wait(result.records, spec.element_watts))
         (Path(state) / PROGRAM_FILE).unlink()  # the brewer stops the program: the day is over
         scenario.run(spec.brew_day(), config, state_dir=Path(state))  # learns the tun
-        rows.append(_row(scenario.run(day, config, state_dir=Path(state)).summary))
+        result = scenario.run(day, config, state_dir=Path(state), keep_records=True)
+        rows.append(_row(result.summary) | _wait(result.records, spec.element_watts))
     return rows
+
+
+def _wait(records: list[PeriodRecord], watts: float) -> dict[str, Any]:
+    """Minutes at the waiting temperature before the release, and the element's kWh there."""
+    arrived = released = None
+    joules = 0.0
+    for before, record in itertools.pairwise(records):
+        if released is None and record.setpoint == 72.0 and arrived is not None:
+            released = record.t
+        if arrived is None and record.pv is not None and record.pv >= WAIT_AT - BAND:
+            arrived = record.t
+        if arrived is not None and released is None:
+            joules += record.applied / 100.0 * watts * (record.t - before.t)
+    if arrived is None or released is None:
+        return {"waited_s": None, "wait_kwh": None}
+    return {"waited_s": released - arrived, "wait_kwh": joules / 3.6e6}
 
 
 def _row(summary: dict[str, Any]) -> dict[str, Any]:
@@ -74,6 +100,14 @@ def _clock(seconds: float | None) -> str:
     return f"{minutes // 60:02d}:{minutes % 60:02d}"
 
 
+def _minutes(seconds: float | None) -> str:
+    return "--" if seconds is None else f"{seconds / 60.0:.0f} min"
+
+
+def _kwh(kwh: float | None) -> str:
+    return "--" if kwh is None else f"{kwh:.2f}"
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
@@ -81,8 +115,9 @@ def main() -> int:
     args = parser.parse_args()
     started = time.perf_counter()
     lines = [
-        "| tun | day | heating from | reached | error s | within 2 min |",
-        "|---|---|---|---|---|---|",
+        "| tun | day | heating from | reached | error s | within 2 min | waited at 70 °C "
+        "| kWh there |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     met = worst = 0.0
     days = never = 0
@@ -98,7 +133,8 @@ def main() -> int:
                 lines.append(
                     f"| {spec.name} | {label} | {_clock(row['start_s'])} | "
                     f"{_clock(row['reached_s'])} | "
-                    f"{'--' if error is None else f'{error:+.0f}'} | {'yes' if ok else 'no'} |"
+                    f"{'--' if error is None else f'{error:+.0f}'} | {'yes' if ok else 'no'} | "
+                    f"{_minutes(row['waited_s'])} | {_kwh(row['wait_kwh'])} |"
                 )
                 print(lines[-1], flush=True)
     wall = time.perf_counter() - started

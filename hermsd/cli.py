@@ -1426,6 +1426,8 @@ def program_line(state: dict[str, Any]) -> str:
         line += f", waits for: {state['message']} (`hermsd confirm`)"
     if state["starts_at"] is not None:
         line += f", heating starts at {state['starts_at']}"
+    if state.get("late") is not None:
+        line += f", LATE: {state['late']}"
     if state["next"] is not None:
         line += f"; next {state['next']!r}"
     return line

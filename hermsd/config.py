@@ -247,7 +247,13 @@ class LogConfig:
     queue_size: int = _integer(10000, 100, 1000000)
 
 
-PROGRAM_ALERT_EVENTS: tuple[str, ...] = ("step_reached", "step_done", "waiting", "finished")
+PROGRAM_ALERT_EVENTS: tuple[str, ...] = (
+    "step_reached",
+    "step_done",
+    "waiting",
+    "finished",
+    "late",
+)
 """The mash program's events a brewer hears of (hermsd.program)."""
 ALERT_EVENTS: tuple[str, ...] = (
     "alarm_raised",

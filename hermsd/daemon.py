@@ -55,6 +55,7 @@ from hermsd.lm92 import (
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program
+from hermsd.program.readiness import Tun
 from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
@@ -613,8 +614,16 @@ class Daemon:
             setpoint=self.setpoint,
             wall_ns=self.clock.wall_ns(),
             pv=self._pv,
-            model=self.model,
-            max_output=self.config.control.max_output,
+            tun=self._program_tun(),
+        )
+
+    def _program_tun(self) -> Tun:
+        """What a `ready_by` heat-up plans with: the model in force, and what it rests on."""
+        return Tun(
+            self.model,
+            self.config.control.max_output,
+            self.model_choice.measured is not None,
+            pid.heat_up_fit(self.controller),
         )
 
     def program_command(self, action: str, t: float) -> None:
@@ -626,12 +635,11 @@ class Daemon:
             self.setpoint = after
             self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)
 
-    def _program_period(self, t: float, pv: float | None) -> bool:
-        """Take the program's setpoint for this period; True: it keeps the heater off."""
+    def _program_period(self, t: float, pv: float | None, applied: float) -> bool:
+        """Take the program's setpoint for this period; True: it keeps the heater off.
+        `applied`: the element's duty in the period just ended (%)."""
         wall_ns = self.clock.wall_ns()
-        setpoint, events = self.program.period(
-            t, pv, wall_ns, self.model, self.config.control.max_output
-        )
+        setpoint, events = self.program.period(t, pv, wall_ns, self._program_tun(), applied)
         for event in events:
             self._program_event(event, t)
         news = self.program.store_news()
@@ -688,7 +696,7 @@ class Daemon:
             self.recorder.write(
                 PROGRAM_TOPIC, self.clock.wall_ns(), {"t": t, **fields, "program": event.program}
             )
-        self._event(logging.INFO, event.text, t)
+        self._event(logging.WARNING if event.event == "late" else logging.INFO, event.text, t)
         if event.event in config_module.PROGRAM_ALERT_EVENTS:
             self._alert(event.event, event.text, t, event.name or "")
 
@@ -1076,7 +1084,7 @@ class Daemon:
             self.controller.applied2 = applied2 or 0.0
         sup.period(now, pv, *self._total_power(asked, applied, switched2))
         self._drain_alarms(now)
-        standby = self._program_period(now, pv) and self.mode == "auto"
+        standby = self._program_period(now, pv, applied) and self.mode == "auto"
         state = "ok"
         reset_from: float | None = None
         if standby and sup.heater_allowed and pv is not None:

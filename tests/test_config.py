@@ -174,6 +174,7 @@ ALERT_EVENTS = (
     "step_done",
     "waiting",
     "finished",
+    "late",
 )
 LISTS = {  # key: (the items it may hold, or () for any printable text; nullable)
     "alerts.command": ((), True),

@@ -21,6 +21,7 @@ from hermsd.program import model
 from hermsd.program import store as store_module
 from hermsd.program.driver import ProgramDriver, local_iso, next_local_time
 from hermsd.program.model import Program, ProgramError, Step
+from hermsd.program.readiness import Tun
 from hermsd.program.runner import Progress, Refused, Runner, heat_up_s
 from hermsd.program.store import PROGRAM_FILE, PROGRESS_FILE, ProgressStore, ProgressWriter
 
@@ -214,7 +215,7 @@ def run(runner: Runner, pvs: list[float | None], t0: float = 0.0) -> float:
     t = t0
     for index, pv in enumerate(pvs):
         t = t0 + index * PERIOD
-        runner.period(t, pv, 0)
+        runner.period(t, pv)
     return t
 
 
@@ -234,7 +235,7 @@ def test_the_hold_counts_only_periods_in_the_band_from_the_first_one() -> None:
     run(runner, [64.0, 65.5, 66.4, 66.6, None, 65.6, 66.0])
     assert (runner.state, runner.progress.held_s, runner.time_left_s()) == ("holding", 15.0, 5.0)
     assert [e.event for e in runner.take_events()] == ["step_started", "step_reached"]
-    runner.period(35.0, 66.1, 0)  # 20 s: done, and the next step starts at once
+    runner.period(35.0, 66.1)  # 20 s: done, and the next step starts at once
     assert [e.event for e in runner.take_events()] == ["step_done", "step_started"]
     assert (runner.step.name, runner.setpoint, runner.state) == ("Out", 78.0, "heating")
 
@@ -254,7 +255,7 @@ def test_pause_holds_the_setpoint_and_stops_the_hold_time() -> None:
 def test_a_ramp_moves_the_setpoint_at_its_rate_then_the_step_is_reached() -> None:
     program = Program("Ramp", (Step("Beta", 64.0, 0.0), Step("Alpha", 72.0, 60.0, ramp=1.0)))
     runner = started(program)
-    runner.period(0.0, 64.0, 0)  # Beta reached and done: Alpha ramps from 64 °C
+    runner.period(0.0, 64.0)  # Beta reached and done: Alpha ramps from 64 °C
     assert (runner.state, runner.setpoint) == ("ramping", 64.0)
     t = run(runner, [64.0] * 12, t0=5.0)  # 60 s later: 1 °C/min → 65 °C
     assert t == 60.0
@@ -262,7 +263,7 @@ def test_a_ramp_moves_the_setpoint_at_its_rate_then_the_step_is_reached() -> Non
     t = run(runner, [70.0] * 85, t0=65.0)  # 8 °C take 480 s; then heating until in the band
     assert t == 485.0
     assert (runner.state, runner.setpoint) == ("heating", 72.0)
-    runner.period(490.0, 71.6, 0)
+    runner.period(490.0, 71.6)
     assert runner.state == "holding"
 
 
@@ -270,7 +271,7 @@ def test_a_confirmation_waits_holding_the_setpoint_and_moves_on_when_given() -> 
     runner = started(EXPECTED)
     with pytest.raises(Refused, match="nothing waits for a confirmation"):
         runner.command("confirm", 20.0)
-    runner.period(0.0, 72.0, 0)
+    runner.period(0.0, 72.0)
     assert (runner.state, runner.setpoint, runner.time_left_s()) == ("waiting", 72.0, 0.0)
     run(runner, [72.0] * 100, t0=5.0)
     assert runner.state == "waiting"
@@ -293,36 +294,17 @@ def test_until_told_holds_until_next_and_the_program_then_holds_its_last_setpoin
 
 
 def test_a_scheduled_program_keeps_the_heater_off_until_its_heat_up_is_due() -> None:
-    ready = 10_000 * NS
-    runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=ready)
-    # The model's heat-up, 20 % longer (READY_MARGIN): 6000 s → 7200 s.
-    runner.period(0.0, 20.0, 1_000 * NS, lead_s=6_000.0)  # 9000 s to go
+    runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=10_000 * NS)
+    runner.period(0.0, 20.0)  # not due: no setpoint, the heater stays off
     assert (runner.state, runner.setpoint) == ("scheduled", None)
     with pytest.raises(Refused, match="has not started heating yet"):
         runner.command("next", 20.0)
-    runner.period(5.0, 19.9, 2_799 * NS, lead_s=6_000.0)  # 7201 s to go: not yet
-    assert runner.state == "scheduled"
-    runner.period(10.0, 19.9, 2_800 * NS, lead_s=6_000.0)  # 7200 s to go: now
-    assert (runner.state, runner.setpoint) == ("heating", 66.0)
-    # Ahead of the model (it says 5000 s from here, 6000 with the margin, 7190 s to go):
-    # the water is held where it is; back at full power once due again.
-    runner.period(15.0, 25.0, 2_810 * NS, lead_s=5_000.0)
-    assert (runner.state, runner.setpoint) == ("heating", 25.0)
-    runner.period(20.0, 25.1, 4_000 * NS, lead_s=5_000.0)  # 6000 s to go
+    runner.period(5.0, 19.9, ready_setpoint=64.0)  # due: the waiting temperature
+    assert (runner.state, runner.setpoint) == ("heating", 64.0)
+    runner.period(10.0, 63.9, ready_setpoint=66.0)  # released
     assert runner.setpoint == 66.0
-
-
-def test_near_the_end_a_ready_by_heat_up_no_longer_holds_back() -> None:
-    runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=10_000 * NS)
-    runner.period(0.0, 20.0, 0, lead_s=9_000.0)  # due: full power
-    # 100 s from the band by the model, 5000 s to go: ahead, but within the commitment
-    # (the heat on its way would carry water held here into the band early).
-    runner.period(5.0, 63.0, 5_000 * NS, lead_s=100.0, commit_s=138.0)
-    assert runner.setpoint == 66.0
-    runner.period(10.0, 65.2, 5_005 * NS, lead_s=150.0, commit_s=138.0)  # beyond it: held,
-    assert runner.setpoint == 65.0  # never closer to the band than a band's width,
-    runner.period(15.0, 64.8, 5_010 * NS, lead_s=400.0, commit_s=138.0)
-    assert runner.setpoint == 65.0  # and where it was when holding began
+    runner.period(15.0, 65.6, ready_setpoint=66.0)  # in the band: reached, timing over
+    assert (runner.state, runner.progress.ready_at_ns) == ("holding", None)
 
 
 def test_heat_up_time_is_the_dead_time_and_the_first_order_rise() -> None:
@@ -374,7 +356,7 @@ def test_progress_survives_a_restart_and_nothing_counts_from_before_it(tmp_path:
     assert saved_at == AT_4
     assert program == REST and progress is not None
     again = Runner(REST, progress, max_step_s=2 * PERIOD)
-    again.period(5000.0, 66.0, 0)  # the first period after a restart counts nothing
+    again.period(5000.0, 66.0)  # the first period after a restart counts nothing
     assert (again.state, again.progress.held_s, again.time_left_s()) == ("holding", 10.0, 10.0)
 
 
@@ -449,7 +431,7 @@ def test_a_finished_program_is_not_resumed(tmp_path: Path) -> None:
 
 def test_a_scheduled_program_past_its_ready_by_time_is_not_resumed(tmp_path: Path) -> None:
     runner = Runner.start(REST, max_step_s=2 * PERIOD, ready_at_ns=AT_4 + 60 * NS)
-    runner.period(0.0, 20.0, AT_4, 1.0, 0.0)  # a second of heat-up needed: it waits
+    runner.period(0.0, 20.0)  # not due yet: it waits
     assert runner.progress.phase == "scheduled"
     assert saved_then_restored(tmp_path, runner, 30.0)[0].active  # before 04:01 CET: resumes
     driver, said = saved_then_restored(tmp_path, runner, 61.0)
@@ -520,10 +502,10 @@ LONG_REST = Program("Long", (Step("Rest", 66.0, 3600.0), Step("Out", 78.0, 600.0
 def drive(driver: ProgramDriver, seconds: float, pv: float, t0: float = 0.0) -> None:
     for k in range(round(seconds / PERIOD)):
         t = t0 + k * PERIOD
-        driver.period(t, pv, AT_4 + round(t * NS), PRIOR, 100.0)
+        driver.period(t, pv, AT_4 + round(t * NS), PRIOR, 100.0 if pv < 60.0 else 30.0)
 
 
-PRIOR = PlantModel()
+PRIOR = Tun(PlantModel(), 100.0, measured=False, fit=None)
 
 
 def test_a_rest_writes_the_program_once_and_its_progress_once_a_minute_off_the_loop(
@@ -531,9 +513,7 @@ def test_a_rest_writes_the_program_once_and_its_progress_once_a_minute_off_the_l
 ) -> None:
     store = CountingStore(tmp_path)
     driver = ProgramDriver(store, dt.UTC, PERIOD)
-    driver.start(
-        LONG_REST, None, setpoint=66.0, wall_ns=AT_4, pv=66.0, model=PRIOR, max_output=100.0
-    )
+    driver.start(LONG_REST, None, setpoint=66.0, wall_ns=AT_4, pv=66.0, tun=PRIOR)
     for minute in range(10):  # ten minutes of rest, the writer keeping up each minute
         drive(driver, 60.0, 66.0, t0=60.0 * minute)
         assert driver.flush(5.0)
@@ -548,9 +528,7 @@ def test_a_failed_save_is_told_in_the_status_and_once_in_the_log(tmp_path: Path)
     store = CountingStore(tmp_path)
     driver = ProgramDriver(store, dt.UTC, PERIOD)
     store.refuse = True
-    driver.start(
-        LONG_REST, None, setpoint=66.0, wall_ns=AT_4, pv=66.0, model=PRIOR, max_output=100.0
-    )
+    driver.start(LONG_REST, None, setpoint=66.0, wall_ns=AT_4, pv=66.0, tun=PRIOR)
     drive(driver, PERIOD, 66.0)
     assert driver.flush(5.0)
     failing, said = driver.store_news() or (False, "")

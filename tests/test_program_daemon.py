@@ -311,19 +311,23 @@ def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: 
     day = scenario.load_scenario(ROOT / "scenarios" / "step-mash.yaml")
     result = scenario.run(day, log_dir=tmp_path)
     summary = result.summary
-    assert summary["program"] == {"name": "Step mash", "state": "done", "steps_run": 4, "steps": 4}
+    program = {"name": "Step mash", "state": "done", "steps_run": 4, "steps": 4}
+    assert summary["program"].items() >= program.items()
     assert summary["alarms"] == []
     steps = summary["steps"]
     assert [s["name"] for s in steps] == ["Strike", "Beta rest", "Alpha rest", "Mash out"]
     ready_by = 3 * 3600.0  # 06:30, the scenario's clock starting at 03:30
     assert abs(steps[0]["reached_s"] - ready_by) <= 120.0
+    assert summary["program"]["ready_at_s"] == ready_by + 0.0
+    assert summary["program"]["ready_error_s"] == steps[0]["reached_s"] - ready_by
+    # One setpoint's heat-up and hold measures mean nothing on a day of several.
+    assert not {"settle_s", "overshoot_c", "recovery_s", "iae"} & set(summary)
     for step, hold in zip(steps[1:], (1800.0, 1200.0, 600.0), strict=True):
         assert step["reached_s"] is not None
         assert step["in_band_s"] >= hold  # each rest held its full time in the band
-    # Beta rest is reached as the water falls through its band, just before the cold water
-    # poured in at mash-in takes it 2.4 °C below: said, and not counted as rest.
-    assert 2.0 < steps[1]["max_deviation_c"] < 3.0
-    assert steps[2]["max_deviation_c"] < 0.6 and steps[3]["max_deviation_c"] < 0.6
+    # Beta rest is reached once the water is back from the cold water poured in at mash-in
+    # (2.4 °C below it): each rest then holds its band.
+    assert all(step["max_deviation_c"] < 0.6 for step in steps[1:])
     log = replay.load(sorted(tmp_path.glob("*.mcap")))
     assert replay.verify(log.entries).mismatch is None  # the scheduled hours are skipped
     logged = replay.summarise(log)

@@ -21,17 +21,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hermsd.latches import StateError
-from hermsd.metrics import BAND
-from hermsd.pid import PlantModel
 from hermsd.program.model import READY_BY, Program
-from hermsd.program.runner import (
-    READY_MARGIN,
-    ProgramEvent,
-    Refused,
-    Runner,
-    heat_up_s,
-    with_margin,
-)
+from hermsd.program.readiness import Readiness, Tun
+from hermsd.program.runner import ProgramEvent, Refused, Runner
 from hermsd.program.store import SAVE_EVERY_S, ProgressStore, ProgressWriter, stale_reason
 
 log = logging.getLogger("hermsd")
@@ -51,12 +43,6 @@ def next_local_time(wall_ns: int, hh_mm: str, zone: dt.tzinfo | None) -> int:
     return round(due.timestamp() * 1e9)
 
 
-def commit_s(model: PlantModel) -> float:
-    """How close to the band a `ready_by` heat-up no longer holds back: 1.2 dead times
-    (what is on its way then would carry water held there into the band early)."""
-    return (1.0 + READY_MARGIN) * model.dead_time
-
-
 def local_iso(wall_ns: int, zone: dt.tzinfo | None) -> str:
     """`wall_ns` as local time, ISO 8601 with its offset, to the second."""
     moment = dt.datetime.fromtimestamp(wall_ns / 1e9, zone)
@@ -72,15 +58,13 @@ class ProgramDriver:
     period_s: float
     runner: Runner | None = None
     after: float | None = None  # the setpoint to return to when the program stops
-    starts_at_ns: int | None = None  # while scheduled: when the heat-up is due to start
+    readiness: Readiness | None = None  # a `ready_by` heat-up until its first step is reached
     _events: list[ProgramEvent] = field(default_factory=list)
     _writer: ProgressWriter | None = None
     _started_at_ns: int = 0  # names the stored program its progress records belong to
     _saved: tuple[int, str, bool, bool] | None = None  # what the last record handed over said
     _saved_t: float = 0.0
     _failure_said: str | None = None
-    _transit_s: float = 0.0
-    _transit_t: float | None = None
 
     def __post_init__(self) -> None:
         if self.store is not None:
@@ -89,6 +73,11 @@ class ProgramDriver:
     @property
     def active(self) -> bool:
         return self.runner is not None
+
+    @property
+    def starts_at_ns(self) -> int | None:
+        """While scheduled: when the heat-up is due to start (None: not known yet)."""
+        return None if self.readiness is None else self.readiness.starts_at_ns
 
     @property
     def target(self) -> float:
@@ -127,6 +116,12 @@ class ProgramDriver:
             )
         self.runner = Runner(program, progress, max_step_s=2.0 * self.period_s)
         self.after, self._started_at_ns, self._saved = setpoint, started_at, None
+        if ready is not None:  # measured again: what was measured before is gone
+            first = program.steps[0].setpoint
+            phase = "scheduled" if progress.phase == "scheduled" else "climbing"
+            if progress.setpoint == first and phase == "climbing":
+                phase = "released"
+            self.readiness = Readiness(first, ready, self._clock_text, phase=phase)
         runner = self.runner
         left = runner.time_left_s()
         where = f"step {progress.index + 1}/{len(program.steps)} {runner.step.name!r}, " + (
@@ -148,8 +143,7 @@ class ProgramDriver:
         setpoint: float,
         wall_ns: int,
         pv: float | None,
-        model: PlantModel,
-        max_output: float,
+        tun: Tun,
     ) -> None:
         """Start `program` (ready by `ready_by`, else at once), from the current PV."""
         if self.runner is not None:
@@ -163,12 +157,16 @@ class ProgramDriver:
             self._writer.program(program, wall_ns)
         events = runner.take_events()
         if ready_at is not None:
-            lead_s = self.lead_s(program, pv, model, max_output)
-            self._schedule(wall_ns, lead_s, commit_s(model))
             first = program.steps[0]
+            readiness = Readiness(first.setpoint, ready_at, self._clock_text)
+            self.readiness = readiness
+            lead_s = None if pv is None else readiness.lead_s(pv, tun)
+            if lead_s is not None:
+                readiness.starts_at_ns = max(wall_ns, ready_at - round(lead_s * 1e9))
             start = (
-                f"heating starts at {local_iso(self.starts_at_ns, self.zone)}"
-                if self.starts_at_ns is not None and lead_s is not None
+                f"heating starts at {self._clock_text(readiness.starts_at_ns)}, "
+                f"to wait at {readiness.wait_at:g} °C"
+                if readiness.starts_at_ns is not None
                 else "heating starts when the tun's model says (no PV yet)"
             )
             events = [
@@ -192,7 +190,7 @@ class ProgramDriver:
         self._events.extend(runner.take_events())
         if action != "stop":
             return None
-        self.runner, self.starts_at_ns = None, None
+        self.runner, self.readiness = None, None
         if self._writer is not None:
             self._writer.clear()
         return self.after
@@ -210,58 +208,30 @@ class ProgramDriver:
     # -- each period ------------------------------------------------------------------
 
     def period(
-        self,
-        t: float,
-        pv: float | None,
-        wall_ns: int,
-        model: PlantModel,
-        max_output: float,
+        self, t: float, pv: float | None, wall_ns: int, tun: Tun, applied: float
     ) -> tuple[float | None, list[ProgramEvent]]:
-        """The program's setpoint for this period (None: keep the heater off), and events."""
+        """The program's setpoint for this period (None: keep the heater off), and events.
+
+        `applied`: the duty the element was driven at in the period just ended (%)."""
         runner = self.runner
         if runner is None:
             return None, self.take_events()
-        lead = None
-        if runner.progress.ready_at_ns is not None:  # a ready_by heat-up: how long from here
-            lead = self.lead_s(runner.program, pv, model, max_output)
-            self._count_transit(t, runner.riding_full, model.dead_time)
-            if lead is not None:  # the heat on its way shortens it
-                lead = max(0.0, lead - self._transit_s)
-        runner.period(t, pv, wall_ns, lead, commit_s(model))
-        if runner.state == "scheduled":
-            self._schedule(wall_ns, lead, commit_s(model))
-        else:
-            self.starts_at_ns = None
+        ready_setpoint = None
+        readiness = self.readiness
+        if readiness is not None:
+            ready_setpoint = readiness.period(t, wall_ns, pv, applied, tun)
+            for kind, text in readiness.take_events():
+                runner.say(kind, text)
+        runner.period(t, pv, ready_setpoint)
+        if runner.progress.ready_at_ns is None:
+            self.readiness = None  # reached, skipped or stopped: the heat-up is over
         self._events.extend(runner.take_events())
         self._save(runner, t, wall_ns)
         return runner.setpoint, self.take_events()
 
-    def _count_transit(self, t: float, full: bool, dead_time: float) -> None:
-        """The heat on its way to the sensor, in seconds of full power (at most the dead
-        time): it grows while a ready_by heat-up is at full power, and drains while not."""
-        dt_s = 0.0 if self._transit_t is None else max(0.0, t - self._transit_t)
-        self._transit_t = t
-        change = dt_s if full else -dt_s
-        self._transit_s = min(dead_time, max(0.0, self._transit_s + change))
-
-    @staticmethod
-    def lead_s(
-        program: Program, pv: float | None, model: PlantModel, max_output: float
-    ) -> float | None:
-        """How long full power takes from `pv` until the first step is reached (its band's
-        lower edge), by the tun's model; None when unknown (no PV) or never."""
-        if pv is None:
-            return None
-        return heat_up_s(model, max_output, pv, program.steps[0].setpoint - BAND)
-
-    def _schedule(self, wall_ns: int, lead_s: float | None, commit: float) -> None:
-        runner = self.runner
-        assert runner is not None
-        ready = runner.progress.ready_at_ns
-        if ready is None or lead_s is None:
-            self.starts_at_ns = ready
-            return
-        self.starts_at_ns = max(wall_ns, ready - round(with_margin(lead_s, commit) * 1e9))
+    def _clock_text(self, wall_ns: int) -> str:
+        """A wall-clock time as the brewer reads it in a message: local, to the second."""
+        return local_iso(wall_ns, self.zone)[11:19]
 
     def _save(self, runner: Runner, t: float, wall_ns: int) -> None:
         """Hand the progress to the writer when it matters: a new step, phase, pause or
@@ -311,6 +281,7 @@ class ProgramDriver:
         if runner is None:
             return None
         step, progress = runner.step, runner.progress
+        late = None if self.readiness is None else self.readiness.late_until_ns
         return {
             "name": runner.program.name,
             "state": runner.state,
@@ -322,6 +293,8 @@ class ProgramDriver:
             "starts_at": None
             if self.starts_at_ns is None
             else local_iso(self.starts_at_ns, self.zone),
+            "late_until": None if late is None else local_iso(late, self.zone),
+            "late": None if self.readiness is None else self.readiness.late,
             "save_failed": self._failure_said,
         }
 
@@ -343,6 +316,12 @@ class ProgramDriver:
         if runner is None:
             return ""
         words = self._progress_words()
+        readiness = self.readiness
+        if readiness is not None and readiness.late is not None:
+            late = readiness.late_until_ns
+            words += ", LATE: " + (
+                "cannot reach it" if late is None else f"ready at {self._clock_text(late)[:5]}"
+            )
         if self._failure_said is not None:
             words += ", progress NOT SAVED"
         return words
@@ -352,7 +331,7 @@ class ProgramDriver:
         assert runner is not None
         step, state = runner.step.name, runner.state
         left = runner.time_left_s()
-        if state == "scheduled" and self.starts_at_ns is not None:
+        if self.starts_at_ns is not None:  # scheduled, or a climb waiting
             return (
                 f"program scheduled, heating from {local_iso(self.starts_at_ns, self.zone)[11:16]}"
             )

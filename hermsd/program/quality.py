@@ -42,10 +42,17 @@ def step_quality(rows: Iterable[tuple[float, StepRecord]]) -> list[dict[str, Any
     timed = list(rows)
     steps: list[dict[str, Any]] = []
     position = 0
+    current: tuple[int | None, str | None] = (None, None)
 
     def step_of(row: tuple[float, StepRecord]) -> tuple[int | None, str | None]:
-        record = row[1]  # a program scheduled for later is in no step yet
-        return (None, None) if record.state == "scheduled" else (record.step_index, record.step)
+        """A program scheduled for later is in no step yet; a heat-up that waits again
+        (heater off: it started early) stays in its step."""
+        nonlocal current
+        record = row[1]
+        step = (record.step_index, record.step)
+        if record.state != "scheduled" or step != current:
+            current = (None, None) if record.state == "scheduled" else step
+        return current
 
     for key, group in itertools.groupby(timed, key=step_of):
         members = list(group)

@@ -17,13 +17,9 @@ tun's model gives from that PV; operator commands are methods. The rules:
   goes on holding the last setpoint until it is stopped.
 - Pause: the setpoint stays where it is (a ramp stops), the hold time stops; resume goes on.
 - `ready_by`: the program is *scheduled* (no setpoint: the daemon keeps the heater off) until
-  the heat-up time from the current PV, by the tun's model, reaches the time left to
-  `ready_by` (READY_MARGIN longer, but for its last `commit_s`, 1.2 dead times). Then, until
-  the first step is reached, it is judged again every period with the heat already on its
-  way counted: while the water is ahead (the tun heats faster than its model), the setpoint
-  holds the water where it is, else it is the step's; within `commit_s` of the band it no
-  longer holds back. So the water rides the latest full-power approach down to the moment
-  asked for: a tun up to READY_MARGIN slower than its model still arrives on time.
+  the daemon says it is due (`hermsd.program.readiness`); until the first step is reached its
+  setpoint is then the one the daemon hands in each period (a waiting temperature under the
+  step's, then the step's own when the last approach is released).
 """
 
 from __future__ import annotations
@@ -35,10 +31,6 @@ from hermsd.metrics import BAND
 from hermsd.pid import PlantModel
 from hermsd.program.model import Program, Step
 
-READY_MARGIN = 0.2
-"""A `ready_by` heat-up starts this much (of its length by the model, but for the last
-stretch at full power anyway) earlier than the model says it needs: a tun up to 20 % slower
-than its model is still on time."""
 PHASES = ("pending", "scheduled", "heating", "ramping", "holding", "waiting", "done")
 """`pending`: started, its first step begins at the next period (with that period's PV)."""
 ACTIONS = ("next", "pause", "resume", "stop")
@@ -75,11 +67,6 @@ class Progress:
     events: list[ProgramEvent] = field(default_factory=list)  # since last taken
 
 
-def with_margin(lead_s: float, commit_s: float) -> float:
-    """A `ready_by` heat-up's time by the model, READY_MARGIN longer beyond `commit_s`."""
-    return lead_s + READY_MARGIN * max(0.0, lead_s - commit_s)
-
-
 def heat_up_s(model: PlantModel, output: float, pv: float, target: float) -> float | None:
     """Seconds of `output` % from now until the sensor reads `target`, by the FOPTD model
     (None: the model never gets there). The sensor follows y(t) = Ta + K·u + e^(−t/τ)·
@@ -102,7 +89,6 @@ class Runner:
         self.progress = progress
         self._max_step_s = max_step_s  # the most one period may count (a stalled loop: less)
         self._last_t: float | None = None  # nothing counts from before a restart
-        self._full_since: float | None = None  # a ready_by heat-up at the step's setpoint since
 
     @classmethod
     def start(
@@ -133,7 +119,8 @@ class Runner:
 
     @property
     def setpoint(self) -> float | None:
-        """The setpoint the program asks for now; None while scheduled (heater off)."""
+        """The setpoint the program asks for now; None while scheduled or while a `ready_by`
+        heat-up waits (heater off)."""
         return self.progress.setpoint
 
     def time_left_s(self) -> float | None:
@@ -150,11 +137,6 @@ class Runner:
         done = self.progress.phase == "done"
         return None if done or index >= len(self.program.steps) else self.program.steps[index].name
 
-    @property
-    def riding_full(self) -> bool:
-        """Whether a `ready_by` heat-up asks for the step's setpoint (full power) now."""
-        return self._full_since is not None
-
     def take_events(self) -> list[ProgramEvent]:
         events, self.progress.events = self.progress.events, []
         return events
@@ -165,14 +147,11 @@ class Runner:
         self,
         t: float,
         pv: float | None,
-        wall_ns: int,
-        lead_s: float | None = None,
-        commit_s: float = 0.0,
+        ready_setpoint: float | None = None,
     ) -> None:
-        """Advance by one period at `t` with its PV; `lead_s`: the heat-up time from this PV
-        to the first step, the heat already on its way counted (read until it is reached,
-        when the program has a `ready_by`); within `commit_s` of it the heat-up no longer
-        holds back (heat on its way would carry a held water into the band early)."""
+        """Advance by one period at `t` with its PV. `ready_setpoint`: while a `ready_by`
+        program has not reached its first step, the setpoint its heat-up asks for (None
+        while scheduled: not due yet)."""
         dt = 0.0 if self._last_t is None else min(max(0.0, t - self._last_t), self._max_step_s)
         self._last_t = t
         p = self.progress
@@ -180,7 +159,7 @@ class Runner:
             return
         if p.phase == "scheduled":
             assert p.ready_at_ns is not None
-            if not self._due(wall_ns, pv, lead_s, commit_s):
+            if ready_setpoint is None:
                 return
             self._begin(0, pv)
         elif p.phase == "pending":
@@ -196,11 +175,11 @@ class Runner:
             else:
                 p.setpoint += math.copysign(move, gap)
         in_band = pv is not None and abs(pv - step.setpoint) <= BAND
-        if p.phase == "heating" and p.ready_at_ns is not None and not in_band:
-            self._ride(t, wall_ns, pv, lead_s, commit_s)
+        if p.phase == "heating" and p.ready_at_ns is not None:
+            p.setpoint = ready_setpoint  # None: the heat-up waits, heater off
         if p.phase == "heating" and in_band:
             p.phase, p.reached, p.ready_at_ns = "holding", True, None
-            p.setpoint, self._full_since = step.setpoint, None
+            p.setpoint = step.setpoint
             hold = "until told" if step.hold is None else _duration(step.hold)
             self._emit(
                 "step_reached", f"step {step.name!r} reached {step.setpoint:g} °C; holding {hold}"
@@ -219,29 +198,6 @@ class Runner:
                 )
             else:
                 self._advance(pv)
-
-    def _due(self, wall_ns: int, pv: float | None, lead_s: float | None, commit_s: float) -> bool:
-        """Whether a `ready_by` heat-up must be at full power now to be on time: the model's
-        time, and READY_MARGIN of the part of it beyond `commit_s` (the last stretch is at
-        full power anyway, so a margin there would only make it early)."""
-        ready = self.progress.ready_at_ns
-        assert ready is not None
-        if pv is None or lead_s is None:
-            return wall_ns >= ready  # no PV, or a model that never gets there: heat
-        return wall_ns + with_margin(lead_s, commit_s) * 1e9 >= ready
-
-    def _ride(
-        self, t: float, wall_ns: int, pv: float | None, lead_s: float | None, commit_s: float
-    ) -> None:
-        """A `ready_by` heat-up: the step's setpoint when due, else hold the water there
-        (a band's width below the band at most, so that holding it never reaches it)."""
-        p, target = self.progress, self.step.setpoint
-        committed = lead_s is not None and lead_s <= commit_s
-        if committed or self._due(wall_ns, pv, lead_s, commit_s):
-            if self._full_since is None:
-                p.setpoint, self._full_since = target, t
-        elif pv is not None and (self._full_since is not None or p.setpoint is None):
-            p.setpoint, self._full_since = min(pv, target - 2.0 * BAND), None
 
     def _begin(self, index: int, pv: float | None) -> None:
         """Start step `index`: its setpoint at once, or a ramp from where the setpoint is."""
@@ -326,6 +282,10 @@ class Runner:
             self._advance(pv)
         else:
             self._emit("stopped", f"program {self.program.name!r} stopped", step=None)
+
+    def say(self, event: str, text: str) -> None:
+        """An event of the current step from outside the runner (a `ready_by` heat-up's)."""
+        self._emit(event, text)
 
     def _emit(
         self, event: str, text: str, *, step: bool | int | None = True, message: str | None = None

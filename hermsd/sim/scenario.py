@@ -34,6 +34,7 @@ from hermsd.latches import LatchStore
 from hermsd.learning import ModelStore
 from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.program import model as program_model
+from hermsd.program.driver import next_local_time
 from hermsd.program.model import Program, ProgramError
 from hermsd.program.quality import step_quality
 from hermsd.recorder import Recorder
@@ -441,6 +442,41 @@ def first_read_after(t: float, read_interval: float) -> float:
     return half + max(0, math.ceil((t - half) / read_interval)) * read_interval
 
 
+ONE_SETPOINT_KEYS = (
+    "overshoot_c",
+    "overshoots",
+    "settle_s",
+    "recovery_s",
+    "in_band_fraction",
+    "in_band_s",
+    "in_band_pct",
+    "iae",
+    "heatup_overshoot_c",
+    "upset_overshoot_c",
+    "last_hour_p2p_c",
+    "held_in_band_pct",
+    "pv_overshoot_c",
+    "physical_min_s",
+    "settle_ratio",
+    "recovery_min_s",
+    "recovery_ratio",
+    "recovery_floor_s",
+    "recovery_floor_ratio",
+)
+"""The summary's measures of one setpoint's heat-up, hold and recovery: a program's day has
+several setpoints, so they are left out; each step's own (`steps`) take their place."""
+
+
+def _ready_by(ready_at_s: list[float], steps: list[dict[str, Any]]) -> dict[str, Any]:
+    """When a `ready_by` program's first step was due and reached, and the difference (s)."""
+    if not ready_at_s:
+        return {}
+    due = round(ready_at_s[0], 1)
+    reached = steps[0]["reached_s"] if steps else None
+    error = None if reached is None else round(reached - due, 1)
+    return {"ready_at_s": due, "first_reached_s": reached, "ready_error_s": error}
+
+
 def run(
     scenario: Scenario,
     base: Config | None = None,
@@ -496,6 +532,7 @@ def run(
     collector = _Collector(plant, keep_records=keep_records or program is not None)
     daemon.listeners.append(collector)
     brewer = _Brewer(daemon)
+    ready_at_s: list[float] = []  # a program's ready_by, in the run's seconds
     if program is not None:
 
         def start_program() -> None:  # as a brewer would, with the daemon running
@@ -503,6 +540,10 @@ def run(
             if problems:
                 raise ScenarioError(f"program: {'; '.join(problems)}")
             daemon.start_program(program, None, clock.monotonic())
+            if program.ready_by is not None:
+                wall = clock.wall_ns()
+                due = next_local_time(wall, program.ready_by, clock.zone)
+                ready_at_s.append(clock.monotonic() + (due - wall) / 1e9)
 
         clock.call_at(config.control.period / 2, start_program)
         daemon.listeners.append(brewer)
@@ -588,11 +629,15 @@ def run(
     }
     if program is not None:
         steps = step_quality((r.t, r) for r in collector.records)
+        for key in ONE_SETPOINT_KEYS:  # the program moves the setpoint: its steps say it
+            del summary[key]
+        summary["temperature"] = SIMULATED_TEMPERATURE.partition(";")[0] + ")"  # no pv_…
         summary["program"] = {
             "name": program.name,
             "state": daemon.program.runner.state if daemon.program.runner else "stopped",
             "steps_run": len({step["index"] for step in steps}),
             "steps": len(program.steps),
+            **_ready_by(ready_at_s, steps),
         }
         summary["steps"] = steps
     records = collector.records if keep_records else []
