@@ -716,13 +716,10 @@ def main() -> int:
                 )
             ),
             "",
-            "The misses are the loop's, not the written model's: the small 30 L 5.5 kW tun "
-            "recovers ×1.023 whatever model is written (the robustness bench's day 2 the same: "
-            "full power comes when a second reading confirms the cold water), and the garage "
-            "tun switches 720.4 times an hour against ≤ 720 after every method, as it does "
-            "(720.5) on a day 1 with the shipped config, before any tune and before `tun.lid` "
-            "existed. `tune FILE` writes nothing from a fit it calls poor: with the room's "
-            "temperature left free, the heat-ups too short against τ to pin K (`--ambient` "
+            "Edges an hour are counted in the whole control periods of the hold (a count to "
+            "its ends, mid-period, read up to two edges too many: 720.4/h on the garage tun at "
+            "one edge a window). `tune FILE` writes nothing from a fit it calls poor: with the "
+            "room's temperature left free, the heat-ups too short against τ to pin K (`--ambient` "
             "pins it). The open tuns' written K is now within 5.5 % of the gain at the hold "
             "(+15 to +17 % before).",
             "",

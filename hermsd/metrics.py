@@ -183,11 +183,7 @@ def compute(
         max_temp_c=max(s.temp for s in samples),
         mean_output=sum(s.output * dt for s, dt in zip(samples, dts, strict=True))
         / max(sum(dts), 1e-9),
-        edges_per_hour=(
-            sum(1 for e in edges if _inside(e, hold)) * 3600.0 / hold_s
-            if edges is not None and hold_s > 0
-            else None
-        ),
+        edges_per_hour=None if edges is None else _edges_per_hour(edges, samples, hold),
         heatup_overshoot_c=_overshoot([s for s in samples if s.t < first_disturbance]),
         upset_overshoot_c=_upset_overshoot(samples, last),
         last_hour_p2p_c=max(last_hour) - min(last_hour) if held_last_hour else None,
@@ -269,6 +265,23 @@ def _hold_intervals(
     if start < end:
         intervals.append((start, end))
     return [(a, b) for a, b in intervals if b > a]
+
+
+def _edges_per_hour(
+    edges: list[float], samples: list[Sample], hold: list[tuple[float, float]]
+) -> float | None:
+    """SSR edges an hour over the hold, counted in whole control periods: a hold's ends fall
+    mid-period, and a part of a period holds its one edge in less than a period's time, so
+    counting to the ends reads up to two edges too many (720.4/h on a 5 h hold at 720)."""
+    times = [s.t for s in samples]
+    whole = []
+    for a, b in hold:
+        first = bisect.bisect_left(times, a)  # the first period boundary in the hold
+        last = bisect.bisect_right(times, b) - 1  # the last
+        if first < last:
+            whole.append((times[first], times[last]))
+    span = sum(b - a for a, b in whole)
+    return sum(1 for e in edges if _inside(e, whole)) * 3600.0 / span if span > 0 else None
 
 
 def _inside(t: float, intervals: list[tuple[float, float]]) -> bool:

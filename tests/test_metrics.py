@@ -97,3 +97,16 @@ def test_recovery_is_the_band_entry_interpolated_and_never_before_the_water() ->
     temps = [64.0, 64.5, 65.0, 65.2, 65.4, 65.9, 66.0]
     m = compute(samples([66.0] * len(temps), temps), [45.0], 70.0)
     assert m.recovery_s == 0.0
+
+
+def test_edges_are_counted_in_whole_periods_of_the_hold() -> None:
+    # A planner at its limit: one edge in every 5 s window (pulses alternate ends), 720/h.
+    # The water enters the band for good at 2.5 s (interpolated between 67 °C at 0 s and
+    # 66 °C at 5 s), so the hold runs from 2.5 s to the end at 3603 s; counted to its ends
+    # it holds the edges at 2.5 s and 3602.5 s, 721 in 3600.5 s: 720.9/h. In the whole
+    # periods from 5 s to 3600 s: 719 edges in 3595 s, 720.0/h.
+    samples = [Sample(5.0 * i, 66.0, 66.0, 50.0) for i in range(721)]
+    samples[0] = Sample(0.0, 66.0, 67.0, 50.0)
+    edges = [2.5 + 5.0 * k for k in range(721)]
+    metrics = compute(samples, [], 3603.0, edges)
+    assert metrics.edges_per_hour == pytest.approx(720.0)
