@@ -32,7 +32,7 @@ from control import _replace_section  # bench/control.py, beside this file
 from tuning import SETPOINT_C, step_test, truth  # bench/tuning.py, beside this file
 
 from hermsd import linsys
-from hermsd.identify import _golden
+from hermsd.commissioning.identify import _golden
 from hermsd.safety import vapour_pressure_ratio
 from hermsd.sim.hlt import EVAPORATION_W_PER_M2_KPA, pot_surface_m2, saturation_kpa
 from hermsd.sim.tuns import FAMILY, TunSpec

@@ -29,7 +29,8 @@ from typing import Any
 from control import _replace_section  # bench/control.py, beside this file
 from log_bench import simulate  # bench/log_bench.py: a day logged as the daemon logs it
 
-from hermsd import identify, replay
+from hermsd import replay
+from hermsd.commissioning import identify
 from hermsd.recorder import LogFile
 
 

@@ -2,8 +2,8 @@
 
 Each tun of hermsd.sim.tuns.FAMILY runs its brew day through the daemon with the default
 config (its litres and watts set, as a brewer would), logged to MCAP; the identification
-(hermsd.tune.from_log, as `hermsd tune FILE` runs it) gets the log of the heat-up plus a
-30 min hold: the periods up to 30 min after PV first reaches setpoint − 0.5 °C.
+(hermsd.commissioning.tune.from_log, as `hermsd tune FILE` runs it) gets the log of the
+heat-up plus a 30 min hold: the periods up to 30 min after PV first reaches setpoint − 0.5 °C.
 
 The true model of a physical tun, independent of the fitting code:
 - K = P/(100·UA) °C/%, τ = C/UA with C = 4186·litres J/K (the linear losses only);
@@ -62,7 +62,8 @@ from control import _replace_section  # bench/control.py, beside this file
 from peers import CraftBeerPiAutotune  # bench/peers.py, beside this file
 from robustness import DAY_2, SHIPPED, _cell, missed  # bench/robustness.py, beside this file
 
-from hermsd import config, relay, replay, step_response, tune
+from hermsd import config, replay
+from hermsd.commissioning import relay, step_response, tune
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.safety import Alarm
 from hermsd.sim import scenario
@@ -618,7 +619,7 @@ def main() -> int:
         "every 2σ within the goals and the RMS ≤ 0.04 °C). The open pots' config says "
         "`tun.lid: off`: their fit has an evaporation term E·g(PV), g the vapour pressure "
         "of water over that at 66 °C (Magnus: the shape is physics, only E is fitted), and "
-        "gives the model at the hold (hermsd.identify.TunModel.at_hold).",
+        "gives the model at the hold (hermsd.commissioning.identify.TunModel.at_hold).",
         "",
         f"### The room's temperature fitted (`hermsd tune FILE`): goals met on {met[False]} of "
         f"{len(FAMILY)}",

@@ -54,7 +54,7 @@ from hermsd.recorder import Recorder, recover, recover_directory
 from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
 if TYPE_CHECKING:
-    from hermsd import step_response
+    from hermsd.commissioning import step_response
     from hermsd.daemon import Daemon
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
@@ -1002,7 +1002,8 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
-    from hermsd import replay, tune
+    from hermsd import replay
+    from hermsd.commissioning import tune
 
     relay_only = ("setpoint", "hysteresis", "amplitude")
     given_relay = [f"--{name}" for name in relay_only if getattr(args, name) is not None]
@@ -1042,7 +1043,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def _tune_step(args: argparse.Namespace) -> int:
     """`hermsd tune step`: the experiment on the tun (or the simulated one), then the fit."""
-    from hermsd import step_response
+    from hermsd.commissioning import step_response
 
     if len(args.files) > 1:
         raise UserError(f"tune step takes no files (got {', '.join(map(str, args.files[1:]))})")
@@ -1078,7 +1079,7 @@ def _tune_step(args: argparse.Namespace) -> int:
 
 def _tune_relay(args: argparse.Namespace) -> int:
     """`hermsd tune relay`: heat-up, hold, relay cycles on the tun (or the simulated one)."""
-    from hermsd import relay
+    from hermsd.commissioning import relay
 
     if len(args.files) > 1:
         raise UserError(f"tune relay takes no files (got {', '.join(map(str, args.files[1:]))})")
@@ -1209,7 +1210,7 @@ def _tune_written(
     experiment: object,
 ) -> int:
     """Write the settings if asked, print the result; exit 1 after an alarm or a refusal."""
-    from hermsd import step_response, tune
+    from hermsd.commissioning import step_response, tune
 
     failed = (stopped or "").startswith(step_response.ABORTED[0])
     try:

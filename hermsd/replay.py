@@ -32,10 +32,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 
 from hermsd import config as config_module
+from hermsd.commissioning.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.config import make_controller, shared_out
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
 from hermsd.element2 import MidRangeController, SplitController
-from hermsd.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import (
     DROP_READINGS,

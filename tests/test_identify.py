@@ -1,4 +1,4 @@
-"""The FOPTD fit (hermsd.identify) on a response computed from the model's own equation."""
+"""The FOPTD fit (commissioning.identify) on a response computed from the model's own equation."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from hermsd.identify import identify, uncertainty
+from hermsd.commissioning.identify import identify, uncertainty
 
 K, TAU, THETA, AMBIENT, PERIOD = 1.689, 21210.0, 65.0, 20.0, 5.0
 

@@ -13,8 +13,8 @@ import pytest
 from test_step_response import powered_after
 
 from hermsd import config as config_module
-from hermsd import relay, tune
 from hermsd.cli import main
+from hermsd.commissioning import relay, tune
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock

@@ -18,8 +18,9 @@ from typing import Any
 import pytest
 
 from hermsd import config as config_module
-from hermsd import identify, pid, replay
+from hermsd import pid, replay
 from hermsd.cli import main
+from hermsd.commissioning import identify
 from hermsd.daemon import PeriodRecord
 from hermsd.recorder import (
     CONFIG_TOPIC,

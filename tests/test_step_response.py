@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 
 from hermsd import config as config_module
-from hermsd import step_response, tune
 from hermsd.cli import main
+from hermsd.commissioning import step_response, tune
 from hermsd.daemon import PeriodRecord
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock

@@ -14,8 +14,9 @@ from typing import Any
 import pytest
 
 from hermsd import config as config_module
-from hermsd import replay, tune
+from hermsd import replay
 from hermsd.cli import main
+from hermsd.commissioning import tune
 from hermsd.config_file import ConfigFile, at_once
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario

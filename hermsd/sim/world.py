@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd.clock import Clock
+from hermsd.commissioning.step_response import StepExperiment
 from hermsd.config import Config
 from hermsd.config_file import ConfigFile
 from hermsd.daemon import Daemon, Outputs, guard_outputs
@@ -24,7 +25,6 @@ from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, TwoElementPlant, make_plant
-from hermsd.step_response import StepExperiment
 
 
 @dataclass(slots=True)

@@ -8,10 +8,11 @@ so the supervisor watches the run as any other and the recorder logs it (replaya
 - §4.1: the 10 % rule's dead time (the step to PV ≥ T1 + 10 %·ΔT, ΔT the rise so far), the
   slope a of the regression line between 10 % and 90 % of the rise, where that line meets T1
   (the document's dead time), and a* = a/P;
-- §4.2: K and τ (and the FOPTD's own θ) from hermsd.identify's least-squares fit, the one
-  every other user of a model shares, instead of the document's 28.3 %/63.2 % points, which
-  need the final temperature (hours at a 4 h time constant). An open pot (tun.lid off) is
-  fitted with its evaporation, and K and τ are given at the setpoint (tune.from_series).
+- §4.2: K and τ (and the FOPTD's own θ) from hermsd.commissioning.identify's least-squares
+  fit, the one every other user of a model shares, instead of the document's 28.3 %/63.2 %
+  points, which need the final temperature (hours at a 4 h time constant). An open pot
+  (tun.lid off) is fitted with its evaporation, and K and τ are given at the setpoint
+  (tune.from_series).
 
 It stops as soon as the fit is good (STOP_RULE), or when PV reaches the limit, or after
 MAX_STEP_S; an alarm or an interrupt stops it at once. Whatever stops it, the daemon's
@@ -28,9 +29,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar
 
-from hermsd import tune
+from hermsd.commissioning import tune
+from hermsd.commissioning.identify import MIN_DUTY_SPAN
 from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.identify import MIN_DUTY_SPAN
 from hermsd.safety import Alarm
 
 BASELINE_S = 120.0

@@ -2,8 +2,8 @@
 
 - `table`: Table 1 of the PID calculus document (seed 001) for a model given by hand, printed
   as its Table 2 prints it.
-- `from_log`: the model fitted to an ordinary brew day's logs (hermsd.identify), how sure the
-  fit is, Table 1 for it, and the settings it recommends for the config file.
+- `from_log`: the model fitted to an ordinary brew day's logs (hermsd.commissioning.identify),
+  how sure the fit is, Table 1 for it, and the settings it recommends for the config file.
 """
 
 from __future__ import annotations
@@ -25,8 +25,7 @@ from ruamel.yaml.error import YAMLError
 
 from hermsd import config as config_module
 from hermsd import pid
-from hermsd.files import write_atomically
-from hermsd.identify import (
+from hermsd.commissioning.identify import (
     MIN_DUTY_SPAN,
     UNCERTAINTY_METHOD,
     IdentifyError,
@@ -36,6 +35,7 @@ from hermsd.identify import (
     identify,
     uncertainty,
 )
+from hermsd.files import write_atomically
 from hermsd.replay import Log, sudden_drops
 
 # (title, rule prefix in pid.table1, the numbers the rule uses): Table 1's open-loop
@@ -204,7 +204,7 @@ class Tuned:
 
 
 def from_log(log: Log, ambient: float | None = None) -> Tuned:
-    """Identify the tun from a day's log up to its first cold water or gap (hermsd.identify).
+    """Identify the tun from a day's log up to its first cold water or gap (identify.py).
 
     `ambient`: the room's temperature, when the brewer has measured it; else it is fitted.
     """
@@ -254,8 +254,9 @@ def from_series(
 
     `watts` and `litres`: the config's element and water, to compare with what the fit implies.
     `open_pot_hold`: the tun is an open pot (tun.lid off) held at this setpoint: its
-    evaporation is fitted (hermsd.identify), and the model given is the static one at the
-    hold (TunModel.at_hold): the duty that holds the setpoint, and the element's rate K/τ.
+    evaporation is fitted (hermsd.commissioning.identify), and the model given is the static
+    one at the hold (TunModel.at_hold): the duty that holds the setpoint, and the element's
+    rate K/τ.
     """
     open_pot = open_pot_hold is not None
     try:

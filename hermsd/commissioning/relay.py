@@ -18,8 +18,8 @@ Ku = 4d/(π·√(a² − ε²)) (the real part of the hysteretic relay's −1/N(
 it: for a triangular PV it is low by up to 8/π² (19 %), and the relay's own period, which
 includes the hysteresis's 4ε/s, is not Pu.
 
-The model is the least-squares FOPTD of hermsd.identify over the hold and the relay (the one
-fitting code every user shares), with the room's temperature known: over a test much
+The model is the least-squares FOPTD of hermsd.commissioning.identify over the hold and the
+relay (the one fitting code every user shares), with the room's temperature known: over a test much
 shorter than τ the cycles show θ and K/τ, and only the hold's duty against the water's rise
 above the room (K = (T − T_amb)/u) separates K from τ. Beside it: the fitted model's own Ku
 and Pu (phase −π), and the FOPTD with the fit's K whose ultimate point is the measured one
@@ -37,10 +37,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hermsd import tune
+from hermsd.commissioning import tune
+from hermsd.commissioning.identify import MIN_DUTY_SPAN
+from hermsd.commissioning.step_response import ABORTED, Stopping, clock_text, estimates, run
 from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.identify import MIN_DUTY_SPAN
-from hermsd.step_response import ABORTED, Stopping, clock_text, estimates, run
 
 LSB_C = 0.0625
 HYSTERESIS_C = LSB_C
