@@ -62,11 +62,13 @@ class TimeProportionalPlanner:
         self.min_on_slots = math.ceil(min_on / self.half_cycle - 1e-9)
         self.min_off_slots = math.ceil(min_off / self.half_cycle - 1e-9)
         self._carry = 0.0  # half-cycles owed to (positive) or by (negative) the next window
-        self._index = 0
+        self._ends_on = False  # the SSR is on as the window before ends
 
     def reset(self) -> None:
-        """Forget any carried error (after a forced off the debt is not paid back)."""
+        """Forget any carried error (after a forced off the debt is not paid back); the SSR
+        is off now."""
         self._carry = 0.0
+        self._ends_on = False
 
     def plan(self, start: float, duty: float) -> WindowPlan:
         """The window that begins at `start` with `duty` % requested."""
@@ -84,8 +86,11 @@ class TimeProportionalPlanner:
             limit = max(self.min_on_slots, self.min_off_slots, 1)
             self._carry = max(-limit, min(limit, wanted - on))
         on_time = on * self.half_cycle
-        at_end = self._index % 2 == 0
-        self._index += 1
+        # The pulse joins the state the window before ended in: on, it starts the window;
+        # off, it ends it. One edge a window (the windows alternate by themselves), also
+        # after a window fully on or off, where a fixed alternation spent two.
+        at_end = not self._ends_on
+        self._ends_on = on == slots or (at_end and on > 0)
         if on == 0:
             on_at = off_at = start + self.window
         elif on == slots:
@@ -117,6 +122,7 @@ class TimeProportionalPlanner:
             if end - on_at < max(self.min_on_slots, 1) * self.half_cycle - 1e-9:
                 return plan
         self._carry = 0.0
+        self._ends_on = True
         applied = 100.0 * (before + end - on_at) / plan.length
         return WindowPlan(plan.start, plan.length, on_at, end, 100.0, applied)
 

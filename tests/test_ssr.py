@@ -185,3 +185,36 @@ def test_relay_board_frames_match_the_board_protocol() -> None:
     assert relay_board_frame(2, True) == bytes.fromhex("A00201A3")
     with pytest.raises(ValueError, match="channel"):
         relay_board_frame(0, True)
+
+
+def test_a_window_after_one_fully_on_starts_on_and_spends_one_edge() -> None:
+    # 50 %, then 100 % (cold water), then 98.8 %: the line is on as the third window opens,
+    # so its pulse starts it and only its end is an edge. A fixed alternation put this pulse
+    # at the window's end: off at 10.0 s and on again 0.06 s later, two edges.
+    planner = TimeProportionalPlanner(5.0, 50, min_on=0.02, min_off=0.02)
+    planner.plan(0.0, 50.0)  # the pulse ends the window: on at 2.5 s until 5.0 s
+    full = planner.plan(5.0, 100.0)
+    assert (full.on_at, full.off_at) == (5.0, 10.0)
+    after = planner.plan(10.0, 98.8)
+    assert after.on_at == 10.0  # on since 5.0 s: no edge at 10.0 s
+    assert after.off_at == pytest.approx(10.0 + 0.988 * 5.0, abs=0.01)
+    following = planner.plan(15.0, 98.8)
+    assert following.off_at == 20.0  # off since the last one's end: its pulse ends this one
+
+
+def test_no_window_spends_more_than_one_edge_through_full_and_empty_windows() -> None:
+    planner = TimeProportionalPlanner(5.0, 50, min_on=0.02, min_off=0.02)
+    duties = [40.0, 60.0, 100.0, 100.0, 70.0, 30.0, 0.0, 0.0, 50.0, 50.0, 100.0, 20.0]
+    line = False
+    per_window = []
+    for k, duty in enumerate(duties):
+        plan = planner.plan(5.0 * k, duty)
+        edges = 0
+        for i in range(5000):  # the line as the plan drives it, every millisecond
+            state = plan.is_on(5.0 * k + 0.001 * i)
+            edges += state != line
+            line = state
+        per_window.append(edges)
+    # By hand: on (ends on), off, on (full, from off), none, off, on, off (empty, from on),
+    # none, on, off, on (full, from off), off.
+    assert per_window == [1, 1, 1, 0, 1, 1, 1, 0, 1, 1, 1, 1]
