@@ -11,7 +11,8 @@ tun's model gives from that PV; operator commands are methods. The rules:
   setpoint, while the program is not paused: time out of the band, paused, with no PV (a
   sensor fault), or while the daemon was not running (a crash, a restart) does not count.
   So a rest is always its full length at temperature, and a restart resumes it with the time
-  left it had at the last period before (the progress is stored every period).
+  left it had when its progress was last stored (at each step or phase change, and at most a
+  minute apart: a crash can lengthen a rest by a minute, never shorten it).
 - At the end of the hold a step with `confirm` waits, holding its setpoint, for `confirm()`;
   a step held "until told" holds until `next()`. After the last step the program is done and
   goes on holding the last setpoint until it is stopped.
