@@ -153,22 +153,34 @@ def test_the_rate_limit_holds_back_and_counts_events_of_one_kind(tmp_path: Path)
     ]
 
 
+CLEARED = dataclasses.replace(EVENT, event="alarm_cleared", message="overtemp cleared")
+
+
+def limited(out: Path) -> Alerts:
+    """Alerts at most one a minute of each event and kind, recorded to `out`."""
+    alerts = Alerts(AlertsConfig(command=recording(out), min_interval=60.0), Said())
+    alerts.start()
+    return alerts
+
+
+def events_sent(alerts: Alerts, out: Path) -> list[tuple[str, int]]:
+    assert alerts.close(WAIT)
+    sent = [json.loads(got["stdin"]) for got in received(out)]
+    return [(e["event"], e["suppressed"]) for e in sent]
+
+
 def test_an_alarm_raised_again_soon_after_it_cleared_is_sent_once_its_interval_passes(
     tmp_path: Path,
 ) -> None:
     out = tmp_path / "got"
-    alerts = Alerts(AlertsConfig(command=recording(out), min_interval=60.0), Said())
-    alerts.start()
-    cleared = dataclasses.replace(EVENT, event="alarm_cleared", message="overtemp cleared")
+    alerts, cleared = limited(out), CLEARED
     alerts.send(EVENT, 0.0)  # sent
     alerts.send(cleared, 20.0)  # sent: another event
     alerts.send(EVENT, 40.0)  # held back: and then nothing more all day
     alerts.flush(59.9)  # not yet
     alerts.flush(60.0)  # 60 s after the last raised one sent: the standing alarm is said
     alerts.flush(200.0)  # once
-    assert alerts.close(WAIT)
-    sent = [json.loads(got["stdin"]) for got in received(out)]
-    assert [(e["event"], e["suppressed"]) for e in sent] == [
+    assert events_sent(alerts, out) == [
         ("alarm_raised", 0),
         ("alarm_cleared", 0),
         ("alarm_raised", 0),
@@ -179,9 +191,7 @@ def test_a_held_back_event_that_later_news_of_its_kind_made_moot_is_only_counted
     tmp_path: Path,
 ) -> None:
     out = tmp_path / "got"
-    alerts = Alerts(AlertsConfig(command=recording(out), min_interval=60.0), Said())
-    alerts.start()
-    cleared = dataclasses.replace(EVENT, event="alarm_cleared", message="overtemp cleared")
+    alerts, cleared = limited(out), CLEARED
     alerts.send(EVENT, 0.0)  # sent
     alerts.send(cleared, 10.0)  # sent
     alerts.send(EVENT, 20.0)  # held back
@@ -189,9 +199,7 @@ def test_a_held_back_event_that_later_news_of_its_kind_made_moot_is_only_counted
     alerts.flush(60.0)  # the raised one is moot: not sent
     alerts.flush(70.0)  # the cleared one is due: sent, counting nothing before it
     alerts.send(EVENT, 80.0)  # sent, 80 s after the last raised one, counting the moot one
-    assert alerts.close(WAIT)
-    sent = [json.loads(got["stdin"]) for got in received(out)]
-    assert [(e["event"], e["suppressed"]) for e in sent] == [
+    assert events_sent(alerts, out) == [
         ("alarm_raised", 0),
         ("alarm_cleared", 0),
         ("alarm_cleared", 0),
