@@ -1102,10 +1102,14 @@ class Daemon:
                     self._held = False
                 self.output = self.controller.step(self.setpoint, pv, applied)
                 self._stepped = True
-                output2 = (
-                    self.controller.u2 if isinstance(self.controller, MidRangeController) else None
-                )
-                if not sup.controller_output(now, self.output, output2):
+                # What the controller itself asked: the split's total, before the share-out
+                # (which turns NaN into an SSR at 0 % and leaves the contactor as it was).
+                asked_outputs: tuple[float, float | None] = (self.output, None)
+                if isinstance(self.controller, MidRangeController):
+                    asked_outputs = (self.output, self.controller.u2)
+                elif isinstance(self.controller, SplitController):
+                    asked_outputs = (self.controller.total, None)
+                if not sup.controller_output(now, *asked_outputs):
                     self._drain_alarms(now)  # the heater off at once, said, latched
                     self._held, self._resume_output = True, 0.0
                     self.output, self._stepped, state = 0.0, False, "alarm"

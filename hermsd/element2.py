@@ -289,6 +289,7 @@ class SplitController:
         self.on2 = False
         self.free2 = True
         self.u2 = 0.0
+        self.total = 0.0  # the inner controller's last output: the total asked, % of w1 + w2
         self._output = 0.0
 
     @property
@@ -305,7 +306,7 @@ class SplitController:
 
     def step(self, sp: float, pv: float, applied: float | None = None) -> float:
         total = None if applied is None else self.split.total(applied, self.applied2)
-        u = self.inner.step(sp, pv, total)
+        u = self.total = self.inner.step(sp, pv, total)
         on, self._output = self.split.decide(u, self.on2, self.free2)
         self.u2 = 100.0 if on else 0.0
         return self._output

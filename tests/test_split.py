@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 from pathlib import Path
+from typing import Any
 
 import pytest
+from test_daemon import make
 from test_element2 import PLANT, logged_daemon, phases, two_element_config
 
 from hermsd import config as config_module
@@ -174,3 +177,38 @@ def test_a_dead_element_of_either_kind_is_caught_where_the_other_cannot_hold_alo
 def test_no_alarm_on_the_same_tun_with_both_elements_working() -> None:
     scenario = Scenario(name="needs both", duration=2.5 * 3600.0, plant=NEEDS_BOTH, config=SHARED)
     assert run(scenario).summary["alarms"] == []
+
+
+class _GoesNaN:
+    """A controller that answers NaN once `broken`, as the one it wraps otherwise."""
+
+    def __init__(self, inner: object) -> None:
+        self._inner = inner
+        self.broken = False
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        output: float = self._inner.step(sp, pv, applied)  # type: ignore[attr-defined]
+        return math.nan if self.broken else output
+
+
+def test_a_total_that_is_no_duty_latches_an_alarm_with_both_elements_off() -> None:
+    """The share-out turns NaN into an SSR at 0 % and leaves the contactor as it is: what the
+    controller asked (the total) is checked, else 3.5 kW ran on to the over-temperature cut."""
+    daemon, world, _clock, listener = make(two_element_predictive(), PLANT)
+    controller = daemon.controller
+    assert isinstance(controller, SplitController)
+    inner = _GoesNaN(controller.inner)
+    controller.inner = inner  # type: ignore[assignment]
+    circuit = world.circuit
+    with daemon:
+        daemon.run(until=600.0)  # heating from cold: both on
+        assert circuit.powered and circuit.powered2
+        inner.broken = True
+        daemon.run(until=700.0)
+    [alarm] = listener.alarms
+    assert (alarm.kind, alarm.at, alarm.latched) == ("controller_fault", 600.0, True)
+    assert circuit.off_at_or_after(alarm.at) == alarm.at  # both without power at once
+    assert not (circuit.ssr_on or circuit.relay2_on)
