@@ -1321,7 +1321,12 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(json.dumps(reply, indent=2, ensure_ascii=False))
         return 0
     line = status_line(
-        reply["tun"], reply["pv"], reply["setpoint"], reply["output"], reply["state"]
+        reply["tun"],
+        reply["pv"],
+        reply["setpoint"],
+        reply["output"],
+        reply["state"],
+        reply.get("output2"),
     )
     print(f"{line} (applied {reply['applied']:.0f} %), {_mode_text(reply)}")
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")

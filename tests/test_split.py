@@ -4,15 +4,19 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import json
 import math
 from pathlib import Path
 from typing import Any
 
 import pytest
+from test_control import Inbox
 from test_daemon import make
 from test_element2 import PLANT, logged_daemon, phases, two_element_config
 
+from hermsd import cli
 from hermsd import config as config_module
+from hermsd.control.link import LoopLink
 from hermsd.daemon import PeriodRecord
 from hermsd.element2 import PowerSplit, SplitController
 from hermsd.replay import load, verify
@@ -212,3 +216,18 @@ def test_a_total_that_is_no_duty_latches_an_alarm_with_both_elements_off() -> No
     assert (alarm.kind, alarm.at, alarm.latched) == ("controller_fault", 600.0, True)
     assert circuit.off_at_or_after(alarm.at) == alarm.at  # both without power at once
     assert not (circuit.ssr_on or circuit.relay2_on)
+
+
+def test_hermsd_status_shows_the_second_element(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    daemon, world, _clock, _listener = make(two_element_predictive(), PLANT)
+    link = LoopLink(daemon)
+    link.attach(Inbox())
+    with daemon:
+        daemon.run(until=600.0)  # heating from cold: both on
+        assert world.circuit.relay2_on
+        reply = json.loads(link.status_line())
+    monkeypatch.setattr(cli, "_ask", lambda _path, _request: reply)
+    assert cli.main(["status"]) == 0
+    assert "out 100 % + element 2 100 %" in capsys.readouterr().out.splitlines()[0]
