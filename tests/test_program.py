@@ -574,16 +574,42 @@ def test_a_clear_that_failed_is_tried_again_until_the_stopped_program_is_gone(
     writer.program(REST, AT_4)
     assert writer.flush(5.0) and store.path.exists()
     failures = iter([OSError(5, "Input/output error")] * 3)
-    clear = store.clear
+    clear, landed = store.clear, threading.Event()
 
     def flaky() -> None:
         error = next(failures, None)
         if error is not None:
             raise error
         clear()
+        landed.set()
 
     store.clear = flaky  # type: ignore[method-assign]
     writer.clear()  # the brewer's `program stop`
-    assert writer.flush(5.0)  # three failures, then it lands
+    assert landed.wait(5.0)  # three failures, then it lands
+    assert writer.flush(5.0)
     assert not store.path.exists() and writer.failure is None
     writer.close(5.0)
+
+
+def test_a_clear_that_keeps_failing_neither_holds_up_nor_outlives_the_shutdown(
+    tmp_path: Path,
+) -> None:
+    store = ProgressStore(tmp_path)
+    writer = ProgressWriter(store, clear_retry_s=3600.0)
+    tried = threading.Event()
+    attempts = []
+
+    def refused() -> None:
+        attempts.append(1)
+        tried.set()
+        raise OSError(30, "Read-only file system")
+
+    store.clear = refused  # type: ignore[method-assign]
+    writer.clear()
+    assert tried.wait(5.0)
+    assert writer.flush(5.0)  # a retry waiting is no write in progress
+    assert writer.failure == "[Errno 30] Read-only file system"
+    writer.close(5.0)
+    assert writer._thread is not None
+    writer._thread.join(5.0)
+    assert not writer._thread.is_alive() and len(attempts) == 1  # no spinning on the way out

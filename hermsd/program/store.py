@@ -151,6 +151,7 @@ class ProgressWriter:
         self._jobs: list[tuple[str, Callable[[], None]]] = []
         self._unsaved_program: Callable[[], None] | None = None  # a program write that failed
         self._busy = False
+        self._retry_clear: Callable[[], None] | None = None  # a clear that failed
         self._closed = False
         self._wake = threading.Condition()
         self._thread: threading.Thread | None = None
@@ -194,10 +195,20 @@ class ProgressWriter:
     def _run(self) -> None:
         while True:
             with self._wake:
-                self._wake.wait_for(lambda: self._jobs or self._closed)
-                if not self._jobs:
+                retry = self._retry_clear
+                self._wake.wait_for(
+                    lambda: self._jobs or self._closed,
+                    None if retry is None else self._clear_retry_s,
+                )
+                if retry is not None:  # first, and in order: a failed clear again
+                    kind, job = "clear", retry
+                elif self._jobs:
+                    kind, job = self._jobs.pop(0)
+                else:
                     return
-                kind, job = self._jobs.pop(0)
+                if self._closed and not self._jobs and retry is not None:
+                    return  # closing: a clear that still fails stays said in `failure`
+                self._retry_clear = None
                 self._busy = True
             if kind == "clear":
                 self._unsaved_program = None
@@ -219,13 +230,9 @@ class ProgressWriter:
                 self._busy = False
                 if kind == "clear" and self.failure is not None and not self._jobs:
                     # A stopped program left on disk would resume after a crash and heat:
-                    # tried again until it lands, or until a new program replaces it.
-                    self._jobs.append((kind, job))
-                    self._wake.notify_all()
-                    self._wake.wait_for(
-                        lambda: self._closed or len(self._jobs) > 1, self._clear_retry_s
-                    )
-                    continue
+                    # tried again every clear_retry_s until it lands, or until new writes
+                    # (a new program) come to replace it.
+                    self._retry_clear = job
                 self._wake.notify_all()
 
 
