@@ -704,7 +704,9 @@ def test_a_client_flooding_costly_requests_is_refused_until_its_rate_allows(
     )
     assert refused == {"v": 1, "ok": False, "error": words + "0.5 s"}
     assert after == b""  # one line, and the connection is closed
-    assert asked_status["error"] == words + "0.5 s"  # the flooding process is refused all
+    # Status is answered whatever the rate: the web page serves every browser from one
+    # process, and one brewer's taps must not blind the others (or their stop).
+    assert asked_status["ok"] is True
     assert (refused_big["error"], after_big) == (words + "0.5 s", b"")
     assert json.loads(other.stdout)["error"].startswith(checked)
     assert again["error"].startswith(checked)

@@ -66,6 +66,8 @@ COMMANDS_PER_PERIOD = 8  # commands the loop applies at one boundary; the rest w
 SOCKET_MODE = 0o660
 REQUEST_RATE = 2.0  # requests a second a client process may send beyond status and history
 REQUEST_BURST = 10  # … and at once: a brewer's taps, a bridge's command and its retry
+SMALL_REQUEST = 256  # bytes: a status or history request is shorter; over the limit, a
+# longer line is refused unread (a program is kilobytes), a shorter one read to tell
 
 
 class SocketInUseError(OSError):
@@ -289,26 +291,30 @@ class ControlServer:
             return
         self._next_request(client)
 
+    def _refuse(self, client: _Client, wait: float) -> None:
+        """One line for a client over its request limit; the rest of what it sent unread."""
+        client.inbox.clear()
+        client.closing = True
+        limit = self._limit
+        self._send(
+            client,
+            error_reply(
+                f"refused: this client (pid {client.pid}) sent more than {limit.burst} "
+                f"requests at once or {limit.rate:g} a second (status and history aside); "
+                f"try again in {math.ceil(wait * 10.0) / 10.0:.1f} s"
+            ),
+        )
+
     def _next_request(self, client: _Client) -> None:
         """Answer the next complete line, if the client is not waiting for the loop."""
         if client.waiting is not None or client.closing:
             return
         now = self._clock()
         wait = self._limit.wait(client.pid, now)
-        if wait > 0.0:
-            client.inbox.clear()
-            client.closing = True  # the rest of its request is discarded unread
-            limit = self._limit
-            self._send(
-                client,
-                error_reply(
-                    f"refused: this client (pid {client.pid}) sent more than {limit.burst} "
-                    f"requests at once or {limit.rate:g} a second (status and history aside); "
-                    f"try again in {math.ceil(wait * 10.0) / 10.0:.1f} s"
-                ),
-            )
-            return
         end = client.inbox.find(b"\n")
+        if wait > 0.0 and (end > SMALL_REQUEST or (end < 0 and len(client.inbox) > SMALL_REQUEST)):
+            self._refuse(client, wait)  # a costly request from a client over its limit: unread
+            return
         if (end < 0 and len(client.inbox) >= MAX_LINE) or end + 1 > MAX_LINE:
             client.closing = True  # the rest of the line cannot be told from the next request
             self._send(client, error_reply(f"request longer than {MAX_LINE} bytes"))
@@ -320,8 +326,14 @@ class ControlServer:
         try:
             request = parse_request(line)
         except ProtocolError as error:
+            if wait > 0.0:
+                self._refuse(client, wait)
+                return
             self._limit.charge(client.pid, now)
             self._send(client, error_reply(str(error)))
+            return
+        if wait > 0.0 and not isinstance(request, Status | History):
+            self._refuse(client, wait)  # status and history are answered whatever the rate
             return
         if not isinstance(request, Status | History):
             self._limit.charge(client.pid, now)
