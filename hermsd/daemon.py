@@ -637,7 +637,7 @@ class Daemon:
 
     def _program_period(self, t: float, pv: float | None, applied: float) -> bool:
         """Take the program's setpoint for this period; True: it keeps the heater off.
-        `applied`: the element's duty in the period just ended (%)."""
+        `applied`: the heat's duty in the period just ended (%; with two elements, of both)."""
         wall_ns = self.clock.wall_ns()
         setpoint, events = self.program.period(t, pv, wall_ns, self._program_tun(), applied)
         for event in events:
@@ -1082,9 +1082,11 @@ class Daemon:
             self.controller.on2, self.controller.free2 = on2, bool(free2)
         if isinstance(self.controller, MidRangeController | SplitController):
             self.controller.applied2 = applied2 or 0.0
-        sup.period(now, pv, *self._total_power(asked, applied, switched2))
+        total_asked, total_applied = self._total_power(asked, applied, switched2)
+        sup.period(now, pv, total_asked, total_applied)
         self._drain_alarms(now)
-        standby = self._program_period(now, pv, applied) and self.mode == "auto"
+        # The schedule's tun is both elements (its rates are of their sum): so is its duty.
+        standby = self._program_period(now, pv, total_applied) and self.mode == "auto"
         state = "ok"
         reset_from: float | None = None
         if standby and sup.heater_allowed and pv is not None:

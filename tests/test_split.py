@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import datetime as dt
 import itertools
 import json
 import math
@@ -19,6 +20,7 @@ from hermsd import config as config_module
 from hermsd.control.link import LoopLink
 from hermsd.daemon import PeriodRecord
 from hermsd.element2 import PowerSplit, SplitController
+from hermsd.program.model import Program, Step
 from hermsd.replay import load, verify
 from hermsd.sim.scenario import Event, Scenario, run
 
@@ -231,3 +233,22 @@ def test_hermsd_status_shows_the_second_element(
     monkeypatch.setattr(cli, "_ask", lambda _path, _request: reply)
     assert cli.main(["status"]) == 0
     assert "out 100 % + element 2 100 %" in capsys.readouterr().out.splitlines()[0]
+
+
+def test_ready_by_plans_with_both_elements_heat(caplog: pytest.LogCaptureFixture) -> None:
+    """The schedule's tun is both elements (its rates are of their sum), so it must be told
+    their duty: the SSR's alone made the losses at the waiting temperature look 2.75× what
+    they were (2 + 3.5 kW): "cannot reach 72 °C by 05:00" said seven times, then the strike
+    water 2 min early."""
+    start = dt.datetime(2026, 11, 28, 0, 0, tzinfo=dt.timezone(dt.timedelta(hours=1)))
+    day = Scenario(
+        name="strike by 05:00 on two elements",
+        duration=5.5 * 3600.0,
+        program=Program("Strike", (Step("Strike", 72.0, 600.0),), "05:00"),
+        clock=(int(start.timestamp()) * 10**9, start.tzinfo),
+        plant=PLANT,
+    )
+    result = run(day, two_element_predictive())
+    [strike] = result.summary["steps"]
+    assert abs(strike["reached_s"] - 5 * 3600.0) <= 60.0  # 05:00 to a minute
+    assert not [r for r in caplog.records if "cannot reach" in r.getMessage()]
