@@ -26,9 +26,11 @@ def vapour_ratio(celsius: float) -> float:
     return math.exp(17.625 * celsius / (celsius + 243.04) - 17.625 * 66.0 / (66.0 + 243.04))
 
 
-def open_pot_day() -> tuple[list[float | None], list[float]]:
+def open_pot_day(evaporation: float | None = None) -> tuple[list[float | None], list[float]]:
     """Off, full power for 6000 s, then 62 % (the duty that holds 66 °C: 46 + 16) to 9000 s,
-    integrated from τ·dT/dt = −(T − ambient) + K·u(t − θ) − E·g(T) by RK4 in 0.5 s steps."""
+    integrated from τ·dT/dt = −(T − ambient) + K·u(t − θ) − E·g(T) by RK4 in 0.5 s steps
+    (`evaporation`: another E)."""
+    e = E if evaporation is None else evaporation
     duties = [0.0] + [100.0 if k * PERIOD <= 6000.0 else 62.0 for k in range(1, 1800)]
     lag = round(THETA / PERIOD)
     temp, pvs = AMBIENT, []
@@ -36,7 +38,7 @@ def open_pot_day() -> tuple[list[float | None], list[float]]:
         u = duties[k - lag] if k >= lag else 0.0
 
         def slope(t: float, u: float = u) -> float:
-            return (-(t - AMBIENT) + K * u - E * vapour_ratio(t)) / TAU
+            return (-(t - AMBIENT) + K * u - e * vapour_ratio(t)) / TAU
 
         for _ in range(10):
             h = PERIOD / 10
@@ -140,3 +142,12 @@ def test_a_lidded_fit_that_misses_the_shape_says_what_the_lid_key_would_do() -> 
         "RMS 0.061 °C: the model does not describe the tun over this log (an open pot? with "
         "tun.lid: off its evaporation is fitted)"
     ) in tuned.confidence
+
+
+def test_losses_that_shrink_as_it_warms_are_fitted_without_evaporation() -> None:
+    # E < 0 is no evaporation; at the hold it would raise the gain (or divide by zero).
+    pvs, duties = open_pot_day(evaporation=-8.0)
+    model = identify(pvs, duties, PERIOD, evaporation=True)
+    assert model.evaporation == 0.0
+    assert model.at_hold(66.0) == model
+    assert model == identify(pvs, duties, PERIOD)  # the lidded fit

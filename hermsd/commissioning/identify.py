@@ -128,7 +128,8 @@ def identify(
     linear parameter with the regressor g(PV) through the same lag (not delayed: the
     evaporation acts on the water the sensor reads). A lidded tun is never given one: on a
     heat-up that stops well below the hold, E trades off against K and τ and would be found
-    where there is none.
+    where there is none. A negative E (no evaporation shows, and noise) gives the lidded fit:
+    at the hold it would make the gain grow, or divide by zero.
     """
     n = len(pvs)
     valid = [pv is not None for pv in pvs]
@@ -150,6 +151,8 @@ def identify(
     if not gain > 0:
         raise IdentifyError("cannot fit a model of the tun: the PV does not rise with the duty")
     evaporated = solution[3] if evaporation else 0.0
+    if evaporated < 0.0:  # losses that shrink as it warms are no evaporation: none shows
+        return identify(pvs, duties, period_s, ambient, evaporation=False)
     ambient = offset + mean
     return TunModel(
         gain=gain,
