@@ -542,6 +542,10 @@ def test_the_state_names_the_program_step_when_the_daemon_reports_one() -> None:
     )
     # an alarm holds the heater off: never "heating", whatever the output asked
     assert (state["alarm"], state["alarm_text"], state["action"]) == (True, "stale", "off")
+    # the second element heats too: its SSR partner at 0 % is no "idle"
+    two = {**status, "alarms": [], "heater_allowed": True, "output": 0.0, "output2": 100.0}
+    assert (state_message(two)["action"], state_message(two)["output2"]) == ("heating", 100.0)
+    assert state_message({**two, "output2": 0.0})["action"] == "idle"
 
 
 def test_a_running_programs_step_time_left_and_next_step_are_published(rig: Rig) -> None:

@@ -217,9 +217,15 @@ def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
     with live.held() as last:
         _until(page, f"window.lastStatus.t === {last}")
         status = page.evaluate("window.lastStatus")
-        alarm = {**status, "alarms": ["dry_fire"], "state": "alarm", "heater_allowed": False}
+        alarm = {
+            **status,
+            "alarms": ["dry_fire"],
+            "alarm_reasons": {"dry_fire": "rose 1.6 °C/min"},
+            "state": "alarm",
+            "heater_allowed": False,
+        }
         page.evaluate("(status) => onEvent({status, rows: [], offset: 0})", alarm)
-        assert page.text_content("#alarms") == "dry_fire"
+        assert page.text_content("#alarms") == "dry_fire: rose 1.6 °C/min"  # and why
         assert page.text_content("#state") == "alarm"
         with page.expect_response("**/api/command") as answered:
             page.click("#reset-alarm")

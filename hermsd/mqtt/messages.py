@@ -85,7 +85,9 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
     if climate_mode == "off" or not status["heater_allowed"]:
         action = "off"
     else:
-        action = "heating" if status["output"] > 0 else "idle"
+        # The second element (status output2, null without one) heats as well as the SSR's.
+        heating = status["output"] > 0 or (status.get("output2") or 0.0) > 0
+        action = "heating" if heating else "idle"
     alarms = [str(alarm) for alarm in status["alarms"]]
     program = status.get("program")
     program = program if isinstance(program, dict) else {}
@@ -97,6 +99,7 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "pv": status["pv"],
         "setpoint": status["setpoint"],
         "output": status["output"],
+        "output2": status.get("output2"),
         "applied": status["applied"],
         "mode": mode,
         "manual_output": manual,

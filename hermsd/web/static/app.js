@@ -66,7 +66,9 @@ function render(status) {
   const alarms = status.alarms || [];
   shownAlarms = alarms;
   $("alarm-box").hidden = alarms.length === 0;
-  $("alarms").textContent = alarms.join(", ");
+  const reasons = status.alarm_reasons || {};  // why each stands: what the brewer must check
+  $("alarms").textContent = alarms
+    .map((kind) => (reasons[kind] ? `${kind}: ${reasons[kind]}` : kind)).join("; ");
   renderProgram(status.program);
   if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
     $("setpoint-input").placeholder = String(status.setpoint);
