@@ -868,6 +868,8 @@ def _print_summary(summary: dict[str, Any]) -> None:
         print(_alarm_line(alarm))
     for item in summary.get("learning", []):
         print(f"at {item['at_s']} s: {item['message']}")
+    for item in summary.get("schedule", []):
+        print(f"at {item['at_s']} s: ready_by {item['event']}: {item['message']}")
     from hermsd.program.quality import step_lines
 
     for line in step_lines(summary.get("steps", [])):

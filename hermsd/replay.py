@@ -47,6 +47,7 @@ from hermsd.pid import (
     full_power_now,
 )
 from hermsd.program.quality import step_quality
+from hermsd.program.readiness import SCHEDULE_EVENTS
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -624,6 +625,12 @@ def summarise(log: Log) -> dict[str, Any]:
         "safety_tun_model": log.configs[-1].safety_model if log.configs else None,
         "learning": learning(log),
         "steps": step_quality(zip(log.elapsed, log.periods, strict=True)),
+        # What a ready_by schedule decided (the climb, the release, a late warning), and why.
+        "schedule": [
+            {"at_s": round(e.at, 3), "event": e.event, "message": e.message}
+            for e in log.program
+            if e.event in SCHEDULE_EVENTS
+        ],
     }
 
 

@@ -334,6 +334,9 @@ def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: 
     assert [(s["name"], s["reached_s"] is not None) for s in logged["steps"]] == [
         (s["name"], True) for s in steps
     ]
+    # What the schedule decided is read back: the approach released before 06:30, and why.
+    [release] = [e for e in logged["schedule"] if e["event"] == "release"]
+    assert release["at_s"] < ready_by and "full power for 72 °C" in release["message"]
 
 
 # -- a SIGKILL in the middle of a rest -------------------------------------------------------

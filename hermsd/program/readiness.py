@@ -38,6 +38,8 @@ from hermsd.metrics import BAND
 from hermsd.pid import HeatUpFit, PlantModel
 from hermsd.program.runner import heat_up_s
 
+SCHEDULE_EVENTS = ("climb", "release", "late")
+"""The program events a ready_by schedule logs: what it decided, and why."""
 WAIT_BELOW = 2.0
 """°C under the first step's setpoint where the water waits: holding it never enters the band
 (a hold's wobble is well under the 1.5 °C between), and the approach from it is short enough

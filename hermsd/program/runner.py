@@ -285,8 +285,9 @@ class Runner:
             self._emit("stopped", f"program {self.program.name!r} stopped", step=None)
 
     def say(self, event: str, text: str) -> None:
-        """An event of the current step from outside the runner (a `ready_by` heat-up's)."""
-        self._emit(event, text)
+        """An event of the current step from outside the runner (a `ready_by` heat-up's),
+        its words logged as its message too, so that replay can say what was decided."""
+        self._emit(event, text, message=text)
 
     def _emit(
         self, event: str, text: str, *, step: bool | int | None = True, message: str | None = None
