@@ -869,7 +869,8 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for item in summary.get("learning", []):
         print(f"at {item['at_s']} s: {item['message']}")
     for item in summary.get("schedule", []):
-        print(f"at {item['at_s']} s: ready_by {item['event']}: {item['message']}")
+        words = f": {item['message']}" if item["message"] else ""  # older logs have none
+        print(f"at {item['at_s']} s: ready_by {item['event']}{words}")
     from hermsd.program.quality import step_lines
 
     for line in step_lines(summary.get("steps", [])):
