@@ -41,7 +41,7 @@ from hermsd.config import (
     to_dict,
 )
 from hermsd.config_file import ConfigFile
-from hermsd.element2 import MidRangeController, SlowElement, SplitController, total_share
+from hermsd.element2 import SlowElement, SplitController, TwoElementController, total_share
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import (
@@ -408,7 +408,6 @@ class Daemon:
         self._saved_latches: list[str] = []  # the kinds on disk, as last saved
         self._tried_latches: list[str] = []  # the kinds of the last save tried
         self._latch_retry_at = 0.0  # a failed save is tried again from then, or at a change
-        self._latch_save_failing = False  # said once; said again when it lands
         self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
         self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
         self._log_failing: str | None = None  # why the recorder cannot write, as last said
@@ -946,6 +945,7 @@ class Daemon:
             self.config.safety.reset,
         )
         kinds = [alarm.kind for alarm in alarms]
+        failing = self._tried_latches != self._saved_latches  # the last save did not land
         self._tried_latches = kinds
         try:
             self.latches.save(stored)
@@ -953,14 +953,12 @@ class Daemon:
             # Tried again, quietly, until it lands: a latch missing from disk is cleared by
             # any restart, and the heater would come back on over the fault.
             self._latch_retry_at = t + LATCH_SAVE_RETRY_S
-            if not self._latch_save_failing:
+            if not failing:
                 self._event(logging.ERROR, f"saving latched alarms failed: {error}", t)
-            self._latch_save_failing = True
         else:
             self._saved_latches = kinds
-            if self._latch_save_failing:
+            if failing:
                 self._event(logging.INFO, "latched alarms saved after a failed save", t)
-            self._latch_save_failing = False
 
     # -- the periodic work ----------------------------------------------------------------
 
@@ -1080,7 +1078,7 @@ class Daemon:
         if isinstance(self.controller, SplitController) and on2 is not None:
             applied2 = switched2  # the heat, as switched: the total's model stays exact
             self.controller.on2, self.controller.free2 = on2, bool(free2)
-        if isinstance(self.controller, MidRangeController | SplitController):
+        if isinstance(self.controller, TwoElementController):
             self.controller.applied2 = applied2 or 0.0
         total_asked, total_applied = self._total_power(asked, applied, switched2)
         sup.period(now, pv, total_asked, total_applied)
@@ -1104,13 +1102,12 @@ class Daemon:
                     self._held = False
                 self.output = self.controller.step(self.setpoint, pv, applied)
                 self._stepped = True
-                # What the controller itself asked: the split's total, before the share-out
-                # (which turns NaN into an SSR at 0 % and leaves the contactor as it was).
-                asked_outputs: tuple[float, float | None] = (self.output, None)
-                if isinstance(self.controller, MidRangeController):
-                    asked_outputs = (self.output, self.controller.u2)
-                elif isinstance(self.controller, SplitController):
-                    asked_outputs = (self.controller.total, None)
+                controller = self.controller
+                asked_outputs = (
+                    controller.asked
+                    if isinstance(controller, TwoElementController)
+                    else (self.output, None)
+                )
                 if not sup.controller_output(now, *asked_outputs):
                     self._drain_alarms(now)  # the heater off at once, said, latched
                     self._held, self._resume_output = True, 0.0
@@ -1257,7 +1254,7 @@ class Daemon:
             self.element2.force_off(now)
             return 0.0
         controller = self.controller
-        u2 = controller.u2 if isinstance(controller, MidRangeController | SplitController) else 0.0
+        u2 = controller.u2 if isinstance(controller, TwoElementController) else 0.0
         self.element2.drive(now, u2)
         return u2
 
@@ -1265,9 +1262,7 @@ class Daemon:
         self, output: float, applied: float, applied2: float | None
     ) -> tuple[float, float]:
         """(output, applied) as % of all the elements' power, for the supervisor."""
-        if applied2 is None or not isinstance(
-            self.controller, MidRangeController | SplitController
-        ):
+        if applied2 is None or not isinstance(self.controller, TwoElementController):
             return output, applied
         w1, w2 = self.config.tun.element_watts, element2_watts(self.config)
         return total_share(w1, w2, output, self.controller.u2), total_share(

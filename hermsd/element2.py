@@ -176,6 +176,11 @@ class MidRangeController:
         return self._inner.outputs[1]
 
     @property
+    def asked(self) -> tuple[float, float | None]:
+        """What the last step asked, as the supervisor judges it: u1 and u2."""
+        return self.output, self.u2
+
+    @property
     def terms(self) -> tuple[float, float, float]:
         """(P1, I1, I2): C1's terms, and the slow controller's integral."""
         p1, i1, _, i2 = self._inner.terms
@@ -304,6 +309,12 @@ class SplitController:
     def terms(self) -> tuple[float, float, float]:
         return self.inner.terms
 
+    @property
+    def asked(self) -> tuple[float, float | None]:
+        """What the last step asked, as the supervisor judges it: the total, before the
+        share-out (which turns NaN into an SSR at 0 % and leaves the contactor as it was)."""
+        return self.total, None
+
     def step(self, sp: float, pv: float, applied: float | None = None) -> float:
         total = None if applied is None else self.split.total(applied, self.applied2)
         u = self.total = self.inner.step(sp, pv, total)
@@ -315,3 +326,7 @@ class SplitController:
         """Continue from the SSR at `output` % with the second element as it is now."""
         self.split.owed = 0.0
         self.inner.reset(pv, self.split.total(output, 100.0 if self.on2 else 0.0))
+
+
+TwoElementController = MidRangeController | SplitController
+"""A controller of both elements: its `u2` drives the second, its `applied2` is handed in."""

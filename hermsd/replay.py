@@ -35,7 +35,7 @@ from hermsd import config as config_module
 from hermsd.commissioning.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.config import make_controller, shared_out
 from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
-from hermsd.element2 import MidRangeController, SplitController
+from hermsd.element2 import MidRangeController, SplitController, TwoElementController
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import (
     DROP_READINGS,
@@ -786,7 +786,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             ("i", record.i, i),
             ("d", record.d, d),
         ]
-        if isinstance(controller, MidRangeController | SplitController) and record.u2 is not None:
+        if isinstance(controller, TwoElementController) and record.u2 is not None:
             compared.append(("u2", record.u2, controller.u2))
         for name, logged, recomputed in compared:
             if logged != recomputed:
