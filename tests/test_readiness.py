@@ -50,6 +50,10 @@ def test_a_full_power_rise_slows_as_the_losses_grow() -> None:
     assert rise_s(70.0, 71.5, 0.01, 0.0) == pytest.approx(150.0)  # no change: a line
     assert rise_s(70.0, 71.5, 0.001, 0.001) is None  # stops at 71 °C
     assert rise_s(72.0, 71.5, 0.001, 0.001) == 0.0  # there already
+    # No rise where it starts (losses measured to grow slower higher up: a line's noise):
+    # none, not a division by zero in the loop, nor a time below zero.
+    assert rise_s(70.0, 71.5, 0.0, -0.001) is None
+    assert rise_s(70.0, 71.5, -0.001, -0.01) is None
 
 
 def test_the_climb_starts_by_the_model_with_its_margin_and_the_wait() -> None:

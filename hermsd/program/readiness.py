@@ -89,9 +89,12 @@ HELD = "the losses measured at the waiting temperature"
 def rise_s(x0: float, x1: float, rate: float, slope: float) -> float | None:
     """Seconds of full power from `x0` to `x1` °C when the rise rate is `rate` °C/s at x0 and
     falls by `slope` (1/s) per °C above it, dx/dt = rate − slope·(x − x0):
-    t = ln(rate / (rate − slope·(x1 − x0))) / slope. None: the rise stops short of x1."""
+    t = ln(rate / (rate − slope·(x1 − x0))) / slope. None: the rise stops short of x1, or
+    does not start (a rate measured at or below zero: the loop must not divide by it)."""
     if x1 <= x0:
         return 0.0
+    if rate <= 0.0:
+        return None
     end = rate - slope * (x1 - x0)
     if end <= 0.0:
         return None
