@@ -34,7 +34,7 @@ from hermsd.control.link import LoopLink
 from hermsd.control.protocol import ProgramAction, ProgramStart, Request
 from hermsd.control.server import ControlServer
 from hermsd.mqtt.bridge import Bridge
-from hermsd.mqtt.messages import Topics, setpoint_range, state_message
+from hermsd.mqtt.messages import Topics, discovery_messages, setpoint_range, state_message
 from hermsd.program.model import Program, Step
 
 MOSQUITTO = Path("/usr/sbin/mosquitto")
@@ -657,6 +657,26 @@ def test_without_paho_the_command_says_how_to_install_it(
     assert "the MQTT bridge needs paho-mqtt: install hermsd with its mqtt extra" in (
         capsys.readouterr().err
     )
+
+
+def test_a_second_element_gets_its_own_output_sensor_and_none_without_it() -> None:
+    topics = Topics.of(PREFIX, "homeassistant")
+    one = dict(discovery_messages(topics, config_module.parse(BASE)))
+    two_text = BASE + "\nelement2:\n  backend: sim\n"
+    two = dict(discovery_messages(topics, config_module.parse(two_text)))
+    topic = topics.discovery("sensor", "output2")
+    assert topic not in one and set(two) == {*one, topic}
+    sensor = two[topic]
+    assert sensor["unit_of_measurement"] == "%"
+    assert sensor["unique_id"] == f"hermsd_{topics.node_id}_output2"
+    # its template picks the field the state carries (null without a second element)
+    assert sensor["value_template"] == "{{ value_json.output2 }}"
+    status = {
+        "t": 1.0, "tun": "HLT", "pv": 66.0, "setpoint": 66.0, "output": 0.0, "applied": 0.0,
+        "mode": "auto", "manual_output": 0.0, "state": "holding", "alarms": [],
+        "heater_allowed": True, "output2": 100.0,
+    }  # fmt: skip
+    assert state_message(status)["output2"] == 100.0
 
 
 @pytest.mark.parametrize(("max_temp", "highest"), [("95", 94.5), ("80.2", 80.0), ("80", 79.5)])

@@ -135,7 +135,8 @@ def setpoint_range(config: Config) -> tuple[float, float]:
 
 def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[str, Any]]]:
     """(topic, payload) of each entity Home Assistant should make for this tun: a climate
-    entity, sensors, and a binary sensor that is on while an alarm stands."""
+    entity, sensors (the second element's duty when one is fitted), and a binary sensor that
+    is on while an alarm stands."""
     node = topics.node_id
     device = {
         "identifiers": [f"hermsd_{node}"],
@@ -168,6 +169,12 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         )
 
     percent = {"unit_of_measurement": "%", "state_class": "measurement"}
+    # A second element's duty is a sensor of its own; without one, no entity that never reads.
+    element2 = (
+        [sensor("output2", "Element 2 output", "output2", **percent)]
+        if config.element2.backend != "none"
+        else []
+    )
     return [
         (
             topics.discovery("climate", "tun"),
@@ -204,6 +211,7 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         ),
         sensor("output", "Output", "output", **percent),
         sensor("applied", "Applied", "applied", **percent),
+        *element2,
         sensor("mode", "Mode", "mode_text"),
         sensor("state", "State", "state"),
         sensor("step", "Program step", "step_text"),
