@@ -21,6 +21,7 @@ from hermsd.latches import LatchStore
 from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92
 from hermsd.notify import Notifier
+from hermsd.saver import Saver
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
@@ -100,6 +101,7 @@ def simulated_daemon(
         config_file=config_file,
         latches=latches,
         models=models,
+        saver=Saver(threaded=not math.isinf(speed)),  # a virtual day's disk takes no time
     )
 
 
