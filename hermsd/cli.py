@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, TextIO, TypeVar
 from hermsd import __version__
 from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, ContactorConfig, Element2Config, OutputConfig
-from hermsd.config_file import ConfigFile
+from hermsd.config_file import ConfigFile, at_once
 from hermsd.control.client import (
     SOCKET_NAME,
     NoDaemonError,
@@ -1073,6 +1073,7 @@ def _tune_step(args: argparse.Namespace) -> int:
             limit,
             args.ambient,
             lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
+            fits=at_once if args.simulate else step_response.fit_in_thread,
         )
 
     experiment = _run_tune(args, config, build, step_response.run)
@@ -1119,6 +1120,7 @@ def _tune_relay(args: argparse.Namespace) -> int:
             args.amplitude,
             args.ambient,
             lambda progress: print(relay.progress_line(progress), file=sys.stderr),
+            fits=at_once if args.simulate else step_response.fit_in_thread,
         )
 
     experiment = _run_tune(args, config, build, relay.start)

@@ -15,7 +15,7 @@ from typing import Any
 from hermsd.clock import Clock
 from hermsd.commissioning.step_response import StepExperiment
 from hermsd.config import Config
-from hermsd.config_file import ConfigFile
+from hermsd.config_file import ConfigFile, at_once
 from hermsd.daemon import Daemon, Outputs, guard_outputs
 from hermsd.latches import LatchStore
 from hermsd.learning import ModelStore
@@ -119,7 +119,7 @@ def simulated_step_test(
     world = build_world(config, clock, plant, history=history)
     daemon = Daemon(config, clock, world.sensor, world.outputs)
     stop_at = config.control.setpoint if limit is None else limit
-    return StepExperiment(daemon, output, stop_at), world, clock
+    return StepExperiment(daemon, output, stop_at, fits=at_once), world, clock
 
 
 def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:
