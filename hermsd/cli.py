@@ -17,7 +17,7 @@ import signal
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, TextIO, TypeVar
@@ -1073,10 +1073,11 @@ def _tune_step(args: argparse.Namespace) -> int:
             limit,
             args.ambient,
             lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
-            fits=at_once if args.simulate else step_response.fit_in_thread,
+            fits=fits,
         )
 
-    experiment = _run_tune(args, config, build, step_response.run)
+    with _tune_fits(args.simulate) as fits:
+        experiment = _run_tune(args, config, build, step_response.run)
     result, lines = step_response.result_json(experiment), step_response.result_lines(experiment)
     return _tune_written(args, result, lines, experiment.stopped, step_response.write, experiment)
 
@@ -1120,10 +1121,11 @@ def _tune_relay(args: argparse.Namespace) -> int:
             args.amplitude,
             args.ambient,
             lambda progress: print(relay.progress_line(progress), file=sys.stderr),
-            fits=at_once if args.simulate else step_response.fit_in_thread,
+            fits=fits,
         )
 
-    experiment = _run_tune(args, config, build, relay.start)
+    with _tune_fits(args.simulate) as fits:
+        experiment = _run_tune(args, config, build, relay.start)
     result, lines = relay.result_json(experiment), relay.result_lines(experiment)
     return _tune_written(args, result, lines, experiment.stopped, relay.write, experiment)
 
@@ -1136,6 +1138,22 @@ def _tune_config(args: argparse.Namespace) -> config_module.Config:
 
 
 _Experiment = TypeVar("_Experiment", bound="step_response.Experiment")
+
+
+@contextlib.contextmanager
+def _tune_fits(simulate: bool) -> Iterator[Any]:
+    """Where a tune test's fits run: a simulated one's at once (the same run every time, on
+    its virtual clock), the tun's in a process of its own, beside the loop."""
+    from hermsd.commissioning import step_response
+
+    if simulate:
+        yield at_once
+        return
+    process = step_response.FitProcess()
+    try:
+        yield process
+    finally:
+        process.close()
 
 
 def _run_tune(

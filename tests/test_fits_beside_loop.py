@@ -3,6 +3,7 @@ says there which periods it fitted, and acts on it there; replay reads the same 
 
 from __future__ import annotations
 
+import functools
 import itertools
 import re
 import threading
@@ -11,10 +12,11 @@ from concurrent.futures import Future
 from pathlib import Path
 
 from test_relay import NOISE, SEED_TUN
+from test_step_response import experiment_on
 
 from hermsd import config as config_module
 from hermsd import replay
-from hermsd.commissioning import relay
+from hermsd.commissioning import relay, step_response
 from hermsd.config_file import in_thread
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.recorder import Recorder
@@ -91,3 +93,20 @@ def test_a_fit_is_taken_and_acted_on_at_the_period_the_log_says_and_replay_verif
     assert log.periods[-1].t == float(taken[-1][2])
     verification = replay.verify(log.entries)
     assert verification.mismatch is None and verification.verified > 100
+
+
+def test_the_tuns_fits_run_in_a_process_of_their_own_and_give_the_loops_result() -> None:
+    """`hermsd tune` on the tun fits in another process (a fit on a thread would hold the
+    interpreter's lock while the loop's edges wait): the copy it gets fits as the test would."""
+    plant = {"model": "foptd", "gain_c_per_pct": 1.689, "tau_s": 14961.0, "dead_time_s": 115.0}
+    experiment, _world, _clock = experiment_on(plant)
+    step_response.run(experiment, (KeyboardInterrupt,))
+    t = experiment.times[-1]
+    fits = step_response.FitProcess()
+    try:
+        copy = experiment._snapshot()
+        fitted = fits(functools.partial(step_response._progress_at, copy, t)).result(60.0)
+    finally:
+        fits.close()
+    assert fitted == experiment.progress(t)
+    assert fitted.tuned is not None and fitted.tuned.confidence == "good"

@@ -48,6 +48,7 @@ from hermsd.commissioning.step_response import (
     estimates,
     fit_in_thread,
     run,
+    settings_of,
 )
 from hermsd.daemon import Daemon, PeriodRecord
 
@@ -386,11 +387,14 @@ class RelayExperiment(Stopping[Progress]):
     def _snapshot(self) -> RelayExperiment:
         return dataclasses.replace(
             self,
+            daemon=settings_of(self.daemon),
             times=list(self.times),
             pvs=list(self.pvs),
             duties=list(self.duties),
             switches=list(self.switches),
             on_progress=None,
+            fits=fit_in_thread,
+            _asked=None,
         )
 
     def _evaluate(self, progress: Progress, t: float) -> None:

@@ -31,12 +31,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import multiprocessing
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from concurrent.futures import Future
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar, cast
 
 from hermsd.commissioning import tune
 from hermsd.commissioning.identify import MIN_DUTY_SPAN
@@ -103,6 +105,41 @@ def fit_in_thread(job: Callable[[], _Progress]) -> Future[_Progress]:
     return in_thread(job, name="hermsd-fit")
 
 
+class FitProcess:
+    """Fits in a process of their own (the tun's: `hermsd tune step|relay`). A fit is pure
+    Python: on a thread it would hold the interpreter's lock, and every SSR edge due while it
+    runs would wait for it, 5 ms (the switch interval) and more. Start it before the loop
+    runs (its interpreter takes a moment to start) and `close` it after."""
+
+    def __init__(self) -> None:
+        context = multiprocessing.get_context("spawn")  # no fork of a threaded process
+        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=context)
+        self._pool.submit(int).result()  # started now, not at the first fit
+
+    def __call__(self, job: Callable[[], _Progress]) -> Future[_Progress]:
+        return self._pool.submit(job)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+@dataclass(frozen=True, slots=True)
+class _Settings:
+    """What a copy of a test fitted in another process needs of its daemon: the config."""
+
+    config: Any
+
+
+def _progress_at(test: Stopping[_Progress], t: float) -> _Progress:
+    return test.progress(t)
+
+
+def settings_of(daemon: Daemon) -> Daemon:
+    """A stand-in for `daemon` in a copy of a test that is fitted in another process: its
+    config, which is all a fit reads of it."""
+    return cast(Daemon, _Settings(daemon.config))
+
+
 class Stopping(ABC, Generic[_Progress]):
     """How a test stops: an alarm or Ctrl-C cuts it short, keeping what was measured; a stop
     of its own asks the heater off first and makes its last estimate once the loop has
@@ -128,8 +165,7 @@ class Stopping(ABC, Generic[_Progress]):
     def _ask_fit(self, t: float) -> None:
         """Fit the periods to `t` beside the loop, unless a fit is still running."""
         if self._asked is None:
-            copy = self._snapshot()
-            self._asked = (t, self.fits(lambda: copy.progress(t)))
+            self._asked = (t, self.fits(partial(_progress_at, self._snapshot(), t)))
 
     def _taken_fit(self, record: PeriodRecord) -> _Progress | None:
         """The fit asked for at an earlier period, once done: taken at this one and said in
@@ -247,11 +283,14 @@ class StepExperiment(Stopping[Progress]):
     def _snapshot(self) -> StepExperiment:
         return dataclasses.replace(
             self,
+            daemon=settings_of(self.daemon),
             times=list(self.times),
             pvs=list(self.pvs),
             duties=list(self.duties),
             _history=list(self._history),
             on_progress=None,
+            fits=fit_in_thread,
+            _asked=None,
         )
 
     def _evaluate(self, progress: Progress, t: float) -> None:
