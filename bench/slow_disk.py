@@ -28,7 +28,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from control import _replace_section  # bench/control.py, beside this file
 from timing import bench_config, measure, timing_table  # bench/timing.py, beside this file
@@ -38,7 +38,7 @@ from hermsd import config as config_module
 from hermsd.commissioning import tune
 from hermsd.commissioning.step_response import FitProcess, fit_in_thread
 from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.latches import Latches, LatchStore
+from hermsd.latches import LatchStore
 from hermsd.learning import LearnedModel, ModelStore
 from hermsd.safety import Alarm
 from hermsd.saver import Saver
@@ -46,27 +46,20 @@ from hermsd.sim.tuns import FAMILY
 
 OPEN_POT = "open 120 L 3.5 kW"
 WINDOW_S = bench_config().output.window or 0.0
+Store = TypeVar("Store", LatchStore, ModelStore)
 MODEL = LearnedModel(0.5 / 60.0, 1.0 / 12000.0, 90.0, 18.0, 90.0, wall_ns=1)
 
 
-class StallingLatches(LatchStore):
-    def __init__(self, directory: Path, stall: float) -> None:
-        super().__init__(directory)
-        self.stall = stall
+def stall_saves(store: Store, stall: float) -> Store:
+    """`store` with each save stalled `stall` s before it writes, as an fsync on a slow card."""
+    save = store.save
 
-    def save(self, latches: Latches) -> None:
-        time.sleep(self.stall)
-        super().save(latches)
+    def stalled(item: Any) -> None:
+        time.sleep(stall)
+        save(item)
 
-
-class StallingModels(ModelStore):
-    def __init__(self, directory: Path, stall: float) -> None:
-        super().__init__(directory)
-        self.stall = stall
-
-    def save(self, model: LearnedModel) -> None:
-        time.sleep(self.stall)
-        super().save(model)
+    store.save = stalled  # type: ignore[method-assign]
+    return store
 
 
 class Every:
@@ -160,8 +153,8 @@ def main() -> int:
         @contextlib.contextmanager
         def saves(threaded: bool, daemon: Daemon) -> Iterator[Every]:
             daemon.saver = Saver(threaded=threaded)
-            daemon.latches = StallingLatches(state, args.stall)
-            models = StallingModels(state, args.stall)
+            daemon.latches = stall_saves(LatchStore(state), args.stall)
+            models = stall_saves(ModelStore(state), args.stall)
 
             def save(t: float) -> None:
                 daemon._save_latches(t)

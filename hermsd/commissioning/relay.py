@@ -48,7 +48,6 @@ from hermsd.commissioning.step_response import (
     estimates,
     fit_in_thread,
     run,
-    settings_of,
 )
 from hermsd.daemon import Daemon, PeriodRecord
 
@@ -297,6 +296,7 @@ class RelayExperiment(Stopping[Progress]):
     _asked: tuple[float, Future[Progress]] | None = None
     _final_at: float | None = None
     NAME = "relay"
+    RECORDS = ("times", "pvs", "duties", "switches")
 
     def period(self, record: PeriodRecord) -> None:
         if self.stopped is not None:
@@ -383,19 +383,6 @@ class RelayExperiment(Stopping[Progress]):
             self.low, self.high = levels(self.bias, self.amplitude, self._max_output())
             self.settled_since = t
             self._switch(self.high, t)
-
-    def _snapshot(self) -> RelayExperiment:
-        return dataclasses.replace(
-            self,
-            daemon=settings_of(self.daemon),
-            times=list(self.times),
-            pvs=list(self.pvs),
-            duties=list(self.duties),
-            switches=list(self.switches),
-            on_progress=None,
-            fits=fit_in_thread,
-            _asked=None,
-        )
 
     def _evaluate(self, progress: Progress, t: float) -> None:
         """At a fit of the cycles to a switch down (a cycle's end), taken at `t`: say it,

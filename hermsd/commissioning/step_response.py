@@ -146,6 +146,7 @@ class Stopping(ABC, Generic[_Progress]):
     stopped. Its fits run beside the loop (`_ask_fit`, `_taken_fit`)."""
 
     NAME = ""  # the command's word for the test, in the log
+    RECORDS: tuple[str, ...] = ()  # the lists the loop appends to, copied for a fit
     daemon: Daemon
     stopped: str | None
     last: _Progress | None
@@ -158,9 +159,20 @@ class Stopping(ABC, Generic[_Progress]):
     def progress(self, t: float) -> _Progress:
         """The estimates at `t`, from every period so far."""
 
-    @abstractmethod
     def _snapshot(self) -> Stopping[_Progress]:
-        """A copy of the test whose records the loop no longer appends to, to fit beside it."""
+        """A copy of the test to fit beside the loop: its RECORDS as they are now (the loop
+        goes on appending to its own), and of its daemon the config alone (the copy may go to
+        another process)."""
+        copies = {name: list(getattr(self, name)) for name in self.RECORDS}
+        copy: Stopping[_Progress] = dataclasses.replace(
+            cast(Any, self),
+            daemon=settings_of(self.daemon),
+            on_progress=None,
+            fits=fit_in_thread,
+            _asked=None,
+            **copies,
+        )
+        return copy
 
     def _ask_fit(self, t: float) -> None:
         """Fit the periods to `t` beside the loop, unless a fit is still running."""
@@ -236,6 +248,7 @@ class StepExperiment(Stopping[Progress]):
     _asked: tuple[float, Future[Progress]] | None = None
     _final_at: float | None = None
     NAME = "step"
+    RECORDS = ("times", "pvs", "duties", "_history")
 
     def period(self, record: PeriodRecord) -> None:
         if self.stopped is not None:
@@ -278,19 +291,6 @@ class StepExperiment(Stopping[Progress]):
             start,
             self.limit,
             config.control.max_output,
-        )
-
-    def _snapshot(self) -> StepExperiment:
-        return dataclasses.replace(
-            self,
-            daemon=settings_of(self.daemon),
-            times=list(self.times),
-            pvs=list(self.pvs),
-            duties=list(self.duties),
-            _history=list(self._history),
-            on_progress=None,
-            fits=fit_in_thread,
-            _asked=None,
         )
 
     def _evaluate(self, progress: Progress, t: float) -> None:
