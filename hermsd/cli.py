@@ -1355,6 +1355,10 @@ def cmd_status(args: argparse.Namespace) -> int:
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
     for kind, reason in reply.get("alarm_reasons", {}).items():
         print(f"  {kind}: {reason}")
+    if reply.get("latches_not_saved") is not None:
+        print(
+            f"latched alarms not saved (tried again until they are): {reply['latches_not_saved']}"
+        )
     for key, values in reply["runtime"].items():
         print(f"{key} {values['running']} set at runtime (config file: {values['file']})")
     model = reply["model"]

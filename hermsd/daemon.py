@@ -948,6 +948,11 @@ class Daemon:
         self.saver.save("latches", partial(self.latches.save, stored), self._tried_latches)
         self._take_saves(t)
 
+    @property
+    def latches_not_saved(self) -> str | None:
+        """Why the latched alarms could not be saved, while they cannot (None: saved)."""
+        return self._latch_failing
+
     def _take_saves(self, t: float) -> None:
         """Say what became of the saves done since the last period (or reading)."""
         for outcome in self.saver.take():

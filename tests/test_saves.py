@@ -9,9 +9,11 @@ import time
 from pathlib import Path
 
 import pytest
-from test_reload import BASE, Events, run_for, start
+from test_control import Inbox, status_of
+from test_reload import BASE, PERIOD, Events, run_for, start
 
 from hermsd import daemon as daemon_module
+from hermsd.control.link import LoopLink
 from hermsd.daemon import Daemon
 from hermsd.latches import Latches, LatchStore
 from hermsd.saver import Outcome, Saver
@@ -90,16 +92,20 @@ def test_a_latch_raised_while_the_disk_fails_is_saved_once_it_works_and_survives
     disk = StallingDisk(tmp_path)
     disk.refusing = True
     daemon, world, events = boot(tmp_path, disk)
+    LoopLink(daemon).attach(Inbox())
     latch(daemon, world)
     assert daemon.saver.flush(5.0)
-    run_for(daemon, 1.0)  # the next reading takes the outcome
-    assert "latched alarms not saved: [Errno 5] Input/output error" in daemon.status_text()
+    run_for(daemon, PERIOD)  # the next reading takes the outcome, the next period shows it
+    failing = "[Errno 5] Input/output error"
+    assert f"latched alarms not saved: {failing}" in daemon.status_text()
+    assert status_of(daemon)["latches_not_saved"] == failing  # `hermsd status`
     assert LatchStore(tmp_path).load().alarms == ()
     disk.refusing = False  # the disk works again: the next retry lands
     run_for(daemon, daemon_module.LATCH_SAVE_RETRY_S + 2.0)
     assert daemon.saver.flush(5.0)
-    run_for(daemon, 1.0)
+    run_for(daemon, PERIOD)
     assert "not saved" not in daemon.status_text()
+    assert status_of(daemon)["latches_not_saved"] is None
     logged = events.logged()
     assert [m for m in logged if m.startswith("saving latched alarms failed")] == [
         "saving latched alarms failed: [Errno 5] Input/output error"
