@@ -1149,7 +1149,12 @@ def _tune_fits(simulate: bool) -> Iterator[Any]:
     if simulate:
         yield at_once
         return
-    process = step_response.FitProcess()
+    try:
+        process = step_response.FitProcess()
+    except OSError as error:  # no process can be started here (no /dev/shm, a limit)
+        log.warning("fits run on a thread beside the loop (no process for them: %s)", error)
+        yield step_response.fit_in_thread
+        return
     try:
         yield process
     finally:

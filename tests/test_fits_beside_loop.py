@@ -9,6 +9,7 @@ import re
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from test_relay import NOISE, SEED_TUN
@@ -110,3 +111,21 @@ def test_the_tuns_fits_run_in_a_process_of_their_own_and_give_the_loops_result()
         fits.close()
     assert fitted == experiment.progress(t)
     assert fitted.tuned is not None and fitted.tuned.confidence == "good"
+
+
+def test_a_fit_whose_process_died_stops_the_test_with_the_heater_off() -> None:
+    def died(job: Callable[[], step_response.Progress]) -> Future[step_response.Progress]:
+        future: Future[step_response.Progress] = Future()
+        future.set_exception(BrokenProcessPool("a child process terminated abruptly"))
+        return future
+
+    plant = {"model": "foptd", "gain_c_per_pct": 1.689, "tau_s": 14961.0, "dead_time_s": 115.0}
+    experiment, world, _clock = experiment_on(plant)
+    experiment.fits = died
+    step_response.run(experiment, (KeyboardInterrupt,))
+    assert experiment.stopped == (f"{step_response.FIT_LOST}: a child process terminated abruptly")
+    assert experiment.step_at is not None  # the first fit's time: the step plus MIN_STEP_S,
+    stopped_at = experiment.step_at + step_response.MIN_STEP_S + 5.0  # taken a period later
+    assert experiment.times[-1] == stopped_at
+    assert not world.circuit.powered
+    assert experiment.last is not None and experiment.last.tuned is not None  # what was measured

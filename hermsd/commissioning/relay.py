@@ -307,8 +307,8 @@ class RelayExperiment(Stopping[Progress]):
         fitted = self._taken_fit(record)
         if fitted is not None:
             self._evaluate(fitted, record.t)
-            if self.stopped is not None:
-                return
+        if self.stopped is not None:
+            return
         pv = record.pv
         if self.ambient is None and pv is not None:
             if pv > self.setpoint - ROOM_BELOW_C:

@@ -34,7 +34,7 @@ import math
 import multiprocessing
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import BrokenExecutor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -71,6 +71,7 @@ STOP_RULE = (
 
 
 FIT_GOOD = "the fit is good"  # why a test stops when its fit may be written
+FIT_LOST = "the fits' process stopped"  # … and when the fits can no longer run
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,7 +118,12 @@ class FitProcess:
         self._pool.submit(int).result()  # started now, not at the first fit
 
     def __call__(self, job: Callable[[], _Progress]) -> Future[_Progress]:
-        return self._pool.submit(job)
+        try:
+            return self._pool.submit(job)
+        except BrokenExecutor as error:  # said when the loop takes the fit
+            future: Future[_Progress] = Future()
+            future.set_exception(error)
+            return future
 
     def close(self) -> None:
         self._pool.shutdown(wait=False, cancel_futures=True)
@@ -186,7 +192,11 @@ class Stopping(ABC, Generic[_Progress]):
         if asked is None or record.t <= asked[0] or not asked[1].done():
             return None
         self._asked = None
-        progress = asked[1].result()
+        try:
+            progress = asked[1].result()
+        except BrokenExecutor as error:  # the fit's process died (killed, out of memory)
+            self._finish(f"{FIT_LOST}: {error or type(error).__name__}", record.t)
+            return None
         tuned: tune.Tuned | None = getattr(progress, "tuned", None)
         verdict = tuned.confidence if tuned is not None else getattr(progress, "problem", None)
         self.daemon.operator_action(
@@ -261,8 +271,8 @@ class StepExperiment(Stopping[Progress]):
         fitted = self._taken_fit(record)
         if fitted is not None:
             self._evaluate(fitted, record.t)
-            if self.stopped is not None:
-                return
+        if self.stopped is not None:
+            return
         if self.step_at is None:
             stepped = self.output is not None and record.output >= self.output - 1e-9
             if record.mode == "manual" and stepped:
