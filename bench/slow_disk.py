@@ -237,8 +237,8 @@ def main() -> int:
 
 
 def _ratios(rows: dict[str, dict[str, float]], stalls: dict[str, float]) -> str:
-    """Before against after, same run: the longest stall of the SSR windows, and edge p99
-    (p99 alone hides a stall: the windows the loop missed have no edges to be late)."""
+    """Before against after, same run: the longest stall of the SSR windows, and the edges
+    made (p99 alone hides a stall: the windows the loop missed have no edges to be late)."""
     parts = []
     for what, after in (
         ("saves", "saves beside the loop (after)"),
