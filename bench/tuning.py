@@ -64,6 +64,7 @@ from robustness import DAY_2, SHIPPED, _cell, missed  # bench/robustness.py, bes
 
 from hermsd import config, replay
 from hermsd.commissioning import relay, step_response, tune
+from hermsd.config_file import at_once
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.safety import Alarm
 from hermsd.sim import scenario
@@ -235,7 +236,8 @@ def relay_test(spec: TunSpec) -> relay.RelayExperiment:
     cfg = spec.config(config.DEFAULT)
     clock = VirtualClock()
     world = build_world(cfg, clock, spec.plant())
-    experiment = relay.RelayExperiment(Daemon(cfg, clock, world.sensor, world.outputs), SETPOINT_C)
+    daemon = Daemon(cfg, clock, world.sensor, world.outputs)
+    experiment = relay.RelayExperiment(daemon, SETPOINT_C, fits=at_once)
     relay.start(experiment, (KeyboardInterrupt,))
     return experiment
 

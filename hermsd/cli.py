@@ -17,7 +17,7 @@ import signal
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, TextIO, TypeVar
@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, TextIO, TypeVar
 from hermsd import __version__
 from hermsd import config as config_module
 from hermsd.config import Config, ConfigError, ContactorConfig, Element2Config, OutputConfig
-from hermsd.config_file import ConfigFile
+from hermsd.config_file import ConfigFile, at_once
 from hermsd.control.client import (
     SOCKET_NAME,
     NoDaemonError,
@@ -1073,9 +1073,11 @@ def _tune_step(args: argparse.Namespace) -> int:
             limit,
             args.ambient,
             lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
+            fits=fits,
         )
 
-    experiment = _run_tune(args, config, build, step_response.run)
+    with _tune_fits(args.simulate) as fits:
+        experiment = _run_tune(args, config, build, step_response.run)
     result, lines = step_response.result_json(experiment), step_response.result_lines(experiment)
     return _tune_written(args, result, lines, experiment.stopped, step_response.write, experiment)
 
@@ -1119,9 +1121,11 @@ def _tune_relay(args: argparse.Namespace) -> int:
             args.amplitude,
             args.ambient,
             lambda progress: print(relay.progress_line(progress), file=sys.stderr),
+            fits=fits,
         )
 
-    experiment = _run_tune(args, config, build, relay.start)
+    with _tune_fits(args.simulate) as fits:
+        experiment = _run_tune(args, config, build, relay.start)
     result, lines = relay.result_json(experiment), relay.result_lines(experiment)
     return _tune_written(args, result, lines, experiment.stopped, relay.write, experiment)
 
@@ -1134,6 +1138,27 @@ def _tune_config(args: argparse.Namespace) -> config_module.Config:
 
 
 _Experiment = TypeVar("_Experiment", bound="step_response.Experiment")
+
+
+@contextlib.contextmanager
+def _tune_fits(simulate: bool) -> Iterator[Any]:
+    """Where a tune test's fits run: a simulated one's at once (the same run every time, on
+    its virtual clock), the tun's in a process of its own, beside the loop."""
+    from hermsd.commissioning import step_response
+
+    if simulate:
+        yield at_once
+        return
+    try:
+        process = step_response.FitProcess()
+    except OSError as error:  # no process can be started here (no /dev/shm, a limit)
+        log.warning("fits run on a thread beside the loop (no process for them: %s)", error)
+        yield step_response.fit_in_thread
+        return
+    try:
+        yield process
+    finally:
+        process.close()
 
 
 def _run_tune(
@@ -1335,6 +1360,10 @@ def cmd_status(args: argparse.Namespace) -> int:
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
     for kind, reason in reply.get("alarm_reasons", {}).items():
         print(f"  {kind}: {reason}")
+    if reply.get("latches_not_saved") is not None:
+        print(
+            f"latched alarms not saved (tried again until they are): {reply['latches_not_saved']}"
+        )
     for key, values in reply["runtime"].items():
         print(f"{key} {values['running']} set at runtime (config file: {values['file']})")
     model = reply["model"]

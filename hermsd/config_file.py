@@ -19,6 +19,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from functools import partial
 from pathlib import Path
+from typing import TypeVar
 
 from hermsd.config import (
     Config,
@@ -29,6 +30,7 @@ from hermsd.config import (
     reload_problems,
 )
 
+_T = TypeVar("_T")
 _Signature = tuple[int, int, int, int, int] | None
 _Result = Config | ConfigError | None
 Check = Callable[[], _Result]
@@ -45,23 +47,21 @@ def _signature(path: Path) -> _Signature:
     return (st.st_ino, st.st_dev, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
 
 
-def in_thread(check: Check) -> Future[_Result]:
+def in_thread(check: Callable[[], _T], name: str = "hermsd-config") -> Future[_T]:
     """Run the check on a thread of its own; a read that hangs never holds up the exit."""
-    future: Future[_Result] = Future()
-    threading.Thread(
-        target=_run_into, args=(future, check), name="hermsd-config", daemon=True
-    ).start()
+    future: Future[_T] = Future()
+    threading.Thread(target=_run_into, args=(future, check), name=name, daemon=True).start()
     return future
 
 
-def at_once(check: Check) -> Future[_Result]:
+def at_once(check: Callable[[], _T]) -> Future[_T]:
     """Run the check now, on the caller's thread: for tests on a virtual clock."""
-    future: Future[_Result] = Future()
+    future: Future[_T] = Future()
     _run_into(future, check)
     return future
 
 
-def _run_into(future: Future[_Result], check: Check) -> None:
+def _run_into(future: Future[_T], check: Callable[[], _T]) -> None:
     try:
         future.set_result(check())
     except BaseException as error:  # handed to the loop, which raises it as if it had run it

@@ -26,6 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from typing import Any, Protocol
 
 from hermsd import config as config_module
@@ -61,6 +62,7 @@ from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
+from hermsd.saver import Outcome, Saver
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.ssr import (
     GuardedSwitch,
@@ -344,6 +346,7 @@ class Daemon:
         latches: LatchStore | None = None,
         models: ModelStore | None = None,
         tun_model: MeasuredTun | None = None,
+        saver: Saver | None = None,
     ) -> None:
         self.config = config
         self.tun_model = tun_model
@@ -363,6 +366,7 @@ class Daemon:
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
         self.models = models
+        self.saver = saver if saver is not None else Saver()  # latches and model, off the loop
         self._stored_model: LearnedModel | None = None
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
@@ -406,7 +410,8 @@ class Daemon:
         self._config_problem: str | None = None  # why the file's last edit was rejected
         self._output2: float | None = None  # the second element's duty, when one is fitted
         self._saved_latches: list[str] = []  # the kinds on disk, as last saved
-        self._tried_latches: list[str] = []  # the kinds of the last save tried
+        self._tried_latches: list[str] = []  # the kinds of the last save handed over
+        self._latch_failing: str | None = None  # why the last latch save done failed
         self._latch_retry_at = 0.0  # a failed save is tried again from then, or at a change
         self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
         self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
@@ -544,6 +549,7 @@ class Daemon:
         self._alert("stopped", f"heater off: {reason}", now)
         self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT))  # outputs are off
         self.program.close(SHUTDOWN_WAIT)  # the progress handed over, for the next start
+        self._close_saves(now)
         if self.notifier is not None:
             self.notifier.stopping()
         return ok, interrupted
@@ -888,14 +894,8 @@ class Daemon:
             self.recorder.write(
                 MODEL_TOPIC, self.clock.wall_ns(), {"t": t, "learned": asdict(model)}
             )
-        try:
-            models.save(model)
-        except OSError as error:
-            self._event(logging.ERROR, f"saving the learned model failed: {error}", t)
-            return
-        self._event(
-            logging.INFO, f"learned the tun: {model.describe()}; used from the next start", t
-        )
+        self.saver.save("model", lambda: models.save(model), model)
+        self._take_saves(t)
 
     # -- latched alarms across restarts ---------------------------------------------------
 
@@ -944,21 +944,57 @@ class Daemon:
             ),
             self.config.safety.reset,
         )
-        kinds = [alarm.kind for alarm in alarms]
-        failing = self._tried_latches != self._saved_latches  # the last save did not land
-        self._tried_latches = kinds
-        try:
-            self.latches.save(stored)
-        except OSError as error:
+        self._tried_latches = [alarm.kind for alarm in alarms]
+        self.saver.save("latches", partial(self.latches.save, stored), self._tried_latches)
+        self._take_saves(t)
+
+    @property
+    def latches_not_saved(self) -> str | None:
+        """Why the latched alarms could not be saved, while they cannot (None: saved)."""
+        return self._latch_failing
+
+    def _take_saves(self, t: float) -> None:
+        """Say what became of the saves done since the last period (or reading)."""
+        for outcome in self.saver.take():
+            if outcome.kind == "latches":
+                self._latches_saved(outcome, t)
+            elif outcome.error is not None:
+                self._event(logging.ERROR, f"saving the learned model failed: {outcome.error}", t)
+            else:
+                what = outcome.tag.describe()
+                self._event(logging.INFO, f"learned the tun: {what}; used from the next start", t)
+
+    def _latches_saved(self, outcome: Outcome, t: float) -> None:
+        if outcome.error is not None:
             # Tried again, quietly, until it lands: a latch missing from disk is cleared by
             # any restart, and the heater would come back on over the fault.
             self._latch_retry_at = t + LATCH_SAVE_RETRY_S
-            if not failing:
-                self._event(logging.ERROR, f"saving latched alarms failed: {error}", t)
-        else:
-            self._saved_latches = kinds
-            if failing:
-                self._event(logging.INFO, "latched alarms saved after a failed save", t)
+            if self._latch_failing is None:
+                self._event(logging.ERROR, f"saving latched alarms failed: {outcome.error}", t)
+            self._latch_failing = outcome.error
+            return
+        self._saved_latches = outcome.tag
+        if self._latch_failing is not None:
+            self._latch_failing = None
+            self._event(logging.INFO, "latched alarms saved after a failed save", t)
+
+    def _close_saves(self, t: float) -> None:
+        """At the stop: a latch save that failed once more (the loop retries no longer), the
+        saves handed over waited for (at most SHUTDOWN_WAIT), and what was not saved said."""
+        if self._latch_failing is not None and "latches" not in self.saver.waiting():
+            self._save_latches(t)
+        unsaved = self.saver.close(SHUTDOWN_WAIT)
+        self._take_saves(t)
+        what = []
+        if "latches" in unsaved or self._latch_failing is not None:
+            meant, stored = (
+                ", ".join(k) or "none" for k in (self._tried_latches, self._saved_latches)
+            )
+            what.append(f"the latched alarms ({meant}; on disk: {stored})")
+        if "model" in unsaved:
+            what.append("the learned model")
+        if what:
+            self._event(logging.ERROR, f"not saved at the stop: {' and '.join(what)}", t)
 
     # -- the periodic work ----------------------------------------------------------------
 
@@ -1277,6 +1313,8 @@ class Daemon:
             state += ", config rejected (see journal)"
         if self._log_failing is not None:
             state += f", log failing: {self._log_failing}"
+        if self._latch_failing is not None:
+            state += f", latched alarms not saved: {self._latch_failing}"
         if self.program.active:
             state += f", {self.program.status_words(self.clock.wall_ns())}"
         return status_line(
@@ -1357,9 +1395,12 @@ class Daemon:
                     self._reprogram_sensor(t)
             for listener in self.listeners:
                 listener.alarm(alarm)
+        self._take_saves(t)
         latched = self.supervisor.latched
-        if latched != self._saved_latches and (
-            latched != self._tried_latches or t >= self._latch_retry_at
+        if latched != self._tried_latches or (
+            self._latch_failing is not None
+            and t >= self._latch_retry_at
+            and "latches" not in self.saver.waiting()
         ):
             self._save_latches(t)
 

@@ -4,7 +4,9 @@ A latched alarm (element not heating, SSR stuck on, dry fire, stuck sensor, cont
 fault) says the hardware is not what the loop believes; only the brewer may clear it.
 `Restart=always` would otherwise clear it within seconds of a crash. The daemon writes the
 latched alarms to `latched.json` in its state directory whenever they change (atomically: a
-temporary file, fsync, rename), and raises them again at start.
+temporary file, fsync, rename; beside the control loop, `hermsd.saver`, the heater being off
+already; a failed save is tried again every 30 s until it lands), and raises them again at
+start.
 
 Two ways to clear them, both deliberate acts:
 - bump `safety.reset` in the config: a reload, or a start with a value other than the one

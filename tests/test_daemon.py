@@ -417,6 +417,7 @@ def test_a_controller_output_that_is_no_duty_latches_an_alarm_and_the_loop_runs_
         daemon.run(until=2000.0)  # no exception: the loop runs on
         assert world.circuit.powered is False
         status = daemon.status_text()
+        assert daemon.saver.flush(5.0)  # saved beside the loop
         stored = LatchStore(tmp_path).load()  # what a restart raises again
         daemon.reset_alarms()  # the brewer, having read why
         daemon.run(until=2100.0)

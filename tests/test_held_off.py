@@ -15,6 +15,7 @@ from hermsd.daemon import Daemon
 from hermsd.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.notify import Notifier
 from hermsd.program.model import Program, Step
+from hermsd.saver import Saver
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 
@@ -45,7 +46,15 @@ def watched_daemon(
     clock = VirtualClock()
     world = build_world(config, clock)
     notifier = PingCounter(clock)
-    daemon = Daemon(config, clock, world.sensor, world.outputs, notifier=notifier, latches=latches)
+    daemon = Daemon(
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        notifier=notifier,
+        latches=latches,
+        saver=Saver(threaded=False),  # a virtual clock: each save lands at once
+    )
     daemon.start()
     return daemon, world, notifier
 

@@ -15,6 +15,7 @@ from test_step_response import powered_after
 from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.commissioning import relay, tune
+from hermsd.config_file import at_once
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.safety import Alarm
 from hermsd.sim.clock import VirtualClock
@@ -114,7 +115,7 @@ def experiment_on(plant: dict[str, Any]) -> tuple[relay.RelayExperiment, World, 
     cfg = config_module.DEFAULT
     world = build_world(cfg, clock, {**plant, **NOISE}, history=True)
     daemon = Daemon(cfg, clock, world.sensor, world.outputs)
-    return relay.RelayExperiment(daemon, 66.0), world, clock
+    return relay.RelayExperiment(daemon, 66.0, fits=at_once), world, clock
 
 
 def test_the_relay_finds_the_seed_tun_within_the_goals() -> None:

@@ -24,6 +24,7 @@ from hermsd.config_file import Check, ConfigFile, Start, at_once, in_thread
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.latches import LatchStore
 from hermsd.safety import Alarm
+from hermsd.saver import Saver
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 
@@ -103,6 +104,7 @@ def start(
     latches: LatchStore | None = None,
     watch: bool = True,
     reads: Start = at_once,
+    saver: Saver | None = None,
 ) -> tuple[Daemon, World, Path, Events]:
     """A started daemon on the simulated tun whose config is `text` in a file in `tmp_path`."""
     tmp_path.mkdir(parents=True, exist_ok=True)
@@ -122,6 +124,7 @@ def start(
         notifier=FakeNotifier(events.notified),  # type: ignore[arg-type]
         config_file=source if watch else None,
         latches=latches,
+        saver=saver or Saver(threaded=False),  # a virtual clock: each save lands at once
     )
     daemon.listeners.append(events)
     daemon.start()

@@ -33,13 +33,22 @@ import itertools
 import math
 import statistics
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from hermsd.commissioning import tune
 from hermsd.commissioning.identify import MIN_DUTY_SPAN
-from hermsd.commissioning.step_response import ABORTED, Stopping, clock_text, estimates, run
+from hermsd.commissioning.step_response import (
+    ABORTED,
+    FitStart,
+    Stopping,
+    clock_text,
+    estimates,
+    fit_in_thread,
+    run,
+)
 from hermsd.daemon import Daemon, PeriodRecord
 
 LSB_C = 0.0625
@@ -283,6 +292,11 @@ class RelayExperiment(Stopping[Progress]):
     _settle_from: int = 0  # index of the first period of the hold
     _rescaled: bool = False
     _level: float = 0.0
+    fits: FitStart[Progress] = fit_in_thread
+    _asked: tuple[float, Future[Progress]] | None = None
+    _final_at: float | None = None
+    NAME = "relay"
+    RECORDS = ("times", "pvs", "duties", "switches")
 
     def period(self, record: PeriodRecord) -> None:
         if self.stopped is not None:
@@ -290,6 +304,11 @@ class RelayExperiment(Stopping[Progress]):
         self.times.append(record.t)
         self.pvs.append(record.pv)
         self.duties.append(record.applied)
+        fitted = self._taken_fit(record)
+        if fitted is not None:
+            self._evaluate(fitted, record.t)
+        if self.stopped is not None:
+            return
         pv = record.pv
         if self.ambient is None and pv is not None:
             if pv > self.setpoint - ROOM_BELOW_C:
@@ -322,7 +341,7 @@ class RelayExperiment(Stopping[Progress]):
                 self._start_relay(record.t, pv)
         elif self._level == self.high and pv >= self.setpoint + self.hysteresis:
             self._switch(self.low, record.t)
-            self._evaluate(record.t)
+            self._ask_fit(record.t)
         elif self._level == self.low and pv <= self.setpoint - self.hysteresis:
             self._switch(self.high, record.t)
             self._rescale_once(record.t)
@@ -365,17 +384,16 @@ class RelayExperiment(Stopping[Progress]):
             self.settled_since = t
             self._switch(self.high, t)
 
-    def _evaluate(self, t: float) -> None:
-        """At each switch down (a cycle's end): measure, fit, and stop when the cycles and
-        the fit say so."""
-        progress = self.progress(t)
+    def _evaluate(self, progress: Progress, t: float) -> None:
+        """At a fit of the cycles to a switch down (a cycle's end), taken at `t`: say it,
+        and stop when the cycles and the fit say so."""
         self.last = progress
         if self.on_progress is not None:
             self.on_progress(progress)
         found, tuned = progress.ultimate, progress.tuned
         period_s = self.daemon.config.control.period
         if found and consistent(found) and tuned is not None and fit_good(tuned, period_s):
-            self._finish(CYCLES_GOOD, t)
+            self._finish(CYCLES_GOOD, t, progress)
 
     def progress(self, t: float) -> Progress:
         """The cycles and the fit now, from every period since the heat-up ended."""

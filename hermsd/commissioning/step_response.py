@@ -17,20 +17,32 @@ so the supervisor watches the run as any other and the recorder logs it (replaya
 It stops as soon as the fit is good (STOP_RULE), or when PV reaches the limit, or after
 MAX_STEP_S; an alarm or an interrupt stops it at once. Whatever stops it, the daemon's
 shutdown switches the heater off, and what was measured up to then is kept.
+
+A fit takes up to half a second (an open pot's, on a loaded Pi), which the loop's SSR edges
+cannot wait: each fit runs beside the loop on a copy of the records so far (`Stopping.fits`,
+`fit_in_thread`), and the loop takes its result at the first period after the one that asked
+for it at which it is done, says so in the log (`operator: tune …: the fit of the periods to
+t=… s, taken at t=… s`), and acts on it there: what replay reads is where the result took
+effect. On a virtual clock, `at_once` fits at once, so the result comes one period later,
+every run.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import multiprocessing
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+from concurrent.futures import BrokenExecutor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar, cast
 
 from hermsd.commissioning import tune
 from hermsd.commissioning.identify import MIN_DUTY_SPAN
+from hermsd.config_file import in_thread
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.safety import Alarm
 
@@ -59,6 +71,7 @@ STOP_RULE = (
 
 
 FIT_GOOD = "the fit is good"  # why a test stops when its fit may be written
+FIT_LOST = "the fits' process stopped"  # … and when the fits can no longer run
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,20 +98,113 @@ class Progress:
 
 
 _Progress = TypeVar("_Progress")
+FitStart = Callable[[Callable[[], _Progress]], Future[_Progress]]
+"""How a fit runs: `fit_in_thread` beside the loop (the tun), `at_once` on a virtual clock."""
+
+
+def fit_in_thread(job: Callable[[], _Progress]) -> Future[_Progress]:
+    return in_thread(job, name="hermsd-fit")
+
+
+class FitProcess:
+    """Fits in a process of their own (the tun's: `hermsd tune step|relay`). A fit is pure
+    Python: on a thread it would hold the interpreter's lock, and every SSR edge due while it
+    runs would wait for it, 5 ms (the switch interval) and more. Start it before the loop
+    runs (its interpreter takes a moment to start) and `close` it after."""
+
+    def __init__(self) -> None:
+        context = multiprocessing.get_context("spawn")  # no fork of a threaded process
+        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=context)
+        self._pool.submit(int).result()  # started now, not at the first fit
+
+    def __call__(self, job: Callable[[], _Progress]) -> Future[_Progress]:
+        try:
+            return self._pool.submit(job)
+        except BrokenExecutor as error:  # said when the loop takes the fit
+            future: Future[_Progress] = Future()
+            future.set_exception(error)
+            return future
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+@dataclass(frozen=True, slots=True)
+class _Settings:
+    """What a copy of a test fitted in another process needs of its daemon: the config."""
+
+    config: Any
+
+
+def _progress_at(test: Stopping[_Progress], t: float) -> _Progress:
+    return test.progress(t)
+
+
+def settings_of(daemon: Daemon) -> Daemon:
+    """A stand-in for `daemon` in a copy of a test that is fitted in another process: its
+    config, which is all a fit reads of it."""
+    return cast(Daemon, _Settings(daemon.config))
 
 
 class Stopping(ABC, Generic[_Progress]):
     """How a test stops: an alarm or Ctrl-C cuts it short, keeping what was measured; a stop
-    of its own asks the heater off first and then makes its last estimate."""
+    of its own asks the heater off first and makes its last estimate once the loop has
+    stopped. Its fits run beside the loop (`_ask_fit`, `_taken_fit`)."""
 
+    NAME = ""  # the command's word for the test, in the log
+    RECORDS: tuple[str, ...] = ()  # the lists the loop appends to, copied for a fit
     daemon: Daemon
     stopped: str | None
     last: _Progress | None
     times: list[float]
+    fits: FitStart[_Progress]
+    _asked: tuple[float, Future[_Progress]] | None  # the fit running: of the periods to t
+    _final_at: float | None  # the last estimate is due, at this t, once the loop has stopped
 
     @abstractmethod
     def progress(self, t: float) -> _Progress:
         """The estimates at `t`, from every period so far."""
+
+    def _snapshot(self) -> Stopping[_Progress]:
+        """A copy of the test to fit beside the loop: its RECORDS as they are now (the loop
+        goes on appending to its own), and of its daemon the config alone (the copy may go to
+        another process)."""
+        copies = {name: list(getattr(self, name)) for name in self.RECORDS}
+        copy: Stopping[_Progress] = dataclasses.replace(
+            cast(Any, self),
+            daemon=settings_of(self.daemon),
+            on_progress=None,
+            fits=fit_in_thread,
+            _asked=None,
+            **copies,
+        )
+        return copy
+
+    def _ask_fit(self, t: float) -> None:
+        """Fit the periods to `t` beside the loop, unless a fit is still running."""
+        if self._asked is None:
+            self._asked = (t, self.fits(partial(_progress_at, self._snapshot(), t)))
+
+    def _taken_fit(self, record: PeriodRecord) -> _Progress | None:
+        """The fit asked for at an earlier period, once done: taken at this one and said in
+        the log here, where what it decides takes effect."""
+        asked = self._asked
+        if asked is None or record.t <= asked[0] or not asked[1].done():
+            return None
+        self._asked = None
+        try:
+            progress = asked[1].result()
+        except BrokenExecutor as error:  # the fit's process died (killed, out of memory)
+            self._finish(f"{FIT_LOST}: {error or type(error).__name__}", record.t)
+            return None
+        tuned: tune.Tuned | None = getattr(progress, "tuned", None)
+        verdict = tuned.confidence if tuned is not None else getattr(progress, "problem", None)
+        self.daemon.operator_action(
+            f"tune {self.NAME}: the fit of the periods to t={asked[0]:g} s, taken at "
+            f"t={record.t:g} s: {verdict}",
+            record.t,
+        )
+        return progress
 
     def alarm(self, alarm: Alarm) -> None:
         if alarm.raised and self.stopped is None:
@@ -110,11 +216,21 @@ class Stopping(ABC, Generic[_Progress]):
             self.stopped = f"{ABORTED[1]} ({why})"
             self.last = self.progress(self.times[-1] if self.times else 0.0)
 
-    def _finish(self, why: str, t: float) -> None:
+    def conclude(self) -> None:
+        """The last estimate of a test that stopped itself, now that the loop has stopped."""
+        if self._final_at is not None:
+            self.last = self.progress(self._final_at)
+            self._final_at = None
+
+    def _finish(self, why: str, t: float, fitted: _Progress | None = None) -> None:
+        """Stop at `t`, because of `why`; `fitted`: the fit that decided it, the last estimate."""
         self.stopped = why
         self.daemon.set_manual(0.0)
         self.daemon.stop()  # the caller's shutdown switches every output off
-        self.last = self.progress(t)  # after: a fault in the fit cannot keep the heat on
+        if fitted is not None:
+            self.last = fitted
+        else:
+            self._final_at = t  # fitted once the heater is off (`conclude`)
 
 
 @dataclass(slots=True)
@@ -138,6 +254,11 @@ class StepExperiment(Stopping[Progress]):
     _step_asked: bool = False
     _fits: list[tuple[float, float, float]] = field(default_factory=list)  # (elapsed, K, τ)
     _history: list[tuple[float, float]] = field(default_factory=list)  # (elapsed, worst ratio)
+    fits: FitStart[Progress] = fit_in_thread
+    _asked: tuple[float, Future[Progress]] | None = None
+    _final_at: float | None = None
+    NAME = "step"
+    RECORDS = ("times", "pvs", "duties", "_history")
 
     def period(self, record: PeriodRecord) -> None:
         if self.stopped is not None:
@@ -147,6 +268,11 @@ class StepExperiment(Stopping[Progress]):
         self.times.append(record.t)
         self.pvs.append(record.pv)
         self.duties.append(record.applied)
+        fitted = self._taken_fit(record)
+        if fitted is not None:
+            self._evaluate(fitted, record.t)
+        if self.stopped is not None:
+            return
         if self.step_at is None:
             stepped = self.output is not None and record.output >= self.output - 1e-9
             if record.mode == "manual" and stepped:
@@ -162,7 +288,7 @@ class StepExperiment(Stopping[Progress]):
             self._finish(f"PV reached the limit {self.limit:g} °C", record.t)
         elif record.t >= self._next_fit:
             self._next_fit = record.t + EVALUATE_S
-            self._evaluate(record.t)
+            self._ask_fit(record.t)
         elif record.t - self.step_at >= MAX_STEP_S:
             self._finish(f"no good fit in {MAX_STEP_S:g} s", record.t)
 
@@ -177,11 +303,12 @@ class StepExperiment(Stopping[Progress]):
             config.control.max_output,
         )
 
-    def _evaluate(self, t: float) -> None:
-        progress = self.progress(t)
+    def _evaluate(self, progress: Progress, t: float) -> None:
+        """Act on a fit taken at `t`."""
         self.last = progress
         tuned = progress.tuned
         if tuned is not None:
+            self._history.append((progress.elapsed, _worst_ratio(tuned)))
             self._fits.append((progress.elapsed, tuned.model.gain, tuned.model.tau))
         if tuned is not None and self.settled():
             progress = dataclasses.replace(progress, settled=True)
@@ -193,7 +320,7 @@ class StepExperiment(Stopping[Progress]):
         if self.on_progress is not None:
             self.on_progress(progress)
         if self._good_fits >= 2:
-            self._finish(FIT_GOOD, t)
+            self._finish(FIT_GOOD, t, progress)
 
     def settled(self) -> bool:
         """Whether K and τ now are within SETTLED_RELATIVE of the fit SETTLE_S before."""
@@ -226,17 +353,17 @@ class StepExperiment(Stopping[Progress]):
             problem = str(error)
         left = None
         if tuned is not None:
-            self._history.append((elapsed, _worst_ratio(tuned)))
-            left = self._time_left(open_loop)
+            left = self._time_left(open_loop, [*self._history, (elapsed, _worst_ratio(tuned))])
         pv = next((pv for pv in reversed(self.pvs) if pv is not None), None)
         return Progress(elapsed, pv, open_loop, tuned, problem, left)
 
-    def _time_left(self, open_loop: OpenLoop) -> float | None:
-        """To a good fit, if the worst 2σ/goal ratio falls as a power of time as it has between
-        the last two fits; or to the limit at the present slope, if that is sooner."""
+    def _time_left(self, open_loop: OpenLoop, history: list[tuple[float, float]]) -> float | None:
+        """To a good fit, if the worst 2σ/goal ratio (`history`: (elapsed, ratio) of each fit)
+        falls as a power of time as it has between the last two fits; or to the limit at the
+        present slope, if that is sooner."""
         candidates = []
-        if len(self._history) >= 2:
-            (t0, r0), (t1, r1) = self._history[-2:]
+        if len(history) >= 2:
+            (t0, r0), (t1, r1) = history[-2:]
             if r1 <= 1.0:
                 candidates.append(0.0)
             elif t0 > 0 and r0 > r1 > 0 and t1 > t0:
@@ -339,6 +466,8 @@ class Experiment(Protocol):
 
     def interrupted(self, why: str) -> None: ...
 
+    def conclude(self) -> None: ...
+
 
 def run(
     experiment: Experiment,
@@ -360,6 +489,7 @@ def run(
             daemon.run()
     except interrupts as why:
         experiment.interrupted(type(why).__name__)
+    experiment.conclude()
 
 
 def clock_text(seconds: float) -> str:

@@ -78,6 +78,7 @@ class Snapshot:
     runtime: frozenset[str]
     program: dict[str, Any] | None  # the status reply's `program`
     reasons: dict[str, str]  # each active alarm's message (made for this snapshot alone)
+    latches_not_saved: str | None = None  # why the latched alarms' save failed, while it does
 
 
 class LoopLink:
@@ -135,6 +136,7 @@ class LoopLink:
             frozenset(self._runtime),
             daemon.program.status(daemon.clock.wall_ns()),
             daemon.supervisor.reasons(),
+            daemon.latches_not_saved,
         )
         self.history.append(*encode_row(record))
         if self._answering:
@@ -242,6 +244,7 @@ class LoopLink:
             "state": record.state,
             "alarms": list(record.alarms),
             "alarm_reasons": snapshot.reasons,
+            "latches_not_saved": snapshot.latches_not_saved,
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {

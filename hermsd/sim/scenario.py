@@ -39,6 +39,7 @@ from hermsd.program.model import Program, ProgramError
 from hermsd.program.quality import step_quality
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm, MeasuredTun
+from hermsd.saver import Saver
 from hermsd.sim.bus import FakeLM92
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
@@ -527,6 +528,7 @@ def run(
         latches=latches,
         models=models,
         tun_model=tun_model,
+        saver=Saver(threaded=False),  # the disk takes no virtual time: the same day every run
     )
     program = scenario.program
     collector = _Collector(plant, keep_records=keep_records or program is not None)

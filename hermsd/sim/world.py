@@ -15,12 +15,13 @@ from typing import Any
 from hermsd.clock import Clock
 from hermsd.commissioning.step_response import StepExperiment
 from hermsd.config import Config
-from hermsd.config_file import ConfigFile
+from hermsd.config_file import ConfigFile, at_once
 from hermsd.daemon import Daemon, Outputs, guard_outputs
 from hermsd.latches import LatchStore
 from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92
 from hermsd.notify import Notifier
+from hermsd.saver import Saver
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
@@ -100,6 +101,7 @@ def simulated_daemon(
         config_file=config_file,
         latches=latches,
         models=models,
+        saver=Saver(threaded=not math.isinf(speed)),  # a virtual day's disk takes no time
     )
 
 
@@ -117,7 +119,7 @@ def simulated_step_test(
     world = build_world(config, clock, plant, history=history)
     daemon = Daemon(config, clock, world.sensor, world.outputs)
     stop_at = config.control.setpoint if limit is None else limit
-    return StepExperiment(daemon, output, stop_at), world, clock
+    return StepExperiment(daemon, output, stop_at, fits=at_once), world, clock
 
 
 def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:
