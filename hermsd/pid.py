@@ -997,7 +997,9 @@ class _Predictive(_Base):
         full = applied >= self._hi
         if not full:
             watch.active = recovery.active = False  # the step ended before the PV rose enough
-        steady = max(recent) - min(recent) <= STEADY_BAND
+        # This period's PV too: cold water that the readings showed within the period (and
+        # answered there) has a steady minute before it, but is no step from a steady PV.
+        steady = max(*recent, pv) - min(*recent, pv) <= STEADY_BAND
         if full and not (watch.active or recovery.active) and before < self._hi:
             if steady:
                 watch.arm(recent[-1], applied - before)

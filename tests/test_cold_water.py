@@ -183,6 +183,22 @@ def test_the_first_rule_asks_its_law_on_the_mean_of_the_two() -> None:
     assert not pid.full_power_now(holding_controller(), SP, SP, shallow, pid.FIRST_DROP_RULE)
 
 
+def test_full_power_the_readings_asked_for_is_a_recovery_not_a_heat_up_from_steady() -> None:
+    # An hour at 66 °C, then a period whose readings showed cold water and got full power
+    # within it: its PV is 0.6 °C down, though the minute before it was steady. The step is
+    # measured as a recovery (the rate the added water left), not as a heat-up from a steady
+    # 66 °C, whose fit would wait for a rise to 67 °C that never comes.
+    controller = holding_controller()
+    assert isinstance(controller, pid._Predictive)
+    controller.step(SP, SP - 0.6, 100.0)
+    assert (controller._recovery.active, controller._watch.active) == (True, False)
+    # A step to full power with this period's PV still within the steady band is a heat-up's.
+    controller = holding_controller()
+    assert isinstance(controller, pid._Predictive)
+    controller.step(SP, SP - 0.0625, 100.0)
+    assert (controller._recovery.active, controller._watch.active) == (False, True)
+
+
 def test_two_readings_a_degree_down_ask_for_full_power_and_change_nothing() -> None:
     controller, twin = holding_controller(), holding_controller()
     assert pid.full_power_now(controller, SP, SP, [66.0, 65.0, 64.875])
