@@ -1374,6 +1374,7 @@ class Daemon:
                     "safety_model": _tun_fields(self._measured_tun(self.config)),
                     "drop_readings": pid.DROP_READINGS,
                     "drop_onset_c": pid.DROP_RULE.onset,
+                    "drop_fall_c": pid.DROP_RULE.fall,
                 },
             )
 

@@ -159,28 +159,45 @@ DROP_READINGS = 2
 """Readings in a row that must show a drop below the last period's PV before predictive acts
 inside a period (`full_power_now`, by `DROP_RULE`)."""
 DROP_ONSET = 0.125
-"""°C (2 LSB) below the last period's PV the reading before the latest must lie, while the
-latest lies more than STEP_INNOVATION below it. One reading differs from the period's mean by
-0.04 °C sd (noise and the LSB's truncation): 0.125 °C is 3 sd and 0.25 °C 6 sd (about once
-in 10⁹ readings alone), so noise does not give both in a row. Behind the sensor's lag cold
-water shows as readings that fall further each time, the first of them often by less than
-0.25 °C; a one-reading glitch (the supervisor drops only jumps beyond safety.max_step) has a
-steady reading before it, so it never does it, however deep."""
+"""°C (2 LSB) below the last period's PV the reading before the latest must lie (at least, by
+`DROP_RULE`; more than, by the rules before it)."""
+DROP_FALL = 0.1875
+"""°C (3 LSB) below the last period's PV the latest reading must lie at least, by `DROP_RULE`.
+One reading differs from the last period's mean by 0.04 °C sd (noise sd 0.03 °C and the
+LM92's truncation): 2 LSB is 3 sd and 3 LSB 4.7 sd, and noise does not give both in a row
+(none in 3.2 million simulated periods of hold, the true temperature anywhere within an LSB).
+Behind the sensor's lag cold water shows as readings that fall further each time, the first
+of them often by less than 0.25 °C; a one-reading glitch (the supervisor drops only jumps
+beyond safety.max_step) has a steady reading before it, so it never does it, however deep."""
 
 
 @dataclass(frozen=True, slots=True)
 class DropRule:
     """What a period's readings must show before predictive acts on them (`full_power_now`):
-    the latest more than STEP_INNOVATION below the last period's PV and the one before it
-    more than `onset` below; then the controller's trial step on the latest reading
-    (`on_latest`) or on the mean of the two must give full power."""
+    the latest more than `fall` below the last period's PV and the one before it more than
+    `onset` below (at least, if `inclusive`); then either the controller's trial step on the
+    latest reading (`on_latest`) or on the mean of the two gives full power, or (`deficit`)
+    the fall both readings show is more than full power for a whole period could add back by
+    the model's rate (`full_power_adds`): acting on it cannot lift the water above where it
+    stood, and a lone glitch that follows a reading noise put 2 LSB low (about 1 in 700 at
+    the bench's noise) adds less than those 2 LSB."""
 
     onset: float
     on_latest: bool
+    fall: float = STEP_INNOVATION
+    inclusive: bool = False
+    deficit: bool = False
 
 
-DROP_RULE = DropRule(DROP_ONSET, on_latest=True)
-"""The rule in force; its `onset` is logged with every config record (`drop_onset_c`)."""
+DROP_RULE = DropRule(DROP_ONSET, on_latest=True, fall=DROP_FALL, inclusive=True, deficit=True)
+"""The rule in force; its `onset` and `fall` are logged with every config record
+(`drop_onset_c`, `drop_fall_c`). Behind a slow sensor (a thermowell) cold water shows as
+readings that fall by less than 0.1 °C a second at first, and the law, on the PV it sees,
+answers a fall of less than half a degree with a few % more: the rules before it lost the
+seconds until the readings lay that far down."""
+LAW_DROP_RULE = DropRule(DROP_ONSET, on_latest=True)
+"""The rule before it (both thresholds strict, the latest more than STEP_INNOVATION down,
+only the law's answer counts): logs with `drop_onset_c` and no `drop_fall_c`."""
 FIRST_DROP_RULE = DropRule(STEP_INNOVATION, on_latest=False)
 """The first rule (both readings beyond STEP_INNOVATION, the trial on their mean): logs with
 `drop_readings` and no `drop_onset_c` were written under it. It lost a reading, a second of
@@ -881,6 +898,11 @@ class _Predictive(_Base):
         self._kc_near = min(self._kc, 100.0 / (rate * settle))
         self._kc_far = max(self._kc, 100.0 / (rate * ts))
 
+    def full_power_adds(self) -> float:
+        """°C that full power instead of the last output adds to the water over a whole
+        period, by the model's rate: the most that acting on a drop inside a period adds."""
+        return self._ts * self._rate * (100.0 - self._output) / 100.0
+
     def _drift(self, x: float, u: float) -> float:
         """The model's change of PV over one period at duty u from x (Euler; λ·Ts ≪ 1)."""
         return self._ts * (self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias)
@@ -975,7 +997,9 @@ class _Predictive(_Base):
         full = applied >= self._hi
         if not full:
             watch.active = recovery.active = False  # the step ended before the PV rose enough
-        steady = max(recent) - min(recent) <= STEADY_BAND
+        # This period's PV too: cold water that the readings showed within the period (and
+        # answered there) has a steady minute before it, but is no step from a steady PV.
+        steady = max(*recent, pv) - min(*recent, pv) <= STEADY_BAND
         if full and not (watch.active or recovery.active) and before < self._hi:
             if steady:
                 watch.arm(recent[-1], applied - before)
@@ -1014,7 +1038,8 @@ def full_power_now(
     controller would answer with full power, so that the loop need not wait for the period's
     end: the last DROP_READINGS of them below the last period's PV (`last_pv`) as `rule`
     asks, and the step the controller would take now, on the latest of them (or their mean,
-    as `rule` asks) with its last output as applied, gives its upper limit. The element's
+    as `rule` asks) with its last output as applied, gives its upper limit, or (as `rule`
+    asks) the fall is more than full power can add back within a period. The element's
     heat reaches the sensor a dead time later whatever is done, so every second of the old
     duty after the water is a second of recovery lost; a period is 5 of them. Only
     predictive acts inside a period (the textbook forms are their seeds' equations, once a
@@ -1029,8 +1054,14 @@ def full_power_now(
     before, latest = readings[-DROP_READINGS], readings[-1]
     if controller.params.out_max < 100.0 or controller.output >= 100.0:
         return False
-    if latest >= last_pv - STEP_INNOVATION or before >= last_pv - rule.onset:
+    fell, first = last_pv - latest, last_pv - before
+    if rule.inclusive:
+        if fell < rule.fall or first < rule.onset:
+            return False
+    elif fell <= rule.fall or first <= rule.onset:
         return False
+    if rule.deficit and controller.full_power_adds() < min(fell, first):
+        return True
     pv = latest if rule.on_latest else (before + latest) / 2.0
     trial = copy.deepcopy(controller)
     return trial.step(sp, pv, controller.output) >= 100.0

@@ -281,6 +281,9 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "drop_onset_c": _field(
                     "number", "°C below the last PV the first of those readings must lie"
                 ),
+                "drop_fall_c": _field(
+                    "number", "°C below the last PV the latest of them must lie at least"
+                ),
             },
         ),
     ),

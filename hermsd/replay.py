@@ -41,6 +41,7 @@ from hermsd.pid import (
     DROP_READINGS,
     DROP_RULE,
     FIRST_DROP_RULE,
+    LAW_DROP_RULE,
     Controller,
     DropRule,
     PlantModel,
@@ -108,6 +109,7 @@ class LoggedConfig:
     safety_model: dict[str, Any] | None = None  # the measured tun the safety limits came from
     drop_readings: int | None = None  # the rule of `full_from` (None: not acted on in periods)
     drop_onset_c: float | None = None  # and its onset (None: the first rule, if drop_readings)
+    drop_fall_c: float | None = None  # and its fall (None: the rule of the law's answer alone)
 
 
 @dataclass(frozen=True, slots=True)
@@ -388,6 +390,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
     model, safety_model = message.get("model"), message.get("safety_model")
     drop_readings, drop_onset = message.get("drop_readings"), message.get("drop_onset_c")
+    drop_fall = message.get("drop_fall_c")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
@@ -396,6 +399,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         safety_model if isinstance(safety_model, dict) else None,
         drop_readings if isinstance(drop_readings, int) else None,
         float(drop_onset) if _is_number(drop_onset) else None,
+        float(drop_fall) if _is_number(drop_fall) else None,
     )
 
 
@@ -697,9 +701,11 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     A period's `full_from` (the reading after which the controller asked for full power at
     once) must be what `pid.full_power_now` gives on its readings, with the controller as the
     step of the record before it left it; None where no step came before it. It is checked
-    by the rule the config record in force names (`drop_readings`, and `drop_onset_c` since
-    the onset was lowered; without it, `pid.FIRST_DROP_RULE`): an older daemon never acted
-    inside a period and logged no such thing.
+    by the rule the config record in force names (`drop_readings`, `drop_onset_c` since
+    the onset was lowered, `drop_fall_c` since a fall the element cannot undo in a period
+    is acted on whatever the law says; without the onset, `pid.FIRST_DROP_RULE`, without
+    the fall `pid.LAW_DROP_RULE`): an older daemon never acted inside a period and logged
+    no such thing.
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -805,7 +811,10 @@ def _drop_rule(entry: LoggedConfig) -> DropRule | None:
         return None
     if entry.drop_onset_c is None:
         return FIRST_DROP_RULE
-    return DROP_RULE if entry.drop_onset_c == DROP_RULE.onset else None
+    if entry.drop_fall_c is None:
+        return LAW_DROP_RULE if entry.drop_onset_c == LAW_DROP_RULE.onset else None
+    same = (entry.drop_onset_c, entry.drop_fall_c) == (DROP_RULE.onset, DROP_RULE.fall)
+    return DROP_RULE if same else None
 
 
 def _full_from(

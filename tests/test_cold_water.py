@@ -79,10 +79,12 @@ def test_full_power_forgets_what_was_carried() -> None:
 LAGGED_DROP = [65.75, 65.3125]
 
 
-def holding_controller(algorithm: str = "predictive", out_max: float = 100.0) -> pid.Controller:
-    """A controller that has held 66 °C for an hour on seed 001's tun (its model: 1.689 °C/%,
-    τ 14961 s, dead time 115 s, a 20 °C room), started at the holding duty 46/1.689 %."""
-    model = pid.SEED_HLT
+def holding_controller(
+    algorithm: str = "predictive", out_max: float = 100.0, model: pid.PlantModel = pid.SEED_HLT
+) -> pid.Controller:
+    """A controller that has held 66 °C for an hour on `model`'s tun (by default seed 001's:
+    1.689 °C/%, τ 14961 s, dead time 115 s, a 20 °C room), started at the holding duty
+    46/1.689 = 27.2 %."""
     controller = pid.create(algorithm, kc=120.0, ti=800.0, ts=5.0, out_max=out_max, model=model)
     holding = (SP - model.ambient) / model.gain
     controller.reset(SP, holding)
@@ -96,22 +98,69 @@ def holding_controller(algorithm: str = "predictive", out_max: float = 100.0) ->
     return controller
 
 
+# Full power for a whole period on seed 001's tun adds 5 s · 100·1.689/14961 °C/s · (100 − u) %
+# = 0.0564 °C · (1 − u/100): less than 0.045 °C from a holding duty above 20 %.
+
+
 @pytest.mark.parametrize(
     "readings",
     [
         [66.0, 65.0],  # one reading below: a glitch as far as anyone knows
+        [66.0, 60.0],  # however deep
+        [65.9375, 65.0],  # after a reading one LSB low: noise does that every few readings
         [65.0, 66.0],
         [66.0, 65.0, 66.0, 65.0, 66.0],  # glitches that do not agree with each other
-        [65.8125, 65.8125],  # 0.1875 °C: the latest not more than 0.25 below
-        [65.875, 65.0],  # the one before is exactly 0.125 below, not more: a glitch's neighbour
-        [65.0, 65.75],  # the latest exactly 0.25 below, not more
-        [65.6875, 65.6875],  # 0.3125 °C below, but the law's answer is a few %, not full
+        [65.875, 65.875],  # the latest only 2 LSB below, not 3
+        [65.9375, 65.8125],  # the one before only 1 LSB below
     ],
 )
-def test_no_full_power_without_two_readings_the_law_answers_with_it(
+def test_no_full_power_without_two_readings_that_show_the_fall(readings: list[float]) -> None:
+    assert not pid.full_power_now(holding_controller(), SP, SP, readings)
+
+
+@pytest.mark.parametrize(
+    "readings",
+    [
+        [65.875, 65.8125],  # 2 and 3 LSB below: the least the rule acts on
+        [65.8125, 65.8125],
+        [65.0, 65.75],
+        [65.6875, 65.6875],  # 0.3125 °C below: the law's answer is a few %, not full
+    ],
+)
+def test_a_fall_full_power_cannot_undo_in_a_period_is_answered_whatever_the_law_says(
     readings: list[float],
 ) -> None:
-    assert not pid.full_power_now(holding_controller(), SP, SP, readings)
+    # Both readings at least 0.125 °C below, more than the 0.045 °C a period of full power
+    # adds: the rule in force acts; the rule before it waited for the law to ask for it.
+    assert pid.full_power_now(holding_controller(), SP, SP, readings)
+    assert not pid.full_power_now(holding_controller(), SP, SP, readings, pid.LAW_DROP_RULE)
+
+
+def test_a_thermowell_drop_is_answered_at_its_third_reading() -> None:
+    # 4 L of 15 °C water into 40 L at 66 °C mix to (40·66 + 4·15)/44 = 61.3636 °C, a step of
+    # 4.6364 °C behind a 60 s sensor lag; readings 0.5, 1.5, 2.5, 3.5 s after it, truncated to
+    # 0.0625 °C: 66 − 4.6364·(1 − e^(−t/60)) = 65.9615, 65.8855, 65.8108, 65.7373 →
+    # 65.9375, 65.875, 65.75, 65.6875. The third is the first at least 3 LSB below with one
+    # at least 2 LSB below before it; the rule before it wanted the latest more than 0.25 °C
+    # below and the law to answer it with full power, which it does not at 0.3125 °C either.
+    readings = [65.9375, 65.875, 65.75, 65.6875]
+    decided = [pid.full_power_now(holding_controller(), SP, SP, readings[:n]) for n in (1, 2, 3)]
+    assert decided == [False, False, True]
+    for n in (1, 2, 3, 4):
+        assert not pid.full_power_now(holding_controller(), SP, SP, readings[:n], pid.LAW_DROP_RULE)
+
+
+def test_where_a_period_of_full_power_could_undo_more_than_the_fall_the_law_decides() -> None:
+    # A tun ten times as fast (τ 1689 s: 0.1 °C/s at full power), holding at 27.2 %: a period
+    # of full power adds 5 · 0.1 · (1 − u/100) = 0.33 to 0.4 °C from a duty of 20 to 35 %.
+    fast = pid.PlantModel(gain=1.689, tau=1689.0, dead_time=115.0)
+    # 0.25 °C is less: the law decides, and 0.25 °C below is its gentle zone.
+    assert not pid.full_power_now(holding_controller(model=fast), SP, SP, [65.75, 65.75])
+    # 0.4375 °C is more: full power, though the law, 0.44 °C into its kc zone, asks for
+    # 27 % + 4.3·0.25 + 120·0.19 = 51 %.
+    fallen = [65.5625, 65.5625]
+    assert pid.full_power_now(holding_controller(model=fast), SP, SP, fallen)
+    assert not pid.full_power_now(holding_controller(model=fast), SP, SP, fallen, pid.LAW_DROP_RULE)
 
 
 def test_a_drop_the_lag_keeps_within_a_quarter_degree_at_first_is_answered_at_its_second() -> None:
@@ -132,6 +181,22 @@ def test_the_first_rule_asks_its_law_on_the_mean_of_the_two() -> None:
     shallow = [65.6875, 65.3125]
     assert pid.full_power_now(holding_controller(), SP, SP, shallow)
     assert not pid.full_power_now(holding_controller(), SP, SP, shallow, pid.FIRST_DROP_RULE)
+
+
+def test_full_power_the_readings_asked_for_is_a_recovery_not_a_heat_up_from_steady() -> None:
+    # An hour at 66 °C, then a period whose readings showed cold water and got full power
+    # within it: its PV is 0.6 °C down, though the minute before it was steady. The step is
+    # measured as a recovery (the rate the added water left), not as a heat-up from a steady
+    # 66 °C, whose fit would wait for a rise to 67 °C that never comes.
+    controller = holding_controller()
+    assert isinstance(controller, pid._Predictive)
+    controller.step(SP, SP - 0.6, 100.0)
+    assert (controller._recovery.active, controller._watch.active) == (True, False)
+    # A step to full power with this period's PV still within the steady band is a heat-up's.
+    controller = holding_controller()
+    assert isinstance(controller, pid._Predictive)
+    controller.step(SP, SP - 0.0625, 100.0)
+    assert (controller._recovery.active, controller._watch.active) == (False, True)
 
 
 def test_two_readings_a_degree_down_ask_for_full_power_and_change_nothing() -> None:
@@ -156,16 +221,19 @@ def test_a_power_limit_below_full_is_kept_inside_the_period() -> None:
     assert not pid.full_power_now(holding_controller(out_max=80.0), SP, SP, readings)
 
 
-def test_sensor_noise_never_asks_for_full_power() -> None:
-    # Twelve hours of hold readings with the bench's noise (sd 0.03 °C before the LM92's
-    # 0.0625 °C truncation), each prefix of each period asked as the daemon asks it.
+@pytest.mark.parametrize("within_lsb", [0.0, 0.25, 0.5, 0.75])
+def test_sensor_noise_never_asks_for_full_power(within_lsb: float) -> None:
+    # Three hours of hold readings with the bench's noise (sd 0.03 °C before the LM92's
+    # 0.0625 °C truncation), the true temperature `within_lsb` of an LSB above the setpoint,
+    # each prefix of each period asked as the daemon asks it.
     rng = random.Random(12)
     controller = holding_controller()
     pv = SP
-    for _ in range(12 * 720):
+    truth = SP + within_lsb * 0.0625
+    for _ in range(3 * 720):
         readings: list[float] = []
         for _ in range(5):
-            readings.append(math.floor((SP + rng.gauss(0.0, 0.03)) / 0.0625) * 0.0625)
+            readings.append(math.floor((truth + rng.gauss(0.0, 0.03)) / 0.0625) * 0.0625)
             assert not pid.full_power_now(controller, SP, pv, readings)
         pv = sum(readings) / len(readings)
         controller.step(SP, pv, controller.output)
@@ -406,3 +474,18 @@ def test_a_log_of_the_first_rule_verifies_by_it(cold_water_log: list[Path]) -> N
     assert (mismatch.name, mismatch.logged, mismatch.recomputed) == ("full_from", 2, 3)
     # A rule this version does not know is not checked, rather than checked wrongly.
     assert replay.verify(_by_rule(log, 0.1875, acted, 4)).mismatch is None
+
+
+def test_each_logged_rule_is_verified_by_itself(cold_water_log: list[Path]) -> None:
+    def logged(onset: float | None, fall: float | None) -> replay.LoggedConfig:
+        return replay.LoggedConfig(0.0, "start", {}, None, None, 2, onset, fall)
+
+    assert replay._drop_rule(logged(None, None)) is pid.FIRST_DROP_RULE
+    assert replay._drop_rule(logged(0.125, None)) is pid.LAW_DROP_RULE
+    assert replay._drop_rule(logged(0.125, 0.1875)) is pid.DROP_RULE
+    assert replay._drop_rule(logged(0.125, 0.25)) is None  # a rule this version does not know
+    # Today's daemon logs the rule in force, and its log verifies by it.
+    log = replay.load(cold_water_log)
+    configs = [e for e in log.entries if isinstance(e, replay.LoggedConfig)]
+    assert configs and all((c.drop_onset_c, c.drop_fall_c) == (0.125, 0.1875) for c in configs)
+    assert replay.verify(log.entries).mismatch is None

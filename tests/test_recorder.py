@@ -122,6 +122,7 @@ CONFIG = {
     "model": {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0},
     "drop_readings": 2,
     "drop_onset_c": 0.125,
+    "drop_fall_c": 0.1875,
 }
 MODEL = {
     "t": 6600.0,
