@@ -174,18 +174,43 @@ def ssr_row(spec: TunSpec) -> dict[str, Any]:
 FAULTS = (
     ("SSR element dead", "heater", "open"),
     ("contactor element dead", "heater2", "open"),
+    ("contactor element dead, water at 5 h 30", "heater2", "open"),
     ("contactor shorted", "relay2", "stuck_on"),
 )
+SECOND_WATER = 5.5 * 3600.0
+"""s: a tenth of the volume of 15 °C water again, which asks the contactor's element for heat
+(a lidded tun holds on the SSR alone, and a dead element nothing asks for shows nothing)."""
+
+
+def first_warning(records: list[Any], after: float) -> tuple[int, float] | None:
+    """The first element reported giving no heat at or after `after`, and when (s after)."""
+    for record in records:
+        if record.t >= after and record.no_heat:
+            return record.no_heat[0], record.t - after
+    return None
+
+
+def normal_warnings(spec: TunSpec) -> int:
+    """Element warnings on the shared-out normal days with the water at each of WATER_SHIFTS."""
+    found = 0
+    for shift in WATER_SHIFTS:
+        records = run(shifted(two_element_day(spec), shift), keep_records=True).records
+        found += first_warning(records, 0.0) is not None
+    return found
 
 
 def fault_row(
-    spec: TunSpec, kind: str, value: str, control: dict[str, Any] | None = None
-) -> tuple[str, float | None, float]:
-    """The first alarm after the fault, how long after it ((-, None): not caught), and the
-    highest PV above the setpoint from the fault to the alarm (or the day's end), °C."""
+    spec: TunSpec, kind: str, value: str, control: dict[str, Any] | None = None, water: bool = False
+) -> tuple[str, float | None, float, tuple[int, float] | None]:
+    """The first alarm after the fault, how long after it ((-, None): not caught), the
+    highest PV above the setpoint from the fault to the alarm (or the day's end), °C, and the
+    first element warning (element, s after the fault); `water` adds water at SECOND_WATER."""
     day = two_element_day(spec, control)
     config = {**day.config, "contactor": {"backend": "gpio", "line": 27}}
     events = (*day.events, Event(FAULT_AT, kind, value))
+    if water:
+        litres = spec.litres / 10.0
+        events += (Event(SECOND_WATER, "add_water", {"litres": litres, "temp": 15.0}),)
     result = run(dataclasses.replace(day, config=config, events=events), keep_records=True)
     caught = [a for a in result.summary["alarms"] if a["detected_after_s"] is not None]
     alarm, after = (caught[0]["kind"], caught[0]["detected_after_s"]) if caught else ("-", None)
@@ -194,7 +219,7 @@ def fault_row(
         (r.pv - r.setpoint for r in result.records if FAULT_AT <= r.t <= end and r.pv is not None),
         default=0.0,
     )
-    return alarm, after, over
+    return alarm, after, over, first_warning(result.records, FAULT_AT)
 
 
 OPEN_POT_NOTE = (
@@ -315,6 +340,13 @@ def main(write: bool = False) -> int:
         out.append(f"| {spec.name} | {low:.3f} | {high:.3f} |")
     out += [
         "",
+        "Element warnings (hermsd/element_watch.py) on the same normal days, shared out, the "
+        "water at each of those times: "
+        + ", ".join(f"{spec.name} {normal_warnings(spec)} of {len(WATER_SHIFTS)}" for spec in TUNS)
+        + ".",
+    ]
+    out += [
+        "",
         f"Faults in the hold (at {FAULT_AT / 3600:g} h, a series contactor fitted): the first "
         "alarm, its detection time, and the highest PV over the setpoint from the fault to the "
         "alarm or the day's end (peak).",
@@ -325,10 +357,13 @@ def main(write: bool = False) -> int:
     for spec in TUNS:
         for label, control in (("shared out", None), ("midrange", MIDRANGE)):
             cells = []
-            for _, kind, value in FAULTS:
-                alarm, after, over = fault_row(spec, kind, value, control)
-                caught = "not caught" if after is None else f"{alarm} after {after:.0f} s"
-                cells.append(f"{caught} (peak SP {over:+.2f} °C)")
+            for name, kind, value in FAULTS:
+                alarm, after, over, warned = fault_row(spec, kind, value, control, "water" in name)
+                said = (
+                    [] if warned is None else [f"warning element {warned[0]} at {warned[1]:.0f} s"]
+                )
+                caught = [] if after is None else [f"{alarm} after {after:.0f} s"]
+                cells.append(f"{'; '.join(said + caught) or 'not caught'} (peak SP {over:+.2f} °C)")
             out.append(f"| {spec.name} | {label} | " + " | ".join(cells) + " |")
     out += [
         "",
