@@ -42,7 +42,7 @@ from hermsd.config import (
 )
 from hermsd.config_file import ConfigFile
 from hermsd.element2 import SlowElement, SplitController, TwoElementController, total_share
-from hermsd.element_watch import ElementWatch
+from hermsd.element_watch import ElementWatch, no_heat_words
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import (
@@ -1098,8 +1098,6 @@ class Daemon:
         total_asked, total_applied = self._total_power(asked, applied, switched2)
         sup.period(now, pv, total_asked, total_applied)
         self._drain_alarms(now)
-        if self.element_watch is not None and switched2 is not None:
-            self._watch_elements(now, pv, applied, switched2)
         # The schedule's tun is both elements (its rates are of their sum): so is its duty.
         standby = self._program_period(now, pv, total_applied) and self.mode == "auto"
         state = "ok"
@@ -1144,6 +1142,8 @@ class Daemon:
             # earning pings; a kill in a healthy hold would restart, and re-alert, for hours.
             self._watchdog.note_healthy_cycle()
         u2 = self._output2 = self._drive_element2(now, state)
+        if self.element_watch is not None and switched2 is not None:
+            self._watch_elements(now, pv, applied, switched2)  # as logged: replay does it
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -1305,7 +1305,7 @@ class Daemon:
         if self.program.active:
             state += f", {self.program.status_words(self.clock.wall_ns())}"
         for element in sorted(self.element_watch.suspect if self.element_watch else ()):
-            state += f", element {element} gives no heat?"
+            state += f", {no_heat_words(element)}"
         return status_line(
             self.config.tun.name, self._pv, self.setpoint, self._asked(), state, self._output2
         )

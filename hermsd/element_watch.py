@@ -3,23 +3,23 @@
 The supervisor judges the total power of both elements against limits that hold for any fill
 from half to twice the configured litres. Where one element can hold the tun alone, the loop
 holds on it when the other dies, and no limit of that width can tell. This watch compares
-the loop's own spells with two references measured the same day, so the fill cancels out:
+stretches of the day with two references measured the same day, so the fill cancels out:
 
-- the full-power rate R (°C/s): the PV's rise with both elements fully on (a heat-up or a
-  recovery), the first measured at the setpoint in force;
-- the hold's power u0 (a fraction of both elements' total): the mean asked while the PV held
-  the setpoint for `HOLD_S`: the tun's losses there, in the elements' own units.
+- the full-power rate R (°C/s): the PV's rise with both elements fully on, the last measured
+  before the hold at the setpoint in force (nearest the setpoint's losses);
+- the hold's power u0 (a part of both elements' total): the mean asked while the PV held the
+  setpoint for `HOLD_S`, less what its drift took: the tun's losses there.
 
-With G = R/(1 − u0) the rise rate per unit of total power (the losses at the heat-up's
-temperature taken as at the setpoint's: they are less, so G is read low and a working
-element looks stronger, not weaker), a spell of `SPELL_S` with the second element's state
-steady, judged one dead time `dead_time` after the power it saw, delivered u0 + r/G of the
-total where u was asked (r its rate). An element switched on for a part c of the total whose
-heat is missing (u − delivered ≥ `MISSING` · c) for `CONFIRM_S` is reported; it is cleared
-once a spell shows it giving at least (1 − `RESTORED`) of it again.
+G = R/(1 − u0) is the rise per unit of total power, and a window that asked u and rose at r
+delivered u0 + r/G. R was measured a little below the setpoint, where the losses are a
+little less, so G reads high by as much (some 2 % a degree below 66 °C in a 20 °C room):
+heat delivered while rising reads a little low. An element whose own part c of u is missing
+(and not the other's part: `MISSING`·c ≤ u − delivered ≤ c/`MISSING`) through a window, in
+each way of aligning the power with the PV (`WINDOWS`), for the window's confirm time is
+reported; it is cleared once a window shows no more than `RESTORED`·c missing.
 
-Pure, fed once a control period with time as an argument, its state made of what the
-period records log, so `hermsd replay` derives the same reports from a log.
+Pure, fed once a control period with time as an argument; its state is made of what the
+period records log, so `hermsd replay --verify` derives the same reports from a log.
 """
 
 from __future__ import annotations
@@ -29,8 +29,9 @@ from collections import deque
 from dataclasses import dataclass
 
 SPELL_S = 120.0
-"""s of PV judged at a time: 2 LSB of noise (0.125 °C) over it is 1e-3 °C/s, some 10 % of the
-full-power rate of a 5.5 kW tun of 150 L (its slowest in the benches)."""
+"""s of PV judged at a time: the means of 3 periods' PV at its ends (each period's of 5
+reads: sd 0.016 °C with 0.03 °C noise and the LM92's steps) differ by sd 0.013 °C, 1.1e-4
+°C/s over it: 2 % of the full-power rate of 5.5 kW into 150 L, the slowest in the benches."""
 HOLD_S = 1200.0
 """s the PV must stay within `HOLD_BAND` of the setpoint for the hold's power to be taken."""
 HOLD_BAND = 0.3
@@ -43,7 +44,14 @@ the losses of the setpoint and clear of the approach's cut-back."""
 SUDDEN_FALL = 0.25
 """°C within `SUDDEN_SPAN`: faster than any loss, water was added; no spell spans it."""
 SUDDEN_SPAN = 30.0
-LEAST_SHARE = 0.2
+SETTLE_S = 300.0
+"""s after such a fall before a spell may start: the sensor's lag (a thermowell's, up to
+120 s) still bends its rise for some three lags."""
+DEAD_TIME_FACTORS = (0.5, 1.0, 2.0)
+"""Each spell is judged with its power taken these times the dead time earlier: an element
+is blamed only when all agree (a misjudged dead time makes power that changed near the
+window's ends look missing at one of them, not at all)."""
+LEAST_SHARE = 0.1
 """An element giving less than this part of the total in a spell is not judged in it."""
 CYCLES_S = 900.0
 """s: a longer window judged whatever the second element did in it (a hold that cycles it
@@ -51,19 +59,39 @@ at its minimum times never leaves it in one state for a spell)."""
 LEAST_PART = 0.05
 """… where an element's part is judged from this (its missing heat is then still 6× the
 noise's 1.5e-5 °C/s over the window on the slowest tun)."""
+CYCLES_CONFIRM_S = CYCLES_S / 2.0
+"""s such a window's finding must last: one that spans an element's death sees half its heat
+missing, as much as the other's part may be, and blames the wrong one until it moves on."""
 MISSING = 0.6
 """Missing heat, as a part of an element's own, that reports it (a dead one: 1)."""
 RESTORED = 0.3
 """Missing heat, as a part of its own, below which a reported element is cleared."""
 CONFIRM_S = 60.0
 """s a finding must last before it is reported or cleared."""
+WINDOWS = (
+    (SPELL_S, True, LEAST_SHARE, CONFIRM_S, DEAD_TIME_FACTORS),
+    (CYCLES_S, False, LEAST_PART, CYCLES_CONFIRM_S, (1.0,)),
+)
+"""(s judged, the second element steady in it, the least part judged, s to confirm, the dead
+times tried): a long window's ends weigh little, and the ripple of a cycling hold at its
+ends would make the dead times disagree by more than misjudging them does."""
 PV_MEAN_PERIODS = 3
 """Periods whose PV are averaged at either end of a spell (noise: sd/√3)."""
 
 
+EITHER = 0
+"""Reported for the element when heat is missing that either one's could be."""
+
+
+def no_heat_words(element: int) -> str:
+    """The words of a report on `element` (1, 2 or EITHER), as the status shows them."""
+    which = "element 1 or 2" if element == EITHER else f"element {element}"
+    return f"{which} gives no heat?"
+
+
 @dataclass(frozen=True, slots=True)
 class ElementReport:
-    """A finding on one element (1: the SSR's, 2: the second), raised or cleared."""
+    """A finding on one element (1: the SSR's, 2: the second; EITHER), raised or cleared."""
 
     element: int
     t: float
@@ -93,7 +121,8 @@ class ElementWatch:
         self.setpoint: float | None = None
         self.suspect: set[int] = set()  # the elements reported and not cleared
         self._samples: deque[_Sample] = deque()
-        self._since: dict[tuple[int, bool], float] = {}  # (element, raise?) → first seen
+        self._since: dict[tuple[int, bool, float], float] = {}  # a finding → first seen
+        self._fell_at: float | None = None  # when the PV last fell faster than losses can
 
     def period(
         self, t: float, pv: float | None, setpoint: float, duty1: float, duty2: float
@@ -107,9 +136,11 @@ class ElementWatch:
             return []
         samples = self._samples
         samples.append(_Sample(t, pv, duty1 / 100.0, duty2 >= 100.0))
-        keep = max(HOLD_S, CYCLES_S) + self.dead_time + SUDDEN_SPAN
+        keep = max(HOLD_S, CYCLES_S) + max(DEAD_TIME_FACTORS) * self.dead_time + SUDDEN_SPAN
         while t - samples[0].t > keep:
             samples.popleft()
+        if max(s.pv for s in samples if s.t >= t - SUDDEN_SPAN) - pv >= SUDDEN_FALL:
+            self._fell_at = t
         if duty2 > 0.0 and duty2 < 100.0:
             self._since.clear()
             return []  # the second element switched within the period: no spell spans it
@@ -118,13 +149,14 @@ class ElementWatch:
 
     def _take_references(self, t: float, setpoint: float) -> None:
         samples = self._samples
-        if self.full_rate is None:
+        if self.hold_power is None:  # the full-power rate nearest the setpoint, before it
             low, high = setpoint - APPROACH_BAND[0], setpoint - APPROACH_BAND[1]
-            spell = self._spell(t)
+            spell = self._spell(t, SPELL_S, True, max(DEAD_TIME_FACTORS) * self.dead_time)
             if spell is not None and low <= samples[-1].pv <= high:
-                power, rate, _ = spell
-                if power >= 1.0 - 1e-9 and rate > 0.0:
-                    self.full_rate = rate
+                reach = SPELL_S + max(DEAD_TIME_FACTORS) * self.dead_time
+                full = all(self._total(s) >= 1.0 - 1e-9 for s in samples if s.t > t - reach)
+                if full and spell[1] > 0.0:
+                    self.full_rate = spell[1]
         if self.hold_power is None and t - samples[0].t >= HOLD_S + self.dead_time:
             held = [s for s in samples if s.t >= t - HOLD_S]
             if all(abs(s.pv - setpoint) <= HOLD_BAND for s in held):
@@ -133,24 +165,30 @@ class ElementWatch:
                     s for s in samples if t - HOLD_S - self.dead_time < s.t <= t - self.dead_time
                 ]
                 if abs(drift) <= HOLD_DRIFT and powered:
-                    self.hold_power = sum(self._total(s) for s in powered) / len(powered)
+                    mean = sum(self._total(s) for s in powered) / len(powered)
+                    self.hold_power = mean
+                    if self.full_rate is not None:  # less what the drift took, by G = R/(1 − u0)
+                        seconds = _mean_t(held[-PV_MEAN_PERIODS:]) - _mean_t(held[:PV_MEAN_PERIODS])
+                        part = drift / seconds / self.full_rate
+                        self.hold_power = (mean - part) / (1.0 - part)
 
     def _spell(
-        self, t: float, span: float = SPELL_S, steady: bool = True
+        self, t: float, span: float, steady: bool, dead: float
     ) -> tuple[float, float, dict[int, float]] | None:
         """(mean total power, PV rate, each element's part of the total) of the `span` s
-        judged now, its power from `span` + the dead time ago; no water added in it, and
-        with `steady` the second element in one state all through."""
+        judged now, its power from `span` + `dead` s ago; none within `SETTLE_S` of water
+        added, and with `steady` the second element in one state all through."""
         samples = self._samples
-        start = t - span - self.dead_time
+        start = t - span - dead
         if samples[0].t > start - 1e-9:
+            return None
+        if self._fell_at is not None and self._fell_at >= start - SETTLE_S:
             return None
         spell = [s for s in samples if s.t > start]
         if steady and any(s.on2 != spell[-1].on2 for s in spell):
             return None
-        powered = [s for s in spell if s.t <= t - self.dead_time]
-        seen = [s for s in samples if s.t >= start - SUDDEN_SPAN]
-        if not powered or _fell_suddenly(seen):
+        powered = [s for s in spell if s.t <= t - dead]
+        if not powered:
             return None
         if not steady and any(self._total(s) >= 1.0 - 1e-9 for s in powered):
             return None  # a heat-up or recovery's end: where its heat shows depends on θ
@@ -171,58 +209,62 @@ class ElementWatch:
         if self.full_rate is None or self.hold_power is None or self.hold_power >= 1.0:
             return []
         gain = self.full_rate / (1.0 - self.hold_power)
-        findings: dict[int, list[tuple[bool, bool, float, float]]] = {}
-        for span, steady, least in ((SPELL_S, True, LEAST_SHARE), (CYCLES_S, False, LEAST_PART)):
-            spell = self._spell(t, span, steady)
-            if spell is None:
+        for span, steady, least, confirm, factors in WINDOWS:
+            # Judged at each dead time of DEAD_TIME_FACTORS: power that changed near the
+            # window's ends shows at the sensor sooner or later than `dead_time` says.
+            seen = [self._spell(t, span, steady, f * self.dead_time) for f in factors]
+            spells = [spell for spell in seen if spell is not None]
+            if len(spells) < len(seen):
                 continue
-            power, rate, parts = spell
+            blamed: set[int | None] = set()
+            restored: set[int] = set()
+            for power, rate, parts in spells:
+                missing = power - (self.hold_power + rate / gain)
+                judged = {e: c for e, c in parts.items() if c >= least}
+                # A dead element's missing heat is its own part: blamed when it fits that,
+                # or either of the two when both do.
+                fits = [e for e, c in judged.items() if MISSING * c <= missing <= c / MISSING]
+                blamed.add(fits[0] if len(fits) == 1 else EITHER if fits else None)
+                restored |= {e for e, c in judged.items() if missing <= RESTORED * c}
+                if len(restored) == 2:
+                    restored.add(EITHER)
+            power, rate, parts = spells[factors.index(1.0)]
             missing = power - (self.hold_power + rate / gain)
-            judged = {e: c for e, c in parts.items() if c >= least}
-            # Heat missing with both on: the element whose own heat is nearest it.
-            culprit = min(judged, key=lambda e: abs(judged[e] - missing), default=None)
-            for element, part in judged.items():
-                blamed = element == culprit and missing >= MISSING * part
-                cleared = missing <= RESTORED * part
-                findings.setdefault(element, []).append((blamed, cleared, missing, part))
-        reports = []
-        for element, found in sorted(findings.items()):
-            bad = next((f for f in found if f[0]), None)
-            good = next((f for f in found if f[1]), None) if bad is None else None
-            shown = bad or good or found[0]
-            reports += self._confirm(t, element, bad is not None, good is not None, *shown[2:])
-        return reports
+            parts[EITHER] = min((c for c in parts.values() if c >= least), default=0.0)
+            for element, part in parts.items():
+                raising = element not in self.suspect
+                # One element at a time: both dead is the supervisor's (neither holds the
+                # tun: the water falls at full power).
+                finding = (
+                    blamed == {element} and not self.suspect if raising else element in restored
+                )
+                key = (element, raising, span)
+                if not finding:
+                    self._since.pop(key, None)
+                elif t - self._since.setdefault(key, t) >= confirm:
+                    self._since.clear()
+                    return [self._report(t, element, raising, missing, part)]
+        return []
 
-    def _confirm(
-        self, t: float, element: int, bad: bool, good: bool, missing: float, part: float
-    ) -> list[ElementReport]:
-        raising = element not in self.suspect
-        # One element at a time: a window that spans a death blames the other in part, and
-        # both dead is the supervisor's (neither holds the tun: the water falls at full power).
-        finding = (bad and not self.suspect) if raising else good
-        key = (element, raising)
-        if not finding:
-            self._since.pop(key, None)
-            return []
-        first = self._since.setdefault(key, t)
-        if t - first < CONFIRM_S:
-            return []
-        del self._since[key]
+    def _report(
+        self, t: float, element: int, raising: bool, missing: float, part: float
+    ) -> ElementReport:
         share = 100.0 * part
         if raising:
             self.suspect.add(element)
             message = (
-                f"element {element} gives no heat? {100.0 * missing:.0f} % of both elements' "
+                f"{no_heat_words(element)} {100.0 * missing:.0f} % of both elements' "
                 f"power missing with it on for {share:.0f} % (against this day's full-power "
                 "rise and hold), or the tun loses that much more than in the hold (a lid off?)"
             )
         else:
             self.suspect.discard(element)
+            which = "elements 1 and 2 heat" if element == EITHER else f"element {element} heats"
             message = (
-                f"element {element} heats again ({100.0 * missing:.0f} % of both elements' "
+                f"{which} again ({100.0 * missing:.0f} % of both elements' "
                 f"power missing with it on for {share:.0f} %)"
             )
-        return [ElementReport(element, t, raising, message)]
+        return ElementReport(element, t, raising, message)
 
     def _total(self, sample: _Sample) -> float:
         return self.share1 * sample.duty1 + (self.share2 if sample.on2 else 0.0)
@@ -234,15 +276,3 @@ def _mean_pv(samples: list[_Sample]) -> float:
 
 def _mean_t(samples: list[_Sample]) -> float:
     return sum(s.t for s in samples) / len(samples)
-
-
-def _fell_suddenly(samples: list[_Sample]) -> bool:
-    """Any fall of `SUDDEN_FALL` within `SUDDEN_SPAN` among `samples` (oldest first)."""
-    window: deque[_Sample] = deque()
-    for sample in samples:
-        window.append(sample)
-        while sample.t - window[0].t > SUDDEN_SPAN:
-            window.popleft()
-        if max(s.pv for s in window) - sample.pv >= SUDDEN_FALL:
-            return True
-    return False
