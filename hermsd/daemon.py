@@ -42,7 +42,7 @@ from hermsd.config import (
 )
 from hermsd.config_file import ConfigFile
 from hermsd.element2 import SlowElement, SplitController, TwoElementController, total_share
-from hermsd.element_watch import ElementWatch, no_heat_words
+from hermsd.element_watch import ElementWatch, no_heat_words, report_kind
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import (
@@ -1143,7 +1143,7 @@ class Daemon:
             self._watchdog.note_healthy_cycle()
         u2 = self._output2 = self._drive_element2(now, state)
         if self.element_watch is not None and switched2 is not None:
-            self._watch_elements(now, pv, applied, switched2)  # as logged: replay does it
+            self._watch_elements(now, pv, applied, switched2, state)  # as logged: replay too
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -1276,12 +1276,15 @@ class Daemon:
         self.element2.drive(now, u2)
         return u2
 
-    def _watch_elements(self, now: float, pv: float | None, duty1: float, duty2: float) -> None:
+    def _watch_elements(
+        self, now: float, pv: float | None, duty1: float, duty2: float, state: str
+    ) -> None:
         """Said, not latched: the other element holds the tun (docs/two-elements.md)."""
         assert self.element_watch is not None
-        for report in self.element_watch.period(now, pv, self.setpoint, duty1, duty2):
+        watch = self.element_watch
+        for report in watch.period(now, pv, self.setpoint, duty1, duty2, state == "ok"):
             self._event(logging.WARNING if report.raised else logging.INFO, report.message, now)
-            self._alert("element_warning", report.message, now, f"element{report.element}")
+            self._alert("element_warning", report.message, now, report_kind(report.element))
 
     def _total_power(
         self, output: float, applied: float, applied2: float | None

@@ -24,6 +24,7 @@ period records log, so `hermsd replay --verify` derives the same reports from a 
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -45,8 +46,8 @@ SUDDEN_FALL = 0.25
 """°C within `SUDDEN_SPAN`: faster than any loss, water was added; no spell spans it."""
 SUDDEN_SPAN = 30.0
 SETTLE_S = 300.0
-"""s after such a fall before a spell may start: the sensor's lag (a thermowell's, up to
-120 s) still bends its rise for some three lags."""
+"""s after such a fall and the dead time before a window's PV may start: the sensor's lag (a
+thermowell's, up to 120 s) still bends its rise for some three lags."""
 DEAD_TIME_FACTORS = (0.5, 1.0, 2.0)
 """Each spell is judged with its power taken these times the dead time earlier: an element
 is blamed only when all agree (a misjudged dead time makes power that changed near the
@@ -64,6 +65,9 @@ CYCLES_CONFIRM_S = CYCLES_S / 2.0
 missing, as much as the other's part may be, and blames the wrong one until it moves on."""
 MISSING = 0.6
 """Missing heat, as a part of an element's own, that reports it (a dead one: 1)."""
+SURPLUS = 0.15
+"""Heat delivered beyond what was asked, as a part of the total, that says the references
+were measured without an element's heat (a normal day's windows stay within 0.06)."""
 RESTORED = 0.3
 """Missing heat, as a part of its own, below which a reported element is cleared."""
 CONFIRM_S = 60.0
@@ -81,17 +85,27 @@ PV_MEAN_PERIODS = 3
 
 EITHER = 0
 """Reported for the element when heat is missing that either one's could be."""
+UNASKED = 3
+"""Reported when more heat came than was asked (`SURPLUS`)."""
 
 
 def no_heat_words(element: int) -> str:
-    """The words of a report on `element` (1, 2 or EITHER), as the status shows them."""
+    """The words of a report on `element` (1, 2, EITHER or UNASKED), as the status shows."""
+    if element == UNASKED:
+        return "more heat than asked?"
     which = "element 1 or 2" if element == EITHER else f"element {element}"
     return f"{which} gives no heat?"
 
 
+def report_kind(element: int) -> str:
+    """The alert's kind for a report on `element`."""
+    return {EITHER: "element1or2", UNASKED: "heat_unasked"}.get(element, f"element{element}")
+
+
 @dataclass(frozen=True, slots=True)
 class ElementReport:
-    """A finding on one element (1: the SSR's, 2: the second; EITHER), raised or cleared."""
+    """A finding on one element (1: the SSR's, 2: the second; EITHER; UNASKED), raised or
+    cleared."""
 
     element: int
     t: float
@@ -120,19 +134,30 @@ class ElementWatch:
         self.hold_power: float | None = None  # the hold's mean total, 0..1
         self.setpoint: float | None = None
         self.suspect: set[int] = set()  # the elements reported and not cleared
+        self.doubtful = False  # heat beyond what was asked: the references lack an element
+        self.hold_cycled = False  # the second element was on in the hold's reference
         self._samples: deque[_Sample] = deque()
         self._since: dict[tuple[int, bool, float], float] = {}  # a finding → first seen
         self._fell_at: float | None = None  # when the PV last fell faster than losses can
 
     def period(
-        self, t: float, pv: float | None, setpoint: float, duty1: float, duty2: float
+        self,
+        t: float,
+        pv: float | None,
+        setpoint: float,
+        duty1: float,
+        duty2: float,
+        controlled: bool = True,
     ) -> list[ElementReport]:
-        """One control period: the PV, the setpoint, and each element's duty (%) as switched
-        in the period before. Returns what was reported or cleared now."""
+        """One control period: the PV, the setpoint, each element's duty (%) as switched in
+        the period before, and whether the controller drives them (no alarm, no manual, no
+        program waiting). Returns what was reported or cleared now."""
         if setpoint != self.setpoint:
             self.setpoint, self.hold_power = setpoint, None  # losses differ at another one
-        if pv is None or not math.isfinite(pv):
-            self._samples.clear()
+            self.doubtful = False
+        if pv is None or not math.isfinite(pv) or not controlled:
+            self._samples.clear()  # no window spans an alarm's heater off, or a manual spell
+            self._since.clear()
             return []
         samples = self._samples
         samples.append(_Sample(t, pv, duty1 / 100.0, duty2 >= 100.0))
@@ -167,6 +192,9 @@ class ElementWatch:
                 if abs(drift) <= HOLD_DRIFT and powered:
                     mean = sum(self._total(s) for s in powered) / len(powered)
                     self.hold_power = mean
+                    self.hold_cycled = any(
+                        b.on2 and not a.on2 for a, b in itertools.pairwise(powered)
+                    )
                     if self.full_rate is not None:  # less what the drift took, by G = R/(1 − u0)
                         seconds = _mean_t(held[-PV_MEAN_PERIODS:]) - _mean_t(held[:PV_MEAN_PERIODS])
                         part = drift / seconds / self.full_rate
@@ -182,7 +210,7 @@ class ElementWatch:
         start = t - span - dead
         if samples[0].t > start - 1e-9:
             return None
-        if self._fell_at is not None and self._fell_at >= start - SETTLE_S:
+        if self._fell_at is not None and self._fell_at > t - span - self.dead_time - SETTLE_S:
             return None
         spell = [s for s in samples if s.t > start]
         if steady and any(s.on2 != spell[-1].on2 for s in spell):
@@ -210,6 +238,12 @@ class ElementWatch:
             return []
         gain = self.full_rate / (1.0 - self.hold_power)
         for span, steady, least, confirm, factors in WINDOWS:
+            if steady and self.hold_cycled:
+                # A hold that switched the second element on is judged by the long window
+                # alone: had it given nothing all day, the hold cycled it for nothing and
+                # u0 took its nominal heat for the tun's losses, and a short window with it
+                # on throughout would blame the first element for its missing heat.
+                continue
             # Judged at each dead time of DEAD_TIME_FACTORS: power that changed near the
             # window's ends shows at the sensor sooner or later than `dead_time` says.
             seen = [self._spell(t, span, steady, f * self.dead_time) for f in factors]
@@ -218,8 +252,10 @@ class ElementWatch:
                 continue
             blamed: set[int | None] = set()
             restored: set[int] = set()
+            surplus = True
             for power, rate, parts in spells:
                 missing = power - (self.hold_power + rate / gain)
+                surplus = surplus and missing <= -SURPLUS
                 judged = {e: c for e, c in parts.items() if c >= least}
                 # A dead element's missing heat is its own part: blamed when it fits that,
                 # or either of the two when both do.
@@ -231,6 +267,15 @@ class ElementWatch:
             power, rate, parts = spells[factors.index(1.0)]
             missing = power - (self.hold_power + rate / gain)
             parts[EITHER] = min((c for c in parts.values() if c >= least), default=0.0)
+            if self.doubtful:
+                continue  # the references are not of both elements: nothing is judged by them
+            key = (UNASKED, True, span)
+            if not surplus:
+                self._since.pop(key, None)
+            elif t - self._since.setdefault(key, t) >= confirm:
+                self._since.clear()
+                self.doubtful = True
+                return [self._report(t, UNASKED, True, missing, parts[EITHER])]
             for element, part in parts.items():
                 raising = element not in self.suspect
                 # One element at a time: both dead is the supervisor's (neither holds the
@@ -250,7 +295,15 @@ class ElementWatch:
         self, t: float, element: int, raising: bool, missing: float, part: float
     ) -> ElementReport:
         share = 100.0 * part
-        if raising:
+        if element == UNASKED:
+            self.suspect.add(element)
+            message = (
+                f"{no_heat_words(element)} {-100.0 * missing:.0f} % of both elements' power "
+                "more than asked, against this day's full-power rise and hold: an element on "
+                "unasked (a relay or SSR shorted?), or one gave none when they were measured "
+                "(dead since the heat-up?), or the tun loses that much less (a lid put on?)"
+            )
+        elif raising:
             self.suspect.add(element)
             message = (
                 f"{no_heat_words(element)} {100.0 * missing:.0f} % of both elements' "

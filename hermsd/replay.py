@@ -757,7 +757,14 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             stepped = None
             watch = None  # what the missing periods told it is not known
         if watch is not None and record.switched2 is not None:
-            watch.period(record.t, record.pv, record.setpoint, record.applied, record.switched2)
+            watch.period(
+                record.t,
+                record.pv,
+                record.setpoint,
+                record.applied,
+                record.switched2,
+                record.state == "ok",
+            )
             if record.no_heat is not None and sorted(watch.suspect) != record.no_heat:
                 name = f"no_heat {record.no_heat} (derived {sorted(watch.suspect)})"
                 return Verification(

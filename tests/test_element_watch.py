@@ -5,13 +5,14 @@ each kind of element dead."""
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import pytest
 from test_element2 import logged_daemon, two_element_config
 
 from hermsd.daemon import PeriodRecord
-from hermsd.element_watch import CONFIRM_S, DEAD_TIME_FACTORS, SPELL_S, ElementWatch
+from hermsd.element_watch import CONFIRM_S, DEAD_TIME_FACTORS, SPELL_S, UNASKED, ElementWatch
 from hermsd.replay import load, verify
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event, Scenario, run
@@ -28,13 +29,17 @@ GAIN, LOSS = 0.01, 0.002
 HOLD_SSR = 100.0 * 0.2 * 11.0 / 4.0  # 55 %
 
 
-def _day(watch: ElementWatch, ssr_gives: float, after: float) -> tuple[float, list[object]]:
-    """50 → 66 °C on both (2000 s at 0.008 °C/s), 30 min held on the SSR alone, then `after`
-    s of the SSR at 100 % with the contactor off, the SSR giving `ssr_gives` of its heat.
-    Returns the time that last spell began and every report."""
+def _day(
+    watch: ElementWatch, ssr_gives: float, after: float, contactor_gives: float = 1.0
+) -> tuple[float, list[object]]:
+    """50 → 66 °C on both (2000 s), 30 min held on the SSR alone, then `after` s of the SSR
+    at 100 % with the contactor off, the SSR giving `ssr_gives` of its heat (and the contactor
+    `contactor_gives` of its own all day). Returns the time that last spell began and every
+    report."""
     heat_up, hold = 2000.0, 1800.0
     began = heat_up + hold
-    t, pv, reports = 0.0, 50.0, []
+    full = GAIN * (4.0 + 7.0 * contactor_gives) / 11.0 - LOSS
+    t, pv, reports = 0.0, 66.0 - full * heat_up, []  # 50 °C with both working
     while t < began + after:
         duty1, duty2 = (
             (100.0, 100.0) if t < heat_up else (HOLD_SSR, 0.0) if t < began else (100.0, 0.0)
@@ -43,7 +48,7 @@ def _day(watch: ElementWatch, ssr_gives: float, after: float) -> tuple[float, li
         shown = t + H - THETA  # the power whose heat reaches the sensor in this period
         rate = -LOSS
         if shown < heat_up:
-            rate += GAIN
+            rate += GAIN * (4.0 + 7.0 * contactor_gives) / 11.0
         elif shown < began:
             rate += GAIN * 0.2
         else:
@@ -86,6 +91,21 @@ def test_half_its_heat_is_not_enough_to_report() -> None:
     # Missing 2/11 = 18 % with it on for 36 %: half, below MISSING (0.6) of its part.
     _, reports = _day(ElementWatch(W1, W2, THETA), 0.5, 1800.0)
     assert reports == []
+
+
+def test_heat_beyond_what_was_asked_says_the_references_lack_an_element() -> None:
+    # The contactor's element dead from the start: R = 0.01·4/11 − 0.002 = 0.001636 °C/s,
+    # the hold on the SSR alone the same 20 %, so G reads 0.001636/0.8 = 0.002045 and the SSR
+    # at 100 % rising at R again "delivers" 0.2 + 0.001636/0.002045 = 1.0 of the total where
+    # 4/11 was asked: 64 % more. Neither element can be named from references made so.
+    watch = ElementWatch(W1, W2, THETA)
+    _, reports = _day(watch, 1.0, 1800.0, contactor_gives=0.0)
+    assert watch.full_rate == pytest.approx(GAIN * 4.0 / 11.0 - LOSS)
+    assert [(r.element, r.raised) for r in reports] == [(UNASKED, True)]  # type: ignore[attr-defined]
+    # Said once 15 % (SURPLUS) has stood for CONFIRM_S, on its way to the 64 %.
+    found = re.search(r"(\d+) % of both elements' power more than asked", reports[0].message)  # type: ignore[attr-defined]
+    assert found is not None and 15 <= int(found.group(1)) <= 64
+    assert watch.doubtful
 
 
 # -- on the simulator ---------------------------------------------------------------------------
