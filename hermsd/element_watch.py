@@ -184,7 +184,10 @@ class ElementWatch:
                     self.full_rate = spell[1]
         if self.hold_power is None and t - samples[0].t >= HOLD_S + self.dead_time:
             held = [s for s in samples if s.t >= t - HOLD_S]
-            if all(abs(s.pv - setpoint) <= HOLD_BAND for s in held):
+            # In the band from before its power's window too: the approach's last power,
+            # which a dead time longer than the tun's would count, is not the hold's.
+            settled = (s for s in samples if s.t >= t - HOLD_S - self.dead_time)
+            if all(abs(s.pv - setpoint) <= HOLD_BAND for s in settled):
                 drift = _mean_pv(held[-PV_MEAN_PERIODS:]) - _mean_pv(held[:PV_MEAN_PERIODS])
                 powered = [
                     s for s in samples if t - HOLD_S - self.dead_time < s.t <= t - self.dead_time

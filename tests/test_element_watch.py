@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 from test_element2 import logged_daemon, two_element_config
 
+from hermsd import config as config_module
 from hermsd.daemon import PeriodRecord
 from hermsd.element_watch import CONFIRM_S, DEAD_TIME_FACTORS, SPELL_S, UNASKED, ElementWatch
 from hermsd.replay import load, verify
@@ -113,11 +114,13 @@ def test_heat_beyond_what_was_asked_says_the_references_lack_an_element() -> Non
 # The lidded 60 L tun of the two-element bench: the SSR's 2 kW alone holds it (0.6 kW lost).
 TUN = TunSpec("60 L lidded", 60, W1 + W2, 1.0, 45, 10, 20)
 TWO = {"tun": {"element_watts": W1}, "element2": {"backend": "sim", "watts": W2}}
-FAULT_AT = 2.0 * 3600.0
+FAULT_AT = 1.25 * 3600.0
 
 
-def _two_elements(day: Scenario, *events: Event, hours: float = 2.5) -> Scenario:
-    plant = {**day.plant, "element_watts": W1, "element2_watts": W2}
+def _two_elements(day: Scenario, *events: Event, hours: float = 1.75) -> Scenario:
+    """`day` on the two elements, from water at 50 °C (a heat-up of some 15 min: the
+    references are taken in its last 10 °C and the 20 min hold after it)."""
+    plant = {**day.plant, "element_watts": W1, "element2_watts": W2, "start_c": 50.0}
     config = {**TWO, "tun": {**TWO["tun"], "litres": TUN.litres}}
     every = tuple(e for e in day.events if e.at < hours * 3600.0) + events
     return dataclasses.replace(
@@ -132,11 +135,26 @@ def _first_report(day: Scenario) -> tuple[list[int], float] | None:
     return None if first is None else (first.no_heat or [], first.t)
 
 
+def _references(day: Scenario) -> ElementWatch:
+    """A watch fed the day's records, as replay feeds one (the daemon's own is not kept)."""
+    watch = ElementWatch(W1, W2, config_module.DEFAULT.control.dead_time)
+    for r in run(day, keep_records=True).records:
+        watch.period(r.t, r.pv, r.setpoint, r.applied, r.switched2 or 0.0, r.state == "ok")
+    return watch
+
+
 @pytest.mark.parametrize("fill", [0.5, 2.0])
 def test_no_warning_on_a_normal_day_at_half_and_twice_the_fill(fill: float) -> None:
-    # The day's water at 4 h lands after the end: 2.5 h hold both references and an hour's
-    # hold; the bench (bench/faults.py --two-elements) runs the whole days.
-    assert _first_report(_two_elements(tf.normal_day(TUN, fill))) is None
+    # The day's water at 4 h lands after the end: 1.75 h hold both references and most of
+    # an hour's hold; the bench (bench/faults.py --two-elements) runs the whole days.
+    day = _two_elements(tf.normal_day(TUN, fill))
+    assert _first_report(day) is None
+    # … with both references taken: the hold's power is the losses, UA·(66 − 20) = 4.5 W/K
+    # ·(60·fill/90)^⅔·46 K (tuns.py: the seed's 17.76 W/K by the wetted area) over 5.5 kW.
+    watch = _references(day)
+    ua = 17.76 * (60.0 * fill / 90.0) ** (2.0 / 3.0)
+    assert watch.full_rate is not None
+    assert watch.hold_power == pytest.approx(ua * 46.0 / 5500.0, rel=0.1)
 
 
 def test_a_dead_ssr_element_is_reported_while_the_contactor_holds() -> None:
@@ -150,7 +168,7 @@ def test_a_dead_contactor_element_is_reported_when_water_asks_for_it() -> None:
     # A lidded hold asks nothing of it; a quarter of the water at 15 °C does, for some 40 min
     # on the SSR's element alone (10 °C·75 L·4186 J/(L·K) / 1.4 kW net).
     water = Event(FAULT_AT + 300.0, "add_water", {"litres": 15.0, "temp": 15.0})
-    day = _two_elements(TUN.brew_day(), Event(FAULT_AT, "heater2", "open"), water, hours=3.0)
+    day = _two_elements(TUN.brew_day(), Event(FAULT_AT, "heater2", "open"), water, hours=2.25)
     found = _first_report(day)
     assert found is not None and found[0] == [2] and found[1] > water.at
 
@@ -174,3 +192,19 @@ def test_replay_derives_the_warning_from_the_log(tmp_path: Path) -> None:
     entries[index] = dataclasses.replace(record, no_heat=[2])
     mismatch = verify(entries).mismatch
     assert mismatch is not None and mismatch.k == 500
+
+
+def test_a_contactor_element_dead_all_day_does_not_get_the_ssrs_blamed() -> None:
+    # 90 L on the SSR's 2 kW alone: the hold cycles the contactor for nothing and the day's
+    # references count its nominal heat as losses. After the water at 4 h, a short window
+    # with it on would have named element 1 (as it did before the long window alone judged
+    # such a hold); nothing at all is right, as nothing is missing against those references.
+    spec = TunSpec("90 L lidded", 90, W1 + W2, 1.0, 60, 10, 20)
+    day = spec.brew_day()
+    plant = {**day.plant, "element_watts": W1, "element2_watts": W2}
+    config = {**TWO, "tun": {**TWO["tun"], "litres": spec.litres}}
+    events = (*day.events, Event(1.0, "heater2", "open"))
+    scenario = dataclasses.replace(
+        day, plant=plant, config=config, events=events, duration=4.75 * 3600.0
+    )
+    assert _first_report(scenario) is None
