@@ -186,14 +186,13 @@ TWO_ELEMENT_NOTE = (
     "A contactor's element that nothing asks for cannot be told dead: where the SSR's element "
     "holds the tun alone, the contactor stays open all through the hold (**missed** in that "
     "column); where it cannot, the supervisor latches heater_not_heating. Asked for by the "
-    "water at 5 h 30, the dead contactor's element is told some 650 s later, except on the "
-    "small 30 L 5.5 kW tun, whose recovery on the SSR's 2 kW lasts less than the watch's "
-    "windows need after water (5 min, then 120 s past twice the dead time), and the 120 L "
-    "thermowell, whose 300 s dead time the config's 115 s misjudges. The small 30 L 5.5 kW "
-    "tun's dead SSR element is not told either: it held on 7 % of the total, and the "
-    "contactor's 120 s pulses that make up for it give about as much: either element's "
-    "part fits what is missing, and windows steady for 120 s past twice the dead time are "
-    "rare between them."
+    "water at 5 h 30, the dead contactor's element is told 640 to 740 s later, except "
+    "on the small 30 L 5.5 kW tun, whose recovery on the SSR's 2 kW is over before the "
+    "watch's windows may start after water (5 min and a dead time, then 120 s past twice "
+    "the dead time), and the 120 L thermowell, whose 300 s dead time the config's 115 s "
+    "misjudges (nor does the supervisor latch there by the day's end). A dead SSR "
+    "element is told on every tun, slowest (2015 and 2165 s) on the two small 30 L tuns (the "
+    "5.5 kW one holds on 7 % of the total: little of the SSR's heat to miss)."
 )
 
 
