@@ -5,13 +5,18 @@ each kind of element dead."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from pathlib import Path
 
 import pytest
-from test_element2 import logged_daemon, two_element_config
+from test_control import Inbox
+from test_daemon import make
+from test_element2 import PLANT, logged_daemon, two_element_config
 
+from hermsd import cli
 from hermsd import config as config_module
+from hermsd.control.link import LoopLink
 from hermsd.daemon import PeriodRecord
 from hermsd.element_watch import CONFIRM_S, DEAD_TIME_FACTORS, SPELL_S, UNASKED, ElementWatch
 from hermsd.replay import load, verify
@@ -208,3 +213,22 @@ def test_a_contactor_element_dead_all_day_does_not_get_the_ssrs_blamed() -> None
         day, plant=plant, config=config, events=events, duration=4.75 * 3600.0
     )
     assert _first_report(scenario) is None
+
+
+def test_the_status_and_hermsd_status_say_it(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    daemon, _world, _clock, _listener = make(two_element_config(algorithm="predictive"), PLANT)
+    link = LoopLink(daemon)
+    link.attach(Inbox())
+    with daemon:
+        daemon.run(until=600.0)
+        assert daemon.element_watch is not None
+        daemon.element_watch.suspect.add(2)  # as a report leaves it
+        daemon.run(until=605.0)
+        reply = json.loads(link.status_line())
+        assert daemon.status_text().endswith(", element 2 gives no heat?")
+    assert reply["no_heat"] == [2]
+    monkeypatch.setattr(cli, "_ask", lambda _path, _request: reply)
+    assert cli.main(["status"]) == 0
+    assert "warning: element 2 gives no heat? (docs/two-elements.md)" in capsys.readouterr().out

@@ -242,6 +242,7 @@ class LoopLink:
             "state": record.state,
             "alarms": list(record.alarms),
             "alarm_reasons": snapshot.reasons,
+            "no_heat": record.no_heat,
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {
