@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from hermsd import config as config_module
+from hermsd.element_watch import no_heat_words
 from hermsd.metrics import Sample, compute
 from hermsd.sim.hlt import PhysicalPlant
 from hermsd.sim.scenario import Event, Scenario, run
@@ -172,29 +173,63 @@ def ssr_row(spec: TunSpec) -> dict[str, Any]:
 
 
 FAULTS = (
-    ("SSR element dead", "heater", "open"),
-    ("contactor element dead", "heater2", "open"),
-    ("contactor shorted", "relay2", "stuck_on"),
+    ("SSR element dead", "heater", "open", FAULT_AT, False),
+    ("contactor element dead", "heater2", "open", FAULT_AT, False),
+    ("contactor element dead, water at 5 h 30", "heater2", "open", FAULT_AT, True),
+    ("SSR element dead from the start", "heater", "open", 1.0, False),
+    ("contactor element dead from the start", "heater2", "open", 1.0, False),
+    ("contactor shorted", "relay2", "stuck_on", FAULT_AT, False),
 )
+"""(column, fault, its value, when, water again at SECOND_WATER)."""
+SECOND_WATER = 5.5 * 3600.0
+"""s: a tenth of the volume of 15 °C water again, which asks the contactor's element for heat
+(a lidded tun holds on the SSR alone, and a dead element nothing asks for shows nothing)."""
+
+
+def first_warning(records: list[Any], after: float) -> tuple[int, float] | None:
+    """The first element reported giving no heat at or after `after`, and when (s after)."""
+    for record in records:
+        if record.t >= after and record.no_heat:
+            return record.no_heat[0], record.t - after
+    return None
+
+
+def normal_warnings(spec: TunSpec) -> int:
+    """Element warnings on the shared-out normal days with the water at each of WATER_SHIFTS."""
+    found = 0
+    for shift in WATER_SHIFTS:
+        records = run(shifted(two_element_day(spec), shift), keep_records=True).records
+        found += first_warning(records, 0.0) is not None
+    return found
 
 
 def fault_row(
-    spec: TunSpec, kind: str, value: str, control: dict[str, Any] | None = None
-) -> tuple[str, float | None, float]:
-    """The first alarm after the fault, how long after it ((-, None): not caught), and the
-    highest PV above the setpoint from the fault to the alarm (or the day's end), °C."""
+    spec: TunSpec,
+    kind: str,
+    value: str,
+    control: dict[str, Any] | None = None,
+    water: bool = False,
+    at: float = FAULT_AT,
+) -> tuple[str, float | None, float, tuple[int, float] | None]:
+    """The first alarm after the fault at `at`, how long after it ((-, None): not caught),
+    the highest PV above the setpoint from the fault to the alarm (or the day's end), °C, and
+    the first element warning (element, s after the fault); `water` adds water at
+    SECOND_WATER."""
     day = two_element_day(spec, control)
     config = {**day.config, "contactor": {"backend": "gpio", "line": 27}}
-    events = (*day.events, Event(FAULT_AT, kind, value))
+    events = (*day.events, Event(at, kind, value))
+    if water:
+        litres = spec.litres / 10.0
+        events += (Event(SECOND_WATER, "add_water", {"litres": litres, "temp": 15.0}),)
     result = run(dataclasses.replace(day, config=config, events=events), keep_records=True)
     caught = [a for a in result.summary["alarms"] if a["detected_after_s"] is not None]
     alarm, after = (caught[0]["kind"], caught[0]["detected_after_s"]) if caught else ("-", None)
-    end = math.inf if after is None else FAULT_AT + after
+    end = math.inf if after is None else at + after
     over = max(
-        (r.pv - r.setpoint for r in result.records if FAULT_AT <= r.t <= end and r.pv is not None),
+        (r.pv - r.setpoint for r in result.records if at <= r.t <= end and r.pv is not None),
         default=0.0,
     )
-    return alarm, after, over
+    return alarm, after, over, first_warning(result.records, at)
 
 
 OPEN_POT_NOTE = (
@@ -228,9 +263,22 @@ FAULT_NOTE = (
     "cycling at its minimum times (the peak above). A shorted contactor is caught by heat "
     "beyond what was switched (ssr_stuck_on): within the 300 s watch where its 3.5 kW far "
     "outruns the losses, by the 900 s watch on the open pot (hermsd/safety.py, "
-    "CREEP_WATCHES). What would catch a dead element in every case: a current sense per "
-    "element, or a per-element heating gain identified from the loop's own duty changes "
-    "(the shared-out hold moves the SSR's duty every period)."
+    "CREEP_WATCHES). "
+    "In quotes: the element watch's first warning (hermsd/element_watch.py, "
+    "docs/two-elements.md), which switches nothing, judged against the same day's "
+    "full-power rise and hold power, so the fill cancels out ('more heat than asked?' is "
+    "what it says of a shorted contactor, before the supervisor's alarm). "
+    "The contactor's element in a lidded hold is never asked for (the SSR holds alone): its "
+    "death cannot show until heat is asked of it, so the column with a tenth of the water "
+    "again at 5 h 30 shows when it is (the 150 L pot asks for it all through its hold, and "
+    "the supervisor latches there too, as neither element holds it alone). An element dead "
+    "from the start of the day leaves the day's references without its heat: on these three "
+    "tuns, shared out, with either element dead from 1 s, no warning (and no wrong one) all "
+    "day; the 150 L pot on its SSR's element alone never reaches the setpoint (it needs "
+    "2.5 kW), with neither a warning nor an alarm (its water never falls at full power). "
+    "Mid-ranging pulses the contactor for about as much as the SSR's part in the hold: the "
+    "90 L tun's dead SSR element is told as element 1 or 2; the 60 and 150 L ones are not "
+    "told."
 )
 
 
@@ -315,20 +363,33 @@ def main(write: bool = False) -> int:
         out.append(f"| {spec.name} | {low:.3f} | {high:.3f} |")
     out += [
         "",
-        f"Faults in the hold (at {FAULT_AT / 3600:g} h, a series contactor fitted): the first "
-        "alarm, its detection time, and the highest PV over the setpoint from the fault to the "
-        "alarm or the day's end (peak).",
+        "Element warnings (hermsd/element_watch.py) on the same normal days, shared out, the "
+        "water at each of those times: "
+        + ", ".join(f"{spec.name} {normal_warnings(spec)} of {len(WATER_SHIFTS)}" for spec in TUNS)
+        + ".",
+    ]
+    out += [
         "",
-        "| tun | heating | " + " | ".join(name for name, _, _ in FAULTS) + " |",
+        f"Faults in the hold (at {FAULT_AT / 3600:g} h, or from the start: 1 s, a series "
+        "contactor fitted): the first element warning and the first alarm, each with its "
+        "time after the fault, and the highest PV over the setpoint from the fault to the "
+        "alarm or the day's end (peak; from the start, the heat-up's included).",
+        "",
+        "| tun | heating | " + " | ".join(fault[0] for fault in FAULTS) + " |",
         "|---|---|" + "---|" * len(FAULTS),
     ]
     for spec in TUNS:
         for label, control in (("shared out", None), ("midrange", MIDRANGE)):
             cells = []
-            for _, kind, value in FAULTS:
-                alarm, after, over = fault_row(spec, kind, value, control)
-                caught = "not caught" if after is None else f"{alarm} after {after:.0f} s"
-                cells.append(f"{caught} (peak SP {over:+.2f} °C)")
+            for _, kind, value, at, water in FAULTS:
+                alarm, after, over, warned = fault_row(spec, kind, value, control, water, at)
+                said = (
+                    []
+                    if warned is None
+                    else [f"'{no_heat_words(warned[0])}' after {warned[1]:.0f} s"]
+                )
+                caught = [] if after is None else [f"{alarm} after {after:.0f} s"]
+                cells.append(f"{'; '.join(said + caught) or 'not caught'} (peak SP {over:+.2f} °C)")
             out.append(f"| {spec.name} | {label} | " + " | ".join(cells) + " |")
     out += [
         "",

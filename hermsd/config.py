@@ -260,6 +260,7 @@ ALERT_EVENTS: tuple[str, ...] = (
     "alarm_cleared",
     "started",
     "stopped",
+    "element_warning",
     *PROGRAM_ALERT_EVENTS,
 )
 

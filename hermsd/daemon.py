@@ -43,6 +43,7 @@ from hermsd.config import (
 )
 from hermsd.config_file import ConfigFile
 from hermsd.element2 import SlowElement, SplitController, TwoElementController, total_share
+from hermsd.element_watch import ElementWatch, no_heat_words, report_kind
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
 from hermsd.lm92 import (
@@ -141,6 +142,7 @@ class PeriodRecord:
     next_step: str | None = None
     on2: bool | None = None  # the second element was on as the period began
     free2: bool | None = None  # … and its minimum on or off time let it switch
+    no_heat: list[int] | None = None  # the elements reported giving no heat (two elements)
 
 
 class ControlHook(Protocol):
@@ -222,6 +224,16 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
         stuck_output_change=s.stuck_output_change,
         stall_periods=s.stall_periods,
     )
+
+
+def element_watch(config: Config) -> ElementWatch:
+    """The watch of both elements' heat, judged over the controller's dead time."""
+    return ElementWatch(config.tun.element_watts, element2_watts(config), config.control.dead_time)
+
+
+def watch_changes(old: Config, new: Config) -> bool:
+    """Whether a reload starts the element watch afresh (replay does as the daemon)."""
+    return old.tun != new.tun or old.control.dead_time != new.control.dead_time
 
 
 def element2_watts(config: Config) -> float:
@@ -383,6 +395,7 @@ class Daemon:
         self.element2 = (
             SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
         )
+        self.element_watch = element_watch(config) if self.element2 is not None else None
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
         self.manual_output = config.control.manual_output
@@ -799,6 +812,8 @@ class Daemon:
             if not self._held:  # bumpless: the new controller starts from the output in force
                 self._held = True
                 self._resume_output = self.output
+        if self.element_watch is not None and watch_changes(old, new):
+            self.element_watch = element_watch(new)  # its references were of the old tun
         if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
             self._apply_manual(control.manual_output, t)
         elif control.mode == "auto" and changed & {"control.mode", "control.manual_output"}:
@@ -1163,6 +1178,8 @@ class Daemon:
             # earning pings; a kill in a healthy hold would restart, and re-alert, for hours.
             self._watchdog.note_healthy_cycle()
         u2 = self._output2 = self._drive_element2(now, state)
+        if self.element_watch is not None and switched2 is not None:
+            self._watch_elements(now, pv, applied, switched2, state)  # as logged: replay too
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -1187,6 +1204,7 @@ class Daemon:
             switched2=switched2,
             on2=on2,
             free2=free2,
+            no_heat=None if self.element_watch is None else sorted(self.element_watch.suspect),
             full_from=full_from,
             **self.program.record_fields(),
         )
@@ -1294,6 +1312,16 @@ class Daemon:
         self.element2.drive(now, u2)
         return u2
 
+    def _watch_elements(
+        self, now: float, pv: float | None, duty1: float, duty2: float, state: str
+    ) -> None:
+        """Said, not latched: the other element holds the tun (docs/two-elements.md)."""
+        assert self.element_watch is not None
+        watch = self.element_watch
+        for report in watch.period(now, pv, self.setpoint, duty1, duty2, state == "ok"):
+            self._event(logging.WARNING if report.raised else logging.INFO, report.message, now)
+            self._alert("element_warning", report.message, now, report_kind(report.element))
+
     def _total_power(
         self, output: float, applied: float, applied2: float | None
     ) -> tuple[float, float]:
@@ -1317,6 +1345,8 @@ class Daemon:
             state += f", latched alarms not saved: {self._latch_failing}"
         if self.program.active:
             state += f", {self.program.status_words(self.clock.wall_ns())}"
+        for element in sorted(self.element_watch.suspect if self.element_watch else ()):
+            state += f", {no_heat_words(element)}"
         return status_line(
             self.config.tun.name, self._pv, self.setpoint, self._asked(), state, self._output2
         )

@@ -34,8 +34,16 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 from hermsd import config as config_module
 from hermsd.commissioning.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.config import make_controller, shared_out
-from hermsd.daemon import RAISED_ALARM, PeriodRecord, retunes
+from hermsd.daemon import (
+    RAISED_ALARM,
+    PeriodRecord,
+    element2_watts,
+    element_watch,
+    retunes,
+    watch_changes,
+)
 from hermsd.element2 import MidRangeController, SplitController, TwoElementController
+from hermsd.element_watch import ElementWatch
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import (
     DROP_READINGS,
@@ -715,6 +723,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     previous_k: int | None = None
     stepped: tuple[Controller, PeriodRecord] | None = None  # the last step, if fresh and known
     drop_rule: DropRule | None = None  # how the daemon that logged these periods acted on drops
+    watch: ElementWatch | None = None  # the element watch as the daemon's, once known
+    watched: config_module.Config | None = None  # the config it was made for
     verified = unknown = 0
     for entry in entries:
         if isinstance(entry, LoggedConfig):
@@ -724,6 +734,9 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             drop_rule = _drop_rule(entry)
             try:
                 whole = config_module.from_dict(entry.config)
+                if entry.reason == "start" or (watched and watch_changes(watched, whole)):
+                    watch = element_watch(whole) if element2_watts(whole) else None
+                watched = whole
                 reloaded = whole.control
                 same_model = in_force_model == entry.model
                 if (
@@ -748,6 +761,21 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         if previous_k is not None and record.k != previous_k + 1:
             known = False
             stepped = None
+            watch = None  # what the missing periods told it is not known
+        if watch is not None and record.switched2 is not None:
+            watch.period(
+                record.t,
+                record.pv,
+                record.setpoint,
+                record.applied,
+                record.switched2,
+                record.state == "ok",
+            )
+            if record.no_heat is not None and sorted(watch.suspect) != record.no_heat:
+                name = f"no_heat {record.no_heat} (derived {sorted(watch.suspect)})"
+                return Verification(
+                    verified, unknown, Mismatch(record.k, record.t, name, None, None)
+                )
         if drop_rule is not None and (stepped is not None or known):
             full_from = _full_from(stepped, record.readings, drop_rule)
             if record.full_from != full_from:

@@ -170,6 +170,7 @@ ALERT_EVENTS = (
     "alarm_cleared",
     "started",
     "stopped",
+    "element_warning",
     "step_reached",
     "step_done",
     "waiting",

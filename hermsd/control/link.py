@@ -245,6 +245,7 @@ class LoopLink:
             "alarms": list(record.alarms),
             "alarm_reasons": snapshot.reasons,
             "latches_not_saved": snapshot.latches_not_saved,
+            "no_heat": record.no_heat,
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {

@@ -35,7 +35,9 @@ dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured"
 `runtime` (each operating key set at runtime whose value differs from the config file's:
 `{"control.setpoint": {"running": 72.0, "file": 66.0}}`) and `program` (the mash program that
 runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
-`time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py). A program
+`time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py). `no_heat`
+(two elements; null with one): what the element watch says, 1 or 2 an element that gives no
+heat, 0 either, 3 more heat than asked (docs/two-elements.md). A program
 sent with `start` is checked on the server's thread exactly as a program file is (and its
 setpoints against the running config at the boundary); `program` and `confirm` commands
 are answered like `set`. A `set` or `reset-alarm` is checked
