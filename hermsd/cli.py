@@ -44,7 +44,6 @@ from hermsd.control.protocol import (
 )
 from hermsd.control.server import ControlServer
 from hermsd.durations import parse_duration
-from hermsd.element_watch import no_heat_words
 from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.learning import ModelStore
@@ -1361,12 +1360,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
     for kind, reason in reply.get("alarm_reasons", {}).items():
         print(f"  {kind}: {reason}")
-    if reply.get("latches_not_saved") is not None:
-        print(
-            f"latched alarms not saved (tried again until they are): {reply['latches_not_saved']}"
-        )
-    for element in reply.get("no_heat") or []:
-        print(f"warning: {no_heat_words(element)} (docs/two-elements.md)")
+    for warning in reply.get("warnings") or []:
+        print(f"warning: {warning}")
     for key, values in reply["runtime"].items():
         print(f"{key} {values['running']} set at runtime (config file: {values['file']})")
     model = reply["model"]

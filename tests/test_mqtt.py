@@ -240,7 +240,7 @@ def test_discovery_gives_home_assistant_a_climate_entity_sensors_and_an_alarm(ri
     node = "brewery_hlt"
     components = {topic.split("/")[1] for topic in entities}
     assert components == HA_COMPONENTS
-    assert len(entities) == 10
+    assert len(entities) == 11
     ids = set()
     for topic, entity in entities.items():
         # <discovery prefix>/<component>/<node id>/<object id>/config, ids unique and stable
@@ -302,7 +302,7 @@ def test_home_assistant_back_online_is_told_everything_again(rig: Rig) -> None:
     discovered(rig.watcher)
     mark = len(rig.watcher.messages)
     rig.command(rig.topics.home_assistant_status, b"online")  # Home Assistant's birth message
-    assert len(discovered(rig.watcher, mark)) == 10
+    assert len(discovered(rig.watcher, mark)) == 11
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.availability, mark)
 
 
@@ -455,7 +455,7 @@ def test_a_broker_restart_is_survived_and_everything_published_again(rig: Rig) -
     rig.broker.start()  # on the same port, with no retained message left
     rig.watcher = Watcher(rig.broker.port)
     entities = discovered(rig.watcher)  # retained, or live once the bridge is back
-    assert len(entities) == 10
+    assert len(entities) == 11
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.availability and m.payload == b"online")
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
     rig.step()  # and the next period's state too
@@ -546,6 +546,12 @@ def test_the_state_names_the_program_step_when_the_daemon_reports_one() -> None:
     two = {**status, "alarms": [], "heater_allowed": True, "output": 0.0, "output2": 100.0}
     assert (state_message(two)["action"], state_message(two)["output2"]) == ("heating", 100.0)
     assert state_message({**two, "output2": 0.0})["action"] == "idle"
+    # what needs a look but holds no heater off: in its words, or "none"
+    assert state_message(status)["warning_text"] == "none"
+    warned = {**status, "warnings": ["element 2 gives no heat? (docs/two-elements.md)", "x"]}
+    assert state_message(warned)["warning_text"] == (
+        "element 2 gives no heat? (docs/two-elements.md); x"
+    )
 
 
 def test_a_running_programs_step_time_left_and_next_step_are_published(rig: Rig) -> None:

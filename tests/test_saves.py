@@ -99,6 +99,9 @@ def test_a_latch_raised_while_the_disk_fails_is_saved_once_it_works_and_survives
     failing = "[Errno 5] Input/output error"
     assert f"latched alarms not saved: {failing}" in daemon.status_text()
     assert status_of(daemon)["latches_not_saved"] == failing  # `hermsd status`
+    assert status_of(daemon)["warnings"] == [  # the web page's and MQTT's words
+        f"latched alarms not saved (tried again until they are): {failing}"
+    ]
     assert LatchStore(tmp_path).load().alarms == ()
     disk.refusing = False  # the disk works again: the next retry lands
     run_for(daemon, daemon_module.LATCH_SAVE_RETRY_S + 2.0)
@@ -106,6 +109,7 @@ def test_a_latch_raised_while_the_disk_fails_is_saved_once_it_works_and_survives
     run_for(daemon, PERIOD)
     assert "not saved" not in daemon.status_text()
     assert status_of(daemon)["latches_not_saved"] is None
+    assert status_of(daemon)["warnings"] == []
     logged = events.logged()
     assert [m for m in logged if m.startswith("saving latched alarms failed")] == [
         "saving latched alarms failed: [Errno 5] Input/output error"

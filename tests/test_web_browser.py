@@ -237,6 +237,21 @@ def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
         assert answered.value.status == 200  # the daemon took it (it had nothing latched)
 
 
+def test_a_warning_is_shown_in_its_words_and_goes_when_it_is_over(page: Page, live: Site) -> None:
+    _log_in(page)
+    assert not page.is_visible("#warning-box")
+    with live.held() as last:
+        _until(page, f"window.lastStatus.t === {last}")
+        status = page.evaluate("window.lastStatus")
+        words = ["element 2 gives no heat? (docs/two-elements.md)", "latched alarms not saved"]
+        warned = {**status, "warnings": words}
+        page.evaluate("(status) => onEvent({status, rows: [], offset: 0})", warned)
+        assert page.is_visible("#warning-box") and not page.is_visible("#alarm-box")
+        assert page.text_content("#warnings") == "; ".join(words)
+        page.evaluate("(status) => onEvent({status, rows: [], offset: 0})", status)
+        assert not page.is_visible("#warning-box")
+
+
 def _program_yaml(setpoint: float) -> str:
     """Three steps the simulated tun, held near `setpoint`, reaches at once: a wait for the
     brewer, a 10-minute rest and a rest until told."""

@@ -46,6 +46,7 @@ from hermsd.control.protocol import (
 )
 from hermsd.control.server import Pending
 from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.element_watch import no_heat_words
 from hermsd.learning import LearnedModel
 from hermsd.pid import PlantModel
 from hermsd.program.runner import Refused
@@ -79,6 +80,17 @@ class Snapshot:
     program: dict[str, Any] | None  # the status reply's `program`
     reasons: dict[str, str]  # each active alarm's message (made for this snapshot alone)
     latches_not_saved: str | None = None  # why the latched alarms' save failed, while it does
+
+
+def status_warnings(no_heat: list[int] | None, latches_not_saved: str | None) -> list[str]:
+    """What the brewer should know that holds no heater off, in words: one place for the
+    command line, the web page and MQTT to take them from."""
+    warnings = [f"{no_heat_words(element)} (docs/two-elements.md)" for element in no_heat or []]
+    if latches_not_saved is not None:
+        warnings.append(
+            f"latched alarms not saved (tried again until they are): {latches_not_saved}"
+        )
+    return warnings
 
 
 class LoopLink:
@@ -246,6 +258,7 @@ class LoopLink:
             "alarm_reasons": snapshot.reasons,
             "latches_not_saved": snapshot.latches_not_saved,
             "no_heat": record.no_heat,
+            "warnings": status_warnings(record.no_heat, snapshot.latches_not_saved),
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {

@@ -109,6 +109,8 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "alarms": alarms,
         "alarm": bool(alarms),
         "alarm_text": (", ".join(alarms) or "none")[:TEXT_STATE_LIMIT],
+        "warnings": list(status.get("warnings") or []),
+        "warning_text": ("; ".join(status.get("warnings") or []) or "none")[:TEXT_STATE_LIMIT],
         "climate_mode": climate_mode,
         "action": action,
         "program": program.get("name"),
@@ -223,6 +225,7 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
             unit_of_measurement="s",
         ),
         sensor("alarms", "Alarms", "alarm_text"),
+        sensor("warnings", "Warnings", "warning_text"),
         (
             topics.discovery("binary_sensor", "alarm"),
             entity(

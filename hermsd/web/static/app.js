@@ -69,6 +69,9 @@ function render(status) {
   const reasons = status.alarm_reasons || {};  // why each stands: what the brewer must check
   $("alarms").textContent = alarms
     .map((kind) => (reasons[kind] ? `${kind}: ${reasons[kind]}` : kind)).join("; ");
+  const warnings = status.warnings || [];  // nothing held off, but the brewer should look
+  $("warning-box").hidden = warnings.length === 0;
+  $("warnings").textContent = warnings.join("; ");
   renderProgram(status.program);
   if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
     $("setpoint-input").placeholder = String(status.setpoint);
