@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import socket
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,6 +16,7 @@ import pytest
 from test_reload import BASE, edited
 from webpage import PASSWORD, PERIOD, TIMEOUT, Site, site
 
+import hermsd.web
 from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.config import ConfigError, split_listen
@@ -119,6 +121,15 @@ def test_each_period_is_pushed_with_what_the_page_shows_only(live: Site) -> None
         assert isinstance(status, dict) and set(status) == set(PAGE_FIELDS)
         assert event["rows"] and event["rows"][-1][0] == status["t"]  # type: ignore[index]
     assert pushed[1]["status"]["t"] > first["status"]["t"]  # type: ignore[index]
+
+
+def test_every_status_field_the_page_script_reads_is_pushed_to_it() -> None:
+    """The browser tests hand the page whole statuses; the hub sends it PAGE_FIELDS only, so a
+    field the script reads and the hub leaves out would never show on a real page."""
+    script = (Path(hermsd.web.__file__).parent / "static" / "app.js").read_text("utf-8")
+    read = set(re.findall(r"\bstatus\.([a-z_0-9]+)", script))
+    assert {"output2", "alarm_reasons", "warnings", "program"} <= read  # the pattern finds them
+    assert read <= set(PAGE_FIELDS)
 
 
 def test_a_period_reaches_the_page_before_the_next_one_runs(live: Site) -> None:
