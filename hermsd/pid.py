@@ -177,10 +177,11 @@ class DropRule:
     the latest more than `fall` below the last period's PV and the one before it more than
     `onset` below (at least, if `inclusive`); then either the controller's trial step on the
     latest reading (`on_latest`) or on the mean of the two gives full power, or (`deficit`)
-    the fall both readings show is more than full power for a whole period could add back by
-    the model's rate (`full_power_adds`): acting on it cannot lift the water above where it
-    stood, and a lone glitch that follows a reading noise put 2 LSB low (about 1 in 700 at
-    the bench's noise) adds less than those 2 LSB."""
+    the latest reading lies below the setpoint and the fall both readings show is more than
+    full power for a whole period could add back by the model's rate (`full_power_adds`):
+    acting on it cannot lift the water above where it stood, nor heat water the brewer is
+    cooling to a lower setpoint, and a lone glitch that follows a reading noise put 2 LSB
+    low (about 1 in 700 at the bench's noise) adds less than those 2 LSB."""
 
     onset: float
     on_latest: bool
@@ -852,6 +853,7 @@ class _Predictive(_Base):
         "_rate",
         "_recent",
         "_recovery",
+        "_steady_with_pv",
         "_ts",
         "_watch",
     )
@@ -877,6 +879,9 @@ class _Predictive(_Base):
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
         self._watch = _HeatUpWatch()
         self._recovery = _RecoveryWatch()
+        # Whether a step's own PV counts in judging it steady (see `_watch_heat_up`); replay
+        # clears it for logs of the daemons before it (`predating_drop_fall`).
+        self._steady_with_pv = True
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
 
@@ -999,7 +1004,8 @@ class _Predictive(_Base):
             watch.active = recovery.active = False  # the step ended before the PV rose enough
         # This period's PV too: cold water that the readings showed within the period (and
         # answered there) has a steady minute before it, but is no step from a steady PV.
-        steady = max(*recent, pv) - min(*recent, pv) <= STEADY_BAND
+        seen = (*recent, pv) if self._steady_with_pv else tuple(recent)
+        steady = max(seen) - min(seen) <= STEADY_BAND
         if full and not (watch.active or recovery.active) and before < self._hi:
             if steady:
                 watch.arm(recent[-1], applied - before)
@@ -1060,11 +1066,18 @@ def full_power_now(
             return False
     elif fell <= rule.fall or first <= rule.onset:
         return False
-    if rule.deficit and controller.full_power_adds() < min(fell, first):
+    if rule.deficit and latest < sp and controller.full_power_adds() < min(fell, first):
         return True
     pv = latest if rule.on_latest else (before + latest) / 2.0
     trial = copy.deepcopy(controller)
     return trial.step(sp, pv, controller.output) >= 100.0
+
+
+def predating_drop_fall(controller: Controller) -> None:
+    """Make `controller` (predictive) judge a step to full power steady as the daemons before
+    `drop_fall_c` did, by the minute before the step alone: replay of their logs."""
+    if isinstance(controller, _Predictive):
+        controller._steady_with_pv = False
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

@@ -54,6 +54,7 @@ from hermsd.pid import (
     DropRule,
     PlantModel,
     full_power_now,
+    predating_drop_fall,
 )
 from hermsd.program.quality import step_quality
 from hermsd.program.readiness import SCHEDULE_EVENTS
@@ -749,7 +750,10 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                     continue
                 control = reloaded
                 in_force_model = entry.model
-                controller = shared_out(whole, make_controller(control, logged_model(entry)))
+                made = make_controller(control, logged_model(entry))
+                if entry.drop_fall_c is None:  # a daemon from before it judged steady so
+                    predating_drop_fall(made)
+                controller = shared_out(whole, made)
             except (config_module.ConfigError, ValueError) as error:
                 detail = str(error).replace("\n", "; ")
                 raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None

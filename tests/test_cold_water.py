@@ -136,6 +136,35 @@ def test_a_fall_full_power_cannot_undo_in_a_period_is_answered_whatever_the_law_
     assert not pid.full_power_now(holding_controller(), SP, SP, readings, pid.LAW_DROP_RULE)
 
 
+def test_a_fall_above_a_lowered_setpoint_is_left_to_the_law() -> None:
+    """The brewer lowered the setpoint to 60 °C and cools with cold water: readings 2 and 3 LSB
+    below 66 °C are a fall, and still 5.8 °C above the setpoint; the law asks for 0 %, and
+    so does the rule (the deficit branch acts below the setpoint only)."""
+    controller = holding_controller()
+    for _ in range(30):
+        controller.step(60.0, SP, controller.output)
+    assert controller.output == 0.0
+    assert not pid.full_power_now(controller, 60.0, SP, [65.875, 65.8125])
+    # below the setpoint, the same fall is acted on (as at 66 °C above)
+    assert pid.full_power_now(controller, 66.5, SP, [65.875, 65.8125])
+
+
+def test_a_step_from_a_steady_minute_to_a_fallen_pv_is_a_recovery_unless_the_log_predates_it() -> (
+    None
+):
+    """The step's own PV counts in judging it steady; replay of logs written before
+    `drop_fall_c` judges by the minute before alone, as their daemons did."""
+    for older in (False, True):
+        controller = holding_controller()
+        assert isinstance(controller, pid._Predictive)
+        if older:
+            pid.predating_drop_fall(controller)
+        controller.step(SP, SP, controller.output)
+        controller.step(SP, SP - 0.4, 100.0)  # full power from this period on, the PV fallen
+        assert controller._watch.active is older
+        assert controller._recovery.active is not older
+
+
 def test_a_thermowell_drop_is_answered_at_its_third_reading() -> None:
     # 4 L of 15 °C water into 40 L at 66 °C mix to (40·66 + 4·15)/44 = 61.3636 °C, a step of
     # 4.6364 °C behind a 60 s sensor lag; readings 0.5, 1.5, 2.5, 3.5 s after it, truncated to
@@ -291,6 +320,21 @@ def test_cold_water_gets_full_power_at_the_second_reading_that_shows_it() -> Non
     assert len(edges) <= 1 and all(t <= seen + 0.01 + 1e-9 for t in edges)
     assert all(powered(world, seen + 0.01 + dt) for dt in (0.0, 1.0, 2.0, 2.4))
     assert after.applied > 100.0 * (WATER_AT + 5.0 - seen - 0.01) / 5.0 - 1e-6
+
+
+def test_cold_water_into_a_tun_cooling_to_a_lower_setpoint_never_heats_it() -> None:
+    daemon, world, clock, records = small_tun_daemon()
+    water_at = WATER_AT + 300.0
+    clock.call_at(WATER_AT, lambda: daemon.set_setpoint(55.0))
+    clock.call_at(water_at, lambda: world.plant.add_water(3.0, 15.0, water_at))
+    with daemon:
+        daemon.run(until=water_at + 60.0)
+    assert all(r.output == 0.0 for r in records if WATER_AT + 10.0 < r.t <= water_at)
+    after = [r for r in records if r.t > water_at]
+    # 3 L of 15 °C into 30 L at ~65 °C mix to ~60.5 °C: a fall, still far above 55 °C
+    assert min(r.pv for r in after) > 58.0
+    assert all(r.full_from is None for r in after)
+    assert not [t for t, on in world.circuit.power_changes if t > water_at and on]
 
 
 def test_manual_without_an_output_holds_the_controllers_not_the_full_power_of_cold_water() -> None:
