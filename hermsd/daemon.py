@@ -80,6 +80,12 @@ TIMING_INTERVAL = 60.0  # s between timing records
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 LOG_FAILING_REPEAT_S = 60.0  # a failing log is said again this often while it lasts
 LATCH_SAVE_RETRY_S = 30.0  # a failed save of the latched alarms is tried again this often
+LATCH_SAVE_SLOW_S = 10.0  # a latch save not done after this long is said as not saved (yet)
+STOP_WAIT_S = 8.0
+"""s of real time at most that the stop waits, once the outputs are off, for the saves (the
+latched alarms first: what a restart must find), then the program's progress, then queued
+alerts, in that order: inside systemd's stop timeout of 10 s (systemd/hermsd.service), so
+that what was not saved is said before a SIGKILL could cut the stop short."""
 
 
 class Sensor(Protocol):
@@ -426,6 +432,8 @@ class Daemon:
         self._tried_latches: list[str] = []  # the kinds of the last save handed over
         self._latch_failing: str | None = None  # why the last latch save done failed
         self._latch_retry_at = 0.0  # a failed save is tried again from then, or at a change
+        self._latches_handed_at = 0.0  # when the last latch save was handed to the saver
+        self._latch_slow = False  # whether _latch_failing says a save that has not finished
         self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
         self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
         self._log_failing: str | None = None  # why the recorder cannot write, as last said
@@ -560,9 +568,11 @@ class Daemon:
         self._ssr_duty.switched(False, now)
         self._event(logging.INFO, f"heater off: {reason}", now)
         self._alert("stopped", f"heater off: {reason}", now)
-        self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT))  # outputs are off
-        self.program.close(SHUTDOWN_WAIT)  # the progress handed over, for the next start
-        self._close_saves(now)
+        deadline = time.monotonic() + STOP_WAIT_S  # outputs are off: what is left may wait
+        self._close_saves(now, STOP_WAIT_S)
+        self.program.close(max(0.0, deadline - time.monotonic()))  # for the next start
+        left = max(0.0, deadline - time.monotonic())
+        self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT, left))
         if self.notifier is not None:
             self.notifier.stopping()
         return ok, interrupted
@@ -960,6 +970,7 @@ class Daemon:
             self.config.safety.reset,
         )
         self._tried_latches = [alarm.kind for alarm in alarms]
+        self._latches_handed_at = t
         self.saver.save("latches", partial(self.latches.save, stored), self._tried_latches)
         self._take_saves(t)
 
@@ -979,26 +990,29 @@ class Daemon:
                 what = outcome.tag.describe()
                 self._event(logging.INFO, f"learned the tun: {what}; used from the next start", t)
 
+    def _saving_latches(self) -> bool:
+        return "latches" in self.saver.waiting()
+
     def _latches_saved(self, outcome: Outcome, t: float) -> None:
         if outcome.error is not None:
             # Tried again, quietly, until it lands: a latch missing from disk is cleared by
             # any restart, and the heater would come back on over the fault.
             self._latch_retry_at = t + LATCH_SAVE_RETRY_S
-            if self._latch_failing is None:
+            if self._latch_failing is None or self._latch_slow:
                 self._event(logging.ERROR, f"saving latched alarms failed: {outcome.error}", t)
-            self._latch_failing = outcome.error
+            self._latch_failing, self._latch_slow = outcome.error, False
             return
-        self._saved_latches = outcome.tag
+        self._saved_latches, self._latch_slow = outcome.tag, False
         if self._latch_failing is not None:
             self._latch_failing = None
             self._event(logging.INFO, "latched alarms saved after a failed save", t)
 
-    def _close_saves(self, t: float) -> None:
+    def _close_saves(self, t: float, wait: float) -> None:
         """At the stop: a latch save that failed once more (the loop retries no longer), the
-        saves handed over waited for (at most SHUTDOWN_WAIT), and what was not saved said."""
-        if self._latch_failing is not None and "latches" not in self.saver.waiting():
+        saves handed over waited for (at most `wait` s), and what was not saved said."""
+        if self._latch_failing is not None and not self._saving_latches():
             self._save_latches(t)
-        unsaved = self.saver.close(SHUTDOWN_WAIT)
+        unsaved = self.saver.close(wait)
         self._take_saves(t)
         what = []
         if "latches" in unsaved or self._latch_failing is not None:
@@ -1427,11 +1441,17 @@ class Daemon:
             for listener in self.listeners:
                 listener.alarm(alarm)
         self._take_saves(t)
+        slow = t - self._latches_handed_at
+        if self._latch_failing is None and slow >= LATCH_SAVE_SLOW_S and self._saving_latches():
+            # A disk that hangs fails nothing: said all the same, as a restart now loses them.
+            self._latch_failing = f"the save has not finished in {slow:.0f} s"
+            self._latch_slow = True
+            self._event(logging.ERROR, f"saving latched alarms: {self._latch_failing}", t)
         latched = self.supervisor.latched
         if latched != self._tried_latches or (
             self._latch_failing is not None
             and t >= self._latch_retry_at
-            and "latches" not in self.saver.waiting()
+            and not self._saving_latches()
         ):
             self._save_latches(t)
 

@@ -81,6 +81,8 @@ def test_the_loop_keeps_its_periods_while_a_latch_save_hangs(tmp_path: Path) -> 
     assert all(b.t - a.t == 5.0 for a, b in itertools.pairwise(after))
     assert all(not r.heater_allowed and r.output == 0.0 for r in after)
     assert daemon.overruns == 0
+    # A hang fails nothing, yet a restart now would lose the latch: said once it lasts.
+    assert "latched alarms not saved: the save has not finished in" in daemon.status_text()
     disk.release.set()
     assert daemon.saver.flush(5.0)
     assert [a.kind for a in LatchStore(tmp_path).load().alarms] == [KIND]
@@ -124,7 +126,7 @@ def test_a_latch_raised_while_the_disk_fails_is_saved_once_it_works_and_survives
 def test_shutdown_waits_a_bounded_time_for_a_hanging_save_and_says_what_was_not_saved(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(daemon_module, "SHUTDOWN_WAIT", 0.2)
+    monkeypatch.setattr(daemon_module, "STOP_WAIT_S", 0.2)
     disk = StallingDisk(tmp_path)
     disk.stalls = True
     daemon, world, events = boot(tmp_path, disk)
@@ -185,3 +187,26 @@ def test_a_save_that_fails_is_said_and_the_next_one_still_runs() -> None:
         Outcome("model", "b", "ValueError: not serialisable"),
         Outcome("other", "c", None),
     ]
+
+
+def test_the_stop_waits_for_the_latched_alarms_before_the_alerts_and_the_program(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A latch save that takes a while at the stop lands before the alerts' and the
+    program's waits begin, so they cannot use up the stop's time before it."""
+    disk = StallingDisk(tmp_path)
+    disk.stalls = True
+    daemon, world, events = boot(tmp_path, disk)
+    latch(daemon, world)
+    on_disk_then: list[list[str]] = []
+
+    def closing(timeout: float) -> bool:
+        on_disk_then.append([a.kind for a in LatchStore(tmp_path).load().alarms])
+        return True
+
+    monkeypatch.setattr(daemon.alerts, "close", closing)
+    monkeypatch.setattr(type(daemon.program), "close", lambda _self, timeout: closing(timeout))
+    threading.Timer(0.3, disk.release.set).start()  # the disk comes back during the stop
+    assert daemon.shutdown("stopped")
+    assert on_disk_then == [[KIND], [KIND]]
+    assert not [m for m in events.logged() if m.startswith("not saved at the stop")]
