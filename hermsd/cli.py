@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import BrokenExecutor
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, TextIO, TypeVar
@@ -1151,8 +1152,10 @@ def _tune_fits(simulate: bool) -> Iterator[Any]:
         return
     try:
         process = step_response.FitProcess()
-    except OSError as error:  # no process can be started here (no /dev/shm, a limit)
-        log.warning("fits run on a thread beside the loop (no process for them: %s)", error)
+    except (OSError, NotImplementedError, BrokenExecutor) as error:
+        # no process here (no /dev/shm, no semaphores, a limit), or it died as it started
+        why = str(error) or type(error).__name__
+        log.warning("fits run on a thread beside the loop (no process for them: %s)", why)
         yield step_response.fit_in_thread
         return
     try:

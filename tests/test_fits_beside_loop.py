@@ -5,8 +5,13 @@ from __future__ import annotations
 
 import functools
 import itertools
+import os
 import re
+import signal
+import subprocess
+import sys
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures.process import BrokenProcessPool
@@ -129,3 +134,54 @@ def test_a_fit_whose_process_died_stops_the_test_with_the_heater_off() -> None:
     assert experiment.times[-1] == stopped_at
     assert not world.circuit.powered
     assert experiment.last is not None and experiment.last.tuned is not None  # what was measured
+
+
+def test_a_fit_that_raises_stops_the_test_with_the_heater_off_and_says_why() -> None:
+    def raised(job: Callable[[], step_response.Progress]) -> Future[step_response.Progress]:
+        future: Future[step_response.Progress] = Future()
+        future.set_exception(ValueError("math domain error"))
+        return future
+
+    plant = {"model": "foptd", "gain_c_per_pct": 1.689, "tau_s": 14961.0, "dead_time_s": 115.0}
+    experiment, world, _clock = experiment_on(plant)
+    experiment.fits = raised
+    step_response.run(experiment, (KeyboardInterrupt,))
+    assert experiment.stopped == f"{step_response.FIT_FAILED}: ValueError: math domain error"
+    assert not world.circuit.powered
+
+
+def _gone(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+    return state in ("Z", "X")  # ended, waiting to be reaped by whoever adopted it
+
+
+def test_ctrl_c_is_the_tests_to_act_on_not_the_fits_process() -> None:
+    """Ctrl-C reaches the whole process group; the fits' process leaves it to its parent
+    (which stops the test and says what it measured) rather than dying with a traceback."""
+    fits = step_response.FitProcess()
+    try:
+        worker = fits(os.getpid).result(60.0)
+        os.kill(worker, signal.SIGINT)
+        assert fits(os.getpid).result(60.0) == worker  # alive, and still fitting
+    finally:
+        fits.close()
+
+
+def test_the_fits_process_ends_when_its_parent_is_killed_outright() -> None:
+    program = (
+        "import os\n"
+        "from hermsd.commissioning.step_response import FitProcess\n"
+        "print(FitProcess()(os.getpid).result(60), flush=True)\n"
+        "os._exit(0)  # as SIGKILL: no close, no atexit\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", program], capture_output=True, text=True, timeout=60, check=True
+    )
+    worker = int(done.stdout)
+    deadline = time.monotonic() + 10 * step_response.PARENT_CHECK_S
+    while not _gone(worker) and time.monotonic() < deadline:
+        time.sleep(0.05)  # a real process's end: nothing to inject
+    assert _gone(worker)

@@ -32,6 +32,10 @@ from __future__ import annotations
 import dataclasses
 import math
 import multiprocessing
+import os
+import signal
+import threading
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from concurrent.futures import BrokenExecutor, Future, ProcessPoolExecutor
@@ -72,6 +76,8 @@ STOP_RULE = (
 
 FIT_GOOD = "the fit is good"  # why a test stops when its fit may be written
 FIT_LOST = "the fits' process stopped"  # … and when the fits can no longer run
+FIT_FAILED = "a fit failed"  # … and when one raised what no fit should
+PARENT_CHECK_S = 1.0  # how often the fits' process looks whether its parent is still there
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,7 +120,9 @@ class FitProcess:
 
     def __init__(self) -> None:
         context = multiprocessing.get_context("spawn")  # no fork of a threaded process
-        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=context)
+        self._pool = ProcessPoolExecutor(
+            max_workers=1, mp_context=context, initializer=_fit_worker, initargs=(os.getpid(),)
+        )
         self._pool.submit(int).result()  # started now, not at the first fit
 
     def __call__(self, job: Callable[[], _Progress]) -> Future[_Progress]:
@@ -138,6 +146,19 @@ class _Settings:
 
 def _progress_at(test: Stopping[_Progress], t: float) -> _Progress:
     return test.progress(t)
+
+
+def _fit_worker(parent: int) -> None:
+    """The fits' process: Ctrl-C is its parent's to act on (the test stops and says what it
+    measured), and it ends when its parent is gone (killed outright, it would stay forever)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_CHECK_S)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="hermsd-fit-parent", daemon=True).start()
 
 
 def settings_of(daemon: Daemon) -> Daemon:
@@ -196,6 +217,9 @@ class Stopping(ABC, Generic[_Progress]):
             progress = asked[1].result()
         except BrokenExecutor as error:  # the fit's process died (killed, out of memory)
             self._finish(f"{FIT_LOST}: {error or type(error).__name__}", record.t)
+            return None
+        except Exception as error:  # a fault of the fit's own: the test ends, heater off
+            self._finish(f"{FIT_FAILED}: {type(error).__name__}: {error}", record.t)
             return None
         tuned: tune.Tuned | None = getattr(progress, "tuned", None)
         verdict = tuned.confidence if tuned is not None else getattr(progress, "problem", None)
