@@ -227,7 +227,7 @@ def discovered(watcher: Watcher, since: int = 0) -> dict[str, dict[str, Any]]:
     """Every discovery message the bridge published: {topic: payload}; waits for all ten."""
     watcher.wait_for(lambda m: m.topic.endswith("/alarm/config"), since)
     messages = [m for m in watcher.messages[since:] if m.topic.startswith("homeassistant/")]
-    return {m.topic: m.json() for m in messages if m.topic.endswith("/config")}
+    return {m.topic: m.json() for m in messages if m.topic.endswith("/config") and m.payload}
 
 
 # -- what Home Assistant is told ------------------------------------------------------------
@@ -241,6 +241,10 @@ def test_discovery_gives_home_assistant_a_climate_entity_sensors_and_an_alarm(ri
     components = {topic.split("/")[1] for topic in entities}
     assert components == HA_COMPONENTS
     assert len(entities) == 11
+    # no second element here: its entity, if an earlier config made one, is removed
+    removed = f"homeassistant/sensor/{node}/output2/config"
+    assert removed not in entities
+    assert any(m.topic == removed and m.payload == b"" for m in rig.watcher.messages)
     ids = set()
     for topic, entity in entities.items():
         # <discovery prefix>/<component>/<node id>/<object id>/config, ids unique and stable
@@ -671,7 +675,10 @@ def test_a_second_element_gets_its_own_output_sensor_and_none_without_it() -> No
     two_text = BASE + "\nelement2:\n  backend: sim\n"
     two = dict(discovery_messages(topics, config_module.parse(two_text)))
     topic = topics.discovery("sensor", "output2")
-    assert topic not in one and set(two) == {*one, topic}
+    assert one[topic] is None and set(two) == set(one)  # None: sent empty, removes it
+    assert {t for t, p in one.items() if p is not None} | {topic} == {
+        t for t, p in two.items() if p is not None
+    }
     sensor = two[topic]
     assert sensor["unit_of_measurement"] == "%"
     assert sensor["unique_id"] == f"hermsd_{topics.node_id}_output2"

@@ -80,7 +80,8 @@ class Bridge:
         self.poll = poll
         self.topics = Topics.of(settings.topic_prefix, settings.discovery_prefix)
         self._discovery = [
-            (topic, encode(payload)) for topic, payload in discovery_messages(self.topics, config)
+            (topic, b"" if payload is None else encode(payload))
+            for topic, payload in discovery_messages(self.topics, config)
         ]
         # (topic, payload, command) to send; None ends the command thread
         self._commands: queue.Queue[tuple[str, bytes, Command] | None] = queue.Queue(

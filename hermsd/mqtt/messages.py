@@ -135,10 +135,11 @@ def setpoint_range(config: Config) -> tuple[float, float]:
     return low, min(high, below_cut_out)
 
 
-def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[str, Any]]]:
+def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[str, Any] | None]]:
     """(topic, payload) of each entity Home Assistant should make for this tun: a climate
     entity, sensors (the second element's duty when one is fitted), and a binary sensor that
-    is on while an alarm stands."""
+    is on while an alarm stands. A payload of None is an entity this config has not: sent
+    empty, it removes one an earlier config made."""
     node = topics.node_id
     device = {
         "identifiers": [f"hermsd_{node}"],
@@ -171,11 +172,12 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         )
 
     percent = {"unit_of_measurement": "%", "state_class": "measurement"}
-    # A second element's duty is a sensor of its own; without one, no entity that never reads.
+    # A second element's duty is a sensor of its own; without one, its topic gets an empty
+    # payload, which removes the entity a config with one left retained on the broker.
     element2 = (
-        [sensor("output2", "Element 2 output", "output2", **percent)]
+        sensor("output2", "Element 2 output", "output2", **percent)
         if config.element2.backend != "none"
-        else []
+        else (topics.discovery("sensor", "output2"), None)
     )
     return [
         (
@@ -213,7 +215,7 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         ),
         sensor("output", "Output", "output", **percent),
         sensor("applied", "Applied", "applied", **percent),
-        *element2,
+        element2,
         sensor("mode", "Mode", "mode_text"),
         sensor("state", "State", "state"),
         sensor("step", "Program step", "step_text"),
