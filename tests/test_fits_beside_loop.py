@@ -17,6 +17,7 @@ from concurrent.futures import Future
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
+import pytest
 from test_relay import NOISE, SEED_TUN
 from test_step_response import experiment_on
 
@@ -118,36 +119,37 @@ def test_the_tuns_fits_run_in_a_process_of_their_own_and_give_the_loops_result()
     assert fitted.tuned is not None and fitted.tuned.confidence == "good"
 
 
-def test_a_fit_whose_process_died_stops_the_test_with_the_heater_off() -> None:
-    def died(job: Callable[[], step_response.Progress]) -> Future[step_response.Progress]:
+@pytest.mark.parametrize(
+    ("error", "stopped"),
+    [
+        (
+            BrokenProcessPool("a child process terminated abruptly"),
+            f"{step_response.FIT_LOST}: a child process terminated abruptly",
+        ),
+        (  # a fault of the fit's own never escapes into the loop
+            ValueError("math domain error"),
+            f"{step_response.FIT_FAILED}: ValueError: math domain error",
+        ),
+    ],
+)
+def test_a_fit_that_cannot_be_had_stops_the_test_with_the_heater_off(
+    error: Exception, stopped: str
+) -> None:
+    def failed(job: Callable[[], step_response.Progress]) -> Future[step_response.Progress]:
         future: Future[step_response.Progress] = Future()
-        future.set_exception(BrokenProcessPool("a child process terminated abruptly"))
+        future.set_exception(error)
         return future
 
     plant = {"model": "foptd", "gain_c_per_pct": 1.689, "tau_s": 14961.0, "dead_time_s": 115.0}
     experiment, world, _clock = experiment_on(plant)
-    experiment.fits = died
+    experiment.fits = failed
     step_response.run(experiment, (KeyboardInterrupt,))
-    assert experiment.stopped == (f"{step_response.FIT_LOST}: a child process terminated abruptly")
+    assert experiment.stopped == stopped
     assert experiment.step_at is not None  # the first fit's time: the step plus MIN_STEP_S,
     stopped_at = experiment.step_at + step_response.MIN_STEP_S + 5.0  # taken a period later
     assert experiment.times[-1] == stopped_at
     assert not world.circuit.powered
     assert experiment.last is not None and experiment.last.tuned is not None  # what was measured
-
-
-def test_a_fit_that_raises_stops_the_test_with_the_heater_off_and_says_why() -> None:
-    def raised(job: Callable[[], step_response.Progress]) -> Future[step_response.Progress]:
-        future: Future[step_response.Progress] = Future()
-        future.set_exception(ValueError("math domain error"))
-        return future
-
-    plant = {"model": "foptd", "gain_c_per_pct": 1.689, "tau_s": 14961.0, "dead_time_s": 115.0}
-    experiment, world, _clock = experiment_on(plant)
-    experiment.fits = raised
-    step_response.run(experiment, (KeyboardInterrupt,))
-    assert experiment.stopped == f"{step_response.FIT_FAILED}: ValueError: math domain error"
-    assert not world.circuit.powered
 
 
 def _gone(pid: int) -> bool:
