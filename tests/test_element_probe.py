@@ -24,11 +24,14 @@ C = 90.0 * 4186.0  # J/K: 90 L of water
 LOSS = 500.0  # W at any temperature
 
 
-def _heat_up(gives1: float, gives2: float, until: float = 3000.0) -> list[ProbeResult]:
-    """The probe fed a heat-up from 20 °C to 66 °C whose PV is the heat, less LOSS, over C,
-    THETA late: straight lines but where the probe switched the SSR's element off."""
+def _heat_up(
+    gives1: float, gives2: float, bend: float = 0.0, until: float = 3000.0
+) -> tuple[list[ProbeResult], list[float]]:
+    """The probe fed a heat-up from 20 °C whose PV is the heat, less LOSS, over C, THETA
+    late, plus ½·`bend`·t² (°C/s²): straight lines but where the probe switched the SSR's
+    element off, unless bent. The findings, and the periods the SSR's element was off."""
     probe = ElementProbe(W1, W2, H, THETA)
-    off: list[float] = []  # the periods the SSR's element was off
+    off: list[float] = []
     found: list[ProbeResult] = []
     t = 0.0
     while t < until:
@@ -36,32 +39,48 @@ def _heat_up(gives1: float, gives2: float, until: float = 3000.0) -> list[ProbeR
         seen = t - THETA  # the heat that reached the sensor by now was switched by then
         heat = max(0.0, seen) * (W1 * gives1 + W2 * gives2 - LOSS)
         heat -= W1 * gives1 * H * sum(1 for s in off if s + H <= seen)
-        pv = 20.0 + heat / C
+        pv = 20.0 + heat / C + 0.5 * bend * max(0.0, seen) ** 2
         if probe.step(66.0, pv, True):
             off.append(t)  # off for the period that starts now
         if (result := probe.take()) is not None:
             found.append(result)
     assert len(off) in (0, PROBE_S / H)
-    return found
+    return found, off
 
 
 def test_both_heating_take_their_share_of_the_rise() -> None:
     # The offset at the probe's middle is P1·t/C = 2000·60/376740 = 0.3185 °C, and the rise
     # over the same 60 s (5500 − 500)·60/C = 0.7963 °C: a share of 2000/5000 = 0.4.
-    (found,) = _heat_up(1.0, 1.0)
+    (found,), _ = _heat_up(1.0, 1.0)
     assert found.element is None and found.share == pytest.approx(0.4, abs=1e-6)
     assert "both elements heat: 40 ± 0 %" in found.message
 
 
+def test_a_heat_up_bent_by_its_losses_is_judged_by_its_rise_midway() -> None:
+    # Losses growing with the temperature bend the rise: −1e-6 °C/s² takes 0.0005 °C/s off
+    # the straight rise's 0.01327 in 500 s. Both sides span 600 s (the heat-up leaves time
+    # for it: 1131 + 1190 s from 20 °C at under 0.0133 °C/s stays below 56 °C); their middles
+    # are 300 s before the probe's start and 60 + 530 + 300 s after it (+ half a period each,
+    # the points being the periods' ends), so midway is 295.5 s after the start. The levels'
+    # difference is the missing heat exactly, 0.3185 °C, and the rise is the slope there:
+    # 5000 W/C + bend·(t − THETA).
+    bend = -1e-6
+    (found,), off = _heat_up(1.0, 1.0, bend)
+    midway = off[0] + (PROBE_S + 2.0 * THETA + SETTLE_S) / 2.0 + H / 2.0
+    rise = (5000.0 / C + bend * (midway - THETA)) * PROBE_S
+    assert found.share == pytest.approx(W1 * PROBE_S / C / rise, abs=1e-6)
+    assert found.element is None
+
+
 def test_a_dead_ssr_element_is_named() -> None:
     # Nothing missing when it is off: a share of 0.
-    (found,) = _heat_up(0.0, 1.0)
+    (found,), _ = _heat_up(0.0, 1.0)
     assert found.element == 1 and found.share == pytest.approx(0.0, abs=1e-6)
 
 
 def test_a_dead_second_element_is_named() -> None:
     # The probe stops all heating: 2000/(2000 − 500) = 4/3 of the rise missing.
-    (found,) = _heat_up(1.0, 0.0)
+    (found,), _ = _heat_up(1.0, 0.0)
     assert found.element == 2 and found.share == pytest.approx(4.0 / 3.0, abs=1e-6)
 
 
