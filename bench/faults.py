@@ -190,9 +190,13 @@ TWO_ELEMENT_NOTE = (
     "on the small 30 L 5.5 kW tun, whose recovery on the SSR's 2 kW is over before the "
     "watch's windows may start after water (5 min and a dead time, then 120 s past twice "
     "the dead time), and the 120 L thermowell, whose 300 s dead time the config's 115 s "
-    "misjudges (nor does the supervisor latch there by the day's end). A dead SSR "
-    "element is told on every tun, slowest (2015 and 2165 s) on the two small 30 L tuns (the "
-    "5.5 kW one holds on 7 % of the total: little of the SSR's heat to miss)."
+    "misjudges (nor does the supervisor latch there by the day's end, nor, with the heat-up's "
+    "check, on the contactor's death without water: 2835 s after it without the check). A "
+    "dead SSR "
+    "element is told on every tun, slowest (2015 to 2180 s) on the two small 30 L tuns (the "
+    "5.5 kW one holds on 7 % of the total: little of the SSR's heat to miss) and the 120 L "
+    "thermowell. The normal days include the heat-up's check (element2.check: the SSR's "
+    "element off for 60 s, well below the setpoint): no warning from it either."
 )
 
 

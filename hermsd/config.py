@@ -26,6 +26,7 @@ import yaml
 
 from hermsd import midrange, pid
 from hermsd.element2 import MidRangeController, PowerSplit, SplitController
+from hermsd.element_probe import ElementProbe
 from hermsd.files import NotRegularFile, read_regular
 from hermsd.learning import LearnedModel, implausible
 from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
@@ -204,6 +205,8 @@ class Element2Config:
     # A contactor is rated for about 100k operations: 2 min on and off is at most 30 a hour.
     min_on: float = _number(120.0, 5, 3600, "s")
     min_off: float = _number(120.0, 5, 3600, "s")
+    # Off for 60 s in the first heat-up: which element heats (hermsd/element_probe.py).
+    check: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -1071,7 +1074,8 @@ def shared_out(config: Config, controller: pid.Controller) -> pid.Controller:
     split = PowerSplit(
         config.tun.element_watts, e2.watts, c.period, e2.min_on, e2.min_off, c.max_output
     )
-    return SplitController(controller, split)
+    probe = ElementProbe(config.tun.element_watts, e2.watts, c.period, c.dead_time)
+    return SplitController(controller, split, probe if e2.check else None)
 
 
 def _midrange_controller(c: ControlConfig) -> MidRangeController:

@@ -43,6 +43,7 @@ from hermsd.config import (
 )
 from hermsd.config_file import ConfigFile
 from hermsd.element2 import SlowElement, SplitController, TwoElementController, total_share
+from hermsd.element_probe import ProbeResult
 from hermsd.element_watch import ElementWatch, no_heat_words, report_kind
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
 from hermsd.learning import LearnedModel, Learner, ModelStore
@@ -1145,6 +1146,9 @@ class Daemon:
             self.controller.on2, self.controller.free2 = on2, bool(free2)
         if isinstance(self.controller, TwoElementController):
             self.controller.applied2 = applied2 or 0.0
+        probed = (
+            self.controller.probe_result() if isinstance(self.controller, SplitController) else None
+        )
         total_asked, total_applied = self._total_power(asked, applied, switched2)
         sup.period(now, pv, total_asked, total_applied)
         self._drain_alarms(now)
@@ -1193,7 +1197,7 @@ class Daemon:
             self._watchdog.note_healthy_cycle()
         u2 = self._output2 = self._drive_element2(now, state)
         if self.element_watch is not None and switched2 is not None:
-            self._watch_elements(now, pv, applied, switched2, state)  # as logged: replay too
+            self._watch_elements(now, pv, applied, switched2, state, probed)  # replay too
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -1327,12 +1331,25 @@ class Daemon:
         return u2
 
     def _watch_elements(
-        self, now: float, pv: float | None, duty1: float, duty2: float, state: str
+        self,
+        now: float,
+        pv: float | None,
+        duty1: float,
+        duty2: float,
+        state: str,
+        probed: ProbeResult | None,
     ) -> None:
-        """Said, not latched: the other element holds the tun (docs/two-elements.md)."""
+        """Said, not latched: the other element holds the tun (docs/two-elements.md). The
+        heat-up's probe's finding of the step before comes first, as replay takes it."""
         assert self.element_watch is not None
         watch = self.element_watch
-        for report in watch.period(now, pv, self.setpoint, duty1, duty2, state == "ok"):
+        reports = []
+        if probed is not None and probed.element is None:
+            self._event(logging.INFO, probed.message, now)
+        elif probed is not None and probed.element is not None:
+            reports.append(watch.blame(now, probed.element, probed.message))
+        reports += watch.period(now, pv, self.setpoint, duty1, duty2, state == "ok")
+        for report in reports:
             self._event(logging.WARNING if report.raised else logging.INFO, report.message, now)
             self._alert("element_warning", report.message, now, report_kind(report.element))
 

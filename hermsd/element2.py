@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 
 from hermsd import pid
+from hermsd.element_probe import ElementProbe, ProbeResult
 from hermsd.midrange import MidRange
 from hermsd.ssr import GuardedSwitch, SwitchedDuty
 
@@ -285,11 +286,15 @@ class SplitController:
     reset) the loop hands in the second element's duty as switched in the period before
     (`applied2`) and its state now (`on2`, `free2`): the controller is told the total power
     that really reached the water, so its model's prediction stays exact, and replay hands
-    in the same from the period's record."""
+    in the same from the period's record. With a `probe`, the SSR's element is switched off
+    once in the first heat-up to check that both heat (hermsd/element_probe.py)."""
 
-    def __init__(self, inner: pid.Controller, split: PowerSplit) -> None:
+    def __init__(
+        self, inner: pid.Controller, split: PowerSplit, probe: ElementProbe | None = None
+    ) -> None:
         self.inner = inner
         self.split = split
+        self.probe = probe
         self.applied2 = 0.0
         self.on2 = False
         self.free2 = True
@@ -320,11 +325,20 @@ class SplitController:
         u = self.total = self.inner.step(sp, pv, total)
         on, self._output = self.split.decide(u, self.on2, self.free2)
         self.u2 = 100.0 if on else 0.0
+        full = on and self.on2 and self._output >= 100.0
+        if self.probe is not None and self.probe.step(sp, pv, full):
+            self._output = 0.0
         return self._output
+
+    def probe_result(self) -> ProbeResult | None:
+        """What the heat-up's probe found in a step before, once (None: nothing new)."""
+        return None if self.probe is None else self.probe.take()
 
     def reset(self, pv: float, output: float) -> None:
         """Continue from the SSR at `output` % with the second element as it is now."""
         self.split.owed = 0.0
+        if self.probe is not None:
+            self.probe.abandon()
         self.inner.reset(pv, self.split.total(output, 100.0 if self.on2 else 0.0))
 
 

@@ -136,6 +136,7 @@ class ElementWatch:
         self.suspect: set[int] = set()  # the elements reported and not cleared
         self.doubtful = False  # heat beyond what was asked: the references lack an element
         self.hold_cycled = False  # the second element was on in the hold's reference
+        self.probed = False  # the heat-up's probe found an element dead: the references lack it
         self._samples: deque[_Sample] = deque()
         self._since: dict[tuple[int, bool, float], float] = {}  # a finding → first seen
         self._fell_at: float | None = None  # when the PV last fell faster than losses can
@@ -171,6 +172,13 @@ class ElementWatch:
             return []  # the second element switched within the period: no spell spans it
         self._take_references(t, setpoint)
         return self._judge(t)
+
+    def blame(self, t: float, element: int, message: str) -> ElementReport:
+        """An element the heat-up's probe found dead (hermsd/element_probe.py): reported,
+        and held, for the references were measured without its heat and cannot clear it."""
+        self.suspect.add(element)
+        self.probed = True
+        return ElementReport(element, t, True, message)
 
     def _take_references(self, t: float, setpoint: float) -> None:
         samples = self._samples
@@ -237,7 +245,12 @@ class ElementWatch:
         return parts[1] + parts[2], rate, parts
 
     def _judge(self, t: float) -> list[ElementReport]:
-        if self.full_rate is None or self.hold_power is None or self.hold_power >= 1.0:
+        if (
+            self.probed
+            or self.full_rate is None
+            or self.hold_power is None
+            or self.hold_power >= 1.0
+        ):
             return []
         gain = self.full_rate / (1.0 - self.hold_power)
         for span, steady, least, confirm, factors in WINDOWS:

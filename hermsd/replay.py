@@ -766,7 +766,11 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             known = False
             stepped = None
             watch = None  # what the missing periods told it is not known
+        # The probe's finding of the step before, taken as the daemon takes it.
+        probed = controller.probe_result() if isinstance(controller, SplitController) else None
         if watch is not None and record.switched2 is not None:
+            if probed is not None and probed.element is not None:
+                watch.blame(record.t, probed.element, probed.message)
             watch.period(
                 record.t,
                 record.pv,

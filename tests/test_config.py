@@ -164,7 +164,13 @@ TEXTS = {  # key: (longest, nullable)
     "mqtt.discovery_prefix": (100, False),
     "mqtt.client_id": (64, True),
 }
-FLAGS = ("output.active_low", "contactor.active_low", "element2.active_low", "mqtt.tls")
+FLAGS = (
+    "output.active_low",
+    "contactor.active_low",
+    "element2.active_low",
+    "element2.check",
+    "mqtt.tls",
+)
 ALERT_EVENTS = (
     "alarm_raised",
     "alarm_cleared",
@@ -213,6 +219,7 @@ RESTART = [
             "watts",
             "min_on",
             "min_off",
+            "check",
         )
     ),
     "log.dir",
@@ -399,6 +406,7 @@ def test_defaults_are_the_specified_ones() -> None:
             "watts": 3500.0,
             "min_on": 120.0,
             "min_off": 120.0,
+            "check": True,
         },
         "safety": {
             "max_temp": 95.0,

@@ -204,10 +204,12 @@ def test_a_contactor_element_dead_all_day_does_not_get_the_ssrs_blamed() -> None
     # references count its nominal heat as losses. After the water at 4 h, a short window
     # with it on would have named element 1 (as it did before the long window alone judged
     # such a hold); nothing at all is right, as nothing is missing against those references.
+    # (The heat-up's probe, off here, names it: tests/test_element_probe.py.)
     spec = TunSpec("90 L lidded", 90, W1 + W2, 1.0, 60, 10, 20)
     day = spec.brew_day()
     plant = {**day.plant, "element_watts": W1, "element2_watts": W2}
-    config = {**TWO, "tun": {**TWO["tun"], "litres": spec.litres}}
+    unchecked = {**TWO["element2"], "check": False}
+    config = {**TWO, "tun": {**TWO["tun"], "litres": spec.litres}, "element2": unchecked}
     events = (*day.events, Event(1.0, "heater2", "open"))
     scenario = dataclasses.replace(
         day, plant=plant, config=config, events=events, duration=4.75 * 3600.0

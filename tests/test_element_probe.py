@@ -1,0 +1,169 @@
+"""The heat-up's probe of two elements: its share by hand on a tun made of straight lines,
+then the simulator's heat-ups (virtual clock) at half and twice the fill and with each kind
+of element dead from the start, and replay re-running a probed day."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+from test_element2 import logged_daemon, two_element_config
+
+from hermsd.daemon import PeriodRecord
+from hermsd.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
+from hermsd.replay import load, verify
+from hermsd.sim import tun_faults as tf
+from hermsd.sim.scenario import Event, Scenario, run
+from hermsd.sim.tuns import TunSpec
+
+H = 1.0
+W1, W2 = 2000.0, 3500.0
+THETA = 115.0  # the config's dead time: the tun below shows heat exactly this late
+C = 90.0 * 4186.0  # J/K: 90 L of water
+LOSS = 500.0  # W at any temperature
+
+
+def _heat_up(
+    gives1: float, gives2: float, bend: float = 0.0, until: float = 3000.0
+) -> tuple[list[ProbeResult], list[float]]:
+    """The probe fed a heat-up from 20 °C whose PV is the heat, less LOSS, over C, THETA
+    late, plus ½·`bend`·t² (°C/s²): straight lines but where the probe switched the SSR's
+    element off, unless bent. The findings, and the periods the SSR's element was off."""
+    probe = ElementProbe(W1, W2, H, THETA)
+    off: list[float] = []
+    found: list[ProbeResult] = []
+    t = 0.0
+    while t < until:
+        t += H
+        seen = t - THETA  # the heat that reached the sensor by now was switched by then
+        heat = max(0.0, seen) * (W1 * gives1 + W2 * gives2 - LOSS)
+        heat -= W1 * gives1 * H * sum(1 for s in off if s + H <= seen)
+        pv = 20.0 + heat / C + 0.5 * bend * max(0.0, seen) ** 2
+        if probe.step(66.0, pv, True):
+            off.append(t)  # off for the period that starts now
+        if (result := probe.take()) is not None:
+            found.append(result)
+    assert len(off) in (0, PROBE_S / H)
+    return found, off
+
+
+def test_both_heating_take_their_share_of_the_rise() -> None:
+    # The offset at the probe's middle is P1·t/C = 2000·60/376740 = 0.3185 °C, and the rise
+    # over the same 60 s (5500 − 500)·60/C = 0.7963 °C: a share of 2000/5000 = 0.4.
+    (found,), _ = _heat_up(1.0, 1.0)
+    assert found.element is None and found.share == pytest.approx(0.4, abs=1e-6)
+    assert "both elements heat: 40 ± 0 %" in found.message
+
+
+def test_a_heat_up_bent_by_its_losses_is_judged_by_its_rise_midway() -> None:
+    # Losses growing with the temperature bend the rise: −1e-6 °C/s² takes 0.0005 °C/s off
+    # the straight rise's 0.01327 in 500 s. Both sides span 600 s (the heat-up leaves time
+    # for it: 1131 + 1190 s from 20 °C at under 0.0133 °C/s stays below 56 °C); their middles
+    # are 300 s before the probe's start and 60 + 530 + 300 s after it (+ half a period each,
+    # the points being the periods' ends), so midway is 295.5 s after the start. The levels'
+    # difference is the missing heat exactly, 0.3185 °C, and the rise is the slope there:
+    # 5000 W/C + bend·(t − THETA).
+    bend = -1e-6
+    (found,), off = _heat_up(1.0, 1.0, bend)
+    midway = off[0] + (PROBE_S + 2.0 * THETA + SETTLE_S) / 2.0 + H / 2.0
+    rise = (5000.0 / C + bend * (midway - THETA)) * PROBE_S
+    assert found.share == pytest.approx(W1 * PROBE_S / C / rise, abs=1e-6)
+    assert found.element is None
+
+
+def test_a_dead_ssr_element_is_named() -> None:
+    # Nothing missing when it is off: a share of 0.
+    (found,), _ = _heat_up(0.0, 1.0)
+    assert found.element == 1 and found.share == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_dead_second_element_is_named() -> None:
+    # The probe stops all heating: 2000/(2000 − 500) = 4/3 of the rise missing.
+    (found,), _ = _heat_up(1.0, 0.0)
+    assert found.element == 2 and found.share == pytest.approx(4.0 / 3.0, abs=1e-6)
+
+
+def test_too_little_time_before_the_setpoint_says_the_elements_were_not_checked() -> None:
+    probe = ElementProbe(W1, W2, H, THETA)
+    # 0.03 °C/s from 20 °C: 650 s of full power (its fit, twice the dead time and the
+    # settling) reach 39.5 °C, and the probe and its second fit take 60 + 530 + 120 = 710 s
+    # more: 21.3 °C, past 66 − 10 °C.
+    lead = FIT_S[0] + 2.0 * THETA + SETTLE_S
+    for k in range(1, int(lead) + 2):
+        assert not probe.step(66.0, 20.0 + 0.03 * k, True)
+    found = probe.take()
+    assert found is not None and found.element is None
+    assert "not checked: too little time" in found.message
+    assert not probe.step(66.0, 41.0, True)  # once: it never probes after
+
+
+def test_an_interrupted_probe_is_given_up_and_not_tried_again() -> None:
+    probe = ElementProbe(W1, W2, H, THETA)
+    t = 0.0
+    while not probe.step(66.0, 20.0 + 0.01 * t, True):
+        t += H
+    probe.abandon()  # the controller held: an alarm, manual, a program waiting
+    found = probe.take()
+    assert found is not None and "interrupted" in found.message
+    assert not any(probe.step(66.0, 30.0 + 0.01 * k, True) for k in range(2000))
+
+
+def test_a_spell_that_ends_within_its_band_says_so() -> None:
+    probe = ElementProbe(W1, W2, H, THETA)
+    assert not probe.step(66.0, 66.0 - BELOW + 1.0, False)  # a hold: nothing said
+    assert probe.take() is None
+    assert not probe.step(66.0, 63.0, True)  # a recovery: full power too near the setpoint
+    found = probe.take()
+    assert found is not None and "no full-power spell" in found.message
+
+
+TUN = TunSpec("60 L lidded", 60, W1 + W2, 1.0, 45, 10, 20)
+HEAT_UP = 2700.0  # s: the probe is judged by (530 + 600) + 60 + (530 + 600) s
+
+
+def _heat_up_day(day: Scenario, *events: Event, check: bool = True) -> Scenario:
+    plant = {**day.plant, "element_watts": W1, "element2_watts": W2}
+    config = {
+        "tun": {"element_watts": W1, "litres": TUN.litres},
+        "element2": {"backend": "sim", "watts": W2, "check": check},
+    }
+    return dataclasses.replace(day, plant=plant, config=config, events=events, duration=HEAT_UP)
+
+
+def _named(day: Scenario) -> list[int]:
+    result = run(day, keep_records=True)
+    assert result.summary["alarms"] == []
+    return sorted({e for r in result.records for e in (r.no_heat or [])})
+
+
+@pytest.mark.parametrize("fill", [0.5, 2.0])
+def test_no_warning_at_half_and_twice_the_fill(fill: float) -> None:
+    assert _named(_heat_up_day(tf.normal_day(TUN, fill))) == []
+
+
+@pytest.mark.parametrize(("fault", "element"), [("heater", 1), ("heater2", 2)])
+def test_an_element_dead_from_the_start_is_named(fault: str, element: int) -> None:
+    dead = Event(1.0, fault, "open")
+    assert _named(_heat_up_day(TUN.brew_day(), dead)) == [element]
+    assert _named(_heat_up_day(TUN.brew_day(), dead, check=False)) == []
+
+
+def test_replay_re_runs_the_probe_and_its_warning(tmp_path: Path) -> None:
+    config = two_element_config(algorithm="predictive")
+    daemon, world, clock, recorder = logged_daemon(config, tmp_path, 5)
+    world.plant.set_element_ok(False, clock.monotonic())  # the SSR's element dead from 0 s
+    with daemon:
+        daemon.run(until=HEAT_UP)
+    recorder.close()
+    entries = load(sorted(tmp_path.iterdir())).entries
+    periods = [e for e in entries if isinstance(e, PeriodRecord)]
+    probed = [p for p in periods if p.on2 and p.output == 0.0 and p.pv is not None]
+    assert len(probed) == PROBE_S / config.control.period
+    assert periods[-1].no_heat == [1]
+    assert verify(entries).mismatch is None
+    # A log whose SSR was not off in the probe is caught at its first period.
+    index = next(i for i, e in enumerate(entries) if e is probed[0])
+    entries[index] = dataclasses.replace(probed[0], output=100.0)
+    mismatch = verify(entries).mismatch
+    assert mismatch is not None and mismatch.k == probed[0].k and mismatch.name == "output"
