@@ -167,3 +167,24 @@ def test_replay_re_runs_the_probe_and_its_warning(tmp_path: Path) -> None:
     entries[index] = dataclasses.replace(probed[0], output=100.0)
     mismatch = verify(entries).mismatch
     assert mismatch is not None and mismatch.k == probed[0].k and mismatch.name == "output"
+
+
+def test_replay_of_a_log_missing_periods_before_the_probe_leaves_it_unknown(
+    tmp_path: Path,
+) -> None:
+    """Periods missing from the log (a disk that failed) before the probe ran: what the
+    daemon's probe did in them is not known, so no period after them is held against it."""
+    config = two_element_config(algorithm="predictive")
+    daemon, _world, _clock, recorder = logged_daemon(config, tmp_path, 5)
+    with daemon:
+        daemon.run(until=HEAT_UP)
+    recorder.close()
+    entries = load(sorted(tmp_path.iterdir())).entries
+    periods = [e for e in entries if isinstance(e, PeriodRecord)]
+    first_off = next(p for p in periods if p.on2 and p.output == 0.0 and p.pv is not None)
+    # lose a stretch of ten minutes that ends a minute before the probe began
+    lost = {p.k for p in periods if first_off.t - 660.0 <= p.t < first_off.t - 60.0}
+    gapped = [e for e in entries if not (isinstance(e, PeriodRecord) and e.k in lost)]
+    result = verify(gapped)
+    assert result.mismatch is None
+    assert result.unknown_state > 0
