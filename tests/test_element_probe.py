@@ -12,7 +12,7 @@ from test_element2 import logged_daemon, two_element_config
 
 from hermsd.daemon import PeriodRecord
 from hermsd.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
-from hermsd.replay import load, verify
+from hermsd.replay import LoggedConfig, load, verify
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event, Scenario, run
 from hermsd.sim.tuns import TunSpec
@@ -188,3 +188,29 @@ def test_replay_of_a_log_missing_periods_before_the_probe_leaves_it_unknown(
     result = verify(gapped)
     assert result.mismatch is None
     assert result.unknown_state > 0
+
+
+def test_a_log_from_before_the_check_verifies_without_it(tmp_path: Path) -> None:
+    """A config record without `element2.check` was written by a daemon that never probed:
+    replay must not probe where it did not."""
+    config = two_element_config(algorithm="predictive")
+    config = dataclasses.replace(config, element2=dataclasses.replace(config.element2, check=False))
+    daemon, _world, _clock, recorder = logged_daemon(config, tmp_path, 5)
+    with daemon:
+        daemon.run(until=HEAT_UP)
+    recorder.close()
+    entries = load(sorted(tmp_path.iterdir())).entries
+    older = [
+        dataclasses.replace(
+            e,
+            config={
+                **e.config,
+                "element2": {k: v for k, v in e.config["element2"].items() if k != "check"},
+            },
+        )
+        if isinstance(e, LoggedConfig)
+        else e
+        for e in entries
+    ]
+    assert all("check" not in e.config["element2"] for e in older if isinstance(e, LoggedConfig))
+    assert verify(older).mismatch is None
