@@ -295,6 +295,8 @@ class SplitController:
         self.inner = inner
         self.split = split
         self.probe = probe
+        # Whether the probe held the SSR's element off in the step before last, and the last.
+        self._held = (False, False)
         self.applied2 = 0.0
         self.on2 = False
         self.free2 = True
@@ -322,12 +324,16 @@ class SplitController:
 
     def step(self, sp: float, pv: float, applied: float | None = None) -> float:
         total = None if applied is None else self.split.total(applied, self.applied2)
+        if self._held[0]:  # the power two periods ago was the probe's, this one's full again
+            pid.loops_own_step(self.inner)
         u = self.total = self.inner.step(sp, pv, total)
         on, self._output = self.split.decide(u, self.on2, self.free2)
         self.u2 = 100.0 if on else 0.0
         full = on and self.on2 and self._output >= 100.0
-        if self.probe is not None and self.probe.step(sp, pv, full):
+        held = self.probe is not None and self.probe.step(sp, pv, full)
+        if held:
             self._output = 0.0
+        self._held = (self._held[1], held)
         return self._output
 
     def probe_result(self) -> ProbeResult | None:

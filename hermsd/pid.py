@@ -854,6 +854,7 @@ class _Predictive(_Base):
         "_recent",
         "_recovery",
         "_steady_with_pv",
+        "_step_is_loops",
         "_ts",
         "_watch",
     )
@@ -882,6 +883,8 @@ class _Predictive(_Base):
         # Whether a step's own PV counts in judging it steady (see `_watch_heat_up`); replay
         # clears it for logs of the daemons before it (`predating_drop_fall`).
         self._steady_with_pv = True
+        # Whether the next step's change of power is the loop's own (`loops_own_step`).
+        self._step_is_loops = False
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
 
@@ -1006,7 +1009,8 @@ class _Predictive(_Base):
         # answered there) has a steady minute before it, but is no step from a steady PV.
         seen = (*recent, pv) if self._steady_with_pv else tuple(recent)
         steady = max(seen) - min(seen) <= STEADY_BAND
-        if full and not (watch.active or recovery.active) and before < self._hi:
+        loops, self._step_is_loops = self._step_is_loops, False
+        if full and not (watch.active or recovery.active) and before < self._hi and not loops:
             if steady:
                 watch.arm(recent[-1], applied - before)
             else:
@@ -1071,6 +1075,14 @@ def full_power_now(
     pv = latest if rule.on_latest else (before + latest) / 2.0
     trial = copy.deepcopy(controller)
     return trial.step(sp, pv, controller.output) >= 100.0
+
+
+def loops_own_step(controller: Controller) -> None:
+    """Tell `controller` (predictive) that the step to full power its next step sees is the
+    loop's return from a spell it held the power down for itself (the heat-up's check of
+    two elements), not a step whose response measures the tun: no watch is armed on it."""
+    if isinstance(controller, _Predictive):
+        controller._step_is_loops = True
 
 
 def predating_drop_fall(controller: Controller) -> None:

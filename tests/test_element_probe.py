@@ -10,7 +10,9 @@ from pathlib import Path
 import pytest
 from test_element2 import logged_daemon, two_element_config
 
+from hermsd import pid
 from hermsd.daemon import PeriodRecord
+from hermsd.element2 import PowerSplit, SplitController
 from hermsd.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
 from hermsd.replay import LoggedConfig, load, verify
 from hermsd.sim import tun_faults as tf
@@ -214,3 +216,49 @@ def test_a_log_from_before_the_check_verifies_without_it(tmp_path: Path) -> None
     ]
     assert all("check" not in e.config["element2"] for e in older if isinstance(e, LoggedConfig))
     assert verify(older).mismatch is None
+
+
+def test_the_power_back_after_the_probe_is_no_step_that_measures_the_tun() -> None:
+    """Full power again after the probe held the SSR's element off is the loop's own doing:
+    a heat-up or recovery watch armed on it would fit a 36 % step to a rise made by 100 %
+    (a model rate 2.65× the tun's on a slow heat-up). The watch is armed on a step to full
+    power from below it, unless told that step is the loop's."""
+    for told in (False, True):
+        controller = pid.create(
+            "predictive", kc=120.0, ti=800.0, ts=5.0, out_max=100.0, model=pid.SEED_HLT
+        )
+        assert isinstance(controller, pid._Predictive)
+        controller.reset(30.0, 63.6)
+        pv = 30.0
+        for _ in range(20):  # a slow heat-up at 63.6 %, as in the probe: the PV steady
+            pv += 0.001
+            controller.step(66.0, pv, 63.6)
+        if told:
+            pid.loops_own_step(controller)
+        controller.step(66.0, pv, 100.0)  # the SSR's element back on
+        assert (controller._watch.active or controller._recovery.active) is not told
+
+
+def test_the_split_tells_its_controller_the_power_back_after_the_probe_is_its_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The step whose power before last was the probe's is the one told (`loops_own_step`)."""
+
+    class Held(ElementProbe):
+        def __init__(self) -> None:
+            super().__init__(W1, W2, H, 115.0)
+            self.n = 0
+
+        def step(self, setpoint: float, pv: float, full: bool) -> bool:
+            self.n += 1
+            return self.n in (3, 4)  # the SSR's element held off in steps 3 and 4
+
+    steps: list[float] = []
+    told: list[int] = []
+    monkeypatch.setattr(pid, "loops_own_step", lambda _c: told.append(len(steps) + 1))
+    inner = pid.create("predictive", kc=120.0, ti=800.0, ts=H, out_max=100.0, model=pid.SEED_HLT)
+    split = SplitController(inner, PowerSplit(W1, W2, H, 120.0, 120.0), Held())
+    for _ in range(8):
+        steps.append(split.step(66.0, 30.0, 100.0))
+    assert (steps[2], steps[3]) == (0.0, 0.0)  # held off in steps 3 and 4
+    assert told == [5, 6]  # their power is what steps 5 and 6 see as the one before last
