@@ -23,6 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hermsd.element_watch import SUDDEN_FALL, SUDDEN_SPAN
+
 PROBE_S = 60.0
 """s the SSR's element is off: 2 kW for 60 s into 45 L (the least fill of a 90 L config) is
 0.64 °C, into 300 L 0.1 °C."""
@@ -127,6 +129,10 @@ class ElementProbe:
             return True
         if t < end + lead + width - 1e-9:
             return False
+        judged = [s for s in spell if s[0] > start - width]
+        if _fell(judged):
+            self._finish(None, "elements not checked: the water fell in the heat-up (added?)")
+            return False
         self._judge(
             [s for s in spell if start - width < s[0] <= start],
             [s for s in spell if s[0] > end + lead],
@@ -174,6 +180,16 @@ class ElementProbe:
         self.done = True
         self._start = None
         self._spell.clear()
+
+
+def _fell(points: list[tuple[float, float]]) -> bool:
+    """Whether the PV fell, at full power, as only added water makes it (the element watch's
+    SUDDEN_FALL within SUDDEN_SPAN): the level it leaves behind is no missing heat."""
+    for i, (t, pv) in enumerate(points):
+        earlier = [y for s, y in points[:i] if s >= t - SUDDEN_SPAN]
+        if earlier and max(earlier) - pv >= SUDDEN_FALL:
+            return True
+    return False
 
 
 def _mean_t(points: list[tuple[float, float]]) -> float:
