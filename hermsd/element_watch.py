@@ -153,13 +153,21 @@ class ElementWatch:
         """One control period: the PV, the setpoint, each element's duty (%) as switched in
         the period before, and whether the controller drives them (no alarm, no manual, no
         program waiting). Returns what was reported or cleared now."""
+        said: list[ElementReport] = []
         if setpoint != self.setpoint:
             self.setpoint, self.hold_power = setpoint, None  # losses differ at another one
             self.doubtful = False
+            if UNASKED in self.suspect:  # judged again, on the new references
+                self.suspect.discard(UNASKED)
+                said.append(
+                    ElementReport(
+                        UNASKED, t, False, "heat as asked is judged again, at the new setpoint"
+                    )
+                )
         if pv is None or not math.isfinite(pv) or not controlled:
             self._samples.clear()  # no window spans an alarm's heater off, or a manual spell
             self._since.clear()
-            return []
+            return said
         samples = self._samples
         samples.append(_Sample(t, pv, duty1 / 100.0, duty2 >= 100.0))
         keep = max(HOLD_S, CYCLES_S) + max(DEAD_TIME_FACTORS) * self.dead_time + SUDDEN_SPAN
@@ -169,9 +177,9 @@ class ElementWatch:
             self._fell_at = t
         if duty2 > 0.0 and duty2 < 100.0:
             self._since.clear()
-            return []  # the second element switched within the period: no spell spans it
+            return said  # the second element switched within the period: no spell spans it
         self._take_references(t, setpoint)
-        return self._judge(t)
+        return said + self._judge(t)
 
     def blame(self, t: float, element: int, message: str) -> ElementReport:
         """An element the heat-up's probe found dead (hermsd/element_probe.py): reported,

@@ -35,7 +35,8 @@ def _heat_up(
 ) -> tuple[list[ProbeResult], list[float]]:
     """The probe fed a heat-up from 20 °C whose PV is the heat, less LOSS, over C, THETA
     late, plus ½·`bend`·t² (°C/s²), less `water` (when, °C) from then on: straight lines but
-    where the probe switched the SSR's element off, unless bent. The findings, and the periods the SSR's element was off."""
+    where the probe switched the SSR's element off, unless bent. The findings, and the
+    periods the SSR's element was off."""
     probe = ElementProbe(W1, W2, H, THETA)
     off: list[float] = []
     found: list[ProbeResult] = []

@@ -18,7 +18,14 @@ from hermsd import cli
 from hermsd import config as config_module
 from hermsd.control.link import LoopLink
 from hermsd.daemon import PeriodRecord
-from hermsd.element_watch import CONFIRM_S, DEAD_TIME_FACTORS, SPELL_S, UNASKED, ElementWatch
+from hermsd.element_watch import (
+    CONFIRM_S,
+    DEAD_TIME_FACTORS,
+    SPELL_S,
+    UNASKED,
+    ElementReport,
+    ElementWatch,
+)
 from hermsd.replay import load, verify
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event, Scenario, run
@@ -234,3 +241,36 @@ def test_the_status_and_hermsd_status_say_it(
     monkeypatch.setattr(cli, "_ask", lambda _path, _request: reply)
     assert cli.main(["status"]) == 0
     assert "warning: element 2 gives no heat? (docs/two-elements.md)" in capsys.readouterr().out
+
+
+def test_more_heat_than_asked_is_judged_again_at_a_new_setpoint_and_blocks_nothing_after() -> None:
+    """'More heat than asked?' (a lid put on in the hold, the losses a sixth of the day's
+    references) stood for good and, standing, kept every later finding back: a dead SSR
+    element after a new setpoint's references was never said."""
+    theta, h, gain = 10.0, 5.0, 0.01  # gain: °C/s for both elements' whole power
+    share1 = 2000.0 / 5500.0
+    watch = ElementWatch(2000.0, 3500.0, theta)
+    t, pv = 0.0, 50.0
+    said: list[ElementReport] = []
+    powers: list[tuple[float, float]] = []  # (t, total power): shown `theta` late
+    # (until t, setpoint, losses °C/s, whether the SSR's element heats)
+    for until, sp, loss, gives in [
+        (4500.0, 66.0, 0.002, True),  # heat-up and hold, lid off: the references
+        (6000.0, 66.0, 0.0003, True),  # lid on: 'more heat than asked?'
+        (9000.0, 70.0, 0.0003, True),  # a new setpoint: new references
+        (12000.0, 70.0, 0.0003, False),  # the SSR's element dies in the hold
+    ]:
+        while t < until:
+            if pv < sp - 0.05:
+                duty1, duty2 = 100.0, 100.0
+            else:  # the hold's duty on the SSR's element alone, as the loop's would be
+                duty1, duty2 = (min(100.0, 100.0 * loss / gain / share1) if gives else 100.0), 0.0
+            said += watch.period(t, pv, sp, duty1, duty2)
+            powers.append((t, share1 * duty1 / 100.0 * gives + (1.0 - share1) * duty2 / 100.0))
+            shown = next((p for s, p in reversed(powers) if s <= t + h - theta), 0.0)
+            t, pv = t + h, pv + (gain * shown - loss) * h
+    kinds = [(r.element, r.raised) for r in said]
+    assert kinds[0] == (UNASKED, True)
+    assert (UNASKED, False) in kinds  # judged again from the new setpoint on
+    assert (1, True) in kinds[kinds.index((UNASKED, False)) :]  # and the dead element said
+    assert watch.suspect == {1}
