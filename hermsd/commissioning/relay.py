@@ -299,15 +299,7 @@ class RelayExperiment(Stopping[Progress]):
     RECORDS = ("times", "pvs", "duties", "switches")
 
     def period(self, record: PeriodRecord) -> None:
-        if self.stopped is not None:
-            return
-        self.times.append(record.t)
-        self.pvs.append(record.pv)
-        self.duties.append(record.applied)
-        fitted = self._taken_fit(record)
-        if fitted is not None:
-            self._evaluate(fitted, record.t)
-        if self.stopped is not None:
+        if not self._recorded(record):
             return
         pv = record.pv
         if self.ambient is None and pv is not None:

@@ -178,6 +178,8 @@ class Stopping(ABC, Generic[_Progress]):
     stopped: str | None
     last: _Progress | None
     times: list[float]
+    pvs: list[float | None]
+    duties: list[float]
     fits: FitStart[_Progress]
     _asked: tuple[float, Future[_Progress]] | None  # the fit running: of the periods to t
     _final_at: float | None  # the last estimate is due, at this t, once the loop has stopped
@@ -185,6 +187,22 @@ class Stopping(ABC, Generic[_Progress]):
     @abstractmethod
     def progress(self, t: float) -> _Progress:
         """The estimates at `t`, from every period so far."""
+
+    @abstractmethod
+    def _evaluate(self, progress: _Progress, t: float) -> None:
+        """Act on a fit taken at `t`: go on, or stop."""
+
+    def _recorded(self, record: PeriodRecord) -> bool:
+        """Keep a period and act on a fit taken at it; whether the test goes on."""
+        if self.stopped is not None:
+            return False
+        self.times.append(record.t)
+        self.pvs.append(record.pv)
+        self.duties.append(record.applied)
+        fitted = self._taken_fit(record)
+        if fitted is not None:
+            self._evaluate(fitted, record.t)
+        return self.stopped is None
 
     def _snapshot(self) -> Stopping[_Progress]:
         """A copy of the test to fit beside the loop: its RECORDS as they are now (the loop
@@ -285,18 +303,10 @@ class StepExperiment(Stopping[Progress]):
     RECORDS = ("times", "pvs", "duties", "_history")
 
     def period(self, record: PeriodRecord) -> None:
-        if self.stopped is not None:
+        if not self._recorded(record):
             return
         if self._started_at is None:
             self._started_at = record.t
-        self.times.append(record.t)
-        self.pvs.append(record.pv)
-        self.duties.append(record.applied)
-        fitted = self._taken_fit(record)
-        if fitted is not None:
-            self._evaluate(fitted, record.t)
-        if self.stopped is not None:
-            return
         if self.step_at is None:
             stepped = self.output is not None and record.output >= self.output - 1e-9
             if record.mode == "manual" and stepped:
