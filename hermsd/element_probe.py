@@ -185,9 +185,11 @@ class ElementProbe:
 def _fell(points: list[tuple[float, float]]) -> bool:
     """Whether the PV fell, at full power, as only added water makes it (the element watch's
     SUDDEN_FALL within SUDDEN_SPAN): the level it leaves behind is no missing heat."""
+    first = 0  # the first point within SUDDEN_SPAN before the one judged
     for i, (t, pv) in enumerate(points):
-        earlier = [y for s, y in points[:i] if s >= t - SUDDEN_SPAN]
-        if earlier and max(earlier) - pv >= SUDDEN_FALL:
+        while points[first][0] < t - SUDDEN_SPAN:
+            first += 1
+        if i > first and max(y for _, y in points[first:i]) - pv >= SUDDEN_FALL:
             return True
     return False
 
