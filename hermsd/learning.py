@@ -2,11 +2,20 @@
 
 The predictive controller measures the full-power heating rate and the dead time on every
 heat-up by itself (`pid.HeatUpFit`). What it cannot measure there is the loss: that shows
-in the hold, as the mean duty that keeps the setpoint. A `Learner` watches the periods of
-one clean spell (auto mode, no alarm, no sensor fault, no reload, no reset after a hold):
-an accepted heat-up fit followed by HOLD_S of steady hold gives one estimate of the tun,
-which is checked for physical sense and then stored (`ModelStore`, atomically) for the next
+in the hold, as the duty that keeps the setpoint. A `Learner` watches the periods of one
+clean spell (auto mode, no alarm, no sensor fault, no reload, no reset after a hold): an
+accepted heat-up fit followed by HOLD_S of steady hold gives one estimate of the tun, which
+is checked for physical sense and then stored (`ModelStore`, atomically) for the next
 start, where it replaces the prior the config describes.
+
+The hold's first half hour is still the end of the approach: the water climbs its last
+0.25 °C on more than the holding duty. The mean duty would take that heat for loss (1.6 %
+too much on the seed's tun; on a 150 L one, 1 % of duty: the next heat-up settles 0.01 °C
+high and creeps back over a quarter of an hour). So the loss is fitted to the model's own
+balance, PV_k = PV_0 + heat_k − loss·excess_k, the heat being the duty that reached the
+sensor a dead time late and the excess the PV above the room, both summed over the window:
+a least-squares line over every period, which a LSB at either end of the window cannot
+move as it moves a difference of two PVs.
 
 The fill differs from one brew day to the next and nobody edits `tun.litres` for it, so
 what is stored is referred to the litres configured when it was learned and rescaled by the
@@ -21,12 +30,13 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from hermsd.files import write_atomically
 from hermsd.latches import StateError, read_state_json
-from hermsd.pid import MAX_DEAD_TIME, HeatUpFit, PlantModel
+from hermsd.pid import MAX_DEAD_TIME, HeatUpFit, LineFit, PlantModel
 
 LEARNED_FILE = "learned-model.json"
 HOLD_S = 1800.0
@@ -143,46 +153,71 @@ class Estimate:
 class Learner:
     """Turns one clean spell (an accepted heat-up, then a steady hold) into an estimate."""
 
-    __slots__ = ("_ambient", "_duty", "_fit", "_hold_s", "_litres", "_period", "done")
+    __slots__ = (
+        "_ambient",
+        "_applied",
+        "_balance",
+        "_excess",
+        "_fit",
+        "_heat",
+        "_hold_s",
+        "_litres",
+        "_period",
+        "done",
+    )
 
     def __init__(self, *, litres: float, ambient: float, period: float) -> None:
         self._litres = litres
         self._ambient = ambient
         self._period = period
         self._fit: HeatUpFit | None = None
-        self._duty = self._hold_s = 0.0
+        # The duties applied over the last dead time, the oldest (now at the sensor) first.
+        self._applied: deque[float] = deque()
+        self._balance = LineFit()
+        self._heat = self._excess = self._hold_s = 0.0
         self.done = False  # one estimate per run: later spells would only repeat it
 
     def interrupt(self) -> None:
         """A fault, an alarm, manual mode, a reload or a reset: nothing before it counts."""
         self._fit = None
-        self._duty = self._hold_s = 0.0
+        self._applied = deque()
+        self._restart_hold()
+
+    def _restart_hold(self) -> None:
+        self._balance = LineFit()
+        self._heat = self._excess = self._hold_s = 0.0
 
     def heat_up(self, fit: HeatUpFit) -> None:
         """The controller measured a heat-up; a refused one starts nothing."""
         self.interrupt()
         if fit.refused is None:
             self._fit = fit
+            # A period's duty moves the PV a dead time later, as in the controller's model.
+            self._applied = deque(maxlen=round(fit.dead_time / self._period) + 1)
 
     def period(self, setpoint: float, pv: float, applied: float) -> Estimate | None:
-        """One clean period in auto; the estimate once the hold after a heat-up is long enough."""
+        """One clean period in auto (`applied`: the duty of the period `pv` ends); the estimate
+        once the hold after a heat-up is long enough."""
         fit = self._fit
         if fit is None or self.done:
             return None
-        if abs(pv - setpoint) > HOLD_BAND:
-            self._duty = self._hold_s = 0.0  # not (or no longer) holding: start the hold anew
+        arrived = self._applied
+        arrived.append(applied)
+        if abs(pv - setpoint) > HOLD_BAND or len(arrived) < (arrived.maxlen or 0):
+            self._restart_hold()  # not (or no longer) holding: start the hold anew
             return None
-        self._duty += applied * self._period
-        self._hold_s += self._period
+        if self._balance.n:
+            self._heat += fit.rate * arrived[0] / 100.0 * self._period
+            self._excess += (pv - self._ambient) * self._period
+            self._hold_s += self._period
+        self._balance.add(self._excess, pv - self._heat)
         if self._hold_s < HOLD_S:
             return None
         self.done = True
-        duty = self._duty / self._hold_s
-        rise = setpoint - self._ambient
-        if rise <= 0.0:
+        if self._excess <= 0.0:
             return Estimate(None, f"the setpoint {setpoint:g} °C is not above the room")
-        model = LearnedModel(
-            fit.rate, fit.rate * duty / 100.0 / rise, fit.dead_time, self._ambient, self._litres
-        )
+        slope = self._balance.slope()
+        loss = -slope if slope is not None else 0.0
+        model = LearnedModel(fit.rate, loss, fit.dead_time, self._ambient, self._litres)
         why = implausible(model)
         return Estimate(None, why) if why else Estimate(model, None)

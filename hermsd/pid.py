@@ -695,7 +695,7 @@ class HeatUpFit:
     span: float = 0.0  # s from the step to full power until the fit: the data it rests on
 
 
-class _LineFit:
+class LineFit:
     """Least squares of a line through (t, x) points, kept as running sums."""
 
     __slots__ = ("n", "st", "stt", "stx", "sx")
@@ -727,12 +727,12 @@ class _RampWatch:
     def __init__(self) -> None:
         self.active = False
         self._n = 0
-        self._line = _LineFit()
+        self._line = LineFit()
 
     def _start(self) -> None:
         self.active = True
         self._n = 0
-        self._line = _LineFit()
+        self._line = LineFit()
 
 
 class _HeatUpWatch(_RampWatch):

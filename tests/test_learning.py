@@ -58,7 +58,9 @@ def test_a_clean_day_learns_the_tun(learned_day: tuple[Path, Path]) -> None:
     # A period's PV is its mean, half a period old: the fitted dead time is θ + Ts/2.
     assert model.dead_time == pytest.approx(THETA + 2.5, abs=5.0)
     # The holding duty 46/K % at 66 °C against the room of 20 °C: loss = rate·duty/100/46.
-    assert 1.0 / model.loss == pytest.approx(TAU, rel=0.05)
+    # Fitted to the heat balance, not the hold's mean duty: the approach's last 0.25 °C of rise
+    # in the first half hour is no loss (the mean duty made it 1.6 % too high).
+    assert 1.0 / model.loss == pytest.approx(TAU, rel=0.01)
     assert model.litres == config_module.DEFAULT.tun.litres
 
 
@@ -197,10 +199,33 @@ def test_an_implausible_hold_is_refused_and_said() -> None:
     # A hold at 66 °C with the element off throughout: no losses at all, not a tun of water.
     learner = Learner(litres=90.0, ambient=20.0, period=5.0)
     learner.heat_up(HeatUpFit(RATE, THETA))
-    estimates = [learner.period(66.0, 66.0, 0.0) for _ in range(int(learning.HOLD_S / 5.0))]
+    # The window opens once the duty of a dead time before it is known (θ/Ts periods and the
+    # window's first), and closes HOLD_S later.
+    periods = round(THETA / 5.0) + 1 + int(learning.HOLD_S / 5.0)
+    estimates = [learner.period(66.0, 66.0, 0.0) for _ in range(periods)]
+    assert estimates[-2] is None
     estimate = estimates[-1]
     assert estimate is not None and estimate.model is None
     assert estimate.refused is not None and "time constant" in estimate.refused
+
+
+def test_the_loss_is_the_heat_balance_not_the_approachs_duty() -> None:
+    # The last 0.25 °C of an approach inside the window, on more than the holding duty, each
+    # period's PV by the FOPTD's balance (implicit in the loss, the duty a dead time late):
+    # the heat the rise took is no loss. The window's mean duty makes the loss 3 % too high.
+    ts, lag, loss, ambient = 5.0, round(THETA / 5.0), 1.0 / TAU, 20.0
+    hold = 100.0 * loss * (66.0 - ambient) / RATE
+    learner = Learner(litres=90.0, ambient=ambient, period=ts)
+    learner.heat_up(HeatUpFit(RATE, THETA))
+    duties = [hold + 4.0 * 0.99**k for k in range(2000 + lag)]
+    pv, estimate = 65.76, None
+    for k in range(2000):
+        pv = (pv + ts * (RATE * duties[k] / 100.0 + loss * ambient)) / (1.0 + ts * loss)
+        estimate = learner.period(66.0, pv, duties[k + lag])
+        if estimate is not None:
+            break
+    assert estimate is not None and estimate.model is not None
+    assert estimate.model.loss == pytest.approx(loss, rel=1e-6)
 
 
 def test_an_implausible_store_is_refused(tmp_path: Path) -> None:
