@@ -1169,6 +1169,8 @@ class Daemon:
                     reset_from = self._resume_output
                     self.controller.reset(pv, reset_from)
                     self._held = False
+                if full_from is not None:
+                    pid.cold_water_seen(self.controller)
                 self.output = self.controller.step(self.setpoint, pv, applied)
                 self._stepped = True
                 controller = self.controller
@@ -1436,6 +1438,7 @@ class Daemon:
                     "drop_readings": pid.DROP_READINGS,
                     "drop_onset_c": pid.DROP_RULE.onset,
                     "drop_fall_c": pid.DROP_RULE.fall,
+                    "drop_carry": pid.DROP_CARRY,
                 },
             )
 

@@ -203,6 +203,13 @@ FIRST_DROP_RULE = DropRule(STEP_INNOVATION, on_latest=False)
 """The first rule (both readings beyond STEP_INNOVATION, the trial on their mean): logs with
 `drop_readings` and no `drop_onset_c` were written under it. It lost a reading, a second of
 full power, to a first reading that the sensor's lag kept within 0.25 °C."""
+DROP_CARRY = True
+"""Logged with every config record (`drop_carry`): cold water acted on inside a period carries
+full power across the period's end while the PV falls (`cold_water_seen`). Behind a slow
+sensor the period's PV, a mean, lies only a few tenths below the last while the water is
+degrees below: the law asked 30–50 % again at each boundary and the element waited for the
+period's readings to show the drop anew, 8 s of full power lost over the first four periods
+after a tenth of the volume of cold water on a thermowell of 120 s lag."""
 MAX_DEAD_TIME = 1800.0
 """s: the longest dead time a heat-up may show (a sensor far down a long pipe)."""
 FIT_FROM = 1.0
@@ -835,6 +842,8 @@ class _Predictive(_Base):
     __slots__ = (
         "_ambient",
         "_bias",
+        "_carried",
+        "_cold_water",
         "_dead_time",
         "_estimate",
         "_fa",
@@ -885,6 +894,9 @@ class _Predictive(_Base):
         self._steady_with_pv = True
         # Whether the next step's change of power is the loop's own (`loops_own_step`).
         self._step_is_loops = False
+        # Whether the period the next step closes went to full power on cold water
+        # (`cold_water_seen`), and whether the last step carried full power on for it.
+        self._cold_water = self._carried = False
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
 
@@ -956,6 +968,7 @@ class _Predictive(_Base):
         self._recent.clear()
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
         self._watch.active = self._recovery.active = False
+        self._carried = False
         self._estimate = self._fpv = pv0
         # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
         # so a few steps land on the bias that gives u0 exactly when one exists.
@@ -974,6 +987,7 @@ class _Predictive(_Base):
         self._estimate = pv0 - self._drift(pv0, u0)
 
     def _advance(self, sp: float, pv: float, previous: float) -> float:
+        fell = self._recent[-1] - pv  # since the last period's PV
         inputs = self._inputs
         inputs.append(previous)
         self._watch_heat_up(sp, pv, previous, inputs[-2])
@@ -993,6 +1007,13 @@ class _Predictive(_Base):
 
         i = self._holding(sp)
         d = -self._kd * (fpv - fpv1)
+        # Cold water behind a slow sensor: full power goes on while the PV falls by more than
+        # a period of it adds (acting on the fall cannot lift the water above where it was),
+        # by the gain that puts back in one period what this one fell (more than 100 %).
+        cold, self._cold_water = self._cold_water, False
+        self._carried = (cold or self._carried) and pv < sp and fell > self._ts * self._rate
+        if self._carried:
+            p = max(p, self._kc_far * fell)
         self._terms = (p, i, d)
         return p + i + d
 
@@ -1083,6 +1104,14 @@ def loops_own_step(controller: Controller) -> None:
     two elements), not a step whose response measures the tun: no watch is armed on it."""
     if isinstance(controller, _Predictive):
         controller._step_is_loops = True
+
+
+def cold_water_seen(controller: Controller) -> None:
+    """Tell `controller` (predictive) that the period its next step closes went to full power
+    on cold water (`full_power_now`): full power carries on across the step while the PV
+    falls by more than a period of full power adds (`DROP_CARRY`)."""
+    if isinstance(controller, _Predictive):
+        controller._cold_water = True
 
 
 def predating_drop_fall(controller: Controller) -> None:

@@ -284,6 +284,9 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "drop_fall_c": _field(
                     "number", "°C below the last PV the latest of them must lie at least"
                 ),
+                "drop_carry": _field(
+                    "boolean", "full power acted on inside a period carries on while PV falls"
+                ),
             },
         ),
     ),

@@ -53,6 +53,7 @@ from hermsd.pid import (
     Controller,
     DropRule,
     PlantModel,
+    cold_water_seen,
     full_power_now,
     predating_drop_fall,
 )
@@ -119,6 +120,7 @@ class LoggedConfig:
     drop_readings: int | None = None  # the rule of `full_from` (None: not acted on in periods)
     drop_onset_c: float | None = None  # and its onset (None: the first rule, if drop_readings)
     drop_fall_c: float | None = None  # and its fall (None: the rule of the law's answer alone)
+    drop_carry: bool = False  # full power on cold water carried across the period's end
 
 
 @dataclass(frozen=True, slots=True)
@@ -409,6 +411,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         drop_readings if isinstance(drop_readings, int) else None,
         float(drop_onset) if _is_number(drop_onset) else None,
         float(drop_fall) if _is_number(drop_fall) else None,
+        message.get("drop_carry") is True,
     )
 
 
@@ -823,6 +826,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             if not known:
                 unknown += 1
                 continue
+            if record.full_from is not None and in_force is not None and in_force.drop_carry:
+                cold_water_seen(controller)
             output = controller.step(record.setpoint, record.pv, record.applied)
         except ValueError as error:
             raise ReplayError(f"period k={record.k}: the controller refused it: {error}") from None

@@ -16,7 +16,7 @@ from hermsd.recorder import WINDOW_TOPIC, LogFile
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event
-from hermsd.sim.tuns import FAMILY
+from hermsd.sim.tuns import FAMILY, TunSpec
 from hermsd.sim.world import World, build_world
 from hermsd.ssr import TimeProportionalPlanner, WindowPlan
 
@@ -236,6 +236,61 @@ def test_two_readings_a_degree_down_ask_for_full_power_and_change_nothing() -> N
     assert controller.terms == twin.terms
 
 
+def test_cold_water_carries_full_power_across_the_period_end_while_the_pv_falls() -> None:
+    # A period of full power adds at most 5 s · 100·1.689/14961 °C/s = 0.0564 °C on seed
+    # 001's tun. Behind a slow sensor the period's PV, a mean, fell 0.1875 °C: more than
+    # that, yet the law answers it with a few % (its gentle zone).
+    told, twin = holding_controller(), holding_controller()
+    assert twin.step(SP, SP - 0.1875, 60.0) < 50.0
+    pid.cold_water_seen(told)
+    assert told.step(SP, SP - 0.1875, 60.0) == 100.0
+    # On without a new word while each period's PV falls by more than 0.0564 °C …
+    assert told.step(SP, SP - 0.25, 100.0) == 100.0
+    # … and the law's own output once it falls by less (0.05 °C), full power in flight.
+    assert told.step(SP, SP - 0.3, 100.0) < 100.0
+    # A fall of less than a period of full power adds is the law's from the start.
+    gentle = holding_controller()
+    pid.cold_water_seen(gentle)
+    assert gentle.step(SP, SP - 0.05, 30.0) < 50.0
+
+
+def test_no_carry_above_the_setpoint_nor_after_a_reset() -> None:
+    # Cold water into a tun the brewer cools to 60 °C: the law's 0 %.
+    cooling = holding_controller()
+    for _ in range(30):
+        cooling.step(60.0, SP, cooling.output)
+    pid.cold_water_seen(cooling)
+    assert cooling.step(60.0, SP - 0.25, 0.0) == 0.0
+    # A reset (a hold, a return to auto) forgets a carry in progress.
+    carried = holding_controller()
+    pid.cold_water_seen(carried)
+    assert carried.step(SP, SP - 0.1875, 60.0) == 100.0
+    carried.reset(SP - 0.375, 30.0)
+    assert carried.step(SP, SP - 0.5, 30.0) < 100.0
+
+
+SLOW_SENSOR = TunSpec("slow sensor 30 L 1.5 kW", 30, 1500, 1.0, 30, 120, 20)
+
+
+def test_a_slow_sensor_keeps_full_power_from_the_period_that_saw_the_water() -> None:
+    """A tenth of the volume of 15 °C water behind a 120 s sensor lag: each period's PV falls
+    0.15 to 0.2 °C, three times what a period of full power adds (5 · 1500/(30·4186) =
+    0.06 °C), yet the law's answer was 27 %, 40 %, 42 % at the three period ends after the
+    readings showed the water: each time full power waited for that period's readings."""
+    water = 7200.0
+    day = dataclasses.replace(
+        SLOW_SENSOR.brew_day(),
+        duration=water + 120.0,
+        events=(Event(water, "add_water", {"litres": 3.0, "temp": 15.0}),),
+    )
+    records = scenario.run(day, SLOW_SENSOR.config(config_module.DEFAULT), keep_records=True)
+    after = [r for r in records.records if r.t > water]
+    acted = next(i for i, r in enumerate(after) if r.full_from is not None)
+    assert after[acted].t <= water + 10.0
+    assert all(r.output == 100.0 for r in after[acted : acted + 12])
+    assert all(r.applied == 100.0 for r in after[acted + 1 : acted + 13])
+
+
 def test_only_predictive_acts_inside_the_period_and_not_when_already_full() -> None:
     assert not pid.full_power_now(holding_controller("type_a"), SP, SP, [65.0, 64.875])
     heating = pid.create("predictive", kc=120.0, ti=800.0, ts=5.0)
@@ -415,9 +470,7 @@ def test_a_glitch_after_a_low_reading_costs_at_most_the_rest_of_one_window() -> 
 # -- replay: the decision is derived from the log, bit for bit -------------------------------
 
 
-@pytest.fixture(scope="module")
-def cold_water_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
-    directory = tmp_path_factory.mktemp("cold-water")
+def _cold_water_day(directory: Path) -> list[Path]:
     day = dataclasses.replace(
         SMALL.brew_day(),
         duration=WATER_AT + 600.0,
@@ -426,6 +479,21 @@ def cold_water_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     config = SMALL.config(config_module.DEFAULT)
     scenario.run(day, config, log_dir=directory)
     return sorted(directory.glob("*.mcap"))
+
+
+@pytest.fixture(scope="module")
+def cold_water_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    return _cold_water_day(tmp_path_factory.mktemp("cold-water"))
+
+
+@pytest.fixture(scope="module")
+def uncarried_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """The day as a daemon from before `pid.DROP_CARRY` logged it: full power acted on inside
+    a period ended with the period."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pid, "DROP_CARRY", False)
+        patch.setattr(pid, "cold_water_seen", lambda controller: None)
+        return _cold_water_day(tmp_path_factory.mktemp("uncarried"))
 
 
 def test_replay_verifies_a_day_with_full_power_inside_a_period(
@@ -474,11 +542,11 @@ def test_verify_finds_a_full_power_decision_the_readings_do_not_give(
 
 
 def test_verify_leaves_full_from_alone_in_a_log_of_a_daemon_that_never_acted_so(
-    cold_water_log: list[Path],
+    uncarried_log: list[Path],
 ) -> None:
     # An older daemon logged no rule with its config and no full_from with its periods; its
     # periods with the same readings verify as they always did.
-    log = replay.load(cold_water_log)
+    log = replay.load(uncarried_log)
     older = [
         dataclasses.replace(e, drop_readings=None)
         if isinstance(e, replay.LoggedConfig)
@@ -487,6 +555,28 @@ def test_verify_leaves_full_from_alone_in_a_log_of_a_daemon_that_never_acted_so(
     ]
     assert any(isinstance(e, replay.LoggedConfig) and e.drop_readings == 2 for e in log.entries)
     assert replay.verify(older).mismatch is None
+
+
+def test_replay_carries_full_power_as_the_config_record_says(
+    cold_water_log: list[Path], uncarried_log: list[Path]
+) -> None:
+    # The daemon that carried full power across the period's end says so; replayed as one
+    # that did not, the step after the readings acted differs (the law's p, not the carry's).
+    log = replay.load(cold_water_log)
+    acted = next(p for p in log.periods if p.full_from is not None)
+    configs = [e for e in log.entries if isinstance(e, replay.LoggedConfig)]
+    assert configs and all(c.drop_carry for c in configs)
+    denied = [
+        dataclasses.replace(e, drop_carry=False) if isinstance(e, replay.LoggedConfig) else e
+        for e in log.entries
+    ]
+    mismatch = replay.verify(denied).mismatch
+    assert mismatch is not None and (mismatch.k, mismatch.name) == (acted.k, "p")
+    # A daemon from before the carry logged none, and its log verifies without it.
+    older = replay.load(uncarried_log)
+    assert not any(e.drop_carry for e in older.entries if isinstance(e, replay.LoggedConfig))
+    assert any(p.full_from is not None for p in older.periods)
+    assert replay.verify(older.entries).mismatch is None
 
 
 def _by_rule(

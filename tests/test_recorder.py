@@ -123,6 +123,7 @@ CONFIG = {
     "drop_readings": 2,
     "drop_onset_c": 0.125,
     "drop_fall_c": 0.1875,
+    "drop_carry": True,
 }
 MODEL = {
     "t": 6600.0,
