@@ -804,9 +804,9 @@ class Daemon:
         self.config = new
         self._learner.interrupt()
         self._reloaded_at = t
-        self._record_config("reload", t)
         self._event(logging.INFO, f"config reloaded: {', '.join(changed)} changed", t)
         self._take_changes(old, new, set(changed), t)
+        self._record_config("reload", t)  # with the model the changes put in force
 
     def _take_changes(self, old: Config, new: Config, changed: set[str], t: float) -> None:
         control = new.control

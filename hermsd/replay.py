@@ -702,11 +702,13 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     """Re-run the logged controller on the logged inputs, by the daemon's rules.
 
     A config record makes a new controller (a repeat of the one in force, which opens every
-    rotated file, does not). The controller steps in auto mode when heating is allowed and
-    there is a PV, after `reset(pv, reset_from)` if `reset_from` is set; its output and its
-    p, i, d terms must equal the logged ones exactly (midrange: u2 too, the second element's
-    logged applied2 handed in first, as the daemon does; two elements under any other
-    controller: u2 too, its logged applied2, on2 and free2 handed in first). The daemon
+    rotated file, does not, nor does a reload that leaves the tuning, the tun and the model
+    as they were: the daemon keeps its controller then). The controller steps in auto mode
+    when heating is allowed and there is a PV, after `reset(pv, reset_from)` if `reset_from`
+    is set; its output and its p, i, d terms must equal the logged ones exactly (midrange:
+    u2 too, the second element's logged applied2 handed in first, as the daemon does; two
+    elements under any other controller: u2 too, its logged applied2, on2 and free2 handed
+    in first). The daemon
     resets the controller on its first step and after every hold, reload or return to auto,
     so where records are missing the check resumes at the next reset.
 
@@ -740,6 +742,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 whole = _as_logged(config_module.from_dict(entry.config), entry.config)
                 if entry.reason == "start" or (watched and watch_changes(watched, whole)):
                     watch = element_watch(whole) if element2_watts(whole) else None
+                same_tun = watched is not None and watched.tun == whole.tun
                 watched = whole
                 reloaded = whole.control
                 same_model = in_force_model == entry.model
@@ -748,6 +751,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                     and control
                     and not retunes(control, reloaded)
                     and same_model
+                    and same_tun  # the daemon makes a new controller for a new tun
                 ):
                     control = reloaded  # a new setpoint or mode: the same controller goes on
                     continue

@@ -391,6 +391,30 @@ def test_verify_follows_a_reload(tmp_path: Path) -> None:
     assert mismatch is not None and mismatch.k == 7
 
 
+@pytest.mark.parametrize(
+    ("at", "tun"),
+    [
+        (1500.0, {"lid": "off"}),  # in the heat-up, the model as it was
+        (6000.0, {"name": "Kettle"}),  # in the hold
+        (1500.0, {"litres": 100}),  # a new fill: the model rescaled
+        (6000.0, {"litres": 100}),
+    ],
+)
+def test_verify_follows_a_reload_that_changes_only_the_tun(
+    tmp_path: Path, at: float, tun: dict[str, Any]
+) -> None:
+    """The daemon makes a new controller for a new tun (the heat-up's measurement forgotten)
+    and logs the reload with the model it then uses: replay does the same."""
+    day = Scenario(name="tun", duration=at + 600.0, events=(Event(at, "config", {"tun": tun}),))
+    scenario.run(day, log_dir=tmp_path)
+    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    configs = [e for e in log.entries if isinstance(e, replay.LoggedConfig)]
+    reloads = [e for e in configs if e.reason == "reload"]
+    assert len(reloads) == 1 and reloads[0].config["tun"] | tun == reloads[0].config["tun"]
+    result = replay.verify(log.entries)
+    assert result.mismatch is None and result.verified == len(log.periods)
+
+
 # -- what if ------------------------------------------------------------------------------------
 
 
