@@ -204,8 +204,9 @@ FIRST_DROP_RULE = DropRule(STEP_INNOVATION, on_latest=False)
 `drop_readings` and no `drop_onset_c` were written under it. It lost a reading, a second of
 full power, to a first reading that the sensor's lag kept within 0.25 °C."""
 DROP_CARRY = True
-"""Logged with every config record (`drop_carry`): cold water acted on inside a period carries
-full power across the period's end while the PV falls (`cold_water_seen`). Behind a slow
+"""Logged with every config record (`drop_carry`): cold water that a period's readings showed
+by `DROP_RULE` (its `full_from`; acted on, or not where heating was held off at that reading)
+carries full power across the period's end while the PV falls (`cold_water_seen`). Behind a slow
 sensor the period's PV, a mean, lies only a few tenths below the last while the water is
 degrees below: the law asked 30–50 % again at each boundary and the element waited for the
 period's readings to show the drop anew, 8 s of full power lost over the first four periods
@@ -894,7 +895,7 @@ class _Predictive(_Base):
         self._steady_with_pv = True
         # Whether the next step's change of power is the loop's own (`loops_own_step`).
         self._step_is_loops = False
-        # Whether the period the next step closes went to full power on cold water
+        # Whether the readings of the period the next step closes showed cold water
         # (`cold_water_seen`), and whether the last step carried full power on for it.
         self._cold_water = self._carried = False
         self._fit: HeatUpFit | None = None
@@ -1107,9 +1108,11 @@ def loops_own_step(controller: Controller) -> None:
 
 
 def cold_water_seen(controller: Controller) -> None:
-    """Tell `controller` (predictive) that the period its next step closes went to full power
-    on cold water (`full_power_now`): full power carries on across the step while the PV
-    falls by more than a period of full power adds (`DROP_CARRY`)."""
+    """Tell `controller` (predictive) that the readings of the period its next step closes
+    showed cold water (`full_power_now`, the period's `full_from`): full power carries on
+    across the step while the PV falls by more than a period of full power adds
+    (`DROP_CARRY`). It is told whether or not the element could act on it in the period, as
+    the log says only what the readings showed; the fall bounds the carry all the same."""
     if isinstance(controller, _Predictive):
         controller._cold_water = True
 

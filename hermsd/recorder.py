@@ -288,6 +288,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "boolean", "full power acted on inside a period carries on while PV falls"
                 ),
             },
+            optional=("drop_carry",),
         ),
     ),
     PROGRAM_TOPIC: TopicSpec(

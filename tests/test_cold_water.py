@@ -248,6 +248,8 @@ def test_cold_water_carries_full_power_across_the_period_end_while_the_pv_falls(
     assert told.step(SP, SP - 0.25, 100.0) == 100.0
     # … and the law's own output once it falls by less (0.05 °C), full power in flight.
     assert told.step(SP, SP - 0.3, 100.0) < 100.0
+    # Ended, it takes new readings that show cold water to carry again, however far it falls.
+    assert told.step(SP, SP - 0.4, 60.0) < 100.0
     # A fall of less than a period of full power adds is the law's from the start.
     gentle = holding_controller()
     pid.cold_water_seen(gentle)
@@ -577,6 +579,13 @@ def test_replay_carries_full_power_as_the_config_record_says(
     assert not any(e.drop_carry for e in older.entries if isinstance(e, replay.LoggedConfig))
     assert any(p.full_from is not None for p in older.periods)
     assert replay.verify(older.entries).mismatch is None
+
+
+def test_a_config_record_without_drop_carry_is_of_a_daemon_that_never_carried() -> None:
+    record = {"t": 0.0, "config": {}, "drop_readings": 2, "drop_onset_c": 0.125}
+    assert replay._config(record, Path("old.mcap")).drop_carry is False
+    assert replay._config(record | {"drop_carry": True}, Path("new.mcap")).drop_carry is True
+    assert replay._config(record | {"drop_carry": "yes"}, Path("odd.mcap")).drop_carry is False
 
 
 def _by_rule(

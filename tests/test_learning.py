@@ -228,6 +228,24 @@ def test_the_loss_is_the_heat_balance_not_the_approachs_duty() -> None:
     assert estimate.model.loss == pytest.approx(loss, rel=1e-6)
 
 
+def test_water_in_the_hold_starts_the_hold_anew() -> None:
+    # The FOPTD's balance as above, holding, with 0.2 °C of cold water at period 200: the
+    # window that held it would read its heat as loss; the one after it is exact again.
+    ts, loss, ambient = 5.0, 1.0 / TAU, 20.0
+    hold = 100.0 * loss * (66.0 - ambient) / RATE
+    learner = Learner(litres=90.0, ambient=ambient, period=ts)
+    learner.heat_up(HeatUpFit(RATE, THETA))
+    pv, estimate, k = 65.99, None, 0
+    while estimate is None and k < 2000:
+        pv = (pv + ts * (RATE * hold / 100.0 + loss * ambient)) / (1.0 + ts * loss)
+        pv -= 0.2 if k == 200 else 0.0
+        estimate = learner.period(66.0, pv, hold)
+        k += 1
+    assert estimate is not None and estimate.model is not None
+    assert k > 200 + learning.HOLD_S / ts  # from after the water
+    assert estimate.model.loss == pytest.approx(loss, rel=1e-6)
+
+
 def test_an_implausible_store_is_refused(tmp_path: Path) -> None:
     bad = {"rate": 5.0, "loss": 1e-4, "dead_time": 100.0, "ambient": 20.0, "litres": 90.0}
     (tmp_path / learning.LEARNED_FILE).write_text(json.dumps(bad), encoding="utf-8")
