@@ -20,30 +20,47 @@ from concurrent.futures import ProcessPoolExecutor
 
 from hermsd import config as config_module
 from hermsd.sim import scenario
+from hermsd.sim import tun_faults as tf
 from hermsd.sim.hlt import BOILING_C, evaporation_w, pot_surface_m2
-from hermsd.sim.tuns import TunSpec
+from hermsd.sim.tuns import FAMILY, TunSpec
 
 DAY_S = 12 * 3600.0
 SETPOINT = 66.0
 
 
-def losses_w(spec: TunSpec, water_c: float) -> float:
-    """What the simulated tun loses at `water_c` (W): walls, and the open surface."""
-    walls = spec.ua_w_per_k * (water_c - spec.ambient_c)
+def losses_w(spec: TunSpec, water_c: float, ua_w_per_k: float | None = None) -> float:
+    """What the simulated tun loses at `water_c` (W): walls (UA, the spec's unless given), and
+    the open surface."""
+    ua = spec.ua_w_per_k if ua_w_per_k is None else ua_w_per_k
+    walls = ua * (water_c - spec.ambient_c)
     if not spec.lid_off:
         return walls
     return walls + evaporation_w(water_c, spec.ambient_c, pot_surface_m2(spec.litres))
 
 
-def true_ceiling(spec: TunSpec) -> float:
+def true_ceiling(spec: TunSpec, ua_w_per_k: float | None = None) -> float:
     """Where the element's power equals the losses (bisection; the boil at most)."""
     low, high = spec.ambient_c, BOILING_C
-    if losses_w(spec, high) < spec.element_watts:
+    if losses_w(spec, high, ua_w_per_k) < spec.element_watts:
         return high
     for _ in range(60):
         middle = (low + high) / 2.0
-        low, high = (middle, high) if losses_w(spec, middle) < spec.element_watts else (low, middle)
+        below = losses_w(spec, middle, ua_w_per_k) < spec.element_watts
+        low, high = (middle, high) if below else (low, middle)
     return low
+
+
+def unreachable_normal_days() -> list[str]:
+    """The normal days of bench/faults.py whose water cannot reach the setpoint at all."""
+    rows = []
+    for spec in FAMILY:
+        for fill, extra in ((1.0, 0.0), (0.5, 0.0), (2.0, 0.0), (0.5, 1000.0), (2.0, 1000.0)):
+            day = tf.normal_day(spec, fill, extra)
+            filled = dataclasses.replace(spec, litres=day.plant["litres"])
+            ceiling = true_ceiling(filled, day.plant["ua_w_per_k"])
+            if ceiling < SETPOINT:
+                rows.append(f"| {day.name} | {ceiling:.2f} |")
+    return rows
 
 
 def with_ceiling(name: str, spec: TunSpec, ceiling: float) -> TunSpec:
@@ -70,14 +87,16 @@ NEAR = (
 )
 
 
-def said(job: tuple[TunSpec, int]) -> tuple[str, int, float | None, float | None]:
-    """(name, seed, when the warning was first said (s), the ceiling it named then)."""
+def said(job: tuple[TunSpec, int]) -> tuple[str, int, float | None, float | None, float | None]:
+    """(name, seed, when the warning was first said (s), the ceiling it named then, and the
+    one it names at the day's end: each later sure estimate takes its place)."""
     spec, seed = job
     logging.getLogger("hermsd").setLevel(logging.ERROR)  # the table says what was said
     day = dataclasses.replace(spec.brew_day(seed=seed), duration=DAY_S, events=())
     result = scenario.run(day, spec.config(config_module.DEFAULT), keep_records=True)
     first = next((r for r in result.records if r.ceiling is not None), None)
-    return spec.name, seed, None if first is None else first.t, first and first.ceiling
+    at = None if first is None else first.t
+    return spec.name, seed, at, first and first.ceiling, result.records[-1].ceiling
 
 
 def main() -> int:
@@ -86,20 +105,25 @@ def main() -> int:
     jobs = [(spec, seed) for spec in (*WEAK, *NEAR) for seed in seeds]
     with ProcessPoolExecutor(2) as pool:
         results = list(pool.map(said, jobs))
-    truth = {spec.name: true_ceiling(spec) for spec in (*WEAK, *NEAR)}
-    print("| tun | noise seed | true ceiling °C | said at | named ceiling °C | error °C |")
-    print("|---|---|---|---|---|---|")
-    for name, seed, at, named in results:
+    specs = {spec.name: spec for spec in (*WEAK, *NEAR)}
+    truth = {name: true_ceiling(spec) for name, spec in specs.items()}
+    print(
+        "| tun | W | noise seed | true ceiling °C | said at | named ceiling °C | error °C "
+        "| named at 12 h °C | error °C |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, seed, at, named, last in results:
+        tun = f"| {name} | {specs[name].element_watts:.0f} | {seed} | {truth[name]:.2f} |"
         if at is None or named is None:
-            print(f"| {name} | {seed} | {truth[name]:.2f} | never | – | – |")
+            print(f"{tun} never | – | – | – | – |")
             continue
-        error = named - truth[name]
-        print(
-            f"| {name} | {seed} | {truth[name]:.2f} | {at / 3600.0:.2f} h | {named:.2f} "
-            f"| {error:+.2f} |"
-        )
+        end = "– | –" if last is None else f"{last:.2f} | {last - truth[name]:+.2f}"
+        print(f"{tun} {at / 3600.0:.2f} h | {named:.2f} | {named - truth[name]:+.2f} | {end} |")
     wall = time.perf_counter() - started
-    print(f"\n{len(jobs)} simulated 12 h days in {wall:.0f} s on 2 processes.")
+    print(f"\n{len(jobs)} simulated 12 h days in {wall:.0f} s on 2 processes.\n")
+    print("Normal days of bench/faults.py on which full power cannot reach 66 °C at all:\n")
+    print("| day | true ceiling °C |\n|---|---|")
+    print("\n".join(unreachable_normal_days()))
     return 0
 
 

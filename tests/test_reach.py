@@ -11,12 +11,14 @@ at τ·ln 2.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 from test_control import Inbox, status_of
 from test_reload import Events
 
 from hermsd import config as config_module
+from hermsd import replay
 from hermsd.control.link import LoopLink
 from hermsd.daemon import Daemon
 from hermsd.reach import (
@@ -30,6 +32,7 @@ from hermsd.reach import (
     short_words,
 )
 from hermsd.saver import Saver
+from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Scenario, effective_config
 from hermsd.sim.tuns import TunSpec
@@ -103,6 +106,15 @@ def test_it_clears_when_the_water_reaches_the_band() -> None:
     assert cleared is not None and not cleared.raised and watch.ceiling is None
 
 
+def test_another_full_power_clears_it_and_measures_afresh() -> None:
+    watch = ReachWatch()
+    t = feed(watch, 55.0, 6 * 3600.0)[0][0]
+    cleared = watch.restart()  # control.max_output reloaded, say
+    assert cleared is not None and not cleared.raised and watch.ceiling is None
+    assert watch.period(t + PERIOD, 66.0, approach(55.0, t + PERIOD), True, 100.0) is None
+    assert watch.restart() is None  # nothing said: nothing to clear
+
+
 def test_cold_water_in_the_run_starts_its_measurement_again() -> None:
     # The same approach, but the water drops 3 °C an hour in: the rates before it are of
     # another start, and the run is measured afresh from the drop (later than without it).
@@ -149,3 +161,12 @@ def test_a_weak_tun_is_said_through_the_daemon_in_the_status_and_cleared() -> No
     cleared = f"full power levels the water out near {ceiling:.1f} °C, enough for 52 °C"
     assert cleared in events.logged()
     daemon.shutdown()
+
+
+def test_replay_shows_when_it_was_said(tmp_path: Path) -> None:
+    day = Scenario(name=WEAK.name, duration=6600.0, plant=WEAK.plant(), setpoint=66.0)
+    scenario.run(day, WEAK.config(config_module.DEFAULT), log_dir=tmp_path)
+    summary = replay.summarise(replay.load(sorted(tmp_path.glob("*.mcap"))))
+    said = summary["reach"]
+    assert len(said) == 1 and said[0]["message"].startswith("full power levels the water out")
+    assert 3400.0 < said[0]["at_s"] < 6600.0  # past half-way (see the test above)
