@@ -13,8 +13,9 @@ to the setpoint (nothing is switched off: the element works; the tun is too weak
 water in it). It measures the rise rate at full power over blocks of MEASURE_S and draws the
 line through the rates of the upper half of the climb, all measured on this tun that day:
 the config's model knows nothing of an open pot's evaporation or of today's fill. Per
-control period it adds one point to a running line fit (O(1)); once a block (10 min) it fits
-the line through the block rates it keeps (a few dozen at most on a day-long climb).
+control period it adds one point to a running line fit (O(1), under a microsecond); once a
+block (10 min) it fits the line through the block rates it keeps (60 after a 12 h climb:
+some 20 µs on a desktop core).
 """
 
 from __future__ import annotations
