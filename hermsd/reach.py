@@ -33,9 +33,10 @@ from hermsd.pid import LineFit
 FULL = 0.995
 """A period's applied duty this close to the output limit counts as full power."""
 MEASURE_S = 600.0
-"""The span of PV that a rate is measured over: with sensor noise of 0.03 °C on the LM92's
-0.0625 °C steps (a period's mean of 5 readings: about 0.02 °C) a line over 120 periods has
-a slope error near 1e-5 °C/s, a hundredth of a weak tun's rise at half-way."""
+"""The span of PV that a rate (and a `ready_by` wait's holding duty) is measured over: with
+sensor noise of 0.03 °C on the LM92's 0.0625 °C steps (a period's mean of 5 readings: about
+0.02 °C) a line over 120 periods has a slope error near 1e-5 °C/s, a hundredth of a weak
+tun's rise at half-way."""
 RISE_FROM_S = 300.0
 """A full-power run's PV counts from twice the dead time after its start, and no earlier than
 this: before, it still shows what the water did before full power (a heat-up from rest bends
