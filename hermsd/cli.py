@@ -852,7 +852,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
     for key, value in summary.items():
         if isinstance(value, dict):
             lines.extend((f"{key}.{name}", item) for name, item in value.items())
-        elif key not in ("files", "alarms", "runs", "learning", "steps"):
+        elif key not in ("files", "alarms", "runs", "learning", "reach", "steps"):
             lines.append((key, value))
     width = max((len(key) for key, _ in lines), default=0)
     for report in summary.get("files", []):
@@ -867,7 +867,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
         print(f"{key:{width}} {value}")
     for alarm in summary.get("alarms", []):
         print(_alarm_line(alarm))
-    for item in summary.get("learning", []):
+    for item in (*summary.get("learning", []), *summary.get("reach", [])):
         print(f"at {item['at_s']} s: {item['message']}")
     for item in summary.get("schedule", []):
         words = f": {item['message']}" if item["message"] else ""  # older logs have none

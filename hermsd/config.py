@@ -264,6 +264,7 @@ ALERT_EVENTS: tuple[str, ...] = (
     "started",
     "stopped",
     "element_warning",
+    "setpoint_unreachable",
     *PROGRAM_ALERT_EVENTS,
 )
 

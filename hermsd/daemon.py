@@ -62,6 +62,7 @@ from hermsd.program.readiness import Tun
 from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
+from hermsd.reach import FULL, ReachWatch, Said
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.saver import Outcome, Saver
@@ -150,6 +151,7 @@ class PeriodRecord:
     on2: bool | None = None  # the second element was on as the period began
     free2: bool | None = None  # … and its minimum on or off time let it switch
     no_heat: list[int] | None = None  # the elements reported giving no heat (two elements)
+    ceiling: float | None = None  # °C full power levels the water out at, while short (reach)
 
 
 class ControlHook(Protocol):
@@ -403,6 +405,7 @@ class Daemon:
             SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
         )
         self.element_watch = element_watch(config) if self.element2 is not None else None
+        self.reach = ReachWatch()  # says when full power cannot reach the setpoint
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
         self.manual_output = config.control.manual_output
@@ -825,6 +828,8 @@ class Daemon:
                 self._resume_output = self.output
         if self.element_watch is not None and watch_changes(old, new):
             self.element_watch = element_watch(new)  # its references were of the old tun
+        if old.control.max_output != control.max_output or old.element2 != new.element2:
+            self._say_reach(self.reach.restart(), t)  # another full power
         if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
             self._apply_manual(control.manual_output, t)
         elif control.mode == "auto" and changed & {"control.mode", "control.manual_output"}:
@@ -1200,6 +1205,9 @@ class Daemon:
         u2 = self._output2 = self._drive_element2(now, state)
         if self.element_watch is not None and switched2 is not None:
             self._watch_elements(now, pv, applied, switched2, state, probed)  # replay too
+        tun = self._program_tun()  # full power and the dead time, as a ready_by heat-up's
+        full = state == "ok" and self.mode == "auto" and total_applied >= FULL * tun.max_output
+        self._say_reach(self.reach.period(now, self.setpoint, pv, full, tun.dead_time()), now)
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -1226,6 +1234,7 @@ class Daemon:
             free2=free2,
             no_heat=None if self.element_watch is None else sorted(self.element_watch.suspect),
             full_from=full_from,
+            ceiling=self.reach.ceiling,
             **self.program.record_fields(),
         )
         for listener in self.listeners:
@@ -1354,6 +1363,14 @@ class Daemon:
         for report in reports:
             self._event(logging.WARNING if report.raised else logging.INFO, report.message, now)
             self._alert("element_warning", report.message, now, report_kind(report.element))
+
+    def _say_reach(self, said: Said | None, t: float) -> None:
+        """Log and alert what the reach watch said (a warning; nothing is switched off)."""
+        if said is None:
+            return
+        self._event(logging.WARNING if said.raised else logging.INFO, said.message, t)
+        kind = "short" if said.raised else "cleared"
+        self._alert("setpoint_unreachable", said.message, t, kind)
 
     def _total_power(
         self, output: float, applied: float, applied2: float | None

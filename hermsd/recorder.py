@@ -179,8 +179,12 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     ["boolean", "null"],
                     "its minimum on or off time let it switch this period (two elements)",
                 ),
+                "ceiling": _field(
+                    ["number", "null"],
+                    "where full power levels the water out, while short of the setpoint, °C",
+                ),
             },
-            optional=("u2", "applied2", "switched2", "on2", "free2"),
+            optional=("u2", "applied2", "switched2", "on2", "free2", "ceiling"),
         ),
     ),
     READING_TOPIC: TopicSpec(

@@ -59,6 +59,7 @@ from hermsd.pid import (
 )
 from hermsd.program.quality import step_quality
 from hermsd.program.readiness import SCHEDULE_EVENTS
+from hermsd.reach import PREFIX as REACH_PREFIX
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -640,6 +641,12 @@ def summarise(log: Log) -> dict[str, Any]:
         # None: the safety limits held for any tun the config may describe (nothing measured)
         "safety_tun_model": log.configs[-1].safety_model if log.configs else None,
         "learning": learning(log),
+        # When full power could not reach the setpoint, and when that cleared (hermsd.reach).
+        "reach": [
+            {"at_s": round(e.at, 3), "message": e.message}
+            for e in log.events
+            if e.message.startswith(REACH_PREFIX)
+        ],
         "steps": step_quality(zip(log.elapsed, log.periods, strict=True)),
         # What a ready_by schedule decided (the climb, the release, a late warning), and why.
         "schedule": [

@@ -177,6 +177,7 @@ ALERT_EVENTS = (
     "started",
     "stopped",
     "element_warning",
+    "setpoint_unreachable",
     "step_reached",
     "step_done",
     "waiting",

@@ -27,8 +27,8 @@ from hermsd.program.readiness import (
     WAIT_S,
     Readiness,
     Tun,
-    rise_s,
 )
+from hermsd.reach import rise_s
 
 NS = 1_000_000_000
 PERIOD = 5.0

@@ -50,6 +50,7 @@ from hermsd.element_watch import no_heat_words
 from hermsd.learning import LearnedModel
 from hermsd.pid import PlantModel
 from hermsd.program.runner import Refused
+from hermsd.reach import short_words
 from hermsd.safety import SafetyLimits, format_limits
 
 SOURCE = "control socket"
@@ -82,10 +83,14 @@ class Snapshot:
     latches_not_saved: str | None = None  # why the latched alarms' save failed, while it does
 
 
-def status_warnings(no_heat: list[int] | None, latches_not_saved: str | None) -> list[str]:
+def status_warnings(
+    no_heat: list[int] | None, latches_not_saved: str | None, short: str | None = None
+) -> list[str]:
     """What the brewer should know that holds no heater off, in words: one place for the
-    command line, the web page and MQTT to take them from."""
+    command line, the web page and MQTT to take them from. `short`: the reach warning's."""
     warnings = [f"{no_heat_words(element)} (docs/two-elements.md)" for element in no_heat or []]
+    if short is not None:
+        warnings.append(short)
     if latches_not_saved is not None:
         warnings.append(
             f"latched alarms not saved (tried again until they are): {latches_not_saved}"
@@ -258,7 +263,11 @@ class LoopLink:
             "alarm_reasons": snapshot.reasons,
             "latches_not_saved": snapshot.latches_not_saved,
             "no_heat": record.no_heat,
-            "warnings": status_warnings(record.no_heat, snapshot.latches_not_saved),
+            "warnings": status_warnings(
+                record.no_heat,
+                snapshot.latches_not_saved,
+                None if record.ceiling is None else short_words(record.ceiling, record.setpoint),
+            ),
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {

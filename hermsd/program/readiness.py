@@ -28,7 +28,6 @@ a clock: time comes in with every period.
 from __future__ import annotations
 
 import dataclasses
-import math
 import statistics
 from collections import deque
 from collections.abc import Callable
@@ -37,6 +36,7 @@ from dataclasses import dataclass
 from hermsd.metrics import BAND
 from hermsd.pid import HeatUpFit, PlantModel
 from hermsd.program.runner import heat_up_s
+from hermsd.reach import FULL, MEASURE_S, RISE_FROM_S, Rise
 
 SCHEDULE_EVENTS = ("climb", "release", "late")
 """The program events a ready_by schedule logs: what it decided, and why."""
@@ -60,8 +60,6 @@ rate, says to go on."""
 MIN_STOP_S = 600.0
 """A climb that started early by less than this goes on: a stop would save nothing worth a
 restart of the heat-up (and of its measurements)."""
-MEASURE_S = 600.0
-"""The span of PV that a rate or a holding duty is measured over."""
 MIN_SPAN_S = 120.0
 """A rate is taken from no shorter a span (noise and the LM92's 0.0625 °C steps)."""
 SETTLE_S = 300.0
@@ -77,51 +75,11 @@ RESAY_S = 600.0
 """A `late` estimate that slipped this much further than the last one said is said again."""
 NEVER = 2**63 - 1
 """A `late` that said the step is never reached (a time no estimate comes to)."""
-FULL = 0.995
-"""A period's applied duty this close to the output limit counts as full power."""
 
 
 MODEL = "the tun's model"
 CLIMBED = "the rate measured on the way up"
 HELD = "the losses measured at the waiting temperature"
-
-
-def rise_s(x0: float, x1: float, rate: float, slope: float) -> float | None:
-    """Seconds of full power from `x0` to `x1` °C when the rise rate is `rate` °C/s at x0 and
-    falls by `slope` (1/s) per °C above it, dx/dt = rate − slope·(x − x0):
-    t = ln(rate / (rate − slope·(x1 − x0))) / slope. None: the rise stops short of x1, or
-    does not start (a rate measured at or below zero: the loop must not divide by it)."""
-    if x1 <= x0:
-        return 0.0
-    if rate <= 0.0:
-        return None
-    end = rate - slope * (x1 - x0)
-    if end <= 0.0:
-        return None
-    if slope <= 0.0:
-        return (x1 - x0) / rate
-    return math.log(rate / end) / slope
-
-
-@dataclass(frozen=True, slots=True)
-class Rise:
-    """The full-power rise near the top, as best known: `rate` °C/s at `pv`, `slope` 1/s less
-    per °C higher, `dead_time` s before a new full power shows, and what it rests on."""
-
-    pv: float
-    rate: float
-    slope: float
-    dead_time: float
-    basis: str
-
-    def need_s(self, pv: float, to: float, heating: bool) -> float | None:
-        """From `pv` to `to` at full power (`heating`: it runs already, no dead time)."""
-        rise = rise_s(pv, to, self.rate - self.slope * (pv - self.pv), self.slope)
-        return None if rise is None else rise + (0.0 if heating else self.dead_time)
-
-    def ceiling(self) -> float:
-        """Where full power would hold the water (°C), by this line."""
-        return math.inf if self.slope <= 0.0 else self.pv + self.rate / self.slope
 
 
 @dataclass(frozen=True, slots=True)
@@ -305,7 +263,7 @@ class Readiness:
             if self._run_since is None:
                 self._run_since = t
                 self._run.clear()
-            if t - self._run_since >= max(2.0 * tun.dead_time(), SETTLE_S):
+            if t - self._run_since >= max(2.0 * tun.dead_time(), RISE_FROM_S):
                 self._run.append((t, pv))
                 while t - self._run[0][0] > MEASURE_S:
                     self._run.popleft()
