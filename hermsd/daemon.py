@@ -62,7 +62,7 @@ from hermsd.program.readiness import Tun
 from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
-from hermsd.reach import FULL, ReachWatch, Said
+from hermsd.reach import FULL, PREFIX, ReachWatch, Said
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.saver import Outcome, Saver
@@ -1397,6 +1397,8 @@ class Daemon:
             state += f", {self.program.status_words(self.clock.wall_ns())}"
         for element in sorted(self.element_watch.suspect if self.element_watch else ()):
             state += f", {no_heat_words(element)}"
+        if self.reach.ceiling is not None:
+            state += f", {PREFIX} near {self.reach.ceiling:.1f} °C"
         return status_line(
             self.config.tun.name, self._pv, self.setpoint, self._asked(), state, self._output2
         )

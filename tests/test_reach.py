@@ -155,9 +155,11 @@ def test_a_weak_tun_is_said_through_the_daemon_in_the_status_and_cleared() -> No
     assert ceiling is not None and abs(ceiling - 56.0) < MARGIN_C
     assert events.periods[-1].ceiling == ceiling  # logged in the period record
     assert status_of(daemon)["warnings"] == [short_words(ceiling, 66.0)]
+    assert f"full power levels the water out near {ceiling:.1f} °C" in daemon.status_text()
     daemon.set_setpoint(52.0)
     daemon.run(until=bound + 2 * PERIOD)
     assert status_of(daemon)["warnings"] == []
+    assert "levels the water out" not in daemon.status_text()
     cleared = f"full power levels the water out near {ceiling:.1f} °C, enough for 52 °C"
     assert cleared in events.logged()
     daemon.shutdown()
