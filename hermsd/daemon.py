@@ -828,7 +828,7 @@ class Daemon:
                 self._resume_output = self.output
         if self.element_watch is not None and watch_changes(old, new):
             self.element_watch = element_watch(new)  # its references were of the old tun
-        if old.control.max_output != control.max_output or old.element2 != new.element2:
+        if old.control.max_output != control.max_output:
             self._say_reach(self.reach.restart(), t)  # another full power
         if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
             self._apply_manual(control.manual_output, t)
@@ -1206,8 +1206,16 @@ class Daemon:
         if self.element_watch is not None and switched2 is not None:
             self._watch_elements(now, pv, applied, switched2, state, probed)  # replay too
         tun = self._program_tun()  # full power and the dead time, as a ready_by heat-up's
-        full = state == "ok" and self.mode == "auto" and total_applied >= FULL * tun.max_output
-        self._say_reach(self.reach.period(now, self.setpoint, pv, full, tun.dead_time()), now)
+        # One element only: two elements' full power is each at its own limit, and a
+        # midrange or shared-out controller holds one back while the other runs.
+        full = (
+            self.element2 is None
+            and state == "ok"
+            and self.mode == "auto"
+            and applied >= FULL * tun.max_output
+        )
+        said = self.reach.period(now, self.setpoint, pv, full, tun.dead_time(), tun.max_output)
+        self._say_reach(said, now)
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(

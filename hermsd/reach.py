@@ -70,6 +70,9 @@ DROP_C = 0.25
 (a period's mean of five readings never falls that far by noise), so such a fall is cold
 water or an element that fails, after which the rates measured before are of another tun."""
 
+MAX_POINTS = 144
+"""Blocks a run keeps at most: a day's (the lowest go first, the line is drawn higher up)."""
+
 PREFIX = "full power levels the water out"
 """How every event of the warning begins (replay finds them by it)."""
 
@@ -120,14 +123,21 @@ def measured_rise(points: Sequence[tuple[float, float]]) -> Rise:
     and how fast the rate falls with the temperature by least squares through all of them
     (a rate that does not fall: slope 0, no ceiling)."""
     x, rate = points[-1]
-    if len(points) < 2:
+    temperatures = [p[0] for p in points]
+    if min(temperatures) == max(temperatures):  # one point, or all at one PV: no slope to tell
         return Rise(x, rate, 0.0, 0.0, MEASURED)
-    falls = statistics.linear_regression([p[0] for p in points], [p[1] for p in points]).slope
+    falls = statistics.linear_regression(temperatures, [p[1] for p in points]).slope
     return Rise(x, rate, max(0.0, -falls), 0.0, MEASURED)
 
 
-def short_words(ceiling: float, setpoint: float) -> str:
-    """The warning, in the brewer's words."""
+def short_words(ceiling: float, setpoint: float, max_output: float = 100.0) -> str:
+    """The warning, in the brewer's words (`max_output`: the power limit full power is)."""
+    if max_output < 100.0:
+        return (
+            f"{PREFIX} near {ceiling:.1f} °C at the power limit of {max_output:g} % "
+            f"(control.max_output), {setpoint - ceiling:.1f} °C short of the setpoint "
+            f"{setpoint:g} °C: raise the limit, put the lid on, or heat less water"
+        )
     return (
         f"{PREFIX} near {ceiling:.1f} °C, {setpoint - ceiling:.1f} °C short of the setpoint "
         f"{setpoint:g} °C: put the lid on, heat less water, or add power"
@@ -158,14 +168,21 @@ class ReachWatch:
         self._start_pv = self._top_pv = 0.0
         self._block = LineFit()
         self._block_t0 = 0.0
-        self._points: deque[tuple[float, float]] = deque()  # (mean PV, rate) of the run's blocks
+        # (mean PV, rate) of the run's blocks, a day's at most (a run stalled at its ceiling)
+        self._points: deque[tuple[float, float]] = deque(maxlen=MAX_POINTS)
         self._sure = 0
 
     def period(
-        self, t: float, setpoint: float, pv: float | None, full: bool, dead_time: float
+        self,
+        t: float,
+        setpoint: float,
+        pv: float | None,
+        full: bool,
+        dead_time: float,
+        max_output: float = 100.0,
     ) -> Said | None:
-        """One period: `full` — the element ran at full power through the period just ended,
-        in auto, nothing held. What to say, if anything."""
+        """One period: `full` — the element ran at full power (`max_output`, its limit)
+        through the period just ended, in auto, nothing held. What to say, if anything."""
         said = self._cleared(setpoint, pv)
         if not full or pv is None:
             self._end_run()
@@ -181,7 +198,7 @@ class ReachWatch:
         if block.n and t - self._block_t0 >= MEASURE_S:
             rate = block.slope()
             if rate is not None:
-                said = self._judge((block.sx / block.n, rate), setpoint) or said
+                said = self._judge((block.sx / block.n, rate), setpoint, max_output) or said
             self._block = block = LineFit()
         if not block.n:
             self._block_t0 = t
@@ -207,20 +224,23 @@ class ReachWatch:
         ceiling = self.ceiling
         if ceiling is None:
             return None
-        if pv is not None and pv >= setpoint - BAND:
-            self.ceiling = None
-            return Said(False, f"{PREFIX} higher than said: the water reached the band")
         if ceiling >= setpoint - MARGIN_C:
             self.ceiling = None
             return Said(False, f"{PREFIX} near {ceiling:.1f} °C, enough for {setpoint:g} °C")
+        if pv is not None and pv >= setpoint - BAND:
+            self.ceiling = None
+            return Said(False, f"{PREFIX} higher than said: the water reached the band")
         return None
 
-    def _judge(self, point: tuple[float, float], setpoint: float) -> Said | None:
+    def _judge(self, point: tuple[float, float], setpoint: float, max_output: float) -> Said | None:
         """A block's (mean PV, rate) in: the ceiling through it and those from ANCHOR_SHARE of
         the climb up, judged."""
         points = self._points
-        points.append(point)
         x, start = point[0], self._start_pv
+        if x <= start:
+            self._sure = 0  # no rise yet (a run begun where the water levels out): no line
+            return None
+        points.append(point)
         while points[0][0] < start + ANCHOR_SHARE * (x - start):
             points.popleft()  # below the share for this one, and for any higher one after it
         ceiling = measured_rise(points).ceiling()
@@ -233,4 +253,4 @@ class ReachWatch:
             return None
         raised = self.ceiling is None
         self.ceiling = ceiling
-        return Said(True, short_words(ceiling, setpoint)) if raised else None
+        return Said(True, short_words(ceiling, setpoint, max_output)) if raised else None

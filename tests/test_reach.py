@@ -11,6 +11,7 @@ at τ·ln 2.
 from __future__ import annotations
 
 import math
+import random
 from pathlib import Path
 
 import pytest
@@ -34,7 +35,7 @@ from hermsd.reach import (
 from hermsd.saver import Saver
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
-from hermsd.sim.scenario import Scenario, effective_config
+from hermsd.sim.scenario import Event, Scenario, effective_config
 from hermsd.sim.tuns import TunSpec
 from hermsd.sim.world import build_world
 
@@ -127,6 +128,46 @@ def test_cold_water_in_the_run_starts_its_measurement_again() -> None:
     assert said is not None and t > without
 
 
+def test_a_run_that_starts_where_the_water_levels_out_says_nothing_and_never_fails() -> None:
+    """A restart at the ceiling (the daemon's, an alarm's, a setpoint dip's): the run's start
+    is the top, the LM92's steps leave blocks at one mean PV, and PV may sit just under the
+    start. Nothing to draw a line through; and never an exception into the loop."""
+    rng = random.Random(7)
+    shapes = {
+        "flat on one step": lambda t: 60.0625,
+        "one step up, then flat under it": lambda t: 60.125 if t < 60.0 else 60.0625,
+        "creeping down": lambda t: 60.0 - t * 1e-5,
+        "noise on the steps": lambda t: math.floor((60.0 + rng.gauss(0.0, 0.03)) * 16) / 16,
+    }
+    for name, pv in shapes.items():
+        watch = ReachWatch()
+        said = [watch.period(t, 66.0, pv(t), True, 100.0) for t in range(5, 12 * 3600, 5)]
+        if name == "noise on the steps":
+            # Noise lifts some blocks over the start: a line, and the truth named, or nothing.
+            assert watch.ceiling is None or abs(watch.ceiling - 60.0) < MARGIN_C, name
+            continue
+        assert said.count(None) == len(said), name
+        assert watch.ceiling is None, name
+
+
+def test_under_a_power_limit_the_limit_is_named() -> None:
+    watch, t, said = ReachWatch(), PERIOD, None
+    while said is None and t < 8 * 3600.0:
+        said = watch.period(t, 66.0, approach(55.0, t), True, 100.0, max_output=50.0)
+        t += PERIOD
+    assert said is not None and said.raised
+    assert "at the power limit of 50 % (control.max_output)" in said.message
+    assert "raise the limit" in said.message
+    assert said.message == short_words(55.0 if watch.ceiling is None else watch.ceiling, 66.0, 50.0)
+
+
+def test_a_setpoint_lowered_under_the_water_clears_as_enough_not_as_wrong() -> None:
+    watch = ReachWatch()
+    t = feed(watch, 55.0, 6 * 3600.0)[0][0]
+    cleared = watch.period(t + PERIOD, 40.0, 54.9, False, 100.0)  # in the band of nothing
+    assert cleared is not None and "enough for 40 °C" in cleared.message
+
+
 # -- through the daemon ---------------------------------------------------------------------
 
 WEAK = TunSpec("weak 30 L", 30, 922, 3.0, 30, 5, 20)
@@ -172,3 +213,18 @@ def test_replay_shows_when_it_was_said(tmp_path: Path) -> None:
     said = summary["reach"]
     assert len(said) == 1 and said[0]["message"].startswith("full power levels the water out")
     assert 3400.0 < said[0]["at_s"] < 6600.0  # past half-way (see the test above)
+
+
+def test_manual_full_output_is_no_full_power_heat_up_to_judge() -> None:
+    # The same weak tun, the brewer at 100 % by hand: the setpoint is not the loop's to reach,
+    # so nothing is said (the auto day above says it by 6600 s).
+    day = Scenario(
+        name=WEAK.name,
+        duration=6600.0,
+        plant=WEAK.plant(),
+        setpoint=66.0,
+        events=(Event(0.0, "mode", "manual"), Event(0.0, "output", 100.0)),
+    )
+    result = scenario.run(day, WEAK.config(config_module.DEFAULT), keep_records=True)
+    assert result.records[-1].mode == "manual" and result.records[-1].applied == 100.0
+    assert all(r.ceiling is None for r in result.records)

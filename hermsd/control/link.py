@@ -266,7 +266,11 @@ class LoopLink:
             "warnings": status_warnings(
                 record.no_heat,
                 snapshot.latches_not_saved,
-                None if record.ceiling is None else short_words(record.ceiling, record.setpoint),
+                None
+                if record.ceiling is None
+                else short_words(
+                    record.ceiling, record.setpoint, snapshot.config.control.max_output
+                ),
             ),
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
