@@ -13,6 +13,7 @@ import os
 import struct
 import zlib
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -211,12 +212,19 @@ def _decode_png(data: bytes) -> tuple[int, int, bytes]:
     return width, height, bytes(rgb)
 
 
-def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
+@contextmanager
+def _status_held(page: Page, live: Site, box: str) -> Iterator[dict[str, object]]:
+    """Logged in, `box` not shown, the loop held: the status the page shows, to hand it one
+    of another day's as the hub would."""
     _log_in(page)
-    assert not page.is_visible("#alarm-box")
+    assert not page.is_visible(box)
     with live.held() as last:
         _until(page, f"window.lastStatus.t === {last}")
-        status = page.evaluate("window.lastStatus")
+        yield page.evaluate("window.lastStatus")
+
+
+def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
+    with _status_held(page, live, "#alarm-box") as status:
         alarm = {
             **status,
             "alarms": ["dry_fire"],
@@ -238,11 +246,7 @@ def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
 
 
 def test_a_warning_is_shown_in_its_words_and_goes_when_it_is_over(page: Page, live: Site) -> None:
-    _log_in(page)
-    assert not page.is_visible("#warning-box")
-    with live.held() as last:
-        _until(page, f"window.lastStatus.t === {last}")
-        status = page.evaluate("window.lastStatus")
+    with _status_held(page, live, "#warning-box") as status:
         words = ["element 2 gives no heat? (docs/two-elements.md)", "latched alarms not saved"]
         warned = {**status, "warnings": words}
         page.evaluate("(status) => onEvent({status, rows: [], offset: 0})", warned)
