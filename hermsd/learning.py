@@ -36,14 +36,14 @@ from pathlib import Path
 
 from hermsd.files import write_atomically
 from hermsd.latches import StateError, read_state_json
-from hermsd.pid import MAX_DEAD_TIME, HeatUpFit, LineFit, PlantModel
+from hermsd.pid import MAX_DEAD_TIME, SENSOR_LSB, HeatUpFit, LineFit, PlantModel
 
 LEARNED_FILE = "learned-model.json"
 HOLD_S = 1800.0
 """s of steady hold after an accepted heat-up before the loss is estimated."""
 HOLD_BAND = 0.25
 """°C around the setpoint that counts as a steady hold."""
-WATER_FALL = 0.125
+WATER_FALL = 2 * SENSOR_LSB
 WATER_SPAN_S = 60.0
 """°C (2 LSB) below the highest PV of the last WATER_SPAN_S s: water came in, and the hold
 starts anew. A hold's PV moves by an LSB in a minute, and noise on a period's mean (sd

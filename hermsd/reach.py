@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from hermsd.metrics import BAND
-from hermsd.pid import LineFit
+from hermsd.pid import SENSOR_LSB, LineFit
 
 FULL = 0.995
 """A period's applied duty this close to the output limit counts as full power."""
@@ -65,7 +65,7 @@ lidded tuns whose ceiling lies 0.5 to 2 °C above the setpoint, the lowest estim
 setpoint − MARGIN_C), as near as possible so that an open pot's steepening losses bend the
 line little (it puts their ceiling too high, by some 0.1 × the distance still to go)."""
 
-DROP_C = 0.25
+DROP_C = 4 * SENSOR_LSB
 """°C (4 LSB) below the run's highest PV that ends it: at full power the water only rises
 (a period's mean of five readings never falls that far by noise), so such a fall is cold
 water or an element that fails, after which the rates measured before are of another tun."""
