@@ -58,7 +58,7 @@ from hermsd.lm92 import (
 from hermsd.notify import Notifier, WatchdogGate, status_line
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program
-from hermsd.program.readiness import Tun
+from hermsd.program.readiness import Tun, known_dead_time
 from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
@@ -243,6 +243,34 @@ def element_watch(config: Config) -> ElementWatch:
 def watch_changes(old: Config, new: Config) -> bool:
     """Whether a reload starts the element watch afresh (replay does as the daemon)."""
     return old.tun != new.tun or old.control.dead_time != new.control.dead_time
+
+
+def reach_period(
+    reach: ReachWatch,
+    record: PeriodRecord,
+    model: pid.PlantModel,
+    max_output: float,
+    controller: pid.Controller,
+) -> Said | None:
+    """Feed `reach` the period of `record` (before its `ceiling`), with the model and the
+    controller in force after the period's step: the daemon does, and replay's check does
+    again from the log. Full power and the dead time are a ready_by heat-up's."""
+    # One element only (`switched2` None): two elements' full power is each at its own
+    # limit, and a midrange or shared-out controller holds one back while the other runs.
+    full = (
+        record.switched2 is None
+        and record.state == "ok"
+        and record.mode == "auto"
+        and record.applied >= FULL * max_output
+    )
+    dead_time = known_dead_time(model, pid.heat_up_fit(controller))
+    return reach.period(record.t, record.setpoint, record.pv, full, dead_time, max_output)
+
+
+def reach_restarts(old: Config, new: Config) -> bool:
+    """Whether a reload gives another full power, measured afresh (replay does as the
+    daemon)."""
+    return old.control.max_output != new.control.max_output
 
 
 def element2_watts(config: Config) -> float:
@@ -828,7 +856,7 @@ class Daemon:
                 self._resume_output = self.output
         if self.element_watch is not None and watch_changes(old, new):
             self.element_watch = element_watch(new)  # its references were of the old tun
-        if old.control.max_output != control.max_output:
+        if reach_restarts(old, new):
             self._say_reach(self.reach.restart(), t)  # another full power
         if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
             self._apply_manual(control.manual_output, t)
@@ -1205,17 +1233,6 @@ class Daemon:
         u2 = self._output2 = self._drive_element2(now, state)
         if self.element_watch is not None and switched2 is not None:
             self._watch_elements(now, pv, applied, switched2, state, probed)  # replay too
-        tun = self._program_tun()  # full power and the dead time, as a ready_by heat-up's
-        # One element only: two elements' full power is each at its own limit, and a
-        # midrange or shared-out controller holds one back while the other runs.
-        full = (
-            self.element2 is None
-            and state == "ok"
-            and self.mode == "auto"
-            and applied >= FULL * tun.max_output
-        )
-        said = self.reach.period(now, self.setpoint, pv, full, tun.dead_time(), tun.max_output)
-        self._say_reach(said, now)
         self.k += 1
         terms = self.controller.terms
         record = PeriodRecord(
@@ -1242,9 +1259,13 @@ class Daemon:
             free2=free2,
             no_heat=None if self.element_watch is None else sorted(self.element_watch.suspect),
             full_from=full_from,
-            ceiling=self.reach.ceiling,
             **self.program.record_fields(),
         )
+        said = reach_period(
+            self.reach, record, self.model, self.config.control.max_output, self.controller
+        )
+        self._say_reach(said, now)
+        record = dataclasses.replace(record, ceiling=self.reach.ceiling)
         for listener in self.listeners:
             listener.period(record)
         if self.recorder is not None:
@@ -1466,6 +1487,7 @@ class Daemon:
                     "drop_onset_c": pid.DROP_RULE.onset,
                     "drop_fall_c": pid.DROP_RULE.fall,
                     "drop_carry": pid.DROP_CARRY,
+                    "reach_watch": True,
                 },
             )
 

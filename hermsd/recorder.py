@@ -291,8 +291,11 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "drop_carry": _field(
                     "boolean", "full power acted on inside a period carries on while PV falls"
                 ),
+                "reach_watch": _field(
+                    "boolean", "each period's ceiling is the reach watch's (replay checks it)"
+                ),
             },
-            optional=("drop_carry",),
+            optional=("drop_carry", "reach_watch"),
         ),
     ),
     PROGRAM_TOPIC: TopicSpec(

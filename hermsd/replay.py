@@ -12,7 +12,8 @@ joins the two.
 
 - `summarise`: what `hermsd replay FILE...` prints. The metrics are those of `hermsd
   simulate` (hermsd.metrics), measured on the logged PV rather than the simulated water.
-- `verify`: the logged controller re-run on the logged inputs, every step bit for bit.
+- `verify`: the logged controller re-run on the logged inputs, every step bit for bit, and
+  what the daemon's watches logged of each period derived again from them.
 - `what_if`: a first-order-plus-dead-time model of the tun fitted to the logged duty and PV,
   and the day run again through the daemon on that model with other settings.
 """
@@ -39,6 +40,8 @@ from hermsd.daemon import (
     PeriodRecord,
     element2_watts,
     element_watch,
+    reach_period,
+    reach_restarts,
     retunes,
     watch_changes,
 )
@@ -60,6 +63,7 @@ from hermsd.pid import (
 from hermsd.program.quality import step_quality
 from hermsd.program.readiness import SCHEDULE_EVENTS
 from hermsd.reach import PREFIX as REACH_PREFIX
+from hermsd.reach import ReachWatch
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
@@ -122,6 +126,7 @@ class LoggedConfig:
     drop_onset_c: float | None = None  # and its onset (None: the first rule, if drop_readings)
     drop_fall_c: float | None = None  # and its fall (None: the rule of the law's answer alone)
     drop_carry: bool = False  # full power on cold water carried across the period's end
+    reach_watch: bool = False  # each period's `ceiling` is the reach watch's (None: not said)
 
 
 @dataclass(frozen=True, slots=True)
@@ -413,6 +418,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         float(drop_onset) if _is_number(drop_onset) else None,
         float(drop_fall) if _is_number(drop_fall) else None,
         message.get("drop_carry") is True,
+        message.get("reach_watch") is True,
     )
 
 
@@ -727,6 +733,14 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     is acted on whatever the law says; without the onset, `pid.FIRST_DROP_RULE`, without
     the fall `pid.LAW_DROP_RULE`): an older daemon never acted inside a period and logged
     no such thing.
+
+    A period's `ceiling` must be what a reach watch names that was fed every period as the
+    daemon fed its own (`daemon.reach_period`: the record, the model and power limit in
+    force, and the dead time of the controller's heat-up measurement, re-run here), made
+    afresh at each start and measuring afresh where a reload changed full power
+    (`daemon.reach_restarts`). Only under a config record that says the daemon logs it
+    (`reach_watch`; an older log is checked as before); after missing records, not until
+    the next start (the blocks it measured over them are not known).
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -738,8 +752,23 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     drop_rule: DropRule | None = None  # how the daemon that logged these periods acted on drops
     watch: ElementWatch | None = None  # the element watch as the daemon's, once known
     watched: config_module.Config | None = None  # the config it was made for
+    reach: ReachWatch | None = None  # the reach watch as the daemon's, once known
+    model: PlantModel | None = None  # the tun's model in force, as logged
+    fed: PeriodRecord | None = None  # the last period, not yet fed to `reach`
     verified = unknown = 0
+
+    def ceiling_mismatch() -> Mismatch | None:
+        """The last period fed to the reach watch after its step, as the daemon fed it: by
+        the next entry the controller's heat-up fit is the one the daemon's had then."""
+        if fed is None or reach is None or controller is None or control is None or model is None:
+            return None
+        return _ceiling_mismatch(reach, fed, model, control.max_output, controller)
+
     for entry in entries:
+        mismatch = ceiling_mismatch()
+        if mismatch is not None:
+            return Verification(verified, unknown, mismatch)
+        fed = None
         if isinstance(entry, LoggedConfig):
             if entry == in_force:
                 continue
@@ -749,6 +778,10 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 whole = _as_logged(config_module.from_dict(entry.config), entry.config)
                 if entry.reason == "start" or (watched and watch_changes(watched, whole)):
                     watch = element_watch(whole) if element2_watts(whole) else None
+                if entry.reason == "start":
+                    reach = ReachWatch() if entry.reach_watch else None
+                elif reach is not None and watched is not None and reach_restarts(watched, whole):
+                    reach.restart()
                 same_tun = watched is not None and watched.tun == whole.tun
                 watched = whole
                 reloaded = whole.control
@@ -764,7 +797,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                     continue
                 control = reloaded
                 in_force_model = entry.model
-                made = make_controller(control, logged_model(entry))
+                model = logged_model(entry)
+                made = make_controller(control, model)
                 if entry.drop_fall_c is None:  # a daemon from before it judged steady so
                     predating_drop_fall(made)
                 controller = shared_out(whole, made)
@@ -776,6 +810,9 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 previous_k, stepped = None, None
             continue
         record = entry
+        if record.k != (previous_k or 0) + 1:
+            reach = None  # what the missing periods told it is not known
+        fed = record
         if previous_k is not None and record.k != previous_k + 1:
             known = False
             stepped = None
@@ -858,7 +895,22 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 )
         stepped = (controller, record)
         verified += 1
-    return Verification(verified, unknown, None)
+    return Verification(verified, unknown, ceiling_mismatch())
+
+
+def _ceiling_mismatch(
+    reach: ReachWatch,
+    record: PeriodRecord,
+    model: PlantModel,
+    max_output: float,
+    controller: Controller,
+) -> Mismatch | None:
+    """Feed `reach` the period of `record` as the daemon did; a Mismatch when the ceiling it
+    names then is not the logged one."""
+    reach_period(reach, record, model, max_output, controller)
+    if record.ceiling == reach.ceiling:
+        return None
+    return Mismatch(record.k, record.t, "ceiling", record.ceiling, reach.ceiling)
 
 
 def _as_logged(config: config_module.Config, logged: dict[str, Any]) -> config_module.Config:

@@ -124,6 +124,7 @@ CONFIG = {
     "drop_onset_c": 0.125,
     "drop_fall_c": 0.1875,
     "drop_carry": True,
+    "reach_watch": True,
 }
 MODEL = {
     "t": 6600.0,

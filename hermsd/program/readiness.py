@@ -98,8 +98,13 @@ class Tun:
         return rate * self.max_output / 100.0
 
     def dead_time(self) -> float:
-        fit = self.fit
-        return fit.dead_time if fit is not None and fit.refused is None else self.model.dead_time
+        return known_dead_time(self.model, self.fit)
+
+
+def known_dead_time(model: PlantModel, fit: HeatUpFit | None) -> float:
+    """s before a new full power shows: the controller's last heat-up measurement (`fit`),
+    unless refused, else the model's (the reach watch's too, in the daemon and in replay)."""
+    return fit.dead_time if fit is not None and fit.refused is None else model.dead_time
 
 
 def _line(points: list[tuple[float, float]]) -> tuple[float, float] | None:
