@@ -21,8 +21,9 @@ from hermsd import replay
 from hermsd.config import make_controller
 from hermsd.daemon import PeriodRecord, reach_period
 from hermsd.reach import MARGIN_C
-from hermsd.recorder import CONFIG_TOPIC, PERIOD_TOPIC
+from hermsd.recorder import CONFIG_TOPIC, PERIOD_TOPIC, LogFile, Recorder
 from hermsd.sim import scenario
+from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event, Scenario
 from hermsd.sim.tuns import TunSpec
 
@@ -30,6 +31,7 @@ TRUE_CEILING = 20.0 + 922.0 / 25.6  # °C, the weak tun's (see test_reach.WEAK)
 
 
 def weak_day(directory: Path, *events: Event, duration: float = 6600.0) -> list[Path]:
+    directory.mkdir(exist_ok=True)
     day = Scenario(
         name=WEAK.name, duration=duration, plant=WEAK.plant(), setpoint=66.0, events=events
     )
@@ -52,7 +54,9 @@ def test_the_untouched_log_of_a_tun_too_weak_verifies_with_its_ceilings(
 ) -> None:
     log = replay.load(weak_log)
     named = said(log)
-    assert named and all(abs(p.ceiling - TRUE_CEILING) < MARGIN_C for p in named if p.ceiling)
+    assert named and all(
+        abs(p.ceiling - TRUE_CEILING) < MARGIN_C for p in named if p.ceiling is not None
+    )
     assert 3400.0 < named[0].t < 6600.0 and named[-1] is log.periods[-1]
     assert all(c.reach_watch for c in log.configs)
     assert replay.verify(log.entries) == replay.Verification(len(stepped(log)), 0, None)
@@ -191,7 +195,7 @@ def test_the_dead_time_is_the_controllers_heat_up_measurement_re_run_from_the_lo
     scenario.run(day, FAR.config(config_module.DEFAULT), log_dir=tmp_path)
     log = replay.load(sorted(tmp_path.glob("*.mcap")))
     named = said(log)
-    assert named and all(abs(p.ceiling - 55.2) < MARGIN_C for p in named if p.ceiling)
+    assert named and all(abs(p.ceiling - 55.2) < MARGIN_C for p in named if p.ceiling is not None)
     assert replay.verify(log.entries).mismatch is None
     # Fed the model's dead time instead (a controller that measured nothing), the blocks of
     # the run after the water are others, and the ceilings differ from the daemon's.
@@ -204,3 +208,24 @@ def test_the_dead_time_is_the_controllers_heat_up_measurement_re_run_from_the_lo
     )
     mismatch = replay.verify(log.entries).mismatch
     assert mismatch is not None and mismatch.name == "ceiling" and mismatch.t > 1500.0
+
+
+def test_a_restart_makes_a_fresh_watch_in_replay_as_in_the_daemon(
+    weak_log: list[Path], tmp_path: Path
+) -> None:
+    # The weak day (said by its end), then the daemon started again two hours later (its
+    # monotonic and wall clocks on by as much): its new watch has measured nothing and says
+    # nothing, though the water is as far short.
+    second = weak_day(tmp_path / "second", duration=900.0)
+    later = tmp_path / "later"
+    later.mkdir()
+    recorder = Recorder(later, now=VirtualClock().monotonic, lossless=True)
+    for path in second:
+        for topic, log_time_ns, message in LogFile(path).messages():
+            moved = {**message, "t": message["t"] + 7200.0} if "t" in message else message
+            recorder.write(topic, log_time_ns + 7200 * 1_000_000_000, moved)
+    recorder.close()
+    log = replay.load([*weak_log, *later.glob("*.mcap")])
+    assert [c.reason for c in log.configs] == ["start", "start"] and len(log.runs) == 2
+    assert log.periods[1319].ceiling is not None and log.periods[1320].ceiling is None
+    assert replay.verify(log.entries).mismatch is None
