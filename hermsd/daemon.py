@@ -62,7 +62,7 @@ from hermsd.program.readiness import Tun
 from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
-from hermsd.reach import FULL, PREFIX, ReachWatch, Said
+from hermsd.reach import PREFIX, FullPower, ReachWatch, Said
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.saver import Outcome, Saver
@@ -658,6 +658,15 @@ class Daemon:
             pid.heat_up_fit(self.controller),
         )
 
+    def _full_power_duties(self) -> FullPower:
+        """The duties that are full power (reach and a ready_by heat-up judge by them): the
+        SSR's element at control.max_output and a second element on, as a midrange
+        controller gives them at its most (a u2_max under 100 % pulses it: never full); a
+        shared-out one limits their total instead (`PowerSplit.full_power`)."""
+        if isinstance(self.controller, SplitController):
+            return self.controller.split.full_power()
+        return FullPower(self.config.control.max_output, None if self.element2 is None else True)
+
     def program_command(self, action: str, t: float) -> None:
         """next, pause, resume, stop or confirm (runner.Refused when it does not apply)."""
         if action == "stop":
@@ -667,11 +676,13 @@ class Daemon:
             self.setpoint = after
             self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)
 
-    def _program_period(self, t: float, pv: float | None, applied: float) -> bool:
+    def _program_period(self, t: float, pv: float | None, applied: float, full: bool) -> bool:
         """Take the program's setpoint for this period; True: it keeps the heater off.
-        `applied`: the heat's duty in the period just ended (%; with two elements, of both)."""
+        `applied`: the heat's duty in the period just ended (%; with two elements, of both);
+        `full`: that period was full power (`_full_power_duties`)."""
         wall_ns = self.clock.wall_ns()
-        setpoint, events = self.program.period(t, pv, wall_ns, self._program_tun(), applied)
+        tun = self._program_tun()
+        setpoint, events = self.program.period(t, pv, wall_ns, tun, applied, full)
         for event in events:
             self._program_event(event, t)
         news = self.program.store_news()
@@ -1155,10 +1166,11 @@ class Daemon:
             self.controller.probe_result() if isinstance(self.controller, SplitController) else None
         )
         total_asked, total_applied = self._total_power(asked, applied, switched2)
+        at_full = self._full_power_duties().reached(applied, switched2)
         sup.period(now, pv, total_asked, total_applied)
         self._drain_alarms(now)
         # The schedule's tun is both elements (its rates are of their sum): so is its duty.
-        standby = self._program_period(now, pv, total_applied) and self.mode == "auto"
+        standby = self._program_period(now, pv, total_applied, at_full) and self.mode == "auto"
         state = "ok"
         reset_from: float | None = None
         if standby and sup.heater_allowed and pv is not None:
@@ -1205,15 +1217,8 @@ class Daemon:
         u2 = self._output2 = self._drive_element2(now, state)
         if self.element_watch is not None and switched2 is not None:
             self._watch_elements(now, pv, applied, switched2, state, probed)  # replay too
-        tun = self._program_tun()  # full power and the dead time, as a ready_by heat-up's
-        # One element only: two elements' full power is each at its own limit, and a
-        # midrange or shared-out controller holds one back while the other runs.
-        full = (
-            self.element2 is None
-            and state == "ok"
-            and self.mode == "auto"
-            and applied >= FULL * tun.max_output
-        )
+        tun = self._program_tun()  # the power limit and the dead time, as a ready_by heat-up's
+        full = at_full and state == "ok" and self.mode == "auto"
         said = self.reach.period(now, self.setpoint, pv, full, tun.dead_time(), tun.max_output)
         self._say_reach(said, now)
         self.k += 1
