@@ -37,6 +37,7 @@ from hermsd.config import (
     Config,
     ConfigError,
     ControlConfig,
+    full_power,
     make_controller,
     shared_out,
     to_dict,
@@ -62,7 +63,7 @@ from hermsd.program.readiness import Tun
 from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
-from hermsd.reach import PREFIX, FullPower, ReachWatch, Said
+from hermsd.reach import PREFIX, ReachWatch, Said
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.saver import Outcome, Saver
@@ -658,15 +659,6 @@ class Daemon:
             pid.heat_up_fit(self.controller),
         )
 
-    def _full_power_duties(self) -> FullPower:
-        """The duties that are full power (reach and a ready_by heat-up judge by them): the
-        SSR's element at control.max_output and a second element on, as a midrange
-        controller gives them at its most (a u2_max under 100 % pulses it: never full); a
-        shared-out one limits their total instead (`PowerSplit.full_power`)."""
-        if isinstance(self.controller, SplitController):
-            return self.controller.split.full_power()
-        return FullPower(self.config.control.max_output, None if self.element2 is None else True)
-
     def program_command(self, action: str, t: float) -> None:
         """next, pause, resume, stop or confirm (runner.Refused when it does not apply)."""
         if action == "stop":
@@ -679,7 +671,7 @@ class Daemon:
     def _program_period(self, t: float, pv: float | None, applied: float, full: bool) -> bool:
         """Take the program's setpoint for this period; True: it keeps the heater off.
         `applied`: the heat's duty in the period just ended (%; with two elements, of both);
-        `full`: that period was full power (`_full_power_duties`)."""
+        `full`: that period was full power (`config.full_power`)."""
         wall_ns = self.clock.wall_ns()
         tun = self._program_tun()
         setpoint, events = self.program.period(t, pv, wall_ns, tun, applied, full)
@@ -839,7 +831,7 @@ class Daemon:
                 self._resume_output = self.output
         if self.element_watch is not None and watch_changes(old, new):
             self.element_watch = element_watch(new)  # its references were of the old tun
-        if old.control.max_output != control.max_output:
+        if full_power(old) != full_power(new):
             self._say_reach(self.reach.restart(), t)  # another full power
         if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
             self._apply_manual(control.manual_output, t)
@@ -1166,7 +1158,7 @@ class Daemon:
             self.controller.probe_result() if isinstance(self.controller, SplitController) else None
         )
         total_asked, total_applied = self._total_power(asked, applied, switched2)
-        at_full = self._full_power_duties().reached(applied, switched2)
+        at_full = full_power(self.config).reached(applied, switched2)
         sup.period(now, pv, total_asked, total_applied)
         self._drain_alarms(now)
         # The schedule's tun is both elements (its rates are of their sum): so is its duty.
