@@ -73,7 +73,9 @@ def main() -> None:
             PROGRAM, None, setpoint=66.0, wall_ns=0, pv=66.0, model=model, max_output=100.0
         )
         ours = timed(
-            lambda k: driver.period(PERIOD_S * k, 66.0, int(PERIOD_S * 1e9) * k, model, 100.0),
+            lambda k: driver.period(
+                PERIOD_S * k, 66.0, int(PERIOD_S * 1e9) * k, model, 100.0, True
+            ),
             driver.flush,  # a real period is 5 s: the writer is done long before the next
         )
         driver.close(10.0)

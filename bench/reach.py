@@ -5,7 +5,9 @@ Each tun runs a 12 h day at full power toward 66 °C through the daemon on the v
 simulated plant's element power equals its losses (hermsd/sim/hlt.py: UA·(T − T_room), plus
 evaporation from the open surface with the lid off); the named one is what the warning said
 (`setpoint_unreachable`, hermsd/reach.py). Then the family's near misses: tuns whose ceiling
-lies 0.5 to 2 °C above the setpoint, where nothing may be said.
+lies 0.5 to 2 °C above the setpoint, where nothing may be said. Tuns named "2 el." have their
+watts on two elements, 2/5.5 on the SSR and the rest on a contactor (min on and off 120 s),
+shared out (the default) or mid-ranging: full power is both at theirs (hermsd.reach.FullPower).
 
 uv run python bench/reach.py
 """
@@ -76,6 +78,11 @@ WEAK = (
         "70 L lid off, 2 °C short", TunSpec("", 70, 0, 1.5, 60, 20, 12, lid_off=True), 64.0
     ),
     with_ceiling("120 L thermowell, 4 °C short", TunSpec("", 120, 0, 1.0, 180, 120, 15), 62.0),
+    TunSpec("150 L 2 el. lid off, 12 °C", 150, 2000, 1.5, 90, 20, 12, lid_off=True),
+    TunSpec("150 L 2 el. lid off, 12 °C, midrange", 150, 2000, 1.5, 90, 20, 12, lid_off=True),
+    with_ceiling(
+        "70 L 2 el. lid off, 2 °C short", TunSpec("", 70, 0, 1.5, 60, 20, 12, lid_off=True), 64.0
+    ),
 )
 NEAR = (
     with_ceiling("90 L lid on, 0.5 °C over", TunSpec("", 90, 0, 1.0, 60, 10, 20), 66.5),
@@ -84,7 +91,41 @@ NEAR = (
         "70 L lid off, 0.5 °C over", TunSpec("", 70, 0, 1.5, 60, 20, 12, lid_off=True), 66.5
     ),
     with_ceiling("40 L thermowell, 1 °C over", TunSpec("", 40, 0, 1.2, 90, 60, 18), 67.0),
+    with_ceiling("90 L 2 el. lid on, 0.5 °C over", TunSpec("", 90, 0, 1.0, 60, 10, 20), 66.5),
+    with_ceiling(
+        "70 L 2 el. lid off, 0.5 °C over, midrange",
+        TunSpec("", 70, 0, 1.5, 60, 20, 12, lid_off=True),
+        66.5,
+    ),
 )
+
+
+SHARE2 = 3.5 / 5.5
+"""A two-element tun's watts on its contactor's element (bench/two_element.py's 2 + 3.5 kW)."""
+TWO = {
+    "150 L 2 el. lid off, 12 °C": None,
+    "150 L 2 el. lid off, 12 °C, midrange": "midrange",
+    "70 L 2 el. lid off, 2 °C short": None,
+    "90 L 2 el. lid on, 0.5 °C over": None,
+    "70 L 2 el. lid off, 0.5 °C over, midrange": "midrange",
+}
+"""The tuns on two elements, by name, with the controller (None: the default, shared out)."""
+
+
+def day_of(spec: TunSpec, seed: int) -> tuple[scenario.Scenario, config_module.Config]:
+    """The 12 h day of `spec` and its config: on two elements if TWO names it."""
+    day = dataclasses.replace(spec.brew_day(seed=seed), duration=DAY_S, events=())
+    config = spec.config(config_module.DEFAULT)
+    if spec.name not in TWO:
+        return day, config
+    watts2 = spec.element_watts * SHARE2
+    watts1 = spec.element_watts - watts2
+    element2 = dataclasses.replace(config.element2, backend="sim", watts=watts2)
+    control = dataclasses.replace(config.control, algorithm=TWO[spec.name] or "predictive")
+    tun = dataclasses.replace(config.tun, element_watts=watts1)
+    config = dataclasses.replace(config, tun=tun, element2=element2, control=control)
+    plant = {**day.plant, "element_watts": watts1, "element2_watts": watts2}
+    return dataclasses.replace(day, plant=plant), config
 
 
 def said(job: tuple[TunSpec, int]) -> tuple[str, int, float | None, float | None, float | None]:
@@ -92,8 +133,8 @@ def said(job: tuple[TunSpec, int]) -> tuple[str, int, float | None, float | None
     one it names at the day's end: each later sure estimate takes its place)."""
     spec, seed = job
     logging.getLogger("hermsd").setLevel(logging.ERROR)  # the table says what was said
-    day = dataclasses.replace(spec.brew_day(seed=seed), duration=DAY_S, events=())
-    result = scenario.run(day, spec.config(config_module.DEFAULT), keep_records=True)
+    day, config = day_of(spec, seed)
+    result = scenario.run(day, config, keep_records=True)
     first = next((r for r in result.records if r.ceiling is not None), None)
     at = None if first is None else first.t
     return spec.name, seed, at, first and first.ceiling, result.records[-1].ceiling

@@ -30,6 +30,7 @@ from hermsd.element_probe import ElementProbe
 from hermsd.files import NotRegularFile, read_regular
 from hermsd.learning import LearnedModel, implausible
 from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
+from hermsd.reach import FullPower
 
 MIDRANGE = "midrange"
 ALGORITHM_NAMES: tuple[str, ...] = (*ALGORITHMS, MIDRANGE)
@@ -1077,6 +1078,21 @@ def shared_out(config: Config, controller: pid.Controller) -> pid.Controller:
     )
     probe = ElementProbe(config.tun.element_watts, e2.watts, c.period, c.dead_time)
     return SplitController(controller, split, probe if e2.check else None)
+
+
+def full_power(config: Config) -> FullPower:
+    """The duties that are full power on the tun `config` describes (the reach watch and a
+    ready_by heat-up judge by them; replay can from the logged config): the SSR's element at
+    control.max_output and a second element on, as mid-ranging gives them at its most (a
+    u2_max under 100 % pulses it: never full); shared out, control.max_output limits both
+    elements' total instead (`PowerSplit.full_power`)."""
+    c, e2 = config.control, config.element2
+    if e2.backend == "none":
+        return FullPower(c.max_output)
+    if c.algorithm == MIDRANGE:
+        return FullPower(c.max_output, True)
+    watts1 = config.tun.element_watts
+    return PowerSplit(watts1, e2.watts, c.period, e2.min_on, e2.min_off, c.max_output).full_power()
 
 
 def _midrange_controller(c: ControlConfig) -> MidRangeController:

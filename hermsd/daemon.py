@@ -37,6 +37,7 @@ from hermsd.config import (
     Config,
     ConfigError,
     ControlConfig,
+    full_power,
     make_controller,
     shared_out,
     to_dict,
@@ -62,7 +63,7 @@ from hermsd.program.readiness import Tun, known_dead_time
 from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.pv import period_value
-from hermsd.reach import FULL, PREFIX, ReachWatch, Said
+from hermsd.reach import PREFIX, ReachWatch, Said
 from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.saver import Outcome, Saver
@@ -249,28 +250,27 @@ def reach_period(
     reach: ReachWatch,
     record: PeriodRecord,
     model: pid.PlantModel,
-    max_output: float,
+    config: Config,
     controller: pid.Controller,
 ) -> Said | None:
-    """Feed `reach` the period of `record` (before its `ceiling`), with the model and the
-    controller in force after the period's step: the daemon does, and replay's check does
-    again from the log. Full power and the dead time are a ready_by heat-up's."""
-    # One element only (`switched2` None): two elements' full power is each at its own
-    # limit, and a midrange or shared-out controller holds one back while the other runs.
+    """Feed `reach` the period of `record` (before its `ceiling`), with the model, the config
+    and the controller in force after the period's step: the daemon does, and replay's check
+    does again from the log. Full power (`config.full_power`) and the dead time are a
+    ready_by heat-up's."""
     full = (
-        record.switched2 is None
-        and record.state == "ok"
+        record.state == "ok"
         and record.mode == "auto"
-        and record.applied >= FULL * max_output
+        and full_power(config).reached(record.applied, record.switched2)
     )
     dead_time = known_dead_time(model, pid.heat_up_fit(controller))
+    max_output = config.control.max_output
     return reach.period(record.t, record.setpoint, record.pv, full, dead_time, max_output)
 
 
 def reach_restarts(old: Config, new: Config) -> bool:
     """Whether a reload gives another full power, measured afresh (replay does as the
     daemon)."""
-    return old.control.max_output != new.control.max_output
+    return full_power(old) != full_power(new)
 
 
 def element2_watts(config: Config) -> float:
@@ -695,11 +695,13 @@ class Daemon:
             self.setpoint = after
             self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)
 
-    def _program_period(self, t: float, pv: float | None, applied: float) -> bool:
+    def _program_period(self, t: float, pv: float | None, applied: float, full: bool) -> bool:
         """Take the program's setpoint for this period; True: it keeps the heater off.
-        `applied`: the heat's duty in the period just ended (%; with two elements, of both)."""
+        `applied`: the heat's duty in the period just ended (%; with two elements, of both);
+        `full`: that period was full power (`config.full_power`)."""
         wall_ns = self.clock.wall_ns()
-        setpoint, events = self.program.period(t, pv, wall_ns, self._program_tun(), applied)
+        tun = self._program_tun()
+        setpoint, events = self.program.period(t, pv, wall_ns, tun, applied, full)
         for event in events:
             self._program_event(event, t)
         news = self.program.store_news()
@@ -1183,10 +1185,11 @@ class Daemon:
             self.controller.probe_result() if isinstance(self.controller, SplitController) else None
         )
         total_asked, total_applied = self._total_power(asked, applied, switched2)
+        at_full = full_power(self.config).reached(applied, switched2)
         sup.period(now, pv, total_asked, total_applied)
         self._drain_alarms(now)
         # The schedule's tun is both elements (its rates are of their sum): so is its duty.
-        standby = self._program_period(now, pv, total_applied) and self.mode == "auto"
+        standby = self._program_period(now, pv, total_applied, at_full) and self.mode == "auto"
         state = "ok"
         reset_from: float | None = None
         if standby and sup.heater_allowed and pv is not None:
@@ -1261,9 +1264,7 @@ class Daemon:
             full_from=full_from,
             **self.program.record_fields(),
         )
-        said = reach_period(
-            self.reach, record, self.model, self.config.control.max_output, self.controller
-        )
+        said = reach_period(self.reach, record, self.model, self.config, self.controller)
         self._say_reach(said, now)
         record = dataclasses.replace(record, ceiling=self.reach.ceiling)
         for listener in self.listeners:

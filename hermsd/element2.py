@@ -39,6 +39,7 @@ import math
 from hermsd import pid
 from hermsd.element_probe import ElementProbe, ProbeResult
 from hermsd.midrange import MidRange
+from hermsd.reach import FullPower
 from hermsd.ssr import GuardedSwitch, SwitchedDuty
 
 _EPS = 1e-9  # s: times that differ by rounding are equal
@@ -240,6 +241,7 @@ class PowerSplit:
         self.share2 = 100.0 * watts2 / total  # % of the total the second element gives
         self.share1 = 100.0 * watts1 / total
         self.owed = 0.0  # %·s of the total asked and not given (negative: given ahead)
+        self.max_total = max_total
         self.may_close = self.share2 <= max_total
 
     def total(self, duty1: float, duty2: float) -> float:
@@ -263,6 +265,12 @@ class PowerSplit:
         given = self._given(u, state)
         self.owed = 0.0 if given == u else self.owed + (u - given) * self.period
         return state, self._duty1(given, state)
+
+    def full_power(self) -> FullPower:
+        """The duties at the most the controller may ask (`max_total`): the second element on
+        (off, if it may never close) and the SSR making up the rest: 100 % under no limit."""
+        on = self.may_close
+        return FullPower(self._duty1(self._given(self.max_total, on), on), on)
 
     def _range(self, on: bool) -> tuple[float, float]:
         """The totals the SSR can make with the second element on or off, %."""

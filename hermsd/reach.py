@@ -30,8 +30,10 @@ from typing import NamedTuple
 from hermsd.metrics import BAND
 from hermsd.pid import SENSOR_LSB, LineFit
 
-FULL = 0.995
-"""A period's applied duty this close to the output limit counts as full power."""
+SLACK = 0.5
+"""%-points under an element's full-power duty that a period's applied duty may lie and still
+count as full: a window's on-time is whole mains half-cycles (0.2 % of a 5 s window), the
+remainder carried to the next window."""
 MEASURE_S = 600.0
 """The span of PV that a rate (and a `ready_by` wait's holding duty) is measured over: with
 sensor noise of 0.03 °C on the LM92's 0.0625 °C steps (a period's mean of 5 readings: about
@@ -75,6 +77,31 @@ MAX_POINTS = 144
 
 PREFIX = "full power levels the water out"
 """How every event of the warning begins (replay finds them by it)."""
+
+
+@dataclass(frozen=True, slots=True)
+class FullPower:
+    """The duties that are full power on a tun: what its controller gives each element when
+    it asks for the most it may. `duty1`: the SSR's element, % (control.max_output; less where
+    that limits both elements' total, hermsd.element2.PowerSplit). `on2`: the second element
+    on (or, never switched on under the limit, off) through the whole period; None: none
+    fitted. The second element is switched in whole periods (its contactor's minimum times):
+    a period it spends off, its min_off say, while the SSR's element is at its limit is the
+    SSR's power alone, not full power, and a rise measured in it is of another tun."""
+
+    duty1: float
+    on2: bool | None = None
+
+    def reached(self, applied: float, switched2: float | None) -> bool:
+        """Whether a period ran at full power: the SSR's element at `applied` % and the second
+        element switched on for `switched2` % of it (None: none fitted)."""
+        if applied < self.duty1 - SLACK:
+            return False
+        if self.on2 is None:
+            return True
+        if switched2 is None:
+            return False
+        return switched2 >= 100.0 - SLACK if self.on2 else switched2 <= SLACK
 
 
 def rise_s(x0: float, x1: float, rate: float, slope: float) -> float | None:
@@ -181,8 +208,9 @@ class ReachWatch:
         dead_time: float,
         max_output: float = 100.0,
     ) -> Said | None:
-        """One period: `full` — the element ran at full power (`max_output`, its limit)
-        through the period just ended, in auto, nothing held. What to say, if anything."""
+        """One period: `full` — the elements ran at full power (`FullPower`; `max_output`,
+        the limit named) through the period just ended, in auto, nothing held. What to say,
+        if anything."""
         said = self._cleared(setpoint, pv)
         if not full or pv is None:
             self._end_run()

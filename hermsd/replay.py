@@ -735,7 +735,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     no such thing.
 
     A period's `ceiling` must be what a reach watch names that was fed every period as the
-    daemon fed its own (`daemon.reach_period`: the record, the model and power limit in
+    daemon fed its own (`daemon.reach_period`: the record, the model and the config in
     force, and the dead time of the controller's heat-up measurement, re-run here), made
     afresh at each start and measuring afresh where a reload changed full power
     (`daemon.reach_restarts`). Only under a config record that says the daemon logs it
@@ -760,9 +760,9 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     def ceiling_mismatch() -> Mismatch | None:
         """The last period fed to the reach watch after its step, as the daemon fed it: by
         the next entry the controller's heat-up fit is the one the daemon's had then."""
-        if fed is None or reach is None or controller is None or control is None or model is None:
+        if fed is None or reach is None or controller is None or watched is None or model is None:
             return None
-        return _ceiling_mismatch(reach, fed, model, control.max_output, controller)
+        return _ceiling_mismatch(reach, fed, model, watched, controller)
 
     for entry in entries:
         mismatch = ceiling_mismatch()
@@ -902,12 +902,12 @@ def _ceiling_mismatch(
     reach: ReachWatch,
     record: PeriodRecord,
     model: PlantModel,
-    max_output: float,
+    config: config_module.Config,
     controller: Controller,
 ) -> Mismatch | None:
     """Feed `reach` the period of `record` as the daemon did; a Mismatch when the ceiling it
     names then is not the logged one."""
-    reach_period(reach, record, model, max_output, controller)
+    reach_period(reach, record, model, config, controller)
     if record.ceiling == reach.ceiling:
         return None
     return Mismatch(record.k, record.t, "ceiling", record.ceiling, reach.ceiling)

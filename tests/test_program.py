@@ -502,7 +502,7 @@ LONG_REST = Program("Long", (Step("Rest", 66.0, 3600.0), Step("Out", 78.0, 600.0
 def drive(driver: ProgramDriver, seconds: float, pv: float, t0: float = 0.0) -> None:
     for k in range(round(seconds / PERIOD)):
         t = t0 + k * PERIOD
-        driver.period(t, pv, AT_4 + round(t * NS), PRIOR, 100.0 if pv < 60.0 else 30.0)
+        driver.period(t, pv, AT_4 + round(t * NS), PRIOR, 100.0 if pv < 60.0 else 30.0, pv < 60.0)
 
 
 PRIOR = Tun(PlantModel(), 100.0, measured=False, fit=None)

@@ -76,9 +76,9 @@ def test_the_climb_starts_by_the_model_with_its_margin_and_the_wait() -> None:
     # Heater off until then; due: the waiting temperature, 2 °C under the step.
     lead = (1.0 + MARGIN_MEASURED + FILL_MARGIN) * heat + WAIT_S
     due = 10_000 * NS - round(lead * NS)
-    assert ready.period(0.0, due - NS, 20.0, 0.0, TUN) is None
+    assert ready.period(0.0, due - NS, 20.0, 0.0, False, TUN) is None
     assert ready.starts_at_ns == due
-    assert ready.period(5.0, due, 20.0, 0.0, TUN) == 68.5
+    assert ready.period(5.0, due, 20.0, 0.0, False, TUN) == 68.5
 
 
 def test_a_model_that_never_reaches_the_band_plans_the_wait_and_more() -> None:
@@ -103,7 +103,7 @@ def climb_then_wait(ready: Readiness, until: float) -> list[tuple[float, float |
             pv, applied = 20.0 + 0.007 * t, 100.0
         else:
             pv, applied = 68.5, 40.0
-        asked.append((t, ready.period(t, round(t * NS), pv, applied, TUN)))
+        asked.append((t, ready.period(t, round(t * NS), pv, applied, applied == 100.0, TUN)))
         t += PERIOD
     return asked
 
@@ -150,7 +150,9 @@ def test_after_a_restart_at_the_waiting_temperature_the_losses_grow_from_the_roo
     # No climb seen: the 0.004 °C/s lost at 68.5 °C grew from the model's 20 °C room, so
     # 0.004/48.5 per °C (not from the 68.5 °C the water had at the restart).
     ready = Readiness(70.5, 9_000 * NS, clock, phase="climbing")
-    asked = [(t, ready.period(t, round(t * NS), 68.5, 40.0, TUN)) for t in range(7000, 8700, 5)]
+    asked = [
+        (t, ready.period(t, round(t * NS), 68.5, 40.0, False, TUN)) for t in range(7000, 8700, 5)
+    ]
     slope = 0.004 / 48.5
     need = 100.0 + math.log(0.006 / (0.006 - slope * 1.5)) / slope
     first = min(t for t, setpoint in asked if setpoint == 70.5)
@@ -165,7 +167,7 @@ def test_a_late_start_warns_at_once_and_shows_in_the_status() -> None:
     prior = Tun(PlantModel(), 100.0, measured=False, fit=None)
     wall = 1_795_834_800 * NS  # 2026-11-28T03:00:00Z
     driver.start(rest, "03:30", setpoint=20.0, wall_ns=wall, pv=20.0, tun=prior)
-    setpoint, events = driver.period(0.0, 20.0, wall, prior, 0.0)
+    setpoint, events = driver.period(0.0, 20.0, wall, prior, 0.0, False)
     assert setpoint == 64.0
     [late] = [e for e in events if e.event == "late"]
     assert late.text.startswith("cannot reach 66 °C by 03:30:00: needs until about 04:20:1")
@@ -183,7 +185,7 @@ def test_a_late_estimate_that_slips_is_said_again() -> None:
     ready = Readiness(70.5, 5_000 * NS, clock, phase="climbing")
     for t in range(0, 7000, 5):
         pv = 20.0 + 0.007 * min(t, 4500) + 0.002 * max(0, t - 4500)
-        ready.period(float(t), t * NS, pv, 100.0, TUN)
+        ready.period(float(t), t * NS, pv, 100.0, True, TUN)
     untils = [
         int(text.rsplit("needs until about ", 1)[1].split("s ")[0])
         for kind, text in ready.take_events()
@@ -203,20 +205,20 @@ def test_a_climb_that_started_early_for_the_measured_rate_stops_until_it_is_due(
     ready = Readiness(70.5, 10_000 * NS, clock)
     lead = (1.0 + MARGIN_MEASURED + FILL_MARGIN) * 1000.0 * (0.1 + math.log(2.0)) + WAIT_S
     start = math.ceil(10_000.0 - lead)
-    assert ready.period(0.0, start * NS, 20.0, 0.0, tun) == 68.5
+    assert ready.period(0.0, start * NS, 20.0, 0.0, False, tun) == 68.5
     measured = Tun(TUN.model, 100.0, measured=True, fit=HeatUpFit(rate=0.4, dead_time=100.0))
     resume = 10_000.0 - (1.1 * 250.0 * math.log((100.0 * math.exp(0.4) - 2.0) / 50.0) + WAIT_S)
     assert resume - (start + 60) > MIN_STOP_S
-    assert ready.period(60.0, (start + 60) * NS, 22.0, 100.0, measured) is None
+    assert ready.period(60.0, (start + 60) * NS, 22.0, 100.0, True, measured) is None
     assert ready.starts_at_ns == pytest.approx(resume * NS, abs=1)
-    assert ready.period(120.0, math.floor(resume) * NS, 22.0, 0.0, measured) is None
-    assert ready.period(180.0, math.ceil(resume) * NS, 22.0, 0.0, measured) == 68.5
+    assert ready.period(120.0, math.floor(resume) * NS, 22.0, 0.0, False, measured) is None
+    assert ready.period(180.0, math.ceil(resume) * NS, 22.0, 0.0, False, measured) == 68.5
     assert ready.starts_at_ns is None
     texts = [text for kind, text in ready.take_events() if kind == "climb"]
     assert texts[0].startswith("climb stopped at 22.00 °C, heater off until ")
     assert texts[1] == "climbing on from 22.00 °C"
     # Once on its way again, it does not stop a second time.
-    assert ready.period(240.0, (math.ceil(resume) - 500) * NS, 22.0, 100.0, measured) == 68.5
+    assert ready.period(240.0, (math.ceil(resume) - 500) * NS, 22.0, 100.0, True, measured) == 68.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -251,7 +253,7 @@ def test_a_climb_early_by_less_than_the_least_stop_goes_on() -> None:
     lead = ready.lead_s(20.0, tun)
     assert lead is not None
     start = math.ceil(10_000.0 - lead)
-    assert ready.period(0.0, start * NS, 20.0, 0.0, tun) == 68.5
+    assert ready.period(0.0, start * NS, 20.0, 0.0, False, tun) == 68.5
     measured = Tun(TUN.model, 100.0, measured=True, fit=HeatUpFit(rate=0.1, dead_time=100.0))
-    assert ready.period(60.0, (start + 60) * NS, 22.0, 100.0, measured) == 68.5
+    assert ready.period(60.0, (start + 60) * NS, 22.0, 100.0, True, measured) == 68.5
     assert ready.starts_at_ns is None and ready.take_events() == []

@@ -208,18 +208,19 @@ class ProgramDriver:
     # -- each period ------------------------------------------------------------------
 
     def period(
-        self, t: float, pv: float | None, wall_ns: int, tun: Tun, applied: float
+        self, t: float, pv: float | None, wall_ns: int, tun: Tun, applied: float, full: bool
     ) -> tuple[float | None, list[ProgramEvent]]:
         """The program's setpoint for this period (None: keep the heater off), and events.
 
-        `applied`: the duty the element was driven at in the period just ended (%)."""
+        `applied`: the duty the elements were driven at in the period just ended (%, of their
+        total); `full`: that was full power (hermsd.reach.FullPower)."""
         runner = self.runner
         if runner is None:
             return None, self.take_events()
         ready_setpoint = None
         readiness = self.readiness
         if readiness is not None:
-            ready_setpoint = readiness.period(t, wall_ns, pv, applied, tun)
+            ready_setpoint = readiness.period(t, wall_ns, pv, applied, full, tun)
             for kind, text in readiness.take_events():
                 runner.say(kind, text)
         runner.period(t, pv, ready_setpoint)

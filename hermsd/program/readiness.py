@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from hermsd.metrics import BAND
 from hermsd.pid import HeatUpFit, PlantModel
 from hermsd.program.runner import heat_up_s
-from hermsd.reach import FULL, MEASURE_S, RISE_FROM_S, Rise
+from hermsd.reach import MEASURE_S, RISE_FROM_S, Rise
 
 SCHEDULE_EVENTS = ("climb", "release", "late")
 """The program events a ready_by schedule logs: what it decided, and why."""
@@ -176,9 +176,11 @@ class Readiness:
         return (1.0 + margin + fill) * heat + WAIT_S
 
     def period(
-        self, t: float, wall_ns: int, pv: float | None, applied: float, tun: Tun
+        self, t: float, wall_ns: int, pv: float | None, applied: float, full: bool, tun: Tun
     ) -> float | None:
-        """The setpoint for this period (None: keep the heater off, not yet due)."""
+        """The setpoint for this period (None: keep the heater off, not yet due). `applied`:
+        the elements' duty in the period just ended (% of their total); `full`: that was full
+        power (hermsd.reach.FullPower: with two elements, each at its own)."""
         if pv is None:  # nothing to judge by: as before
             return self._setpoint()
         if self.phase == "scheduled":
@@ -203,7 +205,7 @@ class Readiness:
         if self.phase == "climbing":
             self._hold_back(wall_ns, pv, tun)
         if self.phase != "released":
-            self._measure(t, pv, applied, tun)
+            self._measure(t, pv, applied, full, tun)
             rise = self.rise(pv, tun)
             heating = self._run_since is not None and t - self._run_since >= rise.dead_time
             need = rise.need_s(pv, self.target - BAND, heating)
@@ -261,10 +263,10 @@ class Readiness:
             return None
         return self.target if self.phase == "released" else self.wait_at
 
-    def _measure(self, t: float, pv: float, applied: float, tun: Tun) -> None:
+    def _measure(self, t: float, pv: float, applied: float, full: bool, tun: Tun) -> None:
         """The full-power run's PV (past a dead time and more from its start, where the rise
         is the element's) and, at the waiting temperature, the PV and the duty that hold it."""
-        if applied >= FULL * tun.max_output:
+        if full:
             if self._run_since is None:
                 self._run_since = t
                 self._run.clear()
