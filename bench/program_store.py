@@ -26,6 +26,7 @@ from hermsd.files import write_atomically
 from hermsd.pid import PlantModel
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import MAX_STEPS, Program, Step, to_data
+from hermsd.program.readiness import Tun
 from hermsd.program.store import ProgressStore
 
 PERIOD_S = 5.0
@@ -57,7 +58,7 @@ def timed(step: Callable[[int], None], between: Callable[[], object] = lambda: N
 
 def main() -> None:
     here = Path(__file__).resolve().parent
-    model = PlantModel()
+    tun = Tun(PlantModel(), 100.0, measured=False, fit=None)
     with tempfile.TemporaryDirectory(dir=here) as directory:
         store = ProgressStore(directory)
         written: list[int] = []
@@ -69,13 +70,9 @@ def main() -> None:
 
         store.save_progress = counted  # type: ignore[method-assign]
         driver = ProgramDriver(store, dt.UTC, PERIOD_S)
-        driver.start(
-            PROGRAM, None, setpoint=66.0, wall_ns=0, pv=66.0, model=model, max_output=100.0
-        )
+        driver.start(PROGRAM, None, setpoint=66.0, wall_ns=0, pv=66.0, tun=tun)
         ours = timed(
-            lambda k: driver.period(
-                PERIOD_S * k, 66.0, int(PERIOD_S * 1e9) * k, model, 100.0, True
-            ),
+            lambda k: driver.period(PERIOD_S * k, 66.0, int(PERIOD_S * 1e9) * k, tun, 100.0, True),
             driver.flush,  # a real period is 5 s: the writer is done long before the next
         )
         driver.close(10.0)
