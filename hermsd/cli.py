@@ -49,6 +49,7 @@ from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92, SensorError, open_bus
+from hermsd.log_queue import DroppingQueueHandler
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
 from hermsd.realtime import loop_priority
 from hermsd.recorder import Recorder, recover, recover_directory
@@ -84,9 +85,9 @@ def _on_signal(signum: int, frame: FrameType | None) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
-    _setup_logging(getattr(args, "verbose", False))
     try:
-        result: int = args.func(args)
+        with _logging_to_stderr(getattr(args, "verbose", False)):
+            result: int = args.func(args)
         sys.stdout.flush()  # here, so that a closed pipe is met inside the handler below
         return result
     except BrokenPipeError:
@@ -433,14 +434,25 @@ def stderr_is_journal() -> bool:
     return os.environ.get("JOURNAL_STREAM") == f"{status.st_dev}:{status.st_ino}"
 
 
-def _setup_logging(verbose: bool) -> None:
+@contextlib.contextmanager
+def _logging_to_stderr(verbose: bool) -> Iterator[None]:
+    """The "hermsd" logger's lines on stderr, written by a thread of their own: a stalled
+    stderr never holds up the thread that logs (hermsd/log_queue.py). At the end, however it
+    comes, every queued line is written before the command's own last words."""
     handler = logging.StreamHandler(sys.stderr)
     formatter = JournalFormatter if stderr_is_journal() else logging.Formatter
     handler.setFormatter(formatter("%(levelname)s %(message)s"))
+    queued = DroppingQueueHandler(handler)
     root = logging.getLogger("hermsd")
-    root.handlers[:] = [handler]
+    root.handlers[:] = [queued]
     root.setLevel(logging.DEBUG if verbose else logging.INFO)
     root.propagate = False
+    queued.start()
+    try:
+        yield
+    finally:
+        root.handlers[:] = [handler]  # a line from a thread still running goes straight out
+        queued.stop()
 
 
 def config_path(path: Path | None, *, simulate: bool) -> Path | None:
@@ -774,8 +786,10 @@ def _open_output(section: OutputConfig | ContactorConfig | Element2Config) -> Sw
 
 
 def _route_log_around(status: StatusLine) -> None:
-    """Log lines on a terminal first clear the live status line."""
+    """Log lines on a terminal first clear the live status line (where they are written)."""
     handler = logging.getLogger("hermsd").handlers[0]
+    if isinstance(handler, DroppingQueueHandler):
+        handler = handler.target
     original = handler.emit
 
     def emit(record: logging.LogRecord) -> None:
