@@ -1,5 +1,6 @@
-"""Log lines never hold up the thread that logs: a stalled stderr is waited for by the writer
-thread alone, a full queue drops and counts, and a stop writes what is queued."""
+"""Log lines and the status line never hold up the thread that logs: a stalled stderr is
+waited for by the writer thread alone, a full queue drops and counts, and a stop writes what
+is queued; a stalled stdout is waited for by the status line's thread alone."""
 
 from __future__ import annotations
 
@@ -21,7 +22,8 @@ class StalledStream:
     """A stderr whose every write waits until the test lets it through (a paused terminal,
     a busy journal)."""
 
-    def __init__(self) -> None:
+    def __init__(self, tty: bool = False) -> None:
+        self.tty = tty
         self.written: list[str] = []
         self._change = threading.Condition()
         self._allowed: float = 0  # writes let through and not yet made
@@ -41,6 +43,9 @@ class StalledStream:
 
     def flush(self) -> None:
         pass
+
+    def isatty(self) -> bool:
+        return self.tty
 
     def let_through(self, count: float = math.inf) -> None:
         with self._change:
@@ -211,3 +216,26 @@ def test_the_daemon_runs_to_a_sigterm_with_stderr_blocked_and_main_writes_every_
         "INFO heater off: stopped (SIGTERM)\n",
         "INFO SIGTERM received\n",
     ]
+
+
+def test_a_status_update_returns_while_stdout_is_blocked_and_the_newest_is_shown() -> None:
+    stdout = StalledStream(tty=True)
+    status = cli.StatusLine(stdout)  # type: ignore[arg-type]  # a TextIO in what it is used for
+    status.update("HLT 20.00 °C")
+    stdout.wait_until_stalled()  # its thread is stuck drawing the first one
+    returned = threading.Event()
+
+    def update_every_period() -> None:
+        for celsius in (20.5, 21.0, 21.5):
+            status.update(f"HLT {celsius:.2f} °C")
+        returned.set()
+
+    loop = threading.Thread(target=update_every_period)
+    loop.start()
+    assert returned.wait(GUARD_S), "an update waited for stdout"
+    loop.join(GUARD_S)
+    assert stdout.written == []
+    stdout.let_through()
+    status.close()
+    # The ones overtaken while stdout was stuck are never drawn; the line is cleared at the end.
+    assert stdout.written == ["\r\033[KHLT 20.00 °C", "\r\033[KHLT 21.50 °C", "\r\033[K"]
