@@ -21,8 +21,8 @@ from typing import Final
 
 # A queued record of a long line holds about 0.8 kB (bench/log_queue.py), so a full queue is
 # about 3 MB: nothing to a Pi's 512 MB or more. The daemon logs events, not samples (a
-# simulated 24 h at the setpoint: 2 lines), and its most insistent warning, a failing log
-# disk said once a minute, fills 4096 places after 68 h of a stalled stderr.
+# simulated 24 h day: 2 lines); a warning said again every minute while it lasts (a failing
+# log disk) fills 4096 places after 68 h of a stalled stderr.
 LOG_QUEUE_SIZE: Final = 4096
 
 

@@ -123,35 +123,32 @@ def test_a_full_queue_drops_without_waiting_and_says_how_many_once_stderr_writes
     assert stream.written == said
 
 
-def test_the_drop_count_stands_where_the_lines_went_missing() -> None:
+@pytest.mark.parametrize(
+    ("written_before", "later", "after_the_count"),
+    [
+        # "first" and "line 1" written, stuck in "line 2"'s write: 2 places free, for the
+        # count and then the line.
+        (2, ["later"], ["INFO later\n"]),
+        # "first" written, stuck in "line 1"'s: 1 place free, which the count takes; both
+        # lines are dropped, and counted after it.
+        (1, ["later", "even later"], ["WARNING 2 log lines dropped while stderr was blocked\n"]),
+    ],
+)
+def test_the_drop_count_stands_where_the_lines_went_missing(
+    written_before: int, later: list[str], after_the_count: list[str]
+) -> None:
     logger, queued, stream = stalled_logger(size=4)
-    log_from_another_thread(logger, [f"line {n}" for n in range(1, 11)])  # 6 dropped
-    stream.let_through(2)  # "first" and "line 1" written, stuck in "line 2"'s write
+    log_from_another_thread(logger, [f"line {n}" for n in range(1, 11)])  # 10 - 4 = 6 dropped
+    stream.let_through(written_before)
     stream.wait_until_stalled()
-    log_from_another_thread(logger, ["later"])  # 2 places free: the count, then the line
+    log_from_another_thread(logger, later)
     stream.let_through()
     queued.stop()
     assert stream.written == [
         "WARNING first\n",
         *(f"INFO line {n}\n" for n in range(1, 5)),
         "WARNING 6 log lines dropped while stderr was blocked\n",
-        "INFO later\n",
-    ]
-
-
-def test_the_drop_count_takes_a_place_in_the_queue_and_what_it_displaces_is_counted() -> None:
-    logger, queued, stream = stalled_logger(size=4)
-    log_from_another_thread(logger, [f"line {n}" for n in range(1, 11)])  # 6 dropped
-    stream.let_through(1)  # "first" written, stuck in "line 1"'s: one place free
-    stream.wait_until_stalled()
-    log_from_another_thread(logger, ["later", "even later"])  # the count fills it: 2 dropped
-    stream.let_through()
-    queued.stop()
-    assert stream.written == [
-        "WARNING first\n",
-        *(f"INFO line {n}\n" for n in range(1, 5)),
-        "WARNING 6 log lines dropped while stderr was blocked\n",
-        "WARNING 2 log lines dropped while stderr was blocked\n",
+        *after_the_count,
     ]
 
 
