@@ -13,7 +13,7 @@ import pytest
 
 from hermsd import cli
 from hermsd.daemon import Daemon
-from hermsd.log_queue import DroppingQueueHandler
+from hermsd.log_queue import LOG_QUEUE_SIZE, DroppingQueueHandler
 
 GUARD_S = 10.0  # only a guard against a hung test: nothing here waits for it to pass
 
@@ -104,18 +104,18 @@ def test_a_log_call_returns_while_stderr_is_blocked_and_every_line_follows_in_or
 
 
 def test_a_full_queue_drops_without_waiting_and_says_how_many_once_stderr_writes() -> None:
-    size = 4
-    logger, queued, stream = stalled_logger(size)
-    logged = [f"line {n}" for n in range(1, 11)]
-    log_from_another_thread(logger, logged)
+    logger, queued, stream = stalled_logger(LOG_QUEUE_SIZE)  # the daemon's queue
+    logged = LOG_QUEUE_SIZE + 25
+    log_from_another_thread(logger, [f"line {n}" for n in range(1, logged + 1)])
     assert stream.written == []
     stream.let_through()
-    # "first" is in the writer's hands, not the queue: the queue keeps the first `size` of
-    # the 10 logged after it and drops the other 10 - 4 = 6, said as soon as stderr writes.
+    # "first" is in the writer's hands, not the queue: the queue keeps the first
+    # LOG_QUEUE_SIZE lines logged after it and drops the other 25, said as soon as stderr
+    # writes again.
     said = [
         "WARNING first\n",
-        *(f"INFO line {n}\n" for n in range(1, size + 1)),
-        "WARNING 6 log lines dropped while stderr was blocked\n",
+        *(f"INFO line {n}\n" for n in range(1, LOG_QUEUE_SIZE + 1)),
+        f"WARNING {logged - LOG_QUEUE_SIZE} log lines dropped while stderr was blocked\n",
     ]
     stream.wait_for_written(len(said))
     assert stream.written == said
