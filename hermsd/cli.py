@@ -16,6 +16,7 @@ import os
 import signal
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import BrokenExecutor
@@ -49,6 +50,7 @@ from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92, SensorError, open_bus
+from hermsd.log_queue import DroppingQueueHandler
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
 from hermsd.realtime import loop_priority
 from hermsd.recorder import Recorder, recover, recover_directory
@@ -84,9 +86,9 @@ def _on_signal(signum: int, frame: FrameType | None) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
-    _setup_logging(getattr(args, "verbose", False))
     try:
-        result: int = args.func(args)
+        with _logging_to_stderr(getattr(args, "verbose", False)):
+            result: int = args.func(args)
         sys.stdout.flush()  # here, so that a closed pipe is met inside the handler below
         return result
     except BrokenPipeError:
@@ -433,14 +435,25 @@ def stderr_is_journal() -> bool:
     return os.environ.get("JOURNAL_STREAM") == f"{status.st_dev}:{status.st_ino}"
 
 
-def _setup_logging(verbose: bool) -> None:
+@contextlib.contextmanager
+def _logging_to_stderr(verbose: bool) -> Iterator[None]:
+    """The "hermsd" logger's lines on stderr, written by a thread of their own: a stalled
+    stderr never holds up the thread that logs (hermsd/log_queue.py). At the end, however it
+    comes, every queued line is written before the command's own last words."""
     handler = logging.StreamHandler(sys.stderr)
     formatter = JournalFormatter if stderr_is_journal() else logging.Formatter
     handler.setFormatter(formatter("%(levelname)s %(message)s"))
+    queued = DroppingQueueHandler(handler)
     root = logging.getLogger("hermsd")
-    root.handlers[:] = [handler]
+    root.handlers[:] = [queued]
     root.setLevel(logging.DEBUG if verbose else logging.INFO)
     root.propagate = False
+    queued.start()
+    try:
+        yield
+    finally:
+        root.handlers[:] = [handler]  # a line from a thread still running goes straight out
+        queued.stop()
 
 
 def config_path(path: Path | None, *, simulate: bool) -> Path | None:
@@ -488,7 +501,13 @@ def cmd_sensor(args: argparse.Namespace) -> int:
 
 
 class StatusLine:
-    """A live one-line status on a terminal; plain lines every minute otherwise."""
+    """A live one-line status on a terminal; plain lines every minute otherwise.
+
+    Written by a thread of its own: `update`, which the loop calls every period, only hands
+    the text over (the newest wins), so a stalled stdout (a terminal paused with Ctrl-S, a
+    busy journal) never holds up the loop. On a terminal, `writing` is held while the line
+    is drawn, so that a log line that clears it first is not cut by the next one.
+    """
 
     def __init__(self, stream: TextIO, interval: float = 60.0) -> None:
         self._stream = stream
@@ -496,12 +515,46 @@ class StatusLine:
         self._interval = interval
         self._last = -math.inf
         self.text = ""
+        self.writing = threading.Lock()
+        self._handed = threading.Condition()  # never held while the stream is written
+        self._newest: str | None = None
+        self._closed = False
+        self._writer = threading.Thread(
+            target=self._write_updates, name="hermsd-status", daemon=True
+        )
+        self._writer.start()
 
     def update(self, text: str) -> None:
+        with self._handed:
+            self._newest = text
+            self._handed.notify()
+
+    def close(self) -> None:
+        """Show the newest text, end the thread (once the stream takes it) and clear the line."""
+        with self._handed:
+            self._closed = True
+            self._handed.notify()
+        self._writer.join()
+        if self._tty:
+            with self.writing:
+                self.clear()
+
+    def _write_updates(self) -> None:
+        while True:
+            with self._handed:
+                self._handed.wait_for(lambda: self._newest is not None or self._closed)
+                text, self._newest, closed = self._newest, None, self._closed
+            if text is not None:
+                self._show(text)
+            if closed:
+                return
+
+    def _show(self, text: str) -> None:
         self.text = text
         if self._tty:
-            self._stream.write("\r\033[K" + text)
-            self._stream.flush()
+            with self.writing:
+                self._stream.write("\r\033[K" + text)
+                self._stream.flush()
             return
         now = time.monotonic()
         if now - self._last >= self._interval:
@@ -599,7 +652,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except StateError as error:
         raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
     finally:
-        status.clear()
+        status.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         for lock in locks:
@@ -774,13 +827,16 @@ def _open_output(section: OutputConfig | ContactorConfig | Element2Config) -> Sw
 
 
 def _route_log_around(status: StatusLine) -> None:
-    """Log lines on a terminal first clear the live status line."""
+    """Log lines on a terminal first clear the live status line (where they are written)."""
     handler = logging.getLogger("hermsd").handlers[0]
+    if isinstance(handler, DroppingQueueHandler):
+        handler = handler.target
     original = handler.emit
 
     def emit(record: logging.LogRecord) -> None:
-        status.clear()
-        original(record)
+        with status.writing:
+            status.clear()
+            original(record)
 
     handler.emit = emit  # type: ignore[method-assign]
 
