@@ -38,7 +38,9 @@ def run(algorithm: str, gains: dict[str, float]) -> dict[str, Any]:
         base.control,
         algorithm="predictive" if algorithm in PEERS else algorithm,
         tf=None,
-        **gains,
+        kc=gains["kc"],
+        ti=gains["ti"],
+        td=gains["td"],
     )
     config = dataclasses.replace(base, control=control)
     if algorithm in PEERS:

@@ -181,9 +181,10 @@ def _two_element_quiet(spec: TunSpec, sc: scenario.Scenario) -> str:
         _two_elements(spec, sc), spec.config(config_module.DEFAULT), keep_records=True
     )
     said = [a["kind"] + f" at {a['at_s']:.0f} s" for a in result.summary["alarms"]]
-    first = next((r for r in result.records if r.no_heat), None)
+    first = next(((r.t, no_heat) for r in result.records if (no_heat := r.no_heat)), None)
     if first is not None:
-        said.append(f"element {first.no_heat[0]} warning at {first.t:.0f} s")
+        t, no_heat = first
+        said.append(f"element {no_heat[0]} warning at {t:.0f} s")
     return ", ".join(said) or "none"
 
 

@@ -77,14 +77,16 @@ def main() -> None:
         time.sleep(0.5)  # the broker starts listening
         arrived: dict[float, float] = {}
         subscriber = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="bench")
-        subscriber.on_message = lambda _c, _u, m: arrived.setdefault(
-            json.loads(m.payload)["t"], time.monotonic()
-        )
+
+        def note_arrival(_client: mqtt.Client, _userdata: object, m: mqtt.MQTTMessage) -> None:
+            arrived.setdefault(json.loads(m.payload)["t"], time.monotonic())
+
+        subscriber.on_message = note_arrival
         subscriber.connect("127.0.0.1", port)
         subscriber.subscribe("hermsd/state", 1)
         subscriber.loop_start()
         hermsd = Path(sys.executable).parent / "hermsd"
-        command = [hermsd, "mqtt", "--config", directory / "hermsd.yaml"]
+        command: list[str | Path] = [hermsd, "mqtt", "--config", directory / "hermsd.yaml"]
         bridge = subprocess.Popen([*command, "--socket", directory / "control.sock"])
         time.sleep(2.0)  # it connects and publishes the first state
 

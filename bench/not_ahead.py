@@ -144,7 +144,8 @@ def main() -> int:
         spec = FAMILY[index]
         print(f"## {spec.name}")
         results = days(spec)
-        setpoint = spec.brew_day().setpoint
+        config = spec.config(config_module.load(SHIPPED))
+        setpoint = scenario.effective_config(config, spec.brew_day()).control.setpoint
         for label, result in results.items():
             heat_up(label, result, setpoint)
         for label in (DAY_2, CBPI):

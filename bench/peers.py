@@ -17,10 +17,13 @@ from __future__ import annotations
 import contextlib
 import math
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
+from unittest import mock
 
 from hermsd import daemon as daemon_module
+from hermsd.config import ControlConfig
+from hermsd.pid import PlantModel
 
 ITAE_LOAD = {"kc": 80.8, "ti": 489.0, "td": 44.9}
 """Seed 001's Table 2 "ITAE-load" PID set for its identified tun: what a brewer would copy."""
@@ -42,9 +45,12 @@ class SimplePid:
 
     def step(self, sp: float, pv: float, applied: float | None = None) -> float:
         self._pid.setpoint = sp
-        out = float(self._pid(pv, dt=self._ts))
-        self.terms = tuple(float(c) for c in self._pid.components)  # type: ignore[assignment]
-        return out
+        out = self._pid(pv, dt=self._ts)
+        if out is None:  # simple-pid answers None only in manual mode, which `reset` leaves
+            raise RuntimeError("simple-pid is in manual mode: it computed no output")
+        p, i, d = self._pid.components
+        self.terms = (float(p), float(i), float(d))
+        return float(out)
 
 
 class PidHerms:
@@ -89,16 +95,14 @@ PEERS: dict[str, type[SimplePid] | type[PidHerms]] = {
 def controlled_by(peer: str, gains: dict[str, float]) -> Iterator[None]:
     """The daemon builds `peer` with `gains` instead of its configured controller."""
     peer_class = PEERS[peer]
-    original: Callable[..., Any] = daemon_module.make_controller
 
-    def make(control: Any, model: Any = None) -> Any:  # a peer has no use for the tun model
+    def make(control: ControlConfig, model: PlantModel | None = None) -> Any:
+        """The peer, duck-typed: no `Controller`, but the loop only resets and steps it and
+        reads its terms. It has no use for `model`."""
         return peer_class(gains["kc"], gains["ti"], gains["td"], control.period)
 
-    daemon_module.make_controller = make
-    try:
+    with mock.patch.object(daemon_module, "make_controller", make):
         yield
-    finally:
-        daemon_module.make_controller = original
 
 
 class CraftBeerPiAutotune:

@@ -45,7 +45,7 @@ GOAL_S = 120.0
 HEADING = "## Mash program:"
 STRIKE = Program("Strike", (Step("Strike", 72.0, 600.0),), "05:00")
 WAIT_AT = 72.0 - WAIT_BELOW
-CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: ValueError(what))
+CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: scenario.ScenarioError(what))
 
 
 def ready_days(index: int) -> list[dict[str, Any]]:

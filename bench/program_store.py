@@ -27,6 +27,7 @@ from hermsd.pid import PlantModel
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import MAX_STEPS, Program, Step, to_data
 from hermsd.program.readiness import Tun
+from hermsd.program.runner import Progress
 from hermsd.program.store import ProgressStore
 
 PERIOD_S = 5.0
@@ -45,7 +46,9 @@ def summary(times: list[float]) -> str:
     )
 
 
-def timed(step: Callable[[int], None], between: Callable[[], object] = lambda: None) -> list[float]:
+def timed(
+    step: Callable[[int], object], between: Callable[[], object] = lambda: None
+) -> list[float]:
     """Each period's time; `between` runs after each, untimed (the rest of a real period)."""
     times = []
     for k in range(PERIODS):
@@ -56,19 +59,23 @@ def timed(step: Callable[[int], None], between: Callable[[], object] = lambda: N
     return times
 
 
+class CountingStore(ProgressStore):
+    """A real store that notes the size of each progress record it writes."""
+
+    def __init__(self, directory: str) -> None:
+        super().__init__(directory)
+        self.written: list[int] = []
+
+    def save_progress(self, progress: Progress, started_at_ns: int, wall_ns: int) -> None:
+        super().save_progress(progress, started_at_ns, wall_ns)
+        self.written.append(self.progress_path.stat().st_size)
+
+
 def main() -> None:
     here = Path(__file__).resolve().parent
     tun = Tun(PlantModel(), 100.0, measured=False, fit=None)
     with tempfile.TemporaryDirectory(dir=here) as directory:
-        store = ProgressStore(directory)
-        written: list[int] = []
-        save = store.save_progress
-
-        def counted(*args: object) -> None:
-            save(*args)  # type: ignore[arg-type]
-            written.append(store.progress_path.stat().st_size)
-
-        store.save_progress = counted  # type: ignore[method-assign]
+        store = CountingStore(directory)
         driver = ProgramDriver(store, dt.UTC, PERIOD_S)
         driver.start(PROGRAM, None, setpoint=66.0, wall_ns=0, pv=66.0, tun=tun)
         ours = timed(
@@ -83,6 +90,7 @@ def main() -> None:
     print(f"loop thread per period, progress handed to the writer: {summary(ours)}")
     print(f"loop thread per period, whole document written durably (peer): {summary(peer)}")
     print(f"median ratio peer/ours: {statistics.median(peer) / statistics.median(ours):.0f}")
+    written = store.written
     ours_bytes = program_bytes + sum(written)
     print(
         f"bytes written in the hour: {ours_bytes} ({len(written)} progress records) "

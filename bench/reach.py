@@ -137,7 +137,8 @@ def said(job: tuple[TunSpec, int]) -> tuple[str, int, float | None, float | None
     result = scenario.run(day, config, keep_records=True)
     first = next((r for r in result.records if r.ceiling is not None), None)
     at = None if first is None else first.t
-    return spec.name, seed, at, first and first.ceiling, result.records[-1].ceiling
+    ceiling = None if first is None else first.ceiling
+    return spec.name, seed, at, ceiling, result.records[-1].ceiling
 
 
 def main() -> int:

@@ -29,7 +29,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ParamSpec, TypeVar
 
 from control import _replace_section  # bench/control.py, beside this file
 from timing import bench_config, measure, timing_table  # bench/timing.py, beside this file
@@ -48,25 +48,30 @@ from hermsd.sim.tuns import FAMILY
 OPEN_POT = "open 120 L 3.5 kW"
 WINDOW_S = bench_config().output.window or 0.0
 Store = TypeVar("Store", LatchStore, ModelStore)
+Saved = ParamSpec("Saved")
 MODEL = LearnedModel(0.5 / 60.0, 1.0 / 12000.0, 90.0, 18.0, 90.0, wall_ns=1)
 
 
 def stall_saves(store: Store, stall: float) -> Store:
     """`store` with each save stalled `stall` s before it writes, as an fsync on a slow card."""
-    save = store.save
-
-    def stalled(item: Any) -> None:
-        time.sleep(stall)
-        save(item)
-
-    store.save = stalled  # type: ignore[method-assign]
+    store.save = stalled(store.save, stall)  # type: ignore[method-assign]
     return store
+
+
+def stalled(save: Callable[Saved, None], stall: float) -> Callable[Saved, None]:
+    """`save`, each call stalled `stall` s before it runs."""
+
+    def late(*args: Saved.args, **kwargs: Saved.kwargs) -> None:
+        time.sleep(stall)
+        save(*args, **kwargs)
+
+    return late
 
 
 class Every:
     """A listener that does `work(t)` every `every` s of the loop's periods."""
 
-    def __init__(self, every: float, work: Callable[[float], None]) -> None:
+    def __init__(self, every: float, work: Callable[[float], object]) -> None:
         self.every, self.work = every, work
         self.next: float | None = None
         self.times = 0

@@ -367,7 +367,8 @@ def relay_row(
 
 def relay_section() -> str:
     started = time.perf_counter()
-    table, met, worst = [*RELAY_HEADER], 0, {}
+    table, met = [*RELAY_HEADER], 0
+    worst: dict[str, float] = {}
     for spec in FAMILY:
         print(f"{spec.name} (relay)…", file=sys.stderr, flush=True)
         line, errors, ok = relay_row(spec, relay_test(spec), craftbeerpi_test(spec))

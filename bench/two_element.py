@@ -52,7 +52,7 @@ TUNS = (
     TunSpec("150 L lid off", 150, SSR_W + CONTACTOR_W, 1.5, 90, 20, 12, lid_off=True),
 )
 
-TWO = {
+TWO: dict[str, dict[str, Any]] = {
     "tun": {"element_watts": SSR_W},
     "control": {},
     "element2": {"backend": "sim", "watts": CONTACTOR_W, "min_on": MIN_ON, "min_off": MIN_OFF},

@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from test_reload import BASE, PERIOD, Events, run_for, start
 
@@ -21,6 +22,9 @@ from hermsd.daemon import Daemon
 from hermsd.web.app import WebSettings, create_app
 from hermsd.web.main import listening_socket, make_server
 from hermsd.web.passwords import hash_password, parse_hash
+
+if TYPE_CHECKING:  # the browser's types only: test_web.py runs no browser
+    from playwright.sync_api import ViewportSize
 
 CHROMIUM = Path("/usr/bin/chromium")  # Debian's, never a downloaded build
 CHROMIUM_ARGS = [
@@ -32,7 +36,7 @@ CHROMIUM_ARGS = [
     "--disable-sync",
     "--no-first-run",
 ]
-PHONE = {"width": 390, "height": 844}
+PHONE: ViewportSize = {"width": 390, "height": 844}
 PASSWORD = "mash-in-at-72"
 STORED = parse_hash(hash_password(PASSWORD))
 TIMEOUT = 10.0
