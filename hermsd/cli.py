@@ -1534,11 +1534,42 @@ def cmd_recover(args: argparse.Namespace) -> int:
     failed = 0
     for path in args.files:
         try:
+            lock = _hold_for_recovery(path.parent)
+        except InstanceError as error:
+            daemon = "a running hermsd" + (f" (pid {error.holder})" if error.holder else "")
+            print(
+                f"hermsd recover: {path}: refused, nothing touched: {path.parent} is the log "
+                f"directory of {daemon}: its .part is the log being written (recover is for "
+                "what a crash left); stop that daemon first",
+                file=sys.stderr,
+            )
+            failed += 1
+            continue
+        try:
             print(recover(path))
         except (OSError, ValueError) as error:
             print(f"hermsd recover: {path}: {error}", file=sys.stderr)
             failed += 1
+        finally:
+            if lock is not None:
+                lock.release()
     return EXIT_USAGE if failed else 0
+
+
+def _hold_for_recovery(directory: Path) -> DirectoryLock | None:
+    """The log directory's lock, held while its `.part` files are recovered.
+
+    A `.part` in the directory of a living daemon is the log it is writing: recovering it
+    would leave that daemon writing on into a deleted file. Holding the lock also keeps a
+    daemon from starting there mid-recovery. None when no lock file can be made there (the
+    recovery, which writes beside it, says why if it cannot either).
+    """
+    lock = DirectoryLock(directory)
+    try:
+        lock.acquire("log directory")  # InstanceError when a daemon holds it
+    except OSError:
+        return None
+    return lock
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:
