@@ -51,7 +51,7 @@ from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
 from hermsd.realtime import loop_priority
-from hermsd.recorder import Recorder, recover, recover_directory
+from hermsd.recorder import NotRecovered, Recorder, recover, recover_directory
 from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
 if TYPE_CHECKING:
@@ -734,8 +734,11 @@ def _open_recorder(directory: Path, config: Config) -> Recorder:
         log.warning("log failing: cannot create %s: %s", directory, error.strerror or error)
     else:
         try:
-            for path in recover_directory(directory):
-                log.warning("recovered %s from an unfinished log", path)
+            for outcome in recover_directory(directory):
+                if isinstance(outcome, NotRecovered):
+                    log.warning("log %s not recovered: %s", outcome.part, outcome)
+                else:
+                    log.warning("recovered %s", outcome.describe())
         except OSError as error:
             log.warning("log recovery in %s failed: %s", directory, error)
     log_cfg = config.log
@@ -1546,7 +1549,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
             failed += 1
             continue
         try:
-            print(recover(path))
+            print(recover(path).describe())
         except (OSError, ValueError) as error:
             print(f"hermsd recover: {path}: {error}", file=sys.stderr)
             failed += 1
