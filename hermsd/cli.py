@@ -19,6 +19,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import BrokenExecutor
+from functools import partial
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, TextIO, TypeVar
@@ -45,6 +46,7 @@ from hermsd.control.protocol import (
 )
 from hermsd.control.server import ControlServer
 from hermsd.durations import parse_duration
+from hermsd.files import write_new
 from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.learning import ModelStore
@@ -917,19 +919,18 @@ def cmd_program_import(args: argparse.Namespace) -> int:
     if args.output is None:
         sys.stdout.write(text)
         return 0
-    try:
-        file = args.output.open("x", encoding="utf-8")
-    except FileExistsError:
-        raise UserError(f"{args.output}: exists; name another file or remove it first") from None
-    except OSError as error:
-        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
-    try:
-        with file:
-            file.write(text)
-    except OSError as error:
-        args.output.unlink(missing_ok=True)  # a cut program would run with steps missing
-        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
+    _write_new(args.output, lambda temporary: temporary.write_text(text, encoding="utf-8"))
     return 0
+
+
+def _write_new(path: Path, write: Callable[[Path], object]) -> None:
+    """`write_new`, its failures said: an existing file is refused, never replaced."""
+    try:
+        write_new(path, write)
+    except FileExistsError:
+        raise UserError(f"{path}: exists; name another file or remove it first") from None
+    except OSError as error:
+        raise UserError(f"{path}: cannot write: {error.strerror or error}") from None
 
 
 # -- replay ---------------------------------------------------------------------------------
@@ -960,9 +961,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if not result:
             result = replay.summarise(log)
         if args.csv is not None:
-            replay.write_csv(log, args.csv)
+            _write_new(args.csv, partial(replay.write_csv, log))
         if args.plot is not None:
-            replay.plot(log, args.plot)
+            _write_new(args.plot, partial(replay.plot, log))
     except replay.ReplayError as error:
         raise UserError(str(error)) from None
     if args.json:
