@@ -819,6 +819,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim.hlt import PlantLoadError, load_plant
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
+    if args.log is not None:
+        _check_log_directory(args.log)
     locks = _lock_directories(args.log, args.state)
     try:
         scenario = (
@@ -849,6 +851,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     else:
         _print_summary(summary)
     return 0
+
+
+def _check_log_directory(directory: Path) -> None:
+    """UserError unless a log can be written in `directory` (made when missing).
+
+    A brewer who asked for a log must get one or be told so before the run, not find a
+    run's worth of warnings and no log after it.
+    """
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as error:
+        why = "it is not a directory" if isinstance(error, FileExistsError) else error.strerror
+        raise UserError(f"--log {directory}: cannot write a log there: {why or error}") from None
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
