@@ -20,6 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import BrokenExecutor
+from functools import partial
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any, TextIO, TypeVar
@@ -46,6 +47,7 @@ from hermsd.control.protocol import (
 )
 from hermsd.control.server import ControlServer
 from hermsd.durations import parse_duration
+from hermsd.files import write_new
 from hermsd.instance import DirectoryLock, InstanceError
 from hermsd.latches import Latches, LatchStore, StateError
 from hermsd.learning import ModelStore
@@ -53,7 +55,7 @@ from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.log_queue import DroppingQueueHandler
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
 from hermsd.realtime import loop_priority
-from hermsd.recorder import Recorder, recover, recover_directory
+from hermsd.recorder import NotRecovered, Recorder, recover, recover_directory
 from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
 if TYPE_CHECKING:
@@ -787,8 +789,11 @@ def _open_recorder(directory: Path, config: Config) -> Recorder:
         log.warning("log failing: cannot create %s: %s", directory, error.strerror or error)
     else:
         try:
-            for path in recover_directory(directory):
-                log.warning("recovered %s from an unfinished log", path)
+            for outcome in recover_directory(directory):
+                if isinstance(outcome, NotRecovered):
+                    log.warning("log %s not recovered: %s", outcome.part, outcome)
+                else:
+                    log.warning("recovered %s", outcome.describe())
         except OSError as error:
             log.warning("log recovery in %s failed: %s", directory, error)
     log_cfg = config.log
@@ -870,6 +875,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim.hlt import PlantLoadError, load_plant
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
+    if args.log is not None:
+        _check_log_directory(args.log)
     locks = _lock_directories(args.log, args.state)
     try:
         scenario = (
@@ -900,6 +907,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     else:
         _print_summary(summary)
     return 0
+
+
+def _check_log_directory(directory: Path) -> None:
+    """UserError unless a log can be written in `directory` (made when missing).
+
+    A brewer who asked for a log must get one or be told so before the run, not find a
+    run's worth of warnings and no log after it.
+    """
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as error:
+        why = "it is not a directory" if isinstance(error, FileExistsError) else error.strerror
+        raise UserError(f"--log {directory}: cannot write a log there: {why or error}") from None
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
@@ -970,19 +992,18 @@ def cmd_program_import(args: argparse.Namespace) -> int:
     if args.output is None:
         sys.stdout.write(text)
         return 0
-    try:
-        file = args.output.open("x", encoding="utf-8")
-    except FileExistsError:
-        raise UserError(f"{args.output}: exists; name another file or remove it first") from None
-    except OSError as error:
-        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
-    try:
-        with file:
-            file.write(text)
-    except OSError as error:
-        args.output.unlink(missing_ok=True)  # a cut program would run with steps missing
-        raise UserError(f"{args.output}: cannot write: {error.strerror or error}") from None
+    _write_new(args.output, lambda temporary: temporary.write_text(text, encoding="utf-8"))
     return 0
+
+
+def _write_new(path: Path, write: Callable[[Path], object]) -> None:
+    """`write_new`, its failures said: an existing file is refused, never replaced."""
+    try:
+        write_new(path, write)
+    except FileExistsError:
+        raise UserError(f"{path}: exists; name another file or remove it first") from None
+    except OSError as error:
+        raise UserError(f"{path}: cannot write: {error.strerror or error}") from None
 
 
 # -- replay ---------------------------------------------------------------------------------
@@ -1013,9 +1034,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if not result:
             result = replay.summarise(log)
         if args.csv is not None:
-            replay.write_csv(log, args.csv)
+            _write_new(args.csv, partial(replay.write_csv, log))
         if args.plot is not None:
-            replay.plot(log, args.plot)
+            _write_new(args.plot, partial(replay.plot, log))
     except replay.ReplayError as error:
         raise UserError(str(error)) from None
     if args.json:
@@ -1590,11 +1611,42 @@ def cmd_recover(args: argparse.Namespace) -> int:
     failed = 0
     for path in args.files:
         try:
-            print(recover(path))
+            lock = _hold_for_recovery(path.parent)
+        except InstanceError as error:
+            daemon = "a running hermsd" + (f" (pid {error.holder})" if error.holder else "")
+            print(
+                f"hermsd recover: {path}: refused, nothing touched: {path.parent} is the log "
+                f"directory of {daemon}: its .part is the log being written (recover is for "
+                "what a crash left); stop that daemon first",
+                file=sys.stderr,
+            )
+            failed += 1
+            continue
+        try:
+            print(recover(path).describe())
         except (OSError, ValueError) as error:
             print(f"hermsd recover: {path}: {error}", file=sys.stderr)
             failed += 1
+        finally:
+            if lock is not None:
+                lock.release()
     return EXIT_USAGE if failed else 0
+
+
+def _hold_for_recovery(directory: Path) -> DirectoryLock | None:
+    """The log directory's lock, held while its `.part` files are recovered.
+
+    A `.part` in the directory of a living daemon is the log it is writing: recovering it
+    would leave that daemon writing on into a deleted file. Holding the lock also keeps a
+    daemon from starting there mid-recovery. None when no lock file can be made there (the
+    recovery, which writes beside it, says why if it cannot either).
+    """
+    lock = DirectoryLock(directory)
+    try:
+        lock.acquire("log directory")  # InstanceError when a daemon holds it
+    except OSError:
+        return None
+    return lock
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:

@@ -264,12 +264,11 @@ def _duration(seconds: float) -> str:
 
 
 def save(log: Log, path: Path) -> None:
-    """Draw the day into `path` (PNG, or any format matplotlib writes by the name)."""
-    figure = draw(log)
-    try:
-        figure.savefig(path, dpi=DPI)
-    except OSError as error:
-        raise ReplayError(f"{path}: cannot write: {error.strerror or error}") from None
+    """Draw the day into `path` (PNG, or any format matplotlib writes by the name).
+
+    OSError when it cannot be written (the caller names the file the brewer gave).
+    """
+    draw(log).savefig(path, dpi=DPI)
 
 
 def draw(log: Log) -> Figure:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import stat
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -40,6 +41,27 @@ def write_atomically(
     os.replace(temporary, path)
     if durable:
         fsync_directory(path.parent)
+
+
+def write_new(path: Path, write: Callable[[Path], object]) -> None:
+    """Make `path`, which must not exist yet (FileExistsError), from what `write` writes.
+
+    The name is taken first, by an exclusive create: an existing file (a brew day's log
+    named by mistake among them) is never replaced, nor one made meanwhile. `write` fills a
+    temporary file beside it, renamed over the empty one once whole; a failure removes both,
+    so no half-written file is left to be taken for a whole one (a shorter day, a program
+    with steps missing).
+    """
+    with path.open("x"):
+        pass
+    temporary = path.with_name(f".{path.stem}.writing{path.suffix}")  # the suffix: its format
+    try:
+        write(temporary)
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        path.unlink(missing_ok=True)
+        raise
 
 
 class NotRegularFile(ValueError):

@@ -22,6 +22,10 @@ LOCK_FILE: Final = ".hermsd.lock"  # hidden: `replay logs/*` must not take it fo
 class InstanceError(Exception):
     """Another process holds a directory this one needs; the message names its pid."""
 
+    def __init__(self, message: str, holder: int | None) -> None:
+        super().__init__(message)
+        self.holder = holder  # the pid the lock file names, None when it names none
+
 
 class DirectoryLock:
     """An exclusive lock on `directory`, held from `acquire` until `release` or exit."""
@@ -48,7 +52,8 @@ class DirectoryLock:
             who = f"pid {holder}" if holder is not None else "a process that gave no pid"
             raise InstanceError(
                 f"{self.directory} is the {role} of another hermsd ({who}): one daemon per "
-                f"{role}; stop that one first, or give this one another"
+                f"{role}; stop that one first, or give this one another",
+                holder,
             ) from None
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())

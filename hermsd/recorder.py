@@ -1287,13 +1287,42 @@ def _records(runs: Iterable[bytes]) -> Iterator[McapRecord]:
                 yield reader(ReadDataStream(io.BytesIO(run[body:position])), length)
 
 
-def recover(path: Path | str) -> Path:
+class NotRecovered(ValueError):
+    """No log was made from a `.part` (no message in it could be read): it is left as it is."""
+
+    def __init__(self, part: Path, why: str) -> None:
+        super().__init__(f"{why}; left as it is, no log made from it")
+        self.part = part
+
+
+class Recovery(NamedTuple):
+    """What `recover` made of a `.part`: the brewer is told how much of it was kept."""
+
+    path: Path
+    source: str  # the .part's name
+    messages: int
+    source_bytes: int
+    complete_bytes: int  # up to where its records could be read (the rest is lost)
+    damaged: tuple[Damage, ...]
+
+    def describe(self) -> str:
+        if self.complete_bytes == self.source_bytes:
+            read = f"read to the end of its {self.source_bytes} bytes"
+        else:
+            read = f"read to byte {self.complete_bytes} of its {self.source_bytes} (the rest lost)"
+        damaged = "".join(f"; {damage.describe()}" for damage in self.damaged)
+        return f"{self.path} from {self.source}: {self.messages} messages, {read}{damaged}"
+
+
+def recover(path: Path | str) -> Recovery:
     """Turn a leftover `.mcap.part` into a finished `.mcap` holding every readable record.
 
-    Damaged chunks are skipped (said in the recovery metadata), not the rest of the file.
-    The new file is written beside it, synced and renamed into place before the `.part` is
-    removed, so an interruption at any point leaves the data on disk (a rerun redoes it).
-    Call it before a Recorder starts writing in the same directory.
+    Damaged chunks are skipped (said in the recovery metadata and the returned Recovery),
+    not the rest of the file. The new file is written beside it, synced and renamed into
+    place before the `.part` is removed, so an interruption at any point leaves the data on
+    disk (a rerun redoes it). NotRecovered, the `.part` untouched, when no message in it can
+    be read: its bytes may still be worth a look, and an empty log in their place says
+    nothing. Call it before a Recorder starts writing in the same directory.
     """
     part = Path(path)
     if not part.name.endswith(".mcap" + PART_SUFFIX):
@@ -1302,40 +1331,56 @@ def recover(path: Path | str) -> Path:
     temporary = part.with_name(final.name + ".recovering")
     data = part.read_bytes()
     walk = _Walk(data)
-    with temporary.open("wb") as target:
-        writer = Writer(target, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
-        try:
-            kept = _copy_records(_records(walk.runs()), writer, lambda: walk.channel_topics)
-        except (struct.error, UnicodeDecodeError, ValueError, EOFError) as exc:
-            raise ValueError(f"{part}: damaged MCAP data: {_describe(exc)}") from exc
-        writer.add_metadata(
-            RECOVERY_METADATA_NAME,
-            {
-                "source": part.name,
-                "messages": str(kept),
-                "source_bytes": str(len(data)),
-                "complete_bytes": str(len(data) if walk.cut_at is None else walk.cut_at),
-                "cut": "no" if walk.cut_reason is None else walk.cut_reason,
-                "damaged": "; ".join(d.describe() for d in walk.damaged) or "no",
-            },
-        )
-        writer.finish()  # type: ignore[no-untyped-call]
-        target.flush()
-        os.fsync(target.fileno())
-    os.replace(temporary, final)
+    try:
+        with temporary.open("wb") as target:
+            writer = Writer(target, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+            try:
+                kept = _copy_records(_records(walk.runs()), writer, lambda: walk.channel_topics)
+            except (struct.error, UnicodeDecodeError, ValueError, EOFError) as exc:
+                raise NotRecovered(part, f"damaged MCAP data: {_describe(exc)}") from exc
+            if not kept:
+                why = "" if walk.cut_reason is None else f" ({walk.cut_reason})"
+                raise NotRecovered(part, f"no message readable in its {len(data)} bytes{why}")
+            complete = len(data) if walk.cut_at is None else walk.cut_at
+            writer.add_metadata(
+                RECOVERY_METADATA_NAME,
+                {
+                    "source": part.name,
+                    "messages": str(kept),
+                    "source_bytes": str(len(data)),
+                    "complete_bytes": str(complete),
+                    "cut": "no" if walk.cut_reason is None else walk.cut_reason,
+                    "damaged": "; ".join(d.describe() for d in walk.damaged) or "no",
+                },
+            )
+            writer.finish()  # type: ignore[no-untyped-call]
+            target.flush()
+            os.fsync(target.fileno())
+        os.replace(temporary, final)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            temporary.unlink(missing_ok=True)
+        raise
     fsync_directory(final.parent)
     part.unlink()
     fsync_directory(final.parent)
-    return final
+    return Recovery(final, part.name, kept, len(data), complete, tuple(walk.damaged))
 
 
-def recover_directory(directory: Path | str) -> list[Path]:
+def recover_directory(directory: Path | str) -> list[Recovery | NotRecovered]:
     """Recover every leftover `.mcap.part` of the recorder in `directory`, oldest first.
 
-    Disk errors propagate (the `.part` files stay for the next attempt).
+    A `.part` with nothing readable stays as it is (its NotRecovered says why) and the
+    others are still recovered. Disk errors propagate (the `.part` files stay for the next
+    attempt).
     """
-    parts = sorted(Path(directory).glob(f"{FILE_PREFIX}*.mcap{PART_SUFFIX}"))
-    return [recover(part) for part in parts]
+    outcomes: list[Recovery | NotRecovered] = []
+    for part in sorted(Path(directory).glob(f"{FILE_PREFIX}*.mcap{PART_SUFFIX}")):
+        try:
+            outcomes.append(recover(part))
+        except NotRecovered as error:
+            outcomes.append(error)
+    return outcomes
 
 
 def _copy_records(

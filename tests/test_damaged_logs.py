@@ -64,7 +64,7 @@ def test_a_bit_flipped_in_the_first_chunk_costs_only_that_chunk(
     assert damage.describe().startswith(f"chunk at byte {start} damaged (")
     assert damage.messages == len(first) == PER_CHUNK + 1
     if not finished:
-        recovered = recover(path)
+        recovered = recover(path).path
         assert decoded(recovered) == all_but(chunks, 0)
         recovery = LogFile(recovered).metadata()["hermsd.recovery"]
         assert recovery["damaged"] == damage.describe()

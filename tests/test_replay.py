@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import errno
 import math
 import os
 import random
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -523,6 +525,44 @@ def test_plot_without_matplotlib_says_how_to_get_it(
     code, out, err = run_cli(capsys, short_log, "--plot", tmp_path / "day.png")
     assert (code, out) == (2, "")
     assert err.count("\n") == 1 and "uv sync --extra plot" in err
+
+
+@pytest.mark.parametrize("option", ["--csv", "--plot"])
+def test_an_existing_file_is_never_written_over_the_log_read_least_of_all(
+    short_log: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str
+) -> None:
+    first, second = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    shutil.copyfile(short_log, first)
+    shutil.copyfile(short_log, second)
+    data = short_log.read_bytes()
+    for argv in ([first, option, first], [option, first, second]):  # the shell's logs/*.mcap
+        code, out, err = run_cli(capsys, *argv)
+        assert (code, out) == (2, "")
+        assert err == f"hermsd: {first}: exists; name another file or remove it first\n"
+        assert first.read_bytes() == data == second.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap", "b.mcap"]
+
+
+def test_a_csv_cut_by_a_full_disk_leaves_no_file(
+    short_log: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    cells = 0
+
+    def full_after_some_rows(value: object) -> str:
+        nonlocal cells
+        cells += 1
+        if cells > 500:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return str(value)
+
+    monkeypatch.setattr(replay, "_cell", full_after_some_rows)
+    code, out, err = run_cli(capsys, short_log, "--csv", tmp_path / "day.csv")
+    assert (code, out) == (2, "")
+    assert err == f"hermsd: {tmp_path / 'day.csv'}: cannot write: {os.strerror(errno.ENOSPC)}\n"
+    assert list(tmp_path.iterdir()) == []
 
 
 # -- damaged and wrong files --------------------------------------------------------------------

@@ -6,8 +6,11 @@ Expected figures come from steam tables, closed forms and energy balances writte
 
 from __future__ import annotations
 
+import errno
 import json
 import math
+import os
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -187,6 +190,8 @@ def test_lid_off_in_yaml_reads_as_an_open_pot(tmp_path: Path) -> None:
 # A first-order tun written from the protocol's documentation alone (hermsd.sim.hlt.Plant).
 OUTSIDE_TUN = """
 import math
+import os
+import tempfile
 
 class FirstOrderTun:
     def __init__(self):
@@ -444,3 +449,27 @@ def test_the_first_reading_after_an_event_follows_the_daemons_read_schedule() ->
     assert scenario.first_read_after(14400.5, 1.0) == 14400.5
     assert scenario.first_read_after(0.0, 2.0) == 1.0
     assert scenario.first_read_after(3.2, 2.0) == 5.0
+
+
+@pytest.mark.parametrize("where", ["a-file", "a-file/logs", "unwritable"])
+def test_a_log_directory_that_cannot_hold_a_log_is_refused_before_the_run(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    where: str,
+) -> None:
+    (tmp_path / "a-file").write_text("not a directory\n")
+    directory = tmp_path / where
+    if where == "unwritable":  # as a read-only mount or another user's directory is, even to root
+        directory.mkdir()
+
+        def refused(*args: object, **kwargs: object) -> None:
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES))
+
+        monkeypatch.setattr(tempfile, "TemporaryFile", refused)
+    code, out, err = simulate(capsys, "--log", str(directory))
+    assert (code, out) == (2, "")
+    assert err.startswith(f"hermsd: --log {directory}: cannot write a log there: ")
+    assert err.count("\n") == 1 and "state directory" not in err
+    assert (tmp_path / "a-file").read_text() == "not a directory\n"
+    assert not list(tmp_path.rglob("*.mcap*"))
