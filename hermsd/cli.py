@@ -166,7 +166,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     set_.add_argument("what", metavar="setpoint|mode", help="what to set")
     set_.add_argument("value", help="°C for setpoint; auto or manual for mode")
-    set_.add_argument("--output", help="with `mode manual`: the output in % (default: hold it)")
+    set_.add_argument("--output", help="with `mode manual`: the output in %% (default: hold it)")
     _socket_argument(set_)
     set_.set_defaults(func=cmd_set)
 
