@@ -811,7 +811,7 @@ def _speed(text: str) -> float:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim import scenario as scenario_module
-    from hermsd.sim.hlt import PlantLoadError, load_plant
+    from hermsd.sim.hlt import PlantFailed, PlantLoadError, load_plant
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
     locks = _lock_directories(args.log, args.state)
@@ -827,7 +827,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         result = scenario_module.run(
             scenario, config, log_dir=args.log, outside_plant=outside_plant, state_dir=args.state
         )
-    except (scenario_module.ScenarioError, PlantLoadError) as error:
+    except (scenario_module.ScenarioError, PlantLoadError, PlantFailed) as error:
         raise UserError(str(error)) from None
     except OSError as error:
         raise UserError(f"cannot use the state directory {args.state}: {error}") from None
@@ -1173,6 +1173,7 @@ def _run_tune(
     """A tune experiment through the daemon on the tun (or the simulated one), with the
     service's directories locked; the heater is off when this returns, whatever happened."""
     from hermsd.daemon import Daemon, guard_outputs
+    from hermsd.sim.hlt import PlantFailed
 
     log_dir = args.log
     if log_dir is None and not args.simulate:
@@ -1224,6 +1225,8 @@ def _run_tune(
             start(experiment, (Shutdown, KeyboardInterrupt))
     except StateError as error:
         raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
+    except PlantFailed as error:  # the heater is off: the daemon stopped on it
+        raise UserError(str(error)) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
