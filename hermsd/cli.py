@@ -938,6 +938,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     status = 0
     try:
         overrides = None if args.what_if is None else replay.parse_what_if(args.what_if)
+        if args.plot is not None:
+            from hermsd import dayplot
+
+            dayplot.check_format(args.plot)
         if not args.files:
             raise UserError("replay: name the .mcap (or .mcap.part) files of one day")
         log = replay.load(args.files)
