@@ -458,13 +458,21 @@ def config_path(path: Path | None, *, simulate: bool) -> Path | None:
 
 
 def cmd_sensor(args: argparse.Namespace) -> int:
+    wait: Callable[[float], None] = time.sleep
     if args.simulate:
         from hermsd.sim.world import simulated_sensor
 
-        sensor, wait = simulated_sensor(args.address)
+        sensor, advance = simulated_sensor(args.address)
+
+        def paced(seconds: float) -> None:
+            """The simulated tun's time moves on, at the wall clock's pace: a reading a
+            second, as from the real sensor (a brewer reads them; a test need not wait)."""
+            advance(seconds)
+            time.sleep(seconds)
+
+        wait = paced
     else:
         sensor = LM92(open_bus(args.bus), args.address, bus_name=f"/dev/i2c-{args.bus}")
-        wait = time.sleep
     sensor.identify()
     where = "simulated bus" if args.simulate else f"/dev/i2c-{args.bus}"
     print(f"LM92 found at {args.address:#04x} on {where}")

@@ -1,4 +1,5 @@
-"""Input that a library below would have raised on: refused up front with one clear line."""
+"""Command-line input a library below would have raised on (or hung on), refused up front
+with one clear line; and the simulated sensor read at the real sensor's pace."""
 
 from __future__ import annotations
 
@@ -87,3 +88,14 @@ def test_an_event_after_the_scenarios_end_is_refused_with_its_place(tmp_path: Pa
         load_scenario(path)
     assert str(refused.value).startswith(f"{path}:5:")
     assert "events[1].at: 3601 s lies after the scenario's end (3600 s)" in str(refused.value)
+
+
+def test_the_simulated_sensor_prints_a_reading_a_second_of_wall_clock(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    slept: list[float] = []
+    monkeypatch.setattr(cli.time, "sleep", slept.append)
+    assert cli.main(["sensor", "--simulate", "--count", "4"]) == 0
+    out, _err = capsys.readouterr()
+    assert len(out.splitlines()) == 1 + 4  # the chip found, then the readings
+    assert slept == [1.0, 1.0, 1.0]  # between the readings, on the wall clock
