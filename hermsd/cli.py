@@ -170,7 +170,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     set_.add_argument("what", metavar="setpoint|mode", help="what to set")
     set_.add_argument("value", help="°C for setpoint; auto or manual for mode")
-    set_.add_argument("--output", help="with `mode manual`: the output in % (default: hold it)")
+    set_.add_argument("--output", help="with `mode manual`: the output in %% (default: hold it)")
     _socket_argument(set_)
     set_.set_defaults(func=cmd_set)
 
@@ -473,13 +473,21 @@ def config_path(path: Path | None, *, simulate: bool) -> Path | None:
 
 
 def cmd_sensor(args: argparse.Namespace) -> int:
+    wait: Callable[[float], None] = time.sleep
     if args.simulate:
         from hermsd.sim.world import simulated_sensor
 
-        sensor, wait = simulated_sensor(args.address)
+        sensor, advance = simulated_sensor(args.address)
+
+        def paced(seconds: float) -> None:
+            """The simulated tun's time moves on, at the wall clock's pace: a reading a
+            second, as from the real sensor (a brewer reads them; a test need not wait)."""
+            advance(seconds)
+            time.sleep(seconds)
+
+        wait = paced
     else:
         sensor = LM92(open_bus(args.bus), args.address, bus_name=f"/dev/i2c-{args.bus}")
-        wait = time.sleep
     sensor.identify()
     where = "simulated bus" if args.simulate else f"/dev/i2c-{args.bus}"
     print(f"LM92 found at {args.address:#04x} on {where}")
@@ -872,7 +880,7 @@ def _speed(text: str) -> float:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from hermsd.sim import scenario as scenario_module
-    from hermsd.sim.hlt import PlantLoadError, load_plant
+    from hermsd.sim.hlt import PlantFailed, PlantLoadError, load_plant
 
     config = config_module.load(args.config) if args.config else config_module.DEFAULT
     if args.log is not None:
@@ -890,7 +898,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         result = scenario_module.run(
             scenario, config, log_dir=args.log, outside_plant=outside_plant, state_dir=args.state
         )
-    except (scenario_module.ScenarioError, PlantLoadError) as error:
+    except (scenario_module.ScenarioError, PlantLoadError, PlantFailed) as error:
         raise UserError(str(error)) from None
     except OSError as error:
         raise UserError(f"cannot use the state directory {args.state}: {error}") from None
@@ -1015,6 +1023,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     status = 0
     try:
         overrides = None if args.what_if is None else replay.parse_what_if(args.what_if)
+        if args.plot is not None:
+            from hermsd import dayplot
+
+            dayplot.check_format(args.plot)
         if not args.files:
             raise UserError("replay: name the .mcap (or .mcap.part) files of one day")
         log = replay.load(args.files)
@@ -1250,6 +1262,7 @@ def _run_tune(
     """A tune experiment through the daemon on the tun (or the simulated one), with the
     service's directories locked; the heater is off when this returns, whatever happened."""
     from hermsd.daemon import Daemon, guard_outputs
+    from hermsd.sim.hlt import PlantFailed
 
     log_dir = args.log
     if log_dir is None and not args.simulate:
@@ -1301,6 +1314,8 @@ def _run_tune(
             start(experiment, (Shutdown, KeyboardInterrupt))
     except StateError as error:
         raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
+    except PlantFailed as error:  # the heater is off: the daemon stopped on it
+        raise UserError(str(error)) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

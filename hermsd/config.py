@@ -132,7 +132,7 @@ class ControlConfig:
     max_output: float = _number(100.0, 1, 100, "%")
     model_gain: float = _number(1.689, 0.01, 100, "°C/%")
     model_tau: float = _number(14961.0, 10, 1000000, "s")
-    dead_time: float = _number(115.0, 0, 3600, "s")
+    dead_time: float = _number(115.0, 0, pid.MAX_DEAD_TIME, "s")
     model_ambient: float = _number(20.0, -20, 50, "°C")
     model_litres: float | None = _number(
         None, 1, 1000, "L", null_means="not measured: predictive's prior from tun.litres"

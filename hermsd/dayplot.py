@@ -271,6 +271,25 @@ def save(log: Log, path: Path) -> None:
     draw(log).savefig(path, dpi=DPI)
 
 
+def check_format(path: Path) -> None:
+    """ReplayError unless matplotlib writes the format `path`'s suffix names (none: a PNG):
+    said before the log is read, not after the day is drawn."""
+    try:
+        from matplotlib.backend_bases import FigureCanvasBase
+    except ImportError:
+        raise ReplayError(NEEDS_MATPLOTLIB) from None
+    formats = FigureCanvasBase.get_supported_filetypes()
+    suffix = path.suffix.lower().removeprefix(".")
+    if suffix and suffix not in formats:
+        raise ReplayError(
+            f"--plot {path}: cannot draw a .{suffix} file; the name ends in one of "
+            f"{', '.join('.' + name for name in sorted(formats))}"
+        )
+
+
+NEEDS_MATPLOTLIB = "--plot needs matplotlib: uv sync --extra plot (or pip install 'hermsd[plot]')"
+
+
 def draw(log: Log) -> Figure:
     """The figure of the day; ReplayError when matplotlib is missing."""
     try:  # a figure of its own on the Agg canvas: no GUI, no pyplot state to close
@@ -278,9 +297,7 @@ def draw(log: Log) -> Figure:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
     except ImportError:
-        raise ReplayError(
-            "--plot needs matplotlib: uv sync --extra plot (or pip install 'hermsd[plot]')"
-        ) from None
+        raise ReplayError(NEEDS_MATPLOTLIB) from None
     figure = Figure(figsize=(WIDTH_IN, 8.0), dpi=DPI)
     FigureCanvasAgg(figure)
     strip = figure.add_axes((0.0, 0.0, 1.0, 1.0))

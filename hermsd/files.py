@@ -96,6 +96,14 @@ def read_regular(path: str | os.PathLike[str], limit: int) -> bytes:
     return data
 
 
+def not_regular(path: str | os.PathLike[str]) -> str | None:
+    """What `path` is, in words, when it is not a regular file; None for a regular file.
+
+    By its status alone: a FIFO or a device is never opened (opening a FIFO waits for a
+    writer; reading /dev/zero never ends). OSError when it cannot be looked at."""
+    return _file_kind(os.stat(path).st_mode)
+
+
 def _file_kind(mode: int) -> str | None:
     """What a file that is not a regular file is, in words; None for a regular file."""
     if stat.S_ISREG(mode):

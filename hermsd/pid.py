@@ -212,7 +212,9 @@ degrees below: the law asked 30–50 % again at each boundary and the element wa
 period's readings to show the drop anew, 8 s of full power lost over the first four periods
 after a tenth of the volume of cold water on a thermowell of 120 s lag."""
 MAX_DEAD_TIME = 1800.0
-"""s: the longest dead time a heat-up may show (a sensor far down a long pipe)."""
+"""s: the longest dead time a heat-up may show (a sensor far down a long pipe), and so the
+longest the config (`control.dead_time`) and the predictive controller take: its history of
+the outputs still in flight is sized by it once, so a period's work stays bounded."""
 FIT_FROM = 1.0
 FIT_TO = 3.0
 """°C of rise between which a heat-up's ramp is fitted: past the first bend of the sensor's
@@ -308,7 +310,9 @@ def create(
     if name == "predictive":
         _number("model.gain", model.gain, *MODEL_GAIN_RANGE, "> 0 °C/%")
         _number("model.tau", model.tau, MIN_TIME, MAX_TIME, f"≥ {MIN_TIME:g} s")
-        _number("model.dead_time", model.dead_time, 0.0, 1e5, "≥ 0 and ≤ 100000 s")
+        _number(
+            "model.dead_time", model.dead_time, 0.0, MAX_DEAD_TIME, f"≥ 0 and ≤ {MAX_DEAD_TIME:g} s"
+        )
         _number("model.ambient", model.ambient, -100.0, 100.0, "within −100…100 °C")
         controller = _Predictive(params, model)
     elif name == "type_a":

@@ -47,6 +47,7 @@ from hermsd.daemon import (
 )
 from hermsd.element2 import MidRangeController, SplitController, TwoElementController
 from hermsd.element_watch import ElementWatch
+from hermsd.files import not_regular
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import (
     DROP_READINGS,
@@ -361,13 +362,16 @@ def _utc(log_time_ns: int) -> str:
 def _open(path: Path) -> LogFile:
     """The file as a LogFile, or ReplayError saying in one line why it cannot be one."""
     try:
+        kind = not_regular(path)
+        if kind == "a directory":
+            raise ReplayError(f"{path}: is a directory (name the .mcap files in it)")
+        if kind is not None:
+            raise ReplayError(f"{path}: is {kind}, not a regular file (name the .mcap files)")
         with path.open("rb") as f:
             head = f.read(len(MCAP_MAGIC))
         file = LogFile(path)
     except FileNotFoundError:
         raise ReplayError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ReplayError(f"{path}: is a directory (name the .mcap files in it)") from None
     except OSError as error:
         raise ReplayError(f"{path}: cannot be read: {error.strerror or error}") from None
     if not head:

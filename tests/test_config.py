@@ -68,7 +68,7 @@ BOUNDS = [
     Bound("control.max_output", float, 1, 100),
     Bound("control.model_gain", float, 0.01, 100),
     Bound("control.model_tau", float, 10, 1000000),
-    Bound("control.dead_time", float, 0, 3600),
+    Bound("control.dead_time", float, 0, 1800),
     Bound("control.model_ambient", float, -20, 50),
     Bound("control.k1", float, 0, 10000, low_open=True),
     Bound("control.ti1", float, 1, 100000),

@@ -48,6 +48,9 @@ RULES = (
 )
 TABLE_KEYS = ("K", "tau", "theta", "a_star")
 _UNITS = {"K": "°C/%", "tau": "s", "theta": "s", "a_star": "°C/(%·s)"}
+MAX_TABLE_SETTING = 1e12
+"""The largest Kc, Ti or Td the table prints: far beyond any tun's (the config takes Kc up to
+1e4, Ti up to 1e5 s), and well within the 28 digits `printed` rounds in."""
 A_STAR_MISMATCH = 0.1  # relative: a* and K/τ that differ more describe two different tuns
 
 
@@ -95,7 +98,14 @@ def parse_table(text: str) -> Model:
         raise TuneError(f"--table: {', '.join(missing)} missing (K, tau and theta are needed)")
     given = "a_star" in values
     a_star = values["a_star"] if given else values["K"] / values["tau"]
-    return Model(values["K"], values["tau"], values["theta"], a_star, given)
+    model = Model(values["K"], values["tau"], values["theta"], a_star, given)
+    settings = [v for row in model.rules().values() for v in row]
+    if not all(math.isfinite(v) and abs(v) < MAX_TABLE_SETTING for v in settings):
+        raise TuneError(
+            f"--table: {text}: the rules give settings beyond {MAX_TABLE_SETTING:g}, which no "
+            "tun needs: check the units (K in °C/%, tau and theta in s, a_star in °C/(%·s))"
+        )
+    return model
 
 
 def printed(value: float) -> str:

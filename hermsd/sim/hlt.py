@@ -40,6 +40,7 @@ import importlib
 import importlib.util
 import inspect
 import math
+import typing
 from collections import deque
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -607,6 +608,46 @@ class PlantLoadError(ValueError):
     """An outside plant that cannot be loaded or lacks the protocol; the message says which."""
 
 
+class PlantFailed(RuntimeError):
+    """An outside plant that raised, or read what no sensor reads, during a run: the daemon
+    stops (heater off) and the message names the plant, the call and what came of it."""
+
+
+_READINGS = ("temperature", "water_temperature")
+
+
+class _CheckedPlant:
+    """An outside plant whose every call either gives what the protocol promises or raises
+    PlantFailed naming it: a NaN, an infinity or a text read as a temperature would otherwise
+    surface as an error far from its cause, or as an Infinity in the summary."""
+
+    def __init__(self, plant: object, reference: str) -> None:
+        self._plant = plant
+        self._reference = reference
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):  # copy.deepcopy's probes: the plant's own, not delegated
+            raise AttributeError(name)
+        attribute = getattr(self._plant, name)
+        if not callable(attribute):
+            return attribute
+
+        def checked(*args: Any) -> Any:
+            call = f"plant {self._reference!r}: {name}({', '.join(map(repr, args))})"
+            try:
+                result = attribute(*args)
+            except (Exception, SystemExit) as error:
+                raise PlantFailed(f"{call} raised {type(error).__name__}: {error}") from None
+            if name not in _READINGS:
+                return result
+            real = isinstance(result, int | float) and not isinstance(result, bool)
+            if not real or not math.isfinite(result):
+                raise PlantFailed(f"{call} returned {result!r}; expected a finite number of °C")
+            return float(result)
+
+        return checked
+
+
 def load_plant(reference: str) -> Plant:
     """The plant that `FILE.py:FACTORY` or `package.module:FACTORY` makes, called with no
     arguments, checked against the protocol (`Plant`)."""
@@ -629,7 +670,7 @@ def load_plant(reference: str) -> Plant:
             module = importlib.import_module(where)
     except PlantLoadError:
         raise
-    except Exception as error:  # the user's module failed to import: say how, in one line
+    except (Exception, SystemExit) as error:  # the module failed to import: say how, in a line
         raise PlantLoadError(
             f"plant {reference!r}: cannot load {where}: {type(error).__name__}: {error}"
         ) from None
@@ -638,7 +679,7 @@ def load_plant(reference: str) -> Plant:
         raise PlantLoadError(f"plant {reference!r}: {where} has no function {factory_name}")
     try:
         plant = factory()
-    except Exception as error:
+    except (Exception, SystemExit) as error:
         raise PlantLoadError(
             f"plant {reference!r}: {factory_name}() failed: {type(error).__name__}: {error}"
         ) from None
@@ -648,5 +689,5 @@ def load_plant(reference: str) -> Plant:
             f"plant {reference!r}: the {type(plant).__name__} that {factory_name}() made lacks "
             f"{', '.join(missing)} (the plant protocol: hermsd.sim.hlt.Plant)"
         )
-    result: Plant = plant
-    return result
+    checked: Plant = typing.cast(Plant, _CheckedPlant(plant, reference))
+    return checked

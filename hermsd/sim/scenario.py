@@ -30,6 +30,7 @@ from hermsd import config as config_module
 from hermsd.config import Config
 from hermsd.daemon import Daemon, PeriodRecord
 from hermsd.durations import parse_duration
+from hermsd.files import NotRegularFile, read_regular
 from hermsd.latches import LatchStore
 from hermsd.learning import ModelStore
 from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
@@ -101,11 +102,18 @@ class Scenario:
 
 DEFAULT = Scenario()
 
+MAX_SCENARIO_BYTES = 1 << 20
+"""The longest scenario file read: thousands of events (the shipped ones are under 2 KiB)."""
+MAX_DURATION = 7 * 86400.0
+"""s: the longest scenario run. A brew day with an overnight mash and a next day fits many
+times over, and a week runs in minutes on the virtual clock; a longer one is a typo
+(100000h), which would otherwise run until killed."""
+
 
 def load_scenario(path: Path) -> Scenario:
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as error:
+        text = read_regular(path, MAX_SCENARIO_BYTES).decode("utf-8")
+    except (OSError, UnicodeDecodeError, NotRegularFile) as error:
         raise ScenarioError(f"{path}: cannot read the scenario: {error}") from None
     loader = yaml.SafeLoader(text)
     try:
@@ -165,6 +173,10 @@ def parse_scenario(
         duration = parse_duration(doc.get("duration", DEFAULT.duration))
     except ValueError as error:
         raise fail("duration", str(error)) from None
+    if duration > MAX_DURATION:
+        raise fail(
+            "duration", f"{duration:g} s is longer than a scenario runs ({MAX_DURATION:g} s)"
+        )
     plant = _plant(doc.get("plant", DEFAULT.plant), fail)
     overrides = doc.get("config", {}) or {}
     if not isinstance(overrides, dict):
@@ -182,6 +194,13 @@ def parse_scenario(
     if not isinstance(raw_events, list):
         raise fail("events", "expected a list of events")
     events = [_event(e, i, fail) for i, e in enumerate(raw_events)]
+    for index, event in enumerate(events):
+        if event.at > duration:
+            raise fail(
+                f"events[{index}].at",
+                f"{event.at:g} s lies after the scenario's end ({duration:g} s): it would "
+                "never happen (lengthen duration, or move the event)",
+            )
     events.sort(key=lambda e: e.at)
     return Scenario(
         name=str(doc.get("name", Path(source).stem)),
