@@ -115,6 +115,25 @@ RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heat
 """The event text of a raised alarm, as replay reads it back from the log."""
 
 
+def latch_save_failed_text(outcome: Outcome, on_disk: list[str]) -> str:
+    """A failed save of the latched alarms, said with what a restart would then find.
+
+    The heater is not held off for it: a latched alarm already holds it off (in memory, until
+    the brewer clears it), and a start refuses a state directory it cannot write a latch
+    file to (`cli._claim_state_directory`); a failed save of fewer alarms errs safe (a
+    restart raises the stored ones again). What is left is a crash in the window before the
+    disk works again, and that is said here, loudly.
+    """
+    failed = f"saving latched alarms failed: {outcome.error}"
+    lost = [kind for kind in outcome.tag if kind not in on_disk]
+    if not lost:
+        return f"{failed} (a restart finds {', '.join(on_disk) or 'none'}, as on disk)"
+    return (
+        f"{failed}: {', '.join(lost)} will NOT survive a restart (the heater stays off "
+        f"while latched; tried again every {LATCH_SAVE_RETRY_S:g} s)"
+    )
+
+
 def raised_alarm_text(alarm: Alarm) -> str:
     """The event logged when `alarm` is raised; RAISED_ALARM matches it."""
     what = "ALARM" if alarm.latched else "fault"
@@ -1035,7 +1054,7 @@ class Daemon:
             # any restart, and the heater would come back on over the fault.
             self._latch_retry_at = t + LATCH_SAVE_RETRY_S
             if self._latch_failing is None or self._latch_slow:
-                self._event(logging.ERROR, f"saving latched alarms failed: {outcome.error}", t)
+                self._event(logging.ERROR, latch_save_failed_text(outcome, self._saved_latches), t)
             self._latch_failing, self._latch_slow = outcome.error, False
             return
         self._saved_latches, self._latch_slow = outcome.tag, False
