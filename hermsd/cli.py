@@ -365,7 +365,8 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument(
         "--state",
         type=Path,
-        help="the daemon's state directory: the limits from what it learned of the tun",
+        help="the daemon's state directory: its latch file checked as `run` reads it, and the "
+        "limits from what it learned of the tun",
     )
     check.set_defaults(func=cmd_check_config)
 
@@ -597,7 +598,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except Shutdown as why:
         log.info("%s received", why)
     except StateError as error:
-        raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
+        raise _latch_file_refused(error) from None
     finally:
         status.clear()
         for sig, handler in previous.items():
@@ -745,6 +746,11 @@ def _latch_store(directory: Path | None, *, simulate: bool) -> LatchStore | None
     except OSError as error:
         raise _state_refused(f"cannot make the state directory {directory}", error) from None
     return LatchStore(directory)
+
+
+def _latch_file_refused(error: StateError) -> UserError:
+    """A latch file the daemon cannot read: it does not start (nor passes check-config)."""
+    return UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)")
 
 
 def _default_state_directory() -> Path:
@@ -1256,7 +1262,7 @@ def _run_tune(
             experiment = build(daemon)
             start(experiment, (Shutdown, KeyboardInterrupt))
     except StateError as error:
-        raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
+        raise _latch_file_refused(error) from None
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -1600,6 +1606,11 @@ def cmd_check_config(args: argparse.Namespace) -> int:
                 )
             ]
         )
+    if args.state:
+        try:
+            LatchStore(args.state).load()  # as `run` reads it at its start
+        except StateError as error:
+            raise _latch_file_refused(error) from None
     print(config_module.dump_yaml(document.config), end="")
     # As YAML comments, so that the output still reads back as the config it is.
     stored, problem = ModelStore(args.state).load() if args.state else (None, None)
