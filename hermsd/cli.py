@@ -1587,7 +1587,7 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     `output.backend: sim` is valid only in a simulated run, so it is refused here by
     default: a file checked for the service must not fail when the service starts.
     """
-    from hermsd.daemon import model_in_force, safety_limits
+    from hermsd.daemon import model_in_force, safety_limits, stored_model
     from hermsd.safety import format_limits
 
     document = config_module.load_document(args.file)
@@ -1613,7 +1613,9 @@ def cmd_check_config(args: argparse.Namespace) -> int:
             raise _latch_file_refused(error) from None
     print(config_module.dump_yaml(document.config), end="")
     # As YAML comments, so that the output still reads back as the config it is.
-    stored, problem = ModelStore(args.state).load() if args.state else (None, None)
+    stored, problem = (
+        stored_model(ModelStore(args.state), document.config) if args.state else (None, None)
+    )
     if problem is not None:
         print(f"\n# learned model ignored: {problem}")
     choice = model_in_force(stored, document.config)

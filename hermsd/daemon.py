@@ -47,7 +47,7 @@ from hermsd.element2 import SlowElement, SplitController, TwoElementController, 
 from hermsd.element_probe import ProbeResult
 from hermsd.element_watch import ElementWatch, no_heat_words, report_kind
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
-from hermsd.learning import LearnedModel, Learner, ModelStore
+from hermsd.learning import LearnedModel, Learner, ModelStore, implausible_here
 from hermsd.lm92 import (
     LimitName,
     Reading,
@@ -329,8 +329,9 @@ def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
     learn = config.control.learn
     if element2_watts(config):
         return ModelChoice(config_module.prior_model(config), "prior")
+    here = stored is not None and learn != "off" and not_this_tun(stored, config) is None
     candidates = [
-        ("learned", stored if learn != "off" else None),
+        ("learned", stored if here else None),
         ("measured", config_module.measured_model(config)),
     ]
     if learn != "on":
@@ -342,6 +343,23 @@ def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
             if low <= model.gain <= high:
                 return ModelChoice(model, source, basis)
     return ModelChoice(config_module.prior_model(config), "prior")
+
+
+def stored_model(models: ModelStore, config: Config) -> tuple[LearnedModel | None, str | None]:
+    """What `models` holds, if it can be the configured tun's; else (None, why: said in the
+    log as a learned model ignored), as `ModelStore.load` says a damaged file."""
+    model, problem = models.load()
+    why = not_this_tun(model, config) if model is not None else None
+    if why is not None:
+        return None, f"{models.path}: {why}"
+    return model, problem
+
+
+def not_this_tun(model: LearnedModel, config: Config) -> str | None:
+    """Why a learned model cannot be the configured tun's (`learning.implausible_here`)."""
+    litres = config.tun.litres  # the one element it was learned on
+    full_rate = config.tun.element_watts / (config_module.WATER_J_PER_LITRE_K * litres)
+    return implausible_here(model, litres=litres, full_rate=full_rate)
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
@@ -438,7 +456,7 @@ class Daemon:
         self._stored_model: LearnedModel | None = None
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
-            self._stored_model, self._model_problem = models.load()
+            self._stored_model, self._model_problem = stored_model(models, config)
         self.model_choice = model_in_force(self._stored_model, config)
         self.model = self.model_choice.model
         self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
