@@ -155,7 +155,7 @@ def _latches(document: Any) -> Latches:
     alarms, reset = document.get("alarms"), document.get("reset")
     if not isinstance(alarms, list):
         raise _Malformed("'alarms' must be a list")
-    if not _is_int(reset):
+    if not is_int(reset):
         raise _Malformed("'reset' must be a whole number")
     return Latches(tuple(_alarm(item) for item in alarms), reset)
 
@@ -167,7 +167,7 @@ def _alarm(item: Any) -> LatchedAlarm:
     values = item.get("values", {})
     if kind not in LATCHED_KINDS:
         raise _Malformed(f"unknown alarm kind {kind!r} (latched kinds: {', '.join(LATCHED_KINDS)})")
-    if not (_is_int(wall_ns) and 0 <= wall_ns < 2**63):  # what the wall clock gives
+    if not (is_int(wall_ns) and 0 <= wall_ns < 2**63):  # what the wall clock gives
         raise _Malformed(f"{kind}: 'wall_ns' must be a whole number of ns since 1970")
     if not isinstance(message, str):
         raise _Malformed(f"{kind}: 'message' must be text")
@@ -177,7 +177,8 @@ def _alarm(item: Any) -> LatchedAlarm:
     return LatchedAlarm(kind, wall_ns, message, values)
 
 
-def _is_int(value: Any) -> TypeGuard[int]:
+def is_int(value: Any) -> TypeGuard[int]:
+    """A JSON whole number (a boolean is not one, though Python's bool is an int)."""
     return isinstance(value, int) and not isinstance(value, bool)
 
 
