@@ -53,36 +53,31 @@ def test_a_state_directory_that_cannot_be_made_refuses_the_start(
     assert str(state) in line and "Not a directory" in line
 
 
+FULL_DISK = {
+    # The lock file cannot be made or written: nothing is locked.
+    "lock": (DirectoryLock, "acquire", "cannot lock the state directory"),
+    # The lock file is already there; a new file's blocks are not.
+    "latch": (files.os, "fsync", "cannot keep latched alarms in"),
+}
+
+
+@pytest.mark.parametrize("failing", FULL_DISK.values(), ids=FULL_DISK)
 @pytest.mark.parametrize("command", [RUN, SIMULATE], ids=["run", "simulate"])
-def test_a_state_directory_that_cannot_be_locked_refuses_the_start(
+def test_a_full_state_directory_refuses_the_start_and_leaves_nothing_half_written(
     tmp_path: Path,
     command: list[str],
+    failing: tuple[object, str, str],
     capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    owner, name, said = failing
     monkeypatch.chdir(ROOT)
-    monkeypatch.setattr(DirectoryLock, "acquire", lambda self, role: _no_space())
+    monkeypatch.setattr(owner, name, _no_space)
 
     line = _refused(capsys, [*command, str(tmp_path)])
 
-    assert f"cannot lock the state directory {tmp_path}: No space left on device" in line
-
-
-@pytest.mark.parametrize("command", [RUN, SIMULATE], ids=["run", "simulate"])
-def test_a_state_directory_where_a_latch_cannot_be_written_refuses_the_start(
-    tmp_path: Path,
-    command: list[str],
-    capsys: pytest.CaptureFixture[str],
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """A full disk: the lock file is already there, a new file's blocks are not."""
-    monkeypatch.chdir(ROOT)
-    monkeypatch.setattr(files.os, "fsync", _no_space)
-
-    line = _refused(capsys, [*command, str(tmp_path)])
-
-    assert f"cannot keep latched alarms in {tmp_path}: No space left on device" in line
-    assert sorted(p.name for p in tmp_path.iterdir()) == [LOCK_FILE]  # no probe, no .tmp left
+    assert f"{said} {tmp_path}: No space left on device" in line
+    assert not [p for p in tmp_path.iterdir() if p.name != LOCK_FILE]  # no probe, no .tmp
 
 
 def test_a_writable_state_directory_leaves_nothing_of_the_probe(
