@@ -369,7 +369,8 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument(
         "--state",
         type=Path,
-        help="the daemon's state directory: the limits from what it learned of the tun",
+        help="the daemon's state directory: its latch file checked as `run` reads it, and the "
+        "limits from what it learned of the tun",
     )
     check.set_defaults(func=cmd_check_config)
 
@@ -660,7 +661,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     except Shutdown as why:
         log.info("%s received", why)
     except StateError as error:
-        raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
+        raise _latch_file_refused(error) from None
     finally:
         status.close()
         for sig, handler in previous.items():
@@ -735,36 +736,70 @@ def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[Dire
     """Lock the log and state directories, before any output is touched.
 
     UserError (naming the other daemon's pid) when one is held: the outputs, the log and the
-    latches belong to that daemon. A directory that cannot be made is said by the recorder
-    or the latch store; one that cannot hold a lock file is said here, and run without it.
+    latches belong to that daemon. A log directory that cannot be made is said by the
+    recorder; one that cannot hold a lock file is said here, and run without it. A state
+    directory that cannot be made, locked, or hold a latch file written as a save writes it
+    (`LatchStore.probe`) is a UserError: a latched alarm there would not survive a restart,
+    and the restart would heat over the fault.
     """
     locks: list[DirectoryLock] = []
     wanted = [(log_dir, "log directory"), (state_dir, "state directory")]
     seen: set[Path] = set()
-    for directory, role in wanted:
-        if directory is None or directory.resolve() in seen:
-            continue
-        seen.add(directory.resolve())
-        try:
-            directory.mkdir(parents=True, exist_ok=True)
-        except OSError:
-            continue
-        lock = DirectoryLock(directory)
-        try:
-            lock.acquire(role)
-        except InstanceError as error:
-            for held in locks:
-                held.release()
-            raise UserError(str(error)) from None
-        except OSError as error:
-            log.warning("cannot lock the %s %s: %s", role, directory, error.strerror or error)
-            continue
-        locks.append(lock)
+    try:
+        for directory, role in wanted:
+            if directory is None or directory.resolve() in seen:
+                continue
+            seen.add(directory.resolve())
+            if role == "state directory":
+                locks.append(_claim_state_directory(directory))
+                continue
+            try:
+                directory.mkdir(parents=True, exist_ok=True)
+            except OSError:
+                continue
+            lock = DirectoryLock(directory)
+            try:
+                lock.acquire(role)
+            except OSError as error:
+                log.warning("cannot lock the %s %s: %s", role, directory, error.strerror or error)
+                continue
+            locks.append(lock)
+    except (InstanceError, UserError) as error:
+        for held in locks:
+            held.release()
+        raise UserError(str(error)) from None
     return locks
 
 
+def _claim_state_directory(directory: Path) -> DirectoryLock:
+    """The state directory made, locked and shown to keep a latch file; UserError if not."""
+    lock = DirectoryLock(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise _state_refused(f"cannot make the state directory {directory}", error) from None
+    try:
+        lock.acquire("state directory")
+    except OSError as error:
+        raise _state_refused(f"cannot lock the state directory {directory}", error) from None
+    try:
+        LatchStore(directory).probe()
+    except OSError as error:
+        lock.release()
+        raise _state_refused(f"cannot keep latched alarms in {directory}", error) from None
+    return lock
+
+
+def _state_refused(what: str, error: OSError) -> UserError:
+    return UserError(
+        f"{what}: {error.strerror or error}: a latched alarm would not survive a restart; "
+        "not started, heater off (free space or make it writable, or give another with --state)"
+    )
+
+
 def _latch_store(directory: Path | None, *, simulate: bool) -> LatchStore | None:
-    """Where latched alarms are kept; None (said) when nowhere can keep them."""
+    """Where latched alarms are kept (None: a simulated tun's, kept nowhere); UserError when
+    the directory cannot be made."""
     if directory is None:
         if simulate and not os.environ.get("STATE_DIRECTORY"):
             return None  # a simulated tun's alarms need not outlive it
@@ -772,9 +807,13 @@ def _latch_store(directory: Path | None, *, simulate: bool) -> LatchStore | None
     try:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        log.warning("latched alarms will not survive a restart: %s: %s", directory, error)
-        return None
+        raise _state_refused(f"cannot make the state directory {directory}", error) from None
     return LatchStore(directory)
+
+
+def _latch_file_refused(error: StateError) -> UserError:
+    """A latch file the daemon cannot read: it does not start (nor passes check-config)."""
+    return UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)")
 
 
 def _default_state_directory() -> Path:
@@ -1313,7 +1352,7 @@ def _run_tune(
             experiment = build(daemon)
             start(experiment, (Shutdown, KeyboardInterrupt))
     except StateError as error:
-        raise UserError(f"{error} (inspect it; `hermsd reset-alarm` replaces it)") from None
+        raise _latch_file_refused(error) from None
     except PlantFailed as error:  # the heater is off: the daemon stopped on it
         raise UserError(str(error)) from None
     finally:
@@ -1671,7 +1710,7 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     `output.backend: sim` is valid only in a simulated run, so it is refused here by
     default: a file checked for the service must not fail when the service starts.
     """
-    from hermsd.daemon import model_in_force, safety_limits
+    from hermsd.daemon import model_in_force, safety_limits, stored_model
     from hermsd.safety import format_limits
 
     document = config_module.load_document(args.file)
@@ -1690,9 +1729,16 @@ def cmd_check_config(args: argparse.Namespace) -> int:
                 )
             ]
         )
+    if args.state:
+        try:
+            LatchStore(args.state).load()  # as `run` reads it at its start
+        except StateError as error:
+            raise _latch_file_refused(error) from None
     print(config_module.dump_yaml(document.config), end="")
     # As YAML comments, so that the output still reads back as the config it is.
-    stored, problem = ModelStore(args.state).load() if args.state else (None, None)
+    stored, problem = (
+        stored_model(ModelStore(args.state), document.config) if args.state else (None, None)
+    )
     if problem is not None:
         print(f"\n# learned model ignored: {problem}")
     choice = model_in_force(stored, document.config)

@@ -47,7 +47,7 @@ from hermsd.element2 import SlowElement, SplitController, TwoElementController, 
 from hermsd.element_probe import ProbeResult
 from hermsd.element_watch import ElementWatch, no_heat_words, report_kind
 from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
-from hermsd.learning import LearnedModel, Learner, ModelStore
+from hermsd.learning import LearnedModel, Learner, ModelStore, implausible_here
 from hermsd.lm92 import (
     LimitName,
     Reading,
@@ -113,6 +113,25 @@ class Recorder(Protocol):
 
 RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heater off")
 """The event text of a raised alarm, as replay reads it back from the log."""
+
+
+def latch_save_failed_text(outcome: Outcome, on_disk: list[str]) -> str:
+    """A failed save of the latched alarms, said with what a restart would then find.
+
+    The heater is not held off for it: a latched alarm already holds it off (in memory, until
+    the brewer clears it), and a start refuses a state directory it cannot write a latch
+    file to (`cli._claim_state_directory`); a failed save of fewer alarms errs safe (a
+    restart raises the stored ones again). What is left is a crash in the window before the
+    disk works again, and that is said here, loudly.
+    """
+    failed = f"saving latched alarms failed: {outcome.error}"
+    lost = [kind for kind in outcome.tag if kind not in on_disk]
+    if not lost:
+        return f"{failed} (a restart finds {', '.join(on_disk) or 'none'}, as on disk)"
+    return (
+        f"{failed}: {', '.join(lost)} will NOT survive a restart (the heater stays off "
+        f"while latched; tried again every {LATCH_SAVE_RETRY_S:g} s)"
+    )
 
 
 def raised_alarm_text(alarm: Alarm) -> str:
@@ -310,8 +329,9 @@ def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
     learn = config.control.learn
     if element2_watts(config):
         return ModelChoice(config_module.prior_model(config), "prior")
+    here = stored is not None and learn != "off" and not_this_tun(stored, config) is None
     candidates = [
-        ("learned", stored if learn != "off" else None),
+        ("learned", stored if here else None),
         ("measured", config_module.measured_model(config)),
     ]
     if learn != "on":
@@ -323,6 +343,23 @@ def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
             if low <= model.gain <= high:
                 return ModelChoice(model, source, basis)
     return ModelChoice(config_module.prior_model(config), "prior")
+
+
+def stored_model(models: ModelStore, config: Config) -> tuple[LearnedModel | None, str | None]:
+    """What `models` holds, if it can be the configured tun's; else (None, why: said in the
+    log as a learned model ignored), as `ModelStore.load` says a damaged file."""
+    model, problem = models.load()
+    why = not_this_tun(model, config) if model is not None else None
+    if why is not None:
+        return None, f"{models.path}: {why}"
+    return model, problem
+
+
+def not_this_tun(model: LearnedModel, config: Config) -> str | None:
+    """Why a learned model cannot be the configured tun's (`learning.implausible_here`)."""
+    litres = config.tun.litres  # the one element it was learned on
+    full_rate = config.tun.element_watts / (config_module.WATER_J_PER_LITRE_K * litres)
+    return implausible_here(model, litres=litres, full_rate=full_rate)
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
@@ -419,7 +456,7 @@ class Daemon:
         self._stored_model: LearnedModel | None = None
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
-            self._stored_model, self._model_problem = models.load()
+            self._stored_model, self._model_problem = stored_model(models, config)
         self.model_choice = model_in_force(self._stored_model, config)
         self.model = self.model_choice.model
         self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
@@ -1035,7 +1072,7 @@ class Daemon:
             # any restart, and the heater would come back on over the fault.
             self._latch_retry_at = t + LATCH_SAVE_RETRY_S
             if self._latch_failing is None or self._latch_slow:
-                self._event(logging.ERROR, f"saving latched alarms failed: {outcome.error}", t)
+                self._event(logging.ERROR, latch_save_failed_text(outcome, self._saved_latches), t)
             self._latch_failing, self._latch_slow = outcome.error, False
             return
         self._saved_latches, self._latch_slow = outcome.tag, False

@@ -55,8 +55,12 @@ class DirectoryLock:
                 f"{role}; stop that one first, or give this one another",
                 holder,
             ) from None
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+        except OSError:
+            os.close(fd)  # a full disk: not locked, and nothing held open
+            raise
         self._fd = fd
 
     def release(self) -> None:

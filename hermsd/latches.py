@@ -8,6 +8,13 @@ temporary file, fsync, rename; beside the control loop, `hermsd.saver`, the heat
 already; a failed save is tried again every 30 s until it lands), and raises them again at
 start.
 
+A directory that cannot keep them would let a restart heat over a latched fault, so the daemon
+does not start on one: before any output is opened it locks the state directory and writes a
+latch file there as a save does (`LatchStore.probe`). A save that fails later leaves the alarm
+latched in memory, the heater off, and says in the log that the alarm will not survive a
+restart; the heater is not held off for the failure itself (`daemon.latch_save_failed_text`
+says why).
+
 Two ways to clear them, both deliberate acts:
 - bump `safety.reset` in the config: a reload, or a start with a value other than the one
   the alarms were latched under, clears them;
@@ -31,6 +38,8 @@ from hermsd.safety import LATCHED_KINDS
 LATCHED_FILE = "latched.json"
 RESET_FILE = "reset-alarm.json"
 MAX_STATE_BYTES = 1 << 20  # a latch file holds a few alarms: far less than this
+PROBE_FILE = "latched.json.probe"
+PROBE_MESSAGE_CHARS = 400  # an alarm's message is one line: a few hundred characters at most
 
 
 class StateError(Exception):
@@ -82,14 +91,20 @@ class LatchStore:
 
     def save(self, latches: Latches) -> None:
         """Replace the stored latches atomically (OSError when the disk refuses)."""
-        document = {
-            "alarms": [
-                {"kind": a.kind, "wall_ns": a.wall_ns, "message": a.message, "values": a.values}
-                for a in latches.alarms
-            ],
-            "reset": latches.reset,
-        }
-        write_atomically(self.latched_path, json.dumps(document, default=str, indent=1))
+        write_atomically(self.latched_path, _document(latches))
+
+    def probe(self) -> None:
+        """Write a latch file of every latched kind beside the real one, as a save writes it
+        (durably), and remove it: OSError when this directory cannot keep a latched alarm
+        (full, read-only, gone), found at the start, before the heater is ever on."""
+        message = "x" * PROBE_MESSAGE_CHARS
+        every = tuple(LatchedAlarm(kind, 0, message, {}) for kind in LATCHED_KINDS)
+        path = self.directory / PROBE_FILE
+        try:
+            write_atomically(path, _document(Latches(every)))
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
 
     def request_reset(self, kinds: list[str]) -> None:
         """Ask the daemon to clear these latched alarms (`hermsd reset-alarm`)."""
@@ -118,6 +133,17 @@ class LatchStore:
         return [kind for kind in kinds if kind in LATCHED_KINDS]
 
 
+def _document(latches: Latches) -> str:
+    document = {
+        "alarms": [
+            {"kind": a.kind, "wall_ns": a.wall_ns, "message": a.message, "values": a.values}
+            for a in latches.alarms
+        ],
+        "reset": latches.reset,
+    }
+    return json.dumps(document, default=str, indent=1)
+
+
 class _Malformed(Exception):
     """What is wrong with a latch document, for StateError's message."""
 
@@ -129,7 +155,7 @@ def _latches(document: Any) -> Latches:
     alarms, reset = document.get("alarms"), document.get("reset")
     if not isinstance(alarms, list):
         raise _Malformed("'alarms' must be a list")
-    if not _is_int(reset):
+    if not is_int(reset):
         raise _Malformed("'reset' must be a whole number")
     return Latches(tuple(_alarm(item) for item in alarms), reset)
 
@@ -141,7 +167,7 @@ def _alarm(item: Any) -> LatchedAlarm:
     values = item.get("values", {})
     if kind not in LATCHED_KINDS:
         raise _Malformed(f"unknown alarm kind {kind!r} (latched kinds: {', '.join(LATCHED_KINDS)})")
-    if not (_is_int(wall_ns) and 0 <= wall_ns < 2**63):  # what the wall clock gives
+    if not (is_int(wall_ns) and 0 <= wall_ns < 2**63):  # what the wall clock gives
         raise _Malformed(f"{kind}: 'wall_ns' must be a whole number of ns since 1970")
     if not isinstance(message, str):
         raise _Malformed(f"{kind}: 'message' must be text")
@@ -151,7 +177,8 @@ def _alarm(item: Any) -> LatchedAlarm:
     return LatchedAlarm(kind, wall_ns, message, values)
 
 
-def _is_int(value: Any) -> TypeGuard[int]:
+def is_int(value: Any) -> TypeGuard[int]:
+    """A JSON whole number (a boolean is not one, though Python's bool is an int)."""
     return isinstance(value, int) and not isinstance(value, bool)
 
 

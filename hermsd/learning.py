@@ -36,7 +36,16 @@ from pathlib import Path
 
 from hermsd.files import write_atomically
 from hermsd.latches import StateError, read_state_json
-from hermsd.pid import MAX_DEAD_TIME, SENSOR_LSB, HeatUpFit, LineFit, PlantModel
+from hermsd.pid import (
+    AMBIENT_RANGE,
+    MAX_DEAD_TIME,
+    RATE_BAND,
+    SENSOR_LSB,
+    HeatUpFit,
+    LineFit,
+    PlantModel,
+)
+from hermsd.safety import FILL_RANGE
 
 LEARNED_FILE = "learned-model.json"
 HOLD_S = 1800.0
@@ -100,6 +109,35 @@ def implausible(model: LearnedModel) -> str | None:
         return f"fill {model.litres:g} L is not within {MIN_LITRES:g}–{MAX_LITRES:g} L"
     if not 0.0 <= model.dead_time <= MAX_DEAD_TIME:
         return f"dead time {model.dead_time:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
+    low, high = AMBIENT_RANGE
+    if not low <= model.ambient <= high:
+        return f"room {model.ambient:g} °C is not within −100…100 °C"
+    return None
+
+
+def implausible_here(model: LearnedModel, *, litres: float, full_rate: float) -> str | None:
+    """Why `model` cannot be this tun's (`litres` configured, `full_rate` °C/s the element
+    gives that water, P/(ρ·c·V)), or None when it can.
+
+    Beyond `implausible`: the fill it was learned with must be one the supervisor's limits
+    hold for before a measurement (half to twice the configured litres, safety.FILL_RANGE),
+    and its rate, rescaled to the configured litres, one a heat-up on this tun could have
+    measured (within pid.RATE_BAND of the element's rate: ¼–4×, the band a heat-up's fit is
+    taken in). A rate 60× too high holds the water cold at 0.2 % output with no alarm; one
+    too low is refused by the first heat-up, whose real rate the model then cannot follow.
+    Its dead time is bound as a heat-up's fit bounds it (`implausible`).
+    """
+    why = implausible(model)
+    if why is not None:
+        return why
+    if not litres / FILL_RANGE <= model.litres <= litres * FILL_RANGE:
+        return f"fill {model.litres:g} L is not within half to twice the configured {litres:g} L"
+    rate = model.rate * model.litres / litres  # as `plant_model` rescales it
+    if not RATE_BAND[0] * full_rate <= rate <= RATE_BAND[1] * full_rate:
+        return (
+            f"full-power rate {rate * 60.0:.3g} °C/min at {litres:g} L is not within ¼–4× of "
+            f"the {full_rate * 60.0:.3g} °C/min the element gives that water"
+        )
     return None
 
 

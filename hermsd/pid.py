@@ -237,6 +237,10 @@ MAX_TIME = 1e7
 MIN_TIME = 1e-3
 MAX_KC = 1e6
 MODEL_GAIN_RANGE = (1e-6, 1e6)  # °C/%: any tun's, and away from float's ends
+AMBIENT_RANGE = (-100.0, 100.0)  # °C: any room a tun stands in
+RATE_BAND = (0.25, 4.0)
+"""× the model's full-power rate: a heat-up's measured rate outside it is refused (a wrong
+step, a dry or half-empty tun, a tun other than the model's), not taken into the model."""
 MAX_ABS_OUTPUT_LIMIT = 1e12
 
 _INF = math.inf
@@ -313,7 +317,7 @@ def create(
         _number(
             "model.dead_time", model.dead_time, 0.0, MAX_DEAD_TIME, f"≥ 0 and ≤ {MAX_DEAD_TIME:g} s"
         )
-        _number("model.ambient", model.ambient, -100.0, 100.0, "within −100…100 °C")
+        _number("model.ambient", model.ambient, *AMBIENT_RANGE, "within −100…100 °C")
         controller = _Predictive(params, model)
     elif name == "type_a":
         controller = _TypeA(params)
@@ -787,7 +791,7 @@ class _HeatUpWatch(_RampWatch):
         crossing = (line.st - line.sx / slope) / line.n  # mean t − mean rise / slope
         mid_rise = line.sx / line.n
         rate = (slope + loss * mid_rise) * 100.0 / self._du
-        if not 0.25 * model_rate <= rate <= 4.0 * model_rate:
+        if not RATE_BAND[0] * model_rate <= rate <= RATE_BAND[1] * model_rate:
             why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
             return HeatUpFit(rate, crossing, why, span)
         if not 0.0 <= crossing <= MAX_DEAD_TIME:

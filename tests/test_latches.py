@@ -226,3 +226,25 @@ def test_a_restored_alarm_is_stored_with_its_first_message_however_often_it_rest
     assert shown == [
         f"ALARM {KIND}: stuck (latched 2026-01-01 00:00:00 UTC, before a restart); heater off"
     ]
+
+
+@pytest.mark.parametrize("name", ["cut short", "wall_ns past any clock"])
+def test_check_config_refuses_a_state_directory_that_run_refuses_in_the_same_words(
+    tmp_path: Path, name: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / LATCHED_FILE).write_text(CRAFTED_LATCH_FILES[name], encoding="utf-8")
+    config = tmp_path / "hermsd.yaml"
+    config.write_text("output: {backend: sim}\n", encoding="utf-8")
+    run = ["run", "--simulate", "--speed", "max", "--duration", "10s", "--config", str(config)]
+
+    assert cli.main([*run, "--state", str(state)]) == 2
+    refused = capsys.readouterr().err.splitlines()[-1]
+    checked = ["check-config", str(config), "--simulate", "--state", str(state)]
+    assert cli.main(checked) == 2
+    out, err = capsys.readouterr()
+
+    assert refused.startswith(f"hermsd: {state / LATCHED_FILE}: ")
+    assert err.splitlines() == [refused]
+    assert "Traceback" not in err and "safety limits" not in out

@@ -378,6 +378,45 @@ def test_damaged_progress_is_said_discarded_and_not_resumed(tmp_path: Path, dama
     assert not driver.active and not (tmp_path / PROGRAM_FILE).exists()
 
 
+BAD_PROGRESS_FIELDS = {
+    "ready_at_ns past any clock": ("ready_at_ns", 99999999999999999999999, "ready_at_ns"),
+    "ready_at_ns before 1970": ("ready_at_ns", -1, "ready_at_ns"),
+    "ready_at_ns as a boolean": ("ready_at_ns", True, "ready_at_ns"),
+    "a step it does not have": ("index", 99, "step index 99"),
+    "a step as a boolean": ("index", True, "step index True"),
+    "held_s beyond a float": ("held_s", 10**400, "held_s"),
+    "held_s as a boolean": ("held_s", True, "held_s"),
+    "a setpoint as a boolean": ("setpoint", False, "setpoint"),
+}
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "said"), BAD_PROGRESS_FIELDS.values(), ids=BAD_PROGRESS_FIELDS
+)
+def test_a_progress_field_out_of_bounds_is_said_in_its_file_and_kept_aside(
+    tmp_path: Path, key: str, value: object, said: str
+) -> None:
+    store = ProgressStore(tmp_path)
+    store.save_program(REST, AT_4)
+    store.save_progress(started(REST).progress, AT_4, AT_4)
+    path = tmp_path / PROGRESS_FILE
+    record = json.loads(path.read_text(encoding="utf-8"))
+    record["progress"][key] = value
+    path.write_text(json.dumps(record), encoding="utf-8")
+
+    with pytest.raises(StateError, match=f"^{path}: not a program's progress \\({said}"):
+        ProgressStore(tmp_path).load()
+    driver = ProgramDriver(ProgressStore(tmp_path), dt.UTC, PERIOD)
+    told = driver.restore(20.0, AT_4 + NS) or ""
+
+    assert told.startswith(f"program progress not resumed: {path}: not a program's progress")
+    assert told.endswith(f"; kept as {tmp_path / PROGRAM_FILE}.stale; the setpoint is 20 °C")
+    assert not driver.active
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [f"{PROGRAM_FILE}.stale", f"{PROGRESS_FILE}.stale"]
+    )
+
+
 def saved_then_restored(
     tmp_path: Path, runner: Runner, later_s: float
 ) -> tuple[ProgramDriver, str]:

@@ -292,8 +292,9 @@ def test_the_commands_start_pause_and_stop_a_program(
 
 def test_a_progress_that_cannot_be_saved_is_in_the_log_and_the_status(tmp_path: Path) -> None:
     state = tmp_path / "state"
-    (state / PROGRESS_FILE).mkdir(parents=True)  # nothing can be renamed over a directory
+    state.mkdir()
     daemon, _path, events, inbox = linked(tmp_path, latches=LatchStore(state))
+    (state / PROGRESS_FILE).mkdir()  # nothing can be renamed over a directory
     apply(daemon, inbox, ProgramStart(TWO_STEPS))
     assert daemon.program.flush(5.0)
     run_for(daemon, PERIOD)

@@ -114,7 +114,8 @@ def test_a_latch_raised_while_the_disk_fails_is_saved_once_it_works_and_survives
     assert status_of(daemon)["warnings"] == []
     logged = events.logged()
     assert [m for m in logged if m.startswith("saving latched alarms failed")] == [
-        "saving latched alarms failed: [Errno 5] Input/output error"
+        "saving latched alarms failed: [Errno 5] Input/output error: sensor_stuck will NOT "
+        "survive a restart (the heater stays off while latched; tried again every 30 s)"
     ]
     assert "latched alarms saved after a failed save" in logged
     # A crash: the daemon is gone without a word; the next start raises the alarm again.

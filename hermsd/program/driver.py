@@ -97,8 +97,9 @@ class ProgramDriver:
         try:
             stored = self.store.load()
         except StateError as error:
-            self._clear()
-            return f"program progress not resumed: {error}; discarded"
+            return f"program progress not resumed: {error}; {self._set_aside()}; " + (
+                f"the setpoint is {setpoint:g} °C"
+            )
         if stored is None:
             return None
         program, progress, _saved_at, started_at, _boot = stored
@@ -106,12 +107,8 @@ class ProgramDriver:
         ready_text = "" if ready is None else local_iso(ready, self.zone)
         stale = stale_reason(stored, wall_ns, ready_text, self.store.boot)
         if stale is not None:
-            try:
-                kept = f"kept as {self.store.set_aside()}"
-            except OSError as error:
-                kept = f"setting it aside failed: {error}"
             return (
-                f"program {program.name!r} not resumed: {stale}; {kept}; "
+                f"program {program.name!r} not resumed: {stale}; {self._set_aside()}; "
                 f"the setpoint is {setpoint:g} °C"
             )
         self.runner = Runner(program, progress, max_step_s=2.0 * self.period_s)
@@ -128,6 +125,14 @@ class ProgramDriver:
             f"{left:.0f} s of its hold left" if left is not None else runner.state
         )
         return f"program {program.name!r} resumed after a restart at {where}"
+
+    def _set_aside(self) -> str:
+        """The stored program's files kept beside as `….stale`, for the brewer to read; said."""
+        assert self.store is not None
+        try:
+            return f"kept as {self.store.set_aside()}"
+        except OSError as error:
+            return f"setting it aside failed: {error}"
 
     def problems(self, program: Program) -> list[str]:
         """Why `program` cannot start now, beyond its own checks; [] when it can."""

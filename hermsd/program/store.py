@@ -18,10 +18,10 @@ import os
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeGuard
 
 from hermsd.files import fsync_directory, write_atomically
-from hermsd.latches import StateError, read_state_json
+from hermsd.latches import StateError, is_int, read_state_json
 from hermsd.program.model import Program, ProgramError, from_data, to_data
 from hermsd.program.runner import PHASES, Progress
 
@@ -34,6 +34,7 @@ CLEAR_RETRY_S = 30.0  # a failed clear is tried again this often until it lands
 # brewer's `systemctl restart` is back within a minute or two; longer (a power cut, a boot
 # days later) the water has cooled or was drained, and heating it unattended is not safe.
 RESUME_WITHIN_S = 15 * 60.0
+MAX_HELD_S = 7 * 86_400.0  # s: a step's counted time past its hold (waiting), or until told
 
 
 class Stored(NamedTuple):
@@ -71,27 +72,31 @@ class ProgressStore:
         record = read_state_json(self.progress_path)
         if document is None and record is None:
             return None
+        where = self.path  # the file being checked, named in the error
         try:
             if document is None or record is None:
                 missing = self.path if document is None else self.progress_path
+                where = self.progress_path if document is None else self.path
                 raise ValueError(f"{missing.name} is missing")
             program = from_data(
                 document.get("program") if isinstance(document, dict) else None, str(self.path)
             )
-            if record["program_at_ns"] != document["started_at_ns"]:
+            started_at = _wall_ns("started_at_ns", document["started_at_ns"])
+            where = self.progress_path
+            if not isinstance(record, dict):
+                raise TypeError("expected an object")
+            if record["program_at_ns"] != started_at:
                 raise ValueError("the progress is another program's")
             progress = _progress(record["progress"], program)
-            saved_at = record["saved_at_ns"]
-            if not isinstance(saved_at, int) or isinstance(saved_at, bool):
-                raise ValueError(f"saved_at_ns {saved_at!r} is not a time")
+            saved_at = _wall_ns("saved_at_ns", record["saved_at_ns"])
             boot = record.get("boot_id")
             if boot is not None and not isinstance(boot, str):
                 raise ValueError(f"boot_id {boot!r} is not a boot's id")
         except ProgramError as error:
             raise StateError(f"{self.path}: its program is not valid: {error}") from None
         except (KeyError, TypeError, ValueError) as error:
-            raise StateError(f"{self.path}: not a program's progress ({error})") from None
-        return Stored(program, progress, saved_at, record["program_at_ns"], boot)
+            raise StateError(f"{where}: not a program's progress ({error})") from None
+        return Stored(program, progress, saved_at, started_at, boot)
 
     def save_program(self, program: Program, started_at_ns: int) -> None:
         """Store a program that starts (its progress follows)."""
@@ -267,16 +272,19 @@ def _progress(data: Any, program: Program) -> Progress:
         raise TypeError("'progress' must be an object")
     index, phase, held = data["index"], data["phase"], data["held_s"]
     setpoint, ready = data["setpoint"], data["ready_at_ns"]
-    if not (isinstance(index, int) and 0 <= index < len(program.steps)):
+    if not (is_int(index) and 0 <= index < len(program.steps)):
         raise ValueError(f"step index {index!r} is not one of the program's")
     if phase not in PHASES:
         raise ValueError(f"phase {phase!r} is not one of {', '.join(PHASES)}")
-    if not (isinstance(held, int | float) and held >= 0.0):
-        raise ValueError(f"held_s {held!r} is not a time")
-    if setpoint is not None and not (isinstance(setpoint, int | float) and 0 <= setpoint <= 100):
+    hold = program.steps[index].hold
+    # A hold reaching its time ends at once (`Runner.period`): one still holding has held less.
+    most = hold if phase == "holding" and hold is not None else MAX_HELD_S
+    if not (_is_number(held) and 0.0 <= held <= most):
+        raise ValueError(f"held_s {held!r} is not a time within 0–{most:g} s")
+    if setpoint is not None and not (_is_number(setpoint) and 0 <= setpoint <= 100):
         raise ValueError(f"setpoint {setpoint!r} is not a temperature")
-    if ready is not None and not isinstance(ready, int):
-        raise ValueError(f"ready_at_ns {ready!r} is not a time")
+    if ready is not None:
+        _wall_ns("ready_at_ns", ready)
     paused, reached = data["paused"], data["reached"]
     if not (isinstance(paused, bool) and isinstance(reached, bool)):
         raise ValueError("paused and reached must be true or false")
@@ -291,3 +299,15 @@ def _progress(data: Any, program: Program) -> Progress:
         None if setpoint is None else float(setpoint),
         ready,
     )
+
+
+def _wall_ns(key: str, value: Any) -> int:
+    """A wall-clock time in ns since 1970, as the clock gives it (within 64 bits: years
+    1970–2262, all of which a datetime can show); ValueError naming `key` otherwise."""
+    if not (is_int(value) and 0 <= value < 2**63):
+        raise ValueError(f"{key} {value!r} is not a time (ns since 1970)")
+    return value
+
+
+def _is_number(value: Any) -> TypeGuard[int | float]:
+    return is_int(value) or isinstance(value, float)
