@@ -24,6 +24,7 @@ from hermsd.program.model import Program, ProgramError, Step
 from hermsd.program.readiness import Tun
 from hermsd.program.runner import Progress, Refused, Runner, heat_up_s
 from hermsd.program.store import PROGRAM_FILE, PROGRESS_FILE, ProgressStore, ProgressWriter
+from hermsd.sim import scenario
 
 STEP_MASH = """\
 # a step mash
@@ -69,7 +70,7 @@ def test_a_program_file_is_read_as_written() -> None:
 
 def test_the_name_defaults_to_the_files_stem(tmp_path: Path) -> None:
     path = tmp_path / "hefeweizen.yaml"
-    path.write_text("steps:\n  - {name: Rest, setpoint: 66, hold: 60}\n", encoding="utf-8")
+    path.write_text("steps:\n  - {name: Rest, setpoint: 66, hold: 1m}\n", encoding="utf-8")
     assert model.load(path) == Program("hefeweizen", (Step("Rest", 66.0, 60.0),))
 
 
@@ -133,6 +134,35 @@ def test_what_a_program_is_not(text: str, says: str) -> None:
     with pytest.raises(ProgramError) as caught:
         model.parse(text, "bad.yaml")
     assert str(caught.value).startswith(says)
+
+
+@pytest.mark.parametrize(
+    ("hold", "number"), [("60", "60"), ("'60'", "60"), ("5", "5"), ("1.5", "1.5"), ("0", "0")]
+)
+def test_a_hold_without_its_unit_is_refused_with_both_readings(hold: str, number: str) -> None:
+    """60 may be the hour-long rest meant or one minute: the brewer says which."""
+    text = (
+        "steps:\n  - {name: A, setpoint: 60, hold: 1m}\n"
+        f"  - {{name: B, setpoint: 66, hold: {hold}}}\n"
+    )
+    with pytest.raises(ProgramError) as caught:
+        model.parse(text, "mash.yaml")
+    assert str(caught.value) == (
+        f"mash.yaml:3:35: steps[1].hold: {number} has no unit "
+        f"(write {number}m for {number} minutes, or {number}s for {number} seconds)"
+    )
+
+
+def test_a_scenarios_inline_program_needs_the_units_its_data_form_does_not() -> None:
+    typed = {"steps": [{"name": "A", "setpoint": 66, "hold": 60}]}
+    assert model.from_data(typed).steps[0].hold == 60.0  # what `to_data` writes: seconds
+    with pytest.raises(ProgramError) as caught:
+        model.from_data(typed, typed=True)
+    assert model.one_line(caught.value) == (
+        "steps[0].hold: 60 has no unit (write 60m for 60 minutes, or 60s for 60 seconds)"
+    )
+    with pytest.raises(scenario.ScenarioError, match=r"program: steps\[0\]\.hold: 60 has no unit"):
+        scenario.parse_scenario({"program": typed}, "day.yaml")
 
 
 def _said(data: object) -> str:

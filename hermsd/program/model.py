@@ -18,7 +18,7 @@ import yaml
 
 from hermsd import config as config_module
 from hermsd.config import ConfigError, Problem
-from hermsd.durations import parse_duration
+from hermsd.durations import NoUnit, parse_duration
 
 MAX_STEPS = 50
 NAME_LENGTH = 40
@@ -200,32 +200,41 @@ class _Reader(config_module._Reader):
 
     def hold(self, path: str, node: yaml.Node) -> float | None:
         """Seconds, or None for 'until told' (a wrong value is reported, and None)."""
-        expected = (
-            f"a duration such as 90s, 60m or 1h30m (at most {MAX_HOLD_S / 3600:g} h), "
-            f"or {UNTIL_TOLD!r}"
-        )
-        info = _field(path, str, "60m", nullable=False)
         if isinstance(node, yaml.ScalarNode) and node.style is None:
             try:
                 plain = config_module._plain_value(node.value)
             except config_module._TooLong:
                 plain = None
             if isinstance(plain, int | float) and not isinstance(plain, bool):
-                text: object = plain
-            else:
-                text = self.value(info, node)
-        else:
-            text = self.value(info, node)
-        if text is None:
+                return self.bare_hold(path, node, plain)
+        text = self.value(_field(path, str, "60m", nullable=False), node)
+        if text is None or text == UNTIL_TOLD:
             return None
-        if text == UNTIL_TOLD:
-            return None
+        return self.duration_hold(path, node, text)
+
+    def bare_hold(self, path: str, node: yaml.Node, number: float) -> float | None:
+        """A hold written as a bare number: refused, since 60 may mean minutes or seconds."""
+        return self.duration_hold(path, node, node.value)
+
+    def duration_hold(self, path: str, node: yaml.Node, text: str) -> float | None:
+        """The seconds of a hold written as a duration with its unit."""
         try:
-            seconds = parse_duration(text)  # type: ignore[arg-type]
+            seconds = parse_duration(text, unit_required=True)
+        except NoUnit as problem:
+            self.report(node.start_mark, path, str(problem))
+            return None
         except ValueError:
             seconds = -1.0
+        return self.hold_within(path, node, text, seconds)
+
+    def hold_within(self, path: str, node: yaml.Node, shown: object, seconds: float) -> float:
+        """`seconds`, reported (as `shown`) when it is no hold."""
         if not 0.0 <= seconds <= MAX_HOLD_S:
-            self.report(node.start_mark, path, f"{text!r} is not a hold ({expected})")
+            expected = (
+                f"a duration such as 90s, 60m or 1h30m (at most {MAX_HOLD_S / 3600:g} h), "
+                f"or {UNTIL_TOLD!r}"
+            )
+            self.report(node.start_mark, path, f"{shown!r} is not a hold ({expected})")
         return seconds
 
 
@@ -241,6 +250,16 @@ class _DataReader(_Reader):
 
     def place(self, index: int, node: yaml.Node) -> str:
         return f"steps[{index}]"
+
+    def bare_hold(self, path: str, node: yaml.Node, number: float) -> float | None:
+        """The data form's holds are seconds, as `to_data` writes them (a program's own)."""
+        return self.hold_within(path, node, number, float(number))
+
+
+class _TypedDataReader(_DataReader):
+    """Reads a program typed by hand as data (a scenario's inline program): units required."""
+
+    bare_hold = _Reader.bare_hold
 
 
 _NOWHERE = yaml.Mark("<data>", 0, 0, 0, "", 0)
@@ -330,8 +349,12 @@ def to_data(program: Program) -> dict[str, Any]:
     }
 
 
-def from_data(data: Any, source: str = "<program>") -> Program:
-    """The program `to_data` made, checked exactly as a file is (ProgramError if it is not)."""
+def from_data(data: Any, source: str = "<program>", *, typed: bool = False) -> Program:
+    """The program `to_data` made, checked exactly as a file is (ProgramError if it is not).
+
+    Its holds may be bare numbers of seconds, unless `typed` (by hand: a scenario's inline
+    program), where a hold must say its unit as in a file.
+    """
     if not isinstance(data, dict):
         raise ProgramError([Problem(source, 0, 0, "", "a program is an object with steps")])
     cleaned = {key: value for key, value in data.items() if value is not None}
@@ -340,7 +363,8 @@ def from_data(data: Any, source: str = "<program>") -> Program:
             {k: v for k, v in step.items() if v is not None} if isinstance(step, dict) else step
             for step in cleaned["steps"]
         ]
-    return _checked(_DataReader(source), _data_node(cleaned), source)
+    reader = _TypedDataReader(source) if typed else _DataReader(source)
+    return _checked(reader, _data_node(cleaned), source)
 
 
 def describe_step(step: Step) -> str:

@@ -200,7 +200,7 @@ def _program(raw: Any, source: str, fail: Callable[[str, str], ScenarioError]) -
     try:
         if isinstance(raw, str):
             return program_model.load(Path(source).parent / raw)
-        return program_model.from_data(raw, "program")
+        return program_model.from_data(raw, "program", typed=True)
     except ProgramError as error:
         if isinstance(raw, str):
             raise ScenarioError(str(error)) from None  # the file's own FILE:LINE:COL
