@@ -107,8 +107,8 @@ def test_every_problem_is_said_with_file_line_and_column() -> None:
         "next`, never waits (give the hold a time, or leave confirm out)",
         "bad.yaml:12:15: steps[2].setpoint: expected a number, got the string '066' (a number "
         "from 0 to 100 °C; drop the leading zeros, which YAML 1.1 reads as octal)",
-        "bad.yaml:14:11: steps[2].ramp: 0 °C/min is out of range (a number above 0 and at most "
-        "10 °C/min, or null for at once)",
+        "bad.yaml:14:11: steps[2].ramp: 0 °C/min is out of range (a number from 0.07 to 10 "
+        "°C/min, or null for at once)",
     ]
 
 
@@ -163,6 +163,24 @@ def test_a_scenarios_inline_program_needs_the_units_its_data_form_does_not() -> 
     )
     with pytest.raises(scenario.ScenarioError, match=r"program: steps\[0\]\.hold: 60 has no unit"):
         scenario.parse_scenario({"program": typed}, "day.yaml")
+
+
+@pytest.mark.parametrize(("ramp", "valid"), [("1e-300", False), ("0.069", False), ("0.07", True)])
+def test_a_ramp_ends_within_the_day_a_hold_may_last(ramp: str, valid: bool) -> None:
+    """0.07 °C/min crosses the widest span, 0 to 100 °C, in 1428.6 min: within 24 h (1440)."""
+    text = (
+        "steps:\n  - {name: A, setpoint: 0, hold: 1m}\n"
+        f"  - {{name: B, setpoint: 100, hold: 1m, ramp: {ramp}}}\n"
+    )
+    if valid:
+        assert model.parse(text).steps[1].ramp == 0.07
+        return
+    with pytest.raises(ProgramError) as caught:
+        model.parse(text, "mash.yaml")
+    assert str(caught.value) == (
+        f"mash.yaml:3:46: steps[1].ramp: {ramp} °C/min is out of range "
+        "(a number from 0.07 to 10 °C/min, or null for at once)"
+    )
 
 
 def _said(data: object) -> str:

@@ -8,6 +8,7 @@ A program sent over the control socket is its `to_data` form, checked again the 
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -25,6 +26,11 @@ NAME_LENGTH = 40
 MESSAGE_LENGTH = 120
 MAX_HOLD_S = 24 * 3600.0
 MAX_RAMP = 10.0  # °C per minute: faster than any element heats a tun
+SETPOINT_RANGE = (0.0, 100.0)  # °C: the water's, liquid
+# The slowest ramp still crosses the widest span of setpoints within the 24 h a hold may
+# last: 100 °C / 1440 min = 0.0694 °C/min, rounded up to the two decimals a ramp is written
+# with. Slower, a step would "ramp" for days (1e-300 °C/min: for ever) without a word.
+MIN_RAMP = math.ceil((SETPOINT_RANGE[1] - SETPOINT_RANGE[0]) / (MAX_HOLD_S / 60.0) * 100) / 100
 UNTIL_TOLD = "until told"
 READY_BY = re.compile(r"(?P<hour>[01][0-9]|2[0-3]):(?P<minute>[0-5][0-9])")
 
@@ -166,7 +172,8 @@ class _Reader(config_module._Reader):
         if "name" in values:
             name = self.value(_name_field(f"{path}.name"), values["name"])
         if "setpoint" in values:
-            info = _field(f"{path}.setpoint", float, 66.0, unit="°C", low=0, high=100)
+            low, high = SETPOINT_RANGE
+            info = _field(f"{path}.setpoint", float, 66.0, unit="°C", low=low, high=high)
             setpoint = self.value(info, values["setpoint"])
         if "hold" in values:
             hold = self.hold(f"{path}.hold", values["hold"])
@@ -177,9 +184,8 @@ class _Reader(config_module._Reader):
                 float,
                 1.0,
                 unit="°C/min",
-                low=0,
+                low=MIN_RAMP,
                 high=MAX_RAMP,
-                low_exclusive=True,
                 nullable=True,
                 null_means="at once",
             )
