@@ -52,6 +52,7 @@ class _Spec:
     choices: tuple[object, ...] = ()
     max_length: int | None = None
     as_hex: bool = False  # show the bounds in hexadecimal
+    left_out: str | None = None  # what leaving the key out means; None: its default, "": refused
 
 
 def _number(
@@ -625,8 +626,7 @@ def _convert(info: _Field, node: yaml.Node) -> object:
     if value is None:
         if info.nullable:
             return None
-        default = _show_default(info.default)
-        raise _Invalid(f"has no value ({expected}; or leave the key out for the default {default})")
+        raise _Invalid(f"has no value ({expected}{_left_out(info)})")
 
     if info.kind is bool:
         if isinstance(value, bool):
@@ -657,6 +657,13 @@ def _convert(info: _Field, node: yaml.Node) -> object:
             raise _Invalid(f"{node.value} is not one of the choices ({expected})")
         raise _Invalid(f"{node.value}{unit} is out of range ({expected})")
     return float(value) if info.kind is float else value
+
+
+def _left_out(info: _Field) -> str:
+    """What leaving a key out would do instead of the empty value, or nothing if it must be."""
+    if info.spec.left_out is None:
+        return f"; or leave the key out for the default {_show_default(info.default)}"
+    return f"; or leave the key out for {info.spec.left_out}" if info.spec.left_out else ""
 
 
 def _within(spec: _Spec, number: float) -> bool:

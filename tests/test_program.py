@@ -183,6 +183,23 @@ def test_a_ramp_ends_within_the_day_a_hold_may_last(ramp: str, valid: bool) -> N
     )
 
 
+def test_a_key_without_a_value_is_told_what_leaving_it_out_would_do() -> None:
+    """A step's name, setpoint and hold have no default: leaving them out is no way out."""
+    text = "name:\nsteps:\n  - name:\n    setpoint:\n    hold:\n    confirm:\n"
+    with pytest.raises(ProgramError) as caught:
+        model.parse(text, "mash.yaml")
+    assert str(caught.value).splitlines() == [
+        "mash.yaml:1:6: name: has no value (text of 1 to 40 printable characters; or leave the "
+        "key out for the file's name)",
+        "mash.yaml:3:10: steps[0].name: has no value (text of 1 to 40 printable characters)",
+        "mash.yaml:4:14: steps[0].setpoint: has no value (a number from 0 to 100 °C)",
+        "mash.yaml:5:10: steps[0].hold: has no value (a duration such as 90s, 60m or 1h30m (at "
+        "most 24 h), or 'until told')",
+        "mash.yaml:6:13: steps[0].confirm: has no value (text of 1 to 120 printable characters; "
+        "or leave the key out for a step that does not wait)",
+    ]
+
+
 def _said(data: object) -> str:
     with pytest.raises(ProgramError) as caught:
         model.from_data(data)

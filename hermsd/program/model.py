@@ -32,6 +32,9 @@ SETPOINT_RANGE = (0.0, 100.0)  # °C: the water's, liquid
 # with. Slower, a step would "ramp" for days (1e-300 °C/min: for ever) without a word.
 MIN_RAMP = math.ceil((SETPOINT_RANGE[1] - SETPOINT_RANGE[0]) / (MAX_HOLD_S / 60.0) * 100) / 100
 UNTIL_TOLD = "until told"
+HOLD_EXPECTED = (
+    f"a duration such as 90s, 60m or 1h30m (at most {MAX_HOLD_S / 3600:g} h), or {UNTIL_TOLD!r}"
+)
 READY_BY = re.compile(r"(?P<hour>[01][0-9]|2[0-3]):(?P<minute>[0-5][0-9])")
 
 _TOP_KEYS = ["name", "ready_by", "steps"]
@@ -61,12 +64,14 @@ class ProgramError(ConfigError):
 
 
 def _field(path: str, kind: type, example: object, **spec: Any) -> config_module._Field:
+    """A key of the program; one left out has no default (`left_out` says what it means)."""
     nullable = spec.pop("nullable", False)
+    spec.setdefault("left_out", "")
     return config_module._Field(path, kind, nullable, example, config_module._Spec(**spec))
 
 
-def _name_field(path: str) -> config_module._Field:
-    return _field(path, str, "Saccharification", max_length=NAME_LENGTH)
+def _name_field(path: str, left_out: str = "") -> config_module._Field:
+    return _field(path, str, "Saccharification", max_length=NAME_LENGTH, left_out=left_out)
 
 
 class _Reader(config_module._Reader):
@@ -96,7 +101,7 @@ class _Reader(config_module._Reader):
         values = dict(self.items(root, "", _TOP_KEYS))
         name = default_name
         if "name" in values:
-            name = self.value(_name_field("name"), values["name"]) or name
+            name = self.value(_name_field("name", "the file's name"), values["name"]) or name
         ready_by = None
         if "ready_by" in values:
             ready_by = self.ready_by(values["ready_by"])
@@ -191,7 +196,13 @@ class _Reader(config_module._Reader):
             )
             ramp = self.value(info, values["ramp"])
         if "confirm" in values:
-            info = _field(f"{path}.confirm", str, "Mash in", max_length=MESSAGE_LENGTH)
+            info = _field(
+                f"{path}.confirm",
+                str,
+                "Mash in",
+                max_length=MESSAGE_LENGTH,
+                left_out="a step that does not wait",
+            )
             confirm = self.value(info, values["confirm"])
             if confirm is not None and hold is None and "hold" in values:
                 self.report(
@@ -213,6 +224,9 @@ class _Reader(config_module._Reader):
                 plain = None
             if isinstance(plain, int | float) and not isinstance(plain, bool):
                 return self.bare_hold(path, node, plain)
+        if config_module._is_null(node):
+            self.report(node.start_mark, path, f"has no value ({HOLD_EXPECTED})")
+            return None
         text = self.value(_field(path, str, "60m", nullable=False), node)
         if text is None or text == UNTIL_TOLD:
             return None
@@ -236,11 +250,7 @@ class _Reader(config_module._Reader):
     def hold_within(self, path: str, node: yaml.Node, shown: object, seconds: float) -> float:
         """`seconds`, reported (as `shown`) when it is no hold."""
         if not 0.0 <= seconds <= MAX_HOLD_S:
-            expected = (
-                f"a duration such as 90s, 60m or 1h30m (at most {MAX_HOLD_S / 3600:g} h), "
-                f"or {UNTIL_TOLD!r}"
-            )
-            self.report(node.start_mark, path, f"{shown!r} is not a hold ({expected})")
+            self.report(node.start_mark, path, f"{shown!r} is not a hold ({HOLD_EXPECTED})")
         return seconds
 
 
