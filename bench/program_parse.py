@@ -52,6 +52,9 @@ def before(data: dict[str, Any]) -> None:
     """The check as it was: to YAML text and back through the file's reader."""
     cleaned = {key: value for key, value in data.items() if value is not None}
     cleaned["steps"] = [{k: v for k, v in s.items() if v is not None} for s in cleaned["steps"]]
+    for step in cleaned["steps"]:  # a file's hold says its unit; the data's is seconds
+        if isinstance(step.get("hold"), int | float):
+            step["hold"] = f"{step['hold']:g}s"
     model.parse(config._yaml_text(cleaned), "program")
 
 

@@ -52,6 +52,7 @@ class _Spec:
     choices: tuple[object, ...] = ()
     max_length: int | None = None
     as_hex: bool = False  # show the bounds in hexadecimal
+    left_out: str | None = None  # what leaving the key out means; None: its default, "": refused
 
 
 def _number(
@@ -625,8 +626,7 @@ def _convert(info: _Field, node: yaml.Node) -> object:
     if value is None:
         if info.nullable:
             return None
-        default = _show_default(info.default)
-        raise _Invalid(f"has no value ({expected}; or leave the key out for the default {default})")
+        raise _Invalid(f"has no value ({expected}{_left_out(info)})")
 
     if info.kind is bool:
         if isinstance(value, bool):
@@ -657,6 +657,13 @@ def _convert(info: _Field, node: yaml.Node) -> object:
             raise _Invalid(f"{node.value} is not one of the choices ({expected})")
         raise _Invalid(f"{node.value}{unit} is out of range ({expected})")
     return float(value) if info.kind is float else value
+
+
+def _left_out(info: _Field) -> str:
+    """What leaving a key out would do instead of the empty value, or nothing if it must be."""
+    if info.spec.left_out is None:
+        return f"; or leave the key out for the default {_show_default(info.default)}"
+    return f"; or leave the key out for {info.spec.left_out}" if info.spec.left_out else ""
 
 
 def _within(spec: _Spec, number: float) -> bool:
@@ -696,6 +703,14 @@ def _checked_text(info: _Field, text: str, expected: str) -> str:
 class _Violation(NamedTuple):
     keys: tuple[str, ...]  # every key the rule reads; the first one present in the file is shown
     message: str
+    value: str = ""  # keys[0]'s value with its unit, when `message` goes on from it
+
+    def said(self, shown: str) -> str:
+        """The message under the key `shown`; another key than its subject's names that."""
+        if not self.value:
+            return self.message
+        subject = self.value if shown == self.keys[0] else f"{self.keys[0]} ({self.value})"
+        return f"{subject} {self.message}"
 
 
 def _violations(config: Config) -> list[_Violation]:
@@ -735,10 +750,11 @@ def _violations(config: Config) -> list[_Violation]:
             found.append(
                 _Violation(
                     (f"output.{name}", "output.mains_hz"),
-                    f"{_fmt(pulse)} s is shorter than one mains half-cycle "
+                    "is shorter than one mains half-cycle "
                     f"({_fmt(round(half_cycle * 1000, 2))} ms at {output.mains_hz} Hz), the "
                     "shortest pulse a zero-cross SSR delivers "
                     f"(use 0 or at least {_fmt(at_least)})",
+                    f"{_fmt(pulse)} s",
                 )
             )
 
@@ -746,45 +762,49 @@ def _violations(config: Config) -> list[_Violation]:
         found.append(
             _Violation(
                 ("control.setpoint", "safety.max_temp"),
-                f"{_fmt(control.setpoint)} °C is not below safety.max_temp "
+                "is not below safety.max_temp "
                 f"({_fmt(safety.max_temp)} °C), where the over-temperature cut-out switches the "
                 f"heater off (set it below {_fmt(safety.max_temp)} °C or raise safety.max_temp)",
+                f"{_fmt(control.setpoint)} °C",
             )
         )
     if safety.plausible_min >= safety.plausible_max:
         found.append(
             _Violation(
                 ("safety.plausible_min", "safety.plausible_max"),
-                f"{_fmt(safety.plausible_min)} °C is not below safety.plausible_max "
-                f"({_fmt(safety.plausible_max)} °C) (plausible_min is the lower end of the "
-                "range of believable readings)",
+                f"is not below safety.plausible_max ({_fmt(safety.plausible_max)} °C): the "
+                "believable readings run from plausible_min up to plausible_max (lower "
+                "plausible_min or raise plausible_max)",
+                f"{_fmt(safety.plausible_min)} °C",
             )
         )
     if safety.max_temp >= safety.plausible_max:
         found.append(
             _Violation(
                 ("safety.max_temp", "safety.plausible_max"),
-                f"{_fmt(safety.max_temp)} °C is not below safety.plausible_max "
-                f"({_fmt(safety.plausible_max)} °C), so an overheat would read as a broken sensor "
-                "(lower max_temp or raise plausible_max)",
+                f"is not below safety.plausible_max ({_fmt(safety.plausible_max)} °C), so an "
+                "overheat would read as a broken sensor (lower max_temp or raise plausible_max)",
+                f"{_fmt(safety.max_temp)} °C",
             )
         )
     if safety.stale_after is not None and safety.stale_after <= config.sensor.read_interval:
         found.append(
             _Violation(
                 ("safety.stale_after", "sensor.read_interval"),
-                f"{_fmt(safety.stale_after)} s is not longer than sensor.read_interval "
+                "is not longer than sensor.read_interval "
                 f"({_fmt(config.sensor.read_interval)} s), so every reading would go stale "
                 f"before the next (make it a few read intervals, e.g. "
                 f"{_fmt(3 * config.sensor.read_interval)})",
+                f"{_fmt(safety.stale_after)} s",
             )
         )
     if control.manual_output > control.max_output:
         found.append(
             _Violation(
                 ("control.manual_output", "control.max_output"),
-                f"{_fmt(control.manual_output)} % is above control.max_output "
-                f"({_fmt(control.max_output)} %) (lower it or raise max_output)",
+                f"is above control.max_output ({_fmt(control.max_output)} %) (lower "
+                "manual_output or raise max_output)",
+                f"{_fmt(control.manual_output)} %",
             )
         )
 
@@ -930,9 +950,9 @@ def _element2_violations(config: Config) -> list[_Violation]:
             found.append(
                 _Violation(
                     (f"element2.{name}", "control.period"),
-                    f"{_fmt(value)} s is shorter than control.period ({_fmt(control.period)} s);"
-                    " the second element switches only at periods (make it at least "
-                    f"{_fmt(control.period)})",
+                    f"is shorter than control.period ({_fmt(control.period)} s); the second "
+                    f"element switches only at periods (make it at least {_fmt(control.period)})",
+                    f"{_fmt(value)} s",
                 )
             )
     mine = _device(element2)
@@ -1246,11 +1266,12 @@ class _Reader:
 
     def cross_check(self, config: Config) -> None:
         """Report the rules between keys that are broken, unless a key they read was refused."""
-        for keys, message in _violations(config):
+        for violation in _violations(config):
+            keys = violation.keys
             if any(key in self.failed or key.split(".")[0] in self.failed for key in keys):
                 continue
             shown = next((key for key in keys if key in self.marks), keys[0])
-            self.report(self.marks.get(shown), shown, message)
+            self.report(self.marks.get(shown), shown, violation.said(shown))
 
 
 def _syntax_problem(filename: str, text: str, error: yaml.YAMLError) -> Problem:
@@ -1772,7 +1793,7 @@ def keep_restart_keys(running: Config, edited: Config) -> Config:
 
 def broken_rules(config: Config) -> list[str]:
     """The rules between keys that `config` breaks, as 'key: what is wrong' lines."""
-    return [f"{violation.keys[0]}: {violation.message}" for violation in _violations(config)]
+    return [f"{v.keys[0]}: {v.said(v.keys[0])}" for v in _violations(config)]
 
 
 def runtime_problems(running: Config, changes: dict[str, object]) -> list[str]:

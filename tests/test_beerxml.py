@@ -356,6 +356,51 @@ def test_long_names_and_fast_ramps_are_fitted_to_what_a_program_takes(tmp_path: 
     assert program["steps"][2]["ramp"] == 4.0
 
 
+@pytest.mark.parametrize(
+    ("ramp_min", "says"),
+    [
+        # 10 °C at the slowest ramp, 0.07 °C/min, takes 142.9 min: 142 is the most said
+        ("2000", "RAMP_TIME 2000 min for the 10 °C rise is 0.005 °C/min"),
+        ("1e308", "RAMP_TIME 1e+308 min for the 10 °C rise is 1e-307 °C/min"),
+        ("143", "RAMP_TIME 143 min for the 10 °C rise is 0.0699 °C/min"),
+    ],
+)
+def test_a_ramp_slower_than_a_program_ramps_is_refused_not_changed(
+    tmp_path: Path, ramp_min: str, says: str
+) -> None:
+    path = write(
+        tmp_path,
+        "<RECIPES><RECIPE><NAME>R</NAME><MASH><NAME>M</NAME><MASH_STEPS>\n"
+        "<MASH_STEP><NAME>A</NAME><TYPE>Temperature</TYPE><STEP_TEMP>66</STEP_TEMP>"
+        "<STEP_TIME>60</STEP_TIME></MASH_STEP>\n"
+        "<MASH_STEP><NAME>B</NAME><TYPE>Temperature</TYPE><STEP_TEMP>76</STEP_TEMP>"
+        f"<STEP_TIME>10</STEP_TIME>\n<RAMP_TIME>{ramp_min}</RAMP_TIME></MASH_STEP>\n"
+        "</MASH_STEPS></MASH></RECIPE></RECIPES>",
+    )
+    with pytest.raises(BeerXMLError) as caught:
+        read(path)
+    assert str(caught.value) == (
+        f"{path}:4: MASH_STEP 'B': {says}, slower than a program ramps (0.07 °C/min at least, "
+        "so that any ramp ends within 24 h): give it 142 min or less in the recipe, or 0 to "
+        "heat at once"
+    )
+
+
+def test_a_ramp_is_written_within_half_a_percent_of_the_recipes_time(tmp_path: Path) -> None:
+    path = write(
+        tmp_path,
+        "<RECIPES><RECIPE><NAME>R</NAME><MASH><NAME>M</NAME><MASH_STEPS>"
+        "<MASH_STEP><NAME>A</NAME><TYPE>Temperature</TYPE><STEP_TEMP>66</STEP_TEMP>"
+        "<STEP_TIME>60</STEP_TIME></MASH_STEP>"
+        "<MASH_STEP><NAME>B</NAME><TYPE>Temperature</TYPE><STEP_TEMP>76</STEP_TEMP>"
+        "<STEP_TIME>10</STEP_TIME><RAMP_TIME>130</RAMP_TIME></MASH_STEP>"
+        "</MASH_STEPS></MASH></RECIPE></RECIPES>",
+    )
+    # 10 °C in 130 min = 0.076923 °C/min, written 0.0769: 130.04 min (two decimals gave
+    # 0.08, 125 min)
+    assert program_of(path)["steps"][1]["ramp"] == 0.0769
+
+
 def test_a_rest_longer_than_a_program_holds_is_refused_at_its_line(tmp_path: Path) -> None:
     path = write(
         tmp_path,

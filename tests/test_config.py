@@ -820,6 +820,30 @@ def test_two_gpio_backends_without_lines_are_told_to_add_lines_not_to_share_one(
     assert all(".line, the line offset" in p.message for p in problems)
 
 
+def test_a_rule_shown_at_another_key_than_its_subject_names_the_subject() -> None:
+    """Only plausible_max is in the file: the defaults it clashes with are named, with theirs."""
+    problems = problems_of("safety:\n  plausible_max: -55\n")
+    assert [(p.line, p.column, p.key_path, p.message) for p in problems] == [
+        (
+            2,
+            18,
+            "safety.plausible_max",
+            "safety.plausible_min (-10 °C) is not below safety.plausible_max (-55 °C): the "
+            "believable readings run from plausible_min up to plausible_max (lower "
+            "plausible_min or raise plausible_max)",
+        ),
+        (
+            2,
+            18,
+            "safety.plausible_max",
+            "safety.max_temp (95 °C) is not below safety.plausible_max (-55 °C), so an overheat "
+            "would read as a broken sensor (lower max_temp or raise plausible_max)",
+        ),
+    ]
+    subject = only_problem("safety:\n  plausible_min: 130\n")  # its own key: its value alone
+    assert subject.message.startswith("130 °C is not below safety.plausible_max (110 °C)")
+
+
 def test_a_rule_is_not_reported_when_one_of_its_keys_was_refused() -> None:
     problem = only_problem(document({"control.setpoint": "hot", "safety.max_temp": "40"}))
     assert problem.key_path == "control.setpoint"

@@ -24,6 +24,7 @@ from hermsd.program.model import Program, ProgramError, Step
 from hermsd.program.readiness import Tun
 from hermsd.program.runner import Progress, Refused, Runner, heat_up_s
 from hermsd.program.store import PROGRAM_FILE, PROGRESS_FILE, ProgressStore, ProgressWriter
+from hermsd.sim import scenario
 
 STEP_MASH = """\
 # a step mash
@@ -69,7 +70,7 @@ def test_a_program_file_is_read_as_written() -> None:
 
 def test_the_name_defaults_to_the_files_stem(tmp_path: Path) -> None:
     path = tmp_path / "hefeweizen.yaml"
-    path.write_text("steps:\n  - {name: Rest, setpoint: 66, hold: 60}\n", encoding="utf-8")
+    path.write_text("steps:\n  - {name: Rest, setpoint: 66, hold: 1m}\n", encoding="utf-8")
     assert model.load(path) == Program("hefeweizen", (Step("Rest", 66.0, 60.0),))
 
 
@@ -106,8 +107,8 @@ def test_every_problem_is_said_with_file_line_and_column() -> None:
         "next`, never waits (give the hold a time, or leave confirm out)",
         "bad.yaml:12:15: steps[2].setpoint: expected a number, got the string '066' (a number "
         "from 0 to 100 °C; drop the leading zeros, which YAML 1.1 reads as octal)",
-        "bad.yaml:14:11: steps[2].ramp: 0 °C/min is out of range (a number above 0 and at most "
-        "10 °C/min, or null for at once)",
+        "bad.yaml:14:11: steps[2].ramp: 0 °C/min is out of range (a number from 0.07 to 10 "
+        "°C/min, or null for at once)",
     ]
 
 
@@ -133,6 +134,70 @@ def test_what_a_program_is_not(text: str, says: str) -> None:
     with pytest.raises(ProgramError) as caught:
         model.parse(text, "bad.yaml")
     assert str(caught.value).startswith(says)
+
+
+@pytest.mark.parametrize(
+    ("hold", "number"), [("60", "60"), ("'60'", "60"), ("5", "5"), ("1.5", "1.5"), ("0", "0")]
+)
+def test_a_hold_without_its_unit_is_refused_with_both_readings(hold: str, number: str) -> None:
+    """60 may be the hour-long rest meant or one minute: the brewer says which."""
+    text = (
+        "steps:\n  - {name: A, setpoint: 60, hold: 1m}\n"
+        f"  - {{name: B, setpoint: 66, hold: {hold}}}\n"
+    )
+    with pytest.raises(ProgramError) as caught:
+        model.parse(text, "mash.yaml")
+    assert str(caught.value) == (
+        f"mash.yaml:3:35: steps[1].hold: {number} has no unit "
+        f"(write {number}m for {number} minutes, or {number}s for {number} seconds)"
+    )
+
+
+def test_a_scenarios_inline_program_needs_the_units_its_data_form_does_not() -> None:
+    typed = {"steps": [{"name": "A", "setpoint": 66, "hold": 60}]}
+    assert model.from_data(typed).steps[0].hold == 60.0  # what `to_data` writes: seconds
+    with pytest.raises(ProgramError) as caught:
+        model.from_data(typed, typed=True)
+    assert model.one_line(caught.value) == (
+        "steps[0].hold: 60 has no unit (write 60m for 60 minutes, or 60s for 60 seconds)"
+    )
+    with pytest.raises(scenario.ScenarioError, match=r"program: steps\[0\]\.hold: 60 has no unit"):
+        scenario.parse_scenario({"program": typed}, "day.yaml")
+
+
+@pytest.mark.parametrize(("ramp", "valid"), [("1e-300", False), ("0.069", False), ("0.07", True)])
+def test_a_ramp_ends_within_the_day_a_hold_may_last(ramp: str, valid: bool) -> None:
+    """0.07 °C/min crosses the widest span, 0 to 100 °C, in 1428.6 min: within 24 h (1440)."""
+    text = (
+        "steps:\n  - {name: A, setpoint: 0, hold: 1m}\n"
+        f"  - {{name: B, setpoint: 100, hold: 1m, ramp: {ramp}}}\n"
+    )
+    if valid:
+        assert model.parse(text).steps[1].ramp == 0.07
+        return
+    with pytest.raises(ProgramError) as caught:
+        model.parse(text, "mash.yaml")
+    assert str(caught.value) == (
+        f"mash.yaml:3:46: steps[1].ramp: {ramp} °C/min is out of range "
+        "(a number from 0.07 to 10 °C/min, or null for at once)"
+    )
+
+
+def test_a_key_without_a_value_is_told_what_leaving_it_out_would_do() -> None:
+    """A step's name, setpoint and hold have no default: leaving them out is no way out."""
+    text = "name:\nsteps:\n  - name:\n    setpoint:\n    hold:\n    confirm:\n"
+    with pytest.raises(ProgramError) as caught:
+        model.parse(text, "mash.yaml")
+    assert str(caught.value).splitlines() == [
+        "mash.yaml:1:6: name: has no value (text of 1 to 40 printable characters; or leave the "
+        "key out for the file's name)",
+        "mash.yaml:3:10: steps[0].name: has no value (text of 1 to 40 printable characters)",
+        "mash.yaml:4:14: steps[0].setpoint: has no value (a number from 0 to 100 °C)",
+        "mash.yaml:5:10: steps[0].hold: has no value (a duration such as 90s, 60m or 1h30m (at "
+        "most 24 h), or 'until told')",
+        "mash.yaml:6:13: steps[0].confirm: has no value (text of 1 to 120 printable characters; "
+        "or leave the key out for a step that does not wait)",
+    ]
 
 
 def _said(data: object) -> str:

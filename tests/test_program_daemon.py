@@ -389,7 +389,7 @@ def test_a_sigkill_in_a_rest_resumes_that_rest_with_its_time_left(
 ) -> None:
     state, sock = tmp_path / "state", tmp_path / "state" / "control.sock"
     program = tmp_path / "rest.yaml"  # the simulated tun starts at 20 °C: in the band at once
-    program.write_text(f"steps:\n  - {{name: Rest, setpoint: 20.25, hold: {HOLD_S:g}}}\n")
+    program.write_text(f"steps:\n  - {{name: Rest, setpoint: 20.25, hold: {HOLD_S:g}s}}\n")
     first = _hermsd(state)
     try:
         _wait_for(sock, capsys, lambda s: s["pv"] is not None)

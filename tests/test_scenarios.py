@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from pathlib import Path
@@ -146,6 +147,22 @@ def test_an_invalid_config_event_names_the_event() -> None:
     bad = parse_scenario({"events": [{"at": "1h", "config": {"control": {"ti": -1}}}]})
     with pytest.raises(ScenarioError, match=r"events\[0\]\.config.*control\.ti"):
         scenario.run(bad)
+
+
+def test_a_config_override_is_refused_at_its_line_in_the_scenario(tmp_path: Path) -> None:
+    path = tmp_path / "day.yaml"
+    path.write_text(
+        "duration: 1h\nconfig:\n  control:\n    kc: -5\nevents:\n  - at: 10m\n"
+        "    config: {control: {ti: -1}}\n",
+        encoding="utf-8",
+    )
+    day = scenario.load_scenario(path)
+    with pytest.raises(ScenarioError) as caught:
+        scenario.effective_config(config_module.DEFAULT, day)
+    assert str(caught.value).startswith(f"{path}:4:9: config.control.kc: -5 %/°C is out of range")
+    with pytest.raises(ScenarioError) as caught:  # the override fixed, the event is next
+        scenario.run(dataclasses.replace(day, config={}))
+    assert str(caught.value).startswith(f"{path}:7:28: events[0].config.control.ti: -1 s")
 
 
 def test_a_simulated_log_is_named_after_its_first_record(tmp_path: Path) -> None:

@@ -238,13 +238,7 @@ def _steps(mash: Node, source: str) -> tuple[Step, ...]:
         ramp, note = None, None
         if ramp_time:
             if previous is not None and setpoint > previous:
-                ramp = max(0.01, round((setpoint - previous) / ramp_time, 2))
-                if ramp > model.MAX_RAMP:
-                    note = (
-                        f"RAMP_TIME {ramp_time:g} min not used: {ramp:g} °C/min is faster than "
-                        f"a program ramps ({model.MAX_RAMP:g} °C/min at most): heated at once"
-                    )
-                    ramp = None
+                ramp, note = _ramp(setpoint - previous, ramp_time, element, source, name)
             else:
                 note = f"RAMP_TIME {ramp_time:g} min not used: no rise from a step before"
         steps.append(Step(name, setpoint, hold or 0.0, ramp, note=note))
@@ -255,6 +249,31 @@ def _steps(mash: Node, source: str) -> tuple[Step, ...]:
             f"{MAX_STEPS} a program may have"
         )
     return tuple(_unique(steps))
+
+
+def _ramp(
+    rise: float, ramp_time: float, element: Node, source: str, step: str
+) -> tuple[float | None, str | None]:
+    """The rate of a rise of `rise` °C in `ramp_time` min, to 3 significant digits (within
+    0.5 % of the recipe's time), and a note when it is not used; a rate slower than a program
+    can ramp is refused, as no program step says what the recipe asks."""
+    rate = rise / ramp_time
+    written = float(f"{rate:.3g}")
+    if rate > model.MAX_RAMP:
+        return None, (
+            f"RAMP_TIME {ramp_time:g} min not used: {written:g} °C/min is faster than "
+            f"a program ramps ({model.MAX_RAMP:g} °C/min at most): heated at once"
+        )
+    if rate < model.MIN_RAMP:
+        longest = math.floor(rise / model.MIN_RAMP)
+        raise BeerXMLError(
+            f"{source}:{_line(element, 'RAMP_TIME')}: MASH_STEP {step!r}: RAMP_TIME "
+            f"{ramp_time:g} min for the {rise:g} °C rise is {written:g} °C/min, slower than a "
+            f"program ramps ({model.MIN_RAMP:g} °C/min at least, so that any ramp ends "
+            f"within {model.MAX_HOLD_S / 3600:g} h): give it {longest} min or less in the "
+            "recipe, or 0 to heat at once"
+        )
+    return written, None
 
 
 def _unique(steps: list[Step]) -> list[Step]:

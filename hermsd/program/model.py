@@ -8,6 +8,7 @@ A program sent over the control socket is its `to_data` form, checked again the 
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -18,14 +19,22 @@ import yaml
 
 from hermsd import config as config_module
 from hermsd.config import ConfigError, Problem
-from hermsd.durations import parse_duration
+from hermsd.durations import NoUnit, parse_duration
 
 MAX_STEPS = 50
 NAME_LENGTH = 40
 MESSAGE_LENGTH = 120
 MAX_HOLD_S = 24 * 3600.0
 MAX_RAMP = 10.0  # °C per minute: faster than any element heats a tun
+SETPOINT_RANGE = (0.0, 100.0)  # °C: the water's, liquid
+# The slowest ramp still crosses the widest span of setpoints within the 24 h a hold may
+# last: 100 °C / 1440 min = 0.0694 °C/min, rounded up to the two decimals a ramp is written
+# with. Slower, a step would "ramp" for days (1e-300 °C/min: for ever) without a word.
+MIN_RAMP = math.ceil((SETPOINT_RANGE[1] - SETPOINT_RANGE[0]) / (MAX_HOLD_S / 60.0) * 100) / 100
 UNTIL_TOLD = "until told"
+HOLD_EXPECTED = (
+    f"a duration such as 90s, 60m or 1h30m (at most {MAX_HOLD_S / 3600:g} h), or {UNTIL_TOLD!r}"
+)
 READY_BY = re.compile(r"(?P<hour>[01][0-9]|2[0-3]):(?P<minute>[0-5][0-9])")
 
 _TOP_KEYS = ["name", "ready_by", "steps"]
@@ -55,12 +64,14 @@ class ProgramError(ConfigError):
 
 
 def _field(path: str, kind: type, example: object, **spec: Any) -> config_module._Field:
+    """A key of the program; one left out has no default (`left_out` says what it means)."""
     nullable = spec.pop("nullable", False)
+    spec.setdefault("left_out", "")
     return config_module._Field(path, kind, nullable, example, config_module._Spec(**spec))
 
 
-def _name_field(path: str) -> config_module._Field:
-    return _field(path, str, "Saccharification", max_length=NAME_LENGTH)
+def _name_field(path: str, left_out: str = "") -> config_module._Field:
+    return _field(path, str, "Saccharification", max_length=NAME_LENGTH, left_out=left_out)
 
 
 class _Reader(config_module._Reader):
@@ -90,7 +101,7 @@ class _Reader(config_module._Reader):
         values = dict(self.items(root, "", _TOP_KEYS))
         name = default_name
         if "name" in values:
-            name = self.value(_name_field("name"), values["name"]) or name
+            name = self.value(_name_field("name", "the file's name"), values["name"]) or name
         ready_by = None
         if "ready_by" in values:
             ready_by = self.ready_by(values["ready_by"])
@@ -166,7 +177,8 @@ class _Reader(config_module._Reader):
         if "name" in values:
             name = self.value(_name_field(f"{path}.name"), values["name"])
         if "setpoint" in values:
-            info = _field(f"{path}.setpoint", float, 66.0, unit="°C", low=0, high=100)
+            low, high = SETPOINT_RANGE
+            info = _field(f"{path}.setpoint", float, 66.0, unit="°C", low=low, high=high)
             setpoint = self.value(info, values["setpoint"])
         if "hold" in values:
             hold = self.hold(f"{path}.hold", values["hold"])
@@ -177,15 +189,20 @@ class _Reader(config_module._Reader):
                 float,
                 1.0,
                 unit="°C/min",
-                low=0,
+                low=MIN_RAMP,
                 high=MAX_RAMP,
-                low_exclusive=True,
                 nullable=True,
                 null_means="at once",
             )
             ramp = self.value(info, values["ramp"])
         if "confirm" in values:
-            info = _field(f"{path}.confirm", str, "Mash in", max_length=MESSAGE_LENGTH)
+            info = _field(
+                f"{path}.confirm",
+                str,
+                "Mash in",
+                max_length=MESSAGE_LENGTH,
+                left_out="a step that does not wait",
+            )
             confirm = self.value(info, values["confirm"])
             if confirm is not None and hold is None and "hold" in values:
                 self.report(
@@ -200,32 +217,40 @@ class _Reader(config_module._Reader):
 
     def hold(self, path: str, node: yaml.Node) -> float | None:
         """Seconds, or None for 'until told' (a wrong value is reported, and None)."""
-        expected = (
-            f"a duration such as 90s, 60m or 1h30m (at most {MAX_HOLD_S / 3600:g} h), "
-            f"or {UNTIL_TOLD!r}"
-        )
-        info = _field(path, str, "60m", nullable=False)
         if isinstance(node, yaml.ScalarNode) and node.style is None:
             try:
                 plain = config_module._plain_value(node.value)
             except config_module._TooLong:
                 plain = None
             if isinstance(plain, int | float) and not isinstance(plain, bool):
-                text: object = plain
-            else:
-                text = self.value(info, node)
-        else:
-            text = self.value(info, node)
-        if text is None:
+                return self.bare_hold(path, node, plain)
+        if config_module._is_null(node):
+            self.report(node.start_mark, path, f"has no value ({HOLD_EXPECTED})")
             return None
-        if text == UNTIL_TOLD:
+        text = self.value(_field(path, str, "60m", nullable=False), node)
+        if text is None or text == UNTIL_TOLD:
             return None
+        return self.duration_hold(path, node, text)
+
+    def bare_hold(self, path: str, node: yaml.Node, number: float) -> float | None:
+        """A hold written as a bare number: refused, since 60 may mean minutes or seconds."""
+        return self.duration_hold(path, node, node.value)
+
+    def duration_hold(self, path: str, node: yaml.Node, text: str) -> float | None:
+        """The seconds of a hold written as a duration with its unit."""
         try:
-            seconds = parse_duration(text)  # type: ignore[arg-type]
+            seconds = parse_duration(text, unit_required=True)
+        except NoUnit as problem:
+            self.report(node.start_mark, path, str(problem))
+            return None
         except ValueError:
             seconds = -1.0
+        return self.hold_within(path, node, text, seconds)
+
+    def hold_within(self, path: str, node: yaml.Node, shown: object, seconds: float) -> float:
+        """`seconds`, reported (as `shown`) when it is no hold."""
         if not 0.0 <= seconds <= MAX_HOLD_S:
-            self.report(node.start_mark, path, f"{text!r} is not a hold ({expected})")
+            self.report(node.start_mark, path, f"{shown!r} is not a hold ({HOLD_EXPECTED})")
         return seconds
 
 
@@ -241,6 +266,16 @@ class _DataReader(_Reader):
 
     def place(self, index: int, node: yaml.Node) -> str:
         return f"steps[{index}]"
+
+    def bare_hold(self, path: str, node: yaml.Node, number: float) -> float | None:
+        """The data form's holds are seconds, as `to_data` writes them (a program's own)."""
+        return self.hold_within(path, node, number, float(number))
+
+
+class _TypedDataReader(_DataReader):
+    """Reads a program typed by hand as data (a scenario's inline program): units required."""
+
+    bare_hold = _Reader.bare_hold
 
 
 _NOWHERE = yaml.Mark("<data>", 0, 0, 0, "", 0)
@@ -330,8 +365,12 @@ def to_data(program: Program) -> dict[str, Any]:
     }
 
 
-def from_data(data: Any, source: str = "<program>") -> Program:
-    """The program `to_data` made, checked exactly as a file is (ProgramError if it is not)."""
+def from_data(data: Any, source: str = "<program>", *, typed: bool = False) -> Program:
+    """The program `to_data` made, checked exactly as a file is (ProgramError if it is not).
+
+    Its holds may be bare numbers of seconds, unless `typed` (by hand: a scenario's inline
+    program), where a hold must say its unit as in a file.
+    """
     if not isinstance(data, dict):
         raise ProgramError([Problem(source, 0, 0, "", "a program is an object with steps")])
     cleaned = {key: value for key, value in data.items() if value is not None}
@@ -340,7 +379,8 @@ def from_data(data: Any, source: str = "<program>") -> Program:
             {k: v for k, v in step.items() if v is not None} if isinstance(step, dict) else step
             for step in cleaned["steps"]
         ]
-    return _checked(_DataReader(source), _data_node(cleaned), source)
+    reader = _TypedDataReader(source) if typed else _DataReader(source)
+    return _checked(reader, _data_node(cleaned), source)
 
 
 def describe_step(step: Step) -> str:

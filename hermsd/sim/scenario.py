@@ -98,6 +98,8 @@ class Scenario:
     events: tuple[Event, ...] = (Event(4 * 3600.0, "add_water", {"litres": 10.0, "temp": 15.0}),)
     program: Program | None = None
     clock: tuple[int, dt.tzinfo] | None = None  # wall-clock start (ns) and local zone
+    source: str = ""  # the file, for errors found later (a config override's)
+    positions: dict[str, tuple[int, int]] = field(default_factory=dict)  # each key's place
 
 
 DEFAULT = Scenario()
@@ -150,18 +152,7 @@ def parse_scenario(
     """A validated scenario from a parsed YAML document (`positions`: where each key is)."""
 
     def fail(key: str, what: str) -> ScenarioError:
-        where = source
-        path = key
-        while positions:  # the key's own position, else its nearest enclosing one
-            if path in positions:
-                line, column = positions[path]
-                where = f"{source}:{line}:{column}"
-                break
-            cut = max(path.rfind("."), path.rfind("["))
-            if cut <= 0:
-                break
-            path = path[:cut]
-        return ScenarioError(f"{where}: {key}: {what}")
+        return ScenarioError(f"{_where(source, positions or {}, key)}: {key}: {what}")
 
     if not isinstance(doc, dict):
         raise fail("(top level)", "expected a mapping with duration, plant, setpoint, events")
@@ -211,7 +202,23 @@ def parse_scenario(
         events=tuple(events),
         program=_program(doc["program"], source, fail) if "program" in doc else None,
         clock=_clock(doc["clock"], fail) if "clock" in doc else None,
+        source=source,
+        positions=positions or {},
     )
+
+
+def _where(source: str, positions: dict[str, tuple[int, int]], key: str) -> str:
+    """FILE:LINE:COL of `key`, else of its nearest enclosing key, else FILE."""
+    path = key
+    while positions:
+        if path in positions:
+            line, column = positions[path]
+            return f"{source}:{line}:{column}"
+        cut = max(path.rfind("."), path.rfind("["))
+        if cut <= 0:
+            break
+        path = path[:cut]
+    return source
 
 
 def _program(raw: Any, source: str, fail: Callable[[str, str], ScenarioError]) -> Program:
@@ -219,7 +226,7 @@ def _program(raw: Any, source: str, fail: Callable[[str, str], ScenarioError]) -
     try:
         if isinstance(raw, str):
             return program_model.load(Path(source).parent / raw)
-        return program_model.from_data(raw, "program")
+        return program_model.from_data(raw, "program", typed=True)
     except ProgramError as error:
         if isinstance(raw, str):
             raise ScenarioError(str(error)) from None  # the file's own FILE:LINE:COL
@@ -339,19 +346,27 @@ def effective_config(base: Config, scenario: Scenario) -> Config:
     merged = _merge(config_module.to_dict(base), scenario.config)
     if scenario.setpoint is not None:
         merged.setdefault("control", {})["setpoint"] = scenario.setpoint
-    return _validated(merged, f"<scenario {scenario.name}>")
+    return _validated(merged, scenario, "config")
 
 
-def _validated(document: dict[str, Any], source: str) -> Config:
-    """A config document on the simulated heater, checked as a file would be."""
+def _validated(document: dict[str, Any], scenario: Scenario, at: str) -> Config:
+    """A config document on the simulated heater, checked as a file would be; a problem is
+    said at its key in the scenario (`at`: where its overrides are), else at `at`."""
     document.setdefault("output", {})["backend"] = "sim"
     element2 = document.get("element2")
     if isinstance(element2, dict) and element2.get("backend", "none") != "none":
         element2["backend"] = "sim"  # the simulated tun's second element, whatever the file's
+    source = scenario.source or f"<scenario {scenario.name}>"
     try:
         return config_module.parse(yaml.safe_dump(document), source)
     except config_module.ConfigError as error:
-        raise ScenarioError(str(error)) from None
+        keys = [f"{at}.{p.key_path}" if p.key_path else at for p in error.problems]
+        raise ScenarioError(
+            "\n".join(
+                f"{_where(source, scenario.positions, key)}: {key}: {p.message}"
+                for key, p in zip(keys, error.problems, strict=True)
+            )
+        ) from None
 
 
 def _reloads(config: Config, scenario: Scenario) -> dict[int, Config]:
@@ -360,7 +375,7 @@ def _reloads(config: Config, scenario: Scenario) -> dict[int, Config]:
     for index, event in enumerate(scenario.events):
         if event.kind == "config":
             document = _merge(config_module.to_dict(config), event.value)
-            config = _validated(document, f"<scenario {scenario.name} events[{index}].config>")
+            config = _validated(document, scenario, f"events[{index}].config")
             reloads[index] = config
     return reloads
 
