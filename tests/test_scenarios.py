@@ -220,6 +220,33 @@ def test_an_event_out_of_range_is_refused_with_file_line_and_column(
     assert capsys.readouterr().err == f"hermsd: {where}: {key}: {message}\n"
 
 
+@pytest.mark.parametrize(
+    ("fault", "value", "needs"),
+    [
+        ("slow", "", "a positive number of seconds"),
+        ("slow", "\n    value: 0", "a positive number of seconds"),
+        ("spike", "", "a finite temperature"),
+        ("wrong_id", "\n    value: 32769", "a 16-bit word other than 0x8001"),  # the LM92's own
+    ],
+)
+def test_a_sensor_fault_without_the_value_it_needs_is_refused_before_the_run(
+    tmp_path: Path, fault: str, value: str, needs: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "fault.yaml"
+    path.write_text(
+        f"duration: 1h\nevents:\n  - at: 10m\n    sensor: {fault}{value}\n", encoding="utf-8"
+    )
+
+    assert cli.main(["simulate", "--scenario", str(path)]) == 2
+
+    err = capsys.readouterr().err
+    where = "5:12" if value else "3:5"  # the value given, else the event
+    assert err.startswith(
+        f"hermsd: {path}:{where}: events[0].value: the '{fault}' fault needs {needs}"
+    )
+    assert err.count("\n") == 1  # one line, no traceback
+
+
 def test_the_config_sections_setpoint_is_used_when_the_scenario_gives_none() -> None:
     doc = {"duration": "1h", "config": {"control": {"setpoint": 70}}}
 

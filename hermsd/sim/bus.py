@@ -211,7 +211,7 @@ class FakeLM92:
             raise ValueError(f"unknown fault {kind!r}: expected one of {names}") from None
         if fault is Fault.SLOW and self._advance is None:
             raise ValueError("the 'slow' fault needs FakeLM92(..., advance=clock.advance)")
-        self._fault_value = _fault_value(fault, value)
+        self._fault_value = fault_value(fault, value)
         previous = self._fault
         self._fault = fault
         if previous is Fault.GONE and fault is not Fault.GONE:
@@ -333,8 +333,9 @@ class FakeLM92:
         self._word = pack_steps(steps) | flags
 
 
-def _fault_value(fault: Fault, value: float | None) -> float:
-    """Check the value a fault takes: spike °C, slow seconds, wrong_id word; none for the rest."""
+def fault_value(fault: Fault, value: float | None) -> float:
+    """Check the value a fault takes: spike °C, slow seconds, wrong_id word; none for the rest
+    (a scenario checks its events by it before the run, the fake chip when the fault starts)."""
     if fault is Fault.SPIKE:
         if value is None or not math.isfinite(value):
             raise ValueError(f"the 'spike' fault needs a finite temperature in °C, got {value}")

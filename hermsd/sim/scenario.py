@@ -41,7 +41,7 @@ from hermsd.program.quality import step_quality
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm, MeasuredTun
 from hermsd.saver import Saver
-from hermsd.sim.bus import FakeLM92
+from hermsd.sim.bus import FakeLM92, Fault, fault_value
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PLANT_KINDS, Plant, TwoElementPlant, make_plant, plant_parameters
@@ -328,6 +328,10 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
         if value not in SENSOR_FAULTS:
             raise fail(f"{key}.sensor", f"expected one of {', '.join(SENSOR_FAULTS)}")
         value = (value, _number(raw["value"], fail, f"{key}.value") if "value" in raw else None)
+        try:
+            fault_value(Fault(value[0]), value[1])
+        except ValueError as error:
+            raise fail(f"{key}.value", str(error)) from None
     elif kind == "heater" and value not in ("open", "ok"):
         raise fail(f"{key}.heater", "expected open or ok")
     elif kind in ("ssr", "relay2") and value not in ("stuck_on", "ok"):
