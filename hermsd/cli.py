@@ -1651,9 +1651,14 @@ def cmd_forget_model(args: argparse.Namespace) -> int:
     try:
         forgotten = store.forget()
     except OSError as error:
-        raise UserError(
-            f"{store.path}: {error.strerror or error} (run as root or as the user hermsd runs as)"
-        ) from None
+        # Only a refused permission is the user's to fix by who runs it; a state path that is
+        # not a directory is the option's (or the config's) to fix.
+        fix = (
+            "run as root or as the user hermsd runs as"
+            if isinstance(error, PermissionError)
+            else f"is {directory} the state directory? --state names it"
+        )
+        raise UserError(f"{store.path}: {error.strerror or error} ({fix})") from None
     if forgotten:
         print(f"forgot {store.path}: hermsd starts from the config's model at its next start")
     else:

@@ -273,6 +273,17 @@ def test_the_forget_model_command(
     assert "nothing learned" in capsys.readouterr().out
 
 
+def test_forget_model_on_a_file_names_the_option_not_the_user(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    a_file = tmp_path / "hermsd.yaml"
+    a_file.write_text("", encoding="utf-8")
+    assert cli.main(["forget-model", "--state", str(a_file)]) == 2
+    err = capsys.readouterr().err
+    assert "--state names it" in err and "run as root" not in err
+    assert err.count("\n") == 1
+
+
 def test_the_learned_model_sets_the_supervisors_limits(
     learned_day: tuple[Path, Path], tmp_path: Path
 ) -> None:
