@@ -17,6 +17,7 @@ room (`SafetyLimits.derive` states each derivation).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -70,6 +71,8 @@ NOISE_FLOOR = 0.1
 """°C: a rise smaller than this (1.6 LSB of the LM92) is not told from noise and LSB flips."""
 MODEL_MARGIN = 1.5
 """A measured gain, time constant or dead time is trusted to within this factor."""
+DRY_FIRE_WINDOWS = 3
+"""Consecutive windows a dry fire must show in (see `Supervisor._check_dry_fire`)."""
 
 
 class MeasuredTun(Protocol):
@@ -407,6 +410,7 @@ class Supervisor:
         self._last_period_t: float | None = None
         self._wrong_chip = False
         self._history: deque[tuple[float, float]] = deque()
+        self._dry_fire_seen = False  # the dry-fire rise was sustained at the last period
         self._raw_since: float | None = None
         self._output_swing = _OutputSwing()
 
@@ -583,20 +587,46 @@ class Supervisor:
     # -- the period checks ----------------------------------------------------------------
 
     def _check_dry_fire(self, t: float, pv: float) -> None:
+        """Heat into too little water: a rise faster than the water allows, and sustained.
+
+        Each of the last `DRY_FIRE_WINDOWS` windows must rise faster than `dry_fire_rate`,
+        and what each rises above the fastest any element heats the configured water
+        (`heat_rate`, over the window) must not shrink, window to window, to
+        e^(−window/`SENSOR_LAG_MAX`) of it (0.61 for 60 s) or less, plus the noise (0.1 °C),
+        in two consecutive periods.
+
+        Why: hot water poured in is a step of the bulk water, seen through the sensor's
+        first-order lag L ≤ 120 s: its rise over a window that starts after the pour is
+        e^(−window/L) times that over the window before, at most 0.61 of it; the element adds
+        at most `heat_rate` a second (less, and less still as losses grow), so the excess
+        over `heat_rate`·window decays at least as fast. The oldest window rising too fast
+        shows the pour came before the last two windows; the two periods in a row ensure the
+        later two begin after it, not within the mean that makes the PV. A dry fire is an
+        element's steady heat into a few litres: its rise does not decay (it slows only as
+        losses grow) and it is caught two windows (and a period) later than by one window.
+        """
         lim = self.limits
         history = self._history
         history.append((t, pv))
-        while history and t - history[0][0] > lim.dry_fire_window:
+        window = lim.dry_fire_window
+        while history and t - history[0][0] > DRY_FIRE_WINDOWS * window + window:
             history.popleft()
-        t0, pv0 = history[0]
-        span = t - t0
-        if span >= lim.dry_fire_window * 0.99 and (pv - pv0) / span > lim.dry_fire_rate:
+        rises = _window_rises(history, t, window, DRY_FIRE_WINDOWS)
+        sustained = rises is not None and _sustained(
+            rises,
+            [rise - lim.heat_rate * window for rise in rises],
+            math.exp(-window / SENSOR_LAG_MAX),
+            least=lim.dry_fire_rate * window,
+        )
+        confirmed, self._dry_fire_seen = sustained and self._dry_fire_seen, sustained
+        if confirmed and rises is not None:
+            rate = rises[-1] / window
             self._raise(
                 "dry_fire",
                 t,
-                f"rising {(pv - pv0) / span * 60:.2f} °C/min, more than the water allows "
-                f"({lim.dry_fire_rate * 60:.2f} °C/min)",
-                {"rate_c_per_s": (pv - pv0) / span},
+                f"rising {rate * 60:.2f} °C/min for {DRY_FIRE_WINDOWS * window:.0f} s, more "
+                f"than the water allows ({lim.dry_fire_rate * 60:.2f} °C/min)",
+                {"rate_c_per_s": rate},
             )
 
     def _check_heater(self, t: float, pv: float, applied: float) -> None:
@@ -666,8 +696,10 @@ class Supervisor:
 
     def _water_added(self, pv: float) -> bool:
         """The PV fell over the last window faster than any loss can make it: water came in."""
-        t0, pv0 = self._history[0]
-        span = self._history[-1][0] - t0
+        history = self._history
+        t = history[-1][0]
+        t0, pv0 = next((when, p) for when, p in history if when >= t - self.limits.dry_fire_window)
+        span = t - t0
         fall = pv0 - pv
         return fall > max(SUDDEN_DROP, self.limits.loss_rate(pv0) * span)
 
@@ -759,6 +791,32 @@ class Supervisor:
         alarm = self._active.pop(kind, None)
         if alarm is not None:
             self._events.append(Alarm(kind, t, f"cleared: {why}", alarm.latched, False))
+
+
+def _window_rises(
+    history: deque[tuple[float, float]], t: float, window: float, count: int
+) -> list[float] | None:
+    """The PV's rise over each of the last `count` windows to `t`, oldest first (None while
+    the history is shorter)."""
+    slack = 0.01 * window  # periods need not divide the window exactly
+    if t - history[0][0] < count * window - slack:
+        return None
+    edges = [
+        next(p for when, p in history if when >= t - i * window - slack)
+        for i in range(count, -1, -1)
+    ]
+    return [later - earlier for earlier, later in itertools.pairwise(edges)]
+
+
+def _sustained(rises: list[float], excess: list[float], decay: float, least: float) -> bool:
+    """Each window rose by more than `least` and by an excess (its rise less what is
+    explained) that is positive and beats `decay` times the window before's by more than
+    the noise (`NOISE_FLOOR`): a heat still arriving, not a lagged step settling (whose
+    excess shrinks by `decay` or more)."""
+    if min(rises) <= least or min(excess) <= 0.0:
+        return False
+    pairs = itertools.pairwise(excess)
+    return all(later > decay * earlier + NOISE_FLOOR for earlier, later in pairs)
 
 
 def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
