@@ -20,6 +20,7 @@ import dataclasses
 import itertools
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -410,7 +411,7 @@ class Supervisor:
         self._last_period_t: float | None = None
         self._wrong_chip = False
         self._history: deque[tuple[float, float]] = deque()
-        self._dry_fire_seen = False  # the dry-fire rise was sustained at the last period
+        self._sustained_before: dict[str, bool] = {}  # a rise sustained at the last period
         self._raw_since: float | None = None
         self._output_swing = _OutputSwing()
 
@@ -460,6 +461,7 @@ class Supervisor:
         self._heater_watch.stop()
         self._energy.clear()
         self._history.clear()
+        self._sustained_before.clear()
         self._raw_since = None
         self._output_swing.clear(None)
         return cleared
@@ -618,8 +620,7 @@ class Supervisor:
             math.exp(-window / SENSOR_LAG_MAX),
             least=lim.dry_fire_rate * window,
         )
-        confirmed, self._dry_fire_seen = sustained and self._dry_fire_seen, sustained
-        if confirmed and rises is not None:
+        if self._confirmed("dry_fire", sustained) and rises is not None:
             rate = rises[-1] / window
             self._raise(
                 "dry_fire",
@@ -713,6 +714,18 @@ class Supervisor:
         before anything is measured: a lag's tail beyond that is e^−2 of it). More rise than
         that means something else is heating: an SSR that failed shorted. The longer
         watches (`CREEP_WATCHES`) see a heater that outpaces the losses only slowly.
+
+        Hot water poured in is heat nothing delivered too, but it stops: a step of the water,
+        seen through the sensor's lag L ≤ 120 s, whose rise over each third of the watch is
+        e^(−third/L) of the third's before or less once the pour is past. A heater keeps
+        going: each third must rise by more than the noise (`NOISE_FLOOR`), the later two
+        beating e^(−third/`SENSOR_LAG_MAX`) times the third's before by more than it, in two
+        consecutive periods (see `_check_dry_fire`): a period (5 s) later than before. A
+        pour after the first third meets a first third with no such rise, unless the element
+        heats steadily: then the delivered energy alone judges it. A steady heater passes
+        when its rise per third, times 1 − e^(−third/120 s), beats 0.1 °C: from 6.3, 1.3 and
+        0.3 °C/h for the 300, 900 and 3600 s watches, each below the rate the watch itself
+        needs (6, 2 and 0.5 °C/h).
         """
         lim, history = self.limits, self._energy
         previous, self._last_period_t = self._last_period_t, t
@@ -731,7 +744,12 @@ class Supervisor:
             full_power_s = sum(e for when, _, e in history if when >= t - span)
             from_room = room_per_k * max(0.0, WARMEST_ROOM - min(pv, pv_then))
             allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise + from_room
-            if pv - pv_then > allowed:
+            third = watch / 3.0
+            rises = _window_rises(history, t, third, 3) if pv - pv_then > allowed else None
+            sustained = rises is not None and _sustained(
+                rises, rises, math.exp(-third / SENSOR_LAG_MAX), least=NOISE_FLOOR
+            )
+            if self._confirmed(f"ssr_stuck_on {watch:g}", sustained):
                 self._raise(
                     "ssr_stuck_on",
                     t,
@@ -741,6 +759,12 @@ class Supervisor:
                     {"rise_c": pv - pv_then, "allowed_c": allowed},
                 )
                 return
+
+    def _confirmed(self, what: str, sustained: bool) -> bool:
+        """`sustained` now and at the last period: windows that begin past a pour, not within
+        the period whose mean of reads is the PV."""
+        before, self._sustained_before[what] = self._sustained_before.get(what, False), sustained
+        return sustained and before
 
     def _check_stuck(self, t: float, output: float) -> None:
         """A reading that stays bit-identical although the output moved long enough ago.
@@ -794,7 +818,7 @@ class Supervisor:
 
 
 def _window_rises(
-    history: deque[tuple[float, float]], t: float, window: float, count: int
+    history: Sequence[tuple[float, ...]], t: float, window: float, count: int
 ) -> list[float] | None:
     """The PV's rise over each of the last `count` windows to `t`, oldest first (None while
     the history is shorter)."""
@@ -802,7 +826,7 @@ def _window_rises(
     if t - history[0][0] < count * window - slack:
         return None
     edges = [
-        next(p for when, p in history if when >= t - i * window - slack)
+        next(sample[1] for sample in history if sample[0] >= t - i * window - slack)
         for i in range(count, -1, -1)
     ]
     return [later - earlier for earlier, later in itertools.pairwise(edges)]
@@ -882,7 +906,12 @@ def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
             f"{lim.heat_memory:.0f} s back, {lim.heat_rate * 60:.2f} °C per full-power minute",
             source("heat_rate"),
         ),
-        ("dry fire above", f"{lim.dry_fire_rate * 60:.2f} °C/min", source("dry_fire_rate")),
+        (
+            "dry fire above",
+            f"{lim.dry_fire_rate * 60:.2f} °C/min for {DRY_FIRE_WINDOWS} × "
+            f"{lim.dry_fire_window:.0f} s, not slowing as a pour does",
+            source("dry_fire_rate"),
+        ),
         (
             "stuck sensor",
             f"unchanged {lim.stuck_time:g} s while the output moves {lim.stuck_output_change:g} %",
