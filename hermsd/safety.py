@@ -17,8 +17,10 @@ room (`SafetyLimits.derive` states each derivation).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -70,6 +72,8 @@ NOISE_FLOOR = 0.1
 """°C: a rise smaller than this (1.6 LSB of the LM92) is not told from noise and LSB flips."""
 MODEL_MARGIN = 1.5
 """A measured gain, time constant or dead time is trusted to within this factor."""
+DRY_FIRE_WINDOWS = 3
+"""Consecutive windows a dry fire must show in (see `Supervisor._check_dry_fire`)."""
 
 
 class MeasuredTun(Protocol):
@@ -407,6 +411,7 @@ class Supervisor:
         self._last_period_t: float | None = None
         self._wrong_chip = False
         self._history: deque[tuple[float, float]] = deque()
+        self._sustained_before: dict[str, bool] = {}  # a rise sustained at the last period
         self._raw_since: float | None = None
         self._output_swing = _OutputSwing()
 
@@ -456,6 +461,7 @@ class Supervisor:
         self._heater_watch.stop()
         self._energy.clear()
         self._history.clear()
+        self._sustained_before.clear()
         self._raw_since = None
         self._output_swing.clear(None)
         return cleared
@@ -583,20 +589,45 @@ class Supervisor:
     # -- the period checks ----------------------------------------------------------------
 
     def _check_dry_fire(self, t: float, pv: float) -> None:
+        """Heat into too little water: a rise faster than the water allows, and sustained.
+
+        Each of the last `DRY_FIRE_WINDOWS` windows must rise faster than `dry_fire_rate`,
+        and what each rises above the fastest any element heats the configured water
+        (`heat_rate`, over the window) must not shrink, window to window, to
+        e^(−window/`SENSOR_LAG_MAX`) of it (0.61 for 60 s) or less, plus the noise (0.1 °C),
+        in two consecutive periods.
+
+        Why: hot water poured in is a step of the bulk water, seen through the sensor's
+        first-order lag L ≤ 120 s: its rise over a window that starts after the pour is
+        e^(−window/L) times that over the window before, at most 0.61 of it; the element adds
+        at most `heat_rate` a second (less, and less still as losses grow), so the excess
+        over `heat_rate`·window decays at least as fast. The oldest window rising too fast
+        shows the pour came before the last two windows; the two periods in a row ensure the
+        later two begin after it, not within the mean that makes the PV. A dry fire is an
+        element's steady heat into a few litres: its rise does not decay (it slows only as
+        losses grow) and it is caught two windows (and a period) later than by one window.
+        """
         lim = self.limits
         history = self._history
         history.append((t, pv))
-        while history and t - history[0][0] > lim.dry_fire_window:
+        window = lim.dry_fire_window
+        while history and t - history[0][0] > DRY_FIRE_WINDOWS * window + window:
             history.popleft()
-        t0, pv0 = history[0]
-        span = t - t0
-        if span >= lim.dry_fire_window * 0.99 and (pv - pv0) / span > lim.dry_fire_rate:
+        rises = _window_rises(history, t, window, DRY_FIRE_WINDOWS)
+        sustained = rises is not None and _sustained(
+            rises,
+            [rise - lim.heat_rate * window for rise in rises],
+            math.exp(-window / SENSOR_LAG_MAX),
+            least=lim.dry_fire_rate * window,
+        )
+        if self._confirmed("dry_fire", sustained) and rises is not None:
+            rate = rises[-1] / window
             self._raise(
                 "dry_fire",
                 t,
-                f"rising {(pv - pv0) / span * 60:.2f} °C/min, more than the water allows "
-                f"({lim.dry_fire_rate * 60:.2f} °C/min)",
-                {"rate_c_per_s": (pv - pv0) / span},
+                f"rising {rate * 60:.2f} °C/min for {DRY_FIRE_WINDOWS * window:.0f} s, more "
+                f"than the water allows ({lim.dry_fire_rate * 60:.2f} °C/min)",
+                {"rate_c_per_s": rate},
             )
 
     def _check_heater(self, t: float, pv: float, applied: float) -> None:
@@ -666,8 +697,10 @@ class Supervisor:
 
     def _water_added(self, pv: float) -> bool:
         """The PV fell over the last window faster than any loss can make it: water came in."""
-        t0, pv0 = self._history[0]
-        span = self._history[-1][0] - t0
+        history = self._history
+        t = history[-1][0]
+        t0, pv0 = next((when, p) for when, p in history if when >= t - self.limits.dry_fire_window)
+        span = t - t0
         fall = pv0 - pv
         return fall > max(SUDDEN_DROP, self.limits.loss_rate(pv0) * span)
 
@@ -681,6 +714,18 @@ class Supervisor:
         before anything is measured: a lag's tail beyond that is e^−2 of it). More rise than
         that means something else is heating: an SSR that failed shorted. The longer
         watches (`CREEP_WATCHES`) see a heater that outpaces the losses only slowly.
+
+        Hot water poured in is heat nothing delivered too, but it stops: a step of the water,
+        seen through the sensor's lag L ≤ 120 s, whose rise over each third of the watch is
+        e^(−third/L) of the third's before or less once the pour is past. A heater keeps
+        going: each third must rise by more than the noise (`NOISE_FLOOR`), the later two
+        beating e^(−third/`SENSOR_LAG_MAX`) times the third's before by more than it, in two
+        consecutive periods (see `_check_dry_fire`): a period (5 s) later than before. A
+        pour after the first third meets a first third with no such rise, unless the element
+        heats steadily: then the delivered energy alone judges it. A steady heater passes
+        when its rise per third, times 1 − e^(−third/120 s), beats 0.1 °C: from 6.3, 1.3 and
+        0.3 °C/h for the 300, 900 and 3600 s watches, each below the rate the watch itself
+        needs (6, 2 and 0.5 °C/h).
         """
         lim, history = self.limits, self._energy
         previous, self._last_period_t = self._last_period_t, t
@@ -699,7 +744,12 @@ class Supervisor:
             full_power_s = sum(e for when, _, e in history if when >= t - span)
             from_room = room_per_k * max(0.0, WARMEST_ROOM - min(pv, pv_then))
             allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise + from_room
-            if pv - pv_then > allowed:
+            third = watch / 3.0
+            rises = _window_rises(history, t, third, 3) if pv - pv_then > allowed else None
+            sustained = rises is not None and _sustained(
+                rises, rises, math.exp(-third / SENSOR_LAG_MAX), least=NOISE_FLOOR
+            )
+            if self._confirmed(f"ssr_stuck_on {watch:g}", sustained):
                 self._raise(
                     "ssr_stuck_on",
                     t,
@@ -709,6 +759,12 @@ class Supervisor:
                     {"rise_c": pv - pv_then, "allowed_c": allowed},
                 )
                 return
+
+    def _confirmed(self, what: str, sustained: bool) -> bool:
+        """`sustained` now and at the last period: windows that begin past a pour, not within
+        the period whose mean of reads is the PV."""
+        before, self._sustained_before[what] = self._sustained_before.get(what, False), sustained
+        return sustained and before
 
     def _check_stuck(self, t: float, output: float) -> None:
         """A reading that stays bit-identical although the output moved long enough ago.
@@ -759,6 +815,32 @@ class Supervisor:
         alarm = self._active.pop(kind, None)
         if alarm is not None:
             self._events.append(Alarm(kind, t, f"cleared: {why}", alarm.latched, False))
+
+
+def _window_rises(
+    history: Sequence[tuple[float, ...]], t: float, window: float, count: int
+) -> list[float] | None:
+    """The PV's rise over each of the last `count` windows to `t`, oldest first (None while
+    the history is shorter)."""
+    slack = 0.01 * window  # periods need not divide the window exactly
+    if t - history[0][0] < count * window - slack:
+        return None
+    edges = [
+        next(sample[1] for sample in history if sample[0] >= t - i * window - slack)
+        for i in range(count, -1, -1)
+    ]
+    return [later - earlier for earlier, later in itertools.pairwise(edges)]
+
+
+def _sustained(rises: list[float], excess: list[float], decay: float, least: float) -> bool:
+    """Each window rose by more than `least` and by an excess (its rise less what is
+    explained) that is positive and beats `decay` times the window before's by more than
+    the noise (`NOISE_FLOOR`): a heat still arriving, not a lagged step settling (whose
+    excess shrinks by `decay` or more)."""
+    if min(rises) <= least or min(excess) <= 0.0:
+        return False
+    pairs = itertools.pairwise(excess)
+    return all(later > decay * earlier + NOISE_FLOOR for earlier, later in pairs)
 
 
 def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
@@ -824,7 +906,12 @@ def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
             f"{lim.heat_memory:.0f} s back, {lim.heat_rate * 60:.2f} °C per full-power minute",
             source("heat_rate"),
         ),
-        ("dry fire above", f"{lim.dry_fire_rate * 60:.2f} °C/min", source("dry_fire_rate")),
+        (
+            "dry fire above",
+            f"{lim.dry_fire_rate * 60:.2f} °C/min for {DRY_FIRE_WINDOWS} × "
+            f"{lim.dry_fire_window:.0f} s, not slowing as a pour does",
+            source("dry_fire_rate"),
+        ),
         (
             "stuck sensor",
             f"unchanged {lim.stuck_time:g} s while the output moves {lim.stuck_output_change:g} %",

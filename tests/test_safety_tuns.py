@@ -104,7 +104,10 @@ def test_check_config_shows_the_limits_in_force_and_stays_yaml() -> None:
     lines = format_limits(derive(), 66.0)
     text = "\n".join(lines)
     assert "300 s  [built in: any tun to 300 s]" in text
-    assert "1.43 °C/min  [derived from litres and watts]" in text
+    assert (
+        "1.43 °C/min for 3 × 60 s, not slowing as a pour does  [derived from litres and watts]"
+        in text
+    )
     assert "95 °C, back below 90 °C  [configured]" in text
     measured = "\n".join(format_limits(derive(SEED), 66.0))
     assert "172 s  [measured]" in measured
