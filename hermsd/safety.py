@@ -593,9 +593,9 @@ class Supervisor:
 
         Each of the last `DRY_FIRE_WINDOWS` windows must rise faster than `dry_fire_rate`,
         and what each rises above the fastest any element heats the configured water
-        (`heat_rate`, over the window) must not shrink, window to window, to
-        e^(−window/`SENSOR_LAG_MAX`) of it (0.61 for 60 s) or less, plus the noise (0.1 °C),
-        in two consecutive periods.
+        (`heat_rate`, over the window; less where the limit is lower, see below) must not
+        shrink, window to window, to e^(−window/`SENSOR_LAG_MAX`) of it (0.61 for 60 s) or
+        less, plus the noise (0.1 °C), in two consecutive periods.
 
         Why: hot water poured in is a step of the bulk water, seen through the sensor's
         first-order lag L ≤ 120 s: its rise over a window that starts after the pour is
@@ -614,10 +614,18 @@ class Supervisor:
         while history and t - history[0][0] > DRY_FIRE_WINDOWS * window + window:
             history.popleft()
         rises = _window_rises(history, t, window, DRY_FIRE_WINDOWS)
+        decay = math.exp(-window / SENSOR_LAG_MAX)
+        # What the element may explain, and no more than leaves a steady rise at the limit an
+        # excess e that beats decay·e + NOISE_FLOOR: a dry_fire_factor set below heat_rate's
+        # (2.42× the rated rate) still alarms at its own rate. At the default 3× the element's
+        # fastest heat is the lower of the two.
+        explained = min(
+            lim.heat_rate * window, lim.dry_fire_rate * window - NOISE_FLOOR / (1.0 - decay)
+        )
         sustained = rises is not None and _sustained(
             rises,
-            [rise - lim.heat_rate * window for rise in rises],
-            math.exp(-window / SENSOR_LAG_MAX),
+            [rise - explained for rise in rises],
+            decay,
             least=lim.dry_fire_rate * window,
         )
         if self._confirmed("dry_fire", sustained) and rises is not None:

@@ -95,6 +95,21 @@ def test_a_sustained_rise_just_over_the_limit_is_a_dry_fire_three_windows_on() -
     assert raised == 5.0 + 3 * WINDOW + 5.0
 
 
+def test_a_limit_set_below_the_elements_fastest_heat_still_alarms_at_its_own_rate() -> None:
+    """dry_fire_factor 1.5: a steady rise at 1.6× the rated rate is over it, though under
+    the fastest an element heats half the water (2.42×, heat_rate)."""
+    lim = SafetyLimits.derive(
+        litres=90.0, element_watts=3000.0, period=5.0, read_interval=1.0, dry_fire_factor=1.5
+    )
+    rated = 3000.0 / (90.0 * WATER_J_PER_K_L)
+    rate = 1.6 * rated
+    assert lim.dry_fire_rate < rate < lim.heat_rate
+    sup = Supervisor(lim)
+    for k in range(1, 200):
+        sup.period(5.0 * k, 20.0 + rate * 5.0 * k, 100.0, 100.0)
+    assert "dry_fire" in sup.active
+
+
 # -- whole days on the simulator -------------------------------------------------------------
 
 
