@@ -25,7 +25,7 @@ from typing import Any, NamedTuple, TypeVar
 import yaml
 
 from hermsd import midrange, pid
-from hermsd.element2 import MidRangeController, PowerSplit, SplitController
+from hermsd.element2 import MidRangeController, PowerSplit, SplitController, total_share
 from hermsd.element_probe import ElementProbe
 from hermsd.files import NotRegularFile, read_regular
 from hermsd.learning import LearnedModel, implausible
@@ -1113,6 +1113,19 @@ def full_power(config: Config) -> FullPower:
         return FullPower(c.max_output, True)
     watts1 = config.tun.element_watts
     return PowerSplit(watts1, e2.watts, c.period, e2.min_on, e2.min_off, c.max_output).full_power()
+
+
+def full_power_share(config: Config) -> float:
+    """Full power as a % of all the elements' power (the controller's 100 % with two, and
+    what the tun's model rate is of): what a ready_by heat-up plans its climb with. Mid-
+    ranging under a power limit gives the second element in full (at u2_max on average) and
+    the SSR's at control.max_output, more of the total than the limit's %."""
+    full, c = full_power(config), config.control
+    if full.on2 is None:
+        return full.duty1
+    duty2 = (c.u2_max if c.algorithm == MIDRANGE else 100.0) if full.on2 else 0.0
+    watts1 = config.tun.element_watts
+    return total_share(watts1, total_watts(config) - watts1, full.duty1, duty2)
 
 
 def _midrange_controller(c: ControlConfig) -> MidRangeController:

@@ -38,6 +38,7 @@ from hermsd.config import (
     ConfigError,
     ControlConfig,
     full_power,
+    full_power_share,
     make_controller,
     shared_out,
     to_dict,
@@ -718,7 +719,7 @@ class Daemon:
         """What a `ready_by` heat-up plans with: the model in force, and what it rests on."""
         return Tun(
             self.model,
-            self.config.control.max_output,
+            full_power_share(self.config),
             self.model_choice.measured is not None,
             pid.heat_up_fit(self.controller),
         )

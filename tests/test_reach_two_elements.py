@@ -206,3 +206,32 @@ def test_a_ready_by_climb_on_two_elements_is_full_power_only_with_both_at_theirs
     # The day's periods that a share of the total would have taken for full power.
     backed_off = [t for t in judged if periods[t].switched2 == 100.0 and not judged[t]]
     assert len(backed_off) >= 12
+
+
+def test_a_ready_by_on_two_elements_under_a_power_limit_plans_with_both_elements_power() -> None:
+    """Mid-ranging under control.max_output 60 %: full power is the contactor's 3500 W and
+    the SSR's 2000 W at 60 %, 4700 W, 85.45 % of both elements' 5500 W (not 60 % of them).
+
+    By hand, the prior model of 90 L with 5500 W (config.prior_model): UA = 3000/168.9 =
+    17.762 W/K (the lidded 90 L tun's), K = 5500/(100·UA) = 3.0965 °C/%, τ = 4186·90/UA =
+    21210 s, θ = 115 s, room 20 °C. From 20 °C to the band's 71.5 °C at u = 85.45 %:
+    K·u = 264.61 °C, t = τ·ln(K·u·e^(θ/τ) / (20 + K·u − 71.5)) = 4706 s; the climb starts
+    (1 + 0.45 + 0.25)·4706 + 900 = 8900 s before the time asked for (the config's model,
+    a fill not measured; readiness.MARGIN_PRIOR, FILL_MARGIN, WAIT_S). At 60 % it would be
+    12800 s: 3900 s too early."""
+    midnight = int(dt.datetime(2026, 11, 28, 0, 0, tzinfo=dt.UTC).timestamp()) * 10**9
+    spec = TunSpec("90 L, 2 + 3.5 kW", 90, 2000, 1.0, 60, 10, 20)
+    config = two_elements(spec, 3500.0, "midrange")
+    control = dataclasses.replace(config.control, max_output=LIMIT, u1_ref=40.0)
+    day = Scenario(
+        name=spec.name,
+        duration=6000.0,
+        program=Program("Strike", (Step("Strike", 72.0, 600.0),), "04:00"),
+        clock=(midnight, dt.UTC),
+        plant={**spec.plant(noise_c=0.0), "element2_watts": 3500.0},
+    )
+    result = scenario.run(day, dataclasses.replace(config, control=control), keep_records=True)
+    scheduled = [r.t for r in result.records if r.state == "scheduled"]
+    climb = scheduled[-1] + 5.0  # the period after the last one held off
+    assert scheduled[0] <= 10.0 and len(scheduled) == (climb - scheduled[0]) / 5.0
+    assert abs(climb - (4 * 3600.0 - 8900.2)) <= 5.0  # within the period it fell due in

@@ -87,7 +87,7 @@ class Tun:
     """What the daemon knows of the tun in a period."""
 
     model: PlantModel
-    max_output: float  # % the controller may ask for: its full power
+    max_output: float  # % of the model's power (both elements') full power gives
     measured: bool  # the model was measured on this tun (else the config's prior)
     fit: HeatUpFit | None  # the controller's last heat-up measurement, if any
 
