@@ -253,6 +253,7 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
         stuck_time=s.stuck_time,
         stuck_output_change=s.stuck_output_change,
         stall_periods=s.stall_periods,
+        max_output=full_power_share(config),
     )
 
 

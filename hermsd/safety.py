@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 WATER_HEAT_CAPACITY = 4186.0  # J/(kg·K); a litre of water is taken as 1 kg
-FULL_POWER = 80.0  # % at or above which the element is expected to heat visibly
+FULL_POWER = 80.0  # % of full power at or above which the element is expected to heat visibly
 SUDDEN_DROP = 0.25  # °C: least fall in a window, faster than losses allow, that is water added
 
 AUTO_KINDS = ("sensor_fault", "stale_reading", "over_temperature", "loop_stall")
@@ -138,6 +138,7 @@ class SafetyLimits:
     stuck_time: float = 600.0
     stuck_output_change: float = 40.0
     stall_after: float = 10.0
+    max_output: float = 100.0
     origins: tuple[tuple[str, str], ...] = ()
 
     def loss_rate(self, celsius: float) -> float:
@@ -149,10 +150,17 @@ class SafetyLimits:
         conduction = self.loss_per_k * max(0.0, celsius - self.loss_room)
         return conduction + self.evaporation_rate * vapour_pressure_ratio(celsius)
 
+    @property
+    def full_output(self) -> float:
+        """% of output that is near full power: 80 % of what the element may give (of
+        `max_output`, the power limit; of 100 % without one)."""
+        return FULL_POWER / 100.0 * self.max_output
+
     def heating_output(self, celsius: float) -> float:
         """% of output at or above which a working element cannot let the water fall.
 
-        Before the tun is measured, 80 %: its losses may be anything up to the element's.
+        Before the tun is measured, 80 % (of the power limit): its losses may be anything up
+        to what the element gives, and a tun that loses more cannot be held at all.
         Measured, the output that beats the largest losses the model allows at `celsius`
         (never below 20 %, where a slow fall is lost in the noise): a dead element is then
         seen as soon as the output climbs past what holding needs, not only at 80 %. The
@@ -160,12 +168,13 @@ class SafetyLimits:
         lid taken off since, on a tun that then needs more than this, is not covered.
         """
         if self.heating_output_per_k is None:
-            return FULL_POWER
+            return self.full_output
         needed = self.heating_output_per_k * (celsius - self.loss_room)
-        return min(FULL_POWER, max(20.0, needed))
+        return min(self.full_output, max(20.0, needed))
 
     def least_rise(self, held_for: float, peak: float) -> float | None:
-        """°C the PV must have risen after `held_for` s at 80 % or more (past the dead time).
+        """°C the PV must have risen after `held_for` s at `full_output` or more (past the
+        dead time).
 
         Half of what the weakest working element makes against the largest losses at the
         highest temperature reached (losses only grow with it). None when that is lost in
@@ -202,10 +211,16 @@ class SafetyLimits:
         stuck_time: float = 600.0,
         stuck_output_change: float = 40.0,
         stall_periods: float = 2.0,
+        max_output: float = 100.0,
     ) -> SafetyLimits:
         """Limits for the tun: from `model` where measured, else safe for any fill from half
         to twice `litres`, any dead time up to 300 s, an open pot in a 5 °C room; an explicit
         (not None) argument wins over both.
+
+        `max_output`: the power limit, % of `element_watts` that full power gives. What a
+        working element must make (`heater_rise_rate`, judged from 80 % of it) and the dry
+        fire's rate are of that heat; `heat_rate` stays per second at 100 %, since the duty
+        it is multiplied by (the applied one) is already within the limit.
 
         Worked for the shipped 90 L, 3 kW tun (r = P/(m·c) = 3000/(90·4186) = 7.96e-3 °C/s):
         rise rate 0.8·0.81·r/2 = 2.58e-3 °C/s; loss per K 2·17.76 W/K·(45/90)^⅔ / (45·4186)
@@ -228,8 +243,9 @@ class SafetyLimits:
         ua_bound = OPEN_POT_UA_PER_L23 * least_water ** (2.0 / 3.0)
         evaporation_w = OPEN_POT_EVAPORATION_W * (litres / 90.0) ** (2.0 / 3.0)
         least_capacity = least_water * WATER_HEAT_CAPACITY
-        # 80 % output at −10 % mains (0.81 P) into twice the water.
-        weakest_rise = FULL_POWER / 100.0 * MAINS_LOW * full_rate / FILL_RANGE
+        limit = max_output / 100.0
+        # 80 % of full power at −10 % mains (0.81 P) into twice the water.
+        weakest_rise = FULL_POWER / 100.0 * limit * MAINS_LOW * full_rate / FILL_RANGE
         # Full power at +10 % mains into half the water.
         fastest_rise = FILL_RANGE * MAINS_POWER_MARGIN * full_rate
         dead, heat_memory = DEAD_TIME_MAX, DEAD_TIME_MAX + SENSOR_LAG_MAX
@@ -240,7 +256,7 @@ class SafetyLimits:
             # The tun as measured: its rate 100·K/τ, loss 1/τ and dead time θ, each trusted
             # to within ×1.5, and a room up to 10 °C colder than on the day it was measured.
             model_rate = 100.0 * model.gain / model.tau
-            weakest_rise = FULL_POWER / 100.0 * MAINS_LOW * model_rate / MODEL_MARGIN
+            weakest_rise = FULL_POWER / 100.0 * limit * MAINS_LOW * model_rate / MODEL_MARGIN
             # A measurement only tightens: never faster than the envelope's half fill.
             fastest_rise = min(fastest_rise, MAINS_POWER_MARGIN * model_rate * MODEL_MARGIN)
             loss_per_k = MODEL_MARGIN / model.tau
@@ -293,12 +309,14 @@ class SafetyLimits:
             full_rate=full_rate,
             # Half the water at +10 % mains rises 2·1.21 = 2.42× faster than the config
             # says; 3× leaves 24 % for noise over the 60 s window (±0.001 °C/s). Kept on the
-            # configured litres when measured too: the fill is the config's to state.
-            dry_fire_rate=dry_fire_factor * full_rate,
+            # configured litres when measured too: the fill is the config's to state. Under a
+            # power limit, of the heat the limit lets through: the same share of the water.
+            dry_fire_rate=dry_fire_factor * full_rate * limit,
             dry_fire_window=max(60.0, 4 * period),
             stuck_time=stuck_time,
             stuck_output_change=stuck_output_change,
             stall_after=stall_periods * period,
+            max_output=max_output,
         )
         origins |= {
             "heater_max_fall": "built in",
@@ -641,11 +659,12 @@ class Supervisor:
     def _check_heater(self, t: float, pv: float, applied: float) -> None:
         """An element that does not heat: judged only once its heat could show at the sensor.
 
-        From `dead_time` after the output reached 80 % (`heating_output`: less on a measured
-        tun; or after the last fall too fast for losses: water was added), a working element
-        makes the PV rise by `least_rise` (the cool side, where losses are small), and it
-        cannot let the PV fall steadily (the hot side: a dead element in the hold shows as a
-        fall at the tun's loss rate while the output climbs to 100 %). Steadily: over each of
+        From `dead_time` after the output reached 80 % of full power (`heating_output`: less
+        on a measured tun; or after the last fall too fast for losses: water was added), a
+        working element makes the PV rise by `least_rise` (the cool side, where losses are
+        small), and it cannot let the PV fall steadily (the hot side: a dead element in the
+        hold shows as a fall at the tun's loss rate while the output climbs to its limit;
+        `applied` is the duty as switched, within that limit). Steadily: over each of
         the last two half-watches (the later one past the dead time) by at least half of
         `heater_max_fall`, the later by at least half the earlier. Water poured in shows
         through the sensor's lag (≤ 120 s) as a decaying fall, e^(−150/120) = 0.29 of it in
@@ -655,7 +674,7 @@ class Supervisor:
         if applied < lim.heating_output(pv):
             watch.stop()
             return
-        full = applied >= FULL_POWER
+        full = applied >= lim.full_output
         if watch.start is None or self._water_added(pv):
             watch.restart(t, full)
             return
@@ -897,7 +916,7 @@ def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
             source("heater_min_rise"),
         ),
         (
-            "weakest heating at 80 %",
+            f"weakest heating at {lim.full_output:g} %",
             f"{lim.heater_rise_rate * 60:.3f} °C/min",
             source("heater_rise_rate"),
         ),

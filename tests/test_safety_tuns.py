@@ -6,6 +6,7 @@ the seed tun's UA 3000/168.9 W/K, steam tables for evaporation), not read off th
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import shutil
 from collections.abc import Callable
@@ -295,3 +296,49 @@ def test_a_wild_measurement_cannot_make_the_watches_lax() -> None:
     assert measured.heat_rate <= unmeasured.heat_rate
     assert measured.dead_time <= 2 * unmeasured.dead_time == 600.0
     assert measured.heat_memory <= 600.0 + 120.0
+
+
+# -- a power limit (control.max_output) --------------------------------------------------------
+
+LIMIT = 60.0
+"""control.max_output: the element gives at most 60 % of its 3 kW, 1800 W."""
+
+
+def limited(spec: TunSpec) -> config_module.Config:
+    base = spec.config(config_module.DEFAULT)
+    control = dataclasses.replace(base.control, max_output=LIMIT)
+    return dataclasses.replace(base, control=control)
+
+
+def test_under_a_power_limit_the_element_is_judged_at_the_heat_it_can_give() -> None:
+    lim = SafetyLimits.derive(
+        litres=90.0, element_watts=3000.0, period=5.0, read_interval=1.0, max_output=LIMIT
+    )
+    rate = 3000.0 / (90 * 4186.0)  # 7.964e-3 °C/s at 100 %
+    # Judged from 80 % of what it may give (48 %), at 0.81·48 % into 180 L.
+    assert lim.heating_output(66.0) == pytest.approx(48.0, rel=1e-12)
+    assert lim.heater_rise_rate == pytest.approx(0.48 * 0.81 * rate / 2, rel=1e-9)
+    # Dry fire: 3× what 1800 W gives 90 L, 0.6·1.433 = 0.860 °C/min.
+    assert lim.dry_fire_rate * 60 == pytest.approx(0.860, abs=1e-3)
+    # The heat an applied duty gives is counted per second at 100 % (the duty is the limited
+    # one already): the SSR watch keeps its 2·1.21·r, not the limit a second time.
+    assert lim.heat_rate == pytest.approx(2 * 1.21 * rate, rel=1e-9)
+
+
+def test_under_a_power_limit_a_dead_element_and_a_dry_fire_are_caught() -> None:
+    spec = tun("seed 90 L")
+    # The element dies in the hold, where the output stays under 80 % of the element: only
+    # a watch at 80 % of the limit (48 %) sees the water fall.
+    alarms = scenario.run(tf.element_dies(spec), limited(spec)).summary["alarms"]
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    # 20 L under 1800 W: 1800/(20·4186)·60 = 1.29 °C/min, under the 1.43 °C/min that 3 kW
+    # into the config's 90 L would make a dry fire; over the limit's 0.86.
+    dry = dataclasses.replace(spec, litres=20.0).brew_day()
+    alarms = scenario.run(dry, limited(spec)).summary["alarms"]
+    assert [a["kind"] for a in alarms] == ["dry_fire"]
+
+
+@pytest.mark.parametrize("fill", [0.5, 2.0])
+def test_under_a_power_limit_half_or_twice_the_water_raises_nothing(fill: float) -> None:
+    spec = tun("seed 90 L")
+    assert scenario.run(tf.normal_day(spec, fill), limited(spec)).summary["alarms"] == []
