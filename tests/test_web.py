@@ -522,8 +522,11 @@ def test_an_expired_login_is_not_alive_and_watching_does_not_renew_it() -> None:
 
 
 def test_a_reply_the_hub_cannot_read_is_logged_and_the_polling_goes_on(
-    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+    live: Site, caplog: pytest.LogCaptureFixture
 ) -> None:
+    """Said once by the hub that cannot read it, while the live page's hub, in the same
+    process, polls its daemon on meanwhile: what one hub is given to ask with is its own."""
+
     async def polled_on() -> int:
         asked: list[dict[str, object]] = []
         third = asyncio.Event()
@@ -534,10 +537,13 @@ def test_a_reply_the_hub_cannot_read_is_logged_and_the_polling_goes_on(
                 third.set()
             return {"ok": True}  # a status without its fields
 
-        monkeypatch.setattr("hermsd.web.hub.ask", strange)
-        hub = Hub(Path("unused.sock"), poll=0.0)
+        hub = Hub(Path("unused.sock"), poll=0.0, asker=strange)
         polling = asyncio.create_task(hub.run())
         await asyncio.wait_for(third.wait(), TIMEOUT)
+        ran = len(live.events.periods)  # the live hub polls every 0.05 s, as a period runs
+        async with asyncio.timeout(TIMEOUT):
+            while len(live.events.periods) < ran + 4:
+                await asyncio.sleep(0.01)
         polling.cancel()
         with pytest.raises(asyncio.CancelledError):
             await polling

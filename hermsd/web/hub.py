@@ -17,6 +17,7 @@ import gzip
 import json
 import logging
 import time
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,9 @@ PAGE_FIELDS = (
 QUEUE_EVENTS = 32  # events a page may fall behind by before it is dropped (it reconnects)
 MAX_PAGES = 32  # open event streams at once
 
+Asker = Callable[[Path, dict[str, Any]], Awaitable[dict[str, Any]]]
+"""How a hub asks the daemon a request and awaits its reply (`socket_client.ask`)."""
+
 
 class TooManyPages(Exception):
     """MAX_PAGES event streams are open already."""
@@ -54,9 +58,12 @@ class TooManyPages(Exception):
 class Hub:
     """The daemon's state as the pages see it, and the event streams to them."""
 
-    def __init__(self, socket: Path, poll: float | None = None) -> None:
+    def __init__(self, socket: Path, poll: float | None = None, asker: Asker = ask) -> None:
+        """`asker`: its own way to the daemon, so that no other hub's requests (another
+        page's, in one process) pass through one given to this hub."""
         self.socket = socket
         self.poll = poll
+        self._ask = asker
         self.status: dict[str, Any] | None = None
         self.error: str | None = "connecting to hermsd"
         self.offset = 0.0  # wall-clock s minus the daemon's t, at the last new period
@@ -96,7 +103,7 @@ class Hub:
     async def refresh(self) -> None:
         """Ask for the status; on a new period, catch the mirror up and push the period."""
         try:
-            status = await ask(self.socket, {"cmd": "status"})
+            status = await self._ask(self.socket, {"cmd": "status"})
             if not status["ok"]:
                 raise DaemonUnavailable(str(status.get("error", "hermsd refused status")))
             if self.status is not None and status["t"] == self.status["t"]:
@@ -124,7 +131,7 @@ class Hub:
         new: list[list[Any]] = []
         more = True
         while more:
-            page = await ask(self.socket, {"cmd": "history", "since": since, "limit": 2000})
+            page = await self._ask(self.socket, {"cmd": "history", "since": since, "limit": 2000})
             if not page["ok"]:
                 raise DaemonUnavailable(str(page.get("error", "hermsd refused history")))
             self.period = float(page["period"])
