@@ -267,6 +267,22 @@ def watch_changes(old: Config, new: Config) -> bool:
     return old.tun != new.tun or old.control.dead_time != new.control.dead_time
 
 
+def keep_probe(
+    old: Config,
+    new: Config,
+    before: pid.Controller | None,
+    after: pid.Controller | None,
+) -> None:
+    """A reload that keeps the tun (its litres and element; the second element's keys need a
+    restart) keeps what the heat-up's probe found: the new controller goes on with the old
+    one's probe once that is done (not tried again; a finding not yet taken is taken from
+    it). A new tun is probed afresh. Replay does as the daemon."""
+    if old.tun != new.tun or not isinstance(after, SplitController):
+        return
+    if isinstance(before, SplitController) and before.probe is not None and before.probe.done:
+        after.probe = before.probe
+
+
 def reach_period(
     reach: ReachWatch,
     record: PeriodRecord,
@@ -889,14 +905,18 @@ class Daemon:
         if retunes(old.control, new.control) or old.tun != new.tun:
             self.model_choice = model_in_force(self._stored_model, new)
             self.model = self.model_choice.model
+            before = self.controller
             self.controller = shared_out(new, make_controller(new.control, self.model))
+            keep_probe(old, new, before, self.controller)
             self._heat_up_seen = pid.heat_up_fit(self.controller)
             self._learner = self._make_learner(new)
             if not self._held:  # bumpless: the new controller starts from the output in force
                 self._held = True
                 self._resume_output = self.output
         if self.element_watch is not None and watch_changes(old, new):
-            self.element_watch = element_watch(new)  # its references were of the old tun
+            watched, self.element_watch = self.element_watch, element_watch(new)
+            if old.tun == new.tun:  # its references were of the old tun, not its probe
+                self.element_watch.keep_probed(watched)
         if reach_restarts(old, new):
             self._say_reach(self.reach.restart(), t)  # another full power
         if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:

@@ -136,7 +136,7 @@ class ElementWatch:
         self.suspect: set[int] = set()  # the elements reported and not cleared
         self.doubtful = False  # heat beyond what was asked: the references lack an element
         self.hold_cycled = False  # the second element was on in the hold's reference
-        self.probed = False  # the heat-up's probe found an element dead: the references lack it
+        self.probed: int | None = None  # the element the heat-up's probe found dead
         self._samples: deque[_Sample] = deque()
         self._since: dict[tuple[int, bool, float], float] = {}  # a finding → first seen
         self._fell_at: float | None = None  # when the PV last fell faster than losses can
@@ -185,8 +185,15 @@ class ElementWatch:
         """An element the heat-up's probe found dead (hermsd/element_probe.py): reported,
         and held, for the references were measured without its heat and cannot clear it."""
         self.suspect.add(element)
-        self.probed = True
+        self.probed = element
         return ElementReport(element, t, True, message)
+
+    def keep_probed(self, before: ElementWatch) -> None:
+        """Hold what the heat-up's probe found for `before`, the watch of the same tun
+        before a reload (hermsd.daemon.keep_probe): the probe is not tried again."""
+        if before.probed is not None:
+            self.suspect.add(before.probed)
+            self.probed = before.probed
 
     def _take_references(self, t: float, setpoint: float) -> None:
         samples = self._samples
@@ -254,7 +261,7 @@ class ElementWatch:
 
     def _judge(self, t: float) -> list[ElementReport]:
         if (
-            self.probed
+            self.probed is not None
             or self.full_rate is None
             or self.hold_power is None
             or self.hold_power >= 1.0

@@ -40,6 +40,7 @@ from hermsd.daemon import (
     PeriodRecord,
     element2_watts,
     element_watch,
+    keep_probe,
     reach_period,
     reach_restarts,
     retunes,
@@ -781,13 +782,16 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             try:
                 whole = _as_logged(config_module.from_dict(entry.config), entry.config)
                 if entry.reason == "start" or (watched and watch_changes(watched, whole)):
-                    watch = element_watch(whole) if element2_watts(whole) else None
+                    kept, watch = watch, element_watch(whole) if element2_watts(whole) else None
+                    same = watched is not None and watched.tun == whole.tun
+                    if entry.reason != "start" and same and kept and watch:
+                        watch.keep_probed(kept)
                 if entry.reason == "start":
                     reach = ReachWatch() if entry.reach_watch else None
                 elif reach is not None and watched is not None and reach_restarts(watched, whole):
                     reach.restart()
                 same_tun = watched is not None and watched.tun == whole.tun
-                watched = whole
+                before, watched = watched, whole
                 reloaded = whole.control
                 same_model = in_force_model == entry.model
                 if (
@@ -805,7 +809,12 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 made = make_controller(control, model)
                 if entry.drop_fall_c is None:  # a daemon from before it judged steady so
                     predating_drop_fall(made)
-                controller = shared_out(whole, made)
+                unknown_probe = controller is None and same_tun  # what it would keep is not known
+                previous, controller = controller, shared_out(whole, made)
+                if entry.reason == "reload" and before is not None:
+                    keep_probe(before, whole, previous, controller)
+                    if unknown_probe and isinstance(controller, SplitController):
+                        controller = None if controller.probe is not None else controller
             except (config_module.ConfigError, ValueError) as error:
                 detail = str(error).replace("\n", "; ")
                 raise ReplayError(f"the config logged at t {entry.t!r} s: {detail}") from None

@@ -279,3 +279,35 @@ def test_the_split_tells_its_controller_the_power_back_after_the_probe_is_its_ow
         steps.append(split.step(66.0, 30.0, 100.0))
     assert (steps[2], steps[3]) == (0.0, 0.0)  # held off in steps 3 and 4
     assert told == [5, 6]  # their power is what steps 5 and 6 see as the one before last
+
+
+RELOAD_AT = 2500.0
+"""s: after the probe found the SSR's element dead (judged by 2320 s, HEAT_UP above)."""
+
+
+@pytest.mark.parametrize(
+    ("change", "kept"),
+    [
+        ({"control": {"dead_time": 120.0}}, True),  # the element watch starts afresh
+        ({"control": {"kc": 100.0}}, True),  # a retune: a new controller
+        ({"tun": {"litres": 61.0}}, False),  # another tun: probed afresh
+    ],
+)
+def test_a_reload_keeps_the_probes_finding_unless_it_changed_the_tun(
+    change: dict[str, dict[str, float]], kept: bool, tmp_path: Path
+) -> None:
+    dead = Event(1.0, "heater", "open")
+    reload = Event(RELOAD_AT, "config", change)
+    day = dataclasses.replace(_heat_up_day(TUN.brew_day(), dead, reload), duration=3600.0)
+    result = run(day, keep_records=True, log_dir=tmp_path)
+    named = {r.t: r.no_heat for r in result.records}
+    assert named[RELOAD_AT - 5.0] == [1]
+    assert all(n == ([1] if kept else []) for t, n in named.items() if t > RELOAD_AT + 5.0)
+    # Not probed again: the SSR's element is off in the probe's 60 s only.
+    probed = [
+        r
+        for r in result.records
+        if r.switched2 == 100.0 and r.output == 0.0 and r.pv is not None and r.pv < 66.0 - BELOW
+    ]
+    assert len(probed) == PROBE_S / 5.0
+    assert verify(load(sorted(tmp_path.glob("*.mcap"))).entries).mismatch is None
