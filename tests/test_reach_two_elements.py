@@ -27,7 +27,7 @@ from hermsd.reach import MARGIN_C, SLACK, FullPower, short_words
 from hermsd.sim import scenario
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2
 from hermsd.sim.scenario import Event, Scenario
-from hermsd.sim.tuns import TunSpec
+from hermsd.sim.tuns import NOISE_C, TunSpec
 
 
 def level_c(spec: TunSpec, watts: float) -> float:
@@ -171,6 +171,23 @@ LIMIT = 60.0
 total, so that share alone could not tell full power."""
 
 
+def limited_ready_by(ready_by: str, noise_c: float) -> tuple[Scenario, Config]:
+    """A 72 °C strike ready by `ready_by` (from midnight) on the 90 L tun's 2 kW SSR element
+    and 3.5 kW contactor, mid-ranging under LIMIT."""
+    midnight = int(dt.datetime(2026, 11, 28, 0, 0, tzinfo=dt.UTC).timestamp()) * 10**9
+    spec = TunSpec("90 L, 2 + 3.5 kW", 90, 2000, 1.0, 60, 10, 20)
+    config = two_elements(spec, 3500.0, "midrange")
+    control = dataclasses.replace(config.control, max_output=LIMIT, u1_ref=40.0)
+    day = Scenario(
+        name=spec.name,
+        duration=6000.0,
+        program=Program("Strike", (Step("Strike", 72.0, 600.0),), ready_by),
+        clock=(midnight, dt.UTC),
+        plant={**spec.plant(noise_c=noise_c), "element2_watts": 3500.0},
+    )
+    return day, dataclasses.replace(config, control=control)
+
+
 def test_a_ready_by_climb_on_two_elements_is_full_power_only_with_both_at_theirs(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -186,18 +203,8 @@ def test_a_ready_by_climb_on_two_elements_is_full_power_only_with_both_at_theirs
         judged[t] = self._run_since is not None  # in a full-power run after this period
 
     monkeypatch.setattr(Readiness, "_measure", spied)
-    midnight = int(dt.datetime(2026, 11, 28, 0, 0, tzinfo=dt.UTC).timestamp()) * 10**9
-    spec = TunSpec("90 L, 2 + 3.5 kW", 90, 2000, 1.0, 60, 10, 20)
-    config = two_elements(spec, 3500.0, "midrange")
-    control = dataclasses.replace(config.control, max_output=LIMIT, u1_ref=40.0)
-    day = Scenario(
-        name=spec.name,
-        duration=6000.0,
-        program=Program("Strike", (Step("Strike", 72.0, 600.0),), "02:30"),
-        clock=(midnight, dt.UTC),
-        plant={**spec.plant(), "element2_watts": 3500.0},
-    )
-    result = scenario.run(day, dataclasses.replace(config, control=control), keep_records=True)
+    day, config = limited_ready_by("02:30", NOISE_C)
+    result = scenario.run(day, config, keep_records=True)
     periods = {r.t: r for r in result.records}
     assert len(judged) > 600
     for t, full in judged.items():
@@ -219,18 +226,8 @@ def test_a_ready_by_on_two_elements_under_a_power_limit_plans_with_both_elements
     (1 + 0.45 + 0.25)·4706 + 900 = 8900 s before the time asked for (the config's model,
     a fill not measured; readiness.MARGIN_PRIOR, FILL_MARGIN, WAIT_S). At 60 % it would be
     12800 s: 3900 s too early."""
-    midnight = int(dt.datetime(2026, 11, 28, 0, 0, tzinfo=dt.UTC).timestamp()) * 10**9
-    spec = TunSpec("90 L, 2 + 3.5 kW", 90, 2000, 1.0, 60, 10, 20)
-    config = two_elements(spec, 3500.0, "midrange")
-    control = dataclasses.replace(config.control, max_output=LIMIT, u1_ref=40.0)
-    day = Scenario(
-        name=spec.name,
-        duration=6000.0,
-        program=Program("Strike", (Step("Strike", 72.0, 600.0),), "04:00"),
-        clock=(midnight, dt.UTC),
-        plant={**spec.plant(noise_c=0.0), "element2_watts": 3500.0},
-    )
-    result = scenario.run(day, dataclasses.replace(config, control=control), keep_records=True)
+    day, config = limited_ready_by("04:00", 0.0)
+    result = scenario.run(day, config, keep_records=True)
     scheduled = [r.t for r in result.records if r.state == "scheduled"]
     climb = scheduled[-1] + 5.0  # the period after the last one held off
     assert scheduled[0] <= 10.0 and len(scheduled) == (climb - scheduled[0]) / 5.0
