@@ -404,7 +404,7 @@ class Supervisor:
         self._good_reads = 0
         self._last_good_t: float | None = None
         self._last_accepted: float | None = None
-        self._previous_value: float | None = None
+        self._recent_reads: deque[float] = deque(maxlen=3)  # the last values read, good or not
         self._last_raw: int | None = None
         self._heater_watch = _HeaterWatch()
         self._energy: deque[tuple[float, float, float]] = deque()  # (t, pv, full-power s)
@@ -473,17 +473,16 @@ class Supervisor:
         lim = self.limits
         if self._wrong_chip:
             return False
-        previous, self._previous_value = self._previous_value, celsius
+        recent = tuple(self._recent_reads)
+        self._recent_reads.append(celsius)
         if not lim.plausible_min <= celsius <= lim.plausible_max:
             self._bad(t, f"implausible reading {celsius:.4f} °C", {"celsius": celsius})
             return False
         last = self._last_accepted
-        # A jump is accepted only when the read before it agrees: a lone spike is dropped,
-        # a real step (cold water) is believed one read later.
         if (
             last is not None
             and abs(celsius - last) > lim.max_step
-            and (previous is None or abs(celsius - previous) > lim.max_step)
+            and not _jump_believed(celsius, recent, lim.max_step)
         ):
             self._bad(t, f"jump {celsius - last:+.4f} °C in one read", {"celsius": celsius})
             return False
@@ -821,6 +820,42 @@ class Supervisor:
         alarm = self._active.pop(kind, None)
         if alarm is not None:
             self._events.append(Alarm(kind, t, f"cleared: {why}", alarm.latched, False))
+
+
+def _jump_believed(celsius: float, recent: Sequence[float], max_step: float) -> bool:
+    """A read more than `max_step` from the last accepted one is believed when the read
+    before it agrees (a real step, cold water, is believed one read later), or when it
+    goes on a run of such jumps the same way, as a step of the water (a cold dump of any
+    size) shows through the sensor's first-order lag: the reads (`recent`, oldest first,
+    refused ones too) were steady or already going that way, the last step was a jump and
+    this one is a jump the same way; within the run each full read's step is e^(−interval/lag)
+    of the one before, so once two jumps have shown this one must be no larger. The first
+    jump may cover only part of its interval (the water stepped between two reads), so the
+    second may be larger than it, not the third.
+
+    What a failing sensor or bus gives is refused still. A lone spike, up or down, is one
+    jump (an LSB of noise before it is no jump) with a read after it that goes back, and a
+    jump back from a spike is against the way the reads went before it; an erratic sensor's
+    jumps alternate; the LM92's own faults (a spiked conversion, a frozen register, NACKs
+    and timeouts, another chip, a slow bus) give a lone spike, no change or no reading. A
+    sensor stuck at a wrong value after a jump is believed from its second read, as before,
+    and a reading that then never changes latches `sensor_stuck`. Random words off the bus
+    (13 bits, 23 % within the plausible range) make two jumps the same way once in ~78 pairs
+    of reads (two that agree: once in ~580): the garbage around them is refused, so the
+    fault is raised all the same; a burst of two believed is one period's mean pulled by a
+    fifth of its error.
+    """
+    if recent and abs(celsius - recent[-1]) <= max_step:
+        return True
+    if len(recent) < 2:
+        return False
+    step, last = celsius - recent[-1], recent[-1] - recent[-2]
+    if abs(last) <= max_step or step * last <= 0.0:
+        return False
+    before = recent[-2] - recent[-3] if len(recent) == 3 else 0.0
+    if before * step < 0.0 and abs(before) > max_step:
+        return False  # the jump back from a spike
+    return abs(before) <= max_step or abs(step) <= abs(last)
 
 
 def _window_rises(
