@@ -206,10 +206,12 @@ def _parser() -> argparse.ArgumentParser:
         metavar="HH:MM",
         help="with start: have the first step's setpoint reached at this local time",
     )
+    _step_argument(program, "with next: end step N only (refused if another is current)")
     _socket_argument(program)
     program.set_defaults(func=cmd_program)
 
     confirm = sub.add_parser("confirm", help="answer the program's step that waits for you")
+    _step_argument(confirm, "confirm step N only (refused if another is current)")
     _socket_argument(confirm)
     confirm.set_defaults(func=cmd_confirm)
 
@@ -702,7 +704,7 @@ def _serve_control(daemon: Daemon, server: ControlServer) -> None:
     from hermsd.control.link import LoopLink
 
     link = LoopLink(daemon)
-    server.answer_with(link.status_line, link.history_line)
+    server.answer_with(link.status_line, link.history_line, link.arrived)
     server.start()
     link.attach(server)
     print(f"control socket {server.path}", flush=True)
@@ -1463,6 +1465,21 @@ def _request_reset_in_state(args: argparse.Namespace) -> int:
 # -- status and set, through the control socket ---------------------------------------------
 
 
+def _step_argument(parser: argparse.ArgumentParser, text: str) -> None:
+    """--step N: the step (numbered from 1, as `hermsd status` shows it) a confirm or next is
+    for; without it, the step current when the daemon receives the request."""
+    parser.add_argument(
+        "--step", type=_step_number, metavar="N", help=text + "; default: the current step"
+    )
+
+
+def _step_number(text: str) -> int:
+    """A step as numbered from 1, to the protocol's index from 0."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected a step number from 1, got {text!r}")
+    return int(text) - 1
+
+
 def _ask(socket_path: Path | None, request: Request) -> dict[str, Any]:
     """The daemon's reply; a refusal is a UserError (exit 2) with the daemon's one line."""
     try:
@@ -1551,6 +1568,8 @@ def cmd_program(args: argparse.Namespace) -> int:
         return cmd_program_import(args)
     if args.ready_by is not None and args.action != "start":
         raise UserError("--ready-by goes with `program start`")
+    if args.step is not None and args.action != "next":
+        raise UserError("--step goes with `program next` (and `hermsd confirm`)")
     if args.ready_by is not None and model.READY_BY.fullmatch(args.ready_by) is None:
         raise UserError(f"--ready-by: {args.ready_by!r} is not a local time (HH:MM, e.g. 06:30)")
     request: Request
@@ -1563,7 +1582,7 @@ def cmd_program(args: argparse.Namespace) -> int:
             return 0
         request = ProgramStart(program, args.ready_by)
     else:
-        request = ProgramAction(args.action)
+        request = ProgramAction(args.action, args.step)
     try:
         reply = _ask(args.socket, request)
     except NoDaemonError as error:
@@ -1575,7 +1594,7 @@ def cmd_program(args: argparse.Namespace) -> int:
 
 def cmd_confirm(args: argparse.Namespace) -> int:
     try:
-        reply = _ask(args.socket, ProgramAction("confirm"))
+        reply = _ask(args.socket, ProgramAction("confirm", args.step))
     except NoDaemonError as error:
         raise Unreachable(str(error)) from None
     state = reply.get("program")

@@ -723,11 +723,12 @@ class Daemon:
             pid.heat_up_fit(self.controller),
         )
 
-    def program_command(self, action: str, t: float) -> None:
-        """next, pause, resume, stop or confirm (runner.Refused when it does not apply)."""
+    def program_command(self, action: str, t: float, step: int | None = None) -> None:
+        """next, pause, resume, stop or confirm (runner.Refused when it does not apply);
+        `step`: the index of the step a confirm or next is for (None: the current one)."""
         if action == "stop":
             self._keep_after_below_cut_out(t)
-        after = self.program.command(action, self._pv)
+        after = self.program.command(action, self._pv, step)
         if after is not None:
             self.setpoint = after
             self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)

@@ -382,7 +382,8 @@ def served(
     daemon, _world, _path, _events = start(tmp_path, text)
     link = LoopLink(daemon)
     where = (directory or tmp_path) / "control.sock"
-    server = ControlServer(where, link.status_line, link.history_line)
+    server = ControlServer(where)
+    server.answer_with(link.status_line, link.history_line, link.arrived)
     server.start()
     link.attach(server)
     stop = threading.Event()

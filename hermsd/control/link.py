@@ -32,6 +32,7 @@ from hermsd.config import Config
 from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
 from hermsd.control.protocol import (
     STARTING,
+    STEP_ACTIONS,
     VERSION,
     Command,
     History,
@@ -175,7 +176,7 @@ class LoopLink:
         if isinstance(command, ProgramStart):
             return daemon.program_problems(command.program)
         if isinstance(command, ProgramAction):
-            why = daemon.program.check(command.action)
+            why = daemon.program.check(command.action, command.step)
             return [] if why is None else [why]
         if isinstance(command, SetSetpoint) and daemon.program.active:
             return [
@@ -204,7 +205,7 @@ class LoopLink:
         if isinstance(command, ProgramStart):
             daemon.start_program(command.program, command.ready_by, t)
         elif isinstance(command, ProgramAction):
-            daemon.program_command(command.action, t)
+            daemon.program_command(command.action, t, command.step)
         daemon.operator_action(f"{describe(command)} (from the {SOURCE})", t)
         if isinstance(command, ProgramStart | ProgramAction):
             return
@@ -231,6 +232,21 @@ class LoopLink:
             if self._encoded is None or self._encoded[0] is not snapshot:
                 self._encoded = (snapshot, encode(self._status_message(snapshot)))
             return self._encoded[1]
+
+    def arrived(self, command: Command) -> Command:
+        """A confirm or next that names no step, for the step current as it arrives (the
+        last period's): the brewer meant the step they saw, and a second one queued with
+        it must not end the step the first one brought."""
+        snapshot = self._snapshot
+        if (
+            not isinstance(command, ProgramAction)
+            or command.action not in STEP_ACTIONS
+            or command.step is not None
+            or snapshot is None
+            or snapshot.program is None
+        ):
+            return command
+        return dataclasses.replace(command, step=snapshot.program["step"]["index"])
 
     def history_line(self, request: History) -> bytes:
         """A page of the history (rows after `request.since`), encoded."""
