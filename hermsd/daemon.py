@@ -486,6 +486,7 @@ class Daemon:
         # supervisor and the status are told was asked. The controller's output stays its own,
         # so a manual switch or a bumpless restart never takes the 100 % for the brewer's.
         self._full_power = False
+        self._outputs_off = False  # shut down: every output switched off, for good
         self._held = True  # nothing to continue from until the first good period
         self._resume_output = 0.0
         self._window = _Window()
@@ -635,6 +636,7 @@ class Daemon:
                 interrupted = interrupted or error
         now = self.clock.monotonic()
         self._ssr_duty.switched(False, now)
+        self._outputs_off = True
         self._event(logging.INFO, f"heater off: {reason}", now)
         self._alert("stopped", f"heater off: {reason}", now)
         deadline = time.monotonic() + STOP_WAIT_S  # outputs are off: what is left may wait
@@ -1566,7 +1568,8 @@ class Daemon:
     def _alert(self, event: str, message: str, t: float, kind: str = "") -> None:
         """Hand an event to the alerts worker, with what the loop knows now."""
         name, wall_ns = self.config.tun.name, self.clock.wall_ns()
-        output = self._asked() if self.supervisor.heater_allowed else 0.0  # the output in force
+        heating = self.supervisor.heater_allowed and not self._outputs_off
+        output = self._asked() if heating else 0.0  # the output in force
         self.alerts.send(
             Event(event, message, name, wall_ns, kind, self._pv, self.setpoint, output), t
         )
