@@ -454,6 +454,7 @@ class Daemon:
         self.models = models
         self.saver = saver if saver is not None else Saver()  # latches and model, off the loop
         self._stored_model: LearnedModel | None = None
+        self._learned_since: LearnedModel | None = None  # stored since the start, not in force
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
             self._stored_model, self._model_problem = stored_model(models, config)
@@ -933,8 +934,10 @@ class Daemon:
 
     @property
     def learned_model(self) -> LearnedModel | None:
-        """What was learned of the tun and stored, as read at start (None: nothing usable)."""
-        return self._stored_model
+        """What was learned of the tun and stored: the last saved since the start, else as
+        read at start (None: nothing usable). The model in force (`model_choice`) takes a
+        new one at the next start only."""
+        return self._learned_since or self._stored_model
 
     def _measured_tun(self, config: Config) -> MeasuredTun | None:
         """The tun as measured for the supervisor's limits: the one given, else the model in
@@ -1063,6 +1066,7 @@ class Daemon:
             elif outcome.error is not None:
                 self._event(logging.ERROR, f"saving the learned model failed: {outcome.error}", t)
             else:
+                self._learned_since = outcome.tag
                 what = outcome.tag.describe()
                 self._event(logging.INFO, f"learned the tun: {what}; used from the next start", t)
 

@@ -302,6 +302,30 @@ def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
     assert (status["learned"]["litres"], status["learned"]["learned_at_ns"]) == (litres, 7)
 
 
+def test_status_shows_what_was_learned_as_soon_as_it_is_stored(tmp_path: Path) -> None:
+    """Stored mid-day: the status says so at once, though it is in force from the next start."""
+    config = config_module.parse(BASE)
+    store = ModelStore(tmp_path)
+    clock = VirtualClock()
+    world = build_world(config, clock)
+    daemon = Daemon(config, clock, world.sensor, world.outputs, models=store)
+    LoopLink(daemon).attach(Inbox())
+    daemon.start()
+    run_for(daemon, PERIOD)
+    assert status_of(daemon)["learned"] is None
+    learned = LearnedModel(0.5 / 60.0, 1.0 / 12000.0, 90.0, 18.0, config.tun.litres, wall_ns=9)
+    # What the daemon's learner hands over when a hold has taught it the tun.
+    daemon.saver.save("model", lambda: store.save(learned), learned)
+    assert daemon.saver.flush(5.0)
+    run_for(daemon, PERIOD)
+
+    status = status_of(daemon)
+
+    assert status["learned"]["learned_at_ns"] == 9
+    assert status["learned"]["text"] == learned.describe()
+    assert status["model"]["from"] == "prior"  # used from the next start
+
+
 # -- the rule: a runtime set holds until the file's same key is edited ----------------------
 
 
