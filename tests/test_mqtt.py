@@ -379,6 +379,22 @@ def test_setpoint_and_mode_commands_are_applied_through_the_socket(rig: Rig) -> 
     assert rig.watcher.on(rig.topics.error) == []
 
 
+def test_quick_setpoints_end_at_the_latest_none_refused(rig: Rig) -> None:
+    """A slider dragged: 15 setpoints, one a period, faster than the daemon takes a client's
+    commands (10 at once, then 2 a second). Those that wait are replaced by newer ones, the
+    bridge sends what it may when it may, and the last one is what holds."""
+    rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
+    for tenths in range(600, 675, 5):
+        rig.command(rig.topics.set_setpoint, f"{tenths / 10:g}".encode())
+        rig.step()
+    deadline = time.monotonic() + TIMEOUT  # the bridge waits on the real clock for its turn
+    while rig.step().json()["setpoint"] != 67.0:
+        assert time.monotonic() < deadline, "the latest setpoint was not applied"
+    assert rig.watcher.on(rig.topics.error) == []
+    applied = [float(line.split()[3]) for line in operator_lines(rig.events)]
+    assert applied[-1] == 67.0 and applied == sorted(applied)  # never back to an older one
+
+
 BAD_COMMANDS = [  # (topic, payload, what the error says)
     ("set/setpoint", b"hot", "setpoint: expected a number in °C such as 66.5, got 'hot'"),
     ("set/setpoint", b"nan", "expected a number"),
@@ -702,20 +718,14 @@ def test_the_thermostat_offers_setpoints_only_below_the_cut_out(
 
 def test_a_second_stop_signal_inside_the_first_handler_does_not_hang(tmp_path: Path) -> None:
     bridge = Bridge(config_module.parse(BASE), tmp_path / "no.sock", poll=0.02)
-    commands = bridge._commands
-    put = commands.put_nowait
+    wake = bridge._wake
+    notify = wake.notify_all
 
-    def signal_while_locked(item: Any) -> None:  # the second SIGTERM lands mid-put
-        with commands.mutex:
-            pass
-        commands.mutex.acquire()
-        try:
-            bridge.stop()  # the nested handler
-        finally:
-            commands.mutex.release()
-        put(item)
+    def signal_while_locked() -> None:  # the second SIGTERM lands while the lock is held
+        bridge.stop()  # the nested handler
+        notify()
 
-    commands.put_nowait = signal_while_locked  # type: ignore[method-assign]
+    wake.notify_all = signal_while_locked  # type: ignore[method-assign]
     stopping = threading.Thread(target=bridge.stop, daemon=True)
     stopping.start()
     stopping.join(TIMEOUT)
