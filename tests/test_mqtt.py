@@ -8,6 +8,7 @@ time; every wait on the real clock is for a network event, bounded by TIMEOUT.
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import json
 import re
@@ -29,6 +30,7 @@ from test_reload import BASE, PERIOD, Events, edited, run_for, start
 
 from hermsd import config as config_module
 from hermsd.cli import main
+from hermsd.control import protocol
 from hermsd.control.client import ask
 from hermsd.control.link import LoopLink
 from hermsd.control.protocol import ProgramAction, ProgramStart, Request
@@ -37,6 +39,7 @@ from hermsd.mqtt.bridge import Bridge
 from hermsd.mqtt.messages import Topics, discovery_messages, setpoint_range, state_message
 from hermsd.program.model import Program, Step
 
+ROOT = Path(__file__).resolve().parents[1]
 MOSQUITTO = Path("/usr/sbin/mosquitto")
 MOSQUITTO_PASSWD = Path("/usr/bin/mosquitto_passwd")
 TIMEOUT = 5.0
@@ -730,3 +733,47 @@ def test_a_second_stop_signal_inside_the_first_handler_does_not_hang(tmp_path: P
     stopping.start()
     stopping.join(TIMEOUT)
     assert not stopping.is_alive()
+
+
+def _states_the_loop_sets() -> set[str]:
+    """Every value the control period gives `state` (read from its source, so a new one
+    cannot go unnoticed)."""
+    tree = ast.parse((ROOT / "hermsd" / "daemon.py").read_text(encoding="utf-8"))
+    period = next(
+        node
+        for node in ast.walk(tree)
+        if isinstance(node, ast.FunctionDef) and node.name == "_on_control"
+    )
+    states: set[str] = set()
+    for node in ast.walk(period):
+        if not isinstance(node, ast.Assign):
+            continue
+        for target in node.targets:
+            value: ast.expr = node.value
+            if isinstance(target, ast.Tuple) and isinstance(value, ast.Tuple):
+                names = [getattr(element, "id", None) for element in target.elts]
+                if "state" not in names:
+                    continue
+                value = value.elts[names.index("state")]
+            elif getattr(target, "id", None) != "state":
+                continue
+            states |= {
+                c.value
+                for c in ast.walk(value)
+                if isinstance(c, ast.Constant) and isinstance(c.value, str)
+            }
+    return states
+
+
+def test_every_state_the_daemon_reports_is_documented_where_the_others_are() -> None:
+    states = _states_the_loop_sets()
+    assert {"ok", "manual", "alarm", "waiting", "scheduled"} <= states
+    row = next(
+        line
+        for line in (ROOT / "docs" / "mqtt.md").read_text(encoding="utf-8").splitlines()
+        if line.startswith("| sensor State |")
+    )
+    protocol_doc = protocol.__doc__ or ""
+    for state in states:
+        assert f"`{state}`" in row, state
+        assert f'"{state}"' in protocol_doc, state

@@ -32,7 +32,9 @@ Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": 
 answered at once from the last control period: `tun`, `pv` (°C, null when unknown),
 `setpoint` (°C), `output` (% of the SSR's element), `output2` (% of the second element, null
 when none is fitted), `applied` (% the SSR was driven at in the period before),
-`mode`, `manual_output`, `state`, `alarms`, `alarm_reasons` (each alarm's message, by its
+`mode`, `manual_output`, `state` ("ok"; "manual"; "alarm": an alarm holds the heater off;
+"waiting": off until the sensor is trusted; "scheduled": off until a mash program's
+`ready_by` heat-up is due to start), `alarms`, `alarm_reasons` (each alarm's message, by its
 kind), `heater_allowed`, `limits` (the safety limits in
 force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,
 dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured" (by
