@@ -1588,7 +1588,10 @@ def cmd_program(args: argparse.Namespace) -> int:
     except NoDaemonError as error:
         raise Unreachable(str(error)) from None
     state = reply.get("program")
-    print(program_line(state) if state is not None else "no program runs")
+    if args.action == "stop":
+        print(f"program stopped; setpoint {reply['setpoint']:g} °C")
+    else:
+        print(program_line(state) if state is not None else "no program runs")
     return 0
 
 

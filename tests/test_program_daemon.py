@@ -289,7 +289,18 @@ def test_the_commands_start_pause_and_stop_a_program(
         assert main(["confirm", *sock]) == 2
         assert "the program is paused" in capsys.readouterr().err
         assert main(["program", "stop", *sock]) == 0
-        assert capsys.readouterr().out == "no program runs\n"
+        assert capsys.readouterr().out == "program stopped; setpoint 66 °C\n"
+
+
+def test_a_program_stopped_is_logged_as_the_operators_action_then_what_it_brought(
+    tmp_path: Path,
+) -> None:
+    daemon, _path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    apply(daemon, inbox, ProgramAction("stop"))
+    lines = events.logged()
+    action = lines.index("operator: program stop (from the control socket)")
+    assert lines.index("setpoint 66.00 °C (the program stopped)") > action
 
 
 def test_a_progress_that_cannot_be_saved_is_in_the_log_and_the_status(tmp_path: Path) -> None:

@@ -204,9 +204,9 @@ class LoopLink:
         daemon = self.daemon
         if isinstance(command, ProgramStart):
             daemon.start_program(command.program, command.ready_by, t)
-        elif isinstance(command, ProgramAction):
-            daemon.program_command(command.action, t, command.step)
         daemon.operator_action(f"{describe(command)} (from the {SOURCE})", t)
+        if isinstance(command, ProgramAction):  # what it brings is logged after it
+            daemon.program_command(command.action, t, command.step)
         if isinstance(command, ProgramStart | ProgramAction):
             return
         if isinstance(command, SetSetpoint):
