@@ -1467,7 +1467,7 @@ def _request_reset_in_state(args: argparse.Namespace) -> int:
 
 def _step_argument(parser: argparse.ArgumentParser, text: str) -> None:
     """--step N: the step (numbered from 1, as `hermsd status` shows it) a confirm or next is
-    for; without it, the step current when the daemon receives the request."""
+    for; without it, the step current a second before the daemon receives the request."""
     parser.add_argument(
         "--step", type=_step_number, metavar="N", help=text + "; default: the current step"
     )

@@ -19,11 +19,11 @@ from typing import Any
 
 import pytest
 from test_control import Inbox, linked, operator_lines, served, status_of
-from test_reload import BASE, PERIOD, edited, rename_over, run_for
+from test_reload import BASE, PERIOD, edited, rename_over, run_for, start
 
 from hermsd import replay
 from hermsd.cli import main
-from hermsd.control.link import LoopLink
+from hermsd.control.link import SEEN_S, LoopLink
 from hermsd.control.protocol import (
     ProgramAction,
     ProgramStart,
@@ -451,33 +451,43 @@ WAITS_TWICE = Program(
 def test_a_second_command_sent_with_the_first_does_not_end_the_step_the_first_brought(
     tmp_path: Path, action: str
 ) -> None:
-    """Two brewers (or a double tap) answer S1 together: the second command arrives while S1
-    still waits but reaches the loop a period after the first, when S2 waits (its hold of
-    0 s over in the period that began it). It is refused: S2 was never seen."""
-    daemon, _path, events, inbox = linked(tmp_path)
+    """Two brewers (or a double tap) answer S1 together. The first ends S1, and S2 waits in
+    the period that began it (its hold is 0 s). The second, queued with the first or come
+    less than SEEN_S later, was meant for S1 too: it is refused, and S2 still waits."""
+    now = [0.0]  # the senders' real clock
+    daemon, _world, _path, events = start(tmp_path, BASE)
+    inbox = Inbox()
+    link = LoopLink(daemon, now=lambda: now[0])
+    link.attach(inbox)
+    run_for(daemon, 60.0)
     apply(daemon, inbox, ProgramStart(WAITS_TWICE))
     run_for(daemon, 1800.0)  # the simulated tun, from 20 °C, is at 25 °C: S1 waits
     assert status_of(daemon)["program"]["message"] == "Mash in"
-    link = daemon.control
-    assert isinstance(link, LoopLink)
+    now[0] = 10.0
     first = inbox.send(link.arrived(ProgramAction(action)))
-    late = link.arrived(ProgramAction(action))  # arrived with the first, taken a period later
+    queued = link.arrived(ProgramAction(action))  # arrived with the first, taken a period later
     run_for(daemon, PERIOD)
     assert first.reply is not None and first.reply["ok"] is True
     assert first.reply["program"]["step"]["name"] == "S2"
     assert first.reply["program"]["message"] == "Add the salts"
-    second = apply(daemon, inbox, late)
-    assert second["ok"] is False
-    assert second["error"] == (
-        f"refused, nothing changed: {action} was for step 1, which is not the current one "
-        "(step 2/3 'S2' is waiting; look at the status and send it again for that step if "
-        "meant)"
-    )
+    now[0] = 10.0 + SEEN_S / 2  # one sent half a second after the first
+    for late in (queued, link.arrived(ProgramAction(action))):
+        second = apply(daemon, inbox, late)
+        assert second["ok"] is False
+        assert second["error"] == (
+            f"refused, nothing changed: {action} was for step 1, which is not the current one "
+            "(step 2/3 'S2' is waiting; look at the status and send it again for that step if "
+            "meant)"
+        )
     assert status_of(daemon)["program"]["message"] == "Add the salts"  # S2 still waits
     said = [line for line in events.logged() if "'S2' confirmed" in line or "'S2' ended" in line]
     assert said == []
-    # Named, the step is answered as meant.
-    assert apply(daemon, inbox, ProgramAction(action, 1))["program"]["step"]["name"] == "S3"
+    now[0] = 10.0 + SEEN_S  # S2 shown long enough to be read: now it is answered
+    assert (
+        apply(daemon, inbox, link.arrived(ProgramAction(action)))["program"]["step"]["name"] == "S3"
+    )
+    # Named, a step is answered as meant at once.
+    assert apply(daemon, inbox, ProgramAction(action, 2))["ok"] is (action == "next")
 
 
 def test_the_step_a_confirm_or_next_is_for_is_read_and_written_by_the_protocol() -> None:

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -55,6 +57,10 @@ from hermsd.reach import short_words
 from hermsd.safety import SafetyLimits, format_limits
 
 SOURCE = "control socket"
+SEEN_S = 1.0
+"""Seconds a step is current before a confirm or next that names none may end it: less is
+no time to read it, so such a command was meant for the step before (`LoopLink.arrived`)."""
+STEPS_KEPT = 8  # step changes remembered for `arrived`: far more than one SEEN_S holds
 RUNTIME_KEYS = ("control.setpoint", "control.mode", "control.manual_output")
 
 
@@ -102,8 +108,13 @@ def status_warnings(
 class LoopLink:
     """Connects a daemon to a control server (`attach` it, then start the server)."""
 
-    def __init__(self, daemon: Daemon) -> None:
+    def __init__(self, daemon: Daemon, now: Callable[[], float] = time.monotonic) -> None:
+        """`now`: the real clock the people and programs that send commands live by (s)."""
         self.daemon = daemon
+        self._now = now
+        # When (`now`) each program step became the current one, the latest last; None: no
+        # program. Replaced whole by the loop, read by the server thread.
+        self._steps: tuple[tuple[float, int | None], ...] = ()
         self.server: CommandSource | None = None
         self._snapshot: Snapshot | None = None
         self._encoded: tuple[Snapshot, bytes] | None = None
@@ -157,6 +168,10 @@ class LoopLink:
             daemon.latches_not_saved,
         )
         self.history.append(*encode_row(record))
+        program = self._snapshot.program
+        step = None if program is None else program["step"]["index"]
+        if not self._steps or self._steps[-1][1] != step:
+            self._steps = (*self._steps[-(STEPS_KEPT - 1) :], (self._now(), step))
         if self._answering:
             reply = None
             for pending in self._answering:
@@ -234,19 +249,21 @@ class LoopLink:
             return self._encoded[1]
 
     def arrived(self, command: Command) -> Command:
-        """A confirm or next that names no step, for the step current as it arrives (the
-        last period's): the brewer meant the step they saw, and a second one queued with
-        it must not end the step the first one brought."""
-        snapshot = self._snapshot
+        """A confirm or next that names no step, for the step that was current SEEN_S before
+        it arrived: the step the sender can have seen. A second one sent with the first (two
+        terminals, a double tap) must not end the step the first one brought, which nobody
+        has read yet; one for that step is refused, to be sent again when meant."""
         if (
             not isinstance(command, ProgramAction)
             or command.action not in STEP_ACTIONS
             or command.step is not None
-            or snapshot is None
-            or snapshot.program is None
+            or not self._steps
         ):
             return command
-        return dataclasses.replace(command, step=snapshot.program["step"]["index"])
+        seen = self._now() - SEEN_S
+        steps = self._steps
+        step = next((index for when, index in reversed(steps) if when <= seen), steps[0][1])
+        return command if step is None else dataclasses.replace(command, step=step)
 
     def history_line(self, request: History) -> bytes:
         """A page of the history (rows after `request.since`), encoded."""

@@ -22,9 +22,10 @@ the protocol version it speaks and a command:
     {"v": 1, "cmd": "confirm", "step": 0}     (`step` optional with `confirm` and `program
                                     next`: the index of the step they act on, as `status`'s
                                     program step shows it; refused when that step is no longer
-                                    the current one. Absent, the step current when the request
-                                    arrives: so of two alike queued together, the second is
-                                    refused rather than confirming or skipping the next step)
+                                    the current one. Absent, the step that was current a second
+                                    before the request arrived (hermsd.control.link.SEEN_S):
+                                    so of two alike sent together, the second is refused rather
+                                    than ending the step the first brought, unseen)
     {"v": 1, "cmd": "history", "since": 1234.5, "limit": 500}   (both optional)
 
 Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": false,
