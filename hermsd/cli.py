@@ -1201,7 +1201,7 @@ def _tune_step(args: argparse.Namespace) -> int:
             args.output,
             limit,
             args.ambient,
-            lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
+            lambda progress: _say_progress(step_response.progress_line(progress)),
             fits=fits,
         )
 
@@ -1249,7 +1249,7 @@ def _tune_relay(args: argparse.Namespace) -> int:
             hysteresis,
             args.amplitude,
             args.ambient,
-            lambda progress: print(relay.progress_line(progress), file=sys.stderr),
+            lambda progress: _say_progress(relay.progress_line(progress)),
             fits=fits,
         )
 
@@ -1257,6 +1257,13 @@ def _tune_relay(args: argparse.Namespace) -> int:
         experiment = _run_tune(args, config, build, relay.start)
     result, lines = relay.result_json(experiment), relay.result_lines(experiment)
     return _tune_written(args, result, lines, experiment.stopped, relay.write, experiment)
+
+
+def _say_progress(line: str) -> None:
+    """A tune test's progress line, called on the loop: through the log's queue, so that a
+    stalled stderr never holds the experiment up (hermsd/log_queue.py), in order with the
+    daemon's own lines."""
+    log.info("%s", line)
 
 
 def _tune_config(args: argparse.Namespace) -> config_module.Config:
