@@ -187,8 +187,9 @@ class _FileRecords:
     report: FileReport
     run: str | None  # the recorder's run id (older files have none)
     configs: list[LoggedConfig] = field(default_factory=list)
+    config_times: list[int] = field(default_factory=list)  # the log time of each config
     periods: list[tuple[PeriodRecord, int]] = field(default_factory=list)  # with log time
-    anchors: list[tuple[int, float]] = field(default_factory=list)  # (log time, t)
+    anchors: list[tuple[int, float]] = field(default_factory=list)  # (log time, t), no config
     raw_events: list[tuple[int, int, str]] = field(default_factory=list)
     program: list[dict[str, Any]] = field(default_factory=list)  # each with a number `t`
     timings: list[dict[str, Any]] = field(default_factory=list)
@@ -205,10 +206,12 @@ def load(paths: Sequence[Path | str]) -> Log:
     offset = 0.0  # added to a file's t to continue the clock of the files before it
     in_force: LoggedConfig | None = None  # the last config record of the files before
     before: _FileRecords | None = None
+    carried: list[tuple[int, float]] = []  # the last (log time, t) of the file before
     for file in files:
         log.files.append(file.report)
         latest = file.configs[-1] if file.configs else in_force
-        if file.configs and before is not None and _rotated(file, before, in_force):
+        rotated = bool(file.configs) and before is not None and _rotated(file, before, in_force)
+        if rotated:
             file.configs[0] = dataclasses.replace(file.configs[0], repeat=True)
         in_force = latest
         before = file
@@ -229,9 +232,15 @@ def load(paths: Sequence[Path | str]) -> Log:
         entries.sort(key=lambda e: (e.t, isinstance(e, PeriodRecord)))
         log.entries.extend(entries)
         log.configs.extend(e for e in entries if isinstance(e, LoggedConfig))
+        # A repeat carries the t it was first written at, not the t of the time it opens the
+        # file at: there the run's clock goes on from the file before.
+        configs = zip(file.configs, file.config_times, strict=True)
+        anchors = (carried if rotated else []) + sorted(
+            file.anchors + [(ns, c.t) for c, ns in configs if not c.repeat]
+        )
+        carried = anchors[-1:]
         if origin is not None:
             shift = offset - origin
-            anchors = sorted(file.anchors)
             log.events.extend(
                 LogEvent(_t_at(anchors, ns) + shift, level, text)
                 for ns, level, text in file.raw_events
@@ -295,9 +304,8 @@ def _read(path: Path) -> _FileRecords:
                 file.periods.append((record, log_time_ns))
                 file.anchors.append((log_time_ns, record.t))
             elif topic == CONFIG_TOPIC:
-                entry = _config(message, path)
-                file.configs.append(entry)
-                file.anchors.append((log_time_ns, entry.t))
+                file.configs.append(_config(message, path))
+                file.config_times.append(log_time_ns)
             elif topic == TIMING_TOPIC and _is_number(message.get("t")):
                 file.timings.append(message)
                 file.anchors.append((log_time_ns, float(message["t"])))

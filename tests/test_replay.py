@@ -200,6 +200,18 @@ def test_a_rotated_run_then_another_run_tells_the_repeats_from_the_start(
     assert replay.verify(log.entries) == replay.Verification(720, 0, None)
 
 
+def test_a_line_that_opens_a_rotated_file_keeps_its_time(tmp_path: Path) -> None:
+    first, _ = two_runs(tmp_path)
+    (tmp_path / "rotated").mkdir()
+    rotated = rewritten(first, tmp_path / "rotated", rotate_s=600.0)
+    # The last file opens with the line of the stop at 1800 s, after the config's repeat.
+    last = list(LogFile(rotated[-1]).messages())
+    assert [topic for topic, _, _ in last] == [CONFIG_TOPIC, LOG_TOPIC]
+    whole = replay.load(first).events
+    assert whole[-1].message == "heater off: stopped" and whole[-1].at == 1800.0
+    assert replay.load(rotated).events == whole
+
+
 # -- golden values --------------------------------------------------------------------------
 
 
