@@ -586,8 +586,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hermsd.ssr import DeadManThread
 
     path = config_path(args.config, simulate=args.simulate)
-    config_file = ConfigFile(path) if path is not None else None
+    config_file = ConfigFile(path, simulated=args.simulate) if path is not None else None
     config = config_file.load() if config_file is not None else config_module.DEFAULT
+    if args.simulate:  # the simulated tun's SSR, whatever the file names
+        config = config_module.on_simulated_tun(config)
     duration = _duration(args.duration)
     try:
         notifier = Notifier.from_environment()
@@ -1203,7 +1205,7 @@ def _tune_step(args: argparse.Namespace) -> int:
             args.output,
             limit,
             args.ambient,
-            lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
+            lambda progress: _say_progress(step_response.progress_line(progress)),
             fits=fits,
         )
 
@@ -1251,7 +1253,7 @@ def _tune_relay(args: argparse.Namespace) -> int:
             hysteresis,
             args.amplitude,
             args.ambient,
-            lambda progress: print(relay.progress_line(progress), file=sys.stderr),
+            lambda progress: _say_progress(relay.progress_line(progress)),
             fits=fits,
         )
 
@@ -1261,11 +1263,19 @@ def _tune_relay(args: argparse.Namespace) -> int:
     return _tune_written(args, result, lines, experiment.stopped, relay.write, experiment)
 
 
+def _say_progress(line: str) -> None:
+    """A tune test's progress line, called on the loop: through the log's queue, so that a
+    stalled stderr never holds the experiment up (hermsd/log_queue.py), in order with the
+    daemon's own lines."""
+    log.info("%s", line)
+
+
 def _tune_config(args: argparse.Namespace) -> config_module.Config:
     if args.plant and not args.simulate:
         raise UserError("--plant goes with --simulate")
     path = config_path(args.config, simulate=args.simulate)
-    return ConfigFile(path).load() if path is not None else config_module.DEFAULT
+    config = ConfigFile(path).load() if path is not None else config_module.DEFAULT
+    return config_module.on_simulated_tun(config) if args.simulate else config
 
 
 _Experiment = TypeVar("_Experiment", bound="step_response.Experiment")
@@ -1761,7 +1771,8 @@ def cmd_check_config(args: argparse.Namespace) -> int:
             LatchStore(args.state).load()  # as `run` reads it at its start
         except StateError as error:
             raise _latch_file_refused(error) from None
-    print(config_module.dump_yaml(document.config), end="")
+    shown = config_module.on_simulated_tun(document.config) if args.simulate else document.config
+    print(config_module.dump_yaml(shown), end="")
     # As YAML comments, so that the output still reads back as the config it is.
     stored, problem = (
         stored_model(ModelStore(args.state), document.config) if args.state else (None, None)
