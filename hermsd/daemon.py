@@ -1533,6 +1533,7 @@ class Daemon:
                     "drop_fall_c": pid.DROP_RULE.fall,
                     "drop_carry": pid.DROP_CARRY,
                     "reach_watch": True,
+                    "steady_duty_share": pid.STEADY_DUTY_SHARE,
                 },
             )
 

@@ -59,6 +59,7 @@ from hermsd.pid import (
     PlantModel,
     cold_water_seen,
     full_power_now,
+    logged_duty_share,
     predating_drop_fall,
 )
 from hermsd.program.quality import step_quality
@@ -129,6 +130,7 @@ class LoggedConfig:
     drop_carry: bool = False  # full power on cold water carried across the period's end
     reach_watch: bool = False  # each period's `ceiling` is the reach watch's (None: not said)
     repeat: bool = False  # the copy of the record in force that opens a rotated file of a run
+    steady_duty_share: float | None = None  # a measured step needs a steady duty (None: not)
 
 
 @dataclass(frozen=True, slots=True)
@@ -445,7 +447,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
     model, safety_model = message.get("model"), message.get("safety_model")
     drop_readings, drop_onset = message.get("drop_readings"), message.get("drop_onset_c")
-    drop_fall = message.get("drop_fall_c")
+    drop_fall, steady_duty = message.get("drop_fall_c"), message.get("steady_duty_share")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
@@ -457,6 +459,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         float(drop_fall) if _is_number(drop_fall) else None,
         message.get("drop_carry") is True,
         message.get("reach_watch") is True,
+        steady_duty_share=float(steady_duty) if _is_number(steady_duty) else None,
     )
 
 
@@ -779,6 +782,10 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     (`daemon.reach_restarts`). Only under a config record that says the daemon logs it
     (`reach_watch`; an older log is checked as before); after missing records, not until
     the next start (the blocks it measured over them are not known).
+
+    The predictive controller takes a step to full power for a measurement of the tun only
+    from a duty that was steady before it, by the share a config record names
+    (`steady_duty_share`); under one without it, from any duty, as the daemons before it did.
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -839,6 +846,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 made = make_controller(control, model)
                 if entry.drop_fall_c is None:  # a daemon from before it judged steady so
                     predating_drop_fall(made)
+                logged_duty_share(made, entry.steady_duty_share)
                 controller = shared_out(whole, made)
             except (config_module.ConfigError, ValueError) as error:
                 detail = str(error).replace("\n", "; ")
