@@ -22,32 +22,27 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import multiprocessing
 import sys
-import tempfile
-from pathlib import Path
 
-from peers import ITAE_LOAD, controlled_by  # bench/peers.py, beside this file
-from robustness import AHEAD_KEYS, CBPI, DAY_1, DAY_2, SHIPPED, behind, missed  # beside
+from robustness import (  # bench/robustness.py, beside this file
+    AHEAD_KEYS,
+    CBPI,
+    DAY_1,
+    DAY_2,
+    SHIPPED,
+    Summaries,
+    behind,
+    brew_days,
+    missed,
+    run_seeds,
+)
 
 from hermsd import config as config_module
 from hermsd.sim import scenario
-from hermsd.sim.tuns import FAMILY, TunSpec
+from hermsd.sim.tuns import FAMILY
 
 WATER_S = 4 * 3600.0  # when the brew day adds its water (TunSpec.brew_day)
 HOUR_S = 3600.0
-
-
-def days(spec: TunSpec, seed: int = 1) -> dict[str, scenario.Result]:
-    config = spec.config(config_module.load(SHIPPED))
-    day = spec.brew_day(seed=seed)
-    results = {}
-    with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:
-        for label in (DAY_1, DAY_2):
-            results[label] = scenario.run(day, config, state_dir=Path(state), keep_records=True)
-    with controlled_by(CBPI, ITAE_LOAD):
-        results[CBPI] = scenario.run(day, config, keep_records=True)
-    return results
 
 
 def heat_up(label: str, result: scenario.Result, setpoint: float) -> None:
@@ -79,30 +74,26 @@ def water(label: str, result: scenario.Result) -> None:
             break
 
 
-def seed_day(job: tuple[int, int]) -> tuple[list[str], list[str], str]:
-    """Tun `job[0]` of the family on noise seed `job[1]`: where day 2 is behind PIDHerms, the
-    goals day 1 and day 2 miss, and the day's figures beside PIDHerms'."""
-    index, seed = job
-    results = days(FAMILY[index], seed)
-    mine, theirs = results[DAY_2].summary, results[CBPI].summary
-    misses = [f"day 1 {what}" for what in missed(results[DAY_1].summary, DAY_1)]
+def seed_day(days: Summaries) -> tuple[list[str], list[str], str]:
+    """One tun's `days` on one noise seed: where day 2 is behind PIDHerms, the goals day 1
+    and day 2 miss, and the day's figures beside PIDHerms'."""
+    mine, theirs = days[DAY_2], days[CBPI]
+    misses = [f"day 1 {what}" for what in missed(days[DAY_1], DAY_1)]
     misses += [f"day 2 {what}" for what in missed(mine, DAY_2)]
     cells = ", ".join(f"{what} {mine[key]} ({theirs[key]})" for key, what in AHEAD_KEYS)
     return behind(mine, theirs), misses, cells
 
 
 def seeds(indices: list[int], count: int, jobs: int) -> None:
-    """Day 2 beside PIDHerms on each measure of `AHEAD_KEYS` under other noise, and the goals
-    of both days: the bench runs seed 1 only, and a lead of a few seconds may be that seed's."""
-    work = [(index, seed) for index in indices for seed in range(1, count + 1)]
-    with multiprocessing.get_context("fork").Pool(jobs) as pool:
-        found = dict(zip(work, pool.map(seed_day, work), strict=True))
+    """Day 2 beside PIDHerms on each measure of `AHEAD_KEYS` under each noise seed, and the
+    goals of both days: the seed by seed figures behind bench/robustness.py's means."""
+    found = run_seeds(indices, count, jobs, peers=(CBPI,))
     ahead_days = met_days = 0
     for index in indices:
         print(f"## {FAMILY[index].name}")
         ahead = met = 0
         for seed in range(1, count + 1):
-            worse, misses, cells = found[(index, seed)]
+            worse, misses, cells = seed_day(found[(index, seed)])
             ahead += not worse
             met += not misses
             verdict = "ahead" if not worse else "not ahead on " + ", ".join(worse)
@@ -113,9 +104,10 @@ def seeds(indices: list[int], count: int, jobs: int) -> None:
             f"{count} seeds; both days meet their goals with {met}"
         )
         ahead_days, met_days = ahead_days + ahead, met_days + met
+    days = len(indices) * count
     print(
         f"Seeds 1–{count} on {len(indices)} tuns: day 2 ahead of PIDHerms on every measure on "
-        f"{ahead_days} of {len(work)} days; both days meet their goals on {met_days} of {len(work)}"
+        f"{ahead_days} of {days} days; both days meet their goals on {met_days} of {days}"
     )
 
 
@@ -143,7 +135,7 @@ def main() -> int:
     for index in indices:
         spec = FAMILY[index]
         print(f"## {spec.name}")
-        results = days(spec)
+        results = brew_days(spec, peers=(CBPI,), keep_records=True)
         config = spec.config(config_module.load(SHIPPED))
         setpoint = scenario.effective_config(config, spec.brew_day()).control.setpoint
         for label, result in results.items():

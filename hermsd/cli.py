@@ -206,10 +206,12 @@ def _parser() -> argparse.ArgumentParser:
         metavar="HH:MM",
         help="with start: have the first step's setpoint reached at this local time",
     )
+    _step_argument(program, "with next: end step N only (refused if another is current)")
     _socket_argument(program)
     program.set_defaults(func=cmd_program)
 
     confirm = sub.add_parser("confirm", help="answer the program's step that waits for you")
+    _step_argument(confirm, "confirm step N only (refused if another is current)")
     _socket_argument(confirm)
     confirm.set_defaults(func=cmd_confirm)
 
@@ -584,8 +586,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hermsd.ssr import DeadManThread
 
     path = config_path(args.config, simulate=args.simulate)
-    config_file = ConfigFile(path) if path is not None else None
+    config_file = ConfigFile(path, simulated=args.simulate) if path is not None else None
     config = config_file.load() if config_file is not None else config_module.DEFAULT
+    if args.simulate:  # the simulated tun's SSR, whatever the file names
+        config = config_module.on_simulated_tun(config)
     duration = _duration(args.duration)
     try:
         notifier = Notifier.from_environment()
@@ -702,7 +706,7 @@ def _serve_control(daemon: Daemon, server: ControlServer) -> None:
     from hermsd.control.link import LoopLink
 
     link = LoopLink(daemon)
-    server.answer_with(link.status_line, link.history_line)
+    server.answer_with(link.status_line, link.history_line, link.arrived)
     server.start()
     link.attach(server)
     print(f"control socket {server.path}", flush=True)
@@ -1201,7 +1205,7 @@ def _tune_step(args: argparse.Namespace) -> int:
             args.output,
             limit,
             args.ambient,
-            lambda progress: print(step_response.progress_line(progress), file=sys.stderr),
+            lambda progress: _say_progress(step_response.progress_line(progress)),
             fits=fits,
         )
 
@@ -1249,7 +1253,7 @@ def _tune_relay(args: argparse.Namespace) -> int:
             hysteresis,
             args.amplitude,
             args.ambient,
-            lambda progress: print(relay.progress_line(progress), file=sys.stderr),
+            lambda progress: _say_progress(relay.progress_line(progress)),
             fits=fits,
         )
 
@@ -1259,11 +1263,19 @@ def _tune_relay(args: argparse.Namespace) -> int:
     return _tune_written(args, result, lines, experiment.stopped, relay.write, experiment)
 
 
+def _say_progress(line: str) -> None:
+    """A tune test's progress line, called on the loop: through the log's queue, so that a
+    stalled stderr never holds the experiment up (hermsd/log_queue.py), in order with the
+    daemon's own lines."""
+    log.info("%s", line)
+
+
 def _tune_config(args: argparse.Namespace) -> config_module.Config:
     if args.plant and not args.simulate:
         raise UserError("--plant goes with --simulate")
     path = config_path(args.config, simulate=args.simulate)
-    return ConfigFile(path).load() if path is not None else config_module.DEFAULT
+    config = ConfigFile(path).load() if path is not None else config_module.DEFAULT
+    return config_module.on_simulated_tun(config) if args.simulate else config
 
 
 _Experiment = TypeVar("_Experiment", bound="step_response.Experiment")
@@ -1463,6 +1475,21 @@ def _request_reset_in_state(args: argparse.Namespace) -> int:
 # -- status and set, through the control socket ---------------------------------------------
 
 
+def _step_argument(parser: argparse.ArgumentParser, text: str) -> None:
+    """--step N: the step (numbered from 1, as `hermsd status` shows it) a confirm or next is
+    for; without it, the step current a second before the daemon receives the request."""
+    parser.add_argument(
+        "--step", type=_step_number, metavar="N", help=text + "; default: the current step"
+    )
+
+
+def _step_number(text: str) -> int:
+    """A step as numbered from 1, to the protocol's index from 0."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected a step number from 1, got {text!r}")
+    return int(text) - 1
+
+
 def _ask(socket_path: Path | None, request: Request) -> dict[str, Any]:
     """The daemon's reply; a refusal is a UserError (exit 2) with the daemon's one line."""
     try:
@@ -1551,6 +1578,8 @@ def cmd_program(args: argparse.Namespace) -> int:
         return cmd_program_import(args)
     if args.ready_by is not None and args.action != "start":
         raise UserError("--ready-by goes with `program start`")
+    if args.step is not None and args.action != "next":
+        raise UserError("--step goes with `program next` (and `hermsd confirm`)")
     if args.ready_by is not None and model.READY_BY.fullmatch(args.ready_by) is None:
         raise UserError(f"--ready-by: {args.ready_by!r} is not a local time (HH:MM, e.g. 06:30)")
     request: Request
@@ -1563,19 +1592,22 @@ def cmd_program(args: argparse.Namespace) -> int:
             return 0
         request = ProgramStart(program, args.ready_by)
     else:
-        request = ProgramAction(args.action)
+        request = ProgramAction(args.action, args.step)
     try:
         reply = _ask(args.socket, request)
     except NoDaemonError as error:
         raise Unreachable(str(error)) from None
     state = reply.get("program")
-    print(program_line(state) if state is not None else "no program runs")
+    if args.action == "stop":
+        print(f"program stopped; setpoint {reply['setpoint']:g} °C")
+    else:
+        print(program_line(state) if state is not None else "no program runs")
     return 0
 
 
 def cmd_confirm(args: argparse.Namespace) -> int:
     try:
-        reply = _ask(args.socket, ProgramAction("confirm"))
+        reply = _ask(args.socket, ProgramAction("confirm", args.step))
     except NoDaemonError as error:
         raise Unreachable(str(error)) from None
     state = reply.get("program")
@@ -1739,7 +1771,8 @@ def cmd_check_config(args: argparse.Namespace) -> int:
             LatchStore(args.state).load()  # as `run` reads it at its start
         except StateError as error:
             raise _latch_file_refused(error) from None
-    print(config_module.dump_yaml(document.config), end="")
+    shown = config_module.on_simulated_tun(document.config) if args.simulate else document.config
+    print(config_module.dump_yaml(shown), end="")
     # As YAML comments, so that the output still reads back as the config it is.
     stored, problem = (
         stored_model(ModelStore(args.state), document.config) if args.state else (None, None)

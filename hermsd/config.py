@@ -1804,6 +1804,17 @@ def keep_restart_keys(running: Config, edited: Config) -> Config:
     )
 
 
+def on_simulated_tun(config: Config) -> Config:
+    """`config` as a simulated run runs it: the SSR, and the second element when one is
+    fitted, are the simulated tun's whatever hardware the file names (a brewer tries the
+    service's own file), so that what the run logs and prints names them truly."""
+    element2 = config.element2
+    if element2.backend != "none":
+        element2 = dataclasses.replace(element2, backend="sim")
+    output = dataclasses.replace(config.output, backend="sim")
+    return dataclasses.replace(config, output=output, element2=element2)
+
+
 def broken_rules(config: Config) -> list[str]:
     """The rules between keys that `config` breaks, as 'key: what is wrong' lines."""
     return [f"{v.keys[0]}: {v.said(v.keys[0])}" for v in _violations(config)]

@@ -27,6 +27,7 @@ from hermsd.config import (
     Document,
     Problem,
     load_document,
+    on_simulated_tun,
     reload_problems,
 )
 
@@ -71,9 +72,14 @@ def _run_into(future: Future[_T], check: Callable[[], _T]) -> None:
 class ConfigFile:
     """One config file; `poll` returns its config (or why not) when it has changed."""
 
-    def __init__(self, path: Path | str, start: Start = in_thread) -> None:
+    def __init__(
+        self, path: Path | str, start: Start = in_thread, *, simulated: bool = False
+    ) -> None:
+        """`simulated`: the configs it gives are a simulated run's (`on_simulated_tun`), so
+        that a reload compares like with like."""
         self.path = Path(path)
         self._start = start
+        self._simulated = simulated
         self._seen = _signature(self.path)
         self._running: Document | None = None
         self._pending: Future[_Result] | None = None
@@ -82,7 +88,7 @@ class ConfigFile:
         """Read the file now (at start-up); later polls report changes from this version."""
         self._seen = _signature(self.path)
         self._running = load_document(self.path)
-        return self._running.config
+        return self._as_run(self._running.config)
 
     def poll(self, force: bool = False) -> Config | ConfigError | None:
         """The file's new config or its problems; None when unchanged, being written or read.
@@ -97,6 +103,9 @@ class ConfigFile:
             if self._pending.done():
                 result = self._take()
         return result
+
+    def _as_run(self, config: Config) -> Config:
+        return on_simulated_tun(config) if self._simulated else config
 
     def _take(self) -> Config | ConfigError | None:
         """The finished check's result (None when there is none)."""
@@ -117,7 +126,7 @@ class ConfigFile:
             why = f"could not be checked ({type(error).__name__}: {error})"
             result = ConfigError([Problem(str(self.path), 0, 0, "", why)])
         else:
-            result = ConfigError(problems) if problems else document.config
+            result = ConfigError(problems) if problems else self._as_run(document.config)
         if _signature(self.path) != before:
             return None  # changed while being read: an editor is still at work
         self._seen = before

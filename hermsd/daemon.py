@@ -472,6 +472,7 @@ class Daemon:
         self.models = models
         self.saver = saver if saver is not None else Saver()  # latches and model, off the loop
         self._stored_model: LearnedModel | None = None
+        self._learned_since: LearnedModel | None = None  # stored since the start, not in force
         self._model_problem: str | None = None  # said in the log at start
         if models is not None:
             self._stored_model, self._model_problem = stored_model(models, config)
@@ -504,6 +505,7 @@ class Daemon:
         # supervisor and the status are told was asked. The controller's output stays its own,
         # so a manual switch or a bumpless restart never takes the 100 % for the brewer's.
         self._full_power = False
+        self._outputs_off = False  # shut down: every output switched off, for good
         self._held = True  # nothing to continue from until the first good period
         self._resume_output = 0.0
         self._window = _Window()
@@ -653,6 +655,7 @@ class Daemon:
                 interrupted = interrupted or error
         now = self.clock.monotonic()
         self._ssr_duty.switched(False, now)
+        self._outputs_off = True
         self._event(logging.INFO, f"heater off: {reason}", now)
         self._alert("stopped", f"heater off: {reason}", now)
         deadline = time.monotonic() + STOP_WAIT_S  # outputs are off: what is left may wait
@@ -741,11 +744,12 @@ class Daemon:
             pid.heat_up_fit(self.controller),
         )
 
-    def program_command(self, action: str, t: float) -> None:
-        """next, pause, resume, stop or confirm (runner.Refused when it does not apply)."""
+    def program_command(self, action: str, t: float, step: int | None = None) -> None:
+        """next, pause, resume, stop or confirm (runner.Refused when it does not apply);
+        `step`: the index of the step a confirm or next is for (None: the current one)."""
         if action == "stop":
             self._keep_after_below_cut_out(t)
-        after = self.program.command(action, self._pv)
+        after = self.program.command(action, self._pv, step)
         if after is not None:
             self.setpoint = after
             self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)
@@ -952,8 +956,10 @@ class Daemon:
 
     @property
     def learned_model(self) -> LearnedModel | None:
-        """What was learned of the tun and stored, as read at start (None: nothing usable)."""
-        return self._stored_model
+        """What was learned of the tun and stored: the last saved since the start, else as
+        read at start (None: nothing usable). The model in force (`model_choice`) takes a
+        new one at the next start only."""
+        return self._learned_since or self._stored_model
 
     def _measured_tun(self, config: Config) -> MeasuredTun | None:
         """The tun as measured for the supervisor's limits: the one given, else the model in
@@ -1082,6 +1088,7 @@ class Daemon:
             elif outcome.error is not None:
                 self._event(logging.ERROR, f"saving the learned model failed: {outcome.error}", t)
             else:
+                self._learned_since = outcome.tag
                 what = outcome.tag.describe()
                 self._event(logging.INFO, f"learned the tun: {what}; used from the next start", t)
 
@@ -1548,6 +1555,7 @@ class Daemon:
                     "drop_fall_c": pid.DROP_RULE.fall,
                     "drop_carry": pid.DROP_CARRY,
                     "reach_watch": True,
+                    "steady_duty_share": pid.STEADY_DUTY_SHARE,
                 },
             )
 
@@ -1587,7 +1595,8 @@ class Daemon:
     def _alert(self, event: str, message: str, t: float, kind: str = "") -> None:
         """Hand an event to the alerts worker, with what the loop knows now."""
         name, wall_ns = self.config.tun.name, self.clock.wall_ns()
-        output = self._asked() if self.supervisor.heater_allowed else 0.0  # the output in force
+        heating = self.supervisor.heater_allowed and not self._outputs_off
+        output = self._asked() if heating else 0.0  # the output in force
         self.alerts.send(
             Event(event, message, name, wall_ns, kind, self._pv, self.setpoint, output), t
         )

@@ -49,13 +49,14 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
   within 2 LSB: cold water is a step of the state, not a change of heat flow, and at full
   power a rate error would pose as one. An innovation beyond 4 LSB in one period (cold
   water) is taken into the estimate whole, so the step is acted on at once.
-  A step to full power from a steady PV is a measurement: the rise between 1 and 3 °C,
-  fitted by a line, gives the rate (its slope, losses added back) and the dead time (where
-  it crosses the start); plausible values replace the model's (`fit`), so a fill or a
-  sensor position other than the config's is known long before the setpoint. D (td) is
-  optional, on the measured PV, filtered by tf (first order). Its reset is bumpless when it
-  can be: the bias takes what makes the first step continue from u0, unless that would be
-  more than the element's whole rate (a cold start), where the model is trusted.
+  A step to full power from a steady PV and a steady duty (a ramp's climb to full power is
+  none) is a measurement: the rise between 1 and 3 °C, fitted by a line, gives the rate
+  (its slope, losses added back) and the dead time (where it crosses the start); plausible
+  values replace the model's (`fit`), so a fill or a sensor position other than the
+  config's is known long before the setpoint. D (td) is optional, on the measured PV,
+  filtered by tf (first order). Its reset is bumpless when it can be: the bias takes what
+  makes the first step continue from u0, unless that would be more than the element's whole
+  rate (a cold start), where the model is trusted.
 
 Defaults: tf=None gives γ = 10 % of Td (the document's suggestion), raised so that one
 sensor LSB (0.0625 °C) moves the output by at most 10 % (`default_tf`), for type_a,
@@ -228,6 +229,15 @@ too small for its slope to tell the rate."""
 STEADY_SPAN_S = 60.0
 STEADY_BAND = 0.25
 """A step from a PV that moved at most STEADY_BAND °C over the last STEADY_SPAN_S s."""
+STEADY_DUTY_SHARE = 0.05
+"""The share of a step to full power by which the duty may have moved over the dead time and
+STEADY_SPAN_S before it, for the step to measure the tun (logged with every config record,
+`steady_duty_share`). The fit divides its slope by the step and takes its crossing for the
+dead time, both true only of a step from a duty the PV had settled on: a duty that climbed
+over the last periods (a program's ramp, the output following its setpoint up to full power)
+hides the step's real size from the PV's steady minute, since the climb has not reached the
+sensor yet. The duty the PV settled on lies within the span's, so the step, and the rate,
+are then known to within 5 %."""
 BIAS_INNOVATION_CLIP = 0.125
 """°C (two LSB): the bias learns from innovations up to this size only. A step (cold water)
 is a change of state, not of heat flow: the PV estimate follows it whole, the bias barely."""
@@ -854,6 +864,7 @@ class _Predictive(_Base):
         "_carried",
         "_cold_water",
         "_dead_time",
+        "_duty_share",
         "_estimate",
         "_fa",
         "_filtered",
@@ -901,6 +912,10 @@ class _Predictive(_Base):
         # Whether a step's own PV counts in judging it steady (see `_watch_heat_up`); replay
         # clears it for logs of the daemons before it (`predating_drop_fall`).
         self._steady_with_pv = True
+        # How far the duty before a step may have moved, as a share of the step
+        # (`_duty_was_steady`); replay sets the share a log names, and no bound for the
+        # daemons before it (`logged_duty_share`).
+        self._duty_share = STEADY_DUTY_SHARE
         # Whether the next step's change of power is the loop's own (`loops_own_step`).
         self._step_is_loops = False
         # Whether the readings of the period the next step closes showed cold water
@@ -1026,6 +1041,16 @@ class _Predictive(_Base):
         self._terms = (p, i, d)
         return p + i + d
 
+    def _duty_was_steady(self, step: float) -> bool:
+        """Whether the duties sent over the dead time and STEADY_SPAN_S before this period's
+        `step` to full power (the step itself aside) moved by at most STEADY_DUTY_SHARE of it:
+        the PV's steady minute shows the duty sent a dead time before it, and the duties sent
+        since are still on their way to the sensor."""
+        inputs = self._inputs
+        span = min(len(inputs) - 1, self._lag + (self._recent.maxlen or 1))
+        duties = [inputs[j] for j in range(len(inputs) - 1 - span, len(inputs) - 1)]
+        return max(duties) - min(duties) <= self._duty_share * step
+
     def _watch_heat_up(self, sp: float, pv: float, applied: float, before: float) -> None:
         """Arm on a step to full power: from a steady PV the heat-up watch, else (cold water)
         the recovery's; take the fit when it comes."""
@@ -1042,7 +1067,9 @@ class _Predictive(_Base):
         loops, self._step_is_loops = self._step_is_loops, False
         if full and not (watch.active or recovery.active) and before < self._hi and not loops:
             if steady:
-                watch.arm(recent[-1], applied - before)
+                # A duty that climbed to full power (a ramp) is no step of a known size.
+                if self._duty_was_steady(applied - before):
+                    watch.arm(recent[-1], applied - before)
             else:
                 hold = self._holding(sp)
                 if self._lo <= hold <= MAX_RECOVERY_HOLD:
@@ -1130,6 +1157,14 @@ def predating_drop_fall(controller: Controller) -> None:
     `drop_fall_c` did, by the minute before the step alone: replay of their logs."""
     if isinstance(controller, _Predictive):
         controller._steady_with_pv = False
+
+
+def logged_duty_share(controller: Controller, share: float | None) -> None:
+    """Make `controller` (predictive) measure a step to full power from a steady PV as the
+    daemon that logged `share` (`steady_duty_share`) did: None, a daemon from before it, which
+    measured the step whatever the duty did before it. Replay of its log."""
+    if isinstance(controller, _Predictive):
+        controller._duty_share = math.inf if share is None else share
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

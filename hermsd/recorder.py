@@ -294,8 +294,11 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "reach_watch": _field(
                     "boolean", "each period's ceiling is the reach watch's (replay checks it)"
                 ),
+                "steady_duty_share": _field(
+                    "number", "share of a measuring step to full power the duty may move before"
+                ),
             },
-            optional=("drop_carry", "reach_watch"),
+            optional=("drop_carry", "reach_watch", "steady_duty_share"),
         ),
     ),
     PROGRAM_TOPIC: TopicSpec(

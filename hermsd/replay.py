@@ -60,6 +60,7 @@ from hermsd.pid import (
     PlantModel,
     cold_water_seen,
     full_power_now,
+    logged_duty_share,
     predating_drop_fall,
 )
 from hermsd.program.quality import step_quality
@@ -129,6 +130,8 @@ class LoggedConfig:
     drop_fall_c: float | None = None  # and its fall (None: the rule of the law's answer alone)
     drop_carry: bool = False  # full power on cold water carried across the period's end
     reach_watch: bool = False  # each period's `ceiling` is the reach watch's (None: not said)
+    repeat: bool = False  # the copy of the record in force that opens a rotated file of a run
+    steady_duty_share: float | None = None  # a measured step needs a steady duty (None: not)
 
 
 @dataclass(frozen=True, slots=True)
@@ -187,8 +190,9 @@ class _FileRecords:
     report: FileReport
     run: str | None  # the recorder's run id (older files have none)
     configs: list[LoggedConfig] = field(default_factory=list)
+    config_times: list[int] = field(default_factory=list)  # the log time of each config
     periods: list[tuple[PeriodRecord, int]] = field(default_factory=list)  # with log time
-    anchors: list[tuple[int, float]] = field(default_factory=list)  # (log time, t)
+    anchors: list[tuple[int, float]] = field(default_factory=list)  # (log time, t), no config
     raw_events: list[tuple[int, int, str]] = field(default_factory=list)
     program: list[dict[str, Any]] = field(default_factory=list)  # each with a number `t`
     timings: list[dict[str, Any]] = field(default_factory=list)
@@ -203,8 +207,17 @@ def load(paths: Sequence[Path | str]) -> Log:
     log = Log()
     origin: float | None = None  # t of the first period
     offset = 0.0  # added to a file's t to continue the clock of the files before it
+    in_force: LoggedConfig | None = None  # the last config record of the files before
+    before: _FileRecords | None = None
+    carried: list[tuple[int, float]] = []  # the last (log time, t) of the file before
     for file in files:
         log.files.append(file.report)
+        latest = file.configs[-1] if file.configs else in_force
+        rotated = bool(file.configs) and before is not None and _rotated(file, before, in_force)
+        if rotated:
+            file.configs[0] = dataclasses.replace(file.configs[0], repeat=True)
+        in_force = latest
+        before = file
         periods = sorted(file.periods, key=lambda p: p[0].t)
         if periods:
             first_t, first_ns = periods[0][0].t, periods[0][1]
@@ -222,9 +235,15 @@ def load(paths: Sequence[Path | str]) -> Log:
         entries.sort(key=lambda e: (e.t, isinstance(e, PeriodRecord)))
         log.entries.extend(entries)
         log.configs.extend(e for e in entries if isinstance(e, LoggedConfig))
+        # A repeat carries the t it was first written at, not the t of the time it opens the
+        # file at: there the run's clock goes on from the file before.
+        configs = zip(file.configs, file.config_times, strict=True)
+        anchors = (carried if rotated else []) + sorted(
+            file.anchors + [(ns, c.t) for c, ns in configs if not c.repeat]
+        )
+        carried = anchors[-1:]
         if origin is not None:
             shift = offset - origin
-            anchors = sorted(file.anchors)
             log.events.extend(
                 LogEvent(_t_at(anchors, ns) + shift, level, text)
                 for ns, level, text in file.raw_events
@@ -239,6 +258,24 @@ def load(paths: Sequence[Path | str]) -> Log:
     log.events.sort(key=lambda e: e.at)
     log.program.sort(key=lambda e: e.at)
     return log
+
+
+def _rotated(file: _FileRecords, before: _FileRecords, in_force: LoggedConfig | None) -> bool:
+    """Whether `file` is the next file of the run `before` was the last file of, rotated: it
+    then opens with a copy of the config record in force (the recorder repeats it).
+
+    The recorder's run id tells a run's files from another run's. Another run's first
+    record may be identical to it (a simulated run starts at t = 0 with the same config), and
+    is a new start all the same. Files without the id (an older recorder): another run's
+    periods count from k = 1 again, a rotated file's go on from the last file's.
+    """
+    if file.configs[0] != in_force:
+        return False
+    if file.run is not None and before.run is not None:
+        return file.run == before.run
+    if not file.periods or not before.periods:
+        return True
+    return min(p.k for p, _ in file.periods) > max(p.k for p, _ in before.periods)
 
 
 def _distinct(paths: Sequence[Path | str]) -> list[Path]:
@@ -270,9 +307,8 @@ def _read(path: Path) -> _FileRecords:
                 file.periods.append((record, log_time_ns))
                 file.anchors.append((log_time_ns, record.t))
             elif topic == CONFIG_TOPIC:
-                entry = _config(message, path)
-                file.configs.append(entry)
-                file.anchors.append((log_time_ns, entry.t))
+                file.configs.append(_config(message, path))
+                file.config_times.append(log_time_ns)
             elif topic == TIMING_TOPIC and _is_number(message.get("t")):
                 file.timings.append(message)
                 file.anchors.append((log_time_ns, float(message["t"])))
@@ -412,7 +448,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
     model, safety_model = message.get("model"), message.get("safety_model")
     drop_readings, drop_onset = message.get("drop_readings"), message.get("drop_onset_c")
-    drop_fall = message.get("drop_fall_c")
+    drop_fall, steady_duty = message.get("drop_fall_c"), message.get("steady_duty_share")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
@@ -424,6 +460,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         float(drop_fall) if _is_number(drop_fall) else None,
         message.get("drop_carry") is True,
         message.get("reach_watch") is True,
+        steady_duty_share=float(steady_duty) if _is_number(steady_duty) else None,
     )
 
 
@@ -719,16 +756,16 @@ class Verification:
 def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     """Re-run the logged controller on the logged inputs, by the daemon's rules.
 
-    A config record makes a new controller (a repeat of the one in force, which opens every
-    rotated file, does not, nor does a reload that leaves the tuning, the tun and the model
-    as they were: the daemon keeps its controller then). The controller steps in auto mode
-    when heating is allowed and there is a PV, after `reset(pv, reset_from)` if `reset_from`
-    is set; its output and its p, i, d terms must equal the logged ones exactly (midrange:
-    u2 too, the second element's logged applied2 handed in first, as the daemon does; two
-    elements under any other controller: u2 too, its logged applied2, on2 and free2 handed
-    in first). The daemon
-    resets the controller on its first step and after every hold, reload or return to auto,
-    so where records are missing the check resumes at the next reset.
+    A config record makes a new controller (the repeat of the one in force that opens every
+    rotated file, as `load` marks it, does not, nor does a reload that leaves the tuning, the
+    tun and the model as they were: the daemon keeps its controller then). The controller
+    steps in auto mode when heating is allowed and there is a PV, after `reset(pv,
+    reset_from)` if `reset_from` is set; its output and its p, i, d terms must equal the
+    logged ones exactly (midrange: u2 too, the second element's logged applied2 handed in
+    first, as the daemon does; two elements under any other controller: u2 too, its logged
+    applied2, on2 and free2 handed in first). The daemon resets the controller on its first
+    step and after every hold, reload or return to auto, so where records are missing the
+    check resumes at the next reset.
 
     A period's `full_from` (the reading after which the controller asked for full power at
     once) must be what `pid.full_power_now` gives on its readings, with the controller as the
@@ -746,6 +783,10 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     (`daemon.reach_restarts`). Only under a config record that says the daemon logs it
     (`reach_watch`; an older log is checked as before); after missing records, not until
     the next start (the blocks it measured over them are not known).
+
+    The predictive controller takes a step to full power for a measurement of the tun only
+    from a duty that was steady before it, by the share a config record names
+    (`steady_duty_share`); under one without it, from any duty, as the daemons before it did.
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -775,7 +816,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             return Verification(verified, unknown, mismatch)
         fed = None
         if isinstance(entry, LoggedConfig):
-            if entry == in_force:
+            if entry.repeat:
                 continue
             in_force = entry
             drop_rule = _drop_rule(entry)
@@ -809,6 +850,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 made = make_controller(control, model)
                 if entry.drop_fall_c is None:  # a daemon from before it judged steady so
                     predating_drop_fall(made)
+                logged_duty_share(made, entry.steady_duty_share)
                 unknown_probe = controller is None and same_tun  # what it would keep is not known
                 previous, controller = controller, shared_out(whole, made)
                 if entry.reason == "reload" and before is not None:

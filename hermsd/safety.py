@@ -422,7 +422,7 @@ class Supervisor:
         self._good_reads = 0
         self._last_good_t: float | None = None
         self._last_accepted: float | None = None
-        self._previous_value: float | None = None
+        self._recent_reads: deque[float] = deque(maxlen=3)  # the last values read, good or not
         self._last_raw: int | None = None
         self._heater_watch = _HeaterWatch()
         self._energy: deque[tuple[float, float, float]] = deque()  # (t, pv, full-power s)
@@ -491,17 +491,16 @@ class Supervisor:
         lim = self.limits
         if self._wrong_chip:
             return False
-        previous, self._previous_value = self._previous_value, celsius
+        recent = tuple(self._recent_reads)
+        self._recent_reads.append(celsius)
         if not lim.plausible_min <= celsius <= lim.plausible_max:
             self._bad(t, f"implausible reading {celsius:.4f} °C", {"celsius": celsius})
             return False
         last = self._last_accepted
-        # A jump is accepted only when the read before it agrees: a lone spike is dropped,
-        # a real step (cold water) is believed one read later.
         if (
             last is not None
             and abs(celsius - last) > lim.max_step
-            and (previous is None or abs(celsius - previous) > lim.max_step)
+            and not _jump_believed(celsius, recent, lim.max_step)
         ):
             self._bad(t, f"jump {celsius - last:+.4f} °C in one read", {"celsius": celsius})
             return False
@@ -743,16 +742,18 @@ class Supervisor:
         watches (`CREEP_WATCHES`) see a heater that outpaces the losses only slowly.
 
         Hot water poured in is heat nothing delivered too, but it stops: a step of the water,
-        seen through the sensor's lag L ≤ 120 s, whose rise over each third of the watch is
-        e^(−third/L) of the third's before or less once the pour is past. A heater keeps
-        going: each third must rise by more than the noise (`NOISE_FLOOR`), the later two
-        beating e^(−third/`SENSOR_LAG_MAX`) times the third's before by more than it, in two
-        consecutive periods (see `_check_dry_fire`): a period (5 s) later than before. A
-        pour after the first third meets a first third with no such rise, unless the element
-        heats steadily: then the delivered energy alone judges it. A steady heater passes
-        when its rise per third, times 1 − e^(−third/120 s), beats 0.1 °C: from 6.3, 1.3 and
-        0.3 °C/h for the 300, 900 and 3600 s watches, each below the rate the watch itself
-        needs (6, 2 and 0.5 °C/h).
+        seen through the sensor's lag L ≤ 120 s, whose rise over each window that begins past
+        the pour is e^(−window/L) of the window's before or less. A heater keeps going: over
+        three equal windows, the thirds of the watch or the thirds of the time since the rise
+        began (`_heat_goes_on`), each must rise by more than the noise (`NOISE_FLOOR`), the
+        later two beating e^(−window/`SENSOR_LAG_MAX`) times the window's before by more than
+        it, in two consecutive periods (see `_check_dry_fire`): a period (5 s) later than the
+        energy balance alone. Windows from the onset are judged as soon as the rise has shown
+        its shape (50 s after it on the fastest-heating tun), not only once it fills the
+        watch's first third: with no pour in the watch, the energy balance is what times the
+        alarm. A steady heater passes the thirds when its rise per third, times
+        1 − e^(−third/120 s), beats 0.1 °C: from 6.3, 1.3 and 0.3 °C/h for the 300, 900 and
+        3600 s watches, each below the rate the watch itself needs (6, 2 and 0.5 °C/h).
         """
         lim, history = self.limits, self._energy
         previous, self._last_period_t = self._last_period_t, t
@@ -771,11 +772,7 @@ class Supervisor:
             full_power_s = sum(e for when, _, e in history if when >= t - span)
             from_room = room_per_k * max(0.0, WARMEST_ROOM - min(pv, pv_then))
             allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise + from_room
-            third = watch / 3.0
-            rises = _window_rises(history, t, third, 3) if pv - pv_then > allowed else None
-            sustained = rises is not None and _sustained(
-                rises, rises, math.exp(-third / SENSOR_LAG_MAX), least=NOISE_FLOOR
-            )
+            sustained = pv - pv_then > allowed and _heat_goes_on(history, t, watch, pv_then, dt)
             if self._confirmed(f"ssr_stuck_on {watch:g}", sustained):
                 self._raise(
                     "ssr_stuck_on",
@@ -844,6 +841,42 @@ class Supervisor:
             self._events.append(Alarm(kind, t, f"cleared: {why}", alarm.latched, False))
 
 
+def _jump_believed(celsius: float, recent: Sequence[float], max_step: float) -> bool:
+    """A read more than `max_step` from the last accepted one is believed when the read
+    before it agrees (a real step, cold water, is believed one read later), or when it
+    goes on a run of such jumps the same way, as a step of the water (a cold dump of any
+    size) shows through the sensor's first-order lag: the reads (`recent`, oldest first,
+    refused ones too) were steady or already going that way, the last step was a jump and
+    this one is a jump the same way; within the run each full read's step is e^(−interval/lag)
+    of the one before, so once two jumps have shown this one must be no larger. The first
+    jump may cover only part of its interval (the water stepped between two reads), so the
+    second may be larger than it, not the third.
+
+    What a failing sensor or bus gives is refused still. A lone spike, up or down, is one
+    jump (an LSB of noise before it is no jump) with a read after it that goes back, and a
+    jump back from a spike is against the way the reads went before it; an erratic sensor's
+    jumps alternate; the LM92's own faults (a spiked conversion, a frozen register, NACKs
+    and timeouts, another chip, a slow bus) give a lone spike, no change or no reading. A
+    sensor stuck at a wrong value after a jump is believed from its second read, as before,
+    and a reading that then never changes latches `sensor_stuck`. Random words off the bus
+    (13 bits, 23 % within the plausible range) make two jumps the same way once in ~78 pairs
+    of reads (two that agree: once in ~580): the garbage around them is refused, so the
+    fault is raised all the same; a burst of two believed is one period's mean pulled by a
+    fifth of its error.
+    """
+    if recent and abs(celsius - recent[-1]) <= max_step:
+        return True
+    if len(recent) < 2:
+        return False
+    step, last = celsius - recent[-1], recent[-1] - recent[-2]
+    if abs(last) <= max_step or step * last <= 0.0:
+        return False
+    before = recent[-2] - recent[-3] if len(recent) == 3 else 0.0
+    if before * step < 0.0 and abs(before) > max_step:
+        return False  # the jump back from a spike
+    return abs(before) <= max_step or abs(step) <= abs(last)
+
+
 def _window_rises(
     history: Sequence[tuple[float, ...]], t: float, window: float, count: int
 ) -> list[float] | None:
@@ -857,6 +890,45 @@ def _window_rises(
         for i in range(count, -1, -1)
     ]
     return [later - earlier for earlier, later in itertools.pairwise(edges)]
+
+
+def _heat_goes_on(
+    history: Sequence[tuple[float, float, float]],
+    t: float,
+    watch: float,
+    pv_then: float,
+    period: float,
+) -> bool:
+    """The rise in the watch to `t` goes on as heat does, not settling as a pour's step does:
+    `_sustained` over the watch's three thirds, or over three equal windows from the rise's
+    onset (the last PV within the noise of the watch's first, `pv_then`), at least two
+    periods each.
+
+    A step from hot water poured in at p shows through the sensor's lag: every period mean
+    from p + one period on is the same exponential tail, so the rises of windows that begin
+    past it shrink by e^(−window/L) at least, L ≤ `SENSOR_LAG_MAX`, and fail `_sustained` by
+    the noise margin. The onset lies at most a period before the pour (the PV was within the
+    noise of where it began until the pour lifted it), so with windows of two periods or more
+    the later two begin past it and their pair fails; the two consecutive periods
+    (`Supervisor._confirmed`) guard the window edges as in the watch's thirds. A pour after
+    the onset of a steady rise has a first window that rose by more than the noise: as in
+    the thirds, the delivered energy then judges it. A heater's heat arrives through the
+    dead time and the lag as a rise that grows or holds (it slows only as losses grow): it
+    passes once its rise per window, times 1 − e^(−window/120 s), beats the noise, 50 s
+    after its onset for a shorted 5.5 kW element in 30 L (0.044 °C/s), 130 s for the
+    rated 3 kW into 90 L (0.008 °C/s), not a third of the watch after the watch began past
+    it (the thirds alone: 200 s and more after it).
+    """
+    third = watch / 3.0
+    onset = next(when for when, p, _ in reversed(history) if p <= pv_then + NOISE_FLOOR)
+    since_onset = (t - onset) / 3.0
+    windows = [third] + ([since_onset] if period > 0.0 and since_onset >= 2.0 * period else [])
+    for window in windows:
+        rises = _window_rises(history, t, window, 3)
+        decay = math.exp(-window / SENSOR_LAG_MAX)
+        if rises is not None and _sustained(rises, rises, decay, least=NOISE_FLOOR):
+            return True
+    return False
 
 
 def _sustained(rises: list[float], excess: list[float], decay: float, least: float) -> bool:

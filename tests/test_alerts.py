@@ -351,6 +351,21 @@ def test_the_daemon_alerts_start_alarms_and_stop(tmp_path: Path) -> None:
     assert events[-1]["message"] == "heater off: stopped"
 
 
+def test_the_stop_alert_says_the_outputs_are_off_whatever_was_asked_before(
+    tmp_path: Path,
+) -> None:
+    """Stopped while heating at full power: the alert tells the output in force, 0 %."""
+    out = tmp_path / "got"
+    daemon, _clock, _world = alerting_daemon(AlertsConfig(command=recording(out)))
+    with daemon:
+        daemon.run(until=300.0)  # 20 °C water, setpoint 66 °C: full power
+        assert daemon.output == 100.0
+    stopped = received(out)[-1]
+    event = json.loads(stopped["stdin"])
+    assert (event["event"], event["output"]) == ("stopped", 0.0)
+    assert stopped["env"]["HERMSD_OUTPUT"] == "0.00"
+
+
 # -- the config section -------------------------------------------------------------------------
 
 

@@ -128,9 +128,14 @@ def test_a_decoction_is_refused_with_its_line() -> None:
             "<TYPE>Infusion</TYPE><STEP_TEMP>152 F</STEP_TEMP><STEP_TIME>60</STEP_TIME>",
             "STEP_TEMP is '152 F', not a number",
         ),
+        (  # the bound and its words agree: water at 100 °C is no mash
+            "<TYPE>Infusion</TYPE><STEP_TEMP>100</STEP_TEMP><STEP_TIME>60</STEP_TIME>",
+            "STEP_TEMP is 100 °C: expected above 0 and below 100 °C (liquid water)",
+        ),
         (
             "<TYPE>Infusion</TYPE><STEP_TEMP>152</STEP_TEMP><STEP_TIME>60</STEP_TIME>",
-            "outside 0..100 °C (BeerXML gives °C: was it written in °F?)",
+            "is 152 °C: expected above 0 and below 100 °C (liquid water) (BeerXML gives °C: "
+            "was it written in °F?)",
         ),
         ("<TYPE>Infusion</TYPE><STEP_TEMP>66</STEP_TEMP>", "STEP_TIME is missing"),
         (
@@ -149,7 +154,7 @@ def test_a_decoction_is_refused_with_its_line() -> None:
         (
             "<TYPE>Infusion</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>"
             "<INFUSE_TEMP>240 F</INFUSE_TEMP>",
-            "outside 0..100 °C",
+            "is 115.556 °C: expected above 0 and below 100 °C",
         ),
     ],
 )
@@ -309,6 +314,38 @@ def test_a_windows_encoded_file_is_read(tmp_path: Path) -> None:
         .encode("windows-1252")
     )
     assert [s.name for s in read(path).steps] == ["Rast \u20ac"]
+
+
+def latin_1(tmp_path: Path, name: bytes) -> Path:
+    """A one-step file declared ISO-8859-1 (as BeerSmith declares it), its step named `name`."""
+    path = tmp_path / "recipe.xml"
+    path.write_bytes(
+        one_step("<TYPE>Temperature</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>")
+        .replace('<?xml version="1.0"?>', '<?xml version="1.0" encoding="ISO-8859-1"?>')
+        .encode("ascii")
+        .replace(b"<NAME>Rest</NAME>", b"<NAME>" + name + b"</NAME>")
+    )
+    return path
+
+
+def test_beersmiths_windows_text_declared_latin_1_is_read_as_windows_1252(
+    tmp_path: Path,
+) -> None:
+    """BeerSmith declares ISO-8859-1 and writes Windows-1252: 0x96 is its en dash, 0x85 its
+    ellipsis (in ISO-8859-1, control characters U+0096 and U+0085)."""
+    path = latin_1(tmp_path, b"Rest \x96 62\xb0C\x85")
+    assert [s.name for s in read(path).steps] == ["Rest \u2013 62\u00b0C\u2026"]
+
+
+def test_a_control_character_that_is_no_windows_text_names_its_line_and_field(
+    tmp_path: Path,
+) -> None:
+    path = latin_1(tmp_path, b"Rest \x81")
+    with pytest.raises(BeerXMLError) as caught:
+        read(path)
+    assert str(caught.value) == (
+        f"{path}:5: NAME: the control character #x81 is not text (delete it)"
+    )
 
 
 @pytest.mark.parametrize(

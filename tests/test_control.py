@@ -280,18 +280,24 @@ def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Pat
     assert status["learned"] is None
 
 
-def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
-    config = config_module.parse(BASE)
-    litres = config.tun.litres
-    store = ModelStore(tmp_path)
-    # 0.5 °C/min at full power, a 12000 s time constant: K = 0.5/60·12000/100 = 1 °C/%.
-    store.save(LearnedModel(0.5 / 60.0, 1.0 / 12000.0, 90.0, 18.0, litres, wall_ns=7))
+def storing_daemon(config: config_module.Config, store: ModelStore) -> Daemon:
+    """A simulated daemon that keeps what it learns in `store`, linked, a period run."""
     clock = VirtualClock()
     world = build_world(config, clock)
     daemon = Daemon(config, clock, world.sensor, world.outputs, models=store)
     LoopLink(daemon).attach(Inbox())
     daemon.start()
     run_for(daemon, PERIOD)
+    return daemon
+
+
+def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
+    config = config_module.parse(BASE)
+    litres = config.tun.litres
+    store = ModelStore(tmp_path)
+    # 0.5 °C/min at full power, a 12000 s time constant: K = 0.5/60·12000/100 = 1 °C/%.
+    store.save(LearnedModel(0.5 / 60.0, 1.0 / 12000.0, 90.0, 18.0, litres, wall_ns=7))
+    daemon = storing_daemon(config, store)
 
     status = status_of(daemon)
 
@@ -300,6 +306,25 @@ def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
     )
     assert status["learned"]["rate_c_per_min"] == pytest.approx(0.5)
     assert (status["learned"]["litres"], status["learned"]["learned_at_ns"]) == (litres, 7)
+
+
+def test_status_shows_what_was_learned_as_soon_as_it_is_stored(tmp_path: Path) -> None:
+    """Stored mid-day: the status says so at once, though it is in force from the next start."""
+    config = config_module.parse(BASE)
+    store = ModelStore(tmp_path)
+    daemon = storing_daemon(config, store)
+    assert status_of(daemon)["learned"] is None
+    learned = LearnedModel(0.5 / 60.0, 1.0 / 12000.0, 90.0, 18.0, config.tun.litres, wall_ns=9)
+    # What the daemon's learner hands over when a hold has taught it the tun.
+    daemon.saver.save("model", lambda: store.save(learned), learned)
+    assert daemon.saver.flush(5.0)
+    run_for(daemon, PERIOD)
+
+    status = status_of(daemon)
+
+    assert status["learned"]["learned_at_ns"] == 9
+    assert status["learned"]["text"] == learned.describe()
+    assert status["model"]["from"] == "prior"  # used from the next start
 
 
 # -- the rule: a runtime set holds until the file's same key is edited ----------------------
@@ -382,7 +407,8 @@ def served(
     daemon, _world, _path, _events = start(tmp_path, text)
     link = LoopLink(daemon)
     where = (directory or tmp_path) / "control.sock"
-    server = ControlServer(where, link.status_line, link.history_line)
+    server = ControlServer(where)
+    server.answer_with(link.status_line, link.history_line, link.arrived)
     server.start()
     link.attach(server)
     stop = threading.Event()

@@ -228,3 +228,55 @@ def test_a_heater_nothing_switched_on_is_still_a_shorted_ssr() -> None:
     # Judged once the history from the first period (5 s) spans the watch and the memory,
     # 300 + 420 s, less a period (at 720 s, as before); confirmed a period later.
     assert raised == 720.0 + 5.0
+
+
+# -- a shorted SSR with no pour: judged by the energy balance, as fast as it allows ----------
+
+
+def test_a_shorted_ssr_in_a_hold_with_no_pour_is_caught_when_the_energy_balance_says() -> None:
+    """The small 30 L, 5.5 kW tun (unmeasured) holding on 8 %; its SSR shorts at t_f and the
+    PV climbs at the element's rated rate while the controller asks 0 %.
+
+    By hand: rated r = 5500/(30·4186) = 0.043797 °C/s; the fastest heat the supervisor
+    allows per full-power second is half the water at +10 % mains, h = 2·1.21·r = 0.105990.
+    x s after t_f the 300 s watch has risen r·x; heat counted over the 720 s to t (the watch
+    and the 420 s the heat takes to show), one period's 8 % · 5 s for each period ending at
+    or before t_f: 0.08·(725 − x) full-power s. Alarm when r·x > h·0.08·(725 − x) + 0.5,
+    x > (0.0084792·725 + 0.5)/(0.043797 + 0.0084792) = 127.2 s: the period at 130 s, and
+    confirmed a period later, 135 s (the watch's thirds alone waited for its first third
+    to rise).
+    """
+    lim = SafetyLimits.derive(litres=30.0, element_watts=5500.0, period=5.0, read_interval=1.0)
+    rate = 5500.0 / (30.0 * WATER_J_PER_K_L)
+    sup = Supervisor(lim)
+    fault = 3000.0
+    raised = None
+    for k in range(1, 1000):
+        t = 5.0 * k
+        x = max(0.0, t - fault)
+        output = 8.0 if t <= fault else 0.0
+        sup.period(t, 66.0 + rate * x, output, output)
+        if "ssr_stuck_on" in sup.active:
+            raised = t - fault
+            break
+    assert raised == 135.0
+
+
+def test_a_shorted_ssr_right_after_a_kettle_is_still_caught() -> None:
+    """5 L of 95 °C into the 50 L keggle holding 66 °C (+2.6 °C, through a 10 s lag: the
+    pour the energy balance alone took for a shorted SSR), and the SSR shorts 30 s later:
+    the rise from its heat goes on past the pour's settling, and is caught."""
+    spec = next(s for s in FAMILY if s.name.startswith("keggle"))
+    pour, short = 1800.0, 1830.0
+    day = Scenario(
+        name=spec.name,
+        duration=pour + 1500.0,
+        plant={**spec.plant(), "start_c": 66.0},
+        setpoint=66.0,
+        config={"contactor": {"backend": "gpio", "line": 27}},
+        events=(
+            Event(pour, "add_water", {"litres": 5.0, "temp": 95.0}),
+            Event(short, "ssr", "stuck_on"),
+        ),
+    )
+    assert alarms(day, spec)[:1] == ["ssr_stuck_on"]

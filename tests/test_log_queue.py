@@ -4,14 +4,18 @@ is queued; a stalled stdout is waited for by the status line's thread alone."""
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import threading
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 import pytest
 
 from hermsd import cli
+from hermsd.commissioning import relay, step_response
 from hermsd.daemon import Daemon
 from hermsd.log_queue import LOG_QUEUE_SIZE, DroppingQueueHandler
 
@@ -236,3 +240,43 @@ def test_a_status_update_returns_while_stdout_is_blocked_and_the_newest_is_shown
     status.close()
     # The ones overtaken while stdout was stuck are never drawn; the line is cleared at the end.
     assert stdout.written == ["\r\033[KHLT 20.00 °C", "\r\033[KHLT 21.50 °C", "\r\033[K"]
+
+
+@pytest.mark.parametrize(
+    ("command", "module", "start"), [("step", step_response, "run"), ("relay", relay, "start")]
+)
+def test_a_tune_experiment_runs_to_its_end_with_stderr_blocked_and_its_progress_follows(
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    command: str,
+    module: ModuleType,
+    start: str,
+) -> None:
+    stream = StalledStream()
+    monkeypatch.setattr("sys.stderr", stream)
+    monkeypatch.delenv("JOURNAL_STREAM", raising=False)
+    ended = threading.Event()
+    experiment = getattr(module, start)
+
+    def run_to_its_end(*args: Any) -> None:
+        experiment(*args)
+        ended.set()
+
+    monkeypatch.setattr(module, start, run_to_its_end)
+    before_release: dict[str, object] = {}
+
+    def let_through_when_it_ended() -> None:
+        before_release["ended"] = ended.wait(GUARD_S)
+        before_release["written"] = list(stream.written)
+        stream.let_through()
+
+    releaser = threading.Thread(target=let_through_when_it_ended)
+    releaser.start()
+    assert cli.main(["tune", command, "--simulate", "--json"]) == 0
+    releaser.join(GUARD_S)
+    # The whole experiment ran with stderr stuck in the first line's write: the progress
+    # lines waited in the log's queue, then came out in order with the daemon's own lines.
+    assert before_release == {"ended": True, "written": []}
+    progress = [line for line in stream.written if line.startswith(f"INFO {command} +")]
+    assert len(progress) >= 2
+    assert json.loads(capsys.readouterr().out)["stopped"]

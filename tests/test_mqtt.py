@@ -8,6 +8,7 @@ time; every wait on the real clock is for a network event, bounded by TIMEOUT.
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import json
 import re
@@ -29,6 +30,7 @@ from test_reload import BASE, PERIOD, Events, edited, run_for, start
 
 from hermsd import config as config_module
 from hermsd.cli import main
+from hermsd.control import protocol
 from hermsd.control.client import ask
 from hermsd.control.link import LoopLink
 from hermsd.control.protocol import ProgramAction, ProgramStart, Request
@@ -37,6 +39,7 @@ from hermsd.mqtt.bridge import Bridge
 from hermsd.mqtt.messages import Topics, discovery_messages, setpoint_range, state_message
 from hermsd.program.model import Program, Step
 
+ROOT = Path(__file__).resolve().parents[1]
 MOSQUITTO = Path("/usr/sbin/mosquitto")
 MOSQUITTO_PASSWD = Path("/usr/bin/mosquitto_passwd")
 TIMEOUT = 5.0
@@ -379,6 +382,22 @@ def test_setpoint_and_mode_commands_are_applied_through_the_socket(rig: Rig) -> 
     assert rig.watcher.on(rig.topics.error) == []
 
 
+def test_quick_setpoints_end_at_the_latest_none_refused(rig: Rig) -> None:
+    """A slider dragged: 15 setpoints, one a period, faster than the daemon takes a client's
+    commands (10 at once, then 2 a second). Those that wait are replaced by newer ones, the
+    bridge sends what it may when it may, and the last one is what holds."""
+    rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
+    for tenths in range(600, 675, 5):
+        rig.command(rig.topics.set_setpoint, f"{tenths / 10:g}".encode())
+        rig.step()
+    deadline = time.monotonic() + TIMEOUT  # the bridge waits on the real clock for its turn
+    while rig.step().json()["setpoint"] != 67.0:
+        assert time.monotonic() < deadline, "the latest setpoint was not applied"
+    assert rig.watcher.on(rig.topics.error) == []
+    applied = [float(line.split()[3]) for line in operator_lines(rig.events)]
+    assert applied[-1] == 67.0 and applied == sorted(applied)  # never back to an older one
+
+
 BAD_COMMANDS = [  # (topic, payload, what the error says)
     ("set/setpoint", b"hot", "setpoint: expected a number in °C such as 66.5, got 'hot'"),
     ("set/setpoint", b"nan", "expected a number"),
@@ -702,21 +721,59 @@ def test_the_thermostat_offers_setpoints_only_below_the_cut_out(
 
 def test_a_second_stop_signal_inside_the_first_handler_does_not_hang(tmp_path: Path) -> None:
     bridge = Bridge(config_module.parse(BASE), tmp_path / "no.sock", poll=0.02)
-    commands = bridge._commands
-    put = commands.put_nowait
+    wake = bridge._wake
+    notify = wake.notify_all
 
-    def signal_while_locked(item: Any) -> None:  # the second SIGTERM lands mid-put
-        with commands.mutex:
-            pass
-        commands.mutex.acquire()
-        try:
-            bridge.stop()  # the nested handler
-        finally:
-            commands.mutex.release()
-        put(item)
+    def signal_while_locked() -> None:  # the second SIGTERM lands while the lock is held
+        bridge.stop()  # the nested handler
+        notify()
 
-    commands.put_nowait = signal_while_locked  # type: ignore[method-assign]
+    wake.notify_all = signal_while_locked  # type: ignore[method-assign]
     stopping = threading.Thread(target=bridge.stop, daemon=True)
     stopping.start()
     stopping.join(TIMEOUT)
     assert not stopping.is_alive()
+
+
+def _states_the_loop_sets() -> set[str]:
+    """Every value the control period gives `state` (read from its source, so a new one
+    cannot go unnoticed)."""
+    tree = ast.parse((ROOT / "hermsd" / "daemon.py").read_text(encoding="utf-8"))
+    period = next(
+        node
+        for node in ast.walk(tree)
+        if isinstance(node, ast.FunctionDef) and node.name == "_on_control"
+    )
+    states: set[str] = set()
+    for node in ast.walk(period):
+        if not isinstance(node, ast.Assign):
+            continue
+        for target in node.targets:
+            value: ast.expr = node.value
+            if isinstance(target, ast.Tuple) and isinstance(value, ast.Tuple):
+                names = [getattr(element, "id", None) for element in target.elts]
+                if "state" not in names:
+                    continue
+                value = value.elts[names.index("state")]
+            elif getattr(target, "id", None) != "state":
+                continue
+            states |= {
+                c.value
+                for c in ast.walk(value)
+                if isinstance(c, ast.Constant) and isinstance(c.value, str)
+            }
+    return states
+
+
+def test_every_state_the_daemon_reports_is_documented_where_the_others_are() -> None:
+    states = _states_the_loop_sets()
+    assert {"ok", "manual", "alarm", "waiting", "scheduled"} <= states
+    row = next(
+        line
+        for line in (ROOT / "docs" / "mqtt.md").read_text(encoding="utf-8").splitlines()
+        if line.startswith("| sensor State |")
+    )
+    protocol_doc = protocol.__doc__ or ""
+    for state in states:
+        assert f"`{state}`" in row, state
+        assert f'"{state}"' in protocol_doc, state

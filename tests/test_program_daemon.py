@@ -19,16 +19,18 @@ from typing import Any
 
 import pytest
 from test_control import Inbox, linked, operator_lines, served, status_of
-from test_reload import BASE, PERIOD, edited, rename_over, run_for
+from test_reload import BASE, PERIOD, edited, rename_over, run_for, start
 
 from hermsd import replay
 from hermsd.cli import main
+from hermsd.control.link import SEEN_S, LoopLink
 from hermsd.control.protocol import (
     ProgramAction,
     ProgramStart,
     ProtocolError,
     SetSetpoint,
     parse_request,
+    request_message,
 )
 from hermsd.daemon import Daemon
 from hermsd.latches import LatchStore
@@ -287,7 +289,18 @@ def test_the_commands_start_pause_and_stop_a_program(
         assert main(["confirm", *sock]) == 2
         assert "the program is paused" in capsys.readouterr().err
         assert main(["program", "stop", *sock]) == 0
-        assert capsys.readouterr().out == "no program runs\n"
+        assert capsys.readouterr().out == "program stopped; setpoint 66 °C\n"
+
+
+def test_a_program_stopped_is_logged_as_the_operators_action_then_what_it_brought(
+    tmp_path: Path,
+) -> None:
+    daemon, _path, events, inbox = linked(tmp_path)
+    apply(daemon, inbox, ProgramStart(TWO_STEPS))
+    apply(daemon, inbox, ProgramAction("stop"))
+    lines = events.logged()
+    action = lines.index("operator: program stop (from the control socket)")
+    assert lines.index("setpoint 66.00 °C (the program stopped)") > action
 
 
 def test_a_progress_that_cannot_be_saved_is_in_the_log_and_the_status(tmp_path: Path) -> None:
@@ -420,3 +433,95 @@ def test_a_sigkill_in_a_rest_resumes_that_rest_with_its_time_left(
     assert int(said[1]) == round(left_at_kill)  # the rest resumed with the time left it had
     assert after["program"]["step"]["name"] == "Rest"
     assert 0.0 <= left_at_kill - after["program"]["time_left_s"] <= after["t"] - 0.0 + PERIOD
+
+
+# -- a confirm or next ends the step it was meant for, and no other -------------------------
+
+WAITS_TWICE = Program(
+    "Two",
+    (
+        Step("S1", 25.0, 0.0, confirm="Mash in"),
+        Step("S2", 25.0, 0.0, confirm="Add the salts"),
+        Step("S3", 25.0, 600.0),
+    ),
+)
+
+
+@pytest.mark.parametrize("action", ["confirm", "next"])
+def test_a_second_command_sent_with_the_first_does_not_end_the_step_the_first_brought(
+    tmp_path: Path, action: str
+) -> None:
+    """Two brewers (or a double tap) answer S1 together. The first ends S1, and S2 waits in
+    the period that began it (its hold is 0 s). The second, queued with the first or come
+    less than SEEN_S later, was meant for S1 too: it is refused, and S2 still waits."""
+    now = [0.0]  # the senders' real clock
+    daemon, _world, _path, events = start(tmp_path, BASE)
+    inbox = Inbox()
+    link = LoopLink(daemon, now=lambda: now[0])
+    link.attach(inbox)
+    run_for(daemon, 60.0)
+    apply(daemon, inbox, ProgramStart(WAITS_TWICE))
+    run_for(daemon, 1800.0)  # the simulated tun, from 20 °C, is at 25 °C: S1 waits
+    assert status_of(daemon)["program"]["message"] == "Mash in"
+    now[0] = 10.0
+    first = inbox.send(link.arrived(ProgramAction(action)))
+    queued = link.arrived(ProgramAction(action))  # arrived with the first, taken a period later
+    run_for(daemon, PERIOD)
+    assert first.reply is not None and first.reply["ok"] is True
+    assert first.reply["program"]["step"]["name"] == "S2"
+    assert first.reply["program"]["message"] == "Add the salts"
+    now[0] = 10.0 + SEEN_S / 2  # one sent half a second after the first
+    for late in (queued, link.arrived(ProgramAction(action))):
+        second = apply(daemon, inbox, late)
+        assert second["ok"] is False
+        assert second["error"] == (
+            f"refused, nothing changed: {action} was for step 1, which is not the current one "
+            "(step 2/3 'S2' is waiting; look at the status and send it again for that step if "
+            "meant)"
+        )
+    assert status_of(daemon)["program"]["message"] == "Add the salts"  # S2 still waits
+    said = [line for line in events.logged() if "'S2' confirmed" in line or "'S2' ended" in line]
+    assert said == []
+    now[0] = 10.0 + SEEN_S  # S2 shown long enough to be read: now it is answered
+    assert (
+        apply(daemon, inbox, link.arrived(ProgramAction(action)))["program"]["step"]["name"] == "S3"
+    )
+    # Named, a step is answered as meant at once.
+    assert apply(daemon, inbox, ProgramAction(action, 2))["ok"] is (action == "next")
+
+
+def test_the_step_a_confirm_or_next_is_for_is_read_and_written_by_the_protocol() -> None:
+    for line, request in [
+        (b'{"v": 1, "cmd": "confirm", "step": 2}', ProgramAction("confirm", 2)),
+        (b'{"v": 1, "cmd": "program", "action": "next", "step": 0}', ProgramAction("next", 0)),
+        (b'{"v": 1, "cmd": "confirm", "step": null}', ProgramAction("confirm")),
+    ]:
+        assert parse_request(line) == request
+        assert parse_request(json.dumps(request_message(request)).encode()) == request
+    for line, says in [
+        (b'{"v": 1, "cmd": "confirm", "step": -1}', "step: expected the index of a step"),
+        (b'{"v": 1, "cmd": "confirm", "step": "S1"}', 'got "S1"'),
+        (b'{"v": 1, "cmd": "program", "action": "pause", "step": 0}', "does not take step"),
+    ]:
+        with pytest.raises(ProtocolError, match=says):
+            parse_request(line)
+
+
+def test_the_command_line_names_the_step_from_one_as_status_shows_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    program = tmp_path / "two.yaml"
+    program.write_text(
+        "name: Two\nsteps:\n  - {name: S1, setpoint: 25, hold: 0s, confirm: Mash in}\n"
+        "  - {name: S2, setpoint: 25, hold: 10m}\n",
+        encoding="utf-8",
+    )
+    with served(tmp_path) as (_daemon, where):
+        sock = ["--socket", os.fspath(where)]
+        assert main(["program", "start", str(program), *sock]) == 0
+        assert main(["program", "next", "--step", "2", *sock]) == 2
+        assert "next was for step 2, which is not the current one" in (capsys.readouterr().err)
+        assert main(["program", "next", "--step", "1", *sock]) == 0
+        assert "step 2/2 'S2'" in capsys.readouterr().out
+        assert main(["program", "pause", "--step", "1", *sock]) == 2
+        assert "--step goes with `program next`" in capsys.readouterr().err

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import datetime
 import errno
 import math
 import os
@@ -153,6 +154,62 @@ def test_files_are_joined_and_a_rotated_file_repeats_its_config(
     assert split.elapsed == whole.elapsed
     assert len(split.configs) == 3  # the start, and its repeat at the head of each new file
     assert replay.verify(split.entries) == replay.verify(whole.entries)
+
+
+def two_runs(directory: Path, duration: float = 1800.0) -> tuple[list[Path], list[Path]]:
+    """Two simulated runs of one scenario, the second started an hour after the first ended:
+    both start at t = 0 with the same config record."""
+    later = (DEFAULT_EPOCH_NS + round(duration + 3600.0) * S, datetime.UTC)
+    first, second = (
+        simulated_log(directory / name, Scenario(name="run", duration=duration, clock=clock))
+        for name, clock in (("first", None), ("second", later))
+    )
+    return first, second
+
+
+def test_two_runs_that_start_alike_are_two_starts_not_a_rotated_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    first, second = two_runs(tmp_path)
+    alone = [replay.verify(replay.load(paths).entries) for paths in (first, second)]
+    assert alone == [replay.Verification(360, 0, None)] * 2
+    log = replay.load([*first, *second])
+    [start, restart] = log.configs
+    assert dataclasses.replace(restart, repeat=False) == start  # t = 0, reason start, alike
+    assert not restart.repeat and len(log.runs) == 2
+    # The restart makes a fresh controller, as the daemon's second start did.
+    assert replay.verify(log.entries) == replay.Verification(720, 0, None)
+    code, out, _ = run_cli(capsys, "--verify", *first, *second)
+    assert code == 0 and "720 periods verified" in out
+
+
+def test_a_rotated_run_then_another_run_tells_the_repeats_from_the_start(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    first, second = two_runs(tmp_path)
+    (tmp_path / "rotated").mkdir()
+    rotated = rewritten(first, tmp_path / "rotated", rotate_s=700.0)
+    assert len(rotated) == 3
+    log = replay.load([*rotated, *second])
+    assert [c.repeat for c in log.configs] == [False, True, True, False]
+    assert replay.verify(log.entries) == replay.Verification(720, 0, None)
+    # Files of a recorder without run ids: the second run's periods count from k = 1 again.
+    monkeypatch.setattr(replay, "METADATA_NAME", "no such metadata")
+    log = replay.load([*rotated, *second])
+    assert [c.repeat for c in log.configs] == [False, True, True, False]
+    assert replay.verify(log.entries) == replay.Verification(720, 0, None)
+
+
+def test_a_line_that_opens_a_rotated_file_keeps_its_time(tmp_path: Path) -> None:
+    first, _ = two_runs(tmp_path)
+    (tmp_path / "rotated").mkdir()
+    rotated = rewritten(first, tmp_path / "rotated", rotate_s=600.0)
+    # The last file opens with the line of the stop at 1800 s, after the config's repeat.
+    last = list(LogFile(rotated[-1]).messages())
+    assert [topic for topic, _, _ in last] == [CONFIG_TOPIC, LOG_TOPIC]
+    whole = replay.load(first).events
+    assert whole[-1].message == "heater off: stopped" and whole[-1].at == 1800.0
+    assert replay.load(rotated).events == whole
 
 
 # -- golden values --------------------------------------------------------------------------

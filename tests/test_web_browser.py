@@ -19,6 +19,8 @@ from pathlib import Path
 import pytest
 from webpage import CHROMIUM, CHROMIUM_ARGS, PASSWORD, PHONE, TIMEOUT, Site, site
 
+from hermsd.control.protocol import ProgramAction
+
 TEMPERATURE_RED = (0xC6, 0x28, 0x28)  # the temperature line's colour in app.js
 WAIT_MS = TIMEOUT * 1000
 
@@ -275,6 +277,10 @@ def _click_at_boundary(page: Page, live: Site, selector: str) -> str | None:
     page.click(selector)
     live.wait_for_command()
     assert len(live.events.periods) == mark  # held: no period ran meanwhile
+    assert page.is_disabled(selector)  # no second click while the first is on its way
+    sent = live.server._commands[-1].command
+    if selector in ("#program-confirm", "#program-next-button"):  # for the step shown
+        assert sent == ProgramAction(sent.action, page.evaluate("lastStatus.program.step.index"))
     live.step()
     page.wait_for_selector("#message.ok", timeout=WAIT_MS)
     _until(page, f"window.lastStatus.t === {live.events.periods[-1].t}")
@@ -361,6 +367,24 @@ def test_a_program_started_from_the_page_runs_and_its_buttons_steer_it(
             stranger.context.close()
 
             assert _click_at_boundary(page, live, "#program-confirm") == "Rest"
+            assert page.is_enabled("#program-next-button")  # answered: usable again
+            # Another phone that still shows Strike waiting: its confirm is for Strike.
+            page.evaluate(
+                """(token) => { window.second = fetch('/api/command', {method: 'POST',
+                headers: {'Content-Type': 'application/json', 'X-CSRF-Token': token},
+                body: JSON.stringify({cmd: 'confirm', step: 0})})
+                .then(async (r) => [r.status, (await r.json()).error]); }""",
+                page.evaluate("session.csrf"),
+            )
+            live.wait_for_command()
+            _step(page, live)
+            assert page.evaluate("window.second") == [
+                422,
+                "refused, nothing changed: confirm was for step 1, which is not the current "
+                "one (step 2/3 'Rest' is holding; look at the status and send it again for "
+                "that step if meant)",
+            ]
+            assert _shown(page)["step"] == f"2 of 3: Rest, {setpoint:g} °C"
             left = page.evaluate("window.lastStatus.program.time_left_s")
             assert left is not None  # reached in the period that began it
             assert not page.is_visible("#program-confirm")

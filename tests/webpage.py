@@ -80,7 +80,8 @@ class Site:
 def site(tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05) -> Iterator[Site]:
     daemon, _world, _path, events = start(tmp_path, BASE)
     link = LoopLink(daemon)
-    control = ControlServer(tmp_path / "control.sock", link.status_line, link.history_line)
+    control = ControlServer(tmp_path / "control.sock")
+    control.answer_with(link.status_line, link.history_line, link.arrived)
     control.start()
     link.attach(control)
     running, stop, lock = threading.Event(), threading.Event(), threading.Lock()

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -32,6 +34,7 @@ from hermsd.config import Config
 from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
 from hermsd.control.protocol import (
     STARTING,
+    STEP_ACTIONS,
     VERSION,
     Command,
     History,
@@ -54,6 +57,10 @@ from hermsd.reach import short_words
 from hermsd.safety import SafetyLimits, format_limits
 
 SOURCE = "control socket"
+SEEN_S = 1.0
+"""Seconds a step is current before a confirm or next that names none may end it: less is
+no time to read it, so such a command was meant for the step before (`LoopLink.arrived`)."""
+STEPS_KEPT = 8  # step changes remembered for `arrived`: far more than one SEEN_S holds
 RUNTIME_KEYS = ("control.setpoint", "control.mode", "control.manual_output")
 
 
@@ -101,8 +108,13 @@ def status_warnings(
 class LoopLink:
     """Connects a daemon to a control server (`attach` it, then start the server)."""
 
-    def __init__(self, daemon: Daemon) -> None:
+    def __init__(self, daemon: Daemon, now: Callable[[], float] = time.monotonic) -> None:
+        """`now`: the real clock the people and programs that send commands live by (s)."""
         self.daemon = daemon
+        self._now = now
+        # When (`now`) each program step became the current one, the latest last; None: no
+        # program. Replaced whole by the loop, read by the server thread.
+        self._steps: tuple[tuple[float, int | None], ...] = ()
         self.server: CommandSource | None = None
         self._snapshot: Snapshot | None = None
         self._encoded: tuple[Snapshot, bytes] | None = None
@@ -156,6 +168,10 @@ class LoopLink:
             daemon.latches_not_saved,
         )
         self.history.append(*encode_row(record))
+        program = self._snapshot.program
+        step = None if program is None else program["step"]["index"]
+        if not self._steps or self._steps[-1][1] != step:
+            self._steps = (*self._steps[-(STEPS_KEPT - 1) :], (self._now(), step))
         if self._answering:
             reply = None
             for pending in self._answering:
@@ -175,7 +191,7 @@ class LoopLink:
         if isinstance(command, ProgramStart):
             return daemon.program_problems(command.program)
         if isinstance(command, ProgramAction):
-            why = daemon.program.check(command.action)
+            why = daemon.program.check(command.action, command.step)
             return [] if why is None else [why]
         if isinstance(command, SetSetpoint) and daemon.program.active:
             return [
@@ -203,9 +219,9 @@ class LoopLink:
         daemon = self.daemon
         if isinstance(command, ProgramStart):
             daemon.start_program(command.program, command.ready_by, t)
-        elif isinstance(command, ProgramAction):
-            daemon.program_command(command.action, t)
         daemon.operator_action(f"{describe(command)} (from the {SOURCE})", t)
+        if isinstance(command, ProgramAction):  # what it brings is logged after it
+            daemon.program_command(command.action, t, command.step)
         if isinstance(command, ProgramStart | ProgramAction):
             return
         if isinstance(command, SetSetpoint):
@@ -231,6 +247,23 @@ class LoopLink:
             if self._encoded is None or self._encoded[0] is not snapshot:
                 self._encoded = (snapshot, encode(self._status_message(snapshot)))
             return self._encoded[1]
+
+    def arrived(self, command: Command) -> Command:
+        """A confirm or next that names no step, for the step that was current SEEN_S before
+        it arrived: the step the sender can have seen. A second one sent with the first (two
+        terminals, a double tap) must not end the step the first one brought, which nobody
+        has read yet; one for that step is refused, to be sent again when meant."""
+        if (
+            not isinstance(command, ProgramAction)
+            or command.action not in STEP_ACTIONS
+            or command.step is not None
+            or not self._steps
+        ):
+            return command
+        seen = self._now() - SEEN_S
+        steps = self._steps
+        step = next((index for when, index in reversed(steps) if when <= seen), steps[0][1])
+        return command if step is None else dataclasses.replace(command, step=step)
 
     def history_line(self, request: History) -> bytes:
         """A page of the history (rows after `request.since`), encoded."""

@@ -19,6 +19,13 @@ the protocol version it speaks and a command:
                                      local HH:MM, null or absent: the program's own)
     {"v": 1, "cmd": "program", "action": "next" | "pause" | "resume" | "stop"}
     {"v": 1, "cmd": "confirm"}                (answers the step that waits for the brewer)
+    {"v": 1, "cmd": "confirm", "step": 0}     (`step` optional with `confirm` and `program
+                                    next`: the index of the step they act on, as `status`'s
+                                    program step shows it; refused when that step is no longer
+                                    the current one. Absent, the step that was current a second
+                                    before the request arrived (hermsd.control.link.SEEN_S):
+                                    so of two alike sent together, the second is refused rather
+                                    than ending the step the first brought, unseen)
     {"v": 1, "cmd": "history", "since": 1234.5, "limit": 500}   (both optional)
 
 Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": false,
@@ -26,7 +33,9 @@ Every reply carries `"v": 1` and `"ok"`. A refused request gets `{"v": 1, "ok": 
 answered at once from the last control period: `tun`, `pv` (°C, null when unknown),
 `setpoint` (°C), `output` (% of the SSR's element), `output2` (% of the second element, null
 when none is fitted), `applied` (% the SSR was driven at in the period before),
-`mode`, `manual_output`, `state`, `alarms`, `alarm_reasons` (each alarm's message, by its
+`mode`, `manual_output`, `state` ("ok"; "manual"; "alarm": an alarm holds the heater off;
+"waiting": off until the sensor is trusted; "scheduled": off until a mash program's
+`ready_by` heat-up is due to start), `alarms`, `alarm_reasons` (each alarm's message, by its
 kind), `heater_allowed`, `limits` (the safety limits in
 force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,
 dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured" (by
@@ -115,6 +124,11 @@ class ProgramStart:
 @dataclass(frozen=True, slots=True)
 class ProgramAction:
     action: str  # next, pause, resume, stop; or confirm (the `confirm` command)
+    step: int | None = None  # confirm, next: the index of the step they act on; None: current
+
+
+STEP_ACTIONS = ("confirm", "next")
+"""The program actions that end a step, and so name the step they mean to end."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,8 +188,8 @@ def parse_request(line: bytes) -> Request:
             return SetMode(mode, None if output is None else _number(data, "output"))
         raise ProtocolError("set takes either setpoint, or mode (with output for manual)")
     if command == "confirm":
-        _no_other_fields(command, fields, set())
-        return ProgramAction("confirm")
+        _no_other_fields(command, fields, {"step"})
+        return ProgramAction("confirm", _step(data))
     if command == "program":
         return _program_request(data, fields)
     raise ProtocolError(
@@ -194,8 +208,9 @@ def _program_request(data: dict[str, Any], fields: set[str]) -> Request:
             f"program: action {action!r} is not one of {', '.join(map(repr, PROGRAM_ACTIONS))}"
         )
     if action != "start":
-        _no_other_fields(f"program {action}", fields, {"action"})
-        return ProgramAction(action)
+        named = {"step"} if action in STEP_ACTIONS else set()
+        _no_other_fields(f"program {action}", fields, {"action", *named})
+        return ProgramAction(action, _step(data))
     _no_other_fields("program start", fields, {"action", "program", "ready_by"})
     if "program" not in data:
         raise ProtocolError("program start: the program is missing (send the file's content)")
@@ -218,6 +233,16 @@ def _history(data: dict[str, Any]) -> History:
     if isinstance(limit, bool) or not isinstance(limit, int) or not 1 <= limit <= MAX_PAGE:
         raise ProtocolError(f"limit: expected a whole number 1 to {MAX_PAGE}, got {limit!r}")
     return History(since, limit)
+
+
+def _step(data: dict[str, Any]) -> int | None:
+    step = data.get("step")
+    if step is not None and (isinstance(step, bool) or not isinstance(step, int) or step < 0):
+        raise ProtocolError(
+            f"step: expected the index of a step (a whole number from 0, as status shows it), "
+            f"got {json.dumps(step)}"
+        )
+    return step
 
 
 def _alarm_kinds(value: Any) -> tuple[str, ...]:
@@ -270,6 +295,8 @@ def request_message(request: Request) -> dict[str, Any]:
             message["cmd"] = "confirm"
         else:
             message.update(cmd="program", action=request.action)
+        if request.step is not None:
+            message["step"] = request.step
     elif isinstance(request, History):
         message.update(cmd="history", since=request.since, limit=request.limit)
     else:
@@ -302,7 +329,8 @@ def describe(command: Command) -> str:
         ready = f", ready by {command.ready_by}" if command.ready_by else ""
         return f"program start {command.program.name!r} ({len(command.program.steps)} steps{ready})"
     if isinstance(command, ProgramAction):
-        return command.action if command.action == "confirm" else f"program {command.action}"
+        what = command.action if command.action == "confirm" else f"program {command.action}"
+        return what if command.step is None else f"{what} of step {command.step + 1}"
     if command.output is not None:
         return f"set mode {command.mode} at {command.output:g} %"
     return f"set mode {command.mode}"

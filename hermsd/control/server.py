@@ -128,6 +128,13 @@ StatusReply = Callable[[], bytes]
 HistoryReply = Callable[[History], bytes]
 """A page of the history, encoded (`LoopLink.history_line`: joins rows encoded by the loop)."""
 
+Arrival = Callable[[Command], Command]
+"""A command as it arrives, made definite (`LoopLink.arrived`: the step a confirm is for)."""
+
+
+def _as_sent(command: Command) -> Command:
+    return command
+
 
 def _no_history(request: History) -> bytes:
     return encode(error_reply("this daemon keeps no history"))
@@ -155,6 +162,7 @@ class ControlServer:
         self._limit = limit or RequestLimit()
         self._status = status
         self._history = history
+        self._arrived: Arrival = _as_sent
         self._commands: deque[Pending] = deque()
         self._selector = selectors.DefaultSelector()
         self._listener: socket.socket | None = None
@@ -173,9 +181,12 @@ class ControlServer:
             self._listener = _bind(self.path)
         return self._listener
 
-    def answer_with(self, status: StatusReply, history: HistoryReply) -> None:
-        """What `status` and `history` are answered from (before `start`)."""
-        self._status, self._history = status, history
+    def answer_with(
+        self, status: StatusReply, history: HistoryReply, arrived: Arrival = _as_sent
+    ) -> None:
+        """What `status` and `history` are answered from, and what a command is as it
+        arrives (before `start`)."""
+        self._status, self._history, self._arrived = status, history, arrived
 
     def start(self) -> None:
         """Bind the socket if `bind` has not, and start serving."""
@@ -344,7 +355,7 @@ class ControlServer:
             client.outbox += self._history(request)
             self._flush(client)
         else:  # one command a client at a time: the queue is never longer than MAX_CLIENTS
-            client.waiting = Pending(request)
+            client.waiting = Pending(self._arrived(request))
             self._commands.append(client.waiting)
 
     def _collect_replies(self) -> None:

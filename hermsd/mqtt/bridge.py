@@ -7,21 +7,25 @@ a crash) can delay the control loop.
 Three threads. paho-mqtt's network thread keeps the broker connection: it reconnects with
 doubling waits, and at each connection publishes the discovery messages, the availability
 and the last state again (retained; a restarted broker without persistence has lost them).
-It checks each command as it arrives and queues the valid ones. The main thread asks the
-daemon for its status every `poll` seconds and publishes the state when a new control
-period has run. The command thread sends the queued commands: a `set` is answered only after
-the next period boundary, and neither the broker nor the polls may wait for it. When the
+It checks each command as it arrives and keeps the valid ones, the latest of each topic
+only: a setpoint or a mode is the brewer's last intent, so a newer one replaces one not yet
+sent (a slider dragged sends many). The main thread asks the daemon for its status every
+`poll` seconds and publishes the state when a new control period has run. The command thread
+sends the kept commands, oldest topic first, no faster than the daemon takes a client's
+requests (`RequestLimit`: it waits, and what arrives meanwhile replaces what waits): a `set`
+is answered only after the next period boundary, and neither the broker nor the polls may
+wait for it. When the
 daemon does not answer, the availability turns "offline" and the polls back off to
 `DAEMON_RETRY_MAX`; a bridge that dies leaves "offline" behind as its last will.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import queue
+import os
 import ssl
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +37,7 @@ from paho.mqtt.reasoncodes import ReasonCode
 from hermsd.config import Config
 from hermsd.control.client import NoDaemonError, ReplyError, ask, command_timeout
 from hermsd.control.protocol import Status, describe
+from hermsd.control.server import RequestLimit
 from hermsd.files import NotRegularFile, read_regular
 from hermsd.mqtt.messages import (
     OFFLINE,
@@ -53,7 +58,6 @@ DAEMON_RETRY_MAX = 10.0  # s: the longest wait between tries while the daemon is
 BROKER_RETRY = (1, 60)  # s: paho's first and longest wait between connection attempts
 KEEPALIVE = 30  # s: the broker fires the last will this long (×1.5) after a silent death
 STATUS_TIMEOUT = 2.0  # s: `status` is answered at once from the last period
-QUEUED_COMMANDS = 8  # commands waiting for the daemon; more are refused as busy
 QOS = 1
 PASSWORD_LIMIT = 4096  # bytes in a password file
 REFUSED = "refused, nothing changed: "  # as the daemon words its own refusals
@@ -83,10 +87,11 @@ class Bridge:
             (topic, b"" if payload is None else encode(payload))
             for topic, payload in discovery_messages(self.topics, config)
         ]
-        # (topic, payload, command) to send; None ends the command thread
-        self._commands: queue.Queue[tuple[str, bytes, Command] | None] = queue.Queue(
-            QUEUED_COMMANDS
-        )
+        # The latest command of each topic not sent yet: {topic: (payload, command)}, in the
+        # order the topics first came. A plain lock: `stop` never takes it twice (see there).
+        self._pending: dict[str, tuple[bytes, Command]] = {}
+        self._wake = threading.Condition(threading.Lock())
+        self._limit = RequestLimit()  # the daemon's on this process's commands, kept here
         self._lock = threading.Lock()  # orders what the threads publish
         self._state: bytes | None = None  # the last state published, for reconnections
         self._last_t: float | None = None
@@ -160,13 +165,13 @@ class Bridge:
     def stop(self) -> None:
         """From any thread or a signal handler: `run` returns at once. Only the first call
         acts: a second signal, landing in the handler of the first while it holds the
-        queue's lock, would otherwise wait on that lock for ever."""
+        commands' lock, would otherwise wait on that lock for ever."""
         if self._stopping:
             return
         self._stopping = True
         self._stop.set()
-        with contextlib.suppress(queue.Full):  # full: the command thread sees the flag next
-            self._commands.put_nowait(None)
+        with self._wake:
+            self._wake.notify_all()
 
     def _poll(self) -> bool:
         """Publish a new period's state; False when the daemon does not answer."""
@@ -183,8 +188,17 @@ class Bridge:
         return True
 
     def _send_commands(self) -> None:
-        while (item := self._commands.get()) is not None and not self._stop.is_set():
-            self._send(*item)
+        while True:
+            with self._wake:
+                self._wake.wait_for(lambda: bool(self._pending) or self._stop.is_set())
+            wait = self._limit.wait(os.getpid(), time.monotonic())
+            if self._stop.is_set() or (wait > 0.0 and self._stop.wait(wait)):
+                return
+            with self._wake:  # the latest of the oldest topic, after the wait
+                topic = next(iter(self._pending))
+                payload, command = self._pending.pop(topic)
+            self._limit.charge(os.getpid(), time.monotonic())
+            self._send(topic, payload, command)
 
     def _send(self, topic: str, payload: bytes, command: Command) -> None:
         try:
@@ -291,10 +305,17 @@ class Bridge:
         except Refused as error:
             self._refuse(topic, payload, f"{REFUSED}{error}")
             return
-        try:
-            self._commands.put_nowait((topic, payload, command))
-        except queue.Full:
-            self._refuse(topic, payload, f"{REFUSED}busy: {QUEUED_COMMANDS} commands wait already")
+        with self._wake:
+            replaced = self._pending.get(topic)
+            self._pending[topic] = (payload, command)  # a replaced topic keeps its place
+            self._wake.notify_all()
+        if replaced is not None:
+            log.info(
+                "mqtt command on %s: %s replaced by %s before it was sent",
+                topic,
+                describe(replaced[1]),
+                describe(command),
+            )
 
     # -- either thread --------------------------------------------------------------------
 

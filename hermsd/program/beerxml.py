@@ -110,7 +110,7 @@ def parse(data: bytes, source: str) -> Node:
         stack.pop()
 
     def text(chunk: str) -> None:
-        stack[-1].text += chunk
+        stack[-1].text += _windows_text(chunk, f"{source}:{parser.CurrentLineNumber}", stack[-1])
 
     def refuse_doctype(*_: object) -> None:
         raise BeerXMLError(
@@ -134,6 +134,27 @@ def parse(data: bytes, source: str) -> Node:
             f"{source}:1: the declared encoding cannot be read: {error} (save it as UTF-8)"
         ) from None
     return root.children[0]
+
+
+_UNDEFINED_IN_1252 = frozenset("\x81\x8d\x8f\x90\x9d")
+
+
+def _windows_text(chunk: str, where: str, element: Node) -> str:
+    """`chunk` with each C1 control character made the Windows-1252 character of its byte:
+    BeerSmith writes Windows-1252 but declares ISO-8859-1, where its en dash (0x96) reads as
+    the control character U+0096. DEL, or a byte Windows-1252 leaves undefined, is refused
+    at its line and field."""
+    if not any("\x7f" <= c <= "\x9f" for c in chunk):
+        return chunk
+    text = []
+    for c in chunk:
+        if c == "\x7f" or c in _UNDEFINED_IN_1252:
+            raise BeerXMLError(
+                f"{where}: {element.tag}: the control character #x{ord(c):02X} is not text "
+                "(delete it)"
+            )
+        text.append(bytes([ord(c)]).decode("cp1252") if "\x80" <= c <= "\x9f" else c)
+    return "".join(text)
 
 
 def convert(root: Node, source: str, wanted: str | None) -> Program:
@@ -341,7 +362,9 @@ def _water(celsius: float, where: str) -> float:
     """`celsius` if liquid water can be at it; a °F value is said to be one."""
     if not 0.0 < celsius < 100.0:
         hint = " (BeerXML gives °C: was it written in °F?)" if celsius >= 100.0 else ""
-        raise BeerXMLError(f"{where} is {celsius:g} °C, outside 0..100 °C{hint}")
+        raise BeerXMLError(
+            f"{where} is {celsius:g} °C: expected above 0 and below 100 °C (liquid water){hint}"
+        )
     return round(celsius, 2)
 
 

@@ -184,14 +184,15 @@ class ProgramDriver:
             ]
         self._events.extend(events)
 
-    def command(self, action: str, pv: float | None) -> float | None:
-        """Apply next, pause, resume, stop or confirm (Refused when it does not apply).
+    def command(self, action: str, pv: float | None, step: int | None = None) -> float | None:
+        """Apply next, pause, resume, stop or confirm (Refused when it does not apply);
+        `step`: the index of the step a confirm or next is for (None: the current one).
 
         Returns the setpoint to go back to when the program stopped, else None."""
         runner = self.runner
         if runner is None:
             raise Refused(f"no program runs ({action} has nothing to act on)")
-        runner.command(action, pv)
+        runner.command(action, pv, step)
         self._events.extend(runner.take_events())
         if action != "stop":
             return None
@@ -205,10 +206,10 @@ class ProgramDriver:
         events, self._events = self._events, []
         return events
 
-    def check(self, action: str) -> str | None:
+    def check(self, action: str, step: int | None = None) -> str | None:
         if self.runner is None:
             return f"no program runs ({action} has nothing to act on)"
-        return self.runner.check(action)
+        return self.runner.check(action, step)
 
     # -- each period ------------------------------------------------------------------
 

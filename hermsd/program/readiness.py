@@ -33,6 +33,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from hermsd.learning import WATER_FALL, WATER_SPAN_S
 from hermsd.metrics import BAND
 from hermsd.pid import HeatUpFit, PlantModel
 from hermsd.program.runner import heat_up_s
@@ -144,6 +145,7 @@ class Readiness:
         self._climb: tuple[float, float] | None = None  # (mean PV, rate) of the last run
         self._arrived: float | None = None  # t the waiting temperature was first reached
         self._hold: deque[tuple[float, float, float]] = deque()  # (t, pv, applied) there
+        self._held: deque[tuple[float, float]] = deque()  # (t, pv) there, the last minute
         self._fit_before: HeatUpFit | None = None  # the controller's fit before the climb
         self._fit: HeatUpFit | None = None  # its first on the climb (from the water at rest)
         self._paused = False  # the climb waits, heater off (it started early)
@@ -277,6 +279,10 @@ class Readiness:
                 self._climb = _line(list(self._run)) or self._climb
         else:
             self._run_since = None
+        if self._arrived is not None and self._water_came(t, pv):
+            self._arrived = None  # what holds the water now is a recovery, not the losses
+            self._hold.clear()
+            self._held.clear()
         if self._arrived is None and pv >= self.wait_at - BAND:
             self._arrived = t
             self.phase = "waiting"
@@ -284,6 +290,16 @@ class Readiness:
             self._hold.append((t, pv, applied))
             while t - self._hold[0][0] > MEASURE_S:
                 self._hold.popleft()
+
+    def _water_came(self, t: float, pv: float) -> bool:
+        """Whether the waiting water fell WATER_FALL below its highest PV of the last
+        WATER_SPAN_S: water poured in (the HLT topped up), and the hold is measured anew
+        once the water is back at the waiting temperature and settled, as the learner's is."""
+        held = self._held
+        held.append((t, pv))
+        while t - held[0][0] > WATER_SPAN_S:
+            held.popleft()
+        return max(x for _, x in held) - pv >= WATER_FALL
 
     def rise(self, pv: float, tun: Tun) -> Rise:
         """The full-power rise near the top, from the best measurement there is: the waiting

@@ -236,11 +236,22 @@ class Runner:
 
     # -- commands -----------------------------------------------------------------------
 
-    def check(self, action: str) -> str | None:
-        """Why `action` (next, pause, resume, stop, confirm) does not apply now; None if it does."""
+    def check(self, action: str, step: int | None = None) -> str | None:
+        """Why `action` (next, pause, resume, stop, confirm) does not apply now; None if it does.
+
+        `step`: the index of the step a confirm or next means to end (None: the current one);
+        another step is refused, so that a second confirm or next sent for the same step
+        does not end the one after it, unseen."""
         p = self.progress
         if action == "stop":
             return None
+        if step is not None and step != p.index:
+            now = self.program.steps[p.index]
+            return (
+                f"{action} was for step {step + 1}, which is not the current one "
+                f"(step {p.index + 1}/{len(self.program.steps)} {now.name!r} is {self.state}; "
+                "look at the status and send it again for that step if meant)"
+            )
         if p.phase == "done":
             return (
                 f"the program is done (`hermsd program stop` ends it; {action} has nothing to do)"
@@ -258,9 +269,10 @@ class Runner:
             return f"nothing waits for a confirmation (the step is {self.state})"
         return None
 
-    def command(self, action: str, pv: float | None) -> None:
-        """Apply `action`; Refused (changing nothing) when it does not apply now."""
-        why = self.check(action)
+    def command(self, action: str, pv: float | None, for_step: int | None = None) -> None:
+        """Apply `action` (a confirm or next: to step `for_step`, None: the current);
+        Refused (changing nothing) when it does not apply now."""
+        why = self.check(action, for_step)
         if why is not None:
             raise Refused(why)
         p = self.progress

@@ -11,8 +11,10 @@ Routes:
                            {"cmd": "set", "setpoint": 72}, {"cmd": "set", "mode": "manual",
                            "output": 40}, {"cmd": "set", "mode": "auto"},
                            {"cmd": "reset-alarm", "kinds": [the alarms shown]},
-                           {"cmd": "confirm"},
+                           {"cmd": "confirm", "step": 0},
                            {"cmd": "program", "action": "next"|"pause"|"resume"|"stop"}
+                           ("step", optional with confirm and next: the index of the
+                           step shown, refused by the daemon once another is current)
     POST /api/program      {"yaml": "<a program file>", "filename": "mash.yaml",
                            "ready_by": "06:30" | null}: the file read and checked here
                            (hermsd.program.model, every problem as FILE:LINE:COL in
@@ -383,17 +385,12 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
 def command_message(data: dict[str, Any]) -> dict[str, Any]:
     """The socket request for one change from the page; BadInput for anything else.
 
-    `set` and `reset-alarm` are read by the protocol's own parser (so the same rules, and
-    messages, as for `hermsd set`); the program's commands pass to the daemon, which checks
-    them, once their shape is one the page sends."""
+    Each is read by the protocol's own parser (so the same rules, and messages, as for
+    `hermsd set`), but for a program's start, which has its own address; the daemon checks
+    whether the program's commands apply."""
     command = data.get("cmd")
-    if command == "confirm" and set(data) == {"cmd"}:
-        return {"cmd": "confirm"}
-    if command == "program":
-        action = data.get("action")
-        if set(data) != {"cmd", "action"} or action not in PROGRAM_ACTIONS:
-            raise BadInput(f"program: action must be one of {', '.join(PROGRAM_ACTIONS)}")
-        return {"cmd": "program", "action": action}
+    if command == "program" and data.get("action") not in PROGRAM_ACTIONS:
+        raise BadInput(f"program: action must be one of {', '.join(PROGRAM_ACTIONS)}")
     try:
         request = parse_request(json.dumps({**data, "v": 1}).encode())
     except ProtocolError as error:

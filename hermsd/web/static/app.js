@@ -14,6 +14,7 @@ let source = null;
 let viewing = false;
 let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
 let shownAlarms = []; // the alarms the page shows: what its reset button clears
+let shownStep = null; // the program step the page shows: what its confirm and next end
 
 async function api(path, body) {
   const options = { credentials: "same-origin" };
@@ -81,6 +82,7 @@ function render(status) {
 function renderProgram(program) {
   $("program-box").hidden = !program;
   $("program-form").hidden = Boolean(program); // one program at a time: stop it to start another
+  shownStep = program && program.step ? program.step.index : null;
   if (!program) return;
   $("program-name").textContent = program.name;
   $("program-state").textContent = program.state;
@@ -209,9 +211,17 @@ function updateSessionView() {
   }
 }
 
-async function send(command, what, path = "/api/command") {
+// `button`: disabled until the answer is in, so that a second click cannot send the same
+// command again for a step the first one has already ended.
+async function send(command, what, path = "/api/command", button = null) {
   say(`${what}…`);
-  const response = await api(path, command);
+  if (button) button.disabled = true;
+  let response;
+  try {
+    response = await api(path, command);
+  } finally {
+    if (button) button.disabled = false;
+  }
   if (response.status === 200) {
     render(response.body.status);
     say(`${what}: done`, "ok");
@@ -239,7 +249,7 @@ async function startProgram() {
   const yaml = file ? await file.text() : $("program-yaml").value;
   const command = { yaml, filename: file ? file.name : "pasted.yaml",
                     ready_by: $("program-ready-by").value || null };
-  const response = await send(command, "program start", "/api/program");
+  const response = await send(command, "program start", "/api/program", $("program-start"));
   if (response.status === 200) {
     $("program-file").value = "";
   } else if (response.body.problems) {
@@ -302,12 +312,16 @@ function wire() {
   // Only the alarms on the page: one raised since stays, for the brewer to read first.
   $("reset-alarm").addEventListener("click", () =>
     send({ cmd: "reset-alarm", kinds: shownAlarms }, "reset alarm"));
-  $("program-confirm").addEventListener("click", () => send({ cmd: "confirm" }, "confirm"));
+  // Confirm and next name the step shown: the daemon refuses them once another is current.
+  $("program-confirm").addEventListener("click", () =>
+    send({ cmd: "confirm", step: shownStep }, "confirm", "/api/command", $("program-confirm")));
   for (const [id, action] of [["program-next-button", "next"], ["program-pause", "pause"],
                               ["program-resume", "resume"], ["program-stop", "stop"]]) {
     $(id).addEventListener("click", () => {
       if (action === "stop" && !window.confirm("Stop the program?")) return;
-      send({ cmd: "program", action }, `program ${action}`);
+      const command = action === "next" ? { cmd: "program", action, step: shownStep }
+        : { cmd: "program", action };
+      send(command, `program ${action}`, "/api/command", $(id));
     });
   }
   for (const button of document.querySelectorAll(".ranges button")) {

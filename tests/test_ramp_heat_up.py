@@ -1,0 +1,102 @@
+"""A program step that ramps its setpoint is no step of known size: nothing wrong is learned.
+
+The seed's 90 L, 3 kW tun (lid on, sensor noise sd 0.03 °C) held at 20 °C, then a step to
+66 °C ramped at 1 °C/min: the output follows the ramping setpoint up from 0 % over a few
+periods and only then saturates, while the sensor, a dead time behind, still shows the water
+steady. Taken from the last of those duties (39 %), the step to full power looked 61 % tall
+and the heat-up was measured 1/0.61 = 1.6× too fast, learned and used the next day.
+
+The golden rate is the element's on that water, losses added back (the fit's `rate`):
+P/(m·c) = 3000 W / (90 L × 4186 J/(L·K)) = 0.0079626 °C/s = 0.47776 °C/min.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+from test_replay import rewritten
+
+from hermsd import pid, replay
+from hermsd.learning import ModelStore
+from hermsd.recorder import CONFIG_TOPIC
+from hermsd.sim import scenario
+
+TRUE_RATE = 3000.0 / (90.0 * 4186.0) * 60.0  # °C/min at full power, losses added back
+PLANT = "{model: physical, litres: 90, element_watts: 3000, noise_c: 0.03, seed: 1}"
+
+
+def day(directory: Path, duration: str, ramp: str) -> list[Path]:
+    """The tun at 20 °C for 5 min, then 66 °C (`ramp`: the step's ramp, if any), logged and
+    learning into `directory`; the log's files."""
+    text = (
+        f"name: r\nduration: {duration}\nplant: {PLANT}\n"
+        "program: {name: R, steps: [{name: Start, setpoint: 20, hold: 5m}, "
+        f'{{name: Strike, setpoint: 66, hold: "until told"{ramp}}}]}}\n'
+    )
+    directory.mkdir()
+    path = directory / "day.yaml"
+    path.write_text(text)
+    scenario.run(scenario.load_scenario(path), log_dir=directory / "log", state_dir=directory)
+    return sorted((directory / "log").glob("*.mcap"))
+
+
+def measured(log: replay.Log) -> list[float]:
+    """The heat-up rates (°C/min) the daemon said it measured."""
+    events = replay.learning(log)
+    said = (re.match(r"heat-up measured: rate ([0-9.]+)", e["message"]) for e in events)
+    return [float(m.group(1)) for m in said if m]
+
+
+def without_marker(paths: list[Path], directory: Path) -> list[Path]:
+    """The log as a daemon from before `steady_duty_share` wrote it: without the marker."""
+
+    def older(topic: str, message: dict[str, Any]) -> dict[str, Any]:
+        if topic == CONFIG_TOPIC:
+            return {k: v for k, v in message.items() if k != "steady_duty_share"}
+        return message
+
+    directory.mkdir()
+    return rewritten(paths, directory, older)
+
+
+def test_a_ramped_heat_up_learns_no_wrong_rate_and_its_log_verifies(tmp_path: Path) -> None:
+    paths = day(tmp_path / "ramp", "2h30m", ", ramp: 1.0")
+    log = replay.load(paths)
+    rates = measured(log)
+    assert all(abs(rate / TRUE_RATE - 1.0) <= 0.1 for rate in rates), rates
+    learned, why = ModelStore(tmp_path / "ramp").load()
+    assert why is None
+    assert learned is None or abs(learned.rate * 60.0 / TRUE_RATE - 1.0) <= 0.1, learned
+    assert all(c.steady_duty_share == pid.STEADY_DUTY_SHARE for c in log.configs)
+    assert replay.verify(log.entries).mismatch is None
+    # Replayed as a daemon from before the rule (which measured the climb), it differs.
+    older = replay.load(without_marker(paths, tmp_path / "older"))
+    assert replay.verify(older.entries).mismatch is not None
+
+
+def test_an_ordinary_heat_up_measures_the_rate_as_before(tmp_path: Path) -> None:
+    paths = day(tmp_path / "step", "1h", "")
+    log = replay.load(paths)
+    [rate] = measured(log)
+    assert rate == pytest.approx(TRUE_RATE, rel=0.02)
+    assert replay.verify(log.entries).mismatch is None
+    # The rule before it measured the same step the same way: the log verifies under it too.
+    older = replay.load(without_marker(paths, tmp_path / "older"))
+    assert not any(c.steady_duty_share for c in older.configs)
+    assert replay.verify(older.entries).mismatch is None
+
+
+def test_a_ramped_day_logged_before_the_rule_verifies_under_the_old_rule(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The daemon before the rule: every step to full power from a steady PV measured.
+    monkeypatch.setattr(pid._Predictive, "_duty_was_steady", lambda self, step: True)
+    paths = day(tmp_path / "ramp", "1h", ", ramp: 1.0")
+    monkeypatch.undo()
+    [rate] = measured(replay.load(paths))
+    assert rate > 1.5 * TRUE_RATE  # the wrong measurement this log holds
+    older = replay.load(without_marker(paths, tmp_path / "older"))
+    assert replay.verify(older.entries).mismatch is None
