@@ -197,8 +197,11 @@ class Bridge:
             with self._wake:  # the latest of the oldest topic, after the wait
                 topic = next(iter(self._pending))
                 payload, command = self._pending.pop(topic)
-            self._limit.charge(os.getpid(), time.monotonic())
             self._send(topic, payload, command)
+            # Charged when the reply is in: the daemon charged it somewhere between the send
+            # and the reply, so a bucket charged this late never holds more than the daemon's
+            # (charged at the send, a slow answer under load let the next one come too soon).
+            self._limit.charge(os.getpid(), time.monotonic())
 
     def _send(self, topic: str, payload: bytes, command: Command) -> None:
         try:
