@@ -1556,6 +1556,7 @@ class Daemon:
                     "drop_carry": pid.DROP_CARRY,
                     "reach_watch": True,
                     "steady_duty_share": pid.STEADY_DUTY_SHARE,
+                    "recovery_fit_periods": pid.RECOVERY_FIT_PERIODS,
                 },
             )
 

@@ -223,6 +223,16 @@ lag, and over enough rise that LSB and noise matter little."""
 RECOVERY_FIT_SPAN = 1.0
 """°C of rise a recovery's ramp is fitted over: a tenth of the volume of cold water drops the
 PV some 4.5 °C, and the heat in flight on a slow sensor takes up to 2 °C of what is left."""
+RECOVERY_FIT_PERIODS = 12
+"""Periods a recovery's line takes in at least (logged with every config record,
+`recovery_fit_periods`): where the first RECOVERY_FIT_SPAN holds fewer, each further
+full-power period adds its PV and the line is taken anew, up to these or the cut, whichever
+comes first. A line's slope over n periods of noise σ has the sd σ·√(12/(n³ − n))/Ts: on
+30 L at 5.5 kW (0.2 °C a period, the span's 5 periods; σ ≈ 0.016 °C, a period's mean of 5
+readings) that is 2.5 % of the rate, and the cut lands the water some 0.05 °C off; over 12,
+0.7 %. Every other tun of the bench's family climbs under 0.1 °C a period, so its span holds
+12 or more and it is fitted as before: there the span's later points would only add the
+sensor lag's bend (a thermowell's rate came out higher and its cut earlier)."""
 MAX_RECOVERY_HOLD = 90.0
 """% of holding duty above which a recovery's rate is not measured: the step to full power is
 too small for its slope to tell the rate."""
@@ -817,7 +827,9 @@ class _RecoveryWatch(_RampWatch):
 
     The PV's rise above its lowest point in the run is fitted by a line between FIT_FROM and
     FIT_FROM + RECOVERY_FIT_SPAN °C of rise (past the dip's bend, and early enough that full
-    power still runs when the new rate is taken). Relative to the hold at the setpoint sp
+    power still runs when the new rate is taken), and where that span holds fewer than the
+    periods asked (`RECOVERY_FIT_PERIODS`, a fast tun), refitted over each later full-power
+    period too, up to those or the cut. Relative to the hold at the setpoint sp
     with duty u_h, dx/dt = rate·(100 − u_h)/100 − loss·(x − sp): a fill other than the
     model's scales rate and heat flows alike, so u_h, which the bias made exact in the hold,
     stays, and the model's ambient (a guess) does not enter. The dead time is not measured:
@@ -834,19 +846,25 @@ class _RecoveryWatch(_RampWatch):
         self._start()
         self._hold, self._low = hold, pv
 
-    def add(self, pv: float, ts: float, sp: float, loss: float) -> tuple[float, float] | None:
+    def add(
+        self, pv: float, ts: float, sp: float, loss: float, periods: int = 0
+    ) -> tuple[float, float] | None:
         """One more full-power period; once the PV has risen FIT_FROM + RECOVERY_FIT_SPAN °C
         from its lowest, the rate (°C/s at 100 %) and the line's PV a period ago (where the
-        estimate stands before this period's step), or None."""
+        estimate stands before this period's step), or None. While the line holds fewer than
+        `periods` points (`RECOVERY_FIT_PERIODS`), each further full-power period adds its PV
+        and gives the line anew."""
         self._n += 1
         line = self._line
         if line.n == 0 and pv < self._low + FIT_FROM:
             self._low = min(self._low, pv)
             return None
-        if pv <= self._low + FIT_FROM + RECOVERY_FIT_SPAN:
+        past = pv > self._low + FIT_FROM + RECOVERY_FIT_SPAN
+        if not past or line.n < periods:
             line.add((self._n - 0.5) * ts, pv)
+        if not past:
             return None
-        self.active = False
+        self.active = line.n < periods
         slope = line.slope()
         if slope is None or slope <= 0.0:
             return None
@@ -882,6 +900,7 @@ class _Predictive(_Base):
         "_rate",
         "_recent",
         "_recovery",
+        "_recovery_periods",
         "_steady_with_pv",
         "_step_is_loops",
         "_ts",
@@ -916,6 +935,9 @@ class _Predictive(_Base):
         # (`_duty_was_steady`); replay sets the share a log names, and no bound for the
         # daemons before it (`logged_duty_share`).
         self._duty_share = STEADY_DUTY_SHARE
+        # The fewest periods a recovery's line takes in; replay sets the number a log names,
+        # and none for the daemons before it (`logged_recovery_periods`).
+        self._recovery_periods = RECOVERY_FIT_PERIODS
         # Whether the next step's change of power is the loop's own (`loops_own_step`).
         self._step_is_loops = False
         # Whether the readings of the period the next step closes showed cold water
@@ -1076,7 +1098,7 @@ class _Predictive(_Base):
                     recovery.arm(pv, hold)
         recent.append(pv)
         if full and recovery.active:
-            measured = recovery.add(pv, self._ts, sp, self._loss)
+            measured = recovery.add(pv, self._ts, sp, self._loss, self._recovery_periods)
             if measured is not None and 0.5 * self._rate <= measured[0] <= 2.0 * self._rate:
                 rate, self._estimate = measured
                 self._loss *= rate / self._rate  # as for a heat-up: the fill changed
@@ -1165,6 +1187,14 @@ def logged_duty_share(controller: Controller, share: float | None) -> None:
     measured the step whatever the duty did before it. Replay of its log."""
     if isinstance(controller, _Predictive):
         controller._duty_share = math.inf if share is None else share
+
+
+def logged_recovery_periods(controller: Controller, periods: int | None) -> None:
+    """Make `controller` (predictive) fit a recovery's rate as the daemon that logged
+    `periods` (`recovery_fit_periods`) did: None, a daemon from before it, which took the
+    rate once, over the first RECOVERY_FIT_SPAN alone. Replay of its log."""
+    if isinstance(controller, _Predictive):
+        controller._recovery_periods = 0 if periods is None else periods
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

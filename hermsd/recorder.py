@@ -297,8 +297,11 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "steady_duty_share": _field(
                     "number", "share of a measuring step to full power the duty may move before"
                 ),
+                "recovery_fit_periods": _field(
+                    "integer", "fewest full-power periods a recovery's rate is fitted over"
+                ),
             },
-            optional=("drop_carry", "reach_watch", "steady_duty_share"),
+            optional=("drop_carry", "reach_watch", "steady_duty_share", "recovery_fit_periods"),
         ),
     ),
     PROGRAM_TOPIC: TopicSpec(

@@ -61,6 +61,7 @@ from hermsd.pid import (
     cold_water_seen,
     full_power_now,
     logged_duty_share,
+    logged_recovery_periods,
     predating_drop_fall,
 )
 from hermsd.program.quality import step_quality
@@ -132,6 +133,7 @@ class LoggedConfig:
     reach_watch: bool = False  # each period's `ceiling` is the reach watch's (None: not said)
     repeat: bool = False  # the copy of the record in force that opens a rotated file of a run
     steady_duty_share: float | None = None  # a measured step needs a steady duty (None: not)
+    recovery_fit_periods: int | None = None  # the fewest periods of a recovery's fit (None: 0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -449,6 +451,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     model, safety_model = message.get("model"), message.get("safety_model")
     drop_readings, drop_onset = message.get("drop_readings"), message.get("drop_onset_c")
     drop_fall, steady_duty = message.get("drop_fall_c"), message.get("steady_duty_share")
+    recovery = message.get("recovery_fit_periods")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
@@ -461,6 +464,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         message.get("drop_carry") is True,
         message.get("reach_watch") is True,
         steady_duty_share=float(steady_duty) if _is_number(steady_duty) else None,
+        recovery_fit_periods=recovery if isinstance(recovery, int) else None,
     )
 
 
@@ -787,6 +791,9 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     The predictive controller takes a step to full power for a measurement of the tun only
     from a duty that was steady before it, by the share a config record names
     (`steady_duty_share`); under one without it, from any duty, as the daemons before it did.
+    It fits a recovery's rate over at least the periods a config record names
+    (`recovery_fit_periods`); under one without it, over the first span alone, as the daemons
+    before it did.
     """
     controller = None
     in_force: LoggedConfig | None = None
@@ -851,6 +858,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 if entry.drop_fall_c is None:  # a daemon from before it judged steady so
                     predating_drop_fall(made)
                 logged_duty_share(made, entry.steady_duty_share)
+                logged_recovery_periods(made, entry.recovery_fit_periods)
                 unknown_probe = controller is None and same_tun  # what it would keep is not known
                 previous, controller = controller, shared_out(whole, made)
                 if entry.reason == "reload" and before is not None:

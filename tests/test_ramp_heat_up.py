@@ -14,14 +14,12 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any
 
 import pytest
-from test_replay import rewritten
+from test_replay import without_marker
 
 from hermsd import pid, replay
 from hermsd.learning import ModelStore
-from hermsd.recorder import CONFIG_TOPIC
 from hermsd.sim import scenario
 
 TRUE_RATE = 3000.0 / (90.0 * 4186.0) * 60.0  # °C/min at full power, losses added back
@@ -50,16 +48,9 @@ def measured(log: replay.Log) -> list[float]:
     return [float(m.group(1)) for m in said if m]
 
 
-def without_marker(paths: list[Path], directory: Path) -> list[Path]:
-    """The log as a daemon from before `steady_duty_share` wrote it: without the marker."""
-
-    def older(topic: str, message: dict[str, Any]) -> dict[str, Any]:
-        if topic == CONFIG_TOPIC:
-            return {k: v for k, v in message.items() if k != "steady_duty_share"}
-        return message
-
-    directory.mkdir()
-    return rewritten(paths, directory, older)
+def older_log(paths: list[Path], directory: Path) -> list[Path]:
+    """The log as a daemon from before `steady_duty_share` wrote it."""
+    return without_marker(paths, directory, "steady_duty_share")
 
 
 def test_a_ramped_heat_up_learns_no_wrong_rate_and_its_log_verifies(tmp_path: Path) -> None:
@@ -73,7 +64,7 @@ def test_a_ramped_heat_up_learns_no_wrong_rate_and_its_log_verifies(tmp_path: Pa
     assert all(c.steady_duty_share == pid.STEADY_DUTY_SHARE for c in log.configs)
     assert replay.verify(log.entries).mismatch is None
     # Replayed as a daemon from before the rule (which measured the climb), it differs.
-    older = replay.load(without_marker(paths, tmp_path / "older"))
+    older = replay.load(older_log(paths, tmp_path / "older"))
     assert replay.verify(older.entries).mismatch is not None
 
 
@@ -84,7 +75,7 @@ def test_an_ordinary_heat_up_measures_the_rate_as_before(tmp_path: Path) -> None
     assert rate == pytest.approx(TRUE_RATE, rel=0.02)
     assert replay.verify(log.entries).mismatch is None
     # The rule before it measured the same step the same way: the log verifies under it too.
-    older = replay.load(without_marker(paths, tmp_path / "older"))
+    older = replay.load(older_log(paths, tmp_path / "older"))
     assert not any(c.steady_duty_share for c in older.configs)
     assert replay.verify(older.entries).mismatch is None
 
@@ -98,5 +89,5 @@ def test_a_ramped_day_logged_before_the_rule_verifies_under_the_old_rule(
     monkeypatch.undo()
     [rate] = measured(replay.load(paths))
     assert rate > 1.5 * TRUE_RATE  # the wrong measurement this log holds
-    older = replay.load(without_marker(paths, tmp_path / "older"))
+    older = replay.load(older_log(paths, tmp_path / "older"))
     assert replay.verify(older.entries).mismatch is None

@@ -105,6 +105,18 @@ def rewritten(
     return sorted(directory.glob("*.mcap"), key=lambda p: next(LogFile(p).messages()).log_time_ns)
 
 
+def without_marker(paths: list[Path], directory: Path, marker: str) -> list[Path]:
+    """The log as a daemon from before `marker` wrote it: its config records without it."""
+
+    def older(topic: str, message: dict[str, Any]) -> dict[str, Any]:
+        if topic == CONFIG_TOPIC:
+            return {k: v for k, v in message.items() if k != marker}
+        return message
+
+    directory.mkdir()
+    return rewritten(paths, directory, older)
+
+
 def run_cli(capsys: pytest.CaptureFixture[str], *argv: str | Path) -> tuple[int, str, str]:
     code = main(["replay", *map(str, argv)])
     out, err = capsys.readouterr()
