@@ -31,6 +31,7 @@ import contextlib
 import json
 import math
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -93,6 +94,12 @@ class LearnedModel:
             f"time constant {1.0 / self.loss:.0f} s (room {self.ambient:g} °C) at "
             f"{self.litres:g} L"
         )
+
+
+def water_came(recent: Iterable[float], pv: float) -> bool:
+    """Whether `pv` lies WATER_FALL or more below the highest of `recent` (the PVs of the last
+    WATER_SPAN_S): water poured in, and a hold measured across it would take it for loss."""
+    return max(recent, default=pv) - pv >= WATER_FALL
 
 
 def implausible(model: LearnedModel) -> str | None:
@@ -251,7 +258,7 @@ class Learner:
         arrived = self._applied
         arrived.append(applied)
         recent = self._recent
-        water = bool(recent) and max(recent) - pv >= WATER_FALL
+        water = water_came(recent, pv)
         recent.append(pv)
         if water or abs(pv - setpoint) > HOLD_BAND or len(arrived) < (arrived.maxlen or 0):
             self._restart_hold()  # not (or no longer) holding: start the hold anew

@@ -33,7 +33,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from hermsd.learning import WATER_FALL, WATER_SPAN_S
+from hermsd.learning import WATER_SPAN_S, water_came
 from hermsd.metrics import BAND
 from hermsd.pid import HeatUpFit, PlantModel
 from hermsd.program.runner import heat_up_s
@@ -299,7 +299,7 @@ class Readiness:
         held.append((t, pv))
         while t - held[0][0] > WATER_SPAN_S:
             held.popleft()
-        return max(x for _, x in held) - pv >= WATER_FALL
+        return water_came((x for _, x in held), pv)
 
     def rise(self, pv: float, tun: Tun) -> Rise:
         """The full-power rise near the top, from the best measurement there is: the waiting
