@@ -1,0 +1,38 @@
+"""The bounded JSON reader every request goes through: depth and size refused before parsing."""
+
+import pytest
+
+from hermsd.control.jsontext import MAX_DEPTH, JsonTextError, loads, nesting_depth
+
+
+def test_depth_counts_brackets_outside_strings_only() -> None:
+    # By hand: [ [ "[[[" , { } ] ] opens [, [, { : three levels; the string's brackets do not count.
+    assert nesting_depth('[["[[[",{}]]') == 3
+    assert nesting_depth('{"a": "\\"[[[["}') == 1
+
+
+@pytest.mark.parametrize("opener", ["[", '{"a":'])
+def test_a_deep_line_is_refused_not_a_recursion_error(opener: str) -> None:
+    with pytest.raises(JsonTextError, match=f"deeper than {MAX_DEPTH}"):
+        loads(opener * 3000, max_bytes=1 << 16)
+
+
+def test_the_deepest_allowed_value_parses() -> None:
+    text = "[" * MAX_DEPTH + "]" * MAX_DEPTH
+    value = loads(text, max_bytes=1 << 16)
+    for _ in range(MAX_DEPTH - 1):
+        value = value[0]
+    assert value == []
+    with pytest.raises(JsonTextError):
+        loads("[" + text + "]", max_bytes=1 << 16)
+
+
+def test_size_bytes_and_constants_refused() -> None:
+    with pytest.raises(JsonTextError, match="longer than 10 bytes"):
+        loads(b'{"a": "0123456789"}', max_bytes=10)
+    with pytest.raises(JsonTextError, match="not UTF-8"):
+        loads(b'"\xff"', max_bytes=10)
+    with pytest.raises(JsonTextError, match="NaN is not a number"):
+        loads("[NaN]", max_bytes=10)
+    with pytest.raises(JsonTextError, match="not JSON"):
+        loads("[1,", max_bytes=10)
