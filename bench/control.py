@@ -16,9 +16,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-from pathlib import Path
 from typing import Any
 
+import sections  # bench/sections.py, beside this file
 from peers import ITAE_LOAD, PEERS, controlled_by  # bench/peers.py, beside this file
 
 from hermsd import config as config_module
@@ -93,9 +93,7 @@ def main() -> int:
     first = rows[0]
     table = "\n".join(lines)
     text = (
-        "## Control: every algorithm on the seed-001 plant\n\n"
-        "`uv run --group bench python bench/control.py --write` — 20 → 66 °C, 10 L of 15 °C "
-        "water at 4 h, 6 h; physical minimum to settle "
+        "20 → 66 °C, 10 L of 15 °C water at 4 h, 6 h; physical minimum to settle "
         f"{first['physical_min_s']} s, to recover {first['recovery_min_s']} s (full power "
         "from the start, and from the water). Settle and recovery: when the sensor entered "
         "the band for good, interpolated between the two 5 s period samples around it, as "
@@ -105,21 +103,8 @@ def main() -> int:
         "≤ ×1.02, jump ≤ 10 %, 100 % in band.\n\n" + table + "\n"
     )
     if args.write:
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Control:", text)
+        sections.write("## Control: every algorithm on the seed-001 plant", text)
     return 0
-
-
-def _replace_section(path: Path, heading: str, text: str) -> None:
-    """Swap the section that starts with `heading` (up to the next `## `) for `text`."""
-    old = path.read_text(encoding="utf-8") if path.exists() else "# Benchmark results\n\n"
-    start = old.find(heading)
-    if start < 0:
-        new = old.rstrip("\n") + "\n\n" + text
-    else:
-        end = old.find("\n## ", start + 1)
-        rest = old[end + 1 :] if end >= 0 else ""
-        new = old[:start] + text.rstrip("\n") + "\n" + ("\n" + rest if rest else "")
-    path.write_text(new, encoding="utf-8")
 
 
 if __name__ == "__main__":

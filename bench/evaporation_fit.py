@@ -26,9 +26,8 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
-from control import _replace_section  # bench/control.py, beside this file
+import sections  # bench/sections.py, beside this file
 from tuning import SETPOINT_C, step_test, truth  # bench/tuning.py, beside this file
 
 from hermsd import linsys
@@ -131,10 +130,8 @@ def main() -> int:
         print(rows[-1], flush=True)
     text = "\n".join(
         [
-            "## Tuning: an evaporation term in the step's fit",
-            "",
-            "`uv run --group bench python bench/evaporation_fit.py --write`: why `hermsd tune` "
-            "fits the evaporation only when the config says `tun.lid: off`. On each tun's "
+            "Why `hermsd tune` fits the evaporation only when the config says `tun.lid: off`. On "
+            "each tun's "
             "default `tune step` records, the FOPTD fit (θ held at the step fit's, τ by golden "
             "section, room, x0 and K by least squares) and the same with an evaporation term "
             "E·g(PV), g the vapour pressure over that at 66 °C (see the script). K and τ errors "
@@ -154,7 +151,7 @@ def main() -> int:
         ]
     )
     if args.write:
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Tuning: an evap", text)
+        sections.write("## Tuning: an evaporation term in the step's fit", text)
     return 0
 
 

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from control import _replace_section  # bench/control.py, beside this file
+import sections  # bench/sections.py, beside this file
 
 from hermsd import config as config_module
 from hermsd.safety import LATCHED_KINDS
@@ -28,7 +28,6 @@ from hermsd.sim import tun_faults as tf
 from hermsd.sim.tuns import FAMILY, TunSpec
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
-RESULTS = Path(__file__).with_name("RESULTS.md")
 
 
 def scenario_rows() -> list[str]:
@@ -263,8 +262,7 @@ def main() -> int:
         started = time.perf_counter()
         rows = two_element_rows()
         text = (
-            "## Faults on the family: two elements, fills the config does not know\n\n"
-            "`uv run python bench/faults.py --two-elements --write` — each tun of the family "
+            "Each tun of the family "
             "with its watts on two elements, 2/5.5 of them on the SSR and the rest on a "
             "contactor (min on and off 120 s), the shipped default controller shared out "
             "(docs/two-elements.md); the normal days of the section above (×½, ×2, +1 kW), "
@@ -281,13 +279,14 @@ def main() -> int:
         )
         print(text)
         if args.write:
-            _replace_section(RESULTS, "## Faults on the family: two", text)
+            sections.write(
+                "## Faults on the family: two elements, fills the config does not know", text
+            )
         return 0
     if not args.family_only:
         table = "\n".join(scenario_rows())
         text = (
-            "## Faults: detection and heater-off latency\n\n"
-            "`uv run python bench/faults.py --write` — each scenario in `scenarios/` on the "
+            "Each scenario in `scenarios/` on the "
             'virtual clock. "Detected after" counts from the injected fault (blank where the '
             "fault is a plant condition from the start or an operator's setpoint); \"heater "
             'off after" is from the alarm to the element losing power in the simulated '
@@ -297,13 +296,12 @@ def main() -> int:
             + "\n"
         )
         if args.write:
-            _replace_section(RESULTS, "## Faults:", text)
+            sections.write("## Faults: detection and heater-off latency", text)
     started = time.perf_counter()
     quiet, faults = family_rows()
     wall = time.perf_counter() - started
     text = (
-        "## Faults on the family: fills the config does not know\n\n"
-        "`uv run python bench/faults.py --write` — each tun of `hermsd.sim.tuns.FAMILY` "
+        "Each tun of `hermsd.sim.tuns.FAMILY` "
         "(noise sd 0.03 °C) with its true litres and watts in the shipped config, through "
         "the daemon on the virtual clock. The brew day: ambient → 66 °C, a tenth of the water "
         "at 15 °C at 4 h, 6 h. Normal days with half and twice the configured water (UA "
@@ -342,7 +340,7 @@ def main() -> int:
         f"(the configured fill and the table's): {'; '.join(UNREACHABLE) or 'none'}"
     )
     if args.write:
-        _replace_section(RESULTS, "## Faults on the family", text)
+        sections.write("## Faults on the family: fills the config does not know", text)
     return 0
 
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from control import _replace_section  # bench/control.py, beside this file
+import sections  # bench/sections.py, beside this file
 from mcap.reader import make_reader
 
 from hermsd import config as config_module
@@ -203,9 +203,8 @@ def main() -> int:
     table = "\n".join(["| measure | figure | goal |", "|---|---|---|", *lines])
     machine = f"{os.cpu_count()} cores ({platform.machine()}), Python {platform.python_version()}"
     text = (
-        "## Log: size, recorder CPU, read speed\n\n"
-        f"`uv run python bench/log_bench.py --hours {hours:g} --write` on {machine}. "
-        f"{hours:g} h of the default config (period 5 s, a reading a second, windows of one "
+        f"On {machine}: {hours:g} h of the default config (period 5 s, a reading a second, "
+        f"windows of one "
         "period, a timing record a minute) on the simulated tun (20 → 66 °C, then holding), "
         "on the virtual clock, through the real Recorder; the simulation waits for the writer "
         "every flush_interval (2 s), so every record is kept in chunks of real-time size. "
@@ -217,7 +216,7 @@ def main() -> int:
         "one).\n\n" + table + "\n"
     )
     if args.write:
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Log:", text)
+        sections.write("## Log: size, recorder CPU, read speed", text)
     return 0
 
 

@@ -32,7 +32,6 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 from hermsd import linsys, midrange
 
@@ -823,9 +822,7 @@ def main() -> int:
         return two_element.main(args.write)
     started = time.perf_counter()
     out = [
-        "## Mid-ranging: the anti-windup seed reproduced",
-        "",
-        "`uv run python bench/midrange.py --write`. Set-up (see the script's docstring): "
+        "Set-up (see the script's docstring): "
         "deviation variables about u1 = u1_ref, y = r = 0; the process sampled exactly (ZOH), "
         "the controller (hermsd.midrange, forward-Euler integrals) at period h; J of eq. 18 "
         "with u2 as its deviation from the operating point. Chosen here because the seed does "
@@ -866,12 +863,12 @@ def main() -> int:
         "",
         f"Run time {time.perf_counter() - started:.0f} s.",
     ]
-    text = "\n".join(out) + "\n"
-    print(text)
+    body = "\n".join(out) + "\n"
+    print(body)
     if args.write:
-        from control import _replace_section  # bench/control.py, beside this file
+        import sections  # bench/sections.py, beside this file
 
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Mid-ranging:", text)
+        sections.write("## Mid-ranging: the anti-windup seed reproduced", body)
     return 0
 
 

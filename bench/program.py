@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from control import _replace_section  # bench/control.py, beside this file
+import sections  # bench/sections.py, beside this file
 
 from hermsd import config as config_module
 from hermsd.daemon import PeriodRecord
@@ -42,7 +42,7 @@ from hermsd.sim.tuns import FAMILY
 SHIPPED = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
 READY_S = 5 * 3600.0  # 05:00, from a start at 00:00
 GOAL_S = 120.0
-HEADING = "## Mash program:"
+HEADING = "## Mash program: strike water ready by the time asked for"
 STRIKE = Program("Strike", (Step("Strike", 72.0, 600.0),), "05:00")
 WAIT_AT = 72.0 - WAIT_BELOW
 CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: scenario.ScenarioError(what))
@@ -146,12 +146,9 @@ def main() -> int:
     print(tally)
     about = __doc__.split("\n\n")[1].split(" Prints")[0].replace("\n", " ")
     table = "\n".join(lines)
-    text = (
-        f"{HEADING} strike water ready by the time asked for\n\n"
-        f"`uv run python bench/program.py --write` — {about} {tally}\n\n{table}\n"
-    )
+    text = f"{about} {tally}\n\n{table}\n"
     if args.write:
-        _replace_section(Path(__file__).with_name("RESULTS.md"), HEADING, text)
+        sections.write(HEADING, text)
     return 0
 
 

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from control import _replace_section  # bench/control.py, beside this file
+import sections  # bench/sections.py, beside this file
 from log_bench import simulate  # bench/log_bench.py: a day logged as the daemon logs it
 
 from hermsd import replay
@@ -99,8 +99,7 @@ def main() -> int:
     table = "\n".join(lines)
     print(table)
     text = (
-        "## Replay: a 24-hour log\n\n"
-        "`uv run python bench/replay.py --write` — a 24-hour day of the daemon on the "
+        "A 24-hour day of the daemon on the "
         "simulated tun (20 → 66 °C, then holding), logged as the daemon logs it (a chunk "
         f"per 2 s flush): {len(files)} files, {megabytes:.1f} MB, {messages} messages of "
         f"which {periods} control periods. Commands are a new Python process each, best of "
@@ -116,7 +115,7 @@ def main() -> int:
         + "\n"
     )
     if args.write:
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Replay:", text)
+        sections.write("## Replay: a 24-hour log", text)
     return 0
 
 

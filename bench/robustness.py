@@ -26,7 +26,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from control import _replace_section  # bench/control.py, beside this file
+import sections  # bench/sections.py, beside this file
 from peers import ITAE_LOAD, PEERS, controlled_by  # bench/peers.py, beside this file
 
 from hermsd import config as config_module
@@ -334,8 +334,7 @@ def main() -> int:
     )
     about = " ".join(
         [
-            f"`uv run --group bench python bench/robustness.py --seeds {n} --write` — the",
-            "family of `hermsd/sim/tuns.py`, each on its brew day (room temperature → 66 °C, a",
+            "The family of `hermsd/sim/tuns.py`, each on its brew day (room temperature → 66 °C, a",
             f"tenth of its volume of 15 °C water at 4 h, 6 h; sensor noise sd {NOISE_C} °C",
             "before the LM92's 0.0625 °C steps) through the real daemon, on each of the noise",
             f"seeds 1–{n} (the same tun and day, another draw of the sensor's noise). hermsd:",
@@ -389,15 +388,9 @@ def main() -> int:
     ]
     body = "\n\n".join(tables[1:])
     print(body + "\n\n" + tally)
-    text = (
-        "## Robustness: hermsd and its peers on twelve brewers' tuns\n\n"
-        + about
-        + "\n\n"
-        + "\n\n".join(tables)
-        + "\n"
-    )
+    text = about + "\n\n" + "\n\n".join(tables) + "\n"
     if args.write:
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Robustness:", text)
+        sections.write("## Robustness: hermsd and its peers on twelve brewers' tuns", text)
     return 0
 
 

@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar
 
-from control import _replace_section  # bench/control.py, beside this file
+import sections  # bench/sections.py, beside this file
 from timing import bench_config, measure, timing_table  # bench/timing.py, beside this file
 from tuning import step_test  # bench/tuning.py, beside this file
 
@@ -218,10 +218,7 @@ def main() -> int:
     print(ratios)
     if args.write:
         text = (
-            "## Slow disk and tune fits: the loop with its saves and fits beside it\n\n"
-            f"`uv run python bench/slow_disk.py --seconds {args.seconds:.0f} --every "
-            f"{args.every:g} --stall {args.stall:g} --write`, as root ({args.seconds:.0f} s "
-            "per row, the loop thread at SCHED_FIFO, files on "
+            f"As root ({args.seconds:.0f} s per row, the loop thread at SCHED_FIFO, files on "
             f"{args.dir}, a virtual machine's disk, not a Pi's SD card). bench/timing.py's "
             "loop (0.5 s periods, 0.1 s SSR windows at 50 %: one timed edge per window); every "
             f"{args.every:g} s it hands over a save of the latched alarms and of the learned "
@@ -237,7 +234,9 @@ def main() -> int:
             "switch interval (5 ms) or more. Goals: edge p99 ≤ 10 ms, period p99 ≤ 5 ms."
             "\n\n" + table + "\n\n" + ratios + "\n"
         )
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Slow disk", text)
+        sections.write(
+            "## Slow disk and tune fits: the loop with its saves and fits beside it", text
+        )
     return 0
 
 

@@ -173,12 +173,10 @@ def main() -> int:
 
 
 def _write_results(seconds: float, rate: float, directory: Path, table: str) -> None:
-    from control import _replace_section  # bench/control.py, beside this file
+    import sections  # bench/sections.py, beside this file
 
     text = (
-        "## Control socket: the loop under 1,000 status requests a second\n\n"
-        f"`uv run python bench/socket_load.py --seconds {seconds:.0f} --rate "
-        f"{rate:.0f} --write`, as root ({seconds:.0f} s per row, "
+        f"As root ({seconds:.0f} s per row, {rate:.0f} status requests a second, "
         f"{os.cpu_count()} cores shared with other work, logs on {directory}). The real loop "
         "on the simulated tun at bench/timing.py's rates (0.5 s periods, 0.1 s SSR windows, "
         "one timed edge per window), the socket served beside it as `hermsd run` serves "
@@ -189,7 +187,7 @@ def _write_results(seconds: float, rate: float, directory: Path, table: str) -> 
         "run on the cores meanwhile, so a ratio below 1 means no measurable cost, not a "
         "gain.\n\n" + table + "\n"
     )
-    _replace_section(Path(__file__).with_name("RESULTS.md"), "## Control socket:", text)
+    sections.write("## Control socket: the loop under 1,000 status requests a second", text)
 
 
 def _ratios(rows: dict[str, dict[str, float]], loaded_name: str) -> str:

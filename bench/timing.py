@@ -185,12 +185,10 @@ def main() -> int:
     print(table)
     print(ratios)
     if args.write:
-        from control import _replace_section  # bench/control.py, beside this file
+        import sections  # bench/sections.py, beside this file
 
         text = (
-            "## Timing: the real loop on simulated hardware\n\n"
-            f"`uv run python bench/timing.py --seconds {args.seconds:.0f} --write`, as root "
-            f"({args.seconds:.0f} s per row, {cores} cores, logs and fsync load on "
+            f"As root ({args.seconds:.0f} s per row, {cores} cores, logs and fsync load on "
             f"{args.dir}; other processes ran meanwhile, so idle means without the bench's "
             "load). Periods of 0.5 s and SSR windows of 0.1 s (manual 50 %: one timed "
             "edge per window), so that p99 is not the worst sample; the MCAP recorder writes "
@@ -201,7 +199,7 @@ def main() -> int:
             "a core, RSS ≤ 50 MB. RSS is the whole Python process (interpreter, mcap, yaml, "
             "the simulator).\n\n" + table + "\n\n" + ratios + "\n"
         )
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Timing:", text)
+        sections.write("## Timing: the real loop on simulated hardware", text)
     return 0
 
 

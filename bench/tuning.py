@@ -58,7 +58,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from control import _replace_section  # bench/control.py, beside this file
+import sections  # bench/sections.py, beside this file
 from peers import CraftBeerPiAutotune  # bench/peers.py, beside this file
 from robustness import DAY_2, SHIPPED, _cell, missed  # bench/robustness.py, beside this file
 
@@ -289,6 +289,7 @@ def craftbeerpi_test(spec: TunSpec) -> CraftBeerPiRun:
     return peer
 
 
+RELAY_HEADING = "## Tuning by a relay test (`hermsd tune relay`) and CraftBeerPi's autotune"
 RELAY_HEADER = (
     "| tun | P (%) | stopped | heat-up (min) | at SP (min) | swing (°C) | K err | K err (linear) "
     "| τ err | θ true (s) | θ err | goals | Ku true | Pu true (s) | Ku relay (err) "
@@ -379,10 +380,8 @@ def relay_section() -> str:
     summary = ", ".join(f"{key} {100 * value:.0f} %" for key, value in worst.items())
     return "\n".join(
         [
-            "## Tuning by a relay test (`hermsd tune relay`) and CraftBeerPi's autotune",
-            "",
-            "`uv run --group bench python bench/tuning.py --relay --write`: each tun of the "
-            "family, from the room's temperature, runs `hermsd tune relay` with its defaults "
+            "Each tun of the family, from the room's temperature, runs `hermsd tune relay` with "
+            "its defaults "
             "through the daemon "
             "on the simulator: heat-up in auto, 5 min hold (its mean duty is the bias), then "
             f"the relay ±P around the bias with hysteresis ±{relay.HYSTERESIS_C:g} °C (P for a "
@@ -577,9 +576,7 @@ def main() -> int:
         relay_text = relay_section()
         print(relay_text)
         if args.write:
-            _replace_section(
-                Path(__file__).with_name("RESULTS.md"), "## Tuning by a relay test", relay_text
-            )
+            sections.write(RELAY_HEADING, relay_text)
         return 0
     started = time.perf_counter()
     tables: dict[bool, list[str]] = {False: [*HEADER], True: [*HEADER]}
@@ -601,11 +598,8 @@ def main() -> int:
                 verdicts[method].append(after.verdict)
                 print(after.row, flush=True)
     out = [
-        "## Tuning from a brew day's log (`hermsd tune FILE`)",
-        "",
-        "`uv run --group bench python bench/tuning.py --write`: each tun of the family logs its "
-        "brew day "
-        "(default config, its litres and watts) and `hermsd tune` identifies it from the "
+        "Each tun of the family logs its brew day (default config, its litres and watts) and "
+        "`hermsd tune` identifies it from the "
         "heat-up plus a 30 min hold (up to 30 min after PV first reached 65.5 °C). True K "
         "and τ are the tun's first-order model at the hold, what the controller's "
         "feed-forward and the supervisor's loss watch use: K the static gain, (66 − room)/"
@@ -649,11 +643,8 @@ def main() -> int:
     text = "\n".join(out) + "\n"
     step_text = "\n".join(
         [
-            "## Tuning by a step test (`hermsd tune step`)",
-            "",
-            "`uv run --group bench python bench/tuning.py --write`: each tun of the family, from "
-            "the room's "
-            "temperature, runs `hermsd tune step` with its defaults through the daemon on the "
+            "Each tun of the family, from the room's temperature, runs `hermsd tune step` with "
+            "its defaults through the daemon on the "
             "simulator (2 min baseline, then the output that reaches 66 °C in about 90 min at "
             "the water's linear rate, at least 20 %; stop: "
             f"{step_response.STOP_RULE}). Errors against the same truth as the table above "
@@ -689,11 +680,8 @@ def main() -> int:
     )
     after_text = "\n".join(
         [
-            "## Tuning: the brew day after `tune --write`",
-            "",
-            "`uv run --group bench python bench/tuning.py --write`: each tun's step test above "
-            "(tune step), "
-            "and separately its ordinary day 1 (the default config, learning on, an empty "
+            "Each tun's step test above (tune step), and separately its ordinary day 1 (the "
+            "default config, learning on, an empty "
             "state directory: the robustness bench's day 1) whose whole log `hermsd tune FILE` "
             "reads (the fit stops at the cold water; without and with `--ambient`, the room's "
             "temperature), written with `--write` into a copy of "
@@ -738,10 +726,9 @@ def main() -> int:
     print(step_text)
     print(after_text)
     if args.write:
-        results = Path(__file__).with_name("RESULTS.md")
-        _replace_section(results, "## Tuning from a brew", text)
-        _replace_section(results, "## Tuning by a step test", step_text)
-        _replace_section(results, "## Tuning: the brew day after", after_text)
+        sections.write("## Tuning from a brew day's log (`hermsd tune FILE`)", text)
+        sections.write("## Tuning by a step test (`hermsd tune step`)", step_text)
+        sections.write("## Tuning: the brew day after `tune --write`", after_text)
     return 0
 
 

@@ -31,7 +31,6 @@ import math
 import random
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from hermsd import config as config_module
@@ -313,9 +312,7 @@ def main(write: bool = False) -> int:
         f"tt2 = ti2, ks {c.ks:g}, u1_ref {c.u1_ref:g} %"
     )
     out = [
-        "## Mid-ranging: the two-element tun",
-        "",
-        "`uv run python bench/midrange.py --tun --write`. A 2 kW element on the SSR and a "
+        "A 2 kW element on the SSR and a "
         f"3.5 kW one on a contactor (min on and off {MIN_ON:g} s), heated two ways: the "
         "shipped default controller (predictive) on the total power of both, shared out each "
         "period (the contactor decided first, the SSR making up the difference: "
@@ -403,9 +400,9 @@ def main(write: bool = False) -> int:
     text = "\n".join(out) + "\n"
     print(text)
     if write:
-        from control import _replace_section  # bench/control.py, beside this file
+        import sections  # bench/sections.py, beside this file
 
-        _replace_section(Path(__file__).with_name("RESULTS.md"), "## Mid-ranging: the two", text)
+        sections.write("## Mid-ranging: the two-element tun", text)
     return 0
 
 
