@@ -63,7 +63,7 @@ BENCHES = (
         ("--seeds", "6"),
         ("## Robustness: hermsd and its peers on twelve brewers' tuns",),
     ),
-    Bench("midrange", "midrange.py", (), ("## Mid-ranging: the anti-windup seed reproduced",)),
+    Bench("midrange", "midrange.py", (), ("## Mid-ranging: the anti-windup seed, claim by claim",)),
     Bench(
         "tuning",
         "tuning.py",

@@ -185,6 +185,11 @@ def main() -> int:
             f"×{logged.process_cpu_s / bare.process_cpu_s:.2f}; the recorder's share "
             f"{extra / hours:.3f} s/h = {100 * extra / seconds:.4f} % of a core",
         )
+        periods = seconds / config_module.DEFAULT.control.period
+        row(
+            "process CPU per control period, without the recorder (the loop and the simulated tun)",
+            f"{1e3 * bare.process_cpu_s / periods:.3f} ms ({periods:.0f} periods)",
+        )
         per_write = write_cost(last_period, WRITE_CALLS)
         row("caller CPU per Recorder.write (a period record)", f"{per_write * 1e6:.2f} µs")
         took = best_time(lambda paths: sum(1 for _ in read_messages(paths)), paths)

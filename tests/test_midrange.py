@@ -7,6 +7,7 @@ continuous closed loop, and a continuous simulation by RK4 of the seed's equatio
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import math
 import sys
@@ -411,3 +412,40 @@ def test_bad_inputs_are_named() -> None:
     controller.step(1.0, 0.0)
     with pytest.raises(ValueError, match="applied u2="):
         controller.step(1.0, 0.0, applied=(0.0, math.nan))
+
+
+# ------------------------------------------------------------------ the bench's claims table
+
+
+def _sweep(best_at: dict[float, float]) -> dict[float, dict[float, tuple[float, ...]]]:
+    """A made-up J sweep of the cooling system: at each step the least J (every horizon) at
+    the Ks `best_at` names, J 1 there, 2 and 3 at the other two Ks."""
+    grid = (0.0, 30.0, 60.0)
+    return {
+        step: {ks: (1.0,) * 3 if ks == best else (2.0 + grid.index(ks) % 2,) * 3 for ks in grid}
+        for step, best in best_at.items()
+    }
+
+
+def test_a_ks_minimum_at_another_step_than_the_seeds_is_not_reproduced() -> None:
+    """The seed states r = 10 °C for the cooling system: a least J at Ks = 60 with a step of
+    20 is shown, but the claim is judged at r = 10, where it lies at Ks = 30."""
+    status, evidence = BENCH.ks_minimum_claim(
+        BENCH.COOLING, _sweep({5.0: 0.0, 10.0: 30.0, 20.0: 60.0})
+    )
+    assert status == "not reproduced"
+    assert "least J at Ks = 30" in evidence
+    assert "step 20, tf = 100 s" in evidence  # the rest of the sweep, shown
+
+
+def test_a_ks_minimum_at_the_seeds_step_is_reproduced() -> None:
+    status, evidence = BENCH.ks_minimum_claim(
+        BENCH.COOLING, _sweep({5.0: 0.0, 10.0: 60.0, 20.0: 30.0})
+    )
+    assert status == "reproduced"
+    assert "least J at Ks = 60" in evidence
+
+
+def test_the_bench_cannot_judge_the_cooling_system_off_the_seeds_step() -> None:
+    with pytest.raises(ValueError, match="the seed's step r = 10"):
+        dataclasses.replace(BENCH.COOLING, step=20.0)
