@@ -142,8 +142,8 @@ def main() -> int:
             "",
             "On the open tuns the term brings the duty that holds 66 °C to within 0.4 to "
             "4.2 % of the truth (the first-order fit: 8 to 15 % short), though it lowers the "
-            "RMS by 5 % at most: the step's data alone hardly tell it. On the lidded tuns it "
-            "finds −1 to 95 °C of evaporation where there is none (K up to +75 %): so the "
+            "RMS by 6 % at most: the step's data alone hardly tell it. On the lidded tuns it "
+            "finds 0 to 95 °C of evaporation where there is none (K up to +75 %): so the "
             "brewer's config decides, and a lidded tun is never given it.",
             "",
             f"Run time {time.perf_counter() - started:.0f} s.",

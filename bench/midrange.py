@@ -55,7 +55,7 @@ class Process:
     h: float
     step: float  # the reference step every claim is judged at
     seed_step: float | None  # the step the seed states (None: it states none, `step` is chosen)
-    steps: tuple[float, ...]  # swept for the Ks claims; shown, never judged, but the step's own
+    steps: tuple[float, ...]  # swept for the Ks table: shown; of them only `step` is judged
     rho: float
     horizon: float
     horizons: tuple[float, ...]
