@@ -12,8 +12,9 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
+from starlette.applications import Starlette
 from test_reload import BASE, PERIOD, Events, run_for, start
 
 from hermsd.control.link import LoopLink
@@ -97,23 +98,33 @@ def site(tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05) -> 
     settings = WebSettings(
         tmp_path / "control.sock", STORED, 3600.0, read_only_view, poll=min(0.05, pace)
     )
-    http = make_server(create_app(settings))
+    stepper = threading.Thread(target=stepping)
+    stepper.start()
+    try:
+        with served(create_app(settings)) as url:
+            yield Site(daemon, events, control, url, running, lock)
+    finally:
+        stop.set()
+        stepper.join(TIMEOUT)
+        control.close()
+
+
+@contextlib.contextmanager
+def served(app: Starlette, **bounds: Any) -> Iterator[str]:
+    """`app` served by `hermsd web`'s uvicorn setup (`make_server`, given `bounds`) on a
+    loopback port of its own, on a thread; yields its URL."""
+    http = make_server(app, **bounds)
     listener = listening_socket("127.0.0.1", 0)
     port = listener.getsockname()[1]
     serving = threading.Thread(target=lambda: asyncio.run(http.serve(sockets=[listener])))
-    stepper = threading.Thread(target=stepping)
-    stepper.start()
     serving.start()
     deadline = time.monotonic() + TIMEOUT
-    while not http.started:
-        assert time.monotonic() < deadline, "the web server did not start"
-        time.sleep(0.01)
     try:
-        yield Site(daemon, events, control, f"http://127.0.0.1:{port}", running, lock)
+        while not http.started:
+            assert time.monotonic() < deadline, "the web server did not start"
+            time.sleep(0.01)
+        yield f"http://127.0.0.1:{port}"
     finally:
         http.should_exit = True
-        stop.set()
         serving.join(TIMEOUT)
-        stepper.join(TIMEOUT)
         listener.close()
-        control.close()
