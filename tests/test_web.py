@@ -13,6 +13,7 @@ import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -23,6 +24,7 @@ import hermsd.web
 from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.config import ConfigError, split_listen
+from hermsd.control.client import LONGEST_PERIOD as TIMEOUT_LONGEST_PERIOD
 from hermsd.control.client import TIMEOUT as TIMEOUT_LONGEST
 from hermsd.control.client import unanswered
 from hermsd.control.jsontext import MAX_DEPTH
@@ -38,7 +40,7 @@ from hermsd.web.auth import (
 from hermsd.web.hub import PAGE_FIELDS, Hub
 from hermsd.web.main import WebSetupError, listening_socket, settings_from
 from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
-from hermsd.web.socket_client import OutcomeUnknown, ask
+from hermsd.web.socket_client import DaemonUnavailable, OutcomeUnknown, ask
 
 
 @pytest.fixture(scope="module")
@@ -365,9 +367,10 @@ def test_without_a_daemon_the_page_is_told_why(tmp_path: Path) -> None:
         await hub.refresh()
         return [json.loads((await queue.get() or b"")[len(b"data: ") :]) for _ in range(2)]
 
+    no_reading = {"age": None, "stale_after": 2 * TIMEOUT_LONGEST_PERIOD}  # no period known
     assert asyncio.run(events()) == [
-        {"error": "connecting to hermsd"},
-        {"error": f"no hermsd is running: nothing answers on {hub.socket}"},
+        {"error": "connecting to hermsd", **no_reading},
+        {"error": f"no hermsd is running: nothing answers on {hub.socket}", **no_reading},
     ]
 
 
@@ -747,3 +750,116 @@ def _answered_soon(address: tuple[str, int], request: bytes) -> bool:
                 if sock.recv(1024).startswith(b"HTTP/1.1 204 "):
                     return True
     return False
+
+
+class _Daemon:
+    """A daemon as the hub asks it, period `t` the last run (one history row a period, of 5 s);
+    `answering` False: its socket refuses; `hung`: a request is never answered."""
+
+    def __init__(self) -> None:
+        self.t = 1000.0
+        self.answering = True
+        self.hung = False
+
+    async def __call__(self, path: Path, message: dict[str, object]) -> dict[str, object]:
+        if self.hung:
+            await asyncio.Event().wait()
+        if not self.answering:
+            raise DaemonUnavailable(f"no hermsd is running: nothing answers on {path}")
+        if message["cmd"] == "status":
+            return {"ok": True, "tun": "HLT", "t": self.t, "pv": 66.0, "state": "ok"}
+        return {"ok": True, "period": 5.0, "more": False, "rows": [[self.t, 66.0, 66.0, 9, 9]]}
+
+
+def _first(queue: asyncio.Queue[bytes | None]) -> dict[str, Any]:
+    event = queue.get_nowait()
+    assert event is not None and event.startswith(b"data: ")
+    decoded: dict[str, Any] = json.loads(event[len(b"data: ") :])
+    return decoded
+
+
+def test_every_event_says_how_old_its_reading_is_by_the_hubs_clock() -> None:
+    daemon, now = _Daemon(), [50.0]
+    hub = Hub(Path("hermsd.sock"), asker=daemon, clock=lambda: now[0])
+
+    async def seen() -> list[dict[str, Any]]:
+        await hub.refresh()  # period 1000 comes at 50 s
+        open_at_start = hub.open_page(None)
+        now[0] = 53.0
+        events = [_first(open_at_start), _first(hub.open_page(None))]
+        now[0] = 59.5  # the daemon answers, but its loop has run no period since
+        await hub.refresh()
+        events.append(_first(hub.open_page(None)))
+        daemon.t, now[0] = 1005.0, 60.0  # a period runs: pushed as it comes
+        await hub.refresh()
+        events.append(_first(open_at_start))
+        return events
+
+    at_start, three_s_later, stalled, pushed = asyncio.run(seen())
+    assert [e["age"] for e in (at_start, three_s_later, stalled, pushed)] == [0.0, 3.0, 9.5, 0.0]
+    assert all(e["stale_after"] == 2 * 5.0 for e in (at_start, three_s_later, stalled, pushed))
+    assert stalled["status"]["t"] == 1000.0 and pushed["status"]["t"] == 1005.0
+
+
+def test_a_page_opened_after_the_daemon_stopped_is_told_so_not_its_last_status() -> None:
+    daemon, now = _Daemon(), [50.0]
+    hub = Hub(Path("hermsd.sock"), asker=daemon, clock=lambda: now[0])
+    stopped = "no hermsd is running: nothing answers on hermsd.sock"
+
+    async def seen() -> tuple[list[dict[str, Any]], dict[str, Any], dict[str, Any]]:
+        await hub.refresh()
+        open_then = hub.open_page(None)
+        daemon.answering, now[0] = False, 51.0
+        await hub.refresh()
+        told = [_first(open_then), _first(open_then)]
+        now[0] = 400.0  # much later, a phone wakes up
+        woken = _first(hub.open_page(1000.0))
+        daemon.answering = True  # started again; its loop has not run a period yet
+        await hub.refresh()
+        return told, woken, _first(open_then)
+
+    (before, at_stop), woken, again = asyncio.run(seen())
+    assert "status" in before
+    assert at_stop == {"error": stopped, "age": 1.0, "stale_after": 10.0}
+    assert woken == {"error": stopped, "age": 350.0, "stale_after": 10.0}  # no status
+    # Answering again: the pages hear it at once, with how old the status is.
+    assert again["status"]["t"] == 1000.0 and again["age"] == 350.0
+
+
+def test_a_daemon_that_does_not_answer_for_two_periods_is_not_taken_as_live() -> None:
+    daemon, now = _Daemon(), [50.0]
+    hub = Hub(Path("hermsd.sock"), asker=daemon, clock=lambda: now[0])
+
+    async def seen() -> list[dict[str, Any]]:
+        await hub.refresh()
+        daemon.hung = True  # its socket takes the request; no answer comes
+        polling = asyncio.create_task(hub.refresh())
+        await asyncio.sleep(0)
+        now[0] = 60.0  # two periods: still live, just
+        at_two = _first(hub.open_page(None))
+        now[0] = 60.5
+        beyond = _first(hub.open_page(None))
+        polling.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await polling
+        return [at_two, beyond]
+
+    at_two, beyond = asyncio.run(seen())
+    assert at_two["age"] == 10.0 and at_two["status"]["t"] == 1000.0
+    assert beyond == {"error": "hermsd has not answered for 10 s", "age": 10.5, "stale_after": 10.0}
+
+
+def _first_event(client: httpx.Client) -> dict[str, Any]:
+    with client.stream("GET", "/api/events") as stream:
+        line = next(line for line in stream.iter_lines() if line.startswith("data: "))
+    decoded: dict[str, Any] = json.loads(line[len("data: ") :])
+    return decoded
+
+
+def test_a_page_opened_after_the_real_daemon_stopped_gets_no_status(tmp_path: Path) -> None:
+    with site(tmp_path) as served_site, _client(served_site) as client:
+        first = _first_event(client)
+        assert "status" in first and first["age"] < served_site.hub.stale_after()
+        served_site.stop_answering()
+        first = _first_event(client)
+    assert first["error"].startswith("no hermsd is running") and "status" not in first

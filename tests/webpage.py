@@ -21,6 +21,7 @@ from hermsd.control.link import LoopLink
 from hermsd.control.server import ControlServer
 from hermsd.daemon import Daemon
 from hermsd.web.app import WebSettings, create_app
+from hermsd.web.hub import Hub
 from hermsd.web.main import listening_socket, make_server
 from hermsd.web.passwords import hash_password, parse_hash
 
@@ -51,6 +52,18 @@ class Site:
     url: str
     running: threading.Event  # cleared: the daemon is held between periods
     lock: threading.Lock  # held while a period runs
+    hub: Hub  # the page's view of the daemon
+    answering: bool = True  # False: the daemon's control socket is closed
+
+    def stop_answering(self) -> None:
+        """Close the daemon's control socket, as a daemon that stops does, and wait until the
+        page's hub has seen it go."""
+        self.answering = False
+        self.server.close()
+        deadline = time.monotonic() + TIMEOUT
+        while self.hub.error is None:
+            assert time.monotonic() < deadline, "the hub did not see the daemon go"
+            time.sleep(0.01)
 
     @contextlib.contextmanager
     def held(self) -> Iterator[float]:
@@ -78,7 +91,11 @@ class Site:
 
 
 @contextlib.contextmanager
-def site(tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05) -> Iterator[Site]:
+def site(
+    tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05, stale_after: float = 60.0
+) -> Iterator[Site]:
+    """`stale_after`: s a reading is shown as live; long by default, as a test may hold the
+    loop longer than two periods (10 s of wall time here, as the hub counts them)."""
     daemon, _world, _path, events = start(tmp_path, BASE)
     link = LoopLink(daemon)
     control = ControlServer(tmp_path / "control.sock")
@@ -96,17 +113,29 @@ def site(tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05) -> 
             stop.wait(pace)  # paces virtual time; nothing is measured on this clock
 
     settings = WebSettings(
-        tmp_path / "control.sock", STORED, 3600.0, read_only_view, poll=min(0.05, pace)
+        tmp_path / "control.sock",
+        STORED,
+        3600.0,
+        read_only_view,
+        poll=min(0.05, pace),
+        stale_after=stale_after,
     )
+    app = create_app(settings)
     stepper = threading.Thread(target=stepping)
     stepper.start()
+    answering = [True]
     try:
-        with served(create_app(settings)) as url:
-            yield Site(daemon, events, control, url, running, lock)
+        with served(app) as url:
+            opened = Site(daemon, events, control, url, running, lock, app.state.hub)
+            try:
+                yield opened
+            finally:
+                answering[0] = opened.answering
     finally:
         stop.set()
         stepper.join(TIMEOUT)
-        control.close()
+        if answering[0]:
+            control.close()
 
 
 @contextlib.contextmanager

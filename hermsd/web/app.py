@@ -108,6 +108,7 @@ class WebSettings:
     read_only_view: bool  # whether seeing the tun needs no login
     poll: float | None = None  # s between status polls; None: from the control period
     hosts: tuple[str, ...] = ("localhost",)  # names the page answers to (`allowed_hosts`)
+    stale_after: float | None = None  # s a reading stays live; None: two control periods
 
 
 class BadInput(ValueError):
@@ -235,7 +236,7 @@ class _KnownHosts:
 
 def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotonic) -> Starlette:
     """The web application, polling the daemon at `settings.socket` while it runs."""
-    hub = Hub(settings.socket, settings.poll)
+    hub = Hub(settings.socket, settings.poll, clock=clock, stale_after=settings.stale_after)
     sessions = Sessions(settings.session_lifetime)
     limiter = LoginLimiter()
     static = {
