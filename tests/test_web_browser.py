@@ -470,3 +470,28 @@ def test_a_reading_older_than_two_periods_is_shown_red_with_its_age(page: Page, 
         )
         assert page.text_content("#conn") == "live" and all(_commands(page).values())
         assert page.text_content("#age") == "1 s old"
+
+
+class _FullDisk:
+    """A flight recorder whose disk is full: what the daemon reads of it."""
+
+    failing = "writing hermsd-1.mcap: [Errno 28] No space left on device"
+    lost = 0
+    dropped = 0
+
+    def write(self, topic: str, log_time_ns: int, message: dict[str, object]) -> None:
+        pass
+
+
+def test_a_log_that_cannot_be_written_is_a_warning_on_the_page(page: Page, live: Site) -> None:
+    with live.held():
+        recorder, live.daemon.recorder = live.daemon.recorder, _FullDisk()
+    try:
+        _until(page, "!document.getElementById('warning-box').hidden")
+        assert page.text_content("#warnings") == (
+            f"log failing (control goes on, nothing is recorded): {_FullDisk.failing}"
+        )
+    finally:
+        with live.held():
+            live.daemon.recorder = recorder
+    _until(page, "document.getElementById('warning-box').hidden")  # writing again
