@@ -313,7 +313,11 @@ def test_a_progress_that_cannot_be_saved_is_in_the_log_and_the_status(tmp_path: 
     run_for(daemon, PERIOD)
     errors = [line for line in events.logged() if "progress failed" in line]
     assert len(errors) == 1 and "Is a directory" in errors[0], errors
-    assert "Is a directory" in status_of(daemon)["program"]["save_failed"]
+    failed = status_of(daemon)["program"]["save_failed"]
+    assert "Is a directory" in failed
+    assert status_of(daemon)["warnings"] == [  # the web page's, MQTT's and `hermsd status`'s
+        f"program progress not saved (a restart may not resume it): {failed}"
+    ]
     run_for(daemon, 10 * PERIOD)
     assert len([line for line in events.logged() if "progress failed" in line]) == 1
 

@@ -5,24 +5,30 @@ config section."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
+import logging
 import re
 import socket
+import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
 from test_reload import BASE, edited
-from webpage import PASSWORD, PERIOD, TIMEOUT, Site, site
+from webpage import PASSWORD, PERIOD, STORED, TIMEOUT, Site, served, site
 
 import hermsd.web
 from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.config import ConfigError, split_listen
+from hermsd.control.client import LONGEST_PERIOD as TIMEOUT_LONGEST_PERIOD
 from hermsd.control.client import TIMEOUT as TIMEOUT_LONGEST
 from hermsd.control.client import unanswered
-from hermsd.web.app import command_message, host_allowed
+from hermsd.control.jsontext import MAX_DEPTH
+from hermsd.web.app import WebSettings, command_message, create_app, host_allowed
 from hermsd.web.auth import (
     GLOBAL_BURST,
     GLOBAL_REFILL_S,
@@ -34,7 +40,7 @@ from hermsd.web.auth import (
 from hermsd.web.hub import PAGE_FIELDS, Hub
 from hermsd.web.main import WebSetupError, listening_socket, settings_from
 from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
-from hermsd.web.socket_client import OutcomeUnknown, ask
+from hermsd.web.socket_client import DaemonUnavailable, OutcomeUnknown, ask
 
 
 @pytest.fixture(scope="module")
@@ -361,9 +367,10 @@ def test_without_a_daemon_the_page_is_told_why(tmp_path: Path) -> None:
         await hub.refresh()
         return [json.loads((await queue.get() or b"")[len(b"data: ") :]) for _ in range(2)]
 
+    no_reading = {"age": None, "stale_after": 2 * TIMEOUT_LONGEST_PERIOD}  # no period known
     assert asyncio.run(events()) == [
-        {"error": "connecting to hermsd"},
-        {"error": f"no hermsd is running: nothing answers on {hub.socket}"},
+        {"error": "connecting to hermsd", **no_reading},
+        {"error": f"no hermsd is running: nothing answers on {hub.socket}", **no_reading},
     ]
 
 
@@ -599,3 +606,260 @@ def test_the_allowed_host_names_are_this_machines_unless_the_config_lists_them(
     assert behind_a_proxy.hosts == ("brew.example.org",)
     assert not host_allowed("brewpi.local", behind_a_proxy.hosts)
     assert host_allowed("10.0.0.7:8080", behind_a_proxy.hosts)
+
+
+@pytest.mark.parametrize("path", ["/api/login", "/api/logout", "/api/command", "/api/program"])
+def test_a_deeply_nested_body_is_refused_in_one_line_before_it_is_parsed(
+    live: Site, path: str
+) -> None:
+    # 1500 '[' made json.loads raise RecursionError: a 500 and a traceback per request.
+    with _client(live) as client:
+        reply = client.post(path, content=b"[" * 1500, headers={"content-type": "application/json"})
+    assert reply.status_code == 400
+    assert reply.json() == {
+        "ok": False,
+        "error": f"the request is not acceptable JSON: nested deeper than {MAX_DEPTH} levels",
+    }
+
+
+@contextlib.contextmanager
+def _uvicorn_log(caplog: pytest.LogCaptureFixture) -> Iterator[None]:
+    """What uvicorn logs reaches `caplog` too (its logger does not propagate to the root)."""
+    logger = logging.getLogger("uvicorn.error")
+    logger.addHandler(caplog.handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(caplog.handler)
+
+
+def test_an_unexpected_failure_is_a_one_line_500_logged_here_and_the_server_goes_on(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    app = create_app(WebSettings(tmp_path / "control.sock", STORED, 3600.0, True))
+
+    def torn() -> tuple[bytes, bytes]:
+        raise RuntimeError("mirror torn")
+
+    app.state.hub.history_body = torn
+    with _uvicorn_log(caplog), served(app) as url, httpx.Client(base_url=url) as client:
+        replies = [client.get("/api/history") for _ in range(3)]
+        page = client.get("/")
+    for reply in replies:
+        assert reply.status_code == 500
+        assert reply.json() == {
+            "ok": False,
+            "error": "the server failed on this request (RuntimeError): see its log",
+        }
+    assert page.status_code == 200  # the server goes on
+    said = [r for r in caplog.records if "failed" in r.getMessage()]
+    assert [r.getMessage() for r in said] == [
+        "web: GET /api/history failed: RuntimeError('mirror torn')",
+        "web: GET /api/history failed: RuntimeError('mirror torn') (again)",
+        "web: GET /api/history failed: RuntimeError('mirror torn') (again)",
+    ]
+    assert said[0].exc_info is not None and all(r.exc_info is None for r in said[1:])
+    assert [r for r in caplog.records if r.name.startswith("uvicorn")] == []
+
+
+def test_a_new_x_forwarded_for_with_each_try_is_still_one_client(tmp_path: Path) -> None:
+    """X-Forwarded-For is anyone's to send: trusted, 100 tries each naming a new address got
+    GLOBAL_BURST wrong passwords checked and spent everyone's logins, the owner's too."""
+    settings = WebSettings(tmp_path / "control.sock", STORED, 3600.0, True)
+    app = create_app(settings, clock=lambda: 100.0)  # no attempt earned back meanwhile
+    with served(app) as url, httpx.Client(base_url=url, timeout=TIMEOUT) as client:
+        # The reverse proxy on this machine says the browser used TLS: the cookie is Secure.
+        owner = client.post(
+            "/api/login", json={"password": PASSWORD}, headers={"x-forwarded-proto": "https"}
+        )
+        tries = [
+            client.post(
+                "/api/login",
+                json={"password": f"guess {i}"},
+                headers={"x-forwarded-for": f"10.{i}.0.1"},
+            )
+            for i in range(100)
+        ]
+    assert owner.status_code == 200 and "secure" in owner.headers["set-cookie"].lower()
+    # Five checked (the right one before them gave its attempt back), then one client waits.
+    statuses = [reply.status_code for reply in tries]
+    assert statuses == [401] * LOGIN_BURST + [429] * (100 - LOGIN_BURST)
+    assert LOGIN_BURST < GLOBAL_BURST  # so others could still log in
+
+
+def _closed_by_server(sock: socket.socket) -> bool:
+    """Whether the server closes `sock` without answering (before TIMEOUT)."""
+    sock.settimeout(TIMEOUT)
+    try:
+        return sock.recv(1024) == b""
+    except TimeoutError:
+        return False
+
+
+def test_a_half_sent_request_is_closed_at_the_request_deadline(tmp_path: Path) -> None:
+    """uvicorn timed out only idle connections: 50 half-sent requests stayed open. Waits on
+    the server's own timer, in real time: the deadline is set short (0.3 s) for the test."""
+    deadline = 0.3
+    app = create_app(WebSettings(tmp_path / "control.sock", STORED, 3600.0, True))
+    half_headers = b"GET / HTTP/1.1\r\nHost: localhost\r\nAccept: text/"
+    half_body = (
+        b"POST /api/login HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
+        b"Content-Length: 40\r\n\r\n" + b'{"password": "'
+    )
+    whole = b"GET /favicon.ico HTTP/1.1\r\nHost: localhost\r\n\r\n"
+    with served(app, request_timeout=deadline) as url:
+        address = ("127.0.0.1", int(url.rsplit(":", 1)[1]))
+        for sent in (half_headers, half_body, whole + half_headers):
+            with socket.create_connection(address) as sock:
+                began = time.monotonic()
+                sock.sendall(sent)
+                if sent.startswith(whole):  # answered, then the next one half sent
+                    sock.settimeout(TIMEOUT)
+                    assert sock.recv(1024).startswith(b"HTTP/1.1 204 ")
+                assert _closed_by_server(sock), sent
+                assert time.monotonic() - began >= deadline - 0.01
+
+
+def test_connections_beyond_the_limit_are_closed_at_once(tmp_path: Path) -> None:
+    app = create_app(WebSettings(tmp_path / "control.sock", STORED, 3600.0, True))
+    request = b"GET /favicon.ico HTTP/1.1\r\nHost: localhost\r\n\r\n"
+    with served(app, request_timeout=TIMEOUT * 10, max_connections=2) as url:
+        address = ("127.0.0.1", int(url.rsplit(":", 1)[1]))
+        with (
+            socket.create_connection(address) as first,
+            socket.create_connection(address) as second,
+        ):
+            for sock in (first, second):  # both served
+                sock.sendall(request)
+                sock.settimeout(TIMEOUT)
+                assert sock.recv(1024).startswith(b"HTTP/1.1 204 ")
+            with socket.create_connection(address) as third:
+                assert _closed_by_server(third)  # long before the request deadline
+        assert _answered_soon(address, request)  # the two closed: room again
+
+
+def _answered_soon(address: tuple[str, int], request: bytes) -> bool:
+    """Whether a new connection's `request` is answered within TIMEOUT (tried again while the
+    server may not yet have seen connections just closed go)."""
+    deadline = time.monotonic() + TIMEOUT
+    while time.monotonic() < deadline:
+        with socket.create_connection(address) as sock:
+            sock.sendall(request)
+            sock.settimeout(TIMEOUT)
+            with contextlib.suppress(ConnectionError):
+                if sock.recv(1024).startswith(b"HTTP/1.1 204 "):
+                    return True
+    return False
+
+
+class _Daemon:
+    """A daemon as the hub asks it, period `t` the last run (one history row a period, of 5 s);
+    `answering` False: its socket refuses; `hung`: a request is never answered."""
+
+    def __init__(self) -> None:
+        self.t = 1000.0
+        self.answering = True
+        self.hung = False
+
+    async def __call__(self, path: Path, message: dict[str, object]) -> dict[str, object]:
+        if self.hung:
+            await asyncio.Event().wait()
+        if not self.answering:
+            raise DaemonUnavailable(f"no hermsd is running: nothing answers on {path}")
+        if message["cmd"] == "status":
+            return {"ok": True, "tun": "HLT", "t": self.t, "pv": 66.0, "state": "ok"}
+        return {"ok": True, "period": 5.0, "more": False, "rows": [[self.t, 66.0, 66.0, 9, 9]]}
+
+
+def _first(queue: asyncio.Queue[bytes | None]) -> dict[str, Any]:
+    event = queue.get_nowait()
+    assert event is not None and event.startswith(b"data: ")
+    decoded: dict[str, Any] = json.loads(event[len(b"data: ") :])
+    return decoded
+
+
+def test_every_event_says_how_old_its_reading_is_by_the_hubs_clock() -> None:
+    daemon, now = _Daemon(), [50.0]
+    hub = Hub(Path("hermsd.sock"), asker=daemon, clock=lambda: now[0])
+
+    async def seen() -> list[dict[str, Any]]:
+        await hub.refresh()  # period 1000 comes at 50 s
+        open_at_start = hub.open_page(None)
+        now[0] = 53.0
+        events = [_first(open_at_start), _first(hub.open_page(None))]
+        now[0] = 59.5  # the daemon answers, but its loop has run no period since
+        await hub.refresh()
+        events.append(_first(hub.open_page(None)))
+        daemon.t, now[0] = 1005.0, 60.0  # a period runs: pushed as it comes
+        await hub.refresh()
+        events.append(_first(open_at_start))
+        return events
+
+    at_start, three_s_later, stalled, pushed = asyncio.run(seen())
+    assert [e["age"] for e in (at_start, three_s_later, stalled, pushed)] == [0.0, 3.0, 9.5, 0.0]
+    assert all(e["stale_after"] == 2 * 5.0 for e in (at_start, three_s_later, stalled, pushed))
+    assert stalled["status"]["t"] == 1000.0 and pushed["status"]["t"] == 1005.0
+
+
+def test_a_page_opened_after_the_daemon_stopped_is_told_so_not_its_last_status() -> None:
+    daemon, now = _Daemon(), [50.0]
+    hub = Hub(Path("hermsd.sock"), asker=daemon, clock=lambda: now[0])
+    stopped = "no hermsd is running: nothing answers on hermsd.sock"
+
+    async def seen() -> tuple[list[dict[str, Any]], dict[str, Any], dict[str, Any]]:
+        await hub.refresh()
+        open_then = hub.open_page(None)
+        daemon.answering, now[0] = False, 51.0
+        await hub.refresh()
+        told = [_first(open_then), _first(open_then)]
+        now[0] = 400.0  # much later, a phone wakes up
+        woken = _first(hub.open_page(1000.0))
+        daemon.answering = True  # started again; its loop has not run a period yet
+        await hub.refresh()
+        return told, woken, _first(open_then)
+
+    (before, at_stop), woken, again = asyncio.run(seen())
+    assert "status" in before
+    assert at_stop == {"error": stopped, "age": 1.0, "stale_after": 10.0}
+    assert woken == {"error": stopped, "age": 350.0, "stale_after": 10.0}  # no status
+    # Answering again: the pages hear it at once, with how old the status is.
+    assert again["status"]["t"] == 1000.0 and again["age"] == 350.0
+
+
+def test_a_daemon_that_does_not_answer_for_two_periods_is_not_taken_as_live() -> None:
+    daemon, now = _Daemon(), [50.0]
+    hub = Hub(Path("hermsd.sock"), asker=daemon, clock=lambda: now[0])
+
+    async def seen() -> list[dict[str, Any]]:
+        await hub.refresh()
+        daemon.hung = True  # its socket takes the request; no answer comes
+        polling = asyncio.create_task(hub.refresh())
+        await asyncio.sleep(0)
+        now[0] = 60.0  # two periods: still live, just
+        at_two = _first(hub.open_page(None))
+        now[0] = 60.5
+        beyond = _first(hub.open_page(None))
+        polling.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await polling
+        return [at_two, beyond]
+
+    at_two, beyond = asyncio.run(seen())
+    assert at_two["age"] == 10.0 and at_two["status"]["t"] == 1000.0
+    assert beyond == {"error": "hermsd has not answered for 10 s", "age": 10.5, "stale_after": 10.0}
+
+
+def _first_event(client: httpx.Client) -> dict[str, Any]:
+    with client.stream("GET", "/api/events") as stream:
+        line = next(line for line in stream.iter_lines() if line.startswith("data: "))
+    decoded: dict[str, Any] = json.loads(line[len("data: ") :])
+    return decoded
+
+
+def test_a_page_opened_after_the_real_daemon_stopped_gets_no_status(tmp_path: Path) -> None:
+    with site(tmp_path) as served_site, _client(served_site) as client:
+        first = _first_event(client)
+        assert "status" in first and first["age"] < served_site.hub.stale_after()
+        served_site.stop_answering()
+        first = _first_event(client)
+    assert first["error"].startswith("no hermsd is running") and "status" not in first

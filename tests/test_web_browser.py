@@ -90,6 +90,7 @@ def _log_in(page: Page) -> None:
     page.fill("#password", PASSWORD)
     page.click("#login-button")
     page.wait_for_selector("#changes", state="visible", timeout=WAIT_MS)
+    _until(page, "session.logged_in")
 
 
 def test_a_setpoint_change_with_login_is_applied_at_the_next_period(page: Page, live: Site) -> None:
@@ -234,7 +235,7 @@ def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
             "state": "alarm",
             "heater_allowed": False,
         }
-        page.evaluate("(status) => onEvent({status, rows: [], offset: 0})", alarm)
+        page.evaluate("(status) => onEvent({status, rows: [], offset: 0, age: 0})", alarm)
         assert page.text_content("#alarms") == "dry_fire: rose 1.6 °C/min"  # and why
         assert page.text_content("#state") == "alarm"
         with page.expect_response("**/api/command") as answered:
@@ -251,10 +252,10 @@ def test_a_warning_is_shown_in_its_words_and_goes_when_it_is_over(page: Page, li
     with _status_held(page, live, "#warning-box") as status:
         words = ["element 2 gives no heat? (docs/two-elements.md)", "latched alarms not saved"]
         warned = {**status, "warnings": words}
-        page.evaluate("(status) => onEvent({status, rows: [], offset: 0})", warned)
+        page.evaluate("(status) => onEvent({status, rows: [], offset: 0, age: 0})", warned)
         assert page.is_visible("#warning-box") and not page.is_visible("#alarm-box")
         assert page.text_content("#warnings") == "; ".join(words)
-        page.evaluate("(status) => onEvent({status, rows: [], offset: 0})", status)
+        page.evaluate("(status) => onEvent({status, rows: [], offset: 0, age: 0})", status)
         assert not page.is_visible("#warning-box")
 
 
@@ -411,3 +412,86 @@ def test_a_program_started_from_the_page_runs_and_its_buttons_steer_it(
             assert not page.is_visible("#program-box")
             assert page.is_visible("#program-form")  # another may start
         context.close()
+
+
+BAD_RED = "rgb(179, 38, 30)"  # app.css's --bad, #b3261e
+
+
+def _commands(page: Page) -> dict[str, bool]:
+    """Each command button on the page (shown or not): whether it is enabled."""
+    found: dict[str, bool] = page.evaluate(
+        """Object.fromEntries([...document.querySelectorAll('.needs-login')]
+        .map((button) => [button.id, !button.disabled]))"""
+    )
+    assert len(found) >= 9, found  # setpoint, mode, program start, reset, confirm, next, ...
+    return found
+
+
+def test_a_page_opened_after_the_daemon_stopped_says_no_daemon_in_red_and_sends_nothing(
+    browser: Browser, tmp_path: Path
+) -> None:
+    with site(tmp_path) as stopped:
+        stopped.stop_answering()
+        context = browser.new_context(viewport=PHONE)
+        page = context.new_page()
+        page.goto(stopped.url)
+        _log_in(page)  # the login needs no daemon
+        _until(page, "document.getElementById('conn').textContent === 'no daemon'")
+        assert (
+            page.evaluate("getComputedStyle(document.getElementById('conn')).backgroundColor")
+            == BAD_RED
+        )
+        assert page.is_visible("#conn")
+        assert not any(_commands(page).values())
+        # No reading is shown, so none without its age: not the last status the hub kept.
+        assert page.text_content("#pv") == "—" and page.text_content("#state") == "—"
+        assert page.text_content("#age") == "—"
+        assert page.evaluate("window.lastStatus") is None
+        context.close()
+
+
+def test_a_reading_older_than_two_periods_is_shown_red_with_its_age(page: Page, live: Site) -> None:
+    with _status_held(page, live, "#alarm-box") as status:
+        assert page.text_content("#conn") == "live" and all(_commands(page).values())
+        page.evaluate(
+            "(status) => onEvent({status, rows: [], offset: 0, age: 25, stale_after: 10})",
+            status,
+        )
+        assert page.text_content("#conn") == "reading 25 s old"
+        assert (
+            page.evaluate("getComputedStyle(document.getElementById('conn')).backgroundColor")
+            == BAD_RED
+        )
+        assert page.text_content("#age") == "25 s old"
+        assert not any(_commands(page).values())
+        page.evaluate(
+            "(status) => onEvent({status, rows: [], offset: 0, age: 1, stale_after: 10})",
+            status,
+        )
+        assert page.text_content("#conn") == "live" and all(_commands(page).values())
+        assert page.text_content("#age") == "1 s old"
+
+
+class _FullDisk:
+    """A flight recorder whose disk is full: what the daemon reads of it."""
+
+    failing = "writing hermsd-1.mcap: [Errno 28] No space left on device"
+    lost = 0
+    dropped = 0
+
+    def write(self, topic: str, log_time_ns: int, message: dict[str, object]) -> None:
+        pass
+
+
+def test_a_log_that_cannot_be_written_is_a_warning_on_the_page(page: Page, live: Site) -> None:
+    with live.held():
+        recorder, live.daemon.recorder = live.daemon.recorder, _FullDisk()
+    try:
+        _until(page, "!document.getElementById('warning-box').hidden")
+        assert page.text_content("#warnings") == (
+            f"log failing (control goes on, nothing is recorded): {_FullDisk.failing}"
+        )
+    finally:
+        with live.held():
+            live.daemon.recorder = recorder
+    _until(page, "document.getElementById('warning-box').hidden")  # writing again

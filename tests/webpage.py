@@ -12,14 +12,16 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
+from starlette.applications import Starlette
 from test_reload import BASE, PERIOD, Events, run_for, start
 
 from hermsd.control.link import LoopLink
 from hermsd.control.server import ControlServer
 from hermsd.daemon import Daemon
 from hermsd.web.app import WebSettings, create_app
+from hermsd.web.hub import Hub
 from hermsd.web.main import listening_socket, make_server
 from hermsd.web.passwords import hash_password, parse_hash
 
@@ -50,6 +52,18 @@ class Site:
     url: str
     running: threading.Event  # cleared: the daemon is held between periods
     lock: threading.Lock  # held while a period runs
+    hub: Hub  # the page's view of the daemon
+    answering: bool = True  # False: the daemon's control socket is closed
+
+    def stop_answering(self) -> None:
+        """Close the daemon's control socket, as a daemon that stops does, and wait until the
+        page's hub has seen it go."""
+        self.answering = False
+        self.server.close()
+        deadline = time.monotonic() + TIMEOUT
+        while self.hub.error is None:
+            assert time.monotonic() < deadline, "the hub did not see the daemon go"
+            time.sleep(0.01)
 
     @contextlib.contextmanager
     def held(self) -> Iterator[float]:
@@ -77,7 +91,11 @@ class Site:
 
 
 @contextlib.contextmanager
-def site(tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05) -> Iterator[Site]:
+def site(
+    tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05, stale_after: float = 60.0
+) -> Iterator[Site]:
+    """`stale_after`: s a reading is shown as live; long by default, as a test may hold the
+    loop longer than two periods (10 s of wall time here, as the hub counts them)."""
     daemon, _world, _path, events = start(tmp_path, BASE)
     link = LoopLink(daemon)
     control = ControlServer(tmp_path / "control.sock")
@@ -95,25 +113,47 @@ def site(tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05) -> 
             stop.wait(pace)  # paces virtual time; nothing is measured on this clock
 
     settings = WebSettings(
-        tmp_path / "control.sock", STORED, 3600.0, read_only_view, poll=min(0.05, pace)
+        tmp_path / "control.sock",
+        STORED,
+        3600.0,
+        read_only_view,
+        poll=min(0.05, pace),
+        stale_after=stale_after,
     )
-    http = make_server(create_app(settings))
+    app = create_app(settings)
+    stepper = threading.Thread(target=stepping)
+    stepper.start()
+    answering = [True]
+    try:
+        with served(app) as url:
+            opened = Site(daemon, events, control, url, running, lock, app.state.hub)
+            try:
+                yield opened
+            finally:
+                answering[0] = opened.answering
+    finally:
+        stop.set()
+        stepper.join(TIMEOUT)
+        if answering[0]:
+            control.close()
+
+
+@contextlib.contextmanager
+def served(app: Starlette, **bounds: Any) -> Iterator[str]:
+    """`app` served by `hermsd web`'s uvicorn setup (`make_server`, given `bounds`) on a
+    loopback port of its own, on a thread; yields its URL."""
+    http = make_server(app, **bounds)
     listener = listening_socket("127.0.0.1", 0)
     port = listener.getsockname()[1]
     serving = threading.Thread(target=lambda: asyncio.run(http.serve(sockets=[listener])))
-    stepper = threading.Thread(target=stepping)
-    stepper.start()
     serving.start()
     deadline = time.monotonic() + TIMEOUT
-    while not http.started:
-        assert time.monotonic() < deadline, "the web server did not start"
-        time.sleep(0.01)
     try:
-        yield Site(daemon, events, control, f"http://127.0.0.1:{port}", running, lock)
+        while not http.started:
+            assert time.monotonic() < deadline, "the web server did not start"
+            time.sleep(0.01)
+        yield f"http://127.0.0.1:{port}"
     finally:
         http.should_exit = True
-        stop.set()
         serving.join(TIMEOUT)
-        stepper.join(TIMEOUT)
         listener.close()
-        control.close()

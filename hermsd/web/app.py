@@ -36,6 +36,7 @@ import asyncio
 import contextlib
 import ipaddress
 import json
+import logging
 import socket
 import time
 from collections.abc import AsyncIterator, Callable
@@ -48,12 +49,14 @@ from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
 from starlette.middleware import Middleware
 from starlette.middleware.gzip import GZipMiddleware
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import JSONResponse, PlainTextResponse, Response, StreamingResponse
 from starlette.routing import Route
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from hermsd.control import jsontext
 from hermsd.control.client import LONGEST_PERIOD, command_timeout
+from hermsd.control.jsontext import JsonTextError
 from hermsd.control.protocol import (
     History,
     ProgramStart,
@@ -67,6 +70,8 @@ from hermsd.web.auth import LoginLimiter, Session, Sessions, csrf_matches
 from hermsd.web.hub import Hub, TooManyPages, page_status
 from hermsd.web.passwords import PasswordHash, verify_password
 from hermsd.web.socket_client import DaemonUnavailable, OutcomeUnknown, ask
+
+log = logging.getLogger("hermsd")
 
 COOKIE = "hermsd_session"
 MAX_BODY = 4096  # bytes of a POST body: a command is under 100
@@ -103,6 +108,7 @@ class WebSettings:
     read_only_view: bool  # whether seeing the tun needs no login
     poll: float | None = None  # s between status polls; None: from the control period
     hosts: tuple[str, ...] = ("localhost",)  # names the page answers to (`allowed_hosts`)
+    stale_after: float | None = None  # s a reading stays live; None: two control periods
 
 
 class BadInput(ValueError):
@@ -168,6 +174,45 @@ def _is_address(text: str) -> bool:
     return True
 
 
+class _Unexpected:
+    """Answers an exception no handler took with a one-line 500 and logs it here, once per
+    request: Starlette's own handler would re-raise it for uvicorn to log a second time, and
+    no traceback reaches the client. A handler's kind of failure (exception type and path)
+    is logged with its traceback the first time, in one line after that, so a request that
+    can be repeated cannot fill the journal with tracebacks."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+        self._seen: set[tuple[str, str]] = set()
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def noting_start(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, noting_start)
+        except ClientDisconnect:  # it went (or was cut off at the request deadline)
+            return
+        except Exception as error:
+            kind = (type(error).__name__, str(scope.get("path", "")))
+            said = f"web: {scope.get('method')} {kind[1]} failed: {error!r}"
+            if kind in self._seen:
+                log.error("%s (again)", said)
+            else:
+                self._seen.add(kind)
+                log.exception("%s", said)
+            if not started:  # else the client sees the response cut short
+                answer = _error(500, f"the server failed on this request ({kind[0]}): see its log")
+                await answer(scope, receive, send)
+
+
 class _KnownHosts:
     """Refuses (400, one line) a request whose Host header is not `host_allowed`."""
 
@@ -191,7 +236,7 @@ class _KnownHosts:
 
 def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotonic) -> Starlette:
     """The web application, polling the daemon at `settings.socket` while it runs."""
-    hub = Hub(settings.socket, settings.poll)
+    hub = Hub(settings.socket, settings.poll, clock=clock, stale_after=settings.stale_after)
     sessions = Sessions(settings.session_lifetime)
     limiter = LoginLimiter()
     static = {
@@ -238,7 +283,7 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
         password = data.get("password")
         if not isinstance(password, str) or not 0 < len(password) <= 1024:
             return _error(400, "password: expected text of 1 to 1024 characters")
-        client = request.client.host if request.client else "unknown"
+        client = client_address(request)
         wait = limiter.attempt(client, clock())
         if wait > 0:
             response = _error(429, f"too many login attempts: try again in {wait:.0f} s")
@@ -257,7 +302,7 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
             sid,
             httponly=True,
             samesite="strict",
-            secure=request.url.scheme == "https",
+            secure=secure_request(request),
             path="/",
         )
         return response
@@ -372,6 +417,7 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
         ],
         middleware=[
             Middleware(_SecurityHeaders),
+            Middleware(_Unexpected),
             Middleware(_KnownHosts, names=settings.hosts),
             Middleware(GZipMiddleware, minimum_size=1000),
         ],
@@ -380,6 +426,30 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
     )
     app.state.hub = hub
     return app
+
+
+def client_address(request: Request) -> str:
+    """Who tries a login, for its rate limit: the address the connection comes from, never
+    X-Forwarded-For, which any program on this machine could set anew for each try (and so
+    escape its own limit and spend everyone's). Behind the reverse proxy every browser is the
+    proxy's one client (docs/web.md)."""
+    return request.client.host if request.client else "unknown"
+
+
+def secure_request(request: Request) -> bool:
+    """Whether the browser reached the page over TLS: directly, or through a reverse proxy on
+    this machine that says so in X-Forwarded-Proto (one that lies gains a stricter cookie)."""
+    if request.url.scheme == "https":
+        return True
+    forwarded = request.headers.get("x-forwarded-proto", "").strip().lower() == "https"
+    return forwarded and _is_loopback(client_address(request))
+
+
+def _is_loopback(text: str) -> bool:
+    try:
+        return ipaddress.ip_address(text).is_loopback
+    except ValueError:
+        return False
 
 
 def command_message(data: dict[str, Any]) -> dict[str, Any]:
@@ -435,9 +505,9 @@ async def _json_body(request: Request, limit: int = MAX_BODY) -> dict[str, Any]:
         if len(body) > limit:
             raise BadInput(f"the request is longer than {limit} bytes")
     try:
-        data = json.loads(body)
-    except (UnicodeDecodeError, json.JSONDecodeError):
-        raise BadInput("the request is not JSON") from None
+        data = jsontext.loads(bytes(body), limit)
+    except JsonTextError as error:
+        raise BadInput(f"the request is not acceptable JSON: {error}") from None
     if not isinstance(data, dict):
         raise BadInput("expected a JSON object")
     return data

@@ -7,6 +7,12 @@ mirror has no gap however a poll was late. Each new period is pushed to every op
 one server-sent event. The pages' chart loads the mirror once (`history_body`, encoded once
 per period however many pages ask); the daemon is asked for no more than one page of
 history a period after the first load.
+
+Every event says how old its reading is: `age`, the seconds since the hub first got that
+period from the daemon (within a poll of its running), and `stale_after`, the age beyond
+which the page must not show it as live (two control periods). A page opened or
+reconnected while the daemon does not answer (its socket refuses, or no answer for
+`stale_after`) is told so first, never handed the last status the hub kept.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
+from hermsd.control.client import LONGEST_PERIOD
 from hermsd.control.history import KEPT_SECONDS
 from hermsd.web.socket_client import DaemonUnavailable, ask
 
@@ -44,6 +51,7 @@ PAGE_FIELDS = (
     "program",
 )
 """What the page shows of a status (not the limits, model and learned texts: 2 kB a period)."""
+STALE_PERIODS = 2.0  # control periods a reading may be old and still be shown as live
 QUEUE_EVENTS = 32  # events a page may fall behind by before it is dropped (it reconnects)
 MAX_PAGES = 32  # open event streams at once
 
@@ -58,14 +66,26 @@ class TooManyPages(Exception):
 class Hub:
     """The daemon's state as the pages see it, and the event streams to them."""
 
-    def __init__(self, socket: Path, poll: float | None = None, asker: Asker = ask) -> None:
+    def __init__(
+        self,
+        socket: Path,
+        poll: float | None = None,
+        asker: Asker = ask,
+        clock: Callable[[], float] = time.monotonic,
+        stale_after: float | None = None,
+    ) -> None:
         """`asker`: its own way to the daemon, so that no other hub's requests (another
-        page's, in one process) pass through one given to this hub."""
+        page's, in one process) pass through one given to this hub. `clock`: s, for the
+        readings' ages. `stale_after`: s; None: STALE_PERIODS control periods."""
         self.socket = socket
         self.poll = poll
         self._ask = asker
+        self._clock = clock
+        self._stale_after = stale_after
         self.status: dict[str, Any] | None = None
         self.error: str | None = "connecting to hermsd"
+        self.answered_at: float | None = None  # clock() at the daemon's last status answer
+        self.seen_at = 0.0  # clock() when `status` (its period) first came
         self.offset = 0.0  # wall-clock s minus the daemon's t, at the last new period
         self.period: float | None = None
         # t, pv (None: unknown), setpoint, output: the chart's columns
@@ -86,7 +106,7 @@ class Hub:
                 if self.error != why:  # said once, not at every poll
                     self.error = why
                     log.exception("web: %s; polling on", why)
-                    self._push({"error": why})
+                    self._push(self._error_event(why))
             self._poke.clear()
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._poke.wait(), self._interval())
@@ -106,20 +126,58 @@ class Hub:
             status = await self._ask(self.socket, {"cmd": "status"})
             if not status["ok"]:
                 raise DaemonUnavailable(str(status.get("error", "hermsd refused status")))
+            self.answered_at = self._clock()
             if self.status is not None and status["t"] == self.status["t"]:
+                if self.error is not None:  # answering again, no period run meanwhile
+                    self.error = None
+                    self._push(self._status_event([]))
                 return
             restarted, rows = await self._rows_since_mirror(status["t"])
         except DaemonUnavailable as error:
             if self.error != str(error):
                 self.error = str(error)
                 log.warning("web: %s", error)
-                self._push({"error": self.error})
+                self._push(self._error_event(self.error))
             return
         self._add(restarted, rows, status["t"])
         self.error = None
         self.status = page_status(status)
+        self.seen_at = self._clock()
         self.offset = time.time() - float(status["t"])
-        self._push({"status": self.status, "rows": rows, "offset": self.offset})
+        self._push(self._status_event(rows))
+
+    # -- how old the reading is -------------------------------------------------------------
+
+    def stale_after(self) -> float:
+        """The age (s) beyond which a reading is not live: STALE_PERIODS control periods."""
+        if self._stale_after is not None:
+            return self._stale_after
+        return STALE_PERIODS * (LONGEST_PERIOD if self.period is None else self.period)
+
+    def reading_age(self) -> float | None:
+        """Seconds since the hub got the period its status is of; None: it has none."""
+        return None if self.status is None else self._clock() - self.seen_at
+
+    def silence(self) -> str | None:
+        """Why the daemon cannot be taken as answering now, or None: it answers."""
+        if self.error is not None:
+            return self.error
+        quiet = self._clock() - (self.answered_at or 0.0)
+        if quiet > self.stale_after():
+            return f"hermsd has not answered for {quiet:.0f} s"
+        return None
+
+    def _status_event(self, rows: list[list[Any]]) -> dict[str, Any]:
+        return {
+            "status": self.status,
+            "rows": rows,
+            "offset": self.offset,
+            "age": self.reading_age(),
+            "stale_after": self.stale_after(),
+        }
+
+    def _error_event(self, why: str) -> dict[str, Any]:
+        return {"error": why, "age": self.reading_age(), "stale_after": self.stale_after()}
 
     async def _rows_since_mirror(self, latest: float) -> tuple[bool, list[list[Any]]]:
         """Whether the daemon restarted (its history is new), and the rows the mirror lacks
@@ -189,16 +247,16 @@ class Hub:
         return [[t[i], pv[i], setpoint[i], output[i]] for i in range(start, len(t))]
 
     def open_page(self, since: float | None) -> asyncio.Queue[bytes | None]:
-        """A queue of this page's events, starting with the state now."""
+        """A queue of this page's events, starting with the state now: the daemon's silence,
+        if it does not answer (never the last status kept), else its status and age."""
         if len(self._pages) >= MAX_PAGES:
             raise TooManyPages(f"{MAX_PAGES} pages are open already")
         queue: asyncio.Queue[bytes | None] = asyncio.Queue(QUEUE_EVENTS)
-        first: dict[str, Any]
-        if self.status is None:
-            first = {"error": self.error}
+        silence = self.silence()
+        if silence is not None or self.status is None:
+            first = self._error_event(silence or "connecting to hermsd")
         else:
-            rows = [] if since is None else self.rows_after(since)
-            first = {"status": self.status, "rows": rows, "offset": self.offset}
+            first = self._status_event([] if since is None else self.rows_after(since))
         queue.put_nowait(_event(first))
         self._pages.add(queue)
         return queue

@@ -9,14 +9,20 @@ import socket
 import sys
 from pathlib import Path
 
+import h11
 import uvicorn
 from starlette.applications import Starlette
+from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from hermsd.config import Config, split_listen
 from hermsd.web.app import WebSettings, allowed_hosts, create_app
 from hermsd.web.passwords import hash_password, parse_hash
 
 log = logging.getLogger("hermsd")
+
+REQUEST_TIMEOUT_S = 5.0  # for a request to arrive whole: a phone sends one in well under 1 s
+KEEP_ALIVE_S = 5  # an idle connection kept for the page's next request
+MAX_CONNECTIONS = 64  # open at once: the event streams (hub.MAX_PAGES, 32) and requests
 
 
 class WebSetupError(Exception):
@@ -67,16 +73,73 @@ def listening_socket(host: str, port: int) -> socket.socket:
     return sock
 
 
-def make_server(app: Starlette) -> uvicorn.Server:
-    """The HTTP server for `app` (uvicorn: HTTP/1.1 by h11, pure Python)."""
+class _BoundedH11(H11Protocol):
+    """uvicorn's HTTP/1.1 (h11) with the bounds it lacks: a request must arrive whole (its
+    headers and body) within `request_timeout` s of the connection opening or of the last
+    response, else the connection is closed (uvicorn times out only an idle connection, and
+    any byte stops that clock: a half-sent request stayed open for ever); and a connection
+    beyond `max_connections` open is closed at once."""
+
+    request_timeout = REQUEST_TIMEOUT_S
+    max_connections = MAX_CONNECTIONS
+    _deadline: asyncio.TimerHandle | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        super().connection_made(transport)
+        if len(self.connections) > self.max_connections:
+            transport.close()
+            return
+        self._await_request()
+
+    def handle_events(self) -> None:
+        super().handle_events()
+        if self.conn.their_state not in (h11.IDLE, h11.SEND_BODY):  # the request is in
+            self._cancel_deadline()
+
+    def on_response_complete(self) -> None:
+        super().on_response_complete()
+        if not self.transport.is_closing() and self.conn.their_state is h11.IDLE:
+            self._await_request()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._cancel_deadline()
+        super().connection_lost(exc)
+
+    def _await_request(self) -> None:
+        self._cancel_deadline()
+        self._deadline = self.loop.call_later(self.request_timeout, self._deadline_passed)
+
+    def _cancel_deadline(self) -> None:
+        if self._deadline is not None:
+            self._deadline.cancel()
+            self._deadline = None
+
+    def _deadline_passed(self) -> None:
+        self._deadline = None
+        if self.conn.their_state in (h11.IDLE, h11.SEND_BODY):
+            self.transport.close()
+
+
+def make_server(
+    app: Starlette,
+    request_timeout: float = REQUEST_TIMEOUT_S,
+    max_connections: int = MAX_CONNECTIONS,
+) -> uvicorn.Server:
+    """The HTTP server for `app` (uvicorn: HTTP/1.1 by h11, pure Python), bounded as
+    `_BoundedH11` says. X-Forwarded-* headers are not taken from anyone (`app.secure_request`
+    reads X-Forwarded-Proto itself): any program on this machine could send them."""
+    bounds = {"request_timeout": request_timeout, "max_connections": max_connections}
+    protocol = type("BoundedH11", (_BoundedH11,), bounds)
     config = uvicorn.Config(
         app,
         log_level="warning",
         access_log=False,
         server_header=False,
-        proxy_headers=True,  # X-Forwarded-* from 127.0.0.1 only (a reverse proxy there)
+        proxy_headers=False,
         timeout_graceful_shutdown=2,
-        http="h11",
+        timeout_keep_alive=KEEP_ALIVE_S,
+        http=protocol,
     )
     return uvicorn.Server(config)
 

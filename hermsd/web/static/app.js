@@ -1,6 +1,9 @@
 // hermsd's page: the tun now, its last hours, and the changes a logged-in brewer may make.
 // The server pushes each control period as a server-sent event; a change goes to
 // /api/command with the session's CSRF token, and the daemon's own checks decide.
+// Each event says how old its reading is: the page counts on from there, shows "live" only
+// while the reading is younger than the event's stale_after (two control periods) and the
+// daemon answers, and else says "no daemon" or the reading's age in red, every command off.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -15,6 +18,11 @@ let viewing = false;
 let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
 let shownAlarms = []; // the alarms the page shows: what its reset button clears
 let shownStep = null; // the program step the page shows: what its confirm and next end
+let reading = null; // the reading shown: its age (s) when it came, and Date.now() then
+let staleAfter = 0; // s a reading stays live (from the server's events)
+let daemonDown = null; // why the daemon does not answer (the server says), or null
+let streaming = false; // whether the event stream is open
+const busy = new Set(); // the buttons whose command is on its way
 
 async function api(path, body) {
   const options = { credentials: "same-origin" };
@@ -52,7 +60,9 @@ function duration(seconds) {
   return h ? `${h} h ${m} min` : m ? `${m} min ${r} s` : `${r} s`;
 }
 
-function render(status) {
+// `age`: s the reading was old when it came (a command's reply: 0, just made).
+function render(status, age) {
+  reading = { age, at: Date.now() };
   window.lastStatus = status;
   document.body.dataset.t = String(status.t);
   $("tun").textContent = status.tun;
@@ -77,6 +87,7 @@ function render(status) {
   if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
     $("setpoint-input").placeholder = String(status.setpoint);
   }
+  showFreshness();
 }
 
 function renderProgram(program) {
@@ -101,9 +112,39 @@ function renderProgram(program) {
   $("program-resume").hidden = program.state !== "paused";
 }
 
-function setConnection(text, live) {
+function readingAge() {
+  return reading === null ? null : reading.age + (Date.now() - reading.at) / 1000;
+}
+
+// Whether the reading shown may be taken as the tun now: what commands are sent against.
+function live() {
+  const age = readingAge();
+  return streaming && daemonDown === null && age !== null && age <= staleAfter;
+}
+
+function showFreshness() {
+  const age = readingAge();
+  const old = age === null ? "" : `reading ${Math.round(age)} s old`;
+  let text = old;
+  if (daemonDown !== null) text = "no daemon";
+  else if (!streaming) text = "reconnecting…";
+  else if (age === null) text = "connecting…";
+  else if (live()) text = "live";
+  const fresh = live();
   $("conn").textContent = text;
-  $("conn").className = live ? "conn live" : "conn";
+  $("conn").className = fresh ? "conn live" : age === null && daemonDown === null
+    ? "conn" : "conn down";
+  $("conn").title = daemonDown || "";
+  $("age").textContent = age === null ? "—" : `${Math.round(age)} s old`;
+  $("view").classList.toggle("stale", !fresh);
+  updateCommands();
+}
+
+function updateCommands() {
+  const allowed = session.logged_in && live();
+  for (const button of document.querySelectorAll(".needs-login")) {
+    button.disabled = !allowed || busy.has(button);
+  }
 }
 
 function columns() {
@@ -171,19 +212,26 @@ async function loadView() {
 function connect() {
   const since = T.length ? `?since=${T[T.length - 1]}` : "";
   source = new EventSource(`/api/events${since}`);
+  source.onopen = () => { streaming = true; };
   source.onmessage = (event) => onEvent(JSON.parse(event.data));
   source.onerror = () => {
     source.close();
-    setConnection("reconnecting…", false);
+    streaming = false;
+    showFreshness();
     setTimeout(connect, 2000);
   };
 }
 
 function onEvent(message) {
+  streaming = true;
+  if (typeof message.stale_after === "number") staleAfter = message.stale_after;
   if (message.error) {
-    setConnection(message.error, false);
+    if (daemonDown !== message.error) say(message.error, "error");
+    daemonDown = message.error;
+    showFreshness();
     return;
   }
+  daemonDown = null;
   const status = message.status;
   if (status.t < lastPushedT) { // the daemon restarted: its history is new
     source.close();
@@ -193,19 +241,16 @@ function onEvent(message) {
     return;
   }
   lastPushedT = status.t;
-  setConnection("live", true);
   offset = message.offset;
   addRows(message.rows);
-  render(status);
+  render(status, typeof message.age === "number" ? message.age : Infinity);
   chart.setData(columns());
 }
 
 function updateSessionView() {
   $("login-form").hidden = session.logged_in || !session.can_log_in;
   $("changes").hidden = !session.logged_in;
-  for (const button of document.querySelectorAll(".needs-login")) {
-    button.disabled = !session.logged_in;
-  }
+  updateCommands();
   if (!session.can_log_in && !session.logged_in) {
     say("Viewing only: no password is set for changes (web.password_hash).");
   }
@@ -214,16 +259,22 @@ function updateSessionView() {
 // `button`: disabled until the answer is in, so that a second click cannot send the same
 // command again for a step the first one has already ended.
 async function send(command, what, path = "/api/command", button = null) {
+  if (!live()) {
+    say(`${what}: not sent: the page has no live reading of the tun`, "error");
+    return { status: 0, body: {} };
+  }
   say(`${what}…`);
-  if (button) button.disabled = true;
+  if (button) busy.add(button);
+  updateCommands();
   let response;
   try {
     response = await api(path, command);
   } finally {
-    if (button) button.disabled = false;
+    if (button) busy.delete(button);
+    updateCommands();
   }
   if (response.status === 200) {
-    render(response.body.status);
+    render(response.body.status, 0);
     say(`${what}: done`, "ok");
     return response;
   }
@@ -348,4 +399,5 @@ async function start() {
 }
 
 window.hermsd = { points: () => T.length, chart: () => chart };
+setInterval(showFreshness, 1000);
 start();
