@@ -1080,6 +1080,11 @@ class Daemon:
         """Why the latched alarms could not be saved, while they cannot (None: saved)."""
         return self._latch_failing
 
+    @property
+    def log_failing(self) -> str | None:
+        """Why the log cannot be written, while it cannot (None: it is written)."""
+        return self._log_failing
+
     def _take_saves(self, t: float) -> None:
         """Say what became of the saves done since the last period (or reading)."""
         for outcome in self.saver.take():

@@ -36,6 +36,7 @@ from hermsd.control.protocol import (
     MAX_PAGE,
     Command,
     History,
+    ProgramStart,
     ProtocolError,
     ResetAlarms,
     SetMode,
@@ -47,6 +48,8 @@ from hermsd.control.server import ControlServer, Pending, SocketInUseError
 from hermsd.daemon import Daemon
 from hermsd.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.learning import LearnedModel, ModelStore
+from hermsd.program.model import Program, Step
+from hermsd.program.store import PROGRESS_FILE
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 
@@ -957,6 +960,33 @@ def test_status_says_why_each_alarm_stands(
     assert kind == "controller_fault"
     assert reason.startswith(f"{why} (latched ") and reason.endswith(", before a restart)")
     assert f"alarms: controller_fault\n  controller_fault: {reason}\n" in text
+
+
+def test_status_warns_of_a_progress_and_a_log_that_are_not_saved(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    state = tmp_path / "state"
+    state.mkdir()
+    daemon, _path, events, inbox = linked(tmp_path, latches=LatchStore(state))
+    (state / PROGRESS_FILE).mkdir()  # nothing can be renamed over a directory
+    failing = "creating /var/log/hermsd: [Errno 30] Read-only file system"
+    events.failing = failing  # type: ignore[attr-defined]  # as the recorder says it
+    started = inbox.send(ProgramStart(Program("One", (Step("Warm", 30.0, 600.0),))))
+    run_for(daemon, PERIOD)
+    assert started.reply is not None and started.reply["ok"] is True
+    assert daemon.program.flush(5.0)
+    run_for(daemon, 2 * PERIOD)  # the outcome taken, then shown in the next period's status
+    status = status_of(daemon)
+    monkeypatch.setattr(cli, "_ask", lambda path, request: status)
+    assert main(["status"]) == 0
+    shown = [line for line in capsys.readouterr().out.splitlines() if "warning" in line]
+    not_saved = status["program"]["save_failed"]
+    assert "Is a directory" in not_saved
+    assert status["log_failing"] == failing
+    assert shown == [
+        f"warning: the program's progress is not saved (a restart may not resume it): {not_saved}",
+        f"warning: log failing (control goes on, this brew is not recorded): {failing}",
+    ]
 
 
 def test_a_negative_zero_output_shows_as_zero(

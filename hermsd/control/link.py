@@ -88,13 +88,20 @@ class Snapshot:
     program: dict[str, Any] | None  # the status reply's `program`
     reasons: dict[str, str]  # each active alarm's message (made for this snapshot alone)
     latches_not_saved: str | None = None  # why the latched alarms' save failed, while it does
+    log_failing: str | None = None  # why the log cannot be written, while it cannot
 
 
 def status_warnings(
-    no_heat: list[int] | None, latches_not_saved: str | None, short: str | None = None
+    no_heat: list[int] | None,
+    latches_not_saved: str | None,
+    short: str | None = None,
+    *,
+    progress_not_saved: str | None = None,
+    log_failing: str | None = None,
 ) -> list[str]:
     """What the brewer should know that holds no heater off, in words: one place for the
-    command line, the web page and MQTT to take them from. `short`: the reach warning's."""
+    command line, the web page and MQTT to take them from. `short`: the reach warning's;
+    `progress_not_saved`: why the mash program's progress cannot be saved."""
     warnings = [f"{no_heat_words(element)} (docs/two-elements.md)" for element in no_heat or []]
     if short is not None:
         warnings.append(short)
@@ -102,6 +109,13 @@ def status_warnings(
         warnings.append(
             f"latched alarms not saved (tried again until they are): {latches_not_saved}"
         )
+    if progress_not_saved is not None:
+        warnings.append(
+            f"the program's progress is not saved (a restart may not resume it): "
+            f"{progress_not_saved}"
+        )
+    if log_failing is not None:
+        warnings.append(f"log failing (control goes on, this brew is not recorded): {log_failing}")
     return warnings
 
 
@@ -166,6 +180,7 @@ class LoopLink:
             daemon.program.status(daemon.clock.wall_ns()),
             daemon.supervisor.reasons(),
             daemon.latches_not_saved,
+            daemon.log_failing,
         )
         self.history.append(*encode_row(record))
         program = self._snapshot.program
@@ -295,6 +310,7 @@ class LoopLink:
             "alarms": list(record.alarms),
             "alarm_reasons": snapshot.reasons,
             "latches_not_saved": snapshot.latches_not_saved,
+            "log_failing": snapshot.log_failing,
             "no_heat": record.no_heat,
             "warnings": status_warnings(
                 record.no_heat,
@@ -304,6 +320,10 @@ class LoopLink:
                 else short_words(
                     record.ceiling, record.setpoint, snapshot.config.control.max_output
                 ),
+                progress_not_saved=None
+                if snapshot.program is None
+                else snapshot.program.get("save_failed"),
+                log_failing=snapshot.log_failing,
             ),
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),

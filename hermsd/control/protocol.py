@@ -47,9 +47,11 @@ runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
 `time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py). `no_heat`
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no
 heat, 0 either, 3 more heat than asked (docs/two-elements.md); `latches_not_saved` (why the
-latched alarms' save fails, while it does; else null); `warnings` (those two in words, and
-that full power levels the water out short of the setpoint (hermsd/reach.py), one line
-each, empty when there is nothing to say: what holds no heater off but needs a look). A program
+latched alarms' save fails, while it does; else null); `log_failing` (why the log cannot be
+written, while it cannot; else null); `warnings` (those three in words, that the program's
+progress is not saved (`program`'s `save_failed`), and that full power levels the water out
+short of the setpoint (hermsd/reach.py), one line each, empty when there is nothing to say:
+what holds no heater off but needs a look). A program
 sent with `start` is checked on the server's thread exactly as a program file is (and its
 setpoints against the running config at the boundary); `program` and `confirm` commands
 are answered like `set`. A `set` or `reset-alarm` is checked
