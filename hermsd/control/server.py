@@ -23,12 +23,14 @@ bridge; a connection beyond a bound is told "busy: …" in one line and closed. 
 for IDLE_TIMEOUT s is closed, and a reply that cannot be sent within SEND_TIMEOUT s (a client
 that stopped reading) ends its connection. An unexpected exception while serving one client
 is logged in one line, answered with an error and ends that connection alone: the thread
-serves on. A client process (told
-by its pid, whatever connections it opens) may send REQUEST_BURST requests other than
-`status` and `history` at once, then REQUEST_RATE a second (`RequestLimit`): each is parsed
-here, a program start checked (up to 64 KiB, milliseconds of Python), and one after another
-they would keep the loop waiting for the interpreter lock at its wake-ups. Beyond that its
-requests are refused, unread, with one line saying when to try again.
+serves on.
+
+A client process (told by its pid, whatever connections it opens) may send REQUEST_BURST
+requests other than `status` and `history` at once, then REQUEST_RATE a second
+(`RequestLimit`): each is parsed here, a program start checked (up to 64 KiB, milliseconds of
+Python), and one after another they would keep the loop waiting for the interpreter lock at
+its wake-ups. Beyond that its requests are refused, unread, with one line saying when to try
+again.
 """
 
 from __future__ import annotations
