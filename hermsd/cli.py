@@ -37,6 +37,7 @@ from hermsd.control.client import (
     default_socket_path,
 )
 from hermsd.control.protocol import (
+    BUSY,
     ProgramAction,
     ProgramStart,
     Request,
@@ -74,7 +75,8 @@ class UserError(Exception):
 
 
 class Unreachable(Exception):
-    """No daemon answers on the control socket; printed as one line, exit code 1."""
+    """No daemon answers on the control socket, or it is too busy to take the connection;
+    printed as one line, exit code 1."""
 
 
 class Shutdown(BaseException):
@@ -1491,13 +1493,15 @@ def _step_number(text: str) -> int:
 
 
 def _ask(socket_path: Path | None, request: Request) -> dict[str, Any]:
-    """The daemon's reply; a refusal is a UserError (exit 2) with the daemon's one line."""
+    """The daemon's reply; a refusal is a UserError (exit 2) with the daemon's one line, a
+    daemon too busy to take the connection Unreachable (exit 1: try again)."""
     try:
         reply = ask(default_socket_path(socket_path), request)
     except ReplyError as error:
         raise Unreachable(str(error)) from None
     if not reply["ok"]:
-        raise UserError(str(reply.get("error", "refused")))
+        why = str(reply.get("error", "refused"))
+        raise (Unreachable if why.startswith(BUSY) else UserError)(why)
     return reply
 
 

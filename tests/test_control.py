@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
+import select
 import shutil
 import socket
 import stat
@@ -34,6 +36,7 @@ from hermsd.control.protocol import (
     MAX_PAGE,
     Command,
     History,
+    ProgramStart,
     ProtocolError,
     ResetAlarms,
     SetMode,
@@ -45,6 +48,8 @@ from hermsd.control.server import ControlServer, Pending, SocketInUseError
 from hermsd.daemon import Daemon
 from hermsd.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.learning import LearnedModel, ModelStore
+from hermsd.program.model import Program, Step
+from hermsd.program.store import PROGRESS_FILE
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 
@@ -52,6 +57,7 @@ NOBODY = 65534
 # An interpreter any user may run (the test's own may live under /root).
 SYSTEM_PYTHON = shutil.which("python3", path="/usr/bin:/bin")
 TIMEOUT = 5.0
+STATUS = b'{"v": 1, "cmd": "status"}\n'
 
 
 # -- the protocol ---------------------------------------------------------------------------
@@ -103,6 +109,8 @@ def test_requests_are_read_as_documented(line: bytes, request_: object) -> None:
         (b'{"v": 1, "cmd": "reset-alarm", "kinds": "dry_fire"}', 'got "dry_fire"'),
         (b'{"v": 1, "cmd": "reset-alarm", "kinds": ["boil"]}', "kinds: expected a list of alarms"),
         (b'{"v": 1, "cmd": "reset-alarm", "all": true}', "reset-alarm does not take all"),
+        (b"[" * 3000, "the request is nested deeper than 16 levels"),  # not a RecursionError
+        (b'{"v": 1, "cmd": "set", "setpoint": -Infinity}', "-Infinity is not a number here"),
     ],
 )
 def test_a_bad_request_is_refused_with_what_is_wrong(line: bytes, says: str) -> None:
@@ -110,6 +118,12 @@ def test_a_bad_request_is_refused_with_what_is_wrong(line: bytes, says: str) -> 
         parse_request(line)
     assert says in str(caught.value)
     assert "\n" not in str(caught.value)
+
+
+def test_a_negative_zero_is_read_as_zero() -> None:
+    request = parse_request(b'{"v": 1, "cmd": "set", "mode": "manual", "output": -0.0}')
+    assert isinstance(request, SetMode) and request.output is not None
+    assert math.copysign(1.0, request.output) == 1.0  # 0.0 == -0.0: the sign tells them apart
 
 
 # -- commands at the period boundary --------------------------------------------------------
@@ -534,23 +548,156 @@ def test_requests_piled_up_behind_an_unanswered_command_end_the_connection(
     assert rest == b""
 
 
-def test_clients_beyond_the_limit_are_told_so(tmp_path: Path) -> None:
+def test_clients_beyond_the_limit_are_told_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # One process may fill every place here, to reach the bound on them all.
+    monkeypatch.setattr(server_module, "PER_PROCESS", server_module.MAX_CLIENTS + 1)
+    monkeypatch.setattr(server_module, "PER_USER", server_module.MAX_CLIENTS + 1)
     with served(tmp_path) as (_daemon, where), contextlib.ExitStack() as stack:
         clients = [stack.enter_context(connect(where)) for _ in range(server_module.MAX_CLIENTS)]
         for client in clients:  # each one is being served
-            assert exchange(client, b'{"v": 1, "cmd": "status"}\n')["ok"]
+            assert exchange(client, STATUS)["ok"]
         extra = stack.enter_context(connect(where))
         reply = json.loads(extra.recv(1000))
-    assert reply["error"] == f"busy: {server_module.MAX_CLIENTS} clients connected already"
+    assert reply["error"] == (
+        f"busy: {server_module.MAX_CLIENTS} clients connected already (try again in a minute)"
+    )
+
+
+_HOLD = """
+import json, socket, sys
+held, said = [], []
+for _ in range(int(sys.argv[2])):
+    sock = socket.socket(socket.AF_UNIX)
+    sock.settimeout(5.0)
+    sock.connect(sys.argv[1])
+    try:
+        sock.sendall(b'{"v": 1, "cmd": "status"}\\n')
+    except BrokenPipeError:  # told "busy" and closed before it sent: the line is there still
+        pass
+    reply = json.loads(sock.makefile().readline())
+    said.append(True if reply["ok"] else reply["error"])
+    held.append(sock)
+print(json.dumps(said), flush=True)
+sys.stdin.read()  # holds them until the test closes its stdin
+"""
+
+
+@contextlib.contextmanager
+def holding(where: Path, count: int) -> Iterator[tuple[int, list[Any]]]:
+    """Another process that opens `count` connections, asks `status` on each and keeps them
+    open: its pid, and each connection's answer (True: served, else the error)."""
+    hog = subprocess.Popen(
+        [sys.executable, "-c", _HOLD, os.fspath(where), str(count)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert hog.stdout is not None and hog.stdin is not None
+        ready, _, _ = select.select([hog.stdout], [], [], TIMEOUT)
+        assert ready, "the holding process did not say what it holds"
+        yield hog.pid, json.loads(hog.stdout.readline())
+    finally:
+        hog.kill()
+        hog.wait(TIMEOUT)
+
+
+def test_one_process_holding_connections_leaves_room_for_the_commands(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with served(tmp_path) as (_daemon, where), holding(where, server_module.MAX_CLIENTS) as held:
+        code = main(["status", "--json", "--socket", os.fspath(where)])
+        out = capsys.readouterr().out
+    pid, answers = held
+    per = server_module.PER_PROCESS
+    assert answers[:per] == [True] * per
+    assert answers[per:] == [
+        f"busy: this process (pid {pid}) holds {per} connections already, the most one process "
+        "may (close one: each request needs one only until its reply)"
+    ] * (server_module.MAX_CLIENTS - per)
+    assert code == 0
+    assert json.loads(out)["ok"] is True
+
+
+def test_one_users_processes_leave_room_for_the_others(tmp_path: Path) -> None:
+    per, uid = server_module.PER_PROCESS, os.getuid()
+    assert 2 * per == server_module.PER_USER  # two processes fill one user's share
+    with (
+        served(tmp_path) as (_daemon, where),
+        holding(where, per) as (_, first),
+        holding(where, per) as (_, second),
+        holding(where, 1) as (_, third),
+    ):
+        pass
+    assert first == second == [True] * per
+    assert third == [
+        f"busy: the processes of uid {uid} hold {2 * per} connections already, the most one "
+        "user's may (close some)"
+    ]
+
+
+def test_the_commands_say_busy_in_one_line_and_exit_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with served(tmp_path) as (_daemon, where), contextlib.ExitStack() as stack:
+        for _ in range(server_module.PER_PROCESS):  # this process holds all it may
+            assert exchange(stack.enter_context(connect(where)), STATUS)["ok"]
+        code = main(["status", "--socket", os.fspath(where)])
+    captured = capsys.readouterr()
+    assert code == 1
+    assert captured.err == (
+        f"hermsd: busy: this process (pid {os.getpid()}) holds {server_module.PER_PROCESS} "
+        "connections already, the most one process may (close one: each request needs one only "
+        "until its reply)\n"
+    )
+    assert captured.out == ""
+
+
+def test_a_connection_closed_before_the_request_is_sent_is_told_not_a_broken_pipe(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The daemon says "busy" and closes before the command has sent its request: the send
+    fails (EPIPE), and the line is read all the same."""
+    where = tmp_path / "control.sock"
+    busy = b'{"v": 1, "ok": false, "error": "busy: 32 clients connected already"}\n'
+    closed = threading.Event()
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    listener.bind(os.fspath(where))
+    listener.listen(1)
+
+    def refuse() -> None:
+        conn, _ = listener.accept()
+        conn.sendall(busy)
+        conn.close()
+        closed.set()
+
+    class SendsAfterTheClose(socket.socket):
+        def connect(self, address: Any) -> None:
+            super().connect(address)
+            assert closed.wait(TIMEOUT)
+
+    refusing = threading.Thread(target=refuse)
+    refusing.start()
+    monkeypatch.setattr(socket, "socket", SendsAfterTheClose)
+    try:
+        code = main(["set", "setpoint", "70", "--socket", os.fspath(where)])
+    finally:
+        monkeypatch.undo()
+        refusing.join(TIMEOUT)
+        listener.close()
+    captured = capsys.readouterr()
+    assert (code, captured.err) == (1, "hermsd: busy: 32 clients connected already\n")
 
 
 def test_clients_that_hung_up_unseen_hold_no_place(tmp_path: Path) -> None:
     server = ControlServer(tmp_path / "control.sock", lambda: b'{"v": 1, "ok": true}\n')
     server.start()
     try:
-        gone = [connect(server.path) for _ in range(server_module.MAX_CLIENTS)]
+        gone = [connect(server.path) for _ in range(server_module.PER_PROCESS)]
         for client in gone:
-            assert exchange(client, b'{"v": 1, "cmd": "status"}\n')["ok"]
+            assert exchange(client, STATUS)["ok"]
         # The serving thread stops before it sees them hang up, as when it is not scheduled.
         server._stop = True
         server.wake()
@@ -563,6 +710,54 @@ def test_clients_that_hung_up_unseen_hold_no_place(tmp_path: Path) -> None:
             assert len(server._clients) == 1  # taken in, not told "busy"
     finally:
         server.close()
+
+
+def test_a_line_nested_3000_deep_is_refused_and_the_socket_serves_on(tmp_path: Path) -> None:
+    server = ControlServer(tmp_path / "control.sock", lambda: b'{"v": 1, "ok": true}\n')
+    server.start()
+    try:
+        with connect(server.path) as sock:
+            refused = exchange(sock, b"[" * 3000 + b"\n")
+        with connect(server.path) as sock:
+            status = exchange(sock, STATUS)
+    finally:
+        server.close()
+    assert refused == {"v": 1, "ok": False, "error": "the request is nested deeper than 16 levels"}
+    assert status == {"v": 1, "ok": True}
+
+
+def test_an_unexpected_exception_serving_one_client_ends_its_connection_alone(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    asked = 0
+
+    def status_failing_once() -> bytes:
+        nonlocal asked
+        asked += 1
+        if asked == 1:
+            raise RuntimeError("an unforeseen fault\nover two lines")
+        return b'{"v": 1, "ok": true}\n'
+
+    server = ControlServer(tmp_path / "control.sock", status_failing_once)
+    server.start()
+    try:
+        with connect(server.path) as sock:
+            failed = exchange(sock, STATUS)
+            after = sock.recv(100)
+        with connect(server.path) as sock:
+            served_next = exchange(sock, STATUS)
+        assert server._thread is not None and server._thread.is_alive()
+    finally:
+        server.close()
+    fault = "RuntimeError: an unforeseen fault over two lines"
+    assert failed == {"v": 1, "ok": False, "error": f"hermsd failed to answer ({fault})"}
+    assert after == b""  # that connection alone is closed
+    assert served_next == {"v": 1, "ok": True}
+    said = [r.getMessage() for r in caplog.records if r.name == "hermsd"]
+    assert said == [
+        f"control socket: serving pid {os.getpid()} failed ({fault}); its connection is "
+        "closed, the socket serves on"
+    ]
 
 
 def test_a_socket_left_by_a_crash_is_replaced_and_a_live_one_is_not(tmp_path: Path) -> None:
@@ -765,3 +960,43 @@ def test_status_says_why_each_alarm_stands(
     assert kind == "controller_fault"
     assert reason.startswith(f"{why} (latched ") and reason.endswith(", before a restart)")
     assert f"alarms: controller_fault\n  controller_fault: {reason}\n" in text
+
+
+def test_status_warns_of_a_progress_and_a_log_that_are_not_saved(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    state = tmp_path / "state"
+    state.mkdir()
+    daemon, _path, events, inbox = linked(tmp_path, latches=LatchStore(state))
+    (state / PROGRESS_FILE).mkdir()  # nothing can be renamed over a directory
+    failing = "creating /var/log/hermsd: [Errno 30] Read-only file system"
+    events.failing = failing  # type: ignore[attr-defined]  # as the recorder says it
+    started = inbox.send(ProgramStart(Program("One", (Step("Warm", 30.0, 600.0),))))
+    run_for(daemon, PERIOD)
+    assert started.reply is not None and started.reply["ok"] is True
+    assert daemon.program.flush(5.0)
+    run_for(daemon, 2 * PERIOD)  # the outcome taken, then shown in the next period's status
+    status = status_of(daemon)
+    monkeypatch.setattr(cli, "_ask", lambda path, request: status)
+    assert main(["status"]) == 0
+    shown = [line for line in capsys.readouterr().out.splitlines() if "warning" in line]
+    not_saved = status["program"]["save_failed"]
+    assert "Is a directory" in not_saved
+    assert status["log_failing"] == failing
+    assert shown == [
+        f"warning: the program's progress is not saved (a restart may not resume it): {not_saved}",
+        f"warning: log failing (control goes on, this brew is not recorded): {failing}",
+    ]
+
+
+def test_a_negative_zero_output_shows_as_zero(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with served(tmp_path) as (_daemon, where):
+        sock = ["--socket", os.fspath(where)]
+        assert main(["set", "mode", "manual", "--output", "-0.0", *sock]) == 0
+        said = capsys.readouterr().out
+        assert main(["status", "--json", *sock]) == 0
+        status = capsys.readouterr().out
+    assert said == "now: setpoint 66 °C, manual at 0 %\n"
+    assert '"manual_output": 0.0,' in status

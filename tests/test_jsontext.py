@@ -2,13 +2,26 @@
 
 import pytest
 
-from hermsd.control.jsontext import MAX_DEPTH, JsonTextError, loads, nesting_depth
+from hermsd.control.jsontext import MAX_DEPTH, JsonTextError, deeper_than, loads
 
 
-def test_depth_counts_brackets_outside_strings_only() -> None:
-    # By hand: [ [ "[[[" , { } ] ] opens [, [, { : three levels; the string's brackets do not count.
-    assert nesting_depth('[["[[[",{}]]') == 3
-    assert nesting_depth('{"a": "\\"[[[["}') == 1
+@pytest.mark.parametrize(
+    ("text", "depth"),
+    [
+        # By hand: [ [ "[[[" , { } ] ] opens [, [, { : three levels; the string's do not count.
+        ('[["[[[",{}]]', 3),
+        ('{"a": "\\"[[[["}', 1),
+        ("[[],[[]],[[[]]]]", 4),  # siblings 2, 3 and 4 deep under one array: the deepest
+        ('{"a": [{"b": [1]}], "c": "]]"}', 4),
+        ("[[[", 3),  # opened, never closed: as deep as it went
+        ('["\\\\", [[]]]', 3),  # an escaped backslash ends the string
+        ("[]" * 100, 1),
+        ('"[[["', 0),
+    ],
+)
+def test_depth_counts_brackets_outside_strings_only(text: str, depth: int) -> None:
+    assert deeper_than(text, depth - 1) or depth == 0
+    assert not deeper_than(text, depth)
 
 
 @pytest.mark.parametrize("opener", ["[", '{"a":'])

@@ -60,18 +60,28 @@ def ask(path: Path, request: Request, timeout: float = TIMEOUT) -> dict[str, Any
             raise NoDaemonError(f"cannot reach hermsd on {path}: {error.strerror}") from None
         line = encode(request_message(request))
         assert len(line) <= MAX_LINE
+        unsent: OSError | None = None
         try:
             sock.sendall(line)
         except TimeoutError:
             raise ReplyError(
                 f"hermsd on {path} did not take the request within {timeout:g} s"
             ) from None
+        except OSError as error:  # closed at once (EPIPE): its one line may say why (busy)
+            unsent = error
         try:
             reply = _read_line(sock)
-        except TimeoutError:
-            raise ReplyError(unanswered(timeout)) from None
-        except OSError as error:
-            raise ReplyError(f"the connection to {path} failed: {error.strerror}") from None
+        except (OSError, ReplyError) as error:
+            if unsent is not None:
+                raise ReplyError(
+                    f"hermsd on {path} closed the connection before taking the request "
+                    f"({unsent.strerror}): nothing was sent, nothing changed"
+                ) from None
+            if isinstance(error, TimeoutError):
+                raise ReplyError(unanswered(timeout)) from None
+            if isinstance(error, OSError):
+                raise ReplyError(f"the connection to {path} failed: {error.strerror}") from None
+            raise
     try:
         message = json.loads(reply)
     except (UnicodeDecodeError, json.JSONDecodeError):

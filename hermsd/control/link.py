@@ -95,8 +95,9 @@ def status_warnings(
     no_heat: list[int] | None,
     latches_not_saved: str | None,
     short: str | None = None,
-    log_failing: str | None = None,
+    *,
     progress_not_saved: str | None = None,
+    log_failing: str | None = None,
 ) -> list[str]:
     """What the brewer should know that holds no heater off, in words: one place for the
     command line, the web page and MQTT to take them from. `short`: the reach warning's;
@@ -110,10 +111,11 @@ def status_warnings(
         )
     if progress_not_saved is not None:
         warnings.append(
-            f"program progress not saved (a restart may not resume it): {progress_not_saved}"
+            f"the program's progress is not saved (a restart may not resume it): "
+            f"{progress_not_saved}"
         )
     if log_failing is not None:
-        warnings.append(f"log failing (control goes on, nothing is recorded): {log_failing}")
+        warnings.append(f"log failing (control goes on, this brew is not recorded): {log_failing}")
     return warnings
 
 
@@ -318,8 +320,10 @@ class LoopLink:
                 else short_words(
                     record.ceiling, record.setpoint, snapshot.config.control.max_output
                 ),
-                snapshot.log_failing,
-                None if snapshot.program is None else snapshot.program["save_failed"],
+                progress_not_saved=None
+                if snapshot.program is None
+                else snapshot.program.get("save_failed"),
+                log_failing=snapshot.log_failing,
             ),
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),

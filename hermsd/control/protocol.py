@@ -47,11 +47,11 @@ runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
 `time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py). `no_heat`
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no
 heat, 0 either, 3 more heat than asked (docs/two-elements.md); `latches_not_saved` (why the
-latched alarms' save fails, while it does; else null); `log_failing` (why the MCAP log
-cannot be written, while it cannot; else null); `warnings` (those three in words, that the
-program's progress cannot be saved (`program.save_failed`), and that full power levels
-the water out short of the setpoint (hermsd/reach.py), one line each, empty when there is
-nothing to say: what holds no heater off but needs a look). A program
+latched alarms' save fails, while it does; else null); `log_failing` (why the log cannot be
+written, while it cannot; else null); `warnings` (those three in words, that the program's
+progress is not saved (`program`'s `save_failed`), and that full power levels the water out
+short of the setpoint (hermsd/reach.py), one line each, empty when there is nothing to say:
+what holds no heater off but needs a look). A program
 sent with `start` is checked on the server's thread exactly as a program file is (and its
 setpoints against the running config at the boundary); `program` and `confirm` commands
 are answered like `set`. A `set` or `reset-alarm` is checked
@@ -69,8 +69,15 @@ holds the fields in that order (`t` in the daemon's seconds as `status`'s `t`, `
 when unknown, numbers rounded to 0.001); `more` is true when later rows remain: ask again
 with `since` set to the last row's `t`. The daemon keeps no history across a restart.
 
-A line longer than MAX_LINE, or one that is not a JSON object, is refused; an over-long line
-also ends the connection (its rest cannot be told from the next request).
+A line longer than MAX_LINE, or one that is not a JSON object (or nests arrays and objects
+deeper than hermsd.control.jsontext.MAX_DEPTH), is refused; an over-long line also ends the
+connection (its rest cannot be told from the next request). A number -0 is read as 0.
+
+A connection the daemon has no room for (too many from the client's process, its user or in
+all: hermsd/control/server.py) is answered at once with one error line that begins "busy: "
+and closed, before the client's request is read: its send may fail (EPIPE), its reply is
+there to read all the same. A request the daemon fails to answer is answered with an error
+line and ends that connection alone.
 """
 
 from __future__ import annotations
@@ -80,6 +87,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from hermsd.control import jsontext
+from hermsd.control.jsontext import JsonTextError
 from hermsd.program.model import READY_BY, Program, ProgramError, from_data, one_line, to_data
 from hermsd.safety import AUTO_KINDS, LATCHED_KINDS
 
@@ -90,6 +99,10 @@ MAX_LINE = 1 << 16
 UTF-8 characters)."""
 MAX_PAGE = 2000
 """Rows in one `history` reply: about 90 kB, well under a client's 1 MiB reply limit."""
+
+
+BUSY = "busy: "
+"""How the error of a connection refused for want of room begins: try again later."""
 
 
 class ProtocolError(ValueError):
@@ -144,20 +157,18 @@ Command = SetSetpoint | SetMode | ResetAlarms | ProgramStart | ProgramAction
 """The requests that change something: applied by the loop at a period boundary."""
 
 
-def _reject_constant(name: str) -> float:
-    raise ProtocolError(f"{name} is not a number here (send a finite number)")
+_WHAT_TEXT_IS = ("not ", "longer ", "nested ")
+"""How JsonTextError's messages that say what the text is begin."""
 
 
 def parse_request(line: bytes) -> Request:
     """The request a line holds, or ProtocolError saying what is wrong with it."""
     try:
-        data = json.loads(line.decode("utf-8"), parse_constant=_reject_constant)
-    except UnicodeDecodeError:
-        raise ProtocolError("the request is not UTF-8 text") from None
-    except json.JSONDecodeError as error:
-        raise ProtocolError(
-            f"the request is not JSON: {error.msg} at column {error.colno}"
-        ) from None
+        data = jsontext.loads(line, MAX_LINE)
+    except JsonTextError as error:
+        why = str(error)  # what the text is, or a sentence of its own (a constant: "NaN is …")
+        said = why if not why.startswith(_WHAT_TEXT_IS) else f"the request is {why}"
+        raise ProtocolError(said) from None
     if not isinstance(data, dict):
         raise ProtocolError('a request is a JSON object, e.g. {"v": 1, "cmd": "status"}')
     version = data.get("v")
@@ -271,7 +282,7 @@ def _number(data: dict[str, Any], key: str) -> float:
     number = float(value)
     if not math.isfinite(number):
         raise ProtocolError(f"{key}: {value} is not a usable number")
-    return number
+    return number + 0.0  # -0.0 is 0.0: no surface shows a "-0"
 
 
 def request_message(request: Request) -> dict[str, Any]:

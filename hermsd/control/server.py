@@ -16,14 +16,21 @@ then reused) and each burst ends in a system call that releases the lock (select
 send), so the loop waits for at most one burst, tens of µs, not the interpreter's 5 ms
 switch interval. bench/socket_load.py measures the loop's lateness under 1,000 requests/s.
 
-Clients are bounded too: at most MAX_CLIENTS connections (more are told so and closed), a
-client idle for IDLE_TIMEOUT s is closed, and a reply that cannot be sent within
-SEND_TIMEOUT s (a client that stopped reading) ends its connection. A client process (told
-by its pid, whatever connections it opens) may send REQUEST_BURST requests other than
-`status` and `history` at once, then REQUEST_RATE a second (`RequestLimit`): each is parsed
-here, a program start checked (up to 64 KiB, milliseconds of Python), and one after another
-they would keep the loop waiting for the interpreter lock at its wake-ups. Beyond that its
-requests are refused, unread, with one line saying when to try again.
+Clients are bounded too: at most MAX_CLIENTS connections, PER_PROCESS of them from one
+client process and PER_USER from one user's processes (told by SO_PEERCRED), so that one
+client holding connections open cannot shut out `hermsd status`, the web page or the MQTT
+bridge; a connection beyond a bound is told "busy: …" in one line and closed. A client idle
+for IDLE_TIMEOUT s is closed, and a reply that cannot be sent within SEND_TIMEOUT s (a client
+that stopped reading) ends its connection. An unexpected exception while serving one client
+is logged in one line, answered with an error and ends that connection alone: the thread
+serves on.
+
+A client process (told by its pid, whatever connections it opens) may send REQUEST_BURST
+requests other than `status` and `history` at once, then REQUEST_RATE a second
+(`RequestLimit`): each is parsed here, a program start checked (up to 64 KiB, milliseconds of
+Python), and one after another they would keep the loop waiting for the interpreter lock at
+its wake-ups. Beyond that its requests are refused, unread, with one line saying when to try
+again.
 """
 
 from __future__ import annotations
@@ -46,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from hermsd.control.protocol import (
+    BUSY,
     MAX_LINE,
     STARTING,
     Command,
@@ -59,7 +67,9 @@ from hermsd.control.protocol import (
 
 log = logging.getLogger("hermsd")
 
-MAX_CLIENTS = 16
+MAX_CLIENTS = 32
+PER_PROCESS = 8  # connections one client process may hold: the web bridge's poll and commands
+PER_USER = 16  # … one user's processes: the other users (each bridge runs as its own) keep half
 IDLE_TIMEOUT = 60.0  # s without a request: the connection is closed
 SEND_TIMEOUT = 5.0  # s a reply may wait for a client to read
 COMMANDS_PER_PERIOD = 8  # commands the loop applies at one boundary; the rest wait for the next
@@ -113,6 +123,7 @@ class RequestLimit:
 class _Client:
     sock: socket.socket
     pid: int  # the client's process: what the request limit counts by
+    uid: int  # the client's user
     last_active: float
     inbox: bytearray = field(default_factory=bytearray)
     outbox: bytearray = field(default_factory=bytearray)
@@ -237,11 +248,38 @@ class ControlServer:
                     else:
                         client = self._clients.get(key.fd)
                         if client is not None:
-                            self._service(client, events)
-                self._collect_replies()
+                            self._guarded(client, self._service, events)
+                for client in list(self._clients.values()):
+                    self._guarded(client, self._collect_reply)
                 self._expire(self._clock())
-        except Exception:  # the loop runs on without the socket; say why it is gone
+        except Exception:  # beyond any one client (the selector): the loop runs on without
             log.exception("control socket stopped")
+
+    def _guarded(self, client: _Client, serve: Callable[..., None], *args: int) -> None:
+        """`serve(client, *args)`; an exception it raises ends that client's connection alone,
+        said in one line to the journal and to the client."""
+        try:
+            serve(client, *args)
+        except Exception as error:
+            self._failed(client, error)
+
+    def _failed(self, client: _Client, error: Exception) -> None:
+        what = f"{type(error).__name__}: {' '.join(str(error).split())}"
+        log.error(
+            "control socket: serving pid %d failed (%s); its connection is closed, the socket "
+            "serves on",
+            client.pid,
+            what,
+        )
+        applied = "; the command may have been applied: see the status"
+        outcome = "" if client.waiting is None else applied
+        client.waiting = None
+        client.inbox.clear()
+        client.closing = True
+        try:
+            self._send(client, error_reply(f"hermsd failed to answer ({what}){outcome}"))
+        except Exception:  # the reply cannot be made or sent either: just close
+            self._drop(client)
 
     def _accept(self) -> None:
         assert self._listener is not None
@@ -250,16 +288,37 @@ class ControlServer:
         except (BlockingIOError, InterruptedError):
             return
         sock.setblocking(False)
-        if len(self._clients) >= MAX_CLIENTS:
+        pid, uid = _peer(sock)
+        busy = self._busy(pid, uid)
+        if busy is not None:
             self._reap_hung_up()
-        if len(self._clients) >= MAX_CLIENTS:
+            busy = self._busy(pid, uid)
+        if busy is not None:
             with contextlib.suppress(OSError):
-                sock.send(encode(error_reply(f"busy: {MAX_CLIENTS} clients connected already")))
+                sock.send(encode(error_reply(f"{BUSY}{busy}")))
             sock.close()
             return
-        client = _Client(sock, _peer_pid(sock), self._clock())
+        client = _Client(sock, pid, uid, self._clock())
         self._clients[sock.fileno()] = client
         self._selector.register(sock, selectors.EVENT_READ)
+
+    def _busy(self, pid: int, uid: int) -> str | None:
+        """Why a new connection from `pid` of `uid` is refused (None: it is taken in)."""
+        of_process = sum(1 for client in self._clients.values() if client.pid == pid)
+        if of_process >= PER_PROCESS:
+            return (
+                f"this process (pid {pid}) holds {of_process} connections already, the most one "
+                "process may (close one: each request needs one only until its reply)"
+            )
+        of_user = sum(1 for client in self._clients.values() if client.uid == uid)
+        if of_user >= PER_USER:
+            return (
+                f"the processes of uid {uid} hold {of_user} connections already, the most one "
+                "user's may (close some)"
+            )
+        if len(self._clients) >= MAX_CLIENTS:
+            return f"{MAX_CLIENTS} clients connected already (try again in a minute)"
+        return None
 
     def _reap_hung_up(self) -> None:
         """Drop clients that have hung up but whose end-of-file is not read yet (a burst of
@@ -358,14 +417,13 @@ class ControlServer:
             client.waiting = Pending(self._arrived(request))
             self._commands.append(client.waiting)
 
-    def _collect_replies(self) -> None:
-        for client in list(self._clients.values()):
-            pending = client.waiting
-            if pending is not None and pending.reply is not None:
-                client.waiting = None
-                self._send(client, pending.reply)
-            if client.waiting is None and b"\n" in client.inbox:
-                self._next_request(client)
+    def _collect_reply(self, client: _Client) -> None:
+        pending = client.waiting
+        if pending is not None and pending.reply is not None:
+            self._send(client, pending.reply)
+            client.waiting = None
+        if client.waiting is None and b"\n" in client.inbox:
+            self._next_request(client)
 
     def _send(self, client: _Client, message: dict[str, Any]) -> None:
         client.outbox += encode(message)
@@ -415,16 +473,16 @@ class ControlServer:
         client.sock.close()
 
 
-def _peer_pid(sock: socket.socket) -> int:
-    """The pid of the process at the other end (0 when the kernel cannot say)."""
+def _peer(sock: socket.socket) -> tuple[int, int]:
+    """The pid and uid of the process at the other end ((0, -1) when the kernel cannot say)."""
     size = struct.calcsize("3i")
     try:
-        pid, _uid, _gid = struct.unpack(
+        pid, uid, _gid = struct.unpack(
             "3i", sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, size)
         )
     except OSError:
-        return 0
-    return int(pid)
+        return 0, -1
+    return int(pid), int(uid)
 
 
 def _bind(path: Path) -> socket.socket:
