@@ -1076,6 +1076,11 @@ class Daemon:
         self._take_saves(t)
 
     @property
+    def log_failing(self) -> str | None:
+        """Why the log cannot be written, while it cannot (None: it is written)."""
+        return self._log_failing
+
+    @property
     def latches_not_saved(self) -> str | None:
         """Why the latched alarms could not be saved, while they cannot (None: saved)."""
         return self._latch_failing

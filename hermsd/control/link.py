@@ -88,10 +88,16 @@ class Snapshot:
     program: dict[str, Any] | None  # the status reply's `program`
     reasons: dict[str, str]  # each active alarm's message (made for this snapshot alone)
     latches_not_saved: str | None = None  # why the latched alarms' save failed, while it does
+    log_failing: str | None = None  # why the log cannot be written, while it cannot
 
 
 def status_warnings(
-    no_heat: list[int] | None, latches_not_saved: str | None, short: str | None = None
+    no_heat: list[int] | None,
+    latches_not_saved: str | None,
+    short: str | None = None,
+    *,
+    log_failing: str | None = None,
+    progress_not_saved: str | None = None,
 ) -> list[str]:
     """What the brewer should know that holds no heater off, in words: one place for the
     command line, the web page and MQTT to take them from. `short`: the reach warning's."""
@@ -102,6 +108,12 @@ def status_warnings(
         warnings.append(
             f"latched alarms not saved (tried again until they are): {latches_not_saved}"
         )
+    if progress_not_saved is not None:
+        warnings.append(
+            f"program progress not saved (a restart may not resume it): {progress_not_saved}"
+        )
+    if log_failing is not None:
+        warnings.append(f"log failing (control goes on, unrecorded): {log_failing}")
     return warnings
 
 
@@ -166,6 +178,7 @@ class LoopLink:
             daemon.program.status(daemon.clock.wall_ns()),
             daemon.supervisor.reasons(),
             daemon.latches_not_saved,
+            daemon.log_failing,
         )
         self.history.append(*encode_row(record))
         program = self._snapshot.program
@@ -304,6 +317,8 @@ class LoopLink:
                 else short_words(
                     record.ceiling, record.setpoint, snapshot.config.control.max_output
                 ),
+                log_failing=snapshot.log_failing,
+                progress_not_saved=(snapshot.program or {}).get("save_failed"),
             ),
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
