@@ -174,6 +174,18 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
             **fields,
         )
 
+    def problem(field: str, name: str) -> tuple[str, Any]:
+        """A binary sensor of the problem class, on while the state's `field` is true."""
+        return topics.discovery("binary_sensor", field), entity(
+            field,
+            name,
+            state_topic=topics.state,
+            value_template=f"{{{{ 'ON' if value_json.{field} else 'OFF' }}}}",
+            payload_on="ON",
+            payload_off="OFF",
+            device_class="problem",
+        )
+
     percent = {"unit_of_measurement": "%", "state_class": "measurement"}
     # A second element's duty is a sensor of its own; without one, its topic gets an empty
     # payload, which removes the entity a config with one left retained on the broker.
@@ -231,30 +243,8 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         ),
         sensor("alarms", "Alarms", "alarm_text"),
         sensor("warnings", "Warnings", "warning_text"),
-        (
-            topics.discovery("binary_sensor", "warning"),
-            entity(
-                "warning",
-                "Warning",
-                state_topic=topics.state,
-                value_template="{{ 'ON' if value_json.warning else 'OFF' }}",
-                payload_on="ON",
-                payload_off="OFF",
-                device_class="problem",
-            ),
-        ),
-        (
-            topics.discovery("binary_sensor", "alarm"),
-            entity(
-                "alarm",
-                "Alarm",
-                state_topic=topics.state,
-                value_template="{{ 'ON' if value_json.alarm else 'OFF' }}",
-                payload_on="ON",
-                payload_off="OFF",
-                device_class="problem",
-            ),
-        ),
+        problem("warning", "Warning"),
+        problem("alarm", "Alarm"),
     ]
 
 
