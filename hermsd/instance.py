@@ -74,6 +74,11 @@ class DirectoryLock:
             self._fd = None
 
 
+BACKLOG = 8
+"""Connections a held name keeps unaccepted: each refused start's probe stays queued (the
+holder never accepts), so the queue bounds what repeated refusals cost it."""
+
+
 class NameLock:
     """An exclusive hold on a name, for a process with no directory of its own to lock.
 
@@ -93,7 +98,7 @@ class NameLock:
         held = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
         try:
             held.bind(self.address)
-            held.listen(1)
+            held.listen(BACKLOG)
         except OSError as error:
             held.close()
             if error.errno != errno.EADDRINUSE:
@@ -111,7 +116,7 @@ class NameLock:
     def _holder(self) -> int | None:
         """The pid of the process that holds the name, from the kernel's credentials."""
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC) as probe:
-            probe.settimeout(1.0)
+            probe.setblocking(False)  # a backlog full of earlier probes: no pid, no wait
             try:
                 probe.connect(self.address)
                 credentials = probe.getsockopt(
