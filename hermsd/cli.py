@@ -1817,7 +1817,10 @@ def cmd_mqtt(args: argparse.Namespace) -> int:
         raise UserError(str(error)) from None
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda _signum, _frame: bridge.stop())
-    bridge.run()
+    try:
+        bridge.run()
+    except InstanceError as error:
+        raise UserError(str(error)) from None
     return 0
 
 

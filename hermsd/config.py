@@ -1707,13 +1707,28 @@ def read_bytes(filename: str) -> bytes:
     except NotRegularFile as error:
         if error.kind is not None:
             message = f"{error} (name the YAML file itself)"
-        else:
-            message = (
-                f"is {error.size} bytes long, more than the {MAX_FILE_BYTES // 1024} KiB a "
-                f"config file may be (the shipped one is under {SHIPPED_FILE_MAX_BYTES // 1024} "
-                "KiB: is this the right file?)"
-            )
-        raise ConfigError([Problem(filename, 0, 0, "", message)]) from None
+            raise ConfigError([Problem(filename, 0, 0, "", message)]) from None
+        raise ConfigError([_too_long(filename, error.size)]) from None
+
+
+def check_size(text: str, filename: str) -> None:
+    """ConfigError when `text`, written to a file, would be longer than `read_bytes` reads:
+    for text made in memory (an import) that must pass the check its file will meet."""
+    size = len(text.encode("utf-8"))
+    if size > MAX_FILE_BYTES:
+        raise ConfigError([_too_long(filename, size)])
+
+
+def _too_long(filename: str, size: int) -> Problem:
+    return Problem(
+        filename,
+        0,
+        0,
+        "",
+        f"is {size} bytes long, more than the {MAX_FILE_BYTES // 1024} KiB a config file may "
+        f"be (the shipped one is under {SHIPPED_FILE_MAX_BYTES // 1024} KiB: is this the right "
+        "file?)",
+    )
 
 
 def _unreadable(error: OSError) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import stat
 from collections.abc import Callable
 from pathlib import Path
@@ -30,12 +31,17 @@ def write_atomically(
     from its first moment (a config file root edits for the daemon's group must not turn
     unreadable to the daemon, even briefly). OSError when they cannot be kept.
 
-    A write that fails (a full disk, a read-only one) removes its temporary file: `path` is
-    as it was, and nothing half-written is left beside it.
+    The temporary file is a new one of a random name, made with O_EXCL and O_NOFOLLOW: a
+    file or symlink planted beside `path` is never followed, written through or truncated
+    (root's write would otherwise land in whatever the link names). A write that fails (a
+    full disk, a read-only one) removes its temporary file: `path` is as it was, and nothing
+    half-written is left beside it.
     """
-    temporary = path.with_name(path.name + ".tmp")
+    temporary = path.with_name(f".{path.name}.{secrets.token_hex(8)}.tmp")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+    fd = os.open(temporary, flags, 0o666 if like is None else 0o600)
     try:
-        with temporary.open("w", encoding="utf-8") as file:
+        with open(fd, "w", encoding="utf-8") as file:
             if like is not None:
                 os.fchown(file.fileno(), like.st_uid, like.st_gid)
                 os.fchmod(file.fileno(), stat.S_IMODE(like.st_mode))
@@ -50,6 +56,24 @@ def write_atomically(
         raise
     if durable:
         fsync_directory(path.parent)
+
+
+def read_only(status: os.stat_result) -> str | None:
+    """Why a file's mode bits forbid this process to write it ("mode 0444"), or None.
+
+    By the bits alone, for the class the process is in (owner, group, others): root may
+    write anything, but a file made read-only was made so on purpose and is not replaced.
+    """
+    mode = stat.S_IMODE(status.st_mode)
+    if os.geteuid() == 0:
+        allowed = mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH)
+    elif os.geteuid() == status.st_uid:
+        allowed = mode & stat.S_IWUSR
+    elif status.st_gid in (os.getegid(), *os.getgroups()):
+        allowed = mode & stat.S_IWGRP
+    else:
+        allowed = mode & stat.S_IWOTH
+    return None if allowed else f"mode {mode:04o}"
 
 
 def write_new(path: Path, write: Callable[[Path], object]) -> None:

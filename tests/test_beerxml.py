@@ -236,6 +236,30 @@ def test_cli_prints_to_stdout_by_default(capsys: pytest.CaptureFixture[str]) -> 
     assert capsys.readouterr().out == to_yaml(read(TWO, "Weizen Step Mash"))
 
 
+def test_an_import_that_program_check_would_refuse_is_not_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A 10 MB step name: shortened in the step, but said in full in its comment, the file
+    # would be far over the 64 KiB a program file may be.
+    name = "Rest " + "x" * (10 * 1024 * 1024)
+    fields = "<TYPE>Temperature</TYPE><STEP_TEMP>66</STEP_TEMP><STEP_TIME>60</STEP_TIME>"
+    text = one_step(fields).replace("<NAME>Rest</NAME>", f"<NAME>{name}</NAME>")
+    path = write(tmp_path, text)
+    out = tmp_path / "huge.yaml"
+    assert main(["program", "import", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and len(err) < 400
+    assert err.startswith(f"hermsd: {path}: its program breaks the program file's rules: ")
+    assert "bytes long, more than the 64 KiB" in err
+    assert not out.exists()
+    # A step refused for what it holds names that step in one short line too.
+    path = write(tmp_path, text.replace("<STEP_TEMP>66", "<STEP_TEMP>hot"))
+    assert main(["program", "import", str(path), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and len(err) < 400 and "STEP_TEMP" in err
+    assert not out.exists()
+
+
 def test_a_recipe_step_named_strike_is_renamed_not_merged(tmp_path: Path) -> None:
     path = write(
         tmp_path,

@@ -984,7 +984,7 @@ def test_status_warns_of_a_progress_and_a_log_that_are_not_saved(
     assert "Is a directory" in not_saved
     assert status["log_failing"] == failing
     assert shown == [
-        f"warning: the program's progress is not saved (a restart may not resume it): {not_saved}",
+        f"warning: program progress not saved (a restart may not resume it): {not_saved}",
         f"warning: log failing (control goes on, this brew is not recorded): {failing}",
     ]
 

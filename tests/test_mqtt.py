@@ -11,6 +11,7 @@ from __future__ import annotations
 import ast
 import contextlib
 import json
+import os
 import re
 import signal
 import socket
@@ -35,9 +36,13 @@ from hermsd.control.client import ask
 from hermsd.control.link import LoopLink
 from hermsd.control.protocol import ProgramAction, ProgramStart, Request
 from hermsd.control.server import ControlServer
+from hermsd.instance import InstanceError
+from hermsd.latches import LatchStore
+from hermsd.mqtt import bridge as bridge_module
 from hermsd.mqtt.bridge import Bridge
 from hermsd.mqtt.messages import Topics, discovery_messages, setpoint_range, state_message
 from hermsd.program.model import Program, Step
+from hermsd.program.store import PROGRESS_FILE
 
 ROOT = Path(__file__).resolve().parents[1]
 MOSQUITTO = Path("/usr/sbin/mosquitto")
@@ -159,12 +164,12 @@ class Watcher:
 class Rig:
     """Broker, daemon behind its socket, the bridge on a thread, and a watcher."""
 
-    def __init__(self, tmp_path: Path) -> None:
+    def __init__(self, tmp_path: Path, latches: LatchStore | None = None) -> None:
         self.broker = Broker(tmp_path)
         self.broker.start()
         self.text = edited(BASE, mqtt__port=str(self.broker.port), mqtt__topic_prefix=PREFIX)
-        self.daemon, _world, path, self.events = start(tmp_path, self.text)
-        self.config = config_module.load(path)
+        self.daemon, _world, self.path, self.events = start(tmp_path, self.text, latches=latches)
+        self.config = config_module.load(self.path)
         self.socket = tmp_path / "control.sock"
         self.server = self._serve()
         run_for(self.daemon, 60.0)
@@ -201,6 +206,21 @@ class Rig:
             lambda m: m.topic == self.topics.state and m.json()["t"] == t, mark
         )
 
+    def at_boundary(self, request: Request) -> dict[str, Any]:
+        """The state after the daemon's reply to `request`, sent while the test runs the next
+        period."""
+        replies: list[dict[str, Any]] = []
+        asking = threading.Thread(target=lambda: replies.append(ask(self.socket, request)))
+        asking.start()
+        deadline = time.monotonic() + TIMEOUT
+        while not self.server._commands:  # the command waits for the boundary
+            assert time.monotonic() < deadline, "no command reached the daemon"
+            threading.Event().wait(0.005)
+        state = self.step().json()
+        asking.join(TIMEOUT)
+        assert replies and replies[0]["ok"], replies
+        return state
+
     def command(self, topic: str, payload: bytes, *, retain: bool = False) -> None:
         self.watcher.client.publish(topic, payload, 1, retain=retain).wait_for_publish(TIMEOUT)
 
@@ -227,7 +247,7 @@ def operator_lines(events: Events) -> list[str]:
 
 
 def discovered(watcher: Watcher, since: int = 0) -> dict[str, dict[str, Any]]:
-    """Every discovery message the bridge published: {topic: payload}; waits for all ten."""
+    """Every discovery message the bridge published: {topic: payload}; waits for the last."""
     watcher.wait_for(lambda m: m.topic.endswith("/alarm/config"), since)
     messages = [m for m in watcher.messages[since:] if m.topic.startswith("homeassistant/")]
     return {m.topic: m.json() for m in messages if m.topic.endswith("/config") and m.payload}
@@ -243,7 +263,7 @@ def test_discovery_gives_home_assistant_a_climate_entity_sensors_and_an_alarm(ri
     node = "brewery_hlt"
     components = {topic.split("/")[1] for topic in entities}
     assert components == HA_COMPONENTS
-    assert len(entities) == 11
+    assert len(entities) == 12
     # no second element here: its entity, if an earlier config made one, is removed
     removed = f"homeassistant/sensor/{node}/output2/config"
     assert removed not in entities
@@ -277,8 +297,12 @@ def test_discovery_gives_home_assistant_a_climate_entity_sensors_and_an_alarm(ri
     assert set(climate["modes"]) == {"heat", "off"} <= HA_HVAC_MODES
     assert state["climate_mode"] in climate["modes"] and state["action"] in HA_ACTIONS
     assert climate["temperature_unit"] == "C"
-    # the shipped cut-out is 95 °C: the highest setpoint offered is the step below it
+    # the shipped cut-out is 95 °C: the highest setpoint offered is the step below it, and
+    # the bridge takes what the card offers, no more (94.9 is refused: BAD_COMMANDS)
     assert (climate["min_temp"], climate["max_temp"], climate["temp_step"]) == (0, 94.5, 0.5)
+    assert (climate["min_temp"], climate["max_temp"]) == setpoint_range(rig.config)
+    warning = entities[f"homeassistant/binary_sensor/{node}/warning/config"]
+    assert warning["device_class"] == "problem"
 
     temperature = entities[f"homeassistant/sensor/{node}/temperature/config"]
     assert (temperature["device_class"], temperature["unit_of_measurement"]) == (
@@ -309,7 +333,7 @@ def test_home_assistant_back_online_is_told_everything_again(rig: Rig) -> None:
     discovered(rig.watcher)
     mark = len(rig.watcher.messages)
     rig.command(rig.topics.home_assistant_status, b"online")  # Home Assistant's birth message
-    assert len(discovered(rig.watcher, mark)) == 11
+    assert len(discovered(rig.watcher, mark)) == 12
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.availability, mark)
 
 
@@ -404,6 +428,8 @@ BAD_COMMANDS = [  # (topic, payload, what the error says)
     ("set/setpoint", b"1e999", "control.setpoint: expected a number"),
     ("set/setpoint", b"150", "control.setpoint: 150 °C is out of range"),
     ("set/setpoint", b"95", "is not below safety.max_temp"),
+    ("set/setpoint", b"94.9", "94.9 °C is outside the thermostat's range, 0 to 94.5 °C"),
+    ("set/setpoint", b"-0.5", "control.setpoint: -0.5 °C is out of range"),
     ("set/setpoint", b'{"setpoint": 70}', "expected a number"),
     ("set/setpoint", b"\xff70", "not UTF-8"),
     ("set/setpoint", b"7" * 100, "100 bytes is not a command"),
@@ -413,7 +439,7 @@ BAD_COMMANDS = [  # (topic, payload, what the error says)
 
 
 def test_a_bad_command_is_refused_nothing_reaches_the_daemon_and_the_bridge_serves_on(
-    rig: Rig,
+    rig: Rig, caplog: pytest.LogCaptureFixture
 ) -> None:
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
     before = rig.status()
@@ -424,6 +450,8 @@ def test_a_bad_command_is_refused_nothing_reaches_the_daemon_and_the_bridge_serv
         assert error["topic"] == f"{PREFIX}/{topic}"
         assert error["error"].startswith("refused, nothing changed: ")
         assert says in error["error"], payload
+        logged = f"mqtt command on {PREFIX}/{topic}: {error['error']}"
+        assert logged in caplog.messages, payload
     state = rig.step().json()  # the bridge still publishes each period
     status = rig.status()
     assert (status["setpoint"], status["mode"]) == (before["setpoint"], before["mode"])
@@ -478,7 +506,7 @@ def test_a_broker_restart_is_survived_and_everything_published_again(rig: Rig) -
     rig.broker.start()  # on the same port, with no retained message left
     rig.watcher = Watcher(rig.broker.port)
     entities = discovered(rig.watcher)  # retained, or live once the bridge is back
-    assert len(entities) == 11
+    assert len(entities) == 12
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.availability and m.payload == b"online")
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
     rig.step()  # and the next period's state too
@@ -586,20 +614,7 @@ def test_a_running_programs_step_time_left_and_next_step_are_published(rig: Rig)
         "MQTT mash", (Step("Dough-in", setpoint, 600.0), Step("Mash out", setpoint, None))
     )
 
-    def at_boundary(request: Request) -> dict[str, Any]:
-        """The daemon's reply to `request`, sent while the test runs the next period."""
-        replies: list[dict[str, Any]] = []
-        asking = threading.Thread(target=lambda: replies.append(ask(rig.socket, request)))
-        asking.start()
-        deadline = time.monotonic() + TIMEOUT
-        while not rig.server._commands:  # the command waits for the boundary
-            assert time.monotonic() < deadline, "no command reached the daemon"
-            threading.Event().wait(0.005)
-        state = rig.step().json()
-        asking.join(TIMEOUT)
-        assert replies and replies[0]["ok"], replies
-        return state
-
+    at_boundary = rig.at_boundary
     state = at_boundary(ProgramStart(program))
     assert (state["program"], state["step_text"], state["next_step"]) == (
         "MQTT mash",
@@ -618,6 +633,116 @@ def test_a_running_programs_step_time_left_and_next_step_are_published(rig: Rig)
     )
     state = at_boundary(ProgramAction("stop"))
     assert (state["program"], state["step_text"]) == (None, "none")
+
+
+def test_a_failing_log_and_an_unsaved_program_progress_are_published(tmp_path: Path) -> None:
+    """Both hold no heater off, and both lose what the brewer counts on: Home Assistant
+    shows them in the warnings sensor and turns the Warning problem sensor on."""
+    state_dir = tmp_path / "state"
+    state_dir.mkdir()
+    rig = Rig(tmp_path, latches=LatchStore(state_dir))
+    try:
+        entity = f"homeassistant/binary_sensor/{rig.topics.node_id}/warning/config"
+        warning = discovered(rig.watcher)[entity]
+        assert warning["value_template"] == "{{ 'ON' if value_json.warning else 'OFF' }}"
+        state = rig.step().json()
+        assert (state["warning"], state["warning_text"]) == (False, "none")
+
+        rig.events.failing = "writing brew.mcap: [Errno 28] No space left on device"  # type: ignore[attr-defined]
+        rig.step()  # the recorder is looked at after the period's state is out
+        state = rig.step().json()
+        assert state["warning"] is True
+        assert state["warnings"] == [
+            "log failing (control goes on, this brew is not recorded): "
+            "writing brew.mcap: [Errno 28] No space left on device"
+        ]
+
+        (state_dir / PROGRESS_FILE).mkdir()  # nothing can be renamed over a directory
+        pv = rig.status()["pv"]
+        rig.at_boundary(ProgramStart(Program("Saved?", (Step("Rest", round(pv, 1), None),))))
+        assert rig.daemon.program.flush(TIMEOUT)
+        state = rig.step().json()
+        progress, log_failing = state["warnings"]
+        assert progress.startswith("program progress not saved (a restart may not resume it): ")
+        assert "Is a directory" in progress and log_failing.startswith("log failing")
+        assert state["warning"] is True and "program progress not saved" in state["warning_text"]
+    finally:
+        rig.close()
+
+
+def test_a_second_bridge_for_the_same_broker_and_client_id_is_refused(
+    rig: Rig, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two bridges with one client id would put each other off the broker once a second."""
+    rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
+    mark = len(rig.watcher.messages)
+    second = Bridge(rig.config, rig.socket, poll=0.02)
+    refused: list[BaseException] = []
+
+    def run_second() -> None:
+        try:
+            second.run()
+        except InstanceError as error:
+            refused.append(error)
+
+    running = threading.Thread(target=run_second)
+    running.start()
+    running.join(TIMEOUT)
+    second.stop()  # if it did start, it serves no longer
+    running.join(TIMEOUT)
+    assert refused, "the second bridge ran"
+    assert isinstance(refused[0], InstanceError)
+    assert refused[0].holder == os.getpid()  # the first bridge runs in this process
+    code = main(["mqtt", "--config", str(rig.path), "--socket", str(rig.socket)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err == (
+        f"hermsd: another hermsd mqtt (pid {os.getpid()}) serves mqtt://localhost:"
+        f"{rig.broker.port} as client id hermsd-brewery_hlt: one bridge per broker and client "
+        "id (two put each other off the broker); stop that one first, or give this one its "
+        "own mqtt.client_id\n"
+    )
+    # the first is undisturbed: still connected, still publishing each period
+    rig.step()
+    assert not [m for m in rig.watcher.on(rig.topics.availability, mark) if m.payload != b"online"]
+    # and once it stops, a bridge on the same client id starts
+    rig.bridge.stop()
+    rig.thread.join(TIMEOUT)
+    rig.start_bridge()
+
+
+def test_a_fault_handling_one_message_is_one_line_and_later_ones_are_handled(
+    rig: Rig, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
+    parse, send = bridge_module.parse_command, bridge_module.ask
+
+    def parse_failing(topics: Topics, topic: str, payload: bytes, config: Any) -> Any:
+        if payload == b"68":
+            raise RuntimeError("a fault\nover two lines")
+        return parse(topics, topic, payload, config)
+
+    def ask_failing(path: Path, request: Request, timeout: float) -> dict[str, Any]:
+        if request == protocol.SetSetpoint(69.0):
+            raise KeyError("v")
+        return send(path, request, timeout)
+
+    monkeypatch.setattr(bridge_module, "parse_command", parse_failing)
+    monkeypatch.setattr(bridge_module, "ask", ask_failing)
+    mark = len(rig.watcher.messages)
+    rig.command(rig.topics.set_setpoint, b"68")  # fails as it is taken (paho's thread)
+    rig.command(rig.topics.set_setpoint, b"69")  # fails as it is sent (the command thread)
+    error = rig.watcher.wait_for(lambda m: m.topic == rig.topics.error, mark).json()
+    assert error["error"] == "not handled: KeyError: 'v'"
+    rig.command(rig.topics.set_setpoint, b"70")
+    step_until(rig, lambda state: state["setpoint"] == 70.0)
+    said = [r for r in caplog.records if "not handled" in r.getMessage()]
+    assert [r.getMessage() for r in said] == [
+        f"mqtt message on {rig.topics.set_setpoint} not handled: RuntimeError: a fault over two "
+        "lines",
+        f"mqtt command on {rig.topics.set_setpoint}: not handled: KeyError: 'v'",
+    ]
+    assert all(r.exc_info is None for r in said)  # one line each, no traceback
 
 
 # -- logging in -----------------------------------------------------------------------------

@@ -346,6 +346,43 @@ def test_values_the_config_refuses_are_not_written(config_copy: Path) -> None:
     assert config_copy.read_bytes() == SHIPPED.read_bytes()
 
 
+def test_a_planted_temporary_symlink_is_not_written_through(config_copy: Path) -> None:
+    # Where the temporary file was once always made: a link there to another file.
+    victim = config_copy.parent / "victim"
+    victim.write_text("the victim's own text\n", encoding="utf-8")
+    victim.chmod(0o600)
+    planted = config_copy.with_name(config_copy.name + ".tmp")
+    planted.symlink_to(victim)
+    tune.write_config(config_copy, {"control.model_gain": 1.0})
+    assert victim.read_text(encoding="utf-8") == "the victim's own text\n"
+    assert stat.S_IMODE(victim.stat().st_mode) == 0o600
+    assert planted.is_symlink() and os.readlink(planted) == str(victim)
+    assert "model_gain: 1.0" in config_copy.read_text(encoding="utf-8")
+    assert stat.S_IMODE(config_copy.stat().st_mode) == 0o640  # the original's, kept
+    assert sorted(os.listdir(config_copy.parent)) == ["hermsd.yaml", "hermsd.yaml.tmp", "victim"]
+
+
+def test_a_read_only_config_is_refused_and_left_as_it_is(
+    capsys: pytest.CaptureFixture[str], brew_day: list[str], config_copy: Path
+) -> None:
+    config_copy.chmod(0o444)  # root may write it; the mode says nobody should
+    before = config_copy.stat()
+    code, out, err = run_cli(capsys, *brew_day, "--write", str(config_copy))
+    assert (code, out) == (2, "")
+    assert err == (
+        f"hermsd: {config_copy}: the config file is read-only (mode 0444): nothing written; "
+        "make it writable (chmod u+w) to let tune write it, or leave out --write\n"
+    )
+    after = config_copy.stat()
+    assert (after.st_ino, after.st_mtime_ns, after.st_mode) == (
+        before.st_ino,
+        before.st_mtime_ns,
+        before.st_mode,
+    )
+    assert config_copy.read_bytes() == SHIPPED.read_bytes()
+    assert os.listdir(config_copy.parent) == ["hermsd.yaml"]
+
+
 def test_a_broken_config_is_not_edited(config_copy: Path) -> None:
     config_copy.write_text("control:\n  kc: fast\n", encoding="utf-8")
     with pytest.raises(tune.TuneError, match=r"is not a valid config now; fix it first"):

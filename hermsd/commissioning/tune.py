@@ -35,7 +35,7 @@ from hermsd.commissioning.identify import (
     identify,
     uncertainty,
 )
-from hermsd.files import write_atomically
+from hermsd.files import read_only, write_atomically
 from hermsd.replay import Log, sudden_drops
 
 # (title, rule prefix in pid.table1, the numbers the rule uses): Table 1's open-loop
@@ -539,7 +539,9 @@ def write_tuned(path: Path, tuned: Tuned) -> str:
 def write_config(path: Path, changes: Mapping[str, float | str]) -> str:
     """Write `changes` into the config file at `path` atomically; the unified diff ("" if none).
 
-    The file keeps its permission bits; a running daemon sees a new file, as after any edit.
+    The file keeps its permission bits, owner and group; a running daemon sees a new file,
+    as after any edit. A file whose mode forbids writing it (0444) is refused, not replaced:
+    read-only is someone's decision, and a rename would go round it.
     """
     path = path.resolve()
     try:
@@ -554,6 +556,12 @@ def write_config(path: Path, changes: Mapping[str, float | str]) -> str:
             text.splitlines(keepends=True), written.splitlines(keepends=True), str(path), str(path)
         )
     )
+    locked = read_only(original)
+    if diff and locked is not None:
+        raise TuneError(
+            f"{path}: the config file is read-only ({locked}): nothing written; make it "
+            "writable (chmod u+w) to let tune write it, or leave out --write"
+        )
     if diff:
         try:
             write_atomically(path, written, like=original)

@@ -111,8 +111,7 @@ def status_warnings(
         )
     if progress_not_saved is not None:
         warnings.append(
-            f"the program's progress is not saved (a restart may not resume it): "
-            f"{progress_not_saved}"
+            f"program progress not saved (a restart may not resume it): {progress_not_saved}"
         )
     if log_failing is not None:
         warnings.append(f"log failing (control goes on, this brew is not recorded): {log_failing}")

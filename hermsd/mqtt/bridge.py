@@ -39,6 +39,7 @@ from hermsd.control.client import NoDaemonError, ReplyError, ask, command_timeou
 from hermsd.control.protocol import Status, describe
 from hermsd.control.server import RequestLimit
 from hermsd.files import NotRegularFile, read_regular
+from hermsd.instance import NameLock
 from hermsd.mqtt.messages import (
     OFFLINE,
     ONLINE,
@@ -99,6 +100,10 @@ class Bridge:
         self._stop = threading.Event()
         self._stopping = False  # set first thing in `stop`, before any lock is taken
         client_id = settings.client_id or f"hermsd-{self.topics.node_id}"
+        # A broker drops a client when another connects with its id: two bridges of one
+        # login would put each other off the broker once a second, for ever.
+        self._login = f"{settings.host}:{settings.port} as client id {client_id}"
+        self._instance = NameLock(f"mqtt {settings.host}:{settings.port} {client_id}")
         client = mqtt.Client(
             CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv311
         )
@@ -133,7 +138,21 @@ class Bridge:
     # -- the main thread ------------------------------------------------------------------
 
     def run(self) -> None:
-        """Serve until `stop`; then say "offline" and leave the broker cleanly."""
+        """Serve until `stop`; then say "offline" and leave the broker cleanly.
+
+        InstanceError, before anything is sent, when another bridge serves this broker and
+        client id."""
+        self._instance.acquire(
+            f"another hermsd mqtt ({{who}}) serves mqtt://{self._login}: one bridge per "
+            "broker and client id (two put each other off the broker); stop that one first, "
+            "or give this one its own mqtt.client_id"
+        )
+        try:
+            self._serve()
+        finally:
+            self._instance.release()
+
+    def _serve(self) -> None:
         settings = self.config.mqtt
         log.info(
             "bridging %s to mqtt://%s:%d as %s",
@@ -197,7 +216,10 @@ class Bridge:
             with self._wake:  # the latest of the oldest topic, after the wait
                 topic = next(iter(self._pending))
                 payload, command = self._pending.pop(topic)
-            self._send(topic, payload, command)
+            try:
+                self._send(topic, payload, command)
+            except Exception as error:  # a fault in one command must not end the others
+                self._refuse(topic, payload, f"not handled: {_fault(error)}")
             # Charged when the reply is in: the daemon charged it somewhere between the send
             # and the reply, so a bucket charged this late never holds more than the daemon's
             # (charged at the send, a slow answer under load let the next one come too soon).
@@ -287,14 +309,21 @@ class Bridge:
             log.warning("lost the broker (%s): reconnecting", reason_code)
 
     def _on_message(self, client: mqtt.Client, userdata: Any, message: mqtt.MQTTMessage) -> None:
-        topic, payload = message.topic, bytes(message.payload)
+        """Take one message; a fault in handling it is said in one line and the next one is
+        taken (paho would log a traceback, and a fault in saying so would end its thread)."""
+        try:
+            self._take(message.topic, bytes(message.payload), bool(message.retain))
+        except Exception as error:
+            log.error("mqtt message on %s not handled: %s", message.topic, _fault(error))
+
+    def _take(self, topic: str, payload: bytes, retain: bool) -> None:
         if topic == self.topics.home_assistant_status:
             if payload == ONLINE.encode():  # Home Assistant restarted: tell it again
                 self._announce()
             return
         if not payload:  # how a retained message is cleared: not a command
             return
-        if message.retain:
+        if retain:
             self._refuse(
                 topic,
                 payload,
@@ -334,6 +363,12 @@ class Bridge:
         """A retained message, if connected: what is missed is republished on connection."""
         if self.client.is_connected():
             self.client.publish(topic, payload, QOS, retain=True)
+
+
+def _fault(error: Exception) -> str:
+    """An unexpected exception in one line, its kind first: what the journal should say."""
+    text = " ".join(str(error).split())[:200]
+    return f"{type(error).__name__}: {text}" if text else type(error).__name__
 
 
 def _between_attempts(record: logging.LogRecord) -> bool:

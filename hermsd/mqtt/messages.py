@@ -109,6 +109,7 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "alarms": alarms,
         "alarm": bool(alarms),
         "alarm_text": (", ".join(alarms) or "none")[:TEXT_STATE_LIMIT],
+        "warning": bool(status.get("warnings")),
         "warnings": list(status.get("warnings") or []),
         "warning_text": ("; ".join(status.get("warnings") or []) or "none")[:TEXT_STATE_LIMIT],
         "climate_mode": climate_mode,
@@ -128,8 +129,9 @@ def encode(message: dict[str, Any]) -> bytes:
 
 
 def setpoint_range(config: Config) -> tuple[float, float]:
-    """The climate card's range: the config's bounds for a setpoint, up to the last step
-    below the over-temperature cut-out (the setpoint must stay under it)."""
+    """The setpoints taken over MQTT, the climate card's range: the config's bounds for a
+    setpoint, up to the last step below the over-temperature cut-out (the setpoint must stay
+    under it). The one source of both: a command outside what the card offers is refused."""
     low, high = config_module.key_range("control.setpoint")
     below_cut_out = (config.safety.max_temp - 1e-9) // TEMP_STEP * TEMP_STEP
     return low, min(high, below_cut_out)
@@ -137,9 +139,10 @@ def setpoint_range(config: Config) -> tuple[float, float]:
 
 def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[str, Any] | None]]:
     """(topic, payload) of each entity Home Assistant should make for this tun: a climate
-    entity, sensors (the second element's duty when one is fitted), and a binary sensor that
-    is on while an alarm stands. A payload of None is an entity this config has not: sent
-    empty, it removes one an earlier config made."""
+    entity, sensors (the second element's duty when one is fitted), and binary sensors on
+    while an alarm stands and while a warning does (the log or a save failing). A payload of
+    None is an entity this config has not: sent empty, it removes one an earlier config
+    made."""
     node = topics.node_id
     device = {
         "identifiers": [f"hermsd_{node}"],
@@ -169,6 +172,18 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
             state_topic=topics.state,
             value_template=f"{{{{ value_json.{field} }}}}",
             **fields,
+        )
+
+    def problem(field: str, name: str) -> tuple[str, Any]:
+        """A binary sensor of the problem class, on while the state's `field` is true."""
+        return topics.discovery("binary_sensor", field), entity(
+            field,
+            name,
+            state_topic=topics.state,
+            value_template=f"{{{{ 'ON' if value_json.{field} else 'OFF' }}}}",
+            payload_on="ON",
+            payload_off="OFF",
+            device_class="problem",
         )
 
     percent = {"unit_of_measurement": "%", "state_class": "measurement"}
@@ -228,18 +243,8 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         ),
         sensor("alarms", "Alarms", "alarm_text"),
         sensor("warnings", "Warnings", "warning_text"),
-        (
-            topics.discovery("binary_sensor", "alarm"),
-            entity(
-                "alarm",
-                "Alarm",
-                state_topic=topics.state,
-                value_template="{{ 'ON' if value_json.alarm else 'OFF' }}",
-                payload_on="ON",
-                payload_off="OFF",
-                device_class="problem",
-            ),
-        ),
+        problem("warning", "Warning"),
+        problem("alarm", "Alarm"),
     ]
 
 
@@ -258,6 +263,13 @@ def parse_command(topics: Topics, topic: str, payload: bytes, config: Config) ->
         celsius = float(text)
         command: Command = SetSetpoint(celsius)
         problems = config_module.runtime_problems(config, {"control.setpoint": celsius})
+        low, high = setpoint_range(config)
+        if not problems and not low <= celsius <= high:
+            problems = [
+                f"setpoint: {celsius:g} °C is outside the thermostat's range, {low:g} to "
+                f"{high:g} °C (the config's bounds, in {TEMP_STEP:g} °C steps below "
+                f"safety.max_temp {config.safety.max_temp:g} °C)"
+            ]
     elif topic == topics.set_mode:
         if text not in HA_MODES:
             raise Refused(f"mode: expected heat (auto) or off (manual at 0 %), got {text!r}")

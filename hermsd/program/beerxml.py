@@ -191,7 +191,7 @@ def convert(root: Node, source: str, wanted: str | None) -> Program:
     name, mash, element = chosen[0]
     if mash is None:
         raise BeerXMLError(
-            f"{source}:{element.line}: recipe {name or '(unnamed)'!r} has no MASH "
+            f"{source}:{element.line}: recipe {_shortened(name or '(unnamed)')!r} has no MASH "
             "(an extract recipe has none): nothing to import"
         )
     steps = _steps(mash, source)
@@ -206,7 +206,9 @@ def _shortened(name: str, room: int = MAX_NAME) -> str:
 
 
 def _names(found: list[tuple[str | None, Node | None, Node]]) -> str:
-    return ", ".join(repr(name) if name else f"(unnamed, line {e.line})" for name, _, e in found)
+    return ", ".join(
+        repr(_shortened(name)) if name else f"(unnamed, line {e.line})" for name, _, e in found
+    )
 
 
 def _steps(mash: Node, source: str) -> tuple[Step, ...]:
@@ -222,30 +224,31 @@ def _steps(mash: Node, source: str) -> tuple[Step, ...]:
         name = _text(element, "NAME")
         if not name:
             raise BeerXMLError(f"{source}:{element.line}: MASH_STEP {index + 1} has no NAME")
+        shown = _shortened(name)  # in messages: one line, however long the recipe's name
         kind = (_text(element, "TYPE") or "").casefold()
         if kind not in MASH_TYPES:
             raise BeerXMLError(
-                f"{source}:{_line(element, 'TYPE')}: MASH_STEP {name!r}: TYPE "
+                f"{source}:{_line(element, 'TYPE')}: MASH_STEP {shown!r}: TYPE "
                 f"{_text(element, 'TYPE') or '(missing)'!r} is not Infusion, Temperature or "
                 "Decoction"
             )
         if kind == "decoction":
             raise BeerXMLError(
-                f"{source}:{element.line}: MASH_STEP {name!r} is a decoction: the HLT cannot "
+                f"{source}:{element.line}: MASH_STEP {shown!r} is a decoction: the HLT cannot "
                 "boil part of the mash, so it is not imported (make it a Temperature step in "
                 "the recipe, or write the program by hand with a confirm where the decoction "
                 "is pulled)"
             )
-        setpoint = _temperature(element, "STEP_TEMP", source, name)
-        hold = _number(element, "STEP_TIME", source, name, required=True)
+        setpoint = _temperature(element, "STEP_TEMP", source, shown)
+        hold = _number(element, "STEP_TIME", source, shown, required=True)
         if hold is not None and hold * 60.0 > model.MAX_HOLD_S:
             raise BeerXMLError(
-                f"{source}:{_line(element, 'STEP_TIME')}: MASH_STEP {name!r}: STEP_TIME "
+                f"{source}:{_line(element, 'STEP_TIME')}: MASH_STEP {shown!r}: STEP_TIME "
                 f"{hold:g} min is more than the {model.MAX_HOLD_S / 3600:g} h a rest may hold"
             )
-        ramp_time = _number(element, "RAMP_TIME", source, name, required=False)
+        ramp_time = _number(element, "RAMP_TIME", source, shown, required=False)
         if index == 0 and kind == "infusion":
-            strike = _infuse_temperature(element, source, name)
+            strike = _infuse_temperature(element, source, shown)
             note = None if strike is not None else "INFUSE_TEMP not given: the first rest's"
             steps.append(
                 Step(
@@ -259,7 +262,7 @@ def _steps(mash: Node, source: str) -> tuple[Step, ...]:
         ramp, note = None, None
         if ramp_time:
             if previous is not None and setpoint > previous:
-                ramp, note = _ramp(setpoint - previous, ramp_time, element, source, name)
+                ramp, note = _ramp(setpoint - previous, ramp_time, element, source, shown)
             else:
                 note = f"RAMP_TIME {ramp_time:g} min not used: no rise from a step before"
         steps.append(Step(name, setpoint, hold or 0.0, ramp, note=note))

@@ -327,8 +327,12 @@ def _checked(reader: _Reader, root: yaml.Node | None, filename: str) -> Program:
 
 
 def parse(text: str, filename: str = "<program>") -> Program:
-    """The program a YAML text describes; ProgramError lists everything wrong with it."""
+    """The program a YAML text describes; ProgramError lists everything wrong with it.
+
+    Every rule of a program file, its length too: text made in memory (an import) passes
+    here exactly when its file would pass `load` (and `program check`)."""
     try:
+        config_module.check_size(text, filename)
         root = config_module._root(text, filename)
     except ConfigError as error:
         raise ProgramError(error.problems) from None
