@@ -30,6 +30,7 @@ clock that jumps forward (a Pi without RTC meeting NTP) starts a file with a tru
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import io
 import itertools
@@ -40,6 +41,8 @@ import queue
 import struct
 import threading
 import time
+import types
+import typing
 import uuid
 import zlib
 from collections.abc import Callable, Collection, Iterable, Iterator
@@ -54,7 +57,10 @@ from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
 from hermsd import __version__
+from hermsd.config import Config
 from hermsd.files import fsync_directory
+from hermsd.learning import LearnedModel
+from hermsd.pid import PlantModel
 
 PERIOD_TOPIC: Final = "/hermsd/period"
 READING_TOPIC: Final = "/hermsd/reading"
@@ -110,14 +116,57 @@ def _object(
     title: str, description: str, properties: dict[str, Any], optional: tuple[str, ...] = ()
 ) -> dict[str, Any]:
     """A record's schema; every property is required but the `optional` ones (fields added
-    later, so the logs written before them still read)."""
+    later, so the logs written before them still read), and no other is allowed: a field
+    the schema does not declare is one a schema-driven reader (Foxglove) cannot see."""
     return {
         "title": title,
         "description": description,
         "type": "object",
         "properties": properties,
         "required": [name for name in properties if name not in optional],
+        "additionalProperties": False,
     }
+
+
+_JSON_TYPES: Final[dict[object, str]] = {
+    float: "number",
+    int: "integer",
+    str: "string",
+    bool: "boolean",
+    type(None): "null",
+}
+
+
+def _dataclass_schema(record: type, description: str, *, nullable: bool = False) -> dict[str, Any]:
+    """The schema of a dataclass as `dataclasses.asdict` writes it (tuples as lists).
+
+    Derived from its fields' types, so a field added to the class is declared in the log.
+    """
+    hints = typing.get_type_hints(record)
+    properties = {f.name: _type_schema(hints[f.name]) for f in dataclasses.fields(record)}
+    schema: dict[str, Any] = {
+        "type": ["object", "null"] if nullable else "object",
+        "description": description,
+        "properties": properties,
+        "required": list(properties),
+        "additionalProperties": False,
+    }
+    return schema
+
+
+def _type_schema(hint: Any) -> dict[str, Any]:
+    if dataclasses.is_dataclass(hint) and isinstance(hint, type):
+        return _dataclass_schema(hint, hint.__doc__ or hint.__name__)
+    if isinstance(hint, types.UnionType):
+        kinds = [_type_schema(member) for member in typing.get_args(hint)]
+        if len(kinds) == 2 and {"type": "null"} in kinds:  # X | None
+            [kind] = [k for k in kinds if k != {"type": "null"}]
+            return {**kind, "type": [kind["type"], "null"]}
+        raise TypeError(f"no JSON schema for {hint}")
+    if typing.get_origin(hint) is tuple:
+        item, *_ = typing.get_args(hint)
+        return {"type": "array", "items": _type_schema(item)}
+    return {"type": _JSON_TYPES[hint]}
 
 
 _T = _field("number", "monotonic time of the daemon, s")
@@ -179,12 +228,18 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     ["boolean", "null"],
                     "its minimum on or off time let it switch this period (two elements)",
                 ),
+                "no_heat": _field(
+                    ["array", "null"],
+                    "the reports standing (two elements): 1 or 2 that element gives no heat, "
+                    "0 one of them does, 3 more heat came than asked",
+                    items={"type": "integer", "enum": [0, 1, 2, 3]},
+                ),
                 "ceiling": _field(
                     ["number", "null"],
                     "where full power levels the water out, while short of the setpoint, °C",
                 ),
             },
-            optional=("u2", "applied2", "switched2", "on2", "free2", "ceiling"),
+            optional=("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
         ),
     ),
     READING_TOPIC: TopicSpec(
@@ -254,6 +309,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                         "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
                     },
                     "required": ["sec", "nsec"],
+                    "additionalProperties": False,
                 },
                 "level": _field(
                     "integer",
@@ -274,10 +330,15 @@ TOPICS: Final[dict[str, TopicSpec]] = {
             "The configuration in force, repeated at the start of every file.",
             {
                 "t": _T,
-                "config": _field("object", "the configuration as loaded"),
+                "config": _dataclass_schema(Config, "the configuration as loaded"),
                 "reason": _field("string", "why it was recorded: start, reload, …"),
-                "model": _field(
-                    "object", "the tun's model the controller uses: gain, tau, dead_time, ambient"
+                "model": _dataclass_schema(
+                    PlantModel, "the tun's model the controller uses: °C/%, s, s, °C"
+                ),
+                "safety_model": _dataclass_schema(
+                    PlantModel,
+                    "the tun as measured, the safety limits' (null: they hold for any tun)",
+                    nullable=True,
                 ),
                 "drop_readings": _field(
                     "integer", "readings in a row that show cold water inside a period (full_from)"
@@ -301,7 +362,13 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "integer", "fewest full-power periods a recovery's rate is fitted over"
                 ),
             },
-            optional=("drop_carry", "reach_watch", "steady_duty_share", "recovery_fit_periods"),
+            optional=(
+                "safety_model",
+                "drop_carry",
+                "reach_watch",
+                "steady_duty_share",
+                "recovery_fit_periods",
+            ),
         ),
     ),
     PROGRAM_TOPIC: TopicSpec(
@@ -346,8 +413,10 @@ TOPICS: Final[dict[str, TopicSpec]] = {
             "What was learned of the tun, as stored for the next start.",
             {
                 "t": _T,
-                "learned": _field(
-                    "object", "rate °C/s at full power, loss 1/s, dead_time s, ambient °C, litres"
+                "learned": _dataclass_schema(
+                    LearnedModel,
+                    "rate °C/s at full power, loss 1/s, dead_time s, ambient °C, litres, "
+                    "wall_ns when learned (ns since the Unix epoch)",
                 ),
             },
         ),

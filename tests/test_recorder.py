@@ -14,12 +14,14 @@ from pathlib import Path
 from typing import Any, BinaryIO, cast
 
 import pytest
+from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 import hermsd
+from hermsd import config as config_module
 from hermsd import recorder as recorder_module
 from hermsd.recorder import (
     CONFIG_TOPIC,
@@ -119,9 +121,10 @@ TIMING = {
 }
 CONFIG = {
     "t": 0.0,
-    "config": {"setpoint": 66.0, "pid": {"kc": 80.8, "ti": 489.0, "td": 44.9}},
+    "config": config_module.to_dict(config_module.DEFAULT),
     "reason": "start",
     "model": {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0},
+    "safety_model": None,
     "drop_readings": 2,
     "drop_onset_c": 0.125,
     "drop_fall_c": 0.1875,
@@ -130,7 +133,14 @@ CONFIG = {
 }
 MODEL = {
     "t": 6600.0,
-    "learned": {"rate": 0.0113, "loss": 6.7e-5, "dead_time": 117.5, "ambient": 20.0, "litres": 90},
+    "learned": {
+        "rate": 0.0113,
+        "loss": 6.7e-5,
+        "dead_time": 117.5,
+        "ambient": 20.0,
+        "litres": 90,
+        "wall_ns": EPOCH_NS,
+    },
 }
 
 
@@ -183,39 +193,8 @@ class _DiskFile:
 
 
 def conforms(value: Any, schema: dict[str, Any]) -> bool:
-    """The part of JSON Schema the recorder's schemas use: type, enum, bounds, properties, items.
-
-    An object must carry every required property and no undeclared one, so the schema
-    documents every field (optional ones: added later, absent from older logs).
-    """
-    kinds = schema.get("type")
-    if kinds is not None:
-        kinds = [kinds] if isinstance(kinds, str) else kinds
-        checks = {
-            "null": value is None,
-            "boolean": isinstance(value, bool),
-            "integer": isinstance(value, int) and not isinstance(value, bool),
-            "number": isinstance(value, int | float) and not isinstance(value, bool),
-            "string": isinstance(value, str),
-            "array": isinstance(value, list),
-            "object": isinstance(value, dict),
-        }
-        if not any(checks[kind] for kind in kinds):
-            return False
-    if "enum" in schema and value not in schema["enum"]:
-        return False
-    if "minimum" in schema and value < schema["minimum"]:
-        return False
-    if "maximum" in schema and value > schema["maximum"]:
-        return False
-    if isinstance(value, dict) and "properties" in schema:
-        properties = schema["properties"]
-        if set(value) - set(properties) or set(schema.get("required", [])) - set(value):
-            return False
-        return all(conforms(value[key], properties[key]) for key in value)
-    if isinstance(value, list) and "items" in schema:
-        return all(conforms(item, schema["items"]) for item in value)
-    return True
+    """Whether `value` is valid against the JSON schema (which lets no undeclared field by)."""
+    return Draft202012Validator(schema).is_valid(value)
 
 
 def finished_files(directory: Path) -> list[Path]:
