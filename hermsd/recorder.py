@@ -2,13 +2,14 @@
 
 The control loop hands records over with `Recorder.write`, which is one queue put: it never
 blocks and never raises, because a log is worth less than a control period. A thread of its
-own encodes the records as JSON and writes them with the `mcap` library, which is not
-thread-safe and is touched by that thread only.
+own encodes the records as JSON and writes them with `hermsd.log_writer` (mcap's records,
+and the chunk index kept on disk until the file is finished, so the memory stays flat over
+months), which is not thread-safe and is touched by that thread only.
 
 What survives what:
 
 - A crash or power cut loses at most the records of the last `flush_interval` seconds: the
-  open chunk is closed and handed to the OS at that pace (`mcap.writer.Writer.flush`), and
+  open chunk is closed and handed to the OS at that pace (`LogWriter.flush`), and
   `os.fdatasync` pushes it to the card at most every `sync_interval` seconds (SD cards wear).
   The file being written is named `*.mcap.part`; `recover` turns a leftover one into a
   finished `.mcap` that keeps every complete chunk.
@@ -54,12 +55,12 @@ from typing import Any, BinaryIO, Final, NamedTuple
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
-from mcap.writer import CompressionType, Writer
 
 from hermsd import __version__
 from hermsd.config import Config
 from hermsd.files import fsync_directory
 from hermsd.learning import LearnedModel
+from hermsd.log_writer import MCAP_MAGIC, LogWriter
 from hermsd.pid import PlantModel
 
 PERIOD_TOPIC: Final = "/hermsd/period"
@@ -84,7 +85,6 @@ LIBRARY: Final = f"hermsd/{__version__}"
 CHUNK_SIZE: Final = 256 * 1024
 RETRY_INTERVAL_S: Final = 5.0
 RETRY_MAX_S: Final = 300.0
-MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 
 
 class LogLevel(IntEnum):
@@ -807,7 +807,7 @@ class _OpenFile:
         self.part = part
         self.stream = stream
         self.first_log_time_ns = first_log_time_ns
-        self.writer = Writer(stream, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self.writer = LogWriter(stream, part.parent, chunk_size=CHUNK_SIZE)
         self.channels: dict[str, int] = {}
         self.unflushed = 0
         self.flush_due: float | None = None
@@ -837,7 +837,7 @@ class _OpenFile:
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS."""
-        self.writer.flush()  # type: ignore[no-untyped-call]
+        self.writer.flush()
         self.flushed += self.unflushed
         self.unflushed = 0
         self.flush_due = None
@@ -848,7 +848,7 @@ class _OpenFile:
         self.sync_due = None
 
     def finish(self) -> None:
-        self.writer.finish()  # type: ignore[no-untyped-call]
+        self.writer.finish()
         self.stream.flush()
         self.unflushed = 0
         os.fdatasync(self.stream.fileno())
@@ -859,6 +859,8 @@ class _OpenFile:
         # The disk already failed; closing releases the descriptor even when it raises.
         with contextlib.suppress(Exception):
             self.stream.close()
+        with contextlib.suppress(Exception):
+            self.writer.close_index()
         if self.flushed == 0 and not _holds_messages(self.part):
             with contextlib.suppress(OSError):
                 self.part.unlink()
@@ -1408,7 +1410,7 @@ def recover(path: Path | str) -> Recovery:
     walk = _Walk(data)
     try:
         with temporary.open("wb") as target:
-            writer = Writer(target, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+            writer = LogWriter(target, final.parent, chunk_size=CHUNK_SIZE)
             try:
                 kept = _copy_records(_records(walk.runs()), writer, lambda: walk.channel_topics)
             except (struct.error, UnicodeDecodeError, ValueError, EOFError) as exc:
@@ -1428,7 +1430,7 @@ def recover(path: Path | str) -> Recovery:
                     "damaged": "; ".join(d.describe() for d in walk.damaged) or "no",
                 },
             )
-            writer.finish()  # type: ignore[no-untyped-call]
+            writer.finish()
             target.flush()
             os.fsync(target.fileno())
         os.replace(temporary, final)
@@ -1459,7 +1461,7 @@ def recover_directory(directory: Path | str) -> list[Recovery | NotRecovered]:
 
 
 def _copy_records(
-    records: Iterator[McapRecord], writer: Writer, channel_topics: Callable[[], dict[int, str]]
+    records: Iterator[McapRecord], writer: LogWriter, channel_topics: Callable[[], dict[int, str]]
 ) -> int:
     """Write the schemas, channels, messages and metadata of `records` again; count messages.
 
@@ -1514,7 +1516,7 @@ def _copy_records(
     return kept
 
 
-def _copy_message(writer: Writer, channel_id: int, record: Message) -> None:
+def _copy_message(writer: LogWriter, channel_id: int, record: Message) -> None:
     writer.add_message(
         channel_id, record.log_time, record.data, record.publish_time, record.sequence
     )

@@ -8,8 +8,10 @@ import json
 import os
 import random
 import shutil
+import struct
 import threading
 import time
+import tracemalloc
 from pathlib import Path
 from typing import Any, BinaryIO, cast
 
@@ -551,6 +553,43 @@ def test_fdatasync_at_most_every_sync_interval(
     # The file opens at 0 s; record n is flush n + 1. Syncs at 10, 20, 30 s, then at close
     # after the 36th flush (the finished file).
     assert synced_after_flush == [11, 21, 31, 36]
+
+
+def test_memory_does_not_grow_with_the_chunks_of_a_file(tmp_path: Path) -> None:
+    """A chunk per flush (43,200 a day at 2 s) costs the writer no memory per chunk: the
+    daemon runs for months. mcap's Writer kept some 600 bytes a chunk until the file closed."""
+    clock = VirtualClock()  # flush_interval 0: every record is a chunk of its own
+    recorder = Recorder(tmp_path, now=clock.monotonic, flush_interval=0.0, sync_interval=1e9)
+    chunks = 1500
+
+    def write_chunks(first: int) -> int:
+        for k in range(first, first + chunks):
+            recorder.write(WINDOW_TOPIC, EPOCH_NS + k * S, WINDOW)
+        assert recorder.sync(timeout=60)
+        return tracemalloc.get_traced_memory()[0]
+
+    tracemalloc.start()
+    try:
+        write_chunks(0)  # the file, its channels and the writer's buffers made
+        before = write_chunks(chunks)
+        grown = write_chunks(2 * chunks) - before
+    finally:
+        tracemalloc.stop()
+    recorder.close()
+    assert grown < 20 * chunks  # bytes per chunk: noise, not an index entry
+    [path] = finished_files(tmp_path)
+    with path.open("rb") as f:  # … and the summary still indexes every chunk
+        summary = make_reader(f, validate_crcs=True).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) == 3 * chunks
+    data = path.read_bytes()
+    for entry in summary.chunk_indexes:  # where a seeking reader (Foxglove) will look
+        assert struct.unpack_from("<BQ", data, entry.chunk_start_offset) == (
+            0x06,  # a chunk record, of the length indexed
+            entry.chunk_length - 9,
+        )
+        for channel, offset in entry.message_index_offsets.items():
+            assert struct.unpack_from("<BQH", data, offset)[::2] == (0x07, channel)
+    assert [topic for topic, _, _ in decoded(path)] == [WINDOW_TOPIC] * (3 * chunks)
 
 
 def test_an_error_event_reaches_the_os_at_once(tmp_path: Path) -> None:
