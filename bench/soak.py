@@ -33,6 +33,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from statistics import median
 
 from control import _replace_section  # bench/control.py, beside this file
 from log_bench import paced_recorder, run_daemon  # bench/log_bench.py, beside this file
@@ -147,11 +148,6 @@ def verdict(samples: list[Sample]) -> list[str]:
         f"last 24 samples {median(last):.0f} µs; in units of the reference work "
         f"{median(first_relative):.3f} and {median(last_relative):.3f}.",
     ]
-
-
-def median(values: list[float]) -> float:
-    ordered = sorted(values)
-    return ordered[len(ordered) // 2]
 
 
 def main() -> int:
