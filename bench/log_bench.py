@@ -63,6 +63,27 @@ def simulate(hours: float, directory: Path | None) -> Run:
     if directory is None:
         run_daemon(config, clock, hours, None)
         return Run(time.process_time() - started, None)
+    recorder, writer_cpu = paced_recorder(directory, clock, config)
+    run_daemon(config, clock, hours, recorder)
+    recorder.sync()  # the thread's CPU clock is gone once it has stopped
+    writer_cpu_s = writer_cpu()
+    recorder.close()
+    if recorder.dropped or recorder.lost or recorder.errors:
+        raise SystemExit(
+            f"the recorder dropped {recorder.dropped}, lost {recorder.lost} records "
+            f"and failed {recorder.errors} times: {recorder.last_error}"
+        )
+    return Run(time.process_time() - started, writer_cpu_s)
+
+
+def paced_recorder(
+    directory: Path, clock: VirtualClock, config: Config
+) -> tuple[Recorder, Callable[[], float]]:
+    """The daemon's Recorder as `config.log` sets it, and its writer thread's CPU clock.
+
+    The simulation waits for the writer every flush_interval of simulated time
+    (`Recorder.sync`), so every record is kept and each chunk holds what it would in real time.
+    """
     log = config.log
     before = set(threading.enumerate())
     recorder = Recorder(
@@ -75,23 +96,14 @@ def simulate(hours: float, directory: Path | None) -> Run:
         metadata={"tun": config.tun.name},
     )
     [writer] = set(threading.enumerate()) - before
-    assert writer.ident is not None  # started by the constructor
+    writer_clock = time.pthread_getcpuclockid(writer.ident or 0)  # started by the constructor
 
     def keep_pace() -> None:
         recorder.sync()
         clock.call_at(clock.monotonic() + log.flush_interval, keep_pace)
 
     clock.call_at(log.flush_interval, keep_pace)
-    run_daemon(config, clock, hours, recorder)
-    recorder.sync()  # the thread's CPU clock is gone once it has stopped
-    writer_cpu = time.clock_gettime(time.pthread_getcpuclockid(writer.ident))
-    recorder.close()
-    if recorder.dropped or recorder.lost or recorder.errors:
-        raise SystemExit(
-            f"the recorder dropped {recorder.dropped}, lost {recorder.lost} records "
-            f"and failed {recorder.errors} times: {recorder.last_error}"
-        )
-    return Run(time.process_time() - started, writer_cpu)
+    return recorder, lambda: time.clock_gettime(writer_clock)
 
 
 def run_daemon(

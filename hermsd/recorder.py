@@ -2,13 +2,14 @@
 
 The control loop hands records over with `Recorder.write`, which is one queue put: it never
 blocks and never raises, because a log is worth less than a control period. A thread of its
-own encodes the records as JSON and writes them with the `mcap` library, which is not
-thread-safe and is touched by that thread only.
+own encodes the records as JSON and writes them with `hermsd.log_writer` (mcap's records,
+and the chunk index kept on disk until the file is finished, so the memory stays flat over
+months), which is not thread-safe and is touched by that thread only.
 
 What survives what:
 
 - A crash or power cut loses at most the records of the last `flush_interval` seconds: the
-  open chunk is closed and handed to the OS at that pace (`mcap.writer.Writer.flush`), and
+  open chunk is closed and handed to the OS at that pace (`LogWriter.flush`), and
   `os.fdatasync` pushes it to the card at most every `sync_interval` seconds (SD cards wear).
   The file being written is named `*.mcap.part`; `recover` turns a leftover one into a
   finished `.mcap` that keeps every complete chunk.
@@ -30,6 +31,7 @@ clock that jumps forward (a Pi without RTC meeting NTP) starts a file with a tru
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import io
 import itertools
@@ -40,6 +42,8 @@ import queue
 import struct
 import threading
 import time
+import types
+import typing
 import uuid
 import zlib
 from collections.abc import Callable, Collection, Iterable, Iterator
@@ -51,10 +55,13 @@ from typing import Any, BinaryIO, Final, NamedTuple
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Header, McapRecord, Message, Metadata, Schema
-from mcap.writer import CompressionType, Writer
 
 from hermsd import __version__
+from hermsd.config import Config
 from hermsd.files import fsync_directory
+from hermsd.learning import LearnedModel
+from hermsd.log_writer import MCAP_MAGIC, LogWriter
+from hermsd.pid import PlantModel
 
 PERIOD_TOPIC: Final = "/hermsd/period"
 READING_TOPIC: Final = "/hermsd/reading"
@@ -78,7 +85,6 @@ LIBRARY: Final = f"hermsd/{__version__}"
 CHUNK_SIZE: Final = 256 * 1024
 RETRY_INTERVAL_S: Final = 5.0
 RETRY_MAX_S: Final = 300.0
-MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 
 
 class LogLevel(IntEnum):
@@ -110,14 +116,57 @@ def _object(
     title: str, description: str, properties: dict[str, Any], optional: tuple[str, ...] = ()
 ) -> dict[str, Any]:
     """A record's schema; every property is required but the `optional` ones (fields added
-    later, so the logs written before them still read)."""
+    later, so the logs written before them still read), and no other is allowed: a field
+    the schema does not declare is one a schema-driven reader (Foxglove) cannot see."""
     return {
         "title": title,
         "description": description,
         "type": "object",
         "properties": properties,
         "required": [name for name in properties if name not in optional],
+        "additionalProperties": False,
     }
+
+
+_JSON_TYPES: Final[dict[object, str]] = {
+    float: "number",
+    int: "integer",
+    str: "string",
+    bool: "boolean",
+    type(None): "null",
+}
+
+
+def _dataclass_schema(record: type, description: str, *, nullable: bool = False) -> dict[str, Any]:
+    """The schema of a dataclass as `dataclasses.asdict` writes it (tuples as lists).
+
+    Derived from its fields' types, so a field added to the class is declared in the log.
+    """
+    hints = typing.get_type_hints(record)
+    properties = {f.name: _type_schema(hints[f.name]) for f in dataclasses.fields(record)}
+    schema: dict[str, Any] = {
+        "type": ["object", "null"] if nullable else "object",
+        "description": description,
+        "properties": properties,
+        "required": list(properties),
+        "additionalProperties": False,
+    }
+    return schema
+
+
+def _type_schema(hint: Any) -> dict[str, Any]:
+    if dataclasses.is_dataclass(hint) and isinstance(hint, type):
+        return _dataclass_schema(hint, hint.__doc__ or hint.__name__)
+    if isinstance(hint, types.UnionType):
+        kinds = [_type_schema(member) for member in typing.get_args(hint)]
+        if len(kinds) == 2 and {"type": "null"} in kinds:  # X | None
+            [kind] = [k for k in kinds if k != {"type": "null"}]
+            return {**kind, "type": [kind["type"], "null"]}
+        raise TypeError(f"no JSON schema for {hint}")
+    if typing.get_origin(hint) is tuple:
+        item, *_ = typing.get_args(hint)
+        return {"type": "array", "items": _type_schema(item)}
+    return {"type": _JSON_TYPES[hint]}
 
 
 _T = _field("number", "monotonic time of the daemon, s")
@@ -179,12 +228,18 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     ["boolean", "null"],
                     "its minimum on or off time let it switch this period (two elements)",
                 ),
+                "no_heat": _field(
+                    ["array", "null"],
+                    "the reports standing (two elements): 1 or 2 that element gives no heat, "
+                    "0 one of them does, 3 more heat came than asked",
+                    items={"type": "integer", "enum": [0, 1, 2, 3]},
+                ),
                 "ceiling": _field(
                     ["number", "null"],
                     "where full power levels the water out, while short of the setpoint, °C",
                 ),
             },
-            optional=("u2", "applied2", "switched2", "on2", "free2", "ceiling"),
+            optional=("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
         ),
     ),
     READING_TOPIC: TopicSpec(
@@ -254,6 +309,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                         "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
                     },
                     "required": ["sec", "nsec"],
+                    "additionalProperties": False,
                 },
                 "level": _field(
                     "integer",
@@ -274,10 +330,15 @@ TOPICS: Final[dict[str, TopicSpec]] = {
             "The configuration in force, repeated at the start of every file.",
             {
                 "t": _T,
-                "config": _field("object", "the configuration as loaded"),
+                "config": _dataclass_schema(Config, "the configuration as loaded"),
                 "reason": _field("string", "why it was recorded: start, reload, …"),
-                "model": _field(
-                    "object", "the tun's model the controller uses: gain, tau, dead_time, ambient"
+                "model": _dataclass_schema(
+                    PlantModel, "the tun's model the controller uses: °C/%, s, s, °C"
+                ),
+                "safety_model": _dataclass_schema(
+                    PlantModel,
+                    "the tun as measured, the safety limits' (null: they hold for any tun)",
+                    nullable=True,
                 ),
                 "drop_readings": _field(
                     "integer", "readings in a row that show cold water inside a period (full_from)"
@@ -301,7 +362,13 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "integer", "fewest full-power periods a recovery's rate is fitted over"
                 ),
             },
-            optional=("drop_carry", "reach_watch", "steady_duty_share", "recovery_fit_periods"),
+            optional=(
+                "safety_model",
+                "drop_carry",
+                "reach_watch",
+                "steady_duty_share",
+                "recovery_fit_periods",
+            ),
         ),
     ),
     PROGRAM_TOPIC: TopicSpec(
@@ -346,8 +413,10 @@ TOPICS: Final[dict[str, TopicSpec]] = {
             "What was learned of the tun, as stored for the next start.",
             {
                 "t": _T,
-                "learned": _field(
-                    "object", "rate °C/s at full power, loss 1/s, dead_time s, ambient °C, litres"
+                "learned": _dataclass_schema(
+                    LearnedModel,
+                    "rate °C/s at full power, loss 1/s, dead_time s, ambient °C, litres, "
+                    "wall_ns when learned (ns since the Unix epoch)",
                 ),
             },
         ),
@@ -738,7 +807,7 @@ class _OpenFile:
         self.part = part
         self.stream = stream
         self.first_log_time_ns = first_log_time_ns
-        self.writer = Writer(stream, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self.writer = LogWriter(stream, part.parent, chunk_size=CHUNK_SIZE)
         self.channels: dict[str, int] = {}
         self.unflushed = 0
         self.flush_due: float | None = None
@@ -768,7 +837,7 @@ class _OpenFile:
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS."""
-        self.writer.flush()  # type: ignore[no-untyped-call]
+        self.writer.flush()
         self.flushed += self.unflushed
         self.unflushed = 0
         self.flush_due = None
@@ -779,7 +848,7 @@ class _OpenFile:
         self.sync_due = None
 
     def finish(self) -> None:
-        self.writer.finish()  # type: ignore[no-untyped-call]
+        self.writer.finish()
         self.stream.flush()
         self.unflushed = 0
         os.fdatasync(self.stream.fileno())
@@ -790,6 +859,8 @@ class _OpenFile:
         # The disk already failed; closing releases the descriptor even when it raises.
         with contextlib.suppress(Exception):
             self.stream.close()
+        with contextlib.suppress(Exception):
+            self.writer.close_index()
         if self.flushed == 0 and not _holds_messages(self.part):
             with contextlib.suppress(OSError):
                 self.part.unlink()
@@ -1339,7 +1410,7 @@ def recover(path: Path | str) -> Recovery:
     walk = _Walk(data)
     try:
         with temporary.open("wb") as target:
-            writer = Writer(target, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+            writer = LogWriter(target, final.parent, chunk_size=CHUNK_SIZE)
             try:
                 kept = _copy_records(_records(walk.runs()), writer, lambda: walk.channel_topics)
             except (struct.error, UnicodeDecodeError, ValueError, EOFError) as exc:
@@ -1359,7 +1430,7 @@ def recover(path: Path | str) -> Recovery:
                     "damaged": "; ".join(d.describe() for d in walk.damaged) or "no",
                 },
             )
-            writer.finish()  # type: ignore[no-untyped-call]
+            writer.finish()
             target.flush()
             os.fsync(target.fileno())
         os.replace(temporary, final)
@@ -1390,7 +1461,7 @@ def recover_directory(directory: Path | str) -> list[Recovery | NotRecovered]:
 
 
 def _copy_records(
-    records: Iterator[McapRecord], writer: Writer, channel_topics: Callable[[], dict[int, str]]
+    records: Iterator[McapRecord], writer: LogWriter, channel_topics: Callable[[], dict[int, str]]
 ) -> int:
     """Write the schemas, channels, messages and metadata of `records` again; count messages.
 
@@ -1445,7 +1516,7 @@ def _copy_records(
     return kept
 
 
-def _copy_message(writer: Writer, channel_id: int, record: Message) -> None:
+def _copy_message(writer: LogWriter, channel_id: int, record: Message) -> None:
     writer.add_message(
         channel_id, record.log_time, record.data, record.publish_time, record.sequence
     )

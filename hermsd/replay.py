@@ -49,6 +49,7 @@ from hermsd.daemon import (
 from hermsd.element2 import MidRangeController, SplitController, TwoElementController
 from hermsd.element_watch import ElementWatch
 from hermsd.files import not_regular
+from hermsd.log_writer import MCAP_MAGIC
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.pid import (
     DROP_READINGS,
@@ -71,7 +72,6 @@ from hermsd.reach import ReachWatch
 from hermsd.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
-    MCAP_MAGIC,
     METADATA_NAME,
     PART_SUFFIX,
     PERIOD_TOPIC,

@@ -8,18 +8,22 @@ import json
 import os
 import random
 import shutil
+import struct
 import threading
 import time
+import tracemalloc
 from pathlib import Path
 from typing import Any, BinaryIO, cast
 
 import pytest
+from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 import hermsd
+from hermsd import config as config_module
 from hermsd import recorder as recorder_module
 from hermsd.recorder import (
     CONFIG_TOPIC,
@@ -119,9 +123,10 @@ TIMING = {
 }
 CONFIG = {
     "t": 0.0,
-    "config": {"setpoint": 66.0, "pid": {"kc": 80.8, "ti": 489.0, "td": 44.9}},
+    "config": config_module.to_dict(config_module.DEFAULT),
     "reason": "start",
     "model": {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0},
+    "safety_model": None,
     "drop_readings": 2,
     "drop_onset_c": 0.125,
     "drop_fall_c": 0.1875,
@@ -130,7 +135,14 @@ CONFIG = {
 }
 MODEL = {
     "t": 6600.0,
-    "learned": {"rate": 0.0113, "loss": 6.7e-5, "dead_time": 117.5, "ambient": 20.0, "litres": 90},
+    "learned": {
+        "rate": 0.0113,
+        "loss": 6.7e-5,
+        "dead_time": 117.5,
+        "ambient": 20.0,
+        "litres": 90,
+        "wall_ns": EPOCH_NS,
+    },
 }
 
 
@@ -183,39 +195,8 @@ class _DiskFile:
 
 
 def conforms(value: Any, schema: dict[str, Any]) -> bool:
-    """The part of JSON Schema the recorder's schemas use: type, enum, bounds, properties, items.
-
-    An object must carry every required property and no undeclared one, so the schema
-    documents every field (optional ones: added later, absent from older logs).
-    """
-    kinds = schema.get("type")
-    if kinds is not None:
-        kinds = [kinds] if isinstance(kinds, str) else kinds
-        checks = {
-            "null": value is None,
-            "boolean": isinstance(value, bool),
-            "integer": isinstance(value, int) and not isinstance(value, bool),
-            "number": isinstance(value, int | float) and not isinstance(value, bool),
-            "string": isinstance(value, str),
-            "array": isinstance(value, list),
-            "object": isinstance(value, dict),
-        }
-        if not any(checks[kind] for kind in kinds):
-            return False
-    if "enum" in schema and value not in schema["enum"]:
-        return False
-    if "minimum" in schema and value < schema["minimum"]:
-        return False
-    if "maximum" in schema and value > schema["maximum"]:
-        return False
-    if isinstance(value, dict) and "properties" in schema:
-        properties = schema["properties"]
-        if set(value) - set(properties) or set(schema.get("required", [])) - set(value):
-            return False
-        return all(conforms(value[key], properties[key]) for key in value)
-    if isinstance(value, list) and "items" in schema:
-        return all(conforms(item, schema["items"]) for item in value)
-    return True
+    """Whether `value` is valid against the JSON schema (which lets no undeclared field by)."""
+    return Draft202012Validator(schema).is_valid(value)
 
 
 def finished_files(directory: Path) -> list[Path]:
@@ -572,6 +553,43 @@ def test_fdatasync_at_most_every_sync_interval(
     # The file opens at 0 s; record n is flush n + 1. Syncs at 10, 20, 30 s, then at close
     # after the 36th flush (the finished file).
     assert synced_after_flush == [11, 21, 31, 36]
+
+
+def test_memory_does_not_grow_with_the_chunks_of_a_file(tmp_path: Path) -> None:
+    """A chunk per flush (43,200 a day at 2 s) costs the writer no memory per chunk: the
+    daemon runs for months. mcap's Writer kept some 600 bytes a chunk until the file closed."""
+    clock = VirtualClock()  # flush_interval 0: every record is a chunk of its own
+    recorder = Recorder(tmp_path, now=clock.monotonic, flush_interval=0.0, sync_interval=1e9)
+    chunks = 1500
+
+    def write_chunks(first: int) -> int:
+        for k in range(first, first + chunks):
+            recorder.write(WINDOW_TOPIC, EPOCH_NS + k * S, WINDOW)
+        assert recorder.sync(timeout=60)
+        return tracemalloc.get_traced_memory()[0]
+
+    tracemalloc.start()
+    try:
+        write_chunks(0)  # the file, its channels and the writer's buffers made
+        before = write_chunks(chunks)
+        grown = write_chunks(2 * chunks) - before
+    finally:
+        tracemalloc.stop()
+    recorder.close()
+    assert grown < 20 * chunks  # bytes per chunk: noise, not an index entry
+    [path] = finished_files(tmp_path)
+    with path.open("rb") as f:  # … and the summary still indexes every chunk
+        summary = make_reader(f, validate_crcs=True).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) == 3 * chunks
+    data = path.read_bytes()
+    for entry in summary.chunk_indexes:  # where a seeking reader (Foxglove) will look
+        assert struct.unpack_from("<BQ", data, entry.chunk_start_offset) == (
+            0x06,  # a chunk record, of the length indexed
+            entry.chunk_length - 9,
+        )
+        for channel, offset in entry.message_index_offsets.items():
+            assert struct.unpack_from("<BQH", data, offset)[::2] == (0x07, channel)
+    assert [topic for topic, _, _ in decoded(path)] == [WINDOW_TOPIC] * (3 * chunks)
 
 
 def test_an_error_event_reaches_the_os_at_once(tmp_path: Path) -> None:
