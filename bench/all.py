@@ -111,6 +111,9 @@ BENCHES = (
         ("--two-elements",),
         ("## Faults on the family: two elements, fills the config does not know",),
     ),
+    Bench(
+        "soak", "soak.py", ("--days", "7"), ("## Soak: memory and loop CPU over days of logging",)
+    ),
 )
 
 MEASURED = ("Measured at commit ", "Measured by hand at commit ")

@@ -24,10 +24,8 @@ loop's CPU per period flat.
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -35,8 +33,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from statistics import median
 
-from control import _replace_section  # bench/control.py, beside this file
 from log_bench import paced_recorder, run_daemon  # bench/log_bench.py, beside this file
+from sections import write  # bench/sections.py, beside this file
 
 from hermsd import config as config_module
 from hermsd.sim.clock import VirtualClock
@@ -171,17 +169,12 @@ def main() -> int:
     print(f"{days:g} simulated days in {took:.0f} s")
     if not args.write:
         return 0
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
-    ).stdout.strip()
     shown = [s for s in samples if s.hour % SHOWN_EVERY_H == 0 or s.hour == 1]
     machine = f"{os.cpu_count()} cores ({platform.machine()}), Python {platform.python_version()}"
     text = (
-        "## Soak: memory and loop CPU over days of logging\n\n"
-        f"Commit {commit}, measured {dt.datetime.now(dt.UTC):%Y-%m-%d}: "
-        f"`uv run python bench/soak.py --days {days:g} --write` on {machine}, {took:.0f} s. "
-        f"{days:g} simulated days of the daemon (default config: period 5 s, a reading a "
-        "second, a log file a day) on the simulated tun, on the virtual clock, logging through "
+        f"On {machine}, {took:.0f} s. {days:g} simulated days of the daemon (default config: "
+        "period 5 s, a reading a second, a log file a day) on the simulated tun, on the "
+        "virtual clock, logging through "
         "the real Recorder paced as in `bench/log_bench.py` (a chunk per 2 s flush); sampled "
         "each simulated hour, shown every "
         f"{SHOWN_EVERY_H} h. RSS is VmRSS of the process; the loop's CPU is the main thread's "
@@ -192,7 +185,7 @@ def main() -> int:
         + "\n".join([header, "|---|---|---|---|---|---|---|", *map(row, shown)])
         + "\n"
     )
-    _replace_section(Path(__file__).with_name("RESULTS.md"), "## Soak:", text)
+    write("## Soak: memory and loop CPU over days of logging", text)
     return 0
 
 
