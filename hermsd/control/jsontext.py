@@ -4,8 +4,9 @@ Why: `json.loads` recurses once per nesting level, so a line of a few thousand `
 RecursionError (not a JSONDecodeError) deep in the parser; a server that expects only the
 latter loses its thread to one short line. Every reader of JSON from outside (the control
 socket's requests, the web page's POST bodies; the MQTT bridge takes plain numbers and words,
-no JSON) goes through `loads`, which refuses a text over its byte limit or nested deeper than MAX_DEPTH before the parser sees it,
-and refuses NaN and ±Infinity, which are no JSON numbers.
+no JSON) goes through `loads`, which refuses a text over its byte limit or nested deeper
+than MAX_DEPTH before the parser sees it, and refuses NaN and ±Infinity, which are no JSON
+numbers.
 """
 
 from __future__ import annotations
