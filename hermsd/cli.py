@@ -56,11 +56,12 @@ from hermsd.log_queue import DroppingQueueHandler
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
 from hermsd.realtime import loop_priority
 from hermsd.recorder import NotRecovered, Recorder, recover, recover_directory
+from hermsd.sensors.kinds import open_sensor
 from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
 if TYPE_CHECKING:
     from hermsd.commissioning import step_response
-    from hermsd.daemon import Daemon
+    from hermsd.daemon import Daemon, Sensor
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
 DEFAULT_STATE = Path("/var/lib/hermsd")
@@ -747,7 +748,7 @@ def _serve_control(daemon: Daemon, server: ControlServer) -> None:
     print(f"control socket {server.path}", flush=True)
 
 
-def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None, Switch | None]]:
+def _hardware(config: Config) -> tuple[Sensor, tuple[Switch, Switch | None, Switch | None]]:
     """The tun's sensor, SSR, contactor and second element as the config names them (outputs
     closed on failure)."""
     opened: list[Switch] = []
@@ -762,12 +763,11 @@ def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None, Switch
         element2 = _open_output(config.element2) if config.element2.backend != "none" else None
         if element2 is not None:
             opened.append(element2)
-        bus = open_bus(config.sensor.bus)
+        sensor = open_sensor(config.sensor, time.monotonic)
     except BaseException:
         for switch in opened:
             switch.close()
         raise
-    sensor = LM92(bus, config.sensor.address, bus_name=f"/dev/i2c-{config.sensor.bus}")
     return sensor, (ssr, contactor, element2)
 
 

@@ -232,12 +232,11 @@ def test_clocked_conversions_take_the_conversion_time_and_add_the_offset(tmp_pat
         offset_c=-0.25,
         convert=convert,
     )
-    with pytest.raises(SensorError, match="no conversion finished yet"):
-        sensor.read()
     temperature[0] = 30.0
-    clock.now = 0.75
-    reading = sensor.read()  # begun at 0 s, when it was 20 °C
+    reading = sensor.read()  # the first, done as the reader started, of 20 °C
     assert (reading.celsius, reading.raw) == (19.75, 0x0140)
+    clock.now = 0.75
+    assert sensor.read().celsius == 19.75  # begun at 0 s, when it was 20 °C
     clock.now = 1.5
     assert sensor.read().celsius == 29.75
     clock.now = 4.5  # nothing read for 3 s: the next finishes only now
@@ -273,14 +272,25 @@ class Held:
     """Conversions whose reader stalled after one conversion done at 0.75 s."""
 
     def __init__(self, convert: object) -> None:
-        self._latest = Conversion(Reading(50.0, 0x0320, False, False, False), None, 0.75)
+        self.latest_one: Conversion | None = Conversion(
+            Reading(50.0, 0x0320, False, False, False), None, 0.75
+        )
 
     def start(self) -> None: ...
 
     def close(self) -> None: ...
 
-    def latest(self) -> Conversion:
-        return self._latest
+    def wait_first(self, timeout_s: float) -> None: ...
+
+    def latest(self) -> Conversion | None:
+        return self.latest_one
+
+
+def test_no_conversion_yet_is_a_failed_read(tmp_path: Path) -> None:
+    sensor = DS18B20Sensor(DS18B20(ID, tmp_path), Held, Clock())
+    sensor._conversions.latest_one = None  # type: ignore[attr-defined]
+    with pytest.raises(SensorError, match="no conversion finished yet"):
+        sensor.read()
 
 
 def test_a_stale_conversion_is_a_failed_read(tmp_path: Path) -> None:

@@ -8,7 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from hermsd.lm92 import LimitName, Reading, SensorError
+from hermsd.lm92 import LimitName, Reading, SensorError, decode_temperature, encode_temperature
 
 
 class SoftLimits:
@@ -23,7 +23,8 @@ class SoftLimits:
         """Nothing to wake: these chips convert whenever they are read."""
 
     def set_limit(self, name: LimitName, celsius: float) -> None:
-        self._limits[name] = celsius
+        """Kept on the 1/16 °C grid the loop checks a read-back on (the LM92's registers')."""
+        self._limits[name] = decode_temperature(encode_temperature(celsius))
 
     def limit(self, name: LimitName) -> float:
         return self._limits[name]
@@ -61,6 +62,7 @@ class ThreadedConversions:
         self._latest: Conversion | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._first = threading.Event()
         self._thread = threading.Thread(target=self._run, name="sensor-reader", daemon=True)
 
     def start(self) -> None:
@@ -73,11 +75,15 @@ class ThreadedConversions:
         with self._lock:
             return self._latest
 
+    def wait_first(self, timeout_s: float) -> None:
+        self._first.wait(timeout_s)
+
     def _run(self) -> None:
         while not self._stop.is_set():
             done = convert_once(self._convert, self._now)
             with self._lock:
                 self._latest = done
+            self._first.set()
 
 
 class ClockedConversions:
@@ -94,10 +100,15 @@ class ClockedConversions:
         self._pending: Conversion | None = None
 
     def start(self) -> None:
+        """The first conversion is done at once: the reader ran before the loop began."""
+        self._latest = convert_once(self._convert, self._now)
         self._begin()
 
     def close(self) -> None:
         self._pending = None
+
+    def wait_first(self, timeout_s: float) -> None:
+        """The first is there since `start`."""
 
     def latest(self) -> Conversion | None:
         pending = self._pending
@@ -119,3 +130,6 @@ class Conversions(Protocol):
     def close(self) -> None: ...
 
     def latest(self) -> Conversion | None: ...
+
+    def wait_first(self, timeout_s: float) -> None:
+        """Until the first conversion is done (good or not), `timeout_s` at most."""

@@ -31,6 +31,7 @@ CONVERSION_S: Final = 0.75
 """The datasheet's longest 12-bit conversion (tCONV)."""
 MIN_CELSIUS: Final = -55.0
 MAX_CELSIUS: Final = 125.0
+FIRST_WAIT_S: Final = 2 * CONVERSION_S
 POWER_ON_WORD: Final = 0x0550
 """85.000 °C: what the temperature register holds before the first conversion."""
 MARKER_127_94_WORD: Final = 0x07FF
@@ -291,6 +292,11 @@ class DS18B20Sensor(SoftLimits):
 
     def identify(self) -> None:
         self.chip.identify()
+
+    def wake(self) -> None:
+        """At the start, wait for the reader's first conversion (a second at most), so that
+        the loop's first read finds one; later it is there and this returns at once."""
+        self._conversions.wait_first(FIRST_WAIT_S)
 
     def read(self) -> Reading:
         latest = self._conversions.latest()

@@ -81,6 +81,7 @@ class FakeDS18B20:
         self._source = source
         self._fault = W1Fault.OK
         self._fault_value = 0.0
+        self.tree: FakeW1Tree | None = None
         path.mkdir(parents=True, exist_ok=True)
         self._write(scratchpad(POWER_ON_WORD))
 
@@ -150,7 +151,10 @@ class FakeW1Tree:
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
+        self.owner: object = None  # what keeps a temporary root alive, if one does
         (self.root / "w1_bus_master1").mkdir(parents=True, exist_ok=True)
 
     def add(self, device_id: str, source: Callable[[], float]) -> FakeDS18B20:
-        return FakeDS18B20(self.root / device_id, source)
+        chip = FakeDS18B20(self.root / device_id, source)
+        chip.tree = self  # a temporary root lives as long as a chip in it
+        return chip
