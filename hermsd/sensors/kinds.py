@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from hermsd.lm92 import LM92, SensorError, open_bus
 from hermsd.sensors import ds18b20
 from hermsd.sensors.base import ThreadedConversions
-from hermsd.sensors.max31865 import MAX31865, open_spi
+from hermsd.sensors.max31865 import MAX31865, SpiDevice, open_spi
 
 if TYPE_CHECKING:
     from hermsd.config import SensorConfig
@@ -55,14 +55,19 @@ def open_sensor(sensor: SensorConfig, now: Callable[[], float]) -> Sensor:
             chip, lambda convert: ThreadedConversions(convert, now), now, sensor.offset
         )
     if sensor.kind == "max31865":
-        spi = open_spi(sensor.bus, sensor.device)
-        return MAX31865(
-            spi,
-            r0=sensor.r0,
-            rref=sensor.rref,
-            wires=sensor.wires,
-            filter_hz=sensor.filter_hz,
-            offset_c=sensor.offset,
-            where=f"MAX31865 on /dev/spidev{sensor.bus}.{sensor.device}",
-        )
+        where = f"MAX31865 on /dev/spidev{sensor.bus}.{sensor.device}"
+        return max31865_on(open_spi(sensor.bus, sensor.device), sensor, where)
     return LM92(open_bus(sensor.bus), sensor.address, bus_name=f"/dev/i2c-{sensor.bus}")
+
+
+def max31865_on(spi: SpiDevice, sensor: SensorConfig, where: str) -> MAX31865:
+    """The MAX31865 the config describes, on `spi` (the real spidev, or the fake one)."""
+    return MAX31865(
+        spi,
+        r0=sensor.r0,
+        rref=sensor.rref,
+        wires=sensor.wires,
+        filter_hz=sensor.filter_hz,
+        offset_c=sensor.offset,
+        where=where,
+    )

@@ -246,20 +246,14 @@ def open_spi(bus: int, device: int) -> SpiDevice:
     spi: SpiDevice = spidev.SpiDev()
     try:
         spi.open(bus, device)
-    except FileNotFoundError as error:
-        raise SensorError(
-            f"no SPI device {path}: enable SPI (dtparam=spi=on) or check --bus/--device",
-            bus=path,
-            address=None,
-            errno=error.errno,
-        ) from error
-    except PermissionError as error:
-        raise SensorError(
-            f"permission denied on {path}: add the user to group spi",
-            bus=path,
-            address=None,
-            errno=error.errno,
-        ) from error
+    except OSError as error:
+        if isinstance(error, FileNotFoundError):
+            said = f"no SPI device {path}: enable SPI (dtparam=spi=on) or check --bus/--device"
+        elif isinstance(error, PermissionError):
+            said = f"permission denied on {path}: add the user to group spi"
+        else:
+            said = f"cannot open {path}: {error.strerror or error}"
+        raise SensorError(said, bus=path, address=None, errno=error.errno) from error
     spi.max_speed_hz = SPI_MAX_HZ
     spi.mode = SPI_MODE
     return spi

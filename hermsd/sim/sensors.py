@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Protocol
 from hermsd.lm92 import LM92
 from hermsd.sensors import ds18b20
 from hermsd.sensors.base import ClockedConversions
-from hermsd.sensors.max31865 import MAX31865
+from hermsd.sensors.kinds import max31865_on
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.bus import Fault as LM92Fault
 from hermsd.sim.clock import VirtualClock
@@ -70,16 +70,7 @@ def fake_sensor(
         spi = FakeSpiDev({(sensor.bus, sensor.device): rtd})
         spi.open(sensor.bus, sensor.device)
         spi.mode = 1
-        where = "MAX31865 on a simulated SPI bus"
-        return MAX31865(
-            spi,
-            r0=sensor.r0,
-            rref=sensor.rref,
-            wires=sensor.wires,
-            filter_hz=sensor.filter_hz,
-            offset_c=sensor.offset,
-            where=where,
-        ), rtd
+        return max31865_on(spi, sensor, "MAX31865 on a simulated SPI bus"), rtd
     lm92 = FakeLM92(source, advance=advance)
     bus = FakeSMBus()
     bus.attach(sensor.address, lm92)

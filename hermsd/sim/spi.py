@@ -11,7 +11,6 @@ fault-clear bit clears.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from enum import StrEnum
 from typing import Final
@@ -32,6 +31,7 @@ from hermsd.sensors.max31865 import (
     code_of,
     resistance,
 )
+from hermsd.sim.fake_faults import chosen
 
 _REGISTERS: Final = 8
 _WRITABLE: Final = range(0, 7)
@@ -71,14 +71,7 @@ class FakeMAX31865:
         self.registers = [0x00, 0x00, 0x00, 0xFF, 0xFF, 0x00, 0x00, 0x00]
 
     def set_fault(self, kind: str, value: float | None = None) -> None:
-        try:
-            fault = RtdFault(kind)
-        except ValueError:
-            names = ", ".join(f.value for f in RtdFault)
-            raise ValueError(f"unknown MAX31865 fault {kind!r}: expected one of {names}") from None
-        if fault is RtdFault.SPIKE and (value is None or not math.isfinite(value)):
-            raise ValueError(f"the 'spike' fault needs a finite temperature in °C, got {value}")
-        self._fault, self._fault_value = fault, value or 0.0
+        self._fault, self._fault_value = chosen(RtdFault, kind, value, "MAX31865")
 
     def transfer(self, data: Sequence[int]) -> list[int]:
         """One chip-select assertion: an address byte, then bytes in or out (auto-increment)."""

@@ -25,6 +25,7 @@ from hermsd.sensors.ds18b20 import (
     STEP_CELSIUS,
     crc8,
 )
+from hermsd.sim.fake_faults import chosen
 
 _TH, _TL = 0x4B, 0x46  # the alarm bytes as shipped (75 °C, 70 °C)
 
@@ -91,14 +92,8 @@ class FakeDS18B20:
 
     def set_fault(self, kind: str, value: float | None = None) -> None:
         """Start misbehaving as `kind` (a W1Fault or its name), or stop with "ok"."""
-        try:
-            fault = W1Fault(kind)
-        except ValueError:
-            names = ", ".join(f.value for f in W1Fault)
-            raise ValueError(f"unknown DS18B20 fault {kind!r}: expected one of {names}") from None
-        if fault is W1Fault.SPIKE and (value is None or not math.isfinite(value)):
-            raise ValueError(f"the 'spike' fault needs a finite temperature in °C, got {value}")
-        previous, self._fault, self._fault_value = self._fault, fault, value or 0.0
+        fault, amount = chosen(W1Fault, kind, value, "DS18B20")
+        previous, self._fault, self._fault_value = self._fault, fault, amount
         if fault is W1Fault.GONE:
             shutil.rmtree(self.path, ignore_errors=True)
         elif previous is W1Fault.GONE:
