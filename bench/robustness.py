@@ -18,6 +18,7 @@ Prints Markdown tables; `--write` puts them into bench/RESULTS.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import multiprocessing
 import sys
 import tempfile
@@ -34,6 +35,19 @@ from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY, NOISE_C, TunSpec
 
 SHIPPED = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
+SENSOR_KINDS = ("lm92", "ds18b20", "max31865")
+KIND_WORDS = {
+    "lm92": "the LM92 on I2C (the shipped sensor)",
+    "ds18b20": (
+        "a DS18B20 on 1-Wire in the tun's own well (its lag): the same 0.0625 °C steps, "
+        "each read taking the conversion begun a read before (1 s old on the virtual clock; "
+        "0.75–1.5 s from the reader thread on a Pi)"
+    ),
+    "max31865": (
+        "a PT100 on a MAX31865 (reference 430 Ω, 3-wire): 15-bit codes of R/R_ref, about "
+        "0.034 °C a code at 66 °C, through Callendar–Van Dusen"
+    ),
+}
 DAY_1, DAY_2 = "hermsd day 1", "hermsd day 2"
 CBPI = "CraftBeerPi PIDHerms"
 
@@ -60,16 +74,22 @@ AHEAD_KEYS = (
 )
 
 
+def with_sensor(config: config_module.Config, kind: str) -> config_module.Config:
+    """`config` reading the tun through a sensor of `kind` (a PT100 on a 430 Ω MAX31865)."""
+    return dataclasses.replace(config, sensor=dataclasses.replace(config.sensor, kind=kind))
+
+
 def brew_days(
     spec: TunSpec,
     seed: int = 1,
     *,
     peers: tuple[str, ...] = tuple(PEERS),
     keep_records: bool = False,
+    kind: str = "lm92",
 ) -> dict[str, scenario.Result]:
-    """Every controller's day on `spec` with noise seed `seed`: hermsd's two days, then each
-    of `peers`."""
-    config = spec.config(config_module.load(SHIPPED))
+    """Every controller's day on `spec` with noise seed `seed` and a sensor of `kind`:
+    hermsd's two days, then each of `peers`."""
+    config = with_sensor(spec.config(config_module.load(SHIPPED)), kind)
     day = spec.brew_day(seed=seed)
     days = {}
     with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:
@@ -87,22 +107,27 @@ Summaries = dict[str, dict[str, Any]]
 """Each controller's day (its label) on one tun and seed: the day's summary."""
 
 
-def _summaries(job: tuple[int, int, tuple[str, ...]]) -> Summaries:
-    index, seed, peers = job
+def _summaries(job: tuple[int, int, tuple[str, ...], str]) -> Summaries:
+    index, seed, peers, kind = job
     return {
         label: result.summary
-        for label, result in brew_days(FAMILY[index], seed, peers=peers).items()
+        for label, result in brew_days(FAMILY[index], seed, peers=peers, kind=kind).items()
     }
 
 
 def run_seeds(
-    indices: list[int], count: int, jobs: int, peers: tuple[str, ...] = tuple(PEERS)
+    indices: list[int],
+    count: int,
+    jobs: int,
+    peers: tuple[str, ...] = tuple(PEERS),
+    kind: str = "lm92",
 ) -> dict[tuple[int, int], Summaries]:
     """The days of `brew_days` on tuns `indices` of the family × noise seeds 1…`count`, on
     `jobs` processes, keyed by (tun's index, seed)."""
     work = [(index, seed) for index in indices for seed in range(1, count + 1)]
+    jobs_work = [(index, seed, peers, kind) for index, seed in work]
     with multiprocessing.get_context("fork").Pool(jobs) as pool:
-        found = pool.map(_summaries, [(index, seed, peers) for index, seed in work], chunksize=1)
+        found = pool.map(_summaries, jobs_work, chunksize=1)
     return dict(zip(work, found, strict=True))
 
 
@@ -268,12 +293,15 @@ def main() -> int:
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
     parser.add_argument("--seeds", type=int, default=6, help="noise seeds 1…N (default 6)")
     parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    parser.add_argument(
+        "--kind", choices=SENSOR_KINDS, default="lm92", help="the tun's sensor (default lm92)"
+    )
     args = parser.parse_args()
     if args.seeds < 1:
         parser.error(f"--seeds {args.seeds}: give at least 1 (noise seeds 1…N)")
     n = args.seeds
     started = time.perf_counter()
-    found = run_seeds(list(range(len(FAMILY))), n, args.jobs)
+    found = run_seeds(list(range(len(FAMILY))), n, args.jobs, kind=args.kind)
     wall = time.perf_counter() - started
     first = [
         "| tun | controller | overshoot °C | after water °C | settle ×min | recovery ×min "
@@ -334,7 +362,8 @@ def main() -> int:
     )
     about = " ".join(
         [
-            "The family of `hermsd/sim/tuns.py`, each on its brew day (room temperature → 66 °C, a",
+            f"{KIND_WORDS[args.kind]}; the",
+            "family of `hermsd/sim/tuns.py`, each on its brew day (room temperature → 66 °C, a",
             f"tenth of its volume of 15 °C water at 4 h, 6 h; sensor noise sd {NOISE_C} °C",
             "before the LM92's 0.0625 °C steps) through the real daemon, on each of the noise",
             f"seeds 1–{n} (the same tun and day, another draw of the sensor's noise). hermsd:",
@@ -388,9 +417,12 @@ def main() -> int:
     ]
     body = "\n\n".join(tables[1:])
     print(body + "\n\n" + tally)
+    heading = "## Robustness: hermsd and its peers on twelve brewers' tuns"
+    if args.kind != "lm92":
+        heading = f"## Robustness with a {args.kind.upper()}: hermsd and its peers, same goals"
     text = about + "\n\n" + "\n\n".join(tables) + "\n"
     if args.write:
-        sections.write("## Robustness: hermsd and its peers on twelve brewers' tuns", text)
+        sections.write(heading, text)
     return 0
 
 

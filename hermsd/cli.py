@@ -57,11 +57,12 @@ from hermsd.log_queue import DroppingQueueHandler
 from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
 from hermsd.realtime import loop_priority
 from hermsd.recorder import NotRecovered, Recorder, recover, recover_directory
+from hermsd.sensors.kinds import open_sensor
 from hermsd.ssr import Switch, describe_output, open_hardware_switch
 
 if TYPE_CHECKING:
     from hermsd.commissioning import step_response
-    from hermsd.daemon import Daemon
+    from hermsd.daemon import Daemon, Sensor
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
 DEFAULT_STATE = Path("/var/lib/hermsd")
@@ -131,10 +132,27 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"hermsd {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    sensor = sub.add_parser("sensor", help="identify the LM92 and print readings (wiring check)")
-    sensor.add_argument("--bus", type=int, default=1, help="I2C bus number (default 1)")
+    sensor = sub.add_parser("sensor", help="identify a sensor and print readings (wiring check)")
+    sensor.add_argument(
+        "--kind", choices=("lm92", "ds18b20", "max31865"), default="lm92", help="default lm92"
+    )
+    sensor.add_argument(
+        "--bus", type=int, help="I2C bus number (lm92, default 1) or SPI bus (max31865, default 0)"
+    )
     sensor.add_argument(
         "--address", type=_address, default=0x48, help="LM92 address 0x48..0x4b (default 0x48)"
+    )
+    sensor.add_argument("--id", help="ds18b20: the device id 28-…; default every one found")
+    sensor.add_argument(
+        "--w1-root", default="/sys/bus/w1/devices", help="ds18b20: where the w1 devices are"
+    )
+    sensor.add_argument("--device", type=int, default=0, help="max31865: chip select (default 0)")
+    sensor.add_argument("--r0", type=float, default=100.0, help="max31865: 100 or 1000 (PT100)")
+    sensor.add_argument("--rref", type=float, default=430.0, help="max31865: reference, Ω (430)")
+    sensor.add_argument("--wires", type=int, choices=(2, 3, 4), default=3, help="max31865 (3)")
+    sensor.add_argument("--filter", type=int, choices=(50, 60), default=50, help="mains Hz (50)")
+    sensor.add_argument(
+        "--decode", type=_rtd_word, help="max31865: print what an RTD register value 0xNNNN means"
     )
     sensor.add_argument("--count", type=_positive_int, help="stop after N readings")
     sensor.add_argument("--simulate", action="store_true", help="read the simulated tun")
@@ -406,6 +424,18 @@ def _address(text: str) -> int:
     return value
 
 
+def _rtd_word(text: str) -> int:
+    try:
+        value = int(text, 16)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a register value like 0x3b88, got {text!r}"
+        ) from None
+    if not 0 <= value <= 0xFFFF:
+        raise argparse.ArgumentTypeError(f"the RTD register is 16 bits, not {text}")
+    return value
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -479,6 +509,12 @@ def config_path(path: Path | None, *, simulate: bool) -> Path | None:
 
 def cmd_sensor(args: argparse.Namespace) -> int:
     wait: Callable[[float], None] = time.sleep
+    if args.kind != "lm92":
+        from hermsd.sensors import check
+
+        args.bus = 0 if args.bus is None else args.bus
+        return check.run(args, wait)
+    args.bus = 1 if args.bus is None else args.bus
     if args.simulate:
         from hermsd.sim.world import simulated_sensor
 
@@ -714,7 +750,7 @@ def _serve_control(daemon: Daemon, server: ControlServer) -> None:
     print(f"control socket {server.path}", flush=True)
 
 
-def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None, Switch | None]]:
+def _hardware(config: Config) -> tuple[Sensor, tuple[Switch, Switch | None, Switch | None]]:
     """The tun's sensor, SSR, contactor and second element as the config names them (outputs
     closed on failure)."""
     opened: list[Switch] = []
@@ -729,12 +765,11 @@ def _hardware(config: Config) -> tuple[LM92, tuple[Switch, Switch | None, Switch
         element2 = _open_output(config.element2) if config.element2.backend != "none" else None
         if element2 is not None:
             opened.append(element2)
-        bus = open_bus(config.sensor.bus)
+        sensor = open_sensor(config.sensor, time.monotonic)
     except BaseException:
         for switch in opened:
             switch.close()
         raise
-    sensor = LM92(bus, config.sensor.address, bus_name=f"/dev/i2c-{config.sensor.bus}")
     return sensor, (ssr, contactor, element2)
 
 

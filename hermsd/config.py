@@ -154,11 +154,20 @@ class ControlConfig:
 
 @dataclass(frozen=True, slots=True)
 class SensorConfig:
-    """Where the LM92 sits and how often it is read."""
+    """The tun's sensor: its kind, where it sits, its calibration, how often it is read."""
 
     bus: int = _integer(1, 0, 255)
     address: int = _integer(0x48, 0x48, 0x4B, as_hex=True)
     read_interval: float = _number(1.0, 0.5, 10, "s")
+    kind: str = _choice("lm92", ("lm92", "ds18b20", "max31865"))
+    id: str | None = _text(None, max_length=64, null_means="the one DS18B20 found")
+    w1_root: str = _text("/sys/bus/w1/devices")
+    device: int = _integer(0, 0, 255)
+    r0: float = _number(100.0, 10, 10000, "Ω")
+    rref: float = _number(430.0, 10, 100000, "Ω")
+    wires: int = _choice(3, (2, 3, 4))
+    filter_hz: int = _choice(50, (50, 60))
+    offset: float = _number(0.0, -5, 5, "°C")
 
 
 @dataclass(frozen=True, slots=True)
@@ -342,9 +351,7 @@ TUNING_KEYS: tuple[str, ...] = tuple(
 # grid (period, read interval, window) or configure the log writer already running.
 RESTART_KEYS: tuple[str, ...] = (
     "control.period",
-    "sensor.bus",
-    "sensor.address",
-    "sensor.read_interval",
+    *(f"sensor.{f.name}" for f in dataclasses.fields(SensorConfig)),
     "output.backend",
     "output.port",
     "output.chip",
@@ -713,6 +720,38 @@ class _Violation(NamedTuple):
         return f"{subject} {self.message}"
 
 
+def _sensor_violations(sensor: SensorConfig) -> list[_Violation]:
+    """What a sensor kind needs of the other sensor keys."""
+    id_ = sensor.id
+    if sensor.kind == "ds18b20" and id_ is not None and not re.fullmatch(r"28-[0-9a-f]{12}", id_):
+        return [
+            _Violation(
+                ("sensor.id", "sensor.kind"),
+                f"{_quote(id_)} is not a DS18B20's id (28- and 12 hexadecimal digits, as in "
+                "28-0316a2795bff)",
+            )
+        ]
+    if sensor.kind == "lm92" and sensor.offset != 0:
+        return [
+            _Violation(
+                ("sensor.offset", "sensor.kind"),
+                "is not 0, but the LM92's T_CRIT pin compares the chip's own value with "
+                "safety.max_temp: an offset would move the two apart (leave it at 0)",
+                f"{_fmt(sensor.offset)} °C",
+            )
+        ]
+    if sensor.kind == "max31865" and sensor.rref <= sensor.r0:
+        return [
+            _Violation(
+                ("sensor.rref", "sensor.r0"),
+                f"is not above sensor.r0 ({_fmt(sensor.r0)} Ω): the reference resistor must "
+                "exceed the RTD's (430 for a PT100, 4300 for a PT1000)",
+                f"{_fmt(sensor.rref)} Ω",
+            )
+        ]
+    return []
+
+
 def _violations(config: Config) -> list[_Violation]:
     """Every rule between keys that `config` breaks."""
     found: list[_Violation] = []
@@ -723,6 +762,7 @@ def _violations(config: Config) -> list[_Violation]:
         config.safety,
     )
 
+    found.extend(_sensor_violations(config.sensor))
     if output.window is not None:
         window_key, window, what = (
             "output.window",

@@ -69,6 +69,7 @@ from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, 
 from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
 from hermsd.saver import Outcome, Saver
 from hermsd.scheduler import LatenessStats, Scheduler, Timer
+from hermsd.sensors.kinds import describe as describe_sensor
 from hermsd.ssr import (
     GuardedSwitch,
     Switch,
@@ -563,6 +564,10 @@ class Daemon:
         self._started = True
         self._record_config("start", now)
         self._event(logging.INFO, "started", now)
+        if self.config.sensor.kind != "lm92":  # the LM92's log as it was
+            simulated = " (simulated)" if self.config.output.backend == "sim" else ""
+            said = f"sensor: {describe_sensor(self.config.sensor)}{simulated}"
+            self._event(logging.INFO, said, now)
         self.alerts.start()
         self._alert("started", "hermsd started", now)
         self._check_log(now)
@@ -1500,9 +1505,9 @@ class Daemon:
             state += f", {no_heat_words(element)}"
         if self.reach.ceiling is not None:
             state += f", {PREFIX} near {self.reach.ceiling:.1f} °C"
-        return status_line(
-            self.config.tun.name, self._pv, self.setpoint, self._asked(), state, self._output2
-        )
+        name, kind = self.config.tun.name, self.config.sensor.kind
+        shown = name if kind == "lm92" else f"{name} ({kind})"  # the LM92's line as it was
+        return status_line(shown, self._pv, self.setpoint, self._asked(), state, self._output2)
 
     def _check_log(self, t: float) -> None:
         """Say that the log cannot be written at once, every minute while it lasts, and when

@@ -35,6 +35,7 @@ from hermsd.config import (
 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
 TWO_ELEMENTS_DOC = Path(__file__).resolve().parents[1] / "docs" / "two-elements.md"
+SENSORS_DOC = TWO_ELEMENTS_DOC.with_name("sensors.md")
 FAST_FUZZ = settings(max_examples=200, deadline=None)
 
 
@@ -84,6 +85,10 @@ BOUNDS = [
     Bound("sensor.bus", int, 0, 255),
     Bound("sensor.address", int, 0x48, 0x4B),
     Bound("sensor.read_interval", float, 0.5, 10),
+    Bound("sensor.device", int, 0, 255),
+    Bound("sensor.r0", float, 10, 10000),
+    Bound("sensor.rref", float, 10, 100000),
+    Bound("sensor.offset", float, -5, 5),
     Bound("output.line", int, 0, 511, nullable=True),
     Bound("output.window", float, 1, 60, nullable=True),
     Bound("output.min_on", float, 0, 10),
@@ -142,6 +147,9 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "element2.backend": ("none", "sim", "gpio", "serial-rts", "serial-dtr", "relay-board"),
     "element2.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
     "web.read_only_view": ("on", "off"),
+    "sensor.kind": ("lm92", "ds18b20", "max31865"),
+    "sensor.wires": (3, 2, 4),
+    "sensor.filter_hz": (50, 60),
 }
 TEXTS = {  # key: (longest, nullable)
     "tun.name": (32, False),
@@ -163,6 +171,8 @@ TEXTS = {  # key: (longest, nullable)
     "mqtt.topic_prefix": (100, False),
     "mqtt.discovery_prefix": (100, False),
     "mqtt.client_id": (64, True),
+    "sensor.id": (64, True),
+    "sensor.w1_root": (None, False),
 }
 FLAGS = (
     "output.active_low",
@@ -194,6 +204,15 @@ RESTART = [
     "sensor.bus",
     "sensor.address",
     "sensor.read_interval",
+    "sensor.kind",
+    "sensor.id",
+    "sensor.w1_root",
+    "sensor.device",
+    "sensor.r0",
+    "sensor.rref",
+    "sensor.wires",
+    "sensor.filter_hz",
+    "sensor.offset",
     "output.backend",
     "output.port",
     "output.chip",
@@ -375,7 +394,20 @@ def test_defaults_are_the_specified_ones() -> None:
             "u2_min": 0.0,
             "u2_max": 100.0,
         },
-        "sensor": {"bus": 1, "address": 0x48, "read_interval": 1.0},
+        "sensor": {
+            "bus": 1,
+            "address": 0x48,
+            "read_interval": 1.0,
+            "kind": "lm92",
+            "id": None,
+            "w1_root": "/sys/bus/w1/devices",
+            "device": 0,
+            "r0": 100.0,
+            "rref": 430.0,
+            "wires": 3,
+            "filter_hz": 50,
+            "offset": 0.0,
+        },
         "output": {
             "backend": "serial-rts",
             "port": "/dev/ttyUSB0",
@@ -503,12 +535,13 @@ def _comment_blocks() -> dict[str, str]:
     return blocks
 
 
-def _two_element_rows() -> dict[str, tuple[str, str]]:
+def _two_element_rows(doc: Path = TWO_ELEMENTS_DOC) -> dict[str, tuple[str, str]]:
     """The keys docs/two-elements.md documents in its tables (the mid-ranging controller's
-    and section element2: kept out of the shipped file), each with its default and text."""
+    and section element2: kept out of the shipped file), each with its default and text;
+    or those of another doc written the same way (docs/sensors.md)."""
     rows: dict[str, tuple[str, str]] = {}
     section = ""
-    for line in TWO_ELEMENTS_DOC.read_text(encoding="utf-8").splitlines():
+    for line in doc.read_text(encoding="utf-8").splitlines():
         if heading := re.match(r"## `([a-z0-9]+)`", line):
             section = heading[1]
         elif row := re.fullmatch(r"\| `([a-z0-9_]+)` \| ([^|]*) \| (.*) \|", line):
@@ -518,8 +551,17 @@ def _two_element_rows() -> dict[str, tuple[str, str]]:
 
 def _documented() -> dict[str, str]:
     """Every key's documentation: its comment in the shipped file, else its table row."""
-    rows = {key: f"{text} |" for key, (_default, text) in _two_element_rows().items()}
+    tables = _two_element_rows() | _two_element_rows(SENSORS_DOC)
+    rows = {key: f"{text} |" for key, (_default, text) in tables.items()}
     return _comment_blocks() | rows
+
+
+def test_the_sensor_keys_are_documented_with_their_defaults_outside_the_file() -> None:
+    rows = _two_element_rows(SENSORS_DOC)
+    assert not set(rows) & set(_comment_blocks())
+    assert {key.split(".")[0] for key in rows} == {"sensor"}
+    for key, (default, _text) in rows.items():
+        assert yaml.safe_load(default) == getattr(DEFAULT.sensor, key.split(".")[1]), key
 
 
 def test_the_two_element_keys_are_documented_with_their_defaults_outside_the_file() -> None:
@@ -569,6 +611,9 @@ CONTEXT = {
     ("output.min_on", 10): {"output.window": "60"},
     ("output.min_off", 10): {"output.window": "60"},
     ("safety.stale_after", 1): {"sensor.read_interval": "0.5"},
+    # An LM92 takes no offset (its T_CRIT pin compares its own value).
+    ("sensor.offset", -5): {"sensor.kind": "ds18b20"},
+    ("sensor.offset", 5): {"sensor.kind": "ds18b20"},
     # Only back_calculation takes tt, and at least one period.
     ("control.tt", 1): {"control.algorithm": "back_calculation", "control.period": "1"},
     ("control.tt", 100000): {"control.algorithm": "back_calculation"},

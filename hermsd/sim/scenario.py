@@ -41,13 +41,15 @@ from hermsd.program.quality import step_quality
 from hermsd.recorder import Recorder
 from hermsd.safety import Alarm, MeasuredTun
 from hermsd.saver import Saver
-from hermsd.sim.bus import FakeLM92, Fault, fault_value
+from hermsd.sim.bus import Fault, fault_value
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PLANT_KINDS, Plant, TwoElementPlant, make_plant, plant_parameters
+from hermsd.sim.sensors import FAULTS, FakeChip
 from hermsd.sim.world import SENSOR_KEYS, build_world, sensor_reading
 
-SENSOR_FAULTS = ("nack", "timeout", "stuck", "spike", "wrong_id", "gone", "slow", "ok")
+SENSOR_FAULTS = tuple(dict.fromkeys(name for names in FAULTS.values() for name in names))
+"""Every kind's faults (sim/sensors.py); a run refuses those its sensor's kind has not."""
 FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2")
 EVENT_KINDS = (
     "confirm",
@@ -329,7 +331,10 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
             raise fail(f"{key}.sensor", f"expected one of {', '.join(SENSOR_FAULTS)}")
         value = (value, _number(raw["value"], fail, f"{key}.value") if "value" in raw else None)
         try:
-            fault_value(Fault(value[0]), value[1])
+            if value[0] in FAULTS["lm92"]:
+                fault_value(Fault(value[0]), value[1])
+            elif value[1] is not None:
+                raise ValueError(f"the {value[0]!r} fault takes no value, got {value[1]}")
         except ValueError as error:
             raise fail(f"{key}.value", str(error)) from None
     elif kind == "heater" and value not in ("open", "ok"):
@@ -550,6 +555,13 @@ def run(
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
+    kind = config.sensor.kind
+    for event in scenario.events:
+        if event.kind == "sensor" and event.value[0] not in FAULTS[kind]:
+            raise ScenarioError(
+                f"events: the sensor fault {event.value[0]!r} at {event.at:g} s is not one a "
+                f"{kind} has (expected one of {', '.join(FAULTS[kind])})"
+            )
     if circuit.relay2 is None and any(e.kind in ("heater2", "relay2") for e in scenario.events):
         raise ScenarioError("events: heater2 and relay2 need a second element (element2.backend)")
     reference = copy.deepcopy(plant)
@@ -712,7 +724,7 @@ def _apply(
     event: Event,
     t: float,
     plant: Plant,
-    chip: FakeLM92,
+    chip: FakeChip,
     circuit: HeaterCircuit,
     daemon: Daemon,
 ) -> None:

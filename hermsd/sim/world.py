@@ -1,4 +1,4 @@
-"""The simulated hardware wired together: tun model, fake LM92 on a fake bus, heater circuit.
+"""The simulated hardware wired together: tun model, fake sensor (sim/sensors.py), heater circuit.
 
 One place builds it, for `hermsd run --simulate`, `hermsd sensor --simulate` and the
 scenario runner alike.
@@ -16,7 +16,7 @@ from hermsd.clock import Clock
 from hermsd.commissioning.step_response import StepExperiment
 from hermsd.config import Config
 from hermsd.config_file import ConfigFile, at_once
-from hermsd.daemon import Daemon, Outputs, guard_outputs
+from hermsd.daemon import Daemon, Outputs, Sensor, guard_outputs
 from hermsd.latches import LatchStore
 from hermsd.learning import ModelStore
 from hermsd.lm92 import LM92
@@ -26,14 +26,15 @@ from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, TwoElementPlant, make_plant
+from hermsd.sim.sensors import FakeChip, fake_sensor
 
 
 @dataclass(slots=True)
 class World:
     clock: Clock
     plant: Plant
-    chip: FakeLM92
-    sensor: LM92
+    chip: FakeChip
+    sensor: Sensor
     circuit: HeaterCircuit
     outputs: Outputs
 
@@ -64,10 +65,8 @@ def build_world(
             spec.setdefault("element2_watts", config.element2.watts)
         tun = make_plant(model, **spec)
     advance = clock.advance if isinstance(clock, VirtualClock) else None
-    chip = FakeLM92(sensor_reading(tun, clock, noise_c, seed), advance=advance)
-    bus = FakeSMBus()
-    bus.attach(config.sensor.address, chip)
-    sensor = LM92(bus, config.sensor.address, bus_name="sim")
+    source = sensor_reading(tun, clock, noise_c, seed)
+    sensor, chip = fake_sensor(config.sensor, clock.monotonic, source, advance)
     contactor = config.contactor.backend != "none"
     two = None
     if config.element2.backend != "none":
