@@ -489,7 +489,7 @@ def test_a_log_that_cannot_be_written_is_a_warning_on_the_page(page: Page, live:
     try:
         _until(page, "!document.getElementById('warning-box').hidden")
         assert page.text_content("#warnings") == (
-            f"log failing (control goes on, nothing is recorded): {_FullDisk.failing}"
+            f"log failing (control goes on, this brew is not recorded): {_FullDisk.failing}"
         )
     finally:
         with live.held():
