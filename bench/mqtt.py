@@ -26,11 +26,11 @@ from pathlib import Path
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from hermsd import config as config_module
-from hermsd.control.link import LoopLink
-from hermsd.control.server import ControlServer
-from hermsd.daemon import Daemon
-from hermsd.scheduler import percentile
+from hermsd.api.link import LoopLink
+from hermsd.api.server import ControlServer
+from hermsd.config import schema as config_module
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.scheduler import percentile
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 

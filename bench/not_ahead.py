@@ -37,7 +37,7 @@ from robustness import (  # bench/robustness.py, beside this file
     run_seeds,
 )
 
-from hermsd import config as config_module
+from hermsd.config import schema as config_module
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY
 

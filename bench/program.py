@@ -30,12 +30,12 @@ from typing import Any
 
 from control import _replace_section  # bench/control.py, beside this file
 
-from hermsd import config as config_module
-from hermsd.daemon import PeriodRecord
+from hermsd.config import schema as config_module
 from hermsd.metrics import BAND
 from hermsd.program.model import Program, Step
 from hermsd.program.readiness import WAIT_BELOW
 from hermsd.program.store import PROGRAM_FILE
+from hermsd.runtime.daemon import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY
 

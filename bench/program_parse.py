@@ -19,10 +19,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from hermsd import config
-from hermsd.control.protocol import MAX_LINE
+from hermsd.api.protocol import MAX_LINE
+from hermsd.config import schema as config
 from hermsd.program import model
-from hermsd.scheduler import percentile
+from hermsd.runtime.scheduler import percentile
 
 
 def longest_valid() -> dict[str, Any]:

@@ -29,9 +29,9 @@ from typing import Any
 from control import _replace_section  # bench/control.py, beside this file
 from log_bench import simulate  # bench/log_bench.py: a day logged as the daemon logs it
 
-from hermsd import replay
 from hermsd.commissioning import identify
-from hermsd.recorder import LogFile
+from hermsd.log import replay
+from hermsd.log.recorder import LogFile
 
 
 def best_of(runs: int, action: Callable[[], Any]) -> float:

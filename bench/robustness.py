@@ -29,7 +29,7 @@ from typing import Any
 from control import _replace_section  # bench/control.py, beside this file
 from peers import ITAE_LOAD, PEERS, controlled_by  # bench/peers.py, beside this file
 
-from hermsd import config as config_module
+from hermsd.config import schema as config_module
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY, NOISE_C, TunSpec
 

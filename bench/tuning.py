@@ -62,11 +62,12 @@ from control import _replace_section  # bench/control.py, beside this file
 from peers import CraftBeerPiAutotune  # bench/peers.py, beside this file
 from robustness import DAY_2, SHIPPED, _cell, missed  # bench/robustness.py, beside this file
 
-from hermsd import config, replay
 from hermsd.commissioning import relay, step_response, tune
-from hermsd.config_file import at_once
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.safety import Alarm
+from hermsd.config import schema as config
+from hermsd.config.file import at_once
+from hermsd.log import replay
+from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.safety.supervisor import Alarm
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2

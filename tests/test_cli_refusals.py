@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
+from hermsd.cli import commands as cli
 from hermsd.sim.scenario import ScenarioError, load_scenario, parse_scenario
 
 

@@ -9,16 +9,17 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import pid, replay
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.recorder import WINDOW_TOPIC, LogFile
+from hermsd.config import schema as config_module
+from hermsd.control import pid
+from hermsd.hardware.ssr import TimeProportionalPlanner, WindowPlan
+from hermsd.log import replay
+from hermsd.log.recorder import WINDOW_TOPIC, LogFile
+from hermsd.runtime.daemon import Daemon, PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event
 from hermsd.sim.tuns import FAMILY, TunSpec
 from hermsd.sim.world import World, build_world
-from hermsd.ssr import TimeProportionalPlanner, WindowPlan
 
 SMALL = next(spec for spec in FAMILY if spec.name == "small 30 L 5.5 kW")
 WATER_AT = 3000.0  # s: held since about 1500 s; on a period boundary, as the bench's water is

@@ -18,7 +18,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hermsd.config import (
+from hermsd.config.schema import (
     ALGORITHM_NAMES,
     DEFAULT,
     Config,

@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli, config_file
-from hermsd.config import MAX_FILE_BYTES, SHIPPED_FILE_MAX_BYTES, ConfigError, OutputConfig
+from hermsd.cli import commands as cli
+from hermsd.config import file as config_file
+from hermsd.config.schema import MAX_FILE_BYTES, SHIPPED_FILE_MAX_BYTES, ConfigError, OutputConfig
 
 
 def check_config(*args: str) -> subprocess.CompletedProcess[str]:

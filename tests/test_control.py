@@ -24,12 +24,9 @@ from typing import Any
 import pytest
 from test_reload import BASE, PERIOD, Events, edited, rename_over, run_for, start
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.cli import main
-from hermsd.control import server as server_module
-from hermsd.control.link import LoopLink
-from hermsd.control.protocol import (
+from hermsd.api import server as server_module
+from hermsd.api.link import LoopLink
+from hermsd.api.protocol import (
     MAX_LINE,
     MAX_PAGE,
     Command,
@@ -41,10 +38,13 @@ from hermsd.control.protocol import (
     Status,
     parse_request,
 )
-from hermsd.control.server import ControlServer, Pending, SocketInUseError
-from hermsd.daemon import Daemon
-from hermsd.latches import LatchedAlarm, Latches, LatchStore
-from hermsd.learning import LearnedModel, ModelStore
+from hermsd.api.server import ControlServer, Pending, SocketInUseError
+from hermsd.cli import commands as cli
+from hermsd.cli import main
+from hermsd.config import schema as config_module
+from hermsd.control.learning import LearnedModel, ModelStore
+from hermsd.runtime.daemon import Daemon
+from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 

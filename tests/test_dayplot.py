@@ -21,11 +21,10 @@ from matplotlib.figure import Figure
 from matplotlib.text import Text
 from matplotlib.transforms import Bbox
 
-from hermsd import config as config_module
-from hermsd import dayplot, recorder, replay
-from hermsd.daemon import PeriodRecord
-from hermsd.dayplot import Marker, rows
-from hermsd.recorder import (
+from hermsd.config import schema as config_module
+from hermsd.log import dayplot, recorder, replay
+from hermsd.log.dayplot import Marker, rows
+from hermsd.log.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     PERIOD_TOPIC,
@@ -33,6 +32,7 @@ from hermsd.recorder import (
     Recorder,
     log_message,
 )
+from hermsd.runtime.daemon import PeriodRecord
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 
 S = 1_000_000_000

@@ -13,7 +13,9 @@ from pathlib import Path
 import pytest
 from test_reload import BASE, edited, rename_over, run_for, start
 
-from hermsd import cli, pid, replay
+from hermsd.cli import commands as cli
+from hermsd.control import pid
+from hermsd.log import replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario, ScenarioError, parse_scenario
 

@@ -12,14 +12,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_daemon import make
 
-from hermsd import config as config_module
-from hermsd.config import Config, ConfigError, parse
-from hermsd.daemon import Daemon, PeriodRecord, model_in_force
-from hermsd.element2 import MidRangeController, OnOffModulator
-from hermsd.learning import LearnedModel
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config, ConfigError, parse
+from hermsd.control.element2 import MidRangeController, OnOffModulator
+from hermsd.control.learning import LearnedModel
+from hermsd.log.recorder import Recorder
+from hermsd.log.replay import delivered, load, verify
 from hermsd.program.model import Program, Step
-from hermsd.recorder import Recorder
-from hermsd.replay import delivered, load, verify
+from hermsd.runtime.daemon import Daemon, PeriodRecord, model_in_force
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PhysicalPlant
 from hermsd.sim.scenario import Event, Scenario, ScenarioError, effective_config, run

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 from test_element2 import logged_daemon, two_element_config
 
-from hermsd import pid
-from hermsd.daemon import PeriodRecord
-from hermsd.element2 import PowerSplit, SplitController
-from hermsd.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
-from hermsd.replay import LoggedConfig, load, verify
+from hermsd.control import pid
+from hermsd.control.element2 import PowerSplit, SplitController
+from hermsd.log.replay import LoggedConfig, load, verify
+from hermsd.runtime.daemon import PeriodRecord
+from hermsd.safety.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event, Scenario, run
 from hermsd.sim.tuns import TunSpec

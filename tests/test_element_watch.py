@@ -14,11 +14,12 @@ from test_control import Inbox
 from test_daemon import make
 from test_element2 import PLANT, logged_daemon, two_element_config
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.control.link import LoopLink
-from hermsd.daemon import PeriodRecord
-from hermsd.element_watch import (
+from hermsd.api.link import LoopLink
+from hermsd.cli import commands as cli
+from hermsd.config import schema as config_module
+from hermsd.log.replay import load, verify
+from hermsd.runtime.daemon import PeriodRecord
+from hermsd.safety.element_watch import (
     CONFIRM_S,
     DEAD_TIME_FACTORS,
     SPELL_S,
@@ -26,7 +27,6 @@ from hermsd.element_watch import (
     ElementReport,
     ElementWatch,
 )
-from hermsd.replay import load, verify
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event, Scenario, run
 from hermsd.sim.tuns import TunSpec

@@ -21,13 +21,13 @@ import pytest
 from test_relay import NOISE, SEED_TUN
 from test_step_response import experiment_on
 
-from hermsd import config as config_module
-from hermsd import replay
 from hermsd.commissioning import relay, step_response
-from hermsd.config_file import in_thread
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.recorder import Recorder
-from hermsd.safety import Alarm
+from hermsd.config import schema as config_module
+from hermsd.config.file import in_thread
+from hermsd.log import replay
+from hermsd.log.recorder import Recorder
+from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.safety.supervisor import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 

@@ -9,13 +9,13 @@ import errno
 import itertools
 from pathlib import Path
 
-from hermsd import config as config_module
-from hermsd.config import Config
-from hermsd.daemon import Daemon
-from hermsd.latches import LatchedAlarm, Latches, LatchStore
-from hermsd.notify import Notifier
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
 from hermsd.program.model import Program, Step
-from hermsd.saver import Saver
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.notify import Notifier
+from hermsd.runtime.saver import Saver
+from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
-from hermsd.control.server import ControlServer
-from hermsd.instance import LOCK_FILE, DirectoryLock, InstanceError
-from hermsd.recorder import PART_SUFFIX
+from hermsd.api.server import ControlServer
+from hermsd.cli import commands as cli
+from hermsd.log.recorder import PART_SUFFIX
+from hermsd.runtime.instance import LOCK_FILE, DirectoryLock, InstanceError
 
 TIMEOUT_S = 30.0
 

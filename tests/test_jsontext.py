@@ -2,7 +2,7 @@
 
 import pytest
 
-from hermsd.control.jsontext import MAX_DEPTH, JsonTextError, loads, nesting_depth
+from hermsd.api.jsontext import MAX_DEPTH, JsonTextError, loads, nesting_depth
 
 
 def test_depth_counts_brackets_outside_strings_only() -> None:

@@ -17,11 +17,13 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli, learning, replay
-from hermsd import config as config_module
-from hermsd.learning import LearnedModel, Learner, ModelStore
-from hermsd.pid import HeatUpFit, PlantModel
-from hermsd.recorder import MODEL_TOPIC, LogFile
+from hermsd.cli import commands as cli
+from hermsd.config import schema as config_module
+from hermsd.control import learning
+from hermsd.control.learning import LearnedModel, Learner, ModelStore
+from hermsd.control.pid import HeatUpFit, PlantModel
+from hermsd.log import replay
+from hermsd.log.recorder import MODEL_TOPIC, LogFile
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario
 from hermsd.sim.world import simulated_daemon

@@ -14,10 +14,10 @@ from typing import Any
 
 import pytest
 
-from hermsd import cli
+from hermsd.cli import commands as cli
 from hermsd.commissioning import relay, step_response
-from hermsd.daemon import Daemon
-from hermsd.log_queue import LOG_QUEUE_SIZE, DroppingQueueHandler
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.log_queue import LOG_QUEUE_SIZE, DroppingQueueHandler
 
 GUARD_S = 10.0  # only a guard against a hung test: nothing here waits for it to pass
 

@@ -28,13 +28,13 @@ import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 from test_reload import BASE, PERIOD, Events, edited, run_for, start
 
-from hermsd import config as config_module
+from hermsd.api import protocol
+from hermsd.api.client import ask
+from hermsd.api.link import LoopLink
+from hermsd.api.protocol import ProgramAction, ProgramStart, Request
+from hermsd.api.server import ControlServer
 from hermsd.cli import main
-from hermsd.control import protocol
-from hermsd.control.client import ask
-from hermsd.control.link import LoopLink
-from hermsd.control.protocol import ProgramAction, ProgramStart, Request
-from hermsd.control.server import ControlServer
+from hermsd.config import schema as config_module
 from hermsd.mqtt.bridge import Bridge
 from hermsd.mqtt.messages import Topics, discovery_messages, setpoint_range, state_message
 from hermsd.program.model import Program, Step

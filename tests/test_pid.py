@@ -2,8 +2,8 @@
 
 The reference implementations below are written from the equations of the HERMS PID calculus
 document (eq. 05-4 to 14), the windup/bumpless-transfer notes (eq. 3.13) and the tracking
-anti-windup formula, not from hermsd.pid: the eq. 08 coefficients, for instance, are expanded
-here from the polynomial products of eq. 05-4 rather than copied from eq. 06.
+anti-windup formula, not from hermsd.control.pid: the eq. 08 coefficients, for instance, are
+expanded here from the polynomial products of eq. 05-4 rather than copied from eq. 06.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hermsd import pid
+from hermsd.control import pid
 
 Sample = tuple[float, float, float | None]  # (sp, pv, applied)
 

@@ -16,7 +16,7 @@ from collections import deque
 
 import pytest
 
-from hermsd import pid
+from hermsd.control import pid
 
 TS = 5.0
 SP = 66.0

@@ -18,8 +18,9 @@ from pathlib import Path
 import pytest
 from test_replay import without_marker
 
-from hermsd import pid, replay
-from hermsd.learning import ModelStore
+from hermsd.control import pid
+from hermsd.control.learning import ModelStore
+from hermsd.log import replay
 from hermsd.sim import scenario
 
 TRUE_RATE = 3000.0 / (90.0 * 4186.0) * 60.0  # °C/min at full power, losses added back

@@ -18,11 +18,9 @@ import pytest
 from test_control import Inbox, status_of
 from test_reload import Events
 
-from hermsd import config as config_module
-from hermsd import replay
-from hermsd.control.link import LoopLink
-from hermsd.daemon import Daemon
-from hermsd.reach import (
+from hermsd.api.link import LoopLink
+from hermsd.config import schema as config_module
+from hermsd.control.reach import (
     MARGIN_C,
     MEASURE_S,
     RISE_FROM_S,
@@ -32,7 +30,9 @@ from hermsd.reach import (
     measured_rise,
     short_words,
 )
-from hermsd.saver import Saver
+from hermsd.log import replay
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.saver import Saver
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event, Scenario, effective_config

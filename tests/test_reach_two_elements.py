@@ -1,5 +1,5 @@
 """Full power on a tun with two elements: the SSR's element at its limit and the second one on
-through the whole period (hermsd.reach.FullPower), as the reach watch and a ready_by heat-up
+through the whole period (hermsd.control.reach.FullPower), as the reach watch and a ready_by heat-up
 judge it.
 
 Golden values by hand: a simulated tun levels out where its elements' watts equal its losses,
@@ -17,13 +17,13 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import replay
-from hermsd.config import Config
-from hermsd.element2 import PowerSplit
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
+from hermsd.control.element2 import PowerSplit
+from hermsd.control.reach import MARGIN_C, SLACK, FullPower, short_words
+from hermsd.log import replay
 from hermsd.program.model import Program, Step
 from hermsd.program.readiness import Readiness
-from hermsd.reach import MARGIN_C, SLACK, FullPower, short_words
 from hermsd.sim import scenario
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2
 from hermsd.sim.scenario import Event, Scenario

@@ -16,12 +16,12 @@ import pytest
 from test_reach import WEAK
 from test_replay import rewritten, run_cli, stepped
 
-from hermsd import config as config_module
-from hermsd import replay
-from hermsd.config import make_controller
-from hermsd.daemon import PeriodRecord, reach_period
-from hermsd.reach import MARGIN_C
-from hermsd.recorder import CONFIG_TOPIC, PERIOD_TOPIC, LogFile, Recorder
+from hermsd.config import schema as config_module
+from hermsd.config.schema import make_controller
+from hermsd.control.reach import MARGIN_C
+from hermsd.log import replay
+from hermsd.log.recorder import CONFIG_TOPIC, PERIOD_TOPIC, LogFile, Recorder
+from hermsd.runtime.daemon import PeriodRecord, reach_period
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event, Scenario

@@ -20,8 +20,8 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 import hermsd
-from hermsd import recorder as recorder_module
-from hermsd.recorder import (
+from hermsd.log import recorder as recorder_module
+from hermsd.log.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     MODEL_TOPIC,

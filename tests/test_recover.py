@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 from test_recorder import chunked_log, chunks_of, decoded
 
-from hermsd import cli, config
-from hermsd.instance import DirectoryLock
+from hermsd.cli import commands as cli
+from hermsd.config import schema as config
+from hermsd.runtime.instance import DirectoryLock
 
 PERIODS = 20
 PER_CHUNK = 5

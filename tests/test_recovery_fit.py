@@ -17,8 +17,9 @@ from pathlib import Path
 import pytest
 from test_replay import without_marker
 
-from hermsd import config as config_module
-from hermsd import pid, replay
+from hermsd.config import schema as config_module
+from hermsd.control import pid
+from hermsd.log import replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event
 from hermsd.sim.tuns import FAMILY

@@ -12,12 +12,12 @@ from typing import Any
 import pytest
 from test_step_response import powered_after
 
-from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.commissioning import relay, tune
-from hermsd.config_file import at_once
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.safety import Alarm
+from hermsd.config import schema as config_module
+from hermsd.config.file import at_once
+from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.safety.supervisor import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 

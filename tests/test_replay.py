@@ -20,12 +20,12 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import pid, replay
 from hermsd.cli import main
 from hermsd.commissioning import identify
-from hermsd.daemon import PeriodRecord
-from hermsd.recorder import (
+from hermsd.config import schema as config_module
+from hermsd.control import pid
+from hermsd.log import replay
+from hermsd.log.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     PERIOD_TOPIC,
@@ -35,6 +35,7 @@ from hermsd.recorder import (
     Recorder,
     log_message,
 )
+from hermsd.runtime.daemon import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.scenario import Event, Scenario

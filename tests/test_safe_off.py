@@ -22,9 +22,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_config import mutated_config
 
-from hermsd import config as config_module
 from hermsd.cli import main
-from hermsd.safe_off import switch_off
+from hermsd.config import schema as config_module
+from hermsd.hardware.safe_off import switch_off
 
 # The common serial relay board's "channel 1 off": A0, channel, state 0, and the checksum
 # A0 + 01 + 00 = A1 (the board's documented frames are A0 01 01 A2 on, A0 01 00 A1 off).

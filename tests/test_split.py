@@ -15,13 +15,13 @@ from test_control import Inbox
 from test_daemon import make
 from test_element2 import PLANT, logged_daemon, phases, two_element_config
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.control.link import LoopLink
-from hermsd.daemon import PeriodRecord
-from hermsd.element2 import PowerSplit, SplitController
+from hermsd.api.link import LoopLink
+from hermsd.cli import commands as cli
+from hermsd.config import schema as config_module
+from hermsd.control.element2 import PowerSplit, SplitController
+from hermsd.log.replay import load, verify
 from hermsd.program.model import Program, Step
-from hermsd.replay import load, verify
+from hermsd.runtime.daemon import PeriodRecord
 from hermsd.sim.scenario import Event, Scenario, run
 
 H = 5.0

@@ -9,11 +9,11 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.commissioning import step_response, tune
-from hermsd.daemon import PeriodRecord
-from hermsd.safety import Alarm
+from hermsd.config import schema as config_module
+from hermsd.runtime.daemon import PeriodRecord
+from hermsd.safety.supervisor import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.tuns import FAMILY
 from hermsd.sim.world import World, simulated_step_test

@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from hermsd import replay
+from hermsd.log import replay
 from hermsd.program.readiness import LATE_S
 from hermsd.sim import scenario
 

@@ -13,11 +13,11 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import replay
 from hermsd.cli import main
 from hermsd.commissioning import tune
-from hermsd.config_file import ConfigFile, at_once
+from hermsd.config import schema as config_module
+from hermsd.config.file import ConfigFile, at_once
+from hermsd.log import replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario
 from hermsd.sim.world import simulated_daemon

@@ -17,11 +17,11 @@ from test_reload import BASE, edited
 from webpage import PASSWORD, PERIOD, TIMEOUT, Site, site
 
 import hermsd.web
-from hermsd import config as config_module
+from hermsd.api.client import TIMEOUT as TIMEOUT_LONGEST
+from hermsd.api.client import unanswered
 from hermsd.cli import main
-from hermsd.config import ConfigError, split_listen
-from hermsd.control.client import TIMEOUT as TIMEOUT_LONGEST
-from hermsd.control.client import unanswered
+from hermsd.config import schema as config_module
+from hermsd.config.schema import ConfigError, split_listen
 from hermsd.web.app import command_message, host_allowed
 from hermsd.web.auth import (
     GLOBAL_BURST,

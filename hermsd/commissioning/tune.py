@@ -23,8 +23,6 @@ from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
 
-from hermsd import config as config_module
-from hermsd import pid
 from hermsd.commissioning.identify import (
     MIN_DUTY_SPAN,
     UNCERTAINTY_METHOD,
@@ -35,8 +33,10 @@ from hermsd.commissioning.identify import (
     identify,
     uncertainty,
 )
+from hermsd.config import schema as config_module
+from hermsd.control import pid
 from hermsd.files import write_atomically
-from hermsd.replay import Log, sudden_drops
+from hermsd.log.replay import Log, sudden_drops
 
 # (title, rule prefix in pid.table1, the numbers the rule uses): Table 1's open-loop
 # Ziegler–Nichols rows take the normalised slope a* and θ, all the others K, τ and θ.

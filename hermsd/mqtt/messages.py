@@ -25,9 +25,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd import __version__
-from hermsd import config as config_module
-from hermsd.config import Config
-from hermsd.control.protocol import SetMode, SetSetpoint
+from hermsd.api.protocol import SetMode, SetSetpoint
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
 
 ONLINE = "online"
 OFFLINE = "offline"

@@ -17,8 +17,8 @@ from typing import Any
 
 import yaml
 
-from hermsd import config as config_module
-from hermsd.config import ConfigError, Problem
+from hermsd.config import schema as config_module
+from hermsd.config.schema import ConfigError, Problem
 from hermsd.durations import NoUnit, parse_duration
 
 MAX_STEPS = 50

@@ -26,21 +26,21 @@ from typing import Any
 
 import yaml
 
-from hermsd import config as config_module
-from hermsd.config import Config
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
+from hermsd.control.learning import ModelStore
 from hermsd.durations import parse_duration
 from hermsd.files import NotRegularFile, read_regular
-from hermsd.latches import LatchStore
-from hermsd.learning import ModelStore
+from hermsd.log.recorder import Recorder
 from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.program import model as program_model
 from hermsd.program.driver import next_local_time
 from hermsd.program.model import Program, ProgramError
 from hermsd.program.quality import step_quality
-from hermsd.recorder import Recorder
-from hermsd.safety import Alarm, MeasuredTun
-from hermsd.saver import Saver
+from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.runtime.saver import Saver
+from hermsd.safety.latches import LatchStore
+from hermsd.safety.supervisor import Alarm, MeasuredTun
 from hermsd.sim.bus import FakeLM92, Fault, fault_value
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock

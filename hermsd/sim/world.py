@@ -12,16 +12,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from hermsd.clock import Clock
 from hermsd.commissioning.step_response import StepExperiment
-from hermsd.config import Config
-from hermsd.config_file import ConfigFile, at_once
-from hermsd.daemon import Daemon, Outputs, guard_outputs
-from hermsd.latches import LatchStore
-from hermsd.learning import ModelStore
-from hermsd.lm92 import LM92
-from hermsd.notify import Notifier
-from hermsd.saver import Saver
+from hermsd.config.file import ConfigFile, at_once
+from hermsd.config.schema import Config
+from hermsd.control.learning import ModelStore
+from hermsd.hardware.lm92 import LM92
+from hermsd.runtime.clock import Clock
+from hermsd.runtime.daemon import Daemon, Outputs, guard_outputs
+from hermsd.runtime.notify import Notifier
+from hermsd.runtime.saver import Saver
+from hermsd.safety.latches import LatchStore
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock

@@ -21,7 +21,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-from hermsd.control.history import KEPT_SECONDS
+from hermsd.api.history import KEPT_SECONDS
 from hermsd.web.socket_client import DaemonUnavailable, ask
 
 log = logging.getLogger("hermsd")

@@ -23,7 +23,7 @@ the protocol version it speaks and a command:
                                     next`: the index of the step they act on, as `status`'s
                                     program step shows it; refused when that step is no longer
                                     the current one. Absent, the step that was current a second
-                                    before the request arrived (hermsd.control.link.SEEN_S):
+                                    before the request arrived (hermsd.api.link.SEEN_S):
                                     so of two alike sent together, the second is refused rather
                                     than ending the step the first brought, unseen)
     {"v": 1, "cmd": "history", "since": 1234.5, "limit": 500}   (both optional)
@@ -48,7 +48,7 @@ runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no
 heat, 0 either, 3 more heat than asked (docs/two-elements.md); `latches_not_saved` (why the
 latched alarms' save fails, while it does; else null); `warnings` (those two in words, and
-that full power levels the water out short of the setpoint (hermsd/reach.py), one line
+that full power levels the water out short of the setpoint (hermsd/control/reach.py), one line
 each, empty when there is nothing to say: what holds no heater off but needs a look). A program
 sent with `start` is checked on the server's thread exactly as a program file is (and its
 setpoints against the running config at the boundary); `program` and `confirm` commands
@@ -58,7 +58,7 @@ period boundary, logged as an operator action, and answered after that boundary 
 same fields as `status` (so the reply shows the change in force).
 
 `history` pages through the periods of the last 24 hours, kept in memory by the daemon for
-the web page's chart (`hermsd/control/history.py`), and is answered at once like `status`:
+the web page's chart (`hermsd/api/history.py`), and is answered at once like `status`:
 the rows with `t` after `since` (from the oldest kept when `since` is null or absent), at
 most `limit` of them (1 to 2000, default 2000), oldest first:
 `{"v": 1, "ok": true, "period": 5.0, "fields": ["t", "pv", "setpoint", "output",
@@ -79,7 +79,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd.program.model import READY_BY, Program, ProgramError, from_data, one_line, to_data
-from hermsd.safety import AUTO_KINDS, LATCHED_KINDS
+from hermsd.safety.supervisor import AUTO_KINDS, LATCHED_KINDS
 
 VERSION = 1
 MAX_LINE = 1 << 16

@@ -26,17 +26,8 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any, TextIO, TypeVar
 
 from hermsd import __version__
-from hermsd import config as config_module
-from hermsd.config import Config, ConfigError, ContactorConfig, Element2Config, OutputConfig
-from hermsd.config_file import ConfigFile, at_once
-from hermsd.control.client import (
-    SOCKET_NAME,
-    NoDaemonError,
-    ReplyError,
-    ask,
-    default_socket_path,
-)
-from hermsd.control.protocol import (
+from hermsd.api.client import SOCKET_NAME, NoDaemonError, ReplyError, ask, default_socket_path
+from hermsd.api.protocol import (
     ProgramAction,
     ProgramStart,
     Request,
@@ -45,22 +36,25 @@ from hermsd.control.protocol import (
     SetSetpoint,
     Status,
 )
-from hermsd.control.server import ControlServer
+from hermsd.api.server import ControlServer
+from hermsd.config import schema as config_module
+from hermsd.config.file import ConfigFile, at_once
+from hermsd.config.schema import Config, ConfigError, ContactorConfig, Element2Config, OutputConfig
+from hermsd.control.learning import ModelStore
 from hermsd.durations import parse_duration
 from hermsd.files import write_new
-from hermsd.instance import DirectoryLock, InstanceError
-from hermsd.latches import Latches, LatchStore, StateError
-from hermsd.learning import ModelStore
-from hermsd.lm92 import LM92, SensorError, open_bus
-from hermsd.log_queue import DroppingQueueHandler
-from hermsd.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
-from hermsd.realtime import loop_priority
-from hermsd.recorder import NotRecovered, Recorder, recover, recover_directory
-from hermsd.ssr import Switch, describe_output, open_hardware_switch
+from hermsd.hardware.lm92 import LM92, SensorError, open_bus
+from hermsd.hardware.realtime import loop_priority
+from hermsd.hardware.ssr import Switch, describe_output, open_hardware_switch
+from hermsd.log.recorder import NotRecovered, Recorder, recover, recover_directory
+from hermsd.runtime.instance import DirectoryLock, InstanceError
+from hermsd.runtime.log_queue import DroppingQueueHandler
+from hermsd.runtime.notify import Notifier, NotifyEnvironmentError, check_watchdog, status_line
+from hermsd.safety.latches import Latches, LatchStore, StateError
 
 if TYPE_CHECKING:
     from hermsd.commissioning import step_response
-    from hermsd.daemon import Daemon
+    from hermsd.runtime.daemon import Daemon
 
 DEFAULT_CONFIG = Path("/etc/hermsd/hermsd.yaml")
 DEFAULT_STATE = Path("/var/lib/hermsd")
@@ -443,7 +437,7 @@ def stderr_is_journal() -> bool:
 @contextlib.contextmanager
 def _logging_to_stderr(verbose: bool) -> Iterator[None]:
     """The "hermsd" logger's lines on stderr, written by a thread of their own: a stalled
-    stderr never holds up the thread that logs (hermsd/log_queue.py). At the end, however it
+    stderr never holds up the thread that logs (hermsd/runtime/log_queue.py). At the end, however it
     comes, every queued line is written before the command's own last words."""
     handler = logging.StreamHandler(sys.stderr)
     formatter = JournalFormatter if stderr_is_journal() else logging.Formatter
@@ -581,9 +575,9 @@ class StatusLine:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from hermsd.clock import MonotonicClock
-    from hermsd.daemon import Daemon, guard_outputs
-    from hermsd.ssr import DeadManThread
+    from hermsd.hardware.ssr import DeadManThread
+    from hermsd.runtime.clock import MonotonicClock
+    from hermsd.runtime.daemon import Daemon, guard_outputs
 
     path = config_path(args.config, simulate=args.simulate)
     config_file = ConfigFile(path, simulated=args.simulate) if path is not None else None
@@ -703,7 +697,7 @@ def _claim_control_socket(path: Path) -> ControlServer:
 def _serve_control(daemon: Daemon, server: ControlServer) -> None:
     """Serve the control socket beside the loop (started before it takes real-time priority,
     so its thread stays ordinary); said on the first line of output."""
-    from hermsd.control.link import LoopLink
+    from hermsd.api.link import LoopLink
 
     link = LoopLink(daemon)
     server.answer_with(link.status_line, link.history_line, link.arrived)
@@ -1061,13 +1055,13 @@ def _write_new(path: Path, write: Callable[[Path], object]) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from hermsd import replay
+    from hermsd.log import replay
 
     status = 0
     try:
         overrides = None if args.what_if is None else replay.parse_what_if(args.what_if)
         if args.plot is not None:
-            from hermsd import dayplot
+            from hermsd.log import dayplot
 
             dayplot.check_format(args.plot)
         if not args.files:
@@ -1138,8 +1132,8 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
-    from hermsd import replay
     from hermsd.commissioning import tune
+    from hermsd.log import replay
 
     relay_only = ("setpoint", "hysteresis", "amplitude")
     given_relay = [f"--{name}" for name in relay_only if getattr(args, name) is not None]
@@ -1265,7 +1259,7 @@ def _tune_relay(args: argparse.Namespace) -> int:
 
 def _say_progress(line: str) -> None:
     """A tune test's progress line, called on the loop: through the log's queue, so that a
-    stalled stderr never holds the experiment up (hermsd/log_queue.py), in order with the
+    stalled stderr never holds the experiment up (hermsd/runtime/log_queue.py), in order with the
     daemon's own lines."""
     log.info("%s", line)
 
@@ -1312,7 +1306,7 @@ def _run_tune(
 ) -> _Experiment:
     """A tune experiment through the daemon on the tun (or the simulated one), with the
     service's directories locked; the heater is off when this returns, whatever happened."""
-    from hermsd.daemon import Daemon, guard_outputs
+    from hermsd.runtime.daemon import Daemon, guard_outputs
     from hermsd.sim.hlt import PlantFailed
 
     log_dir = args.log
@@ -1341,8 +1335,8 @@ def _run_tune(
                     Recorder(log_dir, now=clock.monotonic, lossless=True) if log_dir else None
                 )
             else:
-                from hermsd.clock import MonotonicClock
-                from hermsd.ssr import DeadManThread
+                from hermsd.hardware.ssr import DeadManThread
+                from hermsd.runtime.clock import MonotonicClock
 
                 hardware_clock = MonotonicClock()
                 sensor, outputs = _hardware(config)
@@ -1413,7 +1407,7 @@ def cmd_safe_off(args: argparse.Namespace) -> int:
     The file is read as far as it can be (`config.load_outputs`), so a bad edit, the likely
     reason the daemon just stopped, cannot keep the element on.
     """
-    from hermsd.safe_off import switch_off
+    from hermsd.hardware.safe_off import switch_off
 
     found = config_module.load_outputs(args.config or DEFAULT_CONFIG)
     report = switch_off(found, open_hardware_switch)
@@ -1747,8 +1741,8 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     `output.backend: sim` is valid only in a simulated run, so it is refused here by
     default: a file checked for the service must not fail when the service starts.
     """
-    from hermsd.daemon import model_in_force, safety_limits, stored_model
-    from hermsd.safety import format_limits
+    from hermsd.runtime.daemon import model_in_force, safety_limits, stored_model
+    from hermsd.safety.supervisor import format_limits
 
     document = config_module.load_document(args.file)
     if document.config.output.backend == "sim" and not args.simulate:

@@ -32,7 +32,7 @@ Start and bumpless transfer: `reset(pv0, u1, u2)` (or, on a new controller, pv0 
 the first step and outputs (u1_ref, 0) clamped) makes the next step act as if PV had stood at
 pv0, the setpoint at its present value and the outputs at (u1, u2): with PV unchanged the
 next outputs are (u1, u2) to rounding. So a setpoint that changes together with that first
-step gives no proportional kick (as in hermsd.pid); a step response from rest needs one step
+step gives no proportional kick (as in hermsd.control.pid); a step response from rest needs one step
 at the old setpoint first. Gains may be negative (a process with negative gain,
 as the cooling system of the seed); units are whatever the process uses. Pure code: nothing
 here reads a clock or touches hardware.

@@ -4,7 +4,7 @@ A latched alarm (element not heating, SSR stuck on, dry fire, stuck sensor, cont
 fault) says the hardware is not what the loop believes; only the brewer may clear it.
 `Restart=always` would otherwise clear it within seconds of a crash. The daemon writes the
 latched alarms to `latched.json` in its state directory whenever they change (atomically: a
-temporary file, fsync, rename; beside the control loop, `hermsd.saver`, the heater being off
+temporary file, fsync, rename; beside the control loop, `hermsd.runtime.saver`, the heater being off
 already; a failed save is tried again every 30 s until it lands), and raises them again at
 start.
 
@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any, TypeGuard
 
 from hermsd.files import NotRegularFile, read_regular, write_atomically
-from hermsd.safety import LATCHED_KINDS
+from hermsd.safety.supervisor import LATCHED_KINDS
 
 LATCHED_FILE = "latched.json"
 RESET_FILE = "reset-alarm.json"

@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from hermsd.config import AlertsConfig
+from hermsd.config.schema import AlertsConfig
 
 QUEUE_SIZE = 32
 """Events waiting for the worker; more than a burst of alarms, few enough that a command

@@ -21,7 +21,7 @@ from functools import partial
 from pathlib import Path
 from typing import TypeVar
 
-from hermsd.config import (
+from hermsd.config.schema import (
     Config,
     ConfigError,
     Document,

@@ -16,7 +16,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from hermsd.clock import Clock
+from hermsd.runtime.clock import Clock
 
 
 class LatenessStats:

@@ -35,9 +35,7 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from hermsd.files import write_atomically
-from hermsd.latches import StateError, read_state_json
-from hermsd.pid import (
+from hermsd.control.pid import (
     AMBIENT_RANGE,
     MAX_DEAD_TIME,
     RATE_BAND,
@@ -46,7 +44,9 @@ from hermsd.pid import (
     LineFit,
     PlantModel,
 )
-from hermsd.safety import FILL_RANGE
+from hermsd.files import write_atomically
+from hermsd.safety.latches import StateError, read_state_json
+from hermsd.safety.supervisor import FILL_RANGE
 
 LEARNED_FILE = "learned-model.json"
 HOLD_S = 1800.0

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hermsd.element_watch import SUDDEN_FALL, SUDDEN_SPAN
+from hermsd.safety.element_watch import SUDDEN_FALL, SUDDEN_SPAN
 
 PROBE_S = 60.0
 """s the SSR's element is off: 2 kW for 60 s into 45 L (the least fill of a 90 L config) is

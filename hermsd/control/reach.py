@@ -27,8 +27,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from hermsd.control.pid import SENSOR_LSB, LineFit
 from hermsd.metrics import BAND
-from hermsd.pid import SENSOR_LSB, LineFit
 
 SLACK = 0.5
 """%-points under an element's full-power duty that a period's applied duty may lie and still
@@ -83,7 +83,7 @@ PREFIX = "full power levels the water out"
 class FullPower:
     """The duties that are full power on a tun: what its controller gives each element when
     it asks for the most it may. `duty1`: the SSR's element, % (control.max_output; less where
-    that limits both elements' total, hermsd.element2.PowerSplit). `on2`: the second element
+    that limits both elements' total, hermsd.control.element2.PowerSplit). `on2`: the second element
     on (or, never switched on under the limit, off) through the whole period; None: none
     fitted. The second element is switched in whole periods (its contactor's minimum times):
     a period it spends off, its min_off say, while the SSR's element is at its limit is the

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hermsd.config import (
+from hermsd.config.schema import (
     ContactorConfig,
     Element2Config,
     FoundOutput,
@@ -22,7 +22,7 @@ from hermsd.config import (
     OutputConfig,
     every_valid_value,
 )
-from hermsd.ssr import Switch, describe_output
+from hermsd.hardware.ssr import Switch, describe_output
 
 # The keys that say which device a backend drives, and which level is off. Without them
 # there is nothing safe to switch: another port or line may be someone else's device.

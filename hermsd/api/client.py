@@ -8,8 +8,8 @@ import socket
 from pathlib import Path
 from typing import Any
 
-from hermsd.config import key_range
-from hermsd.control.protocol import MAX_LINE, Request, encode, request_message
+from hermsd.api.protocol import MAX_LINE, Request, encode, request_message
+from hermsd.config.schema import key_range
 
 DEFAULT_SOCKET = Path("/run/hermsd/control.sock")
 SOCKET_NAME = "control.sock"

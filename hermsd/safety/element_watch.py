@@ -182,7 +182,7 @@ class ElementWatch:
         return said + self._judge(t)
 
     def blame(self, t: float, element: int, message: str) -> ElementReport:
-        """An element the heat-up's probe found dead (hermsd/element_probe.py): reported,
+        """An element the heat-up's probe found dead (hermsd/safety/element_probe.py): reported,
         and held, for the references were measured without its heat and cannot clear it."""
         self.suspect.add(element)
         self.probed = element
@@ -190,7 +190,7 @@ class ElementWatch:
 
     def keep_probed(self, before: ElementWatch) -> None:
         """Hold what the heat-up's probe found for `before`, the watch of the same tun
-        before a reload (hermsd.daemon.keep_probe): the probe is not tried again."""
+        before a reload (hermsd.runtime.daemon.keep_probe): the probe is not tried again."""
         if before.probed is not None:
             self.suspect.add(before.probed)
             self.probed = before.probed

@@ -29,10 +29,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from hermsd import config as config_module
-from hermsd.config import Config
-from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
-from hermsd.control.protocol import (
+from hermsd.api.history import HistoryRing, capacity_for, encode_row, page_line
+from hermsd.api.protocol import (
     STARTING,
     STEP_ACTIONS,
     VERSION,
@@ -47,14 +45,16 @@ from hermsd.control.protocol import (
     encode,
     error_reply,
 )
-from hermsd.control.server import Pending
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.element_watch import no_heat_words
-from hermsd.learning import LearnedModel
-from hermsd.pid import PlantModel
+from hermsd.api.server import Pending
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
+from hermsd.control.learning import LearnedModel
+from hermsd.control.pid import PlantModel
+from hermsd.control.reach import short_words
 from hermsd.program.runner import Refused
-from hermsd.reach import short_words
-from hermsd.safety import SafetyLimits, format_limits
+from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.safety.element_watch import no_heat_words
+from hermsd.safety.supervisor import SafetyLimits, format_limits
 
 SOURCE = "control socket"
 SEEN_S = 1.0

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hermsd.control.protocol import (
+from hermsd.api.protocol import (
     MAX_LINE,
     STARTING,
     Command,

@@ -32,25 +32,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 
-from hermsd import config as config_module
 from hermsd.commissioning.identify import IdentifyError, TunModel, fit_span, identify
-from hermsd.config import make_controller, shared_out
-from hermsd.daemon import (
-    RAISED_ALARM,
-    PeriodRecord,
-    element2_watts,
-    element_watch,
-    keep_probe,
-    reach_period,
-    reach_restarts,
-    retunes,
-    watch_changes,
-)
-from hermsd.element2 import MidRangeController, SplitController, TwoElementController
-from hermsd.element_watch import ElementWatch
-from hermsd.files import not_regular
-from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
-from hermsd.pid import (
+from hermsd.config import schema as config_module
+from hermsd.config.schema import make_controller, shared_out
+from hermsd.control.element2 import MidRangeController, SplitController, TwoElementController
+from hermsd.control.pid import (
     DROP_READINGS,
     DROP_RULE,
     FIRST_DROP_RULE,
@@ -64,11 +50,10 @@ from hermsd.pid import (
     logged_recovery_periods,
     predating_drop_fall,
 )
-from hermsd.program.quality import step_quality
-from hermsd.program.readiness import SCHEDULE_EVENTS
-from hermsd.reach import PREFIX as REACH_PREFIX
-from hermsd.reach import ReachWatch
-from hermsd.recorder import (
+from hermsd.control.reach import PREFIX as REACH_PREFIX
+from hermsd.control.reach import ReachWatch
+from hermsd.files import not_regular
+from hermsd.log.recorder import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     MCAP_MAGIC,
@@ -80,6 +65,21 @@ from hermsd.recorder import (
     LogFile,
     LogLevel,
 )
+from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
+from hermsd.program.quality import step_quality
+from hermsd.program.readiness import SCHEDULE_EVENTS
+from hermsd.runtime.daemon import (
+    RAISED_ALARM,
+    PeriodRecord,
+    element2_watts,
+    element_watch,
+    keep_probe,
+    reach_period,
+    reach_restarts,
+    retunes,
+    watch_changes,
+)
+from hermsd.safety.element_watch import ElementWatch
 
 if TYPE_CHECKING:
     from hermsd.sim.scenario import Event
@@ -693,7 +693,8 @@ def summarise(log: Log) -> dict[str, Any]:
         # None: the safety limits held for any tun the config may describe (nothing measured)
         "safety_tun_model": log.configs[-1].safety_model if log.configs else None,
         "learning": learning(log),
-        # When full power could not reach the setpoint, and when that cleared (hermsd.reach).
+        # When full power could not reach the setpoint, and when that cleared
+        # (hermsd.control.reach).
         "reach": [
             {"at_s": round(e.at, 3), "message": e.message}
             for e in log.events
@@ -1186,7 +1187,7 @@ def _cell(value: object) -> str:
 
 
 def plot(log: Log, path: Path) -> None:
-    """The day drawn for a brewer to read at a glance (hermsd.dayplot; needs matplotlib)."""
-    from hermsd import dayplot
+    """The day drawn for a brewer to read at a glance (hermsd.log.dayplot; needs matplotlib)."""
+    from hermsd.log import dayplot
 
     dayplot.save(log, path)

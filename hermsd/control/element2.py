@@ -6,7 +6,7 @@ midrange`, the rest of this docstring).
 
 A contactor wears out by the operation (about 100k) and must not switch more than a few times
 a minute, so the second element cannot be time-proportioned inside a window as the SSR is.
-Its duty u2 (from the slow controller C2 of hermsd/midrange.py) is turned into whole control
+Its duty u2 (from the slow controller C2 of hermsd/control/midrange.py) is turned into whole control
 periods on or off by a first-order sigma-delta modulator with minimum on and off times
 (`OnOffModulator`): the energy owed (u2 requested minus delivered, in seconds of full power)
 is accumulated, and each period the element is on when that brings the debt nearer zero,
@@ -36,11 +36,11 @@ from __future__ import annotations
 
 import math
 
-from hermsd import pid
-from hermsd.element_probe import ElementProbe, ProbeResult
-from hermsd.midrange import MidRange
-from hermsd.reach import FullPower
-from hermsd.ssr import GuardedSwitch, SwitchedDuty
+from hermsd.control import pid
+from hermsd.control.midrange import MidRange
+from hermsd.control.reach import FullPower
+from hermsd.hardware.ssr import GuardedSwitch, SwitchedDuty
+from hermsd.safety.element_probe import ElementProbe, ProbeResult
 
 _EPS = 1e-9  # s: times that differ by rounding are equal
 
@@ -295,7 +295,7 @@ class SplitController:
     (`applied2`) and its state now (`on2`, `free2`): the controller is told the total power
     that really reached the water, so its model's prediction stays exact, and replay hands
     in the same from the period's record. With a `probe`, the SSR's element is switched off
-    once in the first heat-up to check that both heat (hermsd/element_probe.py)."""
+    once in the first heat-up to check that both heat (hermsd/safety/element_probe.py)."""
 
     def __init__(
         self, inner: pid.Controller, split: PowerSplit, probe: ElementProbe | None = None

@@ -24,13 +24,13 @@ from typing import Any, NamedTuple, TypeVar
 
 import yaml
 
-from hermsd import midrange, pid
-from hermsd.element2 import MidRangeController, PowerSplit, SplitController, total_share
-from hermsd.element_probe import ElementProbe
+from hermsd.control import midrange, pid
+from hermsd.control.element2 import MidRangeController, PowerSplit, SplitController, total_share
+from hermsd.control.learning import LearnedModel, implausible
+from hermsd.control.pid import ALGORITHMS, DEFAULT_ALGORITHM
+from hermsd.control.reach import FullPower
 from hermsd.files import NotRegularFile, read_regular
-from hermsd.learning import LearnedModel, implausible
-from hermsd.pid import ALGORITHMS, DEFAULT_ALGORITHM
-from hermsd.reach import FullPower
+from hermsd.safety.element_probe import ElementProbe
 
 MIDRANGE = "midrange"
 ALGORITHM_NAMES: tuple[str, ...] = (*ALGORITHMS, MIDRANGE)
@@ -194,7 +194,7 @@ class ContactorConfig:
 @dataclass(frozen=True, slots=True)
 class Element2Config:
     """A second element on its own relay, contactor or SSR: slow, switched whole periods on or
-    off no faster than its minimum on and off times allow (hermsd/element2.py)."""
+    off no faster than its minimum on and off times allow (hermsd/control/element2.py)."""
 
     backend: str = _choice("none", ("none", "sim", "gpio", *_SERIAL_LINES, "relay-board"))
     port: str = _text("/dev/ttyUSB2")
@@ -207,7 +207,7 @@ class Element2Config:
     # A contactor is rated for about 100k operations: 2 min on and off is at most 30 a hour.
     min_on: float = _number(120.0, 5, 3600, "s")
     min_off: float = _number(120.0, 5, 3600, "s")
-    # Off for 60 s in the first heat-up: which element heats (hermsd/element_probe.py).
+    # Off for 60 s in the first heat-up: which element heats (hermsd/safety/element_probe.py).
     check: bool = True
 
 
@@ -273,7 +273,7 @@ ALERT_EVENTS: tuple[str, ...] = (
 
 @dataclass(frozen=True, slots=True)
 class AlertsConfig:
-    """A command run for the events the brewer should hear of (see hermsd/alerts.py)."""
+    """A command run for the events the brewer should hear of (see hermsd/runtime/alerts.py)."""
 
     command: tuple[str, ...] | None = _words(None, null_means="no alerts")
     events: tuple[str, ...] = _words(ALERT_EVENTS, choices=ALERT_EVENTS)

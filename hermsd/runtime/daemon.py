@@ -29,11 +29,9 @@ from dataclasses import asdict, dataclass, field
 from functools import partial
 from typing import Any, Protocol
 
-from hermsd import config as config_module
-from hermsd import pid
-from hermsd.alerts import SHUTDOWN_WAIT, Alerts, Event
-from hermsd.clock import Clock
-from hermsd.config import (
+from hermsd.config import schema as config_module
+from hermsd.config.file import ConfigFile
+from hermsd.config.schema import (
     Config,
     ConfigError,
     ControlConfig,
@@ -43,13 +41,12 @@ from hermsd.config import (
     shared_out,
     to_dict,
 )
-from hermsd.config_file import ConfigFile
-from hermsd.element2 import SlowElement, SplitController, TwoElementController, total_share
-from hermsd.element_probe import ProbeResult
-from hermsd.element_watch import ElementWatch, no_heat_words, report_kind
-from hermsd.latches import LatchedAlarm, Latches, LatchStore, StateError
-from hermsd.learning import LearnedModel, Learner, ModelStore, implausible_here
-from hermsd.lm92 import (
+from hermsd.control import pid
+from hermsd.control.element2 import SlowElement, SplitController, TwoElementController, total_share
+from hermsd.control.learning import LearnedModel, Learner, ModelStore, implausible_here
+from hermsd.control.pv import period_value
+from hermsd.control.reach import PREFIX, ReachWatch, Said
+from hermsd.hardware.lm92 import (
     LimitName,
     Reading,
     SensorError,
@@ -57,19 +54,7 @@ from hermsd.lm92 import (
     decode_temperature,
     encode_temperature,
 )
-from hermsd.notify import Notifier, WatchdogGate, status_line
-from hermsd.program.driver import ProgramDriver
-from hermsd.program.model import Program
-from hermsd.program.readiness import Tun, known_dead_time
-from hermsd.program.runner import ProgramEvent
-from hermsd.program.store import ProgressStore
-from hermsd.pv import period_value
-from hermsd.reach import PREFIX, ReachWatch, Said
-from hermsd.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
-from hermsd.safety import Alarm, MeasuredTun, SafetyLimits, Supervisor
-from hermsd.saver import Outcome, Saver
-from hermsd.scheduler import LatenessStats, Scheduler, Timer
-from hermsd.ssr import (
+from hermsd.hardware.ssr import (
     GuardedSwitch,
     Switch,
     SwitchedDuty,
@@ -77,6 +62,21 @@ from hermsd.ssr import (
     WindowPlan,
     cut,
 )
+from hermsd.log.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
+from hermsd.program.driver import ProgramDriver
+from hermsd.program.model import Program
+from hermsd.program.readiness import Tun, known_dead_time
+from hermsd.program.runner import ProgramEvent
+from hermsd.program.store import ProgressStore
+from hermsd.runtime.alerts import SHUTDOWN_WAIT, Alerts, Event
+from hermsd.runtime.clock import Clock
+from hermsd.runtime.notify import Notifier, WatchdogGate, status_line
+from hermsd.runtime.saver import Outcome, Saver
+from hermsd.runtime.scheduler import LatenessStats, Scheduler, Timer
+from hermsd.safety.element_probe import ProbeResult
+from hermsd.safety.element_watch import ElementWatch, no_heat_words, report_kind
+from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore, StateError
+from hermsd.safety.supervisor import Alarm, MeasuredTun, SafetyLimits, Supervisor
 
 log = logging.getLogger("hermsd")
 
