@@ -37,7 +37,7 @@ from mcap.reader import make_reader
 
 from hermsd.config import schema as config_module
 from hermsd.config.schema import Config
-from hermsd.log import replay
+from hermsd.log import reader, replay
 from hermsd.log.recorder import PERIOD_TOPIC, Recorder, read_messages
 from hermsd.runtime.daemon import Daemon
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
@@ -193,7 +193,7 @@ def main() -> int:
             f"{took:.3f} s = {seconds / took:,.0f}× real time "
             f"({len(messages) / took:,.0f} messages/s)",
         )
-        took = best_time(lambda paths: replay.summarise(replay.load(paths)), paths)
+        took = best_time(lambda paths: replay.summarise(reader.load(paths)), paths)
         row(
             f"replay summary of the {hours:g} h log, in process",
             f"{took:.3f} s = {seconds / took:,.0f}× real time",

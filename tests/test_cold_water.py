@@ -12,7 +12,7 @@ import pytest
 from hermsd.config import schema as config_module
 from hermsd.control import pid
 from hermsd.hardware.ssr import TimeProportionalPlanner, WindowPlan
-from hermsd.log import replay
+from hermsd.log import reader, replay
 from hermsd.log.recorder import WINDOW_TOPIC, LogFile
 from hermsd.runtime.daemon import Daemon, PeriodRecord
 from hermsd.sim import scenario
@@ -502,7 +502,7 @@ def uncarried_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
 def test_replay_verifies_a_day_with_full_power_inside_a_period(
     cold_water_log: list[Path],
 ) -> None:
-    log = replay.load(cold_water_log)
+    log = reader.load(cold_water_log)
     acted = [p for p in log.periods if p.full_from is not None]
     assert len(acted) == 1 and acted[0].t == WATER_AT + 5.0
     result = replay.verify(log.entries)
@@ -520,7 +520,7 @@ def test_the_window_planned_again_is_logged(cold_water_log: list[Path]) -> None:
     first, again = windows
     assert again["applied"] > first["applied"]
     # On from the reading that decided it (within a half-cycle) to the window's end.
-    acted = next(p for p in replay.load(cold_water_log).periods if p.full_from is not None)
+    acted = next(p for p in reader.load(cold_water_log).periods if p.full_from is not None)
     assert acted.full_from is not None
     left = WATER_AT + 5.0 - (WATER_AT + acted.full_from - 0.5)
     assert left - 0.01 - 1e-9 <= again["on_time"] <= left
@@ -530,7 +530,7 @@ def test_the_window_planned_again_is_logged(cold_water_log: list[Path]) -> None:
 def test_verify_finds_a_full_power_decision_the_readings_do_not_give(
     cold_water_log: list[Path], shift: int | None
 ) -> None:
-    log = replay.load(cold_water_log)
+    log = reader.load(cold_water_log)
     acted = next(p for p in log.periods if p.full_from is not None)
     assert acted.full_from is not None
     wrong = None if shift is None else acted.full_from + shift
@@ -549,14 +549,14 @@ def test_verify_leaves_full_from_alone_in_a_log_of_a_daemon_that_never_acted_so(
 ) -> None:
     # An older daemon logged no rule with its config and no full_from with its periods; its
     # periods with the same readings verify as they always did.
-    log = replay.load(uncarried_log)
+    log = reader.load(uncarried_log)
     older = [
         dataclasses.replace(e, drop_readings=None)
-        if isinstance(e, replay.LoggedConfig)
+        if isinstance(e, reader.LoggedConfig)
         else dataclasses.replace(e, full_from=None)
         for e in log.entries
     ]
-    assert any(isinstance(e, replay.LoggedConfig) and e.drop_readings == 2 for e in log.entries)
+    assert any(isinstance(e, reader.LoggedConfig) and e.drop_readings == 2 for e in log.entries)
     assert replay.verify(older).mismatch is None
 
 
@@ -565,19 +565,19 @@ def test_replay_carries_full_power_as_the_config_record_says(
 ) -> None:
     # The daemon that carried full power across the period's end says so; replayed as one
     # that did not, the step after the readings acted differs (the law's p, not the carry's).
-    log = replay.load(cold_water_log)
+    log = reader.load(cold_water_log)
     acted = next(p for p in log.periods if p.full_from is not None)
-    configs = [e for e in log.entries if isinstance(e, replay.LoggedConfig)]
+    configs = [e for e in log.entries if isinstance(e, reader.LoggedConfig)]
     assert configs and all(c.drop_carry for c in configs)
     denied = [
-        dataclasses.replace(e, drop_carry=False) if isinstance(e, replay.LoggedConfig) else e
+        dataclasses.replace(e, drop_carry=False) if isinstance(e, reader.LoggedConfig) else e
         for e in log.entries
     ]
     mismatch = replay.verify(denied).mismatch
     assert mismatch is not None and (mismatch.k, mismatch.name) == (acted.k, "p")
     # A daemon from before the carry logged none, and its log verifies without it.
-    older = replay.load(uncarried_log)
-    assert not any(e.drop_carry for e in older.entries if isinstance(e, replay.LoggedConfig))
+    older = reader.load(uncarried_log)
+    assert not any(e.drop_carry for e in older.entries if isinstance(e, reader.LoggedConfig))
     assert any(p.full_from is not None for p in older.periods)
     assert replay.verify(older.entries).mismatch is None
 
@@ -590,12 +590,12 @@ def test_a_config_record_without_drop_carry_is_of_a_daemon_that_never_carried() 
 
 
 def _by_rule(
-    log: replay.Log, onset: float | None, acted: PeriodRecord, full_from: int
-) -> list[replay.LoggedConfig | PeriodRecord]:
+    log: reader.Log, onset: float | None, acted: PeriodRecord, full_from: int
+) -> list[reader.LoggedConfig | PeriodRecord]:
     """The log as a daemon with the drop rule of `onset` would have written it."""
     return [
         dataclasses.replace(e, drop_onset_c=onset)
-        if isinstance(e, replay.LoggedConfig)
+        if isinstance(e, reader.LoggedConfig)
         else dataclasses.replace(e, full_from=full_from)
         if e is acted
         else e
@@ -608,10 +608,10 @@ def test_a_log_of_the_first_rule_verifies_by_it(cold_water_log: list[Path]) -> N
     more than 0.25 °C down, the law asked on their mean. On these readings (after a PV of
     66.0: 65.75 exactly 0.25 °C down, then 65.3125 and 64.9375) that is the third; today's
     rule acts on the second."""
-    log = replay.load(cold_water_log)
+    log = reader.load(cold_water_log)
     acted = next(p for p in log.periods if p.full_from is not None)
     assert acted.readings[:3] == [65.75, 65.3125, 64.9375] and acted.full_from == 2
-    assert any(isinstance(e, replay.LoggedConfig) and e.drop_onset_c == 0.125 for e in log.entries)
+    assert any(isinstance(e, reader.LoggedConfig) and e.drop_onset_c == 0.125 for e in log.entries)
     assert replay.verify(_by_rule(log, None, acted, 3)).mismatch is None
     mismatch = replay.verify(_by_rule(log, None, acted, 2)).mismatch
     assert mismatch is not None
@@ -621,15 +621,15 @@ def test_a_log_of_the_first_rule_verifies_by_it(cold_water_log: list[Path]) -> N
 
 
 def test_each_logged_rule_is_verified_by_itself(cold_water_log: list[Path]) -> None:
-    def logged(onset: float | None, fall: float | None) -> replay.LoggedConfig:
-        return replay.LoggedConfig(0.0, "start", {}, None, None, 2, onset, fall)
+    def logged(onset: float | None, fall: float | None) -> reader.LoggedConfig:
+        return reader.LoggedConfig(0.0, "start", {}, None, None, 2, onset, fall)
 
     assert replay._drop_rule(logged(None, None)) is pid.FIRST_DROP_RULE
     assert replay._drop_rule(logged(0.125, None)) is pid.LAW_DROP_RULE
     assert replay._drop_rule(logged(0.125, 0.1875)) is pid.DROP_RULE
     assert replay._drop_rule(logged(0.125, 0.25)) is None  # a rule this version does not know
     # Today's daemon logs the rule in force, and its log verifies by it.
-    log = replay.load(cold_water_log)
-    configs = [e for e in log.entries if isinstance(e, replay.LoggedConfig)]
+    log = reader.load(cold_water_log)
+    configs = [e for e in log.entries if isinstance(e, reader.LoggedConfig)]
     assert configs and all((c.drop_onset_c, c.drop_fall_c) == (0.125, 0.1875) for c in configs)
     assert replay.verify(log.entries).mismatch is None

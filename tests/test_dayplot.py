@@ -22,7 +22,7 @@ from matplotlib.text import Text
 from matplotlib.transforms import Bbox
 
 from hermsd.config import schema as config_module
-from hermsd.log import dayplot, recorder, replay
+from hermsd.log import dayplot, reader, recorder
 from hermsd.log.dayplot import Marker, rows
 from hermsd.log.recorder import (
     CONFIG_TOPIC,
@@ -102,11 +102,11 @@ def brew_hour(directory: Path, monkeypatch: pytest.MonkeyPatch) -> list[Path]:
 
 
 @pytest.fixture
-def hour(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> replay.Log:
-    return replay.load(brew_hour(tmp_path / "log", monkeypatch))
+def hour(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> reader.Log:
+    return reader.load(brew_hour(tmp_path / "log", monkeypatch))
 
 
-def test_program_events_are_read_on_the_replay_clock(hour: replay.Log) -> None:
+def test_program_events_are_read_on_the_replay_clock(hour: reader.Log) -> None:
     assert [(e.at, e.event) for e in hour.program][:3] == [
         (600.0, "started"), (600.0, "step_started"), (900.0, "step_reached")
     ]  # fmt: skip
@@ -114,7 +114,7 @@ def test_program_events_are_read_on_the_replay_clock(hour: replay.Log) -> None:
     assert (waiting.name, waiting.message, waiting.setpoint) == ("Strike", "Mash in", None)
 
 
-def test_every_event_of_the_day_is_marked(hour: replay.Log) -> None:
+def test_every_event_of_the_day_is_marked(hour: reader.Log) -> None:
     assert dayplot.markers(hour) == [
         Marker(600.0, "program", "program Step mash"),
         Marker(600.0, "program", "Strike 72 °C"),
@@ -135,7 +135,7 @@ def test_every_event_of_the_day_is_marked(hour: replay.Log) -> None:
 def test_an_alarm_still_active_at_the_end_is_shaded_to_the_end(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    log = replay.load(brew_hour(tmp_path / "log", monkeypatch))
+    log = reader.load(brew_hour(tmp_path / "log", monkeypatch))
     log.periods[-1] = dataclasses.replace(log.periods[-1], alarms=["ssr_stuck_on"])
     assert dayplot.alarm_spans(log)[-1] == dayplot.Span("ssr_stuck_on", 3595.0, 3595.0, True)
     assert dayplot.markers(log)[-1].text == "ssr_stuck_on still at the end"
@@ -180,7 +180,7 @@ def assert_apart(figure: Figure) -> list[Text]:
     return labels
 
 
-def test_no_label_overlaps_another(hour: replay.Log, berlin: None) -> None:
+def test_no_label_overlaps_another(hour: reader.Log, berlin: None) -> None:
     figure = dayplot.draw(hour)
     labels = assert_apart(figure)
     assert sorted(t.get_text() for t in labels) == sorted(m.text for m in dayplot.markers(hour))
@@ -188,7 +188,7 @@ def test_no_label_overlaps_another(hour: replay.Log, berlin: None) -> None:
     assert len({round(t.get_position()[1], 6) for t in labels}) >= 2
 
 
-def test_crowded_labels_take_more_rows_and_still_do_not_overlap(hour: replay.Log) -> None:
+def test_crowded_labels_take_more_rows_and_still_do_not_overlap(hour: reader.Log) -> None:
     for i in range(12):  # a burst of mode changes, one a period apart
         at = 1500.0 + PERIOD * i
         k = round(at / PERIOD)
@@ -200,7 +200,7 @@ def test_crowded_labels_take_more_rows_and_still_do_not_overlap(hour: replay.Log
     assert len({round(t.get_position()[1], 6) for t in labels}) >= 6
 
 
-def test_title_axis_and_panels_say_what_a_brewer_needs(hour: replay.Log, berlin: None) -> None:
+def test_title_axis_and_panels_say_what_a_brewer_needs(hour: reader.Log, berlin: None) -> None:
     figure = dayplot.draw(hour)
     strip, temps, error, power = figure.axes
     title = figure._suptitle.get_text()  # type: ignore[attr-defined]
@@ -221,7 +221,7 @@ def test_title_axis_and_panels_say_what_a_brewer_needs(hour: replay.Log, berlin:
         assert to_rgb(dayplot.COLOURS["alarm"]) in [to_rgb(p.get_facecolor()) for p in axes.patches]
 
 
-def test_labels_beyond_the_rows_allowed_are_counted_not_crammed(hour: replay.Log) -> None:
+def test_labels_beyond_the_rows_allowed_are_counted_not_crammed(hour: reader.Log) -> None:
     for i in range(40):
         k = round(1500.0 / PERIOD) + i
         hour.periods[k] = dataclasses.replace(

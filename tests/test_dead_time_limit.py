@@ -15,7 +15,7 @@ from test_reload import BASE, edited, rename_over, run_for, start
 
 from hermsd.cli import commands as cli
 from hermsd.control import pid
-from hermsd.log import replay
+from hermsd.log import reader, replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario, ScenarioError, parse_scenario
 
@@ -93,18 +93,18 @@ def test_a_scenario_config_event_beyond_the_limit_is_refused(dead_time: float) -
 
 
 @pytest.fixture(scope="module")
-def short_log(tmp_path_factory: pytest.TempPathFactory) -> replay.Log:
+def short_log(tmp_path_factory: pytest.TempPathFactory) -> reader.Log:
     directory = tmp_path_factory.mktemp("short")
     scenario.run(Scenario(name="short", duration=900.0, events=()), log_dir=directory)
-    return replay.load(sorted(directory.glob("*.mcap")))
+    return reader.load(sorted(directory.glob("*.mcap")))
 
 
-def test_what_if_at_the_limit_runs(short_log: replay.Log) -> None:
+def test_what_if_at_the_limit_runs(short_log: reader.Log) -> None:
     result = replay.what_if(short_log, replay.parse_what_if(f"dead_time={LIMIT:g}"))
     assert result.settings["what_if"]["dead_time"] == LIMIT
 
 
 @pytest.mark.parametrize("dead_time", REFUSED)
-def test_what_if_beyond_the_limit_is_refused(short_log: replay.Log, dead_time: float) -> None:
-    with pytest.raises(replay.ReplayError, match=r"--what-if.*control\.dead_time"):
+def test_what_if_beyond_the_limit_is_refused(short_log: reader.Log, dead_time: float) -> None:
+    with pytest.raises(reader.ReplayError, match=r"--what-if.*control\.dead_time"):
         replay.what_if(short_log, replay.parse_what_if(f"dead_time={dead_time:g}"))

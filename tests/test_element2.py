@@ -16,8 +16,9 @@ from hermsd.config import schema as config_module
 from hermsd.config.schema import Config, ConfigError, parse
 from hermsd.control.element2 import MidRangeController, OnOffModulator
 from hermsd.control.learning import LearnedModel
+from hermsd.log.reader import load
 from hermsd.log.recorder import Recorder
-from hermsd.log.replay import delivered, load, verify
+from hermsd.log.replay import delivered, verify
 from hermsd.program.model import Program, Step
 from hermsd.runtime.daemon import Daemon, PeriodRecord, model_in_force
 from hermsd.sim.clock import VirtualClock

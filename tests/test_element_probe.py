@@ -12,7 +12,8 @@ from test_element2 import logged_daemon, two_element_config
 
 from hermsd.control import pid
 from hermsd.control.element2 import PowerSplit, SplitController
-from hermsd.log.replay import LoggedConfig, load, verify
+from hermsd.log.reader import LoggedConfig, load
+from hermsd.log.replay import verify
 from hermsd.runtime.daemon import PeriodRecord
 from hermsd.safety.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
 from hermsd.sim import tun_faults as tf

@@ -17,7 +17,8 @@ from test_element2 import PLANT, logged_daemon, two_element_config
 from hermsd.api.link import LoopLink
 from hermsd.cli import commands as cli
 from hermsd.config import schema as config_module
-from hermsd.log.replay import load, verify
+from hermsd.log.reader import load
+from hermsd.log.replay import verify
 from hermsd.runtime.daemon import PeriodRecord
 from hermsd.safety.element_watch import (
     CONFIRM_S,

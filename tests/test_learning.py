@@ -22,7 +22,7 @@ from hermsd.config import schema as config_module
 from hermsd.control import learning
 from hermsd.control.learning import LearnedModel, Learner, ModelStore
 from hermsd.control.pid import HeatUpFit, PlantModel
-from hermsd.log import replay
+from hermsd.log import reader, replay
 from hermsd.log.recorder import MODEL_TOPIC, LogFile
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario
@@ -82,7 +82,7 @@ def test_the_next_start_uses_what_was_learned(
 
 
 def test_replay_verifies_and_shows_a_day_that_learned(learned_day: tuple[Path, Path]) -> None:
-    log = replay.load(sorted(learned_day[1].glob("*.mcap")))
+    log = reader.load(sorted(learned_day[1].glob("*.mcap")))
     verification = replay.verify(log.entries)
     assert verification.mismatch is None and verification.verified > 1000
     messages = [item["message"] for item in replay.summarise(log)["learning"]]
@@ -103,7 +103,7 @@ def test_replay_verifies_a_day_on_a_learned_model(
     state = tmp_path / "state"
     shutil.copytree(learned_day[0], state)
     scenario.run(day(), state_dir=state, log_dir=tmp_path / "logs")
-    log = replay.load(sorted((tmp_path / "logs").glob("*.mcap")))
+    log = reader.load(sorted((tmp_path / "logs").glob("*.mcap")))
     assert replay.verify(log.entries).mismatch is None
     summary = replay.summarise(log)
     model = learned(learned_day[0])
@@ -311,7 +311,7 @@ def test_the_learned_model_sets_the_supervisors_limits(
     assert ignored.dead_time == 300.0
     # A day on it logs the model its limits came from, and replay says so.
     scenario.run(day(), state_dir=state, log_dir=tmp_path / "logs")
-    summary = replay.summarise(replay.load(sorted((tmp_path / "logs").glob("*.mcap"))))
+    summary = replay.summarise(reader.load(sorted((tmp_path / "logs").glob("*.mcap"))))
     stored = model.plant_model(config_module.DEFAULT.tun.litres)
     assert summary["safety_tun_model"] == dataclasses.asdict(stored)
 

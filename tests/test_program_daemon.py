@@ -31,7 +31,7 @@ from hermsd.api.protocol import (
     request_message,
 )
 from hermsd.cli import main
-from hermsd.log import replay
+from hermsd.log import reader, replay
 from hermsd.log.recorder import PROGRAM_TOPIC
 from hermsd.program import model
 from hermsd.program.model import Program, Step
@@ -342,7 +342,7 @@ def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: 
     # Beta rest is reached once the water is back from the cold water poured in at mash-in
     # (2.4 °C below it): each rest then holds its band.
     assert all(step["max_deviation_c"] < 0.6 for step in steps[1:])
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    log = reader.load(sorted(tmp_path.glob("*.mcap")))
     assert replay.verify(log.entries).mismatch is None  # the scheduled hours are skipped
     logged = replay.summarise(log)
     assert [(s["name"], s["reached_s"] is not None) for s in logged["steps"]] == [

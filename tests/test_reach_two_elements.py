@@ -21,7 +21,7 @@ from hermsd.config import schema as config_module
 from hermsd.config.schema import Config
 from hermsd.control.element2 import PowerSplit
 from hermsd.control.reach import MARGIN_C, SLACK, FullPower, short_words
-from hermsd.log import replay
+from hermsd.log import reader, replay
 from hermsd.program.model import Program, Step
 from hermsd.program.readiness import Readiness
 from hermsd.sim import scenario
@@ -120,7 +120,7 @@ def test_an_open_pot_too_weak_on_both_elements_is_said_with_its_level(
     named = said.ceiling
     assert named is not None and abs(named - truth) < MARGIN_C
     assert said.switched2 == 100.0  # said while both were on
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    log = reader.load(sorted(tmp_path.glob("*.mcap")))
     summary = replay.summarise(log)
     [warning] = summary["reach"]
     assert warning["message"] == short_words(named, 66.0)

@@ -19,7 +19,8 @@ from hermsd.api.link import LoopLink
 from hermsd.cli import commands as cli
 from hermsd.config import schema as config_module
 from hermsd.control.element2 import PowerSplit, SplitController
-from hermsd.log.replay import load, verify
+from hermsd.log.reader import load
+from hermsd.log.replay import verify
 from hermsd.program.model import Program, Step
 from hermsd.runtime.daemon import PeriodRecord
 from hermsd.sim.scenario import Event, Scenario, run

@@ -11,12 +11,13 @@ import pytest
 
 from hermsd.cli import main
 from hermsd.commissioning import step_response, tune
+from hermsd.commissioning.simulated import simulated_step_test
 from hermsd.config import schema as config_module
 from hermsd.runtime.daemon import PeriodRecord
 from hermsd.safety.supervisor import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.tuns import FAMILY
-from hermsd.sim.world import World, simulated_step_test
+from hermsd.sim.world import World
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
 NOISE = {"noise_c": 0.03, "seed": 3}

@@ -17,7 +17,7 @@ from hermsd.cli import main
 from hermsd.commissioning import tune
 from hermsd.config import schema as config_module
 from hermsd.config.file import ConfigFile, at_once
-from hermsd.log import replay
+from hermsd.log import reader
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario
 from hermsd.sim.world import simulated_daemon
@@ -331,7 +331,7 @@ def test_a_tune_that_fails_leaves_the_file_unchanged(
 
 
 def test_a_poor_fit_is_not_written(brew_day: list[str], config_copy: Path) -> None:
-    tuned = tune.from_log(replay.load(brew_day))
+    tuned = tune.from_log(reader.load(brew_day))
     assert tuned.confidence == "good"
     poor = dataclasses.replace(tuned, confidence="poor at 2σ: K ±30 %")
     with pytest.raises(tune.TuneError, match=r"left as it is: the fit is poor at 2σ: K ±30 %"):
@@ -399,7 +399,7 @@ def test_after_write_the_next_start_uses_the_written_model(
 def test_a_log_without_the_litres_is_written_with_the_files(
     brew_day: list[str], config_copy: Path
 ) -> None:
-    tuned = tune.from_log(replay.load(brew_day))
+    tuned = tune.from_log(reader.load(brew_day))
     unknown = {k: v for k, v in tuned.recommended.items() if k != "control.model_litres"}
     config_copy.write_text("tun:\n  litres: 45\n", encoding="utf-8")
     tune.write_tuned(config_copy, dataclasses.replace(tuned, recommended=unknown))

@@ -1055,7 +1055,7 @@ def _write_new(path: Path, write: Callable[[Path], object]) -> None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from hermsd.log import replay
+    from hermsd.log import reader, replay
 
     status = 0
     try:
@@ -1066,12 +1066,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
             dayplot.check_format(args.plot)
         if not args.files:
             raise UserError("replay: name the .mcap (or .mcap.part) files of one day")
-        log = replay.load(args.files)
+        log = reader.load(args.files)
         result: dict[str, Any] = {}
         if args.verify:
             verification = replay.verify(log.entries)
             if verification.verified == 0 and verification.mismatch is None:
-                raise replay.ReplayError(
+                raise reader.ReplayError(
                     "nothing to verify: the controller never stepped from a known state "
                     "(no auto period with a PV, or the records of its start are missing)"
                 )
@@ -1086,7 +1086,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             _write_new(args.csv, partial(replay.write_csv, log))
         if args.plot is not None:
             _write_new(args.plot, partial(replay.plot, log))
-    except replay.ReplayError as error:
+    except reader.ReplayError as error:
         raise UserError(str(error)) from None
     if args.json:
         print(json.dumps(result, indent=2))
@@ -1133,7 +1133,7 @@ def _print_what_if(what_if: dict[str, Any]) -> None:
 
 def cmd_tune(args: argparse.Namespace) -> int:
     from hermsd.commissioning import tune
-    from hermsd.log import replay
+    from hermsd.log import reader
 
     relay_only = ("setpoint", "hysteresis", "amplitude")
     given_relay = [f"--{name}" for name in relay_only if getattr(args, name) is not None]
@@ -1159,13 +1159,13 @@ def cmd_tune(args: argparse.Namespace) -> int:
             model = tune.parse_table(args.table)
             result, lines = tune.table_json(model), tune.table_lines(model)
         else:
-            tuned = tune.from_log(replay.load(args.files), args.ambient)
+            tuned = tune.from_log(reader.load(args.files), args.ambient)
             result, lines = tune.tuned_json(tuned), tune.tuned_lines(tuned)
             if args.write is not None:
                 diff = tune.write_tuned(args.write, tuned)
                 result["written"] = {"file": os.fspath(args.write), "diff": diff}
                 lines += ["", diff.rstrip("\n") if diff else f"{args.write}: already so"]
-    except (tune.TuneError, replay.ReplayError) as error:
+    except (tune.TuneError, reader.ReplayError) as error:
         raise UserError(str(error)) from None
     print(json.dumps(result, indent=2) if args.json else "\n".join(lines))
     return 0

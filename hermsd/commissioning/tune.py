@@ -36,7 +36,7 @@ from hermsd.commissioning.identify import (
 from hermsd.config import schema as config_module
 from hermsd.control import pid
 from hermsd.files import write_atomically
-from hermsd.log.replay import Log, sudden_drops
+from hermsd.log.reader import Log, sudden_drops
 
 # (title, rule prefix in pid.table1, the numbers the rule uses): Table 1's open-loop
 # Ziegler–Nichols rows take the normalised slope a* and θ, all the others K, τ and θ.

@@ -28,7 +28,7 @@ from datetime import datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from hermsd.log.replay import Log, ReplayError, alarms, sudden_drops
+from hermsd.log.reader import Log, ReplayError, alarms, sudden_drops
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes

@@ -12,8 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from hermsd.commissioning.step_response import StepExperiment
-from hermsd.config.file import ConfigFile, at_once
+from hermsd.config.file import ConfigFile
 from hermsd.config.schema import Config
 from hermsd.control.learning import ModelStore
 from hermsd.hardware.lm92 import LM92
@@ -103,23 +102,6 @@ def simulated_daemon(
         models=models,
         saver=Saver(threaded=not math.isinf(speed)),  # a virtual day's disk takes no time
     )
-
-
-def simulated_step_test(
-    config: Config,
-    plant: dict[str, Any],
-    output: float | None = None,
-    limit: float | None = None,
-    *,
-    history: bool = False,
-) -> tuple[StepExperiment, World, VirtualClock]:
-    """`hermsd tune step` on the simulated tun `plant`, ready to run (step_response.run), on a
-    virtual clock: output None is the default step, limit None the setpoint."""
-    clock = VirtualClock()
-    world = build_world(config, clock, plant, history=history)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
-    stop_at = config.control.setpoint if limit is None else limit
-    return StepExperiment(daemon, output, stop_at, fits=at_once), world, clock
 
 
 def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:
