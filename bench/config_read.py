@@ -23,7 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hermsd.config.file import ConfigFile, Start, at_once, in_thread
-from hermsd.config.schema import MAX_FILE_BYTES
+from hermsd.config.read import MAX_FILE_BYTES
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
 POLLS = 5

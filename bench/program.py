@@ -30,7 +30,7 @@ from typing import Any
 
 from control import _replace_section  # bench/control.py, beside this file
 
-from hermsd.config import schema as config_module
+from hermsd.config import read
 from hermsd.metrics import BAND
 from hermsd.program.model import Program, Step
 from hermsd.program.readiness import WAIT_BELOW
@@ -51,7 +51,7 @@ CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: scenario.
 def ready_days(index: int) -> list[dict[str, Any]]:
     """Day 1 (nothing learned) and day 2 (after an ordinary brew day) of tun `index`."""
     spec = FAMILY[index]
-    config = spec.config(config_module.load(SHIPPED))
+    config = spec.config(read.load(SHIPPED))
     day = dataclasses.replace(
         spec.brew_day(), events=(), duration=READY_S + 1800.0, program=STRIKE, clock=CLOCK
     )

@@ -29,7 +29,7 @@ from typing import Any
 from control import _replace_section  # bench/control.py, beside this file
 from peers import ITAE_LOAD, PEERS, controlled_by  # bench/peers.py, beside this file
 
-from hermsd.config import schema as config_module
+from hermsd.config import read
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY, NOISE_C, TunSpec
 
@@ -69,7 +69,7 @@ def brew_days(
 ) -> dict[str, scenario.Result]:
     """Every controller's day on `spec` with noise seed `seed`: hermsd's two days, then each
     of `peers`."""
-    config = spec.config(config_module.load(SHIPPED))
+    config = spec.config(read.load(SHIPPED))
     day = spec.brew_day(seed=seed)
     days = {}
     with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:

@@ -64,6 +64,7 @@ from robustness import DAY_2, SHIPPED, _cell, missed  # bench/robustness.py, bes
 
 from hermsd.commissioning import relay, step_response, tune
 from hermsd.commissioning.simulated import simulated_step_test
+from hermsd.config import read
 from hermsd.config import schema as config
 from hermsd.config.file import at_once
 from hermsd.log import reader
@@ -486,7 +487,7 @@ def day_after(
         return DayAfter(
             f"| {spec.name} | {method} | not written ({why}) |" + " – |" * 10, "not written"
         )
-    written = config.load(path)
+    written = read.load(path)
     c = written.control
     off = dataclasses.replace(written, control=dataclasses.replace(c, learn="off"))
     with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:

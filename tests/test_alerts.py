@@ -13,7 +13,8 @@ from typing import Any
 import pytest
 
 from hermsd.config import schema as config_module
-from hermsd.config.schema import AlertsConfig, Config, ConfigError, parse
+from hermsd.config.read import parse
+from hermsd.config.schema import AlertsConfig, Config, ConfigError
 from hermsd.runtime.alerts import Alerts, Event
 from hermsd.runtime.daemon import Daemon
 from hermsd.sim.clock import VirtualClock

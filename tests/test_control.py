@@ -39,9 +39,10 @@ from hermsd.api.protocol import (
     parse_request,
 )
 from hermsd.api.server import ControlServer, Pending, SocketInUseError
-from hermsd.cli import commands as cli
-from hermsd.cli import main
+from hermsd.cli import main, remote
+from hermsd.config import read
 from hermsd.config import schema as config_module
+from hermsd.control import build
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.runtime.daemon import Daemon
 from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore
@@ -269,7 +270,7 @@ def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Pat
         status["limits"][0]
         == "over-temperature cut-out              95 °C, back below 90 °C  [configured]"
     )
-    prior = config_module.prior_model(daemon.config)  # nothing learned: the config's model
+    prior = build.prior_model(daemon.config)  # nothing learned: the config's model
     assert status["model"] == {
         "gain": prior.gain,
         "tau": prior.tau,
@@ -292,7 +293,7 @@ def storing_daemon(config: config_module.Config, store: ModelStore) -> Daemon:
 
 
 def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
-    config = config_module.parse(BASE)
+    config = read.parse(BASE)
     litres = config.tun.litres
     store = ModelStore(tmp_path)
     # 0.5 °C/min at full power, a 12000 s time constant: K = 0.5/60·12000/100 = 1 °C/%.
@@ -310,7 +311,7 @@ def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
 
 def test_status_shows_what_was_learned_as_soon_as_it_is_stored(tmp_path: Path) -> None:
     """Stored mid-day: the status says so at once, though it is in force from the next start."""
-    config = config_module.parse(BASE)
+    config = read.parse(BASE)
     store = ModelStore(tmp_path)
     daemon = storing_daemon(config, store)
     assert status_of(daemon)["learned"] is None
@@ -757,7 +758,7 @@ def test_status_says_why_each_alarm_stands(
     store.save(Latches((LatchedAlarm("controller_fault", 0, why, {"output": "nan"}),), 0))
     daemon, _path, _events, _inbox = linked(tmp_path, latches=store)
     status = status_of(daemon)
-    monkeypatch.setattr(cli, "_ask", lambda path, request: status)
+    monkeypatch.setattr(remote, "_ask", lambda path, request: status)
     assert main(["status"]) == 0
     text = capsys.readouterr().out
     assert status["alarms"] == ["controller_fault"]

@@ -295,7 +295,7 @@ class _Line:
 
 
 def _raise_shutdown() -> None:
-    from hermsd.cli.commands import Shutdown
+    from hermsd.cli.common import Shutdown
 
     raise Shutdown("SIGTERM")  # a handler that was already due when shutdown began
 
@@ -308,7 +308,7 @@ def _raise_shutdown() -> None:
 def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off(
     stop: Callable[[], None],
 ) -> None:
-    from hermsd.cli.commands import Shutdown, _on_signal
+    from hermsd.cli.common import Shutdown, _on_signal
 
     config = dataclasses.replace(
         config_module.DEFAULT,

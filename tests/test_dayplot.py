@@ -21,6 +21,7 @@ from matplotlib.figure import Figure
 from matplotlib.text import Text
 from matplotlib.transforms import Bbox
 
+from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.log import dayplot, reader, recorder
 from hermsd.log.dayplot import Marker, rows
@@ -60,7 +61,7 @@ def brew_hour(directory: Path, monkeypatch: pytest.MonkeyPatch) -> list[Path]:
     reached at 900 s, waiting for "Mash in" 1000..1300 s, then Saccharification at 66 °C);
     manual 40 % 2000..2100 s; sensor_fault in the records of 2500..2525 s (told at 2498 s);
     the setpoint edited to 70 °C at 3300 s; PV falls 3 °C at 3400 s (water)."""
-    config = config_module.to_dict(config_module.DEFAULT)
+    config = read.to_dict(config_module.DEFAULT)
     config["tun"]["name"] = "Kettle 2"
     messages: list[tuple[str, float, dict[str, Any]]] = [
         (CONFIG_TOPIC, 0.0, {"t": T0, "config": config, "reason": "start"})

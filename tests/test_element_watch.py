@@ -16,6 +16,7 @@ from test_element2 import PLANT, logged_daemon, two_element_config
 
 from hermsd.api.link import LoopLink
 from hermsd.cli import commands as cli
+from hermsd.cli import remote
 from hermsd.config import schema as config_module
 from hermsd.log.reader import load
 from hermsd.log.replay import verify
@@ -239,7 +240,7 @@ def test_the_status_and_hermsd_status_say_it(
         reply = json.loads(link.status_line())
         assert daemon.status_text().endswith(", element 2 gives no heat?")
     assert reply["no_heat"] == [2]
-    monkeypatch.setattr(cli, "_ask", lambda _path, _request: reply)
+    monkeypatch.setattr(remote, "_ask", lambda _path, _request: reply)
     assert cli.main(["status"]) == 0
     assert "warning: element 2 gives no heat? (docs/two-elements.md)" in capsys.readouterr().out
 

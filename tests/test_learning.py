@@ -18,8 +18,9 @@ from pathlib import Path
 import pytest
 
 from hermsd.cli import commands as cli
+from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.control import learning
+from hermsd.control import build, learning
 from hermsd.control.learning import LearnedModel, Learner, ModelStore
 from hermsd.control.pid import HeatUpFit, PlantModel
 from hermsd.log import reader, replay
@@ -143,12 +144,10 @@ def test_pinned_or_off_learns_nothing(tmp_path: Path) -> None:
 
 
 def test_off_ignores_what_was_learned(learned_day: tuple[Path, Path]) -> None:
-    off = config_module.from_dict(
-        config_module.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}}
-    )
+    off = read.from_dict(read.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}})
     model = learned(learned_day[0])
     assert model is not None
-    prior = config_module.prior_model(off)
+    prior = build.prior_model(off)
     assert prior.dead_time == THETA and model.dead_time != THETA
 
 
@@ -304,9 +303,7 @@ def test_the_learned_model_sets_the_supervisors_limits(
     assert unmeasured.heater_rise_rate == pytest.approx(0.8 * 0.81 * 3000 / (90 * 4186) / 2)
     assert dict(limits.origins)["heater_rise_rate"] == "measured"
     # control.learn off: neither the controller nor the supervisor uses it.
-    off = config_module.from_dict(
-        config_module.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}}
-    )
+    off = read.from_dict(read.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}})
     ignored = simulated_daemon(off, math.inf, models=ModelStore(state)).supervisor.limits
     assert ignored.dead_time == 300.0
     # A day on it logs the model its limits came from, and replay says so.
@@ -365,9 +362,9 @@ def test_a_foptd_maps_to_the_learned_quantities_and_back() -> None:
 
 
 def with_control(**control: object) -> config_module.Config:
-    return config_module.from_dict(
-        config_module.to_dict(config_module.DEFAULT)
-        | {"control": config_module.to_dict(config_module.DEFAULT)["control"] | control}
+    return read.from_dict(
+        read.to_dict(config_module.DEFAULT)
+        | {"control": read.to_dict(config_module.DEFAULT)["control"] | control}
     )
 
 
@@ -428,4 +425,4 @@ def test_a_tuned_model_that_cannot_be_a_tun_is_a_config_error(tmp_path: Path) ->
     path.write_text("control:\n  model_tau: 100\n  model_litres: 90\n", encoding="utf-8")
     # 100·1.689/100 = 1.69 °C/s at full power: no element boils water that fast.
     with pytest.raises(config_module.ConfigError, match=r"yaml:3:.*model_litres: .*rate 1.69 °C/s"):
-        config_module.load(path)
+        read.load(path)

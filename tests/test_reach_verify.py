@@ -17,7 +17,7 @@ from test_reach import WEAK
 from test_replay import rewritten, run_cli, stepped
 
 from hermsd.config import schema as config_module
-from hermsd.config.schema import make_controller
+from hermsd.control.build import make_controller
 from hermsd.control.reach import MARGIN_C
 from hermsd.log import reader, replay
 from hermsd.log.recorder import CONFIG_TOPIC, PERIOD_TOPIC, LogFile, Recorder

@@ -14,6 +14,7 @@ from test_step_response import powered_after
 
 from hermsd.cli import main
 from hermsd.commissioning import relay, tune
+from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.config.file import at_once
 from hermsd.runtime.daemon import Daemon, PeriodRecord
@@ -217,9 +218,7 @@ def test_tune_relay_simulated_writes_the_model(
     assert result["ultimate"]["cycles"] >= relay.MIN_CYCLES
     assert "+  model_gain:" in result["written"]["diff"]
     assert "relay +0:" in err  # progress lines
-    assert (
-        config_module.load(path).control.model_gain == result["recommended"]["control.model_gain"]
-    )
+    assert read.load(path).control.model_gain == result["recommended"]["control.model_gain"]
 
 
 @pytest.mark.parametrize(

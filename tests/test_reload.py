@@ -19,6 +19,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from test_config import assert_within_spec, documents, mutated_config
 
+from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.config.file import Check, ConfigFile, Start, at_once, in_thread
 from hermsd.runtime.daemon import Daemon, PeriodRecord
@@ -282,9 +283,9 @@ def test_a_file_changing_while_it_is_read_is_read_again_later(
     path.write_text(BASE, encoding="utf-8")
     source = ConfigFile(path, at_once)
     source.load()
-    real_load = config_module.load_document
+    real_load = read.load_document
 
-    def load_while_an_editor_writes(where: Any) -> config_module.Document:
+    def load_while_an_editor_writes(where: Any) -> read.Document:
         result = real_load(where)
         with path.open("a", encoding="utf-8") as file:
             file.write("\n")  # the editor's last write lands after our read

@@ -22,6 +22,7 @@ import pytest
 
 from hermsd.cli import main
 from hermsd.commissioning import identify
+from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.control import pid
 from hermsd.log import reader, replay
@@ -207,7 +208,7 @@ def test_a_rotated_run_then_another_run_tells_the_repeats_from_the_start(
     assert [c.repeat for c in log.configs] == [False, True, True, False]
     assert replay.verify(log.entries) == replay.Verification(720, 0, None)
     # Files of a recorder without run ids: the second run's periods count from k = 1 again.
-    monkeypatch.setattr(replay, "METADATA_NAME", "no such metadata")
+    monkeypatch.setattr(reader, "METADATA_NAME", "no such metadata")
     log = reader.load([*rotated, *second])
     assert [c.repeat for c in log.configs] == [False, True, True, False]
     assert replay.verify(log.entries) == replay.Verification(720, 0, None)
@@ -250,7 +251,7 @@ def period(k: int, t: float, pv: float | None, applied: float, **extra: Any) -> 
 
 
 def logged_config(t: float, reason: str = "start", **control: Any) -> dict[str, Any]:
-    config = config_module.to_dict(config_module.DEFAULT)
+    config = read.to_dict(config_module.DEFAULT)
     config["tun"]["element_watts"] = 2000.0
     config["control"].update(period=10.0, **control)
     return {"t": t, "config": config, "reason": reason}

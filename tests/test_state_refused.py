@@ -16,6 +16,7 @@ import pytest
 
 from hermsd import files
 from hermsd.cli import commands as cli
+from hermsd.cli import common
 from hermsd.control.learning import LEARNED_FILE, LearnedModel, ModelStore
 from hermsd.runtime import instance
 from hermsd.runtime.daemon import latch_save_failed_text
@@ -36,7 +37,7 @@ def _refused(capsys: pytest.CaptureFixture[str], args: list[str]) -> str:
     """The one line the daemon said on refusing to start (it must not have started)."""
     code = cli.main(args)
     out, err = capsys.readouterr()
-    assert code == cli.EXIT_USAGE
+    assert code == common.EXIT_USAGE
     assert out == ""  # not even the control socket's line
     [line] = err.splitlines()
     assert line.startswith("hermsd: ") and "not started, heater off" in line

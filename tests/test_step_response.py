@@ -12,6 +12,7 @@ import pytest
 from hermsd.cli import main
 from hermsd.commissioning import step_response, tune
 from hermsd.commissioning.simulated import simulated_step_test
+from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.runtime.daemon import PeriodRecord
 from hermsd.safety.supervisor import Alarm
@@ -160,7 +161,7 @@ def test_tune_step_simulated_writes_the_model_and_logs_the_run(
     assert abs(result["model"]["gain"] / 1.689 - 1) <= 0.10
     assert "+  model_gain:" in result["written"]["diff"]
     assert "step +0:10:00" in err  # progress lines
-    written = config_module.load(path)
+    written = read.load(path)
     assert written.control.model_gain == result["recommended"]["control.model_gain"]
     # logged like any run: `tune FILE` fits the same model to the step's log
     assert main(["tune", *map(str, sorted(log.glob("*.mcap"))), "--json"]) == 0

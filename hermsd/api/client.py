@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from hermsd.api.protocol import MAX_LINE, Request, encode, request_message
-from hermsd.config.schema import key_range
+from hermsd.config.read import key_range
 
 DEFAULT_SOCKET = Path("/run/hermsd/control.sock")
 SOCKET_NAME = "control.sock"

@@ -46,7 +46,7 @@ from hermsd.api.protocol import (
     error_reply,
 )
 from hermsd.api.server import Pending
-from hermsd.config import schema as config_module
+from hermsd.config import read, rules
 from hermsd.config.schema import Config
 from hermsd.control.learning import LearnedModel
 from hermsd.control.pid import PlantModel
@@ -151,7 +151,7 @@ class LoopLink:
         """Publish what this period left, and answer the commands it applied."""
         daemon = self.daemon
         if daemon.config is not self._config:  # a file edit: its changed keys win
-            self._runtime -= set(config_module.differences(self._config, daemon.config))
+            self._runtime -= set(read.differences(self._config, daemon.config))
             self._config = daemon.config
         self._snapshot = Snapshot(
             record,
@@ -213,7 +213,7 @@ class LoopLink:
             manual_output=daemon.manual_output,
         )
         running = dataclasses.replace(daemon.config, control=control)
-        return config_module.runtime_problems(running, changes)
+        return rules.runtime_problems(running, changes)
 
     def _apply(self, command: Command, t: float) -> None:
         daemon = self.daemon
@@ -326,10 +326,9 @@ class LoopLink:
                 "text": learned.describe(),
             },
             "runtime": {
-                key: {"running": running[key], "file": config_module.value_at(snapshot.config, key)}
+                key: {"running": running[key], "file": read.value_at(snapshot.config, key)}
                 for key in RUNTIME_KEYS
-                if key in snapshot.runtime
-                and running[key] != config_module.value_at(snapshot.config, key)
+                if key in snapshot.runtime and running[key] != read.value_at(snapshot.config, key)
             },
             "program": snapshot.program,
         }

@@ -33,6 +33,7 @@ from hermsd.commissioning.identify import (
     identify,
     uncertainty,
 )
+from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.control import pid
 from hermsd.files import write_atomically
@@ -530,7 +531,7 @@ def write_tuned(path: Path, tuned: Tuned) -> str:
     changes: dict[str, float | str] = dict(tuned.recommended)
     if "control.model_litres" not in changes:  # a log without the config's litres
         try:
-            changes["control.model_litres"] = config_module.load(path).tun.litres
+            changes["control.model_litres"] = read.load(path).tun.litres
         except config_module.ConfigError as error:
             raise TuneError(f"{path} left as it is: {error}") from None
     return write_config(path, changes)
@@ -564,7 +565,7 @@ def write_config(path: Path, changes: Mapping[str, float | str]) -> str:
 
 def _checked(text: str, filename: str, what: str) -> None:
     try:
-        config_module.parse_document(text, filename)
+        read.parse_document(text, filename)
     except config_module.ConfigError as error:
         problems = str(error).replace("\n", "; ")
         raise TuneError(f"{filename} {what}: {problems}") from None

@@ -21,15 +21,8 @@ from functools import partial
 from pathlib import Path
 from typing import TypeVar
 
-from hermsd.config.schema import (
-    Config,
-    ConfigError,
-    Document,
-    Problem,
-    load_document,
-    on_simulated_tun,
-    reload_problems,
-)
+from hermsd.config.read import Document, load_document, on_simulated_tun, reload_problems
+from hermsd.config.schema import Config, ConfigError, Problem
 
 _T = TypeVar("_T")
 _Signature = tuple[int, int, int, int, int] | None

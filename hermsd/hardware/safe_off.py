@@ -14,14 +14,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hermsd.config.schema import (
-    ContactorConfig,
-    Element2Config,
-    FoundOutput,
-    FoundOutputs,
-    OutputConfig,
-    every_valid_value,
-)
+from hermsd.config.read import FoundOutput, FoundOutputs, every_valid_value
+from hermsd.config.schema import ContactorConfig, Element2Config, OutputConfig
 from hermsd.hardware.ssr import Switch, describe_output
 
 # The keys that say which device a backend drives, and which level is off. Without them

@@ -30,8 +30,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hermsd.commissioning.identify import IdentifyError, TunModel, fit_span, identify
+from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.config.schema import make_controller, shared_out
+from hermsd.control.build import make_controller, shared_out
 from hermsd.control.element2 import MidRangeController, SplitController, TwoElementController
 from hermsd.control.pid import (
     DROP_READINGS,
@@ -354,7 +355,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             in_force = entry
             drop_rule = _drop_rule(entry)
             try:
-                whole = _as_logged(config_module.from_dict(entry.config), entry.config)
+                whole = _as_logged(read.from_dict(entry.config), entry.config)
                 if entry.reason == "start" or (watched and watch_changes(watched, whole)):
                     kept, watch = watch, element_watch(whole) if element2_watts(whole) else None
                     same = watched is not None and watched.tun == whole.tun
@@ -605,7 +606,7 @@ def what_if(log: Log, overrides: dict[str, Any]) -> WhatIf:
     if not configs:
         raise ReplayError("--what-if: no config record recovered, so no settings to start from")
     try:
-        base = config_module.from_dict(configs[0].config)
+        base = read.from_dict(configs[0].config)
     except config_module.ConfigError as error:
         detail = str(error).replace("\n", "; ")
         raise ReplayError(f"the config logged at t {configs[0].t!r} s: {detail}") from None

@@ -29,19 +29,13 @@ from dataclasses import asdict, dataclass, field
 from functools import partial
 from typing import Any, Protocol
 
+from hermsd.config import read, rules
 from hermsd.config import schema as config_module
 from hermsd.config.file import ConfigFile
-from hermsd.config.schema import (
-    Config,
-    ConfigError,
-    ControlConfig,
-    full_power,
-    full_power_share,
-    make_controller,
-    shared_out,
-    to_dict,
-)
-from hermsd.control import pid
+from hermsd.config.read import to_dict
+from hermsd.config.schema import Config, ConfigError, ControlConfig
+from hermsd.control import build, pid
+from hermsd.control.build import full_power, full_power_share, make_controller, shared_out
 from hermsd.control.element2 import SlowElement, SplitController, TwoElementController, total_share
 from hermsd.control.learning import LearnedModel, Learner, ModelStore, implausible_here
 from hermsd.control.pv import period_value
@@ -346,11 +340,11 @@ def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
     always: what was learned or measured is the response to one element."""
     learn = config.control.learn
     if element2_watts(config):
-        return ModelChoice(config_module.prior_model(config), "prior")
+        return ModelChoice(build.prior_model(config), "prior")
     here = stored is not None and learn != "off" and not_this_tun(stored, config) is None
     candidates = [
         ("learned", stored if here else None),
-        ("measured", config_module.measured_model(config)),
+        ("measured", build.measured_model(config)),
     ]
     if learn != "on":
         candidates.reverse()
@@ -360,7 +354,7 @@ def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
             model = basis.plant_model(config.tun.litres)
             if low <= model.gain <= high:
                 return ModelChoice(model, source, basis)
-    return ModelChoice(config_module.prior_model(config), "prior")
+    return ModelChoice(build.prior_model(config), "prior")
 
 
 def stored_model(models: ModelStore, config: Config) -> tuple[LearnedModel | None, str | None]:
@@ -376,7 +370,7 @@ def stored_model(models: ModelStore, config: Config) -> tuple[LearnedModel | Non
 def not_this_tun(model: LearnedModel, config: Config) -> str | None:
     """Why a learned model cannot be the configured tun's (`learning.implausible_here`)."""
     litres = config.tun.litres  # the one element it was learned on
-    full_rate = config.tun.element_watts / (config_module.WATER_J_PER_LITRE_K * litres)
+    full_rate = config.tun.element_watts / (build.WATER_J_PER_LITRE_K * litres)
     return implausible_here(model, litres=litres, full_rate=full_rate)
 
 
@@ -718,9 +712,7 @@ class Daemon:
             self.config, control=dataclasses.replace(self.config.control, setpoint=self.setpoint)
         )
         for index, step in enumerate(program.steps):
-            for problem in config_module.runtime_problems(
-                running, {"control.setpoint": step.setpoint}
-            ):
+            for problem in rules.runtime_problems(running, {"control.setpoint": step.setpoint}):
                 problems.append(f"steps[{index}].setpoint: {problem.split(': ', 1)[-1]}")
         return problems
 
@@ -873,17 +865,17 @@ class Daemon:
         log); an edit that breaks a rule only together with those kept values is rejected.
         """
         old = self.config
-        refused = config_module.restart_keys_changed(old, edited)
-        new = config_module.keep_restart_keys(old, edited)
-        broken = config_module.broken_rules(new)
+        refused = read.restart_keys_changed(old, edited)
+        new = read.keep_restart_keys(old, edited)
+        broken = rules.broken_rules(new)
         if broken:
             kept = f" with the running {', '.join(refused)}" if refused else ""
             self._reject_config(f"{'; '.join(broken)}{kept}", t)
             return
         self._config_problem = None
-        changed = config_module.differences(old, new)
+        changed = read.differences(old, new)
         if refused:
-            running = ", ".join(f"{key} {config_module.value_at(old, key)!r}" for key in refused)
+            running = ", ".join(f"{key} {read.value_at(old, key)!r}" for key in refused)
             self._event(
                 logging.WARNING,
                 f"config: {', '.join(refused)} need a restart (systemctl restart hermsd); "

@@ -26,6 +26,7 @@ from typing import Any
 
 import yaml
 
+from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.config.schema import Config
 from hermsd.control.learning import ModelStore
@@ -347,7 +348,7 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
 
 def effective_config(base: Config, scenario: Scenario) -> Config:
     """The daemon's config with the scenario's overrides, validated like the file."""
-    merged = _merge(config_module.to_dict(base), scenario.config)
+    merged = _merge(read.to_dict(base), scenario.config)
     if scenario.setpoint is not None:
         merged.setdefault("control", {})["setpoint"] = scenario.setpoint
     return _validated(merged, scenario, "config")
@@ -362,7 +363,7 @@ def _validated(document: dict[str, Any], scenario: Scenario, at: str) -> Config:
         element2["backend"] = "sim"  # the simulated tun's second element, whatever the file's
     source = scenario.source or f"<scenario {scenario.name}>"
     try:
-        return config_module.parse(yaml.safe_dump(document), source)
+        return read.parse(yaml.safe_dump(document), source)
     except config_module.ConfigError as error:
         keys = [f"{at}.{p.key_path}" if p.key_path else at for p in error.problems]
         raise ScenarioError(
@@ -378,7 +379,7 @@ def _reloads(config: Config, scenario: Scenario) -> dict[int, Config]:
     reloads = {}
     for index, event in enumerate(scenario.events):
         if event.kind == "config":
-            document = _merge(config_module.to_dict(config), event.value)
+            document = _merge(read.to_dict(config), event.value)
             config = _validated(document, scenario, f"events[{index}].config")
             reloads[index] = config
     return reloads

@@ -12,7 +12,8 @@ from pathlib import Path
 import uvicorn
 from starlette.applications import Starlette
 
-from hermsd.config.schema import Config, split_listen
+from hermsd.config.rules import split_listen
+from hermsd.config.schema import Config
 from hermsd.web.app import WebSettings, allowed_hosts, create_app
 from hermsd.web.passwords import hash_password, parse_hash
 
