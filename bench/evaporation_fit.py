@@ -33,7 +33,7 @@ from tuning import SETPOINT_C, step_test, truth  # bench/tuning.py, beside this 
 
 from hermsd.commissioning.identify import _golden
 from hermsd.control import linsys
-from hermsd.safety.supervisor import vapour_pressure_ratio
+from hermsd.safety.limits import vapour_pressure_ratio
 from hermsd.sim.hlt import EVAPORATION_W_PER_M2_KPA, pot_surface_m2, saturation_kpa
 from hermsd.sim.tuns import FAMILY, TunSpec
 

@@ -22,7 +22,7 @@ from typing import Any
 from control import _replace_section  # bench/control.py, beside this file
 
 from hermsd.config import schema as config_module
-from hermsd.safety.supervisor import LATCHED_KINDS
+from hermsd.safety.limits import LATCHED_KINDS
 from hermsd.sim import scenario
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.tuns import FAMILY, TunSpec

@@ -38,7 +38,9 @@ from mcap.reader import make_reader
 from hermsd.config import schema as config_module
 from hermsd.config.schema import Config
 from hermsd.log import reader, replay
-from hermsd.log.recorder import PERIOD_TOPIC, Recorder, read_messages
+from hermsd.log.mcap_file import read_messages
+from hermsd.log.recorder import Recorder
+from hermsd.log.topics import PERIOD_TOPIC
 from hermsd.runtime.daemon import Daemon
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world

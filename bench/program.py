@@ -35,7 +35,7 @@ from hermsd.metrics import BAND
 from hermsd.program.model import Program, Step
 from hermsd.program.readiness import WAIT_BELOW
 from hermsd.program.store import PROGRAM_FILE
-from hermsd.runtime.daemon import PeriodRecord
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY
 

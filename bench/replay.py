@@ -31,7 +31,7 @@ from log_bench import simulate  # bench/log_bench.py: a day logged as the daemon
 
 from hermsd.commissioning import identify
 from hermsd.log import reader, replay
-from hermsd.log.recorder import LogFile
+from hermsd.log.mcap_file import LogFile
 
 
 def best_of(runs: int, action: Callable[[], Any]) -> float:

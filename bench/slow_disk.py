@@ -39,10 +39,11 @@ from hermsd.commissioning import tune
 from hermsd.commissioning.step_response import FitProcess, fit_in_thread
 from hermsd.config import schema as config_module
 from hermsd.control.learning import LearnedModel, ModelStore
-from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.runtime.saver import Saver
 from hermsd.safety.latches import LatchStore
-from hermsd.safety.supervisor import Alarm
+from hermsd.safety.limits import Alarm
 from hermsd.sim.tuns import FAMILY
 
 OPEN_POT = "open 120 L 3.5 kW"

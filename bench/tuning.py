@@ -68,8 +68,9 @@ from hermsd.config import read
 from hermsd.config import schema as config
 from hermsd.config.file import at_once
 from hermsd.log import reader
-from hermsd.runtime.daemon import Daemon, PeriodRecord
-from hermsd.safety.supervisor import Alarm
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2

@@ -41,7 +41,8 @@ from hermsd.api.link import LoopLink
 from hermsd.api.protocol import MAX_PAGE, encode
 from hermsd.api.server import ControlServer
 from hermsd.config import schema as config_module
-from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 from hermsd.web.app import WebSettings, create_app

@@ -13,8 +13,10 @@ from hermsd.config import schema as config_module
 from hermsd.control import pid
 from hermsd.hardware.ssr import TimeProportionalPlanner, WindowPlan
 from hermsd.log import reader, replay
-from hermsd.log.recorder import WINDOW_TOPIC, LogFile
-from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.topics import WINDOW_TOPIC
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event

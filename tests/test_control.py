@@ -42,7 +42,7 @@ from hermsd.api.server import ControlServer, Pending, SocketInUseError
 from hermsd.cli import main, remote
 from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.control import build
+from hermsd.control import factory
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.runtime.daemon import Daemon
 from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore
@@ -270,7 +270,7 @@ def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Pat
         status["limits"][0]
         == "over-temperature cut-out              95 °C, back below 90 °C  [configured]"
     )
-    prior = build.prior_model(daemon.config)  # nothing learned: the config's model
+    prior = factory.prior_model(daemon.config)  # nothing learned: the config's model
     assert status["model"] == {
         "gain": prior.gain,
         "tau": prior.tau,

@@ -18,7 +18,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from hermsd.config import schema as config_module
-from hermsd.log.recorder import (
+from hermsd.log.topics import (
     LOG_TOPIC,
     PART_SUFFIX,
     PERIOD_TOPIC,

@@ -17,9 +17,11 @@ import pytest
 from hermsd.config import schema as config_module
 from hermsd.config.schema import Config
 from hermsd.control import pid
-from hermsd.runtime.daemon import Daemon, PeriodRecord, guard_outputs
+from hermsd.hardware.outputs import guard_outputs
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.latches import LatchStore
-from hermsd.safety.supervisor import Alarm
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 

@@ -12,7 +12,7 @@ import pytest
 from test_recorder import Messages, chunked_log, chunks_of, decoded
 
 from hermsd.cli import commands as cli
-from hermsd.log.recorder import LogFile, recover
+from hermsd.log.mcap_file import LogFile, recover
 
 CHUNKS = 8
 PER_CHUNK = 10

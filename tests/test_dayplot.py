@@ -23,17 +23,11 @@ from matplotlib.transforms import Bbox
 
 from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.log import dayplot, reader, recorder
+from hermsd.log import dayplot, reader, topics
 from hermsd.log.dayplot import Marker, rows
-from hermsd.log.recorder import (
-    CONFIG_TOPIC,
-    LOG_TOPIC,
-    PERIOD_TOPIC,
-    LogLevel,
-    Recorder,
-    log_message,
-)
-from hermsd.runtime.daemon import PeriodRecord
+from hermsd.log.recorder import Recorder
+from hermsd.log.topics import CONFIG_TOPIC, LOG_TOPIC, PERIOD_TOPIC, LogLevel, log_message
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 
 S = 1_000_000_000
@@ -93,7 +87,7 @@ def brew_hour(directory: Path, monkeypatch: pytest.MonkeyPatch) -> list[Path]:
         (3000, "finished", {}),
     ]
     for at, event, fields in program:
-        messages.append((recorder.PROGRAM_TOPIC, at, program_event(T0 + at, event, **fields)))
+        messages.append((topics.PROGRAM_TOPIC, at, program_event(T0 + at, event, **fields)))
     directory.mkdir(exist_ok=True)
     writer = Recorder(directory, now=VirtualClock().monotonic, lossless=True)
     for topic, wall_s, message in sorted(messages, key=lambda m: m[1]):

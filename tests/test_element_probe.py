@@ -14,7 +14,7 @@ from hermsd.control import pid
 from hermsd.control.element2 import PowerSplit, SplitController
 from hermsd.log.reader import LoggedConfig, load
 from hermsd.log.replay import verify
-from hermsd.runtime.daemon import PeriodRecord
+from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event, Scenario, run

@@ -20,7 +20,7 @@ from hermsd.cli import remote
 from hermsd.config import schema as config_module
 from hermsd.log.reader import load
 from hermsd.log.replay import verify
-from hermsd.runtime.daemon import PeriodRecord
+from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import (
     CONFIRM_S,
     DEAD_TIME_FACTORS,

@@ -26,8 +26,9 @@ from hermsd.config import schema as config_module
 from hermsd.config.file import in_thread
 from hermsd.log import reader, replay
 from hermsd.log.recorder import Recorder
-from hermsd.runtime.daemon import Daemon, PeriodRecord
-from hermsd.safety.supervisor import Alarm
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 

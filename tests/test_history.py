@@ -12,7 +12,7 @@ from test_control import TIMEOUT, connect, exchange, served
 from test_replay import period
 
 from hermsd.api.history import HistoryRing, capacity_for, encode_row
-from hermsd.runtime.daemon import PeriodRecord
+from hermsd.runtime.period import PeriodRecord
 
 
 def _ring(times: list[float], capacity: int) -> HistoryRing:

@@ -13,7 +13,7 @@ import pytest
 from hermsd.api.server import ControlServer
 from hermsd.cli import commands as cli
 from hermsd.cli import run as cli_run
-from hermsd.log.recorder import PART_SUFFIX
+from hermsd.log.topics import PART_SUFFIX
 from hermsd.runtime.instance import LOCK_FILE, DirectoryLock, InstanceError
 
 TIMEOUT_S = 30.0

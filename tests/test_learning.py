@@ -20,11 +20,12 @@ import pytest
 from hermsd.cli import commands as cli
 from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.control import build, learning
+from hermsd.control import factory, learning
 from hermsd.control.learning import LearnedModel, Learner, ModelStore
 from hermsd.control.pid import HeatUpFit, PlantModel
 from hermsd.log import reader, replay
-from hermsd.log.recorder import MODEL_TOPIC, LogFile
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.topics import MODEL_TOPIC
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario
 from hermsd.sim.world import simulated_daemon
@@ -147,7 +148,7 @@ def test_off_ignores_what_was_learned(learned_day: tuple[Path, Path]) -> None:
     off = read.from_dict(read.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}})
     model = learned(learned_day[0])
     assert model is not None
-    prior = build.prior_model(off)
+    prior = factory.prior_model(off)
     assert prior.dead_time == THETA and model.dead_time != THETA
 
 

@@ -26,7 +26,9 @@ from test_reload import Events, FakeNotifier
 
 from hermsd.cli import commands as cli
 from hermsd.config import schema as config_module
-from hermsd.log.recorder import PERIOD_TOPIC, RETRY_INTERVAL_S, RETRY_MAX_S, LogFile, Recorder
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.recorder import RETRY_INTERVAL_S, RETRY_MAX_S, Recorder
+from hermsd.log.topics import PERIOD_TOPIC
 from hermsd.runtime.daemon import LOG_FAILING_REPEAT_S, Daemon
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world

@@ -32,7 +32,7 @@ from hermsd.api.protocol import (
 )
 from hermsd.cli import main
 from hermsd.log import reader, replay
-from hermsd.log.recorder import PROGRAM_TOPIC
+from hermsd.log.topics import PROGRAM_TOPIC
 from hermsd.program import model
 from hermsd.program.model import Program, Step
 from hermsd.program.store import PROGRESS_FILE, SAVE_EVERY_S

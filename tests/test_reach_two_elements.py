@@ -19,7 +19,7 @@ import pytest
 
 from hermsd.config import schema as config_module
 from hermsd.config.schema import Config
-from hermsd.control import build
+from hermsd.control import factory
 from hermsd.control.element2 import PowerSplit
 from hermsd.control.reach import MARGIN_C, SLACK, FullPower, short_words
 from hermsd.log import reader, replay
@@ -83,17 +83,17 @@ def test_full_power_is_each_element_at_its_own_limit_worked_by_hand() -> None:
 def test_each_controller_s_full_power_from_its_config() -> None:
     spec = TunSpec("90 L, 2 + 3.5 kW", 90, 2000, 1.0, 60, 10, 20)
     one = spec.config(config_module.DEFAULT)
-    assert build.full_power(one) == FullPower(100.0)
+    assert factory.full_power(one) == FullPower(100.0)
     shared, midrange = two_elements(spec, 3500.0), two_elements(spec, 3500.0, "midrange")
-    assert build.full_power(shared) == FullPower(100.0, True)
-    assert build.full_power(midrange) == FullPower(100.0, True)
+    assert factory.full_power(shared) == FullPower(100.0, True)
+    assert factory.full_power(midrange) == FullPower(100.0, True)
     limit = dataclasses.replace(shared.control, max_output=80.0)
-    assert build.full_power(dataclasses.replace(shared, control=limit)).duty1 == (
+    assert factory.full_power(dataclasses.replace(shared, control=limit)).duty1 == (
         pytest.approx(45.0)  # shared out: the limit is on the total (above)
     )
     limit = dataclasses.replace(midrange.control, max_output=80.0)
     limited = dataclasses.replace(midrange, control=limit)
-    assert build.full_power(limited) == FullPower(80.0, True)  # mid-ranging: u1's
+    assert factory.full_power(limited) == FullPower(80.0, True)  # mid-ranging: u1's
 
 
 # -- through the daemon ---------------------------------------------------------------------

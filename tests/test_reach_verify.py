@@ -17,11 +17,14 @@ from test_reach import WEAK
 from test_replay import rewritten, run_cli, stepped
 
 from hermsd.config import schema as config_module
-from hermsd.control.build import make_controller
+from hermsd.control.factory import make_controller
 from hermsd.control.reach import MARGIN_C
 from hermsd.log import reader, replay
-from hermsd.log.recorder import CONFIG_TOPIC, PERIOD_TOPIC, LogFile, Recorder
-from hermsd.runtime.daemon import PeriodRecord, reach_period
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.recorder import Recorder
+from hermsd.log.topics import CONFIG_TOPIC, PERIOD_TOPIC
+from hermsd.runtime.build import reach_period
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event, Scenario

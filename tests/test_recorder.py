@@ -20,26 +20,27 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 import hermsd
-from hermsd.log import recorder as recorder_module
-from hermsd.log.recorder import (
+from hermsd.log import topics as log_topics
+from hermsd.log.mcap_file import (
+    LogFile,
+    NotRecovered,
+    Recovery,
+    read_messages,
+    recover,
+    recover_directory,
+)
+from hermsd.log.recorder import RETRY_INTERVAL_S, Recorder
+from hermsd.log.topics import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     MODEL_TOPIC,
     PERIOD_TOPIC,
     PROGRAM_TOPIC,
     READING_TOPIC,
-    RETRY_INTERVAL_S,
     TIMING_TOPIC,
     TOPICS,
     WINDOW_TOPIC,
-    LogFile,
     LogLevel,
-    NotRecovered,
-    Recorder,
-    Recovery,
-    read_messages,
-    recover,
-    recover_directory,
 )
 from hermsd.sim.clock import VirtualClock
 
@@ -327,9 +328,7 @@ def test_schemas_reject_what_their_topics_must_not_carry() -> None:
     assert not conforms({**PROGRAM, "event": "exploded"}, program_schema)
     assert not conforms({**PROGRAM, "step": "0"}, program_schema)
     log_schema = TOPICS[LOG_TOPIC].schema
-    assert not conforms(
-        {**recorder_module.log_message(LogLevel.INFO, "x", 0), "level": 6}, log_schema
-    )
+    assert not conforms({**log_topics.log_message(LogLevel.INFO, "x", 0), "level": 6}, log_schema)
 
 
 def test_not_a_number_is_recorded_as_null_and_bad_records_are_counted(tmp_path: Path) -> None:

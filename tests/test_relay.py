@@ -17,8 +17,9 @@ from hermsd.commissioning import relay, tune
 from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.config.file import at_once
-from hermsd.runtime.daemon import Daemon, PeriodRecord
-from hermsd.safety.supervisor import Alarm
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 

@@ -22,10 +22,11 @@ from test_config import assert_within_spec, documents, mutated_config
 from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.config.file import Check, ConfigFile, Start, at_once, in_thread
-from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.runtime.saver import Saver
 from hermsd.safety.latches import LatchStore
-from hermsd.safety.supervisor import Alarm
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 

@@ -26,17 +26,17 @@ from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.control import pid
 from hermsd.log import reader, replay
-from hermsd.log.recorder import (
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.recorder import Recorder
+from hermsd.log.topics import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     PERIOD_TOPIC,
     TIMING_TOPIC,
-    LogFile,
     LogLevel,
-    Recorder,
     log_message,
 )
-from hermsd.runtime.daemon import PeriodRecord
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.scenario import Event, Scenario

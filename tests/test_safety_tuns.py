@@ -20,7 +20,8 @@ from hermsd.cli import commands as cli
 from hermsd.config import schema as config_module
 from hermsd.control.learning import ModelStore
 from hermsd.control.pid import PlantModel
-from hermsd.safety.supervisor import SafetyLimits, Supervisor, format_limits
+from hermsd.safety.limits import SafetyLimits, format_limits
+from hermsd.safety.supervisor import Supervisor
 from hermsd.sim import scenario
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.tuns import FAMILY, TunSpec

@@ -11,7 +11,7 @@ import pytest
 
 from hermsd.cli import commands as cli
 from hermsd.config import schema as config_module
-from hermsd.log.recorder import LogFile
+from hermsd.log.mcap_file import LogFile
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario, ScenarioError, parse_scenario
 

@@ -12,7 +12,8 @@ from typing import Any
 import pytest
 
 from hermsd.config import schema as config_module
-from hermsd.safety.supervisor import SafetyLimits, Supervisor
+from hermsd.safety.limits import SafetyLimits
+from hermsd.safety.supervisor import Supervisor
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario
 

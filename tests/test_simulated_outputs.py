@@ -11,7 +11,8 @@ import pytest
 
 from hermsd.cli import commands as cli
 from hermsd.config.file import ConfigFile, at_once
-from hermsd.log.recorder import CONFIG_TOPIC, LOG_TOPIC, LogFile
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.topics import CONFIG_TOPIC, LOG_TOPIC
 from hermsd.sim.world import simulated_daemon
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"

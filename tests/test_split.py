@@ -23,7 +23,7 @@ from hermsd.control.element2 import PowerSplit, SplitController
 from hermsd.log.reader import load
 from hermsd.log.replay import verify
 from hermsd.program.model import Program, Step
-from hermsd.runtime.daemon import PeriodRecord
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.scenario import Event, Scenario, run
 
 H = 5.0

@@ -14,8 +14,8 @@ from hermsd.commissioning import step_response, tune
 from hermsd.commissioning.simulated import simulated_step_test
 from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.runtime.daemon import PeriodRecord
-from hermsd.safety.supervisor import Alarm
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.tuns import FAMILY
 from hermsd.sim.world import World

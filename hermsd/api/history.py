@@ -18,7 +18,7 @@ import math
 import threading
 from collections.abc import Sequence
 
-from hermsd.runtime.daemon import PeriodRecord
+from hermsd.runtime.period import PeriodRecord
 
 FIELDS = ("t", "pv", "setpoint", "output", "applied")
 KEPT_SECONDS = 24 * 3600.0

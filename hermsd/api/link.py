@@ -52,9 +52,10 @@ from hermsd.control.learning import LearnedModel
 from hermsd.control.pid import PlantModel
 from hermsd.control.reach import short_words
 from hermsd.program.runner import Refused
-from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import no_heat_words
-from hermsd.safety.supervisor import SafetyLimits, format_limits
+from hermsd.safety.limits import SafetyLimits, format_limits
 
 SOURCE = "control socket"
 SEEN_S = 1.0

@@ -79,7 +79,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd.program.model import READY_BY, Program, ProgramError, from_data, one_line, to_data
-from hermsd.safety.supervisor import AUTO_KINDS, LATCHED_KINDS
+from hermsd.safety.limits import AUTO_KINDS, LATCHED_KINDS
 
 VERSION = 1
 MAX_LINE = 1 << 16

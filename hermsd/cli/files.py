@@ -70,8 +70,8 @@ def cmd_check_config(args: argparse.Namespace) -> int:
     `output.backend: sim` is valid only in a simulated run, so it is refused here by
     default: a file checked for the service must not fail when the service starts.
     """
-    from hermsd.runtime.daemon import model_in_force, safety_limits, stored_model
-    from hermsd.safety.supervisor import format_limits
+    from hermsd.runtime.build import model_in_force, safety_limits, stored_model
+    from hermsd.safety.limits import format_limits
 
     document = read.load_document(args.file)
     if document.config.output.backend == "sim" and not args.simulate:

@@ -21,7 +21,7 @@ from hermsd.cli.run import (
     _print_summary,
 )
 from hermsd.files import write_new
-from hermsd.log.recorder import recover
+from hermsd.log.mcap_file import recover
 from hermsd.runtime.instance import DirectoryLock, InstanceError
 
 if TYPE_CHECKING:

@@ -36,7 +36,8 @@ from hermsd.durations import parse_duration
 from hermsd.hardware.lm92 import LM92, open_bus
 from hermsd.hardware.realtime import loop_priority
 from hermsd.hardware.ssr import Switch, describe_output, open_hardware_switch
-from hermsd.log.recorder import NotRecovered, Recorder, recover_directory
+from hermsd.log.mcap_file import NotRecovered, recover_directory
+from hermsd.log.recorder import Recorder
 from hermsd.runtime.instance import DirectoryLock, InstanceError
 from hermsd.runtime.log_queue import DroppingQueueHandler
 from hermsd.runtime.notify import Notifier, NotifyEnvironmentError, check_watchdog
@@ -114,9 +115,10 @@ class StatusLine:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from hermsd.hardware.outputs import guard_outputs
     from hermsd.hardware.ssr import DeadManThread
     from hermsd.runtime.clock import MonotonicClock
-    from hermsd.runtime.daemon import Daemon, guard_outputs
+    from hermsd.runtime.daemon import Daemon
 
     path = config_path(args.config, simulate=args.simulate)
     config_file = ConfigFile(path, simulated=args.simulate) if path is not None else None

@@ -214,7 +214,8 @@ def _run_tune(
 ) -> _Experiment:
     """A tune experiment through the daemon on the tun (or the simulated one), with the
     service's directories locked; the heater is off when this returns, whatever happened."""
-    from hermsd.runtime.daemon import Daemon, guard_outputs
+    from hermsd.hardware.outputs import guard_outputs
+    from hermsd.runtime.daemon import Daemon
     from hermsd.sim.hlt import PlantFailed
 
     log_dir = args.log

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 from hermsd.control import linsys
-from hermsd.safety.supervisor import vapour_pressure_ratio
+from hermsd.safety.limits import vapour_pressure_ratio
 
 
 class IdentifyError(ValueError):

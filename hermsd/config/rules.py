@@ -28,7 +28,7 @@ from hermsd.config.schema import (
     _quote,
     _Violation,
 )
-from hermsd.control.build import make_controller, measured_model
+from hermsd.control.factory import make_controller, measured_model
 from hermsd.control.learning import implausible
 
 

@@ -46,7 +46,7 @@ from hermsd.control.pid import (
 )
 from hermsd.files import write_atomically
 from hermsd.safety.latches import StateError, read_state_json
-from hermsd.safety.supervisor import FILL_RANGE
+from hermsd.safety.limits import FILL_RANGE
 
 LEARNED_FILE = "learned-model.json"
 HOLD_S = 1800.0

@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TypeGuard
 
 from hermsd.files import not_regular
-from hermsd.log.recorder import (
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.topics import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     MCAP_MAGIC,
@@ -24,13 +25,10 @@ from hermsd.log.recorder import (
     PERIOD_TOPIC,
     PROGRAM_TOPIC,
     TIMING_TOPIC,
-    LogFile,
     LogLevel,
 )
-from hermsd.runtime.daemon import (
-    RAISED_ALARM,
-    PeriodRecord,
-)
+from hermsd.runtime.daemon import RAISED_ALARM
+from hermsd.runtime.period import PeriodRecord
 
 if TYPE_CHECKING:
     pass

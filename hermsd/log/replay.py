@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING, Any
 from hermsd.commissioning.identify import IdentifyError, TunModel, fit_span, identify
 from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.control.build import make_controller, shared_out
 from hermsd.control.element2 import MidRangeController, SplitController, TwoElementController
+from hermsd.control.factory import make_controller, shared_out
 from hermsd.control.pid import (
     DROP_READINGS,
     DROP_RULE,
@@ -61,14 +61,11 @@ from hermsd.log.reader import (
     alarms,
     sudden_drops,
 )
-from hermsd.log.recorder import (
-    PART_SUFFIX,
-)
+from hermsd.log.topics import PART_SUFFIX
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
 from hermsd.program.quality import step_quality
 from hermsd.program.readiness import SCHEDULE_EVENTS
-from hermsd.runtime.daemon import (
-    PeriodRecord,
+from hermsd.runtime.build import (
     element2_watts,
     element_watch,
     keep_probe,
@@ -77,6 +74,7 @@ from hermsd.runtime.daemon import (
     retunes,
     watch_changes,
 )
+from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import ElementWatch
 
 if TYPE_CHECKING:

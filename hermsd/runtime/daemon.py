@@ -33,11 +33,11 @@ from hermsd.config import read, rules
 from hermsd.config import schema as config_module
 from hermsd.config.file import ConfigFile
 from hermsd.config.read import to_dict
-from hermsd.config.schema import Config, ConfigError, ControlConfig
-from hermsd.control import build, pid
-from hermsd.control.build import full_power, full_power_share, make_controller, shared_out
+from hermsd.config.schema import Config, ConfigError
+from hermsd.control import pid
 from hermsd.control.element2 import SlowElement, SplitController, TwoElementController, total_share
-from hermsd.control.learning import LearnedModel, Learner, ModelStore, implausible_here
+from hermsd.control.factory import full_power, full_power_share, make_controller, shared_out
+from hermsd.control.learning import LearnedModel, Learner, ModelStore
 from hermsd.control.pv import period_value
 from hermsd.control.reach import PREFIX, ReachWatch, Said
 from hermsd.hardware.lm92 import (
@@ -48,29 +48,43 @@ from hermsd.hardware.lm92 import (
     decode_temperature,
     encode_temperature,
 )
+from hermsd.hardware.outputs import Outputs, window_length
 from hermsd.hardware.ssr import (
-    GuardedSwitch,
-    Switch,
     SwitchedDuty,
     TimeProportionalPlanner,
     WindowPlan,
     cut,
 )
-from hermsd.log.recorder import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
+from hermsd.log.topics import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program
-from hermsd.program.readiness import Tun, known_dead_time
+from hermsd.program.readiness import Tun
 from hermsd.program.runner import ProgramEvent
 from hermsd.program.store import ProgressStore
 from hermsd.runtime.alerts import SHUTDOWN_WAIT, Alerts, Event
+from hermsd.runtime.build import (
+    _tun_fields,
+    element2_watts,
+    element_watch,
+    keep_probe,
+    model_in_force,
+    reach_period,
+    reach_restarts,
+    retunes,
+    safety_limits,
+    stored_model,
+    watch_changes,
+)
 from hermsd.runtime.clock import Clock
 from hermsd.runtime.notify import Notifier, WatchdogGate, status_line
+from hermsd.runtime.period import PeriodRecord
 from hermsd.runtime.saver import Outcome, Saver
 from hermsd.runtime.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.safety.element_probe import ProbeResult
-from hermsd.safety.element_watch import ElementWatch, no_heat_words, report_kind
+from hermsd.safety.element_watch import no_heat_words, report_kind
 from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore, StateError
-from hermsd.safety.supervisor import Alarm, MeasuredTun, SafetyLimits, Supervisor
+from hermsd.safety.limits import Alarm, MeasuredTun
+from hermsd.safety.supervisor import Supervisor
 
 log = logging.getLogger("hermsd")
 
@@ -135,40 +149,6 @@ def raised_alarm_text(alarm: Alarm) -> str:
     return f"{what} {alarm.kind}: {alarm.message}; heater off"
 
 
-@dataclass(frozen=True, slots=True)
-class PeriodRecord:
-    """Everything the loop knew in one control period (logged, and what replay re-runs)."""
-
-    t: float
-    k: int
-    setpoint: float
-    pv: float | None
-    readings: list[float]
-    output: float
-    applied: float
-    p: float
-    i: float
-    d: float
-    mode: str
-    algorithm: str
-    state: str
-    alarms: list[str]
-    heater_allowed: bool
-    reset_from: float | None = None  # the controller was reset to this output before its step
-    u2: float | None = None  # the second element's duty (two elements only), %
-    applied2: float | None = None  # its duty in the period before, on account (C2 tracks it)
-    switched2: float | None = None  # … and as switched (the heat the supervisor counts)
-    full_from: int | None = None  # after this many of `readings` it asked for full power at once
-    step: str | None = None  # the mash program's step (hermsd.program), its index from 0,
-    step_index: int | None = None  # the time left of its hold (None: not reached, or held
-    step_left_s: float | None = None  # until told), and the next step's name
-    next_step: str | None = None
-    on2: bool | None = None  # the second element was on as the period began
-    free2: bool | None = None  # … and its minimum on or off time let it switch
-    no_heat: list[int] | None = None  # the elements reported giving no heat (two elements)
-    ceiling: float | None = None  # °C full power levels the water out at, while short (reach)
-
-
 class ControlHook(Protocol):
     """Operator commands from outside the loop (the control socket, `hermsd.control`)."""
 
@@ -184,201 +164,6 @@ class Listener(Protocol):
     def period(self, record: PeriodRecord) -> None: ...
 
     def alarm(self, alarm: Alarm) -> None: ...
-
-
-@dataclass(slots=True)
-class Outputs:
-    """The SSR and, optionally, a series contactor and a second element, behind dead-men."""
-
-    ssr: GuardedSwitch
-    contactor: GuardedSwitch | None = None
-    element2: GuardedSwitch | None = None
-
-    def all(self) -> list[GuardedSwitch]:
-        return [s for s in (self.ssr, self.contactor, self.element2) if s is not None]
-
-
-def guard_outputs(
-    ssr: Switch,
-    contactor: Switch | None,
-    clock: Clock,
-    config: Config,
-    element2: Switch | None = None,
-) -> Outputs:
-    """Wrap raw outputs in dead-men that trip after two windows without a refresh (the
-    second element, refreshed once a period: two periods)."""
-    timeout = 2.0 * window_length(config)
-    slow = 2.0 * max(window_length(config), config.control.period)
-    return Outputs(
-        GuardedSwitch(ssr, clock.monotonic, timeout, "ssr"),
-        GuardedSwitch(contactor, clock.monotonic, timeout, "contactor") if contactor else None,
-        GuardedSwitch(element2, clock.monotonic, slow, "element2") if element2 else None,
-    )
-
-
-def window_length(config: Config) -> float:
-    return config.output.window if config.output.window is not None else config.control.period
-
-
-def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLimits:
-    """The supervisor's limits: from `model` (the tun as measured) where given, else safe for
-    any tun the config could be describing (see `SafetyLimits.derive`)."""
-    s = config.safety
-    return SafetyLimits.derive(
-        litres=config.tun.litres,
-        element_watts=config.tun.element_watts + element2_watts(config),
-        period=config.control.period,
-        read_interval=config.sensor.read_interval,
-        model=model,
-        max_temp=s.max_temp,
-        hysteresis=s.hysteresis,
-        plausible_min=s.plausible_min,
-        plausible_max=s.plausible_max,
-        max_step=s.max_step,
-        fault_reads=s.fault_reads,
-        resume_reads=s.resume_reads,
-        stale_after=s.stale_after,
-        dead_time=s.dead_time,
-        heater_watch=s.heater_watch,
-        heater_min_rise=s.heater_min_rise,
-        ssr_watch=s.ssr_watch,
-        ssr_max_rise=s.ssr_max_rise,
-        dry_fire_factor=s.dry_fire_factor,
-        stuck_time=s.stuck_time,
-        stuck_output_change=s.stuck_output_change,
-        stall_periods=s.stall_periods,
-        max_output=full_power_share(config),
-    )
-
-
-def element_watch(config: Config) -> ElementWatch:
-    """The watch of both elements' heat, judged over the controller's dead time."""
-    return ElementWatch(config.tun.element_watts, element2_watts(config), config.control.dead_time)
-
-
-def watch_changes(old: Config, new: Config) -> bool:
-    """Whether a reload starts the element watch afresh (replay does as the daemon)."""
-    return old.tun != new.tun or old.control.dead_time != new.control.dead_time
-
-
-def keep_probe(
-    old: Config,
-    new: Config,
-    before: pid.Controller | None,
-    after: pid.Controller | None,
-) -> None:
-    """A reload that keeps the tun (its litres and element; the second element's keys need a
-    restart) keeps what the heat-up's probe found: the new controller goes on with the old
-    one's probe once that is done (not tried again; a finding not yet taken is taken from
-    it). A new tun is probed afresh. Replay does as the daemon."""
-    if old.tun != new.tun or not isinstance(after, SplitController):
-        return
-    if isinstance(before, SplitController) and before.probe is not None and before.probe.done:
-        after.probe = before.probe
-
-
-def reach_period(
-    reach: ReachWatch,
-    record: PeriodRecord,
-    model: pid.PlantModel,
-    config: Config,
-    controller: pid.Controller,
-) -> Said | None:
-    """Feed `reach` the period of `record` (before its `ceiling`), with the model, the config
-    and the controller in force after the period's step: the daemon does, and replay's check
-    does again from the log. Full power (`config.full_power`) and the dead time are a
-    ready_by heat-up's."""
-    full = (
-        record.state == "ok"
-        and record.mode == "auto"
-        and full_power(config).reached(record.applied, record.switched2)
-    )
-    dead_time = known_dead_time(model, pid.heat_up_fit(controller))
-    max_output = config.control.max_output
-    return reach.period(record.t, record.setpoint, record.pv, full, dead_time, max_output)
-
-
-def reach_restarts(old: Config, new: Config) -> bool:
-    """Whether a reload gives another full power, measured afresh (replay does as the
-    daemon)."""
-    return full_power(old) != full_power(new)
-
-
-def element2_watts(config: Config) -> float:
-    """The second element's power (0 when none is fitted): the supervisor judges the total."""
-    return config.element2.watts if config.element2.backend != "none" else 0.0
-
-
-@dataclass(frozen=True, slots=True)
-class ModelChoice:
-    """The tun's model in force and where it came from: "learned" (the state directory),
-    "measured" (the control.model_* keys `hermsd tune --write` wrote) or "prior" (a guess
-    from tun.litres and tun.element_watts)."""
-
-    model: pid.PlantModel
-    source: str
-    basis: LearnedModel | None = None  # the measurement, at the fill it was made with
-
-    @property
-    def measured(self) -> pid.PlantModel | None:
-        """The model, if it was measured: what the supervisor's limits may be tightened by."""
-        return None if self.basis is None else self.model
-
-    def describe(self) -> str:
-        if self.basis is None:
-            return "the prior from tun.litres and tun.element_watts (nothing measured)"
-        what = "learned" if self.source == "learned" else "measured by hermsd tune (control keys)"
-        return f"{what}: {self.basis.describe()}"
-
-
-def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
-    """The model the controller and the supervisor use. `control.learn` on: what was learned
-    (kept up to date by the daemon itself), else what `hermsd tune` measured; pinned: the
-    measured one, else what was learned; off: the measured one only. A measurement is
-    rescaled to the configured litres; one the fill takes out of the controller's range is
-    passed over. Neither: the config's prior. With a second element fitted, the prior
-    always: what was learned or measured is the response to one element."""
-    learn = config.control.learn
-    if element2_watts(config):
-        return ModelChoice(build.prior_model(config), "prior")
-    here = stored is not None and learn != "off" and not_this_tun(stored, config) is None
-    candidates = [
-        ("learned", stored if here else None),
-        ("measured", build.measured_model(config)),
-    ]
-    if learn != "on":
-        candidates.reverse()
-    low, high = pid.MODEL_GAIN_RANGE  # a fill far from the measured one can leave it
-    for source, basis in candidates:
-        if basis is not None:
-            model = basis.plant_model(config.tun.litres)
-            if low <= model.gain <= high:
-                return ModelChoice(model, source, basis)
-    return ModelChoice(build.prior_model(config), "prior")
-
-
-def stored_model(models: ModelStore, config: Config) -> tuple[LearnedModel | None, str | None]:
-    """What `models` holds, if it can be the configured tun's; else (None, why: said in the
-    log as a learned model ignored), as `ModelStore.load` says a damaged file."""
-    model, problem = models.load()
-    why = not_this_tun(model, config) if model is not None else None
-    if why is not None:
-        return None, f"{models.path}: {why}"
-    return model, problem
-
-
-def not_this_tun(model: LearnedModel, config: Config) -> str | None:
-    """Why a learned model cannot be the configured tun's (`learning.implausible_here`)."""
-    litres = config.tun.litres  # the one element it was learned on
-    full_rate = config.tun.element_watts / (build.WATER_J_PER_LITRE_K * litres)
-    return implausible_here(model, litres=litres, full_rate=full_rate)
-
-
-def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
-    """A measured tun as the log keeps it (None: the limits hold for any tun)."""
-    if model is None:
-        return None
-    return {k: getattr(model, k) for k in ("gain", "tau", "dead_time", "ambient")}
 
 
 def _hold_stop_signals(held: list[int]) -> tuple[dict[int, Any], BaseException | None]:
@@ -406,11 +191,6 @@ def _hold_stop_signals(held: list[int]) -> tuple[dict[int, Any], BaseException |
             except BaseException as error:  # a handler already due ran here: try again
                 interrupted = interrupted or error
     return previous, interrupted
-
-
-def retunes(old: ControlConfig, new: ControlConfig) -> bool:
-    """Whether a reload from `old` to `new` needs a new controller (bumplessly reset)."""
-    return any(getattr(old, key) != getattr(new, key) for key in config_module.TUNING_KEYS)
 
 
 @dataclass(slots=True)

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any, TypeGuard
 
 from hermsd.files import NotRegularFile, read_regular, write_atomically
-from hermsd.safety.supervisor import LATCHED_KINDS
+from hermsd.safety.limits import LATCHED_KINDS
 
 LATCHED_FILE = "latched.json"
 RESET_FILE = "reset-alarm.json"

@@ -38,10 +38,11 @@ from hermsd.program import model as program_model
 from hermsd.program.driver import next_local_time
 from hermsd.program.model import Program, ProgramError
 from hermsd.program.quality import step_quality
-from hermsd.runtime.daemon import Daemon, PeriodRecord
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.runtime.saver import Saver
 from hermsd.safety.latches import LatchStore
-from hermsd.safety.supervisor import Alarm, MeasuredTun
+from hermsd.safety.limits import Alarm, MeasuredTun
 from hermsd.sim.bus import FakeLM92, Fault, fault_value
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock

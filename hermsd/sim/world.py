@@ -16,8 +16,9 @@ from hermsd.config.file import ConfigFile
 from hermsd.config.schema import Config
 from hermsd.control.learning import ModelStore
 from hermsd.hardware.lm92 import LM92
+from hermsd.hardware.outputs import Outputs, guard_outputs
 from hermsd.runtime.clock import Clock
-from hermsd.runtime.daemon import Daemon, Outputs, guard_outputs
+from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.notify import Notifier
 from hermsd.runtime.saver import Saver
 from hermsd.safety.latches import LatchStore
