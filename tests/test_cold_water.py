@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from hermsd.config import schema as config_module
-from hermsd.control import pid
+from hermsd.control import laws, pid, predictive
 from hermsd.hardware.ssr import TimeProportionalPlanner, WindowPlan
 from hermsd.log import reader, replay
 from hermsd.log.mcap_file import LogFile
@@ -88,7 +88,7 @@ def holding_controller(
     """A controller that has held 66 °C for an hour on `model`'s tun (by default seed 001's:
     1.689 °C/%, τ 14961 s, dead time 115 s, a 20 °C room), started at the holding duty
     46/1.689 = 27.2 %."""
-    controller = pid.create(algorithm, kc=120.0, ti=800.0, ts=5.0, out_max=out_max, model=model)
+    controller = laws.create(algorithm, kc=120.0, ti=800.0, ts=5.0, out_max=out_max, model=model)
     holding = (SP - model.ambient) / model.gain
     controller.reset(SP, holding)
     in_flight = [holding] * round(model.dead_time / 5.0)
@@ -118,7 +118,7 @@ def holding_controller(
     ],
 )
 def test_no_full_power_without_two_readings_that_show_the_fall(readings: list[float]) -> None:
-    assert not pid.full_power_now(holding_controller(), SP, SP, readings)
+    assert not predictive.full_power_now(holding_controller(), SP, SP, readings)
 
 
 @pytest.mark.parametrize(
@@ -135,8 +135,8 @@ def test_a_fall_full_power_cannot_undo_in_a_period_is_answered_whatever_the_law_
 ) -> None:
     # Both readings at least 0.125 °C below, more than the 0.045 °C a period of full power
     # adds: the rule in force acts; the rule before it waited for the law to ask for it.
-    assert pid.full_power_now(holding_controller(), SP, SP, readings)
-    assert not pid.full_power_now(holding_controller(), SP, SP, readings, pid.LAW_DROP_RULE)
+    assert predictive.full_power_now(holding_controller(), SP, SP, readings)
+    assert not predictive.full_power_now(holding_controller(), SP, SP, readings, pid.LAW_DROP_RULE)
 
 
 def test_a_fall_above_a_lowered_setpoint_is_left_to_the_law() -> None:
@@ -147,9 +147,9 @@ def test_a_fall_above_a_lowered_setpoint_is_left_to_the_law() -> None:
     for _ in range(30):
         controller.step(60.0, SP, controller.output)
     assert controller.output == 0.0
-    assert not pid.full_power_now(controller, 60.0, SP, [65.875, 65.8125])
+    assert not predictive.full_power_now(controller, 60.0, SP, [65.875, 65.8125])
     # below the setpoint, the same fall is acted on (as at 66 °C above)
-    assert pid.full_power_now(controller, 66.5, SP, [65.875, 65.8125])
+    assert predictive.full_power_now(controller, 66.5, SP, [65.875, 65.8125])
 
 
 def test_a_step_from_a_steady_minute_to_a_fallen_pv_is_a_recovery_unless_the_log_predates_it() -> (
@@ -159,9 +159,9 @@ def test_a_step_from_a_steady_minute_to_a_fallen_pv_is_a_recovery_unless_the_log
     `drop_fall_c` judges by the minute before alone, as their daemons did."""
     for older in (False, True):
         controller = holding_controller()
-        assert isinstance(controller, pid._Predictive)
+        assert isinstance(controller, predictive._Predictive)
         if older:
-            pid.predating_drop_fall(controller)
+            predictive.predating_drop_fall(controller)
         controller.step(SP, SP, controller.output)
         controller.step(SP, SP - 0.4, 100.0)  # full power from this period on, the PV fallen
         assert controller._watch.active is older
@@ -176,10 +176,14 @@ def test_a_thermowell_drop_is_answered_at_its_third_reading() -> None:
     # at least 2 LSB below before it; the rule before it wanted the latest more than 0.25 °C
     # below and the law to answer it with full power, which it does not at 0.3125 °C either.
     readings = [65.9375, 65.875, 65.75, 65.6875]
-    decided = [pid.full_power_now(holding_controller(), SP, SP, readings[:n]) for n in (1, 2, 3)]
+    decided = [
+        predictive.full_power_now(holding_controller(), SP, SP, readings[:n]) for n in (1, 2, 3)
+    ]
     assert decided == [False, False, True]
     for n in (1, 2, 3, 4):
-        assert not pid.full_power_now(holding_controller(), SP, SP, readings[:n], pid.LAW_DROP_RULE)
+        assert not predictive.full_power_now(
+            holding_controller(), SP, SP, readings[:n], pid.LAW_DROP_RULE
+        )
 
 
 def test_where_a_period_of_full_power_could_undo_more_than_the_fall_the_law_decides() -> None:
@@ -187,22 +191,28 @@ def test_where_a_period_of_full_power_could_undo_more_than_the_fall_the_law_deci
     # of full power adds 5 · 0.1 · (1 − u/100) = 0.33 to 0.4 °C from a duty of 20 to 35 %.
     fast = pid.PlantModel(gain=1.689, tau=1689.0, dead_time=115.0)
     # 0.25 °C is less: the law decides, and 0.25 °C below is its gentle zone.
-    assert not pid.full_power_now(holding_controller(model=fast), SP, SP, [65.75, 65.75])
+    assert not predictive.full_power_now(holding_controller(model=fast), SP, SP, [65.75, 65.75])
     # 0.4375 °C is more: full power, though the law, 0.44 °C into its kc zone, asks for
     # 27 % + 4.3·0.25 + 120·0.19 = 51 %.
     fallen = [65.5625, 65.5625]
-    assert pid.full_power_now(holding_controller(model=fast), SP, SP, fallen)
-    assert not pid.full_power_now(holding_controller(model=fast), SP, SP, fallen, pid.LAW_DROP_RULE)
+    assert predictive.full_power_now(holding_controller(model=fast), SP, SP, fallen)
+    assert not predictive.full_power_now(
+        holding_controller(model=fast), SP, SP, fallen, pid.LAW_DROP_RULE
+    )
 
 
 def test_a_drop_the_lag_keeps_within_a_quarter_degree_at_first_is_answered_at_its_second() -> None:
     # The first reading is 2 LSB + 0.0625 down, the second 0.6875 °C: full power now. The
     # first rule waited for a third reading (both beyond 0.25 °C), a second of full power lost.
-    assert pid.full_power_now(holding_controller(), SP, SP, LAGGED_DROP)
-    assert not pid.full_power_now(holding_controller(), SP, SP, LAGGED_DROP, pid.FIRST_DROP_RULE)
-    assert pid.full_power_now(holding_controller(), SP, SP, [65.3125, 65.0], pid.FIRST_DROP_RULE)
+    assert predictive.full_power_now(holding_controller(), SP, SP, LAGGED_DROP)
+    assert not predictive.full_power_now(
+        holding_controller(), SP, SP, LAGGED_DROP, pid.FIRST_DROP_RULE
+    )
+    assert predictive.full_power_now(
+        holding_controller(), SP, SP, [65.3125, 65.0], pid.FIRST_DROP_RULE
+    )
     # The latest reading alone, after a steady one, is a glitch as far as anyone knows.
-    assert not pid.full_power_now(holding_controller(), SP, SP, [66.0, LAGGED_DROP[1]])
+    assert not predictive.full_power_now(holding_controller(), SP, SP, [66.0, LAGGED_DROP[1]])
 
 
 def test_the_first_rule_asks_its_law_on_the_mean_of_the_two() -> None:
@@ -211,8 +221,8 @@ def test_the_first_rule_asks_its_law_on_the_mean_of_the_two() -> None:
     # their mean, 65.5 °C, it is at the band's edge: 38.5·0.25 + 120·0.25 = 40 % above the
     # holding 27 %, not full.
     shallow = [65.6875, 65.3125]
-    assert pid.full_power_now(holding_controller(), SP, SP, shallow)
-    assert not pid.full_power_now(holding_controller(), SP, SP, shallow, pid.FIRST_DROP_RULE)
+    assert predictive.full_power_now(holding_controller(), SP, SP, shallow)
+    assert not predictive.full_power_now(holding_controller(), SP, SP, shallow, pid.FIRST_DROP_RULE)
 
 
 def test_full_power_the_readings_asked_for_is_a_recovery_not_a_heat_up_from_steady() -> None:
@@ -221,19 +231,19 @@ def test_full_power_the_readings_asked_for_is_a_recovery_not_a_heat_up_from_stea
     # measured as a recovery (the rate the added water left), not as a heat-up from a steady
     # 66 °C, whose fit would wait for a rise to 67 °C that never comes.
     controller = holding_controller()
-    assert isinstance(controller, pid._Predictive)
+    assert isinstance(controller, predictive._Predictive)
     controller.step(SP, SP - 0.6, 100.0)
     assert (controller._recovery.active, controller._watch.active) == (True, False)
     # A step to full power with this period's PV still within the steady band is a heat-up's.
     controller = holding_controller()
-    assert isinstance(controller, pid._Predictive)
+    assert isinstance(controller, predictive._Predictive)
     controller.step(SP, SP - 0.0625, 100.0)
     assert (controller._recovery.active, controller._watch.active) == (False, True)
 
 
 def test_two_readings_a_degree_down_ask_for_full_power_and_change_nothing() -> None:
     controller, twin = holding_controller(), holding_controller()
-    assert pid.full_power_now(controller, SP, SP, [66.0, 65.0, 64.875])
+    assert predictive.full_power_now(controller, SP, SP, [66.0, 65.0, 64.875])
     # The question was asked of a copy: the next step is bit for bit the untouched twin's.
     assert controller.step(SP, 65.0, controller.output) == twin.step(SP, 65.0, twin.output)
     assert controller.terms == twin.terms
@@ -245,7 +255,7 @@ def test_cold_water_carries_full_power_across_the_period_end_while_the_pv_falls(
     # that, yet the law answers it with a few % (its gentle zone).
     told, twin = holding_controller(), holding_controller()
     assert twin.step(SP, SP - 0.1875, 60.0) < 50.0
-    pid.cold_water_seen(told)
+    predictive.cold_water_seen(told)
     assert told.step(SP, SP - 0.1875, 60.0) == 100.0
     # On without a new word while each period's PV falls by more than 0.0564 °C …
     assert told.step(SP, SP - 0.25, 100.0) == 100.0
@@ -255,7 +265,7 @@ def test_cold_water_carries_full_power_across_the_period_end_while_the_pv_falls(
     assert told.step(SP, SP - 0.4, 60.0) < 100.0
     # A fall of less than a period of full power adds is the law's from the start.
     gentle = holding_controller()
-    pid.cold_water_seen(gentle)
+    predictive.cold_water_seen(gentle)
     assert gentle.step(SP, SP - 0.05, 30.0) < 50.0
 
 
@@ -264,11 +274,11 @@ def test_no_carry_above_the_setpoint_nor_after_a_reset() -> None:
     cooling = holding_controller()
     for _ in range(30):
         cooling.step(60.0, SP, cooling.output)
-    pid.cold_water_seen(cooling)
+    predictive.cold_water_seen(cooling)
     assert cooling.step(60.0, SP - 0.25, 0.0) == 0.0
     # A reset (a hold, a return to auto) forgets a carry in progress.
     carried = holding_controller()
-    pid.cold_water_seen(carried)
+    predictive.cold_water_seen(carried)
     assert carried.step(SP, SP - 0.1875, 60.0) == 100.0
     carried.reset(SP - 0.375, 30.0)
     assert carried.step(SP, SP - 0.5, 30.0) < 100.0
@@ -297,17 +307,17 @@ def test_a_slow_sensor_keeps_full_power_from_the_period_that_saw_the_water() -> 
 
 
 def test_only_predictive_acts_inside_the_period_and_not_when_already_full() -> None:
-    assert not pid.full_power_now(holding_controller("type_a"), SP, SP, [65.0, 64.875])
-    heating = pid.create("predictive", kc=120.0, ti=800.0, ts=5.0)
+    assert not predictive.full_power_now(holding_controller("type_a"), SP, SP, [65.0, 64.875])
+    heating = laws.create("predictive", kc=120.0, ti=800.0, ts=5.0)
     assert heating.step(SP, 20.0) == 100.0
-    assert not pid.full_power_now(heating, SP, 20.0, [19.0, 18.875])
+    assert not predictive.full_power_now(heating, SP, 20.0, [19.0, 18.875])
 
 
 def test_a_power_limit_below_full_is_kept_inside_the_period() -> None:
     # control.max_output 80 %: the window must not run at 100 % for any part of it.
     readings = [66.0, 65.0, 64.875]
-    assert pid.full_power_now(holding_controller(), SP, SP, readings)  # at 100 % it would
-    assert not pid.full_power_now(holding_controller(out_max=80.0), SP, SP, readings)
+    assert predictive.full_power_now(holding_controller(), SP, SP, readings)  # at 100 % it would
+    assert not predictive.full_power_now(holding_controller(out_max=80.0), SP, SP, readings)
 
 
 @pytest.mark.parametrize("within_lsb", [0.0, 0.25, 0.5, 0.75])
@@ -323,7 +333,7 @@ def test_sensor_noise_never_asks_for_full_power(within_lsb: float) -> None:
         readings: list[float] = []
         for _ in range(5):
             readings.append(math.floor((truth + rng.gauss(0.0, 0.03)) / 0.0625) * 0.0625)
-            assert not pid.full_power_now(controller, SP, pv, readings)
+            assert not predictive.full_power_now(controller, SP, pv, readings)
         pv = sum(readings) / len(readings)
         controller.step(SP, pv, controller.output)
 
@@ -586,9 +596,9 @@ def test_replay_carries_full_power_as_the_config_record_says(
 
 def test_a_config_record_without_drop_carry_is_of_a_daemon_that_never_carried() -> None:
     record = {"t": 0.0, "config": {}, "drop_readings": 2, "drop_onset_c": 0.125}
-    assert replay._config(record, Path("old.mcap")).drop_carry is False
-    assert replay._config(record | {"drop_carry": True}, Path("new.mcap")).drop_carry is True
-    assert replay._config(record | {"drop_carry": "yes"}, Path("odd.mcap")).drop_carry is False
+    assert reader._config(record, Path("old.mcap")).drop_carry is False
+    assert reader._config(record | {"drop_carry": True}, Path("new.mcap")).drop_carry is True
+    assert reader._config(record | {"drop_carry": "yes"}, Path("odd.mcap")).drop_carry is False
 
 
 def _by_rule(

@@ -14,7 +14,7 @@ import pytest
 from test_reload import BASE, edited, rename_over, run_for, start
 
 from hermsd.cli import commands as cli
-from hermsd.control import pid
+from hermsd.control import laws, pid
 from hermsd.log import reader, replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario, ScenarioError, parse_scenario
@@ -31,7 +31,7 @@ def test_the_limit_is_half_an_hour() -> None:
 @pytest.mark.parametrize("ts", [1.0, 5.0, 7.0, 60.0])
 def test_the_predictive_controller_runs_at_the_limit_for_any_period(ts: float) -> None:
     model = pid.PlantModel(1.689, 14961.0, LIMIT, 20.0)
-    controller = pid.create("predictive", kc=120.0, ti=800.0, ts=ts, model=model)
+    controller = laws.create("predictive", kc=120.0, ti=800.0, ts=ts, model=model)
     controller.reset(pv=20.0, output=0.0)
     for k in range(round(2 * LIMIT / ts) + 5):  # past a whole dead time of history, twice
         output = controller.step(66.0, 20.0 + 0.01 * k)
@@ -42,7 +42,7 @@ def test_the_predictive_controller_runs_at_the_limit_for_any_period(ts: float) -
 def test_a_model_beyond_the_limit_is_refused_by_the_controller(dead_time: float) -> None:
     model = pid.PlantModel(1.689, 14961.0, dead_time, 20.0)
     with pytest.raises(ValueError, match=r"model\.dead_time.*1800 s"):
-        pid.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=model)
+        laws.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=model)
 
 
 @pytest.mark.parametrize("dead_time", [LIMIT, *REFUSED])

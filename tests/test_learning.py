@@ -22,7 +22,8 @@ from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.control import factory, learning
 from hermsd.control.learning import LearnedModel, Learner, ModelStore
-from hermsd.control.pid import HeatUpFit, PlantModel
+from hermsd.control.pid import PlantModel
+from hermsd.control.watches import HeatUpFit
 from hermsd.log import reader, replay
 from hermsd.log.mcap_file import LogFile
 from hermsd.log.topics import MODEL_TOPIC

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from test_replay import without_marker
 
-from hermsd.control import pid
+from hermsd.control import pid, predictive
 from hermsd.control.learning import ModelStore
 from hermsd.log import reader, replay
 from hermsd.sim import scenario
@@ -85,7 +85,7 @@ def test_a_ramped_day_logged_before_the_rule_verifies_under_the_old_rule(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # The daemon before the rule: every step to full power from a steady PV measured.
-    monkeypatch.setattr(pid._Predictive, "_duty_was_steady", lambda self, step: True)
+    monkeypatch.setattr(predictive._Predictive, "_duty_was_steady", lambda self, step: True)
     paths = day(tmp_path / "ramp", "1h", ", ramp: 1.0")
     monkeypatch.undo()
     [rate] = measured(reader.load(paths))

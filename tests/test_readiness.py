@@ -15,8 +15,9 @@ import math
 
 import pytest
 
-from hermsd.control.pid import HeatUpFit, PlantModel
+from hermsd.control.pid import PlantModel
 from hermsd.control.reach import rise_s
+from hermsd.control.watches import HeatUpFit
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program, Step
 from hermsd.program.quality import step_quality

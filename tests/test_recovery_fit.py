@@ -18,7 +18,7 @@ import pytest
 from test_replay import without_marker
 
 from hermsd.config import schema as config_module
-from hermsd.control import pid
+from hermsd.control import pid, watches
 from hermsd.log import reader, replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event
@@ -53,7 +53,7 @@ def worst_slope_error(times: list[float]) -> float:
 
 def fed(fewest: int, periods: int) -> list[tuple[float, float] | None]:
     """The watch's answers to `periods` of full power, fitting over at least `fewest`."""
-    watch = pid._RecoveryWatch()
+    watch = watches._RecoveryWatch()
     pvs = ramp(periods)
     watch.arm(pvs[0], HOLD)
     # The controller feeds the watch while it is active and full power runs.

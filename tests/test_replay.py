@@ -24,7 +24,7 @@ from hermsd.cli import main
 from hermsd.commissioning import identify
 from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.control import pid
+from hermsd.control import laws
 from hermsd.log import reader, replay
 from hermsd.log.mcap_file import LogFile
 from hermsd.log.recorder import Recorder
@@ -426,13 +426,13 @@ def synthetic_reload_day() -> list[dict[str, Any]]:
     pvs = [50.0, 50.4, 51.0, 51.9, 52.6, 53.5, 54.1, 54.9, 55.4, 56.0]
     gains = [(120.0, 800.0), (40.0, 300.0)]
     records = []
-    controller = pid.create("predictive", kc=gains[0][0], ti=gains[0][1], ts=ts)
+    controller = laws.create("predictive", kc=gains[0][0], ti=gains[0][1], ts=ts)
     output = applied = 0.0
     for k, pv in enumerate(pvs, start=1):
         reset_from = None
         if k in (1, 7):
             if k == 7:
-                controller = pid.create("predictive", kc=gains[1][0], ti=gains[1][1], ts=ts)
+                controller = laws.create("predictive", kc=gains[1][0], ti=gains[1][1], ts=ts)
             reset_from = output
             controller.reset(pv, reset_from)
         output = controller.step(setpoint, pv, applied)

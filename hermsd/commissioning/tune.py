@@ -35,7 +35,7 @@ from hermsd.commissioning.identify import (
 )
 from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.control import pid
+from hermsd.control import seed
 from hermsd.files import write_atomically
 from hermsd.log.reader import Log, sudden_drops
 
@@ -70,7 +70,7 @@ class Model:
     a_star_given: bool  # False: a* = K/τ, the FOPTD's own slope after its dead time
 
     def rules(self) -> dict[str, tuple[float, float, float]]:
-        return pid.table1(K=self.K, tau=self.tau, theta=self.theta, a_star=self.a_star)
+        return seed.table1(K=self.K, tau=self.tau, theta=self.theta, a_star=self.a_star)
 
 
 def parse_table(text: str) -> Model:

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 
-from hermsd.control import pid
+from hermsd.control import pid, predictive
 from hermsd.control.midrange import MidRange
 from hermsd.control.reach import FullPower
 from hermsd.hardware.ssr import GuardedSwitch, SwitchedDuty
@@ -333,7 +333,7 @@ class SplitController:
     def step(self, sp: float, pv: float, applied: float | None = None) -> float:
         total = None if applied is None else self.split.total(applied, self.applied2)
         if self._held[0]:  # the power two periods ago was the probe's, this one's full again
-            pid.loops_own_step(self.inner)
+            predictive.loops_own_step(self.inner)
         u = self.total = self.inner.step(sp, pv, total)
         on, self._output = self.split.decide(u, self.on2, self.free2)
         self.u2 = 100.0 if on else 0.0

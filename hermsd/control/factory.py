@@ -6,7 +6,7 @@ hold; this says what the laws make of it."""
 from __future__ import annotations
 
 from hermsd.config.schema import MIDRANGE, Config, ControlConfig
-from hermsd.control import midrange, pid
+from hermsd.control import laws, midrange, pid
 from hermsd.control.element2 import MidRangeController, PowerSplit, SplitController, total_share
 from hermsd.control.learning import LearnedModel
 from hermsd.control.reach import FullPower
@@ -64,7 +64,7 @@ def make_controller(control: ControlConfig, model: pid.PlantModel | None = None)
     c = control
     if c.algorithm == MIDRANGE:
         return _midrange_controller(c)
-    return pid.create(
+    return laws.create(
         c.algorithm,
         kc=c.kc,
         ti=c.ti,

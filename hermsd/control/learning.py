@@ -35,15 +35,8 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from hermsd.control.pid import (
-    AMBIENT_RANGE,
-    MAX_DEAD_TIME,
-    RATE_BAND,
-    SENSOR_LSB,
-    HeatUpFit,
-    LineFit,
-    PlantModel,
-)
+from hermsd.control.pid import AMBIENT_RANGE, MAX_DEAD_TIME, RATE_BAND, SENSOR_LSB, PlantModel
+from hermsd.control.watches import HeatUpFit, LineFit
 from hermsd.files import write_atomically
 from hermsd.safety.latches import StateError, read_state_json
 from hermsd.safety.limits import FILL_RANGE

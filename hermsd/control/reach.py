@@ -27,7 +27,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from hermsd.control.pid import SENSOR_LSB, LineFit
+from hermsd.control.pid import SENSOR_LSB
+from hermsd.control.watches import LineFit
 from hermsd.metrics import BAND
 
 SLACK = 0.5

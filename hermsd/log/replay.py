@@ -42,6 +42,8 @@ from hermsd.control.pid import (
     Controller,
     DropRule,
     PlantModel,
+)
+from hermsd.control.predictive import (
     cold_water_seen,
     full_power_now,
     logged_duty_share,

@@ -34,8 +34,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from hermsd.control.learning import WATER_SPAN_S, water_came
-from hermsd.control.pid import HeatUpFit, PlantModel
+from hermsd.control.pid import PlantModel
 from hermsd.control.reach import MEASURE_S, RISE_FROM_S, Rise
+from hermsd.control.watches import HeatUpFit
 from hermsd.metrics import BAND
 from hermsd.program.runner import heat_up_s
 

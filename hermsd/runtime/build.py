@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from hermsd.config import schema as config_module
 from hermsd.config.schema import Config, ControlConfig
-from hermsd.control import factory, pid
+from hermsd.control import factory, pid, predictive
 from hermsd.control.element2 import SplitController
 from hermsd.control.factory import full_power, full_power_share
 from hermsd.control.learning import LearnedModel, ModelStore, implausible_here
@@ -92,7 +92,7 @@ def reach_period(
         and record.mode == "auto"
         and full_power(config).reached(record.applied, record.switched2)
     )
-    dead_time = known_dead_time(model, pid.heat_up_fit(controller))
+    dead_time = known_dead_time(model, predictive.heat_up_fit(controller))
     max_output = config.control.max_output
     return reach.period(record.t, record.setpoint, record.pv, full, dead_time, max_output)
 

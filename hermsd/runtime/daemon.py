@@ -34,7 +34,7 @@ from hermsd.config import schema as config_module
 from hermsd.config.file import ConfigFile
 from hermsd.config.read import to_dict
 from hermsd.config.schema import Config, ConfigError
-from hermsd.control import pid
+from hermsd.control import pid, predictive
 from hermsd.control.element2 import SlowElement, SplitController, TwoElementController, total_share
 from hermsd.control.factory import full_power, full_power_share, make_controller, shared_out
 from hermsd.control.learning import LearnedModel, Learner, ModelStore
@@ -255,7 +255,7 @@ class Daemon:
         self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
         self.controller = shared_out(config, make_controller(config.control, self.model))
         self._learner = self._make_learner(config)
-        self._heat_up_seen = pid.heat_up_fit(self.controller)
+        self._heat_up_seen = predictive.heat_up_fit(self.controller)
         self._reloaded_at = -math.inf  # when a reload last changed the config
         self.planner = self._make_planner(config)
         e2 = config.element2
@@ -513,7 +513,7 @@ class Daemon:
             self.model,
             full_power_share(self.config),
             self.model_choice.measured is not None,
-            pid.heat_up_fit(self.controller),
+            predictive.heat_up_fit(self.controller),
         )
 
     def program_command(self, action: str, t: float, step: int | None = None) -> None:
@@ -684,7 +684,7 @@ class Daemon:
             before = self.controller
             self.controller = shared_out(new, make_controller(new.control, self.model))
             keep_probe(old, new, before, self.controller)
-            self._heat_up_seen = pid.heat_up_fit(self.controller)
+            self._heat_up_seen = predictive.heat_up_fit(self.controller)
             self._learner = self._make_learner(new)
             if not self._held:  # bumpless: the new controller starts from the output in force
                 self._held = True
@@ -759,7 +759,7 @@ class Daemon:
         if self.config.control.learn != "on" or models is None or self.element2 is not None:
             return  # the learner models one element
         learner = self._learner
-        fit = pid.heat_up_fit(self.controller)
+        fit = predictive.heat_up_fit(self.controller)
         if record.state != "ok" or record.mode != "auto" or record.pv is None:
             learner.interrupt()
         elif record.reset_from is not None and record.k > 1:
@@ -925,7 +925,7 @@ class Daemon:
         """
         if self._full_from is not None or not self._stepped or self._pv is None:
             return
-        if not pid.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
+        if not predictive.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
             return
         self._full_from = len(self._readings)
         window = self._window
@@ -1044,7 +1044,7 @@ class Daemon:
                     self.controller.reset(pv, reset_from)
                     self._held = False
                 if full_from is not None:
-                    pid.cold_water_seen(self.controller)
+                    predictive.cold_water_seen(self.controller)
                 self.output = self.controller.step(self.setpoint, pv, applied)
                 self._stepped = True
                 controller = self.controller
