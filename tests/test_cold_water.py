@@ -507,7 +507,7 @@ def uncarried_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     a period ended with the period."""
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(pid, "DROP_CARRY", False)
-        patch.setattr(pid, "cold_water_seen", lambda controller: None)
+        patch.setattr(predictive, "cold_water_seen", lambda controller: None)
         return _cold_water_day(tmp_path_factory.mktemp("uncarried"))
 
 

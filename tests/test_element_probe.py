@@ -273,7 +273,7 @@ def test_the_split_tells_its_controller_the_power_back_after_the_probe_is_its_ow
 
     steps: list[float] = []
     told: list[int] = []
-    monkeypatch.setattr(pid, "loops_own_step", lambda _c: told.append(len(steps) + 1))
+    monkeypatch.setattr(predictive, "loops_own_step", lambda _c: told.append(len(steps) + 1))
     inner = laws.create("predictive", kc=120.0, ti=800.0, ts=H, out_max=100.0, model=pid.SEED_HLT)
     split = SplitController(inner, PowerSplit(W1, W2, H, 120.0, 120.0), Held())
     for _ in range(8):

@@ -18,7 +18,7 @@ import pytest
 from test_replay import without_marker
 
 from hermsd.config import schema as config_module
-from hermsd.control import pid, watches
+from hermsd.control import pid, predictive, watches
 from hermsd.log import reader, replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event
@@ -128,7 +128,8 @@ def test_a_fresh_log_names_the_rule_and_verifies_by_it(tmp_path: Path) -> None:
 def test_a_log_from_before_the_rule_verifies_by_the_rule_before_it(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(pid, "RECOVERY_FIT_PERIODS", 0)
+    monkeypatch.setattr(pid, "RECOVERY_FIT_PERIODS", 0)  # as logged
+    monkeypatch.setattr(predictive, "RECOVERY_FIT_PERIODS", 0)  # as run
     paths = cold_water_day(tmp_path / "day")
     monkeypatch.undo()
     older = reader.load(older_log(paths, tmp_path / "older"))
