@@ -319,7 +319,7 @@ def main() -> int:
         "reach the setpoint (`setpoint_unreachable`, hermsd/control/reach.py): right only where "
         "the water truly cannot, which `uv run python bench/reach.py` lists (four ×2 days, three "
         "of them with +1 kW). For comparison, the supervisor before "
-        "these limits (commit 1ea9d7e's `hermsd/safety/supervisor.py` swapped in, measured once on "
+        "these limits (commit 1ea9d7e's `hermsd/safety.py` swapped in, measured once on "
         "that commit's simulator, without evaporation) "
         "raised 22 false latched alarms on the 36 ×½, ×2 and ×2 +1 kW days, and "
         "`heater_not_heating` 305 s into the 120 L thermowell's first heat-up at its "

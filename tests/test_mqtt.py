@@ -738,7 +738,7 @@ def test_a_second_stop_signal_inside_the_first_handler_does_not_hang(tmp_path: P
 def _states_the_loop_sets() -> set[str]:
     """Every value the control period gives `state` (read from its source, so a new one
     cannot go unnoticed)."""
-    tree = ast.parse((ROOT / "hermsd" / "daemon.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "hermsd" / "runtime" / "daemon.py").read_text(encoding="utf-8"))
     period = next(
         node
         for node in ast.walk(tree)
