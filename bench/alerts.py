@@ -19,8 +19,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from hermsd.alerts import Alerts, Event
-from hermsd.config import AlertsConfig
+from hermsd.config.schema import AlertsConfig
+from hermsd.runtime.alerts import Alerts, Event
 
 CALLS = 20_000
 TICK = 0.01

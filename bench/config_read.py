@@ -22,8 +22,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from hermsd.config import MAX_FILE_BYTES
-from hermsd.config_file import ConfigFile, Start, at_once, in_thread
+from hermsd.config.file import ConfigFile, Start, at_once, in_thread
+from hermsd.config.read import MAX_FILE_BYTES
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
 POLLS = 5

@@ -21,8 +21,8 @@ from typing import Any
 import sections  # bench/sections.py, beside this file
 from peers import ITAE_LOAD, PEERS, controlled_by  # bench/peers.py, beside this file
 
-from hermsd import config as config_module
-from hermsd import pid
+from hermsd.config import schema as config_module
+from hermsd.control import pid
 from hermsd.sim import scenario
 
 GAIN_SETS = {

@@ -5,7 +5,7 @@ from 36 to 66 °C). A first-order fit (losses ∝ T − room) of a step that end
 finds a gain between the linear one and the one at the hold (bench/tuning.py). This bench
 fits each tun's default step test (the records `tune step` fitted) with and without one more
 regressor, the evaporation's shape g(T) = p_sat(PV)/p_sat(66 °C) (Magnus,
-hermsd.safety.vapour_pressure_ratio) through the same first-order lag, on every tun, the
+hermsd.safety.supervisor.vapour_pressure_ratio) through the same first-order lag, on every tun, the
 lidded ones included:
 
     τ·dT/dt = −(T − room) + K·u(t − θ) − E·g(T)
@@ -30,9 +30,9 @@ from collections.abc import Sequence
 import sections  # bench/sections.py, beside this file
 from tuning import SETPOINT_C, step_test, truth  # bench/tuning.py, beside this file
 
-from hermsd import linsys
 from hermsd.commissioning.identify import _golden
-from hermsd.safety import vapour_pressure_ratio
+from hermsd.control import linsys
+from hermsd.safety.limits import vapour_pressure_ratio
 from hermsd.sim.hlt import EVAPORATION_W_PER_M2_KPA, pot_surface_m2, saturation_kpa
 from hermsd.sim.tuns import FAMILY, TunSpec
 

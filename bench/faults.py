@@ -24,8 +24,8 @@ from typing import Any
 
 import sections  # bench/sections.py, beside this file
 
-from hermsd import config as config_module
-from hermsd.safety import LATCHED_KINDS
+from hermsd.config import schema as config_module
+from hermsd.safety.limits import LATCHED_KINDS
 from hermsd.sim import scenario
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event
@@ -319,7 +319,7 @@ def main() -> int:
             "with its watts on two elements, 2/5.5 of them on the SSR and the rest on a "
             "contactor (min on and off 120 s), the shipped default controller shared out "
             "(docs/two-elements.md); the normal days of the section above (×½, ×2, +1 kW), "
-            "noise sd 0.03 °C. Alarms and element warnings (hermsd/element_watch.py), the "
+            "noise sd 0.03 °C. Alarms and element warnings (hermsd/safety/element_watch.py), the "
             "first of each: none is right. Then the configured fill with an element going "
             "open at 5 h: the time from it to the first warning and the first alarm "
             "(the contactor's element also with water added at 5 h 30, which asks it for "
@@ -367,10 +367,10 @@ def main() -> int:
         "there, referred to `control.model_ambient`, not the real room), as day 2 of "
         "bench/robustness.py does.\n\n"
         "Alarms on normal days (none is right), and the warning that full power cannot "
-        "reach the setpoint (`setpoint_unreachable`, hermsd/reach.py): right only where the "
-        "water truly cannot, which `uv run python bench/reach.py` lists (four ×2 days, three "
+        "reach the setpoint (`setpoint_unreachable`, hermsd/control/reach.py): right only where "
+        "the water truly cannot, which `uv run python bench/reach.py` lists (four ×2 days, three "
         "of them with +1 kW). For comparison, the supervisor before "
-        "these limits (commit 1ea9d7e's `hermsd/safety.py` swapped in, measured once on "
+        "these limits (commit 1ea9d7e's `hermsd/safety/supervisor.py` swapped in, measured once on "
         "that commit's simulator, without evaporation) "
         "raised 22 false latched alarms on the 36 ×½, ×2 and ×2 +1 kW days, and "
         "`heater_not_heating` 305 s into the 120 L thermowell's first heat-up at its "

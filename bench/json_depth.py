@@ -1,5 +1,5 @@
 """What reading a request's JSON costs the control socket's server thread, its nesting bound
-included (hermsd.control.jsontext.loads, as parse_request reads every line).
+included (hermsd.api.jsontext.loads, as parse_request reads every line).
 
 The server thread holds the interpreter's lock while it reads a line, and the control loop
 waits for that lock at each SSR edge: every burst must stay short, whatever a client sends.
@@ -24,9 +24,9 @@ from functools import partial
 
 from program_parse import longest_refused  # bench/program_parse.py, beside this file
 
-from hermsd.control.jsontext import MAX_DEPTH, deeper_than, loads
-from hermsd.control.protocol import MAX_LINE
-from hermsd.scheduler import percentile
+from hermsd.api.jsontext import MAX_DEPTH, deeper_than, loads
+from hermsd.api.protocol import MAX_LINE
+from hermsd.runtime.scheduler import percentile
 
 PROGRAM = {"v": 1, "cmd": "program", "action": "start", "program": longest_refused()}
 PAST = "[" * (MAX_DEPTH + 1) + "]" * (MAX_DEPTH + 1)

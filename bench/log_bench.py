@@ -11,7 +11,7 @@ outruns the writer, the queue overflows and chunks grow. Measures:
 - the recorder's CPU per simulated hour: the writer thread's own CPU time, and the whole
   process with the recorder against the same run without it; and the caller's CPU per
   `Recorder.write` (what the control loop pays);
-- reading the whole log back with `hermsd.recorder.read_messages`, and the replay summary,
+- reading the whole log back with `hermsd.log.recorder.read_messages`, and the replay summary,
   as multiples of real time (goal for replay ≥ 100,000×; `bench/replay.py` times the
   `hermsd replay` command and its stages on such a log).
 
@@ -35,11 +35,13 @@ from typing import Any
 import sections  # bench/sections.py, beside this file
 from mcap.reader import make_reader
 
-from hermsd import config as config_module
-from hermsd import replay
-from hermsd.config import Config
-from hermsd.daemon import Daemon
-from hermsd.recorder import PERIOD_TOPIC, Recorder, read_messages
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
+from hermsd.log import reader, replay
+from hermsd.log.mcap_file import read_messages
+from hermsd.log.recorder import Recorder
+from hermsd.log.topics import PERIOD_TOPIC
+from hermsd.runtime.daemon import Daemon
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world
 
@@ -210,7 +212,7 @@ def main() -> int:
             f"{took:.3f} s = {seconds / took:,.0f}× real time "
             f"({len(messages) / took:,.0f} messages/s)",
         )
-        took = best_time(lambda paths: replay.summarise(replay.load(paths)), paths)
+        took = best_time(lambda paths: replay.summarise(reader.load(paths)), paths)
         row(
             f"replay summary of the {hours:g} h log, in process",
             f"{took:.3f} s = {seconds / took:,.0f}× real time",

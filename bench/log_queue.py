@@ -27,7 +27,7 @@ import time
 import tracemalloc
 from pathlib import Path
 
-from hermsd.log_queue import LOG_QUEUE_SIZE, DroppingQueueHandler
+from hermsd.runtime.log_queue import LOG_QUEUE_SIZE, DroppingQueueHandler
 
 # A long line of the daemon's own (`Daemon._check_log`): the queue's worst case is many such.
 MESSAGE = (

@@ -9,7 +9,7 @@ u1 = u1_ref and y = r = 0, with the seed's controller settings:
 - the cooling system of the seed's eq. 19 (time in seconds), built in observable canonical
   form from its polynomials; K1 −0.03, Ti1 1 s, K2 −0.05, Ti2 30 s, |u1| ≤ 0.5, u1_ref = 0.
 
-The controller is hermsd.midrange at period h (forward-Euler integrals); the process is
+The controller is hermsd.control.midrange at period h (forward-Euler integrals); the process is
 sampled exactly (zero-order hold, matrix exponential), so the only discretisation error is
 the controller's, O(h); the convergence check halves h and reports the change of every J.
 J (eq. 18) = ∫0^tf (r − y)² + ρ·u2² dt, (r − y)² by the trapezoid rule on the samples (y is
@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from hermsd import linsys, midrange
+from hermsd.control import linsys, midrange
 
 
 @dataclass(frozen=True)
@@ -862,8 +862,9 @@ def main() -> int:
     out = [
         "Set-up (see the script's docstring): "
         "deviation variables about u1 = u1_ref, y = r = 0; the process sampled exactly (ZOH), "
-        "the controller (hermsd.midrange, forward-Euler integrals) at period h; J of eq. 18 "
-        "with u2 as its deviation from the operating point. Chosen here because the seed does "
+        "the controller (hermsd.control.midrange, forward-Euler integrals) at period h; "
+        "J of eq. 18 with u2 as its deviation from the operating point. Chosen here because "
+        "the seed does "
         "not say: the bio-reactor's step (5, about twice what u1's 24 rpm margin can carry in "
         "steady state: 24·210/2400 = 2.1) and every horizon tf; both are swept. The default "
         "step and horizons were fixed before any J was computed; the steps 4 and 7 were added "

@@ -26,11 +26,11 @@ from pathlib import Path
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from hermsd import config as config_module
-from hermsd.control.link import LoopLink
-from hermsd.control.server import ControlServer
-from hermsd.daemon import Daemon
-from hermsd.scheduler import percentile
+from hermsd.api.link import LoopLink
+from hermsd.api.server import ControlServer
+from hermsd.config import read
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.scheduler import percentile
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 
@@ -59,7 +59,7 @@ def main() -> None:
         text = SHIPPED.read_text().replace("backend: serial-rts", "backend: sim", 1)
         text = text.replace("  port: 1883", f"  port: {port}", 1)
         (directory / "hermsd.yaml").write_text(text)
-        config = config_module.parse(text)
+        config = read.parse(text)
         clock = VirtualClock()
         world = build_world(config, clock)
         daemon = Daemon(config, clock, world.sensor, world.outputs)

@@ -37,7 +37,7 @@ from robustness import (  # bench/robustness.py, beside this file
     run_seeds,
 )
 
-from hermsd import config as config_module
+from hermsd.config import read
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY
 
@@ -136,7 +136,7 @@ def main() -> int:
         spec = FAMILY[index]
         print(f"## {spec.name}")
         results = brew_days(spec, peers=(CBPI,), keep_records=True)
-        config = spec.config(config_module.load(SHIPPED))
+        config = spec.config(read.load(SHIPPED))
         setpoint = scenario.effective_config(config, spec.brew_day()).control.setpoint
         for label, result in results.items():
             heat_up(label, result, setpoint)

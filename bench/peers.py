@@ -21,9 +21,9 @@ from collections.abc import Iterator
 from typing import Any
 from unittest import mock
 
-from hermsd import daemon as daemon_module
-from hermsd.config import ControlConfig
-from hermsd.pid import PlantModel
+from hermsd.config.schema import ControlConfig
+from hermsd.control.pid import PlantModel
+from hermsd.runtime import daemon as daemon_module
 
 ITAE_LOAD = {"kc": 80.8, "ti": 489.0, "td": 44.9}
 """Seed 001's Table 2 "ITAE-load" PID set for its identified tun: what a brewer would copy."""

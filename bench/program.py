@@ -30,12 +30,12 @@ from typing import Any
 
 import sections  # bench/sections.py, beside this file
 
-from hermsd import config as config_module
-from hermsd.daemon import PeriodRecord
+from hermsd.config import read
 from hermsd.metrics import BAND
 from hermsd.program.model import Program, Step
 from hermsd.program.readiness import WAIT_BELOW
 from hermsd.program.store import PROGRAM_FILE
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY
 
@@ -51,7 +51,7 @@ CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: scenario.
 def ready_days(index: int) -> list[dict[str, Any]]:
     """Day 1 (nothing learned) and day 2 (after an ordinary brew day) of tun `index`."""
     spec = FAMILY[index]
-    config = spec.config(config_module.load(SHIPPED))
+    config = spec.config(read.load(SHIPPED))
     day = dataclasses.replace(
         spec.brew_day(), events=(), duration=READY_S + 1800.0, program=STRIKE, clock=CLOCK
     )

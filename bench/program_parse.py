@@ -19,10 +19,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from hermsd import config
-from hermsd.control.protocol import MAX_LINE
+from hermsd.api.protocol import MAX_LINE
+from hermsd.config import read
 from hermsd.program import model
-from hermsd.scheduler import percentile
+from hermsd.runtime.scheduler import percentile
 
 
 def longest_valid() -> dict[str, Any]:
@@ -55,7 +55,7 @@ def before(data: dict[str, Any]) -> None:
     for step in cleaned["steps"]:  # a file's hold says its unit; the data's is seconds
         if isinstance(step.get("hold"), int | float):
             step["hold"] = f"{step['hold']:g}s"
-    model.parse(config._yaml_text(cleaned), "program")
+    model.parse(read._yaml_text(cleaned), "program")
 
 
 def after(data: dict[str, Any]) -> None:

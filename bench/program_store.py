@@ -22,8 +22,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from hermsd.control.pid import PlantModel
 from hermsd.files import write_atomically
-from hermsd.pid import PlantModel
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import MAX_STEPS, Program, Step, to_data
 from hermsd.program.readiness import Tun

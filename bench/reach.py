@@ -4,10 +4,11 @@ Each tun runs a 12 h day at full power toward 66 °C through the daemon on the v
 (noise sd 0.03 °C before the LM92's steps, no water added). The true ceiling is where the
 simulated plant's element power equals its losses (hermsd/sim/hlt.py: UA·(T − T_room), plus
 evaporation from the open surface with the lid off); the named one is what the warning said
-(`setpoint_unreachable`, hermsd/reach.py). Then the family's near misses: tuns whose ceiling
+(`setpoint_unreachable`, hermsd/control/reach.py). Then the family's near misses: tuns whose ceiling
 lies 0.5 to 2 °C above the setpoint, where nothing may be said. Tuns named "2 el." have their
 watts on two elements, 2/5.5 on the SSR and the rest on a contactor (min on and off 120 s),
-shared out (the default) or mid-ranging: full power is both at theirs (hermsd.reach.FullPower).
+shared out (the default) or mid-ranging: full power is both at theirs
+(hermsd.control.reach.FullPower).
 
 uv run python bench/reach.py
 """
@@ -20,7 +21,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-from hermsd import config as config_module
+from hermsd.config import schema as config_module
 from hermsd.sim import scenario
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.hlt import BOILING_C, evaporation_w, pot_surface_m2

@@ -29,9 +29,9 @@ from typing import Any
 import sections  # bench/sections.py, beside this file
 from log_bench import simulate  # bench/log_bench.py: a day logged as the daemon logs it
 
-from hermsd import replay
 from hermsd.commissioning import identify
-from hermsd.recorder import LogFile
+from hermsd.log import reader, replay
+from hermsd.log.mcap_file import LogFile
 
 
 def best_of(runs: int, action: Callable[[], Any]) -> float:
@@ -72,7 +72,7 @@ def main() -> int:
         names = [str(p) for p in files]
         messages = sum(_recovered(p) for p in files)
         megabytes = sum(p.stat().st_size for p in files) / 1e6
-        log = replay.load(names)
+        log = reader.load(names)
         rows = [
             ("`hermsd replay FILES`", best_of(3, command(*names))),
             ("`hermsd replay FILES --verify`", best_of(3, command(*names, "--verify"))),
@@ -80,7 +80,7 @@ def main() -> int:
                 "`hermsd replay FILES --what-if kc=80`",
                 best_of(3, command(*names, "--what-if", "kc=80")),
             ),
-            ("in process: read the files (`replay.load`)", best_of(3, lambda: replay.load(names))),
+            ("in process: read the files (`replay.load`)", best_of(3, lambda: reader.load(names))),
             ("in process: `replay.summarise`", best_of(3, lambda: replay.summarise(log))),
             ("in process: `replay.verify`", best_of(3, lambda: replay.verify(log.entries))),
             ("in process: fit the tun (`replay.identify`)", best_of(3, lambda: _identify(log))),
@@ -126,9 +126,9 @@ def _recovered(path: Path) -> int:
     return file.recovered
 
 
-def _identify(log: replay.Log) -> identify.TunModel:
+def _identify(log: reader.Log) -> identify.TunModel:
     period_s = log.period_s()
-    drops = replay.sudden_drops(log.elapsed, [p.pv for p in log.periods])
+    drops = reader.sudden_drops(log.elapsed, [p.pv for p in log.periods])
     n = identify.fit_span(log, drops, period_s)
     return identify.identify(
         [p.pv for p in log.periods[:n]], [p.applied for p in log.periods[:n]], period_s

@@ -30,7 +30,8 @@ from typing import Any
 import sections  # bench/sections.py, beside this file
 from peers import ITAE_LOAD, PEERS, controlled_by  # bench/peers.py, beside this file
 
-from hermsd import config as config_module
+from hermsd.config import read
+from hermsd.config.schema import Config
 from hermsd.sim import scenario
 from hermsd.sim.tuns import FAMILY, NOISE_C, TunSpec
 
@@ -74,7 +75,7 @@ AHEAD_KEYS = (
 )
 
 
-def with_sensor(config: config_module.Config, kind: str) -> config_module.Config:
+def with_sensor(config: Config, kind: str) -> Config:
     """`config` reading the tun through a sensor of `kind` (a PT100 on a 430 Ω MAX31865)."""
     return dataclasses.replace(config, sensor=dataclasses.replace(config.sensor, kind=kind))
 
@@ -89,7 +90,7 @@ def brew_days(
 ) -> dict[str, scenario.Result]:
     """Every controller's day on `spec` with noise seed `seed` and a sensor of `kind`:
     hermsd's two days, then each of `peers`."""
-    config = with_sensor(spec.config(config_module.load(SHIPPED)), kind)
+    config = with_sensor(spec.config(read.load(SHIPPED)), kind)
     day = spec.brew_day(seed=seed)
     days = {}
     with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:

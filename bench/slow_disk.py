@@ -35,14 +35,15 @@ import sections  # bench/sections.py, beside this file
 from timing import bench_config, measure, timing_table  # bench/timing.py, beside this file
 from tuning import step_test  # bench/tuning.py, beside this file
 
-from hermsd import config as config_module
 from hermsd.commissioning import tune
 from hermsd.commissioning.step_response import FitProcess, fit_in_thread
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.latches import LatchStore
-from hermsd.learning import LearnedModel, ModelStore
-from hermsd.safety import Alarm
-from hermsd.saver import Saver
+from hermsd.config import schema as config_module
+from hermsd.control.learning import LearnedModel, ModelStore
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.runtime.saver import Saver
+from hermsd.safety.latches import LatchStore
+from hermsd.safety.limits import Alarm
 from hermsd.sim.tuns import FAMILY
 
 OPEN_POT = "open 120 L 3.5 kW"
@@ -225,7 +226,7 @@ def main() -> int:
             f"model, each stalled {args.stall:g} s before its durable write (as an fsync on a "
             "slow SD card), or fits an open pot's whole default step test as `tune step` "
             f"does ({fit_s:.2f} s on this machine). Before: on the loop thread, as the "
-            "daemon did them; after: `hermsd.saver.Saver`, and `FitProcess` (what `hermsd "
+            "daemon did them; after: `hermsd.runtime.saver.Saver`, and `FitProcess` (what `hermsd "
             "tune` uses on the tun). The longest stall is the longest time between one SSR "
             "window's start and the next, less the window: p99 alone hides a stall, as the "
             "windows the loop missed have no edges to be late (and the periods it missed are "

@@ -36,7 +36,7 @@ from statistics import median
 from log_bench import paced_recorder, run_daemon  # bench/log_bench.py, beside this file
 from sections import write  # bench/sections.py, beside this file
 
-from hermsd import config as config_module
+from hermsd.config import schema as config_module
 from hermsd.sim.clock import VirtualClock
 
 GOAL_RSS_MB = 50.0

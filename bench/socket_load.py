@@ -40,11 +40,11 @@ from typing import Any
 from program_parse import longest_refused  # bench/program_parse.py, beside this file
 from timing import measure, timing_table  # bench/timing.py, beside this file
 
-from hermsd.control.link import LoopLink
-from hermsd.control.server import ControlServer
-from hermsd.daemon import Daemon
-from hermsd.realtime import LOOP_PRIORITY
-from hermsd.scheduler import percentile
+from hermsd.api.link import LoopLink
+from hermsd.api.server import ControlServer
+from hermsd.hardware.realtime import LOOP_PRIORITY
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.scheduler import percentile
 
 STATUS = b'{"v": 1, "cmd": "status"}\n'
 PROGRAM = {"v": 1, "cmd": "program", "action": "start", "program": longest_refused()}

@@ -4,7 +4,7 @@ Runs the real loop (monotonic clock, sleeping for real, the MCAP recorder writin
 against the simulated tun, under four loads: an idle machine; one CPU-burning process per
 core; four CPU-burning processes plus a writer that fsyncs 256 KiB blocks without pause
 (to the disk the log is on); and that same load with the loop thread at real-time priority
-(`hermsd.realtime.loop_priority`, as `hermsd run` does on hardware). It reports
+(`hermsd.hardware.realtime.loop_priority`, as `hermsd run` does on hardware). It reports
 control-period lateness and SSR-edge error (p50/p99/max), the CPU the daemon used and its
 peak RSS. Goals: edge error p99 ≤ 10 ms, period lateness p99 ≤ 5 ms under load, CPU ≤ 1 %
 of a core, RSS ≤ 50 MB.
@@ -32,14 +32,14 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from hermsd import config as config_module
-from hermsd.clock import MonotonicClock
-from hermsd.daemon import Daemon
-from hermsd.realtime import LOOP_PRIORITY, loop_priority
-from hermsd.recorder import Recorder
-from hermsd.scheduler import percentile
+from hermsd.config import schema as config_module
+from hermsd.hardware.realtime import LOOP_PRIORITY, loop_priority
+from hermsd.hardware.ssr import DeadManThread
+from hermsd.log.recorder import Recorder
+from hermsd.runtime.clock import MonotonicClock
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.scheduler import percentile
 from hermsd.sim.world import build_world
-from hermsd.ssr import DeadManThread
 
 BUSY_LOOPS_WITH_DISK = 4
 FSYNC_BLOCK = 256 * 1024
@@ -193,8 +193,8 @@ def main() -> int:
             "load). Periods of 0.5 s and SSR windows of 0.1 s (manual 50 %: one timed "
             "edge per window), so that p99 is not the worst sample; the MCAP recorder writes "
             "beside the loop. The real-time row is the loop thread at SCHED_FIFO "
-            f"{LOOP_PRIORITY} (`hermsd.realtime.loop_priority`, what `hermsd run` does when "
-            "the unit's `LimitRTPRIO=` allows it); the recorder and dead-man threads stay "
+            f"{LOOP_PRIORITY} (`hermsd.hardware.realtime.loop_priority`, what `hermsd run` does "
+            "when the unit's `LimitRTPRIO=` allows it); the recorder and dead-man threads stay "
             "ordinary. Goals: edge p99 ≤ 10 ms, period p99 ≤ 5 ms under load, CPU ≤ 1 % of "
             "a core, RSS ≤ 50 MB. RSS is the whole Python process (interpreter, mcap, yaml, "
             "the simulator).\n\n" + table + "\n\n" + ratios + "\n"

@@ -62,16 +62,20 @@ import sections  # bench/sections.py, beside this file
 from peers import CraftBeerPiAutotune  # bench/peers.py, beside this file
 from robustness import DAY_2, SHIPPED, _cell, missed  # bench/robustness.py, beside this file
 
-from hermsd import config, replay
 from hermsd.commissioning import relay, step_response, tune
-from hermsd.config_file import at_once
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.safety import Alarm
+from hermsd.commissioning.simulated import simulated_step_test
+from hermsd.config import read
+from hermsd.config import schema as config
+from hermsd.config.file import at_once
+from hermsd.log import reader
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2
 from hermsd.sim.tuns import FAMILY, TunSpec
-from hermsd.sim.world import build_world, simulated_step_test
+from hermsd.sim.world import build_world
 
 HOLD_S = 1800.0
 BAND_C = 0.5
@@ -106,7 +110,7 @@ def truth(spec: TunSpec) -> Truth:
     )
 
 
-def heat_up_and_hold(log: replay.Log) -> replay.Log | None:
+def heat_up_and_hold(log: reader.Log) -> reader.Log | None:
     """The log up to HOLD_S after PV first reached the band below the setpoint (None: never)."""
     reached = next(
         (
@@ -122,13 +126,13 @@ def heat_up_and_hold(log: replay.Log) -> replay.Log | None:
     return dataclasses.replace(log, periods=log.periods[:n], elapsed=log.elapsed[:n])
 
 
-def brew_day_log(spec: TunSpec, directory: Path) -> replay.Log:
+def brew_day_log(spec: TunSpec, directory: Path) -> reader.Log:
     """The whole log of the tun's brew day with the default config (an ordinary day 1)."""
     scenario.run(spec.brew_day(), spec.config(config.DEFAULT), log_dir=directory)
-    return replay.load(sorted(directory.glob("*.mcap")))
+    return reader.load(sorted(directory.glob("*.mcap")))
 
 
-def trimmed(spec: TunSpec, log: replay.Log) -> replay.Log:
+def trimmed(spec: TunSpec, log: reader.Log) -> reader.Log:
     """The heat-up and hold of the day's log."""
     cut = heat_up_and_hold(log)
     if cut is None:
@@ -483,7 +487,7 @@ def day_after(
         return DayAfter(
             f"| {spec.name} | {method} | not written ({why}) |" + " – |" * 10, "not written"
         )
-    written = config.load(path)
+    written = read.load(path)
     c = written.control
     off = dataclasses.replace(written, control=dataclasses.replace(c, learn="off"))
     with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:
@@ -507,7 +511,7 @@ def day_after(
     )
 
 
-def write_from_log(day: replay.Log, room: float | None, path: Path) -> str:
+def write_from_log(day: reader.Log, room: float | None, path: Path) -> str:
     """`hermsd tune FILE... [--ambient room] --write path` on the day's log."""
     return tune.write_tuned(path, tune.from_log(day, room))
 

@@ -9,7 +9,7 @@ all; then the same day with a fault in the hold (5 h). Four ways to heat it:
 - shared out: the SSR's 2 kW element and a 3.5 kW element on a contactor (min on and off
   120 s), the shipped default controller (predictive) on the total power of both, the
   contactor decided first each period and the SSR making up the difference
-  (hermsd.element2.PowerSplit), through the daemon;
+  (hermsd.control.element2.PowerSplit), through the daemon;
 - midrange: the same elements, `control.algorithm: midrange` with the shipped settings;
 - one 5.5 kW element on an SSR, the shipped default controller (predictive): the peer;
 - on/off: both elements on one contactor (5.5 kW), a thermostat with hysteresis ±0.25 °C
@@ -33,9 +33,9 @@ import sys
 import time
 from typing import Any
 
-from hermsd import config as config_module
-from hermsd.element_watch import no_heat_words
+from hermsd.config import schema as config_module
 from hermsd.metrics import Sample, compute
+from hermsd.safety.element_watch import no_heat_words
 from hermsd.sim.hlt import PhysicalPlant
 from hermsd.sim.scenario import Event, Scenario, run
 from hermsd.sim.tuns import NOISE_C, TunSpec
@@ -261,9 +261,9 @@ FAULT_NOTE = (
     "an alarm by the limits). A dead SSR element in such a hold is made up by the contactor "
     "cycling at its minimum times (the peak above). A shorted contactor is caught by heat "
     "beyond what was switched (ssr_stuck_on): within the 300 s watch where its 3.5 kW far "
-    "outruns the losses, by the 900 s watch on the open pot (hermsd/safety.py, "
+    "outruns the losses, by the 900 s watch on the open pot (hermsd/safety/supervisor.py, "
     "CREEP_WATCHES). "
-    "In quotes: the element watch's first warning (hermsd/element_watch.py, "
+    "In quotes: the element watch's first warning (hermsd/safety/element_watch.py, "
     "docs/two-elements.md), which switches nothing, judged against the same day's "
     "full-power rise and hold power, so the fill cancels out ('more heat than asked?' is "
     "what it says of a shorted contactor, before the supervisor's alarm). "
@@ -276,7 +276,7 @@ FAULT_NOTE = (
     "setpoint) names it when it is judged, 2329 s into the day on these tuns; the 150 L pot "
     "on its SSR's element alone never reaches the setpoint (it needs 2.5 kW): no alarm "
     "says so (its water never falls at full power), the warning setpoint_unreachable does "
-    "(both elements on at full, the level named from their rise: hermsd/reach.py). "
+    "(both elements on at full, the level named from their rise: hermsd/control/reach.py). "
     "Mid-ranging has no such check. "
     "Mid-ranging pulses the contactor for about as much as the SSR's part in the hold: the "
     "90 L tun's dead SSR element is told as element 1 or 2; the 60 and 150 L ones are not "
@@ -363,8 +363,8 @@ def main(write: bool = False) -> int:
         out.append(f"| {spec.name} | {low:.3f} | {high:.3f} |")
     out += [
         "",
-        "Element warnings (hermsd/element_watch.py) on the same normal days, shared out, the "
-        "water at each of those times: "
+        "Element warnings (hermsd/safety/element_watch.py) on the same normal days, shared out, "
+        "the water at each of those times: "
         + ", ".join(f"{spec.name} {normal_warnings(spec)} of {len(WATER_SHIFTS)}" for spec in TUNS)
         + ".",
     ]

@@ -36,12 +36,13 @@ from typing import Any
 import httpx
 from playwright.sync_api import Browser, sync_playwright
 
-from hermsd import config as config_module
-from hermsd.control.history import HistoryRing, capacity_for, encode_row, page_line
-from hermsd.control.link import LoopLink
-from hermsd.control.protocol import MAX_PAGE, encode
-from hermsd.control.server import ControlServer
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.api.history import HistoryRing, capacity_for, encode_row, page_line
+from hermsd.api.link import LoopLink
+from hermsd.api.protocol import MAX_PAGE, encode
+from hermsd.api.server import ControlServer
+from hermsd.config import schema as config_module
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 from hermsd.web.app import WebSettings, create_app

@@ -12,10 +12,11 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd.alerts import Alerts, Event
-from hermsd.config import AlertsConfig, Config, ConfigError, parse
-from hermsd.daemon import Daemon
+from hermsd.config import schema as config_module
+from hermsd.config.read import parse
+from hermsd.config.schema import AlertsConfig, Config, ConfigError
+from hermsd.runtime.alerts import Alerts, Event
+from hermsd.runtime.daemon import Daemon
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 from tests.test_daemon import Periods

@@ -7,7 +7,7 @@ import argparse
 
 import pytest
 
-from hermsd import cli
+from hermsd.cli import commands as cli
 
 
 def _commands(

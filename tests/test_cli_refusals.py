@@ -9,7 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
+from hermsd.cli import commands as cli
+from hermsd.cli import common
+from hermsd.cli import hardware as cli_hardware
 from hermsd.sim.scenario import ScenarioError, load_scenario, parse_scenario
 
 
@@ -20,7 +22,7 @@ def test_replay_refuses_a_plot_format_matplotlib_cannot_write_before_reading_the
     plot = tmp_path / name
     code = cli.main(["replay", str(tmp_path / "missing.mcap"), "--plot", str(plot)])
     _out, err = capsys.readouterr()
-    assert code == cli.EXIT_USAGE
+    assert code == common.EXIT_USAGE
     suffix = name.rpartition(".")[2]
     assert err.startswith(f"hermsd: --plot {plot}: cannot draw a .{suffix} file")
     assert ".png" in err and ".svg" in err and ".pdf" in err
@@ -65,7 +67,7 @@ def test_a_fifo_or_device_is_refused_without_being_read(
     path = where(tmp_path)
     code = cli.main([*command.split(), str(path)])  # a read would wait, or never end
     _out, err = capsys.readouterr()
-    assert code == cli.EXIT_USAGE
+    assert code == common.EXIT_USAGE
     assert err.startswith(f"hermsd: {path}: ") and f"is {kind}, not a regular file" in err
 
 
@@ -94,7 +96,7 @@ def test_the_simulated_sensor_prints_a_reading_a_second_of_wall_clock(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     slept: list[float] = []
-    monkeypatch.setattr(cli.time, "sleep", slept.append)
+    monkeypatch.setattr(cli_hardware.time, "sleep", slept.append)
     assert cli.main(["sensor", "--simulate", "--count", "4"]) == 0
     out, _err = capsys.readouterr()
     assert len(out.splitlines()) == 1 + 4  # the chip found, then the readings

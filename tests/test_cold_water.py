@@ -9,16 +9,19 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import pid, replay
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.recorder import WINDOW_TOPIC, LogFile
+from hermsd.config import schema as config_module
+from hermsd.control import laws, pid, predictive
+from hermsd.hardware.ssr import TimeProportionalPlanner, WindowPlan
+from hermsd.log import reader, replay
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.topics import WINDOW_TOPIC
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event
 from hermsd.sim.tuns import FAMILY, TunSpec
 from hermsd.sim.world import World, build_world
-from hermsd.ssr import TimeProportionalPlanner, WindowPlan
 
 SMALL = next(spec for spec in FAMILY if spec.name == "small 30 L 5.5 kW")
 WATER_AT = 3000.0  # s: held since about 1500 s; on a period boundary, as the bench's water is
@@ -85,7 +88,7 @@ def holding_controller(
     """A controller that has held 66 °C for an hour on `model`'s tun (by default seed 001's:
     1.689 °C/%, τ 14961 s, dead time 115 s, a 20 °C room), started at the holding duty
     46/1.689 = 27.2 %."""
-    controller = pid.create(algorithm, kc=120.0, ti=800.0, ts=5.0, out_max=out_max, model=model)
+    controller = laws.create(algorithm, kc=120.0, ti=800.0, ts=5.0, out_max=out_max, model=model)
     holding = (SP - model.ambient) / model.gain
     controller.reset(SP, holding)
     in_flight = [holding] * round(model.dead_time / 5.0)
@@ -115,7 +118,7 @@ def holding_controller(
     ],
 )
 def test_no_full_power_without_two_readings_that_show_the_fall(readings: list[float]) -> None:
-    assert not pid.full_power_now(holding_controller(), SP, SP, readings)
+    assert not predictive.full_power_now(holding_controller(), SP, SP, readings)
 
 
 @pytest.mark.parametrize(
@@ -132,8 +135,8 @@ def test_a_fall_full_power_cannot_undo_in_a_period_is_answered_whatever_the_law_
 ) -> None:
     # Both readings at least 0.125 °C below, more than the 0.045 °C a period of full power
     # adds: the rule in force acts; the rule before it waited for the law to ask for it.
-    assert pid.full_power_now(holding_controller(), SP, SP, readings)
-    assert not pid.full_power_now(holding_controller(), SP, SP, readings, pid.LAW_DROP_RULE)
+    assert predictive.full_power_now(holding_controller(), SP, SP, readings)
+    assert not predictive.full_power_now(holding_controller(), SP, SP, readings, pid.LAW_DROP_RULE)
 
 
 def test_a_fall_above_a_lowered_setpoint_is_left_to_the_law() -> None:
@@ -144,9 +147,9 @@ def test_a_fall_above_a_lowered_setpoint_is_left_to_the_law() -> None:
     for _ in range(30):
         controller.step(60.0, SP, controller.output)
     assert controller.output == 0.0
-    assert not pid.full_power_now(controller, 60.0, SP, [65.875, 65.8125])
+    assert not predictive.full_power_now(controller, 60.0, SP, [65.875, 65.8125])
     # below the setpoint, the same fall is acted on (as at 66 °C above)
-    assert pid.full_power_now(controller, 66.5, SP, [65.875, 65.8125])
+    assert predictive.full_power_now(controller, 66.5, SP, [65.875, 65.8125])
 
 
 def test_a_step_from_a_steady_minute_to_a_fallen_pv_is_a_recovery_unless_the_log_predates_it() -> (
@@ -156,9 +159,9 @@ def test_a_step_from_a_steady_minute_to_a_fallen_pv_is_a_recovery_unless_the_log
     `drop_fall_c` judges by the minute before alone, as their daemons did."""
     for older in (False, True):
         controller = holding_controller()
-        assert isinstance(controller, pid._Predictive)
+        assert isinstance(controller, predictive._Predictive)
         if older:
-            pid.predating_drop_fall(controller)
+            predictive.predating_drop_fall(controller)
         controller.step(SP, SP, controller.output)
         controller.step(SP, SP - 0.4, 100.0)  # full power from this period on, the PV fallen
         assert controller._watch.active is older
@@ -173,10 +176,14 @@ def test_a_thermowell_drop_is_answered_at_its_third_reading() -> None:
     # at least 2 LSB below before it; the rule before it wanted the latest more than 0.25 °C
     # below and the law to answer it with full power, which it does not at 0.3125 °C either.
     readings = [65.9375, 65.875, 65.75, 65.6875]
-    decided = [pid.full_power_now(holding_controller(), SP, SP, readings[:n]) for n in (1, 2, 3)]
+    decided = [
+        predictive.full_power_now(holding_controller(), SP, SP, readings[:n]) for n in (1, 2, 3)
+    ]
     assert decided == [False, False, True]
     for n in (1, 2, 3, 4):
-        assert not pid.full_power_now(holding_controller(), SP, SP, readings[:n], pid.LAW_DROP_RULE)
+        assert not predictive.full_power_now(
+            holding_controller(), SP, SP, readings[:n], pid.LAW_DROP_RULE
+        )
 
 
 def test_where_a_period_of_full_power_could_undo_more_than_the_fall_the_law_decides() -> None:
@@ -184,22 +191,28 @@ def test_where_a_period_of_full_power_could_undo_more_than_the_fall_the_law_deci
     # of full power adds 5 · 0.1 · (1 − u/100) = 0.33 to 0.4 °C from a duty of 20 to 35 %.
     fast = pid.PlantModel(gain=1.689, tau=1689.0, dead_time=115.0)
     # 0.25 °C is less: the law decides, and 0.25 °C below is its gentle zone.
-    assert not pid.full_power_now(holding_controller(model=fast), SP, SP, [65.75, 65.75])
+    assert not predictive.full_power_now(holding_controller(model=fast), SP, SP, [65.75, 65.75])
     # 0.4375 °C is more: full power, though the law, 0.44 °C into its kc zone, asks for
     # 27 % + 4.3·0.25 + 120·0.19 = 51 %.
     fallen = [65.5625, 65.5625]
-    assert pid.full_power_now(holding_controller(model=fast), SP, SP, fallen)
-    assert not pid.full_power_now(holding_controller(model=fast), SP, SP, fallen, pid.LAW_DROP_RULE)
+    assert predictive.full_power_now(holding_controller(model=fast), SP, SP, fallen)
+    assert not predictive.full_power_now(
+        holding_controller(model=fast), SP, SP, fallen, pid.LAW_DROP_RULE
+    )
 
 
 def test_a_drop_the_lag_keeps_within_a_quarter_degree_at_first_is_answered_at_its_second() -> None:
     # The first reading is 2 LSB + 0.0625 down, the second 0.6875 °C: full power now. The
     # first rule waited for a third reading (both beyond 0.25 °C), a second of full power lost.
-    assert pid.full_power_now(holding_controller(), SP, SP, LAGGED_DROP)
-    assert not pid.full_power_now(holding_controller(), SP, SP, LAGGED_DROP, pid.FIRST_DROP_RULE)
-    assert pid.full_power_now(holding_controller(), SP, SP, [65.3125, 65.0], pid.FIRST_DROP_RULE)
+    assert predictive.full_power_now(holding_controller(), SP, SP, LAGGED_DROP)
+    assert not predictive.full_power_now(
+        holding_controller(), SP, SP, LAGGED_DROP, pid.FIRST_DROP_RULE
+    )
+    assert predictive.full_power_now(
+        holding_controller(), SP, SP, [65.3125, 65.0], pid.FIRST_DROP_RULE
+    )
     # The latest reading alone, after a steady one, is a glitch as far as anyone knows.
-    assert not pid.full_power_now(holding_controller(), SP, SP, [66.0, LAGGED_DROP[1]])
+    assert not predictive.full_power_now(holding_controller(), SP, SP, [66.0, LAGGED_DROP[1]])
 
 
 def test_the_first_rule_asks_its_law_on_the_mean_of_the_two() -> None:
@@ -208,8 +221,8 @@ def test_the_first_rule_asks_its_law_on_the_mean_of_the_two() -> None:
     # their mean, 65.5 °C, it is at the band's edge: 38.5·0.25 + 120·0.25 = 40 % above the
     # holding 27 %, not full.
     shallow = [65.6875, 65.3125]
-    assert pid.full_power_now(holding_controller(), SP, SP, shallow)
-    assert not pid.full_power_now(holding_controller(), SP, SP, shallow, pid.FIRST_DROP_RULE)
+    assert predictive.full_power_now(holding_controller(), SP, SP, shallow)
+    assert not predictive.full_power_now(holding_controller(), SP, SP, shallow, pid.FIRST_DROP_RULE)
 
 
 def test_full_power_the_readings_asked_for_is_a_recovery_not_a_heat_up_from_steady() -> None:
@@ -218,19 +231,19 @@ def test_full_power_the_readings_asked_for_is_a_recovery_not_a_heat_up_from_stea
     # measured as a recovery (the rate the added water left), not as a heat-up from a steady
     # 66 °C, whose fit would wait for a rise to 67 °C that never comes.
     controller = holding_controller()
-    assert isinstance(controller, pid._Predictive)
+    assert isinstance(controller, predictive._Predictive)
     controller.step(SP, SP - 0.6, 100.0)
     assert (controller._recovery.active, controller._watch.active) == (True, False)
     # A step to full power with this period's PV still within the steady band is a heat-up's.
     controller = holding_controller()
-    assert isinstance(controller, pid._Predictive)
+    assert isinstance(controller, predictive._Predictive)
     controller.step(SP, SP - 0.0625, 100.0)
     assert (controller._recovery.active, controller._watch.active) == (False, True)
 
 
 def test_two_readings_a_degree_down_ask_for_full_power_and_change_nothing() -> None:
     controller, twin = holding_controller(), holding_controller()
-    assert pid.full_power_now(controller, SP, SP, [66.0, 65.0, 64.875])
+    assert predictive.full_power_now(controller, SP, SP, [66.0, 65.0, 64.875])
     # The question was asked of a copy: the next step is bit for bit the untouched twin's.
     assert controller.step(SP, 65.0, controller.output) == twin.step(SP, 65.0, twin.output)
     assert controller.terms == twin.terms
@@ -242,7 +255,7 @@ def test_cold_water_carries_full_power_across_the_period_end_while_the_pv_falls(
     # that, yet the law answers it with a few % (its gentle zone).
     told, twin = holding_controller(), holding_controller()
     assert twin.step(SP, SP - 0.1875, 60.0) < 50.0
-    pid.cold_water_seen(told)
+    predictive.cold_water_seen(told)
     assert told.step(SP, SP - 0.1875, 60.0) == 100.0
     # On without a new word while each period's PV falls by more than 0.0564 °C …
     assert told.step(SP, SP - 0.25, 100.0) == 100.0
@@ -252,7 +265,7 @@ def test_cold_water_carries_full_power_across_the_period_end_while_the_pv_falls(
     assert told.step(SP, SP - 0.4, 60.0) < 100.0
     # A fall of less than a period of full power adds is the law's from the start.
     gentle = holding_controller()
-    pid.cold_water_seen(gentle)
+    predictive.cold_water_seen(gentle)
     assert gentle.step(SP, SP - 0.05, 30.0) < 50.0
 
 
@@ -261,11 +274,11 @@ def test_no_carry_above_the_setpoint_nor_after_a_reset() -> None:
     cooling = holding_controller()
     for _ in range(30):
         cooling.step(60.0, SP, cooling.output)
-    pid.cold_water_seen(cooling)
+    predictive.cold_water_seen(cooling)
     assert cooling.step(60.0, SP - 0.25, 0.0) == 0.0
     # A reset (a hold, a return to auto) forgets a carry in progress.
     carried = holding_controller()
-    pid.cold_water_seen(carried)
+    predictive.cold_water_seen(carried)
     assert carried.step(SP, SP - 0.1875, 60.0) == 100.0
     carried.reset(SP - 0.375, 30.0)
     assert carried.step(SP, SP - 0.5, 30.0) < 100.0
@@ -294,17 +307,17 @@ def test_a_slow_sensor_keeps_full_power_from_the_period_that_saw_the_water() -> 
 
 
 def test_only_predictive_acts_inside_the_period_and_not_when_already_full() -> None:
-    assert not pid.full_power_now(holding_controller("type_a"), SP, SP, [65.0, 64.875])
-    heating = pid.create("predictive", kc=120.0, ti=800.0, ts=5.0)
+    assert not predictive.full_power_now(holding_controller("type_a"), SP, SP, [65.0, 64.875])
+    heating = laws.create("predictive", kc=120.0, ti=800.0, ts=5.0)
     assert heating.step(SP, 20.0) == 100.0
-    assert not pid.full_power_now(heating, SP, 20.0, [19.0, 18.875])
+    assert not predictive.full_power_now(heating, SP, 20.0, [19.0, 18.875])
 
 
 def test_a_power_limit_below_full_is_kept_inside_the_period() -> None:
     # control.max_output 80 %: the window must not run at 100 % for any part of it.
     readings = [66.0, 65.0, 64.875]
-    assert pid.full_power_now(holding_controller(), SP, SP, readings)  # at 100 % it would
-    assert not pid.full_power_now(holding_controller(out_max=80.0), SP, SP, readings)
+    assert predictive.full_power_now(holding_controller(), SP, SP, readings)  # at 100 % it would
+    assert not predictive.full_power_now(holding_controller(out_max=80.0), SP, SP, readings)
 
 
 @pytest.mark.parametrize("within_lsb", [0.0, 0.25, 0.5, 0.75])
@@ -320,7 +333,7 @@ def test_sensor_noise_never_asks_for_full_power(within_lsb: float) -> None:
         readings: list[float] = []
         for _ in range(5):
             readings.append(math.floor((truth + rng.gauss(0.0, 0.03)) / 0.0625) * 0.0625)
-            assert not pid.full_power_now(controller, SP, pv, readings)
+            assert not predictive.full_power_now(controller, SP, pv, readings)
         pv = sum(readings) / len(readings)
         controller.step(SP, pv, controller.output)
 
@@ -494,14 +507,14 @@ def uncarried_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     a period ended with the period."""
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(pid, "DROP_CARRY", False)
-        patch.setattr(pid, "cold_water_seen", lambda controller: None)
+        patch.setattr(predictive, "cold_water_seen", lambda controller: None)
         return _cold_water_day(tmp_path_factory.mktemp("uncarried"))
 
 
 def test_replay_verifies_a_day_with_full_power_inside_a_period(
     cold_water_log: list[Path],
 ) -> None:
-    log = replay.load(cold_water_log)
+    log = reader.load(cold_water_log)
     acted = [p for p in log.periods if p.full_from is not None]
     assert len(acted) == 1 and acted[0].t == WATER_AT + 5.0
     result = replay.verify(log.entries)
@@ -519,7 +532,7 @@ def test_the_window_planned_again_is_logged(cold_water_log: list[Path]) -> None:
     first, again = windows
     assert again["applied"] > first["applied"]
     # On from the reading that decided it (within a half-cycle) to the window's end.
-    acted = next(p for p in replay.load(cold_water_log).periods if p.full_from is not None)
+    acted = next(p for p in reader.load(cold_water_log).periods if p.full_from is not None)
     assert acted.full_from is not None
     left = WATER_AT + 5.0 - (WATER_AT + acted.full_from - 0.5)
     assert left - 0.01 - 1e-9 <= again["on_time"] <= left
@@ -529,7 +542,7 @@ def test_the_window_planned_again_is_logged(cold_water_log: list[Path]) -> None:
 def test_verify_finds_a_full_power_decision_the_readings_do_not_give(
     cold_water_log: list[Path], shift: int | None
 ) -> None:
-    log = replay.load(cold_water_log)
+    log = reader.load(cold_water_log)
     acted = next(p for p in log.periods if p.full_from is not None)
     assert acted.full_from is not None
     wrong = None if shift is None else acted.full_from + shift
@@ -548,14 +561,14 @@ def test_verify_leaves_full_from_alone_in_a_log_of_a_daemon_that_never_acted_so(
 ) -> None:
     # An older daemon logged no rule with its config and no full_from with its periods; its
     # periods with the same readings verify as they always did.
-    log = replay.load(uncarried_log)
+    log = reader.load(uncarried_log)
     older = [
         dataclasses.replace(e, drop_readings=None)
-        if isinstance(e, replay.LoggedConfig)
+        if isinstance(e, reader.LoggedConfig)
         else dataclasses.replace(e, full_from=None)
         for e in log.entries
     ]
-    assert any(isinstance(e, replay.LoggedConfig) and e.drop_readings == 2 for e in log.entries)
+    assert any(isinstance(e, reader.LoggedConfig) and e.drop_readings == 2 for e in log.entries)
     assert replay.verify(older).mismatch is None
 
 
@@ -564,37 +577,37 @@ def test_replay_carries_full_power_as_the_config_record_says(
 ) -> None:
     # The daemon that carried full power across the period's end says so; replayed as one
     # that did not, the step after the readings acted differs (the law's p, not the carry's).
-    log = replay.load(cold_water_log)
+    log = reader.load(cold_water_log)
     acted = next(p for p in log.periods if p.full_from is not None)
-    configs = [e for e in log.entries if isinstance(e, replay.LoggedConfig)]
+    configs = [e for e in log.entries if isinstance(e, reader.LoggedConfig)]
     assert configs and all(c.drop_carry for c in configs)
     denied = [
-        dataclasses.replace(e, drop_carry=False) if isinstance(e, replay.LoggedConfig) else e
+        dataclasses.replace(e, drop_carry=False) if isinstance(e, reader.LoggedConfig) else e
         for e in log.entries
     ]
     mismatch = replay.verify(denied).mismatch
     assert mismatch is not None and (mismatch.k, mismatch.name) == (acted.k, "p")
     # A daemon from before the carry logged none, and its log verifies without it.
-    older = replay.load(uncarried_log)
-    assert not any(e.drop_carry for e in older.entries if isinstance(e, replay.LoggedConfig))
+    older = reader.load(uncarried_log)
+    assert not any(e.drop_carry for e in older.entries if isinstance(e, reader.LoggedConfig))
     assert any(p.full_from is not None for p in older.periods)
     assert replay.verify(older.entries).mismatch is None
 
 
 def test_a_config_record_without_drop_carry_is_of_a_daemon_that_never_carried() -> None:
     record = {"t": 0.0, "config": {}, "drop_readings": 2, "drop_onset_c": 0.125}
-    assert replay._config(record, Path("old.mcap")).drop_carry is False
-    assert replay._config(record | {"drop_carry": True}, Path("new.mcap")).drop_carry is True
-    assert replay._config(record | {"drop_carry": "yes"}, Path("odd.mcap")).drop_carry is False
+    assert reader._config(record, Path("old.mcap")).drop_carry is False
+    assert reader._config(record | {"drop_carry": True}, Path("new.mcap")).drop_carry is True
+    assert reader._config(record | {"drop_carry": "yes"}, Path("odd.mcap")).drop_carry is False
 
 
 def _by_rule(
-    log: replay.Log, onset: float | None, acted: PeriodRecord, full_from: int
-) -> list[replay.LoggedConfig | PeriodRecord]:
+    log: reader.Log, onset: float | None, acted: PeriodRecord, full_from: int
+) -> list[reader.LoggedConfig | PeriodRecord]:
     """The log as a daemon with the drop rule of `onset` would have written it."""
     return [
         dataclasses.replace(e, drop_onset_c=onset)
-        if isinstance(e, replay.LoggedConfig)
+        if isinstance(e, reader.LoggedConfig)
         else dataclasses.replace(e, full_from=full_from)
         if e is acted
         else e
@@ -607,10 +620,10 @@ def test_a_log_of_the_first_rule_verifies_by_it(cold_water_log: list[Path]) -> N
     more than 0.25 °C down, the law asked on their mean. On these readings (after a PV of
     66.0: 65.75 exactly 0.25 °C down, then 65.3125 and 64.9375) that is the third; today's
     rule acts on the second."""
-    log = replay.load(cold_water_log)
+    log = reader.load(cold_water_log)
     acted = next(p for p in log.periods if p.full_from is not None)
     assert acted.readings[:3] == [65.75, 65.3125, 64.9375] and acted.full_from == 2
-    assert any(isinstance(e, replay.LoggedConfig) and e.drop_onset_c == 0.125 for e in log.entries)
+    assert any(isinstance(e, reader.LoggedConfig) and e.drop_onset_c == 0.125 for e in log.entries)
     assert replay.verify(_by_rule(log, None, acted, 3)).mismatch is None
     mismatch = replay.verify(_by_rule(log, None, acted, 2)).mismatch
     assert mismatch is not None
@@ -620,15 +633,15 @@ def test_a_log_of_the_first_rule_verifies_by_it(cold_water_log: list[Path]) -> N
 
 
 def test_each_logged_rule_is_verified_by_itself(cold_water_log: list[Path]) -> None:
-    def logged(onset: float | None, fall: float | None) -> replay.LoggedConfig:
-        return replay.LoggedConfig(0.0, "start", {}, None, None, 2, onset, fall)
+    def logged(onset: float | None, fall: float | None) -> reader.LoggedConfig:
+        return reader.LoggedConfig(0.0, "start", {}, None, None, 2, onset, fall)
 
     assert replay._drop_rule(logged(None, None)) is pid.FIRST_DROP_RULE
     assert replay._drop_rule(logged(0.125, None)) is pid.LAW_DROP_RULE
     assert replay._drop_rule(logged(0.125, 0.1875)) is pid.DROP_RULE
     assert replay._drop_rule(logged(0.125, 0.25)) is None  # a rule this version does not know
     # Today's daemon logs the rule in force, and its log verifies by it.
-    log = replay.load(cold_water_log)
-    configs = [e for e in log.entries if isinstance(e, replay.LoggedConfig)]
+    log = reader.load(cold_water_log)
+    configs = [e for e in log.entries if isinstance(e, reader.LoggedConfig)]
     assert configs and all((c.drop_onset_c, c.drop_fall_c) == (0.125, 0.1875) for c in configs)
     assert replay.verify(log.entries).mismatch is None

@@ -18,20 +18,8 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hermsd.config import (
-    ALGORITHM_NAMES,
-    DEFAULT,
-    Config,
-    ConfigError,
-    Problem,
-    TunConfig,
-    dump_yaml,
-    from_dict,
-    load,
-    parse,
-    restart_keys_changed,
-    to_dict,
-)
+from hermsd.config.read import dump_yaml, from_dict, load, parse, restart_keys_changed, to_dict
+from hermsd.config.schema import ALGORITHM_NAMES, DEFAULT, Config, ConfigError, Problem, TunConfig
 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
 TWO_ELEMENTS_DOC = Path(__file__).resolve().parents[1] / "docs" / "two-elements.md"

@@ -9,8 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli, config_file
-from hermsd.config import MAX_FILE_BYTES, SHIPPED_FILE_MAX_BYTES, ConfigError, OutputConfig
+from hermsd.cli import common, run
+from hermsd.config import file as config_file
+from hermsd.config.read import MAX_FILE_BYTES, SHIPPED_FILE_MAX_BYTES
+from hermsd.config.schema import ConfigError, OutputConfig
 
 
 def check_config(*args: str) -> subprocess.CompletedProcess[str]:
@@ -98,8 +100,8 @@ def test_a_gpio_output_without_gpiod_names_its_line_and_the_extra(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setitem(sys.modules, "gpiod", None)  # as when the extra is not installed
-    with pytest.raises(cli.UserError) as caught:
-        cli._open_output(OutputConfig(backend="gpio", line=17))
+    with pytest.raises(common.UserError) as caught:
+        run._open_output(OutputConfig(backend="gpio", line=17))
     assert str(caught.value) == (
         "cannot open gpio line 17 of /dev/gpiochip0: the gpio backend needs the gpiod "
         "package, which is not installed (install the gpio extra: `uv sync --extra gpio`, "

@@ -26,12 +26,9 @@ from typing import Any
 import pytest
 from test_reload import BASE, PERIOD, Events, edited, rename_over, run_for, start
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.cli import main
-from hermsd.control import server as server_module
-from hermsd.control.link import LoopLink
-from hermsd.control.protocol import (
+from hermsd.api import server as server_module
+from hermsd.api.link import LoopLink
+from hermsd.api.protocol import (
     MAX_LINE,
     MAX_PAGE,
     Command,
@@ -44,12 +41,16 @@ from hermsd.control.protocol import (
     Status,
     parse_request,
 )
-from hermsd.control.server import ControlServer, Pending, SocketInUseError
-from hermsd.daemon import Daemon
-from hermsd.latches import LatchedAlarm, Latches, LatchStore
-from hermsd.learning import LearnedModel, ModelStore
+from hermsd.api.server import ControlServer, Pending, SocketInUseError
+from hermsd.cli import main, remote
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.control import factory
+from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.program.model import Program, Step
 from hermsd.program.store import PROGRESS_FILE
+from hermsd.runtime.daemon import Daemon
+from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 
@@ -283,7 +284,7 @@ def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Pat
         status["limits"][0]
         == "over-temperature cut-out              95 °C, back below 90 °C  [configured]"
     )
-    prior = config_module.prior_model(daemon.config)  # nothing learned: the config's model
+    prior = factory.prior_model(daemon.config)  # nothing learned: the config's model
     assert status["model"] == {
         "gain": prior.gain,
         "tau": prior.tau,
@@ -306,7 +307,7 @@ def storing_daemon(config: config_module.Config, store: ModelStore) -> Daemon:
 
 
 def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
-    config = config_module.parse(BASE)
+    config = read.parse(BASE)
     litres = config.tun.litres
     store = ModelStore(tmp_path)
     # 0.5 °C/min at full power, a 12000 s time constant: K = 0.5/60·12000/100 = 1 °C/%.
@@ -324,7 +325,7 @@ def test_status_names_the_learned_model_in_force(tmp_path: Path) -> None:
 
 def test_status_shows_what_was_learned_as_soon_as_it_is_stored(tmp_path: Path) -> None:
     """Stored mid-day: the status says so at once, though it is in force from the next start."""
-    config = config_module.parse(BASE)
+    config = read.parse(BASE)
     store = ModelStore(tmp_path)
     daemon = storing_daemon(config, store)
     assert status_of(daemon)["learned"] is None
@@ -952,7 +953,7 @@ def test_status_says_why_each_alarm_stands(
     store.save(Latches((LatchedAlarm("controller_fault", 0, why, {"output": "nan"}),), 0))
     daemon, _path, _events, _inbox = linked(tmp_path, latches=store)
     status = status_of(daemon)
-    monkeypatch.setattr(cli, "_ask", lambda path, request: status)
+    monkeypatch.setattr(remote, "_ask", lambda path, request: status)
     assert main(["status"]) == 0
     text = capsys.readouterr().out
     assert status["alarms"] == ["controller_fault"]
@@ -977,7 +978,7 @@ def test_status_warns_of_a_progress_and_a_log_that_are_not_saved(
     assert daemon.program.flush(5.0)
     run_for(daemon, 2 * PERIOD)  # the outcome taken, then shown in the next period's status
     status = status_of(daemon)
-    monkeypatch.setattr(cli, "_ask", lambda path, request: status)
+    monkeypatch.setattr(remote, "_ask", lambda path, request: status)
     assert main(["status"]) == 0
     shown = [line for line in capsys.readouterr().out.splitlines() if "warning" in line]
     not_saved = status["program"]["save_failed"]

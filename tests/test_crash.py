@@ -17,8 +17,8 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from hermsd import config as config_module
-from hermsd.recorder import (
+from hermsd.config import schema as config_module
+from hermsd.log.topics import (
     LOG_TOPIC,
     PART_SUFFIX,
     PERIOD_TOPIC,

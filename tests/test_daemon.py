@@ -14,12 +14,14 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import pid
-from hermsd.config import Config
-from hermsd.daemon import Daemon, PeriodRecord, guard_outputs
-from hermsd.latches import LatchStore
-from hermsd.safety import Alarm
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
+from hermsd.control import pid
+from hermsd.hardware.outputs import guard_outputs
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.latches import LatchStore
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 
@@ -295,7 +297,7 @@ class _Line:
 
 
 def _raise_shutdown() -> None:
-    from hermsd.cli import Shutdown
+    from hermsd.cli.common import Shutdown
 
     raise Shutdown("SIGTERM")  # a handler that was already due when shutdown began
 
@@ -308,7 +310,7 @@ def _raise_shutdown() -> None:
 def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off(
     stop: Callable[[], None],
 ) -> None:
-    from hermsd.cli import Shutdown, _on_signal
+    from hermsd.cli.common import Shutdown, _on_signal
 
     config = dataclasses.replace(
         config_module.DEFAULT,

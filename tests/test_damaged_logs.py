@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from test_recorder import Messages, chunked_log, chunks_of, decoded
 
-from hermsd import cli
-from hermsd.recorder import LogFile, recover
+from hermsd.cli import commands as cli
+from hermsd.log.mcap_file import LogFile, recover
 
 CHUNKS = 8
 PER_CHUNK = 10

@@ -21,18 +21,13 @@ from matplotlib.figure import Figure
 from matplotlib.text import Text
 from matplotlib.transforms import Bbox
 
-from hermsd import config as config_module
-from hermsd import dayplot, recorder, replay
-from hermsd.daemon import PeriodRecord
-from hermsd.dayplot import Marker, rows
-from hermsd.recorder import (
-    CONFIG_TOPIC,
-    LOG_TOPIC,
-    PERIOD_TOPIC,
-    LogLevel,
-    Recorder,
-    log_message,
-)
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.log import dayplot, reader, topics
+from hermsd.log.dayplot import Marker, rows
+from hermsd.log.recorder import Recorder
+from hermsd.log.topics import CONFIG_TOPIC, LOG_TOPIC, PERIOD_TOPIC, LogLevel, log_message
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 
 S = 1_000_000_000
@@ -60,7 +55,7 @@ def brew_hour(directory: Path, monkeypatch: pytest.MonkeyPatch) -> list[Path]:
     reached at 900 s, waiting for "Mash in" 1000..1300 s, then Saccharification at 66 °C);
     manual 40 % 2000..2100 s; sensor_fault in the records of 2500..2525 s (told at 2498 s);
     the setpoint edited to 70 °C at 3300 s; PV falls 3 °C at 3400 s (water)."""
-    config = config_module.to_dict(config_module.DEFAULT)
+    config = read.to_dict(config_module.DEFAULT)
     config["tun"]["name"] = "Kettle 2"
     messages: list[tuple[str, float, dict[str, Any]]] = [
         (CONFIG_TOPIC, 0.0, {"t": T0, "config": config, "reason": "start"})
@@ -92,7 +87,7 @@ def brew_hour(directory: Path, monkeypatch: pytest.MonkeyPatch) -> list[Path]:
         (3000, "finished", {}),
     ]
     for at, event, fields in program:
-        messages.append((recorder.PROGRAM_TOPIC, at, program_event(T0 + at, event, **fields)))
+        messages.append((topics.PROGRAM_TOPIC, at, program_event(T0 + at, event, **fields)))
     directory.mkdir(exist_ok=True)
     writer = Recorder(directory, now=VirtualClock().monotonic, lossless=True)
     for topic, wall_s, message in sorted(messages, key=lambda m: m[1]):
@@ -102,11 +97,11 @@ def brew_hour(directory: Path, monkeypatch: pytest.MonkeyPatch) -> list[Path]:
 
 
 @pytest.fixture
-def hour(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> replay.Log:
-    return replay.load(brew_hour(tmp_path / "log", monkeypatch))
+def hour(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> reader.Log:
+    return reader.load(brew_hour(tmp_path / "log", monkeypatch))
 
 
-def test_program_events_are_read_on_the_replay_clock(hour: replay.Log) -> None:
+def test_program_events_are_read_on_the_replay_clock(hour: reader.Log) -> None:
     assert [(e.at, e.event) for e in hour.program][:3] == [
         (600.0, "started"), (600.0, "step_started"), (900.0, "step_reached")
     ]  # fmt: skip
@@ -114,7 +109,7 @@ def test_program_events_are_read_on_the_replay_clock(hour: replay.Log) -> None:
     assert (waiting.name, waiting.message, waiting.setpoint) == ("Strike", "Mash in", None)
 
 
-def test_every_event_of_the_day_is_marked(hour: replay.Log) -> None:
+def test_every_event_of_the_day_is_marked(hour: reader.Log) -> None:
     assert dayplot.markers(hour) == [
         Marker(600.0, "program", "program Step mash"),
         Marker(600.0, "program", "Strike 72 °C"),
@@ -135,7 +130,7 @@ def test_every_event_of_the_day_is_marked(hour: replay.Log) -> None:
 def test_an_alarm_still_active_at_the_end_is_shaded_to_the_end(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    log = replay.load(brew_hour(tmp_path / "log", monkeypatch))
+    log = reader.load(brew_hour(tmp_path / "log", monkeypatch))
     log.periods[-1] = dataclasses.replace(log.periods[-1], alarms=["ssr_stuck_on"])
     assert dayplot.alarm_spans(log)[-1] == dayplot.Span("ssr_stuck_on", 3595.0, 3595.0, True)
     assert dayplot.markers(log)[-1].text == "ssr_stuck_on still at the end"
@@ -180,7 +175,7 @@ def assert_apart(figure: Figure) -> list[Text]:
     return labels
 
 
-def test_no_label_overlaps_another(hour: replay.Log, berlin: None) -> None:
+def test_no_label_overlaps_another(hour: reader.Log, berlin: None) -> None:
     figure = dayplot.draw(hour)
     labels = assert_apart(figure)
     assert sorted(t.get_text() for t in labels) == sorted(m.text for m in dayplot.markers(hour))
@@ -188,7 +183,7 @@ def test_no_label_overlaps_another(hour: replay.Log, berlin: None) -> None:
     assert len({round(t.get_position()[1], 6) for t in labels}) >= 2
 
 
-def test_crowded_labels_take_more_rows_and_still_do_not_overlap(hour: replay.Log) -> None:
+def test_crowded_labels_take_more_rows_and_still_do_not_overlap(hour: reader.Log) -> None:
     for i in range(12):  # a burst of mode changes, one a period apart
         at = 1500.0 + PERIOD * i
         k = round(at / PERIOD)
@@ -200,7 +195,7 @@ def test_crowded_labels_take_more_rows_and_still_do_not_overlap(hour: replay.Log
     assert len({round(t.get_position()[1], 6) for t in labels}) >= 6
 
 
-def test_title_axis_and_panels_say_what_a_brewer_needs(hour: replay.Log, berlin: None) -> None:
+def test_title_axis_and_panels_say_what_a_brewer_needs(hour: reader.Log, berlin: None) -> None:
     figure = dayplot.draw(hour)
     strip, temps, error, power = figure.axes
     title = figure._suptitle.get_text()  # type: ignore[attr-defined]
@@ -221,7 +216,7 @@ def test_title_axis_and_panels_say_what_a_brewer_needs(hour: replay.Log, berlin:
         assert to_rgb(dayplot.COLOURS["alarm"]) in [to_rgb(p.get_facecolor()) for p in axes.patches]
 
 
-def test_labels_beyond_the_rows_allowed_are_counted_not_crammed(hour: replay.Log) -> None:
+def test_labels_beyond_the_rows_allowed_are_counted_not_crammed(hour: reader.Log) -> None:
     for i in range(40):
         k = round(1500.0 / PERIOD) + i
         hour.periods[k] = dataclasses.replace(

@@ -13,7 +13,9 @@ from pathlib import Path
 import pytest
 from test_reload import BASE, edited, rename_over, run_for, start
 
-from hermsd import cli, pid, replay
+from hermsd.cli import commands as cli
+from hermsd.control import laws, pid
+from hermsd.log import reader, replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario, ScenarioError, parse_scenario
 
@@ -29,7 +31,7 @@ def test_the_limit_is_half_an_hour() -> None:
 @pytest.mark.parametrize("ts", [1.0, 5.0, 7.0, 60.0])
 def test_the_predictive_controller_runs_at_the_limit_for_any_period(ts: float) -> None:
     model = pid.PlantModel(1.689, 14961.0, LIMIT, 20.0)
-    controller = pid.create("predictive", kc=120.0, ti=800.0, ts=ts, model=model)
+    controller = laws.create("predictive", kc=120.0, ti=800.0, ts=ts, model=model)
     controller.reset(pv=20.0, output=0.0)
     for k in range(round(2 * LIMIT / ts) + 5):  # past a whole dead time of history, twice
         output = controller.step(66.0, 20.0 + 0.01 * k)
@@ -40,7 +42,7 @@ def test_the_predictive_controller_runs_at_the_limit_for_any_period(ts: float) -
 def test_a_model_beyond_the_limit_is_refused_by_the_controller(dead_time: float) -> None:
     model = pid.PlantModel(1.689, 14961.0, dead_time, 20.0)
     with pytest.raises(ValueError, match=r"model\.dead_time.*1800 s"):
-        pid.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=model)
+        laws.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=model)
 
 
 @pytest.mark.parametrize("dead_time", [LIMIT, *REFUSED])
@@ -91,18 +93,18 @@ def test_a_scenario_config_event_beyond_the_limit_is_refused(dead_time: float) -
 
 
 @pytest.fixture(scope="module")
-def short_log(tmp_path_factory: pytest.TempPathFactory) -> replay.Log:
+def short_log(tmp_path_factory: pytest.TempPathFactory) -> reader.Log:
     directory = tmp_path_factory.mktemp("short")
     scenario.run(Scenario(name="short", duration=900.0, events=()), log_dir=directory)
-    return replay.load(sorted(directory.glob("*.mcap")))
+    return reader.load(sorted(directory.glob("*.mcap")))
 
 
-def test_what_if_at_the_limit_runs(short_log: replay.Log) -> None:
+def test_what_if_at_the_limit_runs(short_log: reader.Log) -> None:
     result = replay.what_if(short_log, replay.parse_what_if(f"dead_time={LIMIT:g}"))
     assert result.settings["what_if"]["dead_time"] == LIMIT
 
 
 @pytest.mark.parametrize("dead_time", REFUSED)
-def test_what_if_beyond_the_limit_is_refused(short_log: replay.Log, dead_time: float) -> None:
-    with pytest.raises(replay.ReplayError, match=r"--what-if.*control\.dead_time"):
+def test_what_if_beyond_the_limit_is_refused(short_log: reader.Log, dead_time: float) -> None:
+    with pytest.raises(reader.ReplayError, match=r"--what-if.*control\.dead_time"):
         replay.what_if(short_log, replay.parse_what_if(f"dead_time={dead_time:g}"))

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from hermsd.lm92 import Reading, SensorError
-from hermsd.sensors.base import ClockedConversions, Conversion, ThreadedConversions
-from hermsd.sensors.ds18b20 import (
+from hermsd.hardware.lm92 import Reading, SensorError
+from hermsd.hardware.sensors.base import ClockedConversions, Conversion, ThreadedConversions
+from hermsd.hardware.sensors.ds18b20 import (
     DS18B20,
     DS18B20Sensor,
     Scratchpad,

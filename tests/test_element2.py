@@ -12,14 +12,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_daemon import make
 
-from hermsd import config as config_module
-from hermsd.config import Config, ConfigError, parse
-from hermsd.daemon import Daemon, PeriodRecord, model_in_force
-from hermsd.element2 import MidRangeController, OnOffModulator
-from hermsd.learning import LearnedModel
+from hermsd.config import schema as config_module
+from hermsd.config.read import parse
+from hermsd.config.schema import Config, ConfigError
+from hermsd.control import factory
+from hermsd.control.element2 import MidRangeController, OnOffModulator
+from hermsd.control.learning import LearnedModel
+from hermsd.log.reader import load
+from hermsd.log.recorder import Recorder
+from hermsd.log.replay import delivered, verify
 from hermsd.program.model import Program, Step
-from hermsd.recorder import Recorder
-from hermsd.replay import delivered, load, verify
+from hermsd.runtime.build import model_in_force
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PhysicalPlant
 from hermsd.sim.scenario import Event, Scenario, ScenarioError, effective_config, run
@@ -180,7 +185,7 @@ def test_with_a_second_element_the_model_is_the_prior_not_what_one_element_showe
     assert model_in_force(learned, one).source != "prior"  # either would be used with one
     choice = model_in_force(learned, two)
     assert (choice.source, choice.measured) == ("prior", None)
-    assert choice.model == config_module.prior_model(two)
+    assert choice.model == factory.prior_model(two)
 
 
 PLANT = {"model": "physical", "litres": 90.0, "element_watts": 2000.0, "element2_watts": 3500.0}

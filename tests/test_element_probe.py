@@ -10,11 +10,12 @@ from pathlib import Path
 import pytest
 from test_element2 import logged_daemon, two_element_config
 
-from hermsd import pid
-from hermsd.daemon import PeriodRecord
-from hermsd.element2 import PowerSplit, SplitController
-from hermsd.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
-from hermsd.replay import LoggedConfig, load, verify
+from hermsd.control import laws, pid, predictive
+from hermsd.control.element2 import PowerSplit, SplitController
+from hermsd.log.reader import LoggedConfig, load
+from hermsd.log.replay import verify
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event, Scenario, run
 from hermsd.sim.tuns import TunSpec
@@ -241,17 +242,17 @@ def test_the_power_back_after_the_probe_is_no_step_that_measures_the_tun() -> No
     (a model rate 2.65× the tun's on a slow heat-up). The watch is armed on a step to full
     power from below it, unless told that step is the loop's."""
     for told in (False, True):
-        controller = pid.create(
+        controller = laws.create(
             "predictive", kc=120.0, ti=800.0, ts=5.0, out_max=100.0, model=pid.SEED_HLT
         )
-        assert isinstance(controller, pid._Predictive)
+        assert isinstance(controller, predictive._Predictive)
         controller.reset(30.0, 63.6)
         pv = 30.0
         for _ in range(20):  # a slow heat-up at 63.6 %, as in the probe: the PV steady
             pv += 0.001
             controller.step(66.0, pv, 63.6)
         if told:
-            pid.loops_own_step(controller)
+            predictive.loops_own_step(controller)
         controller.step(66.0, pv, 100.0)  # the SSR's element back on
         assert (controller._watch.active or controller._recovery.active) is not told
 
@@ -272,8 +273,8 @@ def test_the_split_tells_its_controller_the_power_back_after_the_probe_is_its_ow
 
     steps: list[float] = []
     told: list[int] = []
-    monkeypatch.setattr(pid, "loops_own_step", lambda _c: told.append(len(steps) + 1))
-    inner = pid.create("predictive", kc=120.0, ti=800.0, ts=H, out_max=100.0, model=pid.SEED_HLT)
+    monkeypatch.setattr(predictive, "loops_own_step", lambda _c: told.append(len(steps) + 1))
+    inner = laws.create("predictive", kc=120.0, ti=800.0, ts=H, out_max=100.0, model=pid.SEED_HLT)
     split = SplitController(inner, PowerSplit(W1, W2, H, 120.0, 120.0), Held())
     for _ in range(8):
         steps.append(split.step(66.0, 30.0, 100.0))

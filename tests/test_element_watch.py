@@ -14,11 +14,14 @@ from test_control import Inbox
 from test_daemon import make
 from test_element2 import PLANT, logged_daemon, two_element_config
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.control.link import LoopLink
-from hermsd.daemon import PeriodRecord
-from hermsd.element_watch import (
+from hermsd.api.link import LoopLink
+from hermsd.cli import commands as cli
+from hermsd.cli import remote
+from hermsd.config import schema as config_module
+from hermsd.log.reader import load
+from hermsd.log.replay import verify
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.element_watch import (
     CONFIRM_S,
     DEAD_TIME_FACTORS,
     SPELL_S,
@@ -26,7 +29,6 @@ from hermsd.element_watch import (
     ElementReport,
     ElementWatch,
 )
-from hermsd.replay import load, verify
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event, Scenario, run
 from hermsd.sim.tuns import TunSpec
@@ -238,7 +240,7 @@ def test_the_status_and_hermsd_status_say_it(
         reply = json.loads(link.status_line())
         assert daemon.status_text().endswith(", element 2 gives no heat?")
     assert reply["no_heat"] == [2]
-    monkeypatch.setattr(cli, "_ask", lambda _path, _request: reply)
+    monkeypatch.setattr(remote, "_ask", lambda _path, _request: reply)
     assert cli.main(["status"]) == 0
     assert "warning: element 2 gives no heat? (docs/two-elements.md)" in capsys.readouterr().out
 

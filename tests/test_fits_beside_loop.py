@@ -21,13 +21,14 @@ import pytest
 from test_relay import NOISE, SEED_TUN
 from test_step_response import experiment_on
 
-from hermsd import config as config_module
-from hermsd import replay
 from hermsd.commissioning import relay, step_response
-from hermsd.config_file import in_thread
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.recorder import Recorder
-from hermsd.safety import Alarm
+from hermsd.config import schema as config_module
+from hermsd.config.file import in_thread
+from hermsd.log import reader, replay
+from hermsd.log.recorder import Recorder
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
 
@@ -86,7 +87,7 @@ def test_a_fit_is_taken_and_acted_on_at_the_period_the_log_says_and_replay_verif
     assert not world.circuit.powered
     assert fits.periods_while_running >= HELD - 1
 
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    log = reader.load(sorted(tmp_path.glob("*.mcap")))
     taken = [m for e in log.events if (m := TAKEN.search(e.message))]
     assert len(taken) == len(fits.running) >= 2
     period = cfg.control.period

@@ -6,8 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from hermsd.recorder import LOG_TOPIC, TOPICS
-from hermsd.replay import PROGRAM_TOPIC
+from hermsd.log.topics import LOG_TOPIC, PROGRAM_TOPIC, TOPICS
 
 DOCS = Path(__file__).parent.parent / "docs"
 LAYOUT = json.loads((DOCS / "foxglove-layout.json").read_text(encoding="utf-8"))

@@ -9,13 +9,14 @@ import errno
 import itertools
 from pathlib import Path
 
-from hermsd import config as config_module
-from hermsd.config import Config
-from hermsd.daemon import Daemon
-from hermsd.latches import LatchedAlarm, Latches, LatchStore
-from hermsd.notify import Notifier
+from hermsd.config import rules
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
 from hermsd.program.model import Program, Step
-from hermsd.saver import Saver
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.notify import Notifier
+from hermsd.runtime.saver import Saver
+from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 
@@ -125,7 +126,7 @@ def test_manual_zero_switches_the_second_element_off_within_a_period() -> None:
         element2=dataclasses.replace(base.element2, backend="sim", watts=3500.0, min_on=1800.0),
         control=dataclasses.replace(base.control, algorithm="midrange"),
     )
-    assert not config_module.broken_rules(config)
+    assert not rules.broken_rules(config)
     clock = VirtualClock()
     plant = {"model": "physical", "litres": 90.0, "element_watts": 2000.0}
     world = build_world(config, clock, {**plant, "element2_watts": 3500.0})

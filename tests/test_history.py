@@ -11,8 +11,8 @@ import pytest
 from test_control import TIMEOUT, connect, exchange, served
 from test_replay import period
 
-from hermsd.control.history import HistoryRing, capacity_for, encode_row
-from hermsd.daemon import PeriodRecord
+from hermsd.api.history import HistoryRing, capacity_for, encode_row
+from hermsd.runtime.period import PeriodRecord
 
 
 def _ring(times: list[float], capacity: int) -> HistoryRing:

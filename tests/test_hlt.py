@@ -16,7 +16,7 @@ import pytest
 
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import BOILING_C, FoptdPlant, PhysicalPlant, Plant, make_plant
-from hermsd.sim.world import sensor_reading
+from hermsd.sim.sensors import sensor_reading
 
 # Identified tun: gain, time constant and dead time from the step tests (90 L, 3 kW).
 GAIN = 1.689  # °C/%

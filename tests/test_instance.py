@@ -10,10 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
-from hermsd.control.server import ControlServer
-from hermsd.instance import LOCK_FILE, DirectoryLock, InstanceError
-from hermsd.recorder import PART_SUFFIX
+from hermsd.api.server import ControlServer
+from hermsd.cli import commands as cli
+from hermsd.cli import run as cli_run
+from hermsd.log.topics import PART_SUFFIX
+from hermsd.runtime.instance import LOCK_FILE, DirectoryLock, InstanceError
 
 TIMEOUT_S = 30.0
 
@@ -141,9 +142,9 @@ def test_a_second_daemon_on_the_tuns_socket_opens_no_output_before_it_is_refused
     first.start()
     touched: list[str] = []
     monkeypatch.setattr(
-        cli, "open_hardware_switch", lambda backend, **where: _Output(touched, backend)
+        cli_run, "open_hardware_switch", lambda backend, **where: _Output(touched, backend)
     )
-    monkeypatch.setattr(cli, "open_bus", lambda bus: touched.append(f"open i2c-{bus}"))
+    monkeypatch.setattr(cli_run, "open_bus", lambda bus: touched.append(f"open i2c-{bus}"))
     monkeypatch.delenv("NOTIFY_SOCKET", raising=False)
     config = tmp_path / "hermsd.yaml"
     config.write_text(

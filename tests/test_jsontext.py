@@ -2,7 +2,7 @@
 
 import pytest
 
-from hermsd.control.jsontext import MAX_DEPTH, JsonTextError, deeper_than, loads
+from hermsd.api.jsontext import MAX_DEPTH, JsonTextError, deeper_than, loads
 
 
 @pytest.mark.parametrize(

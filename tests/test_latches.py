@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from test_reload import BASE, Events, edited, rename_over, run_for, start
 
-from hermsd import cli
-from hermsd.daemon import Daemon
-from hermsd.latches import LATCHED_FILE, RESET_FILE, Latches, LatchStore, StateError
+from hermsd.cli import commands as cli
+from hermsd.runtime.daemon import Daemon
+from hermsd.safety.latches import LATCHED_FILE, RESET_FILE, Latches, LatchStore, StateError
 from hermsd.sim.world import World
 
 KIND = "sensor_stuck"

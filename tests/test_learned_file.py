@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
-from hermsd.learning import LEARNED_FILE
+from hermsd.cli import commands as cli
+from hermsd.control.learning import LEARNED_FILE
 
 GOOD = {"rate": 0.008, "loss": 1 / 15000, "dead_time": 115.0, "ambient": 20.0, "litres": 90.0}
 RUN = ["run", "--simulate", "--speed", "max", "--duration", "10s", "--state"]

@@ -17,11 +17,16 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli, learning, replay
-from hermsd import config as config_module
-from hermsd.learning import LearnedModel, Learner, ModelStore
-from hermsd.pid import HeatUpFit, PlantModel
-from hermsd.recorder import MODEL_TOPIC, LogFile
+from hermsd.cli import commands as cli
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.control import factory, learning
+from hermsd.control.learning import LearnedModel, Learner, ModelStore
+from hermsd.control.pid import PlantModel
+from hermsd.control.watches import HeatUpFit
+from hermsd.log import reader, replay
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.topics import MODEL_TOPIC
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario
 from hermsd.sim.world import simulated_daemon
@@ -80,7 +85,7 @@ def test_the_next_start_uses_what_was_learned(
 
 
 def test_replay_verifies_and_shows_a_day_that_learned(learned_day: tuple[Path, Path]) -> None:
-    log = replay.load(sorted(learned_day[1].glob("*.mcap")))
+    log = reader.load(sorted(learned_day[1].glob("*.mcap")))
     verification = replay.verify(log.entries)
     assert verification.mismatch is None and verification.verified > 1000
     messages = [item["message"] for item in replay.summarise(log)["learning"]]
@@ -101,7 +106,7 @@ def test_replay_verifies_a_day_on_a_learned_model(
     state = tmp_path / "state"
     shutil.copytree(learned_day[0], state)
     scenario.run(day(), state_dir=state, log_dir=tmp_path / "logs")
-    log = replay.load(sorted((tmp_path / "logs").glob("*.mcap")))
+    log = reader.load(sorted((tmp_path / "logs").glob("*.mcap")))
     assert replay.verify(log.entries).mismatch is None
     summary = replay.summarise(log)
     model = learned(learned_day[0])
@@ -141,12 +146,10 @@ def test_pinned_or_off_learns_nothing(tmp_path: Path) -> None:
 
 
 def test_off_ignores_what_was_learned(learned_day: tuple[Path, Path]) -> None:
-    off = config_module.from_dict(
-        config_module.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}}
-    )
+    off = read.from_dict(read.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}})
     model = learned(learned_day[0])
     assert model is not None
-    prior = config_module.prior_model(off)
+    prior = factory.prior_model(off)
     assert prior.dead_time == THETA and model.dead_time != THETA
 
 
@@ -302,14 +305,12 @@ def test_the_learned_model_sets_the_supervisors_limits(
     assert unmeasured.heater_rise_rate == pytest.approx(0.8 * 0.81 * 3000 / (90 * 4186) / 2)
     assert dict(limits.origins)["heater_rise_rate"] == "measured"
     # control.learn off: neither the controller nor the supervisor uses it.
-    off = config_module.from_dict(
-        config_module.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}}
-    )
+    off = read.from_dict(read.to_dict(config_module.DEFAULT) | {"control": {"learn": "off"}})
     ignored = simulated_daemon(off, math.inf, models=ModelStore(state)).supervisor.limits
     assert ignored.dead_time == 300.0
     # A day on it logs the model its limits came from, and replay says so.
     scenario.run(day(), state_dir=state, log_dir=tmp_path / "logs")
-    summary = replay.summarise(replay.load(sorted((tmp_path / "logs").glob("*.mcap"))))
+    summary = replay.summarise(reader.load(sorted((tmp_path / "logs").glob("*.mcap"))))
     stored = model.plant_model(config_module.DEFAULT.tun.litres)
     assert summary["safety_tun_model"] == dataclasses.asdict(stored)
 
@@ -363,9 +364,9 @@ def test_a_foptd_maps_to_the_learned_quantities_and_back() -> None:
 
 
 def with_control(**control: object) -> config_module.Config:
-    return config_module.from_dict(
-        config_module.to_dict(config_module.DEFAULT)
-        | {"control": config_module.to_dict(config_module.DEFAULT)["control"] | control}
+    return read.from_dict(
+        read.to_dict(config_module.DEFAULT)
+        | {"control": read.to_dict(config_module.DEFAULT)["control"] | control}
     )
 
 
@@ -426,4 +427,4 @@ def test_a_tuned_model_that_cannot_be_a_tun_is_a_config_error(tmp_path: Path) ->
     path.write_text("control:\n  model_tau: 100\n  model_litres: 90\n", encoding="utf-8")
     # 100·1.689/100 = 1.69 °C/s at full power: no element boils water that fast.
     with pytest.raises(config_module.ConfigError, match=r"yaml:3:.*model_litres: .*rate 1.69 °C/s"):
-        config_module.load(path)
+        read.load(path)

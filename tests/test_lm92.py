@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-import hermsd.lm92
-from hermsd.lm92 import (
+import hermsd.hardware.lm92
+from hermsd.hardware.lm92 import (
     LM92,
     Reading,
     SensorError,
@@ -447,7 +447,7 @@ def test_open_bus_explains_other_refusals(
     def refuse(bus_number: int) -> None:
         raise exception
 
-    monkeypatch.setattr(hermsd.lm92, "SMBus", refuse)
+    monkeypatch.setattr(hermsd.hardware.lm92, "SMBus", refuse)
     with pytest.raises(SensorError) as caught:
         open_bus(1)
     assert str(caught.value) == message

@@ -24,10 +24,12 @@ import pytest
 from test_recorder import FakeDisk
 from test_reload import Events, FakeNotifier
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.daemon import LOG_FAILING_REPEAT_S, Daemon
-from hermsd.recorder import PERIOD_TOPIC, RETRY_INTERVAL_S, RETRY_MAX_S, LogFile, Recorder
+from hermsd.cli import commands as cli
+from hermsd.config import schema as config_module
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.recorder import RETRY_INTERVAL_S, RETRY_MAX_S, Recorder
+from hermsd.log.topics import PERIOD_TOPIC
+from hermsd.runtime.daemon import LOG_FAILING_REPEAT_S, Daemon
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world
 

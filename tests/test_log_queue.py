@@ -14,10 +14,12 @@ from typing import Any
 
 import pytest
 
-from hermsd import cli
+from hermsd.cli import commands as cli
+from hermsd.cli import common
+from hermsd.cli import run as cli_run
 from hermsd.commissioning import relay, step_response
-from hermsd.daemon import Daemon
-from hermsd.log_queue import LOG_QUEUE_SIZE, DroppingQueueHandler
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.log_queue import LOG_QUEUE_SIZE, DroppingQueueHandler
 
 GUARD_S = 10.0  # only a guard against a hung test: nothing here waits for it to pass
 
@@ -188,7 +190,7 @@ def test_the_daemon_runs_to_a_sigterm_with_stderr_blocked_and_main_writes_every_
     def run_to_a_sigterm(daemon: Daemon, until: float) -> None:
         run(daemon, until=until)
         loop_ended.set()
-        raise cli.Shutdown("SIGTERM")  # as the signal handler raises it in the loop
+        raise common.Shutdown("SIGTERM")  # as the signal handler raises it in the loop
 
     def say_stopping(handler: DroppingQueueHandler) -> None:
         stopping.set()
@@ -221,7 +223,7 @@ def test_the_daemon_runs_to_a_sigterm_with_stderr_blocked_and_main_writes_every_
 
 def test_a_status_update_returns_while_stdout_is_blocked_and_the_newest_is_shown() -> None:
     stdout = StalledStream(tty=True)
-    status = cli.StatusLine(stdout)  # type: ignore[arg-type]  # a TextIO in what it is used for
+    status = cli_run.StatusLine(stdout)  # type: ignore[arg-type]  # a TextIO in what it is used for
     status.update("HLT 20.00 °C")
     stdout.wait_until_stalled()  # its thread is stuck drawing the first one
     returned = threading.Event()

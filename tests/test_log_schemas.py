@@ -19,8 +19,8 @@ import pytest
 from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 
-from hermsd import cli
-from hermsd.recorder import PERIOD_TOPIC, READING_TOPIC, TOPICS
+from hermsd.cli import commands as cli
+from hermsd.log.topics import PERIOD_TOPIC, READING_TOPIC, TOPICS
 from hermsd.sim.scenario import Event, Scenario, load_scenario, run
 
 SCENARIOS = Path(__file__).parent.parent / "scenarios"

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from hermsd.lm92 import SensorError
-from hermsd.sensors.max31865 import (
+from hermsd.hardware.lm92 import SensorError
+from hermsd.hardware.sensors.max31865 import (
     MAX31865,
     RtdFault,
     celsius_of,

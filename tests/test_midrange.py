@@ -17,7 +17,7 @@ from types import ModuleType
 
 import pytest
 
-from hermsd import linsys, midrange
+from hermsd.control import linsys, midrange
 
 Plant = tuple[list[list[float]], list[list[float]], list[float]]
 

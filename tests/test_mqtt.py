@@ -29,20 +29,20 @@ import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 from test_reload import BASE, PERIOD, Events, edited, run_for, start
 
-from hermsd import config as config_module
+from hermsd.api import protocol
+from hermsd.api.client import ask
+from hermsd.api.link import LoopLink
+from hermsd.api.protocol import ProgramAction, ProgramStart, Request
+from hermsd.api.server import ControlServer
 from hermsd.cli import main
-from hermsd.control import protocol
-from hermsd.control.client import ask
-from hermsd.control.link import LoopLink
-from hermsd.control.protocol import ProgramAction, ProgramStart, Request
-from hermsd.control.server import ControlServer
-from hermsd.instance import InstanceError
-from hermsd.latches import LatchStore
+from hermsd.config import read
 from hermsd.mqtt import bridge as bridge_module
 from hermsd.mqtt.bridge import Bridge
 from hermsd.mqtt.messages import Topics, discovery_messages, setpoint_range, state_message
 from hermsd.program.model import Program, Step
 from hermsd.program.store import PROGRESS_FILE
+from hermsd.runtime.instance import InstanceError
+from hermsd.safety.latches import LatchStore
 
 ROOT = Path(__file__).resolve().parents[1]
 MOSQUITTO = Path("/usr/sbin/mosquitto")
@@ -169,7 +169,7 @@ class Rig:
         self.broker.start()
         self.text = edited(BASE, mqtt__port=str(self.broker.port), mqtt__topic_prefix=PREFIX)
         self.daemon, _world, self.path, self.events = start(tmp_path, self.text, latches=latches)
-        self.config = config_module.load(self.path)
+        self.config = read.load(self.path)
         self.socket = tmp_path / "control.sock"
         self.server = self._serve()
         run_for(self.daemon, 60.0)
@@ -465,7 +465,7 @@ def test_a_command_the_daemon_refuses_is_published_in_its_words(rig: Rig) -> Non
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
     rig.bridge.stop()
     rig.thread.join(TIMEOUT)
-    rig.config = config_module.parse(edited(rig.text, safety__max_temp="100"))
+    rig.config = read.parse(edited(rig.text, safety__max_temp="100"))
     rig.start_bridge()
     rig.command(rig.topics.set_setpoint, b"97")
     for _ in range(20):  # the daemon answers after the next period boundary
@@ -760,7 +760,7 @@ def test_the_bridge_logs_in_with_the_password_from_its_file(tmp_path: Path) -> N
             mqtt__username="hermsd",
             mqtt__password_file=str(password),
         )
-        config = config_module.parse(text)
+        config = read.parse(text)
         watcher = Watcher(broker.port, login=("watcher", "w"))
         bridge = Bridge(config, tmp_path / "no.sock", poll=0.02)
         thread = threading.Thread(target=bridge.run)
@@ -815,9 +815,9 @@ def test_without_paho_the_command_says_how_to_install_it(
 
 def test_a_second_element_gets_its_own_output_sensor_and_none_without_it() -> None:
     topics = Topics.of(PREFIX, "homeassistant")
-    one = dict(discovery_messages(topics, config_module.parse(BASE)))
+    one = dict(discovery_messages(topics, read.parse(BASE)))
     two_text = BASE + "\nelement2:\n  backend: sim\n"
-    two = dict(discovery_messages(topics, config_module.parse(two_text)))
+    two = dict(discovery_messages(topics, read.parse(two_text)))
     topic = topics.discovery("sensor", "output2")
     assert one[topic] is None and set(two) == set(one)  # None: sent empty, removes it
     assert {t for t, p in one.items() if p is not None} | {topic} == {
@@ -840,12 +840,12 @@ def test_a_second_element_gets_its_own_output_sensor_and_none_without_it() -> No
 def test_the_thermostat_offers_setpoints_only_below_the_cut_out(
     max_temp: str, highest: float
 ) -> None:
-    config = config_module.parse(edited(BASE, control__setpoint="60", safety__max_temp=max_temp))
+    config = read.parse(edited(BASE, control__setpoint="60", safety__max_temp=max_temp))
     assert setpoint_range(config) == (0.0, highest)
 
 
 def test_a_second_stop_signal_inside_the_first_handler_does_not_hang(tmp_path: Path) -> None:
-    bridge = Bridge(config_module.parse(BASE), tmp_path / "no.sock", poll=0.02)
+    bridge = Bridge(read.parse(BASE), tmp_path / "no.sock", poll=0.02)
     wake = bridge._wake
     notify = wake.notify_all
 
@@ -863,7 +863,7 @@ def test_a_second_stop_signal_inside_the_first_handler_does_not_hang(tmp_path: P
 def _states_the_loop_sets() -> set[str]:
     """Every value the control period gives `state` (read from its source, so a new one
     cannot go unnoticed)."""
-    tree = ast.parse((ROOT / "hermsd" / "daemon.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "hermsd" / "runtime" / "daemon.py").read_text(encoding="utf-8"))
     period = next(
         node
         for node in ast.walk(tree)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from hermsd.notify import Notifier, NotifyEnvironmentError, WatchdogGate, status_line
+from hermsd.runtime.notify import Notifier, NotifyEnvironmentError, WatchdogGate, status_line
 from hermsd.sim.clock import VirtualClock
 
 

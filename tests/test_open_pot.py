@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import config
 from hermsd.cli import main
 from hermsd.commissioning import tune
 from hermsd.commissioning.identify import TunModel, identify
+from hermsd.config import schema as config
 from hermsd.sim import scenario
 
 K, TAU, THETA, AMBIENT, E, PERIOD = 1.0, 10000.0, 60.0, 20.0, 16.0, 5.0

@@ -2,8 +2,8 @@
 
 The reference implementations below are written from the equations of the HERMS PID calculus
 document (eq. 05-4 to 14), the windup/bumpless-transfer notes (eq. 3.13) and the tracking
-anti-windup formula, not from hermsd.pid: the eq. 08 coefficients, for instance, are expanded
-here from the polynomial products of eq. 05-4 rather than copied from eq. 06.
+anti-windup formula, not from hermsd.control.pid: the eq. 08 coefficients, for instance, are
+expanded here from the polynomial products of eq. 05-4 rather than copied from eq. 06.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hermsd import pid
+from hermsd.control import laws, pid
+from hermsd.control import seed as control_seed
 
 Sample = tuple[float, float, float | None]  # (sp, pv, applied)
 
@@ -250,7 +251,7 @@ def assert_matches(actual: Sequence[float], expected: Sequence[float]) -> None:
 def test_type_a_is_eq08(seed: int, gains: dict[str, float]) -> None:
     samples = brewing_samples(seed)
     gamma = 0.1 * gains["td"]
-    controller = pid.create("type_a", ts=TS, tf=gamma, **gains, **WIDE)
+    controller = laws.create("type_a", ts=TS, tf=gamma, **gains, **WIDE)
     assert_matches(
         run(controller, samples), reference_eq08(ts=TS, gamma=gamma, samples=samples, **gains)
     )
@@ -259,7 +260,7 @@ def test_type_a_is_eq08(seed: int, gains: dict[str, float]) -> None:
 def test_type_a_default_filter_is_eq08_with_the_default_gamma() -> None:
     # In the linear range the default owes nothing: eq. 08 exactly, at γ = default_tf.
     samples = brewing_samples(4)
-    controller = pid.create("type_a", ts=TS, **ITAE_PID, **WIDE)
+    controller = laws.create("type_a", ts=TS, **ITAE_PID, **WIDE)
     gamma = pid.default_tf(ITAE_PID["kc"], ITAE_PID["td"])
     expected = reference_eq08(ts=TS, gamma=gamma, samples=samples, **ITAE_PID)
     assert_matches(run(controller, samples), expected)
@@ -278,7 +279,7 @@ def test_type_a_without_filter_is_the_backward_difference() -> None:
         u += kc * ((e - e1) + TS / (2 * ti) * (e + e1) + td / TS * (e - 2 * e1 + e2))
         expected.append(u)
         e2, e1 = e1, e
-    controller = pid.create("type_a", ts=TS, tf=0.0, **ITAE_PID, **WIDE)
+    controller = laws.create("type_a", ts=TS, tf=0.0, **ITAE_PID, **WIDE)
     assert_matches(run(controller, samples), expected)
 
 
@@ -288,7 +289,7 @@ def test_type_a_uses_eq06_k2_not_the_listing() -> None:
     eq. 06 k0+k1+k2 = 2·Kc·Ts²/(Ti·(Ts+2γ))). The listing's k2 (2·Ti for 2·Td) adds
     Kc·(Ti − Td)/Ts·e per period: about 72 000 %/period here instead of 8.26."""
     kc, ti = ITAE_PID["kc"], ITAE_PID["ti"]
-    controller = pid.create("type_a", ts=TS, tf=4.49, **ITAE_PID, **WIDE)
+    controller = laws.create("type_a", ts=TS, tf=4.49, **ITAE_PID, **WIDE)
     error = 10.0
     outputs = [controller.step(66.0, 66.0 - error) for _ in range(50)]
     slope = kc * TS / ti * error
@@ -301,14 +302,14 @@ def test_type_a_filtered_is_eq12() -> None:
     for seed, gains in [(6, ITAE_PID), (7, {"kc": 5.0, "ti": 0.0, "td": 100.0})]:
         samples = brewing_samples(seed)
         gamma = 0.1 * gains["td"]
-        controller = pid.create("type_a_filtered", ts=TS, tf=gamma, **gains, **WIDE)
+        controller = laws.create("type_a_filtered", ts=TS, tf=gamma, **gains, **WIDE)
         expected = reference_eq12(ts=TS, gamma=gamma, samples=samples, **gains)
         assert_matches(run(controller, samples), expected)
 
 
 def test_type_a_filtered_without_filter_is_eq10() -> None:
     samples = brewing_samples(8)
-    controller = pid.create("type_a_filtered", ts=TS, tf=0.0, **ITAE_PID, **WIDE)
+    controller = laws.create("type_a_filtered", ts=TS, tf=0.0, **ITAE_PID, **WIDE)
     assert_matches(
         run(controller, samples), reference_eq12(ts=TS, gamma=0.0, samples=samples, **ITAE_PID)
     )
@@ -317,7 +318,7 @@ def test_type_a_filtered_without_filter_is_eq10() -> None:
 @pytest.mark.parametrize("seed", [9, 10])
 def test_takahashi_is_eq14(seed: int) -> None:
     samples = brewing_samples(seed)
-    controller = pid.create("takahashi", ts=TS, tf=0.0, **ITAE_PID, **WIDE)
+    controller = laws.create("takahashi", ts=TS, tf=0.0, **ITAE_PID, **WIDE)
     assert_matches(
         run(controller, samples), reference_eq14(ts=TS, gamma=0.0, samples=samples, **ITAE_PID)
     )
@@ -325,7 +326,7 @@ def test_takahashi_is_eq14(seed: int) -> None:
 
 def test_takahashi_filtered_d_sees_eq11c_filtered_pv() -> None:
     samples = brewing_samples(11)
-    controller = pid.create("takahashi", ts=TS, tf=4.49, **ITAE_PID, **WIDE)
+    controller = laws.create("takahashi", ts=TS, tf=4.49, **ITAE_PID, **WIDE)
     assert_matches(
         run(controller, samples), reference_eq14(ts=TS, gamma=4.49, samples=samples, **ITAE_PID)
     )
@@ -351,7 +352,7 @@ def test_velocity_forms_clamp_and_track_applied_as_their_equations_say() -> None
         ),
     ]
     for name, reference in cases:
-        controller = pid.create(name, ts=TS, tf=seed_form[name], **ITAE_PID)
+        controller = laws.create(name, ts=TS, tf=seed_form[name], **ITAE_PID)
         assert_matches(run(controller, samples), reference())
 
 
@@ -359,13 +360,13 @@ def test_velocity_pi_is_the_bumpless_pi_with_field_measured_mv() -> None:
     samples = brewing_samples(13, applied=True)
     kc, ti = ITAE_PI["kc"], ITAE_PI["ti"]
     expected = reference_velocity_pi(kp=kc, ki=kc / ti, dt=TS, samples=samples, lo=0.0, hi=100.0)
-    assert_matches(run(pid.create("velocity_pi", ts=TS, **ITAE_PI), samples), expected)
+    assert_matches(run(laws.create("velocity_pi", ts=TS, **ITAE_PI), samples), expected)
 
 
 @pytest.mark.parametrize("with_applied", [False, True])
 def test_back_calculation_follows_the_tracking_formula(with_applied: bool) -> None:
     samples = brewing_samples(14, applied=with_applied)
-    controller = pid.create("back_calculation", ts=TS, tf=0.0, tt=150.0, **ITAE_PID)
+    controller = laws.create("back_calculation", ts=TS, tf=0.0, tt=150.0, **ITAE_PID)
     expected = reference_back_calculation(
         ts=TS, tt=150.0, samples=samples, lo=0.0, hi=100.0, **ITAE_PID
     )
@@ -375,7 +376,7 @@ def test_back_calculation_follows_the_tracking_formula(with_applied: bool) -> No
 def test_terms_add_up_to_the_step_in_linear_operation() -> None:
     samples = brewing_samples(15, count=500)
     for name in pid.ALGORITHMS:
-        controller = pid.create(name, ts=TS, **tuning(name), **WIDE)
+        controller = laws.create(name, ts=TS, **tuning(name), **WIDE)
         previous = controller.output
         for sp, pv, _ in samples:
             u = controller.step(sp, pv)
@@ -395,7 +396,7 @@ def test_type_a_without_filter_does_not_ring_after_the_clamp() -> None:
     released: list[Sample] = [(60.0, 60.0, None)] * 20
     literal = reference_eq08(kc, ti, 0.0, TS, 0.0, pinned + released, 100.0, lo=0.0, hi=100.0)
     assert abs(literal[-1] - literal[-2]) > 0.1  # the undamped alternation this guards against
-    controller = pid.create("type_a", kc=kc, ti=ti, ts=TS)
+    controller = laws.create("type_a", kc=kc, ti=ti, ts=TS)
     controller.reset(60.0, 100.0)
     outputs = run(controller, pinned + released)
     assert outputs[49] == 100.0
@@ -410,7 +411,7 @@ def test_type_a_without_filter_does_not_ring_after_the_clamp() -> None:
 @pytest.mark.parametrize("name", pid.ALGORITHMS)
 def test_infeasible_setpoint_does_not_wind_up(name: str, gentle: bool) -> None:
     """An hour at an unreachable 100 °C (PV stuck at 60), then a setpoint below PV."""
-    controller = pid.create(name, ts=TS, **tuning(name, gentle))
+    controller = laws.create(name, ts=TS, **tuning(name, gentle))
     pinned = [controller.step(100.0, 60.0) for _ in range(720)]
     assert pinned[-360:] == [100.0] * 360  # the last half hour pinned at the limit
     after = [controller.step(50.0, 60.0) for _ in range(2)]
@@ -427,7 +428,7 @@ def test_resume_after_a_hold_is_bumpless(name: str) -> None:
     kc, ti = gains["kc"], gains["ti"]
     twin = []
     for _ in range(2):
-        controller = pid.create(name, ts=TS, **gains)
+        controller = laws.create(name, ts=TS, **gains)
         controller.reset(65.8, 40.0)
         for _ in range(3):
             controller.step(66.0, 65.8)
@@ -445,7 +446,7 @@ def test_resume_after_a_hold_is_bumpless(name: str) -> None:
 @pytest.mark.parametrize("name", SEED_ALGORITHMS)
 def test_manual_to_auto_starts_from_the_manual_output(name: str) -> None:
     gains = tuning(name)
-    controller = pid.create(name, ts=TS, **gains)
+    controller = laws.create(name, ts=TS, **gains)
     controller.reset(62.0, 35.0)
     assert controller.output == 35.0
     # `applied` on the first step after reset is ignored: reset already said 35 %.
@@ -464,7 +465,7 @@ def test_reset_pv_is_the_history_the_next_step_works_from() -> None:
         "back_calculation": 30.0 + kc * (60.0 - 60.5) - kc * td / TS * (60.5 - 60.0),
     }
     for name, output in expected.items():
-        controller = pid.create(name, ts=TS, tf=0.0, **ITAE_PID, **WIDE)
+        controller = laws.create(name, ts=TS, tf=0.0, **ITAE_PID, **WIDE)
         controller.reset(60.0, 30.0)
         assert controller.step(66.0, 60.5) == pytest.approx(output, rel=1e-12)
 
@@ -473,7 +474,7 @@ def test_reset_pv_is_the_history_the_next_step_works_from() -> None:
 def test_first_step_has_no_derivative_kick(name: str) -> None:
     """From 20 °C towards 66 °C: the listing's zero history would add Kc·Td/Ts·20 ≈ 14500 %."""
     gains = tuning(name)
-    controller = pid.create(name, ts=TS, **gains, **WIDE)
+    controller = laws.create(name, ts=TS, **gains, **WIDE)
     first = controller.step(66.0, 20.0)
     assert abs(first) <= gains["kc"] * TS / gains["ti"] * 46.0 + 1e-9
 
@@ -482,7 +483,7 @@ def test_first_step_starts_from_the_clamped_zero() -> None:
     # For predictive, a room at which 20 % holds 66 °C: its model then predicts no change.
     model = pid.PlantModel(ambient=66.0 - pid.SEED_HLT.gain * 20.0)
     for name in pid.ALGORITHMS:
-        controller = pid.create(
+        controller = laws.create(
             name, ts=TS, **tuning(name), out_min=20.0, out_max=80.0, model=model
         )
         assert controller.output == 20.0
@@ -492,7 +493,7 @@ def test_first_step_starts_from_the_clamped_zero() -> None:
 @pytest.mark.parametrize("name", ["takahashi", "velocity_pi"])
 def test_setpoint_step_moves_only_the_integral(name: str) -> None:
     gains = tuning(name)
-    controller = pid.create(name, ts=TS, **gains)
+    controller = laws.create(name, ts=TS, **gains)
     controller.reset(60.0, 30.0)
     for _ in range(5):
         controller.step(62.0, 60.0)
@@ -511,7 +512,7 @@ def test_setpoint_step_moves_only_the_integral(name: str) -> None:
 def test_velocity_forms_restart_from_what_was_applied(name: str) -> None:
     """Constant PV and error: eq. 12/14 and eq. 3.13 reduce to u_k = applied + Kc·Ts/Ti·e."""
     gains = tuning(name)
-    controller = pid.create(name, ts=TS, **gains)
+    controller = laws.create(name, ts=TS, **gains)
     increment = gains["kc"] * TS / gains["ti"] * 10.0
     output = controller.step(70.0, 60.0)
     for _ in range(720):
@@ -525,7 +526,7 @@ def test_back_calculation_integral_tracks_the_actual_output() -> None:
     """Feasible error e = 10 with the element delivering half the request: the tracking loop
     settles where ΔI = 0, i.e. Kc·Ts/Ti·e = Ts/Tt·(v − actual), so v − actual = Tt·Kc·e/Ti."""
     kc, ti, tt = 2.0, 489.0, 150.0
-    controller = pid.create("back_calculation", kc=kc, ti=ti, td=44.9, ts=TS, tt=tt)
+    controller = laws.create("back_calculation", kc=kc, ti=ti, td=44.9, ts=TS, tt=tt)
     output = controller.step(70.0, 60.0)
     for _ in range(2000):
         applied = 0.5 * output
@@ -548,7 +549,7 @@ def test_shortfall_of_applied_neither_runs_away_nor_delays_the_release(
     name: str, deliver: Callable[[float], float]
 ) -> None:
     gains = tuning(name, gentle=True)
-    controller = pid.create(name, ts=TS, tt=150.0 if name == "back_calculation" else None, **gains)
+    controller = laws.create(name, ts=TS, tt=150.0 if name == "back_calculation" else None, **gains)
     output = controller.step(100.0, 60.0)
     for _ in range(720):
         applied = deliver(output)
@@ -573,7 +574,7 @@ def regulate(name: str, quantum: float | None) -> list[float]:
     the output stage delivers multiples of it and carries the residue; `applied` is fed back."""
     gain, tau, dead_steps = 1.689, 14961.0, 23
     decay = math.exp(-TS / tau)
-    controller = pid.create(name, ts=TS, **tuning(name))
+    controller = laws.create(name, ts=TS, **tuning(name))
     pipeline = [0.0] * dead_steps
     rise = 0.0
     residue = 0.0
@@ -641,28 +642,28 @@ def test_each_algorithm_holds_the_identified_hlt_in_band(name: str, quantum: flo
 def test_bad_parameters_are_named(name: str, changes: dict[str, object], parameter: str) -> None:
     arguments: dict[str, object] = {"kc": 80.8, "ti": 489.0, "td": 44.9, "ts": TS} | changes
     with pytest.raises(ValueError, match=rf"^{parameter}=") as caught:
-        pid.create(name, **arguments)  # type: ignore[arg-type]
+        laws.create(name, **arguments)  # type: ignore[arg-type]
     assert "\n" not in str(caught.value)
 
 
 def test_unknown_algorithm_is_named() -> None:
     with pytest.raises(ValueError, match="algorithm 'pid_reg2' is unknown"):
-        pid.create("pid_reg2", kc=1.0, ti=1.0)
+        laws.create("pid_reg2", kc=1.0, ti=1.0)
 
 
 def test_defaults_are_resolved_as_documented() -> None:
     # Td/10 = 4.49 s is raised until one LSB kicks at most 10 %: Kc·Td·0.0625/10 = 22.67 s.
     for name in ("type_a", "type_a_filtered", "takahashi", "back_calculation"):
-        assert pid.create(name, **ITAE_PID).params.tf == pytest.approx(80.8 * 44.9 * 0.00625)
-    assert pid.create("type_a", kc=1.0, ti=489.0, td=44.9).params.tf == pytest.approx(4.49)
-    back = pid.create("back_calculation", **ITAE_PID).params
+        assert laws.create(name, **ITAE_PID).params.tf == pytest.approx(80.8 * 44.9 * 0.00625)
+    assert laws.create("type_a", kc=1.0, ti=489.0, td=44.9).params.tf == pytest.approx(4.49)
+    back = laws.create("back_calculation", **ITAE_PID).params
     assert back.tt is not None
     assert back.tt == pytest.approx(math.sqrt(489.0 * 44.9))
     assert back.td <= back.tt <= back.ti
-    assert pid.create("back_calculation", kc=1.0, ti=489.0).params.tt == 489.0
-    assert pid.create("back_calculation", kc=1.0, ti=2.0, ts=TS).params.tt == TS
-    assert pid.create("back_calculation", kc=1.0, ti=0.0).params.tt is None
-    assert pid.create("type_a", kc=1.0, ti=1.0).params.ts == 5.0
+    assert laws.create("back_calculation", kc=1.0, ti=489.0).params.tt == 489.0
+    assert laws.create("back_calculation", kc=1.0, ti=2.0, ts=TS).params.tt == TS
+    assert laws.create("back_calculation", kc=1.0, ti=0.0).params.tt is None
+    assert laws.create("type_a", kc=1.0, ti=1.0).params.ts == 5.0
     assert pid.ALGORITHMS == (
         "predictive",
         "type_a",
@@ -688,7 +689,7 @@ def test_table1_reproduces_table2() -> None:
         "itae_load_pid": (80.8, 489.0, 44.9),
         "itae_load_pi": (59.2, 810.2, 0.0),
     }
-    rules = pid.table1(K=1.689, tau=14961.0, theta=115.0, a_star=6.68e-5)
+    rules = control_seed.table1(K=1.689, tau=14961.0, theta=115.0, a_star=6.68e-5)
     assert rules.keys() == table2.keys()
     for name, printed in table2.items():
         for computed, value in zip(rules[name], printed, strict=True):
@@ -699,7 +700,7 @@ def test_table1_reproduces_table2() -> None:
 def test_table1_rejects_a_bad_model(parameter: str) -> None:
     model = {"K": 1.689, "tau": 14961.0, "theta": 115.0, "a_star": 6.68e-5, parameter: 0.0}
     with pytest.raises(ValueError, match=rf"^{parameter}="):
-        pid.table1(**model)
+        control_seed.table1(**model)
 
 
 # ------------------------------------------------------------------------------ properties
@@ -759,7 +760,7 @@ def test_outputs_stay_in_bounds_and_finite(
     spec: tuple[str, dict[str, float | None]], ops: list[tuple[str, float, float, float | None]]
 ) -> None:
     name, parameters = spec
-    controller = pid.create(name, **parameters)  # type: ignore[arg-type]
+    controller = laws.create(name, **parameters)  # type: ignore[arg-type]
     lo, hi = controller.params.out_min, controller.params.out_max
     for operation in ops:
         output = apply(controller, operation)
@@ -773,8 +774,8 @@ def test_same_inputs_give_identical_outputs(
     spec: tuple[str, dict[str, float | None]], ops: list[tuple[str, float, float, float | None]]
 ) -> None:
     name, parameters = spec
-    first = pid.create(name, **parameters)  # type: ignore[arg-type]
-    second = pid.create(name, **parameters)  # type: ignore[arg-type]
+    first = laws.create(name, **parameters)  # type: ignore[arg-type]
+    second = laws.create(name, **parameters)  # type: ignore[arg-type]
     for operation in ops:
         assert apply(first, operation) == apply(second, operation)
         assert first.terms == second.terms
@@ -808,8 +809,8 @@ def test_rejected_inputs_leave_the_state_untouched(
     if where in ("applied", "reset_output") and math.isfinite(bad):
         bad = math.nan  # those two take any finite value
     name, parameters = spec
-    tested = pid.create(name, **parameters)  # type: ignore[arg-type]
-    twin = pid.create(name, **parameters)  # type: ignore[arg-type]
+    tested = laws.create(name, **parameters)  # type: ignore[arg-type]
+    twin = laws.create(name, **parameters)  # type: ignore[arg-type]
     for operation in before:
         apply(tested, operation)
         apply(twin, operation)
@@ -827,7 +828,7 @@ def test_predictive_resume_after_a_hold_moves_by_the_error_change_only() -> None
     # output may move by what P makes of that change (Kc·0.2 = 24 %) plus one integral step,
     # nothing more; it may not jump to where a fresh start would put it.
     kc, ti = 120.0, 800.0
-    controller = pid.create("predictive", kc=kc, ti=ti)
+    controller = laws.create("predictive", kc=kc, ti=ti)
     controller.reset(65.95, 27.0)
     before = controller.step(66.0, 65.95)
     controller.reset(65.75, before)  # held for ten minutes: no steps, then reset
@@ -845,7 +846,7 @@ def test_a_one_lsb_step_ratchets_the_plain_takahashi_at_its_limit() -> None:
     with ΔP = −Kc·δ and I = −Kc·Ts/Ti·δ is cut at 0 %; a period later the D term returns
     +45.34 in full: 45.29 %, where the unlimited form would be back at 21.85 %."""
     kc, ti, td = ITAE_PID["kc"], ITAE_PID["ti"], ITAE_PID["td"]
-    controller = pid.create("takahashi", ts=TS, tf=0.0, **ITAE_PID)
+    controller = laws.create("takahashi", ts=TS, tf=0.0, **ITAE_PID)
     controller.reset(66.0, 27.0)
     assert controller.step(66.0, 66.0) == pytest.approx(27.0, abs=1e-12)
     delta = 0.0625
@@ -861,7 +862,7 @@ def test_the_default_velocity_forms_do_not_ratchet_at_a_limit(name: str) -> None
     default (filtered, and owing the cut back) stays within a few % of where it was."""
     outputs = {}
     for label, extra in (("default", {}), ("plain", {"tf": 0.0})):
-        controller = pid.create(name, ts=TS, **ITAE_PID, **extra)
+        controller = laws.create(name, ts=TS, **ITAE_PID, **extra)
         controller.reset(66.0, 5.0)
         trace = [controller.step(66.03125, 66.0 + 0.0625 * (k % 2)) for k in range(400)]
         outputs[label] = sum(trace[-100:]) / 100
@@ -874,7 +875,7 @@ def regulate_noisy(name: str, gains: dict[str, float], seed: int) -> list[float]
     Gaussian noise of 0.03 °C, truncated to 0.0625 °C; the tun's own temperature returned."""
     gain, tau, dead_steps = 1.689, 14961.0, 23
     decay = math.exp(-TS / tau)
-    controller = pid.create(name, ts=TS, **gains)
+    controller = laws.create(name, ts=TS, **gains)
     rng = random.Random(seed)
     pipeline = [0.0] * dead_steps
     rise = 0.0

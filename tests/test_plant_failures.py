@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
+from hermsd.cli import commands as cli
 
 PLANT = """
 import math

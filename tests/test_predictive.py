@@ -16,7 +16,8 @@ from collections import deque
 
 import pytest
 
-from hermsd import pid
+from hermsd.control import laws, pid
+from hermsd.control import predictive as control_predictive
 
 TS = 5.0
 SP = 66.0
@@ -82,7 +83,7 @@ def run(
 
 
 def predictive(model: pid.PlantModel = SEED) -> pid.Controller:
-    return pid.create("predictive", kc=120.0, ti=800.0, ts=TS, model=model)
+    return laws.create("predictive", kc=120.0, ti=800.0, ts=TS, model=model)
 
 
 def test_resume_near_the_setpoint_is_bumpless() -> None:
@@ -178,7 +179,7 @@ def test_a_heat_up_measures_the_dead_time_and_rate_and_uses_them() -> None:
     tun = Tun(SEED.gain, SEED.tau, 240.0, ROOM)
     controller = predictive()
     trace = run(controller, tun, 3 * 3600.0)
-    fit = pid.heat_up_fit(controller)
+    fit = control_predictive.heat_up_fit(controller)
     assert fit is not None and fit.refused is None
     # The fit takes a period's PV as its mean, half a period old; here it is a sample at the
     # step, so it reads the dead time half a period short.
@@ -192,7 +193,7 @@ def test_an_implausible_heat_up_is_refused_and_says_why() -> None:
     tun = Tun(10.0 * SEED.gain, SEED.tau, SEED.dead_time, ROOM)
     controller = predictive()
     run(controller, tun, 600.0)
-    fit = pid.heat_up_fit(controller)
+    fit = control_predictive.heat_up_fit(controller)
     assert fit is not None and fit.refused is not None
     assert "rate" in fit.refused and "¼–4×" in fit.refused
 

@@ -15,8 +15,7 @@ from pathlib import Path
 import pytest
 
 from hermsd.cli import main
-from hermsd.latches import StateError
-from hermsd.pid import PlantModel
+from hermsd.control.pid import PlantModel
 from hermsd.program import model
 from hermsd.program import store as store_module
 from hermsd.program.driver import ProgramDriver, local_iso, next_local_time
@@ -24,6 +23,7 @@ from hermsd.program.model import Program, ProgramError, Step
 from hermsd.program.readiness import Tun
 from hermsd.program.runner import Progress, Refused, Runner, heat_up_s
 from hermsd.program.store import PROGRAM_FILE, PROGRESS_FILE, ProgressStore, ProgressWriter
+from hermsd.safety.latches import StateError
 from hermsd.sim import scenario
 
 STEP_MASH = """\

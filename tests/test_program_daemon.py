@@ -21,10 +21,8 @@ import pytest
 from test_control import Inbox, linked, operator_lines, served, status_of
 from test_reload import BASE, PERIOD, edited, rename_over, run_for, start
 
-from hermsd import replay
-from hermsd.cli import main
-from hermsd.control.link import SEEN_S, LoopLink
-from hermsd.control.protocol import (
+from hermsd.api.link import SEEN_S, LoopLink
+from hermsd.api.protocol import (
     ProgramAction,
     ProgramStart,
     ProtocolError,
@@ -32,12 +30,14 @@ from hermsd.control.protocol import (
     parse_request,
     request_message,
 )
-from hermsd.daemon import Daemon
-from hermsd.latches import LatchStore
+from hermsd.cli import main
+from hermsd.log import reader, replay
+from hermsd.log.topics import PROGRAM_TOPIC
 from hermsd.program import model
 from hermsd.program.model import Program, Step
 from hermsd.program.store import PROGRESS_FILE, SAVE_EVERY_S
-from hermsd.recorder import PROGRAM_TOPIC
+from hermsd.runtime.daemon import Daemon
+from hermsd.safety.latches import LatchStore
 from hermsd.sim import scenario
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -179,7 +179,7 @@ def test_a_bad_program_request_is_refused_before_it_reaches_the_loop(
 
 
 def test_the_longest_program_fits_one_request_line() -> None:
-    from hermsd.control.protocol import MAX_LINE, encode, request_message
+    from hermsd.api.protocol import MAX_LINE, encode, request_message
 
     name = "°" * model.NAME_LENGTH
     steps = tuple(
@@ -346,7 +346,7 @@ def test_the_step_mash_scenario_runs_every_step_and_replay_lists_them(tmp_path: 
     # Beta rest is reached once the water is back from the cold water poured in at mash-in
     # (2.4 °C below it): each rest then holds its band.
     assert all(step["max_deviation_c"] < 0.6 for step in steps[1:])
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    log = reader.load(sorted(tmp_path.glob("*.mcap")))
     assert replay.verify(log.entries).mismatch is None  # the scheduled hours are skipped
     logged = replay.summarise(log)
     assert [(s["name"], s["reached_s"] is not None) for s in logged["steps"]] == [

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hermsd.pv import period_value
+from hermsd.control.pv import period_value
 
 
 def test_a_glitch_is_dropped() -> None:

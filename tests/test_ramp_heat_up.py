@@ -18,8 +18,9 @@ from pathlib import Path
 import pytest
 from test_replay import without_marker
 
-from hermsd import pid, replay
-from hermsd.learning import ModelStore
+from hermsd.control import pid, predictive
+from hermsd.control.learning import ModelStore
+from hermsd.log import reader, replay
 from hermsd.sim import scenario
 
 TRUE_RATE = 3000.0 / (90.0 * 4186.0) * 60.0  # °C/min at full power, losses added back
@@ -41,7 +42,7 @@ def day(directory: Path, duration: str, ramp: str) -> list[Path]:
     return sorted((directory / "log").glob("*.mcap"))
 
 
-def measured(log: replay.Log) -> list[float]:
+def measured(log: reader.Log) -> list[float]:
     """The heat-up rates (°C/min) the daemon said it measured."""
     events = replay.learning(log)
     said = (re.match(r"heat-up measured: rate ([0-9.]+)", e["message"]) for e in events)
@@ -55,7 +56,7 @@ def older_log(paths: list[Path], directory: Path) -> list[Path]:
 
 def test_a_ramped_heat_up_learns_no_wrong_rate_and_its_log_verifies(tmp_path: Path) -> None:
     paths = day(tmp_path / "ramp", "2h30m", ", ramp: 1.0")
-    log = replay.load(paths)
+    log = reader.load(paths)
     rates = measured(log)
     assert all(abs(rate / TRUE_RATE - 1.0) <= 0.1 for rate in rates), rates
     learned, why = ModelStore(tmp_path / "ramp").load()
@@ -64,18 +65,18 @@ def test_a_ramped_heat_up_learns_no_wrong_rate_and_its_log_verifies(tmp_path: Pa
     assert all(c.steady_duty_share == pid.STEADY_DUTY_SHARE for c in log.configs)
     assert replay.verify(log.entries).mismatch is None
     # Replayed as a daemon from before the rule (which measured the climb), it differs.
-    older = replay.load(older_log(paths, tmp_path / "older"))
+    older = reader.load(older_log(paths, tmp_path / "older"))
     assert replay.verify(older.entries).mismatch is not None
 
 
 def test_an_ordinary_heat_up_measures_the_rate_as_before(tmp_path: Path) -> None:
     paths = day(tmp_path / "step", "1h", "")
-    log = replay.load(paths)
+    log = reader.load(paths)
     [rate] = measured(log)
     assert rate == pytest.approx(TRUE_RATE, rel=0.02)
     assert replay.verify(log.entries).mismatch is None
     # The rule before it measured the same step the same way: the log verifies under it too.
-    older = replay.load(older_log(paths, tmp_path / "older"))
+    older = reader.load(older_log(paths, tmp_path / "older"))
     assert not any(c.steady_duty_share for c in older.configs)
     assert replay.verify(older.entries).mismatch is None
 
@@ -84,10 +85,10 @@ def test_a_ramped_day_logged_before_the_rule_verifies_under_the_old_rule(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # The daemon before the rule: every step to full power from a steady PV measured.
-    monkeypatch.setattr(pid._Predictive, "_duty_was_steady", lambda self, step: True)
+    monkeypatch.setattr(predictive._Predictive, "_duty_was_steady", lambda self, step: True)
     paths = day(tmp_path / "ramp", "1h", ", ramp: 1.0")
     monkeypatch.undo()
-    [rate] = measured(replay.load(paths))
+    [rate] = measured(reader.load(paths))
     assert rate > 1.5 * TRUE_RATE  # the wrong measurement this log holds
-    older = replay.load(older_log(paths, tmp_path / "older"))
+    older = reader.load(older_log(paths, tmp_path / "older"))
     assert replay.verify(older.entries).mismatch is None

@@ -18,11 +18,9 @@ import pytest
 from test_control import Inbox, status_of
 from test_reload import Events
 
-from hermsd import config as config_module
-from hermsd import replay
-from hermsd.control.link import LoopLink
-from hermsd.daemon import Daemon
-from hermsd.reach import (
+from hermsd.api.link import LoopLink
+from hermsd.config import schema as config_module
+from hermsd.control.reach import (
     MARGIN_C,
     MEASURE_S,
     RISE_FROM_S,
@@ -32,7 +30,9 @@ from hermsd.reach import (
     measured_rise,
     short_words,
 )
-from hermsd.saver import Saver
+from hermsd.log import reader, replay
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.saver import Saver
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event, Scenario, effective_config
@@ -209,7 +209,7 @@ def test_a_weak_tun_is_said_through_the_daemon_in_the_status_and_cleared() -> No
 def test_replay_shows_when_it_was_said(tmp_path: Path) -> None:
     day = Scenario(name=WEAK.name, duration=6600.0, plant=WEAK.plant(), setpoint=66.0)
     scenario.run(day, WEAK.config(config_module.DEFAULT), log_dir=tmp_path)
-    summary = replay.summarise(replay.load(sorted(tmp_path.glob("*.mcap"))))
+    summary = replay.summarise(reader.load(sorted(tmp_path.glob("*.mcap"))))
     said = summary["reach"]
     assert len(said) == 1 and said[0]["message"].startswith("full power levels the water out")
     assert 3400.0 < said[0]["at_s"] < 6600.0  # past half-way (see the test above)

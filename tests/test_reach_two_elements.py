@@ -1,5 +1,5 @@
 """Full power on a tun with two elements: the SSR's element at its limit and the second one on
-through the whole period (hermsd.reach.FullPower), as the reach watch and a ready_by heat-up
+through the whole period (hermsd.control.reach.FullPower), as the reach watch and a ready_by heat-up
 judge it.
 
 Golden values by hand: a simulated tun levels out where its elements' watts equal its losses,
@@ -17,13 +17,14 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import replay
-from hermsd.config import Config
-from hermsd.element2 import PowerSplit
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
+from hermsd.control import factory
+from hermsd.control.element2 import PowerSplit
+from hermsd.control.reach import MARGIN_C, SLACK, FullPower, short_words
+from hermsd.log import reader, replay
 from hermsd.program.model import Program, Step
 from hermsd.program.readiness import Readiness
-from hermsd.reach import MARGIN_C, SLACK, FullPower, short_words
 from hermsd.sim import scenario
 from hermsd.sim.hlt import evaporation_w, pot_surface_m2
 from hermsd.sim.scenario import Event, Scenario
@@ -82,17 +83,17 @@ def test_full_power_is_each_element_at_its_own_limit_worked_by_hand() -> None:
 def test_each_controller_s_full_power_from_its_config() -> None:
     spec = TunSpec("90 L, 2 + 3.5 kW", 90, 2000, 1.0, 60, 10, 20)
     one = spec.config(config_module.DEFAULT)
-    assert config_module.full_power(one) == FullPower(100.0)
+    assert factory.full_power(one) == FullPower(100.0)
     shared, midrange = two_elements(spec, 3500.0), two_elements(spec, 3500.0, "midrange")
-    assert config_module.full_power(shared) == FullPower(100.0, True)
-    assert config_module.full_power(midrange) == FullPower(100.0, True)
+    assert factory.full_power(shared) == FullPower(100.0, True)
+    assert factory.full_power(midrange) == FullPower(100.0, True)
     limit = dataclasses.replace(shared.control, max_output=80.0)
-    assert config_module.full_power(dataclasses.replace(shared, control=limit)).duty1 == (
+    assert factory.full_power(dataclasses.replace(shared, control=limit)).duty1 == (
         pytest.approx(45.0)  # shared out: the limit is on the total (above)
     )
     limit = dataclasses.replace(midrange.control, max_output=80.0)
     limited = dataclasses.replace(midrange, control=limit)
-    assert config_module.full_power(limited) == FullPower(80.0, True)  # mid-ranging: u1's
+    assert factory.full_power(limited) == FullPower(80.0, True)  # mid-ranging: u1's
 
 
 # -- through the daemon ---------------------------------------------------------------------
@@ -120,7 +121,7 @@ def test_an_open_pot_too_weak_on_both_elements_is_said_with_its_level(
     named = said.ceiling
     assert named is not None and abs(named - truth) < MARGIN_C
     assert said.switched2 == 100.0  # said while both were on
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    log = reader.load(sorted(tmp_path.glob("*.mcap")))
     summary = replay.summarise(log)
     [warning] = summary["reach"]
     assert warning["message"] == short_words(named, 66.0)

@@ -16,12 +16,15 @@ import pytest
 from test_reach import WEAK
 from test_replay import rewritten, run_cli, stepped
 
-from hermsd import config as config_module
-from hermsd import replay
-from hermsd.config import make_controller
-from hermsd.daemon import PeriodRecord, reach_period
-from hermsd.reach import MARGIN_C
-from hermsd.recorder import CONFIG_TOPIC, PERIOD_TOPIC, LogFile, Recorder
+from hermsd.config import schema as config_module
+from hermsd.control.factory import make_controller
+from hermsd.control.reach import MARGIN_C
+from hermsd.log import reader, replay
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.recorder import Recorder
+from hermsd.log.topics import CONFIG_TOPIC, PERIOD_TOPIC
+from hermsd.runtime.build import reach_period
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.scenario import Event, Scenario
@@ -44,7 +47,7 @@ def weak_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     return weak_day(tmp_path_factory.mktemp("weak"))
 
 
-def said(log: replay.Log) -> list[PeriodRecord]:
+def said(log: reader.Log) -> list[PeriodRecord]:
     """The periods whose record names a ceiling."""
     return [p for p in log.periods if p.ceiling is not None]
 
@@ -52,7 +55,7 @@ def said(log: replay.Log) -> list[PeriodRecord]:
 def test_the_untouched_log_of_a_tun_too_weak_verifies_with_its_ceilings(
     weak_log: list[Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    log = replay.load(weak_log)
+    log = reader.load(weak_log)
     named = said(log)
     assert named and all(
         abs(p.ceiling - TRUE_CEILING) < MARGIN_C for p in named if p.ceiling is not None
@@ -69,7 +72,7 @@ def test_the_untouched_log_of_a_tun_too_weak_verifies_with_its_ceilings(
 def test_a_ceiling_changed_removed_or_added_fails_at_its_period(
     weak_log: list[Path], change: str
 ) -> None:
-    log = replay.load(weak_log)
+    log = reader.load(weak_log)
     named = said(log)
     if change == "added":  # an hour in: climbing, nothing said yet
         target = next(p for p in log.periods if p.t >= 3600.0)
@@ -85,7 +88,7 @@ def test_a_ceiling_changed_removed_or_added_fails_at_its_period(
 def test_the_cli_names_the_period_whose_ceiling_the_file_changed(
     weak_log: list[Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    log = replay.load(weak_log)
+    log = reader.load(weak_log)
     target = said(log)[10]
     ceiling = target.ceiling or 0.0
 
@@ -125,7 +128,7 @@ def test_a_log_of_a_daemon_before_the_ceiling_verifies_as_before(
         return message
 
     paths = rewritten(weak_log, tmp_path, older)
-    log = replay.load(paths)
+    log = reader.load(paths)
     assert not said(log) and not any(c.reach_watch for c in log.configs)
     assert replay.verify(log.entries) == replay.Verification(len(stepped(log)), 0, None)
     code, out, _ = run_cli(capsys, *paths, "--verify")
@@ -137,7 +140,7 @@ def test_a_normal_day_verifies_and_a_ceiling_added_to_it_does_not(tmp_path: Path
     # rates are judged, and put the ceiling far above (20 + 1.689 °C/% × 100 % = 189 °C).
     day = Scenario(name="normal", duration=3600.0, events=())
     scenario.run(day, log_dir=tmp_path)
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    log = reader.load(sorted(tmp_path.glob("*.mcap")))
     assert not said(log) and all(c.reach_watch for c in log.configs)
     assert replay.verify(log.entries) == replay.Verification(len(stepped(log)), 0, None)
     target = log.periods[600]
@@ -152,10 +155,10 @@ def test_a_new_power_limit_measures_afresh_in_replay_as_in_the_daemon(tmp_path: 
     # another full power, what was said of the old one cleared at that period.
     reload = Event(5400.0, "config", {"control": {"max_output": 90.0}})
     paths = weak_day(tmp_path, reload, duration=6000.0)
-    log = replay.load(paths)
+    log = reader.load(paths)
     before = [p for p in log.periods if p.t < 5400.0]
     after = [p for p in log.periods if p.t >= 5400.0]
-    assert before[-1].ceiling is not None and not said(replay.Log(periods=after))
+    assert before[-1].ceiling is not None and not said(reader.Log(periods=after))
     assert [c.reason for c in log.configs] == ["start", "reload"]
     assert replay.verify(log.entries).mismatch is None
 
@@ -166,7 +169,7 @@ def test_after_missing_records_the_ceiling_is_not_held_against_the_log(
     # What the ten missing periods told the watch is not known (its blocks, and so the line
     # through them, are others without them): nothing after them is checked until the next
     # start, and so nothing is wrongly failed.
-    log = replay.load(weak_log)
+    log = reader.load(weak_log)
     gap_from = said(log)[0].k - 100
     entries = [
         e
@@ -193,7 +196,7 @@ def test_the_dead_time_is_the_controllers_heat_up_measurement_re_run_from_the_lo
         name=FAR.name, duration=6000.0, plant=FAR.plant(), setpoint=66.0, events=(water,)
     )
     scenario.run(day, FAR.config(config_module.DEFAULT), log_dir=tmp_path)
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
+    log = reader.load(sorted(tmp_path.glob("*.mcap")))
     named = said(log)
     assert named and all(abs(p.ceiling - 55.2) < MARGIN_C for p in named if p.ceiling is not None)
     assert replay.verify(log.entries).mismatch is None
@@ -225,7 +228,7 @@ def test_a_restart_makes_a_fresh_watch_in_replay_as_in_the_daemon(
             moved = {**message, "t": message["t"] + 7200.0} if "t" in message else message
             recorder.write(topic, log_time_ns + 7200 * 1_000_000_000, moved)
     recorder.close()
-    log = replay.load([*weak_log, *later.glob("*.mcap")])
+    log = reader.load([*weak_log, *later.glob("*.mcap")])
     assert [c.reason for c in log.configs] == ["start", "start"] and len(log.runs) == 2
     assert log.periods[1319].ceiling is not None and log.periods[1320].ceiling is None
     assert replay.verify(log.entries).mismatch is None

@@ -15,7 +15,9 @@ import math
 
 import pytest
 
-from hermsd.pid import HeatUpFit, PlantModel
+from hermsd.control.pid import PlantModel
+from hermsd.control.reach import rise_s
+from hermsd.control.watches import HeatUpFit
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program, Step
 from hermsd.program.quality import step_quality
@@ -28,7 +30,6 @@ from hermsd.program.readiness import (
     Readiness,
     Tun,
 )
-from hermsd.reach import rise_s
 
 NS = 1_000_000_000
 PERIOD = 5.0

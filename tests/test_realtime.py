@@ -9,7 +9,7 @@ import threading
 
 import pytest
 
-from hermsd.realtime import loop_priority
+from hermsd.hardware.realtime import loop_priority
 
 RESET_ON_FORK = os.SCHED_RESET_ON_FORK  # sched_getscheduler reports it with the policy
 
@@ -87,7 +87,7 @@ def test_not_permitted_says_so_in_one_line_and_changes_nothing(
 
 
 def test_the_config_reader_the_loop_starts_runs_at_ordinary_priority() -> None:
-    from hermsd.config_file import in_thread
+    from hermsd.config.file import in_thread
 
     _skip_unless_permitted()
     policies: dict[str, int] = {}

@@ -23,27 +23,29 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 import hermsd
-from hermsd import config as config_module
-from hermsd import recorder as recorder_module
-from hermsd.recorder import (
+from hermsd.config import read as config_read
+from hermsd.config import schema as config_module
+from hermsd.log import topics as log_topics
+from hermsd.log.mcap_file import (
+    LogFile,
+    NotRecovered,
+    Recovery,
+    read_messages,
+    recover,
+    recover_directory,
+)
+from hermsd.log.recorder import RETRY_INTERVAL_S, Recorder
+from hermsd.log.topics import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     MODEL_TOPIC,
     PERIOD_TOPIC,
     PROGRAM_TOPIC,
     READING_TOPIC,
-    RETRY_INTERVAL_S,
     TIMING_TOPIC,
     TOPICS,
     WINDOW_TOPIC,
-    LogFile,
     LogLevel,
-    NotRecovered,
-    Recorder,
-    Recovery,
-    read_messages,
-    recover,
-    recover_directory,
 )
 from hermsd.sim.clock import VirtualClock
 
@@ -123,7 +125,7 @@ TIMING = {
 }
 CONFIG = {
     "t": 0.0,
-    "config": config_module.to_dict(config_module.DEFAULT),
+    "config": config_read.to_dict(config_module.DEFAULT),
     "reason": "start",
     "model": {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0},
     "safety_model": None,
@@ -308,9 +310,7 @@ def test_schemas_reject_what_their_topics_must_not_carry() -> None:
     assert not conforms({**PROGRAM, "event": "exploded"}, program_schema)
     assert not conforms({**PROGRAM, "step": "0"}, program_schema)
     log_schema = TOPICS[LOG_TOPIC].schema
-    assert not conforms(
-        {**recorder_module.log_message(LogLevel.INFO, "x", 0), "level": 6}, log_schema
-    )
+    assert not conforms({**log_topics.log_message(LogLevel.INFO, "x", 0), "level": 6}, log_schema)
 
 
 def test_not_a_number_is_recorded_as_null_and_bad_records_are_counted(tmp_path: Path) -> None:

@@ -9,8 +9,10 @@ from pathlib import Path
 import pytest
 from test_recorder import chunked_log, chunks_of, decoded
 
-from hermsd import cli, config
-from hermsd.instance import DirectoryLock
+from hermsd.cli import commands as cli
+from hermsd.cli import common, run
+from hermsd.config import schema as config
+from hermsd.runtime.instance import DirectoryLock
 
 PERIODS = 20
 PER_CHUNK = 5
@@ -33,7 +35,7 @@ def test_the_part_a_running_daemon_writes_is_refused_and_left_as_it_is(
     daemon = DirectoryLock(logs)  # as a running daemon holds its log directory
     daemon.acquire("log directory")
     try:
-        assert cli.main(["recover", str(part)]) == cli.EXIT_USAGE
+        assert cli.main(["recover", str(part)]) == common.EXIT_USAGE
         err = capsys.readouterr().err
         assert f"{logs} is the log directory of a running hermsd (pid {os.getpid()})" in err
         assert "nothing touched" in err
@@ -58,7 +60,7 @@ def test_a_part_with_nothing_readable_is_left_as_it_is_and_said(
     part = tmp_path / "hermsd-20260101T000000Z.mcap.part"
     data = damage + day.read_bytes()[len(damage) :] if damage == b"\0" * 8 else damage
     part.write_bytes(data)
-    assert cli.main(["recover", str(part)]) == cli.EXIT_USAGE
+    assert cli.main(["recover", str(part)]) == common.EXIT_USAGE
     err = capsys.readouterr().err
     assert f"no message readable in its {len(data)} bytes" in err
     assert "left as it is" in err
@@ -74,7 +76,7 @@ def test_a_daemon_starting_beside_an_unreadable_part_says_so_keeps_it_and_runs(
     cut = tmp_path / "hermsd-20260101T000000Z.mcap.part"
     cut.write_bytes(day.read_bytes()[:-100])
     with caplog.at_level(logging.WARNING, logger="hermsd"):
-        recorder = cli._open_recorder(tmp_path, config.DEFAULT)
+        recorder = run._open_recorder(tmp_path, config.DEFAULT)
     recorder.close()
     said = caplog.text
     assert f"{junk} not recovered: no message readable" in said

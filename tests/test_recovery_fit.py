@@ -17,8 +17,9 @@ from pathlib import Path
 import pytest
 from test_replay import without_marker
 
-from hermsd import config as config_module
-from hermsd import pid, replay
+from hermsd.config import schema as config_module
+from hermsd.control import pid, predictive, watches
+from hermsd.log import reader, replay
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event
 from hermsd.sim.tuns import FAMILY
@@ -52,7 +53,7 @@ def worst_slope_error(times: list[float]) -> float:
 
 def fed(fewest: int, periods: int) -> list[tuple[float, float] | None]:
     """The watch's answers to `periods` of full power, fitting over at least `fewest`."""
-    watch = pid._RecoveryWatch()
+    watch = watches._RecoveryWatch()
     pvs = ramp(periods)
     watch.arm(pvs[0], HOLD)
     # The controller feeds the watch while it is active and full power runs.
@@ -115,21 +116,22 @@ def older_log(paths: list[Path], directory: Path) -> list[Path]:
 
 def test_a_fresh_log_names_the_rule_and_verifies_by_it(tmp_path: Path) -> None:
     paths = cold_water_day(tmp_path / "day")
-    log = replay.load(paths)
+    log = reader.load(paths)
     assert log.configs
     assert all(c.recovery_fit_periods == pid.RECOVERY_FIT_PERIODS for c in log.configs)
     assert replay.verify(log.entries).mismatch is None
     # Replayed by the rule before it, the cut from full power comes elsewhere.
-    older = replay.load(older_log(paths, tmp_path / "older"))
+    older = reader.load(older_log(paths, tmp_path / "older"))
     assert replay.verify(older.entries).mismatch is not None
 
 
 def test_a_log_from_before_the_rule_verifies_by_the_rule_before_it(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(pid, "RECOVERY_FIT_PERIODS", 0)
+    monkeypatch.setattr(pid, "RECOVERY_FIT_PERIODS", 0)  # as logged
+    monkeypatch.setattr(predictive, "RECOVERY_FIT_PERIODS", 0)  # as run
     paths = cold_water_day(tmp_path / "day")
     monkeypatch.undo()
-    older = replay.load(older_log(paths, tmp_path / "older"))
+    older = reader.load(older_log(paths, tmp_path / "older"))
     assert all(c.recovery_fit_periods is None for c in older.configs)
     assert replay.verify(older.entries).mismatch is None

@@ -12,12 +12,14 @@ from typing import Any
 import pytest
 from test_step_response import powered_after
 
-from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.commissioning import relay, tune
-from hermsd.config_file import at_once
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.safety import Alarm
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.config.file import at_once
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 
@@ -217,9 +219,7 @@ def test_tune_relay_simulated_writes_the_model(
     assert result["ultimate"]["cycles"] >= relay.MIN_CYCLES
     assert "+  model_gain:" in result["written"]["diff"]
     assert "relay +0:" in err  # progress lines
-    assert (
-        config_module.load(path).control.model_gain == result["recommended"]["control.model_gain"]
-    )
+    assert read.load(path).control.model_gain == result["recommended"]["control.model_gain"]
 
 
 @pytest.mark.parametrize(

@@ -19,12 +19,14 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from test_config import assert_within_spec, documents, mutated_config
 
-from hermsd import config as config_module
-from hermsd.config_file import Check, ConfigFile, Start, at_once, in_thread
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.latches import LatchStore
-from hermsd.safety import Alarm
-from hermsd.saver import Saver
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.config.file import Check, ConfigFile, Start, at_once, in_thread
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.runtime.saver import Saver
+from hermsd.safety.latches import LatchStore
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 
@@ -282,18 +284,18 @@ def test_a_file_changing_while_it_is_read_is_read_again_later(
     path.write_text(BASE, encoding="utf-8")
     source = ConfigFile(path, at_once)
     source.load()
-    real_load = config_module.load_document
+    real_load = read.load_document
 
-    def load_while_an_editor_writes(where: Any) -> config_module.Document:
+    def load_while_an_editor_writes(where: Any) -> read.Document:
         result = real_load(where)
         with path.open("a", encoding="utf-8") as file:
             file.write("\n")  # the editor's last write lands after our read
         return result
 
     path.write_text(edited(BASE, control__setpoint="60.0"), encoding="utf-8")
-    monkeypatch.setattr("hermsd.config_file.load_document", load_while_an_editor_writes)
+    monkeypatch.setattr("hermsd.config.file.load_document", load_while_an_editor_writes)
     assert source.poll() is None
-    monkeypatch.setattr("hermsd.config_file.load_document", real_load)
+    monkeypatch.setattr("hermsd.config.file.load_document", real_load)
     result = source.poll()
     assert isinstance(result, config_module.Config) and result.control.setpoint == 60.0
     assert source.poll() is None

@@ -20,21 +20,23 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import pid, replay
 from hermsd.cli import main
 from hermsd.commissioning import identify
-from hermsd.daemon import PeriodRecord
-from hermsd.recorder import (
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.control import laws
+from hermsd.log import reader, replay
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.recorder import Recorder
+from hermsd.log.topics import (
     CONFIG_TOPIC,
     LOG_TOPIC,
     PERIOD_TOPIC,
     TIMING_TOPIC,
-    LogFile,
     LogLevel,
-    Recorder,
     log_message,
 )
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.scenario import Event, Scenario
@@ -127,7 +129,7 @@ def run_cli(capsys: pytest.CaptureFixture[str], *argv: str | Path) -> tuple[int,
 
 
 def test_a_simulated_brew_day_is_logged_whole(default_log: list[Path]) -> None:
-    log = replay.load(default_log)
+    log = reader.load(default_log)
     # 6 h at one period every 5 s, the first at t = 0: nothing dropped on the way.
     assert [p.k for p in log.periods] == list(range(1, 4321))
     assert replay.timing(log)["dropped"] == 0
@@ -137,7 +139,7 @@ def test_the_summary_measures_the_day_the_simulator_measured(
     default_day: tuple[list[Path], dict[str, Any]],
 ) -> None:
     paths, simulated = default_day
-    summary = replay.summarise(replay.load(paths))
+    summary = replay.summarise(reader.load(paths))
     [file] = summary["files"]
     assert file["finished"] and file["cut_at"] is None
     assert file["periods"] == summary["periods"] == 4320
@@ -161,7 +163,7 @@ def test_files_are_joined_and_a_rotated_file_repeats_its_config(
 ) -> None:
     hourly = rewritten(eventful_log, tmp_path, rotate_s=3600.0)
     assert len(hourly) == 3
-    whole, split = replay.load(eventful_log), replay.load(hourly)
+    whole, split = reader.load(eventful_log), reader.load(hourly)
     assert split.periods == whole.periods
     assert split.elapsed == whole.elapsed
     assert len(split.configs) == 3  # the start, and its repeat at the head of each new file
@@ -183,9 +185,9 @@ def test_two_runs_that_start_alike_are_two_starts_not_a_rotated_file(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     first, second = two_runs(tmp_path)
-    alone = [replay.verify(replay.load(paths).entries) for paths in (first, second)]
+    alone = [replay.verify(reader.load(paths).entries) for paths in (first, second)]
     assert alone == [replay.Verification(360, 0, None)] * 2
-    log = replay.load([*first, *second])
+    log = reader.load([*first, *second])
     [start, restart] = log.configs
     assert dataclasses.replace(restart, repeat=False) == start  # t = 0, reason start, alike
     assert not restart.repeat and len(log.runs) == 2
@@ -202,12 +204,12 @@ def test_a_rotated_run_then_another_run_tells_the_repeats_from_the_start(
     (tmp_path / "rotated").mkdir()
     rotated = rewritten(first, tmp_path / "rotated", rotate_s=700.0)
     assert len(rotated) == 3
-    log = replay.load([*rotated, *second])
+    log = reader.load([*rotated, *second])
     assert [c.repeat for c in log.configs] == [False, True, True, False]
     assert replay.verify(log.entries) == replay.Verification(720, 0, None)
     # Files of a recorder without run ids: the second run's periods count from k = 1 again.
-    monkeypatch.setattr(replay, "METADATA_NAME", "no such metadata")
-    log = replay.load([*rotated, *second])
+    monkeypatch.setattr(reader, "METADATA_NAME", "no such metadata")
+    log = reader.load([*rotated, *second])
     assert [c.repeat for c in log.configs] == [False, True, True, False]
     assert replay.verify(log.entries) == replay.Verification(720, 0, None)
 
@@ -219,9 +221,9 @@ def test_a_line_that_opens_a_rotated_file_keeps_its_time(tmp_path: Path) -> None
     # The last file opens with the line of the stop at 1800 s, after the config's repeat.
     last = list(LogFile(rotated[-1]).messages())
     assert [topic for topic, _, _ in last] == [CONFIG_TOPIC, LOG_TOPIC]
-    whole = replay.load(first).events
+    whole = reader.load(first).events
     assert whole[-1].message == "heater off: stopped" and whole[-1].at == 1800.0
-    assert replay.load(rotated).events == whole
+    assert reader.load(rotated).events == whole
 
 
 # -- golden values --------------------------------------------------------------------------
@@ -249,7 +251,7 @@ def period(k: int, t: float, pv: float | None, applied: float, **extra: Any) -> 
 
 
 def logged_config(t: float, reason: str = "start", **control: Any) -> dict[str, Any]:
-    config = config_module.to_dict(config_module.DEFAULT)
+    config = read.to_dict(config_module.DEFAULT)
     config["tun"]["element_watts"] = 2000.0
     config["control"].update(period=10.0, **control)
     return {"t": t, "config": config, "reason": reason}
@@ -286,7 +288,7 @@ def hand_made_day(directory: Path) -> Path:
 
 
 def test_golden_summary_of_a_hand_made_day(tmp_path: Path) -> None:
-    log = replay.load([hand_made_day(tmp_path)])
+    log = reader.load([hand_made_day(tmp_path)])
     summary = replay.summarise(log)
     assert log.elapsed == [0.0, 10.0, 20.0, 30.0, 40.0, 50.0]
     assert summary["duration_s"] == 50.0
@@ -327,20 +329,20 @@ def rebooted_day(directory: Path) -> tuple[Path, Path]:
 
 def test_a_file_whose_clock_starts_again_continues_the_day(tmp_path: Path) -> None:
     first, second = rebooted_day(tmp_path)
-    assert replay.load([first, second]).elapsed == [0.0, 10.0, 110.0, 120.0]
+    assert reader.load([first, second]).elapsed == [0.0, 10.0, 110.0, 120.0]
 
 
 # -- verify -------------------------------------------------------------------------------------
 
 
-def stepped(log: replay.Log) -> list[PeriodRecord]:
+def stepped(log: reader.Log) -> list[PeriodRecord]:
     return [p for p in log.periods if p.mode == "auto" and p.heater_allowed and p.pv is not None]
 
 
 def test_verify_reproduces_a_day_with_manual_spells_and_a_sensor_fault(
     eventful_log: list[Path],
 ) -> None:
-    log = replay.load(eventful_log)
+    log = reader.load(eventful_log)
     assert any(p.mode == "manual" for p in log.periods)
     assert any(not p.heater_allowed for p in log.periods)
     assert sum(p.reset_from is not None for p in log.periods) >= 3  # start, auto, after fault
@@ -354,7 +356,7 @@ def test_verify_passes_on_the_step_mash_brew_day_with_its_reloads(
     """Rests and a retune as config reloads, a manual spell and a sensor fault, re-run exactly."""
     brew_day = scenario.load_scenario(Path(__file__).parent.parent / "scenarios" / "brew-day.yaml")
     paths = simulated_log(tmp_path, brew_day)
-    log = replay.load(paths)
+    log = reader.load(paths)
     reasons = [m["reason"] for topic, _, m in _messages(paths) if topic == "/hermsd/config"]
     assert reasons.count("reload") == 3
     assert any(p.mode == "manual" for p in log.periods)
@@ -370,7 +372,7 @@ def _messages(paths: list[Path]) -> Iterator[tuple[str, int, dict[str, Any]]]:
 
 
 def test_verify_names_the_first_period_that_differs(eventful_log: list[Path]) -> None:
-    log = replay.load(eventful_log)
+    log = reader.load(eventful_log)
     target = stepped(log)[1000]
     for name, change in (
         ("output", {"output": math.nextafter(target.output, math.inf)}),
@@ -389,7 +391,7 @@ def test_the_cli_verifies_and_fails_on_a_tampered_file(
 ) -> None:
     code, out, err = run_cli(capsys, *eventful_log, "--verify")
     assert (code, err) == (0, "")
-    assert out == f"{len(stepped(replay.load(eventful_log)))} periods verified\n"
+    assert out == f"{len(stepped(reader.load(eventful_log)))} periods verified\n"
 
     def nudge(topic: str, message: dict[str, Any]) -> dict[str, Any]:
         if topic == PERIOD_TOPIC and message["k"] == 700:
@@ -402,7 +404,7 @@ def test_the_cli_verifies_and_fails_on_a_tampered_file(
 
 
 def test_verify_resumes_at_the_next_reset_after_missing_records(eventful_log: list[Path]) -> None:
-    log = replay.load(eventful_log)
+    log = reader.load(eventful_log)
     missing = {p.k for p in log.periods if 200 <= p.k < 210}
     entries = [e for e in log.entries if not (isinstance(e, PeriodRecord) and e.k in missing)]
     result = replay.verify(entries)
@@ -424,13 +426,13 @@ def synthetic_reload_day() -> list[dict[str, Any]]:
     pvs = [50.0, 50.4, 51.0, 51.9, 52.6, 53.5, 54.1, 54.9, 55.4, 56.0]
     gains = [(120.0, 800.0), (40.0, 300.0)]
     records = []
-    controller = pid.create("predictive", kc=gains[0][0], ti=gains[0][1], ts=ts)
+    controller = laws.create("predictive", kc=gains[0][0], ti=gains[0][1], ts=ts)
     output = applied = 0.0
     for k, pv in enumerate(pvs, start=1):
         reset_from = None
         if k in (1, 7):
             if k == 7:
-                controller = pid.create("predictive", kc=gains[1][0], ti=gains[1][1], ts=ts)
+                controller = laws.create("predictive", kc=gains[1][0], ti=gains[1][1], ts=ts)
             reset_from = output
             controller.reset(pv, reset_from)
         output = controller.step(setpoint, pv, applied)
@@ -453,10 +455,10 @@ def test_verify_follows_a_reload(tmp_path: Path) -> None:
         messages.append((PERIOD_TOPIC, record["t"], record))
         if record["k"] == 7:
             messages.append((CONFIG_TOPIC, record["t"] + 0.001, reload))
-    log = replay.load([write_log(tmp_path, messages)])
+    log = reader.load([write_log(tmp_path, messages)])
     assert replay.verify(log.entries) == replay.Verification(10, 0, None)
     without_reload = [
-        e for e in log.entries if not (isinstance(e, replay.LoggedConfig) and e.reason == "reload")
+        e for e in log.entries if not (isinstance(e, reader.LoggedConfig) and e.reason == "reload")
     ]
     mismatch = replay.verify(without_reload).mismatch
     assert mismatch is not None and mismatch.k == 7
@@ -478,8 +480,8 @@ def test_verify_follows_a_reload_that_changes_only_the_tun(
     and logs the reload with the model it then uses: replay does the same."""
     day = Scenario(name="tun", duration=at + 600.0, events=(Event(at, "config", {"tun": tun}),))
     scenario.run(day, log_dir=tmp_path)
-    log = replay.load(sorted(tmp_path.glob("*.mcap")))
-    configs = [e for e in log.entries if isinstance(e, replay.LoggedConfig)]
+    log = reader.load(sorted(tmp_path.glob("*.mcap")))
+    configs = [e for e in log.entries if isinstance(e, reader.LoggedConfig)]
     reloads = [e for e in configs if e.reason == "reload"]
     assert len(reloads) == 1 and reloads[0].config["tun"] | tun == reloads[0].config["tun"]
     result = replay.verify(log.entries)
@@ -491,7 +493,7 @@ def test_verify_follows_a_reload_that_changes_only_the_tun(
 
 @pytest.fixture(scope="module")
 def default_what_if(default_log: list[Path]) -> replay.WhatIf:
-    return replay.what_if(replay.load(default_log), {})
+    return replay.what_if(reader.load(default_log), {})
 
 
 def test_the_fitted_model_is_the_simulated_tun(default_what_if: replay.WhatIf) -> None:
@@ -531,7 +533,7 @@ def test_what_if_runs_other_settings_and_says_so(
 
 
 def test_what_if_repeats_the_operator_actions_of_the_day(eventful_log: list[Path]) -> None:
-    log = replay.load(eventful_log)
+    log = reader.load(eventful_log)
     model = identify.TunModel(TRUE_GAIN, TRUE_TAU, TRUE_DEAD_TIME, 20.0, 20.0, 0.0, 0.0)
     events = replay._replayed_events(log, config_module.DEFAULT, model, [])
     # Manual at 3600 s holds the output of the moment (full power), 30 % from 3605 s, auto
@@ -705,7 +707,7 @@ def test_files_named_out_of_order_are_read_in_the_order_of_their_records(
     eventful_log: list[Path], tmp_path: Path
 ) -> None:
     hourly = rewritten(eventful_log, tmp_path, rotate_s=3600.0)
-    in_order, reversed_order = replay.load(hourly), replay.load(hourly[::-1])
+    in_order, reversed_order = reader.load(hourly), reader.load(hourly[::-1])
     assert [f.path for f in reversed_order.files] == [str(p) for p in hourly]
     assert reversed_order.periods == in_order.periods
     assert reversed_order.elapsed == in_order.elapsed

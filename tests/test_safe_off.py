@@ -22,9 +22,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_config import mutated_config
 
-from hermsd import config as config_module
 from hermsd.cli import main
-from hermsd.safe_off import switch_off
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.hardware.safe_off import switch_off
 
 # The common serial relay board's "channel 1 off": A0, channel, state 0, and the checksum
 # A0 + 01 + 00 = A1 (the board's documented frames are A0 01 01 A2 on, A0 01 00 A1 off).
@@ -255,9 +256,7 @@ def test_an_unusable_key_that_names_the_device_switches_nothing_in_doubt(
     cfg = tmp_path / "hermsd.yaml"
     cfg.write_text(section)
     log: list[tuple[str, object]] = []
-    report = switch_off(
-        config_module.load_outputs(cfg), lambda **arguments: Recorded(log, arguments)
-    )
+    report = switch_off(read.load_outputs(cfg), lambda **arguments: Recorded(log, arguments))
     assert log == [], "another port, line or polarity may be someone else's device"
     assert report.switched == []
     assert len(report.failures) == 1 and f"{refused}:" in report.failures[0]
@@ -267,9 +266,7 @@ def test_an_unusable_setting_that_does_not_name_the_device_is_ignored(tmp_path: 
     cfg = tmp_path / "hermsd.yaml"
     cfg.write_text("output:\n  backend: serial-dtr\n  port: /dev/ttyUSB3\n  window: 0.1\n")
     log: list[tuple[str, object]] = []
-    report = switch_off(
-        config_module.load_outputs(cfg), lambda **arguments: Recorded(log, arguments)
-    )
+    report = switch_off(read.load_outputs(cfg), lambda **arguments: Recorded(log, arguments))
     assert [entry[0] for entry in log] == ["open", "set", "close"]
     assert log[1] == ("set", False)
     assert report.switched == ["output: serial-dtr on /dev/ttyUSB3: off"]
@@ -285,7 +282,7 @@ def test_fuzz_whatever_the_file_holds_the_ssr_output_is_tried_unless_it_is_unkno
 ) -> None:
     cfg = tmp_path / "hermsd.yaml"
     cfg.write_bytes(data)
-    found = config_module.load_outputs(cfg)
+    found = read.load_outputs(cfg)
     log: list[tuple[str, object]] = []
     switch_off(found, lambda **arguments: Recorded(log, arguments))
     output = found.output
@@ -315,7 +312,7 @@ def test_a_relay_board_out_of_reach_is_said_once_for_all_the_rates_tried(tmp_pat
         tried.append(arguments["baud"])
         raise OSError(2, "No such file or directory")
 
-    report = switch_off(config_module.load_outputs(cfg), unplugged)
+    report = switch_off(read.load_outputs(cfg), unplugged)
     assert tried == [9600, 1200, 2400, 4800, 19200, 38400, 57600, 115200]  # the default first
     assert report.failures == [
         "contactor: relay-board channel 1 on /dev/ttyUSB7: not switched off with each valid "

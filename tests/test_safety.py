@@ -6,7 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hermsd.safety import SafetyLimits, Supervisor, _OutputSwing
+from hermsd.safety.limits import SafetyLimits
+from hermsd.safety.supervisor import Supervisor, _OutputSwing
 
 
 def limits(**overrides: float) -> SafetyLimits:

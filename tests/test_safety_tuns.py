@@ -16,11 +16,12 @@ from typing import Any
 import pytest
 import yaml
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.learning import ModelStore
-from hermsd.pid import PlantModel
-from hermsd.safety import SafetyLimits, Supervisor, format_limits
+from hermsd.cli import commands as cli
+from hermsd.config import schema as config_module
+from hermsd.control.learning import ModelStore
+from hermsd.control.pid import PlantModel
+from hermsd.safety.limits import SafetyLimits, format_limits
+from hermsd.safety.supervisor import Supervisor
 from hermsd.sim import scenario
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.tuns import FAMILY, TunSpec

@@ -12,11 +12,11 @@ import pytest
 from test_control import Inbox, status_of
 from test_reload import BASE, PERIOD, Events, run_for, start
 
-from hermsd import daemon as daemon_module
-from hermsd.control.link import LoopLink
-from hermsd.daemon import Daemon
-from hermsd.latches import Latches, LatchStore
-from hermsd.saver import Outcome, Saver
+from hermsd.api.link import LoopLink
+from hermsd.runtime import daemon as daemon_module
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.saver import Outcome, Saver
+from hermsd.safety.latches import Latches, LatchStore
 from hermsd.sim.world import World
 
 KIND = "sensor_stuck"  # what a dead element in the still, noiseless tun latches first

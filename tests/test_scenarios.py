@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.recorder import LogFile
+from hermsd.cli import commands as cli
+from hermsd.config import schema as config_module
+from hermsd.log.mcap_file import LogFile
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario, ScenarioError, parse_scenario
 

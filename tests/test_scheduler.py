@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hermsd.scheduler import LatenessStats, Scheduler, percentile
+from hermsd.runtime.scheduler import LatenessStats, Scheduler, percentile
 from hermsd.sim.clock import VirtualClock
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
+from hermsd.cli import commands as cli
 from hermsd.sim.w1 import FakeW1Tree
 
 

@@ -11,8 +11,9 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd.safety import SafetyLimits, Supervisor
+from hermsd.config import schema as config_module
+from hermsd.safety.limits import SafetyLimits
+from hermsd.safety.supervisor import Supervisor
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario
 

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
-from hermsd.config import ConfigError, parse
+from hermsd.cli import commands as cli
+from hermsd.config.read import parse
+from hermsd.config.schema import ConfigError
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Event, Scenario, ScenarioError
 

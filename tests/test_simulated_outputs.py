@@ -9,9 +9,10 @@ from typing import Any
 
 import pytest
 
-from hermsd import cli
-from hermsd.config_file import ConfigFile, at_once
-from hermsd.recorder import CONFIG_TOPIC, LOG_TOPIC, LogFile
+from hermsd.cli import commands as cli
+from hermsd.config.file import ConfigFile, at_once
+from hermsd.log.mcap_file import LogFile
+from hermsd.log.topics import CONFIG_TOPIC, LOG_TOPIC
 from hermsd.sim.world import simulated_daemon
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli
+from hermsd.cli import commands as cli
 from hermsd.sim import scenario
 from hermsd.sim.hlt import (
     BOILING_C,

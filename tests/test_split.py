@@ -15,13 +15,15 @@ from test_control import Inbox
 from test_daemon import make
 from test_element2 import PLANT, logged_daemon, phases, two_element_config
 
-from hermsd import cli
-from hermsd import config as config_module
-from hermsd.control.link import LoopLink
-from hermsd.daemon import PeriodRecord
-from hermsd.element2 import PowerSplit, SplitController
+from hermsd.api.link import LoopLink
+from hermsd.cli import commands as cli
+from hermsd.cli import remote
+from hermsd.config import schema as config_module
+from hermsd.control.element2 import PowerSplit, SplitController
+from hermsd.log.reader import load
+from hermsd.log.replay import verify
 from hermsd.program.model import Program, Step
-from hermsd.replay import load, verify
+from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.scenario import Event, Scenario, run
 
 H = 5.0
@@ -230,7 +232,7 @@ def test_hermsd_status_shows_the_second_element(
         daemon.run(until=600.0)  # heating from cold: both on
         assert world.circuit.relay2_on
         reply = json.loads(link.status_line())
-    monkeypatch.setattr(cli, "_ask", lambda _path, _request: reply)
+    monkeypatch.setattr(remote, "_ask", lambda _path, _request: reply)
     assert cli.main(["status"]) == 0
     assert "out 100 % + element 2 100 %" in capsys.readouterr().out.splitlines()[0]
 

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hermsd.hardware.ssr import GuardedSwitch, TimeProportionalPlanner, cut, relay_board_frame
 from hermsd.sim.clock import VirtualClock
-from hermsd.ssr import GuardedSwitch, TimeProportionalPlanner, cut, relay_board_frame
 
 HALF_CYCLE_50HZ = 0.01  # s: one half-cycle of 50 Hz mains
 

@@ -14,12 +14,15 @@ from pathlib import Path
 
 import pytest
 
-from hermsd import cli, files, instance
-from hermsd.daemon import latch_save_failed_text
-from hermsd.instance import LOCK_FILE, DirectoryLock
-from hermsd.latches import LATCHED_FILE, Latches, LatchStore
-from hermsd.learning import LEARNED_FILE, LearnedModel, ModelStore
-from hermsd.saver import Outcome
+from hermsd import files
+from hermsd.cli import commands as cli
+from hermsd.cli import common
+from hermsd.control.learning import LEARNED_FILE, LearnedModel, ModelStore
+from hermsd.runtime import instance
+from hermsd.runtime.daemon import latch_save_failed_text
+from hermsd.runtime.instance import LOCK_FILE, DirectoryLock
+from hermsd.runtime.saver import Outcome
+from hermsd.safety.latches import LATCHED_FILE, Latches, LatchStore
 
 RUN = ["run", "--simulate", "--speed", "max", "--duration", "10s", "--state"]
 SIMULATE = ["simulate", "--scenario", "scenarios/ssr-stuck-on.yaml", "--state"]
@@ -34,7 +37,7 @@ def _refused(capsys: pytest.CaptureFixture[str], args: list[str]) -> str:
     """The one line the daemon said on refusing to start (it must not have started)."""
     code = cli.main(args)
     out, err = capsys.readouterr()
-    assert code == cli.EXIT_USAGE
+    assert code == common.EXIT_USAGE
     assert out == ""  # not even the control socket's line
     [line] = err.splitlines()
     assert line.startswith("hermsd: ") and "not started, heater off" in line

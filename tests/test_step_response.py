@@ -9,14 +9,16 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
 from hermsd.cli import main
 from hermsd.commissioning import step_response, tune
-from hermsd.daemon import PeriodRecord
-from hermsd.safety import Alarm
+from hermsd.commissioning.simulated import simulated_step_test
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.tuns import FAMILY
-from hermsd.sim.world import World, simulated_step_test
+from hermsd.sim.world import World
 
 SHIPPED = Path(__file__).parent.parent / "config" / "hermsd.yaml"
 NOISE = {"noise_c": 0.03, "seed": 3}
@@ -159,7 +161,7 @@ def test_tune_step_simulated_writes_the_model_and_logs_the_run(
     assert abs(result["model"]["gain"] / 1.689 - 1) <= 0.10
     assert "+  model_gain:" in result["written"]["diff"]
     assert "step +0:10:00" in err  # progress lines
-    written = config_module.load(path)
+    written = read.load(path)
     assert written.control.model_gain == result["recommended"]["control.model_gain"]
     # logged like any run: `tune FILE` fits the same model to the step's log
     assert main(["tune", *map(str, sorted(log.glob("*.mcap"))), "--json"]) == 0

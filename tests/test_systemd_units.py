@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from hermsd.realtime import LOOP_PRIORITY
+from hermsd.hardware.realtime import LOOP_PRIORITY
 
 SYSTEMD_DIR = Path(__file__).resolve().parent.parent / "systemd"
 INSTALLED_BINARY = "/usr/local/bin/hermsd"

@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from hermsd import replay
+from hermsd.log import reader
 from hermsd.program.readiness import LATE_S
 from hermsd.sim import scenario
 
@@ -33,7 +33,7 @@ def test_water_poured_in_while_waiting_restarts_the_measurement_of_the_losses(
     result = scenario.run(scenario.load_scenario(path), log_dir=tmp_path / "log")
     reached = result.summary["program"]["first_reached_s"]
     assert reached is not None
-    events = replay.load(sorted((tmp_path / "log").glob("*.mcap"))).program
+    events = reader.load(sorted((tmp_path / "log").glob("*.mcap"))).program
     said = [(e.event, e.message or "") for e in events if e.event in ("late", "release")]
     assert not [m for _, m in said if "at most" in m or m.endswith("never")], said
     [release] = [m for kind, m in said if kind == "release"]

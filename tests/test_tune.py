@@ -13,11 +13,12 @@ from typing import Any
 
 import pytest
 
-from hermsd import config as config_module
-from hermsd import replay
 from hermsd.cli import main
 from hermsd.commissioning import tune
-from hermsd.config_file import ConfigFile, at_once
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.config.file import ConfigFile, at_once
+from hermsd.log import reader
 from hermsd.sim import scenario
 from hermsd.sim.scenario import Scenario
 from hermsd.sim.world import simulated_daemon
@@ -290,7 +291,7 @@ def test_write_changes_only_the_recommended_values(
     assert sorted(old.split(b":")[0].strip().decode() for old, _ in changed) == sorted(MODEL_KEYS)
     for old, new in changed:
         assert new.split(b":")[0] == old.split(b":")[0]  # same key, same indentation
-    config = config_module.load(config_copy)  # passes the config check
+    config = read.load(config_copy)  # passes the config check
     for key in MODEL_KEYS:
         assert getattr(config.control, key) == result["recommended"][f"control.{key}"]
     assert stat.S_IMODE(config_copy.stat().st_mode) == 0o640
@@ -331,7 +332,7 @@ def test_a_tune_that_fails_leaves_the_file_unchanged(
 
 
 def test_a_poor_fit_is_not_written(brew_day: list[str], config_copy: Path) -> None:
-    tuned = tune.from_log(replay.load(brew_day))
+    tuned = tune.from_log(reader.load(brew_day))
     assert tuned.confidence == "good"
     poor = dataclasses.replace(tuned, confidence="poor at 2σ: K ±30 %")
     with pytest.raises(tune.TuneError, match=r"left as it is: the fit is poor at 2σ: K ±30 %"):
@@ -396,7 +397,7 @@ def test_after_write_the_next_start_uses_the_written_model(
     brew_day: list[str],
     config_copy: Path,
 ) -> None:
-    before = simulated_daemon(config_module.load(config_copy), math.inf)
+    before = simulated_daemon(read.load(config_copy), math.inf)
     assert before.model_choice.source == "prior" and before.supervisor.limits.dead_time == 300.0
     code, out, _ = run_cli(capsys, *brew_day, "--write", str(config_copy), "--json")
     assert code == 0
@@ -405,7 +406,7 @@ def test_after_write_the_next_start_uses_the_written_model(
     hermsd_log = logging.getLogger("hermsd")  # the CLI run above may have stopped propagation
     hermsd_log.addHandler(caplog.handler)
     try:
-        daemon = simulated_daemon(config_module.load(config_copy), math.inf)
+        daemon = simulated_daemon(read.load(config_copy), math.inf)
         daemon.start()
     finally:
         hermsd_log.removeHandler(caplog.handler)
@@ -436,11 +437,11 @@ def test_after_write_the_next_start_uses_the_written_model(
 def test_a_log_without_the_litres_is_written_with_the_files(
     brew_day: list[str], config_copy: Path
 ) -> None:
-    tuned = tune.from_log(replay.load(brew_day))
+    tuned = tune.from_log(reader.load(brew_day))
     unknown = {k: v for k, v in tuned.recommended.items() if k != "control.model_litres"}
     config_copy.write_text("tun:\n  litres: 45\n", encoding="utf-8")
     tune.write_tuned(config_copy, dataclasses.replace(tuned, recommended=unknown))
-    assert config_module.load(config_copy).control.model_litres == 45.0
+    assert read.load(config_copy).control.model_litres == 45.0
 
 
 def _changed_lines(before: str, after: str) -> list[tuple[str, str]]:

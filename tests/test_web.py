@@ -21,13 +21,14 @@ from test_reload import BASE, edited
 from webpage import PASSWORD, PERIOD, STORED, TIMEOUT, Site, served, site
 
 import hermsd.web
-from hermsd import config as config_module
+from hermsd.api.client import LONGEST_PERIOD as TIMEOUT_LONGEST_PERIOD
+from hermsd.api.client import TIMEOUT as TIMEOUT_LONGEST
+from hermsd.api.client import unanswered
+from hermsd.api.jsontext import MAX_DEPTH
 from hermsd.cli import main
-from hermsd.config import ConfigError, split_listen
-from hermsd.control.client import LONGEST_PERIOD as TIMEOUT_LONGEST_PERIOD
-from hermsd.control.client import TIMEOUT as TIMEOUT_LONGEST
-from hermsd.control.client import unanswered
-from hermsd.control.jsontext import MAX_DEPTH
+from hermsd.config import read as config_read
+from hermsd.config.rules import split_listen
+from hermsd.config.schema import ConfigError
 from hermsd.web.app import WebSettings, command_message, create_app, host_allowed
 from hermsd.web.auth import (
     GLOBAL_BURST,
@@ -325,7 +326,7 @@ def test_the_web_section_is_checked_like_the_rest_of_the_file() -> None:
         web__allowed_hosts='["raspberrypi.local:8080"]',
     )
     with pytest.raises(ConfigError) as caught:
-        config_module.parse(text, "hermsd.yaml")
+        config_read.parse(text, "hermsd.yaml")
     message = str(caught.value)
     assert "web.listen: 'everywhere' is not HOST:PORT" in message
     assert "web.password_hash: not a password hash (expected scrypt$16384$8$1$" in message
@@ -351,7 +352,7 @@ def test_a_page_that_would_show_nothing_to_anyone_does_not_start(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     with pytest.raises(WebSetupError, match="would show nothing to anyone"):
-        settings_from(config_module.parse(BASE), tmp_path / "control.sock")
+        settings_from(config_read.parse(BASE), tmp_path / "control.sock")
     path = tmp_path / "hermsd.yaml"
     path.write_text(BASE, encoding="utf-8")
     assert main(["web", "--config", str(path)]) == 2
@@ -384,7 +385,7 @@ def test_hash_password_prints_a_hash_the_config_takes(
     printed = capsys.readouterr().out.strip()
     stored = parse_hash(printed)
     assert stored is not None and verify_password("a long enough password", stored)
-    config_module.parse(edited(BASE, web__password_hash=f'"{printed}"'))
+    config_read.parse(edited(BASE, web__password_hash=f'"{printed}"'))
 
 
 PROGRAM_FILE = "name: Step mash\nsteps:\n  - {name: Rest, setpoint: 66, hold: 60m}\n"
@@ -596,13 +597,13 @@ def test_the_allowed_host_names_are_this_machines_unless_the_config_lists_them(
 ) -> None:
     monkeypatch.setattr(socket, "gethostname", lambda: "brewpi")
     where = tmp_path / "control.sock"
-    default = settings_from(config_module.parse(edited(BASE, web__read_only_view="on")), where)
+    default = settings_from(config_read.parse(edited(BASE, web__read_only_view="on")), where)
     assert default.hosts == ("localhost", "brewpi", "*.local")
     for host in ("brewpi:8080", "brewpi.local", "brewpi-2.local:8080"):  # mDNS renames
         assert host_allowed(host, default.hosts), host
     assert not host_allowed("brewpi.local.attacker.example", default.hosts)
     listed = edited(BASE, web__read_only_view="on", web__allowed_hosts="[brew.example.org]")
-    behind_a_proxy = settings_from(config_module.parse(listed), where)
+    behind_a_proxy = settings_from(config_read.parse(listed), where)
     assert behind_a_proxy.hosts == ("brew.example.org",)
     assert not host_allowed("brewpi.local", behind_a_proxy.hosts)
     assert host_allowed("10.0.0.7:8080", behind_a_proxy.hosts)

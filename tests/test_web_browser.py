@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from webpage import CHROMIUM, CHROMIUM_ARGS, PASSWORD, PHONE, TIMEOUT, Site, site
 
-from hermsd.control.protocol import ProgramAction
+from hermsd.api.protocol import ProgramAction
 
 TEMPERATURE_RED = (0xC6, 0x28, 0x28)  # the temperature line's colour in app.js
 WAIT_MS = TIMEOUT * 1000

@@ -17,9 +17,9 @@ from typing import TYPE_CHECKING, Any
 from starlette.applications import Starlette
 from test_reload import BASE, PERIOD, Events, run_for, start
 
-from hermsd.control.link import LoopLink
-from hermsd.control.server import ControlServer
-from hermsd.daemon import Daemon
+from hermsd.api.link import LoopLink
+from hermsd.api.server import ControlServer
+from hermsd.runtime.daemon import Daemon
 from hermsd.web.app import WebSettings, create_app
 from hermsd.web.hub import Hub
 from hermsd.web.main import listening_socket, make_server

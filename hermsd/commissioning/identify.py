@@ -14,8 +14,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
-from hermsd import linsys
-from hermsd.safety import vapour_pressure_ratio
+from hermsd.control import linsys
+from hermsd.safety.limits import vapour_pressure_ratio
 
 
 class IdentifyError(ValueError):
@@ -50,7 +50,7 @@ class TunModel:
 
     E (`evaporation`) is an open pot's evaporation at 66 °C over its linear losses, in °C
     (0: lidded), and g(T) its physical shape, the vapour pressure of water at T over that at
-    66 °C (hermsd.safety.vapour_pressure_ratio): only its scale is fitted.
+    66 °C (hermsd.safety.supervisor.vapour_pressure_ratio): only its scale is fitted.
     """
 
     gain: float  # K, °C/%

@@ -49,7 +49,8 @@ from hermsd.commissioning.step_response import (
     fit_in_thread,
     run,
 )
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
 
 LSB_C = 0.0625
 HYSTERESIS_C = LSB_C

@@ -46,9 +46,10 @@ from typing import Any, Generic, Protocol, TypeVar, cast
 
 from hermsd.commissioning import tune
 from hermsd.commissioning.identify import MIN_DUTY_SPAN
-from hermsd.config_file import in_thread
-from hermsd.daemon import Daemon, PeriodRecord
-from hermsd.safety import Alarm
+from hermsd.config.file import in_thread
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 
 BASELINE_S = 120.0
 """Heater off at the start: T1, and the sensor's noise, before anything moves."""

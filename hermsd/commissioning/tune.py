@@ -23,8 +23,6 @@ from ruamel.yaml import YAML
 from ruamel.yaml.comments import CommentedMap
 from ruamel.yaml.error import YAMLError
 
-from hermsd import config as config_module
-from hermsd import pid
 from hermsd.commissioning.identify import (
     MIN_DUTY_SPAN,
     UNCERTAINTY_METHOD,
@@ -35,8 +33,11 @@ from hermsd.commissioning.identify import (
     identify,
     uncertainty,
 )
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.control import seed
 from hermsd.files import read_only, write_atomically
-from hermsd.replay import Log, sudden_drops
+from hermsd.log.reader import Log, sudden_drops
 
 # (title, rule prefix in pid.table1, the numbers the rule uses): Table 1's open-loop
 # Ziegler–Nichols rows take the normalised slope a* and θ, all the others K, τ and θ.
@@ -69,7 +70,7 @@ class Model:
     a_star_given: bool  # False: a* = K/τ, the FOPTD's own slope after its dead time
 
     def rules(self) -> dict[str, tuple[float, float, float]]:
-        return pid.table1(K=self.K, tau=self.tau, theta=self.theta, a_star=self.a_star)
+        return seed.table1(K=self.K, tau=self.tau, theta=self.theta, a_star=self.a_star)
 
 
 def parse_table(text: str) -> Model:
@@ -530,7 +531,7 @@ def write_tuned(path: Path, tuned: Tuned) -> str:
     changes: dict[str, float | str] = dict(tuned.recommended)
     if "control.model_litres" not in changes:  # a log without the config's litres
         try:
-            changes["control.model_litres"] = config_module.load(path).tun.litres
+            changes["control.model_litres"] = read.load(path).tun.litres
         except config_module.ConfigError as error:
             raise TuneError(f"{path} left as it is: {error}") from None
     return write_config(path, changes)
@@ -572,7 +573,7 @@ def write_config(path: Path, changes: Mapping[str, float | str]) -> str:
 
 def _checked(text: str, filename: str, what: str) -> None:
     try:
-        config_module.parse_document(text, filename)
+        read.parse_document(text, filename)
     except config_module.ConfigError as error:
         problems = str(error).replace("\n", "; ")
         raise TuneError(f"{filename} {what}: {problems}") from None

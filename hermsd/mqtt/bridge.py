@@ -34,12 +34,11 @@ from paho.mqtt.enums import CallbackAPIVersion
 from paho.mqtt.properties import Properties
 from paho.mqtt.reasoncodes import ReasonCode
 
-from hermsd.config import Config
-from hermsd.control.client import NoDaemonError, ReplyError, ask, command_timeout
-from hermsd.control.protocol import Status, describe
-from hermsd.control.server import RequestLimit
+from hermsd.api.client import NoDaemonError, ReplyError, ask, command_timeout
+from hermsd.api.protocol import Status, describe
+from hermsd.api.server import RequestLimit
+from hermsd.config.schema import Config
 from hermsd.files import NotRegularFile, read_regular
-from hermsd.instance import NameLock
 from hermsd.mqtt.messages import (
     OFFLINE,
     ONLINE,
@@ -51,6 +50,7 @@ from hermsd.mqtt.messages import (
     parse_command,
     state_message,
 )
+from hermsd.runtime.instance import NameLock
 
 log = logging.getLogger("hermsd")
 

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd import __version__
-from hermsd import config as config_module
-from hermsd.config import Config
-from hermsd.control.protocol import SetMode, SetSetpoint
+from hermsd.api.protocol import SetMode, SetSetpoint
+from hermsd.config import read, rules
+from hermsd.config.schema import Config
 
 ONLINE = "online"
 OFFLINE = "offline"
@@ -132,7 +132,7 @@ def setpoint_range(config: Config) -> tuple[float, float]:
     """The setpoints taken over MQTT, the climate card's range: the config's bounds for a
     setpoint, up to the last step below the over-temperature cut-out (the setpoint must stay
     under it). The one source of both: a command outside what the card offers is refused."""
-    low, high = config_module.key_range("control.setpoint")
+    low, high = read.key_range("control.setpoint")
     below_cut_out = (config.safety.max_temp - 1e-9) // TEMP_STEP * TEMP_STEP
     return low, min(high, below_cut_out)
 
@@ -262,7 +262,7 @@ def parse_command(topics: Topics, topic: str, payload: bytes, config: Config) ->
             raise Refused(f"setpoint: expected a number in °C such as 66.5, got {text!r}")
         celsius = float(text)
         command: Command = SetSetpoint(celsius)
-        problems = config_module.runtime_problems(config, {"control.setpoint": celsius})
+        problems = rules.runtime_problems(config, {"control.setpoint": celsius})
         low, high = setpoint_range(config)
         if not problems and not low <= celsius <= high:
             problems = [
@@ -277,7 +277,7 @@ def parse_command(topics: Topics, topic: str, payload: bytes, config: Config) ->
         changes: dict[str, object] = {"control.mode": command.mode}
         if command.output is not None:
             changes["control.manual_output"] = command.output
-        problems = config_module.runtime_problems(config, changes)
+        problems = rules.runtime_problems(config, changes)
     else:
         raise Refused(
             f"{topic} is not a command topic ({topics.set_setpoint} or {topics.set_mode})"

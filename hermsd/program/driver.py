@@ -20,11 +20,11 @@ import logging
 from dataclasses import dataclass, field
 from typing import Any
 
-from hermsd.latches import StateError
 from hermsd.program.model import READY_BY, Program
 from hermsd.program.readiness import Readiness, Tun
 from hermsd.program.runner import ProgramEvent, Refused, Runner
 from hermsd.program.store import SAVE_EVERY_S, ProgressStore, ProgressWriter, stale_reason
+from hermsd.safety.latches import StateError
 
 log = logging.getLogger("hermsd")
 
@@ -219,7 +219,7 @@ class ProgramDriver:
         """The program's setpoint for this period (None: keep the heater off), and events.
 
         `applied`: the duty the elements were driven at in the period just ended (%, of their
-        total); `full`: that was full power (hermsd.reach.FullPower)."""
+        total); `full`: that was full power (hermsd.control.reach.FullPower)."""
         runner = self.runner
         if runner is None:
             return None, self.take_events()

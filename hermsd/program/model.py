@@ -17,8 +17,9 @@ from typing import Any
 
 import yaml
 
-from hermsd import config as config_module
-from hermsd.config import ConfigError, Problem
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.config.schema import ConfigError, Problem
 from hermsd.durations import NoUnit, parse_duration
 
 MAX_STEPS = 50
@@ -74,7 +75,7 @@ def _name_field(path: str, left_out: str = "") -> config_module._Field:
     return _field(path, str, "Saccharification", max_length=NAME_LENGTH, left_out=left_out)
 
 
-class _Reader(config_module._Reader):
+class _Reader(read._Reader):
     @staticmethod
     def _suggest(key: str, prefix: str, known: list[str]) -> str:
         import difflib
@@ -332,8 +333,8 @@ def parse(text: str, filename: str = "<program>") -> Program:
     Every rule of a program file, its length too: text made in memory (an import) passes
     here exactly when its file would pass `load` (and `program check`)."""
     try:
-        config_module.check_size(text, filename)
-        root = config_module._root(text, filename)
+        read.check_size(text, filename)
+        root = read._root(text, filename)
     except ConfigError as error:
         raise ProgramError(error.problems) from None
     return _checked(_Reader(filename), root, filename)
@@ -343,7 +344,7 @@ def load(path: str | os.PathLike[str]) -> Program:
     """The program in a file; ProgramError (never OSError) when it cannot be read or used."""
     filename = os.fspath(path)
     try:
-        text = config_module._read_text(filename)
+        text = read._read_text(filename)
     except ConfigError as error:
         hint = ", or copy config/hermsd.yaml there"  # the config's advice, not a program's
         problems = [p._replace(message=p.message.replace(hint, "")) for p in error.problems]

@@ -18,7 +18,7 @@ from hermsd.metrics import BAND
 
 
 class StepRecord(Protocol):
-    """What a period record gives (hermsd.daemon.PeriodRecord)."""
+    """What a period record gives (hermsd.runtime.daemon.PeriodRecord)."""
 
     @property
     def setpoint(self) -> float: ...

@@ -33,11 +33,12 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from hermsd.learning import WATER_SPAN_S, water_came
+from hermsd.control.learning import WATER_SPAN_S, water_came
+from hermsd.control.pid import PlantModel
+from hermsd.control.reach import MEASURE_S, RISE_FROM_S, Rise
+from hermsd.control.watches import HeatUpFit
 from hermsd.metrics import BAND
-from hermsd.pid import HeatUpFit, PlantModel
 from hermsd.program.runner import heat_up_s
-from hermsd.reach import MEASURE_S, RISE_FROM_S, Rise
 
 SCHEDULE_EVENTS = ("climb", "release", "late")
 """The program events a ready_by schedule logs: what it decided, and why."""
@@ -182,7 +183,7 @@ class Readiness:
     ) -> float | None:
         """The setpoint for this period (None: keep the heater off, not yet due). `applied`:
         the elements' duty in the period just ended (% of their total); `full`: that was full
-        power (hermsd.reach.FullPower: with two elements, each at its own)."""
+        power (hermsd.control.reach.FullPower: with two elements, each at its own)."""
         if pv is None:  # nothing to judge by: as before
             return self._setpoint()
         if self.phase == "scheduled":

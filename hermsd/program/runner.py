@@ -28,8 +28,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from hermsd.control.pid import PlantModel
 from hermsd.metrics import BAND
-from hermsd.pid import PlantModel
 from hermsd.program.model import Program, Step
 
 PHASES = ("pending", "scheduled", "heating", "ramping", "holding", "waiting", "done")

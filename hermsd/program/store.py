@@ -21,9 +21,9 @@ from pathlib import Path
 from typing import Any, NamedTuple, TypeGuard
 
 from hermsd.files import fsync_directory, write_atomically
-from hermsd.latches import StateError, is_int, read_state_json
 from hermsd.program.model import Program, ProgramError, from_data, to_data
 from hermsd.program.runner import PHASES, Progress
+from hermsd.safety.latches import StateError, is_int, read_state_json
 
 PROGRAM_FILE = "program.json"
 PROGRESS_FILE = "program-progress.json"

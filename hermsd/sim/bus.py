@@ -19,7 +19,7 @@ from enum import StrEnum
 from types import TracebackType
 from typing import Final, Protocol
 
-from hermsd.lm92 import (
+from hermsd.hardware.lm92 import (
     CONFIG_SHUTDOWN,
     FLAG_T_CRIT,
     FLAG_T_HIGH,

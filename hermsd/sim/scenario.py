@@ -26,27 +26,29 @@ from typing import Any
 
 import yaml
 
-from hermsd import config as config_module
-from hermsd.config import Config
-from hermsd.daemon import Daemon, PeriodRecord
+from hermsd.config import read
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
+from hermsd.control.learning import ModelStore
 from hermsd.durations import parse_duration
 from hermsd.files import NotRegularFile, read_regular
-from hermsd.latches import LatchStore
-from hermsd.learning import ModelStore
+from hermsd.log.recorder import Recorder
 from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.program import model as program_model
 from hermsd.program.driver import next_local_time
 from hermsd.program.model import Program, ProgramError
 from hermsd.program.quality import step_quality
-from hermsd.recorder import Recorder
-from hermsd.safety import Alarm, MeasuredTun
-from hermsd.saver import Saver
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.runtime.saver import Saver
+from hermsd.safety.latches import LatchStore
+from hermsd.safety.limits import Alarm, MeasuredTun
 from hermsd.sim.bus import Fault, fault_value
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PLANT_KINDS, Plant, TwoElementPlant, make_plant, plant_parameters
-from hermsd.sim.sensors import FAULTS, FakeChip
-from hermsd.sim.world import SENSOR_KEYS, build_world, sensor_reading
+from hermsd.sim.sensors import FAULTS, FakeChip, sensor_reading
+from hermsd.sim.world import SENSOR_KEYS, build_world
 
 SENSOR_FAULTS = tuple(dict.fromkeys(name for names in FAULTS.values() for name in names))
 """Every kind's faults (sim/sensors.py); a run refuses those its sensor's kind has not."""
@@ -352,7 +354,7 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
 
 def effective_config(base: Config, scenario: Scenario) -> Config:
     """The daemon's config with the scenario's overrides, validated like the file."""
-    merged = _merge(config_module.to_dict(base), scenario.config)
+    merged = _merge(read.to_dict(base), scenario.config)
     if scenario.setpoint is not None:
         merged.setdefault("control", {})["setpoint"] = scenario.setpoint
     return _validated(merged, scenario, "config")
@@ -367,7 +369,7 @@ def _validated(document: dict[str, Any], scenario: Scenario, at: str) -> Config:
         element2["backend"] = "sim"  # the simulated tun's second element, whatever the file's
     source = scenario.source or f"<scenario {scenario.name}>"
     try:
-        return config_module.parse(yaml.safe_dump(document), source)
+        return read.parse(yaml.safe_dump(document), source)
     except config_module.ConfigError as error:
         keys = [f"{at}.{p.key_path}" if p.key_path else at for p in error.problems]
         raise ScenarioError(
@@ -383,7 +385,7 @@ def _reloads(config: Config, scenario: Scenario) -> dict[int, Config]:
     reloads = {}
     for index, event in enumerate(scenario.events):
         if event.kind == "config":
-            document = _merge(config_module.to_dict(config), event.value)
+            document = _merge(read.to_dict(config), event.value)
             config = _validated(document, scenario, f"events[{index}].config")
             reloads[index] = config
     return reloads

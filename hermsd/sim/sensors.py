@@ -4,15 +4,18 @@ each read by its real driver, each fed by the tun model and switched into its fa
 
 from __future__ import annotations
 
+import math
+import random
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
-from hermsd.lm92 import LM92
-from hermsd.sensors import ds18b20
-from hermsd.sensors.base import ClockedConversions
-from hermsd.sensors.kinds import max31865_on
+from hermsd.hardware.lm92 import LM92
+from hermsd.hardware.sensors import ds18b20
+from hermsd.hardware.sensors.base import ClockedConversions
+from hermsd.hardware.sensors.kinds import max31865_on
+from hermsd.runtime.clock import Clock
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.bus import Fault as LM92Fault
 from hermsd.sim.clock import VirtualClock
@@ -20,8 +23,9 @@ from hermsd.sim.spi import FakeMAX31865, FakeSpiDev, RtdFault
 from hermsd.sim.w1 import FakeW1Tree, W1Fault
 
 if TYPE_CHECKING:
-    from hermsd.config import SensorConfig
-    from hermsd.daemon import Sensor
+    from hermsd.config.schema import SensorConfig
+    from hermsd.hardware.sensors.base import Sensor
+    from hermsd.sim.hlt import Plant
 
 SIMULATED_ID = "28-00000a1b2c3d"
 FAULTS: dict[str, tuple[str, ...]] = {
@@ -79,7 +83,6 @@ def fake_sensor(
 
 def _cold_water() -> tuple[Callable[[], float], VirtualClock]:
     from hermsd.sim.hlt import make_plant
-    from hermsd.sim.world import sensor_reading
 
     clock = VirtualClock()
     tun = make_plant("physical", start_c=17.3)
@@ -102,3 +105,15 @@ def simulated_spi(r0: float, rref: float) -> FakeSpiDev:
     spi.open(0, 0)
     spi.mode = 1
     return spi
+
+
+def sensor_reading(tun: Plant, clock: Clock, noise_c: float, seed: int) -> Callable[[], float]:
+    """What the LM92 converts: the tun's sensor temperature now, plus Gaussian noise of
+    standard deviation `noise_c` from a generator seeded with `seed` (the chip then
+    truncates it to its 0.0625 °C steps)."""
+    if not 0.0 <= noise_c < math.inf:
+        raise ValueError(f"noise_c = {noise_c!r} is invalid: it must be a number ≥ 0")
+    if noise_c == 0.0:
+        return lambda: tun.temperature(clock.monotonic())
+    rng = random.Random(seed)
+    return lambda: tun.temperature(clock.monotonic()) + rng.gauss(0.0, noise_c)

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from enum import StrEnum
 from typing import Final
 
-from hermsd.sensors.max31865 import (
+from hermsd.hardware.sensors.max31865 import (
     CODE_FULL_SCALE,
     CONFIG_AUTO,
     CONFIG_FAULT_CLEAR,

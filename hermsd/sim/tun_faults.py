@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from hermsd.pid import PlantModel
+from hermsd.control.pid import PlantModel
 from hermsd.sim.hlt import WATER_J_PER_LITRE_K
 from hermsd.sim.scenario import Event, Scenario
 from hermsd.sim.tuns import TunSpec

@@ -15,7 +15,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from hermsd.config import Config
+from hermsd.config.schema import Config
 from hermsd.sim.scenario import Event, Scenario
 
 SEED_UA_W_PER_K = 3000.0 / 168.9

@@ -16,7 +16,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Final
 
-from hermsd.sensors.ds18b20 import (
+from hermsd.hardware.sensors.ds18b20 import (
     CONFIG_12_BIT,
     MARKER_127_94_WORD,
     MAX_CELSIUS,

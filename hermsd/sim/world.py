@@ -7,26 +7,26 @@ scenario runner alike.
 from __future__ import annotations
 
 import math
-import random
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from hermsd.clock import Clock
-from hermsd.commissioning.step_response import StepExperiment
-from hermsd.config import Config
-from hermsd.config_file import ConfigFile, at_once
-from hermsd.daemon import Daemon, Outputs, Sensor, guard_outputs
-from hermsd.latches import LatchStore
-from hermsd.learning import ModelStore
-from hermsd.lm92 import LM92
-from hermsd.notify import Notifier
-from hermsd.saver import Saver
+from hermsd.config.file import ConfigFile
+from hermsd.config.schema import Config
+from hermsd.control.learning import ModelStore
+from hermsd.hardware.lm92 import LM92
+from hermsd.hardware.outputs import Outputs, guard_outputs
+from hermsd.hardware.sensors.base import Sensor
+from hermsd.runtime.clock import Clock
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.notify import Notifier
+from hermsd.runtime.saver import Saver
+from hermsd.safety.latches import LatchStore
 from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, TwoElementPlant, make_plant
-from hermsd.sim.sensors import FakeChip, fake_sensor
+from hermsd.sim.sensors import FakeChip, fake_sensor, sensor_reading
 
 
 @dataclass(slots=True)
@@ -104,23 +104,6 @@ def simulated_daemon(
     )
 
 
-def simulated_step_test(
-    config: Config,
-    plant: dict[str, Any],
-    output: float | None = None,
-    limit: float | None = None,
-    *,
-    history: bool = False,
-) -> tuple[StepExperiment, World, VirtualClock]:
-    """`hermsd tune step` on the simulated tun `plant`, ready to run (step_response.run), on a
-    virtual clock: output None is the default step, limit None the setpoint."""
-    clock = VirtualClock()
-    world = build_world(config, clock, plant, history=history)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
-    stop_at = config.control.setpoint if limit is None else limit
-    return StepExperiment(daemon, output, stop_at, fits=at_once), world, clock
-
-
 def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:
     """An LM92 on the fake bus in a tun of cold water with a little sensor noise."""
     clock = VirtualClock()
@@ -129,15 +112,3 @@ def simulated_sensor(address: int) -> tuple[LM92, Callable[[float], None]]:
     bus = FakeSMBus()
     bus.attach(address, chip)
     return LM92(bus, address, bus_name="sim"), clock.sleep
-
-
-def sensor_reading(tun: Plant, clock: Clock, noise_c: float, seed: int) -> Callable[[], float]:
-    """What the LM92 converts: the tun's sensor temperature now, plus Gaussian noise of
-    standard deviation `noise_c` from a generator seeded with `seed` (the chip then
-    truncates it to its 0.0625 °C steps)."""
-    if not 0.0 <= noise_c < math.inf:
-        raise ValueError(f"noise_c = {noise_c!r} is invalid: it must be a number ≥ 0")
-    if noise_c == 0.0:
-        return lambda: tun.temperature(clock.monotonic())
-    rng = random.Random(seed)
-    return lambda: tun.temperature(clock.monotonic()) + rng.gauss(0.0, noise_c)

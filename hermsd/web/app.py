@@ -54,10 +54,10 @@ from starlette.responses import JSONResponse, PlainTextResponse, Response, Strea
 from starlette.routing import Route
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from hermsd.control import jsontext
-from hermsd.control.client import LONGEST_PERIOD, command_timeout
-from hermsd.control.jsontext import JsonTextError
-from hermsd.control.protocol import (
+from hermsd.api import jsontext
+from hermsd.api.client import LONGEST_PERIOD, command_timeout
+from hermsd.api.jsontext import JsonTextError
+from hermsd.api.protocol import (
     History,
     ProgramStart,
     ProtocolError,
@@ -76,7 +76,7 @@ log = logging.getLogger("hermsd")
 COOKIE = "hermsd_session"
 MAX_BODY = 4096  # bytes of a POST body: a command is under 100
 MAX_PROGRAM_BODY = 1 << 16  # of a program's POST: a program file with comments; the socket's
-# start request (hermsd.control.protocol.MAX_LINE) holds the longest program
+# start request (hermsd.api.protocol.MAX_LINE) holds the longest program
 MAX_FILENAME = 100
 KEEPALIVE_S = 15.0  # a comment line on an idle event stream, so proxies keep it open
 PROGRAM_ACTIONS = ("next", "pause", "resume", "stop")

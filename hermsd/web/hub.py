@@ -27,8 +27,8 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-from hermsd.control.client import LONGEST_PERIOD
-from hermsd.control.history import KEPT_SECONDS
+from hermsd.api.client import LONGEST_PERIOD
+from hermsd.api.history import KEPT_SECONDS
 from hermsd.web.socket_client import DaemonUnavailable, ask
 
 log = logging.getLogger("hermsd")

@@ -14,7 +14,8 @@ import uvicorn
 from starlette.applications import Starlette
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from hermsd.config import Config, split_listen
+from hermsd.config.rules import split_listen
+from hermsd.config.schema import Config
 from hermsd.web.app import WebSettings, allowed_hosts, create_app
 from hermsd.web.passwords import hash_password, parse_hash
 

@@ -1,6 +1,6 @@
 """The web server's side of the control socket: one request, one reply, without blocking.
 
-The same protocol as `hermsd.control.client`, on asyncio streams, so that a command waiting
+The same protocol as `hermsd.api.client`, on asyncio streams, so that a command waiting
 for the daemon's next period boundary holds up no other page. Requests are plain JSON
 objects: the page's program commands (`program`, `confirm`) pass through unchanged, and a
 daemon that does not know one refuses it with its own message.
@@ -14,8 +14,8 @@ import os
 from pathlib import Path
 from typing import Any
 
-from hermsd.control.client import REPLY_LIMIT, TIMEOUT, unanswered
-from hermsd.control.protocol import MAX_LINE, VERSION, encode
+from hermsd.api.client import REPLY_LIMIT, TIMEOUT, unanswered
+from hermsd.api.protocol import MAX_LINE, VERSION, encode
 
 
 class DaemonUnavailable(Exception):

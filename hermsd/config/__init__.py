@@ -1,0 +1,1 @@
+"""The configuration: its schema and validation, reading and watching the file."""

@@ -1,0 +1,443 @@
+"""The HLT's control laws: what they share (the interface, the parameters, the limits), and
+the equations of each (seed.py the seed's forms, predictive.py the default; laws.py builds one
+by name).
+
+Units throughout: temperatures in °C, the output in % of element power, Kc in %/°C and every
+time constant in seconds. `create()` builds a controller by name; all of them share one
+interface (`Controller`): `step(sp, pv, applied=None)` once per period Ts, `reset(pv, output)`
+to (re)start bumplessly, and `terms` for logging. The code is pure and deterministic: the same
+inputs give bit-identical outputs, and nothing here reads a clock or touches hardware.
+
+Algorithms (equation numbers refer to the HERMS PID calculus document):
+
+- ``type_a``: eq. 08 with the coefficients of eq. 06 (bilinear transform, filtered D on the
+  error). γ = tf. With γ = 0 eq. 08 has a pole at z = −1 (p2 = 1) that rings undamped
+  whenever the clamp or `applied` acts, so tf = 0 ("no filter") is realised with γ = Ts/2:
+  there the bilinear D term Kc·2Td/(Ts + 2γ)·(1 − z⁻¹)/(1 + p2·z⁻¹) is exactly the plain
+  backward difference Kc·Td/Ts·(1 − z⁻¹), p2 = 0, and a PI (Td = 0) is the trapezoidal one.
+  For 0 < γ < Ts/2 the pole −p2 is negative: a decaying alternation, the user's choice.
+- ``type_a_filtered``: eq. 12 (velocity form) with its D acting on the eq. 11c low-pass
+  filter of the error; tf = 0 means no filter (lpf = e), since eq. 11c has a pole at z = −1
+  there.
+- ``takahashi``: eq. 14 (type C velocity form: P and D on PV, I on the error). With tf > 0 the
+  D term sees PV through the eq. 11b/11c filter; with tf = 0 it is exactly eq. 14.
+- ``back_calculation``: positional P + I + D, D on the (optionally eq. 11c-filtered) PV and
+  opposing its change, with back-calculation (tracking) anti-windup:
+  I_{k+1} = I_k + Kc·Ts/Ti·e_k + Ts/Tt·(u_actual − v_k), where v_k = P_k + I_k + D_k is the
+  unlimited output and u_actual the actuator's real output (`applied`; without it the
+  actuator model is the clamp). The sign makes the integral shrink while v_k exceeds what the
+  actuator delivers.
+- ``velocity_pi``: the bumpless PI of the windup/bumpless-transfer notes:
+  u_k = clamp(u_{k−1} − Kc·(PV_k − PV_{k−1}) + Kc·Ts/Ti·e_k). That is eq. 14 with Td = 0, so
+  it shares the Takahashi implementation.
+
+- ``predictive``: the daemon's default, and not from the seeds: the seeds' loops all see the
+  tun through its dead time, so with gains strong enough to settle fast they overshoot, and
+  with gains gentle enough not to they brake early and settle late. This one keeps a model
+  of the tun (`model`: full-power rate r, loss rate 1/τ to the room, dead time θ) and an
+  observer of it: a PV estimate driven by the duty delivered θ ago (`applied`) plus a bias
+  (the heat flow the model gets wrong), both corrected every period by the innovation PV −
+  estimate (gains from two poles: the estimate follows the sensor within 30 s, the bias
+  within ti). From the estimate it runs the model forward over the duty already sent and
+  still in the dead time: the PV that will be. Output = the holding duty at the setpoint
+  (model and bias) + P on the setpoint minus that predicted PV: within 0.25 °C below the
+  setpoint and anywhere above it with a gain that makes the predicted loop no faster than
+  2·θ (damped for a real dead time, gain or τ off by 2×); further below, kc and beyond
+  0.5 °C a gain that closes the gap in one period: full power until the heat in flight
+  will carry the water to the setpoint, then the holding duty (time-optimal). Coming from
+  full power with the PV still well below the band, that gain holds down to 0.25 °C (dual
+  mode: no slow approach through the kc zone after a heat-up or cold water).
+  The bias learns only from periods with the output inside its limits and innovations
+  within 2 LSB: cold water is a step of the state, not a change of heat flow, and at full
+  power a rate error would pose as one. An innovation beyond 4 LSB in one period (cold
+  water) is taken into the estimate whole, so the step is acted on at once.
+  A step to full power from a steady PV and a steady duty (a ramp's climb to full power is
+  none) is a measurement: the rise between 1 and 3 °C, fitted by a line, gives the rate
+  (its slope, losses added back) and the dead time (where it crosses the start); plausible
+  values replace the model's (`fit`), so a fill or a sensor position other than the
+  config's is known long before the setpoint. D (td) is optional, on the measured PV,
+  filtered by tf (first order). Its reset is bumpless when it can be: the bias takes what
+  makes the first step continue from u0, unless that would be more than the element's whole
+  rate (a cold start), where the model is trusted.
+
+Defaults: tf=None gives γ = 10 % of Td (the document's suggestion), raised so that one
+sensor LSB (0.0625 °C) moves the output by at most 10 % (`default_tf`), for type_a,
+type_a_filtered, takahashi and back_calculation. On that default the velocity forms (type_a,
+type_a_filtered, takahashi) also owe back what the output limits cut from a P or D kick
+(`_owed`): in the plain form a one-LSB step's kick is clipped at 0 % on the way down and
+kept in full on the way back, a ratchet. In the linear range nothing is owed and the
+equation is exact. An explicit tf asks for the seed's equation exactly as written, limits
+included (tf = 0: no filter at all). tt=None gives
+Tt = sqrt(Ti·Td) when Td > 0, else Ti (inside the rule of thumb Td ≤ Tt ≤ Ti), raised to Ts
+if smaller: with Tt < Ts the tracking term would over-correct the integral every period.
+ti = 0 means no integral. A parameter that the chosen algorithm has no use for (td, tf for
+velocity_pi; tt for anything but back_calculation with an integral) must be left at its
+default, so that a configuration never silently loses an action it asked for. takahashi and
+velocity_pi need ti > 0: their only path from the setpoint to the output is the integral.
+
+Tracking (`applied`): the value the actuator really delivered last period (after the SSR's
+quantisation and minimum on/off times, a manual value, or a safety override), clamped to the
+output range. Velocity forms and type_a use it as u_{k−1}; back_calculation uses it as
+u_actual. A velocity form restarts every period from `applied`, so if the output stage
+rounds the request down to a quantum without carrying the residue, increments smaller than
+the quantum are lost and the loop settles off the setpoint; the output stage should carry its
+rounding residue into the next period (the long-run average of `applied` then equals the
+request), or report `applied` only when it was overridden.
+
+Start and bumpless transfer: `reset(pv0, u0)` (or, on a new controller, pv0 = the pv of the
+first step and u0 = clamp(0)) makes the next step treat the past as if PV had stood at pv0,
+the setpoint at its present value and the output at u0; that step ignores `applied`, since
+u0 already says what the actuator holds. So there is no derivative kick and no setpoint kick.
+With e = sp − pv and Δe = pv0 − pv ("within one P-step"):
+|u − u0| ≤ Kc·|Δe| + Kc·Ts/Ti·|e| plus the derivative's response to a PV that moved since the
+reset. When PV has not moved (Δe = 0): the velocity forms and type_a give u0 + Kc·Ts/Ti·e
+(type_a's output history starts on the ramp eq. 08 follows at a constant error,
+u_{k−2} = u_{k−1} − Kc·Ts/Ti·e, so no transient of its p2 mode is set off), and
+back_calculation gives u0 (its integral advances after the output is formed).
+
+Numeric domain: sp and pv within ±1e6 °C; 0 < Kc ≤ 1e6; Ts, and Ti when not 0, at least
+1 ms; every time at most 1e7 s; output limits within ±1e12. Inside it no product can
+overflow, so finite inputs never give NaN; anything outside raises ValueError before any
+state changes.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Protocol
+
+ALGORITHMS = (
+    "predictive",
+    "type_a",
+    "type_a_filtered",
+    "takahashi",
+    "back_calculation",
+    "velocity_pi",
+)
+DEFAULT_ALGORITHM = "predictive"
+
+
+@dataclass(frozen=True, slots=True)
+class PlantModel:
+    """The tun as identified by a step test (FOPTD): gain °C/%, time constant and dead time s,
+    and the room temperature °C it loses heat to."""
+
+    gain: float = 1.689
+    tau: float = 14961.0
+    dead_time: float = 115.0
+    ambient: float = 20.0
+
+    @property
+    def rate(self) -> float:
+        """The full-power heating rate, °C/s (K·100 %/τ)."""
+        return 100.0 * self.gain / self.tau
+
+
+SEED_HLT = PlantModel()
+
+OBSERVER_TRACK_S = 30.0
+"""How fast predictive's PV estimate follows the sensor (s): cold water is seen within a
+minute, and one LSB of noise moves the estimate by a fifth of itself."""
+PREDICTED_LOOP_FACTOR = 2.0
+"""The predicted loop's time constant near the setpoint, in dead times."""
+LINEAR_BAND = 0.25
+"""°C around the setpoint where predictive uses its gentle, dead-time-bound gain."""
+FAR_BAND = 0.5
+"""°C below the setpoint (the hold band) beyond which predictive heats time-optimally."""
+FULL_MARGIN = 0.15
+"""°C (5 noise sd): a PV this far below the band is surely out of it. Full power may run on
+into the gentle zone only while the PV is there; the step down from it must not fall in the
+hold, where the output moves by a few % a period at most."""
+OBSERVER_BIAS_S = 800.0
+"""The bias's time constant when ti = 0."""
+STEP_INNOVATION = 0.25
+"""°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
+the mean of its readings, so noise of 0.03 °C never moves it that far."""
+DROP_READINGS = 2
+"""Readings in a row that must show a drop below the last period's PV before predictive acts
+inside a period (`full_power_now`, by `DROP_RULE`)."""
+DROP_ONSET = 0.125
+"""°C (2 LSB) below the last period's PV the reading before the latest must lie (at least, by
+`DROP_RULE`; more than, by the rules before it)."""
+DROP_FALL = 0.1875
+"""°C (3 LSB) below the last period's PV the latest reading must lie at least, by `DROP_RULE`.
+One reading differs from the last period's mean by 0.04 °C sd (noise sd 0.03 °C and the
+LM92's truncation): 2 LSB is 3 sd and 3 LSB 4.7 sd, and noise does not give both in a row
+(none in 3.2 million simulated periods of hold, the true temperature anywhere within an LSB).
+Behind the sensor's lag cold water shows as readings that fall further each time, the first
+of them often by less than 0.25 °C; a one-reading glitch (the supervisor drops only jumps
+beyond safety.max_step) has a steady reading before it, so it never does it, however deep."""
+
+
+@dataclass(frozen=True, slots=True)
+class DropRule:
+    """What a period's readings must show before predictive acts on them (`full_power_now`):
+    the latest more than `fall` below the last period's PV and the one before it more than
+    `onset` below (at least, if `inclusive`); then either the controller's trial step on the
+    latest reading (`on_latest`) or on the mean of the two gives full power, or (`deficit`)
+    the latest reading lies below the setpoint and the fall both readings show is more than
+    full power for a whole period could add back by the model's rate (`full_power_adds`):
+    acting on it cannot lift the water above where it stood, nor heat water the brewer is
+    cooling to a lower setpoint, and a lone glitch that follows a reading noise put 2 LSB
+    low (about 1 in 700 at the bench's noise) adds less than those 2 LSB."""
+
+    onset: float
+    on_latest: bool
+    fall: float = STEP_INNOVATION
+    inclusive: bool = False
+    deficit: bool = False
+
+
+DROP_RULE = DropRule(DROP_ONSET, on_latest=True, fall=DROP_FALL, inclusive=True, deficit=True)
+"""The rule in force; its `onset` and `fall` are logged with every config record
+(`drop_onset_c`, `drop_fall_c`). Behind a slow sensor (a thermowell) cold water shows as
+readings that fall by less than 0.1 °C a second at first, and the law, on the PV it sees,
+answers a fall of less than half a degree with a few % more: the rules before it lost the
+seconds until the readings lay that far down."""
+LAW_DROP_RULE = DropRule(DROP_ONSET, on_latest=True)
+"""The rule before it (both thresholds strict, the latest more than STEP_INNOVATION down,
+only the law's answer counts): logs with `drop_onset_c` and no `drop_fall_c`."""
+FIRST_DROP_RULE = DropRule(STEP_INNOVATION, on_latest=False)
+"""The first rule (both readings beyond STEP_INNOVATION, the trial on their mean): logs with
+`drop_readings` and no `drop_onset_c` were written under it. It lost a reading, a second of
+full power, to a first reading that the sensor's lag kept within 0.25 °C."""
+DROP_CARRY = True
+"""Logged with every config record (`drop_carry`): cold water that a period's readings showed
+by `DROP_RULE` (its `full_from`; acted on, or not where heating was held off at that reading)
+carries full power across the period's end while the PV falls (`cold_water_seen`). Behind a slow
+sensor the period's PV, a mean, lies only a few tenths below the last while the water is
+degrees below: the law asked 30–50 % again at each boundary and the element waited for the
+period's readings to show the drop anew, 8 s of full power lost over the first four periods
+after a tenth of the volume of cold water on a thermowell of 120 s lag."""
+MAX_DEAD_TIME = 1800.0
+"""s: the longest dead time a heat-up may show (a sensor far down a long pipe), and so the
+longest the config (`control.dead_time`) and the predictive controller take: its history of
+the outputs still in flight is sized by it once, so a period's work stays bounded."""
+FIT_FROM = 1.0
+FIT_TO = 3.0
+"""°C of rise between which a heat-up's ramp is fitted: past the first bend of the sensor's
+lag, and over enough rise that LSB and noise matter little."""
+RECOVERY_FIT_SPAN = 1.0
+"""°C of rise a recovery's ramp is fitted over: a tenth of the volume of cold water drops the
+PV some 4.5 °C, and the heat in flight on a slow sensor takes up to 2 °C of what is left."""
+RECOVERY_FIT_PERIODS = 12
+"""Periods a recovery's line takes in at least (logged with every config record,
+`recovery_fit_periods`): where the first RECOVERY_FIT_SPAN holds fewer, each further
+full-power period adds its PV and the line is taken anew, up to these or the cut, whichever
+comes first. A line's slope over n periods of noise σ has the sd σ·√(12/(n³ − n))/Ts: on
+30 L at 5.5 kW (0.2 °C a period, the span's 5 periods; σ ≈ 0.016 °C, a period's mean of 5
+readings) that is 2.5 % of the rate, and the cut lands the water some 0.05 °C off; over 12,
+0.7 %. Every other tun of the bench's family climbs under 0.1 °C a period, so its span holds
+12 or more and it is fitted as before: there the span's later points would only add the
+sensor lag's bend (a thermowell's rate came out higher and its cut earlier)."""
+MAX_RECOVERY_HOLD = 90.0
+"""% of holding duty above which a recovery's rate is not measured: the step to full power is
+too small for its slope to tell the rate."""
+STEADY_SPAN_S = 60.0
+STEADY_BAND = 0.25
+"""A step from a PV that moved at most STEADY_BAND °C over the last STEADY_SPAN_S s."""
+STEADY_DUTY_SHARE = 0.05
+"""The share of a step to full power by which the duty may have moved over the dead time and
+STEADY_SPAN_S before it, for the step to measure the tun (logged with every config record,
+`steady_duty_share`). The fit divides its slope by the step and takes its crossing for the
+dead time, both true only of a step from a duty the PV had settled on: a duty that climbed
+over the last periods (a program's ramp, the output following its setpoint up to full power)
+hides the step's real size from the PV's steady minute, since the climb has not reached the
+sensor yet. The duty the PV settled on lies within the span's, so the step, and the rate,
+are then known to within 5 %."""
+BIAS_INNOVATION_CLIP = 0.125
+"""°C (two LSB): the bias learns from innovations up to this size only. A step (cold water)
+is a change of state, not of heat flow: the PV estimate follows it whole, the bias barely."""
+
+MAX_ABS_TEMPERATURE = 1e6
+MAX_TIME = 1e7
+MIN_TIME = 1e-3
+MAX_KC = 1e6
+MODEL_GAIN_RANGE = (1e-6, 1e6)  # °C/%: any tun's, and away from float's ends
+AMBIENT_RANGE = (-100.0, 100.0)  # °C: any room a tun stands in
+RATE_BAND = (0.25, 4.0)
+"""× the model's full-power rate: a heat-up's measured rate outside it is refused (a wrong
+step, a dry or half-empty tun, a tun other than the model's), not taken into the model."""
+MAX_ABS_OUTPUT_LIMIT = 1e12
+
+_INF = math.inf
+_TF_DEFAULT_FRACTION = 0.1
+SENSOR_LSB = 0.0625
+"""°C: the LM92's resolution, the smallest step the PV takes."""
+MAX_LSB_KICK = 10.0
+"""% of output at most from one LSB through the default-filtered derivative."""
+
+
+@dataclass(frozen=True, slots=True)
+class Params:
+    """The parameters a controller runs with, defaults resolved (for logs and reloads)."""
+
+    algorithm: str
+    kc: float
+    ti: float
+    td: float
+    ts: float
+    tf: float
+    tt: float | None
+    out_min: float
+    out_max: float
+    owes_kicks: bool = False  # a velocity form on its default filter: see `_owed`
+
+
+class Controller(Protocol):
+    """What the scheduler needs of a controller."""
+
+    @property
+    def params(self) -> Params: ...
+
+    @property
+    def output(self) -> float:
+        """The last output (before the first step: the output it will start from)."""
+        ...
+
+    @property
+    def terms(self) -> tuple[float, float, float]:
+        """(p, i, d) of the last step: increments for velocity forms, values for positional."""
+        ...
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        """One period: the new output in [out_min, out_max]."""
+        ...
+
+    def reset(self, pv: float, output: float) -> None:
+        """Continue from `output` (clamped to the limits) with PV history `pv`: no kick."""
+        ...
+
+
+def default_tf(kc: float, td: float) -> float:
+    """The derivative filter when tf is not given: the document's γ = Td/10, raised so that one
+    sensor LSB moves the output by at most MAX_LSB_KICK (eq. 08's first D increment on a step
+    δ is 2·Kc·Td·δ/(Ts + 2γ) ≤ Kc·Td·δ/γ; eq. 11c-filtered D moves by half that at most),
+    within the longest time a parameter may have."""
+    return min(max(_TF_DEFAULT_FRACTION * td, kc * td * SENSOR_LSB / MAX_LSB_KICK), MAX_TIME)
+
+
+def _lowpass(tf: float, ts: float) -> tuple[float, float]:
+    """(a, b) of the eq. 11c filter lpf_k = a·lpf_{k−1} + b·(x_k + x_{k−1}); unity DC gain."""
+    return (2.0 * tf - ts) / (2.0 * tf + ts), ts / (ts + 2.0 * tf)
+
+
+def _owed(v: float, lo: float, hi: float, kicks: float) -> float:
+    """The part of what the limits cut from `v` that P and D moved it by (`kicks`, with what
+    they were owed before): owed back next period, so a kick the limit took and its return
+    a period later cancel as in the linear range. What the integral pushed past a limit is
+    cut, as in the plain velocity form; in the linear range nothing is owed."""
+    cut = v - (lo if v < lo else (hi if v > hi else v))
+    if cut < 0.0 and kicks < 0.0:
+        return max(cut, kicks)
+    if cut > 0.0 and kicks > 0.0:
+        return min(cut, kicks)
+    return 0.0
+
+
+def _reject(sp: float, pv: float, applied: float | None) -> None:
+    """Raise the one-line error for whichever step input is out of the domain."""
+    for label, value in (("sp", sp), ("pv", pv)):
+        if not -MAX_ABS_TEMPERATURE <= value <= MAX_ABS_TEMPERATURE:
+            raise ValueError(
+                f"{label}={value!r} °C is invalid: must be finite and within "
+                f"±{MAX_ABS_TEMPERATURE:g} °C"
+            )
+    raise ValueError(f"applied={applied!r} % is invalid: must be finite")
+
+
+class _Base(ABC):
+    """What every algorithm shares: input checks, limits, tracking, start and reset.
+
+    A subclass sets its history in `_prime` and computes the unlimited output in `_advance`.
+    """
+
+    __slots__ = (
+        "_carry",
+        "_hi",
+        "_lo",
+        "_output",
+        "_params",
+        "_primed",
+        "_start_pv",
+        "_terms",
+    )
+
+    def __init__(self, params: Params) -> None:
+        self._params = params
+        self._lo = params.out_min
+        self._hi = params.out_max
+        self._output = min(max(0.0, self._lo), self._hi)
+        self._primed = False
+        self._start_pv: float | None = None
+        self._terms = (0.0, 0.0, 0.0)
+        self._carry = 0.0
+
+    @property
+    def params(self) -> Params:
+        return self._params
+
+    @property
+    def output(self) -> float:
+        return self._output
+
+    @property
+    def terms(self) -> tuple[float, float, float]:
+        return self._terms
+
+    def reset(self, pv: float, output: float) -> None:
+        if not -MAX_ABS_TEMPERATURE <= pv <= MAX_ABS_TEMPERATURE:
+            _reject(0.0, pv, None)
+        if not -_INF < output < _INF:
+            raise ValueError(f"output={output!r} % is invalid: must be finite")
+        self._output = min(max(output, self._lo), self._hi)
+        self._start_pv = pv
+        self._primed = False
+        self._terms = (0.0, 0.0, 0.0)
+        self._carry = 0.0
+
+    def step(self, sp: float, pv: float, applied: float | None = None) -> float:
+        if not (
+            -MAX_ABS_TEMPERATURE <= sp <= MAX_ABS_TEMPERATURE
+            and -MAX_ABS_TEMPERATURE <= pv <= MAX_ABS_TEMPERATURE
+        ) or (applied is not None and not -_INF < applied < _INF):
+            _reject(sp, pv, applied)
+        lo, hi = self._lo, self._hi
+        if self._primed:
+            previous = self._output if applied is None else min(max(applied, lo), hi)
+        else:
+            self._prime(sp, pv if self._start_pv is None else self._start_pv)
+            self._primed = True
+            previous = self._output
+        v = self._advance(sp, pv, previous)
+        if self._params.owes_kicks:
+            v += self._carry
+            self._carry = _owed(v, lo, hi, self._terms[0] + self._terms[2] + self._carry)
+        u = lo if v < lo else (hi if v > hi else v)
+        self._output = u
+        return u
+
+    @abstractmethod
+    def _prime(self, sp: float, pv0: float) -> None:
+        """Set the history as if PV had stood at pv0 and the setpoint at sp."""
+
+    @abstractmethod
+    def _advance(self, sp: float, pv: float, previous: float) -> float:
+        """The unlimited output of this period; `previous` is the actuator's last output."""
+
+
+# Tuning: Table 1 of the HERMS PID calculus document, from the identified FOPTD model.
+
+
+def _number(label: str, value: object, low: float, high: float, rule: str) -> float:
+    """`value` as a float if it is a finite real number in [low, high]; else a ValueError."""
+    if not isinstance(value, bool) and isinstance(value, int | float):
+        try:
+            number = float(value)
+        except OverflowError:
+            number = math.nan
+        if math.isfinite(number) and low <= number <= high:
+            return number
+    raise ValueError(f"{label}={value!r} is invalid: must be {rule}")

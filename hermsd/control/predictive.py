@@ -1,0 +1,375 @@
+"""The predictive controller: a model of the tun and an observer of it, the PV that will be
+after the dead time, and the duty that holds it; the daemon's default (see hermsd/control/pid.py
+for the equations)."""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections import deque
+from collections.abc import Sequence
+
+from hermsd.control.pid import (
+    BIAS_INNOVATION_CLIP,
+    DROP_READINGS,
+    DROP_RULE,
+    FAR_BAND,
+    FULL_MARGIN,
+    LINEAR_BAND,
+    MAX_DEAD_TIME,
+    MAX_RECOVERY_HOLD,
+    OBSERVER_BIAS_S,
+    OBSERVER_TRACK_S,
+    PREDICTED_LOOP_FACTOR,
+    RECOVERY_FIT_PERIODS,
+    STEADY_BAND,
+    STEADY_DUTY_SHARE,
+    STEADY_SPAN_S,
+    STEP_INNOVATION,
+    Controller,
+    DropRule,
+    Params,
+    PlantModel,
+    _Base,
+)
+from hermsd.control.watches import HeatUpFit, _HeatUpWatch, _RecoveryWatch
+
+
+class _Predictive(_Base):
+    """P on the PV the observer predicts one dead time ahead, plus the holding duty."""
+
+    __slots__ = (
+        "_ambient",
+        "_bias",
+        "_carried",
+        "_cold_water",
+        "_dead_time",
+        "_duty_share",
+        "_estimate",
+        "_fa",
+        "_filtered",
+        "_fit",
+        "_fpv",
+        "_inputs",
+        "_kc",
+        "_kc_far",
+        "_kc_near",
+        "_kd",
+        "_l1",
+        "_l2",
+        "_lag",
+        "_loss",
+        "_rate",
+        "_recent",
+        "_recovery",
+        "_recovery_periods",
+        "_steady_with_pv",
+        "_step_is_loops",
+        "_ts",
+        "_watch",
+    )
+
+    def __init__(self, params: Params, model: PlantModel) -> None:
+        super().__init__(params)
+        ts = params.ts
+        self._ts = ts
+        self._kc = params.kc
+        self._kd = params.kc * params.td / ts
+        self._filtered = params.tf > 0.0
+        self._fa = params.tf / (params.tf + ts)
+        self._loss = 1.0 / model.tau  # 1/s
+        self._ambient = model.ambient
+        self._rate = self._kc_near = self._kc_far = self._dead_time = 0.0
+        self._lag = 0
+        self._use(model.rate, model.dead_time)
+        # Observer poles: the PV estimate follows the sensor within OBSERVER_TRACK_S, the bias
+        # (what the model gets wrong) within ti; see `observer_gains`.
+        self._l1, self._l2 = observer_gains(ts, OBSERVER_TRACK_S, params.ti or OBSERVER_BIAS_S)
+        # u_{k-1-lag} … u_{k-1} at the right end; room for any dead time a heat-up may show
+        self._inputs: deque[float] = deque(maxlen=math.ceil(MAX_DEAD_TIME / ts) + 2)
+        self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
+        self._watch = _HeatUpWatch()
+        self._recovery = _RecoveryWatch()
+        # Whether a step's own PV counts in judging it steady (see `_watch_heat_up`); replay
+        # clears it for logs of the daemons before it (`predating_drop_fall`).
+        self._steady_with_pv = True
+        # How far the duty before a step may have moved, as a share of the step
+        # (`_duty_was_steady`); replay sets the share a log names, and no bound for the
+        # daemons before it (`logged_duty_share`).
+        self._duty_share = STEADY_DUTY_SHARE
+        # The fewest periods a recovery's line takes in; replay sets the number a log names,
+        # and none for the daemons before it (`logged_recovery_periods`).
+        self._recovery_periods = RECOVERY_FIT_PERIODS
+        # Whether the next step's change of power is the loop's own (`loops_own_step`).
+        self._step_is_loops = False
+        # Whether the readings of the period the next step closes showed cold water
+        # (`cold_water_seen`), and whether the last step carried full power on for it.
+        self._cold_water = self._carried = False
+        self._fit: HeatUpFit | None = None
+        self._estimate = self._bias = self._fpv = 0.0
+
+    @property
+    def fit(self) -> HeatUpFit | None:
+        """The last heat-up's measurement (taken into the model unless refused)."""
+        return self._fit
+
+    def _use(self, rate: float, dead_time: float) -> None:
+        """Take a rate and a dead time, and the gains that follow from them: near the setpoint
+        the predicted loop's time constant 100/(rate·Kc) is at least PREDICTED_LOOP_FACTOR·θ
+        (and 2·Ts), so a real dead time, gain or τ twice the model's leaves it damped; far
+        below it the gain that closes the predicted error in one period (time-optimal)."""
+        ts = self._ts
+        self._rate = rate
+        self._dead_time = dead_time
+        self._lag = max(0, round(dead_time / ts))
+        settle = PREDICTED_LOOP_FACTOR * max(dead_time, 2.0 * ts)
+        self._kc_near = min(self._kc, 100.0 / (rate * settle))
+        self._kc_far = max(self._kc, 100.0 / (rate * ts))
+
+    def full_power_adds(self) -> float:
+        """°C that full power instead of the last output adds to the water over a whole
+        period, by the model's rate: the most that acting on a drop inside a period adds."""
+        return self._ts * self._rate * (100.0 - self._output) / 100.0
+
+    def _drift(self, x: float, u: float) -> float:
+        """The model's change of PV over one period at duty u from x (Euler; λ·Ts ≪ 1)."""
+        return self._ts * (self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias)
+
+    def _predicted(self) -> float:
+        """Where the PV will be once the inputs already sent (still in the dead time) arrive."""
+        x = self._estimate
+        inputs = self._inputs
+        for j in range(len(inputs) - self._lag, len(inputs)):
+            x += self._drift(x, inputs[j])
+        return x
+
+    def _holding(self, sp: float) -> float:
+        """The duty that holds `sp` by the model and its bias (may lie outside the limits)."""
+        return 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+
+    def _law(self, sp: float, full: bool = False) -> float:
+        """P on the predicted error plus the holding duty (D apart)."""
+        return self._proportional(sp - self._predicted(), full) + self._holding(sp)
+
+    def _proportional(self, e: float, full: bool) -> float:
+        """kc_near up to LINEAR_BAND below the setpoint and anywhere above it (above, nothing
+        is gained by cutting harder: the water only cools); kc up to FAR_BAND below it; and
+        beyond that the gain that closes the predicted error in one period, i.e. full power
+        until the heat in flight will carry the water there: time-optimal. Coming from full
+        power (`full`), that gain holds down to LINEAR_BAND: the heat-up or recovery runs at
+        full power until the gentle zone, and only a hold ever sees the kc zone."""
+        if e <= LINEAR_BAND:
+            return self._kc_near * e
+        far = LINEAR_BAND if full else FAR_BAND
+        p = self._kc_near * LINEAR_BAND + self._kc * (min(e, far) - LINEAR_BAND)
+        return p + self._kc_far * max(0.0, e - far)
+
+    def _prime(self, sp: float, pv0: float) -> None:
+        # As if PV had stood at pv0 with the output at u0 for a dead time. The output is
+        # affine in the bias: the bias that makes the first step give u0 (bumpless) is taken
+        # when it is physical (no more than the element's whole rate); a cold start far below
+        # the setpoint would need far more, and there the model is trusted (no bias).
+        u0 = self._output
+        inputs = self._inputs
+        inputs.clear()
+        inputs.extend([u0] * (inputs.maxlen or 1))
+        self._recent.clear()
+        self._recent.extend([pv0] * (self._recent.maxlen or 1))
+        self._watch.active = self._recovery.active = False
+        self._carried = False
+        self._estimate = self._fpv = pv0
+        # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
+        # so a few steps land on the bias that gives u0 exactly when one exists.
+        bias = 0.0
+        for _ in range(4):
+            self._bias = bias
+            miss = u0 - self._law(sp)
+            if miss == 0.0:
+                break
+            probe = 1e-3 * self._rate
+            self._bias = bias + probe
+            slope = (u0 - self._law(sp) - miss) / -probe
+            bias += miss / slope
+        self._bias = bias if abs(bias) <= self._rate else 0.0
+        # The first step's model prediction lands on pv0: no innovation from the start itself.
+        self._estimate = pv0 - self._drift(pv0, u0)
+
+    def _advance(self, sp: float, pv: float, previous: float) -> float:
+        fell = self._recent[-1] - pv  # since the last period's PV
+        inputs = self._inputs
+        inputs.append(previous)
+        self._watch_heat_up(sp, pv, previous, inputs[-2])
+        before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag])
+        innovation = pv - before
+        # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
+        step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
+        self._estimate = before + step
+        if abs(innovation) <= BIAS_INNOVATION_CLIP and self._lo < previous < self._hi:
+            self._bias += self._l2 * innovation
+        # D acts on the measured PV, filtered by tf (first order).
+        fpv1 = self._fpv
+        fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
+        self._fpv = fpv
+        full = previous >= self._hi and pv < sp - FAR_BAND - FULL_MARGIN
+        p = self._proportional(sp - self._predicted(), full)
+
+        i = self._holding(sp)
+        d = -self._kd * (fpv - fpv1)
+        # Cold water behind a slow sensor: full power goes on while the PV falls by more than
+        # a period of it adds (acting on the fall cannot lift the water above where it was),
+        # by the gain that puts back in one period what this one fell (more than 100 %).
+        cold, self._cold_water = self._cold_water, False
+        self._carried = (cold or self._carried) and pv < sp and fell > self._ts * self._rate
+        if self._carried:
+            p = max(p, self._kc_far * fell)
+        self._terms = (p, i, d)
+        return p + i + d
+
+    def _duty_was_steady(self, step: float) -> bool:
+        """Whether the duties sent over the dead time and STEADY_SPAN_S before this period's
+        `step` to full power (the step itself aside) moved by at most STEADY_DUTY_SHARE of it:
+        the PV's steady minute shows the duty sent a dead time before it, and the duties sent
+        since are still on their way to the sensor."""
+        inputs = self._inputs
+        span = min(len(inputs) - 1, self._lag + (self._recent.maxlen or 1))
+        duties = [inputs[j] for j in range(len(inputs) - 1 - span, len(inputs) - 1)]
+        return max(duties) - min(duties) <= self._duty_share * step
+
+    def _watch_heat_up(self, sp: float, pv: float, applied: float, before: float) -> None:
+        """Arm on a step to full power: from a steady PV the heat-up watch, else (cold water)
+        the recovery's; take the fit when it comes."""
+        recent = self._recent
+        watch = self._watch
+        recovery = self._recovery
+        full = applied >= self._hi
+        if not full:
+            watch.active = recovery.active = False  # the step ended before the PV rose enough
+        # This period's PV too: cold water that the readings showed within the period (and
+        # answered there) has a steady minute before it, but is no step from a steady PV.
+        seen = (*recent, pv) if self._steady_with_pv else tuple(recent)
+        steady = max(seen) - min(seen) <= STEADY_BAND
+        loops, self._step_is_loops = self._step_is_loops, False
+        if full and not (watch.active or recovery.active) and before < self._hi and not loops:
+            if steady:
+                # A duty that climbed to full power (a ramp) is no step of a known size.
+                if self._duty_was_steady(applied - before):
+                    watch.arm(recent[-1], applied - before)
+            else:
+                hold = self._holding(sp)
+                if self._lo <= hold <= MAX_RECOVERY_HOLD:
+                    recovery.arm(pv, hold)
+        recent.append(pv)
+        if full and recovery.active:
+            measured = recovery.add(pv, self._ts, sp, self._loss, self._recovery_periods)
+            if measured is not None and 0.5 * self._rate <= measured[0] <= 2.0 * self._rate:
+                rate, self._estimate = measured
+                self._loss *= rate / self._rate  # as for a heat-up: the fill changed
+                self._use(rate, self._dead_time)
+        if not (full and watch.active):
+            return
+        fit = watch.add(pv, self._ts, self._loss, self._rate)
+        if fit is None:
+            return
+        self._fit = fit
+        if fit.refused is None:
+            # A rate other than the model's is most likely a fill other than the config's:
+            # heat capacity scales rate and loss rate alike, so the gain (°C/%) stays.
+            self._loss *= fit.rate / self._rate
+            self._use(fit.rate, fit.dead_time)
+
+
+def full_power_now(
+    controller: Controller,
+    sp: float,
+    last_pv: float,
+    readings: Sequence[float],
+    rule: DropRule = DROP_RULE,
+) -> bool:
+    """Whether the readings so far in a period show a sudden drop (cold water) that the
+    controller would answer with full power, so that the loop need not wait for the period's
+    end: the last DROP_READINGS of them below the last period's PV (`last_pv`) as `rule`
+    asks, and the step the controller would take now, on the latest of them (or their mean,
+    as `rule` asks) with its last output as applied, gives its upper limit, or (as `rule`
+    asks) the fall is more than full power can add back within a period. The element's
+    heat reaches the sensor a dead time later whatever is done, so every second of the old
+    duty after the water is a second of recovery lost; a period is 5 of them. Only
+    predictive acts inside a period (the textbook forms are their seeds' equations, once a
+    period), only when it may ask for full power (an upper limit below 100 % is a power
+    limit the window must keep), and not when its output is already there. The controller
+    is not changed (its next step is taken on a copy), so the answer follows from what a
+    period record logs: its readings, and the controller as the period before left it."""
+    if not (isinstance(controller, _Predictive) and controller._primed):
+        return False
+    if len(readings) < DROP_READINGS:
+        return False
+    before, latest = readings[-DROP_READINGS], readings[-1]
+    if controller.params.out_max < 100.0 or controller.output >= 100.0:
+        return False
+    fell, first = last_pv - latest, last_pv - before
+    if rule.inclusive:
+        if fell < rule.fall or first < rule.onset:
+            return False
+    elif fell <= rule.fall or first <= rule.onset:
+        return False
+    if rule.deficit and latest < sp and controller.full_power_adds() < min(fell, first):
+        return True
+    pv = latest if rule.on_latest else (before + latest) / 2.0
+    trial = copy.deepcopy(controller)
+    return trial.step(sp, pv, controller.output) >= 100.0
+
+
+def loops_own_step(controller: Controller) -> None:
+    """Tell `controller` (predictive) that the step to full power its next step sees is the
+    loop's return from a spell it held the power down for itself (the heat-up's check of
+    two elements), not a step whose response measures the tun: no watch is armed on it."""
+    if isinstance(controller, _Predictive):
+        controller._step_is_loops = True
+
+
+def cold_water_seen(controller: Controller) -> None:
+    """Tell `controller` (predictive) that the readings of the period its next step closes
+    showed cold water (`full_power_now`, the period's `full_from`): full power carries on
+    across the step while the PV falls by more than a period of full power adds
+    (`DROP_CARRY`). It is told whether or not the element could act on it in the period, as
+    the log says only what the readings showed; the fall bounds the carry all the same."""
+    if isinstance(controller, _Predictive):
+        controller._cold_water = True
+
+
+def predating_drop_fall(controller: Controller) -> None:
+    """Make `controller` (predictive) judge a step to full power steady as the daemons before
+    `drop_fall_c` did, by the minute before the step alone: replay of their logs."""
+    if isinstance(controller, _Predictive):
+        controller._steady_with_pv = False
+
+
+def logged_duty_share(controller: Controller, share: float | None) -> None:
+    """Make `controller` (predictive) measure a step to full power from a steady PV as the
+    daemon that logged `share` (`steady_duty_share`) did: None, a daemon from before it, which
+    measured the step whatever the duty did before it. Replay of its log."""
+    if isinstance(controller, _Predictive):
+        controller._duty_share = math.inf if share is None else share
+
+
+def logged_recovery_periods(controller: Controller, periods: int | None) -> None:
+    """Make `controller` (predictive) fit a recovery's rate as the daemon that logged
+    `periods` (`recovery_fit_periods`) did: None, a daemon from before it, which took the
+    rate once, over the first RECOVERY_FIT_SPAN alone. Replay of its log."""
+    if isinstance(controller, _Predictive):
+        controller._recovery_periods = 0 if periods is None else periods
+
+
+def heat_up_fit(controller: Controller) -> HeatUpFit | None:
+    """The last heat-up a predictive controller measured (None for the other forms)."""
+    return controller.fit if isinstance(controller, _Predictive) else None
+
+
+def observer_gains(ts: float, track: float, bias: float) -> tuple[float, float]:
+    """(L1, L2) of the PV/bias observer with poles e^(−Ts/track) and e^(−Ts/bias).
+
+    Error dynamics of predict-then-correct on x = (PV, bias), A = [[1, Ts], [0, 1]]:
+    z² − (2 − L1 − Ts·L2)·z + (1 − L1), so L1 = 1 − p1·p2 and Ts·L2 = (1 − p1)·(1 − p2).
+    """
+    p1 = math.exp(-ts / track)
+    p2 = math.exp(-ts / bias)
+    return 1.0 - p1 * p2, (1.0 - p1) * (1.0 - p2) / ts

@@ -1,0 +1,1 @@
+"""The hardware: sensor, outputs, SSR planner, safe-off, real-time priority."""

@@ -1,0 +1,1 @@
+"""The log: the flight recorder, the log reader, replay, the plot."""

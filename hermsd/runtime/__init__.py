@@ -1,0 +1,1 @@
+"""The daemon's loop, its scheduler and clock, and what runs beside it."""

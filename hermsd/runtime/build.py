@@ -1,0 +1,185 @@
+"""Building a daemon's parts from its config and the state directory: the safety limits in
+force, the tun's model (stored, measured or prior), the element watch and probe, the reach
+watch's periods, the second element's power."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hermsd.config import schema as config_module
+from hermsd.config.schema import Config, ControlConfig
+from hermsd.control import factory, pid, predictive
+from hermsd.control.element2 import SplitController
+from hermsd.control.factory import full_power, full_power_share
+from hermsd.control.learning import LearnedModel, ModelStore, implausible_here
+from hermsd.control.reach import ReachWatch, Said
+from hermsd.program.readiness import known_dead_time
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.element_watch import ElementWatch
+from hermsd.safety.limits import MeasuredTun, SafetyLimits
+
+
+def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLimits:
+    """The supervisor's limits: from `model` (the tun as measured) where given, else safe for
+    any tun the config could be describing (see `SafetyLimits.derive`)."""
+    s = config.safety
+    return SafetyLimits.derive(
+        litres=config.tun.litres,
+        element_watts=config.tun.element_watts + element2_watts(config),
+        period=config.control.period,
+        read_interval=config.sensor.read_interval,
+        model=model,
+        max_temp=s.max_temp,
+        hysteresis=s.hysteresis,
+        plausible_min=s.plausible_min,
+        plausible_max=s.plausible_max,
+        max_step=s.max_step,
+        fault_reads=s.fault_reads,
+        resume_reads=s.resume_reads,
+        stale_after=s.stale_after,
+        dead_time=s.dead_time,
+        heater_watch=s.heater_watch,
+        heater_min_rise=s.heater_min_rise,
+        ssr_watch=s.ssr_watch,
+        ssr_max_rise=s.ssr_max_rise,
+        dry_fire_factor=s.dry_fire_factor,
+        stuck_time=s.stuck_time,
+        stuck_output_change=s.stuck_output_change,
+        stall_periods=s.stall_periods,
+        max_output=full_power_share(config),
+    )
+
+
+def element_watch(config: Config) -> ElementWatch:
+    """The watch of both elements' heat, judged over the controller's dead time."""
+    return ElementWatch(config.tun.element_watts, element2_watts(config), config.control.dead_time)
+
+
+def watch_changes(old: Config, new: Config) -> bool:
+    """Whether a reload starts the element watch afresh (replay does as the daemon)."""
+    return old.tun != new.tun or old.control.dead_time != new.control.dead_time
+
+
+def keep_probe(
+    old: Config,
+    new: Config,
+    before: pid.Controller | None,
+    after: pid.Controller | None,
+) -> None:
+    """A reload that keeps the tun (its litres and element; the second element's keys need a
+    restart) keeps what the heat-up's probe found: the new controller goes on with the old
+    one's probe once that is done (not tried again; a finding not yet taken is taken from
+    it). A new tun is probed afresh. Replay does as the daemon."""
+    if old.tun != new.tun or not isinstance(after, SplitController):
+        return
+    if isinstance(before, SplitController) and before.probe is not None and before.probe.done:
+        after.probe = before.probe
+
+
+def reach_period(
+    reach: ReachWatch,
+    record: PeriodRecord,
+    model: pid.PlantModel,
+    config: Config,
+    controller: pid.Controller,
+) -> Said | None:
+    """Feed `reach` the period of `record` (before its `ceiling`), with the model, the config
+    and the controller in force after the period's step: the daemon does, and replay's check
+    does again from the log. Full power (`config.full_power`) and the dead time are a
+    ready_by heat-up's."""
+    full = (
+        record.state == "ok"
+        and record.mode == "auto"
+        and full_power(config).reached(record.applied, record.switched2)
+    )
+    dead_time = known_dead_time(model, predictive.heat_up_fit(controller))
+    max_output = config.control.max_output
+    return reach.period(record.t, record.setpoint, record.pv, full, dead_time, max_output)
+
+
+def reach_restarts(old: Config, new: Config) -> bool:
+    """Whether a reload gives another full power, measured afresh (replay does as the
+    daemon)."""
+    return full_power(old) != full_power(new)
+
+
+def element2_watts(config: Config) -> float:
+    """The second element's power (0 when none is fitted): the supervisor judges the total."""
+    return config.element2.watts if config.element2.backend != "none" else 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class ModelChoice:
+    """The tun's model in force and where it came from: "learned" (the state directory),
+    "measured" (the control.model_* keys `hermsd tune --write` wrote) or "prior" (a guess
+    from tun.litres and tun.element_watts)."""
+
+    model: pid.PlantModel
+    source: str
+    basis: LearnedModel | None = None  # the measurement, at the fill it was made with
+
+    @property
+    def measured(self) -> pid.PlantModel | None:
+        """The model, if it was measured: what the supervisor's limits may be tightened by."""
+        return None if self.basis is None else self.model
+
+    def describe(self) -> str:
+        if self.basis is None:
+            return "the prior from tun.litres and tun.element_watts (nothing measured)"
+        what = "learned" if self.source == "learned" else "measured by hermsd tune (control keys)"
+        return f"{what}: {self.basis.describe()}"
+
+
+def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
+    """The model the controller and the supervisor use. `control.learn` on: what was learned
+    (kept up to date by the daemon itself), else what `hermsd tune` measured; pinned: the
+    measured one, else what was learned; off: the measured one only. A measurement is
+    rescaled to the configured litres; one the fill takes out of the controller's range is
+    passed over. Neither: the config's prior. With a second element fitted, the prior
+    always: what was learned or measured is the response to one element."""
+    learn = config.control.learn
+    if element2_watts(config):
+        return ModelChoice(factory.prior_model(config), "prior")
+    here = stored is not None and learn != "off" and not_this_tun(stored, config) is None
+    candidates = [
+        ("learned", stored if here else None),
+        ("measured", factory.measured_model(config)),
+    ]
+    if learn != "on":
+        candidates.reverse()
+    low, high = pid.MODEL_GAIN_RANGE  # a fill far from the measured one can leave it
+    for source, basis in candidates:
+        if basis is not None:
+            model = basis.plant_model(config.tun.litres)
+            if low <= model.gain <= high:
+                return ModelChoice(model, source, basis)
+    return ModelChoice(factory.prior_model(config), "prior")
+
+
+def stored_model(models: ModelStore, config: Config) -> tuple[LearnedModel | None, str | None]:
+    """What `models` holds, if it can be the configured tun's; else (None, why: said in the
+    log as a learned model ignored), as `ModelStore.load` says a damaged file."""
+    model, problem = models.load()
+    why = not_this_tun(model, config) if model is not None else None
+    if why is not None:
+        return None, f"{models.path}: {why}"
+    return model, problem
+
+
+def not_this_tun(model: LearnedModel, config: Config) -> str | None:
+    """Why a learned model cannot be the configured tun's (`learning.implausible_here`)."""
+    litres = config.tun.litres  # the one element it was learned on
+    full_rate = config.tun.element_watts / (factory.WATER_J_PER_LITRE_K * litres)
+    return implausible_here(model, litres=litres, full_rate=full_rate)
+
+
+def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:
+    """A measured tun as the log keeps it (None: the limits hold for any tun)."""
+    if model is None:
+        return None
+    return {k: getattr(model, k) for k in ("gain", "tau", "dead_time", "ambient")}
+
+
+def retunes(old: ControlConfig, new: ControlConfig) -> bool:
+    """Whether a reload from `old` to `new` needs a new controller (bumplessly reset)."""
+    return any(getattr(old, key) != getattr(new, key) for key in config_module.TUNING_KEYS)

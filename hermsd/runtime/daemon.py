@@ -1,0 +1,1409 @@
+"""The control loop: sensor → supervisor → controller → planner → outputs, on one scheduler.
+
+The same code runs on the Pi (real clock, LM92 on /dev/i2c-N, SSR on a serial line or GPIO),
+in real time against the simulated tun, and at full speed in `hermsd simulate`. Everything
+outside — hardware, clock, recorder, systemd notifier — is handed in.
+
+Per control period the controller sees one PV and the duty the SSR was driven at in the
+period before (`applied`: the time its input was on, as switched, edge lateness and forced
+offs included), so it tracks the actuator. It is not a measurement of the element's power:
+a shorted SSR, an open contactor or a dead element show only in the temperature, which is
+what the supervisor's watches are for. When the supervisor forbids
+heating, the SSR is cut at once (mid-window), the contactor opens, and the controller is
+held, not fed zeros; when heating is allowed again it resumes from the output it had.
+Inside a period the loop acts on one thing only: cold water that the controller answers
+with full power runs the element at full power from that reading on (`_act_on_drop`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import re
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from functools import partial
+from typing import Any, Protocol
+
+from hermsd.config import read, rules
+from hermsd.config import schema as config_module
+from hermsd.config.file import ConfigFile
+from hermsd.config.read import to_dict
+from hermsd.config.schema import Config, ConfigError
+from hermsd.control import pid, predictive
+from hermsd.control.element2 import SlowElement, SplitController, TwoElementController, total_share
+from hermsd.control.factory import full_power, full_power_share, make_controller, shared_out
+from hermsd.control.learning import LearnedModel, Learner, ModelStore
+from hermsd.control.pv import period_value
+from hermsd.control.reach import PREFIX, ReachWatch, Said
+from hermsd.hardware.lm92 import (
+    LimitName,
+    Reading,
+    SensorError,
+    WrongChipError,
+    decode_temperature,
+    encode_temperature,
+)
+from hermsd.hardware.outputs import Outputs, window_length
+from hermsd.hardware.sensors.base import Sensor
+from hermsd.hardware.sensors.kinds import describe as describe_sensor
+from hermsd.hardware.ssr import (
+    SwitchedDuty,
+    TimeProportionalPlanner,
+    WindowPlan,
+    cut,
+)
+from hermsd.log.topics import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
+from hermsd.program.driver import ProgramDriver
+from hermsd.program.model import Program
+from hermsd.program.readiness import Tun
+from hermsd.program.runner import ProgramEvent
+from hermsd.program.store import ProgressStore
+from hermsd.runtime.alerts import SHUTDOWN_WAIT, Alerts, Event
+from hermsd.runtime.build import (
+    _tun_fields,
+    element2_watts,
+    element_watch,
+    keep_probe,
+    model_in_force,
+    reach_period,
+    reach_restarts,
+    retunes,
+    safety_limits,
+    stored_model,
+    watch_changes,
+)
+from hermsd.runtime.clock import Clock
+from hermsd.runtime.notify import Notifier, WatchdogGate, status_line
+from hermsd.runtime.period import PeriodRecord
+from hermsd.runtime.saver import Outcome, Saver
+from hermsd.runtime.scheduler import LatenessStats, Scheduler, Timer
+from hermsd.safety.element_probe import ProbeResult
+from hermsd.safety.element_watch import no_heat_words, report_kind
+from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore, StateError
+from hermsd.safety.limits import Alarm, MeasuredTun
+from hermsd.safety.supervisor import Supervisor
+
+log = logging.getLogger("hermsd")
+
+TIMING_INTERVAL = 60.0  # s between timing records
+STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+LOG_FAILING_REPEAT_S = 60.0  # a failing log is said again this often while it lasts
+LATCH_SAVE_RETRY_S = 30.0  # a failed save of the latched alarms is tried again this often
+LATCH_SAVE_SLOW_S = 10.0  # a latch save not done after this long is said as not saved (yet)
+STOP_WAIT_S = 8.0
+"""s of real time at most that the stop waits, once the outputs are off, for the saves (the
+latched alarms first: what a restart must find), then the program's progress, then queued
+alerts, in that order: inside systemd's stop timeout of 10 s (systemd/hermsd.service), so
+that what was not saved is said before a SIGKILL could cut the stop short."""
+
+
+class Recorder(Protocol):
+    """Where records go (the MCAP recorder); `write` never blocks."""
+
+    def write(self, topic: str, log_time_ns: int, message: dict[str, Any]) -> None: ...
+
+
+RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heater off")
+"""The event text of a raised alarm, as replay reads it back from the log."""
+
+
+def latch_save_failed_text(outcome: Outcome, on_disk: list[str]) -> str:
+    """A failed save of the latched alarms, said with what a restart would then find.
+
+    The heater is not held off for it: a latched alarm already holds it off (in memory, until
+    the brewer clears it), and a start refuses a state directory it cannot write a latch
+    file to (`cli._claim_state_directory`); a failed save of fewer alarms errs safe (a
+    restart raises the stored ones again). What is left is a crash in the window before the
+    disk works again, and that is said here, loudly.
+    """
+    failed = f"saving latched alarms failed: {outcome.error}"
+    lost = [kind for kind in outcome.tag if kind not in on_disk]
+    if not lost:
+        return f"{failed} (a restart finds {', '.join(on_disk) or 'none'}, as on disk)"
+    return (
+        f"{failed}: {', '.join(lost)} will NOT survive a restart (the heater stays off "
+        f"while latched; tried again every {LATCH_SAVE_RETRY_S:g} s)"
+    )
+
+
+def raised_alarm_text(alarm: Alarm) -> str:
+    """The event logged when `alarm` is raised; RAISED_ALARM matches it."""
+    what = "ALARM" if alarm.latched else "fault"
+    return f"{what} {alarm.kind}: {alarm.message}; heater off"
+
+
+class ControlHook(Protocol):
+    """Operator commands from outside the loop (the control socket, `hermsd.control`)."""
+
+    def at_boundary(self, t: float) -> None:
+        """Check and queue the commands that arrived (at a period boundary, before the queue
+        of operator actions is applied)."""
+        ...
+
+
+class Listener(Protocol):
+    """Observers of the loop (the simulator's metrics, tests)."""
+
+    def period(self, record: PeriodRecord) -> None: ...
+
+    def alarm(self, alarm: Alarm) -> None: ...
+
+
+def _hold_stop_signals(held: list[int]) -> tuple[dict[int, Any], BaseException | None]:
+    """Make SIGINT and SIGTERM append to `held` instead of running their handlers.
+
+    Returns the handlers to put back, and a stop that was already due and ran meanwhile.
+    Handlers can only be changed on the main thread; elsewhere nothing is held.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return {}, None
+
+    def hold(signum: int, frame: object) -> None:
+        held.append(signum)
+
+    previous: dict[int, Any] = {}
+    interrupted: BaseException | None = None
+    for sig in STOP_SIGNALS:
+        while True:
+            try:
+                current = signal.getsignal(sig)
+                if current is not hold:
+                    previous.setdefault(sig, current)
+                signal.signal(sig, hold)
+                break
+            except BaseException as error:  # a handler already due ran here: try again
+                interrupted = interrupted or error
+    return previous, interrupted
+
+
+@dataclass(slots=True)
+class _Window:
+    """The window in progress and its pending edges."""
+
+    plan: WindowPlan | None = None
+    timers: list[Timer] = field(default_factory=list)
+    cut: bool = False  # the heater was forced off in it: nothing heats again before the next
+
+    def cancel(self) -> None:
+        for timer in self.timers:
+            timer.cancel()
+        self.timers.clear()
+
+
+class Daemon:
+    """One tun's control loop."""
+
+    def __init__(
+        self,
+        config: Config,
+        clock: Clock,
+        sensor: Sensor,
+        outputs: Outputs,
+        *,
+        recorder: Recorder | None = None,
+        notifier: Notifier | None = None,
+        on_status: Callable[[str], None] | None = None,
+        config_file: ConfigFile | None = None,
+        latches: LatchStore | None = None,
+        models: ModelStore | None = None,
+        tun_model: MeasuredTun | None = None,
+        saver: Saver | None = None,
+    ) -> None:
+        self.config = config
+        self.tun_model = tun_model
+        self.config_file = config_file
+        self.latches = latches
+        self.clock = clock
+        self.sensor = sensor
+        self.outputs = outputs
+        self.recorder = recorder
+        self.notifier = notifier
+        interval = notifier.watchdog_interval() if notifier is not None else None
+        # Every healthy period may ping: one missed period must not use up the timeout.
+        period = config.control.period
+        self._watchdog = WatchdogGate(min(interval, period / 2)) if interval else None
+        self._ready = False
+        self.on_status = on_status
+        self.listeners: list[Listener] = []
+        self.scheduler = Scheduler(clock)
+        self.models = models
+        self.saver = saver if saver is not None else Saver()  # latches and model, off the loop
+        self._stored_model: LearnedModel | None = None
+        self._learned_since: LearnedModel | None = None  # stored since the start, not in force
+        self._model_problem: str | None = None  # said in the log at start
+        if models is not None:
+            self._stored_model, self._model_problem = stored_model(models, config)
+        self.model_choice = model_in_force(self._stored_model, config)
+        self.model = self.model_choice.model
+        self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
+        self.controller = shared_out(config, make_controller(config.control, self.model))
+        self._learner = self._make_learner(config)
+        self._heat_up_seen = predictive.heat_up_fit(self.controller)
+        self._reloaded_at = -math.inf  # when a reload last changed the config
+        self.planner = self._make_planner(config)
+        e2 = config.element2
+        self.element2 = (
+            SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
+        )
+        self.element_watch = element_watch(config) if self.element2 is not None else None
+        self.reach = ReachWatch()  # says when full power cannot reach the setpoint
+        self.setpoint = config.control.setpoint
+        self.mode = config.control.mode
+        self.manual_output = config.control.manual_output
+        self.output = 0.0
+        self.k = 0
+        self.edge_lateness = LatenessStats()
+        self._pv: float | None = None
+        self._last_celsius: float | None = None
+        self._readings: list[float] = []
+        self._stepped = False  # the controller stepped at the last boundary (its state is fresh)
+        self._full_from: int | None = None  # see PeriodRecord.full_from
+        # The element went to full power within this period (acted on `_full_from`): what the
+        # supervisor and the status are told was asked. The controller's output stays its own,
+        # so a manual switch or a bumpless restart never takes the 100 % for the brewer's.
+        self._full_power = False
+        self._outputs_off = False  # shut down: every output switched off, for good
+        self._held = True  # nothing to continue from until the first good period
+        self._resume_output = 0.0
+        self._window = _Window()
+        self._ssr_duty = SwitchedDuty()  # the SSR as switched since the last period
+        self._reads = 0
+        self._pending: list[Callable[[float], None]] = []
+        self.control: ControlHook | None = None
+        self._started = False
+        self._reload_requested = False
+        self._config_problem: str | None = None  # why the file's last edit was rejected
+        self._output2: float | None = None  # the second element's duty, when one is fitted
+        self._saved_latches: list[str] = []  # the kinds on disk, as last saved
+        self._tried_latches: list[str] = []  # the kinds of the last save handed over
+        self._latch_failing: str | None = None  # why the last latch save done failed
+        self._latch_retry_at = 0.0  # a failed save is tried again from then, or at a change
+        self._latches_handed_at = 0.0  # when the last latch save was handed to the saver
+        self._latch_slow = False  # whether _latch_failing says a save that has not finished
+        self._latched_wall_ns: dict[str, int] = {}  # when each latched alarm was raised
+        self._latched_messages: dict[str, str] = {}  # restored ones' messages, as first raised
+        self._log_failing: str | None = None  # why the recorder cannot write, as last said
+        self._log_failing_since = 0.0
+        self._log_failing_said = 0.0
+        self.alerts = Alerts(
+            config.alerts, lambda message: self._event(logging.WARNING, message, clock.monotonic())
+        )
+        self.program = ProgramDriver(
+            ProgressStore(latches.directory) if latches is not None else None,
+            getattr(clock, "zone", None),  # a simulated clock's local time; else the system's
+            config.control.period,
+        )
+
+    # -- life cycle -----------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Outputs off, check and program the sensor, and lay out the schedule.
+
+        A latch file that cannot be read raises StateError: the daemon must not guess.
+        """
+        for output in self.outputs.all():
+            output.set(False)
+        stored = self.latches.load() if self.latches is not None else Latches()
+        self.sensor.identify()
+        self._program_sensor()
+        now = self.clock.monotonic()
+        self._ssr_duty.begin(now)
+        read_interval = self.config.sensor.read_interval
+        self._read_now(now)
+        sched = self.scheduler
+        sched.every("read", read_interval, self._on_read, origin=now + read_interval / 2)
+        self._control_task = sched.every(
+            "control", self.config.control.period, self._on_control, origin=now, priority=1
+        )
+        sched.every("window", window_length(self.config), self._on_window, origin=now, priority=2)
+        sched.every("timing", TIMING_INTERVAL, self._on_timing, origin=now + TIMING_INTERVAL)
+        self._started = True
+        self._record_config("start", now)
+        self._event(logging.INFO, "started", now)
+        if self.config.sensor.kind != "lm92":  # the LM92's log as it was
+            simulated = " (simulated)" if self.config.output.backend == "sim" else ""
+            said = f"sensor: {describe_sensor(self.config.sensor)}{simulated}"
+            self._event(logging.INFO, said, now)
+        self.alerts.start()
+        self._alert("started", "hermsd started", now)
+        self._check_log(now)
+        if self._model_problem is not None:
+            self._event(logging.WARNING, f"learned model ignored: {self._model_problem}", now)
+        if self._stored_model is not None and self.model_choice.source != "learned":
+            learn, litres = self.config.control.learn, self.config.tun.litres
+            why = f"out of the controller's range at {litres:g} L"
+            if element2_watts(self.config):
+                why = "a second element is fitted: it models one"
+            elif learn == "off":
+                why = "control.learn off"
+            elif learn == "pinned" and self.model_choice.source == "measured":
+                why = "control.learn pinned: the model from hermsd tune comes first"
+            self._event(
+                logging.INFO,
+                f"learned model not used ({why}): {self._stored_model.describe()}",
+                now,
+            )
+        if self.model_choice.measured is not None:  # else the prior, as status says
+            what = self.model_choice.describe()
+            self._event(logging.INFO, f"tun model in use (control and safety limits): {what}", now)
+        self._restore_latches(stored, now)
+        resumed = self.program.restore(self.setpoint, self.clock.wall_ns())
+        if resumed is not None:
+            self._event(logging.WARNING if "not resumed" in resumed else logging.INFO, resumed, now)
+
+    def _program_sensor(self) -> None:
+        """Wake the chip and set its limits; its T_CRIT_A pin can then gate the SSR in hardware."""
+        safety = self.config.safety
+        self.sensor.wake()
+        self.sensor.set_limit("hyst", safety.hysteresis)
+        self.sensor.set_limit("crit", safety.max_temp)
+
+    def run(self, until: float = math.inf) -> None:
+        """Run the loop until `until` (monotonic s) or `stop()`; start() first if needed."""
+        if not self._started:
+            self.start()
+        self.scheduler.run(until)
+
+    def stop(self) -> None:
+        self.scheduler.stop()
+
+    def __enter__(self) -> Daemon:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        error = exc[1]
+        self.shutdown("stopped" if error is None else f"stopped ({error or type(error).__name__})")
+
+    @property
+    def overruns(self) -> int:
+        """Control periods skipped because the loop was late."""
+        return self._control_task.overruns if self._started else 0
+
+    def shutdown(self, reason: str = "stopped") -> bool:
+        """Heater off and contactor open, whatever else fails; False if an output refused.
+
+        A stop signal that arrives meanwhile (a second Ctrl-C, systemd's stop during a SIGINT)
+        is held until every output has been tried, then delivered: masking it would not do,
+        as any other thread may take it and Python runs its handler on this one all the same.
+        A stop that was already due when holding began is caught and raised at the end.
+        """
+        held: list[int] = []
+        previous, interrupted = _hold_stop_signals(held)
+        try:
+            ok, failed_by = self._all_off(reason)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        interrupted = interrupted or failed_by
+        if interrupted is not None:
+            raise interrupted
+        for signum in held[:1]:
+            signal.raise_signal(signum)  # to the handler that was held back
+        return ok
+
+    def _all_off(self, reason: str) -> tuple[bool, BaseException | None]:
+        ok = True
+        interrupted: BaseException | None = None
+        steps = [("the window's edges", self._window.cancel)]
+        steps += [(output.name, output.close) for output in self.outputs.all()]
+        for name, step in steps:
+            try:
+                step()
+            except Exception as error:  # every output must be tried, and the failure told
+                ok = False
+                log.critical("could not switch %s off: %s", name, error)
+            except BaseException as error:  # a stop that was already due: the rest first
+                interrupted = interrupted or error
+        now = self.clock.monotonic()
+        self._ssr_duty.switched(False, now)
+        self._outputs_off = True
+        self._event(logging.INFO, f"heater off: {reason}", now)
+        self._alert("stopped", f"heater off: {reason}", now)
+        deadline = time.monotonic() + STOP_WAIT_S  # outputs are off: what is left may wait
+        self._close_saves(now, STOP_WAIT_S)
+        self.program.close(max(0.0, deadline - time.monotonic()))  # for the next start
+        left = max(0.0, deadline - time.monotonic())
+        self.alerts.close(min(self.config.alerts.timeout, SHUTDOWN_WAIT, left))
+        if self.notifier is not None:
+            self.notifier.stopping()
+        return ok, interrupted
+
+    # -- operator actions (applied at the next period boundary) ---------------------------
+
+    def set_setpoint(self, celsius: float) -> None:
+        if not (math.isfinite(celsius) and 0.0 <= celsius <= 100.0):
+            raise ValueError(f"setpoint must be within 0..100 °C, got {celsius}")
+        self._pending.append(lambda t: self._apply_setpoint(celsius, t))
+
+    def set_manual(self, output: float | None = None) -> None:
+        """Manual mode at `output` % (the current output when None)."""
+        if output is not None and not (math.isfinite(output) and 0.0 <= output <= 100.0):
+            raise ValueError(f"manual output must be within 0..100 %, got {output}")
+        self._pending.append(lambda t: self._apply_manual(output, t))
+
+    def set_auto(self) -> None:
+        self._pending.append(self._apply_auto)
+
+    def reset_alarms(self, kinds: list[str] | None = None) -> None:
+        """Clear latched alarms (`kinds`, or all) at the next period boundary."""
+        self._pending.append(lambda t: self._apply_reset(t, kinds))
+
+    def operator_action(self, what: str, t: float) -> None:
+        """Log an operator's action (`what` names it and where it came from)."""
+        self._event(logging.INFO, f"operator: {what}", t)
+
+    def request_reload(self) -> None:
+        """Read the config file again at the next period boundary (SIGHUP; signal-safe)."""
+        self._reload_requested = True
+
+    def reload(self, config: Config) -> None:
+        """Apply `config` at the next period boundary, as a reload of the file would."""
+        self._pending.append(lambda t: self._apply_config(config, t))
+
+    def _apply_setpoint(self, celsius: float, t: float) -> None:
+        if self.program.active:  # the program owns the setpoint until it stops
+            self.program.after = celsius
+            self._event(logging.INFO, f"setpoint {celsius:.2f} °C when the program stops", t)
+            return
+        self.setpoint = celsius
+        self._event(logging.INFO, f"setpoint {celsius:.2f} °C", t)
+
+    # -- the mash program (hermsd.program; applied at once: called at a period boundary) --
+
+    def program_problems(self, program: Program) -> list[str]:
+        """Why `program` cannot start now ('key: what is wrong' lines); [] when it can."""
+        problems = self.program.problems(program)
+        if self.mode != "auto":
+            problems.append("control.mode: a program runs in auto mode (`hermsd set mode auto`)")
+        running = dataclasses.replace(
+            self.config, control=dataclasses.replace(self.config.control, setpoint=self.setpoint)
+        )
+        for index, step in enumerate(program.steps):
+            for problem in rules.runtime_problems(running, {"control.setpoint": step.setpoint}):
+                problems.append(f"steps[{index}].setpoint: {problem.split(': ', 1)[-1]}")
+        return problems
+
+    def start_program(self, program: Program, ready_by: str | None, t: float) -> None:
+        """Start `program` (program_problems first: this raises runner.Refused)."""
+        self.program.start(
+            program,
+            ready_by,
+            setpoint=self.setpoint,
+            wall_ns=self.clock.wall_ns(),
+            pv=self._pv,
+            tun=self._program_tun(),
+        )
+
+    def _program_tun(self) -> Tun:
+        """What a `ready_by` heat-up plans with: the model in force, and what it rests on."""
+        return Tun(
+            self.model,
+            full_power_share(self.config),
+            self.model_choice.measured is not None,
+            predictive.heat_up_fit(self.controller),
+        )
+
+    def program_command(self, action: str, t: float, step: int | None = None) -> None:
+        """next, pause, resume, stop or confirm (runner.Refused when it does not apply);
+        `step`: the index of the step a confirm or next is for (None: the current one)."""
+        if action == "stop":
+            self._keep_after_below_cut_out(t)
+        after = self.program.command(action, self._pv, step)
+        if after is not None:
+            self.setpoint = after
+            self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)
+
+    def _program_period(self, t: float, pv: float | None, applied: float, full: bool) -> bool:
+        """Take the program's setpoint for this period; True: it keeps the heater off.
+        `applied`: the heat's duty in the period just ended (%; with two elements, of both);
+        `full`: that period was full power (`config.full_power`)."""
+        wall_ns = self.clock.wall_ns()
+        tun = self._program_tun()
+        setpoint, events = self.program.period(t, pv, wall_ns, tun, applied, full)
+        for event in events:
+            self._program_event(event, t)
+        news = self.program.store_news()
+        if news is not None:
+            self._event(logging.ERROR if news[0] else logging.INFO, news[1], t)
+        if not self.program.active:
+            return False
+        if self._stop_program_over_cut_out(setpoint, t):  # an edit lowered the cut-out
+            return False
+        if setpoint is None:
+            self.setpoint = self.program.target  # shown, not heated to: the heater stays off
+            return True
+        self.setpoint = setpoint
+        return False
+
+    def _stop_program_over_cut_out(self, in_force: float | None, t: float) -> bool:
+        """Stop the program (as `program stop`) when its step's setpoint or the setpoint in
+        force (`in_force`, a ramp's; None: the step's) is not below safety.max_temp."""
+        max_temp = self.config.safety.max_temp
+        target = self.program.target
+        if target >= max_temp:
+            why = f"its step's setpoint {target:g} °C"
+        elif in_force is not None and in_force >= max_temp:
+            why = f"its setpoint in force {in_force:g} °C"
+        else:
+            return False
+        self._event(
+            logging.WARNING,
+            f"program stopped: {why} is not below safety.max_temp ({max_temp:g} °C)",
+            t,
+        )
+        self.program_command("stop", t)
+        for event in self.program.take_events():
+            self._program_event(event, t)
+        return True
+
+    def _keep_after_below_cut_out(self, t: float) -> None:
+        """The setpoint a program returns to must be below safety.max_temp: else the file's."""
+        after, max_temp = self.program.after, self.config.safety.max_temp
+        if after is None or after < max_temp:
+            return
+        self.program.after = self.config.control.setpoint
+        self._event(
+            logging.WARNING,
+            f"setpoint {after:g} °C for when the program stops is not below safety.max_temp "
+            f"({max_temp:g} °C): the file's {self.config.control.setpoint:g} °C instead",
+            t,
+        )
+
+    def _program_event(self, event: ProgramEvent, t: float) -> None:
+        if self.recorder is not None:
+            fields = dataclasses.asdict(event)
+            fields.pop("text")
+            self.recorder.write(
+                PROGRAM_TOPIC, self.clock.wall_ns(), {"t": t, **fields, "program": event.program}
+            )
+        self._event(logging.WARNING if event.event == "late" else logging.INFO, event.text, t)
+        if event.event in config_module.PROGRAM_ALERT_EVENTS:
+            self._alert(event.event, event.text, t, event.name or "")
+
+    def _apply_manual(self, output: float | None, t: float) -> None:
+        self.mode = "manual"
+        wanted = self.output if output is None else output
+        self.manual_output = min(wanted, self.config.control.max_output)  # the power limit holds
+        self._event(logging.INFO, f"manual mode at {self.manual_output:.1f} %", t)
+
+    def _apply_auto(self, t: float) -> None:
+        if self.mode != "auto":
+            self.mode = "auto"
+            self._held = True  # resume bumplessly from the manual output
+            self._resume_output = self.manual_output
+            self._event(logging.INFO, "auto mode", t)
+
+    def _apply_reset(self, t: float, kinds: list[str] | None = None) -> None:
+        cleared = self.supervisor.reset_latched(t, kinds)
+        self._drain_alarms(t)
+        if cleared:
+            self._event(logging.WARNING, f"alarms reset: {', '.join(cleared)}", t)
+
+    # -- configuration changes ------------------------------------------------------------
+
+    def _poll_config(self, t: float) -> None:
+        """Apply the config file if it changed (or SIGHUP asked); reject it if it is invalid."""
+        if self.config_file is None:
+            if self._reload_requested:
+                self._reload_requested = False
+                self._event(logging.WARNING, "reload asked, but there is no config file", t)
+            return
+        result = self.config_file.poll(force=self._reload_requested)
+        if result is None:
+            return  # unchanged, or still being written: the next period reads it
+        self._reload_requested = False
+        if self.notifier is not None:
+            self.notifier.reloading()
+        if isinstance(result, ConfigError):
+            self._reject_config(str(result), t)
+        else:
+            self._apply_config(result, t)
+        if self.notifier is not None:
+            self.notifier.ready()
+
+    def _reject_config(self, why: str, t: float) -> None:
+        self._config_problem = why
+        self._event(logging.ERROR, f"config rejected, still running on the last good one: {why}", t)
+
+    def _apply_config(self, edited: Config, t: float) -> None:
+        """Take a valid edit: setpoint, mode and tuning without a bump; limits at once.
+
+        Keys that open devices or fix the schedule keep their running values (said in the
+        log); an edit that breaks a rule only together with those kept values is rejected.
+        """
+        old = self.config
+        refused = read.restart_keys_changed(old, edited)
+        new = read.keep_restart_keys(old, edited)
+        broken = rules.broken_rules(new)
+        if broken:
+            kept = f" with the running {', '.join(refused)}" if refused else ""
+            self._reject_config(f"{'; '.join(broken)}{kept}", t)
+            return
+        self._config_problem = None
+        changed = read.differences(old, new)
+        if refused:
+            running = ", ".join(f"{key} {read.value_at(old, key)!r}" for key in refused)
+            self._event(
+                logging.WARNING,
+                f"config: {', '.join(refused)} need a restart (systemctl restart hermsd); "
+                f"still running with {running}",
+                t,
+            )
+        if not changed:
+            self._event(logging.INFO, "config reloaded: nothing to change", t)
+            return
+        self.config = new
+        self._learner.interrupt()
+        self._reloaded_at = t
+        self._event(logging.INFO, f"config reloaded: {', '.join(changed)} changed", t)
+        self._take_changes(old, new, set(changed), t)
+        self._record_config("reload", t)  # with the model the changes put in force
+
+    def _take_changes(self, old: Config, new: Config, changed: set[str], t: float) -> None:
+        control = new.control
+        self.alerts.config = new.alerts
+        self.alerts.start()  # if the reload gave the first command
+        if "control.setpoint" in changed:
+            self._apply_setpoint(control.setpoint, t)
+        if retunes(old.control, new.control) or old.tun != new.tun:
+            self.model_choice = model_in_force(self._stored_model, new)
+            self.model = self.model_choice.model
+            before = self.controller
+            self.controller = shared_out(new, make_controller(new.control, self.model))
+            keep_probe(old, new, before, self.controller)
+            self._heat_up_seen = predictive.heat_up_fit(self.controller)
+            self._learner = self._make_learner(new)
+            if not self._held:  # bumpless: the new controller starts from the output in force
+                self._held = True
+                self._resume_output = self.output
+        if self.element_watch is not None and watch_changes(old, new):
+            watched, self.element_watch = self.element_watch, element_watch(new)
+            if old.tun == new.tun:  # its references were of the old tun, not its probe
+                self.element_watch.keep_probed(watched)
+        if reach_restarts(old, new):
+            self._say_reach(self.reach.restart(), t)  # another full power
+        if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
+            self._apply_manual(control.manual_output, t)
+        elif control.mode == "auto" and changed & {"control.mode", "control.manual_output"}:
+            self._apply_auto(t)
+        elif "control.max_output" in changed and self.mode == "manual":
+            self._apply_manual(self.manual_output, t)  # the new power limit holds at once
+        if self.program.active:  # the setpoint it returns to, and the one it holds now
+            self._keep_after_below_cut_out(t)
+            self._stop_program_over_cut_out(self.setpoint, t)
+        elif self.setpoint >= new.safety.max_temp:  # set at runtime, and above the new cut-out
+            self._event(
+                logging.WARNING,
+                f"setpoint {self.setpoint:g} °C is not below the new safety.max_temp: "
+                "back to the file's",
+                t,
+            )
+            self._apply_setpoint(control.setpoint, t)
+        if any(key.startswith(("safety.", "tun.")) for key in changed) or retunes(
+            old.control, new.control
+        ):
+            self.supervisor.limits = safety_limits(new, self._measured_tun(new))
+        if changed & {"safety.max_temp", "safety.hysteresis"}:
+            self._reprogram_sensor(t)
+        if "safety.reset" in changed:
+            self._apply_reset(t)
+            self._save_latches(t)  # later latches are stored under the new counter
+        if any(key.startswith("output.") for key in changed):
+            self.planner = self._make_planner(new)
+
+    # -- the tun's model: prior, learned, learning ----------------------------------------
+
+    @property
+    def learned_model(self) -> LearnedModel | None:
+        """What was learned of the tun and stored: the last saved since the start, else as
+        read at start (None: nothing usable). The model in force (`model_choice`) takes a
+        new one at the next start only."""
+        return self._learned_since or self._stored_model
+
+    def _measured_tun(self, config: Config) -> MeasuredTun | None:
+        """The tun as measured for the supervisor's limits: the one given, else the model in
+        force if it was measured (learned, or by `hermsd tune`); None before anything is
+        measured (the config's prior is a guess, and the limits then hold for any tun it may
+        describe).
+
+        The learned losses are referred to `control.model_ambient` a, not the real room:
+        they reproduce the hold's measured power at the setpoint s, so the supervisor's bound
+        there (×1.5, a room 10 °C colder than a) is 1.5·(s − a + 10)/(s − a) times the true
+        losses whatever the room is (×1.83 at 66 °C and a = 20 °C).
+        """
+        if self.tun_model is not None:
+            return self.tun_model
+        return model_in_force(self._stored_model, config).measured
+
+    def _make_learner(self, config: Config) -> Learner:
+        return Learner(
+            litres=config.tun.litres, ambient=self.model.ambient, period=config.control.period
+        )
+
+    def _learn(self, record: PeriodRecord) -> None:
+        """Feed the learner one period; store and log what it learned (or why not)."""
+        models = self.models
+        if self.config.control.learn != "on" or models is None or self.element2 is not None:
+            return  # the learner models one element
+        learner = self._learner
+        fit = predictive.heat_up_fit(self.controller)
+        if record.state != "ok" or record.mode != "auto" or record.pv is None:
+            learner.interrupt()
+        elif record.reset_from is not None and record.k > 1:
+            learner.interrupt()  # resumed after a hold: the spell before it does not count
+        elif fit is not self._heat_up_seen and fit is not None:
+            if record.t - fit.span <= self._reloaded_at:
+                learner.interrupt()  # the heat-up it measured had a reload in it
+                self._heat_up_seen = fit
+                return
+            learner.heat_up(fit)
+            what = f"rate {fit.rate * 60.0:.3f} °C/min, dead time {fit.dead_time:.0f} s"
+            if fit.refused is None:
+                self._event(logging.INFO, f"heat-up measured: {what}", record.t)
+            else:
+                self._event(logging.WARNING, f"heat-up measure refused: {fit.refused}", record.t)
+        else:
+            estimate = learner.period(record.setpoint, record.pv, record.applied)
+            if estimate is not None:
+                self._store_model(models, estimate.model, estimate.refused, record.t)
+        self._heat_up_seen = fit
+
+    def _store_model(
+        self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
+    ) -> None:
+        if model is None:
+            self._event(logging.WARNING, f"learned model refused: {refused}", t)
+            return
+        model = dataclasses.replace(model, wall_ns=self.clock.wall_ns())
+        if self.recorder is not None:
+            self.recorder.write(
+                MODEL_TOPIC, self.clock.wall_ns(), {"t": t, "learned": asdict(model)}
+            )
+        self.saver.save("model", lambda: models.save(model), model)
+        self._take_saves(t)
+
+    # -- latched alarms across restarts ---------------------------------------------------
+
+    def _restore_latches(self, stored: Latches, t: float) -> None:
+        """Raise again the alarms latched before a restart, unless `safety.reset` moved on."""
+        if stored.alarms and stored.reset != self.config.safety.reset:
+            kinds = ", ".join(a.kind for a in stored.alarms)
+            self._event(logging.WARNING, f"alarms reset by safety.reset: {kinds}", t)
+            self._save_latches(t)
+            return
+        for alarm in stored.alarms:
+            when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(alarm.wall_ns / 1e9))
+            self._latched_wall_ns[alarm.kind] = alarm.wall_ns
+            self._latched_messages[alarm.kind] = alarm.message  # stored again without the note
+            message = f"{alarm.message} (latched {when}, before a restart)"
+            self.supervisor.restore_latched(t, alarm.kind, message, alarm.values)
+        self._drain_alarms(t)
+        self._poll_reset_request(t)
+
+    def _poll_reset_request(self, t: float) -> None:
+        if self.latches is None:
+            return
+        try:
+            kinds = self.latches.take_reset_request()
+        except (OSError, StateError) as error:
+            self._event(logging.ERROR, f"reading the reset request failed: {error}", t)
+            return
+        if kinds is not None:
+            self._event(logging.INFO, f"reset-alarm asked for: {', '.join(kinds) or 'nothing'}", t)
+            self._apply_reset(t, kinds)
+
+    def _save_latches(self, t: float) -> None:
+        """Store the latched alarms whenever they change; a disk error is said, not fatal."""
+        if self.latches is None:
+            return
+        alarms = self.supervisor.latched_alarms()
+        stored = Latches(
+            tuple(
+                LatchedAlarm(
+                    a.kind,
+                    self._latched_wall_ns.get(a.kind, 0),
+                    self._latched_messages.get(a.kind, a.message),
+                    a.values,
+                )
+                for a in alarms
+            ),
+            self.config.safety.reset,
+        )
+        self._tried_latches = [alarm.kind for alarm in alarms]
+        self._latches_handed_at = t
+        self.saver.save("latches", partial(self.latches.save, stored), self._tried_latches)
+        self._take_saves(t)
+
+    @property
+    def latches_not_saved(self) -> str | None:
+        """Why the latched alarms could not be saved, while they cannot (None: saved)."""
+        return self._latch_failing
+
+    @property
+    def log_failing(self) -> str | None:
+        """Why the log cannot be written, while it cannot (None: it is written)."""
+        return self._log_failing
+
+    def _take_saves(self, t: float) -> None:
+        """Say what became of the saves done since the last period (or reading)."""
+        for outcome in self.saver.take():
+            if outcome.kind == "latches":
+                self._latches_saved(outcome, t)
+            elif outcome.error is not None:
+                self._event(logging.ERROR, f"saving the learned model failed: {outcome.error}", t)
+            else:
+                self._learned_since = outcome.tag
+                what = outcome.tag.describe()
+                self._event(logging.INFO, f"learned the tun: {what}; used from the next start", t)
+
+    def _saving_latches(self) -> bool:
+        return "latches" in self.saver.waiting()
+
+    def _latches_saved(self, outcome: Outcome, t: float) -> None:
+        if outcome.error is not None:
+            # Tried again, quietly, until it lands: a latch missing from disk is cleared by
+            # any restart, and the heater would come back on over the fault.
+            self._latch_retry_at = t + LATCH_SAVE_RETRY_S
+            if self._latch_failing is None or self._latch_slow:
+                self._event(logging.ERROR, latch_save_failed_text(outcome, self._saved_latches), t)
+            self._latch_failing, self._latch_slow = outcome.error, False
+            return
+        self._saved_latches, self._latch_slow = outcome.tag, False
+        if self._latch_failing is not None:
+            self._latch_failing = None
+            self._event(logging.INFO, "latched alarms saved after a failed save", t)
+
+    def _close_saves(self, t: float, wait: float) -> None:
+        """At the stop: a latch save that failed once more (the loop retries no longer), the
+        saves handed over waited for (at most `wait` s), and what was not saved said."""
+        if self._latch_failing is not None and not self._saving_latches():
+            self._save_latches(t)
+        unsaved = self.saver.close(wait)
+        self._take_saves(t)
+        what = []
+        if "latches" in unsaved or self._latch_failing is not None:
+            meant, stored = (
+                ", ".join(k) or "none" for k in (self._tried_latches, self._saved_latches)
+            )
+            what.append(f"the latched alarms ({meant}; on disk: {stored})")
+        if "model" in unsaved:
+            what.append("the learned model")
+        if what:
+            self._event(logging.ERROR, f"not saved at the stop: {' and '.join(what)}", t)
+
+    # -- the periodic work ----------------------------------------------------------------
+
+    def _on_read(self, deadline: float, now: float) -> None:
+        self._read_now(now)
+        sup = self.supervisor
+        sup.tick(now)
+        if not sup.heater_allowed:
+            self._force_off(now)
+        self._drain_alarms(now)
+        self._act_on_drop(now)
+
+    def _asked(self) -> float:
+        """The output the element is driven at now: the controller's, or full power since a
+        reading in this period showed cold water."""
+        return 100.0 if self._full_power else self.output
+
+    def _act_on_drop(self, now: float) -> None:
+        """Full power from this reading on, not from the next period, when the readings so
+        far show cold water that the controller answers with it (`pid.full_power_now`).
+
+        The decision depends only on what the period record logs (its readings, and the
+        controller as the last step left it), so replay checks it; it is made whether or not
+        heating is allowed, and acted on only when it is (every edge is gated all the same).
+        """
+        if self._full_from is not None or not self._stepped or self._pv is None:
+            return
+        if not predictive.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
+            return
+        self._full_from = len(self._readings)
+        window = self._window
+        # A window cut by a forced off left the contactor open: nothing heats before the next.
+        if not self.supervisor.heater_allowed or window.plan is None or window.cut:
+            return
+        self._full_power = True  # in force until the next step
+        drop = self._pv - self._readings[-1]
+        self._event(logging.INFO, f"PV fell {drop:.2f} °C within the period: full power", now)
+        window.cancel()
+        self._arm(self.planner.full_from(window.plan, now), now)
+
+    def _read_now(self, now: float) -> None:
+        sup = self.supervisor
+        self._reads += 1
+        reading: Reading | None = None
+        error: SensorError | None = None
+        lost: str | None = None
+        try:
+            if self._reads % self._reads_per_period() == 0:
+                self.sensor.identify()
+                sup.chip_check(self.clock.monotonic(), True)
+                lost = self._sensor_limits_lost()
+            reading = self.sensor.read()
+        except WrongChipError as exc:
+            error = exc
+        except SensorError as exc:
+            error = exc
+        t = self.clock.monotonic()  # a slow bus moves time; judge the value when it arrived
+        if lost is not None:
+            self._event(logging.WARNING, f"the sensor lost its limits ({lost}): set again", t)
+            self._reprogram_sensor(t)
+        accepted = False
+        if isinstance(error, WrongChipError):
+            sup.chip_check(t, False, f"wrong chip: {error}")
+        elif error is not None:
+            sup.read_error(t, f"read failed: {error}", error.errno)
+        elif reading is not None:
+            accepted = sup.reading(t, reading.celsius, reading.raw, reading.crit)
+            if accepted:
+                self._readings.append(reading.celsius)
+                self._last_celsius = reading.celsius
+        if self.recorder is not None:
+            self.recorder.write(
+                "/hermsd/reading",
+                self.clock.wall_ns(),
+                {
+                    "t": t,
+                    "celsius": reading.celsius if reading else None,
+                    "raw": reading.raw if reading else None,
+                    "crit": reading.crit if reading else None,
+                    "high": reading.high if reading else None,
+                    "low": reading.low if reading else None,
+                    "error": str(error) if error else None,
+                    "errno": error.errno if error else None,
+                    "accepted": accepted,
+                },
+            )
+
+    def _reads_per_period(self) -> int:
+        return max(1, round(self.config.control.period / self.config.sensor.read_interval))
+
+    def _on_control(self, deadline: float, now: float) -> None:
+        sup = self.supervisor
+        sup.loop_lateness(now, now - deadline)
+        sup.tick(now)
+        self.alerts.flush(now)
+        self._poll_config(now)
+        self._poll_reset_request(now)
+        if self.control is not None:
+            self.control.at_boundary(now)
+        for action in self._pending:
+            action(now)
+        self._pending.clear()
+        readings, self._readings = self._readings, []
+        full_from, self._full_from = self._full_from, None
+        asked, self._full_power = self._asked(), False
+        self._stepped = False
+        pv = period_value(readings)
+        if pv is None:
+            pv = self._last_celsius  # a slow read interval: the latest accepted value
+        self._pv = pv
+        applied = self._ssr_duty.read(now)
+        switched2 = applied2 = None
+        on2 = free2 = None
+        if self.element2 is not None:
+            switched2, applied2 = self.element2.applied(now)
+            on2, free2 = self.element2.state(now)
+        if isinstance(self.controller, SplitController) and on2 is not None:
+            applied2 = switched2  # the heat, as switched: the total's model stays exact
+            self.controller.on2, self.controller.free2 = on2, bool(free2)
+        if isinstance(self.controller, TwoElementController):
+            self.controller.applied2 = applied2 or 0.0
+        probed = (
+            self.controller.probe_result() if isinstance(self.controller, SplitController) else None
+        )
+        total_asked, total_applied = self._total_power(asked, applied, switched2)
+        at_full = full_power(self.config).reached(applied, switched2)
+        sup.period(now, pv, total_asked, total_applied)
+        self._drain_alarms(now)
+        # The schedule's tun is both elements (its rates are of their sum): so is its duty.
+        standby = self._program_period(now, pv, total_applied, at_full) and self.mode == "auto"
+        state = "ok"
+        reset_from: float | None = None
+        if standby and sup.heater_allowed and pv is not None:
+            if not self._held:  # heating starts from nothing when the program's time comes
+                self._held, self._resume_output = True, 0.0
+            self.output = 0.0
+            state = "scheduled"
+        elif sup.heater_allowed and pv is not None:
+            if self.mode == "manual":
+                self.output = self.manual_output
+            else:
+                if self._held:
+                    reset_from = self._resume_output
+                    self.controller.reset(pv, reset_from)
+                    self._held = False
+                if full_from is not None:
+                    predictive.cold_water_seen(self.controller)
+                self.output = self.controller.step(self.setpoint, pv, applied)
+                self._stepped = True
+                controller = self.controller
+                asked_outputs = (
+                    controller.asked
+                    if isinstance(controller, TwoElementController)
+                    else (self.output, None)
+                )
+                if not sup.controller_output(now, *asked_outputs):
+                    self._drain_alarms(now)  # the heater off at once, said, latched
+                    self._held, self._resume_output = True, 0.0
+                    self.output, self._stepped, state = 0.0, False, "alarm"
+        else:
+            if not self._held:
+                self._held = True
+                self._resume_output = self.output
+            self.output = 0.0
+            self._force_off(now)
+            state = "alarm" if sup.active else "waiting"
+        if self.mode == "manual" and state == "ok":
+            state = "manual"
+        if readings and self._watchdog is not None:
+            # A fresh reading made a fresh decision, heating or held off (an alarm, a program
+            # waiting for its time): the loop is alive. Only a loop without readings stops
+            # earning pings; a kill in a healthy hold would restart, and re-alert, for hours.
+            self._watchdog.note_healthy_cycle()
+        u2 = self._output2 = self._drive_element2(now, state)
+        if self.element_watch is not None and switched2 is not None:
+            self._watch_elements(now, pv, applied, switched2, state, probed)  # replay too
+        self.k += 1
+        terms = self.controller.terms
+        record = PeriodRecord(
+            t=now,
+            k=self.k,
+            setpoint=self.setpoint,
+            pv=pv,
+            readings=readings,
+            output=self.output,
+            applied=applied,
+            p=terms[0],
+            i=terms[1],
+            d=terms[2],
+            mode=self.mode,
+            algorithm=self.config.control.algorithm,
+            state=state,
+            alarms=sup.active,
+            heater_allowed=sup.heater_allowed,
+            reset_from=reset_from,
+            u2=u2,
+            applied2=applied2,
+            switched2=switched2,
+            on2=on2,
+            free2=free2,
+            no_heat=None if self.element_watch is None else sorted(self.element_watch.suspect),
+            full_from=full_from,
+            **self.program.record_fields(),
+        )
+        said = reach_period(self.reach, record, self.model, self.config, self.controller)
+        self._say_reach(said, now)
+        record = dataclasses.replace(record, ceiling=self.reach.ceiling)
+        for listener in self.listeners:
+            listener.period(record)
+        if self.recorder is not None:
+            self.recorder.write("/hermsd/period", self.clock.wall_ns(), asdict(record))
+        self._learn(record)
+        self._report(now)
+
+    def _on_window(self, deadline: float, now: float) -> None:
+        window = self._window
+        window.cancel()
+        window.cut = False
+        allowed = self.supervisor.heater_allowed
+        if self.outputs.contactor is not None:
+            self.outputs.contactor.set(allowed)
+        self._arm(self.planner.plan(deadline, self.output if allowed else 0.0), now)
+
+    def _arm(self, plan: WindowPlan, now: float) -> None:
+        """Make `plan` the window in progress (logged; a later one for the same start replaces
+        it): the SSR as it says now, and its edges to come."""
+        window = self._window
+        window.plan = plan
+        self._switch(plan.is_on(now), now)
+        end = plan.start + plan.length
+        for edge in (plan.on_at, plan.off_at):
+            if now < edge < end:
+                window.timers.append(self.scheduler.at(edge, self._on_edge))
+        if self.recorder is not None:
+            self.recorder.write(
+                "/hermsd/window",
+                self.clock.wall_ns(),
+                {
+                    "t": plan.start,
+                    "window": plan.length,
+                    "requested": plan.requested,
+                    "on_time": plan.on_time,
+                    "applied": plan.applied,
+                },
+            )
+
+    def _on_edge(self, when: float, now: float) -> None:
+        plan = self._window.plan
+        if plan is None:
+            return
+        self.edge_lateness.add(now - when)
+        self._switch(plan.is_on(when), now)
+
+    def _on_timing(self, deadline: float, now: float) -> None:
+        if self.recorder is None:
+            return
+        p50, p99, worst = self._control_task.lateness.summary()
+        e50, e99, eworst = self.edge_lateness.summary()
+        self.recorder.write(
+            "/hermsd/timing",
+            self.clock.wall_ns(),
+            {
+                "t": now,
+                "period_lateness_p50": p50,
+                "period_lateness_p99": p99,
+                "period_lateness_max": worst,
+                "edge_error_p50": e50,
+                "edge_error_p99": e99,
+                "edge_error_max": eworst,
+                "overruns": self._control_task.overruns,
+                "dropped": getattr(self.recorder, "dropped", 0),
+            },
+        )
+
+    # -- outputs --------------------------------------------------------------------------
+
+    def _switch(self, on: bool, now: float) -> None:
+        on = on and self.supervisor.heater_allowed
+        self.outputs.ssr.set(on)
+        self._ssr_duty.switched(on, now)
+
+    def _force_off(self, now: float) -> None:
+        """Heater off at once: the window in progress is cut, the contactor opened."""
+        window = self._window
+        if window.plan is not None:
+            window.plan = cut(window.plan, now)
+        window.cancel()
+        window.cut = True
+        self.planner.reset()
+        self.outputs.ssr.set(False)
+        self._ssr_duty.switched(False, now)
+        if self.outputs.contactor is not None:
+            self.outputs.contactor.set(False)
+        if self.element2 is not None:
+            self.element2.force_off(now)
+
+    def _drive_element2(self, now: float, state: str) -> float | None:
+        """The second element for the period: the controller's u2 in auto. Any other state
+        (manual, which drives the SSR alone; an alarm; a program waiting for its ready_by
+        time) forces it off every period, its minimum on time aside, so its switch and its
+        duty say off: manual 0 % must not leave 3.5 kW on for minutes."""
+        if self.element2 is None:
+            return None
+        if state != "ok":
+            self.element2.force_off(now)
+            return 0.0
+        controller = self.controller
+        u2 = controller.u2 if isinstance(controller, TwoElementController) else 0.0
+        self.element2.drive(now, u2)
+        return u2
+
+    def _watch_elements(
+        self,
+        now: float,
+        pv: float | None,
+        duty1: float,
+        duty2: float,
+        state: str,
+        probed: ProbeResult | None,
+    ) -> None:
+        """Said, not latched: the other element holds the tun (docs/two-elements.md). The
+        heat-up's probe's finding of the step before comes first, as replay takes it."""
+        assert self.element_watch is not None
+        watch = self.element_watch
+        reports = []
+        if probed is not None and probed.element is None:
+            self._event(logging.INFO, probed.message, now)
+        elif probed is not None and probed.element is not None:
+            reports.append(watch.blame(now, probed.element, probed.message))
+        reports += watch.period(now, pv, self.setpoint, duty1, duty2, state == "ok")
+        for report in reports:
+            self._event(logging.WARNING if report.raised else logging.INFO, report.message, now)
+            self._alert("element_warning", report.message, now, report_kind(report.element))
+
+    def _say_reach(self, said: Said | None, t: float) -> None:
+        """Log and alert what the reach watch said (a warning; nothing is switched off)."""
+        if said is None:
+            return
+        self._event(logging.WARNING if said.raised else logging.INFO, said.message, t)
+        kind = "short" if said.raised else "cleared"
+        self._alert("setpoint_unreachable", said.message, t, kind)
+
+    def _total_power(
+        self, output: float, applied: float, applied2: float | None
+    ) -> tuple[float, float]:
+        """(output, applied) as % of all the elements' power, for the supervisor."""
+        if applied2 is None or not isinstance(self.controller, TwoElementController):
+            return output, applied
+        w1, w2 = self.config.tun.element_watts, element2_watts(self.config)
+        return total_share(w1, w2, output, self.controller.u2), total_share(
+            w1, w2, applied, applied2
+        )
+
+    # -- reporting ------------------------------------------------------------------------
+
+    def status_text(self) -> str:
+        state = ", ".join(self.supervisor.active) or ("manual" if self.mode == "manual" else "ok")
+        if self._config_problem is not None:
+            state += ", config rejected (see journal)"
+        if self._log_failing is not None:
+            state += f", log failing: {self._log_failing}"
+        if self._latch_failing is not None:
+            state += f", latched alarms not saved: {self._latch_failing}"
+        if self.program.active:
+            state += f", {self.program.status_words(self.clock.wall_ns())}"
+        for element in sorted(self.element_watch.suspect if self.element_watch else ()):
+            state += f", {no_heat_words(element)}"
+        if self.reach.ceiling is not None:
+            state += f", {PREFIX} near {self.reach.ceiling:.1f} °C"
+        name, kind = self.config.tun.name, self.config.sensor.kind
+        shown = name if kind == "lm92" else f"{name} ({kind})"  # the LM92's line as it was
+        return status_line(shown, self._pv, self.setpoint, self._asked(), state, self._output2)
+
+    def _check_log(self, t: float) -> None:
+        """Say that the log cannot be written at once, every minute while it lasts, and when
+        it can again: control goes on without it, but nobody should learn it from a lost day."""
+        failing: str | None = getattr(self.recorder, "failing", None)
+        if failing is None:
+            if self._log_failing is not None:
+                self._log_failing = None
+                lost = getattr(self.recorder, "lost", 0)
+                self._event(
+                    logging.WARNING,
+                    f"log writing again after {t - self._log_failing_since:.0f} s failing "
+                    f"({lost} records lost since start)",
+                    t,
+                )
+            return
+        if self._log_failing is None:
+            self._log_failing_since = t
+        elif t - self._log_failing_said < LOG_FAILING_REPEAT_S:
+            self._log_failing = failing
+            return
+        self._log_failing, self._log_failing_said = failing, t
+        lasting = t - self._log_failing_since
+        since = f" for {lasting:.0f} s" if lasting > 0 else ""
+        self._event(logging.WARNING, f"log failing{since}: {failing}; control goes on", t)
+
+    def _report(self, now: float) -> None:
+        self._check_log(now)
+        text = self.status_text()
+        if self.on_status is not None:
+            self.on_status(text)
+        notifier = self.notifier
+        if notifier is None:
+            return
+        if not self._ready and self._pv is not None:
+            self._ready = True  # outputs are set up and a good reading has arrived
+            notifier.ready()
+        notifier.status(text)
+        if self._watchdog is not None and self._watchdog.due(now):
+            notifier.watchdog()
+
+    def _record_config(self, reason: str, t: float) -> None:
+        if self.recorder is not None:
+            self.recorder.write(
+                CONFIG_TOPIC,
+                self.clock.wall_ns(),
+                {
+                    "t": t,
+                    "config": to_dict(self.config),
+                    "reason": reason,
+                    "model": asdict(self.model),
+                    "safety_model": _tun_fields(self._measured_tun(self.config)),
+                    "drop_readings": pid.DROP_READINGS,
+                    "drop_onset_c": pid.DROP_RULE.onset,
+                    "drop_fall_c": pid.DROP_RULE.fall,
+                    "drop_carry": pid.DROP_CARRY,
+                    "reach_watch": True,
+                    "steady_duty_share": pid.STEADY_DUTY_SHARE,
+                    "recovery_fit_periods": pid.RECOVERY_FIT_PERIODS,
+                },
+            )
+
+    def _drain_alarms(self, t: float) -> None:
+        for alarm in self.supervisor.drain_events():
+            if alarm.raised:
+                if alarm.latched:
+                    self._latched_wall_ns.setdefault(alarm.kind, self.clock.wall_ns())
+                self._force_off(t)
+                level = logging.ERROR if alarm.latched else logging.WARNING
+                self._event(level, raised_alarm_text(alarm), t)
+                self._alert("alarm_raised", raised_alarm_text(alarm), t, alarm.kind)
+            else:
+                self._latched_wall_ns.pop(alarm.kind, None)
+                self._latched_messages.pop(alarm.kind, None)
+                self._event(logging.INFO, f"{alarm.kind} {alarm.message}", t)
+                self._alert("alarm_cleared", f"{alarm.kind} {alarm.message}", t, alarm.kind)
+                if alarm.kind == "sensor_fault":
+                    self._reprogram_sensor(t)
+            for listener in self.listeners:
+                listener.alarm(alarm)
+        self._take_saves(t)
+        slow = t - self._latches_handed_at
+        if self._latch_failing is None and slow >= LATCH_SAVE_SLOW_S and self._saving_latches():
+            # A disk that hangs fails nothing: said all the same, as a restart now loses them.
+            self._latch_failing = f"the save has not finished in {slow:.0f} s"
+            self._latch_slow = True
+            self._event(logging.ERROR, f"saving latched alarms: {self._latch_failing}", t)
+        latched = self.supervisor.latched
+        if latched != self._tried_latches or (
+            self._latch_failing is not None
+            and t >= self._latch_retry_at
+            and not self._saving_latches()
+        ):
+            self._save_latches(t)
+
+    def _alert(self, event: str, message: str, t: float, kind: str = "") -> None:
+        """Hand an event to the alerts worker, with what the loop knows now."""
+        name, wall_ns = self.config.tun.name, self.clock.wall_ns()
+        heating = self.supervisor.heater_allowed and not self._outputs_off
+        output = self._asked() if heating else 0.0  # the output in force
+        self.alerts.send(
+            Event(event, message, name, wall_ns, kind, self._pv, self.setpoint, output), t
+        )
+
+    def _sensor_limits_lost(self) -> str | None:
+        """What of the chip's limits differs from what was set, or None. A chip reset by a
+        dip in its supply reads on without a failed read, but with T_CRIT back at 80 °C."""
+        safety = self.config.safety
+        limits: tuple[tuple[LimitName, float], ...] = (
+            ("crit", safety.max_temp),
+            ("hyst", safety.hysteresis),
+        )
+        for name, celsius in limits:
+            meant = decode_temperature(encode_temperature(celsius))
+            found = self.sensor.limit(name)
+            if found != meant:
+                return f"{name} reads {found:g} °C, not {meant:g} °C: was the chip reset?"
+        return None
+
+    def _reprogram_sensor(self, t: float) -> None:
+        """A chip that was gone may have powered up again with T_CRIT at 80 °C: set it again."""
+        try:
+            self._program_sensor()
+        except SensorError as error:
+            self.supervisor.read_error(t, f"programming the limits failed: {error}", error.errno)
+
+    def _event(self, level: int, message: str, t: float) -> None:
+        log.log(level, message)
+        if self.recorder is not None:
+            severity = {logging.WARNING: LogLevel.WARNING, logging.ERROR: LogLevel.ERROR}
+            self.recorder.write(
+                "/hermsd/log",
+                self.clock.wall_ns(),
+                log_message(severity.get(level, LogLevel.INFO), message, self.clock.wall_ns()),
+            )
+
+    @staticmethod
+    def _make_planner(config: Config) -> TimeProportionalPlanner:
+        out = config.output
+        return TimeProportionalPlanner(window_length(config), out.mains_hz, out.min_on, out.min_off)

@@ -1,0 +1,1 @@
+"""Safety: the supervisor and its limits, latched alarms, the element watch and probe."""

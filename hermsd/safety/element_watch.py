@@ -1,0 +1,362 @@
+"""Whether each of two elements gives heat: a warning, not an alarm (docs/two-elements.md).
+
+The supervisor judges the total power of both elements against limits that hold for any fill
+from half to twice the configured litres. Where one element can hold the tun alone, the loop
+holds on it when the other dies, and no limit of that width can tell. This watch compares
+stretches of the day with two references measured the same day, so the fill cancels out:
+
+- the full-power rate R (°C/s): the PV's rise with both elements fully on, the last measured
+  before the hold at the setpoint in force (nearest the setpoint's losses);
+- the hold's power u0 (a part of both elements' total): the mean asked while the PV held the
+  setpoint for `HOLD_S`, less what its drift took: the tun's losses there.
+
+G = R/(1 − u0) is the rise per unit of total power, and a window that asked u and rose at r
+delivered u0 + r/G. R was measured a little below the setpoint, where the losses are a
+little less, so G reads high by as much (some 2 % a degree below 66 °C in a 20 °C room):
+heat delivered while rising reads a little low. An element whose own part c of u is missing
+(and not the other's part: `MISSING`·c ≤ u − delivered ≤ c/`MISSING`) through a window, in
+each way of aligning the power with the PV (`WINDOWS`), for the window's confirm time is
+reported; it is cleared once a window shows no more than `RESTORED`·c missing.
+
+Pure, fed once a control period with time as an argument; its state is made of what the
+period records log, so `hermsd replay --verify` derives the same reports from a log.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections import deque
+from dataclasses import dataclass
+
+SPELL_S = 120.0
+"""s of PV judged at a time: the means of 3 periods' PV at its ends (each period's of 5
+reads: sd 0.016 °C with 0.03 °C noise and the LM92's steps) differ by sd 0.013 °C, 1.1e-4
+°C/s over it: 2 % of the full-power rate of 5.5 kW into 150 L, the slowest in the benches."""
+HOLD_S = 1200.0
+"""s the PV must stay within `HOLD_BAND` of the setpoint for the hold's power to be taken."""
+HOLD_BAND = 0.3
+"""°C: the hold's band for its reference."""
+HOLD_DRIFT = 0.1
+"""°C: the most the PV may drift over that hold (its mean at either end)."""
+APPROACH_BAND = (10.0, 0.5)
+"""°C below the setpoint: the full-power rate is taken where the PV lies between these, near
+the losses of the setpoint and clear of the approach's cut-back."""
+SUDDEN_FALL = 0.25
+"""°C within `SUDDEN_SPAN`: faster than any loss, water was added; no spell spans it."""
+SUDDEN_SPAN = 30.0
+SETTLE_S = 300.0
+"""s after such a fall and the dead time before a window's PV may start: the sensor's lag (a
+thermowell's, up to 120 s) still bends its rise for some three lags."""
+DEAD_TIME_FACTORS = (0.5, 1.0, 2.0)
+"""Each spell is judged with its power taken these times the dead time earlier: an element
+is blamed only when all agree (a misjudged dead time makes power that changed near the
+window's ends look missing at one of them, not at all)."""
+LEAST_SHARE = 0.1
+"""An element giving less than this part of the total in a spell is not judged in it."""
+CYCLES_S = 900.0
+"""s: a longer window judged whatever the second element did in it (a hold that cycles it
+at its minimum times never leaves it in one state for a spell)."""
+LEAST_PART = 0.05
+"""… where an element's part is judged from this (its missing heat is then still 6× the
+noise's 1.5e-5 °C/s over the window on the slowest tun)."""
+CYCLES_CONFIRM_S = CYCLES_S / 2.0
+"""s such a window's finding must last: one that spans an element's death sees half its heat
+missing, as much as the other's part may be, and blames the wrong one until it moves on."""
+MISSING = 0.6
+"""Missing heat, as a part of an element's own, that reports it (a dead one: 1)."""
+SURPLUS = 0.15
+"""Heat delivered beyond what was asked, as a part of the total, that says the references
+were measured without an element's heat (a normal day's windows stay within 0.06)."""
+RESTORED = 0.3
+"""Missing heat, as a part of its own, below which a reported element is cleared."""
+CONFIRM_S = 60.0
+"""s a finding must last before it is reported or cleared."""
+WINDOWS = (
+    (SPELL_S, True, LEAST_SHARE, CONFIRM_S, DEAD_TIME_FACTORS),
+    (CYCLES_S, False, LEAST_PART, CYCLES_CONFIRM_S, (1.0,)),
+)
+"""(s judged, the second element steady in it, the least part judged, s to confirm, the dead
+times tried): a long window's ends weigh little, and the ripple of a cycling hold at its
+ends would make the dead times disagree by more than misjudging them does."""
+PV_MEAN_PERIODS = 3
+"""Periods whose PV are averaged at either end of a spell (noise: sd/√3)."""
+
+
+EITHER = 0
+"""Reported for the element when heat is missing that either one's could be."""
+UNASKED = 3
+"""Reported when more heat came than was asked (`SURPLUS`)."""
+
+
+def no_heat_words(element: int) -> str:
+    """The words of a report on `element` (1, 2, EITHER or UNASKED), as the status shows."""
+    if element == UNASKED:
+        return "more heat than asked?"
+    which = "element 1 or 2" if element == EITHER else f"element {element}"
+    return f"{which} gives no heat?"
+
+
+def report_kind(element: int) -> str:
+    """The alert's kind for a report on `element`."""
+    return {EITHER: "element1or2", UNASKED: "heat_unasked"}.get(element, f"element{element}")
+
+
+@dataclass(frozen=True, slots=True)
+class ElementReport:
+    """A finding on one element (1: the SSR's, 2: the second; EITHER; UNASKED), raised or
+    cleared."""
+
+    element: int
+    t: float
+    raised: bool
+    message: str
+
+
+@dataclass(frozen=True, slots=True)
+class _Sample:
+    t: float
+    pv: float
+    duty1: float  # the SSR element's duty in the period before, 0..1
+    on2: bool  # the second element was on all through the period before
+
+
+class ElementWatch:
+    """Reports an element of two that gives no heat, from the loop's own spells."""
+
+    def __init__(self, watts1: float, watts2: float, dead_time: float) -> None:
+        if not (watts1 > 0.0 and watts2 > 0.0 and dead_time >= 0.0):
+            raise ValueError(f"watts must be > 0, dead time ≥ 0: {watts1}, {watts2}, {dead_time}")
+        self.share1 = watts1 / (watts1 + watts2)
+        self.share2 = watts2 / (watts1 + watts2)
+        self.dead_time = dead_time
+        self.full_rate: float | None = None  # °C/s with both fully on
+        self.hold_power: float | None = None  # the hold's mean total, 0..1
+        self.setpoint: float | None = None
+        self.suspect: set[int] = set()  # the elements reported and not cleared
+        self.doubtful = False  # heat beyond what was asked: the references lack an element
+        self.hold_cycled = False  # the second element was on in the hold's reference
+        self.probed: int | None = None  # the element the heat-up's probe found dead
+        self._samples: deque[_Sample] = deque()
+        self._since: dict[tuple[int, bool, float], float] = {}  # a finding → first seen
+        self._fell_at: float | None = None  # when the PV last fell faster than losses can
+
+    def period(
+        self,
+        t: float,
+        pv: float | None,
+        setpoint: float,
+        duty1: float,
+        duty2: float,
+        controlled: bool = True,
+    ) -> list[ElementReport]:
+        """One control period: the PV, the setpoint, each element's duty (%) as switched in
+        the period before, and whether the controller drives them (no alarm, no manual, no
+        program waiting). Returns what was reported or cleared now."""
+        said: list[ElementReport] = []
+        if setpoint != self.setpoint:
+            self.setpoint, self.hold_power = setpoint, None  # losses differ at another one
+            self.doubtful = False
+            if UNASKED in self.suspect:  # judged again, on the new references
+                self.suspect.discard(UNASKED)
+                said.append(
+                    ElementReport(
+                        UNASKED, t, False, "heat as asked is judged again, at the new setpoint"
+                    )
+                )
+        if pv is None or not math.isfinite(pv) or not controlled:
+            self._samples.clear()  # no window spans an alarm's heater off, or a manual spell
+            self._since.clear()
+            return said
+        samples = self._samples
+        samples.append(_Sample(t, pv, duty1 / 100.0, duty2 >= 100.0))
+        keep = max(HOLD_S, CYCLES_S) + max(DEAD_TIME_FACTORS) * self.dead_time + SUDDEN_SPAN
+        while t - samples[0].t > keep:
+            samples.popleft()
+        if max(s.pv for s in samples if s.t >= t - SUDDEN_SPAN) - pv >= SUDDEN_FALL:
+            self._fell_at = t
+        if duty2 > 0.0 and duty2 < 100.0:
+            self._since.clear()
+            return said  # the second element switched within the period: no spell spans it
+        self._take_references(t, setpoint)
+        return said + self._judge(t)
+
+    def blame(self, t: float, element: int, message: str) -> ElementReport:
+        """An element the heat-up's probe found dead (hermsd/safety/element_probe.py): reported,
+        and held, for the references were measured without its heat and cannot clear it."""
+        self.suspect.add(element)
+        self.probed = element
+        return ElementReport(element, t, True, message)
+
+    def keep_probed(self, before: ElementWatch) -> None:
+        """Hold what the heat-up's probe found for `before`, the watch of the same tun
+        before a reload (hermsd.runtime.daemon.keep_probe): the probe is not tried again."""
+        if before.probed is not None:
+            self.suspect.add(before.probed)
+            self.probed = before.probed
+
+    def _take_references(self, t: float, setpoint: float) -> None:
+        samples = self._samples
+        if self.hold_power is None:  # the full-power rate nearest the setpoint, before it
+            low, high = setpoint - APPROACH_BAND[0], setpoint - APPROACH_BAND[1]
+            spell = self._spell(t, SPELL_S, True, max(DEAD_TIME_FACTORS) * self.dead_time)
+            if spell is not None and low <= samples[-1].pv <= high:
+                reach = SPELL_S + max(DEAD_TIME_FACTORS) * self.dead_time
+                full = all(self._total(s) >= 1.0 - 1e-9 for s in samples if s.t > t - reach)
+                if full and spell[1] > 0.0:
+                    self.full_rate = spell[1]
+        if self.hold_power is None and t - samples[0].t >= HOLD_S + self.dead_time:
+            held = [s for s in samples if s.t >= t - HOLD_S]
+            # In the band from before its power's window too: the approach's last power,
+            # which a dead time longer than the tun's would count, is not the hold's.
+            settled = (s for s in samples if s.t >= t - HOLD_S - self.dead_time)
+            if all(abs(s.pv - setpoint) <= HOLD_BAND for s in settled):
+                drift = _mean_pv(held[-PV_MEAN_PERIODS:]) - _mean_pv(held[:PV_MEAN_PERIODS])
+                powered = [
+                    s for s in samples if t - HOLD_S - self.dead_time < s.t <= t - self.dead_time
+                ]
+                if abs(drift) <= HOLD_DRIFT and powered:
+                    mean = sum(self._total(s) for s in powered) / len(powered)
+                    self.hold_power = mean
+                    self.hold_cycled = any(
+                        b.on2 and not a.on2 for a, b in itertools.pairwise(powered)
+                    )
+                    if self.full_rate is not None:  # less what the drift took, by G = R/(1 − u0)
+                        seconds = _mean_t(held[-PV_MEAN_PERIODS:]) - _mean_t(held[:PV_MEAN_PERIODS])
+                        part = drift / seconds / self.full_rate
+                        self.hold_power = (mean - part) / (1.0 - part)
+
+    def _spell(
+        self, t: float, span: float, steady: bool, dead: float
+    ) -> tuple[float, float, dict[int, float]] | None:
+        """(mean total power, PV rate, each element's part of the total) of the `span` s
+        judged now, its power from `span` + `dead` s ago; none within `SETTLE_S` of water
+        added, and with `steady` the second element in one state all through."""
+        samples = self._samples
+        start = t - span - dead
+        if samples[0].t > start - 1e-9:
+            return None
+        if self._fell_at is not None and self._fell_at > t - span - self.dead_time - SETTLE_S:
+            return None
+        spell = [s for s in samples if s.t > start]
+        if steady and any(s.on2 != spell[-1].on2 for s in spell):
+            return None
+        powered = [s for s in spell if s.t <= t - dead]
+        if not powered:
+            return None
+        if not steady and any(self._total(s) >= 1.0 - 1e-9 for s in powered):
+            return None  # a heat-up or recovery's end: where its heat shows depends on θ
+        first = [s for s in spell if s.t >= t - span][:PV_MEAN_PERIODS]
+        last = spell[-PV_MEAN_PERIODS:]
+        seconds = _mean_t(last) - _mean_t(first)
+        if seconds < span / 2:
+            return None
+        n = len(powered)
+        parts = {
+            1: self.share1 * sum(s.duty1 for s in powered) / n,
+            2: self.share2 * sum(s.on2 for s in powered) / n,
+        }
+        rate = (_mean_pv(last) - _mean_pv(first)) / seconds
+        return parts[1] + parts[2], rate, parts
+
+    def _judge(self, t: float) -> list[ElementReport]:
+        if (
+            self.probed is not None
+            or self.full_rate is None
+            or self.hold_power is None
+            or self.hold_power >= 1.0
+        ):
+            return []
+        gain = self.full_rate / (1.0 - self.hold_power)
+        for span, steady, least, confirm, factors in WINDOWS:
+            if steady and self.hold_cycled:
+                # A hold that switched the second element on is judged by the long window
+                # alone: had it given nothing all day, the hold cycled it for nothing and
+                # u0 took its nominal heat for the tun's losses, and a short window with it
+                # on throughout would blame the first element for its missing heat.
+                continue
+            # Judged at each dead time of DEAD_TIME_FACTORS: power that changed near the
+            # window's ends shows at the sensor sooner or later than `dead_time` says.
+            seen = [self._spell(t, span, steady, f * self.dead_time) for f in factors]
+            spells = [spell for spell in seen if spell is not None]
+            if len(spells) < len(seen):
+                continue
+            blamed: set[int | None] = set()
+            restored: set[int] = set()
+            surplus = True
+            for power, rate, parts in spells:
+                missing = power - (self.hold_power + rate / gain)
+                surplus = surplus and missing <= -SURPLUS
+                judged = {e: c for e, c in parts.items() if c >= least}
+                # A dead element's missing heat is its own part: blamed when it fits that,
+                # or either of the two when both do.
+                fits = [e for e, c in judged.items() if MISSING * c <= missing <= c / MISSING]
+                blamed.add(fits[0] if len(fits) == 1 else EITHER if fits else None)
+                restored |= {e for e, c in judged.items() if missing <= RESTORED * c}
+                if len(restored) == 2:
+                    restored.add(EITHER)
+            power, rate, parts = spells[factors.index(1.0)]
+            missing = power - (self.hold_power + rate / gain)
+            parts[EITHER] = min((c for c in parts.values() if c >= least), default=0.0)
+            if self.doubtful:
+                continue  # the references are not of both elements: nothing is judged by them
+            key = (UNASKED, True, span)
+            if not surplus:
+                self._since.pop(key, None)
+            elif t - self._since.setdefault(key, t) >= confirm:
+                self._since.clear()
+                self.doubtful = True
+                return [self._report(t, UNASKED, True, missing, parts[EITHER])]
+            for element, part in parts.items():
+                raising = element not in self.suspect
+                # One element at a time: both dead is the supervisor's (neither holds the
+                # tun: the water falls at full power).
+                finding = (
+                    blamed == {element} and not self.suspect if raising else element in restored
+                )
+                key = (element, raising, span)
+                if not finding:
+                    self._since.pop(key, None)
+                elif t - self._since.setdefault(key, t) >= confirm:
+                    self._since.clear()
+                    return [self._report(t, element, raising, missing, part)]
+        return []
+
+    def _report(
+        self, t: float, element: int, raising: bool, missing: float, part: float
+    ) -> ElementReport:
+        share = 100.0 * part
+        if element == UNASKED:
+            self.suspect.add(element)
+            message = (
+                f"{no_heat_words(element)} {-100.0 * missing:.0f} % of both elements' power "
+                "more than asked, against this day's full-power rise and hold: an element on "
+                "unasked (a relay or SSR shorted?), or one gave none when they were measured "
+                "(dead since the heat-up?), or the tun loses that much less (a lid put on?)"
+            )
+        elif raising:
+            self.suspect.add(element)
+            message = (
+                f"{no_heat_words(element)} {100.0 * missing:.0f} % of both elements' "
+                f"power missing with it on for {share:.0f} % (against this day's full-power "
+                "rise and hold), or the tun loses that much more than in the hold (a lid off?)"
+            )
+        else:
+            self.suspect.discard(element)
+            which = "elements 1 and 2 heat" if element == EITHER else f"element {element} heats"
+            message = (
+                f"{which} again ({100.0 * missing:.0f} % of both elements' "
+                f"power missing with it on for {share:.0f} %)"
+            )
+        return ElementReport(element, t, raising, message)
+
+    def _total(self, sample: _Sample) -> float:
+        return self.share1 * sample.duty1 + (self.share2 if sample.on2 else 0.0)
+
+
+def _mean_pv(samples: list[_Sample]) -> float:
+    return sum(s.pv for s in samples) / len(samples)
+
+
+def _mean_t(samples: list[_Sample]) -> float:
+    return sum(s.t for s in samples) / len(samples)
