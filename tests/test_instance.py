@@ -144,7 +144,9 @@ def test_a_second_daemon_on_the_tuns_socket_opens_no_output_before_it_is_refused
     monkeypatch.setattr(
         cli_run, "open_hardware_switch", lambda backend, **where: _Output(touched, backend)
     )
-    monkeypatch.setattr(cli_run, "open_bus", lambda bus: touched.append(f"open i2c-{bus}"))
+    monkeypatch.setattr(
+        cli_run, "open_sensor", lambda sensor, clock: touched.append(f"open {sensor.kind}")
+    )
     monkeypatch.delenv("NOTIFY_SOCKET", raising=False)
     config = tmp_path / "hermsd.yaml"
     config.write_text(

@@ -7,13 +7,14 @@ from pathlib import Path
 import pytest
 
 from hermsd.cli import commands as cli
+from hermsd.cli import hardware as cli_hardware
 from hermsd.sim.w1 import FakeW1Tree
 
 
 @pytest.fixture(autouse=True)
 def no_sleep(monkeypatch: pytest.MonkeyPatch) -> list[float]:
     slept: list[float] = []
-    monkeypatch.setattr(cli.time, "sleep", slept.append)
+    monkeypatch.setattr(cli_hardware.time, "sleep", slept.append)
     return slept
 
 
