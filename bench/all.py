@@ -9,7 +9,7 @@ by `--list` and kept as they are; `--check` fails if a section lacks its measure
     uv run python bench/all.py [--only NAME,...] [--list] [--check]
 
 Run as root: the timing, socket and slow-disk benches measure a real-time loop as well.
-Several take minutes (robustness, tuning, faults); the whole takes about an hour.
+Several take minutes (robustness, tuning, faults); the whole takes more than an hour.
 """
 
 from __future__ import annotations
@@ -113,6 +113,15 @@ BENCHES = (
     ),
     Bench(
         "soak", "soak.py", ("--days", "7"), ("## Soak: memory and loop CPU over days of logging",)
+    ),
+    *(
+        Bench(
+            f"robustness-{kind}",
+            "robustness.py",
+            ("--kind", kind, "--seeds", "2", "--jobs", "2"),
+            (f"## Robustness with a {kind.upper()}: hermsd and its peers, same goals",),
+        )
+        for kind in ("ds18b20", "max31865")
     ),
 )
 

@@ -421,7 +421,7 @@ def main() -> int:
     heading = "## Robustness: hermsd and its peers on twelve brewers' tuns"
     if args.kind != "lm92":
         heading = f"## Robustness with a {args.kind.upper()}: hermsd and its peers, same goals"
-    text = about + "\n\n" + "\n\n".join(tables) + "\n"
+    text = about[0].upper() + about[1:] + "\n\n" + "\n\n".join(tables) + "\n"
     if args.write:
         sections.write(heading, text)
     return 0

@@ -128,6 +128,13 @@ def test_each_trap_is_a_fault(pad: Scratchpad, trap: str) -> None:
     assert caught.value.trap == trap
 
 
+def test_crc_of_every_byte_and_of_every_byte_after_another() -> None:
+    # every entry of the driver's table, alone and reached from a register that is not 0
+    for value in range(256):
+        assert crc8(bytes([value])) == crc8_by_division(bytes([value]))
+        assert crc8(bytes([0xA5, value])) == crc8_by_division(bytes([0xA5, value]))
+
+
 def test_the_all_zero_scratchpad_passes_its_crc() -> None:
     assert crc8_by_division(bytes(8)) == 0  # why the zeros need their own trap
 
@@ -301,3 +308,18 @@ def test_a_stale_conversion_is_a_failed_read(tmp_path: Path) -> None:
     clock.now = 3.3
     with pytest.raises(SensorError, match=r"2\.5 s old"):
         sensor.read()
+
+
+def test_a_shorter_conversion_leaves_no_trace_of_the_longer_one(tmp_path: Path) -> None:
+    celsius = [-10.125]
+    chip = FakeW1Tree(tmp_path).add(ID, lambda: celsius[0])
+    chip.convert()  # t=-10125
+    celsius[0] = 0.5
+    chip.convert()  # t=500: the files are written over in place, then cut to their length
+    # 0.5 °C = 8 sixteenths: word 0x0008, the bytes 08 00 4b 46 7f ff 08 10 and their CRC
+    data = bytes([0x08, 0x00, 0x4B, 0x46, 0x7F, 0xFF, 0x08, 0x10])
+    pad = " ".join(f"{b:02x}" for b in data) + f" {crc8_by_division(data):02x}"
+    crc = f"{crc8_by_division(data):02x}"
+    assert (tmp_path / ID / "w1_slave").read_text() == f"{pad} : crc={crc} YES\n{pad} t=500\n"
+    assert (tmp_path / ID / "temperature").read_text() == "500\n"
+    assert DS18B20(ID, tmp_path).convert() == (0.5, 0x0008)
