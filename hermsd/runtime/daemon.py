@@ -2,7 +2,8 @@
 
 The same code runs on the Pi (real clock, LM92 on /dev/i2c-N, SSR on a serial line or GPIO),
 in real time against the simulated tun, and at full speed in `hermsd simulate`. Everything
-outside — hardware, clock, recorder, systemd notifier — is handed in.
+outside — hardware, clock, recorder, systemd notifier — is handed in, with the parts built
+from the config (`runtime/assemble.py`, the composition root).
 
 Per control period the controller sees one PV and the duty the SSR was driven at in the
 period before (`applied`: the time its input was on, as switched, edge lateness and forced
@@ -31,15 +32,14 @@ from typing import Any, Protocol
 
 from hermsd.config import read, rules
 from hermsd.config import schema as config_module
-from hermsd.config.file import ConfigFile
 from hermsd.config.read import to_dict
 from hermsd.config.schema import Config, ConfigError
 from hermsd.control import pid, predictive
-from hermsd.control.element2 import SlowElement, SplitController, TwoElementController, total_share
-from hermsd.control.factory import full_power, full_power_share, make_controller, shared_out
-from hermsd.control.learning import LearnedModel, Learner, ModelStore
+from hermsd.control.element2 import SplitController, TwoElementController, total_share
+from hermsd.control.factory import full_power, full_power_share
+from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.control.pv import period_value
-from hermsd.control.reach import PREFIX, ReachWatch, Said
+from hermsd.control.reach import PREFIX, Said
 from hermsd.hardware.lm92 import (
     LimitName,
     Reading,
@@ -48,45 +48,43 @@ from hermsd.hardware.lm92 import (
     decode_temperature,
     encode_temperature,
 )
-from hermsd.hardware.outputs import Outputs, window_length
-from hermsd.hardware.sensors.base import Sensor
+from hermsd.hardware.outputs import window_length
 from hermsd.hardware.sensors.kinds import describe as describe_sensor
 from hermsd.hardware.ssr import (
     SwitchedDuty,
-    TimeProportionalPlanner,
     WindowPlan,
     cut,
 )
 from hermsd.log.topics import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
-from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program
 from hermsd.program.readiness import Tun
 from hermsd.program.runner import ProgramEvent
-from hermsd.program.store import ProgressStore
 from hermsd.runtime.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.runtime.build import (
     _tun_fields,
+    control_law,
     element2_watts,
     element_watch,
     keep_probe,
+    learner,
+    measured_tun,
     model_in_force,
+    planner,
     reach_period,
     reach_restarts,
     retunes,
     safety_limits,
-    stored_model,
     watch_changes,
 )
-from hermsd.runtime.clock import Clock
-from hermsd.runtime.notify import Notifier, WatchdogGate, status_line
+from hermsd.runtime.notify import WatchdogGate, status_line
+from hermsd.runtime.parts import Parts
 from hermsd.runtime.period import PeriodRecord
-from hermsd.runtime.saver import Outcome, Saver
+from hermsd.runtime.saver import Outcome
 from hermsd.runtime.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.safety.element_probe import ProbeResult
 from hermsd.safety.element_watch import no_heat_words, report_kind
-from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore, StateError
+from hermsd.safety.latches import LatchedAlarm, Latches, StateError
 from hermsd.safety.limits import Alarm, MeasuredTun
-from hermsd.safety.supervisor import Supervisor
 
 log = logging.getLogger("hermsd")
 
@@ -100,12 +98,6 @@ STOP_WAIT_S = 8.0
 latched alarms first: what a restart must find), then the program's progress, then queued
 alerts, in that order: inside systemd's stop timeout of 10 s (systemd/hermsd.service), so
 that what was not saved is said before a SIGKILL could cut the stop short."""
-
-
-class Recorder(Protocol):
-    """Where records go (the MCAP recorder); `write` never blocks."""
-
-    def write(self, topic: str, log_time_ns: int, message: dict[str, Any]) -> None: ...
 
 
 RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heater off")
@@ -198,60 +190,42 @@ class _Window:
 class Daemon:
     """One tun's control loop."""
 
-    def __init__(
-        self,
-        config: Config,
-        clock: Clock,
-        sensor: Sensor,
-        outputs: Outputs,
-        *,
-        recorder: Recorder | None = None,
-        notifier: Notifier | None = None,
-        on_status: Callable[[str], None] | None = None,
-        config_file: ConfigFile | None = None,
-        latches: LatchStore | None = None,
-        models: ModelStore | None = None,
-        tun_model: MeasuredTun | None = None,
-        saver: Saver | None = None,
-    ) -> None:
+    def __init__(self, parts: Parts) -> None:
+        """The loop on `parts` (`runtime/assemble.py` builds them from a config)."""
+        config, clock, outputs, notifier = parts.config, parts.clock, parts.outputs, parts.notifier
         self.config = config
-        self.tun_model = tun_model
-        self.config_file = config_file
-        self.latches = latches
+        self.tun_model = parts.tun_model
+        self.config_file = parts.config_file
+        self.latches = parts.latches
         self.clock = clock
-        self.sensor = sensor
+        self.sensor = parts.sensor
         self.outputs = outputs
-        self.recorder = recorder
+        self.recorder = parts.recorder
         self.notifier = notifier
         interval = notifier.watchdog_interval() if notifier is not None else None
         # Every healthy period may ping: one missed period must not use up the timeout.
         period = config.control.period
         self._watchdog = WatchdogGate(min(interval, period / 2)) if interval else None
         self._ready = False
-        self.on_status = on_status
+        self.on_status = parts.on_status
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
-        self.models = models
-        self.saver = saver if saver is not None else Saver()  # latches and model, off the loop
-        self._stored_model: LearnedModel | None = None
+        self.models = parts.models
+        self.saver = parts.saver  # latches and model, off the loop
+        self._stored_model = parts.stored_model
         self._learned_since: LearnedModel | None = None  # stored since the start, not in force
-        self._model_problem: str | None = None  # said in the log at start
-        if models is not None:
-            self._stored_model, self._model_problem = stored_model(models, config)
-        self.model_choice = model_in_force(self._stored_model, config)
+        self._model_problem = parts.model_problem  # said in the log at start
+        self.model_choice = parts.model_choice
         self.model = self.model_choice.model
-        self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
-        self.controller = shared_out(config, make_controller(config.control, self.model))
-        self._learner = self._make_learner(config)
+        self.supervisor = parts.supervisor
+        self.controller = parts.controller
+        self._learner = parts.learner
         self._heat_up_seen = predictive.heat_up_fit(self.controller)
         self._reloaded_at = -math.inf  # when a reload last changed the config
-        self.planner = self._make_planner(config)
-        e2 = config.element2
-        self.element2 = (
-            SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
-        )
-        self.element_watch = element_watch(config) if self.element2 is not None else None
-        self.reach = ReachWatch()  # says when full power cannot reach the setpoint
+        self.planner = parts.planner
+        self.element2 = parts.element2
+        self.element_watch = parts.element_watch
+        self.reach = parts.reach
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
         self.manual_output = config.control.manual_output
@@ -293,11 +267,7 @@ class Daemon:
         self.alerts = Alerts(
             config.alerts, lambda message: self._event(logging.WARNING, message, clock.monotonic())
         )
-        self.program = ProgramDriver(
-            ProgressStore(latches.directory) if latches is not None else None,
-            getattr(clock, "zone", None),  # a simulated clock's local time; else the system's
-            config.control.period,
-        )
+        self.program = parts.program
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -674,10 +644,10 @@ class Daemon:
             self.model_choice = model_in_force(self._stored_model, new)
             self.model = self.model_choice.model
             before = self.controller
-            self.controller = shared_out(new, make_controller(new.control, self.model))
+            self.controller = control_law(new, self.model)
             keep_probe(old, new, before, self.controller)
             self._heat_up_seen = predictive.heat_up_fit(self.controller)
-            self._learner = self._make_learner(new)
+            self._learner = learner(new, self.model)
             if not self._held:  # bumpless: the new controller starts from the output in force
                 self._held = True
                 self._resume_output = self.output
@@ -714,7 +684,7 @@ class Daemon:
             self._apply_reset(t)
             self._save_latches(t)  # later latches are stored under the new counter
         if any(key.startswith("output.") for key in changed):
-            self.planner = self._make_planner(new)
+            self.planner = planner(new)
 
     # -- the tun's model: prior, learned, learning ----------------------------------------
 
@@ -726,24 +696,8 @@ class Daemon:
         return self._learned_since or self._stored_model
 
     def _measured_tun(self, config: Config) -> MeasuredTun | None:
-        """The tun as measured for the supervisor's limits: the one given, else the model in
-        force if it was measured (learned, or by `hermsd tune`); None before anything is
-        measured (the config's prior is a guess, and the limits then hold for any tun it may
-        describe).
-
-        The learned losses are referred to `control.model_ambient` a, not the real room:
-        they reproduce the hold's measured power at the setpoint s, so the supervisor's bound
-        there (×1.5, a room 10 °C colder than a) is 1.5·(s − a + 10)/(s − a) times the true
-        losses whatever the room is (×1.83 at 66 °C and a = 20 °C).
-        """
-        if self.tun_model is not None:
-            return self.tun_model
-        return model_in_force(self._stored_model, config).measured
-
-    def _make_learner(self, config: Config) -> Learner:
-        return Learner(
-            litres=config.tun.litres, ambient=self.model.ambient, period=config.control.period
-        )
+        """The tun as measured for the supervisor's limits (`build.measured_tun`)."""
+        return measured_tun(config, self._stored_model, self.tun_model)
 
     def _learn(self, record: PeriodRecord) -> None:
         """Feed the learner one period; store and log what it learned (or why not)."""
@@ -1402,8 +1356,3 @@ class Daemon:
                 self.clock.wall_ns(),
                 log_message(severity.get(level, LogLevel.INFO), message, self.clock.wall_ns()),
             )
-
-    @staticmethod
-    def _make_planner(config: Config) -> TimeProportionalPlanner:
-        out = config.output
-        return TimeProportionalPlanner(window_length(config), out.mains_hz, out.min_on, out.min_off)
