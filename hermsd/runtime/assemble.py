@@ -30,7 +30,7 @@ from hermsd.safety.limits import MeasuredTun
 from hermsd.safety.supervisor import Supervisor
 
 
-def parts(
+def assemble(
     config: Config,
     clock: Clock,
     sensor: Sensor,
@@ -44,8 +44,9 @@ def parts(
     models: ModelStore | None = None,
     tun_model: MeasuredTun | None = None,
     saver: Saver | None = None,
-) -> Parts:
-    """The parts of a daemon for `config`, with what `models` holds of the tun."""
+) -> Daemon:
+    """A daemon for `config` on `sensor` and `outputs`, its parts built here (with what
+    `models` holds of the tun) and handed to the loop."""
     stored: LearnedModel | None = None
     problem: str | None = None
     if models is not None:
@@ -55,7 +56,7 @@ def parts(
     measured = build.measured_tun(config, stored, tun_model)
     e2 = config.element2
     element2 = SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
-    return Parts(
+    parts = Parts(
         config=config,
         clock=clock,
         sensor=sensor,
@@ -84,37 +85,4 @@ def parts(
             config.control.period,
         ),
     )
-
-
-def assemble(
-    config: Config,
-    clock: Clock,
-    sensor: Sensor,
-    outputs: Outputs,
-    *,
-    recorder: Recorder | None = None,
-    notifier: Notifier | None = None,
-    on_status: Callable[[str], None] | None = None,
-    config_file: ConfigFile | None = None,
-    latches: LatchStore | None = None,
-    models: ModelStore | None = None,
-    tun_model: MeasuredTun | None = None,
-    saver: Saver | None = None,
-) -> Daemon:
-    """A daemon for `config` on `sensor` and `outputs`, its parts built here."""
-    return Daemon(
-        parts(
-            config,
-            clock,
-            sensor,
-            outputs,
-            recorder=recorder,
-            notifier=notifier,
-            on_status=on_status,
-            config_file=config_file,
-            latches=latches,
-            models=models,
-            tun_model=tun_model,
-            saver=saver,
-        )
-    )
+    return Daemon(parts)
