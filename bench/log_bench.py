@@ -41,7 +41,7 @@ from hermsd.log import reader, replay
 from hermsd.log.mcap_file import read_messages
 from hermsd.log.recorder import Recorder
 from hermsd.log.topics import PERIOD_TOPIC
-from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.assemble import assemble
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world
 
@@ -112,7 +112,7 @@ def run_daemon(
     config: Config, clock: VirtualClock, hours: float, recorder: Recorder | None
 ) -> None:
     world = build_world(config, clock)
-    with Daemon(config, clock, world.sensor, world.outputs, recorder=recorder) as daemon:
+    with assemble(config, clock, world.sensor, world.outputs, recorder=recorder) as daemon:
         daemon.run(until=hours * 3600.0)
 
 

@@ -29,7 +29,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from hermsd.api.link import LoopLink
 from hermsd.api.server import ControlServer
 from hermsd.config import read
-from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.scheduler import percentile
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
@@ -62,7 +62,7 @@ def main() -> None:
         config = read.parse(text)
         clock = VirtualClock()
         world = build_world(config, clock)
-        daemon = Daemon(config, clock, world.sensor, world.outputs)
+        daemon = assemble(config, clock, world.sensor, world.outputs)
         daemon.start()
         link = LoopLink(daemon)
         server = ControlServer(directory / "control.sock", link.status_line)

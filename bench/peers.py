@@ -22,8 +22,8 @@ from typing import Any
 from unittest import mock
 
 from hermsd.config.schema import ControlConfig
+from hermsd.control import factory
 from hermsd.control.pid import PlantModel
-from hermsd.runtime import daemon as daemon_module
 
 ITAE_LOAD = {"kc": 80.8, "ti": 489.0, "td": 44.9}
 """Seed 001's Table 2 "ITAE-load" PID set for its identified tun: what a brewer would copy."""
@@ -101,7 +101,7 @@ def controlled_by(peer: str, gains: dict[str, float]) -> Iterator[None]:
         reads its terms. It has no use for `model`."""
         return peer_class(gains["kc"], gains["ti"], gains["td"], control.period)
 
-    with mock.patch.object(daemon_module, "make_controller", make):
+    with mock.patch.object(factory, "make_controller", make):  # as build.control_law calls it
         yield
 
 

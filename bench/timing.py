@@ -36,6 +36,7 @@ from hermsd.config import schema as config_module
 from hermsd.hardware.realtime import LOOP_PRIORITY, loop_priority
 from hermsd.hardware.ssr import DeadManThread
 from hermsd.log.recorder import Recorder
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.clock import MonotonicClock
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.scheduler import percentile
@@ -89,7 +90,7 @@ def measure(
     world = build_world(config, clock, plant)
     log_dir.mkdir(parents=True, exist_ok=True)  # the recorder writes into it, never makes it
     recorder = Recorder(log_dir)
-    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    daemon = assemble(config, clock, world.sensor, world.outputs, recorder=recorder)
     edges: list[float] = []
     original_edge = daemon._on_edge  # the timers' actual-minus-planned time, per edge
 

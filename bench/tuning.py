@@ -68,6 +68,7 @@ from hermsd.config import read
 from hermsd.config import schema as config
 from hermsd.config.file import at_once
 from hermsd.log import reader
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.limits import Alarm
@@ -240,7 +241,7 @@ def relay_test(spec: TunSpec) -> relay.RelayExperiment:
     cfg = spec.config(config.DEFAULT)
     clock = VirtualClock()
     world = build_world(cfg, clock, spec.plant())
-    daemon = Daemon(cfg, clock, world.sensor, world.outputs)
+    daemon = assemble(cfg, clock, world.sensor, world.outputs)
     experiment = relay.RelayExperiment(daemon, SETPOINT_C, fits=at_once)
     relay.start(experiment, (KeyboardInterrupt,))
     return experiment
@@ -282,7 +283,7 @@ def craftbeerpi_test(spec: TunSpec) -> CraftBeerPiRun:
     cfg = spec.config(config.DEFAULT)
     clock = VirtualClock()
     world = build_world(cfg, clock, spec.plant())
-    daemon = Daemon(cfg, clock, world.sensor, world.outputs)
+    daemon = assemble(cfg, clock, world.sensor, world.outputs)
     tuner = CraftBeerPiAutotune(SETPOINT_C)
     tuner.start(0.0)
     peer = CraftBeerPiRun(daemon, tuner, CBPI_LIMIT_S)

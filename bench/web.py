@@ -41,7 +41,7 @@ from hermsd.api.link import LoopLink
 from hermsd.api.protocol import MAX_PAGE, encode
 from hermsd.api.server import ControlServer
 from hermsd.config import schema as config_module
-from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
@@ -72,7 +72,7 @@ def page_server(hours: float, directory: Path) -> Iterator[tuple[str, int]]:
     config = config_module.DEFAULT
     clock = VirtualClock()
     world = build_world(config, clock)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    daemon = assemble(config, clock, world.sensor, world.outputs)
     link = LoopLink(daemon)
     control = ControlServer(directory / "control.sock", link.status_line, link.history_line)
     control.start()
@@ -163,7 +163,7 @@ def daemon_costs() -> None:
     config = config_module.DEFAULT
     clock = VirtualClock()
     world = build_world(config, clock)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    daemon = assemble(config, clock, world.sensor, world.outputs)
     kept = _Keep()
     daemon.listeners.append(kept)
     link = LoopLink(daemon)

@@ -16,6 +16,7 @@ from hermsd.config import schema as config_module
 from hermsd.config.read import parse
 from hermsd.config.schema import AlertsConfig, Config, ConfigError
 from hermsd.runtime.alerts import Alerts, Event
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import build_world
@@ -285,7 +286,7 @@ def alerting_daemon(alerts: AlertsConfig) -> tuple[Daemon, VirtualClock, Any]:
     )
     clock = VirtualClock()
     world = build_world(config, clock)
-    return Daemon(config, clock, world.sensor, world.outputs), clock, world
+    return assemble(config, clock, world.sensor, world.outputs), clock, world
 
 
 class Logged:

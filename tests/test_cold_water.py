@@ -15,6 +15,7 @@ from hermsd.hardware.ssr import TimeProportionalPlanner, WindowPlan
 from hermsd.log import reader, replay
 from hermsd.log.mcap_file import LogFile
 from hermsd.log.topics import WINDOW_TOPIC
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
@@ -350,7 +351,7 @@ def small_tun_daemon() -> tuple[Daemon, World, VirtualClock, list[PeriodRecord]]
     )
     clock = VirtualClock()
     world = build_world(config, clock, SMALL.plant(noise_c=0.0), history=True)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    daemon = assemble(config, clock, world.sensor, world.outputs)
     records: list[PeriodRecord] = []
 
     class Keep:

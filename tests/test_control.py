@@ -49,6 +49,7 @@ from hermsd.control import factory
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.program.model import Program, Step
 from hermsd.program.store import PROGRESS_FILE
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.sim.clock import VirtualClock
@@ -299,7 +300,7 @@ def storing_daemon(config: config_module.Config, store: ModelStore) -> Daemon:
     """A simulated daemon that keeps what it learns in `store`, linked, a period run."""
     clock = VirtualClock()
     world = build_world(config, clock)
-    daemon = Daemon(config, clock, world.sensor, world.outputs, models=store)
+    daemon = assemble(config, clock, world.sensor, world.outputs, models=store)
     LoopLink(daemon).attach(Inbox())
     daemon.start()
     run_for(daemon, PERIOD)

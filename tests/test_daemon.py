@@ -18,6 +18,7 @@ from hermsd.config import schema as config_module
 from hermsd.config.schema import Config
 from hermsd.control import pid
 from hermsd.hardware.outputs import guard_outputs
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.latches import LatchStore
@@ -47,7 +48,7 @@ def make(
     )
     clock = VirtualClock()
     world = build_world(config, clock, plant, history=history)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    daemon = assemble(config, clock, world.sensor, world.outputs)
     periods = Periods()
     daemon.listeners.append(periods)
     return daemon, world, clock, periods
@@ -320,7 +321,7 @@ def test_a_second_stop_signal_during_shutdown_still_switches_every_output_off(
     world = build_world(config, clock)
     ssr = _Line(on_close=stop)  # systemd's stop, while the SSR is being switched off
     contactor = _Line()
-    daemon = Daemon(config, clock, world.sensor, guard_outputs(ssr, contactor, clock, config))
+    daemon = assemble(config, clock, world.sensor, guard_outputs(ssr, contactor, clock, config))
     previous = signal.signal(signal.SIGTERM, _on_signal)  # as `hermsd run` installs it
     try:
         with pytest.raises(Shutdown):

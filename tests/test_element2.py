@@ -22,6 +22,7 @@ from hermsd.log.reader import load
 from hermsd.log.recorder import Recorder
 from hermsd.log.replay import delivered, verify
 from hermsd.program.model import Program, Step
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.build import model_in_force
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
@@ -265,7 +266,7 @@ def logged_daemon(
     clock = VirtualClock()
     world = build_world(config, clock, {**PLANT, "noise_c": 0.03, "seed": seed}, history=True)
     recorder = Recorder(directory, now=clock.monotonic, lossless=True)
-    daemon = Daemon(config, clock, world.sensor, world.outputs, recorder=recorder)
+    daemon = assemble(config, clock, world.sensor, world.outputs, recorder=recorder)
     return daemon, world, clock, recorder
 
 

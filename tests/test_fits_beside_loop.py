@@ -26,7 +26,7 @@ from hermsd.config import schema as config_module
 from hermsd.config.file import in_thread
 from hermsd.log import reader, replay
 from hermsd.log.recorder import Recorder
-from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
@@ -75,7 +75,7 @@ def test_a_fit_is_taken_and_acted_on_at_the_period_the_log_says_and_replay_verif
     clock = VirtualClock()
     cfg = config_module.DEFAULT
     world = build_world(cfg, clock, {**SEED_TUN, **NOISE}, history=True)
-    daemon = Daemon(cfg, clock, world.sensor, world.outputs)
+    daemon = assemble(cfg, clock, world.sensor, world.outputs)
     recorder = Recorder(tmp_path, now=clock.monotonic, lossless=True)
     daemon.recorder = recorder
     fits = SlowFits()

@@ -13,6 +13,7 @@ from hermsd.config import rules
 from hermsd.config import schema as config_module
 from hermsd.config.schema import Config
 from hermsd.program.model import Program, Step
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.notify import Notifier
 from hermsd.runtime.saver import Saver
@@ -47,7 +48,7 @@ def watched_daemon(
     clock = VirtualClock()
     world = build_world(config, clock)
     notifier = PingCounter(clock)
-    daemon = Daemon(
+    daemon = assemble(
         config,
         clock,
         world.sensor,
@@ -130,7 +131,7 @@ def test_manual_zero_switches_the_second_element_off_within_a_period() -> None:
     clock = VirtualClock()
     plant = {"model": "physical", "litres": 90.0, "element_watts": 2000.0}
     world = build_world(config, clock, {**plant, "element2_watts": 3500.0})
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    daemon = assemble(config, clock, world.sensor, world.outputs)
     daemon.start()
     daemon.run(until=60.0)
     assert world.circuit.relay2_on  # heating up from cold: both elements on

@@ -29,6 +29,7 @@ from hermsd.config import schema as config_module
 from hermsd.log.mcap_file import LogFile
 from hermsd.log.recorder import RETRY_INTERVAL_S, RETRY_MAX_S, Recorder
 from hermsd.log.topics import PERIOD_TOPIC
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import LOG_FAILING_REPEAT_S, Daemon
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world
@@ -117,7 +118,7 @@ def started_daemon(recorder: Recorder, clock: VirtualClock) -> tuple[Daemon, Eve
     world = build_world(config, clock)
     events = Events()
     notified: list[str] = []
-    daemon = Daemon(
+    daemon = assemble(
         config,
         clock,
         world.sensor,

@@ -31,7 +31,7 @@ from hermsd.control.reach import (
     short_words,
 )
 from hermsd.log import reader, replay
-from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.saver import Saver
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
@@ -181,7 +181,7 @@ def test_a_weak_tun_is_said_through_the_daemon_in_the_status_and_cleared() -> No
     clock = VirtualClock()
     world = build_world(config, clock, day.plant)
     events = Events()
-    daemon = Daemon(
+    daemon = assemble(
         config, clock, world.sensor, world.outputs, recorder=events, saver=Saver(threaded=False)
     )
     daemon.listeners.append(events)

@@ -17,7 +17,7 @@ from hermsd.commissioning import relay, tune
 from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.config.file import at_once
-from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
@@ -116,7 +116,7 @@ def experiment_on(plant: dict[str, Any]) -> tuple[relay.RelayExperiment, World, 
     clock = VirtualClock()
     cfg = config_module.DEFAULT
     world = build_world(cfg, clock, {**plant, **NOISE}, history=True)
-    daemon = Daemon(cfg, clock, world.sensor, world.outputs)
+    daemon = assemble(cfg, clock, world.sensor, world.outputs)
     return relay.RelayExperiment(daemon, 66.0, fits=at_once), world, clock
 
 

@@ -22,6 +22,7 @@ from test_config import assert_within_spec, documents, mutated_config
 from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.config.file import Check, ConfigFile, Start, at_once, in_thread
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.runtime.saver import Saver
@@ -117,7 +118,7 @@ def start(
     clock = VirtualClock()
     world = build_world(config, clock)
     events = Events()
-    daemon = Daemon(
+    daemon = assemble(
         config,
         clock,
         world.sensor,

@@ -14,6 +14,7 @@ from test_reload import BASE, PERIOD, Events, run_for, start
 
 from hermsd.api.link import LoopLink
 from hermsd.runtime import daemon as daemon_module
+from hermsd.runtime import latch_keeping
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.saver import Outcome, Saver
 from hermsd.safety.latches import Latches, LatchStore
@@ -106,7 +107,7 @@ def test_a_latch_raised_while_the_disk_fails_is_saved_once_it_works_and_survives
     ]
     assert LatchStore(tmp_path).load().alarms == ()
     disk.refusing = False  # the disk works again: the next retry lands
-    run_for(daemon, daemon_module.LATCH_SAVE_RETRY_S + 2.0)
+    run_for(daemon, latch_keeping.LATCH_SAVE_RETRY_S + 2.0)
     assert daemon.saver.flush(5.0)
     run_for(daemon, PERIOD)
     assert "not saved" not in daemon.status_text()

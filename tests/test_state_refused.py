@@ -19,8 +19,8 @@ from hermsd.cli import commands as cli
 from hermsd.cli import common
 from hermsd.control.learning import LEARNED_FILE, LearnedModel, ModelStore
 from hermsd.runtime import instance
-from hermsd.runtime.daemon import latch_save_failed_text
 from hermsd.runtime.instance import LOCK_FILE, DirectoryLock
+from hermsd.runtime.latch_keeping import latch_save_failed_text
 from hermsd.runtime.saver import Outcome
 from hermsd.safety.latches import LATCHED_FILE, Latches, LatchStore
 

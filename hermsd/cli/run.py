@@ -118,8 +118,8 @@ class StatusLine:
 def cmd_run(args: argparse.Namespace) -> int:
     from hermsd.hardware.outputs import guard_outputs
     from hermsd.hardware.ssr import DeadManThread
+    from hermsd.runtime.assemble import assemble
     from hermsd.runtime.clock import MonotonicClock
-    from hermsd.runtime.daemon import Daemon
 
     path = config_path(args.config, simulate=args.simulate)
     config_file = ConfigFile(path, simulated=args.simulate) if path is not None else None
@@ -173,7 +173,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             else:
                 clock = MonotonicClock()
                 sensor, (ssr, contactor, element2) = _hardware(config)
-                daemon = Daemon(
+                daemon = assemble(
                     config,
                     clock,
                     sensor,

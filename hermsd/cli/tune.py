@@ -215,7 +215,7 @@ def _run_tune(
     """A tune experiment through the daemon on the tun (or the simulated one), with the
     service's directories locked; the heater is off when this returns, whatever happened."""
     from hermsd.hardware.outputs import guard_outputs
-    from hermsd.runtime.daemon import Daemon
+    from hermsd.runtime.assemble import assemble
     from hermsd.sim.hlt import PlantFailed
 
     log_dir = args.log
@@ -239,7 +239,7 @@ def _run_tune(
                     world = build_world(config, clock, SIMULATED_STEP_TUN, tun=tun)
                 except (PlantLoadError, TypeError, ValueError) as error:
                     raise UserError(str(error)) from None
-                daemon = Daemon(config, clock, world.sensor, world.outputs)
+                daemon = assemble(config, clock, world.sensor, world.outputs)
                 recorder = (
                     Recorder(log_dir, now=clock.monotonic, lossless=True) if log_dir else None
                 )
@@ -249,7 +249,7 @@ def _run_tune(
 
                 hardware_clock = MonotonicClock()
                 sensor, outputs = _hardware(config)
-                daemon = Daemon(
+                daemon = assemble(
                     config,
                     hardware_clock,
                     sensor,

@@ -9,7 +9,7 @@ from typing import Any
 from hermsd.commissioning.step_response import StepExperiment
 from hermsd.config.file import at_once
 from hermsd.config.schema import Config
-from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.assemble import assemble
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.world import World, build_world
 
@@ -26,6 +26,6 @@ def simulated_step_test(
     virtual clock: output None is the default step, limit None the setpoint."""
     clock = VirtualClock()
     world = build_world(config, clock, plant, history=history)
-    daemon = Daemon(config, clock, world.sensor, world.outputs)
+    daemon = assemble(config, clock, world.sensor, world.outputs)
     stop_at = config.control.setpoint if limit is None else limit
     return StepExperiment(daemon, output, stop_at, fits=at_once), world, clock

@@ -11,8 +11,10 @@ from hermsd.config.schema import Config, ControlConfig
 from hermsd.control import factory, pid, predictive
 from hermsd.control.element2 import SplitController
 from hermsd.control.factory import full_power, full_power_share
-from hermsd.control.learning import LearnedModel, ModelStore, implausible_here
+from hermsd.control.learning import LearnedModel, Learner, ModelStore, implausible_here
 from hermsd.control.reach import ReachWatch, Said
+from hermsd.hardware.outputs import window_length
+from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.readiness import known_dead_time
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import ElementWatch
@@ -171,6 +173,39 @@ def not_this_tun(model: LearnedModel, config: Config) -> str | None:
     litres = config.tun.litres  # the one element it was learned on
     full_rate = config.tun.element_watts / (factory.WATER_J_PER_LITRE_K * litres)
     return implausible_here(model, litres=litres, full_rate=full_rate)
+
+
+def measured_tun(
+    config: Config, stored: LearnedModel | None, given: MeasuredTun | None
+) -> MeasuredTun | None:
+    """The tun as measured for the supervisor's limits: `given`, else the model in force
+    if it was measured (learned, or by `hermsd tune`); None before anything is measured (the
+    config's prior is a guess, and the limits then hold for any tun it may describe).
+
+    The learned losses are referred to `control.model_ambient` a, not the real room:
+    they reproduce the hold's measured power at the setpoint s, so the supervisor's bound
+    there (×1.5, a room 10 °C colder than a) is 1.5·(s − a + 10)/(s − a) times the true
+    losses whatever the room is (×1.83 at 66 °C and a = 20 °C).
+    """
+    if given is not None:
+        return given
+    return model_in_force(stored, config).measured
+
+
+def control_law(config: Config, model: pid.PlantModel) -> pid.Controller:
+    """The control law the config names, on `model`, with the second element's share."""
+    return factory.shared_out(config, factory.make_controller(config.control, model))
+
+
+def learner(config: Config, model: pid.PlantModel) -> Learner:
+    """The learner of the tun's model, from the model in force."""
+    return Learner(litres=config.tun.litres, ambient=model.ambient, period=config.control.period)
+
+
+def planner(config: Config) -> TimeProportionalPlanner:
+    """The SSR's window planner for the config's outputs."""
+    out = config.output
+    return TimeProportionalPlanner(window_length(config), out.mains_hz, out.min_on, out.min_off)
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:

@@ -2,7 +2,8 @@
 
 The same code runs on the Pi (real clock, LM92 on /dev/i2c-N, SSR on a serial line or GPIO),
 in real time against the simulated tun, and at full speed in `hermsd simulate`. Everything
-outside — hardware, clock, recorder, systemd notifier — is handed in.
+outside — hardware, clock, recorder, systemd notifier — is handed in, with the parts built
+from the config (`runtime/assemble.py`, the composition root).
 
 Per control period the controller sees one PV and the duty the SSR was driven at in the
 period before (`applied`: the time its input was on, as switched, edge lateness and forced
@@ -26,20 +27,16 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from functools import partial
 from typing import Any, Protocol
 
-from hermsd.config import read, rules
-from hermsd.config import schema as config_module
-from hermsd.config.file import ConfigFile
 from hermsd.config.read import to_dict
-from hermsd.config.schema import Config, ConfigError
+from hermsd.config.schema import Config
 from hermsd.control import pid, predictive
-from hermsd.control.element2 import SlowElement, SplitController, TwoElementController, total_share
-from hermsd.control.factory import full_power, full_power_share, make_controller, shared_out
-from hermsd.control.learning import LearnedModel, Learner, ModelStore
+from hermsd.control.element2 import SplitController, TwoElementController, total_share
+from hermsd.control.factory import full_power
+from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.control.pv import period_value
-from hermsd.control.reach import PREFIX, ReachWatch, Said
+from hermsd.control.reach import PREFIX, Said
 from hermsd.hardware.lm92 import (
     LimitName,
     Reading,
@@ -48,52 +45,38 @@ from hermsd.hardware.lm92 import (
     decode_temperature,
     encode_temperature,
 )
-from hermsd.hardware.outputs import Outputs, window_length
-from hermsd.hardware.sensors.base import Sensor
+from hermsd.hardware.outputs import window_length
 from hermsd.hardware.sensors.kinds import describe as describe_sensor
 from hermsd.hardware.ssr import (
     SwitchedDuty,
-    TimeProportionalPlanner,
     WindowPlan,
     cut,
 )
-from hermsd.log.topics import CONFIG_TOPIC, MODEL_TOPIC, PROGRAM_TOPIC, LogLevel, log_message
-from hermsd.program.driver import ProgramDriver
-from hermsd.program.model import Program
-from hermsd.program.readiness import Tun
-from hermsd.program.runner import ProgramEvent
-from hermsd.program.store import ProgressStore
+from hermsd.log.topics import CONFIG_TOPIC, MODEL_TOPIC, LogLevel, log_message
 from hermsd.runtime.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.runtime.build import (
     _tun_fields,
     element2_watts,
-    element_watch,
-    keep_probe,
-    model_in_force,
+    measured_tun,
     reach_period,
-    reach_restarts,
-    retunes,
-    safety_limits,
-    stored_model,
-    watch_changes,
 )
-from hermsd.runtime.clock import Clock
-from hermsd.runtime.notify import Notifier, WatchdogGate, status_line
+from hermsd.runtime.latch_keeping import LatchKeeping
+from hermsd.runtime.notify import WatchdogGate, status_line
+from hermsd.runtime.parts import Parts
 from hermsd.runtime.period import PeriodRecord
-from hermsd.runtime.saver import Outcome, Saver
+from hermsd.runtime.reloading import Reloading
+from hermsd.runtime.running_program import RunningProgram
 from hermsd.runtime.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.safety.element_probe import ProbeResult
 from hermsd.safety.element_watch import no_heat_words, report_kind
-from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore, StateError
+from hermsd.safety.latches import Latches
 from hermsd.safety.limits import Alarm, MeasuredTun
-from hermsd.safety.supervisor import Supervisor
 
 log = logging.getLogger("hermsd")
 
 TIMING_INTERVAL = 60.0  # s between timing records
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 LOG_FAILING_REPEAT_S = 60.0  # a failing log is said again this often while it lasts
-LATCH_SAVE_RETRY_S = 30.0  # a failed save of the latched alarms is tried again this often
 LATCH_SAVE_SLOW_S = 10.0  # a latch save not done after this long is said as not saved (yet)
 STOP_WAIT_S = 8.0
 """s of real time at most that the stop waits, once the outputs are off, for the saves (the
@@ -102,33 +85,8 @@ alerts, in that order: inside systemd's stop timeout of 10 s (systemd/hermsd.ser
 that what was not saved is said before a SIGKILL could cut the stop short."""
 
 
-class Recorder(Protocol):
-    """Where records go (the MCAP recorder); `write` never blocks."""
-
-    def write(self, topic: str, log_time_ns: int, message: dict[str, Any]) -> None: ...
-
-
 RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heater off")
 """The event text of a raised alarm, as replay reads it back from the log."""
-
-
-def latch_save_failed_text(outcome: Outcome, on_disk: list[str]) -> str:
-    """A failed save of the latched alarms, said with what a restart would then find.
-
-    The heater is not held off for it: a latched alarm already holds it off (in memory, until
-    the brewer clears it), and a start refuses a state directory it cannot write a latch
-    file to (`cli._claim_state_directory`); a failed save of fewer alarms errs safe (a
-    restart raises the stored ones again). What is left is a crash in the window before the
-    disk works again, and that is said here, loudly.
-    """
-    failed = f"saving latched alarms failed: {outcome.error}"
-    lost = [kind for kind in outcome.tag if kind not in on_disk]
-    if not lost:
-        return f"{failed} (a restart finds {', '.join(on_disk) or 'none'}, as on disk)"
-    return (
-        f"{failed}: {', '.join(lost)} will NOT survive a restart (the heater stays off "
-        f"while latched; tried again every {LATCH_SAVE_RETRY_S:g} s)"
-    )
 
 
 def raised_alarm_text(alarm: Alarm) -> str:
@@ -195,63 +153,46 @@ class _Window:
         self.timers.clear()
 
 
-class Daemon:
-    """One tun's control loop."""
+class Daemon(Reloading, RunningProgram, LatchKeeping):
+    """One tun's control loop (its reload, mash program and latched alarms on disk in their
+    own modules)."""
 
-    def __init__(
-        self,
-        config: Config,
-        clock: Clock,
-        sensor: Sensor,
-        outputs: Outputs,
-        *,
-        recorder: Recorder | None = None,
-        notifier: Notifier | None = None,
-        on_status: Callable[[str], None] | None = None,
-        config_file: ConfigFile | None = None,
-        latches: LatchStore | None = None,
-        models: ModelStore | None = None,
-        tun_model: MeasuredTun | None = None,
-        saver: Saver | None = None,
-    ) -> None:
+    def __init__(self, parts: Parts) -> None:
+        """The loop on `parts` (`runtime/assemble.py` builds them from a config)."""
+        config, clock, outputs, notifier = parts.config, parts.clock, parts.outputs, parts.notifier
         self.config = config
-        self.tun_model = tun_model
-        self.config_file = config_file
-        self.latches = latches
+        self.tun_model = parts.tun_model
+        self.config_file = parts.config_file
+        self.latches = parts.latches
         self.clock = clock
-        self.sensor = sensor
+        self.sensor = parts.sensor
         self.outputs = outputs
-        self.recorder = recorder
+        self.recorder = parts.recorder
         self.notifier = notifier
         interval = notifier.watchdog_interval() if notifier is not None else None
         # Every healthy period may ping: one missed period must not use up the timeout.
         period = config.control.period
         self._watchdog = WatchdogGate(min(interval, period / 2)) if interval else None
         self._ready = False
-        self.on_status = on_status
+        self.on_status = parts.on_status
         self.listeners: list[Listener] = []
         self.scheduler = Scheduler(clock)
-        self.models = models
-        self.saver = saver if saver is not None else Saver()  # latches and model, off the loop
-        self._stored_model: LearnedModel | None = None
+        self.models = parts.models
+        self.saver = parts.saver  # latches and model, off the loop
+        self._stored_model = parts.stored_model
         self._learned_since: LearnedModel | None = None  # stored since the start, not in force
-        self._model_problem: str | None = None  # said in the log at start
-        if models is not None:
-            self._stored_model, self._model_problem = stored_model(models, config)
-        self.model_choice = model_in_force(self._stored_model, config)
+        self._model_problem = parts.model_problem  # said in the log at start
+        self.model_choice = parts.model_choice
         self.model = self.model_choice.model
-        self.supervisor = Supervisor(safety_limits(config, self._measured_tun(config)))
-        self.controller = shared_out(config, make_controller(config.control, self.model))
-        self._learner = self._make_learner(config)
+        self.supervisor = parts.supervisor
+        self.controller = parts.controller
+        self._learner = parts.learner
         self._heat_up_seen = predictive.heat_up_fit(self.controller)
         self._reloaded_at = -math.inf  # when a reload last changed the config
-        self.planner = self._make_planner(config)
-        e2 = config.element2
-        self.element2 = (
-            SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
-        )
-        self.element_watch = element_watch(config) if self.element2 is not None else None
-        self.reach = ReachWatch()  # says when full power cannot reach the setpoint
+        self.planner = parts.planner
+        self.element2 = parts.element2
+        self.element_watch = parts.element_watch
+        self.reach = parts.reach
         self.setpoint = config.control.setpoint
         self.mode = config.control.mode
         self.manual_output = config.control.manual_output
@@ -293,11 +234,7 @@ class Daemon:
         self.alerts = Alerts(
             config.alerts, lambda message: self._event(logging.WARNING, message, clock.monotonic())
         )
-        self.program = ProgramDriver(
-            ProgressStore(latches.directory) if latches is not None else None,
-            getattr(clock, "zone", None),  # a simulated clock's local time; else the system's
-            config.control.period,
-        )
+        self.program = parts.program
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -457,14 +394,6 @@ class Daemon:
         """Log an operator's action (`what` names it and where it came from)."""
         self._event(logging.INFO, f"operator: {what}", t)
 
-    def request_reload(self) -> None:
-        """Read the config file again at the next period boundary (SIGHUP; signal-safe)."""
-        self._reload_requested = True
-
-    def reload(self, config: Config) -> None:
-        """Apply `config` at the next period boundary, as a reload of the file would."""
-        self._pending.append(lambda t: self._apply_config(config, t))
-
     def _apply_setpoint(self, celsius: float, t: float) -> None:
         if self.program.active:  # the program owns the setpoint until it stops
             self.program.after = celsius
@@ -472,118 +401,6 @@ class Daemon:
             return
         self.setpoint = celsius
         self._event(logging.INFO, f"setpoint {celsius:.2f} °C", t)
-
-    # -- the mash program (hermsd.program; applied at once: called at a period boundary) --
-
-    def program_problems(self, program: Program) -> list[str]:
-        """Why `program` cannot start now ('key: what is wrong' lines); [] when it can."""
-        problems = self.program.problems(program)
-        if self.mode != "auto":
-            problems.append("control.mode: a program runs in auto mode (`hermsd set mode auto`)")
-        running = dataclasses.replace(
-            self.config, control=dataclasses.replace(self.config.control, setpoint=self.setpoint)
-        )
-        for index, step in enumerate(program.steps):
-            for problem in rules.runtime_problems(running, {"control.setpoint": step.setpoint}):
-                problems.append(f"steps[{index}].setpoint: {problem.split(': ', 1)[-1]}")
-        return problems
-
-    def start_program(self, program: Program, ready_by: str | None, t: float) -> None:
-        """Start `program` (program_problems first: this raises runner.Refused)."""
-        self.program.start(
-            program,
-            ready_by,
-            setpoint=self.setpoint,
-            wall_ns=self.clock.wall_ns(),
-            pv=self._pv,
-            tun=self._program_tun(),
-        )
-
-    def _program_tun(self) -> Tun:
-        """What a `ready_by` heat-up plans with: the model in force, and what it rests on."""
-        return Tun(
-            self.model,
-            full_power_share(self.config),
-            self.model_choice.measured is not None,
-            predictive.heat_up_fit(self.controller),
-        )
-
-    def program_command(self, action: str, t: float, step: int | None = None) -> None:
-        """next, pause, resume, stop or confirm (runner.Refused when it does not apply);
-        `step`: the index of the step a confirm or next is for (None: the current one)."""
-        if action == "stop":
-            self._keep_after_below_cut_out(t)
-        after = self.program.command(action, self._pv, step)
-        if after is not None:
-            self.setpoint = after
-            self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)
-
-    def _program_period(self, t: float, pv: float | None, applied: float, full: bool) -> bool:
-        """Take the program's setpoint for this period; True: it keeps the heater off.
-        `applied`: the heat's duty in the period just ended (%; with two elements, of both);
-        `full`: that period was full power (`config.full_power`)."""
-        wall_ns = self.clock.wall_ns()
-        tun = self._program_tun()
-        setpoint, events = self.program.period(t, pv, wall_ns, tun, applied, full)
-        for event in events:
-            self._program_event(event, t)
-        news = self.program.store_news()
-        if news is not None:
-            self._event(logging.ERROR if news[0] else logging.INFO, news[1], t)
-        if not self.program.active:
-            return False
-        if self._stop_program_over_cut_out(setpoint, t):  # an edit lowered the cut-out
-            return False
-        if setpoint is None:
-            self.setpoint = self.program.target  # shown, not heated to: the heater stays off
-            return True
-        self.setpoint = setpoint
-        return False
-
-    def _stop_program_over_cut_out(self, in_force: float | None, t: float) -> bool:
-        """Stop the program (as `program stop`) when its step's setpoint or the setpoint in
-        force (`in_force`, a ramp's; None: the step's) is not below safety.max_temp."""
-        max_temp = self.config.safety.max_temp
-        target = self.program.target
-        if target >= max_temp:
-            why = f"its step's setpoint {target:g} °C"
-        elif in_force is not None and in_force >= max_temp:
-            why = f"its setpoint in force {in_force:g} °C"
-        else:
-            return False
-        self._event(
-            logging.WARNING,
-            f"program stopped: {why} is not below safety.max_temp ({max_temp:g} °C)",
-            t,
-        )
-        self.program_command("stop", t)
-        for event in self.program.take_events():
-            self._program_event(event, t)
-        return True
-
-    def _keep_after_below_cut_out(self, t: float) -> None:
-        """The setpoint a program returns to must be below safety.max_temp: else the file's."""
-        after, max_temp = self.program.after, self.config.safety.max_temp
-        if after is None or after < max_temp:
-            return
-        self.program.after = self.config.control.setpoint
-        self._event(
-            logging.WARNING,
-            f"setpoint {after:g} °C for when the program stops is not below safety.max_temp "
-            f"({max_temp:g} °C): the file's {self.config.control.setpoint:g} °C instead",
-            t,
-        )
-
-    def _program_event(self, event: ProgramEvent, t: float) -> None:
-        if self.recorder is not None:
-            fields = dataclasses.asdict(event)
-            fields.pop("text")
-            self.recorder.write(
-                PROGRAM_TOPIC, self.clock.wall_ns(), {"t": t, **fields, "program": event.program}
-            )
-        self._event(logging.WARNING if event.event == "late" else logging.INFO, event.text, t)
-        if event.event in config_module.PROGRAM_ALERT_EVENTS:
-            self._alert(event.event, event.text, t, event.name or "")
 
     def _apply_manual(self, output: float | None, t: float) -> None:
         self.mode = "manual"
@@ -604,118 +421,6 @@ class Daemon:
         if cleared:
             self._event(logging.WARNING, f"alarms reset: {', '.join(cleared)}", t)
 
-    # -- configuration changes ------------------------------------------------------------
-
-    def _poll_config(self, t: float) -> None:
-        """Apply the config file if it changed (or SIGHUP asked); reject it if it is invalid."""
-        if self.config_file is None:
-            if self._reload_requested:
-                self._reload_requested = False
-                self._event(logging.WARNING, "reload asked, but there is no config file", t)
-            return
-        result = self.config_file.poll(force=self._reload_requested)
-        if result is None:
-            return  # unchanged, or still being written: the next period reads it
-        self._reload_requested = False
-        if self.notifier is not None:
-            self.notifier.reloading()
-        if isinstance(result, ConfigError):
-            self._reject_config(str(result), t)
-        else:
-            self._apply_config(result, t)
-        if self.notifier is not None:
-            self.notifier.ready()
-
-    def _reject_config(self, why: str, t: float) -> None:
-        self._config_problem = why
-        self._event(logging.ERROR, f"config rejected, still running on the last good one: {why}", t)
-
-    def _apply_config(self, edited: Config, t: float) -> None:
-        """Take a valid edit: setpoint, mode and tuning without a bump; limits at once.
-
-        Keys that open devices or fix the schedule keep their running values (said in the
-        log); an edit that breaks a rule only together with those kept values is rejected.
-        """
-        old = self.config
-        refused = read.restart_keys_changed(old, edited)
-        new = read.keep_restart_keys(old, edited)
-        broken = rules.broken_rules(new)
-        if broken:
-            kept = f" with the running {', '.join(refused)}" if refused else ""
-            self._reject_config(f"{'; '.join(broken)}{kept}", t)
-            return
-        self._config_problem = None
-        changed = read.differences(old, new)
-        if refused:
-            running = ", ".join(f"{key} {read.value_at(old, key)!r}" for key in refused)
-            self._event(
-                logging.WARNING,
-                f"config: {', '.join(refused)} need a restart (systemctl restart hermsd); "
-                f"still running with {running}",
-                t,
-            )
-        if not changed:
-            self._event(logging.INFO, "config reloaded: nothing to change", t)
-            return
-        self.config = new
-        self._learner.interrupt()
-        self._reloaded_at = t
-        self._event(logging.INFO, f"config reloaded: {', '.join(changed)} changed", t)
-        self._take_changes(old, new, set(changed), t)
-        self._record_config("reload", t)  # with the model the changes put in force
-
-    def _take_changes(self, old: Config, new: Config, changed: set[str], t: float) -> None:
-        control = new.control
-        self.alerts.config = new.alerts
-        self.alerts.start()  # if the reload gave the first command
-        if "control.setpoint" in changed:
-            self._apply_setpoint(control.setpoint, t)
-        if retunes(old.control, new.control) or old.tun != new.tun:
-            self.model_choice = model_in_force(self._stored_model, new)
-            self.model = self.model_choice.model
-            before = self.controller
-            self.controller = shared_out(new, make_controller(new.control, self.model))
-            keep_probe(old, new, before, self.controller)
-            self._heat_up_seen = predictive.heat_up_fit(self.controller)
-            self._learner = self._make_learner(new)
-            if not self._held:  # bumpless: the new controller starts from the output in force
-                self._held = True
-                self._resume_output = self.output
-        if self.element_watch is not None and watch_changes(old, new):
-            watched, self.element_watch = self.element_watch, element_watch(new)
-            if old.tun == new.tun:  # its references were of the old tun, not its probe
-                self.element_watch.keep_probed(watched)
-        if reach_restarts(old, new):
-            self._say_reach(self.reach.restart(), t)  # another full power
-        if control.mode == "manual" and changed & {"control.mode", "control.manual_output"}:
-            self._apply_manual(control.manual_output, t)
-        elif control.mode == "auto" and changed & {"control.mode", "control.manual_output"}:
-            self._apply_auto(t)
-        elif "control.max_output" in changed and self.mode == "manual":
-            self._apply_manual(self.manual_output, t)  # the new power limit holds at once
-        if self.program.active:  # the setpoint it returns to, and the one it holds now
-            self._keep_after_below_cut_out(t)
-            self._stop_program_over_cut_out(self.setpoint, t)
-        elif self.setpoint >= new.safety.max_temp:  # set at runtime, and above the new cut-out
-            self._event(
-                logging.WARNING,
-                f"setpoint {self.setpoint:g} °C is not below the new safety.max_temp: "
-                "back to the file's",
-                t,
-            )
-            self._apply_setpoint(control.setpoint, t)
-        if any(key.startswith(("safety.", "tun.")) for key in changed) or retunes(
-            old.control, new.control
-        ):
-            self.supervisor.limits = safety_limits(new, self._measured_tun(new))
-        if changed & {"safety.max_temp", "safety.hysteresis"}:
-            self._reprogram_sensor(t)
-        if "safety.reset" in changed:
-            self._apply_reset(t)
-            self._save_latches(t)  # later latches are stored under the new counter
-        if any(key.startswith("output.") for key in changed):
-            self.planner = self._make_planner(new)
-
     # -- the tun's model: prior, learned, learning ----------------------------------------
 
     @property
@@ -726,24 +431,8 @@ class Daemon:
         return self._learned_since or self._stored_model
 
     def _measured_tun(self, config: Config) -> MeasuredTun | None:
-        """The tun as measured for the supervisor's limits: the one given, else the model in
-        force if it was measured (learned, or by `hermsd tune`); None before anything is
-        measured (the config's prior is a guess, and the limits then hold for any tun it may
-        describe).
-
-        The learned losses are referred to `control.model_ambient` a, not the real room:
-        they reproduce the hold's measured power at the setpoint s, so the supervisor's bound
-        there (×1.5, a room 10 °C colder than a) is 1.5·(s − a + 10)/(s − a) times the true
-        losses whatever the room is (×1.83 at 66 °C and a = 20 °C).
-        """
-        if self.tun_model is not None:
-            return self.tun_model
-        return model_in_force(self._stored_model, config).measured
-
-    def _make_learner(self, config: Config) -> Learner:
-        return Learner(
-            litres=config.tun.litres, ambient=self.model.ambient, period=config.control.period
-        )
+        """The tun as measured for the supervisor's limits (`build.measured_tun`)."""
+        return measured_tun(config, self._stored_model, self.tun_model)
 
     def _learn(self, record: PeriodRecord) -> None:
         """Feed the learner one period; store and log what it learned (or why not)."""
@@ -786,115 +475,6 @@ class Daemon:
             )
         self.saver.save("model", lambda: models.save(model), model)
         self._take_saves(t)
-
-    # -- latched alarms across restarts ---------------------------------------------------
-
-    def _restore_latches(self, stored: Latches, t: float) -> None:
-        """Raise again the alarms latched before a restart, unless `safety.reset` moved on."""
-        if stored.alarms and stored.reset != self.config.safety.reset:
-            kinds = ", ".join(a.kind for a in stored.alarms)
-            self._event(logging.WARNING, f"alarms reset by safety.reset: {kinds}", t)
-            self._save_latches(t)
-            return
-        for alarm in stored.alarms:
-            when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(alarm.wall_ns / 1e9))
-            self._latched_wall_ns[alarm.kind] = alarm.wall_ns
-            self._latched_messages[alarm.kind] = alarm.message  # stored again without the note
-            message = f"{alarm.message} (latched {when}, before a restart)"
-            self.supervisor.restore_latched(t, alarm.kind, message, alarm.values)
-        self._drain_alarms(t)
-        self._poll_reset_request(t)
-
-    def _poll_reset_request(self, t: float) -> None:
-        if self.latches is None:
-            return
-        try:
-            kinds = self.latches.take_reset_request()
-        except (OSError, StateError) as error:
-            self._event(logging.ERROR, f"reading the reset request failed: {error}", t)
-            return
-        if kinds is not None:
-            self._event(logging.INFO, f"reset-alarm asked for: {', '.join(kinds) or 'nothing'}", t)
-            self._apply_reset(t, kinds)
-
-    def _save_latches(self, t: float) -> None:
-        """Store the latched alarms whenever they change; a disk error is said, not fatal."""
-        if self.latches is None:
-            return
-        alarms = self.supervisor.latched_alarms()
-        stored = Latches(
-            tuple(
-                LatchedAlarm(
-                    a.kind,
-                    self._latched_wall_ns.get(a.kind, 0),
-                    self._latched_messages.get(a.kind, a.message),
-                    a.values,
-                )
-                for a in alarms
-            ),
-            self.config.safety.reset,
-        )
-        self._tried_latches = [alarm.kind for alarm in alarms]
-        self._latches_handed_at = t
-        self.saver.save("latches", partial(self.latches.save, stored), self._tried_latches)
-        self._take_saves(t)
-
-    @property
-    def latches_not_saved(self) -> str | None:
-        """Why the latched alarms could not be saved, while they cannot (None: saved)."""
-        return self._latch_failing
-
-    @property
-    def log_failing(self) -> str | None:
-        """Why the log cannot be written, while it cannot (None: it is written)."""
-        return self._log_failing
-
-    def _take_saves(self, t: float) -> None:
-        """Say what became of the saves done since the last period (or reading)."""
-        for outcome in self.saver.take():
-            if outcome.kind == "latches":
-                self._latches_saved(outcome, t)
-            elif outcome.error is not None:
-                self._event(logging.ERROR, f"saving the learned model failed: {outcome.error}", t)
-            else:
-                self._learned_since = outcome.tag
-                what = outcome.tag.describe()
-                self._event(logging.INFO, f"learned the tun: {what}; used from the next start", t)
-
-    def _saving_latches(self) -> bool:
-        return "latches" in self.saver.waiting()
-
-    def _latches_saved(self, outcome: Outcome, t: float) -> None:
-        if outcome.error is not None:
-            # Tried again, quietly, until it lands: a latch missing from disk is cleared by
-            # any restart, and the heater would come back on over the fault.
-            self._latch_retry_at = t + LATCH_SAVE_RETRY_S
-            if self._latch_failing is None or self._latch_slow:
-                self._event(logging.ERROR, latch_save_failed_text(outcome, self._saved_latches), t)
-            self._latch_failing, self._latch_slow = outcome.error, False
-            return
-        self._saved_latches, self._latch_slow = outcome.tag, False
-        if self._latch_failing is not None:
-            self._latch_failing = None
-            self._event(logging.INFO, "latched alarms saved after a failed save", t)
-
-    def _close_saves(self, t: float, wait: float) -> None:
-        """At the stop: a latch save that failed once more (the loop retries no longer), the
-        saves handed over waited for (at most `wait` s), and what was not saved said."""
-        if self._latch_failing is not None and not self._saving_latches():
-            self._save_latches(t)
-        unsaved = self.saver.close(wait)
-        self._take_saves(t)
-        what = []
-        if "latches" in unsaved or self._latch_failing is not None:
-            meant, stored = (
-                ", ".join(k) or "none" for k in (self._tried_latches, self._saved_latches)
-            )
-            what.append(f"the latched alarms ({meant}; on disk: {stored})")
-        if "model" in unsaved:
-            what.append("the learned model")
-        if what:
-            self._event(logging.ERROR, f"not saved at the stop: {' and '.join(what)}", t)
 
     # -- the periodic work ----------------------------------------------------------------
 
@@ -1250,6 +830,11 @@ class Daemon:
 
     # -- reporting ------------------------------------------------------------------------
 
+    @property
+    def log_failing(self) -> str | None:
+        """Why the log cannot be written, while it cannot (None: it is written)."""
+        return self._log_failing
+
     def status_text(self) -> str:
         state = ", ".join(self.supervisor.active) or ("manual" if self.mode == "manual" else "ok")
         if self._config_problem is not None:
@@ -1402,8 +987,3 @@ class Daemon:
                 self.clock.wall_ns(),
                 log_message(severity.get(level, LogLevel.INFO), message, self.clock.wall_ns()),
             )
-
-    @staticmethod
-    def _make_planner(config: Config) -> TimeProportionalPlanner:
-        out = config.output
-        return TimeProportionalPlanner(window_length(config), out.mains_hz, out.min_on, out.min_off)

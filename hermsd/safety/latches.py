@@ -12,7 +12,7 @@ A directory that cannot keep them would let a restart heat over a latched fault,
 does not start on one: before any output is opened it locks the state directory and writes a
 latch file there as a save does (`LatchStore.probe`). A save that fails later leaves the alarm
 latched in memory, the heater off, and says in the log that the alarm will not survive a
-restart; the heater is not held off for the failure itself (`daemon.latch_save_failed_text`
+restart; the heater is not held off for the failure itself (`latch_keeping.latch_save_failed_text`
 says why).
 
 Two ways to clear them, both deliberate acts:

@@ -38,6 +38,7 @@ from hermsd.program import model as program_model
 from hermsd.program.driver import next_local_time
 from hermsd.program.model import Program, ProgramError
 from hermsd.program.quality import step_quality
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.runtime.saver import Saver
@@ -571,7 +572,7 @@ def run(
     if state_dir is not None:
         state_dir.mkdir(parents=True, exist_ok=True)
         latches, models = LatchStore(state_dir), ModelStore(state_dir)
-    daemon = Daemon(
+    daemon = assemble(
         config,
         clock,
         world.sensor,

@@ -17,6 +17,7 @@ from hermsd.control.learning import ModelStore
 from hermsd.hardware.lm92 import LM92
 from hermsd.hardware.outputs import Outputs, guard_outputs
 from hermsd.hardware.sensors.base import Sensor
+from hermsd.runtime.assemble import assemble
 from hermsd.runtime.clock import Clock
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.notify import Notifier
@@ -90,7 +91,7 @@ def simulated_daemon(
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
     clock: Clock = VirtualClock() if math.isinf(speed) else PacedClock(speed)
     world = build_world(config, clock)
-    return Daemon(
+    return assemble(
         config,
         clock,
         world.sensor,
