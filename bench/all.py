@@ -123,6 +123,15 @@ BENCHES = (
         )
         for kind in ("ds18b20", "max31865")
     ),
+    *(
+        Bench(
+            f"faults-{kind}",
+            "faults.py",
+            ("--kind", kind),
+            (f"## Faults on the family with a {kind.upper()}: same goals",),
+        )
+        for kind in ("ds18b20", "max31865")
+    ),
 )
 
 MEASURED = ("Measured at commit ", "Measured by hand at commit ")
