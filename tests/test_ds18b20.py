@@ -8,7 +8,12 @@ from pathlib import Path
 import pytest
 
 from hermsd.hardware.lm92 import Reading, SensorError
-from hermsd.hardware.sensors.base import ClockedConversions, Conversion, ThreadedConversions
+from hermsd.hardware.sensors.base import (
+    CONVERSION_PACE_S,
+    ClockedConversions,
+    Conversion,
+    ThreadedConversions,
+)
 from hermsd.hardware.sensors.ds18b20 import (
     DS18B20,
     DS18B20Sensor,
@@ -264,7 +269,7 @@ def test_the_loop_never_waits_for_a_threaded_conversion() -> None:
         stop.wait()
         raise SensorError("stopped", bus="test", address=None)
 
-    conversions = ThreadedConversions(convert, lambda: 7.0)
+    conversions = ThreadedConversions(convert, lambda: 7.0, pause=lambda seconds: None)
     conversions.start()
     assert conversions.latest() is None  # taken while the thread is inside a conversion
     release.set()
@@ -323,3 +328,26 @@ def test_a_shorter_conversion_leaves_no_trace_of_the_longer_one(tmp_path: Path) 
     assert (tmp_path / ID / "w1_slave").read_text() == f"{pad} : crc={crc} YES\n{pad} t=500\n"
     assert (tmp_path / ID / "temperature").read_text() == "500\n"
     assert DS18B20(ID, tmp_path).convert() == (0.5, 0x0008)
+
+
+def test_a_device_that_fails_at_once_is_asked_again_at_the_conversions_pace() -> None:
+    """Gone from the bus, a read fails at once: the reader waits out the rest of a
+    conversion's time before the next, rather than spinning beside the control loop."""
+    clock = [100.0]
+    paused: list[float] = []
+
+    def gone() -> Reading:
+        clock[0] += 0.01  # the failed open takes 10 ms
+        raise SensorError("gone from the bus", bus="test", address=None)
+
+    def pause(seconds: float) -> None:
+        paused.append(seconds)
+        clock[0] += seconds
+        if len(paused) == 3:
+            conversions.close()
+
+    conversions = ThreadedConversions(gone, lambda: clock[0], pause=pause)
+    conversions._run()  # in this thread: three failed conversions, then closed
+    assert paused == pytest.approx([CONVERSION_PACE_S - 0.01] * 3)
+    latest = conversions.latest()
+    assert latest is not None and latest.error is not None and latest.reading is None

@@ -58,16 +58,29 @@ def convert_once(convert: Callable[[], Reading], now: Callable[[], float]) -> Co
         return Conversion(None, error, now())
 
 
-class ThreadedConversions:
-    """A thread that converts again and again and keeps the latest result with its time;
-    `latest` takes it without blocking (the loop's read)."""
+CONVERSION_PACE_S = 0.75
+"""Least time from one conversion's start to the next's: a DS18B20's 12-bit conversion. A
+failing device answers at once (gone from the bus: no such file), and without this pace the
+reader would spin, holding the interpreter lock the control loop needs."""
 
-    def __init__(self, convert: Callable[[], Reading], now: Callable[[], float]) -> None:
+
+class ThreadedConversions:
+    """A thread that converts again and again, at most one conversion per
+    CONVERSION_PACE_S, and keeps the latest result with its time; `latest` takes it without
+    blocking (the loop's read)."""
+
+    def __init__(
+        self,
+        convert: Callable[[], Reading],
+        now: Callable[[], float],
+        pause: Callable[[float], object] | None = None,
+    ) -> None:
         self._convert = convert
         self._now = now
         self._latest: Conversion | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._pause = self._stop.wait if pause is None else pause
         self._first = threading.Event()
         self._thread = threading.Thread(target=self._run, name="sensor-reader", daemon=True)
 
@@ -86,10 +99,14 @@ class ThreadedConversions:
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            started = self._now()
             done = convert_once(self._convert, self._now)
             with self._lock:
                 self._latest = done
             self._first.set()
+            rest = CONVERSION_PACE_S - (done.done_at - started)
+            if rest > 0:
+                self._pause(rest)
 
 
 class ClockedConversions:
