@@ -186,6 +186,19 @@ def test_the_second_element_is_switched_off_too_even_in_a_damaged_file(
     assert outcome.code == 0
 
 
+def test_the_pump_is_switched_off_too_even_in_a_damaged_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], bench: Bench
+) -> None:
+    # Nothing hermsd switches runs while it does not (docs/herms.md). The board's "channel 3
+    # off": A0 03 00, checksum A0 + 03 + 00 = A3.
+    damaged = b"control:\n  setpoint: 66\n bad indent\noutput:\n  backend: sim\n"
+    pump = f"pump:\n  backend: relay-board\n  port: {bench.relay}\n".encode()
+    outcome = safe_off(tmp_path, capsys, damaged + pump)
+    assert bench.relay_bytes() == bytes.fromhex("a00300a3")
+    assert f"pump: relay-board channel 3 on {bench.relay} at 9600 baud: off" in outcome.out
+    assert outcome.code == 0
+
+
 @pytest.mark.parametrize(
     ("data", "why"),
     [
