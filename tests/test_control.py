@@ -802,7 +802,7 @@ def test_status_and_set_through_the_commands(
         (["set", "setpoint", "nan"], "hermsd: setpoint: expected a number in °C, got 'nan'"),
         (["set", "mode", "banana"], "hermsd: mode: expected auto or manual, got 'banana'"),
         (["set", "mode", "auto", "--output", "4"], "hermsd: --output goes with `set mode manual`"),
-        (["set", "power", "4"], "hermsd: set: expected setpoint or mode, got 'power'"),
+        (["set", "power", "4"], "hermsd: set: expected setpoint, mode or pump, got 'power'"),
         (
             ["set", "mode", "manual", "--output", "101"],
             "hermsd: refused, nothing changed: control.manual_output: 101 %",
