@@ -15,7 +15,6 @@ import json
 import math
 import os
 import sys
-import threading
 import types
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,15 +22,16 @@ from typing import Any
 
 import pytest
 from jsonschema import Draft202012Validator
+from test_control import serve
 from test_log_schemas import invalid
 
-from hermsd.api.link import LoopLink
-from hermsd.api.server import ControlServer
 from hermsd.cli import main
 from hermsd.cli.run import _open_output
 from hermsd.config.read import parse
-from hermsd.config.schema import Config
 from hermsd.hardware.outputs import guard_outputs
+from hermsd.hardware.sensors.base import Sensor
+from hermsd.hardware.sensors.kinds import open_role_sensor
+from hermsd.hardware.ssr import Switch
 from hermsd.log.recorder import Recorder
 from hermsd.log.topics import PERIOD_TOPIC, TOPICS
 from hermsd.runtime.assemble import assemble
@@ -143,18 +143,31 @@ class Periods:
             self.events.append(message["message"])
 
 
-def herms_daemon(text: str = FITTED, plant: LaggingMash | None = None) -> tuple[Daemon, World]:
+def herms_daemon(
+    text: str = FITTED,
+    plant: LaggingMash | None = None,
+    *,
+    pump: Switch | None = None,
+    coil_sensor: Sensor | None = None,
+) -> tuple[Daemon, World]:
+    """The daemon on `plant` in a simulated world, with the simulated pump and coil outlet
+    sensor, or the given ones in their place."""
     config = parse(text)
     clock = VirtualClock()
     world = build_world(config, clock, tun=plant or LaggingMash())
     assert world.mash is not None
+    if pump is not None:
+        circuit = world.circuit
+        world.outputs = guard_outputs(
+            circuit.ssr, circuit.contactor, clock, config, circuit.relay2, pump
+        )
     daemon = assemble(
         config,
         clock,
         world.sensor,
         world.outputs,
         mash_sensor=world.mash.mash_sensor,
-        coil_sensor=world.mash.coil_sensor,
+        coil_sensor=coil_sensor or world.mash.coil_sensor,
     )
     return daemon, world
 
@@ -256,22 +269,9 @@ def test_a_faulty_mash_sensor_is_a_warning_and_leaves_the_heater_alone() -> None
 
 
 def test_a_mash_sensor_that_cannot_be_opened_is_a_fault_from_the_start() -> None:
-    from hermsd.hardware.sensors.kinds import open_role_sensor
-    from hermsd.sim.world import MashSide
-
-    config = parse(FITTED.replace("id: 28-000000000002", "w1_root: /nonexistent"))
-    missing = open_role_sensor(config.coil_sensor, lambda: 0.0, "coil_sensor")
-    clock = VirtualClock()
-    world = build_world(config, clock, tun=LaggingMash())
-    assert isinstance(world.mash, MashSide)
-    daemon = assemble(
-        config,
-        clock,
-        world.sensor,
-        world.outputs,
-        mash_sensor=world.mash.mash_sensor,
-        coil_sensor=missing,
-    )
+    text = FITTED.replace("id: 28-000000000002", "w1_root: /nonexistent")
+    missing = open_role_sensor(parse(text).coil_sensor, lambda: 0.0, "coil_sensor")
+    daemon, _world = herms_daemon(text, coil_sensor=missing)
     periods = watched(daemon)
     run_for(daemon, 2 * PERIOD)
     [fault] = [e for e in periods.events if e.startswith("coil outlet sensor fault: ")]
@@ -376,21 +376,16 @@ def gpiod(monkeypatch: pytest.MonkeyPatch) -> FakeGpiod:
 def test_the_pump_on_a_gpio_line_starts_off_runs_when_told_and_is_released_off(
     gpiod: FakeGpiod,
 ) -> None:
-    text = FITTED.replace("pump:\n  backend: sim\n", "pump:\n  backend: gpio\n  line: 22\n")
-    config: Config = parse(text + "  active_low: true\n")
-    switch = _open_output(config.pump)
+    gpio = "pump:\n  backend: gpio\n  line: 22\n  active_low: true\n"
+    text = FITTED.replace("pump:\n  backend: sim\n", gpio)
+    switch = _open_output(parse(text).pump)
     [request] = gpiod.requests
     settings = request.config[22]
     assert request.chip == "/dev/gpiochip0" and request.consumer == "hermsd"
     assert (settings.direction, settings.output_value) == ("Direction.OUTPUT", "Value.INACTIVE")
     assert settings.active_low is True and settings.bias == "Bias.PULL_UP"
-    clock = VirtualClock()
-    world = build_world(config, clock, tun=LaggingMash())
-    outputs = guard_outputs(
-        world.circuit.ssr, world.circuit.contactor, clock, config, world.circuit.relay2, switch
-    )
-    assert world.mash is not None
-    daemon = assemble(config, clock, world.sensor, outputs, mash_sensor=world.mash.mash_sensor)
+    daemon, world = herms_daemon(text, pump=switch)
+    outputs = world.outputs
     run_for(daemon, PERIOD)
     assert request.values and set(request.values) == {(22, "Value.INACTIVE")}
     daemon.set_pump(True, "by the test")
@@ -409,28 +404,9 @@ def served(tmp_path: Path, text: str = FITTED) -> Iterator[tuple[Daemon, Path, P
     """The daemon on the virtual clock behind a real control socket, a period at a time."""
     daemon, _world = herms_daemon(text)
     periods = watched(daemon)
-    link = LoopLink(daemon)
     where = tmp_path / "control.sock"
-    server = ControlServer(where)
-    server.answer_with(link.status_line, link.history_line, link.arrived)
-    server.start()
-    link.attach(server)
-    stop = threading.Event()
-
-    def step() -> None:
-        while not stop.is_set():
-            run_for(daemon, PERIOD)
-            stop.wait(0.002)  # paces virtual time; nothing here is measured on this clock
-
-    run_for(daemon, PERIOD)
-    stepping = threading.Thread(target=step)
-    stepping.start()
-    try:
+    with serve(daemon, where):
         yield daemon, where, periods
-    finally:
-        stop.set()
-        stepping.join(TIMEOUT)
-        server.close()
 
 
 def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
