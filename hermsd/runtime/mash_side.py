@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, TypedDict
 
-from hermsd.config.schema import ROLE_SENSORS, Config
+from hermsd.config.schema import ROLE_SENSORS, SafetyConfig
 from hermsd.hardware.lm92 import SensorError
 from hermsd.runtime.loop_state import LoopState
 from hermsd.runtime.notify import mash_side_words
@@ -33,39 +33,38 @@ NO_PUMP = "pump: no pump is fitted (set pump.backend in the config file and rest
 class RoleSensor:
     """One sensor in a role beside the HLT's: its latest good reading, and its fault, said
     when it begins (after `safety.fault_reads` failed or implausible reads in a row, as the
-    HLT's) and when it ends."""
+    HLT's, by the safety section in force) and when it ends."""
 
-    def __init__(self, role: str, sensor: Sensor, config: Config) -> None:
+    def __init__(self, role: str, sensor: Sensor) -> None:
         self.role = role
         self.sensor = sensor
         self.celsius: float | None = None  # None while faulty, or before a good read
         self.fault: str | None = None
         self._failures = 0
-        self._fault_reads = config.safety.fault_reads
-        self._plausible = (config.safety.plausible_min, config.safety.plausible_max)
 
-    def start(self) -> Said | None:
+    def start(self, safety: SafetyConfig) -> Said | None:
         """Check the chip and read it once; what there is to say (a fault), else None. A
         chip that is wrong or missing is a fault from the start: the HLT does not need it."""
         try:
             self.sensor.identify()
             self.sensor.wake()
         except SensorError as error:
-            self._failures = self._fault_reads - 1
-            return self._failed(str(error))
-        return self.read()
+            self._failures = safety.fault_reads - 1
+            return self._failed(str(error), safety)
+        return self.read(safety)
 
-    def read(self) -> Said | None:
+    def read(self, safety: SafetyConfig) -> Said | None:
         """Read once; a fault begun or ended, else None."""
         try:
             celsius = self.sensor.read().celsius
         except SensorError as error:
-            return self._failed(str(error))
-        low, high = self._plausible
+            return self._failed(str(error), safety)
+        low, high = safety.plausible_min, safety.plausible_max
         if not low <= celsius <= high:
             return self._failed(
                 f"{celsius:.2f} °C is outside safety.plausible_min to plausible_max "
-                f"({low:g} to {high:g} °C)"
+                f"({low:g} to {high:g} °C)",
+                safety,
             )
         self._failures = 0
         self.celsius = celsius
@@ -74,9 +73,9 @@ class RoleSensor:
         self.fault = None
         return logging.INFO, f"{self.role} sensor reads again: {celsius:.2f} °C"
 
-    def _failed(self, why: str) -> Said | None:
+    def _failed(self, why: str, safety: SafetyConfig) -> Said | None:
         self._failures += 1
-        if self.fault is not None or self._failures < self._fault_reads:
+        if self.fault is not None or self._failures < safety.fault_reads:
             return None  # the last good reading stands until the fault is declared
         self.fault, self.celsius = why, None
         return logging.WARNING, f"{self.role} sensor fault: {why} (the HLT is held as before)"
@@ -86,7 +85,7 @@ def role_sensors(parts: Parts) -> dict[str, RoleSensor]:
     """The fitted sensors beside the HLT's, by their config section."""
     given = {"mash_sensor": parts.mash_sensor, "coil_sensor": parts.coil_sensor}
     return {
-        section: RoleSensor(ROLE_SENSORS[section], sensor, parts.config)
+        section: RoleSensor(ROLE_SENSORS[section], sensor)
         for section, sensor in given.items()
         if sensor is not None
     }
@@ -125,13 +124,13 @@ class MashSide(LoopState):
     def _start_mash_side(self) -> None:
         self._pump_on = False
         for role in self._roles.values():
-            self._say_role(role.start())
+            self._say_role(role.start(self.config.safety))
 
     def _read_mash_side(self) -> None:
         """Read each sensor beside the HLT's, and refresh the pump's switch (a relay board's
         off is said again now and then: `GuardedSwitch`)."""
         for role in self._roles.values():
-            self._say_role(role.read())
+            self._say_role(role.read(self.config.safety))
         if self.outputs.pump is not None:
             self.outputs.pump.set(self._pump_on)
 
