@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from hermsd.sim import scenario
 from hermsd.sim.hlt import (
     HERMS_METHODS,
     PhysicalPlant,
@@ -22,6 +23,8 @@ from hermsd.sim.hlt import (
     load_plant,
 )
 from hermsd.sim.mash import HermsPlant, HermsTun, as_herms_plant
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 
 # 6 L/min of wort: ṁc = 0.1 L/s · 4186 J/(L·K) = 418.6 W/K. A 250 W/K coil: NTU = 0.59723,
 # e^(−NTU) = 0.55033, ε = 0.44967, ε·ṁc = 188.23 W/K.
@@ -402,3 +405,117 @@ def test_an_outside_herms_plant_is_loaded_and_checked(tmp_path: Path) -> None:
         checked.mash_temperature(5.0)  # type: ignore[attr-defined]
     with pytest.raises(PlantLoadError, match="has set_pump but lacks set_recirculation_ok"):
         load_plant(f"{broken}:Half")
+
+
+# ------------------------------------------------------------------------ scenarios
+
+
+HERMS_PLANT = {"model": "physical", "start_c": 66, "mash": {"flow_l_per_min": 6}}
+
+
+@pytest.mark.parametrize(
+    ("doc", "where"),
+    [
+        ({"plant": {"mash": 3}}, "plant.mash: expected a mapping"),
+        ({"plant": {"mash": {"flow": 6}}}, "plant.mash.flow: unknown key: expected one of"),
+        (
+            {"plant": {"mash": {"coil_w_per_k": 5000}}},
+            r"plant.mash.coil_w_per_k: 5000 is out of range \(expected 10 to 2000 W/K; a 10",
+        ),
+        ({"plant": {"mash": {"mash_ua_w_per_k": "x"}}}, "plant.mash.mash_ua_w_per_k: expected a"),
+        (
+            {"plant": HERMS_PLANT, "events": [{"at": "1h", "dough_in": {"grain_kg": 12}}]},
+            r"events\[0\].dough_in: expected \{grain_kg",
+        ),
+        (
+            {
+                "plant": HERMS_PLANT,
+                "events": [
+                    {
+                        "at": "1h",
+                        "dough_in": {
+                            "grain_kg": 12,
+                            "grain_c": 20,
+                            "water_litres": 50,
+                            "water_c": 101,
+                        },
+                    }
+                ],
+            },
+            r"events\[0\].dough_in.water_c: 101 is out of range",
+        ),
+        (
+            {
+                "plant": {"mash": {"flow_l_per_min": 30, "hose_to_coil_s": 600}},
+                "events": [
+                    {
+                        "at": "1h",
+                        "dough_in": {
+                            "grain_kg": 5,
+                            "grain_c": 20,
+                            "water_litres": 50,
+                            "water_c": 70,
+                        },
+                    }
+                ],
+            },
+            r"events\[0\].dough_in: water_litres = 50.0 is invalid: it must be more than",
+        ),
+        ({"events": [{"at": "1h", "pump": "fast"}]}, r"events\[0\].pump: expected on or off"),
+        (
+            {"events": [{"at": "1h", "recirculation": "slow"}]},
+            r"events\[0\].recirculation: expected stuck or",
+        ),
+    ],
+)
+def test_a_bad_mash_in_a_scenario_is_one_line_naming_its_key(doc: object, where: str) -> None:
+    with pytest.raises(scenario.ScenarioError, match=f"^day.yaml: {where}") as error:
+        scenario.parse_scenario(doc, "day.yaml")
+    assert "\n" not in str(error.value)
+
+
+def test_pump_on_and_off_read_from_yaml(tmp_path: Path) -> None:
+    path = tmp_path / "day.yaml"
+    path.write_text(
+        "plant: {mash: {}}\nevents:\n  - {at: 1h, pump: on}\n  - {at: 2h, pump: 'off'}\n",
+        encoding="utf-8",
+    )
+    assert [e.value for e in scenario.load_scenario(path).events] == [True, False]
+
+
+def test_mash_events_need_a_herms_plant() -> None:
+    day = scenario.parse_scenario(
+        {"duration": "1h", "events": [{"at": "30m", "pump": "on"}]}, "day.yaml"
+    )
+    with pytest.raises(scenario.ScenarioError, match=r"^day.yaml: events: dough_in, pump and"):
+        scenario.run(day)
+
+
+def test_the_herms_day_shows_the_hlt_fall_at_pump_start() -> None:
+    """The pump starts at 1h05m: the coil takes 5.27 kW (188.23 W/K × 28 K) against the 3 kW
+    element, so the HLT falls below the band within minutes, whatever the controller does."""
+    day = scenario.load_scenario(SCENARIOS / "herms-day.yaml")
+    result = scenario.run(day)
+    by_t = {s.t: s.temp for s in result.samples}
+    assert by_t[3900.0] == pytest.approx(66.0, abs=0.1)
+    assert by_t[3900.0 + 600.0] < 64.0
+
+
+def test_an_outside_herms_plant_takes_the_mash_events() -> None:
+    day = scenario.parse_scenario(
+        {
+            "duration": "2h",
+            "setpoint": 66,
+            "events": [
+                {
+                    "at": "1h",
+                    "dough_in": {"grain_kg": 12, "grain_c": 20, "water_litres": 50, "water_c": 40},
+                },
+                {"at": "1h1m", "pump": "on"},
+            ],
+        }
+    )
+    tun = HermsTun(PhysicalPlant(start_c=66.0))
+    scenario.run(day, outside_plant=tun)
+    assert tun.coil_energy(7200.0) > 1e6
+    assert tun.mash_temperature(7200.0) > 50.0
