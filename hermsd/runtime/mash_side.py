@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, TypedDict
 
 from hermsd.config.schema import ROLE_SENSORS, SafetyConfig
 from hermsd.hardware.lm92 import SensorError
+from hermsd.program.runner import MashReading
 from hermsd.runtime.loop_state import LoopState
 from hermsd.runtime.notify import mash_side_words
 
@@ -104,6 +105,7 @@ class MashSide(LoopState):
 
     _roles: dict[str, RoleSensor]
     _pump_on: bool
+    _program_pump_step: tuple[int, bool] | None  # the program's step the pump was set for
 
     @property
     def pump_fitted(self) -> bool:
@@ -121,8 +123,27 @@ class MashSide(LoopState):
             pump.set(on)
             self._event(logging.INFO, f"pump {'on' if on else 'off'}: {reason}", self._now())
 
+    def mash_reading(self) -> MashReading | None:
+        """What a program times its rests on the mash by (None: no mash sensor fitted)."""
+        mash = self._roles.get("mash_sensor")
+        return None if mash is None else MashReading(mash.celsius)
+
+    def _program_pump(self) -> None:
+        """Switch the pump as the program's step says, once when the step begins (and once
+        after a restart): `hermsd set pump` within a step stands until the next one."""
+        wanted = self.program.pump_step()
+        if wanted == self._program_pump_step:
+            return
+        self._program_pump_step = wanted
+        runner = self.program.runner
+        if wanted is None or runner is None or not self.pump_fitted:
+            return
+        step = runner.step
+        self.set_pump(wanted[1], f"program {runner.program.name!r}, step {step.name!r}")
+
     def _start_mash_side(self) -> None:
         self._pump_on = False
+        self._program_pump_step = None
         for role in self._roles.values():
             self._say_role(role.start(self.config.safety))
 
