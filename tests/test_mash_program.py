@@ -252,3 +252,53 @@ def test_a_mash_sensor_fault_stops_the_rests_clock_and_says_so() -> None:
     back = [e for e in said if e.startswith("step 'Rest': the mash reads ")]
     assert len(lost) == 1 and len(back) == 1
     assert not any("no mash reading" in e for e in calm)
+
+
+MASH_IN_FILE = (
+    "steps:\n"
+    "  - name: Strike\n    setpoint: 72\n    hold: 0s\n    confirm: Mash in\n{strike}"
+    "  - name: Rest\n    setpoint: 66\n    hold: 60m\n{rest}"
+)
+
+
+@pytest.mark.parametrize(
+    ("rest", "pumps"),
+    [
+        ("", [False, True]),
+        ("    pump: off\n", [False, False]),
+        ("    pump: on\n", [False, True]),
+        ("    pump: false\n", [False, False]),
+    ],
+)
+def test_a_step_may_say_whether_the_pump_runs(rest: str, pumps: list[bool]) -> None:
+    program = model.parse(MASH_IN_FILE.format(strike="", rest=rest), "mash.yaml")
+    assert [model.pump_wanted(program, i) for i in range(2)] == pumps
+    assert model.from_data(model.to_data(program)) == program  # as the socket carries it
+
+
+@pytest.mark.parametrize(
+    ("strike", "rest", "says"),
+    [
+        (
+            "    pump: on\n",
+            "",
+            "mash.yaml:6:11: steps[0].pump: the pump stays off until the mash is in (this step "
+            "waits for 'Mash in'; write pump: off, or leave it out)",
+        ),
+        (
+            "",
+            "    pump: sometimes\n",
+            "mash.yaml:9:11: steps[1].pump: 'sometimes' is not one of the choices ('on' or 'off')",
+        ),
+    ],
+)
+def test_a_wrong_pump_is_refused_with_its_line(strike: str, rest: str, says: str) -> None:
+    with pytest.raises(model.ProgramError) as caught:
+        model.parse(MASH_IN_FILE.format(strike=strike, rest=rest), "mash.yaml")
+    assert str(caught.value).startswith(says)
+
+
+def test_without_a_mash_in_wait_the_pump_runs_from_the_first_step() -> None:
+    program = model.parse("steps:\n  - {name: Rest, setpoint: 66, hold: 60m}\n", "rest.yaml")
+    assert model.mash_in_index(program) == 0
+    assert model.pump_wanted(program, 0) is True
