@@ -1,11 +1,11 @@
 """A mash program on a HERMS: its rests timed on the mash, not on the HLT, and its pump.
 
-The plant is this file's own small HERMS (`CoilMash`): the HLT is the simulator's FOPTD tun,
-held by the loop, starting at the rests' 66 °C, so that it is in the band from the first
-period; the mash follows a coil held at exactly 66 °C while the pump runs,
-dM/dt = (66 − M)/MASH_TAU_S, and stands still while it stops. From 55 °C the mash is then
-within 0.5 °C of 66 °C after MASH_TAU_S·ln(11/0.5) = 600·ln 22 = 1854.6 s of pumping: the
-HLT is in the band half an hour before the mash is. The LM92 reads in 0.0625 °C steps,
+The plant is this file's own small HERMS (`CoilMash`, after test_mash_side's): the HLT is
+the simulator's FOPTD tun, held by the loop, starting at the rests' 66 °C, so that it is in
+the band from the first period; the mash follows a coil held at exactly 66 °C while the pump
+runs, dM/dt = (66 − M)/MASH_TAU_S, and stands still while it stops. From 55 °C the mash is
+then within 0.5 °C of 66 °C after MASH_TAU_S·ln(11/0.5) = 600·ln 22 = 1854.6 s of pumping:
+the HLT is in the band half an hour before the mash is. The LM92 reads in 0.0625 °C steps,
 and 65.5 °C is one (1048 steps): it reads the band's edge exactly when the mash is there.
 Every time below comes from that equation and the loop's timing (a period of 5 s, a read a
 second, a fault declared at the second failed read), worked out by hand, never from a run.
@@ -17,13 +17,12 @@ import math
 from typing import Any
 
 import pytest
-from test_mash_side import Periods, herms_daemon, run_for
+from test_mash_side import LaggingMash, Periods, herms_daemon, run_for
 
 from hermsd.program import model
 from hermsd.program.quality import step_lines
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import VirtualClock
-from hermsd.sim.hlt import FoptdPlant
 from hermsd.sim.scenario import Result, parse_scenario, run
 
 COIL_C = 66.0
@@ -48,16 +47,12 @@ MASH_IN_PROGRAM = {
 }
 
 
-class CoilMash:
+class CoilMash(LaggingMash):
     """A HERMS plant: the FOPTD tun as the HLT, and a mash warmed towards COIL_C with the
     time constant MASH_TAU_S while the pump runs (exact: the solution of the equation)."""
 
     def __init__(self, mash_c: float = MASH_C) -> None:
-        self.hlt = FoptdPlant(start_c=COIL_C)
-        self.mash_c = mash_c
-        self.pump = False
-        self.since = 0.0
-        self.pump_changes: list[tuple[float, bool]] = []
+        super().__init__(hlt_c=COIL_C, mash_c=mash_c)
 
     def _advance(self, t: float) -> None:
         if t > self.since and self.pump:
@@ -65,47 +60,12 @@ class CoilMash:
             self.mash_c = COIL_C + gap
         self.since = max(self.since, t)
 
-    def set_heater(self, on: bool, t: float) -> None:
-        self.hlt.set_heater(on, t)
-
-    def set_element_ok(self, ok: bool, t: float) -> None:
-        self.hlt.set_element_ok(ok, t)
-
-    def set_ambient(self, temp_c: float, t: float) -> None:
-        self.hlt.set_ambient(temp_c, t)
-
-    def add_water(self, litres: float, temp_c: float, t: float) -> None:
-        self.hlt.add_water(litres, temp_c, t)
-
-    def temperature(self, t: float) -> float:
-        return self.hlt.temperature(t)
-
-    def water_temperature(self, t: float) -> float:
-        return self.hlt.water_temperature(t)
-
     def set_pump(self, on: bool, t: float) -> None:
+        """Only the changes are kept (the loop says the pump's state again every read)."""
         self._advance(t)
         if on != self.pump:
             self.pump_changes.append((t, on))
         self.pump = on
-
-    def set_recirculation_ok(self, ok: bool, t: float) -> None:
-        raise NotImplementedError("not needed here")
-
-    def dough_in(
-        self, grain_kg: float, grain_c: float, water_litres: float, water_c: float, t: float
-    ) -> None:
-        raise NotImplementedError("not needed here: the mash starts doughed in")
-
-    def mash_temperature(self, t: float) -> float:
-        self._advance(t)
-        return self.mash_c
-
-    def coil_outlet_temperature(self, t: float) -> float:
-        return COIL_C if self.pump else self.mash_temperature(t)
-
-    def coil_watts(self, t: float) -> float:
-        return 0.0
 
 
 def simulate(
@@ -222,7 +182,7 @@ FITTED = (
 def rest_with(fault: bool) -> tuple[float, list[str]]:
     """When the rest ended, and what the loop said, its mash sensor failing (NACK) from
     10 to 15 min when `fault`; the mash 0.1 °C under 66 °C, in the band from the start."""
-    daemon, world = herms_daemon(FITTED, CoilMash(mash_c=COIL_C - 0.1))  # type: ignore[arg-type]
+    daemon, world = herms_daemon(FITTED, CoilMash(mash_c=COIL_C - 0.1))
     assert world.mash is not None
     chip = world.mash.mash_chip
     assert chip is not None
