@@ -14,11 +14,13 @@ second, a fault declared at the second failed read), worked out by hand, never f
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any
 
 import pytest
 from test_mash_side import LaggingMash, Periods, herms_daemon, run_for
 
+from hermsd.log import reader, replay
 from hermsd.program import model
 from hermsd.program.quality import step_lines
 from hermsd.runtime.period import PeriodRecord
@@ -69,7 +71,10 @@ class CoilMash(LaggingMash):
 
 
 def simulate(
-    program: dict[str, Any], events: list[dict[str, Any]], config: dict[str, Any]
+    program: dict[str, Any],
+    events: list[dict[str, Any]],
+    config: dict[str, Any],
+    log_dir: Path | None = None,
 ) -> tuple[Result, CoilMash]:
     scenario = parse_scenario(
         {
@@ -82,7 +87,7 @@ def simulate(
         }
     )
     plant = CoilMash()
-    return run(scenario, outside_plant=plant, keep_records=True), plant
+    return run(scenario, outside_plant=plant, keep_records=True, log_dir=log_dir), plant
 
 
 def first(records: list[PeriodRecord], step_index: int, holding: bool = False) -> float:
@@ -95,8 +100,14 @@ def first(records: list[PeriodRecord], step_index: int, holding: bool = False) -
 
 
 @pytest.fixture(scope="module")
-def mash_in_day() -> tuple[Result, CoilMash]:
-    return simulate(MASH_IN_PROGRAM, [{"at": "10m", "confirm": "Mash in"}], HERMS_CONFIG)
+def mash_in_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("mash-in")
+
+
+@pytest.fixture(scope="module")
+def mash_in_day(mash_in_log: Path) -> tuple[Result, CoilMash]:
+    events = [{"at": "10m", "confirm": "Mash in"}]
+    return simulate(MASH_IN_PROGRAM, events, HERMS_CONFIG, mash_in_log)
 
 
 def test_a_rest_starts_its_clock_when_the_mash_enters_the_band(
@@ -151,6 +162,17 @@ def test_the_report_gives_each_rest_on_the_mash_and_not_the_strike(
     assert on_mash["tight_s"] == pytest.approx(judged - 115.9, abs=PERIOD + 1)
     line = step_lines([rest])[1]
     assert line.startswith(f"  mash: reached {on_mash['reached_s']} s, within ±0.3 °C ")
+
+
+def test_replay_gives_the_rests_on_the_mash_as_the_simulation_did(
+    mash_in_day: tuple[Result, CoilMash], mash_in_log: Path
+) -> None:
+    """Replay knows the strike water's step from the log alone (it waited for the brewer)."""
+    result, _ = mash_in_day
+    replayed = replay.summarise(reader.load(sorted(mash_in_log.glob("*.mcap"))))
+    assert "mash" not in replayed["steps"][0]
+    for logged, simulated in zip(replayed["steps"][1:], result.summary["steps"][1:], strict=True):
+        assert logged["mash"] == simulated["mash"]
 
 
 def test_without_a_mash_sensor_the_rest_is_timed_on_the_hlt() -> None:
