@@ -134,6 +134,7 @@ CONFIG = {
     "drop_fall_c": 0.1875,
     "drop_carry": True,
     "reach_watch": True,
+    "control_law": 1,
 }
 MODEL = {
     "t": 6600.0,

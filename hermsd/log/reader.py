@@ -83,6 +83,7 @@ class LoggedConfig:
     repeat: bool = False  # the copy of the record in force that opens a rotated file of a run
     steady_duty_share: float | None = None  # a measured step needs a steady duty (None: not)
     recovery_fit_periods: int | None = None  # the fewest periods of a recovery's fit (None: 0)
+    control_law: int | None = None  # `pid.CONTROL_LAW_VERSION` of its daemon (None: before 1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -400,7 +401,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     model, safety_model = message.get("model"), message.get("safety_model")
     drop_readings, drop_onset = message.get("drop_readings"), message.get("drop_onset_c")
     drop_fall, steady_duty = message.get("drop_fall_c"), message.get("steady_duty_share")
-    recovery = message.get("recovery_fit_periods")
+    recovery, law = message.get("recovery_fit_periods"), message.get("control_law")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
@@ -414,6 +415,7 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
         message.get("reach_watch") is True,
         steady_duty_share=float(steady_duty) if _is_number(steady_duty) else None,
         recovery_fit_periods=recovery if isinstance(recovery, int) else None,
+        control_law=law if isinstance(law, int) and not isinstance(law, bool) else None,
     )
 
 

@@ -13,7 +13,8 @@ joins the two.
 - `summarise`: what `hermsd replay FILE...` prints. The metrics are those of `hermsd
   simulate` (hermsd.metrics), measured on the logged PV rather than the simulated water.
 - `verify`: the logged controller re-run on the logged inputs, every step bit for bit, and
-  what the daemon's watches logged of each period derived again from them.
+  what the daemon's watches logged of each period derived again from them; only for a log
+  of this hermsd's control law (`pid.CONTROL_LAW_VERSION`), which its config records name.
 - `what_if`: a first-order-plus-dead-time model of the tun fitted to the logged duty and PV,
   and the day run again through the daemon on that model with other settings.
 """
@@ -35,6 +36,7 @@ from hermsd.config import schema as config_module
 from hermsd.control.element2 import MidRangeController, SplitController, TwoElementController
 from hermsd.control.factory import make_controller, shared_out
 from hermsd.control.pid import (
+    CONTROL_LAW_VERSION,
     DROP_READINGS,
     DROP_RULE,
     FIRST_DROP_RULE,
@@ -276,16 +278,38 @@ class Mismatch:
 
 
 @dataclass(frozen=True, slots=True)
+class OtherLaw:
+    """A log whose decisions a control law other than this hermsd's made: not re-run, for
+    this hermsd's laws would decide otherwise (`pid.CONTROL_LAW_VERSION`)."""
+
+    logged: int | None  # the first other law its config records name (None: none, before 1)
+    runs: int  # the law this hermsd runs
+    in_part: bool  # some of its config records name this hermsd's law (an upgrade that day)
+
+
+@dataclass(frozen=True, slots=True)
 class Verification:
     """What `verify` found: how many steps it reproduced, and the first it did not."""
 
     verified: int  # controller steps reproduced bit for bit
     unknown_state: int  # steps after missing records and before the next reset: not re-run
     mismatch: Mismatch | None
+    other_law: OtherLaw | None = None  # the log is another law's: nothing re-run
 
 
-def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
-    """Re-run the logged controller on the logged inputs, by the daemon's rules.
+def other_law(entries: Iterable[LoggedConfig | PeriodRecord]) -> OtherLaw | None:
+    """The control law of a log's config records, when any is not this hermsd's."""
+    laws = [e.control_law for e in entries if isinstance(e, LoggedConfig)]
+    others = [law for law in laws if law != CONTROL_LAW_VERSION]
+    if not others:
+        return None
+    return OtherLaw(others[0], CONTROL_LAW_VERSION, len(others) < len(laws))
+
+
+def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
+    """Re-run the logged controller on the logged inputs, by the daemon's rules: only in a
+    log whose config records all name this hermsd's control law (`other_law`; a log of
+    another law is not re-run, its decisions another law's).
 
     A config record makes a new controller (the repeat of the one in force that opens every
     rotated file, as `load` marks it, does not, nor does a reload that leaves the tuning, the
@@ -322,6 +346,9 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     (`recovery_fit_periods`); under one without it, over the first span alone, as the daemons
     before it did.
     """
+    other = other_law(entries)
+    if other is not None:
+        return Verification(0, 0, None, other)
     controller = None
     in_force: LoggedConfig | None = None
     in_force_model: dict[str, Any] | None = None

@@ -343,6 +343,11 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "recovery_fit_periods": _field(
                     "integer", "fewest full-power periods a recovery's rate is fitted over"
                 ),
+                "control_law": _field(
+                    "integer",
+                    "which control law made the decisions logged (replay --verify re-runs its own)",
+                    minimum=1,
+                ),
             },
             optional=(
                 "safety_model",

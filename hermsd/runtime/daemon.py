@@ -911,6 +911,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping):
                     "reach_watch": True,
                     "steady_duty_share": pid.STEADY_DUTY_SHARE,
                     "recovery_fit_periods": pid.RECOVERY_FIT_PERIODS,
+                    "control_law": pid.CONTROL_LAW_VERSION,
                 },
             )
 
