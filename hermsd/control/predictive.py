@@ -11,8 +11,9 @@ from collections.abc import Sequence
 
 from hermsd.control.pid import (
     BIAS_INNOVATION_CLIP,
+    DROP_FALL,
+    DROP_ONSET,
     DROP_READINGS,
-    DROP_RULE,
     FAR_BAND,
     FULL_MARGIN,
     LINEAR_BAND,
@@ -21,13 +22,11 @@ from hermsd.control.pid import (
     OBSERVER_BIAS_S,
     OBSERVER_TRACK_S,
     PREDICTED_LOOP_FACTOR,
-    RECOVERY_FIT_PERIODS,
     STEADY_BAND,
     STEADY_DUTY_SHARE,
     STEADY_SPAN_S,
     STEP_INNOVATION,
     Controller,
-    DropRule,
     Params,
     PlantModel,
     _Base,
@@ -44,7 +43,6 @@ class _Predictive(_Base):
         "_carried",
         "_cold_water",
         "_dead_time",
-        "_duty_share",
         "_estimate",
         "_fa",
         "_filtered",
@@ -62,8 +60,6 @@ class _Predictive(_Base):
         "_rate",
         "_recent",
         "_recovery",
-        "_recovery_periods",
-        "_steady_with_pv",
         "_step_is_loops",
         "_ts",
         "_watch",
@@ -90,16 +86,6 @@ class _Predictive(_Base):
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
         self._watch = _HeatUpWatch()
         self._recovery = _RecoveryWatch()
-        # Whether a step's own PV counts in judging it steady (see `_watch_heat_up`); replay
-        # clears it for logs of the daemons before it (`predating_drop_fall`).
-        self._steady_with_pv = True
-        # How far the duty before a step may have moved, as a share of the step
-        # (`_duty_was_steady`); replay sets the share a log names, and no bound for the
-        # daemons before it (`logged_duty_share`).
-        self._duty_share = STEADY_DUTY_SHARE
-        # The fewest periods a recovery's line takes in; replay sets the number a log names,
-        # and none for the daemons before it (`logged_recovery_periods`).
-        self._recovery_periods = RECOVERY_FIT_PERIODS
         # Whether the next step's change of power is the loop's own (`loops_own_step`).
         self._step_is_loops = False
         # Whether the readings of the period the next step closes showed cold water
@@ -233,7 +219,7 @@ class _Predictive(_Base):
         inputs = self._inputs
         span = min(len(inputs) - 1, self._lag + (self._recent.maxlen or 1))
         duties = [inputs[j] for j in range(len(inputs) - 1 - span, len(inputs) - 1)]
-        return max(duties) - min(duties) <= self._duty_share * step
+        return max(duties) - min(duties) <= STEADY_DUTY_SHARE * step
 
     def _watch_heat_up(self, sp: float, pv: float, applied: float, before: float) -> None:
         """Arm on a step to full power: from a steady PV the heat-up watch, else (cold water)
@@ -246,7 +232,7 @@ class _Predictive(_Base):
             watch.active = recovery.active = False  # the step ended before the PV rose enough
         # This period's PV too: cold water that the readings showed within the period (and
         # answered there) has a steady minute before it, but is no step from a steady PV.
-        seen = (*recent, pv) if self._steady_with_pv else tuple(recent)
+        seen = (*recent, pv)
         steady = max(seen) - min(seen) <= STEADY_BAND
         loops, self._step_is_loops = self._step_is_loops, False
         if full and not (watch.active or recovery.active) and before < self._hi and not loops:
@@ -260,7 +246,7 @@ class _Predictive(_Base):
                     recovery.arm(pv, hold)
         recent.append(pv)
         if full and recovery.active:
-            measured = recovery.add(pv, self._ts, sp, self._loss, self._recovery_periods)
+            measured = recovery.add(pv, self._ts, sp, self._loss)
             if measured is not None and 0.5 * self._rate <= measured[0] <= 2.0 * self._rate:
                 rate, self._estimate = measured
                 self._loss *= rate / self._rate  # as for a heat-up: the fill changed
@@ -279,25 +265,26 @@ class _Predictive(_Base):
 
 
 def full_power_now(
-    controller: Controller,
-    sp: float,
-    last_pv: float,
-    readings: Sequence[float],
-    rule: DropRule = DROP_RULE,
+    controller: Controller, sp: float, last_pv: float, readings: Sequence[float]
 ) -> bool:
     """Whether the readings so far in a period show a sudden drop (cold water) that the
     controller would answer with full power, so that the loop need not wait for the period's
-    end: the last DROP_READINGS of them below the last period's PV (`last_pv`) as `rule`
-    asks, and the step the controller would take now, on the latest of them (or their mean,
-    as `rule` asks) with its last output as applied, gives its upper limit, or (as `rule`
-    asks) the fall is more than full power can add back within a period. The element's
-    heat reaches the sensor a dead time later whatever is done, so every second of the old
-    duty after the water is a second of recovery lost; a period is 5 of them. Only
-    predictive acts inside a period (the textbook forms are their seeds' equations, once a
-    period), only when it may ask for full power (an upper limit below 100 % is a power
-    limit the window must keep), and not when its output is already there. The controller
-    is not changed (its next step is taken on a copy), so the answer follows from what a
-    period record logs: its readings, and the controller as the period before left it."""
+    end: the latest of them at least DROP_FALL below the last period's PV (`last_pv`) and the
+    one before it at least DROP_ONSET below (DROP_READINGS of them), and then either the step
+    the controller would take now on the latest, with its last output as applied, gives its
+    upper limit, or the latest lies below the setpoint and the fall both readings show is
+    more than full power for a whole period could add back by the model's rate
+    (`full_power_adds`): acting on it cannot lift the water above where it stood, nor heat
+    water the brewer is cooling to a lower setpoint, and a lone glitch that follows a
+    reading noise put 2 LSB low (about 1 in 700 at the bench's noise) adds less than those
+    2 LSB. The element's heat reaches the sensor a dead time later whatever is done, so
+    every second of the old duty after the water is a second of recovery lost; a period is
+    5 of them. Only predictive acts inside a period (the textbook forms are their seeds'
+    equations, once a period), only when it may ask for full power (an upper limit below
+    100 % is a power limit the window must keep), and not when its output is already there.
+    The controller is not changed (its next step is taken on a copy), so the answer follows
+    from what a period record logs: its readings, and the controller as the period before
+    left it."""
     if not (isinstance(controller, _Predictive) and controller._primed):
         return False
     if len(readings) < DROP_READINGS:
@@ -306,16 +293,12 @@ def full_power_now(
     if controller.params.out_max < 100.0 or controller.output >= 100.0:
         return False
     fell, first = last_pv - latest, last_pv - before
-    if rule.inclusive:
-        if fell < rule.fall or first < rule.onset:
-            return False
-    elif fell <= rule.fall or first <= rule.onset:
+    if fell < DROP_FALL or first < DROP_ONSET:
         return False
-    if rule.deficit and latest < sp and controller.full_power_adds() < min(fell, first):
+    if latest < sp and controller.full_power_adds() < min(fell, first):
         return True
-    pv = latest if rule.on_latest else (before + latest) / 2.0
     trial = copy.deepcopy(controller)
-    return trial.step(sp, pv, controller.output) >= 100.0
+    return trial.step(sp, latest, controller.output) >= 100.0
 
 
 def loops_own_step(controller: Controller) -> None:
@@ -329,34 +312,16 @@ def loops_own_step(controller: Controller) -> None:
 def cold_water_seen(controller: Controller) -> None:
     """Tell `controller` (predictive) that the readings of the period its next step closes
     showed cold water (`full_power_now`, the period's `full_from`): full power carries on
-    across the step while the PV falls by more than a period of full power adds
-    (`DROP_CARRY`). It is told whether or not the element could act on it in the period, as
-    the log says only what the readings showed; the fall bounds the carry all the same."""
+    across the step while the PV falls by more than a period of full power adds. Behind a
+    slow sensor the period's PV, a mean, lies only a few tenths below the last while the
+    water is degrees below: without the carry the law asked 30–50 % again at each boundary
+    and the element waited for the period's readings to show the drop anew, 8 s of full
+    power lost over the first four periods after a tenth of the volume of cold water on a
+    thermowell of 120 s lag. It is told whether or not the element could act on it in the
+    period, as the log says only what the readings showed; the fall bounds the carry all
+    the same."""
     if isinstance(controller, _Predictive):
         controller._cold_water = True
-
-
-def predating_drop_fall(controller: Controller) -> None:
-    """Make `controller` (predictive) judge a step to full power steady as the daemons before
-    `drop_fall_c` did, by the minute before the step alone: replay of their logs."""
-    if isinstance(controller, _Predictive):
-        controller._steady_with_pv = False
-
-
-def logged_duty_share(controller: Controller, share: float | None) -> None:
-    """Make `controller` (predictive) measure a step to full power from a steady PV as the
-    daemon that logged `share` (`steady_duty_share`) did: None, a daemon from before it, which
-    measured the step whatever the duty did before it. Replay of its log."""
-    if isinstance(controller, _Predictive):
-        controller._duty_share = math.inf if share is None else share
-
-
-def logged_recovery_periods(controller: Controller, periods: int | None) -> None:
-    """Make `controller` (predictive) fit a recovery's rate as the daemon that logged
-    `periods` (`recovery_fit_periods`) did: None, a daemon from before it, which took the
-    rate once, over the first RECOVERY_FIT_SPAN alone. Replay of its log."""
-    if isinstance(controller, _Predictive):
-        controller._recovery_periods = 0 if periods is None else periods
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:
