@@ -39,7 +39,9 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
   (the heat flow the model gets wrong), both corrected every period by the innovation PV −
   estimate (gains from two poles: the estimate follows the sensor within 30 s, the bias
   within ti). From the estimate it runs the model forward over the duty already sent and
-  still in the dead time: the PV that will be. Output = the holding duty at the setpoint
+  still in the dead time: the PV that will be (the dead time in whole periods and the share
+  of one: a reading's age moves it by a second or so, and rounded to whole periods up to
+  half a period of heat in flight is lost). Output = the holding duty at the setpoint
   (model and bias) + P on the setpoint minus that predicted PV: within 0.25 °C below the
   setpoint and anywhere above it with a gain that makes the predicted loop no faster than
   2·θ (damped for a real dead time, gain or τ off by 2×); further below, kc and beyond

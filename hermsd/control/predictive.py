@@ -56,6 +56,7 @@ class _Predictive(_Base):
         "_l1",
         "_l2",
         "_lag",
+        "_lag_share",
         "_loss",
         "_rate",
         "_recent",
@@ -76,7 +77,7 @@ class _Predictive(_Base):
         self._loss = 1.0 / model.tau  # 1/s
         self._ambient = model.ambient
         self._rate = self._kc_near = self._kc_far = self._dead_time = 0.0
-        self._lag = 0
+        self._lag, self._lag_share = 0, 0.0
         self._use(model.rate, model.dead_time)
         # Observer poles: the PV estimate follows the sensor within OBSERVER_TRACK_S, the bias
         # (what the model gets wrong) within ti; see `observer_gains`.
@@ -107,7 +108,10 @@ class _Predictive(_Base):
         ts = self._ts
         self._rate = rate
         self._dead_time = dead_time
-        self._lag = max(0, round(dead_time / ts))
+        # Whole periods and the share of one: rounded to whole periods, a dead time lost up
+        # to Ts/2 of the heat in flight, e.g. 2.5 s of full power on a fast tun at Ts 5 s.
+        whole, self._lag_share = divmod(max(0.0, dead_time / ts), 1.0)
+        self._lag = int(whole)
         settle = PREDICTED_LOOP_FACTOR * max(dead_time, 2.0 * ts)
         self._kc_near = min(self._kc, 100.0 / (rate * settle))
         self._kc_far = max(self._kc, 100.0 / (rate * ts))
@@ -117,15 +121,25 @@ class _Predictive(_Base):
         period, by the model's rate: the most that acting on a drop inside a period adds."""
         return self._ts * self._rate * (100.0 - self._output) / 100.0
 
-    def _drift(self, x: float, u: float) -> float:
-        """The model's change of PV over one period at duty u from x (Euler; λ·Ts ≪ 1)."""
-        return self._ts * (self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias)
+    def _drift(self, x: float, u: float, share: float = 1.0) -> float:
+        """The model's change of PV over `share` of a period at duty u from x (Euler;
+        λ·Ts ≪ 1)."""
+        heat = self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias
+        return share * self._ts * heat
+
+    def _arriving(self) -> float:
+        """The duty whose heat reaches the sensor in the period just ended: the dead time
+        falls `_lag_share` of the way into an earlier period's."""
+        inputs, lag, share = self._inputs, self._lag, self._lag_share
+        return share * inputs[-2 - lag] + (1.0 - share) * inputs[-1 - lag]
 
     def _predicted(self) -> float:
-        """Where the PV will be once the inputs already sent (still in the dead time) arrive."""
-        x = self._estimate
+        """Where the PV will be once the inputs already sent (still in the dead time) arrive:
+        the last `_lag` whole and `_lag_share` of the one before them."""
         inputs = self._inputs
-        for j in range(len(inputs) - self._lag, len(inputs)):
+        first = len(inputs) - self._lag
+        x = self._estimate + self._drift(self._estimate, inputs[first - 1], self._lag_share)
+        for j in range(first, len(inputs)):
             x += self._drift(x, inputs[j])
         return x
 
@@ -185,7 +199,7 @@ class _Predictive(_Base):
         inputs = self._inputs
         inputs.append(previous)
         self._watch_heat_up(sp, pv, previous, inputs[-2])
-        before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag])
+        before = self._estimate + self._drift(self._estimate, self._arriving())
         innovation = pv - before
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
         step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
@@ -217,7 +231,8 @@ class _Predictive(_Base):
         the PV's steady minute shows the duty sent a dead time before it, and the duties sent
         since are still on their way to the sensor."""
         inputs = self._inputs
-        span = min(len(inputs) - 1, self._lag + (self._recent.maxlen or 1))
+        in_flight = self._lag + (self._lag_share > 0.0)  # periods, the last one in part
+        span = min(len(inputs) - 1, in_flight + (self._recent.maxlen or 1))
         duties = [inputs[j] for j in range(len(inputs) - 1 - span, len(inputs) - 1)]
         return max(duties) - min(duties) <= STEADY_DUTY_SHARE * step
 
