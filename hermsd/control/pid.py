@@ -110,12 +110,13 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 1
+CONTROL_LAW_VERSION = 2
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
 it come out otherwise: that log is then said to be of another law, not re-run (its summary,
-plot and CSV read as ever). Version 1 is the first logged; a log without one predates it."""
+plot and CSV read as ever). Version 1 is the first logged; a log without one predates it.
+Version 2: the predictive law counts the part of a period its dead time ends in."""
 
 ALGORITHMS = (
     "predictive",
