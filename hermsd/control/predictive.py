@@ -58,6 +58,8 @@ class _Predictive(_Base):
         "_l1",
         "_l2",
         "_lag",
+        "_load",
+        "_load_past",
         "_loss",
         "_rate",
         "_recent",
@@ -107,6 +109,9 @@ class _Predictive(_Base):
         self._cold_water = self._carried = False
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
+        # A heat flow the caller knows (a HERMS coil's draw), in % of full power: the one in
+        # force from now (`_load`) and the one over the period the next step closes.
+        self._load = self._load_past = 0.0
 
     @property
     def fit(self) -> HeatUpFit | None:
@@ -132,20 +137,25 @@ class _Predictive(_Base):
         return self._ts * self._rate * (100.0 - self._output) / 100.0
 
     def _drift(self, x: float, u: float) -> float:
-        """The model's change of PV over one period at duty u from x (Euler; λ·Ts ≪ 1)."""
+        """The model's change of PV over one period at duty u from x (Euler; λ·Ts ≪ 1); a
+        known load (`known_load`) enters as a duty taken off u."""
         return self._ts * (self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias)
 
     def _predicted(self) -> float:
-        """Where the PV will be once the inputs already sent (still in the dead time) arrive."""
+        """Where the PV will be once the inputs already sent (still in the dead time) arrive,
+        under the known load (which acts now, not a dead time late)."""
         x = self._estimate
         inputs = self._inputs
+        load = self._load
         for j in range(len(inputs) - self._lag, len(inputs)):
-            x += self._drift(x, inputs[j])
+            x += self._drift(x, inputs[j] - load)
         return x
 
     def _holding(self, sp: float) -> float:
-        """The duty that holds `sp` by the model and its bias (may lie outside the limits)."""
-        return 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+        """The duty that holds `sp` by the model and its bias (may lie outside the limits),
+        the known load added: the feed-forward."""
+        hold = 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+        return hold + self._load if self._load else hold
 
     def _law(self, sp: float, full: bool = False) -> float:
         """P on the predicted error plus the holding duty (D apart)."""
@@ -192,14 +202,17 @@ class _Predictive(_Base):
             bias += miss / slope
         self._bias = bias if abs(bias) <= self._rate else 0.0
         # The first step's model prediction lands on pv0: no innovation from the start itself.
-        self._estimate = pv0 - self._drift(pv0, u0)
+        self._load_past = self._load
+        self._estimate = pv0 - self._drift(pv0, u0 - self._load)
 
     def _advance(self, sp: float, pv: float, previous: float) -> float:
         fell = self._recent[-1] - pv  # since the last period's PV
         inputs = self._inputs
         inputs.append(previous)
         self._watch_heat_up(sp, pv, previous, inputs[-2])
-        before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag])
+        # The load of the period just ended is the model's, not an error for the bias to learn.
+        past, self._load_past = self._load_past, self._load
+        before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag] - past)
         innovation = pv - before
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
         step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
@@ -249,6 +262,8 @@ class _Predictive(_Base):
         seen = (*recent, pv) if self._steady_with_pv else tuple(recent)
         steady = max(seen) - min(seen) <= STEADY_BAND
         loops, self._step_is_loops = self._step_is_loops, False
+        # Under a known load (a coil drawing) the rise is not the element's alone: no fit.
+        loops = loops or bool(self._load)
         if full and not (watch.active or recovery.active) and before < self._hi and not loops:
             if steady:
                 # A duty that climbed to full power (a ramp) is no step of a known size.
@@ -357,6 +372,30 @@ def logged_recovery_periods(controller: Controller, periods: int | None) -> None
     rate once, over the first RECOVERY_FIT_SPAN alone. Replay of its log."""
     if isinstance(controller, _Predictive):
         controller._recovery_periods = 0 if periods is None else periods
+
+
+def known_load(controller: Controller, watts: float, element_watts: float) -> None:
+    """Tell `controller` (predictive) the heat flow `watts` drawn from the water from now on
+    besides its losses (a HERMS coil's load, W; negative when it gives heat back), of an
+    element of `element_watts`: its model and observer take it as a duty of
+    watts/element_watts·100 % taken off the element's, so the holding duty rises by that at
+    once (feed-forward: the loop does not wait for the sensor to show the load) and the bias
+    does not learn it as a loss. 0 is no load: the law is then exactly the one without."""
+    if isinstance(controller, _Predictive):
+        if not (math.isfinite(watts) and math.isfinite(element_watts) and element_watts > 0.0):
+            raise ValueError(
+                f"load {watts!r} W of an element of {element_watts!r} W is invalid: "
+                "must be finite, the element's power > 0"
+            )
+        controller._load = 100.0 * watts / element_watts
+
+
+def predicted_pv(controller: Controller) -> float | None:
+    """Where predictive expects its PV once the heat already sent arrives (None for the other
+    forms, or before its first step): what the HLT will hold whatever is decided now."""
+    if isinstance(controller, _Predictive) and controller._primed:
+        return controller._predicted()
+    return None
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

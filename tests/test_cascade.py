@@ -1,0 +1,122 @@
+"""The HERMS's outer loop (control/cascade.py), on numbers worked by hand from docs/herms.md.
+
+The tanks: an HLT of 100 L (C_h = 418 600 J/K) and a mash of C_m = 209 300 J/K (half of it,
+so C_h/C_m = 2); room 20 °C.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from hermsd.control.cascade import HLT_MARGIN, Cascade, Decision, Tanks, coast_peak, holding_hlt
+from hermsd.control.coil import CoilEstimate, prior_estimate
+from hermsd.control.learning import LearnedModel, ModelStore
+
+LOSSLESS = Tanks(
+    hlt_capacity=418_600.0, hlt_loss=0.0, mash_capacity=209_300.0, mash_loss=0.0, room=20.0
+)
+EXACT = CoilEstimate(200.0, 0.0, "learned")
+
+
+def cascade(tanks: Tanks = LOSSLESS, *, limit: float = 5.25, hlt_max: float = 90.0) -> Cascade:
+    return Cascade(tanks, limit=limit, hlt_max=hlt_max, period=5.0)
+
+
+def step(
+    c: Cascade,
+    mash: float | None,
+    hlt: float,
+    *,
+    pump: bool = True,
+    sp: float = 65.0,
+    coil: CoilEstimate = EXACT,
+    age: float = 0.0,
+) -> Decision:
+    return c.step(mash_sp=sp, mash_pv=mash, mash_age=age, hlt_pv=hlt, pump=pump, coil=coil)
+
+
+def test_the_hlt_a_hold_needs_stands_above_the_rest_by_the_mash_losses_share() -> None:
+    # 65 + 10 W/K · (65 − 20) K / 200 W/K = 65 + 450/200 = 67.25 °C
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=10.0)
+    assert holding_hlt(65.0, tanks, 200.0) == pytest.approx(67.25, abs=1e-12)
+
+
+def test_the_climb_stops_where_the_hlt_s_stored_heat_carries_the_mash_to_its_rest() -> None:
+    # Lossless, no hose: the tanks coast to (C_h·T_h + C_m·T_m)/(C_h + C_m). With the HLT at
+    # 70 and the rest 65, that is 65 when 2·(70 − 65) = 65 − T_m: T_m = 55 °C.
+    c = cascade()
+    below = step(c, 54.9, 70.0)
+    assert (below.phase, below.hlt_setpoint) == ("climb", 65.0 + 5.25 - HLT_MARGIN)
+    at = step(cascade(), 55.1, 70.0)
+    assert (at.phase, at.hlt_setpoint) == ("hold", 65.0)
+
+
+def test_the_heat_in_the_hose_moves_the_switch_earlier_by_its_share() -> None:
+    # A hose of 60 s holds K·(T_h − T_m)·60 J more for the mash:
+    # C_h·5 + 200·(70 − T_m)·60 = C_m·(65 − T_m)  →  197 300·T_m = 10 671 500, T_m = 54.087 °C
+    tanks = dataclasses.replace(LOSSLESS, hose_delay=60.0)
+    assert step(cascade(tanks), 54.0, 70.0).phase == "climb"
+    assert step(cascade(tanks), 54.2, 70.0).phase == "hold"
+
+
+def test_the_coast_s_peak_is_the_energy_balance_of_the_two_tanks() -> None:
+    # (2·70 + 55)/3 = 65 °C, less e^-10·(2/3)·15 of the gap the coast is followed for at most
+    assert coast_peak(70.0, 55.0, 65.0, LOSSLESS, 200.0) == pytest.approx(65.0, abs=1e-3)
+
+
+def test_the_setpoint_never_passes_the_limit_nor_the_hlt_s_maximum() -> None:
+    assert step(cascade(limit=5.0), 40.0, 60.0).hlt_setpoint == 65.0 + 5.0 - HLT_MARGIN
+    assert step(cascade(limit=5.0, hlt_max=68.0), 40.0, 60.0).hlt_setpoint == 68.0
+
+
+def test_with_the_pump_stopped_the_hlt_is_readied_with_the_heat_the_mash_lacks() -> None:
+    # 65 + C_m·(65 − 63)/C_h = 65 + 1 = 66 °C; nothing flows, so no load
+    decision = step(cascade(), 63.0, 60.0, pump=False)
+    assert (decision.phase, decision.hlt_setpoint, decision.load_watts) == ("ready", 66.0, 0.0)
+
+
+def test_a_mash_reading_lost_holds_the_hlt_where_it_was_and_says_why() -> None:
+    c = cascade()
+    assert step(c, 40.0, 60.0).hlt_setpoint == 70.0
+    lost = step(c, None, 69.0)
+    assert (lost.phase, lost.hlt_setpoint, lost.held) == ("held", 70.0, "no mash reading")
+    # The load goes on from the last reading: 200 W/K · (69 − 40) K
+    assert lost.load_watts == pytest.approx(5800.0)
+    stale = step(c, 41.0, 69.0, age=31.0)
+    assert (stale.phase, stale.hlt_setpoint) == ("held", 70.0)
+
+
+def test_no_mash_reading_ever_holds_the_hlt_at_the_mash_setpoint_not_at_the_limit() -> None:
+    decision = step(cascade(), None, 50.0)
+    assert (decision.phase, decision.hlt_setpoint) == ("held", 65.0)
+
+
+def test_the_load_fed_forward_is_k_one_sd_low_times_the_hlt_over_the_mash() -> None:
+    # (200 − 50) W/K · (70 − 50) K = 3000 W
+    decision = step(cascade(), 50.0, 70.0, coil=CoilEstimate(200.0, 50.0))
+    assert decision.load_watts == pytest.approx(3000.0)
+    assert step(cascade(), 50.0, 70.0, pump=False).load_watts == 0.0
+
+
+def test_a_prior_k_carries_half_of_itself_for_its_uncertainty() -> None:
+    prior = prior_estimate(200.0)
+    assert (prior.conductance, prior.sd, prior.low, prior.high) == (200.0, 100.0, 100.0, 300.0)
+    with pytest.raises(ValueError, match="coil conductance 0 W/K is invalid"):
+        prior_estimate(0)
+
+
+def test_a_stored_model_keeps_the_coil_and_a_file_without_it_still_reads(tmp_path: Path) -> None:
+    store = ModelStore(tmp_path)
+    store.save(LearnedModel(0.008, 1 / 15000, 115.0, 20.0, 90.0, 0, 250.0, 12.0))
+    model, why = store.load()
+    assert why is None and model is not None and (model.coil, model.coil_sd) == (250.0, 12.0)
+    old = {"rate": 0.008, "loss": 1 / 15000, "dead_time": 115.0, "ambient": 20.0, "litres": 90.0}
+    store.path.write_text(json.dumps(old))
+    model, why = store.load()
+    assert why is None and model is not None and model.coil == 0.0
+    store.path.write_text(json.dumps({**old, "coil": -5.0}))
+    assert store.load()[0] is None
