@@ -12,7 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from hermsd.control.cascade import HLT_MARGIN, Cascade, Decision, Tanks, coast_peak, holding_hlt
+from hermsd.control.cascade import (
+    COAST_AIM,
+    HLT_MARGIN,
+    Cascade,
+    Decision,
+    Tanks,
+    coast_peak,
+    holding_hlt,
+)
 from hermsd.control.coil import CoilEstimate, prior_estimate
 from hermsd.control.learning import LearnedModel, ModelStore
 
@@ -22,7 +30,7 @@ LOSSLESS = Tanks(
 EXACT = CoilEstimate(200.0, 0.0, "learned")
 
 
-def cascade(tanks: Tanks = LOSSLESS, *, limit: float = 5.25, hlt_max: float = 90.0) -> Cascade:
+def cascade(tanks: Tanks = LOSSLESS, *, limit: float = 5.15, hlt_max: float = 90.0) -> Cascade:
     return Cascade(tanks, limit=limit, hlt_max=hlt_max, period=5.0)
 
 
@@ -46,26 +54,31 @@ def test_the_hlt_a_hold_needs_stands_above_the_rest_by_the_mash_losses_share() -
 
 
 def test_the_climb_stops_where_the_hlt_s_stored_heat_carries_the_mash_to_its_rest() -> None:
-    # Lossless, no hose: the tanks coast to (C_h·T_h + C_m·T_m)/(C_h + C_m). With the HLT at
-    # 70 and the rest 65, that is 65 when 2·(70 − 65) = 65 − T_m: T_m = 55 °C.
-    c = cascade()
-    below = step(c, 54.9, 70.0)
-    assert (below.phase, below.hlt_setpoint) == ("climb", 65.0 + 5.25 - HLT_MARGIN)
-    at = step(cascade(), 55.1, 70.0)
-    assert (at.phase, at.hlt_setpoint) == ("hold", 65.0)
+    # Lossless, no hose: T_hold = T_sp = 65. Coasting from 70 down to it the HLT gives
+    # C_h·5 J, which lifts the mash by C_h/C_m·5 = 10 °C: the peak is aimed COAST_AIM below
+    # the rest, so the climb stops at T_m = 65 − 0.1 − 10 = 54.9 °C.
+    assert COAST_AIM == 0.1
+    below = step(cascade(), 54.85, 70.0)
+    assert (below.phase, below.hlt_setpoint) == ("climb", 65.0 + 5.15 - HLT_MARGIN)
+    at = step(cascade(), 54.95, 70.0)
+    assert (at.phase, at.hlt_setpoint) == ("coast", 65.0)
 
 
 def test_the_heat_in_the_hose_moves_the_switch_earlier_by_its_share() -> None:
-    # A hose of 60 s holds K·(T_h − T_m)·60 J more for the mash:
-    # C_h·5 + 200·(70 − T_m)·60 = C_m·(65 − T_m)  →  197 300·T_m = 10 671 500, T_m = 54.087 °C
-    tanks = dataclasses.replace(LOSSLESS, hose_delay=60.0)
-    assert step(cascade(tanks), 54.0, 70.0).phase == "climb"
-    assert step(cascade(tanks), 54.2, 70.0).phase == "hold"
+    # A round trip of 120 s: the return leg of 60 s holds K·(T_h − T_m)·60 J more for the
+    # mash (the inlet's lag on the other leg only slows the coast, lossless):
+    # C_h·5 + 200·60·(70 − T_m) = C_m·(64.9 − T_m)  →  197 300·T_m = 10 650 570,
+    # T_m = 53.98 °C
+    tanks = dataclasses.replace(LOSSLESS, hose_delay=120.0)
+    assert step(cascade(tanks), 53.93, 70.0).phase == "climb"
+    assert step(cascade(tanks), 54.03, 70.0).phase == "coast"
 
 
 def test_the_coast_s_peak_is_the_energy_balance_of_the_two_tanks() -> None:
-    # (2·70 + 55)/3 = 65 °C, less e^-10·(2/3)·15 of the gap the coast is followed for at most
-    assert coast_peak(70.0, 55.0, 65.0, LOSSLESS, 200.0) == pytest.approx(65.0, abs=1e-3)
+    # Down to a hold of 64: the mash gains 2·(70 − 64) = 12 °C. Down to one of 60, below
+    # where the tanks meet: they meet at (2·70 + 50)/3 = 63.33 °C (less e^-10 of the gap).
+    assert coast_peak(70.0, 50.0, 64.0, LOSSLESS, 200.0) == pytest.approx(62.0, abs=1e-3)
+    assert coast_peak(70.0, 50.0, 60.0, LOSSLESS, 200.0) == pytest.approx(190 / 3, abs=1e-3)
 
 
 def test_the_setpoint_never_passes_the_limit_nor_the_hlt_s_maximum() -> None:
@@ -120,3 +133,15 @@ def test_a_stored_model_keeps_the_coil_and_a_file_without_it_still_reads(tmp_pat
     assert why is None and model is not None and model.coil == 0.0
     store.path.write_text(json.dumps({**old, "coil": -5.0}))
     assert store.load()[0] is None
+
+
+def test_a_mash_that_stands_still_teaches_the_losses_its_coil_makes_up() -> None:
+    # Held at 65 °C on an HLT of 66.5 through 200 W/K: the coil gives 300 W, so the mash loses
+    # 300 W at 45 K above the room, 6.667 W/K, whatever the config guessed (5 W/K). And the
+    # hold's HLT follows: 65 + 6.667·45/200 = 66.5 °C.
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=5.0)
+    c = cascade(tanks)
+    for _ in range(2000):
+        decision = step(c, 65.0, 66.5)
+    assert c.mash_loss == pytest.approx(300.0 / 45.0, rel=1e-3)
+    assert decision.hlt_setpoint == pytest.approx(66.5, abs=1e-3)

@@ -72,7 +72,9 @@ def test_k_from_a_noisy_day_lies_within_its_stated_uncertainty(seed: int) -> Non
     assert estimate.sd <= 0.1 * K  # and the uncertainty says something
 
 
-def test_before_enough_of_the_pump_s_run_the_prior_stands() -> None:
-    # 10 min of run less the minute the coil settles: fewer than the three blocks asked
-    estimate = day(0, minutes=20)
-    assert estimate == prior_estimate(200.0)
+def test_before_a_block_of_the_pump_s_run_the_prior_stands_and_after_one_k_at_15_percent() -> None:
+    # The pump from 10 min; a minute for the coil to settle and two for a block
+    assert day(0, minutes=12) == prior_estimate(200.0)
+    one = day(0, minutes=14)
+    assert one.source == "learned" and one.sd == pytest.approx(0.15 * one.conductance)
+    assert abs(one.conductance - K) <= 2.0 * one.sd

@@ -11,10 +11,13 @@ limit (mash setpoint + `max_hlt_above_mash`, less HLT_MARGIN for the HLT law's o
 overshoot, never above the HLT's maximum) until the heat stored in the HLT above T_hold and
 in flight in the hose will carry the mash to its setpoint as the two tanks coast together
 (`coast_peak`: the linear two-tank model run forward with the element off until the HLT is
-down at T_hold), and from then on the setpoint is T_hold plus a slow trim on the mash's
-error (the mash's losses are a guess). With the pump stopped nothing flows, and the HLT is
-readied for it: the setpoint is the temperature whose stored heat above T_hold just covers
-the mash's shortfall (capped by the limit).
+down at T_hold). Then the HLT coasts down to T_hold (judged again every period: should the
+coast fall short, the HLT is raised to where it reaches after all, `coast_start`), and from
+there on the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's
+rise against the model's once the climb is over, and the PI's integral, learn it, and what
+they learn serves the next rest's T_hold and coast. With the pump stopped nothing flows,
+and the HLT is readied: the setpoint is the temperature whose stored heat above T_hold just
+covers the mash's shortfall (capped by the limit).
 
 The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
 lower T_hold, so it stops early rather than late; the load fed forward is K one sd low, so a
@@ -25,14 +28,24 @@ the daemon to warn), never at the limit on a guess.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from hermsd.control.coil import CoilEstimate
 
-HLT_MARGIN = 0.25
+HLT_MARGIN = 0.15
 """°C the HLT's setpoint stays below the limit: the HLT law overshoots its setpoint by up to
-a tenth and noise adds an LSB, and the limit is one the HLT must never pass."""
+a tenth (its bench's bound), and the limit is one the HLT must never pass."""
+COAST_AIM = 0.1
+"""°C below its setpoint the coast aims the mash's peak: the HLT's temperature with the heat
+in flight comes from the HLT law's model (its observer lags a climb by a few tenths), and the
+hold's PI closes the rest in the band."""
+COAST_SHORT = 0.1
+"""°C the coast's peak may fall short of its aim before the HLT is raised again for it."""
+COAST_BISECTIONS = 16
+"""Halvings of the HLT's range when solving for the coast's start (10 °C to 0.00015 °C)."""
 REHEAT_BAND = 1.0
 """°C below its setpoint a mash in its hold must fall before the climb starts again (a stuck
 pump, a cold addition): smaller falls are the trim's."""
@@ -44,8 +57,19 @@ COAST_STEPS = 40
 """Integration steps per coupled time constant of the coast (Heun: error ~1e-4 of the step)."""
 COAST_SPAN = 10.0
 """Coupled time constants the coast is followed for at most (e^−10 of the gap is left)."""
-TRIM_LIMIT = 3.0
-"""°C the hold's trim may move the HLT from the model's T_hold."""
+HOLD_SPEEDUP = 2.0
+"""How much faster than the mash's own time constant the hold's PI closes its loop, at most."""
+DELAY_SHARE = 3.0
+"""The hold's closed loop is at least this many times the delays around it (the mash sensor's
+lag, the hose, the HLT's own response)."""
+HLT_RESPONSE_S = 60.0
+"""s: what the HLT law takes to follow its setpoint, counted in the hold's delays."""
+LOSS_LEARN_S = 600.0
+"""s: the time over which the mash's rise teaches its losses (noise of a period's mean, 0.013
+°C, then moves them by under 1 W/K)."""
+MAX_LOSS_FACTOR = 4.0
+"""The mash's losses as the hold measures them stay within 0 and this many times the config's
+(or 20 W/K, whichever is more)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,8 +77,9 @@ class Tanks:
     """The two tanks and the hose between them, as the outer loop's model.
 
     hlt_capacity, mash_capacity in J/K (water 4186 J/(L·K), grain about 1700 J/(kg·K));
-    hlt_loss, mash_loss in W/K to the room at `room` °C; hose_delay in s (coil outlet to mash);
-    mash_lag in s (the mash sensor's lag behind the mash).
+    hlt_loss, mash_loss in W/K to the room at `room` °C; hose_delay in s (the wort's round trip
+    outside the tun, mash → coil → mash, half each way); mash_lag in s (the mash sensor's lag
+    behind the mash).
     """
 
     hlt_capacity: float
@@ -69,7 +94,8 @@ class Tanks:
 @dataclass(frozen=True, slots=True)
 class Decision:
     """One period's answer: the HLT's setpoint, the coil's load (W) to feed forward, the
-    phase ("climb", "hold", "ready" with the pump stopped, "held" without a mash reading)
+    phase ("climb", "coast" down to the hold, "hold", "ready" with the pump stopped, "held"
+    without a mash reading)
     and, when held, why."""
 
     hlt_setpoint: float
@@ -87,31 +113,59 @@ def holding_hlt(mash_sp: float, tanks: Tanks, conductance: float) -> float:
 def coast_peak(hlt: float, mash: float, hold: float, tanks: Tanks, conductance: float) -> float:
     """The mash's highest temperature if the element stops now and the HLT coasts from `hlt`
     down to `hold` (°C), giving its heat through a coil of `conductance` (W/K), after which
-    the HLT is held at `hold`: the heat in the hose (K·(T_h − T_m) for its delay) arrives
-    first. The linear two-tank model, integrated by Heun's method."""
+    the HLT is held at `hold`. The linear two-tank model, integrated by Heun's method, with
+    the hoses: the heat already in the return leg (K·(T_h − T_m) for half the round trip)
+    arrives first, and the coil sees the mash as it was half the round trip before."""
     k = conductance
     ch, cm = tanks.hlt_capacity, tanks.mash_capacity
-    mash += k * (hlt - mash) * tanks.hose_delay / cm
+    leg = 0.5 * tanks.hose_delay
+    mash += k * (hlt - mash) * leg / cm
     if hlt <= hold or k <= 0.0:
         return mash
     coupled = 1.0 / (k * (1.0 / ch + 1.0 / cm))
     dt = coupled / COAST_STEPS
     room, uah, uam = tanks.room, tanks.hlt_loss, tanks.mash_loss
 
+    # The inlet lags the mash by a leg, m − leg·dm/dt; with dm/dt = (flow − UA_m·(m − room))/C_m
+    # that gives flow·(1 − a) = K·(h − m) − a·UA_m·(m − room), a = K·leg/C_m (a < 1 for any
+    # real hose: a minute's leg on a 400 W/K coil and 24 kJ/K of mash).
+    a = k * leg / cm if k * leg < 0.5 * cm else 0.0
+
     def rates(h: float, m: float) -> tuple[float, float]:
-        flow = k * (h - m)
-        return (-flow - uah * (h - room)) / ch, (flow - uam * (m - room)) / cm
+        mash_loss = uam * (m - room)
+        flow = (k * (h - m) - a * mash_loss) / (1.0 - a)
+        return (-flow - uah * (h - room)) / ch, (flow - mash_loss) / cm
 
     peak = mash
     for _ in range(round(COAST_STEPS * COAST_SPAN)):
         dh1, dm1 = rates(hlt, mash)
-        dh2, dm2 = rates(hlt + dt * dh1, mash + dt * dm1)
-        hlt += 0.5 * dt * (dh1 + dh2)
-        mash += 0.5 * dt * (dm1 + dm2)
-        peak = max(peak, mash)
-        if hlt <= hold or dm1 <= 0.0:
+        if dm1 <= 0.0:
             break
+        dh2, dm2 = rates(hlt + dt * dh1, mash + dt * dm1)
+        dh, dm = 0.5 * dt * (dh1 + dh2), 0.5 * dt * (dm1 + dm2)
+        if hlt + dh <= hold:  # down at the hold within this step: the mash up to that instant
+            return max(peak, mash + dm * (hold - hlt) / dh)
+        hlt += dh
+        mash += dm
+        peak = max(peak, mash)
     return peak
+
+
+def coast_start(
+    mash: float, hold: float, tanks: Tanks, conductance: float, target: float, ceiling: float
+) -> float:
+    """The HLT (between `hold` and `ceiling`) from which the coast carries the mash from `mash`
+    to a peak of `target` (bisection: the peak rises with the HLT it starts from)."""
+    low, high = hold, ceiling
+    if coast_peak(high, mash, hold, tanks, conductance) <= target:
+        return high
+    for _ in range(COAST_BISECTIONS):
+        middle = 0.5 * (low + high)
+        if coast_peak(middle, mash, hold, tanks, conductance) < target:
+            low = middle
+        else:
+            high = middle
+    return low
 
 
 def ready_hlt(mash_sp: float, mash: float, hold: float, tanks: Tanks) -> float:
@@ -130,10 +184,12 @@ class Cascade:
         "_last_mash",
         "_last_sp",
         "_limit",
+        "_mash_loss",
         "_mash_sp",
         "_period",
+        "_seen",
+        "_settled",
         "_tanks",
-        "_trim",
     )
 
     def __init__(self, tanks: Tanks, *, limit: float, hlt_max: float, period: float) -> None:
@@ -146,13 +202,18 @@ class Cascade:
         self._mash_sp: float | None = None
         self._last_sp: float | None = None
         self._last_mash: float | None = None
+        # (HLT, mash) readings over the delay between the coil and the mash's sensor.
+        self._seen: deque[tuple[float, float]] = deque(
+            maxlen=round((0.5 * tanks.hose_delay + tanks.mash_lag) / period) + 2
+        )
         self._climbing = True
-        self._trim = 0.0
+        self._settled = False  # the HLT has come down to its hold since the climb ended
+        self._mash_loss = tanks.mash_loss
 
     @property
-    def trim(self) -> float:
-        """°C the hold has added to the model's T_hold (the mash's losses as measured)."""
-        return self._trim
+    def mash_loss(self) -> float:
+        """The mash's losses (W/K) as the holds so far showed them (the config's before)."""
+        return self._mash_loss
 
     def ceiling(self, mash_sp: float) -> float:
         """The highest HLT setpoint for `mash_sp`: the limit less HLT_MARGIN, at most the
@@ -172,7 +233,6 @@ class Cascade:
         """One period. `mash_pv` None (a fault) or older than MAX_MASH_AGE (`mash_age`, s):
         the HLT held at its last setpoint. `hlt_pv` is best the HLT law's predicted PV (the
         heat already sent counted)."""
-        tanks = self._tanks
         ceiling = self.ceiling(mash_sp)
         if mash_pv is None or not mash_age <= MAX_MASH_AGE:
             why = "no mash reading" if mash_pv is None else f"mash reading {mash_age:.0f} s old"
@@ -184,6 +244,7 @@ class Cascade:
             self._climbing = mash_pv < mash_sp
         self._mash_sp = mash_sp
         self._last_mash = mash_pv
+        tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
         k = coil.conductance
         hold = holding_hlt(mash_sp, tanks, k)
         # The mash as it is now: its sensor lags it by mash_lag while it rises at the model's rate.
@@ -192,37 +253,79 @@ class Cascade:
         mash = mash_pv + tanks.mash_lag * max(0.0, rise)
         if not self._climbing and mash_pv < mash_sp - REHEAT_BAND:
             self._climbing = True
+        self._settled = self._settled and not self._climbing
+        self._observe(mash_pv, hlt_pv, pump, k)
+        high = coil.high
+        hold_high = holding_hlt(mash_sp, tanks, high)
+        target = mash_sp - COAST_AIM
         if self._climbing and pump:
-            high = coil.high
-            peak = coast_peak(hlt_pv, mash, holding_hlt(mash_sp, tanks, high), tanks, high)
-            self._climbing = peak < mash_sp
+            self._climbing = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target
         if not pump:
-            setpoint, phase = (
-                min(ready_hlt(mash_sp, mash, hold + self._trim, tanks), ceiling),
-                "ready",
-            )
+            setpoint, phase = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling), "ready"
         elif self._climbing:
             setpoint, phase = ceiling, "climb"
         else:
-            self._hold_trim(mash_sp, mash_pv, hlt_pv, hold, k)
-            setpoint, phase = min(hold + self._trim, ceiling), "hold"
+            setpoint = self._hold(mash_sp, mash_pv, hlt_pv, tanks, k)
+            phase = "hold" if self._settled else "coast"
+            short = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target - COAST_SHORT
+            if not self._settled and short:
+                # The coast falls short (the losses more than the model's, which the observer
+                # is learning): the HLT that carries the mash to the aim after all.
+                setpoint = coast_start(mash, hold_high, tanks, high, target, ceiling)
+            setpoint = min(setpoint, ceiling)
         self._last_sp = setpoint
         return Decision(setpoint, self._load(hlt_pv, mash_pv, pump, coil), phase)
 
-    def _hold_trim(
-        self, mash_sp: float, mash_pv: float, hlt_pv: float, hold: float, k: float
-    ) -> None:
-        """Integral on the mash's error once the HLT is down at its holding value (before,
-        the coast is still carrying the mash up and the error says nothing of the model).
-        Ti = 4·G·τ_m for the mash's first order (gain G = K/(K + UA_m), τ_m = C_m/(K + UA_m)):
-        the critically damped integral loop."""
-        if hlt_pv > hold + self._trim + HLT_MARGIN:
+    def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float) -> None:
+        """Learn the mash's losses from its rise where the coil's heat is small and known
+        (coast and hold; in the climb K's uncertainty outweighs them): the rise over the last
+        period against the model's, its tanks taken the sensor's delay before (half the
+        hose and the mash sensor's lag), the miss taken as loss with the time LOSS_LEARN_S."""
+        seen = self._seen
+        if not pump or self._climbing:
+            seen.clear()
+            return
+        seen.append((hlt_pv, mash_pv))
+        if len(seen) < 2:
             return
         tanks = self._tanks
+        h, m = seen[0]
+        above_room = m - tanks.room
+        if len(seen) < (seen.maxlen or 0) or above_room < 1.0:
+            return
+        rise = mash_pv - seen[-2][1]
+        modelled = self._period * (k * (h - m) - self._mash_loss * above_room)
+        miss = modelled - tanks.mash_capacity * rise  # J the model gave the mash too many
+        learned = self._mash_loss + self._period / LOSS_LEARN_S * miss / (self._period * above_room)
+        self._mash_loss = min(max(learned, 0.0), max(MAX_LOSS_FACTOR * tanks.mash_loss, 20.0))
+
+    def _hold(self, mash_sp: float, mash_pv: float, hlt_pv: float, tanks: Tanks, k: float) -> float:
+        """T_hold, and once the HLT has come down to it (before, the coast still carries the
+        mash up and its error says nothing of the model) a PI on the mash's error: the
+        mash is a first order of gain G = K/(K + UA_m) and time constant τ_m = C_m/(K + UA_m),
+        so Ti = τ_m cancels its pole and Kp·G = λ closes the loop λ times faster, λ at most
+        HOLD_SPEEDUP and slow enough for the delays around it. The integral is kept as the
+        mash's losses: ΔUA_m = ΔI·K/(T_sp − T_room), so the next rest starts from them."""
+        hold = holding_hlt(mash_sp, tanks, k)
+        self._settled = self._settled or hlt_pv <= hold + HLT_MARGIN
+        if not self._settled:
+            return hold
         total = k + tanks.mash_loss
-        ti = 4.0 * (k / total) * tanks.mash_capacity / total
-        trim = self._trim + self._period / ti * (mash_sp - mash_pv)
-        self._trim = min(max(trim, -TRIM_LIMIT), TRIM_LIMIT)
+        gain, tau = k / total, tanks.mash_capacity / total
+        delays = tanks.mash_lag + tanks.hose_delay + HLT_RESPONSE_S
+        speedup = min(HOLD_SPEEDUP, tau / (DELAY_SHARE * delays))
+        kp = speedup / gain
+        error = mash_sp - mash_pv
+        above_room = mash_sp - tanks.room
+        at_ceiling = hold + kp * error >= self.ceiling(mash_sp) and error > 0.0
+        if above_room > 1.0 and not at_ceiling:
+            integral = kp * self._period / tau * error
+            most = max(MAX_LOSS_FACTOR * self._tanks.mash_loss, 20.0)
+            loss = self._mash_loss + integral * k / above_room
+            self._mash_loss = min(max(loss, 0.0), most)
+        return holding_hlt(mash_sp, dataclasses.replace(tanks, mash_loss=self._mash_loss), k) + (
+            kp * error
+        )
 
     def _load(self, hlt: float, mash: float | None, pump: bool, coil: CoilEstimate) -> float:
         """The coil's draw on the HLT (W) for the HLT law to feed forward: K (one sd low)

@@ -20,7 +20,8 @@ HLT's loss model biases it. Blocks are combined weighted by the spread of their 
 variance, as the noise on y is the same in every block), and the uncertainty is the weighted
 scatter of the blocks about the mean, so a model error that differs between climb and hold
 shows in it, not only the sensor's noise; never under SD_FLOOR of K (the HLT model's own
-error: C_h from the element's rated power). Before MIN_BLOCKS blocks: the prior.
+error: C_h from the element's rated power). With one or two blocks the day's K stands with
+FEW_SD of itself; before any, the prior.
 """
 
 from __future__ import annotations
@@ -31,14 +32,16 @@ from dataclasses import dataclass
 
 from hermsd.control.watches import LineFit
 
-BLOCK_S = 300.0
+BLOCK_S = 120.0
 """s of pump run per fitted line: long against the sensors' lags and the hose's delay, short
-enough that a mash step holds several."""
+enough that the first step's climb holds several (the prior's wide K costs that step time)."""
 SETTLE_S = 60.0
 """s after the pump starts before a block opens: the coil and hoses still hold the stagnant
 wort's temperature, which the mash's reading does not show."""
 MIN_BLOCKS = 3
-"""Blocks before the day's K replaces the prior: fewer cannot show their own scatter."""
+"""Blocks that show their own scatter; with fewer (one or two) the day's K stands with
+FEW_SD of itself, wider than a block's noise says, for what one block cannot show."""
+FEW_SD = 0.15
 SD_FLOOR = 0.05
 """The least relative uncertainty claimed: the HLT's heat capacity comes from the element's
 rated power, which is known to a few percent."""
@@ -168,13 +171,15 @@ class CoilEstimator:
         self._block.add(*point)
 
     def estimate(self) -> CoilEstimate:
-        """The day's K once MIN_BLOCKS blocks are in, else the prior."""
+        """The day's K once a block is in (see the module's docstring), else the prior."""
         blocks = self._blocks
-        if len(blocks) < MIN_BLOCKS:
+        if not blocks:
             return self._prior
         total = math.fsum(w for _, w in blocks)
         mean = math.fsum(k * w for k, w in blocks) / total
+        k = min(max(mean, 0.0), MAX_CONDUCTANCE)
+        if len(blocks) < MIN_BLOCKS:
+            return CoilEstimate(k, FEW_SD * k, "learned")
         scatter = math.fsum(w * (k - mean) ** 2 for k, w in blocks) / total
         sd = math.sqrt(scatter / (len(blocks) - 1))
-        k = min(max(mean, 0.0), MAX_CONDUCTANCE)
         return CoilEstimate(k, max(sd, SD_FLOOR * k), "learned")
