@@ -188,7 +188,13 @@ class CascadePid:
         return min(sp + self.kp * error + self.integral, top), 0.0
 
 
-def day(s: SetUp, limit: float, outer_name: str = "cascade", seed: int = 1) -> dict[str, object]:
+def day(
+    s: SetUp,
+    limit: float,
+    outer_name: str = "cascade",
+    seed: int = 1,
+    guess: float = GUESSED_MASH_LOSS,
+) -> dict[str, object]:
     rng = random.Random(seed)
     plant = Plant(s, s.dough_in + 2.0, s.dough_in)
     model = PlantModel(
@@ -199,7 +205,7 @@ def day(s: SetUp, limit: float, outer_name: str = "cascade", seed: int = 1) -> d
         s.hlt_capacity,
         s.hlt_loss,
         s.mash_capacity,
-        GUESSED_MASH_LOSS,
+        guess,
         ROOM,
         hose_delay=2 * HOSE_S,
         mash_lag=MASH_LAG,
@@ -323,6 +329,27 @@ OUTERS = {
 }
 
 
+def ratio_text(ratio: float) -> str:
+    return f"{ratio:.3f}" if math.isfinite(ratio) else "not in 3 h"
+
+
+def worst_of(
+    outer: str, limit: float, guess: float = GUESSED_MASH_LOSS
+) -> tuple[list[str], dict[str, float]]:
+    """The rows of every set-up's rests, and the worst of each column."""
+    rows = []
+    worst = {"over": -math.inf, "err": 0.0, "ratio": 0.0, "hlt_excess": -math.inf}
+    for s in FAMILY:
+        for r in day(s, limit, outer, guess=guess)["rests"]:  # type: ignore[attr-defined]
+            rows.append(
+                f"| {s.name()} | {r['sp']:g} | {r['over']:+.2f} | {r['err']:.2f} | "
+                f"{ratio_text(r['ratio'])} | {r['hlt_excess']:+.2f} |"
+            )
+            for key, so_far in worst.items():
+                worst[key] = max(so_far, r[key])
+    return rows, worst
+
+
 def rests_table(outer: str, limit: float) -> str:
     """One row per set-up and rest, and the worst of each column."""
     lines = [
@@ -332,18 +359,11 @@ def rests_table(outer: str, limit: float) -> str:
         "HLT above limit °C |",
         "|---|---|---|---|---|---|",
     ]
-    worst = {"over": -math.inf, "err": 0.0, "ratio": 0.0, "hlt_excess": -math.inf}
-    for s in FAMILY:
-        for r in day(s, limit, outer)["rests"]:  # type: ignore[attr-defined]
-            lines.append(
-                f"| {s.name()} | {r['sp']:g} | {r['over']:+.2f} | {r['err']:.2f} | "
-                f"{r['ratio']:.3f} | {r['hlt_excess']:+.2f} |"
-            )
-            for key, so_far in worst.items():
-                worst[key] = max(so_far, r[key])
+    rows, worst = worst_of(outer, limit)
+    lines += rows
     lines.append(
-        f"| **worst** | | {worst['over']:+.2f} | {worst['err']:.2f} | {worst['ratio']:.3f} | "
-        f"{worst['hlt_excess']:+.2f} |"
+        f"| **worst** | | {worst['over']:+.2f} | {worst['err']:.2f} | "
+        f"{ratio_text(worst['ratio'])} | {worst['hlt_excess']:+.2f} |"
     )
     return "\n".join(lines)
 
@@ -365,6 +385,24 @@ def pump_table(limit: float) -> str:
     return "\n".join(lines)
 
 
+def guess_table(limit: float) -> str:
+    """The worst of hermsd's rests with the mash's losses guessed other than 5 W/K (true 6)."""
+    lines = [
+        "The mash's losses guessed otherwise (the truth 6 W/K), hermsd's outer loop, worst of "
+        "the family:",
+        "",
+        "| guessed W/K | overshoot °C | error from 5 min °C | step ÷ fastest |",
+        "|---|---|---|---|",
+    ]
+    for guess in (3.0, 5.0, 6.0, 10.0):
+        _, worst = worst_of("cascade", limit, guess)
+        lines.append(
+            f"| {guess:g} | {worst['over']:+.2f} | {worst['err']:.2f} | "
+            f"{ratio_text(worst['ratio'])} |"
+        )
+    return "\n".join(lines)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--limit", type=float, default=5.0, help="max_hlt_above_mash, °C")
@@ -374,7 +412,7 @@ def main() -> int:
     outers = [args.outer] if args.outer else list(OUTERS)
     parts = [rests_table(outer, args.limit) for outer in outers]
     if "cascade" in outers:
-        parts.append(pump_table(args.limit))
+        parts += [pump_table(args.limit), guess_table(args.limit)]
     text = "\n\n".join(parts)
     print(text)
     if args.write:
