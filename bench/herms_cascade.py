@@ -1,6 +1,6 @@
 """The HERMS's outer loop on a family of two-tank set-ups (a benchmark, not a test).
 
-Each set-up is the linear two-tank model of docs/herms.md, integrated by the second: an HLT
+Each set-up is the linear two-tank model of docs/mash-control.md, integrated by the second: an HLT
 (litres, element watts whose heat arrives 20 s after its duty, UA_h 8 W/K at 90 L scaled by
 the surface), a coil of K W/K, hoses of 20 s each way, a mash of so many kg (3500 J/(kg·K),
 UA_m 6 W/K) doughed in at T0; the HLT's sensor lags 20 s, the mash's 45 s, every reading has

@@ -1,4 +1,4 @@
-"""The HERMS's outer loop (control/cascade.py), on numbers worked by hand from docs/herms.md.
+"""The HERMS's outer loop (control/cascade.py), on numbers worked by hand from docs/mash-control.md.
 
 The tanks: an HLT of 100 L (C_h = 418 600 J/K) and a mash of C_m = 209 300 J/K (half of it,
 so C_h/C_m = 2); room 20 °C.

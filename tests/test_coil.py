@@ -1,6 +1,6 @@
 """The coil's conductance learned from a day's data (control/coil.py).
 
-A synthetic day on the linear two-tank model of docs/herms.md, integrated by the second:
+A synthetic day on the linear two-tank model of docs/mash-control.md, integrated by the second:
 an HLT of 100 L (C_h = 418 600 J/K, UA_h = 8 W/K, a 5500 W element whose heat arrives 10 s
 after its duty), a mash of C_m = 230 000 J/K (UA_m = 6 W/K) doughed in at 45 °C, a coil of
 K = 250 W/K whose heat reaches the mash 30 s late (the hose), room 20 °C. The HLT is held

@@ -1,5 +1,5 @@
 """The HERMS's outer loop: the HLT's setpoint that brings the mash to its rest and holds it
-there, and the coil's load for the HLT law to feed forward (derivation: docs/herms.md).
+there, and the coil's load for the HLT law to feed forward (derivation: docs/mash-control.md).
 
 Pure and clock-free, as the laws are: `Cascade.step` once a control period.
 

@@ -1,4 +1,4 @@
-"""The HERMS coil's conductance K (W/K), learned from the day's own data (docs/herms.md).
+"""The HERMS coil's conductance K (W/K), learned from the day's own data (docs/mash-control.md).
 
 The coil passes Q = K·(T_hlt − T_in) from the HLT's water to the wort. The HLT's heat balance
 over a run of periods with the pump on says how much it gave:
