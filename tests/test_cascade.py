@@ -145,3 +145,16 @@ def test_a_mash_that_stands_still_teaches_the_losses_its_coil_makes_up() -> None
         decision = step(c, 65.0, 66.5)
     assert c.mash_loss == pytest.approx(300.0 / 45.0, rel=1e-3)
     assert decision.hlt_setpoint == pytest.approx(66.5, abs=1e-3)
+
+
+def test_a_coil_that_passes_nothing_leaves_the_hlt_at_the_limit_not_at_infinity() -> None:
+    # A K learned at 0 (a stuck bed): the hold would need an endless HLT; the setpoint stays
+    # at the limit, 65 + 5.15 − 0.15 = 70 °C, and nothing is fed forward.
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=5.0)
+    decision = step(cascade(tanks), 64.9, 66.0, coil=CoilEstimate(0.0, 0.0, "learned"))
+    assert decision.hlt_setpoint == 70.0 and decision.load_watts == 0.0
+
+
+def test_tanks_without_heat_capacity_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"mash_capacity=0\.0 J/K is invalid"):
+        dataclasses.replace(LOSSLESS, mash_capacity=0.0)

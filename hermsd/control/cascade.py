@@ -48,7 +48,7 @@ COAST_BISECTIONS = 16
 """Halvings of the HLT's range when solving for the coast's start (10 °C to 0.00015 °C)."""
 REHEAT_BAND = 1.0
 """°C below its setpoint a mash in its hold must fall before the climb starts again (a stuck
-pump, a cold addition): smaller falls are the trim's."""
+pump, a cold addition): smaller falls are the hold's."""
 SETPOINT_MOVE = 0.01
 """°C: a mash setpoint that moves by more starts a new step."""
 MAX_MASH_AGE = 30.0
@@ -68,8 +68,11 @@ LOSS_LEARN_S = 600.0
 """s: the time over which the mash's rise teaches its losses (noise of a period's mean, 0.013
 °C, then moves them by under 1 W/K)."""
 MAX_LOSS_FACTOR = 4.0
-"""The mash's losses as the hold measures them stay within 0 and this many times the config's
-(or 20 W/K, whichever is more)."""
+"""The mash's losses as learned stay within 0 and this many times the config's (or 20 W/K,
+whichever is more)."""
+MIN_CONDUCTANCE = 10.0
+"""W/K: the least K the outer loop steers by. A K learned lower is a coil with no flow (a
+stuck bed), where no HLT holds the mash; the hold's HLT then stays finite, at the limit."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,13 +93,22 @@ class Tanks:
     hose_delay: float = 0.0
     mash_lag: float = 0.0
 
+    def __post_init__(self) -> None:
+        for name in ("hlt_capacity", "mash_capacity"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0.0):
+                raise ValueError(f"{name}={getattr(self, name)!r} J/K is invalid: must be > 0")
+        for name in ("hlt_loss", "mash_loss", "hose_delay", "mash_lag"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
+                raise ValueError(f"{name}={getattr(self, name)!r} is invalid: must be ≥ 0")
+        if not math.isfinite(self.room):
+            raise ValueError(f"room={self.room!r} °C is invalid: must be finite")
+
 
 @dataclass(frozen=True, slots=True)
 class Decision:
     """One period's answer: the HLT's setpoint, the coil's load (W) to feed forward, the
     phase ("climb", "coast" down to the hold, "hold", "ready" with the pump stopped, "held"
-    without a mash reading)
-    and, when held, why."""
+    without a mash reading) and, when held, why."""
 
     hlt_setpoint: float
     load_watts: float
@@ -245,7 +257,7 @@ class Cascade:
         self._mash_sp = mash_sp
         self._last_mash = mash_pv
         tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
-        k = coil.conductance
+        k = max(coil.conductance, MIN_CONDUCTANCE)
         hold = holding_hlt(mash_sp, tanks, k)
         # The mash as it is now: its sensor lags it by mash_lag while it rises at the model's rate.
         flow = k * (hlt_pv - mash_pv) if pump else 0.0
@@ -255,7 +267,7 @@ class Cascade:
             self._climbing = True
         self._settled = self._settled and not self._climbing
         self._observe(mash_pv, hlt_pv, pump, k)
-        high = coil.high
+        high = max(coil.high, MIN_CONDUCTANCE)
         hold_high = holding_hlt(mash_sp, tanks, high)
         target = mash_sp - COAST_AIM
         if self._climbing and pump:
