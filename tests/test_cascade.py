@@ -158,3 +158,10 @@ def test_a_coil_that_passes_nothing_leaves_the_hlt_at_the_limit_not_at_infinity(
 def test_tanks_without_heat_capacity_are_refused() -> None:
     with pytest.raises(ValueError, match=r"mash_capacity=0\.0 J/K is invalid"):
         dataclasses.replace(LOSSLESS, mash_capacity=0.0)
+
+
+def test_an_hlt_above_its_setpoint_is_fed_no_load() -> None:
+    # The climb's setpoint is 70 °C: at 70.1 the load is fed, 200·(70.1 − 50) = 4020 W; at
+    # 70.2, beyond HLT_MARGIN, it is not (a stuck bed draws nothing; the law must not heat).
+    assert step(cascade(), 50.0, 70.1).load_watts == pytest.approx(4020.0)
+    assert step(cascade(), 50.0, 70.2).load_watts == 0.0

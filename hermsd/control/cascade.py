@@ -251,7 +251,8 @@ class Cascade:
             last = self._last_sp if self._last_sp is not None else min(mash_sp, ceiling)
             setpoint = min(last, ceiling)
             self._last_sp = setpoint
-            return Decision(setpoint, self._load(hlt_pv, self._last_mash, pump, coil), "held", why)
+            load = self._load(hlt_pv, self._last_mash, setpoint, pump, coil)
+            return Decision(setpoint, load, "held", why)
         if self._mash_sp is None or abs(mash_sp - self._mash_sp) > SETPOINT_MOVE:
             self._climbing = mash_pv < mash_sp
         self._mash_sp = mash_sp
@@ -286,7 +287,7 @@ class Cascade:
                 setpoint = coast_start(mash, hold_high, tanks, high, target, ceiling)
             setpoint = min(setpoint, ceiling)
         self._last_sp = setpoint
-        return Decision(setpoint, self._load(hlt_pv, mash_pv, pump, coil), phase)
+        return Decision(setpoint, self._load(hlt_pv, mash_pv, setpoint, pump, coil), phase)
 
     def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float) -> None:
         """Learn the mash's losses from its rise where the coil's heat is small and known
@@ -339,9 +340,14 @@ class Cascade:
             kp * error
         )
 
-    def _load(self, hlt: float, mash: float | None, pump: bool, coil: CoilEstimate) -> float:
+    def _load(
+        self, hlt: float, mash: float | None, setpoint: float, pump: bool, coil: CoilEstimate
+    ) -> float:
         """The coil's draw on the HLT (W) for the HLT law to feed forward: K (one sd low)
-        times the HLT over the mash; none with the pump stopped or no mash reading yet."""
-        if not pump or mash is None:
+        times the HLT over the mash. None with the pump stopped or no mash reading yet, nor
+        with the HLT more than HLT_MARGIN above its setpoint: the law is not to heat it then,
+        and a load fed there that the coil does not draw (a stuck bed: the pump runs, nothing
+        flows) would hold the HLT above its setpoint, over the limit in a climb."""
+        if not pump or mash is None or hlt > setpoint + HLT_MARGIN:
             return 0.0
         return coil.low * (hlt - mash)
