@@ -138,6 +138,12 @@ BENCHES = (
         )
         for kind in ("ds18b20", "max31865")
     ),
+    Bench(
+        "herms-plant",
+        "herms_plant.py",
+        (),
+        ("## HERMS plant: the HLT's fall at pump start, and a day's cost",),
+    ),
 )
 
 MEASURED = ("Measured at commit ", "Measured by hand at commit ")

@@ -24,6 +24,7 @@ from hermsd.config.schema import ALGORITHM_NAMES, DEFAULT, Config, ConfigError, 
 CONFIG_FILE = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
 TWO_ELEMENTS_DOC = Path(__file__).resolve().parents[1] / "docs" / "two-elements.md"
 SENSORS_DOC = TWO_ELEMENTS_DOC.with_name("sensors.md")
+HERMS_DOC = TWO_ELEMENTS_DOC.with_name("herms.md")
 FAST_FUZZ = settings(max_examples=200, deadline=None)
 
 
@@ -43,6 +44,7 @@ class Bound:
     zero_ok: bool = False  # 0 is accepted below the range (ti: 0 = no integral)
 
 
+ROLES = ("mash_sensor", "coil_sensor")
 BOUNDS = [
     Bound("tun.litres", float, 1, 1000),
     Bound("tun.element_watts", float, 100, 20000),
@@ -77,6 +79,21 @@ BOUNDS = [
     Bound("sensor.r0", float, 10, 10000),
     Bound("sensor.rref", float, 10, 100000),
     Bound("sensor.offset", float, -5, 5),
+    *(
+        bound
+        for role in ROLES
+        for bound in (
+            Bound(f"{role}.bus", int, 0, 255),
+            Bound(f"{role}.address", int, 0x48, 0x4B),
+            Bound(f"{role}.device", int, 0, 255),
+            Bound(f"{role}.r0", float, 10, 10000),
+            Bound(f"{role}.rref", float, 10, 100000),
+            Bound(f"{role}.offset", float, -5, 5),
+        )
+    ),
+    Bound("pump.line", int, 0, 511, nullable=True),
+    Bound("pump.channel", int, 1, 8),
+    Bound("herms.max_hlt_above_mash", float, 1, 20),
     Bound("output.line", int, 0, 511, nullable=True),
     Bound("output.window", float, 1, 60, nullable=True),
     Bound("output.min_on", float, 0, 10),
@@ -138,6 +155,11 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "sensor.kind": ("lm92", "ds18b20", "max31865"),
     "sensor.wires": (3, 2, 4),
     "sensor.filter_hz": (50, 60),
+    **{f"{role}.kind": ("none", "lm92", "ds18b20", "max31865") for role in ROLES},
+    **{f"{role}.wires": (3, 2, 4) for role in ROLES},
+    **{f"{role}.filter_hz": (50, 60) for role in ROLES},
+    "pump.backend": ("none", "sim", "gpio", "relay-board"),
+    "pump.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
 }
 TEXTS = {  # key: (longest, nullable)
     "tun.name": (32, False),
@@ -161,12 +183,17 @@ TEXTS = {  # key: (longest, nullable)
     "mqtt.client_id": (64, True),
     "sensor.id": (64, True),
     "sensor.w1_root": (None, False),
+    **{f"{role}.id": (64, True) for role in ROLES},
+    **{f"{role}.w1_root": (None, False) for role in ROLES},
+    "pump.port": (None, False),
+    "pump.chip": (None, False),
 }
 FLAGS = (
     "output.active_low",
     "contactor.active_low",
     "element2.active_low",
     "element2.check",
+    "pump.active_low",
     "mqtt.tls",
 )
 ALERT_EVENTS = (
@@ -229,6 +256,18 @@ RESTART = [
             "min_off",
             "check",
         )
+    ),
+    *(
+        f"{role}.{key}"
+        for role in ROLES
+        for key in (
+            *("bus", "address", "kind", "id", "w1_root", "device", "r0", "rref", "wires"),
+            *("filter_hz", "offset"),
+        )
+    ),
+    *(
+        f"pump.{key}"
+        for key in ("backend", "port", "chip", "line", "active_low", "channel", "baud")
     ),
     "log.dir",
     "log.rotate_hours",
@@ -429,6 +468,32 @@ def test_defaults_are_the_specified_ones() -> None:
             "min_off": 120.0,
             "check": True,
         },
+        **{
+            role: {
+                "bus": 1,
+                "address": 0x48,
+                "kind": "none",
+                "id": None,
+                "w1_root": "/sys/bus/w1/devices",
+                "device": 0,
+                "r0": 100.0,
+                "rref": 430.0,
+                "wires": 3,
+                "filter_hz": 50,
+                "offset": 0.0,
+            }
+            for role in ROLES
+        },
+        "pump": {
+            "backend": "none",
+            "port": "/dev/ttyUSB1",
+            "chip": "/dev/gpiochip0",
+            "line": None,
+            "active_low": False,
+            "channel": 3,
+            "baud": 9600,
+        },
+        "herms": {"max_hlt_above_mash": 10.0},
         "safety": {
             "max_temp": 95.0,
             "hysteresis": 5.0,
@@ -526,30 +591,33 @@ def _comment_blocks() -> dict[str, str]:
 def _two_element_rows(doc: Path = TWO_ELEMENTS_DOC) -> dict[str, tuple[str, str]]:
     """The keys docs/two-elements.md documents in its tables (the mid-ranging controller's
     and section element2: kept out of the shipped file), each with its default and text;
-    or those of another doc written the same way (docs/sensors.md)."""
+    or those of another doc written the same way (docs/sensors.md, docs/herms.md). A heading
+    naming two sections (`mash_sensor` and `coil_sensor`) heads a table of both."""
     rows: dict[str, tuple[str, str]] = {}
-    section = ""
+    sections: list[str] = []
     for line in doc.read_text(encoding="utf-8").splitlines():
-        if heading := re.match(r"## `([a-z0-9]+)`", line):
-            section = heading[1]
+        if heading := re.match(r"## ((?:`[a-z0-9_]+`(?: and )?)+)", line):
+            sections = re.findall(r"`([a-z0-9_]+)`", heading[1])
         elif row := re.fullmatch(r"\| `([a-z0-9_]+)` \| ([^|]*) \| (.*) \|", line):
-            rows[f"{section}.{row[1]}"] = (row[2], row[3])
+            rows.update({f"{section}.{row[1]}": (row[2], row[3]) for section in sections})
     return rows
 
 
 def _documented() -> dict[str, str]:
     """Every key's documentation: its comment in the shipped file, else its table row."""
-    tables = _two_element_rows() | _two_element_rows(SENSORS_DOC)
+    tables = _two_element_rows() | _two_element_rows(SENSORS_DOC) | _two_element_rows(HERMS_DOC)
     rows = {key: f"{text} |" for key, (_default, text) in tables.items()}
     return _comment_blocks() | rows
 
 
 def test_the_sensor_keys_are_documented_with_their_defaults_outside_the_file() -> None:
-    rows = _two_element_rows(SENSORS_DOC)
+    rows = _two_element_rows(SENSORS_DOC) | _two_element_rows(HERMS_DOC)
     assert not set(rows) & set(_comment_blocks())
-    assert {key.split(".")[0] for key in rows} == {"sensor"}
+    sections = {key.split(".")[0] for key in rows}
+    assert sections == {"sensor", *ROLES, "pump", "herms"}
     for key, (default, _text) in rows.items():
-        assert yaml.safe_load(default) == getattr(DEFAULT.sensor, key.split(".")[1]), key
+        section, name = key.split(".")
+        assert yaml.safe_load(default) == getattr(getattr(DEFAULT, section), name), key
 
 
 def test_the_two_element_keys_are_documented_with_their_defaults_outside_the_file() -> None:
@@ -568,7 +636,7 @@ def test_every_key_in_the_shipped_file_has_a_comment_with_its_range() -> None:
         assert len(comment) > 20, key
     for bound in BOUNDS:
         comment = blocks[bound.key]
-        if bound.key == "sensor.address":
+        if bound.key.endswith(".address"):
             assert "0x48 to 0x4B" in comment
             continue
         if bound.high is None:
@@ -682,6 +750,9 @@ def test_every_choice_is_accepted(key: str, choices: tuple[object, ...]) -> None
             values.setdefault("element2.backend", "sim")
         if choice == "midrange":
             values["element2.backend"] = "sim"
+        section = key.split(".", maxsplit=1)[0]
+        if section in ROLES:  # not the HLT's LM92, at 0x48
+            values[f"{section}.address"] = "0x49"
         assert value_at(parse(document(values)), key) == choice
 
 
@@ -901,7 +972,7 @@ def test_a_key_in_the_wrong_section_is_sent_home() -> None:
 
 def test_unknown_key_without_a_close_match_lists_the_keys() -> None:
     message = only_problem("sensor:\n  colour: blue\n").message
-    assert "bus, address, read_interval" in message
+    assert "bus, address, kind, id, w1_root" in message and "read_interval" in message
 
 
 def test_duplicate_keys_are_refused() -> None:

@@ -421,8 +421,15 @@ def served(
 ) -> Iterator[tuple[Daemon, Path]]:
     """A daemon on the virtual clock, stepped a period at a time on a thread, behind a socket."""
     daemon, _world, _path, _events = start(tmp_path, text)
-    link = LoopLink(daemon)
     where = (directory or tmp_path) / "control.sock"
+    with serve(daemon, where):
+        yield daemon, where
+
+
+@contextlib.contextmanager
+def serve(daemon: Daemon, where: Path) -> Iterator[None]:
+    """`daemon` behind a control socket at `where`, stepped a period at a time on a thread."""
+    link = LoopLink(daemon)
     server = ControlServer(where)
     server.answer_with(link.status_line, link.history_line, link.arrived)
     server.start()
@@ -438,7 +445,7 @@ def served(
     stepping = threading.Thread(target=step)
     stepping.start()
     try:
-        yield daemon, where
+        yield
     finally:
         stop.set()
         stepping.join(TIMEOUT)
@@ -802,7 +809,7 @@ def test_status_and_set_through_the_commands(
         (["set", "setpoint", "nan"], "hermsd: setpoint: expected a number in °C, got 'nan'"),
         (["set", "mode", "banana"], "hermsd: mode: expected auto or manual, got 'banana'"),
         (["set", "mode", "auto", "--output", "4"], "hermsd: --output goes with `set mode manual`"),
-        (["set", "power", "4"], "hermsd: set: expected setpoint or mode, got 'power'"),
+        (["set", "power", "4"], "hermsd: set: expected setpoint, mode or pump, got 'power'"),
         (
             ["set", "mode", "manual", "--output", "101"],
             "hermsd: refused, nothing changed: control.manual_output: 101 %",

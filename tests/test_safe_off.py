@@ -174,15 +174,22 @@ def test_exit_0_when_every_output_found_is_off(
     assert len(outcome.err) == 1 and "invalid YAML" in outcome.err[0]
 
 
-def test_the_second_element_is_switched_off_too_even_in_a_damaged_file(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], bench: Bench
+@pytest.mark.parametrize(
+    ("section", "off"),
+    # The board's "channel 2 off": A0 02 00, checksum A0 + 02 + 00 = A2; channel 3's: A3.
+    # The pump too: nothing hermsd switches runs while it does not (docs/herms.md).
+    [("element2", "a00200a2"), ("pump", "a00300a3")],
+)
+def test_the_second_element_and_the_pump_are_switched_off_too_even_in_a_damaged_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], bench: Bench, section: str, off: str
 ) -> None:
-    # The board's "channel 2 off": A0 02 00, checksum A0 + 02 + 00 = A2.
     damaged = b"control:\n  algorithm: midrange\n bad indent\noutput:\n  backend: sim\n"
-    element2 = f"element2:\n  backend: relay-board\n  port: {bench.relay}\n".encode()
-    outcome = safe_off(tmp_path, capsys, damaged + element2)
-    assert bench.relay_bytes() == bytes.fromhex("a00200a2")
-    assert f"element2: relay-board channel 2 on {bench.relay} at 9600 baud: off" in outcome.out
+    output = f"{section}:\n  backend: relay-board\n  port: {bench.relay}\n".encode()
+    outcome = safe_off(tmp_path, capsys, damaged + output)
+    assert bench.relay_bytes() == bytes.fromhex(off)
+    channel = int(off[2:4])
+    where = f"{section}: relay-board channel {channel} on {bench.relay} at 9600 baud: off"
+    assert where in outcome.out
     assert outcome.code == 0
 
 

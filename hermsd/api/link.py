@@ -40,6 +40,7 @@ from hermsd.api.protocol import (
     ProgramStart,
     ResetAlarms,
     SetMode,
+    SetPump,
     SetSetpoint,
     describe,
     encode,
@@ -53,6 +54,7 @@ from hermsd.control.pid import PlantModel
 from hermsd.control.reach import short_words
 from hermsd.program.runner import Refused
 from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.mash_side import NO_PUMP
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import no_heat_words
 from hermsd.safety.limits import SafetyLimits, format_limits
@@ -90,6 +92,7 @@ class Snapshot:
     reasons: dict[str, str]  # each active alarm's message (made for this snapshot alone)
     latches_not_saved: str | None = None  # why the latched alarms' save failed, while it does
     log_failing: str | None = None  # why the log cannot be written, while it cannot
+    roles: dict[str, dict[str, object] | None] | None = None  # `mash`, `coil` as status has
 
 
 def status_warnings(
@@ -99,10 +102,12 @@ def status_warnings(
     *,
     progress_not_saved: str | None = None,
     log_failing: str | None = None,
+    sensor_faults: tuple[str, ...] = (),
 ) -> list[str]:
     """What the brewer should know that holds no heater off, in words: one place for the
     command line, the web page and MQTT to take them from. `short`: the reach warning's;
-    `progress_not_saved`: why the mash program's progress cannot be saved."""
+    `progress_not_saved`: why the mash program's progress cannot be saved; `sensor_faults`:
+    the faults of the sensors beside the HLT's (the mash's, the coil outlet's), in words."""
     warnings = [f"{no_heat_words(element)} (docs/two-elements.md)" for element in no_heat or []]
     if short is not None:
         warnings.append(short)
@@ -116,6 +121,7 @@ def status_warnings(
         )
     if log_failing is not None:
         warnings.append(f"log failing (control goes on, this brew is not recorded): {log_failing}")
+    warnings.extend(sensor_faults)
     return warnings
 
 
@@ -181,6 +187,7 @@ class LoopLink:
             daemon.supervisor.reasons(),
             daemon.latches_not_saved,
             daemon.log_failing,
+            daemon.role_status(),
         )
         self.history.append(*encode_row(record))
         program = self._snapshot.program
@@ -208,6 +215,8 @@ class LoopLink:
         if isinstance(command, ProgramAction):
             why = daemon.program.check(command.action, command.step)
             return [] if why is None else [why]
+        if isinstance(command, SetPump):
+            return [] if daemon.pump_fitted else [NO_PUMP]
         if isinstance(command, SetSetpoint) and daemon.program.active:
             return [
                 "control.setpoint: a mash program sets the setpoint while it runs "
@@ -244,6 +253,8 @@ class LoopLink:
             self._runtime.add("control.setpoint")
         elif isinstance(command, ResetAlarms):
             daemon.reset_alarms(None if command.kinds is None else list(command.kinds))
+        elif isinstance(command, SetPump):
+            daemon.set_pump(command.on, f"by the operator (from the {SOURCE})")
         elif command.mode == "manual":
             daemon.set_manual(command.output)
             self._runtime.update(("control.mode", "control.manual_output"))
@@ -324,6 +335,7 @@ class LoopLink:
                 if snapshot.program is None
                 else snapshot.program.get("save_failed"),
                 log_failing=snapshot.log_failing,
+                sensor_faults=role_faults(snapshot.roles),
             ),
             "heater_allowed": record.heater_allowed,
             "limits": format_limits(snapshot.limits, record.setpoint),
@@ -351,4 +363,15 @@ class LoopLink:
                 if key in snapshot.runtime and running[key] != read.value_at(snapshot.config, key)
             },
             "program": snapshot.program,
+            **(snapshot.roles or {"mash": None, "coil": None}),
+            "pump": record.pump,
         }
+
+
+def role_faults(roles: dict[str, dict[str, object] | None] | None) -> tuple[str, ...]:
+    """The status's warnings of the sensors beside the HLT's: 'mash sensor fault: …'."""
+    return tuple(
+        f"{role} sensor fault (the HLT is held as before): {status['fault']}"
+        for role, status in (roles or {}).items()
+        if status is not None and status["fault"] is not None
+    )

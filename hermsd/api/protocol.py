@@ -10,6 +10,8 @@ the protocol version it speaks and a command:
     {"v": 1, "cmd": "set", "mode": "manual", "output": 40}    (output optional: hold the
                                                                output in force)
     {"v": 1, "cmd": "set", "mode": "auto"}
+    {"v": 1, "cmd": "set", "pump": true}      (true runs the HERMS pump, false stops it;
+                                               refused when no pump is fitted)
     {"v": 1, "cmd": "reset-alarm", "kinds": ["dry_fire"]}    (kinds optional: the latched
                                     alarms the brewer saw; absent, all of them. One raised
                                     since stays latched, for the brewer to see first)
@@ -44,14 +46,18 @@ dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured"
 `runtime` (each operating key set at runtime whose value differs from the config file's:
 `{"control.setpoint": {"running": 72.0, "file": 66.0}}`) and `program` (the mash program that
 runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
-`time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py). `no_heat`
+`time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py), `mash` and
+`coil` (the mash's and the coil outlet's sensors: null when not fitted, else `celsius`, the
+latest good reading or null while faulty, and `fault`, why it is faulty or null), `pump`
+(true running, false stopped, null when no pump is fitted). `no_heat`
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no
 heat, 0 either, 3 more heat than asked (docs/two-elements.md); `latches_not_saved` (why the
 latched alarms' save fails, while it does; else null); `log_failing` (why the log cannot be
 written, while it cannot; else null); `warnings` (those three in words, that the program's
 progress is not saved (`program`'s `save_failed`), and that full power levels the water out
-short of the setpoint (hermsd/control/reach.py), one line each, empty when there is nothing to say:
-what holds no heater off but needs a look). A program
+short of the setpoint (hermsd/control/reach.py), and a fault of the mash's or the coil
+outlet's sensor, one line each, empty when there is nothing to say: what holds no heater
+off but needs a look). A program
 sent with `start` is checked on the server's thread exactly as a program file is (and its
 setpoints against the running config at the boundary); `program` and `confirm` commands
 are answered like `set`. A `set` or `reset-alarm` is checked
@@ -126,6 +132,11 @@ class SetMode:
 
 
 @dataclass(frozen=True, slots=True)
+class SetPump:
+    on: bool
+
+
+@dataclass(frozen=True, slots=True)
 class ResetAlarms:
     kinds: tuple[str, ...] | None = None  # the latched alarms to clear; None: all
 
@@ -152,8 +163,8 @@ class History:
     limit: int = MAX_PAGE
 
 
-Request = Status | SetSetpoint | SetMode | ResetAlarms | ProgramStart | ProgramAction | History
-Command = SetSetpoint | SetMode | ResetAlarms | ProgramStart | ProgramAction
+Command = SetSetpoint | SetMode | SetPump | ResetAlarms | ProgramStart | ProgramAction
+Request = Status | History | Command
 """The requests that change something: applied by the loop at a period boundary."""
 
 
@@ -199,7 +210,14 @@ def parse_request(line: bytes) -> Request:
             if output is not None and mode != "manual":
                 raise ProtocolError("output goes with mode 'manual' only")
             return SetMode(mode, None if output is None else _number(data, "output"))
-        raise ProtocolError("set takes either setpoint, or mode (with output for manual)")
+        if "pump" in fields:
+            _no_other_fields("set pump", fields, {"pump"})
+            if not isinstance(data["pump"], bool):
+                raise ProtocolError(f"pump: expected true or false, got {json.dumps(data['pump'])}")
+            return SetPump(data["pump"])
+        raise ProtocolError(
+            "set takes either setpoint, or mode (with output for manual), or pump (true or false)"
+        )
     if command == "confirm":
         _no_other_fields(command, fields, {"step"})
         return ProgramAction("confirm", _step(data))
@@ -312,6 +330,8 @@ def request_message(request: Request) -> dict[str, Any]:
             message["step"] = request.step
     elif isinstance(request, History):
         message.update(cmd="history", since=request.since, limit=request.limit)
+    elif isinstance(request, SetPump):
+        message.update(cmd="set", pump=request.on)
     else:
         message.update(cmd="set", mode=request.mode)
         if request.output is not None:
@@ -341,6 +361,8 @@ def describe(command: Command) -> str:
     if isinstance(command, ProgramStart):
         ready = f", ready by {command.ready_by}" if command.ready_by else ""
         return f"program start {command.program.name!r} ({len(command.program.steps)} steps{ready})"
+    if isinstance(command, SetPump):
+        return f"set pump {'on' if command.on else 'off'}"
     if isinstance(command, ProgramAction):
         what = command.action if command.action == "confirm" else f"program {command.action}"
         return what if command.step is None else f"{what} of step {command.step + 1}"

@@ -149,10 +149,12 @@ def _parser() -> argparse.ArgumentParser:
     status.set_defaults(func=cmd_status)
 
     set_ = sub.add_parser(
-        "set", help="change the running daemon's setpoint or mode (until the file's key is edited)"
+        "set",
+        help="change the running daemon's setpoint or mode (until the file's key is edited), "
+        "or run or stop the pump",
     )
-    set_.add_argument("what", metavar="setpoint|mode", help="what to set")
-    set_.add_argument("value", help="°C for setpoint; auto or manual for mode")
+    set_.add_argument("what", metavar="setpoint|mode|pump", help="what to set")
+    set_.add_argument("value", help="°C for setpoint; auto or manual for mode; on or off for pump")
     set_.add_argument("--output", help="with `mode manual`: the output in %% (default: hold it)")
     _socket_argument(set_)
     set_.set_defaults(func=cmd_set)

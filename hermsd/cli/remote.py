@@ -18,6 +18,7 @@ from hermsd.api.protocol import (
     Request,
     ResetAlarms,
     SetMode,
+    SetPump,
     SetSetpoint,
     Status,
 )
@@ -28,7 +29,7 @@ from hermsd.cli.common import (
 from hermsd.cli.run import (
     _default_state_directory,
 )
-from hermsd.runtime.notify import status_line
+from hermsd.runtime.notify import mash_side_words, status_line
 from hermsd.safety.latches import Latches, LatchStore, StateError
 
 if TYPE_CHECKING:
@@ -117,6 +118,7 @@ def cmd_status(args: argparse.Namespace) -> int:
         reply["output"],
         reply["state"],
         reply.get("output2"),
+        mash_side_words(reply.get("mash"), reply.get("pump")),
     )
     print(f"{line} (applied {reply['applied']:.0f} %), {_mode_text(reply)}")
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
@@ -154,13 +156,20 @@ def cmd_set(args: argparse.Namespace) -> int:
             raise UserError("--output goes with `set mode manual`")
         output = None if args.output is None else _finite(args.output, "--output", "%")
         request = SetMode(args.value, output)
+    elif args.what == "pump":
+        if args.value not in ("on", "off"):
+            raise UserError(f"pump: expected on or off, got {args.value!r}")
+        if args.output is not None:
+            raise UserError("--output goes with `set mode manual`")
+        request = SetPump(args.value == "on")
     else:
-        raise UserError(f"set: expected setpoint or mode, got {args.what!r}")
+        raise UserError(f"set: expected setpoint, mode or pump, got {args.what!r}")
     try:
         reply = _ask(args.socket, request)
     except NoDaemonError as error:
         raise Unreachable(str(error)) from None
-    print(f"now: setpoint {reply['setpoint']:g} °C, {_mode_text(reply)}")
+    pump = "" if reply.get("pump") is None else f", pump {'on' if reply['pump'] else 'off'}"
+    print(f"now: setpoint {reply['setpoint']:g} °C, {_mode_text(reply)}{pump}")
     return 0
 
 

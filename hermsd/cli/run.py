@@ -30,11 +30,19 @@ from hermsd.cli.common import (
 from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.config.file import ConfigFile
-from hermsd.config.schema import Config, ContactorConfig, Element2Config, OutputConfig
+from hermsd.config.schema import (
+    ROLE_SENSORS,
+    Config,
+    ContactorConfig,
+    Element2Config,
+    OutputConfig,
+    PumpConfig,
+    RoleSensorConfig,
+)
 from hermsd.control.learning import ModelStore
 from hermsd.durations import parse_duration
 from hermsd.hardware.realtime import loop_priority
-from hermsd.hardware.sensors.kinds import open_sensor
+from hermsd.hardware.sensors.kinds import open_role_sensor, open_sensor
 from hermsd.hardware.ssr import Switch, describe_output, open_hardware_switch
 from hermsd.log.mcap_file import NotRecovered, recover_directory
 from hermsd.log.recorder import Recorder
@@ -172,17 +180,19 @@ def cmd_run(args: argparse.Namespace) -> int:
                 )
             else:
                 clock = MonotonicClock()
-                sensor, (ssr, contactor, element2) = _hardware(config)
+                sensors, (ssr, contactor, element2, pump) = _hardware(config)
                 daemon = assemble(
                     config,
                     clock,
-                    sensor,
-                    guard_outputs(ssr, contactor, clock, config, element2),
+                    sensors["sensor"],
+                    guard_outputs(ssr, contactor, clock, config, element2, pump),
                     notifier=notifier,
                     on_status=status.update,
                     config_file=config_file,
                     latches=latches,
                     models=models,
+                    mash_sensor=sensors.get("mash_sensor"),
+                    coil_sensor=sensors.get("coil_sensor"),
                 )
             recorder = _open_recorder(log_dir, config) if log_dir else None
             if recorder is not None:
@@ -248,9 +258,11 @@ def _serve_control(daemon: Daemon, server: ControlServer) -> None:
     print(f"control socket {server.path}", flush=True)
 
 
-def _hardware(config: Config) -> tuple[Sensor, tuple[Switch, Switch | None, Switch | None]]:
-    """The tun's sensor, SSR, contactor and second element as the config names them (outputs
-    closed on failure)."""
+def _hardware(
+    config: Config,
+) -> tuple[dict[str, Sensor], tuple[Switch, Switch | None, Switch | None, Switch | None]]:
+    """The sensors by their config section, and the SSR, contactor, second element and pump
+    as the config names them (outputs closed on failure)."""
     opened: list[Switch] = []
     try:
         ssr = _open_output(config.output)
@@ -263,12 +275,21 @@ def _hardware(config: Config) -> tuple[Sensor, tuple[Switch, Switch | None, Swit
         element2 = _open_output(config.element2) if config.element2.backend != "none" else None
         if element2 is not None:
             opened.append(element2)
-        sensor = open_sensor(config.sensor, time.monotonic)
+        if config.pump.backend == "sim":
+            raise UserError("pump.backend is 'sim', the simulated tun's: run with --simulate")
+        pump = _open_output(config.pump) if config.pump.backend != "none" else None
+        if pump is not None:
+            opened.append(pump)
+        sensors = {"sensor": open_sensor(config.sensor, time.monotonic)}
+        for section in ROLE_SENSORS:
+            role: RoleSensorConfig = getattr(config, section)
+            if role.fitted:  # one that cannot be opened is a fault, said: the HLT is held
+                sensors[section] = open_role_sensor(role, time.monotonic, section)
     except BaseException:
         for switch in opened:
             switch.close()
         raise
-    return sensor, (ssr, contactor, element2)
+    return sensors, (ssr, contactor, element2, pump)
 
 
 def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[DirectoryLock]:
@@ -393,7 +414,7 @@ def _open_recorder(directory: Path, config: Config) -> Recorder:
     )
 
 
-def _open_output(section: OutputConfig | ContactorConfig | Element2Config) -> Switch:
+def _open_output(section: OutputConfig | ContactorConfig | Element2Config | PumpConfig) -> Switch:
     """The hardware a config section names, or a UserError that says why not."""
     channel = getattr(section, "channel", None)
     try:

@@ -248,13 +248,15 @@ def _run_tune(
                 from hermsd.runtime.clock import MonotonicClock
 
                 hardware_clock = MonotonicClock()
-                sensor, outputs = _hardware(config)
+                sensors, (ssr, contactor, element2, pump) = _hardware(config)
                 daemon = assemble(
                     config,
                     hardware_clock,
-                    sensor,
-                    guard_outputs(outputs[0], outputs[1], hardware_clock, config, outputs[2]),
+                    sensors["sensor"],
+                    guard_outputs(ssr, contactor, hardware_clock, config, element2, pump),
                     latches=latches,
+                    mash_sensor=sensors.get("mash_sensor"),
+                    coil_sensor=sensors.get("coil_sensor"),
                 )
                 recorder = _open_recorder(log_dir, config) if log_dir else None
             if recorder is not None:

@@ -311,7 +311,7 @@ def reload_problems(running: Document, edited: Document) -> list[Problem]:
 class FoundOutput:
     """One output section as far as a damaged file lets it be read, key by key."""
 
-    section: str  # "output", "contactor" or "element2"
+    section: str  # "output", "contactor", "element2" or "pump"
     values: dict[str, object]  # the keys written with a usable value
     refused: dict[str, Problem]  # the keys written with a value that cannot be used
     doubts: list[Problem]  # what may name this device otherwise: unknown keys, unread lines
@@ -326,13 +326,14 @@ class FoundOutputs:
     notes: list[Problem]  # damage outside the output sections, read around
     doubts: list[Problem]  # damage that may hide an output section: nothing is sure then
     element2: FoundOutput = field(default_factory=lambda: FoundOutput("element2", {}, {}, []))
+    pump: FoundOutput = field(default_factory=lambda: FoundOutput("pump", {}, {}, []))
 
 
-_OUTPUT_SECTIONS = ("output", "contactor", "element2")
+_OUTPUT_SECTIONS = ("output", "contactor", "element2", "pump")
 
 
 def load_outputs(path: str | os.PathLike[str]) -> FoundOutputs:
-    """The `output`, `contactor` and `element2` sections of a file, whatever is wrong with it.
+    """The output sections of a file (`_OUTPUT_SECTIONS`), whatever is wrong with it.
 
     `hermsd safe-off` must find the heater's switches after any bad edit, so this reads
     in steps, each more tolerant than the last: the whole document; if it is not YAML,
@@ -396,7 +397,7 @@ def _found_outputs(
                 section_doubts.append(problem)
         found.append(FoundOutput(section, values.get(section, {}), refused, section_doubts))
     doubts = doubts + [p for p in reader.problems if p.key_path.split(".")[0] not in _SCHEMA]
-    return FoundOutputs(found[0], found[1], notes, doubts, found[2])
+    return FoundOutputs(found[0], found[1], notes, doubts, found[2], found[3])
 
 
 _HEADER = re.compile(r"[ \t]*(?P<name>[A-Za-z_][A-Za-z0-9_]*)[ \t]*:(?:[ \t]|$)")
@@ -673,11 +674,13 @@ def keep_restart_keys(running: Config, edited: Config) -> Config:
 
 
 def on_simulated_tun(config: Config) -> Config:
-    """`config` as a simulated run runs it: the SSR, and the second element when one is
-    fitted, are the simulated tun's whatever hardware the file names (a brewer tries the
-    service's own file), so that what the run logs and prints names them truly."""
-    element2 = config.element2
+    """`config` as a simulated run runs it: the SSR, and the second element and the pump when
+    they are fitted, are the simulated tun's whatever hardware the file names (a brewer tries
+    the service's own file), so that what the run logs and prints names them truly."""
+    element2, pump = config.element2, config.pump
     if element2.backend != "none":
         element2 = dataclasses.replace(element2, backend="sim")
+    if pump.backend != "none":
+        pump = dataclasses.replace(pump, backend="sim")
     output = dataclasses.replace(config.output, backend="sim")
-    return dataclasses.replace(config, output=output, element2=element2)
+    return dataclasses.replace(config, output=output, element2=element2, pump=pump)

@@ -15,13 +15,16 @@ from hermsd.config.schema import (
     _SCHEMA,
     _SERIAL_LINES,
     MIDRANGE,
+    ROLE_SENSORS,
     Config,
     ContactorConfig,
     ControlConfig,
     Element2Config,
     MqttConfig,
     OutputConfig,
-    SensorConfig,
+    PumpConfig,
+    RoleSensorConfig,
+    SensorKeys,
     WebConfig,
     _convert,
     _fmt,
@@ -33,36 +36,85 @@ from hermsd.control.factory import make_controller, measured_model
 from hermsd.control.learning import implausible
 
 
-def _sensor_violations(sensor: SensorConfig) -> list[_Violation]:
-    """What a sensor kind needs of the other sensor keys."""
+def _sensor_violations(sensor: SensorKeys, section: str = "sensor") -> list[_Violation]:
+    """What a sensor kind needs of the other keys of its section."""
     id_ = sensor.id
     if sensor.kind == "ds18b20" and id_ is not None and not re.fullmatch(r"28-[0-9a-f]{12}", id_):
         return [
             _Violation(
-                ("sensor.id", "sensor.kind"),
+                (f"{section}.id", f"{section}.kind"),
                 f"{_quote(id_)} is not a DS18B20's id (28- and 12 hexadecimal digits, as in "
                 "28-0316a2795bff)",
             )
         ]
     if sensor.kind == "lm92" and sensor.offset != 0:
+        why = (
+            "the LM92's T_CRIT pin compares the chip's own value with safety.max_temp: an "
+            "offset would move the two apart"
+            if section == "sensor"
+            else "hermsd reads an LM92 without one (a ds18b20 or a max31865 takes an offset)"
+        )
         return [
             _Violation(
-                ("sensor.offset", "sensor.kind"),
-                "is not 0, but the LM92's T_CRIT pin compares the chip's own value with "
-                "safety.max_temp: an offset would move the two apart (leave it at 0)",
+                (f"{section}.offset", f"{section}.kind"),
+                f"is not 0, but {why} (leave it at 0)",
                 f"{_fmt(sensor.offset)} °C",
             )
         ]
     if sensor.kind == "max31865" and sensor.rref <= sensor.r0:
         return [
             _Violation(
-                ("sensor.rref", "sensor.r0"),
-                f"is not above sensor.r0 ({_fmt(sensor.r0)} Ω): the reference resistor must "
+                (f"{section}.rref", f"{section}.r0"),
+                f"is not above {section}.r0 ({_fmt(sensor.r0)} Ω): the reference resistor must "
                 "exceed the RTD's (430 for a PT100, 4300 for a PT1000)",
                 f"{_fmt(sensor.rref)} Ω",
             )
         ]
     return []
+
+
+def _sensor_identity(sensor: SensorKeys) -> tuple[object, ...]:
+    """What tells one sensor from another of its kind: an I2C address, a DS18B20's id (null:
+    the only one found, the same for every section that leaves it null), an SPI device."""
+    if sensor.kind == "ds18b20":
+        return ("ds18b20", sensor.id)
+    if sensor.kind == "max31865":
+        return ("max31865", sensor.bus, sensor.device)
+    return ("lm92", sensor.bus, sensor.address)
+
+
+_IDENTITY_KEYS = {"lm92": ("bus", "address"), "ds18b20": ("id",), "max31865": ("bus", "device")}
+
+
+def _role_sensor_violations(config: Config) -> list[_Violation]:
+    """The sensors beside the HLT's: each kind's own rules, and no two sections naming one
+    device (it would stand for two places at once)."""
+    found: list[_Violation] = []
+    seen: dict[tuple[object, ...], str] = {_sensor_identity(config.sensor): "sensor"}
+    for section in ROLE_SENSORS:
+        sensor: RoleSensorConfig = getattr(config, section)
+        if not sensor.fitted:
+            continue
+        found.extend(_sensor_violations(sensor, section))
+        identity = _sensor_identity(sensor)
+        other = seen.setdefault(identity, section)
+        if other != section:
+            keys = [f"{section}.{key}" for key in _IDENTITY_KEYS[sensor.kind]]
+            which = " and ".join(keys)
+            found.append(
+                _Violation(
+                    (*keys, f"{section}.kind"),
+                    f"{section} and {other} name the same {sensor.kind.upper()} ({which} as "
+                    f"{other}'s): one device cannot be read in two places (give each its "
+                    "own device"
+                    + (
+                        "; a null id takes the only one found, so name each by its id)"
+                        if sensor.kind == "ds18b20"
+                        else ")"
+                    ),
+                )
+            )
+    return found
 
 
 def _violations(config: Config) -> list[_Violation]:
@@ -76,6 +128,7 @@ def _violations(config: Config) -> list[_Violation]:
     )
 
     found.extend(_sensor_violations(config.sensor))
+    found.extend(_role_sensor_violations(config))
     if output.window is not None:
         window_key, window, what = (
             "output.window",
@@ -165,6 +218,7 @@ def _violations(config: Config) -> list[_Violation]:
         ("output", output),
         ("contactor", contactor),
         ("element2", config.element2),
+        ("pump", config.pump),
     ):
         if device.backend == "gpio" and device.line is None:
             found.append(
@@ -211,6 +265,7 @@ def _violations(config: Config) -> list[_Violation]:
             )
         )
     found.extend(_element2_violations(config))
+    found.extend(_pump_violations(config))
     found.extend(_controller_violations(control))
     measured = measured_model(config)
     why = implausible(measured) if measured is not None else None
@@ -269,7 +324,10 @@ def _web_violations(web: WebConfig) -> list[_Violation]:
 _HOST_NAME = re.compile(r"(\*\.)?[A-Za-z0-9_-]+(\.[A-Za-z0-9_-]+)*\.?")
 
 
-def _device(section: OutputConfig | ContactorConfig | Element2Config) -> tuple[object, ...]:
+_Switched = OutputConfig | ContactorConfig | Element2Config | PumpConfig
+
+
+def _device(section: _Switched) -> tuple[object, ...]:
     """What a section's switch occupies: a serial port (a relay board or a line of it), or a
     gpio line; two sections that occupy the same thing would drive one device."""
     if section.backend == "gpio":
@@ -308,24 +366,40 @@ def _element2_violations(config: Config) -> list[_Violation]:
                     f"{_fmt(value)} s",
                 )
             )
-    mine = _device(element2)
-    for other_name, other in (("output", config.output), ("contactor", config.contactor)):
-        if other.backend in ("none", "sim") or element2.backend == "sim":
+    found.extend(_shared_devices(config, "element2", ("output", "contactor")))
+    return found
+
+
+def _shared_devices(config: Config, name: str, others: tuple[str, ...]) -> list[_Violation]:
+    """The output section `name` on a device one of `others` drives already."""
+    section: _Switched = getattr(config, name)
+    found = []
+    mine = _device(section)
+    for other_name in others:
+        other: _Switched = getattr(config, other_name)
+        if other.backend in ("none", "sim") or section.backend == "sim":
             continue
         theirs = _device(other)
         if mine[:2] != theirs[:2]:
             continue
         relays = ("relay" in mine, "relay" in theirs)
         if mine[2:] == theirs[2:] or relays[0] != relays[1]:
-            where = f"line {element2.line} of {element2.chip}" if mine[0] == "gpio" else mine[1]
+            where = f"line {section.line} of {section.chip}" if mine[0] == "gpio" else mine[1]
             found.append(
                 _Violation(
-                    ("element2.backend", "element2.port", "element2.line", "element2.channel"),
-                    f"element2 and {other_name} would both drive {where} (give element2 its "
+                    (f"{name}.backend", f"{name}.port", f"{name}.line", f"{name}.channel"),
+                    f"{name} and {other_name} would both drive {where} (give {name} its "
                     "own port, line or relay channel; a relay board needs its port to itself)",
                 )
             )
     return found
+
+
+def _pump_violations(config: Config) -> list[_Violation]:
+    """The pump on a device of its own."""
+    if config.pump.backend == "none":
+        return []
+    return _shared_devices(config, "pump", ("output", "contactor", "element2"))
 
 
 _MODEL_KEYS = ("model_gain", "model_tau", "dead_time", "model_ambient")

@@ -146,14 +146,17 @@ class ControlConfig:
     u2_max: float = _number(100.0, 0, 100, "%", low_exclusive=True)
 
 
+SENSOR_KINDS: tuple[str, ...] = ("lm92", "ds18b20", "max31865")
+NOT_FITTED = "none"
+
+
 @dataclass(frozen=True, slots=True)
-class SensorConfig:
-    """The tun's sensor: its kind, where it sits, its calibration, how often it is read."""
+class SensorKeys:
+    """Which chip a sensor is, where it sits and its calibration: every sensor's keys."""
 
     bus: int = _integer(1, 0, 255)
     address: int = _integer(0x48, 0x48, 0x4B, as_hex=True)
-    read_interval: float = _number(1.0, 0.5, 10, "s")
-    kind: str = _choice("lm92", ("lm92", "ds18b20", "max31865"))
+    kind: str = _choice("lm92", SENSOR_KINDS)
     id: str | None = _text(None, max_length=64, null_means="the one DS18B20 found")
     w1_root: str = _text("/sys/bus/w1/devices")
     device: int = _integer(0, 0, 255)
@@ -162,6 +165,30 @@ class SensorConfig:
     wires: int = _choice(3, (2, 3, 4))
     filter_hz: int = _choice(50, (50, 60))
     offset: float = _number(0.0, -5, 5, "°C")
+
+
+@dataclass(frozen=True, slots=True)
+class SensorConfig(SensorKeys):
+    """The HLT's sensor, the one the heater is controlled and guarded by; its read interval
+    is every sensor's."""
+
+    read_interval: float = _number(1.0, 0.5, 10, "s")
+
+
+@dataclass(frozen=True, slots=True)
+class RoleSensorConfig(SensorKeys):
+    """A sensor beside the HLT's (the mash's, the coil outlet's): the same keys, read at
+    `sensor.read_interval`, not fitted unless its kind is named."""
+
+    kind: str = _choice(NOT_FITTED, (NOT_FITTED, *SENSOR_KINDS))
+
+    @property
+    def fitted(self) -> bool:
+        return self.kind != NOT_FITTED
+
+
+ROLE_SENSORS: dict[str, str] = {"mash_sensor": "mash", "coil_sensor": "coil outlet"}
+"""The config's sections of the sensors beside the HLT's, and the role each is read in."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -212,6 +239,28 @@ class Element2Config:
     min_off: float = _number(120.0, 5, 3600, "s")
     # Off for 60 s in the first heat-up: which element heats (hermsd/safety/element_probe.py).
     check: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class PumpConfig:
+    """The HERMS pump that carries the wort from the mash tun through the HLT's coil and
+    back: switched on and off as commanded, off whenever hermsd is not running."""
+
+    backend: str = _choice(NOT_FITTED, (NOT_FITTED, "sim", "gpio", "relay-board"))
+    port: str = _text("/dev/ttyUSB1")
+    chip: str = _text("/dev/gpiochip0")
+    line: int | None = _integer(None, 0, 511, null_means="none (only the gpio backend uses it)")
+    active_low: bool = False
+    channel: int = _integer(3, 1, 8)
+    baud: int = _choice(9600, (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200))
+
+
+@dataclass(frozen=True, slots=True)
+class HermsConfig:
+    """What holding the mash through the HLT's coil needs to know beyond the HLT."""
+
+    # At most this far above the mash at the coil's outlet: the enzymes' protection.
+    max_hlt_above_mash: float = _number(10.0, 1, 20, "°C")
 
 
 @dataclass(frozen=True, slots=True)
@@ -322,9 +371,13 @@ class Config:
     tun: TunConfig = field(default_factory=TunConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
+    mash_sensor: RoleSensorConfig = field(default_factory=RoleSensorConfig)
+    coil_sensor: RoleSensorConfig = field(default_factory=RoleSensorConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     contactor: ContactorConfig = field(default_factory=ContactorConfig)
     element2: Element2Config = field(default_factory=Element2Config)
+    pump: PumpConfig = field(default_factory=PumpConfig)
+    herms: HermsConfig = field(default_factory=HermsConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     log: LogConfig = field(default_factory=LogConfig)
     alerts: AlertsConfig = field(default_factory=AlertsConfig)
@@ -346,6 +399,7 @@ TUNING_KEYS: tuple[str, ...] = tuple(
 RESTART_KEYS: tuple[str, ...] = (
     "control.period",
     *(f"sensor.{f.name}" for f in dataclasses.fields(SensorConfig)),
+    *(f"{role}.{f.name}" for role in ROLE_SENSORS for f in dataclasses.fields(RoleSensorConfig)),
     "output.backend",
     "output.port",
     "output.chip",
@@ -354,6 +408,7 @@ RESTART_KEYS: tuple[str, ...] = (
     "output.window",
     *(f"contactor.{f.name}" for f in dataclasses.fields(ContactorConfig)),
     *(f"element2.{f.name}" for f in dataclasses.fields(Element2Config)),
+    *(f"pump.{f.name}" for f in dataclasses.fields(PumpConfig)),
     *(f"log.{f.name}" for f in dataclasses.fields(LogConfig)),
 )
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hermsd.config.read import FoundOutput, FoundOutputs, every_valid_value
-from hermsd.config.schema import ContactorConfig, Element2Config, OutputConfig
+from hermsd.config.schema import ContactorConfig, Element2Config, OutputConfig, PumpConfig
 from hermsd.hardware.ssr import Switch, describe_output
 
 # The keys that say which device a backend drives, and which level is off. Without them
@@ -30,10 +30,11 @@ _IDENTITY: dict[str, tuple[str, ...]] = {
 # an off command at a wrong baud rate is noise to the board, and every relay of the
 # contactor's board off is a safe state.
 _TRIED_IN_TURN = ("baud", "channel")
-_DEFAULTS: dict[str, OutputConfig | ContactorConfig | Element2Config] = {
+_DEFAULTS: dict[str, OutputConfig | ContactorConfig | Element2Config | PumpConfig] = {
     "output": OutputConfig(),
     "contactor": ContactorConfig(),
     "element2": Element2Config(),
+    "pump": PumpConfig(),
 }
 _ARGUMENTS = ("backend", "port", "chip", "line", "active_low", *_TRIED_IN_TURN)
 
@@ -50,12 +51,13 @@ class Report:
 
 
 def switch_off(found: FoundOutputs, open_switch: OpenSwitch) -> Report:
-    """Drive the SSR output, the contactor and the second element off; every doubt about
-    them is a failure."""
+    """Drive the SSR output, the contactor, the second element and the pump off; every doubt
+    about them is a failure. The pump too: nothing hermsd switches runs while it does not
+    (docs/sensors.md, "The pump")."""
     report = Report()
     report.notes.extend(f"{problem}; read around it" for problem in found.notes)
     report.failures.extend(f"{problem}; so an output may be missed" for problem in found.doubts)
-    for section in (found.output, found.contactor, found.element2):
+    for section in (found.output, found.contactor, found.element2, found.pump):
         _switch_section_off(section, open_switch, report)
     return report
 

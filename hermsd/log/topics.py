@@ -220,8 +220,21 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     ["number", "null"],
                     "where full power levels the water out, while short of the setpoint, °C",
                 ),
+                "mash": _field(
+                    ["number", "null"],
+                    "the mash sensor's latest good reading, °C (null: none fitted, or faulty)",
+                ),
+                "coil": _field(
+                    ["number", "null"],
+                    "the coil outlet sensor's latest good reading, °C (null: none fitted, or "
+                    "faulty)",
+                ),
+                "pump": _field(["boolean", "null"], "the HERMS pump running (null: none fitted)"),
             },
-            optional=("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
+            optional=(
+                *("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
+                *("mash", "coil", "pump"),
+            ),
         ),
     ),
     READING_TOPIC: TopicSpec(

@@ -44,9 +44,12 @@ def assemble(
     models: ModelStore | None = None,
     tun_model: MeasuredTun | None = None,
     saver: Saver | None = None,
+    mash_sensor: Sensor | None = None,
+    coil_sensor: Sensor | None = None,
 ) -> Daemon:
-    """A daemon for `config` on `sensor` and `outputs`, its parts built here (with what
-    `models` holds of the tun) and handed to the loop."""
+    """A daemon for `config` on `sensor` and `outputs` (and the mash's and the coil outlet's
+    sensors, when fitted), its parts built here (with what `models` holds of the tun) and
+    handed to the loop."""
     stored: LearnedModel | None = None
     problem: str | None = None
     if models is not None:
@@ -84,5 +87,7 @@ def assemble(
             getattr(clock, "zone", None),  # a simulated clock's local time; else the system's
             config.control.period,
         ),
+        mash_sensor=mash_sensor,
+        coil_sensor=coil_sensor,
     )
     return Daemon(parts)

@@ -61,6 +61,7 @@ from hermsd.runtime.build import (
     reach_period,
 )
 from hermsd.runtime.latch_keeping import LatchKeeping
+from hermsd.runtime.mash_side import MashSide, role_sensors
 from hermsd.runtime.notify import WatchdogGate, status_line
 from hermsd.runtime.parts import Parts
 from hermsd.runtime.period import PeriodRecord
@@ -153,9 +154,9 @@ class _Window:
         self.timers.clear()
 
 
-class Daemon(Reloading, RunningProgram, LatchKeeping):
-    """One tun's control loop (its reload, mash program and latched alarms on disk in their
-    own modules)."""
+class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
+    """One tun's control loop (its reload, mash program, latched alarms on disk and the
+    mash's sensors and pump in their own modules)."""
 
     def __init__(self, parts: Parts) -> None:
         """The loop on `parts` (`runtime/assemble.py` builds them from a config)."""
@@ -235,6 +236,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping):
             config.alerts, lambda message: self._event(logging.WARNING, message, clock.monotonic())
         )
         self.program = parts.program
+        self._roles, self._pump_on = role_sensors(parts), False
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -252,6 +254,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping):
         self._ssr_duty.begin(now)
         read_interval = self.config.sensor.read_interval
         self._read_now(now)
+        self._start_mash_side()
         sched = self.scheduler
         sched.every("read", read_interval, self._on_read, origin=now + read_interval / 2)
         self._control_task = sched.every(
@@ -359,6 +362,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping):
         now = self.clock.monotonic()
         self._ssr_duty.switched(False, now)
         self._outputs_off = True
+        self._stop_mash_side(reason, now)
         self._event(logging.INFO, f"heater off: {reason}", now)
         self._alert("stopped", f"heater off: {reason}", now)
         deadline = time.monotonic() + STOP_WAIT_S  # outputs are off: what is left may wait
@@ -480,6 +484,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping):
 
     def _on_read(self, deadline: float, now: float) -> None:
         self._read_now(now)
+        self._read_mash_side()
         sup = self.supervisor
         sup.tick(now)
         if not sup.heater_allowed:
@@ -678,6 +683,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping):
             no_heat=None if self.element_watch is None else sorted(self.element_watch.suspect),
             full_from=full_from,
             **self.program.record_fields(),
+            **self.mash_side_fields(),
         )
         said = reach_period(self.reach, record, self.model, self.config, self.controller)
         self._say_reach(said, now)
@@ -851,7 +857,9 @@ class Daemon(Reloading, RunningProgram, LatchKeeping):
             state += f", {PREFIX} near {self.reach.ceiling:.1f} °C"
         name, kind = self.config.tun.name, self.config.sensor.kind
         shown = name if kind == "lm92" else f"{name} ({kind})"  # the LM92's line as it was
-        return status_line(shown, self._pv, self.setpoint, self._asked(), state, self._output2)
+        return status_line(
+            shown, self._pv, self.setpoint, self._asked(), state, self._output2, self.mash_words()
+        )
 
     def _check_log(self, t: float) -> None:
         """Say that the log cannot be written at once, every minute while it lasts, and when

@@ -1,6 +1,6 @@
 """What the loop's parts in their own modules (`reloading.py`, `running_program.py`,
-`latch_keeping.py`) share with the `Daemon` they make up: its state, and the steps of its
-own they call. Declared here, set and defined by the Daemon."""
+`latch_keeping.py`, `mash_side.py`) share with the `Daemon` they make up: its state, and the
+steps of its own they call. Declared here, set and defined by the Daemon."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from hermsd.control import pid
 from hermsd.control.learning import LearnedModel, Learner
 from hermsd.control.reach import ReachWatch, Said
 from hermsd.control.watches import HeatUpFit
+from hermsd.hardware.outputs import Outputs
 from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.driver import ProgramDriver
 from hermsd.runtime.alerts import Alerts
@@ -32,6 +33,7 @@ class LoopState:
 
     config: Config
     clock: Clock
+    outputs: Outputs
     config_file: ConfigFile | None
     notifier: Notifier | None
     recorder: Recorder | None

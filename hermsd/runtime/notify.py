@@ -178,15 +178,31 @@ def status_line(
     output: float,
     state: str,
     output2: float | None = None,
+    mash_side: str = "",
 ) -> str:
     """The STATUS text: 'HLT 65.94 °C → 66.00 °C, out 27 %, ok'; '--' when PV is unknown;
-    'out 27 % + element 2 100 %' with a second element (it may be on at 0 % on the SSR).
+    'out 27 % + element 2 100 %' with a second element (it may be on at 0 % on the SSR);
+    `mash_side` (`mash_side_words`) before the state.
 
     Two decimals show the LM92's 0.0625 °C steps; the output is a whole percent.
     """
     measured = "--" if pv is None else f"{pv:.2f}"
     second = "" if output2 is None else f" + element 2 {output2:.0f} %"
-    return f"{name} {measured} °C → {setpoint:.2f} °C, out {output:.0f} %{second}, {state}"
+    herms = f", {mash_side}" if mash_side else ""
+    return f"{name} {measured} °C → {setpoint:.2f} °C, out {output:.0f} %{second}{herms}, {state}"
+
+
+def mash_side_words(mash: dict[str, object] | None, pump: bool | None) -> str:
+    """'mash 64.8 °C, pump on': what of the two is fitted ('mash sensor fault' while it is
+    faulty; '' when neither is fitted). `mash` as the status reply gives it."""
+    words = []
+    if mash is not None:
+        celsius = mash["celsius"]
+        shown = f"mash {celsius:.1f} °C" if isinstance(celsius, float) else "mash --"
+        words.append("mash sensor fault" if mash["fault"] is not None else shown)
+    if pump is not None:
+        words.append(f"pump {'on' if pump else 'off'}")
+    return ", ".join(words)
 
 
 def _socket_address(value: str) -> str | None:

@@ -61,3 +61,5 @@ class Parts:
     element_watch: ElementWatch | None
     reach: ReachWatch  # says when full power cannot reach the setpoint
     program: ProgramDriver
+    mash_sensor: Sensor | None = None  # the sensors beside the HLT's (runtime/mash_side.py)
+    coil_sensor: Sensor | None = None

@@ -38,3 +38,6 @@ class PeriodRecord:
     free2: bool | None = None  # … and its minimum on or off time let it switch
     no_heat: list[int] | None = None  # the elements reported giving no heat (two elements)
     ceiling: float | None = None  # °C full power levels the water out at, while short (reach)
+    mash: float | None = None  # °C, the mash sensor's latest good reading (None: not fitted,
+    coil: float | None = None  # or faulty), the coil outlet's; the pump running (None: none
+    pump: bool | None = None  # fitted)

@@ -32,6 +32,11 @@ the heater's power, so the answer still does not depend on how often anyone look
 energy books still close to rounding. Against the nonlinear equation the tangent costs
 about 2e-5 °C over half an hour of heating at 50 K/h, less while holding
 (tests/test_simulator.py checks it against a fine Runge-Kutta run).
+
+A HERMS coil in the water (`set_coil_load`, driven by `hermsd.sim.mash.HermsTun`) is one
+more linear load of the same kind: wort entering at T_in through a coil of effectiveness ε
+takes ε·ṁc·(T_w − T_in), constant inputs between two changes of its inlet, so it is folded
+into G and T_rest like the evaporation's tangent and booked apart (`coil_energy`).
 """
 
 from __future__ import annotations
@@ -155,6 +160,16 @@ PLANT_METHODS = (
 )
 """The protocol's methods, for checking an object from outside before it is run."""
 
+HERMS_METHODS = (
+    "set_pump",
+    "set_recirculation_ok",
+    "dough_in",
+    "mash_temperature",
+    "coil_outlet_temperature",
+    "coil_watts",
+)
+"""A HERMS plant's own methods (`hermsd.sim.mash.HermsPlant`): a plant has all or none."""
+
 
 def _require(name: str, value: float, valid: bool, rule: str) -> None:
     if not valid:
@@ -185,12 +200,15 @@ class _LumpedTun:
         "_ambient_c",
         "_boiling_c",
         "_capacity_per_litre",
+        "_coil_inlet_c",
+        "_coil_w_per_k",
         "_delay_s",
         "_element2_ok",
         "_element2_watts",
         "_element_ok",
         "_element_watts",
         "_energy_boiled",
+        "_energy_coil",
         "_energy_in",
         "_energy_lost",
         "_heater2_on",
@@ -203,11 +221,11 @@ class _LumpedTun:
         "_open_surface_m2",
         "_pending",
         "_power_w",
-        "_rate_gap",
         "_rest_c",
+        "_room_rest_c",
+        "_room_w_per_k",
         "_sensor_c",
         "_sensor_rate",
-        "_slower_rate",
         "_t",
         "_ua",
         "_water_c",
@@ -253,11 +271,14 @@ class _LumpedTun:
         self._energy_in = 0.0
         self._energy_lost = 0.0
         self._energy_boiled = 0.0
+        self._energy_coil = 0.0
+        self._coil_w_per_k = 0.0
+        self._coil_inlet_c = 0.0
+        self._room_w_per_k = ua_w_per_k
+        self._room_rest_c = ambient_c
         self._loss_w_per_k = ua_w_per_k
         self._rest_c = ambient_c
         self._loss_rate = 0.0
-        self._slower_rate = 0.0
-        self._rate_gap = 0.0
         self._update_losses()
 
     # ----------------------------------------------------------------- inputs
@@ -306,7 +327,27 @@ class _LumpedTun:
         if self._sensor_rate == math.inf:
             self._sensor_c = self._water_c
 
+    def set_coil_load(self, w_per_k: float, inlet_c: float, t: float) -> None:
+        """A heat exchanger's coil in the water takes `w_per_k`·(T_w − `inlet_c`) from `t`
+        on (0 W/K: nothing flows through it); negative when the wort is the warmer."""
+        _require("w_per_k", w_per_k, 0.0 <= w_per_k < math.inf, "a number of W/K ≥ 0")
+        _require("inlet_c", inlet_c, math.isfinite(inlet_c), "a finite temperature in °C")
+        self._advance(t)
+        self._coil_w_per_k = w_per_k
+        self._coil_inlet_c = inlet_c
+        self._combine_losses()
+
     # ---------------------------------------------------------------- outputs
+
+    @property
+    def ambient_c(self) -> float:
+        """The room's temperature now."""
+        return self._ambient_c
+
+    @property
+    def time_s(self) -> float:
+        """The time the state belongs to: the latest given to or asked of the plant."""
+        return self._t
 
     @property
     def litres(self) -> float:
@@ -342,6 +383,11 @@ class _LumpedTun:
         self._advance(t)
         return self._energy_lost
 
+    def coil_energy(self, t: float) -> float:
+        """Joules a HERMS coil has taken from the water up to `t` (negative: given to it)."""
+        self._advance(t)
+        return self._energy_coil
+
     def energy_boiled(self, t: float) -> float:
         """Joules that went into boiling up to `t`."""
         self._advance(t)
@@ -350,22 +396,27 @@ class _LumpedTun:
     # ------------------------------------------------------------ integration
 
     def _update_losses(self) -> None:
-        """G and T_rest for the water and room now: with an open surface, the evaporation's
-        tangent at the water's temperature, E(T) ≈ E0 + E1·(T − T0)."""
+        """The room's G and T_rest for the water and room now: with an open surface, the
+        evaporation's tangent at the water's temperature, E(T) ≈ E0 + E1·(T − T0)."""
         if self._open_surface_m2 > 0.0:
             water = self._water_c
             e0 = evaporation_w(water, self._ambient_c, self._open_surface_m2)
             e1 = (
                 EVAPORATION_W_PER_M2_KPA * self._open_surface_m2 * saturation_slope_kpa_per_k(water)
             )
-            self._loss_w_per_k = self._ua + e1
-            self._rest_c = (self._ua * self._ambient_c - e0 + e1 * water) / self._loss_w_per_k
+            self._room_w_per_k = self._ua + e1
+            self._room_rest_c = (self._ua * self._ambient_c - e0 + e1 * water) / (self._ua + e1)
         else:
-            self._loss_w_per_k = self._ua
-            self._rest_c = self._ambient_c
+            self._room_w_per_k = self._ua
+            self._room_rest_c = self._ambient_c
+        self._combine_losses()
+
+    def _combine_losses(self) -> None:
+        """G and T_rest of the room and the coil together: two linear loads are one."""
+        room, coil = self._room_w_per_k, self._coil_w_per_k
+        self._loss_w_per_k = room + coil
+        self._rest_c = (room * self._room_rest_c + coil * self._coil_inlet_c) / (room + coil)
         self._loss_rate = self._loss_w_per_k / (self._capacity_per_litre * self._litres)
-        self._slower_rate = min(self._loss_rate, self._sensor_rate)
-        self._rate_gap = abs(self._sensor_rate - self._loss_rate)
 
     def _schedule_power(self, t: float) -> None:
         """Queue the element's new power for the moment it reaches the water."""
@@ -416,43 +467,54 @@ class _LumpedTun:
 
     def _free_piece(self, duration: float, heading_for: float) -> None:
         """Water relaxes exponentially towards `heading_for`; the sensor chases it."""
-        power = self._power_w
         rate = self._loss_rate
         offset = self._water_c - heading_for
         water_decay_m1 = math.expm1(-rate * duration)  # e^(−t/τ_w) − 1, exact for small t
-        self._energy_in += power * duration
-        self._energy_lost += self._loss_w_per_k * (
-            (heading_for - self._rest_c) * duration - offset * water_decay_m1 / rate
-        )
+        water_integral = heading_for * duration - offset * water_decay_m1 / rate  # ∫T_w dt
+        self._energy_in += self._power_w * duration
+        self._energy_lost += self._room_w_per_k * (water_integral - self._room_rest_c * duration)
+        self._energy_coil += self._coil_w_per_k * (water_integral - self._coil_inlet_c * duration)
         self._water_c += offset * water_decay_m1
-        sensor_rate = self._sensor_rate
-        if sensor_rate == math.inf:
+        if self._sensor_rate == math.inf:
             self._sensor_c = self._water_c
-            return
-        # The sensor's response to the water's exponential, b·(e^(−a·t) − e^(−b·t))/(b − a),
-        # written so that it stays exact when the two time constants are equal or close.
-        gap_t = self._rate_gap * duration
-        spread = -math.expm1(-gap_t) / gap_t if gap_t > 0.0 else 1.0
-        follow = sensor_rate * duration * math.exp(-self._slower_rate * duration) * spread
-        self._sensor_c = (
-            heading_for
-            + (self._sensor_c - heading_for) * math.exp(-sensor_rate * duration)
-            + offset * follow
-        )
+        else:
+            self._sensor_c = lagged_sensor(
+                self._sensor_c, heading_for, offset, rate, self._sensor_rate, duration
+            )
 
     def _boiling_piece(self, duration: float) -> None:
         """Water held at the boil: losses at the boiling point, the rest goes to steam."""
         boiling = self._boiling_c
-        loss_w = self._loss_w_per_k * (boiling - self._rest_c)
+        room_w = self._room_w_per_k * (boiling - self._room_rest_c)
+        coil_w = self._coil_w_per_k * (boiling - self._coil_inlet_c)
         self._energy_in += self._power_w * duration
-        self._energy_lost += loss_w * duration
-        self._energy_boiled += (self._power_w - loss_w) * duration
+        self._energy_lost += room_w * duration
+        self._energy_coil += coil_w * duration
+        self._energy_boiled += (self._power_w - room_w - coil_w) * duration
         if self._sensor_rate == math.inf:
             self._sensor_c = boiling
         else:
             self._sensor_c = boiling + (self._sensor_c - boiling) * math.exp(
                 -self._sensor_rate * duration
             )
+
+
+def lagged_sensor(
+    sensor_c: float,
+    heading_c: float,
+    offset: float,
+    rate: float,
+    sensor_rate: float,
+    duration: float,
+) -> float:
+    """A first-order sensor (rate 1/τ_s, finite) after `duration` s on a body whose
+    temperature is heading_c + offset·e^(−rate·t): the sensor's own decay towards heading_c
+    plus its response to the body's exponential, b·(e^(−a·t) − e^(−b·t))/(b − a), written so
+    that it stays exact when the two time constants are equal or close."""
+    gap_t = abs(sensor_rate - rate) * duration
+    spread = -math.expm1(-gap_t) / gap_t if gap_t > 0.0 else 1.0
+    follow = sensor_rate * duration * math.exp(-min(rate, sensor_rate) * duration) * spread
+    return heading_c + (sensor_c - heading_c) * math.exp(-sensor_rate * duration) + offset * follow
 
 
 def _require_element2(watts: float) -> None:
@@ -613,7 +675,13 @@ class PlantFailed(RuntimeError):
     stops (heater off) and the message names the plant, the call and what came of it."""
 
 
-_READINGS = ("temperature", "water_temperature")
+_READINGS = {
+    "temperature": "°C",
+    "water_temperature": "°C",
+    "mash_temperature": "°C",
+    "coil_outlet_temperature": "°C",
+    "coil_watts": "W",
+}
 
 
 class _CheckedPlant:
@@ -642,7 +710,9 @@ class _CheckedPlant:
                 return result
             real = isinstance(result, int | float) and not isinstance(result, bool)
             if not real or not math.isfinite(result):
-                raise PlantFailed(f"{call} returned {result!r}; expected a finite number of °C")
+                raise PlantFailed(
+                    f"{call} returned {result!r}; expected a finite number of {_READINGS[name]}"
+                )
             return float(result)
 
         return checked
@@ -650,7 +720,7 @@ class _CheckedPlant:
 
 def load_plant(reference: str) -> Plant:
     """The plant that `FILE.py:FACTORY` or `package.module:FACTORY` makes, called with no
-    arguments, checked against the protocol (`Plant`)."""
+    arguments, checked against the protocol (`Plant`; a HERMS plant's methods all or none)."""
     where, _, factory_name = reference.rpartition(":")
     if not where or not factory_name:
         raise PlantLoadError(
@@ -688,6 +758,14 @@ def load_plant(reference: str) -> Plant:
         raise PlantLoadError(
             f"plant {reference!r}: the {type(plant).__name__} that {factory_name}() made lacks "
             f"{', '.join(missing)} (the plant protocol: hermsd.sim.hlt.Plant)"
+        )
+    herms = [name for name in HERMS_METHODS if callable(getattr(plant, name, None))]
+    if herms and len(herms) < len(HERMS_METHODS):
+        lacking = ", ".join(name for name in HERMS_METHODS if name not in herms)
+        raise PlantLoadError(
+            f"plant {reference!r}: the {type(plant).__name__} that {factory_name}() made has "
+            f"{herms[0]} but lacks {lacking} (the HERMS plant protocol: "
+            "hermsd.sim.mash.HermsPlant)"
         )
     checked: Plant = typing.cast(Plant, _CheckedPlant(plant, reference))
     return checked

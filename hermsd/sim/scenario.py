@@ -8,7 +8,9 @@ line and column. A scenario may run a mash program (`program:` a file, relative 
 scenario's, or the program inline; started half a period in) on a simulated local time
 (`clock:` its start, ISO 8601 with the offset, e.g. "2026-11-28T04:00:00+01:00"; default
 2026-01-01T00:00Z), and answer the program's confirmations (`confirm:` events: from `at` on,
-the next wait for that message is confirmed). The runner wires the fake bus, the tun model
+the next wait for that message is confirmed). A `plant:` with a `mash:` mapping
+(`hermsd.sim.mash.MASH_RANGES`) is a HERMS: the HLT with a mash tun, a coil and a pump, which
+`dough_in`, `pump` and `recirculation` events drive. The runner wires the fake bus, the tun model
 and the simulated heater circuit into `Daemon` on a virtual clock, and measures the run
 against physics: the earliest any controller could settle is full power from the start.
 """
@@ -48,12 +50,21 @@ from hermsd.sim.bus import Fault, fault_value
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.hlt import PLANT_KINDS, Plant, TwoElementPlant, make_plant, plant_parameters
+from hermsd.sim.mash import (
+    DOUGH_IN_RANGES,
+    MASH_RANGES,
+    HermsTun,
+    as_herms_plant,
+    make_herms_plant,
+)
 from hermsd.sim.sensors import FAULTS, FakeChip, sensor_reading
 from hermsd.sim.world import SENSOR_KEYS, build_world
 
 SENSOR_FAULTS = tuple(dict.fromkeys(name for names in FAULTS.values() for name in names))
 """Every kind's faults (sim/sensors.py); a run refuses those its sensor's kind has not."""
-FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2")
+FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2", "recirculation")
+MASH_EVENTS = ("dough_in", "pump", "recirculation")
+"""Events for a HERMS plant's mash side (`hermsd.sim.mash.HermsPlant`)."""
 EVENT_KINDS = (
     "confirm",
     "add_water",
@@ -67,6 +78,7 @@ EVENT_KINDS = (
     "relay2",
     "ambient",
     "config",
+    *MASH_EVENTS,
 )
 
 
@@ -197,6 +209,8 @@ def parse_scenario(
                 f"{event.at:g} s lies after the scenario's end ({duration:g} s): it would "
                 "never happen (lengthen duration, or move the event)",
             )
+    if "mash" in plant:
+        _check_first_dough_in(plant, events, fail)
     events.sort(key=lambda e: e.at)
     return Scenario(
         name=str(doc.get("name", Path(source).stem)),
@@ -269,12 +283,14 @@ def _plant(raw: Any, fail: Callable[[str, str], ScenarioError]) -> dict[str, Any
     model = spec.pop("model")
     if model not in PLANT_KINDS:
         raise fail("plant.model", f"expected one of {kinds}, got {model!r}")
-    known = (*plant_parameters(model), *SENSOR_KEYS)
+    known = (*plant_parameters(model), *SENSOR_KEYS, "mash")
     for key, value in spec.items():
         where = f"plant.{key}"
         if key not in known:
             raise fail(where, f"unknown key for model {model}: expected one of {', '.join(known)}")
-        if key == "lid":
+        if key == "mash":
+            spec["mash"] = _mash(value, fail)
+        elif key == "lid":
             if not isinstance(value, bool):
                 raise fail(where, f"expected on or off, got {value!r}")
         elif key == "seed":
@@ -283,12 +299,58 @@ def _plant(raw: Any, fail: Callable[[str, str], ScenarioError]) -> dict[str, Any
         else:
             _number(value, fail, where)
     try:
-        tun = make_plant(model, **{k: v for k, v in spec.items() if k not in SENSOR_KEYS})
+        tun = make_plant(model, **_hlt_parameters(spec))
         sensor_reading(tun, VirtualClock(), spec.get("noise_c", 0.0), 0)
     except ValueError as error:
         name = str(error).partition(" = ")[0]
         raise fail(f"plant.{name}", str(error)) from None
     return {"model": model, **spec}
+
+
+def _hlt_parameters(spec: dict[str, Any]) -> dict[str, Any]:
+    """The HLT's own keyword parameters of a `plant:` mapping (its model taken out)."""
+    return {k: v for k, v in spec.items() if k not in (*SENSOR_KEYS, "model", "mash")}
+
+
+MASH_EXAMPLE = "{coil_w_per_k: 250, flow_l_per_min: 6}"
+
+
+def _mash(raw: Any, fail: Callable[[str, str], ScenarioError]) -> dict[str, float]:
+    """The `plant.mash:` mapping, each key in its range (`MASH_RANGES`)."""
+    if not isinstance(raw, dict):
+        raise fail("plant.mash", f"expected a mapping of the mash side's keys, e.g. {MASH_EXAMPLE}")
+    for key in raw:
+        if key not in MASH_RANGES:
+            known = ", ".join(MASH_RANGES)
+            raise fail(f"plant.mash.{key}", f"unknown key: expected one of {known}")
+    return {k: _number(v, fail, f"plant.mash.{k}", MASH_RANGES[k]) for k, v in raw.items()}
+
+
+def _check_first_dough_in(
+    plant: dict[str, Any], events: list[Event], fail: Callable[[str, str], ScenarioError]
+) -> None:
+    """The first dough-in must more than fill the hoses and coil (flow × the hoses' delays)."""
+    doughs = [(event.at, index) for index, event in enumerate(events) if event.kind == "dough_in"]
+    if not doughs:
+        return
+    index = min(doughs)[1]
+    dough = events[index].value
+    tun = make_herms_plant(plant["model"], plant["mash"], **_hlt_parameters(plant))
+    try:
+        tun.dough_in(
+            dough["grain_kg"], dough["grain_c"], dough["water_litres"], dough["water_c"], 0.0
+        )
+    except ValueError as error:
+        raise fail(f"events[{index}].dough_in", str(error)) from None
+
+
+def _herms_tun(config: Config, spec: dict[str, Any]) -> HermsTun:
+    """The HERMS a `plant:` mapping with `mash:` describes, its HLT's second element the
+    config's as `build_world` gives a plant built from the mapping."""
+    params = _hlt_parameters(spec)
+    if config.element2.backend != "none":
+        params.setdefault("element2_watts", config.element2.watts)
+    return make_herms_plant(spec["model"], spec["mash"], **params)
 
 
 def _number(
@@ -344,6 +406,21 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
         raise fail(f"{key}.heater", "expected open or ok")
     elif kind in ("ssr", "relay2") and value not in ("stuck_on", "ok"):
         raise fail(f"{key}.{kind}", "expected stuck_on or ok")
+    elif kind == "dough_in":
+        if not isinstance(value, dict) or set(value) != set(DOUGH_IN_RANGES):
+            raise fail(
+                f"{key}.dough_in",
+                "expected {grain_kg: kg, grain_c: °C, water_litres: L, water_c: °C}",
+            )
+        value = {
+            k: _number(v, fail, f"{key}.dough_in.{k}", DOUGH_IN_RANGES[k]) for k, v in value.items()
+        }
+    elif kind == "pump":
+        if value not in ("on", "off") and not isinstance(value, bool):  # YAML reads on as True
+            raise fail(f"{key}.pump", f"expected on or off, got {value!r}")
+        value = value in (True, "on")
+    elif kind == "recirculation" and value not in ("stuck", "ok"):
+        raise fail(f"{key}.recirculation", "expected stuck or ok")
     elif kind == "heater2" and value not in ("open", "ok"):
         raise fail(f"{key}.heater2", "expected open or ok")
     elif kind == "config" and not isinstance(value, dict):
@@ -554,10 +631,19 @@ def run(
             lossless=True,
         )
     try:
-        world = build_world(config, clock, scenario.plant, tun=outside_plant, history=True)
+        tun = outside_plant
+        if tun is None and "mash" in scenario.plant:
+            tun = _herms_tun(config, scenario.plant)
+        world = build_world(config, clock, scenario.plant, tun=tun, history=True)
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
     plant, chip, circuit = world.plant, world.chip, world.circuit
+    if as_herms_plant(plant) is None and any(e.kind in MASH_EVENTS for e in scenario.events):
+        raise ScenarioError(
+            f"{scenario.source or scenario.name}: events: dough_in, pump and recirculation "
+            "need a HERMS plant (a plant: mash: mapping, or --plant with "
+            "hermsd.sim.mash.HermsPlant's methods)"
+        )
     kind = config.sensor.kind
     for event in scenario.events:
         if event.kind == "sensor" and event.value[0] not in FAULTS[kind]:
@@ -755,3 +841,13 @@ def _apply(
         if not isinstance(plant, TwoElementPlant):
             raise ScenarioError("heater2: the plant has no second element")
         plant.set_element2_ok(value == "ok", t)
+    elif kind in MASH_EVENTS:
+        herms = as_herms_plant(plant)
+        assert herms is not None  # run() refuses mash events without a HERMS plant
+        if kind == "dough_in":
+            grain_kg, grain_c = value["grain_kg"], value["grain_c"]
+            herms.dough_in(grain_kg, grain_c, value["water_litres"], value["water_c"], t)
+        elif kind == "pump":
+            herms.set_pump(value, t)
+        else:
+            herms.set_recirculation_ok(value == "ok", t)

@@ -23,7 +23,7 @@ from hermsd.sim.spi import FakeMAX31865, FakeSpiDev, RtdFault
 from hermsd.sim.w1 import FakeW1Tree, W1Fault
 
 if TYPE_CHECKING:
-    from hermsd.config.schema import SensorConfig
+    from hermsd.config.schema import SensorKeys
     from hermsd.hardware.sensors.base import Sensor
     from hermsd.sim.hlt import Plant
 
@@ -43,7 +43,7 @@ class FakeChip(Protocol):
 
 
 def fake_sensor(
-    sensor: SensorConfig,
+    sensor: SensorKeys,
     now: Callable[[], float],
     source: Callable[[], float],
     advance: Callable[[float], None] | None,

@@ -1,4 +1,5 @@
-"""The simulated hardware wired together: tun model, fake sensor (sim/sensors.py), heater circuit.
+"""The simulated hardware wired together: tun model, fake sensor (sim/sensors.py), heater circuit;
+around a HERMS (`sim/mash.py`) the mash's and the coil outlet's fake sensors and the pump.
 
 One place builds it, for `hermsd run --simulate`, `hermsd sensor --simulate` and the
 scenario runner alike.
@@ -12,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd.config.file import ConfigFile
-from hermsd.config.schema import Config
+from hermsd.config.schema import ROLE_SENSORS, Config
 from hermsd.control.learning import ModelStore
 from hermsd.hardware.lm92 import LM92
 from hermsd.hardware.outputs import Outputs, guard_outputs
@@ -27,6 +28,7 @@ from hermsd.sim.bus import FakeLM92, FakeSMBus
 from hermsd.sim.circuit import HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, TwoElementPlant, make_plant
+from hermsd.sim.mash import HermsPlant
 from hermsd.sim.sensors import FakeChip, fake_sensor, sensor_reading
 
 
@@ -38,6 +40,62 @@ class World:
     sensor: Sensor
     circuit: HeaterCircuit
     outputs: Outputs
+    mash: MashSide | None = None  # around a HERMS plant
+
+
+@dataclass(slots=True)
+class MashSide:
+    """The mash's fake sensor and the coil outlet's, as fitted (their chips switch into
+    faults as the HLT's does), for `assemble`'s `mash_sensor` and `coil_sensor`."""
+
+    mash_sensor: Sensor | None = None
+    mash_chip: FakeChip | None = None
+    coil_sensor: Sensor | None = None
+    coil_chip: FakeChip | None = None
+
+
+class PumpSwitch:
+    """The simulated pump's switch: runs or stops the plant's pump on the clock's time."""
+
+    def __init__(self, plant: HermsPlant, clock: Clock) -> None:
+        self._plant = plant
+        self._clock = clock
+
+    def set(self, on: bool) -> None:
+        self._plant.set_pump(on, self._clock.monotonic())
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+def _mash_side(
+    config: Config, clock: Clock, tun: Plant, advance: Callable[[float], None] | None
+) -> tuple[MashSide | None, PumpSwitch | None]:
+    """Around a HERMS plant, the fake sensors the config fits beside the HLT's, and the pump;
+    a config that fits them around a plant without a mash is refused."""
+    fitted = [s for s in ROLE_SENSORS if getattr(config, s).fitted]
+    if config.pump.backend != "none":
+        fitted.append("pump")
+    if not isinstance(tun, HermsPlant):
+        if fitted:
+            raise ValueError(
+                f"{' and '.join(fitted)} configured, but the simulated plant has no mash tun"
+            )
+        return None, None
+    mash, coil = config.mash_sensor, config.coil_sensor
+    side = MashSide()
+
+    def now(temperature: Callable[[float], float]) -> Callable[[], float]:
+        return lambda: temperature(clock.monotonic())
+
+    if mash.fitted:
+        source = now(tun.mash_temperature)
+        side.mash_sensor, side.mash_chip = fake_sensor(mash, clock.monotonic, source, advance)
+    if coil.fitted:
+        source = now(tun.coil_outlet_temperature)
+        side.coil_sensor, side.coil_chip = fake_sensor(coil, clock.monotonic, source, advance)
+    pump = PumpSwitch(tun, clock) if config.pump.backend != "none" else None
+    return side, pump
 
 
 SENSOR_KEYS = ("noise_c", "seed")
@@ -75,8 +133,9 @@ def build_world(
             raise ValueError("element2 is configured, but the plant has no second element")
         two = tun
     circuit = HeaterCircuit(tun, clock.monotonic, contactor, history=history, element2=two)
-    outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config, circuit.relay2)
-    return World(clock, tun, chip, sensor, circuit, outputs)
+    mash, pump = _mash_side(config, clock, tun, advance)
+    outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config, circuit.relay2, pump)
+    return World(clock, tun, chip, sensor, circuit, outputs, mash)
 
 
 def simulated_daemon(
@@ -91,11 +150,14 @@ def simulated_daemon(
     """The daemon on the simulated tun, `speed` times real time (inf: as fast as possible)."""
     clock: Clock = VirtualClock() if math.isinf(speed) else PacedClock(speed)
     world = build_world(config, clock)
+    mash = world.mash or MashSide()
     return assemble(
         config,
         clock,
         world.sensor,
         world.outputs,
+        mash_sensor=mash.mash_sensor,
+        coil_sensor=mash.coil_sensor,
         notifier=notifier,
         on_status=on_status,
         config_file=config_file,
