@@ -39,6 +39,7 @@ from hermsd.control import laws, predictive
 from hermsd.control.cascade import Cascade, Tanks
 from hermsd.control.coil import CoilEstimate, CoilEstimator, prior_estimate
 from hermsd.control.pid import PlantModel
+from hermsd.sim.mash import make_herms_plant
 
 WATER = 4186.0
 MASH_J_PER_KG_K = 3500.0
@@ -403,6 +404,117 @@ def guess_table(limit: float) -> str:
     return "\n".join(lines)
 
 
+def herms_tun_table(limit: float) -> str:
+    """The outer loop on the simulated HERMS plant with `scenarios/herms-day.yaml`'s
+    parameters (the text it returns says which)."""
+    ua_h, delay, lag, watts, period = 3000.0 / 168.9, 60.0, 10.0, 3000.0, 5
+    mash_side = {
+        "coil_w_per_k": 250.0,
+        "flow_l_per_min": 6.0,
+        "hose_to_coil_s": 10.0,
+        "hose_to_mash_s": 10.0,
+        "mash_ua_w_per_k": 10.0,
+        "mash_sensor_lag_s": 10.0,
+        "tun_heat_capacity_j_per_k": 0.0,
+    }
+    plant = make_herms_plant(
+        "physical",
+        mash_side,
+        litres=90.0,
+        element_watts=watts,
+        start_c=50.0,
+        ambient_c=ROOM,
+        ua_w_per_k=ua_h,
+        transport_delay_s=delay,
+        sensor_lag_s=lag,
+    )
+    capacity = 90 * WATER
+    model = PlantModel(watts / (100 * ua_h), capacity / ua_h, delay + lag, ROOM)
+    law = laws.create("predictive", kc=120.0, ti=800.0, ts=period, model=model)
+    tanks = Tanks(
+        capacity, ua_h, 50 * WATER + 12 * 1700.0, 5.0, ROOM, hose_delay=20.0, mash_lag=lag
+    )
+    outer = Cascade(tanks, limit=limit, hlt_max=95.0, period=period)
+    coil = CoilEstimator(
+        hlt_capacity=capacity,
+        hlt_loss=ua_h,
+        room=ROOM,
+        element_watts=watts,
+        dead_time=delay + lag,
+        period=period,
+        prior=prior_estimate(200.0),
+    )
+    rng = random.Random(1)
+    dough, pump_at = 1800, 2100
+    index, sp, duty = 0, RESTS[0][0], 0.0
+    hlt_reads: list[float] = []
+    mash_reads: list[float] = []
+    start, reached, end = float(pump_at), math.inf, math.inf
+    over, err, excess = -math.inf, 0.0, -math.inf
+    lines = [
+        "| rest °C | overshoot °C | error from 5 min °C | min to within 0.3 °C | "
+        "HLT above limit °C |",
+        "|---|---|---|---|---|",
+    ]
+    for t in range(8 * 3600):
+        if t == dough:
+            plant.dough_in(12.0, 20.0, 50.0, 39.75, float(t))
+        if t == pump_at:
+            plant.set_pump(True, float(t))
+        plant.set_heater(t % period < round(duty * period / 100.0), float(t))
+        hlt, mash = plant.temperature(float(t)), plant.mash_temperature(float(t))
+        hlt_reads.append(read(rng, hlt))
+        mash_reads.append(read(rng, mash))
+        if t >= pump_at:
+            over, excess = max(over, mash - sp), max(excess, hlt - (sp + limit))
+            if reached == math.inf and mash >= sp - BAND:
+                reached, end = t, t + RESTS[index][1] * 60
+            if t >= reached + 300:
+                err = max(err, abs(mash - sp))
+            if t >= end:
+                lines.append(
+                    f"| {sp:g} | {over:+.2f} | {err:.2f} | {(reached - start) / 60:.1f} | "
+                    f"{excess:+.2f} |"
+                )
+                index += 1
+                if index == len(RESTS):
+                    break
+                sp, start, reached, end = RESTS[index][0], float(t), math.inf, math.inf
+                over, err, excess = -math.inf, 0.0, -math.inf
+        if len(hlt_reads) == period:
+            hlt_pv, mash_pv = sum(hlt_reads) / period, sum(mash_reads) / period
+            hlt_reads.clear()
+            mash_reads.clear()
+            pump = t >= pump_at
+            coil.period(hlt=hlt_pv, mash=mash_pv if t >= dough else None, applied=duty, pump=pump)
+            hlt_sp, load = 66.0, 0.0
+            if t >= dough:
+                ahead = predictive.predicted_pv(law)
+                decision = outer.step(
+                    mash_sp=sp,
+                    mash_pv=mash_pv,
+                    mash_age=0.0,
+                    hlt_pv=hlt_pv if ahead is None else ahead,
+                    pump=pump,
+                    coil=coil.estimate(),
+                )
+                hlt_sp, load = decision.hlt_setpoint, decision.load_watts
+            predictive.known_load(law, load, watts)
+            duty = law.step(hlt_sp, hlt_pv, duty)
+    learned = coil.estimate()
+    effective = 419.0 * (1.0 - math.exp(-250.0 / 419.0))  # ṁc·(1 − e^(−UA/ṁc)), 6 L/min
+    return (
+        "On main's simulated HERMS plant, `hermsd.sim.mash.HermsTun` with the herms-day "
+        "parameters (90 L, 3 kW, a 250 W/K coil at 6 L/min, 50 L and 12 kg doughed in at "
+        "38 °C, UA_m 10 W/K, hoses 10 s each way, the mash sensor's lag 10 s): the HLT from "
+        "50 °C held at 66 °C until dough-in at 30 min, the pump from 35 min, the same rests; "
+        "the outer loop told 5 W/K for the mash's losses.\n\n"
+        f"K learned {learned.conductance:.0f} ± {learned.sd:.0f} W/K (the coil's effective "
+        f"{effective:.0f}, ṁc·(1 − e^(−UA/ṁc))); the mash's losses learned "
+        f"{outer.mash_loss:.1f} W/K (true 10).\n\n" + "\n".join(lines)
+    )
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--limit", type=float, default=5.0, help="max_hlt_above_mash, °C")
@@ -412,7 +524,7 @@ def main() -> int:
     outers = [args.outer] if args.outer else list(OUTERS)
     parts = [rests_table(outer, args.limit) for outer in outers]
     if "cascade" in outers:
-        parts += [pump_table(args.limit), guess_table(args.limit)]
+        parts += [pump_table(args.limit), guess_table(args.limit), herms_tun_table(args.limit)]
     text = "\n\n".join(parts)
     print(text)
     if args.write:
