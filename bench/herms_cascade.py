@@ -504,7 +504,7 @@ def herms_tun_table(limit: float) -> str:
     learned = coil.estimate()
     effective = 419.0 * (1.0 - math.exp(-250.0 / 419.0))  # ṁc·(1 − e^(−UA/ṁc)), 6 L/min
     return (
-        "On main's simulated HERMS plant, `hermsd.sim.mash.HermsTun` with the herms-day "
+        "On the simulated HERMS plant, `hermsd.sim.mash.HermsTun` with the herms-day "
         "parameters (90 L, 3 kW, a 250 W/K coil at 6 L/min, 50 L and 12 kg doughed in at "
         "38 °C, UA_m 10 W/K, hoses 10 s each way, the mash sensor's lag 10 s): the HLT from "
         "50 °C held at 66 °C until dough-in at 30 min, the pump from 35 min, the same rests; "
