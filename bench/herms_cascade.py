@@ -38,7 +38,7 @@ import sections  # bench/sections.py, beside this file
 from hermsd.control import laws, predictive
 from hermsd.control.cascade import Cascade, Tanks
 from hermsd.control.coil import CoilEstimate, CoilEstimator, prior_estimate
-from hermsd.control.pid import PlantModel
+from hermsd.control.pid import Controller, PlantModel
 from hermsd.sim.mash import make_herms_plant
 
 WATER = 4186.0
@@ -160,6 +160,29 @@ def fastest(s: SetUp, hlt: float, mash: float, sp: float, limit: float) -> float
     return run(lo)[0]
 
 
+def steer(
+    outer: Cascade,
+    law: Controller,
+    coil: CoilEstimator,
+    sp: float,
+    mash_pv: float,
+    hlt_pv: float,
+    pump: bool,
+) -> tuple[float, float]:
+    """One period of the outer loop as the daemon runs it: (the HLT's setpoint, the load W),
+    from the HLT law's predicted PV where it has one."""
+    ahead = predictive.predicted_pv(law)
+    decision = outer.step(
+        mash_sp=sp,
+        mash_pv=mash_pv,
+        mash_age=0.0,
+        hlt_pv=hlt_pv if ahead is None else ahead,
+        pump=pump,
+        coil=coil.estimate(),
+    )
+    return decision.hlt_setpoint, decision.load_watts
+
+
 class Offset:
     """ebrew's and CraftBeerPi users' way: the HLT at a fixed offset above the mash's setpoint
     (at most the limit), nothing fed forward."""
@@ -275,16 +298,7 @@ def day(
             mash_reads.clear()
             coil.period(hlt=hlt_pv, mash=mash_pv, applied=duty, pump=pump)
             if peer is None:
-                ahead = predictive.predicted_pv(law)
-                decision = outer.step(
-                    mash_sp=sp,
-                    mash_pv=mash_pv,
-                    mash_age=0.0,
-                    hlt_pv=hlt_pv if ahead is None else ahead,
-                    pump=pump,
-                    coil=coil.estimate(),
-                )
-                hlt_sp, load = decision.hlt_setpoint, decision.load_watts
+                hlt_sp, load = steer(outer, law, coil, sp, mash_pv, hlt_pv, pump)
             else:
                 hlt_sp, load = peer(sp, mash_pv, hlt_pv, pump)
             predictive.known_load(law, load, s.watts)
@@ -489,16 +503,7 @@ def herms_tun_table(limit: float) -> str:
             coil.period(hlt=hlt_pv, mash=mash_pv if t >= dough else None, applied=duty, pump=pump)
             hlt_sp, load = 66.0, 0.0
             if t >= dough:
-                ahead = predictive.predicted_pv(law)
-                decision = outer.step(
-                    mash_sp=sp,
-                    mash_pv=mash_pv,
-                    mash_age=0.0,
-                    hlt_pv=hlt_pv if ahead is None else ahead,
-                    pump=pump,
-                    coil=coil.estimate(),
-                )
-                hlt_sp, load = decision.hlt_setpoint, decision.load_watts
+                hlt_sp, load = steer(outer, law, coil, sp, mash_pv, hlt_pv, pump)
             predictive.known_load(law, load, watts)
             duty = law.step(hlt_sp, hlt_pv, duty)
     learned = coil.estimate()
