@@ -140,6 +140,8 @@ MODEL = {
         "ambient": 20.0,
         "litres": 90,
         "wall_ns": EPOCH_NS,
+        "coil": 0.0,
+        "coil_sd": 0.0,
     },
 }
 

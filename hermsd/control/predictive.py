@@ -57,6 +57,8 @@ class _Predictive(_Base):
         "_l2",
         "_lag",
         "_lag_share",
+        "_load",
+        "_load_past",
         "_loss",
         "_rate",
         "_recent",
@@ -94,6 +96,9 @@ class _Predictive(_Base):
         self._cold_water = self._carried = False
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
+        # A heat flow the caller knows (a HERMS coil's draw), in % of full power: the one in
+        # force from now (`_load`) and the one over the period the next step closes.
+        self._load = self._load_past = 0.0
 
     @property
     def fit(self) -> HeatUpFit | None:
@@ -123,7 +128,7 @@ class _Predictive(_Base):
 
     def _drift(self, x: float, u: float, share: float = 1.0) -> float:
         """The model's change of PV over `share` of a period at duty u from x (Euler;
-        λ·Ts ≪ 1)."""
+        λ·Ts ≪ 1); a known load (`known_load`) enters as a duty taken off u."""
         heat = self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias
         return share * self._ts * heat
 
@@ -135,17 +140,20 @@ class _Predictive(_Base):
 
     def _predicted(self) -> float:
         """Where the PV will be once the inputs already sent (still in the dead time) arrive:
-        the last `_lag` whole and `_lag_share` of the one before them."""
-        inputs = self._inputs
+        the last `_lag` whole and `_lag_share` of the one before them, under the known load
+        (which acts now, not a dead time late)."""
+        inputs, load = self._inputs, self._load
         first = len(inputs) - self._lag
-        x = self._estimate + self._drift(self._estimate, inputs[first - 1], self._lag_share)
+        x = self._estimate + self._drift(self._estimate, inputs[first - 1] - load, self._lag_share)
         for j in range(first, len(inputs)):
-            x += self._drift(x, inputs[j])
+            x += self._drift(x, inputs[j] - load)
         return x
 
     def _holding(self, sp: float) -> float:
-        """The duty that holds `sp` by the model and its bias (may lie outside the limits)."""
-        return 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+        """The duty that holds `sp` by the model and its bias (may lie outside the limits),
+        the known load added: the feed-forward."""
+        hold = 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+        return hold + self._load if self._load else hold
 
     def _law(self, sp: float, full: bool = False) -> float:
         """P on the predicted error plus the holding duty (D apart)."""
@@ -192,14 +200,17 @@ class _Predictive(_Base):
             bias += miss / slope
         self._bias = bias if abs(bias) <= self._rate else 0.0
         # The first step's model prediction lands on pv0: no innovation from the start itself.
-        self._estimate = pv0 - self._drift(pv0, u0)
+        self._load_past = self._load
+        self._estimate = pv0 - self._drift(pv0, u0 - self._load)
 
     def _advance(self, sp: float, pv: float, previous: float) -> float:
         fell = self._recent[-1] - pv  # since the last period's PV
         inputs = self._inputs
         inputs.append(previous)
         self._watch_heat_up(sp, pv, previous, inputs[-2])
-        before = self._estimate + self._drift(self._estimate, self._arriving())
+        # The load of the period just ended is the model's, not an error for the bias to learn.
+        past, self._load_past = self._load_past, self._load
+        before = self._estimate + self._drift(self._estimate, self._arriving() - past)
         innovation = pv - before
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
         step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
@@ -250,6 +261,8 @@ class _Predictive(_Base):
         seen = (*recent, pv)
         steady = max(seen) - min(seen) <= STEADY_BAND
         loops, self._step_is_loops = self._step_is_loops, False
+        # Under a known load (a coil drawing) the rise is not the element's alone: no fit.
+        loops = loops or bool(self._load)
         if full and not (watch.active or recovery.active) and before < self._hi and not loops:
             if steady:
                 # A duty that climbed to full power (a ramp) is no step of a known size.
@@ -337,6 +350,30 @@ def cold_water_seen(controller: Controller) -> None:
     the same."""
     if isinstance(controller, _Predictive):
         controller._cold_water = True
+
+
+def known_load(controller: Controller, watts: float, element_watts: float) -> None:
+    """Tell `controller` (predictive) the heat flow `watts` drawn from the water from now on
+    besides its losses (a HERMS coil's load, W; negative when it gives heat back), of an
+    element of `element_watts`: its model and observer take it as a duty of
+    watts/element_watts·100 % taken off the element's, so the holding duty rises by that at
+    once (feed-forward: the loop does not wait for the sensor to show the load) and the bias
+    does not learn it as a loss. 0 is no load: the law is then exactly the one without."""
+    if isinstance(controller, _Predictive):
+        if not (math.isfinite(watts) and math.isfinite(element_watts) and element_watts > 0.0):
+            raise ValueError(
+                f"load {watts!r} W of an element of {element_watts!r} W is invalid: "
+                "must be finite, the element's power > 0"
+            )
+        controller._load = 100.0 * watts / element_watts
+
+
+def predicted_pv(controller: Controller) -> float | None:
+    """Where predictive expects its PV once the heat already sent arrives (None for the other
+    forms, or before its first step): what the HLT will hold whatever is decided now."""
+    if isinstance(controller, _Predictive) and controller._primed:
+        return controller._predicted()
+    return None
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

@@ -389,7 +389,8 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "learned": _dataclass_schema(
                     LearnedModel,
                     "rate °C/s at full power, loss 1/s, dead_time s, ambient °C, litres, "
-                    "wall_ns when learned (ns since the Unix epoch)",
+                    "wall_ns when learned (ns since the Unix epoch), a HERMS coil's "
+                    "conductance coil W/K and its sd coil_sd (0: none learned)",
                 ),
             },
         ),
