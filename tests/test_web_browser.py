@@ -577,3 +577,13 @@ def test_the_pump_button_starts_and_stops_the_pump_at_the_next_period(
         assert [record.pump for record in stepped] == [not done, done]
         assert page.text_content("#pump") == shown
         assert page.text_content("#pump-button") == button
+
+
+def test_a_faulty_mash_sensor_is_said_where_its_reading_was(herms_page: Page, herms: Site) -> None:
+    with _status_held(herms_page, herms, "#alarm-box") as status:
+        why = "no answer from the LM92 at 0x49"
+        faulty = {**status, "mash": {"celsius": None, "fault": why}}
+        herms_page.evaluate("(status) => onEvent({status, rows: [], offset: 0, age: 0})", faulty)
+        assert herms_page.text_content("#mash") == "sensor fault"
+        assert herms_page.get_attribute("#mash", "title") == why
+        assert herms_page.evaluate("window.hermsd.chart().series.length") == 5  # a gap, kept
