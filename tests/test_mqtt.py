@@ -235,6 +235,12 @@ class Rig:
     def command(self, topic: str, payload: bytes, *, retain: bool = False) -> None:
         self.watcher.client.publish(topic, payload, 1, retain=retain).wait_for_publish(TIMEOUT)
 
+    def __enter__(self) -> Rig:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
         self.bridge.stop()
         self.thread.join(TIMEOUT)
@@ -246,11 +252,8 @@ class Rig:
 
 @pytest.fixture
 def rig(tmp_path: Path) -> Iterator[Rig]:
-    made = Rig(tmp_path)
-    try:
+    with Rig(tmp_path) as made:
         yield made
-    finally:
-        made.close()
 
 
 def operator_lines(events: Events) -> list[str]:

@@ -28,20 +28,8 @@ NO_PUMP = (
 
 @pytest.fixture
 def herms(tmp_path: Path) -> Iterator[Rig]:
-    made = Rig(tmp_path, text=HERMS, tun=doughed_in())
-    try:
+    with Rig(tmp_path, text=HERMS, tun=doughed_in()) as made:
         yield made
-    finally:
-        made.close()
-
-
-@pytest.fixture
-def hlt_only(tmp_path: Path) -> Iterator[Rig]:
-    made = Rig(tmp_path)
-    try:
-        yield made
-    finally:
-        made.close()
 
 
 def test_a_herms_announces_a_mash_temperature_sensor_and_a_pump_switch(herms: Rig) -> None:
@@ -103,20 +91,21 @@ def test_a_bad_pump_payload_is_refused_in_one_line(herms: Rig) -> None:
 
 
 def test_without_a_pump_the_switch_command_is_refused_and_nothing_reaches_the_daemon(
-    hlt_only: Rig,
+    tmp_path: Path,
 ) -> None:
-    entities = discovered(hlt_only.watcher)
-    assert SWITCH not in entities and MASH not in entities
-    # sent empty: an entity a HERMS config announced earlier is removed
-    emptied = {m.topic for m in hlt_only.watcher.messages if m.payload == b""}
-    assert {SWITCH, MASH} <= emptied
-    mark = len(hlt_only.watcher.messages)
-    hlt_only.command(hlt_only.topics.set_pump, b"ON")
-    error = hlt_only.watcher.wait_for(lambda m: m.topic == hlt_only.topics.error, mark).json()
-    assert error["error"] == NO_PUMP
-    state = hlt_only.step().json()
-    assert (state["mash"], state["pump"]) == (None, None)
-    assert operator_lines(hlt_only.events) == []
+    with Rig(tmp_path) as hlt_only:
+        entities = discovered(hlt_only.watcher)
+        assert SWITCH not in entities and MASH not in entities
+        # sent empty: an entity a HERMS config announced earlier is removed
+        emptied = {m.topic for m in hlt_only.watcher.messages if m.payload == b""}
+        assert {SWITCH, MASH} <= emptied
+        mark = len(hlt_only.watcher.messages)
+        hlt_only.command(hlt_only.topics.set_pump, b"ON")
+        error = hlt_only.watcher.wait_for(lambda m: m.topic == hlt_only.topics.error, mark).json()
+        assert error["error"] == NO_PUMP
+        state = hlt_only.step().json()
+        assert (state["mash"], state["pump"]) == (None, None)
+        assert operator_lines(hlt_only.events) == []
 
 
 def test_each_part_of_the_mash_side_is_announced_on_its_own() -> None:

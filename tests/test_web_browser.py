@@ -51,11 +51,18 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
 
 @pytest.fixture
 def page(browser: Browser, live: Site) -> Iterator[Page]:
+    with _opened(browser, live) as opened:
+        yield opened
+
+
+@contextmanager
+def _opened(browser: Browser, served: Site) -> Iterator[Page]:
+    """The page of `served` at phone size, once it shows a status; no script error in it."""
     context = browser.new_context(viewport=PHONE)
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda error: errors.append(str(error)))
-    page.goto(live.url)
+    page.goto(served.url)
     _until(page, "document.body.dataset.t !== undefined")
     yield page
     context.close()
@@ -512,15 +519,8 @@ def herms(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
 
 @pytest.fixture
 def herms_page(browser: Browser, herms: Site) -> Iterator[Page]:
-    context = browser.new_context(viewport=PHONE)
-    page = context.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda error: errors.append(str(error)))
-    page.goto(herms.url)
-    _until(page, "document.body.dataset.t !== undefined")
-    yield page
-    context.close()
-    assert errors == [], f"the page's script failed: {errors}"
+    with _opened(browser, herms) as opened:
+        yield opened
 
 
 def test_without_a_mash_side_the_page_shows_nothing_of_it(page: Page) -> None:

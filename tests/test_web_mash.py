@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -26,12 +27,6 @@ NO_PUMP = (
 @pytest.fixture(scope="module")
 def herms(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
     with site(tmp_path_factory.mktemp("herms"), text=HERMS, tun=doughed_in()) as served:
-        yield served
-
-
-@pytest.fixture(scope="module")
-def hlt_only(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
-    with site(tmp_path_factory.mktemp("hlt")) as served:
         yield served
 
 
@@ -117,9 +112,9 @@ def test_a_bad_pump_command_is_one_line_and_changes_nothing(
 
 
 def test_without_a_mash_side_nothing_of_it_is_pushed_and_the_pump_is_refused(
-    hlt_only: Site,
+    tmp_path: Path,
 ) -> None:
-    with _client(hlt_only) as client:
+    with site(tmp_path) as hlt_only, _client(hlt_only) as client:
         *_, pushed = _events(client, 2)
         history = client.get("/api/history").json()
         reply = client.post(
