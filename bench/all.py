@@ -100,6 +100,12 @@ BENCHES = (
         ("## Mash program: strike water ready by the time asked for",),
     ),
     Bench(
+        "herms-cascade",
+        "herms_cascade.py",
+        (),
+        ("## HERMS: the mash held by the outer loop, and its peers",),
+    ),
+    Bench(
         "slow-disk",
         "slow_disk.py",
         ("--seconds", "60", "--every", "10", "--stall", "2"),

@@ -135,9 +135,8 @@ def test_a_fall_full_power_cannot_undo_in_a_period_is_answered_whatever_the_law_
     readings: list[float],
 ) -> None:
     # Both readings at least 0.125 °C below, more than the 0.045 °C a period of full power
-    # adds: the rule in force acts; the rule before it waited for the law to ask for it.
+    # adds: the rule acts without waiting for the law to ask for it.
     assert predictive.full_power_now(holding_controller(), SP, SP, readings)
-    assert not predictive.full_power_now(holding_controller(), SP, SP, readings, pid.LAW_DROP_RULE)
 
 
 def test_a_fall_above_a_lowered_setpoint_is_left_to_the_law() -> None:
@@ -153,20 +152,13 @@ def test_a_fall_above_a_lowered_setpoint_is_left_to_the_law() -> None:
     assert predictive.full_power_now(controller, 66.5, SP, [65.875, 65.8125])
 
 
-def test_a_step_from_a_steady_minute_to_a_fallen_pv_is_a_recovery_unless_the_log_predates_it() -> (
-    None
-):
-    """The step's own PV counts in judging it steady; replay of logs written before
-    `drop_fall_c` judges by the minute before alone, as their daemons did."""
-    for older in (False, True):
-        controller = holding_controller()
-        assert isinstance(controller, predictive._Predictive)
-        if older:
-            predictive.predating_drop_fall(controller)
-        controller.step(SP, SP, controller.output)
-        controller.step(SP, SP - 0.4, 100.0)  # full power from this period on, the PV fallen
-        assert controller._watch.active is older
-        assert controller._recovery.active is not older
+def test_a_step_from_a_steady_minute_to_a_fallen_pv_is_a_recovery() -> None:
+    """The step's own PV counts in judging it steady, not the minute before it alone."""
+    controller = holding_controller()
+    assert isinstance(controller, predictive._Predictive)
+    controller.step(SP, SP, controller.output)
+    controller.step(SP, SP - 0.4, 100.0)  # full power from this period on, the PV fallen
+    assert (controller._watch.active, controller._recovery.active) == (False, True)
 
 
 def test_a_thermowell_drop_is_answered_at_its_third_reading() -> None:
@@ -174,17 +166,12 @@ def test_a_thermowell_drop_is_answered_at_its_third_reading() -> None:
     # 4.6364 °C behind a 60 s sensor lag; readings 0.5, 1.5, 2.5, 3.5 s after it, truncated to
     # 0.0625 °C: 66 − 4.6364·(1 − e^(−t/60)) = 65.9615, 65.8855, 65.8108, 65.7373 →
     # 65.9375, 65.875, 65.75, 65.6875. The third is the first at least 3 LSB below with one
-    # at least 2 LSB below before it; the rule before it wanted the latest more than 0.25 °C
-    # below and the law to answer it with full power, which it does not at 0.3125 °C either.
+    # at least 2 LSB below before it.
     readings = [65.9375, 65.875, 65.75, 65.6875]
     decided = [
         predictive.full_power_now(holding_controller(), SP, SP, readings[:n]) for n in (1, 2, 3)
     ]
     assert decided == [False, False, True]
-    for n in (1, 2, 3, 4):
-        assert not predictive.full_power_now(
-            holding_controller(), SP, SP, readings[:n], pid.LAW_DROP_RULE
-        )
 
 
 def test_where_a_period_of_full_power_could_undo_more_than_the_fall_the_law_decides() -> None:
@@ -197,33 +184,14 @@ def test_where_a_period_of_full_power_could_undo_more_than_the_fall_the_law_deci
     # 27 % + 4.3·0.25 + 120·0.19 = 51 %.
     fallen = [65.5625, 65.5625]
     assert predictive.full_power_now(holding_controller(model=fast), SP, SP, fallen)
-    assert not predictive.full_power_now(
-        holding_controller(model=fast), SP, SP, fallen, pid.LAW_DROP_RULE
-    )
 
 
 def test_a_drop_the_lag_keeps_within_a_quarter_degree_at_first_is_answered_at_its_second() -> None:
-    # The first reading is 2 LSB + 0.0625 down, the second 0.6875 °C: full power now. The
-    # first rule waited for a third reading (both beyond 0.25 °C), a second of full power lost.
+    # The first reading is 2 LSB + 0.0625 down, the second 0.6875 °C: full power now, not
+    # a reading (a second of full power) later, when both lie beyond 0.25 °C.
     assert predictive.full_power_now(holding_controller(), SP, SP, LAGGED_DROP)
-    assert not predictive.full_power_now(
-        holding_controller(), SP, SP, LAGGED_DROP, pid.FIRST_DROP_RULE
-    )
-    assert predictive.full_power_now(
-        holding_controller(), SP, SP, [65.3125, 65.0], pid.FIRST_DROP_RULE
-    )
     # The latest reading alone, after a steady one, is a glitch as far as anyone knows.
     assert not predictive.full_power_now(holding_controller(), SP, SP, [66.0, LAGGED_DROP[1]])
-
-
-def test_the_first_rule_asks_its_law_on_the_mean_of_the_two() -> None:
-    # 0.3125 and 0.6875 °C below, both beyond 0.25 °C. On the latest the predicted error is
-    # 0.19 °C into the far zone, whose gain 100/(rate·Ts) = 1771 %/°C gives full power; on
-    # their mean, 65.5 °C, it is at the band's edge: 38.5·0.25 + 120·0.25 = 40 % above the
-    # holding 27 %, not full.
-    shallow = [65.6875, 65.3125]
-    assert predictive.full_power_now(holding_controller(), SP, SP, shallow)
-    assert not predictive.full_power_now(holding_controller(), SP, SP, shallow, pid.FIRST_DROP_RULE)
 
 
 def test_full_power_the_readings_asked_for_is_a_recovery_not_a_heat_up_from_steady() -> None:
@@ -502,16 +470,6 @@ def cold_water_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     return _cold_water_day(tmp_path_factory.mktemp("cold-water"))
 
 
-@pytest.fixture(scope="module")
-def uncarried_log(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
-    """The day as a daemon from before `pid.DROP_CARRY` logged it: full power acted on inside
-    a period ended with the period."""
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(pid, "DROP_CARRY", False)
-        patch.setattr(predictive, "cold_water_seen", lambda controller: None)
-        return _cold_water_day(tmp_path_factory.mktemp("uncarried"))
-
-
 def test_replay_verifies_a_day_with_full_power_inside_a_period(
     cold_water_log: list[Path],
 ) -> None:
@@ -555,94 +513,3 @@ def test_verify_finds_a_full_power_decision_the_readings_do_not_give(
         mismatch = replay.verify(tampered).mismatch
         assert mismatch is not None
         assert (mismatch.k, mismatch.name, mismatch.logged) == (target.k, "full_from", value)
-
-
-def test_verify_leaves_full_from_alone_in_a_log_of_a_daemon_that_never_acted_so(
-    uncarried_log: list[Path],
-) -> None:
-    # An older daemon logged no rule with its config and no full_from with its periods; its
-    # periods with the same readings verify as they always did.
-    log = reader.load(uncarried_log)
-    older = [
-        dataclasses.replace(e, drop_readings=None)
-        if isinstance(e, reader.LoggedConfig)
-        else dataclasses.replace(e, full_from=None)
-        for e in log.entries
-    ]
-    assert any(isinstance(e, reader.LoggedConfig) and e.drop_readings == 2 for e in log.entries)
-    assert replay.verify(older).mismatch is None
-
-
-def test_replay_carries_full_power_as_the_config_record_says(
-    cold_water_log: list[Path], uncarried_log: list[Path]
-) -> None:
-    # The daemon that carried full power across the period's end says so; replayed as one
-    # that did not, the step after the readings acted differs (the law's p, not the carry's).
-    log = reader.load(cold_water_log)
-    acted = next(p for p in log.periods if p.full_from is not None)
-    configs = [e for e in log.entries if isinstance(e, reader.LoggedConfig)]
-    assert configs and all(c.drop_carry for c in configs)
-    denied = [
-        dataclasses.replace(e, drop_carry=False) if isinstance(e, reader.LoggedConfig) else e
-        for e in log.entries
-    ]
-    mismatch = replay.verify(denied).mismatch
-    assert mismatch is not None and (mismatch.k, mismatch.name) == (acted.k, "p")
-    # A daemon from before the carry logged none, and its log verifies without it.
-    older = reader.load(uncarried_log)
-    assert not any(e.drop_carry for e in older.entries if isinstance(e, reader.LoggedConfig))
-    assert any(p.full_from is not None for p in older.periods)
-    assert replay.verify(older.entries).mismatch is None
-
-
-def test_a_config_record_without_drop_carry_is_of_a_daemon_that_never_carried() -> None:
-    record = {"t": 0.0, "config": {}, "drop_readings": 2, "drop_onset_c": 0.125}
-    assert reader._config(record, Path("old.mcap")).drop_carry is False
-    assert reader._config(record | {"drop_carry": True}, Path("new.mcap")).drop_carry is True
-    assert reader._config(record | {"drop_carry": "yes"}, Path("odd.mcap")).drop_carry is False
-
-
-def _by_rule(
-    log: reader.Log, onset: float | None, acted: PeriodRecord, full_from: int
-) -> list[reader.LoggedConfig | PeriodRecord]:
-    """The log as a daemon with the drop rule of `onset` would have written it."""
-    return [
-        dataclasses.replace(e, drop_onset_c=onset)
-        if isinstance(e, reader.LoggedConfig)
-        else dataclasses.replace(e, full_from=full_from)
-        if e is acted
-        else e
-        for e in log.entries
-    ]
-
-
-def test_a_log_of_the_first_rule_verifies_by_it(cold_water_log: list[Path]) -> None:
-    """A config record without `drop_onset_c` comes from a daemon that wanted both readings
-    more than 0.25 °C down, the law asked on their mean. On these readings (after a PV of
-    66.0: 65.75 exactly 0.25 °C down, then 65.3125 and 64.9375) that is the third; today's
-    rule acts on the second."""
-    log = reader.load(cold_water_log)
-    acted = next(p for p in log.periods if p.full_from is not None)
-    assert acted.readings[:3] == [65.75, 65.3125, 64.9375] and acted.full_from == 2
-    assert any(isinstance(e, reader.LoggedConfig) and e.drop_onset_c == 0.125 for e in log.entries)
-    assert replay.verify(_by_rule(log, None, acted, 3)).mismatch is None
-    mismatch = replay.verify(_by_rule(log, None, acted, 2)).mismatch
-    assert mismatch is not None
-    assert (mismatch.name, mismatch.logged, mismatch.recomputed) == ("full_from", 2, 3)
-    # A rule this version does not know is not checked, rather than checked wrongly.
-    assert replay.verify(_by_rule(log, 0.1875, acted, 4)).mismatch is None
-
-
-def test_each_logged_rule_is_verified_by_itself(cold_water_log: list[Path]) -> None:
-    def logged(onset: float | None, fall: float | None) -> reader.LoggedConfig:
-        return reader.LoggedConfig(0.0, "start", {}, None, None, 2, onset, fall)
-
-    assert replay._drop_rule(logged(None, None)) is pid.FIRST_DROP_RULE
-    assert replay._drop_rule(logged(0.125, None)) is pid.LAW_DROP_RULE
-    assert replay._drop_rule(logged(0.125, 0.1875)) is pid.DROP_RULE
-    assert replay._drop_rule(logged(0.125, 0.25)) is None  # a rule this version does not know
-    # Today's daemon logs the rule in force, and its log verifies by it.
-    log = reader.load(cold_water_log)
-    configs = [e for e in log.entries if isinstance(e, reader.LoggedConfig)]
-    assert configs and all((c.drop_onset_c, c.drop_fall_c) == (0.125, 0.1875) for c in configs)
-    assert replay.verify(log.entries).mismatch is None

@@ -12,7 +12,7 @@ from test_element2 import logged_daemon, two_element_config
 
 from hermsd.control import laws, pid, predictive
 from hermsd.control.element2 import PowerSplit, SplitController
-from hermsd.log.reader import LoggedConfig, load
+from hermsd.log.reader import load
 from hermsd.log.replay import verify
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_probe import BELOW, FIT_S, PROBE_S, SETTLE_S, ElementProbe, ProbeResult
@@ -208,32 +208,6 @@ def test_replay_of_a_log_missing_periods_before_the_probe_leaves_it_unknown(
     result = verify(gapped)
     assert result.mismatch is None
     assert result.unknown_state > 0
-
-
-def test_a_log_from_before_the_check_verifies_without_it(tmp_path: Path) -> None:
-    """A config record without `element2.check` was written by a daemon that never probed:
-    replay must not probe where it did not."""
-    config = two_element_config(algorithm="predictive")
-    config = dataclasses.replace(config, element2=dataclasses.replace(config.element2, check=False))
-    daemon, _world, _clock, recorder = logged_daemon(config, tmp_path, 5)
-    with daemon:
-        daemon.run(until=HEAT_UP)
-    recorder.close()
-    entries = load(sorted(tmp_path.iterdir())).entries
-    older = [
-        dataclasses.replace(
-            e,
-            config={
-                **e.config,
-                "element2": {k: v for k, v in e.config["element2"].items() if k != "check"},
-            },
-        )
-        if isinstance(e, LoggedConfig)
-        else e
-        for e in entries
-    ]
-    assert all("check" not in e.config["element2"] for e in older if isinstance(e, LoggedConfig))
-    assert verify(older).mismatch is None
 
 
 def test_the_power_back_after_the_probe_is_no_step_that_measures_the_tun() -> None:

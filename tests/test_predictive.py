@@ -244,3 +244,54 @@ def test_recovery_re_measures_the_rate_the_water_lowered(tau: float, dead_time: 
     back, fastest, peak = recover(pid.PlantModel(SEED.gain, tau, dead_time, ROOM))
     assert back <= 1.02 * fastest
     assert peak <= SP + 0.01
+
+
+class PartPeriodTun:
+    """FOPTD water whose dead time ends `share` of the way into a period: over each period
+    the duty sent n + 1 periods before still arrives for `share` of it, then the one sent n
+    periods before (each sub-span discretised exactly)."""
+
+    def __init__(self, gain: float, tau: float, dead_time: float, start: float) -> None:
+        self.gain, self.tau = gain, tau
+        self.rise = start - ROOM
+        whole, self.share = divmod(dead_time / TS, 1.0)
+        self.n = int(whole)
+        self.sent = [self.rise / gain] * (self.n + 2)
+
+    def pv(self) -> float:
+        return ROOM + self.rise
+
+    def heat(self, duty: float) -> None:
+        self.sent.append(duty)
+        older, newer = self.sent[-2 - self.n], self.sent[-1 - self.n]
+        for arriving, span in ((older, self.share * TS), (newer, (1.0 - self.share) * TS)):
+            a = math.exp(-span / self.tau)
+            self.rise = a * self.rise + self.gain * (1.0 - a) * arriving
+
+
+@pytest.mark.parametrize("dead_time", [32.4, 27.6])
+def test_heat_in_flight_counts_once_whatever_part_of_a_period_the_dead_time_ends_in(
+    dead_time: float,
+) -> None:
+    # A fast tun (30 L at 5.5 kW heats 0.044 °C/s) held at the setpoint on its own model,
+    # then one period of full power: the PV one dead time ahead is the hold plus that
+    # period's heat, 0.045 °C/s × 5 s × (100 − 27) % ≈ 0.16 °C, before the heat arrives,
+    # while it arrives and after. A dead time of 6.48 or 5.52 periods rounded to 6 lets
+    # half a period of it slip: the pulse is counted part twice or part never as it lands.
+    tau = SEED.tau / 4.0
+    model = pid.PlantModel(SEED.gain, tau, dead_time, ROOM)
+    tun = PartPeriodTun(SEED.gain, tau, dead_time, SP)
+    holding = (SP - ROOM) / SEED.gain
+    controller = predictive(model)
+    controller.reset(SP, holding)
+    duties = [holding] * 4 + [100.0] + [holding] * 12
+    proportional = []
+    applied = holding
+    for duty in duties:
+        controller.step(SP, tun.pv(), applied)
+        proportional.append(controller.terms[0])
+        tun.heat(duty)
+        applied = duty
+    after = proportional[5:]  # from the step that knows of the pulse on
+    assert min(after) < -1.0  # the pulse is predicted: above the setpoint, P cuts
+    assert max(after) - min(after) <= 0.02 * -min(after), after

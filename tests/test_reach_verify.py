@@ -22,7 +22,7 @@ from hermsd.control.reach import MARGIN_C
 from hermsd.log import reader, replay
 from hermsd.log.mcap_file import LogFile
 from hermsd.log.recorder import Recorder
-from hermsd.log.topics import CONFIG_TOPIC, PERIOD_TOPIC
+from hermsd.log.topics import PERIOD_TOPIC
 from hermsd.runtime.build import reach_period
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
@@ -61,7 +61,6 @@ def test_the_untouched_log_of_a_tun_too_weak_verifies_with_its_ceilings(
         abs(p.ceiling - TRUE_CEILING) < MARGIN_C for p in named if p.ceiling is not None
     )
     assert 3400.0 < named[0].t < 6600.0 and named[-1] is log.periods[-1]
-    assert all(c.reach_watch for c in log.configs)
     assert replay.verify(log.entries) == replay.Verification(len(stepped(log)), 0, None)
     code, out, err = run_cli(capsys, *weak_log, "--verify")
     assert (code, err) == (0, "")
@@ -117,31 +116,13 @@ def test_the_cli_names_the_period_whose_ceiling_the_file_changed(
     assert out.startswith(f"period k={target.k} (t {target.t!r} s) differs: ceiling logged None")
 
 
-def test_a_log_of_a_daemon_before_the_ceiling_verifies_as_before(
-    weak_log: list[Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    def older(topic: str, message: dict[str, Any]) -> dict[str, Any]:
-        if topic == PERIOD_TOPIC:
-            return {k: v for k, v in message.items() if k != "ceiling"}
-        if topic == CONFIG_TOPIC:
-            return {k: v for k, v in message.items() if k != "reach_watch"}
-        return message
-
-    paths = rewritten(weak_log, tmp_path, older)
-    log = reader.load(paths)
-    assert not said(log) and not any(c.reach_watch for c in log.configs)
-    assert replay.verify(log.entries) == replay.Verification(len(stepped(log)), 0, None)
-    code, out, _ = run_cli(capsys, *paths, "--verify")
-    assert (code, out) == (0, f"{len(stepped(log))} periods verified\n")
-
-
 def test_a_normal_day_verifies_and_a_ceiling_added_to_it_does_not(tmp_path: Path) -> None:
     # The seed's 90 L, 3 kW tun, an hour of its 80 min climb to 66 °C at full power: its
     # rates are judged, and put the ceiling far above (20 + 1.689 °C/% × 100 % = 189 °C).
     day = Scenario(name="normal", duration=3600.0, events=())
     scenario.run(day, log_dir=tmp_path)
     log = reader.load(sorted(tmp_path.glob("*.mcap")))
-    assert not said(log) and all(c.reach_watch for c in log.configs)
+    assert not said(log)
     assert replay.verify(log.entries) == replay.Verification(len(stepped(log)), 0, None)
     target = log.periods[600]
     tampered = [dataclasses.replace(e, ceiling=50.0) if e is target else e for e in log.entries]

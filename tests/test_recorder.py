@@ -129,11 +129,7 @@ CONFIG = {
     "reason": "start",
     "model": {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0},
     "safety_model": None,
-    "drop_readings": 2,
-    "drop_onset_c": 0.125,
-    "drop_fall_c": 0.1875,
-    "drop_carry": True,
-    "reach_watch": True,
+    "control_law": 1,
 }
 MODEL = {
     "t": 6600.0,
@@ -144,6 +140,8 @@ MODEL = {
         "ambient": 20.0,
         "litres": 90,
         "wall_ns": EPOCH_NS,
+        "coil": 0.0,
+        "coil_sd": 0.0,
     },
 }
 

@@ -1,28 +1,21 @@
-"""A recovery's rate is fitted over at least `RECOVERY_FIT_PERIODS`, and logs say so.
+"""A recovery's rate is fitted over at least `RECOVERY_FIT_PERIODS`.
 
 On the small 30 L, 5.5 kW tun the PV climbs some 0.2 °C a period after cold water, so the
 first 1 °C span holds five periods; the line over those alone missed the rate by a few %
 from one noise seed to the next, and the cut from full power landed the water too low or
 too high. Now each further full-power period adds its PV and refits, up to 12 or the cut.
 The goldens below come from the line's least squares on the truncated ramp, by hand, not
-from the code under test.
+from the code under test. A day of cold water on that tun, its recovery refitted so, is
+re-run bit for bit by `replay --verify` in test_cold_water.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from pathlib import Path
 
 import pytest
-from test_replay import without_marker
 
-from hermsd.config import schema as config_module
-from hermsd.control import pid, predictive, watches
-from hermsd.log import reader, replay
-from hermsd.sim import scenario
-from hermsd.sim.scenario import Event
-from hermsd.sim.tuns import FAMILY
+from hermsd.control import pid, watches
 
 TS = 5.0
 SP = 66.0
@@ -51,18 +44,18 @@ def worst_slope_error(times: list[float]) -> float:
     return pid.SENSOR_LSB * sum(abs(t - mean) for t in times) / 2.0 / spread
 
 
-def fed(fewest: int, periods: int) -> list[tuple[float, float] | None]:
-    """The watch's answers to `periods` of full power, fitting over at least `fewest`."""
+def fed(periods: int) -> list[tuple[float, float] | None]:
+    """The watch's answers to `periods` of full power."""
     watch = watches._RecoveryWatch()
     pvs = ramp(periods)
     watch.arm(pvs[0], HOLD)
     # The controller feeds the watch while it is active and full power runs.
-    return [watch.add(pv, TS, SP, 0.0, fewest) if watch.active else None for pv in pvs]
+    return [watch.add(pv, TS, SP, 0.0) if watch.active else None for pv in pvs]
 
 
 def test_the_rate_is_refitted_every_period_up_to_the_fewest_periods() -> None:
     pvs = ramp(30)
-    fits = fed(pid.RECOVERY_FIT_PERIODS, 30)
+    fits = fed(30)
     # The fit's points: from the first period 1 °C above the dip on (period 7: 61.5 + 1.1);
     # the first fit comes the period the PV is more than 2 °C above it (period 12, the 6th
     # point), and one more every period after, up to the 12th point (period 18).
@@ -86,52 +79,3 @@ def test_the_rate_is_refitted_every_period_up_to_the_fewest_periods() -> None:
     truth = LOW + (periods - 3.5) * TS * SLOPE
     tilt = worst_slope_error(times) * (before - sum(times) / len(times))
     assert last[1] == pytest.approx(truth, abs=pid.SENSOR_LSB + tilt)
-
-
-def test_the_rule_before_it_fitted_the_first_span_only() -> None:
-    fits = fed(0, 30)
-    assert [k for k, f in enumerate(fits) if f is not None] == [12]
-
-
-# -- the log says which rule the daemon ran --------------------------------------------------
-
-SMALL = next(spec for spec in FAMILY if spec.name == "small 30 L 5.5 kW")
-WATER_AT = 3000.0  # s: held since about 1500 s; on a period boundary, as the bench's water is
-
-
-def cold_water_day(directory: Path) -> list[Path]:
-    day = dataclasses.replace(
-        SMALL.brew_day(),
-        duration=WATER_AT + 600.0,
-        events=(Event(WATER_AT, "add_water", {"litres": 3.0, "temp": 15.0}),),
-    )
-    scenario.run(day, SMALL.config(config_module.DEFAULT), log_dir=directory)
-    return sorted(directory.glob("*.mcap"))
-
-
-def older_log(paths: list[Path], directory: Path) -> list[Path]:
-    """The log as a daemon from before `recovery_fit_periods` wrote it."""
-    return without_marker(paths, directory, "recovery_fit_periods")
-
-
-def test_a_fresh_log_names_the_rule_and_verifies_by_it(tmp_path: Path) -> None:
-    paths = cold_water_day(tmp_path / "day")
-    log = reader.load(paths)
-    assert log.configs
-    assert all(c.recovery_fit_periods == pid.RECOVERY_FIT_PERIODS for c in log.configs)
-    assert replay.verify(log.entries).mismatch is None
-    # Replayed by the rule before it, the cut from full power comes elsewhere.
-    older = reader.load(older_log(paths, tmp_path / "older"))
-    assert replay.verify(older.entries).mismatch is not None
-
-
-def test_a_log_from_before_the_rule_verifies_by_the_rule_before_it(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setattr(pid, "RECOVERY_FIT_PERIODS", 0)  # as logged
-    monkeypatch.setattr(predictive, "RECOVERY_FIT_PERIODS", 0)  # as run
-    paths = cold_water_day(tmp_path / "day")
-    monkeypatch.undo()
-    older = reader.load(older_log(paths, tmp_path / "older"))
-    assert all(c.recovery_fit_periods is None for c in older.configs)
-    assert replay.verify(older.entries).mismatch is None

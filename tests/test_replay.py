@@ -24,7 +24,7 @@ from hermsd.cli import main
 from hermsd.commissioning import identify
 from hermsd.config import read
 from hermsd.config import schema as config_module
-from hermsd.control import laws
+from hermsd.control import laws, pid
 from hermsd.log import reader, replay
 from hermsd.log.mcap_file import LogFile
 from hermsd.log.recorder import Recorder
@@ -254,7 +254,7 @@ def logged_config(t: float, reason: str = "start", **control: Any) -> dict[str, 
     config = read.to_dict(config_module.DEFAULT)
     config["tun"]["element_watts"] = 2000.0
     config["control"].update(period=10.0, **control)
-    return {"t": t, "config": config, "reason": reason}
+    return {"t": t, "config": config, "reason": reason, "control_law": pid.CONTROL_LAW_VERSION}
 
 
 def write_log(directory: Path, messages: list[tuple[str, float, dict[str, Any]]]) -> Path:

@@ -245,7 +245,8 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument(
         "--verify",
         action="store_true",
-        help="re-run the logged controller on the logged inputs; exit 1 at the first difference",
+        help="re-run the logged controller on the logged inputs; exit 1 at the first difference "
+        "(a log of another control law than this hermsd's is named so, not re-run)",
     )
     replay.add_argument(
         "--what-if",

@@ -54,7 +54,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         result: dict[str, Any] = {}
         if args.verify:
             verification = replay.verify(log.entries)
-            if verification.verified == 0 and verification.mismatch is None:
+            nothing = verification.verified == 0 and verification.mismatch is None
+            if nothing and verification.other_law is None:
                 raise reader.ReplayError(
                     "nothing to verify: the controller never stepped from a known state "
                     "(no auto period with a PV, or the records of its start are missing)"
@@ -85,6 +86,20 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _print_verification(verification: dict[str, Any]) -> None:
+    other = verification["other_law"]
+    if other is not None:
+        # Not wrong, only not re-run: another law would decide otherwise (exit 0).
+        law = other["logged"]
+        written = (
+            "a control law before law 1 (its log names none)"
+            if law is None
+            else f"control law {law}"
+        )
+        part = " in part" if other["in_part"] else ""
+        print(
+            f"written{part} by {written}, not re-run (this hermsd runs control law {other['runs']})"
+        )
+        return
     verified, unknown = verification["verified"], verification["unknown_state"]
     skipped = f" ({unknown} steps after missing records not re-run)" if unknown else ""
     mismatch = verification["mismatch"]

@@ -35,6 +35,7 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from hermsd.control.coil import MAX_CONDUCTANCE
 from hermsd.control.pid import AMBIENT_RANGE, MAX_DEAD_TIME, RATE_BAND, SENSOR_LSB, PlantModel
 from hermsd.control.watches import HeatUpFit, LineFit
 from hermsd.files import write_atomically
@@ -68,6 +69,10 @@ class LearnedModel:
     ambient: float  # °C
     litres: float
     wall_ns: int = 0  # when it was learned (UTC ns)
+    # A HERMS coil's conductance K and its sd (W/K) as the day's pump runs showed it
+    # (`coil.CoilEstimator`); 0 when none was learned. A file without them reads as 0.
+    coil: float = 0.0
+    coil_sd: float = 0.0
 
     @classmethod
     def from_plant(cls, model: PlantModel, litres: float) -> LearnedModel:
@@ -98,8 +103,13 @@ def water_came(recent: Iterable[float], pv: float) -> bool:
 def implausible(model: LearnedModel) -> str | None:
     """Why `model` cannot be a water tun's, or None when it can."""
     values = (model.rate, model.loss, model.dead_time, model.ambient, model.litres)
-    if not all(math.isfinite(v) for v in values):
+    if not all(math.isfinite(v) for v in (*values, model.coil, model.coil_sd)):
         return "a value is not finite"
+    if not (0.0 <= model.coil <= MAX_CONDUCTANCE and model.coil_sd >= 0.0):
+        return (
+            f"coil conductance {model.coil:g} ± {model.coil_sd:g} W/K is not within "
+            f"0–{MAX_CONDUCTANCE:g} W/K"
+        )
     if not 0.0 < model.rate <= 1.0:
         return f"full-power rate {model.rate:.3g} °C/s is not within 0–1 °C/s"
     if not 1.0 / MAX_TAU <= model.loss <= 1.0 / MIN_TAU:
@@ -166,6 +176,8 @@ class ModelStore:
                 float(document["ambient"]),
                 float(document["litres"]),
                 int(document.get("wall_ns", 0)),
+                float(document.get("coil", 0.0)),
+                float(document.get("coil_sd", 0.0)),
             )
         except (KeyError, TypeError, ValueError, OverflowError) as error:
             return None, f"{self.path}: not a learned model ({error})"

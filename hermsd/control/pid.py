@@ -39,7 +39,9 @@ Algorithms (equation numbers refer to the HERMS PID calculus document):
   (the heat flow the model gets wrong), both corrected every period by the innovation PV −
   estimate (gains from two poles: the estimate follows the sensor within 30 s, the bias
   within ti). From the estimate it runs the model forward over the duty already sent and
-  still in the dead time: the PV that will be. Output = the holding duty at the setpoint
+  still in the dead time: the PV that will be (the dead time in whole periods and the share
+  of one: a reading's age moves it by a second or so, and rounded to whole periods up to
+  half a period of heat in flight is lost). Output = the holding duty at the setpoint
   (model and bias) + P on the setpoint minus that predicted PV: within 0.25 °C below the
   setpoint and anywhere above it with a gain that makes the predicted loop no faster than
   2·θ (damped for a real dead time, gain or τ off by 2×); further below, kc and beyond
@@ -108,6 +110,14 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
+CONTROL_LAW_VERSION = 2
+"""Which laws' decisions a log holds: written with every config record (`control_law`), and
+`hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
+law, or to what `replay --verify` compares, would make the decisions of a log written before
+it come out otherwise: that log is then said to be of another law, not re-run (its summary,
+plot and CSV read as ever). Version 1 is the first logged; a log without one predates it.
+Version 2: the predictive law counts the part of a period its dead time ends in."""
+
 ALGORITHMS = (
     "predictive",
     "type_a",
@@ -157,60 +167,21 @@ STEP_INNOVATION = 0.25
 the mean of its readings, so noise of 0.03 °C never moves it that far."""
 DROP_READINGS = 2
 """Readings in a row that must show a drop below the last period's PV before predictive acts
-inside a period (`full_power_now`, by `DROP_RULE`)."""
+inside a period (`full_power_now`)."""
 DROP_ONSET = 0.125
-"""°C (2 LSB) below the last period's PV the reading before the latest must lie (at least, by
-`DROP_RULE`; more than, by the rules before it)."""
+"""°C (2 LSB) below the last period's PV the reading before the latest must lie at least."""
 DROP_FALL = 0.1875
-"""°C (3 LSB) below the last period's PV the latest reading must lie at least, by `DROP_RULE`.
+"""°C (3 LSB) below the last period's PV the latest reading must lie at least.
 One reading differs from the last period's mean by 0.04 °C sd (noise sd 0.03 °C and the
 LM92's truncation): 2 LSB is 3 sd and 3 LSB 4.7 sd, and noise does not give both in a row
 (none in 3.2 million simulated periods of hold, the true temperature anywhere within an LSB).
 Behind the sensor's lag cold water shows as readings that fall further each time, the first
 of them often by less than 0.25 °C; a one-reading glitch (the supervisor drops only jumps
-beyond safety.max_step) has a steady reading before it, so it never does it, however deep."""
-
-
-@dataclass(frozen=True, slots=True)
-class DropRule:
-    """What a period's readings must show before predictive acts on them (`full_power_now`):
-    the latest more than `fall` below the last period's PV and the one before it more than
-    `onset` below (at least, if `inclusive`); then either the controller's trial step on the
-    latest reading (`on_latest`) or on the mean of the two gives full power, or (`deficit`)
-    the latest reading lies below the setpoint and the fall both readings show is more than
-    full power for a whole period could add back by the model's rate (`full_power_adds`):
-    acting on it cannot lift the water above where it stood, nor heat water the brewer is
-    cooling to a lower setpoint, and a lone glitch that follows a reading noise put 2 LSB
-    low (about 1 in 700 at the bench's noise) adds less than those 2 LSB."""
-
-    onset: float
-    on_latest: bool
-    fall: float = STEP_INNOVATION
-    inclusive: bool = False
-    deficit: bool = False
-
-
-DROP_RULE = DropRule(DROP_ONSET, on_latest=True, fall=DROP_FALL, inclusive=True, deficit=True)
-"""The rule in force; its `onset` and `fall` are logged with every config record
-(`drop_onset_c`, `drop_fall_c`). Behind a slow sensor (a thermowell) cold water shows as
-readings that fall by less than 0.1 °C a second at first, and the law, on the PV it sees,
-answers a fall of less than half a degree with a few % more: the rules before it lost the
-seconds until the readings lay that far down."""
-LAW_DROP_RULE = DropRule(DROP_ONSET, on_latest=True)
-"""The rule before it (both thresholds strict, the latest more than STEP_INNOVATION down,
-only the law's answer counts): logs with `drop_onset_c` and no `drop_fall_c`."""
-FIRST_DROP_RULE = DropRule(STEP_INNOVATION, on_latest=False)
-"""The first rule (both readings beyond STEP_INNOVATION, the trial on their mean): logs with
-`drop_readings` and no `drop_onset_c` were written under it. It lost a reading, a second of
-full power, to a first reading that the sensor's lag kept within 0.25 °C."""
-DROP_CARRY = True
-"""Logged with every config record (`drop_carry`): cold water that a period's readings showed
-by `DROP_RULE` (its `full_from`; acted on, or not where heating was held off at that reading)
-carries full power across the period's end while the PV falls (`cold_water_seen`). Behind a slow
-sensor the period's PV, a mean, lies only a few tenths below the last while the water is
-degrees below: the law asked 30–50 % again at each boundary and the element waited for the
-period's readings to show the drop anew, 8 s of full power lost over the first four periods
-after a tenth of the volume of cold water on a thermowell of 120 s lag."""
+beyond safety.max_step) has a steady reading before it, so it never does it, however deep.
+Behind a slow sensor (a thermowell) cold water shows as readings that fall by less than
+0.1 °C a second at first, and the law, on the PV it sees, answers a fall of less than half a
+degree with a few % more: a rule that waited for the readings to lie 0.25 °C down, or for
+the law to ask for full power, lost those seconds."""
 MAX_DEAD_TIME = 1800.0
 """s: the longest dead time a heat-up may show (a sensor far down a long pipe), and so the
 longest the config (`control.dead_time`) and the predictive controller take: its history of
@@ -223,15 +194,14 @@ RECOVERY_FIT_SPAN = 1.0
 """°C of rise a recovery's ramp is fitted over: a tenth of the volume of cold water drops the
 PV some 4.5 °C, and the heat in flight on a slow sensor takes up to 2 °C of what is left."""
 RECOVERY_FIT_PERIODS = 12
-"""Periods a recovery's line takes in at least (logged with every config record,
-`recovery_fit_periods`): where the first RECOVERY_FIT_SPAN holds fewer, each further
-full-power period adds its PV and the line is taken anew, up to these or the cut, whichever
-comes first. A line's slope over n periods of noise σ has the sd σ·√(12/(n³ − n))/Ts: on
-30 L at 5.5 kW (0.2 °C a period, the span's 5 periods; σ ≈ 0.016 °C, a period's mean of 5
+"""Periods a recovery's line takes in at least: where the first RECOVERY_FIT_SPAN holds fewer,
+each further full-power period adds its PV and the line is taken anew, up to these or the cut,
+whichever comes first. A line's slope over n periods of noise σ has the sd σ·√(12/(n³ − n))/Ts:
+on 30 L at 5.5 kW (0.2 °C a period, the span's 5 periods; σ ≈ 0.016 °C, a period's mean of 5
 readings) that is 2.5 % of the rate, and the cut lands the water some 0.05 °C off; over 12,
-0.7 %. Every other tun of the bench's family climbs under 0.1 °C a period, so its span holds
-12 or more and it is fitted as before: there the span's later points would only add the
-sensor lag's bend (a thermowell's rate came out higher and its cut earlier)."""
+0.7 %. Every other tun of the bench's family climbs under 0.1 °C a period, so its span holds 12
+or more and it is fitted as before: there the span's later points would only add the sensor
+lag's bend (a thermowell's rate came out higher and its cut earlier)."""
 MAX_RECOVERY_HOLD = 90.0
 """% of holding duty above which a recovery's rate is not measured: the step to full power is
 too small for its slope to tell the rate."""
@@ -240,13 +210,12 @@ STEADY_BAND = 0.25
 """A step from a PV that moved at most STEADY_BAND °C over the last STEADY_SPAN_S s."""
 STEADY_DUTY_SHARE = 0.05
 """The share of a step to full power by which the duty may have moved over the dead time and
-STEADY_SPAN_S before it, for the step to measure the tun (logged with every config record,
-`steady_duty_share`). The fit divides its slope by the step and takes its crossing for the
-dead time, both true only of a step from a duty the PV had settled on: a duty that climbed
-over the last periods (a program's ramp, the output following its setpoint up to full power)
-hides the step's real size from the PV's steady minute, since the climb has not reached the
-sensor yet. The duty the PV settled on lies within the span's, so the step, and the rate,
-are then known to within 5 %."""
+STEADY_SPAN_S before it, for the step to measure the tun. The fit divides its slope by the step
+and takes its crossing for the dead time, both true only of a step from a duty the PV had
+settled on: a duty that climbed over the last periods (a program's ramp, the output following
+its setpoint up to full power) hides the step's real size from the PV's steady minute, since the
+climb has not reached the sensor yet. The duty the PV settled on lies within the span's, so the
+step, and the rate, are then known to within 5 %."""
 BIAS_INNOVATION_CLIP = 0.125
 """°C (two LSB): the bias learns from innovations up to this size only. A step (cold water)
 is a change of state, not of heat flow: the PV estimate follows it whole, the bias barely."""

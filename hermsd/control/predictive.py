@@ -11,8 +11,9 @@ from collections.abc import Sequence
 
 from hermsd.control.pid import (
     BIAS_INNOVATION_CLIP,
+    DROP_FALL,
+    DROP_ONSET,
     DROP_READINGS,
-    DROP_RULE,
     FAR_BAND,
     FULL_MARGIN,
     LINEAR_BAND,
@@ -21,13 +22,11 @@ from hermsd.control.pid import (
     OBSERVER_BIAS_S,
     OBSERVER_TRACK_S,
     PREDICTED_LOOP_FACTOR,
-    RECOVERY_FIT_PERIODS,
     STEADY_BAND,
     STEADY_DUTY_SHARE,
     STEADY_SPAN_S,
     STEP_INNOVATION,
     Controller,
-    DropRule,
     Params,
     PlantModel,
     _Base,
@@ -44,7 +43,6 @@ class _Predictive(_Base):
         "_carried",
         "_cold_water",
         "_dead_time",
-        "_duty_share",
         "_estimate",
         "_fa",
         "_filtered",
@@ -58,12 +56,13 @@ class _Predictive(_Base):
         "_l1",
         "_l2",
         "_lag",
+        "_lag_share",
+        "_load",
+        "_load_past",
         "_loss",
         "_rate",
         "_recent",
         "_recovery",
-        "_recovery_periods",
-        "_steady_with_pv",
         "_step_is_loops",
         "_ts",
         "_watch",
@@ -80,7 +79,7 @@ class _Predictive(_Base):
         self._loss = 1.0 / model.tau  # 1/s
         self._ambient = model.ambient
         self._rate = self._kc_near = self._kc_far = self._dead_time = 0.0
-        self._lag = 0
+        self._lag, self._lag_share = 0, 0.0
         self._use(model.rate, model.dead_time)
         # Observer poles: the PV estimate follows the sensor within OBSERVER_TRACK_S, the bias
         # (what the model gets wrong) within ti; see `observer_gains`.
@@ -90,16 +89,6 @@ class _Predictive(_Base):
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
         self._watch = _HeatUpWatch()
         self._recovery = _RecoveryWatch()
-        # Whether a step's own PV counts in judging it steady (see `_watch_heat_up`); replay
-        # clears it for logs of the daemons before it (`predating_drop_fall`).
-        self._steady_with_pv = True
-        # How far the duty before a step may have moved, as a share of the step
-        # (`_duty_was_steady`); replay sets the share a log names, and no bound for the
-        # daemons before it (`logged_duty_share`).
-        self._duty_share = STEADY_DUTY_SHARE
-        # The fewest periods a recovery's line takes in; replay sets the number a log names,
-        # and none for the daemons before it (`logged_recovery_periods`).
-        self._recovery_periods = RECOVERY_FIT_PERIODS
         # Whether the next step's change of power is the loop's own (`loops_own_step`).
         self._step_is_loops = False
         # Whether the readings of the period the next step closes showed cold water
@@ -107,6 +96,9 @@ class _Predictive(_Base):
         self._cold_water = self._carried = False
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
+        # A heat flow the caller knows (a HERMS coil's draw), in % of full power: the one in
+        # force from now (`_load`) and the one over the period the next step closes.
+        self._load = self._load_past = 0.0
 
     @property
     def fit(self) -> HeatUpFit | None:
@@ -121,7 +113,10 @@ class _Predictive(_Base):
         ts = self._ts
         self._rate = rate
         self._dead_time = dead_time
-        self._lag = max(0, round(dead_time / ts))
+        # Whole periods and the share of one: rounded to whole periods, a dead time lost up
+        # to Ts/2 of the heat in flight, e.g. 2.5 s of full power on a fast tun at Ts 5 s.
+        whole, self._lag_share = divmod(max(0.0, dead_time / ts), 1.0)
+        self._lag = int(whole)
         settle = PREDICTED_LOOP_FACTOR * max(dead_time, 2.0 * ts)
         self._kc_near = min(self._kc, 100.0 / (rate * settle))
         self._kc_far = max(self._kc, 100.0 / (rate * ts))
@@ -131,21 +126,34 @@ class _Predictive(_Base):
         period, by the model's rate: the most that acting on a drop inside a period adds."""
         return self._ts * self._rate * (100.0 - self._output) / 100.0
 
-    def _drift(self, x: float, u: float) -> float:
-        """The model's change of PV over one period at duty u from x (Euler; λ·Ts ≪ 1)."""
-        return self._ts * (self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias)
+    def _drift(self, x: float, u: float, share: float = 1.0) -> float:
+        """The model's change of PV over `share` of a period at duty u from x (Euler;
+        λ·Ts ≪ 1); a known load (`known_load`) enters as a duty taken off u."""
+        heat = self._rate * u / 100.0 - self._loss * (x - self._ambient) + self._bias
+        return share * self._ts * heat
+
+    def _arriving(self) -> float:
+        """The duty whose heat reaches the sensor in the period just ended: the dead time
+        falls `_lag_share` of the way into an earlier period's."""
+        inputs, lag, share = self._inputs, self._lag, self._lag_share
+        return share * inputs[-2 - lag] + (1.0 - share) * inputs[-1 - lag]
 
     def _predicted(self) -> float:
-        """Where the PV will be once the inputs already sent (still in the dead time) arrive."""
-        x = self._estimate
-        inputs = self._inputs
-        for j in range(len(inputs) - self._lag, len(inputs)):
-            x += self._drift(x, inputs[j])
+        """Where the PV will be once the inputs already sent (still in the dead time) arrive:
+        the last `_lag` whole and `_lag_share` of the one before them, under the known load
+        (which acts now, not a dead time late)."""
+        inputs, load = self._inputs, self._load
+        first = len(inputs) - self._lag
+        x = self._estimate + self._drift(self._estimate, inputs[first - 1] - load, self._lag_share)
+        for j in range(first, len(inputs)):
+            x += self._drift(x, inputs[j] - load)
         return x
 
     def _holding(self, sp: float) -> float:
-        """The duty that holds `sp` by the model and its bias (may lie outside the limits)."""
-        return 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+        """The duty that holds `sp` by the model and its bias (may lie outside the limits),
+        the known load added: the feed-forward."""
+        hold = 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+        return hold + self._load if self._load else hold
 
     def _law(self, sp: float, full: bool = False) -> float:
         """P on the predicted error plus the holding duty (D apart)."""
@@ -192,14 +200,17 @@ class _Predictive(_Base):
             bias += miss / slope
         self._bias = bias if abs(bias) <= self._rate else 0.0
         # The first step's model prediction lands on pv0: no innovation from the start itself.
-        self._estimate = pv0 - self._drift(pv0, u0)
+        self._load_past = self._load
+        self._estimate = pv0 - self._drift(pv0, u0 - self._load)
 
     def _advance(self, sp: float, pv: float, previous: float) -> float:
         fell = self._recent[-1] - pv  # since the last period's PV
         inputs = self._inputs
         inputs.append(previous)
         self._watch_heat_up(sp, pv, previous, inputs[-2])
-        before = self._estimate + self._drift(self._estimate, inputs[-1 - self._lag])
+        # The load of the period just ended is the model's, not an error for the bias to learn.
+        past, self._load_past = self._load_past, self._load
+        before = self._estimate + self._drift(self._estimate, self._arriving() - past)
         innovation = pv - before
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
         step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
@@ -231,9 +242,10 @@ class _Predictive(_Base):
         the PV's steady minute shows the duty sent a dead time before it, and the duties sent
         since are still on their way to the sensor."""
         inputs = self._inputs
-        span = min(len(inputs) - 1, self._lag + (self._recent.maxlen or 1))
+        in_flight = self._lag + (self._lag_share > 0.0)  # periods, the last one in part
+        span = min(len(inputs) - 1, in_flight + (self._recent.maxlen or 1))
         duties = [inputs[j] for j in range(len(inputs) - 1 - span, len(inputs) - 1)]
-        return max(duties) - min(duties) <= self._duty_share * step
+        return max(duties) - min(duties) <= STEADY_DUTY_SHARE * step
 
     def _watch_heat_up(self, sp: float, pv: float, applied: float, before: float) -> None:
         """Arm on a step to full power: from a steady PV the heat-up watch, else (cold water)
@@ -246,9 +258,11 @@ class _Predictive(_Base):
             watch.active = recovery.active = False  # the step ended before the PV rose enough
         # This period's PV too: cold water that the readings showed within the period (and
         # answered there) has a steady minute before it, but is no step from a steady PV.
-        seen = (*recent, pv) if self._steady_with_pv else tuple(recent)
+        seen = (*recent, pv)
         steady = max(seen) - min(seen) <= STEADY_BAND
         loops, self._step_is_loops = self._step_is_loops, False
+        # Under a known load (a coil drawing) the rise is not the element's alone: no fit.
+        loops = loops or bool(self._load)
         if full and not (watch.active or recovery.active) and before < self._hi and not loops:
             if steady:
                 # A duty that climbed to full power (a ramp) is no step of a known size.
@@ -260,7 +274,7 @@ class _Predictive(_Base):
                     recovery.arm(pv, hold)
         recent.append(pv)
         if full and recovery.active:
-            measured = recovery.add(pv, self._ts, sp, self._loss, self._recovery_periods)
+            measured = recovery.add(pv, self._ts, sp, self._loss)
             if measured is not None and 0.5 * self._rate <= measured[0] <= 2.0 * self._rate:
                 rate, self._estimate = measured
                 self._loss *= rate / self._rate  # as for a heat-up: the fill changed
@@ -279,25 +293,26 @@ class _Predictive(_Base):
 
 
 def full_power_now(
-    controller: Controller,
-    sp: float,
-    last_pv: float,
-    readings: Sequence[float],
-    rule: DropRule = DROP_RULE,
+    controller: Controller, sp: float, last_pv: float, readings: Sequence[float]
 ) -> bool:
     """Whether the readings so far in a period show a sudden drop (cold water) that the
     controller would answer with full power, so that the loop need not wait for the period's
-    end: the last DROP_READINGS of them below the last period's PV (`last_pv`) as `rule`
-    asks, and the step the controller would take now, on the latest of them (or their mean,
-    as `rule` asks) with its last output as applied, gives its upper limit, or (as `rule`
-    asks) the fall is more than full power can add back within a period. The element's
-    heat reaches the sensor a dead time later whatever is done, so every second of the old
-    duty after the water is a second of recovery lost; a period is 5 of them. Only
-    predictive acts inside a period (the textbook forms are their seeds' equations, once a
-    period), only when it may ask for full power (an upper limit below 100 % is a power
-    limit the window must keep), and not when its output is already there. The controller
-    is not changed (its next step is taken on a copy), so the answer follows from what a
-    period record logs: its readings, and the controller as the period before left it."""
+    end: the latest of them at least DROP_FALL below the last period's PV (`last_pv`) and the
+    one before it at least DROP_ONSET below (DROP_READINGS of them), and then either the step
+    the controller would take now on the latest, with its last output as applied, gives its
+    upper limit, or the latest lies below the setpoint and the fall both readings show is
+    more than full power for a whole period could add back by the model's rate
+    (`full_power_adds`): acting on it cannot lift the water above where it stood, nor heat
+    water the brewer is cooling to a lower setpoint, and a lone glitch that follows a
+    reading noise put 2 LSB low (about 1 in 700 at the bench's noise) adds less than those
+    2 LSB. The element's heat reaches the sensor a dead time later whatever is done, so
+    every second of the old duty after the water is a second of recovery lost; a period is
+    5 of them. Only predictive acts inside a period (the textbook forms are their seeds'
+    equations, once a period), only when it may ask for full power (an upper limit below
+    100 % is a power limit the window must keep), and not when its output is already there.
+    The controller is not changed (its next step is taken on a copy), so the answer follows
+    from what a period record logs: its readings, and the controller as the period before
+    left it."""
     if not (isinstance(controller, _Predictive) and controller._primed):
         return False
     if len(readings) < DROP_READINGS:
@@ -306,16 +321,12 @@ def full_power_now(
     if controller.params.out_max < 100.0 or controller.output >= 100.0:
         return False
     fell, first = last_pv - latest, last_pv - before
-    if rule.inclusive:
-        if fell < rule.fall or first < rule.onset:
-            return False
-    elif fell <= rule.fall or first <= rule.onset:
+    if fell < DROP_FALL or first < DROP_ONSET:
         return False
-    if rule.deficit and latest < sp and controller.full_power_adds() < min(fell, first):
+    if latest < sp and controller.full_power_adds() < min(fell, first):
         return True
-    pv = latest if rule.on_latest else (before + latest) / 2.0
     trial = copy.deepcopy(controller)
-    return trial.step(sp, pv, controller.output) >= 100.0
+    return trial.step(sp, latest, controller.output) >= 100.0
 
 
 def loops_own_step(controller: Controller) -> None:
@@ -329,34 +340,40 @@ def loops_own_step(controller: Controller) -> None:
 def cold_water_seen(controller: Controller) -> None:
     """Tell `controller` (predictive) that the readings of the period its next step closes
     showed cold water (`full_power_now`, the period's `full_from`): full power carries on
-    across the step while the PV falls by more than a period of full power adds
-    (`DROP_CARRY`). It is told whether or not the element could act on it in the period, as
-    the log says only what the readings showed; the fall bounds the carry all the same."""
+    across the step while the PV falls by more than a period of full power adds. Behind a
+    slow sensor the period's PV, a mean, lies only a few tenths below the last while the
+    water is degrees below: without the carry the law asked 30–50 % again at each boundary
+    and the element waited for the period's readings to show the drop anew, 8 s of full
+    power lost over the first four periods after a tenth of the volume of cold water on a
+    thermowell of 120 s lag. It is told whether or not the element could act on it in the
+    period, as the log says only what the readings showed; the fall bounds the carry all
+    the same."""
     if isinstance(controller, _Predictive):
         controller._cold_water = True
 
 
-def predating_drop_fall(controller: Controller) -> None:
-    """Make `controller` (predictive) judge a step to full power steady as the daemons before
-    `drop_fall_c` did, by the minute before the step alone: replay of their logs."""
+def known_load(controller: Controller, watts: float, element_watts: float) -> None:
+    """Tell `controller` (predictive) the heat flow `watts` drawn from the water from now on
+    besides its losses (a HERMS coil's load, W; negative when it gives heat back), of an
+    element of `element_watts`: its model and observer take it as a duty of
+    watts/element_watts·100 % taken off the element's, so the holding duty rises by that at
+    once (feed-forward: the loop does not wait for the sensor to show the load) and the bias
+    does not learn it as a loss. 0 is no load: the law is then exactly the one without."""
     if isinstance(controller, _Predictive):
-        controller._steady_with_pv = False
+        if not (math.isfinite(watts) and math.isfinite(element_watts) and element_watts > 0.0):
+            raise ValueError(
+                f"load {watts!r} W of an element of {element_watts!r} W is invalid: "
+                "must be finite, the element's power > 0"
+            )
+        controller._load = 100.0 * watts / element_watts
 
 
-def logged_duty_share(controller: Controller, share: float | None) -> None:
-    """Make `controller` (predictive) measure a step to full power from a steady PV as the
-    daemon that logged `share` (`steady_duty_share`) did: None, a daemon from before it, which
-    measured the step whatever the duty did before it. Replay of its log."""
-    if isinstance(controller, _Predictive):
-        controller._duty_share = math.inf if share is None else share
-
-
-def logged_recovery_periods(controller: Controller, periods: int | None) -> None:
-    """Make `controller` (predictive) fit a recovery's rate as the daemon that logged
-    `periods` (`recovery_fit_periods`) did: None, a daemon from before it, which took the
-    rate once, over the first RECOVERY_FIT_SPAN alone. Replay of its log."""
-    if isinstance(controller, _Predictive):
-        controller._recovery_periods = 0 if periods is None else periods
+def predicted_pv(controller: Controller) -> float | None:
+    """Where predictive expects its PV once the heat already sent arrives (None for the other
+    forms, or before its first step): what the HLT will hold whatever is decided now."""
+    if isinstance(controller, _Predictive) and controller._primed:
+        return controller._predicted()
+    return None
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:

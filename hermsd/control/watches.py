@@ -5,7 +5,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hermsd.control.pid import FIT_FROM, FIT_TO, MAX_DEAD_TIME, RATE_BAND, RECOVERY_FIT_SPAN
+from hermsd.control.pid import (
+    FIT_FROM,
+    FIT_TO,
+    MAX_DEAD_TIME,
+    RATE_BAND,
+    RECOVERY_FIT_PERIODS,
+    RECOVERY_FIT_SPAN,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -134,25 +141,23 @@ class _RecoveryWatch(_RampWatch):
         self._start()
         self._hold, self._low = hold, pv
 
-    def add(
-        self, pv: float, ts: float, sp: float, loss: float, periods: int = 0
-    ) -> tuple[float, float] | None:
+    def add(self, pv: float, ts: float, sp: float, loss: float) -> tuple[float, float] | None:
         """One more full-power period; once the PV has risen FIT_FROM + RECOVERY_FIT_SPAN °C
         from its lowest, the rate (°C/s at 100 %) and the line's PV a period ago (where the
         estimate stands before this period's step), or None. While the line holds fewer than
-        `periods` points (`RECOVERY_FIT_PERIODS`), each further full-power period adds its PV
-        and gives the line anew."""
+        RECOVERY_FIT_PERIODS points, each further full-power period adds its PV and gives the
+        line anew."""
         self._n += 1
         line = self._line
         if line.n == 0 and pv < self._low + FIT_FROM:
             self._low = min(self._low, pv)
             return None
         past = pv > self._low + FIT_FROM + RECOVERY_FIT_SPAN
-        if not past or line.n < periods:
+        if not past or line.n < RECOVERY_FIT_PERIODS:
             line.add((self._n - 0.5) * ts, pv)
         if not past:
             return None
-        self.active = line.n < periods
+        self.active = line.n < RECOVERY_FIT_PERIODS
         slope = line.slope()
         if slope is None or slope <= 0.0:
             return None

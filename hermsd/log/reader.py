@@ -75,14 +75,8 @@ class LoggedConfig:
     config: dict[str, Any]
     model: dict[str, Any] | None = None  # the tun's model the controller used (predictive)
     safety_model: dict[str, Any] | None = None  # the measured tun the safety limits came from
-    drop_readings: int | None = None  # the rule of `full_from` (None: not acted on in periods)
-    drop_onset_c: float | None = None  # and its onset (None: the first rule, if drop_readings)
-    drop_fall_c: float | None = None  # and its fall (None: the rule of the law's answer alone)
-    drop_carry: bool = False  # full power on cold water carried across the period's end
-    reach_watch: bool = False  # each period's `ceiling` is the reach watch's (None: not said)
+    control_law: int | None = None  # `pid.CONTROL_LAW_VERSION` of its daemon (None: before 1)
     repeat: bool = False  # the copy of the record in force that opens a rotated file of a run
-    steady_duty_share: float | None = None  # a measured step needs a steady duty (None: not)
-    recovery_fit_periods: int | None = None  # the fewest periods of a recovery's fit (None: 0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -398,22 +392,14 @@ def _config(message: dict[str, Any], path: Path) -> LoggedConfig:
     if not _is_number(t) or not isinstance(config, dict):
         raise ReplayError(f"{path}: a config record lacks its time or its configuration")
     model, safety_model = message.get("model"), message.get("safety_model")
-    drop_readings, drop_onset = message.get("drop_readings"), message.get("drop_onset_c")
-    drop_fall, steady_duty = message.get("drop_fall_c"), message.get("steady_duty_share")
-    recovery = message.get("recovery_fit_periods")
+    law = message.get("control_law")
     return LoggedConfig(
         float(t),
         str(message.get("reason", "")),
         config,
         model if isinstance(model, dict) else None,
         safety_model if isinstance(safety_model, dict) else None,
-        drop_readings if isinstance(drop_readings, int) else None,
-        float(drop_onset) if _is_number(drop_onset) else None,
-        float(drop_fall) if _is_number(drop_fall) else None,
-        message.get("drop_carry") is True,
-        message.get("reach_watch") is True,
-        steady_duty_share=float(steady_duty) if _is_number(steady_duty) else None,
-        recovery_fit_periods=recovery if isinstance(recovery, int) else None,
+        law if isinstance(law, int) and not isinstance(law, bool) else None,
     )
 
 

@@ -13,7 +13,8 @@ joins the two.
 - `summarise`: what `hermsd replay FILE...` prints. The metrics are those of `hermsd
   simulate` (hermsd.metrics), measured on the logged PV rather than the simulated water.
 - `verify`: the logged controller re-run on the logged inputs, every step bit for bit, and
-  what the daemon's watches logged of each period derived again from them.
+  what the daemon's watches logged of each period derived again from them; only for a log
+  of this hermsd's control law (`pid.CONTROL_LAW_VERSION`), which its config records name.
 - `what_if`: a first-order-plus-dead-time model of the tun fitted to the logged duty and PV,
   and the day run again through the daemon on that model with other settings.
 """
@@ -34,22 +35,8 @@ from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.control.element2 import MidRangeController, SplitController, TwoElementController
 from hermsd.control.factory import make_controller, shared_out
-from hermsd.control.pid import (
-    DROP_READINGS,
-    DROP_RULE,
-    FIRST_DROP_RULE,
-    LAW_DROP_RULE,
-    Controller,
-    DropRule,
-    PlantModel,
-)
-from hermsd.control.predictive import (
-    cold_water_seen,
-    full_power_now,
-    logged_duty_share,
-    logged_recovery_periods,
-    predating_drop_fall,
-)
+from hermsd.control.pid import CONTROL_LAW_VERSION, Controller, PlantModel
+from hermsd.control.predictive import cold_water_seen, full_power_now
 from hermsd.control.reach import PREFIX as REACH_PREFIX
 from hermsd.control.reach import ReachWatch
 from hermsd.log.reader import (
@@ -279,16 +266,38 @@ class Mismatch:
 
 
 @dataclass(frozen=True, slots=True)
+class OtherLaw:
+    """A log whose decisions a control law other than this hermsd's made: not re-run, for
+    this hermsd's laws would decide otherwise (`pid.CONTROL_LAW_VERSION`)."""
+
+    logged: int | None  # the first other law its config records name (None: none, before 1)
+    runs: int  # the law this hermsd runs
+    in_part: bool  # some of its config records name this hermsd's law (an upgrade that day)
+
+
+@dataclass(frozen=True, slots=True)
 class Verification:
     """What `verify` found: how many steps it reproduced, and the first it did not."""
 
     verified: int  # controller steps reproduced bit for bit
     unknown_state: int  # steps after missing records and before the next reset: not re-run
     mismatch: Mismatch | None
+    other_law: OtherLaw | None = None  # the log is another law's: nothing re-run
 
 
-def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
-    """Re-run the logged controller on the logged inputs, by the daemon's rules.
+def other_law(entries: Iterable[LoggedConfig | PeriodRecord]) -> OtherLaw | None:
+    """The control law of a log's config records, when any is not this hermsd's."""
+    laws = [e.control_law for e in entries if isinstance(e, LoggedConfig)]
+    others = [law for law in laws if law != CONTROL_LAW_VERSION]
+    if not others:
+        return None
+    return OtherLaw(others[0], CONTROL_LAW_VERSION, len(others) < len(laws))
+
+
+def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
+    """Re-run the logged controller on the logged inputs, by the daemon's rules: only in a
+    log whose config records all name this hermsd's control law (`other_law`; a log of
+    another law is not re-run, its decisions another law's).
 
     A config record makes a new controller (the repeat of the one in force that opens every
     rotated file, as `load` marks it, does not, nor does a reload that leaves the tuning, the
@@ -302,37 +311,27 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
     check resumes at the next reset.
 
     A period's `full_from` (the reading after which the controller asked for full power at
-    once) must be what `pid.full_power_now` gives on its readings, with the controller as the
-    step of the record before it left it; None where no step came before it. It is checked
-    by the rule the config record in force names (`drop_readings`, `drop_onset_c` since
-    the onset was lowered, `drop_fall_c` since a fall the element cannot undo in a period
-    is acted on whatever the law says; without the onset, `pid.FIRST_DROP_RULE`, without
-    the fall `pid.LAW_DROP_RULE`): an older daemon never acted inside a period and logged
-    no such thing.
+    once) must be what `predictive.full_power_now` gives on its readings, with the controller
+    as the step of the record before it left it; None where no step came before it. Where
+    it is set, the step that closes the period carries full power on as the daemon's did
+    (`predictive.cold_water_seen`).
 
     A period's `ceiling` must be what a reach watch names that was fed every period as the
     daemon fed its own (`daemon.reach_period`: the record, the model and the config in
     force, and the dead time of the controller's heat-up measurement, re-run here), made
     afresh at each start and measuring afresh where a reload changed full power
-    (`daemon.reach_restarts`). Only under a config record that says the daemon logs it
-    (`reach_watch`; an older log is checked as before); after missing records, not until
-    the next start (the blocks it measured over them are not known).
-
-    The predictive controller takes a step to full power for a measurement of the tun only
-    from a duty that was steady before it, by the share a config record names
-    (`steady_duty_share`); under one without it, from any duty, as the daemons before it did.
-    It fits a recovery's rate over at least the periods a config record names
-    (`recovery_fit_periods`); under one without it, over the first span alone, as the daemons
-    before it did.
+    (`daemon.reach_restarts`); after missing records, not until the next start (the blocks it
+    measured over them are not known).
     """
+    other = other_law(entries)
+    if other is not None:
+        return Verification(0, 0, None, other)
     controller = None
-    in_force: LoggedConfig | None = None
     in_force_model: dict[str, Any] | None = None
     control: config_module.ControlConfig | None = None
     known = False  # whether the controller's state is that of the daemon's
     previous_k: int | None = None
     stepped: tuple[Controller, PeriodRecord] | None = None  # the last step, if fresh and known
-    drop_rule: DropRule | None = None  # how the daemon that logged these periods acted on drops
     watch: ElementWatch | None = None  # the element watch as the daemon's, once known
     watched: config_module.Config | None = None  # the config it was made for
     reach: ReachWatch | None = None  # the reach watch as the daemon's, once known
@@ -355,17 +354,15 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
         if isinstance(entry, LoggedConfig):
             if entry.repeat:
                 continue
-            in_force = entry
-            drop_rule = _drop_rule(entry)
             try:
-                whole = _as_logged(read.from_dict(entry.config), entry.config)
+                whole = read.from_dict(entry.config)
                 if entry.reason == "start" or (watched and watch_changes(watched, whole)):
                     kept, watch = watch, element_watch(whole) if element2_watts(whole) else None
                     same = watched is not None and watched.tun == whole.tun
                     if entry.reason != "start" and same and kept and watch:
                         watch.keep_probed(kept)
                 if entry.reason == "start":
-                    reach = ReachWatch() if entry.reach_watch else None
+                    reach = ReachWatch()
                 elif reach is not None and watched is not None and reach_restarts(watched, whole):
                     reach.restart()
                 same_tun = watched is not None and watched.tun == whole.tun
@@ -385,10 +382,6 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 in_force_model = entry.model
                 model = logged_model(entry)
                 made = make_controller(control, model)
-                if entry.drop_fall_c is None:  # a daemon from before it judged steady so
-                    predating_drop_fall(made)
-                logged_duty_share(made, entry.steady_duty_share)
-                logged_recovery_periods(made, entry.recovery_fit_periods)
                 unknown_probe = controller is None and same_tun  # what it would keep is not known
                 previous, controller = controller, shared_out(whole, made)
                 if entry.reason == "reload" and before is not None:
@@ -433,8 +426,8 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
                 return Verification(
                     verified, unknown, Mismatch(record.k, record.t, name, None, None)
                 )
-        if drop_rule is not None and (stepped is not None or known):
-            full_from = _full_from(stepped, record.readings, drop_rule)
+        if stepped is not None or known:
+            full_from = _full_from(stepped, record.readings)
             if record.full_from != full_from:
                 mismatch = Mismatch(record.k, record.t, "full_from", record.full_from, full_from)
                 return Verification(verified, unknown, mismatch)
@@ -467,7 +460,7 @@ def verify(entries: Iterable[LoggedConfig | PeriodRecord]) -> Verification:
             if not known:
                 unknown += 1
                 continue
-            if record.full_from is not None and in_force is not None and in_force.drop_carry:
+            if record.full_from is not None:
                 cold_water_seen(controller)
             output = controller.step(record.setpoint, record.pv, record.applied)
         except ValueError as error:
@@ -506,40 +499,18 @@ def _ceiling_mismatch(
     return Mismatch(record.k, record.t, "ceiling", record.ceiling, reach.ceiling)
 
 
-def _as_logged(config: config_module.Config, logged: dict[str, Any]) -> config_module.Config:
-    """The config as the daemon that logged it ran it: a daemon from before the heat-up's
-    check of two elements (a record without `element2.check`) never made it."""
-    if "check" in logged.get("element2", {}):
-        return config
-    return dataclasses.replace(config, element2=dataclasses.replace(config.element2, check=False))
-
-
-def _drop_rule(entry: LoggedConfig) -> DropRule | None:
-    """The rule by which the daemon that wrote `entry` acted on drops inside a period (None:
-    it did not, or by a rule this version does not know, so `full_from` is not checked)."""
-    if entry.drop_readings != DROP_READINGS:
-        return None
-    if entry.drop_onset_c is None:
-        return FIRST_DROP_RULE
-    if entry.drop_fall_c is None:
-        return LAW_DROP_RULE if entry.drop_onset_c == LAW_DROP_RULE.onset else None
-    same = (entry.drop_onset_c, entry.drop_fall_c) == (DROP_RULE.onset, DROP_RULE.fall)
-    return DROP_RULE if same else None
-
-
 def _full_from(
-    stepped: tuple[Controller, PeriodRecord] | None, readings: list[float], rule: DropRule
+    stepped: tuple[Controller, PeriodRecord] | None, readings: list[float]
 ) -> int | None:
     """After how many of a period's `readings` the daemon asks for full power (see
-    `Daemon._act_on_drop`), given the controller and the record of the step before them,
-    by `rule`."""
+    `Daemon._act_on_drop`), given the controller and the record of the step before them."""
     if stepped is None:
         return None
     controller, before = stepped
     if before.pv is None:
         return None
     for n in range(1, len(readings) + 1):
-        if full_power_now(controller, before.setpoint, before.pv, readings[:n], rule):
+        if full_power_now(controller, before.setpoint, before.pv, readings[:n]):
             return n
     return None
 

@@ -335,35 +335,13 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "the tun as measured, the safety limits' (null: they hold for any tun)",
                     nullable=True,
                 ),
-                "drop_readings": _field(
-                    "integer", "readings in a row that show cold water inside a period (full_from)"
-                ),
-                "drop_onset_c": _field(
-                    "number", "°C below the last PV the first of those readings must lie"
-                ),
-                "drop_fall_c": _field(
-                    "number", "°C below the last PV the latest of them must lie at least"
-                ),
-                "drop_carry": _field(
-                    "boolean", "full power acted on inside a period carries on while PV falls"
-                ),
-                "reach_watch": _field(
-                    "boolean", "each period's ceiling is the reach watch's (replay checks it)"
-                ),
-                "steady_duty_share": _field(
-                    "number", "share of a measuring step to full power the duty may move before"
-                ),
-                "recovery_fit_periods": _field(
-                    "integer", "fewest full-power periods a recovery's rate is fitted over"
+                "control_law": _field(
+                    "integer",
+                    "which control law made the decisions logged (replay --verify re-runs its own)",
+                    minimum=1,
                 ),
             },
-            optional=(
-                "safety_model",
-                "drop_carry",
-                "reach_watch",
-                "steady_duty_share",
-                "recovery_fit_periods",
-            ),
+            optional=("safety_model",),
         ),
     ),
     PROGRAM_TOPIC: TopicSpec(
@@ -413,7 +391,8 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "learned": _dataclass_schema(
                     LearnedModel,
                     "rate °C/s at full power, loss 1/s, dead_time s, ambient °C, litres, "
-                    "wall_ns when learned (ns since the Unix epoch)",
+                    "wall_ns when learned (ns since the Unix epoch), a HERMS coil's "
+                    "conductance coil W/K and its sd coil_sd (0: none learned)",
                 ),
             },
         ),

@@ -912,13 +912,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
                     "reason": reason,
                     "model": asdict(self.model),
                     "safety_model": _tun_fields(self._measured_tun(self.config)),
-                    "drop_readings": pid.DROP_READINGS,
-                    "drop_onset_c": pid.DROP_RULE.onset,
-                    "drop_fall_c": pid.DROP_RULE.fall,
-                    "drop_carry": pid.DROP_CARRY,
-                    "reach_watch": True,
-                    "steady_duty_share": pid.STEADY_DUTY_SHARE,
-                    "recovery_fit_periods": pid.RECOVERY_FIT_PERIODS,
+                    "control_law": pid.CONTROL_LAW_VERSION,
                 },
             )
 

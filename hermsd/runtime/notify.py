@@ -195,14 +195,19 @@ def status_line(
 def mash_side_words(mash: dict[str, object] | None, pump: bool | None) -> str:
     """'mash 64.8 °C, pump on': what of the two is fitted ('mash sensor fault' while it is
     faulty; '' when neither is fitted). `mash` as the status reply gives it."""
-    words = []
-    if mash is not None:
-        celsius = mash["celsius"]
-        shown = f"mash {celsius:.1f} °C" if isinstance(celsius, float) else "mash --"
-        words.append("mash sensor fault" if mash["fault"] is not None else shown)
+    words = [] if mash is None else [role_words("mash", mash)]
     if pump is not None:
         words.append(f"pump {'on' if pump else 'off'}")
     return ", ".join(words)
+
+
+def role_words(role: str, reading: dict[str, object]) -> str:
+    """'mash 64.8 °C' of a role's sensor as the status reply gives it; 'mash sensor fault'
+    while it is faulty, 'mash --' before its first good reading."""
+    if reading["fault"] is not None:
+        return f"{role} sensor fault"
+    celsius = reading["celsius"]
+    return f"{role} {celsius:.1f} °C" if isinstance(celsius, float) else f"{role} --"
 
 
 def _socket_address(value: str) -> str | None:

@@ -1,0 +1,353 @@
+"""The HERMS's outer loop: the HLT's setpoint that brings the mash to its rest and holds it
+there, and the coil's load for the HLT law to feed forward (derivation: docs/mash-control.md).
+
+Pure and clock-free, as the laws are: `Cascade.step` once a control period.
+
+The mash gains K·(T_hlt − T_m) through the coil and loses UA_m·(T_m − T_room), so in a hold
+the HLT must stand at T_hold = T_sp + UA_m·(T_sp − T_room)/K, above the rest by the losses'
+share (why a mash "levels out below" its HLT). Heat cannot be taken back from the mash, so a
+step runs as the HLT law's own approach does, one level up: the HLT's setpoint stays at the
+limit (mash setpoint + `max_hlt_above_mash`, less HLT_MARGIN for the HLT law's own
+overshoot, never above the HLT's maximum) until the heat stored in the HLT above T_hold and
+in flight in the hose will carry the mash to its setpoint as the two tanks coast together
+(`coast_peak`: the linear two-tank model run forward with the element off until the HLT is
+down at T_hold). Then the HLT coasts down to T_hold (judged again every period: should the
+coast fall short, the HLT is raised to where it reaches after all, `coast_start`), and from
+there on the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's
+rise against the model's once the climb is over, and the PI's integral, learn it, and what
+they learn serves the next rest's T_hold and coast. With the pump stopped nothing flows,
+and the HLT is readied: the setpoint is the temperature whose stored heat above T_hold just
+covers the mash's shortfall (capped by the limit).
+
+The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
+lower T_hold, so it stops early rather than late; the load fed forward is K one sd low, so a
+wrong K never heats the HLT past its setpoint on its own. A mash reading that is missing,
+faulty or older than MAX_MASH_AGE holds the HLT at its last setpoint (flagged `held`, for
+the daemon to warn), never at the limit on a guess.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import deque
+from dataclasses import dataclass
+
+from hermsd.control.coil import CoilEstimate
+
+HLT_MARGIN = 0.15
+"""°C the HLT's setpoint stays below the limit: the HLT law overshoots its setpoint by up to
+a tenth (its bench's bound), and the limit is one the HLT must never pass."""
+COAST_AIM = 0.1
+"""°C below its setpoint the coast aims the mash's peak: the HLT's temperature with the heat
+in flight comes from the HLT law's model (its observer lags a climb by a few tenths), and the
+hold's PI closes the rest in the band."""
+COAST_SHORT = 0.1
+"""°C the coast's peak may fall short of its aim before the HLT is raised again for it."""
+COAST_BISECTIONS = 16
+"""Halvings of the HLT's range when solving for the coast's start (10 °C to 0.00015 °C)."""
+REHEAT_BAND = 1.0
+"""°C below its setpoint a mash in its hold must fall before the climb starts again (a stuck
+pump, a cold addition): smaller falls are the hold's."""
+SETPOINT_MOVE = 0.01
+"""°C: a mash setpoint that moves by more starts a new step."""
+MAX_MASH_AGE = 30.0
+"""s: a mash reading older than this is none (the HLT is held, not steered on it)."""
+COAST_STEPS = 40
+"""Integration steps per coupled time constant of the coast (Heun: error ~1e-4 of the step)."""
+COAST_SPAN = 10.0
+"""Coupled time constants the coast is followed for at most (e^−10 of the gap is left)."""
+HOLD_SPEEDUP = 2.0
+"""How much faster than the mash's own time constant the hold's PI closes its loop, at most."""
+DELAY_SHARE = 3.0
+"""The hold's closed loop is at least this many times the delays around it (the mash sensor's
+lag, the hose, the HLT's own response)."""
+HLT_RESPONSE_S = 60.0
+"""s: what the HLT law takes to follow its setpoint, counted in the hold's delays."""
+LOSS_LEARN_S = 600.0
+"""s: the time over which the mash's rise teaches its losses (noise of a period's mean, 0.013
+°C, then moves them by under 1 W/K)."""
+MAX_LOSS_FACTOR = 4.0
+"""The mash's losses as learned stay within 0 and this many times the config's (or 20 W/K,
+whichever is more)."""
+MIN_CONDUCTANCE = 10.0
+"""W/K: the least K the outer loop steers by. A K learned lower is a coil with no flow (a
+stuck bed), where no HLT holds the mash; the hold's HLT then stays finite, at the limit."""
+
+
+@dataclass(frozen=True, slots=True)
+class Tanks:
+    """The two tanks and the hose between them, as the outer loop's model.
+
+    hlt_capacity, mash_capacity in J/K (water 4186 J/(L·K), grain about 1700 J/(kg·K));
+    hlt_loss, mash_loss in W/K to the room at `room` °C; hose_delay in s (the wort's round trip
+    outside the tun, mash → coil → mash, half each way); mash_lag in s (the mash sensor's lag
+    behind the mash).
+    """
+
+    hlt_capacity: float
+    hlt_loss: float
+    mash_capacity: float
+    mash_loss: float
+    room: float
+    hose_delay: float = 0.0
+    mash_lag: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("hlt_capacity", "mash_capacity"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0.0):
+                raise ValueError(f"{name}={getattr(self, name)!r} J/K is invalid: must be > 0")
+        for name in ("hlt_loss", "mash_loss", "hose_delay", "mash_lag"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
+                raise ValueError(f"{name}={getattr(self, name)!r} is invalid: must be ≥ 0")
+        if not math.isfinite(self.room):
+            raise ValueError(f"room={self.room!r} °C is invalid: must be finite")
+
+
+@dataclass(frozen=True, slots=True)
+class Decision:
+    """One period's answer: the HLT's setpoint, the coil's load (W) to feed forward, the
+    phase ("climb", "coast" down to the hold, "hold", "ready" with the pump stopped, "held"
+    without a mash reading) and, when held, why."""
+
+    hlt_setpoint: float
+    load_watts: float
+    phase: str
+    held: str | None = None
+
+
+def holding_hlt(mash_sp: float, tanks: Tanks, conductance: float) -> float:
+    """The HLT temperature that holds the mash at `mash_sp` through a coil of `conductance`
+    (W/K): T_sp + UA_m·(T_sp − T_room)/K."""
+    return mash_sp + tanks.mash_loss * (mash_sp - tanks.room) / conductance
+
+
+def coast_peak(hlt: float, mash: float, hold: float, tanks: Tanks, conductance: float) -> float:
+    """The mash's highest temperature if the element stops now and the HLT coasts from `hlt`
+    down to `hold` (°C), giving its heat through a coil of `conductance` (W/K), after which
+    the HLT is held at `hold`. The linear two-tank model, integrated by Heun's method, with
+    the hoses: the heat already in the return leg (K·(T_h − T_m) for half the round trip)
+    arrives first, and the coil sees the mash as it was half the round trip before."""
+    k = conductance
+    ch, cm = tanks.hlt_capacity, tanks.mash_capacity
+    leg = 0.5 * tanks.hose_delay
+    mash += k * (hlt - mash) * leg / cm
+    if hlt <= hold or k <= 0.0:
+        return mash
+    coupled = 1.0 / (k * (1.0 / ch + 1.0 / cm))
+    dt = coupled / COAST_STEPS
+    room, uah, uam = tanks.room, tanks.hlt_loss, tanks.mash_loss
+
+    # The inlet lags the mash by a leg, m − leg·dm/dt; with dm/dt = (flow − UA_m·(m − room))/C_m
+    # that gives flow·(1 − a) = K·(h − m) − a·UA_m·(m − room), a = K·leg/C_m (a < 1 for any
+    # real hose: a minute's leg on a 400 W/K coil and 24 kJ/K of mash).
+    a = k * leg / cm if k * leg < 0.5 * cm else 0.0
+
+    def rates(h: float, m: float) -> tuple[float, float]:
+        mash_loss = uam * (m - room)
+        flow = (k * (h - m) - a * mash_loss) / (1.0 - a)
+        return (-flow - uah * (h - room)) / ch, (flow - mash_loss) / cm
+
+    peak = mash
+    for _ in range(round(COAST_STEPS * COAST_SPAN)):
+        dh1, dm1 = rates(hlt, mash)
+        if dm1 <= 0.0:
+            break
+        dh2, dm2 = rates(hlt + dt * dh1, mash + dt * dm1)
+        dh, dm = 0.5 * dt * (dh1 + dh2), 0.5 * dt * (dm1 + dm2)
+        if hlt + dh <= hold:  # down at the hold within this step: the mash up to that instant
+            return max(peak, mash + dm * (hold - hlt) / dh)
+        hlt += dh
+        mash += dm
+        peak = max(peak, mash)
+    return peak
+
+
+def coast_start(
+    mash: float, hold: float, tanks: Tanks, conductance: float, target: float, ceiling: float
+) -> float:
+    """The HLT (between `hold` and `ceiling`) from which the coast carries the mash from `mash`
+    to a peak of `target` (bisection: the peak rises with the HLT it starts from)."""
+    low, high = hold, ceiling
+    if coast_peak(high, mash, hold, tanks, conductance) <= target:
+        return high
+    for _ in range(COAST_BISECTIONS):
+        middle = 0.5 * (low + high)
+        if coast_peak(middle, mash, hold, tanks, conductance) < target:
+            low = middle
+        else:
+            high = middle
+    return low
+
+
+def ready_hlt(mash_sp: float, mash: float, hold: float, tanks: Tanks) -> float:
+    """With the pump stopped: the HLT whose heat above `hold` covers the mash's shortfall,
+    C_h·(T − T_hold) = C_m·(T_sp − T_m) (losses and the coast's time aside)."""
+    return hold + tanks.mash_capacity * max(0.0, mash_sp - mash) / tanks.hlt_capacity
+
+
+class Cascade:
+    """The outer loop: mash setpoint and readings in, the HLT's setpoint and the coil's load
+    out (see the module's docstring)."""
+
+    __slots__ = (
+        "_climbing",
+        "_hlt_max",
+        "_last_mash",
+        "_last_sp",
+        "_limit",
+        "_mash_loss",
+        "_mash_sp",
+        "_period",
+        "_seen",
+        "_settled",
+        "_tanks",
+    )
+
+    def __init__(self, tanks: Tanks, *, limit: float, hlt_max: float, period: float) -> None:
+        if not (math.isfinite(limit) and limit > 0.0):
+            raise ValueError(f"max_hlt_above_mash={limit!r} °C is invalid: must be > 0 °C")
+        self._tanks = tanks
+        self._limit = limit
+        self._hlt_max = hlt_max
+        self._period = period
+        self._mash_sp: float | None = None
+        self._last_sp: float | None = None
+        self._last_mash: float | None = None
+        # (HLT, mash) readings over the delay between the coil and the mash's sensor.
+        self._seen: deque[tuple[float, float]] = deque(
+            maxlen=round((0.5 * tanks.hose_delay + tanks.mash_lag) / period) + 2
+        )
+        self._climbing = True
+        self._settled = False  # the HLT has come down to its hold since the climb ended
+        self._mash_loss = tanks.mash_loss
+
+    @property
+    def mash_loss(self) -> float:
+        """The mash's losses (W/K) as the holds so far showed them (the config's before)."""
+        return self._mash_loss
+
+    def ceiling(self, mash_sp: float) -> float:
+        """The highest HLT setpoint for `mash_sp`: the limit less HLT_MARGIN, at most the
+        HLT's maximum."""
+        return min(mash_sp + self._limit - HLT_MARGIN, self._hlt_max)
+
+    def step(
+        self,
+        *,
+        mash_sp: float,
+        mash_pv: float | None,
+        mash_age: float,
+        hlt_pv: float,
+        pump: bool,
+        coil: CoilEstimate,
+    ) -> Decision:
+        """One period. `mash_pv` None (a fault) or older than MAX_MASH_AGE (`mash_age`, s):
+        the HLT held at its last setpoint. `hlt_pv` is best the HLT law's predicted PV (the
+        heat already sent counted)."""
+        ceiling = self.ceiling(mash_sp)
+        if mash_pv is None or not mash_age <= MAX_MASH_AGE:
+            why = "no mash reading" if mash_pv is None else f"mash reading {mash_age:.0f} s old"
+            last = self._last_sp if self._last_sp is not None else min(mash_sp, ceiling)
+            setpoint = min(last, ceiling)
+            self._last_sp = setpoint
+            load = self._load(hlt_pv, self._last_mash, setpoint, pump, coil)
+            return Decision(setpoint, load, "held", why)
+        if self._mash_sp is None or abs(mash_sp - self._mash_sp) > SETPOINT_MOVE:
+            self._climbing = mash_pv < mash_sp
+        self._mash_sp = mash_sp
+        self._last_mash = mash_pv
+        tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
+        k = max(coil.conductance, MIN_CONDUCTANCE)
+        hold = holding_hlt(mash_sp, tanks, k)
+        # The mash as it is now: its sensor lags it by mash_lag while it rises at the model's rate.
+        flow = k * (hlt_pv - mash_pv) if pump else 0.0
+        rise = (flow - tanks.mash_loss * (mash_pv - tanks.room)) / tanks.mash_capacity
+        mash = mash_pv + tanks.mash_lag * max(0.0, rise)
+        if not self._climbing and mash_pv < mash_sp - REHEAT_BAND:
+            self._climbing = True
+        self._settled = self._settled and not self._climbing
+        self._observe(mash_pv, hlt_pv, pump, k)
+        high = max(coil.high, MIN_CONDUCTANCE)
+        hold_high = holding_hlt(mash_sp, tanks, high)
+        target = mash_sp - COAST_AIM
+        if self._climbing and pump:
+            self._climbing = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target
+        if not pump:
+            setpoint, phase = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling), "ready"
+        elif self._climbing:
+            setpoint, phase = ceiling, "climb"
+        else:
+            setpoint = self._hold(mash_sp, mash_pv, hlt_pv, tanks, k)
+            phase = "hold" if self._settled else "coast"
+            short = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target - COAST_SHORT
+            if not self._settled and short:
+                # The coast falls short (the losses more than the model's, which the observer
+                # is learning): the HLT that carries the mash to the aim after all.
+                setpoint = coast_start(mash, hold_high, tanks, high, target, ceiling)
+            setpoint = min(setpoint, ceiling)
+        self._last_sp = setpoint
+        return Decision(setpoint, self._load(hlt_pv, mash_pv, setpoint, pump, coil), phase)
+
+    def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float) -> None:
+        """Learn the mash's losses from its rise where the coil's heat is small and known
+        (coast and hold; in the climb K's uncertainty outweighs them): the rise over the last
+        period against the model's, its tanks taken the sensor's delay before (half the
+        hose and the mash sensor's lag), the miss taken as loss with the time LOSS_LEARN_S."""
+        seen = self._seen
+        if not pump or self._climbing:
+            seen.clear()
+            return
+        seen.append((hlt_pv, mash_pv))
+        if len(seen) < 2:
+            return
+        tanks = self._tanks
+        h, m = seen[0]
+        above_room = m - tanks.room
+        if len(seen) < (seen.maxlen or 0) or above_room < 1.0:
+            return
+        rise = mash_pv - seen[-2][1]
+        modelled = self._period * (k * (h - m) - self._mash_loss * above_room)
+        miss = modelled - tanks.mash_capacity * rise  # J the model gave the mash too many
+        learned = self._mash_loss + self._period / LOSS_LEARN_S * miss / (self._period * above_room)
+        self._mash_loss = min(max(learned, 0.0), max(MAX_LOSS_FACTOR * tanks.mash_loss, 20.0))
+
+    def _hold(self, mash_sp: float, mash_pv: float, hlt_pv: float, tanks: Tanks, k: float) -> float:
+        """T_hold, and once the HLT has come down to it (before, the coast still carries the
+        mash up and its error says nothing of the model) a PI on the mash's error: the
+        mash is a first order of gain G = K/(K + UA_m) and time constant τ_m = C_m/(K + UA_m),
+        so Ti = τ_m cancels its pole and Kp·G = λ closes the loop λ times faster, λ at most
+        HOLD_SPEEDUP and slow enough for the delays around it. The integral is kept as the
+        mash's losses: ΔUA_m = ΔI·K/(T_sp − T_room), so the next rest starts from them."""
+        hold = holding_hlt(mash_sp, tanks, k)
+        self._settled = self._settled or hlt_pv <= hold + HLT_MARGIN
+        if not self._settled:
+            return hold
+        total = k + tanks.mash_loss
+        gain, tau = k / total, tanks.mash_capacity / total
+        delays = tanks.mash_lag + tanks.hose_delay + HLT_RESPONSE_S
+        speedup = min(HOLD_SPEEDUP, tau / (DELAY_SHARE * delays))
+        kp = speedup / gain
+        error = mash_sp - mash_pv
+        above_room = mash_sp - tanks.room
+        at_ceiling = hold + kp * error >= self.ceiling(mash_sp) and error > 0.0
+        if above_room > 1.0 and not at_ceiling:
+            integral = kp * self._period / tau * error
+            most = max(MAX_LOSS_FACTOR * self._tanks.mash_loss, 20.0)
+            loss = self._mash_loss + integral * k / above_room
+            self._mash_loss = min(max(loss, 0.0), most)
+        return holding_hlt(mash_sp, dataclasses.replace(tanks, mash_loss=self._mash_loss), k) + (
+            kp * error
+        )
+
+    def _load(
+        self, hlt: float, mash: float | None, setpoint: float, pump: bool, coil: CoilEstimate
+    ) -> float:
+        """The coil's draw on the HLT (W) for the HLT law to feed forward: K (one sd low)
+        times the HLT over the mash. None with the pump stopped or no mash reading yet, nor
+        with the HLT more than HLT_MARGIN above its setpoint: the law is not to heat it then,
+        and a load fed there that the coil does not draw (a stuck bed: the pump runs, nothing
+        flows) would hold the HLT above its setpoint, over the limit in a climb."""
+        if not pump or mash is None or hlt > setpoint + HLT_MARGIN:
+            return 0.0
+        return coil.low * (hlt - mash)

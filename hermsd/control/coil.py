@@ -1,0 +1,185 @@
+"""The HERMS coil's conductance K (W/K), learned from the day's own data (docs/mash-control.md).
+
+The coil passes Q = K·(T_hlt − T_in) from the HLT's water to the wort. The HLT's heat balance
+over a run of periods with the pump on says how much it gave:
+
+    C_h·(T_h(t) − T_h(t0)) = ∫ P·u(s − θ) ds − ∫ UA_h·(T_h − T_room) ds − K·∫ (T_h − T_m) ds
+
+with C_h and UA_h the HLT's heat capacity and losses (the HLT law's model: C_h = P / rate),
+u the duty applied a dead time θ before (the element's heat reaches the sensor then), and
+the mash's reading T_m for the coil's inlet. The left side less the element's heat plus the
+losses, y, falls against x = ∫ (T_h − T_m) ds with slope −K. Summed over the run, noise on a
+reading enters y once (at its end) instead of once per difference, and a hose's delay or a
+sensor's lag shifts only the ends of the sums (the learner's balance fit does the same for
+the losses, `learning.Learner`).
+
+One line is fitted per block of BLOCK_S (its own intercept, so an offset carried in from
+before the block does not count). A block in the climb, where T_h − T_m is several degrees,
+pins K to a few W/K; one in the hold (T_h − T_m under a degree) barely, and an error of the
+HLT's loss model biases it. Blocks are combined weighted by the spread of their x (inverse
+variance, as the noise on y is the same in every block), and the uncertainty is the weighted
+scatter of the blocks about the mean, so a model error that differs between climb and hold
+shows in it, not only the sensor's noise; never under SD_FLOOR of K (the HLT model's own
+error: C_h from the element's rated power). With one or two blocks the day's K stands with
+FEW_SD of itself; before any, the prior.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+from hermsd.control.watches import LineFit
+
+BLOCK_S = 120.0
+"""s of pump run per fitted line: long against the sensors' lags and the hose's delay, short
+enough that the first step's climb holds several (the prior's wide K costs that step time)."""
+SETTLE_S = 60.0
+"""s after the pump starts before a block opens: the coil and hoses still hold the stagnant
+wort's temperature, which the mash's reading does not show."""
+MIN_BLOCKS = 3
+"""Blocks that show their own scatter; with fewer (one or two) the day's K stands with
+FEW_SD of itself, wider than a block's noise says, for what one block cannot show."""
+FEW_SD = 0.15
+SD_FLOOR = 0.05
+"""The least relative uncertainty claimed: the HLT's heat capacity comes from the element's
+rated power, which is known to a few percent."""
+PRIOR_SD_SHARE = 0.5
+"""The prior's sd as a share of itself: a HERMS coil is 100–400 W/K, so a prior of 200 W/K
+± 100 covers the family's middle."""
+MAX_CONDUCTANCE = 5000.0
+"""W/K: more than any HERMS coil (a 12 m coil of ½" copper at a fast pump is under 1000)."""
+
+
+@dataclass(frozen=True, slots=True)
+class CoilEstimate:
+    """The coil's conductance K (W/K), its standard uncertainty (W/K) and where it comes
+    from ("prior", "stored", "learned")."""
+
+    conductance: float
+    sd: float
+    source: str = "prior"
+
+    @property
+    def high(self) -> float:
+        """K one sd high: the side that errs early when deciding to stop heating the mash."""
+        return self.conductance + self.sd
+
+    @property
+    def low(self) -> float:
+        """K one sd low (never below 0): the side that errs small when feeding the load
+        forward, so a wrong K never drives the HLT above its setpoint on its own."""
+        return max(0.0, self.conductance - self.sd)
+
+
+def prior_estimate(conductance: float) -> CoilEstimate:
+    """The prior K a config gives (W/K), with PRIOR_SD_SHARE of itself for its sd."""
+    if not (math.isfinite(conductance) and 0.0 < conductance <= MAX_CONDUCTANCE):
+        raise ValueError(
+            f"coil conductance {conductance!r} W/K is invalid: must be > 0 and "
+            f"≤ {MAX_CONDUCTANCE:g} W/K"
+        )
+    return CoilEstimate(conductance, PRIOR_SD_SHARE * conductance, "prior")
+
+
+class CoilEstimator:
+    """Learns K from the HLT's heat balance while the pump runs and the readings are good."""
+
+    __slots__ = (
+        "_arrived",
+        "_block",
+        "_blocks",
+        "_capacity",
+        "_h0",
+        "_last",
+        "_loss",
+        "_period",
+        "_prior",
+        "_room",
+        "_run_s",
+        "_watts",
+        "_x",
+        "_y",
+    )
+
+    def __init__(
+        self,
+        *,
+        hlt_capacity: float,
+        hlt_loss: float,
+        room: float,
+        element_watts: float,
+        dead_time: float,
+        period: float,
+        prior: CoilEstimate,
+    ) -> None:
+        self._capacity = hlt_capacity  # J/K
+        self._loss = hlt_loss  # W/K
+        self._room = room
+        self._watts = element_watts
+        self._period = period
+        self._prior = prior
+        # The duties applied over the last dead time, the one reaching the water now first.
+        self._arrived: deque[float] = deque(maxlen=max(0, round(dead_time / period)) + 1)
+        self._blocks: list[tuple[float, float]] = []  # (K, weight) of each finished block
+        self._block = LineFit()
+        self._last: tuple[float, float] | None = None  # (T_h, T_m) of the last good period
+        self._run_s = 0.0
+        self._h0 = self._x = self._y = 0.0
+
+    def period(self, *, hlt: float, mash: float | None, applied: float, pump: bool) -> None:
+        """One period: the HLT's and the mash's PV (None: no good mash reading), the duty
+        applied over the period just ended (% of the element) and whether the pump ran."""
+        self._arrived.append(applied)
+        if not pump or mash is None:
+            self._interrupt()
+            return
+        self._run_s += self._period
+        if self._run_s < SETTLE_S:
+            return
+        last, self._last = self._last, (hlt, mash)
+        if last is None:
+            self._h0, self._x, self._y = hlt, 0.0, 0.0
+            self._block = LineFit()
+            self._block.add(0.0, 0.0)
+            return
+        ts = self._period
+        h_mean = 0.5 * (last[0] + hlt)
+        self._x += ts * (h_mean - 0.5 * (last[1] + mash))
+        heat = self._watts * self._arrived[0] / 100.0 * ts
+        self._y += -heat + self._loss * (h_mean - self._room) * ts
+        point = (self._x, self._capacity * (hlt - self._h0) + self._y)
+        self._block.add(*point)
+        if self._block.n * ts > BLOCK_S:
+            self._close_block(point)
+
+    def _interrupt(self) -> None:
+        """The pump stopped or a reading failed: the open block is dropped, a new run starts."""
+        self._run_s = 0.0
+        self._last = None
+        self._block = LineFit()
+
+    def _close_block(self, point: tuple[float, float]) -> None:
+        line = self._block
+        slope = line.slope()
+        spread = line.stt - line.st * line.st / line.n  # Σ(x − x̄)²
+        if slope is not None and spread > 0.0:
+            self._blocks.append((-slope, spread))
+        # The next block starts where this one ended, with an intercept of its own.
+        self._block = LineFit()
+        self._block.add(*point)
+
+    def estimate(self) -> CoilEstimate:
+        """The day's K once a block is in (see the module's docstring), else the prior."""
+        blocks = self._blocks
+        if not blocks:
+            return self._prior
+        total = math.fsum(w for _, w in blocks)
+        mean = math.fsum(k * w for k, w in blocks) / total
+        k = min(max(mean, 0.0), MAX_CONDUCTANCE)
+        if len(blocks) < MIN_BLOCKS:
+            return CoilEstimate(k, FEW_SD * k, "learned")
+        scatter = math.fsum(w * (k - mean) ** 2 for k, w in blocks) / total
+        sd = math.sqrt(scatter / (len(blocks) - 1))
+        return CoilEstimate(k, max(sd, SD_FLOOR * k), "learned")

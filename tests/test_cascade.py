@@ -1,0 +1,167 @@
+"""The HERMS's outer loop (control/cascade.py), on numbers worked by hand from docs/mash-control.md.
+
+The tanks: an HLT of 100 L (C_h = 418 600 J/K) and a mash of C_m = 209 300 J/K (half of it,
+so C_h/C_m = 2); room 20 °C.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from hermsd.control.cascade import (
+    COAST_AIM,
+    HLT_MARGIN,
+    Cascade,
+    Decision,
+    Tanks,
+    coast_peak,
+    holding_hlt,
+)
+from hermsd.control.coil import CoilEstimate, prior_estimate
+from hermsd.control.learning import LearnedModel, ModelStore
+
+LOSSLESS = Tanks(
+    hlt_capacity=418_600.0, hlt_loss=0.0, mash_capacity=209_300.0, mash_loss=0.0, room=20.0
+)
+EXACT = CoilEstimate(200.0, 0.0, "learned")
+
+
+def cascade(tanks: Tanks = LOSSLESS, *, limit: float = 5.15, hlt_max: float = 90.0) -> Cascade:
+    return Cascade(tanks, limit=limit, hlt_max=hlt_max, period=5.0)
+
+
+def step(
+    c: Cascade,
+    mash: float | None,
+    hlt: float,
+    *,
+    pump: bool = True,
+    sp: float = 65.0,
+    coil: CoilEstimate = EXACT,
+    age: float = 0.0,
+) -> Decision:
+    return c.step(mash_sp=sp, mash_pv=mash, mash_age=age, hlt_pv=hlt, pump=pump, coil=coil)
+
+
+def test_the_hlt_a_hold_needs_stands_above_the_rest_by_the_mash_losses_share() -> None:
+    # 65 + 10 W/K · (65 − 20) K / 200 W/K = 65 + 450/200 = 67.25 °C
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=10.0)
+    assert holding_hlt(65.0, tanks, 200.0) == pytest.approx(67.25, abs=1e-12)
+
+
+def test_the_climb_stops_where_the_hlt_s_stored_heat_carries_the_mash_to_its_rest() -> None:
+    # Lossless, no hose: T_hold = T_sp = 65. Coasting from 70 down to it the HLT gives
+    # C_h·5 J, which lifts the mash by C_h/C_m·5 = 10 °C: the peak is aimed COAST_AIM below
+    # the rest, so the climb stops at T_m = 65 − 0.1 − 10 = 54.9 °C.
+    assert COAST_AIM == 0.1
+    below = step(cascade(), 54.85, 70.0)
+    assert (below.phase, below.hlt_setpoint) == ("climb", 65.0 + 5.15 - HLT_MARGIN)
+    at = step(cascade(), 54.95, 70.0)
+    assert (at.phase, at.hlt_setpoint) == ("coast", 65.0)
+
+
+def test_the_heat_in_the_hose_moves_the_switch_earlier_by_its_share() -> None:
+    # A round trip of 120 s: the return leg of 60 s holds K·(T_h − T_m)·60 J more for the
+    # mash (the inlet's lag on the other leg only slows the coast, lossless):
+    # C_h·5 + 200·60·(70 − T_m) = C_m·(64.9 − T_m)  →  197 300·T_m = 10 650 570,
+    # T_m = 53.98 °C
+    tanks = dataclasses.replace(LOSSLESS, hose_delay=120.0)
+    assert step(cascade(tanks), 53.93, 70.0).phase == "climb"
+    assert step(cascade(tanks), 54.03, 70.0).phase == "coast"
+
+
+def test_the_coast_s_peak_is_the_energy_balance_of_the_two_tanks() -> None:
+    # Down to a hold of 64: the mash gains 2·(70 − 64) = 12 °C. Down to one of 60, below
+    # where the tanks meet: they meet at (2·70 + 50)/3 = 63.33 °C (less e^-10 of the gap).
+    assert coast_peak(70.0, 50.0, 64.0, LOSSLESS, 200.0) == pytest.approx(62.0, abs=1e-3)
+    assert coast_peak(70.0, 50.0, 60.0, LOSSLESS, 200.0) == pytest.approx(190 / 3, abs=1e-3)
+
+
+def test_the_setpoint_never_passes_the_limit_nor_the_hlt_s_maximum() -> None:
+    assert step(cascade(limit=5.0), 40.0, 60.0).hlt_setpoint == 65.0 + 5.0 - HLT_MARGIN
+    assert step(cascade(limit=5.0, hlt_max=68.0), 40.0, 60.0).hlt_setpoint == 68.0
+
+
+def test_with_the_pump_stopped_the_hlt_is_readied_with_the_heat_the_mash_lacks() -> None:
+    # 65 + C_m·(65 − 63)/C_h = 65 + 1 = 66 °C; nothing flows, so no load
+    decision = step(cascade(), 63.0, 60.0, pump=False)
+    assert (decision.phase, decision.hlt_setpoint, decision.load_watts) == ("ready", 66.0, 0.0)
+
+
+def test_a_mash_reading_lost_holds_the_hlt_where_it_was_and_says_why() -> None:
+    c = cascade()
+    assert step(c, 40.0, 60.0).hlt_setpoint == 70.0
+    lost = step(c, None, 69.0)
+    assert (lost.phase, lost.hlt_setpoint, lost.held) == ("held", 70.0, "no mash reading")
+    # The load goes on from the last reading: 200 W/K · (69 − 40) K
+    assert lost.load_watts == pytest.approx(5800.0)
+    stale = step(c, 41.0, 69.0, age=31.0)
+    assert (stale.phase, stale.hlt_setpoint) == ("held", 70.0)
+
+
+def test_no_mash_reading_ever_holds_the_hlt_at_the_mash_setpoint_not_at_the_limit() -> None:
+    decision = step(cascade(), None, 50.0)
+    assert (decision.phase, decision.hlt_setpoint) == ("held", 65.0)
+
+
+def test_the_load_fed_forward_is_k_one_sd_low_times_the_hlt_over_the_mash() -> None:
+    # (200 − 50) W/K · (70 − 50) K = 3000 W
+    decision = step(cascade(), 50.0, 70.0, coil=CoilEstimate(200.0, 50.0))
+    assert decision.load_watts == pytest.approx(3000.0)
+    assert step(cascade(), 50.0, 70.0, pump=False).load_watts == 0.0
+
+
+def test_a_prior_k_carries_half_of_itself_for_its_uncertainty() -> None:
+    prior = prior_estimate(200.0)
+    assert (prior.conductance, prior.sd, prior.low, prior.high) == (200.0, 100.0, 100.0, 300.0)
+    with pytest.raises(ValueError, match="coil conductance 0 W/K is invalid"):
+        prior_estimate(0)
+
+
+def test_a_stored_model_keeps_the_coil_and_a_file_without_it_still_reads(tmp_path: Path) -> None:
+    store = ModelStore(tmp_path)
+    store.save(LearnedModel(0.008, 1 / 15000, 115.0, 20.0, 90.0, 0, 250.0, 12.0))
+    model, why = store.load()
+    assert why is None and model is not None and (model.coil, model.coil_sd) == (250.0, 12.0)
+    old = {"rate": 0.008, "loss": 1 / 15000, "dead_time": 115.0, "ambient": 20.0, "litres": 90.0}
+    store.path.write_text(json.dumps(old))
+    model, why = store.load()
+    assert why is None and model is not None and model.coil == 0.0
+    store.path.write_text(json.dumps({**old, "coil": -5.0}))
+    assert store.load()[0] is None
+
+
+def test_a_mash_that_stands_still_teaches_the_losses_its_coil_makes_up() -> None:
+    # Held at 65 °C on an HLT of 66.5 through 200 W/K: the coil gives 300 W, so the mash loses
+    # 300 W at 45 K above the room, 6.667 W/K, whatever the config guessed (5 W/K). And the
+    # hold's HLT follows: 65 + 6.667·45/200 = 66.5 °C.
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=5.0)
+    c = cascade(tanks)
+    for _ in range(2000):
+        decision = step(c, 65.0, 66.5)
+    assert c.mash_loss == pytest.approx(300.0 / 45.0, rel=1e-3)
+    assert decision.hlt_setpoint == pytest.approx(66.5, abs=1e-3)
+
+
+def test_a_coil_that_passes_nothing_leaves_the_hlt_at_the_limit_not_at_infinity() -> None:
+    # A K learned at 0 (a stuck bed): the hold would need an endless HLT; the setpoint stays
+    # at the limit, 65 + 5.15 − 0.15 = 70 °C, and nothing is fed forward.
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=5.0)
+    decision = step(cascade(tanks), 64.9, 66.0, coil=CoilEstimate(0.0, 0.0, "learned"))
+    assert decision.hlt_setpoint == 70.0 and decision.load_watts == 0.0
+
+
+def test_tanks_without_heat_capacity_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"mash_capacity=0\.0 J/K is invalid"):
+        dataclasses.replace(LOSSLESS, mash_capacity=0.0)
+
+
+def test_an_hlt_above_its_setpoint_is_fed_no_load() -> None:
+    # The climb's setpoint is 70 °C: at 70.1 the load is fed, 200·(70.1 − 50) = 4020 W; at
+    # 70.2, beyond HLT_MARGIN, it is not (a stuck bed draws nothing; the law must not heat).
+    assert step(cascade(), 50.0, 70.1).load_watts == pytest.approx(4020.0)
+    assert step(cascade(), 50.0, 70.2).load_watts == 0.0

@@ -1,0 +1,80 @@
+"""The coil's conductance learned from a day's data (control/coil.py).
+
+A synthetic day on the linear two-tank model of docs/mash-control.md, integrated by the second:
+an HLT of 100 L (C_h = 418 600 J/K, UA_h = 8 W/K, a 5500 W element whose heat arrives 10 s
+after its duty), a mash of C_m = 230 000 J/K (UA_m = 6 W/K) doughed in at 45 °C, a coil of
+K = 250 W/K whose heat reaches the mash 30 s late (the hose), room 20 °C. The HLT is held
+near 75 °C by a plain proportional duty, and the mash climbs to it. Every second each sensor
+reads its tank with noise of sd 0.05 °C, truncated to 0.0625 °C (the LM92's LSB); a period
+(5 s) takes the mean of its five readings.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import deque
+
+import pytest
+
+from hermsd.control.coil import CoilEstimate, CoilEstimator, prior_estimate
+
+C_H, UA_H, WATTS = 418_600.0, 8.0, 5500.0
+C_M, UA_M, K, ROOM = 230_000.0, 6.0, 250.0, 20.0
+HOSE_S, ELEMENT_S, PERIOD = 30, 10, 5
+
+
+def read(rng: random.Random, temperature: float) -> float:
+    return math.floor((temperature + rng.gauss(0.0, 0.05)) / 0.0625) * 0.0625
+
+
+def day(seed: int, *, minutes: int = 90, pump_from_s: int = 600) -> CoilEstimate:
+    rng = random.Random(seed)
+    estimator = CoilEstimator(
+        hlt_capacity=C_H,
+        hlt_loss=UA_H,
+        room=ROOM,
+        element_watts=WATTS,
+        dead_time=ELEMENT_S,
+        period=PERIOD,
+        prior=prior_estimate(200.0),
+    )
+    hlt, mash, duty = 60.0, 45.0, 0.0
+    element: deque[float] = deque([0.0] * ELEMENT_S, maxlen=ELEMENT_S)
+    hose: deque[float] = deque([0.0] * HOSE_S, maxlen=HOSE_S)
+    hlt_reads: list[float] = []
+    mash_reads: list[float] = []
+    for second in range(minutes * 60):
+        pump = second >= pump_from_s
+        coil = K * (hlt - mash) if pump else 0.0
+        heat = element[0]
+        element.append(WATTS * duty / 100.0)
+        arriving = hose[0]
+        hose.append(coil)
+        hlt += (heat - coil - UA_H * (hlt - ROOM)) / C_H
+        mash += (arriving - UA_M * (mash - ROOM)) / C_M
+        hlt_reads.append(read(rng, hlt))
+        mash_reads.append(read(rng, mash))
+        if len(hlt_reads) == PERIOD:
+            hlt_pv, mash_pv = sum(hlt_reads) / PERIOD, sum(mash_reads) / PERIOD
+            hlt_reads.clear()
+            mash_reads.clear()
+            estimator.period(hlt=hlt_pv, mash=mash_pv, applied=duty, pump=pump)
+            duty = min(100.0, max(0.0, 40.0 * (75.0 - hlt_pv)))
+    return estimator.estimate()
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_k_from_a_noisy_day_lies_within_its_stated_uncertainty(seed: int) -> None:
+    estimate = day(seed)
+    assert estimate.source == "learned"
+    assert abs(estimate.conductance - K) <= 2.0 * estimate.sd
+    assert estimate.sd <= 0.1 * K  # and the uncertainty says something
+
+
+def test_before_a_block_of_the_pump_s_run_the_prior_stands_and_after_one_k_at_15_percent() -> None:
+    # The pump from 10 min; a minute for the coil to settle and two for a block
+    assert day(0, minutes=12) == prior_estimate(200.0)
+    one = day(0, minutes=14)
+    assert one.source == "learned" and one.sd == pytest.approx(0.15 * one.conductance)
+    assert abs(one.conductance - K) <= 2.0 * one.sd
