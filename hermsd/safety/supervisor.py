@@ -405,7 +405,9 @@ class Supervisor:
         the last two half-watches (the later one past the dead time) by at least half of
         `heater_max_fall`, the later by at least half the earlier. Water poured in shows
         through the sensor's lag (≤ 120 s) as a decaying fall, e^(−150/120) = 0.29 of it in
-        the second half-watch, and the element's heat adds to that: not steady.
+        the second half-watch, and the element's heat adds to that: not steady. A HERMS coil
+        may take more than the element gives: the most it may take (`_coil_fall`) is taken
+        off each half's fall and off the least rise, so a fall it can explain is no verdict.
         """
         lim, watch = self.limits, self._heater_watch
         if applied < lim.heating_output(pv):
@@ -497,7 +499,9 @@ class Supervisor:
         watch's first third: with no pour in the watch, the energy balance is what times the
         alarm. A steady heater passes the thirds when its rise per third, times
         1 − e^(−third/120 s), beats 0.1 °C: from 6.3, 1.3 and 0.3 °C/h for the 300, 900 and
-        3600 s watches, each below the rate the watch itself needs (6, 2 and 0.5 °C/h).
+        3600 s watches, each below the rate the watch itself needs (6, 2 and 0.5 °C/h). A
+        mash warmer than the water gives heat back through a HERMS coil: the most it may give
+        over the window and the heat's memory is allowed on top (`_coil_rise`).
         """
         lim, history = self.limits, self._energy
         previous, self._last_period_t = self._last_period_t, t
