@@ -94,6 +94,7 @@ BOUNDS = [
     Bound("pump.line", int, 0, 511, nullable=True),
     Bound("pump.channel", int, 1, 8),
     Bound("herms.max_hlt_above_mash", float, 1, 20),
+    Bound("herms.max_coil_flow", float, 1, 60),
     Bound("output.line", int, 0, 511, nullable=True),
     Bound("output.window", float, 1, 60, nullable=True),
     Bound("output.min_on", float, 0, 10),
@@ -493,7 +494,7 @@ def test_defaults_are_the_specified_ones() -> None:
             "channel": 3,
             "baud": 9600,
         },
-        "herms": {"max_hlt_above_mash": 10.0},
+        "herms": {"max_hlt_above_mash": 10.0, "max_coil_flow": 12.0},
         "safety": {
             "max_temp": 95.0,
             "hysteresis": 5.0,

@@ -261,6 +261,8 @@ class HermsConfig:
 
     # At most this far above the mash at the coil's outlet: the enzymes' protection.
     max_hlt_above_mash: float = _number(10.0, 1, 20, "°C")
+    # The most the pump moves through the coil: the safety's bound on the coil's load.
+    max_coil_flow: float = _number(12.0, 1, 60, "L/min")
 
 
 @dataclass(frozen=True, slots=True)

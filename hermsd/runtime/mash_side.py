@@ -16,6 +16,7 @@ from hermsd.hardware.lm92 import SensorError
 from hermsd.program.runner import MashReading
 from hermsd.runtime.loop_state import LoopState
 from hermsd.runtime.notify import mash_side_words
+from hermsd.safety.coil_load import NO_LOAD, CoilLoad, coil_load
 
 if TYPE_CHECKING:
     from hermsd.hardware.sensors.base import Sensor
@@ -173,6 +174,17 @@ class MashSide(LoopState):
             "coil": None if coil is None else coil.celsius,
             "pump": self._pump_on if self.pump_fitted else None,
         }
+
+    def coil_load(self, hlt: float | None) -> CoilLoad:
+        """The coil's load on the HLT at `hlt` °C, for the supervisor's heat balances: none
+        without a mash sensor (no HERMS known) or with the pump hermsd switches off; counted
+        with a pump hermsd does not switch, which may be running (docs/herms.md, "The coil
+        and the safety")."""
+        mash = self._roles.get("mash_sensor")
+        if mash is None or hlt is None:
+            return NO_LOAD
+        pump = self._pump_on if self.pump_fitted else None
+        return coil_load(hlt, mash.celsius, pump, self.config.herms.max_coil_flow)
 
     def mash_words(self) -> str:
         """The status line's 'mash 64.8 °C, pump on' (`notify.mash_side_words`)."""
