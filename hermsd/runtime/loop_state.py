@@ -1,6 +1,6 @@
 """What the loop's parts in their own modules (`reloading.py`, `running_program.py`,
-`latch_keeping.py`, `mash_side.py`, `reporting.py`) share with the `Daemon` they make up: its state, and the
-steps of its own they call. Declared here, set and defined by the Daemon."""
+`latch_keeping.py`, `mash_side.py`, `reporting.py`) share with the `Daemon` they make up: its
+state, and the steps of its own they call. Declared here, set and defined by the Daemon."""
 
 from __future__ import annotations
 
