@@ -235,6 +235,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
         )
         self.program = parts.program
         self._roles, self._pump_on = role_sensors(parts), False
+        self._mash_control = parts.mash_control
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -443,7 +444,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
             return  # the learner models one element
         learner = self._learner
         fit = predictive.heat_up_fit(self.controller)
-        if record.state != "ok" or record.mode != "auto" or record.pv is None:
+        pumping = record.pump or record.coil_load  # the coil draws heat the model has not
+        if record.state != "ok" or record.mode != "auto" or record.pv is None or pumping:
             learner.interrupt()
         elif record.reset_from is not None and record.k > 1:
             learner.interrupt()  # resumed after a hold: the spell before it does not count
@@ -459,7 +461,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
             else:
                 self._event(logging.WARNING, f"heat-up measure refused: {fit.refused}", record.t)
         else:
-            estimate = learner.period(record.setpoint, record.pv, record.applied)
+            estimate = learner.period(record.hlt_target, record.pv, record.applied)
             if estimate is not None:
                 self._store_model(models, estimate.model, estimate.refused, record.t)
         self._heat_up_seen = fit
@@ -505,7 +507,9 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
         """
         if self._full_from is not None or not self._stepped or self._pv is None:
             return
-        if not predictive.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
+        if not predictive.full_power_now(
+            self.controller, self.hlt_target(), self._pv, self._readings
+        ):
             return
         self._full_from = len(self._readings)
         window = self._window
@@ -608,6 +612,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
         self._drain_alarms(now)
         # The schedule's tun is both elements (its rates are of their sum): so is its duty.
         standby = self._program_period(now, pv, total_applied, at_full) and self.mode == "auto"
+        target = self._steer(pv, applied, now)  # the HLT's setpoint (the mash's outer loop's)
         state = "ok"
         reset_from: float | None = None
         if standby and sup.heater_allowed and pv is not None:
@@ -625,7 +630,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
                     self._held = False
                 if full_from is not None:
                     predictive.cold_water_seen(self.controller)
-                self.output = self.controller.step(self.setpoint, pv, applied)
+                self.output = self.controller.step(target, pv, applied)
                 self._stepped = True
                 controller = self.controller
                 asked_outputs = (
@@ -808,7 +813,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
             self._event(logging.INFO, probed.message, now)
         elif probed is not None and probed.element is not None:
             reports.append(watch.blame(now, probed.element, probed.message))
-        reports += watch.period(now, pv, self.setpoint, duty1, duty2, state == "ok")
+        reports += watch.period(now, pv, self.hlt_target(), duty1, duty2, state == "ok")
         for report in reports:
             self._event(logging.WARNING if report.raised else logging.INFO, report.message, now)
             self._alert("element_warning", report.message, now, report_kind(report.element))

@@ -192,13 +192,18 @@ def status_line(
     return f"{name} {measured} °C → {setpoint:.2f} °C, out {output:.0f} %{second}{herms}, {state}"
 
 
-def mash_side_words(mash: dict[str, object] | None, pump: bool | None) -> str:
+def mash_side_words(mash: dict[str, object] | None, pump: bool | None, setpoint: float) -> str:
     """'mash 64.8 °C, pump on': what of the two is fitted ('mash sensor fault' while it is
-    faulty; '' when neither is fitted). `mash` as the status reply gives it."""
+    faulty; '' when neither is fitted); 'mash 64.8 → 65.0 °C (climb)' while the outer loop
+    steers the HLT for the mash's `setpoint`. `mash` as the status reply gives it."""
     words = []
     if mash is not None:
         celsius = mash["celsius"]
-        shown = f"mash {celsius:.1f} °C" if isinstance(celsius, float) else "mash --"
+        phase = mash.get("phase")
+        aim = f" → {setpoint:.1f}" if phase is not None else ""
+        shown = f"mash {celsius:.1f}{aim} °C" if isinstance(celsius, float) else f"mash --{aim}"
+        if phase is not None:
+            shown += f" ({phase})"
         words.append("mash sensor fault" if mash["fault"] is not None else shown)
     if pump is not None:
         words.append(f"pump {'on' if pump else 'off'}")

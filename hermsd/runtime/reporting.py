@@ -37,6 +37,8 @@ class Reporting(LoopState):
 
         def mash_words(self) -> str: ...
 
+        def hlt_target(self) -> float: ...
+
     @property
     def log_failing(self) -> str | None:
         """Why the log cannot be written, while it cannot (None: it is written)."""
@@ -59,7 +61,13 @@ class Reporting(LoopState):
         name, kind = self.config.tun.name, self.config.sensor.kind
         shown = name if kind == "lm92" else f"{name} ({kind})"  # the LM92's line as it was
         return status_line(
-            shown, self._pv, self.setpoint, self._asked(), state, self._output2, self.mash_words()
+            shown,
+            self._pv,
+            self.hlt_target(),
+            self._asked(),
+            state,
+            self._output2,
+            self.mash_words(),
         )
 
     def _check_log(self, t: float) -> None:

@@ -668,6 +668,8 @@ def run(
         models=models,
         tun_model=tun_model,
         saver=Saver(threaded=False),  # the disk takes no virtual time: the same day every run
+        mash_sensor=None if world.mash is None else world.mash.mash_sensor,
+        coil_sensor=None if world.mash is None else world.mash.coil_sensor,
     )
     program = scenario.program
     collector = _Collector(plant, keep_records=keep_records or program is not None)
@@ -847,6 +849,8 @@ def _apply(
         if kind == "dough_in":
             grain_kg, grain_c = value["grain_kg"], value["grain_c"]
             herms.dough_in(grain_kg, grain_c, value["water_litres"], value["water_c"], t)
+        elif kind == "pump" and daemon.pump_fitted:
+            daemon.set_pump(value, "the scenario's event")  # as the brewer's command would
         elif kind == "pump":
             herms.set_pump(value, t)
         else:
