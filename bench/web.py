@@ -11,12 +11,16 @@ history as the peer, in the same run. Also: the history reply's size with and wi
 gzip, and the server's time to answer it over 20 requests (the body is made once per
 period, so the slowest includes a rebuild: the daemon runs on at one period a second).
 
+`--herms`: the daemon is a HERMS's (a mash sensor and a pump): its mash doughed in at 70 °C
+while the HLT starts at 20 °C, the pump running from the start, so every row carries the
+mash's reading and the page draws its second line.
+
 And the daemon's part: what the loop pays per period for the ring (`encode_row` and
 `append`), and what the socket's server thread holds the interpreter lock for to make one
 page of 2,000 rows, each beside encoding the status reply, which that thread does once a
 period already.
 
-    uv run python bench/web.py [--hours 24] [--runs 5]
+    uv run python bench/web.py [--hours 24] [--runs 5] [--herms]
 """
 
 from __future__ import annotations
@@ -40,10 +44,15 @@ from hermsd.api.history import HistoryRing, capacity_for, encode_row, page_line
 from hermsd.api.link import LoopLink
 from hermsd.api.protocol import MAX_PAGE, encode
 from hermsd.api.server import ControlServer
+from hermsd.config import read
 from hermsd.config import schema as config_module
+from hermsd.config.schema import Config
 from hermsd.runtime.assemble import assemble
+from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import VirtualClock
+from hermsd.sim.hlt import FoptdPlant
+from hermsd.sim.mash import HermsTun
 from hermsd.sim.world import build_world
 from hermsd.web.app import WebSettings, create_app
 from hermsd.web.main import listening_socket, make_server
@@ -66,19 +75,43 @@ MEASURE = """() => {
 }"""
 
 
+HERMS = "mash_sensor:\n  kind: lm92\n  address: 0x49\npump:\n  backend: sim\n"
+
+
 @contextlib.contextmanager
-def page_server(hours: float, directory: Path) -> Iterator[tuple[str, int]]:
-    """A daemon with `hours` of history behind its socket, and the page in front of it."""
-    config = config_module.DEFAULT
+def simulated(herms: bool) -> Iterator[tuple[Daemon, Config, VirtualClock]]:
+    """The started daemon on the simulated tun (the default config), or on a HERMS whose
+    mash was doughed in at 70 °C (50 L at 75 °C, 12 kg of grain at 20 °C), its pump on."""
+    config = read.parse(HERMS) if herms else config_module.DEFAULT
     clock = VirtualClock()
-    world = build_world(config, clock)
-    daemon = assemble(config, clock, world.sensor, world.outputs)
-    link = LoopLink(daemon)
-    control = ControlServer(directory / "control.sock", link.status_line, link.history_line)
-    control.start()
-    link.attach(control)
-    stop = threading.Event()
+    plant = None
+    if herms:
+        plant = HermsTun(FoptdPlant())
+        plant.dough_in(grain_kg=12.0, grain_c=20.0, water_litres=50.0, water_c=75.0, t=0.0)
+    world = build_world(config, clock, tun=plant)
+    mash = world.mash
+    daemon = assemble(
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        mash_sensor=None if mash is None else mash.mash_sensor,
+    )
     with daemon:
+        if herms:
+            daemon.set_pump(True, "by the bench")
+        yield daemon, config, clock
+
+
+@contextlib.contextmanager
+def page_server(hours: float, directory: Path, herms: bool) -> Iterator[tuple[str, int]]:
+    """A daemon with `hours` of history behind its socket, and the page in front of it."""
+    with simulated(herms) as (daemon, config, clock):
+        link = LoopLink(daemon)
+        control = ControlServer(directory / "control.sock", link.status_line, link.history_line)
+        control.start()
+        link.attach(control)
+        stop = threading.Event()
         daemon.run(until=hours * 3600.0)
         periods = len(link.history.page(None, 1_000_000)[0])
 
@@ -158,16 +191,12 @@ def _per_call(call: Callable[[], object], repeat: int) -> float:
     return statistics.median(times)
 
 
-def daemon_costs() -> None:
+def daemon_costs(herms: bool) -> None:
     """Per-call µs of the ring on the loop and of a page on the server thread."""
-    config = config_module.DEFAULT
-    clock = VirtualClock()
-    world = build_world(config, clock)
-    daemon = assemble(config, clock, world.sensor, world.outputs)
-    kept = _Keep()
-    daemon.listeners.append(kept)
-    link = LoopLink(daemon)
-    with daemon:
+    with simulated(herms) as (daemon, config, _clock):
+        kept = _Keep()
+        daemon.listeners.append(kept)
+        link = LoopLink(daemon)
         daemon.run(until=24 * 3600.0)
         link.period(kept.records[-1])  # a snapshot to encode, as at a boundary
     ring = HistoryRing(capacity_for(config.control.period))
@@ -191,6 +220,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--hours", type=float, default=24.0)
     parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--herms", action="store_true", help="a HERMS: the mash's line too")
     args = parser.parse_args()
     rows = []
     with sync_playwright() as playwright:
@@ -198,7 +228,7 @@ def main() -> None:
         for hours in (1.0, args.hours):
             with (
                 tempfile.TemporaryDirectory() as directory,
-                page_server(hours, Path(directory)) as (url, periods),
+                page_server(hours, Path(directory), args.herms) as (url, periods),
             ):
                 with httpx.Client(base_url=url, timeout=30.0) as client:
                     _t, plain, _ = _history(client, "identity")
@@ -219,7 +249,7 @@ def main() -> None:
             f"{figures['bytes']:.0f} | {gzipped} / {plain} | {median * 1e3:.1f} / "
             f"{slowest * 1e3:.1f} |"
         )
-    daemon_costs()
+    daemon_costs(args.herms)
     day, hour = rows[-1][6], rows[0][6]
     print(
         f"\n{args.hours:g} h against 1 h: first paint ×{day['fcp'] / hour['fcp']:.2f}, chart "

@@ -434,6 +434,18 @@ def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
     assert ran[0] is False and True in ran and ran[-1] is False
 
 
+def test_status_shows_the_coil_outlet_on_a_line_of_its_own(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """With the pump off the wort stands: the coil outlet reads the mash's 20 °C (the
+    DS18B20's 1/16 °C steps hold 20 exactly)."""
+    with served(tmp_path) as (_daemon, where, _periods):
+        assert main(["status", "--socket", os.fspath(where)]) == 0
+    line, coil, *_ = capsys.readouterr().out.splitlines()
+    assert ", mash 20.0 °C, pump off, " in line
+    assert coil == "coil outlet 20.0 °C"
+
+
 @pytest.mark.parametrize(
     ("argv", "says"),
     [

@@ -43,6 +43,7 @@ from hermsd.program.model import Program, Step
 from hermsd.program.store import PROGRESS_FILE
 from hermsd.runtime.instance import InstanceError
 from hermsd.safety.latches import LatchStore
+from hermsd.sim.hlt import Plant
 
 ROOT = Path(__file__).resolve().parents[1]
 MOSQUITTO = Path("/usr/sbin/mosquitto")
@@ -164,11 +165,21 @@ class Watcher:
 class Rig:
     """Broker, daemon behind its socket, the bridge on a thread, and a watcher."""
 
-    def __init__(self, tmp_path: Path, latches: LatchStore | None = None) -> None:
+    def __init__(
+        self,
+        tmp_path: Path,
+        latches: LatchStore | None = None,
+        *,
+        text: str = BASE,
+        tun: Plant | None = None,
+    ) -> None:
+        """`text` and `tun`: the daemon's config and plant (a HERMS: `test_reload.HERMS`)."""
         self.broker = Broker(tmp_path)
         self.broker.start()
-        self.text = edited(BASE, mqtt__port=str(self.broker.port), mqtt__topic_prefix=PREFIX)
-        self.daemon, _world, self.path, self.events = start(tmp_path, self.text, latches=latches)
+        self.text = edited(text, mqtt__port=str(self.broker.port), mqtt__topic_prefix=PREFIX)
+        self.daemon, _world, self.path, self.events = start(
+            tmp_path, self.text, latches=latches, tun=tun
+        )
         self.config = read.load(self.path)
         self.socket = tmp_path / "control.sock"
         self.server = self._serve()
@@ -224,6 +235,12 @@ class Rig:
     def command(self, topic: str, payload: bytes, *, retain: bool = False) -> None:
         self.watcher.client.publish(topic, payload, 1, retain=retain).wait_for_publish(TIMEOUT)
 
+    def __enter__(self) -> Rig:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
         self.bridge.stop()
         self.thread.join(TIMEOUT)
@@ -235,11 +252,8 @@ class Rig:
 
 @pytest.fixture
 def rig(tmp_path: Path) -> Iterator[Rig]:
-    made = Rig(tmp_path)
-    try:
+    with Rig(tmp_path) as made:
         yield made
-    finally:
-        made.close()
 
 
 def operator_lines(events: Events) -> list[str]:

@@ -29,7 +29,9 @@ from hermsd.runtime.saver import Saver
 from hermsd.safety.latches import LatchStore
 from hermsd.safety.limits import Alarm
 from hermsd.sim.clock import VirtualClock
-from hermsd.sim.world import World, build_world
+from hermsd.sim.hlt import FoptdPlant, Plant
+from hermsd.sim.mash import HermsTun
+from hermsd.sim.world import MashSide, World, build_world
 
 SHIPPED = (Path(__file__).parent.parent / "config" / "hermsd.yaml").read_text(encoding="utf-8")
 PERIOD = 5.0
@@ -48,6 +50,16 @@ def edited(text: str, **values: str) -> str:
 
 
 BASE = edited(SHIPPED, output__backend="sim", log__dir="null")
+HERMS = BASE + "mash_sensor:\n  kind: lm92\n  address: 0x49\npump:\n  backend: sim\n"
+"""BASE with a HERMS's mash sensor and pump (for `start`'s `tun=doughed_in()`)."""
+
+
+def doughed_in() -> HermsTun:
+    """A HERMS plant with its HLT at 20 °C, its mash just doughed in at 0 s: 50 L at 75 °C
+    and 12 kg of grain at 20 °C, 70.1 °C; the pump off."""
+    plant = HermsTun(FoptdPlant(start_c=20.0))
+    plant.dough_in(grain_kg=12.0, grain_c=20.0, water_litres=50.0, water_c=75.0, t=0.0)
+    return plant
 
 
 class Events:
@@ -108,21 +120,26 @@ def start(
     watch: bool = True,
     reads: Start = at_once,
     saver: Saver | None = None,
+    tun: Plant | None = None,
 ) -> tuple[Daemon, World, Path, Events]:
-    """A started daemon on the simulated tun whose config is `text` in a file in `tmp_path`."""
+    """A started daemon on the simulated tun (or `tun`: a HERMS plant for the mash side)
+    whose config is `text` in a file in `tmp_path`."""
     tmp_path.mkdir(parents=True, exist_ok=True)
     path = tmp_path / "hermsd.yaml"
     path.write_text(text, encoding="utf-8")
     source = ConfigFile(path, reads)
     config = source.load()
     clock = VirtualClock()
-    world = build_world(config, clock)
+    world = build_world(config, clock, tun=tun)
     events = Events()
+    mash = world.mash or MashSide()
     daemon = assemble(
         config,
         clock,
         world.sensor,
         world.outputs,
+        mash_sensor=mash.mash_sensor,
+        coil_sensor=mash.coil_sensor,
         recorder=events,
         notifier=FakeNotifier(events.notified),  # type: ignore[arg-type]
         config_file=source if watch else None,

@@ -17,11 +17,13 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from test_reload import HERMS, doughed_in
 from webpage import CHROMIUM, CHROMIUM_ARGS, PASSWORD, PHONE, TIMEOUT, Site, site
 
 from hermsd.api.protocol import ProgramAction
 
 TEMPERATURE_RED = (0xC6, 0x28, 0x28)  # the temperature line's colour in app.js
+MASH_GREEN = (0x2E, 0x7D, 0x32)  # the mash line's
 WAIT_MS = TIMEOUT * 1000
 
 
@@ -49,11 +51,18 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
 
 @pytest.fixture
 def page(browser: Browser, live: Site) -> Iterator[Page]:
+    with _opened(browser, live) as opened:
+        yield opened
+
+
+@contextmanager
+def _opened(browser: Browser, served: Site) -> Iterator[Page]:
+    """The page of `served` at phone size, once it shows a status; no script error in it."""
     context = browser.new_context(viewport=PHONE)
     page = context.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda error: errors.append(str(error)))
-    page.goto(live.url)
+    page.goto(served.url)
     _until(page, "document.body.dataset.t !== undefined")
     yield page
     context.close()
@@ -148,19 +157,20 @@ def test_at_phone_size_the_page_shows_the_essentials(page: Page, live: Site) -> 
     assert len(colours) > 100, "the screenshot is (nearly) blank"
     chart = page.locator("#chart canvas").bounding_box()
     assert chart is not None
-    red = _count_colour(pixels, width, chart, TEMPERATURE_RED)
-    assert red > 50, "no temperature line drawn in the chart"
+    red = _rows_of_colour(pixels, width, chart, TEMPERATURE_RED)
+    assert len(red) > 50, "no temperature line drawn in the chart"
 
 
-def _count_colour(
+def _rows_of_colour(
     pixels: bytes, width: int, box: dict[str, float], colour: tuple[int, int, int]
-) -> int:
-    found = 0
+) -> list[int]:
+    """The row (y) of each pixel in `box` near `colour`."""
+    found = []
     for y in range(int(box["y"]), int(box["y"] + box["height"])):
         for x in range(int(box["x"]), int(box["x"] + box["width"])):
             r, g, b = pixels[3 * (y * width + x) : 3 * (y * width + x) + 3]
             if abs(r - colour[0]) + abs(g - colour[1]) + abs(b - colour[2]) < 40:
-                found += 1
+                found.append(y)
     return found
 
 
@@ -495,3 +505,85 @@ def test_a_log_that_cannot_be_written_is_a_warning_on_the_page(page: Page, live:
         with live.held():
             live.daemon.recorder = recorder
     _until(page, "document.getElementById('warning-box').hidden")  # writing again
+
+
+# -- a HERMS: the mash's line and the pump --------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def herms(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Site]:
+    """A HERMS whose mash was doughed in at about 70 °C while the HLT heats from 20 °C."""
+    with site(tmp_path_factory.mktemp("herms"), text=HERMS, tun=doughed_in()) as served:
+        yield served
+
+
+@pytest.fixture
+def herms_page(browser: Browser, herms: Site) -> Iterator[Page]:
+    with _opened(browser, herms) as opened:
+        yield opened
+
+
+def test_without_a_mash_side_the_page_shows_nothing_of_it(page: Page) -> None:
+    _until(page, "window.hermsd.points() > 3")
+    _log_in(page)
+    hidden = "['mash-box', 'pump-box', 'pump-row'].map((id) => document.getElementById(id).hidden)"
+    assert page.evaluate(hidden) == [True, True, True]
+    labels = page.evaluate("window.hermsd.chart().series.map((s) => s.label)")
+    assert labels == ["Time", "Temperature °C", "Setpoint °C", "Output %"]
+
+
+def test_at_phone_size_the_mash_is_the_charts_second_line_above_the_hlts(
+    herms_page: Page, herms: Site
+) -> None:
+    page = herms_page
+    _until(page, "window.hermsd.points() > 10 && window.hermsd.chart().series.length === 5")
+    assert page.evaluate("document.documentElement.scrollWidth") <= PHONE["width"]
+    legend = page.locator(".u-legend").text_content() or ""
+    assert "Mash °C" in legend and "Temperature °C" in legend
+    for selector in ("#pv", "#mash", "#pump", "#chart canvas"):
+        box = page.locator(selector).bounding_box()
+        assert box is not None and box["y"] + box["height"] <= PHONE["height"], selector
+    status = page.evaluate("window.lastStatus")
+    assert page.text_content("#mash") == f"{status['mash']['celsius']:.1f} °C"
+    assert 60.0 < status["mash"]["celsius"] <= 70.2 and page.text_content("#pump") == "off"
+    shot = page.screenshot()
+    width, _height, pixels = _decode_png(shot)
+    chart = page.locator("#chart canvas").bounding_box()
+    assert chart is not None
+    mash = _rows_of_colour(pixels, width, chart, MASH_GREEN)
+    hlt = _rows_of_colour(pixels, width, chart, TEMPERATURE_RED)
+    assert len(mash) > 50, "no mash line drawn in the chart"
+    assert len(hlt) > 50, "no temperature line drawn in the chart"
+    # the mash near 70 °C, the HLT below 40 °C: the mash's line higher on the screen
+    assert sum(mash) / len(mash) < sum(hlt) / len(hlt) - 20
+
+
+def test_the_pump_button_starts_and_stops_the_pump_at_the_next_period(
+    herms_page: Page, herms: Site
+) -> None:
+    page = herms_page
+    _log_in(page)
+    assert page.is_visible("#pump-button") and page.text_content("#pump-button") == "Start pump"
+    for shown, button, done in (("on", "Stop pump", True), ("off", "Start pump", False)):
+        with herms.held():
+            mark = len(herms.events.periods)
+            page.click("#pump-button")
+            herms.wait_for_command()
+            assert page.is_disabled("#pump-button")  # no second click on its way
+            herms.step()
+            page.wait_for_selector("#message.ok", timeout=WAIT_MS)
+            stepped = herms.events.periods[mark - 1 :]
+        assert page.text_content("#message") == f"pump {shown}: done"
+        assert [record.pump for record in stepped] == [not done, done]
+        assert page.text_content("#pump") == shown
+        assert page.text_content("#pump-button") == button
+
+
+def test_a_faulty_mash_sensor_is_said_where_its_reading_was(herms_page: Page, herms: Site) -> None:
+    with _status_held(herms_page, herms, "#alarm-box") as status:
+        why = "no answer from the LM92 at 0x49"
+        faulty = {**status, "mash": {"celsius": None, "fault": why}}
+        herms_page.evaluate("(status) => onEvent({status, rows: [], offset: 0, age: 0})", faulty)
+        assert herms_page.text_content("#mash") == "sensor fault"
+        assert herms_page.get_attribute("#mash", "title") == why
+        assert herms_page.evaluate("window.hermsd.chart().series.length") == 5  # a gap, kept

@@ -20,6 +20,7 @@ from test_reload import BASE, PERIOD, Events, run_for, start
 from hermsd.api.link import LoopLink
 from hermsd.api.server import ControlServer
 from hermsd.runtime.daemon import Daemon
+from hermsd.sim.hlt import Plant
 from hermsd.web.app import WebSettings, create_app
 from hermsd.web.hub import Hub
 from hermsd.web.main import listening_socket, make_server
@@ -92,11 +93,19 @@ class Site:
 
 @contextlib.contextmanager
 def site(
-    tmp_path: Path, *, read_only_view: bool = True, pace: float = 0.05, stale_after: float = 60.0
+    tmp_path: Path,
+    *,
+    read_only_view: bool = True,
+    pace: float = 0.05,
+    stale_after: float = 60.0,
+    text: str = BASE,
+    tun: Plant | None = None,
 ) -> Iterator[Site]:
     """`stale_after`: s a reading is shown as live; long by default, as a test may hold the
-    loop longer than two periods (10 s of wall time here, as the hub counts them)."""
-    daemon, _world, _path, events = start(tmp_path, BASE)
+    loop longer than two periods (10 s of wall time here, as the hub counts them). `text`
+    and `tun`: the daemon's config and plant (`test_reload.HERMS` and `doughed_in()`: a
+    HERMS)."""
+    daemon, _world, _path, events = start(tmp_path, text, tun=tun)
     link = LoopLink(daemon)
     control = ControlServer(tmp_path / "control.sock")
     control.answer_with(link.status_line, link.history_line, link.arrived)

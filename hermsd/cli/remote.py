@@ -29,7 +29,7 @@ from hermsd.cli.common import (
 from hermsd.cli.run import (
     _default_state_directory,
 )
-from hermsd.runtime.notify import mash_side_words, status_line
+from hermsd.runtime.notify import mash_side_words, role_words, status_line
 from hermsd.safety.latches import Latches, LatchStore, StateError
 
 if TYPE_CHECKING:
@@ -123,6 +123,8 @@ def cmd_status(args: argparse.Namespace) -> int:
         mash_side_words(mash, reply.get("pump"), reply["setpoint"]),
     )
     print(f"{line} (applied {reply['applied']:.0f} %), {_mode_text(reply)}")
+    if reply.get("coil") is not None:  # the mash and the pump are in the line above
+        print(role_words("coil outlet", reply["coil"]))
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
     for kind, reason in reply.get("alarm_reasons", {}).items():
         print(f"  {kind}: {reason}")

@@ -279,6 +279,7 @@ class Bridge:
             [
                 (self.topics.set_setpoint, QOS),
                 (self.topics.set_mode, QOS),
+                (self.topics.set_pump, QOS),
                 (self.topics.home_assistant_status, QOS),
             ]
         )

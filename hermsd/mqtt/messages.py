@@ -15,6 +15,10 @@ limits), "off" asks for manual at 0 %. A manual output above 0 % is not offered 
 a fixed duty nobody watches heats until the supervisor's cut-out, which is the last line,
 not the plan. A setpoint is checked by the config's own rules here, before it is sent, and
 again by the daemon.
+
+A HERMS's mash side: the mash sensor's reading is a temperature sensor of its own, and the
+pump a switch ("ON" runs it, "OFF" stops it, as `hermsd set pump on|off`), each announced
+only when the config fits it.
 """
 
 from __future__ import annotations
@@ -25,9 +29,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd import __version__
-from hermsd.api.protocol import SetMode, SetSetpoint
+from hermsd.api.protocol import SetMode, SetPump, SetSetpoint
 from hermsd.config import read, rules
 from hermsd.config.schema import Config
+from hermsd.runtime.mash_side import NO_PUMP
 
 ONLINE = "online"
 OFFLINE = "offline"
@@ -36,8 +41,9 @@ MAX_PAYLOAD = 64  # bytes: a setpoint or a mode is a few; more is not a command
 TEXT_STATE_LIMIT = 255  # characters Home Assistant keeps in a sensor's state
 _NUMBER = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
 HA_MODES = {"heat": SetMode("auto"), "off": SetMode("manual", 0.0)}
+PUMP_PAYLOADS = {"ON": SetPump(True), "OFF": SetPump(False)}  # the switch's, HA's defaults
 
-Command = SetSetpoint | SetMode
+Command = SetSetpoint | SetMode | SetPump
 
 
 class Refused(ValueError):
@@ -55,6 +61,7 @@ class Topics:
     availability: str
     set_setpoint: str
     set_mode: str
+    set_pump: str
     error: str
     home_assistant_status: str  # its birth and last will: "online" when it (re)starts
 
@@ -68,6 +75,7 @@ class Topics:
             availability=f"{prefix}/availability",
             set_setpoint=f"{prefix}/set/setpoint",
             set_mode=f"{prefix}/set/mode",
+            set_pump=f"{prefix}/set/pump",
             error=f"{prefix}/error",
             home_assistant_status=f"{discovery_prefix}/status",
         )
@@ -93,6 +101,8 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
     program = program if isinstance(program, dict) else {}
     step = program.get("step")
     step = step if isinstance(step, dict) else {}
+    mash = status.get("mash")
+    mash = mash if isinstance(mash, dict) else {}
     return {
         "t": status["t"],
         "tun": status["tun"],
@@ -121,6 +131,8 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "time_left_s": program.get("time_left_s"),
         "next_step": program.get("next"),
         "message": program.get("message"),
+        "mash": mash.get("celsius"),
+        "pump": status.get("pump"),
     }
 
 
@@ -139,10 +151,10 @@ def setpoint_range(config: Config) -> tuple[float, float]:
 
 def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[str, Any] | None]]:
     """(topic, payload) of each entity Home Assistant should make for this tun: a climate
-    entity, sensors (the second element's duty when one is fitted), and binary sensors on
-    while an alarm stands and while a warning does (the log or a save failing). A payload of
-    None is an entity this config has not: sent empty, it removes one an earlier config
-    made."""
+    entity, sensors (the second element's duty and the mash's temperature when they are
+    fitted), the pump's switch when one is fitted, and binary sensors on while an alarm
+    stands and while a warning does (the log or a save failing). A payload of None is an
+    entity this config has not: sent empty, it removes one an earlier config made."""
     node = topics.node_id
     device = {
         "identifiers": [f"hermsd_{node}"],
@@ -187,12 +199,38 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         )
 
     percent = {"unit_of_measurement": "%", "state_class": "measurement"}
+    celsius = {
+        "device_class": "temperature",
+        "unit_of_measurement": "°C",
+        "state_class": "measurement",
+    }
     # A second element's duty is a sensor of its own; without one, its topic gets an empty
     # payload, which removes the entity a config with one left retained on the broker.
     element2 = (
         sensor("output2", "Element 2 output", "output2", **percent)
         if config.element2.backend != "none"
         else (topics.discovery("sensor", "output2"), None)
+    )
+    mash = (
+        sensor("mash", "Mash temperature", "mash", suggested_display_precision=1, **celsius)
+        if config.mash_sensor.fitted
+        else (topics.discovery("sensor", "mash"), None)
+    )
+    pump = (
+        topics.discovery("switch", "pump"),
+        entity(
+            "pump",
+            "Pump",
+            state_topic=topics.state,
+            value_template="{{ 'ON' if value_json.pump else 'OFF' }}",
+            command_topic=topics.set_pump,
+            payload_on="ON",
+            payload_off="OFF",
+            icon="mdi:pump",
+            qos=1,
+        )
+        if config.pump.backend != "none"
+        else None,
     )
     return [
         (
@@ -219,18 +257,12 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
                 qos=1,
             ),
         ),
-        sensor(
-            "temperature",
-            "Temperature",
-            "pv",
-            device_class="temperature",
-            unit_of_measurement="°C",
-            state_class="measurement",
-            suggested_display_precision=2,
-        ),
+        sensor("temperature", "Temperature", "pv", suggested_display_precision=2, **celsius),
         sensor("output", "Output", "output", **percent),
         sensor("applied", "Applied", "applied", **percent),
         element2,
+        mash,
+        pump,
         sensor("mode", "Mode", "mode_text"),
         sensor("state", "State", "state"),
         sensor("step", "Program step", "step_text"),
@@ -278,9 +310,15 @@ def parse_command(topics: Topics, topic: str, payload: bytes, config: Config) ->
         if command.output is not None:
             changes["control.manual_output"] = command.output
         problems = rules.runtime_problems(config, changes)
+    elif topic == topics.set_pump:
+        if text not in PUMP_PAYLOADS:
+            raise Refused(f"pump: expected ON (run it) or OFF (stop it), got {text!r}")
+        command = PUMP_PAYLOADS[text]
+        problems = [NO_PUMP] if config.pump.backend == "none" else []
     else:
         raise Refused(
-            f"{topic} is not a command topic ({topics.set_setpoint} or {topics.set_mode})"
+            f"{topic} is not a command topic ({topics.set_setpoint}, {topics.set_mode} or "
+            f"{topics.set_pump})"
         )
     if problems:
         raise Refused("; ".join(problems))

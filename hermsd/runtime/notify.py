@@ -198,16 +198,23 @@ def mash_side_words(mash: dict[str, object] | None, pump: bool | None, setpoint:
     steers the HLT for the mash's `setpoint`. `mash` as the status reply gives it."""
     words = []
     if mash is not None:
-        celsius = mash["celsius"]
+        shown = role_words("mash", mash)
         phase = mash.get("phase")
-        aim = f" → {setpoint:.1f}" if phase is not None else ""
-        shown = f"mash {celsius:.1f}{aim} °C" if isinstance(celsius, float) else f"mash --{aim}"
-        if phase is not None:
-            shown += f" ({phase})"
-        words.append("mash sensor fault" if mash["fault"] is not None else shown)
+        if phase is not None and mash["fault"] is None:
+            shown = shown.replace(" °C", "") + f" → {setpoint:.1f} °C ({phase})"
+        words.append(shown)
     if pump is not None:
         words.append(f"pump {'on' if pump else 'off'}")
     return ", ".join(words)
+
+
+def role_words(role: str, reading: dict[str, object]) -> str:
+    """'mash 64.8 °C' of a role's sensor as the status reply gives it; 'mash sensor fault'
+    while it is faulty, 'mash --' before its first good reading."""
+    if reading["fault"] is not None:
+        return f"{role} sensor fault"
+    celsius = reading["celsius"]
+    return f"{role} {celsius:.1f} °C" if isinstance(celsius, float) else f"{role} --"
 
 
 def _socket_address(value: str) -> str | None:

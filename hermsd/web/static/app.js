@@ -1,6 +1,8 @@
 // hermsd's page: the tun now, its last hours, and the changes a logged-in brewer may make.
 // The server pushes each control period as a server-sent event; a change goes to
 // /api/command with the session's CSRF token, and the daemon's own checks decide.
+// A HERMS's mash sensor adds the mash temperature as the chart's second line, and its pump
+// shows its state and a start/stop button; a tun without them shows neither.
 // Each event says how old its reading is: the page counts on from there, shows "live" only
 // while the reading is younger than the event's stale_after (two control periods) and the
 // daemon answers, and else says "no daemon" or the reading's age in red, every command off.
@@ -9,7 +11,9 @@
 const $ = (id) => document.getElementById(id);
 let session = { logged_in: false, csrf: null, can_log_in: false, view_open: false };
 // The chart's columns, in the daemon's seconds (t); x = t + offset (the wall clock).
-const T = [], PV = [], SP = [], OUT = [];
+const T = [], PV = [], SP = [], OUT = [], MASH = [];
+const MASH_SERIES = { label: "Mash °C", stroke: "#2e7d32", width: 2, scale: "°C" };
+let mashFitted = false; // whether the daemon reads a mash sensor: the chart has its line
 let offset = 0;
 let rangeHours = 3;
 let chart = null;
@@ -18,6 +22,7 @@ let viewing = false;
 let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
 let shownAlarms = []; // the alarms the page shows: what its reset button clears
 let shownStep = null; // the program step the page shows: what its confirm and next end
+let shownPump = null; // the pump's state the page shows (null: none fitted)
 let reading = null; // the reading shown: its age (s) when it came, and Date.now() then
 let staleAfter = 0; // s a reading stays live (from the server's events)
 let daemonDown = null; // why the daemon does not answer (the server says), or null
@@ -84,6 +89,7 @@ function render(status, age) {
   $("warning-box").hidden = warnings.length === 0;
   $("warnings").textContent = warnings.join("; ");
   renderProgram(status.program);
+  renderMashSide(status.mash, status.pump);
   if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
     $("setpoint-input").placeholder = String(status.setpoint);
   }
@@ -110,6 +116,29 @@ function renderProgram(program) {
   $("program-confirm").hidden = !waiting;
   $("program-pause").hidden = program.state === "paused" || program.state === "done";
   $("program-resume").hidden = program.state !== "paused";
+}
+
+// `mash`: null when no mash sensor is fitted, else its reading (null while faulty) and fault.
+function renderMashSide(mash, pump) {
+  $("mash-box").hidden = !mash;
+  if (mash) {
+    $("mash").textContent = mash.fault ? "sensor fault" : fixed(mash.celsius, 1, "°C");
+    $("mash").title = mash.fault || "";
+  }
+  showMashLine(Boolean(mash));
+  shownPump = typeof pump === "boolean" ? pump : null;
+  $("pump-box").hidden = shownPump === null;
+  $("pump-row").hidden = shownPump === null;
+  $("pump").textContent = shownPump ? "on" : "off";
+  $("pump-button").textContent = shownPump ? "Stop pump" : "Start pump";
+}
+
+function showMashLine(fitted) {
+  if (fitted === mashFitted || !chart) return;
+  mashFitted = fitted;
+  if (fitted) chart.addSeries(MASH_SERIES, 4);
+  else chart.delSeries(4);
+  chart.setData(columns());
 }
 
 function readingAge() {
@@ -148,7 +177,8 @@ function updateCommands() {
 }
 
 function columns() {
-  return [T.map((t) => t + offset), PV, SP, OUT];
+  const shown = [T.map((t) => t + offset), PV, SP, OUT];
+  return mashFitted ? [...shown, MASH] : shown;
 }
 
 function makeChart() {
@@ -167,6 +197,7 @@ function makeChart() {
       { label: "Temperature °C", stroke: "#c62828", width: 2, scale: "°C" },
       { label: "Setpoint °C", stroke: "#1f5fbf", width: 1.5, dash: [6, 4], scale: "°C" },
       { label: "Output %", stroke: "#888", width: 1, scale: "%", fill: "rgba(120,120,120,0.12)" },
+      ...(mashFitted ? [MASH_SERIES] : []),
     ],
     axes: [
       {},
@@ -180,14 +211,16 @@ function makeChart() {
 }
 
 function addRows(rows) {
-  for (const [t, pv, setpoint, output] of rows) {
+  for (const [t, pv, setpoint, output, mash] of rows) {
     if (T.length && t <= T[T.length - 1]) continue;
-    T.push(t); PV.push(pv); SP.push(setpoint); OUT.push(output);
+    T.push(t); PV.push(pv); SP.push(setpoint); OUT.push(output); MASH.push(mash);
   }
   const oldest = T.length ? T[T.length - 1] - 24 * 3600 : 0;
   let cut = 0;
   while (cut < T.length && T[cut] <= oldest) cut++;
-  if (cut) { T.splice(0, cut); PV.splice(0, cut); SP.splice(0, cut); OUT.splice(0, cut); }
+  if (cut) {
+    for (const column of [T, PV, SP, OUT, MASH]) column.splice(0, cut);
+  }
 }
 
 async function loadView() {
@@ -199,9 +232,10 @@ async function loadView() {
   }
   viewing = true;
   const history = response.body;
-  T.length = PV.length = SP.length = OUT.length = 0;
+  T.length = PV.length = SP.length = OUT.length = MASH.length = 0;
   T.push(...history.t); PV.push(...history.pv); SP.push(...history.setpoint);
   OUT.push(...history.output);
+  MASH.push(...history.mash);
   offset = history.offset;
   $("view").hidden = false;
   if (chart) chart.destroy();
@@ -359,6 +393,12 @@ function wire() {
   $("program-form").addEventListener("submit", (event) => {
     event.preventDefault();
     startProgram();
+  });
+  // The state the page shows, asked for outright: sent twice, it changes nothing more.
+  $("pump-button").addEventListener("click", () => {
+    const on = !shownPump;
+    send({ cmd: "set", pump: on }, `pump ${on ? "on" : "off"}`, "/api/command",
+         $("pump-button"));
   });
   // Only the alarms on the page: one raised since stays, for the brewer to read first.
   $("reset-alarm").addEventListener("click", () =>

@@ -1,0 +1,120 @@
+"""The MQTT bridge of a HERMS against a real broker (mosquitto) and a real daemon: the mash's
+temperature a sensor, the pump a switch that commands `set pump` through the control socket,
+both announced only when the config fits them, and the pump refused in one line without one.
+
+The plant is `test_reload.doughed_in()`: its mash mixed at 70.1 °C, the HLT at 20 °C."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from test_mqtt import PREFIX, Rig, discovered, operator_lines, step_until
+from test_reload import BASE, HERMS, doughed_in
+
+from hermsd.config import read
+from hermsd.mqtt.messages import Topics, discovery_messages
+
+NODE = "brewery_hlt"
+SWITCH = f"homeassistant/switch/{NODE}/pump/config"
+MASH = f"homeassistant/sensor/{NODE}/mash/config"
+NO_PUMP = (
+    "refused, nothing changed: pump: no pump is fitted (set pump.backend in the config file "
+    "and restart hermsd)"
+)
+
+
+@pytest.fixture
+def herms(tmp_path: Path) -> Iterator[Rig]:
+    with Rig(tmp_path, text=HERMS, tun=doughed_in()) as made:
+        yield made
+
+
+def test_a_herms_announces_a_mash_temperature_sensor_and_a_pump_switch(herms: Rig) -> None:
+    entities = discovered(herms.watcher)
+    state = herms.step().json()
+    assert len(entities) == 14  # the HLT's twelve, the mash's sensor and the pump's switch
+    for topic in (MASH, SWITCH):
+        entity = entities[topic]
+        object_id = topic.split("/")[3]
+        assert entity["unique_id"] == f"hermsd_{NODE}_{object_id}"
+        assert entity["device"]["identifiers"] == [f"hermsd_{NODE}"]
+        assert entity["availability_topic"] == herms.topics.availability
+        assert entity["state_topic"] == herms.topics.state
+        for field in re.findall(r"value_json\.(\w+)", entity["value_template"]):
+            assert field in state, (topic, field)
+    mash = entities[MASH]
+    assert (mash["name"], mash["device_class"], mash["unit_of_measurement"]) == (
+        "Mash temperature",
+        "temperature",
+        "°C",
+    )
+    assert mash["value_template"] == "{{ value_json.mash }}"
+    switch = entities[SWITCH]
+    assert switch["command_topic"] == f"{PREFIX}/set/pump"
+    assert (switch["payload_on"], switch["payload_off"]) == ("ON", "OFF")
+    assert switch["value_template"] == "{{ 'ON' if value_json.pump else 'OFF' }}"
+    # the published state: the daemon's reading of the mash (near the mix) and the pump off
+    status = herms.status()
+    assert state["mash"] == status["mash"]["celsius"] and 60.0 < state["mash"] <= 70.2
+    assert state["pump"] is False
+
+
+def test_the_pump_switch_runs_and_stops_the_pump_through_the_socket(herms: Rig) -> None:
+    herms.watcher.wait_for(lambda m: m.topic == herms.topics.state)
+    herms.command(herms.topics.set_pump, b"ON")
+    state = step_until(herms, lambda s: s["pump"] is True)
+    assert herms.status()["pump"] is True and herms.daemon.mash_side_fields()["pump"] is True
+    herms.command(herms.topics.set_pump, b"OFF")
+    step_until(herms, lambda s: s["pump"] is False)
+    assert herms.status()["pump"] is False
+    assert operator_lines(herms.events) == [
+        "operator: set pump on (from the control socket)",
+        "operator: set pump off (from the control socket)",
+    ]
+    assert "pump on: by the operator (from the control socket)" in herms.events.logged()
+    assert state["mash"] is not None and herms.watcher.on(herms.topics.error) == []
+
+
+def test_a_bad_pump_payload_is_refused_in_one_line(herms: Rig) -> None:
+    herms.watcher.wait_for(lambda m: m.topic == herms.topics.state)
+    mark = len(herms.watcher.messages)
+    herms.command(herms.topics.set_pump, b"on")
+    error = herms.watcher.wait_for(lambda m: m.topic == herms.topics.error, mark).json()
+    assert error["error"] == (
+        "refused, nothing changed: pump: expected ON (run it) or OFF (stop it), got 'on'"
+    )
+    herms.step()
+    assert operator_lines(herms.events) == [] and herms.status()["pump"] is False
+
+
+def test_without_a_pump_the_switch_command_is_refused_and_nothing_reaches_the_daemon(
+    tmp_path: Path,
+) -> None:
+    with Rig(tmp_path) as hlt_only:
+        entities = discovered(hlt_only.watcher)
+        assert SWITCH not in entities and MASH not in entities
+        # sent empty: an entity a HERMS config announced earlier is removed
+        emptied = {m.topic for m in hlt_only.watcher.messages if m.payload == b""}
+        assert {SWITCH, MASH} <= emptied
+        mark = len(hlt_only.watcher.messages)
+        hlt_only.command(hlt_only.topics.set_pump, b"ON")
+        error = hlt_only.watcher.wait_for(lambda m: m.topic == hlt_only.topics.error, mark).json()
+        assert error["error"] == NO_PUMP
+        state = hlt_only.step().json()
+        assert (state["mash"], state["pump"]) == (None, None)
+        assert operator_lines(hlt_only.events) == []
+
+
+def test_each_part_of_the_mash_side_is_announced_on_its_own() -> None:
+    topics = Topics.of(PREFIX, "homeassistant")
+    sensor_only = BASE + "mash_sensor:\n  kind: lm92\n  address: 0x49\n"
+    pump_only = BASE + "pump:\n  backend: sim\n"
+    announced = {
+        name: {t for t, p in discovery_messages(topics, read.parse(text)) if p is not None}
+        for name, text in (("none", BASE), ("sensor", sensor_only), ("pump", pump_only))
+    }
+    assert announced["sensor"] - announced["none"] == {MASH}
+    assert announced["pump"] - announced["none"] == {SWITCH}
