@@ -472,7 +472,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
         if model is None:
             self._event(logging.WARNING, f"learned model refused: {refused}", t)
             return
-        model = dataclasses.replace(model, wall_ns=self.clock.wall_ns())
+        model = dataclasses.replace(self.with_coil(model), wall_ns=self.clock.wall_ns())
         if self.recorder is not None:
             self.recorder.write(
                 MODEL_TOPIC, self.clock.wall_ns(), {"t": t, "learned": asdict(model)}

@@ -10,14 +10,16 @@ the stop (docs/herms.md).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from typing import TYPE_CHECKING, TypedDict
 
-from hermsd.config.schema import ROLE_SENSORS, SafetyConfig
+from hermsd.config.schema import ROLE_SENSORS, Config, SafetyConfig
+from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.hardware.lm92 import SensorError
 from hermsd.runtime.loop_state import LoopState
-from hermsd.runtime.mash_control import MashControl
+from hermsd.runtime.mash_control import MashControl, coil_prior, mash_control
 from hermsd.runtime.notify import mash_side_words
 
 if TYPE_CHECKING:
@@ -113,6 +115,16 @@ class MashSide(LoopState):
     _roles: dict[str, RoleSensor]
     _pump_on: bool
     _mash_control: MashControl | None
+    models: ModelStore | None
+
+    if TYPE_CHECKING:  # the Daemon's
+
+        @property
+        def learned_model(self) -> LearnedModel | None: ...
+
+        def _store_model(
+            self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
+        ) -> None: ...
 
     @property
     def pump_fitted(self) -> bool:
@@ -129,6 +141,8 @@ class MashSide(LoopState):
             self._pump_on = on
             pump.set(on)
             self._event(logging.INFO, f"pump {'on' if on else 'off'}: {reason}", self._now())
+            if not on:
+                self._keep_coil(self._now())
 
     def _start_mash_side(self) -> None:
         self._pump_on = False
@@ -188,6 +202,38 @@ class MashSide(LoopState):
         elif decision.held is None and was_held:
             self._event(logging.INFO, "mash reading again: the HLT steered by the mash", t)
         return decision.hlt_setpoint
+
+    def with_coil(self, model: LearnedModel) -> LearnedModel:
+        """`model` to be stored, with the coil's K: today's once the pump runs taught it,
+        else the one stored before (the next day's prior either way)."""
+        control = self._mash_control
+        coil = None if control is None else control.coil.estimate()
+        if coil is not None and coil.source == "learned":
+            return dataclasses.replace(model, coil=coil.conductance, coil_sd=coil.sd)
+        kept = self.learned_model
+        if kept is None or model.coil > 0.0:
+            return model
+        return dataclasses.replace(model, coil=kept.coil, coil_sd=kept.coil_sd)
+
+    def _keep_coil(self, t: float) -> None:
+        """Store the coil's K learned so far with the tun's model (when one is stored: the
+        coil's alone is not a model of the tun), as the pump stops."""
+        kept, models = self.learned_model, self.models
+        if kept is None or models is None or self.config.control.learn != "on":
+            return
+        model = self.with_coil(kept)
+        if (model.coil, model.coil_sd) != (kept.coil, kept.coil_sd):
+            self._store_model(models, model, None, t)
+
+    def _remake_mash_control(self, config: Config) -> None:
+        """A reload that changed the herms section, the tun or its model: the outer loop made
+        again for them (its step starts afresh), the coil's K as learned so far kept."""
+        control = self._mash_control
+        if control is None:
+            return
+        coil = control.coil.estimate()
+        prior = coil if coil.source == "learned" else coil_prior(config, self.learned_model)
+        self._mash_control = mash_control(config, self.model, prior)
 
     def hlt_target(self) -> float:
         """The HLT law's setpoint in force: the outer loop's last, else the brewer's."""
