@@ -62,7 +62,7 @@ def day(tmp_path_factory: pytest.TempPathFactory) -> tuple[scenario.Result, Path
 
 
 def pumped(records: list[PeriodRecord]) -> list[PeriodRecord]:
-    return [r for r in records if PUMP_AT <= r.t and r.pump]
+    return [r for r in records if r.t >= PUMP_AT and r.pump]
 
 
 def test_the_mash_reaches_its_setpoint_and_holds_it(day: tuple[scenario.Result, Path]) -> None:
