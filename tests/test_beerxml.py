@@ -53,7 +53,7 @@ def test_single_infusion_gets_a_strike_step_at_the_infusion_temperature() -> Non
     assert program["name"] == "Garage Pale Ale"
     assert program["steps"] == [
         {"name": "Strike", "setpoint": 74.2, "hold": 0.0, "confirm": "Mash in"},
-        {"name": "Saccharification", "setpoint": 67, "hold": 3600.0},
+        {"name": "Saccharification", "setpoint": 67, "hold": 3600.0, "pump": True},
     ]
 
 
@@ -72,9 +72,9 @@ def test_step_mash_ramps_from_the_step_before_and_names_each_step_once() -> None
     # (76 − 66)/5 = 2.0 °C/min; 10.5 min = 630 s. The first rest has no step to ramp from.
     assert program["steps"] == [
         {"name": "Strike", "setpoint": 74, "hold": 0.0, "confirm": "Mash in"},
-        {"name": "Rest", "setpoint": 52, "hold": 900.0},
-        {"name": "Rest 2", "setpoint": 66, "hold": 3600.0, "ramp": 1.0},
-        {"name": "Mash Out", "setpoint": 76, "hold": 630.0, "ramp": 2.0},
+        {"name": "Rest", "setpoint": 52, "hold": 900.0, "pump": True},
+        {"name": "Rest 2", "setpoint": 66, "hold": 3600.0, "ramp": 1.0, "pump": True},
+        {"name": "Mash Out", "setpoint": 76, "hold": 630.0, "ramp": 2.0, "pump": True},
     ]
     assert "# RAMP_TIME 2 min not used" in to_yaml(read(TWO, "Weizen Step Mash"))
 
@@ -383,6 +383,10 @@ def test_an_imported_program_is_one_the_daemon_runs(path: Path, recipe: str | No
     assert [s.setpoint for s in program.steps] == [s.setpoint for s in imported.steps]
     assert [s.hold for s in program.steps] == [60.0 * s.hold_min for s in imported.steps]
     assert [s.confirm for s in program.steps] == [s.confirm for s in imported.steps]
+    # The pump runs in every mash step; the Strike's is left to the default, off.
+    assert [s.pump for s in program.steps] == [
+        None if s.confirm is not None else True for s in imported.steps
+    ]
 
 
 LONG_RECIPE = "Weihenstephaner Hefeweissbier Clone (All Grain)"  # 47 characters

@@ -229,6 +229,7 @@ class Row:
     step: str | None
     step_index: int | None
     state: str
+    mash: float | None = None  # no mash sensor
 
 
 def test_a_climb_that_stops_for_a_while_stays_one_step_in_the_quality() -> None:

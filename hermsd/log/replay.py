@@ -52,7 +52,7 @@ from hermsd.log.reader import (
 )
 from hermsd.log.topics import PART_SUFFIX
 from hermsd.metrics import LOGGED_TEMPERATURE, Metrics, Sample, compute, report
-from hermsd.program.quality import step_quality
+from hermsd.program.quality import mash_from_events, step_quality
 from hermsd.program.readiness import SCHEDULE_EVENTS
 from hermsd.runtime.build import (
     element2_watts,
@@ -213,7 +213,10 @@ def summarise(log: Log) -> dict[str, Any]:
             for e in log.events
             if e.message.startswith(REACH_PREFIX)
         ],
-        "steps": step_quality(zip(log.elapsed, log.periods, strict=True)),
+        "steps": step_quality(
+            zip(log.elapsed, log.periods, strict=True),
+            mash_from_events((e.event, e.step) for e in log.program),
+        ),
         # What a ready_by schedule decided (the climb, the release, a late warning), and why.
         "schedule": [
             {"at_s": round(e.at, 3), "event": e.event, "message": e.message}

@@ -383,6 +383,8 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                         "release",
                         "late",
                         "climb",
+                        "no_mash",
+                        "mash_again",
                     ],
                 ),
                 "program": _field("string", "the program's name"),

@@ -2,11 +2,12 @@
 
 Brewing software (BeerSmith, Brewfather, Brewtarget) exports recipes as BeerXML 1.0. Its
 MASH holds MASH_STEPs with fixed units: STEP_TEMP in °C, STEP_TIME and RAMP_TIME in minutes.
-Each step becomes a program step holding STEP_TEMP for STEP_TIME from when the water is in
-the band. A mash that begins with an infusion gets a Strike step before it: the strike water
-(INFUSE_TEMP, a display field with its unit, else the first rest's temperature), held until
-the brewer confirms "Mash in". RAMP_TIME becomes a ramp rate where the temperature rises from
-the step before. A decoction is refused: the HLT cannot boil part of the mash, and a program
+Each step becomes a program step holding STEP_TEMP for STEP_TIME from when the water (the
+mash, with a mash sensor) is in the band, with the pump on. A mash that begins with an
+infusion gets a Strike step before it: the strike water (INFUSE_TEMP, a display field with
+its unit, else the first rest's temperature), held with the pump off until the brewer
+confirms "Mash in". RAMP_TIME becomes a ramp rate where the temperature rises from the step
+before. A decoction is refused: the HLT cannot boil part of the mash, and a program
 that pretended to would leave the rest it follows unheld and the brewer misled.
 
 The XML is read with the standard library's expat, with any document type declaration
@@ -430,6 +431,8 @@ def _yaml(program: Program) -> str:
             lines.append(f"    ramp: {step.ramp:g}")
         if step.confirm is not None:
             lines.append(f"    confirm: {_quoted(step.confirm)}")
+        else:
+            lines.append("    pump: on")  # a mash step: recirculated (the Strike's stays off)
     return "\n".join(lines) + "\n"
 
 

@@ -22,7 +22,7 @@ from typing import Any
 
 from hermsd.program.model import READY_BY, Program
 from hermsd.program.readiness import Readiness, Tun
-from hermsd.program.runner import ProgramEvent, Refused, Runner
+from hermsd.program.runner import MashReading, ProgramEvent, Refused, Runner
 from hermsd.program.store import SAVE_EVERY_S, ProgressStore, ProgressWriter, stale_reason
 from hermsd.safety.latches import StateError
 
@@ -214,12 +214,21 @@ class ProgramDriver:
     # -- each period ------------------------------------------------------------------
 
     def period(
-        self, t: float, pv: float | None, wall_ns: int, tun: Tun, applied: float, full: bool
+        self,
+        t: float,
+        pv: float | None,
+        wall_ns: int,
+        tun: Tun,
+        applied: float,
+        full: bool,
+        mash: MashReading | None = None,
     ) -> tuple[float | None, list[ProgramEvent]]:
         """The program's setpoint for this period (None: keep the heater off), and events.
 
         `applied`: the duty the elements were driven at in the period just ended (%, of their
-        total); `full`: that was full power (hermsd.control.reach.FullPower)."""
+        total); `full`: that was full power (hermsd.control.reach.FullPower); `mash`: the
+        mash's reading (None: no mash sensor). The heat-up of `ready_by` is the HLT's (its
+        first step is the strike water's): it is judged on the PV whatever `mash` says."""
         runner = self.runner
         if runner is None:
             return None, self.take_events()
@@ -229,12 +238,17 @@ class ProgramDriver:
             ready_setpoint = readiness.period(t, wall_ns, pv, applied, full, tun)
             for kind, text in readiness.take_events():
                 runner.say(kind, text)
-        runner.period(t, pv, ready_setpoint)
+        runner.period(t, pv, ready_setpoint, mash)
         if runner.progress.ready_at_ns is None:
             self.readiness = None  # reached, skipped or stopped: the heat-up is over
         self._events.extend(runner.take_events())
         self._save(runner, t, wall_ns)
         return runner.setpoint, self.take_events()
+
+    def pump_step(self) -> tuple[int, bool] | None:
+        """The current step's index and whether it runs the pump (None: no program runs)."""
+        runner = self.runner
+        return None if runner is None else (runner.progress.index, runner.pump)
 
     def _clock_text(self, wall_ns: int) -> str:
         """A wall-clock time as the brewer reads it in a message: local, to the second."""

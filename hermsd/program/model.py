@@ -39,7 +39,8 @@ HOLD_EXPECTED = (
 READY_BY = re.compile(r"(?P<hour>[01][0-9]|2[0-3]):(?P<minute>[0-5][0-9])")
 
 _TOP_KEYS = ["name", "ready_by", "steps"]
-_STEP_KEYS = ["name", "setpoint", "hold", "ramp", "confirm"]
+_STEP_KEYS = ["name", "setpoint", "hold", "ramp", "confirm", "pump"]
+PUMP_WORDS = {"on": True, "off": False}
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,6 +52,7 @@ class Step:
     hold: float | None
     ramp: float | None = None  # °C per minute; None: the setpoint moves at once
     confirm: str | None = None  # asked of the brewer at the end of the hold
+    pump: bool | None = None  # None: on once the mash is in (`pump_wanted`), off before
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +60,18 @@ class Program:
     name: str
     steps: tuple[Step, ...]
     ready_by: str | None = None  # local "HH:MM"
+
+
+def mash_in_index(program: Program) -> int:
+    """The first step on the mash: the one after a first step that waits for the brewer (the
+    strike water's, "Mash in"), else the first: a program without that wait starts mashed in."""
+    return 1 if program.steps[0].confirm is not None else 0
+
+
+def pump_wanted(program: Program, index: int) -> bool:
+    """Whether step `index` runs the pump: as it says, else on once the mash is in."""
+    step = program.steps[index]
+    return step.pump if step.pump is not None else index >= mash_in_index(program)
 
 
 class ProgramError(ConfigError):
@@ -212,9 +226,32 @@ class _Reader(read._Reader):
                     f"a step held {UNTIL_TOLD!r} ends with `hermsd program next`, never "
                     "waits (give the hold a time, or leave confirm out)",
                 )
+        mash_in = confirm if path == "steps[0]" else None
+        pump = self.pump(f"{path}.pump", values.get("pump"), mash_in)
         if len(self.problems) > before or name is None or setpoint is None:
             return None
-        return Step(str(name), float(setpoint), hold, ramp, confirm)
+        return Step(str(name), float(setpoint), hold, ramp, confirm, pump)
+
+    def pump(self, path: str, node: yaml.Node | None, mash_in: str | None) -> bool | None:
+        """`on` or `off` (None: left out); `on` is refused on a first step that waits for the
+        brewer: the tun holds no mash yet, and a pump run dry is harmed."""
+        if node is None:
+            return None
+        info = _field(path, str, "on", choices=tuple(PUMP_WORDS), left_out="on once mashed in")
+        on = _plain_bool(node)
+        if on is None:
+            word = self.value(info, node)
+            if word is None:
+                return None
+            on = PUMP_WORDS[word]
+        if on and mash_in:
+            self.report(
+                node.start_mark,
+                path,
+                f"the pump stays off until the mash is in (this step waits for {mash_in!r}; "
+                "write pump: off, or leave it out)",
+            )
+        return on
 
     def hold(self, path: str, node: yaml.Node) -> float | None:
         """Seconds, or None for 'until told' (a wrong value is reported, and None)."""
@@ -253,6 +290,13 @@ class _Reader(read._Reader):
         if not 0.0 <= seconds <= MAX_HOLD_S:
             self.report(node.start_mark, path, f"{shown!r} is not a hold ({HOLD_EXPECTED})")
         return seconds
+
+
+def _plain_bool(node: yaml.Node) -> bool | None:
+    """A plain true or false (a scenario's YAML 1.1 reads `on` so), else None."""
+    if not isinstance(node, yaml.ScalarNode) or node.style is not None:
+        return None
+    return config_module._BOOLS.get(node.value)
 
 
 _REQUIRED = {
@@ -364,6 +408,7 @@ def to_data(program: Program) -> dict[str, Any]:
                 "hold": UNTIL_TOLD if step.hold is None else step.hold,
                 "ramp": step.ramp,
                 "confirm": step.confirm,
+                "pump": None if step.pump is None else ("on" if step.pump else "off"),
             }
             for step in program.steps
         ],
@@ -394,6 +439,8 @@ def describe_step(step: Step) -> str:
     words = f"{step.name}: {step.setpoint:g} °C, {hold}"
     if step.ramp is not None:
         words += f", ramp {step.ramp:g} °C/min"
+    if step.pump is not None:
+        words += f", pump {'on' if step.pump else 'off'}"
     if step.confirm is not None:
         words += f", then waits for: {step.confirm}"
     return words

@@ -17,6 +17,12 @@ tun's model gives from that PV; operator commands are methods. The rules:
   a step held "until told" holds until `next()`. After the last step the program is done and
   goes on holding the last setpoint until it is stopped.
 - Pause: the setpoint stays where it is (a ramp stops), the hold time stops; resume goes on.
+- On the mash: with a mash sensor fitted (`MashReading`), a step on the mash (from the step
+  after the first step's "Mash in" wait, else from the first) is reached, and its hold counts,
+  by the mash's latest good reading instead of the PV: the mash lags the HLT by tens of
+  minutes. A mash sensor's fault counts as a missing PV does (the hold stops), said when it
+  begins (`no_mash`) and ends (`mash_again`). The steps before the mash is in (the strike
+  water) are timed on the HLT's PV, as is every step without a mash sensor.
 - `ready_by`: the program is *scheduled* (no setpoint: the daemon keeps the heater off) until
   the daemon says it is due (`hermsd.program.readiness`); until the first step is reached its
   setpoint is then the one the daemon hands in each period (a waiting temperature under the
@@ -30,11 +36,18 @@ from dataclasses import dataclass, field
 
 from hermsd.control.pid import PlantModel
 from hermsd.metrics import BAND
-from hermsd.program.model import Program, Step
+from hermsd.program.model import Program, Step, mash_in_index, pump_wanted
 
 PHASES = ("pending", "scheduled", "heating", "ramping", "holding", "waiting", "done")
 """`pending`: started, its first step begins at the next period (with that period's PV)."""
 ACTIONS = ("next", "pause", "resume", "stop")
+
+
+@dataclass(frozen=True, slots=True)
+class MashReading:
+    """A period's mash, from a fitted mash sensor: its latest good reading (None: a fault)."""
+
+    celsius: float | None
 
 
 class Refused(ValueError):
@@ -90,6 +103,7 @@ class Runner:
         self.progress = progress
         self._max_step_s = max_step_s  # the most one period may count (a stalled loop: less)
         self._last_t: float | None = None  # nothing counts from before a restart
+        self._mash_lost = False  # a step on the mash has no mash reading (said once)
 
     @classmethod
     def start(
@@ -133,6 +147,16 @@ class Runner:
             return None
         return max(0.0, self.step.hold - p.held_s)
 
+    @property
+    def pump(self) -> bool:
+        """Whether the current step runs the pump (`model.pump_wanted`); off while scheduled."""
+        p = self.progress
+        return p.phase not in ("scheduled", "pending") and pump_wanted(self.program, p.index)
+
+    def on_mash(self, mash: MashReading | None) -> bool:
+        """Whether the current step is timed on the mash (a sensor fitted, the mash in)."""
+        return mash is not None and self.progress.index >= mash_in_index(self.program)
+
     def next_name(self) -> str | None:
         index = self.progress.index + 1
         done = self.progress.phase == "done"
@@ -149,10 +173,11 @@ class Runner:
         t: float,
         pv: float | None,
         ready_setpoint: float | None = None,
+        mash: MashReading | None = None,
     ) -> None:
         """Advance by one period at `t` with its PV. `ready_setpoint`: while a `ready_by`
         program has not reached its first step, the setpoint its heat-up asks for (None
-        while scheduled: not due yet)."""
+        while scheduled: not due yet). `mash`: the mash's reading (None: no mash sensor)."""
         dt = 0.0 if self._last_t is None else min(max(0.0, t - self._last_t), self._max_step_s)
         self._last_t = t
         p = self.progress
@@ -162,9 +187,9 @@ class Runner:
             assert p.ready_at_ns is not None
             if ready_setpoint is None:
                 return
-            self._begin(0, pv)
+            self._begin(0, self._timed(pv, mash))
         elif p.phase == "pending":
-            self._begin(0, pv)
+            self._begin(0, self._timed(pv, mash))
         step = self.step
         if p.phase == "ramping":
             assert p.setpoint is not None
@@ -175,15 +200,20 @@ class Runner:
                 p.setpoint, p.phase = step.setpoint, "heating"
             else:
                 p.setpoint += math.copysign(move, gap)
-        in_band = pv is not None and abs(pv - step.setpoint) <= BAND
+        timed = self._timed(pv, mash)
+        in_band = timed is not None and abs(timed - step.setpoint) <= BAND
+        if self.on_mash(mash):
+            self._say_mash(mash)
         if p.phase == "heating" and p.ready_at_ns is not None:
             p.setpoint = ready_setpoint  # None: the heat-up waits, heater off
         if p.phase == "heating" and in_band:
             p.phase, p.reached, p.ready_at_ns = "holding", True, None
             p.setpoint = step.setpoint
             hold = "until told" if step.hold is None else _duration(step.hold)
+            where = " in the mash" if self.on_mash(mash) else ""
             self._emit(
-                "step_reached", f"step {step.name!r} reached {step.setpoint:g} °C; holding {hold}"
+                "step_reached",
+                f"step {step.name!r} reached {step.setpoint:g} °C{where}; holding {hold}",
             )
         elif p.phase == "holding" and in_band:
             p.held_s += dt
@@ -199,6 +229,27 @@ class Runner:
                 )
             else:
                 self._advance(pv)
+
+    def _timed(self, pv: float | None, mash: MashReading | None) -> float | None:
+        """The temperature the current step is timed on: the mash's, else the PV."""
+        return mash.celsius if mash is not None and self.on_mash(mash) else pv
+
+    def _say_mash(self, mash: MashReading | None) -> None:
+        """Say when a step on the mash loses its mash reading (its hold stops) and regains it."""
+        celsius = None if mash is None else mash.celsius
+        lost = celsius is None
+        if lost == self._mash_lost or self.progress.phase not in ("heating", "holding"):
+            return
+        self._mash_lost = lost
+        name = self.step.name
+        if celsius is None:
+            self._emit(
+                "no_mash",
+                f"step {name!r}: no mash reading: its hold's time stops until the mash "
+                "sensor reads again",
+            )
+        else:
+            self._emit("mash_again", f"step {name!r}: the mash reads {celsius:.2f} °C again")
 
     def _begin(self, index: int, pv: float | None) -> None:
         """Start step `index`: its setpoint at once, or a ramp from where the setpoint is."""

@@ -234,7 +234,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
             config.alerts, lambda message: self._event(logging.WARNING, message, clock.monotonic())
         )
         self.program = parts.program
-        self._roles, self._pump_on = role_sensors(parts), False
+        self._roles, self._pump_on, self._program_pump_step = role_sensors(parts), False, None
         self._mash_control = parts.mash_control
 
     # -- life cycle -----------------------------------------------------------------------

@@ -16,6 +16,7 @@ from hermsd.control.watches import HeatUpFit
 from hermsd.hardware.outputs import Outputs
 from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.driver import ProgramDriver
+from hermsd.program.runner import MashReading
 from hermsd.runtime.alerts import Alerts
 from hermsd.runtime.build import ModelChoice
 from hermsd.runtime.clock import Clock
@@ -107,3 +108,7 @@ class LoopState:
         def _stop_program_over_cut_out(self, in_force: float | None, t: float) -> bool: ...
 
         def program_command(self, action: str, t: float, step: int | None = None) -> None: ...
+
+        def mash_reading(self) -> MashReading | None: ...
+
+        def _program_pump(self) -> None: ...

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, TypedDict
 from hermsd.config.schema import ROLE_SENSORS, Config, SafetyConfig
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.hardware.lm92 import SensorError
+from hermsd.program.runner import MashReading
 from hermsd.runtime.loop_state import LoopState
 from hermsd.runtime.mash_control import MashControl, coil_prior, mash_control
 from hermsd.runtime.notify import mash_side_words
@@ -126,6 +127,8 @@ class MashSide(LoopState):
             self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
         ) -> None: ...
 
+    _program_pump_step: tuple[int, bool] | None  # the program's step the pump was set for
+
     @property
     def pump_fitted(self) -> bool:
         return self.outputs.pump is not None
@@ -144,8 +147,27 @@ class MashSide(LoopState):
             if not on:
                 self._keep_coil(self._now())
 
+    def mash_reading(self) -> MashReading | None:
+        """What a program times its rests on the mash by (None: no mash sensor fitted)."""
+        mash = self._roles.get("mash_sensor")
+        return None if mash is None else MashReading(mash.celsius)
+
+    def _program_pump(self) -> None:
+        """Switch the pump as the program's step says, once when the step begins (and once
+        after a restart): `hermsd set pump` within a step stands until the next one."""
+        wanted = self.program.pump_step()
+        if wanted == self._program_pump_step:
+            return
+        self._program_pump_step = wanted
+        runner = self.program.runner
+        if wanted is None or runner is None or not self.pump_fitted:
+            return
+        step = runner.step
+        self.set_pump(wanted[1], f"program {runner.program.name!r}, step {step.name!r}")
+
     def _start_mash_side(self) -> None:
         self._pump_on = False
+        self._program_pump_step = None
         for role in self._roles.values():
             self._say_role(role.start(self.config.safety, self._now()))
 

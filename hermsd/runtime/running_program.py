@@ -59,6 +59,7 @@ class RunningProgram(LoopState):
         if action == "stop":
             self._keep_after_below_cut_out(t)
         after = self.program.command(action, self._pv, step)
+        self._program_pump()
         if after is not None:
             self.setpoint = after
             self._event(logging.INFO, f"setpoint {after:.2f} °C (the program stopped)", t)
@@ -69,9 +70,11 @@ class RunningProgram(LoopState):
         `full`: that period was full power (`config.full_power`)."""
         wall_ns = self.clock.wall_ns()
         tun = self._program_tun()
-        setpoint, events = self.program.period(t, pv, wall_ns, tun, applied, full)
+        mash = self.mash_reading()
+        setpoint, events = self.program.period(t, pv, wall_ns, tun, applied, full, mash)
         for event in events:
             self._program_event(event, t)
+        self._program_pump()
         news = self.program.store_news()
         if news is not None:
             self._event(logging.ERROR if news[0] else logging.INFO, news[1], t)

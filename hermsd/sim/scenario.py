@@ -38,7 +38,7 @@ from hermsd.log.recorder import Recorder
 from hermsd.metrics import BAND, SIMULATED_TEMPERATURE, Sample, compute, report
 from hermsd.program import model as program_model
 from hermsd.program.driver import next_local_time
-from hermsd.program.model import Program, ProgramError
+from hermsd.program.model import Program, ProgramError, mash_in_index
 from hermsd.program.quality import step_quality
 from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
@@ -771,7 +771,7 @@ def run(
         "wall_s": round(wall, 3),
     }
     if program is not None:
-        steps = step_quality((r.t, r) for r in collector.records)
+        steps = step_quality(((r.t, r) for r in collector.records), mash_in_index(program))
         for key in ONE_SETPOINT_KEYS:  # the program moves the setpoint: its steps say it
             del summary[key]
         summary["temperature"] = SIMULATED_TEMPERATURE.partition(";")[0] + ")"  # no pv_…
