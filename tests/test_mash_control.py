@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 import yaml
+from test_log_schemas import invalid
 from test_mash_side import Periods
 
 from hermsd.cli import main
@@ -165,6 +166,8 @@ def test_a_herms_log_verifies(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     argv = ["simulate", "--config", str(config), "--scenario", str(day_file), "--log", str(logs)]
     assert main(argv) == 0
     (log_file,) = logs.glob("*.mcap")
+    counts, problems = invalid(logs)  # every record as the log's closed schemas declare it
+    assert problems == [] and counts["/hermsd/period"] > 0
     periods = load([log_file]).periods
     assert {"climb", "coast"} <= {p.cascade for p in periods}
     capsys.readouterr()
