@@ -62,7 +62,7 @@ def main() -> int:
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
     args = parser.parse_args()
     pump = {"at": "1h5m", "pump": "on"}
-    days = {
+    days: dict[str, tuple[list[dict[str, Any]], str]] = {
         "the rest, 3 h": ([{"at": "1h", "dough_in": DOUGH_IN}, pump], "4h"),
         "herms-day (the bed stuck 2 h to 2 h 10 min)": (
             [
