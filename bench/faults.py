@@ -8,7 +8,8 @@ caught, with the supervisor's limits unmeasured and from the tun as measured.
 With `--kind ds18b20` or `--kind max31865` the family's days run with that sensor, and each
 of its traps is switched on for a minute in each tun's hold.
 
-uv run python bench/faults.py [--write] [--family-only] [--kind lm92|ds18b20|max31865]
+uv run python bench/faults.py [--write] [--family-only | --scenarios-only]
+    [--kind lm92|ds18b20|max31865]
 """
 
 from __future__ import annotations
@@ -303,6 +304,9 @@ def main() -> int:
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
     parser.add_argument("--family-only", action="store_true", help="skip scenarios/*.yaml")
     parser.add_argument(
+        "--scenarios-only", action="store_true", help="only scenarios/*.yaml, not the family"
+    )
+    parser.add_argument(
         "--two-elements", action="store_true", help="only the family on two elements"
     )
     parser.add_argument(
@@ -350,6 +354,8 @@ def main() -> int:
         )
         if args.write:
             sections.write("## Faults: detection and heater-off latency", text)
+    if args.scenarios_only:
+        return 0
     started = time.perf_counter()
     quiet, faults = family_rows()
     wall = time.perf_counter() - started

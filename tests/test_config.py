@@ -100,6 +100,7 @@ BOUNDS = [
     Bound("herms.mash_loss_w_per_k", float, 0, 100),
     Bound("herms.hose_s", float, 0, 600),
     Bound("herms.mash_sensor_lag", float, 0, 600),
+    Bound("herms.max_coil_flow", float, 1, 60),
     Bound("output.line", int, 0, 511, nullable=True),
     Bound("output.window", float, 1, 60, nullable=True),
     Bound("output.min_on", float, 0, 10),
@@ -501,6 +502,7 @@ def test_defaults_are_the_specified_ones() -> None:
         },
         "herms": {
             "max_hlt_above_mash": 10.0,
+            "max_coil_flow": 12.0,
             "coil_w_per_k": 200.0,
             "mash_litres": 30.0,
             "grain_kg": 7.0,

@@ -270,6 +270,8 @@ class HermsConfig:
     mash_loss_w_per_k: float = _number(3.0, 0, 100, "W/K")
     hose_s: float = _number(20.0, 0, 600, "s")
     mash_sensor_lag: float = _number(10.0, 0, 600, "s")
+    # The most the pump moves through the coil: the safety's bound on the coil's load.
+    max_coil_flow: float = _number(12.0, 1, 60, "L/min")
 
 
 @dataclass(frozen=True, slots=True)

@@ -608,7 +608,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
         )
         total_asked, total_applied = self._total_power(asked, applied, switched2)
         at_full = full_power(self.config).reached(applied, switched2)
-        sup.period(now, pv, total_asked, total_applied)
+        sup.period(now, pv, total_asked, total_applied, self.coil_load(pv))
         self._drain_alarms(now)
         # The schedule's tun is both elements (its rates are of their sum): so is its duty.
         standby = self._program_period(now, pv, total_applied, at_full) and self.mode == "auto"

@@ -41,12 +41,15 @@ class MashControl:
         mash_age: float,
         hlt_pv: float,
         pump: bool,
+        pump_known: bool,
         applied: float,
     ) -> Decision:
         """One control period, before the HLT law's step: the coil's estimator fed the
-        period just ended, the outer loop stepped (on the law's predicted PV where it has
-        one: the heat already sent counted), the coil's load fed forward to the law."""
-        self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=pump)
+        period just ended (only with a pump hermsd switches: one run by hand may stand, and
+        a K learned while it did would be none), the outer loop stepped (on the law's
+        predicted PV where it has one: the heat already sent counted), the coil's load fed
+        forward to the law."""
+        self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=pump and pump_known)
         ahead = predictive.predicted_pv(controller)
         decision = self.cascade.step(
             mash_sp=mash_sp,

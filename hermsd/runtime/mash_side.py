@@ -22,6 +22,7 @@ from hermsd.program.runner import MashReading
 from hermsd.runtime.loop_state import LoopState
 from hermsd.runtime.mash_control import MashControl, coil_prior, mash_control
 from hermsd.runtime.notify import mash_side_words
+from hermsd.safety.coil_load import NO_LOAD, CoilLoad, coil_load
 
 if TYPE_CHECKING:
     from hermsd.hardware.sensors.base import Sensor
@@ -34,6 +35,9 @@ class PumpNotFitted(ValueError):
 
 Said = tuple[int, str]
 """What a role's sensor has to say: a logging level and the message."""
+COIL_SAFETY_SDS = 3.0
+"""The learned K's uncertainties above it that the safety's bound on the coil's load takes as
+its highest plausible value (a bound too narrow latches a false heater_not_heating)."""
 NO_PUMP = "pump: no pump is fitted (set pump.backend in the config file and restart hermsd)"
 
 
@@ -212,6 +216,7 @@ class MashSide(LoopState):
             mash_age=t - mash.read_at,
             hlt_pv=pv,
             pump=self.pump_running,
+            pump_known=self.pump_fitted,
             applied=applied,
         )
         was_held = before is not None and before.held is not None
@@ -275,6 +280,21 @@ class MashSide(LoopState):
             "coil_load": None if decision is None else decision.load_watts,
             "cascade": None if decision is None else decision.phase,
         }
+
+    def coil_load(self, hlt: float | None) -> CoilLoad:
+        """The coil's load on the HLT at `hlt` °C, for the supervisor's heat balances: none
+        without a mash sensor (no HERMS known) or with the pump hermsd switches off; counted
+        with a pump hermsd does not switch, which may be running (docs/herms.md, "The coil
+        and the safety")."""
+        mash = self._roles.get("mash_sensor")
+        if mash is None or hlt is None:
+            return NO_LOAD
+        pump = self._pump_on if self.pump_fitted else None
+        learned = None  # the day's K narrows the bound; a prior or yesterday's does not
+        coil = None if self._mash_control is None else self._mash_control.coil.estimate()
+        if coil is not None and coil.source == "learned":
+            learned = (coil.conductance, coil.conductance + COIL_SAFETY_SDS * coil.sd)
+        return coil_load(hlt, mash.celsius, pump, self.config.herms.max_coil_flow, learned)
 
     def mash_words(self) -> str:
         """The status line's 'mash 64.8 → 65.0 °C (climb), pump on' (`notify.mash_side_words`)."""

@@ -151,6 +151,7 @@ class SafetyLimits:
     heat_memory: float = DEAD_TIME_MAX + SENSOR_LAG_MAX
     heat_rate: float = 0.0193
     full_rate: float = 0.008
+    rise_per_joule: float = FILL_RANGE / (90.0 * WATER_HEAT_CAPACITY)
     dry_fire_rate: float = 0.024
     dry_fire_window: float = 60.0
     stuck_time: float = 600.0
@@ -261,6 +262,7 @@ class SafetyLimits:
         ua_bound = OPEN_POT_UA_PER_L23 * least_water ** (2.0 / 3.0)
         evaporation_w = OPEN_POT_EVAPORATION_W * (litres / 90.0) ** (2.0 / 3.0)
         least_capacity = least_water * WATER_HEAT_CAPACITY
+        rise_per_joule = 1.0 / least_capacity
         limit = max_output / 100.0
         # 80 % of full power at −10 % mains (0.81 P) into twice the water.
         weakest_rise = FULL_POWER / 100.0 * limit * MAINS_LOW * full_rate / FILL_RANGE
@@ -277,6 +279,7 @@ class SafetyLimits:
             weakest_rise = FULL_POWER / 100.0 * limit * MAINS_LOW * model_rate / MODEL_MARGIN
             # A measurement only tightens: never faster than the envelope's half fill.
             fastest_rise = min(fastest_rise, MAINS_POWER_MARGIN * model_rate * MODEL_MARGIN)
+            rise_per_joule = min(rise_per_joule, MODEL_MARGIN * model_rate / element_watts)
             loss_per_k = MODEL_MARGIN / model.tau
             loss_room = model.ambient - 10.0
             # θ·1.5 (and a minute of lag's tail), but never longer than the envelope the
@@ -325,6 +328,9 @@ class SafetyLimits:
             heat_memory=heat_memory,
             heat_rate=fastest_rise,
             full_rate=full_rate,
+            # A joule into (or out of) the least water the tun may hold: what the HERMS coil's
+            # load is judged by (`hermsd.safety.coil_load`).
+            rise_per_joule=rise_per_joule,
             # Half the water at +10 % mains rises 2·1.21 = 2.42× faster than the config
             # says; 3× leaves 24 % for noise over the 60 s window (±0.001 °C/s). Kept on the
             # configured litres when measured too: the fill is the config's to state. Under a
@@ -344,6 +350,7 @@ class SafetyLimits:
             "loss_rate": origin,
             "heat_memory": timing,
             "heat_rate": origin,
+            "rise_per_joule": origin,
             "dry_fire_rate": tun,
         }
         return dataclasses.replace(limits, origins=tuple(sorted(origins.items())))

@@ -22,6 +22,7 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
+from hermsd.safety.coil_load import NO_LOAD, CoilLoad
 from hermsd.safety.limits import (
     DRY_FIRE_WINDOWS,
     LATCHED_KINDS,
@@ -123,6 +124,8 @@ class Supervisor:
         self._sustained_before: dict[str, bool] = {}  # a rise sustained at the last period
         self._raw_since: float | None = None
         self._output_swing = _OutputSwing()
+        # (t, °C/s the coil may cool, and warm, the water at over the period to t)
+        self._coil: deque[tuple[float, float, float]] = deque()
 
     # -- what the daemon asks -------------------------------------------------------------
 
@@ -170,6 +173,7 @@ class Supervisor:
         self._heater_watch.stop()
         self._energy.clear()
         self._history.clear()
+        self._coil.clear()
         self._sustained_before.clear()
         self._raw_since = None
         self._output_swing.clear(None)
@@ -282,10 +286,22 @@ class Supervisor:
             return False
         return True
 
-    def period(self, t: float, pv: float | None, output: float, applied: float) -> None:
-        """Once per control period: the checks that need a history of PV and output."""
+    def period(
+        self,
+        t: float,
+        pv: float | None,
+        output: float,
+        applied: float,
+        coil: CoilLoad = NO_LOAD,
+    ) -> None:
+        """Once per control period: the checks that need a history of PV and output.
+
+        `coil`: the HERMS coil's load on the water over the period (`safety.coil_load`): its
+        most taken explains a fall, its most given back a rise.
+        """
         if pv is None:
             return
+        self._count_coil(t, coil)
         self._check_dry_fire(t, pv)
         self._check_heater(t, pv, applied)
         self._check_ssr(t, pv, applied)
@@ -295,6 +311,34 @@ class Supervisor:
             self._output_swing.clear(self._raw_since)  # a forced 0 % is not the controller
 
     # -- the period checks ----------------------------------------------------------------
+
+    def _count_coil(self, t: float, coil: CoilLoad) -> None:
+        """The fastest the coil may have moved the water's temperature over the period to
+        `t`, each way (°C/s in the least water the tun may hold), for the heat balances."""
+        lim, coils = self.limits, self._coil
+        per_joule = lim.rise_per_joule
+        coils.append((t, coil.most_taken * per_joule, coil.most_given * per_joule))
+        keep = max(lim.ssr_watch, *lim.creep_watches) + lim.heat_memory + SENSOR_LAG_MAX
+        while t - coils[0][0] > keep:
+            coils.popleft()
+
+    def _coil_fall(self, start: float, end: float) -> float:
+        """°C the coil may have cooled the water by, as the sensor shows it from `start` to
+        `end`: the fastest it may have cooled it since a sensor's lag (`SENSOR_LAG_MAX`)
+        before `start`, for the whole span (a lagged reading falls no faster than that)."""
+        since = start - SENSOR_LAG_MAX
+        fastest = max((c for when, c, _ in self._coil if since < when <= end), default=0.0)
+        return fastest * (end - start)
+
+    def _coil_rise(self, since: float, end: float) -> float:
+        """°C the coil may have warmed the water by from `since` to `end` (its fastest over
+        each period, for the period before the one it was given at)."""
+        coils = self._coil
+        return math.fsum(
+            rate * (when - before)
+            for (before, _, _), (when, _, rate) in itertools.pairwise(coils)
+            if since < when <= end
+        )
 
     def _check_dry_fire(self, t: float, pv: float) -> None:
         """Heat into too little water: a rise faster than the water allows, and sustained.
@@ -330,9 +374,12 @@ class Supervisor:
         explained = min(
             lim.heat_rate * window, lim.dry_fire_rate * window - NOISE_FLOOR / (1.0 - decay)
         )
+        # The coil's heat back (a warmer mash) explains as much of each window's rise.
+        ends = [t - i * window for i in range(DRY_FIRE_WINDOWS - 1, -1, -1)]
+        coil = [self._coil_rise(end - window - SENSOR_LAG_MAX, end) for end in ends]
         sustained = rises is not None and _sustained(
             rises,
-            [rise - explained for rise in rises],
+            [rise - explained - back for rise, back in zip(rises, coil, strict=True)],
             decay,
             least=lim.dry_fire_rate * window,
         )
@@ -358,7 +405,9 @@ class Supervisor:
         the last two half-watches (the later one past the dead time) by at least half of
         `heater_max_fall`, the later by at least half the earlier. Water poured in shows
         through the sensor's lag (≤ 120 s) as a decaying fall, e^(−150/120) = 0.29 of it in
-        the second half-watch, and the element's heat adds to that: not steady.
+        the second half-watch, and the element's heat adds to that: not steady. A HERMS coil
+        may take more than the element gives: the most it may take (`_coil_fall`) is taken
+        off each half's fall and off the least rise, so a fall it can explain is no verdict.
         """
         lim, watch = self.limits, self._heater_watch
         if applied < lim.heating_output(pv):
@@ -386,11 +435,17 @@ class Supervisor:
             pv_mid = next(p for when, p in recent if when >= t - half)
             first, second = recent[0][1] - pv_mid, pv_mid - pv
             step = lim.heater_max_fall / 2.0
+            # The coil's most taken explains as much of each half's fall.
+            first -= self._coil_fall(recent[0][0], t - half)
+            second -= self._coil_fall(t - half, t)
             if first >= step and second >= max(step, first / 2.0):
                 fall = first + second
         peak = max(p for _, p in recent)
         judged = watch.full and held >= lim.heater_watch
         least = lim.least_rise(held, max(peak, watch.ref)) if judged else None
+        if least is not None:
+            least -= self._coil_fall(watch.ref_t, t)
+            least = least if least >= NOISE_FLOOR else None  # the coil may take all of it
         # Heat on, or its lack, moves the water a step or more every few minutes, and noise
         # flips the last bit: a reading that has not changed at all for the watch is stuck.
         since = self._raw_since
@@ -418,7 +473,7 @@ class Supervisor:
         t = history[-1][0]
         t0, pv0 = next((when, p) for when, p in history if when >= t - self.limits.dry_fire_window)
         span = t - t0
-        fall = pv0 - pv
+        fall = pv0 - pv - self._coil_fall(t0, t)
         return fall > max(SUDDEN_DROP, self.limits.loss_rate(pv0) * span)
 
     def _check_ssr(self, t: float, pv: float, applied: float) -> None:
@@ -444,7 +499,9 @@ class Supervisor:
         watch's first third: with no pour in the watch, the energy balance is what times the
         alarm. A steady heater passes the thirds when its rise per third, times
         1 − e^(−third/120 s), beats 0.1 °C: from 6.3, 1.3 and 0.3 °C/h for the 300, 900 and
-        3600 s watches, each below the rate the watch itself needs (6, 2 and 0.5 °C/h).
+        3600 s watches, each below the rate the watch itself needs (6, 2 and 0.5 °C/h). A
+        mash warmer than the water gives heat back through a HERMS coil: the most it may give
+        over the window and the heat's memory is allowed on top (`_coil_rise`).
         """
         lim, history = self.limits, self._energy
         previous, self._last_period_t = self._last_period_t, t
@@ -462,15 +519,17 @@ class Supervisor:
             pv_then = next(p for when, p, _ in history if when >= t - watch)
             full_power_s = sum(e for when, _, e in history if when >= t - span)
             from_room = room_per_k * max(0.0, WARMEST_ROOM - min(pv, pv_then))
-            allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise + from_room
+            from_coil = self._coil_rise(t - span, t)
+            allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise + from_room + from_coil
             sustained = pv - pv_then > allowed and _heat_goes_on(history, t, watch, pv_then, dt)
             if self._confirmed(f"ssr_stuck_on {watch:g}", sustained):
                 self._raise(
                     "ssr_stuck_on",
                     t,
                     f"PV rose {pv - pv_then:.2f} °C in {watch:.0f} s, more than the "
-                    f"{full_power_s:.0f} s of full power delivered can explain "
-                    f"({allowed:.2f} °C)",
+                    f"{full_power_s:.0f} s of full power delivered"
+                    + (f" and the coil's heat back ({from_coil:.2f} °C)" if from_coil else "")
+                    + f" can explain ({allowed:.2f} °C)",
                     {"rise_c": pv - pv_then, "allowed_c": allowed},
                 )
                 return

@@ -10,9 +10,11 @@ scenario's, or the program inline; started half a period in) on a simulated loca
 2026-01-01T00:00Z), and answer the program's confirmations (`confirm:` events: from `at` on,
 the next wait for that message is confirmed). A `plant:` with a `mash:` mapping
 (`hermsd.sim.mash.MASH_RANGES`) is a HERMS: the HLT with a mash tun, a coil and a pump, which
-`dough_in`, `pump` and `recirculation` events drive. The runner wires the fake bus, the tun model
-and the simulated heater circuit into `Daemon` on a virtual clock, and measures the run
-against physics: the earliest any controller could settle is full power from the start.
+`dough_in`, `pump` and `recirculation` events drive (`pump` through the daemon when the
+config fits one, `pump.backend: sim`; else the plant's, as a switch hermsd does not own). The
+runner wires the fake bus, the tun model and the simulated heater circuit into `Daemon` on a
+virtual clock, and measures the run against physics: the earliest any controller could
+settle is full power from the start.
 """
 
 from __future__ import annotations
@@ -850,7 +852,7 @@ def _apply(
             grain_kg, grain_c = value["grain_kg"], value["grain_c"]
             herms.dough_in(grain_kg, grain_c, value["water_litres"], value["water_c"], t)
         elif kind == "pump" and daemon.pump_fitted:
-            daemon.set_pump(value, "the scenario's event")  # as the brewer's command would
+            daemon.set_pump(value, "by the operator")  # hermsd switches it: through hermsd
         elif kind == "pump":
             herms.set_pump(value, t)
         else:

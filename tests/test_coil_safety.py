@@ -1,0 +1,114 @@
+"""The HERMS coil's load in the safety supervisor's heat balances (hermsd/safety/coil_load.py):
+its bounds computed by hand, a fall the coil explains is no dead element and a rise it
+explains no shorted SSR, and the HERMS scenarios through the simulator (no alarm on a normal
+day, each fault still caught)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from hermsd.safety.coil_load import NO_LOAD, coil_load
+from hermsd.safety.limits import SafetyLimits
+from hermsd.safety.supervisor import Supervisor
+from hermsd.sim import scenario
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+PERIOD = 5.0
+
+
+def test_the_most_a_coil_takes_is_the_whole_flow_brought_to_the_hlt() -> None:
+    # 12 L/min = 0.2 kg/s of wort, × 4186 J/(kg·K) = 837.2 W/K; the HLT at 66 °C, the mash at
+    # 38 °C and a sensor's 1 °C: 837.2 × 29 = 24278.8 W taken, nothing given back.
+    load = coil_load(66.0, 38.0, True, 12.0)
+    assert load.high == pytest.approx(24278.8)
+    assert load.most_given == 0.0
+    assert load.watts is None  # no conductance known: no best estimate
+
+
+def test_the_most_a_coil_gives_back_from_a_warmer_mash() -> None:
+    # 6 L/min: 418.6 W/K; a 38 °C mash into a 20 °C HLT, +1 °C: 418.6 × 19 = 7953.4 W back.
+    load = coil_load(20.0, 38.0, True, 6.0)
+    assert load.low == pytest.approx(-7953.4)
+    assert load.most_taken == 0.0
+
+
+def test_a_learned_conductance_narrows_the_bound() -> None:
+    # K = 200 W/K, at most 250: 250 × 29 = 7250 W at most, 200 × 28 = 5600 W the estimate.
+    load = coil_load(66.0, 38.0, True, 12.0, conductance=(200.0, 250.0))
+    assert load.high == pytest.approx(7250.0)
+    assert load.watts == pytest.approx(5600.0)
+
+
+def test_no_mash_reading_bounds_the_mash_from_0_to_100_c() -> None:
+    # The HLT at 50 °C, 6 L/min: 418.6 × (50 − 0 + 1) = 21348.6 W either way.
+    load = coil_load(50.0, None, None, 6.0)
+    assert load.high == pytest.approx(21348.6)
+    assert load.low == pytest.approx(-21348.6)
+
+
+def test_a_stopped_pump_exchanges_nothing() -> None:
+    assert coil_load(66.0, 38.0, False, 12.0) == NO_LOAD
+
+
+def _run(start: float, rate: float, applied: float, pumped: bool, mash: float) -> list[str]:
+    """A supervisor fed a PV moving at `rate` °C/s for 40 min at `applied` %, with the coil's
+    load of a mash at `mash` °C pumped at 6 L/min (`pumped`) or none; the alarms it raised."""
+    limits = SafetyLimits.derive(litres=90.0, element_watts=3000.0, period=PERIOD, read_interval=1)
+    sup = Supervisor(limits)
+    t = 0.0
+    while t <= 2400.0:
+        pv = start + rate * t
+        sup.reading(t, pv, raw=round(pv / 0.0625))
+        load = coil_load(pv, mash, True, 6.0) if pumped else NO_LOAD
+        sup.period(t, pv, applied, applied, load)
+        t += PERIOD
+    return [alarm.kind for alarm in sup.drain_events() if alarm.raised]
+
+
+def test_a_fall_the_coil_explains_is_no_dead_element() -> None:
+    # The coil taking 1.5 kW beyond the element's 3 kW from 90 L: 1500 / (90 × 4186) =
+    # 0.004 °C/s at full power, a mash at 38 °C (up to 418.6 × 19 = 8 kW at 56 °C).
+    assert _run(66.0, -0.004, 100.0, False, 38.0) == ["heater_not_heating"]
+    assert _run(66.0, -0.004, 100.0, True, 38.0) == []
+
+
+def test_a_rise_the_coil_explains_is_no_shorted_ssr() -> None:
+    # A 38 °C mash warming a 20 °C HLT by 1.5 kW: 0.004 °C/s with the element off, up to 30 °C.
+    assert _run(20.0, 0.004, 0.0, False, 38.0) == ["ssr_stuck_on"]
+    assert _run(20.0, 0.004, 0.0, True, 38.0) == []
+
+
+def _alarms(name: str, duration: float) -> list[dict[str, object]]:
+    day = scenario.load_scenario(SCENARIOS / f"{name}.yaml")
+    alarms: list[dict[str, object]] = scenario.run(
+        dataclasses.replace(day, duration=duration)
+    ).summary["alarms"]
+    return alarms
+
+
+def test_the_herms_day_raises_no_alarm() -> None:
+    """The coil's 5.3 kW at pump start (1h05m) outpaces the 3 kW element: the HLT falls at
+    full power, which the coil explains (the old supervisor latched heater_not_heating)."""
+    assert _alarms("herms-day", 2 * 3600.0) == []
+
+
+def test_heat_back_from_a_warmer_mash_raises_no_alarm() -> None:
+    assert _alarms("herms-heat-back", 3 * 3600.0) == []
+
+
+def test_a_dead_element_is_caught_once_the_pump_stops() -> None:
+    """Open at 2h20m with the pump running: the coil's most possible load explains the fall;
+    the pump stops at 2h40m (9600 s), and the fall is judged as without a coil: within the
+    dead time and the watch (300 + 300 s) and a watch's restart."""
+    alarms = _alarms("herms-heater-open", 10800.0)
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    assert 9600.0 < float(str(alarms[0]["at_s"])) <= 9600.0 + 600.0
+
+
+def test_a_shorted_ssr_is_caught_with_the_pump_running() -> None:
+    alarms = _alarms("herms-ssr-stuck-on", 10000.0)
+    assert [a["kind"] for a in alarms] == ["ssr_stuck_on"]
+    assert 8400.0 < float(str(alarms[0]["at_s"])) <= 8400.0 + 1000.0
