@@ -155,6 +155,15 @@ def test_a_mash_sensor_fault_holds_the_hlt_at_its_last_setpoint() -> None:
     daemon.run(until=back_at + 60.0)
     assert periods.records[-1].cascade != "held" and periods.records[-1].mash is not None
     assert "mash reading again: the HLT steered by the mash" in periods.events
+    # The day's K (learned since the pump started), three uncertainties high, bounds the
+    # coil's load the supervisor counts: narrower than the whole flow's 12 L/min, 837 W/K.
+    assert daemon._mash_control is not None
+    coil = daemon._mash_control.coil.estimate()
+    hlt, mash = 70.0, daemon.mash_side_fields()["mash"]  # the mash as last read
+    assert coil.source == "learned" and mash is not None
+    high = coil.conductance + 3.0 * coil.sd
+    assert high < 12.0 / 60.0 * 4186.0
+    assert daemon.coil_load(hlt).high == pytest.approx(high * (hlt - mash + 1.0))
 
 
 def test_a_herms_log_verifies(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
