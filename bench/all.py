@@ -106,6 +106,12 @@ BENCHES = (
         ("## HERMS: the mash held by the outer loop, and its peers",),
     ),
     Bench(
+        "herms-daemon",
+        "herms_daemon.py",
+        (),
+        ("## HERMS in the daemon: the mash held by the outer loop",),
+    ),
+    Bench(
         "slow-disk",
         "slow_disk.py",
         ("--seconds", "60", "--every", "10", "--stall", "2"),

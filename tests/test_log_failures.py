@@ -30,7 +30,8 @@ from hermsd.log.mcap_file import LogFile
 from hermsd.log.recorder import RETRY_INTERVAL_S, RETRY_MAX_S, Recorder
 from hermsd.log.topics import PERIOD_TOPIC
 from hermsd.runtime.assemble import assemble
-from hermsd.runtime.daemon import LOG_FAILING_REPEAT_S, Daemon
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.reporting import LOG_FAILING_REPEAT_S
 from hermsd.sim.clock import DEFAULT_EPOCH_NS, VirtualClock
 from hermsd.sim.world import build_world
 

@@ -221,9 +221,15 @@ def test_each_period_records_the_mash_the_coil_outlet_and_the_pump() -> None:
 def test_the_status_line_and_reply_show_the_mash_and_the_pump() -> None:
     daemon, _world = herms_daemon(plant=LaggingMash(mash_c=64.8))
     run_for(daemon, 3 * PERIOD)
-    assert ", mash 64.8 °C, pump off, " in daemon.status_text()
     roles = daemon.role_status()
-    assert roles["mash"] == {"celsius": lm92(64.8), "fault": None}
+    mash = roles["mash"]
+    assert mash is not None and mash["celsius"] == lm92(64.8) and mash["fault"] is None
+    # The pump stopped: the outer loop readies the HLT, never past the limit (70 + 10 °C).
+    assert mash["phase"] == "ready" and isinstance(mash["hlt_setpoint"], float)
+    assert 70.0 < mash["hlt_setpoint"] <= 80.0
+    text = daemon.status_text()
+    assert f"→ {mash['hlt_setpoint']:.2f} °C, " in text
+    assert ", mash 64.8 → 70.0 °C (ready), pump off, " in text
     assert roles["coil"] is not None and roles["coil"]["fault"] is None
     daemon.set_pump(True, "by the test")
     run_for(daemon, PERIOD)
@@ -423,8 +429,11 @@ def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
         assert main(["set", "pump", "off", *sock]) == 0
         off = capsys.readouterr().out
     assert said == "now: setpoint 70 °C, auto, pump on\n"
-    assert ", mash 20.0 °C, pump on, " in status.splitlines()[0]
-    assert reply["pump"] is True and reply["mash"] == {"celsius": 20.0, "fault": None}
+    # The mash far below its 70 °C: the HLT set to the limit, 70 + 10 less 0.15 °C margin.
+    assert "HLT 20.00 °C → 79.85 °C, " in status
+    assert ", mash 20.0 → 70.0 °C (climb), pump on, " in status.splitlines()[0]
+    mash = {"celsius": 20.0, "fault": None, "hlt_setpoint": 79.85, "phase": "climb"}
+    assert reply["pump"] is True and reply["mash"] == mash
     assert reply["coil"]["fault"] is None and reply["warnings"] == []
     assert off.endswith("pump off\n")
     assert "operator: set pump on (from the control socket)" in periods.events
@@ -442,7 +451,7 @@ def test_status_shows_the_coil_outlet_on_a_line_of_its_own(
     with served(tmp_path) as (_daemon, where, _periods):
         assert main(["status", "--socket", os.fspath(where)]) == 0
     line, coil, *_ = capsys.readouterr().out.splitlines()
-    assert ", mash 20.0 °C, pump off, " in line
+    assert ", mash 20.0 → 70.0 °C (ready), pump off, " in line
     assert coil == "coil outlet 20.0 °C"
 
 

@@ -48,7 +48,9 @@ dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured"
 runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
 `time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py), `mash` and
 `coil` (the mash's and the coil outlet's sensors: null when not fitted, else `celsius`, the
-latest good reading or null while faulty, and `fault`, why it is faulty or null), `pump`
+latest good reading or null while faulty, and `fault`, why it is faulty or null; the
+mash's also `hlt_setpoint` and `phase`, the HLT's setpoint the outer loop chose and its
+phase, when it steers: docs/mash-control.md), `pump`
 (true running, false stopped, null when no pump is fitted). `no_heat`
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no
 heat, 0 either, 3 more heat than asked (docs/two-elements.md); `latches_not_saved` (why the

@@ -111,14 +111,16 @@ def cmd_status(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(reply, indent=2, ensure_ascii=False))
         return 0
+    mash = reply.get("mash")
+    hlt_setpoint = None if mash is None else mash.get("hlt_setpoint")
     line = status_line(
         reply["tun"],
         reply["pv"],
-        reply["setpoint"],
+        reply["setpoint"] if hlt_setpoint is None else hlt_setpoint,
         reply["output"],
         reply["state"],
         reply.get("output2"),
-        mash_side_words(reply.get("mash"), reply.get("pump")),
+        mash_side_words(mash, reply.get("pump"), reply["setpoint"]),
     )
     print(f"{line} (applied {reply['applied']:.0f} %), {_mode_text(reply)}")
     if reply.get("coil") is not None:  # the mash and the pump are in the line above

@@ -261,6 +261,15 @@ class HermsConfig:
 
     # At most this far above the mash at the coil's outlet: the enzymes' protection.
     max_hlt_above_mash: float = _number(10.0, 1, 20, "°C")
+    # The outer loop's model (docs/mash-control.md): the coil's conductance before the day's
+    # pump runs teach it, the mash's water and grain, a LOW guess of the tun's losses, the
+    # wort's round trip through the hoses and the mash sensor's lag.
+    coil_w_per_k: float = _number(200.0, 10, 2000, "W/K")
+    mash_litres: float = _number(30.0, 1, 500, "L")
+    grain_kg: float = _number(7.0, 0, 200, "kg")
+    mash_loss_w_per_k: float = _number(3.0, 0, 100, "W/K")
+    hose_s: float = _number(20.0, 0, 600, "s")
+    mash_sensor_lag: float = _number(10.0, 0, 600, "s")
     # The most the pump moves through the coil: the safety's bound on the coil's load.
     max_coil_flow: float = _number(12.0, 1, 60, "L/min")
 

@@ -34,9 +34,9 @@ from hermsd.commissioning.identify import IdentifyError, TunModel, fit_span, ide
 from hermsd.config import read
 from hermsd.config import schema as config_module
 from hermsd.control.element2 import MidRangeController, SplitController, TwoElementController
-from hermsd.control.factory import make_controller, shared_out
+from hermsd.control.factory import make_controller, shared_out, total_watts
 from hermsd.control.pid import CONTROL_LAW_VERSION, Controller, PlantModel
-from hermsd.control.predictive import cold_water_seen, full_power_now
+from hermsd.control.predictive import cold_water_seen, full_power_now, known_load
 from hermsd.control.reach import PREFIX as REACH_PREFIX
 from hermsd.control.reach import ReachWatch
 from hermsd.log.reader import (
@@ -416,7 +416,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
             watch.period(
                 record.t,
                 record.pv,
-                record.setpoint,
+                record.hlt_target,
                 record.applied,
                 record.switched2,
                 record.state == "ok",
@@ -454,6 +454,8 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
             controller.applied2 = record.applied2
             controller.on2, controller.free2 = record.on2, record.free2
         try:
+            if record.coil_load is not None and watched is not None:  # the HERMS's outer loop
+                known_load(controller, record.coil_load, total_watts(watched))
             if record.reset_from is not None:
                 controller.reset(record.pv, record.reset_from)
                 known = True
@@ -462,7 +464,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                 continue
             if record.full_from is not None:
                 cold_water_seen(controller)
-            output = controller.step(record.setpoint, record.pv, record.applied)
+            output = controller.step(record.hlt_target, record.pv, record.applied)
         except ValueError as error:
             raise ReplayError(f"period k={record.k}: the controller refused it: {error}") from None
         p, i, d = controller.terms
@@ -510,7 +512,7 @@ def _full_from(
     if before.pv is None:
         return None
     for n in range(1, len(readings) + 1):
-        if full_power_now(controller, before.setpoint, before.pv, readings[:n]):
+        if full_power_now(controller, before.hlt_target, before.pv, readings[:n]):
             return n
     return None
 

@@ -162,7 +162,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
             {
                 "t": _T,
                 "k": _field("integer", "period number since start"),
-                "setpoint": _field("number", "setpoint, °C"),
+                "setpoint": _field("number", "setpoint, °C (the mash's with a mash sensor fitted)"),
                 "pv": _field(["number", "null"], "process value for the period, °C"),
                 "readings": _field(
                     "array", "sensor readings of the period, °C", items={"type": "number"}
@@ -230,10 +230,24 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "faulty)",
                 ),
                 "pump": _field(["boolean", "null"], "the HERMS pump running (null: none fitted)"),
+                "hlt_setpoint": _field(
+                    ["number", "null"],
+                    "the HLT's setpoint the mash's outer loop chose, °C, what the HLT law "
+                    "stepped to (null: no mash sensor; setpoint is then the mash's)",
+                ),
+                "coil_load": _field(
+                    ["number", "null"],
+                    "the coil's load fed forward to the HLT law, W (null: no mash sensor)",
+                ),
+                "cascade": _field(
+                    ["string", "null"],
+                    "the outer loop's phase (null: no mash sensor)",
+                    enum=["climb", "coast", "hold", "ready", "held", None],
+                ),
             },
             optional=(
                 *("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
-                *("mash", "coil", "pump"),
+                *("mash", "coil", "pump", "hlt_setpoint", "coil_load", "cascade"),
             ),
         ),
     ),

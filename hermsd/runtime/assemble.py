@@ -22,6 +22,7 @@ from hermsd.program.store import ProgressStore
 from hermsd.runtime import build
 from hermsd.runtime.clock import Clock
 from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.mash_control import coil_prior, mash_control
 from hermsd.runtime.notify import Notifier
 from hermsd.runtime.parts import Parts, Recorder
 from hermsd.runtime.saver import Saver
@@ -58,6 +59,9 @@ def assemble(
     model = choice.model
     measured = build.measured_tun(config, stored, tun_model)
     e2 = config.element2
+    outer = None
+    if mash_sensor is not None:
+        outer = mash_control(config, model, coil_prior(config, stored))
     element2 = SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
     parts = Parts(
         config=config,
@@ -89,5 +93,6 @@ def assemble(
         ),
         mash_sensor=mash_sensor,
         coil_sensor=coil_sensor,
+        mash_control=outer,
     )
     return Daemon(parts)

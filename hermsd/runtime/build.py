@@ -96,7 +96,7 @@ def reach_period(
     )
     dead_time = known_dead_time(model, predictive.heat_up_fit(controller))
     max_output = config.control.max_output
-    return reach.period(record.t, record.setpoint, record.pv, full, dead_time, max_output)
+    return reach.period(record.t, record.hlt_target, record.pv, full, dead_time, max_output)
 
 
 def reach_restarts(old: Config, new: Config) -> bool:

@@ -29,14 +29,13 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
-from hermsd.config.read import to_dict
 from hermsd.config.schema import Config
-from hermsd.control import pid, predictive
+from hermsd.control import predictive
 from hermsd.control.element2 import SplitController, TwoElementController, total_share
 from hermsd.control.factory import full_power
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.control.pv import period_value
-from hermsd.control.reach import PREFIX, Said
+from hermsd.control.reach import Said
 from hermsd.hardware.lm92 import (
     LimitName,
     Reading,
@@ -52,24 +51,24 @@ from hermsd.hardware.ssr import (
     WindowPlan,
     cut,
 )
-from hermsd.log.topics import CONFIG_TOPIC, MODEL_TOPIC, LogLevel, log_message
+from hermsd.log.topics import MODEL_TOPIC, LogLevel, log_message
 from hermsd.runtime.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.runtime.build import (
-    _tun_fields,
     element2_watts,
     measured_tun,
     reach_period,
 )
 from hermsd.runtime.latch_keeping import LatchKeeping
 from hermsd.runtime.mash_side import MashSide, role_sensors
-from hermsd.runtime.notify import WatchdogGate, status_line
+from hermsd.runtime.notify import WatchdogGate
 from hermsd.runtime.parts import Parts
 from hermsd.runtime.period import PeriodRecord
 from hermsd.runtime.reloading import Reloading
+from hermsd.runtime.reporting import Reporting
 from hermsd.runtime.running_program import RunningProgram
 from hermsd.runtime.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.safety.element_probe import ProbeResult
-from hermsd.safety.element_watch import no_heat_words, report_kind
+from hermsd.safety.element_watch import report_kind
 from hermsd.safety.latches import Latches
 from hermsd.safety.limits import Alarm, MeasuredTun
 
@@ -77,7 +76,6 @@ log = logging.getLogger("hermsd")
 
 TIMING_INTERVAL = 60.0  # s between timing records
 STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
-LOG_FAILING_REPEAT_S = 60.0  # a failing log is said again this often while it lasts
 LATCH_SAVE_SLOW_S = 10.0  # a latch save not done after this long is said as not saved (yet)
 STOP_WAIT_S = 8.0
 """s of real time at most that the stop waits, once the outputs are off, for the saves (the
@@ -154,7 +152,7 @@ class _Window:
         self.timers.clear()
 
 
-class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
+class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
     """One tun's control loop (its reload, mash program, latched alarms on disk and the
     mash's sensors and pump in their own modules)."""
 
@@ -237,6 +235,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
         )
         self.program = parts.program
         self._roles, self._pump_on, self._program_pump_step = role_sensors(parts), False, None
+        self._mash_control = parts.mash_control
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -445,7 +444,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
             return  # the learner models one element
         learner = self._learner
         fit = predictive.heat_up_fit(self.controller)
-        if record.state != "ok" or record.mode != "auto" or record.pv is None:
+        pumping = record.pump or record.coil_load  # the coil draws heat the model has not
+        if record.state != "ok" or record.mode != "auto" or record.pv is None or pumping:
             learner.interrupt()
         elif record.reset_from is not None and record.k > 1:
             learner.interrupt()  # resumed after a hold: the spell before it does not count
@@ -461,7 +461,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
             else:
                 self._event(logging.WARNING, f"heat-up measure refused: {fit.refused}", record.t)
         else:
-            estimate = learner.period(record.setpoint, record.pv, record.applied)
+            estimate = learner.period(record.hlt_target, record.pv, record.applied)
             if estimate is not None:
                 self._store_model(models, estimate.model, estimate.refused, record.t)
         self._heat_up_seen = fit
@@ -472,7 +472,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
         if model is None:
             self._event(logging.WARNING, f"learned model refused: {refused}", t)
             return
-        model = dataclasses.replace(model, wall_ns=self.clock.wall_ns())
+        model = dataclasses.replace(self.with_coil(model), wall_ns=self.clock.wall_ns())
         if self.recorder is not None:
             self.recorder.write(
                 MODEL_TOPIC, self.clock.wall_ns(), {"t": t, "learned": asdict(model)}
@@ -507,7 +507,9 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
         """
         if self._full_from is not None or not self._stepped or self._pv is None:
             return
-        if not predictive.full_power_now(self.controller, self.setpoint, self._pv, self._readings):
+        if not predictive.full_power_now(
+            self.controller, self.hlt_target(), self._pv, self._readings
+        ):
             return
         self._full_from = len(self._readings)
         window = self._window
@@ -610,6 +612,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
         self._drain_alarms(now)
         # The schedule's tun is both elements (its rates are of their sum): so is its duty.
         standby = self._program_period(now, pv, total_applied, at_full) and self.mode == "auto"
+        target = self._steer(pv, applied, now)  # the HLT's setpoint (the mash's outer loop's)
         state = "ok"
         reset_from: float | None = None
         if standby and sup.heater_allowed and pv is not None:
@@ -627,7 +630,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
                     self._held = False
                 if full_from is not None:
                     predictive.cold_water_seen(self.controller)
-                self.output = self.controller.step(self.setpoint, pv, applied)
+                self.output = self.controller.step(target, pv, applied)
                 self._stepped = True
                 controller = self.controller
                 asked_outputs = (
@@ -810,7 +813,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
             self._event(logging.INFO, probed.message, now)
         elif probed is not None and probed.element is not None:
             reports.append(watch.blame(now, probed.element, probed.message))
-        reports += watch.period(now, pv, self.setpoint, duty1, duty2, state == "ok")
+        reports += watch.period(now, pv, self.hlt_target(), duty1, duty2, state == "ok")
         for report in reports:
             self._event(logging.WARNING if report.raised else logging.INFO, report.message, now)
             self._alert("element_warning", report.message, now, report_kind(report.element))
@@ -833,88 +836,6 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide):
         return total_share(w1, w2, output, self.controller.u2), total_share(
             w1, w2, applied, applied2
         )
-
-    # -- reporting ------------------------------------------------------------------------
-
-    @property
-    def log_failing(self) -> str | None:
-        """Why the log cannot be written, while it cannot (None: it is written)."""
-        return self._log_failing
-
-    def status_text(self) -> str:
-        state = ", ".join(self.supervisor.active) or ("manual" if self.mode == "manual" else "ok")
-        if self._config_problem is not None:
-            state += ", config rejected (see journal)"
-        if self._log_failing is not None:
-            state += f", log failing: {self._log_failing}"
-        if self._latch_failing is not None:
-            state += f", latched alarms not saved: {self._latch_failing}"
-        if self.program.active:
-            state += f", {self.program.status_words(self.clock.wall_ns())}"
-        for element in sorted(self.element_watch.suspect if self.element_watch else ()):
-            state += f", {no_heat_words(element)}"
-        if self.reach.ceiling is not None:
-            state += f", {PREFIX} near {self.reach.ceiling:.1f} °C"
-        name, kind = self.config.tun.name, self.config.sensor.kind
-        shown = name if kind == "lm92" else f"{name} ({kind})"  # the LM92's line as it was
-        return status_line(
-            shown, self._pv, self.setpoint, self._asked(), state, self._output2, self.mash_words()
-        )
-
-    def _check_log(self, t: float) -> None:
-        """Say that the log cannot be written at once, every minute while it lasts, and when
-        it can again: control goes on without it, but nobody should learn it from a lost day."""
-        failing: str | None = getattr(self.recorder, "failing", None)
-        if failing is None:
-            if self._log_failing is not None:
-                self._log_failing = None
-                lost = getattr(self.recorder, "lost", 0)
-                self._event(
-                    logging.WARNING,
-                    f"log writing again after {t - self._log_failing_since:.0f} s failing "
-                    f"({lost} records lost since start)",
-                    t,
-                )
-            return
-        if self._log_failing is None:
-            self._log_failing_since = t
-        elif t - self._log_failing_said < LOG_FAILING_REPEAT_S:
-            self._log_failing = failing
-            return
-        self._log_failing, self._log_failing_said = failing, t
-        lasting = t - self._log_failing_since
-        since = f" for {lasting:.0f} s" if lasting > 0 else ""
-        self._event(logging.WARNING, f"log failing{since}: {failing}; control goes on", t)
-
-    def _report(self, now: float) -> None:
-        self._check_log(now)
-        text = self.status_text()
-        if self.on_status is not None:
-            self.on_status(text)
-        notifier = self.notifier
-        if notifier is None:
-            return
-        if not self._ready and self._pv is not None:
-            self._ready = True  # outputs are set up and a good reading has arrived
-            notifier.ready()
-        notifier.status(text)
-        if self._watchdog is not None and self._watchdog.due(now):
-            notifier.watchdog()
-
-    def _record_config(self, reason: str, t: float) -> None:
-        if self.recorder is not None:
-            self.recorder.write(
-                CONFIG_TOPIC,
-                self.clock.wall_ns(),
-                {
-                    "t": t,
-                    "config": to_dict(self.config),
-                    "reason": reason,
-                    "model": asdict(self.model),
-                    "safety_model": _tun_fields(self._measured_tun(self.config)),
-                    "control_law": pid.CONTROL_LAW_VERSION,
-                },
-            )
 
     def _drain_alarms(self, t: float) -> None:
         for alarm in self.supervisor.drain_events():

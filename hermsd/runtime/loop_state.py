@@ -1,6 +1,6 @@
 """What the loop's parts in their own modules (`reloading.py`, `running_program.py`,
-`latch_keeping.py`, `mash_side.py`) share with the `Daemon` they make up: its state, and the
-steps of its own they call. Declared here, set and defined by the Daemon."""
+`latch_keeping.py`, `mash_side.py`, `reporting.py`) share with the `Daemon` they make up: its
+state, and the steps of its own they call. Declared here, set and defined by the Daemon."""
 
 from __future__ import annotations
 
@@ -94,6 +94,8 @@ class LoopState:
         def _reprogram_sensor(self, t: float) -> None: ...
 
         def _record_config(self, reason: str, t: float) -> None: ...
+
+        def _remake_mash_control(self, config: Config) -> None: ...
 
         def _say_reach(self, said: Said | None, t: float) -> None: ...
 

@@ -1,20 +1,26 @@
 """The mash side of a HERMS in the loop: the sensors beside the HLT's (the mash's, the coil
 outlet's), read with the HLT's at its read interval, and the pump, switched as commanded.
 
-Neither acts on the heater: the HLT's loop holds the HLT as before, so a mash sensor's fault
-is a warning in the status, not an alarm. Every change of the pump is an event in the log
-and a journal line; the pump is off at the start and at the stop (docs/herms.md).
+With a mash sensor fitted, the brewer's setpoint is the mash's and the HLT's is the outer
+loop's (`mash_control.py`); a mash sensor's fault holds the HLT at its last setpoint, a
+warning in the status, not an alarm (the HLT's own sensor guards the heater). Every change
+of the pump is an event in the log and a journal line; the pump is off at the start and at
+the stop (docs/herms.md).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
 from typing import TYPE_CHECKING, TypedDict
 
-from hermsd.config.schema import ROLE_SENSORS, SafetyConfig
+from hermsd.config.schema import ROLE_SENSORS, Config, SafetyConfig
+from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.hardware.lm92 import SensorError
 from hermsd.program.runner import MashReading
 from hermsd.runtime.loop_state import LoopState
+from hermsd.runtime.mash_control import MashControl, coil_prior, mash_control
 from hermsd.runtime.notify import mash_side_words
 from hermsd.safety.coil_load import NO_LOAD, CoilLoad, coil_load
 
@@ -29,6 +35,9 @@ class PumpNotFitted(ValueError):
 
 Said = tuple[int, str]
 """What a role's sensor has to say: a logging level and the message."""
+COIL_SAFETY_SDS = 3.0
+"""The learned K's uncertainties above it that the safety's bound on the coil's load takes as
+its highest plausible value (a bound too narrow latches a false heater_not_heating)."""
 NO_PUMP = "pump: no pump is fitted (set pump.backend in the config file and restart hermsd)"
 
 
@@ -41,10 +50,11 @@ class RoleSensor:
         self.role = role
         self.sensor = sensor
         self.celsius: float | None = None  # None while faulty, or before a good read
+        self.read_at = -math.inf  # when `celsius` was read (the loop's clock)
         self.fault: str | None = None
         self._failures = 0
 
-    def start(self, safety: SafetyConfig) -> Said | None:
+    def start(self, safety: SafetyConfig, t: float = 0.0) -> Said | None:
         """Check the chip and read it once; what there is to say (a fault), else None. A
         chip that is wrong or missing is a fault from the start: the HLT does not need it."""
         try:
@@ -53,10 +63,10 @@ class RoleSensor:
         except SensorError as error:
             self._failures = safety.fault_reads - 1
             return self._failed(str(error), safety)
-        return self.read(safety)
+        return self.read(safety, t)
 
-    def read(self, safety: SafetyConfig) -> Said | None:
-        """Read once; a fault begun or ended, else None."""
+    def read(self, safety: SafetyConfig, t: float = 0.0) -> Said | None:
+        """Read once (at `t`); a fault begun or ended, else None."""
         try:
             celsius = self.sensor.read().celsius
         except SensorError as error:
@@ -69,7 +79,7 @@ class RoleSensor:
                 safety,
             )
         self._failures = 0
-        self.celsius = celsius
+        self.celsius, self.read_at = celsius, t
         if self.fault is None:
             return None
         self.fault = None
@@ -99,6 +109,9 @@ class MashSideFields(TypedDict):
     mash: float | None
     coil: float | None
     pump: bool | None
+    hlt_setpoint: float | None
+    coil_load: float | None
+    cascade: str | None
 
 
 class MashSide(LoopState):
@@ -106,6 +119,18 @@ class MashSide(LoopState):
 
     _roles: dict[str, RoleSensor]
     _pump_on: bool
+    _mash_control: MashControl | None
+    models: ModelStore | None
+
+    if TYPE_CHECKING:  # the Daemon's
+
+        @property
+        def learned_model(self) -> LearnedModel | None: ...
+
+        def _store_model(
+            self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
+        ) -> None: ...
+
     _program_pump_step: tuple[int, bool] | None  # the program's step the pump was set for
 
     @property
@@ -123,6 +148,8 @@ class MashSide(LoopState):
             self._pump_on = on
             pump.set(on)
             self._event(logging.INFO, f"pump {'on' if on else 'off'}: {reason}", self._now())
+            if not on:
+                self._keep_coil(self._now())
 
     def mash_reading(self) -> MashReading | None:
         """What a program times its rests on the mash by (None: no mash sensor fitted)."""
@@ -146,13 +173,13 @@ class MashSide(LoopState):
         self._pump_on = False
         self._program_pump_step = None
         for role in self._roles.values():
-            self._say_role(role.start(self.config.safety))
+            self._say_role(role.start(self.config.safety, self._now()))
 
     def _read_mash_side(self) -> None:
         """Read each sensor beside the HLT's, and refresh the pump's switch (a relay board's
         off is said again now and then: `GuardedSwitch`)."""
         for role in self._roles.values():
-            self._say_role(role.read(self.config.safety))
+            self._say_role(role.read(self.config.safety, self._now()))
         if self.outputs.pump is not None:
             self.outputs.pump.set(self._pump_on)
 
@@ -166,13 +193,92 @@ class MashSide(LoopState):
             self._pump_on = False
             self._event(logging.INFO, f"pump off: {reason}", t)
 
+    @property
+    def pump_running(self) -> bool:
+        """The pump as the outer loop takes it: as switched, or, with none fitted, running
+        (the brewer runs it by hand; a stopped one leaves the HLT at the limit at most)."""
+        return self._pump_on if self.pump_fitted else True
+
+    def _steer(self, pv: float | None, applied: float, t: float) -> float:
+        """The HLT law's setpoint for this period: with a mash sensor fitted the outer
+        loop's, stepped on this period's HLT PV (none: the last decision stands), the coil's
+        load fed forward to the law; without one, the brewer's. A mash reading lost or stale
+        holds the HLT at its last setpoint, said when it begins and ends."""
+        control = self._mash_control
+        if control is None or pv is None:
+            return self.hlt_target()
+        mash = self._roles["mash_sensor"]
+        before = control.decision
+        decision = control.period(
+            self.controller,
+            mash_sp=self.setpoint,
+            mash_pv=mash.celsius,
+            mash_age=t - mash.read_at,
+            hlt_pv=pv,
+            pump=self.pump_running,
+            pump_known=self.pump_fitted,
+            applied=applied,
+        )
+        was_held = before is not None and before.held is not None
+        if decision.held is not None and not was_held:
+            self._event(
+                logging.WARNING,
+                f"{decision.held}: the HLT is held at {decision.hlt_setpoint:.2f} °C",
+                t,
+            )
+        elif decision.held is None and was_held:
+            self._event(logging.INFO, "mash reading again: the HLT steered by the mash", t)
+        return decision.hlt_setpoint
+
+    def with_coil(self, model: LearnedModel) -> LearnedModel:
+        """`model` to be stored, with the coil's K: today's once the pump runs taught it,
+        else the one stored before (the next day's prior either way)."""
+        control = self._mash_control
+        coil = None if control is None else control.coil.estimate()
+        if coil is not None and coil.source == "learned":
+            return dataclasses.replace(model, coil=coil.conductance, coil_sd=coil.sd)
+        kept = self.learned_model
+        if kept is None or model.coil > 0.0:
+            return model
+        return dataclasses.replace(model, coil=kept.coil, coil_sd=kept.coil_sd)
+
+    def _keep_coil(self, t: float) -> None:
+        """Store the coil's K learned so far with the tun's model (when one is stored: the
+        coil's alone is not a model of the tun), as the pump stops."""
+        kept, models = self.learned_model, self.models
+        if kept is None or models is None or self.config.control.learn != "on":
+            return
+        model = self.with_coil(kept)
+        if (model.coil, model.coil_sd) != (kept.coil, kept.coil_sd):
+            self._store_model(models, model, None, t)
+
+    def _remake_mash_control(self, config: Config) -> None:
+        """A reload that changed the herms section, the tun or its model: the outer loop made
+        again for them (its step starts afresh), the coil's K as learned so far kept."""
+        control = self._mash_control
+        if control is None:
+            return
+        coil = control.coil.estimate()
+        prior = coil if coil.source == "learned" else coil_prior(config, self.learned_model)
+        self._mash_control = mash_control(config, self.model, prior)
+
+    def hlt_target(self) -> float:
+        """The HLT law's setpoint in force: the outer loop's last, else the brewer's."""
+        decision = None if self._mash_control is None else self._mash_control.decision
+        return self.setpoint if decision is None else decision.hlt_setpoint
+
     def mash_side_fields(self) -> MashSideFields:
-        """The period record's mash, coil outlet and pump (None: not fitted, or faulty)."""
+        """The period record's mash, coil outlet and pump (None: not fitted, or faulty), and
+        the outer loop's HLT setpoint, coil load and phase (None: no mash sensor)."""
         mash, coil = self._roles.get("mash_sensor"), self._roles.get("coil_sensor")
+        decision = None if self._mash_control is None else self._mash_control.decision
         return {
             "mash": None if mash is None else mash.celsius,
             "coil": None if coil is None else coil.celsius,
             "pump": self._pump_on if self.pump_fitted else None,
+            "hlt_setpoint": None if decision is None else decision.hlt_setpoint,
+            "coil_load": None if decision is None else decision.load_watts,
+            "cascade": None if decision is None else decision.phase,
         }
 
     def coil_load(self, hlt: float | None) -> CoilLoad:
@@ -184,15 +290,22 @@ class MashSide(LoopState):
         if mash is None or hlt is None:
             return NO_LOAD
         pump = self._pump_on if self.pump_fitted else None
-        return coil_load(hlt, mash.celsius, pump, self.config.herms.max_coil_flow)
+        learned = None  # the day's K narrows the bound; a prior or yesterday's does not
+        coil = None if self._mash_control is None else self._mash_control.coil.estimate()
+        if coil is not None and coil.source == "learned":
+            learned = (coil.conductance, coil.conductance + COIL_SAFETY_SDS * coil.sd)
+        return coil_load(hlt, mash.celsius, pump, self.config.herms.max_coil_flow, learned)
 
     def mash_words(self) -> str:
-        """The status line's 'mash 64.8 °C, pump on' (`notify.mash_side_words`)."""
-        return mash_side_words(self.role_status()["mash"], self.mash_side_fields()["pump"])
+        """The status line's 'mash 64.8 → 65.0 °C (climb), pump on' (`notify.mash_side_words`)."""
+        return mash_side_words(
+            self.role_status()["mash"], self.mash_side_fields()["pump"], self.setpoint
+        )
 
     def role_status(self) -> dict[str, dict[str, object] | None]:
         """The status reply's `mash` and `coil`: null when not fitted, else the reading (°C,
-        null while faulty) and the fault in words (null when there is none)."""
+        null while faulty) and the fault in words (null when there is none); the mash's also
+        the HLT's setpoint the outer loop chose and its phase (null before its first period)."""
         status: dict[str, dict[str, object] | None] = {}
         for section, role in ROLE_SENSORS.items():
             sensor = self._roles.get(section)
@@ -200,6 +313,11 @@ class MashSide(LoopState):
             status[key] = (
                 None if sensor is None else {"celsius": sensor.celsius, "fault": sensor.fault}
             )
+        mash, control = status["mash"], self._mash_control
+        if mash is not None and control is not None:
+            decision = control.decision
+            mash["hlt_setpoint"] = None if decision is None else decision.hlt_setpoint
+            mash["phase"] = None if decision is None else decision.phase
         return status
 
     def _now(self) -> float:

@@ -192,10 +192,17 @@ def status_line(
     return f"{name} {measured} °C → {setpoint:.2f} °C, out {output:.0f} %{second}{herms}, {state}"
 
 
-def mash_side_words(mash: dict[str, object] | None, pump: bool | None) -> str:
+def mash_side_words(mash: dict[str, object] | None, pump: bool | None, setpoint: float) -> str:
     """'mash 64.8 °C, pump on': what of the two is fitted ('mash sensor fault' while it is
-    faulty; '' when neither is fitted). `mash` as the status reply gives it."""
-    words = [] if mash is None else [role_words("mash", mash)]
+    faulty; '' when neither is fitted); 'mash 64.8 → 65.0 °C (climb)' while the outer loop
+    steers the HLT for the mash's `setpoint`. `mash` as the status reply gives it."""
+    words = []
+    if mash is not None:
+        shown = role_words("mash", mash)
+        phase = mash.get("phase")
+        if phase is not None and mash["fault"] is None:
+            shown = shown.replace(" °C", "") + f" → {setpoint:.1f} °C ({phase})"
+        words.append(shown)
     if pump is not None:
         words.append(f"pump {'on' if pump else 'off'}")
     return ", ".join(words)

@@ -19,6 +19,7 @@ from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.driver import ProgramDriver
 from hermsd.runtime.build import ModelChoice
 from hermsd.runtime.clock import Clock
+from hermsd.runtime.mash_control import MashControl
 from hermsd.runtime.notify import Notifier
 from hermsd.runtime.saver import Saver
 from hermsd.safety.element_watch import ElementWatch
@@ -63,3 +64,4 @@ class Parts:
     program: ProgramDriver
     mash_sensor: Sensor | None = None  # the sensors beside the HLT's (runtime/mash_side.py)
     coil_sensor: Sensor | None = None
+    mash_control: MashControl | None = None  # the HERMS's outer loop, with a mash sensor

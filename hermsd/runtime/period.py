@@ -41,3 +41,11 @@ class PeriodRecord:
     mash: float | None = None  # °C, the mash sensor's latest good reading (None: not fitted,
     coil: float | None = None  # or faulty), the coil outlet's; the pump running (None: none
     pump: bool | None = None  # fitted)
+    hlt_setpoint: float | None = None  # °C the outer loop set the HLT to (None: no mash
+    coil_load: float | None = None  # sensor; `setpoint` is then the mash's), the coil's load
+    cascade: str | None = None  # W fed forward, and the outer loop's phase
+
+    @property
+    def hlt_target(self) -> float:
+        """The setpoint the HLT law stepped to: the outer loop's, else the brewer's."""
+        return self.setpoint if self.hlt_setpoint is None else self.hlt_setpoint

@@ -1,0 +1,106 @@
+"""The HERMS's outer loop in the daemon: with a mash sensor fitted the brewer's (and the
+program's) setpoint is the mash's, and the HLT law holds the HLT at the setpoint the outer
+loop chooses (`control/cascade.py`), with the coil's load fed forward
+(`predictive.known_load`) and the coil's conductance learned from the day's pump runs
+(`control/coil.py`). Derivation: docs/mash-control.md.
+
+A mash reading that is missing, faulty or stale holds the HLT at its last setpoint, said in
+the status: never full heat on a guess.
+"""
+
+from __future__ import annotations
+
+from hermsd.config.schema import Config
+from hermsd.control import pid, predictive
+from hermsd.control.cascade import Cascade, Decision, Tanks
+from hermsd.control.coil import CoilEstimate, CoilEstimator, prior_estimate
+from hermsd.control.factory import WATER_J_PER_LITRE_K, total_watts
+from hermsd.control.learning import LearnedModel
+
+GRAIN_J_PER_KG_K = 1700.0
+"""The heat capacity of a kilogram of malt (dry grist, about 0.4 of water's)."""
+CUT_OUT_MARGIN = 1.0
+"""°C the HLT's setpoint stays below safety.max_temp: the HLT law's overshoot is a tenth."""
+
+
+class MashControl:
+    """The outer loop, the coil's estimator and the last period's decision."""
+
+    def __init__(self, cascade: Cascade, coil: CoilEstimator, element_watts: float) -> None:
+        self.cascade = cascade
+        self.coil = coil
+        self.element_watts = element_watts
+        self.decision: Decision | None = None  # None until the first period with a PV
+
+    def period(
+        self,
+        controller: pid.Controller,
+        *,
+        mash_sp: float,
+        mash_pv: float | None,
+        mash_age: float,
+        hlt_pv: float,
+        pump: bool,
+        pump_known: bool,
+        applied: float,
+    ) -> Decision:
+        """One control period, before the HLT law's step: the coil's estimator fed the
+        period just ended (only with a pump hermsd switches: one run by hand may stand, and
+        a K learned while it did would be none), the outer loop stepped (on the law's
+        predicted PV where it has one: the heat already sent counted), the coil's load fed
+        forward to the law."""
+        self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=pump and pump_known)
+        ahead = predictive.predicted_pv(controller)
+        decision = self.cascade.step(
+            mash_sp=mash_sp,
+            mash_pv=mash_pv,
+            mash_age=mash_age,
+            hlt_pv=hlt_pv if ahead is None else ahead,
+            pump=pump,
+            coil=self.coil.estimate(),
+        )
+        predictive.known_load(controller, decision.load_watts, self.element_watts)
+        self.decision = decision
+        return decision
+
+
+def coil_prior(config: Config, stored: LearnedModel | None) -> CoilEstimate:
+    """The coil's K before today's pump runs: the one learned on an earlier day, else the
+    config's `herms.coil_w_per_k`."""
+    if stored is not None and stored.coil > 0.0:
+        return CoilEstimate(stored.coil, stored.coil_sd, "stored")
+    return prior_estimate(config.herms.coil_w_per_k)
+
+
+def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> MashControl:
+    """The outer loop for `config`, on the HLT law's `model` (its heat capacity and losses:
+    C_h = P/rate, UA_h = C_h/τ), the coil's K starting from `prior`."""
+    herms, period = config.herms, config.control.period
+    watts = total_watts(config)
+    hlt_capacity = watts / model.rate
+    hlt_loss = hlt_capacity / model.tau
+    tanks = Tanks(
+        hlt_capacity=hlt_capacity,
+        hlt_loss=hlt_loss,
+        mash_capacity=WATER_J_PER_LITRE_K * herms.mash_litres + GRAIN_J_PER_KG_K * herms.grain_kg,
+        mash_loss=herms.mash_loss_w_per_k,
+        room=model.ambient,
+        hose_delay=herms.hose_s,
+        mash_lag=herms.mash_sensor_lag,
+    )
+    cascade = Cascade(
+        tanks,
+        limit=herms.max_hlt_above_mash,
+        hlt_max=config.safety.max_temp - CUT_OUT_MARGIN,
+        period=period,
+    )
+    coil = CoilEstimator(
+        hlt_capacity=hlt_capacity,
+        hlt_loss=hlt_loss,
+        room=model.ambient,
+        element_watts=watts,
+        dead_time=model.dead_time,
+        period=period,
+        prior=prior,
+    )
+    return MashControl(cascade, coil, watts)

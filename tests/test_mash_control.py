@@ -1,0 +1,184 @@
+"""The HERMS's outer loop in the daemon (`runtime/mash_control.py`): with a mash sensor fitted
+the setpoint is the mash's, and the HLT law holds the HLT where the outer loop sets it.
+
+The plant is `scenarios/herms-day.yaml`'s (a 90 L 3 kW HLT, 50 L and 12 kg mashed in at
+38 °C, a 250 W/K coil at 6 L/min), on the virtual clock, without the stuck bed. The
+supervisor does not count the coil's load yet: its heater watch, which takes the pump's first
+pull on the HLT at full power for a dead element, is lengthened here (safety.heater_watch).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from test_log_schemas import invalid
+from test_mash_side import Periods
+
+from hermsd.cli import main
+from hermsd.config.read import parse
+from hermsd.control.learning import LearnedModel
+from hermsd.log.reader import load
+from hermsd.runtime.assemble import assemble
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.mash_control import coil_prior
+from hermsd.runtime.period import PeriodRecord
+from hermsd.sim import scenario
+from hermsd.sim.clock import VirtualClock
+from hermsd.sim.mash import make_herms_plant
+from hermsd.sim.world import World, build_world
+
+ROOT = Path(__file__).resolve().parents[1]
+HERMS_DAY = yaml.safe_load((ROOT / "scenarios" / "herms-day.yaml").read_text())
+MASH_SP = 66.0
+LIMIT = 10.0  # herms.max_hlt_above_mash's default
+PUMP_AT = 3900.0  # 1 h 5 min
+BAND = 0.3
+CONFIG = (
+    "output:\n  backend: sim\nlog:\n  dir: null\ncontrol:\n  setpoint: 66\n"
+    "mash_sensor:\n  kind: lm92\n  address: 0x49\npump:\n  backend: sim\n"
+    # The mash as mashed in; its tun's losses guessed low (the plant's are 10 W/K).
+    "herms:\n  mash_litres: 50\n  grain_kg: 12\n  mash_loss_w_per_k: 5\n"
+    "safety:\n  heater_watch: 7200\n"
+)
+EVENTS: list[dict[str, Any]] = [
+    {"at": "1h", "dough_in": {"grain_kg": 12, "grain_c": 20, "water_litres": 50, "water_c": 39.75}},
+    {"at": "1h5m", "pump": "on"},
+    {"at": "3h55m", "pump": "off"},
+]
+
+
+def herms_scenario() -> scenario.Scenario:
+    doc = {"name": "herms-hold", "duration": "4h", "setpoint": MASH_SP, "events": EVENTS}
+    return scenario.parse_scenario({**doc, "plant": HERMS_DAY["plant"]})
+
+
+@pytest.fixture(scope="module")
+def day(tmp_path_factory: pytest.TempPathFactory) -> tuple[scenario.Result, Path]:
+    state = tmp_path_factory.mktemp("state")
+    return scenario.run(herms_scenario(), parse(CONFIG), keep_records=True, state_dir=state), state
+
+
+def pumped(records: list[PeriodRecord]) -> list[PeriodRecord]:
+    return [r for r in records if r.t >= PUMP_AT and r.pump]
+
+
+def test_the_mash_reaches_its_setpoint_and_holds_it(day: tuple[scenario.Result, Path]) -> None:
+    """On the mash sensor's readings (LM92 steps, 10 s behind the mash)."""
+    result, _state = day
+    assert result.summary["alarms"] == []
+    records = pumped(result.records)
+    mash = [(r.t, r.mash) for r in records if r.mash is not None]
+    reached = next(t for t, m in mash if m >= MASH_SP - BAND)
+    assert max(m for _, m in mash) - MASH_SP <= 0.2
+    assert all(abs(m - MASH_SP) <= BAND for t, m in mash if t >= reached + 300.0)
+    assert records[-1].cascade == "hold"
+    # The setpoint logged is the mash's throughout; the HLT's is the outer loop's.
+    assert {r.setpoint for r in result.records} == {MASH_SP}
+    assert all(r.hlt_setpoint is not None for r in result.records)
+
+
+def test_the_hlt_never_passes_the_mash_setpoint_plus_the_limit(
+    day: tuple[scenario.Result, Path],
+) -> None:
+    result, _state = day
+    top = MASH_SP + LIMIT
+    assert max(r.hlt_setpoint or 0.0 for r in result.records) <= top
+    assert max(c for r in result.records for c in r.readings) <= top
+    # The climb stood at the limit less the HLT law's margin (0.15 °C).
+    assert any(r.cascade == "climb" and r.hlt_setpoint == top - 0.15 for r in result.records)
+
+
+def test_the_coils_load_is_fed_forward_while_the_pump_runs(
+    day: tuple[scenario.Result, Path],
+) -> None:
+    result, _state = day
+    stopped = [r for r in result.records if r.pump is False]
+    assert stopped and all(r.coil_load == 0.0 and r.cascade == "ready" for r in stopped)
+    held = [r for r in pumped(result.records) if r.cascade == "hold"]
+    assert held and all(r.coil_load is not None and r.coil_load > 0.0 for r in held[-100:])
+
+
+def test_the_learned_coil_is_stored_and_is_the_next_days_prior(
+    day: tuple[scenario.Result, Path],
+) -> None:
+    """The plant's coil: UA 250 W/K at ṁc = 6 L/min · 4186 J/(L·K) = 418.6 W/K passes
+    K = ṁc·(1 − e^(−UA/ṁc)) = 188.2 W/K (the effectiveness of a coil in a stirred tank)."""
+    _result, state = day
+    stored = LearnedModel(**yaml.safe_load((state / "learned-model.json").read_text()))
+    flow = 6.0 / 60.0 * 4186.0
+    assert stored.coil == pytest.approx(flow * (1.0 - math.exp(-250.0 / flow)), rel=0.05)
+    assert 0.0 < stored.coil_sd < 0.2 * stored.coil
+    prior = coil_prior(parse(CONFIG), stored)
+    assert (prior.conductance, prior.sd, prior.source) == (stored.coil, stored.coil_sd, "stored")
+    assert coil_prior(parse(CONFIG), None).conductance == 200.0  # herms.coil_w_per_k
+
+
+def herms_daemon() -> tuple[Daemon, World]:
+    config = parse(CONFIG)
+    clock = VirtualClock()
+    plant = HERMS_DAY["plant"]
+    hlt = {k: v for k, v in plant.items() if k not in ("model", "mash")}
+    tun = make_herms_plant(plant["model"], plant["mash"], **hlt)
+    world = build_world(config, clock, tun=tun)
+    assert world.mash is not None
+    daemon = assemble(
+        config, clock, world.sensor, world.outputs, mash_sensor=world.mash.mash_sensor
+    )
+    return daemon, world
+
+
+def test_a_mash_sensor_fault_holds_the_hlt_at_its_last_setpoint() -> None:
+    daemon, world = herms_daemon()
+    assert world.mash is not None and world.mash.mash_chip is not None
+    chip = world.mash.mash_chip
+    periods = Periods()
+    daemon.listeners.append(periods)
+    daemon.recorder = periods
+    tun: Any = world.plant
+    daemon.clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
+    daemon.clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
+    fault_at, back_at = 4500.0, 5400.0  # in the climb: the HLT set at the limit
+    daemon.clock.call_at(fault_at, lambda: chip.set_fault("nack"))
+    daemon.clock.call_at(back_at, lambda: chip.set_fault("ok"))
+    daemon.run(until=fault_at + 300.0)
+    before = [r for r in periods.records if r.t < fault_at][-1]
+    held = [r for r in periods.records if r.cascade == "held"]
+    assert held and held[0].t - fault_at <= 2 * 5.0  # declared after two failed reads
+    assert {r.hlt_setpoint for r in held} == {before.hlt_setpoint}
+    assert all(r.mash is None and r.state == "ok" for r in held)
+    assert "mash sensor fault" in daemon.status_text()
+    assert f"no mash reading: the HLT is held at {before.hlt_setpoint:.2f} °C" in periods.events
+    daemon.run(until=back_at + 60.0)
+    assert periods.records[-1].cascade != "held" and periods.records[-1].mash is not None
+    assert "mash reading again: the HLT steered by the mash" in periods.events
+    # The day's K (learned since the pump started), three uncertainties high, bounds the
+    # coil's load the supervisor counts: narrower than the whole flow's 12 L/min, 837 W/K.
+    assert daemon._mash_control is not None
+    coil = daemon._mash_control.coil.estimate()
+    hlt, mash = 70.0, daemon.mash_side_fields()["mash"]  # the mash as last read
+    assert coil.source == "learned" and mash is not None
+    high = coil.conductance + 3.0 * coil.sd
+    assert high < 12.0 / 60.0 * 4186.0
+    assert daemon.coil_load(hlt).high == pytest.approx(high * (hlt - mash + 1.0))
+
+
+def test_a_herms_log_verifies(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config, day_file = tmp_path / "hermsd.yaml", tmp_path / "herms.yaml"
+    config.write_text(CONFIG)
+    doc = {"name": "herms-hold", "duration": "2h", "setpoint": MASH_SP, "events": EVENTS[:2]}
+    day_file.write_text(yaml.safe_dump({**doc, "plant": HERMS_DAY["plant"]}))
+    logs = tmp_path / "log"
+    argv = ["simulate", "--config", str(config), "--scenario", str(day_file), "--log", str(logs)]
+    assert main(argv) == 0
+    (log_file,) = logs.glob("*.mcap")
+    counts, problems = invalid(logs)  # every record as the log's closed schemas declare it
+    assert problems == [] and counts["/hermsd/period"] > 0
+    periods = load([log_file]).periods
+    assert {"climb", "coast"} <= {p.cascade for p in periods}
+    capsys.readouterr()
+    assert main(["replay", "--verify", str(log_file)]) == 0
+    assert capsys.readouterr().out.strip() == f"{len(periods)} periods verified"
