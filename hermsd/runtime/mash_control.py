@@ -10,6 +10,8 @@ the status: never full heat on a guess.
 
 from __future__ import annotations
 
+import dataclasses
+
 from hermsd.config.schema import Config
 from hermsd.control import pid, predictive
 from hermsd.control.cascade import Cascade, Decision, Tanks
@@ -59,6 +61,8 @@ class MashControl:
             pump=pump,
             coil=self.coil.estimate(),
         )
+        if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
+            decision = dataclasses.replace(decision, load_watts=0.0)
         predictive.known_load(controller, decision.load_watts, self.element_watts)
         self.decision = decision
         return decision
