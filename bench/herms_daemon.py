@@ -10,8 +10,8 @@ mash sensor's readings (0.0625 °C steps, 10 s behind the mash): when the mash c
 0.3 °C of its setpoint after the pump started, its overshoot, its worst error from 5 min
 after that, and the HLT's highest reading against the limit (setpoint + max_hlt_above_mash).
 
-The supervisor does not count the coil's load yet: its heater watch takes the pump's first
-pull for a dead element (heater_not_heating), so safety.heater_watch is 7200 s here.
+The safety settings are the shipped ones: the supervisor counts the coil's load
+(`safety/coil_load.py`), so the pump's first pull is no dead element.
 
     uv run python bench/herms_daemon.py [--write]
 """
@@ -34,7 +34,6 @@ CONFIG = (
     "output:\n  backend: sim\nlog:\n  dir: null\ncontrol:\n  setpoint: 66\n"
     "mash_sensor:\n  kind: lm92\n  address: 0x49\npump:\n  backend: sim\n"
     "herms:\n  mash_litres: 50\n  grain_kg: 12\n  mash_loss_w_per_k: 5\n"
-    "safety:\n  heater_watch: 7200\n"
 )
 DOUGH_IN = {"grain_kg": 12, "grain_c": 20, "water_litres": 50, "water_c": 39.75}
 
