@@ -502,6 +502,18 @@ def test_the_herms_day_shows_the_hlt_fall_at_pump_start() -> None:
     assert by_t[3900.0 + 600.0] < by_t[3900.0] - 2.0
 
 
+def test_a_herms_day_is_summed_up_on_the_mash_not_as_the_hlt_over_the_mash_setpoint() -> None:
+    """Under the outer loop the HLT stands near mash setpoint + limit by design (66 + 10 °C):
+    no HLT "overshoot" of the mash's setpoint is reported; the mash and the limit are."""
+    summary = scenario.run(scenario.load_scenario(SCENARIOS / "herms-day.yaml")).summary
+    assert "overshoot_c" not in summary and "settle_ratio" not in summary
+    mash = summary["mash"]
+    assert mash["setpoint_c"] == 66.0
+    assert mash["hlt_limit_c"] == 66.0 + 10.0  # herms.max_hlt_above_mash's default
+    assert mash["hlt_highest_c"] <= mash["hlt_limit_c"]
+    assert mash["highest_above_setpoint_c"] <= 0.2
+
+
 def test_an_outside_herms_plant_takes_the_mash_events() -> None:
     day = scenario.parse_scenario(
         {

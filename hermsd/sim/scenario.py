@@ -674,7 +674,8 @@ def run(
         coil_sensor=None if world.mash is None else world.mash.coil_sensor,
     )
     program = scenario.program
-    collector = _Collector(plant, keep_records=keep_records or program is not None)
+    herms_day = config.mash_sensor.fitted  # judged on the mash: its records are needed
+    collector = _Collector(plant, keep_records=keep_records or program is not None or herms_day)
     daemon.listeners.append(collector)
     brewer = _Brewer(daemon)
     ready_at_s: list[float] = []  # a program's ready_by, in the run's seconds
@@ -772,6 +773,12 @@ def run(
         "overruns": daemon.overruns,
         "wall_s": round(wall, 3),
     }
+    herms = [r for r in collector.records if r.hlt_setpoint is not None]
+    if herms and program is None:
+        for key in ONE_SETPOINT_KEYS:  # the outer loop moves the HLT's setpoint: the mash says
+            del summary[key]
+        summary["temperature"] = SIMULATED_TEMPERATURE.partition(";")[0] + ")"
+        summary["mash"] = _mash_summary(herms, config.herms.max_hlt_above_mash)
     if program is not None:
         steps = step_quality(((r.t, r) for r in collector.records), mash_in_index(program))
         for key in ONE_SETPOINT_KEYS:  # the program moves the setpoint: its steps say it
@@ -787,6 +794,21 @@ def run(
         summary["steps"] = steps
     records = collector.records if keep_records else []
     return Result(summary, collector.samples, records)
+
+
+def _mash_summary(records: list[PeriodRecord], limit: float) -> dict[str, Any]:
+    """A HERMS day under the outer loop, judged on the mash's sensor: how far it rose above
+    its setpoint, and the HLT's highest reading against the limit (mash setpoint + limit)."""
+    read = [r for r in records if r.mash is not None]
+    over = max((r.mash - r.setpoint for r in read if r.mash is not None), default=None)
+    hlt = max((c for r in records for c in r.readings), default=None)
+    return {
+        "setpoint_c": records[-1].setpoint,
+        "last_c": None if not read else read[-1].mash,
+        "highest_above_setpoint_c": None if over is None else round(over, 4),
+        "hlt_highest_c": hlt,
+        "hlt_limit_c": max(r.setpoint for r in records) + limit,
+    }
 
 
 @dataclass(slots=True)
