@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import multiprocessing
 import random
@@ -37,6 +38,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import sections  # bench/sections.py, beside this file
@@ -229,15 +231,20 @@ def excess(summary: dict[str, Any], label: str) -> float:
     return max(ratios)
 
 
+def missed_goals(summary: dict[str, Any], label: str) -> list[str]:
+    """The population's goals `summary` misses (day 2's for day 2, day 1's for the rest)."""
+    return missed(summary, label, DAY_1_GOALS)
+
+
 def pass_rates(found: dict[int, dict[str, dict[str, Any]]], label: str) -> list[str]:
     goals = DAY_2_GOALS if label == DAY_2 else DAY_1_GOALS
     names = [what for _, _, what in goals] + ["in band", "alarms"]
     n = len(found)
     rows = []
     for what in names:
-        kept = sum(what not in missed(days[label], label, DAY_1_GOALS) for days in found.values())
+        kept = sum(what not in missed_goals(days[label], label) for days in found.values())
         rows.append(f"{what} {kept}/{n} ({100.0 * kept / n:.1f} %)")
-    every = sum(not missed(days[label], label, DAY_1_GOALS) for days in found.values())
+    every = sum(not missed_goals(days[label], label) for days in found.values())
     rows.append(f"**all {every}/{n} ({100.0 * every / n:.1f} %)**")
     return rows
 
@@ -299,18 +306,20 @@ def worst_table(
             s = found[seed][label]
             cells = " | ".join(_cell(s[key], digits) for key, _, digits in MEASURES)
             alarms = ", ".join(f"{a['kind']} at {a['at_s']:.0f} s" for a in s["alarms"]) or "0"
-            misses = ", ".join(missed(s, label, DAY_1_GOALS)) or "none"
+            misses = ", ".join(missed_goals(s, label)) or "none"
             params = tuns[seed].words() if label == DAY_1 else ""
             lines.append(f"| {seed} | {params} | {label} | {cells} | {alarms} | {misses} |")
     return "\n".join(lines)
 
 
-def brew_days_main(count: int, jobs: int, write: bool) -> int:
+def brew_days_main(count: int, jobs: int, write: bool, keep: Path | None) -> int:
     drawn = population(count)
     tuns = {t.seed: t for t in drawn.tuns}
     started = time.perf_counter()
     found = dict(zip(tuns, _on_pool(_summaries, list(tuns), jobs), strict=True))
     wall = time.perf_counter() - started
+    if keep is not None:
+        keep.write_text(json.dumps(found, indent=1), encoding="utf-8")
     means, worse = means_table(found)
     verdict = (
         "ahead of PIDHerms on the population's mean of every measure"
@@ -512,12 +521,15 @@ def main() -> int:
     parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
     parser.add_argument("--faults", action="store_true", help="the faults, not the brew days")
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument(
+        "--keep", type=Path, help="also write each tun's day summaries to this JSON file"
+    )
     args = parser.parse_args()
     if args.tuns < 1:
         parser.error(f"--tuns {args.tuns}: give at least 1")
     if args.faults:
         return faults_main(args.tuns, args.jobs, args.write)
-    return brew_days_main(args.tuns, args.jobs, args.write)
+    return brew_days_main(args.tuns, args.jobs, args.write, args.keep)
 
 
 if __name__ == "__main__":
