@@ -212,9 +212,27 @@ def _summaries(seed: int) -> dict[str, dict[str, Any]]:
     return {label: result.summary for label, result in days_of(tun).items()}
 
 
-def _on_pool(work: Callable[[int], Any], seeds: list[int], jobs: int) -> list[Any]:
+def _on_pool(
+    work: Callable[[int], Any], count: int, jobs: int, minutes: float, keep: Path | None
+) -> dict[int, Any]:
+    """`work` on tuns 1…`count` in order on `jobs` processes, until all are done or
+    `minutes` have passed: the tuns done by then (a prefix of 1…count, so no kind of tun is
+    favoured), each also appended to `keep` (a JSON line) as it comes."""
+    deadline = time.monotonic() + 60.0 * minutes
+    found: dict[int, Any] = {}
     with multiprocessing.get_context("fork").Pool(jobs) as pool:
-        return pool.map(work, seeds, chunksize=1)
+        results = pool.imap(work, range(1, count + 1), chunksize=1)
+        for seed in range(1, count + 1):
+            left = None if math.isinf(deadline) else max(deadline - time.monotonic(), 0.001)
+            try:
+                found[seed] = results.next(timeout=left)
+            except multiprocessing.TimeoutError:
+                break
+            if keep is not None:
+                with keep.open("a", encoding="utf-8") as file:
+                    file.write(json.dumps({"seed": seed, "found": found[seed]}) + "\n")
+        pool.terminate()
+    return found
 
 
 def _cell(value: Any, digits: int) -> str:
@@ -312,14 +330,19 @@ def worst_table(
     return "\n".join(lines)
 
 
-def brew_days_main(count: int, jobs: int, write: bool, keep: Path | None) -> int:
+def _stopped(asked: int, count: int, minutes: float) -> str:
+    if count == asked:
+        return "."
+    return f" (of the {asked} tuns asked: those done within --minutes {minutes:g})."
+
+
+def brew_days_main(asked: int, jobs: int, minutes: float, write: bool, keep: Path | None) -> int:
+    started = time.perf_counter()
+    found = _on_pool(_summaries, asked, jobs, minutes, keep)
+    wall = time.perf_counter() - started
+    count = len(found)
     drawn = population(count)
     tuns = {t.seed: t for t in drawn.tuns}
-    started = time.perf_counter()
-    found = dict(zip(tuns, _on_pool(_summaries, list(tuns), jobs), strict=True))
-    wall = time.perf_counter() - started
-    if keep is not None:
-        keep.write_text(json.dumps(found, indent=1), encoding="utf-8")
     means, worse = means_table(found)
     verdict = (
         "ahead of PIDHerms on the population's mean of every measure"
@@ -354,7 +377,8 @@ def brew_days_main(count: int, jobs: int, write: bool, keep: Path | None) -> int
             "The five tuns farthest from day 2's goals (then day 1's): each measure against "
             "its limit, an alarm, time out of the band or a measure missing the farthest.\n\n"
             + worst_table(tuns, found),
-            f"{len(found) * 3} brew days in {wall:.0f} s on {jobs} processes.",
+            f"{len(found) * 3} brew days in {wall:.0f} s on {jobs} processes"
+            + _stopped(asked, count, minutes),
         ]
     )
     print(text)
@@ -445,12 +469,13 @@ def _phase(at: float) -> str:
     return "heat-up or hold"
 
 
-def faults_main(count: int, jobs: int, write: bool) -> int:
+def faults_main(asked: int, jobs: int, minutes: float, write: bool, keep: Path | None) -> int:
+    started = time.perf_counter()
+    found = _on_pool(_faults, asked, jobs, minutes, keep)
+    wall = time.perf_counter() - started
+    count = len(found)
     drawn = population(count)
     tuns = {t.seed: t for t in drawn.tuns}
-    started = time.perf_counter()
-    found = dict(zip(tuns, _on_pool(_faults, list(tuns), jobs), strict=True))
-    wall = time.perf_counter() - started
     lines = [
         "| tun | parameters | SSR shorts: told after s | bound s | water's peak °C | bound °C "
         "| element dies at s | told after s | by | alarms before the fault |",
@@ -506,7 +531,8 @@ def faults_main(count: int, jobs: int, write: bool) -> int:
             f"{deads[n // 2]:.0f} s, {deads[-1]:.0f} s",
             f"- tuns with an alarm before a fault (false alarms on a normal stretch): {false}/{n}",
             "The tuns that miss a goal:\n\n" + "\n".join(lines),
-            f"{n * 2} simulated days in {wall:.0f} s on {jobs} processes.",
+            f"{n * 2} simulated days in {wall:.0f} s on {jobs} processes"
+            + _stopped(asked, count, minutes),
         ]
     )
     print(text)
@@ -522,14 +548,17 @@ def main() -> int:
     parser.add_argument("--faults", action="store_true", help="the faults, not the brew days")
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
     parser.add_argument(
-        "--keep", type=Path, help="also write each tun's day summaries to this JSON file"
+        "--minutes", type=float, default=math.inf, help="stop after this long: the tuns done"
+    )
+    parser.add_argument(
+        "--keep", type=Path, help="also append each tun's figures to this file (JSON lines)"
     )
     args = parser.parse_args()
     if args.tuns < 1:
         parser.error(f"--tuns {args.tuns}: give at least 1")
     if args.faults:
-        return faults_main(args.tuns, args.jobs, args.write)
-    return brew_days_main(args.tuns, args.jobs, args.write, args.keep)
+        return faults_main(args.tuns, args.jobs, args.minutes, args.write, args.keep)
+    return brew_days_main(args.tuns, args.jobs, args.minutes, args.write, args.keep)
 
 
 if __name__ == "__main__":
