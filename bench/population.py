@@ -24,6 +24,9 @@ the day. Prints Markdown; `--write` puts it into bench/RESULTS.md.
 
     uv run --group bench python bench/population.py [--tuns 200] [--jobs 2] [--write]
     uv run --group bench python bench/population.py --faults [--tuns 50] [--jobs 2] [--write]
+
+`--minutes M` stops after M minutes with the tuns done (a prefix of the seeds); `--keep FILE`
+appends each tun's figures to FILE as they come, and `--from FILE` makes the tables from them.
 """
 
 from __future__ import annotations
