@@ -173,7 +173,7 @@ SSR_SHARE = 2.0 / 5.5
 """Two elements: the family tun's watts split as the 2 kW SSR + 3.5 kW contactor pair's."""
 
 
-def _two_elements(spec: TunSpec, sc: scenario.Scenario) -> scenario.Scenario:
+def two_elements(spec: TunSpec, sc: scenario.Scenario) -> scenario.Scenario:
     """`sc` with the tun's watts on two elements: the SSR's share and a contactor's rest."""
     ssr_w = round(spec.element_watts * SSR_SHARE)
     plant = {**sc.plant, "element_watts": ssr_w, "element2_watts": spec.element_watts - ssr_w}
@@ -185,7 +185,7 @@ def _two_elements(spec: TunSpec, sc: scenario.Scenario) -> scenario.Scenario:
 def _two_element_quiet(spec: TunSpec, sc: scenario.Scenario) -> str:
     """Alarms and element warnings on a two-element normal day."""
     result = scenario.run(
-        _two_elements(spec, sc), spec.config(config_module.DEFAULT), keep_records=True
+        two_elements(spec, sc), spec.config(config_module.DEFAULT), keep_records=True
     )
     said = [a["kind"] + f" at {a['at_s']:.0f} s" for a in result.summary["alarms"]]
     first = next(((r.t, no_heat) for r in result.records if (no_heat := r.no_heat)), None)
@@ -203,7 +203,7 @@ def _two_element_fault(spec: TunSpec, kind: str, water: bool) -> str:
     if water:
         litres = {"litres": spec.litres / 10.0, "temp": 15.0}
         events += (scenario.Event(tf.FAULT_AT + 1800.0, "add_water", litres),)
-    sc = _two_elements(spec, dataclasses.replace(day, events=events))
+    sc = two_elements(spec, dataclasses.replace(day, events=events))
     result = scenario.run(sc, spec.config(config_module.DEFAULT), keep_records=True)
     first = next((r for r in result.records if r.t >= tf.FAULT_AT and r.no_heat), None)
     said = [] if first is None else [f"{first.t - tf.FAULT_AT:.0f} s"]

@@ -16,6 +16,7 @@ bench/robustness.py. Prints, on the sensor's temperature without its noise:
     uv run --group bench python bench/not_ahead.py "thermowell 40" garage "big 150 L 5.5"
     uv run --group bench python bench/not_ahead.py "thermowell 40" --seeds 6
     uv run --group bench python bench/not_ahead.py --seeds 6 --jobs 2   # every tun
+    uv run --group bench python bench/not_ahead.py --population-tun 17  # bench/population.py's
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import argparse
 import itertools
 import sys
 
+from population import days_of, draw, missed_goals  # bench/population.py, beside this file
 from robustness import (  # bench/robustness.py, beside this file
     AHEAD_KEYS,
     CBPI,
@@ -118,7 +120,13 @@ def main() -> int:
         "--seeds", type=int, default=0, help="instead: day 2 beside PIDHerms on noise seeds 1…N"
     )
     parser.add_argument("--jobs", type=int, default=2, help="processes for --seeds (default 2)")
+    parser.add_argument(
+        "--population-tun", type=int, default=0, help="instead: bench/population.py's tun SEED"
+    )
     args = parser.parse_args()
+    if args.population_tun:
+        population_tun(args.population_tun)
+        return 0
     indices = []
     for name in args.tuns:
         found = [i for i, spec in enumerate(FAMILY) if spec.name.startswith(name)]
@@ -138,11 +146,27 @@ def main() -> int:
         results = brew_days(spec, peers=(CBPI,), keep_records=True)
         config = spec.config(read.load(SHIPPED))
         setpoint = scenario.effective_config(config, spec.brew_day()).control.setpoint
-        for label, result in results.items():
-            heat_up(label, result, setpoint)
-        for label in (DAY_2, CBPI):
-            water(label, results[label])
+        show(results, setpoint)
     return 0
+
+
+def show(results: dict[str, scenario.Result], setpoint: float) -> None:
+    """Each day's heat-up, then day 2's and PIDHerms' recovery from the water."""
+    for label, result in results.items():
+        heat_up(label, result, setpoint)
+    for label in (DAY_2, CBPI):
+        water(label, results[label])
+
+
+def population_tun(seed: int) -> None:
+    """bench/population.py's tun `seed`: its parameters, the goals each day misses, and the
+    figures of `show`."""
+    tun, _ = draw(seed)
+    print(f"## tun {seed}: {tun.words()}")
+    results = days_of(tun, keep_records=True)
+    for label, result in results.items():
+        print(f"{label}: misses {', '.join(missed_goals(result.summary, label)) or 'nothing'}")
+    show(results, scenario.effective_config(tun.config(), tun.day()).control.setpoint)
 
 
 if __name__ == "__main__":

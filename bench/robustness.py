@@ -91,7 +91,18 @@ def brew_days(
     """Every controller's day on `spec` with noise seed `seed` and a sensor of `kind`:
     hermsd's two days, then each of `peers`."""
     config = with_sensor(spec.config(read.load(SHIPPED)), kind)
-    day = spec.brew_day(seed=seed)
+    return controller_days(spec.brew_day(seed=seed), config, peers=peers, keep_records=keep_records)
+
+
+def controller_days(
+    day: scenario.Scenario,
+    config: Config,
+    *,
+    peers: tuple[str, ...] = tuple(PEERS),
+    keep_records: bool = False,
+) -> dict[str, scenario.Result]:
+    """`day` under `config`: hermsd's day 1 from an empty state directory, its day 2 from
+    what day 1 left there, then each of `peers` on the same config."""
     days = {}
     with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:
         for label in (DAY_1, DAY_2):
@@ -132,9 +143,12 @@ def run_seeds(
     return dict(zip(work, found, strict=True))
 
 
-def missed(summary: dict[str, Any], label: str) -> list[str]:
-    """The goals `summary` misses (day 2's for hermsd's day 2, day 1's for every other)."""
-    goals = DAY_2_GOALS if label == DAY_2 else DAY_1_GOALS
+Goals = tuple[tuple[str, float, str], ...]
+
+
+def missed(summary: dict[str, Any], label: str, day_1: Goals = DAY_1_GOALS) -> list[str]:
+    """The goals `summary` misses (day 2's for hermsd's day 2, `day_1` for every other)."""
+    goals = DAY_2_GOALS if label == DAY_2 else day_1
     misses = [what for key, limit, what in goals if summary[key] is None or summary[key] > limit]
     if summary["held_in_band_pct"] != 100.0:
         misses.append("in band")

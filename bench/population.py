@@ -1,0 +1,600 @@
+"""hermsd and PIDHerms on a population of drawn tuns (a benchmark, not a test).
+
+The family of hermsd/sim/tuns.py is twelve tuns picked by hand; here each tun is drawn from
+`random.Random(seed)` (seeds 1…N), from these distributions:
+
+- litres configured: log-uniform 20–200 L; the water on the day: ×½–×2 of it (log-uniform);
+- element: log-uniform 1–12 kW; on two elements (a quarter of the tuns) 2/5.5 of it on the
+  SSR and the rest on a contactor, as bench/faults.py's two-element days;
+- UA: ×0.4–2 (log-uniform) of a lidded pot's of the water's volume (hermsd/sim/tuns.py);
+  the lid off on a third of the tuns (evaporation on top, as the simulator has it);
+- transport delay 10–300 s, sensor lag 0–150 s, room 0–35 °C, sensor noise sd
+  0–0.06 °C (all uniform); the sensor an LM92, a DS18B20 or a MAX31865 (a third each).
+
+A draw whose element cannot take the day's water into the band within 3 h at full power
+(the water comes at 4 h) or hold 66 °C at 80 % of its power is drawn again from the same
+generator (`Population.redrawn` counts it): weak tuns are bench/reach.py's concern.
+
+Each tun runs the brew day of bench/robustness.py (room → 66 °C, a tenth of the water's
+volume of 15 °C water at 4 h, 6 h) through the real daemon: hermsd's day 1 with the shipped
+config (only `tun.litres` and the watts set, and the lid), day 2 from the state day 1 left,
+and CraftBeerPi's PIDHerms (seed 001's ITAE-load set). `--faults` instead runs, on each tun,
+a shorted SSR (with a contactor) in the hold at 5 h and a dead element at a drawn point of
+the day. Prints Markdown; `--write` puts it into bench/RESULTS.md.
+
+    uv run --group bench python bench/population.py [--tuns 200] [--jobs 2] [--write]
+    uv run --group bench python bench/population.py --faults [--tuns 50] [--jobs 2] [--write]
+
+`--minutes M` stops after M minutes with the tuns done (a prefix of the seeds); `--keep FILE`
+appends each tun's figures to FILE as they come, and `--from FILE` makes the tables from them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import multiprocessing
+import random
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import sections  # bench/sections.py, beside this file
+from faults import two_elements  # bench/faults.py, beside this file
+from robustness import (  # bench/robustness.py, beside this file
+    AHEAD_KEYS,
+    CBPI,
+    DAY_1,
+    DAY_2,
+    DAY_2_GOALS,
+    SENSOR_KINDS,
+    SHIPPED,
+    Goals,
+    behind,
+    controller_days,
+    missed,
+    with_sensor,
+)
+
+from hermsd.config import read
+from hermsd.config.schema import Config
+from hermsd.sim import hlt, scenario
+from hermsd.sim import tun_faults as tf
+from hermsd.sim.scenario import Event
+from hermsd.sim.tuns import TunSpec
+
+SETPOINT = 66.0
+HEATUP_LIMIT_S = 3 * 3600.0
+HOLD_LIMIT = 0.8
+TWO_ELEMENT_SHARE = 0.25
+LID_OFF_SHARE = 1.0 / 3.0
+DAY_1_GOALS: Goals = (
+    ("heatup_overshoot_c", 0.3, "overshoot"),
+    ("upset_overshoot_c", 0.3, "overshoot after water"),
+    ("last_hour_p2p_c", 0.15, "p-p last hour"),
+)
+"""Day 1's goals on the population: the hold's peak to peak up to 0.15 °C (noise to
+0.06 °C), not the family's 0.1 °C."""
+MEASURES = (
+    ("heatup_overshoot_c", "overshoot °C", 3),
+    ("upset_overshoot_c", "after water °C", 3),
+    ("settle_ratio", "settle ×min", 4),
+    ("recovery_ratio", "recovery ×min", 4),
+    ("max_output_jump", "jump %", 1),
+    ("held_in_band_pct", "in band %", 2),
+    ("last_hour_p2p_c", "p-p last h °C", 3),
+    ("ssr_edges_per_hour", "edges/h", 0),
+)
+DEAD_GOAL_S = 20 * 60.0
+SHORT_MARGIN_S = 180.0
+"""A shorted SSR: told within the dead time and 3 minutes, the water no higher than 66.5 °C
+plus what full power adds in that time."""
+
+
+@dataclass(frozen=True, slots=True)
+class PopTun:
+    """One drawn tun: `spec` as configured (its litres), the day's water ×`fill`."""
+
+    seed: int
+    spec: TunSpec
+    fill: float
+    two_elements: bool
+    noise_c: float
+    kind: str
+    dead_at_s: float  # when its element dies on the faults' day
+
+    @property
+    def water(self) -> TunSpec:
+        """The tun with the day's water in it (UA grows with the wetted area)."""
+        return dataclasses.replace(self.spec, litres=self.spec.litres * self.fill)
+
+    def words(self) -> str:
+        s = self.spec
+        elements = "two elements" if self.two_elements else "one element"
+        return (
+            f"{s.litres:.0f} L ×{self.fill:.2f}, {s.element_watts / 1000:.1f} kW {elements}, "
+            f"UA ×{s.ua_factor:.2f}, delay {s.transport_delay_s:.0f} s, lag "
+            f"{s.sensor_lag_s:.0f} s, lid {'off' if s.lid_off else 'on'}, room "
+            f"{s.ambient_c:.0f} °C, noise {self.noise_c:.3f} °C, {self.kind}"
+        )
+
+    def day(self) -> scenario.Scenario:
+        """The brew day with the day's water, its noise and its sensor noise's seed."""
+        day = self.water.brew_day(noise_c=self.noise_c, seed=self.seed)
+        day = dataclasses.replace(day, name=f"tun {self.seed}")
+        return two_elements(self.spec, day) if self.two_elements else day
+
+    def config(self) -> Config:
+        return with_sensor(self.spec.config(read.load(SHIPPED)), self.kind)
+
+    def plant(self) -> hlt.PhysicalPlant:
+        """The day's tun as the simulator builds it, for the physical bounds."""
+        plant = self.water.plant()  # both elements' watts on one: full power is both
+        return hlt.PhysicalPlant(
+            **{k: v for k, v in plant.items() if k in hlt.plant_parameters("physical")}
+        )
+
+    def losses_w(self, water_c: float = SETPOINT) -> float:
+        """What the day's water loses at `water_c`: walls, and evaporation with the lid off."""
+        water = self.water
+        loss = water.ua_w_per_k * (water_c - water.ambient_c)
+        if water.lid_off:
+            surface = hlt.pot_surface_m2(water.litres)
+            loss += hlt.evaporation_w(water_c, water.ambient_c, surface)
+        return loss
+
+
+def _log_uniform(rng: random.Random, low: float, high: float) -> float:
+    return math.exp(rng.uniform(math.log(low), math.log(high)))
+
+
+def _draw_once(seed: int, rng: random.Random) -> PopTun:
+    spec = TunSpec(
+        name=f"tun {seed}",
+        litres=round(_log_uniform(rng, 20.0, 200.0), 1),
+        element_watts=round(_log_uniform(rng, 1000.0, 12000.0), -1),
+        ua_factor=_log_uniform(rng, 0.4, 2.0),
+        transport_delay_s=round(rng.uniform(10.0, 300.0)),
+        sensor_lag_s=round(rng.uniform(0.0, 150.0)),
+        ambient_c=round(rng.uniform(0.0, 35.0), 1),
+        lid_off=rng.random() < LID_OFF_SHARE,
+    )
+    return PopTun(
+        seed=seed,
+        spec=spec,
+        fill=_log_uniform(rng, 0.5, 2.0),
+        two_elements=rng.random() < TWO_ELEMENT_SHARE,
+        noise_c=rng.uniform(0.0, 0.06),
+        kind=rng.choice(SENSOR_KINDS),
+        dead_at_s=round(rng.uniform(0.5 * 3600.0, 5.5 * 3600.0)),
+    )
+
+
+def feasible(tun: PopTun) -> bool:
+    """Full power takes the day's water into the band within 3 h and holds 66 °C at 80 %."""
+    if tun.losses_w() > HOLD_LIMIT * tun.spec.element_watts:
+        return False
+    return scenario.time_to_band(tun.plant(), 0.0, SETPOINT, HEATUP_LIMIT_S) is not None
+
+
+@dataclass(frozen=True, slots=True)
+class Population:
+    tuns: tuple[PopTun, ...]
+    redrawn: int
+
+
+def draw(seed: int) -> tuple[PopTun, int]:
+    """Tun `seed`, and how many draws before it were redrawn as unable to hold or reach."""
+    rng = random.Random(seed)
+    redrawn = 0
+    while not feasible(tun := _draw_once(seed, rng)):
+        redrawn += 1
+    return tun, redrawn
+
+
+def population(count: int) -> Population:
+    drawn = [draw(seed) for seed in range(1, count + 1)]
+    return Population(tuple(t for t, _ in drawn), sum(n for _, n in drawn))
+
+
+# The brew days ----------------------------------------------------------------------------
+
+
+def days_of(tun: PopTun, keep_records: bool = False) -> dict[str, scenario.Result]:
+    """hermsd's day 1 and day 2 and PIDHerms' on the tun (bench/robustness.py's days)."""
+    return controller_days(tun.day(), tun.config(), peers=(CBPI,), keep_records=keep_records)
+
+
+def _summaries(seed: int) -> dict[str, dict[str, Any]]:
+    tun, _ = draw(seed)
+    return {label: result.summary for label, result in days_of(tun).items()}
+
+
+def _on_pool(
+    work: Callable[[int], Any], count: int, jobs: int, minutes: float, keep: Path | None
+) -> dict[int, Any]:
+    """`work` on tuns 1…`count` in order on `jobs` processes, until all are done or
+    `minutes` have passed: the tuns done by then (a prefix of 1…count, so no kind of tun is
+    favoured), each also appended to `keep` (a JSON line) as it comes."""
+    deadline = time.monotonic() + 60.0 * minutes
+    found: dict[int, Any] = {}
+    with multiprocessing.get_context("fork").Pool(jobs) as pool:
+        results = pool.imap(work, range(1, count + 1), chunksize=1)
+        for seed in range(1, count + 1):
+            left = None if math.isinf(deadline) else max(deadline - time.monotonic(), 0.001)
+            try:
+                found[seed] = results.next(timeout=left)
+            except multiprocessing.TimeoutError:
+                break
+            if keep is not None:
+                with keep.open("a", encoding="utf-8") as file:
+                    file.write(json.dumps({"seed": seed, "found": found[seed]}) + "\n")
+        pool.terminate()
+    return found
+
+
+def _cell(value: Any, digits: int) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def excess(summary: dict[str, Any], label: str) -> float:
+    """How far the day is from its goals: its worst measure over its limit (1 on the limit;
+    a missing measure, an alarm or time out of the band counts as infinitely far)."""
+    if summary["alarms"] or summary["held_in_band_pct"] != 100.0:
+        return math.inf
+    goals = DAY_2_GOALS if label == DAY_2 else DAY_1_GOALS
+    ratios = [math.inf if summary[key] is None else summary[key] / limit for key, limit, _ in goals]
+    return max(ratios)
+
+
+def missed_goals(summary: dict[str, Any], label: str) -> list[str]:
+    """The population's goals `summary` misses (day 2's for day 2, day 1's for the rest)."""
+    return missed(summary, label, DAY_1_GOALS)
+
+
+def pass_rates(found: dict[int, dict[str, dict[str, Any]]], label: str) -> list[str]:
+    goals = DAY_2_GOALS if label == DAY_2 else DAY_1_GOALS
+    names = [what for _, _, what in goals] + ["in band", "alarms"]
+    n = len(found)
+    rows = []
+    for what in names:
+        kept = sum(what not in missed_goals(days[label], label) for days in found.values())
+        rows.append(f"{what} {kept}/{n} ({100.0 * kept / n:.1f} %)")
+    every = sum(not missed_goals(days[label], label) for days in found.values())
+    rows.append(f"**all {every}/{n} ({100.0 * every / n:.1f} %)**")
+    return rows
+
+
+def mean_of(days: list[dict[str, Any]], key: str) -> tuple[float | None, int]:
+    """The mean of `key` over `days` that have it, and how many do not."""
+    known = [float(d[key]) for d in days if d[key] is not None]
+    return (sum(known) / len(known) if known else None), len(days) - len(known)
+
+
+def means_table(found: dict[int, dict[str, dict[str, Any]]]) -> tuple[str, list[str]]:
+    """The population's mean of every measure for each controller, and where day 2's mean
+    is not ahead of PIDHerms' (lower is better; in band: higher)."""
+    labels = (DAY_1, DAY_2, CBPI)
+    lines = [
+        "| controller | " + " | ".join(name for _, name, _ in MEASURES) + " | alarms |",
+        "|---|" + "---|" * (len(MEASURES) + 1),
+    ]
+    averages = {}
+    for label in labels:
+        days = [d[label] for d in found.values()]
+        averages[label] = {key: mean_of(days, key) for key, _, _ in MEASURES}
+        cells = []
+        for key, _, digits in MEASURES:
+            mean, lacking = averages[label][key]
+            cells.append(_cell(mean, digits) + (f" ({lacking} without)" if lacking else ""))
+        alarmed = sum(bool(d["alarms"]) for d in days)
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {alarmed} |")
+    mine = {key: averages[DAY_2][key][0] for key, _, _ in MEASURES}
+    theirs = {key: averages[CBPI][key][0] for key, _, _ in MEASURES}
+    worse = behind(mine, theirs)
+    for key, name, _ in MEASURES:
+        if key in dict(AHEAD_KEYS):
+            continue
+        a, b = mine[key], theirs[key]
+        higher_better = key == "held_in_band_pct"
+        if a is None or (b is not None and (a < b if higher_better else a > b)):
+            worse.append(name)
+    return "\n".join(lines), worse
+
+
+def worst_table(
+    tuns: dict[int, PopTun], found: dict[int, dict[str, dict[str, Any]]], count: int = 5
+) -> str:
+    """The `count` tuns farthest from their goals (day 2's first, then day 1's)."""
+    ranked = sorted(
+        found,
+        key=lambda seed: (excess(found[seed][DAY_2], DAY_2), excess(found[seed][DAY_1], DAY_1)),
+        reverse=True,
+    )
+    lines = [
+        "| tun | parameters | controller | "
+        + " | ".join(name for _, name, _ in MEASURES)
+        + " | alarms | goals missed |",
+        "|---|---|---|" + "---|" * (len(MEASURES) + 2),
+    ]
+    for seed in ranked[:count]:
+        for label in (DAY_1, DAY_2, CBPI):
+            s = found[seed][label]
+            cells = " | ".join(_cell(s[key], digits) for key, _, digits in MEASURES)
+            alarms = ", ".join(f"{a['kind']} at {a['at_s']:.0f} s" for a in s["alarms"]) or "0"
+            misses = ", ".join(missed_goals(s, label)) or "none"
+            params = tuns[seed].words() if label == DAY_1 else ""
+            lines.append(f"| {seed} | {params} | {label} | {cells} | {alarms} | {misses} |")
+    return "\n".join(lines)
+
+
+def _stopped(asked: int, count: int, minutes: float) -> str:
+    if count == asked:
+        return "."
+    return f" (of the {asked} tuns asked: those done within --minutes {minutes:g})."
+
+
+def kept(path: Path) -> dict[int, Any]:
+    """The figures `--keep` appended to `path`, by tun."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    return {int(d["seed"]): d["found"] for d in map(json.loads, lines)}
+
+
+def _run(work: Callable[[int], Any], args: argparse.Namespace) -> tuple[dict[int, Any], str]:
+    """The tuns' figures (from `--from`, or run now) and how they came."""
+    if args.source is not None:
+        found = kept(args.source)
+        return found, f"(their figures read from {args.source.name}, kept by --keep)"
+    started = time.perf_counter()
+    found = _on_pool(work, args.tuns, args.jobs, args.minutes, args.keep)
+    wall = time.perf_counter() - started
+    return found, f"in {wall:.0f} s on {args.jobs} processes" + _stopped(
+        args.tuns, len(found), args.minutes
+    )
+
+
+def brew_days_main(args: argparse.Namespace) -> int:
+    found, how = _run(_summaries, args)
+    count = len(found)
+    drawn = population(count)
+    tuns = {t.seed: t for t in drawn.tuns}
+    means, worse = means_table(found)
+    verdict = (
+        "ahead of PIDHerms on the population's mean of every measure"
+        if not worse
+        else "not ahead of PIDHerms on the population's mean of " + ", ".join(worse)
+    )
+    kinds = {k: sum(t.kind == k for t in drawn.tuns) for k in SENSOR_KINDS}
+    text = "\n\n".join(
+        [
+            " ".join(
+                [
+                    f"{count} tuns drawn as bench/population.py's docstring says (seeds",
+                    f"1–{count}; {drawn.redrawn} draws redrawn as unable to reach the band",
+                    "within 3 h or hold at 80 %;",
+                    f"{sum(t.two_elements for t in drawn.tuns)} on two elements,",
+                    f"{sum(t.spec.lid_off for t in drawn.tuns)} with the lid off,",
+                    ", ".join(f"{n} {k}" for k, n in kinds.items()) + "),",
+                    "each on bench/robustness.py's brew day with the day's water ×½–×2 of the",
+                    "configured: hermsd's day 1 (shipped config, the tun's configured litres",
+                    "and watts), its day 2 (from what day 1 left) and PIDHerms (ITAE-load",
+                    "set). Measures as in bench/robustness.py. Goals, day 1: overshoot ≤ 0.3 °C",
+                    "(heat-up and after the water), the last hour's p-p ≤ 0.15 °C; day 2:",
+                    "overshoot ≤ 0.1 °C (both), settle ≤ ×1.01, recovery ≤ ×1.02, jump ≤ 10 %,",
+                    "≤ 720 edges/h; both: 100 % in band, no alarm. Each goal's pass rate",
+                    "(tuns meeting it of all):",
+                ]
+            ),
+            "- day 1: " + "; ".join(pass_rates(found, DAY_1)),
+            "- day 2: " + "; ".join(pass_rates(found, DAY_2)),
+            "The population's mean of every measure (over the tuns that have it), and the "
+            f"verdict: day 2 is {verdict}.\n\n" + means,
+            "The five tuns farthest from day 2's goals (then day 1's): each measure against "
+            "its limit, an alarm, time out of the band or a measure missing the farthest.\n\n"
+            + worst_table(tuns, found),
+            f"{len(found) * 3} brew days {how}",
+        ]
+    )
+    print(text)
+    if args.write:
+        sections.write(f"## Population: {count} tuns drawn", text)
+    return 0
+
+
+# Faults ------------------------------------------------------------------------------------
+
+
+class WaterPeak(hlt.PhysicalPlant):
+    """The day's tun that keeps the water's highest temperature after `watch_from` s, as
+    the sensor reads it each second (the water itself, not the sensor's lagging view)."""
+
+    __slots__ = ("peak_c", "watch_from")
+
+    def __init__(self, watch_from: float, **params: Any) -> None:
+        super().__init__(**params)
+        self.watch_from = watch_from
+        self.peak_c = -math.inf
+
+    def temperature(self, t: float) -> float:
+        if t >= self.watch_from:
+            self.peak_c = max(self.peak_c, self.water_temperature(t))
+        return super().temperature(t)
+
+
+def _fault_day(tun: PopTun, event: Event, contactor: bool) -> scenario.Scenario:
+    day = tun.water.brew_day(noise_c=tun.noise_c, seed=tun.seed)
+    config = tf.CONTACTOR if contactor else {}
+    day = dataclasses.replace(day, events=(*day.events, event), config=config)
+    return two_elements(tun.spec, day) if tun.two_elements else day
+
+
+def _alarms_before(summary: dict[str, Any], at: float) -> list[str]:
+    return [f"{a['kind']} at {a['at_s']:.0f} s" for a in summary["alarms"] if a["at_s"] < at]
+
+
+def ssr_short(tun: PopTun) -> dict[str, Any]:
+    """A shorted SSR at 5 h in the hold: when told, against the tun's bound, and the water's
+    peak against 66.5 °C + the full-power rate × (dead time + 3 min)."""
+    sc = _fault_day(tun, Event(tf.FAULT_AT, "ssr", "stuck_on"), contactor=True)
+    params = {k: v for k, v in sc.plant.items() if k in hlt.plant_parameters("physical")}
+    plant = WaterPeak(tf.FAULT_AT, **params)
+    result = scenario.run(sc, tun.config(), outside_plant=plant)
+    after = [a for a in result.summary["alarms"] if a["at_s"] >= tf.FAULT_AT]
+    told = after[0] if after else None
+    return {
+        "false": _alarms_before(result.summary, tf.FAULT_AT),
+        "kind": None if told is None else told["kind"],
+        "detected_s": None if told is None else told["detected_after_s"],
+        "peak_c": plant.peak_c,
+    }
+
+
+def short_bounds(tun: PopTun) -> tuple[float, float, float]:
+    """A shorted SSR's bounds on the tun: the time to tell it (dead time + 3 min), the
+    water's peak (66.5 °C + the full-power rise at 66 °C over that time), and that rate
+    (°C/s: the SSR's element less the losses; ≤ 0 where that element alone cannot heat the
+    water, and a short is then no hazard to tell)."""
+    told_s = tun.spec.transport_delay_s + tun.spec.sensor_lag_s + SHORT_MARGIN_S
+    ssr_w = tun.day().plant["element_watts"]
+    rate = (ssr_w - tun.losses_w()) / (tun.water.litres * hlt.WATER_J_PER_LITRE_K)
+    return told_s, SETPOINT + 0.5 + max(rate, 0.0) * told_s, rate
+
+
+def element_dies(tun: PopTun) -> dict[str, Any]:
+    """The element (the SSR's, on two elements) opens at the tun's drawn time: when an
+    alarm or (two elements) an element warning first told it."""
+    at = tun.dead_at_s
+    sc = _fault_day(tun, Event(at, "heater", "open"), contactor=False)
+    result = scenario.run(sc, tun.config(), keep_records=True)
+    alarm = next((a for a in result.summary["alarms"] if a["at_s"] >= at), None)
+    warned = next((r.t for r in result.records if r.t >= at and r.no_heat), None)
+    times = [t for t in (None if alarm is None else alarm["at_s"], warned) if t is not None]
+    return {
+        "false": _alarms_before(result.summary, at),
+        "kind": None if alarm is None else alarm["kind"],
+        "warned": warned is not None and (alarm is None or warned < alarm["at_s"]),
+        "detected_s": min(times) - at if times else None,
+    }
+
+
+def _faults(seed: int) -> dict[str, Any]:
+    tun, _ = draw(seed)
+    return {"short": ssr_short(tun), "dead": element_dies(tun)}
+
+
+def _phase(at: float) -> str:
+    """Where in the day `at` falls (the water comes at 4 h)."""
+    if at >= 4 * 3600.0:
+        return "after the water"
+    return "heat-up or hold"
+
+
+def faults_main(args: argparse.Namespace) -> int:
+    found, how = _run(_faults, args)
+    count = len(found)
+    drawn = population(count)
+    tuns = {t.seed: t for t in drawn.tuns}
+    lines = [
+        "| tun | parameters | SSR shorts: told after s | bound s | water's peak °C | bound °C "
+        "| element dies at s | told after s | by | alarms before the fault |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    shorts_in = peaks_in = dead_in = false = harmless = 0
+    for seed, tun in tuns.items():
+        short, dead = found[seed]["short"], found[seed]["dead"]
+        bound_s, peak_bound_c, rate = short_bounds(tun)
+        harmless += rate <= 0.0
+        told_in = short["kind"] == "ssr_stuck_on" and short["detected_s"] <= bound_s
+        short_ok = told_in or rate <= 0.0
+        peak_ok = short["peak_c"] <= peak_bound_c
+        dead_ok = dead["detected_s"] is not None and dead["detected_s"] <= DEAD_GOAL_S
+        shorts_in += short_ok
+        peaks_in += peak_ok
+        dead_in += dead_ok
+        before = short["false"] + dead["false"]
+        false += bool(before)
+        if short_ok and peak_ok and dead_ok and not before:
+            continue
+        told = _cell(short["detected_s"], 0)
+        if short["kind"] not in (None, "ssr_stuck_on"):
+            told += f" ({short['kind']})"
+        if rate <= 0.0:
+            told += " (the SSR's element cannot heat it)"
+        by = "warning" if dead["warned"] else (dead["kind"] or "**missed**")
+        lines.append(
+            f"| {seed} | {tun.words()} | {told} | {bound_s:.0f} "
+            f"| {short['peak_c']:.2f} | {peak_bound_c:.2f} | {tun.dead_at_s:.0f} "
+            f"({_phase(tun.dead_at_s)}) | {_cell(dead['detected_s'], 0)} | {by} "
+            f"| {', '.join(before) or '0'} |"
+        )
+    n = len(tuns)
+    shorts = sorted(found[s]["short"]["detected_s"] or math.inf for s in tuns)
+    deads = sorted(found[s]["dead"]["detected_s"] or math.inf for s in tuns)
+    text = "\n\n".join(
+        [
+            " ".join(
+                [
+                    f'Tuns 1–{count} of the population (section "Population"), each with',
+                    "the day's water and sensor: a shorted SSR (`ssr: stuck_on`, a contactor",
+                    "fitted) at 5 h in the hold, and the element (the SSR's, on two elements)",
+                    "going open at a drawn time of the day (uniform 0.5–5.5 h: heat-up, hold or",
+                    "after the water at 4 h). The shipped config, the supervisor's limits",
+                    "unmeasured. Goals: the short told as ssr_stuck_on within the tun's dead",
+                    "time (transport delay + sensor lag) + 3 min, the water's peak (the water,",
+                    "not the sensor) no higher than 66.5 °C + the full-power rate at 66 °C",
+                    "(the SSR's element less the losses, over the water's heat capacity) × that",
+                    "time; the dead element told (an alarm, or on two elements the element",
+                    "warning) within 20 min; no alarm before either fault.",
+                ]
+            ),
+            f"- shorted SSR told within its bound: {shorts_in}/{n} (of them {harmless} where "
+            "the SSR's element alone cannot heat the water at 66 °C: no hazard, none required); "
+            f"water's peak within its "
+            f"bound: {peaks_in}/{n}; told after (median, worst): {shorts[n // 2]:.0f} s, "
+            f"{shorts[-1]:.0f} s",
+            f"- dead element told within 20 min: {dead_in}/{n}; told after (median, worst): "
+            f"{deads[n // 2]:.0f} s, {deads[-1]:.0f} s",
+            f"- tuns with an alarm before a fault (false alarms on a normal stretch): {false}/{n}",
+            "The tuns that miss a goal:\n\n" + "\n".join(lines),
+            f"{n * 2} simulated days {how}",
+        ]
+    )
+    print(text)
+    if args.write:
+        sections.write(f"## Population: faults on {count} tuns drawn", text)
+    return 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tuns", type=int, default=200, help="tuns 1…N (default 200)")
+    parser.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    parser.add_argument("--faults", action="store_true", help="the faults, not the brew days")
+    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument(
+        "--minutes", type=float, default=math.inf, help="stop after this long: the tuns done"
+    )
+    parser.add_argument(
+        "--keep", type=Path, help="also append each tun's figures to this file (JSON lines)"
+    )
+    parser.add_argument(
+        "--from",
+        dest="source",
+        type=Path,
+        help="instead of running: the tables from the figures --keep appended to this file",
+    )
+    args = parser.parse_args()
+    if args.tuns < 1:
+        parser.error(f"--tuns {args.tuns}: give at least 1")
+    if args.faults:
+        return faults_main(args)
+    return brew_days_main(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
