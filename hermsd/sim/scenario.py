@@ -741,8 +741,9 @@ def run(
             recorder.close()
     wall = time.perf_counter() - started
 
-    disturbances = [e.at for e in scenario.events if e.kind != "confirm"]
-    metrics = compute(collector.samples, disturbances, scenario.duration, circuit.ssr_edges)
+    ended = min(scenario.duration, clock.monotonic())  # an attached loop may end it early
+    disturbances = [e.at for e in scenario.events if e.kind != "confirm" and e.at <= ended]
+    metrics = compute(collector.samples, disturbances, ended, circuit.ssr_edges)
     physical_min = time_to_band(reference, 0.0, config.control.setpoint, scenario.duration)
     alarms = []
     for alarm in collector.alarms:
@@ -766,7 +767,7 @@ def run(
         "temperature": SIMULATED_TEMPERATURE,
         **report(metrics),
         "pv_overshoot_c": round(
-            compute(collector.pv_samples, disturbances, scenario.duration).overshoot_c, 4
+            compute(collector.pv_samples, disturbances, ended).overshoot_c, 4
         ),
         "physical_min_s": None if physical_min is None else round(physical_min, 1),
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
