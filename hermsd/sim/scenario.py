@@ -766,9 +766,7 @@ def run(
         "duration_s": scenario.duration,
         "temperature": SIMULATED_TEMPERATURE,
         **report(metrics),
-        "pv_overshoot_c": round(
-            compute(collector.pv_samples, disturbances, ended).overshoot_c, 4
-        ),
+        "pv_overshoot_c": round(compute(collector.pv_samples, disturbances, ended).overshoot_c, 4),
         "physical_min_s": None if physical_min is None else round(physical_min, 1),
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
         "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),
