@@ -112,6 +112,12 @@ BENCHES = (
         ("## HERMS in the daemon: the mash held by the outer loop",),
     ),
     Bench(
+        "herms",
+        "herms.py",
+        ("--jobs", "2"),
+        ("## HERMS family through the daemon: hermsd and its peers",),
+    ),
+    Bench(
         "slow-disk",
         "slow_disk.py",
         ("--seconds", "60", "--every", "10", "--stall", "2"),

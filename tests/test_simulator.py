@@ -16,6 +16,9 @@ from pathlib import Path
 import pytest
 
 from hermsd.cli import commands as cli
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
 from hermsd.sim import scenario
 from hermsd.sim.hlt import (
     BOILING_C,
@@ -473,3 +476,34 @@ def test_a_log_directory_that_cannot_hold_a_log_is_refused_before_the_run(
     assert err.count("\n") == 1 and "state directory" not in err
     assert (tmp_path / "a-file").read_text() == "not a directory\n"
     assert not list(tmp_path.rglob("*.mcap*"))
+
+
+def test_an_attached_outer_loop_steers_the_daemon_and_ends_the_day() -> None:
+    """`run(attach=...)` hands the daemon over before it runs: a listener that sets the
+    setpoint at 10 min (applied at the next period boundary, as a socket's command) and stops
+    the day at 2 h of 4 is obeyed, the records saying so, and the day is measured to where it
+    ended (its last hour the one before 2 h, not an empty one before 4 h)."""
+
+    class Outer:
+        def __init__(self, daemon: Daemon) -> None:
+            self.daemon = daemon
+
+        def period(self, record: PeriodRecord) -> None:
+            if record.t >= 600.0 and self.daemon.setpoint != 40.0:
+                self.daemon.set_setpoint(40.0)
+            if record.t >= 7200.0:
+                self.daemon.stop()
+
+        def alarm(self, alarm: Alarm) -> None:
+            """No alarm is expected on this day."""
+
+    def attach(daemon: Daemon) -> None:
+        daemon.listeners.append(Outer(daemon))
+
+    day = scenario.Scenario(duration=4 * 3600.0, setpoint=60.0, events=())
+    result = scenario.run(day, keep_records=True, attach=attach)
+    records = result.records
+    assert {r.setpoint for r in records if r.t < 600.0} == {60.0}
+    assert {r.setpoint for r in records if r.t > 610.0} == {40.0}
+    assert 7200.0 <= records[-1].t < 7210.0
+    assert result.summary["last_hour_p2p_c"] is not None

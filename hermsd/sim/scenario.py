@@ -612,13 +612,16 @@ def run(
     outside_plant: Plant | None = None,
     state_dir: Path | None = None,
     tun_model: MeasuredTun | None = None,
+    attach: Callable[[Daemon], object] | None = None,
 ) -> Result:
     """Run `scenario` through the daemon on a virtual clock; measure it (and log it).
 
     `outside_plant` replaces the scenario's tun (its `plant:` mapping then only gives the sensor's
     noise); it is used up by the run. `state_dir` is the daemon's state directory, kept from
     one run to the next as the service keeps it from one brew day to the next. `tun_model` is
-    the tun as measured, for the supervisor's limits (None: not measured)."""
+    the tun as measured, for the supervisor's limits (None: not measured). `attach` is called
+    with the daemon before it runs: a bench's listeners, or an outer loop of its own that sets
+    the daemon's setpoint each period as the control socket would."""
     config = effective_config(base or config_module.DEFAULT, scenario)
     reloads = _reloads(config, scenario)
     started = time.perf_counter()
@@ -677,6 +680,8 @@ def run(
     herms_day = config.mash_sensor.fitted  # judged on the mash: its records are needed
     collector = _Collector(plant, keep_records=keep_records or program is not None or herms_day)
     daemon.listeners.append(collector)
+    if attach is not None:
+        attach(daemon)
     brewer = _Brewer(daemon)
     ready_at_s: list[float] = []  # a program's ready_by, in the run's seconds
     if program is not None:
@@ -736,8 +741,9 @@ def run(
             recorder.close()
     wall = time.perf_counter() - started
 
-    disturbances = [e.at for e in scenario.events if e.kind != "confirm"]
-    metrics = compute(collector.samples, disturbances, scenario.duration, circuit.ssr_edges)
+    ended = min(scenario.duration, clock.monotonic())  # an attached loop may end it early
+    disturbances = [e.at for e in scenario.events if e.kind != "confirm" and e.at <= ended]
+    metrics = compute(collector.samples, disturbances, ended, circuit.ssr_edges)
     physical_min = time_to_band(reference, 0.0, config.control.setpoint, scenario.duration)
     alarms = []
     for alarm in collector.alarms:
@@ -760,9 +766,7 @@ def run(
         "duration_s": scenario.duration,
         "temperature": SIMULATED_TEMPERATURE,
         **report(metrics),
-        "pv_overshoot_c": round(
-            compute(collector.pv_samples, disturbances, scenario.duration).overshoot_c, 4
-        ),
+        "pv_overshoot_c": round(compute(collector.pv_samples, disturbances, ended).overshoot_c, 4),
         "physical_min_s": None if physical_min is None else round(physical_min, 1),
         "settle_ratio": _ratio(metrics.settle_s, physical_min),
         "recovery_min_s": None if recovery_min_s is None else round(recovery_min_s, 1),

@@ -1,0 +1,785 @@
+"""HERMS family through the daemon: hermsd's outer loop and its peers on the same plants.
+
+Every day runs through `hermsd.sim.scenario.run` (the machinery of `hermsd simulate`: the
+daemon on a virtual clock, its log written and re-run with `hermsd replay --verify`'s
+`replay.verify`), on a `hermsd.sim.mash.HermsTun`. The set-ups are drawn, one per seed, from
+the documented ranges: HLT 40–150 L, 2–9 kW, UA 17.8 W/K at 90 L scaled by the surface
+(×0.8–1.25), the element's heat 20–90 s late, the HLT's sensor lag 5–30 s; a coil of
+100–400 W/K at 4–8 L/min, hoses 5–25 s each way; a mash of 20–70 kg (2.5–4 L of water a kg
+of grain) doughed in at 35–50 °C, the tun's losses 2–15 W/K and its own 0–5 kJ/K, the mash
+sensor's lag 5–60 s; the limit (herms.max_hlt_above_mash) 5, 8 or 10 °C, the HLT preheated
+to a strike setpoint of 60–72 °C. An odd seed has the pump fitted (`pump.backend: sim`,
+switched by hermsd), an even one runs it outside hermsd (started by hand 2–10 min after
+dough-in); the seed modulo 3 gives its timer: none, stops for stirring (5 min at 40 min and
+100 min after dough-in) or a recirculation timer (2 min off every 20 min). Two more set-ups
+are scenarios/herms-day.yaml's plant (90 L 3 kW, 50 L and 12 kg doughed in at 38 °C, limit
+10 °C), with its pump outside hermsd and with it fitted. Every sensor has noise (sd
+0.03 °C; the HLT's and the mash's LM92 truncate to 0.0625 °C).
+
+The day: the HLT held at the strike setpoint, dough-in and "Mash in" confirmed at 20 min,
+then rests of 63 °C (30 min), 72 °C (20 min) and 78 °C (10 min) timed on the mash (reached
+within ±0.5 °C of the mash reading, the hold counting the periods in that band); the day ends
+2 min after the last hold. hermsd runs it as a mash program with a mash sensor fitted
+(herms keys: the mash's true litres and grain, its losses guessed low at 0.7 of the truth,
+the hoses' round trip and the mash sensor's lag; the HLT law's prior the true HLT), the pump
+started by the program's first rest when fitted. The peers run in the same daemon with no
+mash sensor (an HLT thermostat, the same HLT law and prior): a listener handed the daemon
+(`scenario.run(attach=...)`) reads the simulated mash sensor each period (its noise, lag and
+0.0625 °C steps), times the rests by the same rule, sets the daemon's setpoint as
+`hermsd set setpoint` would and starts the fitted pump at the first rest as
+`hermsd set pump on` would. Offset: the HLT at the mash's setpoint + 2 °C (ebrew,
+CraftBeerPi users). CascadePID: CraftBeerPi's, a PI on the mash's error (10 °C/°C, Ti
+600 s) gives the HLT's setpoint, clamped to the mash's setpoint + the limit
+(bench/herms_cascade.py's peers).
+
+Measured on the true temperatures (the HLT's water, the mash's bulk), per rest: the mash's
+worst error from 5 min after it first came within 0.3 °C (goal ≤ 0.3 °C), its overshoot
+(goal ≤ 0.2 °C), the HLT's highest against the mash's setpoint + limit (never above), and the
+step time from the rest's start to within 0.3 °C against the fastest the limit allows on the
+same plant (goal ≤ ×1.15): a copy from the water's and the mash's temperatures at the step's
+start, the element's heat arriving at once, the pump as the day switched it, the HLT at full
+power to the limit and held there, then off at the last instant that keeps the mash at or
+below its rest (by bisection) and held at the HLT the rest needs. Per pump start: the HLT's
+largest fall below the lesser of its temperature at the start and its setpoint over 10 min;
+one hermsd commands (goal ≤ 0.3 °C where the element exceeds the coil's load and the HLT's
+losses at that instant), one outside hermsd against the fall at full power from the start's
+instant on a copy of the plant (goal ≤ ×1.2; shown where that fall is 0.1 °C or more).
+Alarms (goal 0; a latched one is reset by the brewer at once, `hermsd reset`, so that the
+day goes on, and each is counted: a peer's are the supervisor's verdict on a HERMS run as a
+plain HLT, which counts no coil's load without a mash sensor, not the peer's own), and
+`replay --verify` on each day's log (exact: every step re-run bit for bit).
+
+    uv run python bench/herms.py [--seeds 1-10] [--jobs 2] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import dataclasses
+import math
+import random
+import tempfile
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import sections  # bench/sections.py, beside this file
+from herms_cascade import CascadePid, Offset  # the peers' outer loops, beside this file
+
+from hermsd.config.read import parse
+from hermsd.log import reader, replay
+from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import Alarm
+from hermsd.sim import scenario
+from hermsd.sim.hlt import WATER_J_PER_LITRE_K, PhysicalPlant
+from hermsd.sim.mash import GRAIN_J_PER_KG_K, HermsTun
+
+ROOM = 20.0
+RESTS = ((63.0, 30), (72.0, 20), (78.0, 10))  # °C, minutes held
+BAND = 0.3  # °C: the measure's band
+PROGRAM_BAND = 0.5  # °C: a rest reached and held on the mash (hermsd.program's rule)
+SETTLE_S = 300.0  # the mash levelling out before its error counts
+PUMP_WINDOW_S = 600.0
+DOUGH_AT = 1200.0
+PERIOD = 5.0
+NOISE_C = 0.03
+LM92_STEP = 0.0625
+OFFSET = 2.0
+DURATION = 7 * 3600.0  # the most a day may take; it ends 2 min after its last hold
+HEADING = "## HERMS family through the daemon: hermsd and its peers"
+CONTROLLERS = ("hermsd", "offset", "cascadepid")
+
+
+@dataclasses.dataclass(frozen=True)
+class SetUp:
+    label: str
+    litres: float
+    watts: float
+    hlt_ua: float
+    delay_s: float
+    hlt_lag_s: float
+    coil_ua: float
+    flow: float
+    hose_to_coil: float
+    hose_to_mash: float
+    mash_ua: float
+    mash_lag: float
+    tun_j_per_k: float
+    water_l: float
+    grain_kg: float
+    dough_c: float
+    strike_c: float
+    limit: float
+    pump_fitted: bool
+    timer: str  # none, stir or recirculation
+    hand_start_s: float  # after dough-in, a pump outside hermsd
+    seed: int
+
+    @property
+    def coil_k(self) -> float:
+        """The coil's effective conductance ε·ṁc (docs/mash-control.md, "The coil")."""
+        flow = self.flow / 60.0 * WATER_J_PER_LITRE_K
+        return flow * (1.0 - math.exp(-self.coil_ua / flow))
+
+    @property
+    def mash_capacity(self) -> float:
+        return (
+            self.tun_j_per_k + WATER_J_PER_LITRE_K * self.water_l + GRAIN_J_PER_KG_K * self.grain_kg
+        )
+
+    @property
+    def water_c(self) -> float:
+        """The strike water's temperature that mixes with the grain (20 °C) and the tun
+        (the room's) to `dough_c`."""
+        cold = (GRAIN_J_PER_KG_K * self.grain_kg + self.tun_j_per_k) * ROOM
+        return (self.dough_c * self.mash_capacity - cold) / (WATER_J_PER_LITRE_K * self.water_l)
+
+    def describe(self) -> str:
+        pump = "fitted" if self.pump_fitted else f"by hand at +{self.hand_start_s / 60:.0f} min"
+        return (
+            f"{self.litres:.0f} L {self.watts / 1000:.1f} kW (late {self.delay_s:.0f} s, "
+            f"lag {self.hlt_lag_s:.0f} s), coil {self.coil_ua:.0f} W/K at {self.flow:.1f} L/min "
+            f"(K {self.coil_k:.0f}), {self.water_l:.0f} L + {self.grain_kg:.1f} kg at "
+            f"{self.dough_c:.1f} °C (UA {self.mash_ua:.1f}, lag {self.mash_lag:.0f} s), "
+            f"strike {self.strike_c:.0f} °C, limit {self.limit:g}, pump {pump}, "
+            f"timer {self.timer}"
+        )
+
+
+def draw(seed: int) -> SetUp:
+    """A set-up from the documented ranges (the module's docstring)."""
+    rng = random.Random(seed)
+    litres = rng.uniform(40.0, 150.0)
+    total = rng.uniform(20.0, 70.0)
+    grain = total / (1.0 + rng.uniform(2.5, 4.0))
+    return SetUp(
+        label=f"seed {seed}",
+        litres=litres,
+        watts=round(rng.uniform(2000.0, 9000.0), -2),
+        hlt_ua=3000.0 / 168.9 * (litres / 90.0) ** (2.0 / 3.0) * rng.uniform(0.8, 1.25),
+        delay_s=rng.uniform(20.0, 90.0),
+        hlt_lag_s=rng.uniform(5.0, 30.0),
+        coil_ua=rng.uniform(100.0, 400.0),
+        flow=rng.uniform(4.0, 8.0),
+        hose_to_coil=rng.uniform(5.0, 25.0),
+        hose_to_mash=rng.uniform(5.0, 25.0),
+        mash_ua=rng.uniform(2.0, 15.0),
+        mash_lag=rng.uniform(5.0, 60.0),
+        tun_j_per_k=rng.uniform(0.0, 5000.0),
+        water_l=total - grain,
+        grain_kg=grain,
+        dough_c=rng.uniform(35.0, 50.0),
+        strike_c=rng.uniform(60.0, 72.0),
+        limit=rng.choice((5.0, 8.0, 10.0)),
+        pump_fitted=seed % 2 == 1,
+        timer=("none", "stir", "recirculation")[seed % 3],
+        hand_start_s=rng.uniform(120.0, 600.0),
+        seed=seed,
+    )
+
+
+def herms_day(pump_fitted: bool) -> SetUp:
+    """scenarios/herms-day.yaml's plant and dough-in, its pump 5 min after dough-in."""
+    return SetUp(
+        label="herms-day" + (", pump fitted" if pump_fitted else ""),
+        litres=90.0,
+        watts=3000.0,
+        hlt_ua=3000.0 / 168.9,
+        delay_s=60.0,
+        hlt_lag_s=10.0,
+        coil_ua=250.0,
+        flow=6.0,
+        hose_to_coil=10.0,
+        hose_to_mash=10.0,
+        mash_ua=10.0,
+        mash_lag=10.0,
+        tun_j_per_k=0.0,
+        water_l=50.0,
+        grain_kg=12.0,
+        dough_c=38.0,
+        strike_c=66.0,
+        limit=10.0,
+        pump_fitted=pump_fitted,
+        timer="none",
+        hand_start_s=300.0,
+        seed=100 + pump_fitted,
+    )
+
+
+@dataclasses.dataclass
+class PumpStart:
+    t: float
+    water: float  # °C, the HLT's water at the start
+    load: float  # W, the coil's and the HLT's losses at that instant
+    full_power_fall: float  # °C, the water's largest fall in 10 min at full power from t
+
+
+class NoisyTun(HermsTun):
+    """A `HermsTun` whose mash sensor has noise, that tells its true mash, and that notes
+    each pump start with the fall full power from that instant would allow."""
+
+    __slots__ = ("_hlt_ua", "_noise", "pump_log", "pump_starts")
+
+    def __init__(self, s: SetUp) -> None:
+        hlt = PhysicalPlant(
+            litres=s.litres,
+            element_watts=s.watts,
+            ua_w_per_k=s.hlt_ua,
+            transport_delay_s=s.delay_s,
+            sensor_lag_s=s.hlt_lag_s,
+            ambient_c=ROOM,
+            start_c=s.strike_c,
+        )
+        super().__init__(hlt, **mash_keys(s))
+        self._hlt_ua = s.hlt_ua
+        self._noise = random.Random(s.seed + 7919)
+        self.pump_log: list[tuple[float, bool]] = []
+        self.pump_starts: list[PumpStart] = []
+
+    def mash_temperature(self, t: float) -> float:
+        return super().mash_temperature(t) + self._noise.gauss(0.0, NOISE_C)
+
+    def true_mash(self, t: float) -> float:
+        self._advance(t)
+        return self._mash_c
+
+    @property
+    def pump_on(self) -> bool:
+        return self._pump_on
+
+    def set_pump(self, on: bool, t: float) -> None:
+        started = on and not self._pump_on and self._mash_capacity > 0.0
+        super().set_pump(on, t)
+        self.pump_log.append((t, on))
+        if started:
+            water = self.water_temperature(t)
+            full = copy.deepcopy(self)
+            HermsTun.set_heater(full, True, t)
+            lowest = min(full.water_temperature(t + s) for s in range(1, int(PUMP_WINDOW_S) + 1))
+            load = self.coil_watts(t) + self._hlt_ua * (water - ROOM)
+            self.pump_starts.append(PumpStart(t, water, load, water - lowest))
+
+
+def mash_keys(s: SetUp) -> dict[str, float]:
+    return {
+        "coil_w_per_k": s.coil_ua,
+        "flow_l_per_min": s.flow,
+        "hose_to_coil_s": s.hose_to_coil,
+        "hose_to_mash_s": s.hose_to_mash,
+        "mash_ua_w_per_k": s.mash_ua,
+        "mash_sensor_lag_s": s.mash_lag,
+        "tun_heat_capacity_j_per_k": s.tun_j_per_k,
+    }
+
+
+def pump_timer(s: SetUp) -> list[dict[str, Any]]:
+    """The pump's stops and restarts after dough-in: for stirring, or a recirculation timer."""
+    if s.timer == "stir":
+        stops = [(DOUGH_AT + 2400.0, 300.0), (DOUGH_AT + 6000.0, 300.0)]
+    elif s.timer == "recirculation":
+        stops = [(at, 120.0) for at in range(int(DOUGH_AT) + 1200, int(DURATION) - 200, 1200)]
+    else:
+        stops = []
+    events: list[dict[str, Any]] = []
+    for at, lasts in stops:
+        events += [{"at": at, "pump": "off"}, {"at": at + lasts, "pump": "on"}]
+    return events
+
+
+def scenario_doc(s: SetUp, controller: str) -> dict[str, Any]:
+    """The day as `hermsd simulate` reads it: plant, config, events, and hermsd's program."""
+    dough = {"grain_kg": s.grain_kg, "grain_c": ROOM, "water_litres": s.water_l}
+    events: list[dict[str, Any]] = [{"at": DOUGH_AT, "dough_in": {**dough, "water_c": s.water_c}}]
+    if not s.pump_fitted:
+        events.append({"at": DOUGH_AT + s.hand_start_s, "pump": "on"})
+    events += pump_timer(s)
+    config: dict[str, Any] = {
+        "tun": {"litres": s.litres, "element_watts": s.watts},
+        "control": {
+            "model_gain": s.watts / (100.0 * s.hlt_ua),
+            "model_tau": WATER_J_PER_LITRE_K * s.litres / s.hlt_ua,
+            "dead_time": s.delay_s + s.hlt_lag_s,
+            "model_ambient": ROOM,
+        },
+        "log": {"dir": None},
+        "pump": {"backend": "sim" if s.pump_fitted else "none"},
+        "herms": {
+            "max_hlt_above_mash": s.limit,
+            "mash_litres": s.water_l,
+            "grain_kg": s.grain_kg,
+            "mash_loss_w_per_k": round(0.7 * s.mash_ua, 1),
+            "hose_s": s.hose_to_coil + s.hose_to_mash,
+            "mash_sensor_lag": s.mash_lag,
+        },
+    }
+    doc: dict[str, Any] = {
+        "name": f"{s.label} {controller}",
+        "duration": DURATION,
+        "setpoint": s.strike_c,
+        "plant": {
+            "model": "physical",
+            "litres": s.litres,
+            "element_watts": s.watts,
+            "ua_w_per_k": s.hlt_ua,
+            "transport_delay_s": s.delay_s,
+            "sensor_lag_s": s.hlt_lag_s,
+            "start_c": s.strike_c,
+            "noise_c": NOISE_C,
+            "seed": s.seed,
+            "mash": mash_keys(s),
+        },
+        "config": config,
+        "events": events,
+    }
+    if controller == "hermsd":
+        config["mash_sensor"] = {"kind": "lm92", "address": 0x49}
+        events.append({"at": DOUGH_AT, "confirm": "Mash in"})
+        strike = {"name": "Strike", "setpoint": s.strike_c, "hold": "0s", "confirm": "Mash in"}
+        rests = [
+            {"name": f"Rest {sp:g}", "setpoint": sp, "hold": f"{minutes}m"} for sp, minutes in RESTS
+        ]
+        doc["program"] = {"name": "HERMS rests", "steps": [strike, *rests]}
+    return doc
+
+
+@dataclasses.dataclass(frozen=True)
+class Sample:
+    t: float
+    hlt_sp: float
+    water: float
+    mash: float
+
+
+class Day:
+    """Watches a day each period (the true HLT water and mash, the setpoints, the rests'
+    starts) and, for a peer, is its outer loop and its rests' timer."""
+
+    def __init__(self, s: SetUp, controller: str, tun: NoisyTun) -> None:
+        self.s, self.controller, self.tun = s, controller, tun
+        self.daemon: Daemon | None = None
+        self.samples: list[Sample] = []
+        self.rest_starts: list[tuple[float, float, float]] = []  # t, water, mash
+        self.done_at: float | None = None
+        self.outer: Callable[[float, float, float, bool], tuple[float, float]] | None = None
+        if controller == "offset":
+            self.outer = Offset(min(OFFSET, s.limit))
+        elif controller == "cascadepid":
+            self.outer = CascadePid(s.limit, PERIOD)
+        self.rest: int | None = None  # the peer's rest (None: the strike water's step)
+        self.reached, self.held, self.sent = False, 0.0, s.strike_c
+
+    def attach(self, daemon: Daemon) -> None:
+        self.daemon = daemon
+        daemon.listeners.append(self)
+
+    def period(self, record: PeriodRecord) -> None:
+        t = record.t
+        if self.outer is None:
+            index = record.step_index
+            rest = None if index is None or index == 0 else index - 1
+            runner = None if self.daemon is None else self.daemon.program.runner
+            if runner is not None and runner.state == "done" and self.done_at is None:
+                self.done_at = t
+            hlt_sp = record.hlt_target
+        else:
+            rest = self.steer(t)
+            hlt_sp = record.setpoint
+        if rest is not None and rest == len(self.rest_starts):
+            self.rest_starts.append((t, self.tun.water_temperature(t), self.tun.true_mash(t)))
+        self.samples.append(Sample(t, hlt_sp, self.tun.water_temperature(t), self.tun.true_mash(t)))
+        if self.done_at is not None and t >= self.done_at + 120.0 and self.daemon is not None:
+            self.daemon.stop()
+
+    def steer(self, t: float) -> int | None:
+        """The peer's period: time the rests on the mash reading, set the HLT's setpoint."""
+        assert self.daemon is not None
+        assert self.outer is not None
+        reading = math.floor(self.tun.mash_temperature(t) / LM92_STEP) * LM92_STEP
+        if self.rest is None and t >= DOUGH_AT:
+            self.rest = 0
+            if self.s.pump_fitted:
+                self.daemon.set_pump(True, "by the operator")
+        elif self.rest is not None and self.rest < len(RESTS):
+            sp, minutes = RESTS[self.rest]
+            inside = abs(reading - sp) <= PROGRAM_BAND
+            self.reached = self.reached or inside
+            self.held += PERIOD if self.reached and inside else 0.0
+            if self.held >= minutes * 60.0:
+                self.rest, self.reached, self.held = self.rest + 1, False, 0.0
+                if self.rest == len(RESTS):
+                    self.done_at = t
+        target = self.s.strike_c
+        if self.rest is not None:
+            sp = RESTS[min(self.rest, len(RESTS) - 1)][0]
+            target = self.outer(sp, reading, 0.0, True)[0]
+        target = min(max(target, 0.0), 100.0)
+        if abs(target - self.sent) >= 0.005:
+            self.sent = round(target, 2)
+            self.daemon.set_setpoint(self.sent)
+        return None if self.rest is None or self.rest == len(RESTS) else self.rest
+
+    def alarm(self, alarm: Alarm) -> None:
+        """The brewer resets a latched alarm at once (`hermsd reset`), so that the day goes
+        on and the outer loop is still measured; the run's summary counts each."""
+        if alarm.raised and alarm.latched and self.daemon is not None:
+            self.daemon.reset_alarms([alarm.kind])
+
+
+def ideal_run(
+    s: SetUp,
+    start: tuple[float, float, float],
+    sp: float,
+    switch: float,
+    pumps: list[tuple[float, bool]],
+    reach: bool = True,
+) -> tuple[float, float | None]:
+    """The ideal HLT from `start` (t, water, mash), off the limit at `switch` s: (s until the
+    mash is within BAND, s when it passed `sp`: None if it did not). With `switch` finite the
+    run ends once the HLT has been down at the rest's HLT for the hoses' time and 2 min (the
+    mash then never passes `sp`), and the mash is within BAND if `reach`."""
+    t0, water, mash = start
+    hlt = PhysicalPlant(
+        litres=s.litres,
+        element_watts=s.watts,
+        ua_w_per_k=s.hlt_ua,
+        transport_delay_s=0.0,
+        sensor_lag_s=0.0,
+        ambient_c=ROOM,
+        start_c=water,
+        start_s=t0,
+    )
+    keys = {**mash_keys(s), "mash_sensor_lag_s": 0.0, "tun_heat_capacity_j_per_k": 0.0}
+    tun = HermsTun(hlt, **keys)
+    tun.dough_in(0.0, ROOM, s.mash_capacity / WATER_J_PER_LITRE_K, mash, t0)
+    tun.set_pump(next((on for at, on in reversed(pumps) if at <= t0), False), t0)
+    later = [(at, on) for at, on in pumps if at > t0]
+    cap, hold = sp + s.limit, sp + s.mash_ua * (sp - ROOM) / s.coil_k
+    settle = s.hose_to_coil + s.hose_to_mash + 120.0
+    reached, down_since, t = math.inf, math.inf, t0
+    for second in range(4 * 3600):
+        while later and later[0][0] <= t:  # a switch within the second: at its end
+            tun.set_pump(later.pop(0)[1], t)
+        tun.set_heater(tun.water_temperature(t) < (cap if second < switch else hold), t)
+        t += 1.0
+        now = tun.mash_temperature(t)
+        if now > sp + 1e-3:
+            return reached, second + 1.0
+        if reached == math.inf and now >= sp - BAND:
+            reached = second + 1.0
+        if second >= switch and tun.water_temperature(t) <= hold + 0.05:
+            down_since = min(down_since, t)
+            if t - down_since > settle and (reached < math.inf or not reach):
+                return reached, None
+    return reached, None
+
+
+def fastest(
+    s: SetUp, start: tuple[float, float, float], sp: float, pumps: list[tuple[float, bool]]
+) -> float:
+    """s from `start` to within BAND of `sp` with the ideal HLT (the module's docstring)."""
+    never = ideal_run(s, start, sp, math.inf, pumps)
+    if never[1] is None:
+        return never[0]
+    first = ideal_run(s, start, sp, 0.0, pumps, reach=False)
+    if first[1] is not None:
+        return first[0]
+    lo, hi = 0.0, never[1]
+    while hi - lo > 4.0:
+        mid = 0.5 * (lo + hi)
+        if ideal_run(s, start, sp, mid, pumps, reach=False)[1] is None:
+            lo = mid
+        else:
+            hi = mid
+    return ideal_run(s, start, sp, lo, pumps)[0]
+
+
+def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[dict[str, Any]]:
+    """Each rest's measures (the module's docstring); a rest never begun is left out."""
+    rows = []
+    ends = [start[0] for start in day.rest_starts[1:]] + [math.inf]
+    for (sp, _), start, end in zip(RESTS, day.rest_starts, ends, strict=False):
+        window = [x for x in day.samples if start[0] <= x.t < end]
+        reached = next((x.t for x in window if x.mash >= sp - BAND), None)
+        after = [abs(x.mash - sp) for x in window if reached is not None and x.t >= reached + 300]
+        best = fastest(s, start, sp, pumps)
+        step = math.inf if reached is None else reached - start[0]
+        rows.append(
+            {
+                "sp": sp,
+                "err": max(after, default=math.nan),
+                "over": max(x.mash for x in window) - sp,
+                "hlt_above": max(x.water for x in window) - (sp + s.limit),
+                "step_s": step,
+                "fastest_s": best,
+                "ratio": step / best if best > 0.0 else math.nan,
+            }
+        )
+    return rows
+
+
+def pumps_measured(s: SetUp, day: Day) -> list[dict[str, Any]]:
+    """Each pump start with the mash in: the HLT's fall, who started it, the load at that
+    instant, and the fall full power from that instant allows."""
+    rows = []
+    for start in day.tun.pump_starts:
+        window = [x for x in day.samples if start.t <= x.t <= start.t + PUMP_WINDOW_S]
+        fall = max((min(start.water, x.hlt_sp) - x.water for x in window), default=math.nan)
+        fall = max(fall, 0.0)  # the HLT above where it was and where it was wanted: no fall
+        rows.append(
+            {
+                "t": start.t,
+                "by_hermsd": s.pump_fitted,
+                "element_exceeds": s.watts > start.load,
+                "load_w": start.load,
+                "fall": fall,
+                "full_power_fall": start.full_power_fall,
+            }
+        )
+    return rows
+
+
+def verified(log_dir: Path) -> str:
+    """What `hermsd replay --verify` says of the day's log."""
+    log = reader.load(sorted(log_dir.glob("*.mcap*")))
+    result = replay.verify(log.entries)
+    if result.other_law is not None:
+        return "another law's"
+    if result.mismatch is not None:
+        return f"differs at k={result.mismatch.k} ({result.mismatch.name})"
+    if result.verified == 0:
+        return "nothing verified"
+    skipped = f", {result.unknown_state} not re-run" if result.unknown_state else ""
+    return f"exact ({result.verified}{skipped})"
+
+
+def run_day(task: tuple[SetUp, str]) -> dict[str, Any]:
+    """One set-up under one controller through the daemon, measured."""
+    s, controller = task
+    tun = NoisyTun(s)
+    day = Day(s, controller, tun)
+    spec = scenario.parse_scenario(scenario_doc(s, controller), f"<{s.label} {controller}>")
+    with tempfile.TemporaryDirectory(prefix="hermsd-bench-") as directory:
+        result = scenario.run(
+            spec, parse(""), log_dir=Path(directory), outside_plant=tun, attach=day.attach
+        )
+        verify = verified(Path(directory))
+    return {
+        "setup": s,
+        "controller": controller,
+        "rests": rests_measured(s, day, tun.pump_log),
+        "pumps": pumps_measured(s, day),
+        "alarms": [a["kind"] for a in result.summary["alarms"]],
+        "verify": verify,
+        "finished": day.done_at is not None,
+        "wall_s": result.summary["wall_s"],
+    }
+
+
+NAMES = {
+    "hermsd": "hermsd",
+    "offset": f"offset +{OFFSET:g} °C",
+    "cascadepid": "CascadePID",
+}
+
+
+def number(value: float, form: str = ".2f") -> str:
+    return "—" if math.isnan(value) else ("never" if math.isinf(value) else format(value, form))
+
+
+def worst(values: list[float]) -> float:
+    """The largest, a rest never reached (inf) the worst of all; nan when there is none."""
+    known = [v for v in values if not math.isnan(v)]
+    return max(known, default=math.nan)
+
+
+MEASURES: tuple[tuple[str, str, float], ...] = (
+    ("mash's worst error from 5 min after reaching, °C", "err", 0.3),
+    ("mash's overshoot, °C", "over", 0.2),
+    ("HLT's highest above the mash's setpoint + limit, °C", "hlt_above", 0.0),
+    ("step time ÷ the fastest the limit allows", "ratio", 1.15),
+    ("HLT's fall at a pump start hermsd commands (element > load), °C", "fall_commanded", 0.3),
+    ("HLT's fall at a pump start outside hermsd ÷ at full power", "fall_ratio", 1.2),
+    ("alarms on a day", "alarms", 0.0),
+)
+
+
+def day_measures(day: dict[str, Any]) -> dict[str, list[float]]:
+    """Per measure of MEASURES, the day's values."""
+    rests, pumps = day["rests"], day["pumps"]
+    commanded = [p["fall"] for p in pumps if p["by_hermsd"] and p["element_exceeds"]]
+    outside = [
+        p["fall"] / p["full_power_fall"]
+        for p in pumps
+        if not p["by_hermsd"] and p["full_power_fall"] >= 0.1
+    ]
+    values = {key: [r[key] for r in rests] for key in ("err", "over", "hlt_above", "ratio")}
+    missing = len(RESTS) - len(rests)  # a rest never begun: the program never got there
+    values["err"] += [math.inf] * missing
+    values["ratio"] += [math.inf] * missing
+    return {
+        **values,
+        "fall_commanded": commanded,
+        "fall_ratio": outside,
+        "alarms": [float(len(day["alarms"]))],
+    }
+
+
+def summary_table(days: list[dict[str, Any]]) -> str:
+    lines = [
+        "| measure | goal | " + " | ".join(NAMES.values()) + " | hermsd ahead of both |",
+        "|---|---|---|---|---|---|",
+    ]
+    for title, key, goal in MEASURES:
+        worsts = {
+            c: worst([v for d in days if d["controller"] == c for v in day_measures(d)[key]])
+            for c in CONTROLLERS
+        }
+        mine = worsts["hermsd"]
+        peers = [worsts[c] for c in CONTROLLERS[1:]]
+        if math.isnan(mine):
+            ahead = "—"
+        elif all(not math.isnan(p) and mine < p for p in peers):
+            ahead = "yes"
+        elif all(math.isnan(p) or mine <= p for p in peers):
+            ahead = "level"
+        else:
+            ahead = "no"
+        cells = " | ".join(number(worsts[c]) for c in CONTROLLERS)
+        lines.append(f"| {title} | ≤ {goal:g} | {cells} | {ahead} |")
+    exact = {
+        c: [d["verify"].startswith("exact") for d in days if d["controller"] == c]
+        for c in CONTROLLERS
+    }
+    cells = " | ".join(f"{sum(v)} of {len(v)}" for v in exact.values())
+    lines.append(f"| `replay --verify` exact | every day | {cells} | |")
+    return "\n".join(lines)
+
+
+def setups_table(setups: list[SetUp]) -> str:
+    lines = [
+        "| set-up | plant | coil's load at the first pump start (strike − dough-in) |",
+        "|---|---|---|",
+    ]
+    for s in setups:
+        load = s.coil_k * (s.strike_c - s.dough_c)
+        side = "above" if load > s.watts else "below"
+        lines.append(f"| {s.label} | {s.describe()} | {load / 1000:.1f} kW, {side} the element's |")
+    return "\n".join(lines)
+
+
+def rests_table(days: list[dict[str, Any]]) -> str:
+    lines = [
+        "| set-up | rest °C | "
+        + " | ".join(
+            f"{NAMES[c]}: error / overshoot / HLT above / step ÷ fastest" for c in CONTROLLERS
+        )
+        + " |",
+        "|---|---|---|---|---|",
+    ]
+    by = {(d["setup"].label, d["controller"]): d for d in days}
+    for label in dict.fromkeys(d["setup"].label for d in days):
+        for index, (sp, _) in enumerate(RESTS):
+            cells = []
+            for c in CONTROLLERS:
+                rests = by[(label, c)]["rests"]
+                if index >= len(rests):
+                    cells.append("not begun")
+                    continue
+                r = rests[index]
+                cells.append(
+                    f"{number(r['err'])} / {r['over']:+.2f} / {r['hlt_above']:+.2f} / "
+                    f"{number(r['ratio'], '.3f')}"
+                )
+            lines.append(f"| {label} | {sp:g} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def pumps_table(days: list[dict[str, Any]]) -> str:
+    """Per day: its pump starts with the mash in, the worst fall of those hermsd commanded
+    where the element exceeds the load, the worst of those outside hermsd against full power."""
+    lines = [
+        "| set-up | controller | pump starts (element > load) | worst fall commanded, element "
+        "> load °C | worst fall outside ÷ at full power (falls °C) |",
+        "|---|---|---|---|---|",
+    ]
+    for d in days:
+        pumps = d["pumps"]
+        exceeds = sum(p["element_exceeds"] for p in pumps)
+        commanded = [p["fall"] for p in pumps if p["by_hermsd"] and p["element_exceeds"]]
+        outside = [
+            (p["fall"] / p["full_power_fall"], p["fall"], p["full_power_fall"])
+            for p in pumps
+            if not p["by_hermsd"] and p["full_power_fall"] >= 0.1
+        ]
+        ratio = "—"
+        if outside:
+            r, fall, full = max(outside)
+            ratio = f"{r:.2f} ({fall:.2f} / {full:.2f})"
+        lines.append(
+            f"| {d['setup'].label} | {NAMES[d['controller']]} | {len(pumps)} ({exceeds}) "
+            f"| {number(worst(commanded))} | {ratio} |"
+        )
+    return "\n".join(lines)
+
+
+def days_table(days: list[dict[str, Any]]) -> str:
+    lines = [
+        "| set-up | controller | program finished | alarms | `replay --verify` | wall s |",
+        "|---|---|---|---|---|---|",
+    ]
+    for d in days:
+        lines.append(
+            f"| {d['setup'].label} | {NAMES[d['controller']]} | "
+            f"{'yes' if d['finished'] else 'NO'} | {', '.join(d['alarms']) or 'none'} | "
+            f"{d['verify']} | {d['wall_s']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def seeds(text: str) -> list[int]:
+    """'1-10' or '1,4,7' (or both: '1-3,9')."""
+    found: list[int] = []
+    for part in text.split(","):
+        low, _, high = part.partition("-")
+        found += range(int(low), int(high or low) + 1)
+    return found
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--seeds", default="1-10", help="the drawn set-ups, e.g. 1-10 or 1,4,7")
+    parser.add_argument("--jobs", type=int, default=1, help="processes to run the days in")
+    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    args = parser.parse_args()
+    setups = [herms_day(False), herms_day(True), *(draw(seed) for seed in seeds(args.seeds))]
+    tasks = [(s, c) for s in setups for c in CONTROLLERS]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        days = list(pool.map(run_day, tasks))
+    text = "\n\n".join(
+        [
+            setups_table(setups),
+            "Worst over the family (per measure, the worst rest, pump start or day):",
+            summary_table(days),
+            "Per set-up and rest (error from 5 min °C / overshoot °C / HLT above the limit °C "
+            "/ step ÷ fastest):",
+            rests_table(days),
+            "Pump starts with the mash in (the HLT's fall in 10 min below the lesser of its "
+            "temperature at the start and its setpoint; at full power from the start's instant "
+            "on a copy of the plant):",
+            pumps_table(days),
+            days_table(days),
+        ]
+    )
+    print(text)
+    if args.write:
+        doc = (__doc__ or "").split("\n\n")
+        intro = "\n\n".join(" ".join(paragraph.split()) for paragraph in doc[1:4])
+        sections.write(HEADING, f"{intro}\n\n{text}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
