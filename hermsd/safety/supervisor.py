@@ -16,6 +16,7 @@ room (`SafetyLimits.derive` states each derivation).
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 from collections import deque
@@ -118,6 +119,8 @@ class Supervisor:
         self._last_raw: int | None = None
         self._heater_watch = _HeaterWatch()
         self._energy: deque[tuple[float, float, float]] = deque()  # (t, pv, full-power s)
+        self._energy_before: deque[float] = deque()  # full-power s before each, since start
+        self._energy_total = 0.0
         self._last_period_t: float | None = None
         self._wrong_chip = False
         self._history: deque[tuple[float, float]] = deque()
@@ -126,6 +129,8 @@ class Supervisor:
         self._output_swing = _OutputSwing()
         # (t, °C/s the coil may cool, and warm, the water at over the period to t)
         self._coil: deque[tuple[float, float, float]] = deque()
+        self._coil_warmed: deque[float] = deque()  # °C the coil may have warmed, to each t
+        self._coil_total = 0.0
 
     # -- what the daemon asks -------------------------------------------------------------
 
@@ -172,8 +177,10 @@ class Supervisor:
             self._clear(kind, t, "reset by the operator")
         self._heater_watch.stop()
         self._energy.clear()
+        self._energy_before.clear()
         self._history.clear()
         self._coil.clear()
+        self._coil_warmed.clear()
         self._sustained_before.clear()
         self._raw_since = None
         self._output_swing.clear(None)
@@ -317,10 +324,15 @@ class Supervisor:
         `t`, each way (°C/s in the least water the tun may hold), for the heat balances."""
         lim, coils = self.limits, self._coil
         per_joule = lim.rise_per_joule
-        coils.append((t, coil.most_taken * per_joule, coil.most_given * per_joule))
+        given = coil.most_given * per_joule
+        if coils:  # its fastest over the period, for the period before the one it is given at
+            self._coil_total += given * (t - coils[-1][0])
+        coils.append((t, coil.most_taken * per_joule, given))
+        self._coil_warmed.append(self._coil_total)
         keep = max(lim.ssr_watch, *lim.creep_watches) + lim.heat_memory + SENSOR_LAG_MAX
         while t - coils[0][0] > keep:
             coils.popleft()
+            self._coil_warmed.popleft()
 
     def _coil_fall(self, start: float, end: float) -> float:
         """°C the coil may have cooled the water by, as the sensor shows it from `start` to
@@ -332,13 +344,12 @@ class Supervisor:
 
     def _coil_rise(self, since: float, end: float) -> float:
         """°C the coil may have warmed the water by from `since` to `end` (its fastest over
-        each period, for the period before the one it was given at)."""
-        coils = self._coil
-        return math.fsum(
-            rate * (when - before)
-            for (before, _, _), (when, _, rate) in itertools.pairwise(coils)
-            if since < when <= end
-        )
+        each period, for the period before the one it was given at): a difference of running
+        sums, as the checks ask it several times a period over windows of up to an hour."""
+        coils, warmed = self._coil, self._coil_warmed
+        last = bisect.bisect_right(coils, end, key=_when) - 1
+        first = max(bisect.bisect_right(coils, since, key=_when) - 1, 0)
+        return warmed[last] - warmed[first] if last > first else 0.0
 
     def _check_dry_fire(self, t: float, pv: float) -> None:
         """Heat into too little water: a rise faster than the water allows, and sustained.
@@ -506,18 +517,23 @@ class Supervisor:
         lim, history = self.limits, self._energy
         previous, self._last_period_t = self._last_period_t, t
         dt = 0.0 if previous is None else t - previous
-        history.append((t, pv, applied / 100.0 * dt))
+        energy = applied / 100.0 * dt
+        history.append((t, pv, energy))
+        self._energy_before.append(self._energy_total)
+        self._energy_total += energy
         longest = max(lim.ssr_watch, *lim.creep_watches)
         while t - history[0][0] > longest + lim.heat_memory:
             history.popleft()
+            self._energy_before.popleft()
         watches = [(lim.ssr_watch, 0.0)]
         watches += [(w, lim.loss_per_k * w) for w in lim.creep_watches]
         for watch, room_per_k in watches:
             span = watch + lim.heat_memory
             if t - history[0][0] < span - dt:
                 continue
-            pv_then = next(p for when, p, _ in history if when >= t - watch)
-            full_power_s = sum(e for when, _, e in history if when >= t - span)
+            pv_then = history[bisect.bisect_left(history, t - watch, key=_when)][1]
+            first = bisect.bisect_left(history, t - span, key=_when)
+            full_power_s = self._energy_total - self._energy_before[first]
             from_room = room_per_k * max(0.0, WARMEST_ROOM - min(pv, pv_then))
             from_coil = self._coil_rise(t - span, t)
             allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise + from_room + from_coil
@@ -625,6 +641,10 @@ def _jump_believed(celsius: float, recent: Sequence[float], max_step: float) -> 
     if before * step < 0.0 and abs(before) > max_step:
         return False  # the jump back from a spike
     return abs(before) <= max_step or abs(step) <= abs(last)
+
+
+def _when(sample: tuple[float, ...]) -> float:
+    return sample[0]
 
 
 def _window_rises(
