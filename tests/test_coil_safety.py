@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from hermsd.safety.coil_load import NO_LOAD, coil_load
+from hermsd.safety.coil_load import MASH_RANGE, NO_LOAD, MashSpan, coil_load
 from hermsd.safety.limits import SafetyLimits
 from hermsd.safety.supervisor import Supervisor
 from hermsd.sim import scenario
@@ -42,11 +42,11 @@ def test_a_learned_conductance_narrows_the_bound() -> None:
     assert load.watts == pytest.approx(5600.0)
 
 
-def test_no_mash_reading_bounds_the_mash_from_0_to_100_c() -> None:
-    # The HLT at 50 °C, 6 L/min: 418.6 × (50 − 0 + 1) = 21348.6 W either way.
-    load = coil_load(50.0, None, None, 6.0)
-    assert load.high == pytest.approx(21348.6)
-    assert load.low == pytest.approx(-21348.6)
+def test_a_mash_never_read_is_anywhere_from_0_to_100_c() -> None:
+    # The HLT at 50 °C, 6 L/min: 418.6 × (50 − 0) = 20930 W either way.
+    load = coil_load(50.0, MashSpan(*MASH_RANGE), None, 6.0)
+    assert load.high == pytest.approx(20930.0)
+    assert load.low == pytest.approx(-20930.0)
 
 
 def test_a_stopped_pump_exchanges_nothing() -> None:
