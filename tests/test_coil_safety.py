@@ -99,13 +99,14 @@ def test_heat_back_from_a_warmer_mash_raises_no_alarm() -> None:
     assert _alarms("herms-heat-back", 3 * 3600.0) == []
 
 
-def test_a_dead_element_is_caught_once_the_pump_stops() -> None:
-    """Open at 2h20m with the pump running: the coil's most possible load explains the fall;
-    the pump stops at 2h40m (9600 s), and the fall is judged as without a coil: within the
-    dead time and the watch (300 + 300 s) and a watch's restart."""
+def test_a_dead_element_is_caught_with_the_pump_running() -> None:
+    """Open at 2h20m (8400 s) in the rest, the pump running until 2h40m (9600 s): the mash
+    stops warming, so the coil explains none of the HLT's fall, which is judged as without a
+    coil once the output has been at full power for the dead time and the watch (300 + 300 s)
+    after it climbed there. (On the flow's bound it was caught only after the pump stopped.)"""
     alarms = _alarms("herms-heater-open", 10800.0)
     assert [a["kind"] for a in alarms] == ["heater_not_heating"]
-    assert 9600.0 < float(str(alarms[0]["at_s"])) <= 9600.0 + 600.0
+    assert 8400.0 < float(str(alarms[0]["at_s"])) < 9600.0
 
 
 def test_a_shorted_ssr_is_caught_with_the_pump_running() -> None:

@@ -16,7 +16,8 @@ from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.coil_load import MashSpan, MashWatch, coil_load, fastest_mash_cooling
-from hermsd.safety.limits import Alarm
+from hermsd.safety.limits import Alarm, SafetyLimits
+from hermsd.safety.supervisor import Supervisor
 from hermsd.sim.clock import VirtualClock
 from hermsd.sim.mash import make_herms_plant
 from hermsd.sim.world import World, build_world
@@ -103,3 +104,39 @@ def test_a_faulty_mash_sensor_is_bounded_from_its_last_good_reading() -> None:
     assert load.most_given == pytest.approx(1674.4, rel=1e-3)
     assert load.most_taken == pytest.approx(837.2 * (70.0 - span.coldest), rel=1e-3)
     assert MashWatch().span(0.0, 70.0, None, 50.0) == MashSpan(0.0, 100.0)  # never read
+
+
+def _supervised(mash_rate: float) -> list[str]:
+    """A supervisor (90 L, 3 kW) fed an HLT falling 0.003 °C/s from 70 °C at full power for
+    20 min, the pump running from the start and the mash (50 L + 12 kg) at 50 °C warming at
+    `mash_rate` °C/s: the alarms raised."""
+    limits = SafetyLimits.derive(litres=90.0, element_watts=3000.0, period=5.0, read_interval=1)
+    supervisor, watch = Supervisor(limits), MashWatch()
+    t = 0.0
+    while t <= 1200.0:
+        pv = 70.0 - 0.003 * t
+        supervisor.reading(t, pv, raw=round(pv / 0.0625))
+        load = watch.load(
+            t,
+            pv,
+            50.0 + mash_rate * t,
+            True,
+            max_flow=6.0,
+            litres=50.0,
+            grain_kg=12.0,
+            lags=(20.0, 10.0),
+        )
+        supervisor.period(t, pv, 100.0, 100.0, load)
+        t += 5.0
+    return [alarm.kind for alarm in supervisor.drain_events() if alarm.raised]
+
+
+def test_the_mash_warming_explains_a_fall_and_a_mash_not_warming_does_not() -> None:
+    """With a working element at 80 % or more making up both vessels' losses, the HLT falls
+    by no more than the heat the mash gains: C_m·dT_m/dt, at most 2 × (50 × 4186 + 12 × 1700)
+    = 459.4 kJ/K times the mash's slope, into the least water, 45 L (188.37 kJ/K). A mash
+    warming 0.005 °C/s: 2297 W, 0.0122 °C/s, more than the HLT's 0.003 °C/s fall: no verdict.
+    A mash standing still explains none of it: 0.45 °C in each half-watch, a dead element
+    (the flow's bound, 418.6 W/K × (70 − 50 + 1 °C) = 8.8 kW, explained it all)."""
+    assert _supervised(0.005) == []
+    assert _supervised(0.0) == ["heater_not_heating"]

@@ -22,7 +22,7 @@ from hermsd.program.runner import MashReading
 from hermsd.runtime.loop_state import LoopState
 from hermsd.runtime.mash_control import MashControl, coil_prior, mash_control
 from hermsd.runtime.notify import mash_side_words
-from hermsd.safety.coil_load import NO_LOAD, CoilLoad, MashWatch, coil_load
+from hermsd.safety.coil_load import NO_LOAD, CoilLoad, MashWatch
 
 if TYPE_CHECKING:
     from hermsd.hardware.sensors.base import Sensor
@@ -297,9 +297,17 @@ class MashSide(LoopState):
         if coil is not None and coil.source == "learned":
             learned = (coil.conductance, coil.conductance + COIL_SAFETY_SDS * coil.sd)
         herms = self.config.herms
-        span = self._mash_watch.span(self._now(), hlt, mash.celsius, herms.mash_litres)
-        where = span if mash.celsius is None else mash.celsius
-        return coil_load(hlt, where, pump, herms.max_coil_flow, learned)
+        return self._mash_watch.load(
+            self._now(),
+            hlt,
+            mash.celsius,
+            pump,
+            max_flow=herms.max_coil_flow,
+            litres=herms.mash_litres,
+            grain_kg=herms.grain_kg,
+            lags=(herms.hose_s, herms.mash_sensor_lag),
+            conductance=learned,
+        )
 
     def mash_words(self) -> str:
         """The status line's 'mash 64.8 → 65.0 °C (climb), pump on' (`notify.mash_side_words`)."""
