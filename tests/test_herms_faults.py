@@ -136,7 +136,13 @@ def test_the_mash_warming_explains_a_fall_and_a_mash_not_warming_does_not() -> N
     by no more than the heat the mash gains: C_m·dT_m/dt, at most 2 × (50 × 4186 + 12 × 1700)
     = 459.4 kJ/K times the mash's slope, into the least water, 45 L (188.37 kJ/K). A mash
     warming 0.005 °C/s: 2297 W, 0.0122 °C/s, more than the HLT's 0.003 °C/s fall: no verdict.
-    A mash standing still explains none of it: 0.45 °C in each half-watch, a dead element
-    (the flow's bound, 418.6 W/K × (70 − 50 + 1 °C) = 8.8 kW, explained it all)."""
+    A mash cooling explains none of it: 0.45 °C in each half-watch, a dead element (the
+    flow's bound, 418.6 W/K × (70 − 50 + 1 °C) = 8.8 kW, explained it all)."""
     assert _supervised(0.005) == []
-    assert _supervised(0.0) == ["heater_not_heating"]
+    assert _supervised(-0.001) == ["heater_not_heating"]
+
+
+def test_a_frozen_mash_reading_is_no_mash_standing_still() -> None:
+    """A mash reading that does not change at all over the slope's window (a frozen register)
+    could hide any warming: the flow's bound stands, which explains the fall."""
+    assert _supervised(0.0) == []

@@ -189,8 +189,10 @@ class MashWatch:
 
     def warming(self, t: float, mash: float | None, pump: bool | None, settle: float) -> float:
         """°C/s the mash is warming at (its readings' least-squares slope over SLOPE_WINDOW),
-        or NaN while not known: the pump not known to run, a reading missing, or the pump's
-        run shorter than `settle` s (the hoses' and the sensor's lag and the window)."""
+        or NaN while not known: the pump not known to run, a reading missing, the pump's run
+        shorter than `settle` s (the hoses' and the sensor's lag and the window), or every
+        reading over the window the same (a frozen register shows no warming whatever the
+        coil gives; a mash that truly stands still moves again once the element dies)."""
         if not pump or mash is None:
             self._run_from = None
             self._readings.clear()
@@ -202,6 +204,8 @@ class MashWatch:
         while t - readings[0][0] > SLOPE_WINDOW:
             readings.popleft()
         if t - self._run_from < settle or len(readings) < 3:
+            return math.nan
+        if all(m == mash for _, m in readings):
             return math.nan
         n = len(readings)
         t_mean = math.fsum(when for when, _ in readings) / n
