@@ -112,6 +112,12 @@ BENCHES = (
         ("## HERMS in the daemon: the mash held by the outer loop",),
     ),
     Bench(
+        "herms-faults",
+        "herms_faults.py",
+        (),
+        ("## HERMS faults: the supervisor with the pump running",),
+    ),
+    Bench(
         "slow-disk",
         "slow_disk.py",
         ("--seconds", "60", "--every", "10", "--stall", "2"),
