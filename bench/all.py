@@ -118,6 +118,12 @@ BENCHES = (
         ("## HERMS family through the daemon: hermsd and its peers",),
     ),
     Bench(
+        "herms-faults",
+        "herms_faults.py",
+        (),
+        ("## HERMS faults: the supervisor with the pump running",),
+    ),
+    Bench(
         "slow-disk",
         "slow_disk.py",
         ("--seconds", "60", "--every", "10", "--stall", "2"),

@@ -22,7 +22,7 @@ from hermsd.program.runner import MashReading
 from hermsd.runtime.loop_state import LoopState
 from hermsd.runtime.mash_control import MashControl, coil_prior, mash_control
 from hermsd.runtime.notify import mash_side_words
-from hermsd.safety.coil_load import NO_LOAD, CoilLoad, coil_load
+from hermsd.safety.coil_load import NO_LOAD, CoilLoad, MashWatch
 
 if TYPE_CHECKING:
     from hermsd.hardware.sensors.base import Sensor
@@ -120,6 +120,7 @@ class MashSide(LoopState):
     _roles: dict[str, RoleSensor]
     _pump_on: bool
     _mash_control: MashControl | None
+    _mash_watch: MashWatch
     models: ModelStore | None
 
     if TYPE_CHECKING:  # the Daemon's
@@ -172,6 +173,7 @@ class MashSide(LoopState):
     def _start_mash_side(self) -> None:
         self._pump_on = False
         self._program_pump_step = None
+        self._mash_watch = MashWatch()
         for role in self._roles.values():
             self._say_role(role.start(self.config.safety, self._now()))
 
@@ -284,8 +286,8 @@ class MashSide(LoopState):
     def coil_load(self, hlt: float | None) -> CoilLoad:
         """The coil's load on the HLT at `hlt` °C, for the supervisor's heat balances: none
         without a mash sensor (no HERMS known) or with the pump hermsd switches off; counted
-        with a pump hermsd does not switch, which may be running (docs/herms.md, "The coil
-        and the safety")."""
+        with a pump hermsd does not switch, which may be running; a faulty mash sensor's
+        mash bounded from its last good reading (docs/herms.md, "The coil and the safety")."""
         mash = self._roles.get("mash_sensor")
         if mash is None or hlt is None:
             return NO_LOAD
@@ -294,7 +296,18 @@ class MashSide(LoopState):
         coil = None if self._mash_control is None else self._mash_control.coil.estimate()
         if coil is not None and coil.source == "learned":
             learned = (coil.conductance, coil.conductance + COIL_SAFETY_SDS * coil.sd)
-        return coil_load(hlt, mash.celsius, pump, self.config.herms.max_coil_flow, learned)
+        herms = self.config.herms
+        return self._mash_watch.load(
+            self._now(),
+            hlt,
+            mash.celsius,
+            pump,
+            max_flow=herms.max_coil_flow,
+            litres=herms.mash_litres,
+            grain_kg=herms.grain_kg,
+            lags=(herms.hose_s, herms.mash_sensor_lag),
+            conductance=learned,
+        )
 
     def mash_words(self) -> str:
         """The status line's 'mash 64.8 → 65.0 °C (climb), pump on' (`notify.mash_side_words`)."""
