@@ -41,10 +41,14 @@ def _record(**values: object) -> PeriodRecord:
 @pytest.mark.parametrize(
     ("values", "row"),
     [
-        ({}, b"[12345.0,65.938,66.0,12.346,12.3,null]"),  # 65.9375 is rounded half to even
-        ({"pv": None, "t": 0.0004}, b"[0.0,null,66.0,12.346,12.3,null]"),
-        ({"output": float("nan"), "applied": 100}, b"[12345.0,65.938,66.0,null,100,null]"),
-        ({"mash": 64.8125}, b"[12345.0,65.938,66.0,12.346,12.3,64.812]"),
+        ({}, b"[12345.0,65.938,66.0,12.346,12.3,null,null]"),  # 65.9375: half to even
+        ({"pv": None, "t": 0.0004}, b"[0.0,null,66.0,12.346,12.3,null,null]"),
+        ({"output": float("nan"), "applied": 100}, b"[12345.0,65.938,66.0,null,100,null,null]"),
+        ({"mash": 64.8125}, b"[12345.0,65.938,66.0,12.346,12.3,64.812,null]"),
+        (
+            {"mash": 64.8125, "hlt_setpoint": 71.4004},
+            b"[12345.0,65.938,66.0,12.346,12.3,64.812,71.4]",
+        ),
     ],
 )
 def test_a_row_is_the_periods_numbers_rounded_to_a_thousandth(
@@ -104,7 +108,15 @@ def test_the_socket_pages_through_the_periods_the_loop_ran(tmp_path: Path) -> No
             )
             status = exchange(sock, b'{"v": 1, "cmd": "status"}\n')
     assert first["ok"] and first["more"] and first["period"] == 5.0
-    assert first["fields"] == ["t", "pv", "setpoint", "output", "applied", "mash"]
+    assert first["fields"] == [
+        "t",
+        "pv",
+        "setpoint",
+        "output",
+        "applied",
+        "mash",
+        "hlt_setpoint",
+    ]
     rows = first["rows"] + rest["rows"]
     times = [row[0] for row in rows]
     # One row a period, 5 s apart, none lost or repeated between the pages.

@@ -20,7 +20,7 @@ from test_mash_side import Periods
 
 from hermsd.cli import main
 from hermsd.config.read import parse
-from hermsd.control.learning import LearnedModel
+from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.log.reader import load
 from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
@@ -182,3 +182,46 @@ def test_a_herms_log_verifies(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     capsys.readouterr()
     assert main(["replay", "--verify", str(log_file)]) == 0
     assert capsys.readouterr().out.strip() == f"{len(periods)} periods verified"
+
+
+def test_the_coil_learned_before_any_tun_model_is_kept_alone_and_is_the_next_days_prior(
+    tmp_path: Path,
+) -> None:
+    """Doughed in at 2 min and pumped from 5 min, the HLT never holds without the coil, so
+    nothing is learned of the tun; the coil's K (188.2 W/K, as above) is kept alone as the
+    pump stops, with no tun's fields made up, and is the next start's prior."""
+    events: list[dict[str, Any]] = [
+        {"at": "2m", "dough_in": EVENTS[0]["dough_in"]},
+        {"at": "5m", "pump": "on"},
+        {"at": "2h50m", "pump": "off"},
+    ]
+    doc = {"name": "herms-early", "duration": "3h", "setpoint": MASH_SP, "events": events}
+    early = scenario.parse_scenario({**doc, "plant": HERMS_DAY["plant"]})
+    result = scenario.run(early, parse(CONFIG), state_dir=tmp_path)
+    assert result.summary["alarms"] == []
+    kept_file = yaml.safe_load((tmp_path / "learned-model.json").read_text())
+    assert set(kept_file) == {"coil", "coil_sd", "wall_ns"}
+    store = ModelStore(tmp_path)
+    assert store.load() == (None, None)  # nothing of the tun: no model in force from it
+    kept = store.load_coil()
+    assert kept is not None
+    flow = 6.0 / 60.0 * 4186.0
+    assert kept[0] == pytest.approx(flow * (1.0 - math.exp(-250.0 / flow)), rel=0.05)
+    assert 0.0 < kept[1] < 0.2 * kept[0]
+    # the next start: the coil's prior is the kept K, the tun's model the config's prior
+    config = parse(CONFIG)
+    clock = VirtualClock()
+    world = build_world(config, clock, tun=make_herms_plant("physical", {}, start_c=20.0))
+    assert world.mash is not None
+    daemon = assemble(
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        mash_sensor=world.mash.mash_sensor,
+        models=store,
+    )
+    assert daemon.model_choice.source == "prior"
+    assert daemon._mash_control is not None
+    prior = daemon._mash_control.coil.estimate()
+    assert (prior.conductance, prior.sd, prior.source) == (*kept, "stored")

@@ -20,6 +20,10 @@ from hermsd.mqtt.messages import Topics, discovery_messages
 NODE = "brewery_hlt"
 SWITCH = f"homeassistant/switch/{NODE}/pump/config"
 MASH = f"homeassistant/sensor/{NODE}/mash/config"
+HLT_SETPOINT = f"homeassistant/sensor/{NODE}/hlt_setpoint/config"
+PHASE = f"homeassistant/sensor/{NODE}/mash_phase/config"
+CLIMATE = f"homeassistant/climate/{NODE}/tun/config"
+OUTER_LOOP_PHASES = ("climb", "coast", "hold", "ready", "held")  # control/cascade.py
 NO_PUMP = (
     "refused, nothing changed: pump: no pump is fitted (set pump.backend in the config file "
     "and restart hermsd)"
@@ -35,8 +39,8 @@ def herms(tmp_path: Path) -> Iterator[Rig]:
 def test_a_herms_announces_a_mash_temperature_sensor_and_a_pump_switch(herms: Rig) -> None:
     entities = discovered(herms.watcher)
     state = herms.step().json()
-    assert len(entities) == 14  # the HLT's twelve, the mash's sensor and the pump's switch
-    for topic in (MASH, SWITCH):
+    assert len(entities) == 16  # the HLT's twelve, the mash's three sensors, the pump's switch
+    for topic in (MASH, HLT_SETPOINT, PHASE, SWITCH):
         entity = entities[topic]
         object_id = topic.split("/")[3]
         assert entity["unique_id"] == f"hermsd_{NODE}_{object_id}"
@@ -95,10 +99,11 @@ def test_without_a_pump_the_switch_command_is_refused_and_nothing_reaches_the_da
 ) -> None:
     with Rig(tmp_path) as hlt_only:
         entities = discovered(hlt_only.watcher)
-        assert SWITCH not in entities and MASH not in entities
+        assert not {SWITCH, MASH, HLT_SETPOINT, PHASE} & set(entities)
+        assert entities[CLIMATE]["current_temperature_template"] == "{{ value_json.pv }}"
         # sent empty: an entity a HERMS config announced earlier is removed
         emptied = {m.topic for m in hlt_only.watcher.messages if m.payload == b""}
-        assert {SWITCH, MASH} <= emptied
+        assert {SWITCH, MASH, HLT_SETPOINT, PHASE} <= emptied
         mark = len(hlt_only.watcher.messages)
         hlt_only.command(hlt_only.topics.set_pump, b"ON")
         error = hlt_only.watcher.wait_for(lambda m: m.topic == hlt_only.topics.error, mark).json()
@@ -116,5 +121,38 @@ def test_each_part_of_the_mash_side_is_announced_on_its_own() -> None:
         name: {t for t, p in discovery_messages(topics, read.parse(text)) if p is not None}
         for name, text in (("none", BASE), ("sensor", sensor_only), ("pump", pump_only))
     }
-    assert announced["sensor"] - announced["none"] == {MASH}
+    assert announced["sensor"] - announced["none"] == {MASH, HLT_SETPOINT, PHASE}
     assert announced["pump"] - announced["none"] == {SWITCH}
+
+
+def test_the_outer_loops_choice_is_published_and_the_thermostat_holds_the_mash(
+    herms: Rig,
+) -> None:
+    entities = discovered(herms.watcher)
+    hlt = entities[HLT_SETPOINT]
+    assert (hlt["name"], hlt["device_class"], hlt["unit_of_measurement"]) == (
+        "HLT setpoint (outer loop)",
+        "temperature",
+        "°C",
+    )
+    assert hlt["value_template"] == "{{ value_json.hlt_setpoint }}"
+    assert entities[PHASE]["name"] == "Mash phase"
+    assert entities[PHASE]["value_template"] == "{{ value_json.mash_phase }}"
+    # the thermostat card: the mash's temperature against the mash's setpoint, which it sets
+    climate = entities[CLIMATE]
+    assert climate["current_temperature_template"] == "{{ value_json.mash }}"
+    assert climate["temperature_state_template"] == "{{ value_json.setpoint }}"
+    state = herms.step().json()
+    status = herms.status()
+    assert state["hlt_setpoint"] == status["mash"]["hlt_setpoint"]
+    assert state["mash_phase"] == status["mash"]["phase"] and state["mash_phase"] in (
+        OUTER_LOOP_PHASES
+    )
+    assert state["setpoint"] == 66.0 and state["hlt_setpoint"] <= 66.0 + 10.0
+    herms.command(herms.topics.set_setpoint, b"68.5")
+    state = step_until(herms, lambda s: s["setpoint"] == 68.5)
+    # the card's setpoint is the mash's: the outer loop now chooses the HLT's for 68.5 °C
+    fields = herms.daemon.mash_side_fields()
+    assert herms.daemon.setpoint == 68.5 and fields["hlt_setpoint"] == state["hlt_setpoint"]
+    assert state["hlt_setpoint"] <= 68.5 + 10.0
+    assert herms.watcher.on(herms.topics.error) == []

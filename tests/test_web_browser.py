@@ -24,6 +24,11 @@ from hermsd.api.protocol import ProgramAction
 
 TEMPERATURE_RED = (0xC6, 0x28, 0x28)  # the temperature line's colour in app.js
 MASH_GREEN = (0x2E, 0x7D, 0x32)  # the mash line's
+HLT_SETPOINT_ORANGE = (
+    0xEF,
+    0x6C,
+    0x00,
+)  # the dashed line of the HLT's setpoint the outer loop chose
 WAIT_MS = TIMEOUT * 1000
 
 
@@ -526,8 +531,10 @@ def herms_page(browser: Browser, herms: Site) -> Iterator[Page]:
 def test_without_a_mash_side_the_page_shows_nothing_of_it(page: Page) -> None:
     _until(page, "window.hermsd.points() > 3")
     _log_in(page)
-    hidden = "['mash-box', 'pump-box', 'pump-row'].map((id) => document.getElementById(id).hidden)"
-    assert page.evaluate(hidden) == [True, True, True]
+    boxes = "['mash-box', 'hlt-aim-box', 'pump-box', 'pump-row']"
+    hidden = f"{boxes}.map((id) => document.getElementById(id).hidden)"
+    assert page.evaluate(hidden) == [True, True, True, True]
+    assert page.text_content("#setpoint-label") == "Setpoint"
     labels = page.evaluate("window.hermsd.chart().series.map((s) => s.label)")
     assert labels == ["Time", "Temperature °C", "Setpoint °C", "Output %"]
 
@@ -536,7 +543,7 @@ def test_at_phone_size_the_mash_is_the_charts_second_line_above_the_hlts(
     herms_page: Page, herms: Site
 ) -> None:
     page = herms_page
-    _until(page, "window.hermsd.points() > 10 && window.hermsd.chart().series.length === 5")
+    _until(page, "window.hermsd.points() > 10 && window.hermsd.chart().series.length === 6")
     assert page.evaluate("document.documentElement.scrollWidth") <= PHONE["width"]
     legend = page.locator(".u-legend").text_content() or ""
     assert "Mash °C" in legend and "Temperature °C" in legend
@@ -586,4 +593,43 @@ def test_a_faulty_mash_sensor_is_said_where_its_reading_was(herms_page: Page, he
         herms_page.evaluate("(status) => onEvent({status, rows: [], offset: 0, age: 0})", faulty)
         assert herms_page.text_content("#mash") == "sensor fault"
         assert herms_page.get_attribute("#mash", "title") == why
-        assert herms_page.evaluate("window.hermsd.chart().series.length") == 5  # a gap, kept
+        assert herms_page.evaluate("window.hermsd.chart().series.length") == 6  # a gap, kept
+
+
+def test_the_hlts_setpoint_the_outer_loop_chose_is_shown_beside_the_mashs_and_drawn_dashed(
+    herms_page: Page, herms: Site
+) -> None:
+    page = herms_page
+    _until(page, "window.hermsd.points() > 10 && window.hermsd.chart().series.length === 6")
+    with herms.held() as last:
+        _until(page, f"window.lastStatus.t === {last}")
+        status = page.evaluate("window.lastStatus")
+        aim, phase = status["mash"]["hlt_setpoint"], status["mash"]["phase"]
+        records = {round(r.t, 3): r.hlt_setpoint for r in herms.events.periods}
+        drawn = page.evaluate(
+            "(() => { const d = window.hermsd.chart().data; "
+            "return d[0].map((x, i) => [d[0][i], d[5][i]]); })()"
+        )
+        offset = page.evaluate("window.hermsd.chart().data[0].at(-1)") - status["t"]
+    # the mash's setpoint is the brewer's (66 °C); the HLT's is the outer loop's, at most
+    # 10 °C (herms.max_hlt_above_mash) above it, with its phase
+    assert page.text_content("#setpoint-label") == "Mash setpoint"
+    assert page.text_content("#setpoint") == "66.0 °C"
+    assert isinstance(aim, float) and phase in ("climb", "coast", "hold", "ready", "held")
+    assert aim <= 66.0 + 10.0
+    assert page.text_content("#hlt-aim") == f"→ {aim:.1f} °C ({phase})"
+    hlt_aim = page.locator("#hlt-aim").bounding_box()
+    assert hlt_aim is not None and hlt_aim["y"] + hlt_aim["height"] <= PHONE["height"]
+    legend = page.locator(".u-legend").text_content() or ""
+    assert "HLT setpoint °C" in legend
+    # each row of the chart's dashed line is the HLT setpoint the loop recorded that period
+    for x, value in drawn:
+        t = round(x - offset, 3)
+        if t in records:
+            expected = records[t]
+            assert value == (None if expected is None else round(expected, 3)), t
+    assert sum(1 for _x, value in drawn if value is not None) > 10
+    width, _height, pixels = _decode_png(page.screenshot())
+    chart = page.locator("#chart canvas").bounding_box()
+    assert chart is not None
+    assert len(_rows_of_colour(pixels, width, chart, HLT_SETPOINT_ORANGE)) > 20, "no dashed line"

@@ -67,10 +67,13 @@ def test_each_period_pushes_the_mash_and_the_pump_and_the_history_has_the_mash(
     assert status["pump"] is False
     shown = [status["t"], status["pv"], status["setpoint"], status["output"]]
     # the rows are rounded to 0.001 (api/history.py): 62.9375 °C is 62.938 there
-    assert pushed["rows"][-1] == [round(v, 3) for v in (*shown, status["mash"]["celsius"])]
-    # one mash value a period beside the HLT's, the newest a good reading of the mash
-    assert len(history["mash"]) == len(history["t"]) >= 3
+    shown += [status["mash"]["celsius"], status["mash"]["hlt_setpoint"]]
+    assert pushed["rows"][-1] == [round(v, 3) for v in shown]
+    # one mash value a period beside the HLT's, the newest a good reading of the mash, and
+    # the HLT's setpoint the outer loop chose: never above the mash's + max_hlt_above_mash
+    assert len(history["mash"]) == len(history["hlt_setpoint"]) == len(history["t"]) >= 3
     assert MASH_FLOOR < history["mash"][-1] <= MIXED_C
+    assert all(aim <= 66.0 + 10.0 for aim in history["hlt_setpoint"])
     assert history["pv"][-1] < 60.0  # the HLT heats from 20 °C: two lines apart
 
 
@@ -120,6 +123,6 @@ def test_without_a_mash_side_nothing_of_it_is_pushed_and_the_pump_is_refused(
             "/api/command", json={"cmd": "set", "pump": True}, headers=_logged_in(client)
         )
     assert (pushed["status"]["mash"], pushed["status"]["pump"]) == (None, None)
-    assert set(history["mash"]) == {None}
+    assert set(history["mash"]) == set(history["hlt_setpoint"]) == {None}
     assert reply.status_code == 422 and reply.json()["error"] == NO_PUMP
     assert hlt_only.daemon.mash_side_fields()["pump"] is None

@@ -9,7 +9,8 @@ server thread for a binary search and a slice of at most protocol.MAX_PAGE refer
 
 Rows are rounded to 0.001 (°C, %, s): finer than the LM92's 0.0625 °C steps, and it keeps a
 row about 50 bytes. `mash` is the HERMS mash sensor's reading (null when none is fitted, or
-while it is faulty): the chart's second line.
+while it is faulty): the chart's second line; `hlt_setpoint` the HLT's setpoint the outer loop
+chose for the mash (null without a mash sensor): the chart's dashed HLT setpoint.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from collections.abc import Sequence
 
 from hermsd.runtime.period import PeriodRecord
 
-FIELDS = ("t", "pv", "setpoint", "output", "applied", "mash")
+FIELDS = ("t", "pv", "setpoint", "output", "applied", "mash", "hlt_setpoint")
 KEPT_SECONDS = 24 * 3600.0
 
 
@@ -34,7 +35,14 @@ def encode_row(record: PeriodRecord) -> tuple[float, bytes]:
     """The period's time and its row as JSON text, in FIELDS' order. Formatted by hand, so
     that nothing here can raise on the loop: a number that is not finite becomes null."""
     t = round(record.t, 3)
-    values = (record.pv, record.setpoint, record.output, record.applied, record.mash)
+    values = (
+        record.pv,
+        record.setpoint,
+        record.output,
+        record.applied,
+        record.mash,
+        record.hlt_setpoint,
+    )
     text = ",".join(
         repr(round(value, 3)) if value is not None and math.isfinite(value) else "null"
         for value in (t, *values)

@@ -72,10 +72,11 @@ the web page's chart (`hermsd/api/history.py`), and is answered at once like `st
 the rows with `t` after `since` (from the oldest kept when `since` is null or absent), at
 most `limit` of them (1 to 2000, default 2000), oldest first:
 `{"v": 1, "ok": true, "period": 5.0, "fields": ["t", "pv", "setpoint", "output",
-"applied", "mash"], "more": false, "rows": [[1230.0, 66.062, 66.0, 12.5, 12.5, null], ...]}`.
-Each row holds the fields in that order (`t` in the daemon's seconds as `status`'s `t`, `pv`
-null when unknown, `mash` the mash sensor's reading, null when none is fitted or while it is
-faulty, numbers rounded to 0.001); `more` is true when later rows remain: ask again
+"applied", "mash", "hlt_setpoint"], "more": false, "rows": [[1230.0, 66.062, 66.0, 12.5, 12.5,
+null, null], ...]}`. Each row holds the fields in that order (`t` in the daemon's seconds as
+`status`'s `t`, `pv` null when unknown, `mash` the mash sensor's reading, null when none is
+fitted or while it is faulty, `hlt_setpoint` the HLT's setpoint the outer loop chose, null
+without a mash sensor, numbers rounded to 0.001); `more` is true when later rows remain: ask again
 with `since` set to the last row's `t`. The daemon keeps no history across a restart.
 
 A line longer than MAX_LINE, or one that is not a JSON object (or nests arrays and objects

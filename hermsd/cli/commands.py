@@ -127,6 +127,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--speed", default="1", help="with --simulate: times real time, or 'max' (default 1)"
     )
+    run.add_argument(
+        "--scenario",
+        type=Path,
+        help="with --simulate: this scenario's tun (a HERMS's mash too), config and events, live",
+    )
     run.add_argument("--duration", help="stop after this long, e.g. 90s, 4h, 1h30m")
     run.add_argument("--log", type=Path, help="MCAP log directory (default: the config's log.dir)")
     run.add_argument(

@@ -54,6 +54,7 @@ from hermsd.safety.latches import LatchStore, StateError
 if TYPE_CHECKING:
     from hermsd.hardware.sensors.base import Sensor
     from hermsd.runtime.daemon import Daemon
+    from hermsd.sim.scenario import Scenario
 
 
 class StatusLine:
@@ -129,11 +130,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     from hermsd.runtime.assemble import assemble
     from hermsd.runtime.clock import MonotonicClock
 
+    scenario = _live_scenario(args)
     path = config_path(args.config, simulate=args.simulate)
     config_file = ConfigFile(path, simulated=args.simulate) if path is not None else None
     config = config_file.load() if config_file is not None else config_module.DEFAULT
     if args.simulate:  # the simulated tun's SSR, whatever the file names
         config = read.on_simulated_tun(config)
+    if scenario is not None:  # its overrides stand over the file, which is read once
+        config, config_file = _scenario_config(config, scenario), None
     duration = _duration(args.duration)
     try:
         notifier = Notifier.from_environment()
@@ -169,15 +173,26 @@ def cmd_run(args: argparse.Namespace) -> int:
                 from hermsd.sim.world import simulated_daemon
 
                 speed = _speed(args.speed)
-                daemon = simulated_daemon(
-                    config,
-                    speed,
-                    on_status=status.update,
-                    notifier=notifier,
-                    config_file=config_file,
-                    latches=latches,
-                    models=models,
-                )
+                if scenario is not None:
+                    daemon = _scenario_daemon(
+                        scenario,
+                        config,
+                        speed,
+                        on_status=status.update,
+                        notifier=notifier,
+                        latches=latches,
+                        models=models,
+                    )
+                else:
+                    daemon = simulated_daemon(
+                        config,
+                        speed,
+                        on_status=status.update,
+                        notifier=notifier,
+                        config_file=config_file,
+                        latches=latches,
+                        models=models,
+                    )
             else:
                 clock = MonotonicClock()
                 sensors, (ssr, contactor, element2, pump) = _hardware(config)
@@ -219,6 +234,41 @@ def cmd_run(args: argparse.Namespace) -> int:
         for lock in locks:
             lock.release()
     return 0
+
+
+def _live_scenario(args: argparse.Namespace) -> Scenario | None:
+    """The scenario `run --simulate --scenario FILE` runs live; UserError for a bad one."""
+    if args.scenario is None:
+        return None
+    if not args.simulate:
+        raise UserError("--scenario goes with --simulate")
+    from hermsd.sim.scenario import ScenarioError, load_scenario
+
+    try:
+        return load_scenario(args.scenario)
+    except ScenarioError as error:
+        raise UserError(str(error)) from None
+
+
+def _scenario_config(config: Config, scenario: Scenario) -> Config:
+    """`config` with the scenario's overrides and setpoint; UserError naming the bad key."""
+    from hermsd.sim.scenario import ScenarioError, effective_config
+
+    try:
+        return effective_config(config, scenario)
+    except ScenarioError as error:
+        raise UserError(str(error)) from None
+
+
+def _scenario_daemon(scenario: Scenario, config: Config, speed: float, **parts: Any) -> Daemon:
+    """`sim.live.scenario_daemon`, a scenario the simulated hardware cannot run a UserError."""
+    from hermsd.sim.live import scenario_daemon
+    from hermsd.sim.scenario import ScenarioError
+
+    try:
+        return scenario_daemon(scenario, config, speed, **parts)
+    except ScenarioError as error:
+        raise UserError(str(error)) from None
 
 
 def _run_socket_path(args: argparse.Namespace, stack: contextlib.ExitStack) -> Path:

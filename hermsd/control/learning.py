@@ -152,7 +152,9 @@ def implausible_here(model: LearnedModel, *, litres: float, full_rate: float) ->
 
 
 class ModelStore:
-    """`learned-model.json` in the state directory, next to the latches."""
+    """`learned-model.json` in the state directory, next to the latches: the tun's learned
+    model with the coil's K, or the coil's K alone (`save_coil`) while nothing is learned of
+    the tun: a record with the tun's fields would be taken for a measured tun."""
 
     def __init__(self, directory: Path | str) -> None:
         self.path = Path(directory) / LEARNED_FILE
@@ -166,7 +168,7 @@ class ModelStore:
             document = read_state_json(self.path)
         except StateError as error:
             return None, str(error)
-        if document is None:
+        if document is None or _coil_alone(document):
             return None, None
         try:
             model = LearnedModel(
@@ -186,6 +188,29 @@ class ModelStore:
             return None, f"{self.path}: {why}"
         return model, None
 
+    def load_coil(self) -> tuple[float, float] | None:
+        """The coil's K and sd (W/K) the file keeps, with the tun's model or alone; None when
+        there is none or the file cannot be read (`load` says why)."""
+        try:
+            document = read_state_json(self.path)
+        except StateError:
+            return None
+        if not isinstance(document, dict):
+            return None
+        try:
+            coil, sd = float(document["coil"]), float(document["coil_sd"])
+        except (KeyError, TypeError, ValueError, OverflowError):
+            return None
+        if not 0.0 < coil <= MAX_CONDUCTANCE or sd < 0.0:
+            return None
+        return coil, sd
+
+    def save_coil(self, coil: float, coil_sd: float, wall_ns: int) -> None:
+        """Keep the coil's K alone, while no model of the tun is stored (OSError when the disk
+        refuses); a model stored later carries it on (`MashSide.with_coil`)."""
+        document = {"coil": coil, "coil_sd": coil_sd, "wall_ns": wall_ns}
+        write_atomically(self.path, json.dumps(document, indent=1))
+
     def save(self, model: LearnedModel) -> None:
         """Replace the stored model atomically (OSError when the disk refuses)."""
         write_atomically(self.path, json.dumps(asdict(model), indent=1))
@@ -196,6 +221,11 @@ class ModelStore:
             self.path.unlink()
             return True
         return False
+
+
+def _coil_alone(document: object) -> bool:
+    """Whether a stored document is the coil's K alone (`ModelStore.save_coil`)."""
+    return isinstance(document, dict) and "rate" not in document and "coil" in document
 
 
 @dataclass(frozen=True, slots=True)

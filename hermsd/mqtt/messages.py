@@ -18,7 +18,9 @@ again by the daemon.
 
 A HERMS's mash side: the mash sensor's reading is a temperature sensor of its own, and the
 pump a switch ("ON" runs it, "OFF" stops it, as `hermsd set pump on|off`), each announced
-only when the config fits it.
+only when the config fits it. With a mash sensor the setpoint is the mash's: the thermostat
+shows the mash's temperature against it and sets it, and two sensors show what the outer
+loop chose for the HLT (its setpoint, and its phase).
 """
 
 from __future__ import annotations
@@ -132,6 +134,8 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "next_step": program.get("next"),
         "message": program.get("message"),
         "mash": mash.get("celsius"),
+        "hlt_setpoint": mash.get("hlt_setpoint"),
+        "mash_phase": mash.get("phase") or "none",
         "pump": status.get("pump"),
     }
 
@@ -151,8 +155,9 @@ def setpoint_range(config: Config) -> tuple[float, float]:
 
 def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[str, Any] | None]]:
     """(topic, payload) of each entity Home Assistant should make for this tun: a climate
-    entity, sensors (the second element's duty and the mash's temperature when they are
-    fitted), the pump's switch when one is fitted, and binary sensors on while an alarm
+    entity, sensors (the second element's duty when it is fitted; with a mash sensor the
+    mash's temperature, the HLT's setpoint the outer loop chose and its phase), the pump's
+    switch when one is fitted, and binary sensors on while an alarm
     stands and while a warning does (the log or a save failing). A payload of None is an
     entity this config has not: sent empty, it removes one an earlier config made."""
     node = topics.node_id
@@ -211,11 +216,22 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         if config.element2.backend != "none"
         else (topics.discovery("sensor", "output2"), None)
     )
-    mash = (
-        sensor("mash", "Mash temperature", "mash", suggested_display_precision=1, **celsius)
-        if config.mash_sensor.fitted
-        else (topics.discovery("sensor", "mash"), None)
-    )
+    herms = config.mash_sensor.fitted
+    mash_side = [
+        sensor(object_id, name, field, **fields)
+        if herms
+        else (topics.discovery("sensor", object_id), None)
+        for object_id, name, field, fields in (
+            ("mash", "Mash temperature", "mash", {"suggested_display_precision": 1, **celsius}),
+            (
+                "hlt_setpoint",
+                "HLT setpoint (outer loop)",
+                "hlt_setpoint",
+                {"suggested_display_precision": 1, **celsius},
+            ),
+            ("mash_phase", "Mash phase", "mash_phase", {}),
+        )
+    ]
     pump = (
         topics.discovery("switch", "pump"),
         entity(
@@ -239,7 +255,8 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
                 "tun",
                 None,  # the device's own name
                 current_temperature_topic=topics.state,
-                current_temperature_template="{{ value_json.pv }}",
+                # with a mash sensor the setpoint is the mash's: the card shows the mash
+                current_temperature_template=f"{{{{ value_json.{'mash' if herms else 'pv'} }}}}",
                 temperature_state_topic=topics.state,
                 temperature_state_template="{{ value_json.setpoint }}",
                 temperature_command_topic=topics.set_setpoint,
@@ -261,7 +278,7 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         sensor("output", "Output", "output", **percent),
         sensor("applied", "Applied", "applied", **percent),
         element2,
-        mash,
+        *mash_side,
         pump,
         sensor("mode", "Mode", "mode_text"),
         sensor("state", "State", "state"),

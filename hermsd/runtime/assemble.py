@@ -61,7 +61,8 @@ def assemble(
     e2 = config.element2
     outer = None
     if mash_sensor is not None:
-        outer = mash_control(config, model, coil_prior(config, stored))
+        alone = models.load_coil() if models is not None else None
+        outer = mash_control(config, model, coil_prior(config, stored, alone))
     element2 = SlowElement(outputs.element2, e2.min_on, e2.min_off) if outputs.element2 else None
     parts = Parts(
         config=config,

@@ -96,6 +96,12 @@ class LatchKeeping(LoopState):
         for outcome in self.saver.take():
             if outcome.kind == "latches":
                 self._latches_saved(outcome, t)
+            elif outcome.kind == "coil" and outcome.error is not None:
+                self._event(logging.ERROR, f"saving the coil's K failed: {outcome.error}", t)
+            elif outcome.kind == "coil":  # the coil's K alone (MashSide._keep_coil)
+                coil = outcome.tag
+                kept = f"{coil.conductance:.0f} ± {coil.sd:.0f} W/K"
+                self._event(logging.INFO, f"kept the coil's K, {kept}: the next start's", t)
             elif outcome.error is not None:
                 self._event(logging.ERROR, f"saving the learned model failed: {outcome.error}", t)
             else:

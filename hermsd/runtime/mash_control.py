@@ -68,11 +68,15 @@ class MashControl:
         return decision
 
 
-def coil_prior(config: Config, stored: LearnedModel | None) -> CoilEstimate:
-    """The coil's K before today's pump runs: the one learned on an earlier day, else the
-    config's `herms.coil_w_per_k`."""
+def coil_prior(
+    config: Config, stored: LearnedModel | None, alone: tuple[float, float] | None = None
+) -> CoilEstimate:
+    """The coil's K before today's pump runs: the one learned on an earlier day (with the
+    tun's model, else `alone`: `ModelStore.load_coil`), else the config's `herms.coil_w_per_k`."""
     if stored is not None and stored.coil > 0.0:
         return CoilEstimate(stored.coil, stored.coil_sd, "stored")
+    if alone is not None:
+        return CoilEstimate(*alone, "stored")
     return prior_estimate(config.herms.coil_w_per_k)
 
 

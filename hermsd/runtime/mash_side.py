@@ -234,10 +234,10 @@ class MashSide(LoopState):
 
     def with_coil(self, model: LearnedModel) -> LearnedModel:
         """`model` to be stored, with the coil's K: today's once the pump runs taught it,
-        else the one stored before (the next day's prior either way)."""
+        else the one stored before, with a tun's model or alone (the next day's prior)."""
         control = self._mash_control
         coil = None if control is None else control.coil.estimate()
-        if coil is not None and coil.source == "learned":
+        if coil is not None and coil.source != "prior":
             return dataclasses.replace(model, coil=coil.conductance, coil_sd=coil.sd)
         kept = self.learned_model
         if kept is None or model.coil > 0.0:
@@ -245,10 +245,20 @@ class MashSide(LoopState):
         return dataclasses.replace(model, coil=kept.coil, coil_sd=kept.coil_sd)
 
     def _keep_coil(self, t: float) -> None:
-        """Store the coil's K learned so far with the tun's model (when one is stored: the
-        coil's alone is not a model of the tun), as the pump stops."""
-        kept, models = self.learned_model, self.models
-        if kept is None or models is None or self.config.control.learn != "on":
+        """Store the coil's K learned so far, as the pump stops: with the tun's model, or
+        alone while none is stored (`ModelStore.save_coil`: no tun's fields made up)."""
+        models = self.models
+        if models is None or self.config.control.learn != "on":
+            return
+        pending = "model" in self.saver.waiting()  # looked at first: one done since is taken
+        self._take_saves(t)
+        kept = self.learned_model
+        if kept is None:
+            coil = None if self._mash_control is None else self._mash_control.coil.estimate()
+            if not pending and coil is not None and coil.source == "learned":
+                k, sd, wall_ns = coil.conductance, coil.sd, self.clock.wall_ns()
+                self.saver.save("coil", lambda: models.save_coil(k, sd, wall_ns), coil)
+                self._take_saves(t)
             return
         model = self.with_coil(kept)
         if (model.coil, model.coil_sd) != (kept.coil, kept.coil_sd):
@@ -261,7 +271,7 @@ class MashSide(LoopState):
         if control is None:
             return
         coil = control.coil.estimate()
-        prior = coil if coil.source == "learned" else coil_prior(config, self.learned_model)
+        prior = coil if coil.source != "prior" else coil_prior(config, self.learned_model)
         self._mash_control = mash_control(config, self.model, prior)
 
     def hlt_target(self) -> float:

@@ -60,7 +60,7 @@ from hermsd.sim.mash import (
     make_herms_plant,
 )
 from hermsd.sim.sensors import FAULTS, FakeChip, sensor_reading
-from hermsd.sim.world import SENSOR_KEYS, build_world
+from hermsd.sim.world import SENSOR_KEYS, World, build_world
 
 SENSOR_FAULTS = tuple(dict.fromkeys(name for names in FAULTS.values() for name in names))
 """Every kind's faults (sim/sensors.py); a run refuses those its sensor's kind has not."""
@@ -642,22 +642,8 @@ def run(
         world = build_world(config, clock, scenario.plant, tun=tun, history=True)
     except (TypeError, ValueError) as error:
         raise ScenarioError(f"plant: {error}") from None
-    plant, chip, circuit = world.plant, world.chip, world.circuit
-    if as_herms_plant(plant) is None and any(e.kind in MASH_EVENTS for e in scenario.events):
-        raise ScenarioError(
-            f"{scenario.source or scenario.name}: events: dough_in, pump and recirculation "
-            "need a HERMS plant (a plant: mash: mapping, or --plant with "
-            "hermsd.sim.mash.HermsPlant's methods)"
-        )
-    kind = config.sensor.kind
-    for event in scenario.events:
-        if event.kind == "sensor" and event.value[0] not in FAULTS[kind]:
-            raise ScenarioError(
-                f"events: the sensor fault {event.value[0]!r} at {event.at:g} s is not one a "
-                f"{kind} has (expected one of {', '.join(FAULTS[kind])})"
-            )
-    if circuit.relay2 is None and any(e.kind in ("heater2", "relay2") for e in scenario.events):
-        raise ScenarioError("events: heater2 and relay2 need a second element (element2.backend)")
+    plant, circuit = world.plant, world.circuit
+    check_events(scenario, config, world)
     reference = copy.deepcopy(plant)
     latches = models = None
     if state_dir is not None:
@@ -703,36 +689,24 @@ def run(
     period = config.control.period
     fault_times: list[float] = []
 
-    def schedule(index: int, event: Event) -> None:
-        def fire() -> None:
-            t = clock.monotonic()
-            if index in reloads:
-                daemon.reload(reloads[index])
-            if event.kind == "confirm":
-                brewer.answers.append(event.value)
-                return  # an answer, not a disturbance of the tun
-            _apply(event, t, plant, chip, circuit, daemon)
-            if event.kind in FAULT_KINDS and event.value not in (
-                ("ok", None),
-                "ok",
-            ):
-                fault_times.append(t)
-            snapshot = copy.deepcopy(plant)
-            sp = event.value if event.kind == "setpoint" else daemon.setpoint
-            if index in reloads:
-                sp = reloads[index].control.setpoint
-            seen = first_read_after(t, config.sensor.read_interval) - t
-            recovery_min["floor"] = reactive_floor(
-                snapshot, t, sp, scenario.duration, period, daemon.output, seen
-            )
-            recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration)
+    def measure(index: int, event: Event, t: float) -> None:
+        """What an event of the tun (not an answer) sets the run's measures to."""
+        if event.kind in FAULT_KINDS and event.value not in (
+            ("ok", None),
+            "ok",
+        ):
+            fault_times.append(t)
+        snapshot = copy.deepcopy(plant)
+        sp = event.value if event.kind == "setpoint" else daemon.setpoint
+        if index in reloads:
+            sp = reloads[index].control.setpoint
+        seen = first_read_after(t, config.sensor.read_interval) - t
+        recovery_min["floor"] = reactive_floor(
+            snapshot, t, sp, scenario.duration, period, daemon.output, seen
+        )
+        recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration)
 
-        clock.call_at(event.at, fire)
-        if event.kind == "sensor" and event.lasts is not None:
-            clock.call_at(event.at + event.lasts, lambda: chip.set_fault("ok"))
-
-    for index, event in enumerate(scenario.events):
-        schedule(index, event)
+    schedule_events(scenario, reloads, clock, world, daemon, brewer, measure)
     try:
         with daemon:
             daemon.run(until=scenario.duration)
@@ -798,6 +772,61 @@ def run(
         summary["steps"] = steps
     records = collector.records if keep_records else []
     return Result(summary, collector.samples, records)
+
+
+def check_events(scenario: Scenario, config: Config, world: World) -> None:
+    """ScenarioError for an event the simulated hardware cannot take: a mash event without
+    a HERMS plant, a sensor fault the config's kind has not, a second element's without one."""
+    if as_herms_plant(world.plant) is None and any(e.kind in MASH_EVENTS for e in scenario.events):
+        raise ScenarioError(
+            f"{scenario.source or scenario.name}: events: dough_in, pump and recirculation "
+            "need a HERMS plant (a plant: mash: mapping, or --plant with "
+            "hermsd.sim.mash.HermsPlant's methods)"
+        )
+    kind = config.sensor.kind
+    for event in scenario.events:
+        if event.kind == "sensor" and event.value[0] not in FAULTS[kind]:
+            raise ScenarioError(
+                f"events: the sensor fault {event.value[0]!r} at {event.at:g} s is not one a "
+                f"{kind} has (expected one of {', '.join(FAULTS[kind])})"
+            )
+    if world.circuit.relay2 is None and any(
+        e.kind in ("heater2", "relay2") for e in scenario.events
+    ):
+        raise ScenarioError("events: heater2 and relay2 need a second element (element2.backend)")
+
+
+def schedule_events(
+    scenario: Scenario,
+    reloads: dict[int, Config],
+    clock: VirtualClock,
+    world: World,
+    daemon: Daemon,
+    brewer: _Brewer,
+    measure: Callable[[int, Event, float], None] | None = None,
+) -> None:
+    """Each of the scenario's events on `clock` at its time: a config saved (`reloads`,
+    by event index), an answer handed to the `brewer`, else the tun, the hardware or the
+    daemon changed (then `measure`d), and a sensor fault that lasts ended."""
+
+    def schedule(index: int, event: Event) -> None:
+        def fire() -> None:
+            t = clock.monotonic()
+            if index in reloads:
+                daemon.reload(reloads[index])
+            if event.kind == "confirm":
+                brewer.answers.append(event.value)
+                return  # an answer, not a disturbance of the tun
+            _apply(event, t, world.plant, world.chip, world.circuit, daemon)
+            if measure is not None:
+                measure(index, event, t)
+
+        clock.call_at(event.at, fire)
+        if event.kind == "sensor" and event.lasts is not None:
+            clock.call_at(event.at + event.lasts, lambda: world.chip.set_fault("ok"))
+
+    for index, event in enumerate(scenario.events):
+        schedule(index, event)
 
 
 def _mash_summary(records: list[PeriodRecord], limit: float) -> dict[str, Any]:

@@ -90,9 +90,9 @@ class Hub:
         self.seen_at = 0.0  # clock() when `status` (its period) first came
         self.offset = 0.0  # wall-clock s minus the daemon's t, at the last new period
         self.period: float | None = None
-        # t, pv (None: unknown), setpoint, output, mash (None: none fitted, or faulty): the
-        # chart's columns
-        self._columns: tuple[list[Any], ...] = ([], [], [], [], [])
+        # t, pv (None: unknown), setpoint, output, mash (None: none fitted, or faulty), the
+        # HLT's setpoint the outer loop chose (None: no mash sensor): the chart's columns
+        self._columns: tuple[list[Any], ...] = ([], [], [], [], [], [])
         self._body: tuple[float | None, bytes, bytes] | None = None  # last t, JSON, gzipped
         self._pages: set[asyncio.Queue[bytes | None]] = set()
         self._poke = asyncio.Event()
@@ -201,8 +201,8 @@ class Hub:
                 t = row[0]
                 if t > latest:  # a period that ran after the status: it comes with its own
                     return restarted, new
-                mash = row[5] if len(row) > 5 else None  # a daemon from before the mash
-                new.append([*row[:4], mash])
+                padded = [*row, None, None]  # a daemon from before the mash, or its loop
+                new.append([*padded[:4], padded[5], padded[6]])
                 since = t
         return restarted, new
 
@@ -227,12 +227,13 @@ class Hub:
     # -- the pages ------------------------------------------------------------------------------
 
     def history_body(self) -> tuple[bytes, bytes]:
-        """The mirror as JSON columns (t, pv, setpoint, output, mash), plain and gzipped,
-        made once per period however many pages load it (a day is 514 kB, 11× less gzipped)."""
+        """The mirror as JSON columns (t, pv, setpoint, output, mash, hlt_setpoint), plain and
+        gzipped, made once per period however many pages load it (a day is 514 kB, 11× less
+        gzipped)."""
         times = self._columns[0]
         last = times[-1] if times else None
         if self._body is None or self._body[0] != last:
-            t, pv, setpoint, output, mash = self._columns
+            t, pv, setpoint, output, mash, hlt_setpoint = self._columns
             body = {
                 "period": self.period,
                 "offset": self.offset,
@@ -241,6 +242,7 @@ class Hub:
                 "setpoint": setpoint,
                 "output": output,
                 "mash": mash,
+                "hlt_setpoint": hlt_setpoint,
             }
             encoded = json.dumps(body, separators=(",", ":")).encode()
             self._body = (last, encoded, gzip.compress(encoded, compresslevel=6))

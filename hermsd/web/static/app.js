@@ -1,8 +1,9 @@
 // hermsd's page: the tun now, its last hours, and the changes a logged-in brewer may make.
 // The server pushes each control period as a server-sent event; a change goes to
 // /api/command with the session's CSRF token, and the daemon's own checks decide.
-// A HERMS's mash sensor adds the mash temperature as the chart's second line, and its pump
-// shows its state and a start/stop button; a tun without them shows neither.
+// A HERMS's mash sensor adds the mash temperature as the chart's second line and the HLT's
+// setpoint the outer loop chose as a dashed one (the setpoint shown is then the mash's), and
+// its pump shows its state and a start/stop button; a tun without them shows neither.
 // Each event says how old its reading is: the page counts on from there, shows "live" only
 // while the reading is younger than the event's stale_after (two control periods) and the
 // daemon answers, and else says "no daemon" or the reading's age in red, every command off.
@@ -11,9 +12,12 @@
 const $ = (id) => document.getElementById(id);
 let session = { logged_in: false, csrf: null, can_log_in: false, view_open: false };
 // The chart's columns, in the daemon's seconds (t); x = t + offset (the wall clock).
-const T = [], PV = [], SP = [], OUT = [], MASH = [];
+const T = [], PV = [], SP = [], OUT = [], MASH = [], HLT_SP = [];
 const MASH_SERIES = { label: "Mash °C", stroke: "#2e7d32", width: 2, scale: "°C" };
-let mashFitted = false; // whether the daemon reads a mash sensor: the chart has its line
+const HLT_SP_SERIES = {
+  label: "HLT setpoint °C", stroke: "#ef6c00", width: 1.5, dash: [2, 3], scale: "°C",
+};
+let mashFitted = false; // whether the daemon reads a mash sensor: the chart has its lines
 let offset = 0;
 let rangeHours = 3;
 let chart = null;
@@ -118,12 +122,18 @@ function renderProgram(program) {
   $("program-resume").hidden = program.state !== "paused";
 }
 
-// `mash`: null when no mash sensor is fitted, else its reading (null while faulty) and fault.
+// `mash`: null when no mash sensor is fitted, else its reading (null while faulty) and fault,
+// and the HLT's setpoint the outer loop chose with its phase (null before its first period).
 function renderMashSide(mash, pump) {
   $("mash-box").hidden = !mash;
+  $("hlt-aim-box").hidden = !mash;
+  $("setpoint-label").textContent = mash ? "Mash setpoint" : "Setpoint";
   if (mash) {
     $("mash").textContent = mash.fault ? "sensor fault" : fixed(mash.celsius, 1, "°C");
     $("mash").title = mash.fault || "";
+    const aim = typeof mash.hlt_setpoint === "number" ? mash.hlt_setpoint : null;
+    $("hlt-aim").textContent = aim === null ? "—"
+      : `→ ${aim.toFixed(1)} °C${mash.phase ? ` (${mash.phase})` : ""}`;
   }
   showMashLine(Boolean(mash));
   shownPump = typeof pump === "boolean" ? pump : null;
@@ -136,8 +146,13 @@ function renderMashSide(mash, pump) {
 function showMashLine(fitted) {
   if (fitted === mashFitted || !chart) return;
   mashFitted = fitted;
-  if (fitted) chart.addSeries(MASH_SERIES, 4);
-  else chart.delSeries(4);
+  if (fitted) {
+    chart.addSeries(MASH_SERIES, 4);
+    chart.addSeries(HLT_SP_SERIES, 5);
+  } else {
+    chart.delSeries(5);
+    chart.delSeries(4);
+  }
   chart.setData(columns());
 }
 
@@ -178,7 +193,7 @@ function updateCommands() {
 
 function columns() {
   const shown = [T.map((t) => t + offset), PV, SP, OUT];
-  return mashFitted ? [...shown, MASH] : shown;
+  return mashFitted ? [...shown, MASH, HLT_SP] : shown;
 }
 
 function makeChart() {
@@ -197,7 +212,7 @@ function makeChart() {
       { label: "Temperature °C", stroke: "#c62828", width: 2, scale: "°C" },
       { label: "Setpoint °C", stroke: "#1f5fbf", width: 1.5, dash: [6, 4], scale: "°C" },
       { label: "Output %", stroke: "#888", width: 1, scale: "%", fill: "rgba(120,120,120,0.12)" },
-      ...(mashFitted ? [MASH_SERIES] : []),
+      ...(mashFitted ? [MASH_SERIES, HLT_SP_SERIES] : []),
     ],
     axes: [
       {},
@@ -211,15 +226,16 @@ function makeChart() {
 }
 
 function addRows(rows) {
-  for (const [t, pv, setpoint, output, mash] of rows) {
+  for (const [t, pv, setpoint, output, mash, hltSetpoint] of rows) {
     if (T.length && t <= T[T.length - 1]) continue;
     T.push(t); PV.push(pv); SP.push(setpoint); OUT.push(output); MASH.push(mash);
+    HLT_SP.push(hltSetpoint);
   }
   const oldest = T.length ? T[T.length - 1] - 24 * 3600 : 0;
   let cut = 0;
   while (cut < T.length && T[cut] <= oldest) cut++;
   if (cut) {
-    for (const column of [T, PV, SP, OUT, MASH]) column.splice(0, cut);
+    for (const column of [T, PV, SP, OUT, MASH, HLT_SP]) column.splice(0, cut);
   }
 }
 
@@ -232,10 +248,11 @@ async function loadView() {
   }
   viewing = true;
   const history = response.body;
-  T.length = PV.length = SP.length = OUT.length = MASH.length = 0;
+  T.length = PV.length = SP.length = OUT.length = MASH.length = HLT_SP.length = 0;
   T.push(...history.t); PV.push(...history.pv); SP.push(...history.setpoint);
   OUT.push(...history.output);
   MASH.push(...history.mash);
+  HLT_SP.push(...history.hlt_setpoint);
   offset = history.offset;
   $("view").hidden = false;
   if (chart) chart.destroy();
