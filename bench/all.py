@@ -112,6 +112,12 @@ BENCHES = (
         ("## HERMS in the daemon: the mash held by the outer loop",),
     ),
     Bench(
+        "herms-stuck",
+        "herms_stuck.py",
+        (),
+        ("## HERMS: the no-flow sign (a stuck bed) and the mash after it",),
+    ),
+    Bench(
         "slow-disk",
         "slow_disk.py",
         ("--seconds", "60", "--every", "10", "--stall", "2"),

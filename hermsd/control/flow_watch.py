@@ -18,11 +18,11 @@ losses cool it, while the HLT's side, its own heat moving as the element and the
 move it, may show the coil's heat where none went. A stretch is judged only once it is long
 against the delays between the coil and the mash's sensor (the hose, the sensor's lag; the
 HLT's element reaches its water a dead time late, which its side counts, and the coil's pull
-shows in the HLT's reading at once) and the heat the coil should have passed over it is
-JUDGE_SDS times the readings' resolution in each tank's heat; the shortest such stretch back
-from now is judged, so the sign comes soon in a climb (several degrees across the coil) and
-later in a hold (one or two). The sign is symmetric: heat flowing back from a mash warmer
-than the HLT is flow.
+shows in the HLT's reading at once) and the heat the coil should have passed over it stands
+JUDGE_SDS reading errors (READING_SD times the larger tank's heat capacity) clear of
+FLOW_SHARE of it; the shortest such stretch back from now is judged, so the sign comes soon
+in a climb (several degrees across the coil) and later in a hold (one or two). The sign is
+symmetric: heat flowing back from a mash warmer than the HLT is flow.
 """
 
 from __future__ import annotations
