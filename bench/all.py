@@ -124,6 +124,12 @@ BENCHES = (
         ("## HERMS faults: the supervisor with the pump running",),
     ),
     Bench(
+        "herms-stuck",
+        "herms_stuck.py",
+        (),
+        ("## HERMS: the no-flow sign (a stuck bed) and the mash after it",),
+    ),
+    Bench(
         "slow-disk",
         "slow_disk.py",
         ("--seconds", "60", "--every", "10", "--stall", "2"),

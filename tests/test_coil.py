@@ -28,7 +28,16 @@ def read(rng: random.Random, temperature: float) -> float:
     return math.floor((temperature + rng.gauss(0.0, 0.05)) / 0.0625) * 0.0625
 
 
-def day(seed: int, *, minutes: int = 90, pump_from_s: int = 600) -> CoilEstimate:
+def day(
+    seed: int,
+    *,
+    minutes: int = 90,
+    pump_from_s: int = 600,
+    stuck: range = range(0),
+    told: bool = False,
+) -> CoilEstimate:
+    """The day's K; the pump runs but nothing flows in the seconds `stuck`, and the estimator
+    is told so (`no_flow`, as the flow watch does) when `told`."""
     rng = random.Random(seed)
     estimator = CoilEstimator(
         hlt_capacity=C_H,
@@ -46,7 +55,7 @@ def day(seed: int, *, minutes: int = 90, pump_from_s: int = 600) -> CoilEstimate
     mash_reads: list[float] = []
     for second in range(minutes * 60):
         pump = second >= pump_from_s
-        coil = K * (hlt - mash) if pump else 0.0
+        coil = K * (hlt - mash) if pump and second not in stuck else 0.0
         heat = element[0]
         element.append(WATTS * duty / 100.0)
         arriving = hose[0]
@@ -60,6 +69,8 @@ def day(seed: int, *, minutes: int = 90, pump_from_s: int = 600) -> CoilEstimate
             hlt_reads.clear()
             mash_reads.clear()
             estimator.period(hlt=hlt_pv, mash=mash_pv, applied=duty, pump=pump)
+            if told and second in stuck:
+                estimator.no_flow()
             duty = min(100.0, max(0.0, 40.0 * (75.0 - hlt_pv)))
     return estimator.estimate()
 
@@ -78,3 +89,12 @@ def test_before_a_block_of_the_pump_s_run_the_prior_stands_and_after_one_k_at_15
     one = day(0, minutes=14)
     assert one.source == "learned" and one.sd == pytest.approx(0.15 * one.conductance)
     assert abs(one.conductance - K) <= 2.0 * one.sd
+
+
+def test_a_stuck_stretch_the_estimator_is_told_of_teaches_it_nothing() -> None:
+    """The bed stuck 20 min in the climb (the pump on from 10 min): the HLT keeps the coil's
+    heat, and blocks fitted on it would show K near 0."""
+    stuck = range(1800, 3000)
+    told = day(0, stuck=stuck, told=True)
+    assert told.source == "learned" and abs(told.conductance - K) <= 2.0 * told.sd
+    assert day(0, stuck=stuck).conductance < K - 4.0 * told.sd  # what it would learn untold

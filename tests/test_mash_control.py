@@ -10,6 +10,7 @@ pull on the HLT at full power for a dead element, is lengthened here (safety.hea
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,7 @@ import yaml
 from test_log_schemas import invalid
 from test_mash_side import Periods
 
+from hermsd.api.link import role_faults
 from hermsd.cli import main
 from hermsd.config.read import parse
 from hermsd.control.learning import LearnedModel, ModelStore
@@ -225,3 +227,72 @@ def test_the_coil_learned_before_any_tun_model_is_kept_alone_and_is_the_next_day
     assert daemon._mash_control is not None
     prior = daemon._mash_control.coil.estimate()
     assert (prior.conductance, prior.sd, prior.source) == (*kept, "stored")
+
+
+STUCK_AT, FREED_AT, STIR_AT = 7200.0, 7800.0, 10200.0  # as herms-day; stirring at 2 h 50 min
+Seen = tuple[str, tuple[str, ...]]
+"""The status line and the status reply's warnings of the mash side (`link.role_faults`)."""
+
+
+@pytest.fixture(scope="module")
+def stuck_day() -> tuple[Daemon, Periods, Seen, Seen]:
+    """herms-day: the bed stuck 2 h to 2 h 10 min (the pump runs, nothing flows), then the
+    pump stopped 5 min for stirring; the status line and the status reply's warnings looked
+    at while the sign stands (at 2 h 9 min) and after the stirring (at 3 h)."""
+    daemon, world = herms_daemon()
+    periods = Periods()
+    daemon.listeners.append(periods)
+    daemon.recorder = periods
+    tun: Any = world.plant
+    clock = daemon.clock
+    clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
+    clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
+    clock.call_at(STUCK_AT, lambda: tun.set_recirculation_ok(False, STUCK_AT))
+    clock.call_at(FREED_AT, lambda: tun.set_recirculation_ok(True, FREED_AT))
+    clock.call_at(STIR_AT, lambda: daemon.set_pump(False, "by the test"))
+    clock.call_at(STIR_AT + 300.0, lambda: daemon.set_pump(True, "by the test"))
+    daemon.run(until=FREED_AT - 60.0)
+    stuck = daemon.status_text(), role_faults(daemon.role_status())
+    daemon.run(until=3 * 3600.0)
+    return daemon, periods, stuck, (daemon.status_text(), role_faults(daemon.role_status()))
+
+
+def test_a_stuck_bed_is_signed_while_it_lasts_and_the_heater_stays_on(
+    stuck_day: tuple[Daemon, Periods, Seen, Seen],
+) -> None:
+    _daemon, periods, stuck, after = stuck_day
+    signed = [r.t for r in periods.records if r.cascade == "no flow"]
+    assert signed and STUCK_AT < signed[0] < FREED_AT  # raised while the bed is stuck …
+    assert FREED_AT < signed[-1] < FIRST_REST_BY  # … and ended once it flows again, only then
+    assert signed == [r.t for r in periods.records if signed[0] <= r.t <= signed[-1]]
+    raised = [e for e in periods.events if e.startswith("no flow through the coil:")]
+    ended = [e for e in periods.events if e.startswith("no flow through the coil ended")]
+    assert len(raised) == 1 and ended == ["no flow through the coil ended: the wort flows again"]
+    assert "a stuck bed, a pump running dry, a closed valve?" in raised[0]
+    assert stuck[1] == (raised[0].split(": the HLT readied")[0],)  # `warning:` in status
+    assert re.search(r", mash 6\d\.\d → 66\.0 °C \(no flow\), pump on, ", stuck[0])
+    assert after[1] == () and "(no flow)" not in after[0]
+    # A warning, never an alarm: the heater is not turned off for it.
+    assert all(r.alarms == [] and r.heater_allowed for r in periods.records)
+
+
+FIRST_REST_BY = FREED_AT + 600.0
+"""s: the sign ends within 10 min of the bed freeing (when the mash rises again)."""
+
+
+def test_the_mash_does_not_overshoot_after_a_stuck_bed(
+    stuck_day: tuple[Daemon, Periods, Seen, Seen],
+) -> None:
+    """The HLT does not wind up while nothing flows: once the bed frees, the mash reaches its
+    rest without passing it by more than 0.2 °C (0.56 °C before the sign existed)."""
+    _daemon, periods, _stuck, _after = stuck_day
+    mash = [r.mash for r in periods.records if r.t >= FREED_AT and r.mash is not None]
+    assert max(mash) >= MASH_SP - BAND  # the rest is reached …
+    assert max(mash) - MASH_SP <= 0.2  # … without an overshoot heat cannot take back
+
+
+def test_no_flow_is_never_signed_on_a_normal_herms_day(day: tuple[scenario.Result, Path]) -> None:
+    """The pump's first minutes after the dough-in, the climb, the coast and the hold: the
+    coil passes its heat all along, no sign."""
+    result, _state = day
+    assert [r.t for r in result.records if r.cascade == "no flow"] == []

@@ -432,7 +432,13 @@ def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
     # The mash far below its 70 °C: the HLT set to the limit, 70 + 10 less 0.15 °C margin.
     assert "HLT 20.00 °C → 79.85 °C, " in status
     assert ", mash 20.0 → 70.0 °C (climb), pump on, " in status.splitlines()[0]
-    mash = {"celsius": 20.0, "fault": None, "hlt_setpoint": 79.85, "phase": "climb"}
+    mash = {
+        "celsius": 20.0,
+        "fault": None,
+        "hlt_setpoint": 79.85,
+        "phase": "climb",
+        "warning": None,
+    }
     assert reply["pump"] is True and reply["mash"] == mash
     assert reply["coil"]["fault"] is None and reply["warnings"] == []
     assert off.endswith("pump off\n")

@@ -369,9 +369,13 @@ class LoopLink:
 
 
 def role_faults(roles: dict[str, dict[str, object] | None] | None) -> tuple[str, ...]:
-    """The status's warnings of the sensors beside the HLT's: 'mash sensor fault: …'."""
-    return tuple(
+    """The status's warnings of the sensors beside the HLT's: 'mash sensor fault: …', and
+    what the mash's says besides (the no-flow sign)."""
+    faults = tuple(
         f"{role} sensor fault (the HLT is held as before): {status['fault']}"
         for role, status in (roles or {}).items()
         if status is not None and status["fault"] is not None
     )
+    mash = (roles or {}).get("mash")
+    warning = None if mash is None else mash.get("warning")
+    return faults if not isinstance(warning, str) else (*faults, warning)

@@ -50,7 +50,8 @@ runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
 `coil` (the mash's and the coil outlet's sensors: null when not fitted, else `celsius`, the
 latest good reading or null while faulty, and `fault`, why it is faulty or null; the
 mash's also `hlt_setpoint` and `phase`, the HLT's setpoint the outer loop chose and its
-phase, when it steers: docs/mash-control.md), `pump`
+phase, when it steers, and `warning`, the no-flow sign's words while it stands, else null:
+docs/mash-control.md), `pump`
 (true running, false stopped, null when no pump is fitted). `no_heat`
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no
 heat, 0 either, 3 more heat than asked (docs/two-elements.md); `latches_not_saved` (why the
@@ -58,7 +59,8 @@ latched alarms' save fails, while it does; else null); `log_failing` (why the lo
 written, while it cannot; else null); `warnings` (those three in words, that the program's
 progress is not saved (`program`'s `save_failed`), and that full power levels the water out
 short of the setpoint (hermsd/control/reach.py), and a fault of the mash's or the coil
-outlet's sensor, one line each, empty when there is nothing to say: what holds no heater
+outlet's sensor and the no-flow sign (the pump runs, nothing flows through the coil), one
+line each, empty when there is nothing to say: what holds no heater
 off but needs a look). A program
 sent with `start` is checked on the server's thread exactly as a program file is (and its
 setpoints against the running config at the boundary); `program` and `confirm` commands

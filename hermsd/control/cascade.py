@@ -107,8 +107,9 @@ class Tanks:
 @dataclass(frozen=True, slots=True)
 class Decision:
     """One period's answer: the HLT's setpoint, the coil's load (W) to feed forward, the
-    phase ("climb", "coast" down to the hold, "hold", "ready" with the pump stopped, "held"
-    without a mash reading) and, when held, why."""
+    phase ("climb", "coast" down to the hold, "hold", "ready" with the pump stopped, "no
+    flow" with the pump running and nothing flowing, "held" without a mash reading) and,
+    when held, why."""
 
     hlt_setpoint: float
     load_watts: float
@@ -227,6 +228,11 @@ class Cascade:
         """The mash's losses (W/K) as the holds so far showed them (the config's before)."""
         return self._mash_loss
 
+    @mash_loss.setter
+    def mash_loss(self, loss: float) -> None:
+        """Back to losses learned before (the ones since came of a mash that got no heat)."""
+        self._mash_loss = loss
+
     def ceiling(self, mash_sp: float) -> float:
         """The highest HLT setpoint for `mash_sp`: the limit less HLT_MARGIN, at most the
         HLT's maximum."""
@@ -241,10 +247,16 @@ class Cascade:
         hlt_pv: float,
         pump: bool,
         coil: CoilEstimate,
+        flowing: bool = True,
     ) -> Decision:
         """One period. `mash_pv` None (a fault) or older than MAX_MASH_AGE (`mash_age`, s):
         the HLT held at its last setpoint. `hlt_pv` is best the HLT law's predicted PV (the
-        heat already sent counted)."""
+        heat already sent counted). `flowing` False (the pump runs, no wort flows:
+        `flow_watch.FlowWatch`): as with the pump stopped, the HLT readied with the heat the
+        mash lacks, nothing learned of the mash's losses, no load fed forward; the phase is
+        "no flow"."""
+        stood = pump and not flowing
+        pump = pump and flowing
         ceiling = self.ceiling(mash_sp)
         if mash_pv is None or not mash_age <= MAX_MASH_AGE:
             why = "no mash reading" if mash_pv is None else f"mash reading {mash_age:.0f} s old"
@@ -274,7 +286,8 @@ class Cascade:
         if self._climbing and pump:
             self._climbing = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target
         if not pump:
-            setpoint, phase = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling), "ready"
+            setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
+            phase = "no flow" if stood else "ready"
         elif self._climbing:
             setpoint, phase = ceiling, "climb"
         else:

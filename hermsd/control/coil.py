@@ -53,6 +53,17 @@ MAX_CONDUCTANCE = 5000.0
 
 
 @dataclass(frozen=True, slots=True)
+class Exchange:
+    """One period's exchange over the coil as the HLT's heat balance shows it: `drive`, the
+    integral of T_h − T_m (K·s), and `heat`, the heat (J) the HLT's water gave the coil (its
+    element's heat less its losses and the heat it gained); `heat` ≈ K·`drive` while the
+    wort flows, 0 while it does not."""
+
+    drive: float
+    heat: float
+
+
+@dataclass(frozen=True, slots=True)
 class CoilEstimate:
     """The coil's conductance K (W/K), its standard uncertainty (W/K) and where it comes
     from ("prior", "stored", "learned")."""
@@ -91,6 +102,7 @@ class CoilEstimator:
         "_block",
         "_blocks",
         "_capacity",
+        "_flowing_s",
         "_h0",
         "_last",
         "_loss",
@@ -126,33 +138,50 @@ class CoilEstimator:
         self._block = LineFit()
         self._last: tuple[float, float] | None = None  # (T_h, T_m) of the last good period
         self._run_s = 0.0
+        self._flowing_s = math.inf  # s since the wort was last known not to flow
         self._h0 = self._x = self._y = 0.0
 
-    def period(self, *, hlt: float, mash: float | None, applied: float, pump: bool) -> None:
+    def period(
+        self, *, hlt: float, mash: float | None, applied: float, pump: bool
+    ) -> Exchange | None:
         """One period: the HLT's and the mash's PV (None: no good mash reading), the duty
-        applied over the period just ended (% of the element) and whether the pump ran."""
+        applied over the period just ended (% of the element) and whether the pump ran. The
+        period's exchange as the HLT's balance shows it (None while the pump is stopped, a
+        reading failed or the coil still settles)."""
         self._arrived.append(applied)
         if not pump or mash is None:
             self._interrupt()
-            return
+            return None
         self._run_s += self._period
         if self._run_s < SETTLE_S:
-            return
+            return None
         last, self._last = self._last, (hlt, mash)
         if last is None:
             self._h0, self._x, self._y = hlt, 0.0, 0.0
             self._block = LineFit()
             self._block.add(0.0, 0.0)
-            return
+            return None
         ts = self._period
         h_mean = 0.5 * (last[0] + hlt)
-        self._x += ts * (h_mean - 0.5 * (last[1] + mash))
+        dx = ts * (h_mean - 0.5 * (last[1] + mash))
+        self._x += dx
         heat = self._watts * self._arrived[0] / 100.0 * ts
-        self._y += -heat + self._loss * (h_mean - self._room) * ts
+        dy = -heat + self._loss * (h_mean - self._room) * ts
+        self._y += dy
         point = (self._x, self._capacity * (hlt - self._h0) + self._y)
+        self._flowing_s += ts
+        if self._flowing_s < SETTLE_S:  # no flow lately: nothing of K to learn yet
+            self._block = LineFit()
         self._block.add(*point)
         if self._block.n * ts > BLOCK_S:
             self._close_block(point)
+        return Exchange(dx, -(dy + self._capacity * (hlt - last[0])))
+
+    def no_flow(self) -> None:
+        """The pump runs but no wort flows (`flow_watch.FlowWatch`): what the HLT showed
+        meanwhile is no measure of K, so the open block is dropped, and learning waits
+        SETTLE_S once the wort flows again (the coil then holds standing wort)."""
+        self._flowing_s = 0.0
 
     def _interrupt(self) -> None:
         """The pump stopped or a reading failed: the open block is dropped, a new run starts."""

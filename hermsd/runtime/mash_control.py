@@ -17,6 +17,7 @@ from hermsd.control import pid, predictive
 from hermsd.control.cascade import Cascade, Decision, Tanks
 from hermsd.control.coil import CoilEstimate, CoilEstimator, prior_estimate
 from hermsd.control.factory import WATER_J_PER_LITRE_K, total_watts
+from hermsd.control.flow_watch import FlowWatch
 from hermsd.control.learning import LearnedModel
 
 GRAIN_J_PER_KG_K = 1700.0
@@ -28,9 +29,12 @@ CUT_OUT_MARGIN = 1.0
 class MashControl:
     """The outer loop, the coil's estimator and the last period's decision."""
 
-    def __init__(self, cascade: Cascade, coil: CoilEstimator, element_watts: float) -> None:
+    def __init__(
+        self, cascade: Cascade, coil: CoilEstimator, flow: FlowWatch, element_watts: float
+    ) -> None:
         self.cascade = cascade
         self.coil = coil
+        self.flow = flow
         self.element_watts = element_watts
         self.decision: Decision | None = None  # None until the first period with a PV
 
@@ -48,10 +52,21 @@ class MashControl:
     ) -> Decision:
         """One control period, before the HLT law's step: the coil's estimator fed the
         period just ended (only with a pump hermsd switches: one run by hand may stand, and
-        a K learned while it did would be none), the outer loop stepped (on the law's
-        predicted PV where it has one: the heat already sent counted), the coil's load fed
-        forward to the law."""
-        self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=pump and pump_known)
+        a K learned while it did would be none), the flow through the coil judged from it
+        (while none flows nothing is learned of K, the outer loop takes the pump as stopped,
+        and the mash's losses it learned since the flow stopped are forgotten), the outer
+        loop stepped (on the law's predicted PV where it has one: the heat already sent
+        counted), the coil's load fed forward to the law."""
+        known = pump and pump_known
+        exchange = self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known)
+        coil = self.coil.estimate()
+        changed = self.flow.period(
+            exchange, mash_pv, pump=known, mash_loss=self.cascade.mash_loss, k=coil.low
+        )
+        if self.flow.stuck:
+            self.coil.no_flow()
+            if changed and self.flow.loss_before is not None:
+                self.cascade.mash_loss = self.flow.loss_before
         ahead = predictive.predicted_pv(controller)
         decision = self.cascade.step(
             mash_sp=mash_sp,
@@ -59,7 +74,8 @@ class MashControl:
             mash_age=mash_age,
             hlt_pv=hlt_pv if ahead is None else ahead,
             pump=pump,
-            coil=self.coil.estimate(),
+            coil=coil,
+            flowing=not self.flow.stuck,
         )
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
@@ -111,4 +127,11 @@ def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> 
         period=period,
         prior=prior,
     )
-    return MashControl(cascade, coil, watts)
+    flow = FlowWatch(
+        hlt_capacity=hlt_capacity,
+        mash_capacity=tanks.mash_capacity,
+        room=model.ambient,
+        delays=herms.hose_s + herms.mash_sensor_lag,
+        period=period,
+    )
+    return MashControl(cascade, coil, flow, watts)

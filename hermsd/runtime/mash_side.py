@@ -39,6 +39,10 @@ COIL_SAFETY_SDS = 3.0
 """The learned K's uncertainties above it that the safety's bound on the coil's load takes as
 its highest plausible value (a bound too narrow latches a false heater_not_heating)."""
 NO_PUMP = "pump: no pump is fitted (set pump.backend in the config file and restart hermsd)"
+NO_FLOW = (
+    "no flow through the coil: the pump runs but the mash does not take the coil's heat "
+    "(a stuck bed, a pump running dry, a closed valve?)"
+)
 
 
 class RoleSensor:
@@ -210,7 +214,7 @@ class MashSide(LoopState):
         if control is None or pv is None:
             return self.hlt_target()
         mash = self._roles["mash_sensor"]
-        before = control.decision
+        before, was_stuck = control.decision, control.flow.stuck
         decision = control.period(
             self.controller,
             mash_sp=self.setpoint,
@@ -230,6 +234,15 @@ class MashSide(LoopState):
             )
         elif decision.held is None and was_held:
             self._event(logging.INFO, "mash reading again: the HLT steered by the mash", t)
+        if control.flow.stuck and not was_stuck:
+            self._event(
+                logging.WARNING,
+                f"{NO_FLOW}: the HLT readied at {decision.hlt_setpoint:.2f} °C till it flows",
+                t,
+            )
+        elif was_stuck and not control.flow.stuck:
+            why = "the wort flows again" if self.pump_running else "the pump stopped"
+            self._event(logging.INFO, f"no flow through the coil ended: {why}", t)
         return decision.hlt_setpoint
 
     def with_coil(self, model: LearnedModel) -> LearnedModel:
@@ -341,6 +354,7 @@ class MashSide(LoopState):
             decision = control.decision
             mash["hlt_setpoint"] = None if decision is None else decision.hlt_setpoint
             mash["phase"] = None if decision is None else decision.phase
+            mash["warning"] = NO_FLOW if control.flow.stuck else None
         return status
 
     def _now(self) -> float:
