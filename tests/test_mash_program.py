@@ -146,6 +146,17 @@ def test_the_pump_stays_off_through_mash_in_until_the_brewer_confirms(
     assert all(r.pump is True for r in result.records if r.t > pumped_from)
 
 
+def test_the_strike_step_holds_the_hlt_at_its_own_setpoint_not_the_mashs_outer_loops(
+    mash_in_day: tuple[Result, CoilMash],
+) -> None:
+    """Before "Mash in" the mash sensor reads 11 °C under the step's 66 °C: taken for a mash,
+    the outer loop would ready the HLT above 66 °C, heat that coasts the mash past its rest."""
+    result, plant = mash_in_day
+    strike = [r for r in result.records if r.step_index == 0 and r.t < plant.pump_changes[0][0]]
+    assert strike and all(r.mash == pytest.approx(MASH_C, abs=0.0625) for r in strike)
+    assert {(r.hlt_setpoint, r.coil_load, r.cascade) for r in strike} == {(COIL_C, 0.0, "strike")}
+
+
 def test_the_report_gives_each_rest_on_the_mash_and_not_the_strike(
     mash_in_day: tuple[Result, CoilMash],
 ) -> None:

@@ -70,6 +70,9 @@ LOSS_LEARN_S = 600.0
 MAX_LOSS_FACTOR = 4.0
 """The mash's losses as learned stay within 0 and this many times the config's (or 20 W/K,
 whichever is more)."""
+STRIKE = "strike"
+"""The phase of a program's step before the mash is in: the HLT held at the step's setpoint
+itself (`MashControl.strike`), the outer loop not stepped."""
 MIN_CONDUCTANCE = 10.0
 """W/K: the least K the outer loop steers by. A K learned lower is a coil with no flow (a
 stuck bed), where no HLT holds the mash; the hold's HLT then stays finite, at the limit."""
@@ -108,8 +111,8 @@ class Tanks:
 class Decision:
     """One period's answer: the HLT's setpoint, the coil's load (W) to feed forward, the
     phase ("climb", "coast" down to the hold, "hold", "ready" with the pump stopped, "no
-    flow" with the pump running and nothing flowing, "held" without a mash reading) and,
-    when held, why."""
+    flow" with the pump running and nothing flowing, "held" without a mash reading,
+    "strike" on a program's step before the mash is in) and, when held, why."""
 
     hlt_setpoint: float
     load_watts: float

@@ -242,7 +242,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "cascade": _field(
                     ["string", "null"],
                     "the outer loop's phase (null: no mash sensor)",
-                    enum=["climb", "coast", "hold", "ready", "held", None],
+                    enum=["climb", "coast", "hold", "ready", "no flow", "held", "strike", None],
                 ),
             },
             optional=(

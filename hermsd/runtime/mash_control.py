@@ -14,7 +14,7 @@ import dataclasses
 
 from hermsd.config.schema import Config
 from hermsd.control import pid, predictive
-from hermsd.control.cascade import Cascade, Decision, Tanks
+from hermsd.control.cascade import STRIKE, Cascade, Decision, Tanks
 from hermsd.control.coil import CoilEstimate, CoilEstimator, prior_estimate
 from hermsd.control.factory import WATER_J_PER_LITRE_K, total_watts
 from hermsd.control.flow_watch import FlowWatch
@@ -82,6 +82,15 @@ class MashControl:
         predictive.known_load(controller, decision.load_watts, self.element_watts)
         self.decision = decision
         return decision
+
+    def strike(self, controller: pid.Controller, setpoint: float) -> Decision:
+        """A program's step before the mash is in (the strike water): the step's setpoint
+        is the HLT's own, no load fed forward. The mash sensor then reads an empty tun (the
+        room), which the outer loop would take for a mash far below its rest and ready the
+        HLT to the limit above the strike: heat that coasts the mash past its first rest."""
+        self.decision = Decision(setpoint, 0.0, STRIKE)
+        predictive.known_load(controller, 0.0, self.element_watts)
+        return self.decision
 
 
 def coil_prior(

@@ -208,11 +208,15 @@ class MashSide(LoopState):
     def _steer(self, pv: float | None, applied: float, t: float) -> float:
         """The HLT law's setpoint for this period: with a mash sensor fitted the outer
         loop's, stepped on this period's HLT PV (none: the last decision stands), the coil's
-        load fed forward to the law; without one, the brewer's. A mash reading lost or stale
+        load fed forward to the law; without one, the brewer's, as on a program's step
+        before the mash is in (the strike water is the HLT's). A mash reading lost or stale
         holds the HLT at its last setpoint, said when it begins and ends."""
         control = self._mash_control
         if control is None or pv is None:
             return self.hlt_target()
+        runner = self.program.runner
+        if runner is not None and not runner.on_mash(self.mash_reading()):
+            return control.strike(self.controller, self.setpoint).hlt_setpoint
         mash = self._roles["mash_sensor"]
         before, was_stuck = control.decision, control.flow.stuck
         decision = control.period(
