@@ -139,7 +139,8 @@ def _parser() -> argparse.ArgumentParser:
         "--socket",
         type=Path,
         help="control socket (default: $RUNTIME_DIRECTORY/control.sock, else "
-        "/run/hermsd/control.sock; simulating: in --state or a temporary directory)",
+        "/run/hermsd/control.sock; simulating: $XDG_RUNTIME_DIR/hermsd-sim/control.sock, "
+        "else /tmp/hermsd-sim-UID/control.sock)",
     )
     run.set_defaults(func=cmd_run)
 
@@ -376,7 +377,7 @@ def _socket_argument(parser: argparse.ArgumentParser) -> None:
         "--socket",
         type=Path,
         help="the daemon's control socket (default: $RUNTIME_DIRECTORY/control.sock, else "
-        "/run/hermsd/control.sock)",
+        "/run/hermsd/control.sock if it exists, else the simulated daemon's if its socket exists)",
     )
 
 
