@@ -90,7 +90,7 @@ def _reader_gone() -> int:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="hermsd", description="Holds a HERMS Hot Liquid Tun at its setpoint."
+        prog="hermsd", description="Holds a HERMS Hot Liquor Tank at its setpoint."
     )
     parser.add_argument("--version", action="version", version=f"hermsd {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
