@@ -774,7 +774,8 @@ def test_a_socket_left_by_a_crash_is_replaced_and_a_live_one_is_not(tmp_path: Pa
     stale.bind(os.fspath(tmp_path / "control.sock"))
     stale.close()  # the file stays, nothing listens: as after a SIGKILL
     with served(tmp_path) as (_daemon, where):
-        with pytest.raises(SocketInUseError, match="another hermsd answers on"):
+        held_by_this_process = rf"another hermsd \(pid {os.getpid()}\) answers on"
+        with pytest.raises(SocketInUseError, match=held_by_this_process):
             ControlServer(where, lambda: b"").start()
         with connect(where) as sock:
             assert exchange(sock, b'{"v": 1, "cmd": "status"}\n')["ok"]

@@ -161,7 +161,8 @@ def test_a_second_daemon_on_the_tuns_socket_opens_no_output_before_it_is_refused
     finally:
         first.close()
     assert capsys.readouterr().err.splitlines() == [
-        f"hermsd: cannot open the control socket {socket_path}: another hermsd answers on "
-        f"{socket_path} (another hermsd on this tun? else choose a place with --socket PATH)"
+        f"hermsd: cannot open the control socket {socket_path}: another hermsd "
+        f"(pid {os.getpid()}) answers on {socket_path} (another hermsd on this tun? else "
+        "choose a place with --socket PATH)"
     ]
     assert touched == []

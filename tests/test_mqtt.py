@@ -1,7 +1,8 @@
 """The MQTT bridge against a real broker and a real daemon.
 
 The broker is Debian's mosquitto, started here on a free loopback port with its own config
-(never the system's service); without it these tests fail, they do not skip. The daemon runs
+(never the system's service); without it these tests are skipped, saying why (failed in CI,
+which installs it). The daemon runs
 on the virtual clock behind the real control socket, and the test steps it one period at a
 time; every wait on the real clock is for a network event, bounded by TIMEOUT.
 """
@@ -27,6 +28,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 import pytest
 from paho.mqtt.enums import CallbackAPIVersion
+from programs import require_program
 from test_reload import BASE, PERIOD, Events, edited, run_for, start
 
 from hermsd.api import protocol
@@ -68,8 +70,7 @@ class Broker:
     forgets every retained message)."""
 
     def __init__(self, directory: Path, users: dict[str, str] | None = None) -> None:
-        if not MOSQUITTO.exists():
-            pytest.fail(f"{MOSQUITTO} is missing: apt-get install mosquitto (.ci/run does)")
+        require_program(MOSQUITTO, "mosquitto", what="the MQTT bridge's tests")
         self.port = free_port()
         self.conf = directory / "mosquitto.conf"
         # `user root`: started by root it would read its files as the mosquitto user, who

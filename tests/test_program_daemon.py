@@ -376,6 +376,8 @@ def _hermsd(state: Path) -> subprocess.Popen[str]:
             str(SPEED),
             "--state",
             str(state),
+            "--socket",
+            str(state / "control.sock"),
         ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

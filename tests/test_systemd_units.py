@@ -11,6 +11,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
+from programs import require_program
 
 from hermsd.hardware.realtime import LOOP_PRIORITY
 
@@ -33,9 +34,6 @@ EXPOSURE_LIMITS = {
 }
 
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
-needs_systemd_analyze = pytest.mark.skipif(
-    SYSTEMD_ANALYZE is None, reason="systemd-analyze is not installed"
-)
 
 
 def _directives(unit_file: str) -> dict[str, list[str]]:
@@ -66,13 +64,15 @@ def _staged_unit(unit_file: str, directory: Path) -> Path:
 
 
 def _analyze(*arguments: str) -> subprocess.CompletedProcess[str]:
+    require_program(
+        Path(SYSTEMD_ANALYZE) if SYSTEMD_ANALYZE else None, "systemd", what="the unit checks"
+    )
     assert SYSTEMD_ANALYZE is not None
     return subprocess.run(
         [SYSTEMD_ANALYZE, *arguments], capture_output=True, text=True, timeout=60, check=False
     )
 
 
-@needs_systemd_analyze
 @pytest.mark.parametrize("unit_file", EXPOSURE_LIMITS)
 def test_systemd_analyze_verify_reports_nothing(unit_file: str, tmp_path: Path) -> None:
     unit = _staged_unit(unit_file, tmp_path)
@@ -82,7 +82,6 @@ def test_systemd_analyze_verify_reports_nothing(unit_file: str, tmp_path: Path) 
     assert (result.returncode, result.stderr, result.stdout) == (0, "", "")
 
 
-@needs_systemd_analyze
 @pytest.mark.parametrize("unit_file", EXPOSURE_LIMITS)
 def test_sandbox_exposure_is_within_its_limit(unit_file: str, tmp_path: Path) -> None:
     unit = _staged_unit(unit_file, tmp_path)

@@ -4,12 +4,11 @@ change with a login is applied at the first period boundary, without one it is r
 page at phone size shows what matters, and a mash program started from the page (a file or
 pasted YAML, checked before anything is sent) is shown and steered by its buttons.
 
-Outside CI a machine without /usr/bin/chromium skips these tests (`apt-get install
-chromium`); in CI (CI set) it fails them, as `.ci/run` installs it."""
+Outside CI a machine without /usr/bin/chromium skips these tests, saying why
+(`apt-get install chromium`); in CI (CI set) it fails them, as `.ci/run` installs it."""
 
 from __future__ import annotations
 
-import os
 import struct
 import zlib
 from collections.abc import Iterator
@@ -17,6 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from programs import require_program
 from test_reload import HERMS, doughed_in
 from webpage import CHROMIUM, CHROMIUM_ARGS, PASSWORD, PHONE, TIMEOUT, Site, site
 
@@ -32,10 +32,7 @@ HLT_SETPOINT_ORANGE = (
 WAIT_MS = TIMEOUT * 1000
 
 
-if not CHROMIUM.exists():
-    if os.environ.get("CI"):
-        pytest.fail(f"{CHROMIUM} is missing: .ci/run installs Debian's chromium", pytrace=False)
-    pytest.skip(f"{CHROMIUM} is missing (apt-get install chromium)", allow_module_level=True)
+require_program(CHROMIUM, "chromium", what="the browser tests")
 
 from playwright.sync_api import Browser, Page, sync_playwright  # noqa: E402
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import socket
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,27 @@ def default_socket_path(given: Path | None = None) -> Path:
         return given
     runtime = os.environ.get("RUNTIME_DIRECTORY", "").split(":")[0]
     return Path(runtime, SOCKET_NAME) if runtime else DEFAULT_SOCKET
+
+
+def simulated_socket_path() -> Path:
+    """Where `run --simulate` listens, the same for every terminal of one user:
+    $XDG_RUNTIME_DIR/hermsd-sim/control.sock, else hermsd-sim-UID/control.sock in the
+    temporary directory (/tmp)."""
+    runtime = os.environ.get("XDG_RUNTIME_DIR", "")
+    if runtime and os.path.isdir(runtime):
+        return Path(runtime, "hermsd-sim", SOCKET_NAME)
+    return Path(tempfile.gettempdir(), f"hermsd-sim-{os.getuid()}", SOCKET_NAME)
+
+
+def find_socket(given: Path | None = None) -> Path:
+    """The socket a command talks to: `given`, else $RUNTIME_DIRECTORY's, else the service's
+    (/run/hermsd/control.sock) when it exists, else a simulated daemon's when it exists, else
+    the service's. A service's socket always wins over a simulated one."""
+    path = default_socket_path(given)
+    if given is not None or path != DEFAULT_SOCKET or os.path.lexists(path):
+        return path
+    simulated = simulated_socket_path()
+    return simulated if os.path.lexists(simulated) else path
 
 
 def ask(path: Path, request: Request, timeout: float = TIMEOUT) -> dict[str, Any]:

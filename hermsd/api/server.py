@@ -511,9 +511,11 @@ def _remove_stale(path: Path) -> None:
     probe.settimeout(1.0)
     try:
         probe.connect(os.fspath(path))
+        holder, _uid = _peer(probe)
     except (ConnectionRefusedError, FileNotFoundError):
         path.unlink(missing_ok=True)  # nothing listens: left by a daemon that died
         return
     finally:
         probe.close()
-    raise SocketInUseError(errno.EADDRINUSE, f"another hermsd answers on {path}")
+    who = f"another hermsd (pid {holder})" if holder else "another hermsd"
+    raise SocketInUseError(errno.EADDRINUSE, f"{who} answers on {path}")

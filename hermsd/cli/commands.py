@@ -90,7 +90,7 @@ def _reader_gone() -> int:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="hermsd", description="Holds a HERMS Hot Liquid Tun at its setpoint."
+        prog="hermsd", description="Holds a HERMS Hot Liquor Tank at its setpoint."
     )
     parser.add_argument("--version", action="version", version=f"hermsd {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -144,7 +144,8 @@ def _parser() -> argparse.ArgumentParser:
         "--socket",
         type=Path,
         help="control socket (default: $RUNTIME_DIRECTORY/control.sock, else "
-        "/run/hermsd/control.sock; simulating: in --state or a temporary directory)",
+        "/run/hermsd/control.sock; simulating: $XDG_RUNTIME_DIR/hermsd-sim/control.sock, "
+        "else /tmp/hermsd-sim-UID/control.sock)",
     )
     run.set_defaults(func=cmd_run)
 
@@ -381,7 +382,7 @@ def _socket_argument(parser: argparse.ArgumentParser) -> None:
         "--socket",
         type=Path,
         help="the daemon's control socket (default: $RUNTIME_DIRECTORY/control.sock, else "
-        "/run/hermsd/control.sock)",
+        "/run/hermsd/control.sock if it exists, else the simulated daemon's if its socket exists)",
     )
 
 

@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import logging
 import signal
+import sys
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING
+
+from hermsd.api import client
 
 if TYPE_CHECKING:
     pass
@@ -50,4 +53,17 @@ def config_path(path: Path | None, *, simulate: bool) -> Path | None:
         path = DEFAULT_CONFIG
     if not path.exists():
         raise UserError(f"no config file at {path} (copy config/hermsd.yaml there, or --config)")
+    return path
+
+
+def control_socket(given: Path | None) -> Path:
+    """The daemon's socket for a command (`find_socket`); a simulated daemon's, found because
+    no service's socket exists, is said on stderr, so no command talks to it unawares."""
+    path = client.find_socket(given)
+    if given is None and path == client.simulated_socket_path():
+        print(
+            f"hermsd: using the simulated daemon's socket {path} (there is no "
+            f"{client.DEFAULT_SOCKET}; --socket PATH for another)",
+            file=sys.stderr,
+        )
     return path

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hermsd.api.client import NoDaemonError, ReplyError, ask, default_socket_path
+from hermsd.api.client import NoDaemonError, ReplyError, ask
 from hermsd.api.protocol import (
     BUSY,
     ProgramAction,
@@ -25,6 +25,7 @@ from hermsd.api.protocol import (
 from hermsd.cli.common import (
     Unreachable,
     UserError,
+    control_socket,
 )
 from hermsd.cli.run import (
     _default_state_directory,
@@ -41,15 +42,16 @@ from hermsd.cli.files import cmd_program_import
 def cmd_reset_alarm(args: argparse.Namespace) -> int:
     """Clear the latched alarms: through the socket when a daemon runs, else by a request
     in the state directory that the daemon takes when it starts."""
+    socket_path = control_socket(args.socket)  # said once, if it is a simulated daemon's
     try:
-        seen = _ask(args.socket, Status())["alarms"]
+        seen = _ask(socket_path, Status())["alarms"]
     except NoDaemonError:
         return _request_reset_in_state(args)
     if not seen:
         print("no alarm to reset")
         return 0
     # Only what was seen here: an alarm raised in between stays, to be read first.
-    reply = _ask(args.socket, ResetAlarms(tuple(seen)))
+    reply = _ask(socket_path, ResetAlarms(tuple(seen)))
     print(f"reset: {', '.join(seen)}; now: {', '.join(reply['alarms']) or 'no alarm'}")
     return 0
 
@@ -94,7 +96,7 @@ def _ask(socket_path: Path | None, request: Request) -> dict[str, Any]:
     """The daemon's reply; a refusal is a UserError (exit 2) with the daemon's one line, a
     daemon too busy to take the connection Unreachable (exit 1: try again)."""
     try:
-        reply = ask(default_socket_path(socket_path), request)
+        reply = ask(control_socket(socket_path), request)
     except ReplyError as error:
         raise Unreachable(str(error)) from None
     if not reply["ok"]:

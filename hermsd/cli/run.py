@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import logging
 import math
 import os
 import signal
+import stat
 import sys
 import tempfile
 import threading
@@ -17,8 +19,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-from hermsd.api.client import SOCKET_NAME, default_socket_path
-from hermsd.api.server import ControlServer
+from hermsd.api.client import default_socket_path, simulated_socket_path
+from hermsd.api.server import ControlServer, SocketInUseError
 from hermsd.cli.common import (
     DEFAULT_STATE,
     Shutdown,
@@ -167,7 +169,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         with contextlib.ExitStack() as stack:
             # The tun's socket is taken before any output is opened: a second daemon on the
             # tun is refused here, before it can touch the heater's lines.
-            server = _claim_control_socket(_run_socket_path(args, stack))
+            server = _claim_control_socket(_run_socket_path(args), simulated=args.simulate)
             stack.callback(server.close)
             if args.simulate:
                 from hermsd.sim.world import simulated_daemon
@@ -271,28 +273,63 @@ def _scenario_daemon(scenario: Scenario, config: Config, speed: float, **parts: 
         raise UserError(str(error)) from None
 
 
-def _run_socket_path(args: argparse.Namespace, stack: contextlib.ExitStack) -> Path:
-    """Where `run` listens: --socket, $RUNTIME_DIRECTORY, or for a simulated tun a place of
-    its own (the state directory, else a temporary one), so it never takes the service's."""
+def _run_socket_path(args: argparse.Namespace) -> Path:
+    """Where `run` listens: --socket, $RUNTIME_DIRECTORY, /run/hermsd, or for a simulated tun
+    one fixed place of the user's own (`simulated_socket_path`), which the commands find
+    without --socket, and never the service's."""
     if args.socket is not None or not args.simulate or os.environ.get("RUNTIME_DIRECTORY"):
         return default_socket_path(args.socket)
-    if args.state is not None:
-        return Path(args.state, SOCKET_NAME)
-    return Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="hermsd-")), SOCKET_NAME)
+    path = simulated_socket_path()
+    directory = path.parent
+    try:
+        directory.mkdir(mode=0o700, exist_ok=True)
+        held = os.lstat(directory)
+        if stat.S_ISDIR(held.st_mode) and held.st_uid == os.getuid():
+            os.chmod(directory, 0o700)  # the socket is this user's alone
+    except OSError as error:
+        raise UserError(
+            f"cannot make {directory} for the simulated daemon's control socket: "
+            f"{error.strerror or error} (choose a place with --socket PATH)"
+        ) from None
+    if not stat.S_ISDIR(held.st_mode) or held.st_uid != os.getuid():
+        raise UserError(
+            f"{directory} is not a directory of this user's (uid {os.getuid()}): it cannot "
+            "hold the simulated daemon's control socket (remove it, or choose a place with "
+            "--socket PATH)"
+        )
+    return path
 
 
-def _claim_control_socket(path: Path) -> ControlServer:
-    """The control socket at `path`, bound but not served yet; UserError if another daemon
-    answers there (or it cannot be made)."""
+def _claim_control_socket(path: Path, *, simulated: bool) -> ControlServer:
+    """The control socket at `path`, bound but not served yet; UserError, saying what to do,
+    if another daemon answers there or it cannot be made."""
     server = ControlServer(path)
     try:
         server.bind()
     except OSError as error:
         server.close()
-        raise UserError(
-            f"cannot open the control socket {path}: {error.strerror or error} "
-            "(another hermsd on this tun? else choose a place with --socket PATH)"
-        ) from None
+        why = error.strerror or str(error)
+        if isinstance(error, SocketInUseError) and error.errno == errno.EADDRINUSE:
+            hint = (
+                "a simulated hermsd runs: stop it first (Ctrl-C in its terminal), or give this "
+                "one --socket PATH"
+                if simulated
+                else "another hermsd on this tun? else choose a place with --socket PATH"
+            )
+        elif error.errno == errno.ENOENT and not path.parent.is_dir():
+            why = f"its directory {path.parent} does not exist"
+            hint = (
+                f"the service's RuntimeDirectory= makes it; by hand: `sudo install -d -o "
+                f"hermsd -g hermsd -m 0750 {path.parent}`, or choose a place with --socket PATH"
+            )
+        elif error.errno in (errno.EACCES, errno.EPERM):
+            hint = (
+                f"run as a user who may write in {path.parent}, or choose a place with "
+                "--socket PATH"
+            )
+        else:
+            hint = "choose a place with --socket PATH"
+        raise UserError(f"cannot open the control socket {path}: {why} ({hint})") from None
     return server
 
 
@@ -305,7 +342,10 @@ def _serve_control(daemon: Daemon, server: ControlServer) -> None:
     server.answer_with(link.status_line, link.history_line, link.arrived)
     server.start()
     link.attach(server)
-    print(f"control socket {server.path}", flush=True)
+    where = f"control socket {server.path}"
+    if server.path == simulated_socket_path():
+        where += " (hermsd status, set, web and mqtt find it)"
+    print(where, flush=True)
 
 
 def _hardware(

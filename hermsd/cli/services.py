@@ -6,10 +6,10 @@ from __future__ import annotations
 import argparse
 import signal
 
-from hermsd.api.client import default_socket_path
 from hermsd.cli.common import (
     UserError,
     config_path,
+    control_socket,
 )
 from hermsd.config import read
 from hermsd.runtime.instance import InstanceError
@@ -28,7 +28,7 @@ def cmd_web(args: argparse.Namespace) -> int:
             return web.print_hash()
         path = config_path(args.config, simulate=False)
         assert path is not None
-        return web.run(read.load(path), default_socket_path(args.socket), args.listen)
+        return web.run(read.load(path), control_socket(args.socket), args.listen)
     except web.WebSetupError as error:
         raise UserError(str(error)) from None
 
@@ -48,7 +48,7 @@ def cmd_mqtt(args: argparse.Namespace) -> int:
     assert path is not None
     config = read.load(path)
     try:
-        bridge = Bridge(config, default_socket_path(args.socket))
+        bridge = Bridge(config, control_socket(args.socket))
     except BridgeError as error:
         raise UserError(str(error)) from None
     for signum in (signal.SIGTERM, signal.SIGINT):

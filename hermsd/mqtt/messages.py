@@ -165,7 +165,7 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         "identifiers": [f"hermsd_{node}"],
         "name": f"hermsd {config.tun.name}",
         "manufacturer": "hermsd",
-        "model": "HERMS Hot Liquid Tun controller",
+        "model": "HERMS Hot Liquor Tank controller",
         "sw_version": __version__,
     }
     low, high = setpoint_range(config)

@@ -1,4 +1,4 @@
-"""The Hot Liquid Tun as a plant, integrated exactly between input changes.
+"""The Hot Liquor Tank as a plant, integrated exactly between input changes.
 
 The SSR switches at arbitrary instants inside a control period, so the heater's power is
 piecewise constant. Between two changes (an SSR edge reaching the water, a new ambient, water

@@ -1,0 +1,109 @@
+#!/usr/bin/env bash
+# Follows the install in docs/raspberry-pi.md section 8 (and the config and unit lines of
+# sections 9 and 10), as written, in a Debian bookworm root of another architecture under
+# emulation, as a user "pi" with sudo, and says how long each step took.
+#
+#   sudo scripts/pi-install-check.sh arm64|armhf [ROOT_DIR]
+#
+# Needs root on a Debian or Ubuntu machine (debootstrap, qemu-user-static and binfmt-support
+# are apt-installed if missing) and the network (Debian's mirror, PyPI, astral.sh). Slow:
+# every program in the root runs emulated, and on armhf the install compiles cffi, zstandard,
+# lz4 and PyYAML; allow an hour or more. Not run by CI.
+#
+# Each command is first looked up in the docs or the README (`doc`): one the docs no longer say stops the
+# check, so the script cannot drift from what a brewer is told to type.
+set -euo pipefail
+
+arch=${1:-}
+case "$arch" in
+  arm64) qemu=qemu-aarch64-static ;;
+  armhf) qemu=qemu-arm-static ;;
+  *) echo "usage: $0 arm64|armhf [ROOT_DIR]" >&2; exit 2 ;;
+esac
+[ "$(id -u)" -eq 0 ] || { echo "$0: run as root (debootstrap, mount, chroot)" >&2; exit 2; }
+checkout=$(cd "$(dirname "$0")/.." && pwd)
+docs="$checkout/docs/raspberry-pi.md"
+root=${2:-/var/tmp/hermsd-pi-$arch}
+
+missing=()
+command -v debootstrap >/dev/null || missing+=(debootstrap)
+command -v "$qemu" >/dev/null || missing+=(qemu-user-static)
+[ -e /usr/sbin/update-binfmts ] || missing+=(binfmt-support)
+if [ "${#missing[@]}" -gt 0 ]; then
+  apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}"
+fi
+[ -d /proc/sys/fs/binfmt_misc ] && ! mountpoint -q /proc/sys/fs/binfmt_misc \
+  && mount -t binfmt_misc binfmt_misc /proc/sys/fs/binfmt_misc
+update-binfmts --enable >/dev/null 2>&1 || true
+
+step() { printf '\n== %s\n' "$*"; SECONDS=0; }
+took() { printf '   (%d min %02d s)\n' $((SECONDS / 60)) $((SECONDS % 60)); }
+
+if [ ! -x "$root/usr/bin/python3" ]; then
+  step "debootstrap bookworm $arch into $root"
+  debootstrap --arch="$arch" --include=ca-certificates,curl,sudo,git,python3,systemd \
+    bookworm "$root" http://deb.debian.org/debian
+  took
+fi
+
+cleanup() { for m in dev/pts dev sys proc; do umount -l "$root/$m" 2>/dev/null || true; done; }
+trap cleanup EXIT
+mount -t proc proc "$root/proc"
+mount --rbind /sys "$root/sys"
+mount --rbind /dev "$root/dev"
+cp /etc/resolv.conf "$root/etc/resolv.conf"
+
+# The brewer: a login with sudo, the checkout in its home (the environment goes to /opt).
+chroot "$root" sh -c 'id pi >/dev/null 2>&1 || useradd --create-home --shell /bin/bash pi'
+echo 'pi ALL=(ALL) NOPASSWD: ALL' >"$root/etc/sudoers.d/pi"
+# No one answers apt's question here: the docs' `sudo apt install ...` as written, answered yes.
+echo 'APT::Get::Assume-Yes "true";' >"$root/etc/apt/apt.conf.d/90hermsd-check"
+rm -rf "$root/home/pi/hermsd-checkout"
+mkdir -p "$root/home/pi/hermsd-checkout"
+git -C "$checkout" archive HEAD | tar -x -C "$root/home/pi/hermsd-checkout"
+chroot "$root" chown -R pi:pi /home/pi/hermsd-checkout
+
+# `doc CMD`: CMD's first line must be in the docs, then it runs as pi in the checkout.
+doc() {
+  local first=${1%%$'\n'*}
+  grep -qF -- "${first%% \\*}" "$docs" "$checkout/README.md" \
+    || { echo "not in $docs nor README.md: $first" >&2; exit 1; }
+  step "$1"
+  chroot "$root" sudo -u pi -i bash -c "set -euo pipefail; cd ~/hermsd-checkout; \
+    export PATH=\$HOME/.local/bin:\$PATH; $1"
+  took
+}
+
+doc 'curl -LsSf https://astral.sh/uv/install.sh | sh'
+if [ "$arch" = armhf ]; then
+  doc 'sudo apt install build-essential python3-dev libffi-dev'
+fi
+doc 'for group in i2c dialout gpio; do
+    getent group $group >/dev/null || sudo groupadd --system $group
+done'
+doc 'sudo useradd --system --no-create-home --shell /usr/sbin/nologin \
+    --groups i2c,dialout,gpio hermsd'
+doc 'sudo usermod -aG hermsd $USER'
+doc 'uv export --frozen --no-default-groups --no-emit-project --no-hashes --extra gpio \
+    -o /tmp/hermsd-constraints.txt'
+doc 'sudo env UV_TOOL_DIR=/opt/hermsd UV_TOOL_BIN_DIR=/usr/local/bin \
+    "$(command -v uv)" tool install --python /usr/bin/python3 \
+    --constraints /tmp/hermsd-constraints.txt .'
+doc 'sudo install -d -m 0755 /etc/hermsd'
+doc 'sudo install -m 0640 -o root -g hermsd config/hermsd.yaml /etc/hermsd/hermsd.yaml'
+doc 'hermsd check-config /etc/hermsd/hermsd.yaml'
+
+step "checks"
+chroot "$root" sh -ec '
+  test "$(command -v hermsd)" = /usr/local/bin/hermsd
+  install -m 0644 /home/pi/hermsd-checkout/systemd/hermsd.service /etc/systemd/system/
+  systemd-analyze verify --man=no /etc/systemd/system/hermsd.service
+  for example in /home/pi/hermsd-checkout/config/examples/*.yaml; do
+    hermsd check-config "$example" >/dev/null
+  done
+  sudo -u hermsd hermsd simulate --json >/dev/null
+  echo "installed: $(hermsd --help | head -n 1)"
+'
+took
+echo "pi-install-check: $arch install as docs/raspberry-pi.md says it: OK"
