@@ -67,7 +67,10 @@ setpoints against the running config at the boundary); `program` and `confirm` c
 are answered like `set`. A `set` or `reset-alarm` is checked
 against the running config as strictly as the config file is, applied at the next control
 period boundary, logged as an operator action, and answered after that boundary with the
-same fields as `status` (so the reply shows the change in force).
+same fields as `status` (so the reply shows the change in force); the reply to
+`reset-alarm` also has `reset`: `cleared` (the latched alarms it cleared), `standing` (each
+alarm still standing: why, in words; an alarm that does not latch clears by itself, not by a
+reset) and `text`, the two in one line (hermsd/safety/reset_outcome.py).
 
 `history` pages through the periods of the last 24 hours, kept in memory by the daemon for
 the web page's chart (`hermsd/api/history.py`), and is answered at once like `status`:
