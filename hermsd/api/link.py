@@ -356,6 +356,7 @@ class LoopLink:
                 sensor_faults=role_faults(snapshot.roles),
             ),
             "heater_allowed": record.heater_allowed,
+            "setpoint_limits": setpoint_limits(snapshot.config),
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {
                 "gain": model.gain,
@@ -384,6 +385,13 @@ class LoopLink:
             **(snapshot.roles or {"mash": None, "coil": None}),
             "pump": record.pump,
         }
+
+
+def setpoint_limits(config: Config) -> dict[str, float]:
+    """The setpoints the daemon takes: from `min` to `max` °C and `below` the cut-out
+    (safety.max_temp), as its running config checks them (the thermostat card's range)."""
+    low, high = read.key_range("control.setpoint")
+    return {"min": low, "max": high, "below": config.safety.max_temp}
 
 
 def role_faults(roles: dict[str, dict[str, object] | None] | None) -> tuple[str, ...]:

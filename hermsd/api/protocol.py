@@ -38,7 +38,8 @@ when none is fitted), `applied` (% the SSR was driven at in the period before),
 `mode`, `manual_output`, `state` ("ok"; "manual"; "alarm": an alarm holds the heater off;
 "waiting": off until the sensor is trusted; "scheduled": off until a mash program's
 `ready_by` heat-up is due to start), `alarms`, `alarm_reasons` (each alarm's message, by its
-kind), `heater_allowed`, `limits` (the safety limits in
+kind), `heater_allowed`, `setpoint_limits` (`min`, `max`: the setpoints taken, °C, and `below`:
+a setpoint must be below it, the running `safety.max_temp`), `limits` (the safety limits in
 force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,
 dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured" (by
 `hermsd tune`, kept in the config) or "prior" (the config's tun, before either)),
