@@ -53,6 +53,7 @@ from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
 from hermsd.safety.latches import LatchedAlarm, Latches, LatchStore
 from hermsd.sim.clock import VirtualClock
+from hermsd.sim.hlt import FoptdPlant
 from hermsd.sim.world import build_world
 
 NOBODY = 65534
@@ -268,6 +269,42 @@ def test_reset_alarm_clears_only_the_alarms_the_brewer_saw(tmp_path: Path) -> No
     assert not events.periods[-1].heater_allowed
     assert "operator: reset-alarm ssr_stuck_on (from the control socket)" in events.logged()
     assert [alarm.kind for alarm in store.load().alarms] == ["dry_fire"]
+
+
+def test_a_reset_says_what_it_cleared_and_that_a_hot_over_temperature_stands(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Water at 97 °C over the 95 °C cut-out and a latched SSR alarm: the reset clears the
+    latched one, and says the over-temperature stands, does not latch, and clears below
+    95 − 5 = 90 °C; not "done" over a heater that stays off. The command line shows the same."""
+    store = LatchStore(tmp_path / "state")
+    store.directory.mkdir()
+    store.save(Latches((LatchedAlarm("ssr_stuck_on", 0, "rose 2 °C beyond the heat given"),), 0))
+    daemon, _path, events, inbox = linked(tmp_path, latches=store, tun=FoptdPlant(start_c=97.0))
+    assert events.periods[-1].alarms == ["over_temperature", "ssr_stuck_on"]
+
+    pending = inbox.send(ResetAlarms(("over_temperature", "ssr_stuck_on")))
+    run_for(daemon, PERIOD)
+
+    assert pending.reply is not None and pending.reply["alarms"] == ["over_temperature"]
+    reset = pending.reply["reset"]
+    assert reset["cleared"] == ["ssr_stuck_on"]
+    assert list(reset["standing"]) == ["over_temperature"]
+    why = reset["standing"]["over_temperature"]
+    assert why.startswith("does not latch, so no reset clears it: it clears by itself once the "
+                          "water is below 90 °C (")  # fmt: skip
+    assert "at or above the limit 95.0 °C" in why
+    assert reset["text"] == (
+        "reset: cleared ssr_stuck_on; still standing, the heater stays off: "
+        f"over_temperature: {why}"
+    )
+
+    with serve(daemon, tmp_path / "control.sock"):
+        assert main(["reset-alarm", "--socket", os.fspath(tmp_path / "control.sock")]) == 0
+    said = capsys.readouterr().out
+    assert said.startswith("reset: cleared none; still standing, the heater stays off: "
+                           "over_temperature: does not latch")  # fmt: skip
+    assert "done" not in said
 
 
 def test_status_holds_the_period_the_limits_in_force_and_the_model(tmp_path: Path) -> None:

@@ -55,7 +55,8 @@ PREFIX = "brewery/hlt"
 # What Home Assistant accepts (its MQTT climate, sensor and binary_sensor schemas).
 HA_HVAC_MODES = {"auto", "off", "cool", "heat", "dry", "fan_only", "heat_cool"}
 HA_ACTIONS = {"off", "heating", "cooling", "drying", "idle", "fan", "preheating", "defrosting"}
-HA_COMPONENTS = {"climate", "sensor", "binary_sensor"}
+HA_COMPONENTS = {"climate", "sensor", "binary_sensor", "button", "event"}
+ENTITIES = 23  # without a program folder: no program select, no start button
 
 
 def free_port() -> int:
@@ -278,7 +279,7 @@ def test_discovery_gives_home_assistant_a_climate_entity_sensors_and_an_alarm(ri
     node = "brewery_hlt"
     components = {topic.split("/")[1] for topic in entities}
     assert components == HA_COMPONENTS
-    assert len(entities) == 12
+    assert len(entities) == ENTITIES
     # no second element here: its entity, if an earlier config made one, is removed
     removed = f"homeassistant/sensor/{node}/output2/config"
     assert removed not in entities
@@ -300,8 +301,14 @@ def test_discovery_gives_home_assistant_a_climate_entity_sensors_and_an_alarm(ri
         # every template picks a field that the state holds
         for key, value in entity.items():
             if key.endswith("_topic") and not key.endswith("command_topic"):
-                assert value in (rig.topics.state, rig.topics.availability), key
-            if key.endswith("template"):
+                brewday = rig.bridge.brewday
+                assert value in (
+                    rig.topics.state,
+                    rig.topics.availability,
+                    brewday.result,
+                    brewday.event,
+                ), key
+            if key.endswith("template") and entity.get("state_topic") == rig.topics.state:
                 for field in re.findall(r"value_json\.(\w+)", value):
                     assert field in state, (topic, field)
     assert len(ids) == len(entities)
@@ -348,7 +355,7 @@ def test_home_assistant_back_online_is_told_everything_again(rig: Rig) -> None:
     discovered(rig.watcher)
     mark = len(rig.watcher.messages)
     rig.command(rig.topics.home_assistant_status, b"online")  # Home Assistant's birth message
-    assert len(discovered(rig.watcher, mark)) == 12
+    assert len(discovered(rig.watcher, mark)) == ENTITIES
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.availability, mark)
 
 
@@ -521,7 +528,7 @@ def test_a_broker_restart_is_survived_and_everything_published_again(rig: Rig) -
     rig.broker.start()  # on the same port, with no retained message left
     rig.watcher = Watcher(rig.broker.port)
     entities = discovered(rig.watcher)  # retained, or live once the bridge is back
-    assert len(entities) == 12
+    assert len(entities) == ENTITIES
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.availability and m.payload == b"online")
     rig.watcher.wait_for(lambda m: m.topic == rig.topics.state)
     rig.step()  # and the next period's state too

@@ -11,7 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from test_mqtt import PREFIX, Rig, discovered, operator_lines, step_until
+from test_mqtt import ENTITIES, PREFIX, Rig, discovered, operator_lines, step_until
 from test_reload import BASE, HERMS, doughed_in
 
 from hermsd.config import read
@@ -39,7 +39,7 @@ def herms(tmp_path: Path) -> Iterator[Rig]:
 def test_a_herms_announces_a_mash_temperature_sensor_and_a_pump_switch(herms: Rig) -> None:
     entities = discovered(herms.watcher)
     state = herms.step().json()
-    assert len(entities) == 16  # the HLT's twelve, the mash's three sensors, the pump's switch
+    assert len(entities) == ENTITIES + 4  # the HLT's, the mash's three sensors, the pump's
     for topic in (MASH, HLT_SETPOINT, PHASE, SWITCH):
         entity = entities[topic]
         object_id = topic.split("/")[3]

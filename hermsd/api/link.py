@@ -58,6 +58,7 @@ from hermsd.runtime.mash_side import NO_PUMP
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import no_heat_words
 from hermsd.safety.limits import SafetyLimits, format_limits
+from hermsd.safety.reset_outcome import reset_outcome
 
 SOURCE = "control socket"
 SEEN_S = 1.0
@@ -140,6 +141,7 @@ class LoopLink:
         self._encoded: tuple[Snapshot, bytes] | None = None
         self._encode_lock = threading.Lock()
         self._answering: list[Pending] = []
+        self._latched_before: dict[int, list[str]] = {}  # a reset's pending: what was latched
         self._runtime: set[str] = set()  # keys set at runtime since the file last changed them
         self._config = daemon.config
         self._period = daemon.config.control.period  # fixed until a restart
@@ -158,6 +160,8 @@ class LoopLink:
             return
         for pending in self.server.take():
             problems = self._problems(pending.command)
+            if isinstance(pending.command, ResetAlarms):
+                self._latched_before[id(pending)] = self.daemon.supervisor.latched
             if not problems:
                 try:
                     self._apply(pending.command, t)
@@ -199,10 +203,24 @@ class LoopLink:
             for pending in self._answering:
                 if pending.reply is None:
                     reply = reply or self._status_message(self._snapshot)
-                    pending.reply = reply
+                    pending.reply = self._reset_reply(pending, reply)
             self._answering = []
+            self._latched_before.clear()
             if self.server is not None:
                 self.server.wake()
+
+    def _reset_reply(self, pending: Pending, status: dict[str, Any]) -> dict[str, Any]:
+        """The status, and for a reset what it cleared and what stands and why."""
+        command = pending.command
+        if not isinstance(command, ResetAlarms) or self._snapshot is None:
+            return status
+        outcome = reset_outcome(
+            command.kinds,
+            self._latched_before.get(id(pending), []),
+            self._snapshot.reasons,
+            self._snapshot.limits,
+        )
+        return {**status, "reset": outcome.as_reply()}
 
     def alarm(self, alarm: object) -> None:
         """Alarms show in the next snapshot's record."""
@@ -338,6 +356,7 @@ class LoopLink:
                 sensor_faults=role_faults(snapshot.roles),
             ),
             "heater_allowed": record.heater_allowed,
+            "setpoint_limits": setpoint_limits(snapshot.config),
             "limits": format_limits(snapshot.limits, record.setpoint),
             "model": {
                 "gain": model.gain,
@@ -366,6 +385,13 @@ class LoopLink:
             **(snapshot.roles or {"mash": None, "coil": None}),
             "pump": record.pump,
         }
+
+
+def setpoint_limits(config: Config) -> dict[str, float]:
+    """The setpoints the daemon takes: from `min` to `max` °C and `below` the cut-out
+    (safety.max_temp), as its running config checks them (the thermostat card's range)."""
+    low, high = read.key_range("control.setpoint")
+    return {"min": low, "max": high, "below": config.safety.max_temp}
 
 
 def role_faults(roles: dict[str, dict[str, object] | None] | None) -> tuple[str, ...]:

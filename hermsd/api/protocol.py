@@ -38,7 +38,8 @@ when none is fitted), `applied` (% the SSR was driven at in the period before),
 `mode`, `manual_output`, `state` ("ok"; "manual"; "alarm": an alarm holds the heater off;
 "waiting": off until the sensor is trusted; "scheduled": off until a mash program's
 `ready_by` heat-up is due to start), `alarms`, `alarm_reasons` (each alarm's message, by its
-kind), `heater_allowed`, `limits` (the safety limits in
+kind), `heater_allowed`, `setpoint_limits` (`min`, `max`: the setpoints taken, °C, and `below`:
+a setpoint must be below it, the running `safety.max_temp`), `limits` (the safety limits in
 force, one line each), `model` (the controller's model of the tun: gain °C/%, tau s,
 dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured" (by
 `hermsd tune`, kept in the config) or "prior" (the config's tun, before either)),
@@ -67,7 +68,10 @@ setpoints against the running config at the boundary); `program` and `confirm` c
 are answered like `set`. A `set` or `reset-alarm` is checked
 against the running config as strictly as the config file is, applied at the next control
 period boundary, logged as an operator action, and answered after that boundary with the
-same fields as `status` (so the reply shows the change in force).
+same fields as `status` (so the reply shows the change in force); the reply to
+`reset-alarm` also has `reset`: `cleared` (the latched alarms it cleared), `standing` (each
+alarm still standing: why, in words; an alarm that does not latch clears by itself, not by a
+reset) and `text`, the two in one line (hermsd/safety/reset_outcome.py).
 
 `history` pages through the periods of the last 24 hours, kept in memory by the daemon for
 the web page's chart (`hermsd/api/history.py`), and is answered at once like `status`:

@@ -372,6 +372,12 @@ def _parser() -> argparse.ArgumentParser:
         "mqtt", help="bridge the daemon to an MQTT broker and Home Assistant (docs/mqtt.md)"
     )
     mqtt.add_argument("--config", type=Path, help=f"config file (default {DEFAULT_CONFIG})")
+    mqtt.add_argument(
+        "--programs",
+        type=Path,
+        metavar="DIR",
+        help="the program files Home Assistant may start (default: programs/ beside the config)",
+    )
     _socket_argument(mqtt)
     mqtt.set_defaults(func=cmd_mqtt)
     return parser

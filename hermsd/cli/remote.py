@@ -52,7 +52,7 @@ def cmd_reset_alarm(args: argparse.Namespace) -> int:
         return 0
     # Only what was seen here: an alarm raised in between stays, to be read first.
     reply = _ask(socket_path, ResetAlarms(tuple(seen)))
-    print(f"reset: {', '.join(seen)}; now: {', '.join(reply['alarms']) or 'no alarm'}")
+    print(reply["reset"]["text"])  # what was cleared, what stands and why
     return 0
 
 

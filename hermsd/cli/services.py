@@ -48,7 +48,8 @@ def cmd_mqtt(args: argparse.Namespace) -> int:
     assert path is not None
     config = read.load(path)
     try:
-        bridge = Bridge(config, control_socket(args.socket))
+        programs = args.programs or path.parent / "programs"
+        bridge = Bridge(config, control_socket(args.socket), programs=programs)
     except BridgeError as error:
         raise UserError(str(error)) from None
     for signum in (signal.SIGTERM, signal.SIGINT):

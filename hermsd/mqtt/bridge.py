@@ -21,6 +21,7 @@ daemon does not answer, the availability turns "offline" and the polls back off 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import ssl
@@ -39,6 +40,7 @@ from hermsd.api.protocol import Status, describe
 from hermsd.api.server import RequestLimit
 from hermsd.config.schema import Config
 from hermsd.files import NotRegularFile, read_regular
+from hermsd.mqtt import brewday
 from hermsd.mqtt.messages import (
     OFFLINE,
     ONLINE,
@@ -78,16 +80,24 @@ class Bridge:
         *,
         poll: float = POLL,
         broker_retry: tuple[int, int] = BROKER_RETRY,
+        programs: Path | None = None,
     ) -> None:
+        """`programs`: the folder of program files Home Assistant may start (None: none)."""
         settings = config.mqtt
         self.config = config
         self.socket_path = socket_path
         self.poll = poll
         self.topics = Topics.of(settings.topic_prefix, settings.discovery_prefix)
-        self._discovery = [
-            (topic, b"" if payload is None else encode(payload))
-            for topic, payload in discovery_messages(self.topics, config)
-        ]
+        self.brewday = brewday.BrewdayTopics.of(settings.topic_prefix)
+        # The config commands are checked against: the file's, with the daemon's running
+        # cut-out once it answers (its setpoints are the thermostat card's range).
+        self.checked = config
+        self._programs_dir = programs
+        self._programs = brewday.list_programs(programs)
+        self._chosen: str | None = None  # the program chosen in the select
+        self._shown_alarms: list[str] = []  # the alarms of the last state published
+        self._news = brewday.News()
+        self._discovery = self._discovery_messages()
         # The latest command of each topic not sent yet: {topic: (payload, command)}, in the
         # order the topics first came. A plain lock: `stop` never takes it twice (see there).
         self._pending: dict[str, tuple[bytes, Command]] = {}
@@ -203,8 +213,33 @@ class Bridge:
             self._set_available(False, str(reply.get("error")))
             return False
         self._set_available(True, "")
+        self._follow_the_daemon(reply)
         self._publish_state(reply)
         return True
+
+    def _discovery_messages(self) -> list[tuple[str, bytes]]:
+        return [
+            (topic, b"" if payload is None else encode(payload))
+            for topic, payload in discovery_messages(self.topics, self.checked, self._programs)
+        ]
+
+    def _follow_the_daemon(self, status: dict[str, Any]) -> None:
+        """Announce again when the daemon's cut-out (the thermostat's range) or the program
+        folder's files have changed."""
+        below = status.get("setpoint_limits", {}).get("below", self.config.safety.max_temp)
+        programs = brewday.list_programs(self._programs_dir)
+        if below == self.checked.safety.max_temp and programs == self._programs:
+            return
+        safety = dataclasses.replace(self.config.safety, max_temp=float(below))
+        self.checked = dataclasses.replace(self.config, safety=safety)
+        self._programs = programs
+        self._discovery = self._discovery_messages()
+        log.info(
+            "announced again: the daemon's cut-out is %g °C, %d programs",
+            below,
+            len(programs or []),
+        )
+        self._announce()
 
     def _send_commands(self) -> None:
         while True:
@@ -239,6 +274,9 @@ class Bridge:
             self._refuse(topic, payload, str(reply.get("error", "refused by hermsd")))
             return
         log.info("applied %s (from mqtt)", describe(command))
+        reset = reply.get("reset")
+        said = reset["text"] if isinstance(reset, dict) else f"{describe(command)}: applied"
+        self._result(topic, True, said)
         self._publish_state(reply)
 
     def _set_available(self, available: bool, why: str) -> None:
@@ -260,6 +298,9 @@ class Bridge:
             self._last_t = status["t"]
             self._state = encode(state_message(status))
             self._publish(self.topics.state, self._state)
+            self._shown_alarms = [str(alarm) for alarm in status["alarms"]]
+            for event in self._news.of(status):  # not retained: a restarted HA would fire it
+                self.client.publish(self.brewday.event, encode(event), QOS, retain=False)
 
     # -- paho's network thread ------------------------------------------------------------
 
@@ -281,6 +322,7 @@ class Bridge:
                 (self.topics.set_mode, QOS),
                 (self.topics.set_pump, QOS),
                 (self.topics.home_assistant_status, QOS),
+                *((topic, QOS) for topic in self.brewday.commands()),
             ]
         )
         self._announce()
@@ -297,6 +339,8 @@ class Bridge:
             self._publish(self.topics.availability, ONLINE if self._available else OFFLINE)
             if self._state is not None:
                 self._publish(self.topics.state, self._state)
+            if self._chosen is not None:
+                self._publish(self.brewday.chosen, self._chosen)
 
     def _on_disconnect(
         self,
@@ -334,8 +378,10 @@ class Bridge:
             )
             return
         try:
-            command = parse_command(self.topics, topic, payload, self.config)
-        except Refused as error:
+            command = self._command(topic, payload)
+            if command is None:
+                return
+        except (Refused, brewday.Refused) as error:
             self._refuse(topic, payload, f"{REFUSED}{error}")
             return
         with self._wake:
@@ -350,6 +396,25 @@ class Bridge:
                 describe(command),
             )
 
+    def _command(self, topic: str, payload: bytes) -> Command | None:
+        """The command a message asks for; None for a program chosen (kept here, not sent)."""
+        if topic == self.brewday.choose:
+            chosen = brewday.choice(payload.decode("utf-8", "replace"), self._programs)
+            with self._lock:
+                self._chosen = chosen
+                self._publish(self.brewday.chosen, chosen)
+            return None
+        if topic in self.brewday.press.values():
+            return brewday.pressed(
+                self.brewday,
+                topic,
+                payload.decode("utf-8", "replace").strip(),
+                alarms=self._shown_alarms,
+                chosen=self._chosen,
+                folder=self._programs_dir,
+            )
+        return parse_command(self.topics, topic, payload, self.checked)
+
     # -- either thread --------------------------------------------------------------------
 
     def _refuse(self, topic: str, payload: bytes, error: str) -> None:
@@ -359,6 +424,12 @@ class Bridge:
         log.warning("mqtt command on %s: %s", topic, error)
         message = {"topic": topic, "payload": shown, "error": error}
         self.client.publish(self.topics.error, encode(message), QOS, retain=False)
+        self._result(topic, False, error)
+
+    def _result(self, topic: str, ok: bool, text: str) -> None:
+        """What became of a command, for the Last command sensor (retained: the last word)."""
+        message = {"topic": topic, "ok": ok, "text": text[: brewday.TEXT_LIMIT]}
+        self.client.publish(self.brewday.result, encode(message), QOS, retain=True)
 
     def _publish(self, topic: str, payload: str | bytes) -> None:
         """A retained message, if connected: what is missed is republished on connection."""

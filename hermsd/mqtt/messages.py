@@ -31,9 +31,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from hermsd import __version__
+from hermsd.api import protocol
 from hermsd.api.protocol import SetMode, SetPump, SetSetpoint
 from hermsd.config import read, rules
 from hermsd.config.schema import Config
+from hermsd.mqtt import brewday
 from hermsd.runtime.mash_side import NO_PUMP
 
 ONLINE = "online"
@@ -45,7 +47,7 @@ _NUMBER = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?
 HA_MODES = {"heat": SetMode("auto"), "off": SetMode("manual", 0.0)}
 PUMP_PAYLOADS = {"ON": SetPump(True), "OFF": SetPump(False)}  # the switch's, HA's defaults
 
-Command = SetSetpoint | SetMode | SetPump
+Command = protocol.Command
 
 
 class Refused(ValueError):
@@ -137,6 +139,7 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "hlt_setpoint": mash.get("hlt_setpoint"),
         "mash_phase": mash.get("phase") or "none",
         "pump": status.get("pump"),
+        **brewday.state_fields(program or None),
     }
 
 
@@ -153,13 +156,16 @@ def setpoint_range(config: Config) -> tuple[float, float]:
     return low, min(high, below_cut_out)
 
 
-def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[str, Any] | None]]:
+def discovery_messages(
+    topics: Topics, config: Config, programs: list[str] | None = None
+) -> list[tuple[str, dict[str, Any] | None]]:
     """(topic, payload) of each entity Home Assistant should make for this tun: a climate
     entity, sensors (the second element's duty when it is fitted; with a mash sensor the
     mash's temperature, the HLT's setpoint the outer loop chose and its phase), the pump's
     switch when one is fitted, and binary sensors on while an alarm
-    stands and while a warning does (the log or a save failing). A payload of None is an
-    entity this config has not: sent empty, it removes one an earlier config made."""
+    stands and while a warning does (the log or a save failing), and the brew day's
+    (hermsd/mqtt/brewday.py; `programs`: the program folder's files). A payload of None is
+    an entity this config has not: sent empty, it removes one an earlier config made."""
     node = topics.node_id
     device = {
         "identifiers": [f"hermsd_{node}"],
@@ -292,6 +298,13 @@ def discovery_messages(topics: Topics, config: Config) -> list[tuple[str, dict[s
         ),
         sensor("alarms", "Alarms", "alarm_text"),
         sensor("warnings", "Warnings", "warning_text"),
+        *brewday.discovery(
+            brewday.BrewdayTopics.of(topics.prefix),
+            topics.discovery,
+            entity,
+            topics.state,
+            programs,
+        ),
         problem("warning", "Warning"),
         problem("alarm", "Alarm"),
     ]

@@ -14,7 +14,8 @@ Routes:
                            {"cmd": "confirm", "step": 0},
                            {"cmd": "program", "action": "next"|"pause"|"resume"|"stop"}
                            ("step", optional with confirm and next: the index of the
-                           step shown, refused by the daemon once another is current)
+                           step shown, refused by the daemon once another is current);
+                           a reset's reply has "reset": what it cleared, what stands, why
     POST /api/program      {"yaml": "<a program file>", "filename": "mash.yaml",
                            "ready_by": "06:30" | null}: the file read and checked here
                            (hermsd.program.model, every problem as FILE:LINE:COL in
@@ -387,7 +388,9 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
         if not reply["ok"]:
             return _error(422, str(reply.get("error", "refused")))
         hub.poke()
-        return _json({"ok": True, "status": page_status(reply)})
+        # A reset's reply says what it cleared and what stands: the page says it, not "done".
+        reset = {"reset": reply["reset"]} if "reset" in reply else {}
+        return _json({"ok": True, "status": page_status(reply), **reset})
 
     async def bad_input(request: Request, error: Exception) -> Response:
         return _error(400, str(error))

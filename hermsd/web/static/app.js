@@ -326,7 +326,10 @@ async function send(command, what, path = "/api/command", button = null) {
   }
   if (response.status === 200) {
     render(response.body.status, 0);
-    say(`${what}: done`, "ok");
+    // A reset says what it cleared and what stands and why: never "done" over a standing alarm.
+    const reset = response.body.reset;
+    if (reset) say(reset.text, Object.keys(reset.standing).length ? "error" : "ok");
+    else say(`${what}: done`, "ok");
     return response;
   }
   if (response.status === 401) {
