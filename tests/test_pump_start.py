@@ -64,13 +64,13 @@ class TracedTun(HermsTun):
             self.started, self.at_start = t, copy.deepcopy(self)
 
 
-def config(pump: str) -> str:
+def config(pump: str, dead_time: float = DEAD_TIME) -> str:
     capacity = 4186.0 * LITRES
     return (
         "output:\n  backend: sim\nlog:\n  dir: null\n"
         f"tun:\n  litres: {LITRES:g}\n  element_watts: {WATTS:g}\n"
         f"control:\n  setpoint: {REST:g}\n  model_gain: {WATTS / (100 * UA_HLT):.4f}\n"
-        f"  model_tau: {capacity / UA_HLT:.0f}\n  dead_time: {DEAD_TIME:g}\n"
+        f"  model_tau: {capacity / UA_HLT:.0f}\n  dead_time: {dead_time:g}\n"
         "mash_sensor:\n  kind: lm92\n  address: 0x49\n"
         "coil_sensor:\n  kind: lm92\n  address: 0x4a\n"
         f"pump:\n  backend: {pump}\n"
@@ -78,7 +78,9 @@ def config(pump: str) -> str:
     )
 
 
-def day(pump: str, events: list[dict[str, Any]]) -> tuple[TracedTun, list[PeriodRecord]]:
+def day(
+    pump: str, events: list[dict[str, Any]], dead_time: float = DEAD_TIME
+) -> tuple[TracedTun, list[PeriodRecord]]:
     """The mash (50 L and 12 kg at 20 °C) doughed in at 45 °C at DOUGH_AT, then `events`."""
     water_c = (45.0 * (4186.0 * 50 + GRAIN_J_PER_KG_K * 12) - GRAIN_J_PER_KG_K * 12 * 20) / (
         4186.0 * 50
@@ -92,7 +94,7 @@ def day(pump: str, events: list[dict[str, Any]]) -> tuple[TracedTun, list[Period
         "events": [{"at": f"{DOUGH_AT:g}s", "dough_in": dough}, *events],
     }
     tun = TracedTun()
-    config_ = parse(config(pump))
+    config_ = parse(config(pump, dead_time))
     result = scenario.run(
         scenario.parse_scenario(doc), config_, outside_plant=tun, keep_records=True
     )
@@ -135,6 +137,15 @@ def test_a_commanded_pump_start_sends_the_load_ahead_and_the_hlt_stays_within_0_
     # WATTS exceeds the coil's 5.8 kW and the HLT's 1 kW of losses at 76 °C.
     held = tun.trace[PUMP_AT]
     assert held - lowest(tun.trace, PUMP_AT, tun.started + AFTER) <= ALLOWED_DROP
+
+
+def test_heat_that_arrives_before_the_models_dead_time_starts_the_pump_then() -> None:
+    """The config's default dead time, 115 s, on this 70 s tun: the heat sent ahead shows
+    in the HLT's reading first, and the pump starts as it does, not 45 s later."""
+    tun, records = day("sim", [{"at": f"{PUMP_AT:g}s", "pump": "on"}], dead_time=115.0)
+    assert PUMP_AT + DEAD_TIME <= tun.started < PUMP_AT + 115.0 - PERIOD
+    ran = next(r for r in records if r.pump)
+    assert ran.pv is not None and ran.pv > (ran.hlt_setpoint or 0.0) + 0.15
 
 
 def test_an_operators_off_cancels_a_start_still_being_prepared() -> None:

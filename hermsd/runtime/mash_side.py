@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, TypedDict
 
 from hermsd.config.schema import ROLE_SENSORS, Config, SafetyConfig
 from hermsd.control import predictive
+from hermsd.control.cascade import HLT_MARGIN
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.hardware.lm92 import SensorError
 from hermsd.program.runner import MashReading
@@ -201,13 +202,17 @@ class MashSide(LoopState):
         )
         return lead if ready and lead is not None else 0.0
 
-    def _pump_due(self, t: float) -> float | None:
+    def _pump_due(self, t: float, pv: float | None) -> float | None:
         """At a period: the prepared pump switched on once its start is due (within half a
-        period); else the s still to go (None: no start pending)."""
+        period), or as soon as the HLT's PV stands HLT_MARGIN above its setpoint (the heat
+        sent ahead arrived before the law's dead time: a model's longer than the tun's
+        would otherwise heat the HLT past its setpoint, over the limit in a climb); else the
+        s still to go (None: no start pending)."""
         due = self._pump_start_at
         if due is None:
             return None
-        if t < due - 0.5 * self.config.control.period:
+        arrived = pv is not None and pv > self.hlt_target() + HLT_MARGIN
+        if t < due - 0.5 * self.config.control.period and not arrived:
             return due - t
         self._pump_start_at = None
         self._switch_pump(True, self._pump_start_reason, t)
@@ -271,7 +276,7 @@ class MashSide(LoopState):
         load fed forward to the law (a prepared pump start's ahead of it, one hermsd does not
         switch as soon as it is seen); without one, the brewer's. A mash reading lost or
         stale holds the HLT at its last setpoint, said when it begins and ends."""
-        pump_in = self._pump_due(t)
+        pump_in = self._pump_due(t, pv)
         control = self._mash_control
         if control is None or pv is None:
             return self.hlt_target()
