@@ -27,9 +27,10 @@ The load at the start is the coil's effective K times the HLT over the mash.
 from __future__ import annotations
 
 import argparse
-import copy
 import dataclasses
 import math
+import sys
+from pathlib import Path
 from typing import Any
 
 import sections  # bench/sections.py, beside this file
@@ -37,7 +38,10 @@ import sections  # bench/sections.py, beside this file
 from hermsd.config.read import parse
 from hermsd.sim import scenario
 from hermsd.sim.hlt import PhysicalPlant
-from hermsd.sim.mash import GRAIN_J_PER_KG_K, HermsTun
+from hermsd.sim.mash import GRAIN_J_PER_KG_K
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from test_pump_start import TracedTun
 
 WATER = 4186.0
 ROOM, DELAY_S, LAG_S, FLOW = 20.0, 60.0, 10.0, 6.0
@@ -81,31 +85,6 @@ FAMILY = (
     SetUp(150, 9000, 150, 70, 18, 45, 66),
     SetUp(120, 2000, 300, 60, 15, 45, 66),
 )
-
-
-class TracedTun(HermsTun):
-    """The plant, its water's temperature noted at every read, and a copy of it kept at
-    the pump's first instant (for full power from there)."""
-
-    __slots__ = ("at_start", "started", "trace")
-
-    def __init__(self, hlt: PhysicalPlant, **mash: float) -> None:
-        super().__init__(hlt, **mash)
-        self.trace: dict[float, float] = {}
-        self.at_start: HermsTun | None = None
-        self.started = math.nan
-
-    def temperature(self, t: float) -> float:
-        self.trace[t] = self.water_temperature(t)
-        return super().temperature(t)
-
-    def set_pump(self, on: bool, t: float) -> None:
-        if on and self.at_start is None:
-            self.started = t
-            super().set_pump(on, t)
-            self.at_start = copy.deepcopy(self)
-            return
-        super().set_pump(on, t)
 
 
 def plant(s: SetUp) -> TracedTun:

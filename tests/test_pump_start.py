@@ -35,21 +35,13 @@ SEEN_OVER_FULL = 1.2  # the seen start's drop against full power from its first 
 
 
 class TracedTun(HermsTun):
-    """The plant with its water's temperature noted at every read, and a copy of itself
-    kept at the pump's first instant."""
+    """A HERMS plant with its water's temperature noted at every read, and a copy of itself
+    kept at the pump's first instant (bench/herms_pump.py's too)."""
 
     __slots__ = ("at_start", "started", "trace")
 
-    def __init__(self) -> None:
-        hlt = PhysicalPlant(
-            litres=LITRES,
-            element_watts=WATTS,
-            ua_w_per_k=UA_HLT,
-            transport_delay_s=60.0,
-            sensor_lag_s=10.0,
-            start_c=REST + 10.0 - 0.15,
-        )
-        super().__init__(hlt, coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
+    def __init__(self, hlt: PhysicalPlant, **mash: float) -> None:
+        super().__init__(hlt, **mash)
         self.trace: dict[float, float] = {}
         self.at_start: HermsTun | None = None
         self.started = math.nan
@@ -93,7 +85,15 @@ def day(
         "plant": {"model": "physical", "litres": LITRES, "element_watts": WATTS},
         "events": [{"at": f"{DOUGH_AT:g}s", "dough_in": dough}, *events],
     }
-    tun = TracedTun()
+    hlt = PhysicalPlant(
+        litres=LITRES,
+        element_watts=WATTS,
+        ua_w_per_k=UA_HLT,
+        transport_delay_s=60.0,
+        sensor_lag_s=10.0,
+        start_c=REST + 10.0 - 0.15,
+    )
+    tun = TracedTun(hlt, coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
     config_ = parse(config(pump, dead_time))
     result = scenario.run(
         scenario.parse_scenario(doc), config_, outside_plant=tun, keep_records=True
