@@ -98,8 +98,11 @@ def test_the_coils_load_is_fed_forward_while_the_pump_runs(
     day: tuple[scenario.Result, Path],
 ) -> None:
     result, _state = day
-    stopped = [r for r in result.records if r.pump is False]
+    stopped = [r for r in result.records if r.pump is False and r.pump_in is None]
     assert stopped and all(r.coil_load == 0.0 and r.cascade == "ready" for r in stopped)
+    # The start hermsd commanded: the load fed a dead time ahead of the pump, which then ran.
+    starting = [r for r in result.records if r.pump_in is not None]
+    assert starting and all(r.pump is False and (r.coil_load or 0.0) > 0.0 for r in starting)
     held = [r for r in pumped(result.records) if r.cascade == "hold"]
     assert held and all(r.coil_load is not None and r.coil_load > 0.0 for r in held[-100:])
 

@@ -115,12 +115,18 @@ def test_a_rest_starts_its_clock_when_the_mash_enters_the_band(
 ) -> None:
     result, plant = mash_in_day
     records = result.records
-    pumped_from = plant.pump_changes[0][0]  # the confirm, at the first period from 10 min
-    assert CONFIRM_AT <= pumped_from < CONFIRM_AT + PERIOD
-    # The rest begins at the next period, the HLT above the rest's setpoint: the outer loop
-    # (a mash sensor is fitted) sets it there for the mash, which this plant's coil ignores.
+    pumped_from = plant.pump_changes[0][0]
+    # The rest begins at the period after the confirm (the first from 10 min), the HLT above
+    # the rest's setpoint: the outer loop (a mash sensor is fitted) sets it there for the
+    # mash, which this plant's coil ignores.
     rest = [r for r in records if r.step_index == 1]
-    assert rest[0].t == pumped_from + PERIOD
+    assert rest[0].t == CONFIRM_AT + PERIOD
+    # Its pump start is prepared: the pump runs at the first period within half a period of
+    # the HLT law's dead time (the load sent ahead, `pump_in`) after the step began.
+    lead = rest[0].pump_in
+    assert lead is not None and lead > PERIOD
+    due = rest[0].t + lead - PERIOD / 2
+    assert due <= pumped_from < due + PERIOD and pumped_from % PERIOD == 0.0
     assert rest[0].hlt_setpoint is not None and rest[0].hlt_setpoint > COIL_C
     assert rest[0].step_left_s is None
     # The mash enters the band 1854.6 s after the pump starts; the first period from there
@@ -140,7 +146,7 @@ def test_the_pump_stays_off_through_mash_in_until_the_brewer_confirms(
     pumped_from = plant.pump_changes[0][0]
     # Never on before the confirm; off again only at the daemon's stop, the day's end.
     assert plant.pump_changes == [(pumped_from, True), (5400.0, False)]
-    before = [r for r in result.records if r.t <= pumped_from]  # the confirm's period too
+    before = [r for r in result.records if r.t < pumped_from]  # the start's preparation too
     assert before and all(r.pump is False for r in before)
     assert all(r.mash == pytest.approx(MASH_C, abs=0.0625) for r in before)  # nothing pumped
     assert all(r.pump is True for r in result.records if r.t > pumped_from)

@@ -14,6 +14,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import sys
 import types
 from collections.abc import Iterator
@@ -233,6 +234,9 @@ def test_the_status_line_and_reply_show_the_mash_and_the_pump() -> None:
     assert roles["coil"] is not None and roles["coil"]["fault"] is None
     daemon.set_pump(True, "by the test")
     run_for(daemon, PERIOD)
+    # Started a dead time on (the HLT law's: control.dead_time, 115 s), the heat sent ahead.
+    assert re.search(r", pump starting in 1[01]\d s, ", daemon.status_text())
+    run_for(daemon, 120.0)
     assert ", pump on, " in daemon.status_text()
 
 
@@ -285,16 +289,24 @@ def test_a_mash_sensor_that_cannot_be_opened_is_a_fault_from_the_start() -> None
     assert periods.records[-1].coil is None and periods.records[-1].mash is not None
 
 
-def test_the_pump_stops_with_the_daemon_and_says_so() -> None:
+@pytest.mark.parametrize(
+    ("running_for", "said"),
+    [
+        (120.0, "pump off: stopped"),  # past the prepared start's dead time: the pump ran
+        (PERIOD, "pump start cancelled: stopped"),  # still being prepared: it never runs
+    ],
+)
+def test_the_pump_stops_with_the_daemon_and_says_so(running_for: float, said: str) -> None:
     plant = LaggingMash()
     daemon, _world = herms_daemon(plant=plant)
     periods = watched(daemon)
     run_for(daemon, PERIOD)
     daemon.set_pump(True, "by the test")
-    run_for(daemon, PERIOD)
+    run_for(daemon, running_for)
     assert daemon.shutdown("stopped")
     assert plant.pump is False and plant.pump_changes[-1][1] is False
-    assert periods.events[-2:] == ["pump off: stopped", "heater off: stopped"]
+    assert periods.events[-2:] == [said, "heater off: stopped"]
+    assert any(on for _, on in plant.pump_changes) == (said == "pump off: stopped")
 
 
 def test_a_herms_config_around_a_plant_without_a_mash_is_refused() -> None:
@@ -395,7 +407,7 @@ def test_the_pump_on_a_gpio_line_starts_off_runs_when_told_and_is_released_off(
     run_for(daemon, PERIOD)
     assert request.values and set(request.values) == {(22, "Value.INACTIVE")}
     daemon.set_pump(True, "by the test")
-    run_for(daemon, 100.0)  # a pump is no heater: the dead-man never stops it
+    run_for(daemon, 220.0)  # a pump is no heater: the dead-man never stops it
     assert outputs.pump is not None and outputs.pump.check() is False
     assert request.values[-1] == (22, "Value.ACTIVE")
     daemon.shutdown()
@@ -418,7 +430,9 @@ def served(tmp_path: Path, text: str = FITTED) -> Iterator[tuple[Daemon, Path, P
 def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    with served(tmp_path) as (_daemon, where, periods):
+    # A long dead time: the start still pending however slowly the commands come.
+    slow = FITTED.replace("setpoint: 70\n", "setpoint: 70\n  dead_time: 600\n")
+    with served(tmp_path, slow) as (_daemon, where, periods):
         sock = ["--socket", os.fspath(where)]
         assert main(["set", "pump", "on", *sock]) == 0
         said = capsys.readouterr().out
@@ -428,25 +442,25 @@ def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
         reply = json.loads(capsys.readouterr().out)
         assert main(["set", "pump", "off", *sock]) == 0
         off = capsys.readouterr().out
-    assert said == "now: setpoint 70 °C, auto, pump on\n"
-    # The mash far below its 70 °C: the HLT set to the limit, 70 + 10 less 0.15 °C margin.
+    # The start is prepared: the pump runs the HLT law's dead time (600 s) after the command.
+    assert said == "now: setpoint 70 °C, auto, pump starting in 600 s\n"
+    # The mash far below its 70 °C: the HLT readied to the limit, 70 + 10 less 0.15 °C.
     assert "HLT 20.00 °C → 79.85 °C, " in status
-    assert ", mash 20.0 → 70.0 °C (climb), pump on, " in status.splitlines()[0]
-    mash = {
-        "celsius": 20.0,
-        "fault": None,
-        "hlt_setpoint": 79.85,
-        "phase": "climb",
-        "warning": None,
-    }
-    assert reply["pump"] is True and reply["mash"] == mash
+    assert re.search(r", mash 20.0 → 70.0 °C \(ready\), pump starting in \d+ s, ", status)
+    assert reply["pump"] is False and 0.0 < reply["mash"]["pump_start_in"] < 600.0
+    assert reply["mash"]["hlt_setpoint"] == 79.85 and reply["mash"]["phase"] == "ready"
+    assert reply["mash"]["warning"] is None
     assert reply["coil"]["fault"] is None and reply["warnings"] == []
     assert off.endswith("pump off\n")
     assert "operator: set pump on (from the control socket)" in periods.events
-    assert "pump on: by the operator (from the control socket)" in periods.events
-    assert "pump off: by the operator (from the control socket)" in periods.events
-    ran = [r.pump for r in periods.records]
-    assert ran[0] is False and True in ran and ran[-1] is False
+    assert (
+        "pump starting in 600 s: by the operator (from the control socket) (the coil's load "
+        "sent ahead to the element)" in periods.events
+    )
+    # The operator's off cancels the start before the pump ever ran.
+    assert "pump start cancelled: by the operator (from the control socket)" in periods.events
+    assert not any(e.startswith("pump on") for e in periods.events)
+    assert all(r.pump is False for r in periods.records)
 
 
 def test_status_shows_the_coil_outlet_on_a_line_of_its_own(

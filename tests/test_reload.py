@@ -50,8 +50,14 @@ def edited(text: str, **values: str) -> str:
 
 
 BASE = edited(SHIPPED, output__backend="sim", log__dir="null")
-HERMS = BASE + "mash_sensor:\n  kind: lm92\n  address: 0x49\npump:\n  backend: sim\n"
-"""BASE with a HERMS's mash sensor and pump (for `start`'s `tun=doughed_in()`)."""
+HERMS = (
+    edited(BASE, control__algorithm="type_a")
+    + "mash_sensor:\n  kind: lm92\n  address: 0x49\npump:\n  backend: sim\n"
+)
+"""BASE with a HERMS's mash sensor and pump (for `start`'s `tun=doughed_in()`), on a PID law:
+no heat is sent ahead of a pump start (predictive's prepared start, docs/herms.md "The pump
+start"), so the pump runs at the period its command arrives, as these tests of the
+commands' ways look for."""
 
 
 def doughed_in() -> HermsTun:

@@ -30,7 +30,7 @@ from hermsd.cli.common import (
 from hermsd.cli.run import (
     _default_state_directory,
 )
-from hermsd.runtime.notify import mash_side_words, role_words, status_line
+from hermsd.runtime.notify import mash_side_words, pump_words, role_words, status_line
 from hermsd.safety.latches import Latches, LatchStore, StateError
 
 if TYPE_CHECKING:
@@ -174,7 +174,7 @@ def cmd_set(args: argparse.Namespace) -> int:
         reply = _ask(args.socket, request)
     except NoDaemonError as error:
         raise Unreachable(str(error)) from None
-    pump = "" if reply.get("pump") is None else f", pump {'on' if reply['pump'] else 'off'}"
+    pump = "" if reply.get("pump") is None else f", {pump_words(reply['pump'], reply.get('mash'))}"
     print(f"now: setpoint {reply['setpoint']:g} °C, {_mode_text(reply)}{pump}")
     return 0
 

@@ -58,6 +58,7 @@ class _Predictive(_Base):
         "_lag",
         "_lag_share",
         "_load",
+        "_load_in",
         "_load_past",
         "_loss",
         "_rate",
@@ -97,8 +98,9 @@ class _Predictive(_Base):
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
         # A heat flow the caller knows (a HERMS coil's draw), in % of full power: the one in
-        # force from now (`_load`) and the one over the period the next step closes.
-        self._load = self._load_past = 0.0
+        # force from `_load_in` s on (`_load`) and the one over the period the next step
+        # closes.
+        self._load = self._load_past = self._load_in = 0.0
 
     @property
     def fit(self) -> HeatUpFit | None:
@@ -142,18 +144,29 @@ class _Predictive(_Base):
         """Where the PV will be once the inputs already sent (still in the dead time) arrive:
         the last `_lag` whole and `_lag_share` of the one before them, under the known load
         (which acts now, not a dead time late)."""
-        inputs, load = self._inputs, self._load
+        inputs, ts, share = self._inputs, self._ts, self._lag_share
         first = len(inputs) - self._lag
-        x = self._estimate + self._drift(self._estimate, inputs[first - 1] - load, self._lag_share)
-        for j in range(first, len(inputs)):
-            x += self._drift(x, inputs[j] - load)
+        load = self._load_over(0.0, share * ts)
+        x = self._estimate + self._drift(self._estimate, inputs[first - 1] - load, share)
+        for n, j in enumerate(range(first, len(inputs))):
+            x += self._drift(x, inputs[j] - self._load_over((share + n) * ts, ts))
         return x
+
+    def _load_over(self, start: float, length: float) -> float:
+        """The known load's mean (% of full power) over `length` s from `start` s on: it acts
+        from `_load_in` s on (a pump start prepared a dead time ahead), the whole of it
+        once it does."""
+        if self._load_in <= start:
+            return self._load
+        acting = (start + length - self._load_in) / length if length > 0.0 else 0.0
+        return self._load * min(max(acting, 0.0), 1.0)
 
     def _holding(self, sp: float) -> float:
         """The duty that holds `sp` by the model and its bias (may lie outside the limits),
         the known load added: the feed-forward."""
         hold = 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
-        return hold + self._load if self._load else hold
+        load = self._load_over(self._dead_time, self._ts)  # when this duty's heat arrives
+        return hold + load if load else hold
 
     def _law(self, sp: float, full: bool = False) -> float:
         """P on the predicted error plus the holding duty (D apart)."""
@@ -200,7 +213,7 @@ class _Predictive(_Base):
             bias += miss / slope
         self._bias = bias if abs(bias) <= self._rate else 0.0
         # The first step's model prediction lands on pv0: no innovation from the start itself.
-        self._load_past = self._load
+        self._load_past = self._load_over(0.0, self._ts)
         self._estimate = pv0 - self._drift(pv0, u0 - self._load)
 
     def _advance(self, sp: float, pv: float, previous: float) -> float:
@@ -209,7 +222,7 @@ class _Predictive(_Base):
         inputs.append(previous)
         self._watch_heat_up(sp, pv, previous, inputs[-2])
         # The load of the period just ended is the model's, not an error for the bias to learn.
-        past, self._load_past = self._load_past, self._load
+        past, self._load_past = self._load_past, self._load_over(0.0, self._ts)
         before = self._estimate + self._drift(self._estimate, self._arriving() - past)
         innovation = pv - before
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
@@ -352,20 +365,33 @@ def cold_water_seen(controller: Controller) -> None:
         controller._cold_water = True
 
 
-def known_load(controller: Controller, watts: float, element_watts: float) -> None:
-    """Tell `controller` (predictive) the heat flow `watts` drawn from the water from now on
-    besides its losses (a HERMS coil's load, W; negative when it gives heat back), of an
-    element of `element_watts`: its model and observer take it as a duty of
-    watts/element_watts·100 % taken off the element's, so the holding duty rises by that at
-    once (feed-forward: the loop does not wait for the sensor to show the load) and the bias
-    does not learn it as a loss. 0 is no load: the law is then exactly the one without."""
+def known_load(
+    controller: Controller, watts: float, element_watts: float, starts_in: float = 0.0
+) -> None:
+    """Tell `controller` (predictive) the heat flow `watts` drawn from the water besides its
+    losses from `starts_in` s on (a HERMS coil's load, W; negative when it gives heat back),
+    of an element of `element_watts`: its model and observer take it as a duty of
+    watts/element_watts·100 % taken off the element's, so the holding duty rises by that for
+    the heat that arrives once it acts (feed-forward: the loop does not wait for the sensor
+    to show the load; a load a dead time ahead is met by heat sent now), the prediction
+    counts it from when it acts, and the bias does not learn it as a loss. 0 is no load: the
+    law is then exactly the one without."""
     if isinstance(controller, _Predictive):
         if not (math.isfinite(watts) and math.isfinite(element_watts) and element_watts > 0.0):
             raise ValueError(
                 f"load {watts!r} W of an element of {element_watts!r} W is invalid: "
                 "must be finite, the element's power > 0"
             )
+        if not (math.isfinite(starts_in) and starts_in >= 0.0):
+            raise ValueError(f"a load starting in {starts_in!r} s is invalid: must be ≥ 0 s")
         controller._load = 100.0 * watts / element_watts
+        controller._load_in = starts_in
+
+
+def dead_time(controller: Controller) -> float | None:
+    """The dead time (s) predictive's model holds between its duty and the PV's answer (None
+    for the other forms): how far ahead of a load the heat that meets it must be sent."""
+    return controller._dead_time if isinstance(controller, _Predictive) else None
 
 
 def predicted_pv(controller: Controller) -> float | None:

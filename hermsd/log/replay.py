@@ -455,7 +455,9 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
             controller.on2, controller.free2 = record.on2, record.free2
         try:
             if record.coil_load is not None and watched is not None:  # the HERMS's outer loop
-                known_load(controller, record.coil_load, total_watts(watched))
+                known_load(
+                    controller, record.coil_load, total_watts(watched), record.pump_in or 0.0
+                )
             if record.reset_from is not None:
                 controller.reset(record.pv, record.reset_from)
                 known = True

@@ -244,10 +244,15 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "the outer loop's phase (null: no mash sensor)",
                     enum=["climb", "coast", "hold", "ready", "no flow", "held", "strike", None],
                 ),
+                "pump_in": _field(
+                    ["number", "null"],
+                    "s until a prepared pump start: the coil_load fed forward begins then "
+                    "(null: none pending)",
+                ),
             },
             optional=(
                 *("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
-                *("mash", "coil", "pump", "hlt_setpoint", "coil_load", "cascade"),
+                *("mash", "coil", "pump", "hlt_setpoint", "coil_load", "cascade", "pump_in"),
             ),
         ),
     ),

@@ -37,6 +37,7 @@ class MashControl:
         self.flow = flow
         self.element_watts = element_watts
         self.decision: Decision | None = None  # None until the first period with a PV
+        self.load_in = 0.0  # s until the load fed forward begins (a prepared pump start)
 
     def period(
         self,
@@ -49,14 +50,19 @@ class MashControl:
         pump: bool,
         pump_known: bool,
         applied: float,
+        pump_in: float | None = None,
     ) -> Decision:
         """One control period, before the HLT law's step: the coil's estimator fed the
-        period just ended (only with a pump hermsd switches: one run by hand may stand, and
-        a K learned while it did would be none), the flow through the coil judged from it
-        (while none flows nothing is learned of K, the outer loop takes the pump as stopped,
-        and the mash's losses it learned since the flow stopped are forgotten), the outer
-        loop stepped (on the law's predicted PV where it has one: the heat already sent
-        counted), the coil's load fed forward to the law."""
+        period just ended (only with a pump hermsd switches or sees: one run by hand unseen
+        may stand, and a K learned while it did would be none), the flow through the coil
+        judged from it (while none flows nothing is learned of K, the outer loop takes the
+        pump as stopped, and the mash's losses it learned since the flow stopped are
+        forgotten), the outer loop stepped (on the law's predicted PV where it has one: the
+        heat already sent counted), the coil's load fed forward to the law. `pump_in`: a
+        pump start prepared, due in so many s: the load it will draw, K (its estimate, not
+        one sd low: half the pull unmet would be the prior's) times the HLT over the mash,
+        told the law now to begin then, so the heat sent meanwhile arrives as the load
+        begins."""
         known = pump and pump_known
         exchange = self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known)
         coil = self.coil.estimate()
@@ -68,18 +74,33 @@ class MashControl:
             if changed and self.flow.loss_before is not None:
                 self.cascade.mash_loss = self.flow.loss_before
         ahead = predictive.predicted_pv(controller)
+        hlt = hlt_pv if ahead is None else ahead
         decision = self.cascade.step(
             mash_sp=mash_sp,
             mash_pv=mash_pv,
             mash_age=mash_age,
-            hlt_pv=hlt_pv if ahead is None else ahead,
+            hlt_pv=hlt,
             pump=pump,
             coil=coil,
             flowing=not self.flow.stuck,
         )
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
-        predictive.known_load(controller, decision.load_watts, self.element_watts)
+        elif decision.load_watts > 0.0 and coil.low > 0.0:
+            # K's estimate, not one sd low: the prior's low is half the pull, met late, and
+            # the step down to the day's low once a block is learned is the HLT's heat in
+            # flight seen as too much (the margin over the setpoint then cuts the whole load
+            # off and the element with it); that margin still stops a load the coil does
+            # not draw.
+            load = decision.load_watts * coil.conductance / coil.low
+            decision = dataclasses.replace(decision, load_watts=load)
+        starts_in = 0.0
+        if pump_in is not None and mash_pv is not None and decision.held is None:
+            prepared = max(0.0, coil.conductance * (hlt - mash_pv))
+            decision = dataclasses.replace(decision, load_watts=prepared)
+            starts_in = pump_in
+        predictive.known_load(controller, decision.load_watts, self.element_watts, starts_in)
+        self.load_in = starts_in
         self.decision = decision
         return decision
 
@@ -90,6 +111,7 @@ class MashControl:
         HLT to the limit above the strike: heat that coasts the mash past its first rest."""
         self.decision = Decision(setpoint, 0.0, STRIKE)
         predictive.known_load(controller, 0.0, self.element_watts)
+        self.load_in = 0.0
         return self.decision
 
 

@@ -16,6 +16,8 @@ import math
 from typing import TYPE_CHECKING, TypedDict
 
 from hermsd.config.schema import ROLE_SENSORS, Config, SafetyConfig
+from hermsd.control import predictive
+from hermsd.control.cascade import HLT_MARGIN
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.hardware.lm92 import SensorError
 from hermsd.program.runner import MashReading
@@ -43,6 +45,10 @@ NO_FLOW = (
     "no flow through the coil: the pump runs but the mash does not take the coil's heat "
     "(a stuck bed, a pump running dry, a closed valve?)"
 )
+FLOW_SEEN_C = 2.0
+"""°C the coil outlet's reading must stand below the HLT's for wort to be seen flowing through
+a pump hermsd does not switch: standing wort in the coil is at the HLT's temperature, and the
+two sensors' tolerances are about 1 °C between them."""
 
 
 class RoleSensor:
@@ -116,6 +122,7 @@ class MashSideFields(TypedDict):
     hlt_setpoint: float | None
     coil_load: float | None
     cascade: str | None
+    pump_in: float | None
 
 
 class MashSide(LoopState):
@@ -137,24 +144,84 @@ class MashSide(LoopState):
         ) -> None: ...
 
     _program_pump_step: tuple[int, bool] | None  # the program's step the pump was set for
+    # A prepared pump start: when the pump is switched on, and why it was asked for.
+    _pump_start_at: float | None = None
+    _pump_start_reason = ""
 
     @property
     def pump_fitted(self) -> bool:
         return self.outputs.pump is not None
 
     def set_pump(self, on: bool, reason: str) -> None:
-        """Run or stop the pump at once, said with `reason` (on the loop's thread: an
-        operator's command at a period boundary, a program's step); PumpNotFitted when the
-        config fits none."""
-        pump = self.outputs.pump
-        if pump is None:
+        """Run or stop the pump, said with `reason` (on the loop's thread: an operator's
+        command at a period boundary, a program's step); PumpNotFitted when the config fits
+        none. A start is prepared where the outer loop steers the HLT law: the coil's load
+        is told the law at once, to begin a dead time on, and the pump runs then
+        (`_pump_due`), so the heat sent meanwhile arrives as the load begins; a stop, or the
+        daemon's, cancels a start still being prepared (docs/herms.md, "The pump start")."""
+        if self.outputs.pump is None:
             raise PumpNotFitted(NO_PUMP)
-        if on != self._pump_on:
-            self._pump_on = on
-            pump.set(on)
-            self._event(logging.INFO, f"pump {'on' if on else 'off'}: {reason}", self._now())
-            if not on:
-                self._keep_coil(self._now())
+        now = self._now()
+        if on and not self._pump_on and self._pump_start_at is None:
+            lead = self._pump_lead()
+            if lead > 0.0:
+                self._pump_start_at, self._pump_start_reason = now + lead, reason
+                self._event(
+                    logging.INFO,
+                    f"pump starting in {lead:.0f} s: {reason} (the coil's load sent ahead to "
+                    "the element)",
+                    now,
+                )
+                return
+        if not on and self._pump_start_at is not None:
+            self._pump_start_at = None
+            self._event(logging.INFO, f"pump start cancelled: {reason}", now)
+        if on == self._pump_on or (on and self._pump_start_at is not None):
+            return
+        self._switch_pump(on, reason, now)
+
+    def _switch_pump(self, on: bool, reason: str, t: float) -> None:
+        pump = self.outputs.pump
+        assert pump is not None  # set_pump and _pump_due switch only a fitted pump
+        self._pump_on = on
+        pump.set(on)
+        self._event(logging.INFO, f"pump {'on' if on else 'off'}: {reason}", t)
+        if not on:
+            self._keep_coil(t)
+
+    def _pump_lead(self) -> float:
+        """s a pump start is prepared for: the HLT law's dead time where the outer loop
+        steers it (a mash reading, the law predictive and stepped, auto, the heater allowed),
+        else 0 (started at once: nothing would send the heat ahead). Where the coil's load
+        exceeds the element the full dead time still serves: the element at full power
+        from then is the most that can meet the load as it begins."""
+        mash = self._roles.get("mash_sensor")
+        lead = predictive.dead_time(self.controller)
+        ready = (
+            self._mash_control is not None
+            and mash is not None
+            and mash.celsius is not None
+            and self.mode == "auto"
+            and self.supervisor.heater_allowed
+            and predictive.predicted_pv(self.controller) is not None
+        )
+        return lead if ready and lead is not None else 0.0
+
+    def _pump_due(self, t: float, pv: float | None) -> float | None:
+        """At a period: the prepared pump switched on once its start is due (within half a
+        period), or as soon as the HLT's PV stands HLT_MARGIN above its setpoint (the heat
+        sent ahead arrived before the law's dead time: a model's longer than the tun's
+        would otherwise heat the HLT past its setpoint, over the limit in a climb); else the
+        s still to go (None: no start pending)."""
+        due = self._pump_start_at
+        if due is None:
+            return None
+        arrived = pv is not None and pv > self.hlt_target() + HLT_MARGIN
+        if t < due - 0.5 * self.config.control.period and not arrived:
+            return due - t
+        self._pump_start_at = None
+        self._switch_pump(True, self._pump_start_reason, t)
+        return None
 
     def mash_reading(self) -> MashReading | None:
         """What a program times its rests on the mash by (None: no mash sensor fitted)."""
@@ -194,7 +261,11 @@ class MashSide(LoopState):
             self._event(*said, self._now())
 
     def _stop_mash_side(self, reason: str, t: float) -> None:
-        """Said when the stop switched a running pump off (with every output)."""
+        """Said when the stop switched a running pump off (with every output), or cancelled
+        a start still being prepared."""
+        if self._pump_start_at is not None:
+            self._pump_start_at = None
+            self._event(logging.INFO, f"pump start cancelled: {reason}", t)
         if self._pump_on:
             self._pump_on = False
             self._event(logging.INFO, f"pump off: {reason}", t)
@@ -208,9 +279,11 @@ class MashSide(LoopState):
     def _steer(self, pv: float | None, applied: float, t: float) -> float:
         """The HLT law's setpoint for this period: with a mash sensor fitted the outer
         loop's, stepped on this period's HLT PV (none: the last decision stands), the coil's
-        load fed forward to the law; without one, the brewer's, as on a program's step
+        load fed forward to the law (a prepared pump start's ahead of it, one hermsd does not
+        switch as soon as it is seen); without one, the brewer's, as on a program's step
         before the mash is in (the strike water is the HLT's). A mash reading lost or stale
         holds the HLT at its last setpoint, said when it begins and ends."""
+        pump_in = self._pump_due(t, pv)
         control = self._mash_control
         if control is None or pv is None:
             return self.hlt_target()
@@ -219,6 +292,7 @@ class MashSide(LoopState):
             return control.strike(self.controller, self.setpoint).hlt_setpoint
         mash = self._roles["mash_sensor"]
         before, was_stuck = control.decision, control.flow.stuck
+        seen = self._flow_seen(pv)
         decision = control.period(
             self.controller,
             mash_sp=self.setpoint,
@@ -226,8 +300,9 @@ class MashSide(LoopState):
             mash_age=t - mash.read_at,
             hlt_pv=pv,
             pump=self.pump_running,
-            pump_known=self.pump_fitted,
+            pump_known=self.pump_fitted or seen,
             applied=applied,
+            pump_in=pump_in,
         )
         was_held = before is not None and before.held is not None
         if decision.held is not None and not was_held:
@@ -248,6 +323,17 @@ class MashSide(LoopState):
             why = "the wort flows again" if self.pump_running else "the pump stopped"
             self._event(logging.INFO, f"no flow through the coil ended: {why}", t)
         return decision.hlt_setpoint
+
+    def _flow_seen(self, hlt: float) -> bool:
+        """Wort seen flowing through a pump hermsd does not switch: the coil outlet's good
+        reading more than FLOW_SEEN_C below the HLT's (`hlt`), where standing wort would be
+        at the HLT's temperature. False with the pump fitted (it is known, not seen), without
+        a coil outlet sensor, or while the two stand too close to tell (the HLT near the
+        mash: little load to feed then)."""
+        coil = self._roles.get("coil_sensor")
+        if self.pump_fitted or coil is None or coil.celsius is None:
+            return False
+        return hlt - coil.celsius > FLOW_SEEN_C
 
     def with_coil(self, model: LearnedModel) -> LearnedModel:
         """`model` to be stored, with the coil's K: today's once the pump runs taught it,
@@ -300,7 +386,8 @@ class MashSide(LoopState):
         """The period record's mash, coil outlet and pump (None: not fitted, or faulty), and
         the outer loop's HLT setpoint, coil load and phase (None: no mash sensor)."""
         mash, coil = self._roles.get("mash_sensor"), self._roles.get("coil_sensor")
-        decision = None if self._mash_control is None else self._mash_control.decision
+        control = self._mash_control
+        decision = None if control is None else control.decision
         return {
             "mash": None if mash is None else mash.celsius,
             "coil": None if coil is None else coil.celsius,
@@ -308,6 +395,7 @@ class MashSide(LoopState):
             "hlt_setpoint": None if decision is None else decision.hlt_setpoint,
             "coil_load": None if decision is None else decision.load_watts,
             "cascade": None if decision is None else decision.phase,
+            "pump_in": None if control is None or not control.load_in else control.load_in,
         }
 
     def coil_load(self, hlt: float | None) -> CoilLoad:
@@ -359,6 +447,8 @@ class MashSide(LoopState):
             mash["hlt_setpoint"] = None if decision is None else decision.hlt_setpoint
             mash["phase"] = None if decision is None else decision.phase
             mash["warning"] = NO_FLOW if control.flow.stuck else None
+            due = self._pump_start_at
+            mash["pump_start_in"] = None if due is None else max(0.0, due - self._now())
         return status
 
     def _now(self) -> float:

@@ -204,8 +204,17 @@ def mash_side_words(mash: dict[str, object] | None, pump: bool | None, setpoint:
             shown = shown.replace(" °C", "") + f" → {setpoint:.1f} °C ({phase})"
         words.append(shown)
     if pump is not None:
-        words.append(f"pump {'on' if pump else 'off'}")
+        words.append(pump_words(pump, mash))
     return ", ".join(words)
+
+
+def pump_words(pump: bool, mash: dict[str, object] | None) -> str:
+    """'pump on', 'pump off', or 'pump starting in 65 s' while a start is prepared (the
+    status reply's `mash.pump_start_in`)."""
+    starting = None if mash is None else mash.get("pump_start_in")
+    if not pump and isinstance(starting, int | float):
+        return f"pump starting in {starting:.0f} s"
+    return f"pump {'on' if pump else 'off'}"
 
 
 def role_words(role: str, reading: dict[str, object]) -> str:

@@ -44,6 +44,7 @@ class PeriodRecord:
     hlt_setpoint: float | None = None  # °C the outer loop set the HLT to (None: no mash
     coil_load: float | None = None  # sensor; `setpoint` is then the mash's), the coil's load
     cascade: str | None = None  # W fed forward, and the outer loop's phase
+    pump_in: float | None = None  # s until a prepared pump start, when that load begins
 
     @property
     def hlt_target(self) -> float:

@@ -1,0 +1,170 @@
+"""The HERMS pump start (docs/herms.md, "The pump start"): one hermsd commands is prepared,
+the coil's load sent ahead to the element by the HLT law's dead time and the pump switched
+as that heat arrives; one made outside hermsd is seen by the coil outlet sensor and its
+load fed forward at once.
+
+The plant is the simulator's HERMS (`HermsTun`) around a 90 L HLT whose 9 kW element is more
+than the coil's pull (a 250 W/K coil at 6 L/min: ε·ṁc = 188.6 W/K, 5.8 kW at the start with
+the HLT 31 °C above the mash), the element's heat 60 s on its way and the sensor 10 s behind:
+the daemon's model is that tun's (its dead time 70 s), as `hermsd tune` measures it. The mash
+is doughed in far below its rest, so the outer loop holds the HLT at the limit before the
+start and after it.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any
+
+from hermsd.config.read import parse
+from hermsd.control import laws, predictive
+from hermsd.control.pid import PlantModel
+from hermsd.runtime.period import PeriodRecord
+from hermsd.sim import scenario
+from hermsd.sim.hlt import PhysicalPlant
+from hermsd.sim.mash import GRAIN_J_PER_KG_K, HermsTun
+
+LITRES, WATTS, UA_HLT = 90.0, 9000.0, 3000.0 / 168.9
+DEAD_TIME = 70.0  # the element's 60 s and the sensor's 10 s
+PERIOD = 5.0
+REST = 66.0
+DOUGH_AT, PUMP_AT, AFTER = 600.0, 2400.0, 600.0
+ALLOWED_DROP = 0.3  # °C: the prepared start's bound where the element exceeds the load
+SEEN_OVER_FULL = 1.2  # the seen start's drop against full power from its first instant
+
+
+class TracedTun(HermsTun):
+    """A HERMS plant with its water's temperature noted at every read, and a copy of itself
+    kept at the pump's first instant (bench/herms_pump.py's too)."""
+
+    __slots__ = ("at_start", "started", "trace")
+
+    def __init__(self, hlt: PhysicalPlant, **mash: float) -> None:
+        super().__init__(hlt, **mash)
+        self.trace: dict[float, float] = {}
+        self.at_start: HermsTun | None = None
+        self.started = math.nan
+
+    def temperature(self, t: float) -> float:
+        self.trace[t] = self.water_temperature(t)
+        return super().temperature(t)
+
+    def set_pump(self, on: bool, t: float) -> None:
+        super().set_pump(on, t)
+        if on and self.at_start is None:
+            self.started, self.at_start = t, copy.deepcopy(self)
+
+
+def config(pump: str, dead_time: float = DEAD_TIME) -> str:
+    capacity = 4186.0 * LITRES
+    return (
+        "output:\n  backend: sim\nlog:\n  dir: null\n"
+        f"tun:\n  litres: {LITRES:g}\n  element_watts: {WATTS:g}\n"
+        f"control:\n  setpoint: {REST:g}\n  model_gain: {WATTS / (100 * UA_HLT):.4f}\n"
+        f"  model_tau: {capacity / UA_HLT:.0f}\n  dead_time: {dead_time:g}\n"
+        "mash_sensor:\n  kind: lm92\n  address: 0x49\n"
+        "coil_sensor:\n  kind: lm92\n  address: 0x4a\n"
+        f"pump:\n  backend: {pump}\n"
+        "herms:\n  mash_litres: 50\n  grain_kg: 12\n  coil_w_per_k: 189\n"
+    )
+
+
+def day(
+    pump: str, events: list[dict[str, Any]], dead_time: float = DEAD_TIME
+) -> tuple[TracedTun, list[PeriodRecord]]:
+    """The mash (50 L and 12 kg at 20 °C) doughed in at 45 °C at DOUGH_AT, then `events`."""
+    water_c = (45.0 * (4186.0 * 50 + GRAIN_J_PER_KG_K * 12) - GRAIN_J_PER_KG_K * 12 * 20) / (
+        4186.0 * 50
+    )
+    dough = {"grain_kg": 12, "grain_c": 20, "water_litres": 50, "water_c": round(water_c, 3)}
+    doc = {
+        "name": "pump-start",
+        "duration": f"{PUMP_AT + AFTER + 120:g}s",
+        "setpoint": REST,
+        "plant": {"model": "physical", "litres": LITRES, "element_watts": WATTS},
+        "events": [{"at": f"{DOUGH_AT:g}s", "dough_in": dough}, *events],
+    }
+    hlt = PhysicalPlant(
+        litres=LITRES,
+        element_watts=WATTS,
+        ua_w_per_k=UA_HLT,
+        transport_delay_s=60.0,
+        sensor_lag_s=10.0,
+        start_c=REST + 10.0 - 0.15,
+    )
+    tun = TracedTun(hlt, coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
+    config_ = parse(config(pump, dead_time))
+    result = scenario.run(
+        scenario.parse_scenario(doc), config_, outside_plant=tun, keep_records=True
+    )
+    return tun, result.records
+
+
+def lowest(trace: dict[float, float], start: float, end: float) -> float:
+    return min(c for t, c in trace.items() if start <= t <= end)
+
+
+def test_a_load_told_a_dead_time_ahead_raises_the_duty_by_its_share_and_nothing_else() -> None:
+    """The heat sent now arrives as the load begins: the holding duty rises by the load's
+    share of the element (25 % of 4 kW for 1 kW), the prediction over the dead time is the
+    one without it (the load acts after all of it)."""
+    model = PlantModel(1.689, 14961.0, 60.0, 20.0)
+    plain = laws.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=model)
+    plain.reset(66.0, 20.0)
+    for _ in range(30):
+        plain.step(66.0, 66.0, plain.output)
+    loaded = copy.deepcopy(plain)
+    predictive.known_load(loaded, 1000.0, 4000.0, starts_in=60.0)
+    assert predictive.predicted_pv(loaded) == predictive.predicted_pv(plain)
+    out_plain = plain.step(66.0, 66.0, plain.output)
+    out_loaded = loaded.step(66.0, 66.0, loaded.output)
+    assert math.isclose(out_loaded - out_plain, 25.0, abs_tol=1e-9)
+    # The same load acting at once is also foreseen over the dead time: more than its share.
+    now = copy.deepcopy(plain)
+    predictive.known_load(now, 1000.0, 4000.0)
+    assert now.step(66.0, 66.0, now.output) > out_plain + 25.0 + 1.0
+
+
+def test_a_commanded_pump_start_sends_the_load_ahead_and_the_hlt_stays_within_0_3_c() -> None:
+    tun, records = day("sim", [{"at": f"{PUMP_AT:g}s", "pump": "on"}])
+    # The pump runs at the first period within half a period of the dead time on: 2470 s.
+    assert tun.started == PUMP_AT + DEAD_TIME
+    preparing = [r for r in records if PUMP_AT <= r.t < tun.started]
+    assert preparing and all(r.pump is False and (r.coil_load or 0.0) > 0.0 for r in preparing)
+    before = [r for r in records if r.t < PUMP_AT][-1]
+    assert preparing[0].output > before.output + 50.0  # the heat sent ahead, at once
+    # WATTS exceeds the coil's 5.8 kW and the HLT's 1 kW of losses at 76 °C.
+    held = tun.trace[PUMP_AT]
+    assert held - lowest(tun.trace, PUMP_AT, tun.started + AFTER) <= ALLOWED_DROP
+
+
+def test_heat_that_arrives_before_the_models_dead_time_starts_the_pump_then() -> None:
+    """The config's default dead time, 115 s, on this 70 s tun: the heat sent ahead shows
+    in the HLT's reading first, and the pump starts as it does, not 45 s later."""
+    tun, records = day("sim", [{"at": f"{PUMP_AT:g}s", "pump": "on"}], dead_time=115.0)
+    assert PUMP_AT + DEAD_TIME <= tun.started < PUMP_AT + 115.0 - PERIOD
+    ran = next(r for r in records if r.pump)
+    assert ran.pv is not None and ran.pv > (ran.hlt_setpoint or 0.0) + 0.15
+
+
+def test_an_operators_off_cancels_a_start_still_being_prepared() -> None:
+    events = [{"at": f"{PUMP_AT:g}s", "pump": "on"}, {"at": f"{PUMP_AT + 30:g}s", "pump": "off"}]
+    tun, records = day("sim", events)
+    assert tun.at_start is None  # the pump never ran
+    after = [r for r in records if r.t >= PUMP_AT + 30]
+    assert after and all(r.pump is False and r.coil_load == 0.0 for r in after)
+
+
+def test_a_pump_started_outside_hermsd_is_seen_and_its_load_fed_forward_at_once() -> None:
+    tun, records = day("none", [{"at": f"{PUMP_AT:g}s", "pump": "on"}])
+    first = next(r for r in records if r.t > PUMP_AT)
+    assert (first.coil_load or 0.0) > 0.0 and first.output == 100.0
+    # Against full power from the pump's first instant on the same plant.
+    assert tun.at_start is not None
+    ideal = tun.at_start
+    ideal.set_heater(True, tun.started)
+    start = ideal.water_temperature(tun.started)
+    full = start - min(ideal.water_temperature(tun.started + s) for s in range(int(AFTER) + 1))
+    seen = tun.trace[PUMP_AT] - lowest(tun.trace, PUMP_AT, PUMP_AT + AFTER)
+    assert seen <= SEEN_OVER_FULL * full
