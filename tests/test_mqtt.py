@@ -50,7 +50,9 @@ from hermsd.sim.hlt import Plant
 ROOT = Path(__file__).resolve().parents[1]
 MOSQUITTO = Path("/usr/sbin/mosquitto")
 MOSQUITTO_PASSWD = Path("/usr/bin/mosquitto_passwd")
-TIMEOUT = 5.0
+TIMEOUT = 20.0
+"""s: a bound on each wait, not a wait (each returns at its event): a `hermsd mqtt` process
+started by a test takes seconds to import its libraries on a loaded machine."""
 PREFIX = "brewery/hlt"
 # What Home Assistant accepts (its MQTT climate, sensor and binary_sensor schemas).
 HA_HVAC_MODES = {"auto", "off", "cool", "heat", "dry", "fan_only", "heat_cool"}
