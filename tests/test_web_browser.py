@@ -241,6 +241,7 @@ def test_an_alarm_is_shown_with_its_reset(page: Page, live: Site) -> None:
         alarm = {
             **status,
             "alarms": ["dry_fire"],
+            "latched": ["dry_fire"],  # waits for a reset (the hub's page_status says)
             "alarm_reasons": {"dry_fire": "rose 1.6 °C/min"},
             "state": "alarm",
             "heater_allowed": False,

@@ -21,6 +21,8 @@ let source = null;
 let viewing = false;
 let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
 let shownAlarms = []; // the alarms the page shows: what its reset button clears
+let shownWarnings = []; // the warnings the page shows
+let programRuns = false; // whether a program runs (not done): the screen is kept on
 let shownStep = null; // the program step the page shows: what its confirm and next end
 let shownPump = null; // the pump's state the page shows (null: none fitted)
 let reading = null; // the reading shown: its age (s) when it came, and Date.now() then
@@ -85,7 +87,13 @@ function render(status, age) {
   const reasons = status.alarm_reasons || {};  // why each stands: what the brewer must check
   $("alarms").textContent = alarms
     .map((kind) => (reasons[kind] ? `${kind}: ${reasons[kind]}` : kind)).join("; ");
+  const latched = status.latched || [];  // the others clear themselves: no reset for them
+  const passing = alarms.filter((kind) => !latched.includes(kind));
+  $("alarm-note").textContent = passing.length
+    ? `(${passing.join(", ")}: the heater is off until it is over)` : "";
+  $("reset-alarm").hidden = latched.length === 0;
   const warnings = status.warnings || [];  // nothing held off, but the brewer should look
+  shownWarnings = warnings;
   $("warning-box").hidden = warnings.length === 0;
   $("warnings").textContent = warnings.join("; ");
   renderProgram(status.program);
@@ -99,6 +107,7 @@ function render(status, age) {
 function renderProgram(program) {
   $("program-box").hidden = !program;
   $("program-form").hidden = Boolean(program); // one program at a time: stop it to start another
+  programRuns = Boolean(program) && program.state !== "done";
   shownStep = program && program.step ? program.step.index : null;
   if (!program) return;
   $("program-name").textContent = program.name;
@@ -167,7 +176,125 @@ function showFreshness() {
   $("age").textContent = age === null ? "—" : `${Math.round(age)} s old`;
   $("view").classList.toggle("stale", !fresh);
   updateCommands();
+  attend(age);
 }
+
+// The brewer's attention: what a phone on the bench or in a pocket must learn. While an alarm
+// stands or the page has no live reading: a full-width banner, the title and the icon changed,
+// and every ALERT_EVERY_MS a vibration and, once the brewer has turned the sound on (a browser
+// plays audio only after a tap), a beep; the screen kept on while that lasts or a program runs.
+const ALERT_EVERY_MS = 2000;
+const ICON_COLOURS = { ok: "#256c2b", check: "#b07d00", alarm: "#b3261e" };
+let audio = null; // the AudioContext, made by the tap that turns the sound on
+let soundOn = false;
+let alertTimer = null; // the beeping and vibrating, while alerting
+let beeps = 0;
+let wakeLock = null; // the screen's WakeLockSentinel; "asking" or "refused" until visible again
+let wantAwake = false;
+
+function attend(age) {
+  const lost = daemonDown !== null || (age !== null && age > staleAfter);
+  $("lost-box").hidden = !lost;
+  $("lost").textContent = daemonDown !== null
+    ? "the daemon does not answer: nothing on this page is the tun now"
+    : `the last reading is ${Math.round(age)} s old: nothing on this page is the tun now`;
+  const alarm = shownAlarms.length > 0;
+  const level = alarm || lost ? "alarm" : shownWarnings.length ? "check" : "ok";
+  const word = alarm ? "ALARM" : lost ? (daemonDown !== null ? "NO DAEMON" : "NOT LIVE")
+    : level === "check" ? "check" : "";
+  const title = level === "ok" ? "hermsd" : `${level === "alarm" ? "⚠ " : ""}${word} — hermsd`;
+  if (document.title !== title) document.title = title;
+  showIcon(level);
+  if (level === "alarm" && alertTimer === null) {
+    alertOnce();
+    alertTimer = setInterval(alertOnce, ALERT_EVERY_MS);
+  } else if (level !== "alarm" && alertTimer !== null) {
+    clearInterval(alertTimer);
+    alertTimer = null;
+    if (navigator.vibrate) navigator.vibrate(0);
+  }
+  keepAwake(level === "alarm" || programRuns);
+}
+
+function showIcon(level) {
+  let icon = document.querySelector("link[rel=icon]");
+  if (!icon) {
+    icon = document.createElement("link");
+    icon.rel = "icon";
+    document.head.appendChild(icon);
+  }
+  if (icon.dataset.level === level) return;
+  const mark = level === "ok" ? "" : "<text x='8' y='13' font-size='12' font-weight='bold' "
+    + "text-anchor='middle' fill='white'>!</text>";
+  const svg = "<svg xmlns='http://www.w3.org/2000/svg' viewBox='0 0 16 16'><circle cx='8' "
+    + `cy='8' r='8' fill='${ICON_COLOURS[level]}'/>${mark}</svg>`;
+  icon.href = `data:image/svg+xml,${encodeURIComponent(svg)}`;
+  icon.dataset.level = level;
+}
+
+function alertOnce() {
+  if (soundOn) beep();
+  if (navigator.vibrate) navigator.vibrate([400, 200, 400]);
+}
+
+// Two short 880 Hz tones: loud, and unlike anything else in a brewery.
+function beep() {
+  if (!audio || audio.state !== "running") return;
+  const now = audio.currentTime;
+  for (const at of [0, 0.35]) {
+    const tone = audio.createOscillator(), gain = audio.createGain();
+    tone.type = "square";
+    tone.frequency.value = 880;
+    gain.gain.value = 0.3;
+    tone.connect(gain).connect(audio.destination);
+    tone.start(now + at);
+    tone.stop(now + at + 0.25);
+  }
+  beeps += 1;
+}
+
+async function toggleSound() {
+  soundOn = !soundOn;
+  $("sound").textContent = soundOn ? "Sound: on" : "Sound: off";
+  $("sound").setAttribute("aria-pressed", String(soundOn));
+  if (!soundOn) return;
+  const Context = window.AudioContext || window.webkitAudioContext;
+  if (!Context) {
+    say("this browser cannot play sound: alarms show and vibrate only", "error");
+    return;
+  }
+  audio = audio || new Context();
+  await audio.resume();
+  beep(); // at once: the brewer hears how loud an alarm is
+}
+
+// Asked for again whenever the page becomes visible: the browser lets the lock go when hidden.
+async function keepAwake(wanted) {
+  wantAwake = wanted;
+  if (!navigator.wakeLock) return;
+  if (wanted && wakeLock === null && document.visibilityState === "visible") {
+    wakeLock = "asking";
+    let lock;
+    try {
+      lock = await navigator.wakeLock.request("screen");
+    } catch (error) { // refused (battery saver, no focus): the page alerts all the same
+      wakeLock = "refused";
+      return;
+    }
+    lock.addEventListener("release", () => { if (wakeLock === lock) wakeLock = null; });
+    wakeLock = lock;
+    if (!wantAwake) keepAwake(false);
+  } else if (!wanted && typeof wakeLock === "object" && wakeLock !== null) {
+    const lock = wakeLock;
+    wakeLock = null;
+    lock.release();
+  }
+}
+
+document.addEventListener("visibilitychange", () => {
+  if (wakeLock === "refused") wakeLock = null;
+  keepAwake(wantAwake);
+});
 
 function updateCommands() {
   const allowed = session.logged_in && live();
@@ -354,6 +481,7 @@ function number(input, name, unit) {
 }
 
 function wire() {
+  $("sound").addEventListener("click", toggleSound);
   $("login-form").addEventListener("submit", async (event) => {
     event.preventDefault();
     const response = await api("/api/login", { password: $("password").value });
@@ -438,6 +566,11 @@ async function start() {
   }
 }
 
-window.hermsd = { points: () => T.length, chart: () => chart };
+window.hermsd = {
+  points: () => T.length,
+  chart: () => chart,
+  attention: () => ({ alerting: alertTimer !== null, beeps, sound: soundOn,
+                      awake: typeof wakeLock === "object" && wakeLock !== null }),
+};
 setInterval(showFreshness, 1000);
 start();
