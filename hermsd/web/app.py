@@ -5,7 +5,8 @@ Routes:
     GET  /api/session      whether this browser is logged in, its CSRF token, what it may do
     POST /api/login        {"password": "..."}: a session cookie (rate-limited, see auth.py)
     POST /api/logout
-    GET  /api/history      the last 24 h as columns (t, pv, setpoint, output) and the clock
+    GET  /api/history      the last 24 h as columns (t, pv, setpoint, output), the clock and
+                           the setpoint's band (±°C, drawn about its line)
     GET  /api/events       server-sent events: the status of each new period
     POST /api/command      one change, forwarded to the daemon's control socket:
                            {"cmd": "set", "setpoint": 72}, {"cmd": "set", "mode": "manual",

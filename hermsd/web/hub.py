@@ -29,6 +29,7 @@ from typing import Any
 
 from hermsd.api.client import LONGEST_PERIOD
 from hermsd.api.history import KEPT_SECONDS
+from hermsd.metrics import BAND
 from hermsd.safety.limits import LATCHED_KINDS
 from hermsd.web.socket_client import DaemonUnavailable, ask
 
@@ -238,6 +239,7 @@ class Hub:
         if self._body is None or self._body[0] != last:
             t, pv, setpoint, output, mash = self._columns
             body = {
+                "band": BAND,  # °C either side of the setpoint that counts as holding it
                 "period": self.period,
                 "offset": self.offset,
                 "t": t,

@@ -15,6 +15,7 @@ const T = [], PV = [], SP = [], OUT = [], MASH = [];
 const MASH_SERIES = { label: "Mash °C", stroke: "#2e7d32", width: 2, scale: "°C" };
 let mashFitted = false; // whether the daemon reads a mash sensor: the chart has its line
 let offset = 0;
+let band = 0; // °C either side of the setpoint that counts as holding it (the server says)
 let rangeHours = 3;
 let chart = null;
 let source = null;
@@ -323,18 +324,68 @@ function makeChart() {
       {},
       { label: "Temperature °C", stroke: "#c62828", width: 2, scale: "°C" },
       { label: "Setpoint °C", stroke: "#1f5fbf", width: 1.5, dash: [6, 4], scale: "°C" },
-      { label: "Output %", stroke: "#888", width: 1, scale: "%", fill: "rgba(120,120,120,0.12)" },
+      { label: "Output %", stroke: "#888", width: 1, scale: "%" },
       ...(mashFitted ? [MASH_SERIES] : []),
     ],
+    // Each axis says its unit; the right one is wide enough for "100" on a 390 px phone.
     axes: [
-      {},
-      { scale: "°C", size: 44 },
-      { scale: "%", side: 1, size: 36, grid: { show: false } },
+      { label: "local time", ...AXIS_LABEL },
+      { scale: "°C", size: 36, label: "°C", ...AXIS_LABEL },
+      { scale: "%", side: 1, size: 34, grid: { show: false }, label: "output %", ...AXIS_LABEL },
     ],
+    hooks: { drawAxes: [drawBand] },
   };
   chart = new uPlot(options, columns(), box);
   performance.mark("hermsd-chart");
   window.addEventListener("resize", () => chart.setSize({ width: box.clientWidth, height: 240 }));
+}
+
+const AXIS_LABEL = { labelSize: 16, labelGap: 0, labelFont: "12px system-ui, sans-serif" };
+const BAND_FILL = "rgba(31, 95, 191, 0.15)"; // the setpoint's blue, faint
+
+// The setpoint's ±band drawn under the lines, a step at each change as the setpoint is
+// (a gap where it is unknown): in it, the tun holds its setpoint.
+function drawBand(u) {
+  const xs = u.data[0], setpoints = u.data[2];
+  const [first, last] = u.series[0].idxs || [0, xs.length - 1];
+  const { left, top, width, height } = u.bbox;
+  const ctx = u.ctx;
+  ctx.save();
+  ctx.beginPath();
+  ctx.rect(left, top, width, height);
+  ctx.clip();
+  ctx.fillStyle = BAND_FILL;
+  let run = [];
+  for (let i = Math.max(0, first - 1); i <= Math.min(xs.length - 1, last + 1); i++) {
+    if (setpoints[i] === null || setpoints[i] === undefined) {
+      fillBand(u, run);
+      run = [];
+    } else {
+      run.push(i);
+    }
+  }
+  fillBand(u, run);
+  ctx.restore();
+}
+
+function fillBand(u, run) {
+  if (run.length === 0) return;
+  const ctx = u.ctx, xs = u.data[0], setpoints = u.data[2];
+  const x = (i) => u.valToPos(xs[i], "x", true);
+  const y = (i, side) => u.valToPos(setpoints[i] + side * band, "°C", true);
+  ctx.beginPath();
+  ctx.moveTo(x(run[0]), y(run[0], 1));
+  for (let k = 1; k < run.length; k++) {
+    ctx.lineTo(x(run[k]), y(run[k - 1], 1));
+    ctx.lineTo(x(run[k]), y(run[k], 1));
+  }
+  for (let k = run.length - 1; k > 0; k--) {
+    ctx.lineTo(x(run[k]), y(run[k], -1));
+    ctx.lineTo(x(run[k]), y(run[k - 1], -1));
+  }
+  ctx.lineTo(x(run[0]), y(run[0], -1));
+  ctx.closePath();
+  ctx.fill();
 }
 
 function addRows(rows) {
@@ -364,6 +415,7 @@ async function loadView() {
   OUT.push(...history.output);
   MASH.push(...history.mash);
   offset = history.offset;
+  band = history.band;
   $("view").hidden = false;
   if (chart) chart.destroy();
   makeChart();
