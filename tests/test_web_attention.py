@@ -183,3 +183,48 @@ def test_a_stopped_daemon_alarms_as_the_tun_is_not_watched(
             found = _attention(page)
             assert found["title"] == "⚠ NO DAEMON — hermsd" and RED_ICON in found["icon"]
             assert found["alerting"] and found["vibrations"] >= 1
+
+
+def test_stepping_down_the_page_says_cooling_and_when_the_rest_starts(
+    browser: Browser, live: Site
+) -> None:
+    with _phone(browser, live) as page, _status_held(page, live, "#program-box") as status:
+        beta = {
+            "name": "Step down",
+            "state": "heating",
+            "steps": 2,
+            "next": None,
+            "step": {"index": 1, "name": "Beta", "setpoint": 64.0},
+            "time_left_s": None,
+            "message": None,
+            "starts_at": None,
+            "rest_in_s": 700.0,
+        }
+        _show(page, {**status, "pv": 72.0, "program": beta})
+        assert page.text_content("#program-state") == "cooling"
+        assert page.text_content("#program-left") == "rest starts in about 12 min"  # 11.7
+        _show(page, {**status, "pv": 60.0, "program": {**beta, "rest_in_s": 5000.0}})
+        assert page.text_content("#program-state") == "heating"
+        assert page.text_content("#program-left") == "rest starts in about 1 h 23 min"
+        _show(page, {**status, "pv": 60.0, "program": {**beta, "rest_in_s": None}})
+        assert page.text_content("#program-left") == "until in band, or told"
+
+
+def test_a_program_started_on_the_simulator_says_when_its_rest_starts(
+    browser: Browser, tmp_path: Path
+) -> None:
+    with site(tmp_path) as served, _phone(browser, served) as page:
+        _log_in(page)
+        page.fill(
+            "#program-yaml", "name: Rest\nsteps:\n  - {name: Rest, setpoint: 64, hold: 10m}\n"
+        )
+        page.click("#program-start")
+        _until(
+            page,
+            "/^rest starts in about (\\d+ h )?\\d+ min$/.test(document.getElementById("
+            "'program-left').textContent)",
+        )
+        estimate = page.evaluate("window.lastStatus.program.rest_in_s")
+        pv = page.evaluate("window.lastStatus.pv")
+        # The simulated tun heats from the room at full power: within hours, not seconds.
+        assert pv < 63.5 and 60.0 < estimate < 3 * 3600.0

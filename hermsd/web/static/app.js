@@ -97,7 +97,7 @@ function render(status, age) {
   shownWarnings = warnings;
   $("warning-box").hidden = warnings.length === 0;
   $("warnings").textContent = warnings.join("; ");
-  renderProgram(status.program);
+  renderProgram(status.program, status.pv);
   renderMashSide(status.mash, status.pump);
   if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
     $("setpoint-input").placeholder = String(status.setpoint);
@@ -105,19 +105,23 @@ function render(status, age) {
   showFreshness();
 }
 
-function renderProgram(program) {
+// `pv`: the HLT's; above the step's setpoint, the program's "heating" is a cool-down.
+function renderProgram(program, pv) {
   $("program-box").hidden = !program;
   $("program-form").hidden = Boolean(program); // one program at a time: stop it to start another
   programRuns = Boolean(program) && program.state !== "done";
   shownStep = program && program.step ? program.step.index : null;
   if (!program) return;
   $("program-name").textContent = program.name;
-  $("program-state").textContent = program.state;
   const step = program.step;
+  const cooling = program.state === "heating" && step && typeof pv === "number"
+    && pv > step.setpoint;
+  $("program-state").textContent = cooling ? "cooling" : program.state;
   $("program-step").textContent = step
     ? `${step.index + 1} of ${program.steps}: ${step.name}, ${step.setpoint} °C` : "—";
   $("program-left").textContent = program.state === "scheduled" && program.starts_at
     ? `starts ${new Date(program.starts_at).toLocaleTimeString()}`
+    : typeof program.rest_in_s === "number" ? restIn(program.rest_in_s)
     : program.time_left_s === null ? "until in band, or told" : duration(program.time_left_s);
   $("program-next").textContent = program.next || "last step";
   const waiting = program.state === "waiting";
@@ -126,6 +130,14 @@ function renderProgram(program) {
   $("program-confirm").hidden = !waiting;
   $("program-pause").hidden = program.state === "paused" || program.state === "done";
   $("program-resume").hidden = program.state !== "paused";
+}
+
+// The daemon's estimate by the tun's model: minutes are all it can honestly say.
+function restIn(seconds) {
+  if (seconds < 60) return "rest starts in under a minute";
+  const minutes = Math.round(seconds / 60);
+  const h = Math.floor(minutes / 60), m = minutes % 60;
+  return `rest starts in about ${h ? `${h} h ${m} min` : `${m} min`}`;
 }
 
 // `mash`: null when no mash sensor is fitted, else its reading (null while faulty) and fault.
