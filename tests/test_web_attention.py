@@ -17,7 +17,7 @@ from typing import Any
 
 from playwright.sync_api import Browser, Page
 from test_web_browser import _log_in, _status_held, _until, browser, live
-from webpage import PHONE, Site, site
+from webpage import PHONE, TIMEOUT, Site, site
 
 from hermsd.web.hub import page_status
 
@@ -228,3 +228,27 @@ def test_a_program_started_on_the_simulator_says_when_its_rest_starts(
         pv = page.evaluate("window.lastStatus.pv")
         # The simulated tun heats from the room at full power: within hours, not seconds.
         assert pv < 63.5 and 60.0 < estimate < 3 * 3600.0
+
+
+def test_a_recipe_uploaded_on_the_phone_shows_its_program_and_starts(
+    browser: Browser, tmp_path: Path
+) -> None:
+    recipe = Path(__file__).parent / "data" / "beerxml" / "two-recipes.xml"
+    with site(tmp_path) as served, _phone(browser, served) as page:
+        _log_in(page)
+        page.set_input_files("#recipe-file", str(recipe))
+        page.click("#recipe-import-button")
+        page.wait_for_selector("#message.error", timeout=TIMEOUT * 1000)
+        said = page.text_content("#message") or ""
+        assert said.startswith("two-recipes.xml: holds 2 recipes")  # one line, which ones
+        assert page.input_value("#program-yaml") == ""
+        page.fill("#recipe-name", "Weizen Step Mash")
+        page.press("#recipe-name", "Enter")  # makes the program; starts nothing
+        page.wait_for_selector("#message.ok", timeout=TIMEOUT * 1000)
+        made = page.input_value("#program-yaml")
+        assert "Weizen Step Mash" in made and not served.daemon.program.active
+        assert (page.text_content("#message") or "").endswith("read them, then Start program")
+        page.click("#program-start")
+        _until(page, "!document.getElementById('program-box').hidden")
+        assert served.daemon.program.active
+        assert "Weizen Step Mash" in (page.text_content("#program-name") or "")

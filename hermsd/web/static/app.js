@@ -534,6 +534,49 @@ async function startProgram() {
   }
 }
 
+const MAX_RECIPE_BYTES = 380000; // the server takes 512 KiB of request, base64's third more
+
+// The program a BeerXML recipe makes, by `hermsd program import`'s own code on the server,
+// put in the program's text box to be read and started as any program; nothing is sent to
+// the daemon. A file goes as its bytes, so its own declared encoding holds.
+async function importRecipe() {
+  const file = $("recipe-file").files[0];
+  if (file && file.size > MAX_RECIPE_BYTES) {
+    say(`${file.name} is ${file.size} bytes: export the one recipe (at most ${MAX_RECIPE_BYTES})`,
+        "error");
+    return;
+  }
+  const body = { filename: file ? file.name : "pasted.xml",
+                 recipe: $("recipe-name").value.trim() || null };
+  if (file) body.data = await base64Of(file);
+  else body.xml = $("recipe-xml").value;
+  say("making the program…");
+  const response = await api("/api/program/import", body);
+  if (response.status !== 200) {
+    if (response.status === 401) {
+      session = { ...session, logged_in: false, csrf: null };
+      updateSessionView();
+    }
+    say(response.body.error || `import: failed (HTTP ${response.status})`, "error");
+    return;
+  }
+  $("program-file").value = "";
+  $("program-yaml").value = response.body.yaml;
+  $("program-problems").hidden = true;
+  say(`${response.body.name}: ${response.body.steps} steps, below: read them, then Start program`,
+      "ok");
+  $("program-yaml").scrollIntoView({ block: "center" });
+}
+
+function base64Of(file) {
+  return new Promise((resolve, reject) => {
+    const reader = new FileReader();
+    reader.onload = () => resolve(String(reader.result).split(",", 2)[1] || "");
+    reader.onerror = () => reject(reader.error);
+    reader.readAsDataURL(file);
+  });
+}
+
 function number(input, name, unit) {
   const text = input.value.trim();
   const value = Number(text);
@@ -581,6 +624,12 @@ function wire() {
       command.output = output;
     }
     send(command, `mode ${mode}`);
+  });
+  $("recipe-import-button").addEventListener("click", importRecipe);
+  $("recipe-name").addEventListener("keydown", (event) => {
+    if (event.key !== "Enter") return;
+    event.preventDefault(); // the recipe's name, not the program's start
+    importRecipe();
   });
   $("program-form").addEventListener("submit", (event) => {
     event.preventDefault();
