@@ -10,13 +10,12 @@ screen, so the page is handed recording stand-ins for `navigator.vibrate` and
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import Any
 
 from playwright.sync_api import Browser, Page
-from test_web_browser import _log_in, _status_held, _until, browser, live
+from test_web_browser import _log_in, _opened, _status_held, _until, browser, live
 from webpage import PHONE, TIMEOUT, Site, site
 
 from hermsd.web.hub import page_status
@@ -38,18 +37,27 @@ Object.defineProperty(navigator, "wakeLock", { value: { request: async (kind) =>
 RED_ICON = "%23b3261e"  # the alarm icon's colour, as its data: URL carries it
 
 
-@contextmanager
-def _phone(browser: Browser, served: Site) -> Iterator[Page]:
-    """The page of `served` at phone size with the stand-ins; no script error in it."""
-    context = browser.new_context(viewport=PHONE)
-    context.add_init_script(STAND_INS)
-    page = context.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda error: errors.append(str(error)))
-    page.goto(served.url)
-    yield page
-    context.close()
-    assert errors == [], f"the page's script failed: {errors}"
+def _phone(browser: Browser, served: Site) -> AbstractContextManager[Page]:
+    """The page of `served` at phone size with the stand-ins, at once; no script error in it."""
+    return _opened(browser, served, STAND_INS, shown=False)
+
+
+def _program(
+    state: str, index: int, name: str, setpoint: float, **more: object
+) -> dict[str, object]:
+    """A program's status as the daemon gives it (hermsd/program/driver.py)."""
+    fields = {
+        "name": "Step mash",
+        "state": state,
+        "steps": index + 1,
+        "next": None,
+        "step": {"index": index, "name": name, "setpoint": setpoint},
+        "time_left_s": None,
+        "message": None,
+        "starts_at": None,
+        "rest_in_s": None,
+    }
+    return {**fields, **more}
 
 
 def _show(page: Page, status: dict[str, Any]) -> None:
@@ -86,16 +94,7 @@ def test_with_nothing_wrong_the_page_asks_for_no_attention(
         found = _attention(page)
         assert found["title"] == "hermsd" and RED_ICON not in found["icon"]
         assert not found["alerting"] and found["vibrations"] == 0 and found["screen"] == 0
-        running = {
-            "name": "Step mash",
-            "state": "running",
-            "steps": 1,
-            "next": None,
-            "step": {"index": 0, "name": "Rest", "setpoint": 66.0},
-            "time_left_s": 600,
-            "message": None,
-            "starts_at": None,
-        }
+        running = _program("holding", 0, "Rest", 66.0, time_left_s=600.0)
         _show(page, {**status, "alarms": [], "program": running})
         _until(page, "window.screenLocks.held === 1")  # a program runs: the screen stays on
         assert not _attention(page)["alerting"]
@@ -189,17 +188,7 @@ def test_stepping_down_the_page_says_cooling_and_when_the_rest_starts(
     browser: Browser, live: Site
 ) -> None:
     with _phone(browser, live) as page, _status_held(page, live, "#program-box") as status:
-        beta = {
-            "name": "Step down",
-            "state": "heating",
-            "steps": 2,
-            "next": None,
-            "step": {"index": 1, "name": "Beta", "setpoint": 64.0},
-            "time_left_s": None,
-            "message": None,
-            "starts_at": None,
-            "rest_in_s": 700.0,
-        }
+        beta = _program("heating", 1, "Beta", 64.0, rest_in_s=700.0)
         _show(page, {**status, "pv": 72.0, "program": beta})
         assert page.text_content("#program-state") == "cooling"
         assert page.text_content("#program-left") == "rest starts in about 12 min"  # 11.7

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 from playwright.sync_api import Browser, Page
-from test_web_browser import _until, browser, live
-from webpage import PHONE, Site
+from test_web_browser import _opened, _until, browser, live
+from webpage import Site
 
 __all__ = ["browser", "live"]  # the fixtures, shared with test_web_browser.py
 
@@ -43,16 +43,9 @@ BAND = 0.5  # °C: hermsd.metrics.BAND, the band a program's step counts as reac
 
 @pytest.fixture
 def page(browser: Browser, live: Site) -> Iterator[Page]:
-    context = browser.new_context(viewport=PHONE)
-    context.add_init_script(TEXT_SPY)
-    opened = context.new_page()
-    errors: list[str] = []
-    opened.on("pageerror", lambda error: errors.append(str(error)))
-    opened.goto(live.url)
-    _until(opened, "window.hermsd.points() > 10")
-    yield opened
-    context.close()
-    assert errors == [], f"the page's script failed: {errors}"
+    with _opened(browser, live, TEXT_SPY) as opened:
+        _until(opened, "window.hermsd.points() > 10")
+        yield opened
 
 
 def _bluish(pixel: list[int]) -> bool:
