@@ -105,6 +105,14 @@ function render(status, age) {
   showFreshness();
 }
 
+// The daemon's estimate by the tun's model: minutes are all it can honestly say.
+function restIn(seconds) {
+  if (seconds < 60) return "rest starts in under a minute";
+  const minutes = Math.round(seconds / 60);
+  const h = Math.floor(minutes / 60), m = minutes % 60;
+  return `rest starts in about ${h ? `${h} h ${m} min` : `${m} min`}`;
+}
+
 // `pv`: the HLT's; above the step's setpoint, the program's "heating" is a cool-down.
 function renderProgram(program, pv) {
   $("program-box").hidden = !program;
@@ -130,14 +138,6 @@ function renderProgram(program, pv) {
   $("program-confirm").hidden = !waiting;
   $("program-pause").hidden = program.state === "paused" || program.state === "done";
   $("program-resume").hidden = program.state !== "paused";
-}
-
-// The daemon's estimate by the tun's model: minutes are all it can honestly say.
-function restIn(seconds) {
-  if (seconds < 60) return "rest starts in under a minute";
-  const minutes = Math.round(seconds / 60);
-  const h = Math.floor(minutes / 60), m = minutes % 60;
-  return `rest starts in about ${h ? `${h} h ${m} min` : `${m} min`}`;
 }
 
 // `mash`: null when no mash sensor is fitted, else its reading (null while faulty) and fault.
