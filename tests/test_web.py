@@ -38,7 +38,7 @@ from hermsd.web.auth import (
     LoginLimiter,
     Sessions,
 )
-from hermsd.web.hub import PAGE_FIELDS, Hub
+from hermsd.web.hub import PAGE_DERIVED, PAGE_FIELDS, Hub
 from hermsd.web.main import WebSetupError, listening_socket, settings_from
 from hermsd.web.passwords import PasswordHash, hash_password, parse_hash, verify_password
 from hermsd.web.socket_client import DaemonUnavailable, OutcomeUnknown, ask
@@ -125,7 +125,7 @@ def test_each_period_is_pushed_with_what_the_page_shows_only(live: Site) -> None
     first, *pushed = events
     for event in pushed:  # the limits, model and learned texts were sent too: 2 kB a period
         status = event["status"]
-        assert isinstance(status, dict) and set(status) == set(PAGE_FIELDS)
+        assert isinstance(status, dict) and set(status) == {*PAGE_FIELDS, *PAGE_DERIVED}
         assert event["rows"] and event["rows"][-1][0] == status["t"]  # type: ignore[index]
     assert pushed[1]["status"]["t"] > first["status"]["t"]  # type: ignore[index]
 
@@ -136,7 +136,7 @@ def test_every_status_field_the_page_script_reads_is_pushed_to_it() -> None:
     script = (Path(hermsd.web.__file__).parent / "static" / "app.js").read_text("utf-8")
     read = set(re.findall(r"\bstatus\.([a-z_0-9]+)", script))
     assert {"output2", "alarm_reasons", "warnings", "program"} <= read  # the pattern finds them
-    assert read <= set(PAGE_FIELDS)
+    assert read <= {*PAGE_FIELDS, *PAGE_DERIVED}
 
 
 def test_a_period_reaches_the_page_before_the_next_one_runs(live: Site) -> None:

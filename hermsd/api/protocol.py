@@ -47,7 +47,9 @@ dead_time s, ambient °C, and `from`: "learned" (from the brew days), "measured"
 `runtime` (each operating key set at runtime whose value differs from the config file's:
 `{"control.setpoint": {"running": 72.0, "file": 66.0}}`) and `program` (the mash program that
 runs, null when none: `name`, `state`, `step` {index, name, setpoint}, `steps`,
-`time_left_s`, `next`, `message`, `starts_at`; see hermsd/program/driver.py), `mash` and
+`time_left_s`, `next`, `message`, `starts_at`, `rest_in_s`: s until the step's band is
+reached by the tun's model, heating or cooling towards it, else null; see
+hermsd/program/driver.py), `mash` and
 `coil` (the mash's and the coil outlet's sensors: null when not fitted, else `celsius`, the
 latest good reading or null while faulty, and `fault`, why it is faulty or null; the
 mash's also `hlt_setpoint` and `phase`, the HLT's setpoint the outer loop chose and its

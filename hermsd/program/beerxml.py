@@ -93,7 +93,15 @@ def read(path: Path, recipe: str | None = None) -> Program:
         raise BeerXMLError(f"{path}: {error}") from None
     except OSError as error:
         raise BeerXMLError(f"{path}: cannot be read: {error.strerror or error}") from None
-    return convert(parse(data, str(path)), str(path), recipe)
+    return program_of(data, str(path), recipe)
+
+
+def program_of(
+    data: bytes, source: str, recipe: str | None, choose: str = "--recipe NAME"
+) -> Program:
+    """The mash program of the recipe in `data`, read from `source` (a file, or the web page's
+    upload); `choose`: how the brewer names one of several recipes there."""
+    return convert(parse(data, source), source, recipe, choose)
 
 
 def parse(data: bytes, source: str) -> Node:
@@ -158,7 +166,7 @@ def _windows_text(chunk: str, where: str, element: Node) -> str:
     return "".join(text)
 
 
-def convert(root: Node, source: str, wanted: str | None) -> Program:
+def convert(root: Node, source: str, wanted: str | None, choose: str = "--recipe NAME") -> Program:
     """The program of the recipe (or mash profile) `wanted`, or of the only one in `root`."""
     if root.tag == "RECIPES":
         found = [(_text(r, "NAME"), r.child("MASH"), r) for r in root.all("RECIPE")]
@@ -185,7 +193,7 @@ def convert(root: Node, source: str, wanted: str | None) -> Program:
             )
     elif len(found) > 1:
         raise BeerXMLError(
-            f"{source}: holds {len(found)} {kind}s ({_names(found)}): choose one with --recipe NAME"
+            f"{source}: holds {len(found)} {kind}s ({_names(found)}): choose one with {choose}"
         )
     else:
         chosen = found

@@ -20,9 +20,10 @@ import logging
 from dataclasses import dataclass, field
 from typing import Any
 
+from hermsd.metrics import BAND
 from hermsd.program.model import READY_BY, Program
 from hermsd.program.readiness import Readiness, Tun
-from hermsd.program.runner import MashReading, ProgramEvent, Refused, Runner
+from hermsd.program.runner import MashReading, ProgramEvent, Refused, Runner, reach_s
 from hermsd.program.store import SAVE_EVERY_S, ProgressStore, ProgressWriter, stale_reason
 from hermsd.safety.latches import StateError
 
@@ -65,6 +66,7 @@ class ProgramDriver:
     _saved: tuple[int, str, bool, bool] | None = None  # what the last record handed over said
     _saved_t: float = 0.0
     _failure_said: str | None = None
+    _rest_in_s: float | None = None  # the last period's `rest_in`
 
     def __post_init__(self) -> None:
         if self.store is not None:
@@ -239,6 +241,7 @@ class ProgramDriver:
             for kind, text in readiness.take_events():
                 runner.say(kind, text)
         runner.period(t, pv, ready_setpoint, mash)
+        self._rest_in_s = rest_in(runner, pv, tun, mash)
         if runner.progress.ready_at_ns is None:
             self.readiness = None  # reached, skipped or stopped: the heat-up is over
         self._events.extend(runner.take_events())
@@ -316,6 +319,7 @@ class ProgramDriver:
             else local_iso(self.starts_at_ns, self.zone),
             "late_until": None if late is None else local_iso(late, self.zone),
             "late": None if self.readiness is None else self.readiness.late,
+            "rest_in_s": self._rest_in_s if runner.state == "heating" else None,
             "save_failed": self._failure_said,
         }
 
@@ -361,3 +365,20 @@ class ProgramDriver:
         if state == "holding" and left is not None:
             return f"{step} {left / 60.0:.0f} min left"
         return f"{step} {state}"
+
+
+def rest_in(runner: Runner, pv: float | None, tun: Tun, mash: MashReading | None) -> float | None:
+    """s until the water reaches the step's band by the tun's model, at full power up to a
+    warmer step or with the heater off down to a cooler one (72 → 64 °C); None while the
+    program heads for no band, when the model settles short of it, during a `ready_by`
+    heat-up (which says its own times) and for a step timed on the mash (the HLT's model
+    does not tell the mash's temperature)."""
+    heading = runner.state == "heating" and runner.progress.ready_at_ns is None
+    if not heading or pv is None or runner.on_mash(mash):
+        return None
+    target = runner.step.setpoint
+    if abs(pv - target) <= BAND:
+        return 0.0
+    if pv < target:
+        return reach_s(tun.model, tun.max_output, pv, target - BAND)
+    return reach_s(tun.model, 0.0, pv, target + BAND)

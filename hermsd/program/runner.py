@@ -82,14 +82,22 @@ class Progress:
 
 
 def heat_up_s(model: PlantModel, output: float, pv: float, target: float) -> float | None:
-    """Seconds of `output` % from now until the sensor reads `target`, by the FOPTD model
-    (None: the model never gets there). The sensor follows y(t) = Ta + K·u + e^(−t/τ)·
-    (y0 − Ta − K·u·e^(θ/τ)) once the dead time θ has passed."""
-    if pv >= target:
+    """Seconds of `output` % from now until the sensor reads `target` or more, by the FOPTD
+    model (None: the model never gets there); 0 when it does already."""
+    return 0.0 if pv >= target else reach_s(model, output, pv, target)
+
+
+def reach_s(model: PlantModel, output: float, pv: float, target: float) -> float | None:
+    """Seconds of `output` % from now until the sensor, rising or falling, reads `target`, by
+    the FOPTD model (None: the model settles short of it). The sensor follows y(t) = Ta + K·u
+    + e^(−t/τ)·(y0 − Ta − K·u·e^(θ/τ)) once the dead time θ has passed."""
+    if pv == target:
         return 0.0
     gain_u = model.gain * output
     reach = model.ambient + gain_u - target
     start = gain_u * math.exp(model.dead_time / model.tau) - (pv - model.ambient)
+    if pv > target:  # a fall: both below zero when the model settles below the target
+        reach, start = -reach, -start
     if reach <= 0.0 or start <= 0.0:
         return None
     return max(model.dead_time, model.tau * math.log(start / reach))

@@ -5,7 +5,8 @@ Routes:
     GET  /api/session      whether this browser is logged in, its CSRF token, what it may do
     POST /api/login        {"password": "..."}: a session cookie (rate-limited, see auth.py)
     POST /api/logout
-    GET  /api/history      the last 24 h as columns (t, pv, setpoint, output) and the clock
+    GET  /api/history      the last 24 h as columns (t, pv, setpoint, output), the clock and
+                           the setpoint's band (±°C, drawn about its line)
     GET  /api/events       server-sent events: the status of each new period
     POST /api/command      one change, forwarded to the daemon's control socket:
                            {"cmd": "set", "setpoint": 72}, {"cmd": "set", "mode": "manual",
@@ -16,6 +17,11 @@ Routes:
                            ("step", optional with confirm and next: the index of the
                            step shown, refused by the daemon once another is current);
                            a reset's reply has "reset": what it cleared, what stands, why
+    POST /api/program/import  {"data": "<a BeerXML file, base64>" | "xml": "<pasted XML>",
+                           "filename": "recipe.xml", "recipe": "Weizen" | null}: the
+                           program file `hermsd program import` writes of it, checked as
+                           it checks it ({"yaml", "name", "steps"}; a refusal in one line);
+                           nothing is sent to the daemon
     POST /api/program      {"yaml": "<a program file>", "filename": "mash.yaml",
                            "ready_by": "06:30" | null}: the file read and checked here
                            (hermsd.program.model, every problem as FILE:LINE:COL in
@@ -34,6 +40,8 @@ its one-line reason; the daemon changed nothing.
 from __future__ import annotations
 
 import asyncio
+import base64
+import binascii
 import contextlib
 import ipaddress
 import json
@@ -66,6 +74,7 @@ from hermsd.api.protocol import (
     parse_request,
     request_message,
 )
+from hermsd.program import beerxml
 from hermsd.program.model import READY_BY, ProgramError, parse
 from hermsd.web.auth import LoginLimiter, Session, Sessions, csrf_matches
 from hermsd.web.hub import Hub, TooManyPages, page_status
@@ -78,6 +87,8 @@ COOKIE = "hermsd_session"
 MAX_BODY = 4096  # bytes of a POST body: a command is under 100
 MAX_PROGRAM_BODY = 1 << 16  # of a program's POST: a program file with comments; the socket's
 # start request (hermsd.api.protocol.MAX_LINE) holds the longest program
+MAX_RECIPE_BODY = 1 << 19  # of a BeerXML import's POST: one recipe exported by brewing
+# software, with its hops, notes and base64's third more
 MAX_FILENAME = 100
 KEEPALIVE_S = 15.0  # a comment line on an idle event stream, so proxies keep it open
 PROGRAM_ACTIONS = ("next", "pause", "resume", "stop")
@@ -376,6 +387,16 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
             return _json({**body, "problems": str(error).splitlines()}, 400)
         return await forward(message)
 
+    async def program_import(request: Request) -> Response:
+        data = await _json_body(request, MAX_RECIPE_BODY)
+        if (answer := refused(request)) is not None:
+            return answer
+        try:
+            imported = await run_in_threadpool(imported_program, data)  # parsed off the loop
+        except beerxml.BeerXMLError as error:
+            return _error(400, str(error))
+        return _json({"ok": True, **imported})
+
     async def forward(message: dict[str, Any]) -> Response:
         """The daemon's answer to one change: its status, or its reason for refusing."""
         period = LONGEST_PERIOD if hub.period is None else hub.period
@@ -417,6 +438,7 @@ def create_app(settings: WebSettings, clock: Callable[[], float] = time.monotoni
             Route("/api/events", events),
             Route("/api/command", command, methods=["POST"]),
             Route("/api/program", program_start, methods=["POST"]),
+            Route("/api/program/import", program_import, methods=["POST"]),
         ],
         middleware=[
             Middleware(_SecurityHeaders),
@@ -481,17 +503,48 @@ def program_message(data: dict[str, Any]) -> dict[str, Any]:
     unknown = set(data) - {"yaml", "filename", "ready_by"}
     if unknown:
         raise BadInput(f"program: unknown field(s) {', '.join(sorted(unknown))}")
-    text, filename = data.get("yaml"), data.get("filename") or "program.yaml"
+    text, filename = data.get("yaml"), _filename(data, "program.yaml")
     if not isinstance(text, str) or not text.strip():
         raise BadInput("program: choose a program file or paste its YAML")
-    if not isinstance(filename, str) or len(filename) > MAX_FILENAME or "/" in filename:
-        raise BadInput(f"filename: expected a file name of at most {MAX_FILENAME} characters")
     ready_by = data.get("ready_by") or None
     if ready_by is not None and not (isinstance(ready_by, str) and READY_BY.fullmatch(ready_by)):
         raise BadInput(f"ready by: {ready_by!r} is not a local time (HH:MM, e.g. 06:30)")
     message = request_message(ProgramStart(parse(text, filename), ready_by))
     del message["v"]
     return message
+
+
+def imported_program(data: dict[str, Any]) -> dict[str, Any]:
+    """The program file of a BeerXML recipe sent by the page, read and checked by `hermsd
+    program import`'s own code: BadInput for a malformed request, BeerXMLError (one line,
+    FILE:LINE: what) for a recipe that makes no program."""
+    unknown = set(data) - {"data", "xml", "filename", "recipe"}
+    if unknown:
+        raise BadInput(f"import: unknown field(s) {', '.join(sorted(unknown))}")
+    filename = _filename(data, "recipe.xml")
+    encoded, pasted = data.get("data"), data.get("xml")
+    if isinstance(encoded, str) and encoded:  # a file's bytes: its own declared encoding
+        try:
+            xml = base64.b64decode(encoded, validate=True)
+        except binascii.Error:
+            raise BadInput("data: expected the file's bytes in base64") from None
+    elif isinstance(pasted, str) and pasted.strip():
+        xml = pasted.encode()
+    else:
+        raise BadInput("import: choose a BeerXML file or paste its XML")
+    recipe = data.get("recipe") or None
+    if recipe is not None and not (isinstance(recipe, str) and len(recipe) <= MAX_FILENAME):
+        raise BadInput(f"recipe: expected a recipe's name of at most {MAX_FILENAME} characters")
+    program = beerxml.program_of(xml, filename, recipe, choose="the Recipe field")
+    return {"yaml": beerxml.to_yaml(program), "name": program.name, "steps": len(program.steps)}
+
+
+def _filename(data: dict[str, Any], default: str) -> str:
+    """The name of the file the page sent (its problems are said by it); BadInput if odd."""
+    filename = data.get("filename") or default
+    if not isinstance(filename, str) or len(filename) > MAX_FILENAME or "/" in filename:
+        raise BadInput(f"filename: expected a file name of at most {MAX_FILENAME} characters")
+    return filename
 
 
 async def _json_body(request: Request, limit: int = MAX_BODY) -> dict[str, Any]:

@@ -29,6 +29,8 @@ from typing import Any
 
 from hermsd.api.client import LONGEST_PERIOD
 from hermsd.api.history import KEPT_SECONDS
+from hermsd.metrics import BAND
+from hermsd.safety.limits import LATCHED_KINDS
 from hermsd.web.socket_client import DaemonUnavailable, ask
 
 log = logging.getLogger("hermsd")
@@ -53,6 +55,9 @@ PAGE_FIELDS = (
     "pump",
 )
 """What the page shows of a status (not the limits, model and learned texts: 2 kB a period)."""
+PAGE_DERIVED = ("latched",)
+"""What the hub adds for the page: `latched`, the standing alarms that wait for a reset (the
+others clear themselves once over), so the page offers a reset only where one does something."""
 STALE_PERIODS = 2.0  # control periods a reading may be old and still be shown as live
 QUEUE_EVENTS = 32  # events a page may fall behind by before it is dropped (it reconnects)
 MAX_PAGES = 32  # open event streams at once
@@ -235,6 +240,7 @@ class Hub:
         if self._body is None or self._body[0] != last:
             t, pv, setpoint, output, mash, hlt_setpoint = self._columns
             body = {
+                "band": BAND,  # °C either side of the setpoint that counts as holding it
                 "period": self.period,
                 "offset": self.offset,
                 "t": t,
@@ -284,8 +290,11 @@ class Hub:
 
 
 def page_status(status: dict[str, Any]) -> dict[str, Any]:
-    """The fields of a status reply the page shows (`program` only when the daemon has it)."""
-    return {key: status[key] for key in PAGE_FIELDS if key in status}
+    """The fields of a status reply the page shows (`program` only when the daemon has it), and
+    PAGE_DERIVED."""
+    shown = {key: status[key] for key in PAGE_FIELDS if key in status}
+    shown["latched"] = [kind for kind in status.get("alarms", ()) if kind in LATCHED_KINDS]
+    return shown
 
 
 def _event(message: dict[str, Any]) -> bytes:

@@ -19,12 +19,15 @@ const HLT_SP_SERIES = {
 };
 let mashFitted = false; // whether the daemon reads a mash sensor: the chart has its lines
 let offset = 0;
+let band = 0; // °C either side of the setpoint that counts as holding it (the server says)
 let rangeHours = 3;
 let chart = null;
 let source = null;
 let viewing = false;
 let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
 let shownAlarms = []; // the alarms the page shows: what its reset button clears
+let shownWarnings = []; // the warnings the page shows
+let programRuns = false; // whether a program runs (not done): the screen is kept on
 let shownStep = null; // the program step the page shows: what its confirm and next end
 let shownPump = null; // the pump's state the page shows (null: none fitted)
 let reading = null; // the reading shown: its age (s) when it came, and Date.now() then
@@ -89,10 +92,16 @@ function render(status, age) {
   const reasons = status.alarm_reasons || {};  // why each stands: what the brewer must check
   $("alarms").textContent = alarms
     .map((kind) => (reasons[kind] ? `${kind}: ${reasons[kind]}` : kind)).join("; ");
+  const latched = status.latched || [];  // the others clear themselves: no reset for them
+  const passing = alarms.filter((kind) => !latched.includes(kind));
+  $("alarm-note").textContent = passing.length
+    ? `(${passing.join(", ")}: the heater is off until it is over)` : "";
+  $("reset-alarm").hidden = latched.length === 0;
   const warnings = status.warnings || [];  // nothing held off, but the brewer should look
+  shownWarnings = warnings;
   $("warning-box").hidden = warnings.length === 0;
   $("warnings").textContent = warnings.join("; ");
-  renderProgram(status.program);
+  renderProgram(status.program, status.pv);
   renderMashSide(status.mash, status.pump);
   if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
     $("setpoint-input").placeholder = String(status.setpoint);
@@ -100,18 +109,31 @@ function render(status, age) {
   showFreshness();
 }
 
-function renderProgram(program) {
+// The daemon's estimate by the tun's model: minutes are all it can honestly say.
+function restIn(seconds) {
+  if (seconds < 60) return "rest starts in under a minute";
+  const minutes = Math.round(seconds / 60);
+  const h = Math.floor(minutes / 60), m = minutes % 60;
+  return `rest starts in about ${h ? `${h} h ${m} min` : `${m} min`}`;
+}
+
+// `pv`: the HLT's; above the step's setpoint, the program's "heating" is a cool-down.
+function renderProgram(program, pv) {
   $("program-box").hidden = !program;
   $("program-form").hidden = Boolean(program); // one program at a time: stop it to start another
+  programRuns = Boolean(program) && program.state !== "done";
   shownStep = program && program.step ? program.step.index : null;
   if (!program) return;
   $("program-name").textContent = program.name;
-  $("program-state").textContent = program.state;
   const step = program.step;
+  const cooling = program.state === "heating" && step && typeof pv === "number"
+    && pv > step.setpoint;
+  $("program-state").textContent = cooling ? "cooling" : program.state;
   $("program-step").textContent = step
     ? `${step.index + 1} of ${program.steps}: ${step.name}, ${step.setpoint} °C` : "—";
   $("program-left").textContent = program.state === "scheduled" && program.starts_at
     ? `starts ${new Date(program.starts_at).toLocaleTimeString()}`
+    : typeof program.rest_in_s === "number" ? restIn(program.rest_in_s)
     : program.time_left_s === null ? "until in band, or told" : duration(program.time_left_s);
   $("program-next").textContent = program.next || "last step";
   const waiting = program.state === "waiting";
@@ -182,7 +204,125 @@ function showFreshness() {
   $("age").textContent = age === null ? "—" : `${Math.round(age)} s old`;
   $("view").classList.toggle("stale", !fresh);
   updateCommands();
+  attend(age);
 }
+
+// The brewer's attention: what a phone on the bench or in a pocket must learn. While an alarm
+// stands or the page has no live reading: a full-width banner, the title and the icon changed,
+// and every ALERT_EVERY_MS a vibration and, once the brewer has turned the sound on (a browser
+// plays audio only after a tap), a beep; the screen kept on while that lasts or a program runs.
+const ALERT_EVERY_MS = 2000;
+const ICON_COLOURS = { ok: "#256c2b", check: "#b07d00", alarm: "#b3261e" };
+let audio = null; // the AudioContext, made by the tap that turns the sound on
+let soundOn = false;
+let alertTimer = null; // the beeping and vibrating, while alerting
+let beeps = 0;
+let wakeLock = null; // the screen's WakeLockSentinel; "asking" or "refused" until visible again
+let wantAwake = false;
+
+function attend(age) {
+  const lost = daemonDown !== null || (age !== null && age > staleAfter);
+  $("lost-box").hidden = !lost;
+  $("lost").textContent = daemonDown !== null
+    ? "the daemon does not answer: nothing on this page is the tun now"
+    : `the last reading is ${Math.round(age)} s old: nothing on this page is the tun now`;
+  const alarm = shownAlarms.length > 0;
+  const level = alarm || lost ? "alarm" : shownWarnings.length ? "check" : "ok";
+  const word = alarm ? "ALARM" : lost ? (daemonDown !== null ? "NO DAEMON" : "NOT LIVE")
+    : level === "check" ? "check" : "";
+  const title = level === "ok" ? "hermsd" : `${level === "alarm" ? "⚠ " : ""}${word} — hermsd`;
+  if (document.title !== title) document.title = title;
+  showIcon(level);
+  if (level === "alarm" && alertTimer === null) {
+    alertOnce();
+    alertTimer = setInterval(alertOnce, ALERT_EVERY_MS);
+  } else if (level !== "alarm" && alertTimer !== null) {
+    clearInterval(alertTimer);
+    alertTimer = null;
+    if (navigator.vibrate) navigator.vibrate(0);
+  }
+  keepAwake(level === "alarm" || programRuns);
+}
+
+function showIcon(level) {
+  let icon = document.querySelector("link[rel=icon]");
+  if (!icon) {
+    icon = document.createElement("link");
+    icon.rel = "icon";
+    document.head.appendChild(icon);
+  }
+  if (icon.dataset.level === level) return;
+  const mark = level === "ok" ? "" : "<text x='8' y='13' font-size='12' font-weight='bold' "
+    + "text-anchor='middle' fill='white'>!</text>";
+  const svg = "<svg xmlns='http://www.w3.org/2000/svg' viewBox='0 0 16 16'><circle cx='8' "
+    + `cy='8' r='8' fill='${ICON_COLOURS[level]}'/>${mark}</svg>`;
+  icon.href = `data:image/svg+xml,${encodeURIComponent(svg)}`;
+  icon.dataset.level = level;
+}
+
+function alertOnce() {
+  if (soundOn) beep();
+  if (navigator.vibrate) navigator.vibrate([400, 200, 400]);
+}
+
+// Two short 880 Hz tones: loud, and unlike anything else in a brewery.
+function beep() {
+  if (!audio || audio.state !== "running") return;
+  const now = audio.currentTime;
+  for (const at of [0, 0.35]) {
+    const tone = audio.createOscillator(), gain = audio.createGain();
+    tone.type = "square";
+    tone.frequency.value = 880;
+    gain.gain.value = 0.3;
+    tone.connect(gain).connect(audio.destination);
+    tone.start(now + at);
+    tone.stop(now + at + 0.25);
+  }
+  beeps += 1;
+}
+
+async function toggleSound() {
+  soundOn = !soundOn;
+  $("sound").textContent = soundOn ? "Sound: on" : "Sound: off";
+  $("sound").setAttribute("aria-pressed", String(soundOn));
+  if (!soundOn) return;
+  const Context = window.AudioContext || window.webkitAudioContext;
+  if (!Context) {
+    say("this browser cannot play sound: alarms show and vibrate only", "error");
+    return;
+  }
+  audio = audio || new Context();
+  await audio.resume();
+  beep(); // at once: the brewer hears how loud an alarm is
+}
+
+// Asked for again whenever the page becomes visible: the browser lets the lock go when hidden.
+async function keepAwake(wanted) {
+  wantAwake = wanted;
+  if (!navigator.wakeLock) return;
+  if (wanted && wakeLock === null && document.visibilityState === "visible") {
+    wakeLock = "asking";
+    let lock;
+    try {
+      lock = await navigator.wakeLock.request("screen");
+    } catch (error) { // refused (battery saver, no focus): the page alerts all the same
+      wakeLock = "refused";
+      return;
+    }
+    lock.addEventListener("release", () => { if (wakeLock === lock) wakeLock = null; });
+    wakeLock = lock;
+    if (!wantAwake) keepAwake(false);
+  } else if (!wanted && typeof wakeLock === "object" && wakeLock !== null) {
+    const lock = wakeLock;
+    wakeLock = null;
+    lock.release();
+  }
+}
+
+document.addEventListener("visibilitychange", () => {
+  if (wakeLock === "refused") wakeLock = null;
+  keepAwake(wantAwake);
+});
 
 function updateCommands() {
   const allowed = session.logged_in && live();
@@ -211,18 +351,68 @@ function makeChart() {
       {},
       { label: "Temperature °C", stroke: "#c62828", width: 2, scale: "°C" },
       { label: "Setpoint °C", stroke: "#1f5fbf", width: 1.5, dash: [6, 4], scale: "°C" },
-      { label: "Output %", stroke: "#888", width: 1, scale: "%", fill: "rgba(120,120,120,0.12)" },
+      { label: "Output %", stroke: "#888", width: 1, scale: "%" },
       ...(mashFitted ? [MASH_SERIES, HLT_SP_SERIES] : []),
     ],
+    // Each axis says its unit; the right one is wide enough for "100" on a 390 px phone.
     axes: [
-      {},
-      { scale: "°C", size: 44 },
-      { scale: "%", side: 1, size: 36, grid: { show: false } },
+      { label: "local time", ...AXIS_LABEL },
+      { scale: "°C", size: 36, label: "°C", ...AXIS_LABEL },
+      { scale: "%", side: 1, size: 34, grid: { show: false }, label: "output %", ...AXIS_LABEL },
     ],
+    hooks: { drawAxes: [drawBand] },
   };
   chart = new uPlot(options, columns(), box);
   performance.mark("hermsd-chart");
   window.addEventListener("resize", () => chart.setSize({ width: box.clientWidth, height: 240 }));
+}
+
+const AXIS_LABEL = { labelSize: 16, labelGap: 0, labelFont: "12px system-ui, sans-serif" };
+const BAND_FILL = "rgba(31, 95, 191, 0.15)"; // the setpoint's blue, faint
+
+// The setpoint's ±band drawn under the lines, a step at each change as the setpoint is
+// (a gap where it is unknown): in it, the tun holds its setpoint.
+function drawBand(u) {
+  const xs = u.data[0], setpoints = u.data[2];
+  const [first, last] = u.series[0].idxs || [0, xs.length - 1];
+  const { left, top, width, height } = u.bbox;
+  const ctx = u.ctx;
+  ctx.save();
+  ctx.beginPath();
+  ctx.rect(left, top, width, height);
+  ctx.clip();
+  ctx.fillStyle = BAND_FILL;
+  let run = [];
+  for (let i = Math.max(0, first - 1); i <= Math.min(xs.length - 1, last + 1); i++) {
+    if (setpoints[i] === null || setpoints[i] === undefined) {
+      fillBand(u, run);
+      run = [];
+    } else {
+      run.push(i);
+    }
+  }
+  fillBand(u, run);
+  ctx.restore();
+}
+
+function fillBand(u, run) {
+  if (run.length === 0) return;
+  const ctx = u.ctx, xs = u.data[0], setpoints = u.data[2];
+  const x = (i) => u.valToPos(xs[i], "x", true);
+  const y = (i, side) => u.valToPos(setpoints[i] + side * band, "°C", true);
+  ctx.beginPath();
+  ctx.moveTo(x(run[0]), y(run[0], 1));
+  for (let k = 1; k < run.length; k++) {
+    ctx.lineTo(x(run[k]), y(run[k - 1], 1));
+    ctx.lineTo(x(run[k]), y(run[k], 1));
+  }
+  for (let k = run.length - 1; k > 0; k--) {
+    ctx.lineTo(x(run[k]), y(run[k], -1));
+    ctx.lineTo(x(run[k]), y(run[k - 1], -1));
+  }
+  ctx.lineTo(x(run[0]), y(run[0], -1));
+  ctx.closePath();
+  ctx.fill();
 }
 
 function addRows(rows) {
@@ -254,6 +444,7 @@ async function loadView() {
   MASH.push(...history.mash);
   HLT_SP.push(...history.hlt_setpoint);
   offset = history.offset;
+  band = history.band;
   $("view").hidden = false;
   if (chart) chart.destroy();
   makeChart();
@@ -363,6 +554,49 @@ async function startProgram() {
   }
 }
 
+const MAX_RECIPE_BYTES = 380000; // the server takes 512 KiB of request, base64's third more
+
+// The program a BeerXML recipe makes, by `hermsd program import`'s own code on the server,
+// put in the program's text box to be read and started as any program; nothing is sent to
+// the daemon. A file goes as its bytes, so its own declared encoding holds.
+async function importRecipe() {
+  const file = $("recipe-file").files[0];
+  if (file && file.size > MAX_RECIPE_BYTES) {
+    say(`${file.name} is ${file.size} bytes: export the one recipe (at most ${MAX_RECIPE_BYTES})`,
+        "error");
+    return;
+  }
+  const body = { filename: file ? file.name : "pasted.xml",
+                 recipe: $("recipe-name").value.trim() || null };
+  if (file) body.data = await base64Of(file);
+  else body.xml = $("recipe-xml").value;
+  say("making the program…");
+  const response = await api("/api/program/import", body);
+  if (response.status !== 200) {
+    if (response.status === 401) {
+      session = { ...session, logged_in: false, csrf: null };
+      updateSessionView();
+    }
+    say(response.body.error || `import: failed (HTTP ${response.status})`, "error");
+    return;
+  }
+  $("program-file").value = "";
+  $("program-yaml").value = response.body.yaml;
+  $("program-problems").hidden = true;
+  say(`${response.body.name}: ${response.body.steps} steps, below: read them, then Start program`,
+      "ok");
+  $("program-yaml").scrollIntoView({ block: "center" });
+}
+
+function base64Of(file) {
+  return new Promise((resolve, reject) => {
+    const reader = new FileReader();
+    reader.onload = () => resolve(String(reader.result).split(",", 2)[1] || "");
+    reader.onerror = () => reject(reader.error);
+    reader.readAsDataURL(file);
+  });
+}
+
 function number(input, name, unit) {
   const text = input.value.trim();
   const value = Number(text);
@@ -374,6 +608,7 @@ function number(input, name, unit) {
 }
 
 function wire() {
+  $("sound").addEventListener("click", toggleSound);
   $("login-form").addEventListener("submit", async (event) => {
     event.preventDefault();
     const response = await api("/api/login", { password: $("password").value });
@@ -409,6 +644,12 @@ function wire() {
       command.output = output;
     }
     send(command, `mode ${mode}`);
+  });
+  $("recipe-import-button").addEventListener("click", importRecipe);
+  $("recipe-name").addEventListener("keydown", (event) => {
+    if (event.key !== "Enter") return;
+    event.preventDefault(); // the recipe's name, not the program's start
+    importRecipe();
   });
   $("program-form").addEventListener("submit", (event) => {
     event.preventDefault();
@@ -458,6 +699,11 @@ async function start() {
   }
 }
 
-window.hermsd = { points: () => T.length, chart: () => chart };
+window.hermsd = {
+  points: () => T.length,
+  chart: () => chart,
+  attention: () => ({ alerting: alertTimer !== null, beeps, sound: soundOn,
+                      awake: typeof wakeLock === "object" && wakeLock !== null }),
+};
 setInterval(showFreshness, 1000);
 start();
