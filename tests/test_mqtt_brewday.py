@@ -289,6 +289,8 @@ def test_a_program_is_chosen_started_confirmed_paused_resumed_and_stopped_from_b
         "Mash in",
         "Rest",
     )
+    # The event follows the state it is drawn from: waited for, as any message on the broker.
+    brew.watcher.wait_for(lambda m: m.topic == brew.brew.event and b'"waiting"' in m.payload, mark)
     waiting = [e for e in brew.alerts(mark) if e["event_type"] == "waiting"]
     assert waiting == [{"event_type": "waiting", "tun": "HLT", "kind": "", "message": "Mash in"}]
 

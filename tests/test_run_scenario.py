@@ -22,6 +22,7 @@ from hermsd.sim.scenario import effective_config, load_scenario
 LIVE = Path(__file__).resolve().parents[1] / "scenarios" / "herms-live.yaml"
 MIXED_C = (50 * 4186 * 39.75 + 12 * 1700 * 20) / (50 * 4186 + 12 * 1700)  # 38.0 °C
 DOUGH_IN_S, PUMP_S = 120.0, 300.0
+PREPARED_S = 115.0  # the start is prepared for the HLT law's dead time: control.dead_time's
 
 
 def test_the_status_line_of_a_live_herms_shows_the_mash_its_aim_and_the_pump() -> None:
@@ -52,15 +53,21 @@ def test_run_simulate_scenario_logs_the_mash_the_pump_and_the_outer_loop(tmp_pat
     day = reader.load(sorted(logs.glob("*.mcap")))
     periods = day.periods
     before = [p for p in periods if p.t < DOUGH_IN_S]
-    pumped = [p for p in periods if p.t > PUMP_S + 10.0]
+    preparing = [p for p in periods if PUMP_S + 10.0 < p.t < PUMP_S + PREPARED_S - 5.0]
+    pumped = [p for p in periods if p.t > PUMP_S + PREPARED_S + 10.0]
     assert before and pumped and periods[-1].t > 19 * 60.0
     assert all(p.mash == pytest.approx(20.0, abs=0.1) and p.pump is False for p in before)
+    assert preparing and all(p.pump is False and (p.coil_load or 0.0) > 0.0 for p in preparing)
     assert all(p.pump is True and p.mash is not None and p.mash > MIXED_C - 0.5 for p in pumped)
     # the setpoint is the scenario's, the mash's; the HLT's is the outer loop's, within the limit
     assert {p.setpoint for p in periods} == {66.0}
     assert all(p.hlt_setpoint is not None and p.hlt_setpoint <= 76.0 for p in periods)
     said = [event.message for event in day.events]
     assert "pump on: by the operator" in said
+    assert (
+        "pump starting in 115 s: by the operator (the coil's load sent ahead to the element)"
+        in said
+    )
 
 
 def test_a_scenario_without_simulate_is_refused_in_one_line(
