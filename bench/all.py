@@ -130,6 +130,12 @@ BENCHES = (
         ("## HERMS: the no-flow sign (a stuck bed) and the mash after it",),
     ),
     Bench(
+        "herms-pump",
+        "herms_pump.py",
+        (),
+        ("## HERMS pump start: the HLT's drop, prepared and seen",),
+    ),
+    Bench(
         "slow-disk",
         "slow_disk.py",
         ("--seconds", "60", "--every", "10", "--stall", "2"),
