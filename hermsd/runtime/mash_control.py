@@ -16,12 +16,11 @@ from hermsd.config.schema import Config
 from hermsd.control import pid, predictive
 from hermsd.control.cascade import STRIKE, Cascade, Decision, Tanks
 from hermsd.control.coil import CoilEstimate, CoilEstimator, prior_estimate
-from hermsd.control.factory import WATER_J_PER_LITRE_K, total_watts
+from hermsd.control.factory import total_watts
 from hermsd.control.flow_watch import FlowWatch
 from hermsd.control.learning import LearnedModel
+from hermsd.safety.coil_load import mash_capacity
 
-GRAIN_J_PER_KG_K = 1700.0
-"""The heat capacity of a kilogram of malt (dry grist, about 0.4 of water's)."""
 CUT_OUT_MARGIN = 1.0
 """°C the HLT's setpoint stays below safety.max_temp: the HLT law's overshoot is a tenth."""
 
@@ -137,7 +136,7 @@ def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> 
     tanks = Tanks(
         hlt_capacity=hlt_capacity,
         hlt_loss=hlt_loss,
-        mash_capacity=WATER_J_PER_LITRE_K * herms.mash_litres + GRAIN_J_PER_KG_K * herms.grain_kg,
+        mash_capacity=mash_capacity(herms.mash_litres, herms.grain_kg),
         mash_loss=herms.mash_loss_w_per_k,
         room=model.ambient,
         hose_delay=herms.hose_s,
