@@ -122,6 +122,20 @@ def test_the_learned_coil_is_stored_and_is_the_next_days_prior(
     assert coil_prior(parse(CONFIG), None).conductance == 200.0  # herms.coil_w_per_k
 
 
+def test_the_coil_learned_is_kept_when_the_day_ends_with_the_pump_running(
+    tmp_path: Path,
+) -> None:
+    """The daemon stopped with the pump running (no pump stop before it): the day's K is kept
+    as at any pump stop, within 5 % of the coil's K = ṁc·(1 − e^(−UA/ṁc)) = 188.2 W/K."""
+    doc = {"name": "ends-pumping", "duration": "2h", "setpoint": MASH_SP, "events": EVENTS[:2]}
+    run = scenario.parse_scenario({**doc, "plant": HERMS_DAY["plant"]})
+    result = scenario.run(run, parse(CONFIG), keep_records=True, state_dir=tmp_path)
+    assert result.records[-1].pump is True
+    stored = LearnedModel(**yaml.safe_load((tmp_path / "learned-model.json").read_text()))
+    flow = 6.0 / 60.0 * 4186.0
+    assert stored.coil == pytest.approx(flow * (1.0 - math.exp(-250.0 / flow)), rel=0.05)
+
+
 def herms_daemon() -> tuple[Daemon, World]:
     config = parse(CONFIG)
     clock = VirtualClock()
@@ -299,3 +313,26 @@ def test_no_flow_is_never_signed_on_a_normal_herms_day(day: tuple[scenario.Resul
     coil passes its heat all along, no sign."""
     result, _state = day
     assert [r.t for r in result.records if r.cascade == "no flow"] == []
+
+
+def test_a_reload_while_no_flow_is_signed_says_the_sign_ended() -> None:
+    """A reload that makes the outer loop again drops its flow watch: the sign standing is
+    said to end (why), not left without its end; the new watch judges the flow afresh."""
+    daemon, world = herms_daemon()
+    periods = Periods()
+    daemon.listeners.append(periods)
+    daemon.recorder = periods
+    tun: Any = world.plant
+    clock = daemon.clock
+    clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
+    clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
+    clock.call_at(STUCK_AT, lambda: tun.set_recirculation_ok(False, STUCK_AT))
+    daemon.run(until=FREED_AT - 60.0)
+    assert any(e.startswith("no flow through the coil:") for e in periods.events)
+    daemon.reload(parse(CONFIG.replace("mash_loss_w_per_k: 5", "mash_loss_w_per_k: 6")))
+    daemon.run(until=FREED_AT - 30.0)
+    ended = [e for e in periods.events if e.startswith("no flow through the coil ended")]
+    assert ended == [
+        "no flow through the coil ended: the outer loop made again for the reloaded config, "
+        "the flow judged afresh"
+    ]

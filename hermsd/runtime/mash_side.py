@@ -262,13 +262,15 @@ class MashSide(LoopState):
 
     def _stop_mash_side(self, reason: str, t: float) -> None:
         """Said when the stop switched a running pump off (with every output), or cancelled
-        a start still being prepared."""
+        a start still being prepared; the coil's K learned so far kept, as at any pump stop
+        (a day ended with the pump running taught it as well)."""
         if self._pump_start_at is not None:
             self._pump_start_at = None
             self._event(logging.INFO, f"pump start cancelled: {reason}", t)
         if self._pump_on:
             self._pump_on = False
             self._event(logging.INFO, f"pump off: {reason}", t)
+        self._keep_coil(t)
 
     @property
     def pump_running(self) -> bool:
@@ -376,6 +378,9 @@ class MashSide(LoopState):
         coil = control.coil.estimate()
         prior = coil if coil.source != "prior" else coil_prior(config, self.learned_model)
         self._mash_control = mash_control(config, self.model, prior)
+        if control.flow.stuck:  # the new outer loop's watch judges the flow afresh
+            why = "the outer loop made again for the reloaded config, the flow judged afresh"
+            self._event(logging.INFO, f"no flow through the coil ended: {why}", self._now())
 
     def hlt_target(self) -> float:
         """The HLT law's setpoint in force: the outer loop's last, else the brewer's."""
