@@ -15,7 +15,7 @@ from test_mqtt import ENTITIES, PREFIX, Rig, discovered, operator_lines, step_un
 from test_reload import BASE, HERMS, doughed_in
 
 from hermsd.config import read
-from hermsd.mqtt.messages import Topics, discovery_messages
+from hermsd.mqtt.messages import Topics, discovery_messages, state_message
 
 NODE = "brewery_hlt"
 SWITCH = f"homeassistant/switch/{NODE}/pump/config"
@@ -59,7 +59,9 @@ def test_a_herms_announces_a_mash_temperature_sensor_and_a_pump_switch(herms: Ri
     switch = entities[SWITCH]
     assert switch["command_topic"] == f"{PREFIX}/set/pump"
     assert (switch["payload_on"], switch["payload_off"]) == ("ON", "OFF")
-    assert switch["value_template"] == "{{ 'ON' if value_json.pump else 'OFF' }}"
+    assert switch["value_template"] == (
+        "{{ 'ON' if value_json.pump or value_json.pump_start_in is not none else 'OFF' }}"
+    )
     # the published state: the daemon's reading of the mash (near the mix) and the pump off
     status = herms.status()
     assert state["mash"] == status["mash"]["celsius"] and 60.0 < state["mash"] <= 70.2
@@ -156,3 +158,15 @@ def test_the_outer_loops_choice_is_published_and_the_thermostat_holds_the_mash(
     assert herms.daemon.setpoint == 68.5 and fields["hlt_setpoint"] == state["hlt_setpoint"]
     assert state["hlt_setpoint"] <= 68.5 + 10.0
     assert herms.watcher.on(herms.topics.error) == []
+
+
+def test_a_prepared_pump_start_is_published_with_the_pump_asked_on(herms: Rig) -> None:
+    """While hermsd sends the coil's load ahead of a start it commanded, the state carries
+    `pump_start_in` (s), which the switch's template reads as on: the switch a brewer turned
+    on does not flip back to off until the pump runs."""
+    status = herms.status()
+    mash = status["mash"]
+    assert isinstance(mash, dict)
+    assert state_message(status)["pump_start_in"] is None  # no start being prepared
+    starting = {**status, "pump": False, "mash": {**mash, "pump_start_in": 42.4}}
+    assert state_message(starting)["pump_start_in"] == 42.4

@@ -588,6 +588,24 @@ def test_the_pump_button_starts_and_stops_the_pump_at_the_next_period(
         assert page.text_content("#pump-button") == button
 
 
+def test_a_prepared_pump_start_is_shown_starting_and_its_button_cancels_it(
+    herms_page: Page, herms: Site
+) -> None:
+    """While hermsd sends the coil's load ahead of a pump start it commanded (the status's
+    `mash.pump_start_in`), the pump is shown starting, not off, and the button stops it."""
+    with _status_held(herms_page, herms, "#alarm-box") as status:
+        mash = status["mash"]
+        assert isinstance(mash, dict)
+        starting = {**status, "pump": False, "mash": {**mash, "pump_start_in": 42.4}}
+        herms_page.evaluate("(status) => onEvent({status, rows: [], offset: 0, age: 0})", starting)
+        assert herms_page.text_content("#pump") == "starting in 42 s"
+        assert herms_page.text_content("#pump-button") == "Stop pump"
+        with herms_page.expect_request("**/api/command") as sent:
+            herms_page.click("#pump-button")
+            herms.wait_for_command()
+        assert sent.value.post_data_json == {"cmd": "set", "pump": False}
+
+
 def test_a_faulty_mash_sensor_is_said_where_its_reading_was(herms_page: Page, herms: Site) -> None:
     with _status_held(herms_page, herms, "#alarm-box") as status:
         why = "no answer from the LM92 at 0x49"

@@ -88,6 +88,10 @@ class Topics:
         return f"{self.discovery_prefix}/{component}/{self.node_id}/{object_id}/config"
 
 
+PUMP_TEMPLATE = "{{ 'ON' if value_json.pump or value_json.pump_start_in is not none else 'OFF' }}"
+"""The pump switch's state: on while it runs and while hermsd prepares its start."""
+
+
 def state_message(status: dict[str, Any]) -> dict[str, Any]:
     """The retained state, from a `status` reply: the daemon's fields, the program's (null
     when none runs, or when the daemon has no programs), and the words Home Assistant shows,
@@ -139,6 +143,7 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "hlt_setpoint": mash.get("hlt_setpoint"),
         "mash_phase": mash.get("phase") or "none",
         "pump": status.get("pump"),
+        "pump_start_in": mash.get("pump_start_in"),
         **brewday.state_fields(program or None),
     }
 
@@ -244,7 +249,8 @@ def discovery_messages(
             "pump",
             "Pump",
             state_topic=topics.state,
-            value_template="{{ 'ON' if value_json.pump else 'OFF' }}",
+            # On from the command: a start prepared (the coil's load sent ahead) is asked on.
+            value_template=PUMP_TEMPLATE,
             command_topic=topics.set_pump,
             payload_on="ON",
             payload_off="OFF",

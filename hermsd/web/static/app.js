@@ -158,10 +158,15 @@ function renderMashSide(mash, pump) {
       : `→ ${aim.toFixed(1)} °C${mash.phase ? ` (${mash.phase})` : ""}`;
   }
   showMashLine(Boolean(mash));
-  shownPump = typeof pump === "boolean" ? pump : null;
+  // A start hermsd prepares (the coil's load sent ahead) is the pump asked on: the button
+  // says "Stop pump", which cancels it.
+  const startIn = mash && typeof mash.pump_start_in === "number" ? mash.pump_start_in : null;
+  const starting = pump === false && startIn !== null;
+  shownPump = typeof pump === "boolean" ? pump || starting : null;
   $("pump-box").hidden = shownPump === null;
   $("pump-row").hidden = shownPump === null;
-  $("pump").textContent = shownPump ? "on" : "off";
+  $("pump").textContent = starting ? `starting in ${startIn.toFixed(0)} s`
+    : shownPump ? "on" : "off";
   $("pump-button").textContent = shownPump ? "Stop pump" : "Start pump";
 }
 
