@@ -81,6 +81,17 @@ def test_a_rise_the_coil_explains_is_no_shorted_ssr() -> None:
     assert _run(20.0, 0.004, 0.0, True, 38.0) == []
 
 
+def test_water_the_coil_holds_still_is_no_stuck_sensor() -> None:
+    """A HERMS hold: 85 % of 3 kW into the coil, the HLT's reading steady for 40 min. A
+    working element gives at least 0.85 × 0.81 (−10 % mains) × 3000 = 2065.5 W; a coil that
+    may take that much explains the standstill, one that may not does not."""
+    assert _run(66.0, 0.0, 85.0, False, 38.0) == ["sensor_stuck"]
+    # 6 L/min: 418.6 W/K; the mash at 61.5 °C, +1 °C: 418.6 × 5.5 = 2302.3 W at most.
+    assert _run(66.0, 0.0, 85.0, True, 61.5) == []
+    # The mash at 62.5 °C: 418.6 × 4.5 = 1883.7 W at most, short of the element's least.
+    assert _run(66.0, 0.0, 85.0, True, 62.5) == ["sensor_stuck"]
+
+
 def _alarms(name: str, duration: float) -> list[dict[str, object]]:
     day = scenario.load_scenario(SCENARIOS / f"{name}.yaml")
     alarms: list[dict[str, object]] = scenario.run(

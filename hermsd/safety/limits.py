@@ -191,6 +191,12 @@ class SafetyLimits:
         needed = self.heating_output_per_k * (celsius - self.loss_room)
         return min(self.full_output, max(20.0, needed))
 
+    def least_heating(self, applied: float) -> float:
+        """°C/s the least a working element at `applied` % heats the least water the tun may
+        hold (at −10 % mains): in the units the coil's load is counted in, so that a coil
+        that may take this much explains water that does not move."""
+        return applied / 100.0 * MAINS_LOW * self.full_rate * FILL_RANGE
+
     def least_rise(self, held_for: float, peak: float) -> float | None:
         """°C the PV must have risen after `held_for` s at `full_output` or more (past the
         dead time).
