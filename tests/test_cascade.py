@@ -165,3 +165,33 @@ def test_an_hlt_above_its_setpoint_is_fed_no_load() -> None:
     # 70.2, beyond HLT_MARGIN, it is not (a stuck bed draws nothing; the law must not heat).
     assert step(cascade(), 50.0, 70.1).load_watts == pytest.approx(4020.0)
     assert step(cascade(), 50.0, 70.2).load_watts == 0.0
+
+
+def test_a_mash_left_short_by_a_wrong_k_still_reaches_its_rest() -> None:
+    """A pump hermsd neither switches nor sees: K is never learned and stays at the 200 W/K
+    prior where the coil passes 125. The model then says an HLT of about 66 °C carries the
+    mash to 63 °C, where it truly levels out at (125·66 + 14.4·20)/(125 + 14.4) = 61.3 °C. The
+    coast must not give way to a climb stopped again at once by the same model (which cleared
+    what the observer gathered, period after period, and left the mash there all day): the
+    observer learns the shortfall as losses and the mash reaches its rest.
+
+    The plant, integrated here by Euler steps of 1 s: an HLT of 100 L (418 600 J/K, 22.6 W/K)
+    whose 3.4 kW element follows its setpoint with a proportional duty (100 % at 1 °C below
+    it), the coil's true K of 125 W/K into a mash of 150 000 J/K losing 14.4 W/K to 20 °C."""
+    model = Tanks(
+        hlt_capacity=418_600.0, hlt_loss=22.6, mash_capacity=150_000.0, mash_loss=10.0, room=20.0
+    )
+    c = cascade(model, limit=8.0)
+    prior = prior_estimate(200.0)
+    hlt, mash, setpoint, reached = 67.2, 47.9, 67.2, None
+    for second in range(4 * 3600):
+        if second % 5 == 0:
+            setpoint = step(c, mash, hlt, sp=63.0, coil=prior).hlt_setpoint
+        duty = min(max(setpoint - hlt, 0.0), 1.0)
+        flow = 125.0 * (hlt - mash)
+        hlt += (3400.0 * duty - flow - 22.6 * (hlt - 20.0)) / 418_600.0
+        mash += (flow - 14.4 * (mash - 20.0)) / 150_000.0
+        if reached is None and mash >= 63.0 - 0.3:
+            reached = second
+    assert reached is not None and reached < 3 * 3600
+    assert mash == pytest.approx(63.0, abs=0.3)

@@ -279,15 +279,19 @@ class Cascade:
         flow = k * (hlt_pv - mash_pv) if pump else 0.0
         rise = (flow - tanks.mash_loss * (mash_pv - tanks.room)) / tanks.mash_capacity
         mash = mash_pv + tanks.mash_lag * max(0.0, rise)
-        if not self._climbing and mash_pv < mash_sp - REHEAT_BAND:
-            self._climbing = True
-        self._settled = self._settled and not self._climbing
-        self._observe(mash_pv, hlt_pv, pump, k)
         high = max(coil.high, MIN_CONDUCTANCE)
         hold_high = holding_hlt(mash_sp, tanks, high)
         target = mash_sp - COAST_AIM
-        if self._climbing and pump:
+        # A mash fallen out of its hold (a stop, a cold addition) climbs again only where the
+        # coast falls short. In the coast itself a mash left short is the coast's to mend (it
+        # raises the HLT to where the model says it carries the mash, while the observer
+        # learns what the model missed): a climb there, stopped again at once by the same
+        # model, would clear what the observer gathered, period after period.
+        reheat = self._settled and mash_pv < mash_sp - REHEAT_BAND
+        if (self._climbing or reheat) and pump:
             self._climbing = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target
+        self._settled = self._settled and not self._climbing
+        self._observe(mash_pv, hlt_pv, pump, k)
         if not pump:
             setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
             phase = "no flow" if stood else "ready"
