@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 import pytest
 
 from hermsd.control.cascade import (
-    COAST_AIM,
     HLT_MARGIN,
     Cascade,
     Decision,
@@ -55,23 +55,22 @@ def test_the_hlt_a_hold_needs_stands_above_the_rest_by_the_mash_losses_share() -
 
 def test_the_climb_stops_where_the_hlt_s_stored_heat_carries_the_mash_to_its_rest() -> None:
     # Lossless, no hose: T_hold = T_sp = 65. Coasting from 70 down to it the HLT gives
-    # C_h·5 J, which lifts the mash by C_h/C_m·5 = 10 °C: the peak is aimed COAST_AIM below
-    # the rest, so the climb stops at T_m = 65 − 0.1 − 10 = 54.9 °C.
-    assert COAST_AIM == 0.1
-    below = step(cascade(), 54.85, 70.0)
+    # C_h·5 J, which lifts the mash by C_h/C_m·5 = 10 °C: the peak is aimed at the rest, so
+    # the climb stops at T_m = 65 − 10 = 55 °C.
+    below = step(cascade(), 54.95, 70.0)
     assert (below.phase, below.hlt_setpoint) == ("climb", 65.0 + 5.15 - HLT_MARGIN)
-    at = step(cascade(), 54.95, 70.0)
+    at = step(cascade(), 55.05, 70.0)
     assert (at.phase, at.hlt_setpoint) == ("coast", 65.0)
 
 
 def test_the_heat_in_the_hose_moves_the_switch_earlier_by_its_share() -> None:
     # A round trip of 120 s: the return leg of 60 s holds K·(T_h − T_m)·60 J more for the
     # mash (the inlet's lag on the other leg only slows the coast, lossless):
-    # C_h·5 + 200·60·(70 − T_m) = C_m·(64.9 − T_m)  →  197 300·T_m = 10 650 570,
-    # T_m = 53.98 °C
+    # C_h·5 + 200·60·(70 − T_m) = C_m·(65 − T_m)  →  197 300·T_m = 10 671 500,
+    # T_m = 54.09 °C (docs/mash-control.md's worked switch-over)
     tanks = dataclasses.replace(LOSSLESS, hose_delay=120.0)
-    assert step(cascade(tanks), 53.93, 70.0).phase == "climb"
-    assert step(cascade(tanks), 54.03, 70.0).phase == "coast"
+    assert step(cascade(tanks), 54.04, 70.0).phase == "climb"
+    assert step(cascade(tanks), 54.14, 70.0).phase == "coast"
 
 
 def test_the_coast_s_peak_is_the_energy_balance_of_the_two_tanks() -> None:
@@ -195,3 +194,29 @@ def test_a_mash_left_short_by_a_wrong_k_still_reaches_its_rest() -> None:
             reached = second
     assert reached is not None and reached < 3 * 3600
     assert mash == pytest.approx(63.0, abs=0.3)
+
+def test_on_an_exact_model_the_climb_ends_when_the_coast_carries_the_mash_to_its_rest() -> None:
+    # Two lossless tanks through K = 200 W/K, integrated here exactly over each second, the HLT
+    # held at once at a setpoint above it (a law without lag or limit), else coasting. From a
+    # mash at 45 °C the HLT at the ceiling, 70 °C, takes it to 70 − 25·e^(−t/τ), τ = C_m/K =
+    # 1046.5 s; the stored heat carries it to its rest once C_h·(70 − 65) = C_m·(65 − T_m),
+    # T_m = 55 °C, at τ·ln(25/15) = 534.6 s (aimed 0.1 °C short: 54.9 °C, 527.6 s).
+    k, ch, cm = 200.0, LOSSLESS.hlt_capacity, LOSSLESS.mash_capacity
+    tau, coupled = cm / k, 1.0 / (k * (1.0 / ch + 1.0 / cm))
+    c = cascade()
+    hlt, mash, setpoint, switched = 70.0, 45.0, 70.0, None
+    for second in range(1200):
+        if second % 5 == 0:
+            decision = step(c, mash, hlt)
+            setpoint = decision.hlt_setpoint
+            if switched is None and decision.phase == "coast":
+                switched = float(second)
+        if setpoint >= hlt:  # held there: the mash follows it
+            hlt = setpoint
+            mash = hlt - (hlt - mash) * math.exp(-1.0 / tau)
+        else:  # coasting: the heat kept, the gap decaying
+            end = (ch * hlt + cm * mash) / (ch + cm)
+            gap = (hlt - mash) * math.exp(-1.0 / coupled)
+            hlt, mash = end + cm / (ch + cm) * gap, end - ch / (ch + cm) * gap
+    assert tau * math.log(25 / 15) == pytest.approx(534.6, abs=0.05)
+    assert switched is not None and 534.6 <= switched < 534.6 + 5.0  # the first period after

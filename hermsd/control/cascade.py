@@ -38,12 +38,9 @@ from hermsd.control.coil import CoilEstimate
 HLT_MARGIN = 0.15
 """°C the HLT's setpoint stays below the limit: the HLT law overshoots its setpoint by up to
 a tenth (its bench's bound), and the limit is one the HLT must never pass."""
-COAST_AIM = 0.1
-"""°C below its setpoint the coast aims the mash's peak: the HLT's temperature with the heat
-in flight comes from the HLT law's model (its observer lags a climb by a few tenths), and the
-hold's PI closes the rest in the band."""
 COAST_SHORT = 0.1
-"""°C the coast's peak may fall short of its aim before the HLT is raised again for it."""
+"""°C the coast's peak may fall short of the mash's setpoint before the HLT is raised again
+for it."""
 COAST_BISECTIONS = 16
 """Halvings of the HLT's range when solving for the coast's start (10 °C to 0.00015 °C)."""
 REHEAT_BAND = 1.0
@@ -281,7 +278,10 @@ class Cascade:
         mash = mash_pv + tanks.mash_lag * max(0.0, rise)
         high = max(coil.high, MIN_CONDUCTANCE)
         hold_high = holding_hlt(mash_sp, tanks, high)
-        target = mash_sp - COAST_AIM
+        # The peak aimed at the rest itself: K one sd high (and the mash's losses, a low prior)
+        # already stop the climb early, and a coast that ends short closes its last tenths
+        # on the mash's own slow time constant.
+        target = mash_sp
         # A mash fallen out of its hold (a stop, a cold addition) climbs again only where the
         # coast falls short. In the coast itself a mash left short is the coast's to mend (it
         # raises the HLT to where the model says it carries the mash, while the observer
@@ -303,7 +303,7 @@ class Cascade:
             short = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target - COAST_SHORT
             if not self._settled and short:
                 # The coast falls short (the losses more than the model's, which the observer
-                # is learning): the HLT that carries the mash to the aim after all.
+                # is learning): the HLT that carries the mash to its rest after all.
                 setpoint = coast_start(mash, hold_high, tanks, high, target, ceiling)
             setpoint = min(setpoint, ceiling)
         self._last_sp = setpoint
