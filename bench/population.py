@@ -179,7 +179,11 @@ def feasible(tun: PopTun) -> bool:
     """Full power takes the day's water into the band within 3 h and holds 66 °C at 80 %."""
     if tun.losses_w() > HOLD_LIMIT * tun.spec.element_watts:
         return False
-    return scenario.time_to_band(tun.plant(), 0.0, SETPOINT, HEATUP_LIMIT_S) is not None
+    # `plant` puts both elements' watts on its one: full power is both
+    return (
+        scenario.time_to_band(tun.plant(), 0.0, SETPOINT, HEATUP_LIMIT_S, element2=False)
+        is not None
+    )
 
 
 @dataclass(frozen=True, slots=True)

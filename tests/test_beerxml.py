@@ -352,6 +352,44 @@ def latin_1(tmp_path: Path, name: bytes) -> Path:
     return path
 
 
+def maerzen(directory: Path) -> Path:
+    """The single-infusion sample saved as the ISO-8859-1 it declares, its recipe named Märzen:
+    the ä is the one byte 0xE4."""
+    path = directory / "maerzen.xml"
+    text = SINGLE.read_text(encoding="utf-8").replace("Garage Pale Ale", "Märzen")
+    path.write_bytes(text.encode("iso-8859-1"))
+    assert b"<NAME>M\xe4rzen</NAME>" in path.read_bytes()
+    return path
+
+
+def test_a_latin_1_file_is_read_in_the_encoding_it_declares(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["program", "import", str(maerzen(tmp_path))]) == 0
+    out = capsys.readouterr().out
+    assert "#   recipe: Märzen\n" in out and yaml.safe_load(out)["name"] == "Märzen"
+
+
+@pytest.mark.parametrize(
+    ("declaration", "encoding"),
+    [("", "UTF-8"), (' encoding="UTF-8"', "UTF-8"), (' encoding="us-ascii"', "us-ascii")],
+)
+def test_bytes_that_are_no_text_in_the_declared_encoding_are_said_where_they_are(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], declaration: str, encoding: str
+) -> None:
+    path = tmp_path / "recipe.xml"
+    data = maerzen(tmp_path).read_bytes().replace(b' encoding="ISO-8859-1"', declaration.encode())
+    path.write_bytes(data)
+    at = data.index(b"\xe4")
+    line, column = data.count(b"\n", 0, at) + 1, at - data.rindex(b"\n", 0, at)
+    assert main(["program", "import", str(path)]) == 2
+    assert capsys.readouterr().err == (
+        f"hermsd: {path}:{line}:{column}: byte 0xE4 is not {encoding} text (save the file as "
+        'UTF-8, or declare the encoding it is in, e.g. <?xml version="1.0" '
+        'encoding="ISO-8859-1"?> for Latin-1)\n'
+    )
+
+
 def test_beersmiths_windows_text_declared_latin_1_is_read_as_windows_1252(
     tmp_path: Path,
 ) -> None:

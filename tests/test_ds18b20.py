@@ -219,6 +219,67 @@ def test_a_device_that_leaves_the_bus_is_a_fault_until_it_returns(tmp_path: Path
     assert driver.convert() == (66.0, 0x0420)
 
 
+# 85.000 °C, the datasheet's power-on value (word 0x0550, the scratchpad 50 05 4b 46 7f ff 0c
+# 10 1c), is a temperature too: believed within 2 °C of the last good reading, no further.
+@pytest.mark.parametrize(
+    ("previous", "power_on"),
+    [(None, True), (66.0, True), (82.9375, True), (83.0, False), (84.9375, False), (85.0, False)],
+)
+def test_85_is_the_power_on_value_unless_the_reading_before_was_near_it(
+    previous: float | None, power_on: bool
+) -> None:
+    pad = pad_of("50054b467fff0c101c")
+    if power_on:
+        with pytest.raises(TrapError) as caught:
+            decode_scratchpad(pad, "DS18B20 x", previous)
+        assert caught.value.trap == "power_on"
+    else:
+        assert decode_scratchpad(pad, "DS18B20 x", previous) == (85.0, 0x0550)
+
+
+def test_an_hlt_heating_past_85_reads_85_on_its_way(tmp_path: Path) -> None:
+    water = [84.0]
+    chip = FakeW1Tree(tmp_path).add(ID, lambda: water[0])
+    driver = DS18B20(ID, tmp_path)
+    read = []
+    for celsius in (84.0, 84.97, 85.0, 85.03, 85.1):
+        water[0] = celsius
+        chip.convert()
+        read.append(driver.convert())
+    # each truncated to 1/16 °C: 84.97 × 16 = 1359.5 → 1359, 85.03 × 16 = 1360.5 → 1360
+    assert read == [
+        (84.0, 0x0540),
+        (84.9375, 0x054F),
+        (85.0, 0x0550),
+        (85.0, 0x0550),
+        (85.0625, 0x0551),
+    ]
+    (tmp_path / ID / "w1_slave").unlink()  # the kernel's `temperature` file alone
+    (tmp_path / ID / "temperature").write_text("85000\n")
+    assert driver.convert() == (85.0, 0x0550)
+
+
+def test_85_after_a_failed_read_or_from_far_away_is_the_power_on_value(tmp_path: Path) -> None:
+    water = [84.5]
+    chip = FakeW1Tree(tmp_path).add(ID, lambda: water[0])
+    driver = DS18B20(ID, tmp_path)
+    chip.convert()
+    assert driver.convert() == (84.5, 0x0548)
+    chip.set_fault("gone")  # unplugged near 85 °C
+    with pytest.raises(SensorError, match="gone from the bus"):
+        driver.convert()
+    chip.set_fault("ok")
+    with pytest.raises(TrapError, match="power-on"):  # back, powered up afresh: 85.000
+        driver.convert()
+    water[0] = 60.0
+    chip.convert()
+    assert driver.convert() == (60.0, 0x03C0)
+    chip.set_fault("power_on")  # a supply dip at 60 °C
+    chip.convert()
+    with pytest.raises(TrapError, match="power-on"):
+        driver.convert()
+
+
 class Clock:
     def __init__(self) -> None:
         self.now = 0.0

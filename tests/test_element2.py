@@ -27,8 +27,15 @@ from hermsd.runtime.build import model_in_force
 from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.clock import VirtualClock
-from hermsd.sim.hlt import PhysicalPlant
-from hermsd.sim.scenario import Event, Scenario, ScenarioError, effective_config, run
+from hermsd.sim.hlt import FoptdPlant, PhysicalPlant
+from hermsd.sim.scenario import (
+    Event,
+    Scenario,
+    ScenarioError,
+    effective_config,
+    run,
+    time_to_band,
+)
 from hermsd.sim.world import World, build_world
 
 H = 5.0  # s, the control period
@@ -346,3 +353,41 @@ def test_second_element_events_need_a_second_element() -> None:
     scenario = Scenario(duration=600.0, events=(Event(60.0, "relay2", "stuck_on"),))
     with pytest.raises(ScenarioError, match="need a second element"):
         run(scenario)
+
+
+# A first-order tun, K = 1 °C/% for the first element's 3 kW (UA = 30 W/K), τ = 10000 s,
+# θ = 100 s, in a 20 °C room, from 20 °C, with a second element of 3 kW. Full power's water
+# (no sensor lag): T(t) = 20 + ΔT·(1 − e^(−(t − θ)/τ)) after θ, ΔT = P/UA: 100 K on the first
+# element, 200 K on both. The band's lower edge for 66 °C is 65.5 °C, 45.5 K up.
+FOPTD_TWO = {
+    "gain_c_per_pct": 1.0,
+    "tau_s": 10000.0,
+    "dead_time_s": 100.0,
+    "ambient_c": 20.0,
+    "element_watts": 3000.0,
+    "element2_watts": 3000.0,
+}
+BOTH_TO_BAND_S = 100.0 + 10000.0 * math.log(200.0 / (200.0 - 45.5))  # 2681.2 s
+ONE_TO_BAND_S = 100.0 + 10000.0 * math.log(100.0 / (100.0 - 45.5))  # 6169.7 s
+
+
+def test_the_fastest_to_the_band_is_with_every_element_the_config_fits() -> None:
+    both = time_to_band(FoptdPlant(**FOPTD_TWO), 0.0, 66.0, 8 * 3600.0, element2=True)
+    assert both == pytest.approx(BOTH_TO_BAND_S, abs=0.01)
+    one = time_to_band(FoptdPlant(**FOPTD_TWO), 0.0, 66.0, 8 * 3600.0, element2=False)
+    assert one == pytest.approx(ONE_TO_BAND_S, abs=0.01)
+    with pytest.raises(ValueError, match="no second element"):
+        time_to_band(_NoSecond(), 0.0, 66.0, 3600.0, element2=True)
+
+
+class _NoSecond:
+    """A plant without a second element's switch."""
+
+    def set_heater(self, on: bool, t: float) -> None: ...
+
+
+def test_a_two_element_runs_settle_ratio_is_against_both_elements_full_power() -> None:
+    plant = {"model": "foptd", **FOPTD_TWO}
+    day = Scenario(duration=3600.0, plant=plant, setpoint=66.0, events=())
+    summary = run(day, parse(TWO)).summary
+    assert summary["physical_min_s"] == round(BOTH_TO_BAND_S, 1)

@@ -58,7 +58,7 @@ PREFIX = "brewery/hlt"
 HA_HVAC_MODES = {"auto", "off", "cool", "heat", "dry", "fan_only", "heat_cool"}
 HA_ACTIONS = {"off", "heating", "cooling", "drying", "idle", "fan", "preheating", "defrosting"}
 HA_COMPONENTS = {"climate", "sensor", "binary_sensor", "button", "event"}
-ENTITIES = 23  # without a program folder: no program select, no start button
+ENTITIES = 24  # without a program folder: no program select, no start button
 
 
 def free_port() -> int:
@@ -335,6 +335,12 @@ def test_discovery_gives_home_assistant_a_climate_entity_sensors_and_an_alarm(ri
     )
     time_left = entities[f"homeassistant/sensor/{node}/time_left/config"]
     assert (time_left["device_class"], time_left["unit_of_measurement"]) == ("duration", "s")
+    rest_in = entities[f"homeassistant/sensor/{node}/rest_in/config"]
+    assert (rest_in["name"], rest_in["value_template"]) == (
+        "Rest starts in",
+        "{{ value_json.rest_in_s }}",
+    )
+    assert (rest_in["device_class"], rest_in["unit_of_measurement"]) == ("duration", "s")
     alarm = entities[f"homeassistant/binary_sensor/{node}/alarm/config"]
     assert alarm["device_class"] == "problem"
     assert alarm["value_template"] == "{{ 'ON' if value_json.alarm else 'OFF' }}"
@@ -607,6 +613,7 @@ def test_the_state_names_the_program_step_when_the_daemon_reports_one() -> None:
         "next": "Mash out",
         "message": None,
         "starts_at": None,
+        "rest_in_s": None,
     }
     state = state_message({**status, "program": program})
     assert (state["program"], state["step_text"], state["time_left_s"], state["next_step"]) == (
@@ -646,6 +653,7 @@ def test_a_running_programs_step_time_left_and_next_step_are_published(rig: Rig)
         "Mash out",
     )
     assert state["time_left_s"] == 600.0  # reached in its first period: the whole hold
+    assert state["rest_in_s"] is None  # in the band: no rest to wait for
     later = [rig.step().json()["time_left_s"] for _ in range(2)]
     assert later == [595.0, 590.0]
 
@@ -657,6 +665,23 @@ def test_a_running_programs_step_time_left_and_next_step_are_published(rig: Rig)
     )
     state = at_boundary(ProgramAction("stop"))
     assert (state["program"], state["step_text"]) == (None, "none")
+
+
+def test_while_the_tun_heats_towards_a_step_the_rest_is_published_to_start_in_s(
+    rig: Rig,
+) -> None:
+    """The daemon's estimate of when the rest starts, as its status gives it, each period."""
+    pv = rig.status()["pv"]
+    program = Program("Warm up", (Step("Rest", round(pv + 20.0), 600.0),))
+    state = rig.at_boundary(ProgramStart(program))
+    assert state["program_state"] == "heating"
+    for _ in range(2):
+        state = rig.step().json()
+        estimate = rig.status()["program"]["rest_in_s"]  # the loop stands between periods
+        assert isinstance(estimate, float) and estimate > 0.0
+        assert state["rest_in_s"] == estimate and state["time_left_s"] is None
+    state = rig.at_boundary(ProgramAction("stop"))
+    assert state["rest_in_s"] is None
 
 
 def test_a_failing_log_and_an_unsaved_program_progress_are_published(tmp_path: Path) -> None:

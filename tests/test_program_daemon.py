@@ -279,11 +279,15 @@ def test_the_commands_start_pause_and_stop_a_program(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     program = tmp_path / "mash.yaml"
-    program.write_text("steps:\n  - {name: Rest, setpoint: 25, hold: 60m}\n", encoding="utf-8")
+    # 85 °C is hours of heating away: still heating however fast the daemon's thread steps
+    program.write_text("steps:\n  - {name: Rest, setpoint: 85, hold: 60m}\n", encoding="utf-8")
     with served(tmp_path) as (_daemon, where):
         sock = ["--socket", os.fspath(where)]
         assert main(["program", "start", str(program), *sock]) == 0
-        assert "program 'mash': heating, step 1/1 'Rest' at 25 °C" in capsys.readouterr().out
+        assert "program 'mash': heating, step 1/1 'Rest' at 85 °C" in capsys.readouterr().out
+        assert main(["status", *sock]) == 0  # when the rest starts, by the tun's model
+        said = r"^program 'mash': heating, .*, rest in about (\d+ h )?\d+ min$"
+        assert re.search(said, capsys.readouterr().out, re.M)
         assert main(["program", "pause", *sock]) == 0
         assert "paused" in capsys.readouterr().out
         assert main(["confirm", *sock]) == 2

@@ -1,7 +1,7 @@
 """How long until the next rest starts, by the tun's model: heating at full power up to a
 warmer step, cooling with the heater off down to a cooler one (72 → 64 °C), in the program's
-status (`rest_in_s`) for the page. Golden values from the first-order step response by hand:
-heater off, the water falls as y = Ta + (y0 − Ta)·e^(−t/τ)."""
+status (`rest_in_s`) for the page, `hermsd status` and the MQTT bridge. Golden values from the
+first-order step response by hand: heater off, the water falls as y = Ta + (y0 − Ta)·e^(−t/τ)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import math
 
 import pytest
 
+from hermsd.cli.remote import program_line
 from hermsd.control.pid import PlantModel
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.model import Program, Step
@@ -74,3 +75,27 @@ def test_no_estimate_while_holding_paused_on_the_mash_or_short_of_the_band() -> 
 def test_a_step_timed_on_the_mash_has_no_estimate_from_the_hlts_model() -> None:
     driver = _next_step(STEP_UP, 64.0)  # a mash sensor fitted: the steps are timed on it
     assert _status(driver, 75.0, MashReading(64.0))["rest_in_s"] is None
+
+
+@pytest.mark.parametrize(
+    ("rest_in_s", "words"),
+    [
+        (720.0, ", rest in about 12 min"),
+        (749.0, ", rest in about 12 min"),  # 12.48 min: whole minutes, as the page rounds
+        (59.0, ", rest in under a minute"),
+        (3900.0, ", rest in about 1 h 5 min"),
+    ],
+)
+def test_the_status_line_says_when_the_rest_starts(rest_in_s: float, words: str) -> None:
+    state = _status(_next_step(STEP_UP, 64.0), 64.0)
+    assert state["rest_in_s"] is not None  # heating towards the step: the daemon estimates
+    line = program_line({**state, "rest_in_s": rest_in_s})
+    assert line.startswith("program 'Step up': heating, step 2/2 'Alpha' at 72 °C")
+    assert words in line and line.count("rest in") == 1
+
+
+def test_the_status_line_says_nothing_of_a_rest_without_an_estimate() -> None:
+    holding = _status(_next_step(STEP_UP, 64.0), 71.8)
+    assert holding["rest_in_s"] is None
+    assert "rest in" not in program_line(holding)
+    assert "rest in" not in program_line({**holding, "rest_in_s": None})

@@ -404,7 +404,9 @@ def test_the_family_spans_the_brewers_range_and_every_tun_can_hold_66_c() -> Non
         holding_w = spec.ua_w_per_k * (66.0 - spec.ambient_c) + evaporation
         assert holding_w <= 0.75 * spec.element_watts, spec.name
         params = {k: v for k, v in spec.plant().items() if k not in ("model", "noise_c", "seed")}
-        to_band = scenario.time_to_band(PhysicalPlant(**params), 0.0, 66.0, 3.5 * 3600.0)
+        to_band = scenario.time_to_band(
+            PhysicalPlant(**params), 0.0, 66.0, 3.5 * 3600.0, element2=False
+        )
         assert to_band is not None, spec.name
 
 
@@ -439,7 +441,8 @@ class _Ramp:
 def test_the_recovery_floor_waits_for_the_reading(seen: float, expected: list[float]) -> None:
     plant = _Ramp(60.0)
     floors = [
-        scenario.reactive_floor(plant, 100.0, 66.0, 3600.0, 5.0, u, seen) for u in (0, 40, 100)
+        scenario.reactive_floor(plant, 100.0, 66.0, 3600.0, 5.0, u, seen, element2=False)
+        for u in (0, 40, 100)
     ]
     assert floors == pytest.approx(expected, abs=0.01)
     assert plant.water_temperature(1000.0) == 60.0  # on a copy: the plant is untouched

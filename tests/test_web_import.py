@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+from test_beerxml import maerzen
 from test_web import LoggedIn, _client, live, logged_in
 from webpage import TIMEOUT, Site
 
@@ -83,11 +84,37 @@ def test_pasted_xml_and_a_recipe_chosen_among_several(
     assert reply.json()["yaml"] == capsys.readouterr().out
 
 
+def test_a_latin_1_recipe_uploaded_or_pasted_makes_the_clis_program(
+    logged_in: LoggedIn,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The file's bytes are read in the ISO-8859-1 they declare; pasted, the XML is text the
+    browser has decoded already, its declaration naming the bytes it was saved as."""
+    client, token = logged_in
+    data = maerzen(tmp_path).read_bytes()
+    monkeypatch.chdir(tmp_path)
+    made = _cli_import("maerzen.xml", capsys)
+    assert "#   recipe: Märzen\n" in made
+    uploaded = {"data": base64.b64encode(data).decode(), "filename": "maerzen.xml"}
+    pasted = {"xml": data.decode("iso-8859-1"), "filename": "maerzen.xml"}
+    for body in (uploaded, pasted):
+        reply = client.post(IMPORT, json=body, headers={"x-csrf-token": token})
+        assert reply.status_code == 200, reply.text
+        assert (reply.json()["name"], reply.json()["yaml"]) == ("Märzen", made)
+
+
 @pytest.mark.parametrize(
     ("body", "status", "says"),
     [
         ({**_file("two-recipes.xml"), "recipe": "Dunkel Decoction"}, 400, "decoction"),
         ({"xml": "<RECIPES><RECIPE>", "filename": "cut.xml"}, 400, "cut.xml:1"),
+        (
+            {"data": base64.b64encode(b"<RECIPES>M\xe4rzen").decode(), "filename": "m.xml"},
+            400,
+            "m.xml:1:11: byte 0xE4 is not UTF-8 text (save the file as UTF-8, or declare",
+        ),
         ({"xml": "  "}, 400, "choose a BeerXML file or paste its XML"),
         ({"data": "not base64!", "filename": "x.xml"}, 400, "base64"),
         ({"xml": "<a/>", "filename": "../x.xml"}, 400, "filename: expected a file"),

@@ -240,6 +240,8 @@ def program_line(state: dict[str, Any]) -> str:
     )
     if state["time_left_s"] is not None:
         line += f", {state['time_left_s'] / 60.0:.1f} min of its hold left"
+    if state.get("rest_in_s") is not None:
+        line += f", {_rest_in_words(state['rest_in_s'])}"
     if state["message"] is not None:
         line += f", waits for: {state['message']} (`hermsd confirm`)"
     if state["starts_at"] is not None:
@@ -249,6 +251,15 @@ def program_line(state: dict[str, Any]) -> str:
     if state["next"] is not None:
         line += f"; next {state['next']!r}"
     return line
+
+
+def _rest_in_words(seconds: float) -> str:
+    """The tun model's estimate of when the step's rest starts, rounded as the web page
+    rounds it: an estimate, so whole minutes, and no count of seconds."""
+    if seconds < 60.0:
+        return "rest in under a minute"
+    hours, minutes = divmod(round(seconds / 60.0), 60)
+    return f"rest in about {f'{hours} h {minutes} min' if hours else f'{minutes} min'}"
 
 
 def _mode_text(reply: dict[str, Any]) -> str:

@@ -97,18 +97,27 @@ def read(path: Path, recipe: str | None = None) -> Program:
 
 
 def program_of(
-    data: bytes, source: str, recipe: str | None, choose: str = "--recipe NAME"
+    data: bytes | str, source: str, recipe: str | None, choose: str = "--recipe NAME"
 ) -> Program:
     """The mash program of the recipe in `data`, read from `source` (a file, or the web page's
-    upload); `choose`: how the brewer names one of several recipes there."""
+    upload or pasted XML); `choose`: how the brewer names one of several recipes there."""
     return convert(parse(data, source), source, recipe, choose)
 
 
-def parse(data: bytes, source: str) -> Node:
-    """The element tree of `data`, each element with its line; BeerXMLError if not XML."""
+def parse(data: bytes | str, source: str) -> Node:
+    """The element tree of `data`, each element with its line; BeerXMLError if not XML.
+
+    A file's bytes are read in the encoding its XML declaration names (UTF-8 when it names
+    none): expat decodes them, so a recipe saved as ISO-8859-1 reads as written. Text (XML
+    pasted in the page) is read as it stands: it is decoded already, and its declaration
+    names the encoding of bytes it no longer is."""
     parser = expat.ParserCreate()
     root = Node("", 0)
     stack = [root]
+    declared: list[str | None] = [None]  # the XML declaration's encoding, if it names one
+
+    def declaration(_version: str, encoding: str | None, _standalone: int) -> None:
+        declared[0] = encoding
 
     def start(tag: str, _attributes: dict[str, str]) -> None:
         node = Node(tag.upper(), parser.CurrentLineNumber)
@@ -131,18 +140,40 @@ def parse(data: bytes, source: str) -> Node:
     parser.EndElementHandler = end
     parser.CharacterDataHandler = text
     parser.StartDoctypeDeclHandler = refuse_doctype
+    parser.XmlDeclHandler = declaration
     try:
         parser.Parse(data, True)
     except BeerXMLError:
         raise  # a document type declaration, refused
     except expat.ExpatError as error:
         where = f"{source}:{error.lineno}:{error.offset + 1}"
-        raise BeerXMLError(f"{where}: not XML: {expat.ErrorString(error.code)}") from None
+        what = _undecodable(data, declared[0], parser.ErrorByteIndex)
+        what = what or f"not XML: {expat.ErrorString(error.code)}"
+        raise BeerXMLError(f"{where}: {what}") from None
     except (LookupError, ValueError) as error:  # an encoding Python lacks, or expat cannot use
         raise BeerXMLError(
             f"{source}:1: the declared encoding cannot be read: {error} (save it as UTF-8)"
         ) from None
     return root.children[0]
+
+
+def _undecodable(data: bytes | str, declared: str | None, stopped_at: int) -> str | None:
+    """Why expat stopped at byte `stopped_at`, when it is a byte that is no text in the
+    encoding the file declares (expat says only "invalid token"); None when it is not, and
+    for text, which is decoded already."""
+    if isinstance(data, str):
+        return None
+    encoding = declared or "UTF-8"
+    try:
+        data.decode(encoding)
+    except UnicodeDecodeError as error:
+        if error.start == stopped_at:
+            return (
+                f"byte 0x{data[stopped_at]:02X} is not {encoding} text (save the file as "
+                "UTF-8, or declare the encoding it is in, e.g. "
+                '<?xml version="1.0" encoding="ISO-8859-1"?> for Latin-1)'
+            )
+    return None
 
 
 _UNDEFINED_IN_1252 = frozenset("\x81\x8d\x8f\x90\x9d")

@@ -514,14 +514,21 @@ class Result:
     records: list[PeriodRecord]
 
 
-def time_to_band(plant: Plant, start: float, setpoint: float, limit: float) -> float | None:
+def time_to_band(
+    plant: Plant, start: float, setpoint: float, limit: float, *, element2: bool
+) -> float | None:
     """Seconds of full power from `start` until the sensor is in the band for good: when it
     last rises through setpoint − BAND (0 if it never falls below it); None if that takes
     more than `limit` s. On the plant's `temperature()`, the sensor without its noise. At
     full power, once the water rises and both it and the sensor are at or above the band's
-    lower edge, neither falls below it again."""
+    lower edge, neither falls below it again. Full power is every element the config fits:
+    `element2`, the second one too (`factory.total_watts`), as the daemon's 100 % drives it."""
     target = setpoint - BAND
     plant.set_heater(True, start)
+    if element2:
+        if not isinstance(plant, TwoElementPlant):
+            raise ValueError("element2: the plant has no second element")
+        plant.set_heater2(True, start)
     crossed = 0.0
     t = start
     sensor = plant.temperature(t)
@@ -545,18 +552,21 @@ def reactive_floor(
     period: float,
     duty: float,
     seen: float,
+    *,
+    element2: bool,
 ) -> float | None:
     """The least recovery a controller that acts on every reading can show: nothing can
     know of the water before the first reading after it, `seen` s after it, so until then
     the element runs at `duty` % as decided before the water (the period's on-time first,
-    the soonest it can come), then at full power. (A controller that acts once a period has
+    the soonest it can come; a second element stays as the daemon left it), then at full
+    power (`element2` as for `time_to_band`). (A controller that acts once a period has
     `seen` = `period`.) On a copy of `plant`."""
     late = copy.deepcopy(plant)
     late.set_heater(True, start)
     on_time = period * duty / 100.0
     if on_time < seen:
         late.set_heater(False, start + on_time)
-    rest = time_to_band(late, start + seen, setpoint, limit - seen)
+    rest = time_to_band(late, start + seen, setpoint, limit - seen, element2=element2)
     return None if rest is None else seen + rest
 
 
@@ -687,6 +697,7 @@ def run(
 
     recovery_min: dict[str, float | None] = {}
     period = config.control.period
+    element2 = config.element2.backend != "none"  # full power: both elements, as world's
     fault_times: list[float] = []
 
     def measure(index: int, event: Event, t: float) -> None:
@@ -702,9 +713,9 @@ def run(
             sp = reloads[index].control.setpoint
         seen = first_read_after(t, config.sensor.read_interval) - t
         recovery_min["floor"] = reactive_floor(
-            snapshot, t, sp, scenario.duration, period, daemon.output, seen
+            snapshot, t, sp, scenario.duration, period, daemon.output, seen, element2=element2
         )
-        recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration)
+        recovery_min["s"] = time_to_band(snapshot, t, sp, scenario.duration, element2=element2)
 
     schedule_events(scenario, reloads, clock, world, daemon, brewer, measure)
     try:
@@ -718,7 +729,9 @@ def run(
     ended = min(scenario.duration, clock.monotonic())  # an attached loop may end it early
     disturbances = [e.at for e in scenario.events if e.kind != "confirm" and e.at <= ended]
     metrics = compute(collector.samples, disturbances, ended, circuit.ssr_edges)
-    physical_min = time_to_band(reference, 0.0, config.control.setpoint, scenario.duration)
+    physical_min = time_to_band(
+        reference, 0.0, config.control.setpoint, scenario.duration, element2=element2
+    )
     alarms = []
     for alarm in collector.alarms:
         off = circuit.off_at_or_after(alarm.at)

@@ -523,13 +523,14 @@ def imported_program(data: dict[str, Any]) -> dict[str, Any]:
         raise BadInput(f"import: unknown field(s) {', '.join(sorted(unknown))}")
     filename = _filename(data, "recipe.xml")
     encoded, pasted = data.get("data"), data.get("xml")
+    xml: bytes | str
     if isinstance(encoded, str) and encoded:  # a file's bytes: its own declared encoding
         try:
             xml = base64.b64decode(encoded, validate=True)
         except binascii.Error:
             raise BadInput("data: expected the file's bytes in base64") from None
     elif isinstance(pasted, str) and pasted.strip():
-        xml = pasted.encode()
+        xml = pasted  # text: decoded already, whatever encoding its declaration names
     else:
         raise BadInput("import: choose a BeerXML file or paste its XML")
     recipe = data.get("recipe") or None

@@ -7,6 +7,15 @@ temperature: a CRC mismatch, the 85.000 °C power-on value, an all-zero scratchp
 reads 0 °C: a shorted data line), an all-ones one (nobody answered), the 127.94 and −127
 markers, a resolution other than 12 bits, a device gone from the bus, a family other than 28.
 
+85.000 °C is also a temperature an HLT heating past 85 °C reads, and its scratchpad is the
+power-on one but for the reserved byte 6, which clones do not keep as the datasheet does (and
+the `temperature` file has no bytes at all). So the reading before it decides: 85.000 °C is
+taken as a temperature when the last good reading was within POWER_ON_NEAR_C of it (the water
+moves hundredths of a degree between conversions), and as the power-on value when it jumps
+from further away, or comes first, or after a failed read (a chip back on the bus was powered
+up afresh). A chip near 85 °C that resets at every conversion then reads 85.000 steadily: the
+supervisor's stuck-sensor check is what says so.
+
 A 12-bit conversion takes up to 750 ms, and reading `w1_slave` waits for it: `DS18B20Sensor`
 takes the latest conversion that a reader beside the loop keeps (base.ThreadedConversions).
 """
@@ -34,6 +43,9 @@ MAX_CELSIUS: Final = 125.0
 FIRST_WAIT_S: Final = 2 * CONVERSION_S
 POWER_ON_WORD: Final = 0x0550
 """85.000 °C: what the temperature register holds before the first conversion."""
+POWER_ON_NEAR_C: Final = 2.0
+"""°C: how near 85 the last good reading must be for 85.000 °C to be a temperature (the
+supervisor's built-in safety.max_step: a jump it would take)."""
 MARKER_127_94_WORD: Final = 0x07FF
 MARKER_MINUS_127_WORD: Final = 0xF810
 CONFIG_12_BIT: Final = 0x7F
@@ -125,8 +137,17 @@ def parse_w1_slave(text: str) -> Scratchpad:
     return Scratchpad(data, words[1] == "YES")
 
 
-def decode_scratchpad(pad: Scratchpad, where: str) -> tuple[float, int]:
-    """(°C, temperature word) of a scratchpad, or the TrapError it is."""
+def _power_on_value(previous: float | None) -> bool:
+    """Whether 85.000 °C after the good reading `previous` (None: none since the start or a
+    failed read) is the chip's power-on value rather than a temperature."""
+    return previous is None or abs(previous - word_celsius(POWER_ON_WORD)) > POWER_ON_NEAR_C
+
+
+def decode_scratchpad(
+    pad: Scratchpad, where: str, previous: float | None = None
+) -> tuple[float, int]:
+    """(°C, temperature word) of a scratchpad, or the TrapError it is; `previous`: the last
+    good reading, which decides whether 85.000 °C is the power-on value."""
     data = pad.data
 
     def trap(name: str, detail: str) -> TrapError:
@@ -146,7 +167,7 @@ def decode_scratchpad(pad: Scratchpad, where: str) -> tuple[float, int]:
             "line, check the pull-up (4.7 kΩ, less on a long cable) and the cable's length",
         )
     word = data[0] | data[1] << 8
-    if word == POWER_ON_WORD:
+    if word == POWER_ON_WORD and _power_on_value(previous):
         raise trap(
             "power_on",
             "85.000 °C, the power-on value: the chip reset before converting (a supply dip, or "
@@ -181,15 +202,16 @@ def _checked_word(word: int, where: str) -> float:
     return celsius
 
 
-def decode_millidegrees(text: str, where: str) -> tuple[float, int]:
+def decode_millidegrees(text: str, where: str, previous: float | None = None) -> tuple[float, int]:
     """(°C, the word it stands for) of a `temperature` file ('23125'), trapped as the bytes
-    are; an all-zero scratchpad cannot be told from 0 °C here, so `w1_slave` comes first."""
+    are (`previous` as for `decode_scratchpad`); an all-zero scratchpad cannot be told from
+    0 °C here, so `w1_slave` comes first."""
     try:
         milli = int(text.strip())
     except ValueError:
         message = f"{where}: temperature reads {text.strip()!r}"
         raise SensorError(message, bus=where, address=None) from None
-    if milli == 85000:
+    if milli == 85000 and _power_on_value(previous):
         raise TrapError(
             "power_on",
             f"{where}: 85.000 °C, the power-on value: a supply dip or weak parasitic power",
@@ -209,6 +231,7 @@ class DS18B20:
         self.device_id = device_id
         self.path = Path(root) / device_id
         self.where = f"DS18B20 {device_id}"
+        self._previous: float | None = None  # the last good reading; None after a failed one
 
     def identify(self) -> None:
         """Refuse a family other than 28, and a device no longer on the bus."""
@@ -227,6 +250,15 @@ class DS18B20:
     def convert(self) -> tuple[float, int]:
         """(°C, temperature word) of a fresh conversion, or the SensorError it is."""
         try:
+            celsius, word = self._converted()
+        except SensorError:
+            self._previous = None
+            raise
+        self._previous = celsius
+        return celsius, word
+
+    def _converted(self) -> tuple[float, int]:
+        try:
             slave = (self.path / "w1_slave").read_text(encoding="ascii")
         except FileNotFoundError as error:
             if self.path.is_dir() and (self.path / "temperature").exists():
@@ -239,14 +271,14 @@ class DS18B20:
             pad = parse_w1_slave(slave)
         except ValueError as error:
             raise SensorError(f"{self.where}: {error}", bus=self.where, address=None) from None
-        return decode_scratchpad(pad, self.where)
+        return decode_scratchpad(pad, self.where, self._previous)
 
     def _read_temperature_file(self) -> tuple[float, int]:
         try:
             text = (self.path / "temperature").read_text(encoding="ascii")
         except (OSError, UnicodeDecodeError) as error:
             raise self._gone(getattr(error, "errno", None)) from error
-        return decode_millidegrees(text, self.where)
+        return decode_millidegrees(text, self.where, self._previous)
 
     def _gone(self, code: int | None) -> SensorError:
         said = f" ({os.strerror(code)})" if code not in (None, errno.ENOENT) else ""
