@@ -93,6 +93,7 @@ BOUNDS = [
     ),
     Bound("pump.line", int, 0, 511, nullable=True),
     Bound("pump.channel", int, 1, 8),
+    Bound("pump.sense_line", int, 0, 511, nullable=True),
     Bound("herms.max_hlt_above_mash", float, 1, 20),
     Bound("herms.coil_w_per_k", float, 10, 2000),
     Bound("herms.mash_litres", float, 1, 500),
@@ -167,6 +168,7 @@ CHOICES: dict[str, tuple[object, ...]] = {
     **{f"{role}.filter_hz": (50, 60) for role in ROLES},
     "pump.backend": ("none", "sim", "gpio", "relay-board"),
     "pump.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
+    "pump.sense": ("none", "gpio", "sim"),
 }
 TEXTS = {  # key: (longest, nullable)
     "tun.name": (32, False),
@@ -194,6 +196,7 @@ TEXTS = {  # key: (longest, nullable)
     **{f"{role}.w1_root": (None, False) for role in ROLES},
     "pump.port": (None, False),
     "pump.chip": (None, False),
+    "pump.sense_chip": (None, False),
 }
 FLAGS = (
     "output.active_low",
@@ -201,6 +204,7 @@ FLAGS = (
     "element2.active_low",
     "element2.check",
     "pump.active_low",
+    "pump.sense_active_low",
     "mqtt.tls",
 )
 ALERT_EVENTS = (
@@ -276,6 +280,7 @@ RESTART = [
         f"pump.{key}"
         for key in ("backend", "port", "chip", "line", "active_low", "channel", "baud")
     ),
+    *(f"pump.{key}" for key in ("sense", "sense_chip", "sense_line", "sense_active_low")),
     "log.dir",
     "log.rotate_hours",
     "log.flush_interval",
@@ -499,6 +504,10 @@ def test_defaults_are_the_specified_ones() -> None:
             "active_low": False,
             "channel": 3,
             "baud": 9600,
+            "sense": "none",
+            "sense_chip": "/dev/gpiochip0",
+            "sense_line": None,
+            "sense_active_low": False,
         },
         "herms": {
             "max_hlt_above_mash": 10.0,
@@ -760,7 +769,8 @@ def test_every_choice_is_accepted(key: str, choices: tuple[object, ...]) -> None
     for choice in choices:
         values = {key: str(choice)}
         if choice == "gpio":
-            values[key.split(".", maxsplit=1)[0] + ".line"] = "17"
+            line = "sense_line" if key == "pump.sense" else "line"
+            values[key.split(".", maxsplit=1)[0] + f".{line}"] = "17"
         if key.startswith("element2.") and choice != "none":
             values["control.algorithm"] = "midrange"  # the second element needs midrange
             values.setdefault("element2.backend", "sim")

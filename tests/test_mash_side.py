@@ -345,8 +345,9 @@ def test_the_logged_periods_are_valid_against_their_closed_schema(tmp_path: Path
 
 
 class FakeGpiod(types.ModuleType):
-    """The `gpiod` 2.x bindings as GpioSwitch uses them: one request of one line, its
-    settings and every value it was set to kept."""
+    """The `gpiod` 2.x bindings as GpioSwitch and GpioPumpSense use them: one request of one
+    line, its settings and every value it was set to kept; an input line reads `level` (a
+    Value, as the kernel gives it after active_low), or raises `fails` when set."""
 
     def __init__(self) -> None:
         super().__init__("gpiod")
@@ -354,7 +355,7 @@ class FakeGpiod(types.ModuleType):
         line = types.ModuleType("gpiod.line")
         for name, members in {
             "Bias": ("PULL_UP", "PULL_DOWN"),
-            "Direction": ("OUTPUT",),
+            "Direction": ("OUTPUT", "INPUT"),
             "Value": ("ACTIVE", "INACTIVE"),
         }.items():
             setattr(line, name, types.SimpleNamespace(**{m: f"{name}.{m}" for m in members}))
@@ -367,10 +368,20 @@ class FakeGpiod(types.ModuleType):
                 self.chip, self.consumer, self.config = chip, consumer, config
                 self.values: list[tuple[int, str]] = []
                 self.released = False
+                self.level = "Value.INACTIVE"
+                self.fails: OSError | None = None
+                self.reads = 0
 
             def set_value(self, offset: int, value: str) -> None:
                 assert not self.released
                 self.values.append((offset, value))
+
+            def get_value(self, offset: int) -> str:
+                assert not self.released and offset in self.config
+                self.reads += 1
+                if self.fails is not None:
+                    raise self.fails
+                return self.level
 
             def release(self) -> None:
                 self.released = True
@@ -383,12 +394,17 @@ class FakeGpiod(types.ModuleType):
         self.request_lines = request_lines
 
 
-@pytest.fixture
-def gpiod(monkeypatch: pytest.MonkeyPatch) -> FakeGpiod:
+def fake_gpiod(monkeypatch: pytest.MonkeyPatch) -> FakeGpiod:
+    """FakeGpiod in the place of the `gpiod` bindings for the test."""
     fake = FakeGpiod()
     monkeypatch.setitem(sys.modules, "gpiod", fake)
     monkeypatch.setitem(sys.modules, "gpiod.line", fake.line)
     return fake
+
+
+@pytest.fixture
+def gpiod(monkeypatch: pytest.MonkeyPatch) -> FakeGpiod:
+    return fake_gpiod(monkeypatch)
 
 
 def test_the_pump_on_a_gpio_line_starts_off_runs_when_told_and_is_released_off(

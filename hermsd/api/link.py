@@ -384,6 +384,7 @@ class LoopLink:
             "program": snapshot.program,
             **(snapshot.roles or {"mash": None, "coil": None}),
             "pump": record.pump,
+            "pump_switched": snapshot.config.pump.backend != "none",
         }
 
 

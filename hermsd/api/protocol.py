@@ -55,7 +55,8 @@ latest good reading or null while faulty, and `fault`, why it is faulty or null;
 mash's also `hlt_setpoint` and `phase`, the HLT's setpoint the outer loop chose and its
 phase, when it steers, and `warning`, the no-flow sign's words while it stands, else null:
 docs/mash-control.md), `pump`
-(true running, false stopped, null when no pump is fitted). `no_heat`
+(true running, false stopped, null when no pump is fitted or seen; `pump_switched` false
+when hermsd only sees the pump through its sense, `pump.sense`, and cannot switch it). `no_heat`
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no
 heat, 0 either, 3 more heat than asked (docs/two-elements.md); `latches_not_saved` (why the
 latched alarms' save fails, while it does; else null); `log_failing` (why the log cannot be

@@ -43,6 +43,7 @@ from hermsd.config.schema import (
 )
 from hermsd.control.learning import ModelStore
 from hermsd.durations import parse_duration
+from hermsd.hardware.pump_sense import PumpSense, open_pump_sense
 from hermsd.hardware.realtime import loop_priority
 from hermsd.hardware.sensors.kinds import open_role_sensor, open_sensor
 from hermsd.hardware.ssr import Switch, describe_output, open_hardware_switch
@@ -198,6 +199,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             else:
                 clock = MonotonicClock()
                 sensors, (ssr, contactor, element2, pump) = _hardware(config)
+                pump_sense = _pump_sense(config)
+                if pump_sense is not None:
+                    stack.callback(pump_sense.close)
                 daemon = assemble(
                     config,
                     clock,
@@ -210,6 +214,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                     models=models,
                     mash_sensor=sensors.get("mash_sensor"),
                     coil_sensor=sensors.get("coil_sensor"),
+                    pump_sense=pump_sense,
                 )
             recorder = _open_recorder(log_dir, config) if log_dir else None
             if recorder is not None:
@@ -380,6 +385,21 @@ def _hardware(
             switch.close()
         raise
     return sensors, (ssr, contactor, element2, pump)
+
+
+def _pump_sense(config: Config) -> PumpSense | None:
+    """The pump's sense as the config fits it on hardware; UserError for the simulator's, or
+    a line that cannot be had."""
+    if config.pump.sense == "sim":
+        raise UserError("pump.sense is 'sim', the simulated pump's: run with --simulate")
+    try:
+        return open_pump_sense(config.pump)
+    except OSError as error:
+        raise UserError(
+            f"cannot open the pump sense's line {config.pump.sense_line} of "
+            f"{config.pump.sense_chip}: {error.strerror or error} (check pump.sense_chip and "
+            "sense_line)"
+        ) from None
 
 
 def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[DirectoryLock]:

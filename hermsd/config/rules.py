@@ -396,10 +396,48 @@ def _shared_devices(config: Config, name: str, others: tuple[str, ...]) -> list[
 
 
 def _pump_violations(config: Config) -> list[_Violation]:
-    """The pump on a device of its own."""
-    if config.pump.backend == "none":
-        return []
-    return _shared_devices(config, "pump", ("output", "contactor", "element2"))
+    """The pump on a device of its own; its sense only for a pump hermsd does not switch (a
+    switched pump is known by its switch, and two accounts of it would need a rule for when
+    they disagree), a gpio sense with its line, on a line no output drives."""
+    pump = config.pump
+    found = []
+    if pump.backend != "none":
+        found.extend(_shared_devices(config, "pump", ("output", "contactor", "element2")))
+    if pump.sense == "none":
+        return found
+    if pump.backend != "none":
+        found.append(
+            _Violation(
+                ("pump.sense", "pump.backend"),
+                f"a pump sense with pump.backend {pump.backend}: hermsd knows the pump it "
+                "switches, the sense is for a pump it does not (set sense: none, or "
+                "backend: none for a pump switched by hand)",
+            )
+        )
+    if pump.sense == "gpio" and pump.sense_line is None:
+        found.append(
+            _Violation(
+                ("pump.sense", "pump.sense_line"),
+                f"the gpio sense needs pump.sense_line, the input line's offset on "
+                f"{pump.sense_chip} (add 'sense_line: 27' under pump: for GPIO27, with your "
+                "line number)",
+            )
+        )
+    elif pump.sense == "gpio":
+        for name in ("output", "contactor", "element2"):
+            other: _Switched = getattr(config, name)
+            if other.backend == "gpio" and (other.chip, other.line) == (
+                pump.sense_chip,
+                pump.sense_line,
+            ):
+                found.append(
+                    _Violation(
+                        ("pump.sense_line", "pump.sense_chip"),
+                        f"line {pump.sense_line} of {pump.sense_chip} is {name}'s output: the "
+                        "pump sense needs an input line of its own",
+                    )
+                )
+    return found
 
 
 _MODEL_KEYS = ("model_gain", "model_tau", "dead_time", "model_ambient")

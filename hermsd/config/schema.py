@@ -244,7 +244,8 @@ class Element2Config:
 @dataclass(frozen=True, slots=True)
 class PumpConfig:
     """The HERMS pump that carries the wort from the mash tun through the HLT's coil and
-    back: switched on and off as commanded, off whenever hermsd is not running."""
+    back: switched on and off as commanded, off whenever hermsd is not running. One hermsd
+    does not switch (`backend: none`) may be seen running through a contact (`sense`)."""
 
     backend: str = _choice(NOT_FITTED, (NOT_FITTED, "sim", "gpio", "relay-board"))
     port: str = _text("/dev/ttyUSB1")
@@ -253,6 +254,10 @@ class PumpConfig:
     active_low: bool = False
     channel: int = _integer(3, 1, 8)
     baud: int = _choice(9600, (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200))
+    sense: str = _choice(NOT_FITTED, (NOT_FITTED, "gpio", "sim"))
+    sense_chip: str = _text("/dev/gpiochip0")
+    sense_line: int | None = _integer(None, 0, 511, null_means="none (only the gpio sense uses it)")
+    sense_active_low: bool = False
 
 
 @dataclass(frozen=True, slots=True)

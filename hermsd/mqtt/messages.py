@@ -168,8 +168,9 @@ def discovery_messages(
     """(topic, payload) of each entity Home Assistant should make for this tun: a climate
     entity, sensors (the second element's duty when it is fitted; with a mash sensor the
     mash's temperature, the HLT's setpoint the outer loop chose and its phase), the pump's
-    switch when one is fitted, and binary sensors on while an alarm
-    stands and while a warning does (the log or a save failing), and the brew day's
+    switch when one is fitted (a binary sensor when hermsd only sees it: `pump.sense`), and
+    binary sensors on while an alarm stands and while a warning does (the log or a save
+    failing), and the brew day's
     (hermsd/mqtt/brewday.py; `programs`: the program folder's files). A payload of None is
     an entity this config has not: sent empty, it removes one an earlier config made."""
     node = topics.node_id
@@ -261,6 +262,22 @@ def discovery_messages(
         if config.pump.backend != "none"
         else None,
     )
+    # A pump hermsd does not switch but sees (pump.sense): its state, read-only.
+    pump_seen = (
+        topics.discovery("binary_sensor", "pump_seen"),
+        entity(
+            "pump_seen",
+            "Pump",
+            state_topic=topics.state,
+            value_template="{{ 'ON' if value_json.pump else 'OFF' }}",
+            payload_on="ON",
+            payload_off="OFF",
+            device_class="running",
+            icon="mdi:pump",
+        )
+        if config.pump.backend == "none" and config.pump.sense != "none"
+        else None,
+    )
     return [
         (
             topics.discovery("climate", "tun"),
@@ -320,6 +337,7 @@ def discovery_messages(
             topics.state,
             programs,
         ),
+        pump_seen,  # with the other binary sensors, the alarm's last (a broker's retained order)
         problem("warning", "Warning"),
         problem("alarm", "Alarm"),
     ]

@@ -16,6 +16,7 @@ from hermsd.control.element2 import SlowElement
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.control.reach import ReachWatch
 from hermsd.hardware.outputs import Outputs
+from hermsd.hardware.pump_sense import PumpSense
 from hermsd.hardware.sensors.base import Sensor
 from hermsd.program.driver import ProgramDriver
 from hermsd.program.store import ProgressStore
@@ -47,10 +48,11 @@ def assemble(
     saver: Saver | None = None,
     mash_sensor: Sensor | None = None,
     coil_sensor: Sensor | None = None,
+    pump_sense: PumpSense | None = None,
 ) -> Daemon:
     """A daemon for `config` on `sensor` and `outputs` (and the mash's and the coil outlet's
-    sensors, when fitted), its parts built here (with what `models` holds of the tun) and
-    handed to the loop."""
+    sensors and the pump's sense, when fitted), its parts built here (with what `models`
+    holds of the tun) and handed to the loop."""
     stored: LearnedModel | None = None
     problem: str | None = None
     if models is not None:
@@ -94,6 +96,7 @@ def assemble(
         ),
         mash_sensor=mash_sensor,
         coil_sensor=coil_sensor,
+        pump_sense=pump_sense,
         mash_control=outer,
     )
     return Daemon(parts)

@@ -59,7 +59,7 @@ from hermsd.runtime.build import (
     reach_period,
 )
 from hermsd.runtime.latch_keeping import LatchKeeping
-from hermsd.runtime.mash_side import MashSide, role_sensors
+from hermsd.runtime.mash_side import MashSide, SeenPump, role_sensors
 from hermsd.runtime.notify import WatchdogGate
 from hermsd.runtime.parts import Parts
 from hermsd.runtime.period import PeriodRecord
@@ -235,6 +235,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
         )
         self.program = parts.program
         self._roles, self._pump_on, self._program_pump_step = role_sensors(parts), False, None
+        self._seen_pump = SeenPump(parts.pump_sense) if parts.pump_sense is not None else None
         self._mash_control = parts.mash_control
 
     # -- life cycle -----------------------------------------------------------------------

@@ -27,6 +27,7 @@ from hermsd.runtime.notify import mash_side_words
 from hermsd.safety.coil_load import NO_LOAD, CoilLoad, MashWatch
 
 if TYPE_CHECKING:
+    from hermsd.hardware.pump_sense import PumpSense
     from hermsd.hardware.sensors.base import Sensor
     from hermsd.runtime.parts import Parts
 
@@ -45,6 +46,8 @@ NO_FLOW = (
     "no flow through the coil: the pump runs but the mash does not take the coil's heat "
     "(a stuck bed, a pump running dry, a closed valve?)"
 )
+PUMP_SENSE_FAULT = "pump sense fault"
+PUMP_UNSEEN = "(the pump taken as running unseen, as without a sense)"
 FLOW_SEEN_C = 2.0
 """°C the coil outlet's reading must stand below the HLT's for wort to be seen flowing through
 a pump hermsd does not switch: standing wort in the coil is at the HLT's temperature, and the
@@ -103,6 +106,48 @@ class RoleSensor:
         return logging.WARNING, f"{self.role} sensor fault: {why} (the HLT is held as before)"
 
 
+class SeenPump:
+    """A pump hermsd does not switch, seen through its sense (`pump.sense`), read with the
+    sensors: every change seen said; a sense that fails `safety.fault_reads` reads in a row
+    is a fault, said when it begins and when it ends, and while it stands the pump is unseen
+    (taken as hermsd takes a pump without a sense: never heat on a guess)."""
+
+    def __init__(self, sense: PumpSense) -> None:
+        self.sense = sense
+        self.running: bool | None = None  # the last good read's (None before one)
+        self.fault: str | None = None
+        self._failures = 0
+
+    @property
+    def seen(self) -> bool | None:
+        """The pump as seen now: None while the sense is faulty or before its first read."""
+        return None if self.fault is not None else self.running
+
+    def read(self, safety: SafetyConfig) -> list[Said]:
+        """Read once; what there is to say (a change seen, a fault begun or ended)."""
+        try:
+            running = self.sense.running()
+        except (SensorError, OSError) as error:
+            self._failures += 1
+            if self.fault is not None or self._failures < safety.fault_reads:
+                return []  # the last good read stands until the fault is declared
+            self.fault = str(error) or type(error).__name__
+            return [(logging.WARNING, f"{PUMP_SENSE_FAULT}: {self.fault} {PUMP_UNSEEN}")]
+        self._failures = 0
+        said: list[Said] = []
+        if self.fault is not None:
+            self.fault = None
+            said.append((logging.INFO, f"pump sense reads again: pump {_on_off(running)}"))
+        if running != self.running:
+            said.append((logging.INFO, f"pump seen {_on_off(running)}"))
+        self.running = running
+        return said
+
+
+def _on_off(on: bool) -> str:
+    return "on" if on else "off"
+
+
 def role_sensors(parts: Parts) -> dict[str, RoleSensor]:
     """The fitted sensors beside the HLT's, by their config section."""
     given = {"mash_sensor": parts.mash_sensor, "coil_sensor": parts.coil_sensor}
@@ -129,6 +174,7 @@ class MashSide(LoopState):
     """The Daemon's sensors beside the HLT's and its pump."""
 
     _roles: dict[str, RoleSensor]
+    _seen_pump: SeenPump | None
     _pump_on: bool
     _mash_control: MashControl | None
     _mash_watch: MashWatch
@@ -247,14 +293,21 @@ class MashSide(LoopState):
         self._mash_watch = MashWatch()
         for role in self._roles.values():
             self._say_role(role.start(self.config.safety, self._now()))
+        self._read_pump_sense()
 
     def _read_mash_side(self) -> None:
         """Read each sensor beside the HLT's, and refresh the pump's switch (a relay board's
         off is said again now and then: `GuardedSwitch`)."""
         for role in self._roles.values():
             self._say_role(role.read(self.config.safety, self._now()))
+        self._read_pump_sense()
         if self.outputs.pump is not None:
             self.outputs.pump.set(self._pump_on)
+
+    def _read_pump_sense(self) -> None:
+        if self._seen_pump is not None:
+            for said in self._seen_pump.read(self.config.safety):
+                self._say_role(said)
 
     def _say_role(self, said: Said | None) -> None:
         if said is not None:
@@ -273,10 +326,19 @@ class MashSide(LoopState):
         self._keep_coil(t)
 
     @property
+    def pump_state(self) -> bool | None:
+        """The pump as hermsd knows it: as switched, or as seen through its sense; None when
+        it is not known (none fitted and none seen, or the sense faulty)."""
+        if self.pump_fitted:
+            return self._pump_on
+        return None if self._seen_pump is None else self._seen_pump.seen
+
+    @property
     def pump_running(self) -> bool:
-        """The pump as the outer loop takes it: as switched, or, with none fitted, running
-        (the brewer runs it by hand; a stopped one leaves the HLT at the limit at most)."""
-        return self._pump_on if self.pump_fitted else True
+        """The pump as the outer loop takes it: as known, or, not known, running (the brewer
+        runs it by hand; a stopped one leaves the HLT at the limit at most)."""
+        state = self.pump_state
+        return True if state is None else state
 
     def _steer(self, pv: float | None, applied: float, t: float) -> float:
         """The HLT law's setpoint for this period: with a mash sensor fitted the outer
@@ -302,7 +364,7 @@ class MashSide(LoopState):
             mash_age=t - mash.read_at,
             hlt_pv=pv,
             pump=self.pump_running,
-            pump_known=self.pump_fitted or seen,
+            pump_known=self.pump_state is not None or seen,
             applied=applied,
             pump_in=pump_in,
         )
@@ -329,11 +391,11 @@ class MashSide(LoopState):
     def _flow_seen(self, hlt: float) -> bool:
         """Wort seen flowing through a pump hermsd does not switch: the coil outlet's good
         reading more than FLOW_SEEN_C below the HLT's (`hlt`), where standing wort would be
-        at the HLT's temperature. False with the pump fitted (it is known, not seen), without
+        at the HLT's temperature. False with the pump known (switched, or its sense read), without
         a coil outlet sensor, or while the two stand too close to tell (the HLT near the
         mash: little load to feed then)."""
         coil = self._roles.get("coil_sensor")
-        if self.pump_fitted or coil is None or coil.celsius is None:
+        if self.pump_state is not None or coil is None or coil.celsius is None:
             return False
         return hlt - coil.celsius > FLOW_SEEN_C
 
@@ -388,15 +450,16 @@ class MashSide(LoopState):
         return self.setpoint if decision is None else decision.hlt_setpoint
 
     def mash_side_fields(self) -> MashSideFields:
-        """The period record's mash, coil outlet and pump (None: not fitted, or faulty), and
-        the outer loop's HLT setpoint, coil load and phase (None: no mash sensor)."""
+        """The period record's mash, coil outlet and pump (None: not fitted, or faulty; the
+        pump as switched or seen, `pump_state`), and the outer loop's HLT setpoint, coil load
+        and phase (None: no mash sensor)."""
         mash, coil = self._roles.get("mash_sensor"), self._roles.get("coil_sensor")
         control = self._mash_control
         decision = None if control is None else control.decision
         return {
             "mash": None if mash is None else mash.celsius,
             "coil": None if coil is None else coil.celsius,
-            "pump": self._pump_on if self.pump_fitted else None,
+            "pump": self.pump_state,
             "hlt_setpoint": None if decision is None else decision.hlt_setpoint,
             "coil_load": None if decision is None else decision.load_watts,
             "cascade": None if decision is None else decision.phase,
@@ -405,13 +468,13 @@ class MashSide(LoopState):
 
     def coil_load(self, hlt: float | None) -> CoilLoad:
         """The coil's load on the HLT at `hlt` °C, for the supervisor's heat balances: none
-        without a mash sensor (no HERMS known) or with the pump hermsd switches off; counted
-        with a pump hermsd does not switch, which may be running; a faulty mash sensor's
+        without a mash sensor (no HERMS known) or with the pump known stopped; counted with a
+        pump not known (not switched, not seen), which may be running; a faulty mash sensor's
         mash bounded from its last good reading (docs/herms.md, "The coil and the safety")."""
         mash = self._roles.get("mash_sensor")
         if mash is None or hlt is None:
             return NO_LOAD
-        pump = self._pump_on if self.pump_fitted else None
+        pump = self.pump_state
         learned = None  # the day's K narrows the bound; a prior or yesterday's does not
         coil = None if self._mash_control is None else self._mash_control.coil.estimate()
         if coil is not None and coil.source == "learned":

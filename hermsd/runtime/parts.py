@@ -14,6 +14,7 @@ from hermsd.control.element2 import SlowElement
 from hermsd.control.learning import LearnedModel, Learner, ModelStore
 from hermsd.control.reach import ReachWatch
 from hermsd.hardware.outputs import Outputs
+from hermsd.hardware.pump_sense import PumpSense
 from hermsd.hardware.sensors.base import Sensor
 from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.driver import ProgramDriver
@@ -64,4 +65,5 @@ class Parts:
     program: ProgramDriver
     mash_sensor: Sensor | None = None  # the sensors beside the HLT's (runtime/mash_side.py)
     coil_sensor: Sensor | None = None
+    pump_sense: PumpSense | None = None  # a pump hermsd does not switch, seen running
     mash_control: MashControl | None = None  # the HERMS's outer loop, with a mash sensor

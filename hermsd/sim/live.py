@@ -49,6 +49,7 @@ def scenario_daemon(scenario: Scenario, config: Config, speed: float, **parts: A
         world.outputs,
         mash_sensor=None if mash is None else mash.mash_sensor,
         coil_sensor=None if mash is None else mash.coil_sensor,
+        pump_sense=None if mash is None else mash.pump_sense,
         saver=Saver(threaded=not math.isinf(speed)),
         **parts,
     )

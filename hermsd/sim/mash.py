@@ -246,6 +246,10 @@ class HermsTun:
         self._pump_on = on
         self._update_flow(t)
 
+    def pump_running(self) -> bool:
+        """Whether the pump runs now, as a contact on its supply says (`pump.sense: sim`)."""
+        return self._pump_on
+
     def set_recirculation_ok(self, ok: bool, t: float) -> None:
         self._advance(t)
         self._recirculation_ok = ok

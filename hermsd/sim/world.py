@@ -7,10 +7,11 @@ scenario runner alike.
 
 from __future__ import annotations
 
+import errno
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, cast
 
 from hermsd.config.file import ConfigFile
 from hermsd.config.schema import ROLE_SENSORS, Config
@@ -52,6 +53,7 @@ class MashSide:
     mash_chip: FakeChip | None = None
     coil_sensor: Sensor | None = None
     coil_chip: FakeChip | None = None
+    pump_sense: PumpContact | None = None
 
 
 class PumpSwitch:
@@ -68,6 +70,30 @@ class PumpSwitch:
         """Nothing to release."""
 
 
+class SensedPlant(Protocol):
+    """A HERMS plant that says whether its pump runs (`HermsTun`; one from outside may not)."""
+
+    def pump_running(self) -> bool: ...
+
+
+class PumpContact:
+    """The simulated pump sense (`pump.sense`, in a simulated world): the plant's pump as a
+    contact on its supply says it, by whatever set it (a scenario's `pump` event); `failing`
+    makes each read an OSError, as a GPIO line that cannot be read."""
+
+    def __init__(self, plant: SensedPlant) -> None:
+        self._plant = plant
+        self.failing = False
+
+    def running(self) -> bool:
+        if self.failing:
+            raise OSError(errno.EIO, "the pump sense's line cannot be read (simulated)")
+        return self._plant.pump_running()
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
 def _mash_side(
     config: Config, clock: Clock, tun: Plant, advance: Callable[[float], None] | None
 ) -> tuple[MashSide | None, PumpSwitch | None]:
@@ -76,6 +102,8 @@ def _mash_side(
     fitted = [s for s in ROLE_SENSORS if getattr(config, s).fitted]
     if config.pump.backend != "none":
         fitted.append("pump")
+    if config.pump.sense != "none":
+        fitted.append("pump sense")
     if not isinstance(tun, HermsPlant):
         if fitted:
             raise ValueError(
@@ -95,6 +123,10 @@ def _mash_side(
         source = now(tun.coil_outlet_temperature)
         side.coil_sensor, side.coil_chip = fake_sensor(coil, clock.monotonic, source, advance)
     pump = PumpSwitch(tun, clock) if config.pump.backend != "none" else None
+    if config.pump.sense != "none":  # the simulated contact, whatever the config names
+        if not callable(getattr(tun, "pump_running", None)):
+            raise ValueError("pump.sense: the simulated plant cannot say whether its pump runs")
+        side.pump_sense = PumpContact(cast(SensedPlant, tun))
     return side, pump
 
 
@@ -158,6 +190,7 @@ def simulated_daemon(
         world.outputs,
         mash_sensor=mash.mash_sensor,
         coil_sensor=mash.coil_sensor,
+        pump_sense=mash.pump_sense,
         notifier=notifier,
         on_status=on_status,
         config_file=config_file,

@@ -53,6 +53,7 @@ PAGE_FIELDS = (
     "program",
     "mash",
     "pump",
+    "pump_switched",
 )
 """What the page shows of a status (not the limits, model and learned texts: 2 kB a period)."""
 PAGE_DERIVED = ("latched",)

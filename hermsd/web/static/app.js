@@ -3,7 +3,8 @@
 // /api/command with the session's CSRF token, and the daemon's own checks decide.
 // A HERMS's mash sensor adds the mash temperature as the chart's second line and the HLT's
 // setpoint the outer loop chose as a dashed one (the setpoint shown is then the mash's), and
-// its pump shows its state and a start/stop button; a tun without them shows neither.
+// its pump shows its state and a start/stop button (the state alone for a pump hermsd only
+// sees); a tun without them shows neither.
 // Each event says how old its reading is: the page counts on from there, shows "live" only
 // while the reading is younger than the event's stale_after (two control periods) and the
 // daemon answers, and else says "no daemon" or the reading's age in red, every command off.
@@ -102,7 +103,7 @@ function render(status, age) {
   $("warning-box").hidden = warnings.length === 0;
   $("warnings").textContent = warnings.join("; ");
   renderProgram(status.program, status.pv);
-  renderMashSide(status.mash, status.pump);
+  renderMashSide(status.mash, status.pump, status.pump_switched);
   if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
     $("setpoint-input").placeholder = String(status.setpoint);
   }
@@ -145,8 +146,9 @@ function renderProgram(program, pv) {
 }
 
 // `mash`: null when no mash sensor is fitted, else its reading (null while faulty) and fault,
-// and the HLT's setpoint the outer loop chose with its phase (null before its first period).
-function renderMashSide(mash, pump) {
+// and the HLT's setpoint the outer loop chose with its phase (null before its first period);
+// `pump`: null when none is fitted or seen; `switched` false for one hermsd only sees.
+function renderMashSide(mash, pump, switched) {
   $("mash-box").hidden = !mash;
   $("hlt-aim-box").hidden = !mash;
   $("setpoint-label").textContent = mash ? "Mash setpoint" : "Setpoint";
@@ -164,7 +166,7 @@ function renderMashSide(mash, pump) {
   const starting = pump === false && startIn !== null;
   shownPump = typeof pump === "boolean" ? pump || starting : null;
   $("pump-box").hidden = shownPump === null;
-  $("pump-row").hidden = shownPump === null;
+  $("pump-row").hidden = shownPump === null || switched === false; // seen, not switched
   $("pump").textContent = starting ? `starting in ${startIn.toFixed(0)} s`
     : shownPump ? "on" : "off";
   $("pump-button").textContent = shownPump ? "Stop pump" : "Start pump";
