@@ -30,6 +30,7 @@ from hermsd.cli import main
 from hermsd.cli.run import _open_output
 from hermsd.config.read import parse
 from hermsd.hardware.outputs import guard_outputs
+from hermsd.hardware.pump_sense import PumpSense
 from hermsd.hardware.sensors.base import Sensor
 from hermsd.hardware.sensors.kinds import open_role_sensor
 from hermsd.hardware.ssr import Switch
@@ -150,9 +151,10 @@ def herms_daemon(
     *,
     pump: Switch | None = None,
     coil_sensor: Sensor | None = None,
+    pump_sense: PumpSense | None = None,
 ) -> tuple[Daemon, World]:
-    """The daemon on `plant` in a simulated world, with the simulated pump and coil outlet
-    sensor, or the given ones in their place."""
+    """The daemon on `plant` in a simulated world, with the simulated pump, coil outlet
+    sensor and pump sense (as the config fits them), or the given ones in their place."""
     config = parse(text)
     clock = VirtualClock()
     world = build_world(config, clock, tun=plant or LaggingMash())
@@ -169,6 +171,7 @@ def herms_daemon(
         world.outputs,
         mash_sensor=world.mash.mash_sensor,
         coil_sensor=coil_sensor or world.mash.coil_sensor,
+        pump_sense=pump_sense or world.mash.pump_sense,
     )
     return daemon, world
 

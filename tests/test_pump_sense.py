@@ -12,21 +12,18 @@ import math
 from pathlib import Path
 
 import pytest
-from test_mash_side import PERIOD, LaggingMash, fake_gpiod, run_for, watched
+from test_mash_side import PERIOD, LaggingMash, fake_gpiod, herms_daemon, run_for, watched
+from test_pump_start import LITRES, UA_HLT, dough, hlt
 
 from hermsd.config.read import parse
 from hermsd.config.schema import ConfigError
-from hermsd.hardware.pump_sense import GpioPumpSense, PumpSense, open_pump_sense
+from hermsd.hardware.pump_sense import GpioPumpSense, open_pump_sense
 from hermsd.log import reader, replay
 from hermsd.mqtt.messages import Topics, discovery_messages
-from hermsd.runtime.assemble import assemble
-from hermsd.runtime.daemon import Daemon
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
-from hermsd.sim.clock import VirtualClock
-from hermsd.sim.hlt import PhysicalPlant
-from hermsd.sim.mash import GRAIN_J_PER_KG_K, HermsTun
-from hermsd.sim.world import PumpContact, World, build_world
+from hermsd.sim.mash import HermsTun
+from hermsd.sim.world import PumpContact
 
 SENSED = (
     "output:\n  backend: sim\nlog:\n  dir: null\ncontrol:\n  setpoint: 70\n"
@@ -99,27 +96,6 @@ class SensedMash(LaggingMash):
         return self.pump
 
 
-def sensed_daemon(
-    text: str = SENSED, *, sense: PumpSense | None = None
-) -> tuple[Daemon, World, SensedMash]:
-    """The daemon on a SensedMash (the mash at 20 °C, far below 70), its pump seen through
-    the simulated contact or `sense`."""
-    config = parse(text)
-    clock = VirtualClock()
-    plant = SensedMash()
-    world = build_world(config, clock, tun=plant)
-    assert world.mash is not None
-    daemon = assemble(
-        config,
-        clock,
-        world.sensor,
-        world.outputs,
-        mash_sensor=world.mash.mash_sensor,
-        pump_sense=sense or world.mash.pump_sense,
-    )
-    return daemon, world, plant
-
-
 def test_a_gpio_sense_is_an_input_line_read_at_each_read_and_its_changes_said(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -132,7 +108,7 @@ def test_a_gpio_sense_is_an_input_line_read_at_each_read_and_its_changes_said(
     assert (request.chip, request.consumer) == ("/dev/gpiochip0", "hermsd")
     assert settings.direction == "Direction.INPUT" and settings.active_low is True
     assert settings.bias == "Bias.PULL_UP"  # an unplugged module reads a stopped pump
-    daemon, _world, _plant = sensed_daemon(text, sense=sense)
+    daemon, _world = herms_daemon(text, SensedMash(), pump_sense=sense)
     periods = watched(daemon)
     run_for(daemon, 2 * PERIOD)
     assert request.reads >= 10  # once a read interval (1 s)
@@ -153,7 +129,7 @@ def test_a_gpio_sense_is_an_input_line_read_at_each_read_and_its_changes_said(
 
 
 def test_a_sense_that_fails_is_one_warning_and_the_pump_unseen_till_it_reads_again() -> None:
-    daemon, world, _plant = sensed_daemon()
+    daemon, world = herms_daemon(SENSED, SensedMash())
     assert world.mash is not None and isinstance(world.mash.pump_sense, PumpContact)
     contact = world.mash.pump_sense
     periods = watched(daemon)
@@ -181,7 +157,7 @@ def test_a_sense_that_fails_is_one_warning_and_the_pump_unseen_till_it_reads_aga
 
 # -- a simulated day: the pump started by hand, seen ------------------------------------------
 
-LITRES, WATTS, UA_HLT = 90.0, 3000.0, 3000.0 / 168.9
+WATTS = 3000.0  # test_pump_start's 90 L HLT with a smaller element
 REST, LIMIT = 66.0, 10.0
 DOUGH_AT, PUMP_AT, AFTER = 600.0, 1500.0, 900.0
 
@@ -203,29 +179,17 @@ def day_config() -> str:
 def day(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[PeriodRecord], Path]:
     """50 L and 12 kg at 20 °C doughed in at 63 °C, 3 °C short of the rest; the pump, outside
     hermsd and no coil outlet sensor, started by hand at PUMP_AT; the day logged."""
-    water_c = (63.0 * (4186.0 * 50 + GRAIN_J_PER_KG_K * 12) - GRAIN_J_PER_KG_K * 12 * 20) / (
-        4186.0 * 50
-    )
-    dough = {"grain_kg": 12, "grain_c": 20, "water_litres": 50, "water_c": round(water_c, 3)}
     doc = {
         "name": "pump-seen",
         "duration": f"{PUMP_AT + AFTER:g}s",
         "setpoint": REST,
         "plant": {"model": "physical", "litres": LITRES, "element_watts": WATTS},
         "events": [
-            {"at": f"{DOUGH_AT:g}s", "dough_in": dough},
+            {"at": f"{DOUGH_AT:g}s", "dough_in": dough(63.0)},
             {"at": f"{PUMP_AT:g}s", "pump": "on"},
         ],
     }
-    hlt = PhysicalPlant(
-        litres=LITRES,
-        element_watts=WATTS,
-        ua_w_per_k=UA_HLT,
-        transport_delay_s=60.0,
-        sensor_lag_s=10.0,
-        start_c=REST,
-    )
-    tun = HermsTun(hlt, coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
+    tun = HermsTun(hlt(WATTS, REST), coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
     log_dir = tmp_path_factory.mktemp("pump-seen")
     result = scenario.run(
         scenario.parse_scenario(doc),

@@ -70,30 +70,37 @@ def config(pump: str, dead_time: float = DEAD_TIME) -> str:
     )
 
 
+def hlt(watts: float, start_c: float) -> PhysicalPlant:
+    """The 90 L HLT with `watts` of element, its heat 60 s on its way, the sensor 10 s behind."""
+    return PhysicalPlant(
+        litres=LITRES,
+        element_watts=watts,
+        ua_w_per_k=UA_HLT,
+        transport_delay_s=60.0,
+        sensor_lag_s=10.0,
+        start_c=start_c,
+    )
+
+
+def dough(mash_c: float) -> dict[str, float]:
+    """A dough-in event: 50 L of water and 12 kg of grain at 20 °C that mix to `mash_c`."""
+    grain = GRAIN_J_PER_KG_K * 12
+    water_c = (mash_c * (4186.0 * 50 + grain) - grain * 20) / (4186.0 * 50)
+    return {"grain_kg": 12, "grain_c": 20, "water_litres": 50, "water_c": round(water_c, 3)}
+
+
 def day(
     pump: str, events: list[dict[str, Any]], dead_time: float = DEAD_TIME
 ) -> tuple[TracedTun, list[PeriodRecord]]:
     """The mash (50 L and 12 kg at 20 °C) doughed in at 45 °C at DOUGH_AT, then `events`."""
-    water_c = (45.0 * (4186.0 * 50 + GRAIN_J_PER_KG_K * 12) - GRAIN_J_PER_KG_K * 12 * 20) / (
-        4186.0 * 50
-    )
-    dough = {"grain_kg": 12, "grain_c": 20, "water_litres": 50, "water_c": round(water_c, 3)}
     doc = {
         "name": "pump-start",
         "duration": f"{PUMP_AT + AFTER + 120:g}s",
         "setpoint": REST,
         "plant": {"model": "physical", "litres": LITRES, "element_watts": WATTS},
-        "events": [{"at": f"{DOUGH_AT:g}s", "dough_in": dough}, *events],
+        "events": [{"at": f"{DOUGH_AT:g}s", "dough_in": dough(45.0)}, *events],
     }
-    hlt = PhysicalPlant(
-        litres=LITRES,
-        element_watts=WATTS,
-        ua_w_per_k=UA_HLT,
-        transport_delay_s=60.0,
-        sensor_lag_s=10.0,
-        start_c=REST + 10.0 - 0.15,
-    )
-    tun = TracedTun(hlt, coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
+    tun = TracedTun(hlt(WATTS, REST + 10.0 - 0.15), coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
     config_ = parse(config(pump, dead_time))
     result = scenario.run(
         scenario.parse_scenario(doc), config_, outside_plant=tun, keep_records=True
