@@ -195,6 +195,7 @@ def test_a_mash_left_short_by_a_wrong_k_still_reaches_its_rest() -> None:
     assert reached is not None and reached < 3 * 3600
     assert mash == pytest.approx(63.0, abs=0.3)
 
+
 def test_on_an_exact_model_the_climb_ends_when_the_coast_carries_the_mash_to_its_rest() -> None:
     # Two lossless tanks through K = 200 W/K, integrated here exactly over each second, the HLT
     # held at once at a setpoint above it (a law without lag or limit), else coasting. From a
