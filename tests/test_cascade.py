@@ -159,11 +159,15 @@ def test_tanks_without_heat_capacity_are_refused() -> None:
         dataclasses.replace(LOSSLESS, mash_capacity=0.0)
 
 
-def test_an_hlt_above_its_setpoint_is_fed_no_load() -> None:
-    # The climb's setpoint is 70 °C: at 70.1 the load is fed, 200·(70.1 − 50) = 4020 W; at
-    # 70.2, beyond HLT_MARGIN, it is not (a stuck bed draws nothing; the law must not heat).
-    assert step(cascade(), 50.0, 70.1).load_watts == pytest.approx(4020.0)
-    assert step(cascade(), 50.0, 70.2).load_watts == 0.0
+def test_an_hlt_above_its_setpoint_is_fed_the_load_and_a_coil_with_no_flow_none() -> None:
+    # The climb's setpoint is 70 °C: at 72 the load is fed all the same, 200·(72 − 50) =
+    # 4400 W (the law waits for the draw to bring the HLT down, and sends its heat a dead
+    # time ahead of it); with nothing flowing (a stuck bed) the coil draws nothing: none.
+    assert step(cascade(), 50.0, 72.0).load_watts == pytest.approx(4400.0)
+    stuck = cascade().step(
+        mash_sp=65.0, mash_pv=50.0, mash_age=0.0, hlt_pv=72.0, pump=True, coil=EXACT, flowing=False
+    )
+    assert stuck.load_watts == 0.0 and stuck.phase == "no flow"
 
 
 def test_a_mash_left_short_by_a_wrong_k_still_reaches_its_rest() -> None:

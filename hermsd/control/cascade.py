@@ -364,10 +364,10 @@ class Cascade:
         self, hlt: float, mash: float | None, setpoint: float, pump: bool, coil: CoilEstimate
     ) -> float:
         """The coil's draw on the HLT (W) for the HLT law to feed forward: K (one sd low)
-        times the HLT over the mash. None with the pump stopped or no mash reading yet, nor
-        with the HLT more than HLT_MARGIN above its setpoint: the law is not to heat it then,
-        and a load fed there that the coil does not draw (a stuck bed: the pump runs, nothing
-        flows) would hold the HLT above its setpoint, over the limit in a climb."""
-        if not pump or mash is None or hlt > setpoint + HLT_MARGIN:
+        times the HLT over the mash; none with the pump stopped (or nothing flowing through
+        it: `flowing`) or no mash reading yet. Fed with the HLT above its setpoint too: the
+        law then waits for the draw to bring it down, and sends the heat a dead time ahead
+        of that instant rather than after it."""
+        if not pump or mash is None:
             return 0.0
         return coil.low * (hlt - mash)

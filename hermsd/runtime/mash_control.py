@@ -86,11 +86,7 @@ class MashControl:
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
         elif decision.load_watts > 0.0 and coil.low > 0.0:
-            # K's estimate, not one sd low: the prior's low is half the pull, met late, and
-            # the step down to the day's low once a block is learned is the HLT's heat in
-            # flight seen as too much (the margin over the setpoint then cuts the whole load
-            # off and the element with it); that margin still stops a load the coil does
-            # not draw.
+            # K's estimate, not one sd low: the prior's low is half the pull, met late.
             load = decision.load_watts * coil.conductance / coil.low
             decision = dataclasses.replace(decision, load_watts=load)
         starts_in = 0.0

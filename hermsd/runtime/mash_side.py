@@ -190,9 +190,11 @@ class MashSide(LoopState):
         ) -> None: ...
 
     _program_pump_step: tuple[int, bool] | None  # the program's step the pump was set for
-    # A prepared pump start: when the pump is switched on, and why it was asked for.
+    # A prepared pump start: when the pump is switched on, why it was asked for, and the HLT's
+    # PV when its preparation began.
     _pump_start_at: float | None = None
     _pump_start_reason = ""
+    _pump_start_from: float | None = None
 
     @property
     def pump_fitted(self) -> bool:
@@ -220,7 +222,7 @@ class MashSide(LoopState):
                 )
                 return
         if not on and self._pump_start_at is not None:
-            self._pump_start_at = None
+            self._pump_start_at = self._pump_start_from = None
             self._event(logging.INFO, f"pump start cancelled: {reason}", now)
         if on == self._pump_on or (on and self._pump_start_at is not None):
             return
@@ -255,17 +257,23 @@ class MashSide(LoopState):
 
     def _pump_due(self, t: float, pv: float | None) -> float | None:
         """At a period: the prepared pump switched on once its start is due (within half a
-        period), or as soon as the HLT's PV stands HLT_MARGIN above its setpoint (the heat
-        sent ahead arrived before the law's dead time: a model's longer than the tun's
-        would otherwise heat the HLT past its setpoint, over the limit in a climb); else the
-        s still to go (None: no start pending)."""
+        period), or as soon as the HLT's PV stands HLT_MARGIN above both its setpoint and
+        where it stood as the preparation began (the heat sent ahead arrived before the
+        law's dead time: a model's longer than the tun's would otherwise heat the HLT past
+        its setpoint, over the limit in a climb); else the s still to go (None: no start
+        pending). An HLT already above its setpoint as the start is asked (the heat of a
+        climb still arriving while the pump stood) is no heat sent ahead: the start is
+        prepared all the same, or the load would go unmet for the dead time."""
         due = self._pump_start_at
         if due is None:
             return None
-        arrived = pv is not None and pv > self.hlt_target() + HLT_MARGIN
+        if self._pump_start_from is None:
+            self._pump_start_from = pv
+        stood = self._pump_start_from if self._pump_start_from is not None else -math.inf
+        arrived = pv is not None and pv > max(self.hlt_target(), stood) + HLT_MARGIN
         if t < due - 0.5 * self.config.control.period and not arrived:
             return due - t
-        self._pump_start_at = None
+        self._pump_start_at = self._pump_start_from = None
         self._switch_pump(True, self._pump_start_reason, t)
         return None
 
@@ -318,7 +326,7 @@ class MashSide(LoopState):
         a start still being prepared; the coil's K learned so far kept, as at any pump stop
         (a day ended with the pump running taught it as well)."""
         if self._pump_start_at is not None:
-            self._pump_start_at = None
+            self._pump_start_at = self._pump_start_from = None
             self._event(logging.INFO, f"pump start cancelled: {reason}", t)
         if self._pump_on:
             self._pump_on = False
