@@ -11,8 +11,9 @@ limit (mash setpoint + `max_hlt_above_mash`, less HLT_MARGIN for the HLT law's o
 overshoot, never above the HLT's maximum) until the heat stored in the HLT above T_hold and
 in flight in the hose will carry the mash to its setpoint as the two tanks coast together
 (`coast_peak`: the linear two-tank model run forward with the element off until the HLT is
-down at T_hold). Then the HLT coasts down to T_hold (judged again every period: should the
-coast fall short, the HLT is raised to where it reaches after all, `coast_start`), and from
+down at T_hold). Then the HLT's setpoint is the HLT from which the coast carries the mash to
+its setpoint (`coast_start`, judged again every period: below the HLT while the coast holds,
+above it where it falls short), down to T_hold as the mash arrives, and from
 there on the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's
 rise against the model's once the climb is over, and the PI's integral, learn it, and what
 they learn serves the next rest's T_hold and coast. With the pump stopped nothing flows,
@@ -38,9 +39,10 @@ from hermsd.control.coil import CoilEstimate
 HLT_MARGIN = 0.15
 """°C the HLT's setpoint stays below the limit: the HLT law overshoots its setpoint by up to
 a tenth (its bench's bound), and the limit is one the HLT must never pass."""
-COAST_SHORT = 0.1
-"""°C the coast's peak may fall short of the mash's setpoint before the HLT is raised again
-for it."""
+COAST_AIM = 0.15
+"""°C below its setpoint the coast's HLT aims the mash: the HLT law follows that setpoint down
+with its own lag and heat in flight, which land in the mash after the aim (bench/herms.py:
+aimed at the setpoint itself, overshoots of 0.2–0.37 °C); the hold's PI closes the rest."""
 COAST_BISECTIONS = 16
 """Halvings of the HLT's range when solving for the coast's start (10 °C to 0.00015 °C)."""
 REHEAT_BAND = 1.0
@@ -300,11 +302,14 @@ class Cascade:
         else:
             setpoint = self._hold(mash_sp, mash_pv, hlt_pv, tanks, k)
             phase = "hold" if self._settled else "coast"
-            short = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target - COAST_SHORT
-            if not self._settled and short:
-                # The coast falls short (the losses more than the model's, which the observer
-                # is learning): the HLT that carries the mash to its rest after all.
-                setpoint = coast_start(mash, hold_high, tanks, high, target, ceiling)
+            if not self._settled:
+                # The HLT from which the coast carries the mash to its rest, judged again each
+                # period (below the HLT while the coast holds, the element off; above it where
+                # the coast falls short, the losses more than the model's, which the observer
+                # is learning): one setpoint that moves with the tanks, not a hold and a raise
+                # taken in turn as the HLT's prediction crosses between them.
+                aim = target - COAST_AIM
+                setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, aim, ceiling))
             setpoint = min(setpoint, ceiling)
         self._last_sp = setpoint
         return Decision(setpoint, self._load(hlt_pv, mash_pv, setpoint, pump, coil), phase)
