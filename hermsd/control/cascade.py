@@ -284,13 +284,9 @@ class Cascade:
         # already stop the climb early, and a coast that ends short closes its last tenths
         # on the mash's own slow time constant.
         target = mash_sp
-        # A mash fallen out of its hold (a stop, a cold addition) climbs again only where the
-        # coast falls short. In the coast itself a mash left short is the coast's to mend (it
-        # raises the HLT to where the model says it carries the mash, while the observer
-        # learns what the model missed): a climb there, stopped again at once by the same
-        # model, would clear what the observer gathered, period after period.
-        reheat = self._settled and mash_pv < mash_sp - REHEAT_BAND
-        if (self._climbing or reheat) and pump:
+        if not self._climbing and mash_pv < mash_sp - REHEAT_BAND:
+            self._climbing = True
+        if self._climbing and pump:
             self._climbing = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target
         self._settled = self._settled and not self._climbing
         self._observe(mash_pv, hlt_pv, pump, k)
