@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_mash_side import LaggingMash, Periods, herms_daemon, run_for
+from test_mash_side import LaggingMash, Periods, herms_daemon, run_for, watched
 
 from hermsd.log import reader, replay
 from hermsd.program import model
@@ -302,3 +302,21 @@ def test_without_a_mash_in_wait_the_pump_runs_from_the_first_step() -> None:
     program = model.parse("steps:\n  - {name: Rest, setpoint: 66, hold: 60m}\n", "rest.yaml")
     assert model.mash_in_index(program) == 0
     assert model.pump_wanted(program, 0) is True
+
+
+def test_a_strike_the_hlts_limit_cannot_honour_is_warned_of_as_the_program_starts() -> None:
+    """Strike 72 °C, first rest 60 °C, herms.max_hlt_above_mash 10 °C (the default): 72 > 70."""
+    daemon, _world = herms_daemon()
+    periods = watched(daemon)
+    run_for(daemon, 2 * PERIOD)
+    strike = model.Step("Strike", 72.0, 0.0, confirm="Mash in")
+    program = model.Program("Hot strike", (strike, model.Step("Rest", 60.0, 1200.0)))
+    assert daemon.program_problems(program) == []  # a warning: the program runs
+    daemon.start_program(program, None, daemon.clock.monotonic())
+    run_for(daemon, PERIOD)
+    assert daemon.program.active
+    assert (
+        "program 'Hot strike': steps[0].setpoint: Strike 72 °C is above the first rest Rest "
+        "60 °C + herms.max_hlt_above_mash 10 °C = 70 °C: the HLT will stand above the limit "
+        "when the pump starts; lower the strike or raise herms.max_hlt_above_mash"
+    ) in periods.events

@@ -272,6 +272,51 @@ def test_program_check_prints_the_steps_or_every_problem(
     assert len(err.splitlines()) == 8 and err.startswith(f"{bad}:2:11: ready_by")
 
 
+STRIKE_72 = Program(
+    "Strike high",
+    (
+        Step("Strike", 72.0, 0.0, confirm="Mash in"),
+        Step("Protein rest", 63.0, 1200.0),
+        Step("Mash out", 78.0, 600.0),
+    ),
+)
+
+
+def test_a_strike_above_the_first_rest_plus_the_limit_is_warned_of() -> None:
+    """72 °C against 63 + 8 = 71 °C: the HLT cannot be cooled to the limit for the pump start."""
+    assert model.strike_warnings(STRIKE_72, 8.0) == [
+        "steps[0].setpoint: Strike 72 °C is above the first rest Protein rest 63 °C + "
+        "herms.max_hlt_above_mash 8 °C = 71 °C: the HLT will stand above the limit when the "
+        "pump starts; lower the strike or raise herms.max_hlt_above_mash"
+    ]
+    assert model.strike_warnings(STRIKE_72, 9.0) == []  # 72 = 63 + 9: at the limit, not above
+    # Without a mash-in wait every step is on the mash: no strike to judge.
+    mashed_in = Program("Mashed in", STRIKE_72.steps[1:])
+    assert model.strike_warnings(mashed_in, 1.0) == []
+
+
+def test_program_check_with_a_herms_config_warns_of_a_strike_above_the_limit(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    program, herms, plain = tmp_path / "p.yaml", tmp_path / "herms.yaml", tmp_path / "hlt.yaml"
+    program.write_text(STEP_MASH, encoding="utf-8")  # strike 72 °C, first rest 64 °C
+    sensor = "mash_sensor:\n  kind: lm92\n  address: 0x49\n"
+    herms.write_text(sensor + "herms:\n  max_hlt_above_mash: 5\n", encoding="utf-8")
+    plain.write_text("herms:\n  max_hlt_above_mash: 5\n", encoding="utf-8")
+    assert main(["program", "check", str(program), "--config", str(herms)]) == 0
+    out = capsys.readouterr().out
+    assert "valid" in out
+    assert (
+        f"warning: {program}: steps[0].setpoint: Strike 72 °C is above the first rest Beta rest "
+        "64 °C + herms.max_hlt_above_mash 5 °C = 69 °C: the HLT will stand above the limit"
+    ) in out
+    # No mash sensor: the HLT is the brewer's, no limit above a mash.
+    assert main(["program", "check", str(program), "--config", str(plain)]) == 0
+    assert "warning" not in capsys.readouterr().out
+    assert main(["program", "check", str(program)]) == 0
+    assert "warning" not in capsys.readouterr().out
+
+
 # -- the runner ------------------------------------------------------------------------------
 
 

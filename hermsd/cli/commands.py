@@ -197,6 +197,12 @@ def _parser() -> argparse.ArgumentParser:
         metavar="HH:MM",
         help="with start: have the first step's setpoint reached at this local time",
     )
+    program.add_argument(
+        "--config",
+        type=Path,
+        help="with check: also warn of what this config's HERMS cannot honour (a strike above "
+        "the first rest + herms.max_hlt_above_mash)",
+    )
     _step_argument(program, "with next: end step N only (refused if another is current)")
     _socket_argument(program)
     program.set_defaults(func=cmd_program)

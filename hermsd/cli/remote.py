@@ -180,6 +180,7 @@ def cmd_set(args: argparse.Namespace) -> int:
 
 
 def cmd_program(args: argparse.Namespace) -> int:
+    from hermsd.config import read
     from hermsd.program import model
 
     needs_file = args.action in ("check", "start", "import")
@@ -194,6 +195,8 @@ def cmd_program(args: argparse.Namespace) -> int:
         return cmd_program_import(args)
     if args.ready_by is not None and args.action != "start":
         raise UserError("--ready-by goes with `program start`")
+    if args.config is not None and args.action != "check":
+        raise UserError("--config goes with `program check`")
     if args.step is not None and args.action != "next":
         raise UserError("--step goes with `program next` (and `hermsd confirm`)")
     if args.ready_by is not None and model.READY_BY.fullmatch(args.ready_by) is None:
@@ -205,6 +208,11 @@ def cmd_program(args: argparse.Namespace) -> int:
             print(f"{args.file}: program {program.name!r}, {len(program.steps)} steps, valid")
             for number, step in enumerate(program.steps, 1):
                 print(f"  {number}. {model.describe_step(step)}")
+            config = None if args.config is None else read.load(args.config)
+            if config is not None and config.mash_sensor.fitted:
+                limit = config.herms.max_hlt_above_mash
+                for warning in model.strike_warnings(program, limit):
+                    print(f"warning: {args.file}: {warning}")
             return 0
         request = ProgramStart(program, args.ready_by)
     else:

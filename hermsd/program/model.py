@@ -68,6 +68,25 @@ def mash_in_index(program: Program) -> int:
     return 1 if program.steps[0].confirm is not None else 0
 
 
+def strike_warnings(program: Program, max_hlt_above_mash: float) -> list[str]:
+    """What a HERMS cannot honour: a step before the mash is in (the strike water, held on the
+    HLT) above the first rest + `max_hlt_above_mash` leaves the HLT above its limit when the
+    pump starts, and an HLT cannot be cooled ('steps[0]: …' lines; [] when none)."""
+    first = mash_in_index(program)
+    if first >= len(program.steps):
+        return []
+    rest = program.steps[first]
+    limit = rest.setpoint + max_hlt_above_mash
+    return [
+        f"steps[{index}].setpoint: {step.name} {step.setpoint:g} °C is above the first rest "
+        f"{rest.name} {rest.setpoint:g} °C + herms.max_hlt_above_mash {max_hlt_above_mash:g} °C "
+        f"= {limit:g} °C: the HLT will stand above the limit when the pump starts; lower the "
+        "strike or raise herms.max_hlt_above_mash"
+        for index, step in enumerate(program.steps[:first])
+        if step.setpoint > limit
+    ]
+
+
 def pump_wanted(program: Program, index: int) -> bool:
     """Whether step `index` runs the pump: as it says, else on once the mash is in."""
     step = program.steps[index]
