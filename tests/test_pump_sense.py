@@ -19,7 +19,8 @@ from hermsd.config.read import parse
 from hermsd.config.schema import ConfigError
 from hermsd.hardware.pump_sense import GpioPumpSense, open_pump_sense
 from hermsd.log import reader, replay
-from hermsd.mqtt.messages import Topics, discovery_messages
+from hermsd.mqtt.messages import Refused, Topics, discovery_messages, parse_command
+from hermsd.runtime.mash_side import PumpNotFitted
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.mash import HermsTun
@@ -256,3 +257,19 @@ def test_a_seen_pump_is_announced_to_home_assistant_read_only() -> None:
     assert entity is not None and "command_topic" not in entity
     assert entity["value_template"] == "{{ 'ON' if value_json.pump else 'OFF' }}"
     assert entity["device_class"] == "running"
+
+
+def test_a_pump_only_seen_is_refused_a_set_pump_that_says_so() -> None:
+    """`hermsd set pump` on a pump hermsd only sees: not "no pump is fitted" (the brewer has
+    one, and the page shows it running), but that hermsd does not switch it."""
+    daemon, _world = herms_daemon(SENSED, SensedMash())
+    with pytest.raises(PumpNotFitted) as refused:
+        daemon.set_pump(True, "by the test")
+    assert str(refused.value) == (
+        "pump: hermsd only sees this pump (pump.sense), it does not switch it (switch it where "
+        "it is switched, or set pump.backend in the config file and restart hermsd)"
+    )
+    topics = Topics.of("hermsd", "homeassistant")
+    with pytest.raises(Refused) as mqtt:  # Home Assistant's pump switch: the same words
+        parse_command(topics, topics.set_pump, b"ON", parse(SENSED))
+    assert str(mqtt.value) == str(refused.value)

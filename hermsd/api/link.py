@@ -54,7 +54,7 @@ from hermsd.control.pid import PlantModel
 from hermsd.control.reach import short_words
 from hermsd.program.runner import Refused
 from hermsd.runtime.daemon import Daemon
-from hermsd.runtime.mash_side import NO_PUMP
+from hermsd.runtime.mash_side import pump_refusal
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import no_heat_words
 from hermsd.safety.limits import SafetyLimits, format_limits
@@ -234,7 +234,7 @@ class LoopLink:
             why = daemon.program.check(command.action, command.step)
             return [] if why is None else [why]
         if isinstance(command, SetPump):
-            return [] if daemon.pump_fitted else [NO_PUMP]
+            return [] if daemon.pump_fitted else [pump_refusal(daemon.config)]
         if isinstance(command, SetSetpoint) and daemon.program.active:
             return [
                 "control.setpoint: a mash program sets the setpoint while it runs "

@@ -36,7 +36,7 @@ from hermsd.api.protocol import SetMode, SetPump, SetSetpoint
 from hermsd.config import read, rules
 from hermsd.config.schema import Config
 from hermsd.mqtt import brewday
-from hermsd.runtime.mash_side import NO_PUMP
+from hermsd.runtime.mash_side import pump_refusal
 
 ONLINE = "online"
 OFFLINE = "offline"
@@ -377,7 +377,7 @@ def parse_command(topics: Topics, topic: str, payload: bytes, config: Config) ->
         if text not in PUMP_PAYLOADS:
             raise Refused(f"pump: expected ON (run it) or OFF (stop it), got {text!r}")
         command = PUMP_PAYLOADS[text]
-        problems = [NO_PUMP] if config.pump.backend == "none" else []
+        problems = [pump_refusal(config)] if config.pump.backend == "none" else []
     else:
         raise Refused(
             f"{topic} is not a command topic ({topics.set_setpoint}, {topics.set_mode} or "

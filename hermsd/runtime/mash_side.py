@@ -15,7 +15,7 @@ import logging
 import math
 from typing import TYPE_CHECKING, TypedDict
 
-from hermsd.config.schema import ROLE_SENSORS, Config, SafetyConfig
+from hermsd.config.schema import NOT_FITTED, ROLE_SENSORS, Config, SafetyConfig
 from hermsd.control import predictive
 from hermsd.control.cascade import HLT_MARGIN
 from hermsd.control.learning import LearnedModel, ModelStore
@@ -42,6 +42,17 @@ COIL_SAFETY_SDS = 3.0
 """The learned K's uncertainties above it that the safety's bound on the coil's load takes as
 its highest plausible value (a bound too narrow latches a false heater_not_heating)."""
 NO_PUMP = "pump: no pump is fitted (set pump.backend in the config file and restart hermsd)"
+SEEN_PUMP = (
+    "pump: hermsd only sees this pump (pump.sense), it does not switch it (switch it where it "
+    "is switched, or set pump.backend in the config file and restart hermsd)"
+)
+
+
+def pump_refusal(config: Config) -> str:
+    """Why `set pump` is refused where no pump is fitted: none at all, or one only seen."""
+    return SEEN_PUMP if config.pump.sense != NOT_FITTED else NO_PUMP
+
+
 NO_FLOW = (
     "no flow through the coil: the pump runs but the mash does not take the coil's heat "
     "(a stuck bed, a pump running dry, a closed valve?)"
@@ -208,7 +219,7 @@ class MashSide(LoopState):
         (`_pump_due`), so the heat sent meanwhile arrives as the load begins; a stop, or the
         daemon's, cancels a start still being prepared (docs/herms.md, "The pump start")."""
         if self.outputs.pump is None:
-            raise PumpNotFitted(NO_PUMP)
+            raise PumpNotFitted(pump_refusal(self.config))
         now = self._now()
         if on and not self._pump_on and self._pump_start_at is None:
             lead = self._pump_lead()
