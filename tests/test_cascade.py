@@ -263,3 +263,18 @@ def test_a_coast_that_falls_short_moves_its_setpoint_smoothly() -> None:
     assert len(coasting) > 100
     assert max(abs(b - a) for a, b in itertools.pairwise(coasting)) <= 0.5
     assert mash == pytest.approx(63.0, abs=0.3)
+
+
+def test_a_coast_feeds_no_load_while_the_hlt_stands_above_its_setpoint() -> None:
+    # The coast is the element off: at the climb's end (mash 55.05 °C, HLT 70, the coast's
+    # setpoint 69.9) the coil's 200·(70 − 55.05) = 2990 W is not fed, or the law would hold
+    # the HLT at 69.9 against it, heat the coast's model does not count. Fed again where the
+    # coast falls short and the HLT stands below its setpoint (the mash 64.2 °C at an HLT of
+    # 65.2: the setpoint 65 + (64.85 − 64.2)/2 = 65.325, 200·(65.2 − 64.2) = 200 W).
+    coasting = step(cascade(), 55.05, 70.0)
+    assert coasting.phase == "coast" and coasting.load_watts == 0.0
+    c = cascade()
+    step(c, 55.05, 70.0)  # the climb over: the coast from here on
+    short = step(c, 64.2, 65.2)
+    assert short.phase == "coast" and short.hlt_setpoint == pytest.approx(65.325, abs=1e-3)
+    assert short.load_watts == pytest.approx(200.0)

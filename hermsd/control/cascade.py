@@ -308,7 +308,14 @@ class Cascade:
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, aim, ceiling))
             setpoint = min(setpoint, ceiling)
         self._last_sp = setpoint
-        return Decision(setpoint, self._load(hlt_pv, mash_pv, setpoint, pump, coil), phase)
+        load = self._load(hlt_pv, mash_pv, setpoint, pump, coil)
+        if phase == "coast" and hlt_pv > setpoint:
+            # The coast is the element off (`coast_peak`'s model): the load fed here would
+            # have the law hold the HLT at the coast's setpoint against the coil's draw, heat
+            # the model does not count, that lands in the mash past its rest (bench seed 4:
+            # the element at full power 2 min into the coast, the mash 0.89 °C over).
+            load = 0.0
+        return Decision(setpoint, load, phase)
 
     def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float) -> None:
         """Learn the mash's losses from its rise where the coil's heat is small and known
