@@ -6,7 +6,8 @@
 #   sudo scripts/pi-install-check.sh arm64|armhf [ROOT_DIR]
 #
 # Needs root on a Debian or Ubuntu machine (debootstrap, qemu-user-static and binfmt-support
-# are apt-installed if missing) and the network (Debian's mirror, PyPI, astral.sh). Slow:
+# are apt-installed if missing) and the network (Debian's mirror, PyPI; astral.sh if it is
+# reachable, else Debian's pipx installs uv). Slow:
 # every program in the root runs emulated, and on armhf the install compiles cffi, zstandard,
 # lz4 and PyYAML; allow an hour or more. Not run by CI.
 #
@@ -75,7 +76,13 @@ doc() {
   took
 }
 
-doc 'curl -LsSf https://astral.sh/uv/install.sh | sh'
+# Astral's installer or Debian's pipx (both in the docs): pipx where astral.sh cannot be
+# reached (a network of package registries only), the installer elsewhere.
+if curl -fsS --max-time 10 -o /dev/null https://astral.sh/uv/install.sh; then
+  doc 'curl -LsSf https://astral.sh/uv/install.sh | sh'
+else
+  doc 'sudo apt install pipx && pipx install uv && pipx ensurepath'
+fi
 if [ "$arch" = armhf ]; then
   doc 'sudo apt install build-essential python3-dev libffi-dev'
 fi
