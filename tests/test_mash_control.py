@@ -251,11 +251,9 @@ Seen = tuple[str, tuple[str, ...]]
 """The status line and the status reply's warnings of the mash side (`link.role_faults`)."""
 
 
-@pytest.fixture(scope="module")
-def stuck_day() -> tuple[Daemon, Periods, Seen, Seen]:
-    """herms-day: the bed stuck 2 h to 2 h 10 min (the pump runs, nothing flows), then the
-    pump stopped 5 min for stirring; the status line and the status reply's warnings looked
-    at while the sign stands (at 2 h 9 min) and after the stirring (at 3 h)."""
+def stuck_bed() -> tuple[Daemon, Periods, Any]:
+    """herms-day's daemon, its periods and events watched: doughed in at 1 h, the pump
+    started at PUMP_AT, the bed stuck from STUCK_AT (the pump runs, nothing flows)."""
     daemon, world = herms_daemon()
     periods = Periods()
     daemon.listeners.append(periods)
@@ -265,6 +263,16 @@ def stuck_day() -> tuple[Daemon, Periods, Seen, Seen]:
     clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
     clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
     clock.call_at(STUCK_AT, lambda: tun.set_recirculation_ok(False, STUCK_AT))
+    return daemon, periods, tun
+
+
+@pytest.fixture(scope="module")
+def stuck_day() -> tuple[Daemon, Periods, Seen, Seen]:
+    """herms-day: the bed stuck 2 h to 2 h 10 min (the pump runs, nothing flows), then the
+    pump stopped 5 min for stirring; the status line and the status reply's warnings looked
+    at while the sign stands (at 2 h 9 min) and after the stirring (at 3 h)."""
+    daemon, periods, tun = stuck_bed()
+    clock = daemon.clock
     clock.call_at(FREED_AT, lambda: tun.set_recirculation_ok(True, FREED_AT))
     clock.call_at(STIR_AT, lambda: daemon.set_pump(False, "by the test"))
     clock.call_at(STIR_AT + 300.0, lambda: daemon.set_pump(True, "by the test"))
@@ -318,15 +326,7 @@ def test_no_flow_is_never_signed_on_a_normal_herms_day(day: tuple[scenario.Resul
 def test_a_reload_while_no_flow_is_signed_says_the_sign_ended() -> None:
     """A reload that makes the outer loop again drops its flow watch: the sign standing is
     said to end (why), not left without its end; the new watch judges the flow afresh."""
-    daemon, world = herms_daemon()
-    periods = Periods()
-    daemon.listeners.append(periods)
-    daemon.recorder = periods
-    tun: Any = world.plant
-    clock = daemon.clock
-    clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
-    clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
-    clock.call_at(STUCK_AT, lambda: tun.set_recirculation_ok(False, STUCK_AT))
+    daemon, periods, _tun = stuck_bed()
     daemon.run(until=FREED_AT - 60.0)
     assert any(e.startswith("no flow through the coil:") for e in periods.events)
     daemon.reload(parse(CONFIG.replace("mash_loss_w_per_k: 5", "mash_loss_w_per_k: 6")))
