@@ -37,6 +37,20 @@ fi
 [ -d /proc/sys/fs/binfmt_misc ] && ! mountpoint -q /proc/sys/fs/binfmt_misc \
   && mount -t binfmt_misc binfmt_misc /proc/sys/fs/binfmt_misc
 update-binfmts --enable >/dev/null 2>&1 || true
+# sudo in the root is setuid: qemu must run it with the file's credentials (the `C` flag),
+# which Debian's registration leaves out; registered again with it.
+handler=/proc/sys/fs/binfmt_misc/qemu-${qemu#qemu-}
+handler=${handler%-static}
+if [ -e "$handler" ] && ! grep -q '^flags:.*C' "$handler"; then
+  interpreter=$(sed -n 's/^interpreter //p' "$handler")
+  flags=$(sed -n 's/^flags: //p' "$handler")
+  offset=$(sed -n 's/^offset //p' "$handler")
+  magic=$(sed -n 's/^magic //p' "$handler" | sed 's/../\\x&/g')
+  mask=$(sed -n 's/^mask //p' "$handler" | sed 's/../\\x&/g')
+  echo -1 >"$handler"
+  printf ':%s:M:%s:%s:%s:%s:%sC' "$(basename "$handler")" "$offset" "$magic" "$mask" \
+    "$interpreter" "$flags" >/proc/sys/fs/binfmt_misc/register
+fi
 
 step() { printf '\n== %s\n' "$*"; SECONDS=0; }
 took() { printf '   (%d min %02d s)\n' $((SECONDS / 60)) $((SECONDS % 60)); }
