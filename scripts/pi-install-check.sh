@@ -68,10 +68,17 @@ mount -t proc proc "$root/proc"
 mount --rbind /sys "$root/sys"
 mount --rbind /dev "$root/dev"
 cp /etc/resolv.conf "$root/etc/resolv.conf"
+# The host's own CAs go with its resolver (a network that inspects TLS has one): installed
+# in the root's store, which pip takes; uv takes it through SSL_CERT_FILE (below).
+if compgen -G "/usr/local/share/ca-certificates/*.crt" >/dev/null; then
+  cp /usr/local/share/ca-certificates/*.crt "$root/usr/local/share/ca-certificates/"
+  chroot "$root" update-ca-certificates >/dev/null
+fi
 
 # The brewer: a login with sudo, the checkout in its home (the environment goes to /opt).
 chroot "$root" sh -c 'id pi >/dev/null 2>&1 || useradd --create-home --shell /bin/bash pi'
-echo 'pi ALL=(ALL) NOPASSWD: ALL' >"$root/etc/sudoers.d/pi"
+printf '%s\n' 'pi ALL=(ALL) NOPASSWD: ALL' 'Defaults env_keep += "SSL_CERT_FILE"' \
+  >"$root/etc/sudoers.d/pi"
 # No one answers apt's question here: the docs' `sudo apt install ...` as written, answered yes.
 echo 'APT::Get::Assume-Yes "true";' >"$root/etc/apt/apt.conf.d/90hermsd-check"
 rm -rf "$root/home/pi/hermsd-checkout"
@@ -86,7 +93,7 @@ doc() {
     || { echo "not in $docs nor README.md: $first" >&2; exit 1; }
   step "$1"
   chroot "$root" sudo -u pi -i bash -c "set -euo pipefail; cd ~/hermsd-checkout; \
-    export PATH=\$HOME/.local/bin:\$PATH; $1"
+    export PATH=\$HOME/.local/bin:\$PATH SSL_CERT_FILE=/etc/ssl/certs/ca-certificates.crt; $1"
   took
 }
 
