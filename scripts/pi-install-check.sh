@@ -92,8 +92,13 @@ doc() {
   grep -qF -- "${first%% \\*}" "$docs" "$checkout/README.md" \
     || { echo "not in $docs nor README.md: $first" >&2; exit 1; }
   step "$1"
-  chroot "$root" sudo -u pi -i bash -c "set -euo pipefail; cd ~/hermsd-checkout; \
-    export PATH=\$HOME/.local/bin:\$PATH SSL_CERT_FILE=/etc/ssl/certs/ca-certificates.crt; $1"
+  # From a file: `sudo -i` quotes a command's newlines into line continuations.
+  {
+    echo 'set -euo pipefail; cd ~/hermsd-checkout'
+    echo 'export PATH=$HOME/.local/bin:$PATH SSL_CERT_FILE=/etc/ssl/certs/ca-certificates.crt'
+    printf '%s\n' "$1"
+  } >"$root/tmp/hermsd-check-step.sh"
+  chroot "$root" sudo -u pi -i bash /tmp/hermsd-check-step.sh
   took
 }
 
