@@ -12,7 +12,10 @@ to a strike setpoint of 60–72 °C. An odd seed has the pump fitted (`pump.back
 switched by hermsd), an even one runs it outside hermsd (started by hand 2–10 min after
 dough-in) with a pump sense fitted (`pump.sense: sim`: a switch hermsd only sees); the seed
 modulo 3 gives its timer: none, stops for stirring (5 min at 40 min and 100 min after
-dough-in) or a recirculation timer (2 min off every 20 min). Three more set-ups are
+dough-in) or a recirculation timer (2 min off every 20 min; where hermsd switches the pump, its
+program's own timer, `pump_off_every: 20m` and `pump_off_for: 2m` on each rest, counted from
+the rest's start, and the peers' listener switches it so from their rests' starts, as
+`hermsd set pump` would; outside hermsd, a timer of its own from dough-in). Three more set-ups are
 scenarios/herms-day.yaml's plant (90 L 3 kW, 50 L and 12 kg doughed in at 38 °C, limit
 10 °C): its pump outside hermsd and seen, outside and unseen (no sense, no coil outlet
 sensor: hermsd takes it as running), and fitted. Every sensor has noise (sd 0.03 °C; the
@@ -290,12 +293,25 @@ def mash_keys(s: SetUp) -> dict[str, float]:
     }
 
 
+RECIRCULATION = (1200.0, 120.0)  # s: the pump stopped 2 min every 20 min
+
+
+def program_timer(s: SetUp) -> bool:
+    """Whether the day's recirculation timer is the program's (the pump switched by hermsd)."""
+    return s.timer == "recirculation" and s.pump_fitted
+
+
 def pump_timer(s: SetUp) -> list[dict[str, Any]]:
-    """The pump's stops and restarts after dough-in: for stirring, or a recirculation timer."""
+    """The pump's stops and restarts after dough-in: for stirring, or a recirculation timer
+    outside hermsd (one hermsd switches runs the program's, `program_timer`)."""
+    if program_timer(s):
+        return []
     if s.timer == "stir":
         stops = [(DOUGH_AT + 2400.0, 300.0), (DOUGH_AT + 6000.0, 300.0)]
     elif s.timer == "recirculation":
-        stops = [(at, 120.0) for at in range(int(DOUGH_AT) + 1200, int(DURATION) - 200, 1200)]
+        every, lasts = RECIRCULATION
+        starts = range(int(DOUGH_AT + every), int(DURATION) - 200, int(every))
+        stops = [(at, lasts) for at in starts]
     else:
         stops = []
     events: list[dict[str, Any]] = []
@@ -356,8 +372,13 @@ def scenario_doc(s: SetUp, controller: str) -> dict[str, Any]:
         config["mash_sensor"] = {"kind": "lm92", "address": 0x49}
         events.append({"at": DOUGH_AT, "confirm": "Mash in"})
         strike = {"name": "Strike", "setpoint": s.strike_c, "hold": "0s", "confirm": "Mash in"}
+        timer = {}
+        if program_timer(s):
+            every, lasts = RECIRCULATION
+            timer = {"pump_off_every": f"{every:g}s", "pump_off_for": f"{lasts:g}s"}
         rests = [
-            {"name": f"Rest {sp:g}", "setpoint": sp, "hold": f"{minutes}m"} for sp, minutes in RESTS
+            {"name": f"Rest {sp:g}", "setpoint": sp, "hold": f"{minutes}m", **timer}
+            for sp, minutes in RESTS
         ]
         doc["program"] = {"name": "HERMS rests", "steps": [strike, *rests]}
     return doc
@@ -387,6 +408,8 @@ class Day:
         elif controller == "cascadepid":
             self.outer = CascadePid(s.limit, PERIOD)
         self.rest: int | None = None  # the peer's rest (None: the strike water's step)
+        self.rest_began = 0.0  # when the peer's rest began (its pump timer's start)
+        self.pump_on = False  # the pump as the peer's listener last set it
         self.reached, self.held, self.sent = False, 0.0, s.strike_c
 
     def attach(self, daemon: Daemon) -> None:
@@ -417,9 +440,7 @@ class Day:
         assert self.outer is not None
         reading = math.floor(self.tun.mash_temperature(t) / LM92_STEP) * LM92_STEP
         if self.rest is None and t >= DOUGH_AT:
-            self.rest = 0
-            if self.s.pump_fitted:
-                self.daemon.set_pump(True, "by the operator")
+            self.rest, self.rest_began = 0, t
         elif self.rest is not None and self.rest < len(RESTS):
             sp, minutes = RESTS[self.rest]
             inside = abs(reading - sp) <= PROGRAM_BAND
@@ -427,8 +448,10 @@ class Day:
             self.held += PERIOD if self.reached and inside else 0.0
             if self.held >= minutes * 60.0:
                 self.rest, self.reached, self.held = self.rest + 1, False, 0.0
+                self.rest_began = t
                 if self.rest == len(RESTS):
                     self.done_at = t
+        self.peer_pump(t)
         target = self.s.strike_c
         if self.rest is not None:
             sp = RESTS[min(self.rest, len(RESTS) - 1)][0]
@@ -438,6 +461,20 @@ class Day:
             self.sent = round(target, 2)
             self.daemon.set_setpoint(self.sent)
         return None if self.rest is None or self.rest == len(RESTS) else self.rest
+
+    def peer_pump(self, t: float) -> None:
+        """The peer's pump, where hermsd switches it: started at dough-in, then stopped as the
+        program's timer would (`program_timer`), from each rest's start."""
+        assert self.daemon is not None
+        if not self.s.pump_fitted or self.rest is None:
+            return
+        on = True
+        if program_timer(self.s) and self.rest < len(RESTS):
+            every, lasts = RECIRCULATION
+            on = (t - self.rest_began) % every < every - lasts
+        if on != self.pump_on:
+            self.pump_on = on
+            self.daemon.set_pump(on, "by the operator")
 
     def alarm(self, alarm: Alarm) -> None:
         """The brewer resets a latched alarm at once (`hermsd reset`), so that the day goes

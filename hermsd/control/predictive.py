@@ -60,6 +60,7 @@ class _Predictive(_Base):
         "_load",
         "_load_in",
         "_load_past",
+        "_load_until",
         "_loss",
         "_rate",
         "_recent",
@@ -98,9 +99,10 @@ class _Predictive(_Base):
         self._fit: HeatUpFit | None = None
         self._estimate = self._bias = self._fpv = 0.0
         # A heat flow the caller knows (a HERMS coil's draw), in % of full power: the one in
-        # force from `_load_in` s on (`_load`) and the one over the period the next step
-        # closes.
+        # force from `_load_in` s on until `_load_until` s (`_load`) and the one over the
+        # period the next step closes.
         self._load = self._load_past = self._load_in = 0.0
+        self._load_until = math.inf
 
     @property
     def fit(self) -> HeatUpFit | None:
@@ -154,12 +156,15 @@ class _Predictive(_Base):
 
     def _load_over(self, start: float, length: float) -> float:
         """The known load's mean (% of full power) over `length` s from `start` s on: it acts
-        from `_load_in` s on (a pump start prepared a dead time ahead), the whole of it
-        once it does."""
-        if self._load_in <= start:
+        from `_load_in` s on (a pump start prepared a dead time ahead) until `_load_until` s
+        (a pump stop the program's timer announces), the whole of it between."""
+        end = start + length
+        if self._load_in <= start and end <= self._load_until:
             return self._load
-        acting = (start + length - self._load_in) / length if length > 0.0 else 0.0
-        return self._load * min(max(acting, 0.0), 1.0)
+        if length <= 0.0:
+            return 0.0
+        acting = min(end, self._load_until) - max(start, self._load_in)
+        return self._load * min(max(acting / length, 0.0), 1.0)
 
     def _holding(self, sp: float) -> float:
         """The duty that holds `sp` by the model and its bias (may lie outside the limits),
@@ -366,10 +371,16 @@ def cold_water_seen(controller: Controller) -> None:
 
 
 def known_load(
-    controller: Controller, watts: float, element_watts: float, starts_in: float = 0.0
+    controller: Controller,
+    watts: float,
+    element_watts: float,
+    starts_in: float = 0.0,
+    ends_in: float = math.inf,
 ) -> None:
     """Tell `controller` (predictive) the heat flow `watts` drawn from the water besides its
-    losses from `starts_in` s on (a HERMS coil's load, W; negative when it gives heat back),
+    losses from `starts_in` s on until `ends_in` s (a HERMS coil's load, W; negative when it
+    gives heat back; a pump stop announced ahead ends it: the heat sent from a dead time
+    before it meets the water alone),
     of an element of `element_watts`: its model and observer take it as a duty of
     watts/element_watts·100 % taken off the element's, so the holding duty rises by that for
     the heat that arrives once it acts (feed-forward: the loop does not wait for the sensor
@@ -384,8 +395,13 @@ def known_load(
             )
         if not (math.isfinite(starts_in) and starts_in >= 0.0):
             raise ValueError(f"a load starting in {starts_in!r} s is invalid: must be ≥ 0 s")
+        if not ends_in >= starts_in:  # NaN refused too; inf: no end announced
+            raise ValueError(
+                f"a load ending in {ends_in!r} s is invalid: must be ≥ its start, {starts_in!r} s"
+            )
         controller._load = 100.0 * watts / element_watts
         controller._load_in = starts_in
+        controller._load_until = ends_in
 
 
 def dead_time(controller: Controller) -> float | None:

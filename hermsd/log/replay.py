@@ -24,6 +24,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import itertools
+import math
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -455,9 +456,9 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
             controller.on2, controller.free2 = record.on2, record.free2
         try:
             if record.coil_load is not None and watched is not None:  # the HERMS's outer loop
-                known_load(
-                    controller, record.coil_load, total_watts(watched), record.pump_in or 0.0
-                )
+                starts_in = record.pump_in or 0.0
+                ends_in = math.inf if record.pump_stop_in is None else record.pump_stop_in
+                known_load(controller, record.coil_load, total_watts(watched), starts_in, ends_in)
             if record.reset_from is not None:
                 controller.reset(record.pv, record.reset_from)
                 known = True

@@ -249,10 +249,16 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "s until a prepared pump start: the coil_load fed forward begins then "
                     "(null: none pending)",
                 ),
+                "pump_stop_in": _field(
+                    ["number", "null"],
+                    "s until a pump stop the program's timer announces: the coil_load fed "
+                    "forward ends then (null: none announced)",
+                ),
             },
             optional=(
                 *("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
                 *("mash", "coil", "pump", "hlt_setpoint", "coil_load", "cascade", "pump_in"),
+                "pump_stop_in",
             ),
         ),
     ),

@@ -248,10 +248,13 @@ class ProgramDriver:
         self._save(runner, t, wall_ns)
         return runner.setpoint, self.take_events()
 
-    def pump_step(self) -> tuple[int, bool] | None:
-        """The current step's index and whether it runs the pump (None: no program runs)."""
+    def pump_step(self) -> tuple[int, int, bool] | None:
+        """The current step's index, its pump timer's turns so far, and whether it runs the
+        pump now (None: no program runs)."""
         runner = self.runner
-        return None if runner is None else (runner.progress.index, runner.pump)
+        if runner is None:
+            return None
+        return runner.progress.index, runner.pump_turns(), runner.pump
 
     def _clock_text(self, wall_ns: int) -> str:
         """A wall-clock time as the brewer reads it in a message: local, to the second."""

@@ -39,8 +39,19 @@ HOLD_EXPECTED = (
 READY_BY = re.compile(r"(?P<hour>[01][0-9]|2[0-3]):(?P<minute>[0-5][0-9])")
 
 _TOP_KEYS = ["name", "ready_by", "steps"]
-_STEP_KEYS = ["name", "setpoint", "hold", "ramp", "confirm", "pump"]
+_STEP_KEYS = [
+    "name",
+    "setpoint",
+    "hold",
+    "ramp",
+    "confirm",
+    "pump",
+    *("pump_off_every", "pump_off_for"),
+]
 PUMP_WORDS = {"on": True, "off": False}
+PUMP_TIMER_KEYS = ("pump_off_every", "pump_off_for")
+LEAST_PUMP_STOP_S = 10.0  # s: a shorter stop is a relay's chatter, not a stir
+LEAST_PUMP_RUN_S = 60.0  # s the pump runs each cycle at the least: the hoses filled again
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,6 +64,7 @@ class Step:
     ramp: float | None = None  # °C per minute; None: the setpoint moves at once
     confirm: str | None = None  # asked of the brewer at the end of the hold
     pump: bool | None = None  # None: on once the mash is in (`pump_wanted`), off before
+    pump_timer: tuple[float, float] | None = None  # (every, for) s: stopped `for` each `every`
 
 
 @dataclass(frozen=True, slots=True)
@@ -247,9 +259,57 @@ class _Reader(read._Reader):
                 )
         mash_in = confirm if path == "steps[0]" else None
         pump = self.pump(f"{path}.pump", values.get("pump"), mash_in)
+        timer = self.pump_timer(path, node, values, off=pump is False or bool(mash_in))
         if len(self.problems) > before or name is None or setpoint is None:
             return None
-        return Step(str(name), float(setpoint), hold, ramp, confirm, pump)
+        return Step(str(name), float(setpoint), hold, ramp, confirm, pump, timer)
+
+    def pump_timer(
+        self, path: str, node: yaml.Node, values: dict[str, yaml.Node], *, off: bool
+    ) -> tuple[float, float] | None:
+        """`pump_off_every` and `pump_off_for` together (a recirculation timer: the pump
+        stopped `for` at the end of each `every` from the step's start), on a step whose
+        pump runs (`off`: it does not); None when both are left out."""
+        given = [key for key in PUMP_TIMER_KEYS if key in values]
+        if not given:
+            return None
+        if len(given) == 1:
+            missing = next(key for key in PUMP_TIMER_KEYS if key not in values)
+            self.report(
+                node.start_mark,
+                f"{path}.{missing}",
+                f"missing (a pump timer needs both {' and '.join(PUMP_TIMER_KEYS)}, e.g. "
+                "pump_off_every: 20m and pump_off_for: 2m)",
+            )
+            return None
+        every, stop = (self.timer_span(f"{path}.{key}", values[key]) for key in PUMP_TIMER_KEYS)
+        if off:
+            self.report(
+                values["pump_off_every"].start_mark,
+                f"{path}.pump_off_every",
+                "a pump timer on a step whose pump is off (write pump: on, or leave the timer out)",
+            )
+            return None
+        if every is None or stop is None:
+            return None
+        if stop < LEAST_PUMP_STOP_S or every - stop < LEAST_PUMP_RUN_S:
+            self.report(
+                values["pump_off_for"].start_mark,
+                f"{path}.pump_off_for",
+                f"{stop:g} s off every {every:g} s: stop the pump {LEAST_PUMP_STOP_S:g} s at "
+                f"the least, and leave it running {LEAST_PUMP_RUN_S:g} s of each cycle",
+            )
+            return None
+        return every, stop
+
+    def timer_span(self, path: str, node: yaml.Node) -> float | None:
+        """A pump timer's duration in s, as a hold is written ('until told' refused)."""
+        if isinstance(node, yaml.ScalarNode) and node.value == UNTIL_TOLD:
+            self.report(node.start_mark, path, "a pump timer's times are durations, e.g. 20m")
+            return None
+        before = len(self.problems)
+        seconds = self.hold(path, node)
+        return seconds if len(self.problems) == before else None
 
     def pump(self, path: str, node: yaml.Node | None, mash_in: str | None) -> bool | None:
         """`on` or `off` (None: left out); `on` is refused on a first step that waits for the
@@ -428,6 +488,7 @@ def to_data(program: Program) -> dict[str, Any]:
                 "ramp": step.ramp,
                 "confirm": step.confirm,
                 "pump": None if step.pump is None else ("on" if step.pump else "off"),
+                **dict(zip(PUMP_TIMER_KEYS, step.pump_timer or (None, None), strict=True)),
             }
             for step in program.steps
         ],
@@ -460,6 +521,9 @@ def describe_step(step: Step) -> str:
         words += f", ramp {step.ramp:g} °C/min"
     if step.pump is not None:
         words += f", pump {'on' if step.pump else 'off'}"
+    if step.pump_timer is not None:
+        every, stop = step.pump_timer
+        words += f", pump off {stop / 60.0:g} min every {every / 60.0:g} min"
     if step.confirm is not None:
         words += f", then waits for: {step.confirm}"
     return words

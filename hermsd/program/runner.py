@@ -112,6 +112,9 @@ class Runner:
         self._max_step_s = max_step_s  # the most one period may count (a stalled loop: less)
         self._last_t: float | None = None  # nothing counts from before a restart
         self._mash_lost = False  # a step on the mash has no mash reading (said once)
+        # s since the step began, for its pump timer: not kept over a restart, where the
+        # timer begins again with the pump running.
+        self._step_s = 0.0
 
     @classmethod
     def start(
@@ -157,9 +160,33 @@ class Runner:
 
     @property
     def pump(self) -> bool:
-        """Whether the current step runs the pump (`model.pump_wanted`); off while scheduled."""
+        """Whether the current step runs the pump now (`model.pump_wanted`, and its timer's
+        running part); off while scheduled."""
+        return self._pump_wanted() and self.pump_turns() % 2 == 0
+
+    def _pump_wanted(self) -> bool:
         p = self.progress
         return p.phase not in ("scheduled", "pending") and pump_wanted(self.program, p.index)
+
+    def pump_turns(self) -> int:
+        """How often the step's pump timer has switched the pump since the step began (even:
+        it runs); 0 without a timer."""
+        timer = self.step.pump_timer
+        if timer is None or not self._pump_wanted():
+            return 0
+        every, stop = timer
+        cycles, into = divmod(self._step_s, every)
+        return 2 * int(cycles) + (1 if into >= every - stop else 0)
+
+    def pump_turn_in(self) -> float | None:
+        """s until the step's pump timer next switches the pump, if the step lasts (None:
+        no timer, or a step that does not run the pump)."""
+        timer = self.step.pump_timer
+        if timer is None or not self._pump_wanted():
+            return None
+        every, stop = timer
+        into = self._step_s % every
+        return every - stop - into if into < every - stop else every - into
 
     def on_mash(self, mash: MashReading | None) -> bool:
         """Whether the current step is timed on the mash (a sensor fitted, the mash in)."""
@@ -189,6 +216,7 @@ class Runner:
         dt = 0.0 if self._last_t is None else min(max(0.0, t - self._last_t), self._max_step_s)
         self._last_t = t
         p = self.progress
+        self._step_s += dt  # a pump timer runs on through a pause and after the last step
         if p.paused or p.phase == "done":
             return
         if p.phase == "scheduled":
@@ -265,6 +293,7 @@ class Runner:
         if index > 0 or self.step.ramp is not None:
             p.ready_at_ns = None  # only the first step is timed, and only without a ramp
         p.index, p.reached, p.held_s = index, False, 0.0
+        self._step_s = 0.0
         step = self.step
         origin = p.setpoint if p.setpoint is not None else pv
         if step.ramp is not None and origin is not None and origin != step.setpoint:

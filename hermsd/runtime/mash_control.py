@@ -11,6 +11,7 @@ the status: never full heat on a guess.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from hermsd.config.schema import Config
 from hermsd.control import pid, predictive
@@ -37,6 +38,7 @@ class MashControl:
         self.element_watts = element_watts
         self.decision: Decision | None = None  # None until the first period with a PV
         self.load_in = 0.0  # s until the load fed forward begins (a prepared pump start)
+        self.load_until = math.inf  # s until it ends (a stop the program's timer announces)
 
     def period(
         self,
@@ -50,6 +52,8 @@ class MashControl:
         pump_known: bool,
         applied: float,
         pump_in: float | None = None,
+        pump_stop_in: float | None = None,
+        timer_stop: bool = False,
     ) -> Decision:
         """One control period, before the HLT law's step: the coil's estimator fed the
         period just ended (only with a pump hermsd switches or sees: one run by hand unseen
@@ -61,7 +65,12 @@ class MashControl:
         pump start prepared, due in so many s: the load it will draw, K (its estimate, not
         one sd low: half the pull unmet would be the prior's) times the HLT over the mash,
         told the law now to begin then, so the heat sent meanwhile arrives as the load
-        begins."""
+        begins. `pump_stop_in`: a stop the program's pump timer makes, due in so many s: the
+        load told the law to end then, so the heat sent from a dead time before it is the
+        water's alone and the HLT does not rise past its limit as the coil stops drawing.
+        `timer_stop`: the pump stopped by that timer, its restart due: the HLT's setpoint
+        kept where the running pump had it (a stop of a minute or two is no reason to ready
+        the HLT for another mash; the restart, prepared, then meets the HLT it left)."""
         known = pump and pump_known
         exchange = self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known)
         coil = self.coil.estimate()
@@ -83,6 +92,9 @@ class MashControl:
             coil=coil,
             flowing=not self.flow.stuck,
         )
+        kept = self.decision
+        if timer_stop and kept is not None and decision.held is None and kept.held is None:
+            decision = dataclasses.replace(decision, hlt_setpoint=kept.hlt_setpoint)
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
         elif decision.load_watts > 0.0 and coil.low > 0.0:
@@ -94,8 +106,11 @@ class MashControl:
             prepared = max(0.0, coil.conductance * (hlt - mash_pv))
             decision = dataclasses.replace(decision, load_watts=prepared)
             starts_in = pump_in
-        predictive.known_load(controller, decision.load_watts, self.element_watts, starts_in)
-        self.load_in = starts_in
+        ends_in = math.inf if pump_stop_in is None else max(pump_stop_in, starts_in)
+        predictive.known_load(
+            controller, decision.load_watts, self.element_watts, starts_in, ends_in
+        )
+        self.load_in, self.load_until = starts_in, ends_in
         self.decision = decision
         return decision
 
@@ -106,7 +121,7 @@ class MashControl:
         HLT to the limit above the strike: heat that coasts the mash past its first rest."""
         self.decision = Decision(setpoint, 0.0, STRIKE)
         predictive.known_load(controller, 0.0, self.element_watts)
-        self.load_in = 0.0
+        self.load_in, self.load_until = 0.0, math.inf
         return self.decision
 
 

@@ -179,6 +179,7 @@ class MashSideFields(TypedDict):
     coil_load: float | None
     cascade: str | None
     pump_in: float | None
+    pump_stop_in: float | None
 
 
 class MashSide(LoopState):
@@ -200,7 +201,8 @@ class MashSide(LoopState):
             self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
         ) -> None: ...
 
-    _program_pump_step: tuple[int, bool] | None  # the program's step the pump was set for
+    _program_pump_step: tuple[int, int, bool] | None  # the program's step (and timer's turn)
+    # the pump was set for
     # A prepared pump start: when the pump is switched on, why it was asked for, and the HLT's
     # PV when its preparation began.
     _pump_start_at: float | None = None
@@ -211,18 +213,19 @@ class MashSide(LoopState):
     def pump_fitted(self) -> bool:
         return self.outputs.pump is not None
 
-    def set_pump(self, on: bool, reason: str) -> None:
+    def set_pump(self, on: bool, reason: str, within: float = math.inf) -> None:
         """Run or stop the pump, said with `reason` (on the loop's thread: an operator's
         command at a period boundary, a program's step); PumpNotFitted when the config fits
         none. A start is prepared where the outer loop steers the HLT law: the coil's load
         is told the law at once, to begin a dead time on, and the pump runs then
         (`_pump_due`), so the heat sent meanwhile arrives as the load begins; a stop, or the
-        daemon's, cancels a start still being prepared (docs/herms.md, "The pump start")."""
+        daemon's, cancels a start still being prepared (docs/herms.md, "The pump start").
+        `within`: the most s a start may be prepared for (a pump timer's turn due then)."""
         if self.outputs.pump is None:
             raise PumpNotFitted(pump_refusal(self.config))
         now = self._now()
         if on and not self._pump_on and self._pump_start_at is None:
-            lead = self._pump_lead()
+            lead = min(self._pump_lead(), within)
             if lead > 0.0:
                 self._pump_start_at, self._pump_start_reason = now + lead, reason
                 self._event(
@@ -295,16 +298,51 @@ class MashSide(LoopState):
 
     def _program_pump(self) -> None:
         """Switch the pump as the program's step says, once when the step begins (and once
-        after a restart): `hermsd set pump` within a step stands until the next one."""
+        after a restart) and at each turn of its pump timer: `hermsd set pump` within a step
+        stands until the next one, or the timer's next turn. A turn of the timer that starts
+        the pump is prepared ahead of it like any start (`set_pump`), a dead time early."""
         wanted = self.program.pump_step()
-        if wanted == self._program_pump_step:
-            return
-        self._program_pump_step = wanted
         runner = self.program.runner
-        if wanted is None or runner is None or not self.pump_fitted:
+        if runner is None or not self.pump_fitted:
+            self._program_pump_step = wanted
             return
-        step = runner.step
-        self.set_pump(wanted[1], f"program {runner.program.name!r}, step {step.name!r}")
+        reason = f"program {runner.program.name!r}, step {runner.step.name!r}"
+        timer = runner.step.pump_timer
+        if timer is not None:
+            reason += f", pump off {timer[1] / 60.0:g} min every {timer[0] / 60.0:g} min"
+        if wanted != self._program_pump_step:
+            self._program_pump_step = wanted
+            if wanted is not None:
+                self.set_pump(wanted[2], reason)
+        turn_in = runner.pump_turn_in()
+        if (
+            turn_in is not None
+            and not runner.pump
+            and not self._pump_on
+            and self._pump_start_at is None
+            and turn_in <= self._pump_lead()
+        ):
+            self.set_pump(True, reason, within=turn_in)
+
+    def _timer_stopped(self) -> bool:
+        """Whether the program's pump timer has the pump stopped now (its restart due)."""
+        runner = self.program.runner
+        return (
+            runner is not None
+            and not self._pump_on
+            and not runner.pump
+            and runner.pump_turn_in() is not None
+        )
+
+    def _timer_stop_in(self) -> float | None:
+        """s until the program's pump timer stops the running pump, once that is within the
+        HLT law's dead time (`_pump_lead`): the coil's load told to end then. None: no stop
+        that near."""
+        runner = self.program.runner
+        if runner is None or not self._pump_on or not runner.pump:
+            return None
+        turn_in = runner.pump_turn_in()
+        return turn_in if turn_in is not None and turn_in <= self._pump_lead() else None
 
     def _start_mash_side(self) -> None:
         self._pump_on = False
@@ -386,6 +424,8 @@ class MashSide(LoopState):
             pump_known=self.pump_state is not None or seen,
             applied=applied,
             pump_in=pump_in,
+            pump_stop_in=self._timer_stop_in(),
+            timer_stop=self._timer_stopped(),
         )
         was_held = before is not None and before.held is not None
         if decision.held is not None and not was_held:
@@ -483,6 +523,9 @@ class MashSide(LoopState):
             "coil_load": None if decision is None else decision.load_watts,
             "cascade": None if decision is None else decision.phase,
             "pump_in": None if control is None or not control.load_in else control.load_in,
+            "pump_stop_in": (
+                None if control is None or math.isinf(control.load_until) else control.load_until
+            ),
         }
 
     def coil_load(self, hlt: float | None) -> CoilLoad:

@@ -45,6 +45,7 @@ class PeriodRecord:
     coil_load: float | None = None  # sensor; `setpoint` is then the mash's), the coil's load
     cascade: str | None = None  # W fed forward, and the outer loop's phase
     pump_in: float | None = None  # s until a prepared pump start, when that load begins
+    pump_stop_in: float | None = None  # s until a stop the program's timer announces
 
     @property
     def hlt_target(self) -> float:
