@@ -66,6 +66,14 @@ HLT_RESPONSE_S = 60.0
 LOSS_LEARN_S = 600.0
 """s: the time over which the mash's rise teaches its losses (noise of a period's mean, 0.013
 °C, then moves them by under 1 W/K)."""
+STARVED_FALL = 0.1
+"""°C the mash, below its setpoint, must fall over its starved span (twice the delays between
+the coil and its sensor, and a minute) for the outer loop to stop learning its losses: a mash
+that gets the coil's heat stops falling once the hold's proportional part has raised the HLT
+enough, where one that gets none (a stuck bed, a pump hermsd does not see stopped) falls at
+its losses' rate, which taken for losses would be carried, as too hot an HLT, past the rest
+once the wort flows again. Two steps of the LM92's 0.0625 °C: more than noise of 0.03 °C
+makes between two readings."""
 MAX_LOSS_FACTOR = 4.0
 """The mash's losses as learned stay within 0 and this many times the config's (or 20 W/K,
 whichever is more)."""
@@ -201,6 +209,7 @@ class Cascade:
         "_limit",
         "_mash_loss",
         "_mash_sp",
+        "_mash_span",
         "_period",
         "_seen",
         "_settled",
@@ -221,6 +230,8 @@ class Cascade:
         self._seen: deque[tuple[float, float]] = deque(
             maxlen=round((0.5 * tanks.hose_delay + tanks.mash_lag) / period) + 2
         )
+        span = 2.0 * (tanks.hose_delay + tanks.mash_lag) + 60.0  # `STARVED_FALL`
+        self._mash_span: deque[float] = deque(maxlen=round(span / period) + 1)
         self._climbing = True
         self._settled = False  # the HLT has come down to its hold since the climb ended
         self._mash_loss = tanks.mash_loss
@@ -265,7 +276,7 @@ class Cascade:
             last = self._last_sp if self._last_sp is not None else min(mash_sp, ceiling)
             setpoint = min(last, ceiling)
             self._last_sp = setpoint
-            load = self._load(hlt_pv, self._last_mash, setpoint, pump, coil)
+            load = self._load(hlt_pv, self._last_mash, setpoint, pump, coil, "held")
             return Decision(setpoint, load, "held", why)
         if self._mash_sp is None or abs(mash_sp - self._mash_sp) > SETPOINT_MOVE:
             self._climbing = mash_pv < mash_sp
@@ -285,18 +296,35 @@ class Cascade:
         # on the mash's own slow time constant.
         target = mash_sp
         if not self._climbing and mash_pv < mash_sp - REHEAT_BAND:
-            self._climbing = True
+            # From the hold; from the coast only where even the ceiling would not carry the
+            # mash there (a stuck bed, a cold addition): a coast that falls a little short
+            # raises its own setpoint (`coast_start`), where a climb of a period or two
+            # would send the HLT's setpoint to the ceiling and back.
+            self._climbing = self._settled or (
+                pump and coast_peak(ceiling, mash, hold_high, tanks, high) < target
+            )
         if self._climbing and pump:
             self._climbing = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target
         self._settled = self._settled and not self._climbing
-        self._observe(mash_pv, hlt_pv, pump, k)
+        window = self._mash_span
+        if not pump:
+            window.clear()
+        window.append(mash_pv)
+        starved = (
+            len(window) == window.maxlen
+            and mash_pv < mash_sp
+            and window[0] - mash_pv >= STARVED_FALL
+        )
+        self._observe(mash_pv, hlt_pv, pump and not starved, k, high)
         if not pump:
             setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
             phase = "no flow" if stood else "ready"
         elif self._climbing:
             setpoint, phase = ceiling, "climb"
         else:
-            setpoint = self._hold(mash_sp, mash_pv, hlt_pv, tanks, k)
+            setpoint = self._hold(
+                mash_sp, mash_pv, mash, hlt_pv, tanks, (k, high), learn=not starved
+            )
             phase = "hold" if self._settled else "coast"
             if not self._settled:
                 # The HLT from which the coast carries the mash to its rest, judged again each
@@ -308,20 +336,16 @@ class Cascade:
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, aim, ceiling))
             setpoint = min(setpoint, ceiling)
         self._last_sp = setpoint
-        load = self._load(hlt_pv, mash_pv, setpoint, pump, coil)
-        if phase == "coast" and hlt_pv > setpoint:
-            # The coast is the element off (`coast_peak`'s model): the load fed here would
-            # have the law hold the HLT at the coast's setpoint against the coil's draw, heat
-            # the model does not count, that lands in the mash past its rest (bench seed 4:
-            # the element at full power 2 min into the coast, the mash 0.89 °C over).
-            load = 0.0
+        load = self._load(hlt_pv, mash_pv, setpoint, pump, coil, phase)
         return Decision(setpoint, load, phase)
 
-    def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float) -> None:
+    def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float, high: float) -> None:
         """Learn the mash's losses from its rise where the coil's heat is small and known
-        (coast and hold; in the climb K's uncertainty outweighs them): the rise over the last
-        period against the model's, its tanks taken the sensor's delay before (half the
-        hose and the mash sensor's lag), the miss taken as loss with the time LOSS_LEARN_S."""
+        (coast and hold; in the climb K's uncertainty outweighs them; `pump` False: no heat
+        reaches the mash, a stopped pump or a starved mash, and its rise says nothing until
+        a delay after it does): the rise over the last period against the model's, its
+        tanks taken the sensor's delay before (half the hose and the mash sensor's lag), the
+        miss taken as loss with the time LOSS_LEARN_S."""
         seen = self._seen
         if not pump or self._climbing:
             seen.clear()
@@ -337,16 +361,38 @@ class Cascade:
         rise = mash_pv - seen[-2][1]
         modelled = self._period * (k * (h - m) - self._mash_loss * above_room)
         miss = modelled - tanks.mash_capacity * rise  # J the model gave the mash too many
-        learned = self._mash_loss + self._period / LOSS_LEARN_S * miss / (self._period * above_room)
+        # Taught as fast as the losses stand out of K's uncertainty in the mash's balance
+        # (a gain of 1/(1 + (σ_K·(T_h − T_m)/(UA_m·(T_m − T_room)))²)): in a coast the coil's
+        # kilowatts, K a prior's ±50 %, would teach its error as losses; K learned, little.
+        spread = (high - k) * abs(h - m) / (max(self._mash_loss, 1.0) * above_room)
+        rate = self._period / LOSS_LEARN_S / (1.0 + spread * spread)
+        learned = self._mash_loss + rate * miss / (self._period * above_room)
         self._mash_loss = min(max(learned, 0.0), max(MAX_LOSS_FACTOR * tanks.mash_loss, 20.0))
 
-    def _hold(self, mash_sp: float, mash_pv: float, hlt_pv: float, tanks: Tanks, k: float) -> float:
+    def _hold(
+        self,
+        mash_sp: float,
+        mash_pv: float,
+        mash: float,
+        hlt_pv: float,
+        tanks: Tanks,
+        ks: tuple[float, float],
+        learn: bool,
+    ) -> float:
         """T_hold, and once the HLT has come down to it (before, the coast still carries the
         mash up and its error says nothing of the model) a PI on the mash's error: the
         mash is a first order of gain G = K/(K + UA_m) and time constant τ_m = C_m/(K + UA_m),
         so Ti = τ_m cancels its pole and Kp·G = λ closes the loop λ times faster, λ at most
         HOLD_SPEEDUP and slow enough for the delays around it. The integral is kept as the
-        mash's losses: ΔUA_m = ΔI·K/(T_sp − T_room), so the next rest starts from them."""
+        mash's losses: ΔUA_m = ΔI·K/(T_sp − T_room), so the next rest starts from them.
+        Never above the HLT from which a coast carries `mash` (the mash as it is now) to its
+        rest (`coast_start`, K one sd high as the coast takes it; `ks`: K and that): heat
+        stored in the HLT cannot be taken back,
+        and a mash that does not follow the coil (a stuck bed, a pump hermsd does not see
+        stopped) would have the PI raise the HLT by degrees that land in the mash past its
+        rest once the wort flows again; the integral stands still while that bound holds
+        the HLT, and while the mash is starved (`learn` False: `STARVED_FALL`)."""
+        k, high = ks
         hold = holding_hlt(mash_sp, tanks, k)
         self._settled = self._settled or hlt_pv <= hold + HLT_MARGIN
         if not self._settled:
@@ -358,24 +404,35 @@ class Cascade:
         kp = speedup / gain
         error = mash_sp - mash_pv
         above_room = mash_sp - tanks.room
-        at_ceiling = hold + kp * error >= self.ceiling(mash_sp) and error > 0.0
-        if above_room > 1.0 and not at_ceiling:
+        ceiling = self.ceiling(mash_sp)
+        bound = coast_start(mash, hold, tanks, high, mash_sp, ceiling) if error > 0.0 else ceiling
+        bounded = hold + kp * error >= bound and error > 0.0
+        if learn and above_room > 1.0 and not bounded:
             integral = kp * self._period / tau * error
             most = max(MAX_LOSS_FACTOR * self._tanks.mash_loss, 20.0)
             loss = self._mash_loss + integral * k / above_room
             self._mash_loss = min(max(loss, 0.0), most)
-        return holding_hlt(mash_sp, dataclasses.replace(tanks, mash_loss=self._mash_loss), k) + (
-            kp * error
-        )
+        pi = holding_hlt(mash_sp, dataclasses.replace(tanks, mash_loss=self._mash_loss), k)
+        return min(pi + kp * error, bound)
 
     def _load(
-        self, hlt: float, mash: float | None, setpoint: float, pump: bool, coil: CoilEstimate
+        self,
+        hlt: float,
+        mash: float | None,
+        setpoint: float,
+        pump: bool,
+        coil: CoilEstimate,
+        phase: str,
     ) -> float:
         """The coil's draw on the HLT (W) for the HLT law to feed forward: K (one sd low)
         times the HLT over the mash; none with the pump stopped (or nothing flowing through
         it: `flowing`) or no mash reading yet. Fed with the HLT above its setpoint too: the
         law then waits for the draw to bring it down, and sends the heat a dead time ahead
-        of that instant rather than after it."""
-        if not pump or mash is None:
+        of that instant rather than after it. Not in the coast above its setpoint: the
+        coast is the element off (`coast_peak`'s model), and the load fed would have the law
+        hold the HLT at the coast's setpoint against the coil's draw, heat the model does not
+        count, that lands in the mash past its rest (bench seed 4: the element at full power
+        2 min into the coast, the mash 0.89 °C over)."""
+        if not pump or mash is None or (phase == "coast" and hlt > setpoint):
             return 0.0
         return coil.low * (hlt - mash)
