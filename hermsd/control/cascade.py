@@ -390,8 +390,9 @@ class Cascade:
         stored in the HLT cannot be taken back,
         and a mash that does not follow the coil (a stuck bed, a pump hermsd does not see
         stopped) would have the PI raise the HLT by degrees that land in the mash past its
-        rest once the wort flows again; the integral stands still while that bound holds
-        the HLT, and while the mash is starved (`learn` False: `STARVED_FALL`)."""
+        rest once the wort flows again. The integral stands still at the ceiling, at that
+        bound where it stands above T_hold, and while the mash is starved (`learn` False:
+        `STARVED_FALL`)."""
         k, high = ks
         hold = holding_hlt(mash_sp, tanks, k)
         self._settled = self._settled or hlt_pv <= hold + HLT_MARGIN
@@ -405,9 +406,18 @@ class Cascade:
         error = mash_sp - mash_pv
         above_room = mash_sp - tanks.room
         ceiling = self.ceiling(mash_sp)
-        bound = coast_start(mash, hold, tanks, high, mash_sp, ceiling) if error > 0.0 else ceiling
-        bounded = hold + kp * error >= bound and error > 0.0
-        if learn and above_room > 1.0 and not bounded:
+        bound = ceiling
+        if error > 0.0:  # the coast's own model: down to T_hold with K high, then held there
+            start = coast_start(
+                mash, holding_hlt(mash_sp, tanks, high), tanks, high, mash_sp, ceiling
+            )
+            bound = max(hold, start)
+        # Held at the coast's bound the output does not follow the integral, which would
+        # only wind up (anti-windup); held at T_hold itself (the bound no higher) it does: it
+        # moves T_hold, which may be too low (a K too high that is never learned).
+        bounded = hold + kp * error >= bound > hold
+        at_ceiling = hold + kp * error >= ceiling and error > 0.0
+        if learn and above_room > 1.0 and not (at_ceiling or bounded):
             integral = kp * self._period / tau * error
             most = max(MAX_LOSS_FACTOR * self._tanks.mash_loss, 20.0)
             loss = self._mash_loss + integral * k / above_room
