@@ -905,7 +905,7 @@ def _apply(
         fault, amount = value
         chip.set_fault(fault, amount)
     elif kind == "heater":
-        plant.set_element_ok(value == "ok", t)
+        circuit.set_element_ok(value == "ok", t)
     elif kind == "ssr":
         circuit.set_stuck_on(value == "stuck_on")
     elif kind == "relay2":
