@@ -672,6 +672,7 @@ def run(
         mash_sensor=None if world.mash is None else world.mash.mash_sensor,
         coil_sensor=None if world.mash is None else world.mash.coil_sensor,
         pump_sense=None if world.mash is None else world.mash.pump_sense,
+        current_sense=world.current,
     )
     program = scenario.program
     herms_day = config.mash_sensor.fitted  # judged on the mash: its records are needed

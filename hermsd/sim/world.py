@@ -195,6 +195,7 @@ def simulated_daemon(
         mash_sensor=mash.mash_sensor,
         coil_sensor=mash.coil_sensor,
         pump_sense=mash.pump_sense,
+        current_sense=world.current,
         notifier=notifier,
         on_status=on_status,
         config_file=config_file,
