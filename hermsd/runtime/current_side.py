@@ -8,7 +8,7 @@ import logging
 from typing import TYPE_CHECKING, Any
 
 from hermsd.hardware.lm92 import SensorError
-from hermsd.safety.current_watch import CurrentWatch, Sample, words
+from hermsd.safety.current_watch import CurrentWatch, Sample, current_watch, words
 
 if TYPE_CHECKING:
     from hermsd.hardware.current_sense import CurrentSense
@@ -31,14 +31,8 @@ class CurrentSide(LoopState):
     _current_said: list[str]
 
     def _init_current(self, sense: CurrentSense | None) -> None:
-        current = self.config.current
         self._current_sense = sense
-        self._current_watch = None
-        if sense is not None:
-            optocoupler = current.kind == "gpio"
-            self._current_watch = CurrentWatch(
-                self.config.safety.fault_reads, current.threshold, optocoupler
-            )
+        self._current_watch = None if sense is None else current_watch(self.config)
         self._current_samples, self._current_said = [], []
 
     def _current_times(self, plan: WindowPlan, now: float) -> list[float]:

@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from hermsd.config.schema import Config
+
 CONFIRM_SAMPLES = 2
 """Samples in a row that must agree before a verdict: one glitch is not a fault."""
 NO_SIGNAL_ON_SAMPLES = 6
@@ -153,3 +155,11 @@ def words(said: list[Said], verdict: Verdict | None) -> list[str]:
     derives again."""
     told = [line.message for line in said]
     return told if verdict is None else [*told, f"{verdict.kind}: {verdict.message}"]
+
+
+def current_watch(config: Config) -> CurrentWatch | None:
+    """The watch a daemon starts with on `config` (None: no current input fitted)."""
+    current = config.current
+    if not current.fitted:
+        return None
+    return CurrentWatch(config.safety.fault_reads, current.threshold, current.kind == "gpio")
