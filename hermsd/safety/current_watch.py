@@ -71,8 +71,8 @@ class CurrentWatch:
         self.seen = False  # the input has shown current since the start
         self._unseen_on = 0
         self._no_signal_said = False
-        self._off_drawing = 0  # off-samples in a row with current
-        self._on_idle = 0  # on-samples in a row without
+        self._off_drawing = 0  # off-samples in a row with current (on-samples between)
+        self._on_idle = 0  # on-samples in a row without (off-samples between)
 
     @property
     def judging(self) -> bool:
@@ -92,8 +92,9 @@ class CurrentWatch:
             self.seen = True
             if self._no_signal_said:
                 said.append(Said(False, "current seen: the current verdicts are on"))
+        # An on-sample says nothing of a short (current flows either way), an off-sample
+        # nothing of an open element: each counts only the samples of its own command.
         if sample.on:
-            self._off_drawing = 0
             self._on_idle = 0 if sample.drawing else self._on_idle + 1
             if not self.seen:
                 self._unseen_on += 1
@@ -107,7 +108,6 @@ class CurrentWatch:
                         )
                     )
         else:
-            self._on_idle = 0
             self._off_drawing = self._off_drawing + 1 if sample.drawing else 0
         return said, self._verdict(sample)
 
