@@ -425,19 +425,28 @@ def _pump_violations(config: Config) -> list[_Violation]:
             )
         )
     elif pump.sense == "gpio":
-        for name in ("output", "contactor", "element2"):
-            other: _Switched = getattr(config, name)
-            if other.backend == "gpio" and (other.chip, other.line) == (
-                pump.sense_chip,
-                pump.sense_line,
-            ):
-                found.append(
-                    _Violation(
-                        ("pump.sense_line", "pump.sense_chip"),
-                        f"line {pump.sense_line} of {pump.sense_chip} is {name}'s output: the "
-                        "pump sense needs an input line of its own",
-                    )
+        keys = ("pump.sense_line", "pump.sense_chip")
+        line, chip = pump.sense_line, pump.sense_chip
+        found += _input_on_an_output(config, "the pump sense", keys, line, chip)
+    return found
+
+
+def _input_on_an_output(
+    config: Config, what: str, keys: tuple[str, str], line: int | None, chip: str
+) -> list[_Violation]:
+    """`what`'s input line (`keys`: its line's and chip's) that an output drives."""
+    outputs = ("output", "contactor", "element2", "pump")
+    found = []
+    for name in outputs:
+        other: _Switched = getattr(config, name)
+        if other.backend == "gpio" and (other.chip, other.line) == (chip, line):
+            found.append(
+                _Violation(
+                    keys,
+                    f"line {line} of {chip} is {name}'s output: {what} needs an input line of "
+                    "its own",
                 )
+            )
     return found
 
 
@@ -455,16 +464,8 @@ def _current_violations(config: Config) -> list[_Violation]:
             )
         )
     elif current.kind == "gpio":
-        for name in ("output", "contactor", "element2", "pump"):
-            other: _Switched = getattr(config, name)
-            if other.backend == "gpio" and (other.chip, other.line) == (current.chip, current.line):
-                found.append(
-                    _Violation(
-                        ("current.line", "current.chip"),
-                        f"line {current.line} of {current.chip} is {name}'s output: the current "
-                        "input needs an input line of its own",
-                    )
-                )
+        keys = ("current.line", "current.chip")
+        found += _input_on_an_output(config, "the current input", keys, current.line, current.chip)
     if current.kind == "ads1115":
         for name in ("sensor", *ROLE_SENSORS):
             sensor: SensorKeys = getattr(config, name)
