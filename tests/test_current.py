@@ -300,3 +300,14 @@ def test_replay_names_a_period_whose_current_samples_were_altered(
     assert result.mismatch is not None
     assert result.mismatch.k == target.k
     assert result.mismatch.name.startswith("current_said")
+
+
+def test_replay_refuses_a_malformed_current_sample_in_one_line(
+    short_day_log: list[Path],
+) -> None:
+    log = reader.load(short_day_log)
+    target = next(p for p in log.periods if p.current)
+    broken = dataclasses.replace(target, current=[[target.t, True]])
+    entries = [broken if e is target else e for e in log.entries]
+    with pytest.raises(reader.ReplayError, match=f"period k={target.k}: a current sample is"):
+        replay.verify(entries)

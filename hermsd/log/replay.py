@@ -404,11 +404,11 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
             reach = None  # what the missing periods told it is not known
             current = None
         if current is not None and record.current is not None:
-            said = [
-                line
-                for item in record.current
-                for line in words(*current.sample(CurrentSample.from_logged(item)))
-            ]
+            try:
+                samples = [CurrentSample.from_logged(item) for item in record.current]
+            except (TypeError, ValueError):
+                raise ReplayError(f"period k={record.k}: a current sample is malformed") from None
+            said = [line for sample in samples for line in words(*current.sample(sample))]
             if said != record.current_said:
                 name = f"current_said {record.current_said} (derived {said})"
                 return Verification(

@@ -36,19 +36,22 @@ class CurrentSide(LoopState):
         self._current_samples, self._current_said = [], []
 
     def _current_times(self, plan: WindowPlan, now: float) -> list[float]:
-        """When to sample in `plan` after `now`: at the thirds of each part (on, and off) long
-        enough that the reads keep EDGE_SLACK_S and a half-cycle from each edge."""
+        """When to sample in `plan` after `now`, each read (two mains cycles) kept a half-cycle
+        and EDGE_SLACK_S from the edges of its part (on, or off): at the part's thirds where
+        two reads fit with room, else one in its middle where one fits, else none."""
         if self._current_sense is None:
             return []
         half_cycle = 0.5 / self.config.output.mains_hz
-        least = 3 * (4 * half_cycle + half_cycle + EDGE_SLACK_S)  # a read's 2 cycles, a margin
+        read, margin = 4 * half_cycle, half_cycle + EDGE_SLACK_S
         end = plan.start + plan.length
         parts = [(plan.start, plan.on_at), (plan.on_at, plan.off_at), (plan.off_at, end)]
         times = []
         for start, stop in parts:
             span = stop - start
-            if span >= least:
+            if span >= 3 * (read + margin):
                 times += [start + span / 3, start + 2 * span / 3]
+            elif span >= read + 2 * margin:
+                times.append(start + (span - read) / 2)
         return [t for t in times if t > now]
 
     def _sample_current(self, on: bool) -> None:
