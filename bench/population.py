@@ -66,7 +66,7 @@ from robustness import (  # bench/robustness.py, beside this file
 
 from hermsd.config import read
 from hermsd.config.schema import Config
-from hermsd.safety.current_watch import CONFIRM_SAMPLES
+from hermsd.safety.current_watch import CONFIRM_SAMPLES, Sample
 from hermsd.sim import hlt, scenario
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.scenario import Event
@@ -600,13 +600,13 @@ def _current_faults(seed: int) -> dict[str, Any]:
         after = [a for a in result.summary["alarms"] if a["at_s"] >= event.at]
         told = after[0] if after else None
         until = math.inf if told is None else told["at_s"] + 0.001  # at_s is rounded to ms
-        samples = [s for r in result.records for s in r.current or []]
+        samples = [Sample.from_logged(s) for r in result.records for s in r.current or []]
         found[name] = {
             "false": _alarms_before(result.summary, event.at),
             "kind": None if told is None else told["kind"],
             "detected_s": None if told is None else told["detected_after_s"],
             "by_current": told is not None and told["message"].startswith("the current input"),
-            "samples": sum(event.at <= s[0] <= until and s[1] == shown_on for s in samples),
+            "samples": sum(event.at <= s.t <= until and s.on == shown_on for s in samples),
         }
     return found
 
