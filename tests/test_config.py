@@ -25,6 +25,7 @@ CONFIG_FILE = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
 TWO_ELEMENTS_DOC = Path(__file__).resolve().parents[1] / "docs" / "two-elements.md"
 SENSORS_DOC = TWO_ELEMENTS_DOC.with_name("sensors.md")
 HERMS_DOC = TWO_ELEMENTS_DOC.with_name("herms.md")
+CURRENT_DOC = TWO_ELEMENTS_DOC.with_name("current.md")
 FAST_FUZZ = settings(max_examples=200, deadline=None)
 
 
@@ -94,6 +95,11 @@ BOUNDS = [
     Bound("pump.line", int, 0, 511, nullable=True),
     Bound("pump.channel", int, 1, 8),
     Bound("pump.sense_line", int, 0, 511, nullable=True),
+    Bound("current.bus", int, 0, 255),
+    Bound("current.address", int, 0x48, 0x4B),
+    Bound("current.amps_per_volt", float, 0.1, 1000),
+    Bound("current.threshold", float, 0, 100, low_open=True),
+    Bound("current.line", int, 0, 511, nullable=True),
     Bound("herms.max_hlt_above_mash", float, 1, 20),
     Bound("herms.coil_w_per_k", float, 10, 2000),
     Bound("herms.mash_litres", float, 1, 500),
@@ -169,6 +175,9 @@ CHOICES: dict[str, tuple[object, ...]] = {
     "pump.backend": ("none", "sim", "gpio", "relay-board"),
     "pump.baud": (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200),
     "pump.sense": ("none", "gpio", "sim"),
+    "current.kind": ("none", "ads1115", "gpio", "sim"),
+    "current.input": ("a0-a1", "a0-a3", "a1-a3", "a2-a3", "a0", "a1", "a2", "a3"),
+    "current.range": (1.024, 6.144, 4.096, 2.048, 0.512, 0.256),
 }
 TEXTS = {  # key: (longest, nullable)
     "tun.name": (32, False),
@@ -197,6 +206,7 @@ TEXTS = {  # key: (longest, nullable)
     "pump.port": (None, False),
     "pump.chip": (None, False),
     "pump.sense_chip": (None, False),
+    "current.chip": (None, False),
 }
 FLAGS = (
     "output.active_low",
@@ -205,6 +215,7 @@ FLAGS = (
     "element2.check",
     "pump.active_low",
     "pump.sense_active_low",
+    "current.active_low",
     "mqtt.tls",
 )
 ALERT_EVENTS = (
@@ -281,6 +292,8 @@ RESTART = [
         for key in ("backend", "port", "chip", "line", "active_low", "channel", "baud")
     ),
     *(f"pump.{key}" for key in ("sense", "sense_chip", "sense_line", "sense_active_low")),
+    *(f"current.{key}" for key in ("kind", "bus", "address", "input", "range")),
+    *(f"current.{key}" for key in ("amps_per_volt", "threshold", "chip", "line", "active_low")),
     "log.dir",
     "log.rotate_hours",
     "log.flush_interval",
@@ -509,6 +522,18 @@ def test_defaults_are_the_specified_ones() -> None:
             "sense_line": None,
             "sense_active_low": False,
         },
+        "current": {
+            "kind": "none",
+            "bus": 1,
+            "address": 0x49,
+            "input": "a0-a1",
+            "range": 1.024,
+            "amps_per_volt": 30.0,
+            "threshold": 1.0,
+            "chip": "/dev/gpiochip0",
+            "line": None,
+            "active_low": False,
+        },
         "herms": {
             "max_hlt_above_mash": 10.0,
             "max_coil_flow": 12.0,
@@ -631,6 +656,7 @@ def _two_element_rows(doc: Path = TWO_ELEMENTS_DOC) -> dict[str, tuple[str, str]
 def _documented() -> dict[str, str]:
     """Every key's documentation: its comment in the shipped file, else its table row."""
     tables = _two_element_rows() | _two_element_rows(SENSORS_DOC) | _two_element_rows(HERMS_DOC)
+    tables |= _two_element_rows(CURRENT_DOC)
     rows = {key: f"{text} |" for key, (_default, text) in tables.items()}
     return _comment_blocks() | rows
 
@@ -640,6 +666,15 @@ def test_the_sensor_keys_are_documented_with_their_defaults_outside_the_file() -
     assert not set(rows) & set(_comment_blocks())
     sections = {key.split(".")[0] for key in rows}
     assert sections == {"sensor", *ROLES, "pump", "herms"}
+    for key, (default, _text) in rows.items():
+        section, name = key.split(".")
+        assert yaml.safe_load(default) == getattr(getattr(DEFAULT, section), name), key
+
+
+def test_the_current_keys_are_documented_with_their_defaults_outside_the_file() -> None:
+    rows = _two_element_rows(CURRENT_DOC)
+    assert not set(rows) & set(_comment_blocks())
+    assert {key.split(".")[0] for key in rows} == {"current"}
     for key, (default, _text) in rows.items():
         section, name = key.split(".")
         assert yaml.safe_load(default) == getattr(getattr(DEFAULT, section), name), key

@@ -43,6 +43,7 @@ from hermsd.config.schema import (
 )
 from hermsd.control.learning import ModelStore
 from hermsd.durations import parse_duration
+from hermsd.hardware.current_sense import CurrentSense, open_current_sense
 from hermsd.hardware.pump_sense import PumpSense, open_pump_sense
 from hermsd.hardware.realtime import loop_priority
 from hermsd.hardware.sensors.kinds import open_role_sensor, open_sensor
@@ -56,6 +57,7 @@ from hermsd.safety.latches import LatchStore, StateError
 
 if TYPE_CHECKING:
     from hermsd.hardware.sensors.base import Sensor
+    from hermsd.runtime.clock import Clock
     from hermsd.runtime.daemon import Daemon
     from hermsd.sim.scenario import Scenario
 
@@ -202,6 +204,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                 pump_sense = _pump_sense(config)
                 if pump_sense is not None:
                     stack.callback(pump_sense.close)
+                current_sense = _current_sense(config, clock)
+                if current_sense is not None:
+                    stack.callback(current_sense.close)
                 daemon = assemble(
                     config,
                     clock,
@@ -215,6 +220,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                     mash_sensor=sensors.get("mash_sensor"),
                     coil_sensor=sensors.get("coil_sensor"),
                     pump_sense=pump_sense,
+                    current_sense=current_sense,
                 )
             recorder = _open_recorder(log_dir, config) if log_dir else None
             if recorder is not None:
@@ -400,6 +406,27 @@ def _pump_sense(config: Config) -> PumpSense | None:
             f"{config.pump.sense_chip}: {error.strerror or error} (check pump.sense_chip and "
             "sense_line)"
         ) from None
+
+
+def _current_sense(config: Config, clock: Clock) -> CurrentSense | None:
+    """The element's current input as the config fits it on hardware; UserError for the
+    simulator's, or a device that cannot be had."""
+    current = config.current
+    if current.kind == "sim":
+        raise UserError("current.kind is 'sim', the simulated circuit's: run with --simulate")
+    where, check = (
+        (f"line {current.line} of {current.chip}", "current.chip and line")
+        if current.kind == "gpio"
+        else (
+            f"ADS1115 at {current.address:#04x} on /dev/i2c-{current.bus}",
+            "current.bus, address and the wiring",
+        )
+    )
+    try:
+        return open_current_sense(current, config.output.mains_hz, clock.monotonic, time.sleep)
+    except (OSError, ImportError) as error:
+        why = error.strerror if isinstance(error, OSError) and error.strerror else error
+        raise UserError(f"cannot open the current input's {where}: {why} (check {check})") from None
 
 
 def _lock_directories(log_dir: Path | None, state_dir: Path | None) -> list[DirectoryLock]:

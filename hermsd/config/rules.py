@@ -266,6 +266,7 @@ def _violations(config: Config) -> list[_Violation]:
         )
     found.extend(_element2_violations(config))
     found.extend(_pump_violations(config))
+    found.extend(_current_violations(config))
     found.extend(_controller_violations(control))
     measured = measured_model(config)
     why = implausible(measured) if measured is not None else None
@@ -424,17 +425,60 @@ def _pump_violations(config: Config) -> list[_Violation]:
             )
         )
     elif pump.sense == "gpio":
-        for name in ("output", "contactor", "element2"):
-            other: _Switched = getattr(config, name)
-            if other.backend == "gpio" and (other.chip, other.line) == (
-                pump.sense_chip,
-                pump.sense_line,
+        keys = ("pump.sense_line", "pump.sense_chip")
+        line, chip = pump.sense_line, pump.sense_chip
+        found += _input_on_an_output(config, "the pump sense", keys, line, chip)
+    return found
+
+
+def _input_on_an_output(
+    config: Config, what: str, keys: tuple[str, str], line: int | None, chip: str
+) -> list[_Violation]:
+    """`what`'s input line (`keys`: its line's and chip's) that an output drives."""
+    outputs = ("output", "contactor", "element2", "pump")
+    found = []
+    for name in outputs:
+        other: _Switched = getattr(config, name)
+        if other.backend == "gpio" and (other.chip, other.line) == (chip, line):
+            found.append(
+                _Violation(
+                    keys,
+                    f"line {line} of {chip} is {name}'s output: {what} needs an input line of "
+                    "its own",
+                )
+            )
+    return found
+
+
+def _current_violations(config: Config) -> list[_Violation]:
+    """The element's current input: a gpio one with its line, on a line no output drives; an
+    ADS1115 at an address no I2C sensor on its bus answers at."""
+    current = config.current
+    found = []
+    if current.kind == "gpio" and current.line is None:
+        found.append(
+            _Violation(
+                ("current.kind", "current.line"),
+                f"the gpio current input needs current.line, the optocoupler's input line on "
+                f"{current.chip} (add 'line: 23' under current: for GPIO23, with your line)",
+            )
+        )
+    elif current.kind == "gpio":
+        keys = ("current.line", "current.chip")
+        found += _input_on_an_output(config, "the current input", keys, current.line, current.chip)
+    if current.kind == "ads1115":
+        for name in ("sensor", *ROLE_SENSORS):
+            sensor: SensorKeys = getattr(config, name)
+            if sensor.kind == "lm92" and (sensor.bus, sensor.address) == (
+                current.bus,
+                current.address,
             ):
                 found.append(
                     _Violation(
-                        ("pump.sense_line", "pump.sense_chip"),
-                        f"line {pump.sense_line} of {pump.sense_chip} is {name}'s output: the "
-                        "pump sense needs an input line of its own",
+                        ("current.address", "current.bus"),
+                        f"address {current.address:#04x} on I2C bus {current.bus} is {name}'s "
+                        "LM92: the ADS1115 needs an address of its own (its ADDR pin to GND "
+                        "0x48, VDD 0x49, SDA 0x4A, SCL 0x4B)",
                     )
                 )
     return found

@@ -260,6 +260,35 @@ class PumpConfig:
     sense_active_low: bool = False
 
 
+ADS1115_INPUTS = ("a0-a1", "a0-a3", "a1-a3", "a2-a3", "a0", "a1", "a2", "a3")
+"""The ADS1115's input multiplexer settings (config register MUX, 000..111 in this order)."""
+ADS1115_RANGES = (6.144, 4.096, 2.048, 1.024, 0.512, 0.256)
+"""The ADS1115's full-scale ranges, ±V (config register PGA, 000..101 in this order)."""
+
+
+@dataclass(frozen=True, slots=True)
+class CurrentConfig:
+    """Whether the SSR's element draws current (docs/safety.md, "The element's current"): a
+    current transformer into an ADS1115 (`ads1115`), a mains-present optocoupler across the
+    element on a GPIO input (`gpio`: tells a shorted SSR or a dead SSR, contactor or fuse, not
+    an open element), or the simulator's circuit (`sim`)."""
+
+    kind: str = _choice(NOT_FITTED, (NOT_FITTED, "ads1115", "gpio", "sim"))
+    bus: int = _integer(1, 0, 255)
+    address: int = _integer(0x49, 0x48, 0x4B, as_hex=True)  # ADDR to VDD: the LM92 has 0x48
+    input: str = _choice("a0-a1", ADS1115_INPUTS)
+    range: float = _choice(1.024, ADS1115_RANGES)
+    amps_per_volt: float = _number(30.0, 0.1, 1000, "A/V")
+    threshold: float = _number(1.0, 0.0, 100, "A", low_exclusive=True)
+    chip: str = _text("/dev/gpiochip0")
+    line: int | None = _integer(None, 0, 511, null_means="none (only the gpio kind uses it)")
+    active_low: bool = False
+
+    @property
+    def fitted(self) -> bool:
+        return self.kind != NOT_FITTED
+
+
 @dataclass(frozen=True, slots=True)
 class HermsConfig:
     """What holding the mash through the HLT's coil needs to know beyond the HLT."""
@@ -393,6 +422,7 @@ class Config:
     contactor: ContactorConfig = field(default_factory=ContactorConfig)
     element2: Element2Config = field(default_factory=Element2Config)
     pump: PumpConfig = field(default_factory=PumpConfig)
+    current: CurrentConfig = field(default_factory=CurrentConfig)
     herms: HermsConfig = field(default_factory=HermsConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     log: LogConfig = field(default_factory=LogConfig)
@@ -425,6 +455,7 @@ RESTART_KEYS: tuple[str, ...] = (
     *(f"contactor.{f.name}" for f in dataclasses.fields(ContactorConfig)),
     *(f"element2.{f.name}" for f in dataclasses.fields(Element2Config)),
     *(f"pump.{f.name}" for f in dataclasses.fields(PumpConfig)),
+    *(f"current.{f.name}" for f in dataclasses.fields(CurrentConfig)),
     *(f"log.{f.name}" for f in dataclasses.fields(LogConfig)),
 )
 

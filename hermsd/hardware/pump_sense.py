@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Protocol
 
 from hermsd.config.schema import PumpConfig
+from hermsd.hardware.gpio_line import GpioLine
 
 
 class PumpSense(Protocol):
@@ -23,29 +24,15 @@ class GpioPumpSense:
     biased to its inactive level so a module unplugged reads a stopped pump."""
 
     def __init__(self, chip: str, line: int, active_low: bool = False) -> None:
-        try:
-            import gpiod
-            from gpiod.line import Bias, Direction, Value
-        except ImportError:
-            raise ImportError(
-                "the gpio pump sense needs the gpiod package, which is not installed (install "
-                "the gpio extra: `uv sync --extra gpio`, or `pip install 'hermsd[gpio]'`)"
-            ) from None
-
-        self._line = line
-        self._active = Value.ACTIVE
-        settings = gpiod.LineSettings(
-            direction=Direction.INPUT,
-            active_low=active_low,
-            bias=Bias.PULL_UP if active_low else Bias.PULL_DOWN,
+        self._line = GpioLine(
+            chip, line, output=False, active_low=active_low, what="the gpio pump sense"
         )
-        self._request = gpiod.request_lines(chip, consumer="hermsd", config={line: settings})
 
     def running(self) -> bool:
-        return bool(self._request.get_value(self._line) == self._active)
+        return self._line.active()
 
     def close(self) -> None:
-        self._request.release()
+        self._line.release()
 
 
 def open_pump_sense(pump: PumpConfig) -> PumpSense | None:

@@ -21,6 +21,8 @@ import threading
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from hermsd.hardware.gpio_line import GpioLine
+
 
 @dataclass(frozen=True, slots=True)
 class WindowPlan:
@@ -311,30 +313,15 @@ class GpioSwitch:
     """A GPIO line through the `gpiod` 2.x bindings (the `gpio` extra)."""
 
     def __init__(self, chip: str, line: int, active_low: bool = False) -> None:
-        try:
-            import gpiod
-            from gpiod.line import Bias, Direction, Value
-        except ImportError:
-            raise ImportError(
-                "the gpio backend needs the gpiod package, which is not installed (install "
-                "the gpio extra: `uv sync --extra gpio`, or `pip install 'hermsd[gpio]'`)"
-            ) from None
-
-        self._line = line
-        self._on, self._off = Value.ACTIVE, Value.INACTIVE
-        settings = gpiod.LineSettings(
-            direction=Direction.OUTPUT,
-            output_value=Value.INACTIVE,
-            active_low=active_low,
-            bias=Bias.PULL_UP if active_low else Bias.PULL_DOWN,
+        self._line = GpioLine(
+            chip, line, output=True, active_low=active_low, what="the gpio backend"
         )
-        self._request = gpiod.request_lines(chip, consumer="hermsd", config={line: settings})
 
     def set(self, on: bool) -> None:
-        self._request.set_value(self._line, self._on if on else self._off)
+        self._line.set(on)
 
     def close(self) -> None:
-        self._request.release()
+        self._line.release()
 
 
 def relay_board_frame(channel: int, on: bool) -> bytes:

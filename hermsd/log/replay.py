@@ -65,6 +65,8 @@ from hermsd.runtime.build import (
     watch_changes,
 )
 from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.current_watch import CurrentWatch, current_watch, words
+from hermsd.safety.current_watch import Sample as CurrentSample
 from hermsd.safety.element_watch import ElementWatch
 
 if TYPE_CHECKING:
@@ -338,6 +340,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
     reach: ReachWatch | None = None  # the reach watch as the daemon's, once known
     model: PlantModel | None = None  # the tun's model in force, as logged
     fed: PeriodRecord | None = None  # the last period, not yet fed to `reach`
+    current: CurrentWatch | None = None  # the current input's watch as the daemon's, once known
     verified = unknown = 0
 
     def ceiling_mismatch() -> Mismatch | None:
@@ -364,6 +367,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                         watch.keep_probed(kept)
                 if entry.reason == "start":
                     reach = ReachWatch()
+                    current = current_watch(whole)
                 elif reach is not None and watched is not None and reach_restarts(watched, whole):
                     reach.restart()
                 same_tun = watched is not None and watched.tun == whole.tun
@@ -399,6 +403,18 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
         record = entry
         if record.k != (previous_k or 0) + 1:
             reach = None  # what the missing periods told it is not known
+            current = None
+        if current is not None and record.current is not None:
+            try:
+                samples = [CurrentSample.from_logged(item) for item in record.current]
+            except (TypeError, ValueError):
+                raise ReplayError(f"period k={record.k}: a current sample is malformed") from None
+            said = [line for sample in samples for line in words(*current.sample(sample))]
+            if said != record.current_said:
+                name = f"current_said {record.current_said} (derived {said})"
+                return Verification(
+                    verified, unknown, Mismatch(record.k, record.t, name, None, None)
+                )
         fed = record
         if previous_k is not None and record.k != previous_k + 1:
             known = False

@@ -254,11 +254,24 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "s until a pump stop the program's timer announces: the coil_load fed "
                     "forward ends then (null: none announced)",
                 ),
+                "current": _field(
+                    ["array", "null"],
+                    "the element's current input's samples in the period, each [t, the SSR "
+                    "commanded on, drawing (null: the read failed), amps (null: none measured), "
+                    "why the read failed] (null: no input fitted)",
+                    items={"type": "array"},
+                ),
+                "current_said": _field(
+                    ["array", "null"],
+                    "what the current watch said of them: warnings, and the alarms it latched "
+                    "(null: no input fitted)",
+                    items={"type": "string"},
+                ),
             },
             optional=(
                 *("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
                 *("mash", "coil", "pump", "hlt_setpoint", "coil_load", "cascade", "pump_in"),
-                "pump_stop_in",
+                *("pump_stop_in", "current", "current_said"),
             ),
         ),
     ),

@@ -15,6 +15,7 @@ from hermsd.config.schema import Config
 from hermsd.control.element2 import SlowElement
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.control.reach import ReachWatch
+from hermsd.hardware.current_sense import CurrentSense
 from hermsd.hardware.outputs import Outputs
 from hermsd.hardware.pump_sense import PumpSense
 from hermsd.hardware.sensors.base import Sensor
@@ -49,10 +50,11 @@ def assemble(
     mash_sensor: Sensor | None = None,
     coil_sensor: Sensor | None = None,
     pump_sense: PumpSense | None = None,
+    current_sense: CurrentSense | None = None,
 ) -> Daemon:
     """A daemon for `config` on `sensor` and `outputs` (and the mash's and the coil outlet's
-    sensors and the pump's sense, when fitted), its parts built here (with what `models`
-    holds of the tun) and handed to the loop."""
+    sensors, the pump's sense and the element's current input, when fitted), its parts built
+    here (with what `models` holds of the tun) and handed to the loop."""
     stored: LearnedModel | None = None
     problem: str | None = None
     if models is not None:
@@ -98,5 +100,6 @@ def assemble(
         coil_sensor=coil_sensor,
         pump_sense=pump_sense,
         mash_control=outer,
+        current_sense=current_sense,
     )
     return Daemon(parts)

@@ -58,6 +58,7 @@ from hermsd.runtime.build import (
     measured_tun,
     reach_period,
 )
+from hermsd.runtime.current_side import CurrentSide
 from hermsd.runtime.latch_keeping import LatchKeeping
 from hermsd.runtime.mash_side import MashSide, SeenPump, role_sensors
 from hermsd.runtime.notify import WatchdogGate
@@ -152,9 +153,9 @@ class _Window:
         self.timers.clear()
 
 
-class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
-    """One tun's control loop (its reload, mash program, latched alarms on disk and the
-    mash's sensors and pump in their own modules)."""
+class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Reporting):
+    """One tun's control loop (its reload, mash program, latched alarms on disk, the mash's
+    sensors and pump, and the element's current input in their own modules)."""
 
     def __init__(self, parts: Parts) -> None:
         """The loop on `parts` (`runtime/assemble.py` builds them from a config)."""
@@ -237,6 +238,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
         self._roles, self._pump_on, self._program_pump_step = role_sensors(parts), False, None
         self._seen_pump = SeenPump(parts.pump_sense) if parts.pump_sense is not None else None
         self._mash_control = parts.mash_control
+        self._init_current(parts.current_sense)
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -688,6 +690,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
             full_from=full_from,
             **self.program.record_fields(),
             **self.mash_side_fields(),
+            **self.current_fields(),
         )
         said = reach_period(self.reach, record, self.model, self.config, self.controller)
         self._say_reach(said, now)
@@ -718,6 +721,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
         for edge in (plan.on_at, plan.off_at):
             if now < edge < end:
                 window.timers.append(self.scheduler.at(edge, self._on_edge))
+        for at in self._current_times(plan, now):
+            window.timers.append(self.scheduler.at(at, self._on_current_sample))
         if self.recorder is not None:
             self.recorder.write(
                 "/hermsd/window",
@@ -737,6 +742,13 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, Reporting):
             return
         self.edge_lateness.add(now - when)
         self._switch(plan.is_on(when), now)
+
+    def _on_current_sample(self, when: float, now: float) -> None:
+        """A sample of the element's current, while the heater may be on (else the window's
+        timers are gone: a forced off cancels them)."""
+        plan = self._window.plan
+        if plan is not None and not self._window.cut and self.supervisor.heater_allowed:
+            self._sample_current(plan.is_on(when))
 
     def _on_timing(self, deadline: float, now: float) -> None:
         if self.recorder is None:

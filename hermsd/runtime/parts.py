@@ -13,6 +13,7 @@ from hermsd.control import pid
 from hermsd.control.element2 import SlowElement
 from hermsd.control.learning import LearnedModel, Learner, ModelStore
 from hermsd.control.reach import ReachWatch
+from hermsd.hardware.current_sense import CurrentSense
 from hermsd.hardware.outputs import Outputs
 from hermsd.hardware.pump_sense import PumpSense
 from hermsd.hardware.sensors.base import Sensor
@@ -67,3 +68,4 @@ class Parts:
     coil_sensor: Sensor | None = None
     pump_sense: PumpSense | None = None  # a pump hermsd does not switch, seen running
     mash_control: MashControl | None = None  # the HERMS's outer loop, with a mash sensor
+    current_sense: CurrentSense | None = None  # the SSR's element's current (current_side.py)

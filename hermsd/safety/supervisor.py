@@ -259,6 +259,13 @@ class Supervisor:
                 {"age_s": t - last},
             )
 
+    def current_fault(self, t: float, kind: str, message: str, values: dict[str, Any]) -> None:
+        """A latched fault the element's current input told (`safety/current_watch.py`): the
+        kind the thermal verdict would latch, raised now."""
+        if kind not in ("ssr_stuck_on", "heater_not_heating"):
+            raise ValueError(f"{kind} is not a fault the current input tells")
+        self._raise(kind, t, message, values)
+
     def loop_lateness(self, t: float, lateness: float) -> None:
         """How late the control period started: a stalled loop cannot be trusted."""
         if lateness > self.limits.stall_after:

@@ -355,3 +355,61 @@ def fault_value(fault: Fault, value: float | None) -> float:
     if value is not None:
         raise ValueError(f"the {fault.value!r} fault takes no value, got {value}")
     return 0.0
+
+
+ADS1115_POWER_UP_CONFIG: Final = 0x8583
+"""The ADS1115's config register at power-up (datasheet 9.6.3): single-shot, ±2.048 V, 128 SPS,
+the comparator disabled."""
+_ADS1115_RATES: Final = (8, 16, 32, 64, 128, 250, 475, 860)
+_ADS1115_RANGES: Final = (6.144, 4.096, 2.048, 1.024, 0.512, 0.256, 0.256, 0.256)
+
+
+class FakeADS1115:
+    """An ADS1115 serving `volts(t)` (the input's differential volts at `t` on `now`'s clock):
+    in continuous mode the conversion register holds the latest conversion completed at the
+    configured data rate, at the configured range, clipped to full scale; in single-shot mode
+    it keeps the last one (0 after power-up). `failing` NACKs every transfer."""
+
+    def __init__(self, volts: Callable[[float], float], now: Callable[[], float]) -> None:
+        self._volts, self._now = volts, now
+        self.config = ADS1115_POWER_UP_CONFIG
+        self._held = 0
+        self.failing = False
+        self.transfers = 0
+
+    def read(self, register: int, length: int) -> list[int]:
+        self._transfer()
+        if length != 2 or register > 3:
+            raise ValueError(f"the ADS1115 has 16-bit registers 0..3, got {length} of {register}")
+        if register == 1:
+            word = self.config & 0x7FFF if self._continuous else self.config | 0x8000
+        elif register == 0:
+            word = self._conversion() & 0xFFFF
+        else:
+            word = 0x8000 if register == 2 else 0x7FFF  # the Lo/Hi thresholds' power-up values
+        return [word >> 8, word & 0xFF]
+
+    def write(self, register: int, data: Sequence[int]) -> None:
+        self._transfer()
+        if register != 1 or len(data) != 2:
+            raise ValueError(f"only the 16-bit config register is written here, got {register}")
+        self.config = data[0] << 8 | data[1]
+
+    @property
+    def _continuous(self) -> bool:
+        return not self.config & 0x0100
+
+    def _conversion(self) -> int:
+        if not self._continuous:
+            return self._held
+        rate = _ADS1115_RATES[self.config >> 5 & 0b111]
+        full_scale = _ADS1115_RANGES[self.config >> 9 & 0b111]
+        done_at = math.floor(self._now() * rate) / rate  # the last conversion completed
+        counts = round(self._volts(done_at) / full_scale * 32768)
+        self._held = max(-32768, min(32767, counts))
+        return self._held
+
+    def _transfer(self) -> None:
+        self.transfers += 1
+        if self.failing:
+            raise _bus_error(errno.EREMOTEIO)

@@ -2,7 +2,8 @@
 
 A second element, on its own relay or contactor, hangs behind the same series contactor.
 Faults a scenario can inject live here: an SSR or the second element's relay that fails
-shorted (stuck on). A scenario's
+shorted (stuck on), an element gone open. What a current transformer on the SSR's element
+would read (`current.kind: sim`) is `CircuitCurrent`, with its own faults. A scenario's
 circuit keeps every SSR edge and every change of the element's power with its time, so the
 simulator can count edges and tell exactly when the heater really went off after an alarm;
 the circuit of `hermsd run --simulate`, which may run for weeks, keeps none (`history`).
@@ -10,9 +11,16 @@ the circuit of `hermsd run --simulate`, which may run for weeks, keeps none (`hi
 
 from __future__ import annotations
 
+import errno
 from collections.abc import Callable
+from enum import StrEnum
 
+from hermsd.hardware.current_sense import CurrentRead
+from hermsd.sim.fake_faults import chosen
 from hermsd.sim.hlt import Plant, TwoElementPlant
+
+MAINS_VOLTS = 230.0
+"""The simulated mains: an element's amps are its watts over these volts."""
 
 
 class HeaterCircuit:
@@ -33,6 +41,7 @@ class HeaterCircuit:
         self._history = history
         self.ssr_on = False
         self.ssr_stuck_on = False
+        self.element_ok = True
         self.contactor_closed = not contactor  # no contactor: the line is always made
         self.powered = False
         self._heating = False  # either element powered
@@ -50,6 +59,16 @@ class HeaterCircuit:
     def set_stuck_on(self, stuck: bool) -> None:
         self.ssr_stuck_on = stuck
         self._update()
+
+    def set_element_ok(self, ok: bool, t: float) -> None:
+        """The SSR's element whole or open (it draws nothing, whatever switches it)."""
+        self.element_ok = ok
+        self._plant.set_element_ok(ok, t)
+
+    @property
+    def drawing(self) -> bool:
+        """Whether current flows through the SSR's element: powered and whole."""
+        return self.powered and self.element_ok
 
     def set_relay2_stuck_on(self, stuck: bool) -> None:
         if self.relay2 is None:
@@ -121,3 +140,37 @@ class _Side:
 
     def close(self) -> None:
         self._apply(False)
+
+
+class CurrentFault(StrEnum):
+    """How the simulated current input misbehaves (`CircuitCurrent.set_fault`)."""
+
+    OK = "ok"
+    UNPLUGGED = "unplugged"
+    """No signal: the CT off its wire or its plug out; it reads 0 A whatever flows."""
+    FAILING = "failing"
+    """Every read fails (an OSError, as a bus that NACKs)."""
+
+
+class CircuitCurrent:
+    """The SSR's element's current as a CT reads it (`current.kind: sim`): the element's amps
+    at the simulated mains while the circuit powers it whole, else none."""
+
+    def __init__(self, circuit: HeaterCircuit, element_watts: float, threshold: float) -> None:
+        self._circuit = circuit
+        self._amps = element_watts / MAINS_VOLTS
+        self._threshold = threshold
+        self.fault = CurrentFault.OK
+
+    def set_fault(self, kind: str) -> None:
+        self.fault, _ = chosen(CurrentFault, kind, None, "current input")
+
+    def read(self) -> CurrentRead:
+        if self.fault is CurrentFault.FAILING:
+            raise OSError(errno.EREMOTEIO, "the current input cannot be read (simulated)")
+        flowing = self._circuit.drawing and self.fault is CurrentFault.OK
+        amps = self._amps if flowing else 0.0
+        return CurrentRead(amps > self._threshold, amps)
+
+    def close(self) -> None:
+        """Nothing to release."""

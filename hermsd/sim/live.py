@@ -50,6 +50,7 @@ def scenario_daemon(scenario: Scenario, config: Config, speed: float, **parts: A
         mash_sensor=None if mash is None else mash.mash_sensor,
         coil_sensor=None if mash is None else mash.coil_sensor,
         pump_sense=None if mash is None else mash.pump_sense,
+        current_sense=world.current,
         saver=Saver(threaded=not math.isinf(speed)),
         **parts,
     )

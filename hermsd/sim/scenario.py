@@ -78,6 +78,7 @@ EVENT_KINDS = (
     "ssr",
     "heater2",
     "relay2",
+    "current",
     "ambient",
     "config",
     *MASH_EVENTS,
@@ -408,6 +409,8 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
         raise fail(f"{key}.heater", "expected open or ok")
     elif kind in ("ssr", "relay2") and value not in ("stuck_on", "ok"):
         raise fail(f"{key}.{kind}", "expected stuck_on or ok")
+    elif kind == "current" and value not in ("unplugged", "failing", "ok"):
+        raise fail(f"{key}.current", "expected unplugged, failing or ok")
     elif kind == "dough_in":
         if not isinstance(value, dict) or set(value) != set(DOUGH_IN_RANGES):
             raise fail(
@@ -672,6 +675,7 @@ def run(
         mash_sensor=None if world.mash is None else world.mash.mash_sensor,
         coil_sensor=None if world.mash is None else world.mash.coil_sensor,
         pump_sense=None if world.mash is None else world.mash.pump_sense,
+        current_sense=world.current,
     )
     program = scenario.program
     herms_day = config.mash_sensor.fitted  # judged on the mash: its records are needed
@@ -808,6 +812,8 @@ def check_events(scenario: Scenario, config: Config, world: World) -> None:
         e.kind in ("heater2", "relay2") for e in scenario.events
     ):
         raise ScenarioError("events: heater2 and relay2 need a second element (element2.backend)")
+    if world.current is None and any(e.kind == "current" for e in scenario.events):
+        raise ScenarioError("events: current needs the element's current input (current.kind)")
 
 
 def schedule_events(
@@ -831,6 +837,10 @@ def schedule_events(
             if event.kind == "confirm":
                 brewer.answers.append(event.value)
                 return  # an answer, not a disturbance of the tun
+            if event.kind == "current":  # the current input's own fault (sim/circuit.py)
+                assert world.current is not None  # check_events refuses it without one
+                world.current.set_fault(event.value)
+                return
             _apply(event, t, world.plant, world.chip, world.circuit, daemon)
             if measure is not None:
                 measure(index, event, t)
@@ -905,7 +915,7 @@ def _apply(
         fault, amount = value
         chip.set_fault(fault, amount)
     elif kind == "heater":
-        plant.set_element_ok(value == "ok", t)
+        circuit.set_element_ok(value == "ok", t)
     elif kind == "ssr":
         circuit.set_stuck_on(value == "stuck_on")
     elif kind == "relay2":

@@ -26,7 +26,7 @@ from hermsd.runtime.notify import Notifier
 from hermsd.runtime.saver import Saver
 from hermsd.safety.latches import LatchStore
 from hermsd.sim.bus import FakeLM92, FakeSMBus
-from hermsd.sim.circuit import HeaterCircuit
+from hermsd.sim.circuit import CircuitCurrent, HeaterCircuit
 from hermsd.sim.clock import PacedClock, VirtualClock
 from hermsd.sim.hlt import Plant, TwoElementPlant, make_plant
 from hermsd.sim.mash import HermsPlant
@@ -42,6 +42,7 @@ class World:
     circuit: HeaterCircuit
     outputs: Outputs
     mash: MashSide | None = None  # around a HERMS plant
+    current: CircuitCurrent | None = None  # the element's current input (`current.kind`)
 
 
 @dataclass(slots=True)
@@ -167,7 +168,10 @@ def build_world(
     circuit = HeaterCircuit(tun, clock.monotonic, contactor, history=history, element2=two)
     mash, pump = _mash_side(config, clock, tun, advance)
     outputs = guard_outputs(circuit.ssr, circuit.contactor, clock, config, circuit.relay2, pump)
-    return World(clock, tun, chip, sensor, circuit, outputs, mash)
+    current = None
+    if config.current.fitted:  # the simulated circuit's, whatever kind the config names
+        current = CircuitCurrent(circuit, config.tun.element_watts, config.current.threshold)
+    return World(clock, tun, chip, sensor, circuit, outputs, mash, current)
 
 
 def simulated_daemon(
@@ -191,6 +195,7 @@ def simulated_daemon(
         mash_sensor=mash.mash_sensor,
         coil_sensor=mash.coil_sensor,
         pump_sense=mash.pump_sense,
+        current_sense=world.current,
         notifier=notifier,
         on_status=on_status,
         config_file=config_file,

@@ -1,0 +1,82 @@
+"""The element's current input in the loop (`current.kind`, docs/current.md): samples taken
+far from any SSR edge, each judged against the SSR's command by `safety/current_watch.py`;
+a verdict latches through the supervisor, the heater off at once."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Any
+
+from hermsd.hardware.lm92 import SensorError
+from hermsd.safety.current_watch import CurrentWatch, Sample, current_watch, words
+
+if TYPE_CHECKING:
+    from hermsd.hardware.current_sense import CurrentSense
+    from hermsd.hardware.ssr import WindowPlan
+    from hermsd.runtime.loop_state import LoopState
+else:
+    LoopState = object
+
+EDGE_SLACK_S = 0.01
+"""Beyond the zero-cross SSR's half-cycle (it conducts to the next zero crossing after it is
+told off), how far from an edge a sample stays: the loop's own lateness on a busy Pi."""
+
+
+class CurrentSide(LoopState):
+    """The Daemon's current input: its sense, its watch and the period's samples."""
+
+    _current_sense: CurrentSense | None
+    _current_watch: CurrentWatch | None
+    _current_samples: list[list[object]]
+    _current_said: list[str]
+
+    def _init_current(self, sense: CurrentSense | None) -> None:
+        self._current_sense = sense
+        self._current_watch = None if sense is None else current_watch(self.config)
+        self._current_samples, self._current_said = [], []
+
+    def _current_times(self, plan: WindowPlan, now: float) -> list[float]:
+        """When to sample in `plan` after `now`, each read (two mains cycles) kept a half-cycle
+        and EDGE_SLACK_S from the edges of its part (on, or off): at the part's thirds where
+        two reads fit with room, else one in its middle where one fits, else none."""
+        if self._current_sense is None:
+            return []
+        half_cycle = 0.5 / self.config.output.mains_hz
+        read, margin = 4 * half_cycle, half_cycle + EDGE_SLACK_S
+        end = plan.start + plan.length
+        parts = [(plan.start, plan.on_at), (plan.on_at, plan.off_at), (plan.off_at, end)]
+        times = []
+        for start, stop in parts:
+            span = stop - start
+            if span >= 3 * (read + margin):
+                times += [start + span / 3, start + 2 * span / 3]
+            elif span >= read + 2 * margin:
+                times.append(start + (span - read) / 2)
+        return [t for t in times if t > now]
+
+    def _sample_current(self, on: bool) -> None:
+        """One sample, the SSR commanded `on`: read, judged, recorded; a verdict latched."""
+        assert self._current_sense is not None
+        assert self._current_watch is not None
+        t = self.clock.monotonic()
+        try:
+            read = self._current_sense.read()
+            sample = Sample(t, on, read.drawing, read.amps)
+        except (SensorError, OSError) as error:
+            sample = Sample(t, on, None, None, str(error) or type(error).__name__)
+        said, verdict = self._current_watch.sample(sample)
+        self._current_samples.append(sample.logged())
+        self._current_said += words(said, verdict)
+        for line in said:
+            self._event(logging.WARNING if line.warning else logging.INFO, line.message, t)
+        if verdict is not None:
+            self.supervisor.current_fault(t, verdict.kind, verdict.message, verdict.values)
+            self._drain_alarms(t)  # the heater off at once, said, latched
+
+    def current_fields(self) -> dict[str, Any]:
+        """The period record's samples and what was said of them (None: no input fitted)."""
+        if self._current_watch is None:
+            return {}
+        samples, said = self._current_samples, self._current_said
+        self._current_samples, self._current_said = [], []
+        return {"current": samples, "current_said": said}
