@@ -19,7 +19,7 @@ from typing import Any
 
 from hermsd.config.read import parse
 from hermsd.control import laws, predictive
-from hermsd.control.pid import PlantModel
+from hermsd.control.pid import Controller, PlantModel
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.hlt import PhysicalPlant
@@ -112,15 +112,22 @@ def lowest(trace: dict[float, float], start: float, end: float) -> float:
     return min(c for t, c in trace.items() if start <= t <= end)
 
 
+def held_law() -> Controller:
+    """The predictive law of a 4 kW tun (1.689 °C/% gain, τ 14961 s, 60 s dead) holding
+    66 °C for 30 periods."""
+    model = PlantModel(1.689, 14961.0, 60.0, 20.0)
+    law = laws.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=model)
+    law.reset(66.0, 20.0)
+    for _ in range(30):
+        law.step(66.0, 66.0, law.output)
+    return law
+
+
 def test_a_load_told_a_dead_time_ahead_raises_the_duty_by_its_share_and_nothing_else() -> None:
     """The heat sent now arrives as the load begins: the holding duty rises by the load's
     share of the element (25 % of 4 kW for 1 kW), the prediction over the dead time is the
     one without it (the load acts after all of it)."""
-    model = PlantModel(1.689, 14961.0, 60.0, 20.0)
-    plain = laws.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=model)
-    plain.reset(66.0, 20.0)
-    for _ in range(30):
-        plain.step(66.0, 66.0, plain.output)
+    plain = held_law()
     loaded = copy.deepcopy(plain)
     predictive.known_load(loaded, 1000.0, 4000.0, starts_in=60.0)
     assert predictive.predicted_pv(loaded) == predictive.predicted_pv(plain)

@@ -29,12 +29,12 @@ from test_pump_start import (
     TracedTun,
     config,
     dough,
+    held_law,
     hlt,
 )
 
 from hermsd.config.read import parse
-from hermsd.control import laws, predictive
-from hermsd.control.pid import PlantModel
+from hermsd.control import predictive
 from hermsd.program import model
 from hermsd.program.runner import Runner
 from hermsd.runtime.period import PeriodRecord
@@ -216,11 +216,7 @@ def test_the_runner_turns_the_pump_by_the_steps_own_clock() -> None:
 
 def test_a_load_announced_to_end_is_no_load_once_it_has() -> None:
     """Ending now, the load told the law is none at all; ending before it starts is refused."""
-    plant = PlantModel(1.689, 14961.0, 60.0, 20.0)
-    plain = laws.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=plant)
-    plain.reset(66.0, 20.0)
-    for _ in range(30):
-        plain.step(66.0, 66.0, plain.output)
+    plain = held_law()
     ended = copy.deepcopy(plain)
     predictive.known_load(ended, 1000.0, 4000.0, starts_in=0.0, ends_in=0.0)
     assert ended.step(66.0, 66.0, ended.output) == plain.step(66.0, 66.0, plain.output)
