@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -33,6 +34,7 @@ from test_pump_start import (
     hlt,
 )
 
+from hermsd.cli import main
 from hermsd.config.read import parse
 from hermsd.control import predictive
 from hermsd.program import model
@@ -228,3 +230,25 @@ def test_a_load_announced_to_end_is_no_load_once_it_has() -> None:
     assert late.step(66.0, 66.0, late.output) == running.step(66.0, 66.0, running.output)
     with pytest.raises(ValueError, match=r"ending in 10\.0 s is invalid"):
         predictive.known_load(plain, 1000.0, 4000.0, starts_in=20.0, ends_in=10.0)
+
+
+def test_program_check_warns_of_a_timer_where_hermsd_switches_no_pump(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A pump outside hermsd (`pump.backend: none`, seen or not) cannot be stopped by it: the
+    timer would do nothing, said by `program check --config` and at the program's start."""
+    program, outside, fitted = tmp_path / "p.yaml", tmp_path / "out.yaml", tmp_path / "fit.yaml"
+    program.write_text(TIMED, encoding="utf-8")
+    outside.write_text("pump:\n  backend: none\n  sense: sim\n", encoding="utf-8")
+    fitted.write_text("pump:\n  backend: sim\n", encoding="utf-8")
+    assert main(["program", "check", str(program), "--config", str(outside)]) == 0
+    out = capsys.readouterr().out
+    assert (
+        f"warning: {program}: steps[1].pump_off_every: pump.backend is none: hermsd switches "
+        "no pump, so this timer stops nothing"
+    ) in out
+    assert out.count("warning") == 1  # the one step with a timer
+    assert main(["program", "check", str(program), "--config", str(fitted)]) == 0
+    assert "warning" not in capsys.readouterr().out
+    said = model.config_warnings(model.parse(TIMED), parse("pump:\n  backend: none\n"))
+    assert [line.split(":")[0] for line in said] == ["steps[1].pump_off_every"]

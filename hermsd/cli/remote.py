@@ -209,10 +209,8 @@ def cmd_program(args: argparse.Namespace) -> int:
             for number, step in enumerate(program.steps, 1):
                 print(f"  {number}. {model.describe_step(step)}")
             config = None if args.config is None else read.load(args.config)
-            if config is not None and config.mash_sensor.fitted:
-                limit = config.herms.max_hlt_above_mash
-                for warning in model.strike_warnings(program, limit):
-                    print(f"warning: {args.file}: {warning}")
+            for warning in [] if config is None else model.config_warnings(program, config):
+                print(f"warning: {args.file}: {warning}")
             return 0
         request = ProgramStart(program, args.ready_by)
     else:

@@ -99,6 +99,23 @@ def strike_warnings(program: Program, max_hlt_above_mash: float) -> list[str]:
     ]
 
 
+def config_warnings(program: Program, config: config_module.Config) -> list[str]:
+    """What `config` cannot do of `program` ('steps[0]: …' lines; [] when none): a strike
+    above the HLT's limit (`strike_warnings`, with a mash sensor fitted), and a pump timer
+    where hermsd switches no pump (`pump.backend: none`): it stops nothing."""
+    warnings = []
+    if config.mash_sensor.fitted:
+        warnings += strike_warnings(program, config.herms.max_hlt_above_mash)
+    if config.pump.backend == config_module.NOT_FITTED:
+        warnings += [
+            f"steps[{index}].pump_off_every: pump.backend is none: hermsd switches no pump, "
+            "so this timer stops nothing (fit the pump's switch, or leave the timer out)"
+            for index, step in enumerate(program.steps)
+            if step.pump_timer is not None
+        ]
+    return warnings
+
+
 def pump_wanted(program: Program, index: int) -> bool:
     """Whether step `index` runs the pump: as it says, else on once the mash is in."""
     step = program.steps[index]

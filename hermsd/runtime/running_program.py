@@ -11,7 +11,7 @@ from hermsd.config import schema as config_module
 from hermsd.control import predictive
 from hermsd.control.factory import full_power_share
 from hermsd.log.topics import PROGRAM_TOPIC
-from hermsd.program.model import Program, strike_warnings
+from hermsd.program.model import Program, config_warnings
 from hermsd.program.readiness import Tun
 from hermsd.program.runner import ProgramEvent
 from hermsd.runtime.loop_state import LoopState
@@ -34,8 +34,8 @@ class RunningProgram(LoopState):
         return problems
 
     def start_program(self, program: Program, ready_by: str | None, t: float) -> None:
-        """Start `program` (program_problems first: this raises runner.Refused); with a mash
-        sensor fitted, warn of a strike the HLT's limit cannot honour (`strike_warnings`)."""
+        """Start `program` (program_problems first: this raises runner.Refused); warn of what
+        the config cannot do of it (`config_warnings`)."""
         self.program.start(
             program,
             ready_by,
@@ -44,10 +44,8 @@ class RunningProgram(LoopState):
             pv=self._pv,
             tun=self._program_tun(),
         )
-        if self.config.mash_sensor.fitted:
-            limit = self.config.herms.max_hlt_above_mash
-            for warning in strike_warnings(program, limit):
-                self._event(logging.WARNING, f"program {program.name!r}: {warning}", t)
+        for warning in config_warnings(program, self.config):
+            self._event(logging.WARNING, f"program {program.name!r}: {warning}", t)
 
     def _program_tun(self) -> Tun:
         """What a `ready_by` heat-up plans with: the model in force, and what it rests on."""
