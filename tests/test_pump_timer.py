@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,7 @@ from hermsd.config.read import parse
 from hermsd.control import predictive
 from hermsd.program import model
 from hermsd.program.runner import Runner
+from hermsd.runtime import notify
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.hlt import WATER_J_PER_LITRE_K
@@ -50,7 +52,7 @@ K = 188.6  # W/K: the coil's ε·ṁc (250 W/K at 6 L/min)
 DAY_S = DOUGH_AT + EVERY + 600.0
 
 
-def timer_day(timer: bool) -> tuple[TracedTun, list[PeriodRecord]]:
+def timer_doc(timer: bool) -> dict[str, Any]:
     """Strike at the limit, "Mash in" at DOUGH_AT, then a rest of 66 °C whose pump the timer
     stops (`timer`), or that the brewer stops and restarts at the same instants with
     `hermsd set pump` (no timer: the stop unannounced)."""
@@ -67,7 +69,7 @@ def timer_day(timer: bool) -> tuple[TracedTun, list[PeriodRecord]]:
             {"at": f"{DOUGH_AT + EVERY:g}s", "pump": "on"},
         ]
     strike = {"name": "Strike", "setpoint": REST + LIMIT - 0.2, "hold": "0s", "confirm": "Mash in"}
-    doc = {
+    return {
         "name": "pump-timer",
         "duration": f"{DAY_S:g}s",
         "setpoint": REST,
@@ -75,9 +77,19 @@ def timer_day(timer: bool) -> tuple[TracedTun, list[PeriodRecord]]:
         "events": events,
         "program": {"name": "Timer", "steps": [strike, rest]},
     }
+
+
+def timer_day(
+    timer: bool, attach: Callable[[Any], None] | None = None
+) -> tuple[TracedTun, list[PeriodRecord]]:
+    """`timer_doc`'s day on tests/test_pump_start.py's plant (`attach`: handed the daemon)."""
     tun = TracedTun(hlt(WATTS, REST + LIMIT - 0.2), coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
     result = scenario.run(
-        scenario.parse_scenario(doc), parse(config("sim")), outside_plant=tun, keep_records=True
+        scenario.parse_scenario(timer_doc(timer)),
+        parse(config("sim")),
+        outside_plant=tun,
+        keep_records=True,
+        attach=attach,
     )
     return tun, result.records
 
@@ -252,3 +264,38 @@ def test_program_check_warns_of_a_timer_where_hermsd_switches_no_pump(
     assert "warning" not in capsys.readouterr().out
     said = model.config_warnings(model.parse(TIMED), parse("pump:\n  backend: none\n"))
     assert [line.split(":")[0] for line in said] == ["steps[1].pump_off_every"]
+
+
+def test_the_status_says_when_the_timer_turns_next() -> None:
+    """The status reply's `mash.pump_turn_in`, and the status line's words: 780 s of running
+    left as the rest begins (its first start prepared), 120 s stopped once it stops."""
+    seen: list[tuple[float, bool | None, object]] = []
+
+    class Watch:
+        def __init__(self, daemon: Any) -> None:
+            self.daemon = daemon
+
+        def period(self, record: PeriodRecord) -> None:
+            mash = self.daemon.role_status()["mash"]
+            seen.append((record.t, record.pump, mash["pump_turn_in"]))
+
+        def alarm(self, alarm: object) -> None:
+            pass
+
+    def attach(daemon: Any) -> None:
+        daemon.listeners.append(Watch(daemon))
+
+    doc = timer_doc(True)
+    tun = TracedTun(hlt(WATTS, REST + LIMIT - 0.2), coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
+    scenario.run(
+        scenario.parse_scenario(doc), parse(config("sim")), outside_plant=tun, attach=attach
+    )
+    turns = {t: turn for t, _, turn in seen}
+    assert turns[DOUGH_AT - PERIOD] is None  # the strike's step: no timer
+    assert turns[DOUGH_AT + 100.0] == RUNS - 100.0
+    assert turns[DOUGH_AT + RUNS + 20.0] == STOP - 20.0
+    assert (
+        notify.pump_words(True, {"pump_turn_in": RUNS - 100.0}) == "pump on, off in 11 min (timer)"
+    )
+    assert notify.pump_words(False, {"pump_turn_in": 100.0}) == "pump off, on in 100 s (timer)"
+    assert notify.pump_words(True, {"pump_turn_in": None}) == "pump on"

@@ -579,6 +579,9 @@ class MashSide(LoopState):
             mash["warning"] = NO_FLOW if control.flow.stuck else None
             due = self._pump_start_at
             mash["pump_start_in"] = None if due is None else max(0.0, due - self._now())
+            runner = self.program.runner
+            turn = None if runner is None or not self.pump_fitted else runner.pump_turn_in()
+            mash["pump_turn_in"] = turn
         return status
 
     def _now(self) -> float:

@@ -210,11 +210,17 @@ def mash_side_words(mash: dict[str, object] | None, pump: bool | None, setpoint:
 
 def pump_words(pump: bool, mash: dict[str, object] | None) -> str:
     """'pump on', 'pump off', or 'pump starting in 65 s' while a start is prepared (the
-    status reply's `mash.pump_start_in`)."""
+    status reply's `mash.pump_start_in`); with the program's pump timer, its next turn too:
+    'pump on, off in 4 min (timer)' (`mash.pump_turn_in`)."""
     starting = None if mash is None else mash.get("pump_start_in")
     if not pump and isinstance(starting, int | float):
         return f"pump starting in {starting:.0f} s"
-    return f"pump {'on' if pump else 'off'}"
+    words = f"pump {'on' if pump else 'off'}"
+    turn = None if mash is None else mash.get("pump_turn_in")
+    if isinstance(turn, int | float):
+        when = f"{turn:.0f} s" if turn < 120.0 else f"{turn / 60.0:.0f} min"
+        words += f", {'off' if pump else 'on'} in {when} (timer)"
+    return words
 
 
 def role_words(role: str, reading: dict[str, object]) -> str:
