@@ -387,12 +387,11 @@ class Cascade:
         mash's losses: ΔUA_m = ΔI·K/(T_sp − T_room), so the next rest starts from them.
         Never above the HLT from which a coast carries `mash` (the mash as it is now) to its
         rest (`coast_start`, K one sd high as the coast takes it; `ks`: K and that): heat
-        stored in the HLT cannot be taken back,
-        and a mash that does not follow the coil (a stuck bed, a pump hermsd does not see
-        stopped) would have the PI raise the HLT by degrees that land in the mash past its
-        rest once the wort flows again. The integral stands still at the ceiling, at that
-        bound where it stands above T_hold, and while the mash is starved (`learn` False:
-        `STARVED_FALL`)."""
+        stored in the HLT cannot be taken back, and a mash that does not follow the coil (a
+        stuck bed, a pump hermsd does not see stopped) would have the PI raise the HLT by
+        degrees that land in the mash past its rest once the wort flows again. The integral
+        stands still at the ceiling, at that bound where it stands above T_hold, and while
+        the mash is starved (`learn` False: `STARVED_FALL`)."""
         k, high = ks
         hold = holding_hlt(mash_sp, tanks, k)
         self._settled = self._settled or hlt_pv <= hold + HLT_MARGIN
@@ -422,8 +421,8 @@ class Cascade:
             most = max(MAX_LOSS_FACTOR * self._tanks.mash_loss, 20.0)
             loss = self._mash_loss + integral * k / above_room
             self._mash_loss = min(max(loss, 0.0), most)
-        pi = holding_hlt(mash_sp, dataclasses.replace(tanks, mash_loss=self._mash_loss), k)
-        return min(pi + kp * error, bound)
+        learned = dataclasses.replace(tanks, mash_loss=self._mash_loss)
+        return min(holding_hlt(mash_sp, learned, k) + kp * error, bound)
 
     def _load(
         self,
