@@ -201,8 +201,8 @@ class MashSide(LoopState):
             self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
         ) -> None: ...
 
-    _program_pump_step: tuple[int, int, bool] | None  # the program's step (and timer's turn)
-    # the pump was set for
+    # What the program last set the pump for: its step, the step's timer's turn, on or off.
+    _program_pump_step: tuple[int, int, bool] | None
     # A prepared pump start: when the pump is switched on, why it was asked for, and the HLT's
     # PV when its preparation began.
     _pump_start_at: float | None = None
