@@ -261,13 +261,16 @@ class Cascade:
         pump: bool,
         coil: CoilEstimate,
         flowing: bool = True,
+        paused: bool = False,
     ) -> Decision:
         """One period. `mash_pv` None (a fault) or older than MAX_MASH_AGE (`mash_age`, s):
         the HLT held at its last setpoint. `hlt_pv` is best the HLT law's predicted PV (the
         heat already sent counted). `flowing` False (the pump runs, no wort flows:
         `flow_watch.FlowWatch`): as with the pump stopped, the HLT readied with the heat the
         mash lacks, nothing learned of the mash's losses, no load fed forward; the phase is
-        "no flow"."""
+        "no flow". `paused`: the pump stopped for a while by the program's timer, its restart
+        due: the HLT's setpoint kept where it stood (a stop of a minute or two is no reason
+        to ready the HLT for another mash; the restart, prepared, meets the HLT it left)."""
         stood = pump and not flowing
         pump = pump and flowing
         ceiling = self.ceiling(mash_sp)
@@ -318,6 +321,8 @@ class Cascade:
         self._observe(mash_pv, hlt_pv, pump and not starved, k, high)
         if not pump:
             setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
+            if paused and self._last_sp is not None:
+                setpoint = self._last_sp
             phase = "no flow" if stood else "ready"
         elif self._climbing:
             setpoint, phase = ceiling, "climb"

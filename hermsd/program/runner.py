@@ -168,25 +168,32 @@ class Runner:
         p = self.progress
         return p.phase not in ("scheduled", "pending") and pump_wanted(self.program, p.index)
 
-    def pump_turns(self) -> int:
-        """How often the step's pump timer has switched the pump since the step began (even:
-        it runs); 0 without a timer."""
-        timer = self.step.pump_timer
-        if timer is None or not self._pump_wanted():
-            return 0
-        every, stop = timer
-        cycles, into = divmod(self._step_s, every)
-        return 2 * int(cycles) + (1 if into >= every - stop else 0)
-
-    def pump_turn_in(self) -> float | None:
-        """s until the step's pump timer next switches the pump, if the step lasts (None:
-        no timer, or a step that does not run the pump)."""
+    def _timer(self) -> tuple[float, float, float] | None:
+        """The step's pump timer, (every, running s of each, s into the current cycle);
+        None without one, or on a step that does not run the pump."""
         timer = self.step.pump_timer
         if timer is None or not self._pump_wanted():
             return None
         every, stop = timer
-        into = self._step_s % every
-        return every - stop - into if into < every - stop else every - into
+        return every, every - stop, self._step_s % every
+
+    def pump_turns(self) -> int:
+        """How often the step's pump timer has switched the pump since the step began (even:
+        it runs); 0 without a timer."""
+        timer = self._timer()
+        if timer is None:
+            return 0
+        every, runs, into = timer
+        return 2 * int(self._step_s // every) + (1 if into >= runs else 0)
+
+    def pump_turn_in(self) -> float | None:
+        """s until the step's pump timer next switches the pump, if the step lasts (None:
+        no timer, or a step that does not run the pump)."""
+        timer = self._timer()
+        if timer is None:
+            return None
+        every, runs, into = timer
+        return runs - into if into < runs else every - into
 
     def on_mash(self, mash: MashReading | None) -> bool:
         """Whether the current step is timed on the mash (a sensor fitted, the mash in)."""

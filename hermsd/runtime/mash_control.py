@@ -68,9 +68,8 @@ class MashControl:
         begins. `pump_stop_in`: a stop the program's pump timer makes, due in so many s: the
         load told the law to end then, so the heat sent from a dead time before it is the
         water's alone and the HLT does not rise past its limit as the coil stops drawing.
-        `timer_stop`: the pump stopped by that timer, its restart due: the HLT's setpoint
-        kept where the running pump had it (a stop of a minute or two is no reason to ready
-        the HLT for another mash; the restart, prepared, then meets the HLT it left)."""
+        `timer_stop`: the pump stopped by that timer, its restart due (`Cascade.step`'s
+        `paused`)."""
         known = pump and pump_known
         exchange = self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known)
         coil = self.coil.estimate()
@@ -91,10 +90,8 @@ class MashControl:
             pump=pump,
             coil=coil,
             flowing=not self.flow.stuck,
+            paused=timer_stop,
         )
-        kept = self.decision
-        if timer_stop and kept is not None and decision.held is None and kept.held is None:
-            decision = dataclasses.replace(decision, hlt_setpoint=kept.hlt_setpoint)
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
         elif decision.load_watts > 0.0 and coil.low > 0.0:
