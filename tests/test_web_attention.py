@@ -199,6 +199,21 @@ def test_stepping_down_the_page_says_cooling_and_when_the_rest_starts(
         assert page.text_content("#program-left") == "until in band, or told"
 
 
+def test_a_status_pushed_before_a_commands_reply_does_not_undo_it(
+    browser: Browser, live: Site
+) -> None:
+    with _phone(browser, live) as page, _status_held(page, live, "#program-box") as status:
+        t = float(status["t"])
+        started = _program("heating", 0, "Rest", 64.0, rest_in_s=1800.0)
+        page.evaluate("(status) => render(status, 0)", {**status, "t": t + 10, "program": started})
+        assert page.is_visible("#program-box")
+        _show(page, {**status, "t": t + 5, "program": None})  # read before the start
+        assert page.is_visible("#program-box")
+        assert page.evaluate("window.lastStatus.program.rest_in_s") == 1800.0
+        _show(page, {**status, "t": t + 20, "program": None})  # the program was stopped since
+        assert not page.is_visible("#program-box")
+
+
 def test_a_program_started_on_the_simulator_says_when_its_rest_starts(
     browser: Browser, tmp_path: Path
 ) -> None:

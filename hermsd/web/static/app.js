@@ -26,6 +26,7 @@ let chart = null;
 let source = null;
 let viewing = false;
 let lastPushedT = -Infinity; // of the last status pushed (a command's reply may be newer)
+let shownT = -Infinity; // of the status shown: one pushed before a command's reply is older
 let shownAlarms = []; // the alarms the page shows: what its reset button clears
 let shownWarnings = []; // the warnings the page shows
 let programRuns = false; // whether a program runs (not done): the screen is kept on
@@ -76,6 +77,7 @@ function duration(seconds) {
 // `age`: s the reading was old when it came (a command's reply: 0, just made).
 function render(status, age) {
   reading = { age, at: Date.now() };
+  shownT = status.t;
   window.lastStatus = status;
   document.body.dataset.t = String(status.t);
   $("tun").textContent = status.tun;
@@ -486,13 +488,15 @@ function onEvent(message) {
     source.close();
     viewing = false;
     lastPushedT = -Infinity;
+    shownT = -Infinity;
     loadView();
     return;
   }
   lastPushedT = status.t;
   offset = message.offset;
   addRows(message.rows);
-  render(status, typeof message.age === "number" ? message.age : Infinity);
+  // A status read before a command's reply must not undo what the reply showed.
+  if (status.t >= shownT) render(status, typeof message.age === "number" ? message.age : Infinity);
   chart.setData(columns());
 }
 
