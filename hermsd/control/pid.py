@@ -187,9 +187,18 @@ MAX_DEAD_TIME = 1800.0
 longest the config (`control.dead_time`) and the predictive controller take: its history of
 the outputs still in flight is sized by it once, so a period's work stays bounded."""
 FIT_FROM = 1.0
-FIT_TO = 3.0
-"""°C of rise between which a heat-up's ramp is fitted: past the first bend of the sensor's
-lag, and over enough rise that LSB and noise matter little."""
+"""°C of rise from its lowest where a recovery's ramp is fitted from: past the dip's bend."""
+MOVE_FROM = 0.25
+"""°C of rise (eight sd of a period's mean PV) where a heat-up's PV has begun to move: the
+start its ramp's halves are counted from."""
+FIT_SPAN = 2.0
+"""°C the later half of a heat-up's rise spans at least before it is fitted: as before the
+first bend of a sensor's lag, enough rise that LSB and noise matter little, and low enough
+on the ramp that a loss the model has wrong moves the rate by under 1 %."""
+BEND_TOLERANCE = 0.05
+"""How much faster the last quarter of a heat-up's rise may climb than the third and still be
+called straight (once the two slopes' noise is within it too): a first-order lag's bend is
+then over a lag behind, and the later half reads the rate within 6 % (docs/heat-up-fit.md)."""
 RECOVERY_FIT_SPAN = 1.0
 """°C of rise a recovery's ramp is fitted over: a tenth of the volume of cold water drops the
 PV some 4.5 °C, and the heat in flight on a slow sensor takes up to 2 °C of what is left."""

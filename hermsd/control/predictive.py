@@ -272,8 +272,10 @@ class _Predictive(_Base):
         watch = self._watch
         recovery = self._recovery
         full = applied >= self._hi
-        if not full:
-            watch.active = recovery.active = False  # the step ended before the PV rose enough
+        if not full:  # the step ended before the PV rose enough
+            recovery.active = False
+            if watch.active:
+                self._fit = watch.ended(self._ts, self._rate) or self._fit
         # This period's PV too: cold water that the readings showed within the period (and
         # answered there) has a steady minute before it, but is no step from a steady PV.
         seen = (*recent, pv)

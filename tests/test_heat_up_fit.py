@@ -1,0 +1,90 @@
+"""A heat-up's rate is fitted only where its ramp is straight.
+
+Behind a delay D and a first-order sensor lag τ, the PV's rise under a full-power step is
+R·(u − τ·(1 − e^(−u/τ))) with u = t − D: its slope climbs to R over a few τ. A fast tun
+behind a two-minute thermowell is still in that bend at 1–3 °C of rise, where a line read
+the rate 2.6× low, and limits tightened on that rate called the next day's heat-up a
+shorted SSR. The ramps below are that formula, by hand, read as an LM92 would (each
+period's PV the mean of five readings, each rounded to its LSB): no code under test makes
+them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from hermsd.control import pid
+from hermsd.control.watches import HeatUpFit, _HeatUpWatch
+
+TS = 5.0
+PV0 = 20.0
+
+
+def rise(t: float, rate: float, delay: float, lag: float) -> float:
+    """°C above PV0 at t s after the step, the sensor's lag on the delayed ramp."""
+    u = t - delay
+    if u <= 0.0:
+        return 0.0
+    return rate * (u - lag * (1.0 - math.exp(-u / lag))) if lag > 0.0 else rate * u
+
+
+def period_pv(k: int, rate: float, delay: float, lag: float) -> float:
+    """The PV period k (from 1) reports: its five readings' mean, each on the LSB."""
+    reads = (rise((k - 1 + (j + 0.5) / 5) * TS, rate, delay, lag) for j in range(5))
+    lsb = pid.SENSOR_LSB
+    return sum(round((PV0 + r) / lsb) * lsb for r in reads) / 5
+
+
+def watch_until(
+    rate: float, delay: float, lag: float, top: float
+) -> tuple[HeatUpFit | None, float]:
+    """The watch fed full-power periods until it fits or the PV has risen `top` °C (the
+    step ends there: its `ended`); with the rise the PV had reached."""
+    watch = _HeatUpWatch()
+    watch.arm(PV0, 100.0)
+    k = 0
+    while True:
+        k += 1
+        pv = period_pv(k, rate, delay, lag)
+        if pv - PV0 > top:
+            return watch.ended(TS, rate), pv - PV0
+        fit = watch.add(pv, TS, 0.0, rate)
+        if fit is not None:
+            return fit, pv - PV0
+
+
+def test_a_ramp_without_lag_is_fitted_early_on_its_rate_and_delay() -> None:
+    rate, delay = 0.01, 120.0
+    fit, risen = watch_until(rate, delay, 0.0, 40.0)
+    assert fit is not None and fit.refused is None
+    assert fit.rate == pytest.approx(rate, rel=0.01)
+    # A period's PV is its mean, half a period old: the crossing reads half a period short.
+    assert fit.dead_time == pytest.approx(delay - TS / 2, abs=3.0)
+    assert risen < 2.5 * pid.FIT_SPAN  # the later half's span, and the bit before it
+
+
+@pytest.mark.parametrize("lag", [30.0, 60.0, 120.0])
+def test_behind_a_lag_the_fit_waits_for_the_straight_ramp(lag: float) -> None:
+    # 5.5 kW into 30 L: 0.044 °C/s. Inside the bend a line read as little as 0.4 of it.
+    rate, delay = 0.044, 40.0
+    fit, risen = watch_until(rate, delay, lag, 40.0)
+    assert fit is not None and fit.refused is None
+    # The later half lies past a lag of the bend: its slope within 6 % of the rate, and
+    # the LSB's staircase lets a quarter look 2 % straighter than it is.
+    assert 0.92 * rate <= fit.rate <= 1.01 * rate
+    assert fit.dead_time == pytest.approx(delay + lag - TS / 2, abs=0.25 * lag + TS)
+    assert risen > rate * 2.0 * lag  # not before two lags of the ramp had risen
+
+
+def test_a_step_that_ends_inside_the_bend_measures_nothing_and_says_why() -> None:
+    # 0.14 °C/s behind 150 s: the bend takes some 50 °C; the step ends at 30 °C of rise.
+    fit, _ = watch_until(0.14, 60.0, 150.0, 30.0)
+    assert fit is not None and fit.refused is not None
+    assert "still bent" in fit.refused
+
+
+def test_a_short_step_that_never_tested_its_bend_says_nothing() -> None:
+    fit, _ = watch_until(0.01, 60.0, 0.0, 2.0)
+    assert fit is None
