@@ -22,6 +22,7 @@ SWITCH = f"homeassistant/switch/{NODE}/pump/config"
 MASH = f"homeassistant/sensor/{NODE}/mash/config"
 HLT_SETPOINT = f"homeassistant/sensor/{NODE}/hlt_setpoint/config"
 PHASE = f"homeassistant/sensor/{NODE}/mash_phase/config"
+TIMER = f"homeassistant/sensor/{NODE}/pump_turn_in/config"
 CLIMATE = f"homeassistant/climate/{NODE}/tun/config"
 OUTER_LOOP_PHASES = ("climb", "coast", "hold", "ready", "held")  # control/cascade.py
 NO_PUMP = (
@@ -39,8 +40,9 @@ def herms(tmp_path: Path) -> Iterator[Rig]:
 def test_a_herms_announces_a_mash_temperature_sensor_and_a_pump_switch(herms: Rig) -> None:
     entities = discovered(herms.watcher)
     state = herms.step().json()
-    assert len(entities) == ENTITIES + 4  # the HLT's, the mash's three sensors, the pump's
-    for topic in (MASH, HLT_SETPOINT, PHASE, SWITCH):
+    # the HLT's, the mash's three sensors, the pump's switch and its timer's next turn
+    assert len(entities) == ENTITIES + 5
+    for topic in (MASH, HLT_SETPOINT, PHASE, SWITCH, TIMER):
         entity = entities[topic]
         object_id = topic.split("/")[3]
         assert entity["unique_id"] == f"hermsd_{NODE}_{object_id}"
@@ -101,11 +103,11 @@ def test_without_a_pump_the_switch_command_is_refused_and_nothing_reaches_the_da
 ) -> None:
     with Rig(tmp_path) as hlt_only:
         entities = discovered(hlt_only.watcher)
-        assert not {SWITCH, MASH, HLT_SETPOINT, PHASE} & set(entities)
+        assert not {SWITCH, MASH, HLT_SETPOINT, PHASE, TIMER} & set(entities)
         assert entities[CLIMATE]["current_temperature_template"] == "{{ value_json.pv }}"
         # sent empty: an entity a HERMS config announced earlier is removed
         emptied = {m.topic for m in hlt_only.watcher.messages if m.payload == b""}
-        assert {SWITCH, MASH, HLT_SETPOINT, PHASE} <= emptied
+        assert {SWITCH, MASH, HLT_SETPOINT, PHASE, TIMER} <= emptied
         mark = len(hlt_only.watcher.messages)
         hlt_only.command(hlt_only.topics.set_pump, b"ON")
         error = hlt_only.watcher.wait_for(lambda m: m.topic == hlt_only.topics.error, mark).json()
@@ -124,7 +126,7 @@ def test_each_part_of_the_mash_side_is_announced_on_its_own() -> None:
         for name, text in (("none", BASE), ("sensor", sensor_only), ("pump", pump_only))
     }
     assert announced["sensor"] - announced["none"] == {MASH, HLT_SETPOINT, PHASE}
-    assert announced["pump"] - announced["none"] == {SWITCH}
+    assert announced["pump"] - announced["none"] == {SWITCH, TIMER}
 
 
 def test_the_outer_loops_choice_is_published_and_the_thermostat_holds_the_mash(
@@ -170,3 +172,20 @@ def test_a_prepared_pump_start_is_published_with_the_pump_asked_on(herms: Rig) -
     assert state_message(status)["pump_start_in"] is None  # no start being prepared
     starting = {**status, "pump": False, "mash": {**mash, "pump_start_in": 42.4}}
     assert state_message(starting)["pump_start_in"] == 42.4
+
+
+def test_the_pump_timers_next_turn_is_published_as_a_duration(herms: Rig) -> None:
+    """A program's `pump_off_every` turns the pump by itself: the state carries when it next
+    does (`pump_turn_in`, s; null while no timer runs), a duration sensor shows it."""
+    timer = discovered(herms.watcher)[TIMER]
+    assert (timer["name"], timer["value_template"]) == (
+        "Pump timer: next turn in",
+        "{{ value_json.pump_turn_in }}",
+    )
+    assert (timer["device_class"], timer["unit_of_measurement"]) == ("duration", "s")
+    status = herms.status()
+    mash = status["mash"]
+    assert isinstance(mash, dict)
+    assert state_message(status)["pump_turn_in"] is None  # no program: no timer
+    turning = {**status, "pump": True, "mash": {**mash, "pump_turn_in": 240.0}}
+    assert state_message(turning)["pump_turn_in"] == 240.0

@@ -606,6 +606,21 @@ def test_a_prepared_pump_start_is_shown_starting_and_its_button_cancels_it(
         assert sent.value.post_data_json == {"cmd": "set", "pump": False}
 
 
+def test_the_pump_timers_next_turn_is_shown_beside_the_pump(herms_page: Page, herms: Site) -> None:
+    """A program's pump timer (`mash.pump_turn_in`, s) is said as the status line says it."""
+    with _status_held(herms_page, herms, "#alarm-box") as status:
+        mash = status["mash"]
+        assert isinstance(mash, dict)
+        for pump, turn_in, shown in (
+            (True, 240.0, "on, off in 4 min (timer)"),
+            (False, 75.4, "off, on in 75 s (timer)"),
+            (True, None, "on"),
+        ):
+            timed = {**status, "pump": pump, "mash": {**mash, "pump_turn_in": turn_in}}
+            herms_page.evaluate("(status) => onEvent({status, rows: [], offset: 0, age: 0})", timed)
+            assert herms_page.text_content("#pump") == shown
+
+
 def test_a_faulty_mash_sensor_is_said_where_its_reading_was(herms_page: Page, herms: Site) -> None:
     with _status_held(herms_page, herms, "#alarm-box") as status:
         why = "no answer from the LM92 at 0x49"

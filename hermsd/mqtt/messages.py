@@ -145,6 +145,7 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "mash_phase": mash.get("phase") or "none",
         "pump": status.get("pump"),
         "pump_start_in": mash.get("pump_start_in"),
+        "pump_turn_in": mash.get("pump_turn_in"),
         **brewday.state_fields(program or None),
     }
 
@@ -168,7 +169,8 @@ def discovery_messages(
     """(topic, payload) of each entity Home Assistant should make for this tun: a climate
     entity, sensors (the second element's duty when it is fitted; with a mash sensor the
     mash's temperature, the HLT's setpoint the outer loop chose and its phase), the pump's
-    switch when one is fitted (a binary sensor when hermsd only sees it: `pump.sense`), and
+    switch and its timer's next turn when one is fitted (a binary sensor when hermsd only
+    sees it: `pump.sense`), and
     binary sensors on while an alarm stands and while a warning does (the log or a save
     failing), and the brew day's
     (hermsd/mqtt/brewday.py; `programs`: the program folder's files). A payload of None is
@@ -262,6 +264,19 @@ def discovery_messages(
         if config.pump.backend != "none"
         else None,
     )
+    # The program's pump timer (`pump_off_every`): s until it next turns the pump.
+    pump_timer = (
+        sensor(
+            "pump_turn_in",
+            "Pump timer: next turn in",
+            "pump_turn_in",
+            device_class="duration",
+            unit_of_measurement="s",
+            suggested_display_precision=0,
+        )
+        if config.pump.backend != "none"
+        else (topics.discovery("sensor", "pump_turn_in"), None)
+    )
     # A pump hermsd does not switch but sees (pump.sense): its state, read-only.
     pump_seen = (
         topics.discovery("binary_sensor", "pump_seen"),
@@ -310,6 +325,7 @@ def discovery_messages(
         element2,
         *mash_side,
         pump,
+        pump_timer,
         sensor("mode", "Mode", "mode_text"),
         sensor("state", "State", "state"),
         sensor("step", "Program step", "step_text"),

@@ -169,8 +169,13 @@ function renderMashSide(mash, pump, switched) {
   shownPump = typeof pump === "boolean" ? pump || starting : null;
   $("pump-box").hidden = shownPump === null;
   $("pump-row").hidden = shownPump === null || switched === false; // seen, not switched
+  // The program's pump timer: when it next turns the pump (as the status line says it).
+  const turnIn = mash && typeof mash.pump_turn_in === "number" ? mash.pump_turn_in : null;
+  const timer = turnIn === null ? ""
+    : `, ${shownPump ? "off" : "on"} in ${turnIn < 120 ? `${turnIn.toFixed(0)} s`
+      : `${(turnIn / 60).toFixed(0)} min`} (timer)`;
   $("pump").textContent = starting ? `starting in ${startIn.toFixed(0)} s`
-    : shownPump ? "on" : "off";
+    : `${shownPump ? "on" : "off"}${timer}`;
   $("pump-button").textContent = shownPump ? "Stop pump" : "Start pump";
 }
 
