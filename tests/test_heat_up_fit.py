@@ -88,3 +88,24 @@ def test_a_step_that_ends_inside_the_bend_measures_nothing_and_says_why() -> Non
 def test_a_short_step_that_never_tested_its_bend_says_nothing() -> None:
     fit, _ = watch_until(0.01, 60.0, 0.0, 2.0)
     assert fit is None
+
+
+@pytest.mark.parametrize(("rate", "lag"), [(0.01, 0.0), (0.044, 60.0), (0.127, 126.0)])
+def test_before_the_fit_the_ramp_proves_a_rate_and_dead_time_never_above_the_true(
+    rate: float, lag: float
+) -> None:
+    # The controller raises its model to these at once (a config's 115 s behind a 350 s
+    # delay and lag overshot 27 °C): they must bound the tun from below all the way.
+    delay = 224.0
+    watch = _HeatUpWatch()
+    watch.arm(PV0, 100.0)
+    seen: list[tuple[float, float]] = []
+    for k in range(1, 400):
+        pv = period_pv(k, rate, delay, lag)
+        if pv - PV0 > 40.0 or watch.add(pv, TS, 0.0, rate) is not None:
+            break
+        if watch.least is not None:
+            seen.append(watch.least)
+    assert seen  # it said something before the fit, or before the step's end
+    assert all(r <= rate and d <= delay + lag for r, d in seen)
+    assert seen[-1][1] > 0.5 * (delay + lag)  # and climbs towards them

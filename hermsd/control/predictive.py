@@ -303,6 +303,7 @@ class _Predictive(_Base):
             return
         fit = watch.add(pv, self._ts, self._loss, self._rate)
         if fit is None:
+            self._at_least(watch.least)
             return
         self._fit = fit
         if fit.refused is None:
@@ -310,6 +311,20 @@ class _Predictive(_Base):
             # heat capacity scales rate and loss rate alike, so the gain (°C/%) stays.
             self._loss *= fit.rate / self._rate
             self._use(fit.rate, fit.dead_time)
+
+    def _at_least(self, least: tuple[float, float] | None) -> None:
+        """Before its fit, a heat-up's ramp already proves a rate and a dead time at least
+        (`_HeatUpWatch.least`): a model below them (a config's dead time on a slow sensor, its
+        litres on a half fill) would leave full power on while a whole dead time's heat is
+        still in flight, so it is raised to them at once."""
+        if least is None:
+            return
+        rate = max(self._rate, least[0])
+        dead_time = min(max(self._dead_time, least[1]), MAX_DEAD_TIME)
+        if rate == self._rate and dead_time == self._dead_time:
+            return
+        self._loss *= rate / self._rate  # as for a fit: a faster rise is less water
+        self._use(rate, dead_time)
 
 
 def full_power_now(

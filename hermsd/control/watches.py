@@ -130,7 +130,7 @@ class _HeatUpWatch(_RampWatch):
     D + τs, which is what a predictor wants for a ramp. A step that ends before is `ended`.
     """
 
-    __slots__ = ("_bent", "_du", "_moved_at", "_pv0", "_rise", "_top")
+    __slots__ = ("_bent", "_du", "_moved_at", "_pv0", "_rise", "_top", "least")
 
     def __init__(self) -> None:
         super().__init__()
@@ -138,6 +138,8 @@ class _HeatUpWatch(_RampWatch):
         self._bent = False  # the last look found the later half still bending
         self._moved_at: float | None = None
         self._rise = _Rise()
+        # (rate, dead time) the ramp so far shows at least, before any fit (`_least`).
+        self.least: tuple[float, float] | None = None
 
     def arm(self, pv0: float, step: float) -> None:
         self._start()
@@ -145,6 +147,7 @@ class _HeatUpWatch(_RampWatch):
         self._bent = False
         self._moved_at = None
         self._rise = _Rise()
+        self.least = None
 
     def add(self, pv: float, ts: float, loss: float, model_rate: float) -> HeatUpFit | None:
         """One more full-power period; the fit once the ramp is straight."""
@@ -160,6 +163,7 @@ class _HeatUpWatch(_RampWatch):
         ramp = self._rise
         half = 0.5 * (t - self._moved_at)
         later = ramp.line(t - half, t)
+        self.least = self._least(later)
         third, fourth = ramp.line(t - half, t - 0.5 * half), ramp.line(t - 0.5 * half, t)
         slope, third_slope, fourth_slope = later.slope(), third.slope(), fourth.slope()
         sds = (third.slope_sd(LSB_SD), fourth.slope_sd(LSB_SD))
@@ -184,6 +188,25 @@ class _HeatUpWatch(_RampWatch):
             later = ramp.line(self._moved_at - ts, t)
             slope = later.slope() or slope
         return self._fit(later, slope, loss, model_rate, self._n * ts)
+
+    def _least(self, later: LineFit) -> tuple[float, float] | None:
+        """What the later half's line proves of the tun however it bends: its slope less two
+        standard errors (°C/s at 100 %) and where it crosses pv0 less two of that (s). In a
+        lag's bend both climb towards the rate and D + τs from below (docs/heat-up-fit.md)."""
+        slope, sd = later.slope(), later.slope_sd(LSB_SD)
+        if slope is None or sd is None or later.n < 2 * QUARTER_PERIODS or slope <= 2.0 * sd:
+            return None
+        n = later.n
+        mean_t, mean_rise = later.st / n, later.sx / n
+        crossing = mean_t - mean_rise / slope
+        scatter = max(
+            later.sxx / n
+            - mean_rise * mean_rise
+            - slope * slope * (later.stt / n - mean_t * mean_t),
+            LSB_SD * LSB_SD,
+        )
+        crossing_sd = math.hypot(math.sqrt(scatter / n) / slope, (mean_t - crossing) * sd / slope)
+        return (slope - 2.0 * sd) * 100.0 / self._du, crossing - 2.0 * crossing_sd
 
     def ended(self, ts: float, model_rate: float) -> HeatUpFit | None:
         """Full power ended before a fit: why no rate was taken where the ramp had risen far
