@@ -100,6 +100,18 @@ def test_a_cold_start_is_full_power() -> None:
     assert controller.step(SP, 20.0) == 100.0
 
 
+def test_a_cold_start_is_full_power_behind_a_long_dead_time_too() -> None:
+    # 10.6 kW into 20 L behind 320 s (a learned model): a bias of 94 % of the element's rate
+    # "explains" the 40 °C below the setpoint as heat in flight, and a start that took it to
+    # be bumpless at 0 % never heated at all.
+    rate, dead_time = 0.132, 320.0
+    tau = 12000.0
+    fast = pid.PlantModel(rate * tau / 100.0, tau, dead_time, 20.0)
+    controller = predictive(fast)
+    controller.reset(26.0, 0.0)
+    assert controller.step(SP, 26.0) == 100.0
+
+
 def test_heat_up_on_the_true_model_is_time_optimal_without_overshoot() -> None:
     tun = Tun(SEED.gain, SEED.tau, SEED.dead_time, ROOM)
     trace = run(predictive(), tun, 3 * 3600.0)

@@ -193,8 +193,8 @@ class _Predictive(_Base):
     def _prime(self, sp: float, pv0: float) -> None:
         # As if PV had stood at pv0 with the output at u0 for a dead time. The output is
         # affine in the bias: the bias that makes the first step give u0 (bumpless) is taken
-        # when it is physical (no more than the element's whole rate); a cold start far below
-        # the setpoint would need far more, and there the model is trusted (no bias).
+        # when it is physical (no more than the element's whole rate) and the PV holds; a
+        # cold start far below the setpoint is the model's to judge (no bias).
         u0 = self._output
         inputs = self._inputs
         inputs.clear()
@@ -216,7 +216,11 @@ class _Predictive(_Base):
             self._bias = bias + probe
             slope = (u0 - self._law(sp) - miss) / -probe
             bias += miss / slope
-        self._bias = bias if abs(bias) <= self._rate else 0.0
+        # Only within the hold's band: far from the setpoint the law is time-optimal and
+        # has nothing to smooth, and behind a long dead time a bias under the element's
+        # whole rate could "explain" a cold tun as heat in flight (and never heat it).
+        bumpless = abs(bias) <= self._rate and abs(sp - pv0) <= FAR_BAND
+        self._bias = bias if bumpless else 0.0
         # The first step's model prediction lands on pv0: no innovation from the start itself.
         self._load_past = self._load_over(0.0, self._ts)
         self._estimate = pv0 - self._drift(pv0, u0 - self._load)
