@@ -195,6 +195,21 @@ FIT_SPAN = 2.0
 """°C the later half of a heat-up's rise spans at least before it is fitted: as before the
 first bend of a sensor's lag, enough rise that LSB and noise matter little, and low enough
 on the ramp that a loss the model has wrong moves the rate by under 1 %."""
+PULSE_RATE_MARGIN = 2.2
+"""How much faster than its model a tun may heat on the day: half the configured water
+(`FILL_RANGE`) on mains 10 % high. Full power that could have taken even such water to the
+setpoint is all a heat-up the model cannot yet vouch for gets (`PULSE_MARGIN` short)."""
+PULSE_MARGIN = 0.5
+"""°C below the setpoint the most the water can have reached ends a measured pulse."""
+PULSE_LEAST_STEP = 10.0
+"""°C: a heat-up shorter than this is not cut to measure (a program's step; the day's first
+heat-up measured the tun)."""
+PULSE_ROOM_SPAN = 30.0
+"""K below the model's room the most a pulse's settled fall may place the room (a garage in
+winter against a model's 20 °C; a lag's tail still rising reads the room high, not low)."""
+PULSE_SETTLE_S = 60.0
+"""s (or a third of the wait, if longer) the PV must have gained under 2 LSB for a pulse's
+heat to count as all arrived."""
 BEND_TOLERANCE = 0.05
 """How much faster the last quarter of a heat-up's rise may climb than the third and still be
 called straight (once the two slopes' noise is within it too): a first-order lag's bend is

@@ -22,6 +22,9 @@ from hermsd.control.pid import (
     OBSERVER_BIAS_S,
     OBSERVER_TRACK_S,
     PREDICTED_LOOP_FACTOR,
+    PULSE_LEAST_STEP,
+    PULSE_MARGIN,
+    PULSE_RATE_MARGIN,
     STEADY_BAND,
     STEADY_DUTY_SHARE,
     STEADY_SPAN_S,
@@ -31,7 +34,13 @@ from hermsd.control.pid import (
     PlantModel,
     _Base,
 )
-from hermsd.control.watches import HeatUpFit, _HeatUpWatch, _RecoveryWatch
+from hermsd.control.watches import (
+    HEAT_SHOWS_S,
+    HeatUpFit,
+    _HeatUpWatch,
+    _PulseWatch,
+    _RecoveryWatch,
+)
 
 
 class _Predictive(_Base):
@@ -39,6 +48,7 @@ class _Predictive(_Base):
 
     __slots__ = (
         "_ambient",
+        "_arm_rate",
         "_bias",
         "_carried",
         "_cold_water",
@@ -62,6 +72,9 @@ class _Predictive(_Base):
         "_load_past",
         "_load_until",
         "_loss",
+        "_pulse",
+        "_pulse_sp",
+        "_pulsed",
         "_rate",
         "_recent",
         "_recovery",
@@ -91,6 +104,12 @@ class _Predictive(_Base):
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
         self._watch = _HeatUpWatch()
         self._recovery = _RecoveryWatch()
+        # A heat-up cut short to measure the tun, while its heat arrives (`_pulse_due`), and
+        # the model's rate when that heat-up began.
+        self._pulse: _PulseWatch | None = None
+        self._pulse_sp = 0.0
+        self._pulsed = False
+        self._arm_rate = 0.0
         # Whether the next step's change of power is the loop's own (`loops_own_step`).
         self._step_is_loops = False
         # Whether the readings of the period the next step closes showed cold water
@@ -202,6 +221,7 @@ class _Predictive(_Base):
         self._recent.clear()
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
         self._watch.active = self._recovery.active = False
+        self._pulse = None
         self._carried = False
         self._estimate = self._fpv = pv0
         # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
@@ -229,6 +249,7 @@ class _Predictive(_Base):
         fell = self._recent[-1] - pv  # since the last period's PV
         inputs = self._inputs
         inputs.append(previous)
+        self._follow_pulse(sp, pv)
         self._watch_heat_up(sp, pv, previous, inputs[-2])
         # The load of the period just ended is the model's, not an error for the bias to learn.
         past, self._load_past = self._load_past, self._load_over(0.0, self._ts)
@@ -255,6 +276,8 @@ class _Predictive(_Base):
         self._carried = (cold or self._carried) and pv < sp and fell > self._ts * self._rate
         if self._carried:
             p = max(p, self._kc_far * fell)
+        if self._pulse is not None:  # the pulse's heat, then none until it has all arrived
+            p, d = self._lo + (self._hi - self._lo) * self._pulse.duty(self._ts) - i, 0.0
         self._terms = (p, i, d)
         return p + i + d
 
@@ -285,13 +308,15 @@ class _Predictive(_Base):
         seen = (*recent, pv)
         steady = max(seen) - min(seen) <= STEADY_BAND
         loops, self._step_is_loops = self._step_is_loops, False
-        # Under a known load (a coil drawing) the rise is not the element's alone: no fit.
-        loops = loops or bool(self._load)
+        # Under a known load (a coil drawing) the rise is not the element's alone, and a
+        # pulse measures itself: no fit.
+        loops = loops or bool(self._load) or self._pulse is not None
         if full and not (watch.active or recovery.active) and before < self._hi and not loops:
             if steady:
                 # A duty that climbed to full power (a ramp) is no step of a known size.
                 if self._duty_was_steady(applied - before):
                     watch.arm(recent[-1], applied - before)
+                    self._arm_rate = self._rate
             else:
                 hold = self._holding(sp)
                 if self._lo <= hold <= MAX_RECOVERY_HOLD:
@@ -308,6 +333,13 @@ class _Predictive(_Base):
         fit = watch.add(pv, self._ts, self._loss, self._rate)
         if fit is None:
             self._at_least(watch.least)
+            if self._pulse_due(sp, watch):
+                pv0, du, on_s, integral = watch.reach(self._ts)
+                watch.active = False
+                self._pulse = _PulseWatch(pv0, du, on_s, on_s, integral)
+                self._pulse.expect(self._arm_rate)
+                self._pulse_sp = sp
+                self._pulsed = True  # once a run: a refused one is not tried again
             return
         self._fit = fit
         if fit.refused is None:
@@ -315,6 +347,61 @@ class _Predictive(_Base):
             # heat capacity scales rate and loss rate alike, so the gain (°C/%) stays.
             self._loss *= fit.rate / self._rate
             self._use(fit.rate, fit.dead_time)
+
+    def _pulse_due(self, sp: float, watch: _HeatUpWatch) -> bool:
+        """Whether this heat-up's full power must end now, unmeasured: nothing measured the
+        tun yet this run, the heat-up is long and from the heat off, and the water may
+        already hold all the heat that even the fastest tun the model may be
+        (`PULSE_RATE_MARGIN` × its rate) needs to come within `PULSE_MARGIN` of `sp`. Behind
+        a slow sensor a fast tun's ramp does not straighten before then, and what is in
+        flight is the rate × (delay + lag): tens of degrees, on a rate the config knows only
+        to ×½–×2. Cut there, the water cannot pass the setpoint, and once the heat has all
+        arrived it measures the tun (`_PulseWatch`, docs/heat-up-fit.md)."""
+        if self._pulsed or (self._fit is not None and self._fit.refused is None):
+            return False
+        pv0, du, on_s, _ = watch.reach(self._ts)
+        if du < self._hi - self._lo or sp - pv0 < PULSE_LEAST_STEP:
+            return False
+        if not watch.moved and on_s > HEAT_SHOWS_S:
+            return False  # no heat shows at all: the supervisor's to judge, not a pulse's
+        most = pv0 + PULSE_RATE_MARGIN * self._arm_rate * du / 100.0 * on_s
+        return most >= sp - PULSE_MARGIN
+
+    def _follow_pulse(self, sp: float, pv: float) -> None:
+        """A pulse's PV this period. Once its heat has all arrived, the tun as it measured it
+        is taken as a heat-up's fit is, and where the water is still far below `sp`, a
+        second pulse is planned that delivers what is missing to within LINEAR_BAND of it
+        by that rate (a rate measured so is good to a percent or two; a law on a model of
+        pure delay misplaces the heat a slow sensor spreads out); then the law resumes."""
+        pulse = self._pulse
+        if pulse is None:
+            return
+        if sp != self._pulse_sp:
+            pulse.stop()  # a pulse planned for another setpoint: what ran still measures
+        fit = pulse.add(pv, self._ts, self._loss, self._ambient, self._arm_rate)
+        if fit is None:
+            return
+        self._pulse = None
+        first = self._fit is None or self._fit.refused is not None
+        self._fit = fit
+        if fit.refused is not None:
+            return
+        self._loss *= fit.rate / self._rate  # as for a heat-up's fit: the fill
+        if pulse.room is not None:
+            self._ambient = pulse.room
+        self._use(fit.rate, fit.dead_time)
+        missing = sp - LINEAR_BAND - pv
+        if not first or missing <= FAR_BAND:
+            return
+        # The water loses on the way up as much as at its middle for the pulse and its
+        # arrival (the dead time twice over, as the first pulse took to settle).
+        middle = pv + 0.5 * missing - self._ambient
+        span = missing / self._rate * 100.0 / (self._hi - self._lo) + 2.0 * fit.dead_time
+        missing += self._loss * middle * span
+        on_s = missing / (self._rate * (self._hi - self._lo) / 100.0)
+        self._pulse = _PulseWatch(pv, self._hi - self._lo, on_s, 0.0, 0.0)
+        self._pulse.expect(self._rate)
+        self._arm_rate = self._rate
 
     def _at_least(self, least: tuple[float, float] | None) -> None:
         """Before its fit, a heat-up's ramp already proves a rate and a dead time at least
@@ -354,6 +441,8 @@ def full_power_now(
     left it."""
     if not (isinstance(controller, _Predictive) and controller._primed):
         return False
+    if controller._pulse is not None:
+        return False  # the heat stays off while a pulse's arrives (water ends the pulse)
     if len(readings) < DROP_READINGS:
         return False
     before, latest = readings[-DROP_READINGS], readings[-1]

@@ -13,11 +13,15 @@ from hermsd.control.pid import (
     FIT_SPAN,
     MAX_DEAD_TIME,
     MOVE_FROM,
+    PULSE_ROOM_SPAN,
+    PULSE_SETTLE_S,
     RATE_BAND,
     RECOVERY_FIT_PERIODS,
     RECOVERY_FIT_SPAN,
     SENSOR_LSB,
+    STEADY_BAND,
 )
+from hermsd.safety.limits import DEAD_TIME_MAX, SENSOR_LAG_MAX
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,6 +88,8 @@ class _RampWatch:
         self._line = LineFit()
 
 
+HEAT_SHOWS_S = DEAD_TIME_MAX + SENSOR_LAG_MAX
+"""s within which full power's heat shows at the sensor on any tun the limits allow for."""
 LSB_SD = SENSOR_LSB / math.sqrt(12.0)
 """°C: the sd of rounding to an LSB, the least scatter a period's PV is taken to have."""
 QUARTER_PERIODS = 6
@@ -105,6 +111,10 @@ class _Rise:
         st, sx, stt, stx, sxx = self._sums[-1]
         self._times.append(t)
         self._sums.append((st + t, sx + rise, stt + t * t, stx + t * rise, sxx + rise * rise))
+
+    def integral(self, ts: float) -> float:
+        """°C·s: the rise summed over its periods (each `ts` long)."""
+        return self._sums[-1][1] * ts
 
     def line(self, after: float, until: float) -> LineFit:
         """The line over the points with after < t ≤ until."""
@@ -208,6 +218,16 @@ class _HeatUpWatch(_RampWatch):
         crossing_sd = math.hypot(math.sqrt(scatter / n) / slope, (mean_t - crossing) * sd / slope)
         return (slope - 2.0 * sd) * 100.0 / self._du, crossing - 2.0 * crossing_sd
 
+    @property
+    def moved(self) -> bool:
+        """Whether the PV has begun to rise (MOVE_FROM)."""
+        return self._moved_at is not None
+
+    def reach(self, ts: float) -> tuple[float, float, float, float]:
+        """(pv0, the step's size in %, s it has run, the rise summed over its periods in
+        °C·s): what a pulse cut here starts from (`_PulseWatch`)."""
+        return self._pv0, self._du, self._n * ts, self._rise.integral(ts)
+
     def ended(self, ts: float, model_rate: float) -> HeatUpFit | None:
         """Full power ended before a fit: why no rate was taken where the ramp had risen far
         enough and was still bending (else None: too short a step to judge)."""
@@ -238,6 +258,105 @@ class _HeatUpWatch(_RampWatch):
             why = f"dead time {crossing:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
             return HeatUpFit(rate, crossing, why, span)
         return HeatUpFit(rate, crossing, None, span)
+
+
+class _PulseWatch:
+    """A measured pulse of full power: it ran (or will run) `on_s` from a steady `pv0` with
+    nothing on before, then the heat stays off and the PV is followed until it settles.
+    The heat delivered is then all at the sensor: the rise (the model's loss added back)
+    over `on_s` is the rate, and the mean time of the rise's arrival, less `on_s`/2, the
+    dead time (delay and lag alike: docs/heat-up-fit.md). `elapsed`: s of it already run
+    (a heat-up cut short), with `integral` the rise summed over them (°C·s)."""
+
+    __slots__ = (
+        "_after",
+        "_du",
+        "_integral",
+        "_last",
+        "_least_rise",
+        "_mark",
+        "_marked_at",
+        "_on",
+        "_pv0",
+        "_t",
+        "room",
+    )
+
+    def __init__(self, pv0: float, du: float, on_s: float, elapsed: float, integral: float) -> None:
+        self._pv0, self._du, self._on = pv0, du, on_s
+        self._t, self._integral = elapsed, integral
+        # The least any tun the model may be rises on it: twice the water, mains 10 % low.
+        self._least_rise = 0.0
+        self._mark, self._marked_at = pv0, on_s
+        self._last = -math.inf
+        self._after = _Rise()  # the PV once the heat is off: its last stretch's slope
+        # °C: the room the settled PV's fall showed (None: not measured), once it settled.
+        self.room: float | None = None
+
+    def expect(self, rate: float) -> None:
+        """The model's rate (°C/s at 100 %): the PV must have risen a quarter of what it
+        says the pulse gives before it may count as settled."""
+        self._least_rise = 0.25 * rate * self._du / 100.0 * self._on
+
+    def duty(self, ts: float) -> float:
+        """The share of the next period the pulse's heat is on."""
+        return min(max((self._on - self._t) / ts, 0.0), 1.0)
+
+    def stop(self) -> None:
+        """The heat ends now (the setpoint moved): the pulse is what ran."""
+        self._on = min(self._on, self._t)
+        self._marked_at = min(self._marked_at, self._on)
+
+    def add(
+        self, pv: float, ts: float, loss: float, ambient: float, model_rate: float
+    ) -> HeatUpFit | None:
+        """One more period of the pulse; the measurement once the PV has settled after it
+        (or, past MAX_DEAD_TIME, why there is none)."""
+        self._t += ts
+        t, rise = self._t - 0.5 * ts, pv - self._pv0
+        fell, self._last = self._last - pv, pv
+        if fell > STEADY_BAND:
+            why = f"the PV fell {fell:.2f} °C in a period while the pulse's heat arrived"
+            return HeatUpFit(model_rate, 0.0, why, self._t)
+        self._integral += rise * ts
+        if t > self._on:
+            self._after.add(t, pv)
+        if pv > self._mark + 2.0 * SENSOR_LSB:
+            self._mark, self._marked_at = pv, t
+        waited = t - self._on
+        if t > HEAT_SHOWS_S and self._mark - self._pv0 < MOVE_FROM:
+            why = f"the PV did not rise in {t:.0f} s after the pulse began: no heat showed"
+            return HeatUpFit(model_rate, 0.0, why, self._t)
+        if waited <= 0.0:
+            return None
+        if waited > MAX_DEAD_TIME:
+            why = f"the PV had not settled {waited:.0f} s after full power was cut"
+            return HeatUpFit(model_rate, 0.0, why, self._t)
+        if self._mark - self._pv0 < self._least_rise or rise <= 0.0:
+            return None
+        # The rise's arrival: ∫t·dr = t·r − ∫r dt, its mean t − ∫r dt / r; less the pulse's
+        # own middle, the delay and the lag. A lag's tail still to come climbs at its slope
+        # times the lag: under 2 LSB once 2 LSB took longer than delay and lag together.
+        dead_time = t - self._integral / rise - 0.5 * self._on
+        if t - self._marked_at < max(PULSE_SETTLE_S, dead_time):
+            return None
+        # All the pulse's heat has reached the sensor, and the PV falls as the tun loses
+        # heat to its room: the slope over that last stretch, by the model's loss per K,
+        # says where the room is (a model's room 20 K off misjudges 20 K of loss).
+        falling = self._after.line(self._marked_at, t).slope()
+        if falling is not None and loss > 0.0:
+            room = pv + min(falling, 0.0) / loss
+            self.room = ambient = min(max(room, ambient - PULSE_ROOM_SPAN), pv)
+        # What the losses took on the way is added back.
+        lost = loss * ((self._pv0 - ambient) * t + self._integral)
+        rate = (rise + lost) / self._on * 100.0 / self._du
+        if not RATE_BAND[0] * model_rate <= rate <= RATE_BAND[1] * model_rate:
+            why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
+            return HeatUpFit(rate, dead_time, why, self._t)
+        if not 0.0 <= dead_time <= MAX_DEAD_TIME:
+            why = f"dead time {dead_time:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
+            return HeatUpFit(rate, dead_time, why, self._t)
+        return HeatUpFit(rate, dead_time, None, self._t)
 
 
 class _RecoveryWatch(_RampWatch):
