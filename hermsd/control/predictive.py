@@ -25,6 +25,7 @@ from hermsd.control.pid import (
     PULSE_LEAST_STEP,
     PULSE_MARGIN,
     PULSE_RATE_MARGIN,
+    RATE_BAND,
     STEADY_BAND,
     STEADY_DUTY_SHARE,
     STEADY_SPAN_S,
@@ -407,11 +408,15 @@ class _Predictive(_Base):
         """Before its fit, a heat-up's ramp already proves a rate and a dead time at least
         (`_HeatUpWatch.least`): a model below them (a config's dead time on a slow sensor, its
         litres on a half fill) would leave full power on while a whole dead time's heat is
-        still in flight, so it is raised to them at once."""
-        if least is None:
+        still in flight, so it is raised to them at once. Only a ramp that climbs like this
+        tun's heat (within RATE_BAND of the model's rate) proves anything: under a load the
+        loop does not know of (a pump it does not see, a lid off) the PV barely climbs and
+        its line crosses the start far off; and no further than any tun the limits allow
+        for shows its heat (HEAT_SHOWS_S), unless the model's own is longer."""
+        if least is None or least[0] < RATE_BAND[0] * self._rate:
             return
         rate = max(self._rate, least[0])
-        dead_time = min(max(self._dead_time, least[1]), MAX_DEAD_TIME)
+        dead_time = max(self._dead_time, min(least[1], HEAT_SHOWS_S))
         if rate == self._rate and dead_time == self._dead_time:
             return
         self._loss *= rate / self._rate  # as for a fit: a faster rise is less water
