@@ -16,7 +16,7 @@ import math
 
 import pytest
 
-from hermsd.control import pid
+from hermsd.control import laws, pid, predictive
 from hermsd.control.watches import HEAT_SHOWS_S, HeatUpFit, _HeatUpWatch, _PulseWatch
 from hermsd.sim import scenario
 from hermsd.sim.tuns import TunSpec
@@ -183,3 +183,23 @@ def test_a_pulse_whose_heat_never_shows_ends_unmeasured() -> None:
         fit = pulse.add(PV0, TS, 0.0, PV0, 0.05)
     assert fit.refused is not None and "no heat showed" in fit.refused
     assert 100.0 + periods * TS <= HEAT_SHOWS_S + 100.0 + TS
+
+
+def test_a_coil_drawing_during_a_pulse_ends_it_and_the_law_heats_again() -> None:
+    # A brewer starts the pump while the HLT's pulse waits for its heat: the rise is no
+    # longer the element's, and the coil drains the water, so the heat may not stay off.
+    rate, delay, lag = 0.127, 224.0, 126.0
+    tau = 12000.0
+    model = pid.PlantModel(0.8 * rate * tau / 100.0, tau, 115.0, PV0)  # the config's guess
+    controller = laws.create("predictive", kc=120.0, ti=800.0, ts=TS, model=model)
+    controller.reset(PV0, 0.0)
+    outputs = []
+    for k in range(1, 200):
+        outputs.append(controller.step(66.0, period_pv(k, rate, delay, lag)))
+        if outputs[-1] == 0.0 and max(outputs) == 100.0:
+            break  # the pulse: full power cut, the heat off while it arrives
+    else:
+        pytest.fail("no pulse")
+    assert controller.step(66.0, period_pv(k + 1, rate, delay, lag)) == 0.0  # it waits
+    predictive.known_load(controller, 4000.0, 10600.0)
+    assert controller.step(66.0, period_pv(k + 2, rate, delay, lag)) > 0.0

@@ -377,6 +377,9 @@ class _Predictive(_Base):
         pulse = self._pulse
         if pulse is None:
             return
+        if self._load:  # a coil draws now: the rise is not the element's, the law holds
+            self._pulse = None
+            return
         if sp != self._pulse_sp:
             pulse.stop()  # a pulse planned for another setpoint: what ran still measures
         fit = pulse.add(pv, self._ts, self._loss, self._ambient, self._arm_rate)
@@ -402,7 +405,7 @@ class _Predictive(_Base):
         on_s = missing / (self._rate * (self._hi - self._lo) / 100.0)
         self._pulse = _PulseWatch(pv, self._hi - self._lo, on_s, 0.0, 0.0)
         self._pulse.expect(self._rate)
-        self._arm_rate = self._rate
+        self._pulse_sp, self._arm_rate = sp, self._rate
 
     def _at_least(self, least: tuple[float, float] | None) -> None:
         """Before its fit, a heat-up's ramp already proves a rate and a dead time at least
