@@ -13,11 +13,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import pytest
 
 from hermsd.control import laws, pid, predictive
 from hermsd.control.watches import HEAT_SHOWS_S, HeatUpFit, _HeatUpWatch, _PulseWatch
+from hermsd.log.reader import load
+from hermsd.log.replay import verify
 from hermsd.sim import scenario
 from hermsd.sim.tuns import TunSpec
 
@@ -156,7 +159,7 @@ def test_water_during_a_pulse_ends_it_unmeasured() -> None:
     assert fit is not None and fit.refused is not None and "fell" in fit.refused
 
 
-def test_a_fast_tun_behind_a_slow_sensor_heats_up_by_a_measured_pulse() -> None:
+def test_a_fast_tun_behind_a_slow_sensor_heats_up_by_a_measured_pulse(tmp_path: Path) -> None:
     # Population tun 55: 10.6 kW into 20 L (25 L configured) behind 224 s of delay and
     # 126 s of lag, the lid off. What is in flight when full power must end is 44 °C on a
     # rate the config knows to ×½–×2: it overshot 27 °C. Cut by energy, measured, then
@@ -166,9 +169,15 @@ def test_a_fast_tun_behind_a_slow_sensor_heats_up_by_a_measured_pulse() -> None:
     day = dataclasses.replace(
         water.brew_day(noise_c=0.03), duration=2.5 * 3600.0, events=(), config=config
     )
-    result = scenario.run(day)
+    result = scenario.run(day, log_dir=tmp_path)
     assert result.summary["alarms"] == []
     assert result.summary["heatup_overshoot_c"] <= 0.5
+    # The heat off on purpose is said, and a log of it replays bit for bit.
+    log = load(sorted(tmp_path.iterdir()))
+    said = [e.message for e in log.events]
+    assert any(m.startswith("heat-up: full power ends here to measure the tun") for m in said)
+    assert any(m.startswith("heat-up: the measured pulse is over") for m in said)
+    assert verify(log.entries).mismatch is None
 
 
 def test_a_pulse_whose_heat_never_shows_ends_unmeasured() -> None:

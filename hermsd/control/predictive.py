@@ -536,6 +536,12 @@ def predicted_pv(controller: Controller) -> float | None:
     return None
 
 
+def pulse_running(controller: Controller) -> bool:
+    """Whether a predictive controller holds the heat off (or sends a planned pulse) while
+    a measured pulse's heat arrives (docs/heat-up-fit.md)."""
+    return isinstance(controller, _Predictive) and controller._pulse is not None
+
+
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:
     """The last heat-up a predictive controller measured (None for the other forms)."""
     return controller.fit if isinstance(controller, _Predictive) else None

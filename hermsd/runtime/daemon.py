@@ -188,6 +188,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         self.controller = parts.controller
         self._learner = parts.learner
         self._heat_up_seen = predictive.heat_up_fit(self.controller)
+        self._pulsing = False  # whether a measured pulse holds the heat (said when it moves)
         self._reloaded_at = -math.inf  # when a reload last changed the config
         self.planner = parts.planner
         self.element2 = parts.element2
@@ -700,7 +701,23 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         if self.recorder is not None:
             self.recorder.write("/hermsd/period", self.clock.wall_ns(), asdict(record))
         self._learn(record)
+        self._say_pulse(record.t)
         self._report(now)
+
+    def _say_pulse(self, t: float) -> None:
+        """Say when a measured pulse begins and ends: the heat off below the setpoint on
+        purpose, for minutes, is nothing a brewer should have to guess at."""
+        pulsing = predictive.pulse_running(self.controller)
+        if pulsing == self._pulsing:
+            return
+        self._pulsing = pulsing
+        said = (
+            "heat-up: full power ends here to measure the tun (the heat stays off until what "
+            "was sent has reached the sensor, then the rest is sent by the rate it shows)"
+            if pulsing
+            else "heat-up: the measured pulse is over; the law holds the setpoint"
+        )
+        self._event(logging.INFO, said, t)
 
     def _on_window(self, deadline: float, now: float) -> None:
         window = self._window
