@@ -200,7 +200,8 @@ PULSE_RATE_MARGIN = 2.2
 (`FILL_RANGE`) on mains 10 % high. Full power that could have taken even such water to the
 setpoint is all a heat-up the model cannot yet vouch for gets (`PULSE_MARGIN` short)."""
 PULSE_MARGIN = 0.5
-"""°C below the setpoint the most the water can have reached ends a measured pulse."""
+"""°C: full power ends for a measured pulse once the most the water can have reached lies
+this close below the setpoint."""
 PULSE_LEAST_STEP = 10.0
 """°C: a heat-up shorter than this is not cut to measure (a program's step; the day's first
 heat-up measured the tun)."""
@@ -208,8 +209,8 @@ PULSE_ROOM_SPAN = 30.0
 """K below the model's room the most a pulse's settled fall may place the room (a garage in
 winter against a model's 20 °C; a lag's tail still rising reads the room high, not low)."""
 PULSE_SETTLE_S = 60.0
-"""s (or a third of the wait, if longer) the PV must have gained under 2 LSB for a pulse's
-heat to count as all arrived."""
+"""s (or the mean delay of the rise's arrival so far, if longer) the PV must have gained
+under 2 LSB for a pulse's heat to count as all arrived."""
 BEND_TOLERANCE = 0.05
 """How much faster the last quarter of a heat-up's rise may climb than the third and still be
 called straight (once the two slopes' noise is within it too): a first-order lag's bend is
