@@ -1,4 +1,5 @@
-"""A heat-up's rate is fitted only where its ramp is straight.
+"""A heat-up's rate is fitted only where its ramp is straight; before that its bounds, and
+where the whole heat-up lies in the bend, a measured pulse (docs/heat-up-fit.md).
 
 Behind a delay D and a first-order sensor lag τ, the PV's rise under a full-power step is
 R·(u − τ·(1 − e^(−u/τ))) with u = t − D: its slope climbs to R over a few τ. A fast tun
