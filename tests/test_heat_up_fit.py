@@ -213,3 +213,30 @@ def test_a_coil_drawing_during_a_pulse_ends_it_and_the_law_heats_again() -> None
     assert controller.step(66.0, period_pv(k + 1, rate, delay, lag)) == 0.0  # it waits
     predictive.known_load(controller, 4000.0, 10600.0)
     assert controller.step(66.0, period_pv(k + 2, rate, delay, lag)) > 0.0
+
+
+def test_a_pulse_stopped_half_way_measures_what_ran_and_one_stopped_at_once_nothing() -> None:
+    # The PV came near the setpoint while a second pulse still sent heat (its rate read too
+    # low), or the brewer moved the setpoint: the heat ends there, and what ran still counts.
+    rate, delay = 0.02, 60.0
+    pulse = _PulseWatch(PV0, 100.0, 600.0, 0.0, 0.0)
+    pulse.expect(rate)
+    fit = None
+    for k in range(1, 400):
+        if k == 61:
+            pulse.stop()  # 300 s in
+        assert pulse.duty(TS) == (1.0 if k <= 60 else 0.0)
+        fit = pulse.add(
+            PV0 + pulse_rise(k * TS - TS / 2, rate, 300.0, delay, 0.0), TS, 0.0, PV0, rate
+        )
+        if fit is not None:
+            break
+    assert fit is not None and fit.refused is None
+    assert fit.rate == pytest.approx(rate, rel=0.02)
+    never = _PulseWatch(PV0, 100.0, 600.0, 0.0, 0.0)
+    never.stop()
+    assert never.duty(TS) == 0.0
+    refused = None
+    while refused is None:
+        refused = never.add(PV0 + 0.5, TS, 0.0, PV0, rate)  # warmed by something else
+    assert refused.refused == "the pulse was stopped before it ran"

@@ -380,16 +380,21 @@ class _Predictive(_Base):
         if self._load:  # a coil draws now: the rise is not the element's, the law holds
             self._pulse = None
             return
-        if sp != self._pulse_sp:
-            pulse.stop()  # a pulse planned for another setpoint: what ran still measures
+        if sp != self._pulse_sp or pv >= sp - PULSE_MARGIN:
+            # Planned for another setpoint, or sending more than the rate it was planned on
+            # said (the PV near the setpoint while heat still goes in): what ran still
+            # measures.
+            pulse.stop()
         fit = pulse.add(pv, self._ts, self._loss, self._ambient, self._arm_rate)
         if fit is None:
             return
         self._pulse = None
         first = self._fit is None or self._fit.refused is not None
-        self._fit = fit
         if fit.refused is not None:
+            if first:  # a second pulse's refusal leaves the first's measurement standing
+                self._fit = fit
             return
+        self._fit = fit
         self._loss *= fit.rate / self._rate  # as for a heat-up's fit: the fill
         if pulse.room is not None:
             self._ambient = pulse.room

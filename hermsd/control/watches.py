@@ -35,6 +35,18 @@ class HeatUpFit:
     span: float = 0.0  # s from the step to full power until the fit: the data it rests on
 
 
+def checked(rate: float, dead_time: float, model_rate: float, span: float) -> HeatUpFit:
+    """A measured rate and dead time as a fit, refused (and why) where no tun the model may
+    be has them: a wrong step, a dry or half-empty tun, another tun than the model's."""
+    if not RATE_BAND[0] * model_rate <= rate <= RATE_BAND[1] * model_rate:
+        why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
+        return HeatUpFit(rate, dead_time, why, span)
+    if not 0.0 <= dead_time <= MAX_DEAD_TIME:
+        why = f"dead time {dead_time:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
+        return HeatUpFit(rate, dead_time, why, span)
+    return HeatUpFit(rate, dead_time, None, span)
+
+
 class LineFit:
     """Least squares of a line through (t, x) points, kept as running sums."""
 
@@ -250,14 +262,7 @@ class _HeatUpWatch(_RampWatch):
         # loss·mid_rise²/(2·slope·climb) early (docs/heat-up-fit.md).
         bent = loss * mid_rise * mid_rise / (2.0 * slope * climb)
         crossing = (line.st - line.sx / slope) / line.n + bent  # mean t − mean rise / slope
-        rate = climb * 100.0 / self._du
-        if not RATE_BAND[0] * model_rate <= rate <= RATE_BAND[1] * model_rate:
-            why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
-            return HeatUpFit(rate, crossing, why, span)
-        if not 0.0 <= crossing <= MAX_DEAD_TIME:
-            why = f"dead time {crossing:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
-            return HeatUpFit(rate, crossing, why, span)
-        return HeatUpFit(rate, crossing, None, span)
+        return checked(climb * 100.0 / self._du, crossing, model_rate, span)
 
 
 class _PulseWatch:
@@ -285,7 +290,7 @@ class _PulseWatch:
     def __init__(self, pv0: float, du: float, on_s: float, elapsed: float, integral: float) -> None:
         self._pv0, self._du, self._on = pv0, du, on_s
         self._t, self._integral = elapsed, integral
-        # The least any tun the model may be rises on it: twice the water, mains 10 % low.
+        # °C the PV must have risen before it may count as settled (`expect`).
         self._least_rise = 0.0
         self._mark, self._marked_at = pv0, on_s
         self._last = -math.inf
@@ -303,7 +308,8 @@ class _PulseWatch:
         return min(max((self._on - self._t) / ts, 0.0), 1.0)
 
     def stop(self) -> None:
-        """The heat ends now (the setpoint moved): the pulse is what ran."""
+        """The heat ends now (the setpoint moved, or the PV came near it): the pulse is what
+        ran."""
         self._on = min(self._on, self._t)
         self._marked_at = min(self._marked_at, self._on)
 
@@ -332,6 +338,8 @@ class _PulseWatch:
         if waited > MAX_DEAD_TIME:
             why = f"the PV had not settled {waited:.0f} s after full power was cut"
             return HeatUpFit(model_rate, 0.0, why, self._t)
+        if self._on <= 0.0:
+            return HeatUpFit(model_rate, 0.0, "the pulse was stopped before it ran", self._t)
         if self._mark - self._pv0 < self._least_rise or rise <= 0.0:
             return None
         # The rise's arrival: ∫t·dr = t·r − ∫r dt, its mean t − ∫r dt / r; less the pulse's
@@ -350,13 +358,7 @@ class _PulseWatch:
         # What the losses took on the way is added back.
         lost = loss * ((self._pv0 - ambient) * t + self._integral)
         rate = (rise + lost) / self._on * 100.0 / self._du
-        if not RATE_BAND[0] * model_rate <= rate <= RATE_BAND[1] * model_rate:
-            why = f"rate {rate:.3g} °C/s is not within ¼–4× the model's {model_rate:.3g}"
-            return HeatUpFit(rate, dead_time, why, self._t)
-        if not 0.0 <= dead_time <= MAX_DEAD_TIME:
-            why = f"dead time {dead_time:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
-            return HeatUpFit(rate, dead_time, why, self._t)
-        return HeatUpFit(rate, dead_time, None, self._t)
+        return checked(rate, dead_time, model_rate, self._t)
 
 
 class _RecoveryWatch(_RampWatch):
