@@ -380,10 +380,10 @@ class _Predictive(_Base):
         if self._load:  # a coil draws now: the rise is not the element's, the law holds
             self._pulse = None
             return
-        if sp != self._pulse_sp or pv >= sp - PULSE_MARGIN:
+        if sp != self._pulse_sp or pv >= sp:
             # Planned for another setpoint, or sending more than the rate it was planned on
-            # said (the PV near the setpoint while heat still goes in): what ran still
-            # measures.
+            # said (the PV at the setpoint while heat still goes in; a pulse planned right
+            # aims LINEAR_BAND short of it): what ran still measures.
             pulse.stop()
         fit = pulse.add(pv, self._ts, self._loss, self._ambient, self._arm_rate)
         if fit is None:
