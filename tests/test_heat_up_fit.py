@@ -240,3 +240,23 @@ def test_a_pulse_stopped_half_way_measures_what_ran_and_one_stopped_at_once_noth
     while refused is None:
         refused = never.add(PV0 + 0.5, TS, 0.0, PV0, rate)  # warmed by something else
     assert refused.refused == "the pulse was stopped before it ran"
+
+
+def test_stopping_a_pulse_whose_heat_is_already_off_changes_nothing() -> None:
+    # The PV reaches the setpoint while the heat sent is still arriving: the wait for it
+    # must go on (taken then, the measurement read a room at the PV and a rate 10 % low).
+    rate, on_s, delay, lag = 0.127, 175.0, 224.0, 126.0
+    fits = []
+    for stop_at in (None, 80):
+        pulse = _PulseWatch(PV0, 100.0, on_s, 0.0, 0.0)
+        pulse.expect(rate)
+        fit = None
+        for k in range(1, 500):
+            if k == stop_at:
+                pulse.stop()  # 400 s in: the heat went off at 175 s
+            pv = PV0 + pulse_rise(k * TS - TS / 2, rate, on_s, delay, lag)
+            fit = pulse.add(pv, TS, 0.0, PV0, rate)
+            if fit is not None:
+                break
+        fits.append(fit)
+    assert fits[0] is not None and fits[0] == fits[1]

@@ -309,9 +309,10 @@ class _PulseWatch:
 
     def stop(self) -> None:
         """The heat ends now (the setpoint moved, or the PV came near it): the pulse is what
-        ran."""
-        self._on = min(self._on, self._t)
-        self._marked_at = min(self._marked_at, self._on)
+        ran. Once the heat is already off, nothing: the wait for it goes on as it was."""
+        if self._t < self._on:
+            self._on = self._t
+            self._marked_at = min(self._marked_at, self._on)
 
     def add(
         self, pv: float, ts: float, loss: float, ambient: float, model_rate: float
