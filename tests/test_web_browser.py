@@ -552,8 +552,10 @@ def test_at_phone_size_the_mash_is_the_charts_second_line_above_the_hlts(
     for selector in ("#pv", "#mash", "#pump", "#chart canvas"):
         box = page.locator(selector).bounding_box()
         assert box is not None and box["y"] + box["height"] <= PHONE["height"], selector
-    status = page.evaluate("window.lastStatus")
-    assert page.text_content("#mash") == f"{status['mash']['celsius']:.1f} °C"
+    with herms.held() as last:  # a status pushed between the two reads would move the mash
+        _until(page, f"window.lastStatus.t === {last}")
+        status = page.evaluate("window.lastStatus")
+        assert page.text_content("#mash") == f"{status['mash']['celsius']:.1f} °C"
     assert 60.0 < status["mash"]["celsius"] <= 70.2 and page.text_content("#pump") == "off"
     shot = page.screenshot()
     width, _height, pixels = _decode_png(shot)
