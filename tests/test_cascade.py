@@ -203,6 +203,21 @@ def test_a_mash_left_short_by_a_wrong_k_still_reaches_its_rest() -> None:
     assert mash == pytest.approx(63.0, abs=0.3)
 
 
+def test_the_holds_bound_aims_the_coast_short_of_the_rest_as_the_coasts_own_setpoint() -> None:
+    """A mash 1 °C below its rest in the hold (after a pump's stop): lossless, T_hold is the
+    rest, 65 °C, and the coast from T down to it lifts the mash by C_h/C_m·(T − 65) = 2·(T −
+    65). The PI asks T_hold + Kp·1 (Kp = λ/G: G = 1, λ = τ_m/(3·660 s) = 1046.5/1980 = 0.529,
+    the mash sensor's lag of 600 s counted in the delays): 65.53 °C. The bound takes the mash
+    to 65 − 0.15: T = 65 + (64.85 − 64)/2 = 65.425 °C (to the rest itself, 65.5 °C, it left
+    seed 4 of bench/herms.py 0.33 °C over its rest after a stir)."""
+    tanks = dataclasses.replace(LOSSLESS, mash_lag=600.0)  # the losses' observer waits 600 s
+    c = cascade(tanks, limit=5.0)
+    assert step(c, 65.0, 65.0).phase == "hold"
+    decision = step(c, 64.0, 64.0)  # the HLT at the mash: no rise to advance its reading by
+    assert decision.phase == "hold"
+    assert decision.hlt_setpoint == pytest.approx(65.425, abs=1e-3)
+
+
 def test_on_an_exact_model_the_climb_ends_when_the_coast_carries_the_mash_to_its_rest() -> None:
     # Two lossless tanks through K = 200 W/K, integrated here exactly over each second, the HLT
     # held at once at a setpoint above it (a law without lag or limit), else coasting. From a
