@@ -259,3 +259,16 @@ def test_a_climb_early_by_less_than_the_least_stop_goes_on() -> None:
     measured = Tun(TUN.model, 100.0, measured=True, fit=HeatUpFit(rate=0.1, dead_time=100.0))
     assert ready.period(60.0, (start + 60) * NS, 22.0, 100.0, True, measured) == 68.5
     assert ready.starts_at_ns is None and ready.take_events() == []
+
+
+def test_water_poured_in_mid_climb_is_no_rate_of_the_climb() -> None:
+    """0.006 °C/s from 20 °C; at 6000 s (56 °C) 10 % of cold water takes 3 °C off and the
+    rise slows by a tenth, to 0.0054 °C/s: 20.6 + 0.0054·t reaches the waiting 68.5 °C at
+    8870 s, hours before 12 000 s. A line across the fall read the climb at a fraction of
+    that: "cannot reach" six times, until 23 056 s."""
+    ready = Readiness(70.5, 12_000 * NS, clock, phase="climbing")
+    for t in range(0, 8870, 5):
+        pv = 20.0 + 0.006 * t - (3.0 + 0.0006 * (t - 6000) if t >= 6000 else 0.0)
+        ready.period(float(t), t * NS, pv, 100.0, True, TUN)
+    assert [kind for kind, _ in ready.take_events()] == []
+    assert ready.late_until_ns is None

@@ -142,6 +142,7 @@ class Readiness:
         self._said_until: int | None = None  # what the last `late` said (NEVER: never)
         self._start_pv: float | None = None
         self._run: deque[tuple[float, float]] = deque()  # this full-power run's PV
+        self._full: deque[tuple[float, float]] = deque()  # its last WATER_SPAN_S, from the start
         self._run_since: float | None = None
         self._climb: tuple[float, float] | None = None  # (mean PV, rate) of the last run
         self._arrived: float | None = None  # t the waiting temperature was first reached
@@ -270,9 +271,17 @@ class Readiness:
         """The full-power run's PV (past a dead time and more from its start, where the rise
         is the element's) and, at the waiting temperature, the PV and the duty that hold it."""
         if full:
-            if self._run_since is None:
+            recent = self._full
+            recent.append((t, pv))
+            while t - recent[0][0] > WATER_SPAN_S:
+                recent.popleft()
+            if self._run_since is None or water_came((x for _, x in recent), pv):
+                # Water poured in: the rise from here is a recovery's, and a line across the
+                # fall is no rate (a 10 L top-up mid-climb read as "cannot reach" seven times).
                 self._run_since = t
                 self._run.clear()
+                recent.clear()
+                recent.append((t, pv))
             if t - self._run_since >= max(2.0 * tun.dead_time(), RISE_FROM_S):
                 self._run.append((t, pv))
                 while t - self._run[0][0] > MEASURE_S:
@@ -280,6 +289,7 @@ class Readiness:
                 self._climb = _line(list(self._run)) or self._climb
         else:
             self._run_since = None
+            self._full.clear()
         if self._arrived is not None and self._water_came(t, pv):
             self._arrived = None  # what holds the water now is a recovery, not the losses
             self._hold.clear()
