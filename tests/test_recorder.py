@@ -142,6 +142,7 @@ MODEL = {
         "wall_ns": EPOCH_NS,
         "coil": 0.0,
         "coil_sd": 0.0,
+        "elements": 1,
     },
 }
 

@@ -20,9 +20,11 @@ from hermsd.cli import commands as cli
 from hermsd.cli import remote
 from hermsd.config import schema as config_module
 from hermsd.control.element2 import PowerSplit, SplitController
+from hermsd.control.learning import ModelStore
 from hermsd.log.reader import load
 from hermsd.log.replay import verify
 from hermsd.program.model import Program, Step
+from hermsd.runtime.build import model_in_force, not_this_tun
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim.scenario import Event, Scenario, run
 
@@ -254,3 +256,36 @@ def test_ready_by_plans_with_both_elements_heat(caplog: pytest.LogCaptureFixture
     [strike] = result.summary["steps"]
     assert abs(strike["reached_s"] - 5 * 3600.0) <= 60.0  # 05:00 to a minute
     assert not [r for r in caplog.records if "cannot reach" in r.getMessage()]
+
+
+def test_a_clean_day_on_two_elements_learns_their_total_and_the_next_start_takes_it(
+    tmp_path: Path,
+) -> None:
+    """The split's one law drives both elements' total, so that is what a heat-up measures
+    and what is learned: 2 + 3.5 kW into 90 L of water (4186 J/(L·K)) rise 5500/376 740 =
+    0.01460 °C/s; the plant's 17.76 W/K (3000/168.9) lose it with τ = 376 740/17.76 =
+    21 211 s. Stored as learned on two elements: a one-element config refuses it (its rate
+    is not that element's), a two-element one takes it at its next start."""
+    two = two_element_predictive()
+    logs = tmp_path / "logs"
+    run(
+        Scenario(name="learn on two", duration=8000.0, plant=PLANT),
+        two,
+        state_dir=tmp_path,
+        log_dir=logs,
+    )
+    model, problem = ModelStore(tmp_path).load()
+    assert problem is None and model is not None
+    assert model.elements == 2
+    assert model.rate == pytest.approx(5500.0 / (90.0 * 4186.0), rel=0.03)
+    assert 1.0 / model.loss == pytest.approx(90.0 * 4186.0 / (3000.0 / 168.9), rel=0.05)
+    assert model_in_force(model, two).source == "learned"
+    d = config_module.DEFAULT
+    one = dataclasses.replace(d, tun=dataclasses.replace(d.tun, element_watts=5500.0))
+    assert model_in_force(model, one).source == "prior"
+    assert not_this_tun(model, one) == "learned on two element(s), where the config fits one"
+    learned_on_one = dataclasses.replace(model, elements=1)
+    assert model_in_force(learned_on_one, two).source == "prior"
+    log = load(sorted(logs.glob("*.mcap")))
+    check = verify(log.entries)
+    assert check.mismatch is None and check.verified > 1000

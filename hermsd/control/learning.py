@@ -73,6 +73,9 @@ class LearnedModel:
     # (`coil.CoilEstimator`); 0 when none was learned. A file without them reads as 0.
     coil: float = 0.0
     coil_sd: float = 0.0
+    # How many elements `rate` is at full power of: 2 where a second is fitted (the one
+    # controller drives their total power). A file before it: 1.
+    elements: int = 1
 
     @classmethod
     def from_plant(cls, model: PlantModel, litres: float) -> LearnedModel:
@@ -105,6 +108,8 @@ def implausible(model: LearnedModel) -> str | None:
     values = (model.rate, model.loss, model.dead_time, model.ambient, model.litres)
     if not all(math.isfinite(v) for v in (*values, model.coil, model.coil_sd)):
         return "a value is not finite"
+    if model.elements not in (1, 2):
+        return f"{model.elements} elements: hermsd drives one or two"
     if not (0.0 <= model.coil <= MAX_CONDUCTANCE and model.coil_sd >= 0.0):
         return (
             f"coil conductance {model.coil:g} ± {model.coil_sd:g} W/K is not within "
@@ -180,6 +185,7 @@ class ModelStore:
                 int(document.get("wall_ns", 0)),
                 float(document.get("coil", 0.0)),
                 float(document.get("coil_sd", 0.0)),
+                int(document.get("elements", 1)),
             )
         except (KeyError, TypeError, ValueError, OverflowError) as error:
             return None, f"{self.path}: not a learned model ({error})"

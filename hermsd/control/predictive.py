@@ -431,6 +431,14 @@ class _Predictive(_Base):
         self._use(rate, dead_time)
 
 
+def _law(controller: Controller) -> _Predictive | None:
+    """The predictive law `controller` is or drives: itself, or the one a second element's
+    split wraps (`element2.SplitController.inner`, on both elements' total power); None for
+    the other forms."""
+    law = getattr(controller, "inner", controller)
+    return law if isinstance(law, _Predictive) else None
+
+
 def full_power_now(
     controller: Controller, sp: float, last_pv: float, readings: Sequence[float]
 ) -> bool:
@@ -452,30 +460,32 @@ def full_power_now(
     The controller is not changed (its next step is taken on a copy), so the answer follows
     from what a period record logs: its readings, and the controller as the period before
     left it."""
-    if not (isinstance(controller, _Predictive) and controller._primed):
+    law = _law(controller)
+    if law is None or not law._primed:
         return False
-    if controller._pulse is not None:
+    if law._pulse is not None:
         return False  # the heat stays off while a pulse's arrives (water ends the pulse)
     if len(readings) < DROP_READINGS:
         return False
     before, latest = readings[-DROP_READINGS], readings[-1]
-    if controller.params.out_max < 100.0 or controller.output >= 100.0:
+    if law.params.out_max < 100.0 or law.output >= 100.0:
         return False
     fell, first = last_pv - latest, last_pv - before
     if fell < DROP_FALL or first < DROP_ONSET:
         return False
-    if latest < sp and controller.full_power_adds() < min(fell, first):
+    if latest < sp and law.full_power_adds() < min(fell, first):
         return True
-    trial = copy.deepcopy(controller)
-    return trial.step(sp, latest, controller.output) >= 100.0
+    trial = copy.deepcopy(law)
+    return trial.step(sp, latest, law.output) >= 100.0
 
 
 def loops_own_step(controller: Controller) -> None:
     """Tell `controller` (predictive) that the step to full power its next step sees is the
     loop's return from a spell it held the power down for itself (the heat-up's check of
     two elements), not a step whose response measures the tun: no watch is armed on it."""
-    if isinstance(controller, _Predictive):
-        controller._step_is_loops = True
+    law = _law(controller)
+    if law is not None:
+        law._step_is_loops = True
 
 
 def cold_water_seen(controller: Controller) -> None:
@@ -489,8 +499,9 @@ def cold_water_seen(controller: Controller) -> None:
     thermowell of 120 s lag. It is told whether or not the element could act on it in the
     period, as the log says only what the readings showed; the fall bounds the carry all
     the same."""
-    if isinstance(controller, _Predictive):
-        controller._cold_water = True
+    law = _law(controller)
+    if law is not None:
+        law._cold_water = True
 
 
 def known_load(
@@ -510,7 +521,8 @@ def known_load(
     to show the load; a load a dead time ahead is met by heat sent now), the prediction
     counts it from when it acts, and the bias does not learn it as a loss. 0 is no load: the
     law is then exactly the one without."""
-    if isinstance(controller, _Predictive):
+    law = _law(controller)
+    if law is not None:
         if not (math.isfinite(watts) and math.isfinite(element_watts) and element_watts > 0.0):
             raise ValueError(
                 f"load {watts!r} W of an element of {element_watts!r} W is invalid: "
@@ -522,34 +534,38 @@ def known_load(
             raise ValueError(
                 f"a load ending in {ends_in!r} s is invalid: must be ≥ its start, {starts_in!r} s"
             )
-        controller._load = 100.0 * watts / element_watts
-        controller._load_in = starts_in
-        controller._load_until = ends_in
+        law._load = 100.0 * watts / element_watts
+        law._load_in = starts_in
+        law._load_until = ends_in
 
 
 def dead_time(controller: Controller) -> float | None:
     """The dead time (s) predictive's model holds between its duty and the PV's answer (None
     for the other forms): how far ahead of a load the heat that meets it must be sent."""
-    return controller._dead_time if isinstance(controller, _Predictive) else None
+    law = _law(controller)
+    return None if law is None else law._dead_time
 
 
 def predicted_pv(controller: Controller) -> float | None:
     """Where predictive expects its PV once the heat already sent arrives (None for the other
     forms, or before its first step): what the HLT will hold whatever is decided now."""
-    if isinstance(controller, _Predictive) and controller._primed:
-        return controller._predicted()
+    law = _law(controller)
+    if law is not None and law._primed:
+        return law._predicted()
     return None
 
 
 def pulse_running(controller: Controller) -> bool:
     """Whether a predictive controller holds the heat off (or sends a planned pulse) while
     a measured pulse's heat arrives (docs/heat-up-fit.md)."""
-    return isinstance(controller, _Predictive) and controller._pulse is not None
+    law = _law(controller)
+    return law is not None and law._pulse is not None
 
 
 def heat_up_fit(controller: Controller) -> HeatUpFit | None:
     """The last heat-up a predictive controller measured (None for the other forms)."""
-    return controller.fit if isinstance(controller, _Predictive) else None
+    law = _law(controller)
+    return None if law is None else law.fit
 
 
 def observer_gains(ts: float, track: float, bias: float) -> tuple[float, float]:

@@ -430,7 +430,8 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     LearnedModel,
                     "rate °C/s at full power, loss 1/s, dead_time s, ambient °C, litres, "
                     "wall_ns when learned (ns since the Unix epoch), a HERMS coil's "
-                    "conductance coil W/K and its sd coil_sd (0: none learned)",
+                    "conductance coil W/K and its sd coil_sd (0: none learned), and the "
+                    "elements whose full power rate is (1, or 2 with a second fitted)",
                 ),
             },
         ),

@@ -137,15 +137,17 @@ def model_in_force(stored: LearnedModel | None, config: Config) -> ModelChoice:
     (kept up to date by the daemon itself), else what `hermsd tune` measured; pinned: the
     measured one, else what was learned; off: the measured one only. A measurement is
     rescaled to the configured litres; one the fill takes out of the controller's range is
-    passed over. Neither: the config's prior. With a second element fitted, the prior
-    always: what was learned or measured is the response to one element."""
+    passed over. Neither: the config's prior. With a second element fitted, only what was
+    learned on both (their total drives the one controller); `hermsd tune` measures one,
+    and mid-ranging's two controllers learn nothing: the prior."""
     learn = config.control.learn
-    if element2_watts(config):
+    two = element2_watts(config) > 0.0
+    if two and config.control.algorithm == "midrange":
         return ModelChoice(factory.prior_model(config), "prior")
     here = stored is not None and learn != "off" and not_this_tun(stored, config) is None
     candidates = [
         ("learned", stored if here else None),
-        ("measured", factory.measured_model(config)),
+        ("measured", None if two else factory.measured_model(config)),
     ]
     if learn != "on":
         candidates.reverse()
@@ -169,10 +171,23 @@ def stored_model(models: ModelStore, config: Config) -> tuple[LearnedModel | Non
 
 
 def not_this_tun(model: LearnedModel, config: Config) -> str | None:
-    """Why a learned model cannot be the configured tun's (`learning.implausible_here`)."""
-    litres = config.tun.litres  # the one element it was learned on
-    full_rate = config.tun.element_watts / (factory.WATER_J_PER_LITRE_K * litres)
+    """Why a learned model cannot be the configured tun's (`learning.implausible_here`): its
+    rate is the full power of another number of elements than the config fits."""
+    fitted = elements(config)
+    if model.elements != fitted:
+        learned, now = (COUNTS.get(n, str(n)) for n in (model.elements, fitted))
+        return f"learned on {learned} element(s), where the config fits {now}"
+    litres = config.tun.litres
+    full_rate = factory.total_watts(config) / (factory.WATER_J_PER_LITRE_K * litres)
     return implausible_here(model, litres=litres, full_rate=full_rate)
+
+
+def elements(config: Config) -> int:
+    """How many elements the config fits (the one controller drives their total)."""
+    return 2 if element2_watts(config) else 1
+
+
+COUNTS = {1: "one", 2: "two"}
 
 
 def measured_tun(

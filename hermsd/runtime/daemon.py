@@ -55,6 +55,7 @@ from hermsd.log.topics import MODEL_TOPIC, LogLevel, log_message
 from hermsd.runtime.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.runtime.build import (
     element2_watts,
+    elements,
     measured_tun,
     reach_period,
 )
@@ -280,8 +281,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         if self._stored_model is not None and self.model_choice.source != "learned":
             learn, litres = self.config.control.learn, self.config.tun.litres
             why = f"out of the controller's range at {litres:g} L"
-            if element2_watts(self.config):
-                why = "a second element is fitted: it models one"
+            if element2_watts(self.config) and self.config.control.algorithm == "midrange":
+                why = "mid-ranging's two controllers: it models one law"
             elif learn == "off":
                 why = "control.learn off"
             elif learn == "pinned" and self.model_choice.source == "measured":
@@ -444,8 +445,10 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
     def _learn(self, record: PeriodRecord) -> None:
         """Feed the learner one period; store and log what it learned (or why not)."""
         models = self.models
-        if self.config.control.learn != "on" or models is None or self.element2 is not None:
-            return  # the learner models one element
+        if self.config.control.learn != "on" or models is None:
+            return
+        if self.element2 is not None and self.config.control.algorithm == "midrange":
+            return  # two controllers, one an element each: the learner models one law
         learner = self._learner
         fit = predictive.heat_up_fit(self.controller)
         pumping = record.pump or record.coil_load  # the coil draws heat the model has not
@@ -465,10 +468,18 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
             else:
                 self._event(logging.WARNING, f"heat-up measure refused: {fit.refused}", record.t)
         else:
-            estimate = learner.period(record.hlt_target, record.pv, record.applied)
+            estimate = learner.period(record.hlt_target, record.pv, self._total_applied(record))
             if estimate is not None:
                 self._store_model(models, estimate.model, estimate.refused, record.t)
         self._heat_up_seen = fit
+
+    def _total_applied(self, record: PeriodRecord) -> float:
+        """The period's applied duty as a share of every element's power (the split's law
+        drives their total): the second element's duty as switched counted in."""
+        if self.element2 is None:
+            return record.applied
+        watts, watts2 = self.config.tun.element_watts, element2_watts(self.config)
+        return total_share(watts, watts2, record.applied, record.applied2 or 0.0)
 
     def _store_model(
         self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
@@ -476,7 +487,9 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         if model is None:
             self._event(logging.WARNING, f"learned model refused: {refused}", t)
             return
-        model = dataclasses.replace(self.with_coil(model), wall_ns=self.clock.wall_ns())
+        model = dataclasses.replace(
+            self.with_coil(model), wall_ns=self.clock.wall_ns(), elements=elements(self.config)
+        )
         if self.recorder is not None:
             self.recorder.write(
                 MODEL_TOPIC, self.clock.wall_ns(), {"t": t, "learned": asdict(model)}
