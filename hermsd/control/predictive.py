@@ -555,6 +555,16 @@ def predicted_pv(controller: Controller) -> float | None:
     return None
 
 
+def room_for(controller: Controller, sp: float, duty: float, seconds: float) -> bool:
+    """Whether `duty` % more for `seconds`, on top of the heat already sent, leaves the water
+    at or below `sp` by predictive's model (True for the other forms, or before its first
+    step: they hold no model to judge by)."""
+    law = _law(controller)
+    if law is None or not law._primed:
+        return True
+    return law._predicted() + law._rate * duty / 100.0 * seconds <= sp
+
+
 def pulse_running(controller: Controller) -> bool:
     """Whether a predictive controller holds the heat off (or sends a planned pulse) while
     a measured pulse's heat arrives (docs/heat-up-fit.md)."""
