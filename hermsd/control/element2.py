@@ -265,7 +265,8 @@ class PowerSplit:
         if self._given(u, on) != u and allowed and abs(carried(not on)) < abs(carried(on)):
             state = not on
         given = self._given(u, state)
-        self.owed = 0.0 if given == u else self.owed + (u - given) * self.period
+        held_off = not state and not room  # not owed: paid back later, it is the overshoot
+        self.owed = 0.0 if given == u or held_off else self.owed + (u - given) * self.period
         return state, self._duty1(given, state)
 
     def full_power(self) -> FullPower:

@@ -556,13 +556,14 @@ def predicted_pv(controller: Controller) -> float | None:
 
 
 def room_for(controller: Controller, sp: float, duty: float, seconds: float) -> bool:
-    """Whether `duty` % more for `seconds`, on top of the heat already sent, leaves the water
-    at or below `sp` by predictive's model (True for the other forms, or before its first
-    step: they hold no model to judge by)."""
+    """Whether `duty` % for `seconds`, once the heat already sent has arrived, leaves the
+    water at or below `sp` by predictive's model, its losses and bias counted (True for the
+    other forms, or before its first step: they hold no model to judge by)."""
     law = _law(controller)
     if law is None or not law._primed:
         return True
-    return law._predicted() + law._rate * duty / 100.0 * seconds <= sp
+    ahead = law._predicted()
+    return ahead + law._drift(ahead, duty) * seconds / law._ts <= sp
 
 
 def pulse_running(controller: Controller) -> bool:
