@@ -555,15 +555,17 @@ def predicted_pv(controller: Controller) -> float | None:
     return None
 
 
-def room_for(controller: Controller, sp: float, duty: float, seconds: float) -> bool:
-    """Whether `duty` % for `seconds`, once the heat already sent has arrived, leaves the
-    water at or below `sp` by predictive's model, its losses and bias counted (True for the
-    other forms, or before its first step: they hold no model to judge by)."""
+def predicted_after(
+    controller: Controller, duty: float, seconds: float
+) -> tuple[float, float] | None:
+    """(the PV once the heat already sent has arrived, and `seconds` of `duty` % after that)
+    by predictive's model, its losses and bias counted (None for the other forms, or before
+    its first step: they hold no model to judge by)."""
     law = _law(controller)
     if law is None or not law._primed:
-        return True
+        return None
     ahead = law._predicted()
-    return ahead + law._drift(ahead, duty) * seconds / law._ts <= sp
+    return ahead, ahead + law._drift(ahead, duty) * seconds / law._ts
 
 
 def pulse_running(controller: Controller) -> bool:
