@@ -175,7 +175,7 @@ def not_this_tun(model: LearnedModel, config: Config) -> str | None:
     rate is the full power of another number of elements than the config fits."""
     fitted = elements(config)
     if model.elements != fitted:
-        learned, now = (COUNTS.get(n, str(n)) for n in (model.elements, fitted))
+        learned, now = (COUNT_WORDS.get(n, str(n)) for n in (model.elements, fitted))
         return f"learned on {learned} element(s), where the config fits {now}"
     litres = config.tun.litres
     full_rate = factory.total_watts(config) / (factory.WATER_J_PER_LITRE_K * litres)
@@ -187,7 +187,7 @@ def elements(config: Config) -> int:
     return 2 if element2_watts(config) else 1
 
 
-COUNTS = {1: "one", 2: "two"}
+COUNT_WORDS = {1: "one", 2: "two"}
 
 
 def measured_tun(
