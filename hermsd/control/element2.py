@@ -371,12 +371,11 @@ def fits_under(law: pid.Controller, sp: float, split: PowerSplit) -> bool:
     water (it falls at full power), half its rise above, at most LINEAR_BAND, so that the
     hold cycles about the setpoint by the least pulse the contactor allows rather than under
     it, out of the band (tun 200: 0.5 °C a pulse). No model: it may."""
-    predicted = predictive.predicted_after(law, split.share2, split.min_on)
-    alone = predictive.predicted_after(law, split.share1, split.min_on)
-    if predicted is None or alone is None:
+    predicted = predictive.predicted_after(law, split.min_on, split.share2, split.share1)
+    if predicted is None:
         return True
-    ahead, after = predicted
-    over = min(max(0.0, after - ahead) / 2.0, pid.LINEAR_BAND) if alone[1] < ahead else 0.0
+    ahead, (after, alone) = predicted
+    over = min(max(0.0, after - ahead) / 2.0, pid.LINEAR_BAND) if alone < ahead else 0.0
     return after <= sp + over
 
 

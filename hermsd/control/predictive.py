@@ -556,16 +556,16 @@ def predicted_pv(controller: Controller) -> float | None:
 
 
 def predicted_after(
-    controller: Controller, duty: float, seconds: float
-) -> tuple[float, float] | None:
-    """(the PV once the heat already sent has arrived, and `seconds` of `duty` % after that)
-    by predictive's model, its losses and bias counted (None for the other forms, or before
-    its first step: they hold no model to judge by)."""
+    controller: Controller, seconds: float, *duties: float
+) -> tuple[float, list[float]] | None:
+    """(the PV once the heat already sent has arrived, and where `seconds` of each of
+    `duties` % after that leave it) by predictive's model, its losses and bias counted (None
+    for the other forms, or before its first step: they hold no model to judge by)."""
     law = _law(controller)
     if law is None or not law._primed:
         return None
     ahead = law._predicted()
-    return ahead, ahead + law._drift(ahead, duty) * seconds / law._ts
+    return ahead, [ahead + law._drift(ahead, duty) * seconds / law._ts for duty in duties]
 
 
 def pulse_running(controller: Controller) -> bool:

@@ -468,18 +468,11 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
             else:
                 self._event(logging.WARNING, f"heat-up measure refused: {fit.refused}", record.t)
         else:
-            estimate = learner.period(record.hlt_target, record.pv, self._total_applied(record))
+            applied = self._of_both(record.applied, record.applied2)
+            estimate = learner.period(record.hlt_target, record.pv, applied)
             if estimate is not None:
                 self._store_model(models, estimate.model, estimate.refused, record.t)
         self._heat_up_seen = fit
-
-    def _total_applied(self, record: PeriodRecord) -> float:
-        """The period's applied duty as a share of every element's power (the split's law
-        drives their total): the second element's duty as switched counted in."""
-        if self.element2 is None:
-            return record.applied
-        watts, watts2 = self.config.tun.element_watts, element2_watts(self.config)
-        return total_share(watts, watts2, record.applied, record.applied2 or 0.0)
 
     def _store_model(
         self, models: ModelStore, model: LearnedModel | None, refused: str | None, t: float
@@ -875,10 +868,15 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         """(output, applied) as % of all the elements' power, for the supervisor."""
         if applied2 is None or not isinstance(self.controller, TwoElementController):
             return output, applied
-        w1, w2 = self.config.tun.element_watts, element2_watts(self.config)
-        return total_share(w1, w2, output, self.controller.u2), total_share(
-            w1, w2, applied, applied2
-        )
+        return self._of_both(output, self.controller.u2), self._of_both(applied, applied2)
+
+    def _of_both(self, duty: float, duty2: float | None) -> float:
+        """The SSR's element's `duty` and the second's `duty2` (%) as one % of both elements'
+        power (the split's law drives their total); `duty` itself without a second."""
+        if duty2 is None or self.element2 is None:
+            return duty
+        watts, watts2 = self.config.tun.element_watts, element2_watts(self.config)
+        return total_share(watts, watts2, duty, duty2)
 
     def _drain_alarms(self, t: float) -> None:
         for alarm in self.supervisor.drain_events():
