@@ -140,6 +140,44 @@ def test_a_load_told_a_dead_time_ahead_raises_the_duty_by_its_share_and_nothing_
     assert now.step(66.0, 66.0, now.output) > out_plain + 25.0 + 1.0
 
 
+TOLD_W, K_TOLD = 2000.0, 100.0  # a load told held_law's 4 kW tun, reckoned on this K
+
+
+def loaded_hold(share: float, seconds: float) -> tuple[Controller, float]:
+    """held_law told TOLD_W of load that draws `share` of it, closed for `seconds` on a plant
+    that is its model otherwise (the heat 60 s late, losses to 20 °C over τ 14961 s).
+    The law and the last PV."""
+    law = held_law()
+    rate, tau = 100.0 * 1.689 / 14961.0, 14961.0  # °C/s at full power, s
+    in_flight = [law.output] * round(60.0 / PERIOD)  # the duties still on their way
+    pv = 66.0
+    for _ in range(round(seconds / PERIOD)):
+        predictive.known_load(law, TOLD_W, 4000.0, basis=K_TOLD)
+        in_flight.append(law.step(66.0, pv, law.output))
+        drawn = 100.0 * share * TOLD_W / 4000.0
+        pv += PERIOD * (rate * (in_flight.pop(0) - drawn) / 100.0 - (pv - 20.0) / tau)
+    return law, pv
+
+
+def test_a_load_fed_too_high_is_learned_down_to_the_share_the_water_shows() -> None:
+    """A coil's K from the prior is ±50 %: told 2 kW that draws 1.2 kW, the law learns the
+    share the water shows within LOAD_SHARE_S's few time constants and holds its setpoint on
+    the duty the plant needs; a new K (basis), or a new run after a stop, restarts the share
+    at the whole."""
+    law, pv = loaded_hold(0.6, 900.0)
+    # Held at 66 °C the plant needs its losses, (66 - 20)/τ of the full-power rate, and the
+    # 30 % the load draws (1.2 kW of 4 kW).
+    need = 100.0 * (46.0 / 14961.0) / (100.0 * 1.689 / 14961.0) + 30.0
+    assert abs(pv - 66.0) <= 0.05
+    assert abs(law.output - need) <= 1.0
+    stopped = copy.deepcopy(law)
+    predictive.known_load(law, TOLD_W, 4000.0, basis=150.0)  # K measured anew
+    assert law.step(66.0, pv, law.output) >= need + 15.0  # the 2 kW, 50 %, fed whole again
+    predictive.known_load(stopped, 0.0, 4000.0, basis=K_TOLD)  # the pump stopped
+    predictive.known_load(stopped, TOLD_W, 4000.0, basis=K_TOLD)  # and runs again
+    assert stopped.step(66.0, pv, stopped.output) >= need + 15.0
+
+
 def test_a_commanded_pump_start_sends_the_load_ahead_and_the_hlt_stays_within_0_3_c() -> None:
     tun, records = day("sim", [{"at": f"{PUMP_AT:g}s", "pump": "on"}])
     # The pump runs at the first period within half a period of the dead time on: 2470 s.

@@ -162,6 +162,15 @@ into the gentle zone only while the PV is there; the step down from it must not 
 hold, where the output moves by a few % a period at most."""
 OBSERVER_BIAS_S = 800.0
 """The bias's time constant when ti = 0."""
+LOAD_SHARE_S = 100.0
+"""s: how fast predictive's observer learns the share of a known load (`known_load`) the water
+shows: well inside the 180 s a HERMS coil's load is fed on the prior's K (±50 %) before its
+first block is measured (the choice measured: docs/mash-control.md, "Feeding the load
+forward")."""
+LOAD_SHARE_RANGE = (0.5, 1.5)
+"""The share learned stays within the prior K's own uncertainty (±50 %, `coil.PRIOR_SD_SHARE`):
+a run of innovations from something else (a sensor's step, a fill) cannot turn the load into
+nothing or double it."""
 STEP_INNOVATION = 0.25
 """°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
 the mean of its readings, so noise of 0.03 °C never moves it that far."""

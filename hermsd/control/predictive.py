@@ -17,6 +17,8 @@ from hermsd.control.pid import (
     FAR_BAND,
     FULL_MARGIN,
     LINEAR_BAND,
+    LOAD_SHARE_RANGE,
+    LOAD_SHARE_S,
     MAX_DEAD_TIME,
     MAX_RECOVERY_HOLD,
     OBSERVER_BIAS_S,
@@ -66,11 +68,14 @@ class _Predictive(_Base):
         "_kd",
         "_l1",
         "_l2",
+        "_l2_share",
         "_lag",
         "_lag_share",
         "_load",
+        "_load_basis",
         "_load_in",
         "_load_past",
+        "_load_share",
         "_load_until",
         "_loss",
         "_pulse",
@@ -123,6 +128,10 @@ class _Predictive(_Base):
         # period the next step closes.
         self._load = self._load_past = self._load_in = 0.0
         self._load_until = math.inf
+        # The share of that load the water shows, learned by the observer (`_advance`), and
+        # what the load was reckoned from (a new basis restarts it at the whole).
+        self._load_share, self._load_basis = 1.0, 0.0
+        self._l2_share = observer_gains(ts, OBSERVER_TRACK_S, LOAD_SHARE_S)[1]
 
     @property
     def fit(self) -> HeatUpFit | None:
@@ -179,12 +188,13 @@ class _Predictive(_Base):
         from `_load_in` s on (a pump start prepared a dead time ahead) until `_load_until` s
         (a pump stop the program's timer announces), the whole of it between."""
         end = start + length
+        load = self._load * self._load_share
         if self._load_in <= start and end <= self._load_until:
-            return self._load
+            return load
         if length <= 0.0:
             return 0.0
         acting = min(end, self._load_until) - max(start, self._load_in)
-        return self._load * min(max(acting / length, 0.0), 1.0)
+        return load * min(max(acting / length, 0.0), 1.0)
 
     def _holding(self, sp: float) -> float:
         """The duty that holds `sp` by the model and its bias (may lie outside the limits),
@@ -259,8 +269,10 @@ class _Predictive(_Base):
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
         step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
         self._estimate = before + step
-        if abs(innovation) <= BIAS_INNOVATION_CLIP and self._lo < previous < self._hi:
-            self._bias += self._l2 * innovation
+        if abs(innovation) <= BIAS_INNOVATION_CLIP:
+            self._learn_share(past, innovation)
+            if self._lo < previous < self._hi:
+                self._bias += self._l2 * innovation
         # D acts on the measured PV, filtered by tf (first order).
         fpv1 = self._fpv
         fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
@@ -281,6 +293,17 @@ class _Predictive(_Base):
             p, d = self._lo + (self._hi - self._lo) * self._pulse.duty(self._ts) - i, 0.0
         self._terms = (p, i, d)
         return p + i + d
+
+    def _learn_share(self, past: float, innovation: float) -> None:
+        """The known load's share the water shows, learned from the period's innovation as
+        the bias is but LOAD_SHARE_S fast, also at full power: a load fed on a prior K (a
+        coil's, ±50 %) is the model's largest error until K is measured, and one fed too
+        high holds the HLT above its setpoint (`_predicted` waits for a fall that never
+        comes) by as much as the limit's margin."""
+        drawn = past / self._load_share  # % of full power the told load drew last period
+        if drawn > 0.0:
+            share = self._load_share - self._l2_share * innovation * 100.0 / (self._rate * drawn)
+            self._load_share = min(max(share, LOAD_SHARE_RANGE[0]), LOAD_SHARE_RANGE[1])
 
     def _duty_was_steady(self, step: float) -> bool:
         """Whether the duties sent over the dead time and STEADY_SPAN_S before this period's
@@ -510,6 +533,7 @@ def known_load(
     element_watts: float,
     starts_in: float = 0.0,
     ends_in: float = math.inf,
+    basis: float = 0.0,
 ) -> None:
     """Tell `controller` (predictive) the heat flow `watts` drawn from the water besides its
     losses from `starts_in` s on until `ends_in` s (a HERMS coil's load, W; negative when it
@@ -519,8 +543,11 @@ def known_load(
     watts/element_watts·100 % taken off the element's, so the holding duty rises by that for
     the heat that arrives once it acts (feed-forward: the loop does not wait for the sensor
     to show the load; a load a dead time ahead is met by heat sent now), the prediction
-    counts it from when it acts, and the bias does not learn it as a loss. 0 is no load: the
-    law is then exactly the one without."""
+    counts it from when it acts, and the bias does not learn it as a loss; the observer
+    learns the share of it the water shows (`_learn_share`) until `basis`, what `watts` was
+    reckoned from (a HERMS coil's K, W/K), changes or the load ends (a pump's run is its
+    own: a stop's standing wort, and what a small load's share took up of other errors, are
+    not the next run's). 0 is no load: the law is then exactly the one without."""
     law = _law(controller)
     if law is not None:
         if not (math.isfinite(watts) and math.isfinite(element_watts) and element_watts > 0.0):
@@ -535,6 +562,8 @@ def known_load(
                 f"a load ending in {ends_in!r} s is invalid: must be ≥ its start, {starts_in!r} s"
             )
         law._load = 100.0 * watts / element_watts
+        if basis != law._load_basis or watts == 0.0:
+            law._load_share, law._load_basis = 1.0, basis
         law._load_in = starts_in
         law._load_until = ends_in
 

@@ -474,7 +474,10 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
             if record.coil_load is not None and watched is not None:  # the HERMS's outer loop
                 starts_in = record.pump_in or 0.0
                 ends_in = math.inf if record.pump_stop_in is None else record.pump_stop_in
-                known_load(controller, record.coil_load, total_watts(watched), starts_in, ends_in)
+                basis = record.coil_k or 0.0
+                known_load(
+                    controller, record.coil_load, total_watts(watched), starts_in, ends_in, basis
+                )
             if record.reset_from is not None:
                 controller.reset(record.pv, record.reset_from)
                 known = True

@@ -254,6 +254,12 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     "s until a pump stop the program's timer announces: the coil_load fed "
                     "forward ends then (null: none announced)",
                 ),
+                "coil_k": _field(
+                    ["number", "null"],
+                    "the coil's conductance the coil_load was reckoned on, W/K: the HLT law "
+                    "learns the share of that load the water shows until it changes (null: no "
+                    "load reckoned)",
+                ),
                 "current": _field(
                     ["array", "null"],
                     "the element's current input's samples in the period, each [t, the SSR "
@@ -271,7 +277,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
             optional=(
                 *("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
                 *("mash", "coil", "pump", "hlt_setpoint", "coil_load", "cascade", "pump_in"),
-                *("pump_stop_in", "current", "current_said"),
+                *("pump_stop_in", "coil_k", "current", "current_said"),
             ),
         ),
     ),

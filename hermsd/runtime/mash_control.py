@@ -39,6 +39,7 @@ class MashControl:
         self.decision: Decision | None = None  # None until the first period with a PV
         self.load_in = 0.0  # s until the load fed forward begins (a prepared pump start)
         self.load_until = math.inf  # s until it ends (a stop the program's timer announces)
+        self.load_basis = 0.0  # the coil's K (W/K) the load was reckoned on (0: no load)
 
     def period(
         self,
@@ -105,9 +106,14 @@ class MashControl:
             starts_in = pump_in
         ends_in = math.inf if pump_stop_in is None else max(pump_stop_in, starts_in)
         predictive.known_load(
-            controller, decision.load_watts, self.element_watts, starts_in, ends_in
+            controller,
+            decision.load_watts,
+            self.element_watts,
+            starts_in,
+            ends_in,
+            basis=coil.conductance,
         )
-        self.load_in, self.load_until = starts_in, ends_in
+        self.load_in, self.load_until, self.load_basis = starts_in, ends_in, coil.conductance
         self.decision = decision
         return decision
 
@@ -118,7 +124,7 @@ class MashControl:
         HLT to the limit above the strike: heat that coasts the mash past its first rest."""
         self.decision = Decision(setpoint, 0.0, STRIKE)
         predictive.known_load(controller, 0.0, self.element_watts)
-        self.load_in, self.load_until = 0.0, math.inf
+        self.load_in, self.load_until, self.load_basis = 0.0, math.inf, 0.0
         return self.decision
 
 

@@ -180,6 +180,7 @@ class MashSideFields(TypedDict):
     cascade: str | None
     pump_in: float | None
     pump_stop_in: float | None
+    coil_k: float | None
 
 
 class MashSide(LoopState):
@@ -526,6 +527,7 @@ class MashSide(LoopState):
             "pump_stop_in": (
                 None if control is None or math.isinf(control.load_until) else control.load_until
             ),
+            "coil_k": None if control is None or not control.load_basis else control.load_basis,
         }
 
     def coil_load(self, hlt: float | None) -> CoilLoad:

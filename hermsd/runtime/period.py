@@ -46,6 +46,7 @@ class PeriodRecord:
     cascade: str | None = None  # W fed forward, and the outer loop's phase
     pump_in: float | None = None  # s until a prepared pump start, when that load begins
     pump_stop_in: float | None = None  # s until a stop the program's timer announces
+    coil_k: float | None = None  # W/K, the coil's K that load was reckoned on
     current: list[list[object]] | None = None  # the element's current input's samples (its
     current_said: list[str] | None = None  # CurrentWatch's), and what the watch said of them
 
