@@ -95,6 +95,36 @@ def test_the_contactor_closes_only_where_its_minimum_on_time_fits_under_the_setp
     assert (control.u2, duty) == ((100.0, 100.0) if fits else (0.0, 100.0))
 
 
+@pytest.mark.parametrize(
+    ("pv", "sent", "ends"),
+    [(64.5, 60.0, "under"), (64.4, 100.0, "over, within the room"), (64.5, 100.0, "too far")],
+)
+def test_where_the_ssr_alone_cannot_hold_the_contactors_pulse_may_end_half_its_rise_over(
+    pv: float, sent: float, ends: str
+) -> None:
+    """A tun whose SSR element alone loses at 66 °C (K 1 °C/%, τ 3000 s: 100/3000 =
+    0.03333 °C/s at full power; the SSR's 2000 of 5500 W give 0.01212 °C/s against
+    (66 − 20)/3000 = 0.01533 lost): held strictly under the setpoint, its hold would sit
+    below the band. From where the heat `sent` leaves the water (T), the contactor's 120 s
+    pulse gains 120·(0.03333·3500/5500 − (T − 20)/3000) °C (0.72 °C near 65.5) and may end
+    half of that, at most LINEAR_BAND, over 66 °C; further over, the SSR alone runs."""
+    model = pid.PlantModel(gain=1.0, tau=3000.0, dead_time=60.0, ambient=20.0)
+    inner = laws.create("predictive", kc=120.0, ti=800.0, ts=H, out_max=100.0, model=model)
+    inner.reset(pv, sent)  # over 0.5 °C below: no bias primed, the model alone
+    control = SplitController(inner, split())
+    control.on2, control.free2 = False, True
+    control.step(66.0, pv, sent)
+    assert control.total == 100.0
+    ahead = predictive.predicted_pv(inner)
+    assert ahead is not None
+    assert (ahead - 20.0) / 3000.0 > 100.0 / 3000.0 * 2000.0 / 5500.0  # the SSR alone falls
+    end = ahead + 120.0 * (100.0 / 3000.0 * 3500.0 / 5500.0 - (ahead - 20.0) / 3000.0)
+    room = 66.0 + min((end - ahead) / 2.0, pid.LINEAR_BAND)
+    where = "under" if end <= 66.0 else "over, within the room" if end <= room else "too far"
+    assert where == ends
+    assert control.u2 == (0.0 if ends == "too far" else 100.0)
+
+
 def test_a_contactor_held_open_for_want_of_room_owes_nothing() -> None:
     # 80 % (4400 W) with no room under the setpoint for the contactor's minimum on-time: the
     # SSR's 2000 W alone (100 %), and the 2400 W short are not carried, where a debt kept
