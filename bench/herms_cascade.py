@@ -233,6 +233,7 @@ def day(
         ROOM,
         hose_delay=2 * HOSE_S,
         mash_lag=MASH_LAG,
+        hlt_dead_time=ELEMENT_S + HLT_LAG,
     )
     outer = Cascade(tanks, limit=limit, hlt_max=95.0, period=PERIOD)
     coil = CoilEstimator(
@@ -446,7 +447,14 @@ def herms_tun_table(limit: float) -> str:
     model = PlantModel(watts / (100 * ua_h), capacity / ua_h, delay + lag, ROOM)
     law = laws.create("predictive", kc=120.0, ti=800.0, ts=period, model=model)
     tanks = Tanks(
-        capacity, ua_h, 50 * WATER + 12 * 1700.0, 5.0, ROOM, hose_delay=20.0, mash_lag=lag
+        capacity,
+        ua_h,
+        50 * WATER + 12 * 1700.0,
+        5.0,
+        ROOM,
+        hose_delay=20.0,
+        mash_lag=lag,
+        hlt_dead_time=delay + lag,
     )
     outer = Cascade(tanks, limit=limit, hlt_max=95.0, period=period)
     coil = CoilEstimator(

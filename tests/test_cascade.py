@@ -66,6 +66,20 @@ def test_the_climb_stops_where_the_hlt_s_stored_heat_carries_the_mash_to_its_res
     assert at.phase == "coast" and at.hlt_setpoint == pytest.approx(69.9, abs=1e-3)
 
 
+@pytest.mark.parametrize(("dead_time", "setpoint"), [(60.0, 69.28999), (5.0, 70.0)])
+def test_a_climb_keeps_room_under_the_limit_for_the_heat_an_unannounced_stop_lands(
+    dead_time: float, setpoint: float
+) -> None:
+    # The HLT law's heat in flight for the coil, K·(70 − 40)·θ = 200·30·60 J = 360 kJ, lands
+    # in 418 600 J/K when the pump stops unannounced: 0.86001 °C, of which HLT_MARGIN (0.15)
+    # is under the limit already: the climb's setpoint 70 − 0.71001. Behind 5 s, 0.0717 °C,
+    # less than the margin: the limit less HLT_MARGIN, as without.
+    tanks = dataclasses.replace(LOSSLESS, hlt_dead_time=dead_time)
+    climb = step(cascade(tanks), 40.0, 60.0)
+    assert climb.phase == "climb"
+    assert climb.hlt_setpoint == pytest.approx(setpoint, abs=1e-5)
+
+
 def test_the_heat_in_the_hose_moves_the_switch_earlier_by_its_share() -> None:
     # A round trip of 120 s: the return leg of 60 s holds K·(T_h − T_m)·60 J more for the
     # mash (the inlet's lag on the other leg only slows the coast, lossless):

@@ -499,8 +499,10 @@ def test_the_herms_day_shows_the_hlt_fall_at_pump_start() -> None:
     day = scenario.load_scenario(SCENARIOS / "herms-day.yaml")
     result = scenario.run(day)
     by_t = {s.t: s.temp for s in result.samples}
-    # A mash sensor is fitted: the outer loop has the HLT at its limit (66 + 10 °C) by then.
-    assert 66.0 + 9.0 < by_t[3900.0] <= 66.0 + 10.0
+    # A mash sensor is fitted: the outer loop has the HLT near its limit (66 + 10 °C) by then,
+    # under it by the room an unannounced stop of the coil's load needs (`stop_room`: the
+    # pump, unseen, is taken as running).
+    assert 66.0 + 7.0 < by_t[3900.0] <= 66.0 + 10.0 - 0.15
     assert by_t[3900.0 + 600.0] < by_t[3900.0] - 2.0
 
 

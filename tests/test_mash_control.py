@@ -90,8 +90,12 @@ def test_the_hlt_never_passes_the_mash_setpoint_plus_the_limit(
     top = MASH_SP + LIMIT
     assert max(r.hlt_setpoint or 0.0 for r in result.records) <= top
     assert max(c for r in result.records for c in r.readings) <= top
-    # The climb stood at the limit less the HLT law's margin (0.15 °C).
-    assert any(r.cascade == "climb" and r.hlt_setpoint == top - 0.15 for r in result.records)
+    # The climb stood under the limit by the HLT law's margin (0.15 °C), or by more where an
+    # unannounced pump stop would land more of the coil's heat in flight (`stop_room`: with
+    # the mash far below, the coil's load is large).
+    climb = [r.hlt_setpoint or 0.0 for r in result.records if r.cascade == "climb"]
+    assert climb and max(climb) <= top - 0.15
+    assert min(climb) < top - 0.15 - 0.1
 
 
 def test_the_coils_load_is_fed_forward_while_the_pump_runs(
@@ -164,8 +168,9 @@ def test_a_mash_sensor_fault_holds_the_hlt_at_its_last_setpoint() -> None:
     daemon.clock.call_at(fault_at, lambda: chip.set_fault("nack"))
     daemon.clock.call_at(back_at, lambda: chip.set_fault("ok"))
     daemon.run(until=fault_at + 300.0)
-    before = [r for r in periods.records if r.t < fault_at][-1]
     held = [r for r in periods.records if r.cascade == "held"]
+    before = [r for r in periods.records if r.t < held[0].t][-1] if held else None
+    assert before is not None and before.cascade == "climb"
     assert held and held[0].t - fault_at <= 2 * 5.0  # declared after two failed reads
     assert {r.hlt_setpoint for r in held} == {before.hlt_setpoint}
     assert all(r.mash is None and r.state == "ok" for r in held)

@@ -7,18 +7,19 @@ The mash gains K·(T_hlt − T_m) through the coil and loses UA_m·(T_m − T_ro
 the HLT must stand at T_hold = T_sp + UA_m·(T_sp − T_room)/K, above the rest by the losses'
 share (why a mash "levels out below" its HLT). Heat cannot be taken back from the mash, so a
 step runs as the HLT law's own approach does, one level up: the HLT's setpoint stays at the
-limit (mash setpoint + `max_hlt_above_mash`, less HLT_MARGIN for the HLT law's own
-overshoot, never above the HLT's maximum) until the heat stored in the HLT above T_hold and
-in flight in the hose will carry the mash to its setpoint as the two tanks coast together
-(`coast_peak`: the linear two-tank model run forward with the element off until the HLT is
-down at T_hold). Then the HLT's setpoint is the HLT from which the coast carries the mash to
-its setpoint (`coast_start`, judged again every period: below the HLT while the coast holds,
-above it where it falls short), down to T_hold as the mash arrives, and from
-there on the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's
-rise against the model's once the climb is over, and the PI's integral, learn it, and what
-they learn serves the next rest's T_hold and coast. With the pump stopped nothing flows,
-and the HLT is readied: the setpoint is the temperature whose stored heat above T_hold just
-covers the mash's shortfall (capped by the limit).
+limit (mash setpoint + `max_hlt_above_mash`, less HLT_MARGIN for the HLT law's own overshoot
+or, where it is more, the heat in flight for the coil that a pump stop nobody announced lands
+in the HLT, `stop_room`; never above the HLT's maximum) until the heat stored in the HLT above
+T_hold and in flight in the hose will carry the mash to its setpoint as the two tanks coast
+together (`coast_peak`: the linear two-tank model run forward with the element off until the
+HLT is down at T_hold). Then the HLT's setpoint is the HLT from which the coast carries the
+mash to its setpoint (`coast_start`, judged again every period: below the HLT while the coast
+holds, above it where it falls short), down to T_hold as the mash arrives, and from there on
+the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's rise against
+the model's once the climb is over, and the PI's integral, learn it, and what they learn serves
+the next rest's T_hold and coast. With the pump stopped nothing flows, and the HLT is readied:
+the setpoint is the temperature whose stored heat above T_hold just covers the mash's shortfall
+(capped by the limit).
 
 The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
 lower T_hold, so it stops early rather than late; the load fed forward is K one sd low, so a
@@ -92,7 +93,8 @@ class Tanks:
     hlt_capacity, mash_capacity in J/K (water 4186 J/(L·K), grain about 1700 J/(kg·K));
     hlt_loss, mash_loss in W/K to the room at `room` °C; hose_delay in s (the wort's round trip
     outside the tun, mash → coil → mash, half each way); mash_lag in s (the mash sensor's lag
-    behind the mash).
+    behind the mash); hlt_dead_time in s (the HLT law's, between its duty and its sensor:
+    the heat sent for the coil's load that is still on its way).
     """
 
     hlt_capacity: float
@@ -102,12 +104,13 @@ class Tanks:
     room: float
     hose_delay: float = 0.0
     mash_lag: float = 0.0
+    hlt_dead_time: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("hlt_capacity", "mash_capacity"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0.0):
                 raise ValueError(f"{name}={getattr(self, name)!r} J/K is invalid: must be > 0")
-        for name in ("hlt_loss", "mash_loss", "hose_delay", "mash_lag"):
+        for name in ("hlt_loss", "mash_loss", "hose_delay", "mash_lag", "hlt_dead_time"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name}={getattr(self, name)!r} is invalid: must be ≥ 0")
         if not math.isfinite(self.room):
@@ -131,6 +134,15 @@ def holding_hlt(mash_sp: float, tanks: Tanks, conductance: float) -> float:
     """The HLT temperature that holds the mash at `mash_sp` through a coil of `conductance`
     (W/K): T_sp + UA_m·(T_sp − T_room)/K."""
     return mash_sp + tanks.mash_loss * (mash_sp - tanks.room) / conductance
+
+
+def stop_room(hlt: float, mash: float, k: float, tanks: Tanks) -> float:
+    """°C an HLT at `hlt` rises when the pump stops unannounced (a brewer's stir, a pump the
+    daemon only sees, an operator's off): the heat sent for the coil's load K·(T_h − T_m)
+    over the HLT law's dead time lands in water nothing draws from. A climb's setpoint
+    stays that far under the limit where it exceeds HLT_MARGIN (the law's overshoot
+    belongs to a climb that goes on, the landing to one that stops: they do not add)."""
+    return k * max(0.0, hlt - mash) * tanks.hlt_dead_time / tanks.hlt_capacity
 
 
 def coast_peak(hlt: float, mash: float, hold: float, tanks: Tanks, conductance: float) -> float:
@@ -325,7 +337,8 @@ class Cascade:
                 setpoint = self._last_sp
             phase = "no flow" if stood else "ready"
         elif self._climbing:
-            setpoint, phase = ceiling, "climb"
+            room = max(HLT_MARGIN, stop_room(ceiling, mash_pv, k, tanks)) - HLT_MARGIN
+            setpoint, phase = ceiling - room, "climb"
         else:
             setpoint = self._hold(
                 mash_sp, mash_pv, mash, hlt_pv, tanks, (k, high), learn=not starved

@@ -155,6 +155,7 @@ def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> 
         room=model.ambient,
         hose_delay=herms.hose_s,
         mash_lag=herms.mash_sensor_lag,
+        hlt_dead_time=model.dead_time,
     )
     cascade = Cascade(
         tanks,
