@@ -124,10 +124,11 @@ def test_no_mash_reading_ever_holds_the_hlt_at_the_mash_setpoint_not_at_the_limi
     assert (decision.phase, decision.hlt_setpoint) == ("held", 65.0)
 
 
-def test_the_load_fed_forward_is_k_one_sd_low_times_the_hlt_over_the_mash() -> None:
-    # (200 − 50) W/K · (70 − 50) K = 3000 W
+def test_the_load_fed_forward_is_ks_estimate_times_the_hlt_over_the_mash() -> None:
+    # 200 W/K · (70 − 50) K = 4000 W, whatever K's uncertainty (its low side, 150 W/K, was
+    # the prior's half of the pull at a pump start)
     decision = step(cascade(), 50.0, 70.0, coil=CoilEstimate(200.0, 50.0))
-    assert decision.load_watts == pytest.approx(3000.0)
+    assert decision.load_watts == pytest.approx(4000.0)
     assert step(cascade(), 50.0, 70.0, pump=False).load_watts == 0.0
 
 

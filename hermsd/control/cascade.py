@@ -22,8 +22,9 @@ the setpoint is the temperature whose stored heat above T_hold just covers the m
 (capped by the limit).
 
 The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
-lower T_hold, so it stops early rather than late; the load fed forward is K one sd low, so a
-wrong K never heats the HLT past its setpoint on its own. A mash reading that is missing,
+lower T_hold, so it stops early rather than late; the load fed forward is K's estimate (one
+sd low was the prior's half of the pull at a pump start, met late; the HLT law learns the
+share of it the water shows, `predictive.known_load`). A mash reading that is missing,
 faulty or older than MAX_MASH_AGE holds the HLT at its last setpoint (flagged `held`, for
 the daemon to warn), never at the limit on a guess.
 """
@@ -458,7 +459,7 @@ class Cascade:
         coil: CoilEstimate,
         phase: str,
     ) -> float:
-        """The coil's draw on the HLT (W) for the HLT law to feed forward: K (one sd low)
+        """The coil's draw on the HLT (W) for the HLT law to feed forward: K's estimate
         times the HLT over the mash; none with the pump stopped (or nothing flowing through
         it: `flowing`) or no mash reading yet. Fed with the HLT above its setpoint too: the
         law then waits for the draw to bring it down, and sends the heat a dead time ahead
@@ -469,4 +470,4 @@ class Cascade:
         2 min into the coast, the mash 0.89 °C over)."""
         if not pump or mash is None or (phase == "coast" and hlt > setpoint):
             return 0.0
-        return coil.low * (hlt - mash)
+        return coil.conductance * (hlt - mash)

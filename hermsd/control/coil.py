@@ -79,8 +79,8 @@ class CoilEstimate:
 
     @property
     def low(self) -> float:
-        """K one sd low (never below 0): the side that errs small when feeding the load
-        forward, so a wrong K never drives the HLT above its setpoint on its own."""
+        """K one sd low (never below 0): the side that errs late when judging that no wort
+        flows (`flow_watch.FlowWatch`)."""
         return max(0.0, self.conductance - self.sd)
 
 

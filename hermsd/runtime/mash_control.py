@@ -95,10 +95,6 @@ class MashControl:
         )
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
-        elif decision.load_watts > 0.0 and coil.low > 0.0:
-            # K's estimate, not one sd low: the prior's low is half the pull, met late.
-            load = decision.load_watts * coil.conductance / coil.low
-            decision = dataclasses.replace(decision, load_watts=load)
         starts_in = 0.0
         if pump_in is not None and mash_pv is not None and decision.held is None:
             prepared = max(0.0, coil.conductance * (hlt - mash_pv))
