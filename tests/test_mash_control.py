@@ -16,10 +16,11 @@ from typing import Any
 
 import pytest
 import yaml
+from test_control import Inbox, status_of
 from test_log_schemas import invalid
 from test_mash_side import Periods
 
-from hermsd.api.link import role_faults
+from hermsd.api.link import LoopLink, role_faults
 from hermsd.cli import main
 from hermsd.config.read import parse
 from hermsd.control.learning import LearnedModel, ModelStore
@@ -140,12 +141,15 @@ def test_the_coil_learned_is_kept_when_the_day_ends_with_the_pump_running(
     assert stored.coil == pytest.approx(flow * (1.0 - math.exp(-250.0 / flow)), rel=0.05)
 
 
-def herms_daemon() -> tuple[Daemon, World]:
-    config = parse(CONFIG)
+def herms_daemon(config_text: str = CONFIG, mash_ua: float | None = None) -> tuple[Daemon, World]:
+    """herms-day's plant under the daemon (`mash_ua`: the mash tun's losses, W/K, in place
+    of the plant's 10)."""
+    config = parse(config_text)
     clock = VirtualClock()
     plant = HERMS_DAY["plant"]
     hlt = {k: v for k, v in plant.items() if k not in ("model", "mash")}
-    tun = make_herms_plant(plant["model"], plant["mash"], **hlt)
+    mash = plant["mash"] if mash_ua is None else {**plant["mash"], "mash_ua_w_per_k": mash_ua}
+    tun = make_herms_plant(plant["model"], mash, **hlt)
     world = build_world(config, clock, tun=tun)
     assert world.mash is not None
     daemon = assemble(
@@ -304,6 +308,8 @@ def test_a_stuck_bed_is_signed_while_it_lasts_and_the_heater_stays_on(
     assert after[1] == () and "(no flow)" not in after[0]
     # A warning, never an alarm: the heater is not turned off for it.
     assert all(r.alarms == [] and r.heater_allowed for r in periods.records)
+    # Nor taken for a rest the limit cannot reach: the HLT is readied, not held at its most.
+    assert not [e for e in periods.events if e.startswith("the mash levels out")]
 
 
 FIRST_REST_BY = FREED_AT + 600.0
@@ -341,3 +347,49 @@ def test_a_reload_while_no_flow_is_signed_says_the_sign_ended() -> None:
         "no flow through the coil ended: the outer loop made again for the reloaded config, "
         "the flow judged afresh"
     ]
+
+
+LOSSY_UA, TIGHT_LIMIT = 40.0, 3.0
+"""A bare steel mash tun (40 W/K) under a 3 °C limit: the HLT held at its most (66 + 3 °C, less
+the HLT law's margin) cannot bring the mash to 66 °C."""
+
+
+def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cleared() -> None:
+    """At a steady HLT H, the coil's K·(H − m) meets the mash's losses UA·(m − room) at
+    m = (K·H + UA·room)/(K + UA) (K = 188.2 W/K, as above): the warning names that level,
+    measured from the mash's own rise, within half a degree, while the mash is short of the
+    rest; a warning, never an alarm; a rest changed clears it."""
+    guessed = f"mash_loss_w_per_k: 28\n  max_hlt_above_mash: {TIGHT_LIMIT:g}\n"
+    daemon, world = herms_daemon(CONFIG.replace("mash_loss_w_per_k: 5\n", guessed), LOSSY_UA)
+    periods = Periods()
+    daemon.listeners.append(periods)
+    daemon.recorder = periods
+    LoopLink(daemon).attach(Inbox())
+    tun: Any = world.plant
+    daemon.clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
+    daemon.clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
+    daemon.run(until=5 * 3600.0)
+    said = [e for e in periods.events if e.startswith("the mash levels out")]
+    assert len(said) == 1, said
+    flow = 6.0 / 60.0 * 4186.0
+    k = flow * (1.0 - math.exp(-250.0 / flow))
+    last_hour = [r.pv for r in periods.records if r.t >= 4 * 3600.0 and r.pv is not None]
+    hlt = sum(last_hour) / len(last_hour)
+    level = (k * hlt + LOSSY_UA * 20.0) / (k + LOSSY_UA)
+    assert MASH_SP - level > 5.0  # far short: a rest nobody should wait for
+    control = daemon._mash_control
+    assert control is not None and control.reach.ceiling is not None
+    assert abs(control.reach.ceiling - level) < 0.5
+    assert f"near {control.reach.ceiling:.1f} °C with the HLT at its most" in said[0]
+    assert "raise herms.max_hlt_above_mash (3 °C)" in said[0]
+    status = status_of(daemon)
+    assert status["warnings"] == [said[0]]
+    assert status["mash"]["levels_at"] == control.reach.ceiling
+    assert f"levels out near {control.reach.ceiling:.1f} °C" in daemon.status_text()
+    assert all(r.alarms == [] and r.heater_allowed for r in periods.records)
+    daemon.set_setpoint(58.0)
+    daemon.run(until=5 * 3600.0 + 10.0)
+    cleared = "the mash levels out elsewhere now: the rest changed, measured afresh"
+    assert periods.events[-1] == cleared
+    assert status_of(daemon)["warnings"] == []
+    daemon.shutdown()

@@ -116,6 +116,33 @@ def test_another_full_power_clears_it_and_measures_afresh() -> None:
     assert watch.restart() is None  # nothing said: nothing to clear
 
 
+def test_a_paused_run_keeps_its_blocks_where_a_stop_starts_them_again() -> None:
+    """A pump timer's stop pauses the mash's run: the blocks before it count, the one under
+    way is dropped and the rise waits RISE_FROM_S again, so the same exact approach is said
+    with the same ceiling, at most that wait and a block later; a stop that is no pause ends
+    the run, which starts again from below half-way (at τ·ln 2 = 6931 s the water is half-way
+    to the ceiling, and three blocks past it are sure by 8705 s without a stop)."""
+    ceiling, stop = 55.0, (7800.0, 7920.0)
+
+    def run(paused: bool) -> tuple[ReachWatch, list[float]]:
+        watch, said, t = ReachWatch(), [], PERIOD
+        while t <= 6 * 3600.0:
+            full = not stop[0] <= t < stop[1]
+            news = watch.period(t, 66.0, approach(ceiling, t), full, 100.0, paused=paused)
+            if news is not None:
+                said.append(t)
+            t += PERIOD
+        return watch, said
+
+    plain = feed(ReachWatch(), ceiling, 6 * 3600.0)[0][0]
+    assert stop[1] < plain
+    watch, said = run(paused=True)
+    assert len(said) == 1 and plain < said[0] <= plain + RISE_FROM_S + MEASURE_S
+    assert watch.ceiling == pytest.approx(ceiling, abs=1e-6)
+    _, ended = run(paused=False)  # a new run, half-way from where it starts: far later
+    assert len(ended) == 1 and ended[0] > said[0] + 3600.0
+
+
 def test_cold_water_in_the_run_starts_its_measurement_again() -> None:
     # The same approach, but the water drops 3 °C an hour in: the rates before it are of
     # another start, and the run is measured afresh from the drop (later than without it).
@@ -153,7 +180,7 @@ def test_a_run_that_starts_where_the_water_levels_out_says_nothing_and_never_fai
 def test_under_a_power_limit_the_limit_is_named() -> None:
     watch, t, said = ReachWatch(), PERIOD, None
     while said is None and t < 8 * 3600.0:
-        said = watch.period(t, 66.0, approach(55.0, t), True, 100.0, max_output=50.0)
+        said = watch.period(t, 66.0, approach(55.0, t), True, 100.0, full_at=50.0)
         t += PERIOD
     assert said is not None and said.raised
     assert "at the power limit of 50 % (control.max_output)" in said.message

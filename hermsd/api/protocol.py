@@ -53,8 +53,9 @@ hermsd/program/driver.py), `mash` and
 `coil` (the mash's and the coil outlet's sensors: null when not fitted, else `celsius`, the
 latest good reading or null while faulty, and `fault`, why it is faulty or null; the
 mash's also `hlt_setpoint` and `phase`, the HLT's setpoint the outer loop chose and its
-phase, when it steers, and `warning`, the no-flow sign's words while it stands, else null:
-docs/mash-control.md), `pump`
+phase, when it steers, `warning`, the no-flow sign's words while it stands, else the words
+of the HLT at its most leaving the mash short of its rest, else null, and `levels_at`, where
+that mash levels out (°C), else null: docs/mash-control.md), `pump`
 (true running, false stopped, null when no pump is fitted or seen; `pump_switched` false
 when hermsd only sees the pump through its sense, `pump.sense`, and cannot switch it). `no_heat`
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no

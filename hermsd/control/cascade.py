@@ -264,6 +264,13 @@ class Cascade:
         HLT's maximum."""
         return min(mash_sp + self._limit - HLT_MARGIN, self._hlt_max)
 
+    def most(self, mash_sp: float, mash_pv: float, k: float) -> float:
+        """The climb's HLT setpoint for a mash at `mash_pv` through a coil of `k` W/K: the
+        ceiling, less the room an unannounced stop needs beyond HLT_MARGIN (`stop_room`)."""
+        ceiling = self.ceiling(mash_sp)
+        room = max(HLT_MARGIN, stop_room(ceiling, mash_pv, k, self._tanks)) - HLT_MARGIN
+        return ceiling - room
+
     def step(
         self,
         *,
@@ -338,8 +345,7 @@ class Cascade:
                 setpoint = self._last_sp
             phase = "no flow" if stood else "ready"
         elif self._climbing:
-            room = max(HLT_MARGIN, stop_room(ceiling, mash_pv, k, tanks)) - HLT_MARGIN
-            setpoint, phase = ceiling - room, "climb"
+            setpoint, phase = self.most(mash_sp, mash_pv, k), "climb"
         else:
             setpoint = self._hold(
                 mash_sp, mash_pv, mash, hlt_pv, tanks, (k, high), learn=not starved

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -188,10 +188,21 @@ class ReachWatch:
     HALF_WAY, put the ceiling MARGIN_C under the setpoint; cleared when the setpoint no longer
     is (changed to one the ceiling is not that far under) or the water reaches the band.
     `ceiling` is the level it names meanwhile (the latest such estimate), else None.
+
+    The same watch serves the mash of a HERMS, whose "full power" is the HLT held at its
+    most (`hermsd.runtime.mash_control`): `prefix`, `what` and `words` name the vessel and
+    say what the brewer can do (default: the HLT's own, `short_words`).
     """
 
-    def __init__(self) -> None:
+    def __init__(
+        self,
+        prefix: str = PREFIX,
+        what: str = "the water",
+        words: Callable[[float, float, float], str] = short_words,
+    ) -> None:
         self.ceiling: float | None = None
+        self._prefix, self._what, self._words = prefix, what, words
+        self._paused = False  # the run stands still (`period`'s `paused`) until full again
         self._run_since: float | None = None
         self._start_pv = self._top_pv = 0.0
         self._block = LineFit()
@@ -207,15 +218,25 @@ class ReachWatch:
         pv: float | None,
         full: bool,
         dead_time: float,
-        max_output: float = 100.0,
+        full_at: float = 100.0,
+        *,
+        paused: bool = False,
     ) -> Said | None:
-        """One period: `full` — the elements ran at full power (`FullPower`; `max_output`,
-        the limit named) through the period just ended, in auto, nothing held. What to say,
-        if anything."""
+        """One period: `full` — the elements ran at full power (`FullPower`; `full_at`, what
+        full power is: the limit control.max_output, %, for the water; the HLT's most, °C,
+        for a mash) through the period just ended, in auto, nothing held. What to say,
+        if anything. `paused` (with `full` False): a break the run goes on after (a pump
+        timer's stop): the block under way is dropped, the blocks before kept, and the rise
+        counted again from RISE_FROM_S after full power returns."""
         said = self._cleared(setpoint, pv)
         if not full or pv is None:
-            self._end_run()
+            if paused and self._run_since is not None:
+                self._paused, self._block = True, LineFit()
+            else:
+                self._end_run()
             return said
+        if self._paused:
+            self._paused, self._run_since, self._top_pv = False, t, pv
         if self._run_since is not None and pv < self._top_pv - DROP_C:
             self._end_run()  # cold water (or a dying element): not the same rise any more
         if self._run_since is None:
@@ -227,24 +248,25 @@ class ReachWatch:
         if block.n and t - self._block_t0 >= MEASURE_S:
             rate = block.slope()
             if rate is not None:
-                said = self._judge((block.sx / block.n, rate), setpoint, max_output) or said
+                said = self._judge((block.sx / block.n, rate), setpoint, full_at) or said
             self._block = block = LineFit()
         if not block.n:
             self._block_t0 = t
         block.add(t - self._block_t0, pv)
         return said
 
-    def restart(self) -> Said | None:
-        """Full power changed (a reload of control.max_output, a second element): measured
-        afresh, and what was said of the old one cleared."""
+    def restart(self, why: str = "full power changed") -> Said | None:
+        """Full power changed (a reload of control.max_output, a second element; for the
+        mash, a new rest and with it the HLT's most): measured afresh, and what was said of
+        the old one cleared."""
         self._end_run()
         if self.ceiling is None:
             return None
         self.ceiling = None
-        return Said(False, f"{PREFIX} elsewhere now: full power changed, measured afresh")
+        return Said(False, f"{self._prefix} elsewhere now: {why}, measured afresh")
 
     def _end_run(self) -> None:
-        self._run_since = None
+        self._run_since, self._paused = None, False
         self._block = LineFit()
         self._points.clear()
         self._sure = 0
@@ -255,13 +277,13 @@ class ReachWatch:
             return None
         if ceiling >= setpoint - MARGIN_C:
             self.ceiling = None
-            return Said(False, f"{PREFIX} near {ceiling:.1f} °C, enough for {setpoint:g} °C")
+            return Said(False, f"{self._prefix} near {ceiling:.1f} °C, enough for {setpoint:g} °C")
         if pv is not None and pv >= setpoint - BAND:
             self.ceiling = None
-            return Said(False, f"{PREFIX} higher than said: the water reached the band")
+            return Said(False, f"{self._prefix} higher than said: {self._what} reached the band")
         return None
 
-    def _judge(self, point: tuple[float, float], setpoint: float, max_output: float) -> Said | None:
+    def _judge(self, point: tuple[float, float], setpoint: float, full_at: float) -> Said | None:
         """A block's (mean PV, rate) in: the ceiling through it and those from ANCHOR_SHARE of
         the climb up, judged."""
         points = self._points
@@ -282,4 +304,4 @@ class ReachWatch:
             return None
         raised = self.ceiling is None
         self.ceiling = ceiling
-        return Said(True, short_words(ceiling, setpoint, max_output)) if raised else None
+        return Said(True, self._words(ceiling, setpoint, full_at)) if raised else None

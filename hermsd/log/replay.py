@@ -64,6 +64,7 @@ from hermsd.runtime.build import (
     retunes,
     watch_changes,
 )
+from hermsd.runtime.mash_control import MASH_PREFIX
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.current_watch import CurrentWatch, current_watch, words
 from hermsd.safety.current_watch import Sample as CurrentSample
@@ -209,12 +210,12 @@ def summarise(log: Log) -> dict[str, Any]:
         # None: the safety limits held for any tun the config may describe (nothing measured)
         "safety_tun_model": log.configs[-1].safety_model if log.configs else None,
         "learning": learning(log),
-        # When full power could not reach the setpoint, and when that cleared
-        # (hermsd.control.reach).
+        # When full power could not reach the setpoint, or the HLT at its most the mash's
+        # rest, and when that cleared (hermsd.control.reach).
         "reach": [
             {"at_s": round(e.at, 3), "message": e.message}
             for e in log.events
-            if e.message.startswith(REACH_PREFIX)
+            if e.message.startswith((REACH_PREFIX, MASH_PREFIX))
         ],
         "steps": step_quality(
             zip(log.elapsed, log.periods, strict=True),

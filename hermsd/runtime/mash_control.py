@@ -12,30 +12,82 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 from hermsd.config.schema import Config
 from hermsd.control import pid, predictive
-from hermsd.control.cascade import STRIKE, Cascade, Decision, Tanks
+from hermsd.control.cascade import (
+    HLT_MARGIN,
+    MIN_CONDUCTANCE,
+    SETPOINT_MOVE,
+    STRIKE,
+    Cascade,
+    Decision,
+    Tanks,
+)
 from hermsd.control.coil import CoilEstimate, CoilEstimator, prior_estimate
 from hermsd.control.factory import total_watts
 from hermsd.control.flow_watch import FlowWatch
 from hermsd.control.learning import LearnedModel
+from hermsd.control.reach import ReachWatch, Said
+from hermsd.metrics import BAND
 from hermsd.safety.coil_load import mash_capacity
 
 CUT_OUT_MARGIN = 1.0
 """°C the HLT's setpoint stays below safety.max_temp: the HLT law's overshoot is a tenth."""
+MASH_PREFIX = "the mash levels out"
+"""How every event of the mash's reach warning begins (replay finds them by it)."""
+MOST_SLACK = 0.01
+"""°C under the HLT's most that an HLT setpoint may lie and still be at it (two reckonings
+of one float)."""
+STEERED = ("climb", "coast", "hold")
+"""The outer loop's phases in which the coil's heat reaches the mash as the HLT is steered."""
+
+
+def mash_short_words(config: Config) -> Callable[[float, float, float], str]:
+    """The mash's reach warning in the brewer's words, (level, rest, the HLT's most) in,
+    naming the key that sets the HLT's most for `config`: the limit over the mash's rest,
+    or safety.max_temp where that is lower."""
+    limit, hlt_max = config.herms.max_hlt_above_mash, config.safety.max_temp - CUT_OUT_MARGIN
+
+    def words(level: float, rest: float, most: float) -> str:
+        key = (
+            f"herms.max_hlt_above_mash ({limit:g} °C)"
+            if rest + limit - HLT_MARGIN <= hlt_max
+            else f"safety.max_temp ({config.safety.max_temp:g} °C)"
+        )
+        return (
+            f"{MASH_PREFIX} near {level:.1f} °C with the HLT at its most ({most:.1f} °C), "
+            f"{rest - level:.1f} °C short of its rest {rest:g} °C: raise {key}, insulate "
+            "the mash tun, or lower the rest"
+        )
+
+    return words
 
 
 class MashControl:
     """The outer loop, the coil's estimator and the last period's decision."""
 
     def __init__(
-        self, cascade: Cascade, coil: CoilEstimator, flow: FlowWatch, element_watts: float
+        self,
+        cascade: Cascade,
+        coil: CoilEstimator,
+        flow: FlowWatch,
+        element_watts: float,
+        reach: ReachWatch,
+        delays: float,
     ) -> None:
+        """`reach`: the mash's reach watch; `delays`: s between the coil and the mash's
+        sensor (the hoses' round trip and the sensor's lag), its rise's dead time."""
         self.cascade = cascade
         self.coil = coil
         self.flow = flow
         self.element_watts = element_watts
+        self.reach = reach
+        self.delays = delays
+        self._rest: float | None = None  # the mash's setpoint the reach watch last had
+        self.reach_said: Said | None = None  # what the reach watch said this period
+        self.short: str | None = None  # the reach warning's words while it stands
         self.decision: Decision | None = None  # None until the first period with a PV
         self.load_in = 0.0  # s until the load fed forward begins (a prepared pump start)
         self.load_until = math.inf  # s until it ends (a stop the program's timer announces)
@@ -52,6 +104,7 @@ class MashControl:
         pump: bool,
         pump_known: bool,
         applied: float,
+        t: float = 0.0,
         pump_in: float | None = None,
         pump_stop_in: float | None = None,
         timer_stop: bool = False,
@@ -70,7 +123,7 @@ class MashControl:
         load told the law to end then, so the heat sent from a dead time before it is the
         water's alone and the HLT does not rise past its limit as the coil stops drawing.
         `timer_stop`: the pump stopped by that timer, its restart due (`Cascade.step`'s
-        `paused`)."""
+        `paused`). `t`: the loop's clock (s), for the mash's reach watch."""
         known = pump and pump_known
         exchange = self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known)
         coil = self.coil.estimate()
@@ -110,8 +163,41 @@ class MashControl:
             basis=coil.conductance,
         )
         self.load_in, self.load_until, self.load_basis = starts_in, ends_in, coil.conductance
+        k = max(coil.conductance, MIN_CONDUCTANCE)
+        self._watch_reach(t, decision, mash_sp, mash_pv, hlt_pv, k, timer_stop)
         self.decision = decision
         return decision
+
+    def _watch_reach(
+        self,
+        t: float,
+        decision: Decision,
+        mash_sp: float,
+        mash_pv: float | None,
+        hlt_pv: float,
+        k: float,
+        paused: bool,
+    ) -> None:
+        """Feed the mash's reach watch: "full power" is the HLT steered to its most
+        (`Cascade.most`) and standing within the band of it, so that the mash's rise is
+        the most the limit allows; a rest changed restarts it (the HLT's most moves with
+        the rest); a stop of the program's pump timer pauses its run."""
+        said = None
+        if self._rest is not None and abs(mash_sp - self._rest) > SETPOINT_MOVE:
+            said = self.reach.restart("the rest changed")
+        self._rest = mash_sp
+        most = None if mash_pv is None else self.cascade.most(mash_sp, mash_pv, k)
+        full = (
+            most is not None
+            and decision.held is None
+            and decision.phase in STEERED
+            and decision.hlt_setpoint >= most - MOST_SLACK
+            and hlt_pv >= decision.hlt_setpoint - BAND
+        )
+        news = self.reach.period(t, mash_sp, mash_pv, full, self.delays, most or 0.0, paused=paused)
+        self.reach_said = news or said
+        if self.reach_said is not None:
+            self.short = self.reach_said.message if self.reach_said.raised else None
 
     def strike(self, controller: pid.Controller, setpoint: float) -> Decision:
         """A program's step before the mash is in (the strike water): the step's setpoint
@@ -175,4 +261,5 @@ def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> 
         delays=herms.hose_s + herms.mash_sensor_lag,
         period=period,
     )
-    return MashControl(cascade, coil, flow, watts)
+    reach = ReachWatch(MASH_PREFIX, "the mash", mash_short_words(config))
+    return MashControl(cascade, coil, flow, watts, reach, tanks.hose_delay + tanks.mash_lag)

@@ -424,6 +424,7 @@ class MashSide(LoopState):
             pump=self.pump_running,
             pump_known=self.pump_state is not None or seen,
             applied=applied,
+            t=t,
             pump_in=pump_in,
             pump_stop_in=self._timer_stop_in(),
             timer_stop=self._timer_stopped(),
@@ -446,6 +447,7 @@ class MashSide(LoopState):
         elif was_stuck and not control.flow.stuck:
             why = "the wort flows again" if self.pump_running else "the pump stopped"
             self._event(logging.INFO, f"no flow through the coil ended: {why}", t)
+        self._say_reach(control.reach_said, t)
         return decision.hlt_setpoint
 
     def _flow_seen(self, hlt: float) -> bool:
@@ -565,7 +567,8 @@ class MashSide(LoopState):
     def role_status(self) -> dict[str, dict[str, object] | None]:
         """The status reply's `mash` and `coil`: null when not fitted, else the reading (°C,
         null while faulty) and the fault in words (null when there is none); the mash's also
-        the HLT's setpoint the outer loop chose and its phase (null before its first period)."""
+        the HLT's setpoint the outer loop chose and its phase (null before its first period),
+        and where the mash levels out while that is short of its rest (`levels_at`)."""
         status: dict[str, dict[str, object] | None] = {}
         for section, role in ROLE_SENSORS.items():
             sensor = self._roles.get(section)
@@ -578,7 +581,8 @@ class MashSide(LoopState):
             decision = control.decision
             mash["hlt_setpoint"] = None if decision is None else decision.hlt_setpoint
             mash["phase"] = None if decision is None else decision.phase
-            mash["warning"] = NO_FLOW if control.flow.stuck else None
+            mash["warning"] = NO_FLOW if control.flow.stuck else control.short
+            mash["levels_at"] = None if control.short is None else control.reach.ceiling
             due = self._pump_start_at
             mash["pump_start_in"] = None if due is None else max(0.0, due - self._now())
             runner = self.program.runner

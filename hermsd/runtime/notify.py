@@ -195,12 +195,16 @@ def status_line(
 def mash_side_words(mash: dict[str, object] | None, pump: bool | None, setpoint: float) -> str:
     """'mash 64.8 °C, pump on': what of the two is fitted ('mash sensor fault' while it is
     faulty; '' when neither is fitted); 'mash 64.8 → 65.0 °C (climb)' while the outer loop
-    steers the HLT for the mash's `setpoint`. `mash` as the status reply gives it."""
+    steers the HLT for the mash's `setpoint`, and '(climb, levels out near 60.0 °C)' while
+    the HLT at its most cannot bring it there. `mash` as the status reply gives it."""
     words = []
     if mash is not None:
         shown = role_words("mash", mash)
         phase = mash.get("phase")
         if phase is not None and mash["fault"] is None:
+            level = mash.get("levels_at")
+            if isinstance(level, float):
+                phase = f"{phase}, levels out near {level:.1f} °C"
             shown = shown.replace(" °C", "") + f" → {setpoint:.1f} °C ({phase})"
         words.append(shown)
     if pump is not None:
