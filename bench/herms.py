@@ -58,7 +58,9 @@ apart; shown where that fall is 0.1 °C or more).
 Alarms (goal 0; a latched one is reset by the brewer at once, `hermsd reset`, so that the
 day goes on, and each is counted: a peer's are the supervisor's verdict on a HERMS run as a
 plain HLT, which counts no coil's load without a mash sensor, not the peer's own), and
-`replay --verify` on each day's log (exact: every step re-run bit for bit).
+`replay --verify` on each day's log (exact: every step re-run bit for bit). Per day, what the
+mash's reach watch said ("the mash levels out near …": a rest the HLT at its most cannot
+bring the mash to within a degree; docs/mash-control.md), none where every rest is reached.
 
     uv run python bench/herms.py [--seeds 1-40] [--jobs 2] [--write]
 """
@@ -82,6 +84,7 @@ from herms_cascade import CascadePid, Offset  # the peers' outer loops, beside t
 from hermsd.config.read import parse
 from hermsd.log import reader, replay
 from hermsd.runtime.daemon import Daemon
+from hermsd.runtime.mash_control import MASH_PREFIX as SHORT
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.limits import Alarm
 from hermsd.sim import scenario
@@ -629,9 +632,8 @@ def pumps_measured(s: SetUp, day: Day) -> list[dict[str, Any]]:
     return rows
 
 
-def verified(log_dir: Path) -> str:
+def verified(log: reader.Log) -> str:
     """What `hermsd replay --verify` says of the day's log."""
-    log = reader.load(sorted(log_dir.glob("*.mcap*")))
     result = replay.verify(log.entries)
     if result.other_law is not None:
         return "another law's"
@@ -653,7 +655,9 @@ def run_day(task: tuple[SetUp, str]) -> dict[str, Any]:
         result = scenario.run(
             spec, parse(""), log_dir=Path(directory), outside_plant=tun, attach=day.attach
         )
-        verify = verified(Path(directory))
+        log = reader.load(sorted(Path(directory).glob("*.mcap*")))
+        verify = verified(log)
+        short = [e.message for e in log.events if e.message.startswith(SHORT)]
     return {
         "setup": s,
         "controller": controller,
@@ -661,6 +665,7 @@ def run_day(task: tuple[SetUp, str]) -> dict[str, Any]:
         "pumps": pumps_measured(s, day),
         "alarms": [a["kind"] for a in result.summary["alarms"]],
         "verify": verify,
+        "short": short,
         "finished": day.done_at is not None,
         "wall_s": result.summary["wall_s"],
     }
@@ -843,14 +848,15 @@ def pumps_table(days: list[dict[str, Any]]) -> str:
 
 def days_table(days: list[dict[str, Any]]) -> str:
     lines = [
-        "| set-up | controller | program finished | alarms | `replay --verify` | wall s |",
-        "|---|---|---|---|---|---|",
+        "| set-up | controller | program finished | alarms | a rest the limit cannot bring "
+        "the mash to (said) | `replay --verify` | wall s |",
+        "|---|---|---|---|---|---|---|",
     ]
     for d in days:
         lines.append(
             f"| {d['setup'].label} | {NAMES[d['controller']]} | "
             f"{'yes' if d['finished'] else 'NO'} | {', '.join(d['alarms']) or 'none'} | "
-            f"{d['verify']} | {d['wall_s']:.1f} |"
+            f"{'; '.join(d['short']) or 'none'} | {d['verify']} | {d['wall_s']:.1f} |"
         )
     return "\n".join(lines)
 
