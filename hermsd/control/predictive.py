@@ -322,6 +322,11 @@ class _Predictive(_Base):
         recent = self._recent
         watch = self._watch
         recovery = self._recovery
+        if self._load and (watch.active or recovery.active):
+            # A coil began to draw during the run (a pump started in a HERMS's heat-up to its
+            # readied HLT): the rise since is the element's less the coil's, which taken for
+            # the tun's would put its rate and dead time low for the rest of the day.
+            watch.active = recovery.active = False
         full = applied >= self._hi
         if not full:  # the step ended before the PV rose enough
             recovery.active = False
