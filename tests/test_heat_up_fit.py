@@ -239,6 +239,31 @@ def test_a_coil_that_begins_to_draw_in_a_heat_up_leaves_the_tun_unfitted(coil: b
         assert fit.rate == pytest.approx(rate, rel=0.02)
 
 
+@pytest.mark.parametrize("crossing", [300.0, 1200.0])
+def test_a_ramp_whose_line_crosses_far_beyond_any_tuns_heat_raises_no_dead_time(
+    crossing: float,
+) -> None:
+    # Full power under a load the loop is not told of (a HERMS pump it does not see, its
+    # coil's draw falling as the mash warms): the PV climbs on a bend whose later half's
+    # line crosses the start far off. A ramp delayed by 300 s is a slow tun's, and the
+    # dead time is raised to it before the fit; one whose line crosses at 1200 s, beyond
+    # twice the latest any tun shows its heat (HEAT_SHOWS_S), is no tun's heat alone (the
+    # bench's herms-day with its pump unseen had its dead time raised from 70 s to 420 s).
+    # PV: a ramp of 0.4 of the model's rate, after `crossing` s; the bend of a 1 s lag.
+    rate, tau = 0.01, 20000.0
+    model = pid.PlantModel(rate * tau / 100.0, tau, 60.0, PV0)
+    controller = laws.create("predictive", kc=120.0, ti=800.0, ts=TS, model=model)
+    controller.reset(PV0, 0.0)
+    for k in range(1, 1 + round((crossing + 900.0) / TS)):
+        controller.step(80.0, period_pv(k, 0.4 * rate, crossing, 1.0))
+    raised = predictive.dead_time(controller)
+    assert raised is not None
+    if crossing < 2.0 * HEAT_SHOWS_S:
+        assert raised > 0.9 * crossing  # the least the ramp proves, 2 sd under it
+    else:
+        assert raised == 60.0
+
+
 def test_a_pulse_stopped_half_way_measures_what_ran_and_one_stopped_at_once_nothing() -> None:
     # The PV came near the setpoint while a second pulse still sent heat (its rate read too
     # low), or the brewer moved the setpoint: the heat ends there, and what ran still counts.

@@ -447,9 +447,11 @@ class _Predictive(_Base):
         still in flight, so it is raised to them at once. Only a ramp that climbs like this
         tun's heat (within RATE_BAND of the model's rate) proves anything: under a load the
         loop does not know of (a pump it does not see, a lid off) the PV barely climbs and
-        its line crosses the start far off; and no further than any tun the limits allow
-        for shows its heat (HEAT_SHOWS_S), unless the model's own is longer."""
-        if least is None or least[0] < RATE_BAND[0] * self._rate:
+        its line crosses the start far off (beyond twice the latest any tun the limits allow
+        for shows its heat, HEAT_SHOWS_S, it is no tun's heat alone: a HERMS pump unseen
+        raised herms-day's dead time from 70 s to 420 s); and no further than HEAT_SHOWS_S,
+        unless the model's own is longer."""
+        if least is None or least[0] < RATE_BAND[0] * self._rate or least[1] > 2.0 * HEAT_SHOWS_S:
             return
         rate = max(self._rate, least[0])
         dead_time = max(self._dead_time, min(least[1], HEAT_SHOWS_S))
