@@ -16,8 +16,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from test_control import Inbox, status_of
 from test_mash_side import fake_gpiod
 
+from hermsd.api.link import LoopLink
+from hermsd.config import schema as config_module
 from hermsd.config.read import parse
 from hermsd.config.schema import ConfigError, CurrentConfig
 from hermsd.hardware.current_sense import (
@@ -26,12 +29,15 @@ from hermsd.hardware.current_sense import (
     open_current_sense,
 )
 from hermsd.log import reader, replay
+from hermsd.runtime.assemble import assemble
+from hermsd.runtime.saver import Saver
 from hermsd.sim import scenario
 from hermsd.sim import tun_faults as tf
 from hermsd.sim.bus import ADS1115_POWER_UP_CONFIG, FakeADS1115, FakeSMBus
 from hermsd.sim.clock import VirtualClock
-from hermsd.sim.scenario import Event, Scenario
+from hermsd.sim.scenario import Event, Scenario, effective_config
 from hermsd.sim.tuns import FAMILY
+from hermsd.sim.world import build_world
 
 ADDRESS = 0x49
 CT_AMPS_PER_VOLT = 30.0  # an SCT-013-030: 30 A for 1 V rms
@@ -265,6 +271,49 @@ def test_a_reader_that_fails_is_a_warning_and_its_recovery_said(
         "current verdicts are off; the temperature's stand)",
         "current sensor reads again: the current verdicts are on",
     ]
+
+
+def test_the_status_shows_the_current_and_while_its_verdicts_are_off_says_why() -> None:
+    """Through the daemon's status (what `hermsd status`, the web page and MQTT show): the
+    latest sample's amps, the element's watts over the simulated mains' 230 V when the SSR
+    was on, none when off; a failing input is a warning that stands until it reads again."""
+    day = with_current(tf.normal_day(SPEC))
+    config = effective_config(SPEC.config(config_module.DEFAULT), day)
+    clock = VirtualClock()
+    world = build_world(config, clock, day.plant)
+    assert world.current is not None
+    daemon = assemble(
+        config,
+        clock,
+        world.sensor,
+        world.outputs,
+        current_sense=world.current,
+        saver=Saver(threaded=False),
+    )
+    LoopLink(daemon).attach(Inbox())
+    seen: set[tuple[bool, float]] = set()
+    for t in range(600, 7200, 5):  # the heat-up's full power, then the hold's duty
+        daemon.run(until=float(t))
+        current = status_of(daemon)["current"]
+        seen.add((current["on"], current["amps"]))
+        assert current["judging"] and current["warning"] is None
+        assert 0.0 <= current["age_s"] <= PERIOD
+    assert seen == {(True, SPEC.element_watts / 230.0), (False, 0.0)}
+    assert status_of(daemon)["warnings"] == []
+    world.current.set_fault("failing")
+    daemon.run(until=7800.0)
+    status = status_of(daemon)
+    assert status["current"]["judging"] is False
+    warning = (
+        "current sensor fault (the current verdicts are off): [Errno 121] the current input "
+        "cannot be read (simulated)"
+    )
+    assert status["current"]["warning"] == warning and status["warnings"] == [warning]
+    world.current.set_fault("ok")
+    daemon.run(until=8100.0)
+    assert status_of(daemon)["warnings"] == [] and status_of(daemon)["current"]["judging"]
+    assert status_of(daemon)["alarms"] == []
+    daemon.shutdown()
 
 
 # -- replay --------------------------------------------------------------------------------------

@@ -888,6 +888,33 @@ def test_a_second_element_gets_its_own_output_sensor_and_none_without_it() -> No
     assert state_message(status)["output2"] == 100.0
 
 
+@pytest.mark.parametrize(("kind", "measured"), [("sim", True), ("ads1115", True), ("gpio", False)])
+def test_an_element_current_measured_in_amps_is_a_current_sensor(kind: str, measured: bool) -> None:
+    """A current transformer's amps are a sensor of their own; a mains-present optocoupler
+    measures none (its entity, and one no input leaves, removed as output2's is)."""
+    topics = Topics.of(PREFIX, "homeassistant")
+    line = "\n  line: 23" if kind == "gpio" else ""
+    fitted = dict(
+        discovery_messages(topics, read.parse(f"{BASE}\ncurrent:\n  kind: {kind}{line}\n"))
+    )
+    none = dict(discovery_messages(topics, read.parse(BASE)))
+    topic = topics.discovery("sensor", "element_amps")
+    assert none[topic] is None and set(fitted) == set(none)
+    sensor = fitted[topic]
+    if not measured:
+        assert sensor is None
+        return
+    assert (sensor["device_class"], sensor["unit_of_measurement"]) == ("current", "A")
+    assert sensor["value_template"] == "{{ value_json.element_amps }}"
+    status = {
+        "t": 1.0, "tun": "HLT", "pv": 66.0, "setpoint": 66.0, "output": 50.0, "applied": 50.0,
+        "mode": "auto", "manual_output": 0.0, "state": "ok", "alarms": [],
+        "heater_allowed": True, "current": {"on": True, "drawing": True, "amps": 13.04},
+    }  # fmt: skip
+    assert state_message(status)["element_amps"] == 13.04
+    assert state_message({**status, "current": None})["element_amps"] is None
+
+
 @pytest.mark.parametrize(("max_temp", "highest"), [("95", 94.5), ("80.2", 80.0), ("80", 79.5)])
 def test_the_thermostat_offers_setpoints_only_below_the_cut_out(
     max_temp: str, highest: float

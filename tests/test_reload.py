@@ -146,6 +146,7 @@ def start(
         world.outputs,
         mash_sensor=mash.mash_sensor,
         coil_sensor=mash.coil_sensor,
+        current_sense=world.current,
         recorder=events,
         notifier=FakeNotifier(events.notified),  # type: ignore[arg-type]
         config_file=source if watch else None,

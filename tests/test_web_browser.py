@@ -17,10 +17,11 @@ from pathlib import Path
 
 import pytest
 from programs import require_program
-from test_reload import HERMS, doughed_in
+from test_reload import BASE, HERMS, doughed_in
 from webpage import CHROMIUM, CHROMIUM_ARGS, PASSWORD, PHONE, TIMEOUT, Site, site
 
 from hermsd.api.protocol import ProgramAction
+from hermsd.config import read
 
 TEMPERATURE_RED = (0xC6, 0x28, 0x28)  # the temperature line's colour in app.js
 MASH_GREEN = (0x2E, 0x7D, 0x32)  # the mash line's
@@ -533,9 +534,9 @@ def herms_page(browser: Browser, herms: Site) -> Iterator[Page]:
 def test_without_a_mash_side_the_page_shows_nothing_of_it(page: Page) -> None:
     _until(page, "window.hermsd.points() > 3")
     _log_in(page)
-    boxes = "['mash-box', 'hlt-aim-box', 'pump-box', 'pump-row']"
+    boxes = "['mash-box', 'hlt-aim-box', 'pump-box', 'pump-row', 'current-box']"
     hidden = f"{boxes}.map((id) => document.getElementById(id).hidden)"
-    assert page.evaluate(hidden) == [True, True, True, True]
+    assert page.evaluate(hidden) == [True, True, True, True, True]
     assert page.text_content("#setpoint-label") == "Setpoint"
     labels = page.evaluate("window.hermsd.chart().series.map((s) => s.label)")
     assert labels == ["Time", "Temperature °C", "Setpoint °C", "Output %"]
@@ -670,3 +671,19 @@ def test_the_hlts_setpoint_the_outer_loop_chose_is_shown_beside_the_mashs_and_dr
     chart = page.locator("#chart canvas").bounding_box()
     assert chart is not None
     assert len(_rows_of_colour(pixels, width, chart, HLT_SETPOINT_ORANGE)) > 20, "no dashed line"
+
+
+def test_an_element_current_input_shows_its_latest_amps_against_the_ssr(
+    browser: Browser, tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    """`current.kind: sim`: the element's watts over the simulated mains' 230 V while the SSR
+    was on at the latest sample (the heat-up from 20 °C: full power)."""
+    amps = read.parse(BASE).tun.element_watts / 230.0
+    text = BASE + "\ncurrent:\n  kind: sim\n"
+    with (
+        site(tmp_path_factory.mktemp("current"), text=text) as served,
+        _opened(browser, served) as opened,
+    ):
+        _until(opened, "!document.getElementById('current-box').hidden")
+        _until(opened, "document.getElementById('current').textContent.endsWith('(SSR on)')")
+        assert opened.text_content("#current") == f"{amps:.1f} A (SSR on)"

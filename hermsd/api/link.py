@@ -94,6 +94,7 @@ class Snapshot:
     latches_not_saved: str | None = None  # why the latched alarms' save failed, while it does
     log_failing: str | None = None  # why the log cannot be written, while it cannot
     roles: dict[str, dict[str, object] | None] | None = None  # `mash`, `coil` as status has
+    current: dict[str, Any] | None = None  # the element-current input's, as status has it
 
 
 def status_warnings(
@@ -192,6 +193,7 @@ class LoopLink:
             daemon.latches_not_saved,
             daemon.log_failing,
             daemon.role_status(),
+            daemon.current_status(),
         )
         self.history.append(*encode_row(record))
         program = self._snapshot.program
@@ -353,7 +355,7 @@ class LoopLink:
                 if snapshot.program is None
                 else snapshot.program.get("save_failed"),
                 log_failing=snapshot.log_failing,
-                sensor_faults=role_faults(snapshot.roles),
+                sensor_faults=role_faults(snapshot.roles) + current_warnings(snapshot.current),
             ),
             "heater_allowed": record.heater_allowed,
             "setpoint_limits": setpoint_limits(snapshot.config),
@@ -385,6 +387,7 @@ class LoopLink:
             **(snapshot.roles or {"mash": None, "coil": None}),
             "pump": record.pump,
             "pump_switched": snapshot.config.pump.backend != "none",
+            "current": snapshot.current,
         }
 
 
@@ -393,6 +396,13 @@ def setpoint_limits(config: Config) -> dict[str, float]:
     (safety.max_temp), as its running config checks them (the thermostat card's range)."""
     low, high = read.key_range("control.setpoint")
     return {"min": low, "max": high, "below": config.safety.max_temp}
+
+
+def current_warnings(current: dict[str, Any] | None) -> tuple[str, ...]:
+    """The status's warning of the element-current input: its fault, or no current ever seen
+    (its verdicts off meanwhile); none while it judges or where none is fitted."""
+    warning = None if current is None else current.get("warning")
+    return (warning,) if isinstance(warning, str) else ()
 
 
 def role_faults(roles: dict[str, dict[str, object] | None] | None) -> tuple[str, ...]:

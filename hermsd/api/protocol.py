@@ -57,15 +57,19 @@ phase, when it steers, `warning`, the no-flow sign's words while it stands, else
 of the HLT at its most leaving the mash short of its rest, else null, and `levels_at`, where
 that mash levels out (°C), else null: docs/mash-control.md), `pump`
 (true running, false stopped, null when no pump is fitted or seen; `pump_switched` false
-when hermsd only sees the pump through its sense, `pump.sense`, and cannot switch it). `no_heat`
+when hermsd only sees the pump through its sense, `pump.sense`, and cannot switch it),
+`current` (the element-current input's, null when none is fitted: the latest sample's `on`,
+the SSR's command then, `drawing`, `amps`, null from an input that measures none, `age_s`,
+and `judging`, whether its verdicts are on, and `warning`, why not, else null:
+docs/current.md). `no_heat`
 (two elements; null with one): what the element watch says, 1 or 2 an element that gives no
 heat, 0 either, 3 more heat than asked (docs/two-elements.md); `latches_not_saved` (why the
 latched alarms' save fails, while it does; else null); `log_failing` (why the log cannot be
 written, while it cannot; else null); `warnings` (those three in words, that the program's
 progress is not saved (`program`'s `save_failed`), and that full power levels the water out
 short of the setpoint (hermsd/control/reach.py), and a fault of the mash's or the coil
-outlet's sensor and the no-flow sign (the pump runs, nothing flows through the coil), one
-line each, empty when there is nothing to say: what holds no heater
+outlet's sensor and the no-flow sign (the pump runs, nothing flows through the coil), and
+the element-current input's fault or no-signal (its verdicts off), one line each, empty when there is nothing to say: what holds no heater
 off but needs a look). A program
 sent with `start` is checked on the server's thread exactly as a program file is (and its
 setpoints against the running config at the boundary); `program` and `confirm` commands

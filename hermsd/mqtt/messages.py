@@ -111,6 +111,8 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
     step = step if isinstance(step, dict) else {}
     mash = status.get("mash")
     mash = mash if isinstance(mash, dict) else {}
+    current = status.get("current")
+    current = current if isinstance(current, dict) else {}
     return {
         "t": status["t"],
         "tun": status["tun"],
@@ -146,6 +148,7 @@ def state_message(status: dict[str, Any]) -> dict[str, Any]:
         "pump": status.get("pump"),
         "pump_start_in": mash.get("pump_start_in"),
         "pump_turn_in": mash.get("pump_turn_in"),
+        "element_amps": current.get("amps"),
         **brewday.state_fields(program or None),
     }
 
@@ -230,6 +233,21 @@ def discovery_messages(
         sensor("output2", "Element 2 output", "output2", **percent)
         if config.element2.backend != "none"
         else (topics.discovery("sensor", "output2"), None)
+    )
+    # The element's current where a current transformer measures it (not a mains-present
+    # optocoupler, which says no amps): removed as element2's is where none is.
+    amps = (
+        sensor(
+            "element_amps",
+            "Element current",
+            "element_amps",
+            device_class="current",
+            unit_of_measurement="A",
+            state_class="measurement",
+            suggested_display_precision=1,
+        )
+        if config.current.kind in ("ads1115", "sim")
+        else (topics.discovery("sensor", "element_amps"), None)
     )
     herms = config.mash_sensor.fitted
     mash_side = [
@@ -323,6 +341,7 @@ def discovery_messages(
         sensor("output", "Output", "output", **percent),
         sensor("applied", "Applied", "applied", **percent),
         element2,
+        amps,
         *mash_side,
         pump,
         pump_timer,

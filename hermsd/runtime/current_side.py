@@ -29,11 +29,13 @@ class CurrentSide(LoopState):
     _current_watch: CurrentWatch | None
     _current_samples: list[list[object]]
     _current_said: list[str]
+    _current_last: Sample | None
 
     def _init_current(self, sense: CurrentSense | None) -> None:
         self._current_sense = sense
         self._current_watch = None if sense is None else current_watch(self.config)
         self._current_samples, self._current_said = [], []
+        self._current_last = None
 
     def _current_times(self, plan: WindowPlan, now: float) -> list[float]:
         """When to sample in `plan` after `now`, each read (two mains cycles) kept a half-cycle
@@ -65,6 +67,7 @@ class CurrentSide(LoopState):
         except (SensorError, OSError) as error:
             sample = Sample(t, on, None, None, str(error) or type(error).__name__)
         said, verdict = self._current_watch.sample(sample)
+        self._current_last = sample
         self._current_samples.append(sample.logged())
         self._current_said += words(said, verdict)
         for line in said:
@@ -72,6 +75,22 @@ class CurrentSide(LoopState):
         if verdict is not None:
             self.supervisor.current_fault(t, verdict.kind, verdict.message, verdict.values)
             self._drain_alarms(t)  # the heater off at once, said, latched
+
+    def current_status(self) -> dict[str, Any] | None:
+        """The status reply's `current` (None: no input fitted): the latest sample (`on`,
+        the SSR's command then; `drawing`; `amps`, None from an input that measures none;
+        `age_s`), whether the input's verdicts are on (`judging`) and its `warning`."""
+        watch, last = self._current_watch, self._current_last
+        if watch is None:
+            return None
+        return {
+            "on": None if last is None else last.on,
+            "drawing": None if last is None else last.drawing,
+            "amps": None if last is None else last.amps,
+            "age_s": None if last is None else self.clock.monotonic() - last.t,
+            "judging": watch.judging,
+            "warning": watch.warning,
+        }
 
     def current_fields(self) -> dict[str, Any]:
         """The period record's samples and what was said of them (None: no input fitted)."""

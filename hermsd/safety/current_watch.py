@@ -75,6 +75,17 @@ class CurrentWatch:
         self._on_idle = 0  # on-samples in a row without (off-samples between)
 
     @property
+    def warning(self) -> str | None:
+        """What stands against the input now, in words (its fault, or no current ever seen
+        with the element on), for the status's warnings; None: it is judging, or not yet
+        due to be said."""
+        if self.fault is not None:
+            return f"current sensor fault (the current verdicts are off): {self.fault}"
+        if self._no_signal_said and not self.seen:
+            return f"no {self._what} seen with the element on (the current verdicts are off)"
+        return None
+
+    @property
     def judging(self) -> bool:
         """Whether a sample can bring a verdict: the input reads and has shown current."""
         return self.fault is None and self.seen

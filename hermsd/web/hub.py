@@ -54,6 +54,7 @@ PAGE_FIELDS = (
     "mash",
     "pump",
     "pump_switched",
+    "current",
 )
 """What the page shows of a status (not the limits, model and learned texts: 2 kB a period)."""
 PAGE_DERIVED = ("latched",)

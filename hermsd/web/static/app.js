@@ -106,6 +106,7 @@ function render(status, age) {
   $("warnings").textContent = warnings.join("; ");
   renderProgram(status.program, status.pv);
   renderMashSide(status.mash, status.pump, status.pump_switched);
+  renderCurrent(status.current);
   if (document.activeElement !== $("setpoint-input") && !$("setpoint-input").value) {
     $("setpoint-input").placeholder = String(status.setpoint);
   }
@@ -145,6 +146,19 @@ function renderProgram(program, pv) {
   $("program-confirm").hidden = !waiting;
   $("program-pause").hidden = program.state === "paused" || program.state === "done";
   $("program-resume").hidden = program.state !== "paused";
+}
+
+// `current`: null when no element-current input is fitted, else its latest sample: the
+// amps a current transformer measured (null from a mains-present input, which says only
+// whether the element is powered) against the SSR's command then, and its warning.
+function renderCurrent(current) {
+  $("current-box").hidden = !current;
+  if (!current) return;
+  const asked = current.on === null ? "" : ` (SSR ${current.on ? "on" : "off"})`;
+  const drawn = typeof current.amps === "number" ? `${current.amps.toFixed(1)} A`
+    : current.drawing === null ? "—" : current.drawing ? "powered" : "off";
+  $("current").textContent = current.warning ? "not judging" : `${drawn}${asked}`;
+  $("current").title = current.warning || "";
 }
 
 // `mash`: null when no mash sensor is fitted, else its reading (null while faulty) and fault,
