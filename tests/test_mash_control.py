@@ -354,13 +354,17 @@ LOSSY_UA, TIGHT_LIMIT = 40.0, 3.0
 the HLT law's margin) cannot bring the mash to 66 °C."""
 
 
-def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cleared() -> None:
+@pytest.mark.parametrize("clear", ["rest", "reload"])
+def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cleared(
+    clear: str,
+) -> None:
     """At a steady HLT H, the coil's K·(H − m) meets the mash's losses UA·(m − room) at
     m = (K·H + UA·room)/(K + UA) (K = 188.2 W/K, as above): the warning names that level,
     measured from the mash's own rise, within half a degree, while the mash is short of the
-    rest; a warning, never an alarm; a rest changed clears it."""
+    rest; a warning, never an alarm; a rest changed, or a reload, clears it."""
     guessed = f"mash_loss_w_per_k: 28\n  max_hlt_above_mash: {TIGHT_LIMIT:g}\n"
-    daemon, world = herms_daemon(CONFIG.replace("mash_loss_w_per_k: 5\n", guessed), LOSSY_UA)
+    guessed_config = CONFIG.replace("mash_loss_w_per_k: 5\n", guessed)
+    daemon, world = herms_daemon(guessed_config, LOSSY_UA)
     periods = Periods()
     daemon.listeners.append(periods)
     daemon.recorder = periods
@@ -387,9 +391,13 @@ def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cl
     assert status["mash"]["levels_at"] == control.reach.ceiling
     assert f"levels out near {control.reach.ceiling:.1f} °C" in daemon.status_text()
     assert all(r.alarms == [] and r.heater_allowed for r in periods.records)
-    daemon.set_setpoint(58.0)
+    if clear == "rest":
+        daemon.set_setpoint(58.0)
+        why = "the rest changed"
+    else:  # the HLT's most may move with the outer loop made again: measured afresh
+        daemon.reload(parse(guessed_config.replace("above_mash: 3", "above_mash: 12")))
+        why = "the outer loop made again for the reloaded config"
     daemon.run(until=5 * 3600.0 + 10.0)
-    cleared = "the mash levels out elsewhere now: the rest changed, measured afresh"
-    assert periods.events[-1] == cleared
+    assert periods.events[-1] == f"the mash levels out elsewhere now: {why}, measured afresh"
     assert status_of(daemon)["warnings"] == []
     daemon.shutdown()

@@ -505,6 +505,9 @@ class MashSide(LoopState):
         if control.flow.stuck:  # the new outer loop's watch judges the flow afresh
             why = "the outer loop made again for the reloaded config, the flow judged afresh"
             self._event(logging.INFO, f"no flow through the coil ended: {why}", self._now())
+        # The HLT's most may have moved (the limit, safety.max_temp): its level measured afresh.
+        why = "the outer loop made again for the reloaded config"
+        self._say_reach(control.reach.restart(why), self._now())
 
     def hlt_target(self) -> float:
         """The HLT law's setpoint in force: the outer loop's last, else the brewer's."""
