@@ -69,8 +69,8 @@ written, while it cannot; else null); `warnings` (those three in words, that the
 progress is not saved (`program`'s `save_failed`), and that full power levels the water out
 short of the setpoint (hermsd/control/reach.py), and a fault of the mash's or the coil
 outlet's sensor and the no-flow sign (the pump runs, nothing flows through the coil), and
-the element-current input's fault or no-signal (its verdicts off), one line each, empty when there is nothing to say: what holds no heater
-off but needs a look). A program
+the element-current input's fault or no-signal (its verdicts off), one line each, empty
+when there is nothing to say: what holds no heater off but needs a look). A program
 sent with `start` is checked on the server's thread exactly as a program file is (and its
 setpoints against the running config at the boundary); `program` and `confirm` commands
 are answered like `set`. A `set` or `reset-alarm` is checked
