@@ -30,6 +30,7 @@ from hermsd.hardware.current_sense import (
 )
 from hermsd.log import reader, replay
 from hermsd.runtime.assemble import assemble
+from hermsd.runtime.notify import current_words
 from hermsd.runtime.saver import Saver
 from hermsd.sim import scenario
 from hermsd.sim import tun_faults as tf
@@ -314,6 +315,24 @@ def test_the_status_shows_the_current_and_while_its_verdicts_are_off_says_why() 
     assert status_of(daemon)["warnings"] == [] and status_of(daemon)["current"]["judging"]
     assert status_of(daemon)["alarms"] == []
     daemon.shutdown()
+
+
+@pytest.mark.parametrize(
+    ("on", "drawing", "amps", "warning", "words"),
+    [
+        (True, True, 13.04, None, "element current 13.0 A (SSR on)"),
+        (False, False, 0.0, None, "element current 0.0 A (SSR off)"),
+        (True, True, None, None, "element current powered (SSR on)"),
+        (None, None, None, None, "element current --"),
+        (True, None, None, "current sensor fault (…)", "element current: not judging"),
+    ],
+)
+def test_hermsd_status_says_the_current_in_a_line(
+    on: bool | None, drawing: bool | None, amps: float | None, warning: str | None, words: str
+) -> None:
+    # `hermsd status`'s line under the status line; the warning's words are its own line.
+    current = {"on": on, "drawing": drawing, "amps": amps, "warning": warning}
+    assert current_words(current) == words
 
 
 # -- replay --------------------------------------------------------------------------------------

@@ -30,7 +30,13 @@ from hermsd.cli.common import (
 from hermsd.cli.run import (
     _default_state_directory,
 )
-from hermsd.runtime.notify import mash_side_words, pump_words, role_words, status_line
+from hermsd.runtime.notify import (
+    current_words,
+    mash_side_words,
+    pump_words,
+    role_words,
+    status_line,
+)
 from hermsd.safety.latches import Latches, LatchStore, StateError
 
 if TYPE_CHECKING:
@@ -127,6 +133,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     print(f"{line} (applied {reply['applied']:.0f} %), {_mode_text(reply)}")
     if reply.get("coil") is not None:  # the mash and the pump are in the line above
         print(role_words("coil outlet", reply["coil"]))
+    if reply.get("current") is not None:
+        print(current_words(reply["current"]))
     print(f"alarms: {', '.join(reply['alarms']) or 'none'}")
     for kind, reason in reply.get("alarm_reasons", {}).items():
         print(f"  {kind}: {reason}")

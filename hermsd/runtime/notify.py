@@ -227,6 +227,20 @@ def pump_words(pump: bool, mash: dict[str, object] | None) -> str:
     return words
 
 
+def current_words(current: dict[str, object]) -> str:
+    """'element current 13.0 A (SSR on)' of the status reply's `current`: the latest sample's
+    amps, or 'powered'/'off' from an input that measures none, against the SSR's command then;
+    'not judging' while its warning stands (the warning itself is among the warnings)."""
+    if current.get("warning") is not None:
+        return "element current: not judging"
+    amps, drawing, on = current.get("amps"), current.get("drawing"), current.get("on")
+    if isinstance(amps, float):
+        shown = f"{amps:.1f} A"
+    else:
+        shown = "--" if drawing is None else "powered" if drawing else "off"
+    return f"element current {shown}" + ("" if on is None else f" (SSR {'on' if on else 'off'})")
+
+
 def role_words(role: str, reading: dict[str, object]) -> str:
     """'mash 64.8 °C' of a role's sensor as the status reply gives it; 'mash sensor fault'
     while it is faulty, 'mash --' before its first good reading."""
