@@ -104,7 +104,7 @@ class MashControl:
         pump: bool,
         pump_known: bool,
         applied: float,
-        t: float = 0.0,
+        t: float,
         pump_in: float | None = None,
         pump_stop_in: float | None = None,
         timer_stop: bool = False,
