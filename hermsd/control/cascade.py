@@ -50,6 +50,10 @@ COAST_BISECTIONS = 16
 REHEAT_BAND = 1.0
 """°C below its setpoint a mash in its hold must fall before the climb starts again (a stuck
 pump, a cold addition): smaller falls are the hold's."""
+RESTORED_BAND = 0.1
+"""°C below its rest within which a held mash brought back after a pump stop is the hold's
+error again (the integral learns from it): a tenth, near two of the LM92's steps. Over the
+HERMS family, 0.05 and 0.1 °C gave the same days (docs/mash-control.md, "The hold")."""
 SETPOINT_MOVE = 0.01
 """°C: a mash setpoint that moves by more starts a new step."""
 MAX_MASH_AGE = 30.0
@@ -215,6 +219,7 @@ class Cascade:
     out (see the module's docstring)."""
 
     __slots__ = (
+        "_after_stop",
         "_climbing",
         "_hlt_max",
         "_last_mash",
@@ -247,6 +252,7 @@ class Cascade:
         self._mash_span: deque[float] = deque(maxlen=round(span / period) + 1)
         self._climbing = True
         self._settled = False  # the HLT has come down to its hold since the climb ended
+        self._after_stop = False  # the held mash is brought back after a pump stop
         self._mash_loss = tanks.mash_loss
 
     @property
@@ -303,6 +309,7 @@ class Cascade:
             return Decision(setpoint, load, "held", why)
         if self._mash_sp is None or abs(mash_sp - self._mash_sp) > SETPOINT_MOVE:
             self._climbing = mash_pv < mash_sp
+            self._after_stop = False
         self._mash_sp = mash_sp
         self._last_mash = mash_pv
         tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
@@ -339,6 +346,13 @@ class Cascade:
             and window[0] - mash_pv >= STARVED_FALL
         )
         self._observe(mash_pv, hlt_pv, pump and not starved, k, high)
+        # A stop of the held mash (a stir, a timer) cools it by what the stop lasted, not by
+        # an error of the model: the hold's integral does not take it for losses until the
+        # mash is back within RESTORED_BAND of its rest.
+        if not pump and self._settled:
+            self._after_stop = True
+        elif mash_pv >= mash_sp - RESTORED_BAND:
+            self._after_stop = False
         if not pump:
             setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
             if paused and self._last_sp is not None:
@@ -348,7 +362,13 @@ class Cascade:
             setpoint, phase = self.most(mash_sp, mash_pv, k), "climb"
         else:
             setpoint = self._hold(
-                mash_sp, mash_pv, mash, hlt_pv, tanks, (k, high), learn=not starved
+                mash_sp,
+                mash_pv,
+                mash,
+                hlt_pv,
+                tanks,
+                (k, high),
+                learn=not (starved or self._after_stop),
             )
             phase = "hold" if self._settled else "coast"
             if not self._settled:
