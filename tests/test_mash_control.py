@@ -24,10 +24,11 @@ from hermsd.api.link import LoopLink, role_faults
 from hermsd.cli import main
 from hermsd.config.read import parse
 from hermsd.control.learning import LearnedModel, ModelStore
+from hermsd.control.pid import PlantModel
 from hermsd.log.reader import load
 from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
-from hermsd.runtime.mash_control import coil_prior
+from hermsd.runtime.mash_control import coil_prior, mash_control
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
@@ -401,3 +402,15 @@ def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cl
     assert periods.events[-1] == f"the mash levels out elsewhere now: {why}, measured afresh"
     assert status_of(daemon)["warnings"] == []
     daemon.shutdown()
+
+
+def test_the_reach_warning_names_the_key_that_sets_the_hlts_most() -> None:
+    """With a 10 °C limit and safety.max_temp 85 °C the HLT may stand at 84 °C at most
+    (CUT_OUT_MARGIN below the cut-out): a 63 °C rest's most is 63 + 10 − 0.15 = 72.85 °C, set
+    by the limit; a 78 °C rest's would be 87.85, so safety.max_temp sets it at 84 °C."""
+    config = parse(CONFIG + "  max_temp: 85\n")  # CONFIG ends in its safety section
+    model = PlantModel(1.0, 20000.0, 60.0, 20.0)
+    control = mash_control(config, model, coil_prior(config, None))
+    words = control.reach._words
+    assert "raise herms.max_hlt_above_mash (10 °C)," in words(60.0, 63.0, 72.85)
+    assert "raise safety.max_temp (85 °C)," in words(76.0, 78.0, 84.0)

@@ -17,7 +17,6 @@ from collections.abc import Callable
 from hermsd.config.schema import Config
 from hermsd.control import pid, predictive
 from hermsd.control.cascade import (
-    HLT_MARGIN,
     MIN_CONDUCTANCE,
     SETPOINT_MOVE,
     STRIKE,
@@ -44,16 +43,16 @@ STEERED = ("climb", "coast", "hold")
 """The outer loop's phases in which the coil's heat reaches the mash as the HLT is steered."""
 
 
-def mash_short_words(config: Config) -> Callable[[float, float, float], str]:
+def mash_short_words(config: Config, cascade: Cascade) -> Callable[[float, float, float], str]:
     """The mash's reach warning in the brewer's words, (level, rest, the HLT's most) in,
-    naming the key that sets the HLT's most for `config`: the limit over the mash's rest,
-    or safety.max_temp where that is lower."""
+    naming the key that sets `cascade`'s ceiling for the rest: the limit over the mash's
+    rest, or safety.max_temp where that is lower."""
     limit, hlt_max = config.herms.max_hlt_above_mash, config.safety.max_temp - CUT_OUT_MARGIN
 
     def words(level: float, rest: float, most: float) -> str:
         key = (
             f"herms.max_hlt_above_mash ({limit:g} °C)"
-            if rest + limit - HLT_MARGIN <= hlt_max
+            if cascade.ceiling(rest) < hlt_max
             else f"safety.max_temp ({config.safety.max_temp:g} °C)"
         )
         return (
@@ -261,5 +260,5 @@ def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> 
         delays=herms.hose_s + herms.mash_sensor_lag,
         period=period,
     )
-    reach = ReachWatch(MASH_PREFIX, "the mash", mash_short_words(config))
+    reach = ReachWatch(MASH_PREFIX, "the mash", mash_short_words(config, cascade))
     return MashControl(cascade, coil, flow, watts, reach, tanks.hose_delay + tanks.mash_lag)

@@ -585,7 +585,7 @@ class MashSide(LoopState):
             mash["hlt_setpoint"] = None if decision is None else decision.hlt_setpoint
             mash["phase"] = None if decision is None else decision.phase
             mash["warning"] = NO_FLOW if control.flow.stuck else control.short
-            mash["levels_at"] = None if control.short is None else control.reach.ceiling
+            mash["levels_at"] = control.reach.ceiling
             due = self._pump_start_at
             mash["pump_start_in"] = None if due is None else max(0.0, due - self._now())
             runner = self.program.runner
