@@ -19,7 +19,13 @@ from pathlib import Path
 import pytest
 
 from hermsd.control import laws, pid, predictive
-from hermsd.control.watches import HEAT_SHOWS_S, HeatUpFit, _HeatUpWatch, _PulseWatch
+from hermsd.control.watches import (
+    HEAT_SHOWS_S,
+    HeatUpFit,
+    _HeatUpWatch,
+    _PulseWatch,
+    through_lag,
+)
 from hermsd.log.reader import load
 from hermsd.log.replay import verify
 from hermsd.sim import scenario
@@ -83,6 +89,50 @@ def test_behind_a_lag_the_fit_waits_for_the_straight_ramp(lag: float) -> None:
     assert 0.92 * rate <= fit.rate <= 1.01 * rate
     assert fit.dead_time == pytest.approx(delay + lag - TS / 2, abs=0.25 * lag + TS)
     assert risen > rate * 2.0 * lag  # not before two lags of the ramp had risen
+
+
+@pytest.mark.parametrize("lag", [30.0, 60.0, 120.0])
+@pytest.mark.parametrize("rate", [0.01, 0.044, 0.1])
+def test_the_fit_reads_the_rate_the_dead_time_and_the_lag_through_the_bend(
+    rate: float, lag: float
+) -> None:
+    # The later half's line alone read the rate up to 6 % low and the dead time short, and
+    # the law then counted that much too little heat in flight at every coast: the fit is
+    # of the lag's own curve (docs/heat-up-fit.md).
+    delay = 40.0
+    fit, _ = watch_until(rate, delay, lag, 40.0)
+    assert fit is not None and fit.refused is None
+    assert fit.rate == pytest.approx(rate, rel=0.015)
+    assert fit.dead_time == pytest.approx(delay + lag, abs=TS + 0.05 * lag)
+    # The heat the lag holds in a ramp (rate × lag): a slow ramp's few degrees of bend place
+    # the lag itself to some 20 %, which is hundredths of a degree there.
+    assert rate * abs(fit.lag - lag) <= 0.2
+
+
+def lossy_rise(t: float, rate: float, loss: float, delay: float, lag: float) -> float:
+    """°C above a steady start: the water's rise (rate/loss)·(1 − e^(−loss·u)) through the
+    lag, solved by hand from lag·r' + r = that rise with r(0) = 0."""
+    u = t - delay
+    if u <= 0.0:
+        return 0.0
+    top = rate / loss
+    return top - top * (math.exp(-loss * u) - loss * lag * math.exp(-u / lag)) / (1.0 - loss * lag)
+
+
+@pytest.mark.parametrize(("rate", "loss", "lag"), [(0.048, 8.4e-5, 74.0), (0.01, 2e-4, 120.0)])
+def test_through_lag_adds_the_loss_back(rate: float, loss: float, lag: float) -> None:
+    # A loss bends the ramp as the lag does: on a ramp of 20–40 °C it is the size of the
+    # lag's bend, and added back exactly (the rise's integral times the loss) it leaves
+    # none of it in the rate.
+    delay = 84.0
+    times = [t * TS for t in range(30, 200)]
+    rises = [lossy_rise(t, rate, loss, delay, lag) for t in times]
+    lagged = through_lag(times, rises, loss)
+    assert lagged is not None
+    climb, crossing, fitted_lag = lagged
+    assert climb == pytest.approx(rate, rel=0.005)
+    assert crossing == pytest.approx(delay + lag, abs=2.0)
+    assert fitted_lag == pytest.approx(lag, rel=0.03)
 
 
 def test_a_step_that_ends_inside_the_bend_measures_nothing_and_says_why() -> None:
@@ -179,6 +229,26 @@ def test_a_fast_tun_behind_a_slow_sensor_heats_up_by_a_measured_pulse(tmp_path: 
     assert any(m.startswith("heat-up: full power ends here to measure the tun") for m in said)
     assert any(m.startswith("heat-up: the measured pulse is over") for m in said)
     assert verify(log.entries).mismatch is None
+
+
+def test_a_prior_that_loses_a_fraction_of_the_truth_still_holds_the_setpoint() -> None:
+    # Population tun 107: 4.2 kW into 70 L (35 L configured), lid off in an 11 °C garage:
+    # 46 % holds 66 °C, and the config's loss is a quarter of that. The observer's estimate
+    # trailed the PV by more than the clip on the bias's innovations, so the bias never
+    # learned, and the water stood at 64.1 °C for hours (fed back clipped, it learns).
+    water = TunSpec("lid off in a cold garage", 70.5, 4240, 1.91, 201, 72, 10.8, lid_off=True)
+    config = {
+        "tun": {"litres": 35.3, "element_watts": 4240.0, "lid": "off"},
+        "sensor": {"kind": "max31865"},
+    }
+    day = dataclasses.replace(
+        water.brew_day(noise_c=0.015, seed=107), duration=4.0 * 3600.0, events=(), config=config
+    )
+    result = scenario.run(day, keep_records=True)
+    # It comes up as the bias learns, slowly (within 0.1 °C 2.7 h into a heat-up that took
+    # 1.4 h at full power): the hour after it stood still.
+    last = [s.temp for s in result.samples if s.t >= 3.0 * 3600.0]
+    assert min(last) >= 66.0 - 0.1
 
 
 def test_a_pulse_whose_heat_never_shows_ends_unmeasured() -> None:

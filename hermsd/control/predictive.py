@@ -32,6 +32,7 @@ from hermsd.control.pid import (
     STEADY_DUTY_SHARE,
     STEADY_SPAN_S,
     STEP_INNOVATION,
+    TRAILING_S,
     Controller,
     Params,
     PlantModel,
@@ -52,12 +53,14 @@ class _Predictive(_Base):
     __slots__ = (
         "_ambient",
         "_arm_rate",
+        "_arrival",
         "_bias",
         "_carried",
         "_cold_water",
         "_dead_time",
         "_estimate",
         "_fa",
+        "_fade",
         "_filtered",
         "_fit",
         "_fpv",
@@ -84,7 +87,9 @@ class _Predictive(_Base):
         "_rate",
         "_recent",
         "_recovery",
+        "_sensor_lag",
         "_step_is_loops",
+        "_trailing",
         "_ts",
         "_watch",
     )
@@ -101,6 +106,9 @@ class _Predictive(_Base):
         self._ambient = model.ambient
         self._rate = self._kc_near = self._kc_far = self._dead_time = 0.0
         self._lag, self._lag_share = 0, 0.0
+        # The sensor's first-order lag (s) inside the dead time, the duty its filter passes
+        # on now, and the share of a gap to it that survives a period (0: a pure delay).
+        self._sensor_lag = self._fade = self._arrival = 0.0
         self._use(model.rate, model.dead_time)
         # Observer poles: the PV estimate follows the sensor within OBSERVER_TRACK_S, the bias
         # (what the model gets wrong) within ti; see `observer_gains`.
@@ -122,6 +130,8 @@ class _Predictive(_Base):
         # (`cold_water_seen`), and whether the last step carried full power on for it.
         self._cold_water = self._carried = False
         self._fit: HeatUpFit | None = None
+        # s the innovation has lain beyond the bias's clip on one side (signed by it).
+        self._trailing = 0.0
         self._estimate = self._bias = self._fpv = 0.0
         # A heat flow the caller knows (a HERMS coil's draw), in % of full power: the one in
         # force from `_load_in` s on until `_load_until` s (`_load`) and the one over the
@@ -138,17 +148,22 @@ class _Predictive(_Base):
         """The last heat-up's measurement (taken into the model unless refused)."""
         return self._fit
 
-    def _use(self, rate: float, dead_time: float) -> None:
-        """Take a rate and a dead time, and the gains that follow from them: near the setpoint
+    def _use(self, rate: float, dead_time: float, sensor_lag: float | None = None) -> None:
+        """Take a rate and a dead time (of it `sensor_lag` s the sensor's first-order lag, the
+        rest a delay; None: the lag kept), and the gains that follow: near the setpoint
         the predicted loop's time constant 100/(rate·Kc) is at least PREDICTED_LOOP_FACTOR·θ
         (and 2·Ts), so a real dead time, gain or τ twice the model's leaves it damped; far
         below it the gain that closes the predicted error in one period (time-optimal)."""
         ts = self._ts
         self._rate = rate
         self._dead_time = dead_time
+        if sensor_lag is not None:
+            self._sensor_lag = sensor_lag
+        self._sensor_lag = min(self._sensor_lag, max(0.0, dead_time))
+        self._fade = math.exp(-ts / self._sensor_lag) if self._sensor_lag > 0.0 else 0.0
         # Whole periods and the share of one: rounded to whole periods, a dead time lost up
         # to Ts/2 of the heat in flight, e.g. 2.5 s of full power on a fast tun at Ts 5 s.
-        whole, self._lag_share = divmod(max(0.0, dead_time / ts), 1.0)
+        whole, self._lag_share = divmod(max(0.0, (dead_time - self._sensor_lag) / ts), 1.0)
         self._lag = int(whole)
         settle = PREDICTED_LOOP_FACTOR * max(dead_time, 2.0 * ts)
         self._kc_near = min(self._kc, 100.0 / (rate * settle))
@@ -166,21 +181,40 @@ class _Predictive(_Base):
         return share * self._ts * heat
 
     def _arriving(self) -> float:
-        """The duty whose heat reaches the sensor in the period just ended: the dead time
-        falls `_lag_share` of the way into an earlier period's."""
+        """The duty whose heat ends its delay in the period just ended: the delay falls
+        `_lag_share` of the way into an earlier period's."""
         inputs, lag, share = self._inputs, self._lag, self._lag_share
         return share * inputs[-2 - lag] + (1.0 - share) * inputs[-1 - lag]
 
+    def _lagged(self, arrival: float, duty: float, share: float = 1.0) -> tuple[float, float]:
+        """(the duty the sensor shows on average over `share` of a period, and the filter's
+        duty at its end) where `duty` ends its delay and the sensor's lag filter starts from
+        `arrival`: first order, exact for a duty held over the stretch."""
+        if self._sensor_lag <= 0.0:
+            return duty, duty
+        if share <= 0.0:
+            return arrival, arrival
+        fade = self._fade if share == 1.0 else math.exp(-share * self._ts / self._sensor_lag)
+        end = duty + (arrival - duty) * fade
+        mean = duty + (arrival - duty) * (1.0 - fade) * self._sensor_lag / (share * self._ts)
+        return mean, end
+
     def _predicted(self) -> float:
-        """Where the PV will be once the inputs already sent (still in the dead time) arrive:
-        the last `_lag` whole and `_lag_share` of the one before them, under the known load
-        (which acts now, not a dead time late)."""
+        """Where the PV will be once the inputs already sent arrive: the last `_lag` whole
+        and `_lag_share` of the one before them still in the delay, through the sensor's lag
+        (what its filter holds: `_sensor_lag` s of its duty), under the known load (which
+        acts now, not a dead time late)."""
         inputs, ts, share = self._inputs, self._ts, self._lag_share
         first = len(inputs) - self._lag
         load = self._load_over(0.0, share * ts)
-        x = self._estimate + self._drift(self._estimate, inputs[first - 1] - load, share)
+        shown, arrival = self._lagged(self._arrival, inputs[first - 1], share)
+        x = self._estimate + self._drift(self._estimate, shown - load, share)
         for n, j in enumerate(range(first, len(inputs))):
-            x += self._drift(x, inputs[j] - self._load_over((share + n) * ts, ts))
+            shown, arrival = self._lagged(arrival, inputs[j])
+            x += self._drift(x, shown - self._load_over((share + n) * ts, ts))
+        if self._sensor_lag > 0.0:
+            tail = self._sensor_lag / ts
+            x += self._drift(x, arrival - self._load_over((share + self._lag) * ts, ts), tail)
         return x
 
     def _load_over(self, start: float, length: float) -> float:
@@ -229,11 +263,13 @@ class _Predictive(_Base):
         inputs = self._inputs
         inputs.clear()
         inputs.extend([u0] * (inputs.maxlen or 1))
+        self._arrival = u0
         self._recent.clear()
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
         self._watch.active = self._recovery.active = False
         self._pulse = None
         self._carried = False
+        self._trailing = 0.0
         self._estimate = self._fpv = pv0
         # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
         # so a few steps land on the bias that gives u0 exactly when one exists.
@@ -264,15 +300,28 @@ class _Predictive(_Base):
         self._watch_heat_up(sp, pv, previous, inputs[-2])
         # The load of the period just ended is the model's, not an error for the bias to learn.
         past, self._load_past = self._load_past, self._load_over(0.0, self._ts)
-        before = self._estimate + self._drift(self._estimate, self._arriving() - past)
+        shown, self._arrival = self._lagged(self._arrival, self._arriving())
+        before = self._estimate + self._drift(self._estimate, shown - past)
         innovation = pv - before
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
         step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
         self._estimate = before + step
-        if abs(innovation) <= BIAS_INNOVATION_CLIP:
+        clip = BIAS_INNOVATION_CLIP
+        trailing = clip < abs(innovation) <= STEP_INNOVATION
+        if trailing and (self._trailing == 0.0 or (self._trailing > 0.0) == (innovation > 0.0)):
+            self._trailing += math.copysign(self._ts, innovation)
+        else:
+            self._trailing = 0.0
+        if abs(innovation) <= clip:
             self._learn_share(past, innovation)
-            if self._lo < previous < self._hi:
+        if self._lo < previous < self._hi:
+            if abs(innovation) <= clip:
                 self._bias += self._l2 * innovation
+            elif abs(self._trailing) >= TRAILING_S:
+                # A model that errs by more than the clip over the tracking gain (a prior's
+                # loss a quarter of the truth) keeps every innovation above it, the estimate
+                # trailing the PV: the bias learns from it clipped, or never would.
+                self._bias += self._l2 * math.copysign(clip, innovation)
         # D acts on the measured PV, filtered by tf (first order).
         fpv1 = self._fpv
         fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
@@ -311,7 +360,7 @@ class _Predictive(_Base):
         the PV's steady minute shows the duty sent a dead time before it, and the duties sent
         since are still on their way to the sensor."""
         inputs = self._inputs
-        in_flight = self._lag + (self._lag_share > 0.0)  # periods, the last one in part
+        in_flight = math.ceil(self._dead_time / self._ts)  # periods, the last one in part
         span = min(len(inputs) - 1, in_flight + (self._recent.maxlen or 1))
         duties = [inputs[j] for j in range(len(inputs) - 1 - span, len(inputs) - 1)]
         return max(duties) - min(duties) <= STEADY_DUTY_SHARE * step
@@ -375,7 +424,7 @@ class _Predictive(_Base):
             # A rate other than the model's is most likely a fill other than the config's:
             # heat capacity scales rate and loss rate alike, so the gain (°C/%) stays.
             self._loss *= fit.rate / self._rate
-            self._use(fit.rate, fit.dead_time)
+            self._use(fit.rate, fit.dead_time, fit.lag)
 
     def _pulse_due(self, sp: float, watch: _HeatUpWatch) -> bool:
         """Whether this heat-up's full power must end now, unmeasured: nothing measured the

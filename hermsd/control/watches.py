@@ -7,6 +7,7 @@ import bisect
 import math
 from dataclasses import dataclass
 
+from hermsd.control.linsys import solve
 from hermsd.control.pid import (
     BEND_TOLERANCE,
     FIT_FROM,
@@ -33,9 +34,12 @@ class HeatUpFit:
     dead_time: float
     refused: str | None = None
     span: float = 0.0  # s from the step to full power until the fit: the data it rests on
+    lag: float = 0.0  # s of the dead time that is the sensor's first-order lag (0: not told)
 
 
-def checked(rate: float, dead_time: float, model_rate: float, span: float) -> HeatUpFit:
+def checked(
+    rate: float, dead_time: float, model_rate: float, span: float, lag: float = 0.0
+) -> HeatUpFit:
     """A measured rate and dead time as a fit, refused (and why) where no tun the model may
     be has them: a wrong step, a dry or half-empty tun, another tun than the model's."""
     if not RATE_BAND[0] * model_rate <= rate <= RATE_BAND[1] * model_rate:
@@ -44,7 +48,7 @@ def checked(rate: float, dead_time: float, model_rate: float, span: float) -> He
     if not 0.0 <= dead_time <= MAX_DEAD_TIME:
         why = f"dead time {dead_time:.0f} s is not within 0–{MAX_DEAD_TIME:g} s"
         return HeatUpFit(rate, dead_time, why, span)
-    return HeatUpFit(rate, dead_time, None, span)
+    return HeatUpFit(rate, dead_time, None, span, min(lag, dead_time))
 
 
 class LineFit:
@@ -128,6 +132,13 @@ class _Rise:
         """°C·s: the rise summed over its periods (each `ts` long)."""
         return self._sums[-1][1] * ts
 
+    def since(self, after: float) -> tuple[list[float], list[float]]:
+        """The times and rises of the points with t > after."""
+        first = bisect.bisect_right(self._times, after)
+        sums = self._sums
+        rises = [sums[i + 1][1] - sums[i][1] for i in range(first, len(self._times))]
+        return self._times[first:], rises
+
     def line(self, after: float, until: float) -> LineFit:
         """The line over the points with after < t ≤ until."""
         first = bisect.bisect_right(self._times, after)
@@ -145,12 +156,11 @@ class _HeatUpWatch(_RampWatch):
     Behind a delay D and a sensor lag τs the PV's rise bends into a ramp only a few τs after
     it starts to move; a line inside the bend reads the rate low and the dead time short,
     and limits tightened on such a rate call a normal heat-up a shorted SSR. So the rise is
-    kept from where it moves (MOVE_FROM on), and the fit is taken on its later half once that
-    half has risen FIT_SPAN °C and its two quarters rise at one slope (within
-    BEND_TOLERANCE): for a first-order lag the later half then reads the rate within 6 %
-    (docs/heat-up-fit.md). Its slope is the rate; where it crosses pv0 is the dead time,
-    D + τs, which is what a predictor wants for a ramp. A step that ends before is `ended`.
-    """
+    kept from where it moves (MOVE_FROM on), and the fit is taken once the later half has
+    risen FIT_SPAN °C and its two quarters rise at one slope (within BEND_TOLERANCE): the
+    whole rise fitted to the lag's own curve (`through_lag`) gives the rate, the dead time
+    D + τs (where the ramp's asymptote crosses pv0, what a predictor wants for a ramp) and
+    τs (docs/heat-up-fit.md). A step that ends before is `ended`."""
 
     __slots__ = ("_bent", "_du", "_moved_at", "_pv0", "_rise", "_top", "least")
 
@@ -256,6 +266,11 @@ class _HeatUpWatch(_RampWatch):
     def _fit(
         self, line: LineFit, slope: float, loss: float, model_rate: float, span: float
     ) -> HeatUpFit:
+        assert self._moved_at is not None  # a fit comes only once the PV has moved
+        lagged = through_lag(*self._rise.since(self._moved_at - 1e-9), loss)
+        if lagged is not None:
+            climb, crossing, lag = lagged
+            return checked(climb * 100.0 / self._du, crossing, model_rate, span, lag)
         mid_rise = line.sx / line.n
         climb = slope + loss * mid_rise  # °C/s the step adds, before the loss takes its share
         # The loss bends the ramp down as it rises: its tangent at mid_rise crosses pv0
@@ -263,6 +278,49 @@ class _HeatUpWatch(_RampWatch):
         bent = loss * mid_rise * mid_rise / (2.0 * slope * climb)
         crossing = (line.st - line.sx / slope) / line.n + bent  # mean t − mean rise / slope
         return checked(climb * 100.0 / self._du, crossing, model_rate, span)
+
+
+def through_lag(
+    times: list[float], rises: list[float], loss: float
+) -> tuple[float, float, float] | None:
+    """(the step's climb in °C/s, where its ramp's asymptote crosses the start in s, the lag
+    in s) from a
+    rise seen through a first-order sensor lag after a delay, or None where the points do not
+    show a lag (fewer than 8, or a lag < 0 or a climb ≤ 0 fitted: noise on a straight ramp).
+
+    The integral method: the rise y with the loss added back (y = r + loss·∫r, the loss
+    taken on the water's rise above a steady start) obeys τ·y' + y = R·(t − D) exactly, so
+    ∫y over [t₀, t] = R·T²/2 + R·(t₀ − D)·T − τ·(y − y₀) with T = t − t₀: linear in R, D
+    and τ, fitted by least squares over the whole rise, bend and all (docs/heat-up-fit.md).
+    The asymptote crosses the start at D + τ."""
+    n = len(times)
+    if n < 8:
+        return None
+    t0 = times[0]
+    rows: list[tuple[float, float, float, float]] = []
+    targets: list[float] = []
+    lost = integral = 0.0  # ∫r and ∫y from t₀ (trapezoids)
+    y_last = rises[0]
+    for i in range(n):
+        if i:
+            dt = times[i] - times[i - 1]
+            lost += 0.5 * dt * (rises[i] + rises[i - 1])
+        y = rises[i] + loss * lost
+        if i:
+            integral += 0.5 * (times[i] - times[i - 1]) * (y + y_last)
+        y_last = y
+        big_t = times[i] - t0
+        rows.append((0.5 * big_t * big_t, big_t, -y, 1.0))
+        targets.append(integral)
+    normal = [[math.fsum(row[j] * row[k] for row in rows) for k in range(4)] for j in range(4)]
+    rhs = [math.fsum(row[j] * x for row, x in zip(rows, targets, strict=True)) for j in range(4)]
+    try:
+        climb, shifted, lag, _ = (v.real for v in solve(normal, rhs))
+    except ValueError:
+        return None
+    if climb <= 0.0 or lag < 0.0:
+        return None
+    return climb, t0 - shifted / climb + lag, lag
 
 
 class _PulseWatch:

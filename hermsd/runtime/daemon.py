@@ -463,6 +463,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
                 return
             learner.heat_up(fit)
             what = f"rate {fit.rate * 60.0:.3f} °C/min, dead time {fit.dead_time:.0f} s"
+            if fit.lag > 0.0:
+                what += f" (of it the sensor's lag {fit.lag:.0f} s)"
             if fit.refused is None:
                 self._event(logging.INFO, f"heat-up measured: {what}", record.t)
             else:
