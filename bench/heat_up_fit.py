@@ -96,8 +96,9 @@ def main() -> int:
                 [
                     f"{count} ramps (bench/heat_up_fit.py's grid, {args.seeds} noise seeds",
                     "each) through the heat-up's watch: a fit is taken only where the ramp's",
-                    "last two quarters climb alike (docs/heat-up-fit.md). The refused ones are",
-                    "fast tuns behind long lags whose ramp was still bending after 40 °C.",
+                    "last two quarters climb alike, and is then of the whole rise to the lag's",
+                    "own curve (docs/heat-up-fit.md). The refused ones are fast tuns behind",
+                    "long lags whose ramp was still bending after 40 °C.",
                 ]
             ),
             "\n".join(rows),
