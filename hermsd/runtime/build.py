@@ -10,9 +10,10 @@ from hermsd.config import schema as config_module
 from hermsd.config.schema import Config, ControlConfig
 from hermsd.control import factory, pid, predictive
 from hermsd.control.element2 import SplitController
-from hermsd.control.factory import full_power, full_power_share
+from hermsd.control.factory import full_power, full_power_share, total_watts
 from hermsd.control.learning import LearnedModel, Learner, ModelStore, implausible_here
 from hermsd.control.reach import ReachWatch, Said
+from hermsd.control.watches import HeatUpFit
 from hermsd.hardware.outputs import window_length
 from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.readiness import known_dead_time
@@ -21,13 +22,16 @@ from hermsd.safety.element_watch import ElementWatch
 from hermsd.safety.limits import MeasuredTun, SafetyLimits
 
 
-def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLimits:
+def safety_limits(
+    config: Config, model: MeasuredTun | None = None, heat_up: HeatUpFit | None = None
+) -> SafetyLimits:
     """The supervisor's limits: from `model` (the tun as measured) where given, else safe for
-    any tun the config could be describing (see `SafetyLimits.derive`)."""
+    any tun the config could be describing (see `SafetyLimits.derive`); tightened by the
+    day's `heat_up` where it was measured and no model was (`SafetyLimits.with_heat_up`)."""
     s = config.safety
-    return SafetyLimits.derive(
+    limits = SafetyLimits.derive(
         litres=config.tun.litres,
-        element_watts=config.tun.element_watts + element2_watts(config),
+        element_watts=total_watts(config),
         period=config.control.period,
         read_interval=config.sensor.read_interval,
         model=model,
@@ -50,6 +54,9 @@ def safety_limits(config: Config, model: MeasuredTun | None = None) -> SafetyLim
         stall_periods=s.stall_periods,
         max_output=full_power_share(config),
     )
+    if heat_up is None or heat_up.refused is not None:
+        return limits
+    return limits.with_heat_up(heat_up.rate, heat_up.dead_time, total_watts(config))
 
 
 def element_watch(config: Config) -> ElementWatch:

@@ -36,6 +36,7 @@ from hermsd.control.factory import full_power
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.control.pv import period_value
 from hermsd.control.reach import Said
+from hermsd.control.watches import HeatUpFit
 from hermsd.hardware.lm92 import (
     LimitName,
     Reading,
@@ -58,6 +59,7 @@ from hermsd.runtime.build import (
     elements,
     measured_tun,
     reach_period,
+    safety_limits,
 )
 from hermsd.runtime.current_side import CurrentSide
 from hermsd.runtime.latch_keeping import LatchKeeping
@@ -189,6 +191,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         self.controller = parts.controller
         self._learner = parts.learner
         self._heat_up_seen = predictive.heat_up_fit(self.controller)
+        self._limits_fit: HeatUpFit | None = None  # the heat-up the limits were tightened by
         self._pulsing = False  # whether a measured pulse holds the heat (said when it moves)
         self._reloaded_at = -math.inf  # when a reload last changed the config
         self.planner = parts.planner
@@ -709,8 +712,27 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         if self.recorder is not None:
             self.recorder.write("/hermsd/period", self.clock.wall_ns(), asdict(record))
         self._learn(record)
+        self._limits_from_heat_up(record.t)
         self._say_pulse(record.t)
         self._report(now)
+
+    def _limits_from_heat_up(self, t: float) -> None:
+        """Tighten the supervisor's limits by the day's heat-up once the control law has
+        measured it (its rate and dead time): a fault is then judged on this tun as it is
+        filled today, not on any tun the config may describe (`SafetyLimits.with_heat_up`)."""
+        fit = predictive.heat_up_fit(self.controller)
+        if fit is None or fit.refused is not None or fit is self._limits_fit:
+            return
+        self._limits_fit = fit
+        limits = safety_limits(self.config, self._measured_tun(self.config), fit)
+        if limits == self.supervisor.limits:
+            return  # a measured model's limits stand
+        self.supervisor.limits = limits
+        said = (
+            f"safety limits from the heat-up: its heat shows within {limits.dead_time:.0f} s, "
+            f"full power heats at most {limits.heat_rate * 60.0:.3f} °C/min"
+        )
+        self._event(logging.INFO, said, t)
 
     def _say_pulse(self, t: float) -> None:
         """Say when a measured pulse begins and ends: the heat off below the setpoint on

@@ -59,6 +59,7 @@ class LoopState:
     _pending: list[Callable[[float], None]]
     _learner: Learner
     _heat_up_seen: HeatUpFit | None
+    _limits_fit: HeatUpFit | None
     _pulsing: bool
     _reloaded_at: float
     _stored_model: LearnedModel | None

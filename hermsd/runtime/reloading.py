@@ -137,7 +137,9 @@ class Reloading(LoopState):
         if any(key.startswith(("safety.", "tun.")) for key in changed) or retunes(
             old.control, new.control
         ):
-            self.supervisor.limits = safety_limits(new, self._measured_tun(new))
+            if old.tun != new.tun:
+                self._limits_fit = None  # a heat-up of another tun
+            self.supervisor.limits = safety_limits(new, self._measured_tun(new), self._limits_fit)
         if changed & {"safety.max_temp", "safety.hysteresis"}:
             self._reprogram_sensor(t)
         if "safety.reset" in changed:

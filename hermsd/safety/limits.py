@@ -107,6 +107,39 @@ class MeasuredTun(Protocol):
     def ambient(self) -> float: ...
 
 
+HEAT_UP_ORIGIN = "measured in the day's heat-up"
+
+
+@dataclass(frozen=True, slots=True)
+class _Measured:
+    """What a measured full-power rate and dead time set: each trusted to within ×1.5."""
+
+    weakest_rise: float
+    fastest_rise: float
+    rise_per_joule: float
+    dead: float
+    heat_memory: float
+
+    @classmethod
+    def of(cls, rate: float, dead_time: float, limit: float, element_watts: float) -> _Measured:
+        """From the tun's `rate` (°C/s at 100 %) and `dead_time`, under the power `limit`
+        (share of full power)."""
+        # θ·1.5 (and a minute of lag's tail), but never longer than the envelope the
+        # unmeasured limits already trust unless θ itself lies beyond it, and never past
+        # twice that envelope: a wild (or damaged) θ of half an hour would let a shorted
+        # SSR heat the water for as long before it is judged.
+        theta = min(dead_time, 2.0 * DEAD_TIME_MAX)
+        return cls(
+            weakest_rise=FULL_POWER / 100.0 * limit * MAINS_LOW * rate / MODEL_MARGIN,
+            fastest_rise=MAINS_POWER_MARGIN * rate * MODEL_MARGIN,
+            rise_per_joule=MODEL_MARGIN * rate / element_watts,
+            dead=max(60.0, min(MODEL_MARGIN * theta, max(DEAD_TIME_MAX, theta))),
+            heat_memory=min(
+                MODEL_MARGIN * theta + 60.0, max(DEAD_TIME_MAX, theta) + SENSOR_LAG_MAX
+            ),
+        )
+
+
 def vapour_pressure_ratio(celsius: float) -> float:
     """Saturation pressure of water at `celsius` over that at 66 °C (Magnus; within 1.5 %
     of the steam tables from 20 to 90 °C).
@@ -210,6 +243,31 @@ class SafetyLimits:
         rise = 0.5 * held_for * (self.heater_rise_rate - self.loss_rate(peak))
         return rise if rise >= NOISE_FLOOR else None
 
+    def with_heat_up(self, rate: float, dead_time: float, element_watts: float) -> SafetyLimits:
+        """The limits tightened by what the day's own heat-up measured: the full-power `rate`
+        (°C/s at 100 %) and the `dead_time` (s), as a measured model tightens them in
+        `derive` (the fastest and the weakest rise, a joule's rise, the dead time and the
+        heat's memory). The losses stay as they were: a heat-up does not measure them. Limits
+        already from a measured model, and configured values, are kept."""
+        origins = dict(self.origins)
+        if origins.get("heat_rate") == "measured":
+            return self
+        timed = _Measured.of(rate, dead_time, self.max_output / 100.0, element_watts)
+        changes: dict[str, Any] = {
+            "heater_rise_rate": timed.weakest_rise,
+            "heat_rate": min(self.heat_rate, timed.fastest_rise),
+            "rise_per_joule": min(self.rise_per_joule, timed.rise_per_joule),
+            "heat_memory": timed.heat_memory,
+        }
+        if origins.get("dead_time") != "configured":
+            changes["dead_time"] = timed.dead
+            origins["dead_time"] = HEAT_UP_ORIGIN
+        for key in ("heater_rise_rate", "heat_memory", "heat_rate", "rise_per_joule"):
+            origins[key] = HEAT_UP_ORIGIN
+        if origins.get("heater_min_rise") != "configured":
+            origins["heater_min_rise"] = HEAT_UP_ORIGIN
+        return dataclasses.replace(self, **changes, origins=tuple(sorted(origins.items())))
+
     @classmethod
     def derive(
         cls,
@@ -281,22 +339,15 @@ class SafetyLimits:
         if model is not None:
             # The tun as measured: its rate 100·K/τ, loss 1/τ and dead time θ, each trusted
             # to within ×1.5, and a room up to 10 °C colder than on the day it was measured.
-            model_rate = 100.0 * model.gain / model.tau
-            weakest_rise = FULL_POWER / 100.0 * limit * MAINS_LOW * model_rate / MODEL_MARGIN
+            timed = _Measured.of(
+                100.0 * model.gain / model.tau, model.dead_time, limit, element_watts
+            )
+            weakest_rise, dead, heat_memory = timed.weakest_rise, timed.dead, timed.heat_memory
             # A measurement only tightens: never faster than the envelope's half fill.
-            fastest_rise = min(fastest_rise, MAINS_POWER_MARGIN * model_rate * MODEL_MARGIN)
-            rise_per_joule = min(rise_per_joule, MODEL_MARGIN * model_rate / element_watts)
+            fastest_rise = min(fastest_rise, timed.fastest_rise)
+            rise_per_joule = min(rise_per_joule, timed.rise_per_joule)
             loss_per_k = MODEL_MARGIN / model.tau
             loss_room = model.ambient - 10.0
-            # θ·1.5 (and a minute of lag's tail), but never longer than the envelope the
-            # unmeasured limits already trust unless θ itself lies beyond it, and never past
-            # twice that envelope: a wild (or damaged) θ of half an hour would let a shorted
-            # SSR heat the water for as long before it is judged.
-            theta = min(model.dead_time, 2.0 * DEAD_TIME_MAX)
-            dead = max(60.0, min(MODEL_MARGIN * theta, max(DEAD_TIME_MAX, theta)))
-            heat_memory = min(
-                MODEL_MARGIN * theta + 60.0, max(DEAD_TIME_MAX, theta) + SENSOR_LAG_MAX
-            )
             # u·0.81·K/1.5 heating against 1.5·(T − T_room) of loss, K the °C per %.
             heating_output_per_k = MODEL_MARGIN * MODEL_MARGIN / (MAINS_LOW * model.gain)
             origin = timing = measured
