@@ -240,12 +240,13 @@ def test_a_shorted_ssr_in_a_hold_with_no_pour_is_caught_when_the_energy_balance_
 
     By hand: rated r = 5500/(30·4186) = 0.043797 °C/s; the fastest heat the supervisor
     allows per full-power second is half the water at +10 % mains, h = 2·1.21·r = 0.105990.
-    x s after t_f the 300 s watch has risen r·x; heat counted over the 720 s to t (the watch
-    and the 420 s the heat takes to show), one period's 8 % · 5 s for each period ending at
-    or before t_f: 0.08·(725 − x) full-power s. Alarm when r·x > h·0.08·(725 − x) + 0.5,
-    x > (0.0084792·725 + 0.5)/(0.043797 + 0.0084792) = 127.2 s: the period at 130 s, and
-    confirmed a period later, 135 s (the watch's thirds alone waited for its first third
-    to rise).
+    x s after t_f the 300 s watch has risen r·x; the most heat any 300 s window (and the two
+    periods it may straddle, 62 periods) delivered within the 420 s the heat takes to show
+    is the hold's, 0.08·5·62 = 24.8 full-power s (whatever x: a window before t_f is within
+    reach until x = 420). Alarm when r·x > h·24.8 + 0.5, x > 71.4 s; the rise must also go
+    on as a heater's (`_heat_goes_on`, windows since its onset on the period grid) on two
+    periods in a row, within a few periods of that. (Counting all the heat of the watch and
+    the memory, 0.08·(725 − x), waited until 135 s.)
     """
     lim = SafetyLimits.derive(litres=30.0, element_watts=5500.0, period=5.0, read_interval=1.0)
     rate = 5500.0 / (30.0 * WATER_J_PER_K_L)
@@ -260,7 +261,7 @@ def test_a_shorted_ssr_in_a_hold_with_no_pour_is_caught_when_the_energy_balance_
         if "ssr_stuck_on" in sup.active:
             raised = t - fault
             break
-    assert raised == 135.0
+    assert raised is not None and 71.4 < raised <= 100.0
 
 
 def test_a_shorted_ssr_right_after_a_kettle_is_still_caught() -> None:

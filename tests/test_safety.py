@@ -123,6 +123,24 @@ def test_heat_the_element_did_not_deliver_means_a_stuck_ssr() -> None:
     assert sup.latched == ["ssr_stuck_on"]
 
 
+@pytest.mark.parametrize(("rise", "latched"), [(1.75, ["ssr_stuck_on"]), (1.65, [])])
+def test_a_steady_hold_explains_only_the_heat_of_one_watch(rise: float, latched: list[str]) -> None:
+    # An hour at 20 %, then the water climbs `rise` °C in each 300 s with the output as it
+    # was. However the heat is spread over the 420 s it may take to show, the rise over a
+    # watch is a mean of what watch-long windows delivered: 20 % of 300 s and the two periods
+    # a window can straddle, 62 full-power s, times 2·1.21·3000/(90·4186) = 0.019274 °C per
+    # full-power second, and the 0.5 °C margin: 1.695 °C. (All the heat of the watch and the
+    # memory, 144 s, would allow 3.28 °C.)
+    sup = Supervisor(limits())
+    t, pv = 0.0, 66.0
+    while t <= 3600.0 + 400.0 and sup.heater_allowed:
+        sup.period(t, pv, 20.0, 20.0)
+        if t >= 3600.0:
+            pv += rise / 300.0 * 5.0
+        t += 5.0
+    assert sup.latched == latched
+
+
 def test_a_heater_that_outpaces_the_losses_slowly_is_caught_with_every_output_off() -> None:
     # A shorted contactor on a 150 L open pot: 0.3 °C per 5 min with nothing switched on,
     # under the 0.5 °C the 300 s watch allows. The 900 s watch, first judged once its history

@@ -503,10 +503,11 @@ class Supervisor:
 
         Losses only ever take heat away, so over a watch window the water can rise at most by
         the delivered energy times the fastest rate per full-power second (`heat_rate`: half
-        the water, +10 % mains). Energy from `heat_memory` before the window counts too, as
-        heat reaches the sensor only after the dead time and the well's lag (300 + 120 s
-        before anything is measured: a lag's tail beyond that is e^−2 of it). More rise than
-        that means something else is heating: an SSR that failed shorted. The longer
+        the water, +10 % mains). Heat reaches the sensor only after the dead time and the
+        well's lag (300 + 120 s before anything is measured: a lag's tail beyond that is e^−2
+        of it), so the energy is the most any window as long delivered within `heat_memory`
+        before (`_most_delivered`). More rise than that means something else is heating: an
+        SSR that failed shorted. The longer
         watches (`CREEP_WATCHES`) see a heater that outpaces the losses only slowly.
 
         Hot water poured in is heat nothing delivered too, but it stops: a step of the water,
@@ -543,12 +544,18 @@ class Supervisor:
             if t - history[0][0] < span - dt:
                 continue
             pv_then = history[bisect.bisect_left(history, t - watch, key=_when)][1]
-            first = bisect.bisect_left(history, t - span, key=_when)
-            full_power_s = self._energy_total - self._energy_before[first]
+            full_power_s = self._most_delivered(t, watch, dt)
             from_room = room_per_k * max(0.0, WARMEST_ROOM - min(pv, pv_then))
             from_coil = self._coil_rise(t - span, t)
-            allowed = lim.heat_rate * full_power_s + lim.ssr_max_rise + from_room + from_coil
-            sustained = pv - pv_then > allowed and _heat_goes_on(history, t, watch, pv_then, dt)
+            beside = lim.ssr_max_rise + from_room + from_coil
+            allowed = lim.heat_rate * full_power_s + beside
+            # More than the element at full power through a whole window can make is no SSR's
+            # doing: hot water poured into a full-power heat-up (the dry fire's own watch
+            # judges a rise too fast for the water).
+            ceiling = lim.heat_rate * (watch + 2.0 * dt) + beside
+            sustained = allowed < pv - pv_then <= ceiling and _heat_goes_on(
+                history, t, watch, pv_then, dt
+            )
             if self._confirmed(f"ssr_stuck_on {watch:g}", sustained):
                 self._raise(
                     "ssr_stuck_on",
@@ -560,6 +567,29 @@ class Supervisor:
                     {"rise_c": pv - pv_then, "allowed_c": allowed},
                 )
                 return
+
+    def _most_delivered(self, t: float, watch: float, dt: float) -> float:
+        """Full-power s: the most delivered in any `watch` s (and two periods more, the most a
+        window between two period marks can straddle) ending within `heat_memory` of `t`.
+
+        Heat delivered at s shows at the sensor through the dead time and the lag, each
+        second's heat spread over a delay of 0 to `heat_memory` s by some weights that sum to
+        one. The rise over the watch is then a weighted mean, over those delays, of the heat
+        delivered in a watch-long window that many seconds earlier: no more than the most any
+        such window held. Never more than all the heat of the watch and the memory (the
+        bound before it), and far less in a hold: a duty d gives d·watch, not
+        d·(watch + memory)."""
+        history, before = self._energy, self._energy_before
+        total = self._energy_total
+        ends_from = bisect.bisect_left(history, t - self.limits.heat_memory, key=_when)
+        start = bisect.bisect_left(history, t - self.limits.heat_memory - watch - dt, key=_when)
+        most = 0.0
+        for end in range(ends_from, len(history)):
+            after_end = before[end + 1] if end + 1 < len(history) else total
+            while history[start][0] < history[end][0] - watch - dt:
+                start += 1
+            most = max(most, after_end - before[start])
+        return most
 
     def _confirmed(self, what: str, sustained: bool) -> bool:
         """`sustained` now and at the last period: windows that begin past a pour, not within
