@@ -293,6 +293,34 @@ def test_recovery_re_measures_the_rate_the_water_lowered(tau: float, dead_time: 
     assert peak <= SP + 0.01
 
 
+@pytest.mark.parametrize(("tau", "dead_time"), [(SEED.tau / 4.0, 260.0), (SEED.tau / 2.0, 250.0)])
+def test_cold_water_behind_a_long_dead_time_is_known_as_heat_capacity_by_its_drop(
+    tau: float, dead_time: float
+) -> None:
+    # Full power ends before any of its heat shows, so the recovery's ramp measures nothing;
+    # the drop itself says how much water came: from 66 °C to p, at least (66 − p)/(p − 5)
+    # of the heat capacity (as much water at 5 °C; this is at 15 °C, a tenth). Keeping the
+    # old rate, full power ended 9 % early, the PV crept up the rest and went on 0.1 °C
+    # over (×1.2 on the second tun).
+    back, fastest, peak = recover(pid.PlantModel(SEED.gain, tau, dead_time, ROOM))
+    assert back <= 1.02 * fastest
+    assert peak <= SP + 0.1
+
+
+def test_the_drop_scales_the_rate_by_the_heat_capacity_it_says() -> None:
+    # A tenth of 15 °C water into 66 °C: (66 + 0.1·15)/1.1 = 61.364 °C, at once (no lag).
+    # The law takes it as water at 5 °C: (66 − 5)/(61.364 − 5) = 1.0823 × the capacity.
+    model = pid.PlantModel(SEED.gain, SEED.tau, 200.0, ROOM)
+    tun = Tun(model.gain, model.tau, model.dead_time, SP)
+    controller = predictive(model)
+    controller.reset(SP, tun.holding(SP))
+    run(controller, tun, 600.0 + TS, water_at=600.0)
+    law = control_predictive._law(controller)
+    assert law is not None
+    dropped = (SP + 0.1 * 15.0) / 1.1
+    assert law._rate == pytest.approx(model.rate * (dropped - 5.0) / (SP - 5.0), rel=1e-9)
+
+
 class PartPeriodTun:
     """FOPTD water whose dead time ends `share` of the way into a period: over each period
     the duty sent n + 1 periods before still arrives for `share` of it, then the one sent n

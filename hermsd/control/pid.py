@@ -110,13 +110,15 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 2
+CONTROL_LAW_VERSION = 3
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
 it come out otherwise: that log is then said to be of another law, not re-run (its summary,
 plot and CSV read as ever). Version 1 is the first logged; a log without one predates it.
-Version 2: the predictive law counts the part of a period its dead time ends in."""
+Version 2: the predictive law counts the part of a period its dead time ends in.
+Version 3: it models the sensor's lag, lets the bias learn a long one-sided innovation, and
+scales its rate by the heat capacity cold water adds."""
 
 ALGORITHMS = (
     "predictive",
@@ -237,6 +239,12 @@ readings) that is 2.5 % of the rate, and the cut lands the water some 0.05 °C o
 0.7 %. Every other tun of the bench's family climbs under 0.1 °C a period, so its span holds 12
 or more and it is fitted as before: there the span's later points would only add the sensor
 lag's bend (a thermowell's rate came out higher and its cut earlier)."""
+COLDEST_POUR = 5.0
+"""°C: the coldest water a brewer pours in (a tap in winter). A drop of the PV from b to p
+says the water poured in held at least (b − p)/(p − 5) of the tun's heat capacity (as much
+water at 5 °C; warmer water is more of it): the rate and heat flows per °C fall by at least
+that share, and a law that kept them (a tenth more water, 9 % too fast) left full power too
+early behind a long dead time and crept up the rest."""
 MAX_RECOVERY_HOLD = 90.0
 """% of holding duty above which a recovery's rate is not measured: the step to full power is
 too small for its slope to tell the rate."""

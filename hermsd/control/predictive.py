@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 from hermsd.control.pid import (
     BIAS_INNOVATION_CLIP,
+    COLDEST_POUR,
     DROP_FALL,
     DROP_ONSET,
     DROP_READINGS,
@@ -81,6 +82,7 @@ class _Predictive(_Base):
         "_load_share",
         "_load_until",
         "_loss",
+        "_poured",
         "_pulse",
         "_pulse_sp",
         "_pulsed",
@@ -132,6 +134,9 @@ class _Predictive(_Base):
         self._fit: HeatUpFit | None = None
         # s the innovation has lain beyond the bias's clip on one side (signed by it).
         self._trailing = 0.0
+        # Cold water poured in, while its drop unfolds (`_follow_pour`): the PV before it,
+        # the lowest since, and the share of heat capacity it added that is taken.
+        self._poured: tuple[float, float, float] | None = None
         self._estimate = self._bias = self._fpv = 0.0
         # A heat flow the caller knows (a HERMS coil's draw), in % of full power: the one in
         # force from `_load_in` s on until `_load_until` s (`_load`) and the one over the
@@ -270,6 +275,7 @@ class _Predictive(_Base):
         self._pulse = None
         self._carried = False
         self._trailing = 0.0
+        self._poured = None
         self._estimate = self._fpv = pv0
         # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
         # so a few steps land on the bias that gives u0 exactly when one exists.
@@ -335,6 +341,7 @@ class _Predictive(_Base):
         # a period of it adds (acting on the fall cannot lift the water above where it was),
         # by the gain that puts back in one period what this one fell (more than 100 %).
         cold, self._cold_water = self._cold_water, False
+        self._follow_pour(pv, cold or innovation < -STEP_INNOVATION)
         self._carried = (cold or self._carried) and pv < sp and fell > self._ts * self._rate
         if self._carried:
             p = max(p, self._kc_far * fell)
@@ -342,6 +349,30 @@ class _Predictive(_Base):
             p, d = self._lo + (self._hi - self._lo) * self._pulse.duty(self._ts) - i, 0.0
         self._terms = (p, i, d)
         return p + i + d
+
+    def _follow_pour(self, pv: float, dropped: bool) -> None:
+        """Cold water poured in (a drop the readings showed, or a step taken whole): the
+        tun's heat capacity grew by at least the share its drop says (`COLDEST_POUR`), so
+        the rate, the losses and the bias per °C fell by that share. Followed while the PV
+        sinks through the sensor's lag; done once it rises again. Not under a told load
+        (a HERMS coil's draw is no water)."""
+        if self._poured is None:
+            if not dropped or self._load:
+                return
+            self._poured = (max(self._recent), math.inf, 0.0)
+        before, low, taken = self._poured
+        if pv >= low + BIAS_INNOVATION_CLIP:
+            self._poured = None  # rising again: the drop is all seen
+            return
+        if pv >= low:
+            return
+        # At most as much again: more than doubling the water is no pour (a glitch).
+        share = min(max(0.0, before - pv) / max(pv - COLDEST_POUR, 1.0), 1.0)
+        self._poured = (before, pv, share)
+        scale = (1.0 + taken) / (1.0 + share)
+        self._loss *= scale
+        self._bias *= scale
+        self._use(self._rate * scale, self._dead_time)
 
     def _learn_share(self, past: float, innovation: float) -> None:
         """The known load's share the water shows, learned from the period's innovation as
