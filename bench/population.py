@@ -18,10 +18,12 @@ generator (`Population.redrawn` counts it): weak tuns are bench/reach.py's conce
 Each tun runs the brew day of bench/robustness.py (room → 66 °C, a tenth of the water's
 volume of 15 °C water at 4 h, 6 h) through the real daemon: hermsd's day 1 with the shipped
 config (only `tun.litres` and the watts set, and the lid), day 2 from the state day 1 left,
-and CraftBeerPi's PIDHerms (seed 001's ITAE-load set). `--faults` instead runs, on each tun,
-a shorted SSR (with a contactor) in the hold at 5 h and a dead element at a drawn point of
-the day; `--faults --current` the same days with the element's current input fitted
-(`current.kind: sim`, docs/current.md). Prints Markdown; `--write` puts it into
+and CraftBeerPi's PIDHerms (seed 001's ITAE-load set). Beside them, on each tun's water
+alone, the least recovery any controller can show within day 2's after-water overshoot
+(`landing_ratio`): where it exceeds ×1.02, the two goals cannot both be met. `--faults`
+instead runs, on each tun, a shorted SSR (with a contactor) in the hold at 5 h and a dead
+element at a drawn point of the day; `--faults --current` the same days with the element's
+current input fitted (`current.kind: sim`, docs/current.md). Prints Markdown; `--write` puts it into
 bench/RESULTS.md.
 
     uv run --group bench python bench/population.py [--tuns 200] [--jobs 2] [--write]
@@ -35,6 +37,7 @@ appends each tun's figures to FILE as they come, and `--from FILE` makes the tab
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import json
 import math
@@ -42,7 +45,7 @@ import multiprocessing
 import random
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -66,6 +69,7 @@ from robustness import (  # bench/robustness.py, beside this file
 
 from hermsd.config import read
 from hermsd.config.schema import Config
+from hermsd.metrics import BAND
 from hermsd.safety.current_watch import CONFIRM_SAMPLES, Sample
 from hermsd.sim import hlt, scenario
 from hermsd.sim import tun_faults as tf
@@ -151,6 +155,73 @@ class PopTun:
             surface = hlt.pot_surface_m2(water.litres)
             loss += hlt.evaporation_w(water_c, water.ambient_c, surface)
         return loss
+
+
+LANDING_OVERSHOOT_C = 0.1
+"""Day 2's overshoot goal after the water: what `landing_ratio` lands within."""
+BISECTIONS = 12
+"""Halvings of the cut's time: to 1/4096 of the least recovery (a tenth of a second)."""
+
+
+def _recovery_with_cut(
+    start: hlt.PhysicalPlant, cut: float, settle: float
+) -> tuple[float | None, float]:
+    """Full power from the water's instant (0 s) until `cut` s, none after: when the
+    sensor (without noise) first reaches the band's lower edge again, and its highest from
+    then (followed until it has fallen for 30 s, `settle` s past the cut: the heat in
+    flight has landed; −inf if it never got back)."""
+    plant = copy.deepcopy(start)
+    plant.set_heater(True, 0.0)
+    t, sensor = 0.0, plant.temperature(0.0)
+    crossed, peak, off, falling = None, -math.inf, False, 0
+    edge = SETPOINT - BAND
+    while t < HEATUP_LIMIT_S:
+        t += 1.0
+        if not off and t >= cut:
+            plant.set_heater(False, t)
+            off = True
+        now = plant.temperature(t)
+        if crossed is None and sensor < edge <= now:
+            crossed = t - 1.0 + (edge - sensor) / (now - sensor)
+            if not off:
+                return crossed, math.inf  # the least recovery: full power on into the band
+        if crossed is not None:  # the sensor's peak once back, not where it fell from
+            peak = max(peak, now)
+        falling = falling + 1 if off and now < sensor else 0
+        if off and falling > 30 and t > cut + settle:
+            break
+        sensor = now
+    return crossed, peak
+
+
+def landing_ratio(tun: PopTun) -> float | None:
+    """The least recovery any controller can show on the tun's water without its sensor
+    going LANDING_OVERSHOOT_C over the setpoint, × the least recovery (full power on from
+    the water): full power from the water's own instant, then none from the latest cut that
+    keeps the sensor's peak within it (bang-bang, the heat as early as it can come: nothing
+    lands it sooner). From the water and the sensor at 66 °C, the tenth of 15 °C water in;
+    None where full power does not reach the band within 3 h. Day 2's recovery ≤ ×1.02 and
+    its after-water overshoot ≤ 0.1 °C can both be met only where this is ≤ 1.02."""
+    water = tun.water
+    params = {k: v for k, v in water.plant().items() if k in hlt.plant_parameters("physical")}
+    start = hlt.PhysicalPlant(**{**params, "start_c": SETPOINT})
+    start.add_water(water.litres / 10.0, 15.0, 0.0)
+    settle = water.transport_delay_s + 5.0 * water.sensor_lag_s + 60.0
+    least, _ = _recovery_with_cut(start, math.inf, settle)
+    if least is None:
+        return None
+    early, late = 0.0, least
+    landed: float | None = None
+    if _recovery_with_cut(start, late, settle)[1] <= SETPOINT + LANDING_OVERSHOOT_C:
+        return 1.0
+    for _ in range(BISECTIONS):
+        cut = (early + late) / 2.0
+        crossed, peak = _recovery_with_cut(start, cut, settle)
+        if peak <= SETPOINT + LANDING_OVERSHOOT_C:
+            early, landed = cut, crossed
+        else:
+            late = cut
+    return None if landed is None else landed / least
 
 
 def _log_uniform(rng: random.Random, low: float, high: float) -> float:
@@ -278,6 +349,24 @@ def pass_rates(found: dict[int, dict[str, dict[str, Any]]], label: str) -> list[
     return rows
 
 
+def landing_line(tuns: Sequence[PopTun], found: dict[int, dict[str, dict[str, Any]]]) -> str:
+    """How many tuns physics lets meet day 2's recovery and after-water goals together
+    (`landing_ratio`), and how many of those day 2 meets both on."""
+    ratios = {tun.seed: landing_ratio(tun) for tun in tuns if tun.seed in found}
+    possible = [seed for seed, r in ratios.items() if r is not None and r <= 1.02]
+    known = [r for r in ratios.values() if r is not None]
+    met = sum(
+        not {"recovery", "overshoot after water"} & set(missed_goals(found[seed][DAY_2], DAY_2))
+        for seed in possible
+    )
+    return (
+        "- recovery ≤ ×1.02 with the after-water overshoot ≤ 0.1 °C is possible at all on "
+        f"{len(possible)}/{len(ratios)} tuns (`landing_ratio`: the least recovery within that "
+        "overshoot, full power from the water's own instant and then none, × the least "
+        f"recovery; {min(known):.3f}–{max(known):.3f}); day 2 meets both on {met} of those"
+    )
+
+
 def mean_of(days: list[dict[str, Any]], key: str) -> tuple[float | None, int]:
     """The mean of `key` over `days` that have it, and how many do not."""
     known = [float(d[key]) for d in days if d[key] is not None]
@@ -400,6 +489,7 @@ def brew_days_main(args: argparse.Namespace) -> int:
             ),
             "- day 1: " + "; ".join(pass_rates(found, DAY_1)),
             "- day 2: " + "; ".join(pass_rates(found, DAY_2)),
+            landing_line(drawn.tuns, found),
             "The population's mean of every measure (over the tuns that have it), and the "
             f"verdict: day 2 is {verdict}.\n\n" + means,
             "The five tuns farthest from day 2's goals (then day 1's): each measure against "
