@@ -141,6 +141,35 @@ def test_a_steady_hold_explains_only_the_heat_of_one_watch(rise: float, latched:
     assert sup.latched == latched
 
 
+@pytest.mark.parametrize(
+    ("output", "held_first", "latched"),
+    [(65.0, True, ["heater_not_heating"]), (55.0, True, []), (65.0, False, [])],
+)
+def test_the_days_hold_lets_a_dead_element_be_judged_below_80_percent(
+    output: float, held_first: bool, latched: list[str]
+) -> None:
+    # Half an hour held at 66 °C on 10 %: the losses there. A working element at u % (at
+    # −10 % mains, 0.81·u) beats 1.5× them and an open pot's evaporation, 1 kW of the 3 kW
+    # (33.3 %), from u = (1.5·10 + 33.3)/0.81 = 59.7 %. At 65 % the water falling 0.2 °C
+    # each 150 s is a dead element; at 55 %, or with no hold measured (80 % then), no verdict.
+    sup = Supervisor(limits())
+    t, pv = 0.0, 66.0
+    if held_first:
+        while t <= 1800.0:
+            sup.period(t, pv, 10.0, 10.0)
+            t += 5.0
+    else:
+        while t <= 1800.0:  # a heat-up's last half hour: no steady water
+            sup.period(t, 60.0 + 6.0 * t / 1800.0, 100.0, 100.0)
+            t += 5.0
+    start = t
+    while t <= start + 1200.0 and sup.heater_allowed:
+        sup.period(t, pv, output, output)
+        pv -= 0.2 / 150.0 * 5.0
+        t += 5.0
+    assert sup.latched == latched
+
+
 def test_a_heater_that_outpaces_the_losses_slowly_is_caught_with_every_output_off() -> None:
     # A shorted contactor on a 150 L open pot: 0.3 °C per 5 min with nothing switched on,
     # under the 0.5 °C the 300 s watch allows. The 900 s watch, first judged once its history

@@ -240,8 +240,11 @@ def test_a_measured_tun_stays_quiet_with_twice_the_water() -> None:
 @pytest.mark.parametrize(
     ("name", "within_s", "measured_within_s"),
     [
-        ("warm room", 2500.0, 1000.0),  # loses 0.05 °C/min: the output takes 30 min to 80 %
-        ("keggle", 2000.0, 800.0),
+        # Loses 0.05 °C/min: the output takes 30 min to 80 % (1900 s before the day's hold
+        # was measured); from that hold, a dead element is judged at the output that beats
+        # 1.5× its losses and an open surface's evaporation.
+        ("warm room", 1100.0, 1000.0),
+        ("keggle", 900.0, 800.0),  # 1325 s before
     ],
 )
 def test_an_element_that_dies_in_the_hold_is_caught(
@@ -255,7 +258,7 @@ def test_an_element_that_dies_in_the_hold_is_caught(
         assert alarms[0]["detected_after_s"] <= limit
         assert alarms[0]["heater_off_after_s"] == 0.0
         detected.append(alarms[0]["detected_after_s"])
-    assert detected[1] < detected[0] / 2  # measured, it is judged below 80 %
+    assert detected[1] <= detected[0]  # measured, its losses are known: no later
 
 
 def test_a_shorted_ssr_is_caught_on_the_slowest_tun_and_the_contactor_opens() -> None:

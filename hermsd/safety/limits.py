@@ -90,6 +90,23 @@ MODEL_MARGIN = 1.5
 """A measured gain, time constant or dead time is trusted to within this factor."""
 
 
+HOLD_SPAN_S = 1800.0
+"""s of steady water whose mean duty is taken as the day's hold (its losses there)."""
+
+
+HOLD_BAND = 0.5
+"""°C the PV may span over HOLD_SPAN_S and still be a hold."""
+
+
+HOLD_DUTY_SPREAD = 2.0
+"""% of output the duty's means at a hold's two ends may differ by (or a fifth of them)."""
+
+
+HOLD_ENDS_S = 300.0
+"""s at each end of the span whose mean PVs must agree within the noise: the water neither
+gained nor lost heat to speak of, so the duty balanced the losses."""
+
+
 DRY_FIRE_WINDOWS = 3
 """Consecutive windows a dry fire must show in (see `Supervisor._check_dry_fire`)."""
 
@@ -201,6 +218,13 @@ class SafetyLimits:
         """
         conduction = self.loss_per_k * max(0.0, celsius - self.loss_room)
         return conduction + self.evaporation_rate * vapour_pressure_ratio(celsius)
+
+    def evaporation_share(self, celsius: float) -> float:
+        """% of the element's full power an open surface may evaporate away at `celsius`
+        (the pot's, at its configured size): `evaporation_rate` in the least water over
+        what full power gives the configured water."""
+        rate = self.evaporation_rate * vapour_pressure_ratio(celsius)
+        return 100.0 * rate / (FILL_RANGE * self.full_rate)
 
     @property
     def full_output(self) -> float:

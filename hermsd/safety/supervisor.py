@@ -25,8 +25,15 @@ from typing import Any
 
 from hermsd.safety.coil_load import NO_LOAD, CoilLoad
 from hermsd.safety.limits import (
+    COLDEST_ROOM,
     DRY_FIRE_WINDOWS,
+    HOLD_BAND,
+    HOLD_DUTY_SPREAD,
+    HOLD_ENDS_S,
+    HOLD_SPAN_S,
     LATCHED_KINDS,
+    MAINS_LOW,
+    MODEL_MARGIN,
     NOISE_FLOOR,
     SENSOR_LAG_MAX,
     SUDDEN_DROP,
@@ -118,6 +125,10 @@ class Supervisor:
         self._recent_reads: deque[float] = deque(maxlen=3)  # the last values read, good or not
         self._last_raw: int | None = None
         self._heater_watch = _HeaterWatch()
+        # The last HOLD_SPAN_S of periods (t, PV, applied), and the hold they last showed:
+        # (mean duty %, mean PV °C) of a span the water stood steady through.
+        self._steady: deque[tuple[float, float, float]] = deque()
+        self._hold: tuple[float, float] | None = None
         self._energy: deque[tuple[float, float, float]] = deque()  # (t, pv, full-power s)
         self._energy_before: deque[float] = deque()  # full-power s before each, since start
         self._energy_total = 0.0
@@ -176,6 +187,7 @@ class Supervisor:
         for kind in cleared:
             self._clear(kind, t, "reset by the operator")
         self._heater_watch.stop()
+        self._steady.clear()
         self._energy.clear()
         self._energy_before.clear()
         self._history.clear()
@@ -317,6 +329,7 @@ class Supervisor:
             return
         self._count_coil(t, coil)
         self._check_dry_fire(t, pv)
+        self._measure_hold(t, pv, applied)
         self._check_heater(t, pv, applied)
         self._check_ssr(t, pv, applied)
         if self.heater_allowed:
@@ -428,7 +441,7 @@ class Supervisor:
         off each half's fall and off the least rise, so a fall it can explain is no verdict.
         """
         lim, watch = self.limits, self._heater_watch
-        if applied < lim.heating_output(pv):
+        if applied < self._heating_output(pv):
             watch.stop()
             return
         full = applied >= lim.full_output
@@ -488,6 +501,50 @@ class Supervisor:
             f"it the heat's way to the sensor, but {what}",
             {"rise_c": pv - watch.ref, "fall_c": fall, "applied": applied},
         )
+
+    def _measure_hold(self, t: float, pv: float, applied: float) -> None:
+        """The day's own hold: over the last HOLD_SPAN_S the PV stood within HOLD_BAND, its
+        first and last HOLD_ENDS_S' means within NOISE_FLOOR of each other (no heat gained
+        or lost to speak of) and the duty's alike, so the mean duty balanced the losses. Water
+        poured in starts the span again (the losses per °C changed)."""
+        steady = self._steady
+        if steady and self._water_added(pv):
+            steady.clear()
+        steady.append((t, pv, applied))
+        while t - steady[0][0] > HOLD_SPAN_S:
+            steady.popleft()
+        dt = t - steady[-2][0] if len(steady) > 1 else 0.0
+        if t - steady[0][0] < HOLD_SPAN_S - dt:
+            return
+        pvs = [p for _, p, _ in steady]
+        if max(pvs) - min(pvs) > HOLD_BAND:
+            return
+        first = [(p, a) for when, p, a in steady if when <= steady[0][0] + HOLD_ENDS_S]
+        last = [(p, a) for when, p, a in steady if when >= t - HOLD_ENDS_S]
+        (pv_first, duty_first), (pv_last, duty_last) = _means(first), _means(last)
+        if abs(pv_first - pv_last) > NOISE_FLOOR:
+            return
+        # A duty that climbs while the water sinks is a controller answering a loss of heat
+        # (a dead element), not a hold: its ends agree within 2 % or a fifth.
+        if abs(duty_first - duty_last) > max(HOLD_DUTY_SPREAD, 0.2 * max(duty_first, duty_last)):
+            return
+        self._hold = (sum(a for _, _, a in steady) / len(steady), sum(pvs) / len(pvs))
+
+    def _heating_output(self, pv: float) -> float:
+        """% of output at or above which a working element cannot let the water at `pv`
+        fall: the limits' (`SafetyLimits.heating_output`), or less once the day's hold has
+        measured its losses (`_measure_hold`): that duty ×1.5 (×1.5 the losses: a lid taken
+        off), grown with the water's rise above the coldest room over the hold's, and an
+        open surface's evaporation on top, at −10 % mains; never below 20 % (a slow fall is
+        lost in the noise)."""
+        lim = self.limits
+        most = lim.heating_output(pv)
+        if self._hold is None:
+            return most
+        duty, held_at = self._hold
+        grows = max(pv - COLDEST_ROOM, 0.0) / max(held_at - COLDEST_ROOM, 1.0)
+        losses = MODEL_MARGIN * duty * grows + lim.evaporation_share(pv)
+        return min(most, max(20.0, losses / MAINS_LOW))
 
     def _water_added(self, pv: float) -> bool:
         """The PV fell over the last window faster than any loss can make it: water came in."""
@@ -646,6 +703,11 @@ class Supervisor:
         alarm = self._active.pop(kind, None)
         if alarm is not None:
             self._events.append(Alarm(kind, t, f"cleared: {why}", alarm.latched, False))
+
+
+def _means(pairs: Sequence[tuple[float, float]]) -> tuple[float, float]:
+    """The means of each member of `pairs`."""
+    return sum(p for p, _ in pairs) / len(pairs), sum(a for _, a in pairs) / len(pairs)
 
 
 def _jump_believed(celsius: float, recent: Sequence[float], max_step: float) -> bool:
