@@ -53,6 +53,7 @@ def safety_limits(
         stuck_output_change=s.stuck_output_change,
         stall_periods=s.stall_periods,
         max_output=full_power_share(config),
+        two_elements=element2_watts(config) > 0.0,
     )
     if heat_up is None or heat_up.refused is not None:
         return limits

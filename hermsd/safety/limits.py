@@ -208,6 +208,7 @@ class SafetyLimits:
     stuck_output_change: float = 40.0
     stall_after: float = 10.0
     max_output: float = 100.0
+    two_elements: bool = False
     origins: tuple[tuple[str, str], ...] = ()
 
     def loss_rate(self, celsius: float) -> float:
@@ -319,6 +320,7 @@ class SafetyLimits:
         stuck_output_change: float = 40.0,
         stall_periods: float = 2.0,
         max_output: float = 100.0,
+        two_elements: bool = False,
     ) -> SafetyLimits:
         """Limits for the tun: from `model` where measured, else safe for any fill from half
         to twice `litres`, any dead time up to 300 s, an open pot in a 5 °C room; an explicit
@@ -422,6 +424,7 @@ class SafetyLimits:
             stuck_output_change=stuck_output_change,
             stall_after=stall_periods * period,
             max_output=max_output,
+            two_elements=two_elements,
         )
         origins |= {
             "heater_max_fall": "built in",

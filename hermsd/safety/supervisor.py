@@ -536,10 +536,13 @@ class Supervisor:
         measured its losses (`_measure_hold`): that duty ×1.5 (×1.5 the losses: a lid taken
         off), grown with the water's rise above the coldest room over the hold's, and an
         open surface's evaporation on top, at −10 % mains; never below 20 % (a slow fall is
-        lost in the noise)."""
+        lost in the noise). One element only."""
         lim = self.limits
         most = lim.heating_output(pv)
-        if self._hold is None:
+        if self._hold is None or lim.two_elements:
+            # Two elements: below 80 % the SSR's may be carrying all that is asked; when it
+            # dies the contactor's takes over as the output climbs, where a latch would stop
+            # both (the element watch warns of it: safety/element_watch.py).
             return most
         duty, held_at = self._hold
         grows = max(pv - COLDEST_ROOM, 0.0) / max(held_at - COLDEST_ROOM, 1.0)
