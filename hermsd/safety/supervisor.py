@@ -536,18 +536,25 @@ class Supervisor:
         measured its losses (`_measure_hold`): that duty ×1.5 (×1.5 the losses: a lid taken
         off), grown with the water's rise above the coldest room over the hold's, and an
         open surface's evaporation on top, at −10 % mains; never below 20 % (a slow fall is
-        lost in the noise). One element only."""
+        lost in the noise). One element, no coil drawing."""
         lim = self.limits
         most = lim.heating_output(pv)
-        if self._hold is None or lim.two_elements:
+        if self._hold is None or lim.two_elements or self._coil_may_draw():
             # Two elements: below 80 % the SSR's may be carrying all that is asked; when it
             # dies the contactor's takes over as the output climbs, where a latch would stop
-            # both (the element watch warns of it: safety/element_watch.py).
+            # both (the element watch warns of it: safety/element_watch.py). A HERMS coil
+            # that may draw: the coil's bound leaves the mash tun's losses to the 80 %
+            # (docs/herms.md, "The mash's balance").
             return most
         duty, held_at = self._hold
         grows = max(pv - COLDEST_ROOM, 0.0) / max(held_at - COLDEST_ROOM, 1.0)
         losses = MODEL_MARGIN * duty * grows + lim.evaporation_share(pv)
         return min(most, max(20.0, losses / MAINS_LOW))
+
+    def _coil_may_draw(self) -> bool:
+        """Whether a HERMS coil may have taken heat within the coil's bookkeeping (the
+        watches and the heat's memory)."""
+        return any(taken > 0.0 for _, taken, _ in self._coil)
 
     def _water_added(self, pv: float) -> bool:
         """The PV fell over the last window faster than any loss can make it: water came in."""
