@@ -180,8 +180,9 @@ def test_a_pulse_measures_the_rate_and_the_delay_with_the_lag_once_its_heat_has_
     rate: float, on_s: float, delay: float, lag: float
 ) -> None:
     # The heat a pulse sent is all at the sensor once the PV settles: the rise over on_s
-    # is the rate, the mean arrival less on_s/2 the delay and the lag.
-    pulse = _PulseWatch(PV0, 100.0, on_s, 0.0, 0.0)
+    # is the rate, the mean arrival less on_s/2 the delay and the lag, and the arrival's
+    # spread beyond the on-time's the lag.
+    pulse = _PulseWatch(PV0, 100.0, on_s)
     pulse.expect(rate)
     lsb = pid.SENSOR_LSB
     fit = None
@@ -196,14 +197,56 @@ def test_a_pulse_measures_the_rate_and_the_delay_with_the_lag_once_its_heat_has_
     assert fit.rate == pytest.approx(rate, rel=0.01)
     # The period's PV is its mean, half a period old: the arrival reads half a period late.
     assert fit.dead_time == pytest.approx(delay + lag - TS / 2, abs=2 * TS)
+    assert fit.lag == pytest.approx(lag, abs=0.05 * lag + 2 * TS)
     # Settled once 2 LSB of rise took longer than the delay and lag: the tail still to come
     # climbs at the lag's slope, 2·LSB/(delay + lag), times the lag.
     tail = rate * on_s * math.exp(-(fit.span - on_s - delay) / lag) if lag else 0.0
     assert tail < 2 * pid.SENSOR_LSB
 
 
+def lossy_pulse_pv(
+    k: int, rate: float, on_s: float, delay: float, lag: float, loss: float, warm: float
+) -> float:
+    """The PV period k (from 1) reports on a pulse from `warm` K above a room at PV0: the
+    water w' = rate·(heat on) − loss·w after the delay, the sensor s' = (w − s)/lag, each
+    held exact over 0.05 s steps (the loss's own exponential, the lag's), then read as an
+    LM92 would (five readings a period, each on its LSB)."""
+    dt, lsb = 0.05, pid.SENSOR_LSB
+    water = sensor = warm
+    reads = []
+    for step in range(round(k * TS / dt)):
+        t = step * dt
+        heat = rate if 0.0 <= t - delay < on_s else 0.0
+        top = heat / loss
+        water = top + (water - top) * math.exp(-loss * dt)
+        sensor = water + (sensor - water) * math.exp(-dt / lag)
+        if (step + 1) * dt > (k - 1) * TS and round((t + dt) / dt) % round(TS / 5 / dt) == 0:
+            reads.append(round((PV0 + sensor) / lsb) * lsb)
+    return sum(reads[-5:]) / 5
+
+
+def test_a_lags_tail_still_to_come_does_not_read_the_room_warm() -> None:
+    # A pulse of 0.04 °C/s behind 90 s of delay and 140 s of lag, from 23 K above its
+    # room, the model's room 20 K colder. The PV's own fall, once it is taken for settled,
+    # still has the lag's tail in it: read off the PV's slope alone the room came out at
+    # 42 °C (for 20), the rate 8.6 % low and the lag 96 s. The water is the sensor plus
+    # its lag times its slope, and that water falls by the loss alone.
+    rate, on_s, delay, lag, loss, warm = 0.04, 300.0, 90.0, 140.0, 6e-5, 23.0
+    pulse = _PulseWatch(PV0 + warm, 100.0, on_s)
+    pulse.expect(rate)
+    fit = None
+    for k in range(1, 400):
+        fit = pulse.add(lossy_pulse_pv(k, rate, on_s, delay, lag, loss, warm), TS, loss, 0.0, rate)
+        if fit is not None:
+            break
+    assert fit is not None and fit.refused is None
+    assert pulse.room == pytest.approx(PV0, abs=6.0)
+    assert fit.rate == pytest.approx(rate, rel=0.025)
+    assert fit.lag == pytest.approx(lag, rel=0.2)
+
+
 def test_water_during_a_pulse_ends_it_unmeasured() -> None:
-    pulse = _PulseWatch(PV0, 100.0, 100.0, 100.0, 0.0)
+    pulse = _PulseWatch(PV0, 100.0, 100.0, 100.0)
     pulse.expect(0.05)
     assert pulse.add(PV0 + 3.0, TS, 0.0, PV0, 0.05) is None
     fit = pulse.add(PV0 + 1.0, TS, 0.0, PV0, 0.05)  # 2 °C down in a period: water
@@ -254,7 +297,7 @@ def test_a_prior_that_loses_a_fraction_of_the_truth_still_holds_the_setpoint() -
 def test_a_pulse_whose_heat_never_shows_ends_unmeasured() -> None:
     # A dead element, or a sensor out of the water: nothing rises within the time any
     # tun's heat takes to show, and the law (and the supervisor) take over again.
-    pulse = _PulseWatch(PV0, 100.0, 100.0, 100.0, 0.0)
+    pulse = _PulseWatch(PV0, 100.0, 100.0, 100.0)
     pulse.expect(0.05)
     fit = None
     periods = 0
@@ -338,7 +381,7 @@ def test_a_pulse_stopped_half_way_measures_what_ran_and_one_stopped_at_once_noth
     # The PV came near the setpoint while a second pulse still sent heat (its rate read too
     # low), or the brewer moved the setpoint: the heat ends there, and what ran still counts.
     rate, delay = 0.02, 60.0
-    pulse = _PulseWatch(PV0, 100.0, 600.0, 0.0, 0.0)
+    pulse = _PulseWatch(PV0, 100.0, 600.0)
     pulse.expect(rate)
     fit = None
     for k in range(1, 400):
@@ -352,7 +395,7 @@ def test_a_pulse_stopped_half_way_measures_what_ran_and_one_stopped_at_once_noth
             break
     assert fit is not None and fit.refused is None
     assert fit.rate == pytest.approx(rate, rel=0.02)
-    never = _PulseWatch(PV0, 100.0, 600.0, 0.0, 0.0)
+    never = _PulseWatch(PV0, 100.0, 600.0)
     never.stop()
     assert never.duty(TS) == 0.0
     refused = None
@@ -367,7 +410,7 @@ def test_stopping_a_pulse_whose_heat_is_already_off_changes_nothing() -> None:
     rate, on_s, delay, lag = 0.127, 175.0, 224.0, 126.0
     fits = []
     for stop_at in (None, 80):
-        pulse = _PulseWatch(PV0, 100.0, on_s, 0.0, 0.0)
+        pulse = _PulseWatch(PV0, 100.0, on_s)
         pulse.expect(rate)
         fit = None
         for k in range(1, 500):

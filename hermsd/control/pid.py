@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 3
+CONTROL_LAW_VERSION = 4
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -118,7 +118,9 @@ it come out otherwise: that log is then said to be of another law, not re-run (i
 plot and CSV read as ever). Version 1 is the first logged; a log without one predates it.
 Version 2: the predictive law counts the part of a period its dead time ends in.
 Version 3: it models the sensor's lag, lets the bias learn a long one-sided innovation, and
-scales its rate by the heat capacity cold water adds."""
+scales its rate by the heat capacity cold water adds.
+Version 4: a measured pulse gives the sensor's lag too, and places the room from the water's
+fall (the sensor plus its lag times its slope)."""
 
 ALGORITHMS = (
     "predictive",
@@ -218,7 +220,11 @@ PULSE_LEAST_STEP = 10.0
 heat-up measured the tun)."""
 PULSE_ROOM_SPAN = 30.0
 """K below the model's room the most a pulse's settled fall may place the room (a garage in
-winter against a model's 20 °C; a lag's tail still rising reads the room high, not low)."""
+winter against a model's 20 °C)."""
+ROOM_ROUNDS = 2
+"""Rounds of a pulse's room and lag (`_PulseWatch`): the lag measured on the model's room
+places the room, and the lag is measured again on it; on the lossy pulse of
+tests/test_heat_up_fit.py a third moves the lag by under a second, the room by under 0.5 K."""
 PULSE_SETTLE_S = 60.0
 """s (or the mean delay of the rise's arrival so far, if longer) the PV must have gained
 under 2 LSB for a pulse's heat to count as all arrived."""

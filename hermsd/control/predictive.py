@@ -443,9 +443,9 @@ class _Predictive(_Base):
         if fit is None:
             self._at_least(watch.least)
             if self._pulse_due(sp, watch):
-                pv0, du, on_s, integral = watch.reach(self._ts)
+                pv0, du, on_s, rise = watch.reach(self._ts)
                 watch.active = False
-                self._pulse = _PulseWatch(pv0, du, on_s, on_s, integral)
+                self._pulse = _PulseWatch(pv0, du, on_s, on_s, rise)
                 self._pulse.expect(self._arm_rate)
                 self._pulse_sp = sp
                 self._pulsed = True  # once a run: a refused one is not tried again
@@ -506,7 +506,7 @@ class _Predictive(_Base):
         self._loss *= fit.rate / self._rate  # as for a heat-up's fit: the fill
         if pulse.room is not None:
             self._ambient = pulse.room
-        self._use(fit.rate, fit.dead_time)
+        self._use(fit.rate, fit.dead_time, fit.lag)
         missing = sp - LINEAR_BAND - pv
         if not first or missing <= FAR_BAND:
             return
@@ -516,7 +516,7 @@ class _Predictive(_Base):
         span = missing / self._rate * 100.0 / (self._hi - self._lo) + 2.0 * fit.dead_time
         missing += self._loss * middle * span
         on_s = missing / (self._rate * (self._hi - self._lo) / 100.0)
-        self._pulse = _PulseWatch(pv, self._hi - self._lo, on_s, 0.0, 0.0)
+        self._pulse = _PulseWatch(pv, self._hi - self._lo, on_s)
         self._pulse.expect(self._rate)
         self._pulse_sp, self._arm_rate = sp, self._rate
 

@@ -19,6 +19,7 @@ from hermsd.control.pid import (
     RATE_BAND,
     RECOVERY_FIT_PERIODS,
     RECOVERY_FIT_SPAN,
+    ROOM_ROUNDS,
     SENSOR_LSB,
     STEADY_BAND,
 )
@@ -245,10 +246,10 @@ class _HeatUpWatch(_RampWatch):
         """Whether the PV has begun to rise (MOVE_FROM)."""
         return self._moved_at is not None
 
-    def reach(self, ts: float) -> tuple[float, float, float, float]:
-        """(pv0, the step's size in %, s it has run, the rise summed over its periods in
-        °C·s): what a pulse cut here starts from (`_PulseWatch`)."""
-        return self._pv0, self._du, self._n * ts, self._rise.integral(ts)
+    def reach(self, ts: float) -> tuple[float, float, float, _Rise]:
+        """(pv0, the step's size in %, s it has run, its rise so far): what a pulse cut here
+        starts from (`_PulseWatch`)."""
+        return self._pv0, self._du, self._n * ts, self._rise
 
     def ended(self, ts: float, model_rate: float) -> HeatUpFit | None:
         """Full power ended before a fit: why no rate was taken where the ramp had risen far
@@ -328,31 +329,33 @@ class _PulseWatch:
     nothing on before, then the heat stays off and the PV is followed until it settles.
     The heat delivered is then all at the sensor: the rise (the model's loss added back)
     over `on_s` is the rate, and the mean time of the rise's arrival, less `on_s`/2, the
-    dead time (delay and lag alike: docs/heat-up-fit.md). `elapsed`: s of it already run
-    (a heat-up cut short), with `integral` the rise summed over them (°C·s)."""
+    dead time (delay and lag alike: docs/heat-up-fit.md); the spread of that arrival, the
+    lag (`arrival_lag`). `elapsed`: s of it already run (a heat-up cut short), with `rise`
+    its rise over them."""
 
     __slots__ = (
-        "_after",
         "_du",
-        "_integral",
         "_last",
         "_least_rise",
         "_mark",
         "_marked_at",
         "_on",
         "_pv0",
+        "_rise",
         "_t",
         "room",
     )
 
-    def __init__(self, pv0: float, du: float, on_s: float, elapsed: float, integral: float) -> None:
+    def __init__(
+        self, pv0: float, du: float, on_s: float, elapsed: float = 0.0, rise: _Rise | None = None
+    ) -> None:
         self._pv0, self._du, self._on = pv0, du, on_s
-        self._t, self._integral = elapsed, integral
+        self._t = elapsed
+        self._rise = rise or _Rise()
         # °C the PV must have risen before it may count as settled (`expect`).
         self._least_rise = 0.0
         self._mark, self._marked_at = pv0, on_s
         self._last = -math.inf
-        self._after = _Rise()  # the PV once the heat is off: its last stretch's slope
         # °C: the room the settled PV's fall showed (None: not measured), once it settled.
         self.room: float | None = None
 
@@ -383,9 +386,7 @@ class _PulseWatch:
         if fell > STEADY_BAND:
             why = f"the PV fell {fell:.2f} °C in a period while the pulse's heat arrived"
             return HeatUpFit(model_rate, 0.0, why, self._t)
-        self._integral += rise * ts
-        if t > self._on:
-            self._after.add(t, pv)
+        self._rise.add(t, rise)
         if pv > self._mark + 2.0 * SENSOR_LSB:
             self._mark, self._marked_at = pv, t
         waited = t - self._on
@@ -401,23 +402,78 @@ class _PulseWatch:
             return HeatUpFit(model_rate, 0.0, "the pulse was stopped before it ran", self._t)
         if self._mark - self._pv0 < self._least_rise or rise <= 0.0:
             return None
-        # The rise's arrival: ∫t·dr = t·r − ∫r dt, its mean t − ∫r dt / r; less the pulse's
-        # own middle, the delay and the lag. A lag's tail still to come climbs at its slope
-        # times the lag: under 2 LSB once 2 LSB took longer than delay and lag together.
-        dead_time = t - self._integral / rise - 0.5 * self._on
+        # The rise's arrival so far: ∫t·dr = t·r − ∫r dt, its mean t − ∫r dt / r; less the
+        # pulse's own middle, the delay and the lag. A lag's tail still to come climbs at its
+        # slope times the lag: under 2 LSB once 2 LSB took longer than delay and lag together.
+        integral = self._rise.integral(ts)
+        dead_time = t - integral / rise - 0.5 * self._on
         if t - self._marked_at < max(PULSE_SETTLE_S, dead_time):
             return None
-        # All the pulse's heat has reached the sensor, and the PV falls as the tun loses
-        # heat to its room: the slope over that last stretch, by the model's loss per K,
-        # says where the room is (a model's room 20 K off misjudges 20 K of loss).
-        falling = self._after.line(self._marked_at, t).slope()
-        if falling is not None and loss > 0.0:
-            room = pv + min(falling, 0.0) / loss
-            self.room = ambient = min(max(room, ambient - PULSE_ROOM_SPAN), pv)
+        # All the pulse's heat has reached the sensor, and the water falls as the tun loses
+        # heat to its room: that fall places the room (a model's room 20 K off misjudges
+        # 20 K of loss), and the room the loss added back, which the lag's spread rests on.
+        times, rises = self._rise.since(-math.inf)
+        model_room = ambient
+        lag = arrival_lag(times, rises, self._on, loss, self._pv0 - ambient)
+        for _ in range(ROOM_ROUNDS):
+            room = self._water_room(t, lag, loss)
+            if room is None:
+                break
+            self.room = ambient = min(max(room, model_room - PULSE_ROOM_SPAN), pv)
+            lag = arrival_lag(times, rises, self._on, loss, self._pv0 - ambient)
         # What the losses took on the way is added back.
-        lost = loss * ((self._pv0 - ambient) * t + self._integral)
+        warm = self._pv0 - ambient
+        lost = loss * (warm * t + integral)
         rate = (rise + lost) / self._on * 100.0 / self._du
-        return checked(rate, dead_time, model_rate, self._t)
+        return checked(rate, dead_time, model_rate, self._t, lag)
+
+    def _water_room(self, t: float, lag: float, loss: float) -> float | None:
+        """°C: the room the water's fall places, from the PV's last rise (`_marked_at`) to
+        `t`; None where that stretch is shorter than two PULSE_SETTLE_S windows. The water
+        is the sensor plus its lag times its slope (τ·s' = w − s) and falls by the loss
+        alone: over the stretch w_b − w_a = −loss·∫(w − room), so a tail still to come,
+        which the PV's slope alone reads as a warm room, is counted (docs/heat-up-fit.md)."""
+        start = self._marked_at
+        if loss <= 0.0 or t - start < 2.0 * PULSE_SETTLE_S:
+            return None
+        first = self._rise.line(start, start + PULSE_SETTLE_S)
+        last = self._rise.line(t - PULSE_SETTLE_S, t)
+        slopes = first.slope(), last.slope()
+        if slopes[0] is None or slopes[1] is None:
+            return None
+        t_a, t_b = first.st / first.n, last.st / last.n
+        r_a, r_b = first.sx / first.n, last.sx / last.n
+        between = self._rise.line(t_a, t_b)
+        if between.n == 0:
+            return None
+        fell = (r_b - r_a) * (1.0 + loss * lag) + lag * (slopes[1] - slopes[0])
+        return self._pv0 + between.sx / between.n + fell / (loss * (t_b - t_a))
+
+
+def arrival_lag(
+    times: list[float], rises: list[float], on_s: float, loss: float, warm: float
+) -> float:
+    """s of first-order sensor lag a pulse's rise shows (0 if none): `rises` °C at `times` s
+    from the pulse's start, full power for its first `on_s` s, from `warm` K above the room.
+
+    With the loss added back (as in `through_lag`) the rise is the heat's arrival at the
+    sensor: the on-time spread by the delay and the lag, whose times' variance is the
+    on-time's (on_s²/12) and the lag's (τ²), a delay adding none (docs/heat-up-fit.md)."""
+    lost = weight = first = second = 0.0
+    t_last = y_last = r_last = 0.0
+    for t, r in zip(times, rises, strict=True):
+        lost += (t - t_last) * (warm + 0.5 * (r + r_last))
+        y = r + loss * lost
+        arrived, middle = y - y_last, 0.5 * (t + t_last)
+        weight += arrived
+        first += arrived * middle
+        second += arrived * middle * middle
+        t_last, y_last, r_last = t, y, r
+    if weight <= 0.0:
+        return 0.0
+    mean = first / weight
+    spread = second / weight - mean * mean - on_s * on_s / 12.0
+    return math.sqrt(spread) if spread > 0.0 else 0.0
 
 
 class _RecoveryWatch(_RampWatch):
