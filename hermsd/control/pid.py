@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 4
+CONTROL_LAW_VERSION = 5
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -120,7 +120,8 @@ Version 2: the predictive law counts the part of a period its dead time ends in.
 Version 3: it models the sensor's lag, lets the bias learn a long one-sided innovation, and
 scales its rate by the heat capacity cold water adds.
 Version 4: a measured pulse gives the sensor's lag too, and places the room from the water's
-fall (the sensor plus its lag times its slope)."""
+fall (the sensor plus its lag times its slope).
+Version 5: a heat-up's fit to the lag's curve integrates the rise twice."""
 
 ALGORITHMS = (
     "predictive",

@@ -291,16 +291,23 @@ def through_lag(
 
     The integral method: the rise y with the loss added back (y = r + loss·∫r, the loss
     taken on the water's rise above a steady start) obeys τ·y' + y = R·(t − D) exactly, so
-    ∫y over [t₀, t] = R·T²/2 + R·(t₀ − D)·T − τ·(y − y₀) with T = t − t₀: linear in R, D
-    and τ, fitted by least squares over the whole rise, bend and all (docs/heat-up-fit.md).
-    The asymptote crosses the start at D + τ."""
+    integrated twice over [t₀, t], with T = t − t₀,
+
+        ∬y = R·T³/6 + R·(t₀ − D)·T²/2 − τ·∫y + τ·y₀·T
+
+    linear in R, R·(t₀ − D), τ and τ·y₀, fitted by least squares over the whole rise, bend
+    and all. Integrated once, τ multiplied y itself, whose noise (a sensor's, 0.02 °C a
+    period) read the lag and the dead time short by a third on a short bend; under two
+    integrals the noise is averaged out (docs/heat-up-fit.md). Fitted in units of the
+    rise's span, so that its powers stay near one. The asymptote crosses the start at D + τ."""
     n = len(times)
     if n < 8:
         return None
     t0 = times[0]
-    rows: list[tuple[float, float, float, float]] = []
+    span = times[-1] - t0
+    rows: list[tuple[float, float, float, float, float]] = []
     targets: list[float] = []
-    lost = integral = 0.0  # ∫r and ∫y from t₀ (trapezoids)
+    lost = once = twice = 0.0  # ∫r, ∫y and ∬y from t₀ (trapezoids, in units of the span)
     y_last = rises[0]
     for i in range(n):
         if i:
@@ -308,20 +315,24 @@ def through_lag(
             lost += 0.5 * dt * (rises[i] + rises[i - 1])
         y = rises[i] + loss * lost
         if i:
-            integral += 0.5 * (times[i] - times[i - 1]) * (y + y_last)
+            step = (times[i] - times[i - 1]) / span
+            before = once
+            once += 0.5 * step * (y + y_last)
+            twice += 0.5 * step * (once + before)
         y_last = y
-        big_t = times[i] - t0
-        rows.append((0.5 * big_t * big_t, big_t, -y, 1.0))
-        targets.append(integral)
-    normal = [[math.fsum(row[j] * row[k] for row in rows) for k in range(4)] for j in range(4)]
-    rhs = [math.fsum(row[j] * x for row, x in zip(rows, targets, strict=True)) for j in range(4)]
+        s = (times[i] - t0) / span
+        rows.append((s * s * s / 6.0, 0.5 * s * s, -once, s, 1.0))
+        targets.append(twice)
+    normal = [[math.fsum(row[j] * row[k] for row in rows) for k in range(5)] for j in range(5)]
+    rhs = [math.fsum(row[j] * x for row, x in zip(rows, targets, strict=True)) for j in range(5)]
     try:
-        climb, shifted, lag, _ = (v.real for v in solve(normal, rhs))
+        cubic, square, lag_share, *_ = (v.real for v in solve(normal, rhs))
     except ValueError:
         return None
+    climb, lag = cubic / span, lag_share * span
     if climb <= 0.0 or lag < 0.0:
         return None
-    return climb, t0 - shifted / climb + lag, lag
+    return climb, t0 - square / climb + lag, lag
 
 
 class _PulseWatch:
