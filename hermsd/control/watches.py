@@ -285,9 +285,9 @@ def through_lag(
     times: list[float], rises: list[float], loss: float
 ) -> tuple[float, float, float] | None:
     """(the step's climb in °C/s, where its ramp's asymptote crosses the start in s, the lag
-    in s) from a
-    rise seen through a first-order sensor lag after a delay, or None where the points do not
-    show a lag (fewer than 8, or a lag < 0 or a climb ≤ 0 fitted: noise on a straight ramp).
+    in s) from a rise seen through a first-order sensor lag after a delay, or None where the
+    points do not show a lag (fewer than 8, or a lag < 0 or a climb ≤ 0 fitted: noise on a
+    straight ramp).
 
     The integral method: the rise y with the loss added back (y = r + loss·∫r, the loss
     taken on the water's rise above a steady start) obeys τ·y' + y = R·(t − D) exactly, so
@@ -297,9 +297,10 @@ def through_lag(
 
     linear in R, R·(t₀ − D), τ and τ·y₀, fitted by least squares over the whole rise, bend
     and all. Integrated once, τ multiplied y itself, whose noise (a sensor's, 0.02 °C a
-    period) read the lag and the dead time short by a third on a short bend; under two
-    integrals the noise is averaged out (docs/heat-up-fit.md). Fitted in units of the
-    rise's span, so that its powers stay near one. The asymptote crosses the start at D + τ."""
+    period) read the dead time a quarter short and the lag two fifths short on a bend of
+    350 s; under two integrals the noise is averaged out (docs/heat-up-fit.md). Fitted in
+    units of the rise's span, so that its powers stay near one. The asymptote crosses the
+    start at D + τ."""
     n = len(times)
     if n < 8:
         return None
