@@ -139,6 +139,7 @@ class Reloading(LoopState):
         ):
             if old.tun != new.tun:
                 self._limits_fit = None  # a heat-up of another tun
+                self.supervisor.forget_hold()  # and its hold
             self.supervisor.limits = safety_limits(new, self._measured_tun(new), self._limits_fit)
         if changed & {"safety.max_temp", "safety.hysteresis"}:
             self._reprogram_sensor(t)

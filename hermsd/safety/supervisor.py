@@ -502,6 +502,12 @@ class Supervisor:
             {"rise_c": pv - watch.ref, "fall_c": fall, "applied": applied},
         )
 
+    def forget_hold(self) -> None:
+        """Another tun is configured: the hold measured on the last one (a duty in % of its
+        element) says nothing of this one's losses, so the hold is measured anew."""
+        self._steady.clear()
+        self._hold = None
+
     def _measure_hold(self, t: float, pv: float, applied: float) -> None:
         """The day's own hold: over the last HOLD_SPAN_S the PV stood within HOLD_BAND, its
         first and last HOLD_ENDS_S' means within NOISE_FLOOR of each other (no heat gained
