@@ -312,7 +312,8 @@ def test_the_learned_model_sets_the_supervisors_limits(
     scenario.run(day(), state_dir=state, log_dir=tmp_path / "logs")
     summary = replay.summarise(reader.load(sorted((tmp_path / "logs").glob("*.mcap"))))
     stored = model.plant_model(config_module.DEFAULT.tun.litres)
-    assert summary["safety_tun_model"] == dataclasses.asdict(stored)
+    fields = ("gain", "tau", "dead_time", "ambient")  # the FOPTD the limits are of
+    assert summary["safety_tun_model"] == {k: getattr(stored, k) for k in fields}
 
 
 def test_check_config_shows_the_limits_from_what_was_learned(
@@ -351,8 +352,9 @@ def test_a_foptd_maps_to_the_learned_quantities_and_back() -> None:
     assert measured.rate == pytest.approx(0.0112893, rel=1e-5)
     assert measured.loss == pytest.approx(6.68404e-5, rel=1e-5)
     assert (measured.dead_time, measured.ambient, measured.litres) == (115.0, 20.0, 90.0)
-    back = dataclasses.astuple(measured.plant_model(90.0))
-    assert back == pytest.approx((1.689, 14961.0, 115.0, 20.0))
+    *back, losses_measured = dataclasses.astuple(measured.plant_model(90.0))
+    assert back == pytest.approx([1.689, 14961.0, 115.0, 20.0])
+    assert losses_measured  # a measured model's losses are no prior's
     # With 45 L configured: rate ×2, loss ×2^⅓ (the wetted surface), so K = 1.689·2^⅔ =
     # 2.68112 °C/% and τ = 14961/2^⅓ = 11874.5 s; θ and the room unchanged.
     half = measured.plant_model(45.0)
@@ -391,8 +393,10 @@ def test_learn_decides_between_the_learned_and_the_tuned_model(
     daemon = simulated_daemon(config, math.inf, models=ModelStore(learned_day[0]))
     assert daemon.model_choice.source == source
     if source == "measured":
-        assert dataclasses.astuple(daemon.model) == pytest.approx((2.0, 12000.0, 90.0, 18.0))
+        *foptd, _ = dataclasses.astuple(daemon.model)
+        assert foptd == pytest.approx([2.0, 12000.0, 90.0, 18.0])
     measured = source != "prior"
+    assert daemon.model.measured == measured
     assert (dict(daemon.supervisor.limits.origins)["loss_rate"] == "measured") == measured
 
 

@@ -87,7 +87,9 @@ class LearnedModel:
         """The FOPTD model at a configured fill of `litres`."""
         rate = self.rate * self.litres / litres
         loss = self.loss * (self.litres / litres) ** (1.0 / 3.0)
-        return PlantModel(rate / (100.0 * loss), 1.0 / loss, self.dead_time, self.ambient)
+        return PlantModel(
+            rate / (100.0 * loss), 1.0 / loss, self.dead_time, self.ambient, measured=True
+        )
 
     def describe(self) -> str:
         return (

@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 5
+CONTROL_LAW_VERSION = 6
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -143,6 +143,9 @@ class PlantModel:
     tau: float = 14961.0
     dead_time: float = 115.0
     ambient: float = 20.0
+    measured: bool = False
+    """Whether the losses were measured (learned on a brew day, or by `hermsd tune`), not
+    the config's prior, which understates them on purpose (`factory.prior_model`)."""
 
     @property
     def rate(self) -> float:
@@ -159,6 +162,13 @@ PREDICTED_LOOP_FACTOR = 2.0
 """The predicted loop's time constant near the setpoint, in dead times."""
 LINEAR_BAND = 0.25
 """°C around the setpoint where predictive uses its gentle, dead-time-bound gain."""
+LANDING_BAND = 0.05
+"""°C: the least a recovery's landing from full power stops short of the setpoint, on a
+measured model (`_Predictive._landing_short`)."""
+LANDING_TRUST = 0.03
+"""The share of the heat in flight a recovery's landing from full power stops short of the
+setpoint by on a measured model (up to LINEAR_BAND): a measured rate is good to 1–3 % (the
+heat-up fit's 5th percentile 0.990, its lowest 0.932: bench/RESULTS.md, "Heat-up fit")."""
 FAR_BAND = 0.5
 """°C below the setpoint (the hold band) beyond which predictive heats time-optimally."""
 FULL_MARGIN = 0.15

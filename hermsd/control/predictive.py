@@ -17,6 +17,8 @@ from hermsd.control.pid import (
     DROP_READINGS,
     FAR_BAND,
     FULL_MARGIN,
+    LANDING_BAND,
+    LANDING_TRUST,
     LINEAR_BAND,
     LOAD_SHARE_RANGE,
     LOAD_SHARE_S,
@@ -82,12 +84,14 @@ class _Predictive(_Base):
         "_load_share",
         "_load_until",
         "_loss",
+        "_measured",
         "_poured",
         "_pulse",
         "_pulse_sp",
         "_pulsed",
         "_rate",
         "_recent",
+        "_recovering",
         "_recovery",
         "_sensor_lag",
         "_step_is_loops",
@@ -106,6 +110,7 @@ class _Predictive(_Base):
         self._fa = params.tf / (params.tf + ts)
         self._loss = 1.0 / model.tau  # 1/s
         self._ambient = model.ambient
+        self._measured = model.measured
         self._rate = self._kc_near = self._kc_far = self._dead_time = 0.0
         self._lag, self._lag_share = 0, 0.0
         # The sensor's first-order lag (s) inside the dead time, the duty its filter passes
@@ -120,6 +125,8 @@ class _Predictive(_Base):
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
         self._watch = _HeatUpWatch()
         self._recovery = _RecoveryWatch()
+        # Whether the full power running began as the PV fell from the hold (cold water).
+        self._recovering = False
         # A heat-up cut short to measure the tun, while its heat arrives (`_pulse_due`), and
         # the model's rate when that heat-up began.
         self._pulse: _PulseWatch | None = None
@@ -251,13 +258,28 @@ class _Predictive(_Base):
         is gained by cutting harder: the water only cools); kc up to FAR_BAND below it; and
         beyond that the gain that closes the predicted error in one period, i.e. full power
         until the heat in flight will carry the water there: time-optimal. Coming from full
-        power (`full`), that gain holds down to LINEAR_BAND: the heat-up or recovery runs at
-        full power until the gentle zone, and only a hold ever sees the kc zone."""
+        power (`full`), that gain holds down to `_landing_short` (LINEAR_BAND, or less on a
+        measured recovery): the heat-up or recovery runs at full power until the gentle
+        zone, and only a hold ever sees the kc zone."""
+        if full:
+            short = self._landing_short()
+            return self._kc_near * min(e, short) + self._kc_far * max(0.0, e - short)
         if e <= LINEAR_BAND:
             return self._kc_near * e
-        far = LINEAR_BAND if full else FAR_BAND
-        p = self._kc_near * LINEAR_BAND + self._kc * (min(e, far) - LINEAR_BAND)
-        return p + self._kc_far * max(0.0, e - far)
+        p = self._kc_near * LINEAR_BAND + self._kc * (min(e, FAR_BAND) - LINEAR_BAND)
+        return p + self._kc_far * max(0.0, e - FAR_BAND)
+
+    def _landing_short(self) -> float:
+        """°C below the setpoint full power brings the predicted PV to. A recovery on a
+        measured model: LANDING_TRUST of the heat in flight (the rate's error over it), at
+        least LANDING_BAND and at most LINEAR_BAND. Else LINEAR_BAND: the config's prior
+        understates the losses (the water lands short by their error over the dead time),
+        and a heat-up crosses tens of degrees where the losses are not the hold's (an open
+        pot's evaporation grows ×10 from 20 to 66 °C), where a recovery starts from them."""
+        if not (self._measured and self._recovering):
+            return LINEAR_BAND
+        flight = max(0.0, self._predicted() - self._estimate)
+        return min(LINEAR_BAND, max(LANDING_BAND, LANDING_TRUST * flight))
 
     def _prime(self, sp: float, pv0: float) -> None:
         # As if PV had stood at pv0 with the output at u0 for a dead time. The output is
@@ -271,7 +293,7 @@ class _Predictive(_Base):
         self._arrival = u0
         self._recent.clear()
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
-        self._watch.active = self._recovery.active = False
+        self._watch.active = self._recovery.active = self._recovering = False
         self._pulse = None
         self._carried = False
         self._trailing = 0.0
@@ -409,7 +431,7 @@ class _Predictive(_Base):
             watch.active = recovery.active = False
         full = applied >= self._hi
         if not full:  # the step ended before the PV rose enough
-            recovery.active = False
+            recovery.active = self._recovering = False
             if watch.active:
                 self._fit = watch.ended(self._ts, self._rate) or self._fit
         # This period's PV too: cold water that the readings showed within the period (and
@@ -420,6 +442,9 @@ class _Predictive(_Base):
         # Under a known load (a coil drawing) the rise is not the element's alone, and a
         # pulse measures itself: no fit.
         loops = loops or bool(self._load) or self._pulse is not None
+        if full and before < self._hi:
+            # Cold water into the hold: the PV fell from the band within the last minute.
+            self._recovering = not steady and max(recent) >= sp - FAR_BAND
         if full and not (watch.active or recovery.active) and before < self._hi and not loops:
             if steady:
                 # A duty that climbed to full power (a ramp) is no step of a known size.

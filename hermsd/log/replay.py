@@ -252,7 +252,8 @@ def logged_model(entry: LoggedConfig) -> PlantModel | None:
         return None
     try:
         return PlantModel(
-            **{k: float(entry.model[k]) for k in ("gain", "tau", "dead_time", "ambient")}
+            **{k: float(entry.model[k]) for k in ("gain", "tau", "dead_time", "ambient")},
+            measured=bool(entry.model.get("measured", False)),
         )
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"the model logged with it is not one: {error}") from None
