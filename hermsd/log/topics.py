@@ -118,8 +118,11 @@ _JSON_TYPES: Final[dict[object, str]] = {
 }
 
 
-def _dataclass_schema(record: type, description: str, *, nullable: bool = False) -> dict[str, Any]:
-    """The schema of a dataclass as `dataclasses.asdict` writes it (tuples as lists).
+def _dataclass_schema(
+    record: type, description: str, *, nullable: bool = False, optional: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """The schema of a dataclass as `dataclasses.asdict` writes it (tuples as lists); every
+    field required but the `optional` ones (added later, or not written everywhere).
 
     Derived from its fields' types, so a field added to the class is declared in the log.
     """
@@ -129,7 +132,7 @@ def _dataclass_schema(record: type, description: str, *, nullable: bool = False)
         "type": ["object", "null"] if nullable else "object",
         "description": description,
         "properties": properties,
-        "required": list(properties),
+        "required": [name for name in properties if name not in optional],
         "additionalProperties": False,
     }
     return schema
@@ -371,13 +374,18 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 "t": _T,
                 "config": _dataclass_schema(Config, "the configuration as loaded"),
                 "reason": _field("string", "why it was recorded: start, reload, …"),
+                # `measured` (whether its losses were measured) came with control law 6;
+                # the safety limits' tun is its four figures alone.
                 "model": _dataclass_schema(
-                    PlantModel, "the tun's model the controller uses: °C/%, s, s, °C"
+                    PlantModel,
+                    "the tun's model the controller uses: °C/%, s, s, °C",
+                    optional=("measured",),
                 ),
                 "safety_model": _dataclass_schema(
                     PlantModel,
                     "the tun as measured, the safety limits' (null: they hold for any tun)",
                     nullable=True,
+                    optional=("measured",),
                 ),
                 "control_law": _field(
                     "integer",
