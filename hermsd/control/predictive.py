@@ -249,37 +249,37 @@ class _Predictive(_Base):
         load = self._load_over(self._dead_time, self._ts)  # when this duty's heat arrives
         return hold + load if load else hold
 
-    def _law(self, sp: float, full: bool = False) -> float:
-        """P on the predicted error plus the holding duty (D apart)."""
-        return self._proportional(sp - self._predicted(), full) + self._holding(sp)
+    def _law(self, sp: float) -> float:
+        """P on the predicted error plus the holding duty (D apart), not coming from full
+        power."""
+        return self._proportional(sp - self._predicted(), None) + self._holding(sp)
 
-    def _proportional(self, e: float, full: bool) -> float:
+    def _proportional(self, e: float, landing: float | None) -> float:
         """kc_near up to LINEAR_BAND below the setpoint and anywhere above it (above, nothing
         is gained by cutting harder: the water only cools); kc up to FAR_BAND below it; and
         beyond that the gain that closes the predicted error in one period, i.e. full power
         until the heat in flight will carry the water there: time-optimal. Coming from full
-        power (`full`), that gain holds down to `_landing_short` (LINEAR_BAND, or less on a
-        measured recovery): the heat-up or recovery runs at full power until the gentle
+        power, that gain holds down to `landing` °C (`_landing_short`: LINEAR_BAND, or less on
+        a measured recovery): the heat-up or recovery runs at full power until the gentle
         zone, and only a hold ever sees the kc zone."""
-        if full:
-            short = self._landing_short()
-            return self._kc_near * min(e, short) + self._kc_far * max(0.0, e - short)
+        if landing is not None:
+            return self._kc_near * min(e, landing) + self._kc_far * max(0.0, e - landing)
         if e <= LINEAR_BAND:
             return self._kc_near * e
         p = self._kc_near * LINEAR_BAND + self._kc * (min(e, FAR_BAND) - LINEAR_BAND)
         return p + self._kc_far * max(0.0, e - FAR_BAND)
 
-    def _landing_short(self) -> float:
+    def _landing_short(self, flight: float) -> float:
         """°C below the setpoint full power brings the predicted PV to. A recovery on a
-        measured model: LANDING_TRUST of the heat in flight (the rate's error over it), at
-        least LANDING_BAND and at most LINEAR_BAND. Else LINEAR_BAND: the config's prior
+        measured model: LANDING_TRUST of the heat in flight (`flight` °C, the predicted PV
+        over the estimate: the rate's error over it), at least LANDING_BAND and at most
+        LINEAR_BAND. Else LINEAR_BAND: the config's prior
         understates the losses (the water lands short by their error over the dead time),
         and a heat-up crosses tens of degrees where the losses are not the hold's (an open
         pot's evaporation grows ×10 from 20 to 66 °C), where a recovery starts from them."""
         if not (self._measured and self._recovering):
             return LINEAR_BAND
-        flight = max(0.0, self._predicted() - self._estimate)
-        return min(LINEAR_BAND, max(LANDING_BAND, LANDING_TRUST * flight))
+        return min(LINEAR_BAND, max(LANDING_BAND, LANDING_TRUST * max(0.0, flight)))
 
     def _prime(self, sp: float, pv0: float) -> None:
         # As if PV had stood at pv0 with the output at u0 for a dead time. The output is
@@ -355,7 +355,9 @@ class _Predictive(_Base):
         fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
         self._fpv = fpv
         full = previous >= self._hi and pv < sp - FAR_BAND - FULL_MARGIN
-        p = self._proportional(sp - self._predicted(), full)
+        predicted = self._predicted()
+        landing = self._landing_short(predicted - self._estimate) if full else None
+        p = self._proportional(sp - predicted, landing)
 
         i = self._holding(sp)
         d = -self._kd * (fpv - fpv1)

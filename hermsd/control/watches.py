@@ -281,6 +281,27 @@ class _HeatUpWatch(_RampWatch):
         return checked(climb * 100.0 / self._du, crossing, model_rate, span)
 
 
+def loss_added_back(
+    times: list[float],
+    rises: list[float],
+    loss: float,
+    warm: float = 0.0,
+    start: tuple[float, float] | None = None,
+) -> list[float]:
+    """The rise with what the losses took on the way added back, y = r + loss·∫(warm + r) dt
+    (trapezoids): the heat's arrival at the sensor. From `start` (t, r), by default the
+    first point; `warm` K above the room where the rise starts (0 from a steady start, where
+    the duty held those losses)."""
+    t_last, r_last = start if start is not None else (times[0], rises[0])
+    lost = 0.0
+    ys: list[float] = []
+    for t, r in zip(times, rises, strict=True):
+        lost += (t - t_last) * (warm + 0.5 * (r + r_last))
+        ys.append(r + loss * lost)
+        t_last, r_last = t, r
+    return ys
+
+
 def through_lag(
     times: list[float], rises: list[float], loss: float
 ) -> tuple[float, float, float] | None:
@@ -308,13 +329,10 @@ def through_lag(
     span = times[-1] - t0
     rows: list[tuple[float, float, float, float, float]] = []
     targets: list[float] = []
-    lost = once = twice = 0.0  # ∫r, ∫y and ∬y from t₀ (trapezoids, in units of the span)
-    y_last = rises[0]
-    for i in range(n):
-        if i:
-            dt = times[i] - times[i - 1]
-            lost += 0.5 * dt * (rises[i] + rises[i - 1])
-        y = rises[i] + loss * lost
+    ys = loss_added_back(times, rises, loss)
+    once = twice = 0.0  # ∫y and ∬y from t₀ (trapezoids, in units of the span)
+    y_last = ys[0]
+    for i, y in enumerate(ys):
         if i:
             step = (times[i] - times[i - 1]) / span
             before = once
@@ -471,16 +489,14 @@ def arrival_lag(
     With the loss added back (as in `through_lag`) the rise is the heat's arrival at the
     sensor: the on-time spread by the delay and the lag, whose times' variance is the
     on-time's (on_s²/12) and the lag's (τ²), a delay adding none (docs/heat-up-fit.md)."""
-    lost = weight = first = second = 0.0
-    t_last = y_last = r_last = 0.0
-    for t, r in zip(times, rises, strict=True):
-        lost += (t - t_last) * (warm + 0.5 * (r + r_last))
-        y = r + loss * lost
+    weight = first = second = 0.0
+    t_last = y_last = 0.0
+    for t, y in zip(times, loss_added_back(times, rises, loss, warm, (0.0, 0.0)), strict=True):
         arrived, middle = y - y_last, 0.5 * (t + t_last)
         weight += arrived
         first += arrived * middle
         second += arrived * middle * middle
-        t_last, y_last, r_last = t, y, r
+        t_last, y_last = t, y
     if weight <= 0.0:
         return 0.0
     mean = first / weight
