@@ -792,3 +792,18 @@ def test_what_if_needs_its_settings_and_says_so_when_given_a_file(
     assert exit_.value.code == 2
     assert "argument --what-if: expected one argument" in capsys.readouterr().err
     assert replay.parse_what_if("logged") == {}
+
+
+def test_the_logged_model_says_whether_its_losses_were_measured() -> None:
+    four = {"gain": 1.689, "tau": 14961.0, "dead_time": 115.0, "ambient": 20.0}
+
+    def entry(model: dict[str, Any]) -> reader.LoggedConfig:
+        return reader.LoggedConfig(0.0, "start", {}, model=model)
+
+    assert replay.logged_model(entry({**four, "measured": True})) == pid.PlantModel(
+        1.689, 14961.0, 115.0, 20.0, measured=True
+    )
+    # A log of control law 5 or before has the four figures alone: the prior's landing.
+    assert replay.logged_model(entry(four)) == pid.PlantModel(1.689, 14961.0, 115.0, 20.0)
+    with pytest.raises(ValueError, match="measured is 'yes'"):
+        replay.logged_model(entry({**four, "measured": "yes"}))

@@ -247,13 +247,17 @@ def learning(log: Log) -> list[dict[str, Any]]:
 
 
 def logged_model(entry: LoggedConfig) -> PlantModel | None:
-    """The tun's model a config record says was in force (None in older logs: the keys')."""
+    """The tun's model a config record says was in force (None in older logs: the keys';
+    without `measured`, before control law 6: not measured)."""
     if entry.model is None:
         return None
+    measured = entry.model.get("measured", False)
+    if not isinstance(measured, bool):
+        raise ValueError(f"the model logged with it is not one: measured is {measured!r}")
     try:
         return PlantModel(
             **{k: float(entry.model[k]) for k in ("gain", "tau", "dead_time", "ambient")},
-            measured=bool(entry.model.get("measured", False)),
+            measured=measured,
         )
     except (KeyError, TypeError, ValueError) as error:
         raise ValueError(f"the model logged with it is not one: {error}") from None
