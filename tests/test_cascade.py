@@ -188,6 +188,45 @@ def test_an_hlt_above_its_setpoint_is_fed_the_load_and_a_coil_with_no_flow_none(
     assert stuck.load_watts == 0.0 and stuck.phase == "no flow"
 
 
+def test_a_restart_prepared_within_the_coast_sends_no_heat_while_the_hlt_stands_above_it() -> None:
+    # The coast from 70 °C with the mash at 55.05 (setpoint 69.9, as above); a timer stops
+    # the pump for a while (the setpoint kept) and its restart is prepared. Every joule in
+    # the HLT above the coast's setpoint goes to the mash: none sent for the coil's draw
+    # while it stands there. Below it, the draw is K·(T_h − T_m) = 200·(69.5 − 55) = 2900 W.
+    c = cascade()
+    assert step(c, 55.05, 70.0).phase == "coast"
+    paused = c.step(
+        mash_sp=65.0, mash_pv=55.0, mash_age=0.0, hlt_pv=70.0, pump=False, coil=EXACT, paused=True
+    )
+    assert c.coasting and paused.hlt_setpoint == pytest.approx(69.9, abs=1e-3)
+    assert c.prepared_load(70.0, 55.0, paused.hlt_setpoint, 200.0) == 0.0
+    assert c.prepared_load(69.5, 55.0, paused.hlt_setpoint, 200.0) == pytest.approx(2900.0)
+    # In the climb the HLT above its setpoint is fed the draw all the same (as above).
+    climbing = cascade()
+    assert step(climbing, 50.0, 72.0).phase == "climb" and not climbing.coasting
+    assert climbing.prepared_load(72.0, 50.0, 70.0, 200.0) == pytest.approx(4400.0)
+
+
+def test_a_timers_stop_in_the_climb_heats_the_hlt_no_more_than_its_restarts_coast_needs() -> None:
+    # Climbing (the mash at 56 °C, the HLT at 68: its coast would lift the mash by
+    # C_h/C_m·(68 − 65) = 6 °C, to 62 < 65) at the ceiling, 70 °C. The timer stops the
+    # pump: the HLT then heats with nothing drawn, and all it holds above 65 °C goes to the
+    # mash when the pump runs again: at most 65 + (65 − 56)/2 = 69.5 °C, not the ceiling.
+    c = cascade()
+    assert step(c, 56.0, 68.0).hlt_setpoint == pytest.approx(70.0)
+    paused = c.step(
+        mash_sp=65.0, mash_pv=56.0, mash_age=0.0, hlt_pv=68.5, pump=False, coil=EXACT, paused=True
+    )
+    assert paused.phase == "ready" and paused.hlt_setpoint == pytest.approx(69.5, abs=1e-3)
+    # Far below, the ceiling stands as before (the coast from 70 °C lifts the mash 10 °C).
+    far = cascade()
+    step(far, 50.0, 68.0)
+    kept = far.step(
+        mash_sp=65.0, mash_pv=50.0, mash_age=0.0, hlt_pv=68.5, pump=False, coil=EXACT, paused=True
+    )
+    assert kept.hlt_setpoint == pytest.approx(70.0)
+
+
 def test_a_mash_left_short_by_a_wrong_k_still_reaches_its_rest() -> None:
     """A pump hermsd neither switches nor sees: K is never learned and stays at the 200 W/K
     prior where the coil passes 125. The model then says an HLT of about 66 °C carries the

@@ -256,6 +256,12 @@ class Cascade:
         self._mash_loss = tanks.mash_loss
 
     @property
+    def coasting(self) -> bool:
+        """Whether the climb is over and the HLT not yet down at its hold: the coast, the pump
+        running or stopped a while within it."""
+        return not (self._climbing or self._settled)
+
+    @property
     def mash_loss(self) -> float:
         """The mash's losses (W/K) as the holds so far showed them (the config's before)."""
         return self._mash_loss
@@ -296,7 +302,9 @@ class Cascade:
         mash lacks, nothing learned of the mash's losses, no load fed forward; the phase is
         "no flow". `paused`: the pump stopped for a while by the program's timer, its restart
         due: the HLT's setpoint kept where it stood (a stop of a minute or two is no reason
-        to ready the HLT for another mash; the restart, prepared, meets the HLT it left)."""
+        to ready the HLT for another mash; the restart, prepared, meets the HLT it left), in
+        a climb no higher than the HLT from which the restart's coast carries the mash to
+        its rest."""
         stood = pump and not flowing
         pump = pump and flowing
         ceiling = self.ceiling(mash_sp)
@@ -357,6 +365,12 @@ class Cascade:
             setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
             if paused and self._last_sp is not None:
                 setpoint = self._last_sp
+                if self._climbing:
+                    # What the HLT takes in the stop its restart's coast gives the mash: no
+                    # more than from where that coast carries it to its rest, as the climb
+                    # would have ended with the pump running.
+                    peak = coast_start(mash, hold_high, tanks, high, target, ceiling)
+                    setpoint = min(setpoint, peak)
             phase = "no flow" if stood else "ready"
         elif self._climbing:
             setpoint, phase = self.most(mash_sp, mash_pv, k), "climb"
@@ -497,3 +511,12 @@ class Cascade:
         if not pump or mash is None or (phase == "coast" and hlt > setpoint):
             return 0.0
         return coil.conductance * (hlt - mash)
+
+    def prepared_load(self, hlt: float, mash: float, setpoint: float, k: float) -> float:
+        """The coil's draw (W) a pump start being prepared will make, told the HLT law ahead
+        of it: K times the HLT over the mash; none in the coast above its setpoint (a timer's
+        stop within it), for the reason `_load` feeds none there (bench/herms.py seed 35: the
+        restart's heat sent while the HLT stood 0.7 °C above the coast's setpoint)."""
+        if self.coasting and hlt > setpoint:
+            return 0.0
+        return max(0.0, k * (hlt - mash))

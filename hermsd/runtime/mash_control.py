@@ -149,7 +149,9 @@ class MashControl:
             decision = dataclasses.replace(decision, load_watts=0.0)
         starts_in = 0.0
         if pump_in is not None and mash_pv is not None and decision.held is None:
-            prepared = max(0.0, coil.conductance * (hlt - mash_pv))
+            prepared = self.cascade.prepared_load(
+                hlt, mash_pv, decision.hlt_setpoint, coil.conductance
+            )
             decision = dataclasses.replace(decision, load_watts=prepared)
             starts_in = pump_in
         ends_in = math.inf if pump_stop_in is None else max(pump_stop_in, starts_in)
