@@ -61,9 +61,9 @@ def test_the_climb_stops_where_the_hlt_s_stored_heat_carries_the_mash_to_its_res
     below = step(cascade(), 54.95, 70.0)
     assert (below.phase, below.hlt_setpoint) == ("climb", 65.0 + 5.15 - HLT_MARGIN)
     at = step(cascade(), 55.05, 70.0)
-    # The coast's setpoint: the HLT from which it carries the mash to 65 − COAST_AIM = 64.85,
-    # C_h·(T − 65) = C_m·(64.85 − 55.05), T = 65 + 9.8/2 = 69.9 (below the HLT: element off).
-    assert at.phase == "coast" and at.hlt_setpoint == pytest.approx(69.9, abs=1e-3)
+    # The coast's setpoint: the HLT from which it carries the mash to 65 − COAST_AIM = 64.95,
+    # C_h·(T − 65) = C_m·(64.95 − 55.05), T = 65 + 9.9/2 = 69.95 (below the HLT: element off).
+    assert at.phase == "coast" and at.hlt_setpoint == pytest.approx(69.95, abs=1e-3)
 
 
 @pytest.mark.parametrize(("dead_time", "setpoint"), [(60.0, 69.28999), (5.0, 70.0)])
@@ -189,7 +189,7 @@ def test_an_hlt_above_its_setpoint_is_fed_the_load_and_a_coil_with_no_flow_none(
 
 
 def test_a_restart_prepared_within_the_coast_sends_no_heat_while_the_hlt_stands_above_it() -> None:
-    # The coast from 70 °C with the mash at 55.05 (setpoint 69.9, as above); a timer stops
+    # The coast from 70 °C with the mash at 55.05 (setpoint 69.95, as above); a timer stops
     # the pump for a while (the setpoint kept) and its restart is prepared. Every joule in
     # the HLT above the coast's setpoint goes to the mash: none sent for the coil's draw
     # while it stands there. Below it, the draw is K·(T_h − T_m) = 200·(69.5 − 55) = 2900 W.
@@ -198,7 +198,7 @@ def test_a_restart_prepared_within_the_coast_sends_no_heat_while_the_hlt_stands_
     paused = c.step(
         mash_sp=65.0, mash_pv=55.0, mash_age=0.0, hlt_pv=70.0, pump=False, coil=EXACT, paused=True
     )
-    assert c.coasting and paused.hlt_setpoint == pytest.approx(69.9, abs=1e-3)
+    assert c.coasting and paused.hlt_setpoint == pytest.approx(69.95, abs=1e-3)
     assert c.prepared_load(70.0, 55.0, paused.hlt_setpoint, 200.0) == 0.0
     assert c.prepared_load(69.5, 55.0, paused.hlt_setpoint, 200.0) == pytest.approx(2900.0)
     # In the climb the HLT above its setpoint is fed the draw all the same (as above).
@@ -296,14 +296,14 @@ def test_the_holds_bound_aims_the_coast_short_of_the_rest_as_the_coasts_own_setp
     rest, 65 °C, and the coast from T down to it lifts the mash by C_h/C_m·(T − 65) = 2·(T −
     65). The PI asks T_hold + Kp·1 (Kp = λ/G: G = 1, λ = τ_m/(3·660 s) = 1046.5/1980 = 0.529,
     the mash sensor's lag of 600 s counted in the delays): 65.53 °C. The bound takes the mash
-    to 65 − 0.15: T = 65 + (64.85 − 64)/2 = 65.425 °C (to the rest itself, 65.5 °C, it left
+    to 65 − 0.05: T = 65 + (64.95 − 64)/2 = 65.475 °C (to the rest itself, 65.5 °C, it left
     seed 4 of bench/herms.py 0.33 °C over its rest after a stir)."""
     tanks = dataclasses.replace(LOSSLESS, mash_lag=600.0)  # the losses' observer waits 600 s
     c = cascade(tanks, limit=5.0)
     assert step(c, 65.0, 65.0).phase == "hold"
     decision = step(c, 64.0, 64.0)  # the HLT at the mash: no rise to advance its reading by
     assert decision.phase == "hold"
-    assert decision.hlt_setpoint == pytest.approx(65.425, abs=1e-3)
+    assert decision.hlt_setpoint == pytest.approx(65.475, abs=1e-3)
 
 
 def test_on_an_exact_model_the_climb_ends_when_the_coast_carries_the_mash_to_its_rest() -> None:
@@ -368,16 +368,22 @@ def test_a_coast_that_falls_short_moves_its_setpoint_smoothly() -> None:
     assert mash == pytest.approx(63.0, abs=0.3)
 
 
-def test_a_coast_feeds_no_load_while_the_hlt_stands_above_its_setpoint() -> None:
+def test_a_coast_lets_the_draw_act_while_the_hlt_stands_above_its_setpoint() -> None:
     # The coast is the element off: at the climb's end (mash 55.05 °C, HLT 70, the coast's
-    # setpoint 69.9) the coil's 200·(70 − 55.05) = 2990 W is not fed, or the law would hold
-    # the HLT at 69.9 against it, heat the coast's model does not count. Fed again where the
-    # coast falls short and the HLT stands below its setpoint (the mash 64.2 °C at an HLT of
-    # 65.2: the setpoint 65 + (64.85 − 64.2)/2 = 65.325, 200·(65.2 − 64.2) = 200 W).
+    # setpoint 69.95) the coil's 200·(70 − 55.05) = 2990 W is told the law as a draw to let
+    # act, not to meet, or it would hold the HLT at 69.95 against it, heat the coast's model
+    # does not count. Fed forward again where the coast falls short and the HLT stands below
+    # its setpoint (the mash 64.2 °C at an HLT of 65.2: the setpoint 65 + (64.95 − 64.2)/2 =
+    # 65.375, 200·(65.2 − 64.2) = 200 W).
     coasting = step(cascade(), 55.05, 70.0)
-    assert coasting.phase == "coast" and coasting.load_watts == 0.0
+    assert coasting.phase == "coast" and coasting.load_watts == pytest.approx(2990.0)
+    assert not coasting.load_met
     c = cascade()
     step(c, 55.05, 70.0)  # the climb over: the coast from here on
     short = step(c, 64.2, 65.2)
-    assert short.phase == "coast" and short.hlt_setpoint == pytest.approx(65.325, abs=1e-3)
-    assert short.load_watts == pytest.approx(200.0)
+    assert short.phase == "coast" and short.hlt_setpoint == pytest.approx(65.375, abs=1e-3)
+    assert short.load_watts == pytest.approx(200.0) and short.load_met
+    # Met from there on while the HLT's prediction, which now counts the heat sent for the
+    # draw, stands within HLT_MARGIN above the setpoint; let act again beyond it.
+    assert step(c, 64.2, 65.375 + 0.1).load_met
+    assert not step(c, 64.2, 65.375 + 0.2).load_met

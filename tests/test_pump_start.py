@@ -17,6 +17,8 @@ import copy
 import math
 from typing import Any
 
+import pytest
+
 from hermsd.config.read import parse
 from hermsd.control import laws, predictive
 from hermsd.control.pid import Controller, PlantModel
@@ -152,6 +154,35 @@ def test_a_load_told_a_dead_time_ahead_raises_the_duty_by_its_share_and_nothing_
     now = copy.deepcopy(plain)
     predictive.known_load(now, 1000.0, 4000.0)
     assert now.step(66.0, 66.0, now.output) > out_plain + 25.0 + 1.0
+
+
+def test_a_draw_let_act_above_the_setpoint_keeps_the_element_off_until_it_lands_there() -> None:
+    """held_law's tun steady at 66.2 °C, its setpoint then 66.0, a coil drawing 1 kW (25 %
+    of 4 kW) in a coast, which takes it 25 % · 0.01129 °C/s · 60 s = 0.169 °C down over the
+    dead time, to 66.031: told no draw, the losses' duty less a gentle P still heats; met,
+    the duty holds the HLT against it; let act, the element stays off while the prediction,
+    the draw counted, stands above the setpoint, and it is the losses' duty alone below."""
+    model = PlantModel(1.689, 14961.0, 60.0, 20.0)
+    plain = laws.create("predictive", kc=120.0, ti=800.0, ts=PERIOD, model=model)
+    plain.reset(66.2, 20.0)
+    for _ in range(30):
+        plain.step(66.2, 66.2, plain.output)
+    met, let = copy.deepcopy(plain), copy.deepcopy(plain)
+    below, below_met = copy.deepcopy(plain), copy.deepcopy(plain)
+    for law in (met, below_met):
+        predictive.known_load(law, 1000.0, 4000.0)
+    for law in (let, below):
+        predictive.known_load(law, 1000.0, 4000.0, met=False)
+    drawn = 25.0 * 1.689 / 14961.0 * 60.0  # °C over the dead time
+    assert predictive.predicted_pv(let) == pytest.approx(66.2 - drawn, abs=1e-3)
+    out_plain, out_met = plain.step(66.0, 66.2, plain.output), met.step(66.0, 66.2, met.output)
+    assert out_plain > 0.0 and out_met > out_plain + 25.0
+    assert let.step(66.0, 66.2, let.output) == 0.0
+    # With the setpoint at 66.1 the prediction lands below it: the law as when it meets the
+    # draw, less the draw's share.
+    out_below = below.step(66.1, 66.2, below.output)
+    assert out_below > 0.0
+    assert math.isclose(below_met.step(66.1, 66.2, below_met.output) - out_below, 25.0)
 
 
 TOLD_W, K_TOLD = 2000.0, 100.0  # a load told held_law's 4 kW tun, reckoned on this K

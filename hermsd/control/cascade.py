@@ -41,10 +41,11 @@ from hermsd.control.coil import CoilEstimate
 HLT_MARGIN = 0.15
 """°C the HLT's setpoint stays below the limit: the HLT law overshoots its setpoint by up to
 a tenth (its bench's bound), and the limit is one the HLT must never pass."""
-COAST_AIM = 0.15
-"""°C below its setpoint the coast's HLT aims the mash: the HLT law follows that setpoint down
-with its own lag and heat in flight, which land in the mash after the aim (bench/herms.py:
-aimed at the setpoint itself, overshoots of 0.2–0.37 °C); the hold's PI closes the rest."""
+COAST_AIM = 0.05
+"""°C below its setpoint the coast's HLT aims the mash, under one of the LM92's steps: the HLT
+law lets the coil's draw act through the coast (`Decision.load_met`), so no heat lands after
+the aim but noise's; the hold's PI closes the rest (docs/mash-control.md, "The coast's
+aim")."""
 COAST_BISECTIONS = 16
 """Halvings of the HLT's range when solving for the coast's start (10 °C to 0.00015 °C)."""
 REHEAT_BAND = 1.0
@@ -124,15 +125,17 @@ class Tanks:
 
 @dataclass(frozen=True, slots=True)
 class Decision:
-    """One period's answer: the HLT's setpoint, the coil's load (W) to feed forward, the
-    phase ("climb", "coast" down to the hold, "hold", "ready" with the pump stopped, "no
-    flow" with the pump running and nothing flowing, "held" without a mash reading,
-    "strike" on a program's step before the mash is in) and, when held, why."""
+    """One period's answer: the HLT's setpoint, the coil's load (W) to feed forward (or,
+    `load_met` False, to let act), the phase ("climb", "coast" down to the hold, "hold",
+    "ready" with the pump stopped, "no flow" with the pump running and nothing flowing,
+    "held" without a mash reading, "strike" on a program's step before the mash is in)
+    and, when held, why."""
 
     hlt_setpoint: float
     load_watts: float
     phase: str
     held: str | None = None
+    load_met: bool = True  # False: a draw the HLT law lets act (the coast above its setpoint)
 
 
 def holding_hlt(mash_sp: float, tanks: Tanks, conductance: float) -> float:
@@ -224,6 +227,7 @@ class Cascade:
         "_hlt_max",
         "_last_mash",
         "_last_sp",
+        "_letting",
         "_limit",
         "_mash_loss",
         "_mash_sp",
@@ -232,6 +236,7 @@ class Cascade:
         "_seen",
         "_settled",
         "_tanks",
+        "_was_coast",
     )
 
     def __init__(self, tanks: Tanks, *, limit: float, hlt_max: float, period: float) -> None:
@@ -253,6 +258,8 @@ class Cascade:
         self._climbing = True
         self._settled = False  # the HLT has come down to its hold since the climb ended
         self._after_stop = False  # the held mash is brought back after a pump stop
+        self._letting = False  # the coast lets the coil's draw act (`Decision.load_met`)
+        self._was_coast = False
         self._mash_loss = tanks.mash_loss
 
     @property
@@ -313,7 +320,7 @@ class Cascade:
             last = self._last_sp if self._last_sp is not None else min(mash_sp, ceiling)
             setpoint = min(last, ceiling)
             self._last_sp = setpoint
-            load = self._load(hlt_pv, self._last_mash, setpoint, pump, coil, "held")
+            load = self._load(hlt_pv, self._last_mash, pump, coil)
             return Decision(setpoint, load, "held", why)
         if self._mash_sp is None or abs(mash_sp - self._mash_sp) > SETPOINT_MOVE:
             self._climbing = mash_pv < mash_sp
@@ -395,8 +402,16 @@ class Cascade:
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, aim, ceiling))
             setpoint = min(setpoint, ceiling)
         self._last_sp = setpoint
-        load = self._load(hlt_pv, mash_pv, setpoint, pump, coil, phase)
-        return Decision(setpoint, load, phase)
+        load = self._load(hlt_pv, mash_pv, pump, coil)
+        # The coast lets the coil's draw act until the HLT is down at its setpoint, and again
+        # once it stands HLT_MARGIN above it: the prediction moves with the heat sent for the
+        # draw, and judged without the margin the draw would be met and let act in turn.
+        if phase != "coast" or hlt_pv <= setpoint:
+            self._letting = False
+        elif hlt_pv > setpoint + HLT_MARGIN or not self._was_coast:
+            self._letting = True
+        self._was_coast = phase == "coast"
+        return Decision(setpoint, load, phase, load_met=not self._letting)
 
     def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float, high: float) -> None:
         """Learn the mash's losses from its rise where the coil's heat is small and known
@@ -490,25 +505,19 @@ class Cascade:
         learned = dataclasses.replace(tanks, mash_loss=self._mash_loss)
         return min(holding_hlt(mash_sp, learned, k) + kp * error, bound)
 
-    def _load(
-        self,
-        hlt: float,
-        mash: float | None,
-        setpoint: float,
-        pump: bool,
-        coil: CoilEstimate,
-        phase: str,
-    ) -> float:
-        """The coil's draw on the HLT (W) for the HLT law to feed forward: K's estimate
-        times the HLT over the mash; none with the pump stopped (or nothing flowing through
-        it: `flowing`) or no mash reading yet. Fed with the HLT above its setpoint too: the
-        law then waits for the draw to bring it down, and sends the heat a dead time ahead
-        of that instant rather than after it. Not in the coast above its setpoint: the
-        coast is the element off (`coast_peak`'s model), and the load fed would have the law
-        hold the HLT at the coast's setpoint against the coil's draw, heat the model does not
-        count, that lands in the mash past its rest (bench seed 4: the element at full power
-        2 min into the coast, the mash 0.89 °C over)."""
-        if not pump or mash is None or (phase == "coast" and hlt > setpoint):
+    def _load(self, hlt: float, mash: float | None, pump: bool, coil: CoilEstimate) -> float:
+        """The coil's draw on the HLT (W) for the HLT law: K's estimate times the HLT over
+        the mash; none with the pump stopped (or nothing flowing through it: `flowing`) or
+        no mash reading yet. Fed forward with the HLT above its setpoint too: the law then
+        waits for the draw to bring it down, and sends the heat a dead time ahead of that
+        instant rather than after it. In the coast above its setpoint it is a draw to let
+        act (`Decision.load_met` False): the coast is the element off (`coast_peak`'s
+        model); fed forward, the law would hold the HLT at the coast's setpoint against the
+        coil, heat the model does not count, that lands in the mash past its rest (bench
+        seed 4: the element at full power 2 min into the coast, the mash 0.89 °C over); told
+        no draw at all, its bias learned the coil's as losses and kept the element at a tenth
+        through the coast (seed 35's first rest, the mash 0.21 °C over)."""
+        if not pump or mash is None:
             return 0.0
         return coil.conductance * (hlt - mash)
 

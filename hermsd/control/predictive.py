@@ -80,6 +80,7 @@ class _Predictive(_Base):
         "_load",
         "_load_basis",
         "_load_in",
+        "_load_met",
         "_load_past",
         "_load_share",
         "_load_until",
@@ -150,6 +151,8 @@ class _Predictive(_Base):
         # period the next step closes.
         self._load = self._load_past = self._load_in = 0.0
         self._load_until = math.inf
+        # False: the load is a draw to let act (a HERMS coast), not one to send heat for.
+        self._load_met = True
         # The share of that load the water shows, learned by the observer (`_advance`), and
         # what the load was reckoned from (a new basis restarts it at the whole).
         self._load_share, self._load_basis = 1.0, 0.0
@@ -246,6 +249,8 @@ class _Predictive(_Base):
         """The duty that holds `sp` by the model and its bias (may lie outside the limits),
         the known load added: the feed-forward."""
         hold = 100.0 * (self._loss * (sp - self._ambient) - self._bias) / self._rate
+        if not self._load_met:  # a draw let act: it brings the water down, no heat is sent
+            return hold
         load = self._load_over(self._dead_time, self._ts)  # when this duty's heat arrives
         return hold + load if load else hold
 
@@ -258,12 +263,16 @@ class _Predictive(_Base):
         """kc_near up to LINEAR_BAND below the setpoint and anywhere above it (above, nothing
         is gained by cutting harder: the water only cools); kc up to FAR_BAND below it; and
         beyond that the gain that closes the predicted error in one period, i.e. full power
-        until the heat in flight will carry the water there: time-optimal. Coming from full
+        until the heat in flight will carry the water there: time-optimal; so above it too
+        where a draw let act (`known_load`'s `met` False) will take the water down, the
+        element off until the prediction, the draw counted, lands at the setpoint. Coming from full
         power, that gain holds down to `landing` °C (`_landing_short`: LINEAR_BAND, or less on
         a measured recovery): the heat-up or recovery runs at full power until the gentle
         zone, and only a hold ever sees the kc zone."""
         if landing is not None:
             return self._kc_near * min(e, landing) + self._kc_far * max(0.0, e - landing)
+        if e < 0.0 and not self._load_met and self._load > 0.0:
+            return self._kc_far * e  # the draw brings it down: off until it lands there
         if e <= LINEAR_BAND:
             return self._kc_near * e
         p = self._kc_near * LINEAR_BAND + self._kc * (min(e, FAR_BAND) - LINEAR_BAND)
@@ -648,6 +657,8 @@ def known_load(
     starts_in: float = 0.0,
     ends_in: float = math.inf,
     basis: float = 0.0,
+    *,
+    met: bool = True,
 ) -> None:
     """Tell `controller` (predictive) the heat flow `watts` drawn from the water besides its
     losses from `starts_in` s on until `ends_in` s (a HERMS coil's load, W; negative when it
@@ -661,7 +672,11 @@ def known_load(
     learns the share of it the water shows (`_learn_share`) until `basis`, what `watts` was
     reckoned from (a HERMS coil's K, W/K), changes or the load ends (a pump's run is its
     own: a stop's standing wort, and what a small load's share took up of other errors, are
-    not the next run's). 0 is no load: the law is then exactly the one without."""
+    not the next run's). 0 is no load: the law is then exactly the one without. `met` False:
+    a draw to let act, not to send heat for (a HERMS coast: the HLT's heat above its
+    setpoint is the mash's): counted by the prediction and the observer alike, but the
+    holding duty is the losses' alone, and above the setpoint the element stays off until
+    the prediction, the draw counted, comes down to it (`_proportional`)."""
     law = _law(controller)
     if law is not None:
         if not (math.isfinite(watts) and math.isfinite(element_watts) and element_watts > 0.0):
@@ -680,6 +695,7 @@ def known_load(
             law._load_share, law._load_basis = 1.0, basis
         law._load_in = starts_in
         law._load_until = ends_in
+        law._load_met = met
 
 
 def dead_time(controller: Controller) -> float | None:

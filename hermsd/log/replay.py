@@ -482,7 +482,13 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                 ends_in = math.inf if record.pump_stop_in is None else record.pump_stop_in
                 basis = record.coil_k or 0.0
                 known_load(
-                    controller, record.coil_load, total_watts(watched), starts_in, ends_in, basis
+                    controller,
+                    record.coil_load,
+                    total_watts(watched),
+                    starts_in,
+                    ends_in,
+                    basis,
+                    met=record.coil_load_met is not False,
                 )
             if record.reset_from is not None:
                 controller.reset(record.pv, record.reset_from)

@@ -242,6 +242,11 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                     ["number", "null"],
                     "the coil's load fed forward to the HLT law, W (null: no mash sensor)",
                 ),
+                "coil_load_met": _field(
+                    ["boolean", "null"],
+                    "false: the coil_load is a draw the HLT law lets act, sending no heat for "
+                    "it (the coast above its setpoint); null: fed forward",
+                ),
                 "cascade": _field(
                     ["string", "null"],
                     "the outer loop's phase (null: no mash sensor)",
@@ -280,6 +285,7 @@ TOPICS: Final[dict[str, TopicSpec]] = {
             optional=(
                 *("u2", "applied2", "switched2", "on2", "free2", "no_heat", "ceiling"),
                 *("mash", "coil", "pump", "hlt_setpoint", "coil_load", "cascade", "pump_in"),
+                "coil_load_met",
                 *("pump_stop_in", "coil_k", "current", "current_said"),
             ),
         ),

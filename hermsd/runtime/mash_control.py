@@ -162,6 +162,7 @@ class MashControl:
             starts_in,
             ends_in,
             basis=coil.conductance,
+            met=decision.load_met,
         )
         self.load_in, self.load_until, self.load_basis = starts_in, ends_in, coil.conductance
         k = max(coil.conductance, MIN_CONDUCTANCE)

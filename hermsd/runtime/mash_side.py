@@ -177,6 +177,7 @@ class MashSideFields(TypedDict):
     pump: bool | None
     hlt_setpoint: float | None
     coil_load: float | None
+    coil_load_met: bool | None
     cascade: str | None
     pump_in: float | None
     pump_stop_in: float | None
@@ -527,6 +528,7 @@ class MashSide(LoopState):
             "pump": self.pump_state,
             "hlt_setpoint": None if decision is None else decision.hlt_setpoint,
             "coil_load": None if decision is None else decision.load_watts,
+            "coil_load_met": None if decision is None or decision.load_met else False,
             "cascade": None if decision is None else decision.phase,
             "pump_in": None if control is None or not control.load_in else control.load_in,
             "pump_stop_in": (

@@ -47,6 +47,7 @@ class PeriodRecord:
     pump_in: float | None = None  # s until a prepared pump start, when that load begins
     pump_stop_in: float | None = None  # s until a stop the program's timer announces
     coil_k: float | None = None  # W/K, the coil's K that load was reckoned on
+    coil_load_met: bool | None = None  # False: that load a draw let act (None: fed forward)
     current: list[list[object]] | None = None  # the element's current input's samples (its
     current_said: list[str] | None = None  # CurrentWatch's), and what the watch said of them
 
