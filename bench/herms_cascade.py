@@ -168,9 +168,10 @@ def steer(
     mash_pv: float,
     hlt_pv: float,
     pump: bool,
-) -> tuple[float, float]:
-    """One period of the outer loop as the daemon runs it: (the HLT's setpoint, the load W),
-    from the HLT law's predicted PV where it has one."""
+) -> tuple[float, float, bool]:
+    """One period of the outer loop as the daemon runs it: (the HLT's setpoint, the load W,
+    whether the law meets it or lets it act), from the HLT law's predicted PV where it has
+    one."""
     ahead = predictive.predicted_pv(law)
     decision = outer.step(
         mash_sp=sp,
@@ -180,7 +181,7 @@ def steer(
         pump=pump,
         coil=coil.estimate(),
     )
-    return decision.hlt_setpoint, decision.load_watts
+    return decision.hlt_setpoint, decision.load_watts, decision.load_met
 
 
 class Offset:
@@ -299,10 +300,10 @@ def day(
             mash_reads.clear()
             coil.period(hlt=hlt_pv, mash=mash_pv, applied=duty, pump=pump)
             if peer is None:
-                hlt_sp, load = steer(outer, law, coil, sp, mash_pv, hlt_pv, pump)
+                hlt_sp, load, met = steer(outer, law, coil, sp, mash_pv, hlt_pv, pump)
             else:
-                hlt_sp, load = peer(sp, mash_pv, hlt_pv, pump)
-            predictive.known_load(law, load, s.watts)
+                (hlt_sp, load), met = peer(sp, mash_pv, hlt_pv, pump), True
+            predictive.known_load(law, load, s.watts, met=met)
             duty = law.step(hlt_sp, hlt_pv, duty)
     return {"rests": rests, "coil": coil.estimate(), "mash_loss": outer.mash_loss}
 
@@ -509,10 +510,10 @@ def herms_tun_table(limit: float) -> str:
             mash_reads.clear()
             pump = t >= pump_at
             coil.period(hlt=hlt_pv, mash=mash_pv if t >= dough else None, applied=duty, pump=pump)
-            hlt_sp, load = 66.0, 0.0
+            hlt_sp, load, met = 66.0, 0.0, True
             if t >= dough:
-                hlt_sp, load = steer(outer, law, coil, sp, mash_pv, hlt_pv, pump)
-            predictive.known_load(law, load, watts)
+                hlt_sp, load, met = steer(outer, law, coil, sp, mash_pv, hlt_pv, pump)
+            predictive.known_load(law, load, watts, met=met)
             duty = law.step(hlt_sp, hlt_pv, duty)
     learned = coil.estimate()
     effective = 419.0 * (1.0 - math.exp(-250.0 / 419.0))  # ṁc·(1 − e^(−UA/ṁc)), 6 L/min
