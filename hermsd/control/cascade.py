@@ -524,8 +524,9 @@ class Cascade:
     def prepared_load(self, hlt: float, mash: float, setpoint: float, k: float) -> float:
         """The coil's draw (W) a pump start being prepared will make, told the HLT law ahead
         of it: K times the HLT over the mash; none in the coast above its setpoint (a timer's
-        stop within it), for the reason `_load` feeds none there (bench/herms.py seed 35: the
-        restart's heat sent while the HLT stood 0.7 °C above the coast's setpoint)."""
+        stop within it), where the draw, once the pump runs, is let act (`_load`), not met
+        (bench/herms.py seed 35: the restart's heat sent while the HLT stood 0.7 °C above
+        the coast's setpoint, the mash 0.27 °C over)."""
         if self.coasting and hlt > setpoint:
             return 0.0
         return max(0.0, k * (hlt - mash))
