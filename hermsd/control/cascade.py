@@ -236,7 +236,6 @@ class Cascade:
         "_seen",
         "_settled",
         "_tanks",
-        "_was_coast",
     )
 
     def __init__(self, tanks: Tanks, *, limit: float, hlt_max: float, period: float) -> None:
@@ -258,8 +257,7 @@ class Cascade:
         self._climbing = True
         self._settled = False  # the HLT has come down to its hold since the climb ended
         self._after_stop = False  # the held mash is brought back after a pump stop
-        self._letting = False  # the coast lets the coil's draw act (`Decision.load_met`)
-        self._was_coast = False
+        self._letting = True  # the coast lets the coil's draw act (`Decision.load_met`)
         self._mash_loss = tanks.mash_loss
 
     @property
@@ -406,12 +404,13 @@ class Cascade:
         # The coast lets the coil's draw act until the HLT is down at its setpoint, and again
         # once it stands HLT_MARGIN above it: the prediction moves with the heat sent for the
         # draw, and judged without the margin the draw would be met and let act in turn.
-        if phase != "coast" or hlt_pv <= setpoint:
-            self._letting = False
-        elif hlt_pv > setpoint + HLT_MARGIN or not self._was_coast:
+        # Outside the coast the next one is armed to begin letting it act.
+        coast = phase == "coast"
+        if not coast or hlt_pv > setpoint + HLT_MARGIN:
             self._letting = True
-        self._was_coast = phase == "coast"
-        return Decision(setpoint, load, phase, load_met=not self._letting)
+        elif hlt_pv <= setpoint:
+            self._letting = False
+        return Decision(setpoint, load, phase, load_met=not (coast and self._letting))
 
     def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float, high: float) -> None:
         """Learn the mash's losses from its rise where the coil's heat is small and known
