@@ -123,6 +123,62 @@ def test_heat_beyond_what_was_asked_says_the_references_lack_an_element() -> Non
     assert watch.doubtful
 
 
+def _hold_day(
+    watch: ElementWatch, gain: float, loss: float, theta: float, ssr_gives: float, after: float
+) -> tuple[float, list[ElementReport]]:
+    """A hold on the SSR alone from t = 0 (the heat-up not seen: the band crossed within the
+    dead time), the SSR at the duty that holds the losses (the power before t = 0 the same),
+    then `after` s of the SSR at 100 % giving `ssr_gives` of its heat. Heat shows `theta`
+    later; returns when that last spell began and every report."""
+    hold_ssr = 100.0 * loss / gain * 11.0 / 4.0
+    began = 1800.0 + theta
+    t, pv, reports = 0.0, 66.0, []
+    while t < began + after:
+        duty1 = hold_ssr if t < began else 100.0
+        reports += watch.period(t, pv, 66.0, duty1, 0.0)
+        shown = t + H - theta
+        given = loss if shown < began else gain * 4.0 / 11.0 * ssr_gives
+        t, pv = t + H, pv + (given - loss) * H
+    return began, reports
+
+
+def test_the_heat_up_fit_stands_in_for_a_full_power_rise_the_band_never_showed() -> None:
+    # A dead time of 300 s the config says is 10: no full-power spell near the setpoint was
+    # seen, so without the fit nothing is judged; with it (G = 0.01 °C/s, θ = 300 s) the
+    # SSR's 4/11 = 36 % is missing once its lack shows, by a spell whose power is all past
+    # the death at twice the dead time, confirmed.
+    theta = 300.0
+    blind = ElementWatch(W1, W2, THETA)
+    _, reports = _hold_day(blind, GAIN, LOSS, theta, 0.0, 1800.0)
+    assert blind.full_rate is None and reports == []
+    watch = ElementWatch(W1, W2, THETA)
+    watch.heat_up(GAIN, theta)
+    began, reports = _hold_day(watch, GAIN, LOSS, theta, 0.0, 1800.0)
+    assert [(r.element, r.raised) for r in reports] == [(1, True)]
+    assert "36 % of both elements' power missing" in reports[0].message
+    latest = began + SPELL_S + max(DEAD_TIME_FACTORS) * theta + CONFIRM_S
+    assert began + theta < reports[0].t <= latest + H
+    # The hold's power by the fit's G: the losses over G, 0.2 of both.
+    assert watch.hold_power == pytest.approx(LOSS / GAIN)
+
+
+def test_an_ssr_at_full_by_the_heat_up_fit_that_heats_is_not_reported() -> None:
+    watch = ElementWatch(W1, W2, THETA)
+    watch.heat_up(GAIN, 300.0)
+    _, reports = _hold_day(watch, GAIN, LOSS, 300.0, 1.0, 1800.0)
+    assert reports == []
+
+
+def test_a_lossy_tun_falling_with_no_heat_is_no_water_poured_in() -> None:
+    # G = 0.05 °C/s, losses 0.009 °C/s (a lid-off pot): with the SSR dead the water falls
+    # 0.27 °C every 30 s, past SUDDEN_FALL (0.25 °C) alone, but within it over the hold's
+    # own losses (0.18 of both × G × 30 s = 0.27 °C): the element is judged, not the water.
+    watch = ElementWatch(W1, W2, THETA)
+    watch.heat_up(0.05, THETA)
+    _, reports = _hold_day(watch, 0.05, 0.009, THETA, 0.0, 900.0)
+    assert [(r.element, r.raised) for r in reports] == [(1, True)]
+
+
 # -- on the simulator ---------------------------------------------------------------------------
 
 # The lidded 60 L tun of the two-element bench: the SSR's 2 kW alone holds it (0.6 kW lost).
@@ -280,3 +336,30 @@ def test_more_heat_than_asked_is_judged_again_at_a_new_setpoint_and_blocks_nothi
     assert (UNASKED, False) in kinds  # judged again from the new setpoint on
     assert (1, True) in kinds[kinds.index((UNASKED, False)) :]  # and the dead element said
     assert watch.suspect == {1}
+
+
+def test_a_fast_tun_behind_a_long_dead_time_is_judged_by_its_heat_up_and_replay_agrees(
+    tmp_path: Path,
+) -> None:
+    # 8 kW into 25 L (0.076 °C/s) crosses the last 10 °C in some 130 s, well within the
+    # 2 × 300 s the configured dead time's twice and a spell ask of full power there: no
+    # full-power rate near the setpoint is ever measured, and the SSR's element dying in
+    # the hold went unsaid for the half hour after. By the heat-up's fit it is said (some
+    # 20 min on: its lack shows after θ ≈ 280 s, the law takes some minutes to ask the SSR
+    # for the share judged, a spell's power from 2θ back), and replay derives the same.
+    spec = TunSpec("25 L, far sensor", 25, 8000.0, 1.0, 220, 60, 20)
+    day = spec.brew_day()
+    plant = {**day.plant, "element_watts": 3000.0, "element2_watts": 5000.0}
+    config = {"tun": {"element_watts": 3000.0, "litres": 25}, "element2": TWO["element2"]}
+    config["element2"] = {**TWO["element2"], "watts": 5000.0}
+    dies = 2.5 * 3600.0
+    events = (*(e for e in day.events if e.at < dies), Event(dies, "heater", "open"))
+    scenario = dataclasses.replace(
+        day, plant=plant, config=config, events=events, duration=dies + 1800.0
+    )
+    result = run(scenario, keep_records=True, log_dir=tmp_path)
+    first = next((r for r in result.records if r.no_heat), None)
+    assert first is not None and first.no_heat == [1]
+    assert dies < first.t
+    entries = load(sorted(tmp_path.iterdir())).entries
+    assert verify(entries).mismatch is None

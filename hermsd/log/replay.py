@@ -62,6 +62,7 @@ from hermsd.runtime.build import (
     reach_period,
     reach_restarts,
     retunes,
+    take_heat_up,
     watch_changes,
 )
 from hermsd.runtime.mash_control import MASH_PREFIX
@@ -433,7 +434,10 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                 controller = None
         # The probe's finding of the step before, taken as the daemon takes it.
         probed = controller.probe_result() if isinstance(controller, SplitController) else None
-        if watch is not None and record.switched2 is not None:
+        if controller is None:
+            watch = None  # the heat-up fit the daemon's watch held is not known
+        elif watch is not None and record.switched2 is not None:
+            take_heat_up(watch, controller)
             if probed is not None and probed.element is not None:
                 watch.blame(record.t, probed.element, probed.message)
             watch.period(

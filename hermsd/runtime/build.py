@@ -65,6 +65,13 @@ def element_watch(config: Config) -> ElementWatch:
     return ElementWatch(config.tun.element_watts, element2_watts(config), config.control.dead_time)
 
 
+def take_heat_up(watch: ElementWatch, controller: pid.Controller) -> None:
+    """Hand the watch the controller's heat-up fit, if it has one it took."""
+    fit = predictive.heat_up_fit(controller)
+    if fit is not None and fit.refused is None:
+        watch.heat_up(fit.rate, fit.dead_time)
+
+
 def watch_changes(old: Config, new: Config) -> bool:
     """Whether a reload starts the element watch afresh (replay does as the daemon)."""
     return old.tun != new.tun or old.control.dead_time != new.control.dead_time

@@ -18,6 +18,12 @@ heat delivered while rising reads a little low. An element whose own part c of u
 each way of aligning the power with the PV (`WINDOWS`), for the window's confirm time is
 reported; it is cleared once a window shows no more than `RESTORED`·c missing.
 
+A fast tun behind a long dead time crosses the approach band before a spell of full power
+shows there: G is then the day's heat-up fit's rate (`heat_up`: both elements' full power
+before the losses take their share, good to 1–3 %), and the windows are aligned by the dead
+time that fit measured rather than the configured one (a 350 s tun judged on 115 s blames
+power that has not reached the sensor yet).
+
 Pure, fed once a control period with time as an argument; its state is made of what the
 period records log, so `hermsd replay --verify` derives the same reports from a log.
 """
@@ -131,6 +137,7 @@ class ElementWatch:
         self.share2 = watts2 / (watts1 + watts2)
         self.dead_time = dead_time
         self.full_rate: float | None = None  # °C/s with both fully on
+        self.fit_rate: float | None = None  # °C/s with both fully on, before the losses
         self.hold_power: float | None = None  # the hold's mean total, 0..1
         self.setpoint: float | None = None
         self.suspect: set[int] = set()  # the elements reported and not cleared
@@ -173,13 +180,24 @@ class ElementWatch:
         keep = max(HOLD_S, CYCLES_S) + max(DEAD_TIME_FACTORS) * self.dead_time + SUDDEN_SPAN
         while t - samples[0].t > keep:
             samples.popleft()
-        if max(s.pv for s in samples if s.t >= t - SUDDEN_SPAN) - pv >= SUDDEN_FALL:
+        # Faster than any loss: the hold's own (a lid-off tun with no heat falls 0.15 °C in
+        # SUDDEN_SPAN, which noise can take past SUDDEN_FALL alone) and SUDDEN_FALL beyond.
+        gain = self._gain()
+        losses = 0.0 if gain is None or self.hold_power is None else self.hold_power * gain
+        fell = max(s.pv for s in samples if s.t >= t - SUDDEN_SPAN) - pv
+        if fell >= SUDDEN_FALL + losses * SUDDEN_SPAN:
             self._fell_at = t
         if duty2 > 0.0 and duty2 < 100.0:
             self._since.clear()
             return said  # the second element switched within the period: no spell spans it
         self._take_references(t, setpoint)
         return said + self._judge(t)
+
+    def heat_up(self, rate: float, dead_time: float) -> None:
+        """The day's heat-up as the controller fitted it: its `rate` (°C/s at 100 % of both
+        elements, before the losses) and `dead_time` (s), taken before the period's step so
+        that `hermsd replay --verify` hands in the same."""
+        self.fit_rate, self.dead_time = rate, dead_time
 
     def blame(self, t: float, element: int, message: str) -> ElementReport:
         """An element the heat-up's probe found dead (hermsd/safety/element_probe.py): reported,
@@ -221,10 +239,21 @@ class ElementWatch:
                     self.hold_cycled = any(
                         b.on2 and not a.on2 for a, b in itertools.pairwise(powered)
                     )
+                    seconds = _mean_t(held[-PV_MEAN_PERIODS:]) - _mean_t(held[:PV_MEAN_PERIODS])
                     if self.full_rate is not None:  # less what the drift took, by G = R/(1 − u0)
-                        seconds = _mean_t(held[-PV_MEAN_PERIODS:]) - _mean_t(held[:PV_MEAN_PERIODS])
                         part = drift / seconds / self.full_rate
                         self.hold_power = (mean - part) / (1.0 - part)
+                    elif self.fit_rate is not None:  # … or by the heat-up's G
+                        self.hold_power = mean - drift / seconds / self.fit_rate
+
+    def _gain(self) -> float | None:
+        """G, the rise per unit of both elements' power (°C/s): from the full-power rate and
+        the hold's power, else the heat-up fit's; None before either is known."""
+        if self.hold_power is None or self.hold_power >= 1.0:
+            return None
+        if self.full_rate is not None:
+            return self.full_rate / (1.0 - self.hold_power)
+        return self.fit_rate
 
     def _spell(
         self, t: float, span: float, steady: bool, dead: float
@@ -260,14 +289,9 @@ class ElementWatch:
         return parts[1] + parts[2], rate, parts
 
     def _judge(self, t: float) -> list[ElementReport]:
-        if (
-            self.probed is not None
-            or self.full_rate is None
-            or self.hold_power is None
-            or self.hold_power >= 1.0
-        ):
+        gain, hold = self._gain(), self.hold_power
+        if self.probed is not None or gain is None or hold is None:
             return []
-        gain = self.full_rate / (1.0 - self.hold_power)
         for span, steady, least, confirm, factors in WINDOWS:
             if steady and self.hold_cycled:
                 # A hold that switched the second element on is judged by the long window
@@ -285,7 +309,7 @@ class ElementWatch:
             restored: set[int] = set()
             surplus = True
             for power, rate, parts in spells:
-                missing = power - (self.hold_power + rate / gain)
+                missing = power - (hold + rate / gain)
                 surplus = surplus and missing <= -SURPLUS
                 judged = {e: c for e, c in parts.items() if c >= least}
                 # A dead element's missing heat is its own part: blamed when it fits that,
@@ -296,7 +320,7 @@ class ElementWatch:
                 if len(restored) == 2:
                     restored.add(EITHER)
             power, rate, parts = spells[factors.index(1.0)]
-            missing = power - (self.hold_power + rate / gain)
+            missing = power - (hold + rate / gain)
             parts[EITHER] = min((c for c in parts.values() if c >= least), default=0.0)
             if self.doubtful:
                 continue  # the references are not of both elements: nothing is judged by them
