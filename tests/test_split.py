@@ -176,6 +176,39 @@ def test_near_the_top_of_the_gap_the_contactor_stays_on_until_a_minimum_off_pays
     assert opened == 112
 
 
+@pytest.mark.parametrize(
+    ("u", "on", "free", "expected", "owed"),
+    [
+        # The SSR's element said dead: its range is nothing. 20 % (1100 W) off gives none,
+        # and a switch on would give 3500 W for 120 s, 2400 W too much: off, 1100 W carried.
+        (20.0, False, True, (False, 0.0), 1100.0 / 5500.0 * 100.0 * H),
+        # 80 % asks more than the contactor's 3500 W can give: capped at its 63.64 %, which
+        # on gives exactly; the SSR is not asked.
+        (80.0, False, True, (True, 0.0), 0.0),
+        (100.0, True, True, (True, 0.0), 0.0),
+    ],
+)
+def test_an_ssr_element_said_dead_is_not_asked_and_the_contactor_gives_what_it_can(
+    u: float, on: bool, free: bool, expected: tuple[bool, float], owed: float
+) -> None:
+    s = split()
+    s.dead = frozenset({1})
+    state, duty = s.decide(u, on, free)
+    assert (state, duty) == expected
+    assert s.owed == pytest.approx(owed, rel=1e-12, abs=1e-12)
+    assert s.full_power().duty1 == 0.0 and s.full_power().on2
+
+
+def test_a_contactor_element_said_dead_is_opened_when_free_and_never_closed() -> None:
+    s = split()
+    s.dead = frozenset({2})
+    # Full power: the SSR's 2000 W (36.36 %) alone; a closed contactor opens once free.
+    assert s.decide(100.0, True, True) == (False, 100.0)
+    assert s.decide(100.0, False, True) == (False, 100.0)
+    assert s.decide(100.0, True, False) == (True, 100.0)  # its minimum on time first
+    assert not s.full_power().on2
+
+
 def test_a_power_limit_below_the_second_elements_share_keeps_it_open() -> None:
     # control.max_output 50 %: the contactor's 3500 W alone is 63.6 % of 5.5 kW, over it.
     # The SSR gives what it can (100 %, 36.4 %) and the rest is never made up by closing.

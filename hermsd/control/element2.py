@@ -220,7 +220,9 @@ class PowerSplit:
     element whose share alone exceeds `max_total` (control.max_output: a power limit) is
     never switched on, nor one whose heat over its minimum on-time would carry the water
     past the setpoint (`decide`'s `room`: `fits_under`); what it would have given is then
-    not owed.
+    not owed. An element the watch says gives no heat (`dead`: docs/two-elements.md) is not
+    asked and its heat not counted: the other holds the tun alone, and a total beyond what
+    that one gives is asked of it whole.
     """
 
     def __init__(
@@ -245,9 +247,13 @@ class PowerSplit:
         self.owed = 0.0  # %·s of the total asked and not given (negative: given ahead)
         self.max_total = max_total
         self.may_close = self.share2 <= max_total
+        self.dead: frozenset[int] = frozenset()  # the elements said to give no heat (1, 2)
 
     def total(self, duty1: float, duty2: float) -> float:
-        """Two duties as one % of the total; both full is exactly 100 (full-power checks)."""
+        """Two duties as one % of the total, the heat of an element said dead not counted;
+        both full is exactly 100 (full-power checks)."""
+        duty1 = 0.0 if 1 in self.dead else duty1
+        duty2 = 0.0 if 2 in self.dead else duty2
         if duty1 >= 100.0 and duty2 >= 100.0:
             return 100.0
         return total_share(self.watts1, self.watts2, duty1, duty2)
@@ -257,13 +263,18 @@ class PowerSplit:
         to switch (its minimum time passed); `room` False: its heat over a minimum on-time
         would carry the water past the setpoint, so it is not switched on."""
 
+        if self.dead:  # no more than the element left can give: the dead one's part is no one's
+            u = min(u, self._range(self._closes)[1])
+
         def carried(state: bool) -> float:
             span = self.period if state == on else (self.min_on if state else self.min_off)
             return self.owed + (u - self._given(u, state)) * span
 
         state = on
-        allowed = free and (on or (self.may_close and room))
-        if self._given(u, on) != u and allowed and abs(carried(not on)) < abs(carried(on)):
+        allowed = free and (on or (self._closes and room))
+        if on and free and 2 in self.dead:
+            state = False  # said to give no heat since it closed
+        elif self._given(u, on) != u and allowed and abs(carried(not on)) < abs(carried(on)):
             state = not on
         given = self._given(u, state)
         held_off = not state and not room  # not owed: paid back later, it is the overshoot
@@ -273,12 +284,21 @@ class PowerSplit:
     def full_power(self) -> FullPower:
         """The duties at the most the controller may ask (`max_total`): the second element on
         (off, if it may never close) and the SSR making up the rest: 100 % under no limit."""
-        on = self.may_close
+        on = self._closes
         return FullPower(self._duty1(self._given(self.max_total, on), on), on)
 
+    @property
+    def _closes(self) -> bool:
+        """Whether the second element may be switched on at all."""
+        return self.may_close and 2 not in self.dead
+
     def _range(self, on: bool) -> tuple[float, float]:
-        """The totals the SSR can make with the second element on or off, %."""
-        return (self.share2, 100.0) if on else (0.0, self.share1)
+        """The totals the SSR can make with the second element on or off, %: none of its
+        own once it is said to give no heat."""
+        ssr = 1 not in self.dead
+        if on and 2 not in self.dead:
+            return (self.share2, 100.0 if ssr else self.share2)
+        return (0.0, self.share1 if ssr else 0.0)
 
     def _given(self, u: float, on: bool) -> float:
         low, high = self._range(on)
@@ -286,6 +306,8 @@ class PowerSplit:
 
     def _duty1(self, given: float, on: bool) -> float:
         low, high = self._range(on)
+        if 1 in self.dead:
+            return 0.0
         if given >= high:
             return 100.0
         return min(100.0, max(0.0, (given - low) * 100.0 / self.share1))
@@ -371,7 +393,8 @@ def fits_under(law: pid.Controller, sp: float, split: PowerSplit) -> bool:
     water (it falls at full power), half its rise above, at most LINEAR_BAND, so that the
     hold cycles about the setpoint by the least pulse the contactor allows rather than under
     it, out of the band (tun 200: 0.5 °C a pulse). No model: it may."""
-    predicted = predictive.predicted_after(law, split.min_on, split.share2, split.share1)
+    ssr_most = 0.0 if 1 in split.dead else split.share1  # % the SSR's element gives alone
+    predicted = predictive.predicted_after(law, split.min_on, split.share2, ssr_most)
     if predicted is None:
         return True
     ahead, (after, alone) = predicted

@@ -62,6 +62,7 @@ from hermsd.runtime.build import (
     reach_period,
     reach_restarts,
     retunes,
+    said_dead,
     take_heat_up,
     watch_changes,
 )
@@ -348,6 +349,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
     model: PlantModel | None = None  # the tun's model in force, as logged
     fed: PeriodRecord | None = None  # the last period, not yet fed to `reach`
     current: CurrentWatch | None = None  # the current input's watch as the daemon's, once known
+    dead_said: list[int] = []  # the elements the last period said give no heat
     verified = unknown = 0
 
     def ceiling_mismatch() -> Mismatch | None:
@@ -372,6 +374,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                     same = watched is not None and watched.tun == whole.tun
                     if entry.reason != "start" and same and kept and watch:
                         watch.keep_probed(kept)
+                    dead_said = sorted(watch.suspect) if watch is not None else []
                 if entry.reason == "start":
                     reach = ReachWatch()
                     current = current_watch(whole)
@@ -460,6 +463,8 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                 return Verification(verified, unknown, mismatch)
         stepped = None
         previous_k = record.k
+        # The elements the step was shared out without: as the period before said them.
+        no_heat, dead_said = dead_said, record.no_heat or []
         if not (record.mode == "auto" and record.heater_allowed and record.pv is not None):
             continue
         if record.state == "scheduled":  # a program waits for its time: the heater held off
@@ -480,6 +485,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                 raise ReplayError(f"period k={record.k}: a two-element period without its state")
             controller.applied2 = record.applied2
             controller.on2, controller.free2 = record.on2, record.free2
+            said_dead(controller, no_heat)
         try:
             if record.coil_load is not None and watched is not None:  # the HERMS's outer loop
                 starts_in = record.pump_in or 0.0

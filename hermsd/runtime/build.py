@@ -4,6 +4,7 @@ watch's periods, the second element's power."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from hermsd.config import schema as config_module
@@ -70,6 +71,13 @@ def take_heat_up(watch: ElementWatch, controller: pid.Controller) -> None:
     fit = predictive.heat_up_fit(controller)
     if fit is not None and fit.refused is None:
         watch.heat_up(fit.rate, fit.dead_time)
+
+
+def said_dead(controller: pid.Controller, no_heat: Iterable[int]) -> None:
+    """Share the load out without the element the watch says gives no heat (1 or 2), so that
+    the other holds the tun (docs/two-elements.md); from the period before the step."""
+    if isinstance(controller, SplitController):
+        controller.split.dead = frozenset(e for e in no_heat if e in (1, 2))
 
 
 def watch_changes(old: Config, new: Config) -> bool:

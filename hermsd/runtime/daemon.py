@@ -60,6 +60,7 @@ from hermsd.runtime.build import (
     measured_tun,
     reach_period,
     safety_limits,
+    said_dead,
     take_heat_up,
 )
 from hermsd.runtime.current_side import CurrentSide
@@ -624,6 +625,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         )
         if self.element_watch is not None:  # the heat-up as fitted by the step before (replay)
             take_heat_up(self.element_watch, self.controller)
+            said_dead(self.controller, self.element_watch.suspect)  # as the last period said
         total_asked, total_applied = self._total_power(asked, applied, switched2)
         at_full = full_power(self.config).reached(applied, switched2)
         sup.period(now, pv, total_asked, total_applied, self.coil_load(pv))
