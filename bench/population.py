@@ -579,12 +579,26 @@ def element_dies(tun: PopTun) -> dict[str, Any]:
     alarm = next((a for a in result.summary["alarms"] if a["at_s"] >= at), None)
     warned = next((r.t for r in result.records if r.t >= at and r.no_heat), None)
     times = [t for t in (None if alarm is None else alarm["at_s"], warned) if t is not None]
+    # Two elements: how the other holds once the dead one is told, in periods of the PV out
+    # of the hold's band from HELD_FROM_S after the death to the day's end.
+    out = [
+        r
+        for r in result.records
+        if r.t >= at + HELD_FROM_S and r.pv is not None and abs(r.pv - r.setpoint) > HELD_BAND
+    ]
     return {
         "false": _alarms_before(result.summary, at),
         "kind": None if alarm is None else alarm["kind"],
         "warned": warned is not None and (alarm is None or warned < alarm["at_s"]),
         "detected_s": min(times) - at if times else None,
+        "out_of_band_s": len(out) * tun.config().control.period if tun.two_elements else None,
     }
+
+
+HELD_FROM_S = 1800.0
+"""s after an element's death from which the water's hold on the other is measured."""
+HELD_BAND = 0.5
+"""°C: the hold's band."""
 
 
 def _faults(seed: int) -> dict[str, Any]:
@@ -664,6 +678,7 @@ def faults_main(args: argparse.Namespace) -> int:
             f"{shorts[-1]:.0f} s",
             f"- dead element told within 20 min: {dead_in}/{n}; told after (median, worst): "
             f"{deads[n // 2]:.0f} s, {deads[-1]:.0f} s",
+            _held_line(found, tuns),
             f"- tuns with an alarm before a fault (false alarms on a normal stretch): {false}/{n}",
             "The tuns that miss a goal:\n\n" + "\n".join(lines),
             f"{n * 2} simulated days {how}",
@@ -673,6 +688,25 @@ def faults_main(args: argparse.Namespace) -> int:
     if args.write:
         sections.write(f"## Population: faults on {count} tuns drawn", text)
     return 0
+
+
+def _held_line(found: dict[int, Any], tuns: dict[int, PopTun]) -> str:
+    """How the other element holds the water once the SSR's is told dead (two elements)."""
+    held = sorted(
+        dead["out_of_band_s"]
+        for seed, tun in tuns.items()
+        if tun.two_elements
+        and (dead := found[seed]["dead"])["detected_s"] is not None
+        and dead.get("out_of_band_s") is not None
+    )
+    if not held:
+        return "- two elements: no dead SSR element told"
+    return (
+        f"- two elements, the SSR's element told dead ({len(held)} tuns): the water outside "
+        f"±{HELD_BAND} °C of the setpoint from {HELD_FROM_S / 60:.0f} min after its death to "
+        f"the day's end, the other element holding (median, worst): {held[len(held) // 2]:.0f} "
+        f"s, {held[-1]:.0f} s"
+    )
 
 
 def _current_faults(seed: int) -> dict[str, Any]:
