@@ -214,14 +214,16 @@ def _two_element_fault(spec: TunSpec, kind: str, water: bool) -> str:
 TWO_ELEMENT_NOTE = (
     "A contactor's element that nothing asks for cannot be told dead: where the SSR's element "
     "holds the tun alone, the contactor stays open all through the hold (**missed** in that "
-    "column); where it cannot, the supervisor latches heater_not_heating. Asked for by the "
-    "water at 5 h 30, the dead contactor's element is told on every tun but the small 30 L "
-    "5.5 kW, whose recovery on the SSR's 2 kW is over before the watch's windows may start "
-    "after water (5 min and a dead time, then 120 s past twice the dead time); slowest on the "
-    "120 L thermowell, whose 300 s dead time the config's 115 s misjudges. A dead SSR element "
-    "is told on every tun, sooner the more of the hold the SSR carries. The normal days "
-    "include the heat-up's check (element2.check: the SSR's element off for 60 s, well below "
-    "the setpoint): no warning from it either."
+    "column); where it cannot, the supervisor latches heater_not_heating, unless the watch "
+    "told it first (the garage pot): from then it is no longer asked and the SSR's element "
+    "runs alone (docs/two-elements.md). Asked for by the water at 5 h 30, the dead contactor's "
+    "element is told on every tun but the small 30 L 5.5 kW, whose recovery on the SSR's 2 kW "
+    "is over before the watch's windows may start after water (5 min and a dead time, then "
+    "120 s past twice the dead time), and the 120 L thermowell, whose 300 s dead time puts a "
+    "window's power 600 s back. A dead SSR element is told on every tun, sooner the more of "
+    "the hold the SSR carries, slowest on the 120 L thermowell. The normal days include the "
+    "heat-up's check (element2.check: the SSR's element off for 60 s, well below the "
+    "setpoint): no warning from it either."
 )
 
 
