@@ -295,3 +295,21 @@ def test_a_reload_keeps_the_probes_finding_unless_it_changed_the_tun(
     ]
     assert len(probed) == PROBE_S / 5.0
     assert verify(load(sorted(tmp_path.glob("*.mcap"))).entries).mismatch is None
+
+
+def test_a_contactor_dead_from_the_start_leaves_the_ssr_to_hold_without_an_alarm() -> None:
+    """Named in the heat-up, the contactor is no longer asked and the SSR's 2 kW holds the
+    60 L tun alone. The heat-up's fit measured the SSR's heat as both elements' full power,
+    so limits tightened by it read the SSR alone at full (36 % of both) as heat beyond what
+    was switched on: a shorted SSR latched, both off, an hour into the hold. Said dead, the
+    fit is taken back and the limits are the config's."""
+    day = tf.normal_day(TUN, 1.0)
+    events = tuple(e for e in day.events if e.at < 3.0 * 3600.0)
+    dead = Event(1.0, "heater2", "open")
+    whole = dataclasses.replace(_heat_up_day(day, dead, *events), duration=3.0 * 3600.0)
+    result = run(whole, keep_records=True)
+    assert result.summary["alarms"] == []
+    assert result.records[-1].no_heat == [2]
+    # The SSR alone brings it to the setpoint, and not past it.
+    held = [r.pv for r in result.records if r.pv is not None]
+    assert max(held) < 66.2 and abs(held[-1] - 66.0) < 0.2

@@ -724,9 +724,17 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
     def _limits_from_heat_up(self, t: float) -> None:
         """Tighten the supervisor's limits by the day's heat-up once the control law has
         measured it (its rate and dead time): a fault is then judged on this tun as it is
-        filled today, not on any tun the config may describe (`SafetyLimits.with_heat_up`)."""
+        filled today, not on any tun the config may describe (`SafetyLimits.with_heat_up`).
+        An element said to give no heat takes the fit back: it measured other elements than
+        the share-out asks now (a contactor dead from the start: the SSR's heat alone, taken
+        for both's), and by it the SSR alone at full would read as heat beyond what was
+        switched on: a shorted SSR."""
         fit = predictive.heat_up_fit(self.controller)
-        if fit is None or fit.refused is not None or fit is self._limits_fit:
+        if fit is None or fit.refused is not None:
+            fit = self._limits_fit
+        if self.element_watch is not None and self.element_watch.suspect & {1, 2}:
+            fit = None
+        if fit is self._limits_fit:
             return
         self._limits_fit = fit
         limits = safety_limits(self.config, self._measured_tun(self.config), fit)
@@ -736,6 +744,9 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         said = (
             f"safety limits from the heat-up: its heat shows within {limits.dead_time:.0f} s, "
             f"full power heats at most {limits.heat_rate * 60.0:.3f} °C/min"
+            if fit is not None
+            else "safety limits back to the config's: the heat-up measured an element now "
+            "said to give no heat"
         )
         self._event(logging.INFO, said, t)
 
