@@ -373,3 +373,34 @@ def test_a_fast_tun_behind_a_long_dead_time_is_judged_by_its_heat_up_and_held_on
     assert result.summary["alarms"] == []
     entries = load(sorted(tmp_path.iterdir())).entries
     assert verify(entries).mismatch is None
+
+
+def test_the_other_element_dying_too_latches_at_its_own_full_power() -> None:
+    # The SSR's element said dead, the contactor holds alone at 5 of 8 kW (62.5 % of both:
+    # never the supervisor's 80 % of both). When it dies too, full power is its share:
+    # judged from 80 % of that, the water falling with it at 100 % latches
+    # heater_not_heating, as a tun neither element holds did before (here some 50 min on:
+    # the law pulses the contactor, the water sagging between, until it asks it on for
+    # good; judged at both elements' 80 %, never).
+    spec = TunSpec("25 L, far sensor", 25, 8000.0, 1.0, 220, 60, 20)
+    day = spec.brew_day()
+    plant = {**day.plant, "element_watts": 3000.0, "element2_watts": 5000.0}
+    config = {
+        "tun": {"element_watts": 3000.0, "litres": 25},
+        "element2": {**TWO["element2"], "watts": 5000.0},
+    }
+    dies, dies2 = 2.5 * 3600.0, 3.25 * 3600.0
+    events = (
+        *(e for e in day.events if e.at < dies),
+        Event(dies, "heater", "open"),
+        Event(dies2, "heater2", "open"),
+    )
+    scenario = dataclasses.replace(
+        day, plant=plant, config=config, events=events, duration=dies2 + 3600.0
+    )
+    result = run(scenario, keep_records=True)
+    told = next(r.t for r in result.records if r.no_heat)
+    assert told < dies2
+    alarms = result.summary["alarms"]
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    assert dies2 < alarms[0]["at_s"]

@@ -194,6 +194,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         self._learner = parts.learner
         self._heat_up_seen = predictive.heat_up_fit(self.controller)
         self._limits_fit: HeatUpFit | None = None  # the heat-up the limits were tightened by
+        self._limits_dead: frozenset[int] = frozenset()  # … and the elements they leave out
         self._pulsing = False  # whether a measured pulse holds the heat (said when it moves)
         self._reloaded_at = -math.inf  # when a reload last changed the config
         self.planner = parts.planner
@@ -732,12 +733,14 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         fit = predictive.heat_up_fit(self.controller)
         if fit is None or fit.refused is not None:
             fit = self._limits_fit
-        if self.element_watch is not None and self.element_watch.suspect & {1, 2}:
+        watch = self.element_watch
+        dead = frozenset() if watch is None else frozenset(watch.suspect & {1, 2})
+        if dead:
             fit = None
-        if fit is self._limits_fit:
+        if fit is self._limits_fit and dead == self._limits_dead:
             return
-        self._limits_fit = fit
-        limits = safety_limits(self.config, self._measured_tun(self.config), fit)
+        self._limits_fit, self._limits_dead = fit, dead
+        limits = safety_limits(self.config, self._measured_tun(self.config), fit, dead)
         if limits == self.supervisor.limits:
             return  # a measured model's limits stand
         self.supervisor.limits = limits
@@ -745,8 +748,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
             f"safety limits from the heat-up: its heat shows within {limits.dead_time:.0f} s, "
             f"full power heats at most {limits.heat_rate * 60.0:.3f} °C/min"
             if fit is not None
-            else "safety limits back to the config's: the heat-up measured an element now "
-            "said to give no heat"
+            else "safety limits back to the config's, full power now the other element's: "
+            "the heat-up measured an element said to give no heat"
         )
         self._event(logging.INFO, said, t)
 

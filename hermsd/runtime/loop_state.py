@@ -60,6 +60,7 @@ class LoopState:
     _learner: Learner
     _heat_up_seen: HeatUpFit | None
     _limits_fit: HeatUpFit | None
+    _limits_dead: frozenset[int]
     _pulsing: bool
     _reloaded_at: float
     _stored_model: LearnedModel | None

@@ -139,8 +139,11 @@ class Reloading(LoopState):
         ):
             if old.tun != new.tun:
                 self._limits_fit = None  # a heat-up of another tun
+                self._limits_dead = frozenset()  # … whose watch has said nothing yet
                 self.supervisor.forget_hold()  # and its hold
-            self.supervisor.limits = safety_limits(new, self._measured_tun(new), self._limits_fit)
+            self.supervisor.limits = safety_limits(
+                new, self._measured_tun(new), self._limits_fit, self._limits_dead
+            )
         if changed & {"safety.max_temp", "safety.hysteresis"}:
             self._reprogram_sensor(t)
         if "safety.reset" in changed:
