@@ -27,16 +27,16 @@ def safety_limits(
     config: Config,
     model: MeasuredTun | None = None,
     heat_up: HeatUpFit | None = None,
-    said_dead: frozenset[int] = frozenset(),
+    dead: frozenset[int] = frozenset(),
 ) -> SafetyLimits:
     """The supervisor's limits: from `model` (the tun as measured) where given, else safe for
     any tun the config could be describing (see `SafetyLimits.derive`); tightened by the
     day's `heat_up` where it was measured and no model was (`SafetyLimits.with_heat_up`).
-    Elements `said_dead` (of two, no longer asked) leave full power the other's share: a
+    Elements said `dead` (of two, no longer asked) leave full power the other's share: a
     tun that one cannot hold then falls at its full power, and latches as it did at both's."""
     s = config.safety
     watts = {1: config.tun.element_watts, 2: element2_watts(config)}
-    live = 100.0 * (1.0 - sum(watts[e] for e in said_dead) / total_watts(config))
+    live = 100.0 * (1.0 - sum(watts[e] for e in dead) / total_watts(config))
     limits = SafetyLimits.derive(
         litres=config.tun.litres,
         element_watts=total_watts(config),

@@ -748,8 +748,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
             f"safety limits from the heat-up: its heat shows within {limits.dead_time:.0f} s, "
             f"full power heats at most {limits.heat_rate * 60.0:.3f} °C/min"
             if fit is not None
-            else "safety limits back to the config's, full power now the other element's: "
-            "the heat-up measured an element said to give no heat"
+            else "safety limits: an element is said to give no heat, so full power is the "
+            "other's alone, judged by the config's limits rather than the heat-up's"
         )
         self._event(logging.INFO, said, t)
 

@@ -18,11 +18,12 @@ heat delivered while rising reads a little low. An element whose own part c of u
 each way of aligning the power with the PV (`WINDOWS`), for the window's confirm time is
 reported; it is cleared once a window shows no more than `RESTORED`·c missing.
 
-A fast tun behind a long dead time crosses the approach band before a spell of full power
-shows there: G is then the day's heat-up fit's rate (`heat_up`: both elements' full power
-before the losses take their share, good to 1–3 %), and the windows are aligned by the dead
-time that fit measured rather than the configured one (a 350 s tun judged on 115 s blames
-power that has not reached the sensor yet).
+Once the controller has fitted the day's heat-up (`heat_up`), the windows are aligned by the
+dead time it measured rather than the configured one (a 350 s tun judged on 115 s blames
+power that has not reached the sensor yet, and a recovery's heat still arriving looks like
+more than was asked). A fast tun behind a long dead time crosses the approach band before a
+spell of full power shows there: G is then that fit's rate (both elements' full power before
+the losses take their share, good to 1–3 %).
 
 Pure, fed once a control period with time as an argument; its state is made of what the
 period records log, so `hermsd replay --verify` derives the same reports from a log.
