@@ -214,9 +214,10 @@ def _two_element_fault(spec: TunSpec, kind: str, water: bool) -> str:
 TWO_ELEMENT_NOTE = (
     "A contactor's element that nothing asks for cannot be told dead: where the SSR's element "
     "holds the tun alone, the contactor stays open all through the hold (**missed** in that "
-    "column); where it cannot, the supervisor latches heater_not_heating, unless the watch "
-    "told it first (the garage pot): from then it is no longer asked and the SSR's element "
-    "runs alone (docs/two-elements.md). Asked for by the water at 5 h 30, the dead contactor's "
+    "column); where it cannot, the supervisor latches heater_not_heating (on the garage pot "
+    "after the watch told it: no longer asked, it leaves full power the SSR's alone, which "
+    "cannot hold the pot: docs/two-elements.md). Asked for by the water at 5 h 30, the dead "
+    "contactor's "
     "element is told on every tun but the small 30 L 5.5 kW, whose recovery on the SSR's 2 kW "
     "is over before the watch's windows may start after water (5 min and a dead time, then "
     "120 s past twice the dead time), and the 120 L thermowell, whose 300 s dead time puts a "
