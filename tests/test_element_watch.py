@@ -343,7 +343,7 @@ def test_more_heat_than_asked_is_judged_again_at_a_new_setpoint_and_blocks_nothi
 
 
 def test_a_fast_tun_behind_a_long_dead_time_is_judged_by_its_heat_up_and_held_on_the_other(
-    tmp_path: Path,
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     # 8 kW into 25 L (0.076 °C/s) crosses the last 10 °C in some 130 s, well within the
     # 2 × 300 s the configured dead time's twice and a spell ask of full power there: no
@@ -371,6 +371,8 @@ def test_a_fast_tun_behind_a_long_dead_time_is_judged_by_its_heat_up_and_held_on
     held = [r.pv for r in result.records if r.t > dies + 1800.0 and r.pv is not None]
     assert min(held) > 60.5 and max(held) < 66.5
     assert result.summary["alarms"] == []
+    said = [r.message for r in caplog.records if "gives no heat?" in r.message]
+    assert said and "element 1 is no longer asked, element 2 holds the tun alone" in said[0]
     entries = load(sorted(tmp_path.iterdir())).entries
     assert verify(entries).mismatch is None
 

@@ -894,8 +894,18 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
             reports.append(watch.blame(now, probed.element, probed.message))
         reports += watch.period(now, pv, self.hlt_target(), duty1, duty2, state == "ok")
         for report in reports:
-            self._event(logging.WARNING if report.raised else logging.INFO, report.message, now)
-            self._alert("element_warning", report.message, now, report_kind(report.element))
+            said = report.message
+            if (  # the share-out leaves it out (`build.said_dead`): a brewer is told so
+                report.raised
+                and report.element in (1, 2)
+                and isinstance(self.controller, SplitController)
+            ):
+                said += (
+                    f"; element {report.element} is no longer asked, element "
+                    f"{3 - report.element} holds the tun alone until a restart"
+                )
+            self._event(logging.WARNING if report.raised else logging.INFO, said, now)
+            self._alert("element_warning", said, now, report_kind(report.element))
 
     def _say_reach(self, said: Said | None, t: float) -> None:
         """Log and alert what the reach watch said (a warning; nothing is switched off)."""
