@@ -57,6 +57,7 @@ from hermsd.runtime.alerts import SHUTDOWN_WAIT, Alerts, Event
 from hermsd.runtime.build import (
     element2_watts,
     elements,
+    left_out,
     measured_tun,
     reach_period,
     safety_limits,
@@ -726,10 +727,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         """Tighten the supervisor's limits by the day's heat-up once the control law has
         measured it (its rate and dead time): a fault is then judged on this tun as it is
         filled today, not on any tun the config may describe (`SafetyLimits.with_heat_up`).
-        An element said to give no heat takes the fit back: it measured other elements than
-        the share-out asks now (a contactor dead from the start: the SSR's heat alone, taken
-        for both's), and by it the SSR alone at full would read as heat beyond what was
-        switched on: a shorted SSR."""
+        An element said dead takes the fit back (it may have measured the other's heat as
+        both's: docs/two-elements.md) and leaves full power the other's (`safety_limits`)."""
         fit = predictive.heat_up_fit(self.controller)
         if fit is None or fit.refused is not None:
             fit = self._limits_fit
@@ -894,16 +893,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
             reports.append(watch.blame(now, probed.element, probed.message))
         reports += watch.period(now, pv, self.hlt_target(), duty1, duty2, state == "ok")
         for report in reports:
-            said = report.message
-            if (  # the share-out leaves it out (`build.said_dead`): a brewer is told so
-                report.raised
-                and report.element in (1, 2)
-                and isinstance(self.controller, SplitController)
-            ):
-                said += (
-                    f"; element {report.element} is no longer asked, element "
-                    f"{3 - report.element} holds the tun alone until a restart"
-                )
+            said = report.message + left_out(report, self.controller)
             self._event(logging.WARNING if report.raised else logging.INFO, said, now)
             self._alert("element_warning", said, now, report_kind(report.element))
 
