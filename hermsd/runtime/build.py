@@ -19,7 +19,7 @@ from hermsd.hardware.outputs import window_length
 from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.readiness import known_dead_time
 from hermsd.runtime.period import PeriodRecord
-from hermsd.safety.element_watch import ElementReport, ElementWatch
+from hermsd.safety.element_watch import ElementReport, ElementWatch, named_dead
 from hermsd.safety.limits import MeasuredTun, SafetyLimits
 
 
@@ -84,12 +84,12 @@ def said_dead(controller: pid.Controller, no_heat: Iterable[int]) -> None:
     """Share the load out without the element the watch says gives no heat (1 or 2), so that
     the other holds the tun (docs/two-elements.md); from the period before the step."""
     if isinstance(controller, SplitController):
-        controller.split.dead = frozenset(e for e in no_heat if e in (1, 2))
+        controller.split.dead = named_dead(no_heat)
 
 
 def left_out(report: ElementReport, controller: pid.Controller) -> str:
     """What a dead element's warning adds where the share-out leaves it out (`said_dead`)."""
-    if not (report.raised and report.element in (1, 2)):
+    if not (report.raised and named_dead([report.element])):
         return ""
     if not isinstance(controller, SplitController):
         return ""

@@ -75,7 +75,7 @@ from hermsd.runtime.reporting import Reporting
 from hermsd.runtime.running_program import RunningProgram
 from hermsd.runtime.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.safety.element_probe import ProbeResult
-from hermsd.safety.element_watch import report_kind
+from hermsd.safety.element_watch import named_dead, report_kind
 from hermsd.safety.latches import Latches
 from hermsd.safety.limits import Alarm, MeasuredTun
 
@@ -733,7 +733,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         if fit is None or fit.refused is not None:
             fit = self._limits_fit
         watch = self.element_watch
-        dead = frozenset() if watch is None else frozenset(watch.suspect & {1, 2})
+        dead = frozenset() if watch is None else named_dead(watch.suspect)
         if dead:
             fit = None
         if fit is self._limits_fit and dead == self._limits_dead:

@@ -34,6 +34,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 SPELL_S = 120.0
@@ -94,6 +95,11 @@ EITHER = 0
 """Reported for the element when heat is missing that either one's could be."""
 UNASKED = 3
 """Reported when more heat came than was asked (`SURPLUS`)."""
+
+
+def named_dead(no_heat: Iterable[int]) -> frozenset[int]:
+    """The elements themselves (1, 2) among reports `no_heat`: not EITHER, not UNASKED."""
+    return frozenset(e for e in no_heat if e in (1, 2))
 
 
 def no_heat_words(element: int) -> str:
