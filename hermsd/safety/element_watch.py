@@ -189,8 +189,8 @@ class ElementWatch:
             samples.popleft()
         # Faster than any loss: the hold's own (a lid-off tun with no heat falls 0.15 °C in
         # SUDDEN_SPAN, which noise can take past SUDDEN_FALL alone) and SUDDEN_FALL beyond.
-        gain = self._gain()
-        losses = 0.0 if gain is None or self.hold_power is None else self.hold_power * gain
+        gain, hold = self._gain(), self.hold_power
+        losses = 0.0 if gain is None or hold is None else max(0.0, hold * gain)
         fell = max(s.pv for s in samples if s.t >= t - SUDDEN_SPAN) - pv
         if fell >= SUDDEN_FALL + losses * SUDDEN_SPAN:
             self._fell_at = t
