@@ -261,6 +261,30 @@ def test_an_element_that_dies_in_the_hold_is_caught(
     assert detected[1] <= detected[0]  # measured, its losses are known: no later
 
 
+@pytest.mark.parametrize(
+    ("spec", "fill", "within_s", "words"),
+    [
+        # 59 L under 1.7 kW behind 184 s of delay in a 27 °C room: the law answers the fall
+        # slowly (full power some 19 min after the death) and the output's watch, from 80 %,
+        # told it after 1530 s; its climb with no gain in slope tells it within 20 min.
+        (TunSpec("slow answer", 112.0, 1700.0, 0.56, 184.0, 9.0, 27.0), 0.53, 1200.0, "climbed"),
+        # 23 L under 10.9 kW: the law pulses the element, never long at the output the
+        # watch judges from: not told in the hour left of the day before. Its mean over the
+        # hold's losses with the water falling tells it.
+        (TunSpec("pulsed", 34.0, 10900.0, 0.49, 214.0, 13.0, 9.0), 0.67, 3000.0, "on average"),
+    ],
+)
+def test_a_dead_element_is_told_by_the_heat_balance_whatever_the_law_does(
+    spec: TunSpec, fill: float, within_s: float, words: str
+) -> None:
+    water = dataclasses.replace(spec, litres=spec.litres * fill)
+    assert day(spec, tf.normal_day(water)) == []
+    alarms = day(spec, tf.element_dies(water))
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    assert alarms[0]["detected_after_s"] <= within_s
+    assert words in alarms[0]["message"]
+
+
 def test_a_shorted_ssr_is_caught_on_the_slowest_tun_and_the_contactor_opens() -> None:
     spec = tun("thermowell 120")
     alarms = day(spec, tf.ssr_shorts(spec))

@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from hermsd.safety.coil_load import NO_LOAD, CoilLoad
+from hermsd.safety.heat_balance import HeatBalance
 from hermsd.safety.limits import (
     COLDEST_ROOM,
     DRY_FIRE_WINDOWS,
@@ -125,6 +126,7 @@ class Supervisor:
         self._recent_reads: deque[float] = deque(maxlen=3)  # the last values read, good or not
         self._last_raw: int | None = None
         self._heater_watch = _HeaterWatch()
+        self._balance = HeatBalance()
         # The last HOLD_SPAN_S of periods (t, PV, applied), and the hold they last showed:
         # (mean duty %, mean PV °C) of a span the water stood steady through.
         self._steady: deque[tuple[float, float, float]] = deque()
@@ -187,6 +189,7 @@ class Supervisor:
         for kind in cleared:
             self._clear(kind, t, "reset by the operator")
         self._heater_watch.stop()
+        self._balance.clear()
         self._steady.clear()
         self._energy.clear()
         self._energy_before.clear()
@@ -331,6 +334,7 @@ class Supervisor:
         self._check_dry_fire(t, pv)
         self._measure_hold(t, pv, applied)
         self._check_heater(t, pv, applied)
+        self._check_balance(t, pv, applied)
         self._check_ssr(t, pv, applied)
         if self.heater_allowed:
             self._check_stuck(t, output)
@@ -501,6 +505,29 @@ class Supervisor:
             f"it the heat's way to the sensor, but {what}",
             {"rise_c": pv - watch.ref, "fall_c": fall, "applied": applied},
         )
+
+    def _check_balance(self, t: float, pv: float, applied: float) -> None:
+        """An element that does not heat, by the heat balance over the last windows of
+        whatever the output did (hermsd/safety/heat_balance.py). One element (of two, the
+        other may hold: the element watch's), and no HERMS coil that may draw."""
+        lim, balance = self.limits, self._balance
+        if lim.two_elements or not self.heater_allowed or self._coil_may_draw():
+            balance.clear()
+            return
+        if self._water_added(pv):
+            balance.poured(t)
+        verdict = balance.period(
+            t,
+            pv,
+            applied,
+            lim.dead_time,
+            lim.heater_rise_rate / lim.full_output,
+            self._heating_output(pv),
+            lim.heater_max_fall / lim.heater_watch,
+            lim.loss_rate(pv),
+        )
+        if verdict is not None:
+            self._raise("heater_not_heating", t, verdict.message, verdict.values)
 
     def forget_hold(self) -> None:
         """Another tun is configured: the hold measured on the last one (a duty in % of its

@@ -1,0 +1,238 @@
+"""An element that does not heat, judged from the heat balance over a window of the day.
+
+The supervisor's watch from the output alone (`Supervisor._check_heater`) waits until the
+output has stood at or above what beats the largest losses; a law that answers a dead
+element slowly, or pulses it, keeps it waiting. The balance is judged on whatever the
+output did, by two bounds that hold for any working element (docs/heat-balance.md):
+
+- the level: over `WINDOW_S`, with the duty's mean (taken the dead time earlier) at or
+  above h, the duty that beats the largest losses the limits allow, a working element does
+  not let the PV fall (by the output watch's steady fall, 0.25 °C in 300 s, or more), and a
+  dead one lets it fall at its losses, as steeply as in the window before (water poured
+  in shows through the sensor's lag as a fall that decays: that is no verdict). The
+  output's own watch judges the same from a duty that stays at h; this one from its mean,
+  whatever the law did with it;
+- the climb: where the mean duty rose by `CLIMB` % or more from one window to the next,
+  the later's slope rose by at least `CLIMB_SHARE` of what the weakest element makes of
+  that climb (the limits' weakest rise per % of duty times it), the losses the same in
+  both; a dead element's slope stays where it was, the water falling at its losses. Judged
+  only where each window's halves have the same slope: losses that step up within one (a
+  lid taken off, which the output then climbs to answer) are not the same in both.
+
+Each is judged with the duty taken at each of `DEAD_TIME_FACTORS` of the dead time, and
+a finding needs all of them (a dead time misjudged makes a changing duty's heat look
+missing at one of them, not at all), beyond `MARGIN_SE` standard errors of the slopes
+(and `NOISE_FLOOR` over the window), for `CONFIRM_S`. Pure, fed once a control period.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+from hermsd.safety.limits import NOISE_FLOOR
+
+WINDOW_S = 300.0
+"""s of PV each slope is fitted over: with 0.06 °C of noise on each of 60 periods' PV, the
+slope's standard error is 0.06·√(12/60)/300 = 9e-5 °C/s, and four of them are the 0.1 °C
+over the window that the margin never goes below."""
+CLIMB = 10.0
+"""% of duty the mean must have risen from one window to the next for the climb's verdict."""
+CLIMB_SHARE = 0.5
+"""… and the part of the weakest heating of that climb the slope must have gained."""
+DEAD_TIME_FACTORS = (1.0 / 3.0, 2.0 / 3.0, 1.0)
+"""Of the limits' dead time (1.5× the fitted one once measured: 0.5, 1 and 1.5× it)."""
+MARGIN_SE = 4.0
+"""Standard errors of the slope (from the window's own residuals) a finding must clear."""
+CONFIRM_S = 60.0
+"""s a finding must last."""
+SETTLE_S = 300.0
+"""s after water poured in (and the dead time) before a window may start: the sensor's lag
+still bends its fall."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Slope:
+    rate: float  # °C/s
+    error: float  # its standard error, °C/s
+
+
+@dataclass(frozen=True, slots=True)
+class BalanceVerdict:
+    """Heat missing by the balance: what the alarm's message and values say."""
+
+    message: str
+    values: dict[str, float]
+
+
+class HeatBalance:
+    """The last two windows of (t, PV, duty) and the verdict on them."""
+
+    def __init__(self) -> None:
+        self._samples: deque[tuple[float, float, float]] = deque()
+        self._poured_at: float | None = None
+        self._since: float | None = None
+
+    def clear(self) -> None:
+        """Nothing before now is judged (the heater was off, or a HERMS coil may draw)."""
+        self._samples.clear()
+        self._since = None
+
+    def poured(self, t: float) -> None:
+        """Water was poured in at `t`: its fall is no loss."""
+        self._poured_at = t
+
+    def period(
+        self,
+        t: float,
+        pv: float,
+        applied: float,
+        dead_time: float,
+        per_duty: float,
+        loss_duty: float,
+        least_fall: float,
+        fastest_loss: float,
+    ) -> BalanceVerdict | None:
+        """One period: the PV, the duty as switched (%), the limits' dead time (s), the
+        weakest rise per % of duty (°C/s), the duty that beats the largest losses at this PV
+        (%), the least fall the level judges (°C/s: the output watch's steady fall) and the
+        fastest the water can cool with no heat (°C/s: a faster fall is water poured in, not
+        a dead element's). Returns the verdict once it has lasted `CONFIRM_S`."""
+        samples = self._samples
+        samples.append((t, pv, applied))
+        reach = 2.0 * WINDOW_S + dead_time
+        while len(samples) > 1 and t - samples[1][0] >= reach:
+            samples.popleft()  # the oldest kept is the first at or beyond the reach
+        finding = self._finding(t, dead_time, per_duty, loss_duty, least_fall, fastest_loss)
+        if finding is None:
+            self._since = None
+            return None
+        if self._since is None:
+            self._since = t
+        return finding if t - self._since >= CONFIRM_S else None
+
+    def _finding(
+        self,
+        t: float,
+        dead_time: float,
+        per_duty: float,
+        loss_duty: float,
+        least_fall: float,
+        fastest_loss: float,
+    ) -> BalanceVerdict | None:
+        samples = self._samples
+        if t - samples[0][0] < 2.0 * WINDOW_S + dead_time - 1e-9:
+            return None
+        poured = self._poured_at
+        if poured is not None and t - poured < 2.0 * WINDOW_S + dead_time + SETTLE_S:
+            return None
+        later, earlier = self._window(t), self._window(t - WINDOW_S)
+        if later is None or earlier is None:
+            return None
+        floor = NOISE_FLOOR / WINDOW_S
+        margin = max(MARGIN_SE * later.error, floor)
+        gain = later.rate - earlier.rate
+        steady = max(MARGIN_SE * math.hypot(later.error, earlier.error), floor)
+        # The level's fall, as steep as the window before's (not the decaying fall of water
+        # poured in); the climb's windows each with alike halves: no step of the losses
+        # within either (a lid taken off, which the output then climbs to answer, makes the
+        # slope fall within a window, and across their boundary).
+        falls = -max(margin, least_fall) > later.rate >= -fastest_loss - margin
+        falls = falls and gain <= steady
+        both_steady = all(_steady(w, floor) for w in (later, earlier))
+        found: BalanceVerdict | None = None
+        for factor in DEAD_TIME_FACTORS:
+            shift = factor * dead_time
+            duty = self._mean_duty(t - WINDOW_S - shift, t - shift)
+            duty_before = self._mean_duty(t - 2 * WINDOW_S - shift, t - WINDOW_S - shift)
+            if duty is None or duty_before is None:
+                return None
+            climb = duty - duty_before
+            level = falls and duty >= loss_duty
+            climbed = (
+                both_steady
+                and climb >= CLIMB
+                and gain < CLIMB_SHARE * per_duty * climb - steady
+                and later.rate < -margin
+            )
+            if not (level or climbed):
+                return None
+            if factor == 1.0:
+                found = _verdict(duty, duty_before, later, earlier, per_duty, level)
+        return found
+
+    def _window(self, end: float) -> _Window | None:
+        """The PV's slope over the `WINDOW_S` to `end`, and over each half of it."""
+        points = [(s, p) for s, p, _ in self._samples if end - WINDOW_S < s <= end]
+        middle = end - WINDOW_S / 2.0
+        whole = _slope(points)
+        first = _slope([(s, p) for s, p in points if s <= middle])
+        second = _slope([(s, p) for s, p in points if s > middle])
+        if whole is None or first is None or second is None:
+            return None
+        return _Window(whole.rate, whole.error, first, second)
+
+    def _mean_duty(self, start: float, end: float) -> float | None:
+        duties = [a for s, _, a in self._samples if start < s <= end]
+        return sum(duties) / len(duties) if duties else None
+
+
+@dataclass(frozen=True, slots=True)
+class _Window(_Slope):
+    first: _Slope  # over the window's first half
+    second: _Slope  # … and its second
+
+
+def _steady(window: _Window, floor: float) -> bool:
+    """Whether the PV's slope is the same in both halves of `window`, within the noise."""
+    gap = window.second.rate - window.first.rate
+    return abs(gap) <= max(MARGIN_SE * math.hypot(window.first.error, window.second.error), floor)
+
+
+def _slope(points: list[tuple[float, float]]) -> _Slope | None:
+    """The least-squares slope of the PV over `points` and its standard error."""
+    n = len(points)
+    if n < 4:
+        return None
+    t_mean = sum(t for t, _ in points) / n
+    pv_mean = sum(p for _, p in points) / n
+    spread = sum((t - t_mean) ** 2 for t, _ in points)
+    if spread <= 0.0:
+        return None
+    rate = sum((t - t_mean) * (p - pv_mean) for t, p in points) / spread
+    residuals = sum((p - pv_mean - rate * (t - t_mean)) ** 2 for t, p in points)
+    return _Slope(rate, math.sqrt(residuals / (n - 2) / spread))
+
+
+def _verdict(
+    duty: float,
+    duty_before: float,
+    later: _Slope,
+    earlier: _Slope,
+    per_duty: float,
+    level: bool,
+) -> BalanceVerdict:
+    per_min = 60.0
+    if level:
+        message = (
+            f"output at {duty:.0f} % on average over {WINDOW_S:.0f} s (its heat due at the "
+            "sensor by now), more than the largest losses need, but the PV fell "
+            f"{-later.rate * per_min:.2f} °C/min"
+        )
+    else:
+        message = (
+            f"output climbed from {duty_before:.0f} to {duty:.0f} % on average over "
+            f"{2 * WINDOW_S:.0f} s, worth at least "
+            f"{CLIMB_SHARE * per_duty * (duty - duty_before) * per_min:.2f} °C/min more, but "
+            f"the PV's slope went {earlier.rate * per_min:+.2f} → "
+            f"{later.rate * per_min:+.2f} °C/min"
+        )
+    return BalanceVerdict(
+        message,
+        {
+            "mean_output": duty,
+            "rate_c_per_min": later.rate * per_min,
+            "rate_before_c_per_min": earlier.rate * per_min,
+        },
+    )

@@ -1,0 +1,146 @@
+"""The heat balance's verdicts on a dead element, worked by hand on straight-line PVs."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from hermsd.safety.heat_balance import HeatBalance
+
+PER_DUTY = 1e-4  # °C/s per % of duty: the weakest element's
+FASTEST_LOSS = 0.01  # °C/s
+PERIOD = 5.0
+MARGIN = 0.1 / 300.0  # NOISE_FLOOR over the window: a straight line's slopes have no error
+LEAST_FALL = 0.25 / 300.0  # the output watch's steady fall, °C/s
+
+
+def first_verdict(
+    duty: Callable[[float], float],
+    rate: Callable[[float], float],
+    loss_duty: float,
+    *,
+    until: float = 3600.0,
+    dead_time: float = 0.0,
+    poured_at: float | None = None,
+) -> float | None:
+    """When the balance first reports, fed every period from 0 s: the duty (%) switched at
+    each time, and the PV's slope (°C/s) over each period."""
+    balance, t, pv = HeatBalance(), 0.0, 66.0
+    while t <= until:
+        if poured_at is not None and t == poured_at:
+            balance.poured(t)
+        verdict = balance.period(
+            t, pv, duty(t), dead_time, PER_DUTY, loss_duty, LEAST_FALL, FASTEST_LOSS
+        )
+        if verdict is not None:
+            return t
+        t += PERIOD
+        pv += rate(t) * PERIOD
+    return None
+
+
+def test_the_level_judges_a_fall_with_more_duty_than_the_largest_losses_need() -> None:
+    # At 50 %, over the 20 % that beats the largest losses, the water may not fall: a fall
+    # steeper than the output watch's (0.25 °C in 300 s; beyond the margin of 3.33e-4 °C/s)
+    # is a dead element's. Judged from 2 windows (600 s) in, reported once it has lasted 60 s.
+    assert first_verdict(lambda t: 50.0, lambda t: -LEAST_FALL - 1e-5, 20.0) == 660.0
+    assert first_verdict(lambda t: 50.0, lambda t: -LEAST_FALL + 1e-5, 20.0) is None
+    # A rise, however slow, is left to the output's own watch (the least rise at 80 %).
+    assert first_verdict(lambda t: 50.0, lambda t: 1e-5, 20.0) is None
+    # At 15 %, under the 20 % that beats the largest losses, a fall is no verdict.
+    assert first_verdict(lambda t: 15.0, lambda t: -5e-3, 20.0) is None
+
+
+def test_a_fall_that_decays_is_water_poured_not_a_dead_element() -> None:
+    # At 50 %, a fall of 0.03 °C/s that halves each 100 s (cold water through the sensor's
+    # lag): steeper than 0.25 °C in 300 s until 517 s, a window's mean slope until some
+    # 690 s, but each window's slope is well above the one before it (were that not judged,
+    # the verdict would come at 660 s).
+    def decaying(t: float) -> float:
+        return -0.03 * math.pow(0.5, t / 100.0)
+
+    assert first_verdict(lambda t: 50.0, decaying, 20.0) is None
+
+
+def test_a_climb_that_the_slope_does_not_follow_is_a_dead_element() -> None:
+    # The duty steps from 20 to 50 % at 600 s with the water falling on at 1e-3 °C/s; the
+    # level cannot judge (80 % of losses). The later window's mean climbs 30 % × (t − 600)
+    # / 300 s, and a gain of 0 is below half the weakest heat of it less the margin,
+    # ½·1e-4·climb − 3.33e-4, from a climb of 6.7 %: the climb's own least, 10 %, at
+    # 700 s, reported at 760 s.
+    def step(t: float) -> float:
+        return 20.0 if t <= 600.0 else 50.0
+
+    assert first_verdict(step, lambda t: -1e-3, 80.0) == 760.0
+
+
+def test_a_climb_is_judged_only_with_the_water_falling() -> None:
+    # A heat-up started at 600 s behind a dead time longer than the limits': the duty steps
+    # from 0 to 100 % and the water has not begun to rise. The slope gained nothing of
+    # ½·1e-4·100 °C/s, but the water does not fall either: no dead element's.
+    def start(t: float) -> float:
+        return 0.0 if t <= 600.0 else 100.0
+
+    assert first_verdict(start, lambda t: 0.0, 80.0) is None
+
+
+def test_a_climb_the_slope_follows_is_a_working_element() -> None:
+    # The duty ramps 0.05 %/s from 600 s: 15 % a window. A slope that gains k·1e-4 per % of
+    # it is dead below k = (½·1e-4·15 − 3.33e-4) / (1e-4·15) = 0.278, and each window's
+    # halves differ by k·1e-4·0.05·150 s, steady within the margin up to k = 0.44.
+    def ramp(t: float) -> float:
+        return min(80.0, 20.0 + 0.05 * max(0.0, t - 600.0))
+
+    def slope(k: float) -> Callable[[float], float]:
+        return lambda t: -1e-3 + k * PER_DUTY * (ramp(t) - 20.0)
+
+    assert first_verdict(ramp, slope(0.0), 80.0) is not None
+    assert first_verdict(ramp, slope(0.2), 80.0) is not None
+    assert first_verdict(ramp, slope(0.35), 80.0) is None
+
+
+def test_losses_that_step_up_as_the_output_climbs_are_not_a_dead_element() -> None:
+    # A lid taken off at 900 s: the water, steady on 20 %, falls at 4e-3 °C/s, and the
+    # output climbs 0.05 %/s from 960 s to answer it, its heat showing in full (1e-4 per %).
+    # The windows that straddle the step see the slope fall as the duty climbs; each has
+    # halves unalike, so no climb is judged (else one would be, at 1375 s), and the windows
+    # after it see the heat.
+    def answer(t: float) -> float:
+        return min(80.0, 20.0 + 0.05 * max(0.0, t - 960.0))
+
+    def slope(t: float) -> float:
+        return (-4e-3 if t > 900.0 else 0.0) + PER_DUTY * (answer(t) - 20.0)
+
+    assert first_verdict(answer, slope, 80.0) is None
+
+
+def test_water_poured_in_defers_the_verdict_by_two_windows_and_a_settling() -> None:
+    # The level's dead element of the first test, water poured at 300 s: judged from 300 +
+    # 600 + 300 s (two windows, no dead time, the settling), reported 60 s later.
+    assert first_verdict(lambda t: 50.0, lambda t: -1e-3, 20.0, poured_at=300.0) == 1260.0
+
+
+def test_the_duty_is_taken_the_dead_time_before_the_pv() -> None:
+    # The climb's dead element with 150 s of dead time: the duty is judged at a third, two
+    # thirds and all of it earlier, and all must agree; the last sees the climb latest,
+    # 150 s after the PV's time: 760 + 150 s.
+    def step(t: float) -> float:
+        return 20.0 if t <= 600.0 else 50.0
+
+    assert first_verdict(step, lambda t: -1e-3, 80.0, dead_time=150.0) == 910.0
+
+
+def test_clearing_starts_the_windows_again() -> None:
+    balance, pv = HeatBalance(), 66.0
+    for k in range(300):
+        t = k * PERIOD
+        if t == 500.0:
+            balance.clear()
+        found = balance.period(t, pv, 50.0, 0.0, PER_DUTY, 20.0, LEAST_FALL, FASTEST_LOSS)
+        if found is not None:
+            # 600 s of windows from the clearing at 500 s, and 60 s to confirm
+            assert t == 1160.0
+            assert "output at 50 %" in found.message
+            return
+        pv -= 1e-3 * PERIOD
+    raise AssertionError("no verdict")
