@@ -5,13 +5,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-from hermsd.safety.heat_balance import HeatBalance
+from hermsd.safety.heat_balance import Bounds, HeatBalance
 
 PER_DUTY = 1e-4  # °C/s per % of duty: the weakest element's
 FASTEST_LOSS = 0.01  # °C/s
 PERIOD = 5.0
 MARGIN = 0.1 / 300.0  # NOISE_FLOOR over the window: a straight line's slopes have no error
 LEAST_FALL = 0.25 / 300.0  # the output watch's steady fall, °C/s
+
+
+def bounds(loss_duty: float, dead_time: float = 0.0) -> Bounds:
+    return Bounds(dead_time, PER_DUTY, loss_duty, LEAST_FALL, FASTEST_LOSS)
 
 
 def first_verdict(
@@ -29,9 +33,7 @@ def first_verdict(
     while t <= until:
         if poured_at is not None and t == poured_at:
             balance.poured(t)
-        verdict = balance.period(
-            t, pv, duty(t), dead_time, PER_DUTY, loss_duty, LEAST_FALL, FASTEST_LOSS
-        )
+        verdict = balance.period(t, pv, duty(t), bounds(loss_duty, dead_time))
         if verdict is not None:
             return t
         t += PERIOD
@@ -136,7 +138,7 @@ def test_clearing_starts_the_windows_again() -> None:
         t = k * PERIOD
         if t == 500.0:
             balance.clear()
-        found = balance.period(t, pv, 50.0, 0.0, PER_DUTY, 20.0, LEAST_FALL, FASTEST_LOSS)
+        found = balance.period(t, pv, 50.0, bounds(20.0))
         if found is not None:
             # 600 s of windows from the clearing at 500 s, and 60 s to confirm
             assert t == 1160.0

@@ -59,6 +59,17 @@ class _Slope:
 
 
 @dataclass(frozen=True, slots=True)
+class Bounds:
+    """What the limits say of the tun at this period's PV."""
+
+    dead_time: float  # s the element's heat takes to show at the sensor, at most
+    per_duty: float  # °C/s: the weakest rise per % of duty
+    loss_duty: float  # %: the duty that beats the largest losses the limits allow
+    least_fall: float  # °C/s: the least fall the level judges (the output watch's)
+    fastest_loss: float  # °C/s: the fastest the water cools with no heat (faster: a pour)
+
+
+@dataclass(frozen=True, slots=True)
 class BalanceVerdict:
     """Heat missing by the balance: what the alarm's message and values say."""
 
@@ -83,28 +94,15 @@ class HeatBalance:
         """Water was poured in at `t`: its fall is no loss."""
         self._poured_at = t
 
-    def period(
-        self,
-        t: float,
-        pv: float,
-        applied: float,
-        dead_time: float,
-        per_duty: float,
-        loss_duty: float,
-        least_fall: float,
-        fastest_loss: float,
-    ) -> BalanceVerdict | None:
-        """One period: the PV, the duty as switched (%), the limits' dead time (s), the
-        weakest rise per % of duty (°C/s), the duty that beats the largest losses at this PV
-        (%), the least fall the level judges (°C/s: the output watch's steady fall) and the
-        fastest the water can cool with no heat (°C/s: a faster fall is water poured in, not
-        a dead element's). Returns the verdict once it has lasted `CONFIRM_S`."""
+    def period(self, t: float, pv: float, applied: float, bounds: Bounds) -> BalanceVerdict | None:
+        """One period: the PV, the duty as switched (%) and what the limits say now. Returns
+        the verdict once it has lasted `CONFIRM_S`."""
         samples = self._samples
         samples.append((t, pv, applied))
-        reach = 2.0 * WINDOW_S + dead_time
+        reach = 2.0 * WINDOW_S + bounds.dead_time
         while len(samples) > 1 and t - samples[1][0] >= reach:
             samples.popleft()  # the oldest kept is the first at or beyond the reach
-        finding = self._finding(t, dead_time, per_duty, loss_duty, least_fall, fastest_loss)
+        finding = self._finding(t, bounds)
         if finding is None:
             self._since = None
             return None
@@ -112,15 +110,8 @@ class HeatBalance:
             self._since = t
         return finding if t - self._since >= CONFIRM_S else None
 
-    def _finding(
-        self,
-        t: float,
-        dead_time: float,
-        per_duty: float,
-        loss_duty: float,
-        least_fall: float,
-        fastest_loss: float,
-    ) -> BalanceVerdict | None:
+    def _finding(self, t: float, bounds: Bounds) -> BalanceVerdict | None:
+        dead_time, per_duty = bounds.dead_time, bounds.per_duty
         samples = self._samples
         if t - samples[0][0] < 2.0 * WINDOW_S + dead_time - 1e-9:
             return None
@@ -138,7 +129,7 @@ class HeatBalance:
         # poured in); the climb's windows each with alike halves: no step of the losses
         # within either (a lid taken off, which the output then climbs to answer, makes the
         # slope fall within a window, and across their boundary).
-        falls = -max(margin, least_fall) > later.rate >= -fastest_loss - margin
+        falls = -max(margin, bounds.least_fall) > later.rate >= -bounds.fastest_loss - margin
         falls = falls and gain <= steady
         both_steady = all(_steady(w, floor) for w in (later, earlier))
         found: BalanceVerdict | None = None
@@ -149,7 +140,7 @@ class HeatBalance:
             if duty is None or duty_before is None:
                 return None
             climb = duty - duty_before
-            level = falls and duty >= loss_duty
+            level = falls and duty >= bounds.loss_duty
             climbed = (
                 both_steady
                 and climb >= CLIMB

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from hermsd.safety.coil_load import NO_LOAD, CoilLoad
-from hermsd.safety.heat_balance import HeatBalance
+from hermsd.safety.heat_balance import Bounds, HeatBalance
 from hermsd.safety.limits import (
     COLDEST_ROOM,
     DRY_FIRE_WINDOWS,
@@ -516,16 +516,14 @@ class Supervisor:
             return
         if self._water_added(pv):
             balance.poured(t)
-        verdict = balance.period(
-            t,
-            pv,
-            applied,
-            lim.dead_time,
-            lim.heater_rise_rate / lim.full_output,
-            self._heating_output(pv),
-            lim.heater_max_fall / lim.heater_watch,
-            lim.loss_rate(pv),
+        bounds = Bounds(
+            dead_time=lim.dead_time,
+            per_duty=lim.heater_rise_rate / lim.full_output,
+            loss_duty=self._heating_output(pv),
+            least_fall=lim.heater_max_fall / lim.heater_watch,
+            fastest_loss=lim.loss_rate(pv),
         )
+        verdict = balance.period(t, pv, applied, bounds)
         if verdict is not None:
             self._raise("heater_not_heating", t, verdict.message, verdict.values)
 
