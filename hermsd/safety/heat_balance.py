@@ -182,7 +182,10 @@ def _steady(window: _Window, floor: float) -> bool:
 
 
 def _slope(points: list[tuple[float, float]]) -> _Slope | None:
-    """The least-squares slope of the PV over `points` and its standard error."""
+    """The least-squares slope of the PV over `points` and its standard error, about the
+    points' own means: exact on any clock (the control side's running sums, `LineFit`, lose
+    the slope's digits to t² once t is large, and the safety package leans on no control
+    code)."""
     n = len(points)
     if n < 4:
         return None
