@@ -15,10 +15,21 @@ PER_DUTY = 1e-4  # °C/s per % of duty: the weakest element's
 FASTEST_LOSS = 0.01  # °C/s
 PERIOD = 5.0
 LEAST_FALL = 0.25 / 300.0  # the output watch's steady fall, °C/s
+STALL_DROP = 1e-3  # °C/s a ramp at full output may slow with the element working
+LOSS_PER_K = 1e-5  # °C/s per °C the losses may grow
 
 
 def bounds(loss_duty: float, dead_time: float = 0.0) -> Bounds:
-    return Bounds(dead_time, PER_DUTY, loss_duty, LEAST_FALL, FASTEST_LOSS)
+    return Bounds(
+        dead_time,
+        PER_DUTY,
+        loss_duty,
+        LEAST_FALL,
+        FASTEST_LOSS,
+        full_duty=100.0,
+        stall_drop=STALL_DROP,
+        loss_per_k=LOSS_PER_K,
+    )
 
 
 def first_verdict(
@@ -133,6 +144,50 @@ def test_the_duty_is_taken_the_dead_time_before_the_pv() -> None:
         return 20.0 if t <= 600.0 else 50.0
 
     assert first_verdict(step, lambda t: -1e-3, 80.0, dead_time=150.0) == 910.0
+
+
+def test_a_ramp_at_full_output_that_stops_is_a_dead_element() -> None:
+    # A heat-up at 100 % rising 5e-3 °C/s whose element dies at 1200 s: the water then
+    # cools at 1e-4 °C/s, too slowly for the level. From 1500 s the later window is all
+    # after the death and the earlier (the dead time, 0 here, before it) all before: a drop
+    # of 5.1e-3 °C/s against 1e-3 + 1e-5 × the 3.0 °C the PV rose over the 600 s reach
+    # (1.03e-3), plus the margin of 3.33e-4. The kinked windows before 1500 s may find it
+    # sooner, never before the death has shown for a confirmation's 60 s.
+    def ramp(t: float) -> float:
+        return 5e-3 if t <= 1200.0 else -1e-4
+
+    found = first_verdict(lambda t: 100.0, ramp, 80.0)
+    assert found is not None and 1260.0 <= found <= 1560.0
+    # Not at 95 %, where the output is not at its limit (and the slow fall is below the
+    # level's least): nothing is said of a stop there.
+    assert first_verdict(lambda t: 95.0, ramp, 80.0) is None
+
+
+def test_a_ramp_that_bends_as_its_losses_grow_is_a_working_element() -> None:
+    # A weak tun's ramp at 100 %: its slope falls by the largest growth of the losses,
+    # 1e-5 per °C it rises, from 1.5e-3 °C/s, and the mains sag at 1800 s, a step of 0.9 of
+    # the 1e-3 °C/s allowed: less than half the ramp is left, but that is no stop (without
+    # the allowance, a verdict).
+    pv_rise = [0.0]
+
+    def slope(t: float) -> float:
+        rate = 1.5e-3 - LOSS_PER_K * pv_rise[0] - (0.9 * STALL_DROP if t > 1800.0 else 0.0)
+        pv_rise[0] += rate * PERIOD
+        return rate
+
+    assert first_verdict(lambda t: 100.0, slope, 80.0) is None
+
+
+def test_cold_water_poured_into_a_heat_up_is_not_a_stop() -> None:
+    # 100 % throughout, the ramp 5e-3 °C/s, 10 °C of cold water at 1200 s seen through a
+    # 60 s lag (the PV falling 10/60·e^(−t/60) °C/s on top): the fall is faster than any
+    # loss, and the pour is told (`poured`), so nothing is judged until two windows, the
+    # dead time and the settling after it; the ramp then goes on as before.
+    def slope(t: float) -> float:
+        after = t - 1200.0
+        return 5e-3 - (10.0 / 60.0 * math.exp(-after / 60.0) if after > 0.0 else 0.0)
+
+    assert first_verdict(lambda t: 100.0, slope, 80.0, poured_at=1200.0) is None
 
 
 def test_clearing_starts_the_windows_again() -> None:

@@ -17,7 +17,13 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   that climb (the limits' weakest rise per % of duty times it), the losses the same in
   both; a dead element's slope stays where it was, the water falling at its losses. Judged
   only where each window's halves have the same slope: losses that step up within one (a
-  lid taken off, which the output then climbs to answer) are not the same in both.
+  lid taken off, which the output then climbs to answer) are not the same in both;
+- the stall: with the output at its limit throughout (a heat-up), the PV's slope over the
+  last window fell from a window a dead time before that by more than the mains' sag, a lid
+  taken off and the losses' growth with the water's rise allow: a working element's ramp
+  only bends as its losses grow, a dead one's stops at once. Judged whatever the losses are
+  (a lidded tun in a warm room falls too slowly for the level), so a heat-up's death is told
+  from the ramp the day has measured, not from the fall.
 
 Each is judged with the duty taken at each of `DEAD_TIME_FACTORS` of the dead time, and
 a finding needs all of them (a dead time misjudged makes a changing duty's heat look
@@ -47,6 +53,8 @@ MARGIN_SE = 4.0
 """Standard errors of the slope (from the window's own residuals) a finding must clear."""
 CONFIRM_S = 60.0
 """s a finding must last."""
+FULL_SLACK = 1.0
+"""% of duty under the output's limit still counted at it (the planner's rounding)."""
 SETTLE_S = 300.0
 """s after water poured in (and the dead time) before a window may start: the sensor's lag
 still bends its fall."""
@@ -67,6 +75,9 @@ class Bounds:
     loss_duty: float  # %: the duty that beats the largest losses the limits allow
     least_fall: float  # °C/s: the least fall the level judges (the output watch's)
     fastest_loss: float  # °C/s: the fastest the water cools with no heat (faster: a pour)
+    full_duty: float  # %: the output's limit, at which the stall judges
+    stall_drop: float  # °C/s: the most a ramp at that limit slows with the element working
+    loss_per_k: float  # °C/s per °C: the most the losses grow as the water rises
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,7 +110,7 @@ class HeatBalance:
         the verdict once it has lasted `CONFIRM_S`."""
         samples = self._samples
         samples.append((t, pv, applied))
-        reach = 2.0 * WINDOW_S + bounds.dead_time
+        reach = 2.0 * (WINDOW_S + bounds.dead_time)
         while len(samples) > 1 and t - samples[1][0] >= reach:
             samples.popleft()  # the oldest kept is the first at or beyond the reach
         finding = self._finding(t, bounds)
@@ -123,6 +134,9 @@ class HeatBalance:
             return None
         floor = NOISE_FLOOR / WINDOW_S
         margin = max(MARGIN_SE * later.error, floor)
+        stalled = self._stall(t, later, bounds, floor)
+        if stalled is not None:
+            return stalled
         gain = later.rate - earlier.rate
         steady = max(MARGIN_SE * math.hypot(later.error, earlier.error), floor)
         # The level's fall, as steep as the window before's (not the decaying fall of water
@@ -152,6 +166,44 @@ class HeatBalance:
             if factor == 1.0:
                 found = _verdict(duty, duty_before, later, earlier, per_duty, level)
         return found
+
+    def _stall(
+        self, t: float, later: _Window, bounds: Bounds, floor: float
+    ) -> BalanceVerdict | None:
+        """The ramp at full output that stopped: over the whole reach (both windows, the
+        dead time between them and the one before the earlier) the duty at its limit, and
+        the later window's slope below the earlier's by more than `bounds` allow for a
+        working element, the PV's rise between them counted in the losses' growth."""
+        samples = self._samples
+        if t - samples[0][0] < 2.0 * (WINDOW_S + bounds.dead_time) - 1e-9:
+            return None
+        if any(applied < bounds.full_duty - FULL_SLACK for _, _, applied in samples):
+            return None
+        earlier = self._window(t - WINDOW_S - bounds.dead_time)
+        if earlier is None:
+            return None
+        pvs = [p for _, p, _ in samples]
+        allowed = bounds.stall_drop + bounds.loss_per_k * (max(pvs) - min(pvs))
+        steady = max(MARGIN_SE * math.hypot(later.error, earlier.error), floor)
+        drop = earlier.rate - later.rate
+        # Half the ramp gone, too: a weak tun's ramp bends towards its ceiling, never stops.
+        if drop <= allowed + steady or later.rate > earlier.rate / 2.0:
+            return None
+        if later.rate < -bounds.fastest_loss - steady:
+            return None  # faster than any loss: water poured in (`poured` waits after it)
+        per_min = 60.0
+        return BalanceVerdict(
+            f"output at its limit ({bounds.full_duty:.0f} %) for "
+            f"{2.0 * (WINDOW_S + bounds.dead_time):.0f} s, but the PV's rise went "
+            f"{earlier.rate * per_min:+.2f} → {later.rate * per_min:+.2f} °C/min, more "
+            f"slowing than the mains, a lid taken off and the losses allow "
+            f"({allowed * per_min:.2f} °C/min)",
+            {
+                "mean_output": bounds.full_duty,
+                "rate_c_per_min": later.rate * per_min,
+                "rate_before_c_per_min": earlier.rate * per_min,
+            },
+        )
 
     def _window(self, end: float) -> _Window | None:
         """The PV's slope over the `WINDOW_S` to `end`, and over each half of it."""

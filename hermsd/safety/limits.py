@@ -218,14 +218,18 @@ class SafetyLimits:
         which grows with the vapour pressure (steeply: ×0.09 at 20 °C, ×2.9 at 90 °C).
         """
         conduction = self.loss_per_k * max(0.0, celsius - self.loss_room)
-        return conduction + self.evaporation_rate * vapour_pressure_ratio(celsius)
+        return conduction + self.evaporation(celsius)
+
+    def evaporation(self, celsius: float) -> float:
+        """°C/s an open surface may evaporate away from the least water at `celsius`: all of
+        it starts when a lid is taken off."""
+        return self.evaporation_rate * vapour_pressure_ratio(celsius)
 
     def evaporation_share(self, celsius: float) -> float:
         """% of the element's full power an open surface may evaporate away at `celsius`
-        (the pot's, at its configured size): `evaporation_rate` in the least water over
-        what full power gives the configured water."""
-        rate = self.evaporation_rate * vapour_pressure_ratio(celsius)
-        return 100.0 * rate / (FILL_RANGE * self.full_rate)
+        (the pot's, at its configured size): `evaporation` over what full power gives the
+        configured water."""
+        return 100.0 * self.evaporation(celsius) / (FILL_RANGE * self.full_rate)
 
     @property
     def full_output(self) -> float:

@@ -522,6 +522,12 @@ class Supervisor:
             loss_duty=self._heating_output(pv),
             least_fall=lim.heater_max_fall / lim.heater_watch,
             fastest_loss=lim.loss_rate(pv),
+            full_duty=lim.max_output,
+            # The fastest heat sagging with the mains to −10 %, and an open pot's evaporation
+            # starting (a lid taken off); the losses' growth per °C at the PV's top (they
+            # grow ever faster with it).
+            stall_drop=(1.0 - MAINS_LOW) * lim.heat_rate + lim.evaporation(pv),
+            loss_per_k=lim.loss_rate(pv + 1.0) - lim.loss_rate(pv),
         )
         verdict = balance.period(t, pv, applied, bounds)
         if verdict is not None:
