@@ -285,6 +285,20 @@ def test_a_dead_element_is_told_by_the_heat_balance_whatever_the_law_does(
     assert words in alarms[0]["message"]
 
 
+def test_a_dead_element_in_a_heat_up_is_told_from_the_ramp_that_stopped() -> None:
+    # 102 L under 3 kW, lidded and losing little (UA ×0.42) in an 8 °C room: the element
+    # dies 3400 s into the heat-up, the water near 30 °C cooling some 0.03 °C/min, too
+    # slowly for the level. The output watch's least rise, counted from the heat-up's start
+    # 20 °C lower, told it after 12279 s (population tun 174). Its ramp stopped at once.
+    spec = TunSpec("lidded, cool room", 127.0, 3000.0, 0.42, 114.0, 34.0, 8.0)
+    water = dataclasses.replace(spec, litres=spec.litres * 0.8)
+    assert day(spec, tf.normal_day(water)) == []
+    alarms = day(spec, tf.element_dies(water, at=3400.0))
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    assert alarms[0]["detected_after_s"] <= 600.0
+    assert "output at its limit" in alarms[0]["message"]
+
+
 def test_a_shorted_ssr_is_caught_on_the_slowest_tun_and_the_contactor_opens() -> None:
     spec = tun("thermowell 120")
     alarms = day(spec, tf.ssr_shorts(spec))
