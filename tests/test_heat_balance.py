@@ -17,9 +17,10 @@ PERIOD = 5.0
 LEAST_FALL = 0.25 / 300.0  # the output watch's steady fall, °C/s
 STALL_DROP = 1e-3  # °C/s a ramp at full output may slow with the element working
 LOSS_PER_K = 1e-5  # °C/s per °C the losses may grow
+HOLD_DUTY = 10.0  # % the day's hold measured: the climb's least is then its own 10 %
 
 
-def bounds(loss_duty: float, dead_time: float = 0.0) -> Bounds:
+def bounds(loss_duty: float, dead_time: float = 0.0, hold_duty: float | None = HOLD_DUTY) -> Bounds:
     return Bounds(
         dead_time,
         PER_DUTY,
@@ -29,6 +30,7 @@ def bounds(loss_duty: float, dead_time: float = 0.0) -> Bounds:
         full_duty=100.0,
         stall_drop=STALL_DROP,
         loss_per_k=LOSS_PER_K,
+        hold_duty=hold_duty,
     )
 
 
@@ -40,6 +42,7 @@ def first_verdict(
     until: float = 3600.0,
     dead_time: float = 0.0,
     poured_at: float | None = None,
+    hold_duty: float | None = HOLD_DUTY,
 ) -> float | None:
     """When the balance first reports, fed every period from 0 s: the duty (%) switched at
     each time, and the PV's slope (°C/s) over each period."""
@@ -47,7 +50,7 @@ def first_verdict(
     while t <= until:
         if poured_at is not None and t == poured_at:
             balance.poured(t)
-        verdict = balance.period(t, pv, duty(t), bounds(loss_duty, dead_time))
+        verdict = balance.period(t, pv, duty(t), bounds(loss_duty, dead_time, hold_duty))
         if verdict is not None:
             return t
         t += PERIOD
@@ -113,6 +116,20 @@ def test_a_climb_the_slope_follows_is_a_working_element() -> None:
     assert first_verdict(ramp, slope(0.0), 80.0) is not None
     assert first_verdict(ramp, slope(0.2), 80.0) is not None
     assert first_verdict(ramp, slope(0.35), 80.0) is None
+
+
+def test_a_climb_no_larger_than_the_hold_duty_may_be_answering_losses_that_ramp() -> None:
+    # The losses ramp up ×3 over 20 min from a hold at 30 % (half of them more each 300 s,
+    # no step for the halves to see), and the output climbs 0.05 %/s from 600 s to answer
+    # them: 15 % a window, the slope's gain nil, the water falling 1e-3 °C/s behind. A dead
+    # element's climb looks the same: one no larger than the hold's duty is not judged.
+    def ramp(t: float) -> float:
+        return min(90.0, 30.0 + 0.05 * max(0.0, t - 600.0))
+
+    assert first_verdict(ramp, lambda t: -1e-3, 95.0, hold_duty=30.0) is None
+    # Nor before the hold is measured; with a hold of 10 %, the same climb is a dead element.
+    assert first_verdict(ramp, lambda t: -1e-3, 95.0, hold_duty=None) is None
+    assert first_verdict(ramp, lambda t: -1e-3, 95.0, hold_duty=10.0) is not None
 
 
 def test_losses_that_step_up_as_the_output_climbs_are_not_a_dead_element() -> None:

@@ -12,7 +12,10 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   in shows through the sensor's lag as a fall that decays: that is no verdict). The
   output's own watch judges the same from a duty that stays at h; this one from its mean,
   whatever the law did with it;
-- the climb: where the mean duty rose by `CLIMB` % or more from one window to the next,
+- the climb: where the mean duty rose by `CLIMB` % or more from one window to the next, and
+  by at least the day's hold duty (what answering losses that double takes: without a
+  step they do not double within a window, but they may ramp that fast; no climb is judged
+  before the hold has measured it),
   the later's slope rose by at least `CLIMB_SHARE` of what the weakest element makes of
   that climb (the limits' weakest rise per % of duty times it), the losses the same in
   both; a dead element's slope stays where it was, the water falling at its losses. Judged
@@ -78,6 +81,7 @@ class Bounds:
     full_duty: float  # %: the output's limit, at which the stall judges
     stall_drop: float  # °C/s: the most a ramp at that limit slows with the element working
     loss_per_k: float  # °C/s per °C: the most the losses grow as the water rises
+    hold_duty: float | None  # %: the day's hold's mean duty (None: not measured yet)
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,6 +150,7 @@ class HeatBalance:
         falls = -max(margin, bounds.least_fall) > later.rate >= -bounds.fastest_loss - margin
         falls = falls and gain <= steady
         both_steady = all(_steady(w, floor) for w in (later, earlier))
+        least_climb = math.inf if bounds.hold_duty is None else max(CLIMB, bounds.hold_duty)
         found: BalanceVerdict | None = None
         for factor in DEAD_TIME_FACTORS:
             shift = factor * dead_time
@@ -157,7 +162,7 @@ class HeatBalance:
             level = falls and duty >= bounds.loss_duty
             climbed = (
                 both_steady
-                and climb >= CLIMB
+                and climb >= least_climb
                 and gain < CLIMB_SHARE * per_duty * climb - steady
                 and later.rate < -margin
             )

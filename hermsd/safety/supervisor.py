@@ -528,6 +528,7 @@ class Supervisor:
             # grow ever faster with it).
             stall_drop=(1.0 - MAINS_LOW) * lim.heat_rate + lim.evaporation(pv),
             loss_per_k=lim.loss_rate(pv + 1.0) - lim.loss_rate(pv),
+            hold_duty=None if self._hold is None else self._hold[0],
         )
         verdict = balance.period(t, pv, applied, bounds)
         if verdict is not None:
