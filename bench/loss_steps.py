@@ -100,7 +100,10 @@ def main() -> int:
     lines = [
         f"One-element tuns of seeds 1–{args.tuns} of the population, a step up of the losses at "
         f"{STEP_AT_S / 3600:g} h in the hold (the room colder: × the conduction, up to "
-        f"{HOLDS_AT:.0%} of the element's power lost), {wall:.0f} s on {args.jobs} processes.",
+        f"{HOLDS_AT:.0%} of the element's power lost; day 3 ramped), {wall:.0f} s on "
+        f"{args.jobs} processes. A latch leaves the heater off and the water cools towards "
+        "that colder room (below −70 °C for ×3 on some tuns): a reading below the sensor's "
+        "range then follows, on that day and on the next if the latch is kept over it.",
         "",
         "| day | conduction after the step | days | losses after ÷ before (median, most) "
         "| days with no alarm | first alarm: the output's watch | the balance's level "
