@@ -13,9 +13,9 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   output's own watch judges the same from a duty that stays at h; this one from its mean,
   whatever the law did with it;
 - the climb: where the mean duty rose by `CLIMB` % or more from one window to the next, and
-  by at least the day's hold duty (what answering losses that double takes: without a
-  step they do not double within a window, but they may ramp that fast; no climb is judged
-  before the hold has measured it),
+  by at least `RAMP_SHARE` of the day's hold duty (of the earlier window's before the hold
+  is measured): twice what answering losses that ramp up by a quarter of themselves in a
+  window takes (×2 in 20 minutes, without a step),
   the later's slope rose by at least `CLIMB_SHARE` of what the weakest element makes of
   that climb (the limits' weakest rise per % of duty times it), the losses the same in
   both; a dead element's slope stays where it was, the water falling at its losses. Judged
@@ -48,6 +48,10 @@ slope's standard error is 0.06·√(12/60)/300 = 9e-5 °C/s, and four of them ar
 over the window that the margin never goes below."""
 CLIMB = 10.0
 """% of duty the mean must have risen from one window to the next for the climb's verdict."""
+RAMP_SHARE = 0.5
+"""… and the share of the hold's duty it must have risen by: losses that ramp up by a
+quarter of themselves in a window are answered by a quarter of that duty, and the law may
+lag (docs/heat-balance.md, "The climb"; bench/loss_steps.py's ramps)."""
 CLIMB_SHARE = 0.5
 """… and the part of the weakest heating of that climb the slope must have gained."""
 DEAD_TIME_FACTORS = (1.0 / 3.0, 2.0 / 3.0, 1.0)
@@ -150,7 +154,6 @@ class HeatBalance:
         falls = -max(margin, bounds.least_fall) > later.rate >= -bounds.fastest_loss - margin
         falls = falls and gain <= steady
         both_steady = all(_steady(w, floor) for w in (later, earlier))
-        least_climb = math.inf if bounds.hold_duty is None else max(CLIMB, bounds.hold_duty)
         found: BalanceVerdict | None = None
         for factor in DEAD_TIME_FACTORS:
             shift = factor * dead_time
@@ -159,10 +162,11 @@ class HeatBalance:
             if duty is None or duty_before is None:
                 return None
             climb = duty - duty_before
+            held = duty_before if bounds.hold_duty is None else bounds.hold_duty
             level = falls and duty >= bounds.loss_duty
             climbed = (
                 both_steady
-                and climb >= least_climb
+                and climb >= max(CLIMB, RAMP_SHARE * held)
                 and gain < CLIMB_SHARE * per_duty * climb - steady
                 and later.rate < -margin
             )
