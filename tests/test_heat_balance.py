@@ -122,8 +122,7 @@ def test_a_climb_under_half_the_hold_duty_may_be_answering_losses_that_ramp() ->
     # From a hold at 40 %, the losses ramp up and the output climbs 0.05 %/s from 600 s to
     # answer them: 15 % a window, the slope's gain nil, the water falling 1e-3 °C/s behind.
     # A dead element's climb looks the same; one under half the hold's duty (20 %) is not
-    # judged. Before the hold is measured, the earlier window's duty stands for it: from
-    # 40 % too.
+    # judged. Before the hold is measured, the least duty kept stands for it: 40 % too.
     def ramp(t: float) -> float:
         return min(90.0, 40.0 + 0.05 * max(0.0, t - 600.0))
 

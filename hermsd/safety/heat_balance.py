@@ -13,9 +13,9 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   output's own watch judges the same from a duty that stays at h; this one from its mean,
   whatever the law did with it;
 - the climb: where the mean duty rose by `CLIMB` % or more from one window to the next, and
-  by at least `RAMP_SHARE` of the day's hold duty (of the earlier window's before the hold
-  is measured): twice what answering losses that ramp up by a quarter of themselves in a
-  window takes (×2 in 20 minutes, without a step),
+  by at least `RAMP_SHARE` of the day's hold duty (before the hold is measured, of the
+  least duty kept): twice what answering losses that ramp up by a quarter of themselves in
+  a window takes (×2 in 20 minutes, without a step),
   the later's slope rose by at least `CLIMB_SHARE` of what the weakest element makes of
   that climb (the limits' weakest rise per % of duty times it), the losses the same in
   both; a dead element's slope stays where it was, the water falling at its losses. Judged
@@ -154,6 +154,9 @@ class HeatBalance:
         falls = -max(margin, bounds.least_fall) > later.rate >= -bounds.fastest_loss - margin
         falls = falls and gain <= steady
         both_steady = all(_steady(w, floor) for w in (later, earlier))
+        held = bounds.hold_duty
+        if held is None:  # the hold not measured: the least duty kept, from before a climb
+            held = min(applied for _, _, applied in samples)
         found: BalanceVerdict | None = None
         for factor in DEAD_TIME_FACTORS:
             shift = factor * dead_time
@@ -162,7 +165,6 @@ class HeatBalance:
             if duty is None or duty_before is None:
                 return None
             climb = duty - duty_before
-            held = duty_before if bounds.hold_duty is None else bounds.hold_duty
             level = falls and duty >= bounds.loss_duty
             climbed = (
                 both_steady
