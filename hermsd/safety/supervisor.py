@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from hermsd.safety.coil_load import NO_LOAD, CoilLoad
-from hermsd.safety.heat_balance import Bounds, HeatBalance
+from hermsd.safety.heat_balance import CONFIRM_S, Bounds, HeatBalance
 from hermsd.safety.limits import (
     COLDEST_ROOM,
     DRY_FIRE_WINDOWS,
@@ -531,7 +531,11 @@ class Supervisor:
             hold_duty=None if self._hold is None else self._hold[0],
         )
         verdict = balance.period(t, pv, applied, bounds)
-        if verdict is not None:
+        # A reading frozen bit for bit looks like a ramp that stopped: told only once the
+        # reading has moved within the confirmation, so a stuck sensor is named as one
+        # (`_check_heater`), and a dead element on a coarse sensor at its next step.
+        since = self._raw_since
+        if verdict is not None and since is not None and t - since < CONFIRM_S:
             self._raise("heater_not_heating", t, verdict.message, verdict.values)
 
     def forget_hold(self) -> None:
