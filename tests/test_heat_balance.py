@@ -164,20 +164,22 @@ def test_the_duty_is_taken_the_dead_time_before_the_pv() -> None:
 
 
 def test_a_ramp_at_full_output_that_stops_is_a_dead_element() -> None:
-    # A heat-up at 100 % rising 5e-3 °C/s whose element dies at 1200 s: the water then
-    # cools at 1e-4 °C/s, too slowly for the level. From 1500 s the later window is all
-    # after the death and the earlier (the dead time, 0 here, before it) all before: a drop
-    # of 5.1e-3 °C/s against 1e-3 + 1e-5 × the 3.0 °C the PV rose over the 600 s reach
-    # (1.03e-3), plus the margin of 3.33e-4. The kinked windows before 1500 s may find it
-    # sooner, never before the death has shown for a confirmation's 60 s.
+    # A heat-up at 100 % rising 5e-3 °C/s whose element dies at 1200 s, 150 s of dead
+    # time: the water then cools at 1e-4 °C/s, too slowly for the level. From 1500 s the
+    # later window is all after the death (its halves alike: before, the kink unsettles
+    # them), and until 1650 s the earlier, the dead time before it, all before: a drop of
+    # 5.1e-3 °C/s against 1e-3 + 1e-5 × the 3.75 °C the PV rose over the 900 s reach
+    # (1.04e-3), plus the margin of 3.33e-4. Told once it has lasted 60 s: by 1560 s, and
+    # not before three quarters of the later window lie past the death (a kink in its first
+    # half widens the halves' margin by its own residuals).
     def ramp(t: float) -> float:
         return 5e-3 if t <= 1200.0 else -1e-4
 
-    found = first_verdict(lambda t: 100.0, ramp, 80.0)
-    assert found is not None and 1260.0 <= found <= 1560.0
+    found = first_verdict(lambda t: 100.0, ramp, 80.0, dead_time=150.0)
+    assert found is not None and 1200.0 + 0.75 * 300.0 + 60.0 <= found <= 1500.0 + 60.0
     # Not at 95 %, where the output is not at its limit (and the slow fall is below the
     # level's least): nothing is said of a stop there.
-    assert first_verdict(lambda t: 95.0, ramp, 80.0) is None
+    assert first_verdict(lambda t: 95.0, ramp, 80.0, dead_time=150.0) is None
 
 
 def test_a_ramp_that_bends_as_its_losses_grow_is_a_working_element() -> None:

@@ -193,6 +193,8 @@ class HeatBalance:
         earlier = self._window(t - WINDOW_S - bounds.dead_time)
         if earlier is None:
             return None
+        if not (_steady(later, floor) and _steady(earlier, floor)):
+            return None  # warm water poured in steps a window's PV: not a ramp to judge
         pvs = [p for _, p, _ in samples]
         allowed = bounds.stall_drop + bounds.loss_per_k * (max(pvs) - min(pvs))
         steady = max(MARGIN_SE * math.hypot(later.error, earlier.error), floor)
