@@ -24,7 +24,8 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
 - the stall: with the output at its limit throughout (a heat-up), the PV's slope over the
   last window fell from a window a dead time before that by more than the mains' sag, a lid
   taken off and the losses' growth with the water's rise allow: a working element's ramp
-  only bends as its losses grow, a dead one's stops at once. Judged whatever the losses are
+  only bends as its losses grow, a dead one's stops at once (each window's halves alike:
+  warm water poured in steps the PV). Judged whatever the losses are
   (a lidded tun in a warm room falls too slowly for the level), so a heat-up's death is told
   from the ramp the day has measured, not from the fall.
 
