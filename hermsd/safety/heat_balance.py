@@ -147,7 +147,7 @@ class HeatBalance:
         if stalled is not None:
             return stalled
         gain = later.rate - earlier.rate
-        steady = max(MARGIN_SE * math.hypot(later.error, earlier.error), floor)
+        steady = _gap_margin(later, earlier, floor)
         # The level's fall, as steep as the window before's (not the decaying fall of water
         # poured in); the climb's windows each with alike halves: no step of the losses
         # within either (a lid taken off, which the output then climbs to answer, makes the
@@ -198,7 +198,7 @@ class HeatBalance:
             return None  # warm water poured in steps a window's PV: not a ramp to judge
         pvs = [p for _, p, _ in samples]
         allowed = bounds.stall_drop + bounds.loss_per_k * (max(pvs) - min(pvs))
-        steady = max(MARGIN_SE * math.hypot(later.error, earlier.error), floor)
+        steady = _gap_margin(later, earlier, floor)
         drop = earlier.rate - later.rate
         # Half the ramp gone, too: a weak tun's ramp bends towards its ceiling, never stops.
         if drop <= allowed + steady or later.rate > earlier.rate / 2.0:
@@ -244,7 +244,13 @@ class _Window(_Slope):
 def _steady(window: _Window, floor: float) -> bool:
     """Whether the PV's slope is the same in both halves of `window`, within the noise."""
     gap = window.second.rate - window.first.rate
-    return abs(gap) <= max(MARGIN_SE * math.hypot(window.first.error, window.second.error), floor)
+    return abs(gap) <= _gap_margin(window.first, window.second, floor)
+
+
+def _gap_margin(one: _Slope, other: _Slope, floor: float) -> float:
+    """°C/s two slopes must differ by to differ beyond their noise: `MARGIN_SE` standard
+    errors of the difference, never under `floor`."""
+    return max(MARGIN_SE * math.hypot(one.error, other.error), floor)
 
 
 def _slope(points: list[tuple[float, float]]) -> _Slope | None:
