@@ -725,12 +725,14 @@ def _current_faults(seed: int) -> dict[str, Any]:
         told = after[0] if after else None
         until = math.inf if told is None else told["at_s"] + 0.001  # at_s is rounded to ms
         samples = [Sample.from_logged(s) for r in result.records for s in r.current or []]
+        showing = [s.t for s in samples if event.at <= s.t <= until and s.on == shown_on]
         found[name] = {
             "false": _alarms_before(result.summary, event.at),
             "kind": None if told is None else told["kind"],
             "detected_s": None if told is None else told["detected_after_s"],
             "by_current": told is not None and told["message"].startswith("the current input"),
-            "samples": sum(event.at <= s.t <= until and s.on == shown_on for s in samples),
+            "samples": len(showing),
+            "first_shown_s": showing[0] - event.at if showing else None,
         }
     return found
 
@@ -770,7 +772,8 @@ def current_main(args: argparse.Namespace) -> int:
             by = "current" if fault["by_current"] else (fault["kind"] or "**missed**")
             if fault["kind"] not in (None, kind):
                 by += f" ({fault['kind']})"
-            cells.append(f"{_cell(fault['detected_s'], 1)} | {by}")
+            first = _cell(fault["first_shown_s"], 1)
+            cells.append(f"{_cell(fault['detected_s'], 1)} (first sample {first}) | {by}")
         lines.append(
             f"| {seed} | {tun.words()} | {cells[0]} | {tun.dead_at_s:.0f} "
             f"({_phase(tun.dead_at_s)}) | {cells[1]} | {', '.join(before) or '0'} |"
@@ -780,9 +783,20 @@ def current_main(args: argparse.Namespace) -> int:
     def spread(name: str) -> str:
         told = sorted(periods[name])
         least = sum(found[s][name]["samples"] == CONFIRM_SAMPLES for s in tuns)
+        waits = sorted(
+            math.inf if (w := found[s][name]["first_shown_s"]) is None else w for s in tuns
+        )
+        after_first = sum(
+            (f := found[s][name])["detected_s"] is not None
+            and f["first_shown_s"] is not None
+            and f["detected_s"] - f["first_shown_s"] <= period
+            for s in tuns
+        )
         return (
             f"median {told[n // 2]:.2f}, worst {told[-1]:.2f} periods; at the first "
-            f"{CONFIRM_SAMPLES} samples that could show it on {least}/{n}"
+            f"{CONFIRM_SAMPLES} samples that could show it on {least}/{n}; the first of them "
+            f"taken after median {waits[n // 2]:.1f} s, worst {waits[-1]:.1f} s; told within "
+            f"one period of it on {after_first}/{n}"
         )
 
     text = "\n\n".join(
@@ -798,7 +812,12 @@ def current_main(args: argparse.Namespace) -> int:
                     "tun, and no alarm on the normal stretch before either fault. The samples",
                     "that could show a fault are those with the SSR commanded off (a short) or",
                     "on (an open element), taken at the thirds of each part of a window long",
-                    "enough to keep a read clear of its edges (docs/current.md).",
+                    "enough to keep a read clear of its edges; with the input fitted no pulse or",
+                    "gap is shorter than two reads take (docs/current.md). An open element shows",
+                    "only while the SSR is on, so at a low duty the first sample that could",
+                    "show it may come more than a period after the fault (the pulses of two",
+                    "windows join, one SSR edge a window): told within one period of that",
+                    "sample is what any input can do.",
                 ]
             ),
             f"- shorted SSR latched as ssr_stuck_on within one period: {within['short']}/{n}; "

@@ -18,6 +18,7 @@ from hermsd.control.watches import HeatUpFit
 from hermsd.hardware.outputs import window_length
 from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.readiness import known_dead_time
+from hermsd.runtime.current_side import two_reads_part
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import ElementReport, ElementWatch, named_dead
 from hermsd.safety.limits import MeasuredTun, SafetyLimits
@@ -261,9 +262,17 @@ def learner(config: Config, model: pid.PlantModel) -> Learner:
 
 
 def planner(config: Config) -> TimeProportionalPlanner:
-    """The SSR's window planner for the config's outputs."""
+    """The SSR's window planner for the config's outputs; with a current input fitted, no
+    pulse or gap shorter than two of its reads take (`two_reads_part`), unless the config's
+    own minimums leave no room for that in the window."""
     out = config.output
-    return TimeProportionalPlanner(window_length(config), out.mains_hz, out.min_on, out.min_off)
+    window = window_length(config)
+    min_on, min_off = out.min_on, out.min_off
+    if config.current.fitted:
+        least = two_reads_part(out.mains_hz)
+        if max(min_on, least) + max(min_off, least) < window:
+            min_on, min_off = max(min_on, least), max(min_off, least)
+    return TimeProportionalPlanner(window, out.mains_hz, min_on, min_off)
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:

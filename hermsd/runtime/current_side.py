@@ -22,6 +22,22 @@ EDGE_SLACK_S = 0.01
 told off), how far from an edge a sample stays: the loop's own lateness on a busy Pi."""
 
 
+def read_and_margin(mains_hz: int) -> tuple[float, float]:
+    """A read's length (two mains cycles, s) and the room it keeps from its part's edges (a
+    half-cycle and EDGE_SLACK_S)."""
+    half_cycle = 0.5 / mains_hz
+    return 4 * half_cycle, half_cycle + EDGE_SLACK_S
+
+
+def two_reads_part(mains_hz: int) -> float:
+    """The shortest part of a window (on, or off) that takes two reads with their margins,
+    and a half-cycle more for the planner's grid: its least pulse and gap where a current input
+    is fitted, so that the first pulse after an element goes open shows it, and the first gap
+    after a short (docs/current.md)."""
+    read, margin = read_and_margin(mains_hz)
+    return 3 * (read + margin) + 0.5 / mains_hz
+
+
 class CurrentSide(LoopState):
     """The Daemon's current input: its sense, its watch and the period's samples."""
 
@@ -43,8 +59,7 @@ class CurrentSide(LoopState):
         two reads fit with room, else one in its middle where one fits, else none."""
         if self._current_sense is None:
             return []
-        half_cycle = 0.5 / self.config.output.mains_hz
-        read, margin = 4 * half_cycle, half_cycle + EDGE_SLACK_S
+        read, margin = read_and_margin(self.config.output.mains_hz)
         end = plan.start + plan.length
         parts = [(plan.start, plan.on_at), (plan.on_at, plan.off_at), (plan.off_at, end)]
         times = []
