@@ -38,6 +38,25 @@ FULL_SCALE_COUNTS: Final = 32768
 """An LSB is the range's ±volts over 2^15 (datasheet table 3: 31.25 µV at ±1.024 V)."""
 CYCLES: Final = 2
 """Mains cycles a read samples: whole cycles, so a sine's mean and RMS come out true."""
+EDGE_SLACK_S: Final = 0.01
+"""Beyond the zero-cross SSR's half-cycle (it conducts to the next zero crossing after it is
+told off), how far from an edge a sample stays: the loop's own lateness on a busy Pi."""
+
+
+def read_and_margin(mains_hz: int) -> tuple[float, float]:
+    """A read's length (CYCLES mains cycles, s) and the room it keeps from its part's edges (a
+    half-cycle and EDGE_SLACK_S)."""
+    half_cycle = 0.5 / mains_hz
+    return CYCLES / mains_hz, half_cycle + EDGE_SLACK_S
+
+
+def two_reads_part(mains_hz: int) -> float:
+    """The shortest part of a window (on, or off) that takes two reads with their margins,
+    and a half-cycle more for the planner's grid: its least pulse and gap where a current input
+    is fitted, so that the first pulse after an element goes open shows it, and the first gap
+    after a short (docs/current.md)."""
+    read, margin = read_and_margin(mains_hz)
+    return 3 * (read + margin) + 0.5 / mains_hz
 
 
 @dataclass(frozen=True, slots=True)

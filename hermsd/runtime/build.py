@@ -15,10 +15,10 @@ from hermsd.control.factory import full_power, full_power_share, total_watts
 from hermsd.control.learning import LearnedModel, Learner, ModelStore, implausible_here
 from hermsd.control.reach import ReachWatch, Said
 from hermsd.control.watches import HeatUpFit
+from hermsd.hardware.current_sense import two_reads_part
 from hermsd.hardware.outputs import window_length
 from hermsd.hardware.ssr import TimeProportionalPlanner
 from hermsd.program.readiness import known_dead_time
-from hermsd.runtime.current_side import two_reads_part
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import ElementReport, ElementWatch, named_dead
 from hermsd.safety.limits import MeasuredTun, SafetyLimits

@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, Any
 
+from hermsd.hardware.current_sense import read_and_margin
 from hermsd.hardware.lm92 import SensorError
 from hermsd.safety.current_watch import CurrentWatch, Sample, current_watch, words
 
@@ -16,26 +17,6 @@ if TYPE_CHECKING:
     from hermsd.runtime.loop_state import LoopState
 else:
     LoopState = object
-
-EDGE_SLACK_S = 0.01
-"""Beyond the zero-cross SSR's half-cycle (it conducts to the next zero crossing after it is
-told off), how far from an edge a sample stays: the loop's own lateness on a busy Pi."""
-
-
-def read_and_margin(mains_hz: int) -> tuple[float, float]:
-    """A read's length (two mains cycles, s) and the room it keeps from its part's edges (a
-    half-cycle and EDGE_SLACK_S)."""
-    half_cycle = 0.5 / mains_hz
-    return 4 * half_cycle, half_cycle + EDGE_SLACK_S
-
-
-def two_reads_part(mains_hz: int) -> float:
-    """The shortest part of a window (on, or off) that takes two reads with their margins,
-    and a half-cycle more for the planner's grid: its least pulse and gap where a current input
-    is fitted, so that the first pulse after an element goes open shows it, and the first gap
-    after a short (docs/current.md)."""
-    read, margin = read_and_margin(mains_hz)
-    return 3 * (read + margin) + 0.5 / mains_hz
 
 
 class CurrentSide(LoopState):
