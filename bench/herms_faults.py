@@ -16,7 +16,9 @@ from 15 min, stopped from 50 to 55 min for stirring, the setpoint 72 °C at 75 m
 element open (time to `heater_not_heating`) and the SSR shorted (time to `ssr_stuck_on`, and
 the HLT's highest true temperature after it), with the pump running, and on the same day
 with the pump stopped from 60 min on (the same tun without the coil's load); the worse of
-the two seeds.
+the two seeds. Beside the element's times, when that seed's HLT law first asked for heat
+after the fault: an open element shows only then (the HLT above its setpoint, as a coast or
+a stopped pump leaves it, asks none).
 
     uv run python bench/herms_faults.py [--write] [--jobs 2]
 """
@@ -116,9 +118,13 @@ def normal(s: SetUp, seed: int) -> list[str]:
     return [f"{a['kind']} at {a['at_s']:.0f} s" for a in result.summary["alarms"]]
 
 
-def fault(s: SetUp, seed: int, kind: str, pumped: bool) -> tuple[float | None, float, str]:
+def fault(
+    s: SetUp, seed: int, kind: str, pumped: bool
+) -> tuple[float | None, float, str, float | None]:
     """s from the fault to the first alarm (None: none in the hour after), the HLT's highest
-    true temperature after the fault, and the alarm's kind."""
+    true temperature after the fault, the alarm's kind, and s from the fault to the first
+    period the HLT's law asked for heat (None: never in the hour): an element gone open can
+    show only once heat is asked of it."""
     events: list[dict[str, Any]] = []
     if not pumped:
         events.append({"at": FAULT_AT - 300.0, "pump": "off"})
@@ -129,11 +135,12 @@ def fault(s: SetUp, seed: int, kind: str, pumped: bool) -> tuple[float | None, f
     )
     result = _day(s, seed, events, FAULT_AT + 3600.0)
     peak = max(x.temp for x in result.samples if x.t >= FAULT_AT)
+    asked = next((r.t - FAULT_AT for r in result.records if r.t >= FAULT_AT and r.output > 0), None)
     alarms = result.summary["alarms"]
     if not alarms:
-        return None, peak, "none"
+        return None, peak, "none", asked
     first = alarms[0]
-    return float(first["at_s"]) - FAULT_AT, peak, str(first["kind"])
+    return float(first["at_s"]) - FAULT_AT, peak, str(first["kind"]), asked
 
 
 WANTED = {"dead": "heater_not_heating", "ssr": "ssr_stuck_on"}
@@ -141,12 +148,17 @@ WANTED = {"dead": "heater_not_heating", "ssr": "ssr_stuck_on"}
 
 def _worst(s: SetUp, kind: str, pumped: bool) -> tuple[str, float]:
     """The slower seed's time to the right verdict (or, in bold, each seed's first alarm:
-    none in the hour), the higher peak."""
+    none in the hour), the higher peak; for an open element, when that seed's law first
+    asked for heat after the fault."""
     found = [fault(s, seed, kind, pumped) for seed in SEEDS]
-    peak = max(p for _, p, _ in found)
-    if any(a != WANTED[kind] for _, _, a in found):
-        return "**" + ", ".join(a for _, _, a in found) + "**", peak
-    return f"{max(t for t, _, _ in found if t is not None):.0f} s", peak
+    peak = max(p for _, p, _, _ in found)
+    wrong = any(a != WANTED[kind] for _, _, a, _ in found)
+    slower = max(found, key=lambda f: math.inf if f[0] is None else f[0])
+    text = "**" + ", ".join(a for _, _, a, _ in found) + "**" if wrong else f"{slower[0]:.0f} s"
+    if kind == "dead":
+        asked = slower[3]
+        text += " (no heat asked)" if asked is None else f" (heat asked from {asked:.0f} s)"
+    return text, peak
 
 
 def row(s: SetUp) -> str:
