@@ -126,3 +126,27 @@ def test_a_shorted_ssr_is_caught_with_the_pump_running() -> None:
     alarms = _alarms("herms-ssr-stuck-on", 10000.0)
     assert [a["kind"] for a in alarms] == ["ssr_stuck_on"]
     assert 8400.0 < float(str(alarms[0]["at_s"])) <= 8400.0 + 1000.0
+
+
+def test_a_dead_element_after_the_pump_stopped_for_good_is_judged_by_the_heat_balance() -> None:
+    """herms-heater-open's plant with 9 kW in the HLT: the pump stops at 2 h and the element
+    goes open at 2h20m in the HLT's hold (some 20 % of 9 kW). The coil drew nothing for longer
+    than the heat's memory, so the balance judges the HLT as one without a coil: the law's
+    climb with the water falling tells it (695 s), where with the balance off for the hour the
+    watches look back the output watch told it only after full output for its watch (980 s)."""
+    day = scenario.load_scenario(SCENARIOS / "herms-heater-open.yaml")
+    events = [e for e in day.events if e.kind not in ("pump", "heater") or e.value is True]
+    events += [scenario.Event(7200.0, "pump", False), scenario.Event(8400.0, "heater", "open")]
+    nine_kw = {"litres": 90, "element_watts": 9000}
+    day = dataclasses.replace(
+        day,
+        plant={**day.plant, "element_watts": 9000},
+        config={**day.config, "tun": nine_kw},
+        events=tuple(sorted(events, key=lambda e: e.at)),
+        duration=8400.0 + 1800.0,
+    )
+    [alarm] = scenario.run(day).summary["alarms"]
+    assert alarm["kind"] == "heater_not_heating"
+    assert str(alarm["message"]).startswith("output climbed")
+    assert float(str(alarm["at_s"])) - 8400.0 <= 12 * 60.0
+

@@ -509,9 +509,11 @@ class Supervisor:
     def _check_balance(self, t: float, pv: float, applied: float) -> None:
         """An element that does not heat, by the heat balance over the last windows of
         whatever the output did (hermsd/safety/heat_balance.py). One element (of two, the
-        other may hold: the element watch's), and no HERMS coil that may draw."""
+        other may hold: the element watch's), and no HERMS coil that may have drawn within
+        the heat's memory: the balance starts again after it (a pump stopped for good), its
+        windows then free of the coil, where the watches look back an hour."""
         lim, balance = self.limits, self._balance
-        if lim.two_elements or not self.heater_allowed or self._coil_may_draw():
+        if lim.two_elements or not self.heater_allowed or self._coil_may_draw(lim.heat_memory):
             balance.clear()
             return
         if self._water_added(pv):
@@ -593,10 +595,14 @@ class Supervisor:
         losses = MODEL_MARGIN * duty * grows + lim.evaporation_share(pv)
         return min(most, max(20.0, losses / MAINS_LOW))
 
-    def _coil_may_draw(self) -> bool:
+    def _coil_may_draw(self, within: float | None = None) -> bool:
         """Whether a HERMS coil may have taken heat within the coil's bookkeeping (the
-        watches and the heat's memory)."""
-        return any(taken > 0.0 for _, taken, _ in self._coil)
+        watches and the heat's memory), or in the last `within` s."""
+        coils = self._coil
+        if within is None or not coils:
+            return any(taken > 0.0 for _, taken, _ in coils)
+        since = coils[-1][0] - within
+        return any(taken > 0.0 for when, taken, _ in coils if when > since)
 
     def _water_added(self, pv: float) -> bool:
         """The PV fell over the last window faster than any loss can make it: water came in."""
