@@ -149,4 +149,3 @@ def test_a_dead_element_after_the_pump_stopped_for_good_is_judged_by_the_heat_ba
     assert alarm["kind"] == "heater_not_heating"
     assert str(alarm["message"]).startswith("output climbed")
     assert float(str(alarm["at_s"])) - 8400.0 <= 12 * 60.0
-
