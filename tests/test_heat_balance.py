@@ -20,10 +20,15 @@ LOSS_PER_K = 1e-5  # °C/s per °C the losses may grow
 HOLD_DUTY = 10.0  # % the day's hold measured: the climb's least is then its own 10 %
 
 
-def bounds(loss_duty: float, dead_time: float = 0.0, hold_duty: float | None = HOLD_DUTY) -> Bounds:
+def bounds(
+    loss_duty: float,
+    dead_time: float = 0.0,
+    hold_duty: float | None = HOLD_DUTY,
+    per_duty: float = PER_DUTY,
+) -> Bounds:
     return Bounds(
         dead_time,
-        PER_DUTY,
+        per_duty,
         loss_duty,
         LEAST_FALL,
         FASTEST_LOSS,
@@ -43,6 +48,7 @@ def first_verdict(
     dead_time: float = 0.0,
     poured_at: float | None = None,
     hold_duty: float | None = HOLD_DUTY,
+    per_duty: float = PER_DUTY,
 ) -> float | None:
     """When the balance first reports, fed every period from 0 s: the duty (%) switched at
     each time, and the PV's slope (°C/s) over each period."""
@@ -50,7 +56,7 @@ def first_verdict(
     while t <= until:
         if poured_at is not None and t == poured_at:
             balance.poured(t)
-        verdict = balance.period(t, pv, duty(t), bounds(loss_duty, dead_time, hold_duty))
+        verdict = balance.period(t, pv, duty(t), bounds(loss_duty, dead_time, hold_duty, per_duty))
         if verdict is not None:
             return t
         t += PERIOD
@@ -91,6 +97,23 @@ def test_a_climb_that_the_slope_does_not_follow_is_a_dead_element() -> None:
         return 20.0 if t <= 600.0 else 50.0
 
     assert first_verdict(step, lambda t: -1e-3, 80.0) == 760.0
+
+
+def test_a_smaller_climb_is_judged_where_its_heat_stands_out_of_the_noise() -> None:
+    # A strong element on little water: 5e-4 °C/s per % at its weakest. Half the weakest heat
+    # of a climb of c % is 2.5e-4·c °C/s, 1.5 times the margin (3.33e-4) from c = 2 %. The
+    # duty steps from 20 to 27 % at 600 s with the water falling on at 1e-3 °C/s (a hold of
+    # 3 %: half of it, 1.5 %, asks less): the later window's mean climbs 7 % × (t − 600) /
+    # 300 s, 2.1 % at 690 s, reported at 750 s. The weak element's 1e-4 °C/s per % shows
+    # only from 10 %, the climb's own least, which 7 % never reaches.
+    def step(t: float) -> float:
+        return 20.0 if t <= 600.0 else 27.0
+
+    def falling(t: float) -> float:
+        return -1e-3
+
+    assert first_verdict(step, falling, 80.0, hold_duty=3.0, per_duty=5e-4) == 750.0
+    assert first_verdict(step, falling, 80.0, hold_duty=3.0) is None
 
 
 def test_a_climb_is_judged_only_with_the_water_falling() -> None:

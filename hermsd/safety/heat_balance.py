@@ -12,8 +12,10 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   in shows through the sensor's lag as a fall that decays: that is no verdict). The
   output's own watch judges the same from a duty that stays at h; this one from its mean,
   whatever the law did with it;
-- the climb: where the mean duty rose by `CLIMB` % or more from one window to the next, and
-  by at least `RAMP_SHARE` of the day's hold duty (before the hold is measured, of the
+- the climb: where the mean duty rose from one window to the next by `CLIMB` %, or less
+  where the weakest heating of that climb shows as `SIGNAL_SHARE` times the margin two slopes
+  must differ by (a strong element on little water: a few %), and by at least `RAMP_SHARE`
+  of the day's hold duty (before the hold is measured, of the
   least duty kept): twice what answering losses that ramp up by a quarter of themselves in
   a window takes (×2 in 20 minutes, without a step),
   the later's slope rose by at least `CLIMB_SHARE` of what the weakest element makes of
@@ -48,7 +50,11 @@ WINDOW_S = 300.0
 slope's standard error is 0.06·√(12/60)/300 = 9e-5 °C/s, and four of them are the 0.1 °C
 over the window that the margin never goes below."""
 CLIMB = 10.0
-"""% of duty the mean must have risen from one window to the next for the climb's verdict."""
+"""% of duty the mean must have risen from one window to the next for the climb's verdict…"""
+SIGNAL_SHARE = 1.5
+"""… or less, down to where `CLIMB_SHARE` of the weakest heating of the climb is this many
+times the margin two slopes must differ by: a climb whose missing heat stands out of the noise
+(docs/heat-balance.md, "The climb")."""
 RAMP_SHARE = 0.5
 """… and the share of the hold's duty it must have risen by: losses that ramp up by a
 quarter of themselves in a window are answered by a quarter of that duty, and the law may
@@ -158,6 +164,8 @@ class HeatBalance:
         held = bounds.hold_duty
         if held is None:  # the hold not measured: the least duty kept, from before a climb
             held = min(applied for _, _, applied in samples)
+        shows = SIGNAL_SHARE * steady / (CLIMB_SHARE * per_duty)  # % whose heat stands out
+        least_climb = max(min(CLIMB, shows), RAMP_SHARE * held)
         found: BalanceVerdict | None = None
         for factor in DEAD_TIME_FACTORS:
             shift = factor * dead_time
@@ -169,7 +177,7 @@ class HeatBalance:
             level = falls and duty >= bounds.loss_duty
             climbed = (
                 both_steady
-                and climb >= max(CLIMB, RAMP_SHARE * held)
+                and climb >= least_climb
                 and gain < CLIMB_SHARE * per_duty * climb - steady
                 and later.rate < -margin
             )
