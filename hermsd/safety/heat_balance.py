@@ -164,8 +164,6 @@ class HeatBalance:
         held = bounds.hold_duty
         if held is None:  # the hold not measured: the least duty kept, from before a climb
             held = min(applied for _, _, applied in samples)
-        shows = SIGNAL_SHARE * steady / (CLIMB_SHARE * per_duty)  # % whose heat stands out
-        least_climb = max(min(CLIMB, shows), RAMP_SHARE * held)
         found: BalanceVerdict | None = None
         for factor in DEAD_TIME_FACTORS:
             shift = factor * dead_time
@@ -175,10 +173,12 @@ class HeatBalance:
                 return None
             climb = duty - duty_before
             level = falls and duty >= bounds.loss_duty
+            heat = CLIMB_SHARE * per_duty * climb  # °C/s of it a working element shows
             climbed = (
                 both_steady
-                and climb >= least_climb
-                and gain < CLIMB_SHARE * per_duty * climb - steady
+                and climb >= RAMP_SHARE * held
+                and (climb >= CLIMB or heat >= SIGNAL_SHARE * steady)
+                and gain < heat - steady
                 and later.rate < -margin
             )
             if not (level or climbed):
