@@ -112,6 +112,7 @@ BOUNDS = [
     Bound("output.window", float, 1, 60, nullable=True),
     Bound("output.min_on", float, 0, 10),
     Bound("output.min_off", float, 0, 10),
+    Bound("output.swing", float, 0, 1),
     Bound("contactor.line", int, 0, 511, nullable=True),
     Bound("contactor.channel", int, 1, 8),
     Bound("element2.line", int, 0, 511, nullable=True),
@@ -470,6 +471,7 @@ def test_defaults_are_the_specified_ones() -> None:
             "mains_hz": 50,
             "min_on": 0.02,
             "min_off": 0.02,
+            "swing": 0.0,
         },
         "contactor": {
             "backend": "none",

@@ -23,6 +23,7 @@ from hermsd.api.link import LoopLink
 from hermsd.config import schema as config_module
 from hermsd.config.read import parse
 from hermsd.config.schema import ConfigError, CurrentConfig
+from hermsd.control import factory
 from hermsd.hardware.current_sense import (
     ADS1115Current,
     GpioCurrentSense,
@@ -206,14 +207,15 @@ def test_with_a_current_input_no_pulse_or_gap_is_shorter_than_two_reads() -> Non
     for hz, least in ((50, 0.190), (60, 0.1633)):
         config = parse(f"output:\n  mains_hz: {hz}\ncurrent:\n  kind: sim\n")
         for duty in (1.0, 99.0):  # a window's pulse, and its gap, shorter than two reads
-            planner = build.planner(config)
+            planner = build.planner(config, factory.prior_model(config))
             plans = [planner.plan(5.0 * k, duty) for k in range(400)]
             assert min(p.on_time for p in plans if p.on_time > 0) >= least - 1e-9
             assert min(p.length - p.on_time for p in plans if p.on_time < p.length) >= least - 1e-9
             mean = sum(p.applied for p in plans) / len(plans)
             assert mean == pytest.approx(duty, abs=0.05)
-    plain = build.planner(parse(""))
-    assert 0 < plain.plan(0.0, 1.0).on_time < 0.06  # without the input, 50 ms a window
+    plain = parse("")
+    least = build.planner(plain, factory.prior_model(plain)).min_on_slots
+    assert least == 2  # without the input, the config's 20 ms: two half-cycles at 50 Hz
 
 
 # -- simulated days -----------------------------------------------------------------------------

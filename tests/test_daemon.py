@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import os
 import signal
@@ -82,6 +83,53 @@ def test_edges_fall_exactly_where_the_planner_put_them() -> None:
         if state:
             on += record.t - since
         assert record.applied == pytest.approx(100.0 * on / (record.t - previous.t), abs=1e-6)
+
+
+def test_a_swing_switches_less_and_the_controller_is_told_what_it_asked() -> None:
+    """The seed's 90 L, 3 kW tun with `output.swing` 1/16 °C: r = 3000 / (4186 × 90) =
+    0.00796 °C/s, a band B = 0.0625 / 2r − W/4 = 2.67 s. Over an hour of its hold: the edges
+    at most what the band's cycle makes (3600·d·(1 − d)/B, a quarter more for duty changes)
+    where a pulse a window makes 720; the water swings at most r·(2B + W) (the debt's span:
+    the band either way and a window's asking); each period's `applied` is the duty asked
+    for its window, and the heat so counted is the heat switched to within a band and a
+    window."""
+    rate = 3000.0 / (4186.0 * 90.0)
+    band = 0.0625 / (2.0 * rate) - 5.0 / 4.0
+    config = dataclasses.replace(
+        config_module.DEFAULT,
+        output=dataclasses.replace(config_module.DEFAULT.output, backend="sim", swing=0.0625),
+    )
+    daemon, world, _clock, periods = make(config)
+    start, temps = 8400.0, []
+    with daemon:
+        daemon.run(until=start)
+        for k in range(1, 3601):
+            daemon.run(until=start + k)
+            temps.append(world.plant.temperature(start + k))
+    records = periods.records
+    hold = [(p, r) for p, r in itertools.pairwise(records) if p.t >= start]
+    duty = sum(p.output for p, _ in hold) / len(hold) / 100.0
+    edges = [t for t in world.circuit.ssr_edges if t >= start]
+    assert len(edges) <= 1.25 * 3600.0 * duty * (1.0 - duty) / band
+    assert max(temps) - min(temps) <= rate * (2.0 * band + 5.0)
+    assert not periods.alarms
+    for asked, record in hold:
+        assert record.applied == pytest.approx(asked.output, abs=1e-6)
+    switched = _on_seconds(world.circuit.power_changes, hold[0][0].t, hold[-1][1].t)
+    counted = sum(r.applied / 100.0 * (r.t - p.t) for p, r in hold)
+    assert abs(counted - switched) <= band + 5.0
+
+
+def _on_seconds(changes: list[tuple[float, bool]], start: float, end: float) -> float:
+    """How long the element was powered between `start` and `end`."""
+    on, state, since = 0.0, False, start
+    for when, powered in changes:
+        if when >= end:
+            break
+        if when > start and state:
+            on += when - since
+        state, since = powered, max(when, start)
+    return on + (end - since if state else 0.0)
 
 
 def test_an_exception_in_the_loop_leaves_the_heater_off() -> None:

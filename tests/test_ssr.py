@@ -84,6 +84,50 @@ def test_pulses_of_neighbouring_windows_join() -> None:
     assert first.off_at == 5.0 and second.on_at == 5.0
 
 
+def test_a_band_lets_runs_span_windows_at_a_low_duty() -> None:
+    """20 % of 500 half-cycles is 100 a window; a band of 1.25 s is 125. By hand: off while
+    the debt stays ≤ 125 (100 owed), then at the second window's end all but the band
+    (200 − 125 = 75 half-cycles), then from the next window's start until 125 is given ahead
+    (225 + 125 = 350); then two windows off (−25, 75 owed), and 175 − 125 = 50 at the third's
+    end, and 350 again: a 4-s pulse every 20 s, two edges in four windows instead of four."""
+    planner = TimeProportionalPlanner(5.0, 50, band=1.25)
+    plans = [planner.plan(5.0 * k, 20.0) for k in range(11)]
+    on = [round(p.on_time / HALF_CYCLE_50HZ) for p in plans]
+    assert on == [0, 75, 350, 0, 0, 50, 350, 0, 0, 50, 350]
+    assert (plans[1].off_at, plans[2].on_at) == (10.0, 10.0)  # one pulse across the boundary
+    assert sum(on) == 11 * 100 + 125  # all asked, and the band given ahead as a run ends
+
+
+def test_a_band_mirrors_at_a_high_duty() -> None:
+    """90 %: 450 a window. From on with nothing owed, whole windows while a window leaves
+    less than 125 given ahead (−50, −100), then 475 and off; from off, the pulse at the end
+    gives all but the band (325 − 125 = 200); on for five whole windows (125 − 50 each,
+    down to −125), then 450 and 200 again: a 3.5-s gap every 35 s."""
+    planner = TimeProportionalPlanner(5.0, 50, band=1.25)
+    planner.plan(0.0, 100.0)  # the heat-up: on, nothing owed
+    on = [round(planner.plan(5.0 * k, 90.0).on_time / HALF_CYCLE_50HZ) for k in range(1, 12)]
+    assert on == [500, 500, 475, 200, 500, 500, 500, 500, 500, 450, 200]
+
+
+@settings(max_examples=100, deadline=None)
+@given(duty=st.floats(min_value=0.5, max_value=99.5), band=st.floats(min_value=0, max_value=5))
+def test_a_band_keeps_the_mean_and_one_edge_a_window(duty: float, band: float) -> None:
+    """Whatever the band, the heat given is what was asked to within the band and a window,
+    and no window switches the SSR twice."""
+    planner = TimeProportionalPlanner(5.0, 50, min_on=0.02, min_off=0.02, band=band)
+    plans = [planner.plan(5.0 * k, duty) for k in range(400)]
+    given_s = sum(p.on_time for p in plans)
+    assert abs(given_s - duty / 100 * 5.0 * 400) <= band + 5.0 + 1e-6
+    for p in plans:
+        start, end = p.start, p.start + p.length
+        assert p.on_time == 0 or p.on_at == start or p.off_at == end
+
+
+def test_a_band_wider_than_the_window_is_refused() -> None:
+    with pytest.raises(ValueError, match="band"):
+        TimeProportionalPlanner(5.0, 50, band=5.5)
+
+
 def test_cut_reports_what_was_delivered() -> None:
     planner = TimeProportionalPlanner(5.0, 50)
     planner.plan(0.0, 50.0)  # skip to an odd window: on-time at the start

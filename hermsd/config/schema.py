@@ -206,6 +206,7 @@ class OutputConfig:
     mains_hz: int = _choice(50, (50, 60))
     min_on: float = _number(0.02, 0, 10, "s")
     min_off: float = _number(0.02, 0, 10, "s")
+    swing: float = _number(0.0, 0, 1, "°C")
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,6 +8,8 @@ give (`applied`); the daemon feeds back the duty the SSR was then driven at, as 
 
 On-times alternate between the end of one window and the start of the next, so at a steady
 duty two windows share one pulse: half the edges (and the flicker) of a pulse per window.
+With a `band`, a run goes on across whole windows until the water is owed (or has been given
+ahead) that much heat: fewer edges for a bounded swing of the water (docs/ssr-band.md).
 
 The outputs start off, turn off on close, and sit behind a dead-man (`GuardedSwitch`) that
 switches them off when the control loop stops refreshing them.
@@ -16,6 +18,7 @@ switches them off when the control loop stops refreshing them.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import threading
 from dataclasses import dataclass
@@ -34,6 +37,9 @@ class WindowPlan:
     off_at: float
     requested: float
     applied: float
+    # Heat (s at full power) asked in this window that the band carries to later ones
+    # (negative: given ahead of asking); 0 where nothing is carried on purpose.
+    deferred: float = 0.0
 
     @property
     def on_time(self) -> float:
@@ -47,7 +53,12 @@ class TimeProportionalPlanner:
     """Turns a duty (0–100 %) per window into an on interval, exact on average."""
 
     def __init__(
-        self, window: float, mains_hz: int = 50, min_on: float = 0.0, min_off: float = 0.0
+        self,
+        window: float,
+        mains_hz: int = 50,
+        min_on: float = 0.0,
+        min_off: float = 0.0,
+        band: float = 0.0,
     ) -> None:
         if not window > 0:
             raise ValueError(f"window must be positive, got {window}")
@@ -55,6 +66,8 @@ class TimeProportionalPlanner:
             raise ValueError(f"mains_hz must be 50 or 60, got {mains_hz}")
         if min_on < 0 or min_off < 0 or min_on + min_off >= window:
             raise ValueError("min_on and min_off must be >= 0 and together shorter than window")
+        if not 0.0 <= band <= window:
+            raise ValueError(f"band must be within 0..window ({window} s), got {band}")
         self.window = window
         self.half_cycle = 1.0 / (2 * mains_hz)
         self.slots = round(window / self.half_cycle)
@@ -63,6 +76,8 @@ class TimeProportionalPlanner:
         # Minimum times in whole half-cycles; an on-time shorter than that is not delivered.
         self.min_on_slots = math.ceil(min_on / self.half_cycle - 1e-9)
         self.min_off_slots = math.ceil(min_off / self.half_cycle - 1e-9)
+        # Heat (half-cycles at full power) owed or given ahead before a run of windows ends.
+        self.band_slots = round(band / self.half_cycle)
         self._carry = 0.0  # half-cycles owed to (positive) or by (negative) the next window
         self._ends_on = False  # the SSR is on as the window before ends
 
@@ -77,15 +92,16 @@ class TimeProportionalPlanner:
         if not 0.0 <= duty <= 100.0:
             raise ValueError(f"duty must be within 0..100 %, got {duty}")
         slots = self.slots
+        carried = self._carry
         if duty <= 0.0 or duty >= 100.0:
             # Fully off or fully on: no edges inside the window and nothing owed.
             on = 0 if duty <= 0.0 else slots
             self._carry = 0.0
         else:
             wanted = duty / 100.0 * slots + self._carry
-            on = self._deliverable(wanted)
-            # The debt stays bounded by what the minimum times can withhold.
-            limit = max(self.min_on_slots, self.min_off_slots, 1)
+            on = self._run(wanted)
+            # The debt stays within the band and what the minimum times can withhold.
+            limit = max(self.min_on_slots, self.min_off_slots, 1) + self.band_slots
             self._carry = max(-limit, min(limit, wanted - on))
         on_time = on * self.half_cycle
         # The pulse joins the state the window before ended in: on, it starts the window;
@@ -101,7 +117,8 @@ class TimeProportionalPlanner:
             on_at, off_at = start + self.window - on_time, start + self.window
         else:
             on_at, off_at = start, start + on_time
-        return WindowPlan(start, self.window, on_at, off_at, duty, 100.0 * on / slots)
+        deferred = (self._carry - carried) * self.half_cycle if self.band_slots else 0.0
+        return WindowPlan(start, self.window, on_at, off_at, duty, 100.0 * on / slots, deferred)
 
     def full_from(self, plan: WindowPlan, at: float) -> WindowPlan:
         """`plan` with the element on from `at` to the window's end (cold water seen inside
@@ -126,7 +143,17 @@ class TimeProportionalPlanner:
         self._carry = 0.0
         self._ends_on = True
         applied = 100.0 * (before + end - on_at) / plan.length
-        return WindowPlan(plan.start, plan.length, on_at, end, 100.0, applied)
+        return WindowPlan(plan.start, plan.length, on_at, end, 100.0, applied)  # nothing carried
+
+    def _run(self, wanted: float) -> int:
+        """This window's on-time: an off run lasts whole windows until the water is owed more
+        than the band, then the pulse at the window's end gives all but the band; an on run
+        lasts whole windows until a window would leave more than the band given ahead, and
+        then stops where it has. With no band: what is owed, each window."""
+        band = self.band_slots
+        if self._ends_on:
+            return self.slots if wanted + band >= self.slots else self._deliverable(wanted + band)
+        return 0 if wanted <= band else self._deliverable(wanted - band)
 
     def _deliverable(self, wanted: float) -> int:
         """Whole half-cycles nearest to `wanted` that respect the minimum on and off times."""
@@ -141,13 +168,36 @@ class TimeProportionalPlanner:
 
 
 def cut(plan: WindowPlan, at: float) -> WindowPlan:
-    """The plan with the heater forced off from `at` on; applied is what was really delivered."""
+    """The plan with the heater forced off from `at` on; applied is what was really delivered,
+    and nothing is carried (the planner forgets its debt after a forced off)."""
     if at >= plan.off_at:
-        return plan
+        return dataclasses.replace(plan, deferred=0.0)
     off_at = max(plan.on_at, at)
     on_at = plan.on_at if off_at > plan.on_at else off_at
     applied = 100.0 * (off_at - on_at) / plan.length
     return WindowPlan(plan.start, plan.length, on_at, off_at, plan.requested, applied)
+
+
+class CarriedHeat:
+    """The heat the band carried out of the windows that have ended (s at full power), each
+    window counted once, whichever of its end and the period that reads it comes first."""
+
+    def __init__(self) -> None:
+        self._counted = 0.0
+        self._last: float | None = None  # the start of the last window counted
+
+    def count(self, plan: WindowPlan | None, now: float) -> None:
+        """Count `plan`'s carried heat if its window has ended by `now`."""
+        if plan is None or plan.start == self._last or plan.start + plan.length > now + 1e-9:
+            return
+        self._counted += plan.deferred
+        self._last = plan.start
+
+    def take(self, plan: WindowPlan | None, now: float) -> float:
+        """What was counted since the last take, with `plan`'s if its window has ended."""
+        self.count(plan, now)
+        taken, self._counted = self._counted, 0.0
+        return taken
 
 
 class SwitchedDuty:
@@ -171,16 +221,17 @@ class SwitchedDuty:
             self._on_seconds += now - self._on_since
             self._on_since = None
 
-    def read(self, now: float) -> float:
-        """% of the time since the reading before (0 for none) that the output was on."""
+    def read(self, now: float, deferred: float = 0.0) -> float:
+        """% of the time since the reading before (0 for none) that the output was on, with
+        `deferred` seconds more counted as on (a band's carried heat), within 0..100 %."""
         if self._on_since is not None:
             self._on_seconds += now - self._on_since
             self._on_since = now
         last = self._last if self._last is not None else now
         self._last = now
         span = now - last
-        on, self._on_seconds = self._on_seconds, 0.0
-        return min(100.0, 100.0 * on / span) if span > 0 else 0.0
+        on, self._on_seconds = self._on_seconds + deferred, 0.0
+        return min(100.0, max(0.0, 100.0 * on / span)) if span > 0 else 0.0
 
 
 class Switch(Protocol):

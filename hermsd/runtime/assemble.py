@@ -87,7 +87,7 @@ def assemble(
         supervisor=Supervisor(build.safety_limits(config, measured)),
         controller=build.control_law(config, model),
         learner=build.learner(config, model),
-        planner=build.planner(config),
+        planner=build.planner(config, model),
         element2=element2,
         element_watch=build.element_watch(config) if element2 is not None else None,
         reach=ReachWatch(),

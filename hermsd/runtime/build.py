@@ -261,10 +261,12 @@ def learner(config: Config, model: pid.PlantModel) -> Learner:
     return Learner(litres=config.tun.litres, ambient=model.ambient, period=config.control.period)
 
 
-def planner(config: Config) -> TimeProportionalPlanner:
-    """The SSR's window planner for the config's outputs; with a current input fitted, no
-    pulse or gap shorter than two of its reads take (`two_reads_part`), unless the config's
-    own minimums leave no room for that in the window."""
+def planner(config: Config, model: pid.PlantModel) -> TimeProportionalPlanner:
+    """The SSR's window planner for the config's outputs: its band what keeps the water's
+    whole swing (the band's, and a pulse's of two windows at 50 %) within `output.swing` at
+    the SSR's element's full-power rate on `model`, at most a window (docs/ssr-band.md).
+    With a current input fitted, no pulse or gap shorter than two of its reads take
+    (`two_reads_part`), unless the config's own minimums leave no room for that in the window."""
     out = config.output
     window = window_length(config)
     min_on, min_off = out.min_on, out.min_off
@@ -272,7 +274,9 @@ def planner(config: Config) -> TimeProportionalPlanner:
         least = two_reads_part(out.mains_hz)
         if max(min_on, least) + max(min_off, least) < window:
             min_on, min_off = max(min_on, least), max(min_off, least)
-    return TimeProportionalPlanner(window, out.mains_hz, min_on, min_off)
+    rate = model.rate * config.tun.element_watts / total_watts(config)
+    band = min(window, max(0.0, out.swing / (2.0 * rate) - window / 4.0))
+    return TimeProportionalPlanner(window, out.mains_hz, min_on, min_off, band)
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:

@@ -48,6 +48,7 @@ from hermsd.hardware.lm92 import (
 from hermsd.hardware.outputs import window_length
 from hermsd.hardware.sensors.kinds import describe as describe_sensor
 from hermsd.hardware.ssr import (
+    CarriedHeat,
     SwitchedDuty,
     WindowPlan,
     cut,
@@ -222,6 +223,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         self._resume_output = 0.0
         self._window = _Window()
         self._ssr_duty = SwitchedDuty()  # the SSR as switched since the last period
+        self._carried = CarriedHeat()  # … and the heat its band carried (docs/ssr-band.md)
         self._reads = 0
         self._pending: list[Callable[[float], None]] = []
         self.control: ControlHook | None = None
@@ -611,7 +613,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         if pv is None:
             pv = self._last_celsius  # a slow read interval: the latest accepted value
         self._pv = pv
-        applied = self._ssr_duty.read(now)
+        # The band's carried heat counts as given when asked (a controller would chase bursts).
+        applied = self._ssr_duty.read(now, self._carried.take(self._window.plan, now))
         switched2 = applied2 = None
         on2 = free2 = None
         if self.element2 is not None:
@@ -769,6 +772,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
 
     def _on_window(self, deadline: float, now: float) -> None:
         window = self._window
+        self._carried.count(window.plan, now)  # the window before has ended
         window.cancel()
         window.cut = False
         allowed = self.supervisor.heater_allowed

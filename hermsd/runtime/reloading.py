@@ -150,4 +150,4 @@ class Reloading(LoopState):
             self._apply_reset(t)
             self._save_latches(t)  # later latches are stored under the new counter
         if any(key.startswith("output.") for key in changed):
-            self.planner = planner(new)
+            self.planner = planner(new, self.model)
