@@ -172,7 +172,9 @@ TOPICS: Final[dict[str, TopicSpec]] = {
                 ),
                 "output": _field("number", "controller output, %"),
                 "applied": _field(
-                    "number", "duty the SSR was driven at in the period before, as switched, %"
+                    "number",
+                    "duty the SSR was driven at in the period before, as switched (with "
+                    "output.swing: the heat its runs carry counted when asked), %",
                 ),
                 "p": _field("number", "proportional part of the output (midrange: C1's), %"),
                 "i": _field("number", "integral part of the output (midrange: C1's), %"),
