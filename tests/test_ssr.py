@@ -123,6 +123,17 @@ def test_a_band_keeps_the_mean_and_one_edge_a_window(duty: float, band: float) -
         assert p.on_time == 0 or p.on_at == start or p.off_at == end
 
 
+def test_a_band_forgets_its_carry_at_full_or_no_power() -> None:
+    """At 0 or 100 % the band's carry is forgotten, not deferred: a heat-up's first window
+    tells the controller 100 %, the step it measures the tun by."""
+    planner = TimeProportionalPlanner(5.0, 50, band=1.25)
+    carried = [planner.plan(5.0 * k, 20.0).deferred for k in range(2)]
+    assert carried == [1.0, 0.25]  # 100 owed, then 200 − 75 = 125: half-cycles of 10 ms
+    full = planner.plan(10.0, 100.0)
+    assert (full.deferred, full.applied) == (0.0, 100.0)
+    assert planner.plan(15.0, 0.0).deferred == 0.0
+
+
 def test_a_band_wider_than_the_window_is_refused() -> None:
     with pytest.raises(ValueError, match="band"):
         TimeProportionalPlanner(5.0, 50, band=5.5)

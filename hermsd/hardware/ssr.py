@@ -92,9 +92,10 @@ class TimeProportionalPlanner:
         if not 0.0 <= duty <= 100.0:
             raise ValueError(f"duty must be within 0..100 %, got {duty}")
         slots = self.slots
-        carried = self._carry
+        carried, deferred = self._carry, 0.0
         if duty <= 0.0 or duty >= 100.0:
-            # Fully off or fully on: no edges inside the window and nothing owed.
+            # Fully off or fully on: no edges inside the window and nothing owed (what was
+            # carried is forgotten, not deferred).
             on = 0 if duty <= 0.0 else slots
             self._carry = 0.0
         else:
@@ -103,6 +104,8 @@ class TimeProportionalPlanner:
             # The debt stays within the band and what the minimum times can withhold.
             limit = max(self.min_on_slots, self.min_off_slots, 1) + self.band_slots
             self._carry = max(-limit, min(limit, wanted - on))
+            if self.band_slots:
+                deferred = (self._carry - carried) * self.half_cycle
         on_time = on * self.half_cycle
         # The pulse joins the state the window before ended in: on, it starts the window;
         # off, it ends it. One edge a window (the windows alternate by themselves), also
@@ -117,7 +120,6 @@ class TimeProportionalPlanner:
             on_at, off_at = start + self.window - on_time, start + self.window
         else:
             on_at, off_at = start, start + on_time
-        deferred = (self._carry - carried) * self.half_cycle if self.band_slots else 0.0
         return WindowPlan(start, self.window, on_at, off_at, duty, 100.0 * on / slots, deferred)
 
     def full_from(self, plan: WindowPlan, at: float) -> WindowPlan:
