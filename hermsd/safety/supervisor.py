@@ -483,12 +483,17 @@ class Supervisor:
             least = least if least >= NOISE_FLOOR else None  # the coil may take all of it
         # Heat on, or its lack, moves the water a step or more every few minutes, and noise
         # flips the last bit: a reading that has not changed at all for the watch is stuck,
-        # unless the coil may have taken all the element gave (a HERMS hold's steady water).
+        # unless the coil, with the losses, may have taken all the element gave (a HERMS
+        # hold's steady water, or the bottom of the HLT's dip while the coil's load falls
+        # past the element's: there the element's heat is the coil's and the losses').
         since = self._raw_since
         frozen = since is not None and t - max(since, watch.ref_t) >= lim.heater_watch
         if frozen and since is not None:
             still = max(since, watch.ref_t)
-            frozen = self._coil_fall(still, t) < lim.least_heating(applied) * (t - still)
+            taken = self._coil_fall(still, t)
+            if taken > 0.0:
+                taken += lim.loss_rate(pv) * (t - still)
+            frozen = taken < lim.least_heating(applied) * (t - still)
         if not frozen and not fall and (least is None or pv - watch.ref >= least):
             return
         what = (
