@@ -13,7 +13,13 @@ long the water waited at the waiting temperature (from first within 0.5 °C of i
 release of the last approach) and what the element spent there. Prints a Markdown table;
 `--write` puts it into bench/RESULTS.md.
 
-    uv run python bench/program.py [--write] [--jobs 2]
+`--population N`: the same two days on tuns 1…N of bench/population.py (the shipped config
+with the tun's configured litres and watts, the day's water ×½–×2 of them, its sensor and
+noise; day 2 after its own brew day). The table is the pass rate and the days that missed,
+each with whether a `late` warning said so before the time asked for (a tun that cannot be
+ready must say it, not be silently late).
+
+    uv run python bench/program.py [--write] [--jobs 2] [--population N]
 """
 
 from __future__ import annotations
@@ -28,9 +34,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+import population  # bench/population.py, beside this file
 import sections  # bench/sections.py, beside this file
 
 from hermsd.config import read
+from hermsd.config.schema import Config
+from hermsd.log.reader import load
 from hermsd.metrics import BAND
 from hermsd.program.model import Program, Step
 from hermsd.program.readiness import WAIT_BELOW
@@ -43,6 +52,7 @@ SHIPPED = Path(__file__).resolve().parents[1] / "config" / "hermsd.yaml"
 READY_S = 5 * 3600.0  # 05:00, from a start at 00:00
 GOAL_S = 120.0
 HEADING = "## Mash program: strike water ready by the time asked for"
+POPULATION_HEADING = "## Population: strike water ready by the time asked for"
 STRIKE = Program("Strike", (Step("Strike", 72.0, 600.0),), "05:00")
 WAIT_AT = 72.0 - WAIT_BELOW
 CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: scenario.ScenarioError(what))
@@ -51,19 +61,37 @@ CLOCK = scenario._clock("2026-11-28T00:00:00+01:00", lambda key, what: scenario.
 def ready_days(index: int) -> list[dict[str, Any]]:
     """Day 1 (nothing learned) and day 2 (after an ordinary brew day) of tun `index`."""
     spec = FAMILY[index]
-    config = spec.config(read.load(SHIPPED))
+    return _two_days(spec.brew_day(), spec.config(read.load(SHIPPED)), spec.element_watts)
+
+
+def population_days(seed: int) -> list[dict[str, Any]]:
+    """The same two days on population tun `seed`, its own water, sensor and elements."""
+    tun, _ = population.draw(seed)
+    return _two_days(tun.day(), tun.config(), tun.spec.element_watts)
+
+
+def _two_days(brew_day: scenario.Scenario, config: Config, watts: float) -> list[dict[str, Any]]:
+    """The strike program on `brew_day`'s tun from an empty state, then again after the
+    brew day itself has been run on that state (what the daemon learned of the tun)."""
     day = dataclasses.replace(
-        spec.brew_day(), events=(), duration=READY_S + 1800.0, program=STRIKE, clock=CLOCK
+        brew_day, events=(), duration=READY_S + 1800.0, program=STRIKE, clock=CLOCK
     )
     rows = []
     with tempfile.TemporaryDirectory(prefix="hermsd-state-") as state:
-        result = scenario.run(day, config, state_dir=Path(state), keep_records=True)
-        rows.append(_row(result.summary) | _wait(result.records, spec.element_watts))
+        rows.append(_ready_day(day, config, Path(state), watts))
         (Path(state) / PROGRAM_FILE).unlink()  # the brewer stops the program: the day is over
-        scenario.run(spec.brew_day(), config, state_dir=Path(state))  # learns the tun
-        result = scenario.run(day, config, state_dir=Path(state), keep_records=True)
-        rows.append(_row(result.summary) | _wait(result.records, spec.element_watts))
+        scenario.run(brew_day, config, state_dir=Path(state))  # learns the tun
+        rows.append(_ready_day(day, config, Path(state), watts))
     return rows
+
+
+def _ready_day(day: scenario.Scenario, config: Config, state: Path, watts: float) -> dict[str, Any]:
+    """One strike day on `state`: its row, with when a `late` warning was first said."""
+    with tempfile.TemporaryDirectory(prefix="hermsd-log-") as logs:
+        result = scenario.run(day, config, state_dir=state, keep_records=True, log_dir=Path(logs))
+        said = [e.at for e in load(sorted(Path(logs).iterdir())).program if e.event == "late"]
+    row = _row(result.summary) | _wait(result.records, watts)
+    return row | {"late_s": said[0] if said else None}
 
 
 def _wait(records: list[PeriodRecord], watts: float) -> dict[str, Any]:
@@ -108,11 +136,13 @@ def _kwh(kwh: float | None) -> str:
     return "--" if kwh is None else f"{kwh:.2f}"
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
-    parser.add_argument("--jobs", type=int, default=2)
-    args = parser.parse_args()
+def _judged(row: dict[str, Any]) -> bool:
+    """Within GOAL_S of the time asked for, and no alarm."""
+    error = row["error_s"]
+    return error is not None and abs(error) <= GOAL_S and not row["alarms"]
+
+
+def family_main(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     lines = [
         "| tun | day | heating from | reached | error s | within 2 min | waited at 70 °C "
@@ -125,7 +155,7 @@ def main() -> int:
         for spec, rows in zip(FAMILY, pool.imap(ready_days, range(len(FAMILY))), strict=True):
             for label, row in zip(("1", "2"), rows, strict=True):
                 error = row["error_s"]
-                ok = error is not None and abs(error) <= GOAL_S and not row["alarms"]
+                ok = _judged(row)
                 met += ok
                 days += 1
                 never += error is None
@@ -150,6 +180,58 @@ def main() -> int:
     if args.write:
         sections.write(HEADING, text)
     return 0
+
+
+def population_main(args: argparse.Namespace) -> int:
+    started = time.perf_counter()
+    seeds = range(1, args.population + 1)
+    lines = [
+        "| tun | parameters | day | heating from | reached | error s | late said at | alarms |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    met = [0, 0]
+    said = [0, 0]
+    with multiprocessing.get_context("fork").Pool(args.jobs) as pool:
+        for seed, rows in zip(seeds, pool.imap(population_days, seeds), strict=True):
+            for day, row in enumerate(rows):
+                if _judged(row):
+                    met[day] += 1
+                    continue
+                late = row["late_s"]
+                said[day] += late is not None and late <= READY_S
+                error = row["error_s"]
+                lines.append(
+                    f"| {seed} | {population.draw(seed)[0].words()} | {day + 1} | "
+                    f"{_clock(row['start_s'])} | {_clock(row['reached_s'])} | "
+                    f"{'--' if error is None else f'{error:+.0f}'} | {_clock(late)} | "
+                    f"{row['alarms']} |"
+                )
+                print(lines[-1], flush=True)
+    wall = time.perf_counter() - started
+    count = len(seeds)
+    tally = (
+        f"Within 2 minutes of ready_by, no alarm: day 1 {met[0]} of {count} tuns, day 2 "
+        f"{met[1]} of {count}; of the days that missed, a `late` warning said so by 05:00 on "
+        f"{said[0]} of {count - met[0]} (day 1) and {said[1]} of {count - met[1]} (day 2). "
+        f"{3 * count} simulated days in {wall:.0f} s on {args.jobs} processes."
+    )
+    print(tally)
+    about = __doc__.split("\n\n")[2].replace("\n", " ")
+    text = f"{about} {tally}\n\nThe days that missed:\n\n" + "\n".join(lines) + "\n"
+    if args.write:
+        sections.write(POPULATION_HEADING, text)
+    return 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument(
+        "--population", type=int, default=0, help="tuns 1…N of bench/population.py instead"
+    )
+    args = parser.parse_args()
+    return population_main(args) if args.population else family_main(args)
 
 
 if __name__ == "__main__":
