@@ -197,6 +197,46 @@ def test_the_days_hold_lets_a_dead_element_be_judged_below_80_percent(
     assert sup.latched == latched
 
 
+def _held_then(held_c: float, held_duty: float, pv: float, output: float, fall: float) -> list[str]:
+    """Half an hour steady at `held_c` on `held_duty` %, then 20 min at `output` % with the
+    water at `pv` falling `fall` °C each 150 s (0: a reading that never changes)."""
+    sup = Supervisor(
+        SafetyLimits.derive(litres=90.0, element_watts=3000.0, period=5.0, read_interval=1.0)
+    )
+    t = 0.0
+    while t <= 1800.0:
+        sup.reading(t, held_c, raw=round(held_c / 0.0625))
+        sup.period(t, held_c, held_duty, held_duty)
+        t += 5.0
+    start = t
+    while t <= start + 1200.0 and sup.heater_allowed:
+        sup.reading(t, pv, raw=round(pv / 0.0625))
+        sup.period(t, pv, output, output)
+        pv -= fall / 150.0 * 5.0
+        t += 5.0
+    return sup.latched
+
+
+def test_water_standing_cold_with_the_heater_off_bounds_no_losses_above_it() -> None:
+    # A ready_by day: the water stands at the room's 19 °C, heater off, for the half hour a
+    # hold needs; later it waits at 70 °C on 55 %, the reading still (a sensor of little
+    # noise). 0 % × any growth is 0: taken as a hold, it made every duty from 20 % "heating",
+    # and the still reading a stuck sensor. The room may be as warm as the water was.
+    assert _held_then(19.0, 0.0, 70.0, 55.0, 0.0) == []
+    # The limits' own 80 % stands: at 85 % the still reading is a stuck sensor.
+    assert _held_then(19.0, 0.0, 70.0, 85.0, 0.0) == ["sensor_stuck"]
+
+
+def test_above_the_hold_the_losses_grow_as_in_the_warmest_room() -> None:
+    # 10 % holds 66 °C; at 72 °C the losses grow by (72 − 40)/(66 − 40) = 1.2308 in a 40 °C
+    # room (by 67/61 = 1.0984 in a 5 °C one: too little), and an open pot evaporates 1 kW of
+    # 3 kW at 66 °C × 1.3022 (Magnus, 72 against 66 °C) = 43.41 %. A working element beats
+    # them from (1.5 × 10 × 1.2308 + 43.41)/0.81 = 76.38 %: at 75 % water standing still is
+    # no verdict (with the coldest room's growth it was, from 73.94 %), at 78 % it is.
+    assert _held_then(66.0, 10.0, 72.0, 75.0, 0.0) == []
+    assert _held_then(66.0, 10.0, 72.0, 78.0, 0.0) == ["sensor_stuck"]
+
+
 def test_a_heater_that_outpaces_the_losses_slowly_is_caught_with_every_output_off() -> None:
     # A shorted contactor on a 150 L open pot: 0.3 °C per 5 min with nothing switched on,
     # under the 0.5 °C the 300 s watch allows. The 900 s watch, first judged once its history

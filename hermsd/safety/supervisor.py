@@ -583,9 +583,12 @@ class Supervisor:
         """% of output at or above which a working element cannot let the water at `pv`
         fall: the limits' (`SafetyLimits.heating_output`), or less once the day's hold has
         measured its losses (`_measure_hold`): that duty ×1.5 (×1.5 the losses: a lid taken
-        off), grown with the water's rise above the coldest room over the hold's, and an
-        open surface's evaporation on top, at −10 % mains; never below 20 % (a slow fall is
-        lost in the noise). One element, no coil drawing."""
+        off), grown with the water's rise above the room over the hold's, and an open
+        surface's evaporation on top, at −10 % mains; never below 20 % (a slow fall is lost
+        in the noise). One element, no coil drawing. The room is not known: (T − room) over
+        (hold − room) is largest for the coldest room below the hold and for the warmest
+        above it, and a hold no warmer than the warmest room (a scheduled heat-up's water
+        standing cold, the heater off) bounds nothing above it."""
         lim = self.limits
         most = lim.heating_output(pv)
         if self._hold is None or lim.two_elements or self._coil_may_draw():
@@ -596,7 +599,12 @@ class Supervisor:
             # (docs/herms.md, "The mash's balance").
             return most
         duty, held_at = self._hold
-        grows = max(pv - COLDEST_ROOM, 0.0) / max(held_at - COLDEST_ROOM, 1.0)
+        if pv <= held_at:
+            grows = max(pv - COLDEST_ROOM, 0.0) / max(held_at - COLDEST_ROOM, 1.0)
+        elif held_at > WARMEST_ROOM:
+            grows = (pv - WARMEST_ROOM) / (held_at - WARMEST_ROOM)
+        else:
+            return most
         losses = MODEL_MARGIN * duty * grows + lim.evaporation_share(pv)
         return min(most, max(20.0, losses / MAINS_LOW))
 
