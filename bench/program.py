@@ -128,6 +128,10 @@ def _clock(seconds: float | None) -> str:
     return f"{minutes // 60:02d}:{minutes % 60:02d}"
 
 
+def _signed(seconds: float | None) -> str:
+    return "--" if seconds is None else f"{seconds:+.0f}"
+
+
 def _minutes(seconds: float | None) -> str:
     return "--" if seconds is None else f"{seconds / 60.0:.0f} min"
 
@@ -163,7 +167,7 @@ def family_main(args: argparse.Namespace) -> int:
                 lines.append(
                     f"| {spec.name} | {label} | {_clock(row['start_s'])} | "
                     f"{_clock(row['reached_s'])} | "
-                    f"{'--' if error is None else f'{error:+.0f}'} | {'yes' if ok else 'no'} | "
+                    f"{_signed(error)} | {'yes' if ok else 'no'} | "
                     f"{_minutes(row['waited_s'])} | {_kwh(row['wait_kwh'])} |"
                 )
                 print(lines[-1], flush=True)
@@ -199,12 +203,10 @@ def population_main(args: argparse.Namespace) -> int:
                     continue
                 late = row["late_s"]
                 said[day] += late is not None and late <= READY_S
-                error = row["error_s"]
                 lines.append(
                     f"| {seed} | {population.draw(seed)[0].words()} | {day + 1} | "
                     f"{_clock(row['start_s'])} | {_clock(row['reached_s'])} | "
-                    f"{'--' if error is None else f'{error:+.0f}'} | {_clock(late)} | "
-                    f"{row['alarms']} |"
+                    f"{_signed(row['error_s'])} | {_clock(late)} | {row['alarms']} |"
                 )
                 print(lines[-1], flush=True)
     wall = time.perf_counter() - started
