@@ -586,9 +586,9 @@ class Supervisor:
         off), grown with the water's rise above the room over the hold's, and an open
         surface's evaporation on top, at −10 % mains; never below 20 % (a slow fall is lost
         in the noise). One element, no coil drawing. The room is not known: (T − room) over
-        (hold − room) is largest for the coldest room below the hold and for the warmest
-        above it, and a hold no warmer than the warmest room (a scheduled heat-up's water
-        standing cold, the heater off) bounds nothing above it."""
+        (hold − room) is largest, for water below the hold, in the coldest room and, above
+        it, in the warmest; a hold no warmer than the warmest room (a scheduled heat-up's
+        water standing cold, the heater off) bounds nothing above it."""
         lim = self.limits
         most = lim.heating_output(pv)
         if self._hold is None or lim.two_elements or self._coil_may_draw():
