@@ -65,9 +65,11 @@ def ready_days(index: int) -> list[dict[str, Any]]:
 
 
 def population_days(seed: int) -> list[dict[str, Any]]:
-    """The same two days on population tun `seed`, its own water, sensor and elements."""
+    """The same two days on population tun `seed`, its own water, sensor and elements (each
+    row with the tun's parameters in words)."""
     tun, _ = population.draw(seed)
-    return _two_days(tun.day(), tun.config(), tun.spec.element_watts)
+    rows = _two_days(tun.day(), tun.config(), tun.spec.element_watts)
+    return [row | {"tun": tun.words()} for row in rows]
 
 
 def _two_days(brew_day: scenario.Scenario, config: Config, watts: float) -> list[dict[str, Any]]:
@@ -204,7 +206,7 @@ def population_main(args: argparse.Namespace) -> int:
                 late = row["late_s"]
                 said[day] += late is not None and late <= READY_S
                 lines.append(
-                    f"| {seed} | {population.draw(seed)[0].words()} | {day + 1} | "
+                    f"| {seed} | {row['tun']} | {day + 1} | "
                     f"{_clock(row['start_s'])} | {_clock(row['reached_s'])} | "
                     f"{_signed(row['error_s'])} | {_clock(late)} | {row['alarms']} |"
                 )
