@@ -12,6 +12,7 @@ import dataclasses
 import datetime as dt
 import itertools
 import math
+from collections.abc import Callable
 
 import pytest
 
@@ -141,8 +142,10 @@ def test_a_tun_that_cannot_make_it_is_released_at_once_and_says_until_when() -> 
     # 20 °C, so 0.003/41.405 per °C; at 68.5 °C the rise is 0.007 − that·7.095.
     slope = 0.003 / (CLIMB_AT - 20.0)
     rate = 0.007 - slope * (68.5 - CLIMB_AT)
-    until = 6220.0 + 100.0 + math.log(rate / (rate - slope * 1.5)) / slope
-    assert ready.late_until_ns == pytest.approx(until * NS, abs=1e6)
+    need = 100.0 + math.log(rate / (rate - slope * 1.5)) / slope
+    # Judged again each period after the release (6220 s): at 6230 s the water still stands
+    # at 68.5 °C with no full power under way, so the dead time and the rise from there.
+    assert ready.late_until_ns == pytest.approx((6230.0 + need) * NS, abs=1e6)
     kinds = [kind for kind, _text in ready.take_events()]
     assert kinds == ["late", "release"]  # said on the way up already
 
@@ -272,3 +275,74 @@ def test_water_poured_in_mid_climb_is_no_rate_of_the_climb() -> None:
         ready.period(float(t), t * NS, pv, 100.0, True, TUN)
     assert [kind for kind, _ in ready.take_events()] == []
     assert ready.late_until_ns is None
+
+
+def released_then(
+    ready: Readiness, pv_of: Callable[[float], float], ahead: float, until: float
+) -> list[tuple[float, list[tuple[str, str]]]]:
+    """After `climb_then_wait`'s release at 8650 s: the water at `pv_of(t)`, the controller
+    at 30 % (not full power) expecting the heat it sent to leave the water at `ahead`; the
+    events of each period, until `until` s."""
+    tun = dataclasses.replace(TUN, ahead=ahead)
+    said = []
+    for t in itertools.takewhile(lambda t: t <= until, itertools.count(8655.0, PERIOD)):
+        ready.period(t, round(t * NS), pv_of(t), 30.0, False, tun)
+        said.append((t, ready.take_events()))
+    return said
+
+
+def released(ready_at_s: float = 9_000.0) -> Readiness:
+    ready = Readiness(70.5, round(ready_at_s * NS), clock, phase="climbing")
+    climb_then_wait(ready, 8_650.0)
+    assert ready.phase == "released" and ready.late is None
+    ready.take_events()
+    return ready
+
+
+def test_a_controller_that_holds_off_after_the_release_is_said_late() -> None:
+    # The heat sent leaves the water at 69 °C, a degree under the band's edge: the rest needs
+    # the dead time and full power from 69 °C, by the losses measured at 68.5 °C (as in the
+    # release's test: 0.006 °C/s there, 0.001/7.095 less per °C higher).
+    ready = released()
+    said = released_then(ready, lambda t: 68.5, ahead=69.0, until=9000.0)
+    slope = 0.001 / (68.5 - CLIMB_AT)
+    rate = 0.006 - slope * 0.5
+    need = 100.0 + math.log(rate / (rate - slope * 1.0)) / slope
+    # Late once now + need passes 9000 s + LATE_S (120 s): said then, once.
+    first = math.floor((9120.0 - need) / PERIOD) * PERIOD + PERIOD
+    late = [(t, events) for t, events in said if events]
+    assert [t for t, _ in late] == [first]
+    [(kind, text)] = late[0][1]
+    assert kind == "late"
+    assert text == (
+        f"cannot reach 70.5 °C by 9000s: needs until {first + need:.0f}s "
+        "(the losses measured at the waiting temperature)"
+    )
+    assert ready.late_until_ns == pytest.approx((9000.0 + need) * NS, abs=1e6)
+
+
+def test_a_landing_on_its_way_into_the_band_is_not_said_late() -> None:
+    # The controller expects to land at 70.25 °C and the water rises 0.004 °C/s from 68.5 °C
+    # at 8655 s: at the band's edge (70 °C) at 9030 s, within LATE_S of 9000 s.
+    ready = released()
+    said = released_then(ready, lambda t: 68.5 + 0.004 * (t - 8655.0), ahead=70.25, until=9100.0)
+    assert all(not events for _, events in said)
+    assert ready.late is None
+
+
+def test_a_landing_that_stalls_under_the_band_is_said_late_until_it_arrives() -> None:
+    # The controller expects to land at 70.25 °C, but the water creeps 0.0005 °C/s from
+    # 69.7 °C (its line, 600 s to the edge, is longer than the dead time): the heat in flight
+    # lands within the dead time at the latest, so late once now + 100 s passes 9120 s: at
+    # 9025 s. At the edge (9255 s) the warning is over.
+    ready = released()
+    said = released_then(ready, lambda t: 69.7 + 0.0005 * (t - 8655.0), ahead=70.25, until=9300.0)
+    late = [(t, events) for t, events in said if events]
+    assert [t for t, _ in late] == [9025.0]
+    [(kind, text)] = late[0][1]
+    assert (kind, text) == (
+        "late",
+        "cannot reach 70.5 °C by 9000s: needs until about 9125s "
+        "(the heat already sent arriving within the dead time)",
+    )
+    assert ready.late is None and ready.late_until_ns is None  # at 70.0 since 9255 s

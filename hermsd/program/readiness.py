@@ -21,8 +21,15 @@ where it runs:
 
 When the approach would end more than LATE_S after the time asked for (a tun too weak, or a
 program started too late), a `late` event says until when it needs, and again whenever that
-slips RESAY_S further; the latest estimate stays in the status meanwhile. Nothing here reads
-a clock: time comes in with every period.
+slips RESAY_S further; the latest estimate stays in the status meanwhile. After the release
+the approach is judged again every period until the water reaches the band, from what is
+under way (`_approaching`): the full-power line while full power runs, its dead time counted
+from when it began; else, where the heat already sent brings the water into the band (the
+controller's prediction), the sooner of the water's own rise over the last MIN_SPAN_S (a
+straight line lands sooner than the lag's tail) and a dead time (by which that heat has
+arrived): late only where both say so; where it does not (or nothing predicts it), a dead
+time and the line from where that heat leaves the water (the controller holds off, or must
+heat again). Nothing here reads a clock: time comes in with every period.
 """
 
 from __future__ import annotations
@@ -82,6 +89,8 @@ NEVER = 2**63 - 1
 MODEL = "the tun's model"
 CLIMBED = "the rate measured on the way up"
 HELD = "the losses measured at the waiting temperature"
+RISING = "the water's rise now"
+SENT = "the heat already sent arriving within the dead time"
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +101,7 @@ class Tun:
     max_output: float  # % of the model's power (both elements') full power gives
     measured: bool  # the model was measured on this tun (else the config's prior)
     fit: HeatUpFit | None  # the controller's last heat-up measurement, if any
+    ahead: float | None = None  # the PV once the heat already sent arrives (predictive's)
 
     def gross_rate(self) -> float:
         """°C/s at full power without losses: the heat-up's measurement, else the model's."""
@@ -152,6 +162,8 @@ class Readiness:
         self._fit: HeatUpFit | None = None  # its first on the climb (from the water at rest)
         self._paused = False  # the climb waits, heater off (it started early)
         self._paused_once = phase != "scheduled"  # a climb taken up after a restart goes on
+        self._approach: deque[tuple[float, float]] = deque()  # (t, pv) since the release
+        self._full_since: float | None = None  # t full power began, since the release
 
     def take_events(self) -> list[tuple[str, str]]:
         """(kind, text) of what happened since last taken: `climb`, `release`, `late`."""
@@ -217,7 +229,38 @@ class Readiness:
                 self._release(pv, rise, need, wall_ns)
             elif rise.basis == HELD or (rise.basis == CLIMBED and need is not None):
                 self._judge_late(wall_ns, need, rise)  # "never" by the climb: too far a guess
+        else:
+            self._approaching(t, wall_ns, pv, full, tun)
         return self._setpoint()
+
+    def _approaching(self, t: float, wall_ns: int, pv: float, full: bool, tun: Tun) -> None:
+        """After the release: when the water reaches the band, judged again each period
+        from what is under way (the module's text), until it does."""
+        edge = self.target - BAND
+        if pv >= edge:
+            self.late_until_ns = self.late = None
+            return
+        recent = self._approach
+        recent.append((t, pv))
+        while t - recent[0][0] > MIN_SPAN_S:
+            recent.popleft()
+        self._full_since = (t if self._full_since is None else self._full_since) if full else None
+        rise = self.rise(pv, tun)
+        dead = rise.dead_time
+        if self._full_since is not None:
+            on_s = t - self._full_since
+            need = rise.need_s(pv, edge, heating=on_s >= dead)
+            if need is not None and on_s < dead:
+                need -= on_s
+        elif (ahead := pv if tun.ahead is None else tun.ahead) < edge:
+            need = rise.need_s(ahead, edge, heating=False)
+        else:
+            line = _line(list(recent))
+            if line is not None and line[1] > 0.0 and (edge - pv) / line[1] < dead:
+                need, rise = (edge - pv) / line[1], Rise(pv, line[1], 0.0, 0.0, RISING)
+            else:
+                need, rise = dead, Rise(pv, rise.rate, rise.slope, dead, SENT)
+        self._judge_late(wall_ns, need, rise)
 
     def _hold_back(self, wall_ns: int, pv: float, tun: Tun) -> None:
         """Once the controller measured the element's rate on this climb, stop it (heater

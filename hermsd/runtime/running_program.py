@@ -54,6 +54,7 @@ class RunningProgram(LoopState):
             full_power_share(self.config),
             self.model_choice.measured is not None,
             predictive.heat_up_fit(self.controller),
+            predictive.predicted_pv(self.controller),
         )
 
     def program_command(self, action: str, t: float, step: int | None = None) -> None:
