@@ -10,14 +10,16 @@ when the step was reached (the PV first within ±0.5 °C of 72 °C) less 05:00; 
 2 minutes either way (not reached by 05:30: a miss). "Heating from" is when the climb first
 started (it may stop for a while once the element's rate is measured). The energy side: how
 long the water waited at the waiting temperature (from first within 0.5 °C of it to the
-release of the last approach) and what the element spent there. Prints a Markdown table;
-`--write` puts it into bench/RESULTS.md.
+release of the last approach) and what the element spent there, and when a `late` warning
+was first said (one said of a day that was then ready in time is a false warning). Prints a
+Markdown table; `--write` puts it into bench/RESULTS.md.
 
 `--population N`: the same two days on tuns 1…N of bench/population.py (the shipped config
 with the tun's configured litres and watts, the day's water ×½–×2 of them, its sensor and
 noise; day 2 after its own brew day). The table is the pass rate and the days that missed,
 each with whether a `late` warning said so before the time asked for (a tun that cannot be
-ready must say it, not be silently late).
+ready must say it, not be silently late), and how many days a `late` was said of that were
+then ready in time (false warnings).
 
     uv run python bench/program.py [--write] [--jobs 2] [--population N]
 """
@@ -152,11 +154,11 @@ def family_main(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     lines = [
         "| tun | day | heating from | reached | error s | within 2 min | waited at 70 °C "
-        "| kWh there |",
-        "|---|---|---|---|---|---|---|---|",
+        "| kWh there | late said at |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     met = worst = 0.0
-    days = never = 0
+    days = never = false = 0
     with multiprocessing.get_context("fork").Pool(args.jobs) as pool:
         for spec, rows in zip(FAMILY, pool.imap(ready_days, range(len(FAMILY))), strict=True):
             for label, row in zip(("1", "2"), rows, strict=True):
@@ -166,18 +168,21 @@ def family_main(args: argparse.Namespace) -> int:
                 days += 1
                 never += error is None
                 worst = max(worst, abs(error) if error is not None else 0.0)
+                false += ok and row["late_s"] is not None
                 lines.append(
                     f"| {spec.name} | {label} | {_clock(row['start_s'])} | "
                     f"{_clock(row['reached_s'])} | "
                     f"{_signed(error)} | {'yes' if ok else 'no'} | "
-                    f"{_minutes(row['waited_s'])} | {_kwh(row['wait_kwh'])} |"
+                    f"{_minutes(row['waited_s'])} | {_kwh(row['wait_kwh'])} | "
+                    f"{_clock(row['late_s'])} |"
                 )
                 print(lines[-1], flush=True)
     wall = time.perf_counter() - started
     tally = (
         f"Within 2 minutes of ready_by on {met:.0f} of {days} days; {never} not reached by "
-        f"05:30, the largest error of the others {worst:.0f} s. {3 * len(FAMILY)} simulated "
-        f"days in {wall:.0f} s on {args.jobs} processes."
+        f"05:30, the largest error of the others {worst:.0f} s; a `late` said of {false} "
+        f"days ready in time. {3 * len(FAMILY)} simulated days in {wall:.0f} s on "
+        f"{args.jobs} processes."
     )
     print(tally)
     about = __doc__.split("\n\n")[1].split(" Prints")[0].replace("\n", " ")
@@ -197,13 +202,15 @@ def population_main(args: argparse.Namespace) -> int:
     ]
     met = [0, 0]
     said = [0, 0]
+    false = [0, 0]
     with multiprocessing.get_context("fork").Pool(args.jobs) as pool:
         for seed, rows in zip(seeds, pool.imap(population_days, seeds), strict=True):
             for day, row in enumerate(rows):
+                late = row["late_s"]
                 if _judged(row):
                     met[day] += 1
+                    false[day] += late is not None
                     continue
-                late = row["late_s"]
                 said[day] += late is not None and late <= READY_S
                 lines.append(
                     f"| {seed} | {row['tun']} | {day + 1} | "
@@ -216,7 +223,8 @@ def population_main(args: argparse.Namespace) -> int:
     tally = (
         f"Within 2 minutes of ready_by, no alarm: day 1 {met[0]} of {count} tuns, day 2 "
         f"{met[1]} of {count}; of the days that missed, a `late` warning said so by 05:00 on "
-        f"{said[0]} of {count - met[0]} (day 1) and {said[1]} of {count - met[1]} (day 2). "
+        f"{said[0]} of {count - met[0]} (day 1) and {said[1]} of {count - met[1]} (day 2); "
+        f"a `late` said of days then ready in time: {false[0]} (day 1), {false[1]} (day 2). "
         f"{3 * count} simulated days in {wall:.0f} s on {args.jobs} processes."
     )
     print(tally)
