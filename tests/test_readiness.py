@@ -278,15 +278,20 @@ def test_water_poured_in_mid_climb_is_no_rate_of_the_climb() -> None:
 
 
 def released_then(
-    ready: Readiness, pv_of: Callable[[float], float], ahead: float, until: float
+    ready: Readiness,
+    pv_of: Callable[[float], float],
+    ahead: float,
+    until: float,
+    full_until: float = 0.0,
 ) -> list[tuple[float, list[tuple[str, str]]]]:
     """After `climb_then_wait`'s release at 8650 s: the water at `pv_of(t)`, the controller
-    at 30 % (not full power) expecting the heat it sent to leave the water at `ahead`; the
-    events of each period, until `until` s."""
+    at full power up to `full_until` s, then at 30 %, expecting the heat it sent to leave
+    the water at `ahead`; the events of each period, until `until` s."""
     tun = dataclasses.replace(TUN, ahead=ahead)
     said = []
     for t in itertools.takewhile(lambda t: t <= until, itertools.count(8655.0, PERIOD)):
-        ready.period(t, round(t * NS), pv_of(t), 30.0, False, tun)
+        full = t <= full_until
+        ready.period(t, round(t * NS), pv_of(t), 100.0 if full else 30.0, full, tun)
         said.append((t, ready.take_events()))
     return said
 
@@ -332,17 +337,33 @@ def test_a_landing_on_its_way_into_the_band_is_not_said_late() -> None:
 
 def test_a_landing_that_stalls_under_the_band_is_said_late_until_it_arrives() -> None:
     # The controller expects to land at 70.25 °C, but the water creeps 0.0005 °C/s from
-    # 69.7 °C (its line, 600 s to the edge, is longer than the dead time): the heat in flight
-    # lands within the dead time at the latest, so late once now + 100 s passes 9120 s: at
-    # 9025 s. At the edge (9255 s) the warning is over.
+    # 69.7 °C at 8655 s: its line (from 120 s of readings, at 8775 s) puts it at the band's
+    # edge at 9255 s, late. At the edge the warning is over.
     ready = released()
     said = released_then(ready, lambda t: 69.7 + 0.0005 * (t - 8655.0), ahead=70.25, until=9300.0)
     late = [(t, events) for t, events in said if events]
-    assert [t for t, _ in late] == [9025.0]
-    [(kind, text)] = late[0][1]
-    assert (kind, text) == (
-        "late",
-        "cannot reach 70.5 °C by 9000s: needs until about 9125s "
-        "(the heat already sent arriving within the dead time)",
-    )
-    assert ready.late is None and ready.late_until_ns is None  # at 70.0 since 9255 s
+    assert [t for t, _ in late] == [8775.0]
+    assert late[0][1] == [
+        ("late", "cannot reach 70.5 °C by 9000s: needs until about 9255s (the water's rise now)")
+    ]
+    assert ready.late is None and ready.late_until_ns is None  # at 70.0 from 9255 s
+
+
+def test_the_heat_in_flight_lands_a_dead_time_after_full_power_then_it_must_heat_again() -> None:
+    # Full power to 8700 s, the water still at 68.5 °C (its heat on the way): expected by
+    # 8800 s at the latest, a dead time on, whatever the water shows before. Still at 68.5 °C
+    # then, with the controller expecting 70.25 °C: it must heat again, the dead time and the
+    # rise from 68.5 °C (354.5 s, the release's own estimate): late from 8805 s.
+    ready = released()
+    said = released_then(ready, lambda t: 68.5, ahead=70.25, until=8900.0, full_until=8700.0)
+    late = [(t, events) for t, events in said if events]
+    slope = 0.001 / (68.5 - CLIMB_AT)
+    need = 100.0 + math.log(0.006 / (0.006 - slope * 1.5)) / slope
+    assert [t for t, _ in late] == [8805.0]
+    assert late[0][1] == [
+        (
+            "late",
+            f"cannot reach 70.5 °C by 9000s: needs until {8805.0 + need:.0f}s "
+            "(the losses measured at the waiting temperature)",
+        )
+    ]

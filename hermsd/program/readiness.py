@@ -26,10 +26,11 @@ the approach is judged again every period until the water reaches the band, from
 under way (`_approaching`): the full-power line while full power runs, its dead time counted
 from when it began; else, where the heat already sent brings the water into the band (the
 controller's prediction), the sooner of the water's own rise over the last MIN_SPAN_S (a
-straight line lands sooner than the lag's tail) and a dead time (by which that heat has
-arrived): late only where both say so; where it does not (or nothing predicts it), a dead
-time and the line from where that heat leaves the water (the controller holds off, or must
-heat again). Nothing here reads a clock: time comes in with every period.
+straight line lands sooner than the lag's tail) and a dead time after full power last ran
+(by which its heat has arrived): late only where both say so; where it does not (or nothing
+predicts it, or that heat has arrived and the water does not rise), a dead time and the line
+from where that heat leaves the water (the controller holds off, or must heat again).
+Nothing here reads a clock: time comes in with every period.
 """
 
 from __future__ import annotations
@@ -164,6 +165,7 @@ class Readiness:
         self._paused_once = phase != "scheduled"  # a climb taken up after a restart goes on
         self._approach: deque[tuple[float, float]] = deque()  # (t, pv) since the release
         self._full_since: float | None = None  # t full power began, since the release
+        self._full_until: float | None = None  # t full power last ran, since the release
 
     def take_events(self) -> list[tuple[str, str]]:
         """(kind, text) of what happened since last taken: `climb`, `release`, `late`."""
@@ -245,21 +247,25 @@ class Readiness:
         while t - recent[0][0] > MIN_SPAN_S:
             recent.popleft()
         self._full_since = (t if self._full_since is None else self._full_since) if full else None
+        self._full_until = t if full else self._full_until
         rise = self.rise(pv, tun)
         dead = rise.dead_time
+        ahead = pv if tun.ahead is None else tun.ahead
+        line = _line(list(recent))
+        slope = 0.0 if line is None else line[1]
+        rising = (edge - pv) / slope if slope > 0.0 else None
+        sent = None if self._full_until is None else self._full_until + dead - t
         if self._full_since is not None:
             on_s = t - self._full_since
             need = rise.need_s(pv, edge, heating=on_s >= dead)
             if need is not None and on_s < dead:
                 need -= on_s
-        elif (ahead := pv if tun.ahead is None else tun.ahead) < edge:
-            need = rise.need_s(ahead, edge, heating=False)
+        elif ahead < edge or (rising is None and (sent is None or sent < 0.0)):
+            need = rise.need_s(min(ahead, pv) if ahead >= edge else ahead, edge, heating=False)
+        elif rising is not None and (sent is None or sent < 0.0 or rising < sent):
+            need, rise = rising, Rise(pv, slope, 0.0, 0.0, RISING)
         else:
-            line = _line(list(recent))
-            if line is not None and line[1] > 0.0 and (edge - pv) / line[1] < dead:
-                need, rise = (edge - pv) / line[1], Rise(pv, line[1], 0.0, 0.0, RISING)
-            else:
-                need, rise = dead, Rise(pv, rise.rate, rise.slope, dead, SENT)
+            need, rise = sent, Rise(pv, rise.rate, rise.slope, dead, SENT)
         self._judge_late(wall_ns, need, rise)
 
     def _hold_back(self, wall_ns: int, pv: float, tun: Tun) -> None:
