@@ -26,11 +26,12 @@ the approach is judged again every period until the water reaches the band, from
 under way (`_approaching`): the full-power line while full power runs, its dead time counted
 from when it began; else, where the heat already sent brings the water into the band (the
 controller's prediction), the sooner of the water's own rise over the last MIN_SPAN_S (a
-straight line lands sooner than the lag's tail) and a dead time after full power last ran
-(by which its heat has arrived): late only where both say so; where it does not (or nothing
-predicts it, or that heat has arrived and the water does not rise), a dead time and the line
-from where that heat leaves the water (the controller holds off, or must heat again).
-Nothing here reads a clock: time comes in with every period.
+straight line lands sooner than the lag's tail; no later than heating again from where the
+water is) and a dead time after full power last ran (by which its heat has arrived): late
+only where both say so; where it does not (or nothing predicts it, or that heat has arrived
+and the water does not rise), a dead time and the line from where that heat leaves the water
+(the controller holds off, or must heat again). Nothing here reads a clock: time comes in
+with every period.
 """
 
 from __future__ import annotations
@@ -254,6 +255,10 @@ class Readiness:
         line = _line(list(recent))
         slope = 0.0 if line is None else line[1]
         rising = (edge - pv) / slope if slope > 0.0 else None
+        by = Rise(pv, slope, 0.0, 0.0, RISING)
+        again = rise.need_s(pv, edge, heating=False)  # heated again from here: the longest
+        if rising is not None and again is not None and again < rising:
+            rising, by = again, rise
         sent = None if self._full_until is None else self._full_until + dead - t
         if self._full_since is not None:
             on_s = t - self._full_since
@@ -263,7 +268,7 @@ class Readiness:
         elif ahead < edge or (rising is None and (sent is None or sent < 0.0)):
             need = rise.need_s(min(ahead, pv) if ahead >= edge else ahead, edge, heating=False)
         elif rising is not None and (sent is None or sent < 0.0 or rising < sent):
-            need, rise = rising, Rise(pv, slope, 0.0, 0.0, RISING)
+            need, rise = rising, by
         else:
             need, rise = sent, Rise(pv, rise.rate, rise.slope, dead, SENT)
         self._judge_late(wall_ns, need, rise)
