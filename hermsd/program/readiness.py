@@ -266,7 +266,7 @@ class Readiness:
             if need is not None and on_s < dead:
                 need -= on_s
         elif ahead < edge or (rising is None and (sent is None or sent < 0.0)):
-            need = rise.need_s(min(ahead, pv) if ahead >= edge else ahead, edge, heating=False)
+            need = rise.need_s(ahead if ahead < edge else pv, edge, heating=False)
         elif rising is not None and (sent is None or sent < 0.0 or rising < sent):
             need, rise = rising, by
         else:
@@ -393,6 +393,7 @@ class Readiness:
 
     def _release(self, pv: float, rise: Rise, need: float | None, wall_ns: int) -> None:
         self.phase = "released"
+        self._full_since = self._run_since  # a full-power run that goes on counts from its start
         at = None if need is None else wall_ns + round(need * 1e9)
         rate = rise.rate - rise.slope * (pv - rise.pv)
         self._events.append(
