@@ -381,3 +381,27 @@ def test_the_heat_in_flight_lands_a_dead_time_after_full_power_then_it_must_heat
             "(the losses measured at the waiting temperature)",
         )
     ]
+
+
+def test_a_release_while_full_power_runs_counts_its_dead_time_from_the_runs_start() -> None:
+    # Full power from 20 °C on a tun that rises 0.01 °C/s less 1e-4/s per °C above its 20 °C
+    # room, as its climb measures it: x(t) = 20 + 100·(1 − e^(−t/10000)), at 66.5 °C (the
+    # last stretch) at 6255 s and at the band's edge, 70 °C, at 10000·ln 2 = 6931 s. Asked
+    # for 6900 s, it is released on the last stretch while full power runs on (a dead time of
+    # 300 s, more than LATE_S): that run has shown its heat for long, so the estimate after
+    # the release stays the line from where the water is; counted from the release, a dead
+    # time more would have said late of a water that arrives in time.
+    slow = Tun(
+        PlantModel(1.0, 1000.0, 300.0, 20.0),
+        100.0,
+        measured=True,
+        fit=HeatUpFit(rate=0.01, dead_time=300.0),
+    )
+    ready = Readiness(70.5, 6_900 * NS, clock, phase="climbing")
+    events = []
+    for t in itertools.takewhile(lambda t: t <= 6_930.0, itertools.count(0.0, PERIOD)):
+        pv = 20.0 + 100.0 * (1.0 - math.exp(-t / 10_000.0))
+        ready.period(t, round(t * NS), pv, 100.0, True, slow)
+        events += [(t, kind) for kind, _ in ready.take_events()]
+    assert events == [(6255.0, "release")]
+    assert ready.late is None
