@@ -165,7 +165,6 @@ class Readiness:
         self._paused = False  # the climb waits, heater off (it started early)
         self._paused_once = phase != "scheduled"  # a climb taken up after a restart goes on
         self._approach: deque[tuple[float, float]] = deque()  # (t, pv) since the release
-        self._full_since: float | None = None  # t full power began, since the release
         self._full_until: float | None = None  # t full power last ran, since the release
 
     def take_events(self) -> list[tuple[str, str]]:
@@ -247,7 +246,8 @@ class Readiness:
         recent.append((t, pv))
         while t - recent[0][0] > MIN_SPAN_S:
             recent.popleft()
-        self._full_since = (t if self._full_since is None else self._full_since) if full else None
+        # The full-power run under way (`_measure`'s until the release, which goes on with it).
+        self._run_since = (t if self._run_since is None else self._run_since) if full else None
         self._full_until = t if full else self._full_until
         rise = self.rise(pv, tun)
         dead = rise.dead_time
@@ -260,8 +260,8 @@ class Readiness:
         if rising is not None and again is not None and again < rising:
             rising, by = again, rise
         sent = None if self._full_until is None else self._full_until + dead - t
-        if self._full_since is not None:
-            on_s = t - self._full_since
+        if self._run_since is not None:
+            on_s = t - self._run_since
             need = rise.need_s(pv, edge, heating=on_s >= dead)
             if need is not None and on_s < dead:
                 need -= on_s
@@ -393,7 +393,6 @@ class Readiness:
 
     def _release(self, pv: float, rise: Rise, need: float | None, wall_ns: int) -> None:
         self.phase = "released"
-        self._full_since = self._run_since  # a full-power run that goes on counts from its start
         at = None if need is None else wall_ns + round(need * 1e9)
         rate = rise.rate - rise.slope * (pv - rise.pv)
         self._events.append(

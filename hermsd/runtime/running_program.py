@@ -48,13 +48,16 @@ class RunningProgram(LoopState):
             self._event(logging.WARNING, f"program {program.name!r}: {warning}", t)
 
     def _program_tun(self) -> Tun:
-        """What a `ready_by` heat-up plans with: the model in force, and what it rests on."""
+        """What a `ready_by` heat-up plans with: the model in force, and what it rests on;
+        the controller's prediction only while one runs (it walks the whole dead time)."""
         return Tun(
             self.model,
             full_power_share(self.config),
             self.model_choice.measured is not None,
             predictive.heat_up_fit(self.controller),
-            predictive.predicted_pv(self.controller),
+            predictive.predicted_pv(self.controller)
+            if self.program.readiness is not None
+            else None,
         )
 
     def program_command(self, action: str, t: float, step: int | None = None) -> None:
