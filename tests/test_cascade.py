@@ -199,12 +199,23 @@ def test_a_restart_prepared_within_the_coast_sends_no_heat_while_the_hlt_stands_
         mash_sp=65.0, mash_pv=55.0, mash_age=0.0, hlt_pv=70.0, pump=False, coil=EXACT, paused=True
     )
     assert c.coasting and paused.hlt_setpoint == pytest.approx(69.95, abs=1e-3)
-    assert c.prepared_load(70.0, 55.0, paused.hlt_setpoint, 200.0) == 0.0
-    assert c.prepared_load(69.5, 55.0, paused.hlt_setpoint, 200.0) == pytest.approx(2900.0)
+    assert c.prepared_load(70.0, 55.0, paused.hlt_setpoint, 200.0, 65.0) == 0.0
+    assert c.prepared_load(69.5, 55.0, paused.hlt_setpoint, 200.0, 65.0) == pytest.approx(2900.0)
     # In the climb the HLT above its setpoint is fed the draw all the same (as above).
     climbing = cascade()
     assert step(climbing, 50.0, 72.0).phase == "climb" and not climbing.coasting
-    assert climbing.prepared_load(72.0, 50.0, 70.0, 200.0) == pytest.approx(4400.0)
+    assert climbing.prepared_load(72.0, 50.0, 70.0, 200.0, 65.0) == pytest.approx(4400.0)
+
+
+def test_a_prepared_start_sends_ahead_no_more_than_the_hlt_takes_under_its_limit() -> None:
+    # The law sends the draw a dead time (60 s) ahead; if the coil then draws nothing it
+    # lands in 418 600 J/K. The limit is 65 + 5.15 = 70.15 °C: from 69 °C the draw,
+    # 200·(69 − 50) = 3800 W, lifts it 3800·60/418 600 = 0.545 °C, within the 1.15 °C left;
+    # from 70 °C only 0.15 °C is left, 0.15·418 600/60 = 1046.5 W of the 4000; above, none.
+    c = cascade(dataclasses.replace(LOSSLESS, hlt_dead_time=60.0))
+    assert c.prepared_load(69.0, 50.0, 70.0, 200.0, 65.0) == pytest.approx(3800.0)
+    assert c.prepared_load(70.0, 50.0, 70.0, 200.0, 65.0) == pytest.approx(1046.5)
+    assert c.prepared_load(70.2, 50.0, 70.0, 200.0, 65.0) == 0.0
 
 
 def test_a_timers_stop_in_the_climb_heats_the_hlt_no_more_than_its_restarts_coast_needs() -> None:

@@ -463,11 +463,15 @@ def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
         off = capsys.readouterr().out
     # The start is prepared: the pump runs the HLT law's dead time (600 s) after the command.
     assert said == "now: setpoint 70 °C, auto, pump starting in 600 s\n"
-    # The mash far below its 70 °C: the HLT readied to the limit, 70 + 10 less 0.15 °C.
-    assert "HLT 20.00 °C → 79.85 °C, " in status
+    # The mash far below its 70 °C: the HLT readied to the limit, 70 + 10 less 0.15 °C, but
+    # with a start prepared, to the climb's setpoint: the limit less the heat in flight for
+    # the coil that a stop lands, 200 W/K·(79.85 − 20) K·600 s / (90 L·4186 J/(L·K)) =
+    # 19.06354 °C beyond the margin, 79.85 − 18.91354 = 60.93646 °C.
+    assert "HLT 20.00 °C → 60.94 °C, " in status
     assert re.search(r", mash 20.0 → 70.0 °C \(ready\), pump starting in \d+ s, ", status)
     assert reply["pump"] is False and 0.0 < reply["mash"]["pump_start_in"] < 600.0
-    assert reply["mash"]["hlt_setpoint"] == 79.85 and reply["mash"]["phase"] == "ready"
+    assert reply["mash"]["hlt_setpoint"] == pytest.approx(60.93646, abs=1e-5)
+    assert reply["mash"]["phase"] == "ready"
     assert reply["mash"]["warning"] is None
     assert reply["coil"]["fault"] is None and reply["warnings"] == []
     assert off.endswith("pump off\n")

@@ -92,15 +92,15 @@ def dough(mash_c: float) -> dict[str, float]:
 
 
 def day(
-    pump: str, events: list[dict[str, Any]], dead_time: float = DEAD_TIME
+    pump: str, events: list[dict[str, Any]], dead_time: float = DEAD_TIME, mash_c: float = 45.0
 ) -> tuple[TracedTun, list[PeriodRecord]]:
-    """The mash (50 L and 12 kg at 20 °C) doughed in at 45 °C at DOUGH_AT, then `events`."""
+    """The mash (50 L and 12 kg at 20 °C) doughed in at `mash_c` at DOUGH_AT, then `events`."""
     doc = {
         "name": "pump-start",
         "duration": f"{PUMP_AT + AFTER + 120:g}s",
         "setpoint": REST,
         "plant": {"model": "physical", "litres": LITRES, "element_watts": WATTS},
-        "events": [{"at": f"{DOUGH_AT:g}s", "dough_in": dough(45.0)}, *events],
+        "events": [{"at": f"{DOUGH_AT:g}s", "dough_in": dough(mash_c)}, *events],
     }
     tun = TracedTun(hlt(WATTS, REST + 10.0 - 0.15), coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
     config_ = parse(config(pump, dead_time))
@@ -229,31 +229,47 @@ def test_a_commanded_pump_start_sends_the_load_ahead_and_the_hlt_stays_within_0_
     assert tun.started == PUMP_AT + DEAD_TIME
     preparing = [r for r in records if PUMP_AT <= r.t < tun.started]
     assert preparing and all(r.pump is False and (r.coil_load or 0.0) > 0.0 for r in preparing)
+    # Readied at the limit less HLT_MARGIN (75.85 °C) with the pump stopped, the HLT is
+    # steered to the climb's setpoint as the start is prepared: room under the limit for
+    # the heat in flight for the coil (`cascade.stop_room`), 189·(75.85 − 45)·70/376 740 =
+    # 1.083 °C less the margin, 74.90 °C (the mash a little warmer by now, a little higher).
     before = [r for r in records if r.t < PUMP_AT][-1]
-    assert preparing[0].output > before.output + 50.0  # the heat sent ahead, at once
+    assert before.hlt_setpoint == pytest.approx(REST + 10.0 - 0.15)
+    assert all(74.85 < (r.hlt_setpoint or 0.0) < 75.0 for r in preparing)
     # WATTS exceeds the coil's 5.8 kW and the HLT's 1 kW of losses at 76 °C. The fall is
-    # below the lesser of where the HLT stood and its setpoint (bench/herms.py's measure):
-    # once the pump runs, the climb's setpoint makes room under the limit for the heat then
-    # in flight for the coil (`cascade.stop_room`), a setpoint the HLT is let down to.
+    # below the lesser of where the HLT stood and its setpoint (bench/herms.py's measure),
+    # a setpoint the HLT is let down to.
     held = tun.trace[PUMP_AT]
     assert fall_below(tun, records, held, PUMP_AT, tun.started + AFTER) <= ALLOWED_DROP
 
 
 def test_heat_that_arrives_before_the_models_dead_time_starts_the_pump_then() -> None:
-    """The config's default dead time, 115 s, on this 70 s tun: the heat sent ahead shows
-    in the HLT's reading first, and the pump starts as it does, not 45 s later."""
-    tun, records = day("sim", [{"at": f"{PUMP_AT:g}s", "pump": "on"}], dead_time=115.0)
-    assert PUMP_AT + DEAD_TIME <= tun.started < PUMP_AT + 115.0 - PERIOD
+    """A model's dead time of 150 s on this 70 s tun: the heat sent ahead shows in the HLT's
+    reading first, and the pump starts as it does, not 80 s later. The mash doughed in at
+    55 °C, so that the HLT is readied below its limit and the draw sent ahead whole (from
+    the limit only what the HLT takes under it is sent, a share of it a longer dead time
+    more)."""
+    start = [{"at": f"{PUMP_AT:g}s", "pump": "on"}]
+    tun, records = day("sim", start, dead_time=150.0, mash_c=55.0)
+    assert PUMP_AT + DEAD_TIME <= tun.started < PUMP_AT + 150.0 - PERIOD
     ran = next(r for r in records if r.pump)
     assert ran.pv is not None and ran.pv > (ran.hlt_setpoint or 0.0) + 0.15
 
 
-def test_an_operators_off_cancels_a_start_still_being_prepared() -> None:
-    events = [{"at": f"{PUMP_AT:g}s", "pump": "on"}, {"at": f"{PUMP_AT + 30:g}s", "pump": "off"}]
+def test_an_operators_off_cancels_a_start_still_being_prepared_under_the_limit() -> None:
+    """Cancelled 5 s before the pump would run, the heat sent ahead for the coil lands in
+    water nothing draws from: no more of it was sent than the HLT, readied 0.15 °C under
+    its limit (REST + 10), takes below it (it rose 0.85 °C over when the whole load, 5.8
+    kW, was sent ahead)."""
+    cancel = PUMP_AT + DEAD_TIME - PERIOD
+    events = [{"at": f"{PUMP_AT:g}s", "pump": "on"}, {"at": f"{cancel:g}s", "pump": "off"}]
     tun, records = day("sim", events)
     assert tun.at_start is None  # the pump never ran
-    after = [r for r in records if r.t >= PUMP_AT + 30]
+    preparing = [r for r in records if PUMP_AT <= r.t < cancel]
+    assert preparing and all((r.coil_load or 0.0) > 0.0 for r in preparing)
+    after = [r for r in records if r.t >= cancel]
     assert after and all(r.pump is False and r.coil_load == 0.0 for r in after)
+    assert max(c for t, c in tun.trace.items() if t >= PUMP_AT) <= REST + 10.0
 
 
 def test_a_pump_started_outside_hermsd_is_seen_and_its_load_fed_forward_at_once() -> None:

@@ -520,12 +520,23 @@ class Cascade:
             return 0.0
         return coil.conductance * (hlt - mash)
 
-    def prepared_load(self, hlt: float, mash: float, setpoint: float, k: float) -> float:
+    def prepared_load(
+        self, hlt: float, mash: float, setpoint: float, k: float, mash_sp: float
+    ) -> float:
         """The coil's draw (W) a pump start being prepared will make, told the HLT law ahead
         of it: K times the HLT over the mash; none in the coast above its setpoint (a timer's
         stop within it), where the draw, once the pump runs, is let act (`_load`), not met
         (bench/herms.py seed 35: the restart's heat sent while the HLT stood 0.7 °C above
-        the coast's setpoint, the mash 0.27 °C over)."""
+        the coast's setpoint, the mash 0.27 °C over). No more than the HLT at `hlt` takes
+        under its limit for `mash_sp` if the coil drew none of it: the law sends it a dead
+        time ahead, and a draw less than told (K a prior, a mash sensor still catching up
+        with the dough-in, the wort's first hose-length) lands it in the HLT (seed 13: told
+        8.4 kW of a 3.3 kW draw, the HLT 0.01 °C over)."""
         if self.coasting and hlt > setpoint:
             return 0.0
-        return max(0.0, k * (hlt - mash))
+        draw = max(0.0, k * (hlt - mash))
+        dead = self._tanks.hlt_dead_time
+        if dead <= 0.0:
+            return draw
+        room = max(0.0, self.ceiling(mash_sp) + HLT_MARGIN - hlt)
+        return min(draw, room * self._tanks.hlt_capacity / dead)
