@@ -9,8 +9,9 @@ daemon is configured with the tun's litres and element, the HLT's model as a tun
 it (gain, τ, dead time 70 s), a mash and a coil outlet sensor (LM92), the coil's prior K the
 coil's effective one (ṁc·(1 − e^(−UA/ṁc))) and the mash's water and grain. The HLT starts at
 the outer loop's setpoint for a mash doughed in at 10 min, far below its rest (so the HLT
-is held at the limit: the mash's setpoint + 10 − 0.15 °C, before and after the start); at
-40 min the pump is started:
+is readied at the limit, the mash's setpoint + 10 − 0.15 °C, and from the command on
+steered to the climb's setpoint below it, `cascade.stop_room`); at 40 min the pump is
+started:
 
 - **commanded**: `set pump on` through the daemon (`pump.backend: sim`): the drop is the
   HLT's water's largest fall below the lesser of the water at the command and the HLT's
