@@ -66,6 +66,19 @@ def test_the_climb_stops_where_the_hlt_s_stored_heat_carries_the_mash_to_its_res
     assert at.phase == "coast" and at.hlt_setpoint == pytest.approx(69.95, abs=1e-3)
 
 
+def test_the_climb_pairs_the_hlt_a_dead_time_ahead_with_the_mash_then() -> None:
+    # The HLT handed in is the law's prediction a dead time (60 s) ahead, the coil's draw
+    # taken off it over that time; the mash takes it in meanwhile. Lossless, no hose, the
+    # draw at the minute's mean: Δm·C_m = K·(70 − m − Δm/2)·60, Δm = 12 000·(70 − m)/215 300.
+    # The coast from 70 °C lifts the mash by 10 °C (as above), so the climb stops when
+    # m + Δm = 55: m = (55 − 70·0.0557362)/0.9442638 = 54.1147 °C, not at 55 (the mash 0.89 °C
+    # warmer than read by the time the HLT is where the prediction says).
+    tanks = dataclasses.replace(LOSSLESS, hlt_dead_time=60.0)
+    assert step(cascade(tanks), 54.06, 70.0).phase == "climb"
+    assert step(cascade(tanks), 54.17, 70.0).phase == "coast"
+    assert step(cascade(), 54.17, 70.0).phase == "climb"  # no dead time: paired as read
+
+
 @pytest.mark.parametrize(("dead_time", "setpoint"), [(60.0, 69.28999), (5.0, 70.0)])
 def test_a_climb_keeps_room_under_the_limit_for_the_heat_an_unannounced_stop_lands(
     dead_time: float, setpoint: float

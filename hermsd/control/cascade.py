@@ -100,7 +100,8 @@ class Tanks:
     hlt_loss, mash_loss in W/K to the room at `room` °C; hose_delay in s (the wort's round trip
     outside the tun, mash → coil → mash, half each way); mash_lag in s (the mash sensor's lag
     behind the mash); hlt_dead_time in s (the HLT law's, between its duty and its sensor:
-    the heat sent for the coil's load that is still on its way).
+    the heat sent for the coil's load that is still on its way, and how far ahead the law's
+    prediction of the HLT looks).
     """
 
     hlt_capacity: float
@@ -332,6 +333,16 @@ class Cascade:
         flow = k * (hlt_pv - mash_pv) if pump else 0.0
         rise = (flow - tanks.mash_loss * (mash_pv - tanks.room)) / tanks.mash_capacity
         mash = mash_pv + tanks.mash_lag * max(0.0, rise)
+        if pump:
+            # And as it will be when the HLT is at `hlt_pv`, the law's prediction a dead time
+            # ahead: that prediction takes the coil's draw off the HLT over the dead time, and
+            # the mash takes it in (at the span's mean, the mash rising meanwhile; what is in
+            # the hose's return leg then, `coast_peak` counts). Paired with the mash as read,
+            # the coast missed that heat: bench/herms.py seed 66's first rest 0.64 °C over.
+            ahead = tanks.hlt_dead_time
+            reaching = max(0.0, ahead - 0.5 * tanks.hose_delay)
+            gained = k * (hlt_pv - mash) * reaching - tanks.mash_loss * (mash - tanks.room) * ahead
+            mash += gained / (tanks.mash_capacity + 0.5 * k * reaching)
         high = max(coil.high, MIN_CONDUCTANCE)
         hold_high = holding_hlt(mash_sp, tanks, high)
         # The peak aimed at the rest itself: K one sd high (and the mash's losses, a low prior)
