@@ -232,7 +232,7 @@ def test_a_commanded_pump_start_sends_the_load_ahead_and_the_hlt_stays_within_0_
     # Readied at the limit less HLT_MARGIN (75.85 °C) with the pump stopped, the HLT is
     # steered to the climb's setpoint as the start is prepared: room under the limit for
     # the heat in flight for the coil (`cascade.stop_room`), 189·(75.85 − 45)·70/376 740 =
-    # 1.083 °C less the margin, 74.90 °C (the mash a little warmer by now, a little higher).
+    # 1.083 °C less the margin, 74.92 °C (the mash a little warmer by now, a little higher).
     before = [r for r in records if r.t < PUMP_AT][-1]
     assert before.hlt_setpoint == pytest.approx(REST + 10.0 - 0.15)
     assert all(74.85 < (r.hlt_setpoint or 0.0) < 75.0 for r in preparing)
@@ -247,8 +247,7 @@ def test_heat_that_arrives_before_the_models_dead_time_starts_the_pump_then() ->
     """A model's dead time of 150 s on this 70 s tun: the heat sent ahead shows in the HLT's
     reading first, and the pump starts as it does, not 80 s later. The mash doughed in at
     55 °C, so that the HLT is readied below its limit and the draw sent ahead whole (from
-    the limit only what the HLT takes under it is sent, a share of it a longer dead time
-    more)."""
+    the limit, only what the HLT takes under it is sent: too little to show early)."""
     start = [{"at": f"{PUMP_AT:g}s", "pump": "on"}]
     tun, records = day("sim", start, dead_time=150.0, mash_c=55.0)
     assert PUMP_AT + DEAD_TIME <= tun.started < PUMP_AT + 150.0 - PERIOD
