@@ -220,6 +220,22 @@ def test_a_restart_prepared_within_the_coast_sends_no_heat_while_the_hlt_stands_
     assert climbing.prepared_load(72.0, 50.0, 70.0, 200.0, 65.0) == pytest.approx(4400.0)
 
 
+def test_a_start_being_prepared_readies_the_hlt_no_higher_than_the_climb_it_begins() -> None:
+    # The mash at 40 °C far below its 65 °C rest, the pump stopped: readied to the ceiling,
+    # 70 °C. With a start prepared, the climb's setpoint the start begins: the ceiling less
+    # what a stop's heat in flight needs beyond the margin, 200·(70 − 40)·60/418 600 =
+    # 0.86001 °C, so 69.28999 °C (as the climb's own, above); held there should the reading go.
+    tanks = dataclasses.replace(LOSSLESS, hlt_dead_time=60.0)
+    assert step(cascade(tanks), 40.0, 60.0, pump=False).hlt_setpoint == pytest.approx(70.0)
+    c = cascade(tanks)
+    starting = c.step(
+        mash_sp=65.0, mash_pv=40.0, mash_age=0.0, hlt_pv=60.0, pump=False, coil=EXACT, starting=True
+    )
+    assert starting.phase == "ready"
+    assert starting.hlt_setpoint == pytest.approx(69.28999, abs=1e-5)
+    assert step(c, None, 60.0, pump=False).hlt_setpoint == pytest.approx(69.28999, abs=1e-5)
+
+
 def test_a_prepared_start_sends_ahead_no_more_than_the_hlt_takes_under_its_limit() -> None:
     # The law sends the draw a dead time (60 s) ahead; if the coil then draws nothing it
     # lands in 418 600 J/K. The limit is 65 + 5.15 = 70.15 °C: from 69 °C the draw,

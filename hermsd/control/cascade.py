@@ -300,6 +300,7 @@ class Cascade:
         coil: CoilEstimate,
         flowing: bool = True,
         paused: bool = False,
+        starting: bool = False,
     ) -> Decision:
         """One period. `mash_pv` None (a fault) or older than MAX_MASH_AGE (`mash_age`, s):
         the HLT held at its last setpoint. `hlt_pv` is best the HLT law's predicted PV (the
@@ -310,7 +311,10 @@ class Cascade:
         due: the HLT's setpoint kept where it stood (a stop of a minute or two is no reason
         to ready the HLT for another mash; the restart, prepared, meets the HLT it left), in
         a climb no higher than the HLT from which the restart's coast carries the mash to
-        its rest."""
+        its rest. `starting`: a pump start hermsd prepares (the pump switched a dead time
+        on): the HLT readied no higher than the climb's setpoint the start begins (`most`),
+        so that it is let down to it as the coil draws, not held at the ceiling with the
+        whole draw's heat in flight (`prepared_load`)."""
         stood = pump and not flowing
         pump = pump and flowing
         ceiling = self.ceiling(mash_sp)
@@ -387,6 +391,8 @@ class Cascade:
                     # would have ended with the pump running.
                     peak = coast_start(mash, hold_high, tanks, high, target, ceiling)
                     setpoint = min(setpoint, peak)
+            if starting:
+                setpoint = min(setpoint, self.most(mash_sp, mash_pv, k))
             phase = "no flow" if stood else "ready"
         elif self._climbing:
             setpoint, phase = self.most(mash_sp, mash_pv, k), "climb"

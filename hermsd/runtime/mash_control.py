@@ -144,6 +144,7 @@ class MashControl:
             coil=coil,
             flowing=not self.flow.stuck,
             paused=timer_stop,
+            starting=pump_in is not None,
         )
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
@@ -152,13 +153,7 @@ class MashControl:
             prepared = self.cascade.prepared_load(
                 hlt, mash_pv, decision.hlt_setpoint, coil.conductance, mash_sp
             )
-            setpoint = decision.hlt_setpoint
-            if decision.phase == "ready":
-                # Readied no higher than the climb the start begins: from the ceiling the
-                # HLT would fall to the climb's setpoint as the coil draws (`stop_room`).
-                most = self.cascade.most(mash_sp, mash_pv, max(coil.conductance, MIN_CONDUCTANCE))
-                setpoint = min(setpoint, most)
-            decision = dataclasses.replace(decision, hlt_setpoint=setpoint, load_watts=prepared)
+            decision = dataclasses.replace(decision, load_watts=prepared)
             starts_in = pump_in
         ends_in = math.inf if pump_stop_in is None else max(pump_stop_in, starts_in)
         predictive.known_load(
