@@ -23,44 +23,47 @@ HLT's and the mash's LM92 truncate to 0.0625 °C).
 
 The day: the HLT held at the strike setpoint, dough-in and "Mash in" confirmed at 20 min,
 then rests of 63 °C (30 min), 72 °C (20 min) and 78 °C (10 min) timed on the mash (reached
-within ±0.5 °C of the mash reading, the hold counting the periods in that band); the day ends
-2 min after the last hold. hermsd runs it as a mash program with a mash sensor fitted
-(herms keys: the mash's true litres and grain, its losses guessed low at 0.7 of the truth,
-the hoses' round trip and the mash sensor's lag; the HLT law's prior the true HLT), the pump
-started by the program's first rest when fitted. The peers run in the same daemon with no
-mash sensor (an HLT thermostat, the same HLT law and prior): a listener handed the daemon
+within ±0.5 °C of the mash reading, the hold counting the periods in that band); the day
+ends 2 min after the last hold, or at 10 h (a 2.5 kW element under 110 L takes over 7).
+hermsd runs it as a mash program with a mash sensor fitted (herms keys: the mash's true
+litres and grain, its losses guessed low at 0.7 of the truth, the hoses' round trip and the
+mash sensor's lag; the HLT law's prior the true HLT), the pump started by the program's
+first rest when fitted. The peers run in the same daemon with no mash sensor (an HLT
+thermostat, the same HLT law and prior): a listener handed the daemon
 (`scenario.run(attach=...)`) reads the simulated mash sensor each period (its noise, lag and
-0.0625 °C steps), times the rests by the same rule, sets the daemon's setpoint as
-`hermsd set setpoint` would and starts the fitted pump at the first rest as
-`hermsd set pump on` would. Offset: the HLT at the mash's setpoint + 2 °C (ebrew,
-CraftBeerPi users). CascadePID: CraftBeerPi's, a PI on the mash's error (10 °C/°C, Ti
-600 s) gives the HLT's setpoint, clamped to the mash's setpoint + the limit
-(bench/herms_cascade.py's peers).
+0.0625 °C steps), times the rests by the same rule, sets the daemon's setpoint as `hermsd
+set setpoint` would and starts the fitted pump at the first rest as `hermsd set pump on`
+would. Offset: the HLT at the mash's setpoint + 2 °C (ebrew, CraftBeerPi users). CascadePID:
+CraftBeerPi's, a PI on the mash's error (10 °C/°C, Ti 600 s) gives the HLT's setpoint,
+clamped to the mash's setpoint + the limit (bench/herms_cascade.py's peers).
 
 Measured on the true temperatures (the HLT's water, the mash's bulk), per rest: the mash's
 worst error from 5 min after it first came within 0.3 °C (goal ≤ 0.3 °C), the pump's stops
-after that aside, from the stop until the mash is back within 0.3 °C after the restart (the
-brewer's stir, a recirculation timer: no heat reaches the mash, which cools at its own rate
-whatever the HLT does; shown counted too), its overshoot (goal ≤ 0.2 °C), the HLT's highest
-against the mash's setpoint + limit from its first time at or below it in the rest (never
-above; a strike the program leaves above the first rest + limit, which `hermsd program
-check` warns of, cannot be cooled, only left to fall: shown counted too), and the
-step time from the rest's start to within 0.3 °C against the fastest the limit allows on the
-same plant (goal ≤ ×1.15): a copy from the water's and the mash's temperatures at the step's
-start, the element's heat arriving at once, the pump as the day switched it, the HLT at full
-power to the limit and held there, then off at the last instant that keeps the mash at or
-below its rest (by bisection) and held at the HLT the rest needs. Per pump start: the HLT's
-largest fall below the lesser of its temperature at the start and its setpoint over 10 min;
-one hermsd commands (goal ≤ 0.3 °C where the element exceeds the coil's load and the HLT's
-losses at that instant), one outside hermsd against the fall at full power from the start's
-instant on a copy of the plant (goal ≤ ×1.2, seen through its sense; the unseen one measured
-apart; shown where that fall is 0.1 °C or more).
-Alarms (goal 0; a latched one is reset by the brewer at once, `hermsd reset`, so that the
-day goes on, and each is counted: a peer's are the supervisor's verdict on a HERMS run as a
-plain HLT, which counts no coil's load without a mash sensor, not the peer's own), and
-`replay --verify` on each day's log (exact: every step re-run bit for bit). Per day, what the
-mash's reach watch said ("the mash levels out near …": a rest the HLT at its most cannot
-bring the mash to within a degree; docs/mash-control.md), none where every rest is reached.
+aside (one begun in those 5 min too), from the stop until the mash is back within 0.3 °C
+after the restart (the brewer's stir, a recirculation timer: no heat reaches the mash, which
+cools at its own rate whatever the HLT does; shown counted too), its overshoot (goal ≤ 0.2
+°C), the HLT's highest against the mash's setpoint + limit from its first time at or below
+it in the rest (never above; a strike the program leaves above the first rest + limit, which
+`hermsd program check` warns of, cannot be cooled, only left to fall: shown counted too),
+and the step time from the rest's start to within 0.3 °C against the fastest the limit
+allows on the same plant (goal ≤ ×1.15): a copy from the water's and the mash's temperatures
+at the step's start, the element's heat arriving at once, the pump as the day switched it,
+the HLT at full power to the limit and held there, then off at the last instant that keeps
+the mash at or below its rest (by bisection) and held at the HLT the rest needs. A rest the
+ideal never reaches (the limit leaves it out of reach on that plant) is no goal for anyone,
+nor are the rests the program never begins after it; one it reaches and a controller does
+not is a miss ("never"). Per pump start: the HLT's largest fall below the lesser of its
+temperature at the start and its setpoint over 10 min; one hermsd commands (goal ≤ 0.3 °C
+where the element exceeds the coil's load and the HLT's losses at that instant), one outside
+hermsd against the fall at full power from the start's instant on a copy of the plant (goal
+≤ ×1.2, seen through its sense; the unseen one measured apart; shown where that fall is 0.1
+°C or more). Alarms (goal 0; a latched one is reset by the brewer at once, `hermsd reset`,
+so that the day goes on, and each is counted: a peer's are the supervisor's verdict on a
+HERMS run as a plain HLT, which counts no coil's load without a mash sensor, not the peer's
+own), and `replay --verify` on each day's log (exact: every step re-run bit for bit). Per
+day, what the mash's reach watch said ("the mash levels out near …": a rest the HLT at its
+most cannot bring the mash to within a degree; docs/mash-control.md), none where every rest
+is reached.
 
     uv run python bench/herms.py [--seeds 1-40] [--jobs 2] [--write]
 """
@@ -102,7 +105,7 @@ PERIOD = 5.0
 NOISE_C = 0.03
 LM92_STEP = 0.0625
 OFFSET = 2.0
-DURATION = 7 * 3600.0  # the most a day may take; it ends 2 min after its last hold
+DURATION = 10 * 3600.0  # the most a day may take; it ends 2 min after its last hold
 HEADING = "## HERMS family through the daemon: hermsd and its peers"
 CONTROLLERS = ("hermsd", "offset", "cascadepid")
 
@@ -563,16 +566,14 @@ def held_samples(
     window: list[Sample], sp: float, reached: float, pumps: list[tuple[float, bool]]
 ) -> list[Sample]:
     """The rest's samples from 5 min after the mash first came within BAND, less the pump's
-    stops after that (the brewer's stir, a recirculation timer: no heat reaches the mash, and
-    it cools at its own rate whatever the HLT does) and the time from each restart until the
-    mash is back within BAND."""
+    stops (the brewer's stir, a recirculation timer: no heat reaches the mash, and it cools at
+    its own rate whatever the HLT does) and the time from each restart until the mash is back
+    within BAND, a stop begun in those 5 min too."""
     held, out = [], False
     for x in window:
-        if x.t < reached + 300.0:
-            continue
         running = pump_running(pumps, x.t)
         out = (out or not running) and not (running and abs(x.mash - sp) <= BAND)
-        if not out:
+        if not out and x.t >= reached + SETTLE_S:
             held.append(x)
     return held
 
@@ -586,9 +587,11 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
         reached = next((x.t for x in window if x.mash >= sp - BAND), None)
         held = [] if reached is None else held_samples(window, sp, reached, pumps)
         after = [abs(x.mash - sp) for x in held]
-        stops = [x.mash - sp for x in window if reached is not None and x.t >= reached + 300]
+        stops = [x.mash - sp for x in window if reached is not None and x.t >= reached + SETTLE_S]
         best = fastest(s, start, sp, pumps)
         step = math.inf if reached is None else reached - start[0]
+        # Never within BAND: a miss where the ideal gets there, none where nothing can.
+        unheld = math.nan if reached is not None or math.isinf(best) else math.inf
         cap = sp + s.limit
         # Above the limit from its first time at or below it: a strike left above the first
         # rest's limit (the program's choice, which `hermsd program check` warns of) cannot
@@ -597,8 +600,8 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
         rows.append(
             {
                 "sp": sp,
-                "err": max(after, default=math.nan),
-                "err_all": max((abs(e) for e in stops), default=math.nan),
+                "err": max(after, default=unheld),
+                "err_all": max((abs(e) for e in stops), default=unheld),
                 "over": max(x.mash for x in window) - sp,
                 "hlt_above": max(x.water for x in window[come_down:]) - cap,
                 "hlt_above_all": max(x.water for x in window) - cap,
@@ -720,7 +723,10 @@ def day_measures(day: dict[str, Any]) -> dict[str, list[float]]:
     }
     keys = ("err", "err_all", "over", "hlt_above", "hlt_above_all", "ratio")
     values = {key: [r[key] for r in rests] for key in keys}
-    missing = len(RESTS) - len(rests)  # a rest never begun: the program never got there
+    # A rest never begun: the program never got there, a miss unless the rest before it is out
+    # of the limit's reach on the plant (the ideal never reaches it), which no controller can.
+    out_of_reach = bool(rests) and math.isinf(rests[-1]["fastest_s"])
+    missing = 0 if out_of_reach else len(RESTS) - len(rests)
     for key in ("err", "err_all", "ratio"):
         values[key] += [math.inf] * missing
     return {
