@@ -404,6 +404,36 @@ def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cl
     daemon.shutdown()
 
 
+def test_a_rest_out_of_reach_is_said_though_the_pump_stops_every_twenty_minutes() -> None:
+    """A recirculation timer outside the program (the operator's pump off 2 min every 20 min)
+    pauses the watch's run, as the program's own timer does: ended at each stop, its 18 min of
+    wort flowing would hold one 10 min block, never the three in a row it says on. The level
+    named is the one the HLT held while the wort flowed brings the mash to (as above)."""
+    guessed = f"mash_loss_w_per_k: 28\n  max_hlt_above_mash: {TIGHT_LIMIT:g}\n"
+    daemon, world = herms_daemon(CONFIG.replace("mash_loss_w_per_k: 5\n", guessed), LOSSY_UA)
+    periods = Periods()
+    daemon.listeners.append(periods)
+    daemon.recorder = periods
+    tun: Any = world.plant
+    daemon.clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
+    daemon.clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
+    for stop in range(int(PUMP_AT) + 1200, 5 * 3600, 1200):
+        daemon.clock.call_at(float(stop), lambda: daemon.set_pump(False, "by the operator"))
+        daemon.clock.call_at(stop + 120.0, lambda: daemon.set_pump(True, "by the operator"))
+    daemon.run(until=5 * 3600.0)
+    said = [e for e in periods.events if e.startswith("the mash levels out")]
+    assert len(said) == 1, said
+    flow = 6.0 / 60.0 * 4186.0
+    k = flow * (1.0 - math.exp(-250.0 / flow))
+    last_hour = [r.pv for r in periods.records if r.t >= 4 * 3600.0 and r.pump and r.pv]
+    hlt = sum(last_hour) / len(last_hour)
+    level = (k * hlt + LOSSY_UA * 20.0) / (k + LOSSY_UA)
+    control = daemon._mash_control
+    assert control is not None and control.reach.ceiling is not None
+    assert abs(control.reach.ceiling - level) < 0.5
+    daemon.shutdown()
+
+
 def test_the_reach_warning_names_the_key_that_sets_the_hlts_most() -> None:
     """With a 10 °C limit and safety.max_temp 85 °C the HLT may stand at 84 °C at most
     (CUT_OUT_MARGIN below the cut-out): a 63 °C rest's most is 63 + 10 − 0.15 = 72.85 °C, set

@@ -167,7 +167,7 @@ class MashControl:
         )
         self.load_in, self.load_until, self.load_basis = starts_in, ends_in, coil.conductance
         k = max(coil.conductance, MIN_CONDUCTANCE)
-        self._watch_reach(t, decision, mash_sp, mash_pv, hlt_pv, k, timer_stop)
+        self._watch_reach(t, decision, mash_sp, mash_pv, hlt_pv, k, timer_stop or not pump)
         self.decision = decision
         return decision
 
@@ -184,7 +184,9 @@ class MashControl:
         """Feed the mash's reach watch: "full power" is the HLT steered to its most
         (`Cascade.most`) and standing within the band of it, so that the mash's rise is
         the most the limit allows; a rest changed restarts it (the HLT's most moves with
-        the rest); a stop of the program's pump timer pauses its run."""
+        the rest); the pump stopped pauses its run (a timer's stop, a stir, a pump run outside
+        hermsd stopped a while: the mash's rise goes on as before once the wort flows again,
+        and a run ended at each of a timer's stops would never be measured whole)."""
         said = None
         if self._rest is not None and abs(mash_sp - self._rest) > SETPOINT_MOVE:
             said = self.reach.restart("the rest changed")
