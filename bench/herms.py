@@ -53,17 +53,17 @@ the mash at or below its rest (by bisection) and held at the HLT the rest needs.
 ideal never reaches (the limit leaves it out of reach on that plant) is no goal for anyone,
 nor are the rests the program never begins after it; one it reaches and a controller does
 not is a miss ("never"). Per pump start: the HLT's largest fall below the lesser of its
-temperature at the start and its setpoint over 10 min; one hermsd commands (goal ≤ 0.3 °C
-where the element exceeds the coil's load and the HLT's losses at that instant), one outside
-hermsd against the fall at full power from the start's instant on a copy of the plant (goal
-≤ ×1.2, seen through its sense; the unseen one measured apart; shown where that fall is 0.1
-°C or more). Alarms (goal 0; a latched one is reset by the brewer at once, `hermsd reset`,
-so that the day goes on, and each is counted: a peer's are the supervisor's verdict on a
-HERMS run as a plain HLT, which counts no coil's load without a mash sensor, not the peer's
-own), and `replay --verify` on each day's log (exact: every step re-run bit for bit). Per
-day, what the mash's reach watch said ("the mash levels out near …": a rest the HLT at its
-most cannot bring the mash to within a degree; docs/mash-control.md), none where every rest
-is reached.
+temperature at the start and its setpoint over 10 min (or until the next rest begins, its
+setpoint another step's climb); one hermsd commands (goal ≤ 0.3 °C where the element exceeds
+the coil's load and the HLT's losses at that instant), one outside hermsd against the fall
+at full power from the start's instant on a copy of the plant (goal ≤ ×1.2, seen through its
+sense; the unseen one measured apart; shown where that fall is 0.1 °C or more). Alarms (goal
+0; a latched one is reset by the brewer at once, `hermsd reset`, so that the day goes on,
+and each is counted: a peer's are the supervisor's verdict on a HERMS run as a plain HLT,
+which counts no coil's load without a mash sensor, not the peer's own), and `replay
+--verify` on each day's log (exact: every step re-run bit for bit). Per day, what the mash's
+reach watch said ("the mash levels out near …": a rest the HLT at its most cannot bring the
+mash to within a degree; docs/mash-control.md), none where every rest is reached.
 
     uv run python bench/herms.py [--seeds 1-40] [--jobs 2] [--write]
 """
@@ -618,7 +618,10 @@ def pumps_measured(s: SetUp, day: Day) -> list[dict[str, Any]]:
     instant, and the fall full power from that instant allows."""
     rows = []
     for start in day.tun.pump_starts:
-        window = [x for x in day.samples if start.t <= x.t <= start.t + PUMP_WINDOW_S]
+        # Until the next rest begins at the latest: its setpoint is another step's climb.
+        until = min((t for t, _, _ in day.rest_starts if t > start.t), default=math.inf)
+        end = start.t + PUMP_WINDOW_S
+        window = [x for x in day.samples if start.t <= x.t <= end and x.t < until]
         fall = max((min(start.water, x.hlt_sp) - x.water for x in window), default=math.nan)
         fall = max(fall, 0.0)  # the HLT above where it was and where it was wanted: no fall
         rows.append(
