@@ -18,8 +18,9 @@ holds, above it where it falls short), down to T_hold as the mash arrives, and f
 the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's rise against
 the model's once the climb is over, and the PI's integral, learn it, and what they learn serves
 the next rest's T_hold and coast. With the pump stopped nothing flows, and the HLT is readied:
-the setpoint is the temperature whose stored heat above T_hold just covers the mash's shortfall
-(capped by the limit).
+the setpoint is the HLT from which the coast, once the wort flows, carries the mash to its rest
+(at least the temperature whose stored heat above T_hold covers its shortfall; capped by the
+limit).
 
 The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
 lower T_hold, so it stops early rather than late; the load fed forward is K's estimate (one
@@ -34,6 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from hermsd.control.coil import CoilEstimate
@@ -84,6 +86,13 @@ makes between two readings."""
 MAX_LOSS_FACTOR = 4.0
 """The mash's losses as learned stay within 0 and this many times the config's (or 20 W/K,
 whichever is more)."""
+MASH_LINE_S = 60.0
+"""s of mash readings the outer loop reads the mash through, as the least-squares line through
+them (its level at the newest, and its rise): reading by reading, one 0.0625 °C step of the
+LM92 moved the losses' observer by 0.5 W/K and a coast's HLT near its end by up to 0.7 °C a
+period (bench/herms.py seed 8's 72 °C rest), the law's duty 0 → 47 % → 0. Over 13 readings
+(noise 0.03 °C on the LM92's steps) the level's noise is about half a reading's and the rise's
+a twentieth of a one-period difference's; the mash's slow rise bends little in a minute."""
 STRIKE = "strike"
 """The phase of a program's step before the mash is in: the HLT held at the step's setpoint
 itself (`MashControl.strike`), the outer loop not stepped."""
@@ -137,6 +146,19 @@ class Decision:
     phase: str
     held: str | None = None
     load_met: bool = True  # False: a draw the HLT law lets act (the coast above its setpoint)
+
+
+def line_through(readings: Sequence[float]) -> tuple[float, float | None]:
+    """The newest of evenly spaced `readings` where the least-squares line through them puts
+    it, and the line's rise a reading (the reading itself and None while there are fewer than
+    4: too few to tell noise from a rise)."""
+    n = len(readings)
+    if n < 4:
+        return readings[-1], None
+    middle, mean = 0.5 * (n - 1), sum(readings) / n
+    moment = sum((i - middle) * (x - mean) for i, x in enumerate(readings))
+    slope = moment / (n * (n * n - 1) / 12.0)  # over Σ (i − middle)²
+    return mean + slope * middle, slope
 
 
 def holding_hlt(mash_sp: float, tanks: Tanks, conductance: float) -> float:
@@ -230,6 +252,7 @@ class Cascade:
         "_last_sp",
         "_letting",
         "_limit",
+        "_mash_line",
         "_mash_loss",
         "_mash_sp",
         "_mash_span",
@@ -249,12 +272,13 @@ class Cascade:
         self._mash_sp: float | None = None
         self._last_sp: float | None = None
         self._last_mash: float | None = None
-        # (HLT, mash) readings over the delay between the coil and the mash's sensor.
-        self._seen: deque[tuple[float, float]] = deque(
-            maxlen=round((0.5 * tanks.hose_delay + tanks.mash_lag) / period) + 2
-        )
+        # (HLT, mash) readings over the delay between the coil and the mash's sensor, and
+        # half the line the mash's rise is read from (its middle lies that far back).
+        behind = 0.5 * tanks.hose_delay + tanks.mash_lag + 0.5 * MASH_LINE_S
+        self._seen: deque[tuple[float, float]] = deque(maxlen=round(behind / period) + 2)
         span = 2.0 * (tanks.hose_delay + tanks.mash_lag) + 60.0  # `STARVED_FALL`
         self._mash_span: deque[float] = deque(maxlen=round(span / period) + 1)
+        self._mash_line: deque[float] = deque(maxlen=round(MASH_LINE_S / period) + 1)
         self._climbing = True
         self._settled = False  # the HLT has come down to its hold since the climb ended
         self._after_stop = False  # the held mash is brought back after a pump stop
@@ -333,10 +357,17 @@ class Cascade:
         tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
         k = max(coil.conductance, MIN_CONDUCTANCE)
         hold = holding_hlt(mash_sp, tanks, k)
+        # The mash as read: the line through its last readings (MASH_LINE_S; a stop of the
+        # pump begins a new one), its level at the newest and its rise a period.
+        line = self._mash_line
+        if not pump:
+            line.clear()
+        line.append(mash_pv)
+        read, rose = line_through(line)
         # The mash as it is now: its sensor lags it by mash_lag while it rises at the model's rate.
-        flow = k * (hlt_pv - mash_pv) if pump else 0.0
-        rise = (flow - tanks.mash_loss * (mash_pv - tanks.room)) / tanks.mash_capacity
-        mash = mash_pv + tanks.mash_lag * max(0.0, rise)
+        flow = k * (hlt_pv - read) if pump else 0.0
+        rise = (flow - tanks.mash_loss * (read - tanks.room)) / tanks.mash_capacity
+        mash = read + tanks.mash_lag * max(0.0, rise)
         if pump:
             # And as it will be when the HLT is at `hlt_pv`, the law's prediction a dead time
             # ahead: that prediction takes the coil's draw off the HLT over the dead time, and
@@ -373,11 +404,13 @@ class Cascade:
             and mash_pv < mash_sp
             and window[0] - mash_pv >= STARVED_FALL
         )
-        self._observe(mash_pv, hlt_pv, pump and not starved, k, high)
-        # A stop of the held mash (a stir, a timer) cools it by what the stop lasted, not by
-        # an error of the model: the hold's integral does not take it for losses until the
-        # mash is back within RESTORED_BAND of its rest.
-        if not pump and self._settled:
+        whole = rose if len(line) == line.maxlen else None  # a rise centred where `_seen` pairs it
+        self._observe(read, whole, hlt_pv, pump and not starved, k, high)
+        # A stop once the climb is over (a stir, a timer; in the hold or in the coast, which
+        # may give way to the hold as the wort flows again) cools the mash by what the stop
+        # lasted, not by an error of the model: the hold's integral does not take it for
+        # losses until the mash is back within RESTORED_BAND of its rest.
+        if not pump and not self._climbing:
             self._after_stop = True
         elif mash_pv >= mash_sp - RESTORED_BAND:
             self._after_stop = False
@@ -391,6 +424,14 @@ class Cascade:
                     # would have ended with the pump running.
                     peak = coast_start(mash, hold_high, tanks, high, target, ceiling)
                     setpoint = min(setpoint, peak)
+            else:
+                # Readied to the HLT from which the restart's coast carries the mash to its
+                # rest, where that is above the stored heat's estimate (the mash's losses over
+                # the coast): a restart whose coast falls short begins a climb, and from the
+                # lower HLT the climb's first dead time is the coil's draw unmet (bench/herms.py
+                # seed 19: a stir's restart into a climb from 0.9 °C under its setpoint, the HLT
+                # 0.3 °C down) and its last tenths slow.
+                setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if starting:
                 setpoint = min(setpoint, self.most(mash_sp, mash_pv, k))
             phase = "no flow" if stood else "ready"
@@ -399,7 +440,7 @@ class Cascade:
         else:
             setpoint = self._hold(
                 mash_sp,
-                mash_pv,
+                read,
                 mash,
                 hlt_pv,
                 tanks,
@@ -417,7 +458,7 @@ class Cascade:
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, aim, ceiling))
             setpoint = min(setpoint, ceiling)
         self._last_sp = setpoint
-        load = self._load(hlt_pv, mash_pv, pump, coil)
+        load = self._load(hlt_pv, read, pump, coil)
         # The coast lets the coil's draw act until the HLT is down at its setpoint, and again
         # once it stands HLT_MARGIN above it: the prediction moves with the heat sent for the
         # draw, and judged without the margin the draw would be met and let act in turn.
@@ -429,13 +470,16 @@ class Cascade:
             self._letting = False
         return Decision(setpoint, load, phase, load_met=not (coast and self._letting))
 
-    def _observe(self, mash_pv: float, hlt_pv: float, pump: bool, k: float, high: float) -> None:
+    def _observe(
+        self, mash_pv: float, rose: float | None, hlt_pv: float, pump: bool, k: float, high: float
+    ) -> None:
         """Learn the mash's losses from its rise where the coil's heat is small and known
         (coast and hold; in the climb K's uncertainty outweighs them; `pump` False: no heat
         reaches the mash, a stopped pump or a starved mash, and its rise says nothing until
-        a delay after it does): the rise over the last period against the model's, its
-        tanks taken the sensor's delay before (half the hose and the mash sensor's lag), the
-        miss taken as loss with the time LOSS_LEARN_S."""
+        a delay after it does): the rise a period (`rose`, the line's through the last
+        MASH_LINE_S) against the model's, its tanks taken the sensor's delay before (half the
+        hose and the mash sensor's lag, and half the line), the miss taken as loss with the
+        time LOSS_LEARN_S."""
         seen = self._seen
         if not pump or self._climbing:
             seen.clear()
@@ -448,7 +492,9 @@ class Cascade:
         above_room = m - tanks.room
         if len(seen) < (seen.maxlen or 0) or above_room < 1.0:
             return
-        rise = mash_pv - seen[-2][1]
+        if rose is None:
+            return
+        rise = rose
         modelled = self._period * (k * (h - m) - self._mash_loss * above_room)
         miss = modelled - tanks.mash_capacity * rise  # J the model gave the mash too many
         # Taught as fast as the losses stand out of K's uncertainty in the mash's balance
