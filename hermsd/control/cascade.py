@@ -19,8 +19,7 @@ the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash'
 the model's once the climb is over, and the PI's integral, learn it, and what they learn serves
 the next rest's T_hold and coast. With the pump stopped nothing flows, and the HLT is readied:
 the setpoint is the temperature whose stored heat above T_hold just covers the mash's shortfall
-(capped by the limit); with a start prepared, at least the HLT from which the start's coast
-carries the mash to its rest.
+(capped by the limit).
 
 The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
 lower T_hold, so it stops early rather than late; the load fed forward is K's estimate (one
@@ -336,11 +335,9 @@ class Cascade:
         to ready the HLT for another mash; the restart, prepared, meets the HLT it left), in
         a climb no higher than the HLT from which the restart's coast carries the mash to
         its rest. `starting`: a pump start hermsd prepares (the pump switched a dead time
-        on): the HLT readied at least to where the start's coast carries the mash to its
-        rest (after the program's timer's stop, where it stood: `paused`) and no higher than
-        the climb's setpoint the start begins (`most`), so that it is let down to it as the
-        coil draws, not held at the ceiling with the whole draw's heat in flight
-        (`prepared_load`)."""
+        on): the HLT readied no higher than the climb's setpoint the start begins (`most`),
+        so that it is let down to it as the coil draws, not held at the ceiling with the
+        whole draw's heat in flight (`prepared_load`)."""
         stood = pump and not flowing
         pump = pump and flowing
         ceiling = self.ceiling(mash_sp)
@@ -426,17 +423,6 @@ class Cascade:
                     # would have ended with the pump running.
                     peak = coast_start(mash, hold_high, tanks, high, target, ceiling)
                     setpoint = min(setpoint, peak)
-            elif starting:
-                # A start prepared (due in a dead time): readied to the HLT from which its
-                # coast carries the mash to its rest, where that is above the stored heat's
-                # estimate (the mash's losses over the coast counted): a start whose coast
-                # falls short begins a climb, and from the lower HLT the climb's first dead
-                # time is the coil's draw unmet (bench/herms.py seed 19: a stir's restart into
-                # a climb from 0.9 °C under its setpoint, the HLT 0.3 °C down). Not for a stop
-                # of unknown length: an HLT readied high asks the element for heat a shorted
-                # SSR then gives unseen (bench/herms_faults.py, the 40 L 2 kW tun: caught
-                # after 670 s, not 280, the water 74.4 °C, not 68.9).
-                setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if starting:
                 setpoint = min(setpoint, self.most(mash_sp, mash_pv, k))
             phase = "no flow" if stood else "ready"
