@@ -159,16 +159,25 @@ def herms_daemon(config_text: str = CONFIG, mash_ua: float | None = None) -> tup
     return daemon, world
 
 
-def test_a_mash_sensor_fault_holds_the_hlt_at_its_last_setpoint() -> None:
-    daemon, world = herms_daemon()
-    assert world.mash is not None and world.mash.mash_chip is not None
-    chip = world.mash.mash_chip
+def watched_day(
+    config_text: str = CONFIG, mash_ua: float | None = None
+) -> tuple[Daemon, World, Periods]:
+    """`herms_daemon`, its periods and events watched: doughed in at 1 h, the pump started at
+    PUMP_AT by the test."""
+    daemon, world = herms_daemon(config_text, mash_ua)
     periods = Periods()
     daemon.listeners.append(periods)
     daemon.recorder = periods
     tun: Any = world.plant
     daemon.clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
     daemon.clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
+    return daemon, world, periods
+
+
+def test_a_mash_sensor_fault_holds_the_hlt_at_its_last_setpoint() -> None:
+    daemon, world, periods = watched_day()
+    assert world.mash is not None and world.mash.mash_chip is not None
+    chip = world.mash.mash_chip
     fault_at, back_at = 4500.0, 5400.0  # in the climb: the HLT set at the limit
     daemon.clock.call_at(fault_at, lambda: chip.set_fault("nack"))
     daemon.clock.call_at(back_at, lambda: chip.set_fault("ok"))
@@ -264,15 +273,9 @@ Seen = tuple[str, tuple[str, ...]]
 def stuck_bed() -> tuple[Daemon, Periods, Any]:
     """herms-day's daemon, its periods and events watched: doughed in at 1 h, the pump
     started at PUMP_AT, the bed stuck from STUCK_AT (the pump runs, nothing flows)."""
-    daemon, world = herms_daemon()
-    periods = Periods()
-    daemon.listeners.append(periods)
-    daemon.recorder = periods
+    daemon, world, periods = watched_day()
     tun: Any = world.plant
-    clock = daemon.clock
-    clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
-    clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
-    clock.call_at(STUCK_AT, lambda: tun.set_recirculation_ok(False, STUCK_AT))
+    daemon.clock.call_at(STUCK_AT, lambda: tun.set_recirculation_ok(False, STUCK_AT))
     return daemon, periods, tun
 
 
@@ -353,6 +356,17 @@ def test_a_reload_while_no_flow_is_signed_says_the_sign_ended() -> None:
 LOSSY_UA, TIGHT_LIMIT = 40.0, 3.0
 """A bare steel mash tun (40 W/K) under a 3 °C limit: the HLT held at its most (66 + 3 °C, less
 the HLT law's margin) cannot bring the mash to 66 °C."""
+LOSSY_CONFIG = CONFIG.replace(
+    "mash_loss_w_per_k: 5\n", f"mash_loss_w_per_k: 28\n  max_hlt_above_mash: {TIGHT_LIMIT:g}\n"
+)
+
+
+def lossy_level(hlt: float) -> float:
+    """Where an HLT held at `hlt` brings the lossy mash: (K·H + UA·room)/(K + UA), K the coil's
+    250 W/K at 6 L/min, 1 − e^(−250/418.6) of the flow's 418.6 W/K (188.2 W/K)."""
+    flow = 6.0 / 60.0 * 4186.0
+    k = flow * (1.0 - math.exp(-250.0 / flow))
+    return (k * hlt + LOSSY_UA * 20.0) / (k + LOSSY_UA)
 
 
 @pytest.mark.parametrize("clear", ["rest", "reload"])
@@ -363,24 +377,13 @@ def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cl
     m = (K·H + UA·room)/(K + UA) (K = 188.2 W/K, as above): the warning names that level,
     measured from the mash's own rise, within half a degree, while the mash is short of the
     rest; a warning, never an alarm; a rest changed, or a reload, clears it."""
-    guessed = f"mash_loss_w_per_k: 28\n  max_hlt_above_mash: {TIGHT_LIMIT:g}\n"
-    guessed_config = CONFIG.replace("mash_loss_w_per_k: 5\n", guessed)
-    daemon, world = herms_daemon(guessed_config, LOSSY_UA)
-    periods = Periods()
-    daemon.listeners.append(periods)
-    daemon.recorder = periods
+    daemon, _, periods = watched_day(LOSSY_CONFIG, LOSSY_UA)
     LoopLink(daemon).attach(Inbox())
-    tun: Any = world.plant
-    daemon.clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
-    daemon.clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
     daemon.run(until=5 * 3600.0)
     said = [e for e in periods.events if e.startswith("the mash levels out")]
     assert len(said) == 1, said
-    flow = 6.0 / 60.0 * 4186.0
-    k = flow * (1.0 - math.exp(-250.0 / flow))
     last_hour = [r.pv for r in periods.records if r.t >= 4 * 3600.0 and r.pv is not None]
-    hlt = sum(last_hour) / len(last_hour)
-    level = (k * hlt + LOSSY_UA * 20.0) / (k + LOSSY_UA)
+    level = lossy_level(sum(last_hour) / len(last_hour))
     assert MASH_SP - level > 5.0  # far short: a rest nobody should wait for
     control = daemon._mash_control
     assert control is not None and control.reach.ceiling is not None
@@ -396,7 +399,7 @@ def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cl
         daemon.set_setpoint(58.0)
         why = "the rest changed"
     else:  # the HLT's most may move with the outer loop made again: measured afresh
-        daemon.reload(parse(guessed_config.replace("above_mash: 3", "above_mash: 12")))
+        daemon.reload(parse(LOSSY_CONFIG.replace("above_mash: 3", "above_mash: 12")))
         why = "the outer loop made again for the reloaded config"
     daemon.run(until=5 * 3600.0 + 10.0)
     assert periods.events[-1] == f"the mash levels out elsewhere now: {why}, measured afresh"
@@ -409,25 +412,15 @@ def test_a_rest_out_of_reach_is_said_though_the_pump_stops_every_twenty_minutes(
     pauses the watch's run, as the program's own timer does: ended at each stop, its 18 min of
     wort flowing would hold one 10 min block, never the three in a row it says on. The level
     named is the one the HLT held while the wort flowed brings the mash to (as above)."""
-    guessed = f"mash_loss_w_per_k: 28\n  max_hlt_above_mash: {TIGHT_LIMIT:g}\n"
-    daemon, world = herms_daemon(CONFIG.replace("mash_loss_w_per_k: 5\n", guessed), LOSSY_UA)
-    periods = Periods()
-    daemon.listeners.append(periods)
-    daemon.recorder = periods
-    tun: Any = world.plant
-    daemon.clock.call_at(3600.0, lambda: tun.dough_in(12.0, 20.0, 50.0, 39.75, 3600.0))
-    daemon.clock.call_at(PUMP_AT, lambda: daemon.set_pump(True, "by the test"))
+    daemon, _, periods = watched_day(LOSSY_CONFIG, LOSSY_UA)
     for stop in range(int(PUMP_AT) + 1200, 5 * 3600, 1200):
         daemon.clock.call_at(float(stop), lambda: daemon.set_pump(False, "by the operator"))
         daemon.clock.call_at(stop + 120.0, lambda: daemon.set_pump(True, "by the operator"))
     daemon.run(until=5 * 3600.0)
     said = [e for e in periods.events if e.startswith("the mash levels out")]
     assert len(said) == 1, said
-    flow = 6.0 / 60.0 * 4186.0
-    k = flow * (1.0 - math.exp(-250.0 / flow))
     last_hour = [r.pv for r in periods.records if r.t >= 4 * 3600.0 and r.pump and r.pv]
-    hlt = sum(last_hour) / len(last_hour)
-    level = (k * hlt + LOSSY_UA * 20.0) / (k + LOSSY_UA)
+    level = lossy_level(sum(last_hour) / len(last_hour))
     control = daemon._mash_control
     assert control is not None and control.reach.ceiling is not None
     assert abs(control.reach.ceiling - level) < 0.5
