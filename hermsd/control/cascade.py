@@ -462,7 +462,7 @@ class Cascade:
         return Decision(setpoint, load, phase, load_met=not (coast and self._letting))
 
     def _observe(
-        self, mash_pv: float, rose: float | None, hlt_pv: float, pump: bool, k: float, high: float
+        self, mash: float, rose: float | None, hlt_pv: float, pump: bool, k: float, high: float
     ) -> None:
         """Learn the mash's losses from its rise where the coil's heat is small and known
         (coast and hold; in the climb K's uncertainty outweighs them; `pump` False: no heat
@@ -475,19 +475,16 @@ class Cascade:
         if not pump or self._climbing:
             seen.clear()
             return
-        seen.append((hlt_pv, mash_pv))
+        seen.append((hlt_pv, mash))
         if len(seen) < 2:
             return
         tanks = self._tanks
         h, m = seen[0]
         above_room = m - tanks.room
-        if len(seen) < (seen.maxlen or 0) or above_room < 1.0:
+        if len(seen) < (seen.maxlen or 0) or above_room < 1.0 or rose is None:
             return
-        if rose is None:
-            return
-        rise = rose
         modelled = self._period * (k * (h - m) - self._mash_loss * above_room)
-        miss = modelled - tanks.mash_capacity * rise  # J the model gave the mash too many
+        miss = modelled - tanks.mash_capacity * rose  # J the model gave the mash too many
         # Taught as fast as the losses stand out of K's uncertainty in the mash's balance
         # (a gain of 1/(1 + (σ_K·(T_h − T_m)/(UA_m·(T_m − T_room)))²)): in a coast the coil's
         # kilowatts, K a prior's ±50 %, would teach its error as losses; K learned, little.
