@@ -236,6 +236,30 @@ def test_a_start_being_prepared_readies_the_hlt_no_higher_than_the_climb_it_begi
     assert step(c, None, 60.0, pump=False).hlt_setpoint == pytest.approx(69.28999, abs=1e-5)
 
 
+def test_a_start_being_prepared_readies_the_hlt_its_coast_needs_where_losses_take_a_share() -> None:
+    """The mash at 63.5 °C, 1.5 under its rest, losing 10 W/K, the pump stopped: readied for
+    the stored heat alone, T_hold + C_m·1.5/C_h = 67.25 + 0.75 = 68.0 °C, from which the coast
+    falls short by what the mash loses meanwhile, and the start would begin a climb from below
+    its setpoint (bench/herms.py seed 19: the HLT 0.3 °C down in the climb's first dead time).
+    With a start prepared, the HLT from which the coast reaches the rest: integrated here by
+    Euler steps of 0.1 s, the two tanks through K = 200 W/K, the element off until the HLT is
+    down at its hold, the mash peaks at 65 °C. A stop of unknown length keeps the lower HLT: a
+    shorted SSR gives unseen the heat an HLT readied high asks for."""
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=10.0)
+    assert step(cascade(tanks), 63.5, 66.0, pump=False).hlt_setpoint == pytest.approx(68.0)
+    readied = cascade(tanks).step(
+        mash_sp=65.0, mash_pv=63.5, mash_age=0.0, hlt_pv=66.0, pump=False, coil=EXACT, starting=True
+    )
+    assert readied.phase == "ready"
+    assert readied.hlt_setpoint - 68.0 > 0.1  # the losses' share, sent ahead
+    hlt, mash = readied.hlt_setpoint, 63.5
+    while hlt > 67.25:
+        flow = 200.0 * (hlt - mash)
+        hlt -= 0.1 * flow / 418_600.0
+        mash += 0.1 * (flow - 10.0 * (mash - 20.0)) / 209_300.0
+    assert mash == pytest.approx(65.0, abs=0.005)
+
+
 def test_a_prepared_start_sends_ahead_no_more_than_the_hlt_takes_under_its_limit() -> None:
     # The law sends the draw a dead time (60 s) ahead; if the coil then draws nothing it
     # lands in 418 600 J/K. The limit is 65 + 5.15 = 70.15 °C: from 69 °C the draw,

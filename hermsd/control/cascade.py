@@ -423,6 +423,16 @@ class Cascade:
                     # would have ended with the pump running.
                     peak = coast_start(mash, hold_high, tanks, high, target, ceiling)
                     setpoint = min(setpoint, peak)
+            elif starting:
+                # A start prepared (due in a dead time): readied to the HLT from which its
+                # coast carries the mash to its rest, where that is above the stored heat's
+                # estimate (the mash's losses over the coast counted): a start whose coast
+                # falls short begins a climb, and from the lower HLT the climb's first dead
+                # time is the coil's draw unmet (bench/herms.py seed 19: a stir's restart into
+                # a climb from 0.9 °C under its setpoint, the HLT 0.3 °C down). Not for a stop
+                # of unknown length: an HLT readied high asks the element for heat a shorted
+                # SSR then gives unseen (docs/mash-control.md, "The hold").
+                setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if starting:
                 setpoint = min(setpoint, self.most(mash_sp, mash_pv, k))
             phase = "no flow" if stood else "ready"
