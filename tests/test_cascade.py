@@ -400,6 +400,21 @@ def test_the_mash_is_read_through_the_line_of_its_last_minute() -> None:
     assert flickering.mash_loss == pytest.approx(steady.mash_loss, abs=0.01)
 
 
+def test_a_mash_reading_lost_begins_a_new_line() -> None:
+    """The readings after a gap are not evenly spaced with those before it: the line begins
+    again, so a held mash read at 65.5 °C after a lost reading is 0.5 °C over its rest, and the
+    hold asks T_hold − Kp·0.5 = 67.25 − 2.1·0.5 = 66.2 °C (Kp as above). A line through twelve
+    readings of 65 °C and the new one stands at 65 + 0.5/13 + 6·(6·0.5/182) = 65.137 °C, and
+    its rise of 0.0165 °C a period teaches the losses' observer a gain: 66.93 °C asked."""
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=10.0)
+    hold = holding_hlt(65.0, tanks, 200.0)  # 67.25 °C
+    c = cascade(tanks)
+    for _ in range(40):
+        assert step(c, 65.0, hold).phase == "hold"
+    assert step(c, None, hold).phase == "held"
+    assert step(c, 65.5, hold).hlt_setpoint == pytest.approx(67.25 - 2.1 * 0.5, abs=0.01)
+
+
 def test_the_holds_bound_aims_the_coast_short_of_the_rest_as_the_coasts_own_setpoint() -> None:
     """A mash 1 °C below its rest in the hold (after a pump's stop): lossless, T_hold is the
     rest, 65 °C, and the coast from T down to it lifts the mash by C_h/C_m·(T − 65) = 2·(T −

@@ -107,6 +107,6 @@ def test_a_k_of_fewer_than_three_blocks_judges_flow_no_higher_than_the_priors_lo
     day's low and the prior's, 200 − 100 = 100 W/K; from then on by the day's own."""
     one = day(0, minutes=14)
     assert one.estimate().low > 150.0  # the day's 250 W/K less 15 %
-    assert one.flow_low() == 100.0
+    assert one.flow_low(one.estimate()) == 100.0
     whole = day(0)
-    assert whole.flow_low() == whole.estimate().low > 150.0
+    assert whole.flow_low(whole.estimate()) == whole.estimate().low > 150.0

@@ -38,6 +38,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from hermsd.control.coil import CoilEstimate
+from hermsd.control.watches import LineFit
 
 HLT_MARGIN = 0.15
 """°C the HLT's setpoint stays below the limit: the HLT law overshoots its setpoint by up to
@@ -149,15 +150,15 @@ class Decision:
 
 def line_through(readings: Sequence[float]) -> tuple[float, float | None]:
     """The newest of evenly spaced `readings` where the least-squares line through them puts
-    it, and the line's rise a reading (the reading itself and None while there are fewer than
-    4: too few to tell noise from a rise)."""
-    n = len(readings)
-    if n < 4:
+    it, and the line's rise a reading (the reading itself and None while there are too few to
+    tell noise from a rise: `LineFit.slope`)."""
+    line = LineFit()
+    for i, reading in enumerate(readings):
+        line.add(float(i), reading)
+    slope = line.slope()
+    if slope is None:
         return readings[-1], None
-    middle, mean = 0.5 * (n - 1), sum(readings) / n
-    moment = sum((i - middle) * (x - mean) for i, x in enumerate(readings))
-    slope = moment / (n * (n * n - 1) / 12.0)  # over Σ (i − middle)²
-    return mean + slope * middle, slope
+    return line.sx / line.n + slope * (line.n - 1 - line.st / line.n), slope
 
 
 def holding_hlt(mash_sp: float, tanks: Tanks, conductance: float) -> float:
@@ -347,6 +348,7 @@ class Cascade:
             setpoint = min(last, ceiling)
             self._last_sp = setpoint
             load = self._load(hlt_pv, self._last_mash, pump, coil)
+            self._mash_line.clear()  # the readings after the gap are not evenly spaced with it
             return Decision(setpoint, load, "held", why)
         if self._mash_sp is None or abs(mash_sp - self._mash_sp) > SETPOINT_MOVE:
             self._climbing = mash_pv < mash_sp

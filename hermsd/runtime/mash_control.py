@@ -127,7 +127,11 @@ class MashControl:
         exchange = self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known)
         coil = self.coil.estimate()
         changed = self.flow.period(
-            exchange, mash_pv, pump=known, mash_loss=self.cascade.mash_loss, k=self.coil.flow_low()
+            exchange,
+            mash_pv,
+            pump=known,
+            mash_loss=self.cascade.mash_loss,
+            k=self.coil.flow_low(coil),
         )
         if self.flow.stuck:
             self.coil.no_flow()
