@@ -93,6 +93,18 @@ def test_a_climb_keeps_room_under_the_limit_for_the_heat_an_unannounced_stop_lan
     assert climb.hlt_setpoint == pytest.approx(setpoint, abs=1e-5)
 
 
+def test_the_ssr_s_ripple_rides_on_a_stop_s_landing() -> None:
+    # The water 0.03 °C above its mean at the top of a pulse. With no dead time nothing
+    # lands, and a climb that goes on has its pulses within HLT_MARGIN: the ceiling,
+    # 65 + 5.15 − 0.15 = 70 °C. With a dead time of 60 s, an unannounced stop lands
+    # K·(70 − 40)·θ/C_h = 200·30·60/418 600 = 0.86001 °C on the mean, the ripple on top:
+    # 70.15 − 0.89001 = 69.25999 °C.
+    tanks = dataclasses.replace(LOSSLESS, hlt_ripple=0.03)
+    assert step(cascade(tanks), 40.0, 60.0).hlt_setpoint == pytest.approx(70.0, abs=1e-9)
+    behind = dataclasses.replace(tanks, hlt_dead_time=60.0)
+    assert step(cascade(behind), 40.0, 60.0).hlt_setpoint == pytest.approx(69.25999, abs=1e-5)
+
+
 def test_the_heat_in_the_hose_moves_the_switch_earlier_by_its_share() -> None:
     # A round trip of 120 s: the return leg of 60 s holds K·(T_h − T_m)·60 J more for the
     # mash (the inlet's lag on the other leg only slows the coast, lossless):

@@ -437,3 +437,29 @@ def test_the_reach_warning_names_the_key_that_sets_the_hlts_most() -> None:
     words = control.reach._words
     assert "raise herms.max_hlt_above_mash (10 °C)," in words(60.0, 63.0, 72.85)
     assert "raise safety.max_temp (85 °C)," in words(76.0, 78.0, 84.0)
+
+
+@pytest.mark.parametrize(("swing", "climb"), [(0.0, 72.33675), (0.0625, 72.31175)])
+def test_a_climb_keeps_the_water_s_ripple_on_a_stop_s_landing_under_the_limit(
+    swing: float, climb: float
+) -> None:
+    """A model heating 3 kW at 100·1/20 000 = 0.005 °C/s (C_h = 600 kJ/K), 60 s behind,
+    windows of 5 s: without a band the water swings r·W/2 = 0.0125 °C at worst, half of it
+    above its mean. A mash at 40 °C climbing to its 63 °C rest through the prior's 200 W/K:
+    an unannounced stop lands 200·(72.85 − 40)·60/600 000 = 0.657 °C, the ripple on top,
+    beyond HLT_MARGIN: 72.85 − (0.657 + 0.00625 − 0.15) = 72.33675 °C. With `output.swing`
+    1/16 the band is 0.0625/(2r) − W/4 = 5 s, the swing 2·r·5 + 0.0125 = 0.0625 °C:
+    72.85 − (0.657 + 0.03125 − 0.15) = 72.31175 °C."""
+    config = parse(CONFIG.replace("backend: sim\n", f"backend: sim\n  swing: {swing}\n", 1))
+    model = PlantModel(1.0, 20000.0, 60.0, 20.0)
+    control = mash_control(config, model, coil_prior(config, None))
+    decision = control.cascade.step(
+        mash_sp=63.0,
+        mash_pv=40.0,
+        mash_age=0.0,
+        hlt_pv=70.0,
+        pump=True,
+        coil=control.coil.estimate(),
+    )
+    assert decision.phase == "climb"
+    assert decision.hlt_setpoint == pytest.approx(climb, abs=1e-9)

@@ -273,3 +273,38 @@ def test_no_window_spends_more_than_one_edge_through_full_and_empty_windows() ->
     # By hand: on (ends on), off, on (full, from off), none, off, on, off (empty, from on),
     # none, on, off, on (full, from off), off.
     assert per_window == [1, 1, 1, 0, 1, 1, 1, 0, 1, 1, 1, 1]
+
+
+def _water_swing(planner: TimeProportionalPlanner, duty: float, rate: float) -> float:
+    """The water's highest less its lowest over 400 windows at `duty`, heated at `rate` °C/s
+    while the SSR is on and losing the mean (rate·duty) all along (linear between edges)."""
+    water, seen = 0.0, []
+    for k in range(400):
+        plan = planner.plan(5.0 * k, duty)
+        loss = rate * duty / 100.0
+        for span, on in (
+            (plan.on_at - plan.start, False),
+            (plan.off_at - plan.on_at, True),
+            (plan.start + plan.length - plan.off_at, False),
+        ):
+            water += (rate if on else 0.0) * span - loss * span
+            seen.append(water)
+    steady = seen[60:]  # past the first windows, where the carry starts from nothing
+    return max(steady) - min(steady)
+
+
+@pytest.mark.parametrize("band", [0.0, 1.25, 5.0])
+@pytest.mark.parametrize("duty", [5.0, 20.0, 37.0, 50.0, 63.0, 90.0])
+def test_the_water_swings_no_more_than_the_planner_says(duty: float, band: float) -> None:
+    """Integrated edge by edge, the water never swings more than `swing` says: the band's
+    2·r·B and a joined pulse's r·W/2 at its worst."""
+    planner = TimeProportionalPlanner(5.0, 50, min_on=0.02, min_off=0.02, band=band)
+    assert _water_swing(planner, duty, 0.01) <= planner.swing(0.01) + 1e-9
+
+
+def test_without_a_band_the_swing_at_half_power_is_a_joined_pulse() -> None:
+    """At 50 % two windows' halves join: 5 s on, 5 s off, the water up r·(1 − ½)·5 s =
+    0.01·2.5 = 0.025 °C, r·W/2 itself."""
+    planner = TimeProportionalPlanner(5.0, 50)
+    assert planner.swing(0.01) == pytest.approx(0.025, abs=1e-12)
+    assert _water_swing(planner, 50.0, 0.01) == pytest.approx(0.025, abs=1e-9)

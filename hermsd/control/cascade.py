@@ -3,23 +3,23 @@ there, and the coil's load for the HLT law to feed forward (derivation: docs/mas
 
 Pure and clock-free, as the laws are: `Cascade.step` once a control period.
 
-The mash gains K·(T_hlt − T_m) through the coil and loses UA_m·(T_m − T_room), so in a hold
-the HLT must stand at T_hold = T_sp + UA_m·(T_sp − T_room)/K, above the rest by the losses'
-share (why a mash "levels out below" its HLT). Heat cannot be taken back from the mash, so a
-step runs as the HLT law's own approach does, one level up: the HLT's setpoint stays at the
-limit (mash setpoint + `max_hlt_above_mash`, less HLT_MARGIN for the HLT law's own overshoot
-or, where it is more, the heat in flight for the coil that a pump stop nobody announced lands
-in the HLT, `stop_room`; never above the HLT's maximum) until the heat stored in the HLT above
-T_hold and in flight in the hose will carry the mash to its setpoint as the two tanks coast
-together (`coast_peak`: the linear two-tank model run forward with the element off until the
-HLT is down at T_hold). Then the HLT's setpoint is the HLT from which the coast carries the
-mash to its setpoint (`coast_start`, judged again every period: below the HLT while the coast
-holds, above it where it falls short), down to T_hold as the mash arrives, and from there on
-the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's rise against
-the model's once the climb is over, and the PI's integral, learn it, and what they learn serves
-the next rest's T_hold and coast. With the pump stopped nothing flows, and the HLT is readied:
-the setpoint is the temperature whose stored heat above T_hold just covers the mash's shortfall
-(capped by the limit).
+The mash gains K·(T_hlt − T_m) through the coil and loses UA_m·(T_m − T_room), so in a hold the
+HLT must stand at T_hold = T_sp + UA_m·(T_sp − T_room)/K, above the rest by the losses' share
+(why a mash "levels out below" its HLT). Heat cannot be taken back from the mash, so a step runs
+as the HLT law's own approach does, one level up: the HLT's setpoint stays at the limit (mash
+setpoint + `max_hlt_above_mash`, less HLT_MARGIN for the HLT law's own overshoot or, where it is
+more, the heat in flight for the coil that a pump stop nobody announced lands in the HLT,
+`stop_room`, with the SSR's ripple on top; never above the HLT's maximum) until the heat stored
+in the HLT above T_hold and in flight in the hose will carry the mash to its setpoint as the two
+tanks coast together (`coast_peak`: the linear two-tank model run forward with the element off
+until the HLT is down at T_hold). Then the HLT's setpoint is the HLT from which the coast
+carries the mash to its setpoint (`coast_start`, judged again every period: below the HLT while
+the coast holds, above it where it falls short), down to T_hold as the mash arrives, and from
+there on the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's rise
+against the model's once the climb is over, and the PI's integral, learn it, and what they learn
+serves the next rest's T_hold and coast. With the pump stopped nothing flows, and the HLT is
+readied: the setpoint is the temperature whose stored heat above T_hold just covers the mash's
+shortfall (capped by the limit).
 
 The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
 lower T_hold, so it stops early rather than late; the load fed forward is K's estimate (one
@@ -110,7 +110,9 @@ class Tanks:
     outside the tun, mash → coil → mash, half each way); mash_lag in s (the mash sensor's lag
     behind the mash); hlt_dead_time in s (the HLT law's, between its duty and its sensor:
     the heat sent for the coil's load that is still on its way, and how far ahead the law's
-    prediction of the HLT looks).
+    prediction of the HLT looks); hlt_ripple in °C (how far the water stands above its mean
+    at the top of the SSR's pulses, half its swing: `TimeProportionalPlanner.swing`; 0 for
+    an element whose power is steady).
     """
 
     hlt_capacity: float
@@ -121,12 +123,20 @@ class Tanks:
     hose_delay: float = 0.0
     mash_lag: float = 0.0
     hlt_dead_time: float = 0.0
+    hlt_ripple: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("hlt_capacity", "mash_capacity"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0.0):
                 raise ValueError(f"{name}={getattr(self, name)!r} J/K is invalid: must be > 0")
-        for name in ("hlt_loss", "mash_loss", "hose_delay", "mash_lag", "hlt_dead_time"):
+        for name in (
+            "hlt_loss",
+            "mash_loss",
+            "hose_delay",
+            "mash_lag",
+            "hlt_dead_time",
+            "hlt_ripple",
+        ):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name}={getattr(self, name)!r} is invalid: must be ≥ 0")
         if not math.isfinite(self.room):
@@ -308,9 +318,14 @@ class Cascade:
 
     def most(self, mash_sp: float, mash_pv: float, k: float) -> float:
         """The climb's HLT setpoint for a mash at `mash_pv` through a coil of `k` W/K: the
-        ceiling, less the room an unannounced stop needs beyond HLT_MARGIN (`stop_room`)."""
+        ceiling, less the room an unannounced stop needs beyond HLT_MARGIN: its landing
+        (`stop_room`) lifts the water's mean, and the SSR's pulses lift the water above
+        that by `Tanks.hlt_ripple` (bench/herms.py seed 13's 72 °C rest, a 7.9 kW element on
+        68 L: a stir's landing 0.0035 °C over the limit without it). A climb that goes on
+        has them within HLT_MARGIN's spare (docs/mash-control.md, "The limit")."""
         ceiling = self.ceiling(mash_sp)
-        room = max(HLT_MARGIN, stop_room(ceiling, mash_pv, k, self._tanks)) - HLT_MARGIN
+        landing = stop_room(ceiling, mash_pv, k, self._tanks) + self._tanks.hlt_ripple
+        room = max(HLT_MARGIN, landing) - HLT_MARGIN
         return ceiling - room
 
     def step(
@@ -591,15 +606,15 @@ class Cascade:
         stop within it), where the draw, once the pump runs, is let act (`_load`), not met
         (bench/herms.py seed 35: the restart's heat sent while the HLT stood 0.7 °C above
         the coast's setpoint, the mash 0.27 °C over). No more than the HLT at `hlt` takes
-        under its limit for `mash_sp` if the coil drew none of it: the law sends it a dead
-        time ahead, and a draw less than told (K a prior, a mash sensor still catching up
-        with the dough-in, the wort's first hose-length) lands it in the HLT (seed 13: told
-        8.4 kW of a 3.3 kW draw, the HLT 0.01 °C over)."""
+        under its limit for `mash_sp`, the SSR's ripple on top, if the coil drew none of it:
+        the law sends it a dead time ahead, and a draw less than told (K a prior, a mash
+        sensor still catching up with the dough-in, the wort's first hose-length) lands it
+        in the HLT (seed 13: told 8.4 kW of a 3.3 kW draw, the HLT 0.01 °C over)."""
         if self.coasting and hlt > setpoint:
             return 0.0
         draw = max(0.0, k * (hlt - mash))
         dead = self._tanks.hlt_dead_time
         if dead <= 0.0:
             return draw
-        room = max(0.0, self.ceiling(mash_sp) + HLT_MARGIN - hlt)
+        room = max(0.0, self.ceiling(mash_sp) + HLT_MARGIN - self._tanks.hlt_ripple - hlt)
         return min(draw, room * self._tanks.hlt_capacity / dead)

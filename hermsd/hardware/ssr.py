@@ -122,6 +122,11 @@ class TimeProportionalPlanner:
             on_at, off_at = start, start + on_time
         return WindowPlan(start, self.window, on_at, off_at, duty, 100.0 * on / slots, deferred)
 
+    def swing(self, rate: float) -> float:
+        """°C the water swings at most under these pulses, heated at `rate` °C/s at full
+        power: the band's 2·r·B and a joined pulse's r·W/2 at 50 % (docs/ssr-band.md)."""
+        return rate * (2.0 * self.band_slots * self.half_cycle + 0.5 * self.window)
+
     def full_from(self, plan: WindowPlan, at: float) -> WindowPlan:
         """`plan` with the element on from `at` to the window's end (cold water seen inside
         the window): from the next half-cycle of the window's grid, or on as it already is,

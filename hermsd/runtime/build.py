@@ -274,9 +274,20 @@ def planner(config: Config, model: pid.PlantModel) -> TimeProportionalPlanner:
         least = two_reads_part(out.mains_hz)
         if max(min_on, least) + max(min_off, least) < window:
             min_on, min_off = max(min_on, least), max(min_off, least)
-    rate = model.rate * config.tun.element_watts / total_watts(config)
+    rate = ssr_rate(config, model)
     band = min(window, max(0.0, out.swing / (2.0 * rate) - window / 4.0))
     return TimeProportionalPlanner(window, out.mains_hz, min_on, min_off, band)
+
+
+def ssr_rate(config: Config, model: pid.PlantModel) -> float:
+    """°C/s the SSR's element heats the water at full power on `model` (its share of the
+    model's rate: a second element is on its own contactor, outside the planner)."""
+    return model.rate * config.tun.element_watts / total_watts(config)
+
+
+def water_swing(config: Config, model: pid.PlantModel) -> float:
+    """°C the water swings at most under the SSR's pulses on `model` (`planner`'s)."""
+    return planner(config, model).swing(ssr_rate(config, model))
 
 
 def _tun_fields(model: MeasuredTun | None) -> dict[str, float] | None:

@@ -30,6 +30,7 @@ from hermsd.control.flow_watch import FlowWatch
 from hermsd.control.learning import LearnedModel
 from hermsd.control.reach import ReachWatch, Said
 from hermsd.metrics import BAND
+from hermsd.runtime.build import water_swing
 from hermsd.safety.coil_load import mash_capacity
 
 CUT_OUT_MARGIN = 1.0
@@ -233,7 +234,8 @@ def coil_prior(
 
 def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> MashControl:
     """The outer loop for `config`, on the HLT law's `model` (its heat capacity and losses:
-    C_h = P/rate, UA_h = C_h/τ), the coil's K starting from `prior`."""
+    C_h = P/rate, UA_h = C_h/τ, and the water's swing under the SSR's pulses), the coil's K
+    starting from `prior`."""
     herms, period = config.herms, config.control.period
     watts = total_watts(config)
     hlt_capacity = watts / model.rate
@@ -247,6 +249,7 @@ def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> 
         hose_delay=herms.hose_s,
         mash_lag=herms.mash_sensor_lag,
         hlt_dead_time=model.dead_time,
+        hlt_ripple=0.5 * water_swing(config, model),
     )
     cascade = Cascade(
         tanks,
