@@ -133,6 +133,27 @@ def test_with_the_pump_stopped_the_hlt_is_readied_with_the_heat_the_mash_lacks()
     assert (decision.phase, decision.hlt_setpoint, decision.load_watts) == ("ready", 66.0, 0.0)
 
 
+def test_water_read_above_the_limit_with_the_pump_stopped_gets_no_heat_until_below_it() -> None:
+    # A strike left above the first rest + limit (65 + 5.15 = 70.15 °C): the mash far below,
+    # readied to the ceiling, 70 °C, once the HLT reads at or below the limit; while it reads
+    # above it, the setpoint is the mash's own, 65 °C (no heat: the water falls through).
+    c = cascade()
+
+    def read(reading: float) -> Decision:
+        return c.step(
+            mash_sp=65.0,
+            mash_pv=40.0,
+            mash_age=0.0,
+            hlt_pv=69.9,
+            pump=False,
+            coil=EXACT,
+            hlt_reading=reading,
+        )
+
+    assert (read(70.2).phase, read(70.2).hlt_setpoint) == ("ready", 65.0)
+    assert (read(70.15).phase, read(70.15).hlt_setpoint) == ("ready", 70.0)
+
+
 def test_a_mash_reading_lost_holds_the_hlt_where_it_was_and_says_why() -> None:
     c = cascade()
     assert step(c, 40.0, 60.0).hlt_setpoint == 70.0

@@ -92,9 +92,14 @@ def dough(mash_c: float) -> dict[str, float]:
 
 
 def day(
-    pump: str, events: list[dict[str, Any]], dead_time: float = DEAD_TIME, mash_c: float = 45.0
+    pump: str,
+    events: list[dict[str, Any]],
+    dead_time: float = DEAD_TIME,
+    mash_c: float = 45.0,
+    start_c: float = REST + 10.0 - 0.15,
 ) -> tuple[TracedTun, list[PeriodRecord]]:
-    """The mash (50 L and 12 kg at 20 °C) doughed in at `mash_c` at DOUGH_AT, then `events`."""
+    """The HLT at `start_c`, the mash (50 L and 12 kg at 20 °C) doughed in at `mash_c` at
+    DOUGH_AT, then `events`."""
     doc = {
         "name": "pump-start",
         "duration": f"{PUMP_AT + AFTER + 120:g}s",
@@ -102,7 +107,7 @@ def day(
         "plant": {"model": "physical", "litres": LITRES, "element_watts": WATTS},
         "events": [{"at": f"{DOUGH_AT:g}s", "dough_in": dough(mash_c)}, *events],
     }
-    tun = TracedTun(hlt(WATTS, REST + 10.0 - 0.15), coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
+    tun = TracedTun(hlt(WATTS, start_c), coil_w_per_k=250.0, mash_ua_w_per_k=5.0)
     config_ = parse(config(pump, dead_time))
     result = scenario.run(
         scenario.parse_scenario(doc), config_, outside_plant=tun, keep_records=True
@@ -318,3 +323,17 @@ def test_a_restart_with_the_hlt_above_its_setpoint_is_prepared_all_the_same() ->
     held = next(c for t, c in sorted(tun.trace.items()) if t >= restart)
     stood = min(held, ran.hlt_setpoint or 0.0)
     assert stood - lowest(tun.trace, restart, restart + 300.0) <= ALLOWED_DROP
+
+
+def test_water_above_the_limit_falls_through_it_with_the_element_off() -> None:
+    """The HLT 1.5 °C above the rest + limit (a strike left above it), the pump stopped: no
+    heat while it reads above the limit, so the water passes the limit once, falling, and
+    stays at or below it until the pump starts (the law's heat sent ahead as it lands on
+    its setpoint from above would ride on water falling slowly through the limit)."""
+    limit = REST + 10.0
+    tun, records = day("sim", [{"at": f"{PUMP_AT:g}s", "pump": "on"}], start_c=limit + 1.5)
+    before = [r for r in records if r.t < PUMP_AT and r.pv is not None]
+    assert any(r.pv is not None and r.pv > limit for r in before)
+    assert all(r.output == 0.0 for r in before if r.pv is not None and r.pv > limit)
+    down = min(t for t, c in tun.trace.items() if c <= limit)
+    assert max(c for t, c in tun.trace.items() if down <= t < PUMP_AT) <= limit

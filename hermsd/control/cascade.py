@@ -340,6 +340,7 @@ class Cascade:
         flowing: bool = True,
         paused: bool = False,
         starting: bool = False,
+        hlt_reading: float | None = None,
     ) -> Decision:
         """One period. `mash_pv` None (a fault) or older than MAX_MASH_AGE (`mash_age`, s):
         the HLT held at its last setpoint. `hlt_pv` is best the HLT law's predicted PV (the
@@ -353,7 +354,8 @@ class Cascade:
         its rest. `starting`: a pump start hermsd prepares (the pump switched a dead time
         on): the HLT readied no higher than the climb's setpoint the start begins (`most`),
         so that it is let down to it as the coil draws, not held at the ceiling with the
-        whole draw's heat in flight (`prepared_load`)."""
+        whole draw's heat in flight (`prepared_load`). `hlt_reading`: the HLT sensor's own
+        reading, where `hlt_pv` is the law's prediction (None: not known apart)."""
         stood = pump and not flowing
         pump = pump and flowing
         ceiling = self.ceiling(mash_sp)
@@ -432,6 +434,14 @@ class Cascade:
             self._after_stop = False
         if not pump:
             setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
+            if hlt_reading is not None and hlt_reading > mash_sp + self._limit:
+                # The water above the limit (a strike left above the first rest + limit): no
+                # heat until it reads at or below it. The law lands on a setpoint from above
+                # sending heat from when its prediction a dead time ahead meets it, the water
+                # itself still its fall over the dead time above, and that heat's pulses ride
+                # on water falling slowly through the limit (bench/herms.py seeds 28, 34 and
+                # 50: 0.001 °C back over it); let fall, it passes the limit once.
+                setpoint = min(setpoint, mash_sp)
             if paused and self._last_sp is not None:
                 setpoint = self._last_sp
                 if self._climbing:

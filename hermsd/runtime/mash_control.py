@@ -150,6 +150,7 @@ class MashControl:
             flowing=not self.flow.stuck,
             paused=timer_stop,
             starting=pump_in is not None,
+            hlt_reading=hlt_pv,
         )
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
