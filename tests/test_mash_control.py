@@ -23,6 +23,7 @@ from test_mash_side import Periods
 from hermsd.api.link import LoopLink, role_faults
 from hermsd.cli import main
 from hermsd.config.read import parse
+from hermsd.control import laws
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.control.pid import PlantModel
 from hermsd.log.reader import load
@@ -463,3 +464,37 @@ def test_a_climb_keeps_the_water_s_ripple_on_a_stop_s_landing_under_the_limit(
     )
     assert decision.phase == "climb"
     assert decision.hlt_setpoint == pytest.approx(climb, abs=1e-9)
+
+
+def test_a_load_begun_unannounced_is_told_once_and_a_prepared_start_is_not() -> None:
+    """The coil's load fed forward where the period before fed none and no start was
+    prepared for it (a pump seen running, wort flowing again) is `unannounced`, for that
+    period only; a start prepared a period ahead (`pump_in`) is not, nor one prepared with
+    no load told ahead (the HLT at its limit: no room for heat sent ahead)."""
+    config = parse(CONFIG)
+    model = PlantModel(1.0, 20000.0, 60.0, 20.0)
+    control = mash_control(config, model, coil_prior(config, None))
+    law = laws.create("predictive", kc=120.0, ti=800.0, ts=5.0, model=model)
+    law.reset(70.0, 20.0)
+
+    def period(t: float, pump: bool, pump_in: float | None = None, hlt: float = 70.0) -> bool:
+        control.period(
+            law,
+            mash_sp=63.0,
+            mash_pv=50.0,
+            mash_age=0.0,
+            hlt_pv=hlt,
+            pump=pump,
+            pump_known=True,
+            applied=0.0,
+            t=t,
+            pump_in=pump_in,
+        )
+        return control.unannounced
+
+    assert [period(0.0, False), period(5.0, True), period(10.0, True)] == [False, True, False]
+    assert [period(15.0, False), period(20.0, False, pump_in=5.0)] == [False, False]
+    assert period(25.0, True) is False
+    assert [period(30.0, False), period(35.0, False, pump_in=5.0, hlt=73.0)] == [False, False]
+    assert control.decision is not None and control.decision.load_watts == 0.0
+    assert period(40.0, True) is False

@@ -37,16 +37,22 @@ SEEN_OVER_FULL = 1.2  # the seen start's drop against full power from its first 
 
 
 class TracedTun(HermsTun):
-    """A HERMS plant with its water's temperature noted at every read, and a copy of itself
-    kept at the pump's first instant (bench/herms_pump.py's too)."""
+    """A HERMS plant with its water's temperature noted at every read, its element's
+    switchings, and a copy of itself kept at the pump's first instant (bench/herms_pump.py's
+    too)."""
 
-    __slots__ = ("at_start", "started", "trace")
+    __slots__ = ("at_start", "started", "switched", "trace")
 
     def __init__(self, hlt: PhysicalPlant, **mash: float) -> None:
         super().__init__(hlt, **mash)
         self.trace: dict[float, float] = {}
         self.at_start: HermsTun | None = None
         self.started = math.nan
+        self.switched: list[tuple[float, bool]] = []  # the element's switchings, (t, on)
+
+    def set_heater(self, on: bool, t: float) -> None:
+        self.switched.append((t, on))
+        super().set_heater(on, t)
 
     def temperature(self, t: float) -> float:
         self.trace[t] = self.water_temperature(t)
@@ -295,6 +301,21 @@ def test_a_pump_started_outside_hermsd_is_seen_and_its_load_fed_forward_at_once(
     full = start - min(ideal.water_temperature(tun.started + s) for s in range(int(AFTER) + 1))
     seen = tun.trace[PUMP_AT] - lowest(tun.trace, PUMP_AT, PUMP_AT + AFTER)
     assert seen <= SEEN_OVER_FULL * full
+
+
+def test_a_seen_start_sends_its_first_pulse_from_its_windows_start() -> None:
+    """The mash near its rest (doughed in at 63 °C), the pump started outside hermsd and seen
+    by the coil outlet sensor: the first period with the load fed forward asks part of full
+    power, and its window's pulse is sent from the window's start, not at its end where it
+    would join the next window's (the load's heat is already a dead time late); the window
+    after it is planned as ever."""
+    tun, records = day("none", [{"at": f"{PUMP_AT:g}s", "pump": "on"}], mash_c=63.0)
+    first = next(r for r in records if (r.coil_load or 0.0) > 0.0 and r.t > PUMP_AT)
+    assert 0.0 < first.output < 100.0
+    assert (first.t, True) in tun.switched
+    on_time = first.output / 100.0 * PERIOD
+    off = next(t for t, on in tun.switched if t > first.t and not on)
+    assert off == pytest.approx(first.t + on_time, abs=0.011)  # whole mains half-cycles
 
 
 def test_a_restart_with_the_hlt_above_its_setpoint_is_prepared_all_the_same() -> None:

@@ -308,3 +308,16 @@ def test_without_a_band_the_swing_at_half_power_is_a_joined_pulse() -> None:
     planner = TimeProportionalPlanner(5.0, 50)
     assert planner.swing(0.01) == pytest.approx(0.025, abs=1e-12)
     assert _water_swing(planner, 50.0, 0.01) == pytest.approx(0.025, abs=1e-9)
+
+
+def test_a_pulse_at_once_starts_its_window_and_the_next_joins_the_one_after() -> None:
+    """30 % after a window that ended off: at once, on 0–1.5 s (not 3.5–5 s); that window
+    then ends off, so the next one's pulse ends it (8.5–10 s), joining the one after's."""
+    planner = TimeProportionalPlanner(5.0, 50)
+    first = planner.plan(0.0, 30.0, at_once=True)
+    assert (first.on_at, first.off_at, first.applied) == (0.0, 1.5, 30.0)
+    second, third = planner.plan(5.0, 30.0), planner.plan(10.0, 30.0)
+    assert (second.on_at, second.off_at) == (8.5, 10.0)
+    assert (third.on_at, third.off_at) == (10.0, 11.5)
+    plain = TimeProportionalPlanner(5.0, 50).plan(0.0, 30.0)
+    assert (plain.on_at, plain.off_at) == (3.5, 5.0)

@@ -87,8 +87,10 @@ class TimeProportionalPlanner:
         self._carry = 0.0
         self._ends_on = False
 
-    def plan(self, start: float, duty: float) -> WindowPlan:
-        """The window that begins at `start` with `duty` % requested."""
+    def plan(self, start: float, duty: float, at_once: bool = False) -> WindowPlan:
+        """The window that begins at `start` with `duty` % requested; `at_once`: its pulse
+        from its start where it would end it (a load just begun unannounced, its heat already
+        late: sent as early as the window allows, at the cost of an edge pair once)."""
         if not 0.0 <= duty <= 100.0:
             raise ValueError(f"duty must be within 0..100 %, got {duty}")
         slots = self.slots
@@ -110,7 +112,7 @@ class TimeProportionalPlanner:
         # The pulse joins the state the window before ended in: on, it starts the window;
         # off, it ends it. One edge a window (the windows alternate by themselves), also
         # after a window fully on or off, where a fixed alternation spent two.
-        at_end = not self._ends_on
+        at_end = not (self._ends_on or at_once)
         self._ends_on = on == slots or (at_end and on > 0)
         if on == 0:
             on_at = off_at = start + self.window

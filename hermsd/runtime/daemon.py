@@ -778,7 +778,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         allowed = self.supervisor.heater_allowed
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(allowed)
-        self._arm(self.planner.plan(deadline, self.output if allowed else 0.0), now)
+        at_once = self._draw_began_unannounced()
+        self._arm(self.planner.plan(deadline, self.output if allowed else 0.0, at_once), now)
 
     def _arm(self, plan: WindowPlan, now: float) -> None:
         """Make `plan` the window in progress (logged; a later one for the same start replaces

@@ -92,6 +92,9 @@ class MashControl:
         self.load_in = 0.0  # s until the load fed forward begins (a prepared pump start)
         self.load_until = math.inf  # s until it ends (a stop the program's timer announces)
         self.load_basis = 0.0  # the coil's K (W/K) the load was reckoned on (0: no load)
+        # The coil's load began this period, the last fed none and no start prepared for it
+        # (a pump hermsd only sees, wort flowing again): the law's heat for it comes late.
+        self.unannounced = False
 
     def period(
         self,
@@ -124,6 +127,7 @@ class MashControl:
         water's alone and the HLT does not rise past its limit as the coil stops drawing.
         `timer_stop`: the pump stopped by that timer, its restart due (`Cascade.step`'s
         `paused`). `t`: the loop's clock (s), for the mash's reach watch."""
+        before, preparing = self.decision, self.load_in > 0.0
         known = pump and pump_known
         exchange = self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known)
         coil = self.coil.estimate()
@@ -175,6 +179,9 @@ class MashControl:
         k = max(coil.conductance, MIN_CONDUCTANCE)
         self._watch_reach(t, decision, mash_sp, mash_pv, hlt_pv, k, timer_stop or not pump)
         self.decision = decision
+        fed = before is not None and before.load_watts > 0.0
+        acts = decision.load_watts > 0.0 and starts_in == 0.0
+        self.unannounced = acts and not (fed or preparing)
         return decision
 
     def _watch_reach(
@@ -216,6 +223,7 @@ class MashControl:
         room), which the outer loop would take for a mash far below its rest and ready the
         HLT to the limit above the strike: heat that coasts the mash past its first rest."""
         self.decision = Decision(setpoint, 0.0, STRIKE)
+        self.unannounced = False
         predictive.known_load(controller, 0.0, self.element_watts)
         self.load_in, self.load_until, self.load_basis = 0.0, math.inf, 0.0
         return self.decision

@@ -399,6 +399,16 @@ class MashSide(LoopState):
         state = self.pump_state
         return True if state is None else state
 
+    def _draw_began_unannounced(self) -> bool:
+        """Whether the coil began to draw in the period just stepped with no start prepared
+        for it (`MashControl.unannounced`), told once: the window after it sends its pulse
+        from its start (`TimeProportionalPlanner.plan`'s `at_once`)."""
+        control = self._mash_control
+        if control is None or not control.unannounced:
+            return False
+        control.unannounced = False
+        return True
+
     def _steer(self, pv: float | None, applied: float, t: float) -> float:
         """The HLT law's setpoint for this period: with a mash sensor fitted the outer
         loop's, stepped on this period's HLT PV (none: the last decision stands), the coil's
