@@ -27,8 +27,8 @@ from hermsd.log.topics import (
     TIMING_TOPIC,
     LogLevel,
 )
-from hermsd.runtime.daemon import RAISED_ALARM
 from hermsd.runtime.period import PeriodRecord
+from hermsd.safety.limits import RAISED_ALARM
 
 if TYPE_CHECKING:
     pass

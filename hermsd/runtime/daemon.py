@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import re
 import signal
 import threading
 import time
@@ -78,7 +77,7 @@ from hermsd.runtime.scheduler import LatenessStats, Scheduler, Timer
 from hermsd.safety.element_probe import ProbeResult
 from hermsd.safety.element_watch import named_dead, report_kind
 from hermsd.safety.latches import Latches
-from hermsd.safety.limits import Alarm, MeasuredTun
+from hermsd.safety.limits import Alarm, MeasuredTun, raised_alarm_text
 
 log = logging.getLogger("hermsd")
 
@@ -90,16 +89,6 @@ STOP_WAIT_S = 8.0
 latched alarms first: what a restart must find), then the program's progress, then queued
 alerts, in that order: inside systemd's stop timeout of 10 s (systemd/hermsd.service), so
 that what was not saved is said before a SIGKILL could cut the stop short."""
-
-
-RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heater off")
-"""The event text of a raised alarm, as replay reads it back from the log."""
-
-
-def raised_alarm_text(alarm: Alarm) -> str:
-    """The event logged when `alarm` is raised; RAISED_ALARM matches it."""
-    what = "ALARM" if alarm.latched else "fault"
-    return f"{what} {alarm.kind}: {alarm.message}; heater off"
 
 
 class ControlHook(Protocol):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -454,6 +455,16 @@ class Alarm:
     latched: bool
     raised: bool = True
     values: dict[str, Any] = field(default_factory=dict)
+
+
+RAISED_ALARM = re.compile(r"(?:ALARM|fault) (?P<kind>\w+): (?P<message>.*); heater off")
+"""The event text of a raised alarm, as replay reads it back from the log."""
+
+
+def raised_alarm_text(alarm: Alarm) -> str:
+    """The event logged when `alarm` is raised; RAISED_ALARM matches it."""
+    what = "ALARM" if alarm.latched else "fault"
+    return f"{what} {alarm.kind}: {alarm.message}; heater off"
 
 
 def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
