@@ -39,28 +39,31 @@ clamped to the mash's setpoint + the limit (bench/herms_cascade.py's peers).
 
 Measured on the true temperatures (the HLT's water, the mash's bulk), per rest: the mash's
 worst error from 5 min after it first came within 0.3 °C (goal ≤ 0.3 °C), the pump's stops
-aside (one begun in those 5 min too), from the stop until the mash is back within 0.3 °C
-after the restart (the brewer's stir, a recirculation timer: no heat reaches the mash, which
-cools at its own rate whatever the HLT does; shown counted too), its overshoot (goal ≤ 0.2
-°C), the HLT's highest against the mash's setpoint + limit from its first time at or below
-it in the rest (never above; a strike the program leaves above the first rest + limit, which
-`hermsd program check` warns of, cannot be cooled, only left to fall: shown counted too),
-and the step time from the rest's start to within 0.3 °C against the fastest the limit
-allows on the same plant (goal ≤ ×1.15): a copy from the water's and the mash's temperatures
-at the step's start, the element's heat arriving at once, the pump as the day switched it,
-the HLT at full power to the limit and held there, then off at the last instant that keeps
-the mash at or below its rest (by bisection) and held at the HLT the rest needs. A rest the
-ideal never reaches (the limit leaves it out of reach on that plant) is no goal for anyone,
-nor are the rests the program never begins after it; one it reaches and a controller does
-not is a miss ("never"). Per pump start: the HLT's largest fall below the lesser of its
-temperature at the start and its setpoint over 10 min (or until the next rest begins, its
-setpoint another step's climb); one hermsd commands (goal ≤ 0.3 °C where the element exceeds
-the coil's load and the HLT's losses at that instant), one outside hermsd against the fall
-at full power from the start's instant on a copy of the plant (goal ≤ ×1.2, seen through its
-sense; the unseen one measured apart; shown where that fall is 0.1 °C or more). Alarms (goal
-0; a latched one is reset by the brewer at once, `hermsd reset`, so that the day goes on,
-and each is counted: a peer's are the supervisor's verdict on a HERMS run as a plain HLT,
-which counts no coil's load without a mash sensor, not the peer's own), and `replay
+aside (one begun in those 5 min too), from the stop until the mash is back within 0.3 °C after
+the restart (the brewer's stir, a recirculation timer: no heat reaches the mash, which cools at
+its own rate whatever the HLT does; shown counted too), its overshoot (goal ≤ 0.2 °C), the
+HLT's highest against the mash's setpoint + limit from its first time at or below it in the
+rest (never above; a strike the program leaves above the first rest + limit, which `hermsd
+program check` warns of, cannot be cooled, only left to fall: shown counted too), and the step
+time from the rest's start to within 0.3 °C against the fastest the limit allows on the same
+plant (goal ≤ ×1.15): a copy from the water's and the mash's temperatures at the step's start,
+the element's heat arriving at once, the pump as the day switched it, the HLT at full power to
+the limit and held there, then off at the last instant that keeps the mash at or below its rest
+(by bisection) and held at the HLT the rest needs. Shown beside it, with no goal: the step time
+against the same ideal kept, while the pump runs, as far under the limit as a stop nobody
+announced would land (the coil's draw over the element's delay, K·(T_h − T_m)·D/C_h): what
+"never above the limit" costs a controller that cannot know a brewer's stop in advance, which
+the ideal above does not pay. A rest the ideal never reaches (the limit leaves it out of reach
+on that plant) is no goal for anyone, nor are the rests the program never begins after it; one
+it reaches and a controller does not is a miss ("never"). Per pump start: the HLT's largest
+fall below the lesser of its temperature at the start and its setpoint over 10 min (or until
+the next rest begins, its setpoint another step's climb); one hermsd commands (goal ≤ 0.3 °C
+where the element exceeds the coil's load and the HLT's losses at that instant), one outside
+hermsd against the fall at full power from the start's instant on a copy of the plant (goal ≤
+×1.2, seen through its sense; the unseen one measured apart; shown where that fall is 0.1 °C or
+more). Alarms (goal 0; a latched one is reset by the brewer at once, `hermsd reset`, so that
+the day goes on, and each is counted: a peer's are the supervisor's verdict on a HERMS run as a
+plain HLT, which counts no coil's load without a mash sensor, not the peer's own), and `replay
 --verify` on each day's log (exact: every step re-run bit for bit). Per day, what the mash's
 reach watch said ("the mash levels out near …": a rest the HLT at its most cannot bring the
 mash to within a degree; docs/mash-control.md), none where every rest is reached.
@@ -496,11 +499,14 @@ def ideal_run(
     switch: float,
     pumps: list[tuple[float, bool]],
     reach: bool = True,
+    room: bool = False,
 ) -> tuple[float, float | None]:
     """The ideal HLT from `start` (t, water, mash), off the limit at `switch` s: (s until the
     mash is within BAND, s when it passed `sp`: None if it did not). With `switch` finite the
     run ends once the HLT has been down at the rest's HLT for the hoses' time and 2 min (the
-    mash then never passes `sp`), and the mash is within BAND if `reach`."""
+    mash then never passes `sp`), and the mash is within BAND if `reach`. `room`: while the
+    pump runs, the HLT no higher than leaves room under the limit for what a stop nobody
+    announced would land, the coil's draw over the element's delay (`room_top`)."""
     t0, water, mash = start
     hlt = PhysicalPlant(
         litres=s.litres,
@@ -515,15 +521,18 @@ def ideal_run(
     keys = {**mash_keys(s), "mash_sensor_lag_s": 0.0, "tun_heat_capacity_j_per_k": 0.0}
     tun = HermsTun(hlt, **keys)
     tun.dough_in(0.0, ROOM, s.mash_capacity / WATER_J_PER_LITRE_K, mash, t0)
-    tun.set_pump(next((on for at, on in reversed(pumps) if at <= t0), False), t0)
+    running = pump_running(pumps, t0)
+    tun.set_pump(running, t0)
     later = [(at, on) for at, on in pumps if at > t0]
     cap, hold = sp + s.limit, sp + s.mash_ua * (sp - ROOM) / s.coil_k
     settle = s.hose_to_coil + s.hose_to_mash + 120.0
     reached, down_since, t = math.inf, math.inf, t0
     for second in range(4 * 3600):
         while later and later[0][0] <= t:  # a switch within the second: at its end
-            tun.set_pump(later.pop(0)[1], t)
-        tun.set_heater(tun.water_temperature(t) < (cap if second < switch else hold), t)
+            running = later.pop(0)[1]
+            tun.set_pump(running, t)
+        top = room_top(s, cap, tun.mash_temperature(t)) if room and running else cap
+        tun.set_heater(tun.water_temperature(t) < (top if second < switch else hold), t)
         t += 1.0
         now = tun.mash_temperature(t)
         if now > sp + 1e-3:
@@ -537,24 +546,36 @@ def ideal_run(
     return reached, None
 
 
+def room_top(s: SetUp, cap: float, mash: float) -> float:
+    """The highest HLT whose stop, nobody announcing it, lands under `cap`: h + K·(h − m)·D/C_h
+    ≤ cap (D the element's delay, C_h the HLT's water), h ≤ (cap + a·m)/(1 + a), a = K·D/C_h."""
+    a = s.coil_k * s.delay_s / (WATER_J_PER_LITRE_K * s.litres)
+    return (cap + a * mash) / (1.0 + a)
+
+
 def fastest(
-    s: SetUp, start: tuple[float, float, float], sp: float, pumps: list[tuple[float, bool]]
+    s: SetUp,
+    start: tuple[float, float, float],
+    sp: float,
+    pumps: list[tuple[float, bool]],
+    room: bool = False,
 ) -> float:
-    """s from `start` to within BAND of `sp` with the ideal HLT (the module's docstring)."""
-    never = ideal_run(s, start, sp, math.inf, pumps)
+    """s from `start` to within BAND of `sp` with the ideal HLT (the module's docstring);
+    `room`: keeping room for an unannounced stop's landing (`ideal_run`)."""
+    never = ideal_run(s, start, sp, math.inf, pumps, room=room)
     if never[1] is None:
         return never[0]
-    first = ideal_run(s, start, sp, 0.0, pumps, reach=False)
+    first = ideal_run(s, start, sp, 0.0, pumps, reach=False, room=room)
     if first[1] is not None:
         return first[0]
     lo, hi = 0.0, never[1]
     while hi - lo > 4.0:
         mid = 0.5 * (lo + hi)
-        if ideal_run(s, start, sp, mid, pumps, reach=False)[1] is None:
+        if ideal_run(s, start, sp, mid, pumps, reach=False, room=room)[1] is None:
             lo = mid
         else:
             hi = mid
-    return ideal_run(s, start, sp, lo, pumps)[0]
+    return ideal_run(s, start, sp, lo, pumps, room=room)[0]
 
 
 def pump_running(pumps: list[tuple[float, bool]], t: float) -> bool:
@@ -589,6 +610,7 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
         after = [abs(x.mash - sp) for x in held]
         stops = [x.mash - sp for x in window if reached is not None and x.t >= reached + SETTLE_S]
         best = fastest(s, start, sp, pumps)
+        roomy = fastest(s, start, sp, pumps, room=True)
         step = math.inf if reached is None else reached - start[0]
         # Never within BAND: a miss where the ideal gets there, none where nothing can.
         unheld = math.nan if reached is not None or math.isinf(best) else math.inf
@@ -608,6 +630,7 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
                 "step_s": step,
                 "fastest_s": best,
                 "ratio": step / best if best > 0.0 else math.nan,
+                "ratio_room": step / roomy if roomy > 0.0 else math.nan,
             }
         )
     return rows
@@ -701,6 +724,11 @@ MEASURES: tuple[tuple[str, str, float], ...] = (
     ("HLT's highest above the mash's setpoint + limit (once at or below it), °C", "hlt_above", 0.0),
     ("the same, the strike water's own heat counted", "hlt_above_all", 0.0),
     ("step time ÷ the fastest the limit allows", "ratio", 1.15),
+    (
+        "step time ÷ the fastest that keeps room for a stop's landing (no goal: its cost)",
+        "ratio_room",
+        1.15,
+    ),
     ("HLT's fall at a pump start hermsd commands (element > load), °C", "fall_commanded", 0.3),
     (
         "HLT's fall at a pump start outside hermsd (a switch it only sees) ÷ at full power",
@@ -724,13 +752,13 @@ def day_measures(day: dict[str, Any]) -> dict[str, list[float]]:
         ]
         for seen in (True, False)
     }
-    keys = ("err", "err_all", "over", "hlt_above", "hlt_above_all", "ratio")
+    keys = ("err", "err_all", "over", "hlt_above", "hlt_above_all", "ratio", "ratio_room")
     values = {key: [r[key] for r in rests] for key in keys}
     # A rest never begun: the program never got there, a miss unless the rest before it is out
     # of the limit's reach on the plant (the ideal never reaches it), which no controller can.
     out_of_reach = bool(rests) and math.isinf(rests[-1]["fastest_s"])
     missing = 0 if out_of_reach else len(RESTS) - len(rests)
-    for key in ("err", "err_all", "ratio"):
+    for key in ("err", "err_all", "ratio", "ratio_room"):
         values[key] += [math.inf] * missing
     return {
         **values,
