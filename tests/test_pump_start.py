@@ -307,8 +307,7 @@ def test_a_seen_start_sends_its_first_pulse_from_its_windows_start() -> None:
     """The mash near its rest (doughed in at 63 °C), the pump started outside hermsd and seen
     by the coil outlet sensor: the first period with the load fed forward asks part of full
     power, and its window's pulse is sent from the window's start, not at its end where it
-    would join the next window's (the load's heat is already a dead time late); the window
-    after it is planned as ever."""
+    would join the next window's (the load's heat is already a dead time late)."""
     tun, records = day("none", [{"at": f"{PUMP_AT:g}s", "pump": "on"}], mash_c=63.0)
     first = next(r for r in records if (r.coil_load or 0.0) > 0.0 and r.t > PUMP_AT)
     assert 0.0 < first.output < 100.0
