@@ -139,7 +139,7 @@ def test_water_read_above_the_limit_with_the_pump_stopped_gets_no_heat_until_bel
     # above it, the setpoint is the mash's own, 65 °C (no heat: the water falls through).
     c = cascade()
 
-    def read(reading: float) -> Decision:
+    def read(reading: float, starting: bool = False) -> Decision:
         return c.step(
             mash_sp=65.0,
             mash_pv=40.0,
@@ -147,11 +147,16 @@ def test_water_read_above_the_limit_with_the_pump_stopped_gets_no_heat_until_bel
             hlt_pv=69.9,
             pump=False,
             coil=EXACT,
+            starting=starting,
             hlt_reading=reading,
         )
 
     assert (read(70.2).phase, read(70.2).hlt_setpoint) == ("ready", 65.0)
     assert (read(70.15).phase, read(70.15).hlt_setpoint) == ("ready", 70.0)
+    # A start being prepared readies the HLT to the climb's setpoint (70 °C, lossless and no
+    # dead time), and above the limit it too gets no heat.
+    assert read(70.15, starting=True).hlt_setpoint == 70.0
+    assert read(70.2, starting=True).hlt_setpoint == 65.0
 
 
 def test_a_mash_reading_lost_holds_the_hlt_where_it_was_and_says_why() -> None:

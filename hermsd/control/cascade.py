@@ -434,14 +434,6 @@ class Cascade:
             self._after_stop = False
         if not pump:
             setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
-            if hlt_reading is not None and hlt_reading > mash_sp + self._limit:
-                # The water above the limit (a strike left above the first rest + limit): no
-                # heat until it reads at or below it. The law lands on a setpoint from above
-                # sending heat from when its prediction a dead time ahead meets it, the water
-                # itself still its fall over the dead time above, and that heat's pulses ride
-                # on water falling slowly through the limit (bench/herms.py seeds 28, 34 and
-                # 50: 0.001 °C back over it); let fall, it passes the limit once.
-                setpoint = min(setpoint, mash_sp)
             if paused and self._last_sp is not None:
                 setpoint = self._last_sp
                 if self._climbing:
@@ -462,6 +454,15 @@ class Cascade:
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if starting:
                 setpoint = min(setpoint, self.most(mash_sp, mash_pv, k))
+            if hlt_reading is not None and hlt_reading > mash_sp + self._limit:
+                # The water above the limit (a strike left above the first rest + limit): no
+                # heat until it reads at or below it. The law lands on a setpoint from above
+                # sending heat from when its prediction a dead time ahead meets it, the water
+                # itself still its fall over the dead time above, and that heat's pulses ride
+                # on water falling slowly through the limit (bench/herms.py seeds 28, 34 and
+                # 50: 0.001 °C back over it); let fall, it passes the limit once, whatever the
+                # stop (a timer's, a start being prepared).
+                setpoint = min(setpoint, mash_sp)
             phase = "no flow" if stood else "ready"
         elif self._climbing:
             setpoint, phase = self.most(mash_sp, mash_pv, k), "climb"

@@ -202,11 +202,10 @@ class CoilEstimator:
     def flow_low(self, estimate: CoilEstimate) -> float:
         """K one sd low to judge whether wort flows by (`flow_watch.FlowWatch`), from the
         day's `estimate` (this period's): its low, and while fewer than MIN_BLOCKS are in, no
-        more than the prior's low: one block
-        across a step of the element's duty on a dead time the HLT's model misjudges reads K
-        far high (417 W/K for 189 with a model's dead time twice the tun's: the heat sent
-        ahead of a pump start landed before the model said), and judged by it a flowing
-        coil looked like none."""
+        more than the prior's low: one block across a step of the element's duty on a dead
+        time the HLT's model misjudges reads K far high (417 W/K for 189 with a model's dead
+        time twice the tun's: the heat sent ahead of a pump start landed before the model
+        said), and judged by it a flowing coil looked like none."""
         low = estimate.low
         return low if len(self._blocks) >= MIN_BLOCKS else min(low, self._prior.low)
 
