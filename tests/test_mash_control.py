@@ -498,3 +498,25 @@ def test_a_load_begun_unannounced_is_told_once_and_a_prepared_start_is_not() -> 
     assert [period(30.0, False), period(35.0, False, pump_in=5.0, hlt=73.0)] == [False, False]
     assert control.decision is not None and control.decision.load_watts == 0.0
     assert period(40.0, True) is False
+
+
+def test_a_reload_of_the_ssrs_swing_moves_the_room_a_climb_keeps() -> None:
+    """The outer loop is made again when `output.swing` is reloaded: the room a climb keeps
+    under the limit counts the pulses' new swing. A mash at 40 °C far below its 66 °C rest
+    (the landing alone above HLT_MARGIN): without a band the water stands r·W/4 above its
+    mean, with `swing` 1/16 (a band within a window) 0.0625/2; the climb's setpoint moves by
+    the difference."""
+    daemon, _world, _periods = watched_day()
+    daemon.run(until=10.0)
+    control = daemon._mash_control
+    assert control is not None
+    before = control.cascade.most(MASH_SP, 40.0, 200.0)
+    daemon.reload(parse(CONFIG.replace("backend: sim\n", "backend: sim\n  swing: 0.0625\n", 1)))
+    daemon.run(until=20.0)
+    remade = daemon._mash_control
+    assert remade is not None and remade is not control
+    ripple = daemon.model.rate * 5.0 / 4.0
+    after = remade.cascade.most(MASH_SP, 40.0, 200.0)
+    # The band is whole mains half-cycles: r·2·0.005 s of swing at most, half of it above.
+    assert after == pytest.approx(before - (0.0625 / 2.0 - ripple), abs=daemon.model.rate * 0.005)
+    daemon.shutdown()

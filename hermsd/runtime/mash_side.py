@@ -505,8 +505,9 @@ class MashSide(LoopState):
             self._store_model(models, model, None, t)
 
     def _remake_mash_control(self, config: Config) -> None:
-        """A reload that changed the herms section, the tun or its model: the outer loop made
-        again for them (its step starts afresh), the coil's K as learned so far kept."""
+        """A reload that changed the herms section, the tun, its model or the SSR's output
+        (its pulses' swing, `Tanks.hlt_ripple`): the outer loop made again for them (its step
+        starts afresh), the coil's K as learned so far kept."""
         control = self._mash_control
         if control is None:
             return

@@ -109,8 +109,9 @@ class Reloading(LoopState):
             if not self._held:  # bumpless: the new controller starts from the output in force
                 self._held = True
                 self._resume_output = self.output
-        if old.herms != new.herms or old.tun != new.tun or retunes(old.control, new.control):
-            self._remake_mash_control(new)  # with the model now in force
+        remade = old.herms != new.herms or old.tun != new.tun or old.output != new.output
+        if remade or retunes(old.control, new.control):
+            self._remake_mash_control(new)  # with the model and the SSR's pulses now in force
         if self.element_watch is not None and watch_changes(old, new):
             watched, self.element_watch = self.element_watch, element_watch(new)
             if old.tun == new.tun:  # its references were of the old tun, not its probe
