@@ -75,3 +75,21 @@ def test_the_pump_stopped_ends_the_sign() -> None:
     assert tanks.watch.stuck
     assert tanks.watch.period(None, tanks.mash, pump=False, mash_loss=0.0, k=K)
     assert not tanks.watch.stuck
+
+
+def test_a_sign_just_raised_is_not_cleared_by_the_flow_before_it() -> None:
+    """Flowing 40 periods, then standing: raised at the 16th standing period (the last 30
+    hold 14 flowing, 70 kJ, under half the 150 kJ expected on both sides). A reading's step
+    then (+0.0625 °C of the mash, 12.5 kJ) puts the same 30 periods' mash at 77.5 kJ, over
+    the half: a stretch reaching back to the flow before the sign, which cleared it and let
+    the next period raise it again. Only a stretch wholly after the raise may clear it."""
+    tanks = Tanks()
+    tanks.feed(FLOWING, 40)
+    assert tanks.feed(STANDING, 16) == [False] * 15 + [True]
+    tanks.mash += 0.0625
+    assert not tanks.watch.period(STANDING, tanks.mash, pump=True, mash_loss=0.0, k=K)
+    assert tanks.watch.stuck
+    # Flowing again: judged on the 30 periods after the raise once there are 30 (the step's
+    # and 29 flowing, 157.5 kJ), where a stretch of them first shows the flow.
+    assert tanks.feed(FLOWING, 29) == [False] * 28 + [True]
+    assert not tanks.watch.stuck

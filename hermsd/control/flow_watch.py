@@ -59,6 +59,7 @@ class FlowWatch:
         "_period",
         "_room",
         "_seen",
+        "_since_raised",
         "loss_before",
         "stuck",
     )
@@ -83,6 +84,7 @@ class FlowWatch:
             maxlen=math.ceil(MAX_STRETCH_S / period)
         )
         self._last_mash: float | None = None
+        self._since_raised = 0  # periods seen since the sign was raised
         self.stuck = False
         self.loss_before: float | None = None
         """The mash's losses (W/K) as they were before the stretch that raised the sign: what
@@ -108,6 +110,7 @@ class FlowWatch:
         above_room = (0.5 * (last + mash) - self._room) * self._period
         rise = self._capacities[1] * (mash - last)
         self._seen.append((exchange.drive, exchange.heat, rise, above_room, mash_loss))
+        self._since_raised += 1
         verdict = self._verdict(k)
         return verdict is not None and self._set(verdict)
 
@@ -116,7 +119,9 @@ class FlowWatch:
         coil's heat, False when the mash did, else (and when no stretch is judgeable) None:
         the sign stands as it is. The mash's losses are taken as they were
         at the stretch's start (a mash that gets no heat teaches the outer loop too high a
-        loss, which would count as heat it took)."""
+        loss, which would count as heat it took). A sign that stands is cleared only by a
+        stretch wholly after it was raised: one reaching back to before holds the flow that
+        was, and a reading's step one way or the other cleared and raised it in turn."""
         least_error = JUDGE_SDS * READING_SD * max(self._capacities) / (1.0 - FLOW_SHARE)
         drive = hlt = rise = above_room = 0.0
         for n, (dx, heat, risen, above, loss) in enumerate(reversed(self._seen), start=1):
@@ -129,9 +134,12 @@ class FlowWatch:
             if hlt / share < 1.0 and mash / share < 1.0:
                 self.loss_before = loss
                 return True
-            return False if mash / share > 1.0 else None
+            cleared = mash / share > 1.0 and not (self.stuck and n > self._since_raised)
+            return False if cleared else None
         return None
 
     def _set(self, stuck: bool) -> bool:
         changed, self.stuck = stuck != self.stuck, stuck
+        if changed and stuck:
+            self._since_raised = 0
         return changed
