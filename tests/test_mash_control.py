@@ -520,3 +520,22 @@ def test_a_reload_of_the_ssrs_swing_moves_the_room_a_climb_keeps() -> None:
     # The band is whole mains half-cycles: r·2·0.005 s of swing at most, half of it above.
     assert after == pytest.approx(before - (0.0625 / 2.0 - ripple), abs=daemon.model.rate * 0.005)
     daemon.shutdown()
+
+
+@pytest.mark.parametrize(("stopped", "offset"), [(True, -300.0), (False, 0.0)])
+def test_the_strike_water_s_hold_measures_what_the_hlt_loses_beyond_its_model(
+    stopped: bool, offset: float
+) -> None:
+    """The model's HLT (C_h = 3000 W / 0.005 °C/s = 600 kJ/K, UA_h = C_h/τ = 30 W/K, room
+    20 °C) held at 70 °C in a brewery at 10 °C: it loses 30 × 60 = 1800 W, 60 % of the
+    element, where the model says 1500 W. Twenty minutes of that hold with the pump known to
+    stand show the 300 W (`CoilEstimator.offset`), what the coil's balance and the coast then
+    count; with the pump not known to stand (one run by hand unseen may draw), nothing."""
+    config = parse(CONFIG)
+    model = PlantModel(1.0, 20000.0, 60.0, 20.0)
+    control = mash_control(config, model, coil_prior(config, None))
+    law = laws.create("predictive", kc=120.0, ti=800.0, ts=5.0, model=model)
+    law.reset(70.0, 60.0)
+    for _ in range(240):
+        control.strike(law, 70.0, hlt_pv=70.0, applied=60.0, stopped=stopped)
+    assert control.coil.offset == pytest.approx(offset, abs=1e-6)

@@ -22,6 +22,14 @@ scatter of the blocks about the mean, so a model error that differs between clim
 shows in it, not only the sensor's noise; never under SD_FLOOR of K (the HLT model's own
 error: C_h from the element's rated power). With one or two blocks the day's K stands with
 FEW_SD of itself; before any, the prior.
+
+The HLT's losses are the model's, UA_h·(T_h − T_room) with its room: a room unlike the model's
+(a garage in winter, the model measured in summer) or a loss prior off puts a steady power
+into y that the fit reads as K, (P_err)/(T_h − T_m) of it: in a hold, where T_h − T_m is a
+degree or two, 150 W of it is K off by 100 W/K. With the pump stopped the coil draws nothing,
+and the same balance shows that power alone, so it is measured there (`_learn_offset`: the
+strike water's hold before mash-in, a stir, a timer's stop) and taken off y while the pump
+runs (docs/mash-control.md, "Learning K").
 """
 
 from __future__ import annotations
@@ -42,6 +50,12 @@ MIN_BLOCKS = 3
 """Blocks that show their own scatter; with fewer (one or two) the day's K stands with
 FEW_SD of itself, wider than a block's noise says, for what one block cannot show."""
 FEW_SD = 0.15
+OFFSET_MEMORY_S = 3600.0
+"""s of the pump's stopped time over which the HLT model's error is remembered (the room's
+drift over a brew day is slower; the noise of a reading's ends over it is a few W)."""
+OFFSET_LEAST_S = 300.0
+"""s of stopped time before that error is used: the ends' noise, C_h·0.06 °C over it, is then
+under 50 W on a 60 L HLT (with less, none is taken)."""
 SD_FLOOR = 0.05
 """The least relative uncertainty claimed: the HLT's heat capacity comes from the element's
 rated power, which is known to a few percent."""
@@ -106,10 +120,14 @@ class CoilEstimator:
         "_h0",
         "_last",
         "_loss",
+        "_offset_heat",
+        "_offset_time",
         "_period",
         "_prior",
         "_room",
         "_run_s",
+        "_since_full",
+        "_stopped",
         "_watts",
         "_x",
         "_y",
@@ -140,15 +158,30 @@ class CoilEstimator:
         self._run_s = 0.0
         self._flowing_s = math.inf  # s since the wort was last known not to flow
         self._h0 = self._x = self._y = 0.0
+        # The balance's error with the pump stopped (J, over s), forgotten over
+        # OFFSET_MEMORY_S; the HLT's PV of the stopped period before and s since the stop.
+        self._offset_heat = self._offset_time = 0.0
+        self._stopped: tuple[float, float] | None = None
+        self._since_full = 0.0  # s since the element was last at full power
 
     def period(
-        self, *, hlt: float, mash: float | None, applied: float, pump: bool
+        self,
+        *,
+        hlt: float,
+        mash: float | None,
+        applied: float,
+        pump: bool,
+        stopped: bool = False,
     ) -> Exchange | None:
         """One period: the HLT's and the mash's PV (None: no good mash reading), the duty
-        applied over the period just ended (% of the element) and whether the pump ran. The
-        period's exchange as the HLT's balance shows it (None while the pump is stopped, a
-        reading failed or the coil still settles)."""
+        applied over the period just ended (% of the element) and whether the pump ran;
+        `stopped`: the pump known to stand (switched off, or seen off: one run by hand unseen
+        may not), when the balance measures the HLT model's own error. The period's exchange
+        as the HLT's balance shows it (None while the pump is stopped, a reading failed or
+        the coil still settles)."""
         self._arrived.append(applied)
+        self._since_full = 0.0 if applied >= 100.0 else self._since_full + self._period
+        self._learn_offset(hlt if stopped else None)
         if not pump or mash is None:
             self._interrupt()
             return None
@@ -165,8 +198,7 @@ class CoilEstimator:
         h_mean = 0.5 * (last[0] + hlt)
         dx = ts * (h_mean - 0.5 * (last[1] + mash))
         self._x += dx
-        heat = self._watts * self._arrived[0] / 100.0 * ts
-        dy = -heat + self._loss * (h_mean - self._room) * ts
+        dy = self._balance(h_mean) - self.offset * ts
         self._y += dy
         point = (self._x, self._capacity * (hlt - self._h0) + self._y)
         self._flowing_s += ts
@@ -176,6 +208,42 @@ class CoilEstimator:
         if self._block.n * ts > BLOCK_S:
             self._close_block(point)
         return Exchange(dx, -(dy + self._capacity * (hlt - last[0])))
+
+    def _balance(self, h_mean: float) -> float:
+        """J the model says left the HLT over the period besides its own change: the losses
+        at `h_mean` less the element's heat that arrived."""
+        heat = self._watts * self._arrived[0] / 100.0 * self._period
+        return self._loss * (h_mean - self._room) * self._period - heat
+
+    def _learn_offset(self, hlt: float | None) -> None:
+        """With the pump known stopped (`hlt` its PV; None: not), from SETTLE_S after the
+        stop (the coil's standing wort takes the HLT's temperature, heat the balance does not
+        count) and two dead times after full power (a heat-up's ramp and its end, where the
+        rate's error and the dead time's would read as a loss: 50 s of the heat's way
+        misjudged at the end of a heat-up is 250 kJ of a 5.5 kW element, 140 W over half an
+        hour's hold): the heat the HLT gained beyond the model's balance, per second."""
+        if hlt is None:
+            self._stopped = None
+            return
+        last, self._stopped = (
+            self._stopped,
+            (hlt, 0.0 if self._stopped is None else self._stopped[1] + self._period),
+        )
+        dead = self._period * ((self._arrived.maxlen or 1) - 1)
+        if last is None or last[1] < SETTLE_S or self._since_full < 2.0 * dead:
+            return
+        gained = self._capacity * (hlt - last[0]) + self._balance(0.5 * (hlt + last[0]))
+        fade = math.exp(-self._period / OFFSET_MEMORY_S)
+        self._offset_heat = fade * self._offset_heat + gained
+        self._offset_time = fade * self._offset_time + self._period
+
+    @property
+    def offset(self) -> float:
+        """W the HLT gains beyond its model's balance, as its stopped pump showed it (the
+        room's or the losses' error, `_learn_offset`); 0 until OFFSET_LEAST_S of it."""
+        if self._offset_time < OFFSET_LEAST_S:
+            return 0.0
+        return self._offset_heat / self._offset_time
 
     def no_flow(self) -> None:
         """The pump runs but no wort flows (`flow_watch.FlowWatch`): what the HLT showed

@@ -129,7 +129,9 @@ class MashControl:
         `paused`). `t`: the loop's clock (s), for the mash's reach watch."""
         before, preparing = self.decision, self.load_in > 0.0
         known = pump and pump_known
-        exchange = self.coil.period(hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known)
+        exchange = self.coil.period(
+            hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known, stopped=not pump
+        )
         coil = self.coil.estimate()
         changed = self.flow.period(
             exchange,
@@ -155,6 +157,7 @@ class MashControl:
             paused=timer_stop,
             starting=pump_in is not None,
             hlt_reading=hlt_pv,
+            hlt_gain=self.coil.offset,
         )
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
@@ -217,11 +220,22 @@ class MashControl:
         if self.reach_said is not None:
             self.short = self.reach_said.message if self.reach_said.raised else None
 
-    def strike(self, controller: pid.Controller, setpoint: float) -> Decision:
+    def strike(
+        self,
+        controller: pid.Controller,
+        setpoint: float,
+        *,
+        hlt_pv: float,
+        applied: float,
+        stopped: bool,
+    ) -> Decision:
         """A program's step before the mash is in (the strike water): the step's setpoint
         is the HLT's own, no load fed forward. The mash sensor then reads an empty tun (the
         room), which the outer loop would take for a mash far below its rest and ready the
-        HLT to the limit above the strike: heat that coasts the mash past its first rest."""
+        HLT to the limit above the strike: heat that coasts the mash past its first rest.
+        The coil's estimator is fed the HLT (`stopped`: the pump known to stand), whose hold
+        there shows its model's error (`CoilEstimator.offset`)."""
+        self.coil.period(hlt=hlt_pv, mash=None, applied=applied, pump=False, stopped=stopped)
         self.decision = Decision(setpoint, 0.0, STRIKE)
         self.unannounced = False
         predictive.known_load(controller, 0.0, self.element_watts)

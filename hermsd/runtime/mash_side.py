@@ -422,7 +422,11 @@ class MashSide(LoopState):
             return self.hlt_target()
         runner = self.program.runner
         if runner is not None and not runner.on_mash(self.mash_reading()):
-            return control.strike(self.controller, self.setpoint).hlt_setpoint
+            stopped = self.pump_state is False
+            strike = control.strike(
+                self.controller, self.setpoint, hlt_pv=pv, applied=applied, stopped=stopped
+            )
+            return strike.hlt_setpoint
         mash = self._roles["mash_sensor"]
         before, was_stuck = control.decision, control.flow.stuck
         seen = self._flow_seen(pv)
