@@ -1,41 +1,42 @@
 """HERMS family through the daemon: hermsd's outer loop and its peers on the same plants.
 
-Every day runs through `hermsd.sim.scenario.run` (the machinery of `hermsd simulate`: the
-daemon on a virtual clock, its log written and re-run with `hermsd replay --verify`'s
-`replay.verify`), on a `hermsd.sim.mash.HermsTun`. The set-ups are drawn, one per seed, from
-the documented ranges: HLT 40–150 L, 2–9 kW, UA 17.8 W/K at 90 L scaled by the surface
-(×0.8–1.25), the element's heat 20–90 s late, the HLT's sensor lag 5–30 s; a coil of
-100–400 W/K at 4–8 L/min, hoses 5–25 s each way; a mash of 20–70 kg (2.5–4 L of water a kg
-of grain) doughed in at 35–50 °C, the tun's losses 2–15 W/K and its own 0–5 kJ/K, the mash
-sensor's lag 5–60 s; the limit (herms.max_hlt_above_mash) 5, 8 or 10 °C, the HLT preheated
-to a strike setpoint of 60–72 °C. An odd seed has the pump fitted (`pump.backend: sim`,
-switched by hermsd), an even one runs it outside hermsd (started by hand 2–10 min after
-dough-in) with a pump sense fitted (`pump.sense: sim`: a switch hermsd only sees); the seed
-modulo 3 gives its timer: none, stops for stirring (5 min at 40 min and 100 min after
-dough-in) or a recirculation timer (2 min off every 20 min; where hermsd switches the pump, its
-program's own timer, `pump_off_every: 20m` and `pump_off_for: 2m` on each rest, counted from
-the rest's start, and the peers' listener switches it so from their rests' starts, as
-`hermsd set pump` would; outside hermsd, a timer of its own from dough-in). Three more set-ups are
-scenarios/herms-day.yaml's plant (90 L 3 kW, 50 L and 12 kg doughed in at 38 °C, limit
-10 °C): its pump outside hermsd and seen, outside and unseen (no sense, no coil outlet
-sensor: hermsd takes it as running), and fitted. Every sensor has noise (sd 0.03 °C; the
+Every day runs through `hermsd.sim.scenario.run` (the machinery of `hermsd simulate`: the daemon
+on a virtual clock, its log written and re-run with `hermsd replay --verify`'s `replay.verify`),
+on a `hermsd.sim.mash.HermsTun`. The set-ups are drawn, one per seed, from the documented
+ranges: HLT 40–150 L, 2–9 kW, UA 17.8 W/K at 90 L scaled by the surface (×0.8–1.25), the
+element's heat 20–90 s late, the HLT's sensor lag 5–30 s; a coil of 100–400 W/K at 4–8 L/min,
+hoses 5–25 s each way; a mash of 20–70 kg (2.5–4 L of water a kg of grain) doughed in at 35–50
+°C, the tun's losses 2–15 W/K and its own 0–5 kJ/K, the mash sensor's lag 5–60 s; the limit
+(herms.max_hlt_above_mash) 5, 8 or 10 °C, the HLT preheated to a strike setpoint of 60–72 °C;
+the brewery's room 0–35 °C (the grain and the tun at it), where hermsd's config keeps the
+shipped model room (`control.model_ambient`, 20 °C). An odd seed has the pump fitted
+(`pump.backend: sim`, switched by hermsd), an even one runs it outside hermsd (started by hand
+2–10 min after dough-in) with a pump sense fitted (`pump.sense: sim`: a switch hermsd only
+sees); the seed modulo 3 gives its timer: none, stops for stirring (5 min at 40 min and 100 min
+after dough-in) or a recirculation timer (2 min off every 20 min; where hermsd switches the
+pump, its program's own timer, `pump_off_every: 20m` and `pump_off_for: 2m` on each rest,
+counted from the rest's start, and the peers' listener switches it so from their rests' starts,
+as `hermsd set pump` would; outside hermsd, a timer of its own from dough-in). Three more set-
+ups are scenarios/herms-day.yaml's plant (90 L 3 kW, 50 L and 12 kg doughed in at 38 °C, limit
+10 °C, room 20 °C): its pump outside hermsd and seen, outside and unseen (no sense, no coil
+outlet sensor: hermsd takes it as running), and fitted. Every sensor has noise (sd 0.03 °C; the
 HLT's and the mash's LM92 truncate to 0.0625 °C).
 
-The day: the HLT held at the strike setpoint, dough-in and "Mash in" confirmed at 20 min,
-then rests of 63 °C (30 min), 72 °C (20 min) and 78 °C (10 min) timed on the mash (reached
-within ±0.5 °C of the mash reading, the hold counting the periods in that band); the day
-ends 2 min after the last hold, or at 10 h (a 2.5 kW element under 110 L takes over 7).
-hermsd runs it as a mash program with a mash sensor fitted (herms keys: the mash's true
-litres and grain, its losses guessed low at 0.7 of the truth, the hoses' round trip and the
-mash sensor's lag; the HLT law's prior the true HLT), the pump started by the program's
-first rest when fitted. The peers run in the same daemon with no mash sensor (an HLT
-thermostat, the same HLT law and prior): a listener handed the daemon
-(`scenario.run(attach=...)`) reads the simulated mash sensor each period (its noise, lag and
-0.0625 °C steps), times the rests by the same rule, sets the daemon's setpoint as `hermsd
-set setpoint` would and starts the fitted pump at the first rest as `hermsd set pump on`
-would. Offset: the HLT at the mash's setpoint + 2 °C (ebrew, CraftBeerPi users). CascadePID:
-CraftBeerPi's, a PI on the mash's error (10 °C/°C, Ti 600 s) gives the HLT's setpoint,
-clamped to the mash's setpoint + the limit (bench/herms_cascade.py's peers).
+The day: the HLT held at the strike setpoint, dough-in and "Mash in" confirmed at 20 min, then
+rests of 63 °C (30 min), 72 °C (20 min) and 78 °C (10 min) timed on the mash (reached within
+±0.5 °C of the mash reading, the hold counting the periods in that band); the day ends 2 min
+after the last hold, or at 10 h (a 2.5 kW element under 110 L takes over 7). hermsd runs it as a
+mash program with a mash sensor fitted (herms keys: the mash's true litres and grain, its losses
+guessed low at 0.7 of the truth, the hoses' round trip and the mash sensor's lag; the HLT law's
+prior the true HLT but for its room), the pump started by the program's first rest when fitted.
+The peers run in the same daemon with no mash sensor (an HLT thermostat, the same HLT law and
+prior): a listener handed the daemon (`scenario.run(attach=...)`) reads the simulated mash
+sensor each period (its noise, lag and 0.0625 °C steps), times the rests by the same rule, sets
+the daemon's setpoint as `hermsd set setpoint` would and starts the fitted pump at the first
+rest as `hermsd set pump on` would. Offset: the HLT at the mash's setpoint + 2 °C (ebrew,
+CraftBeerPi users). CascadePID: CraftBeerPi's, a PI on the mash's error (10 °C/°C, Ti 600 s)
+gives the HLT's setpoint, clamped to the mash's setpoint + the limit (bench/herms_cascade.py's
+peers).
 
 Measured on the true temperatures (the HLT's water, the mash's bulk), per rest: the mash's
 worst error from 5 min after it first came within 0.3 °C (goal ≤ 0.3 °C), the pump's stops
@@ -66,7 +67,8 @@ the day goes on, and each is counted: a peer's are the supervisor's verdict on a
 plain HLT, which counts no coil's load without a mash sensor, not the peer's own), and `replay
 --verify` on each day's log (exact: every step re-run bit for bit). Per day, what the mash's
 reach watch said ("the mash levels out near …": a rest the HLT at its most cannot bring the
-mash to within a degree; docs/mash-control.md), none where every rest is reached.
+mash to within a degree; docs/mash-control.md), none where every rest is reached, and the
+coil's K hermsd's load was last reckoned on against the coil's own (ε·ṁc).
 
     uv run python bench/herms.py [--seeds 1-40] [--jobs 2] [--write]
 """
@@ -97,7 +99,7 @@ from hermsd.sim import scenario
 from hermsd.sim.hlt import WATER_J_PER_LITRE_K, PhysicalPlant
 from hermsd.sim.mash import GRAIN_J_PER_KG_K, HermsTun
 
-ROOM = 20.0
+CONFIG_ROOM = 20.0  # °C: the config's model_ambient, the shipped one (the day's room unmeasured)
 RESTS = ((63.0, 30), (72.0, 20), (78.0, 10))  # °C, minutes held
 BAND = 0.3  # °C: the measure's band
 PROGRAM_BAND = 0.5  # °C: a rest reached and held on the mash (hermsd.program's rule)
@@ -138,6 +140,7 @@ class SetUp:
     timer: str  # none, stir or recirculation
     hand_start_s: float  # after dough-in, a pump outside hermsd
     seed: int
+    room: float  # °C, the brewery's on the day (the grain and the tun at it too)
 
     @property
     def coil_k(self) -> float:
@@ -155,7 +158,7 @@ class SetUp:
     def water_c(self) -> float:
         """The strike water's temperature that mixes with the grain (20 °C) and the tun
         (the room's) to `dough_c`."""
-        cold = (GRAIN_J_PER_KG_K * self.grain_kg + self.tun_j_per_k) * ROOM
+        cold = (GRAIN_J_PER_KG_K * self.grain_kg + self.tun_j_per_k) * self.room
         return (self.dough_c * self.mash_capacity - cold) / (WATER_J_PER_LITRE_K * self.water_l)
 
     def describe(self) -> str:
@@ -168,7 +171,7 @@ class SetUp:
             f"(K {self.coil_k:.0f}), {self.water_l:.0f} L + {self.grain_kg:.1f} kg at "
             f"{self.dough_c:.1f} °C (UA {self.mash_ua:.1f}, lag {self.mash_lag:.0f} s), "
             f"strike {self.strike_c:.0f} °C, limit {self.limit:g}, pump {pump}, "
-            f"timer {self.timer}"
+            f"timer {self.timer}, room {self.room:.0f} °C"
         )
 
 
@@ -202,6 +205,7 @@ def draw(seed: int) -> SetUp:
         timer=("none", "stir", "recirculation")[seed % 3],
         hand_start_s=rng.uniform(120.0, 600.0),
         seed=seed,
+        room=rng.uniform(0.0, 35.0),
     )
 
 
@@ -233,6 +237,7 @@ def herms_day(pump_fitted: bool, pump_seen: bool = True) -> SetUp:
         timer="none",
         hand_start_s=300.0,
         seed=100 + pump_fitted,
+        room=CONFIG_ROOM,
     )
 
 
@@ -248,7 +253,7 @@ class NoisyTun(HermsTun):
     """A `HermsTun` whose mash sensor has noise, that tells its true mash, and that notes
     each pump start with the fall full power from that instant would allow."""
 
-    __slots__ = ("_hlt_ua", "_noise", "pump_log", "pump_starts")
+    __slots__ = ("_hlt_ua", "_noise", "_room", "pump_log", "pump_starts")
 
     def __init__(self, s: SetUp) -> None:
         hlt = PhysicalPlant(
@@ -257,11 +262,11 @@ class NoisyTun(HermsTun):
             ua_w_per_k=s.hlt_ua,
             transport_delay_s=s.delay_s,
             sensor_lag_s=s.hlt_lag_s,
-            ambient_c=ROOM,
+            ambient_c=s.room,
             start_c=s.strike_c,
         )
         super().__init__(hlt, **mash_keys(s))
-        self._hlt_ua = s.hlt_ua
+        self._hlt_ua, self._room = s.hlt_ua, s.room
         self._noise = random.Random(s.seed + 7919)
         self.pump_log: list[tuple[float, bool]] = []
         self.pump_starts: list[PumpStart] = []
@@ -286,7 +291,7 @@ class NoisyTun(HermsTun):
             full = copy.deepcopy(self)
             HermsTun.set_heater(full, True, t)
             lowest = min(full.water_temperature(t + s) for s in range(1, int(PUMP_WINDOW_S) + 1))
-            load = self.coil_watts(t) + self._hlt_ua * (water - ROOM)
+            load = self.coil_watts(t) + self._hlt_ua * (water - self._room)
             self.pump_starts.append(PumpStart(t, water, load, water - lowest))
 
 
@@ -331,7 +336,7 @@ def pump_timer(s: SetUp) -> list[dict[str, Any]]:
 
 def scenario_doc(s: SetUp, controller: str) -> dict[str, Any]:
     """The day as `hermsd simulate` reads it: plant, config, events, and hermsd's program."""
-    dough = {"grain_kg": s.grain_kg, "grain_c": ROOM, "water_litres": s.water_l}
+    dough = {"grain_kg": s.grain_kg, "grain_c": s.room, "water_litres": s.water_l}
     events: list[dict[str, Any]] = [{"at": DOUGH_AT, "dough_in": {**dough, "water_c": s.water_c}}]
     if not s.pump_fitted:
         events.append({"at": DOUGH_AT + s.hand_start_s, "pump": "on"})
@@ -342,7 +347,7 @@ def scenario_doc(s: SetUp, controller: str) -> dict[str, Any]:
             "model_gain": s.watts / (100.0 * s.hlt_ua),
             "model_tau": WATER_J_PER_LITRE_K * s.litres / s.hlt_ua,
             "dead_time": s.delay_s + s.hlt_lag_s,
-            "model_ambient": ROOM,
+            "model_ambient": CONFIG_ROOM,
         },
         "log": {"dir": None},
         "pump": {
@@ -420,6 +425,7 @@ class Day:
         self.rest_began = 0.0  # when the peer's rest began (its pump timer's start)
         self.pump_on = False  # the pump as the peer's listener last set it
         self.reached, self.held, self.sent = False, 0.0, s.strike_c
+        self.coil_k: float | None = None  # W/K, the K hermsd's load was last reckoned on
 
     def attach(self, daemon: Daemon) -> None:
         self.daemon = daemon
@@ -428,6 +434,7 @@ class Day:
     def period(self, record: PeriodRecord) -> None:
         t = record.t
         if self.outer is None:
+            self.coil_k = record.coil_k or self.coil_k
             index = record.step_index
             rest = None if index is None or index == 0 else index - 1
             runner = None if self.daemon is None else self.daemon.program.runner
@@ -514,17 +521,17 @@ def ideal_run(
         ua_w_per_k=s.hlt_ua,
         transport_delay_s=0.0,
         sensor_lag_s=0.0,
-        ambient_c=ROOM,
+        ambient_c=s.room,
         start_c=water,
         start_s=t0,
     )
     keys = {**mash_keys(s), "mash_sensor_lag_s": 0.0, "tun_heat_capacity_j_per_k": 0.0}
     tun = HermsTun(hlt, **keys)
-    tun.dough_in(0.0, ROOM, s.mash_capacity / WATER_J_PER_LITRE_K, mash, t0)
+    tun.dough_in(0.0, s.room, s.mash_capacity / WATER_J_PER_LITRE_K, mash, t0)
     running = pump_running(pumps, t0)
     tun.set_pump(running, t0)
     later = [(at, on) for at, on in pumps if at > t0]
-    cap, hold = sp + s.limit, sp + s.mash_ua * (sp - ROOM) / s.coil_k
+    cap, hold = sp + s.limit, sp + s.mash_ua * (sp - s.room) / s.coil_k
     settle = s.hose_to_coil + s.hose_to_mash + 120.0
     reached, down_since, t = math.inf, math.inf, t0
     for second in range(4 * 3600):
@@ -696,6 +703,7 @@ def run_day(task: tuple[SetUp, str]) -> dict[str, Any]:
         "verify": verify,
         "short": short,
         "finished": day.done_at is not None,
+        "k_ratio": math.nan if day.coil_k is None else day.coil_k / s.coil_k,
         "wall_s": result.summary["wall_s"],
     }
 
@@ -886,14 +894,15 @@ def pumps_table(days: list[dict[str, Any]]) -> str:
 def days_table(days: list[dict[str, Any]]) -> str:
     lines = [
         "| set-up | controller | program finished | alarms | a rest the limit cannot bring "
-        "the mash to (said) | `replay --verify` | wall s |",
-        "|---|---|---|---|---|---|---|",
+        "the mash to (said) | K learned ÷ the coil's | `replay --verify` | wall s |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for d in days:
         lines.append(
             f"| {d['setup'].label} | {NAMES[d['controller']]} | "
             f"{'yes' if d['finished'] else 'NO'} | {', '.join(d['alarms']) or 'none'} | "
-            f"{'; '.join(d['short']) or 'none'} | {d['verify']} | {d['wall_s']:.1f} |"
+            f"{'; '.join(d['short']) or 'none'} | {number(d['k_ratio'], '.3f')} | "
+            f"{d['verify']} | {d['wall_s']:.1f} |"
         )
     return "\n".join(lines)
 
