@@ -122,19 +122,6 @@ def test_the_coast_s_peak_is_the_energy_balance_of_the_two_tanks() -> None:
     assert coast_peak(70.0, 50.0, 60.0, LOSSLESS, 200.0) == pytest.approx(190 / 3, abs=1e-3)
 
 
-def test_the_hlt_s_gain_beyond_its_model_is_its_room_moved_in_the_coast() -> None:
-    # The HLT losing 10 W/K to a room of 20 °C and gaining 120 W beyond it is the HLT losing
-    # 10 W/K to a room 12 °C warmer: the same rates, the same peak (the mash lossless, so
-    # the room is the HLT's alone). Without the gain the HLT loses the 120 W, and the
-    # coast's peak is lower.
-    warm = dataclasses.replace(LOSSLESS, hlt_loss=10.0, room=32.0)
-    gaining = dataclasses.replace(LOSSLESS, hlt_loss=10.0, hlt_gain=10.0 * (32.0 - 20.0))
-    peak = coast_peak(70.0, 50.0, 64.0, warm, 200.0)
-    assert coast_peak(70.0, 50.0, 64.0, gaining, 200.0) == pytest.approx(peak, abs=1e-9)
-    losing = dataclasses.replace(gaining, hlt_gain=0.0)
-    assert coast_peak(70.0, 50.0, 64.0, losing, 200.0) < peak - 0.01
-
-
 def test_the_setpoint_never_passes_the_limit_nor_the_hlt_s_maximum() -> None:
     assert step(cascade(limit=5.0), 40.0, 60.0).hlt_setpoint == 65.0 + 5.0 - HLT_MARGIN
     assert step(cascade(limit=5.0, hlt_max=68.0), 40.0, 60.0).hlt_setpoint == 68.0

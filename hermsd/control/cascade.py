@@ -112,9 +112,7 @@ class Tanks:
     the heat sent for the coil's load that is still on its way, and how far ahead the law's
     prediction of the HLT looks); hlt_ripple in °C (how far the water stands above its mean
     at the top of the SSR's pulses, half its swing: `TimeProportionalPlanner.swing`; 0 for
-    an element whose power is steady); hlt_gain in W (what the HLT gains beyond its losses'
-    model, negative where it loses more: a room unlike the model's, as the coil's estimator
-    measured it with the pump stopped, `CoilEstimator.offset`).
+    an element whose power is steady).
     """
 
     hlt_capacity: float
@@ -126,7 +124,6 @@ class Tanks:
     mash_lag: float = 0.0
     hlt_dead_time: float = 0.0
     hlt_ripple: float = 0.0
-    hlt_gain: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("hlt_capacity", "mash_capacity"):
@@ -142,9 +139,8 @@ class Tanks:
         ):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name}={getattr(self, name)!r} is invalid: must be ≥ 0")
-        for name in ("room", "hlt_gain"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"{name}={getattr(self, name)!r} is invalid: must be finite")
+        if not math.isfinite(self.room):
+            raise ValueError(f"room={self.room!r} °C is invalid: must be finite")
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,7 +200,7 @@ def coast_peak(hlt: float, mash: float, hold: float, tanks: Tanks, conductance: 
         return mash
     coupled = 1.0 / (k * (1.0 / ch + 1.0 / cm))
     dt = coupled / COAST_STEPS
-    room, uah, uam, gain = tanks.room, tanks.hlt_loss, tanks.mash_loss, tanks.hlt_gain
+    room, uah, uam = tanks.room, tanks.hlt_loss, tanks.mash_loss
 
     # The inlet lags the mash by a leg, m − leg·dm/dt; with dm/dt = (flow − UA_m·(m − room))/C_m
     # that gives flow·(1 − a) = K·(h − m) − a·UA_m·(m − room), a = K·leg/C_m (a < 1 for any
@@ -214,7 +210,7 @@ def coast_peak(hlt: float, mash: float, hold: float, tanks: Tanks, conductance: 
     def rates(h: float, m: float) -> tuple[float, float]:
         mash_loss = uam * (m - room)
         flow = (k * (h - m) - a * mash_loss) / (1.0 - a)
-        return (gain - flow - uah * (h - room)) / ch, (flow - mash_loss) / cm
+        return (-flow - uah * (h - room)) / ch, (flow - mash_loss) / cm
 
     peak = mash
     for _ in range(round(COAST_STEPS * COAST_SPAN)):
@@ -345,7 +341,6 @@ class Cascade:
         paused: bool = False,
         starting: bool = False,
         hlt_reading: float | None = None,
-        hlt_gain: float = 0.0,
     ) -> Decision:
         """One period. `mash_pv` None (a fault) or older than MAX_MASH_AGE (`mash_age`, s):
         the HLT held at its last setpoint. `hlt_pv` is best the HLT law's predicted PV (the
@@ -360,10 +355,7 @@ class Cascade:
         on): the HLT readied no higher than the climb's setpoint the start begins (`most`),
         so that it is let down to it as the coil draws, not held at the ceiling with the
         whole draw's heat in flight (`prepared_load`). `hlt_reading`: the HLT sensor's own
-        reading, where `hlt_pv` is the law's prediction (None: not known apart).
-        `hlt_gain`: W the HLT gains beyond its losses' model (`Tanks.hlt_gain`), for the
-        coast (a room 12 °C warmer than the model's kept 200 W in a 66 L HLT that the coast
-        took for lost: bench/herms.py seed 3's first rest 0.38 °C over)."""
+        reading, where `hlt_pv` is the law's prediction (None: not known apart)."""
         stood = pump and not flowing
         pump = pump and flowing
         ceiling = self.ceiling(mash_sp)
@@ -380,7 +372,7 @@ class Cascade:
             self._after_stop = False
         self._mash_sp = mash_sp
         self._last_mash = mash_pv
-        tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss, hlt_gain=hlt_gain)
+        tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
         k = max(coil.conductance, MIN_CONDUCTANCE)
         hold = holding_hlt(mash_sp, tanks, k)
         # The mash as read: the line through its last readings (MASH_LINE_S; a stop of the

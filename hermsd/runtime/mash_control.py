@@ -157,7 +157,6 @@ class MashControl:
             paused=timer_stop,
             starting=pump_in is not None,
             hlt_reading=hlt_pv,
-            hlt_gain=self.coil.offset,
         )
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
             decision = dataclasses.replace(decision, load_watts=0.0)
