@@ -311,6 +311,12 @@ class Cascade:
         """Back to losses learned before (the ones since came of a mash that got no heat)."""
         self._mash_loss = loss
 
+    def room_seen(self, room: float) -> None:
+        """The room as the mash tun's sensor read it empty (`MashControl.strike`): the tanks'
+        losses reckoned to it, not to the HLT model's room (bench/herms.py seed 3, 32 °C
+        where the model says 20: the first rest 0.38 °C over)."""
+        self._tanks = dataclasses.replace(self._tanks, room=room)
+
     def ceiling(self, mash_sp: float) -> float:
         """The highest HLT setpoint for `mash_sp`: the limit less HLT_MARGIN, at most the
         HLT's maximum."""

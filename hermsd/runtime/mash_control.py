@@ -65,6 +65,11 @@ def mash_short_words(config: Config, cascade: Cascade) -> Callable[[float, float
     return words
 
 
+ROOM_SEEN = (-5.0, 40.0)
+"""°C: an empty mash tun's reading taken for the room (a brewery's, winter garage to summer
+kitchen); one above it is a tun preheated, or the grain in."""
+
+
 class MashControl:
     """The outer loop, the coil's estimator and the last period's decision."""
 
@@ -95,6 +100,7 @@ class MashControl:
         # The coil's load began this period, the last fed none and no start prepared for it
         # (a pump hermsd only sees, wort flowing again): the law's heat for it comes late.
         self.unannounced = False
+        self._room_seen = math.inf  # °C, the empty tun's lowest reading (`strike`)
 
     def period(
         self,
@@ -227,14 +233,21 @@ class MashControl:
         hlt_pv: float,
         applied: float,
         stopped: bool,
+        mash_pv: float | None = None,
     ) -> Decision:
         """A program's step before the mash is in (the strike water): the step's setpoint
         is the HLT's own, no load fed forward. The mash sensor then reads an empty tun (the
         room), which the outer loop would take for a mash far below its rest and ready the
         HLT to the limit above the strike: heat that coasts the mash past its first rest.
         The coil's estimator is fed the HLT (`stopped`: the pump known to stand), whose hold
-        there shows its model's error (`CoilEstimator.offset`)."""
+        there shows its model's error (`CoilEstimator.offset`). The empty tun's lowest reading
+        in ROOM_SEEN (`mash_pv`; a grain doughed in reads warmer) is the room the outer loop
+        reckons the tanks' losses to (`Cascade.room_seen`)."""
         self.coil.period(hlt=hlt_pv, mash=None, applied=applied, pump=False, stopped=stopped)
+        low, high = ROOM_SEEN
+        if mash_pv is not None and low <= mash_pv <= min(high, self._room_seen):
+            self._room_seen = mash_pv
+            self.cascade.room_seen(mash_pv)
         self.decision = Decision(setpoint, 0.0, STRIKE)
         self.unannounced = False
         predictive.known_load(controller, 0.0, self.element_watts)

@@ -424,7 +424,12 @@ class MashSide(LoopState):
         if runner is not None and not runner.on_mash(self.mash_reading()):
             stopped = self.pump_state is False
             strike = control.strike(
-                self.controller, self.setpoint, hlt_pv=pv, applied=applied, stopped=stopped
+                self.controller,
+                self.setpoint,
+                hlt_pv=pv,
+                applied=applied,
+                stopped=stopped,
+                mash_pv=self._roles["mash_sensor"].celsius,
             )
             return strike.hlt_setpoint
         mash = self._roles["mash_sensor"]
