@@ -24,12 +24,13 @@ from hermsd.api.link import LoopLink, role_faults
 from hermsd.cli import main
 from hermsd.config.read import parse
 from hermsd.control import laws
+from hermsd.control.cascade import Decision
 from hermsd.control.learning import LearnedModel, ModelStore
 from hermsd.control.pid import PlantModel
 from hermsd.log.reader import load
 from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
-from hermsd.runtime.mash_control import coil_prior, mash_control
+from hermsd.runtime.mash_control import MashControl, coil_prior, mash_control
 from hermsd.runtime.period import PeriodRecord
 from hermsd.sim import scenario
 from hermsd.sim.clock import VirtualClock
@@ -440,6 +441,18 @@ def test_the_reach_warning_names_the_key_that_sets_the_hlts_most() -> None:
     assert "raise safety.max_temp (85 °C)," in words(76.0, 78.0, 84.0)
 
 
+def rest_63(control: MashControl, *, mash_pv: float, pump: bool) -> Decision:
+    """The outer loop's step for a 63 °C rest, the HLT at 70 °C, on the coil's estimate."""
+    return control.cascade.step(
+        mash_sp=63.0,
+        mash_pv=mash_pv,
+        mash_age=0.0,
+        hlt_pv=70.0,
+        pump=pump,
+        coil=control.coil.estimate(),
+    )
+
+
 @pytest.mark.parametrize(("swing", "climb"), [(0.0, 72.33675), (0.0625, 72.31175)])
 def test_a_climb_keeps_the_water_s_ripple_on_a_stop_s_landing_under_the_limit(
     swing: float, climb: float
@@ -454,14 +467,7 @@ def test_a_climb_keeps_the_water_s_ripple_on_a_stop_s_landing_under_the_limit(
     config = parse(CONFIG.replace("backend: sim\n", f"backend: sim\n  swing: {swing}\n", 1))
     model = PlantModel(1.0, 20000.0, 60.0, 20.0)
     control = mash_control(config, model, coil_prior(config, None))
-    decision = control.cascade.step(
-        mash_sp=63.0,
-        mash_pv=40.0,
-        mash_age=0.0,
-        hlt_pv=70.0,
-        pump=True,
-        coil=control.coil.estimate(),
-    )
+    decision = rest_63(control, mash_pv=40.0, pump=True)
     assert decision.phase == "climb"
     assert decision.hlt_setpoint == pytest.approx(climb, abs=1e-9)
 
@@ -556,14 +562,7 @@ def test_the_empty_tun_s_lowest_reading_is_the_room_the_outer_loop_reckons_to() 
         control = mash_control(config, model, coil_prior(config, None))
         for reading in readings:
             control.strike(law, 70.0, hlt_pv=70.0, applied=20.0, stopped=True, mash_pv=reading)
-        decision = control.cascade.step(
-            mash_sp=63.0,
-            mash_pv=63.0,
-            mash_age=0.0,
-            hlt_pv=70.0,
-            pump=False,
-            coil=control.coil.estimate(),
-        )
+        decision = rest_63(control, mash_pv=63.0, pump=False)
         assert decision.phase == "ready"
         return decision.hlt_setpoint
 
