@@ -549,10 +549,10 @@ def test_the_strike_water_s_hold_measures_what_the_hlt_loses_beyond_its_model(
 
 def test_the_empty_tun_s_lowest_reading_is_the_room_the_outer_loop_reckons_to() -> None:
     """Before the mash is in, the mash sensor reads the empty tun: its lowest reading within
-    ROOM_SEEN (the grain doughed in reads warmer, 36 °C, and a preheated tun above 40 °C is
-    none) is the room. A stopped pump's HLT for a mash at its 63 °C rest is the hold's,
-    63 + 5 W/K·(63 − room)/200 W/K (CONFIG's losses, the prior K): 64.0 °C for a room of
-    23 °C, where the model's room (20 °C) gives 64.075."""
+    ROOM_SEEN over the strike step (the grain doughed in reads warmer, 36 °C, and a preheated
+    tun above 40 °C is none) is the room. A stopped pump's HLT for a mash at its 63 °C rest
+    is the hold's, 63 + 5 W/K·(63 − room)/200 W/K (CONFIG's losses, the prior K): 64.0 °C
+    for a room of 23 °C, where the model's room (20 °C) gives 64.075."""
     config = parse(CONFIG)
     model = PlantModel(1.0, 20000.0, 60.0, 20.0)
     law = laws.create("predictive", kc=120.0, ti=800.0, ts=5.0, model=model)
@@ -569,3 +569,20 @@ def test_the_empty_tun_s_lowest_reading_is_the_room_the_outer_loop_reckons_to() 
     assert ready([25.0, 24.0, 23.0, 45.0, 36.0]) == pytest.approx(64.0, abs=1e-12)
     assert ready([]) == pytest.approx(64.075, abs=1e-12)
     assert ready([55.0]) == pytest.approx(64.075, abs=1e-12)  # a tun preheated
+    # The next day's strike step (the mash was in between) reads its own room, 26 °C:
+    # 63 + 5·37/200 = 63.925 °C, not the lower of the two days'.
+    control = mash_control(config, model, coil_prior(config, None))
+    control.strike(law, 70.0, hlt_pv=70.0, applied=20.0, stopped=True, mash_pv=23.0)
+    control.period(
+        law,
+        mash_sp=63.0,
+        mash_pv=63.0,
+        mash_age=0.0,
+        hlt_pv=70.0,
+        pump=False,
+        pump_known=True,
+        applied=0.0,
+        t=0.0,
+    )
+    control.strike(law, 70.0, hlt_pv=70.0, applied=20.0, stopped=True, mash_pv=26.0)
+    assert rest_63(control, mash_pv=63.0, pump=False).hlt_setpoint == pytest.approx(63.925)

@@ -134,6 +134,7 @@ class MashControl:
         `timer_stop`: the pump stopped by that timer, its restart due (`Cascade.step`'s
         `paused`). `t`: the loop's clock (s), for the mash's reach watch."""
         before, preparing = self.decision, self.load_in > 0.0
+        self._room_seen = math.inf  # the mash is in: a later strike step reads the room afresh
         known = pump and pump_known
         exchange = self.coil.period(
             hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known, stopped=not pump
