@@ -57,10 +57,10 @@ class FlowWatch:
         "_last_mash",
         "_min_periods",
         "_period",
-        "_room",
         "_seen",
         "_since_raised",
         "loss_before",
+        "room",
         "stuck",
     )
 
@@ -74,7 +74,9 @@ class FlowWatch:
         period: float,
     ) -> None:
         self._capacities = (hlt_capacity, mash_capacity)  # J/K
-        self._room = room
+        self.room = room
+        """°C the mash's losses are reckoned to: the outer loop's (`Cascade.room_seen`), whose
+        learned losses it takes."""
         self._period = period
         self._min_periods = max(2, math.ceil(LAG_SHARE * delays / period))
         # Each period's drive (K·s), the HLT's heat (J), the mash's heat gained as its rise
@@ -107,7 +109,7 @@ class FlowWatch:
         if exchange is None or mash is None or last is None:
             self._seen.clear()
             return self._set(self.stuck and pump)
-        above_room = (0.5 * (last + mash) - self._room) * self._period
+        above_room = (0.5 * (last + mash) - self.room) * self._period
         rise = self._capacities[1] * (mash - last)
         self._seen.append((exchange.drive, exchange.heat, rise, above_room, mash_loss))
         self._since_raised += 1

@@ -249,6 +249,7 @@ class MashControl:
         if mash_pv is not None and low <= mash_pv <= min(high, self._room_seen):
             self._room_seen = mash_pv
             self.cascade.room_seen(mash_pv)
+            self.flow.room = mash_pv  # the losses the flow watch is handed are to that room
         self.decision = Decision(setpoint, 0.0, STRIKE)
         self.unannounced = False
         predictive.known_load(controller, 0.0, self.element_watts)
