@@ -23,18 +23,20 @@ class Tanks:
     """A FlowWatch fed period by period, the mash's reading kept."""
 
     def __init__(self) -> None:
-        self.watch = FlowWatch(
-            hlt_capacity=400e3, mash_capacity=200e3, room=20.0, delays=10.0, period=PERIOD
-        )
+        self.watch = FlowWatch(hlt_capacity=400e3, mash_capacity=200e3, delays=10.0, period=PERIOD)
         self.mash = 60.0
-        self.watch.period(None, self.mash, pump=True, mash_loss=0.0, k=K)  # the first reading
+        self.watch.period(
+            None, self.mash, pump=True, mash_loss=0.0, room=20.0, k=K
+        )  # the first reading
 
     def feed(self, exchange: Exchange, n: int, *, pump: bool = True) -> list[bool]:
         """`n` periods of `exchange`, the mash rising by what the HLT gave; the changes."""
         changes = []
         for _ in range(n):
             self.mash += exchange.heat / 200e3
-            changes.append(self.watch.period(exchange, self.mash, pump=pump, mash_loss=0.0, k=K))
+            changes.append(
+                self.watch.period(exchange, self.mash, pump=pump, mash_loss=0.0, room=20.0, k=K)
+            )
         return changes
 
 
@@ -73,7 +75,7 @@ def test_the_pump_stopped_ends_the_sign() -> None:
     tanks = Tanks()
     tanks.feed(STANDING, 30)
     assert tanks.watch.stuck
-    assert tanks.watch.period(None, tanks.mash, pump=False, mash_loss=0.0, k=K)
+    assert tanks.watch.period(None, tanks.mash, pump=False, mash_loss=0.0, room=20.0, k=K)
     assert not tanks.watch.stuck
 
 
@@ -87,7 +89,7 @@ def test_a_sign_just_raised_is_not_cleared_by_the_flow_before_it() -> None:
     tanks.feed(FLOWING, 40)
     assert tanks.feed(STANDING, 16) == [False] * 15 + [True]
     tanks.mash += 0.0625
-    assert not tanks.watch.period(STANDING, tanks.mash, pump=True, mash_loss=0.0, k=K)
+    assert not tanks.watch.period(STANDING, tanks.mash, pump=True, mash_loss=0.0, room=20.0, k=K)
     assert tanks.watch.stuck
     # Flowing again: judged on the 30 periods after the raise once there are 30 (the step's
     # and 29 flowing, 157.5 kJ), where a stretch of them first shows the flow.

@@ -26,7 +26,7 @@ from hermsd.config.read import parse
 from hermsd.control import laws
 from hermsd.control.cascade import Decision
 from hermsd.control.learning import LearnedModel, ModelStore
-from hermsd.control.pid import PlantModel
+from hermsd.control.pid import Controller, PlantModel
 from hermsd.log.reader import load
 from hermsd.runtime.assemble import assemble
 from hermsd.runtime.daemon import Daemon
@@ -441,6 +441,31 @@ def test_the_reach_warning_names_the_key_that_sets_the_hlts_most() -> None:
     assert "raise safety.max_temp (85 °C)," in words(76.0, 78.0, 84.0)
 
 
+def at_63(
+    control: MashControl,
+    law: Controller,
+    *,
+    t: float,
+    mash_pv: float,
+    pump: bool,
+    pump_in: float | None = None,
+    hlt: float = 70.0,
+) -> Decision:
+    """A control period of the mash control for a 63 °C rest, its pump known, nothing applied."""
+    return control.period(
+        law,
+        mash_sp=63.0,
+        mash_pv=mash_pv,
+        mash_age=0.0,
+        hlt_pv=hlt,
+        pump=pump,
+        pump_known=True,
+        applied=0.0,
+        t=t,
+        pump_in=pump_in,
+    )
+
+
 def rest_63(control: MashControl, *, mash_pv: float, pump: bool) -> Decision:
     """The outer loop's step for a 63 °C rest, the HLT at 70 °C, on the coil's estimate."""
     return control.cascade.step(
@@ -484,18 +509,7 @@ def test_a_load_begun_unannounced_is_told_once_and_a_prepared_start_is_not() -> 
     law.reset(70.0, 20.0)
 
     def period(t: float, pump: bool, pump_in: float | None = None, hlt: float = 70.0) -> bool:
-        control.period(
-            law,
-            mash_sp=63.0,
-            mash_pv=50.0,
-            mash_age=0.0,
-            hlt_pv=hlt,
-            pump=pump,
-            pump_known=True,
-            applied=0.0,
-            t=t,
-            pump_in=pump_in,
-        )
+        at_63(control, law, t=t, mash_pv=50.0, pump=pump, pump_in=pump_in, hlt=hlt)
         return control.unannounced
 
     assert [period(0.0, False), period(5.0, True), period(10.0, True)] == [False, True, False]
@@ -564,9 +578,9 @@ def test_the_empty_tun_s_lowest_reading_is_the_room_the_outer_loop_reckons_to() 
             control.strike(law, 70.0, hlt_pv=70.0, applied=20.0, stopped=True, mash_pv=reading)
         decision = rest_63(control, mash_pv=63.0, pump=False)
         assert decision.phase == "ready"
-        return decision.hlt_setpoint, control.flow.room
+        return decision.hlt_setpoint, control.cascade.room
 
-    # The flow watch reckons the mash's losses it is handed to the same room.
+    # The room the outer loop reckons to, and hands the flow watch with the losses.
     assert ready([25.0, 24.0, 23.0, 45.0, 36.0]) == (pytest.approx(64.0, abs=1e-12), 23.0)
     assert ready([]) == (pytest.approx(64.075, abs=1e-12), 20.0)
     assert ready([55.0]) == (pytest.approx(64.075, abs=1e-12), 20.0)  # a tun preheated
@@ -574,16 +588,6 @@ def test_the_empty_tun_s_lowest_reading_is_the_room_the_outer_loop_reckons_to() 
     # 63 + 5·37/200 = 63.925 °C, not the lower of the two days'.
     control = mash_control(config, model, coil_prior(config, None))
     control.strike(law, 70.0, hlt_pv=70.0, applied=20.0, stopped=True, mash_pv=23.0)
-    control.period(
-        law,
-        mash_sp=63.0,
-        mash_pv=63.0,
-        mash_age=0.0,
-        hlt_pv=70.0,
-        pump=False,
-        pump_known=True,
-        applied=0.0,
-        t=0.0,
-    )
+    at_63(control, law, t=0.0, mash_pv=63.0, pump=False)
     control.strike(law, 70.0, hlt_pv=70.0, applied=20.0, stopped=True, mash_pv=26.0)
     assert rest_63(control, mash_pv=63.0, pump=False).hlt_setpoint == pytest.approx(63.925)

@@ -311,6 +311,11 @@ class Cascade:
         """Back to losses learned before (the ones since came of a mash that got no heat)."""
         self._mash_loss = loss
 
+    @property
+    def room(self) -> float:
+        """°C the tanks' losses are reckoned to: the HLT model's, or the one read (`room_seen`)."""
+        return self._tanks.room
+
     def room_seen(self, room: float) -> None:
         """The room as the mash tun's sensor read it empty (`MashControl.strike`): the tanks'
         losses reckoned to it, not to the HLT model's room (bench/herms.py seed 3, 32 °C

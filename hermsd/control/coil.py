@@ -120,6 +120,7 @@ class CoilEstimator:
         "_h0",
         "_last",
         "_loss",
+        "_offset_fade",
         "_offset_heat",
         "_offset_time",
         "_period",
@@ -161,6 +162,7 @@ class CoilEstimator:
         # The balance's error with the pump stopped (J, over s), forgotten over
         # OFFSET_MEMORY_S; the HLT's PV of the stopped period before and s since the stop.
         self._offset_heat = self._offset_time = 0.0
+        self._offset_fade = math.exp(-period / OFFSET_MEMORY_S)
         self._stopped: tuple[float, float] | None = None
         self._since_full = 0.0  # s since the element was last at full power
 
@@ -233,7 +235,7 @@ class CoilEstimator:
         if last is None or last[1] < SETTLE_S or self._since_full < 2.0 * dead:
             return
         gained = self._capacity * (hlt - last[0]) + self._balance(0.5 * (hlt + last[0]))
-        fade = math.exp(-self._period / OFFSET_MEMORY_S)
+        fade = self._offset_fade
         self._offset_heat = fade * self._offset_heat + gained
         self._offset_time = fade * self._offset_time + self._period
 

@@ -60,7 +60,6 @@ class FlowWatch:
         "_seen",
         "_since_raised",
         "loss_before",
-        "room",
         "stuck",
     )
 
@@ -69,14 +68,10 @@ class FlowWatch:
         *,
         hlt_capacity: float,
         mash_capacity: float,
-        room: float,
         delays: float,
         period: float,
     ) -> None:
         self._capacities = (hlt_capacity, mash_capacity)  # J/K
-        self.room = room
-        """°C the mash's losses are reckoned to: the outer loop's (`Cascade.room_seen`), whose
-        learned losses it takes."""
         self._period = period
         self._min_periods = max(2, math.ceil(LAG_SHARE * delays / period))
         # Each period's drive (K·s), the HLT's heat (J), the mash's heat gained as its rise
@@ -99,17 +94,19 @@ class FlowWatch:
         *,
         pump: bool,
         mash_loss: float,
+        room: float,
         k: float,
     ) -> bool:
         """One period: the coil's estimator's `exchange` (None: not measured: the pump
         stopped, a reading failed, the coil settling), the mash's reading, whether the pump
-        runs, the mash's losses (W/K) and K one sd low (W/K). Returns whether the sign
+        runs, the mash's losses (W/K) to `room` (°C: the outer loop's, `Cascade.room`) and K
+        one sd low (W/K). Returns whether the sign
         changed (`stuck` says to what). The pump stopped ends the sign."""
         last, self._last_mash = self._last_mash, mash
         if exchange is None or mash is None or last is None:
             self._seen.clear()
             return self._set(self.stuck and pump)
-        above_room = (0.5 * (last + mash) - self.room) * self._period
+        above_room = (0.5 * (last + mash) - room) * self._period
         rise = self._capacities[1] * (mash - last)
         self._seen.append((exchange.drive, exchange.heat, rise, above_room, mash_loss))
         self._since_raised += 1

@@ -145,6 +145,7 @@ class MashControl:
             mash_pv,
             pump=known,
             mash_loss=self.cascade.mash_loss,
+            room=self.cascade.room,
             k=self.coil.flow_low(coil),
         )
         if self.flow.stuck:
@@ -249,7 +250,6 @@ class MashControl:
         if mash_pv is not None and low <= mash_pv <= min(high, self._room_seen):
             self._room_seen = mash_pv
             self.cascade.room_seen(mash_pv)
-            self.flow.room = mash_pv  # the losses the flow watch is handed are to that room
         self.decision = Decision(setpoint, 0.0, STRIKE)
         self.unannounced = False
         predictive.known_load(controller, 0.0, self.element_watts)
@@ -306,7 +306,6 @@ def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> 
     flow = FlowWatch(
         hlt_capacity=hlt_capacity,
         mash_capacity=tanks.mash_capacity,
-        room=model.ambient,
         delays=herms.hose_s + herms.mash_sensor_lag,
         period=period,
     )
