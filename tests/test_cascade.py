@@ -20,6 +20,7 @@ from hermsd.control.cascade import (
     Decision,
     Tanks,
     coast_peak,
+    descent_trough,
     holding_hlt,
 )
 from hermsd.control.coil import CoilEstimate, prior_estimate
@@ -120,6 +121,49 @@ def test_the_coast_s_peak_is_the_energy_balance_of_the_two_tanks() -> None:
     # where the tanks meet: they meet at (2·70 + 50)/3 = 63.33 °C (less e^-10 of the gap).
     assert coast_peak(70.0, 50.0, 64.0, LOSSLESS, 200.0) == pytest.approx(62.0, abs=1e-3)
     assert coast_peak(70.0, 50.0, 60.0, LOSSLESS, 200.0) == pytest.approx(190 / 3, abs=1e-3)
+
+
+# The element's 3600 W on the tanks above. Lifting an HLT that stands x °C under the mash, the
+# gap d = T_h − T_m follows d' = P/C_h − d/τ, τ = 1/(K·(1/C_h + 1/C_m)) = 697.67 s at 200 W/K,
+# towards P·τ/C_h = 6 °C: d = 6 − (6 + x)·e^(−t/τ). The mash falls until d = 0, at
+# t = τ·ln(1 + x/6), by (K/C_m)·∫d dt = (2/3)·(6·ln(1 + x/6) − x) °C (K·τ/C_m = 2/3).
+POWERED = dataclasses.replace(LOSSLESS, hlt_power=3600.0)
+
+
+def lift_fall(x: float) -> float:
+    """°C the mash falls while full power lifts an HLT from x °C under it (above)."""
+    return 2.0 / 3.0 * (6.0 * math.log(1.0 + x / 6.0) - x)
+
+
+def test_a_step_down_s_trough_is_the_two_tanks_balance_with_the_element_on() -> None:
+    # The HLT 6 °C under a mash of 66: it falls 4·(1 − ln 2) = 1.2274 °C, the HLT meeting it at
+    # 64.77 °C, under the hold of 65 (so the hold does not cut the lift short).
+    expected = 66.0 + lift_fall(6.0)
+    assert expected == pytest.approx(66.0 - 4.0 * (1.0 - math.log(2.0)), abs=1e-12)
+    assert descent_trough(60.0, 66.0, 65.0, POWERED, 200.0) == pytest.approx(expected, abs=1e-3)
+
+
+def test_a_step_down_keeps_the_element_off_until_full_power_must_lift_the_hlt() -> None:
+    c = cascade(POWERED)
+    # The mash at 66.4 over a rest of 65, the HLT at 60: full power from now would land it at
+    # 66.4 + lift_fall(6.4) = 66.4 − 1.363 = 65.04, on its rest, so the element stays off; the
+    # setpoint is the HLT from which the lift lands it at 65: x °C under the mash with
+    # lift_fall(x) = −1.4 (bisection on the closed form above).
+    low, high = 0.0, 20.0
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if lift_fall(middle) > -1.4 else (low, middle)
+    off = step(c, 66.4, 60.0)
+    assert off.phase == "coast"
+    assert off.hlt_setpoint == pytest.approx(66.4 - low, abs=2e-3)
+    assert off.hlt_setpoint < 60.0
+    # At 66.3 the lift from 60 would land the mash at 64.97, under its rest: T_hold, now.
+    assert 66.3 + lift_fall(6.3) < 65.0
+    assert step(c, 66.3, 60.0).hlt_setpoint == 65.0
+    # And T_hold till the mash is at its rest, though from an HLT of 62 the lift would now
+    # land it above (66.2 − 0.678): the law's way up is under way, not to be cut short.
+    assert 66.2 + lift_fall(4.2) > 65.0
+    assert step(c, 66.2, 62.0).hlt_setpoint == 65.0
 
 
 def test_the_setpoint_never_passes_the_limit_nor_the_hlt_s_maximum() -> None:

@@ -578,3 +578,68 @@ def test_an_outside_herms_plant_takes_the_mash_events() -> None:
     scenario.run(day, outside_plant=tun)
     assert tun.coil_energy(7200.0) > 1e6
     assert tun.mash_temperature(7200.0) > 50.0
+
+
+@pytest.mark.parametrize("room", [5.0, 12.0, 30.0])
+def test_a_step_down_lands_the_mash_on_its_lower_rest(room: float) -> None:
+    """A rest of 68 °C, then one of 64 (a program that steps down): the mash falls to it with
+    the element off and the HLT lifted back to the hold as it arrives. Held by the hold's
+    PI the HLT lay degrees under the hold as the mash came in: the mash fell 1.4 °C under its
+    rest and stayed there, its fall read as no flow through the coil, the rest never done.
+    Judged on the mash's reading (a DS18B20, no noise): within ±0.3 °C from 5 min after it
+    first came within ±0.5, no more than 0.2 °C under it, no sign of no flow."""
+    day = scenario.parse_scenario(
+        {
+            "name": "step-down",
+            "duration": "3h",
+            "config": {
+                "tun": {"litres": 60, "element_watts": 5500},
+                "mash_sensor": {"kind": "ds18b20"},
+                "pump": {"backend": "sim"},
+                "herms": {"max_hlt_above_mash": 5},
+            },
+            "plant": {
+                "model": "physical",
+                "litres": 60,
+                "element_watts": 5500,
+                "start_c": 72,
+                "ambient_c": room,
+                "noise_c": 0.0,
+                "mash": {
+                    "coil_w_per_k": 180,
+                    "flow_l_per_min": 5,
+                    "hose_to_coil_s": 20,
+                    "hose_to_mash_s": 15,
+                    "mash_ua_w_per_k": 8,
+                    "mash_sensor_lag_s": 40,
+                    "tun_heat_capacity_j_per_k": 8000,
+                },
+            },
+            "program": {
+                "name": "Down",
+                "steps": [
+                    {"name": "Strike", "setpoint": 72, "hold": "0s", "confirm": "Mash in"},
+                    {"name": "High", "setpoint": 68, "hold": "20m"},
+                    {"name": "Low", "setpoint": 64, "hold": "20m"},
+                ],
+            },
+            "events": [
+                {
+                    "at": "30m",
+                    "dough_in": {
+                        "grain_kg": 8,
+                        "grain_c": room,
+                        "water_litres": 24,
+                        "water_c": 72,
+                    },
+                },
+                {"at": "31m", "confirm": "Mash in"},
+            ],
+        }
+    )
+    result = scenario.run(day, keep_records=True)
+    low = result.summary["steps"][-1]
+    assert low["name"] == "Low" and result.summary["program"]["state"] == "done"
+    assert low["mash"]["tight_s"] == low["mash"]["judged_s"] > 0.0
+    assert low["mash"]["overshoot_c"] <= 0.2
+    assert all(r.cascade != "no flow" for r in result.records)

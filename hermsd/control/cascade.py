@@ -19,7 +19,9 @@ there on the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; 
 against the model's once the climb is over, and the PI's integral, learn it, and what they learn
 serves the next rest's T_hold and coast. With the pump stopped nothing flows, and the HLT is
 readied: the setpoint is the temperature whose stored heat above T_hold just covers the mash's
-shortfall (capped by the limit).
+shortfall (capped by the limit). A step down is the climb's mirror: the element off while
+the mash falls, then T_hold as soon as full power must lift the HLT back to it for the mash
+to land on its rest (`descent_trough`), the hold's PI once it is there.
 
 The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
 lower T_hold, so it stops early rather than late; the load fed forward is K's estimate (one
@@ -93,6 +95,10 @@ LM92 moved the losses' observer by 0.5 W/K and a coast's HLT near its end by up 
 period (bench/herms.py seed 8's 72 °C rest), the law's duty 0 → 47 % → 0. Over 13 readings
 (noise 0.03 °C on the LM92's steps) the level's noise is about half a reading's and the rise's
 a twentieth of a one-period difference's; the mash's slow rise bends little in a minute."""
+FALL = "fall"
+"""A step down's first stage: the element off, the mash falling to its rest."""
+LAND = "land"
+"""A step down's last stage: the HLT lifted to T_hold at full power as the mash arrives."""
 STRIKE = "strike"
 """The phase of a program's step before the mash is in: the HLT held at the step's setpoint
 itself (`MashControl.strike`), the outer loop not stepped."""
@@ -112,7 +118,9 @@ class Tanks:
     the heat sent for the coil's load that is still on its way, and how far ahead the law's
     prediction of the HLT looks); hlt_ripple in °C (how far the water stands above its mean
     at the top of the SSR's pulses, half its swing: `TimeProportionalPlanner.swing`; 0 for
-    an element whose power is steady).
+    an element whose power is steady); hlt_power in W (the element's full power, which lifts
+    the HLT back to its hold at the end of a step down: `descent_trough`; 0: not known, the
+    HLT then kept at the hold through a step down).
     """
 
     hlt_capacity: float
@@ -124,6 +132,7 @@ class Tanks:
     mash_lag: float = 0.0
     hlt_dead_time: float = 0.0
     hlt_ripple: float = 0.0
+    hlt_power: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("hlt_capacity", "mash_capacity"):
@@ -136,6 +145,7 @@ class Tanks:
             "mash_lag",
             "hlt_dead_time",
             "hlt_ripple",
+            "hlt_power",
         ):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
                 raise ValueError(f"{name}={getattr(self, name)!r} is invalid: must be ≥ 0")
@@ -192,11 +202,34 @@ def coast_peak(hlt: float, mash: float, hold: float, tanks: Tanks, conductance: 
     the HLT is held at `hold`. The linear two-tank model, integrated by Heun's method, with
     the hoses: the heat already in the return leg (K·(T_h − T_m) for half the round trip)
     arrives first, and the coil sees the mash as it was half the round trip before."""
+    return _coast(hlt, mash, hold, tanks, conductance, 0.0, 1.0)
+
+
+def descent_trough(hlt: float, mash: float, hold: float, tanks: Tanks, conductance: float) -> float:
+    """The mirror of `coast_peak` for a step down: the mash's lowest temperature if the
+    element goes to full power (`Tanks.hlt_power`) now and lifts the HLT from `hlt` up to
+    `hold`, the coil meanwhile drawing the mash's heat into the colder HLT; after that the
+    HLT is held at `hold`."""
+    return _coast(hlt, mash, hold, tanks, conductance, tanks.hlt_power, -1.0)
+
+
+def _coast(
+    hlt: float,
+    mash: float,
+    hold: float,
+    tanks: Tanks,
+    conductance: float,
+    power: float,
+    sign: float,
+) -> float:
+    """The two tanks run forward with the element at `power` (W) until the HLT reaches
+    `hold`: `sign` 1, the HLT falling to it from above and the mash's peak (`coast_peak`);
+    −1, the HLT rising to it from below and the mash's trough (`descent_trough`)."""
     k = conductance
     ch, cm = tanks.hlt_capacity, tanks.mash_capacity
     leg = 0.5 * tanks.hose_delay
     mash += k * (hlt - mash) * leg / cm
-    if hlt <= hold or k <= 0.0:
+    if sign * (hlt - hold) <= 0.0 or k <= 0.0:
         return mash
     coupled = 1.0 / (k * (1.0 / ch + 1.0 / cm))
     dt = coupled / COAST_STEPS
@@ -210,21 +243,23 @@ def coast_peak(hlt: float, mash: float, hold: float, tanks: Tanks, conductance: 
     def rates(h: float, m: float) -> tuple[float, float]:
         mash_loss = uam * (m - room)
         flow = (k * (h - m) - a * mash_loss) / (1.0 - a)
-        return (-flow - uah * (h - room)) / ch, (flow - mash_loss) / cm
+        return (power - flow - uah * (h - room)) / ch, (flow - mash_loss) / cm
 
-    peak = mash
+    extreme = mash
     for _ in range(round(COAST_STEPS * COAST_SPAN)):
         dh1, dm1 = rates(hlt, mash)
-        if dm1 <= 0.0:
+        if sign * dm1 <= 0.0:
             break
         dh2, dm2 = rates(hlt + dt * dh1, mash + dt * dm1)
         dh, dm = 0.5 * dt * (dh1 + dh2), 0.5 * dt * (dm1 + dm2)
-        if hlt + dh <= hold:  # down at the hold within this step: the mash up to that instant
-            return max(peak, mash + dm * (hold - hlt) / dh)
+        if sign * (hlt + dh - hold) <= 0.0:  # at the hold within this step: the mash then
+            reached = mash + dm * (hold - hlt) / dh
+            return reached if sign * (reached - extreme) > 0.0 else extreme
         hlt += dh
         mash += dm
-        peak = max(peak, mash)
-    return peak
+        if sign * (mash - extreme) > 0.0:
+            extreme = mash
+    return extreme
 
 
 def coast_start(
@@ -244,6 +279,24 @@ def coast_start(
     return low
 
 
+def descent_floor(
+    mash: float, hold: float, tanks: Tanks, conductance: float, target: float
+) -> float:
+    """The lowest HLT (between the room and `hold`) from which full power, from now, lifts the
+    HLT to `hold` before the mash falling to its rest passes below `target`
+    (`descent_trough`, by bisection: the trough rises with the HLT it starts from)."""
+    low, high = min(tanks.room, hold), hold
+    if descent_trough(low, mash, hold, tanks, conductance) >= target:
+        return low
+    for _ in range(COAST_BISECTIONS):
+        middle = 0.5 * (low + high)
+        if descent_trough(middle, mash, hold, tanks, conductance) >= target:
+            high = middle
+        else:
+            low = middle
+    return high
+
+
 def ready_hlt(mash_sp: float, mash: float, hold: float, tanks: Tanks) -> float:
     """With the pump stopped: the HLT whose heat above `hold` covers the mash's shortfall,
     C_h·(T − T_hold) = C_m·(T_sp − T_m) (losses and the coast's time aside)."""
@@ -257,6 +310,7 @@ class Cascade:
     __slots__ = (
         "_after_stop",
         "_climbing",
+        "_descent",
         "_hlt_max",
         "_last_mash",
         "_last_sp",
@@ -290,6 +344,7 @@ class Cascade:
         self._mash_span: deque[float] = deque(maxlen=round(span / period) + 1)
         self._mash_line: deque[float] = deque(maxlen=round(MASH_LINE_S / period) + 1)
         self._climbing = True
+        self._descent: str | None = None  # a step down's stage: FALL, then LAND
         self._settled = False  # the HLT has come down to its hold since the climb ended
         self._after_stop = False  # the held mash is brought back after a pump stop
         self._letting = True  # the coast lets the coil's draw act (`Decision.load_met`)
@@ -300,6 +355,12 @@ class Cascade:
         """Whether the climb is over and the HLT not yet down at its hold: the coast, the pump
         running or stopped a while within it."""
         return not (self._climbing or self._settled)
+
+    @property
+    def descending(self) -> bool:
+        """Whether a step down is under way (the mash falling to a lower rest, the HLT
+        lifted back as it arrives): the mash's fall is the step's, not the coil's."""
+        return self._descent is not None
 
     @property
     def mash_loss(self) -> float:
@@ -380,6 +441,8 @@ class Cascade:
             return Decision(setpoint, load, "held", why)
         if self._mash_sp is None or abs(mash_sp - self._mash_sp) > SETPOINT_MOVE:
             self._climbing = mash_pv < mash_sp
+            self._descent = FALL if mash_pv > mash_sp + RESTORED_BAND else None
+            self._settled = self._settled and self._descent is None
             self._after_stop = False
         self._mash_sp = mash_sp
         self._last_mash = mash_pv
@@ -393,10 +456,11 @@ class Cascade:
             line.clear()
         line.append(mash_pv)
         read, rose = line_through(line)
-        # The mash as it is now: its sensor lags it by mash_lag while it rises at the model's rate.
+        # The mash as it is now: its sensor lags it by mash_lag while it rises at the model's
+        # rate (and while it falls, in a step down: there the late side is the low one).
         flow = k * (hlt_pv - read) if pump else 0.0
         rise = (flow - tanks.mash_loss * (read - tanks.room)) / tanks.mash_capacity
-        mash = read + tanks.mash_lag * max(0.0, rise)
+        mash = read + tanks.mash_lag * (rise if self._descent else max(0.0, rise))
         if pump:
             # And as it will be when the HLT is at `hlt_pv`, the law's prediction a dead time
             # ahead: that prediction takes the coil's draw off the HLT over the dead time, and
@@ -424,6 +488,7 @@ class Cascade:
         if self._climbing and pump:
             self._climbing = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target
         self._settled = self._settled and not self._climbing
+        self._descent = None if self._climbing else self._descent
         window = self._mash_span
         if not pump:
             window.clear()
@@ -477,7 +542,29 @@ class Cascade:
             phase = "no flow" if stood else "ready"
         elif self._climbing:
             setpoint, phase = self.most(mash_sp, mash_pv, k), "climb"
+        elif self._descent and read > mash_sp + RESTORED_BAND:
+            # A step down: the element off while the mash falls, the HLT with it (the coil
+            # draws the mash's heat into it once it is the colder), until full power must lift
+            # the HLT back to T_hold for the mash to land on its rest (`descent_trough`, K one
+            # sd high: the mash drawn down faster and T_hold lower, so the heat comes early);
+            # then T_hold, the law's way there at full power, until the mash is at its rest.
+            # Held at T_hold throughout, the mash would come down on its own slow time
+            # constant; held by the hold's PI, whose error is degrees, the HLT lay degrees
+            # under T_hold as the mash arrived, which went on falling (1.4 °C under a 64 °C
+            # rest, and no flow seen: docs/mash-control.md, "A step down").
+            if self._descent == FALL and (
+                descent_trough(hlt_pv, mash, hold_high, tanks, high) < mash_sp
+            ):
+                self._descent = LAND
+            setpoint = (
+                min(descent_floor(mash, hold_high, tanks, high, mash_sp), hlt_pv)
+                if self._descent == FALL
+                else hold
+            )
+            setpoint, phase = min(setpoint, ceiling), "coast"
         else:
+            if self._descent:  # the mash is at its rest: the hold's PI from here
+                self._descent, self._settled = None, True
             setpoint = self._hold(
                 mash_sp,
                 read,

@@ -140,8 +140,11 @@ class MashControl:
             hlt=hlt_pv, mash=mash_pv, applied=applied, pump=known, stopped=not pump
         )
         coil = self.coil.estimate()
+        # A step down's stretch is not judged: the coil's heat goes one way and back as the
+        # HLT falls under the mash and is lifted again, and over the stretch it nets to
+        # less than the tanks' models misjudge (docs/mash-control.md, "A step down").
         changed = self.flow.period(
-            exchange,
+            None if self.cascade.descending else exchange,
             mash_pv,
             pump=known,
             mash_loss=self.cascade.mash_loss,
@@ -287,6 +290,7 @@ def mash_control(config: Config, model: pid.PlantModel, prior: CoilEstimate) -> 
         mash_lag=herms.mash_sensor_lag,
         hlt_dead_time=model.dead_time,
         hlt_ripple=0.5 * water_swing(config, model),
+        hlt_power=watts,
     )
     cascade = Cascade(
         tanks,
