@@ -591,3 +591,50 @@ def test_the_empty_tun_s_lowest_reading_is_the_room_the_outer_loop_reckons_to() 
     at_63(control, law, t=0.0, mash_pv=63.0, pump=False)
     control.strike(law, 70.0, hlt_pv=70.0, applied=20.0, stopped=True, mash_pv=26.0)
     assert rest_63(control, mash_pv=63.0, pump=False).hlt_setpoint == pytest.approx(63.925)
+
+
+def test_a_reload_keeps_what_the_day_measured_where_the_config_still_means_it() -> None:
+    """A reload that makes the outer loop again (the limit raised, as the reach warning asks)
+    keeps the room the empty tun read (12 °C), the mash's losses the holds learned and the
+    HLT model's error its stopped pump showed (the strike's hold as above: −300 W); a new
+    guess of the losses is the brewer's, and a model of another HLT says nothing of the old
+    one's error."""
+    config = parse(CONFIG)
+    model = PlantModel(1.0, 20000.0, 60.0, 20.0)
+    law = laws.create("predictive", kc=120.0, ti=800.0, ts=5.0, model=model)
+    law.reset(70.0, 60.0)
+    control = mash_control(config, model, coil_prior(config, None))
+    for _ in range(240):
+        control.strike(law, 70.0, hlt_pv=70.0, applied=60.0, stopped=True, mash_pv=12.0)
+    control.cascade.mash_loss = 9.0  # as the holds showed them
+
+    def remade(text: str, hlt: PlantModel = model) -> MashControl:
+        again = mash_control(parse(text), hlt, coil_prior(parse(text), None))
+        again.carry(control)
+        return again
+
+    raised = remade(CONFIG.replace("grain_kg: 12\n", "grain_kg: 12\n  max_hlt_above_mash: 12\n"))
+    assert raised.cascade.ceiling(63.0) == 63.0 + 12.0 - 0.15  # the reload took
+    assert (raised.cascade.room, raised.cascade.mash_loss) == (12.0, 9.0)
+    assert raised.coil.offset == pytest.approx(-300.0, abs=1e-6)
+    guessed = remade(CONFIG.replace("mash_loss_w_per_k: 5", "mash_loss_w_per_k: 7"))
+    assert (guessed.cascade.room, guessed.cascade.mash_loss) == (12.0, 7.0)
+    other = remade(CONFIG, PlantModel(1.0, 15000.0, 60.0, 20.0))
+    assert (other.cascade.room, other.coil.offset) == (12.0, 0.0)
+
+
+def test_a_reload_mid_mash_keeps_the_losses_the_hold_learned() -> None:
+    """Through the daemon: herms-day in its hold (the plant's losses 10 W/K, guessed 5), the
+    limit raised by a reload; the outer loop made again goes on from the losses learned."""
+    daemon, _world, _periods = watched_day()
+    daemon.run(until=3 * 3600.0)
+    before = daemon._mash_control
+    assert before is not None and before.cascade.mash_loss > 6.0
+    daemon.reload(
+        parse(CONFIG.replace("grain_kg: 12\n", "grain_kg: 12\n  max_hlt_above_mash: 12\n"))
+    )
+    daemon.run(until=3 * 3600.0 + 5.0)
+    after = daemon._mash_control
+    assert after is not None and after is not before
+    assert after.cascade.mash_loss == pytest.approx(before.cascade.mash_loss, abs=0.01)
+    daemon.shutdown()

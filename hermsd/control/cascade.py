@@ -321,6 +321,7 @@ class Cascade:
         "_mash_sp",
         "_mash_span",
         "_period",
+        "_room_read",
         "_seen",
         "_settled",
         "_tanks",
@@ -349,6 +350,7 @@ class Cascade:
         self._after_stop = False  # the held mash is brought back after a pump stop
         self._letting = True  # the coast lets the coil's draw act (`Decision.load_met`)
         self._mash_loss = tanks.mash_loss
+        self._room_read: float | None = None  # °C, the room as the empty tun read it
 
     @property
     def coasting(self) -> bool:
@@ -381,7 +383,23 @@ class Cascade:
         """The room as the mash tun's sensor read it empty (`MashControl.strike`): the tanks'
         losses reckoned to it, not to the HLT model's room (bench/herms.py seed 3, 32 °C
         where the model says 20: the first rest 0.38 °C over)."""
+        self._room_read = room
         self._tanks = dataclasses.replace(self._tanks, room=room)
+
+    def carry(self, before: Cascade) -> None:
+        """What `before` (the outer loop a reload replaces) measured of the day, where the
+        config still means what it did: the room as read, and the mash's losses as the holds
+        showed them unless their guess or the mash changed (a brewer raising the limit on
+        the reach warning's word would otherwise lose both mid-mash, and the hold's HLT
+        with them). The step itself starts afresh."""
+        if before._room_read is not None:
+            self.room_seen(before._room_read)
+        kept = before._tanks
+        if (kept.mash_loss, kept.mash_capacity) == (
+            self._tanks.mash_loss,
+            self._tanks.mash_capacity,
+        ):
+            self._mash_loss = before._mash_loss
 
     def ceiling(self, mash_sp: float) -> float:
         """The highest HLT setpoint for `mash_sp`: the limit less HLT_MARGIN, at most the

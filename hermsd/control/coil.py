@@ -239,6 +239,14 @@ class CoilEstimator:
         self._offset_heat = fade * self._offset_heat + gained
         self._offset_time = fade * self._offset_time + self._period
 
+    def carry(self, before: CoilEstimator) -> None:
+        """The HLT model's error as `before` (the estimator a reload replaces) measured it,
+        where the model is the same (its heat capacity, losses, room and element): of
+        another model it says nothing."""
+        same = (self._capacity, self._loss, self._room, self._watts)
+        if same == (before._capacity, before._loss, before._room, before._watts):
+            self._offset_heat, self._offset_time = before._offset_heat, before._offset_time
+
     @property
     def offset(self) -> float:
         """W the HLT gains beyond its model's balance, as its stopped pump showed it (the

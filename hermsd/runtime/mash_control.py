@@ -197,6 +197,14 @@ class MashControl:
         self.unannounced = acts and not (fed or preparing)
         return decision
 
+    def carry(self, before: MashControl) -> None:
+        """What `before`, the mash control a reload replaces, measured of the day: the room
+        read, the mash's losses, the HLT model's error (`Cascade.carry`,
+        `CoilEstimator.carry`) and the empty tun's lowest reading so far."""
+        self.cascade.carry(before.cascade)
+        self.coil.carry(before.coil)
+        self._room_seen = before._room_seen
+
     def _watch_reach(
         self,
         t: float,

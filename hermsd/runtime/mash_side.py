@@ -516,13 +516,15 @@ class MashSide(LoopState):
     def _remake_mash_control(self, config: Config) -> None:
         """A reload that changed the herms section, the tun, its model or the SSR's output
         (its pulses' swing, `Tanks.hlt_ripple`): the outer loop made again for them (its step
-        starts afresh), the coil's K as learned so far kept."""
+        starts afresh), the coil's K as learned so far kept, and what else the day measured
+        that the new config does not change (`MashControl.carry`)."""
         control = self._mash_control
         if control is None:
             return
         coil = control.coil.estimate()
         prior = coil if coil.source != "prior" else coil_prior(config, self.learned_model)
         self._mash_control = mash_control(config, self.model, prior)
+        self._mash_control.carry(control)
         if control.flow.stuck:  # the new outer loop's watch judges the flow afresh
             why = "the outer loop made again for the reloaded config, the flow judged afresh"
             self._event(logging.INFO, f"no flow through the coil ended: {why}", self._now())
