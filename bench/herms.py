@@ -70,7 +70,19 @@ reach watch said ("the mash levels out near …": a rest the HLT at its most can
 mash to within a degree; docs/mash-control.md), none where every rest is reached, and the
 coil's K hermsd's load was last reckoned on against the coil's own (ε·ṁc).
 
-    uv run python bench/herms.py [--seeds 1-40] [--jobs 2] [--write]
+A step down (`--step-down`; its own section): the same set-ups, peers and measures on a day
+whose rests are 70 °C (20 min), 64 °C (30 min) and 76 °C (10 min), the second below the first,
+as a program that rests high and then low has it. Heat cannot be taken out: the mash comes
+down by its own losses and through the coil once the HLT stands below it. Measured in the
+step's direction: the mash's "overshoot" of the 64 °C rest is how far it went under it while
+the wort flowed (a stopped pump's mash cools at its own rate whatever the HLT does: its stops
+and the way back aside, as for the error), and the fastest the plant allows is the mirror of
+a climb's: the element off, then at the last instant that keeps the mash at or above its
+rest (by bisection) the HLT brought at full power to the HLT the rest needs and held there. A
+pump start while the mash is still coming down to that rest is no measure of the start (the
+HLT is let fall on purpose then, the element off).
+
+    uv run python bench/herms.py [--seeds 1-40] [--jobs 2] [--step-down] [--write]
 """
 
 from __future__ import annotations
@@ -101,6 +113,7 @@ from hermsd.sim.mash import GRAIN_J_PER_KG_K, HermsTun
 
 CONFIG_ROOM = 20.0  # °C: the config's model_ambient, the shipped one (the day's room unmeasured)
 RESTS = ((63.0, 30), (72.0, 20), (78.0, 10))  # °C, minutes held
+STEP_DOWN = ((70.0, 20), (64.0, 30), (76.0, 10))  # `--step-down`: a rest below the one before
 BAND = 0.3  # °C: the measure's band
 PROGRAM_BAND = 0.5  # °C: a rest reached and held on the mash (hermsd.program's rule)
 SETTLE_S = 300.0  # the mash levelling out before its error counts
@@ -112,6 +125,7 @@ LM92_STEP = 0.0625
 OFFSET = 2.0
 DURATION = 10 * 3600.0  # the most a day may take; it ends 2 min after its last hold
 HEADING = "## HERMS family through the daemon: hermsd and its peers"
+HEADING_DOWN = "## HERMS family through the daemon: a step down"
 CONTROLLERS = ("hermsd", "offset", "cascadepid")
 
 
@@ -141,6 +155,7 @@ class SetUp:
     hand_start_s: float  # after dough-in, a pump outside hermsd
     seed: int
     room: float  # °C, the brewery's on the day (the grain and the tun at it too)
+    rests: tuple[tuple[float, int], ...] = RESTS  # the program's: °C, minutes held
 
     @property
     def coil_k(self) -> float:
@@ -392,7 +407,7 @@ def scenario_doc(s: SetUp, controller: str) -> dict[str, Any]:
             timer = {"pump_off_every": f"{every:g}s", "pump_off_for": f"{lasts:g}s"}
         rests = [
             {"name": f"Rest {sp:g}", "setpoint": sp, "hold": f"{minutes}m", **timer}
-            for sp, minutes in RESTS
+            for sp, minutes in s.rests
         ]
         doc["program"] = {"name": "HERMS rests", "steps": [strike, *rests]}
     return doc
@@ -457,26 +472,26 @@ class Day:
         reading = math.floor(self.tun.mash_temperature(t) / LM92_STEP) * LM92_STEP
         if self.rest is None and t >= DOUGH_AT:
             self.rest, self.rest_began = 0, t
-        elif self.rest is not None and self.rest < len(RESTS):
-            sp, minutes = RESTS[self.rest]
+        elif self.rest is not None and self.rest < len(self.s.rests):
+            sp, minutes = self.s.rests[self.rest]
             inside = abs(reading - sp) <= PROGRAM_BAND
             self.reached = self.reached or inside
             self.held += PERIOD if self.reached and inside else 0.0
             if self.held >= minutes * 60.0:
                 self.rest, self.reached, self.held = self.rest + 1, False, 0.0
                 self.rest_began = t
-                if self.rest == len(RESTS):
+                if self.rest == len(self.s.rests):
                     self.done_at = t
         self.peer_pump(t)
         target = self.s.strike_c
         if self.rest is not None:
-            sp = RESTS[min(self.rest, len(RESTS) - 1)][0]
+            sp = self.s.rests[min(self.rest, len(self.s.rests) - 1)][0]
             target = self.outer(sp, reading, 0.0, True)[0]
         target = min(max(target, 0.0), 100.0)
         if abs(target - self.sent) >= 0.005:
             self.sent = round(target, 2)
             self.daemon.set_setpoint(self.sent)
-        return None if self.rest is None or self.rest == len(RESTS) else self.rest
+        return None if self.rest is None or self.rest == len(self.s.rests) else self.rest
 
     def peer_pump(self, t: float) -> None:
         """The peer's pump, where hermsd switches it: started at dough-in, then stopped as the
@@ -485,7 +500,7 @@ class Day:
         if not self.s.pump_fitted or self.rest is None:
             return
         on = True
-        if program_timer(self.s) and self.rest < len(RESTS):
+        if program_timer(self.s) and self.rest < len(self.s.rests):
             every, lasts = RECIRCULATION
             on = (t - self.rest_began) % every < every - lasts
         if on != self.pump_on:
@@ -513,8 +528,11 @@ def ideal_run(
     run ends once the HLT has been down at the rest's HLT for the hoses' time and 2 min (the
     mash then never passes `sp`), and the mash is within BAND if `reach`. `room`: while the
     pump runs, the HLT no higher than leaves room under the limit for what a stop nobody
-    announced would land, the coil's draw over the element's delay (`room_top`)."""
+    announced would land, the coil's draw over the element's delay (`room_top`). A step down
+    (the mash above `sp`) is the mirror: the element off until `switch`, then the HLT held at
+    the rest's, the mash not to pass under `sp`."""
     t0, water, mash = start
+    way = -1.0 if mash > sp else 1.0  # the step's direction
     hlt = PhysicalPlant(
         litres=s.litres,
         element_watts=s.watts,
@@ -539,14 +557,15 @@ def ideal_run(
             running = later.pop(0)[1]
             tun.set_pump(running, t)
         top = room_top(s, cap, tun.mash_temperature(t)) if room and running else cap
+        top = top if way > 0.0 else -math.inf
         tun.set_heater(tun.water_temperature(t) < (top if second < switch else hold), t)
         t += 1.0
         now = tun.mash_temperature(t)
-        if now > sp + 1e-3:
+        if way * (now - sp) > 1e-3:
             return reached, second + 1.0
-        if reached == math.inf and now >= sp - BAND:
+        if reached == math.inf and way * (now - sp) >= -BAND:
             reached = second + 1.0
-        if second >= switch and tun.water_temperature(t) <= hold + 0.05:
+        if second >= switch and way * (tun.water_temperature(t) - hold) <= 0.05:
             down_since = min(down_since, t)
             if t - down_since > settle and (reached < math.inf or not reach):
                 return reached, None
@@ -610,9 +629,13 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
     """Each rest's measures (the module's docstring); a rest never begun is left out."""
     rows = []
     ends = [start[0] for start in day.rest_starts[1:]] + [math.inf]
-    for (sp, _), start, end in zip(RESTS, day.rest_starts, ends, strict=False):
+    for (sp, _), start, end in zip(s.rests, day.rest_starts, ends, strict=False):
         window = [x for x in day.samples if start[0] <= x.t < end]
-        reached = next((x.t for x in window if x.mash >= sp - BAND), None)
+        way = -1.0 if start[2] > sp else 1.0  # the step's direction: a step down's is −1
+        # A step down's undershoot with the wort flowing: a stopped pump's mash cools at its
+        # own rate whatever the HLT does (as the error's, its stops and the way back aside).
+        running = held_samples(window, sp, -math.inf, pumps) or window
+        reached = next((x.t for x in window if way * (x.mash - sp) >= -BAND), None)
         held = [] if reached is None else held_samples(window, sp, reached, pumps)
         after = [abs(x.mash - sp) for x in held]
         stops = [x.mash - sp for x in window if reached is not None and x.t >= reached + SETTLE_S]
@@ -631,16 +654,28 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
                 "sp": sp,
                 "err": max(after, default=unheld),
                 "err_all": max((abs(e) for e in stops), default=unheld),
-                "over": max(x.mash for x in window) - sp,
+                "over": max(way * (x.mash - sp) for x in (window if way > 0.0 else running)),
                 "hlt_above": max(x.water for x in window[come_down:]) - cap,
                 "hlt_above_all": max(x.water for x in window) - cap,
                 "step_s": step,
                 "fastest_s": best,
-                "ratio": step / best if best > 0.0 else math.nan,
-                "ratio_room": step / roomy if roomy > 0.0 else math.nan,
+                "ratio": step / best if 0.0 < best < math.inf else math.nan,
+                "ratio_room": step / roomy if 0.0 < roomy < math.inf else math.nan,
             }
         )
     return rows
+
+
+def falling(s: SetUp, day: Day, t: float) -> bool:
+    """Whether the mash at `t` is still coming down to a rest below it (a step down): the HLT
+    is let fall on purpose then, the element off, and its fall is no measure of a pump start."""
+    begun = [(start, sp) for start, (sp, _) in zip(day.rest_starts, s.rests, strict=False)]
+    now = [(start, sp) for start, sp in begun if start[0] <= t]
+    if not now:
+        return False
+    (_, _, mash_then), sp = now[-1]
+    mash = next((x.mash for x in reversed(day.samples) if x.t <= t), mash_then)
+    return mash_then > sp and mash > sp + BAND
 
 
 def pumps_measured(s: SetUp, day: Day) -> list[dict[str, Any]]:
@@ -648,6 +683,8 @@ def pumps_measured(s: SetUp, day: Day) -> list[dict[str, Any]]:
     instant, and the fall full power from that instant allows."""
     rows = []
     for start in day.tun.pump_starts:
+        if falling(s, day, start.t):
+            continue
         # Until the next rest begins at the latest: its setpoint is another step's climb.
         until = min((t for t, _, _ in day.rest_starts if t > start.t), default=math.inf)
         end = start.t + PUMP_WINDOW_S
@@ -765,7 +802,7 @@ def day_measures(day: dict[str, Any]) -> dict[str, list[float]]:
     # A rest never begun: the program never got there, a miss unless the rest before it is out
     # of the limit's reach on the plant (the ideal never reaches it), which no controller can.
     out_of_reach = bool(rests) and math.isinf(rests[-1]["fastest_s"])
-    missing = 0 if out_of_reach else len(RESTS) - len(rests)
+    missing = 0 if out_of_reach else len(day["setup"].rests) - len(rests)
     for key in ("err", "err_all", "ratio", "ratio_room"):
         values[key] += [math.inf] * missing
     return {
@@ -827,7 +864,7 @@ def setups_table(setups: list[SetUp]) -> str:
     for s in setups:
         load = s.coil_k * (s.strike_c - s.dough_c)
         side = "above" if load > s.watts else "below"
-        above = s.strike_c - (RESTS[0][0] + s.limit)
+        above = s.strike_c - (s.rests[0][0] + s.limit)
         strike = f"yes, by {above:.2f} °C (warned)" if above > 0.0 else "no"
         lines.append(
             f"| {s.label} | {s.describe()} | {load / 1000:.1f} kW, {side} the element's "
@@ -846,8 +883,9 @@ def rests_table(days: list[dict[str, Any]]) -> str:
         "|---|---|---|---|---|",
     ]
     by = {(d["setup"].label, d["controller"]): d for d in days}
-    for label in dict.fromkeys(d["setup"].label for d in days):
-        for index, (sp, _) in enumerate(RESTS):
+    setups = {d["setup"].label: d["setup"] for d in days}
+    for label, s in setups.items():
+        for index, (sp, _) in enumerate(s.rests):
             cells = []
             for c in CONTROLLERS:
                 rests = by[(label, c)]["rests"]
@@ -921,6 +959,9 @@ def main() -> int:
     parser.add_argument("--seeds", default="1-40", help="the drawn set-ups, e.g. 1-40 or 1,4,7")
     parser.add_argument("--jobs", type=int, default=1, help="processes to run the days in")
     parser.add_argument("--write", action="store_true", help="update bench/RESULTS.md")
+    parser.add_argument(
+        "--step-down", action="store_true", help=f"the rests {STEP_DOWN} (a step down)"
+    )
     args = parser.parse_args()
     setups = [
         herms_day(False),
@@ -928,6 +969,8 @@ def main() -> int:
         herms_day(True),
         *(draw(seed) for seed in seeds(args.seeds)),
     ]
+    if args.step_down:
+        setups = [dataclasses.replace(s, rests=STEP_DOWN) for s in setups]
     tasks = [(s, c) for s in setups for c in CONTROLLERS]
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         days = list(pool.map(run_day, tasks))
@@ -949,9 +992,11 @@ def main() -> int:
     )
     print(text)
     if args.write:
-        doc = (__doc__ or "").split("\n\n")
-        intro = "\n\n".join(" ".join(paragraph.split()) for paragraph in doc[1:4])
-        sections.write(HEADING, f"{intro}\n\n{text}")
+        doc = [" ".join(paragraph.split()) for paragraph in (__doc__ or "").split("\n\n")]
+        if args.step_down:
+            sections.write(HEADING_DOWN, f"{doc[4]}\n\n{text}")
+        else:
+            sections.write(HEADING, "\n\n".join([*doc[1:4], text]))
     return 0
 
 

@@ -587,7 +587,7 @@ def test_a_step_down_lands_the_mash_on_its_lower_rest(room: float) -> None:
     PI the HLT lay degrees under the hold as the mash came in: the mash fell 1.4 °C under its
     rest and stayed there, its fall read as no flow through the coil, the rest never done.
     Judged on the mash's reading (a DS18B20, no noise): within ±0.3 °C from 5 min after it
-    first came within ±0.5, no more than 0.2 °C under it, no sign of no flow."""
+    first came within ±0.5, no more than 0.2 °C under it, no sign of no flow, no alarm."""
     day = scenario.parse_scenario(
         {
             "name": "step-down",
@@ -640,6 +640,7 @@ def test_a_step_down_lands_the_mash_on_its_lower_rest(room: float) -> None:
     result = scenario.run(day, keep_records=True)
     low = result.summary["steps"][-1]
     assert low["name"] == "Low" and result.summary["program"]["state"] == "done"
+    assert result.summary["alarms"] == []  # the HLT under the mash: heat back through the coil
     assert low["mash"]["tight_s"] == low["mash"]["judged_s"] > 0.0
     assert low["mash"]["overshoot_c"] <= 0.2
     assert all(r.cascade != "no flow" for r in result.records)
