@@ -166,6 +166,42 @@ def test_a_step_down_keeps_the_element_off_until_full_power_must_lift_the_hlt() 
     assert step(c, 66.2, 62.0).hlt_setpoint == 65.0
 
 
+def test_a_start_waits_where_the_hlt_s_heat_alone_would_carry_the_mash_past_its_rest() -> None:
+    # Lossless, no hose: coasting from 70 the HLT would lift the mash by C_h/C_m·5 = 10 °C on
+    # its way down to T_hold = 65, but the tanks meet first, at (2·70 + T_m)/3: from 55.2 at
+    # 65.067, within PAST_REST (0.1) of the rest, from 55.5 at 65.167, past it.
+    c = cascade()
+    assert not c.carries_past(65.0, 55.2, 70.0, EXACT)
+    assert c.carries_past(65.0, 55.5, 70.0, EXACT)
+
+
+def test_while_a_start_waits_the_hlt_is_readied_no_higher_than_its_coast_allows() -> None:
+    # The pump stopped, the mash at 56: readied with the heat it lacks, 65 + (65 − 56)/2 =
+    # 69.5 °C. With a round trip of 120 s the return leg holds 200·60·(T − 56) J more, so the
+    # coast from T lands the mash at 65 where 209 300·9 = 12 000·(T − 56) + 418 600·(T − 65):
+    # T = 29 764 700 / 430 600 = 69.1238 °C, where a start held for the HLT's heat is let
+    # cool to (readied at 69.5 it would wait for good).
+    tanks = dataclasses.replace(LOSSLESS, hose_delay=120.0)
+
+    def ready(waiting: bool) -> float:
+        return (
+            cascade(tanks)
+            .step(
+                mash_sp=65.0,
+                mash_pv=56.0,
+                mash_age=0.0,
+                hlt_pv=70.0,
+                pump=False,
+                coil=EXACT,
+                waiting=waiting,
+            )
+            .hlt_setpoint
+        )
+
+    assert ready(False) == pytest.approx(69.5, abs=1e-9)
+    assert ready(True) == pytest.approx(29_764_700 / 430_600, abs=2e-3)
+
+
 def test_the_setpoint_never_passes_the_limit_nor_the_hlt_s_maximum() -> None:
     assert step(cascade(limit=5.0), 40.0, 60.0).hlt_setpoint == 65.0 + 5.0 - HLT_MARGIN
     assert step(cascade(limit=5.0, hlt_max=68.0), 40.0, 60.0).hlt_setpoint == 68.0

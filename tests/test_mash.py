@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from hermsd.log import reader
 from hermsd.sim import scenario
 from hermsd.sim.hlt import (
     HERMS_METHODS,
@@ -644,3 +645,75 @@ def test_a_step_down_lands_the_mash_on_its_lower_rest(room: float) -> None:
     assert low["mash"]["tight_s"] == low["mash"]["judged_s"] > 0.0
     assert low["mash"]["overshoot_c"] <= 0.2
     assert all(r.cascade != "no flow" for r in result.records)
+
+
+def hot_strike_day() -> scenario.Scenario:
+    """Strike water held at 74 °C in a 60 L HLT, 20 L of it and 6 kg of grain doughed in for a
+    rest of 66 °C: the HLT's water holds C_h·(74 − T_hold) ≈ 250 kJ/K × 7 K of heat above the
+    rest's HLT, the mash (about 100 kJ/K) lacks a degree or two."""
+    return scenario.parse_scenario(
+        {
+            "name": "hot-strike",
+            "duration": "2h",
+            "config": {
+                "tun": {"litres": 60, "element_watts": 5500},
+                "mash_sensor": {"kind": "ds18b20"},
+                "pump": {"backend": "sim"},
+                "herms": {"max_hlt_above_mash": 8, "mash_litres": 20, "grain_kg": 6},
+            },
+            "plant": {
+                "model": "physical",
+                "litres": 60,
+                "element_watts": 5500,
+                "start_c": 74,
+                "ambient_c": 18,
+                "noise_c": 0.03,
+                "seed": 1,
+                "mash": {
+                    "coil_w_per_k": 250,
+                    "flow_l_per_min": 6,
+                    "hose_to_coil_s": 10,
+                    "hose_to_mash_s": 10,
+                    "mash_ua_w_per_k": 6,
+                    "mash_sensor_lag_s": 20,
+                    "tun_heat_capacity_j_per_k": 5000,
+                },
+            },
+            "program": {
+                "name": "Single infusion",
+                "steps": [
+                    {"name": "Strike", "setpoint": 74, "hold": "0s", "confirm": "Mash in"},
+                    {"name": "Sacch", "setpoint": 66, "hold": "45m"},
+                ],
+            },
+            "events": [
+                {
+                    "at": "20m",
+                    "dough_in": {"grain_kg": 6, "grain_c": 18, "water_litres": 20, "water_c": 74},
+                },
+                {"at": "21m", "confirm": "Mash in"},
+            ],
+        }
+    )
+
+
+def test_a_pump_start_waits_while_the_hlts_heat_would_carry_the_mash_past_its_rest(
+    tmp_path: Path,
+) -> None:
+    """The pump started at "Mash in", the HLT's stored heat alone (the element off) carried
+    the mash 1.8 °C past its rest; the hold's PI then learned that for the mash's losses,
+    the mash sank under its rest, its fall read as no flow through the coil, and the rest was
+    never done. The program's start now waits, said as a warning, until the HLT has cooled
+    to where its coast lands the mash on its rest."""
+    result = scenario.run(hot_strike_day(), log_dir=tmp_path, keep_records=True)
+    sacch = result.summary["steps"][-1]
+    assert result.summary["program"]["state"] == "done" and result.summary["alarms"] == []
+    assert sacch["mash"]["overshoot_c"] <= 0.2
+    assert sacch["mash"]["tight_s"] == sacch["mash"]["judged_s"] > 0.0
+    assert all(r.cascade != "no flow" for r in result.records)
+    events = [e.message for e in reader.load(sorted(tmp_path.glob("*.mcap*"))).events]
+    held = [e for e in events if e.startswith("pump held:")]
+    assert len(held) == 1 and "rest 66 °C" in held[0]
+    after = events[events.index(held[0]) :]
+    assert any(e.startswith("pump held no longer") for e in after)
+    assert any(e.startswith("pump on: program") for e in after)

@@ -102,6 +102,10 @@ LAND = "land"
 STRIKE = "strike"
 """The phase of a program's step before the mash is in: the HLT held at the step's setpoint
 itself (`MashControl.strike`), the outer loop not stepped."""
+PAST_REST = 0.1
+"""°C past its rest that a pump start's coast may carry the mash before the program's start
+waits for the HLT to cool (`Cascade.carries_past`): half the overshoot's goal, the coast's
+model and the mash's reading being what they are."""
 MIN_CONDUCTANCE = 10.0
 """W/K: the least K the outer loop steers by. A K learned lower is a coil with no flow (a
 stuck bed), where no HLT holds the mash; the hold's HLT then stays finite, at the limit."""
@@ -401,6 +405,16 @@ class Cascade:
         ):
             self._mash_loss = before._mash_loss
 
+    def carries_past(self, mash_sp: float, mash_pv: float, hlt: float, coil: CoilEstimate) -> bool:
+        """Whether the wort flowing from now would carry the mash past its rest on the HLT's
+        heat alone, the element off (`coast_peak`, K one sd high: more heat in the hose, a
+        lower T_hold): an HLT held at a strike hotter than the rest's HLT has more stored
+        heat above T_hold than the mash lacks, and heat cannot be taken back."""
+        tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
+        high = max(coil.high, MIN_CONDUCTANCE)
+        hold = holding_hlt(mash_sp, tanks, high)
+        return coast_peak(hlt, mash_pv, hold, tanks, high) > mash_sp + PAST_REST
+
     def ceiling(self, mash_sp: float) -> float:
         """The highest HLT setpoint for `mash_sp`: the limit less HLT_MARGIN, at most the
         HLT's maximum."""
@@ -430,6 +444,7 @@ class Cascade:
         flowing: bool = True,
         paused: bool = False,
         starting: bool = False,
+        waiting: bool = False,
         hlt_reading: float | None = None,
     ) -> Decision:
         """One period. `mash_pv` None (a fault) or older than MAX_MASH_AGE (`mash_age`, s):
@@ -444,8 +459,13 @@ class Cascade:
         its rest. `starting`: a pump start hermsd prepares (the pump switched a dead time
         on): the HLT readied no higher than the climb's setpoint the start begins (`most`),
         so that it is let down to it as the coil draws, not held at the ceiling with the
-        whole draw's heat in flight (`prepared_load`). `hlt_reading`: the HLT sensor's own
-        reading, where `hlt_pv` is the law's prediction (None: not known apart)."""
+        whole draw's heat in flight (`prepared_load`). `waiting`: a start held while the HLT's heat
+        would carry the mash past its rest (`carries_past`): the HLT readied no higher than
+        the HLT from which the start's coast carries the mash to its rest, so that it cools
+        to where the start is made (readied as for any stop, the heat the mash lacks above
+        T_hold, the hose's heat would keep it above that for good). `hlt_reading`: the HLT
+        sensor's own reading, where `hlt_pv` is the law's prediction (None: not known
+        apart)."""
         stood = pump and not flowing
         pump = pump and flowing
         ceiling = self.ceiling(mash_sp)
@@ -548,6 +568,8 @@ class Cascade:
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if starting:
                 setpoint = min(setpoint, self.most(mash_sp, mash_pv, k))
+            if waiting:
+                setpoint = min(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if hlt_reading is not None and hlt_reading > mash_sp + self._limit:
                 # The water above the limit (a strike left above the first rest + limit): no
                 # heat until it reads at or below it. The law lands on a setpoint from above

@@ -117,6 +117,7 @@ class MashControl:
         pump_in: float | None = None,
         pump_stop_in: float | None = None,
         timer_stop: bool = False,
+        start_held: bool = False,
     ) -> Decision:
         """One control period, before the HLT law's step: the coil's estimator fed the
         period just ended (only with a pump hermsd switches or sees: one run by hand unseen
@@ -132,7 +133,9 @@ class MashControl:
         load told the law to end then, so the heat sent from a dead time before it is the
         water's alone and the HLT does not rise past its limit as the coil stops drawing.
         `timer_stop`: the pump stopped by that timer, its restart due (`Cascade.step`'s
-        `paused`). `t`: the loop's clock (s), for the mash's reach watch."""
+        `paused`). `start_held`: a program's start held while the HLT's heat would carry the
+        mash past its rest (`carries_past`; `Cascade.step`'s `waiting`). `t`: the loop's
+        clock (s), for the mash's reach watch."""
         before, preparing = self.decision, self.load_in > 0.0
         self._room_seen = math.inf  # the mash is in: a later strike step reads the room afresh
         known = pump and pump_known
@@ -167,6 +170,7 @@ class MashControl:
             flowing=not self.flow.stuck,
             paused=timer_stop,
             starting=pump_in is not None,
+            waiting=start_held,
             hlt_reading=hlt_pv,
         )
         if not pump_known:  # a pump run by hand may stand: no load fed that may not be drawn
@@ -196,6 +200,11 @@ class MashControl:
         acts = decision.load_watts > 0.0 and starts_in == 0.0
         self.unannounced = acts and not (fed or preparing)
         return decision
+
+    def carries_past(self, mash_sp: float, mash_pv: float, hlt: float) -> bool:
+        """Whether a pump start now would carry the mash past `mash_sp` on the HLT's stored
+        heat (`Cascade.carries_past`, on the coil's K as the day knows it)."""
+        return self.cascade.carries_past(mash_sp, mash_pv, hlt, self.coil.estimate())
 
     def carry(self, before: MashControl) -> None:
         """What `before`, the mash control a reload replaces, measured of the day: the room

@@ -210,6 +210,9 @@ class MashSide(LoopState):
     _pump_start_at: float | None = None
     _pump_start_reason = ""
     _pump_start_from: float | None = None
+    # A program's pump start held while the HLT's heat would carry the mash past its rest
+    # (`_program_pump`): why it was asked for, None when none is held.
+    _pump_held: str | None = None
 
     @property
     def pump_fitted(self) -> bool:
@@ -313,9 +316,16 @@ class MashSide(LoopState):
         if timer is not None:
             reason += f", pump off {timer[1] / 60.0:g} min every {timer[0] / 60.0:g} min"
         if wanted != self._program_pump_step:
-            self._program_pump_step = wanted
-            if wanted is not None:
+            begins = wanted is not None and (
+                self._program_pump_step is None or wanted[0] != self._program_pump_step[0]
+            )
+            self._program_pump_step, self._pump_held = wanted, None
+            if wanted is not None and wanted[2] and begins and not self._pump_on:
+                self._hold_or_start(reason, runner.step.setpoint)
+            elif wanted is not None:
                 self.set_pump(wanted[2], reason)
+        elif self._pump_held is not None and not self._pump_on:
+            self._hold_or_start(self._pump_held, runner.step.setpoint)
         turn_in = runner.pump_turn_in()
         if (
             turn_in is not None
@@ -325,6 +335,39 @@ class MashSide(LoopState):
             and turn_in <= self._pump_lead()
         ):
             self.set_pump(True, reason, within=turn_in)
+
+    def _hold_or_start(self, reason: str, rest: float) -> None:
+        """A step's pump start, held while the wort flowing would carry the mash past its
+        `rest` on the HLT's stored heat alone (`MashControl.carries_past`: a strike held
+        hotter than the rest needs, with more heat above the rest's HLT than the mash lacks),
+        said once as it is held and once as it starts; else started (`set_pump`). The HLT
+        cools meanwhile, held where the outer loop readies it; `hermsd set pump on` starts
+        it at once."""
+        control, mash = self._mash_control, self._roles.get("mash_sensor")
+        hlt = predictive.predicted_pv(self.controller)
+        reading = None if mash is None else mash.celsius
+        past = (
+            control is not None
+            and reading is not None
+            and hlt is not None
+            and control.carries_past(rest, reading, hlt)
+        )
+        now = self._now()
+        if past and self._pump_held is None:
+            self._event(
+                logging.WARNING,
+                f"pump held: the HLT at {hlt:.1f} °C holds more heat than the mash at "
+                f"{reading:.1f} °C needs for its rest {rest:g} °C and would carry it past; "
+                "it starts as the HLT cools (`hermsd set pump on` starts it now)",
+                now,
+            )
+        if past:
+            self._pump_held = reason
+            return
+        if self._pump_held is not None:
+            self._event(logging.INFO, f"pump held no longer: the HLT at {hlt:.1f} °C", now)
+        self._pump_held = None
+        self.set_pump(True, reason)
 
     def _timer_stopped(self) -> bool:
         """Whether the program's pump timer has the pump stopped now (its restart due)."""
@@ -448,6 +491,7 @@ class MashSide(LoopState):
             pump_in=pump_in,
             pump_stop_in=self._timer_stop_in(),
             timer_stop=self._timer_stopped(),
+            start_held=self._pump_held is not None,
         )
         was_held = before is not None and before.held is not None
         if decision.held is not None and not was_held:
