@@ -647,10 +647,13 @@ def test_a_step_down_lands_the_mash_on_its_lower_rest(room: float) -> None:
     assert all(r.cascade != "no flow" for r in result.records)
 
 
-def hot_strike_day() -> scenario.Scenario:
+def hot_strike_day(by_hand: bool = False) -> scenario.Scenario:
     """Strike water held at 74 °C in a 60 L HLT, 20 L of it and 6 kg of grain doughed in for a
     rest of 66 °C: the HLT's water holds C_h·(74 − T_hold) ≈ 250 kJ/K × 7 K of heat above the
-    rest's HLT, the mash (about 100 kJ/K) lacks a degree or two."""
+    rest's HLT, the mash (about 100 kJ/K) lacks a degree or two. `by_hand`: the pump is
+    hermsd's to see, not to switch, started a minute after "Mash in"."""
+    pump = {"backend": "none", "sense": "sim"} if by_hand else {"backend": "sim"}
+    started = [{"at": "22m", "pump": "on"}] if by_hand else []
     return scenario.parse_scenario(
         {
             "name": "hot-strike",
@@ -658,7 +661,7 @@ def hot_strike_day() -> scenario.Scenario:
             "config": {
                 "tun": {"litres": 60, "element_watts": 5500},
                 "mash_sensor": {"kind": "ds18b20"},
-                "pump": {"backend": "sim"},
+                "pump": pump,
                 "herms": {"max_hlt_above_mash": 8, "mash_litres": 20, "grain_kg": 6},
             },
             "plant": {
@@ -692,6 +695,7 @@ def hot_strike_day() -> scenario.Scenario:
                     "dough_in": {"grain_kg": 6, "grain_c": 18, "water_litres": 20, "water_c": 74},
                 },
                 {"at": "21m", "confirm": "Mash in"},
+                *started,
             ],
         }
     )
@@ -717,3 +721,17 @@ def test_a_pump_start_waits_while_the_hlts_heat_would_carry_the_mash_past_its_re
     after = events[events.index(held[0]) :]
     assert any(e.startswith("pump held no longer") for e in after)
     assert any(e.startswith("pump on: program") for e in after)
+
+
+def test_a_mash_a_degree_over_its_rest_comes_down_as_a_step_down_does() -> None:
+    """The same day with a pump hermsd only sees, started by hand at once: nothing can stop
+    the HLT's heat carrying the mash 2 °C past its rest. Brought down by the hold's PI it sank
+    0.7 °C under its rest, its fall read as no flow; now it comes down as a step down does
+    (the element off, the HLT lifted back to T_hold as it arrives), no sign of no flow, and
+    from 5 min after it is first within ±0.3 °C of its rest it stays within 0.3 °C under."""
+    result = scenario.run(hot_strike_day(by_hand=True), keep_records=True)
+    assert result.summary["program"]["state"] == "done" and result.summary["alarms"] == []
+    assert all(r.cascade != "no flow" for r in result.records)
+    rest = [r for r in result.records if r.step_index == 1 and r.mash is not None]
+    down = next(r.t for r in rest if r.mash <= 66.3 and r.t > rest[0].t + 600.0)
+    assert min(r.mash for r in rest if r.t >= down + 300.0) >= 66.0 - 0.3

@@ -527,6 +527,12 @@ class Cascade:
             self._climbing = coast_peak(hlt_pv, mash, hold_high, tanks, high) < target
         self._settled = self._settled and not self._climbing
         self._descent = None if self._climbing else self._descent
+        if self._descent is None and not self._climbing and mash_pv > mash_sp + REHEAT_BAND:
+            # A mash a degree over its rest (the strike water's heat landed with a pump
+            # nobody could hold, a hot addition) comes down as a step down does: by the
+            # hold's PI the HLT lay under T_hold as it arrived, it sank under its rest, and
+            # the flow watch read its fall as no flow (tests/test_mash.py).
+            self._descent, self._settled = FALL, False
         window = self._mash_span
         if not pump:
             window.clear()
