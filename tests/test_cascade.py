@@ -45,8 +45,11 @@ def step(
     sp: float = 65.0,
     coil: CoilEstimate = EXACT,
     age: float = 0.0,
+    waiting: bool = False,
 ) -> Decision:
-    return c.step(mash_sp=sp, mash_pv=mash, mash_age=age, hlt_pv=hlt, pump=pump, coil=coil)
+    return c.step(
+        mash_sp=sp, mash_pv=mash, mash_age=age, hlt_pv=hlt, pump=pump, coil=coil, waiting=waiting
+    )
 
 
 def test_the_hlt_a_hold_needs_stands_above_the_rest_by_the_mash_losses_share() -> None:
@@ -182,24 +185,10 @@ def test_while_a_start_waits_the_hlt_is_readied_no_higher_than_its_coast_allows(
     # T = 29 764 700 / 430 600 = 69.1238 °C, where a start held for the HLT's heat is let
     # cool to (readied at 69.5 it would wait for good).
     tanks = dataclasses.replace(LOSSLESS, hose_delay=120.0)
-
-    def ready(waiting: bool) -> float:
-        return (
-            cascade(tanks)
-            .step(
-                mash_sp=65.0,
-                mash_pv=56.0,
-                mash_age=0.0,
-                hlt_pv=70.0,
-                pump=False,
-                coil=EXACT,
-                waiting=waiting,
-            )
-            .hlt_setpoint
-        )
-
-    assert ready(False) == pytest.approx(69.5, abs=1e-9)
-    assert ready(True) == pytest.approx(29_764_700 / 430_600, abs=2e-3)
+    ready = step(cascade(tanks), 56.0, 70.0, pump=False).hlt_setpoint
+    assert ready == pytest.approx(69.5, abs=1e-9)
+    waiting = step(cascade(tanks), 56.0, 70.0, pump=False, waiting=True).hlt_setpoint
+    assert waiting == pytest.approx(29_764_700 / 430_600, abs=2e-3)
 
 
 def test_the_setpoint_never_passes_the_limit_nor_the_hlt_s_maximum() -> None:

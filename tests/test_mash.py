@@ -13,6 +13,7 @@ import itertools
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -581,6 +582,35 @@ def test_an_outside_herms_plant_takes_the_mash_events() -> None:
     assert tun.mash_temperature(7200.0) > 50.0
 
 
+def herms_program_day(
+    name: str,
+    *,
+    pump: dict[str, str],
+    herms: dict[str, float],
+    plant: dict[str, float],
+    mash: dict[str, float],
+    steps: list[dict[str, Any]],
+    events: list[dict[str, Any]],
+) -> scenario.Scenario:
+    """A mash program on a 60 L 5.5 kW HLT with a DS18B20 in the mash (the days below)."""
+    hlt = {"model": "physical", "litres": 60, "element_watts": 5500, **plant}
+    return scenario.parse_scenario(
+        {
+            "name": name,
+            "duration": "3h",
+            "config": {
+                "tun": {"litres": 60, "element_watts": 5500},
+                "mash_sensor": {"kind": "ds18b20"},
+                "pump": pump,
+                "herms": herms,
+            },
+            "plant": {**hlt, "mash": mash},
+            "program": {"name": name, "steps": steps},
+            "events": events,
+        }
+    )
+
+
 @pytest.mark.parametrize("room", [5.0, 12.0, 30.0])
 def test_a_step_down_lands_the_mash_on_its_lower_rest(room: float) -> None:
     """A rest of 68 °C, then one of 64 (a program that steps down): the mash falls to it with
@@ -589,54 +619,32 @@ def test_a_step_down_lands_the_mash_on_its_lower_rest(room: float) -> None:
     rest and stayed there, its fall read as no flow through the coil, the rest never done.
     Judged on the mash's reading (a DS18B20, no noise): within ±0.3 °C from 5 min after it
     first came within ±0.5, no more than 0.2 °C under it, no sign of no flow, no alarm."""
-    day = scenario.parse_scenario(
-        {
-            "name": "step-down",
-            "duration": "3h",
-            "config": {
-                "tun": {"litres": 60, "element_watts": 5500},
-                "mash_sensor": {"kind": "ds18b20"},
-                "pump": {"backend": "sim"},
-                "herms": {"max_hlt_above_mash": 5},
+    day = herms_program_day(
+        "Down",
+        pump={"backend": "sim"},
+        herms={"max_hlt_above_mash": 5},
+        plant={"start_c": 72, "ambient_c": room, "noise_c": 0.0},
+        mash={
+            "coil_w_per_k": 180,
+            "flow_l_per_min": 5,
+            "hose_to_coil_s": 20,
+            "hose_to_mash_s": 15,
+            "mash_ua_w_per_k": 8,
+            "mash_sensor_lag_s": 40,
+            "tun_heat_capacity_j_per_k": 8000,
+        },
+        steps=[
+            {"name": "Strike", "setpoint": 72, "hold": "0s", "confirm": "Mash in"},
+            {"name": "High", "setpoint": 68, "hold": "20m"},
+            {"name": "Low", "setpoint": 64, "hold": "20m"},
+        ],
+        events=[
+            {
+                "at": "30m",
+                "dough_in": {"grain_kg": 8, "grain_c": room, "water_litres": 24, "water_c": 72},
             },
-            "plant": {
-                "model": "physical",
-                "litres": 60,
-                "element_watts": 5500,
-                "start_c": 72,
-                "ambient_c": room,
-                "noise_c": 0.0,
-                "mash": {
-                    "coil_w_per_k": 180,
-                    "flow_l_per_min": 5,
-                    "hose_to_coil_s": 20,
-                    "hose_to_mash_s": 15,
-                    "mash_ua_w_per_k": 8,
-                    "mash_sensor_lag_s": 40,
-                    "tun_heat_capacity_j_per_k": 8000,
-                },
-            },
-            "program": {
-                "name": "Down",
-                "steps": [
-                    {"name": "Strike", "setpoint": 72, "hold": "0s", "confirm": "Mash in"},
-                    {"name": "High", "setpoint": 68, "hold": "20m"},
-                    {"name": "Low", "setpoint": 64, "hold": "20m"},
-                ],
-            },
-            "events": [
-                {
-                    "at": "30m",
-                    "dough_in": {
-                        "grain_kg": 8,
-                        "grain_c": room,
-                        "water_litres": 24,
-                        "water_c": 72,
-                    },
-                },
-                {"at": "31m", "confirm": "Mash in"},
-            ],
-        }
+            {"at": "31m", "confirm": "Mash in"},
+        ],
     )
     result = scenario.run(day, keep_records=True)
     low = result.summary["steps"][-1]
@@ -652,52 +660,32 @@ def hot_strike_day(by_hand: bool = False) -> scenario.Scenario:
     rest of 66 °C: the HLT's water holds C_h·(74 − T_hold) ≈ 250 kJ/K × 7 K of heat above the
     rest's HLT, the mash (about 100 kJ/K) lacks a degree or two. `by_hand`: the pump is
     hermsd's to see, not to switch, started a minute after "Mash in"."""
-    pump = {"backend": "none", "sense": "sim"} if by_hand else {"backend": "sim"}
-    started = [{"at": "22m", "pump": "on"}] if by_hand else []
-    return scenario.parse_scenario(
-        {
-            "name": "hot-strike",
-            "duration": "2h",
-            "config": {
-                "tun": {"litres": 60, "element_watts": 5500},
-                "mash_sensor": {"kind": "ds18b20"},
-                "pump": pump,
-                "herms": {"max_hlt_above_mash": 8, "mash_litres": 20, "grain_kg": 6},
+    return herms_program_day(
+        "Single infusion",
+        pump={"backend": "none", "sense": "sim"} if by_hand else {"backend": "sim"},
+        herms={"max_hlt_above_mash": 8, "mash_litres": 20, "grain_kg": 6},
+        plant={"start_c": 74, "ambient_c": 18, "noise_c": 0.03, "seed": 1},
+        mash={
+            "coil_w_per_k": 250,
+            "flow_l_per_min": 6,
+            "hose_to_coil_s": 10,
+            "hose_to_mash_s": 10,
+            "mash_ua_w_per_k": 6,
+            "mash_sensor_lag_s": 20,
+            "tun_heat_capacity_j_per_k": 5000,
+        },
+        steps=[
+            {"name": "Strike", "setpoint": 74, "hold": "0s", "confirm": "Mash in"},
+            {"name": "Sacch", "setpoint": 66, "hold": "45m"},
+        ],
+        events=[
+            {
+                "at": "20m",
+                "dough_in": {"grain_kg": 6, "grain_c": 18, "water_litres": 20, "water_c": 74},
             },
-            "plant": {
-                "model": "physical",
-                "litres": 60,
-                "element_watts": 5500,
-                "start_c": 74,
-                "ambient_c": 18,
-                "noise_c": 0.03,
-                "seed": 1,
-                "mash": {
-                    "coil_w_per_k": 250,
-                    "flow_l_per_min": 6,
-                    "hose_to_coil_s": 10,
-                    "hose_to_mash_s": 10,
-                    "mash_ua_w_per_k": 6,
-                    "mash_sensor_lag_s": 20,
-                    "tun_heat_capacity_j_per_k": 5000,
-                },
-            },
-            "program": {
-                "name": "Single infusion",
-                "steps": [
-                    {"name": "Strike", "setpoint": 74, "hold": "0s", "confirm": "Mash in"},
-                    {"name": "Sacch", "setpoint": 66, "hold": "45m"},
-                ],
-            },
-            "events": [
-                {
-                    "at": "20m",
-                    "dough_in": {"grain_kg": 6, "grain_c": 18, "water_litres": 20, "water_c": 74},
-                },
-                {"at": "21m", "confirm": "Mash in"},
-                *started,
-            ],
-        }
+            {"at": "21m", "confirm": "Mash in"},
+            *([{"at": "22m", "pump": "on"}] if by_hand else []),
+        ],
     )
 
 
