@@ -655,11 +655,13 @@ def test_a_step_down_lands_the_mash_on_its_lower_rest(room: float) -> None:
     assert all(r.cascade != "no flow" for r in result.records)
 
 
-def hot_strike_day(by_hand: bool = False) -> scenario.Scenario:
+def hot_strike_day(
+    by_hand: bool = False, more: tuple[dict[str, Any], ...] = ()
+) -> scenario.Scenario:
     """Strike water held at 74 °C in a 60 L HLT, 20 L of it and 6 kg of grain doughed in for a
     rest of 66 °C: the HLT's water holds C_h·(74 − T_hold) ≈ 250 kJ/K × 7 K of heat above the
     rest's HLT, the mash (about 100 kJ/K) lacks a degree or two. `by_hand`: the pump is
-    hermsd's to see, not to switch, started a minute after "Mash in"."""
+    hermsd's to see, not to switch, started a minute after "Mash in"; `more`: events."""
     return herms_program_day(
         "Single infusion",
         pump={"backend": "none", "sense": "sim"} if by_hand else {"backend": "sim"},
@@ -685,6 +687,7 @@ def hot_strike_day(by_hand: bool = False) -> scenario.Scenario:
             },
             {"at": "21m", "confirm": "Mash in"},
             *([{"at": "22m", "pump": "on"}] if by_hand else []),
+            *more,
         ],
     )
 
@@ -723,3 +726,11 @@ def test_a_mash_a_degree_over_its_rest_comes_down_as_a_step_down_does() -> None:
     rest = [r for r in result.records if r.step_index == 1 and r.mash is not None]
     down = next(r.t for r in rest if r.mash <= 66.3 and r.t > rest[0].t + 600.0)
     assert min(r.mash for r in rest if r.t >= down + 300.0) >= 66.0 - 0.3
+
+
+def test_a_brewer_s_pump_command_ends_a_held_start() -> None:
+    """`hermsd set pump off` while the step's start waits for the HLT to cool stands, as any
+    pump command within a step does: the program does not start the pump later."""
+    day = hot_strike_day(more=({"at": "25m", "pump": "off"},))
+    records = scenario.run(day, keep_records=True).records
+    assert not any(r.pump for r in records if r.step_index == 1)

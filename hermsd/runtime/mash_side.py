@@ -228,6 +228,7 @@ class MashSide(LoopState):
         `within`: the most s a start may be prepared for (a pump timer's turn due then)."""
         if self.outputs.pump is None:
             raise PumpNotFitted(pump_refusal(self.config))
+        self._pump_held = None  # whoever asks now decides: a held start is not made later
         now = self._now()
         if on and not self._pump_on and self._pump_start_at is None:
             lead = min(self._pump_lead(), within)
@@ -305,11 +306,13 @@ class MashSide(LoopState):
         """Switch the pump as the program's step says, once when the step begins (and once
         after a restart) and at each turn of its pump timer: `hermsd set pump` within a step
         stands until the next one, or the timer's next turn. A turn of the timer that starts
-        the pump is prepared ahead of it like any start (`set_pump`), a dead time early."""
+        the pump is prepared ahead of it like any start (`set_pump`), a dead time early; a
+        step's first start waits while the HLT's heat would carry the mash past its rest
+        (`_hold_or_start`)."""
         wanted = self.program.pump_step()
         runner = self.program.runner
         if runner is None or not self.pump_fitted:
-            self._program_pump_step = wanted
+            self._program_pump_step, self._pump_held = wanted, None
             return
         reason = f"program {runner.program.name!r}, step {runner.step.name!r}"
         timer = runner.step.pump_timer
@@ -391,6 +394,7 @@ class MashSide(LoopState):
 
     def _start_mash_side(self) -> None:
         self._pump_on = False
+        self._pump_held = None
         self._program_pump_step = None
         self._mash_watch = MashWatch()
         for role in self._roles.values():
