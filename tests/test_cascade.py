@@ -172,10 +172,12 @@ def test_a_step_down_keeps_the_element_off_until_full_power_must_lift_the_hlt() 
 def test_a_start_waits_where_the_hlt_s_heat_alone_would_carry_the_mash_past_its_rest() -> None:
     # Lossless, no hose: coasting from 70 the HLT would lift the mash by C_h/C_m·5 = 10 °C on
     # its way down to T_hold = 65, but the tanks meet first, at (2·70 + T_m)/3: from 55.2 at
-    # 65.067, within PAST_REST (0.1) of the rest, from 55.5 at 65.167, past it.
+    # 65.067, within PAST_REST (0.1) of the rest, from 55.5 at 65.167, past it. From 55.5
+    # the start waits for the HLT from which the tanks meet at the rest itself, where the
+    # HLT is down at T_hold too: (2·T + 55.5)/3 = 65, T = 69.75 °C.
     c = cascade()
-    assert not c.carries_past(65.0, 55.2, 70.0, EXACT)
-    assert c.carries_past(65.0, 55.5, 70.0, EXACT)
+    assert c.start_waits_for(65.0, 55.2, 70.0, EXACT) is None
+    assert c.start_waits_for(65.0, 55.5, 70.0, EXACT) == pytest.approx(69.75, abs=1e-3)
 
 
 def test_while_a_start_waits_the_hlt_is_readied_no_higher_than_its_coast_allows() -> None:

@@ -714,14 +714,19 @@ def test_a_pump_start_waits_while_the_hlts_heat_would_carry_the_mash_past_its_re
     assert any(e.startswith("pump on: program") for e in after)
 
 
-def test_a_mash_a_degree_over_its_rest_comes_down_as_a_step_down_does() -> None:
+def test_a_mash_a_degree_over_its_rest_comes_down_as_a_step_down_does(tmp_path: Path) -> None:
     """The same day with a pump hermsd only sees, started by hand at once: nothing can stop
-    the HLT's heat carrying the mash 2 °C past its rest. Brought down by the hold's PI it sank
+    the HLT's heat carrying the mash 2 °C past its rest but the brewer, whom a warning tells
+    what HLT to wait for. Brought down by the hold's PI it sank
     0.7 °C under its rest, its fall read as no flow; now it comes down as a step down does
     (the element off, the HLT lifted back to T_hold as it arrives), no sign of no flow, and
     from 5 min after it is first within ±0.3 °C of its rest it stays within 0.3 °C under."""
-    result = scenario.run(hot_strike_day(by_hand=True), keep_records=True)
+    result = scenario.run(hot_strike_day(by_hand=True), log_dir=tmp_path, keep_records=True)
     assert result.summary["program"]["state"] == "done" and result.summary["alarms"] == []
+    # The brewer was told, as the rest began, what HLT to wait for.
+    events = [e.message for e in reader.load(sorted(tmp_path.glob("*.mcap*"))).events]
+    told = [e for e in events if e.startswith("wait to start the pump:")]
+    assert len(told) == 1 and "the HLT below" in told[0]
     assert all(r.cascade != "no flow" for r in result.records)
     rest = [r for r in result.records if r.step_index == 1 and r.mash is not None]
     down = next(r.t for r in rest if r.mash <= 66.3 and r.t > rest[0].t + 600.0)

@@ -104,7 +104,7 @@ STRIKE = "strike"
 itself (`MashControl.strike`), the outer loop not stepped."""
 PAST_REST = 0.1
 """°C past its rest that a pump start's coast may carry the mash before the program's start
-waits for the HLT to cool (`Cascade.carries_past`): half the overshoot's goal, the coast's
+waits for the HLT to cool (`Cascade.start_waits_for`): half the overshoot's goal, the coast's
 model and the mash's reading being what they are."""
 MIN_CONDUCTANCE = 10.0
 """W/K: the least K the outer loop steers by. A K learned lower is a coil with no flow (a
@@ -405,15 +405,20 @@ class Cascade:
         ):
             self._mash_loss = before._mash_loss
 
-    def carries_past(self, mash_sp: float, mash_pv: float, hlt: float, coil: CoilEstimate) -> bool:
-        """Whether the wort flowing from now would carry the mash past its rest on the HLT's
-        heat alone, the element off (`coast_peak`, K one sd high: more heat in the hose, a
-        lower T_hold): an HLT held at a strike hotter than the rest's HLT has more stored
-        heat above T_hold than the mash lacks, and heat cannot be taken back."""
+    def start_waits_for(
+        self, mash_sp: float, mash_pv: float, hlt: float, coil: CoilEstimate
+    ) -> float | None:
+        """None where the wort flowing from now lands the mash within PAST_REST of its rest on
+        the HLT's heat alone, the element off (`coast_peak`, K one sd high: more heat in the
+        hose, a lower T_hold); else the HLT (°C) from which that coast lands it on its rest,
+        which a start waits for: an HLT held at a strike hotter than the rest's HLT has more
+        stored heat above T_hold than the mash lacks, and heat cannot be taken back."""
         tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
         high = max(coil.high, MIN_CONDUCTANCE)
         hold = holding_hlt(mash_sp, tanks, high)
-        return coast_peak(hlt, mash_pv, hold, tanks, high) > mash_sp + PAST_REST
+        if coast_peak(hlt, mash_pv, hold, tanks, high) <= mash_sp + PAST_REST:
+            return None
+        return coast_start(mash_pv, hold, tanks, high, mash_sp, hlt)
 
     def ceiling(self, mash_sp: float) -> float:
         """The highest HLT setpoint for `mash_sp`: the limit less HLT_MARGIN, at most the
@@ -460,7 +465,7 @@ class Cascade:
         on): the HLT readied no higher than the climb's setpoint the start begins (`most`),
         so that it is let down to it as the coil draws, not held at the ceiling with the
         whole draw's heat in flight (`prepared_load`). `waiting`: a start held while the HLT's heat
-        would carry the mash past its rest (`carries_past`): the HLT readied no higher than
+        would carry the mash past its rest (`start_waits_for`): the HLT readied no higher than
         the HLT from which the start's coast carries the mash to its rest, so that it cools
         to where the start is made (readied as for any stop, the heat the mash lacks above
         T_hold, the hose's heat would keep it above that for good). `hlt_reading`: the HLT

@@ -134,7 +134,7 @@ class MashControl:
         water's alone and the HLT does not rise past its limit as the coil stops drawing.
         `timer_stop`: the pump stopped by that timer, its restart due (`Cascade.step`'s
         `paused`). `start_held`: a program's start held while the HLT's heat would carry the
-        mash past its rest (`carries_past`; `Cascade.step`'s `waiting`). `t`: the loop's
+        mash past its rest (`start_waits_for`; `Cascade.step`'s `waiting`). `t`: the loop's
         clock (s), for the mash's reach watch."""
         before, preparing = self.decision, self.load_in > 0.0
         self._room_seen = math.inf  # the mash is in: a later strike step reads the room afresh
@@ -201,10 +201,11 @@ class MashControl:
         self.unannounced = acts and not (fed or preparing)
         return decision
 
-    def carries_past(self, mash_sp: float, mash_pv: float, hlt: float) -> bool:
-        """Whether a pump start now would carry the mash past `mash_sp` on the HLT's stored
-        heat (`Cascade.carries_past`, on the coil's K as the day knows it)."""
-        return self.cascade.carries_past(mash_sp, mash_pv, hlt, self.coil.estimate())
+    def start_waits_for(self, mash_sp: float, mash_pv: float, hlt: float) -> float | None:
+        """The HLT (°C) a pump start waits for lest the HLT's stored heat carry the mash past
+        `mash_sp`, None where it need not wait (`Cascade.start_waits_for`, on the coil's K as
+        the day knows it)."""
+        return self.cascade.start_waits_for(mash_sp, mash_pv, hlt, self.coil.estimate())
 
     def carry(self, before: MashControl) -> None:
         """What `before`, the mash control a reload replaces, measured of the day: the room

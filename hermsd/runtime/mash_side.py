@@ -312,6 +312,8 @@ class MashSide(LoopState):
         wanted = self.program.pump_step()
         runner = self.program.runner
         if runner is None or not self.pump_fitted:
+            if runner is not None and wanted is not None and wanted[2]:
+                self._warn_hand_start(wanted, runner.step.setpoint)
             self._program_pump_step, self._pump_held = wanted, None
             return
         reason = f"program {runner.program.name!r}, step {runner.step.name!r}"
@@ -341,36 +343,52 @@ class MashSide(LoopState):
 
     def _hold_or_start(self, reason: str, rest: float) -> None:
         """A step's pump start, held while the wort flowing would carry the mash past its
-        `rest` on the HLT's stored heat alone (`MashControl.carries_past`: a strike held
-        hotter than the rest needs, with more heat above the rest's HLT than the mash lacks),
-        said once as it is held and once as it starts; else started (`set_pump`). The HLT
-        cools meanwhile, held where the outer loop readies it; `hermsd set pump on` starts
-        it at once."""
-        control, mash = self._mash_control, self._roles.get("mash_sensor")
-        hlt = predictive.predicted_pv(self.controller)
-        reading = None if mash is None else mash.celsius
-        past = (
-            control is not None
-            and reading is not None
-            and hlt is not None
-            and control.carries_past(rest, reading, hlt)
-        )
+        `rest` on the HLT's stored heat alone (`_start_waits_for`), said once as it is held and
+        once as it starts; else started (`set_pump`). The HLT cools meanwhile, readied no
+        higher than the start's coast allows; `hermsd set pump on` starts it at once."""
+        waits = self._start_waits_for(rest)
         now = self._now()
-        if past and self._pump_held is None:
-            self._event(
-                logging.WARNING,
-                f"pump held: the HLT at {hlt:.1f} °C holds more heat than the mash at "
-                f"{reading:.1f} °C needs for its rest {rest:g} °C and would carry it past; "
-                "it starts as the HLT cools (`hermsd set pump on` starts it now)",
-                now,
-            )
-        if past:
+        if waits is not None and self._pump_held is None:
+            self._event(logging.WARNING, f"pump held: {waits[1]}; it starts then", now)
+        if waits is not None:
             self._pump_held = reason
             return
         if self._pump_held is not None:
-            self._event(logging.INFO, f"pump held no longer: the HLT at {hlt:.1f} °C", now)
-        self._pump_held = None
+            hlt = predictive.predicted_pv(self.controller)
+            at = "" if hlt is None else f": the HLT at {hlt:.1f} °C"
+            self._event(logging.INFO, f"pump held no longer{at}", now)
         self.set_pump(True, reason)
+
+    def _warn_hand_start(self, wanted: tuple[int, int, bool], rest: float) -> None:
+        """A step whose pump hermsd does not switch (run by hand, only seen or not at all):
+        where starting it now would carry the mash past its rest, the brewer is told once, as
+        the step begins, what HLT to wait for (`_start_waits_for`)."""
+        begun = self._program_pump_step
+        if (begun is not None and begun[0] == wanted[0]) or self.pump_state:
+            return  # not a step's beginning, or the pump seen running already
+        waits = self._start_waits_for(rest)
+        if waits is not None:
+            self._event(logging.WARNING, f"wait to start the pump: {waits[1]}", self._now())
+
+    def _start_waits_for(self, rest: float) -> tuple[float, str] | None:
+        """Whether a pump start now would carry the mash past its `rest` on the HLT's stored
+        heat (`MashControl.start_waits_for`: a strike held hotter than the rest needs, with
+        more heat above the rest's HLT than the mash lacks): the HLT to wait for and the
+        words that say so; None where it would not, or nothing tells (no mash reading, no
+        prediction of the HLT)."""
+        control, mash = self._mash_control, self._roles.get("mash_sensor")
+        hlt = predictive.predicted_pv(self.controller)
+        reading = None if mash is None else mash.celsius
+        if control is None or reading is None or hlt is None:
+            return None
+        below = control.start_waits_for(rest, reading, hlt)
+        if below is None:
+            return None
+        return below, (
+            f"the HLT at {hlt:.1f} °C holds more heat than the mash at {reading:.1f} °C needs "
+            f"for its rest {rest:g} °C, and wort flowing now would carry the mash past it: "
+            f"the HLT below {below:.1f} °C lands it there"
+        )
 
     def _timer_stopped(self) -> bool:
         """Whether the program's pump timer has the pump stopped now (its restart due)."""
