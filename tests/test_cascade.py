@@ -178,6 +178,8 @@ def test_a_start_waits_where_the_hlt_s_heat_alone_would_carry_the_mash_past_its_
     c = cascade()
     assert c.start_waits_for(65.0, 55.2, 70.0, EXACT) is None
     assert c.start_waits_for(65.0, 55.5, 70.0, EXACT) == pytest.approx(69.75, abs=1e-3)
+    # A mash over its rest (a step down's start) comes down with the wort flowing: no wait.
+    assert c.start_waits_for(65.0, 66.0, 75.0, EXACT) is None
 
 
 def test_while_a_start_waits_the_hlt_is_readied_no_higher_than_its_coast_allows() -> None:

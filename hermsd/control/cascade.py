@@ -413,6 +413,8 @@ class Cascade:
         hose, a lower T_hold); else the HLT (°C) from which that coast lands it on its rest,
         which a start waits for: an HLT held at a strike hotter than the rest's HLT has more
         stored heat above T_hold than the mash lacks, and heat cannot be taken back."""
+        if mash_pv >= mash_sp:
+            return None  # a mash at or over its rest (a step down) comes down with the wort
         tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
         high = max(coil.high, MIN_CONDUCTANCE)
         hold = holding_hlt(mash_sp, tanks, high)
