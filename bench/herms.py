@@ -74,9 +74,11 @@ A step down (`--step-down`; its own section): the same set-ups, peers and measur
 whose rests are 70 °C (20 min), 64 °C (30 min) and 76 °C (10 min), the second below the first,
 as a program that rests high and then low has it. Heat cannot be taken out: the mash comes
 down by its own losses and through the coil once the HLT stands below it. Measured in the
-step's direction: the mash's "overshoot" of the 64 °C rest is how far it went under it while
-the wort flowed (a stopped pump's mash cools at its own rate whatever the HLT does: its stops
-and the way back aside, as for the error), and the fastest the plant allows is the mirror of
+step's direction: the mash's "overshoot" of the 64 °C rest is how far it went under it as it
+landed, the wort flowing, up to the pump's first stop once the mash was within 0.3 °C (a
+stopped pump's mash cools at its own rate whatever the HLT does, towards the undershoot where
+a climb's cools away from its overshoot; a stop before it arrived aside with its way back, as
+for the error), and the fastest the plant allows is the mirror of
 a climb's: the element off, then at the last instant that keeps the mash at or above its
 rest (by bisection) the HLT brought at full power to the HLT the rest needs and held there. A
 pump start while the mash is still coming down to that rest is no measure of the start (the
@@ -625,6 +627,20 @@ def held_samples(
     return held
 
 
+def step_down_landing(
+    window: list[Sample], sp: float, reached: float | None, pumps: list[tuple[float, bool]]
+) -> list[Sample]:
+    """A step down's samples its undershoot is judged on: the landing, the wort flowing, up
+    to the pump's first stop once the mash is within BAND. A stopped pump's mash cools at
+    its own rate whatever the HLT does, towards the undershoot where a climb's cools away
+    from its overshoot, so a stop and its way back are no landing (before the mash arrives,
+    the stop and the way back to within BAND aside, as for the error)."""
+    stopped = (x.t for x in window if reached is not None and x.t >= reached)
+    first = next((t for t in stopped if not pump_running(pumps, t)), math.inf)
+    flowing = held_samples(window, sp, -math.inf, pumps)
+    return [x for x in flowing if x.t < first] or window
+
+
 def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[dict[str, Any]]:
     """Each rest's measures (the module's docstring); a rest never begun is left out."""
     rows = []
@@ -632,10 +648,8 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
     for (sp, _), start, end in zip(s.rests, day.rest_starts, ends, strict=False):
         window = [x for x in day.samples if start[0] <= x.t < end]
         way = -1.0 if start[2] > sp else 1.0  # the step's direction: a step down's is −1
-        # A step down's undershoot with the wort flowing: a stopped pump's mash cools at its
-        # own rate whatever the HLT does (as the error's, its stops and the way back aside).
-        running = held_samples(window, sp, -math.inf, pumps) or window
         reached = next((x.t for x in window if way * (x.mash - sp) >= -BAND), None)
+        landing = window if way > 0.0 else step_down_landing(window, sp, reached, pumps)
         held = [] if reached is None else held_samples(window, sp, reached, pumps)
         after = [abs(x.mash - sp) for x in held]
         stops = [x.mash - sp for x in window if reached is not None and x.t >= reached + SETTLE_S]
@@ -654,7 +668,7 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
                 "sp": sp,
                 "err": max(after, default=unheld),
                 "err_all": max((abs(e) for e in stops), default=unheld),
-                "over": max(way * (x.mash - sp) for x in (window if way > 0.0 else running)),
+                "over": max(way * (x.mash - sp) for x in landing),
                 "hlt_above": max(x.water for x in window[come_down:]) - cap,
                 "hlt_above_all": max(x.water for x in window) - cap,
                 "step_s": step,
