@@ -349,7 +349,7 @@ class MashSide(LoopState):
         waits = self._start_waits_for(rest)
         now = self._now()
         if waits is not None and self._pump_held is None:
-            self._event(logging.WARNING, f"pump held: {waits[1]}; it starts then", now)
+            self._event(logging.WARNING, f"pump held: {waits}; it starts then", now)
         if waits is not None:
             self._pump_held = reason
             return
@@ -368,14 +368,14 @@ class MashSide(LoopState):
             return  # not a step's beginning, or the pump seen running already
         waits = self._start_waits_for(rest)
         if waits is not None:
-            self._event(logging.WARNING, f"wait to start the pump: {waits[1]}", self._now())
+            self._event(logging.WARNING, f"wait to start the pump: {waits}", self._now())
 
-    def _start_waits_for(self, rest: float) -> tuple[float, str] | None:
+    def _start_waits_for(self, rest: float) -> str | None:
         """Whether a pump start now would carry the mash past its `rest` on the HLT's stored
         heat (`MashControl.start_waits_for`: a strike held hotter than the rest needs, with
-        more heat above the rest's HLT than the mash lacks): the HLT to wait for and the
-        words that say so; None where it would not, or nothing tells (no mash reading, no
-        prediction of the HLT)."""
+        more heat above the rest's HLT than the mash lacks): the words that say so, with the
+        HLT to wait for; None where it would not, or nothing tells (no mash reading, no
+        prediction of the HLT: a start held ends then, the outer loop holding the HLT)."""
         control, mash = self._mash_control, self._roles.get("mash_sensor")
         hlt = predictive.predicted_pv(self.controller)
         reading = None if mash is None else mash.celsius
@@ -384,7 +384,7 @@ class MashSide(LoopState):
         below = control.start_waits_for(rest, reading, hlt)
         if below is None:
             return None
-        return below, (
+        return (
             f"the HLT at {hlt:.1f} °C holds more heat than the mash at {reading:.1f} °C needs "
             f"for its rest {rest:g} °C, and wort flowing now would carry the mash past it: "
             f"the HLT below {below:.1f} °C lands it there"
