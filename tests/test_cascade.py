@@ -169,6 +169,25 @@ def test_a_step_down_keeps_the_element_off_until_full_power_must_lift_the_hlt() 
     assert step(c, 66.2, 62.0).hlt_setpoint == 65.0
 
 
+def test_a_step_down_lands_on_whichever_side_of_k_lands_the_mash_lower() -> None:
+    # A lossy mash (20 W/K) over a rest of 65, the HLT at 63, K 200 ± 100: K low (100) needs
+    # the HLT further above the mash to stop its fall, so from some mash readings its lift
+    # lands the mash under the rest where K high's (300) still lands it on it. There the
+    # step down lifts the HLT to T_hold (K 200's) at once, where K high alone keeps falling.
+    lossy = dataclasses.replace(POWERED, mash_loss=20.0)
+
+    def lands(mash: float, k: float) -> bool:
+        return descent_trough(63.0, mash, holding_hlt(65.0, lossy, k), lossy, k) >= 65.0
+
+    readings = [m / 100.0 for m in range(6510, 7200, 5)]
+    split = [m for m in readings if lands(m, 300.0) and not lands(m, 100.0)]
+    assert split  # such readings exist on this plant
+    wide = step(cascade(lossy), split[0], 63.0, coil=CoilEstimate(200.0, 100.0, "learned"))
+    assert wide.hlt_setpoint == pytest.approx(holding_hlt(65.0, lossy, 200.0), abs=1e-9)
+    sure = step(cascade(lossy), split[0], 63.0, coil=CoilEstimate(300.0, 0.0, "learned"))
+    assert sure.hlt_setpoint < 63.0
+
+
 def test_a_start_waits_where_the_hlt_s_heat_alone_would_carry_the_mash_past_its_rest() -> None:
     # Lossless, no hose: coasting from 70 the HLT would lift the mash by C_h/C_m·5 = 10 °C on
     # its way down to T_hold = 65, but the tanks meet first, at (2·70 + T_m)/3: from 55.2 at

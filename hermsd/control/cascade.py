@@ -598,22 +598,24 @@ class Cascade:
         elif self._descent and read > mash_sp + RESTORED_BAND:
             # A step down: the element off while the mash falls, the HLT with it (the coil
             # draws the mash's heat into it once it is the colder), until full power must lift
-            # the HLT back to T_hold for the mash to land on its rest (`descent_trough`, K one
-            # sd high: the mash drawn down faster and T_hold lower, so the heat comes early);
-            # then T_hold, the law's way there at full power, until the mash is at its rest.
-            # Held at T_hold throughout, the mash would come down on its own slow time
-            # constant; held by the hold's PI, whose error is degrees, the HLT lay degrees
-            # under T_hold as the mash arrived, which went on falling (1.4 °C under a 64 °C
-            # rest, and no flow seen: docs/mash-control.md, "A step down").
-            if self._descent == FALL and (
-                descent_trough(hlt_pv, mash, hold_high, tanks, high) < mash_sp
+            # the HLT back to T_hold for the mash to land on its rest (`descent_trough`); then
+            # T_hold, the law's way there at full power, until the mash is at its rest. Judged
+            # with K one sd either side, whichever lands the mash the lower: K high draws it
+            # down the faster, K low needs the HLT the further above it to stop its fall (a
+            # lossy mash). Held at T_hold throughout, the mash would come down on its own slow
+            # time constant; held by the hold's PI, whose error is degrees, the HLT lay
+            # degrees under T_hold as the mash arrived, which went on falling (1.4 °C under a
+            # 64 °C rest, and no flow seen: docs/mash-control.md, "A step down").
+            low = max(coil.low, MIN_CONDUCTANCE)
+            sides = ((hold_high, high), (holding_hlt(mash_sp, tanks, low), low))
+            if self._descent == FALL and any(
+                descent_trough(hlt_pv, mash, at, tanks, c) < mash_sp for at, c in sides
             ):
                 self._descent = LAND
-            setpoint = (
-                min(descent_floor(mash, hold_high, tanks, high, mash_sp), hlt_pv)
-                if self._descent == FALL
-                else hold
-            )
+            setpoint = hold
+            if self._descent == FALL:  # the lowest HLT the lift may start from: the element off
+                floor = max(descent_floor(mash, at, tanks, c, mash_sp) for at, c in sides)
+                setpoint = min(floor, hlt_pv)
             setpoint, phase = min(setpoint, ceiling), "coast"
         else:
             if self._descent:  # the mash is at its rest: the hold's PI from here
