@@ -415,12 +415,17 @@ class Cascade:
         stored heat above T_hold than the mash lacks, and heat cannot be taken back."""
         if mash_pv >= mash_sp:
             return None  # a mash at or over its rest (a step down) comes down with the wort
-        tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
-        high = max(coil.high, MIN_CONDUCTANCE)
-        hold = holding_hlt(mash_sp, tanks, high)
+        tanks, high, hold = self._judged(mash_sp, coil)
         if coast_peak(hlt, mash_pv, hold, tanks, high) <= mash_sp + PAST_REST:
             return None
         return coast_start(mash_pv, hold, tanks, high, mash_sp, hlt)
+
+    def _judged(self, mash_sp: float, coil: CoilEstimate) -> tuple[Tanks, float, float]:
+        """The tanks with the mash's losses as learned, and K one sd high with the T_hold it
+        gives: what the climb's end, the coast and a start's wait are judged on."""
+        tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
+        high = max(coil.high, MIN_CONDUCTANCE)
+        return tanks, high, holding_hlt(mash_sp, tanks, high)
 
     def ceiling(self, mash_sp: float) -> float:
         """The highest HLT setpoint for `mash_sp`: the limit less HLT_MARGIN, at most the
@@ -491,7 +496,7 @@ class Cascade:
             self._after_stop = False
         self._mash_sp = mash_sp
         self._last_mash = mash_pv
-        tanks = dataclasses.replace(self._tanks, mash_loss=self._mash_loss)
+        tanks, high, hold_high = self._judged(mash_sp, coil)
         k = max(coil.conductance, MIN_CONDUCTANCE)
         hold = holding_hlt(mash_sp, tanks, k)
         # The mash as read: the line through its last readings (MASH_LINE_S; a stop of the
@@ -516,8 +521,6 @@ class Cascade:
             reaching = max(0.0, ahead - 0.5 * tanks.hose_delay)
             gained = k * (hlt_pv - mash) * reaching - tanks.mash_loss * (mash - tanks.room) * ahead
             mash += gained / (tanks.mash_capacity + 0.5 * k * reaching)
-        high = max(coil.high, MIN_CONDUCTANCE)
-        hold_high = holding_hlt(mash_sp, tanks, high)
         # The peak aimed at the rest itself: K one sd high (and the mash's losses, a low prior)
         # already stop the climb early, and a coast that ends short closes its last tenths
         # on the mash's own slow time constant.
