@@ -495,6 +495,32 @@ def test_mash_events_need_a_herms_plant() -> None:
         scenario.run(day)
 
 
+@pytest.mark.parametrize(
+    ("config", "said"),
+    [
+        ({}, "mash_sensor needs a mash sensor"),
+        (
+            {"mash_sensor": {"kind": "ds18b20"}},
+            "the mash_sensor fault 'nack' at 1800 s is not one a ds18b20 has",
+        ),
+    ],
+)
+def test_a_mash_sensor_fault_the_day_cannot_have_is_refused_before_the_run(
+    config: dict[str, Any], said: str
+) -> None:
+    day = scenario.parse_scenario(
+        {
+            "duration": "1h",
+            "config": config,
+            "plant": {"mash": {}},
+            "events": [{"at": "30m", "mash_sensor": "nack"}],
+        },
+        "day.yaml",
+    )
+    with pytest.raises(scenario.ScenarioError, match=said):
+        scenario.run(day)
+
+
 def test_the_herms_day_shows_the_hlt_fall_at_pump_start() -> None:
     """The pump starts at 1h05m: the coil takes 5.27 kW (188.23 W/K × 28 K) against the 3 kW
     element, so the HLT falls below the band within minutes, whatever the controller does."""
@@ -712,6 +738,24 @@ def test_a_pump_start_waits_while_the_hlts_heat_would_carry_the_mash_past_its_re
     after = events[events.index(held[0]) :]
     assert any(e.startswith("pump held no longer") for e in after)
     assert any(e.startswith("pump on: program") for e in after)
+
+
+def test_a_held_start_stays_held_while_the_mash_reading_is_lost(tmp_path: Path) -> None:
+    """The same day with the mash's DS18B20 gone from the bus for 10 minutes while the start
+    waits: nothing can say when the HLT has cooled enough, and a start made then would carry
+    the mash past its rest as the first one did (heat that cannot be taken back). The start
+    stays held, said once, and is made once a reading says so: the rest as before."""
+    fault = {"at": "23m", "mash_sensor": "gone", "for": "10m"}
+    result = scenario.run(hot_strike_day(more=(fault,)), log_dir=tmp_path, keep_records=True)
+    sacch = result.summary["steps"][-1]
+    assert result.summary["program"]["state"] == "done" and result.summary["alarms"] == []
+    assert sacch["mash"]["overshoot_c"] <= 0.2
+    lost = [r for r in result.records if 24 * 60.0 <= r.t < 33 * 60.0]
+    assert lost and all(r.mash is None and r.cascade == "held" and not r.pump for r in lost)
+    events = [e.message for e in reader.load(sorted(tmp_path.glob("*.mcap*"))).events]
+    assert len([e for e in events if e.startswith("pump held on: no mash reading")]) == 1
+    started = next(r.t for r in result.records if r.pump and r.step_index == 1)
+    assert started >= 33 * 60.0
 
 
 def test_a_mash_a_degree_over_its_rest_comes_down_as_a_step_down_does(tmp_path: Path) -> None:

@@ -211,8 +211,10 @@ class MashSide(LoopState):
     _pump_start_reason = ""
     _pump_start_from: float | None = None
     # A program's pump start held while the HLT's heat would carry the mash past its rest
-    # (`_program_pump`): why it was asked for, None when none is held.
+    # (`_program_pump`): why it was asked for, None when none is held; and whether it is
+    # held on for want of a mash reading to judge it by (said once).
     _pump_held: str | None = None
+    _held_unjudged = False
 
     @property
     def pump_fitted(self) -> bool:
@@ -345,13 +347,25 @@ class MashSide(LoopState):
         """A step's pump start, held while the wort flowing would carry the mash past its
         `rest` on the HLT's stored heat alone (`_start_waits_for`), said once as it is held and
         once as it starts; else started (`set_pump`). The HLT cools meanwhile, readied no
-        higher than the start's coast allows; `hermsd set pump on` starts it at once."""
+        higher than the start's coast allows; `hermsd set pump on` starts it at once. A
+        start held stays held while nothing can judge it (the mash's reading lost): heat
+        carried into the mash cannot be taken back, a start made late can be made by hand."""
         waits = self._start_waits_for(rest)
         now = self._now()
         if waits is not None and self._pump_held is None:
             self._event(logging.WARNING, f"pump held: {waits}; it starts then", now)
         if waits is not None:
-            self._pump_held = reason
+            self._pump_held, self._held_unjudged = reason, False
+            return
+        if self._pump_held is not None and self._start_inputs() is None:
+            if not self._held_unjudged:
+                self._held_unjudged = True
+                self._event(
+                    logging.WARNING,
+                    "pump held on: no mash reading to judge its start by; it starts once one "
+                    "says the HLT has cooled enough (`hermsd set pump on` starts it now)",
+                    now,
+                )
             return
         if self._pump_held is not None:
             hlt = predictive.predicted_pv(self.controller)
@@ -374,13 +388,11 @@ class MashSide(LoopState):
         """Whether a pump start now would carry the mash past its `rest` on the HLT's stored
         heat (`MashControl.start_waits_for`: a strike held hotter than the rest needs, with
         more heat above the rest's HLT than the mash lacks): the words that say so, with the
-        HLT to wait for; None where it would not, or nothing tells (no mash reading, no
-        prediction of the HLT: a start held ends then, the outer loop holding the HLT)."""
-        control, mash = self._mash_control, self._roles.get("mash_sensor")
-        hlt = predictive.predicted_pv(self.controller)
-        reading = None if mash is None else mash.celsius
-        if control is None or reading is None or hlt is None:
+        HLT to wait for; None where it would not, or nothing tells (`_start_inputs`)."""
+        inputs = self._start_inputs()
+        if inputs is None:
             return None
+        control, reading, hlt = inputs
         below = control.start_waits_for(rest, reading, hlt)
         if below is None:
             return None
@@ -389,6 +401,16 @@ class MashSide(LoopState):
             f"for its rest {rest:g} °C, and wort flowing now would carry the mash past it: "
             f"the HLT below {below:.1f} °C lands it there"
         )
+
+    def _start_inputs(self) -> tuple[MashControl, float, float] | None:
+        """What a pump start is judged by: the outer loop, the mash's reading and the HLT's
+        prediction; None where any is missing (no mash reading, a law with no prediction)."""
+        control, mash = self._mash_control, self._roles.get("mash_sensor")
+        hlt = predictive.predicted_pv(self.controller)
+        reading = None if mash is None else mash.celsius
+        if control is None or reading is None or hlt is None:
+            return None
+        return control, reading, hlt
 
     def _timer_stopped(self) -> bool:
         """Whether the program's pump timer has the pump stopped now (its restart due)."""

@@ -64,7 +64,7 @@ from hermsd.sim.world import SENSOR_KEYS, World, build_world
 
 SENSOR_FAULTS = tuple(dict.fromkeys(name for names in FAULTS.values() for name in names))
 """Every kind's faults (sim/sensors.py); a run refuses those its sensor's kind has not."""
-FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2", "recirculation")
+FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2", "recirculation", "mash_sensor")
 MASH_EVENTS = ("dough_in", "pump", "recirculation")
 """Events for a HERMS plant's mash side (`hermsd.sim.mash.HermsPlant`)."""
 EVENT_KINDS = (
@@ -74,6 +74,7 @@ EVENT_KINDS = (
     "mode",
     "output",
     "sensor",
+    "mash_sensor",
     "heater",
     "ssr",
     "heater2",
@@ -394,9 +395,9 @@ def _event(raw: Any, index: int, fail: Callable[[str, str], ScenarioError]) -> E
         value = _number(value, fail, f"{key}.{kind}", EVENT_RANGES[kind])
     elif kind == "mode" and value not in ("manual", "auto"):
         raise fail(f"{key}.mode", "expected manual or auto")
-    elif kind == "sensor":
+    elif kind in ("sensor", "mash_sensor"):
         if value not in SENSOR_FAULTS:
-            raise fail(f"{key}.sensor", f"expected one of {', '.join(SENSOR_FAULTS)}")
+            raise fail(f"{key}.{kind}", f"expected one of {', '.join(SENSOR_FAULTS)}")
         value = (value, _number(raw["value"], fail, f"{key}.value") if "value" in raw else None)
         try:
             if value[0] in FAULTS["lm92"]:
@@ -801,12 +802,17 @@ def check_events(scenario: Scenario, config: Config, world: World) -> None:
             "need a HERMS plant (a plant: mash: mapping, or --plant with "
             "hermsd.sim.mash.HermsPlant's methods)"
         )
-    kind = config.sensor.kind
+    chip = None if world.mash is None else world.mash.mash_chip
+    if chip is None and any(e.kind == "mash_sensor" for e in scenario.events):
+        raise ScenarioError("events: mash_sensor needs a mash sensor (mash_sensor.kind)")
     for event in scenario.events:
-        if event.kind == "sensor" and event.value[0] not in FAULTS[kind]:
+        if event.kind not in ("sensor", "mash_sensor"):
+            continue
+        sensor = config.sensor if event.kind == "sensor" else config.mash_sensor
+        if event.value[0] not in FAULTS[sensor.kind]:
             raise ScenarioError(
-                f"events: the sensor fault {event.value[0]!r} at {event.at:g} s is not one a "
-                f"{kind} has (expected one of {', '.join(FAULTS[kind])})"
+                f"events: the {event.kind} fault {event.value[0]!r} at {event.at:g} s is not "
+                f"one a {sensor.kind} has (expected one of {', '.join(FAULTS[sensor.kind])})"
             )
     if world.circuit.relay2 is None and any(
         e.kind in ("heater2", "relay2") for e in scenario.events
@@ -841,16 +847,30 @@ def schedule_events(
                 assert world.current is not None  # check_events refuses it without one
                 world.current.set_fault(event.value)
                 return
+            if event.kind == "mash_sensor":  # the mash's own sensor, not the tun
+                _faulted_chip(event, world).set_fault(*event.value)
+                return
             _apply(event, t, world.plant, world.chip, world.circuit, daemon)
             if measure is not None:
                 measure(index, event, t)
 
         clock.call_at(event.at, fire)
-        if event.kind == "sensor" and event.lasts is not None:
-            clock.call_at(event.at + event.lasts, lambda: world.chip.set_fault("ok"))
+        if event.kind in ("sensor", "mash_sensor") and event.lasts is not None:
+            chip = _faulted_chip(event, world)
+            clock.call_at(event.at + event.lasts, lambda: chip.set_fault("ok"))
 
     for index, event in enumerate(scenario.events):
         schedule(index, event)
+
+
+def _faulted_chip(event: Event, world: World) -> FakeChip:
+    """The fake sensor an event faults: the mash's for `mash_sensor` (check_events refuses
+    one without it), else the HLT's."""
+    if event.kind == "mash_sensor":
+        chip = None if world.mash is None else world.mash.mash_chip
+        assert chip is not None
+        return chip
+    return world.chip
 
 
 def _mash_summary(records: list[PeriodRecord], limit: float) -> dict[str, Any]:
