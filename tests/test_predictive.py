@@ -188,6 +188,42 @@ def test_sensor_noise_moves_the_held_output_by_under_ten_percent_a_period() -> N
     assert max(abs(b - a) for a, b in itertools.pairwise(outputs)) <= 10.0
 
 
+class ShortedTun(Tun):
+    """The FOPTD water whose element runs at full power whatever the duty once shorted."""
+
+    shorted = False
+
+    def heat(self, duty: float) -> None:
+        super().heat(100.0 if self.shorted else duty)
+
+
+def test_water_out_of_the_band_above_and_rising_gets_no_heat_until_back_in_it() -> None:
+    # A shorted SSR in a steady hold, on the true model of a lossy tun behind a long dead
+    # time (the hold's duty 50 %): the water climbs at K·(100 − 50)/τ = 0.55 °C/min once the
+    # dead time has passed. The gentle gain near the setpoint, 100/(rate·2θ) %/°C, would cut
+    # the hold's 50 % only with the water 0.5·rate·2θ ≈ 5.5 °C over. Heat sent is in the
+    # water a dead time later and cannot be taken back, so once the water reads out of the
+    # band above (a degree: the band's 0.5 °C and the observer's trail behind a PV running
+    # away from its model) and still rises, any duty only adds to a rise nothing asked for.
+    gain, tau, dead_time = 46.0 / 50.0, 5000.0, 300.0
+    tun = ShortedTun(gain, tau, dead_time, SP)
+    controller = predictive(pid.PlantModel(gain, tau, dead_time, ROOM))
+    controller.reset(SP, tun.holding(SP))
+    before = run(controller, tun, 3600.0)
+    assert max(abs(pv - SP) for _, pv, _ in before) <= 0.01  # held: the short is all that moves
+    tun.shorted = True
+    trace = run(controller, tun, 1800.0)
+    rising = [(pv, u) for (_, a, _), (_, pv, u) in itertools.pairwise(trace) if pv > a]
+    out_above = [u for pv, u in rising if pv >= SP + 1.0]
+    assert out_above and max(out_above) == 0.0
+    # The SSR heals: the water, degrees over, falls back at its losses' rate, and gets no
+    # heat until it is back in the band (a duty sent on the way down would only slow that).
+    tun.shorted = False
+    after = run(controller, tun, 3 * 3600.0)
+    back = next(k for k, (_, pv, _) in enumerate(after) if pv <= SP + 0.5)
+    assert back > 0 and max(u for _, _, u in after[:back]) == 0.0
+
+
 def test_a_heat_up_measures_the_dead_time_and_rate_and_uses_them() -> None:
     # The sensor is twice as far as the model says: measured on the heat-up's ramp.
     tun = Tun(SEED.gain, SEED.tau, 240.0, ROOM)

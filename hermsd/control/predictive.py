@@ -31,6 +31,7 @@ from hermsd.control.pid import (
     PULSE_MARGIN,
     PULSE_RATE_MARGIN,
     RATE_BAND,
+    RUNAWAY_SHARE,
     STEADY_BAND,
     STEADY_DUTY_SHARE,
     STEADY_SPAN_S,
@@ -54,6 +55,7 @@ class _Predictive(_Base):
     """P on the PV the observer predicts one dead time ahead, plus the holding duty."""
 
     __slots__ = (
+        "_above",
         "_ambient",
         "_arm_rate",
         "_arrival",
@@ -138,7 +140,7 @@ class _Predictive(_Base):
         self._step_is_loops = False
         # Whether the readings of the period the next step closes showed cold water
         # (`cold_water_seen`), and whether the last step carried full power on for it.
-        self._cold_water = self._carried = False
+        self._cold_water = self._carried = self._above = False
         self._fit: HeatUpFit | None = None
         # s the innovation has lain beyond the bias's clip on one side (signed by it).
         self._trailing = 0.0
@@ -304,7 +306,7 @@ class _Predictive(_Base):
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
         self._watch.active = self._recovery.active = self._recovering = False
         self._pulse = None
-        self._carried = False
+        self._carried = self._above = False
         self._trailing = 0.0
         self._poured = None
         self._estimate = self._fpv = pv0
@@ -370,6 +372,17 @@ class _Predictive(_Base):
 
         i = self._holding(sp)
         d = -self._kd * (fpv - fpv1)
+        # Out of the band above and running away (RUNAWAY_SHARE): no heat until back in it.
+        # Heat nothing asked for (a shorted SSR) runs the PV away from the model, the
+        # prediction trailing it by degrees until the bias has learned it, and the gentle gain
+        # above the setpoint would cut the hold's duty only degrees over (100/(rate·2θ) %/°C):
+        # any heat then lands on a rise, and the supervisor tells heat nobody asked for only
+        # once the duty asked has stopped (docs/heat-balance.md, "A shorted SSR").
+        recent = self._recent
+        runaway = RUNAWAY_SHARE * self._rate * (len(recent) - 1) * self._ts
+        self._above = pv > sp + FAR_BAND and (self._above or pv - recent[0] > runaway)
+        if self._above:
+            p = min(p, self._lo - i - d)
         # Cold water behind a slow sensor: full power goes on while the PV falls by more than
         # a period of it adds (acting on the fall cannot lift the water above where it was),
         # by the gain that puts back in one period what this one fell (more than 100 %).
