@@ -353,7 +353,11 @@ class _Predictive(_Base):
             self._trailing = 0.0
         if abs(innovation) <= clip:
             self._learn_share(past, innovation)
-        if self._lo < previous < self._hi:
+        # At a limit the duty says nothing of the holding duty, but for a water held at 0 % out
+        # of the band above (`_above`): there the model errs only by the losses it knows (and
+        # a heat nothing asked for), which the bias is, and learned there, a holding duty
+        # above the losses of a tun that loses little does not start the rise again.
+        if self._lo < previous < self._hi or self._above:
             if abs(innovation) <= clip:
                 self._bias += self._l2 * innovation
             elif abs(self._trailing) >= TRAILING_S:
