@@ -64,7 +64,7 @@ from hermsd.sim.world import SENSOR_KEYS, World, build_world
 
 SENSOR_FAULTS = tuple(dict.fromkeys(name for names in FAULTS.values() for name in names))
 """Every kind's faults (sim/sensors.py); a run refuses those its sensor's kind has not."""
-FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2", "recirculation", "mash_sensor")
+FAULT_KINDS = ("sensor", "heater", "ssr", "heater2", "relay2", "recirculation")
 MASH_EVENTS = ("dough_in", "pump", "recirculation")
 """Events for a HERMS plant's mash side (`hermsd.sim.mash.HermsPlant`)."""
 EVENT_KINDS = (
