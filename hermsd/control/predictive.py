@@ -381,12 +381,15 @@ class _Predictive(_Base):
         # prediction trailing it by degrees until the bias has learned it, and the gentle gain
         # above the setpoint would cut the hold's duty only degrees over (100/(rate·2θ) %/°C):
         # any heat then lands on a rise, and the supervisor tells heat nobody asked for only
-        # once the duty asked has stopped (docs/heat-balance.md, "A shorted SSR").
+        # once the duty asked has stopped (docs/heat-balance.md, "A shorted SSR"). Not under
+        # a told load (a HERMS coil's draw, or one prepared): its heat is sent for the draw
+        # that brings the water down, a dead time ahead of it.
         recent = self._recent
         runaway = RUNAWAY_SHARE * self._rate * (len(recent) - 1) * self._ts
-        self._above = pv > sp + FAR_BAND and (self._above or pv - recent[0] > runaway)
-        if self._above:
-            p = min(p, self._lo - i - d)
+        away = self._above or pv - recent[0] > runaway
+        self._above = not self._load and pv > sp + FAR_BAND and away
+        if self._above:  # no heat: 0 %, or the least the limits allow
+            p = min(p, max(self._lo, 0.0) - i - d)
         # Cold water behind a slow sensor: full power goes on while the PV falls by more than
         # a period of it adds (acting on the fall cannot lift the water above where it was),
         # by the gain that puts back in one period what this one fell (more than 100 %).
