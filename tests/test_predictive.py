@@ -224,6 +224,23 @@ def test_water_out_of_the_band_above_and_rising_gets_no_heat_until_back_in_it() 
     assert back > 0 and max(u for _, _, u in after[:back]) == 0.0
 
 
+def test_held_at_no_heat_above_the_band_the_bias_learns_the_losses() -> None:
+    # A tun that loses little (its true holding duty (66 − 20)/4.6 = 10 %) on a model that
+    # holds at 30 % with the true rate: the water runs away over the band and gets no heat
+    # until back in it. Held there, the model errs only by its losses, which the bias learns:
+    # back in the band the duty is the tun's. Frozen, it came back at 30 % and the water ran
+    # away again, the duty cycling 0–98 % at the band's edge.
+    gain, tau, dead_time = 4.6, 20000.0, 200.0
+    tun = Tun(gain, tau, dead_time, SP)
+    model_gain = 46.0 / 30.0  # the same rate, K/τ: three times the losses
+    controller = predictive(pid.PlantModel(model_gain, tau * model_gain / gain, dead_time, ROOM))
+    controller.reset(SP, 30.0)
+    trace = run(controller, tun, 2700.0)
+    assert max(pv for _, pv, _ in trace) > SP + 0.5  # it ran away
+    settled = [u for t, _, u in trace if t >= 2100.0]
+    assert all(abs(u - 10.0) <= 2.0 for u in settled)
+
+
 def test_a_heat_up_measures_the_dead_time_and_rate_and_uses_them() -> None:
     # The sensor is twice as far as the model says: measured on the heat-up's ramp.
     tun = Tun(SEED.gain, SEED.tau, 240.0, ROOM)
