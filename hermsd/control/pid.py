@@ -174,11 +174,11 @@ FAR_BAND = 0.5
 RUNAWAY_SHARE = 0.15
 """Of the model's full-power rate: a PV out of the band above that rose faster than this over
 the last minute runs away (predictive then sends no heat until it is back in the band). A
-short SSR at a hold's duty d adds (1 − d) of it, above this up to d = 85 %; a holding duty the
-bias has not yet learned, on a tun that loses little, creeps at a few % of it (bench/population.py
-tun 183: 5 % of full power asked for 1 % of losses, the PV 0.05 °C/min over the band, 1.5 % of
-its rate), and that creep is the bias's to learn, which it cannot at 0 % (docs/heat-balance.md,
-"A shorted SSR")."""
+shorted SSR at a hold's duty d adds (1 − d) of it, above this up to d = 85 %. A holding duty
+the bias has not yet learned, on a tun that loses little, creeps at a few % of it
+(bench/population.py tun 183: 5 % of full power asked for 1 % of losses, the PV 0.05 °C/min
+over the band, 1.5 % of its rate): the bias's to learn with the duty on, not a cut's
+(docs/heat-balance.md, "A shorted SSR")."""
 FULL_MARGIN = 0.15
 """°C (5 noise sd): a PV this far below the band is surely out of it. Full power may run on
 into the gentle zone only while the PV is there; the step down from it must not fall in the
