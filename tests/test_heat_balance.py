@@ -25,6 +25,7 @@ def bounds(
     dead_time: float = 0.0,
     hold_duty: float | None = HOLD_DUTY,
     per_duty: float = PER_DUTY,
+    any_fall_duty: float | None = None,
 ) -> Bounds:
     return Bounds(
         dead_time,
@@ -36,6 +37,7 @@ def bounds(
         stall_drop=STALL_DROP,
         loss_per_k=LOSS_PER_K,
         hold_duty=hold_duty,
+        any_fall_duty=any_fall_duty,
     )
 
 
@@ -49,6 +51,7 @@ def first_verdict(
     poured_at: float | None = None,
     hold_duty: float | None = HOLD_DUTY,
     per_duty: float = PER_DUTY,
+    any_fall_duty: float | None = None,
 ) -> float | None:
     """When the balance first reports, fed every period from 0 s: the duty (%) switched at
     each time, and the PV's slope (°C/s) over each period."""
@@ -56,7 +59,8 @@ def first_verdict(
     while t <= until:
         if poured_at is not None and t == poured_at:
             balance.poured(t)
-        verdict = balance.period(t, pv, duty(t), bounds(loss_duty, dead_time, hold_duty, per_duty))
+        judged = bounds(loss_duty, dead_time, hold_duty, per_duty, any_fall_duty)
+        verdict = balance.period(t, pv, duty(t), judged)
         if verdict is not None:
             return t
         t += PERIOD
@@ -74,6 +78,22 @@ def test_the_level_judges_a_fall_with_more_duty_than_the_largest_losses_need() -
     assert first_verdict(lambda t: 50.0, lambda t: 1e-5, 20.0) is None
     # At 15 %, under the 20 % that beats the largest losses, a fall is no verdict.
     assert first_verdict(lambda t: 15.0, lambda t: -5e-3, 20.0) is None
+
+
+def test_at_a_duty_beyond_what_the_day_allows_any_fall_out_of_the_noise_is_judged() -> None:
+    # A slow fall, 5e-4 °C/s: beyond the margin (3.33e-4 °C/s), short of the output watch's
+    # steady fall (8.33e-4 °C/s). At 100 %, over the 90 % that beats three times the day's
+    # hold's losses and a lid off, a working element cannot let the water fall at all:
+    # reported as the steep fall is, from 2 windows in and after 60 s, at 660 s.
+    def slow(t: float) -> float:
+        return -5e-4
+
+    assert first_verdict(lambda t: 100.0, slow, 60.0, any_fall_duty=90.0) == 660.0
+    # Under that duty (losses tripled since the hold may outweigh 50 %), or with no hold
+    # measured (no bound), the slow fall is no verdict; under the margin, none either.
+    assert first_verdict(lambda t: 50.0, slow, 20.0, any_fall_duty=90.0) is None
+    assert first_verdict(lambda t: 100.0, slow, 60.0) is None
+    assert first_verdict(lambda t: 100.0, lambda t: -3e-4, 60.0, any_fall_duty=90.0) is None
 
 
 def test_a_fall_that_decays_is_water_poured_not_a_dead_element() -> None:

@@ -285,6 +285,24 @@ def test_a_dead_element_is_told_by_the_heat_balance_whatever_the_law_does(
     assert words in alarms[0]["message"]
 
 
+def test_a_dead_element_at_full_power_is_told_however_slowly_the_water_falls() -> None:
+    # 169 L under 2.8 kW, lidded and losing little (UA ×0.47) in a 32 °C room (population
+    # tun 125): the day's hold measured 16 % of full power. The element dies at 12700 s; the
+    # law is at 100 % within 30 min and the water falls 0.03–0.04 °C/min, under the output
+    # watch's steady fall (0.05 °C/min): never told before, the day's last 2.5 hours at full
+    # power on a dead element. Three times the hold's losses and an open surface's
+    # evaporation are well under 100 %: any fall out of the noise there is a dead element's.
+    # The water comes at 4 h (1700 s after the death); after it the balance waits two
+    # windows, the dead time and a settling (some 1100 s).
+    spec = TunSpec("lidded, warm room", 93.0, 2800.0, 0.47, 85.0, 24.0, 32.0)
+    water = dataclasses.replace(spec, litres=spec.litres * 1.82)
+    assert day(spec, tf.normal_day(water)) == []
+    alarms = day(spec, tf.element_dies(water, at=12700.0))
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    assert alarms[0]["detected_after_s"] <= 1700.0 + 1500.0
+    assert "on average" in alarms[0]["message"]
+
+
 def test_a_dead_element_in_a_heat_up_is_told_from_the_ramp_that_stopped() -> None:
     # 102 L under 3 kW, lidded and losing little (UA ×0.42) in an 8 °C room: the element
     # dies 3400 s into the heat-up, the water near 30 °C cooling some 0.03 °C/min, too

@@ -7,7 +7,9 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
 
 - the level: over `WINDOW_S`, with the duty's mean (taken the dead time earlier) at or
   above h, the duty that beats the largest losses the limits allow, a working element does
-  not let the PV fall (by the output watch's steady fall, 0.25 °C in 300 s, or more), and a
+  not let the PV fall (by the output watch's steady fall, 0.25 °C in 300 s, or more; by any
+  fall out of the noise where the duty beats `LOSS_GROWTH` times the day's hold's losses
+  and an open surface's evaporation), and a
   dead one lets it fall at its losses, as steeply as in the window before (water poured
   in shows through the sensor's lag as a fall that decays: that is no verdict). The
   output's own watch judges the same from a duty that stays at h; this one from its mean,
@@ -69,6 +71,11 @@ CONFIRM_S = 60.0
 """s a finding must last."""
 FULL_SLACK = 1.0
 """% of duty under the output's limit still counted at it (the planner's rounding)."""
+LOSS_GROWTH = 3.0
+"""Times the day's hold's losses may grow on a normal day (a colder room, a draught: the
+largest step of bench/loss_steps.py) for the level to ask of a fall only that it stand out
+of the noise, at a duty that beats that and an open surface's evaporation
+(`Bounds.any_fall_duty`; docs/heat-balance.md, "The level")."""
 SETTLE_S = 300.0
 """s after water poured in (and the dead time) before a window may start: the sensor's lag
 still bends its fall."""
@@ -93,6 +100,7 @@ class Bounds:
     stall_drop: float  # °C/s: the most a ramp at that limit slows with the element working
     loss_per_k: float  # °C/s per °C: the most the losses grow as the water rises
     hold_duty: float | None  # %: the day's hold's mean duty (None: not measured yet)
+    any_fall_duty: float | None  # %: from it any fall is judged (LOSS_GROWTH; None: no hold)
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,8 +166,8 @@ class HeatBalance:
         # poured in); the climb's windows each with alike halves: no step of the losses
         # within either (a lid taken off, which the output then climbs to answer, makes the
         # slope fall within a window, and across their boundary).
-        falls = -max(margin, bounds.least_fall) > later.rate >= -bounds.fastest_loss - margin
-        falls = falls and gain <= steady
+        falls = -margin > later.rate >= -bounds.fastest_loss - margin and gain <= steady
+        steep = later.rate < -bounds.least_fall
         both_steady = all(_steady(w, floor) for w in (later, earlier))
         held = bounds.hold_duty
         if held is None:  # the hold not measured: the least duty kept, from before a climb
@@ -172,7 +180,8 @@ class HeatBalance:
             if duty is None or duty_before is None:
                 return None
             climb = duty - duty_before
-            level = falls and duty >= bounds.loss_duty
+            any_fall = bounds.any_fall_duty is not None and duty >= bounds.any_fall_duty
+            level = falls and duty >= bounds.loss_duty and (steep or any_fall)
             heat = CLIMB_SHARE * per_duty * climb  # °C/s of it a working element shows
             climbed = (
                 both_steady

@@ -24,7 +24,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from hermsd.safety.coil_load import NO_LOAD, CoilLoad
-from hermsd.safety.heat_balance import CONFIRM_S, Bounds, HeatBalance
+from hermsd.safety.heat_balance import CONFIRM_S, LOSS_GROWTH, Bounds, HeatBalance
 from hermsd.safety.limits import (
     COLDEST_ROOM,
     DRY_FIRE_WINDOWS,
@@ -528,6 +528,7 @@ class Supervisor:
             per_duty=lim.heater_rise_rate / lim.full_output,
             loss_duty=self._heating_output(pv),
             least_fall=lim.heater_max_fall / lim.heater_watch,
+            any_fall_duty=self._held_losses(pv, LOSS_GROWTH),
             fastest_loss=lim.loss_rate(pv),
             full_duty=lim.max_output,
             # The fastest heat sagging with the mains to −10 %, and an open pot's evaporation
@@ -582,31 +583,37 @@ class Supervisor:
     def _heating_output(self, pv: float) -> float:
         """% of output at or above which a working element cannot let the water at `pv`
         fall: the limits' (`SafetyLimits.heating_output`), or less once the day's hold has
-        measured its losses (`_measure_hold`): that duty ×1.5 (×1.5 the losses: a lid taken
-        off), grown with the water's rise above the room over the hold's, and an open
+        measured its losses (`_held_losses` with ×1.5 of them: a lid taken off)."""
+        most = self.limits.heating_output(pv)
+        held = self._held_losses(pv, MODEL_MARGIN)
+        return most if held is None else min(most, held)
+
+    def _held_losses(self, pv: float, growth: float) -> float | None:
+        """% of output that beats the day's hold's losses (`_measure_hold`) grown `growth`
+        times, grown with the water's rise above the room over the hold's, and an open
         surface's evaporation on top, at −10 % mains; never below 20 % (a slow fall is lost
-        in the noise). One element, no coil drawing. The room is not known: (T − room) over
-        (hold − room) is largest, for water below the hold, in the coldest room and, above
-        it, in the warmest; a hold no warmer than the warmest room (a scheduled heat-up's
-        water standing cold, the heater off) bounds nothing above it."""
+        in the noise). None with no hold measured, two elements or a coil that may draw.
+        The room is not known: (T − room) over (hold − room) is largest, for water below
+        the hold, in the coldest room and, above it, in the warmest; a hold no warmer than
+        the warmest room (a scheduled heat-up's water standing cold, the heater off) bounds
+        nothing above it."""
         lim = self.limits
-        most = lim.heating_output(pv)
         if self._hold is None or lim.two_elements or self._coil_may_draw():
             # Two elements: below 80 % the SSR's may be carrying all that is asked; when it
             # dies the contactor's takes over as the output climbs, where a latch would stop
             # both (the element watch warns of it: safety/element_watch.py). A HERMS coil
             # that may draw: the coil's bound leaves the mash tun's losses to the 80 %
             # (docs/herms.md, "The mash's balance").
-            return most
+            return None
         duty, held_at = self._hold
         if pv <= held_at:
             grows = max(pv - COLDEST_ROOM, 0.0) / max(held_at - COLDEST_ROOM, 1.0)
         elif held_at > WARMEST_ROOM:
             grows = (pv - WARMEST_ROOM) / (held_at - WARMEST_ROOM)
         else:
-            return most
-        losses = MODEL_MARGIN * duty * grows + lim.evaporation_share(pv)
-        return min(most, max(20.0, losses / MAINS_LOW))
+            return None
+        losses = growth * duty * grows + lim.evaporation_share(pv)
+        return max(20.0, losses / MAINS_LOW)
 
     def _coil_may_draw(self, within: float | None = None) -> bool:
         """Whether a HERMS coil may have taken heat within the coil's bookkeeping (the
