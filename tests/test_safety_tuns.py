@@ -105,7 +105,7 @@ def test_a_measured_tun_tightens_the_limits() -> None:
     assert dict(lim.origins)["dead_time"] == "measured"
 
 
-def test_the_days_heat_up_tightens_what_it_measured_and_leaves_the_losses() -> None:
+def test_the_days_heat_up_tightens_what_it_measured_and_the_water_the_losses_cool() -> None:
     # The seed tun's heat-up: 3 kW into 90 L heats 7.964e-3 °C/s; a dead time of 100 s.
     rate = 3000.0 / (90 * 4186.0)
     unmeasured = derive()
@@ -114,9 +114,22 @@ def test_the_days_heat_up_tightens_what_it_measured_and_leaves_the_losses() -> N
     assert lim.heater_rise_rate == pytest.approx(0.8 * 0.81 * rate / 1.5, rel=1e-9)
     assert lim.rise_per_joule == pytest.approx(1.5 * rate / 3000.0, rel=1e-9)
     assert (lim.dead_time, lim.heat_memory) == (150.0, 210.0)
-    # A heat-up measures no losses: those, the output judged from and the dry fire stay.
+    # A heat-up measures no losses: their bounds in W, the output judged from and the dry
+    # fire stay. It measures the water they cool: at least 3000/(1.5·rate) J/K, 60 L where
+    # the config allows 45 L, so the pot's conduction (UA ∝ water^⅔) cools it (45/60)^⅓ as
+    # fast, and its evaporation 45/60 as fast; the evaporation's share of the power is the
+    # pot's, whatever the water.
     for key in ("loss_per_k", "loss_room", "evaporation_rate", "dry_fire_rate", "full_rate"):
         assert getattr(lim, key) == getattr(unmeasured, key)
+    assert lim.water_ratio == pytest.approx(60.0 / 45.0, rel=1e-9)
+    conduction = unmeasured.loss_per_k * (66.0 - 5.0)
+    evaporation = unmeasured.evaporation(66.0)
+    assert evaporation == pytest.approx(1000.0 / (45 * 4186.0), rel=1e-9)
+    assert lim.loss_rate(66.0) == pytest.approx(
+        conduction * (45.0 / 60.0) ** (1.0 / 3.0) + evaporation * 45.0 / 60.0, rel=1e-9
+    )
+    assert lim.evaporation_share(66.0) == unmeasured.evaporation_share(66.0)
+    assert lim.evaporation_share(66.0) == pytest.approx(100.0 / 3.0, rel=1e-9)  # 1 of 3 kW
     assert lim.heating_output(66.0) == 80.0
     assert dict(lim.origins)["heat_rate"] == "measured in the day's heat-up"
     # A measured model's limits stand; a configured dead time stays the brewer's.
@@ -301,6 +314,22 @@ def test_a_dead_element_at_full_power_is_told_however_slowly_the_water_falls() -
     assert [a["kind"] for a in alarms] == ["heater_not_heating"]
     assert alarms[0]["detected_after_s"] <= 1700.0 + 1500.0
     assert "on average" in alarms[0]["message"]
+
+
+@pytest.mark.parametrize("at", [5000.0, 7000.0])
+def test_a_heat_up_stopped_is_judged_on_the_water_the_heat_up_measured(at: float) -> None:
+    # 169 L under 2.8 kW (the tun above): a ramp of 0.22 °C/min. The stall allows the ramp to
+    # slow by what a lid taken off evaporates; from 93 L's mouth (1 kW at 66 °C) into half
+    # the configured 93 L that is 0.29 °C/min at 64 °C, more than the whole ramp, so its
+    # element dying in the heat-up went untold for the rest of the day. The heat-up's rate
+    # says there are at least 2800/(1.5·rate) J/K of water, 113 L: the same kilowatt is
+    # 0.12 °C/min there, and the ramp that stops is told within 10 minutes.
+    spec = TunSpec("lidded, warm room", 93.0, 2800.0, 0.47, 85.0, 24.0, 32.0)
+    water = dataclasses.replace(spec, litres=spec.litres * 1.82)
+    alarms = day(spec, tf.element_dies(water, at=at))
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    assert alarms[0]["detected_after_s"] <= 600.0
+    assert "output at its limit" in alarms[0]["message"]
 
 
 def test_a_dead_element_in_a_heat_up_is_told_from_the_ramp_that_stopped() -> None:

@@ -196,6 +196,7 @@ class SafetyLimits:
     loss_per_k: float = 1.188e-4
     loss_room: float = COLDEST_ROOM
     evaporation_rate: float = 0.00531
+    water_ratio: float = 1.0  # the least water the losses cool, over half the configured
     ssr_watch: float = 300.0
     ssr_max_rise: float = 0.5
     creep_watches: tuple[float, ...] = CREEP_WATCHES
@@ -218,19 +219,22 @@ class SafetyLimits:
         Conduction and convection to the coldest room, plus evaporation from an open surface,
         which grows with the vapour pressure (steeply: ×0.09 at 20 °C, ×2.9 at 90 °C).
         """
-        conduction = self.loss_per_k * max(0.0, celsius - self.loss_room)
-        return conduction + self.evaporation(celsius)
+        # The pot's wetted area grows as the water's ⅔ power, its heat capacity as the water.
+        per_k = self.loss_per_k / math.pow(self.water_ratio, 1.0 / 3.0)
+        return per_k * max(0.0, celsius - self.loss_room) + self.evaporation(celsius)
 
     def evaporation(self, celsius: float) -> float:
-        """°C/s an open surface may evaporate away from the least water at `celsius`: all of
-        it starts when a lid is taken off."""
-        return self.evaporation_rate * vapour_pressure_ratio(celsius)
+        """°C/s an open surface may evaporate away from the least water at `celsius` (the
+        least the day's heat-up allows, once measured: `water_ratio`): all of it starts when
+        a lid is taken off."""
+        return self.evaporation_rate * vapour_pressure_ratio(celsius) / self.water_ratio
 
     def evaporation_share(self, celsius: float) -> float:
         """% of the element's full power an open surface may evaporate away at `celsius`
-        (the pot's, at its configured size): `evaporation` over what full power gives the
-        configured water."""
-        return 100.0 * self.evaporation(celsius) / (FILL_RANGE * self.full_rate)
+        (the pot's, at its configured size): its heat over what full power gives, whatever
+        the water."""
+        share = self.evaporation_rate * vapour_pressure_ratio(celsius)
+        return 100.0 * share / (FILL_RANGE * self.full_rate)
 
     @property
     def full_output(self) -> float:
@@ -277,16 +281,20 @@ class SafetyLimits:
         """The limits tightened by what the day's own heat-up measured: the full-power `rate`
         (°C/s at 100 %) and the `dead_time` (s), as a measured model tightens them in
         `derive` (the fastest and the weakest rise, a joule's rise, the dead time and the
-        heat's memory). The losses stay as they were: a heat-up does not measure them. Limits
-        already from a measured model, and configured values, are kept."""
+        heat's memory). A heat-up does not measure the losses: their bounds in W stay the
+        pot's, but the water they cool is the least the rate allows, no longer half the
+        configured (`water_ratio`: a joule's rise, ×1.5, over the config's). Limits already
+        from a measured model, and configured values, are kept."""
         origins = dict(self.origins)
         if origins.get("heat_rate") == "measured":
             return self
         timed = _Measured.of(rate, dead_time, self.max_output / 100.0, element_watts)
+        per_joule = min(self.rise_per_joule, timed.rise_per_joule)
         changes: dict[str, Any] = {
             "heater_rise_rate": timed.weakest_rise,
             "heat_rate": min(self.heat_rate, timed.fastest_rise),
-            "rise_per_joule": min(self.rise_per_joule, timed.rise_per_joule),
+            "rise_per_joule": per_joule,
+            "water_ratio": self.water_ratio * self.rise_per_joule / per_joule,
             "heat_memory": timed.heat_memory,
         }
         if origins.get("dead_time") != "configured":
@@ -294,6 +302,7 @@ class SafetyLimits:
             origins["dead_time"] = HEAT_UP_ORIGIN
         for key in ("heater_rise_rate", "heat_memory", "heat_rate", "rise_per_joule"):
             origins[key] = HEAT_UP_ORIGIN
+        origins["loss_rate"] = "the pot's, on the water the day's heat-up measured"
         if origins.get("heater_min_rise") != "configured":
             origins["heater_min_rise"] = HEAT_UP_ORIGIN
         return dataclasses.replace(self, **changes, origins=tuple(sorted(origins.items())))
