@@ -211,8 +211,9 @@ def test_a_ramp_at_full_output_that_stops_is_a_dead_element() -> None:
     # time: the water then cools at 1e-4 °C/s, too slowly for the level. From 1500 s the
     # later window is all after the death (its halves alike: before, the kink unsettles
     # them), and until 1650 s the earlier, the dead time before it, all before: a drop of
-    # 5.1e-3 °C/s against 1e-3 + 1e-5 × the 3.75 °C the PV rose over the 900 s reach
-    # (1.04e-3), plus the margin of 3.33e-4. Told once it has lasted 60 s: by 1560 s, and
+    # 5.1e-3 °C/s against 1e-3 + 1e-5 × the PV's rise between the windows' means (under
+    # the 2.25 °C of 450 s at 5e-3 °C/s), plus the margin of 3.33e-4. Told once it has
+    # lasted 60 s: by 1560 s, and
     # not before three quarters of the later window lie past the death (a kink in its first
     # half widens the halves' margin by its own residuals).
     def ramp(t: float) -> float:

@@ -213,8 +213,9 @@ class HeatBalance:
             return None
         if not (_steady(later, floor) and _steady(earlier, floor)):
             return None  # warm water poured in steps a window's PV: not a ramp to judge
-        pvs = [p for _, p, _ in samples]
-        allowed = bounds.stall_drop + bounds.loss_per_k * (max(pvs) - min(pvs))
+        # The losses over each window are those at its mean PV: they grew by the rise between.
+        rise = self._mean_pv(t) - self._mean_pv(t - WINDOW_S - bounds.dead_time)
+        allowed = bounds.stall_drop + bounds.loss_per_k * max(rise, 0.0)
         steady = _gap_margin(later, earlier, floor)
         drop = earlier.rate - later.rate
         # Half the ramp gone, too: a weak tun's ramp bends towards its ceiling, never stops.
@@ -246,6 +247,11 @@ class HeatBalance:
         if whole is None or first is None or second is None:
             return None
         return _Window(whole.rate, whole.error, first, second)
+
+    def _mean_pv(self, end: float) -> float:
+        """The PV's mean over the `WINDOW_S` to `end` (a window `_window` has fitted)."""
+        pvs = [p for s, p, _ in self._samples if end - WINDOW_S < s <= end]
+        return sum(pvs) / len(pvs)
 
     def _mean_duty(self, start: float, end: float) -> float | None:
         duties = [a for s, _, a in self._samples if start < s <= end]
