@@ -9,11 +9,10 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   above h, the duty that beats the largest losses the limits allow, a working element does
   not let the PV fall (by the output watch's steady fall, 0.25 °C in 300 s, or more; by any
   fall out of the noise where the duty beats `LOSS_GROWTH` times the day's hold's losses
-  and an open surface's evaporation), and a
-  dead one lets it fall at its losses, as steeply as in the window before (water poured
-  in shows through the sensor's lag as a fall that decays: that is no verdict). The
-  output's own watch judges the same from a duty that stays at h; this one from its mean,
-  whatever the law did with it;
+  and an open surface's evaporation), and a dead one lets it fall at its losses, as
+  steeply as in the window before (water poured in shows through the sensor's lag as a
+  fall that decays: that is no verdict). The output's own watch judges the same from a
+  duty that stays at h; this one from its mean, whatever the law did with it;
 - the climb: where the mean duty rose from one window to the next by `CLIMB` %, or less
   where the weakest heating of that climb shows as `SIGNAL_SHARE` times the margin two slopes
   must differ by (a strong element on little water: a few %), and by at least `RAMP_SHARE`
