@@ -284,9 +284,10 @@ class SafetyLimits:
         heat's memory). A heat-up does not measure the losses: their bounds in W stay the
         pot's, but the water they cool is the least the rate allows, no longer half the
         configured (`water_ratio`: a joule's rise, ×1.5, over the config's). Limits already
-        from a measured model, and configured values, are kept."""
+        from a measured model, and configured values, are kept; a rate that is no rise
+        measures nothing."""
         origins = dict(self.origins)
-        if origins.get("heat_rate") == "measured":
+        if origins.get("heat_rate") == "measured" or not rate > 0.0:
             return self
         timed = _Measured.of(rate, dead_time, self.max_output / 100.0, element_watts)
         per_joule = min(self.rise_per_joule, timed.rise_per_joule)
