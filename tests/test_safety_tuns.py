@@ -132,8 +132,10 @@ def test_the_days_heat_up_tightens_what_it_measured_and_the_water_the_losses_coo
     assert lim.evaporation_share(66.0) == pytest.approx(100.0 / 3.0, rel=1e-9)  # 1 of 3 kW
     assert lim.heating_output(66.0) == 80.0
     assert dict(lim.origins)["heat_rate"] == "measured in the day's heat-up"
-    # A measured model's limits stand; a configured dead time stays the brewer's.
+    # A measured model's limits stand; a configured dead time stays the brewer's; a rate
+    # that is no rise (no fit would pass it) tightens nothing.
     assert derive(SEED).with_heat_up(rate, 100.0, 3000.0) == derive(SEED)
+    assert unmeasured.with_heat_up(0.0, 100.0, 3000.0) == unmeasured
     given = SafetyLimits.derive(
         litres=90.0, element_watts=3000.0, period=5.0, read_interval=1.0, dead_time=240.0
     )
@@ -298,22 +300,32 @@ def test_a_dead_element_is_told_by_the_heat_balance_whatever_the_law_does(
     assert words in alarms[0]["message"]
 
 
+WARM_LIDDED = TunSpec("lidded, warm room", 93.0, 2800.0, 0.47, 85.0, 24.0, 32.0)
+"""93 L configured under 2.8 kW, lidded and losing little (UA ×0.47) in a 32 °C room:
+population tun 125, whose day filled it 1.82× (169 L)."""
+
+
+def told_dead(spec: TunSpec, fill: float, at: float, within_s: float, words: str) -> None:
+    """The element of `spec`, filled `fill` times, dies at `at` s: told as heater_not_heating
+    within `within_s`, in a message with `words`."""
+    water = dataclasses.replace(spec, litres=spec.litres * fill)
+    alarms = day(spec, tf.element_dies(water, at=at))
+    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
+    assert alarms[0]["detected_after_s"] <= within_s
+    assert words in alarms[0]["message"]
+
+
 def test_a_dead_element_at_full_power_is_told_however_slowly_the_water_falls() -> None:
-    # 169 L under 2.8 kW, lidded and losing little (UA ×0.47) in a 32 °C room (population
-    # tun 125): the day's hold measured 16 % of full power. The element dies at 12700 s; the
+    # WARM_LIDDED: the day's hold measured 16 % of full power. The element dies at 12700 s; the
     # law is at 100 % within 30 min and the water falls 0.03–0.04 °C/min, under the output
     # watch's steady fall (0.05 °C/min): never told before, the day's last 2.5 hours at full
     # power on a dead element. Three times the hold's losses and an open surface's
     # evaporation are well under 100 %: any fall out of the noise there is a dead element's.
     # The water comes at 4 h (1700 s after the death); after it the balance waits two
     # windows, the dead time and a settling (some 1100 s).
-    spec = TunSpec("lidded, warm room", 93.0, 2800.0, 0.47, 85.0, 24.0, 32.0)
-    water = dataclasses.replace(spec, litres=spec.litres * 1.82)
-    assert day(spec, tf.normal_day(water)) == []
-    alarms = day(spec, tf.element_dies(water, at=12700.0))
-    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
-    assert alarms[0]["detected_after_s"] <= 1700.0 + 1500.0
-    assert "on average" in alarms[0]["message"]
+    water = dataclasses.replace(WARM_LIDDED, litres=WARM_LIDDED.litres * 1.82)
+    assert day(WARM_LIDDED, tf.normal_day(water)) == []
+    told_dead(WARM_LIDDED, 1.82, 12700.0, 1700.0 + 1500.0, "on average")
 
 
 @pytest.mark.parametrize(("fill", "at"), [(1.82, 5000.0), (1.82, 7000.0), (1.5, 7000.0)])
@@ -328,12 +340,7 @@ def test_a_heat_up_stopped_is_judged_on_the_water_the_heat_up_measured(
     # 0.12 °C/min there, and the ramp that stops is told within 10 minutes. With 139 L
     # (a ramp of 0.26 °C/min) the losses' growth with the rise, counted over the whole
     # reach rather than between the windows' means, still hid it.
-    spec = TunSpec("lidded, warm room", 93.0, 2800.0, 0.47, 85.0, 24.0, 32.0)
-    water = dataclasses.replace(spec, litres=spec.litres * fill)
-    alarms = day(spec, tf.element_dies(water, at=at))
-    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
-    assert alarms[0]["detected_after_s"] <= 600.0
-    assert "output at its limit" in alarms[0]["message"]
+    told_dead(WARM_LIDDED, fill, at, 600.0, "output at its limit")
 
 
 def test_a_dead_element_in_a_heat_up_is_told_from_the_ramp_that_stopped() -> None:
@@ -344,10 +351,7 @@ def test_a_dead_element_in_a_heat_up_is_told_from_the_ramp_that_stopped() -> Non
     spec = TunSpec("lidded, cool room", 127.0, 3000.0, 0.42, 114.0, 34.0, 8.0)
     water = dataclasses.replace(spec, litres=spec.litres * 0.8)
     assert day(spec, tf.normal_day(water)) == []
-    alarms = day(spec, tf.element_dies(water, at=3400.0))
-    assert [a["kind"] for a in alarms] == ["heater_not_heating"]
-    assert alarms[0]["detected_after_s"] <= 600.0
-    assert "output at its limit" in alarms[0]["message"]
+    told_dead(spec, 0.8, 3400.0, 600.0, "output at its limit")
 
 
 def test_a_shorted_ssr_is_caught_on_the_slowest_tun_and_the_contactor_opens() -> None:
