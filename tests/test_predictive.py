@@ -224,6 +224,51 @@ def test_water_out_of_the_band_above_and_rising_gets_no_heat_until_back_in_it() 
     assert back > 0 and max(u for _, _, u in after[:back]) == 0.0
 
 
+class DeadTun(Tun):
+    """The FOPTD water whose element gives no heat once dead, whatever the duty."""
+
+    dead = False
+
+    def heat(self, duty: float) -> None:
+        super().heat(0.0 if self.dead else duty)
+
+
+def dead_element_climb(two_elements: bool) -> tuple[float, float]:
+    """(s from the death until the water reads LINEAR_BAND low, s from then to full power) on
+    a tun that loses little (its holding duty 8 %, full power 0.02 °C/s) behind 300 s of
+    dead time, held on its true model until its element dies."""
+    gain, dead_time = 46.0 / 8.0, 300.0
+    tau = 100.0 * gain / 0.02
+    tun = DeadTun(gain, tau, dead_time, SP)
+    controller = predictive(pid.PlantModel(gain, tau, dead_time, ROOM))
+    if two_elements:
+        control_predictive.on_two_elements(controller)
+    controller.reset(SP, tun.holding(SP))
+    before = run(controller, tun, 3600.0)
+    assert max(abs(pv - SP) for _, pv, _ in before) <= 0.01
+    tun.dead = True
+    trace = run(controller, tun, 3600.0)
+    low = next(t for t, pv, _ in trace if pv < SP - pid.LINEAR_BAND)
+    full = next(t for t, _, u in trace if u >= 100.0)
+    return low, full - low
+
+
+def test_an_element_that_dies_in_the_hold_has_full_power_asked_within_minutes() -> None:
+    # The water falls at its losses' rate, 46/τ = 0.096 °C/min, and reads LINEAR_BAND
+    # (0.25 °C) low 300 + 160 s after the death. The heat the model counts on never
+    # arrives, and the bias chases a missing heat that grows with the duty it adds: the duty
+    # climbs at u0/τ_b a second, from 8 % to 100 % in (100 − 8)/8·τ_b, 1150 s at the 100 s
+    # the bias learns at while heat is missing (the P term on the falling water hastens it).
+    low, climb = dead_element_climb(two_elements=False)
+    assert 400.0 <= low <= 520.0
+    assert climb <= (100.0 - 8.0) / 8.0 * pid.MISSING_HEAT_BIAS_S
+    # On two elements' total the missing heat may be one element's, which the other holds:
+    # the bias keeps ti's 800 s (the P term still climbs, in some 1900 s).
+    low_two, climb_two = dead_element_climb(two_elements=True)
+    assert low_two == low
+    assert climb_two > (100.0 - 8.0) / 8.0 * pid.MISSING_HEAT_BIAS_S
+
+
 def test_held_at_no_heat_above_the_band_the_bias_learns_the_losses() -> None:
     # A tun that loses little (its true holding duty (66 − 20)/4.6 = 10 %) on a model that
     # holds at 30 % with the true rate: the water runs away over the band and gets no heat

@@ -328,6 +328,30 @@ def test_a_dead_element_at_full_power_is_told_however_slowly_the_water_falls() -
     told_dead(WARM_LIDDED, 1.82, 12700.0, 1700.0 + 1500.0, "on average")
 
 
+@pytest.mark.parametrize(
+    ("spec", "fill", "at"),
+    [
+        # Population tuns (bench/population.py seeds 111, 56, 199) that lose little behind a
+        # long dead time: the hold's duty 8–34 %, the element dying in the hold. The law's
+        # duty climbed from it on ti's 800 s (`MISSING_HEAT_BIAS_S`) and the climb that
+        # tells a dead element came 1626, 1557 and 1291 s after the death.
+        (
+            TunSpec("little loss, slow sensor", 132.6, 5900.0, 0.735, 244.0, 109.0, 27.0),
+            0.52,
+            9929.0,
+        ),
+        (TunSpec("big, warm room", 184.9, 4020.0, 0.857, 162.0, 115.0, 34.6), 0.69, 6398.0),
+        (TunSpec("small element, long delay", 44.2, 2660.0, 0.625, 217.0, 2.0, 24.3), 0.70, 2264.0),
+    ],
+)
+def test_a_dead_element_in_the_hold_is_told_within_20_minutes_behind_a_long_dead_time(
+    spec: TunSpec, fill: float, at: float
+) -> None:
+    water = dataclasses.replace(spec, litres=spec.litres * fill)
+    assert day(spec, tf.normal_day(water)) == []
+    told_dead(spec, fill, at, 1200.0, "climbed")
+
+
 @pytest.mark.parametrize(("fill", "at"), [(1.82, 5000.0), (1.82, 7000.0), (1.5, 7000.0)])
 def test_a_heat_up_stopped_is_judged_on_the_water_the_heat_up_measured(
     fill: float, at: float

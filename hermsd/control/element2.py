@@ -327,6 +327,7 @@ class SplitController:
         self, inner: pid.Controller, split: PowerSplit, probe: ElementProbe | None = None
     ) -> None:
         self.inner = inner
+        predictive.on_two_elements(inner)
         self.split = split
         self.probe = probe
         # Whether the probe held the SSR's element off in the step before last, and the last.

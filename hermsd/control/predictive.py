@@ -24,6 +24,7 @@ from hermsd.control.pid import (
     LOAD_SHARE_S,
     MAX_DEAD_TIME,
     MAX_RECOVERY_HOLD,
+    MISSING_HEAT_BIAS_S,
     OBSERVER_BIAS_S,
     OBSERVER_TRACK_S,
     PREDICTED_LOOP_FACTOR,
@@ -69,13 +70,13 @@ class _Predictive(_Base):
         "_filtered",
         "_fit",
         "_fpv",
+        "_gains",
+        "_held_sp",
         "_inputs",
         "_kc",
         "_kc_far",
         "_kc_near",
         "_kd",
-        "_l1",
-        "_l2",
         "_l2_share",
         "_lag",
         "_lag_share",
@@ -88,6 +89,7 @@ class _Predictive(_Base):
         "_load_until",
         "_loss",
         "_measured",
+        "_missing_gains",
         "_poured",
         "_pulse",
         "_pulse_sp",
@@ -122,7 +124,12 @@ class _Predictive(_Base):
         self._use(model.rate, model.dead_time)
         # Observer poles: the PV estimate follows the sensor within OBSERVER_TRACK_S, the bias
         # (what the model gets wrong) within ti; see `observer_gains`.
-        self._l1, self._l2 = observer_gains(ts, OBSERVER_TRACK_S, params.ti or OBSERVER_BIAS_S)
+        bias_s = params.ti or OBSERVER_BIAS_S
+        self._gains = observer_gains(ts, OBSERVER_TRACK_S, bias_s)
+        self._missing_gains = observer_gains(ts, OBSERVER_TRACK_S, min(bias_s, MISSING_HEAT_BIAS_S))
+        # The setpoint the water last reached with nothing the law knows of since (NaN:
+        # none): a fall from it is heat missing (`_heat_missing`).
+        self._held_sp = math.nan
         # u_{k-1-lag} … u_{k-1} at the right end; room for any dead time a heat-up may show
         self._inputs: deque[float] = deque(maxlen=math.ceil(MAX_DEAD_TIME / ts) + 2)
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
@@ -309,6 +316,7 @@ class _Predictive(_Base):
         self._carried = self._above = False
         self._trailing = 0.0
         self._poured = None
+        self._held_sp = math.nan
         self._estimate = self._fpv = pv0
         # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
         # so a few steps land on the bias that gives u0 exactly when one exists.
@@ -342,8 +350,9 @@ class _Predictive(_Base):
         shown, self._arrival = self._lagged(self._arrival, self._arriving())
         before = self._estimate + self._drift(self._estimate, shown - past)
         innovation = pv - before
+        l1, l2 = self._missing_gains if self._heat_missing(sp, pv) else self._gains
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
-        step = innovation if abs(innovation) > STEP_INNOVATION else self._l1 * innovation
+        step = innovation if abs(innovation) > STEP_INNOVATION else l1 * innovation
         self._estimate = before + step
         clip = BIAS_INNOVATION_CLIP
         trailing = clip < abs(innovation) <= STEP_INNOVATION
@@ -359,12 +368,12 @@ class _Predictive(_Base):
         # above the losses of a tun that loses little does not start the rise again.
         if self._lo < previous < self._hi or self._above:
             if abs(innovation) <= clip:
-                self._bias += self._l2 * innovation
+                self._bias += l2 * innovation
             elif abs(self._trailing) >= TRAILING_S:
                 # A model that errs by more than the clip over the tracking gain (a prior's
                 # loss a quarter of the truth) keeps every innovation above it, the estimate
                 # trailing the PV: the bias learns from it clipped, or never would.
-                self._bias += self._l2 * math.copysign(clip, innovation)
+                self._bias += l2 * math.copysign(clip, innovation)
         # D acts on the measured PV, filtered by tf (first order).
         fpv1 = self._fpv
         fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
@@ -402,6 +411,19 @@ class _Predictive(_Base):
             p, d = self._lo + (self._hi - self._lo) * self._pulse.duty(self._ts) - i, 0.0
         self._terms = (p, i, d)
         return p + i + d
+
+    def _heat_missing(self, sp: float, pv: float) -> bool:
+        """Whether the water fell LINEAR_BAND below the setpoint it last reached and has not
+        risen over the last STEADY_SPAN_S, with nothing the law knows of since (cold water
+        and its recovery, a heat-up or its pulse, a told load): heat the model counts on
+        does not arrive, which the bias learns at MISSING_HEAT_BIAS_S. A heat-up's landing
+        and a recovery's rise are the model's, learned at ti."""
+        known = self._poured is not None or self._recovering or self._recovery.active
+        if known or self._carried or self._load or self._pulse is not None or self._watch.active:
+            self._held_sp = math.nan
+        elif pv >= sp:
+            self._held_sp = sp
+        return sp == self._held_sp and pv < sp - LINEAR_BAND and pv <= self._recent[0]
 
     def _follow_pour(self, pv: float, dropped: bool) -> None:
         """Cold water poured in (a drop the readings showed, or a step taken whole): the
@@ -595,6 +617,16 @@ class _Predictive(_Base):
             return
         self._loss *= rate / self._rate  # as for a fit: a faster rise is less water
         self._use(rate, dead_time)
+
+
+def on_two_elements(controller: Controller) -> None:
+    """Tell the predictive law `controller` is (if it is one) that it drives two elements'
+    total: heat it counts on that does not arrive may be one element's, which the element
+    watch judges while the other holds the water; its bias keeps ti's pace then. At
+    MISSING_HEAT_BIAS_S the population's two-element tuns held worse on the other element
+    and were warned later (bench/RESULTS.md, "Population: faults on 200 tuns drawn")."""
+    if isinstance(controller, _Predictive):
+        controller._missing_gains = controller._gains
 
 
 def _law(controller: Controller) -> _Predictive | None:
