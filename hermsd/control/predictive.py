@@ -624,7 +624,7 @@ def on_two_elements(controller: Controller) -> None:
     total: heat it counts on that does not arrive may be one element's, which the element
     watch judges while the other holds the water; its bias keeps ti's pace then. At
     MISSING_HEAT_BIAS_S the population's two-element tuns held worse on the other element
-    and were warned later (bench/RESULTS.md, "Population: faults on 200 tuns drawn")."""
+    and were warned later (docs/heat-balance.md, "The law's pace")."""
     if isinstance(controller, _Predictive):
         controller._missing_gains = controller._gains
 
