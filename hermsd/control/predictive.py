@@ -413,11 +413,12 @@ class _Predictive(_Base):
         return p + i + d
 
     def _heat_missing(self, sp: float, pv: float) -> bool:
-        """Whether the water fell LINEAR_BAND below the setpoint it last reached and has not
-        risen over the last STEADY_SPAN_S, with nothing the law knows of since (cold water
-        and its recovery, a heat-up or its pulse, a told load): heat the model counts on
-        does not arrive, which the bias learns at MISSING_HEAT_BIAS_S. A heat-up's landing
-        and a recovery's rise are the model's, learned at ti."""
+        """Whether the water fell LINEAR_BAND below the setpoint it last reached (kept in
+        `_held_sp`, forgotten at anything the law knows of: cold water and its recovery, a
+        heat-up or its pulse, a told load) and has not risen over the last STEADY_SPAN_S:
+        heat the model counts on does not arrive, which the bias learns at
+        MISSING_HEAT_BIAS_S. A heat-up's landing and a recovery's rise are the model's,
+        learned at ti."""
         known = self._poured is not None or self._recovering or self._recovery.active
         if known or self._carried or self._load or self._pulse is not None or self._watch.active:
             self._held_sp = math.nan
