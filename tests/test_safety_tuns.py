@@ -332,9 +332,10 @@ def test_a_dead_element_at_full_power_is_told_however_slowly_the_water_falls() -
     ("spec", "fill", "at"),
     [
         # Population tuns (bench/population.py seeds 111, 56, 199) that lose little behind a
-        # long dead time: the hold's duty 8–34 %, the element dying in the hold. The law's
-        # duty climbed from it on ti's 800 s (`MISSING_HEAT_BIAS_S`) and the climb that
-        # tells a dead element came 1626, 1557 and 1291 s after the death.
+        # long dead time, the element dying in the hold. With the bias at ti's 800 s the
+        # law's duty climbed from the hold's slowly and the climb that tells a dead element
+        # came 1626, 1557 and 1291 s after the death; at `MISSING_HEAT_BIAS_S` while the
+        # heat is missing, 1101, 1187 and 1121 s.
         (
             TunSpec("little loss, slow sensor", 132.6, 5900.0, 0.735, 244.0, 109.0, 27.0),
             0.52,
