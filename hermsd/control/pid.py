@@ -187,14 +187,10 @@ OBSERVER_BIAS_S = 800.0
 """The bias's time constant when ti = 0."""
 MISSING_HEAT_BIAS_S = 100.0
 """s: the bias's time constant (ti's, where ti is shorter) while heat the model counts on does
-not arrive: the water that held its setpoint fell LINEAR_BAND below it and did not rise over
-the last STEADY_SPAN_S, with nothing the law knows of behind it (cold water, a heat-up, a
-told load): a dead element, a lid taken off. The bias then chases a missing heat that grows
-with the duty it adds, so the duty climbs at u0/τ_b a second from the hold's u0: from 8 % to
-full power, 2.6 hours at ti's 800 s, 19 minutes at this; the supervisor tells a dead element
-by a duty that climbed while the fall did not slow. Three times the PV estimate's
-OBSERVER_TRACK_S, so the two stay apart. Measured on the population: bench/RESULTS.md,
-"Population: faults on 200 tuns drawn"."""
+not arrive (`_Predictive._heat_missing`: a dead element, a lid taken off). The bias chases a
+missing heat that grows with the duty it adds, so the duty climbs from the hold's u0 at
+u0/τ_b a second: 2.6 hours from 8 % at ti's 800 s, 19 minutes at this. Three times
+OBSERVER_TRACK_S, so the two poles stay apart (docs/heat-balance.md, "The law's pace")."""
 LOAD_SHARE_S = 100.0
 """s: how fast predictive's observer learns the share of a known load (`known_load`) the water
 shows: well inside the 180 s a HERMS coil's load is fed on the prior's K (±50 %) before its
