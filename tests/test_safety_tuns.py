@@ -255,9 +255,10 @@ def test_a_measured_tun_stays_quiet_with_twice_the_water() -> None:
 @pytest.mark.parametrize(
     ("name", "within_s", "measured_within_s"),
     [
-        # Loses 0.05 °C/min: the output takes 30 min to 80 % (1900 s before the day's hold
-        # was measured); from that hold, a dead element is judged at the output that beats
-        # 1.5× its losses and an open surface's evaporation.
+        # Loses 0.05 °C/min: with the bias at ti the output took 30 min to 80 % (1900 s
+        # before the day's hold was measured); from that hold, a dead element is judged at
+        # the output that beats 1.5× its losses and an open surface's evaporation (told at
+        # 650 s since the bias learns missing heat at MISSING_HEAT_BIAS_S).
         ("warm room", 1100.0, 1000.0),
         ("keggle", 900.0, 800.0),  # 1325 s before
     ],
