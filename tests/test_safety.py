@@ -228,13 +228,26 @@ def test_water_standing_cold_with_the_heater_off_bounds_no_losses_above_it() -> 
 
 
 def test_above_the_hold_the_losses_grow_as_in_the_warmest_room() -> None:
-    # 10 % holds 66 °C; at 72 °C the losses grow by (72 − 40)/(66 − 40) = 1.2308 in a 40 °C
+    # 5 % holds 66 °C; at 72 °C the losses grow by (72 − 40)/(66 − 40) = 1.2308 in a 40 °C
     # room (by 67/61 = 1.0984 in a 5 °C one: too little), and an open pot evaporates 1 kW of
-    # 3 kW at 66 °C × 1.3022 (Magnus, 72 against 66 °C) = 43.41 %. A working element beats
-    # them from (1.5 × 10 × 1.2308 + 43.41)/0.81 = 76.38 %: at 75 % water standing still is
-    # no verdict (with the coldest room's growth it was, from 73.94 %), at 78 % it is.
-    assert _held_then(66.0, 10.0, 72.0, 75.0, 0.0) == []
-    assert _held_then(66.0, 10.0, 72.0, 78.0, 0.0) == ["sensor_stuck"]
+    # 3 kW at 66 °C × 1.3022 (Magnus, 72 against 66 °C) = 43.41 %. Those losses grown ×3 (a
+    # normal day's most) are beaten from (3 × 5 × 1.2308 + 43.41)/0.81 = 76.38 %: at 75 %
+    # water standing still is no verdict (with the coldest room's growth it was, from
+    # 73.94 %), at 78 % it is.
+    assert _held_then(66.0, 5.0, 72.0, 75.0, 0.0) == []
+    assert _held_then(66.0, 5.0, 72.0, 78.0, 0.0) == ["sensor_stuck"]
+
+
+def test_a_still_reading_is_a_stuck_sensor_only_past_what_grown_losses_may_take() -> None:
+    # 5 % holds 66 °C. Losses grown ×3 (a colder room: the most a normal day's may) and an
+    # open pot's 1 kW of the 3 kW take up to (3 × 5 + 33.33)/0.81 = 59.67 % there and may
+    # hold the water still, where the dead-element watch already looks from
+    # (1.5 × 5 + 33.33)/0.81 = 50.41 %: at 55 % a reading that then never changes is no
+    # verdict, at 65 % it is a stuck sensor; at 55 % a steady fall is a dead element.
+    below = 66.0 - 0.0625  # a step: the stuck watch's output swing starts again from it
+    assert _held_then(66.0, 5.0, below, 55.0, 0.0) == []
+    assert _held_then(66.0, 5.0, below, 65.0, 0.0) == ["sensor_stuck"]
+    assert _held_then(66.0, 5.0, below, 55.0, 0.2) == ["heater_not_heating"]
 
 
 def test_a_heater_that_outpaces_the_losses_slowly_is_caught_with_every_output_off() -> None:

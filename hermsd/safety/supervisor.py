@@ -483,11 +483,17 @@ class Supervisor:
             least = least if least >= NOISE_FLOOR else None  # the coil may take all of it
         # Heat on, or its lack, moves the water a step or more every few minutes, and noise
         # flips the last bit: a reading that has not changed at all for the watch is stuck,
-        # unless the coil, with the losses, may have taken all the element gave (a HERMS
-        # hold's steady water, or the bottom of the HLT's dip while the coil's load falls
-        # past the element's: there the element's heat is the coil's and the losses').
+        # at an output that beats the losses a normal day may grow to (LOSS_GROWTH: at less,
+        # a colder room may take all of it and hold the water still), unless the coil, with
+        # the losses, may have taken all the element gave (a HERMS hold's steady water, or
+        # the bottom of the HLT's dip while the coil's load falls past the element's: there
+        # the element's heat is the coil's and the losses').
         since = self._raw_since
-        frozen = since is not None and t - max(since, watch.ref_t) >= lim.heater_watch
+        frozen = (
+            since is not None
+            and t - max(since, watch.ref_t) >= lim.heater_watch
+            and applied >= min(lim.full_output, self._held_losses(pv, LOSS_GROWTH) or 0.0)
+        )
         if frozen and since is not None:
             still = max(since, watch.ref_t)
             taken = self._coil_fall(still, t)
