@@ -307,6 +307,52 @@ def test_sensor_noise_never_asks_for_full_power(within_lsb: float) -> None:
         controller.step(SP, pv, controller.output)
 
 
+def _noisy_hold(controller: pid.Controller, sd: float, within_lsb: float, told: bool) -> int:
+    """Three hours of hold readings of noise `sd` truncated to the LM92's 0.0625 °C, the
+    truth `within_lsb` of an LSB above the setpoint; each period's readings told to the law
+    (`readings_seen`) or not. The periods whose readings asked for full power."""
+    rng = random.Random(12)
+    pv, asked = SP, 0
+    truth = SP + within_lsb * 0.0625
+    for _ in range(3 * 720):
+        readings: list[float] = []
+        for _ in range(5):
+            readings.append(math.floor((truth + rng.gauss(0.0, sd)) / 0.0625) * 0.0625)
+            if predictive.full_power_now(controller, SP, pv, readings):
+                asked += 1
+                break
+        pv = sum(readings) / len(readings)
+        if told:
+            predictive.readings_seen(controller, readings)
+        controller.step(SP, pv, controller.output)
+    return asked
+
+
+@pytest.mark.parametrize("within_lsb", [0.0, 0.25, 0.5, 0.75])
+def test_a_noisier_sensors_noise_never_asks_for_full_power_once_its_scatter_is_seen(
+    within_lsb: float,
+) -> None:
+    # Noise of 0.06 °C (the population's noisiest sensors): a reading lies about the last
+    # period's mean with sd √((0.06² + 0.0625²/12)·(1 + 1/5)) = 0.0687 °C, and 2 and 3 LSB
+    # are 1.8 and 2.7 of it. Untold, the same readings ask for full power in the hold; told,
+    # the thresholds grow by 0.0687/0.04 and they never do.
+    assert _noisy_hold(holding_controller(), 0.06, within_lsb, told=False) > 0
+    controller = holding_controller()
+    assert _noisy_hold(controller, 0.06, within_lsb, told=True) == 0
+    assert predictive.full_power_now(controller, SP, SP, [65.5, 65.0])  # cold water still is
+
+
+def test_readings_on_a_ramp_are_no_noise() -> None:
+    # A heat-up's readings climb 0.5 °C each: their line explains them, the thresholds stay
+    # 2 and 3 LSB. Readings as far apart that no line explains (±0.25 °C) raise them.
+    ramp, scattered = holding_controller(), holding_controller()
+    for k in range(120):
+        predictive.readings_seen(ramp, [60.0 + 0.5 * (5 * k + j) for j in range(5)])
+        predictive.readings_seen(scattered, [SP + 0.25 * (-1) ** j for j in range(5)])
+    assert predictive.full_power_now(ramp, SP, SP, [65.875, 65.8125])
+    assert not predictive.full_power_now(scattered, SP, SP, [65.875, 65.8125])
+
+
 # -- the daemon: on the simulated small tun with a large element -----------------------------
 
 

@@ -213,13 +213,26 @@ DROP_FALL = 0.1875
 One reading differs from the last period's mean by 0.04 °C sd (noise sd 0.03 °C and the
 LM92's truncation): 2 LSB is 3 sd and 3 LSB 4.7 sd, and noise does not give both in a row
 (none in 3.2 million simulated periods of hold, the true temperature anywhere within an LSB).
-Behind the sensor's lag cold water shows as readings that fall further each time, the first
-of them often by less than 0.25 °C; a one-reading glitch (the supervisor drops only jumps
-beyond safety.max_step) has a steady reading before it, so it never does it, however deep.
+A noisier sensor's readings scatter more, and both thresholds grow with the scatter measured
+(`DROP_SD`). Behind the sensor's lag cold water shows as readings that fall further each
+time, the first of them often by less than 0.25 °C; a one-reading glitch (the supervisor
+drops only jumps beyond safety.max_step) has a steady reading before it, so it never does
+it, however deep.
 Behind a slow sensor (a thermowell) cold water shows as readings that fall by less than
 0.1 °C a second at first, and the law, on the PV it sees, answers a fall of less than half a
 degree with a few % more: a rule that waited for the readings to lie 0.25 °C down, or for
 the law to ask for full power, lost those seconds."""
+DROP_SD = 0.04
+"""°C: the sd of a reading about the last period's PV that DROP_ONSET and DROP_FALL are 3 and
+4.7 of. Where the readings scatter more about their periods' lines (`predictive.readings_seen`:
+a sensor of 0.06 °C noise, 0.069 °C about the last PV), both thresholds grow by that sd over
+this one: at 2 and 3 LSB such a sensor's noise asked full power in the hold about once an hour
+on the population's noisiest tuns (bench/RESULTS.md, "Population: 200 tuns drawn")."""
+SCATTER_PERIODS = 60.0
+"""Periods the readings' scatter is averaged over (an exponential mean)."""
+SCATTER_CAP = 4.0
+"""Times the mean scatter one period's may count for at most: a drop within it (cold water) is
+no noise."""
 MAX_DEAD_TIME = 1800.0
 """s: the longest dead time a heat-up may show (a sensor far down a long pipe), and so the
 longest the config (`control.dead_time`) and the predictive controller take: its history of

@@ -15,6 +15,7 @@ from hermsd.control.pid import (
     DROP_FALL,
     DROP_ONSET,
     DROP_READINGS,
+    DROP_SD,
     FAR_BAND,
     FULL_MARGIN,
     LANDING_BAND,
@@ -33,6 +34,8 @@ from hermsd.control.pid import (
     PULSE_RATE_MARGIN,
     RATE_BAND,
     RUNAWAY_SHARE,
+    SCATTER_CAP,
+    SCATTER_PERIODS,
     STEADY_BAND,
     STEADY_DUTY_SHARE,
     STEADY_SPAN_S,
@@ -98,6 +101,7 @@ class _Predictive(_Base):
         "_recent",
         "_recovering",
         "_recovery",
+        "_scatter",
         "_sensor_lag",
         "_step_is_loops",
         "_trailing",
@@ -166,6 +170,9 @@ class _Predictive(_Base):
         # what the load was reckoned from (a new basis restarts it at the whole).
         self._load_share, self._load_basis = 1.0, 0.0
         self._l2_share = observer_gains(ts, OBSERVER_TRACK_S, LOAD_SHARE_S)[1]
+        # °C²: a reading's variance about the last period's PV (`readings_seen`), DROP_SD's
+        # until the readings say more.
+        self._scatter = DROP_SD * DROP_SD
 
     @property
     def fit(self) -> HeatUpFit | None:
@@ -670,12 +677,31 @@ def full_power_now(
     if law.params.out_max < 100.0 or law.output >= 100.0:
         return False
     fell, first = last_pv - latest, last_pv - before
-    if fell < DROP_FALL or first < DROP_ONSET:
+    noise = max(1.0, math.sqrt(law._scatter) / DROP_SD)
+    if fell < noise * DROP_FALL or first < noise * DROP_ONSET:
         return False
     if latest < sp and law.full_power_adds() < min(fell, first):
         return True
     trial = copy.deepcopy(law)
     return trial.step(sp, latest, law.output) >= 100.0
+
+
+def readings_seen(controller: Controller, readings: Sequence[float]) -> None:
+    """Tell `controller` (predictive) the readings of the period its next step closes: their
+    scatter about the period's straight line (a ramp is no noise), as a reading's variance
+    about the period's mean, joins the SCATTER_PERIODS mean that scales `full_power_now`'s
+    thresholds (`pid.DROP_SD`). Each period counts for at most SCATTER_CAP times the mean."""
+    law = _law(controller)
+    n = len(readings)
+    if law is None or n < 3:
+        return
+    mid = (n - 1) / 2.0
+    mean = sum(readings) / n
+    spread = sum((k - mid) ** 2 for k in range(n))
+    slope = sum((k - mid) * (r - mean) for k, r in enumerate(readings)) / spread
+    residual = sum((r - mean - slope * (k - mid)) ** 2 for k, r in enumerate(readings))
+    variance = residual / (n - 2) * (1.0 + 1.0 / n)
+    law._scatter += (min(variance, SCATTER_CAP * law._scatter) - law._scatter) / SCATTER_PERIODS
 
 
 def loops_own_step(controller: Controller) -> None:

@@ -37,7 +37,12 @@ from hermsd.config import schema as config_module
 from hermsd.control.element2 import MidRangeController, SplitController, TwoElementController
 from hermsd.control.factory import make_controller, shared_out, total_watts
 from hermsd.control.pid import CONTROL_LAW_VERSION, Controller, PlantModel
-from hermsd.control.predictive import cold_water_seen, full_power_now, known_load
+from hermsd.control.predictive import (
+    cold_water_seen,
+    full_power_now,
+    known_load,
+    readings_seen,
+)
 from hermsd.control.reach import PREFIX as REACH_PREFIX
 from hermsd.control.reach import ReachWatch
 from hermsd.log.reader import (
@@ -508,6 +513,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                 continue
             if record.full_from is not None:
                 cold_water_seen(controller)
+            readings_seen(controller, record.readings)
             output = controller.step(record.hlt_target, record.pv, record.applied)
         except ValueError as error:
             raise ReplayError(f"period k={record.k}: the controller refused it: {error}") from None

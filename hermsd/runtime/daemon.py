@@ -644,6 +644,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
                     self._held = False
                 if full_from is not None:
                     predictive.cold_water_seen(self.controller)
+                predictive.readings_seen(self.controller, readings)
                 self.output = self.controller.step(target, pv, applied)
                 self._stepped = True
                 controller = self.controller
