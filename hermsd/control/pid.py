@@ -226,8 +226,8 @@ DROP_SD = 0.04
 """°C: the sd of a reading about the last period's PV that DROP_ONSET and DROP_FALL are 3 and
 4.7 of. Where the readings scatter more about their periods' lines (`predictive.readings_seen`:
 a sensor of 0.06 °C noise, 0.069 °C about the last PV), both thresholds grow by that sd over
-this one: at 2 and 3 LSB such a sensor's noise asked full power in the hold about once an hour
-on the population's noisiest tuns (bench/RESULTS.md, "Population: 200 tuns drawn")."""
+this one: at 2 and 3 LSB such noise asked full power in the hold (population tun 80, an LM92
+with 0.06 °C of noise, five times in a day; bench/RESULTS.md, "Population: 200 tuns drawn")."""
 SCATTER_PERIODS = 60.0
 """Periods the readings' scatter is averaged over (an exponential mean)."""
 SCATTER_CAP = 4.0
