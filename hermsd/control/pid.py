@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 6
+CONTROL_LAW_VERSION = 7
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -121,7 +121,14 @@ Version 3: it models the sensor's lag, lets the bias learn a long one-sided inno
 scales its rate by the heat capacity cold water adds.
 Version 4: a measured pulse gives the sensor's lag too, and places the room from the water's
 fall (the sensor plus its lag times its slope).
-Version 5: a heat-up's fit to the lag's curve integrates the rise twice."""
+Version 5: a heat-up's fit to the lag's curve integrates the rise twice.
+Version 6: a recovery from cold water on a measured model lands short by a share of the heat
+in flight.
+Version 7: the in-period drop's thresholds grow with the readings' scatter (they are told each
+period's readings); and the changes that came under 6's number since: predictive's bias learns
+heat missing from a hold at 100 s and the law sends no heat to water running away above the
+band, and the HERMS outer loop's decisions (its coast, step downs, pump starts held or
+prepared, the room read)."""
 
 ALGORITHMS = (
     "predictive",
