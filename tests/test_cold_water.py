@@ -353,6 +353,17 @@ def test_readings_on_a_ramp_are_no_noise() -> None:
     assert not predictive.full_power_now(scattered, SP, SP, [65.875, 65.8125])
 
 
+def test_readings_that_are_no_number_leave_the_scatter_as_it_was() -> None:
+    # A NaN would make every threshold comparison false, and the least drop ask for full
+    # power however noisy the sensor: such a period is not counted.
+    noisy = holding_controller()
+    for _ in range(120):
+        predictive.readings_seen(noisy, [SP + 0.25 * (-1) ** k for k in range(5)])
+    predictive.readings_seen(noisy, [SP, math.nan, SP, SP, SP])
+    assert not predictive.full_power_now(noisy, SP, SP, [65.875, 65.8125])
+    assert predictive.full_power_now(noisy, SP, SP, [65.0, 64.5])
+
+
 # -- the daemon: on the simulated small tun with a large element -----------------------------
 
 

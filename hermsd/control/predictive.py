@@ -49,6 +49,7 @@ from hermsd.control.pid import (
 from hermsd.control.watches import (
     HEAT_SHOWS_S,
     HeatUpFit,
+    LineFit,
     _HeatUpWatch,
     _PulseWatch,
     _RecoveryWatch,
@@ -692,15 +693,15 @@ def readings_seen(controller: Controller, readings: Sequence[float]) -> None:
     about the period's mean, joins the SCATTER_PERIODS mean that scales `full_power_now`'s
     thresholds (`pid.DROP_SD`). Each period counts for at most SCATTER_CAP times the mean."""
     law = _law(controller)
-    n = len(readings)
-    if law is None or n < 3:
+    if law is None:
         return
-    mid = (n - 1) / 2.0
-    mean = sum(readings) / n
-    spread = sum((k - mid) ** 2 for k in range(n))
-    slope = sum((k - mid) * (r - mean) for k, r in enumerate(readings)) / spread
-    residual = sum((r - mean - slope * (k - mid)) ** 2 for k, r in enumerate(readings))
-    variance = residual / (n - 2) * (1.0 + 1.0 / n)
+    line = LineFit()
+    for k, reading in enumerate(readings):
+        line.add(float(k), reading)
+    scatter = line.scatter()
+    if scatter is None or not math.isfinite(scatter):
+        return  # too few readings to scatter about a line, or one that is no number
+    variance = scatter * (1.0 + 1.0 / line.n)
     law._scatter += (min(variance, SCATTER_CAP * law._scatter) - law._scatter) / SCATTER_PERIODS
 
 

@@ -80,13 +80,22 @@ class LineFit:
         """The slope's standard error from the points' scatter about the line, each point's
         sd taken as at least `least_sd` (a few points of a staircase may lie on a line), or
         None where there is no slope."""
-        slope = self.slope()
-        if slope is None:
+        scatter = self.scatter() if self.slope() is not None else None
+        if scatter is None:
             return None
+        spread_t = self.stt - self.st * self.st / self.n
+        return math.sqrt(max(scatter, least_sd * least_sd) / spread_t)
+
+    def scatter(self) -> float | None:
+        """The points' variance about their line (n − 2 degrees of freedom), or None on
+        fewer than 3 points or a single t."""
         n = self.n
+        spread = n * self.stt - self.st * self.st
+        if n < 3 or spread <= 0.0:
+            return None
+        slope = (n * self.stx - self.st * self.sx) / spread
         spread_t = self.stt - self.st * self.st / n
-        scatter = max(0.0, self.sxx - self.sx * self.sx / n - slope * slope * spread_t)
-        return math.sqrt(max(scatter / (n - 2), least_sd * least_sd) / spread_t)
+        return max(0.0, self.sxx - self.sx * self.sx / n - slope * slope * spread_t) / (n - 2)
 
 
 class _RampWatch:
