@@ -52,7 +52,10 @@ WATER_SPAN_S = 60.0
 """°C (2 LSB) below the highest PV of the last WATER_SPAN_S s: water came in, and the hold
 starts anew. A hold's PV moves by an LSB in a minute, and noise on a period's mean (sd
 0.02 °C) never by 2 LSB; water the window kept would be taken for loss (0.4 % of the volume
-at 15 °C, a fall of 0.2 °C: a loss 8 % too high). Less than that still costs up to 4 %."""
+at 15 °C, a fall of 0.2 °C: a loss 8 % too high). Less than that still costs up to 4 %.
+Noisier readings raise it by as much as they scatter more (`predictive.noise_scale`): at
+0.06 °C of noise 2 LSB came from noise alone a dozen times an hour, and no hold was long
+enough to learn from (population tun 190, docs/sensors.md)."""
 MIN_TAU = 600.0
 MAX_TAU = 1e6
 MIN_LITRES, MAX_LITRES = 1.0, 1000.0  # the range tun.litres may be configured in
@@ -99,10 +102,11 @@ class LearnedModel:
         )
 
 
-def water_came(recent: Iterable[float], pv: float) -> bool:
-    """Whether `pv` lies WATER_FALL or more below the highest of `recent` (the PVs of the last
-    WATER_SPAN_S): water poured in, and a hold measured across it would take it for loss."""
-    return max(recent, default=pv) - pv >= WATER_FALL
+def water_came(recent: Iterable[float], pv: float, noise: float) -> bool:
+    """Whether `pv` lies `noise` × WATER_FALL or more below the highest of `recent` (the PVs
+    of the last WATER_SPAN_S; `noise`: `predictive.noise_scale`): water poured in, and a hold
+    measured across it would take it for loss."""
+    return max(recent, default=pv) - pv >= noise * WATER_FALL
 
 
 def implausible(model: LearnedModel) -> str | None:
@@ -292,16 +296,19 @@ class Learner:
             # A period's duty moves the PV a dead time later, as in the controller's model.
             self._applied = deque(maxlen=round(fit.dead_time / self._period) + 1)
 
-    def period(self, setpoint: float, pv: float, applied: float) -> Estimate | None:
-        """One clean period in auto (`applied`: the duty of the period `pv` ends); the estimate
-        once the hold after a heat-up is long enough."""
+    def period(
+        self, setpoint: float, pv: float, applied: float, *, noise: float
+    ) -> Estimate | None:
+        """One clean period in auto (`applied`: the duty of the period `pv` ends; `noise`: how
+        many times the bench's the readings scatter, `water_came`); the estimate once the hold
+        after a heat-up is long enough."""
         fit = self._fit
         if fit is None or self.done:
             return None
         arrived = self._applied
         arrived.append(applied)
         recent = self._recent
-        water = water_came(recent, pv)
+        water = water_came(recent, pv, noise)
         recent.append(pv)
         if water or abs(pv - setpoint) > HOLD_BAND or len(arrived) < (arrived.maxlen or 0):
             self._restart_hold()  # not (or no longer) holding: start the hold anew

@@ -678,13 +678,21 @@ def full_power_now(
     if law.params.out_max < 100.0 or law.output >= 100.0:
         return False
     fell, first = last_pv - latest, last_pv - before
-    noise = max(1.0, math.sqrt(law._scatter) / DROP_SD)
+    noise = noise_scale(controller)
     if fell < noise * DROP_FALL or first < noise * DROP_ONSET:
         return False
     if latest < sp and law.full_power_adds() < min(fell, first):
         return True
     trial = copy.deepcopy(law)
     return trial.step(sp, latest, law.output) >= 100.0
+
+
+def noise_scale(controller: Controller) -> float:
+    """How many times the bench's (`pid.DROP_SD`) the readings scatter, as `readings_seen`
+    measured it, and at least 1: a fall that is more than noise must be that much larger.
+    1 for the other forms, which measure no scatter."""
+    law = _law(controller)
+    return 1.0 if law is None else max(1.0, math.sqrt(law._scatter) / DROP_SD)
 
 
 def readings_seen(controller: Controller, readings: Sequence[float]) -> None:

@@ -104,6 +104,7 @@ class Tun:
     measured: bool  # the model was measured on this tun (else the config's prior)
     fit: HeatUpFit | None  # the controller's last heat-up measurement, if any
     ahead: float | None = None  # the PV once the heat already sent arrives (predictive's)
+    noise: float = 1.0  # times the bench's the readings scatter (`predictive.noise_scale`)
 
     def gross_rate(self) -> float:
         """°C/s at full power without losses: the heat-up's measurement, else the model's."""
@@ -329,7 +330,7 @@ class Readiness:
             recent.append((t, pv))
             while t - recent[0][0] > WATER_SPAN_S:
                 recent.popleft()
-            if self._run_since is None or water_came((x for _, x in recent), pv):
+            if self._run_since is None or water_came((x for _, x in recent), pv, tun.noise):
                 # Water poured in: the rise from here is a recovery's, and a line across the
                 # fall is no rate (a 10 L top-up mid-climb read as "cannot reach" seven times).
                 self._run_since = t
@@ -344,7 +345,7 @@ class Readiness:
         else:
             self._run_since = None
             self._full.clear()
-        if self._arrived is not None and self._water_came(t, pv):
+        if self._arrived is not None and self._water_came(t, pv, tun.noise):
             self._arrived = None  # what holds the water now is a recovery, not the losses
             self._hold.clear()
             self._held.clear()
@@ -356,15 +357,15 @@ class Readiness:
             while t - self._hold[0][0] > MEASURE_S:
                 self._hold.popleft()
 
-    def _water_came(self, t: float, pv: float) -> bool:
-        """Whether the waiting water fell WATER_FALL below its highest PV of the last
+    def _water_came(self, t: float, pv: float, noise: float) -> bool:
+        """Whether the waiting water fell `noise` × WATER_FALL below its highest PV of the last
         WATER_SPAN_S: water poured in (the HLT topped up), and the hold is measured anew
         once the water is back at the waiting temperature and settled, as the learner's is."""
         held = self._held
         held.append((t, pv))
         while t - held[0][0] > WATER_SPAN_S:
             held.popleft()
-        return water_came((x for _, x in held), pv)
+        return water_came((x for _, x in held), pv, noise)
 
     def rise(self, pv: float, tun: Tun) -> Rise:
         """The full-power rise near the top, from the best measurement there is: the waiting

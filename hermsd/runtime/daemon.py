@@ -469,7 +469,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
                 self._event(logging.WARNING, f"heat-up measure refused: {fit.refused}", record.t)
         else:
             applied = self._of_both(record.applied, record.applied2)
-            estimate = learner.period(record.hlt_target, record.pv, applied)
+            noise = predictive.noise_scale(self.controller)
+            estimate = learner.period(record.hlt_target, record.pv, applied, noise=noise)
             if estimate is not None:
                 self._store_model(models, estimate.model, estimate.refused, record.t)
         self._heat_up_seen = fit

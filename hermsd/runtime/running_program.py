@@ -58,6 +58,7 @@ class RunningProgram(LoopState):
             predictive.predicted_pv(self.controller)
             if self.program.readiness is not None
             else None,
+            predictive.noise_scale(self.controller),
         )
 
     def program_command(self, action: str, t: float, step: int | None = None) -> None:
