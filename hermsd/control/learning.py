@@ -54,7 +54,7 @@ starts anew. A hold's PV moves by an LSB in a minute, and noise on a period's me
 0.02 °C) never by 2 LSB; water the window kept would be taken for loss (0.4 % of the volume
 at 15 °C, a fall of 0.2 °C: a loss 8 % too high). Less than that still costs up to 4 %.
 Noisier readings raise it by as much as they scatter more (`predictive.noise_scale`): at
-0.06 °C of noise 2 LSB came from noise alone a dozen times an hour, and no hold was long
+0.06 °C of noise 2 LSB came from noise alone many times an hour, and no hold was long
 enough to learn from (population tun 190, docs/sensors.md)."""
 MIN_TAU = 600.0
 MAX_TAU = 1e6
@@ -299,9 +299,9 @@ class Learner:
     def period(
         self, setpoint: float, pv: float, applied: float, *, noise: float
     ) -> Estimate | None:
-        """One clean period in auto (`applied`: the duty of the period `pv` ends; `noise`: how
-        many times the bench's the readings scatter, `water_came`); the estimate once the hold
-        after a heat-up is long enough."""
+        """One clean period in auto (`applied`: the duty of the period `pv` ends; `noise`: the
+        readings' scatter over the bench's, `water_came`); the estimate once the hold after a
+        heat-up is long enough."""
         fit = self._fit
         if fit is None or self.done:
             return None

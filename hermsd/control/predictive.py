@@ -688,9 +688,9 @@ def full_power_now(
 
 
 def noise_scale(controller: Controller) -> float:
-    """How many times the bench's (`pid.DROP_SD`) the readings scatter, as `readings_seen`
-    measured it, and at least 1: a fall that is more than noise must be that much larger.
-    1 for the other forms, which measure no scatter."""
+    """The readings' scatter (as `readings_seen` measured it) over the bench's (`pid.DROP_SD`),
+    at least 1: a fall must be that much larger to be more than noise. 1 for the other
+    forms, which measure no scatter."""
     law = _law(controller)
     return 1.0 if law is None else max(1.0, math.sqrt(law._scatter) / DROP_SD)
 

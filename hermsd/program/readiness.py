@@ -104,7 +104,7 @@ class Tun:
     measured: bool  # the model was measured on this tun (else the config's prior)
     fit: HeatUpFit | None  # the controller's last heat-up measurement, if any
     ahead: float | None = None  # the PV once the heat already sent arrives (predictive's)
-    noise: float = 1.0  # times the bench's the readings scatter (`predictive.noise_scale`)
+    noise: float = 1.0  # the readings' scatter over the bench's (`predictive.noise_scale`)
 
     def gross_rate(self) -> float:
         """°C/s at full power without losses: the heat-up's measurement, else the model's."""
