@@ -69,12 +69,14 @@ class LineFit:
         self.stx += t * x
         self.sxx += x * x
 
+    def _line_slope(self) -> float | None:
+        """The least-squares dx/dt, or None where every t is the same."""
+        spread = self.n * self.stt - self.st * self.st
+        return None if spread <= 0.0 else (self.n * self.stx - self.st * self.sx) / spread
+
     def slope(self) -> float | None:
         """dx/dt, or None on fewer than 4 points (too few to tell noise from slope)."""
-        spread = self.n * self.stt - self.st * self.st
-        if self.n < 4 or spread <= 0.0:
-            return None
-        return (self.n * self.stx - self.st * self.sx) / spread
+        return self._line_slope() if self.n >= 4 else None
 
     def slope_sd(self, least_sd: float) -> float | None:
         """The slope's standard error from the points' scatter about the line, each point's
@@ -90,10 +92,9 @@ class LineFit:
         """The points' variance about their line (n − 2 degrees of freedom), or None on
         fewer than 3 points or a single t."""
         n = self.n
-        spread = n * self.stt - self.st * self.st
-        if n < 3 or spread <= 0.0:
+        slope = self._line_slope() if n >= 3 else None
+        if slope is None:
             return None
-        slope = (n * self.stx - self.st * self.sx) / spread
         spread_t = self.stt - self.st * self.st / n
         return max(0.0, self.sxx - self.sx * self.sx / n - slope * slope * spread_t) / (n - 2)
 
