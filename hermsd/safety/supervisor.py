@@ -20,7 +20,7 @@ import bisect
 import itertools
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 from hermsd.safety.coil_load import NO_LOAD, CoilLoad
@@ -442,7 +442,9 @@ class Supervisor:
         through the sensor's lag (≤ 120 s) as a decaying fall, e^(−150/120) = 0.29 of it in
         the second half-watch, and the element's heat adds to that: not steady. A HERMS coil
         may take more than the element gives: the most it may take (`_coil_fall`) is taken
-        off each half's fall and off the least rise, so a fall it can explain is no verdict.
+        off each half's fall and off the least rise, so a fall it can explain is no verdict;
+        so is what the day's losses may take beyond the heat due at the sensor (`_fall_due`:
+        an output climbing to h, its heat on the way; a colder room).
         """
         lim, watch = self.limits, self._heater_watch
         if applied < self._heating_output(pv):
@@ -464,18 +466,20 @@ class Supervisor:
             watch.ref, watch.ref_t = pv, t
         held = t - watch.ref_t
         fall = 0.0
+        peak = max(p for _, p in recent)
         # Only the later half need lie past the dead time: the element's heat shows in it,
         # whatever the water did before.
         if held >= half and t - recent[0][0] >= 1.9 * half:
             pv_mid = next(p for when, p in recent if when >= t - half)
             first, second = recent[0][1] - pv_mid, pv_mid - pv
             step = lim.heater_max_fall / 2.0
-            # The coil's most taken explains as much of each half's fall.
-            first -= self._coil_fall(recent[0][0], t - half)
-            second -= self._coil_fall(t - half, t)
+            # The coil's most taken, and losses beyond the heat due, explain as much of each
+            # half's fall.
+            begin, middle = recent[0][0], t - half
+            first -= self._coil_fall(begin, middle) + self._fall_due(begin, middle, peak, t)
+            second -= self._coil_fall(middle, t) + self._fall_due(middle, t, peak, t)
             if first >= step and second >= max(step, first / 2.0):
                 fall = first + second
-        peak = max(p for _, p in recent)
         judged = watch.full and held >= lim.heater_watch
         least = lim.least_rise(held, max(peak, watch.ref)) if judged else None
         if least is not None:
@@ -594,11 +598,39 @@ class Supervisor:
         held = self._held_losses(pv, MODEL_MARGIN)
         return most if held is None else min(most, held)
 
+    def _fall_due(self, start: float, end: float, pv: float, t: float) -> float:
+        """°C the water at `pv` or below may fall from `start` to `end` with a working
+        element: the losses the day may bring, beyond the least heat due at the sensor (any
+        window as long, ending within a dead time before `end`, each period's whole), at
+        −10 % mains, every % moving the water at most `heat_rate` per 100 s.
+
+        The losses: those h beats (`_heating_output`), or `LOSS_GROWTH` times the day's hold's
+        (a colder room: at a duty between the two the water may fall and the law still be
+        working), never more than the element gives at 80 % of its limit (a tun that loses
+        more is not held on a normal day: there a steady fall is the verdict it was)."""
+        lim = self.limits
+        losses = MAINS_LOW * self._heating_output(pv)
+        grown = self._grown_losses(pv, LOSS_GROWTH)
+        if grown is not None:
+            losses = max(losses, min(grown, MAINS_LOW * lim.full_output))
+        span = end - start
+        last = self._last_period_t
+        period = 0.0 if last is None else t - last
+        least = min(self._window_energies(end, span - period, lim.dead_time), default=0.0)
+        short = losses - MAINS_LOW * 100.0 * least / span
+        return max(0.0, short) / 100.0 * lim.heat_rate * span
+
     def _held_losses(self, pv: float, growth: float) -> float | None:
-        """% of output that beats the day's hold's losses (`_measure_hold`) grown `growth`
-        times, grown with the water's rise above the room over the hold's, and an open
-        surface's evaporation on top, at −10 % mains; never below 20 % (a slow fall is lost
-        in the noise). None with no hold measured, two elements or a coil that may draw.
+        """% of output that beats the day's hold's losses grown `growth` times
+        (`_grown_losses`) at −10 % mains; never below 20 % (a slow fall is lost in the
+        noise). None where those are not known."""
+        losses = self._grown_losses(pv, growth)
+        return None if losses is None else max(20.0, losses / MAINS_LOW)
+
+    def _grown_losses(self, pv: float, growth: float) -> float | None:
+        """% of output the day's hold's losses (`_measure_hold`) take grown `growth` times,
+        grown with the water's rise above the room over the hold's, and an open surface's
+        evaporation on top. None with no hold measured, two elements or a coil that may draw.
         The room is not known: (T − room) over (hold − room) is largest, for water below
         the hold, in the coldest room and, above it, in the warmest; a hold no warmer than
         the warmest room (a scheduled heat-up's water standing cold, the heater off) bounds
@@ -618,8 +650,7 @@ class Supervisor:
             grows = (pv - WARMEST_ROOM) / (held_at - WARMEST_ROOM)
         else:
             return None
-        losses = growth * duty * grows + lim.evaporation_share(pv)
-        return max(20.0, losses / MAINS_LOW)
+        return growth * duty * grows + lim.evaporation_share(pv)
 
     def _coil_may_draw(self, within: float | None = None) -> bool:
         """Whether a HERMS coil may have taken heat within the coil's bookkeeping (the
@@ -720,17 +751,20 @@ class Supervisor:
         such window held. Never more than all the heat of the watch and the memory (the
         bound before it), and far less in a hold: a duty d gives d·watch, not
         d·(watch + memory)."""
+        return max(self._window_energies(t, watch + dt, self.limits.heat_memory), default=0.0)
+
+    def _window_energies(self, end: float, span: float, back: float) -> Iterator[float]:
+        """Full-power s delivered in each window of `span` s (and the period its first mark
+        closes) that ends at a period mark within `back` s before `end`."""
         history, before = self._energy, self._energy_before
         total = self._energy_total
-        ends_from = bisect.bisect_left(history, t - self.limits.heat_memory, key=_when)
-        start = bisect.bisect_left(history, t - self.limits.heat_memory - watch - dt, key=_when)
-        most = 0.0
-        for end in range(ends_from, len(history)):
-            after_end = before[end + 1] if end + 1 < len(history) else total
-            while history[start][0] < history[end][0] - watch - dt:
+        last = bisect.bisect_right(history, end, key=_when)
+        start = bisect.bisect_left(history, end - back - span, key=_when)
+        for stop in range(bisect.bisect_left(history, end - back, key=_when), last):
+            after_stop = before[stop + 1] if stop + 1 < len(history) else total
+            while history[start][0] < history[stop][0] - span:
                 start += 1
-            most = max(most, after_end - before[start])
-        return most
+            yield after_stop - before[start]
 
     def _confirmed(self, what: str, sustained: bool) -> bool:
         """`sustained` now and at the last period: windows that begin past a pour, not within
