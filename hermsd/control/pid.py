@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 7
+CONTROL_LAW_VERSION = 8
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -128,7 +128,9 @@ Version 7: the in-period drop's thresholds grow with the readings' scatter (they
 period's readings); and the changes that came under 6's number since: predictive's bias learns
 heat missing from a hold at 100 s and the law sends no heat to water running away above the
 band, and the HERMS outer loop's decisions (its coast, step downs, pump starts held or
-prepared, the room read)."""
+prepared, the room read).
+Version 8: an innovation beyond a step is taken whole only where the PV itself moved its way
+(heat that comes later than the model has it is no cold water)."""
 
 ALGORITHMS = (
     "predictive",
@@ -209,7 +211,14 @@ a run of innovations from something else (a sensor's step, a fill) cannot turn t
 nothing or double it."""
 STEP_INNOVATION = 0.25
 """°C (4 LSB) in one period: the PV estimate takes such an innovation whole. A period's PV is
-the mean of its readings, so noise of 0.03 °C never moves it that far."""
+the mean of its readings, so noise of 0.03 °C never moves it that far. Beyond it by more
+than the period's drift, or where the PV itself moved the innovation's way by more than
+BIAS_INNOVATION_CLIP: on a fast tun (8 °C/min at full power, 0.7 °C a period) heat that
+comes a few seconds later than the model has it leaves the PV a step short of the model's
+rise with the PV still rising, and taken whole as cold water it sent a second burst of heat
+(population tun 114: 0.41 °C over after the water on day 2; bench/RESULTS.md, "Population:
+200 tuns drawn"). Heat that never comes (a dead element) runs the estimate a period's drift
+and a step above the PV within a few periods, and is taken whole from there on."""
 DROP_READINGS = 2
 """Readings in a row that must show a drop below the last period's PV before predictive acts
 inside a period (`full_power_now`)."""

@@ -359,11 +359,17 @@ class _Predictive(_Base):
         before = self._estimate + self._drift(self._estimate, shown - past)
         innovation = pv - before
         l1, l2 = self._missing_gains if self._heat_missing(sp, pv) else self._gains
-        # A jump beyond what noise and the model's drift can make (cold water) is taken whole.
-        step = innovation if abs(innovation) > STEP_INNOVATION else l1 * innovation
-        self._estimate = before + step
+        # A jump beyond what noise and the model's drift can make (cold water) is taken whole:
+        # beyond a step more than the period's drift (heat that comes a little later than the
+        # model has it leaves the PV short by up to all of it: on a fast tun more than a step
+        # a period), or a step where the PV itself moved its way by more than noise moves a
+        # period's mean (2 LSB: cold water behind a thermowell, the PV a step under a rise).
         clip = BIAS_INNOVATION_CLIP
-        trailing = clip < abs(innovation) <= STEP_INNOVATION
+        its_way = -fell if innovation > 0.0 else fell
+        beyond = abs(innovation) - abs(before - self._estimate)
+        jumped = abs(innovation) > STEP_INNOVATION and (its_way > clip or beyond > STEP_INNOVATION)
+        self._estimate = before + (innovation if jumped else l1 * innovation)
+        trailing = clip < abs(innovation) and not jumped
         if trailing and (self._trailing == 0.0 or (self._trailing > 0.0) == (innovation > 0.0)):
             self._trailing += math.copysign(self._ts, innovation)
         else:
@@ -411,7 +417,7 @@ class _Predictive(_Base):
         # a period of it adds (acting on the fall cannot lift the water above where it was),
         # by the gain that puts back in one period what this one fell (more than 100 %).
         cold, self._cold_water = self._cold_water, False
-        self._follow_pour(pv, cold or innovation < -STEP_INNOVATION)
+        self._follow_pour(pv, cold or (jumped and innovation < 0.0))
         self._carried = (cold or self._carried) and pv < sp and fell > self._ts * self._rate
         if self._carried:
             p = max(p, self._kc_far * fell)
