@@ -231,6 +231,24 @@ ELEMENT_W = 8640.0  # 3.54 °C/min at full power into it
 HOLD_UA = 0.08 * ELEMENT_W / (66.0 - 8.0)  # W/K: 8 % holds 66 °C in an 8 °C room
 
 
+def test_a_stalled_loop_mid_watch_leaves_the_watch_judging() -> None:
+    # A period 200 s long (the loop stalled) while the output watch weighs the heat due: no
+    # window of whole periods fits a 150 s half-watch then, and the watch goes on to tell
+    # the dead element (77 % on a 10 % hold, the water falling 0.2 °C each 150 s).
+    sup = Supervisor(limits())
+    t, pv = 0.0, 66.0
+    while t <= 1800.0:
+        sup.period(t, pv, 10.0, 10.0)
+        t += 5.0
+    for k in range(400):
+        if not sup.heater_allowed:
+            break
+        sup.period(t, pv, 77.0, 77.0)
+        pv -= 0.2 / 150.0 * 5.0
+        t += 200.0 if k == 60 else 5.0
+    assert sup.latched == ["heater_not_heating"]
+
+
 def _room_then(element_dies: bool) -> tuple[list[str], float]:
     """A fast tun held at 66 °C on 8 %, its heat reaching the water 15 s after it is
     switched and the sensor through an 82 s lag, 120 s of dead time measured (population

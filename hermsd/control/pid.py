@@ -129,8 +129,9 @@ period's readings); and the changes that came under 6's number since: predictive
 heat missing from a hold at 100 s and the law sends no heat to water running away above the
 band, and the HERMS outer loop's decisions (its coast, step downs, pump starts held or
 prepared, the room read).
-Version 8: an innovation beyond a step is taken whole only where the PV itself moved its way
-(heat that comes later than the model has it is no cold water)."""
+Version 8: an innovation beyond a step is taken whole only beyond a step more than the
+period's drift, or where the PV itself moved its way (heat that comes later than the model has
+it is no cold water)."""
 
 ALGORITHMS = (
     "predictive",

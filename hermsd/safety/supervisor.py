@@ -476,8 +476,9 @@ class Supervisor:
             # The coil's most taken, and losses beyond the heat due, explain as much of each
             # half's fall.
             begin, middle = recent[0][0], t - half
-            first -= self._coil_fall(begin, middle) + self._fall_due(begin, middle, peak, t)
-            second -= self._coil_fall(middle, t) + self._fall_due(middle, t, peak, t)
+            losses = self._losses_may_be(peak)
+            first -= self._coil_fall(begin, middle) + self._fall_due(begin, middle, losses, t)
+            second -= self._coil_fall(middle, t) + self._fall_due(middle, t, losses, t)
             if first >= step and second >= max(step, first / 2.0):
                 fall = first + second
         judged = watch.full and held >= lim.heater_watch
@@ -598,25 +599,29 @@ class Supervisor:
         held = self._held_losses(pv, MODEL_MARGIN)
         return most if held is None else min(most, held)
 
-    def _fall_due(self, start: float, end: float, pv: float, t: float) -> float:
-        """°C the water at `pv` or below may fall from `start` to `end` with a working
-        element: the losses the day may bring, beyond the least heat due at the sensor (any
-        window as long, ending within a dead time before `end`, each period's whole), at
-        −10 % mains, every % moving the water at most `heat_rate` per 100 s.
-
-        The losses: those h beats (`_heating_output`), or `LOSS_GROWTH` times the day's hold's
-        (a colder room: at a duty between the two the water may fall and the law still be
-        working), never more than the element gives at 80 % of its limit (a tun that loses
-        more is not held on a normal day: there a steady fall is the verdict it was)."""
-        lim = self.limits
+    def _losses_may_be(self, pv: float) -> float:
+        """% of output a normal day's losses may take at `pv`: those h beats
+        (`_heating_output`), or `LOSS_GROWTH` times the day's hold's (a colder room: at a
+        duty between the two the water may fall and the law still be working), never more
+        than the element gives at 80 % of its limit (a tun that loses more is not held on a
+        normal day: there a steady fall is the verdict it was)."""
         losses = MAINS_LOW * self._heating_output(pv)
         grown = self._grown_losses(pv, LOSS_GROWTH)
-        if grown is not None:
-            losses = max(losses, min(grown, MAINS_LOW * lim.full_output))
+        if grown is None:
+            return losses
+        return max(losses, min(grown, MAINS_LOW * self.limits.full_output))
+
+    def _fall_due(self, start: float, end: float, losses: float, t: float) -> float:
+        """°C the water may fall from `start` to `end` with a working element against
+        `losses` % of output: beyond the least heat due at the sensor (any window as long,
+        ending within a dead time before `end`, each period's whole), at −10 % mains, every
+        % moving the water at most `heat_rate` per 100 s."""
+        lim = self.limits
         span = end - start
         last = self._last_period_t
-        period = 0.0 if last is None else t - last
-        least = min(self._window_energies(end, span - period, lim.dead_time), default=0.0)
+        # Whole periods only: after a stalled loop the last one may be longer than the span.
+        whole = span - (0.0 if last is None else t - last)
+        least = min(self._window_energies(end, max(whole, 0.0), lim.dead_time), default=0.0)
         short = losses - MAINS_LOW * 100.0 * least / span
         return max(0.0, short) / 100.0 * lim.heat_rate * span
 
