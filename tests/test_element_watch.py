@@ -24,6 +24,7 @@ from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import (
     CONFIRM_S,
     DEAD_TIME_FACTORS,
+    HOLD_S,
     SPELL_S,
     UNASKED,
     ElementReport,
@@ -77,8 +78,34 @@ def test_the_references_are_the_days_full_power_rise_and_hold() -> None:
     _day(watch, 1.0, 0.0)
     assert watch.full_rate == pytest.approx(GAIN - LOSS)  # 0.008 °C/s
     # 55 % of 2 kW of 5.5 kW; the hold's window may start in the approach's last rise, taken
-    # off by the drift, to within a period of full power at its ends (0.8·5/1200 = 0.0033).
-    assert watch.hold_power == pytest.approx(0.2, abs=0.0034)
+    # off by the drift, to within a period of full power at its ends (0.8·5/600 = 0.0067).
+    assert watch.hold_power == pytest.approx(0.2, abs=(GAIN - LOSS) / GAIN * H / HOLD_S + 1e-4)
+
+
+def test_a_death_ten_minutes_into_a_creeping_hold_is_told() -> None:
+    """A small tun on a big pair (G = 0.1 °C/s: 7.6 kW into 18 L, bench/population.py's tun
+    108) creeps into its hold from 0.45 °C under the setpoint at 0.0005 °C/s, the SSR alone
+    at what the losses and that creep take; 800 s in, the SSR dies (and is asked 100 %). The
+    hold's 600 s, its drift taken off (0.3 °C: 0.5 % of G), are its reference: told."""
+    gain, loss, creep = 0.1, 0.0097, 0.0005
+    heat_up, dies = 300.0, 1100.0
+    hold_ssr = 100.0 * (loss + creep) / gain * 11.0 / 4.0
+    watch = ElementWatch(W1, W2, THETA)
+    t, pv, reports = 0.0, 65.55 - (gain - loss) * heat_up, []
+    while t < dies + 600.0:
+        held = (hold_ssr, 0.0) if t < dies else (100.0, 0.0)
+        duty1, duty2 = (100.0, 100.0) if t < heat_up else held
+        reports += [(r.t, r.element) for r in watch.period(t, pv, 66.0, duty1, duty2) if r.raised]
+        shown = t + H - THETA
+        rate = -loss
+        if shown < heat_up:
+            rate += gain
+        elif shown < dies:
+            rate += gain * (loss + creep) / gain
+        t, pv = t + H, pv + rate * H
+    assert watch.hold_power == pytest.approx(loss / gain, abs=0.005)
+    assert [element for _, element in reports] == [1]
+    assert dies < reports[0][0] <= dies + SPELL_S + 2.0 * THETA + CONFIRM_S + 2.0 * H
 
 
 def test_an_ssr_at_full_that_heats_as_it_should_is_not_reported() -> None:
