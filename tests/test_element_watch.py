@@ -23,6 +23,8 @@ from hermsd.log.replay import verify
 from hermsd.runtime.period import PeriodRecord
 from hermsd.safety.element_watch import (
     CONFIRM_S,
+    CYCLES_CONFIRM_S,
+    CYCLES_S,
     DEAD_TIME_FACTORS,
     HOLD_S,
     SPELL_S,
@@ -106,6 +108,31 @@ def test_a_death_ten_minutes_into_a_creeping_hold_is_told() -> None:
     assert watch.hold_power == pytest.approx(loss / gain, abs=0.005)
     assert [element for _, element in reports] == [1]
     assert dies < reports[0][0] <= dies + SPELL_S + 2.0 * THETA + CONFIRM_S + 2.0 * H
+
+
+def test_an_ssr_dying_in_a_hold_that_pulses_the_contactor_is_told() -> None:
+    """A tun the SSR cannot hold alone (losses 0.005 °C/s, u0 = 0.5 of the total): the hold
+    keeps the SSR at 100 % and pulses the contactor 60 s in 280 s, both full in each pulse.
+    The SSR dies and the pulses go on: each 15-min window's pulses lie inside it, their heat
+    shown within it whatever the dead time, so the window is judged. Its missing heat is the
+    SSR's part, 0.364 of the total, the contactor's being 0.136: element 1."""
+    loss, on_s, cycle_s = 0.005, 60.0, 280.0
+    heat_up, dies = 3200.0, 7000.0  # 49.85 → 65.85 °C on both, then the hold
+    watch = ElementWatch(W1, W2, THETA)
+    t, pv, reports = 0.0, 65.85 - (GAIN - loss) * heat_up, []
+    while t < dies + 1800.0:
+        pulse = t < heat_up or (t - heat_up) % cycle_s < on_s
+        duty2 = 100.0 if pulse else 0.0
+        reports += [(r.t, r.element) for r in watch.period(t, pv, 66.0, 100.0, duty2) if r.raised]
+        shown = t + H - THETA
+        shown_pulse = shown < heat_up or (shown - heat_up) % cycle_s < on_s
+        ssr = 4.0 / 11.0 if shown < dies else 0.0
+        rate = GAIN * (ssr + (7.0 / 11.0 if shown_pulse else 0.0)) - loss
+        t, pv = t + H, pv + rate * H
+    assert watch.hold_cycled
+    assert watch.hold_power == pytest.approx(0.5, abs=0.02)
+    assert [element for _, element in reports] == [1]
+    assert dies < reports[0][0] <= dies + CYCLES_S + THETA + CYCLES_CONFIRM_S + cycle_s
 
 
 def test_an_ssr_at_full_that_heats_as_it_should_is_not_reported() -> None:

@@ -288,8 +288,15 @@ class ElementWatch:
         powered = [s for s in spell if s.t <= t - dead]
         if not powered:
             return None
-        if not steady and any(self._total(s) >= 1.0 - 1e-9 for s in powered):
-            return None  # a heat-up or recovery's end: where its heat shows depends on θ
+        if not steady and any(
+            self._total(s) >= 1.0 - 1e-9
+            for s in powered
+            if min(s.t - powered[0].t, powered[-1].t - s.t) < self.dead_time
+        ):
+            # Both full within a dead time of an end (a heat-up's or a recovery's): whether its
+            # heat shows in the window depends on θ. Pulses of both inside it show within it
+            # (a hold the SSR cannot make alone, the SSR's element dead: population tun 95).
+            return None
         first = [s for s in spell if s.t >= t - span][:PV_MEAN_PERIODS]
         last = spell[-PV_MEAN_PERIODS:]
         seconds = _mean_t(last) - _mean_t(first)
