@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import random
 import re
 from pathlib import Path
 
@@ -28,6 +30,7 @@ from hermsd.safety.element_watch import (
     DEAD_TIME_FACTORS,
     HOLD_S,
     SPELL_S,
+    STALL_S,
     UNASKED,
     ElementReport,
     ElementWatch,
@@ -133,6 +136,50 @@ def test_an_ssr_dying_in_a_hold_that_pulses_the_contactor_is_told() -> None:
     assert watch.hold_power == pytest.approx(0.5, abs=0.02)
     assert [element for _, element in reports] == [1]
     assert dies < reports[0][0] <= dies + CYCLES_S + THETA + CYCLES_CONFIRM_S + cycle_s
+
+
+def _heat_up(
+    dies: float | None, pour_at: float | None = None, until: float = 66.0
+) -> list[tuple[float, int]]:
+    """Both elements full from 20 °C until `until` on a tun whose losses grow from nothing to
+    80 % of both elements' power at 66 °C, half of them an open surface's (×e^0.055 a
+    degree), with 0.02 °C of seeded noise on the PV; the SSR's element dies at `dies`, 1 °C
+    of water is poured in at `pour_at`. The heat-up fit (both elements' rate before the
+    losses, GAIN) is handed in at 600 s. Returns the reports raised (time, element)."""
+    rng = random.Random(7)
+    watch = ElementWatch(W1, W2, THETA)
+    t, water, reports = 0.0, 20.0, []
+    while water < until and t < 40000.0:
+        if t == 600.0:
+            watch.heat_up(GAIN, THETA)
+        pv = water + rng.gauss(0.0, 0.02)
+        reports += [(r.t, r.element) for r in watch.period(t, pv, 66.0, 100.0, 100.0) if r.raised]
+        dead = dies is not None and t + H - THETA >= dies  # the heat shown now was sent then
+        shown = 7.0 / 11.0 if dead else 1.0
+        losses = 0.004 * (water - 20.0) / 46.0 + 0.004 * math.exp(0.055 * (water - 66.0))
+        water += (GAIN * shown - losses) * H
+        if pour_at is not None and t == pour_at:
+            water -= 1.0
+        t += H
+    return reports
+
+
+def test_a_heat_up_whose_ssr_element_dies_is_told_from_its_ramp() -> None:
+    """No hold yet: the ramp, 0.0062 °C/s at 45 °C and slowing as the losses grow, drops at
+    once by the SSR's 4/11 of GAIN when it dies; told once the last window has seen it."""
+    dies = 4000.0
+    assert _heat_up(None, until=50.0) == []
+    reports = _heat_up(dies)
+    assert [element for _, element in reports] == [1]
+    assert dies < reports[0][0] <= dies + STALL_S + THETA + CONFIRM_S + H
+
+
+def test_a_heat_up_to_the_setpoint_and_water_poured_in_it_are_no_stall() -> None:
+    """Both working all the way to 66 °C, the ramp slowing to a fifth of its start (losses
+    that grow ever faster as the surface steams), and water poured in halfway (1 °C down: a
+    drop in the ramp that is the SSR's part, were it not known for a pour)."""
+    assert _heat_up(None) == []
+    assert _heat_up(None, pour_at=4000.0) == []
 
 
 def test_an_ssr_at_full_that_heats_as_it_should_is_not_reported() -> None:

@@ -18,6 +18,10 @@ heat delivered while rising reads a little low. An element whose own part c of u
 each way of aligning the power with the PV (`WINDOWS`), for the window's confirm time is
 reported; it is cleared once a window shows no more than `RESTORED`·c missing.
 
+A heat-up's ramp with both full, which no hold has measured yet, is judged on its own: a
+slope that drops at once by an element's part of the heat-up fit's rate, beyond the ramp's
+own slowing, names it (`_stall`).
+
 Once the controller has fitted the day's heat-up (`heat_up`), the windows are aligned by the
 dead time it measured rather than the configured one (a 350 s tun judged on 115 s blames
 power that has not reached the sensor yet, and a recovery's heat still arriving looks like
@@ -95,6 +99,15 @@ times tried): a long window's ends weigh little, and the ripple of a cycling hol
 ends would make the dead times disagree by more than misjudging them does."""
 PV_MEAN_PERIODS = 3
 """Periods whose PV are averaged at either end of a spell (noise: sd/√3)."""
+STALL_S = 300.0
+"""s of PV in each of the three windows a heat-up's stall is judged on, each slope fitted
+by least squares (0.03 °C of noise on 60 periods: a standard error of 4.5e-5 °C/s, 0.6 % of
+1.4 kW into 42 L's rise per unit of power), a dead time apart."""
+STALL_SE = 4.0
+"""Standard errors of the slopes' difference a stall's drop must clear beyond the bend."""
+STALL_BEND = 2.0
+"""Times the ramp's own slowing between the first two windows that the last may slow by
+with both elements working (the losses grow with the water: evaporation faster near 66 °C)."""
 
 
 EITHER = 0
@@ -190,7 +203,7 @@ class ElementWatch:
             return said
         samples = self._samples
         samples.append(_Sample(t, pv, duty1 / 100.0, duty2 >= 100.0))
-        keep = max(HOLD_S, CYCLES_S) + max(DEAD_TIME_FACTORS) * self.dead_time + SUDDEN_SPAN
+        keep = max(HOLD_S, CYCLES_S, 3.0 * STALL_S) + 3.0 * self.dead_time + SUDDEN_SPAN
         while t - samples[0].t > keep:
             samples.popleft()
         # Faster than any loss: the hold's own (a lid-off tun with no heat falls 0.15 °C in
@@ -310,10 +323,56 @@ class ElementWatch:
         rate = (_mean_pv(last) - _mean_pv(first)) / seconds
         return parts[1] + parts[2], rate, parts
 
-    def _judge(self, t: float) -> list[ElementReport]:
-        gain, hold = self._gain(), self.hold_power
-        if self.probed is not None or gain is None or hold is None:
+    def _stall(self, t: float) -> list[ElementReport]:
+        """A heat-up's ramp that slowed at once by an element's part (no hold needed): both
+        full through three windows a dead time apart and the dead time before them, the
+        last's slope below the middle's by more than `STALL_BEND` times the ramp's slowing
+        from the first to the middle and the noise allow, that drop as a part of the total by
+        the heat-up fit's rate (both elements' before the losses)."""
+        gain, theta, samples = self.fit_rate, self.dead_time, self._samples
+        reach = 3.0 * STALL_S + 3.0 * theta
+        if self.probed is not None or self.suspect or self.doubtful or gain is None:
             return []
+        if samples[0].t > t - reach + 1e-9 or (
+            self._fell_at is not None and self._fell_at > t - reach - SETTLE_S
+        ):
+            return []
+        if any(self._total(s) < 1.0 - 1e-9 for s in samples if s.t > t - reach):
+            return []
+        ends = (t - 2.0 * (STALL_S + theta), t - STALL_S - theta, t)
+        windows = [[s for s in samples if end - STALL_S < s.t <= end] for end in ends]
+        fits = None if min(map(len, windows)) < 3 else [_slope(w) for w in windows]
+        if fits is None:
+            return []
+        (first, se1), (middle, se2), (last, se3) = fits
+        bend = max(first - middle, 0.0)
+        noise = STALL_SE * math.sqrt(se2**2 + se3**2 + STALL_BEND**2 * (se1**2 + se2**2))
+        missing = (middle - last - STALL_BEND * bend - noise) / gain
+        parts = {1: self.share1, 2: self.share2}
+        blamed = [e for e, c in parts.items() if MISSING * c <= missing <= c / MISSING]
+        element = blamed[0] if len(blamed) == 1 else EITHER if blamed else None
+        for each in (1, 2, EITHER):
+            if each != element:
+                self._since.pop((each, True, STALL_S), None)
+        if element is None:
+            return []
+        if t - self._since.setdefault((element, True, STALL_S), t) < CONFIRM_S:
+            return []
+        self._since.clear()
+        self.suspect.add(element)
+        message = (
+            f"{no_heat_words(element)} the heat-up's rise slowed at once by "
+            f"{100.0 * (middle - last) / gain:.0f} % of both elements' power with both full "
+            "(against the heat-up fit's rate), or the tun began to lose that much more (a lid "
+            "off?)"
+        )
+        return [ElementReport(element, t, True, message)]
+
+    def _judge(self, t: float) -> list[ElementReport]:
+        stalled = self._stall(t)
+        gain, hold = self._gain(), self.hold_power
+        if stalled or self.probed is not None or gain is None or hold is None:
+            return stalled
         for span, steady, least, confirm, factors in WINDOWS:
             if steady and self.hold_cycled:
                 # A hold that switched the second element on is judged by the long window
@@ -398,6 +457,16 @@ class ElementWatch:
 
     def _total(self, sample: _Sample) -> float:
         return self.share1 * sample.duty1 + (self.share2 if sample.on2 else 0.0)
+
+
+def _slope(samples: list[_Sample]) -> tuple[float, float]:
+    """The PV's least-squares slope over `samples` (°C/s) and its standard error."""
+    n = len(samples)
+    mean_t, mean_pv = _mean_t(samples), _mean_pv(samples)
+    sxx = sum((s.t - mean_t) ** 2 for s in samples)
+    slope = sum((s.t - mean_t) * (s.pv - mean_pv) for s in samples) / sxx
+    residuals = sum((s.pv - mean_pv - slope * (s.t - mean_t)) ** 2 for s in samples)
+    return slope, math.sqrt(residuals / (n - 2) / sxx)
 
 
 def _mean_pv(samples: list[_Sample]) -> float:
