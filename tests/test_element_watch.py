@@ -303,6 +303,12 @@ def _first_report(day: Scenario) -> tuple[list[int], float] | None:
     result = run(day, keep_records=True)
     assert result.summary["alarms"] == []  # the other element holds: nothing latches
     first = next((r for r in result.records if r.no_heat), None)
+    # The day's summary says each element's first report (bench/population.py counts them).
+    said = {w["element"]: w["at_s"] for w in result.summary["element_warnings"]}
+    assert said == {
+        element: next(r.t for r in result.records if element in (r.no_heat or []))
+        for element in {e for r in result.records for e in r.no_heat or []}
+    }
     return None if first is None else (first.no_heat or [], first.t)
 
 

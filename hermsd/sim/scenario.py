@@ -494,9 +494,12 @@ class _Collector:
     pv_samples: list[Sample] = field(default_factory=list)  # of the daemon's PV, as logged
     records: list[PeriodRecord] = field(default_factory=list)
     alarms: list[Alarm] = field(default_factory=list)
+    warned: dict[int, float] = field(default_factory=dict)  # element → first reported at
     keep_records: bool = False
 
     def period(self, record: PeriodRecord) -> None:
+        for element in record.no_heat or ():
+            self.warned.setdefault(element, record.t)
         temp = self.plant.temperature(record.t)
         self.samples.append(Sample(record.t, record.setpoint, temp, record.output))
         if record.pv is not None:
@@ -767,6 +770,10 @@ def run(
         "recovery_floor_s": None if recovery_floor_s is None else round(recovery_floor_s, 1),
         "recovery_floor_ratio": _ratio(recovery_floor_s, recovery_min_s),
         "alarms": alarms,
+        "element_warnings": [
+            {"at_s": round(at, 3), "element": element}
+            for element, at in sorted(collector.warned.items(), key=lambda kv: kv[1])
+        ],
         "overruns": daemon.overruns,
         "wall_s": round(wall, 3),
     }
