@@ -139,21 +139,26 @@ def test_an_ssr_dying_in_a_hold_that_pulses_the_contactor_is_told() -> None:
 
 
 def _heat_up(
-    dies: float | None, pour_at: float | None = None, until: float = 66.0
+    dies: float | None,
+    pour_at: float | None = None,
+    until: float = 66.0,
+    pump: tuple[bool, bool | None] = (False, None),
 ) -> list[tuple[float, int]]:
     """Both elements full from 20 °C until `until` on a tun whose losses grow from nothing to
     80 % of both elements' power at 66 °C, half of them an open surface's (×e^0.055 a
     degree), with 0.02 °C of seeded noise on the PV; the SSR's element dies at `dies`, 1 °C
     of water is poured in at `pour_at`. The heat-up fit (both elements' rate before the
-    losses, GAIN) is handed in at 600 s. Returns the reports raised (time, element)."""
+    losses, GAIN) is handed in at 600 s. `pump`: whether a HERMS coil is fitted, and its
+    pump as known all day. Returns the reports raised (time, element)."""
     rng = random.Random(7)
-    watch = ElementWatch(W1, W2, THETA)
+    watch = ElementWatch(W1, W2, THETA, coil=pump[0])
     t, water, reports = 0.0, 20.0, []
     while water < until and t < 40000.0:
         if t == 600.0:
             watch.heat_up(GAIN, THETA)
         pv = water + rng.gauss(0.0, 0.02)
-        reports += [(r.t, r.element) for r in watch.period(t, pv, 66.0, 100.0, 100.0) if r.raised]
+        said = watch.period(t, pv, 66.0, 100.0, 100.0, pump=pump[1])
+        reports += [(r.t, r.element) for r in said if r.raised]
         dead = dies is not None and t + H - THETA >= dies  # the heat shown now was sent then
         shown = 7.0 / 11.0 if dead else 1.0
         losses = 0.004 * (water - 20.0) / 46.0 + 0.004 * math.exp(0.055 * (water - 66.0))
@@ -172,6 +177,16 @@ def test_a_heat_up_whose_ssr_element_dies_is_told_from_its_ramp() -> None:
     reports = _heat_up(dies)
     assert [element for _, element in reports] == [1]
     assert dies < reports[0][0] <= dies + STALL_S + THETA + CONFIRM_S + H
+
+
+def test_with_a_herms_coil_nothing_is_judged_while_its_pump_may_run() -> None:
+    """The pump's start draws heat from the HLT as an element's death would lose it: with a
+    coil fitted, the same death is judged with the pump known stopped, and not with it
+    running or not known."""
+    dies = 4000.0
+    assert [e for _, e in _heat_up(dies, pump=(True, False))] == [1]
+    assert _heat_up(dies, pump=(True, True)) == []
+    assert _heat_up(dies, pump=(True, None)) == []
 
 
 def test_a_heat_up_to_the_setpoint_and_water_poured_in_it_are_no_stall() -> None:

@@ -455,6 +455,7 @@ def verify(entries: Sequence[LoggedConfig | PeriodRecord]) -> Verification:
                 record.applied,
                 record.switched2,
                 record.state == "ok",
+                record.pump,
             )
             if record.no_heat is not None and sorted(watch.suspect) != record.no_heat:
                 name = f"no_heat {record.no_heat} (derived {sorted(watch.suspect)})"

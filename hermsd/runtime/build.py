@@ -70,8 +70,14 @@ def safety_limits(
 
 
 def element_watch(config: Config) -> ElementWatch:
-    """The watch of both elements' heat, judged over the controller's dead time."""
-    return ElementWatch(config.tun.element_watts, element2_watts(config), config.control.dead_time)
+    """The watch of both elements' heat, judged over the controller's dead time (not while a
+    HERMS coil's pump may run)."""
+    return ElementWatch(
+        config.tun.element_watts,
+        element2_watts(config),
+        config.control.dead_time,
+        coil=config.mash_sensor.fitted,
+    )
 
 
 def take_heat_up(watch: ElementWatch, controller: pid.Controller) -> None:

@@ -887,7 +887,9 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
             self._event(logging.INFO, probed.message, now)
         elif probed is not None and probed.element is not None:
             reports.append(watch.blame(now, probed.element, probed.message))
-        reports += watch.period(now, pv, self.hlt_target(), duty1, duty2, state == "ok")
+        reports += watch.period(
+            now, pv, self.hlt_target(), duty1, duty2, state == "ok", self.pump_state
+        )
         for report in reports:
             said = report.message + left_out(report, self.controller)
             self._event(logging.WARNING if report.raised else logging.INFO, said, now)

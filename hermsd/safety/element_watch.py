@@ -156,12 +156,13 @@ class _Sample:
 class ElementWatch:
     """Reports an element of two that gives no heat, from the loop's own spells."""
 
-    def __init__(self, watts1: float, watts2: float, dead_time: float) -> None:
+    def __init__(self, watts1: float, watts2: float, dead_time: float, coil: bool = False) -> None:
         if not (watts1 > 0.0 and watts2 > 0.0 and dead_time >= 0.0):
             raise ValueError(f"watts must be > 0, dead time ≥ 0: {watts1}, {watts2}, {dead_time}")
         self.share1 = watts1 / (watts1 + watts2)
         self.share2 = watts2 / (watts1 + watts2)
         self.dead_time = dead_time
+        self.coil = coil  # a HERMS coil in the HLT (a mash sensor fitted) may draw its heat
         self.full_rate: float | None = None  # °C/s with both fully on
         self.fit_rate: float | None = None  # °C/s with both fully on, before the losses
         self.hold_power: float | None = None  # the hold's mean total, 0..1
@@ -182,10 +183,13 @@ class ElementWatch:
         duty1: float,
         duty2: float,
         controlled: bool = True,
+        pump: bool | None = None,
     ) -> list[ElementReport]:
         """One control period: the PV, the setpoint, each element's duty (%) as switched in
-        the period before, and whether the controller drives them (no alarm, no manual, no
-        program waiting). Returns what was reported or cleared now."""
+        the period before, whether the controller drives them (no alarm, no manual, no
+        program waiting) and the HERMS pump as known (None: not known). Returns what was
+        reported or cleared now. While a coil's pump may run, nothing is judged: its load on
+        the HLT would read as an element's missing heat."""
         said: list[ElementReport] = []
         if setpoint != self.setpoint:
             self.setpoint, self.hold_power = setpoint, None  # losses differ at another one
@@ -197,6 +201,8 @@ class ElementWatch:
                         UNASKED, t, False, "heat as asked is judged again, at the new setpoint"
                     )
                 )
+        if self.coil and pump is not False:
+            controlled = False
         if pv is None or not math.isfinite(pv) or not controlled:
             self._samples.clear()  # no window spans an alarm's heater off, or a manual spell
             self._since.clear()
