@@ -41,6 +41,8 @@ from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from hermsd.safety.heat_balance import pv_slope
+
 SPELL_S = 120.0
 """s of PV judged at a time: the means of 3 periods' PV at its ends (each period's of 5
 reads: sd 0.016 °C with 0.03 °C noise and the LM92's steps) differ by sd 0.013 °C, 1.1e-4
@@ -340,6 +342,8 @@ class ElementWatch:
         reach = 3.0 * STALL_S + 3.0 * theta
         if self.probed is not None or self.suspect or self.doubtful or gain is None:
             return []
+        if self._total(samples[-1]) < 1.0 - 1e-9:
+            return []  # not at full now: the common case, before the reach is scanned
         if samples[0].t > t - reach + 1e-9 or (
             self._fell_at is not None and self._fell_at > t - reach - SETTLE_S
         ):
@@ -348,13 +352,15 @@ class ElementWatch:
             return []
         ends = (t - 2.0 * (STALL_S + theta), t - STALL_S - theta, t)
         windows = [[s for s in samples if end - STALL_S < s.t <= end] for end in ends]
-        fits = None if min(map(len, windows)) < 3 else [_slope(w) for w in windows]
-        if fits is None:
+        first, middle, last = (pv_slope([(s.t, s.pv) for s in window]) for window in windows)
+        if first is None or middle is None or last is None:
             return []
-        (first, se1), (middle, se2), (last, se3) = fits
-        bend = max(first - middle, 0.0)
-        noise = STALL_SE * math.sqrt(se2**2 + se3**2 + STALL_BEND**2 * (se1**2 + se2**2))
-        missing = (middle - last - STALL_BEND * bend - noise) / gain
+        bend = max(first.rate - middle.rate, 0.0)
+        noise = STALL_SE * math.sqrt(
+            middle.error**2 + last.error**2 + STALL_BEND**2 * (first.error**2 + middle.error**2)
+        )
+        drop = middle.rate - last.rate
+        missing = (drop - STALL_BEND * bend - noise) / gain
         parts = {1: self.share1, 2: self.share2}
         blamed = [e for e, c in parts.items() if MISSING * c <= missing <= c / MISSING]
         element = blamed[0] if len(blamed) == 1 else EITHER if blamed else None
@@ -369,7 +375,7 @@ class ElementWatch:
         self.suspect.add(element)
         message = (
             f"{no_heat_words(element)} the heat-up's rise slowed at once by "
-            f"{100.0 * (middle - last) / gain:.0f} % of both elements' power with both full "
+            f"{100.0 * drop / gain:.0f} % of both elements' power with both full "
             "(against the heat-up fit's rate), or the tun began to lose that much more (a lid "
             "off?)"
         )
@@ -464,16 +470,6 @@ class ElementWatch:
 
     def _total(self, sample: _Sample) -> float:
         return self.share1 * sample.duty1 + (self.share2 if sample.on2 else 0.0)
-
-
-def _slope(samples: list[_Sample]) -> tuple[float, float]:
-    """The PV's least-squares slope over `samples` (°C/s) and its standard error."""
-    n = len(samples)
-    mean_t, mean_pv = _mean_t(samples), _mean_pv(samples)
-    sxx = sum((s.t - mean_t) ** 2 for s in samples)
-    slope = sum((s.t - mean_t) * (s.pv - mean_pv) for s in samples) / sxx
-    residuals = sum((s.pv - mean_pv - slope * (s.t - mean_t)) ** 2 for s in samples)
-    return slope, math.sqrt(residuals / (n - 2) / sxx)
 
 
 def _mean_pv(samples: list[_Sample]) -> float:

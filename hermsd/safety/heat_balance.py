@@ -81,7 +81,9 @@ still bends its fall."""
 
 
 @dataclass(frozen=True, slots=True)
-class _Slope:
+class Slope:
+    """A PV's least-squares slope over a window and its standard error."""
+
     rate: float  # °C/s
     error: float  # its standard error, °C/s
 
@@ -240,9 +242,9 @@ class HeatBalance:
         """The PV's slope over the `WINDOW_S` to `end`, and over each half of it."""
         points = [(s, p) for s, p, _ in self._samples if end - WINDOW_S < s <= end]
         middle = end - WINDOW_S / 2.0
-        whole = _slope(points)
-        first = _slope([(s, p) for s, p in points if s <= middle])
-        second = _slope([(s, p) for s, p in points if s > middle])
+        whole = pv_slope(points)
+        first = pv_slope([(s, p) for s, p in points if s <= middle])
+        second = pv_slope([(s, p) for s, p in points if s > middle])
         if whole is None or first is None or second is None:
             return None
         return _Window(whole.rate, whole.error, first, second)
@@ -258,9 +260,9 @@ class HeatBalance:
 
 
 @dataclass(frozen=True, slots=True)
-class _Window(_Slope):
-    first: _Slope  # over the window's first half
-    second: _Slope  # … and its second
+class _Window(Slope):
+    first: Slope  # over the window's first half
+    second: Slope  # … and its second
 
 
 def _steady(window: _Window, floor: float) -> bool:
@@ -269,13 +271,13 @@ def _steady(window: _Window, floor: float) -> bool:
     return abs(gap) <= _gap_margin(window.first, window.second, floor)
 
 
-def _gap_margin(one: _Slope, other: _Slope, floor: float) -> float:
+def _gap_margin(one: Slope, other: Slope, floor: float) -> float:
     """°C/s two slopes must differ by to differ beyond their noise: `MARGIN_SE` standard
     errors of the difference, never under `floor`."""
     return max(MARGIN_SE * math.hypot(one.error, other.error), floor)
 
 
-def _slope(points: list[tuple[float, float]]) -> _Slope | None:
+def pv_slope(points: list[tuple[float, float]]) -> Slope | None:
     """The least-squares slope of the PV over `points` and its standard error, about the
     points' own means: exact on any clock (the control side's running sums, `LineFit`, lose
     the slope's digits to t² once t is large, and the safety package leans on no control
@@ -290,14 +292,14 @@ def _slope(points: list[tuple[float, float]]) -> _Slope | None:
         return None
     rate = sum((t - t_mean) * (p - pv_mean) for t, p in points) / spread
     residuals = sum((p - pv_mean - rate * (t - t_mean)) ** 2 for t, p in points)
-    return _Slope(rate, math.sqrt(residuals / (n - 2) / spread))
+    return Slope(rate, math.sqrt(residuals / (n - 2) / spread))
 
 
 def _verdict(
     duty: float,
     duty_before: float,
-    later: _Slope,
-    earlier: _Slope,
+    later: Slope,
+    earlier: Slope,
     per_duty: float,
     level: bool,
 ) -> BalanceVerdict:
