@@ -382,6 +382,17 @@ def test_recovery_from_cold_water_is_within_two_percent_of_full_power() -> None:
     assert peak <= SP + 0.1
 
 
+def least_recovery(tun: LaggedTun) -> int:
+    """Periods the least recovery takes: a copy of the tun, full power from the water on,
+    until the sensor, having fallen out of the band, is back in it."""
+    fastest, steps, fallen = copy.deepcopy(tun), 0, False
+    while not (fallen and fastest.pv() >= SP - 0.5):
+        fastest.heat(100.0)
+        steps += 1
+        fallen = fallen or fastest.pv() < SP - 0.5
+    return steps
+
+
 def lagged_day(model: pid.PlantModel, delay: float, lag: float) -> tuple[float, float, float]:
     """(s back in the band, the least s full power from the water on takes, peak °C after)
     of a day on `model`'s water behind a thermowell: a heat-up from the room (its fit
@@ -391,13 +402,7 @@ def lagged_day(model: pid.PlantModel, delay: float, lag: float) -> tuple[float, 
     controller = predictive(model)
     trace = run(controller, tun, water_at)
     tun.add_water(0.1, 15.0)
-    # The least it can take: a copy of the tun, full power from the water on, until the
-    # sensor, having fallen out of the band, is back in it.
-    fastest, steps, fallen = copy.deepcopy(tun), 0, False
-    while not (fallen and fastest.pv() >= SP - 0.5):
-        fastest.heat(100.0)
-        steps += 1
-        fallen = fallen or fastest.pv() < SP - 0.5
+    steps = least_recovery(tun)
     after = run(controller, tun, 3600.0)
     low = next(i for i, (_, pv, _) in enumerate(after) if pv < SP - 0.5)
     back = next(t for t, pv, _ in after[low:] if pv >= SP - 0.5)
@@ -421,6 +426,39 @@ def test_a_recovery_on_a_measured_model_lands_within_two_percent_of_full_power()
     )
     assert prior_fastest == fastest
     assert prior_back > back
+
+
+def test_cold_water_behind_a_slow_sensor_is_heated_for_its_whole_drop() -> None:
+    # 4 kW into 48 L (0.02 °C/s) behind a 50 s delay and a 150 s thermowell, a tenth of
+    # 15 °C water into the 66 °C hold: the water drops to (66 + 0.1·15)/1.1 = 61.364 °C at
+    # once, the sensor shows it as 4.6·(1 − e^(−t/150)), still 1.5 °C above the water when
+    # the heat turns it. A law that took the PV's turn as the whole drop cut full power
+    # with the water 1.7 °C short and crept up the rest (back in the band ×1.6 of the
+    # least). The water itself is back at the setpoint before full power could have
+    # brought the sensor into the band, and the rate is scaled by the whole drop:
+    # (66 − 5)/(61.364 − 5) = 1.0823 × the capacity.
+    tau = 11900.0
+    gain = 0.02 * tau / 100.0
+    delay, lag = 50.0, 150.0
+    model = pid.PlantModel(gain, tau, delay + lag, ROOM, measured=True)
+    tun = LaggedTun(model.gain, model.tau, delay, lag, ROOM)
+    controller = predictive(model)
+    held = run(controller, tun, 7200.0)
+    assert min(pv for _, pv, _ in held[-100:]) >= SP - 0.1
+    tun.add_water(0.1, 15.0)
+    steps = least_recovery(tun)
+    law = control_predictive._law(controller)
+    assert law is not None
+    water, applied = [], None
+    for _ in range(round(3600.0 / TS)):
+        output = controller.step(SP, tun.pv(), applied)
+        tun.heat(output)
+        applied = output
+        water.append(ROOM + tun.rise)
+    assert max(water[: steps + 1]) >= SP - 0.1
+    assert max(water) <= SP + 0.1
+    dropped = (SP + 0.1 * 15.0) / 1.1
+    assert law._rate == pytest.approx(model.rate * (dropped - 5.0) / (SP - 5.0), rel=0.01)
 
 
 @pytest.mark.parametrize(("tau", "dead_time"), [(SEED.tau, 150.0), (SEED.tau / 2.0, 100.0)])
@@ -511,3 +549,17 @@ def test_heat_in_flight_counts_once_whatever_part_of_a_period_the_dead_time_ends
     after = proportional[5:]  # from the step that knows of the pulse on
     assert min(after) < -1.0  # the pulse is predicted: above the setpoint, P cuts
     assert max(after) - min(after) <= 0.02 * -min(after), after
+
+
+def test_a_pour_followed_for_many_of_its_lags_ends_with_nothing_unseen() -> None:
+    # A short lag followed for minutes (water that keeps the PV falling: an element too weak
+    # to turn it): e^(−t/L) underflows to 0, and the rest taken as the drop's is none, not
+    # a division by zero inside the control step.
+    gap = control_predictive._PourGap(66.0)
+    fade = math.exp(-TS / 1.0)
+    for _ in range(2000):
+        gap.advance(0.0, fade)
+    gap.seen(60.0, fade, 66.0)
+    gap.settle(fade)
+    assert gap.unseen(fade) == 0.0
+    assert gap.advance(0.0, fade) == 0.0

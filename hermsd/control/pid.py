@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 8
+CONTROL_LAW_VERSION = 9
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -131,7 +131,9 @@ band, and the HERMS outer loop's decisions (its coast, step downs, pump starts h
 prepared, the room read).
 Version 8: an innovation beyond a step is taken whole only beyond a step more than the
 period's drift, or where the PV itself moved its way (heat that comes later than the model has
-it is no cold water)."""
+it is no cold water).
+Version 9: cold water's drop behind the sensor's lag is taken as the lag says the PV will
+show it, in the prediction, the observer and the heat capacity it adds."""
 
 ALGORITHMS = (
     "predictive",
