@@ -431,7 +431,7 @@ class _Predictive(_Base):
         # a period of it adds (acting on the fall cannot lift the water above where it was),
         # by the gain that puts back in one period what this one fell (more than 100 %).
         cold, self._cold_water = self._cold_water, False
-        self._follow_pour(pv, cold or (jumped and innovation < 0.0), before)
+        self._follow_pour(pv, cold or (jumped and innovation < 0.0), cold or fell > clip, before)
         self._carried = (cold or self._carried) and pv < sp and fell > self._ts * self._rate
         if self._carried:
             p = max(p, self._kc_far * fell)
@@ -454,18 +454,21 @@ class _Predictive(_Base):
             self._held_sp = sp
         return sp == self._held_sp and pv < sp - LINEAR_BAND and pv <= self._recent[0]
 
-    def _follow_pour(self, pv: float, dropped: bool, free: float) -> None:
+    def _follow_pour(self, pv: float, dropped: bool, fell: bool, free: float) -> None:
         """Cold water poured in (a drop the readings showed, or a step taken whole): the
         tun's heat capacity grew by at least the share its drop says (`COLDEST_POUR`), so
         the rate, the losses and the bias per °C fell by that share. Followed while the PV
-        sinks through the sensor's lag; done once it rises again, the drop then taken as
-        the sensor's lag says it is (`_PourGap`). Not under a told load (a HERMS coil's
-        draw is no water). `free`: the period's PV by the model, the pour aside."""
+        sinks through the sensor's lag; done once it rises again. Where the PV itself `fell`
+        (a step of the model alone, a measured dead time or lag taken in a heat-up, is no
+        water), the drop is then taken as the sensor's lag says it is (`_PourGap`). Not
+        under a told load (a HERMS coil's draw is no water). `free`: the period's PV by the
+        model, the pour aside."""
         if self._poured is None:
             if not dropped or self._load:
                 return
             self._poured = (max(self._recent), math.inf, 0.0)
-            self._pour_gap = _PourGap(free) if self._sensor_lag > 0.0 else None
+            shown = fell and self._sensor_lag > 0.0
+            self._pour_gap = _PourGap(free) if shown else None
         gap = self._pour_gap
         if gap is not None:
             gap.seen(pv, self._fade, self._poured[0])
