@@ -250,12 +250,12 @@ class _Predictive(_Base):
         if self._sensor_lag > 0.0:
             tail = self._sensor_lag / ts
             x += self._drift(x, arrival - self._load_over((share + self._lag) * ts, ts), tail)
-        return x - self._unseen()
+        return x
 
-    def _unseen(self) -> float:
-        """°C of cold water's drop the sensor has yet to show (`_PourGap`)."""
+    def _ahead(self) -> float:
+        """`_predicted`, less what of cold water's drop the sensor has yet to show."""
         gap = self._pour_gap
-        return 0.0 if gap is None else gap.unseen(self._fade)
+        return self._predicted() - (0.0 if gap is None else gap.unseen(self._fade))
 
     def _load_over(self, start: float, length: float) -> float:
         """The known load's mean (% of full power) over `length` s from `start` s on: it acts
@@ -282,7 +282,7 @@ class _Predictive(_Base):
     def _law(self, sp: float) -> float:
         """P on the predicted error plus the holding duty (D apart), not coming from full
         power."""
-        return self._proportional(sp - self._predicted(), None) + self._holding(sp)
+        return self._proportional(sp - self._ahead(), None) + self._holding(sp)
 
     def _proportional(self, e: float, landing: float | None) -> float:
         """kc_near up to LINEAR_BAND below the setpoint and anywhere above it (above, nothing
@@ -406,10 +406,8 @@ class _Predictive(_Base):
         fpv = self._fa * fpv1 + (1.0 - self._fa) * pv if self._filtered else pv
         self._fpv = fpv
         full = previous >= self._hi and pv < sp - FAR_BAND - FULL_MARGIN
-        predicted = self._predicted()
-        flight = predicted + self._unseen() - self._estimate  # the heat's part of it
-        landing = self._landing_short(flight) if full else None
-        p = self._proportional(sp - predicted, landing)
+        landing = self._landing_short(self._predicted() - self._estimate) if full else None
+        p = self._proportional(sp - self._ahead(), landing)
 
         i = self._holding(sp)
         d = -self._kd * (fpv - fpv1)
@@ -901,7 +899,7 @@ def predicted_pv(controller: Controller) -> float | None:
     forms, or before its first step): what the HLT will hold whatever is decided now."""
     law = _law(controller)
     if law is not None and law._primed:
-        return law._predicted()
+        return law._ahead()
     return None
 
 
@@ -918,7 +916,7 @@ def predicted_after(
     law = _law(controller)
     if law is None or not law._primed:
         return None
-    ahead = law._predicted() + law._unseen()
+    ahead = law._predicted()
     return ahead, [ahead + law._drift(ahead, duty) * seconds / law._ts for duty in duties]
 
 
