@@ -72,6 +72,13 @@ per 5 min with every output off, 4 °C over the setpoint in an hour). Water cold
 warmest room may warm from it unheated: that rise is allowed on top."""
 
 
+QUICK_WATCH = 120.0
+"""s: the SSR watch's quicker twin, tolerating `ssr_max_rise` scaled to it (the same rate,
+never under twice `NOISE_FLOOR`): a short on a hold's small duty rises several times faster
+than that duty's heat can explain, and over 120 s it stands out ~70 s after its heat first
+shows on a 10 kW element in 180 L (docs/heat-balance.md, "A shorted SSR")."""
+
+
 OPEN_POT_UA_PER_L23 = 2.0 * (3000.0 / 168.9) / 90.0 ** (2.0 / 3.0)
 """W/(K·L^⅔): twice the identified 90 L tun's UA per wetted area (an open, uninsulated pot)."""
 
@@ -212,6 +219,18 @@ class SafetyLimits:
     max_output: float = 100.0
     two_elements: bool = False
     origins: tuple[tuple[str, str], ...] = ()
+
+    @property
+    def short_watches(self) -> tuple[float, ...]:
+        """The SSR watches shorter than `ssr_watch` (`QUICK_WATCH`, where it is shorter)."""
+        return (QUICK_WATCH,) if self.ssr_watch > QUICK_WATCH else ()
+
+    def tolerated_rise(self, watch: float) -> float:
+        """°C an SSR watch of `watch` s tolerates beyond the heat given: `ssr_max_rise`, or
+        for a watch shorter than `ssr_watch` that rate over it, never under twice the noise."""
+        if watch >= self.ssr_watch:
+            return self.ssr_max_rise
+        return max(self.ssr_max_rise * watch / self.ssr_watch, 2.0 * NOISE_FLOOR)
 
     def loss_rate(self, celsius: float) -> float:
         """°C/s: the fastest the water at `celsius` can cool with the element off.
@@ -534,7 +553,8 @@ def format_limits(limits: SafetyLimits, setpoint: float) -> list[str]:
         ),
         (
             "SSR stuck on: rise beyond heat given",
-            f"{lim.ssr_max_rise:g} °C in "
+            "".join(f"{lim.tolerated_rise(w):g} °C in {w:.0f} s, " for w in lim.short_watches)
+            + f"{lim.ssr_max_rise:g} °C in "
             + ", ".join(f"{w:.0f}" for w in (lim.ssr_watch, *lim.creep_watches))
             + f" s, heat counted "
             f"{lim.heat_memory:.0f} s back, {lim.heat_rate * 60:.2f} °C per full-power minute",

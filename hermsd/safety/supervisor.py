@@ -685,7 +685,8 @@ class Supervisor:
         of it), so the energy is the most any window as long delivered within `heat_memory`
         before (`_most_delivered`). More rise than that means something else is heating: an
         SSR that failed shorted. The longer
-        watches (`CREEP_WATCHES`) see a heater that outpaces the losses only slowly.
+        watches (`CREEP_WATCHES`) see a heater that outpaces the losses only slowly; the
+        quick one (`QUICK_WATCH`) a fast short on a small duty sooner.
 
         Hot water poured in is heat nothing delivered too, but it stops: a step of the water,
         seen through the sensor's lag L ≤ 120 s, whose rise over each window that begins past
@@ -695,11 +696,12 @@ class Supervisor:
         later two beating e^(−window/`SENSOR_LAG_MAX`) times the window's before by more than
         it, in two consecutive periods (see `_check_dry_fire`): a period (5 s) later than the
         energy balance alone. Windows from the onset are judged as soon as the rise has shown
-        its shape (50 s after it on the fastest-heating tun), not only once it fills the
+        its shape (60 s after it on the fastest-heating tun), not only once it fills the
         watch's first third: with no pour in the watch, the energy balance is what times the
         alarm. A steady heater passes the thirds when its rise per third, times
         1 − e^(−third/120 s), beats 0.1 °C: from 6.3, 1.3 and 0.3 °C/h for the 300, 900 and
-        3600 s watches, each below the rate the watch itself needs (6, 2 and 0.5 °C/h). A
+        3600 s watches, each below the rate the watch itself needs (6, 2 and 0.5 °C/h); the
+        quick watch's from 32 °C/h, a fast short's, which is what it is for. A
         mash warmer than the water gives heat back through a HERMS coil: the most it may give
         over the window and the heat's memory is allowed on top (`_coil_rise`).
         """
@@ -714,7 +716,7 @@ class Supervisor:
         while t - history[0][0] > longest + lim.heat_memory:
             history.popleft()
             self._energy_before.popleft()
-        watches = [(lim.ssr_watch, 0.0)]
+        watches = [(w, 0.0) for w in lim.short_watches] + [(lim.ssr_watch, 0.0)]
         watches += [(w, lim.loss_per_k * w) for w in lim.creep_watches]
         for watch, room_per_k in watches:
             span = watch + lim.heat_memory
@@ -724,7 +726,7 @@ class Supervisor:
             full_power_s = self._most_delivered(t, watch, dt)
             from_room = room_per_k * max(0.0, WARMEST_ROOM - min(pv, pv_then))
             from_coil = self._coil_rise(t - span, t)
-            beside = lim.ssr_max_rise + from_room + from_coil
+            beside = lim.tolerated_rise(watch) + from_room + from_coil
             allowed = lim.heat_rate * full_power_s + beside
             # More than the element at full power through a whole window can make is no SSR's
             # doing: hot water poured into a full-power heat-up (the dry fire's own watch
@@ -910,15 +912,18 @@ def _heat_goes_on(
     the onset of a steady rise has a first window that rose by more than the noise: as in
     the thirds, the delivered energy then judges it. A heater's heat arrives through the
     dead time and the lag as a rise that grows or holds (it slows only as losses grow): it
-    passes once its rise per window, times 1 − e^(−window/120 s), beats the noise, 50 s
-    after its onset for a shorted 5.5 kW element in 30 L (0.044 °C/s), 130 s for the
+    passes once its rise per window, times 1 − e^(−window/120 s), beats the noise, 60 s
+    after its onset for a shorted 5.5 kW element in 30 L (0.044 °C/s), 135 s for the
     rated 3 kW into 90 L (0.008 °C/s), not a third of the watch after the watch began past
     it (the thirds alone: 200 s and more after it).
     """
     third = watch / 3.0
     onset = next(when for when, p, _ in reversed(history) if p <= pv_then + NOISE_FLOOR)
-    since_onset = (t - onset) / 3.0
-    windows = [third] + ([since_onset] if period > 0.0 and since_onset >= 2.0 * period else [])
+    # Whole periods: windows off the period grid rise by alternately one period more or less
+    # on a steady ramp, which the comparison takes for a rise that slows.
+    periods = math.floor((t - onset) / (3.0 * period) + 1e-9) if period > 0.0 else 0
+    since_onset = periods * period
+    windows = [third] + ([since_onset] if periods >= 2 else [])
     for window in windows:
         rises = _window_rises(history, t, window, 3)
         decay = math.exp(-window / SENSOR_LAG_MAX)
