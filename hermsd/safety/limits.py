@@ -75,8 +75,9 @@ warmest room may warm from it unheated: that rise is allowed on top."""
 QUICK_WATCH = 120.0
 """s: the SSR watch's quicker twin, tolerating `ssr_max_rise` scaled to it (the same rate,
 never under twice `NOISE_FLOOR`): a short on a hold's small duty rises several times faster
-than that duty's heat can explain, and over 120 s it stands out ~70 s after its heat first
-shows on a 10 kW element in 180 L (docs/heat-balance.md, "A shorted SSR")."""
+than that duty's heat can explain, and stands out over 120 s sooner (a 5.5 kW element in
+30 L holding on 8 %: 30 s after its heat first shows, where over 300 s 71 s;
+tests/test_hot_water.py, docs/heat-balance.md "A shorted SSR")."""
 
 
 OPEN_POT_UA_PER_L23 = 2.0 * (3000.0 / 168.9) / 90.0 ** (2.0 / 3.0)
