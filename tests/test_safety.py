@@ -401,11 +401,13 @@ def test_the_output_swing_is_the_spread_of_minute_means(outputs: list[float], si
 
 def test_the_quick_ssr_watch_tolerates_the_long_ones_rate_never_under_twice_the_noise() -> None:
     """120 s beside the 300 s watch: 0.5 °C × 120/300 = 0.2 °C; with 2 °C tolerated over 300 s,
-    0.8 °C; over 600 s, 0.5 × 120/600 = 0.1 °C is under twice the 0.1 °C noise floor: 0.2 °C. A
-    watch configured at 120 s or shorter has no quicker twin."""
+    0.8 °C; over 600 s, 0.5 × 120/600 = 0.1 °C is under twice the 0.1 °C noise floor: 0.2 °C. The
+    creep watches keep ssr_max_rise whatever ssr_watch is; a watch configured at 120 s or shorter
+    has no quicker twin."""
     assert SafetyLimits().short_watches == (120.0,)
     assert SafetyLimits().tolerated_rise(120.0) == pytest.approx(0.2)
     assert SafetyLimits(ssr_max_rise=2.0).tolerated_rise(120.0) == pytest.approx(0.8)
     assert SafetyLimits(ssr_watch=600.0).tolerated_rise(120.0) == pytest.approx(0.2)
-    assert SafetyLimits().tolerated_rise(900.0) == 0.5  # the creep watches: ssr_max_rise
+    assert SafetyLimits().tolerated_rise(900.0) == 0.5  # the creep watches: ssr_max_rise,
+    assert SafetyLimits(ssr_watch=7200.0).tolerated_rise(900.0) == 0.5  # even under ssr_watch
     assert SafetyLimits(ssr_watch=120.0).short_watches == ()

@@ -227,9 +227,10 @@ class SafetyLimits:
         return (QUICK_WATCH,) if self.ssr_watch > QUICK_WATCH else ()
 
     def tolerated_rise(self, watch: float) -> float:
-        """°C an SSR watch of `watch` s tolerates beyond the heat given: `ssr_max_rise`, or
-        for a watch shorter than `ssr_watch` that rate over it, never under twice the noise."""
-        if watch >= self.ssr_watch:
+        """°C an SSR watch of `watch` s tolerates beyond the heat given: `ssr_max_rise` (the
+        creep watches too, whatever `ssr_watch` is), or for a `short_watches` one that rate
+        over it, never under twice the noise."""
+        if watch not in self.short_watches:
             return self.ssr_max_rise
         return max(self.ssr_max_rise * watch / self.ssr_watch, 2.0 * NOISE_FLOOR)
 
