@@ -393,7 +393,7 @@ def test_a_ramp_whose_line_crosses_far_beyond_any_tuns_heat_raises_no_dead_time(
     # line crosses the start far off. A ramp delayed by 300 s is a slow tun's, and the
     # dead time is raised to it before the fit; one whose line crosses at 1200 s, beyond
     # twice the latest any tun shows its heat (HEAT_SHOWS_S), is no tun's heat alone (the
-    # bench's herms-day with its pump unseen had its dead time raised from 70 s to 420 s).
+    # bench's herms-day with its pump unseen had its dead time raised from 70 s to that).
     # PV: a ramp of 0.4 of the model's rate, after `crossing` s; the bend of a 1 s lag.
     rate, tau = 0.01, 20000.0
     model = pid.PlantModel(rate * tau / 100.0, tau, 60.0, PV0)

@@ -115,13 +115,14 @@ def test_latched_alarms_need_a_reset() -> None:
 def test_heat_the_element_did_not_deliver_means_a_stuck_ssr() -> None:
     sup = Supervisor(limits())
     t, pv = 0.0, 66.0
-    # Element off for the 420 s heat can take to show and the 300 s watch, yet the water
-    # rises 0.6 °C in the last five minutes: more than the 0 s of full power delivered plus
-    # the 0.5 °C margin can explain.
-    while t <= 720.0:
+    # Element off for the 450 s heat can take to show and the 300 s watch, yet the water
+    # rises 0.7 °C in the last five minutes: more than the 0 s of full power delivered plus
+    # the 0.5 °C margin can explain, and rising on in each third of the watch (0.233 °C, of
+    # which 1 − e^(−100/150) = 0.487 beats the 0.1 °C noise).
+    while t <= 750.0:
         sup.period(t, pv, 0.0, 0.0)
-        if t > 420.0:
-            pv += 0.6 / 60.0
+        if t > 450.0:
+            pv += 0.7 / 60.0
         t += 5.0
     assert sup.latched == ["ssr_stuck_on"]
 
@@ -129,7 +130,7 @@ def test_heat_the_element_did_not_deliver_means_a_stuck_ssr() -> None:
 @pytest.mark.parametrize(("rise", "latched"), [(1.75, ["ssr_stuck_on"]), (1.65, [])])
 def test_a_steady_hold_explains_only_the_heat_of_one_watch(rise: float, latched: list[str]) -> None:
     # An hour at 20 %, then the water climbs `rise` °C in each 300 s with the output as it
-    # was. However the heat is spread over the 420 s it may take to show, the rise over a
+    # was. However the heat is spread over the 450 s it may take to show, the rise over a
     # watch is a mean of what watch-long windows delivered: 20 % of 300 s and the two periods
     # a window can straddle, 62 full-power s, times 2·1.21·3000/(90·4186) = 0.019274 °C per
     # full-power second, and the 0.5 °C margin: 1.695 °C. (All the heat of the watch and the
@@ -338,16 +339,16 @@ def test_a_still_reading_is_a_stuck_sensor_only_past_what_grown_losses_may_take(
 def test_a_heater_that_outpaces_the_losses_slowly_is_caught_with_every_output_off() -> None:
     # A shorted contactor on a 150 L open pot: 0.3 °C per 5 min with nothing switched on,
     # under the 0.5 °C the 300 s watch allows. The 900 s watch, first judged once its history
-    # reaches back the 420 s heat can take to show, within a period (t = 1320 − 5 s), sees
+    # reaches back the 450 s heat can take to show, within a period (t = 1350 − 5 s), sees
     # 900 · 0.001 = 0.9 °C > 0.5 °C, rising in each third of it: confirmed a period later.
     sup = Supervisor(limits())
     t, pv = 0.0, 66.0
-    while t <= 1325.0 and sup.heater_allowed:
+    while t <= 1355.0 and sup.heater_allowed:
         sup.period(t, pv, 0.0, 0.0)
         pv += 0.3 / 300.0 * 5.0
         t += 5.0
     assert sup.latched == ["ssr_stuck_on"]
-    assert t - 5.0 == 1320.0
+    assert t - 5.0 == 1350.0
 
 
 def test_cold_water_warming_from_the_room_unheated_is_not_a_stuck_ssr() -> None:

@@ -647,7 +647,7 @@ class _Predictive(_Base):
         loop does not know of (a pump it does not see, a lid off) the PV barely climbs and
         its line crosses the start far off (beyond twice the latest any tun the limits allow
         for shows its heat, HEAT_SHOWS_S, it is no tun's heat alone: a HERMS pump unseen
-        raised herms-day's dead time from 70 s to 420 s); and no further than HEAT_SHOWS_S,
+        raised herms-day's dead time from 70 s to that); and no further than HEAT_SHOWS_S,
         unless the model's own is longer."""
         if least is None or least[0] < RATE_BAND[0] * self._rate or least[1] > 2.0 * HEAT_SHOWS_S:
             return

@@ -35,7 +35,7 @@ where a heat-up's bend, quadratic in time, moves both sides alike). The slope's 
 weighs in over the gap between them, so longer is quieter (its sd goes as length^-1.5)."""
 SETTLE_S = 300.0
 """s beyond twice the dead time before a side starts (from full power, or from the probe's
-end): a thermowell's lag of up to 120 s bends the rise for some three lags, and the dead
+end): a thermowell's lag of up to 150 s bends the rise for two lags and more, and the dead
 time may be misjudged by as much again (a far sensor's 240 s against the default 115 s)."""
 BELOW = 10.0
 """°C: the whole probe, its fits included, lies this far below the setpoint (nothing of it

@@ -68,7 +68,7 @@ SUDDEN_FALL = 0.25
 SUDDEN_SPAN = 30.0
 SETTLE_S = 300.0
 """s after such a fall and the dead time before a window's PV may start: the sensor's lag (a
-thermowell's, up to 120 s) still bends its rise for some three lags."""
+thermowell's, up to 150 s) still bends its rise for two lags and more."""
 DEAD_TIME_FACTORS = (0.5, 1.0, 2.0)
 """Each spell is judged with its power taken these times the dead time earlier: an element
 is blamed only when all agree (a misjudged dead time makes power that changed near the

@@ -47,7 +47,7 @@ DEAD_TIME_MAX = 300.0
 """s: transport from element to sensor plus a thermowell's lag, the far end of real tuns."""
 
 
-SENSOR_LAG_MAX = 120.0
+SENSOR_LAG_MAX = 150.0
 """s: a thermowell's own first-order lag, the far end; heat keeps showing this much longer."""
 
 

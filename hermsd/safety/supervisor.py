@@ -381,12 +381,12 @@ class Supervisor:
         Each of the last `DRY_FIRE_WINDOWS` windows must rise faster than `dry_fire_rate`,
         and what each rises above the fastest any element heats the configured water
         (`heat_rate`, over the window; less where the limit is lower, see below) must not
-        shrink, window to window, to e^(−window/`SENSOR_LAG_MAX`) of it (0.61 for 60 s) or
+        shrink, window to window, to e^(−window/`SENSOR_LAG_MAX`) of it (0.67 for 60 s) or
         less, plus the noise (0.1 °C), in two consecutive periods.
 
         Why: hot water poured in is a step of the bulk water, seen through the sensor's
-        first-order lag L ≤ 120 s: its rise over a window that starts after the pour is
-        e^(−window/L) times that over the window before, at most 0.61 of it; the element adds
+        first-order lag L ≤ 150 s: its rise over a window that starts after the pour is
+        e^(−window/L) times that over the window before, at most 0.67 of it; the element adds
         at most `heat_rate` a second (less, and less still as losses grow), so the excess
         over `heat_rate`·window decays at least as fast. The oldest window rising too fast
         shows the pour came before the last two windows; the two periods in a row ensure the
@@ -439,7 +439,7 @@ class Supervisor:
         `applied` is the duty as switched, within that limit). Steadily: over each of
         the last two half-watches (the later one past the dead time) by at least half of
         `heater_max_fall`, the later by at least half the earlier. Water poured in shows
-        through the sensor's lag (≤ 120 s) as a decaying fall, e^(−150/120) = 0.29 of it in
+        through the sensor's lag (≤ 150 s) as a decaying fall, e^(−150/150) = 0.37 of it in
         the second half-watch, and the element's heat adds to that: not steady. A HERMS coil
         may take more than the element gives: the most it may take (`_coil_fall`) is taken
         off each half's fall and off the least rise, so a fall it can explain is no verdict;
@@ -681,7 +681,7 @@ class Supervisor:
         Losses only ever take heat away, so over a watch window the water can rise at most by
         the delivered energy times the fastest rate per full-power second (`heat_rate`: half
         the water, +10 % mains). Heat reaches the sensor only after the dead time and the
-        well's lag (300 + 120 s before anything is measured: a lag's tail beyond that is e^−2
+        well's lag (300 + 150 s before anything is measured: a lag's tail beyond that is e^−2
         of it), so the energy is the most any window as long delivered within `heat_memory`
         before (`_most_delivered`). More rise than that means something else is heating: an
         SSR that failed shorted. The longer
@@ -689,7 +689,7 @@ class Supervisor:
         quick one (`QUICK_WATCH`) a fast short on a small duty sooner.
 
         Hot water poured in is heat nothing delivered too, but it stops: a step of the water,
-        seen through the sensor's lag L ≤ 120 s, whose rise over each window that begins past
+        seen through the sensor's lag L ≤ 150 s, whose rise over each window that begins past
         the pour is e^(−window/L) of the window's before or less. A heater keeps going: over
         three equal windows, the thirds of the watch or the thirds of the time since the rise
         began (`_heat_goes_on`), each must rise by more than the noise (`NOISE_FLOOR`), the
@@ -699,9 +699,10 @@ class Supervisor:
         its shape (60 s after it on the fastest-heating tun), not only once it fills the
         watch's first third: with no pour in the watch, the energy balance is what times the
         alarm. A steady heater passes the thirds when its rise per third, times
-        1 − e^(−third/120 s), beats 0.1 °C: from 6.3, 1.3 and 0.3 °C/h for the 300, 900 and
-        3600 s watches, each below the rate the watch itself needs (6, 2 and 0.5 °C/h); the
-        quick watch's from 32 °C/h, a fast short's, which is what it is for. A
+        1 − e^(−third/150 s), beats 0.1 °C: from 7.4, 1.4 and 0.3 °C/h for the 300, 900 and
+        3600 s watches, whose energy balances need 6, 2 and 0.5 °C/h (a heater between 6 and
+        7.4 °C/h is the 900 s watch's); the quick watch's from 38 °C/h, a fast short's, which
+        is what it is for. A
         mash warmer than the water gives heat back through a HERMS coil: the most it may give
         over the window and the heat's memory is allowed on top (`_coil_rise`).
         """
@@ -912,8 +913,8 @@ def _heat_goes_on(
     the onset of a steady rise has a first window that rose by more than the noise: as in
     the thirds, the delivered energy then judges it. A heater's heat arrives through the
     dead time and the lag as a rise that grows or holds (it slows only as losses grow): it
-    passes once its rise per window, times 1 − e^(−window/120 s), beats the noise, 60 s
-    after its onset for a shorted 5.5 kW element in 30 L (0.044 °C/s), 135 s for the
+    passes once its rise per window, times 1 − e^(−window/150 s), beats the noise, 60 s
+    after its onset for a shorted 5.5 kW element in 30 L (0.044 °C/s), 150 s for the
     rated 3 kW into 90 L (0.008 °C/s), not a third of the watch after the watch began past
     it (the thirds alone: 200 s and more after it).
     """
