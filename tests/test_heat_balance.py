@@ -35,6 +35,7 @@ def bounds(
         FASTEST_LOSS,
         full_duty=100.0,
         stall_drop=STALL_DROP,
+        heat_memory=dead_time,
         loss_per_k=LOSS_PER_K,
         hold_duty=hold_duty,
         any_fall_duty=any_fall_duty,
@@ -224,6 +225,33 @@ def test_a_ramp_at_full_output_that_stops_is_a_dead_element() -> None:
     # Not at 95 %, where the output is not at its limit (and the slow fall is below the
     # level's least): nothing is said of a stop there.
     assert first_verdict(lambda t: 95.0, ramp, 80.0, dead_time=150.0) is None
+
+
+def test_a_death_in_the_landings_cut_is_judged_against_the_ramp_before_it() -> None:
+    # The heat-up at 100 % rising 5e-3 °C/s, 150 s of dead time; the law cuts to 50 % at
+    # 1200 s to land, and climbs back to 100 % at 1320 s. The ramps at the limit end at
+    # 1195 s (the duty at it over the window and the dead time before: 450 s); the element
+    # dies at 1250 s and the water cools at 1e-4 °C/s. The later window is at the limit
+    # again, its heat and the dead time's all sent there, once t − 450 s passes the cut's
+    # last period (1315 s): at 1765 s, against the ramp to 1195 s (570 s before, within
+    # RAMP_AGE_S): a drop of 5.1e-3 °C/s, over 1e-3 + 1e-5 × the PV's rise between the
+    # windows' means (1.0 °C) + 3.33e-4. Told 60 s on, at 1825 s. A stall that needed the
+    # limit throughout both windows and the dead times (900 s) never told it: by 2215 s, its
+    # earlier window lay past the death too.
+    def duty(t: float) -> float:
+        return 50.0 if 1200.0 <= t < 1320.0 else 100.0
+
+    def dies(t: float) -> float:
+        return 5e-3 if t <= 1250.0 else -1e-4
+
+    assert first_verdict(duty, dies, 80.0, dead_time=150.0) == 1825.0
+
+    # Alive, its slope follows the duty the dead time later (half the heat in the cut, less
+    # the losses): the ramp at the limit resumes where it was, and nothing is said.
+    def alive(t: float) -> float:
+        return 5.1e-3 * duty(t - 150.0) / 100.0 - 1e-4
+
+    assert first_verdict(duty, alive, 80.0, dead_time=150.0, until=5400.0) is None
 
 
 def test_a_ramp_that_bends_as_its_losses_grow_is_a_working_element() -> None:

@@ -24,13 +24,15 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   both; a dead element's slope stays where it was, the water falling at its losses. Judged
   only where each window's halves have the same slope: losses that step up within one (a
   lid taken off, which the output then climbs to answer) are not the same in both;
-- the stall: with the output at its limit throughout (a heat-up), the PV's slope over the
-  last window fell from a window a dead time before that by more than the mains' sag, a lid
-  taken off and the losses' growth with the water's rise allow: a working element's ramp
-  only bends as its losses grow, a dead one's stops at once (each window's halves alike:
-  warm water poured in steps the PV). Judged whatever the losses are
-  (a lidded tun in a warm room falls too slowly for the level), so a heat-up's death is told
-  from the ramp the day has measured, not from the fall.
+- the stall: with the output at its limit (a heat-up), the PV's slope over the last window
+  fell from the ramp measured at that limit a dead time or more before (within `RAMP_AGE_S`)
+  by more than the mains' sag, a lid taken off and the losses' growth with the water's rise
+  allow: a working element's ramp only bends as its losses grow, a dead one's stops at once
+  (each window's halves alike: warm water poured in steps the PV). Judged whatever the
+  losses are (a lidded tun in a warm room falls too slowly for the level), so a heat-up's
+  death is told from the ramp the day has measured, not from the fall; and a death in the
+  landing, where the law cut back and then climbed to its limit again, from the ramp before
+  the cut.
 
 Each is judged with the duty taken at each of `DEAD_TIME_FACTORS` of the dead time, and
 a finding needs all of them (a dead time misjudged makes a changing duty's heat look
@@ -78,6 +80,10 @@ of the noise, at a duty that beats that and an open surface's evaporation
 SETTLE_S = 300.0
 """s after water poured in (and the dead time) before a window may start: the sensor's lag
 still bends its fall."""
+RAMP_AGE_S = 1800.0
+"""s: the oldest ramp at full output the stall compares a window with (the landing's cut
+between them); older, a room or a draught may have changed (docs/heat-balance.md, "The
+stall")."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,6 +105,7 @@ class Bounds:
     fastest_loss: float  # °C/s: the fastest the water cools with no heat (faster: a pour)
     full_duty: float  # %: the output's limit, at which the stall judges
     stall_drop: float  # °C/s: the most a ramp at that limit slows with the element working
+    heat_memory: float  # s within which the heat sent shows at the sensor, lag and all
     loss_per_k: float  # °C/s per °C: the most the losses grow as the water rises
     hold_duty: float | None  # %: the day's hold's mean duty (None: not measured yet)
     any_fall_duty: float | None  # %: from it any fall is judged (LOSS_GROWTH; None: no hold)
@@ -117,17 +124,21 @@ class HeatBalance:
 
     def __init__(self) -> None:
         self._samples: deque[tuple[float, float, float]] = deque()
+        self._ramps: deque[_Ramp] = deque()
         self._poured_at: float | None = None
         self._since: float | None = None
 
     def clear(self) -> None:
         """Nothing before now is judged (the heater was off, or a HERMS coil may draw)."""
         self._samples.clear()
+        self._ramps.clear()
         self._since = None
 
     def poured(self, t: float) -> None:
-        """Water was poured in at `t`: its fall is no loss."""
+        """Water was poured in at `t`: its fall is no loss, and the ramps before it were
+        another water's."""
         self._poured_at = t
+        self._ramps.clear()
 
     def period(self, t: float, pv: float, applied: float, bounds: Bounds) -> BalanceVerdict | None:
         """One period: the PV, the duty as switched (%) and what the limits say now. Returns
@@ -158,6 +169,7 @@ class HeatBalance:
             return None
         floor = NOISE_FLOOR / WINDOW_S
         margin = max(MARGIN_SE * later.error, floor)
+        self._note_ramp(t, later, bounds, floor)
         stalled = self._stall(t, later, bounds, floor)
         if stalled is not None:
             return stalled
@@ -197,25 +209,44 @@ class HeatBalance:
                 found = _verdict(duty, duty_before, later, earlier, per_duty, level)
         return found
 
+    def _at_limit(self, since: float, bounds: Bounds) -> bool:
+        """Whether the duty stood at the output's limit from `since` on, and the samples
+        reach back that far."""
+        samples = self._samples
+        return samples[0][0] <= since + 1e-9 and all(
+            applied >= bounds.full_duty - FULL_SLACK for s, _, applied in samples if s > since
+        )
+
+    def _note_ramp(self, t: float, later: _Window, bounds: Bounds, floor: float) -> None:
+        """Keep the window to `t` as a ramp at the limit, where the duty stood there for it
+        and the dead time before (all the heat it shows, but a lag's tail, is at the limit)
+        and its halves are alike."""
+        ramps = self._ramps
+        while ramps and t - ramps[0].end > RAMP_AGE_S:
+            ramps.popleft()
+        if _steady(later, floor) and self._at_limit(t - WINDOW_S - bounds.dead_time, bounds):
+            ramps.append(_Ramp(t, later, self._mean_pv(t)))
+
     def _stall(
         self, t: float, later: _Window, bounds: Bounds, floor: float
     ) -> BalanceVerdict | None:
-        """The ramp at full output that stopped: over the whole reach (both windows, the
-        dead time between them and the one before the earlier) the duty at its limit, and
-        the later window's slope below the earlier's by more than `bounds` allow for a
-        working element, the PV's rise between them counted in the losses' growth."""
-        samples = self._samples
-        if t - samples[0][0] < 2.0 * (WINDOW_S + bounds.dead_time) - 1e-9:
+        """The ramp at full output that stopped: the later window at the limit, and its slope
+        below a ramp's kept at least a dead time before it (the last such) by more than
+        `bounds` allow for a working element, the PV's rise between them counted in the
+        losses' growth. Where the duty left the limit between them (the landing's cut), the
+        later window's heat must all be the limit's: at it for the heat's memory before."""
+        ramps = self._ramps
+        reach = WINDOW_S + bounds.dead_time
+        ramp = next((r for r in reversed(ramps) if r.end <= t - reach + 1e-9), None)
+        if ramp is None or not (ramps[-1].end >= t - 1e-9 and _steady(later, floor)):
+            return None  # the later window is no ramp at the limit (or has halves unalike)
+        if ramp.end < t - reach - 1e-9 and not self._at_limit(
+            t - WINDOW_S - bounds.heat_memory, bounds
+        ):
             return None
-        if any(applied < bounds.full_duty - FULL_SLACK for _, _, applied in samples):
-            return None
-        earlier = self._window(t - WINDOW_S - bounds.dead_time)
-        if earlier is None:
-            return None
-        if not (_steady(later, floor) and _steady(earlier, floor)):
-            return None  # warm water poured in steps a window's PV: not a ramp to judge
+        earlier = ramp.slope
         # The losses over each window are those at its mean PV: they grew by the rise between.
-        rise = self._mean_pv(t) - self._mean_pv(t - WINDOW_S - bounds.dead_time)
+        rise = self._mean_pv(t) - ramp.mean_pv
         allowed = bounds.stall_drop + bounds.loss_per_k * max(rise, 0.0)
         steady = _gap_margin(later, earlier, floor)
         drop = earlier.rate - later.rate
@@ -226,9 +257,9 @@ class HeatBalance:
             return None  # faster than any loss: water poured in (`poured` waits after it)
         per_min = 60.0
         return BalanceVerdict(
-            f"output at its limit ({bounds.full_duty:.0f} %) for "
-            f"{2.0 * (WINDOW_S + bounds.dead_time):.0f} s, but the PV's rise went "
-            f"{earlier.rate * per_min:+.2f} → {later.rate * per_min:+.2f} °C/min, more "
+            f"output at its limit ({bounds.full_duty:.0f} %), but the PV's rise went "
+            f"{earlier.rate * per_min:+.2f} → {later.rate * per_min:+.2f} °C/min in "
+            f"{t - ramp.end + WINDOW_S:.0f} s, more "
             f"slowing than the mains, a lid taken off and the losses allow "
             f"({allowed * per_min:.2f} °C/min)",
             {
@@ -263,6 +294,15 @@ class HeatBalance:
 class _Window(Slope):
     first: Slope  # over the window's first half
     second: Slope  # … and its second
+
+
+@dataclass(frozen=True, slots=True)
+class _Ramp:
+    """A window whose heat was all sent at the output's limit."""
+
+    end: float  # s
+    slope: _Window
+    mean_pv: float  # °C
 
 
 def _steady(window: _Window, floor: float) -> bool:

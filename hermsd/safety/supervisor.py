@@ -546,6 +546,7 @@ class Supervisor:
             # starting (a lid taken off); the losses' growth per °C at the PV's top (they
             # grow ever faster with it).
             stall_drop=(1.0 - MAINS_LOW) * lim.heat_rate + lim.evaporation(pv),
+            heat_memory=lim.heat_memory,
             loss_per_k=lim.loss_rate(pv + 1.0) - lim.loss_rate(pv),
             hold_duty=None if self._hold is None else self._hold[0],
         )
