@@ -6,6 +6,7 @@ A straight line's slopes have no error, so every margin is the noise floor over 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 
@@ -252,6 +253,20 @@ def test_a_death_in_the_landings_cut_is_judged_against_the_ramp_before_it() -> N
         return 5.1e-3 * duty(t - 150.0) / 100.0 - 1e-4
 
     assert first_verdict(duty, alive, 80.0, dead_time=150.0, until=5400.0) is None
+
+
+def test_a_ramp_under_a_power_limit_lowered_is_no_stall() -> None:
+    # The ramp at 100 % (5e-3 °C/s), and the brewer lowers the limit to 40 % at 1800 s: the
+    # duty stands at the new limit and the water rises at 5.1e-3·0.4 − 1e-4 = 1.94e-3 °C/s,
+    # less than half the ramp and slower by more than the 1.33e-3 allowed. Its slope is no
+    # element's stop: a ramp at 100 % is no measure of one at 40 %.
+    balance, t, pv = HeatBalance(), 0.0, 66.0
+    while t <= 5400.0:
+        limit = 40.0 if t >= 1800.0 else 100.0
+        judged = dataclasses.replace(bounds(80.0, dead_time=150.0), full_duty=limit)
+        assert balance.period(t, pv, limit, judged) is None, t
+        t += PERIOD
+        pv += (5.1e-3 * limit / 100.0 - 1e-4) * PERIOD
 
 
 def test_a_ramp_that_bends_as_its_losses_grow_is_a_working_element() -> None:

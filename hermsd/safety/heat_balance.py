@@ -210,11 +210,12 @@ class HeatBalance:
         return found
 
     def _at_limit(self, since: float, bounds: Bounds) -> bool:
-        """Whether the duty stood at the output's limit from `since` on, and the samples
+        """Whether the duty stood at the output's limit from `since` on (within the
+        planner's rounding: not above it, where the limit was lowered since), and the samples
         reach back that far."""
-        samples = self._samples
+        samples, limit = self._samples, bounds.full_duty
         return samples[0][0] <= since + 1e-9 and all(
-            applied >= bounds.full_duty - FULL_SLACK for s, _, applied in samples if s > since
+            abs(applied - limit) <= FULL_SLACK for s, _, applied in samples if s > since
         )
 
     def _note_ramp(self, t: float, later: _Window, bounds: Bounds, floor: float) -> None:
@@ -225,7 +226,7 @@ class HeatBalance:
         while ramps and t - ramps[0].end > RAMP_AGE_S:
             ramps.popleft()
         if _steady(later, floor) and self._at_limit(t - WINDOW_S - bounds.dead_time, bounds):
-            ramps.append(_Ramp(t, later, self._mean_pv(t)))
+            ramps.append(_Ramp(t, later, self._mean_pv(t), bounds.full_duty))
 
     def _stall(
         self, t: float, later: _Window, bounds: Bounds, floor: float
@@ -237,7 +238,10 @@ class HeatBalance:
         later window's heat must all be the limit's: at it for the heat's memory before."""
         ramps = self._ramps
         reach = WINDOW_S + bounds.dead_time
-        ramp = next((r for r in reversed(ramps) if r.end <= t - reach + 1e-9), None)
+        limit = bounds.full_duty  # a ramp at another limit (the brewer's, changed) is no measure
+        ramp = next(
+            (r for r in reversed(ramps) if r.end <= t - reach + 1e-9 and r.limit == limit), None
+        )
         if ramp is None or not (ramps[-1].end >= t - 1e-9 and _steady(later, floor)):
             return None  # the later window is no ramp at the limit (or has halves unalike)
         if ramp.end < t - reach - 1e-9 and not self._at_limit(
@@ -303,6 +307,7 @@ class _Ramp:
     end: float  # s
     slope: _Window
     mean_pv: float  # °C
+    limit: float  # % the output's limit stood at
 
 
 def _steady(window: _Window, floor: float) -> bool:
