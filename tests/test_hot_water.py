@@ -7,6 +7,7 @@ the sensor's first-order lag, not read off the code.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -188,6 +189,25 @@ def test_pours_on_every_tun_of_the_family_raise_nothing() -> None:
     # the element's heat not counted) on 8 of the 24 days: the seed's both, the garage's
     # both, the far sensor's, big lid-off's and open 120 L's heat-up, small 1.5 kW's kettle.
     assert hard == 8
+
+
+@pytest.mark.parametrize("manual", [None, 5.0, 10.0, 20.0])
+def test_a_kettle_into_a_keggle_behind_the_slowest_thermowell_raises_nothing(
+    manual: float | None,
+) -> None:
+    """The 50 L keggle with its sensor in a well of 150 s lag (the slowest the limits allow
+    for): 5 L of 95 °C into it at 66 °C is +2.6 °C, a step the sensor shows over minutes;
+    held by the law, or by hand at a steady duty (which goes on heating through the pour:
+    at 10 %, with the lag taken as 120 s at most, this latched ssr_stuck_on). The day runs
+    an hour and a half past it, for the 900 s and hour-long watches."""
+    keggle = next(s for s in FAMILY if s.name.startswith("keggle"))
+    spec = dataclasses.replace(keggle, name="keggle, 150 s well", sensor_lag_s=150.0)
+    assert mixed(spec.litres, 66.0, 5.0, 95.0) - 66.0 == pytest.approx(2.636, abs=1e-3)
+    by_hand = {} if manual is None else {"control": {"mode": "manual", "manual_output": manual}}
+    day = dataclasses.replace(
+        pour_day(spec, 66.0, 3600.0, 5.0, 95.0), duration=3600.0 + 5400.0, config=by_hand
+    )
+    assert alarms(day, spec) == []
 
 
 # -- the SSR watch ---------------------------------------------------------------------------
