@@ -242,7 +242,7 @@ class HeatBalance:
         ramp = next(
             (r for r in reversed(ramps) if r.end <= t - reach + 1e-9 and r.limit == limit), None
         )
-        if ramp is None or not (ramps[-1].end >= t - 1e-9 and _steady(later, floor)):
+        if ramp is None or ramps[-1].end < t - 1e-9:
             return None  # the later window is no ramp at the limit (or has halves unalike)
         if ramp.end < t - reach - 1e-9 and not self._at_limit(
             t - WINDOW_S - bounds.heat_memory, bounds
