@@ -232,9 +232,9 @@ class HeatBalance:
         self, t: float, later: _Window, bounds: Bounds, floor: float
     ) -> BalanceVerdict | None:
         """The ramp at full output that stopped: the later window at the limit, and its slope
-        below a ramp's kept at least a dead time before it (the last such) by more than
-        `bounds` allow for a working element, the PV's rise between them counted in the
-        losses' growth. Where the duty left the limit between them (the landing's cut), the
+        below that of the last ramp kept that ended a window and a dead time or more before it
+        by more than `bounds` allow for a working element, the PV's rise between them counted
+        in the losses' growth. Where the duty left the limit between them (the landing's cut), the
         later window's heat must all be the limit's: at it for the heat's memory before."""
         ramps = self._ramps
         reach = WINDOW_S + bounds.dead_time
