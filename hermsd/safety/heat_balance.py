@@ -42,6 +42,7 @@ missing at one of them, not at all), beyond `MARGIN_SE` standard errors of the s
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -125,6 +126,7 @@ class HeatBalance:
     def __init__(self) -> None:
         self._samples: deque[tuple[float, float, float]] = deque()
         self._ramps: deque[_Ramp] = deque()
+        self._off_limit_at: float | None = None  # the last period the duty left the limit
         self._poured_at: float | None = None
         self._since: float | None = None
 
@@ -132,6 +134,7 @@ class HeatBalance:
         """Nothing before now is judged (the heater was off, or a HERMS coil may draw)."""
         self._samples.clear()
         self._ramps.clear()
+        self._off_limit_at = None
         self._since = None
 
     def poured(self, t: float) -> None:
@@ -145,6 +148,8 @@ class HeatBalance:
         the verdict once it has lasted `CONFIRM_S`."""
         samples = self._samples
         samples.append((t, pv, applied))
+        if abs(applied - bounds.full_duty) > FULL_SLACK:
+            self._off_limit_at = t
         reach = 2.0 * (WINDOW_S + bounds.dead_time)
         while len(samples) > 1 and t - samples[1][0] >= reach:
             samples.popleft()  # the oldest kept is the first at or beyond the reach
@@ -221,32 +226,53 @@ class HeatBalance:
     def _note_ramp(self, t: float, later: _Window, bounds: Bounds, floor: float) -> None:
         """Keep the window to `t` as a ramp at the limit, where the duty stood there for it
         and the dead time before (all the heat it shows, but a lag's tail, is at the limit)
-        and its halves are alike."""
+        and its halves are alike; confirmed where the ramp a window before rose alike (a
+        window with a step in it, warm water poured in, may pass its halves' test on the
+        residuals the step adds, never this)."""
         ramps = self._ramps
         while ramps and t - ramps[0].end > RAMP_AGE_S:
             ramps.popleft()
-        if _steady(later, floor) and self._at_limit(t - WINDOW_S - bounds.dead_time, bounds):
-            ramps.append(_Ramp(t, later, self._mean_pv(t), bounds.full_duty))
+        if not (_steady(later, floor) and self._at_limit(t - WINDOW_S - bounds.dead_time, bounds)):
+            return
+        before = self._ramp_ending(t - WINDOW_S, t - self._samples[-2][0])
+        confirmed = before is not None and abs(later.rate - before.slope.rate) <= _gap_margin(
+            later, before.slope, floor
+        )
+        ramps.append(_Ramp(t, later, self._mean_pv(t), bounds.full_duty, confirmed))
+
+    def _ramp_ending(self, end: float, period: float) -> _Ramp | None:
+        """The ramp kept whose window ended in the period to `end`, if any."""
+        ramps = self._ramps
+        i = bisect.bisect_right(ramps, end + 1e-9, key=_ramp_end) - 1
+        return ramps[i] if i >= 0 and ramps[i].end > end - period + 1e-9 else None
 
     def _stall(
         self, t: float, later: _Window, bounds: Bounds, floor: float
     ) -> BalanceVerdict | None:
         """The ramp at full output that stopped: the later window at the limit, and its slope
-        below that of the last ramp kept that ended a window and a dead time or more before it
-        by more than `bounds` allow for a working element, the PV's rise between them counted
-        in the losses' growth. Where the duty left the limit between them (the landing's cut), the
-        later window's heat must all be the limit's: at it for the heat's memory before."""
-        ramps = self._ramps
+        below that of the ramp a window and a dead time before it by more than `bounds` allow
+        for a working element, the PV's rise between them counted in the losses' growth. Where
+        the duty left the limit since (the landing's cut), below the last confirmed ramp
+        before the cut, the later window's heat all the limit's (at it for the heat's memory
+        before)."""
+        ramps, samples = self._ramps, self._samples
+        if not ramps or ramps[-1].end < t - 1e-9:
+            return None  # the later window is no ramp at the limit (or has halves unalike)
         reach = WINDOW_S + bounds.dead_time
         limit = bounds.full_duty  # a ramp at another limit (the brewer's, changed) is no measure
-        ramp = next(
-            (r for r in reversed(ramps) if r.end <= t - reach + 1e-9 and r.limit == limit), None
-        )
-        if ramp is None or ramps[-1].end < t - 1e-9:
-            return None  # the later window is no ramp at the limit (or has halves unalike)
-        if ramp.end < t - reach - 1e-9 and not self._at_limit(
-            t - WINDOW_S - bounds.heat_memory, bounds
-        ):
+        # At the limit throughout: the ramp a reach before, as it stood (none: a step there).
+        ramp = self._ramp_ending(t - reach, t - samples[-2][0])
+        if ramp is None:
+            # The duty left the limit since the last ramp a reach before (the landing's cut):
+            # the last confirmed ramp before the cut, the later window's heat all the limit's.
+            cut = self._off_limit_at
+            last = next((r for r in reversed(ramps) if r.end <= t - reach + 1e-9), None)
+            if cut is None or last is None or last.end > cut:
+                return None
+            if not self._at_limit(t - WINDOW_S - bounds.heat_memory, bounds):
+                return None
+            ramp = next((r for r in reversed(ramps) if r.end <= cut and r.confirmed), None)
+        if ramp is None or ramp.limit != limit:
             return None
         earlier = ramp.slope
         # The losses over each window are those at its mean PV: they grew by the rise between.
@@ -308,6 +334,11 @@ class _Ramp:
     slope: _Window
     mean_pv: float  # °C
     limit: float  # % the output's limit stood at
+    confirmed: bool  # the ramp a window before rose alike
+
+
+def _ramp_end(ramp: _Ramp) -> float:
+    return ramp.end
 
 
 def _steady(window: _Window, floor: float) -> bool:
