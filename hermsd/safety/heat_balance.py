@@ -25,14 +25,14 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   only where each window's halves have the same slope: losses that step up within one (a
   lid taken off, which the output then climbs to answer) are not the same in both;
 - the stall: with the output at its limit (a heat-up), the PV's slope over the last window
-  fell from the ramp measured at that limit a dead time or more before (within `RAMP_AGE_S`)
-  by more than the mains' sag, a lid taken off and the losses' growth with the water's rise
-  allow: a working element's ramp only bends as its losses grow, a dead one's stops at once
-  (each window's halves alike: warm water poured in steps the PV). Judged whatever the
-  losses are (a lidded tun in a warm room falls too slowly for the level), so a heat-up's
-  death is told from the ramp the day has measured, not from the fall; and a death in the
-  landing, where the law cut back and then climbed to its limit again, from the ramp before
-  the cut.
+  fell from the ramp measured at that limit a dead time before it by more than the mains'
+  sag, a lid taken off and the losses' growth with the water's rise allow: a working
+  element's ramp only bends as its losses grow, a dead one's stops at once (each window's
+  halves alike: warm water poured in steps the PV). Judged whatever the losses are (a lidded
+  tun in a warm room falls too slowly for the level), so a heat-up's death is told from the
+  ramp the day has measured, not from the fall; and a death in the landing, where the law
+  cut back and then climbed to its limit again, from the last ramp before the cut that the
+  window before it confirmed (within `RAMP_AGE_S`).
 
 Each is judged with the duty taken at each of `DEAD_TIME_FACTORS` of the dead time, and
 a finding needs all of them (a dead time misjudged makes a changing duty's heat look
