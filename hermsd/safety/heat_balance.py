@@ -228,7 +228,7 @@ class HeatBalance:
         and the dead time before (all the heat it shows, but a lag's tail, is at the limit)
         and its halves are alike; confirmed where the ramp a window before rose alike (a
         window with a step in it, warm water poured in, may pass its halves' test on the
-        residuals the step adds, never this)."""
+        residuals the step adds; of two windows that do not overlap, a step tilts one only)."""
         ramps = self._ramps
         while ramps and t - ramps[0].end > RAMP_AGE_S:
             ramps.popleft()
