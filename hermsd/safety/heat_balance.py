@@ -46,6 +46,7 @@ import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
+from operator import attrgetter
 
 from hermsd.safety.limits import NOISE_FLOOR
 
@@ -240,11 +241,16 @@ class HeatBalance:
         )
         ramps.append(_Ramp(t, later, self._mean_pv(t), bounds.full_duty, confirmed))
 
+    def _last_ramp_by(self, end: float) -> _Ramp | None:
+        """The last ramp kept whose window ended at or before `end`."""
+        ramps = self._ramps
+        i = bisect.bisect_right(ramps, end + 1e-9, key=attrgetter("end")) - 1
+        return ramps[i] if i >= 0 else None
+
     def _ramp_ending(self, end: float, period: float) -> _Ramp | None:
         """The ramp kept whose window ended in the period to `end`, if any."""
-        ramps = self._ramps
-        i = bisect.bisect_right(ramps, end + 1e-9, key=_ramp_end) - 1
-        return ramps[i] if i >= 0 and ramps[i].end > end - period + 1e-9 else None
+        ramp = self._last_ramp_by(end)
+        return ramp if ramp is not None and ramp.end > end - period + 1e-9 else None
 
     def _stall(
         self, t: float, later: _Window, bounds: Bounds, floor: float
@@ -266,7 +272,7 @@ class HeatBalance:
             # The duty left the limit since the last ramp a reach before (the landing's cut):
             # the last confirmed ramp before the cut, the later window's heat all the limit's.
             cut = self._off_limit_at
-            last = next((r for r in reversed(ramps) if r.end <= t - reach + 1e-9), None)
+            last = self._last_ramp_by(t - reach)
             if cut is None or last is None or last.end > cut:
                 return None
             if not self._at_limit(t - WINDOW_S - bounds.heat_memory, bounds):
@@ -335,10 +341,6 @@ class _Ramp:
     mean_pv: float  # °C
     limit: float  # % the output's limit stood at
     confirmed: bool  # the ramp a window before rose alike
-
-
-def _ramp_end(ramp: _Ramp) -> float:
-    return ramp.end
 
 
 def _steady(window: _Window, floor: float) -> bool:
