@@ -285,6 +285,50 @@ def test_an_ssr_at_full_by_the_heat_up_fit_that_heats_is_not_reported() -> None:
     assert reports == []
 
 
+def _contactor_then_dead_ssr(
+    watch: ElementWatch, theta: float
+) -> tuple[float, list[ElementReport]]:
+    """A hold on the SSR alone (30 min, its reference), 10 min of the contactor on beside it,
+    then the contactor off and the SSR asked 100 % with its element dead; heat shows `theta`
+    later. Returns when the contactor went off and every report."""
+    off = 1800.0 + 600.0
+
+    def duties(at: float) -> tuple[float, float]:
+        return (HOLD_SSR, 0.0) if at < 1800.0 else (HOLD_SSR, 100.0) if at < off else (100.0, 0.0)
+
+    t, pv, reports = 0.0, 66.0, []
+    while t < off + 1800.0:
+        duty1, duty2 = duties(t)
+        reports += watch.period(t, pv, 66.0, duty1, duty2)
+        shown = t + H - theta
+        given1, given2 = duties(shown)
+        gives1 = 0.0 if shown >= off else given1 / 100.0
+        rate = GAIN * (4.0 * gives1 + 7.0 * given2 / 100.0) / 11.0 - LOSS
+        t, pv = t + H, pv + rate * H
+    return off, reports
+
+
+def test_a_measured_dead_time_brings_the_verdict_half_a_dead_time_sooner() -> None:
+    # A spell is judged with the second element in one state through it and its power a dead
+    # time back, at each dead time the tun's may be: the first spell past the contactor's
+    # switch at the latest of them times the verdict. The config's dead time may be half or
+    # twice the tun's: 120 + 2·300 s after the switch, and CONFIRM_S. Measured by the
+    # heat-up (to within −23/+28 s), MODEL_MARGIN times it: 120 + 1.5·300 s.
+    theta = 300.0
+    configured = ElementWatch(W1, W2, theta)
+    configured.hold_power = 0.2  # the hold's reference, as the fit's watch below takes it
+    configured.full_rate = GAIN - LOSS
+    off, reports = _contactor_then_dead_ssr(configured, theta)
+    assert [(r.element, r.raised) for r in reports] == [(1, True)]
+    assert reports[0].t >= off + SPELL_S + 2.0 * theta + CONFIRM_S - H
+    fitted = ElementWatch(W1, W2, theta)
+    fitted.heat_up(GAIN, theta)
+    off, reports = _contactor_then_dead_ssr(fitted, theta)
+    assert fitted.hold_power == pytest.approx(0.2)
+    assert [(r.element, r.raised) for r in reports] == [(1, True)]
+    assert reports[0].t <= off + SPELL_S + 1.5 * theta + CONFIRM_S + H
+
+
 def test_a_lossy_tun_falling_with_no_heat_is_no_water_poured_in() -> None:
     # G = 0.05 °C/s, losses 0.009 °C/s (a lid-off pot): with the SSR dead the water falls
     # 0.27 °C every 30 s, past SUDDEN_FALL (0.25 °C) alone, but within it over the hold's

@@ -42,6 +42,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from hermsd.safety.heat_balance import pv_slope
+from hermsd.safety.limits import MODEL_MARGIN
 
 SPELL_S = 120.0
 """s of PV judged at a time: the means of 3 periods' PV at its ends (each period's of 5
@@ -72,7 +73,13 @@ thermowell's, up to 150 s) still bends its rise for two lags and more."""
 DEAD_TIME_FACTORS = (0.5, 1.0, 2.0)
 """Each spell is judged with its power taken these times the dead time earlier: an element
 is blamed only when all agree (a misjudged dead time makes power that changed near the
-window's ends look missing at one of them, not at all)."""
+window's ends look missing at one of them, not at all). The config's dead time may be half
+or twice the tun's (a far sensor's 240 s against the default 115 s)."""
+FIT_DEAD_TIME_ERROR_S = 30.0
+"""s: the heat-up fit's dead time lies within −23/+28 s of the tun's delay and lag
+(bench/RESULTS.md, "Heat-up fit"). Once the day's heat-up has measured it (`heat_up`), the
+spells are judged at it and at the dead times `MODEL_MARGIN` or this from it, whichever lies
+farther (`_dead_times`): the verdict waits half a dead time less than at twice it."""
 LEAST_SHARE = 0.1
 """An element giving less than this part of the total in a spell is not judged in it."""
 CYCLES_S = 900.0
@@ -94,12 +101,13 @@ RESTORED = 0.3
 CONFIRM_S = 60.0
 """s a finding must last before it is reported or cleared."""
 WINDOWS = (
-    (SPELL_S, True, LEAST_SHARE, CONFIRM_S, DEAD_TIME_FACTORS),
-    (CYCLES_S, False, LEAST_PART, CYCLES_CONFIRM_S, (1.0,)),
+    (SPELL_S, True, LEAST_SHARE, CONFIRM_S, True),
+    (CYCLES_S, False, LEAST_PART, CYCLES_CONFIRM_S, False),
 )
-"""(s judged, the second element steady in it, the least part judged, s to confirm, the dead
-times tried): a long window's ends weigh little, and the ripple of a cycling hold at its
-ends would make the dead times disagree by more than misjudging them does."""
+"""(s judged, the second element steady in it, the least part judged, s to confirm, whether
+dead times either side of the dead time are tried too, `_dead_times`): a long window's ends
+weigh little, and the ripple of a cycling hold at its ends would make the dead times
+disagree by more than misjudging them does."""
 PV_MEAN_PERIODS = 3
 """Periods whose PV are averaged at either end of a spell (noise: sd/√3)."""
 STALL_S = 300.0
@@ -234,6 +242,20 @@ class ElementWatch:
         that `hermsd replay --verify` hands in the same."""
         self.fit_rate, self.dead_time = rate, dead_time
 
+    def _dead_times(self) -> tuple[float, float, float]:
+        """The dead times a spell is judged at: `DEAD_TIME_FACTORS` of the configured one, or
+        around the heat-up's measured one (`FIT_DEAD_TIME_ERROR_S`)."""
+        theta = self.dead_time
+        if self.fit_rate is None:
+            low, mid, high = DEAD_TIME_FACTORS
+            return low * theta, mid * theta, high * theta
+        error = FIT_DEAD_TIME_ERROR_S
+        return (
+            max(0.0, min(theta / MODEL_MARGIN, theta - error)),
+            theta,
+            max(theta * MODEL_MARGIN, theta + error),
+        )
+
     def blame(self, t: float, element: int, message: str) -> ElementReport:
         """An element the heat-up's probe found dead (hermsd/safety/element_probe.py): reported,
         and held, for the references were measured without its heat and cannot clear it."""
@@ -252,9 +274,10 @@ class ElementWatch:
         samples = self._samples
         if self.hold_power is None:  # the full-power rate nearest the setpoint, before it
             low, high = setpoint - APPROACH_BAND[0], setpoint - APPROACH_BAND[1]
-            spell = self._spell(t, SPELL_S, True, max(DEAD_TIME_FACTORS) * self.dead_time)
+            latest = max(self._dead_times())
+            spell = self._spell(t, SPELL_S, True, latest)
             if spell is not None and low <= samples[-1].pv <= high:
-                reach = SPELL_S + max(DEAD_TIME_FACTORS) * self.dead_time
+                reach = SPELL_S + latest
                 full = all(self._total(s) >= 1.0 - 1e-9 for s in samples if s.t > t - reach)
                 if full and spell[1] > 0.0:
                     self.full_rate = spell[1]
@@ -386,16 +409,17 @@ class ElementWatch:
         gain, hold = self._gain(), self.hold_power
         if stalled or self.probed is not None or gain is None or hold is None:
             return stalled
-        for span, steady, least, confirm, factors in WINDOWS:
+        for span, steady, least, confirm, bracketed in WINDOWS:
             if steady and self.hold_cycled:
                 # A hold that switched the second element on is judged by the long window
                 # alone: had it given nothing all day, the hold cycled it for nothing and
                 # u0 took its nominal heat for the tun's losses, and a short window with it
                 # on throughout would blame the first element for its missing heat.
                 continue
-            # Judged at each dead time of DEAD_TIME_FACTORS: power that changed near the
+            # Judged at each dead time the tun's may be: power that changed near the
             # window's ends shows at the sensor sooner or later than `dead_time` says.
-            seen = [self._spell(t, span, steady, f * self.dead_time) for f in factors]
+            dead_times = self._dead_times() if bracketed else (self.dead_time,)
+            seen = [self._spell(t, span, steady, theta) for theta in dead_times]
             spells = [spell for spell in seen if spell is not None]
             if len(spells) < len(seen):
                 continue
@@ -413,7 +437,7 @@ class ElementWatch:
                 restored |= {e for e, c in judged.items() if missing <= RESTORED * c}
                 if len(restored) == 2:
                     restored.add(EITHER)
-            power, rate, parts = spells[factors.index(1.0)]
+            power, rate, parts = spells[dead_times.index(self.dead_time)]
             missing = power - (hold + rate / gain)
             parts[EITHER] = min((c for c in parts.values() if c >= least), default=0.0)
             if self.doubtful:
