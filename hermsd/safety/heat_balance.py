@@ -149,7 +149,7 @@ class HeatBalance:
         the verdict once it has lasted `CONFIRM_S`."""
         samples = self._samples
         samples.append((t, pv, applied))
-        if abs(applied - bounds.full_duty) > FULL_SLACK:
+        if not _at_full(applied, bounds.full_duty):
             self._off_limit_at = t
         reach = 2.0 * (WINDOW_S + bounds.dead_time)
         while len(samples) > 1 and t - samples[1][0] >= reach:
@@ -221,7 +221,7 @@ class HeatBalance:
         reach back that far."""
         samples, limit = self._samples, bounds.full_duty
         return samples[0][0] <= since + 1e-9 and all(
-            abs(applied - limit) <= FULL_SLACK for s, _, applied in samples if s > since
+            _at_full(applied, limit) for s, _, applied in samples if s > since
         )
 
     def _note_ramp(self, t: float, later: _Window, bounds: Bounds, floor: float) -> None:
@@ -341,6 +341,11 @@ class _Ramp:
     mean_pv: float  # °C
     limit: float  # % the output's limit stood at
     confirmed: bool  # the ramp a window before rose alike
+
+
+def _at_full(applied: float, limit: float) -> bool:
+    """Whether a period's duty stood at the output's `limit` (within `FULL_SLACK`)."""
+    return abs(applied - limit) <= FULL_SLACK
 
 
 def _steady(window: _Window, floor: float) -> bool:
