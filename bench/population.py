@@ -144,12 +144,12 @@ class PopTun:
     def config(self) -> Config:
         return with_sensor(self.spec.config(read.load(SHIPPED)), self.kind)
 
-    def plant(self) -> hlt.PhysicalPlant:
-        """The day's tun as the simulator builds it, for the physical bounds."""
+    def plant(self, **start: float) -> hlt.PhysicalPlant:
+        """The day's tun as the simulator builds it, for the physical bounds (`start`: its
+        `start_c` and `start_s`, if not the room's and 0 s)."""
         plant = self.water.plant()  # both elements' watts on one: full power is both
-        return hlt.PhysicalPlant(
-            **{k: v for k, v in plant.items() if k in hlt.plant_parameters("physical")}
-        )
+        params = {k: v for k, v in plant.items() if k in hlt.plant_parameters("physical")}
+        return hlt.PhysicalPlant(**{**params, **start})
 
     def losses_w(self, water_c: float = SETPOINT) -> float:
         """What the day's water loses at `water_c`: walls, and evaporation with the lid off."""
@@ -221,15 +221,13 @@ def landing_ratio(tun: PopTun) -> float | None:
     within 3 h. Day 2's recovery ≤ ×1.02 and its after-water overshoot ≤ 0.1 °C can both be
     met with the water itself within 0.1 °C only where this is ≤ 1.02: behind a slow sensor
     a sooner recovery needs the water over it, which the lagging sensor does not show."""
-    water = tun.water
-    params = {k: v for k, v in water.plant().items() if k in hlt.plant_parameters("physical")}
     before = _settle_s(tun)
-    start = hlt.PhysicalPlant(**{**params, "start_c": SETPOINT, "start_s": -before})
+    start = tun.plant(start_c=SETPOINT, start_s=-before)
     for when, on in _hold_edges(-before, _holding(tun)):
         if when >= 0.0:
             break
         start.set_heater(on, when)
-    start.add_water(water.litres / 10.0, 15.0, 0.0)
+    start.add_water(tun.water.litres / 10.0, 15.0, 0.0)
     return _least_within(start, tun)
 
 
@@ -240,9 +238,7 @@ def settle_landing_ratio(tun: PopTun) -> float | None:
     against). Day 2's settle ≤ ×1.01 and its heat-up overshoot ≤ 0.1 °C can both be met
     only where this is ≤ 1.01: a fast tun behind a long delay and lag has tens of degrees
     in flight at full power, and the least settle lands them past the band."""
-    water = tun.water
-    params = {k: v for k, v in water.plant().items() if k in hlt.plant_parameters("physical")}
-    return _least_within(hlt.PhysicalPlant(**params), tun)
+    return _least_within(tun.plant(), tun)
 
 
 def _settle_s(tun: PopTun) -> float:
