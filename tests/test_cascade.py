@@ -307,6 +307,53 @@ def test_a_mash_that_stands_still_teaches_the_losses_its_coil_makes_up() -> None
     assert decision.hlt_setpoint == pytest.approx(66.5, abs=1e-3)
 
 
+def test_a_climb_teaches_the_losses_from_the_mash_its_coil_was_given() -> None:
+    """An HLT read rising 0.005 °C/s (the law's prediction a dead time's heat, 0.6 °C, ahead
+    of it) heats a mash losing 10 W/K where the config says 5, through 200 W/K (known), a
+    hose of 40 s round trip (20 s each way) and a mash sensor 50 s behind. The wort that
+    comes back now met the HLT of 20 s ago, and left the tun 40 s ago: paired so, the miss
+    is the losses' alone, and an hour of climb (the rest, 80 °C, out of reach) teaches 10
+    W/K. Paired with the mash read at the HLT's instant (50 − 20 s too early, a climb's
+    cooler mash) it taught 10.84; with the prediction for the HLT, more still; the climb
+    used to teach nothing (5)."""
+    tanks = dataclasses.replace(LOSSLESS, mash_loss=5.0, hose_delay=40.0, mash_lag=50.0)
+    c = cascade(tanks, limit=10.0)
+    k, ua, cm, room = 200.0, 10.0, LOSSLESS.mash_capacity, 20.0
+    mash = [40.0] * 41  # the mash over the last 40 s, the oldest (the coil's inlet) first
+    read = 40.0
+    for second in range(1, 3601):  # Euler steps of 1 s
+        hlt = 50.0 + 0.005 * second
+        m = mash[-1] + (k * (hlt - 0.005 * 20.0 - mash[0]) - ua * (mash[-1] - room)) / cm
+        mash = [*mash[1:], m]
+        read += (m - read) / 50.0
+        if second % 5 == 0:
+            decision = c.step(
+                mash_sp=80.0,
+                mash_pv=read,
+                mash_age=0.0,
+                hlt_pv=hlt + 0.6,
+                pump=True,
+                coil=EXACT,
+                hlt_reading=hlt,
+            )
+            assert decision.phase == "climb"
+    assert c.mash_loss == pytest.approx(ua, rel=0.02)
+
+
+def test_a_timer_s_restart_in_the_coast_is_readied_for_the_mash_its_stop_cooled() -> None:
+    # Lossless tanks, C_h = 2·C_m, K exact: the coast of a mash at 56.05 °C aims it at 64.95,
+    # from 65 + (64.95 − 56.05)/2 = 69.45 °C. A timer stops the pump there and the mash cools
+    # to 55.05: its restart's coast to the rest needs 65 + (65 − 55.05)/2 = 69.975 °C, and the
+    # start prepared readies it (the stop alone keeps 69.45: it may be long).
+    c = cascade()
+    assert step(c, 56.05, 70.0).hlt_setpoint == pytest.approx(69.45, abs=1e-3)
+    stop = {"mash_sp": 65.0, "mash_pv": 55.05, "mash_age": 0.0, "hlt_pv": 69.45, "pump": False}
+    kept = c.step(**stop, coil=EXACT, paused=True)
+    assert kept.hlt_setpoint == pytest.approx(69.45, abs=1e-3)
+    readied = c.step(**stop, coil=EXACT, paused=True, starting=True)
+    assert readied.phase == "ready" and readied.hlt_setpoint == pytest.approx(69.975, abs=1e-3)
+
+
 def test_a_coil_that_passes_nothing_leaves_the_hlt_at_the_limit_not_at_infinity() -> None:
     # A K learned at 0 (a stuck bed): the hold would need an endless HLT; the setpoint stays
     # at the limit, 65 + 5.15 − 0.15 = 70 °C, and nothing is fed forward.

@@ -85,6 +85,11 @@ enough, where one that gets none (a stuck bed, a pump hermsd does not see stoppe
 its losses' rate, which taken for losses would be carried, as too hot an HLT, past the rest
 once the wort flows again. Two steps of the LM92's 0.0625 °C: more than noise of 0.03 °C
 makes between two readings."""
+MASH_CAPACITY_SD = 0.05
+"""The mash's heat capacity as the config gives it (water and grain) is good to this share: the
+tun's own 0–5 kJ/K is not in it, nor is the grain's specific heat exact. Its error reads as loss
+in proportion to the mash's rise, so the losses are learned the slower the faster it rises
+(`Cascade._observe`)."""
 MAX_LOSS_FACTOR = 4.0
 """The mash's losses as learned stay within 0 and this many times the config's (or 20 W/K,
 whichever is more)."""
@@ -324,6 +329,7 @@ class Cascade:
         "_mash_loss",
         "_mash_sp",
         "_mash_span",
+        "_pairs",
         "_period",
         "_room_read",
         "_seen",
@@ -341,10 +347,14 @@ class Cascade:
         self._mash_sp: float | None = None
         self._last_sp: float | None = None
         self._last_mash: float | None = None
-        # (HLT, mash) readings over the delay between the coil and the mash's sensor, and
-        # half the line the mash's rise is read from (its middle lies that far back).
+        # (HLT, mash) readings back to those the mash's rise answers (`_observe`): the HLT the
+        # wort met in the coil half the hose, the mash sensor's lag and half the line before
+        # (the line's middle lies that far back), and the mash it left the tun as, as read
+        # the whole hose and half the line before (the reading a lag behind the mash).
         behind = 0.5 * tanks.hose_delay + tanks.mash_lag + 0.5 * MASH_LINE_S
-        self._seen: deque[tuple[float, float]] = deque(maxlen=round(behind / period) + 2)
+        inlet = tanks.hose_delay + 0.5 * MASH_LINE_S
+        self._pairs = (round(behind / period), round(inlet / period))
+        self._seen: deque[tuple[float, float]] = deque(maxlen=max(self._pairs) + 1)
         span = 2.0 * (tanks.hose_delay + tanks.mash_lag) + 60.0  # `STARVED_FALL`
         self._mash_span: deque[float] = deque(maxlen=round(span / period) + 1)
         self._mash_line: deque[float] = deque(maxlen=round(MASH_LINE_S / period) + 1)
@@ -553,7 +563,10 @@ class Cascade:
             and window[0] - mash_pv >= STARVED_FALL
         )
         whole = rose if len(line) == line.maxlen else None  # a rise centred where `_seen` pairs it
-        self._observe(read, whole, hlt_pv, pump and not starved, k, high)
+        # The HLT as its sensor reads it, as the coil's K was learned (the law's prediction
+        # runs a dead time's heat ahead of the water in a climb).
+        hlt_read = hlt_pv if hlt_reading is None else hlt_reading
+        self._observe(read, whole, hlt_read, pump and not starved, k, high)
         # A stop once the climb is over (a stir, a timer; in the hold or in the coast, which
         # may give way to the hold as the wort flows again) cools the mash by what the stop
         # lasted, not by an error of the model: the hold's integral does not take it for
@@ -564,26 +577,29 @@ class Cascade:
             self._after_stop = False
         if not pump:
             setpoint = min(ready_hlt(mash_sp, mash, hold, tanks), ceiling)
-            if paused and self._last_sp is not None:
-                setpoint = self._last_sp
+            kept = self._last_sp if paused else None  # a timer's stop keeps the setpoint
+            if kept is not None:
+                setpoint = kept
                 if self._climbing:
                     # What the HLT takes in the stop its restart's coast gives the mash: no
                     # more than from where that coast carries it to its rest, as the climb
                     # would have ended with the pump running.
                     peak = coast_start(mash, hold_high, tanks, high, target, ceiling)
                     setpoint = min(setpoint, peak)
-            elif starting:
-                # A start prepared (due in a dead time): readied to the HLT from which its
-                # coast carries the mash to its rest, where that is above the stored heat's
-                # estimate (the mash's losses over the coast counted): a start whose coast
-                # falls short begins a climb, and from the lower HLT the climb's first dead
-                # time is the coil's draw unmet (bench/herms.py seed 19: a stir's restart into
-                # a climb from 0.9 °C under its setpoint, the HLT 0.3 °C down). Not for a stop
-                # of unknown length: an HLT readied high asks the element for heat a shorted
-                # SSR then gives unseen (docs/mash-control.md, "The hold").
+            if starting and not (kept is not None and self._climbing):
+                # A start prepared (due in a dead time; a timer's restart in the coast or the
+                # hold too, its stop having cooled the mash): readied to the HLT from which its
+                # coast carries the mash to its rest, where that is above the setpoint so far
+                # (the stored heat's estimate, the mash's losses over the coast counted): a
+                # start whose coast falls short begins a climb, and from the lower HLT the
+                # climb's first dead time is the coil's draw unmet (bench/herms.py seed 19: a
+                # stir's restart into a climb from 0.9 °C under its setpoint, the HLT 0.3 °C
+                # down; seed 71's 63 °C coast, seeds 41–80: 0.37 °C down). Not for a stop of
+                # unknown length: an HLT readied high asks the element for heat a shorted SSR
+                # then gives unseen (docs/mash-control.md, "The hold").
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if starting:
-                setpoint = min(setpoint, self.most(mash_sp, mash_pv, k))
+                setpoint = min(setpoint, self.most(mash_sp, mash_pv, high))
             if waiting:
                 setpoint = min(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if hlt_reading is not None and hlt_reading > mash_sp + self._limit:
@@ -597,7 +613,7 @@ class Cascade:
                 setpoint = min(setpoint, mash_sp)
             phase = "no flow" if stood else "ready"
         elif self._climbing:
-            setpoint, phase = self.most(mash_sp, mash_pv, k), "climb"
+            setpoint, phase = self.most(mash_sp, mash_pv, high), "climb"
         elif self._descent and read > mash_sp + RESTORED_BAND:
             # A step down: the element off while the mash falls, the HLT with it (the coil
             # draws the mash's heat into it once it is the colder), until full power must lift
@@ -656,33 +672,35 @@ class Cascade:
         return Decision(setpoint, load, phase, load_met=not (coast and self._letting))
 
     def _observe(
-        self, mash: float, rose: float | None, hlt_pv: float, pump: bool, k: float, high: float
+        self, mash: float, rose: float | None, hlt: float, pump: bool, k: float, high: float
     ) -> None:
-        """Learn the mash's losses from its rise where the coil's heat is small and known
-        (coast and hold; in the climb K's uncertainty outweighs them; `pump` False: no heat
+        """Learn the mash's losses from its rise while the wort flows (`pump` False: no heat
         reaches the mash, a stopped pump or a starved mash, and its rise says nothing until
         a delay after it does): the rise a period (`rose`, the line's through the last
-        MASH_LINE_S) against the model's, its tanks taken the sensor's delay before (half the
-        hose and the mash sensor's lag, and half the line), the miss taken as loss with the
-        time LOSS_LEARN_S."""
+        MASH_LINE_S) against the model's, from the HLT (`hlt`, as read) and the mash as read
+        that it answers (`_pairs`), the miss taken as loss with the time LOSS_LEARN_S, slowed
+        where K's uncertainty or the mash's heat capacity's stands out of the losses."""
         seen = self._seen
-        if not pump or self._climbing:
+        if not pump:
             seen.clear()
             return
-        seen.append((hlt_pv, mash))
-        if len(seen) < 2:
-            return
+        seen.append((hlt, mash))
         tanks = self._tanks
-        h, m = seen[0]
+        if len(seen) < (seen.maxlen or 0) or rose is None:
+            return
+        h, m = seen[-1 - self._pairs[0]][0], seen[-1 - self._pairs[1]][1]
         above_room = m - tanks.room
-        if len(seen) < (seen.maxlen or 0) or above_room < 1.0 or rose is None:
+        if above_room < 1.0:
             return
         modelled = self._period * (k * (h - m) - self._mash_loss * above_room)
         miss = modelled - tanks.mash_capacity * rose  # J the model gave the mash too many
-        # Taught as fast as the losses stand out of K's uncertainty in the mash's balance
-        # (a gain of 1/(1 + (σ_K·(T_h − T_m)/(UA_m·(T_m − T_room)))²)): in a coast the coil's
-        # kilowatts, K a prior's ±50 %, would teach its error as losses; K learned, little.
-        spread = (high - k) * abs(h - m) / (max(self._mash_loss, 1.0) * above_room)
+        # Taught as fast as the losses stand out of the balance's other uncertain terms (a
+        # gain of 1/(1 + s²), s = √((σ_K·(T_h − T_m))² + (σ_C·dT_m/dt)²)/(UA_m·(T_m − T_room))):
+        # in a climb or a coast the coil's kilowatts, K a prior's ±50 %, would teach its error
+        # as losses, and a climb's fast rise the heat capacity's (`MASH_CAPACITY_SD`).
+        stored = MASH_CAPACITY_SD * tanks.mash_capacity * rose / self._period
+        uncertain = math.hypot((high - k) * (h - m), stored)
+        spread = uncertain / (max(self._mash_loss, 1.0) * above_room)
         rate = self._period / LOSS_LEARN_S / (1.0 + spread * spread)
         learned = self._mash_loss + rate * miss / (self._period * above_room)
         self._mash_loss = min(max(learned, 0.0), max(MAX_LOSS_FACTOR * tanks.mash_loss, 20.0))
