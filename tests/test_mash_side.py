@@ -465,15 +465,15 @@ def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
     assert said == "now: setpoint 70 °C, auto, pump starting in 600 s\n"
     # The mash far below its 70 °C: the HLT readied to the limit, 70 + 10 less 0.15 °C, but
     # with a start prepared, to the climb's setpoint: the limit less the heat in flight for
-    # the coil that a stop lands, on the prior's K one sd high, 300 W/K·(79.85 − 20) K·600 s
-    # / (90 L·4186 J/(L·K)) = 28.59532 °C, and the SSR's ripple on it (r·W/4, r =
-    # 3000/(90·4186) °C/s: 0.00995 °C), beyond the margin: 79.85 − 28.45527 = 51.39473 °C.
-    assert "HLT 20.00 °C → 51.39 °C, " in status
+    # the coil that a stop lands, 200 W/K·(79.85 − 20) K·600 s / (90 L·4186 J/(L·K)) =
+    # 19.06354 °C, and the SSR's ripple on it (r·W/4, r = 3000/(90·4186) °C/s: 0.00995 °C),
+    # beyond the margin: 79.85 − 18.92349 = 60.92651 °C.
+    assert "HLT 20.00 °C → 60.93 °C, " in status
     assert re.search(r", mash 20.0 → 70.0 °C \(ready\), pump starting in \d+ s, ", status)
     # Still pending, at most the dead time off (600 s where no period ran between the two
     # commands: the daemon steps on its own thread).
     assert reply["pump"] is False and 0.0 < reply["mash"]["pump_start_in"] <= 600.0
-    assert reply["mash"]["hlt_setpoint"] == pytest.approx(51.39473, abs=1e-5)
+    assert reply["mash"]["hlt_setpoint"] == pytest.approx(60.92651, abs=1e-5)
     assert reply["mash"]["phase"] == "ready"
     assert reply["mash"]["warning"] is None
     assert reply["coil"]["fault"] is None and reply["warnings"] == []

@@ -599,7 +599,7 @@ class Cascade:
                 # then gives unseen (docs/mash-control.md, "The hold").
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if starting:
-                setpoint = min(setpoint, self.most(mash_sp, mash_pv, high))
+                setpoint = min(setpoint, self.most(mash_sp, mash_pv, k))
             if waiting:
                 setpoint = min(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
             if hlt_reading is not None and hlt_reading > mash_sp + self._limit:
@@ -613,7 +613,7 @@ class Cascade:
                 setpoint = min(setpoint, mash_sp)
             phase = "no flow" if stood else "ready"
         elif self._climbing:
-            setpoint, phase = self.most(mash_sp, mash_pv, high), "climb"
+            setpoint, phase = self.most(mash_sp, mash_pv, k), "climb"
         elif self._descent and read > mash_sp + RESTORED_BAND:
             # A step down: the element off while the mash falls, the HLT with it (the coil
             # draws the mash's heat into it once it is the colder), until full power must lift

@@ -193,7 +193,7 @@ class MashControl:
             met=decision.load_met,
         )
         self.load_in, self.load_until, self.load_basis = starts_in, ends_in, coil.conductance
-        k = max(coil.high, MIN_CONDUCTANCE)  # as `Cascade.most` is steered by
+        k = max(coil.conductance, MIN_CONDUCTANCE)
         self._watch_reach(t, decision, mash_sp, mash_pv, hlt_pv, k, timer_stop or not pump)
         self.decision = decision
         fed = before is not None and before.load_watts > 0.0

@@ -290,7 +290,10 @@ class MashSide(LoopState):
         if due is None:
             return None
         if self._pump_start_from is None:
-            self._pump_start_from = pv
+            # Where the HLT was heading as the preparation began: heat still landing then (a
+            # stop's, in a climb) is none sent ahead for the start.
+            ahead = predictive.predicted_pv(self.controller)
+            self._pump_start_from = pv if pv is None or ahead is None else max(pv, ahead)
         stood = self._pump_start_from if self._pump_start_from is not None else -math.inf
         arrived = pv is not None and pv > max(self.hlt_target(), stood) + HLT_MARGIN
         if t < due - 0.5 * self.config.control.period and not arrived:
