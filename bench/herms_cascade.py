@@ -180,6 +180,7 @@ def steer(
         hlt_pv=hlt_pv if ahead is None else ahead,
         pump=pump,
         coil=coil.estimate(),
+        hlt_reading=hlt_pv,
     )
     return decision.hlt_setpoint, decision.load_watts, decision.load_met
 
