@@ -594,7 +594,7 @@ class Cascade:
                 # start whose coast falls short begins a climb, and from the lower HLT the
                 # climb's first dead time is the coil's draw unmet (bench/herms.py seed 19: a
                 # stir's restart into a climb from 0.9 °C under its setpoint, the HLT 0.3 °C
-                # down; seed 71's 63 °C coast, seeds 41–80: 0.37 °C down). Not for a stop of
+                # down; seed 71's 63 °C coast, seeds 41–80: 0.19 °C down). Not for a stop of
                 # unknown length: an HLT readied high asks the element for heat a shorted SSR
                 # then gives unseen (docs/mash-control.md, "The hold").
                 setpoint = max(setpoint, coast_start(mash, hold_high, tanks, high, target, ceiling))
