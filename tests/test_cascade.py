@@ -83,14 +83,15 @@ def test_the_climb_pairs_the_hlt_a_dead_time_ahead_with_the_mash_then() -> None:
     assert step(cascade(), 54.17, 70.0).phase == "climb"  # no dead time: paired as read
 
 
-@pytest.mark.parametrize(("dead_time", "setpoint"), [(60.0, 69.28999), (5.0, 70.0)])
+@pytest.mark.parametrize(("dead_time", "setpoint"), [(60.0, 69.22749), (5.0, 70.0)])
 def test_a_climb_keeps_room_under_the_limit_for_the_heat_an_unannounced_stop_lands(
     dead_time: float, setpoint: float
 ) -> None:
     # The HLT law's heat in flight for the coil, K·(70 − 40)·θ = 200·30·60 J = 360 kJ, lands
-    # in 418 600 J/K when the pump stops unannounced: 0.86001 °C, of which HLT_MARGIN (0.15)
-    # is under the limit already: the climb's setpoint 70 − 0.71001. Behind 5 s, 0.0717 °C,
-    # less than the margin: the limit less HLT_MARGIN, as without.
+    # in 418 600 J/K when the pump stops unannounced: 0.86001 °C, on water that stands up to
+    # one of its sensor's 0.0625 °C steps above the reading, of which HLT_MARGIN (0.15) is
+    # under the limit already: the climb's setpoint 70 − 0.77251. Behind 5 s, 0.0717 + 0.0625
+    # = 0.1342 °C, less than the margin: the limit less HLT_MARGIN, as without.
     tanks = dataclasses.replace(LOSSLESS, hlt_dead_time=dead_time)
     climb = step(cascade(tanks), 40.0, 60.0)
     assert climb.phase == "climb"
@@ -99,14 +100,14 @@ def test_a_climb_keeps_room_under_the_limit_for_the_heat_an_unannounced_stop_lan
 
 def test_the_ssr_s_ripple_rides_on_a_stop_s_landing() -> None:
     # The water 0.03 °C above its mean at the top of a pulse. With no dead time nothing
-    # lands, and a climb that goes on has its pulses within HLT_MARGIN: the ceiling,
-    # 65 + 5.15 − 0.15 = 70 °C. With a dead time of 60 s, an unannounced stop lands
-    # K·(70 − 40)·θ/C_h = 200·30·60/418 600 = 0.86001 °C on the mean, the ripple on top:
-    # 70.15 − 0.89001 = 69.25999 °C.
+    # lands, and a climb that goes on has its pulses (and the reading's step, 0.0625 °C)
+    # within HLT_MARGIN: the ceiling, 65 + 5.15 − 0.15 = 70 °C. With a dead time of 60 s, an
+    # unannounced stop lands K·(70 − 40)·θ/C_h = 200·30·60/418 600 = 0.86001 °C on the mean,
+    # the ripple and the step on top: 70.15 − 0.95251 = 69.19749 °C.
     tanks = dataclasses.replace(LOSSLESS, hlt_ripple=0.03)
     assert step(cascade(tanks), 40.0, 60.0).hlt_setpoint == pytest.approx(70.0, abs=1e-9)
     behind = dataclasses.replace(tanks, hlt_dead_time=60.0)
-    assert step(cascade(behind), 40.0, 60.0).hlt_setpoint == pytest.approx(69.25999, abs=1e-5)
+    assert step(cascade(behind), 40.0, 60.0).hlt_setpoint == pytest.approx(69.19749, abs=1e-5)
 
 
 def test_the_heat_in_the_hose_moves_the_switch_earlier_by_its_share() -> None:
@@ -401,7 +402,8 @@ def test_a_start_being_prepared_readies_the_hlt_no_higher_than_the_climb_it_begi
     # The mash at 40 °C far below its 65 °C rest, the pump stopped: readied to the ceiling,
     # 70 °C. With a start prepared, the climb's setpoint the start begins: the ceiling less
     # what a stop's heat in flight needs beyond the margin, 200·(70 − 40)·60/418 600 =
-    # 0.86001 °C, so 69.28999 °C (as the climb's own, above); held there should the reading go.
+    # 0.86001 °C and the reading's step, 0.0625, so 69.22749 °C (as the climb's own, above);
+    # held there should the reading go.
     tanks = dataclasses.replace(LOSSLESS, hlt_dead_time=60.0)
     assert step(cascade(tanks), 40.0, 60.0, pump=False).hlt_setpoint == pytest.approx(70.0)
     c = cascade(tanks)
@@ -409,8 +411,8 @@ def test_a_start_being_prepared_readies_the_hlt_no_higher_than_the_climb_it_begi
         mash_sp=65.0, mash_pv=40.0, mash_age=0.0, hlt_pv=60.0, pump=False, coil=EXACT, starting=True
     )
     assert starting.phase == "ready"
-    assert starting.hlt_setpoint == pytest.approx(69.28999, abs=1e-5)
-    assert step(c, None, 60.0, pump=False).hlt_setpoint == pytest.approx(69.28999, abs=1e-5)
+    assert starting.hlt_setpoint == pytest.approx(69.22749, abs=1e-5)
+    assert step(c, None, 60.0, pump=False).hlt_setpoint == pytest.approx(69.22749, abs=1e-5)
 
 
 def test_a_start_being_prepared_readies_the_hlt_its_coast_needs_where_losses_take_a_share() -> None:
@@ -439,12 +441,13 @@ def test_a_start_being_prepared_readies_the_hlt_its_coast_needs_where_losses_tak
 
 def test_a_prepared_start_sends_ahead_no_more_than_the_hlt_takes_under_its_limit() -> None:
     # The law sends the draw a dead time (60 s) ahead; if the coil then draws nothing it
-    # lands in 418 600 J/K. The limit is 65 + 5.15 = 70.15 °C: from 69 °C the draw,
-    # 200·(69 − 50) = 3800 W, lifts it 3800·60/418 600 = 0.545 °C, within the 1.15 °C left;
-    # from 70 °C only 0.15 °C is left, 0.15·418 600/60 = 1046.5 W of the 4000; above, none.
+    # lands in 418 600 J/K, on water up to one of its sensor's 0.0625 °C steps above the
+    # reading. The limit is 65 + 5.15 = 70.15 °C: from 69 °C the draw, 200·(69 − 50) =
+    # 3800 W, lifts it 3800·60/418 600 = 0.545 °C, within the 1.0875 °C left; from 70 °C only
+    # 0.0875 °C is left, 0.0875·418 600/60 = 610.4583 W of the 4000; above, none.
     c = cascade(dataclasses.replace(LOSSLESS, hlt_dead_time=60.0))
     assert c.prepared_load(69.0, 50.0, 70.0, 200.0, 65.0) == pytest.approx(3800.0)
-    assert c.prepared_load(70.0, 50.0, 70.0, 200.0, 65.0) == pytest.approx(1046.5)
+    assert c.prepared_load(70.0, 50.0, 70.0, 200.0, 65.0) == pytest.approx(610.4583, abs=1e-4)
     assert c.prepared_load(70.2, 50.0, 70.0, 200.0, 65.0) == 0.0
 
 

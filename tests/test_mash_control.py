@@ -390,7 +390,9 @@ def test_a_rest_the_limit_cannot_bring_the_mash_to_is_said_with_its_level_and_cl
     control = daemon._mash_control
     assert control is not None and control.reach.ceiling is not None
     assert abs(control.reach.ceiling - level) < 0.5
-    assert f"near {control.reach.ceiling:.1f} °C with the HLT at its most" in said[0]
+    # Named as measured when said; the estimate goes on refining after (within a tenth).
+    named = re.search(r"near (\d+\.\d) °C with the HLT at its most", said[0])
+    assert named is not None and abs(float(named[1]) - control.reach.ceiling) <= 0.1
     assert "raise herms.max_hlt_above_mash (3 °C)" in said[0]
     status = status_of(daemon)
     assert status["warnings"] == [said[0]]
@@ -478,17 +480,17 @@ def rest_63(control: MashControl, *, mash_pv: float, pump: bool) -> Decision:
     )
 
 
-@pytest.mark.parametrize(("swing", "climb"), [(0.0, 72.33675), (0.0625, 72.31175)])
+@pytest.mark.parametrize(("swing", "climb"), [(0.0, 72.27425), (0.0625, 72.24925)])
 def test_a_climb_keeps_the_water_s_ripple_on_a_stop_s_landing_under_the_limit(
     swing: float, climb: float
 ) -> None:
     """A model heating 3 kW at 100·1/20 000 = 0.005 °C/s (C_h = 600 kJ/K), 60 s behind,
     windows of 5 s: without a band the water swings r·W/2 = 0.0125 °C at worst, half of it
     above its mean. A mash at 40 °C climbing to its 63 °C rest through the prior's 200 W/K:
-    an unannounced stop lands 200·(72.85 − 40)·60/600 000 = 0.657 °C, the ripple on top,
-    beyond HLT_MARGIN: 72.85 − (0.657 + 0.00625 − 0.15) = 72.33675 °C. With `output.swing`
-    1/16 the band is 0.0625/(2r) − W/4 = 5 s, the swing 2·r·5 + 0.0125 = 0.0625 °C:
-    72.85 − (0.657 + 0.03125 − 0.15) = 72.31175 °C."""
+    an unannounced stop lands 200·(72.85 − 40)·60/600 000 = 0.657 °C, the ripple and the
+    reading's 0.0625 °C step on top, beyond HLT_MARGIN: 72.85 − (0.657 + 0.00625 + 0.0625 −
+    0.15) = 72.27425 °C. With `output.swing` 1/16 the band is 0.0625/(2r) − W/4 = 5 s, the
+    swing 2·r·5 + 0.0125 = 0.0625 °C: 72.85 − (0.657 + 0.03125 + 0.0625 − 0.15) = 72.24925 °C."""
     config = parse(CONFIG.replace("backend: sim\n", f"backend: sim\n  swing: {swing}\n", 1))
     model = PlantModel(1.0, 20000.0, 60.0, 20.0)
     control = mash_control(config, model, coil_prior(config, None))

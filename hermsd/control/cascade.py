@@ -40,6 +40,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from hermsd.control.coil import CoilEstimate
+from hermsd.control.pid import SENSOR_LSB
 from hermsd.control.watches import LineFit
 
 HLT_MARGIN = 0.15
@@ -447,12 +448,21 @@ class Cascade:
         ceiling, less the room an unannounced stop needs beyond HLT_MARGIN: its landing
         (`stop_room`) lifts the water's mean, and the SSR's pulses lift the water above
         that by `Tanks.hlt_ripple` (bench/herms.py seed 13's 72 °C rest, a 7.9 kW element on
-        68 L: a stir's landing 0.0035 °C over the limit without it). A climb that goes on
-        has them within HLT_MARGIN's spare (docs/mash-control.md, "The limit")."""
+        68 L: a stir's landing 0.0035 °C over the limit without it), on water up to a step
+        of its sensor above the reading (`_over_reading`). A climb that goes on has them
+        within HLT_MARGIN's spare (docs/mash-control.md, "The limit")."""
         ceiling = self.ceiling(mash_sp)
-        landing = stop_room(ceiling, mash_pv, k, self._tanks) + self._tanks.hlt_ripple
+        landing = stop_room(ceiling, mash_pv, k, self._tanks) + self._over_reading()
         room = max(HLT_MARGIN, landing) - HLT_MARGIN
         return ceiling - room
+
+    def _over_reading(self) -> float:
+        """°C the water may stand above the HLT's reading at the top of the SSR's pulses:
+        half their swing (`Tanks.hlt_ripple`) and one of the sensor's steps (the LM92 and the
+        DS18B20 truncate to 0.0625 °C; the law holds the reading, the water stands up to a
+        step above it: bench/herms.py --step-down seed 26's 70 °C rest, a stop's landing
+        0.002 °C over the limit without it)."""
+        return self._tanks.hlt_ripple + SENSOR_LSB
 
     def step(
         self,
@@ -791,7 +801,7 @@ class Cascade:
         stop within it), where the draw, once the pump runs, is let act (`_load`), not met
         (bench/herms.py seed 35: the restart's heat sent while the HLT stood 0.7 °C above
         the coast's setpoint, the mash 0.27 °C over). No more than the HLT at `hlt` takes
-        under its limit for `mash_sp`, the SSR's ripple on top, if the coil drew none of it:
+        under its limit for `mash_sp` (`_over_reading` on top) if the coil drew none of it:
         the law sends it a dead time ahead, and a draw less than told (K a prior, a mash
         sensor still catching up with the dough-in, the wort's first hose-length) lands it
         in the HLT (seed 13: told 8.4 kW of a 3.3 kW draw, the HLT 0.01 °C over)."""
@@ -801,5 +811,5 @@ class Cascade:
         dead = self._tanks.hlt_dead_time
         if dead <= 0.0:
             return draw
-        room = max(0.0, self.ceiling(mash_sp) + HLT_MARGIN - self._tanks.hlt_ripple - hlt)
+        room = max(0.0, self.ceiling(mash_sp) + HLT_MARGIN - self._over_reading() - hlt)
         return min(draw, room * self._tanks.hlt_capacity / dead)
