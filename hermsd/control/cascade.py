@@ -3,25 +3,25 @@ there, and the coil's load for the HLT law to feed forward (derivation: docs/mas
 
 Pure and clock-free, as the laws are: `Cascade.step` once a control period.
 
-The mash gains K·(T_hlt − T_m) through the coil and loses UA_m·(T_m − T_room), so in a hold the
-HLT must stand at T_hold = T_sp + UA_m·(T_sp − T_room)/K, above the rest by the losses' share
-(why a mash "levels out below" its HLT). Heat cannot be taken back from the mash, so a step runs
-as the HLT law's own approach does, one level up: the HLT's setpoint stays at the limit (mash
-setpoint + `max_hlt_above_mash`, less HLT_MARGIN for the HLT law's own overshoot or, where it is
-more, the heat in flight for the coil that a pump stop nobody announced lands in the HLT,
-`stop_room`, with the SSR's ripple on top; never above the HLT's maximum) until the heat stored
-in the HLT above T_hold and in flight in the hose will carry the mash to its setpoint as the two
-tanks coast together (`coast_peak`: the linear two-tank model run forward with the element off
-until the HLT is down at T_hold). Then the HLT's setpoint is the HLT from which the coast
-carries the mash to its setpoint (`coast_start`, judged again every period: below the HLT while
-the coast holds, above it where it falls short), down to T_hold as the mash arrives, and from
+The mash gains K·(T_hlt − T_m) through the coil and loses UA_m·(T_m − T_room), so in a hold the HLT
+must stand at T_hold = T_sp + UA_m·(T_sp − T_room)/K, above the rest by the losses' share (why a
+mash "levels out below" its HLT). Heat cannot be taken back from the mash, so a step runs as the
+HLT law's own approach does, one level up: the HLT's setpoint stays at the limit (mash setpoint +
+`max_hlt_above_mash`, less HLT_MARGIN for the HLT law's own overshoot or, where it is more, the
+heat in flight for the coil that a pump stop nobody announced lands in the HLT, `stop_room`, with
+the SSR's ripple and a step of the HLT's sensor on top; never above the HLT's maximum) until the
+heat stored in the HLT above T_hold and in flight in the hose will carry the mash to its setpoint
+as the two tanks coast together (`coast_peak`: the linear two-tank model run forward with the
+element off until the HLT is down at T_hold). Then the HLT's setpoint is the HLT from which the
+coast carries the mash to its setpoint (`coast_start`, judged again every period: below the HLT
+while the coast holds, above it where it falls short), down to T_hold as the mash arrives, and from
 there on the setpoint is T_hold plus a PI on the mash's error. UA_m is a guess; the mash's rise
 against the model's once the climb is over, and the PI's integral, learn it, and what they learn
 serves the next rest's T_hold and coast. With the pump stopped nothing flows, and the HLT is
 readied: the setpoint is the temperature whose stored heat above T_hold just covers the mash's
-shortfall (capped by the limit). A step down is the climb's mirror: the element off while
-the mash falls, then T_hold as soon as full power must lift the HLT back to it for the mash
-to land on its rest (`descent_trough`), the hold's PI once it is there.
+shortfall (capped by the limit). A step down is the climb's mirror: the element off while the mash
+falls, then T_hold as soon as full power must lift the HLT back to it for the mash to land on its
+rest (`descent_trough`), the hold's PI once it is there.
 
 The coast is judged with K one sd high (`CoilEstimate.high`): more heat in the hose and a
 lower T_hold, so it stops early rather than late; the load fed forward is K's estimate (one
