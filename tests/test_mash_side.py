@@ -466,9 +466,9 @@ def test_set_pump_through_the_socket_runs_the_pump_and_logs_it(
     # The mash far below its 70 °C: the HLT readied to the limit, 70 + 10 less 0.15 °C, but
     # with a start prepared, to the climb's setpoint: the limit less the heat in flight for
     # the coil that a stop lands, 200 W/K·(79.85 − 20) K·600 s / (90 L·4186 J/(L·K)) =
-    # 19.06354 °C, and the SSR's ripple on it (r·W/4, r = 3000/(90·4186) °C/s: 0.00995 °C),
-    # beyond the margin: 79.85 − 18.92349 = 60.92651 °C.
-    assert "HLT 20.00 °C → 60.93 °C, " in status
+    # 19.06354 °C, and the SSR's ripple on it (r·W/4, r = 3000/(90·4186) °C/s: 0.00995 °C)
+    # and one of the LM92's 0.0625 °C steps, beyond the margin: 79.85 − 18.98599 = 60.86401 °C.
+    assert "HLT 20.00 °C → 60.86 °C, " in status
     assert re.search(r", mash 20.0 → 70.0 °C \(ready\), pump starting in \d+ s, ", status)
     # Still pending, at most the dead time off (600 s where no period ran between the two
     # commands: the daemon steps on its own thread).
