@@ -48,30 +48,27 @@ rest (never above; a strike the program leaves above the first rest + limit, whi
 program check` warns of, cannot be cooled, only left to fall: shown counted too), and the step
 time from the rest's start to within 0.3 °C against the fastest the limit allows on the same
 plant (goal ≤ ×1.15): a copy from the water's and the mash's temperatures at the step's start,
-the pump as the day switched it, the element's heat arriving its delay late as on the plant,
-the HLT at full power to the limit and held there, then off at the last instant that keeps the
-mash at or below its rest (by bisection) and held at the HLT the rest needs, each held by a
-controller that knows the heat it has in flight (on while the water a delay ahead, that heat
-landed and the coil's draw and the losses gone on, is under the mark). Shown beside it, with no
-goal: the step time against the same ideal kept, while the pump runs, as far under the limit as
-a stop nobody announced would land (the coil's draw over the element's delay, K·(T_h −
-T_m)·D/C_h): what "never above the limit" costs a controller that cannot know a brewer's stop
-in advance, which the ideal above does not pay. A rest the ideal never reaches (the limit
-leaves it out of reach on that plant) is no goal for anyone, nor are the rests the program
-never begins after it; one it reaches and a controller does not is a miss ("never"). Per pump
-start: the HLT's largest fall below the lesser of its temperature at the start and its setpoint
-over 10 min (or until the next rest begins, its setpoint another step's climb); one hermsd
-commands (goal ≤ 0.3 °C where the element exceeds the coil's load and the HLT's losses at that
-instant), one outside hermsd against the fall at full power from the start's instant on a copy
-of the plant (goal ≤ ×1.2, seen through its sense; the unseen one measured apart; shown where
-that fall is 0.1 °C or more). Alarms (goal 0; a latched one is reset by the brewer at once,
-`hermsd reset`, so that the day goes on, and each is counted: a peer's are the supervisor's
-verdict on a HERMS run as a plain HLT, which counts no coil's load without a mash sensor, not
-the peer's own), and `replay --verify` on each day's log (exact: every step re-run bit for
-bit). Per day, what the mash's reach watch said ("the mash levels out near …": a rest the HLT
-at its most cannot bring the mash to within a degree; docs/mash-control.md), none where every
-rest is reached, and the coil's K hermsd's load was last reckoned on against the coil's own
-(ε·ṁc).
+the element's heat arriving at once, the pump as the day switched it, the HLT at full power to
+the limit and held there, then off at the last instant that keeps the mash at or below its rest
+(by bisection) and held at the HLT the rest needs. Shown beside it, with no goal: the step time
+against the same ideal kept, while the pump runs, as far under the limit as a stop nobody
+announced would land (the coil's draw over the element's delay, K·(T_h − T_m)·D/C_h): what
+"never above the limit" costs a controller that cannot know a brewer's stop in advance, which
+the ideal above does not pay. A rest the ideal never reaches (the limit leaves it out of reach
+on that plant) is no goal for anyone, nor are the rests the program never begins after it; one
+it reaches and a controller does not is a miss ("never"). Per pump start: the HLT's largest
+fall below the lesser of its temperature at the start and its setpoint over 10 min (or until
+the next rest begins, its setpoint another step's climb); one hermsd commands (goal ≤ 0.3 °C
+where the element exceeds the coil's load and the HLT's losses at that instant), one outside
+hermsd against the fall at full power from the start's instant on a copy of the plant (goal ≤
+×1.2, seen through its sense; the unseen one measured apart; shown where that fall is 0.1 °C or
+more). Alarms (goal 0; a latched one is reset by the brewer at once, `hermsd reset`, so that
+the day goes on, and each is counted: a peer's are the supervisor's verdict on a HERMS run as a
+plain HLT, which counts no coil's load without a mash sensor, not the peer's own), and `replay
+--verify` on each day's log (exact: every step re-run bit for bit). Per day, what the mash's
+reach watch said ("the mash levels out near …": a rest the HLT at its most cannot bring the
+mash to within a degree; docs/mash-control.md), none where every rest is reached, and the
+coil's K hermsd's load was last reckoned on against the coil's own (ε·ṁc).
 
 A step down (`--step-down`; its own section): the same set-ups, peers and measures on a day
 whose rests are 70 °C (20 min), 64 °C (30 min) and 76 °C (10 min), the second below the first,
@@ -98,7 +95,6 @@ import dataclasses
 import math
 import random
 import tempfile
-from collections import deque
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -534,9 +530,7 @@ def ideal_run(
     run ends once the HLT has been down at the rest's HLT for the hoses' time and 2 min (the
     mash then never passes `sp`), and the mash is within BAND if `reach`. `room`: while the
     pump runs, the HLT no higher than leaves room under the limit for what a stop nobody
-    announced would land, the coil's draw over the element's delay (`room_top`). The
-    element's heat arrives its delay late, as on the plant, and each mark is held on the water
-    a delay ahead (the module's docstring). A step down
+    announced would land, the coil's draw over the element's delay (`room_top`). A step down
     (the mash above `sp`) is the mirror: the element off until `switch`, then the HLT held at
     the rest's, the mash not to pass under `sp`."""
     t0, water, mash = start
@@ -545,7 +539,7 @@ def ideal_run(
         litres=s.litres,
         element_watts=s.watts,
         ua_w_per_k=s.hlt_ua,
-        transport_delay_s=s.delay_s,
+        transport_delay_s=0.0,
         sensor_lag_s=0.0,
         ambient_c=s.room,
         start_c=water,
@@ -553,9 +547,6 @@ def ideal_run(
     )
     keys = {**mash_keys(s), "mash_sensor_lag_s": 0.0, "tun_heat_capacity_j_per_k": 0.0}
     tun = HermsTun(hlt, **keys)
-    capacity = WATER_J_PER_LITRE_K * s.litres
-    in_flight: deque[bool] = deque()  # the heater's last `s.delay_s` seconds, the oldest first
-    on_in_flight = 0  # how many of them were on
     tun.dough_in(0.0, s.room, s.mash_capacity / WATER_J_PER_LITRE_K, mash, t0)
     running = pump_running(pumps, t0)
     tun.set_pump(running, t0)
@@ -569,16 +560,7 @@ def ideal_run(
             tun.set_pump(running, t)
         top = room_top(s, cap, tun.mash_temperature(t)) if room and running else cap
         top = top if way > 0.0 else -math.inf
-        # The water a delay ahead: the heat sent lands, the coil's draw and the losses go on.
-        now_water = tun.water_temperature(t)
-        going = tun.coil_watts(t) + s.hlt_ua * (now_water - s.room)
-        sent = s.watts * on_in_flight - going * s.delay_s
-        on = now_water + sent / capacity < (top if second < switch else hold)
-        tun.set_heater(on, t)
-        in_flight.append(on)
-        on_in_flight += on
-        if len(in_flight) > s.delay_s:
-            on_in_flight -= in_flight.popleft()
+        tun.set_heater(tun.water_temperature(t) < (top if second < switch else hold), t)
         t += 1.0
         now = tun.mash_temperature(t)
         if way * (now - sp) > 1e-3:
