@@ -47,10 +47,12 @@ HLT's highest against the mash's setpoint + limit from its first time at or belo
 rest (never above; a strike the program leaves above the first rest + limit, which `hermsd
 program check` warns of, cannot be cooled, only left to fall: shown counted too), and the step
 time from the rest's start to within 0.3 °C against the fastest the limit allows on the same
-plant (goal ≤ ×1.15): a copy from the water's and the mash's temperatures at the step's start,
-the element's heat arriving at once, the pump as the day switched it, the HLT at full power to
-the limit and held there, then off at the last instant that keeps the mash at or below its rest
-(by bisection) and held at the HLT the rest needs. Shown beside it, with no goal: the step time
+plant (goal ≤ ×1.15): a copy of the plant itself as the step began (its water, mash and hoses,
+and the element's heat already on its way), the pump as the day switched it, the HLT at full
+power to the limit and held there, then off at the last instant that keeps the mash at or below
+its rest (by bisection) and held at the HLT the rest needs, each mark held by a controller that
+knows the heat it has sent (on while the water a delay ahead, that heat landed and the coil's
+draw and the losses gone on, is under the mark). Shown beside it, with no goal: the step time
 against the same ideal kept, while the pump runs, as far under the limit as a stop nobody
 announced would land (the coil's draw over the element's delay, K·(T_h − T_m)·D/C_h): what
 "never above the limit" costs a controller that cannot know a brewer's stop in advance, which
@@ -270,7 +272,7 @@ class NoisyTun(HermsTun):
     """A `HermsTun` whose mash sensor has noise, that tells its true mash, and that notes
     each pump start with the fall full power from that instant would allow."""
 
-    __slots__ = ("_hlt_ua", "_noise", "_room", "pump_log", "pump_starts")
+    __slots__ = ("_hlt_ua", "_noise", "_room", "hlt", "pump_log", "pump_starts")
 
     def __init__(self, s: SetUp) -> None:
         hlt = PhysicalPlant(
@@ -283,6 +285,7 @@ class NoisyTun(HermsTun):
             start_c=s.strike_c,
         )
         super().__init__(hlt, **mash_keys(s))
+        self.hlt = hlt  # the HLT itself, whose heat in flight the ideal step counts
         self._hlt_ua, self._room = s.hlt_ua, s.room
         self._noise = random.Random(s.seed + 7919)
         self.pump_log: list[tuple[float, bool]] = []
@@ -432,6 +435,7 @@ class Day:
         self.daemon: Daemon | None = None
         self.samples: list[Sample] = []
         self.rest_starts: list[tuple[float, float, float]] = []  # t, water, mash
+        self.rest_plants: list[NoisyTun] = []  # the plant as each rest began, for its ideal
         self.done_at: float | None = None
         self.outer: Callable[[float, float, float, bool], tuple[float, float]] | None = None
         if controller == "offset":
@@ -463,6 +467,7 @@ class Day:
             hlt_sp = record.setpoint
         if rest is not None and rest == len(self.rest_starts):
             self.rest_starts.append((t, self.tun.water_temperature(t), self.tun.true_mash(t)))
+            self.rest_plants.append(copy.deepcopy(self.tun))
         self.samples.append(Sample(t, hlt_sp, self.tun.water_temperature(t), self.tun.true_mash(t)))
         if self.done_at is not None and t >= self.done_at + 120.0 and self.daemon is not None:
             self.daemon.stop()
@@ -518,51 +523,45 @@ class Day:
 
 def ideal_run(
     s: SetUp,
-    start: tuple[float, float, float],
+    plant: NoisyTun,
+    t0: float,
     sp: float,
     switch: float,
     pumps: list[tuple[float, bool]],
     reach: bool = True,
     room: bool = False,
 ) -> tuple[float, float | None]:
-    """The ideal HLT from `start` (t, water, mash), off the limit at `switch` s: (s until the
-    mash is within BAND, s when it passed `sp`: None if it did not). With `switch` finite the
-    run ends once the HLT has been down at the rest's HLT for the hoses' time and 2 min (the
-    mash then never passes `sp`), and the mash is within BAND if `reach`. `room`: while the
-    pump runs, the HLT no higher than leaves room under the limit for what a stop nobody
-    announced would land, the coil's draw over the element's delay (`room_top`). A step down
-    (the mash above `sp`) is the mirror: the element off until `switch`, then the HLT held at
-    the rest's, the mash not to pass under `sp`."""
-    t0, water, mash = start
-    way = -1.0 if mash > sp else 1.0  # the step's direction
-    hlt = PhysicalPlant(
-        litres=s.litres,
-        element_watts=s.watts,
-        ua_w_per_k=s.hlt_ua,
-        transport_delay_s=0.0,
-        sensor_lag_s=0.0,
-        ambient_c=s.room,
-        start_c=water,
-        start_s=t0,
-    )
-    keys = {**mash_keys(s), "mash_sensor_lag_s": 0.0, "tun_heat_capacity_j_per_k": 0.0}
-    tun = HermsTun(hlt, **keys)
-    tun.dough_in(0.0, s.room, s.mash_capacity / WATER_J_PER_LITRE_K, mash, t0)
+    """The ideal HLT on a copy of `plant` (the plant as the rest began at `t0`), off the limit
+    at `switch` s: (s until the mash is within BAND, s when it passed `sp`: None if it did
+    not). With `switch` finite the run ends once the HLT has been down at the rest's HLT for
+    the hoses' time and 2 min (the mash then never passes `sp`), and the mash is within BAND
+    if `reach`. `room`: while the pump runs, the HLT no higher than leaves room under the limit
+    for what a stop nobody announced would land, the coil's draw over the element's delay
+    (`room_top`). Each mark is held on the water a delay ahead (the heat in flight landed, the
+    coil's draw and the losses gone on), on the true temperatures. A step down (the mash above
+    `sp`) is the mirror: the element off until `switch`, then the HLT held at the rest's, the
+    mash not to pass under `sp`."""
+    tun = copy.deepcopy(plant)
+    way = -1.0 if tun.true_mash(t0) > sp else 1.0  # the step's direction
     running = pump_running(pumps, t0)
-    tun.set_pump(running, t0)
+    HermsTun.set_pump(tun, running, t0)  # the plant's own switch: no full-power copy of it
     later = [(at, on) for at, on in pumps if at > t0]
     cap, hold = sp + s.limit, sp + s.mash_ua * (sp - s.room) / s.coil_k
+    capacity = WATER_J_PER_LITRE_K * s.litres
     settle = s.hose_to_coil + s.hose_to_mash + 120.0
     reached, down_since, t = math.inf, math.inf, t0
     for second in range(4 * 3600):
         while later and later[0][0] <= t:  # a switch within the second: at its end
             running = later.pop(0)[1]
-            tun.set_pump(running, t)
-        top = room_top(s, cap, tun.mash_temperature(t)) if room and running else cap
+            HermsTun.set_pump(tun, running, t)
+        top = room_top(s, cap, tun.true_mash(t)) if room and running else cap
         top = top if way > 0.0 else -math.inf
-        tun.set_heater(tun.water_temperature(t) < (top if second < switch else hold), t)
+        water = tun.water_temperature(t)
+        going = tun.coil_watts(t) + s.hlt_ua * (water - s.room)
+        ahead = water + (tun.hlt.heat_in_flight(t) - going * s.delay_s) / capacity
+        HermsTun.set_heater(tun, ahead < (top if second < switch else hold), t)
         t += 1.0
-        now = tun.mash_temperature(t)
+        now = tun.true_mash(t)
         if way * (now - sp) > 1e-3:
             return reached, second + 1.0
         if reached == math.inf and way * (now - sp) >= -BAND:
@@ -583,27 +582,28 @@ def room_top(s: SetUp, cap: float, mash: float) -> float:
 
 def fastest(
     s: SetUp,
-    start: tuple[float, float, float],
+    plant: NoisyTun,
+    t0: float,
     sp: float,
     pumps: list[tuple[float, bool]],
     room: bool = False,
 ) -> float:
-    """s from `start` to within BAND of `sp` with the ideal HLT (the module's docstring);
-    `room`: keeping room for an unannounced stop's landing (`ideal_run`)."""
-    never = ideal_run(s, start, sp, math.inf, pumps, room=room)
+    """s from `t0` to within BAND of `sp` with the ideal HLT on a copy of `plant` (the module's
+    docstring); `room`: keeping room for an unannounced stop's landing (`ideal_run`)."""
+    never = ideal_run(s, plant, t0, sp, math.inf, pumps, room=room)
     if never[1] is None:
         return never[0]
-    first = ideal_run(s, start, sp, 0.0, pumps, reach=False, room=room)
+    first = ideal_run(s, plant, t0, sp, 0.0, pumps, reach=False, room=room)
     if first[1] is not None:
         return first[0]
     lo, hi = 0.0, never[1]
     while hi - lo > 4.0:
         mid = 0.5 * (lo + hi)
-        if ideal_run(s, start, sp, mid, pumps, reach=False, room=room)[1] is None:
+        if ideal_run(s, plant, t0, sp, mid, pumps, reach=False, room=room)[1] is None:
             lo = mid
         else:
             hi = mid
-    return ideal_run(s, start, sp, lo, pumps, room=room)[0]
+    return ideal_run(s, plant, t0, sp, lo, pumps, room=room)[0]
 
 
 def pump_running(pumps: list[tuple[float, bool]], t: float) -> bool:
@@ -645,7 +645,8 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
     """Each rest's measures (the module's docstring); a rest never begun is left out."""
     rows = []
     ends = [start[0] for start in day.rest_starts[1:]] + [math.inf]
-    for (sp, _), start, end in zip(s.rests, day.rest_starts, ends, strict=False):
+    begun = zip(s.rests, day.rest_starts, day.rest_plants, ends, strict=False)
+    for (sp, _), start, plant, end in begun:
         window = [x for x in day.samples if start[0] <= x.t < end]
         way = -1.0 if start[2] > sp else 1.0  # the step's direction: a step down's is −1
         reached = next((x.t for x in window if way * (x.mash - sp) >= -BAND), None)
@@ -653,8 +654,8 @@ def rests_measured(s: SetUp, day: Day, pumps: list[tuple[float, bool]]) -> list[
         held = [] if reached is None else held_samples(window, sp, reached, pumps)
         after = [abs(x.mash - sp) for x in held]
         stops = [x.mash - sp for x in window if reached is not None and x.t >= reached + SETTLE_S]
-        best = fastest(s, start, sp, pumps)
-        roomy = fastest(s, start, sp, pumps, room=True)
+        best = fastest(s, plant, start[0], sp, pumps)
+        roomy = fastest(s, plant, start[0], sp, pumps, room=True)
         step = math.inf if reached is None else reached - start[0]
         # Never within BAND: a miss where the ideal gets there, none where nothing can.
         unheld = math.nan if reached is not None or math.isinf(best) else math.inf

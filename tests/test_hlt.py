@@ -323,6 +323,22 @@ def test_element_heat_reaches_the_water_only_after_the_transport_delay() -> None
     assert plant.energy_in(500.0) == pytest.approx(WATTS * 90.0, rel=1e-12)
 
 
+def test_the_heat_in_flight_is_what_the_switches_sent_that_has_not_arrived() -> None:
+    # 60 s of delay: on at 10 s, off at 40 s, on again at 70 s. At 50 s the 30 s sent (10–40)
+    # arrive 70–100 s, all after 50: 30·P. At 80 s: 20 of those seconds are yet to arrive
+    # (80–100) and the 10 s sent since 70 (arriving 130–140): 30·P. At 200 s the element has
+    # been on 130 s, its last 60 s on the way: 60·P.
+    plant = PhysicalPlant(transport_delay_s=60.0)
+    assert plant.heat_in_flight(0.0) == 0.0
+    plant.set_heater(True, 10.0)
+    plant.set_heater(False, 40.0)
+    assert plant.heat_in_flight(50.0) == pytest.approx(WATTS * 30.0, rel=1e-12)
+    plant.set_heater(True, 70.0)
+    assert plant.heat_in_flight(80.0) == pytest.approx(WATTS * 30.0, rel=1e-12)
+    assert plant.heat_in_flight(200.0) == pytest.approx(WATTS * 60.0, rel=1e-12)
+    assert plant.energy_in(200.0) == pytest.approx(WATTS * (30.0 + 70.0), rel=1e-12)
+
+
 def test_open_element_delivers_nothing() -> None:
     plant = PhysicalPlant(start_c=60.0, ambient_c=20.0)
     plant.set_element_ok(False, 0.0)

@@ -378,6 +378,17 @@ class _LumpedTun:
         self._advance(t)
         return self._energy_in
 
+    def heat_in_flight(self, t: float) -> float:
+        """Joules the elements were switched to send by `t` that reach the water after it:
+        the power as scheduled over the next transport delay (what an ideal controller that
+        knows its own heat counts; bench/herms.py's fastest step)."""
+        self._advance(t)
+        joules, power, since = 0.0, self._power_w, t
+        for arrives, then in self._pending:
+            joules += power * (arrives - since)
+            power, since = then, arrives
+        return joules + power * (t + self._delay_s - since)
+
     def energy_lost(self, t: float) -> float:
         """Joules lost to the room (through the walls, and by evaporation) up to `t`."""
         self._advance(t)
