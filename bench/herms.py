@@ -70,7 +70,10 @@ plain HLT, which counts no coil's load without a mash sensor, not the peer's own
 --verify` on each day's log (exact: every step re-run bit for bit). Per day, what the mash's
 reach watch said ("the mash levels out near …": a rest the HLT at its most cannot bring the
 mash to within a degree; docs/mash-control.md), none where every rest is reached, and the
-coil's K hermsd's load was last reckoned on against the coil's own (ε·ṁc).
+coil's K hermsd's load was last reckoned on against the coil's own (ε·ṁc). hermsd is ahead
+of both peers on a measure where a larger share of its rests (pump starts, days) meets the
+goal than of either's, or the same share with its worst less far beyond the goal (`standing`):
+two that keep a limit on every rest are level, whatever margin each keeps under it.
 
 A step down (`--step-down`; its own section): the same set-ups, peers and measures on a day
 whose rests are 70 °C (20 min), 64 °C (30 min) and 76 °C (10 min), the second below the first,
@@ -777,6 +780,17 @@ def worst(values: list[float]) -> float:
     return max(known, default=math.nan)
 
 
+def standing(values: list[float], goal: float) -> tuple[float, float] | None:
+    """How a controller stands on a measure, the larger the better: the share of its rests
+    (pump starts, days) within the goal, then how far its worst lies beyond it (nothing where
+    every one is within it: a margin kept under a limit met everywhere is no lead); None with
+    no values."""
+    known = [v for v in values if not math.isnan(v)]
+    if not known:
+        return None
+    return sum(v <= goal for v in known) / len(known), -max(max(known) - goal, 0.0)
+
+
 MEASURES: tuple[tuple[str, str, float], ...] = (
     ("mash's worst error from 5 min after reaching (the pump's stops aside), °C", "err", 0.3),
     ("the same, the brewer's pump stops and the way back counted", "err_all", 0.3),
@@ -846,13 +860,14 @@ def summary_table(days: list[dict[str, Any]]) -> str:
             for c in CONTROLLERS
         }
         worsts = {c: worst(values[c]) for c in CONTROLLERS}
-        mine = worsts["hermsd"]
-        peers = [worsts[c] for c in CONTROLLERS[1:]]
-        if math.isnan(mine):
+        ranks = {c: standing(values[c], goal) for c in CONTROLLERS}
+        mine = ranks["hermsd"]
+        peers = [ranks[c] for c in CONTROLLERS[1:]]
+        if mine is None:
             ahead = "—"
-        elif all(not math.isnan(p) and mine < p for p in peers):
+        elif all(p is not None and mine > p for p in peers):
             ahead = "yes"
-        elif all(math.isnan(p) or mine <= p for p in peers):
+        elif all(p is None or mine >= p for p in peers):
             ahead = "level"
         else:
             ahead = "no"
