@@ -275,7 +275,7 @@ class NoisyTun(HermsTun):
     """A `HermsTun` whose mash sensor has noise, that tells its true mash, and that notes
     each pump start with the fall full power from that instant would allow."""
 
-    __slots__ = ("_hlt_ua", "_noise", "_room", "hlt", "pump_log", "pump_starts")
+    __slots__ = ("_hlt_ua", "_noise", "_room", "pump_log", "pump_starts")
 
     def __init__(self, s: SetUp) -> None:
         hlt = PhysicalPlant(
@@ -288,7 +288,6 @@ class NoisyTun(HermsTun):
             start_c=s.strike_c,
         )
         super().__init__(hlt, **mash_keys(s))
-        self.hlt = hlt  # the HLT itself, whose heat in flight the ideal step counts
         self._hlt_ua, self._room = s.hlt_ua, s.room
         self._noise = random.Random(s.seed + 7919)
         self.pump_log: list[tuple[float, bool]] = []
@@ -561,7 +560,7 @@ def ideal_run(
         top = top if way > 0.0 else -math.inf
         water = tun.water_temperature(t)
         going = tun.coil_watts(t) + s.hlt_ua * (water - s.room)
-        ahead = water + (tun.hlt.heat_in_flight(t) - going * s.delay_s) / capacity
+        ahead = water + (tun.heat_in_flight(t) - going * s.delay_s) / capacity
         HermsTun.set_heater(tun, ahead < (top if second < switch else hold), t)
         t += 1.0
         now = tun.true_mash(t)

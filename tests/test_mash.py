@@ -361,6 +361,17 @@ def test_the_books_close_for_both_vessels() -> None:
     assert tun.coil_energy(7400.0) > 1e6
 
 
+def test_the_hlts_heat_in_flight_is_told_through_the_herms() -> None:
+    # A 60 s delay: 3 kW on from 100 s, the pump running meanwhile. At 130 s the 30 s sent
+    # since are on their way (arriving 160–190 s): 30 s·3 kW = 90 kJ.
+    hlt = PhysicalPlant(litres=90.0, start_c=66.0, transport_delay_s=60.0, sensor_lag_s=0.0)
+    tun = HermsTun(hlt, mash_sensor_lag_s=0.0)
+    tun.dough_in(12.0, 20.0, 50.0, 39.75, 0.0)
+    tun.set_pump(True, 10.0)
+    tun.set_heater(True, 100.0)
+    assert tun.heat_in_flight(130.0) == pytest.approx(3000.0 * 30.0, rel=1e-12)
+
+
 def test_a_deep_copy_runs_on_alone() -> None:
     tun = herms()
     tun.set_pump(True, 0.0)

@@ -349,6 +349,11 @@ class HermsTun:
         """Joules of the HLT's elements' heat that have reached its water up to `t`."""
         return self._hlt.energy_in(self._advanced(t))
 
+    def heat_in_flight(self, t: float) -> float:
+        """Joules the HLT's elements were switched to send by `t` that reach its water after
+        it (`PhysicalPlant.heat_in_flight`)."""
+        return self._hlt.heat_in_flight(self._advanced(t))
+
     def energy_lost(self, t: float) -> float:
         """Joules the HLT has lost to the room up to `t`."""
         return self._hlt.energy_lost(self._advanced(t))
