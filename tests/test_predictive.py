@@ -300,6 +300,23 @@ def test_a_heat_up_measures_the_dead_time_and_rate_and_uses_them() -> None:
     assert max(pv for _, pv, _ in trace) <= SP + 0.1
 
 
+@pytest.mark.parametrize("delay", [120.0, 260.0])
+def test_a_heat_up_lands_on_losses_its_ramp_learned_not_the_priors(delay: float) -> None:
+    # The config's prior (the seed's losses) is three times this tun's, at the same rate.
+    # On the prior the landing's heat in flight and the holding duty it sends are each too
+    # much by a dead time of the losses it has wrong: the PV passed 66 °C by 0.50 °C (120 s)
+    # and 0.81 °C (260 s). Learned on the ramp after its fit: within the day-1 goal.
+    tun = Tun(3.0 * SEED.gain, 3.0 * SEED.tau, delay, ROOM, noise=0.02)
+    controller = predictive(dataclasses.replace(SEED, dead_time=delay))
+    trace = run(controller, tun, 3 * 3600.0)
+    fit = control_predictive.heat_up_fit(controller)
+    assert fit is not None and fit.refused is None
+    assert max(pv for _, pv, _ in trace) <= SP + 0.3
+    # The hold then asks the tun's own duty, a third of the prior's.
+    held = [u for t, _, u in trace if t >= 2 * 3600.0]
+    assert sum(held) / len(held) == pytest.approx(tun.holding(SP), rel=0.1)
+
+
 class LaggedTun(Tun):
     """The same water read through a thermowell: a first-order sensor lag on it, exact for
     the water held over each period."""

@@ -202,7 +202,9 @@ MISSING_HEAT_BIAS_S = 100.0
 not arrive (`_Predictive._heat_missing`: a dead element, a lid taken off). The bias chases a
 missing heat that grows with the duty it adds, so the duty climbs from the hold's u0 at
 u0/τ_b a second: 2.6 hours from 8 % at ti's 800 s, 19 minutes at this. Three times
-OBSERVER_TRACK_S, so the two poles stay apart (docs/heat-balance.md, "The law's pace")."""
+OBSERVER_TRACK_S, so the two poles stay apart (docs/heat-balance.md, "The law's pace"). Also
+a heat-up's ramp after its fit, on the prior's losses (`_Predictive._ramp_shows_losses`):
+learned before the landing, not over the hold after it."""
 LOAD_SHARE_S = 100.0
 """s: how fast predictive's observer learns the share of a known load (`known_load`) the water
 shows: well inside the 180 s a HERMS coil's load is fed on the prior's K (±50 %) before its

@@ -371,7 +371,9 @@ class _Predictive(_Base):
             if not gap.following and gap.unseen(self._fade) < GAP_GONE:
                 self._pour_gap = None
         innovation = pv - before
-        l1, l2 = self._missing_gains if self._heat_missing(sp, pv) else self._gains
+        missing = self._heat_missing(sp, pv)
+        ramp = self._ramp_shows_losses(previous, sp, pv)
+        l1, l2 = self._missing_gains if missing or ramp else self._gains
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole:
         # beyond a step more than the period's drift (heat that comes a little later than the
         # model has it leaves the PV short by up to all of it: on a fast tun more than a step
@@ -392,8 +394,9 @@ class _Predictive(_Base):
         # At a limit the duty says nothing of the holding duty, but for a water held at 0 % out
         # of the band above (`_above`): there the model errs only by the losses it knows (and
         # a heat nothing asked for), which the bias is, and learned there, a holding duty
-        # above the losses of a tun that loses little does not start the rise again.
-        if self._lo < previous < self._hi or self._above:
+        # above the losses of a tun that loses little does not start the rise again. So on a
+        # heat-up's ramp once its fit has measured the rate (`_ramp_shows_losses`).
+        if self._lo < previous < self._hi or self._above or ramp:
             if abs(innovation) <= clip:
                 self._bias += l2 * innovation
             elif abs(self._trailing) >= TRAILING_S:
@@ -437,6 +440,29 @@ class _Predictive(_Base):
             p, d = self._lo + (self._hi - self._lo) * self._pulse.duty(self._ts) - i, 0.0
         self._terms = (p, i, d)
         return p + i + d
+
+    def _ramp_shows_losses(self, previous: float, sp: float, pv: float) -> bool:
+        """Whether the period just ended ran a heat-up's full power after its fit, on losses
+        no day has measured: what the model's drift misses is then the losses, the config's
+        prior's ×0.2–4.5 of the truth on the population's tuns. Unlearned, they are wrong in
+        the heat in flight and in the holding duty the landing sends, a dead time of each;
+        learned at MISSING_HEAT_BIAS_S, they are the ramp's own by the landing
+        (docs/heat-up-fit.md, "The losses on the ramp"). Only where the fit's rate is the
+        tun's: from a start nearer the room than the setpoint, steady by physics whatever
+        the loop took it for (from warm water left cooling, the fit's rate is short by the
+        start's loss, which the bias would carry into the hold as one). Only as near the
+        setpoint as the prior's loss per °C, wrong by as much as itself, changes the losses
+        by no more than LINEAR_BAND over a dead time on the rest of the way. Not where
+        anything else moves the water: a coil's draw, cold water or its recovery, a pulse."""
+        fit = self._fit
+        if self._measured or previous < self._hi or fit is None or fit.refused is not None:
+            return False
+        if 2.0 * self._watch.reach(self._ts)[0] > sp + self._ambient:
+            return False
+        if (sp - pv) * self._loss * self._dead_time > LINEAR_BAND:
+            return False
+        poured = self._poured is not None or self._recovering or self._recovery.active
+        return not (self._load or poured or self._pulse is not None or self._watch.active)
 
     def _heat_missing(self, sp: float, pv: float) -> bool:
         """Whether the water fell LINEAR_BAND below the setpoint it last reached (kept in
