@@ -442,18 +442,12 @@ class _Predictive(_Base):
         return p + i + d
 
     def _ramp_shows_losses(self, previous: float, sp: float, pv: float) -> bool:
-        """Whether the period just ended ran a heat-up's full power after its fit, on losses
-        no day has measured: what the model's drift misses is then the losses, the config's
-        prior's ×0.2–4.5 of the truth on the population's tuns. Unlearned, they are wrong in
-        the heat in flight and in the holding duty the landing sends, a dead time of each;
-        learned at MISSING_HEAT_BIAS_S, they are the ramp's own by the landing
-        (docs/heat-up-fit.md, "The losses on the ramp"). Only where the fit's rate is the
-        tun's: from a start nearer the room than the setpoint, steady by physics whatever
-        the loop took it for (from warm water left cooling, the fit's rate is short by the
-        start's loss, which the bias would carry into the hold as one). Only as near the
-        setpoint as the prior's loss per °C, wrong by as much as itself, changes the losses
-        by no more than LINEAR_BAND over a dead time on the rest of the way. Not where
-        anything else moves the water: a coil's draw, cold water or its recovery, a pulse."""
+        """Whether the period just ended ran a heat-up's full power after its fit, on the
+        prior's losses: the bias then learns them (at MISSING_HEAT_BIAS_S) before the landing
+        pays a dead time of their error twice. Only from a start nearer the room than the
+        setpoint (the fit's rate is then the tun's), within LINEAR_BAND / (loss · dead time)
+        of the setpoint, and with nothing else moving the water (docs/heat-up-fit.md, "The
+        losses on the ramp")."""
         fit = self._fit
         if self._measured or previous < self._hi or fit is None or fit.refused is not None:
             return False
