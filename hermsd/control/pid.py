@@ -280,6 +280,9 @@ heat-up measured the tun)."""
 PULSE_ROOM_SPAN = 30.0
 """K below the model's room the most a pulse's settled fall may place the room (a garage in
 winter against a model's 20 °C)."""
+FILL_ROUNDS = 3
+"""Rounds of a pulse's rate and the loss it scales (`_PulseWatch`): on population tuns 97
+and 1 the third moves the rate by under 0.3 %."""
 ROOM_ROUNDS = 2
 """Rounds of a pulse's room and lag (`_PulseWatch`): the lag measured on the model's room
 places the room, and the lag is measured again on it; on the lossy pulse of

@@ -36,6 +36,7 @@ from hermsd.control.pid import (
     RUNAWAY_SHARE,
     SCATTER_CAP,
     SCATTER_PERIODS,
+    SENSOR_LSB,
     STEADY_BAND,
     STEADY_DUTY_SHARE,
     STEADY_SPAN_S,
@@ -436,7 +437,7 @@ class _Predictive(_Base):
         self._carried = (cold or self._carried) and pv < sp and fell > self._ts * self._rate
         if self._carried:
             p = max(p, self._kc_far * fell)
-        if self._pulse is not None:  # the pulse's heat, then none until it has all arrived
+        if self._pulse is not None:  # the pulse's heat, then its tail's until it has arrived
             p, d = self._lo + (self._hi - self._lo) * self._pulse.duty(self._ts) - i, 0.0
         self._terms = (p, i, d)
         return p + i + d
@@ -626,16 +627,20 @@ class _Predictive(_Base):
         if self._load:  # a coil draws now: the rise is not the element's, the law holds
             self._pulse = None
             return
-        if sp != self._pulse_sp or pv >= sp:
+        first = self._fit is None or self._fit.refused is not None
+        # A second pulse aims LINEAR_BAND short of the setpoint, its tail holding it there.
+        ceiling = sp if first else sp - LINEAR_BAND + 2.0 * SENSOR_LSB
+        if sp != self._pulse_sp or pv >= ceiling:
             # Planned for another setpoint, or sending more than the rate it was planned on
-            # said (the PV at the setpoint while heat still goes in; a pulse planned right
-            # aims LINEAR_BAND short of it): what ran still measures.
+            # said (the PV at the setpoint, or past a second pulse's aim, while heat still
+            # goes in): what ran still measures.
             pulse.stop()
-        fit = pulse.add(pv, self._ts, self._loss, self._ambient, self._arm_rate)
+        # The loss at the rate the pulse was planned on (a ramp may have raised the rate since).
+        planned_loss = self._loss * self._arm_rate / self._rate
+        fit = pulse.add(pv, self._ts, planned_loss, self._ambient, self._arm_rate)
         if fit is None:
             return
         self._pulse = None
-        first = self._fit is None or self._fit.refused is not None
         if fit.refused is not None:
             if first:  # a second pulse's refusal leaves the first's measurement standing
                 self._fit = fit
@@ -648,13 +653,16 @@ class _Predictive(_Base):
         missing = sp - LINEAR_BAND - pv
         if not first or missing <= FAR_BAND:
             return
-        # The water loses on the way up as much as at its middle for the pulse and its
-        # arrival (the dead time twice over, as the first pulse took to settle).
+        # The water loses on the way up as much as at its middle, for the pulse and its
+        # delay; from then on the tail's heat, the holding duty at the aim, meets the losses.
+        du = self._hi - self._lo
+        delay = fit.dead_time - fit.lag
         middle = pv + 0.5 * missing - self._ambient
-        span = missing / self._rate * 100.0 / (self._hi - self._lo) + 2.0 * fit.dead_time
-        missing += self._loss * middle * span
-        on_s = missing / (self._rate * (self._hi - self._lo) / 100.0)
-        self._pulse = _PulseWatch(pv, self._hi - self._lo, on_s)
+        missing += self._loss * middle * (missing / self._rate * 100.0 / du + delay)
+        on_s = missing / (self._rate * du / 100.0)
+        hold = (self._holding(sp - LINEAR_BAND) - self._lo) / du
+        tail = (min(max(hold, 0.0), 1.0), delay, fit.lag)
+        self._pulse = _PulseWatch(pv, du, on_s, tail=tail)
         self._pulse.expect(self._rate)
         self._pulse_sp, self._arm_rate = sp, self._rate
 
@@ -792,7 +800,7 @@ def full_power_now(
     if law is None or not law._primed:
         return False
     if law._pulse is not None:
-        return False  # the heat stays off while a pulse's arrives (water ends the pulse)
+        return False  # the pulse's own heat while its heat arrives (water ends the pulse)
     if len(readings) < DROP_READINGS:
         return False
     before, latest = readings[-DROP_READINGS], readings[-1]
@@ -941,7 +949,7 @@ def predicted_after(
 
 
 def pulse_running(controller: Controller) -> bool:
-    """Whether a predictive controller holds the heat off (or sends a planned pulse) while
+    """Whether a predictive controller sends a planned pulse (or its tail, or none) while
     a measured pulse's heat arrives (docs/heat-up-fit.md)."""
     law = _law(controller)
     return law is not None and law._pulse is not None

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from hermsd.control.linsys import solve
 from hermsd.control.pid import (
     BEND_TOLERANCE,
+    FILL_ROUNDS,
     FIT_FROM,
     FIT_SPAN,
     MAX_DEAD_TIME,
@@ -366,7 +367,8 @@ def through_lag(
 
 class _PulseWatch:
     """A measured pulse of full power: it ran (or will run) `on_s` from a steady `pv0` with
-    nothing on before, then the heat stays off and the PV is followed until it settles.
+    nothing on before, then the heat stays off (or sends a `tail`, whose rise is taken off
+    the PV) and the PV is followed until it settles.
     The heat delivered is then all at the sensor: the rise (the model's loss added back)
     over `on_s` is the rate, and the mean time of the rise's arrival, less `on_s`/2, the
     dead time (delay and lag alike: docs/heat-up-fit.md); the spread of that arrival, the
@@ -383,14 +385,28 @@ class _PulseWatch:
         "_pv0",
         "_rise",
         "_t",
+        "_tail",
+        "_tail_climb",
+        "_tail_end",
         "room",
     )
 
     def __init__(
-        self, pv0: float, du: float, on_s: float, elapsed: float = 0.0, rise: _Rise | None = None
+        self,
+        pv0: float,
+        du: float,
+        on_s: float,
+        elapsed: float = 0.0,
+        rise: _Rise | None = None,
+        tail: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:
         self._pv0, self._du, self._on = pv0, du, on_s
         self._t = elapsed
+        # (share of `du`, delay s, lag s): the heat sent after the on-time, until `stop`,
+        # for the losses while the pulse's heat arrives, and what it arrives through. The
+        # rise it adds by the model's rate is taken off the PV, so the pulse measures as
+        # one with the heat off.
+        self._tail, self._tail_end, self._tail_climb = tail, math.inf, 0.0
         self._rise = rise or _Rise()
         # °C the PV must have risen before it may count as settled (`expect`).
         self._least_rise = 0.0
@@ -403,17 +419,33 @@ class _PulseWatch:
         """The model's rate (°C/s at 100 %): the PV must have risen a quarter of what it
         says the pulse gives before it may count as settled."""
         self._least_rise = 0.25 * rate * self._du / 100.0 * self._on
+        self._tail_climb = rate * self._du / 100.0 * self._tail[0]
 
     def duty(self, ts: float) -> float:
-        """The share of the next period the pulse's heat is on."""
-        return min(max((self._on - self._t) / ts, 0.0), 1.0)
+        """The share of the next period the pulse's heat is on (the tail's share counted)."""
+        on = min(max((self._on - self._t) / ts, 0.0), 1.0)
+        if self._t + ts <= self._on or self._t >= self._tail_end:
+            return on
+        return on + (1.0 - on) * self._tail[0]
 
     def stop(self) -> None:
-        """The heat ends now (the setpoint moved, or the PV came near it): the pulse is what
-        ran. Once the heat is already off, nothing: the wait for it goes on as it was."""
+        """The heat ends now, the tail's too (the setpoint moved, or the PV came near it):
+        the pulse is what ran. Once the heat is already off, nothing: the wait for it goes
+        on as it was."""
         if self._t < self._on:
             self._on = self._t
             self._marked_at = min(self._marked_at, self._on)
+        self._tail_end = min(self._tail_end, self._t)
+
+    def _tail_arrived(self, t: float) -> float:
+        """s of the tail's heat at the sensor by `t`: each second of it a delay late, then
+        through the sensor's first-order lag."""
+        if not self._tail[0]:
+            return 0.0
+        _, delay, lag = self._tail
+        return _lagged_seconds(t - self._on - delay, lag) - _lagged_seconds(
+            t - self._tail_end - delay, lag
+        )
 
     def add(
         self, pv: float, ts: float, loss: float, ambient: float, model_rate: float
@@ -421,14 +453,16 @@ class _PulseWatch:
         """One more period of the pulse; the measurement once the PV has settled after it
         (or, past MAX_DEAD_TIME, why there is none)."""
         self._t += ts
-        t, rise = self._t - 0.5 * ts, pv - self._pv0
+        t = self._t - 0.5 * ts
+        sent = self._tail_climb * self._tail_arrived(t)
+        rise = pv - sent - self._pv0
         fell, self._last = self._last - pv, pv
         if fell > STEADY_BAND:
             why = f"the PV fell {fell:.2f} °C in a period while the pulse's heat arrived"
             return HeatUpFit(model_rate, 0.0, why, self._t)
         self._rise.add(t, rise)
-        if pv > self._mark + 2.0 * SENSOR_LSB:
-            self._mark, self._marked_at = pv, t
+        if pv - sent > self._mark + 2.0 * SENSOR_LSB:
+            self._mark, self._marked_at = pv - sent, t
         waited = t - self._on
         if t > HEAT_SHOWS_S and self._mark - self._pv0 < MOVE_FROM:
             why = f"the PV did not rise in {t:.0f} s after the pulse began: no heat showed"
@@ -453,18 +487,21 @@ class _PulseWatch:
         # heat to its room: that fall places the room (a model's room 20 K off misjudges
         # 20 K of loss), and the room the loss added back, which the lag's spread rests on.
         times, rises = self._rise.since(-math.inf)
-        model_room = ambient
-        lag = arrival_lag(times, rises, self._on, loss, self._pv0 - ambient)
-        for _ in range(ROOM_ROUNDS):
-            room = self._water_room(t, lag, loss)
-            if room is None:
-                break
-            self.room = ambient = min(max(room, model_room - PULSE_ROOM_SPAN), pv)
-            lag = arrival_lag(times, rises, self._on, loss, self._pv0 - ambient)
-        # What the losses took on the way is added back.
-        warm = self._pv0 - ambient
-        lost = loss * (warm * t + integral)
-        rate = (rise + lost) / self._on * 100.0 / self._du
+        model_room, rate = ambient, model_rate
+        for _ in range(FILL_ROUNDS):
+            # The day's fill scales the loss as it scales the rate (UA/P is the tun's own).
+            fill_loss = loss * rate / model_rate
+            lag = arrival_lag(times, rises, self._on, fill_loss, self._pv0 - ambient)
+            for _ in range(ROOM_ROUNDS):
+                room = self._water_room(t, lag, fill_loss)
+                if room is None:
+                    break
+                self.room = ambient = min(max(room, model_room - PULSE_ROOM_SPAN), pv)
+                lag = arrival_lag(times, rises, self._on, fill_loss, self._pv0 - ambient)
+            # What the losses took on the way is added back.
+            lost = fill_loss * ((self._pv0 - ambient) * t + integral)
+            heated = self._on + self._tail[0] * self._tail_arrived(t)
+            rate = (rise + sent + lost) / heated * 100.0 / self._du
         return checked(rate, dead_time, model_rate, self._t, lag)
 
     def _water_room(self, t: float, lag: float, loss: float) -> float | None:
@@ -487,7 +524,16 @@ class _PulseWatch:
         if between.n == 0:
             return None
         fell = (r_b - r_a) * (1.0 + loss * lag) + lag * (slopes[1] - slopes[0])
-        return self._pv0 + between.sx / between.n + fell / (loss * (t_b - t_a))
+        # The water the loss acts on holds the tail's heat too.
+        water = between.sx / between.n + self._tail_climb * self._tail_arrived(0.5 * (t_a + t_b))
+        return self._pv0 + water + fell / (loss * (t_b - t_a))
+
+
+def _lagged_seconds(x: float, lag: float) -> float:
+    """s of a step begun `x` s ago that a first-order lag has passed (0 before it began)."""
+    if x <= 0.0:
+        return 0.0
+    return x - lag * -math.expm1(-x / lag) if lag > 0.0 else x
 
 
 def arrival_lag(

@@ -755,7 +755,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         self._pulsing = pulsing
         said = (
             "heat-up: full power ends here to measure the tun (the heat stays off until what "
-            "was sent has reached the sensor, then the rest is sent by the rate it shows)"
+            "was sent has reached the sensor, then the rest is sent by the rate it shows, "
+            "and the losses met while it arrives)"
             if pulsing
             else "heat-up: the measured pulse is over; the law holds the setpoint"
         )
