@@ -282,7 +282,7 @@ PULSE_ROOM_SPAN = 30.0
 winter against a model's 20 °C)."""
 FILL_ROUNDS = 3
 """Rounds of a pulse's rate and the loss it scales (`_PulseWatch`): on population tuns 97
-and 1 the third moves the rate by under 0.3 %."""
+and 1 the third moves the rate by 0.31 % at most."""
 ROOM_ROUNDS = 2
 """Rounds of a pulse's room and lag (`_PulseWatch`): the lag measured on the model's room
 places the room, and the lag is measured again on it; on the lossy pulse of
