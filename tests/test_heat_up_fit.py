@@ -309,8 +309,8 @@ def test_a_pulse_on_another_fill_keeps_the_fall_it_saw() -> None:
     # Half the configured water: the tun heats at twice the model's rate, and its loss per
     # K is twice the model's too (UA is the tun's own, the heat capacity the day's). The
     # fall places the room by the loss the pulse's own rate gives: placed by the model's,
-    # it kept a fall at half that loss, the room 30 K low (the bound), which the model,
-    # once it took the doubled loss, counted twice over.
+    # it kept a fall at half that loss (the room read −3 °C for 20), which the model, once
+    # it took the doubled loss, counted twice over.
     pulse = _PulseWatch(PV0 + 23.0, 100.0, 300.0)
     pulse.expect(0.02)
     fit, _ = measured_lossy_pulse(pulse, (0.02, 3e-5))
