@@ -800,7 +800,7 @@ def full_power_now(
     if law is None or not law._primed:
         return False
     if law._pulse is not None:
-        return False  # the pulse's own heat while its heat arrives (water ends the pulse)
+        return False  # a pulse sends its own heat until it has arrived (water ends it)
     if len(readings) < DROP_READINGS:
         return False
     before, latest = readings[-DROP_READINGS], readings[-1]
