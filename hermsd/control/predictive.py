@@ -29,6 +29,7 @@ from hermsd.control.pid import (
     OBSERVER_BIAS_S,
     OBSERVER_TRACK_S,
     PREDICTED_LOOP_FACTOR,
+    PULSE_AIM_SHARE,
     PULSE_LEAST_STEP,
     PULSE_MARGIN,
     PULSE_RATE_MARGIN,
@@ -618,9 +619,10 @@ class _Predictive(_Base):
     def _follow_pulse(self, sp: float, pv: float) -> None:
         """A pulse's PV this period. Once its heat has all arrived, the tun as it measured it
         is taken as a heat-up's fit is, and where the water is still far below `sp`, a
-        second pulse is planned that delivers what is missing to within LINEAR_BAND of it
-        by that rate (a rate measured so is good to a percent or two; a law on a model of
-        pure delay misplaces the heat a slow sensor spreads out); then the law resumes."""
+        second pulse is planned that delivers what is missing to LINEAR_BAND below it, less
+        PULSE_AIM_SHARE of that climb, by that rate (a rate measured so is good to a few
+        percent; a law on a model of pure delay misplaces the heat a slow sensor spreads
+        out); then the law resumes."""
         pulse = self._pulse
         if pulse is None:
             return
@@ -628,7 +630,9 @@ class _Predictive(_Base):
             self._pulse = None
             return
         first = self._fit is None or self._fit.refused is not None
-        # A second pulse aims LINEAR_BAND short of the setpoint, its tail holding it there.
+        # A second pulse stops short of the setpoint, its tail holding the water until the PV
+        # passes LINEAR_BAND below it: heat off at its lower aim, a landing above that would
+        # fall back out of the band while the law's heat is on its way.
         ceiling = sp if first else sp - LINEAR_BAND + 2.0 * SENSOR_LSB
         if sp != self._pulse_sp or pv >= ceiling:
             # Planned for another setpoint, or sending more than the rate it was planned on
@@ -653,6 +657,9 @@ class _Predictive(_Base):
         missing = sp - LINEAR_BAND - pv
         if not first or missing <= FAR_BAND:
             return
+        # Short of the gentle zone by what the first pulse's rate may be off over the climb.
+        missing -= PULSE_AIM_SHARE * missing
+        aim = pv + missing
         # The water loses on the way up as much as at its middle, for the pulse and its
         # delay; from then on the tail's heat, the holding duty at the aim, meets the losses.
         du = self._hi - self._lo
@@ -660,7 +667,7 @@ class _Predictive(_Base):
         middle = pv + 0.5 * missing - self._ambient
         missing += self._loss * middle * (missing / self._rate * 100.0 / du + delay)
         on_s = missing / (self._rate * du / 100.0)
-        hold = (self._holding(sp - LINEAR_BAND) - self._lo) / du
+        hold = (self._holding(aim) - self._lo) / du
         tail = (min(max(hold, 0.0), 1.0), delay, fit.lag)
         self._pulse = _PulseWatch(pv, du, on_s, tail=tail)
         self._pulse.expect(self._rate)

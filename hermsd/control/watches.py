@@ -372,7 +372,7 @@ class _PulseWatch:
     The heat delivered is then all at the sensor: the rise (the model's loss added back)
     over `on_s` is the rate, and the mean time of the rise's arrival, less `on_s`/2, the
     dead time (delay and lag alike: docs/heat-up-fit.md); the spread of that arrival, the
-    lag (`arrival_lag`). `elapsed`: s of it already run (a heat-up cut short), with `rise`
+    lag (`arrival`). `elapsed`: s of it already run (a heat-up cut short), with `rise`
     its rise over them."""
 
     __slots__ = (
@@ -477,27 +477,28 @@ class _PulseWatch:
         if self._mark - self._pv0 < self._least_rise or rise <= 0.0:
             return None
         # The rise's arrival so far: ∫t·dr = t·r − ∫r dt, its mean t − ∫r dt / r; less the
-        # pulse's own middle, the delay and the lag. A lag's tail still to come climbs at its
-        # slope times the lag: under 2 LSB once 2 LSB took longer than delay and lag together.
+        # pulse's own middle, the delay and the lag (read early by the losses: the wait's
+        # measure, not the fit's). A lag's tail still to come climbs at its slope times the
+        # lag: under 2 LSB once 2 LSB took longer than delay and lag together.
         integral = self._rise.integral(ts)
-        dead_time = t - integral / rise - 0.5 * self._on
-        if t - self._marked_at < max(PULSE_SETTLE_S, dead_time):
+        if t - self._marked_at < max(PULSE_SETTLE_S, t - integral / rise - 0.5 * self._on):
             return None
         # All the pulse's heat has reached the sensor, and the water falls as the tun loses
         # heat to its room: that fall places the room (a model's room 20 K off misjudges
-        # 20 K of loss), and the room the loss added back, which the lag's spread rests on.
+        # 20 K of loss), and the room the loss added back, which the arrival rests on.
         times, rises = self._rise.since(-math.inf)
         model_room, rate = ambient, model_rate
         for _ in range(FILL_ROUNDS):
             # The day's fill scales the loss as it scales the rate (UA/P is the tun's own).
             fill_loss = loss * rate / model_rate
-            lag = arrival_lag(times, rises, self._on, fill_loss, self._pv0 - ambient)
+            dead_time, lag = arrival(times, rises, self._on, fill_loss, self._pv0 - ambient)
             for _ in range(ROOM_ROUNDS):
                 room = self._water_room(t, lag, fill_loss)
                 if room is None:
                     break
                 self.room = ambient = min(max(room, model_room - PULSE_ROOM_SPAN), pv)
-                lag = arrival_lag(times, rises, self._on, fill_loss, self._pv0 - ambient)
+                warm = self._pv0 - ambient
+                dead_time, lag = arrival(times, rises, self._on, fill_loss, warm)
             # What the losses took on the way is added back.
             lost = fill_loss * ((self._pv0 - ambient) * t + integral)
             heated = self._on + self._tail[0] * self._tail_arrived(t)
@@ -536,15 +537,18 @@ def _lagged_seconds(x: float, lag: float) -> float:
     return x - lag * -math.expm1(-x / lag) if lag > 0.0 else x
 
 
-def arrival_lag(
+def arrival(
     times: list[float], rises: list[float], on_s: float, loss: float, warm: float
-) -> float:
-    """s of first-order sensor lag a pulse's rise shows (0 if none): `rises` °C at `times` s
-    from the pulse's start, full power for its first `on_s` s, from `warm` K above the room.
+) -> tuple[float, float]:
+    """(the dead time s, the first-order sensor lag s of it, 0 if none) a pulse's rise
+    shows: `rises` °C at `times` s from the pulse's start, full power for its first `on_s`
+    s, from `warm` K above the room.
 
     With the loss added back (as in `through_lag`) the rise is the heat's arrival at the
-    sensor: the on-time spread by the delay and the lag, whose times' variance is the
-    on-time's (on_s²/12) and the lag's (τ²), a delay adding none (docs/heat-up-fit.md)."""
+    sensor: the on-time shifted by the delay and the lag and spread by the lag, so its mean
+    time is on_s/2 + the dead time, and its times' variance the on-time's (on_s²/12) and the
+    lag's (τ²), a delay adding none. On the PV itself the losses take the late arrivals
+    off, and the mean reads early (docs/heat-up-fit.md)."""
     weight = first = second = 0.0
     t_last = y_last = 0.0
     for t, y in zip(times, loss_added_back(times, rises, loss, warm, (0.0, 0.0)), strict=True):
@@ -554,10 +558,10 @@ def arrival_lag(
         second += arrived * middle * middle
         t_last, y_last = t, y
     if weight <= 0.0:
-        return 0.0
+        return 0.0, 0.0
     mean = first / weight
     spread = second / weight - mean * mean - on_s * on_s / 12.0
-    return math.sqrt(spread) if spread > 0.0 else 0.0
+    return mean - 0.5 * on_s, math.sqrt(spread) if spread > 0.0 else 0.0
 
 
 class _RecoveryWatch(_RampWatch):

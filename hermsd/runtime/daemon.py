@@ -755,10 +755,11 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         self._pulsing = pulsing
         said = (
             "heat-up: full power ends here to measure the tun (the heat stays off until what "
-            "was sent has reached the sensor, then the rest is sent by the rate it shows, "
-            "and the losses met while it arrives)"
+            "was sent has reached the sensor, then most of the rest is sent by the rate it "
+            "shows, and the losses met while it arrives)"
             if pulsing
-            else "heat-up: the measured pulse is over; the law holds the setpoint"
+            else "heat-up: the measured pulse is over; the law brings the water the rest of "
+            "the way and holds it"
         )
         self._event(logging.INFO, said, t)
 
