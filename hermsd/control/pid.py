@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 9
+CONTROL_LAW_VERSION = 10
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -133,7 +133,11 @@ Version 8: an innovation beyond a step is taken whole only beyond a step more th
 period's drift, or where the PV itself moved its way (heat that comes later than the model has
 it is no cold water).
 Version 9: cold water's drop behind the sensor's lag is taken as the lag says the PV will
-show it, in the prediction, the observer and the heat capacity it adds."""
+show it, in the prediction, the observer and the heat capacity it adds.
+Version 10: a measured pulse's dead time is read with the losses added back and a second
+pulse stops `PULSE_AIM_SHARE` of its climb short; and the changes that came under 9's number
+since: a heat-up's ramp learns the losses, and a second pulse's tail meets them while its heat
+arrives, a pulse scaling the loss by its own rate."""
 
 ALGORITHMS = (
     "predictive",
