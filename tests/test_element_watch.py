@@ -31,6 +31,7 @@ from hermsd.safety.element_watch import (
     HOLD_S,
     SPELL_S,
     STALL_S,
+    STEADY_HOLD_S,
     UNASKED,
     ElementReport,
     ElementWatch,
@@ -85,6 +86,7 @@ def test_the_references_are_the_days_full_power_rise_and_hold() -> None:
     # 55 % of 2 kW of 5.5 kW; the hold's window may start in the approach's last rise, taken
     # off by the drift, to within a period of full power at its ends (0.8·5/600 = 0.0067).
     assert watch.hold_power == pytest.approx(0.2, abs=(GAIN - LOSS) / GAIN * H / HOLD_S + 1e-4)
+    assert not watch.hold_steady  # the hold's own, within HOLD_BAND, replaced the steady span's
 
 
 def test_a_death_ten_minutes_into_a_creeping_hold_is_told() -> None:
@@ -111,6 +113,32 @@ def test_a_death_ten_minutes_into_a_creeping_hold_is_told() -> None:
     assert watch.hold_power == pytest.approx(loss / gain, abs=0.005)
     assert [element for _, element in reports] == [1]
     assert dies < reports[0][0] <= dies + SPELL_S + 2.0 * THETA + CONFIRM_S + 2.0 * H
+
+
+def test_a_death_in_a_landing_stalled_under_the_band_is_told() -> None:
+    """A landing on understated losses stands 0.5 °C under the setpoint, never within
+    HOLD_BAND of it, the SSR alone at what the losses take; 600 s after full power ended the
+    SSR dies (and is asked 100 %). The steady span's power, STEADY_HOLD_S of it, stands in
+    for the hold's: told, where a reference from a hold in the band would never come."""
+    heat_up, dies = 2000.0, 2600.0
+    watch = ElementWatch(W1, W2, THETA)
+    t, pv, reports = 0.0, 65.5 - (GAIN - LOSS) * heat_up, []
+    while t < dies + 600.0:
+        held = (HOLD_SSR, 0.0) if t < dies else (100.0, 0.0)
+        duty1, duty2 = (100.0, 100.0) if t < heat_up else held
+        reports += [(r.t, r.element) for r in watch.period(t, pv, 66.0, duty1, duty2) if r.raised]
+        shown = t + H - THETA
+        rate = -LOSS
+        if shown < heat_up:
+            rate += GAIN
+        elif shown < dies:
+            rate += GAIN * 0.2
+        t, pv = t + H, pv + rate * H
+    assert watch.hold_steady
+    assert watch.hold_power == pytest.approx(0.2, abs=1e-3)
+    assert [element for _, element in reports] == [1]
+    assert dies < reports[0][0] <= dies + SPELL_S + 2.0 * THETA + CONFIRM_S + 2.0 * H
+    assert heat_up + STEADY_HOLD_S + THETA < dies  # the steady span fits before the death
 
 
 def test_an_ssr_dying_in_a_hold_that_pulses_the_contactor_is_told() -> None:

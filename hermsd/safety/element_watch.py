@@ -8,7 +8,8 @@ stretches of the day with two references measured the same day, so the fill canc
 - the full-power rate R (°C/s): the PV's rise with both elements fully on, the last measured
   before the hold at the setpoint in force (nearest the setpoint's losses);
 - the hold's power u0 (a part of both elements' total): the mean asked while the PV held the
-  setpoint for `HOLD_S`, less what its drift took: the tun's losses there.
+  setpoint for `HOLD_S`, less what its drift took: the tun's losses there (until then, a
+  shorter steady span near it: `STEADY_HOLD_S`).
 
 G = R/(1 − u0) is the rise per unit of total power, and a window that asked u and rose at r
 delivered u0 + r/G. R was measured a little below the setpoint, where the losses are a
@@ -93,6 +94,20 @@ CYCLES_CONFIRM_S = CYCLES_S / 2.0
 missing, as much as the other's part may be, and blames the wrong one until it moves on."""
 MISSING = 0.6
 """Missing heat, as a part of an element's own, that reports it (a dead one: 1)."""
+STEADY_HOLD_S = 300.0
+"""s of a PV steady near the setpoint whose power serves as the hold's until a hold within
+`HOLD_BAND` of it comes: two of the slowest sensor's lags (150 s)."""
+STEADY_POWER_SPREAD = MISSING * LEAST_SHARE
+"""The most the means of that span's power, over its window and the half span before in
+three parts, may differ (a part of the total): a power that ramps by as much errs the
+window's mean by a third of it, under half the least missing heat reported. A law that swings
+is no hold where it stands still a moment: PIDHerms gave population tun 4 a reference from
+halves of 0.23 and 0.59, and on tun 99 a burst's heat held the PV still for 9 minutes at a
+mean of 2 % (a hold of 3.6 % where the tun loses several times that, and element 2 named).
+A landing whose bias learns its missing heat ramps by 0.03–0.04 (tun 62)."""
+STEADY_HOLD_BAND = 1.0
+"""°C from the setpoint within which that steady PV must stand: a landing stalled short of
+the band (understated losses) holds all the same."""
 SURPLUS = 0.15
 """Heat delivered beyond what was asked, as a part of the total, that says the references
 were measured without an element's heat (a normal day's windows stay within 0.06)."""
@@ -181,6 +196,7 @@ class ElementWatch:
         self.suspect: set[int] = set()  # the elements reported and not cleared
         self.doubtful = False  # heat beyond what was asked: the references lack an element
         self.hold_cycled = False  # the second element was on in the hold's reference
+        self.hold_steady = False  # hold_power is a steady span's, till a hold measures it
         self.probed: int | None = None  # the element the heat-up's probe found dead
         self._samples: deque[_Sample] = deque()
         self._since: dict[tuple[int, bool, float], float] = {}  # a finding → first seen
@@ -281,30 +297,69 @@ class ElementWatch:
                 full = all(self._total(s) >= 1.0 - 1e-9 for s in samples if s.t > t - reach)
                 if full and spell[1] > 0.0:
                     self.full_rate = spell[1]
-        if self.hold_power is None and t - samples[0].t >= HOLD_S + self.dead_time:
-            held = [s for s in samples if s.t >= t - HOLD_S]
-            # In the band from before its power's window too: the approach's last power,
-            # which a dead time longer than the tun's would count, is not the hold's.
-            settled = (s for s in samples if s.t >= t - HOLD_S - self.dead_time)
-            if all(abs(s.pv - setpoint) <= HOLD_BAND for s in settled):
-                drift = _mean_pv(held[-PV_MEAN_PERIODS:]) - _mean_pv(held[:PV_MEAN_PERIODS])
-                powered = [
-                    s for s in samples if t - HOLD_S - self.dead_time < s.t <= t - self.dead_time
-                ]
-                seconds = _mean_t(held[-PV_MEAN_PERIODS:]) - _mean_t(held[:PV_MEAN_PERIODS])
-                rate = self.full_rate if self.full_rate is not None else self.fit_rate
-                most = HOLD_DRIFT if rate is None else HOLD_DRIFT_SHARE * rate * seconds
-                if abs(drift) <= max(most, HOLD_DRIFT) and powered:
-                    mean = sum(self._total(s) for s in powered) / len(powered)
-                    self.hold_power = mean
-                    self.hold_cycled = any(
-                        b.on2 and not a.on2 for a, b in itertools.pairwise(powered)
-                    )
-                    if self.full_rate is not None:  # less what the drift took, by G = R/(1 − u0)
-                        part = drift / seconds / self.full_rate
-                        self.hold_power = (mean - part) / (1.0 - part)
-                    elif self.fit_rate is not None:  # … or by the heat-up's G
-                        self.hold_power = mean - drift / seconds / self.fit_rate
+        if self.hold_power is None or (self.hold_steady and not self.suspect):
+            self._hold_reference(t, setpoint, HOLD_S)
+        if self.hold_power is None:
+            self._hold_reference(t, setpoint, STEADY_HOLD_S)
+
+    def _hold_reference(self, t: float, setpoint: float, span: float) -> None:
+        """The hold's power u0 over the last `span` s, its power's window a dead time before
+        it, the PV's drift taken off. Over HOLD_S the PV must stand within HOLD_BAND of the
+        setpoint from before that window; until such a hold comes, a STEADY_HOLD_S span that
+        is `_steady` serves (`hold_steady`): a landing on understated losses can sit half a
+        degree short longer than an element may die unseen (population tun 62: 15
+        minutes)."""
+        samples = self._samples
+        steady = span != HOLD_S
+        if t - samples[0].t < span + self.dead_time + (span / 2.0 if steady else 0.0):
+            return
+        # From before its power's window too: the approach's last power, which a dead time
+        # longer than the tun's would count, is not the hold's.
+        settled = [s for s in samples if s.t >= t - span - self.dead_time]
+        if steady:
+            if not self._steady(t, setpoint, settled, span):
+                return
+        elif any(abs(s.pv - setpoint) > HOLD_BAND for s in settled):
+            return
+        held = [s for s in samples if s.t >= t - span]
+        drift = _mean_pv(held[-PV_MEAN_PERIODS:]) - _mean_pv(held[:PV_MEAN_PERIODS])
+        powered = [s for s in samples if t - span - self.dead_time < s.t <= t - self.dead_time]
+        seconds = _mean_t(held[-PV_MEAN_PERIODS:]) - _mean_t(held[:PV_MEAN_PERIODS])
+        rate = self.full_rate if self.full_rate is not None else self.fit_rate
+        most = HOLD_DRIFT if rate is None else HOLD_DRIFT_SHARE * rate * seconds
+        if abs(drift) > max(most, HOLD_DRIFT) or not powered:
+            return
+        mean = sum(self._total(s) for s in powered) / len(powered)
+        self.hold_power, self.hold_steady = mean, steady
+        self.hold_cycled = any(b.on2 and not a.on2 for a, b in itertools.pairwise(powered))
+        if self.full_rate is not None:  # less what the drift took, by G = R/(1 − u0)
+            part = drift / seconds / self.full_rate
+            self.hold_power = (mean - part) / (1.0 - part)
+        elif self.fit_rate is not None:  # … or by the heat-up's G
+            self.hold_power = mean - drift / seconds / self.fit_rate
+
+    def _steady(self, t: float, setpoint: float, settled: list[_Sample], span: float) -> bool:
+        """Whether a `span` is a hold though short of HOLD_S and of the band: its PV, from
+        before its power's window (`settled`), moved by at most HOLD_BAND within
+        STEADY_HOLD_BAND of the setpoint, with no full power, and the power over its window
+        and the half span before it, in three parts, had means within STEADY_POWER_SPREAD:
+        the heat arriving is the power's own, none stored from a swing's top."""
+        pvs = [s.pv for s in settled]
+        if max(pvs) - min(pvs) > HOLD_BAND or max(abs(pv - setpoint) for pv in pvs) > (
+            STEADY_HOLD_BAND
+        ):
+            return False
+        end, part = t - self.dead_time, span / 2.0
+        parts = [
+            [self._total(s) for s in self._samples if end - (k + 1) * part < s.t <= end - k * part]
+            for k in range(3)
+        ]
+        if any(not powers or max(powers) >= 1.0 - 1e-9 for powers in parts):
+            return False
+        if any(self._total(s) >= 1.0 - 1e-9 for s in settled):
+            return False
+        means = [sum(powers) / len(powers) for powers in parts]
+        return max(means) - min(means) <= STEADY_POWER_SPREAD
 
     def _gain(self) -> float | None:
         """G, the rise per unit of both elements' power (°C/s): from the full-power rate and
