@@ -18,7 +18,7 @@ from collections import deque
 
 import pytest
 
-from hermsd.control import laws, pid
+from hermsd.control import laws, pid, watches
 from hermsd.control import predictive as control_predictive
 
 TS = 5.0
@@ -572,7 +572,7 @@ def test_a_pour_followed_for_many_of_its_lags_ends_with_nothing_unseen() -> None
     # A short lag followed for minutes (water that keeps the PV falling: an element too weak
     # to turn it): e^(−t/L) underflows to 0, and the rest taken as the drop's is none, not
     # a division by zero inside the control step.
-    gap = control_predictive._PourGap(66.0)
+    gap = watches._PourGap(66.0)
     fade = math.exp(-TS / 1.0)
     for _ in range(2000):
         gap.advance(0.0, fade)

@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 10
+CONTROL_LAW_VERSION = 11
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -137,7 +137,10 @@ show it, in the prediction, the observer and the heat capacity it adds.
 Version 10: a measured pulse's dead time is read with the losses added back and a second
 pulse stops `PULSE_AIM_SHARE` of its climb short; and the changes that came under 9's number
 since: a heat-up's ramp learns the losses, and a second pulse's tail meets them while its heat
-arrives, a pulse scaling the loss by its own rate."""
+arrives, a pulse scaling the loss by its own rate.
+Version 11: a measured rate faster than the model's raises its losses per second by the cube
+root of their ratio (a slower one scales them by the ratio as before), and a heat-up's landing
+that stalls short of the band learns its missing heat at `MISSING_HEAT_BIAS_S`."""
 
 ALGORITHMS = (
     "predictive",
@@ -208,7 +211,8 @@ missing heat that grows with the duty it adds, so the duty climbs from the hold'
 u0/τ_b a second: 2.6 hours from 8 % at ti's 800 s, 19 minutes at this. Three times
 OBSERVER_TRACK_S, so the two poles stay apart (docs/heat-balance.md, "The law's pace"). Also
 a heat-up's ramp after its fit, on the prior's losses (`_Predictive._ramp_shows_losses`):
-learned before the landing, not over the hold after it."""
+learned before the landing, not over the hold after it; and a landing that stalls short of
+the band (`_Predictive._landing_stalled`)."""
 LOAD_SHARE_S = 100.0
 """s: how fast predictive's observer learns the share of a known load (`known_load`) the water
 shows: well inside the 180 s a HERMS coil's load is fed on the prior's K (±50 %) before its

@@ -49,10 +49,12 @@ from hermsd.control.pid import (
     _Base,
 )
 from hermsd.control.watches import (
+    GAP_GONE,
     HEAT_SHOWS_S,
     HeatUpFit,
     LineFit,
     _HeatUpWatch,
+    _PourGap,
     _PulseWatch,
     _RecoveryWatch,
 )
@@ -86,6 +88,7 @@ class _Predictive(_Base):
         "_l2_share",
         "_lag",
         "_lag_share",
+        "_landing_sp",
         "_load",
         "_load_basis",
         "_load_in",
@@ -101,12 +104,14 @@ class _Predictive(_Base):
         "_pulse",
         "_pulse_sp",
         "_pulsed",
+        "_pvs",
         "_rate",
         "_recent",
         "_recovering",
         "_recovery",
         "_scatter",
         "_sensor_lag",
+        "_stalled_gains",
         "_step_is_loops",
         "_trailing",
         "_ts",
@@ -135,12 +140,18 @@ class _Predictive(_Base):
         bias_s = params.ti or OBSERVER_BIAS_S
         self._gains = observer_gains(ts, OBSERVER_TRACK_S, bias_s)
         self._missing_gains = observer_gains(ts, OBSERVER_TRACK_S, min(bias_s, MISSING_HEAT_BIAS_S))
+        self._stalled_gains = self._missing_gains
         # The setpoint the water last reached with nothing the law knows of since (NaN:
         # none): a fall from it is heat missing (`_heat_missing`).
         self._held_sp = math.nan
+        # The setpoint of the heat-up whose landing is under way (NaN: none): one that stalls
+        # short of it is heat missing too.
+        self._landing_sp = math.nan
         # u_{k-1-lag} … u_{k-1} at the right end; room for any dead time a heat-up may show
         self._inputs: deque[float] = deque(maxlen=math.ceil(MAX_DEAD_TIME / ts) + 2)
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
+        # The PVs of the last two steady spans: whether a landing still climbs.
+        self._pvs: deque[float] = deque(maxlen=2 * (self._recent.maxlen or 1))
         self._watch = _HeatUpWatch()
         self._recovery = _RecoveryWatch()
         # Whether the full power running began as the PV fell from the hold (cold water).
@@ -329,12 +340,14 @@ class _Predictive(_Base):
         self._arrival = u0
         self._recent.clear()
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
+        self._pvs.clear()
+        self._pvs.extend([pv0] * (self._pvs.maxlen or 1))
         self._watch.active = self._recovery.active = self._recovering = False
         self._pulse = None
         self._carried = self._above = False
         self._trailing = 0.0
         self._poured = None
-        self._held_sp = math.nan
+        self._held_sp = self._landing_sp = math.nan
         self._estimate = self._fpv = pv0
         # Newton on the bias: the law is piecewise linear and falling in it (three pieces),
         # so a few steps land on the bias that gives u0 exactly when one exists.
@@ -375,7 +388,10 @@ class _Predictive(_Base):
         innovation = pv - before
         missing = self._heat_missing(sp, pv)
         ramp = self._ramp_shows_losses(previous, sp, pv)
-        l1, l2 = self._missing_gains if missing or ramp else self._gains
+        if missing or ramp:
+            l1, l2 = self._missing_gains
+        else:
+            l1, l2 = self._stalled_gains if self._landing_stalled(sp, pv) else self._gains
         # A jump beyond what noise and the model's drift can make (cold water) is taken whole:
         # beyond a step more than the period's drift (heat that comes a little later than the
         # model has it leaves the PV short by up to all of it: on a fast tun more than a step
@@ -465,14 +481,43 @@ class _Predictive(_Base):
         `_held_sp`, forgotten at anything the law knows of: cold water and its recovery, a
         heat-up or its pulse, a told load) and has not risen over the last STEADY_SPAN_S:
         heat the model counts on does not arrive, which the bias learns at
-        MISSING_HEAT_BIAS_S. A heat-up's landing and a recovery's rise are the model's,
-        learned at ti."""
+        MISSING_HEAT_BIAS_S. A recovery's rise is the model's, learned at ti."""
         known = self._poured is not None or self._recovering or self._recovery.active
-        if known or self._carried or self._load or self._pulse is not None or self._watch.active:
-            self._held_sp = math.nan
+        if known or self._carried or self._load:
+            self._held_sp = self._landing_sp = math.nan
+        elif self._pulse is not None or self._watch.active:
+            self._held_sp, self._landing_sp = math.nan, sp
         elif pv >= sp:
-            self._held_sp = sp
+            self._held_sp, self._landing_sp = sp, math.nan
+        self._pvs.append(pv)
         return sp == self._held_sp and pv < sp - LINEAR_BAND and pv <= self._recent[0]
+
+    def _landing_stalled(self, sp: float, pv: float) -> bool:
+        """Whether the landing of a heat-up to `sp` (`_landing_sp`) stopped LINEAR_BAND short
+        of it with no heat in flight: no pulse's tail (it holds short by design), no full
+        power over the last dead time and STEADY_SPAN_S, the duties sent over the last dead
+        time within half LINEAR_BAND's worth of heat of the last span's (a step the law sent
+        is still on its way), and the PV's mean over the last STEADY_SPAN_S no higher than over
+        the one before (a minute's means: single readings, on a landing that still creeps up
+        behind 0.06 °C of noise, rose and fell often enough to learn the creep as heat
+        missing). The model's losses are then understated (a prior's, another fill's), which
+        the bias learns at MISSING_HEAT_BIAS_S, also on two elements: at ti the water sat
+        under the band for half an hour, and the element watch takes no hold reference there
+        (docs/heat-balance.md, "The law's pace")."""
+        if sp != self._landing_sp or pv >= sp - LINEAR_BAND or self._pulse is not None:
+            return False
+        inputs, pvs, span = self._inputs, self._pvs, len(self._recent)
+        end, back = len(inputs), math.ceil(self._dead_time / self._ts)
+        shown = min(end, back + span)
+        if max(inputs[j] for j in range(end - shown, end)) >= self._hi:
+            return False
+        duty = sum(inputs[j] for j in range(end - span, end)) / span
+        sent = sum(inputs[j] - duty for j in range(end - min(end, back), end))
+        if abs(sent) * self._ts * self._rate / 100.0 > 0.5 * LINEAR_BAND:
+            return False
+        last = len(pvs)
+        now = sum(pvs[j] for j in range(last - span, last))
+        return now <= sum(pvs[j] for j in range(last - 2 * span, last - span))
 
     def _follow_pour(self, pv: float, dropped: bool, fell: bool, free: float) -> None:
         """Cold water poured in (a drop the readings showed, or a step taken whole): the
@@ -575,7 +620,7 @@ class _Predictive(_Base):
             measured = recovery.add(pv, self._ts, sp, self._loss)
             if measured is not None and 0.5 * self._rate <= measured[0] <= 2.0 * self._rate:
                 rate, self._estimate = measured
-                self._loss *= rate / self._rate  # as for a heat-up: the fill changed
+                self._scale_losses(rate)  # as for a heat-up: the fill changed
                 self._use(rate, self._dead_time)
         if not (full and watch.active):
             return
@@ -592,10 +637,20 @@ class _Predictive(_Base):
             return
         self._fit = fit
         if fit.refused is None:
-            # A rate other than the model's is most likely a fill other than the config's:
-            # heat capacity scales rate and loss rate alike, so the gain (°C/%) stays.
-            self._loss *= fit.rate / self._rate
+            self._scale_losses(fit.rate)
             self._use(fit.rate, fit.dead_time, fit.lag)
+
+    def _scale_losses(self, rate: float) -> None:
+        """The losses per second for a measured `rate` in place of the model's. A rate other
+        than the model's is most likely a fill other than the config's. Where it is slower
+        (more water) the heat capacity scales the losses per second down by the rate's ratio,
+        the least they can be (the wetted walls grow less). Where it is faster (less water)
+        they go up by less than the rate: the walls shrink with the water, as the prior's own
+        lidded pot has its UA go as the litres' 2/3 power, so by the ratio's cube root; by
+        the whole ratio a half fill held the prior's whole duty and crept over the setpoint
+        for an hour (docs/heat-up-fit.md, "The losses of another fill")."""
+        ratio = rate / self._rate
+        self._loss *= ratio if ratio <= 1.0 else ratio ** (1.0 / 3.0)
 
     def _pulse_due(self, sp: float, watch: _HeatUpWatch) -> bool:
         """Whether this heat-up's full power must end now, unmeasured: nothing measured the
@@ -639,9 +694,7 @@ class _Predictive(_Base):
             # said (the PV at the setpoint, or past a second pulse's aim, while heat still
             # goes in): what ran still measures.
             pulse.stop()
-        # The loss at the rate the pulse was planned on (a ramp may have raised the rate since).
-        planned_loss = self._loss * self._arm_rate / self._rate
-        fit = pulse.add(pv, self._ts, planned_loss, self._ambient, self._arm_rate)
+        fit = pulse.add(pv, self._ts, self._loss, self._ambient, self._arm_rate)
         if fit is None:
             return
         self._pulse = None
@@ -650,7 +703,7 @@ class _Predictive(_Base):
                 self._fit = fit
             return
         self._fit = fit
-        self._loss *= fit.rate / self._rate  # as for a heat-up's fit: the fill
+        self._scale_losses(fit.rate)  # as for a heat-up's fit: the fill
         if pulse.room is not None:
             self._ambient = pulse.room
         self._use(fit.rate, fit.dead_time, fit.lag)
@@ -690,78 +743,8 @@ class _Predictive(_Base):
         dead_time = max(self._dead_time, min(least[1], HEAT_SHOWS_S))
         if rate == self._rate and dead_time == self._dead_time:
             return
-        self._loss *= rate / self._rate  # as for a fit: a faster rise is less water
+        self._scale_losses(rate)  # as for a fit: a faster rise is less water
         self._use(rate, dead_time)
-
-
-TRUSTED_SHARE = 0.5
-"""The share of a pour's drop shown from which its course is taken whole (`_PourGap`): the
-noise on it at most doubled."""
-GAP_GONE = 1e-3
-"""°C: a pour's drop still unseen below this is shown (a thousandth of the LM92's step)."""
-
-
-class _PourGap:
-    """Cold water poured in mixes at once; a sensor of first-order lag L shows the drop D
-    as D·(1 − e^(−t/L)), so the PV still has D·e^(−t/L) to fall when it turns to rise
-    under the heat. While the drop is followed, D is what the PV lies under the model's
-    pour-free course over the share shown, but no more than its fall from where it held
-    over that share (`bound`: heat that shows only lessens the fall), and only until the
-    model's heat sent since begins to lift that course (a little early on a fast tun, it
-    would have the drop degrees deeper: population tun 97, 0.48 °C over); from then on the
-    model takes each period's part of the rest as the water's own change (the prediction
-    counts what is left), so the law neither cuts full power while the water is still
-    degrees short nor the bias learns the tail as heat missing."""
-
-    __slots__ = ("bound", "drop", "following", "free", "periods", "start")
-
-    def __init__(self, free: float) -> None:
-        self.free = self.start = free  # °C: the PV by the model without the pour
-        self.drop = 0.0  # °C the water fell, as the PV's course says so far
-        self.bound = 0.0  # °C: the most the fall says, from half the drop shown on
-        self.periods = 1  # since the pour, which came within the period that showed it
-        self.following = True
-
-    def unseen(self, fade: float) -> float:
-        """°C of the drop the sensor has yet to show (fade: e^(−Ts/L)); while followed, in
-        proportion to the share shown up to TRUSTED_SHARE: early on the course is mostly
-        noise over a small share, and a law (or a contactor's minimum on-time) that took
-        it whole sent heat for a drop that was not there."""
-        rest = fade**self.periods
-        return self.drop * rest * (self._trusted(rest) if self.following else 1.0)
-
-    @staticmethod
-    def _trusted(rest: float) -> float:
-        return min(1.0, (1.0 - rest) / TRUSTED_SHARE)
-
-    def settle(self, fade: float) -> None:
-        """The drop is all followed: as much of it is taken as is trusted now."""
-        self.drop *= self._trusted(fade**self.periods)
-        self.following = False
-
-    def seen(self, pv: float, fade: float, held: float) -> None:
-        """The drop the PV shows so far, over the share of it a lag lets show; `held`: the
-        PV before the pour (the water no colder than the coldest pour)."""
-        if not self.following:
-            return
-        share = 1.0 - fade**self.periods
-        fall = max(held - pv, 0.0) / share
-        if share >= TRUSTED_SHARE:  # the running most once the noise is at most doubled
-            self.bound = fall = max(self.bound, fall)
-        if self.free - self.start > BIAS_INNOVATION_CLIP:
-            return  # the model's heat arrives: a little early, it would deepen the drop
-        course = max(self.free - pv, 0.0) / share
-        self.drop = min(course, fall, max(held - COLDEST_POUR, 0.0))
-
-    def advance(self, drift: float, fade: float) -> float:
-        """One period on: the model's `drift` joins the pour-free course while the drop is
-        followed; after, the °C of the drop the sensor shows this period."""
-        before = self.unseen(fade)
-        self.periods += 1
-        if self.following:
-            self.free += drift
-            return 0.0
-        return before - self.unseen(fade)
 
 
 def on_two_elements(controller: Controller) -> None:
