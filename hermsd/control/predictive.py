@@ -140,6 +140,8 @@ class _Predictive(_Base):
         bias_s = params.ti or OBSERVER_BIAS_S
         self._gains = observer_gains(ts, OBSERVER_TRACK_S, bias_s)
         self._missing_gains = observer_gains(ts, OBSERVER_TRACK_S, min(bias_s, MISSING_HEAT_BIAS_S))
+        # A landing that stalls short (`_landing_stalled`) is learned at that pace on two
+        # elements too: `on_two_elements` leaves these.
         self._stalled_gains = self._missing_gains
         # The setpoint the water last reached with nothing the law knows of since (NaN:
         # none): a fall from it is heat missing (`_heat_missing`).
@@ -386,6 +388,7 @@ class _Predictive(_Base):
             if not gap.following and gap.unseen(self._fade) < GAP_GONE:
                 self._pour_gap = None
         innovation = pv - before
+        self._pvs.append(pv)
         missing = self._heat_missing(sp, pv)
         ramp = self._ramp_shows_losses(previous, sp, pv)
         if missing or ramp:
@@ -489,7 +492,6 @@ class _Predictive(_Base):
             self._held_sp, self._landing_sp = math.nan, sp
         elif pv >= sp:
             self._held_sp, self._landing_sp = sp, math.nan
-        self._pvs.append(pv)
         return sp == self._held_sp and pv < sp - LINEAR_BAND and pv <= self._recent[0]
 
     def _landing_stalled(self, sp: float, pv: float) -> bool:
@@ -752,7 +754,8 @@ def on_two_elements(controller: Controller) -> None:
     total: heat it counts on that does not arrive may be one element's, which the element
     watch judges while the other holds the water; its bias keeps ti's pace then. At
     MISSING_HEAT_BIAS_S the population's two-element tuns held worse on the other element
-    and were warned later (docs/heat-balance.md, "The law's pace")."""
+    and were warned later (docs/heat-balance.md, "The law's pace"). A heat-up's landing that
+    stalls short of the band keeps the fast pace: no hold has measured the tun yet there."""
     if isinstance(controller, _Predictive):
         controller._missing_gains = controller._gains
 
