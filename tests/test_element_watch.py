@@ -89,27 +89,43 @@ def test_the_references_are_the_days_full_power_rise_and_hold() -> None:
     assert not watch.hold_steady  # the hold's own, within HOLD_BAND, replaced the steady span's
 
 
-def test_a_death_ten_minutes_into_a_creeping_hold_is_told() -> None:
-    """A small tun on a big pair (G = 0.1 °C/s: 7.6 kW into 18 L, bench/population.py's tun
-    108) creeps into its hold from 0.25 °C under the setpoint at 0.0005 °C/s, the SSR alone
-    at what the losses and that creep take; 800 s in, the SSR dies (and is asked 100 %). The
-    hold's 600 s, its drift taken off (0.3 °C: 0.5 % of G), are its reference: told."""
-    gain, loss, creep = 0.1, 0.0097, 0.0005
-    heat_up, dies = 300.0, 1100.0
-    hold_ssr = 100.0 * (loss + creep) / gain * 11.0 / 4.0
-    watch = ElementWatch(W1, W2, THETA)
-    t, pv, reports = 0.0, 65.3 - (gain - loss) * heat_up, []  # the last 10 s show after: 65.75
+def _death_in_the_hold(
+    watch: ElementWatch,
+    gain: float,
+    loss: float,
+    held: float,
+    landing: float,
+    heat_up: float,
+    dies: float,
+) -> list[tuple[float, int]]:
+    """Both elements full for `heat_up` s into `landing` °C, then the SSR alone at `held` of
+    the total (its heat showing THETA later), until it dies at `dies` and is asked 100 % for
+    600 s more: the elements raised, with when."""
+    t, pv, reports = 0.0, landing - (gain - loss) * heat_up, []
     while t < dies + 600.0:
-        held = (hold_ssr, 0.0) if t < dies else (100.0, 0.0)
-        duty1, duty2 = (100.0, 100.0) if t < heat_up else held
+        hold = (100.0 * held * 11.0 / 4.0, 0.0) if t < dies else (100.0, 0.0)
+        duty1, duty2 = (100.0, 100.0) if t < heat_up else hold
         reports += [(r.t, r.element) for r in watch.period(t, pv, 66.0, duty1, duty2) if r.raised]
         shown = t + H - THETA
         rate = -loss
         if shown < heat_up:
             rate += gain
         elif shown < dies:
-            rate += gain * (loss + creep) / gain
+            rate += gain * held
         t, pv = t + H, pv + rate * H
+    return reports
+
+
+def test_a_death_ten_minutes_into_a_creeping_hold_is_told() -> None:
+    """A small tun on a big pair (G = 0.1 °C/s: 7.6 kW into 18 L, bench/population.py's tun
+    108) creeps into its hold from 0.25 °C under the setpoint at 0.0005 °C/s, the SSR alone
+    at what the losses and that creep take; 800 s in, the SSR dies (and is asked 100 %). The
+    hold's 600 s, its drift taken off (0.3 °C: 0.5 % of G), are its reference: told."""
+    gain, loss, creep = 0.1, 0.0097, 0.0005
+    dies = 1100.0
+    watch = ElementWatch(W1, W2, THETA)
+    # The last 10 s of full power show after the heat-up: the hold starts at 65.75 °C.
+    reports = _death_in_the_hold(watch, gain, loss, (loss + creep) / gain, 65.3, 300.0, dies)
     assert watch.hold_power == pytest.approx(loss / gain, abs=0.005)
     assert [element for _, element in reports] == [1]
     assert dies < reports[0][0] <= dies + SPELL_S + 2.0 * THETA + CONFIRM_S + 2.0 * H
@@ -122,18 +138,7 @@ def test_a_death_in_a_landing_stalled_under_the_band_is_told() -> None:
     for the hold's: told, where a reference from a hold in the band would never come."""
     heat_up, dies = 2000.0, 2600.0
     watch = ElementWatch(W1, W2, THETA)
-    t, pv, reports = 0.0, 65.5 - (GAIN - LOSS) * heat_up, []
-    while t < dies + 600.0:
-        held = (HOLD_SSR, 0.0) if t < dies else (100.0, 0.0)
-        duty1, duty2 = (100.0, 100.0) if t < heat_up else held
-        reports += [(r.t, r.element) for r in watch.period(t, pv, 66.0, duty1, duty2) if r.raised]
-        shown = t + H - THETA
-        rate = -LOSS
-        if shown < heat_up:
-            rate += GAIN
-        elif shown < dies:
-            rate += GAIN * 0.2
-        t, pv = t + H, pv + rate * H
+    reports = _death_in_the_hold(watch, GAIN, LOSS, 0.2, 65.5, heat_up, dies)
     assert watch.hold_steady
     assert watch.hold_power == pytest.approx(0.2, abs=1e-3)
     assert [element for _, element in reports] == [1]
