@@ -177,6 +177,50 @@ def test_a_climb_under_half_the_hold_duty_may_be_answering_losses_that_ramp() ->
     assert first_verdict(ramp, lambda t: -1e-3, 95.0, hold_duty=20.0) is not None
 
 
+def slow_climb(hold: float) -> Callable[[float], float]:
+    """A law climbing from `hold` % at 0.02 %/s from 600 s: 6 % a window."""
+    return lambda t: hold + 0.02 * max(0.0, t - 600.0)
+
+
+def test_a_slow_climb_is_judged_against_the_window_two_back() -> None:
+    # From a hold of 4 %, the law climbs 6 % a window with the water falling on at 1e-3
+    # °C/s. A window apart, 6 % is under the climb's 10 %, and half its weakest heat,
+    # 3e-4 °C/s, under 1.5 times the margin (5e-4): never judged so. Two and three windows
+    # apart the climb reaches 10 %, past 2 (3) × half the hold, and the slope's gain is nil,
+    # under ½·1e-4·10 − 3.33e-4. The windows' duty means, on the periods' samples: at 1250 s
+    # the later one's, (950, 1250] s, is 4 + 0.02 × (1102.5 − 600) = 14.05 %; the one three
+    # before it, (50, 350] s, 4 %: 10.05 % (two before, (350, 650] s, 4 + 0.1 × (1 + … + 10)
+    # / 60 = 4.09 %: 9.96 %; at 1245 s, 13.95 − 4 = 9.95 %). Reported 60 s later.
+    assert first_verdict(slow_climb(4.0), lambda t: -1e-3, 80.0, hold_duty=4.0) == 1310.0
+
+
+def test_a_slow_climb_under_half_the_hold_duty_a_window_is_not_judged_across_windows() -> None:
+    # The same pace from a hold of 13 %: 6 % a window is under half of it (6.5 %), so it may
+    # be losses that ramp up, answered; across two and three windows the climb must beat
+    # half the hold as many times over, and never does.
+    assert first_verdict(slow_climb(13.0), lambda t: -1e-3, 80.0, hold_duty=13.0) is None
+
+
+def test_a_slow_climb_is_judged_across_windows_only_past_a_step_of_the_losses() -> None:
+    # Steady on 4 % until a lid comes off at 900 s: the water falls at 1e-3 °C/s from then,
+    # and the law climbs 6 % a window from 960 s, its heat matched by losses that grow on
+    # (beyond the climb's bound, as a dead element's looks). Against the window three back,
+    # before the step (its slope nil), the climb reaches 10 % at 1610 s (the later window's
+    # mean 4 + 0.02 × (1462.5 − 960) = 14.05 %): were the windows between not asked to be
+    # alike, it would be reported at 1670 s. The window that
+    # holds the step has halves unalike until the step lies within its first minute or so
+    # (a half that falls over its last 60 % slopes ×0.65 of the fall, 3.5e-4 °C/s off, past
+    # the margin), from some 1740 s on; then the climb is judged as on any dead element.
+    def climb(t: float) -> float:
+        return 4.0 + 0.02 * max(0.0, t - 960.0)
+
+    def fall(t: float) -> float:
+        return -1e-3 if t > 900.0 else 0.0
+
+    assert first_verdict(climb, fall, 80.0, hold_duty=4.0, until=1735.0) is None
+    assert first_verdict(climb, fall, 80.0, hold_duty=4.0, until=1900.0) is not None
+
+
 def test_losses_that_step_up_as_the_output_climbs_are_not_a_dead_element() -> None:
     # A lid taken off at 900 s: the water, steady on 20 %, falls at 4e-3 °C/s, and the
     # output climbs 0.05 %/s from 960 s to answer it, its heat showing in full (1e-4 per %).

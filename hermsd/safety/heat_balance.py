@@ -23,7 +23,10 @@ output did, by two bounds that hold for any working element (docs/heat-balance.m
   that climb (the limits' weakest rise per % of duty times it), the losses the same in
   both; a dead element's slope stays where it was, the water falling at its losses. Judged
   only where each window's halves have the same slope: losses that step up within one (a
-  lid taken off, which the output then climbs to answer) are not the same in both;
+  lid taken off, which the output then climbs to answer) are not the same in both. A law
+  that climbs slowly (a small hold's) is judged against the window up to `CLIMB_WINDOWS`
+  back too, every window between alike, the climb's least share of the hold that many
+  times over: the same pace of climb, with more of its heat to show;
 - the stall: with the output at its limit (a heat-up), the PV's slope over the last window
   fell from the ramp measured at that limit a dead time before it by more than the mains'
   sag, a lid taken off and the losses' growth with the water's rise allow: a working
@@ -46,7 +49,7 @@ import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 
 from hermsd.safety.limits import NOISE_FLOOR
 
@@ -66,6 +69,10 @@ quarter of themselves in a window are answered by a quarter of that duty, and th
 lag (docs/heat-balance.md, "The climb"; bench/loss_steps.py's ramps)."""
 CLIMB_SHARE = 0.5
 """… and the part of the weakest heating of that climb the slope must have gained."""
+CLIMB_WINDOWS = 3
+"""Windows back the climb may be judged from: a climb of a few % a window, whose heat a
+window apart is lost in the noise, shows across three with the same pace asked of it
+(docs/heat-balance.md, "The climb")."""
 DEAD_TIME_FACTORS = (1.0 / 3.0, 2.0 / 3.0, 1.0)
 """Of the limits' dead time (1.5× the fitted one once measured: 0.5, 1 and 1.5× it)."""
 MARGIN_SE = 4.0
@@ -151,7 +158,7 @@ class HeatBalance:
         samples.append((t, pv, applied))
         if not _at_full(applied, bounds.full_duty):
             self._off_limit_at = t
-        reach = 2.0 * (WINDOW_S + bounds.dead_time)
+        reach = (CLIMB_WINDOWS + 1) * WINDOW_S + 2.0 * bounds.dead_time
         while len(samples) > 1 and t - samples[1][0] >= reach:
             samples.popleft()  # the oldest kept is the first at or beyond the reach
         finding = self._finding(t, bounds)
@@ -189,8 +196,9 @@ class HeatBalance:
         steep = later.rate < -bounds.least_fall
         both_steady = all(_steady(w, floor) for w in (later, earlier))
         held = bounds.hold_duty
-        if held is None:  # the hold not measured: the least duty kept, from before a climb
-            held = min(applied for _, _, applied in samples)
+        if held is None:  # the hold not measured: the least duty of the last two windows
+            # and twice the dead time (and the period before), from before a climb
+            held = self._least_duty(t - 2.0 * (WINDOW_S + dead_time))
         found: BalanceVerdict | None = None
         for factor in DEAD_TIME_FACTORS:
             shift = factor * dead_time
@@ -210,9 +218,66 @@ class HeatBalance:
                 and later.rate < -margin
             )
             if not (level or climbed):
+                return self._climb_across(t, later, bounds, held, margin)
+            if factor == 1.0:
+                found = _verdict(duty, duty_before, later, earlier, per_duty, level, 1)
+        return found
+
+    def _climb_across(
+        self, t: float, later: _Window, bounds: Bounds, held: float, margin: float
+    ) -> BalanceVerdict | None:
+        """The climb judged from the window `gap` windows before the later (2 …
+        `CLIMB_WINDOWS`): every window from it to the later with alike halves and a slope
+        alike to the next's (no step of the losses between them), the duty's mean risen by
+        `RAMP_SHARE` of the hold's `gap` times over (losses that ramp up are answered at
+        the same pace as a window apart), and the rest as a window apart."""
+        floor = NOISE_FLOOR / WINDOW_S
+        if not (later.rate < -margin and _steady(later, floor)):
+            return None
+        dead_time, poured = bounds.dead_time, self._poured_at
+        newer = later
+        for gap in range(1, CLIMB_WINDOWS + 1):
+            span = (gap + 1) * WINDOW_S + dead_time
+            if t - self._samples[0][0] < span - 1e-9:
+                return None
+            if poured is not None and t - poured < span + SETTLE_S:
+                return None
+            earlier = self._window(t - gap * WINDOW_S)
+            if earlier is None or not _steady(earlier, floor):
+                return None
+            if abs(newer.rate - earlier.rate) > _gap_margin(newer, earlier, floor):
+                return None
+            newer = earlier
+            if gap > 1 and (found := self._climbed_from(t, gap, later, earlier, bounds, held)):
+                return found
+        return None
+
+    def _climbed_from(
+        self, t: float, gap: int, later: _Window, earlier: _Window, bounds: Bounds, held: float
+    ) -> BalanceVerdict | None:
+        """The climb's verdict on the later window against `earlier`, `gap` windows before
+        it, at each of `DEAD_TIME_FACTORS` of the dead time."""
+        floor = NOISE_FLOOR / WINDOW_S
+        gain = later.rate - earlier.rate
+        steady = _gap_margin(later, earlier, floor)
+        found: BalanceVerdict | None = None
+        for factor in DEAD_TIME_FACTORS:
+            shift = factor * bounds.dead_time
+            duty = self._mean_duty(t - WINDOW_S - shift, t - shift)
+            back = t - gap * WINDOW_S - shift
+            duty_before = self._mean_duty(back - WINDOW_S, back)
+            if duty is None or duty_before is None:
+                return None
+            climb = duty - duty_before
+            heat = CLIMB_SHARE * bounds.per_duty * climb
+            if not (
+                climb >= gap * RAMP_SHARE * held
+                and (climb >= CLIMB or heat >= SIGNAL_SHARE * steady)
+                and gain < heat - steady
+            ):
                 return None
             if factor == 1.0:
-                found = _verdict(duty, duty_before, later, earlier, per_duty, level)
+                found = _verdict(duty, duty_before, later, earlier, bounds.per_duty, False, gap)
         return found
 
     def _at_limit(self, since: float, bounds: Bounds) -> bool:
@@ -321,6 +386,13 @@ class HeatBalance:
         pvs = [p for s, p, _ in self._samples if end - WINDOW_S < s <= end]
         return sum(pvs) / len(pvs)
 
+    def _least_duty(self, since: float) -> float:
+        """The least duty from `since` on, and of the period before it (the samples as two
+        windows and twice the dead time kept them, before the climb looked further back)."""
+        samples = self._samples
+        first = max(0, bisect.bisect_right(samples, since, key=itemgetter(0)) - 1)
+        return min(samples[i][2] for i in range(first, len(samples)))
+
     def _mean_duty(self, start: float, end: float) -> float | None:
         duties = [a for s, _, a in self._samples if start < s <= end]
         return sum(duties) / len(duties) if duties else None
@@ -385,6 +457,7 @@ def _verdict(
     earlier: Slope,
     per_duty: float,
     level: bool,
+    gap: int,
 ) -> BalanceVerdict:
     per_min = 60.0
     if level:
@@ -396,7 +469,7 @@ def _verdict(
     else:
         message = (
             f"output climbed from {duty_before:.0f} to {duty:.0f} % on average over "
-            f"{2 * WINDOW_S:.0f} s, worth at least "
+            f"{(gap + 1) * WINDOW_S:.0f} s, worth at least "
             f"{CLIMB_SHARE * per_duty * (duty - duty_before) * per_min:.2f} °C/min more, but "
             f"the PV's slope went {earlier.rate * per_min:+.2f} → "
             f"{later.rate * per_min:+.2f} °C/min"
