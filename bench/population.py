@@ -85,10 +85,11 @@ HEATUP_LIMIT_S = 3 * 3600.0
 HOLD_LIMIT = 0.8
 TWO_ELEMENT_SHARE = 0.25
 LID_OFF_SHARE = 1.0 / 3.0
+P2P = "p-p last hour"
 DAY_1_GOALS: Goals = (
     ("heatup_overshoot_c", 0.3, "overshoot"),
     ("upset_overshoot_c", 0.3, "overshoot after water"),
-    ("last_hour_p2p_c", 0.15, "p-p last hour"),
+    ("last_hour_p2p_c", 0.15, P2P),
 )
 """Day 1's goals on the population: the hold's peak to peak up to 0.15 °C (noise to
 0.06 °C), not the family's 0.1 °C."""
@@ -401,16 +402,121 @@ def pass_rates(found: dict[int, dict[str, dict[str, Any]]], label: str) -> list[
     return rows
 
 
+def contactor_ripple(tun: PopTun) -> float | None:
+    """The least peak to peak (°C) the sensor can show over the day's last hour where the
+    SSR's element alone cannot keep the water in the band and the contactor's alone
+    overshoots it, or None where the hold need not switch the contactor. Closed for its
+    least time with the SSR off, the water rises by the least any close lifts it, least
+    where the losses are most: the band's top and beyond it by that rise (what the sensor's
+    lag may hide); open with the SSR full, it falls back (over the least open time, the SSR
+    then under full). A longer close, or the SSR on in it, only lifts it more; the sensor's
+    first-order lag smooths the cycle. Or no close in the hour: the water sags at the SSR's
+    full power, least at the band's foot and below it by that sag."""
+    if not tun.two_elements:
+        return None
+    day, element2 = tun.day(), read.load(SHIPPED).element2
+    ssr_w = float(day.plant["element_watts"])
+    contactor_w = float(day.plant["element2_watts"])
+    top, foot = SETPOINT + BAND, SETPOINT - BAND
+    if not (tun.losses_w(foot) > ssr_w and tun.losses_w(top) < contactor_w):
+        return None
+    last_hour = day.duration - HOUR_S
+    poured = sum(
+        float(e.value["litres"]) for e in day.events if e.kind == "add_water" and e.at < last_hour
+    )
+    capacity = (tun.water.litres + poured) * hlt.WATER_J_PER_LITRE_K
+
+    def rise(water_c: float) -> float:  # °C over the least close, the losses at `water_c`
+        return (contactor_w - tun.losses_w(water_c)) / capacity * element2.min_on
+
+    def sag(water_c: float) -> float:  # °C over the hour at the SSR's full power
+        return max(0.0, tun.losses_w(water_c) - ssr_w) / capacity * HOUR_S
+
+    most = tun.losses_w(top + rise(top))
+    opened = max(element2.min_off, element2.min_on * (contactor_w - most) / (most - ssr_w))
+    cycle = _lagged_peak_to_peak(
+        rise(top + rise(top)), element2.min_on, opened, tun.water.sensor_lag_s
+    )
+    return min(sag(foot - sag(foot)), cycle)
+
+
+HOUR_S = 3600.0
+
+
+RIPPLE_STEP_S = 0.5
+"""s: the step `_lagged_peak_to_peak` follows the sensor's lag in."""
+
+
+def _lagged_peak_to_peak(rise: float, closed: float, opened: float, lag: float) -> float:
+    """The peak to peak a first-order sensor of `lag` s shows of water that rises by `rise`
+    °C over `closed` s and falls back over `opened` s, again and again: the last of enough
+    cycles for the lag's start to fade (to e^−20)."""
+    if lag <= 0.0:
+        return rise
+    cycle = closed + opened
+    cycles = math.ceil(20.0 * lag / cycle) + 2
+    water = sensor = 0.0
+    t, last = 0.0, []
+    while t < cycles * cycle:
+        phase = t % cycle
+        water += RIPPLE_STEP_S * (rise / closed if phase < closed else -rise / opened)
+        sensor += (water - sensor) * -math.expm1(-RIPPLE_STEP_S / lag)
+        t += RIPPLE_STEP_S
+        if t >= (cycles - 1) * cycle:
+            last.append(sensor)
+    return max(last) - min(last)
+
+
 def landing_line(tuns: Sequence[PopTun], found: dict[int, dict[str, dict[str, Any]]]) -> str:
     """How many tuns physics lets meet day 2's recovery and after-water goals together
     (`landing_ratio`), and its settle and heat-up overshoot (`settle_landing_ratio`), and
-    how many of those day 2 meets both on."""
+    how many of those day 2 meets both on; and day 1's p-p where the hold must switch a
+    contactor (`contactor_line`)."""
     return "\n\n".join(
-        _possible_line(tuns, found, *pair)
-        for pair in (
-            (landing_ratio, 1.02, "recovery", "overshoot after water", "the water's own instant"),
-            (settle_landing_ratio, 1.01, "settle", "overshoot", "the day's start"),
-        )
+        [
+            *(
+                _possible_line(tuns, found, *pair)
+                for pair in (
+                    (
+                        landing_ratio,
+                        1.02,
+                        "recovery",
+                        "overshoot after water",
+                        "the water's own instant",
+                    ),
+                    (settle_landing_ratio, 1.01, "settle", "overshoot", "the day's start"),
+                )
+            ),
+            contactor_line(tuns, found),
+        ]
+    )
+
+
+def contactor_line(tuns: Sequence[PopTun], found: dict[int, dict[str, dict[str, Any]]]) -> str:
+    """Where the hold must switch the contactor (`contactor_ripple`), how many tuns day 1's
+    p-p is possible on, and met on."""
+    shown = [tun for tun in tuns if tun.seed in found]
+    ripples = {tun.seed: contactor_ripple(tun) for tun in shown}
+    switching = sorted(seed for seed, ripple in ripples.items() if ripple is not None)
+    limit = next(goal for _, goal, what in DAY_1_GOALS if what == P2P)
+    over = [seed for seed in switching if (ripples[seed] or 0.0) > limit]
+    met = sum(
+        P2P not in missed_goals(found[tun.seed][DAY_1], DAY_1)
+        for tun in shown
+        if tun.seed not in over
+    )
+    least = [ripples[seed] or 0.0 for seed in switching]
+    return (
+        f"- the hold must switch the contactor on {len(switching)}/{len(shown)} tuns (two "
+        "elements whose losses anywhere in the band lie between the SSR's element and the "
+        f"contactor's: tuns {', '.join(map(str, switching)) or 'none'}); the least p-p the "
+        "sensor can show in the last hour there (`contactor_ripple`: a close of the contactor's "
+        "least time with the SSR off, then open with the SSR full, the losses the most the "
+        "water may reach behind the sensor's lag; or no close, the water sagging at the SSR's "
+        "full power) "
+        + (f"is {min(least):.3f}–{max(least):.3f} °C, " if least else "")
+        + f"over {limit:g} °C on {len(over)} (tuns {', '.join(map(str, over)) or 'none'}), so "
+        f"day 1's p-p is possible on {len(shown) - len(over)} tuns and met on {met} of those"
     )
 
 

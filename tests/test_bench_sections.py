@@ -5,31 +5,15 @@ bench/sections.py writes a script's section; bench/all.py checks the whole file.
 
 from __future__ import annotations
 
-import importlib.util
 import re
 import sys
 from pathlib import Path
-from types import ModuleType
 
 import pytest
+from bench_scripts import BENCH, load
 
-BENCH = Path(__file__).parents[1] / "bench"
-
-
-def _load(name: str) -> ModuleType:
-    """A bench script as a module, its sibling scripts importable by name as when it runs."""
-    if str(BENCH) not in sys.path:
-        sys.path.append(str(BENCH))  # after everything else: no bench script shadows a module
-    spec = importlib.util.spec_from_file_location(f"bench_{name}", BENCH / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-SECTIONS = _load("sections")
-ALL = _load("all")
+SECTIONS = load("sections")
+ALL = load("all")
 
 MEASURED = re.compile(
     r"Measured at commit [0-9a-f]{7,}( \(with uncommitted changes\))? on \d{4}-\d\d-\d\d "
