@@ -86,6 +86,8 @@ HOLD_LIMIT = 0.8
 TWO_ELEMENT_SHARE = 0.25
 LID_OFF_SHARE = 1.0 / 3.0
 P2P = "p-p last hour"
+HOUR_S = 3600.0
+"""s: the day's last hour, over which day 1's p-p is measured."""
 DAY_1_GOALS: Goals = (
     ("heatup_overshoot_c", 0.3, "overshoot"),
     ("upset_overshoot_c", 0.3, "overshoot after water"),
@@ -438,9 +440,6 @@ def contactor_ripple(tun: PopTun) -> float | None:
         rise(top + rise(top)), element2.min_on, opened, tun.water.sensor_lag_s
     )
     return min(sag(foot - sag(foot)), cycle)
-
-
-HOUR_S = 3600.0
 
 
 RIPPLE_STEP_S = 0.5
