@@ -209,12 +209,9 @@ class HeatBalance:
             climb = duty - duty_before
             any_fall = bounds.any_fall_duty is not None and duty >= bounds.any_fall_duty
             level = falls and duty >= bounds.loss_duty and (steep or any_fall)
-            heat = CLIMB_SHARE * per_duty * climb  # °C/s of it a working element shows
             climbed = (
                 both_steady
-                and climb >= RAMP_SHARE * held
-                and (climb >= CLIMB or heat >= SIGNAL_SHARE * steady)
-                and gain < heat - steady
+                and _heat_missing(climb, 1, held, gain, steady, per_duty)
                 and later.rate < -margin
             )
             if not (level or climbed):
@@ -268,13 +265,7 @@ class HeatBalance:
             duty_before = self._mean_duty(back - WINDOW_S, back)
             if duty is None or duty_before is None:
                 return None
-            climb = duty - duty_before
-            heat = CLIMB_SHARE * bounds.per_duty * climb
-            if not (
-                climb >= gap * RAMP_SHARE * held
-                and (climb >= CLIMB or heat >= SIGNAL_SHARE * steady)
-                and gain < heat - steady
-            ):
+            if not _heat_missing(duty - duty_before, gap, held, gain, steady, bounds.per_duty):
                 return None
             if factor == 1.0:
                 found = _verdict(duty, duty_before, later, earlier, bounds.per_duty, False, gap)
@@ -413,6 +404,21 @@ class _Ramp:
     mean_pv: float  # °C
     limit: float  # % the output's limit stood at
     confirmed: bool  # the ramp a window before rose alike
+
+
+def _heat_missing(
+    climb: float, gap: int, held: float, gain: float, steady: float, per_duty: float
+) -> bool:
+    """The climb's verdict: the duty's mean rose by `climb` % from the window `gap` windows
+    before (at least `RAMP_SHARE` of the hold's duty `held` a window: not losses that ramp
+    up, answered; `CLIMB`, or less where its weakest heat stands out of the noise `steady`),
+    and the slope's `gain` fell short of `CLIMB_SHARE` of that heat by more than the noise."""
+    heat = CLIMB_SHARE * per_duty * climb  # °C/s of it a working element shows
+    return (
+        climb >= gap * RAMP_SHARE * held
+        and (climb >= CLIMB or heat >= SIGNAL_SHARE * steady)
+        and gain < heat - steady
+    )
 
 
 def _at_full(applied: float, limit: float) -> bool:
