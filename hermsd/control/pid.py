@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 11
+CONTROL_LAW_VERSION = 12
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -140,7 +140,11 @@ since: a heat-up's ramp learns the losses, and a second pulse's tail meets them 
 arrives, a pulse scaling the loss by its own rate.
 Version 11: a measured rate faster than the model's raises its losses per second by the cube
 root of their ratio (a slower one scales them by the ratio as before), and a heat-up's landing
-that stalls short of the band learns its missing heat at `MISSING_HEAT_BIAS_S`."""
+that stalls short of the band learns its missing heat at `MISSING_HEAT_BIAS_S`.
+Version 12: a jump of the estimate is cold water only where the PV itself fell beyond
+`BIAS_INNOVATION_CLIP` (an estimate catching up with a steady fall is no water), a recovery
+the law ran without water does not forget the setpoint held, and heat missing from it is
+learned from innovations beyond the clip too, clipped."""
 
 ALGORITHMS = (
     "predictive",

@@ -420,10 +420,14 @@ class _Predictive(_Base):
         if self._lo < previous < self._hi or self._above or ramp:
             if abs(innovation) <= clip:
                 self._bias += l2 * innovation
-            elif abs(self._trailing) >= TRAILING_S:
+            elif (missing and not jumped) or abs(self._trailing) >= TRAILING_S:
                 # A model that errs by more than the clip over the tracking gain (a prior's
                 # loss a quarter of the truth) keeps every innovation above it, the estimate
-                # trailing the PV: the bias learns from it clipped, or never would.
+                # trailing the PV: the bias learns from it clipped, or never would. So while
+                # heat is missing from a hold, at once: losses tripled on a small tun fall
+                # the water a degree a minute, the estimate trailing in a saw of jumps that
+                # broke every trail, and the law held it 4 °C low for hours (docs/heat-balance.md,
+                # "The law's pace").
                 self._bias += l2 * math.copysign(clip, innovation)
         # D acts on the measured PV, filtered by tf (first order).
         fpv1 = self._fpv
@@ -452,8 +456,12 @@ class _Predictive(_Base):
         # Cold water behind a slow sensor: full power goes on while the PV falls by more than
         # a period of it adds (acting on the fall cannot lift the water above where it was),
         # by the gain that puts back in one period what this one fell (more than 100 %).
+        # A jump down is water only where the PV itself fell beyond the clip: an estimate
+        # that trails a steady fall (losses the model lacks) catches up in jumps that fell
+        # the PV no more than a period's slope.
         cold, self._cold_water = self._cold_water, False
-        self._follow_pour(pv, cold or (jumped and innovation < 0.0), cold or fell > clip, before)
+        poured = cold or (jumped and innovation < 0.0 and fell > clip)
+        self._follow_pour(pv, poured, cold or fell > clip, before)
         self._carried = (cold or self._carried) and pv < sp and fell > self._ts * self._rate
         if self._carried:
             p = max(p, self._kc_far * fell)
@@ -481,12 +489,12 @@ class _Predictive(_Base):
 
     def _heat_missing(self, sp: float, pv: float) -> bool:
         """Whether the water fell LINEAR_BAND below the setpoint it last reached (kept in
-        `_held_sp`, forgotten at anything the law knows of: cold water and its recovery, a
-        heat-up or its pulse, a told load) and has not risen over the last STEADY_SPAN_S:
-        heat the model counts on does not arrive, which the bias learns at
-        MISSING_HEAT_BIAS_S. A recovery's rise is the model's, learned at ti."""
-        known = self._poured is not None or self._recovering or self._recovery.active
-        if known or self._carried or self._load:
+        `_held_sp`, forgotten at anything the law knows of: cold water, a heat-up or its
+        pulse, a told load; not at full power the law runs for a fall without water, which
+        is the heat missing) and has not risen over the last STEADY_SPAN_S: heat the model
+        counts on does not arrive, which the bias learns at MISSING_HEAT_BIAS_S. A recovery's
+        rise after cold water is the model's, learned at ti."""
+        if self._poured is not None or self._carried or self._load:
             self._held_sp = self._landing_sp = math.nan
         elif self._pulse is not None or self._watch.active:
             self._held_sp, self._landing_sp = math.nan, sp
@@ -522,14 +530,14 @@ class _Predictive(_Base):
         return now <= sum(pvs[j] for j in range(last - 2 * span, last - span))
 
     def _follow_pour(self, pv: float, dropped: bool, fell: bool, free: float) -> None:
-        """Cold water poured in (a drop the readings showed, or a step taken whole): the
-        tun's heat capacity grew by at least the share its drop says (`COLDEST_POUR`), so
-        the rate, the losses and the bias per °C fell by that share. Followed while the PV
-        sinks through the sensor's lag; done once it rises again. Where the PV itself `fell`
-        (a step of the model alone, a measured dead time or lag taken in a heat-up, is no
-        water), the drop is then taken as the sensor's lag says it is (`_PourGap`). Not
-        under a told load (a HERMS coil's draw is no water). `free`: the period's PV by the
-        model, the pour aside."""
+        """Cold water poured in (a drop the readings showed, or a step taken whole where the
+        PV itself fell): the tun's heat capacity grew by at least the share its drop says
+        (`COLDEST_POUR`), so the rate, the losses and the bias per °C fell by that share.
+        Followed while the PV sinks through the sensor's lag; done once it rises again.
+        Where the PV itself `fell` (a step of the model alone, a measured dead time or lag
+        taken in a heat-up, is no water), the drop is then taken as the sensor's lag says it
+        is (`_PourGap`). Not under a told load (a HERMS coil's draw is no water). `free`: the
+        period's PV by the model, the pour aside."""
         if self._poured is None:
             if not dropped or self._load:
                 return
