@@ -269,6 +269,29 @@ def test_an_element_that_dies_in_the_hold_has_full_power_asked_within_minutes() 
     assert climb_two > (100.0 - 8.0) / 8.0 * pid.MISSING_HEAT_BIAS_S
 
 
+def test_losses_that_triple_in_the_hold_are_learned_not_taken_for_cold_water() -> None:
+    # A small fast tun (full power 0.044 °C/s) held at 17 % on its true model, whose losses
+    # triple (a lid off, a door to a cold garage): K and τ fall to a third, the hold needs
+    # (66 − 20)/(K/3) = 51.1 %. At 17 % the water falls a degree a minute, the estimate
+    # trailing it and catching up in jumps; taken for cold water each time, they shrank the
+    # model's rate by a quarter, forgot the held setpoint, and the water sat 2 °C low for
+    # hours. A jump the PV itself did not fall beyond the clip for is no water: the rate is
+    # kept, the missing heat learned, and the water back in the band within the hour.
+    gain, dead_time = 46.0 / 17.0, 150.0
+    tau = 100.0 * gain / 0.044
+    tun = Tun(gain, tau, dead_time, SP)
+    controller = predictive(pid.PlantModel(gain, tau, dead_time, ROOM))
+    controller.reset(SP, tun.holding(SP))
+    run(controller, tun, 600.0)
+    tun.gain, tun.tau = gain / 3.0, tau / 3.0
+    tun.a = math.exp(-TS / tun.tau)
+    trace = run(controller, tun, 7200.0)
+    out = [t for t, pv, _ in trace if abs(pv - SP) > pid.LINEAR_BAND]
+    assert out[-1] < 3600.0
+    last_hour = [u for t, _, u in trace if t >= 3600.0]
+    assert sum(last_hour) / len(last_hour) == pytest.approx(46.0 / (gain / 3.0), abs=0.5)
+
+
 def test_held_at_no_heat_above_the_band_the_bias_learns_the_losses() -> None:
     # A tun that loses little (its true holding duty (66 − 20)/4.6 = 10 %) on a model that
     # holds at 30 % with the true rate: the water runs away over the band and gets no heat
