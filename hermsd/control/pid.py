@@ -144,7 +144,7 @@ that stalls short of the band learns its missing heat at `MISSING_HEAT_BIAS_S`.
 Version 12: a jump of the estimate is cold water only where the PV itself fell beyond
 `BIAS_INNOVATION_CLIP` (an estimate catching up with a steady fall is no water), a recovery
 the law ran without water does not forget the setpoint held, and heat missing from it is
-learned from innovations beyond the clip too, clipped."""
+learned from innovations beyond the clip too, clipped, where it is learned fast (one element)."""
 
 ALGORITHMS = (
     "predictive",

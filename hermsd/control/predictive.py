@@ -412,6 +412,12 @@ class _Predictive(_Base):
             self._trailing = 0.0
         if abs(innovation) <= clip:
             self._learn_share(past, innovation)
+        # Heat missing from a hold is learned beyond the clip too, at once, where it is learned
+        # fast (one element; on two it may be one element's: `on_two_elements`): losses tripled
+        # on a small tun fell the water a degree a minute, the estimate trailing it in a saw
+        # of jumps that broke every trail, and the law held it 4 °C low for hours
+        # (docs/heat-balance.md, "The law's pace").
+        chase = missing and not jumped and self._missing_gains != self._gains
         # At a limit the duty says nothing of the holding duty, but for a water held at 0 % out
         # of the band above (`_above`): there the model errs only by the losses it knows (and
         # a heat nothing asked for), which the bias is, and learned there, a holding duty
@@ -420,14 +426,10 @@ class _Predictive(_Base):
         if self._lo < previous < self._hi or self._above or ramp:
             if abs(innovation) <= clip:
                 self._bias += l2 * innovation
-            elif (missing and not jumped) or abs(self._trailing) >= TRAILING_S:
+            elif chase or abs(self._trailing) >= TRAILING_S:
                 # A model that errs by more than the clip over the tracking gain (a prior's
                 # loss a quarter of the truth) keeps every innovation above it, the estimate
-                # trailing the PV: the bias learns from it clipped, or never would. So while
-                # heat is missing from a hold, at once: losses tripled on a small tun fall
-                # the water a degree a minute, the estimate trailing in a saw of jumps that
-                # broke every trail, and the law held it 4 °C low for hours (docs/heat-balance.md,
-                # "The law's pace").
+                # trailing the PV: the bias learns from it clipped, or never would.
                 self._bias += l2 * math.copysign(clip, innovation)
         # D acts on the measured PV, filtered by tf (first order).
         fpv1 = self._fpv
