@@ -759,15 +759,19 @@ class _Predictive(_Base):
         self._use(rate, dead_time)
 
 
-def on_two_elements(controller: Controller) -> None:
+def on_two_elements(controller: Controller, *, one_left: bool = False) -> None:
     """Tell the predictive law `controller` is (if it is one) that it drives two elements'
     total: heat it counts on that does not arrive may be one element's, which the element
     watch judges while the other holds the water; its bias keeps ti's pace then. At
     MISSING_HEAT_BIAS_S the population's two-element tuns held worse on the other element
     and were warned later (docs/heat-balance.md, "The law's pace"). A heat-up's landing that
-    stalls short of the band keeps the fast pace: no hold has measured the tun yet there."""
-    if isinstance(controller, _Predictive):
-        controller._missing_gains = controller._gains
+    stalls short of the band keeps the fast pace: no hold has measured the tun yet there.
+    `one_left`: one of them is said dead and no longer asked (`runtime.build.said_dead`), so
+    heat missing is the other's, learned at the fast pace again: at ti the law took over an
+    hour to ask a dead contactor on for good (tests/test_element_watch.py)."""
+    law = _law(controller)
+    if law is not None:
+        law._missing_gains = law._stalled_gains if one_left else law._gains
 
 
 def _law(controller: Controller) -> _Predictive | None:

@@ -92,6 +92,7 @@ def said_dead(controller: pid.Controller, no_heat: Iterable[int]) -> None:
     the other holds the tun (docs/two-elements.md); from the period before the step."""
     if isinstance(controller, SplitController):
         controller.split.dead = named_dead(no_heat)
+        predictive.on_two_elements(controller.inner, one_left=bool(controller.split.dead))
 
 
 def left_out(report: ElementReport, controller: pid.Controller) -> str:
