@@ -269,27 +269,62 @@ def test_an_element_that_dies_in_the_hold_has_full_power_asked_within_minutes() 
     assert climb_two > (100.0 - 8.0) / 8.0 * pid.MISSING_HEAT_BIAS_S
 
 
-def test_losses_that_triple_in_the_hold_are_learned_not_taken_for_cold_water() -> None:
-    # A small fast tun (full power 0.044 °C/s) held at 17 % on its true model, whose losses
-    # triple (a lid off, a door to a cold garage): K and τ fall to a third, the hold needs
-    # (66 − 20)/(K/3) = 51.1 %. At 17 % the water falls a degree a minute, the estimate
-    # trailing it and catching up in jumps; taken for cold water each time, they shrank the
-    # model's rate by a quarter, forgot the held setpoint, and the water sat 2 °C low for
-    # hours. A jump the PV itself did not fall beyond the clip for is no water: the rate is
-    # kept, the missing heat learned, and the water back in the band within the hour.
-    gain, dead_time = 46.0 / 17.0, 150.0
-    tau = 100.0 * gain / 0.044
-    tun = Tun(gain, tau, dead_time, SP)
-    controller = predictive(pid.PlantModel(gain, tau, dead_time, ROOM))
+def _losses_triple(
+    dead_time: float, noise: float, poured: bool
+) -> list[tuple[float, float, float]]:
+    """A small fast tun (full power 0.044 °C/s) held at 17 % on its true model for 600 s,
+    then, with `poured`, a tenth of its water at 15 °C and 600 s more, then its losses
+    tripled (a lid off, a door to a cold garage: K and τ to a third): the 2 hours after."""
+    gain = 46.0 / 17.0
+    tun = Tun(gain, 100.0 * gain / 0.044, dead_time, SP, noise=noise)
+    controller = predictive(pid.PlantModel(gain, tun.tau, dead_time, ROOM))
     controller.reset(SP, tun.holding(SP))
     run(controller, tun, 600.0)
-    tun.gain, tun.tau = gain / 3.0, tau / 3.0
+    if poured:
+        tun.add_water(0.1, 15.0)
+        run(controller, tun, 600.0)
+    tun.gain, tun.tau = gain / 3.0, tun.tau / 3.0
     tun.a = math.exp(-TS / tun.tau)
-    trace = run(controller, tun, 7200.0)
+    return run(controller, tun, 7200.0)
+
+
+def _back_for_good(trace: list[tuple[float, float, float]], within: float) -> None:
+    """The water within LINEAR_BAND for good before `within` s, its last hour at the duty
+    that holds 66 °C on the tripled losses: (66 − 20)/(K/3) = 51.1 % (cold water leaves K
+    as it was)."""
     out = [t for t, pv, _ in trace if abs(pv - SP) > pid.LINEAR_BAND]
-    assert out[-1] < 3600.0
+    assert out[-1] < within
     last_hour = [u for t, _, u in trace if t >= 3600.0]
-    assert sum(last_hour) / len(last_hour) == pytest.approx(46.0 / (gain / 3.0), abs=0.5)
+    assert sum(last_hour) / len(last_hour) == pytest.approx(46.0 / (46.0 / 17.0 / 3.0), abs=0.5)
+
+
+@pytest.mark.parametrize(
+    ("dead_time", "noise", "within"),
+    [(150.0, 0.0, 3600.0), (150.0, 0.03, 6000.0), (250.0, 0.03, 6000.0)],
+)
+def test_losses_that_triple_in_the_hold_are_learned_not_taken_for_cold_water(
+    dead_time: float, noise: float, within: float
+) -> None:
+    # At 17 % the water falls a degree a minute, the estimate trailing it and catching up in
+    # jumps; taken for cold water each time, they shrank the model's rate by a quarter,
+    # forgot the held setpoint, and the water sat 2 °C low for hours. A jump the PV itself
+    # did not fall beyond the clip for is no water: the rate is kept, the missing heat
+    # learned, and the water back in the band within the hour. Behind a noisy LM92 a reading
+    # falls beyond the clip now and then on the fall and its noise, and the jump is taken
+    # for water: the setpoint held is kept through it, and the stalled recovery learns the
+    # missing heat, back in the band for good within 100 minutes (where forgotten, not in
+    # two hours: the duty 2 % short of the hold's at the end).
+    _back_for_good(_losses_triple(dead_time, noise, poured=False), within)
+
+
+def test_heat_missing_after_cold_water_is_learned_in_its_recovery() -> None:
+    # Behind a noisy LM92 and 250 s of dead time, the losses triple while the water recovers
+    # from a pour (the lid left off after it). The pour's fall is the water's; a recovery
+    # that then stops rising short of the band has heat missing, learned at
+    # MISSING_HEAT_BIAS_S, and the water is back in the band for good within 100 minutes.
+    # With the setpoint held forgotten at the pour it was learned at ti: the water 3.3 °C
+    # low an hour on, not back in two hours.
+    _back_for_good(_losses_triple(250.0, 0.03, poured=True), 6000.0)
 
 
 def test_held_at_no_heat_above_the_band_the_bias_learns_the_losses() -> None:

@@ -156,3 +156,14 @@ def poly_roots(p: Sequence[float]) -> list[complex]:
 def eigenvalues(a: Sequence[Sequence[float]]) -> list[complex]:
     """The eigenvalues of a small matrix, as the roots of its characteristic polynomial."""
     return poly_roots(char_poly(a))
+
+
+def observer_gains(ts: float, track: float, bias: float) -> tuple[float, float]:
+    """(L1, L2) of the PV/bias observer with poles e^(−Ts/track) and e^(−Ts/bias).
+
+    Error dynamics of predict-then-correct on x = (PV, bias), A = [[1, Ts], [0, 1]]:
+    z² − (2 − L1 − Ts·L2)·z + (1 − L1), so L1 = 1 − p1·p2 and Ts·L2 = (1 − p1)·(1 − p2).
+    """
+    p1 = math.exp(-ts / track)
+    p2 = math.exp(-ts / bias)
+    return 1.0 - p1 * p2, (1.0 - p1) * (1.0 - p2) / ts

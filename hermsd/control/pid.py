@@ -110,7 +110,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol
 
-CONTROL_LAW_VERSION = 12
+CONTROL_LAW_VERSION = 13
 """Which laws' decisions a log holds: written with every config record (`control_law`), and
 `hermsd replay --verify` re-runs only a log of this version. Bump it whenever a change to any
 law, or to what `replay --verify` compares, would make the decisions of a log written before
@@ -144,7 +144,10 @@ that stalls short of the band learns its missing heat at `MISSING_HEAT_BIAS_S`.
 Version 12: a jump of the estimate is cold water only where the PV itself fell beyond
 `BIAS_INNOVATION_CLIP` (an estimate catching up with a steady fall is no water), a recovery
 the law ran without water does not forget the setpoint held, and heat missing from it is
-learned from innovations beyond the clip too, clipped, where it is learned fast (one element)."""
+learned from innovations beyond the clip too, clipped, where it is learned fast (one element).
+Version 13: the setpoint held is kept through cold water, and a recovery that stops rising
+short of the band over the heat's way to the sensor learns its missing heat at
+`MISSING_HEAT_BIAS_S`."""
 
 ALGORITHMS = (
     "predictive",

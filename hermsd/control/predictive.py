@@ -9,6 +9,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 
+from hermsd.control.linsys import observer_gains
 from hermsd.control.pid import (
     BIAS_INNOVATION_CLIP,
     COLDEST_POUR,
@@ -56,6 +57,7 @@ from hermsd.control.watches import (
     _HeatUpWatch,
     _PourGap,
     _PulseWatch,
+    _RecoveryStall,
     _RecoveryWatch,
 )
 
@@ -78,6 +80,7 @@ class _Predictive(_Base):
         "_filtered",
         "_fit",
         "_fpv",
+        "_from_water",
         "_gains",
         "_held_sp",
         "_inputs",
@@ -111,6 +114,7 @@ class _Predictive(_Base):
         "_recovery",
         "_scatter",
         "_sensor_lag",
+        "_stall",
         "_stalled_gains",
         "_step_is_loops",
         "_trailing",
@@ -154,6 +158,7 @@ class _Predictive(_Base):
         self._recent: deque[float] = deque(maxlen=max(2, round(STEADY_SPAN_S / ts)))
         # The PVs of the last two steady spans: whether a landing still climbs.
         self._pvs: deque[float] = deque(maxlen=2 * (self._recent.maxlen or 1))
+        self._stall = _RecoveryStall()
         self._watch = _HeatUpWatch()
         self._recovery = _RecoveryWatch()
         # Whether the full power running began as the PV fell from the hold (cold water).
@@ -344,6 +349,8 @@ class _Predictive(_Base):
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
         self._pvs.clear()
         self._pvs.extend([pv0] * (self._pvs.maxlen or 1))
+        self._stall.clear()
+        self._from_water = False
         self._watch.active = self._recovery.active = self._recovering = False
         self._pulse = None
         self._carried = self._above = False
@@ -389,6 +396,7 @@ class _Predictive(_Base):
                 self._pour_gap = None
         innovation = pv - before
         self._pvs.append(pv)
+        self._stall.add(pv, self._heat_way())
         missing = self._heat_missing(sp, pv)
         ramp = self._ramp_shows_losses(previous, sp, pv)
         if missing or ramp:
@@ -491,18 +499,37 @@ class _Predictive(_Base):
 
     def _heat_missing(self, sp: float, pv: float) -> bool:
         """Whether the water fell LINEAR_BAND below the setpoint it last reached (kept in
-        `_held_sp`, forgotten at anything the law knows of: cold water, a heat-up or its
-        pulse, a told load; not at full power the law runs for a fall without water, which
-        is the heat missing) and has not risen over the last STEADY_SPAN_S: heat the model
-        counts on does not arrive, which the bias learns at MISSING_HEAT_BIAS_S. A recovery's
-        rise after cold water is the model's, learned at ti."""
-        if self._poured is not None or self._carried or self._load:
+        `_held_sp`, forgotten at a heat-up or its pulse and a told load; not at full power
+        the law runs for a fall without water, which is the heat missing) and has not risen
+        over the last STEADY_SPAN_S: heat the model counts on does not arrive, which the bias
+        learns at MISSING_HEAT_BIAS_S. Not while cold water's drop unfolds or carries the
+        water down, that fall being the water's, and from then until the water is back at
+        the setpoint only where the recovery stopped rising over a whole way of the heat to
+        the sensor (`watches._RecoveryStall`): its landing creeps up as its heat arrives, which a
+        minute's reading, behind noise, takes for a stall (docs/heat-balance.md, "The law's
+        pace")."""
+        if self._load:
             self._held_sp = self._landing_sp = math.nan
         elif self._pulse is not None or self._watch.active:
             self._held_sp, self._landing_sp = math.nan, sp
         elif pv >= sp:
             self._held_sp, self._landing_sp = sp, math.nan
-        return sp == self._held_sp and pv < sp - LINEAR_BAND and pv <= self._recent[0]
+            self._from_water = False
+        if self._poured is not None or self._carried:
+            self._from_water = True
+            self._stall.clear()  # the recovery's ways are judged from its start
+            return False
+        if sp != self._held_sp or pv >= sp - LINEAR_BAND:
+            return False
+        if self._from_water:
+            return self._stall.stalled(self._heat_way(), len(self._recent))
+        return pv <= self._recent[0]
+
+    def _heat_way(self) -> int:
+        """Periods the heat takes to show at the sensor (the dead time and the sensor's lag),
+        at least STEADY_SPAN_S."""
+        way = math.ceil((self._dead_time + self._sensor_lag) / self._ts)
+        return max(way, len(self._recent))
 
     def _landing_stalled(self, sp: float, pv: float) -> bool:
         """Whether the landing of a heat-up to `sp` (`_landing_sp`) stopped LINEAR_BAND short
@@ -966,14 +993,3 @@ def heat_up_fit(controller: Controller) -> HeatUpFit | None:
     """The last heat-up a predictive controller measured (None for the other forms)."""
     law = _law(controller)
     return None if law is None else law.fit
-
-
-def observer_gains(ts: float, track: float, bias: float) -> tuple[float, float]:
-    """(L1, L2) of the PV/bias observer with poles e^(−Ts/track) and e^(−Ts/bias).
-
-    Error dynamics of predict-then-correct on x = (PV, bias), A = [[1, Ts], [0, 1]]:
-    z² − (2 − L1 − Ts·L2)·z + (1 − L1), so L1 = 1 − p1·p2 and Ts·L2 = (1 − p1)·(1 − p2).
-    """
-    p1 = math.exp(-ts / track)
-    p2 = math.exp(-ts / bias)
-    return 1.0 - p1 * p2, (1.0 - p1) * (1.0 - p2) / ts

@@ -5,7 +5,9 @@ of that water's drop the sensor has yet to show (`_PourGap`)."""
 from __future__ import annotations
 
 import bisect
+import itertools
 import math
+from collections import deque
 from dataclasses import dataclass
 
 from hermsd.control.linsys import solve
@@ -623,6 +625,38 @@ TRUSTED_SHARE = 0.5
 noise on it at most doubled."""
 GAP_GONE = 1e-3
 """°C: a pour's drop still unseen below this is shown (a thousandth of the LM92's step)."""
+
+
+class _RecoveryStall:
+    """The PVs since cold water's drop, over the last two of the heat's ways to the sensor
+    (the dead time and the lag): a recovery's landing creeps up as its heat arrives, which
+    a minute's reading behind noise takes for a stall, and one missing heat does not."""
+
+    __slots__ = ("pvs",)
+
+    def __init__(self) -> None:
+        self.pvs: deque[float] = deque()
+
+    def clear(self) -> None:
+        self.pvs.clear()
+
+    def add(self, pv: float, way: int) -> None:
+        """One period's PV; `way` periods of the heat's way to the sensor kept twice."""
+        pvs = self.pvs
+        pvs.append(pv)
+        while len(pvs) > 2 * way:
+            pvs.popleft()
+
+    def stalled(self, way: int, least: int) -> bool:
+        """Whether the PVs' mean over the last `way` periods, or half of those kept where
+        fewer (at least `least`), is no higher than over as many before."""
+        pvs = self.pvs
+        way = min(way, len(pvs) // 2)
+        if way < least:
+            return False
+        end = len(pvs)
+        now = sum(itertools.islice(pvs, end - way, end))
+        return now <= sum(itertools.islice(pvs, end - 2 * way, end - way))
 
 
 class _PourGap:
