@@ -327,6 +327,28 @@ def test_heat_missing_after_cold_water_is_learned_in_its_recovery() -> None:
     _back_for_good(_losses_triple(250.0, 0.03, poured=True), 6000.0)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_a_recovery_creeping_up_behind_noise_is_no_heat_missing(seed: int) -> None:
+    # A 40 L tun on 2.1 kW (0.0127 °C/s at full power) holding at 21 %, behind 335 s of dead
+    # time and an LM92 with 0.058 °C of noise, a tenth of its water at 15 °C poured in. Its
+    # recovery lands short and creeps up as the heat in flight arrives: a minute's reading
+    # behind the noise often stands no higher than the one before, and taken for heat
+    # missing, the bias learned the creep and the water came over by 0.5–0.6 °C. Judged over
+    # the heat's way to the sensor the creep rises: the minute means of the readings stay
+    # within 0.25 °C of the setpoint.
+    gain, dead_time = 46.0 / 21.0, 335.0
+    tun = Tun(gain, 100.0 * gain / 0.0127, dead_time, SP, noise=0.058)
+    tun.rng.seed(seed)
+    controller = predictive(pid.PlantModel(gain, tun.tau, dead_time, ROOM))
+    controller.reset(SP, tun.holding(SP))
+    run(controller, tun, 1800.0)
+    tun.add_water(0.1, 15.0)
+    pvs = [pv for _, pv, _ in run(controller, tun, 7200.0)]
+    minute = round(60.0 / TS)
+    means = [sum(pvs[k : k + minute]) / minute for k in range(len(pvs) - minute)]
+    assert max(means) <= SP + 0.25
+
+
 def test_held_at_no_heat_above_the_band_the_bias_learns_the_losses() -> None:
     # A tun that loses little (its true holding duty (66 − 20)/4.6 = 10 %) on a model that
     # holds at 30 % with the true rate: the water runs away over the band and gets no heat
