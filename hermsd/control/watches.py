@@ -1,6 +1,7 @@
 """The predictive controller's watches of its own climb: the heat-up's fit (the tun's rate
-and dead time, measured at full power) and a recovery's, after water was added, and the part
-of that water's drop the sensor has yet to show (`_PourGap`)."""
+and dead time, measured at full power) and a recovery's, after water was added, the part of
+that water's drop the sensor has yet to show (`_PourGap`), and whether the recovery still
+rises over the heat's way to the sensor (`_RecoveryStall`)."""
 
 from __future__ import annotations
 
