@@ -333,7 +333,7 @@ def test_a_recovery_creeping_up_behind_noise_is_no_heat_missing(seed: int) -> No
     # time and an LM92 with 0.058 °C of noise, a tenth of its water at 15 °C poured in. Its
     # recovery lands short and creeps up as the heat in flight arrives: a minute's reading
     # behind the noise often stands no higher than the one before, and taken for heat
-    # missing, the bias learned the creep and the water came over by 0.5–0.6 °C. Judged over
+    # missing, the bias learned the creep and the water came over by 0.4–0.6 °C. Judged over
     # the heat's way to the sensor the creep rises: the minute means of the readings stay
     # within 0.25 °C of the setpoint.
     gain, dead_time = 46.0 / 21.0, 335.0
