@@ -80,7 +80,6 @@ class _Predictive(_Base):
         "_filtered",
         "_fit",
         "_fpv",
-        "_from_water",
         "_gains",
         "_held_sp",
         "_inputs",
@@ -349,8 +348,7 @@ class _Predictive(_Base):
         self._recent.extend([pv0] * (self._recent.maxlen or 1))
         self._pvs.clear()
         self._pvs.extend([pv0] * (self._pvs.maxlen or 1))
-        self._stall.clear()
-        self._from_water = False
+        self._stall.end()
         self._watch.active = self._recovery.active = self._recovering = False
         self._pulse = None
         self._carried = self._above = False
@@ -396,7 +394,8 @@ class _Predictive(_Base):
                 self._pour_gap = None
         innovation = pv - before
         self._pvs.append(pv)
-        self._stall.add(pv, self._heat_way())
+        if self._stall.active:
+            self._stall.add(pv, self._heat_way())
         missing = self._heat_missing(sp, pv)
         ramp = self._ramp_shows_losses(previous, sp, pv)
         if missing or ramp:
@@ -514,14 +513,13 @@ class _Predictive(_Base):
             self._held_sp, self._landing_sp = math.nan, sp
         elif pv >= sp:
             self._held_sp, self._landing_sp = sp, math.nan
-            self._from_water = False
+            self._stall.end()
         if self._poured is not None or self._carried:
-            self._from_water = True
-            self._stall.clear()  # the recovery's ways are judged from its start
+            self._stall.start()
             return False
         if sp != self._held_sp or pv >= sp - LINEAR_BAND:
             return False
-        if self._from_water:
+        if self._stall.active:
             return self._stall.stalled(self._heat_way(), len(self._recent))
         return pv <= self._recent[0]
 

@@ -629,20 +629,28 @@ GAP_GONE = 1e-3
 
 
 class _RecoveryStall:
-    """The PVs since cold water's drop, over the last two of the heat's ways to the sensor
-    (the dead time and the lag): a recovery's landing creeps up as its heat arrives, which
-    a minute's reading behind noise takes for a stall, and one missing heat does not."""
+    """A recovery from cold water, from its drop until the water is back at the setpoint
+    (`active`), and its PVs over the last two of the heat's ways to the sensor (the dead
+    time and the lag): its landing creeps up as its heat arrives, which a minute's reading
+    behind noise takes for a stall, and one missing heat does not."""
 
-    __slots__ = ("pvs",)
+    __slots__ = ("active", "pvs")
 
     def __init__(self) -> None:
+        self.active = False
         self.pvs: deque[float] = deque()
 
-    def clear(self) -> None:
+    def start(self) -> None:
+        """Cold water's drop: the recovery's ways are judged from its end."""
+        self.active = True
+        self.pvs.clear()
+
+    def end(self) -> None:
+        self.active = False
         self.pvs.clear()
 
     def add(self, pv: float, way: int) -> None:
-        """One period's PV; `way` periods of the heat's way to the sensor kept twice."""
+        """One period's PV of the recovery; `way` periods of the heat's way kept twice."""
         pvs = self.pvs
         pvs.append(pv)
         while len(pvs) > 2 * way:
