@@ -30,7 +30,7 @@ from hermsd.hardware.current_sense import (
     open_current_sense,
 )
 from hermsd.log import reader, replay
-from hermsd.runtime import build
+from hermsd.runtime import build, current_side
 from hermsd.runtime.assemble import assemble
 from hermsd.runtime.notify import current_words
 from hermsd.runtime.saver import Saver
@@ -244,6 +244,25 @@ def test_a_shorted_ssr_is_latched_by_the_current_within_one_period() -> None:
     assert alarm["detected_after_s"] <= PERIOD
     assert alarm["message"].startswith("the current input reads current")
     assert alarm["heater_off_after_s"] == 0.0  # the contactor opened at once
+
+
+def test_a_short_behind_full_duty_is_found_by_a_gap_within_a_minute_and_a_window() -> None:
+    """An SSR commanded fully on shows no off-sample, and a short there would hide until the
+    duty first fell (the seed tun's heat-up: 90 L from 20 to 66 °C at 3 kW, over an hour at
+    full power). With the input fitted a window is left off for two reads once the last
+    off-sample is PROOF_EVERY_S old: the short told within that and two windows (the gap's
+    own, the one it waits for), what the gaps withhold 0.19 s in each 60–65 s (≤ 0.32 %)."""
+    at = 20 * 60.0 + 1.7
+    day = dataclasses.replace(tf.ssr_shorts(SPEC, at=at), duration=at + 1800.0)
+    result = scenario.run(with_current(day), keep_records=True)
+    asked = [r.output for r in result.records if at - 600.0 <= r.t < at]
+    assert min(asked) == 100.0  # full power asked all the ten minutes before the short
+    given = [r.applied for r in result.records if at - 600.0 <= r.t < at]
+    assert 100.0 - 0.32 <= sum(given) / len(given) < 100.0
+    [alarm] = result.summary["alarms"]
+    assert alarm["kind"] == "ssr_stuck_on"
+    assert alarm["message"].startswith("the current input reads current")
+    assert alarm["detected_after_s"] <= current_side.PROOF_EVERY_S + 2 * PERIOD
 
 
 def test_an_element_gone_open_is_latched_by_the_current_within_one_period() -> None:

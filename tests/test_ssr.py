@@ -257,6 +257,27 @@ def test_a_window_after_one_fully_on_starts_on_and_spends_one_edge() -> None:
     assert following.off_at == 20.0  # off since the last one's end: its pulse ends this one
 
 
+def test_a_gap_leaves_a_full_window_off_for_the_minimum_off_time_at_one_end() -> None:
+    """A current input's proof that the SSR opens: 100 % with a gap is 500 − 19 half-cycles
+    on (96.2 %), off for the last 0.19 s after a window that ended on, and the full window
+    after it starts on at its start (two edges in all); a band's run fully on at under 100 %
+    is cut the same, what it withholds owed; no minimum off time, no gap to leave."""
+    planner = TimeProportionalPlanner(5.0, 50, min_on=0.19, min_off=0.19)
+    planner.plan(0.0, 100.0)
+    proof = planner.plan(5.0, 100.0, gap=True)
+    assert (proof.on_at, proof.off_at, proof.applied) == (5.0, pytest.approx(9.81), 96.2)
+    after = planner.plan(10.0, 100.0)
+    assert (after.on_at, after.off_at) == (10.0, 15.0)
+    banded = TimeProportionalPlanner(5.0, 50, min_on=0.19, min_off=0.19, band=1.0)
+    banded.plan(0.0, 100.0)
+    run = banded.plan(5.0, 99.0, gap=True)  # 495 owed, plus the band: a full window asked
+    assert run.on_time == pytest.approx(4.81)
+    assert run.deferred == pytest.approx(0.14)  # 495 − 481 half-cycles owed
+    plain = TimeProportionalPlanner(5.0, 50)
+    plain.plan(0.0, 100.0)
+    assert plain.plan(5.0, 100.0, gap=True).applied == 100.0
+
+
 def test_no_window_spends_more_than_one_edge_through_full_and_empty_windows() -> None:
     planner = TimeProportionalPlanner(5.0, 50, min_on=0.02, min_off=0.02)
     duties = [40.0, 60.0, 100.0, 100.0, 70.0, 30.0, 0.0, 0.0, 50.0, 50.0, 100.0, 20.0]

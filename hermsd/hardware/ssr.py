@@ -87,10 +87,15 @@ class TimeProportionalPlanner:
         self._carry = 0.0
         self._ends_on = False
 
-    def plan(self, start: float, duty: float, at_once: bool = False) -> WindowPlan:
+    def plan(
+        self, start: float, duty: float, at_once: bool = False, gap: bool = False
+    ) -> WindowPlan:
         """The window that begins at `start` with `duty` % requested; `at_once`: its pulse
         from its start where it would end it (a load just begun unannounced, its heat already
-        late: sent as early as the window allows, at the cost of an edge pair once)."""
+        late: sent as early as the window allows, at the cost of an edge pair once); `gap`: a
+        window that would be fully on is off for the minimum off time at one end (a current
+        input's proof that the SSR still opens, docs/current.md), what it withholds carried as
+        any shortfall is."""
         if not 0.0 <= duty <= 100.0:
             raise ValueError(f"duty must be within 0..100 %, got {duty}")
         slots = self.slots
@@ -98,11 +103,13 @@ class TimeProportionalPlanner:
         if duty <= 0.0 or duty >= 100.0:
             # Fully off or fully on: no edges inside the window and nothing owed (what was
             # carried is forgotten, not deferred).
-            on = 0 if duty <= 0.0 else slots
+            on = 0 if duty <= 0.0 else slots - self.min_off_slots if gap else slots
             self._carry = 0.0
         else:
             wanted = duty / 100.0 * slots + self._carry
             on = self._run(wanted)
+            if gap and on == slots:
+                on -= self.min_off_slots
             # The debt stays within the band and what the minimum times can withhold.
             limit = max(self.min_on_slots, self.min_off_slots, 1) + self.band_slots
             self._carry = max(-limit, min(limit, wanted - on))

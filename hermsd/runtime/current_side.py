@@ -5,11 +5,17 @@ a verdict latches through the supervisor, the heater off at once."""
 from __future__ import annotations
 
 import logging
+import math
 from typing import TYPE_CHECKING, Any
 
 from hermsd.hardware.current_sense import read_and_margin
 from hermsd.hardware.lm92 import SensorError
 from hermsd.safety.current_watch import CurrentWatch, Sample, current_watch, words
+
+PROOF_EVERY_S = 60.0
+"""s the SSR may stay commanded on without an off-sample before a window leaves it off for
+one (docs/current.md, "A short behind full duty"): such a short is found within a minute, at
+0.3 % of full power and 120 edges an hour while the duty is full."""
 
 if TYPE_CHECKING:
     from hermsd.hardware.current_sense import CurrentSense
@@ -27,12 +33,14 @@ class CurrentSide(LoopState):
     _current_samples: list[list[object]]
     _current_said: list[str]
     _current_last: Sample | None
+    _current_off_t: float
 
     def _init_current(self, sense: CurrentSense | None) -> None:
         self._current_sense = sense
         self._current_watch = None if sense is None else current_watch(self.config)
         self._current_samples, self._current_said = [], []
         self._current_last = None
+        self._current_off_t = -math.inf  # the last off-sample read: none yet
 
     def _current_times(self, plan: WindowPlan, now: float) -> list[float]:
         """When to sample in `plan` after `now`, each read (two mains cycles) kept a half-cycle
@@ -52,6 +60,20 @@ class CurrentSide(LoopState):
                 times.append(start + (span - read) / 2)
         return [t for t in times if t > now]
 
+    def _current_gap_due(self, start: float) -> bool:
+        """Whether the window from `start` must leave the SSR off for two off-samples: the
+        input judges and has read none for PROOF_EVERY_S, so a short is not hidden for long
+        behind a duty that never turns the SSR off (a second element's base load). Not where
+        the planner's least gap is too short for them (the config's minimums left no room)."""
+        watch, planner = self._current_watch, self.planner
+        read, margin = read_and_margin(self.config.output.mains_hz)
+        return (
+            watch is not None
+            and watch.judging
+            and start - self._current_off_t >= PROOF_EVERY_S
+            and planner.min_off_slots * planner.half_cycle >= 3 * (read + margin)
+        )
+
     def _sample_current(self, on: bool) -> None:
         """One sample, the SSR commanded `on`: read, judged, recorded; a verdict latched."""
         assert self._current_sense is not None
@@ -64,6 +86,8 @@ class CurrentSide(LoopState):
             sample = Sample(t, on, None, None, str(error) or type(error).__name__)
         said, verdict = self._current_watch.sample(sample)
         self._current_last = sample
+        if not on and sample.drawing is not None:
+            self._current_off_t = t
         self._current_samples.append(sample.logged())
         self._current_said += words(said, verdict)
         for line in said:

@@ -772,7 +772,8 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(allowed)
         at_once = self._draw_began_unannounced()
-        self._arm(self.planner.plan(deadline, self.output if allowed else 0.0, at_once), now)
+        duty, gap = (self.output if allowed else 0.0), self._current_gap_due(deadline)
+        self._arm(self.planner.plan(deadline, duty, at_once, gap), now)
 
     def _arm(self, plan: WindowPlan, now: float) -> None:
         """Make `plan` the window in progress (logged; a later one for the same start replaces
