@@ -246,18 +246,25 @@ def test_a_shorted_ssr_is_latched_by_the_current_within_one_period() -> None:
     assert alarm["heater_off_after_s"] == 0.0  # the contactor opened at once
 
 
-def test_a_short_behind_full_duty_is_found_by_a_gap_within_a_minute_and_a_window() -> None:
-    """An SSR commanded fully on shows no off-sample, and a short there would hide until the
-    duty first fell (the seed tun's heat-up: 90 L from 20 to 66 °C at 3 kW, over an hour at
-    full power). With the input fitted a window is left off for two reads once the last
-    off-sample is PROOF_EVERY_S old: the short told within that and two windows (the gap's
+def test_a_short_behind_an_ssr_held_fully_on_is_found_by_a_gap_within_a_minute() -> None:
+    """The thermowell 120 L tun on two elements (1091 W on the SSR, 1909 W on a contactor):
+    the SSR carries the hold at 100 % with the contactor's element off most of the time, so it
+    takes no off-sample and a short in the hold went untold for the half hour after it. With
+    the input fitted a window is left off for two reads once the last off-sample is
+    PROOF_EVERY_S old, full power aside: the short told within that and two windows (the gap's
     own, the one it waits for), what the gaps withhold 0.19 s in each 60–65 s (≤ 0.32 %)."""
-    at = 20 * 60.0 + 1.7
-    day = dataclasses.replace(tf.ssr_shorts(SPEC, at=at), duration=at + 1800.0)
-    result = scenario.run(with_current(day), keep_records=True)
-    asked = [r.output for r in result.records if at - 600.0 <= r.t < at]
-    assert min(asked) == 100.0  # full power asked all the ten minutes before the short
-    given = [r.applied for r in result.records if at - 600.0 <= r.t < at]
+    spec = FAMILY[7]
+    ssr_w = round(spec.element_watts * 2.0 / 5.5)
+    day = tf.ssr_shorts(spec)
+    plant = {**day.plant, "element_watts": ssr_w, "element2_watts": spec.element_watts - ssr_w}
+    element2 = {"backend": "sim", "watts": spec.element_watts - ssr_w}
+    config = {**day.config, "tun": {"element_watts": ssr_w}, "element2": element2}
+    day = dataclasses.replace(day, plant=plant, config=config, duration=tf.FAULT_AT + 1800.0)
+    result = scenario.run(with_current(day), spec.config(config_module.DEFAULT), keep_records=True)
+    before = [r for r in result.records if tf.FAULT_AT - 600.0 <= r.t < tf.FAULT_AT]
+    assert min(r.output for r in before) > 99.0  # the SSR asked (all but) fully on for ten minutes
+    assert not any(r.switched2 for r in before)  # and the contactor's element off
+    given = [r.applied for r in before]
     assert 100.0 - 0.32 <= sum(given) / len(given) < 100.0
     [alarm] = result.summary["alarms"]
     assert alarm["kind"] == "ssr_stuck_on"

@@ -8,6 +8,7 @@ import logging
 import math
 from typing import TYPE_CHECKING, Any
 
+from hermsd.control.factory import full_power
 from hermsd.hardware.current_sense import read_and_margin
 from hermsd.hardware.lm92 import SensorError
 from hermsd.safety.current_watch import CurrentWatch, Sample, current_watch, words
@@ -15,7 +16,7 @@ from hermsd.safety.current_watch import CurrentWatch, Sample, current_watch, wor
 PROOF_EVERY_S = 60.0
 """s the SSR may stay commanded on without an off-sample before a window leaves it off for
 one (docs/current.md, "A short behind full duty"): such a short is found within a minute, at
-0.3 % of full power and 120 edges an hour while the duty is full."""
+0.3 % of the SSR's element and 120 edges an hour while it stays fully on."""
 
 if TYPE_CHECKING:
     from hermsd.hardware.current_sense import CurrentSense
@@ -60,18 +61,23 @@ class CurrentSide(LoopState):
                 times.append(start + (span - read) / 2)
         return [t for t in times if t > now]
 
-    def _current_gap_due(self, start: float) -> bool:
+    def _current_gap_due(self, start: float, now: float) -> bool:
         """Whether the window from `start` must leave the SSR off for two off-samples: the
         input judges and has read none for PROOF_EVERY_S, so a short is not hidden for long
-        behind a duty that never turns the SSR off (a second element's base load). Not where
-        the planner's least gap is too short for them (the config's minimums left no room)."""
-        watch, planner = self._current_watch, self.planner
+        behind an SSR held fully on while the output is not at full power (a second element
+        off, the SSR's carrying the hold). Never at full power: a period short of it is no
+        ramp for the heat balance, the reach watch or a ready-by heat-up, and a short there
+        harms nothing until the output falls, when the first gap shows it. Not where the
+        planner's least gap is too short for two reads (the config's minimums left no room)."""
+        watch, planner, element2 = self._current_watch, self.planner, self.element2
         read, margin = read_and_margin(self.config.output.mains_hz)
+        switched2 = None if element2 is None else 100.0 * element2.state(now)[0]
         return (
             watch is not None
             and watch.judging
             and start - self._current_off_t >= PROOF_EVERY_S
             and planner.min_off_slots * planner.half_cycle >= 3 * (read + margin)
+            and not full_power(self.config).reached(self.output, switched2)
         )
 
     def _sample_current(self, on: bool) -> None:

@@ -772,7 +772,7 @@ class Daemon(Reloading, RunningProgram, LatchKeeping, MashSide, CurrentSide, Rep
         if self.outputs.contactor is not None:
             self.outputs.contactor.set(allowed)
         at_once = self._draw_began_unannounced()
-        duty, gap = (self.output if allowed else 0.0), self._current_gap_due(deadline)
+        duty, gap = (self.output if allowed else 0.0), self._current_gap_due(deadline, now)
         self._arm(self.planner.plan(deadline, duty, at_once, gap), now)
 
     def _arm(self, plan: WindowPlan, now: float) -> None:

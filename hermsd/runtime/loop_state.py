@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 from hermsd.config.file import ConfigFile
 from hermsd.config.schema import Config
 from hermsd.control import pid
+from hermsd.control.element2 import SlowElement
 from hermsd.control.learning import LearnedModel, Learner
 from hermsd.control.reach import ReachWatch, Said
 from hermsd.control.watches import HeatUpFit
@@ -46,6 +47,7 @@ class LoopState:
     model: pid.PlantModel
     model_choice: ModelChoice
     planner: TimeProportionalPlanner
+    element2: SlowElement | None
     element_watch: ElementWatch | None
     reach: ReachWatch
     program: ProgramDriver
