@@ -9,6 +9,7 @@ re-run exactly by `replay --verify`.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import math
 import sys
@@ -246,30 +247,42 @@ def test_a_shorted_ssr_is_latched_by_the_current_within_one_period() -> None:
     assert alarm["heater_off_after_s"] == 0.0  # the contactor opened at once
 
 
-def test_a_short_behind_an_ssr_held_fully_on_is_found_by_a_gap_within_a_minute() -> None:
+EVERY = current_side.PROOF_EVERY_S
+
+
+@pytest.mark.parametrize(("min_off", "gap", "every"), [(None, 0.19, EVERY), (1.9, 1.9, 10 * EVERY)])
+def test_a_short_behind_an_ssr_held_fully_on_is_found_by_a_gap(
+    min_off: float | None, gap: float, every: float
+) -> None:
     """The thermowell 120 L tun on two elements (1091 W on the SSR, 1909 W on a contactor):
-    the SSR carries the hold at 100 % with the contactor's element off most of the time, so it
-    takes no off-sample and a short in the hold went untold for the half hour after it. With
-    the input fitted a window is left off for two reads once the last off-sample is
-    PROOF_EVERY_S old, full power aside: the short told within that and two windows (the gap's
-    own, the one it waits for), what the gaps withhold 0.19 s in each 60–65 s (≤ 0.32 %)."""
+    the SSR carries the hold at 100 % with the contactor's element off, so it takes no
+    off-sample and a short in the hold went untold for the half hour after it. With the input
+    fitted a window is left off for its least gap (two reads with their margins, 190 ms at
+    50 Hz; or `output.min_off`) once the last off-sample is `every` old (PROOF_EVERY_S, ten
+    times that for a gap ten times as long): the short told within that and two windows
+    (the gap's own, the one it waits for); the gaps no closer together than `every`."""
     spec = FAMILY[7]
     ssr_w = round(spec.element_watts * 2.0 / 5.5)
     day = tf.ssr_shorts(spec)
     plant = {**day.plant, "element_watts": ssr_w, "element2_watts": spec.element_watts - ssr_w}
     element2 = {"backend": "sim", "watts": spec.element_watts - ssr_w}
     config = {**day.config, "tun": {"element_watts": ssr_w}, "element2": element2}
+    if min_off is not None:
+        config["output"] = {"min_off": min_off}
     day = dataclasses.replace(day, plant=plant, config=config, duration=tf.FAULT_AT + 1800.0)
     result = scenario.run(with_current(day), spec.config(config_module.DEFAULT), keep_records=True)
     before = [r for r in result.records if tf.FAULT_AT - 600.0 <= r.t < tf.FAULT_AT]
-    assert min(r.output for r in before) > 99.0  # the SSR asked (all but) fully on for ten minutes
+    assert min(r.output for r in before) > 99.0  # the SSR asked (all but) fully on
     assert not any(r.switched2 for r in before)  # and the contactor's element off
-    given = [r.applied for r in before]
-    assert 100.0 - 0.32 <= sum(given) / len(given) < 100.0
+    hour = [r for r in result.records if tf.FAULT_AT - 3600.0 <= r.t < tf.FAULT_AT]
+    held = [r for r in hour if r.output > 99.0 and not r.switched2]  # the SSR's alone
+    gaps = [r.t for r in held if r.applied < 100.0]
+    assert {round(100.0 - r.applied, 6) for r in held if r.t in gaps} == {round(gap / 0.05, 6)}
+    assert min(b - a for a, b in itertools.pairwise(gaps)) >= every
     [alarm] = result.summary["alarms"]
     assert alarm["kind"] == "ssr_stuck_on"
     assert alarm["message"].startswith("the current input reads current")
-    assert alarm["detected_after_s"] <= current_side.PROOF_EVERY_S + 2 * PERIOD
+    assert alarm["detected_after_s"] <= every + 2 * PERIOD
 
 
 def test_an_element_gone_open_is_latched_by_the_current_within_one_period() -> None:

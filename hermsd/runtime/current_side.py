@@ -9,7 +9,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from hermsd.control.factory import full_power
-from hermsd.hardware.current_sense import read_and_margin
+from hermsd.hardware.current_sense import read_and_margin, two_reads_part
 from hermsd.hardware.lm92 import SensorError
 from hermsd.safety.current_watch import CurrentWatch, Sample, current_watch, words
 
@@ -68,15 +68,19 @@ class CurrentSide(LoopState):
         off, the SSR's carrying the hold). Never at full power: a period short of it is no
         ramp for the heat balance, the reach watch or a ready-by heat-up, and a short there
         harms nothing until the output falls, when the first gap shows it. Not where the
-        planner's least gap is too short for two reads (the config's minimums left no room)."""
+        planner's least gap is too short for two reads (the config's minimums left no room);
+        one longer than two reads (`output.min_off`) as much rarer, for the same share."""
         watch, planner, element2 = self._current_watch, self.planner, self.element2
-        read, margin = read_and_margin(self.config.output.mains_hz)
+        hz = self.config.output.mains_hz
+        read, margin = read_and_margin(hz)
+        gap = planner.min_off_slots * planner.half_cycle
+        every = PROOF_EVERY_S * max(1.0, gap / two_reads_part(hz))
         switched2 = None if element2 is None else 100.0 * element2.state(now)[0]
         return (
             watch is not None
             and watch.judging
-            and start - self._current_off_t >= PROOF_EVERY_S
-            and planner.min_off_slots * planner.half_cycle >= 3 * (read + margin)
+            and start - self._current_off_t >= every
+            and gap >= 3 * (read + margin)
             and not full_power(self.config).reached(self.output, switched2)
         )
 
