@@ -71,15 +71,15 @@ class CurrentSide(LoopState):
         planner's least gap is too short for two reads (the config's minimums left no room);
         one longer than two reads (`output.min_off`) as much rarer, for the same share."""
         watch, planner, element2 = self._current_watch, self.planner, self.element2
+        if watch is None or not watch.judging:
+            return False
         hz = self.config.output.mains_hz
         read, margin = read_and_margin(hz)
         gap = planner.min_off_slots * planner.half_cycle
         every = PROOF_EVERY_S * max(1.0, gap / two_reads_part(hz))
         switched2 = None if element2 is None else 100.0 * element2.state(now)[0]
         return (
-            watch is not None
-            and watch.judging
-            and start - self._current_off_t >= every
+            start - self._current_off_t >= every
             and gap >= 3 * (read + margin)
             and not full_power(self.config).reached(self.output, switched2)
         )
