@@ -101,9 +101,9 @@ class TimeProportionalPlanner:
         slots = self.slots
         carried, deferred = self._carry, 0.0
         if duty <= 0.0 or duty >= 100.0:
-            # Fully off or fully on: no edges inside the window and nothing owed (what was
-            # carried is forgotten, not deferred).
-            on = 0 if duty <= 0.0 else slots - self.min_off_slots if gap else slots
+            # Fully off or fully on: no edges inside the window (but a gap's) and nothing owed
+            # (what was carried is forgotten, not deferred).
+            on = 0 if duty <= 0.0 else (slots - self.min_off_slots if gap else slots)
             self._carry = 0.0
         else:
             wanted = duty / 100.0 * slots + self._carry
