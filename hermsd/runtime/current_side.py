@@ -26,6 +26,18 @@ else:
     LoopState = object
 
 
+def _reads_in(start: float, span: float, mains_hz: int) -> list[float]:
+    """When to read in a part of a window (on, or off) from `start`, `span` s long, each read
+    kept a half-cycle and EDGE_SLACK_S from its edges: at its thirds where two reads fit with
+    room, else one in its middle where one fits, else none."""
+    read, margin = read_and_margin(mains_hz)
+    if span >= 3 * (read + margin):
+        return [start + span / 3, start + 2 * span / 3]
+    if span >= read + 2 * margin:
+        return [start + (span - read) / 2]
+    return []
+
+
 class CurrentSide(LoopState):
     """The Daemon's current input: its sense, its watch and the period's samples."""
 
@@ -44,21 +56,14 @@ class CurrentSide(LoopState):
         self._current_off_t = -math.inf  # the last off-sample read: none yet
 
     def _current_times(self, plan: WindowPlan, now: float) -> list[float]:
-        """When to sample in `plan` after `now`, each read (two mains cycles) kept a half-cycle
-        and EDGE_SLACK_S from the edges of its part (on, or off): at the part's thirds where
-        two reads fit with room, else one in its middle where one fits, else none."""
+        """When to sample in `plan` after `now`: in each of its parts, on and off, as
+        `_reads_in` places a read (two mains cycles)."""
         if self._current_sense is None:
             return []
-        read, margin = read_and_margin(self.config.output.mains_hz)
+        hz = self.config.output.mains_hz
         end = plan.start + plan.length
         parts = [(plan.start, plan.on_at), (plan.on_at, plan.off_at), (plan.off_at, end)]
-        times = []
-        for start, stop in parts:
-            span = stop - start
-            if span >= 3 * (read + margin):
-                times += [start + span / 3, start + 2 * span / 3]
-            elif span >= read + 2 * margin:
-                times.append(start + (span - read) / 2)
+        times = [t for start, stop in parts for t in _reads_in(start, stop - start, hz)]
         return [t for t in times if t > now]
 
     def _current_gap_due(self, start: float, now: float) -> bool:
@@ -74,13 +79,12 @@ class CurrentSide(LoopState):
         if watch is None or not watch.judging:
             return False
         hz = self.config.output.mains_hz
-        read, margin = read_and_margin(hz)
         gap = planner.min_off_slots * planner.half_cycle
         every = PROOF_EVERY_S * max(1.0, gap / two_reads_part(hz))
         switched2 = None if element2 is None else 100.0 * element2.state(now)[0]
         return (
             start - self._current_off_t >= every
-            and gap >= 3 * (read + margin)
+            and len(_reads_in(0.0, gap, hz)) == 2
             and not full_power(self.config).reached(self.output, switched2)
         )
 
